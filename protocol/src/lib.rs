@@ -1,0 +1,39 @@
+//! The wire contract between the gonio instrument and its host.
+//!
+//! One small `no_std`, allocation-free crate that firmware, simulator and host all
+//! share (the postcard-rpc "ICD" pattern): every message ([`messages`]), the framing
+//! ([`framing`]: postcard + CRC-32 + COBS), the geometry type ([`geometry`]) and the
+//! measurement schedules of the method ([`schedules`]). Nothing else lives here.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod framing;
+pub mod geometry;
+pub mod messages;
+pub mod schedules;
+
+pub use framing::{FrameDecoder, FrameError, encode_frame};
+pub use geometry::{Angle, Geometry};
+pub use messages::*;
+
+/// Version of this wire contract. Bumped on any change to the encoding of a message;
+/// the handshake refuses a peer with a different version.
+///
+/// `Command::Hello` and the leading `protocol_version` of its reply keep their encoding
+/// across versions, so that a mismatch can always be reported in words.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+/// Largest encoded frame on the wire, delimiter included. Sized for the largest message
+/// (a schedule chunk or the device info) with margin; both sides size their buffers to it.
+pub const MAX_FRAME_LEN: usize = 256;
+
+/// Largest postcard payload of one frame (the CRC and the COBS overhead take the rest).
+pub const MAX_PAYLOAD_LEN: usize = MAX_FRAME_LEN - 1 - 4 - MAX_FRAME_LEN.div_ceil(254);
+
+/// USB identity of the instrument (pid.codes test VID/PID until a pair is assigned).
+pub const USB_VID: u16 = 0x1209;
+/// See [`USB_VID`].
+pub const USB_PID: u16 = 0x0001;
+/// USB product string; host auto-detection matches on it as well as VID/PID.
+pub const USB_PRODUCT: &str = "gonio reflectometer";

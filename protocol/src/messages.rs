@@ -1,0 +1,471 @@
+//! Every message of the wire contract.
+//!
+//! The host sends [`Request`]s, each with a sequence number. The device sends
+//! [`DeviceMessage`]s: a [`DeviceMessage::Reply`] names the sequence it answers and
+//! carries either a [`Reply`] or a domain [`DeviceError`]; streamed readings carry the
+//! schedule id and geometry index so the host can detect loss and duplication.
+//! Transport failures (bad frames) are [`crate::FrameError`]s and stay out of these types,
+//! except for the device telling the host that it dropped a frame
+//! ([`DeviceMessage::FrameRejected`]), which has no sequence number to answer.
+//!
+//! Compatibility rule: `Command::Hello` (variant 0), `DeviceMessage::Reply` (variant 0),
+//! `Result::Err` and [`DeviceError`] never change encoding, so a peer of any version can
+//! read a version-mismatch refusal.
+
+use crate::geometry::Geometry;
+use core::fmt;
+use heapless::{String, Vec};
+use serde::{Deserialize, Serialize};
+
+/// Geometries per [`ScheduleChunk`]; a longer schedule is uploaded in several chunks.
+pub const SCHEDULE_CHUNK_LEN: usize = 16;
+/// Most detector ranges a device can announce.
+pub const MAX_RANGES: usize = 4;
+
+/// A host request: a sequence number and a command.
+///
+/// The device answers every request exactly once per sequence number: a request repeated
+/// with the same `seq` (a retry after a lost reply) is answered again, not executed again.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Request {
+    /// Chosen by the host, increasing; echoed in the reply.
+    pub seq: u32,
+    /// What to do.
+    pub command: Command,
+}
+
+/// What the host asks of the device.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    /// Handshake: the host's protocol version. Answered with [`Reply::Hello`], or with
+    /// [`ErrorCode::VersionMismatch`] (detail: the device's version). Until a matching
+    /// `Hello`, every other command is refused with `VersionMismatch`.
+    Hello {
+        /// [`crate::PROTOCOL_VERSION`] of the host.
+        protocol_version: u16,
+    },
+    /// Keeps the session alive while the arms move or the lamp is on; answered with `Ack`.
+    Heartbeat,
+    /// Answered with [`Reply::Status`].
+    GetStatus,
+    /// Home both arms; answered with [`Reply::Homed`] when done.
+    Home,
+    /// Move both arms to a geometry; answered with `Ack` once there and settled.
+    MoveTo(Geometry),
+    /// Switch the lamp; answered with `Ack`.
+    SetLamp {
+        /// On or off.
+        on: bool,
+    },
+    /// Dark readings, lamp off, one per detector range; answered with [`Reply::Dark`].
+    TakeDark {
+        /// Integration time per range.
+        integration_ms: u16,
+    },
+    /// One auto-ranged reading at the current position; answered with [`Reply::Reading`].
+    TakeReading {
+        /// Integration time.
+        integration_ms: u16,
+        /// What is on the sample port.
+        target: Target,
+    },
+    /// Part of a host-made schedule; answered with [`Reply::ScheduleLoaded`].
+    UploadSchedule(ScheduleChunk),
+    /// Run a schedule; answered with [`Reply::ScheduleStarted`], then one
+    /// [`DeviceMessage::Reading`] per geometry and a [`DeviceMessage::ScheduleDone`].
+    RunSchedule(RunSchedule),
+    /// Stop motion (ramped) and any schedule now; answered with `Ack`. Accepted in any state.
+    Abort,
+}
+
+/// What is on the sample port while a reading is taken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Target {
+    /// The sample under test.
+    Sample,
+    /// The white reference tile (white calibration or white check).
+    WhiteReference,
+}
+
+/// One chunk of a host-made schedule. Chunks arrive in order: `offset` is the number of
+/// geometries already received for this `schedule_id`; a chunk with `offset` 0 starts over.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ScheduleChunk {
+    /// Host-chosen id, echoed by every streamed reading of the schedule.
+    pub schedule_id: u16,
+    /// Length of the whole schedule.
+    pub total_len: u16,
+    /// Index of this chunk's first geometry in the schedule.
+    pub offset: u16,
+    /// The geometries, in the order the host wants them visited.
+    pub geometries: Vec<Geometry, SCHEDULE_CHUNK_LEN>,
+}
+
+/// Which schedule to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ScheduleSource {
+    /// The built-in 12 geometries of Strategy 1, in the device's fixed fast order.
+    Strategy1,
+    /// The last fully uploaded schedule with this run's `schedule_id`, in its given order.
+    Uploaded,
+}
+
+/// Run a schedule.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RunSchedule {
+    /// Labels the streamed readings (for `Uploaded`, selects the schedule).
+    pub schedule_id: u16,
+    /// Built-in or uploaded.
+    pub source: ScheduleSource,
+    /// Integration time of every reading.
+    pub integration_ms: u16,
+    /// What is on the sample port.
+    pub target: Target,
+}
+
+/// Everything the device may send.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DeviceMessage {
+    /// The answer to the request with sequence number `seq`.
+    Reply {
+        /// The request's sequence number.
+        seq: u32,
+        /// The outcome.
+        result: Result<Reply, DeviceError>,
+    },
+    /// One reading of a running schedule, sent as soon as it is taken.
+    Reading(StreamReading),
+    /// A schedule ended (completed, aborted or failed).
+    ScheduleDone(ScheduleDone),
+    /// A frame arrived that the device could not read; it has no sequence number to answer.
+    FrameRejected {
+        /// [`ErrorCode::BadFrame`], [`ErrorCode::BadCrc`] or [`ErrorCode::UnknownMessage`].
+        code: ErrorCode,
+    },
+    /// The device went to its safe state on its own (arms stopped, lamp off), and why.
+    Stopped {
+        /// The reason, e.g. [`ErrorCode::HeartbeatLost`] or [`ErrorCode::HardwareFault`].
+        reason: ErrorCode,
+    },
+}
+
+/// A successful answer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Reply {
+    /// Answer to `Hello`.
+    Hello(DeviceInfo),
+    /// Done (heartbeat, move, lamp, abort).
+    Ack,
+    /// Answer to `GetStatus`.
+    Status(Status),
+    /// Answer to `Home`.
+    Homed(HomeReport),
+    /// Answer to `TakeReading`.
+    Reading(Reading),
+    /// Answer to `TakeDark`: one reading per range, most sensitive first.
+    Dark(Vec<Reading, MAX_RANGES>),
+    /// Answer to `UploadSchedule`.
+    ScheduleLoaded {
+        /// The schedule.
+        schedule_id: u16,
+        /// Geometries received so far.
+        received: u16,
+        /// Announced length.
+        total_len: u16,
+    },
+    /// Answer to `RunSchedule`: accepted and started.
+    ScheduleStarted {
+        /// The schedule.
+        schedule_id: u16,
+        /// Number of readings that will stream.
+        len: u16,
+    },
+}
+
+/// A refused or failed request: a stable code and a code-specific detail.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DeviceError {
+    /// What went wrong.
+    pub code: ErrorCode,
+    /// Code-specific: the device's version for `VersionMismatch`, the arm (0 = source,
+    /// 1 = detector) for `OutOfRange` and homing faults, the limit for `ScheduleTooLong`,
+    /// the expected offset for `BadSchedule`; otherwise 0.
+    pub detail: i32,
+}
+
+impl DeviceError {
+    /// An error with no detail.
+    pub const fn new(code: ErrorCode) -> DeviceError {
+        DeviceError { code, detail: 0 }
+    }
+
+    /// An error with a detail.
+    pub const fn with_detail(code: ErrorCode, detail: i32) -> DeviceError {
+        DeviceError { code, detail }
+    }
+}
+
+impl fmt::Display for DeviceError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} (code {}", self.code.description(), self.code.code())?;
+        if self.detail != 0 {
+            write!(f, ", detail {}", self.detail)?;
+        }
+        f.write_str(")")
+    }
+}
+
+macro_rules! error_codes {
+    ($($(#[doc = $doc:literal])* $name:ident = $code:literal, $text:literal;)*) => {
+        /// Domain error codes. The numbers are stable across protocol versions: they are
+        /// what goes on the wire, and what logs and users quote.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+        #[serde(from = "u16", into = "u16")]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        pub enum ErrorCode {
+            $($(#[doc = $doc])* $name,)*
+            /// A code this side does not know (sent by a newer peer).
+            Unknown(u16),
+        }
+
+        impl ErrorCode {
+            /// Every known code, in numeric order.
+            pub const ALL: &'static [ErrorCode] = &[$(ErrorCode::$name,)*];
+
+            /// The stable number.
+            pub const fn code(self) -> u16 {
+                match self {
+                    $(ErrorCode::$name => $code,)*
+                    ErrorCode::Unknown(code) => code,
+                }
+            }
+
+            /// A short sentence for people.
+            pub const fn description(self) -> &'static str {
+                match self {
+                    $(ErrorCode::$name => $text,)*
+                    ErrorCode::Unknown(_) => "unknown error code (peer is newer)",
+                }
+            }
+        }
+
+        impl From<u16> for ErrorCode {
+            fn from(code: u16) -> ErrorCode {
+                match code {
+                    $($code => ErrorCode::$name,)*
+                    other => ErrorCode::Unknown(other),
+                }
+            }
+        }
+    };
+}
+
+error_codes! {
+    /// A frame could not be COBS-decoded or had bytes after its CRC.
+    BadFrame = 1, "bad frame";
+    /// A frame's CRC-32 did not match its payload.
+    BadCrc = 2, "bad CRC";
+    /// A well-formed frame that is no message of this protocol version.
+    UnknownMessage = 3, "unknown message";
+    /// A frame longer than the maximum frame length.
+    FrameTooLong = 4, "frame too long";
+    /// The peers speak different protocol versions.
+    VersionMismatch = 5, "protocol version mismatch";
+    /// Motion or measurement before both arms are homed.
+    NotHomed = 6, "arms not homed";
+    /// A target outside an arm's working range.
+    OutOfRange = 7, "target out of range";
+    /// A target breaking the collision guard θi + θr ≥ 10°.
+    CollisionGuard = 8, "target breaks the collision guard";
+    /// Another operation is running.
+    Busy = 9, "busy";
+    /// A schedule longer than the device holds.
+    ScheduleTooLong = 10, "schedule too long";
+    /// The operation was aborted.
+    Aborted = 11, "aborted";
+    /// A hardware fault (driver, ADC, lamp).
+    HardwareFault = 12, "hardware fault";
+    /// Homing did not find the switch within the search range.
+    HomeSwitchNotFound = 13, "home switch not found";
+    /// The home switch did not release when backing off.
+    HomeSwitchStuck = 14, "home switch does not release";
+    /// No frame from the host for too long while moving or lit: safe stop.
+    HeartbeatLost = 15, "host heartbeat lost";
+    /// Running an uploaded schedule that is missing or incomplete.
+    NoSchedule = 16, "no complete schedule with that id";
+    /// A schedule chunk out of order or inconsistent with its announced length.
+    BadSchedule = 17, "bad schedule chunk";
+    /// A parameter out of its allowed range (e.g. integration time).
+    InvalidArgument = 18, "invalid argument";
+    /// The MCU was reset by its watchdog; arms count as not homed.
+    WatchdogReset = 19, "reset by watchdog";
+}
+
+impl From<ErrorCode> for u16 {
+    fn from(code: ErrorCode) -> u16 {
+        code.code()
+    }
+}
+
+impl fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} (code {})", self.description(), self.code())
+    }
+}
+
+/// What the device is and can do: the answer to `Hello`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DeviceInfo {
+    /// The device's [`crate::PROTOCOL_VERSION`]; first, so it is readable by any version.
+    pub protocol_version: u16,
+    /// Firmware version (semver).
+    pub firmware_version: String<16>,
+    /// Board name.
+    pub board: String<32>,
+    /// Working range of both arms: lowest angle.
+    pub arm_min: crate::Angle,
+    /// Working range of both arms: highest angle.
+    pub arm_max: crate::Angle,
+    /// Arm resolution (one microstep).
+    pub arm_resolution: crate::Angle,
+    /// Collision guard: every target keeps θi + θr at or above this.
+    pub collision_min_sum: crate::Angle,
+    /// Arm speed limit.
+    pub max_speed_deg_per_s: f32,
+    /// Arm acceleration limit.
+    pub accel_deg_per_s2: f32,
+    /// Settling time after every move.
+    pub settle_ms: u16,
+    /// Detector ranges, most sensitive first.
+    pub detector_ranges: Vec<DetectorRange, MAX_RANGES>,
+    /// Detector angular acceptance, full width.
+    pub acceptance_deg: f32,
+    /// Longest schedule the device holds.
+    pub max_schedule_len: u16,
+    /// Default integration time.
+    pub default_integration_ms: u16,
+    /// Longest integration time accepted.
+    pub max_integration_ms: u16,
+}
+
+/// One detector range.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DetectorRange {
+    /// Gain relative to the most sensitive range (1, 0.1, 0.01 for decade steps).
+    pub relative_gain: f32,
+    /// ADC counts at full scale.
+    pub full_scale_counts: u32,
+}
+
+/// One detector reading: statistics of the samples taken over the integration time.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Reading {
+    /// Mean of the samples, in ADC counts (dark offset included).
+    pub mean_counts: f32,
+    /// Standard deviation of the samples, in counts.
+    pub std_counts: f32,
+    /// Number of samples.
+    pub samples: u32,
+    /// Index of the range it was taken on (into `DeviceInfo::detector_ranges`).
+    pub range: u8,
+    /// Integration time.
+    pub integration_ms: u16,
+    /// Saturated on the least sensitive range: the mean is a lower bound, not a value.
+    pub saturated: bool,
+}
+
+/// One reading of a running schedule.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StreamReading {
+    /// The schedule.
+    pub schedule_id: u16,
+    /// Index of the geometry in the schedule.
+    pub index: u16,
+    /// The geometry actually reached.
+    pub geometry: Geometry,
+    /// What was on the sample port.
+    pub target: Target,
+    /// The reading.
+    pub reading: Reading,
+    /// Device time at the end of the integration, µs since boot.
+    pub device_time_us: u64,
+}
+
+/// The end of a schedule.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ScheduleDone {
+    /// The schedule.
+    pub schedule_id: u16,
+    /// Readings streamed.
+    pub readings: u16,
+    /// Device time the schedule took, µs.
+    pub device_us: u64,
+    /// `None` when completed; otherwise why it stopped early.
+    pub error: Option<ErrorCode>,
+}
+
+/// What the device is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DeviceState {
+    /// Waiting for a command.
+    Idle,
+    /// Homing the arms.
+    Homing,
+    /// Moving the arms.
+    Moving,
+    /// Taking a reading.
+    Measuring,
+    /// Running a schedule.
+    RunningSchedule,
+    /// In the safe state after a fault; cleared by the next `Home`.
+    Stopped,
+}
+
+/// The answer to `GetStatus`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// What the device is doing.
+    pub state: DeviceState,
+    /// Where the arms are (meaningful only where homed).
+    pub position: Geometry,
+    /// Source arm homed.
+    pub homed_i: bool,
+    /// Detector arm homed.
+    pub homed_r: bool,
+    /// Lamp on.
+    pub lamp_on: bool,
+    /// The last fault, until cleared by homing.
+    pub fault: Option<ErrorCode>,
+    /// The running schedule: id and readings taken so far.
+    pub schedule: Option<(u16, u16)>,
+    /// µs since boot.
+    pub uptime_us: u64,
+}
+
+/// The answer to `Home`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct HomeReport {
+    /// Source arm: where the switch was found minus where the arm believed it was, in
+    /// ticks; `None` on the first homing after power-up (nothing to compare). Non-zero
+    /// means lost steps.
+    pub step_error_i: Option<i32>,
+    /// Detector arm: likewise.
+    pub step_error_r: Option<i32>,
+}
