@@ -1,1 +1,31 @@
-fn main() {}
+//! `gonio`: the host command line. One module per subcommand in `host::cli`, each with
+//! its own clap struct and `run()`.
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "gonio", version, about = "Gonio-reflectometer host: measure, fit and classify white papers")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Fit the TSL model to measured radiance factors and classify each data set.
+    Fit(host::cli::fit::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Fit(args) => host::cli::fit::run(args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,2 @@
+//! One module per `gonio` subcommand, each with its clap `Args` and `run()`.
+pub mod fit;
