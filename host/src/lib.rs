@@ -1,3 +1,5 @@
 //! The gonio host library: the science (model, fit, schedules' use, classification), the
 //! link to the instrument, the session, and the command-line subcommands.
 pub mod cli;
+pub mod link;
+pub mod sim_link;

@@ -308,6 +308,8 @@ error_codes! {
     InvalidArgument = 18, "invalid argument";
     /// The MCU was reset by its watchdog; arms count as not homed.
     WatchdogReset = 19, "reset by watchdog";
+    /// A command this firmware build does not carry out.
+    NotSupported = 20, "not supported by this firmware";
 }
 
 impl From<ErrorCode> for u16 {

@@ -1,0 +1,94 @@
+//! Limits of the reference instrument (INSTRUMENT.md). Each value is where it is
+//! defined; change one only with a reason written beside it.
+
+use protocol::{Angle, DetectorRange, DeviceInfo, PROTOCOL_VERSION};
+
+/// Limits and timing of the instrument a firmware build drives.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InstrumentConfig {
+    /// Board name for the handshake.
+    pub board: &'static str,
+    /// Working range of both arms.
+    pub arm_min: Angle,
+    /// Working range of both arms.
+    pub arm_max: Angle,
+    /// Every target keeps θi + θr at or above this (the arms touch near the normal).
+    pub collision_min_sum: Angle,
+    /// Arm speed limit, °/s.
+    pub max_speed_deg_per_s: f32,
+    /// Arm acceleration limit, °/s².
+    pub accel_deg_per_s2: f32,
+    /// Settling time after a move.
+    pub settle_ms: u16,
+    /// Detector ranges, most sensitive first.
+    pub detector_ranges: &'static [DetectorRange],
+    /// Detector acceptance, full width, degrees.
+    pub acceptance_deg: f32,
+    /// Longest schedule held.
+    pub max_schedule_len: u16,
+    /// Default integration time.
+    pub default_integration_ms: u16,
+    /// Longest integration time accepted.
+    pub max_integration_ms: u16,
+    /// The host must be heard this often while the arms move or the lamp is on.
+    pub heartbeat_timeout_ms: u32,
+}
+
+/// 16-bit-effective ADC path: full scale in counts.
+const FULL_SCALE_COUNTS: u32 = 65_535;
+
+/// Three transimpedance ranges a decade apart, most sensitive first.
+const REFERENCE_RANGES: [DetectorRange; 3] = [
+    DetectorRange { relative_gain: 1.0, full_scale_counts: FULL_SCALE_COUNTS },
+    DetectorRange { relative_gain: 0.1, full_scale_counts: FULL_SCALE_COUNTS },
+    DetectorRange { relative_gain: 0.01, full_scale_counts: FULL_SCALE_COUNTS },
+];
+
+impl InstrumentConfig {
+    /// The reference instrument of INSTRUMENT.md.
+    pub const REFERENCE: InstrumentConfig = InstrumentConfig {
+        board: "gonio STM32F411 black pill",
+        arm_min: Angle::from_whole_deg(0),
+        arm_max: Angle::from_whole_deg(85),
+        collision_min_sum: Angle::from_whole_deg(10),
+        max_speed_deg_per_s: 60.0,
+        accel_deg_per_s2: 180.0,
+        settle_ms: 100,
+        detector_ranges: &REFERENCE_RANGES,
+        acceptance_deg: 1.0,
+        // Strategy 2 at δ = 1° is 91 geometries and the full grid 284: hold the full grid.
+        max_schedule_len: protocol::schedules::MAX_SCHEDULE_LEN as u16,
+        default_integration_ms: 100,
+        max_integration_ms: 10_000,
+        heartbeat_timeout_ms: 2_000,
+    };
+
+    /// The handshake answer for this configuration.
+    pub fn device_info(&self) -> DeviceInfo {
+        let mut firmware_version = heapless::String::new();
+        let _ = firmware_version.push_str(crate::FIRMWARE_VERSION);
+        let mut board = heapless::String::new();
+        let _ = board.push_str(self.board);
+        let mut detector_ranges = heapless::Vec::new();
+        for range in self.detector_ranges.iter().take(protocol::MAX_RANGES) {
+            let _ = detector_ranges.push(*range);
+        }
+        DeviceInfo {
+            protocol_version: PROTOCOL_VERSION,
+            firmware_version,
+            board,
+            arm_min: self.arm_min,
+            arm_max: self.arm_max,
+            arm_resolution: Angle::from_ticks(1),
+            collision_min_sum: self.collision_min_sum,
+            max_speed_deg_per_s: self.max_speed_deg_per_s,
+            accel_deg_per_s2: self.accel_deg_per_s2,
+            settle_ms: self.settle_ms,
+            detector_ranges,
+            acceptance_deg: self.acceptance_deg,
+            max_schedule_len: self.max_schedule_len,
+            default_integration_ms: self.default_integration_ms,
+            max_integration_ms: self.max_integration_ms,
+        }
+    }
+}

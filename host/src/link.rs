@@ -1,0 +1,246 @@
+//! The host end of the link: requests with sequence numbers, replies matched to them,
+//! timeouts and retries, and the handshake.
+//!
+//! The host never trusts that the device heard a request until it has the answer: a
+//! request whose reply does not arrive in time is sent again with the same sequence
+//! number, which the firmware answers without acting twice.
+
+use protocol::{
+    Command, DeviceError, DeviceInfo, DeviceMessage, ErrorCode, FrameDecoder, FrameError, MAX_FRAME_LEN,
+    PROTOCOL_VERSION, Reply, Request,
+};
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// A byte pipe to an instrument: a serial port, a pseudo-terminal, or the simulator in
+/// process.
+pub trait Transport {
+    /// Write all of `bytes`.
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()>;
+    /// Read what is available into `buf`, waiting at most `timeout`; `Ok(0)` on timeout.
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize>;
+}
+
+/// Why a request failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    /// The byte pipe failed.
+    #[error("link I/O error: {0}")]
+    Io(#[from] std::io::Error),
+    /// No reply after every retry.
+    #[error("no reply from the instrument to request {seq} ({command}) after {attempts} attempts")]
+    NoReply {
+        /// The request.
+        seq: u32,
+        /// What it was.
+        command: &'static str,
+        /// How often it was sent.
+        attempts: u32,
+    },
+    /// The device refused or failed the request.
+    #[error("the instrument refused {command}: {error}")]
+    Device {
+        /// What it was.
+        command: &'static str,
+        /// The device's reason.
+        error: DeviceError,
+    },
+    /// The peers speak different protocol versions.
+    #[error(
+        "protocol version mismatch: this host speaks version {host}, the instrument version {device}; {}",
+        version_advice(*host, *device)
+    )]
+    VersionMismatch {
+        /// Our version.
+        host: u16,
+        /// The device's version.
+        device: u16,
+    },
+    /// A reply of the wrong kind for the request.
+    #[error("unexpected reply to {command}: {reply:?}")]
+    UnexpectedReply {
+        /// What it was.
+        command: &'static str,
+        /// What came back.
+        reply: Box<Reply>,
+    },
+}
+
+fn version_advice(host: u16, device: u16) -> &'static str {
+    if device > host {
+        "update the host software (gonio) to a release that speaks the instrument's version"
+    } else {
+        "update the instrument's firmware (see firmware/board/README.md)"
+    }
+}
+
+/// Timing of requests.
+#[derive(Clone, Copy, Debug)]
+pub struct RetryPolicy {
+    /// How long to wait for a reply before sending the request again.
+    pub reply_timeout: Duration,
+    /// How many times a request is sent at most.
+    pub attempts: u32,
+}
+
+impl Default for RetryPolicy {
+    fn default() -> Self {
+        RetryPolicy { reply_timeout: Duration::from_millis(500), attempts: 4 }
+    }
+}
+
+/// Counters of what went wrong on the link, for the session report.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Frames from the device that could not be read.
+    pub bad_frames: u32,
+    /// Requests sent again after a timeout.
+    pub retries: u32,
+    /// Frames the device reported it could not read.
+    pub rejected_by_device: u32,
+}
+
+/// A request/reply client over a [`Transport`].
+pub struct Client<T: Transport> {
+    transport: T,
+    decoder: FrameDecoder,
+    next_seq: u32,
+    policy: RetryPolicy,
+    /// Messages that arrived while waiting for a reply (streamed readings, stops).
+    unsolicited: VecDeque<DeviceMessage>,
+    stats: LinkStats,
+}
+
+fn command_name(command: &Command) -> &'static str {
+    match command {
+        Command::Hello { .. } => "Hello",
+        Command::Heartbeat => "Heartbeat",
+        Command::GetStatus => "GetStatus",
+        Command::Home => "Home",
+        Command::MoveTo(_) => "MoveTo",
+        Command::SetLamp { .. } => "SetLamp",
+        Command::TakeDark { .. } => "TakeDark",
+        Command::TakeReading { .. } => "TakeReading",
+        Command::UploadSchedule(_) => "UploadSchedule",
+        Command::RunSchedule(_) => "RunSchedule",
+        Command::Abort => "Abort",
+    }
+}
+
+impl<T: Transport> Client<T> {
+    /// A client over `transport`.
+    pub fn new(transport: T, policy: RetryPolicy) -> Client<T> {
+        Client {
+            transport,
+            decoder: FrameDecoder::new(),
+            next_seq: 1,
+            policy,
+            unsolicited: VecDeque::new(),
+            stats: LinkStats::default(),
+        }
+    }
+
+    /// The transport, e.g. to inspect a simulator.
+    pub fn transport_mut(&mut self) -> &mut T {
+        &mut self.transport
+    }
+
+    /// What went wrong on the link so far.
+    pub fn stats(&self) -> LinkStats {
+        self.stats
+    }
+
+    /// Handshake: our protocol version for the device's description.
+    pub fn hello(&mut self) -> Result<DeviceInfo, LinkError> {
+        let version_error = |device: u16| LinkError::VersionMismatch { host: PROTOCOL_VERSION, device };
+        match self.request(Command::Hello { protocol_version: PROTOCOL_VERSION }) {
+            Ok(Reply::Hello(info)) if info.protocol_version == PROTOCOL_VERSION => Ok(info),
+            Ok(Reply::Hello(info)) => Err(version_error(info.protocol_version)),
+            Ok(reply) => Err(LinkError::UnexpectedReply { command: "Hello", reply: Box::new(reply) }),
+            Err(LinkError::Device { error, .. }) if error.code == ErrorCode::VersionMismatch => {
+                Err(version_error(u16::try_from(error.detail).unwrap_or(u16::MAX)))
+            }
+            Err(other) => Err(other),
+        }
+    }
+
+    /// Send `command` and wait for its reply, retrying with the same sequence number.
+    pub fn request(&mut self, command: Command) -> Result<Reply, LinkError> {
+        let seq = self.next_seq;
+        self.next_seq = self.next_seq.wrapping_add(1).max(1);
+        let name = command_name(&command);
+        let request = Request { seq, command };
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let frame = protocol::encode_frame(&request, &mut buf)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
+        for attempt in 0..self.policy.attempts {
+            if attempt > 0 {
+                self.stats.retries += 1;
+            }
+            self.transport.write_all(frame)?;
+            if let Some(result) = self.wait_for_reply(seq)? {
+                return result.map_err(|error| LinkError::Device { command: name, error });
+            }
+        }
+        Err(LinkError::NoReply { seq, command: name, attempts: self.policy.attempts })
+    }
+
+    /// Wait up to the reply timeout for the reply to `seq`; other messages are queued.
+    fn wait_for_reply(&mut self, seq: u32) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
+        let deadline = std::time::Instant::now() + self.policy.reply_timeout;
+        loop {
+            while let Some(message) = self.next_message(deadline)? {
+                match message {
+                    DeviceMessage::Reply { seq: answered, result } if answered == seq => return Ok(Some(result)),
+                    // A late duplicate answer to an earlier request: already handled.
+                    DeviceMessage::Reply { .. } => {}
+                    DeviceMessage::FrameRejected { .. } => self.stats.rejected_by_device += 1,
+                    other => self.unsolicited.push_back(other),
+                }
+            }
+            if std::time::Instant::now() >= deadline {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// The next message that is not a reply (a streamed reading, a schedule end, a stop),
+    /// waiting at most `timeout`.
+    pub fn next_unsolicited(&mut self, timeout: Duration) -> Result<Option<DeviceMessage>, LinkError> {
+        if let Some(message) = self.unsolicited.pop_front() {
+            return Ok(Some(message));
+        }
+        let deadline = std::time::Instant::now() + timeout;
+        while let Some(message) = self.next_message(deadline)? {
+            match message {
+                DeviceMessage::Reply { .. } => {}
+                DeviceMessage::FrameRejected { .. } => self.stats.rejected_by_device += 1,
+                other => return Ok(Some(other)),
+            }
+        }
+        Ok(None)
+    }
+
+    /// Read until one message is decoded or `deadline` passes.
+    fn next_message(&mut self, deadline: std::time::Instant) -> Result<Option<DeviceMessage>, LinkError> {
+        let mut byte = [0u8; 1];
+        loop {
+            let now = std::time::Instant::now();
+            if now >= deadline {
+                return Ok(None);
+            }
+            // One byte at a time keeps bytes of the next frame in the transport; the
+            // transports buffer, so this costs no system call per byte.
+            if self.transport.read(&mut byte, deadline - now)? == 0 {
+                continue;
+            }
+            match self.decoder.push::<DeviceMessage>(byte[0]) {
+                Some(Ok(message)) => return Ok(Some(message)),
+                Some(Err(FrameError::UnknownMessage | FrameError::BadCrc | FrameError::BadFrame | FrameError::TooLong)) => {
+                    self.stats.bad_frames += 1
+                }
+                Some(Err(FrameError::MessageTooLarge)) | None => {}
+            }
+        }
+    }
+}
