@@ -1,0 +1,82 @@
+//! The handshake end to end: the host's link client against the firmware library
+//! (in the simulated instrument), through the real framing.
+
+use host::link::{Client, LinkError, RetryPolicy, Transport};
+use protocol::*;
+use std::time::Duration;
+
+#[test]
+fn host_and_firmware_agree_on_the_handshake() {
+    let mut client = Client::new(hil_sim::SimInstrument::new(), RetryPolicy::default());
+    let info = client.hello().expect("handshake");
+    assert_eq!(info.protocol_version, PROTOCOL_VERSION);
+    assert_eq!(info.board.as_str(), firmware::config::InstrumentConfig::REFERENCE.board);
+    assert!(matches!(client.request(Command::GetStatus), Ok(Reply::Status(_))));
+    assert_eq!(client.stats().retries, 0);
+}
+
+/// A device of another protocol version: it refuses our hello the way every version must.
+struct NewerDevice {
+    decoder: FrameDecoder,
+    out: Vec<u8>,
+}
+
+impl Transport for NewerDevice {
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        let mut requests = Vec::new();
+        self.decoder.feed(bytes, |r: Result<Request, FrameError>| requests.push(r));
+        for request in requests.into_iter().flatten() {
+            let reply = DeviceMessage::Reply {
+                seq: request.seq,
+                result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION) + 1)),
+            };
+            let mut buf = [0u8; MAX_FRAME_LEN];
+            self.out.extend_from_slice(encode_frame(&reply, &mut buf).unwrap());
+        }
+        Ok(())
+    }
+
+    fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> std::io::Result<usize> {
+        let n = buf.len().min(self.out.len());
+        buf[..n].copy_from_slice(&self.out[..n]);
+        self.out.drain(..n);
+        Ok(n)
+    }
+}
+
+#[test]
+fn host_refuses_a_newer_device_and_says_which_side_to_update() {
+    let mut client = Client::new(NewerDevice { decoder: FrameDecoder::new(), out: Vec::new() }, RetryPolicy::default());
+    let error = client.hello().unwrap_err();
+    assert!(matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == PROTOCOL_VERSION + 1));
+    let text = error.to_string();
+    assert!(text.contains("update the host software"), "{text}");
+}
+
+#[test]
+fn lost_reply_is_recovered_by_retrying_the_same_sequence() {
+    /// Drops the device's first reply, as a corrupted USB transfer would.
+    struct DropFirstReply {
+        sim: hil_sim::SimInstrument,
+        dropped: bool,
+    }
+    impl Transport for DropFirstReply {
+        fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+            self.sim.write(bytes);
+            if !self.dropped {
+                self.dropped = true;
+                let mut sink = [0u8; 4 * MAX_FRAME_LEN];
+                self.sim.read(&mut sink);
+            }
+            Ok(())
+        }
+        fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> std::io::Result<usize> {
+            Ok(self.sim.read(buf))
+        }
+    }
+    let policy = RetryPolicy { reply_timeout: Duration::from_millis(20), attempts: 3 };
+    let mut client = Client::new(DropFirstReply { sim: hil_sim::SimInstrument::new(), dropped: false }, policy);
+    let info = client.hello().expect("handshake after a retry");
+    assert_eq!(info.protocol_version, PROTOCOL_VERSION);
+    assert_eq!(client.stats().retries, 1);
+}
