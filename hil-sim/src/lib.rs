@@ -56,3 +56,6 @@ impl Default for SimInstrument {
         Self::new()
     }
 }
+
+pub mod detector;
+pub mod scene;

@@ -1,0 +1,57 @@
+//! What is on the sample port: a reflectance function handed in by the caller.
+//!
+//! The simulator does not know any reflectance model: the host or a test supplies the
+//! sample's radiance factor as a function of (θi, θr). While white-calibration readings
+//! are taken the port holds the white reference tile instead.
+
+use std::sync::Arc;
+
+/// A sample's radiance factor (BRDF × π) in the specular plane, angles in degrees.
+pub trait Scene: Send + Sync {
+    /// Radiance factor at source angle `theta_i_deg` and detector angle `theta_r_deg`.
+    fn radiance_factor(&self, theta_i_deg: f64, theta_r_deg: f64) -> f64;
+}
+
+impl<F: Fn(f64, f64) -> f64 + Send + Sync> Scene for F {
+    fn radiance_factor(&self, theta_i_deg: f64, theta_r_deg: f64) -> f64 {
+        self(theta_i_deg, theta_r_deg)
+    }
+}
+
+/// Certified radiance factor of the reference instrument's white tile (INSTRUMENT.md).
+pub const WHITE_TILE_RADIANCE_FACTOR: f64 = 0.99;
+
+/// The white reference tile: Lambertian, so the same radiance factor in every direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WhiteTile {
+    /// Certified radiance factor.
+    pub radiance_factor: f64,
+}
+
+impl Default for WhiteTile {
+    fn default() -> Self {
+        WhiteTile { radiance_factor: WHITE_TILE_RADIANCE_FACTOR }
+    }
+}
+
+impl Scene for WhiteTile {
+    fn radiance_factor(&self, _theta_i_deg: f64, _theta_r_deg: f64) -> f64 {
+        self.radiance_factor
+    }
+}
+
+/// The two things that can be on the port.
+#[derive(Clone)]
+pub struct SamplePort {
+    /// The sample under test.
+    pub sample: Arc<dyn Scene>,
+    /// The white reference tile.
+    pub white: WhiteTile,
+}
+
+impl SamplePort {
+    /// A port holding `sample`, with the default white tile for calibration.
+    pub fn new(sample: Arc<dyn Scene>) -> SamplePort {
+        SamplePort { sample, white: WhiteTile::default() }
+    }
+}
