@@ -1,0 +1,146 @@
+//! The board's pin table: the ONE place that says which MCU pin does what.
+//!
+//! WeAct "Black Pill" STM32F411CEU6 (UFQFPN48). Fixed by the board, not ours to move:
+//!
+//! | Pin         | Use                                   |
+//! |-------------|---------------------------------------|
+//! | PA11 / PA12 | USB OTG FS D- / D+                    |
+//! | PA13 / PA14 | SWDIO / SWCLK (probe-rs, defmt RTT)   |
+//! | PC13        | on-board blue LED, active low         |
+//! | PA0         | on-board KEY push button (to GND)     |
+//! | PH0 / PH1   | 25 MHz HSE crystal                    |
+//! | PC14 / PC15 | 32.768 kHz LSE crystal                |
+//! | PB2         | BOOT1 (strapped through a resistor)   |
+//! | PB3         | SWO (kept free for trace)             |
+//!
+//! The instrument's signals (the table below is the code, [`BoardPins`]):
+//!
+//! | Signal     | Pin  | Peripheral / why this pin                                   | Idle state            |
+//! |------------|------|-------------------------------------------------------------|-----------------------|
+//! | `step_i`   | PB10 | TIM2_CH3 (AF1): source-arm STEP from a hardware timer       | low                   |
+//! | `dir_i`    | PB12 | GPIO                                                        | low                   |
+//! | `en_i`     | PB13 | GPIO, TMC2209 EN is active LOW                              | high (driver off)     |
+//! | `step_r`   | PB0  | TIM3_CH3 (AF2): detector-arm STEP from a hardware timer     | low                   |
+//! | `dir_r`    | PB14 | GPIO                                                        | low                   |
+//! | `en_r`     | PB15 | GPIO, active LOW                                            | high (driver off)     |
+//! | `home_i`   | PB8  | EXTI8, switch to GND, internal pull-up                      | input                 |
+//! | `home_r`   | PB9  | EXTI9, switch to GND, internal pull-up                      | input                 |
+//! | `lamp_en`  | PA8  | TIM1_CH1 (AF1), so the lamp can be PWM-dimmed later         | low (lamp off)        |
+//! | `detector` | PA1  | ADC1_IN1: transimpedance amplifier output (0..3.3 V)        | analog                |
+//! | `range0`   | PB1  | GPIO, TIA range select bit 0                                | low                   |
+//! | `range1`   | PB5  | GPIO, TIA range select bit 1                                | low                   |
+//! | `range2`   | PA15 | GPIO, TIA range select bit 2 (JTDI: free, we use SWD only)  | low                   |
+//!
+//! Why these pins:
+//! - STEP pins sit on timer channels of two different general-purpose timers (TIM2, TIM3)
+//!   so each arm gets its own hardware pulse train. TIM4 is the embassy time driver
+//!   (`time-driver-tim4`), TIM1 is kept for the lamp, TIM5/TIM9–11 stay free.
+//! - The detector is on PA1, not PA0: PA0 carries the Black Pill's KEY button, which
+//!   would short the amplifier output when pressed.
+//! - Kept free on purpose: SPI1 on PA4 (NSS) / PA5 (SCK) / PA6 (MISO) / PA7 (MOSI) for an
+//!   external SPI ADC if the internal 12-bit ADC is not enough; USART1 on PA9 / PA10 for
+//!   the TMC2209 single-wire UART (PA9 is also the OTG VBUS sense pin); I2C1 on PB6 / PB7.
+//! - External parts the idle states rely on: a pull-up on each EN (drivers stay off while
+//!   the MCU is in reset), a pull-down on LAMP_EN.
+//!
+//! The board crate only puts these pins in their idle state; the motion and detector
+//! layers (a later issue) take them from [`BoardPins`].
+
+use embassy_stm32::Peri;
+use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
+use embassy_stm32::peripherals;
+
+/// Declares [`BoardPins`] and `take_board_pins!` from one list, so the pin table exists once.
+macro_rules! pin_table {
+    ($d:tt $($(#[doc = $doc:literal])* $field:ident: $pin:ident,)*) => {
+        /// Every instrument pin, by function (see the module table).
+        pub struct BoardPins {
+            $($(#[doc = $doc])* pub $field: Peri<'static, peripherals::$pin>,)*
+        }
+
+        /// Move the instrument pins out of `embassy_stm32::Peripherals`.
+        macro_rules! take_board_pins {
+            ($d p:ident) => {
+                $crate::pins::BoardPins { $($field: $d p.$pin,)* }
+            };
+        }
+        pub(crate) use take_board_pins;
+    };
+}
+
+pin_table! { $
+    /// Source arm (θi) driver STEP, TIM2_CH3.
+    step_i: PB10,
+    /// Source arm driver DIR.
+    dir_i: PB12,
+    /// Source arm driver EN, active low.
+    en_i: PB13,
+    /// Detector arm (θr) driver STEP, TIM3_CH3.
+    step_r: PB0,
+    /// Detector arm driver DIR.
+    dir_r: PB14,
+    /// Detector arm driver EN, active low.
+    en_r: PB15,
+    /// Source arm home switch, closes to GND.
+    home_i: PB8,
+    /// Detector arm home switch, closes to GND.
+    home_r: PB9,
+    /// Lamp enable, active high.
+    lamp_en: PA8,
+    /// Detector amplifier output, ADC1_IN1.
+    detector: PA1,
+    /// TIA range select bit 0.
+    range0: PB1,
+    /// TIA range select bit 1.
+    range1: PB5,
+    /// TIA range select bit 2.
+    range2: PA15,
+    /// On-board LED, active low.
+    led: PC13,
+}
+
+/// The instrument pins in their idle state.
+pub struct IdlePins {
+    /// Drivers disabled, lamp off, no step pulses, most sensitive range, home switches
+    /// pulled up. Keep it alive for as long as nothing else drives these pins.
+    pub hold: IdleHold,
+    /// The on-board LED (on = a host completed the handshake).
+    pub led: Output<'static>,
+    /// Left for the detector layer (ADC).
+    pub detector: Peri<'static, peripherals::PA1>,
+}
+
+/// Instrument outputs driven to their idle levels (dropping it would float them).
+pub struct IdleHold {
+    _outputs: [Output<'static>; 10],
+    _home: [Input<'static>; 2],
+}
+
+impl BoardPins {
+    /// Drive every output to its idle level.
+    pub fn into_idle(self) -> IdlePins {
+        fn out(pin: Peri<'static, AnyPin>, level: Level) -> Output<'static> {
+            Output::new(pin, level, Speed::Low)
+        }
+        let hold = IdleHold {
+            _outputs: [
+                out(self.en_i.into(), Level::High),
+                out(self.en_r.into(), Level::High),
+                out(self.lamp_en.into(), Level::Low),
+                out(self.step_i.into(), Level::Low),
+                out(self.step_r.into(), Level::Low),
+                out(self.dir_i.into(), Level::Low),
+                out(self.dir_r.into(), Level::Low),
+                out(self.range0.into(), Level::Low),
+                out(self.range1.into(), Level::Low),
+                out(self.range2.into(), Level::Low),
+            ],
+            _home: [Input::new(self.home_i, Pull::Up), Input::new(self.home_r, Pull::Up)],
+        };
+        IdlePins {
+            hold,
+            led: Output::new(self.led, Level::High, Speed::Low),
+            detector: self.detector,
+        }
+    }
+}
