@@ -3,3 +3,6 @@
 pub mod cli;
 pub mod link;
 pub mod sim_link;
+pub mod model;
+pub mod fit;
+pub mod serial;

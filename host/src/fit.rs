@@ -1,0 +1,938 @@
+//! Least-squares fit of the TSL model (METHOD.md "Fitting") with the bounds of Table 3.
+//!
+//! How: ρs and ρd enter linearly, so for any (σ, η) their best non-negative values follow in
+//! closed form (variable projection). A grid over log σ × η with that closed form gives the
+//! profile of the cost and its basins, which is what makes the glossy papers' multimodal
+//! problem safe; Levenberg–Marquardt on all four parameters (σ as ln σ, so σ > 0 holds by
+//! construction; the others by an active-set projection) then polishes the best basins.
+//! After the fit, what the data cannot determine is taken out of the model and said so.
+
+use crate::model::{self, ETA, PARAM_NAMES, Params, PlaneGeometry, RHO_D, RHO_S, SIGMA};
+use serde::Serialize;
+use thiserror::Error;
+
+/// Smallest σ the fit considers, degrees: far below what any sampling here resolves.
+pub const SIGMA_MIN_DEG: f64 = 1e-3;
+/// Upper bound of σ (Table 3), degrees.
+pub const SIGMA_MAX_DEG: f64 = 90.0;
+/// Lower bound of η (Table 3).
+pub const ETA_MIN: f64 = 1.0;
+/// Upper bound of η (Table 3).
+pub const ETA_MAX: f64 = 3.0;
+/// Parameters of the full model.
+pub const N_PARAMS: usize = 4;
+/// χ²(1) at 95 %: a profile within this (× residual variance) of the minimum is consistent.
+const CHI2_1_95: f64 = 3.841_458_820_694_124;
+
+/// One reading: geometry in degrees, radiance factor, and optionally its standard uncertainty.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Incidence angle θi, degrees.
+    pub theta_i_deg: f64,
+    /// Detection angle θr, degrees.
+    pub theta_r_deg: f64,
+    /// Measured radiance factor.
+    pub radiance_factor: f64,
+    /// Standard uncertainty of the radiance factor, if known.
+    pub std: Option<f64>,
+}
+
+/// Options of a fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FitOptions {
+    /// Full width of the detector's acceptance in θr, degrees; `None` or 0 leaves it out.
+    pub acceptance_deg: Option<f64>,
+    /// Levenberg–Marquardt iteration limit per start.
+    pub max_iterations: usize,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200 }
+    }
+}
+
+/// Why a data set cannot be fitted. `index` is the reading's position in the input slice.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum FitError {
+    /// Fewer distinct geometries than model parameters.
+    #[error("only {found} distinct geometries: at least {needed} are needed to fit the {needed} parameters")]
+    TooFewGeometries {
+        /// Distinct geometries found.
+        found: usize,
+        /// Parameters of the model.
+        needed: usize,
+    },
+    /// A value is NaN or infinite.
+    #[error("reading {index}: {what} is not a finite number")]
+    NotFinite {
+        /// Reading.
+        index: usize,
+        /// Which value.
+        what: &'static str,
+    },
+    /// A negative radiance factor.
+    #[error("reading {index}: radiance factor {value} is negative")]
+    Negative {
+        /// Reading.
+        index: usize,
+        /// The value.
+        value: f64,
+    },
+    /// An angle outside 0…90°.
+    #[error("reading {index}: {what} = {value}° is outside 0…90°")]
+    AngleOutOfRange {
+        /// Reading.
+        index: usize,
+        /// `theta_i` or `theta_r`.
+        what: &'static str,
+        /// The angle.
+        value: f64,
+    },
+    /// A standard uncertainty that is not positive.
+    #[error("reading {index}: standard uncertainty {value} is not positive")]
+    BadUncertainty {
+        /// Reading.
+        index: usize,
+        /// The value.
+        value: f64,
+    },
+    /// Uncertainties for some readings but not all.
+    #[error("reading {index} has no standard uncertainty while others have one")]
+    MixedUncertainties {
+        /// First reading without one.
+        index: usize,
+    },
+    /// Every radiance factor is the same.
+    #[error("all {n} radiance factors are equal ({value}): there is no shape to fit")]
+    AllEqual {
+        /// Readings.
+        n: usize,
+        /// The common value.
+        value: f64,
+    },
+    /// Two readings at one geometry that disagree beyond their uncertainty.
+    #[error(
+        "readings {first} and {index} at the same geometry (θi {theta_i_deg}°, θr {theta_r_deg}°) conflict: {first_value} vs {value}"
+    )]
+    ConflictingDuplicates {
+        /// Earlier reading.
+        first: usize,
+        /// Later reading.
+        index: usize,
+        /// θi, degrees.
+        theta_i_deg: f64,
+        /// θr, degrees.
+        theta_r_deg: f64,
+        /// Earlier value.
+        first_value: f64,
+        /// Later value.
+        value: f64,
+    },
+}
+
+impl FitError {
+    /// The reading the error is about, if it is about one.
+    pub fn reading_index(&self) -> Option<usize> {
+        match *self {
+            FitError::NotFinite { index, .. }
+            | FitError::Negative { index, .. }
+            | FitError::AngleOutOfRange { index, .. }
+            | FitError::BadUncertainty { index, .. }
+            | FitError::MixedUncertainties { index }
+            | FitError::ConflictingDuplicates { index, .. } => Some(index),
+            FitError::TooFewGeometries { .. } | FitError::AllEqual { .. } => None,
+        }
+    }
+}
+
+/// How the iteration ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    /// The cost stopped decreasing (relative change below 1e-10 or no downhill step left).
+    Converged,
+    /// The iteration limit was reached first.
+    IterationLimit,
+}
+
+/// Which side of its range a parameter sits on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Bound {
+    /// The lower bound.
+    Lower,
+    /// The upper bound.
+    Upper,
+}
+
+/// What the data did not determine, and what was done about it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum Note {
+    /// η ended at a bound; it is reported at the bound and not fitted.
+    EtaAtBound {
+        /// The bound's value.
+        eta: f64,
+    },
+    /// No specular part (ρs = 0 or η = 1, where F ≡ 0): σ and η mean nothing; only ρd is fitted.
+    NoSpecularTerm,
+    /// The cost is flat down to σ → 0: the sampling does not resolve the peak. σ is only
+    /// known to be below `upper_deg`; ρs, ρd, η are fitted with the peak in its σ → 0 limit.
+    SigmaUnresolved {
+        /// Largest σ the data allow (95 % profile), degrees.
+        upper_deg: f64,
+    },
+    /// The normal matrix was singular at the optimum: no confidence intervals.
+    SingularJacobian,
+    /// As many parameters as geometries: no residual variance, no confidence intervals.
+    NoDegreesOfFreedom,
+}
+
+/// Which parameters a fit estimated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FittedModel(pub [bool; N_PARAMS]);
+
+impl FittedModel {
+    /// Names of the fitted parameters, in the order σ, ρs, ρd, η.
+    pub fn names(&self) -> Vec<&'static str> {
+        (0..N_PARAMS).filter(|&i| self.0[i]).map(|i| PARAM_NAMES[i]).collect()
+    }
+
+    /// Number of fitted parameters.
+    pub fn count(&self) -> usize {
+        self.0.iter().filter(|&&b| b).count()
+    }
+}
+
+/// A parameter at one of its bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ActiveBound {
+    /// Parameter name (`sigma`, `rho_s`, `rho_d`, `eta`).
+    pub param: &'static str,
+    /// Which bound.
+    pub bound: Bound,
+}
+
+/// The outcome of a fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitResult {
+    /// Parameter values the fitted model uses (see [`FitResult::reported`] for which mean something).
+    pub params: Params,
+    /// Which parameters were estimated.
+    pub model: FittedModel,
+    /// 95 % confidence intervals (Student t on the Jacobian at the optimum), clipped to the
+    /// bounds; `None` for parameters not fitted or when none can be given.
+    pub ci95: [Option<(f64, f64)>; N_PARAMS],
+    /// Whether each interval was clipped at a bound.
+    pub ci_clipped: [bool; N_PARAMS],
+    /// Covariance of (σ [deg], ρs, ρd, η); rows and columns of parameters not fitted are 0.
+    pub covariance: [[f64; N_PARAMS]; N_PARAMS],
+    /// Parameters sitting on a bound.
+    pub active_bounds: Vec<ActiveBound>,
+    /// What the data did not determine.
+    pub notes: Vec<Note>,
+    /// The acceptance window modelled, degrees, if it was.
+    pub acceptance_deg: Option<f64>,
+    /// Readings.
+    pub n: usize,
+    /// Weighted sum of squared residuals (the objective).
+    pub cost: f64,
+    /// Residual variance used for the intervals (1 when uncertainties were given).
+    pub residual_variance: f64,
+    /// Degrees of freedom, n − fitted parameters.
+    pub dof: usize,
+    /// Normalised mean absolute error (Eq. 5–6).
+    pub nmae: f64,
+    /// Root mean square of the (unweighted) residuals.
+    pub rms: f64,
+    /// Levenberg–Marquardt iterations of the run that gave the result.
+    pub iterations: usize,
+    /// How the iteration ended.
+    pub status: Status,
+    /// Whether readings carried uncertainties (a weighted fit).
+    pub weighted: bool,
+}
+
+impl FitResult {
+    /// A parameter's value if it means something: fitted, or held at a bound the data
+    /// pushed it to. `None` for σ when unresolved and for σ, η without a specular part.
+    pub fn reported(&self, index: usize) -> Option<f64> {
+        let p = self.params.to_array();
+        let no_specular = self.notes.contains(&Note::NoSpecularTerm);
+        match index {
+            SIGMA if no_specular || self.sigma_upper_deg().is_some() => None,
+            ETA if no_specular => None,
+            i if i < N_PARAMS => Some(p[i]),
+            _ => None,
+        }
+    }
+
+    /// σ in degrees if it was resolved.
+    pub fn sigma_deg(&self) -> Option<f64> {
+        self.reported(SIGMA)
+    }
+
+    /// Upper limit of σ when the sampling does not resolve the peak.
+    pub fn sigma_upper_deg(&self) -> Option<f64> {
+        self.notes.iter().find_map(|n| match n {
+            Note::SigmaUnresolved { upper_deg } => Some(*upper_deg),
+            _ => None,
+        })
+    }
+
+    /// Whether there is a specular part at all.
+    pub fn has_specular_term(&self) -> bool {
+        !self.notes.contains(&Note::NoSpecularTerm)
+    }
+
+    /// Standard uncertainty of a parameter (σ in degrees), if fitted.
+    pub fn std_error(&self, index: usize) -> Option<f64> {
+        self.model.0[index].then(|| self.covariance[index][index].max(0.0).sqrt())
+    }
+}
+
+/// Best non-negative ρs, ρd at a fixed (σ, η), and the cost there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LinearSolution {
+    /// ρs.
+    pub rho_s: f64,
+    /// ρd.
+    pub rho_d: f64,
+    /// Weighted sum of squared residuals.
+    pub cost: f64,
+}
+
+/// One reading prepared for the fit.
+#[derive(Clone, Copy, Debug)]
+struct Point {
+    geometry: PlaneGeometry,
+    y: f64,
+    /// sqrt of the weight 1/std² (1 without uncertainties).
+    sqrt_w: f64,
+}
+
+struct Problem {
+    points: Vec<Point>,
+    acceptance_deg: Option<f64>,
+    weighted: bool,
+}
+
+/// Check the input, naming the first problem.
+pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
+    let weighted = observations.first().is_some_and(|o| o.std.is_some());
+    for (index, o) in observations.iter().enumerate() {
+        for (what, value) in [("theta_i", o.theta_i_deg), ("theta_r", o.theta_r_deg)] {
+            if !value.is_finite() {
+                return Err(FitError::NotFinite { index, what });
+            }
+            if !(0.0..=90.0).contains(&value) {
+                return Err(FitError::AngleOutOfRange { index, what, value });
+            }
+        }
+        if !o.radiance_factor.is_finite() {
+            return Err(FitError::NotFinite { index, what: "radiance_factor" });
+        }
+        if o.radiance_factor < 0.0 {
+            return Err(FitError::Negative { index, value: o.radiance_factor });
+        }
+        match o.std {
+            Some(s) if !s.is_finite() => return Err(FitError::NotFinite { index, what: "std" }),
+            Some(s) if s <= 0.0 => return Err(FitError::BadUncertainty { index, value: s }),
+            None if weighted => return Err(FitError::MixedUncertainties { index }),
+            Some(_) if !weighted => {
+                // The first reading had none: it is the odd one out.
+                return Err(FitError::MixedUncertainties { index: 0 });
+            }
+            _ => {}
+        }
+    }
+    // Duplicates: repeated readings are fine, contradicting ones are not. Without
+    // uncertainties "contradicting" means more than 10 % apart; with them, more than 5 σ.
+    let mut order: Vec<usize> = (0..observations.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (oa, ob) = (&observations[a], &observations[b]);
+        oa.theta_i_deg.total_cmp(&ob.theta_i_deg).then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg)).then(a.cmp(&b))
+    });
+    let mut distinct = 0;
+    for (k, &i) in order.iter().enumerate() {
+        let same_as_previous = k > 0 && {
+            let (p, o) = (&observations[order[k - 1]], &observations[i]);
+            p.theta_i_deg == o.theta_i_deg && p.theta_r_deg == o.theta_r_deg
+        };
+        if !same_as_previous {
+            distinct += 1;
+            continue;
+        }
+        let (first, o) = (order[k - 1], &observations[i]);
+        let p = &observations[first];
+        let diff = (p.radiance_factor - o.radiance_factor).abs();
+        let tolerance = match (p.std, o.std) {
+            (Some(a), Some(b)) => 5.0 * a.hypot(b),
+            _ => 0.1 * p.radiance_factor.max(o.radiance_factor),
+        };
+        if diff > tolerance {
+            return Err(FitError::ConflictingDuplicates {
+                first,
+                index: i,
+                theta_i_deg: o.theta_i_deg,
+                theta_r_deg: o.theta_r_deg,
+                first_value: p.radiance_factor,
+                value: o.radiance_factor,
+            });
+        }
+    }
+    if distinct < N_PARAMS {
+        return Err(FitError::TooFewGeometries { found: distinct, needed: N_PARAMS });
+    }
+    let (lo, hi) = observations
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| (lo.min(o.radiance_factor), hi.max(o.radiance_factor)));
+    if lo == hi {
+        return Err(FitError::AllEqual { n: observations.len(), value: lo });
+    }
+    Ok(())
+}
+
+impl Problem {
+    fn new(observations: &[Observation], acceptance_deg: Option<f64>) -> Problem {
+        let weighted = observations.first().is_some_and(|o| o.std.is_some());
+        let points = observations
+            .iter()
+            .map(|o| Point {
+                geometry: PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg),
+                y: o.radiance_factor,
+                sqrt_w: o.std.map_or(1.0, |s| 1.0 / s),
+            })
+            .collect();
+        Problem { points, acceptance_deg: acceptance_deg.filter(|&a| a > 0.0), weighted }
+    }
+
+    fn lobe(&self, offset_deg: f64, sigma_deg: f64) -> (f64, f64) {
+        match self.acceptance_deg {
+            Some(a) => model::windowed_lobe_with_derivative(offset_deg, sigma_deg, a),
+            None => model::lobe_with_derivative(offset_deg, sigma_deg),
+        }
+    }
+
+    /// Cost at x = [ln σ, ρs, ρd, η], with JᵀJ and Jᵀr in x when `jacobian`.
+    fn accumulate(&self, x: &[f64; 4], jacobian: bool) -> (f64, [[f64; 4]; 4], [f64; 4]) {
+        let p = params_of(x);
+        let mut cost = 0.0;
+        let mut a = [[0.0; 4]; 4];
+        let mut g = [0.0; 4];
+        for pt in &self.points {
+            let (f, grad) = model::evaluate(&p, &pt.geometry, self.acceptance_deg);
+            let r = pt.sqrt_w * (f - pt.y);
+            cost += r * r;
+            if jacobian {
+                let j = [
+                    pt.sqrt_w * grad[SIGMA] * p.sigma_deg,
+                    pt.sqrt_w * grad[RHO_S],
+                    pt.sqrt_w * grad[RHO_D],
+                    pt.sqrt_w * grad[ETA],
+                ];
+                for row in 0..4 {
+                    g[row] += j[row] * r;
+                    for col in row..4 {
+                        a[row][col] += j[row] * j[col];
+                    }
+                }
+            }
+        }
+        for row in 0..4 {
+            for col in 0..row {
+                a[row][col] = a[col][row];
+            }
+        }
+        (cost, a, g)
+    }
+
+    /// Best non-negative (ρs, ρd) at (σ, η).
+    fn linear(&self, sigma_deg: f64, eta: f64) -> LinearSolution {
+        let (mut sw, mut sy, mut syy, mut sg, mut sgg, mut sgy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for pt in &self.points {
+            let w = pt.sqrt_w * pt.sqrt_w;
+            let (f, _) = model::fresnel_with_derivative(pt.geometry.sin2_psi, pt.geometry.cos_psi, eta);
+            let g = f * pt.geometry.attenuation_over_cosines * self.lobe(pt.geometry.offset_deg, sigma_deg).0;
+            sw += w;
+            sy += w * pt.y;
+            syy += w * pt.y * pt.y;
+            sg += w * g;
+            sgg += w * g * g;
+            sgy += w * g * pt.y;
+        }
+        solve_linear(sw, sy, syy, sg, sgg, sgy)
+    }
+}
+
+fn params_of(x: &[f64; 4]) -> Params {
+    Params { sigma_deg: x[0].exp(), rho_s: x[1], rho_d: x[2], eta: x[3] }
+}
+
+fn lower_bounds() -> [f64; 4] {
+    [SIGMA_MIN_DEG.ln(), 0.0, 0.0, ETA_MIN]
+}
+
+fn upper_bounds() -> [f64; 4] {
+    [SIGMA_MAX_DEG.ln(), f64::INFINITY, f64::INFINITY, ETA_MAX]
+}
+
+/// Closed-form non-negative least squares for f = ρs·g + ρd from the weighted sums.
+fn solve_linear(sw: f64, sy: f64, syy: f64, sg: f64, sgg: f64, sgy: f64) -> LinearSolution {
+    let cost_of = |a: f64, b: f64| (syy - 2.0 * a * sgy - 2.0 * b * sy + a * a * sgg + 2.0 * a * b * sg + b * b * sw).max(0.0);
+    let det = sw * sgg - sg * sg;
+    if det > 1e-12 * sw * sgg {
+        let rho_s = (sw * sgy - sg * sy) / det;
+        let rho_d = (sgg * sy - sg * sgy) / det;
+        if rho_s >= 0.0 && rho_d >= 0.0 {
+            return LinearSolution { rho_s, rho_d, cost: cost_of(rho_s, rho_d) };
+        }
+    }
+    // The unconstrained optimum is infeasible (or g has no shape): the best lies on an edge.
+    let lambert = LinearSolution { rho_s: 0.0, rho_d: (sy / sw).max(0.0), cost: cost_of(0.0, (sy / sw).max(0.0)) };
+    if sgg > 0.0 {
+        let rho_s = (sgy / sgg).max(0.0);
+        let specular_only = LinearSolution { rho_s, rho_d: 0.0, cost: cost_of(rho_s, 0.0) };
+        if specular_only.cost < lambert.cost {
+            return specular_only;
+        }
+    }
+    lambert
+}
+
+/// The best non-negative ρs, ρd at a given (σ, η) and the cost there: the inner problem of
+/// the fit, public so that a brute-force search can check the fit's global minimum.
+pub fn linear_profile(
+    observations: &[Observation],
+    sigma_deg: f64,
+    eta: f64,
+    acceptance_deg: Option<f64>,
+) -> Result<LinearSolution, FitError> {
+    validate(observations)?;
+    Ok(Problem::new(observations, acceptance_deg).linear(sigma_deg, eta))
+}
+
+/// Weighted cost of given parameters (the fit's objective).
+pub fn cost(observations: &[Observation], params: &Params, acceptance_deg: Option<f64>) -> f64 {
+    let problem = Problem::new(observations, acceptance_deg);
+    let x = [params.sigma_deg.ln(), params.rho_s, params.rho_d, params.eta];
+    problem.accumulate(&x, false).0
+}
+
+/// σ grid of the global search: log-spaced, 1.25 apart, from 0.05° (finer than any
+/// sampling here resolves) to 90°.
+fn sigma_grid() -> impl Iterator<Item = f64> {
+    const RATIO: f64 = 1.25;
+    let n = ((SIGMA_MAX_DEG / 0.05).ln() / RATIO.ln()).ceil() as i32;
+    (0..=n).map(move |k| (0.05 * RATIO.powi(k)).min(SIGMA_MAX_DEG))
+}
+
+/// η grid of the global search: denser near 1, where F changes fastest relative to itself.
+const ETA_GRID: [f64; 9] = [1.01, 1.03, 1.08, 1.19, 1.35, 1.6, 2.0, 2.5, 3.0];
+
+/// Starting points from the grid: the best (η, ρs, ρd) at each σ, then the lowest local
+/// minima of that profile in σ, best first.
+fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
+    let n = problem.points.len();
+    let (mut sw, mut sy, mut syy) = (0.0, 0.0, 0.0);
+    for pt in &problem.points {
+        let w = pt.sqrt_w * pt.sqrt_w;
+        sw += w;
+        sy += w * pt.y;
+        syy += w * pt.y * pt.y;
+    }
+    // Per η: u = w·F·H, u·y and u·F·H, so each (σ, η) costs three dot products.
+    let mut u = vec![0.0; ETA_GRID.len() * n];
+    let mut uy = vec![0.0; ETA_GRID.len() * n];
+    let mut uu = vec![0.0; ETA_GRID.len() * n];
+    for (e, &eta) in ETA_GRID.iter().enumerate() {
+        for (k, pt) in problem.points.iter().enumerate() {
+            let (f, _) = model::fresnel_with_derivative(pt.geometry.sin2_psi, pt.geometry.cos_psi, eta);
+            let fh = f * pt.geometry.attenuation_over_cosines;
+            let w = pt.sqrt_w * pt.sqrt_w;
+            u[e * n + k] = w * fh;
+            uy[e * n + k] = w * fh * pt.y;
+            uu[e * n + k] = w * fh * fh;
+        }
+    }
+    let mut lobe = vec![0.0; n];
+    let mut profile: Vec<(f64, [f64; 4])> = Vec::with_capacity(40);
+    for sigma in sigma_grid() {
+        for (k, pt) in problem.points.iter().enumerate() {
+            lobe[k] = problem.lobe(pt.geometry.offset_deg, sigma).0;
+        }
+        let mut best = (f64::INFINITY, [0.0; 4]);
+        for (e, &eta) in ETA_GRID.iter().enumerate() {
+            let range = e * n..(e + 1) * n;
+            let (mut sg, mut sgy, mut sgg) = (0.0, 0.0, 0.0);
+            for (((&l, &u), &uy), &uu) in lobe.iter().zip(&u[range.clone()]).zip(&uy[range.clone()]).zip(&uu[range]) {
+                sg += u * l;
+                sgy += uy * l;
+                sgg += uu * l * l;
+            }
+            let s = solve_linear(sw, sy, syy, sg, sgg, sgy);
+            if s.cost < best.0 {
+                best = (s.cost, [sigma.ln(), s.rho_s, s.rho_d, eta]);
+            }
+        }
+        profile.push(best);
+    }
+    let mut minima: Vec<(f64, [f64; 4])> = (0..profile.len())
+        .filter(|&i| {
+            let c = profile[i].0;
+            (i == 0 || c <= profile[i - 1].0) && (i + 1 == profile.len() || c <= profile[i + 1].0)
+        })
+        .map(|i| profile[i])
+        .collect();
+    minima.sort_by(|a, b| a.0.total_cmp(&b.0));
+    minima.truncate(max_seeds);
+    minima.into_iter().map(|(_, x)| x).collect()
+}
+
+struct LmOutcome {
+    x: [f64; 4],
+    cost: f64,
+    iterations: usize,
+    status: Status,
+}
+
+/// Solve the symmetric positive definite system m·x = b on the indices in `free`
+/// (others get 0) by Cholesky; `None` if not positive definite.
+fn solve_spd(m: &[[f64; 4]; 4], b: &[f64; 4], free: &[bool; 4]) -> Option<[f64; 4]> {
+    let idx: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
+    let k = idx.len();
+    let mut l = [[0.0; 4]; 4];
+    for i in 0..k {
+        for j in 0..=i {
+            let mut s = m[idx[i]][idx[j]];
+            for p in 0..j {
+                s -= l[i][p] * l[j][p];
+            }
+            if i == j {
+                if !(s > 0.0) || !s.is_finite() {
+                    return None;
+                }
+                l[i][i] = s.sqrt();
+            } else {
+                l[i][j] = s / l[j][j];
+            }
+        }
+    }
+    let mut y = [0.0; 4];
+    for i in 0..k {
+        let mut s = b[idx[i]];
+        for p in 0..i {
+            s -= l[i][p] * y[p];
+        }
+        y[i] = s / l[i][i];
+    }
+    let mut x = [0.0; 4];
+    for i in (0..k).rev() {
+        let mut s = y[i];
+        for p in i + 1..k {
+            s -= l[p][i] * x[p];
+        }
+        x[i] = s / l[i][i];
+    }
+    let mut out = [0.0; 4];
+    for i in 0..k {
+        out[idx[i]] = x[i];
+    }
+    Some(out)
+}
+
+/// Inverse of the sub-matrix on `free` (zeros elsewhere), `None` if singular.
+fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
+    // Scale to unit diagonal first so that parameters of very different size do not
+    // make a well-posed matrix look singular.
+    let d: [f64; 4] = std::array::from_fn(|i| if free[i] && m[i][i] > 0.0 { 1.0 / m[i][i].sqrt() } else { 0.0 });
+    if (0..4).any(|i| free[i] && d[i] == 0.0) {
+        return None;
+    }
+    let scaled: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| m[i][j] * d[i] * d[j]));
+    let mut inv = [[0.0; 4]; 4];
+    for c in 0..4 {
+        if !free[c] {
+            continue;
+        }
+        let mut e = [0.0; 4];
+        e[c] = 1.0;
+        let col = solve_spd(&scaled, &e, free)?;
+        for r in 0..4 {
+            inv[r][c] = col[r] * d[r] * d[c];
+        }
+    }
+    // A near-singular matrix shows as a huge scaled inverse.
+    if (0..4).any(|i| free[i] && !(inv[i][i] * m[i][i] < 1e12)) {
+        return None;
+    }
+    Some(inv)
+}
+
+/// Levenberg–Marquardt with Marquardt's diagonal scaling and bounds by an active set:
+/// a parameter on a bound whose gradient points out of the box is held for that step.
+fn levenberg_marquardt(problem: &Problem, x0: [f64; 4], fixed: [bool; 4], max_iterations: usize) -> LmOutcome {
+    let (lo, hi) = (lower_bounds(), upper_bounds());
+    let mut x: [f64; 4] = std::array::from_fn(|i| x0[i].clamp(lo[i], hi[i]));
+    let (mut cost, mut a, mut g) = problem.accumulate(&x, true);
+    let mut lambda = 1e-3;
+    for iteration in 1..=max_iterations {
+        let free: [bool; 4] =
+            std::array::from_fn(|i| !fixed[i] && !((x[i] <= lo[i] && g[i] > 0.0) || (x[i] >= hi[i] && g[i] < 0.0)));
+        if !free.iter().any(|&f| f) || cost == 0.0 {
+            return LmOutcome { x, cost, iterations: iteration - 1, status: Status::Converged };
+        }
+        let trace: f64 = (0..4).filter(|&i| free[i]).map(|i| a[i][i]).sum();
+        let floor = 1e-12 * trace.max(f64::MIN_POSITIVE);
+        loop {
+            let mut m = a;
+            for i in 0..4 {
+                m[i][i] += lambda * a[i][i].max(floor);
+            }
+            let neg_g = [-g[0], -g[1], -g[2], -g[3]];
+            let step = solve_spd(&m, &neg_g, &free);
+            if let Some(step) = step {
+                let x_new: [f64; 4] = std::array::from_fn(|i| (x[i] + step[i]).clamp(lo[i], hi[i]));
+                let (cost_new, a_new, g_new) = problem.accumulate(&x_new, true);
+                if cost_new.is_finite() && cost_new < cost {
+                    let small_step = (0..4).all(|i| (x_new[i] - x[i]).abs() <= 1e-10 * (x[i].abs() + 1e-8));
+                    let small_decrease = cost - cost_new <= 1e-12 * cost;
+                    x = x_new;
+                    cost = cost_new;
+                    a = a_new;
+                    g = g_new;
+                    lambda = (lambda * 0.3).max(1e-12);
+                    if small_step || small_decrease {
+                        return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
+                    }
+                    break;
+                }
+            }
+            lambda *= 10.0;
+            if lambda > 1e14 {
+                // No downhill step however short: a (possibly bounded) minimum.
+                return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
+            }
+        }
+    }
+    LmOutcome { x, cost, iterations: max_iterations, status: Status::IterationLimit }
+}
+
+/// Global search then local polish, on the full model.
+fn global_fit(problem: &Problem, max_iterations: usize) -> LmOutcome {
+    let mut best: Option<LmOutcome> = None;
+    for seed in seeds(problem, 3) {
+        let run = levenberg_marquardt(problem, seed, [false; 4], max_iterations);
+        if best.as_ref().is_none_or(|b| run.cost < b.cost) {
+            best = Some(run);
+        }
+    }
+    // seeds() always returns at least one point (the grid is not empty).
+    best.unwrap_or_else(|| levenberg_marquardt(problem, [0.0, 1.0, 0.5, 1.5], [false; 4], max_iterations))
+}
+
+/// Student t quantile at 0.975 for `dof` degrees of freedom (exact for 1 and 2, else the
+/// Cornish–Fisher series, Abramowitz & Stegun 26.7.5, better than 1e-3 from 3 on).
+pub fn t_quantile_975(dof: usize) -> f64 {
+    const Z: f64 = 1.959_963_984_540_054;
+    match dof {
+        0 => f64::INFINITY,
+        1 => 12.706_204_736_174_7,
+        2 => 4.302_652_729_749_464,
+        _ => {
+            let v = dof as f64;
+            let z2 = Z * Z;
+            let g1 = (z2 + 1.0) * Z / 4.0;
+            let g2 = ((5.0 * z2 + 16.0) * z2 + 3.0) * Z / 96.0;
+            let g3 = (((3.0 * z2 + 19.0) * z2 + 17.0) * z2 - 15.0) * Z / 384.0;
+            let g4 = ((((79.0 * z2 + 776.0) * z2 + 1482.0) * z2 - 1920.0) * z2 - 945.0) * Z / 92160.0;
+            Z + g1 / v + g2 / (v * v) + g3 / (v * v * v) + g4 / (v * v * v * v)
+        }
+    }
+}
+
+/// Fit the TSL model to the readings.
+pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResult, FitError> {
+    validate(observations)?;
+    let mut problem = Problem::new(observations, None);
+    let n = observations.len();
+    let mut outcome = global_fit(&problem, options.max_iterations);
+    let mut notes = Vec::new();
+    let mut fitted = [true; 4];
+    let lo = lower_bounds();
+    let hi = upper_bounds();
+    let at_lower = |x: &[f64; 4], i: usize| x[i] <= lo[i];
+
+    let residual_variance = |cost: f64, p: usize| {
+        if problem_weighted(observations) { 1.0 } else { cost / (n.saturating_sub(p).max(1)) as f64 }
+    };
+
+    if at_lower(&outcome.x, RHO_S) || at_lower(&outcome.x, ETA) {
+        // F ≡ 0 or ρs = 0: the specular part is absent and only ρd remains.
+        notes.push(Note::NoSpecularTerm);
+        fitted = [false, false, true, false];
+        let lambert = lambert_fit(&problem);
+        outcome = LmOutcome { x: [outcome.x[0], 0.0, lambert, outcome.x[3]], cost: 0.0, ..outcome };
+        outcome.cost = problem.accumulate(&outcome.x, false).0;
+    } else {
+        // Is the peak resolved? Compare with the σ → 0 limit, others refitted.
+        let s2 = residual_variance(outcome.cost, 4).max(1e-300);
+        let threshold = outcome.cost + CHI2_1_95 * s2;
+        let sigma_hat = outcome.x[0].exp();
+        let mut unresolved = false;
+        if sigma_hat < 10.0 {
+            let mut x_floor = outcome.x;
+            x_floor[0] = lo[0];
+            let floor = levenberg_marquardt(&problem, x_floor, [true, false, false, false], options.max_iterations);
+            if floor.cost <= threshold {
+                unresolved = true;
+                let upper = sigma_upper_deg(&problem, &outcome, threshold, options.max_iterations);
+                notes.push(Note::SigmaUnresolved { upper_deg: upper });
+                fitted[SIGMA] = false;
+                outcome = floor;
+            }
+        }
+        if !unresolved {
+            if let Some(a) = options.acceptance_deg.filter(|&a| model::acceptance_matters(sigma_hat, a)) {
+                problem.acceptance_deg = Some(a);
+                outcome = global_fit(&problem, options.max_iterations);
+            }
+        }
+        if outcome.x[ETA] >= hi[ETA] {
+            notes.push(Note::EtaAtBound { eta: ETA_MAX });
+            fitted[ETA] = false;
+        }
+    }
+
+    // Intervals from JᵀWJ at the optimum, on the fitted parameters off their bounds.
+    let x = outcome.x;
+    let (cost, a, _) = problem.accumulate(&x, true);
+    let mut active_bounds = Vec::new();
+    let mut free = fitted;
+    for i in 0..4 {
+        if !fitted[i] {
+            continue;
+        }
+        if x[i] <= lo[i] {
+            active_bounds.push(ActiveBound { param: PARAM_NAMES[i], bound: Bound::Lower });
+            free[i] = false;
+        } else if x[i] >= hi[i] {
+            active_bounds.push(ActiveBound { param: PARAM_NAMES[i], bound: Bound::Upper });
+            free[i] = false;
+        }
+    }
+    if notes.iter().any(|n| matches!(n, Note::EtaAtBound { .. })) {
+        active_bounds.push(ActiveBound { param: "eta", bound: Bound::Upper });
+    }
+    let model = FittedModel(fitted);
+    let p_fitted = model.count();
+    let dof = n.saturating_sub(p_fitted);
+    let weighted = problem.weighted;
+    let s2 = if weighted { 1.0 } else if dof > 0 { cost / dof as f64 } else { f64::NAN };
+    let mut covariance = [[0.0; 4]; 4];
+    let mut ci95 = [None; 4];
+    let mut ci_clipped = [false; 4];
+    let params = params_of(&x);
+    if dof == 0 {
+        notes.push(Note::NoDegreesOfFreedom);
+    } else if let Some(inv) = inverse_spd(&a, &free) {
+        let t = t_quantile_975(dof);
+        // d(natural)/d(x): σ = e^x0.
+        let scale = [params.sigma_deg, 1.0, 1.0, 1.0];
+        for i in 0..4 {
+            for j in 0..4 {
+                covariance[i][j] = s2 * inv[i][j] * scale[i] * scale[j];
+            }
+        }
+        for i in 0..4 {
+            if !free[i] {
+                continue;
+            }
+            let se = (s2 * inv[i][i]).max(0.0).sqrt();
+            let (low, high) = if i == SIGMA { (x[0] - t * se, x[0] + t * se) } else { (x[i] - t * se, x[i] + t * se) };
+            let (cl, ch) = (low.max(lo[i]), high.min(hi[i]));
+            ci_clipped[i] = cl != low || ch != high;
+            ci95[i] = Some(if i == SIGMA { (cl.exp(), ch.exp()) } else { (cl, ch) });
+        }
+    } else if free.iter().any(|&f| f) {
+        notes.push(Note::SingularJacobian);
+    }
+
+    let (mut abs_sum, mut sq_sum) = (0.0, 0.0);
+    let (mut y_min, mut y_max) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (pt, o) in problem.points.iter().zip(observations) {
+        let r = model::evaluate(&params, &pt.geometry, problem.acceptance_deg).0 - o.radiance_factor;
+        abs_sum += r.abs();
+        sq_sum += r * r;
+        y_min = y_min.min(o.radiance_factor);
+        y_max = y_max.max(o.radiance_factor);
+    }
+    Ok(FitResult {
+        params,
+        model,
+        ci95,
+        ci_clipped,
+        covariance,
+        active_bounds,
+        notes,
+        acceptance_deg: problem.acceptance_deg,
+        n,
+        cost,
+        residual_variance: s2,
+        dof,
+        nmae: abs_sum / n as f64 / (y_max - y_min),
+        rms: (sq_sum / n as f64).sqrt(),
+        iterations: outcome.iterations,
+        status: outcome.status,
+        weighted,
+    })
+}
+
+fn problem_weighted(observations: &[Observation]) -> bool {
+    observations.first().is_some_and(|o| o.std.is_some())
+}
+
+fn lambert_fit(problem: &Problem) -> f64 {
+    let (sw, sy) = problem.points.iter().fold((0.0, 0.0), |(sw, sy), p| {
+        let w = p.sqrt_w * p.sqrt_w;
+        (sw + w, sy + w * p.y)
+    });
+    sy / sw
+}
+
+/// Largest σ whose profile cost (others refitted) stays within `threshold`: doubling, then
+/// bisection in ln σ to about 2 %.
+fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iterations: usize) -> f64 {
+    let profile = |ln_sigma: f64, start: [f64; 4]| {
+        let mut x = start;
+        x[0] = ln_sigma;
+        levenberg_marquardt(problem, x, [true, false, false, false], max_iterations)
+    };
+    let mut inside = best.x[0];
+    let mut start = best.x;
+    let mut outside = None;
+    let ln_max = SIGMA_MAX_DEG.ln();
+    while inside < ln_max {
+        let trial = (inside + std::f64::consts::LN_2).min(ln_max);
+        let run = profile(trial, start);
+        if run.cost > threshold {
+            outside = Some(trial);
+            break;
+        }
+        inside = trial;
+        start = run.x;
+    }
+    let Some(mut outside) = outside else { return SIGMA_MAX_DEG };
+    while outside - inside > 0.02 {
+        let mid = 0.5 * (inside + outside);
+        let run = profile(mid, start);
+        if run.cost > threshold {
+            outside = mid;
+        } else {
+            inside = mid;
+            start = run.x;
+        }
+    }
+    inside.exp()
+}
