@@ -5,4 +5,3 @@ pub mod link;
 pub mod sim_link;
 pub mod model;
 pub mod fit;
-pub mod serial;
