@@ -5,3 +5,4 @@ pub mod link;
 pub mod sim_link;
 pub mod model;
 pub mod fit;
+pub mod serial;

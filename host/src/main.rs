@@ -14,12 +14,15 @@ struct Cli {
 enum Command {
     /// Fit the TSL model to measured radiance factors and classify each data set.
     Fit(host::cli::fit::Args),
+    /// List serial ports; instruments (by USB VID/PID) are marked.
+    Ports(host::cli::ports::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Fit(args) => host::cli::fit::run(args),
+        Command::Ports(args) => host::cli::ports::run(args),
     };
     match result {
         Ok(code) => code,

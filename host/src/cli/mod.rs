@@ -1,2 +1,3 @@
 //! One module per `gonio` subcommand, each with its clap `Args` and `run()`.
 pub mod fit;
+pub mod ports;
