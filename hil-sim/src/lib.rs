@@ -59,3 +59,4 @@ impl Default for SimInstrument {
 
 pub mod detector;
 pub mod scene;
+pub mod pty;

@@ -1,0 +1,55 @@
+//! The host's serial-port code against the simulated instrument on a pseudo-terminal:
+//! the path a real instrument takes, minus the USB cable.
+
+use host::link::{Client, RetryPolicy};
+use host::serial::SerialTransport;
+use protocol::{Command, PROTOCOL_VERSION, Reply};
+use std::io::Write;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+struct Served {
+    path: String,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<std::io::Result<()>>>,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+fn serve() -> Served {
+    let server = hil_sim::pty::PtyServer::open().expect("pseudo-terminal");
+    let path = server.path().to_string_lossy().into_owned();
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    let thread = std::thread::spawn(move || server.serve(&mut hil_sim::SimInstrument::new(), &flag));
+    Served { path, stop, thread: Some(thread) }
+}
+
+#[test]
+fn handshake_through_the_serial_port_code() {
+    let served = serve();
+    let mut client = Client::new(SerialTransport::open(&served.path).expect("open pty"), RetryPolicy::default());
+    let info = client.hello().expect("handshake over the pty");
+    assert_eq!(info.protocol_version, PROTOCOL_VERSION);
+    assert!(matches!(client.request(Command::GetStatus), Ok(Reply::Status(_))));
+}
+
+#[test]
+fn garbage_from_a_client_does_not_bring_the_simulator_down() {
+    let served = serve();
+    {
+        let mut rogue = std::fs::OpenOptions::new().write(true).open(&served.path).expect("open pty");
+        let garbage: Vec<u8> = (0..3000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect();
+        rogue.write_all(&garbage).unwrap();
+        rogue.write_all(&[0]).unwrap();
+    }
+    let mut client = Client::new(SerialTransport::open(&served.path).expect("open pty"), RetryPolicy::default());
+    assert!(client.hello().is_ok());
+}
