@@ -23,6 +23,8 @@ pub const ETA_MAX: f64 = 3.0;
 pub const N_PARAMS: usize = 4;
 /// χ²(1) at 95 %: a profile within this (× residual variance) of the minimum is consistent.
 const CHI2_1_95: f64 = 3.841_458_820_694_124;
+/// χ²(3) at 95 %.
+const CHI2_3_95: f64 = 7.814_727_903_251_178;
 
 /// One reading: geometry in degrees, radiance factor, and optionally its standard uncertainty.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -768,7 +770,15 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
         if problem_weighted(observations) { 1.0 } else { cost / (n.saturating_sub(p).max(1)) as f64 }
     };
 
-    if at_lower(&outcome.x, RHO_S) || at_lower(&outcome.x, ETA) {
+    // Is there a specular part at all? A lobe that improves on a constant by less than
+    // χ²(3) at 95 % (× residual variance) is noise being fitted: the three extra
+    // parameters are not supported.
+    let lambert_cost = {
+        let rho_d = lambert_fit(&problem);
+        problem.accumulate(&[0.0, 0.0, rho_d, ETA_MIN], false).0
+    };
+    let no_lobe = (lambert_cost - outcome.cost) <= CHI2_3_95 * residual_variance(outcome.cost, 4);
+    if no_lobe || at_lower(&outcome.x, RHO_S) || at_lower(&outcome.x, ETA) {
         // F ≡ 0 or ρs = 0: the specular part is absent and only ρd remains.
         notes.push(Note::NoSpecularTerm);
         fitted = [false, false, true, false];

@@ -3,6 +3,9 @@
 pub mod cli;
 pub mod link;
 pub mod sim_link;
+pub mod serial;
 pub mod model;
 pub mod fit;
-pub mod serial;
+pub mod sampling;
+pub mod classify;
+pub mod dataset;

@@ -1,0 +1,319 @@
+//! Classification of a fitted paper (METHOD.md, Fig. 10 steps 3–5), how sure it is, and the
+//! nearest of the eight reference papers of Table 6.
+use crate::fit::{ETA_MAX, ETA_MIN, FitResult, SIGMA_MIN_DEG};
+use crate::model::{ETA, Params, RHO_D, RHO_S, SIGMA};
+use serde::Serialize;
+
+/// σ at which glossy papers split into G and SG, degrees (between Table 6's 0.8 and 1.9).
+pub const G_SG_SPLIT_DEG: f64 = 1.3;
+/// ρd/ρs below which a rough paper is group I.
+pub const ROUGH_I_MAX_RATIO: f64 = 1.0 / 2.53;
+/// ρd/ρs from which a rough paper is group III.
+pub const ROUGH_III_MIN_RATIO: f64 = 1.83;
+
+/// Glossy or rough (σ < ρs or not).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Group {
+    /// σ < ρs: G and SG.
+    Glossy,
+    /// σ ≥ ρs.
+    Rough,
+}
+
+/// The five classes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Class {
+    /// Glossy, σ < 1.3°.
+    G,
+    /// Glossy, σ ≥ 1.3°.
+    SG,
+    /// Rough, ρd/ρs < 1/2.53.
+    #[serde(rename = "rough-I")]
+    RoughI,
+    /// Rough, 1/2.53 ≤ ρd/ρs < 1.83.
+    #[serde(rename = "rough-II")]
+    RoughII,
+    /// Rough, ρd/ρs ≥ 1.83.
+    #[serde(rename = "rough-III")]
+    RoughIII,
+}
+
+impl Class {
+    /// The class as the output spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Class::G => "G",
+            Class::SG => "SG",
+            Class::RoughI => "rough-I",
+            Class::RoughII => "rough-II",
+            Class::RoughIII => "rough-III",
+        }
+    }
+
+    /// The group the class belongs to.
+    pub fn group(self) -> Group {
+        match self {
+            Class::G | Class::SG => Group::Glossy,
+            _ => Group::Rough,
+        }
+    }
+}
+
+impl Group {
+    /// The group as the output spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Group::Glossy => "glossy",
+            Group::Rough => "rough",
+        }
+    }
+}
+
+/// A reference paper of Table 6.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reference {
+    /// Short name (G, SG, PPC, MC, J1…J4).
+    pub name: &'static str,
+    /// What it is.
+    pub description: &'static str,
+    /// Fitted parameters in the paper.
+    pub params: Params,
+    /// Its class.
+    pub class: Class,
+}
+
+const fn reference(name: &'static str, description: &'static str, p: [f64; 4], class: Class) -> Reference {
+    Reference { name, description, params: Params { sigma_deg: p[0], rho_s: p[1], rho_d: p[2], eta: p[3] }, class }
+}
+
+/// Table 6 (METHOD.md).
+pub const REFERENCES: [Reference; 8] = [
+    reference("G", "glossy inkjet paper", [0.8, 57.8, 0.855, 1.19], Class::G),
+    reference("SG", "semi-glossy inkjet paper", [1.9, 57.1, 0.795, 1.02], Class::SG),
+    reference("PPC", "plain photocopy paper", [21.7, 0.409, 0.414, 3.0], Class::RoughII),
+    reference("MC", "matte coated paper", [43.5, 0.123, 0.642, 3.0], Class::RoughIII),
+    reference("J1", "Japanese washi, slight gloss", [16.7, 0.734, 0.127, 3.0], Class::RoughI),
+    reference("J2", "Japanese washi, slight gloss", [17.9, 0.729, 0.06, 3.0], Class::RoughI),
+    reference("J3", "Japanese washi, no gloss", [24.5, 0.404, 0.333, 3.0], Class::RoughII),
+    reference("J4", "Japanese washi, no gloss", [21.9, 0.469, 0.346, 3.0], Class::RoughII),
+];
+
+/// Relative standard uncertainty assumed for Table 6's σ, ρs, ρd: the paper gives one
+/// sheet per paper and 2–3 digits, so sheet-to-sheet and instrument-to-instrument spread
+/// is not known; 10 % is our stated assumption.
+pub const REFERENCE_RELATIVE_UNCERTAINTY: f64 = 0.10;
+/// Standard uncertainty assumed for Table 6's η (weakly determined, often at its bound).
+pub const REFERENCE_ETA_UNCERTAINTY: f64 = 0.1;
+
+/// Class of a parameter set. `sigma_deg` = `None` means no specular part (rough-III-like:
+/// all diffuse).
+pub fn class_of(sigma_deg: Option<f64>, rho_s: f64, rho_d: f64) -> Class {
+    match sigma_deg {
+        Some(s) if s < rho_s => {
+            if s < G_SG_SPLIT_DEG {
+                Class::G
+            } else {
+                Class::SG
+            }
+        }
+        _ => {
+            let ratio = if rho_s > 0.0 { rho_d / rho_s } else { f64::INFINITY };
+            if ratio < ROUGH_I_MAX_RATIO {
+                Class::RoughI
+            } else if ratio < ROUGH_III_MIN_RATIO {
+                Class::RoughII
+            } else {
+                Class::RoughIII
+            }
+        }
+    }
+}
+
+/// The classification of a fit.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Classification {
+    /// Glossy or rough.
+    pub group: Group,
+    /// The class.
+    pub class: Class,
+    /// Share of the parameter uncertainty region that falls in `class`, 0…1.
+    pub confidence: f64,
+    /// The nearest reference paper of Table 6.
+    pub nearest_reference: &'static str,
+    /// Its distance in units of the combined (fit + reference) standard uncertainty.
+    pub nearest_distance: f64,
+}
+
+/// Points used to sample the uncertainty region.
+const CONFIDENCE_SAMPLES: usize = 512;
+
+/// Classify a fit: the class of the estimate; the share of a deterministic quasi-random
+/// sample of the fit's Gaussian (its covariance, σ in log space so it stays positive;
+/// an unresolved σ drawn uniformly from (0, upper]) that gets the same class; and the
+/// nearest Table 6 paper.
+pub fn classify(fit: &FitResult) -> Classification {
+    let p = fit.params;
+    let sigma_point = if fit.has_specular_term() { Some(fit.sigma_deg().or(fit.sigma_upper_deg()).unwrap_or(p.sigma_deg)) } else { None };
+    let class = match (fit.sigma_deg(), fit.sigma_upper_deg()) {
+        // Unresolved: the group from the upper limit, G/SG by where most of (0, upper] lies.
+        (None, Some(upper)) if fit.has_specular_term() => {
+            let sigma_mid = 0.5 * upper;
+            class_of(Some(sigma_mid), p.rho_s, p.rho_d)
+        }
+        _ => class_of(sigma_point, p.rho_s, p.rho_d),
+    };
+    let confidence = confidence(fit, class);
+    let (nearest_reference, nearest_distance) = nearest_reference(fit);
+    Classification { group: class.group(), class, confidence, nearest_reference, nearest_distance }
+}
+
+fn confidence(fit: &FitResult, class: Class) -> f64 {
+    let p = fit.params;
+    if !fit.has_specular_term() {
+        return if class_of(None, 0.0, p.rho_d) == class { 1.0 } else { 0.0 };
+    }
+    let upper = fit.sigma_upper_deg();
+    // Cholesky of the covariance in (ln σ, ρs, ρd, η) on the fitted, resolved parameters.
+    let scale = [1.0 / p.sigma_deg, 1.0, 1.0, 1.0];
+    let mut cov = [[0.0; 4]; 4];
+    for i in 0..4 {
+        for j in 0..4 {
+            cov[i][j] = fit.covariance[i][j] * scale[i] * scale[j];
+        }
+    }
+    let l = cholesky_lower(&cov);
+    let mut same = 0usize;
+    for k in 0..CONFIDENCE_SAMPLES {
+        let u: [f64; 4] = std::array::from_fn(|d| halton(k + 1, [2, 3, 5, 7][d]));
+        let z: [f64; 4] = std::array::from_fn(|d| inverse_normal_cdf(u[d]));
+        let mut delta = [0.0; 4];
+        for i in 0..4 {
+            for j in 0..=i {
+                delta[i] += l[i][j] * z[j];
+            }
+        }
+        let sigma = match upper {
+            Some(up) => (u[SIGMA] * up).max(SIGMA_MIN_DEG),
+            None => p.sigma_deg * delta[SIGMA].exp(),
+        };
+        let rho_s = (p.rho_s + delta[RHO_S]).max(0.0);
+        let rho_d = (p.rho_d + delta[RHO_D]).max(0.0);
+        let _eta = (p.eta + delta[ETA]).clamp(ETA_MIN, ETA_MAX);
+        if class_of(Some(sigma), rho_s, rho_d) == class {
+            same += 1;
+        }
+    }
+    same as f64 / CONFIDENCE_SAMPLES as f64
+}
+
+/// Nearest Table 6 paper by a diagonal Mahalanobis distance over σ, ρs, ρd (and η when it
+/// was fitted), each difference divided by the combined standard uncertainty
+/// sqrt(u_fit² + u_ref²).
+pub fn nearest_reference(fit: &FitResult) -> (&'static str, f64) {
+    let p = fit.params;
+    let mut best = ("", f64::INFINITY);
+    for r in &REFERENCES {
+        let rp = r.params;
+        let mut d2 = 0.0;
+        let term = |x: f64, x_ref: f64, u_fit: f64, u_ref: f64| {
+            let u2 = u_fit * u_fit + u_ref * u_ref;
+            (x - x_ref) * (x - x_ref) / u2
+        };
+        let u = |i: usize| fit.std_error(i).unwrap_or(0.0);
+        if fit.has_specular_term() {
+            let u_ref = REFERENCE_RELATIVE_UNCERTAINTY * rp.sigma_deg;
+            d2 += match (fit.sigma_deg(), fit.sigma_upper_deg()) {
+                (Some(s), _) => term(s, rp.sigma_deg, u(SIGMA), u_ref),
+                // Only an upper limit: no penalty below it.
+                (None, Some(up)) => term(up.min(rp.sigma_deg), rp.sigma_deg, 0.0, u_ref),
+                (None, None) => 0.0,
+            };
+            if fit.model.0[ETA] {
+                d2 += term(p.eta, rp.eta, u(ETA), REFERENCE_ETA_UNCERTAINTY);
+            }
+        } else {
+            // No lobe at all: as far from each reference as its σ is from 90°.
+            d2 += term(90.0, rp.sigma_deg, 0.0, REFERENCE_RELATIVE_UNCERTAINTY * rp.sigma_deg);
+        }
+        d2 += term(p.rho_s, rp.rho_s, u(RHO_S), REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_s);
+        d2 += term(p.rho_d, rp.rho_d, u(RHO_D), REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_d);
+        let d = d2.sqrt();
+        if d < best.1 {
+            best = (r.name, d);
+        }
+    }
+    best
+}
+
+/// Lower Cholesky factor, rows/columns with zero variance left at zero (semi-definite safe).
+fn cholesky_lower(m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
+    let mut l = [[0.0; 4]; 4];
+    for i in 0..4 {
+        for j in 0..=i {
+            let mut s = m[i][j];
+            for k in 0..j {
+                s -= l[i][k] * l[j][k];
+            }
+            if i == j {
+                l[i][i] = if s > 0.0 { s.sqrt() } else { 0.0 };
+            } else {
+                l[i][j] = if l[j][j] > 0.0 { s / l[j][j] } else { 0.0 };
+            }
+        }
+    }
+    l
+}
+
+/// The radical inverse of `index` in `base`: a low-discrepancy point in (0, 1).
+fn halton(mut index: usize, base: usize) -> f64 {
+    let mut f = 1.0;
+    let mut r = 0.0;
+    while index > 0 {
+        f /= base as f64;
+        r += f * (index % base) as f64;
+        index /= base;
+    }
+    r
+}
+
+/// Φ⁻¹(p) by Acklam's rational approximation (relative error < 1.2e-9), p in (0, 1).
+pub fn inverse_normal_cdf(p: f64) -> f64 {
+    const A: [f64; 6] = [-3.969683028665376e1, 2.209460984245205e2, -2.759285104469687e2, 1.383577518672690e2, -3.066479806614716e1, 2.506628277459239];
+    const B: [f64; 5] = [-5.447609879822406e1, 1.615858368580409e2, -1.556989798598866e2, 6.680131188771972e1, -1.328068155288572e1];
+    const C: [f64; 6] = [-7.784894002430293e-3, -3.223964580411365e-1, -2.400758277161838, -2.549732539343734, 4.374664141464968, 2.938163982698783];
+    const D: [f64; 4] = [7.784695709041462e-3, 3.224671290700398e-1, 2.445134137142996, 3.754408661907416];
+    let p = p.clamp(1e-300, 1.0 - 1e-16);
+    let low = 0.02425;
+    if p < low {
+        let q = (-2.0 * p.ln()).sqrt();
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    } else if p <= 1.0 - low {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    } else {
+        let q = (-2.0 * (1.0 - p).ln()).sqrt();
+        -(((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table6_papers_get_their_class() {
+        for r in &REFERENCES {
+            assert_eq!(class_of(Some(r.params.sigma_deg), r.params.rho_s, r.params.rho_d), r.class, "{}", r.name);
+        }
+    }
+
+    #[test]
+    fn inverse_normal_is_accurate() {
+        assert!((inverse_normal_cdf(0.975) - 1.959963985).abs() < 1e-8);
+        assert!((inverse_normal_cdf(0.5)).abs() < 1e-12);
+        assert!((inverse_normal_cdf(0.001) + 3.090232306).abs() < 1e-7);
+    }
+}

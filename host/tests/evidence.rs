@@ -1,0 +1,85 @@
+//! Evidence: the paper's findings (Akao et al., Fig. 10 and its discussion) on synthetic
+//! data with the noise (1 % + 0.003) and the instrument's 1° acceptance.
+mod common;
+use host::classify::{Group, REFERENCES, classify};
+use host::fit::{FitOptions, fit};
+use host::sampling;
+
+#[test]
+fn strategy1_m12_gets_every_group_right() {
+    let geometries = common::strategy1_m12();
+    let delta = sampling::delta(&geometries, None).expect("a known schedule");
+    assert_eq!(delta.deg, 35.0);
+    for (k, r) in REFERENCES.iter().enumerate() {
+        for seed in 0..3u64 {
+            let obs = common::noisy(&r.params, &geometries, 500 + 10 * k as u64 + seed);
+            let result = fit(&obs, &FitOptions::default()).expect("valid");
+            let c = classify(&result);
+            let check = sampling::check_sigma(result.sigma_deg(), delta.deg);
+            println!(
+                "M=12 {:4} seed {seed}: group {} class {} ({:.2}) σ {:?} ≤ {:?} σ_l {:.2} ok {} rd/rs {:.3}",
+                r.name,
+                c.group.name(),
+                c.class.name(),
+                c.confidence,
+                result.sigma_deg(),
+                result.sigma_upper_deg(),
+                check.sigma_l_deg,
+                check.sigma_ok,
+                result.params.rho_d / result.params.rho_s
+            );
+            assert_eq!(c.group, r.class.group(), "{} seed {seed}", r.name);
+            if c.group == Group::Glossy {
+                assert!(!check.sigma_ok, "{}: glossy papers fail the σ_l check at M = 12", r.name);
+            }
+        }
+    }
+}
+
+#[test]
+fn strategy1_m12_gets_the_rough_groups_right() {
+    // The paper: the rough groups (by ρd/ρs) were right even from 12 geometries.
+    let geometries = common::strategy1_m12();
+    for (k, r) in REFERENCES.iter().enumerate().filter(|(_, r)| r.class.group() == Group::Rough) {
+        let obs = common::noisy(&r.params, &geometries, 700 + k as u64);
+        let c = classify(&fit(&obs, &FitOptions::default()).expect("valid"));
+        assert_eq!(c.class, r.class, "{}", r.name);
+    }
+}
+
+/// (smallest δ that fails, largest δ that passes) for a paper, over Strategy 2's δ.
+fn sigma_check_by_delta(name: &str, rel: f64, abs: f64, acceptance: f64) -> Vec<(u8, bool, f64)> {
+    let p = common::reference(name);
+    (1..=10u8)
+        .map(|d| {
+            let geometries = common::strategy2(d);
+            let obs = common::synthetic(&p, &geometries, acceptance, rel, abs, 900 + u64::from(d), false);
+            let options = FitOptions { acceptance_deg: (acceptance > 0.0).then_some(acceptance), ..FitOptions::default() };
+            let result = fit(&obs, &options).expect("valid");
+            let delta = sampling::delta(&geometries, None).expect("a known schedule");
+            assert_eq!(delta.deg, f64::from(d));
+            let check = sampling::check_sigma(result.sigma_deg(), delta.deg);
+            (d, check.sigma_ok, result.sigma_deg().unwrap_or(f64::NAN))
+        })
+        .collect()
+}
+
+#[test]
+fn glossy_papers_pass_the_sigma_l_check_after_strategy2() {
+    for (name, largest_passing) in [("G", 3u8), ("SG", 8u8)] {
+        // With the noise and the instrument's window: passes at every δ up to the paper's.
+        let noisy = sigma_check_by_delta(name, 0.01, 0.003, 1.0);
+        println!("{name} noisy: {noisy:?}");
+        for &(d, ok, sigma) in &noisy {
+            if d <= largest_passing {
+                assert!(ok, "{name} δ {d}: σ {sigma} should pass");
+            }
+        }
+        // Noise-free, the boundary is exact: σ > σ_l exactly up to that δ.
+        let exact = sigma_check_by_delta(name, 0.0, 0.0, 0.0);
+        println!("{name} exact: {exact:?}");
+        for &(d, ok, sigma) in &exact {
+            assert_eq!(ok, d <= largest_passing, "{name} δ {d}: σ {sigma}");
+        }
+    }
+}
