@@ -32,6 +32,24 @@ pub struct InstrumentConfig {
     pub max_integration_ms: u16,
     /// The host must be heard this often while the arms move or the lamp is on.
     pub heartbeat_timeout_ms: u32,
+    /// Where both home switches trip, beyond the working range so that homing moves the
+    /// arms away from the normal, where they could touch each other.
+    pub home_switch: Angle,
+    /// Homing: longest travel searching for the switch (from anywhere in the range).
+    pub home_search_range: Angle,
+    /// Homing: travel back off the switch; it must release within it.
+    pub home_backoff: Angle,
+    /// Homing: speed of the search and the back-off, °/s.
+    pub home_fast_deg_per_s: f32,
+    /// Homing: speed of the re-approach that locates the switch, °/s.
+    pub home_slow_deg_per_s: f32,
+    /// Samples after a range change that are discarded while the amplifier settles.
+    pub range_settle_ms: u16,
+    /// A reading whose largest sample reaches this fraction of full scale is saturated.
+    pub saturation_fraction: f32,
+    /// Auto-ranging goes one range more sensitive when the mean, scaled by the gain
+    /// ratio, would stay below this fraction of full scale there.
+    pub more_sensitive_below_fraction: f32,
 }
 
 /// 16-bit-effective ADC path: full scale in counts.
@@ -61,6 +79,19 @@ impl InstrumentConfig {
         default_integration_ms: 100,
         max_integration_ms: 10_000,
         heartbeat_timeout_ms: 2_000,
+        // 2.5° beyond the working range: clear of every target, inside the mechanics.
+        home_switch: Angle::from_ticks(87 * 80 + 40),
+        // More than the whole travel from 0° to the switch, plus margin for lost steps.
+        home_search_range: Angle::from_whole_deg(100),
+        // The fast search overshoots the switch by its stop ramp (20²/(2·180) ≈ 1.1°).
+        home_backoff: Angle::from_whole_deg(3),
+        home_fast_deg_per_s: 20.0,
+        // 160 steps/s: polled every 1 ms, the trip is located to within 0.2 step.
+        home_slow_deg_per_s: 2.0,
+        range_settle_ms: 5,
+        saturation_fraction: 0.98,
+        // A decade more gain takes 8 % of full scale to 80 %: clear of saturation.
+        more_sensitive_below_fraction: 0.8,
     };
 
     /// The handshake answer for this configuration.

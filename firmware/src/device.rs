@@ -1,31 +1,141 @@
 //! The device: carries out host commands and keeps the instrument's state.
 //!
-//! This build answers the handshake, heartbeats and status; commands that move or
-//! measure are refused with [`ErrorCode::NotSupported`] until the motion and detector
-//! layers exist (firmware issue).
+//! HOW A BOARD DRIVES IT (board and simulator alike):
+//! 1. At boot: `Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause)`, where
+//!    `hardware` implements [`crate::hardware::Arms`], [`crate::hardware::Detector`] and
+//!    [`crate::hardware::Lamp`] (timer-driven step generators, home switches, driver
+//!    fault pins, TIA range pins + ADC samples, lamp pin) and `reset_cause` comes from
+//!    RCC_CSR ([`ResetCause::Watchdog`] after an IWDG reset: reported as a fault, arms
+//!    not homed). `new` switches the lamp off.
+//! 2. For every chunk of bytes from USB: `device.receive(bytes, now_us, &mut send)`;
+//!    `send` gets whole frames to write back, in order.
+//! 3. Often, and at least every millisecond while anything runs (homing samples the
+//!    switches and readings drain ADC samples here): `device.poll(now_us, &mut send)`.
+//!    It advances moves, homing, readings and schedules, streams readings, and makes the
+//!    fail-safe stop on heartbeat loss or a driver fault. Feed the IWDG after each poll,
+//!    so a hung loop resets the MCU.
+//! 4. On USB disconnect: `device.disconnected()`. After a refused hello,
+//!    `device.take_refused_version()` gives the host's version for the log.
+//!
+//! `now_us` is one monotonic clock (µs since boot) for both calls. Long commands (Home,
+//! MoveTo, TakeReading, TakeDark) are answered when done, from `poll`; a schedule answers
+//! at once and then streams.
+//!
+//! Safety: one fail-safe stop path ([`Device::fail_safe_stop`]): ramp both arms down,
+//! lamp off, end whatever runs, record the fault, send `Stopped`. Heartbeat loss (no
+//! frame for `heartbeat_timeout_ms` while an arm moves or the lamp is on) and driver
+//! faults take it; the arms then count as not homed until the next `Home`, which also
+//! reports the step error. An `Abort` ends everything the same way but keeps the lamp
+//! and the homing (a ramped stop loses no steps). `TakeDark` leaves the lamp off.
 
 use crate::config::InstrumentConfig;
+use crate::detector::{AutoRangedReading, Integration, ReadingProgress, is_saturated};
+use crate::hardware::{Arm, Hardware, ResetCause};
+use crate::homing::{ArmHoming, HomingStatus};
 use crate::link::{Incoming, Link};
+use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
+use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
 use protocol::{
-    Command, DeviceError, DeviceState, ErrorCode, Geometry, PROTOCOL_VERSION, Reply, Status,
+    Command, DeviceError, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
+    PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource, Status, StreamReading, Target,
 };
 
-/// The firmware's state machine.
-pub struct Device {
+/// A move under way: where to, whether the arms actually move, and the settle deadline
+/// once they are there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Travel {
+    target: [i32; 2],
+    moved: bool,
+    settle_until_us: Option<u64>,
+}
+
+/// One step of a running schedule.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum RunStep {
+    Travel(Travel),
+    Measure(AutoRangedReading),
+}
+
+/// A running schedule.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct ScheduleRun {
+    schedule_id: u16,
+    source: ScheduleSource,
+    len: u16,
+    /// Readings streamed so far; also the index of the geometry being visited.
+    index: u16,
+    integration_ms: u16,
+    target: Target,
+    started_us: u64,
+    step: RunStep,
+}
+
+/// What the device is doing. Long commands keep the sequence number they answer.
+#[derive(Clone, Debug, PartialEq)]
+enum Activity {
+    Idle,
+    Homing { seq: u32, arms: [ArmHoming; 2], trips: [Option<i32>; 2] },
+    Moving { seq: u32, travel: Travel },
+    Reading { seq: u32, reading: AutoRangedReading },
+    Dark { seq: u32, integration: Integration, readings: heapless::Vec<Reading, MAX_RANGES> },
+    Schedule(ScheduleRun),
+    /// Arms ramping down after an abort or a fault; nothing new starts until they rest.
+    Stopping,
+}
+
+/// The firmware's state machine, over the board's hardware `H`.
+pub struct Device<H: Hardware> {
     config: InstrumentConfig,
     link: Link,
+    hardware: H,
     /// Set by a `Hello` with our protocol version; until then only `Hello` is served.
     handshake_done: bool,
     /// Protocol version of the last refused `Hello`, for the board's log.
     refused_version: Option<u16>,
-    lamp_on: bool,
     now_us: u64,
+    /// When the host was last heard (any frame).
+    last_heard_us: u64,
+    lamp_on: bool,
+    homed: [bool; 2],
+    /// Homed at least once since reset: the step count still means something after a
+    /// fault, so re-homing can report the step error.
+    homed_since_reset: [bool; 2],
+    /// The last fault, until cleared by homing.
+    fault: Option<ErrorCode>,
+    /// In the safe state after a fault (or a watchdog reset) until homed.
+    safe_stopped: bool,
+    motion: ArmMotion,
+    activity: Activity,
+    uploaded: UploadedSchedule,
+    /// Range of the last reading: where auto-ranging starts next.
+    last_range: u8,
 }
 
-impl Device {
-    /// A device just out of reset.
-    pub fn new(config: InstrumentConfig) -> Device {
-        Device { config, link: Link::new(), handshake_done: false, refused_version: None, lamp_on: false, now_us: 0 }
+type Answer = Option<Result<Reply, DeviceError>>;
+
+impl<H: Hardware> Device<H> {
+    /// A device just out of reset, driving `hardware`.
+    pub fn new(config: InstrumentConfig, mut hardware: H, reset_cause: ResetCause) -> Device<H> {
+        hardware.set_lamp(false);
+        let watchdog = reset_cause == ResetCause::Watchdog;
+        Device {
+            config,
+            link: Link::new(),
+            hardware,
+            handshake_done: false,
+            refused_version: None,
+            now_us: 0,
+            last_heard_us: 0,
+            lamp_on: false,
+            homed: [false; 2],
+            homed_since_reset: [false; 2],
+            fault: watchdog.then_some(ErrorCode::WatchdogReset),
+            safe_stopped: watchdog,
+            motion: ArmMotion::new(),
+            activity: Activity::Idle,
+            uploaded: UploadedSchedule::new(),
+            last_range: 0,
+        }
     }
 
     /// The instrument's configuration.
@@ -33,9 +143,24 @@ impl Device {
         &self.config
     }
 
+    /// The hardware (for the simulator and tests).
+    pub fn hardware(&self) -> &H {
+        &self.hardware
+    }
+
+    /// The hardware, mutable (for the simulator and tests: advancing virtual time).
+    pub fn hardware_mut(&mut self) -> &mut H {
+        &mut self.hardware
+    }
+
     /// Whether a host with our protocol version has said hello.
     pub fn handshake_done(&self) -> bool {
         self.handshake_done
+    }
+
+    /// Whether nothing runs (no command in progress, arms at rest).
+    pub fn is_idle(&self) -> bool {
+        self.activity == Activity::Idle
     }
 
     /// Take (and clear) the version of a host refused since the last call, for logging.
@@ -44,7 +169,7 @@ impl Device {
     }
 
     /// The host went away (USB reset, cable pulled): partial frames are dropped and a new
-    /// session must say hello again.
+    /// session must say hello again. Whatever runs goes on until the heartbeat times out.
     pub fn disconnected(&mut self) {
         self.link.reset();
         self.handshake_done = false;
@@ -55,49 +180,452 @@ impl Device {
     pub fn receive(&mut self, bytes: &[u8], now_us: u64, send: &mut impl FnMut(&[u8])) {
         self.now_us = now_us;
         for &byte in bytes {
-            if let Some(Incoming::Fresh(request)) = self.link.push(byte, send) {
-                let result = self.execute(&request.command);
-                self.link.reply(request.seq, result, send);
+            let Some(incoming) = self.link.push(byte, send) else { continue };
+            // Any frame, even one we could not read, shows the host is alive.
+            self.last_heard_us = now_us;
+            if let Incoming::Fresh(request) = incoming {
+                match self.execute(request.seq, &request.command, send) {
+                    Some(result) => self.link.reply(request.seq, result, send),
+                    None => self.link.begin(request.seq),
+                }
             }
         }
     }
 
-    fn execute(&mut self, command: &Command) -> Result<Reply, DeviceError> {
+    /// Advance whatever runs to device time `now_us`; messages go to `send`.
+    pub fn poll(&mut self, now_us: u64, send: &mut impl FnMut(&[u8])) {
+        self.now_us = now_us;
+        if self.fault != Some(ErrorCode::HardwareFault) && Arm::BOTH.iter().any(|&arm| self.hardware.driver_fault(arm)) {
+            self.fail_safe_stop(ErrorCode::HardwareFault, send);
+        }
+        let needs_host = self.lamp_on
+            || matches!(self.activity, Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_));
+        let silent_us = now_us.saturating_sub(self.last_heard_us);
+        if needs_host && silent_us > u64::from(self.config.heartbeat_timeout_ms) * 1000 {
+            self.fail_safe_stop(ErrorCode::HeartbeatLost, send);
+        }
+        match core::mem::replace(&mut self.activity, Activity::Idle) {
+            Activity::Idle => {}
+            Activity::Homing { seq, arms, trips } => self.poll_homing(seq, arms, trips, send),
+            Activity::Moving { seq, travel } => match self.advance_travel(travel) {
+                Ok(Some(travel)) => self.activity = Activity::Moving { seq, travel },
+                Ok(None) => self.link.reply(seq, Ok(Reply::Ack), send),
+                Err(code) => {
+                    self.activity = Activity::Moving { seq, travel };
+                    self.fail_safe_stop(code, send);
+                }
+            },
+            Activity::Reading { seq, mut reading } => match reading.poll(&mut self.hardware, &self.config, now_us) {
+                ReadingProgress::Running => self.activity = Activity::Reading { seq, reading },
+                ReadingProgress::Done(reading) => {
+                    self.last_range = reading.range;
+                    self.link.reply(seq, Ok(Reply::Reading(reading)), send);
+                }
+                ReadingProgress::NoSamples => {
+                    self.activity = Activity::Reading { seq, reading };
+                    self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                }
+            },
+            Activity::Dark { seq, mut integration, mut readings } => {
+                match integration.poll(&mut self.hardware, now_us) {
+                    None => self.activity = Activity::Dark { seq, integration, readings },
+                    Some(stats) if stats.count() == 0 => {
+                        self.activity = Activity::Dark { seq, integration, readings };
+                        self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                    }
+                    Some(stats) => {
+                        let saturated = is_saturated(&self.config, integration.range(), stats.max());
+                        let _ = readings.push(integration.reading(&stats, saturated));
+                        let next = integration.range() + 1;
+                        if usize::from(next) < self.config.detector_ranges.len().min(MAX_RANGES) {
+                            let ms = readings[0].integration_ms;
+                            let integration = Integration::start(&mut self.hardware, &self.config, next, ms, now_us);
+                            self.activity = Activity::Dark { seq, integration, readings };
+                        } else {
+                            self.link.reply(seq, Ok(Reply::Dark(readings)), send);
+                        }
+                    }
+                }
+            }
+            Activity::Schedule(run) => self.poll_schedule(run, send),
+            Activity::Stopping => {
+                if self.motion.any_moving(&self.hardware) {
+                    self.activity = Activity::Stopping;
+                }
+            }
+        }
+    }
+
+    /// The fail-safe stop: ramp both arms down, lamp off, end whatever runs (a pending
+    /// command is answered with `reason`, a schedule ends with it), record the fault, tell
+    /// the host. The arms count as not homed until the next `Home`.
+    pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
+        self.halt(reason, send);
+        self.hardware.set_lamp(false);
+        self.lamp_on = false;
+        self.fault = Some(reason);
+        self.homed = [false; 2];
+        self.safe_stopped = true;
+        self.link.send(&DeviceMessage::Stopped { reason }, send);
+    }
+
+    /// End whatever runs with `reason`: arms ramp down, a pending command is answered, a
+    /// schedule ends.
+    fn halt(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
+        let max_speed = deg_to_steps(self.config.max_speed_deg_per_s);
+        let accel = deg_to_steps(self.config.accel_deg_per_s2);
+        for arm in Arm::BOTH {
+            self.motion.stop(&mut self.hardware, arm, max_speed, accel, self.now_us);
+        }
+        match core::mem::replace(&mut self.activity, Activity::Idle) {
+            Activity::Homing { seq, .. }
+            | Activity::Moving { seq, .. }
+            | Activity::Reading { seq, .. }
+            | Activity::Dark { seq, .. } => self.link.reply(seq, Err(DeviceError::new(reason)), send),
+            Activity::Schedule(run) => {
+                let done = ScheduleDone {
+                    schedule_id: run.schedule_id,
+                    readings: run.index,
+                    device_us: self.now_us.saturating_sub(run.started_us),
+                    error: Some(reason),
+                };
+                self.link.send(&DeviceMessage::ScheduleDone(done), send);
+            }
+            Activity::Idle | Activity::Stopping => {}
+        }
+        if self.motion.any_moving(&self.hardware) {
+            self.activity = Activity::Stopping;
+        }
+    }
+
+    fn execute(&mut self, seq: u32, command: &Command, send: &mut impl FnMut(&[u8])) -> Answer {
         if let Command::Hello { protocol_version } = *command {
-            return if protocol_version == PROTOCOL_VERSION {
+            return Some(if protocol_version == PROTOCOL_VERSION {
                 self.handshake_done = true;
                 Ok(Reply::Hello(self.config.device_info()))
             } else {
                 self.handshake_done = false;
                 self.refused_version = Some(protocol_version);
                 Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION)))
-            };
+            });
         }
         if !self.handshake_done {
-            return Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION)));
+            return Some(Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION))));
         }
-        match command {
-            Command::Heartbeat => Ok(Reply::Ack),
+        let result = match command {
+            Command::Hello { .. } | Command::Heartbeat => Ok(Reply::Ack),
             Command::GetStatus => Ok(Reply::Status(self.status())),
-            Command::Abort => Ok(Reply::Ack),
-            Command::SetLamp { on: false } => {
-                self.lamp_on = false;
+            Command::Abort => {
+                self.halt(ErrorCode::Aborted, send);
                 Ok(Reply::Ack)
             }
-            _ => Err(DeviceError::new(ErrorCode::NotSupported)),
+            Command::SetLamp { on } => self.set_lamp(*on),
+            Command::Home => return self.start_homing(seq),
+            Command::MoveTo(geometry) => return self.start_move_to(seq, *geometry),
+            Command::TakeReading { integration_ms, target: _ } => return self.start_reading(seq, *integration_ms),
+            Command::TakeDark { integration_ms } => return self.start_dark(seq, *integration_ms),
+            Command::UploadSchedule(chunk) => self.upload(chunk),
+            Command::RunSchedule(run) => self.start_schedule(run),
+        };
+        Some(result)
+    }
+
+    fn busy(&self) -> Result<(), DeviceError> {
+        if self.activity == Activity::Idle { Ok(()) } else { Err(DeviceError::new(ErrorCode::Busy)) }
+    }
+
+    fn require_homed(&self) -> Result<(), DeviceError> {
+        if self.homed == [true, true] { Ok(()) } else { Err(DeviceError::new(ErrorCode::NotHomed)) }
+    }
+
+    fn check_integration(&self, integration_ms: u16) -> Result<(), DeviceError> {
+        if integration_ms == 0 || integration_ms > self.config.max_integration_ms {
+            Err(DeviceError::with_detail(ErrorCode::InvalidArgument, i32::from(self.config.max_integration_ms)))
+        } else {
+            Ok(())
         }
     }
 
-    fn status(&self) -> Status {
+    fn set_lamp(&mut self, on: bool) -> Result<Reply, DeviceError> {
+        let measuring = matches!(self.activity, Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_));
+        // Off is always allowed (safety); on would spoil a reading under way.
+        if on && measuring {
+            return Err(DeviceError::new(ErrorCode::Busy));
+        }
+        self.hardware.set_lamp(on);
+        self.lamp_on = on;
+        Ok(Reply::Ack)
+    }
+
+    fn start_homing(&mut self, seq: u32) -> Answer {
+        if let Err(error) = self.busy() {
+            return Some(Err(error));
+        }
+        self.homed = [false; 2];
+        let arms = [ArmHoming::new(Arm::Source), ArmHoming::new(Arm::Detector)];
+        self.activity = Activity::Homing { seq, arms, trips: [None; 2] };
+        None
+    }
+
+    fn poll_homing(&mut self, seq: u32, mut arms: [ArmHoming; 2], mut trips: [Option<i32>; 2], send: &mut impl FnMut(&[u8])) {
+        for arm in Arm::BOTH {
+            if trips[arm.index()].is_some() {
+                continue;
+            }
+            match arms[arm.index()].poll(&mut self.hardware, &mut self.motion, &self.config, self.now_us) {
+                HomingStatus::Running => {}
+                HomingStatus::Homed { trip_steps } => trips[arm.index()] = Some(trip_steps),
+                HomingStatus::Failed(error) => {
+                    // The other arm stops too; the host hears which arm failed and how.
+                    self.halt(error.code, send);
+                    self.link.reply(seq, Err(error), send);
+                    self.fault = Some(error.code);
+                    return;
+                }
+            }
+        }
+        let [Some(trip_i), Some(trip_r)] = trips else {
+            self.activity = Activity::Homing { seq, arms, trips };
+            return;
+        };
+        let switch = angle_to_steps(self.config.home_switch);
+        let mut errors = [None; 2];
+        for (arm, trip) in Arm::BOTH.into_iter().zip([trip_i, trip_r]) {
+            let i = arm.index();
+            // Where the switch is, minus where the arm believed it was when it tripped.
+            errors[i] = self.homed_since_reset[i].then_some(switch - trip);
+            let here = self.hardware.position_steps(arm);
+            self.hardware.set_position_steps(arm, switch + (here - trip));
+            self.homed[i] = true;
+            self.homed_since_reset[i] = true;
+        }
+        self.fault = None;
+        self.safe_stopped = false;
+        let report = HomeReport { step_error_i: errors[0], step_error_r: errors[1] };
+        self.link.reply(seq, Ok(Reply::Homed(report)), send);
+    }
+
+    /// Refuse a target outside the working range or breaking the collision guard.
+    pub fn check_target(&self, geometry: Geometry) -> Result<(), DeviceError> {
+        check_target(&self.config, geometry)
+    }
+
+    fn positions(&self) -> [i32; 2] {
+        Arm::BOTH.map(|arm| self.hardware.position_steps(arm))
+    }
+
+    fn position(&self) -> Geometry {
+        let [i, r] = self.positions();
+        Geometry::new(steps_to_angle(i), steps_to_angle(r))
+    }
+
+    fn start_travel(&mut self, geometry: Geometry) -> Travel {
+        let from = self.positions();
+        let target = [angle_to_steps(geometry.theta_i), angle_to_steps(geometry.theta_r)];
+        let profiles = plan_move(
+            from,
+            target,
+            deg_to_steps(self.config.max_speed_deg_per_s),
+            deg_to_steps(self.config.accel_deg_per_s2),
+        );
+        for arm in Arm::BOTH {
+            self.motion.start(&mut self.hardware, arm, profiles[arm.index()], self.now_us);
+        }
+        Travel { target, moved: from != target, settle_until_us: None }
+    }
+
+    /// `Ok(None)` when arrived and settled; an error when the arms came to rest elsewhere.
+    fn advance_travel(&mut self, mut travel: Travel) -> Result<Option<Travel>, ErrorCode> {
+        if self.motion.any_moving(&self.hardware) {
+            return Ok(Some(travel));
+        }
+        if self.positions() != travel.target {
+            return Err(ErrorCode::HardwareFault);
+        }
+        let settle_us = if travel.moved { u64::from(self.config.settle_ms) * 1000 } else { 0 };
+        let until = *travel.settle_until_us.get_or_insert(self.now_us + settle_us);
+        Ok((self.now_us < until).then_some(travel))
+    }
+
+    fn start_move_to(&mut self, seq: u32, geometry: Geometry) -> Answer {
+        if let Err(error) = self.busy().and_then(|_| self.require_homed()).and_then(|_| self.check_target(geometry)) {
+            return Some(Err(error));
+        }
+        let travel = self.start_travel(geometry);
+        if !travel.moved {
+            return Some(Ok(Reply::Ack));
+        }
+        self.activity = Activity::Moving { seq, travel };
+        None
+    }
+
+    fn start_reading(&mut self, seq: u32, integration_ms: u16) -> Answer {
+        let checks = self.busy().and_then(|_| self.require_homed()).and_then(|_| self.check_integration(integration_ms));
+        if let Err(error) = checks {
+            return Some(Err(error));
+        }
+        let reading = AutoRangedReading::start(&mut self.hardware, &self.config, self.last_range, integration_ms, self.now_us);
+        self.activity = Activity::Reading { seq, reading };
+        None
+    }
+
+    fn start_dark(&mut self, seq: u32, integration_ms: u16) -> Answer {
+        if let Err(error) = self.busy().and_then(|_| self.check_integration(integration_ms)) {
+            return Some(Err(error));
+        }
+        self.hardware.set_lamp(false);
+        self.lamp_on = false;
+        let integration = Integration::start(&mut self.hardware, &self.config, 0, integration_ms, self.now_us);
+        self.activity = Activity::Dark { seq, integration, readings: heapless::Vec::new() };
+        None
+    }
+
+    fn upload(&mut self, chunk: &protocol::ScheduleChunk) -> Result<Reply, DeviceError> {
+        if matches!(self.activity, Activity::Schedule(_)) {
+            return Err(DeviceError::new(ErrorCode::Busy));
+        }
+        let config = &self.config;
+        let received = self.uploaded.add_chunk(chunk, config.max_schedule_len, |g| check_target(config, g))?;
+        Ok(Reply::ScheduleLoaded { schedule_id: chunk.schedule_id, received, total_len: chunk.total_len })
+    }
+
+    fn start_schedule(&mut self, run: &RunSchedule) -> Result<Reply, DeviceError> {
+        self.busy()?;
+        self.require_homed()?;
+        self.check_integration(run.integration_ms)?;
+        let len = match run.source {
+            ScheduleSource::Strategy1 => STRATEGY1_ORDER.len() as u16,
+            ScheduleSource::Uploaded => match self.uploaded.complete(run.schedule_id) {
+                Some(geometries) => geometries.len() as u16,
+                None => return Err(DeviceError::new(ErrorCode::NoSchedule)),
+            },
+        };
+        let first = self.schedule_geometry(run.source, 0).ok_or(DeviceError::new(ErrorCode::NoSchedule))?;
+        self.check_target(first)?;
+        let travel = self.start_travel(first);
+        self.activity = Activity::Schedule(ScheduleRun {
+            schedule_id: run.schedule_id,
+            source: run.source,
+            len,
+            index: 0,
+            integration_ms: run.integration_ms,
+            target: run.target,
+            started_us: self.now_us,
+            step: RunStep::Travel(travel),
+        });
+        Ok(Reply::ScheduleStarted { schedule_id: run.schedule_id, len })
+    }
+
+    fn schedule_geometry(&self, source: ScheduleSource, index: u16) -> Option<Geometry> {
+        match source {
+            ScheduleSource::Strategy1 => STRATEGY1_ORDER.get(usize::from(index)).copied(),
+            ScheduleSource::Uploaded => self.uploaded.get(index),
+        }
+    }
+
+    fn poll_schedule(&mut self, mut run: ScheduleRun, send: &mut impl FnMut(&[u8])) {
+        match run.step {
+            RunStep::Travel(travel) => match self.advance_travel(travel) {
+                Ok(Some(travel)) => run.step = RunStep::Travel(travel),
+                Ok(None) => {
+                    let reading = AutoRangedReading::start(
+                        &mut self.hardware,
+                        &self.config,
+                        self.last_range,
+                        run.integration_ms,
+                        self.now_us,
+                    );
+                    run.step = RunStep::Measure(reading);
+                }
+                Err(code) => {
+                    self.activity = Activity::Schedule(run);
+                    return self.fail_safe_stop(code, send);
+                }
+            },
+            RunStep::Measure(mut reading) => match reading.poll(&mut self.hardware, &self.config, self.now_us) {
+                ReadingProgress::Running => run.step = RunStep::Measure(reading),
+                ReadingProgress::NoSamples => {
+                    self.activity = Activity::Schedule(run);
+                    return self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                }
+                ReadingProgress::Done(reading) => {
+                    self.last_range = reading.range;
+                    let streamed = StreamReading {
+                        schedule_id: run.schedule_id,
+                        index: run.index,
+                        geometry: self.position(),
+                        target: run.target,
+                        reading,
+                        device_time_us: self.now_us,
+                    };
+                    self.link.send(&DeviceMessage::Reading(streamed), send);
+                    run.index += 1;
+                    let next = self.schedule_geometry(run.source, run.index);
+                    match next {
+                        Some(geometry) if run.index < run.len => {
+                            if let Err(error) = self.check_target(geometry) {
+                                // Checked at upload; a failure here is a firmware fault.
+                                self.activity = Activity::Schedule(run);
+                                return self.fail_safe_stop(error.code, send);
+                            }
+                            run.step = RunStep::Travel(self.start_travel(geometry));
+                        }
+                        _ => {
+                            let done = ScheduleDone {
+                                schedule_id: run.schedule_id,
+                                readings: run.index,
+                                device_us: self.now_us - run.started_us,
+                                error: None,
+                            };
+                            self.link.send(&DeviceMessage::ScheduleDone(done), send);
+                            return;
+                        }
+                    }
+                }
+            },
+        }
+        self.activity = Activity::Schedule(run);
+    }
+
+    /// The answer to `GetStatus`.
+    pub fn status(&self) -> Status {
+        let state = match self.activity {
+            Activity::Idle if self.safe_stopped => DeviceState::Stopped,
+            Activity::Idle => DeviceState::Idle,
+            Activity::Homing { .. } => DeviceState::Homing,
+            Activity::Moving { .. } => DeviceState::Moving,
+            Activity::Reading { .. } | Activity::Dark { .. } => DeviceState::Measuring,
+            Activity::Schedule(_) => DeviceState::RunningSchedule,
+            Activity::Stopping if self.safe_stopped => DeviceState::Stopped,
+            Activity::Stopping => DeviceState::Moving,
+        };
+        let schedule = match &self.activity {
+            Activity::Schedule(run) => Some((run.schedule_id, run.index)),
+            _ => None,
+        };
         Status {
-            state: DeviceState::Idle,
-            position: Geometry::default(),
-            homed_i: false,
-            homed_r: false,
+            state,
+            position: self.position(),
+            homed_i: self.homed[0],
+            homed_r: self.homed[1],
             lamp_on: self.lamp_on,
-            fault: None,
-            schedule: None,
+            fault: self.fault,
+            schedule,
             uptime_us: self.now_us,
         }
     }
+}
+
+/// Refuse a target outside the working range (detail: the arm) or breaking the collision
+/// guard. Every target of every command and schedule passes here before any motion.
+pub fn check_target(config: &InstrumentConfig, geometry: Geometry) -> Result<(), DeviceError> {
+    for (arm, angle) in [geometry.theta_i, geometry.theta_r].into_iter().enumerate() {
+        if angle < config.arm_min || angle > config.arm_max {
+            return Err(DeviceError::with_detail(ErrorCode::OutOfRange, arm as i32));
+        }
+    }
+    if geometry.theta_i.ticks() + geometry.theta_r.ticks() < config.collision_min_sum.ticks() {
+        return Err(DeviceError::new(ErrorCode::CollisionGuard));
+    }
+    Ok(())
 }

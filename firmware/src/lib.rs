@@ -4,16 +4,30 @@
 //! (`hil-sim`) both run this same code.
 //!
 //! - [`link`]: bytes in, frames out; sequence numbers answered once.
-//! - [`device`]: the command handler and the device's state.
+//! - [`device`]: the command handler and the device's state (how a board drives it is
+//!   described there).
+//! - [`hardware`]: the traits a board implements (arms, detector, lamp).
+//! - [`motion`]: angle ↔ microsteps, velocity profiles, both arms arriving together.
+//! - [`homing`]: one arm's homing state machine.
+//! - [`detector`]: reading statistics and auto-ranging.
+//! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
 //! - [`config`]: the reference instrument's limits, announced in the handshake.
+//! - [`testing`]: hardware models on virtual time, for the tests and the simulator.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod detector;
 pub mod device;
+pub mod hardware;
+pub mod homing;
 pub mod link;
+pub mod motion;
+pub mod schedule;
+pub mod testing;
 
 pub use device::Device;
+pub use hardware::{Arm, Arms, Detector, Hardware, Lamp, ResetCause};
 pub use link::Link;
 
 /// Firmware version announced in the handshake.

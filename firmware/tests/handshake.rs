@@ -1,9 +1,18 @@
 //! The handshake and the link rules, through the firmware library's byte interface:
 //! exactly what the board and the simulator run.
 
-use firmware::Device;
 use firmware::config::InstrumentConfig;
+use firmware::hardware::ResetCause;
+use firmware::testing::{ConstantScene, FakeHardware};
 use protocol::*;
+
+type Device = firmware::Device<FakeHardware<ConstantScene>>;
+
+fn new_device() -> Device {
+    let config = InstrumentConfig::REFERENCE;
+    let hardware = FakeHardware::new(&config, ConstantScene(0.0), Geometry::from_whole_deg(30, 30));
+    firmware::Device::new(config, hardware, ResetCause::PowerOn)
+}
 
 fn frame(request: &Request) -> Vec<u8> {
     let mut buf = [0u8; MAX_FRAME_LEN];
@@ -32,7 +41,7 @@ fn ask(device: &mut Device, seq: u32, command: Command) -> Result<Reply, DeviceE
 
 #[test]
 fn hello_answers_device_info() {
-    let mut device = Device::new(InstrumentConfig::REFERENCE);
+    let mut device = new_device();
     let Ok(Reply::Hello(info)) = ask(&mut device, 1, Command::Hello { protocol_version: PROTOCOL_VERSION }) else {
         panic!("no device info")
     };
@@ -50,7 +59,7 @@ fn hello_answers_device_info() {
 
 #[test]
 fn version_mismatch_is_refused_and_blocks_the_session() {
-    let mut device = Device::new(InstrumentConfig::REFERENCE);
+    let mut device = new_device();
     let refused = ask(&mut device, 1, Command::Hello { protocol_version: PROTOCOL_VERSION + 1 });
     assert_eq!(refused, Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION))));
     assert_eq!(device.take_refused_version(), Some(PROTOCOL_VERSION + 1));
@@ -62,7 +71,7 @@ fn version_mismatch_is_refused_and_blocks_the_session() {
 
 #[test]
 fn repeated_sequence_number_is_answered_from_the_cache() {
-    let mut device = Device::new(InstrumentConfig::REFERENCE);
+    let mut device = new_device();
     ask(&mut device, 1, Command::Hello { protocol_version: PROTOCOL_VERSION }).unwrap();
     let first = exchange(&mut device, &frame(&Request { seq: 2, command: Command::GetStatus }));
     // The retry carries a different command body only if the host is broken; the device
@@ -75,7 +84,7 @@ fn repeated_sequence_number_is_answered_from_the_cache() {
 
 #[test]
 fn bad_frames_are_reported_and_the_link_recovers() {
-    let mut device = Device::new(InstrumentConfig::REFERENCE);
+    let mut device = new_device();
     let mut corrupted = frame(&Request { seq: 1, command: Command::Hello { protocol_version: PROTOCOL_VERSION } });
     corrupted[2] ^= 0x40;
     let messages = exchange(&mut device, &corrupted);
@@ -93,7 +102,7 @@ fn bad_frames_are_reported_and_the_link_recovers() {
 
 #[test]
 fn reconnect_requires_a_new_hello() {
-    let mut device = Device::new(InstrumentConfig::REFERENCE);
+    let mut device = new_device();
     ask(&mut device, 1, Command::Hello { protocol_version: PROTOCOL_VERSION }).unwrap();
     device.disconnected();
     assert_eq!(ask(&mut device, 2, Command::GetStatus).unwrap_err().code, ErrorCode::VersionMismatch);

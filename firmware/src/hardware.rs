@@ -1,0 +1,80 @@
+//! The small hardware traits the firmware library drives. The board implements them with
+//! its peripherals (timers, GPIO, ADC); the simulator and the tests with models on virtual
+//! time. Nothing here decides anything: the traits only act and report.
+
+use crate::motion::MoveProfile;
+
+/// One of the two arms.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Arm {
+    /// The source arm (θi).
+    Source,
+    /// The detector arm (θr).
+    Detector,
+}
+
+impl Arm {
+    /// Both arms, source first.
+    pub const BOTH: [Arm; 2] = [Arm::Source, Arm::Detector];
+
+    /// 0 for the source arm, 1 for the detector arm (the `detail` of arm errors).
+    pub const fn index(self) -> usize {
+        match self {
+            Arm::Source => 0,
+            Arm::Detector => 1,
+        }
+    }
+}
+
+/// Two stepper-driven arms with a home switch each.
+///
+/// Positions are microstep counts kept by the step generator (one count per step pulse
+/// issued, signed by direction); the library defines their zero by homing.
+pub trait Arms {
+    /// Start executing `profile` now, replacing whatever the arm was running; the arm is at
+    /// `profile.start_steps()`. A board runs it from a hardware timer: step `k` is issued
+    /// at `profile.step_time_us(k)` after the start, so the rate holds whatever the CPU
+    /// does. Returns at once.
+    fn run_profile(&mut self, arm: Arm, profile: &MoveProfile);
+    /// The arm's step count now.
+    fn position_steps(&self, arm: Arm) -> i32;
+    /// Whether the arm is still executing a profile.
+    fn is_moving(&self, arm: Arm) -> bool;
+    /// Redefine the step count of the arm's current position (homing; arm at rest).
+    fn set_position_steps(&mut self, arm: Arm, steps: i32);
+    /// Whether the arm's home switch is pressed.
+    fn home_switch_pressed(&self, arm: Arm) -> bool;
+    /// Whether the arm's stepper driver reports a fault (over-temperature, short, …).
+    fn driver_fault(&self, arm: Arm) -> bool;
+}
+
+/// The photodiode, its transimpedance ranges and the ADC.
+pub trait Detector {
+    /// Switch the amplifier to `range` (index into the configured ranges, most sensitive
+    /// first). Samples taken while it settles are discarded by the library.
+    fn select_range(&mut self, range: u8);
+    /// Hand every ADC sample (counts) taken since the last call to `sink`, oldest first.
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32));
+}
+
+/// The light source.
+pub trait Lamp {
+    /// Switch the lamp.
+    fn set_lamp(&mut self, on: bool);
+}
+
+/// Everything the device drives.
+pub trait Hardware: Arms + Detector + Lamp {}
+
+impl<T: Arms + Detector + Lamp> Hardware for T {}
+
+/// Why the MCU last came out of reset (the board reads it from RCC_CSR).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetCause {
+    /// Power-up, reset pin, or a software reset.
+    PowerOn,
+    /// The independent watchdog reset a hung MCU: reported as a fault until homed.
+    Watchdog,
+}

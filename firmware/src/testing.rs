@@ -1,0 +1,243 @@
+//! Hardware models on virtual time, for the library's tests and for the simulator.
+//!
+//! Arms follow the profiles they are given exactly (a perfect step generator), with their
+//! true angle offset from the step count by an unknown amount until homed; home switches
+//! press at the configured angle. The detector samples at 1 kHz: dark offset plus, with
+//! the lamp on, a [`Scene`]'s signal times the range gain, plus deterministic noise,
+//! clipped at full scale. Faults (a missing or stuck switch, a driver fault, a dead ADC,
+//! lost steps) can be injected. Nothing here is linked into the board firmware.
+
+use crate::config::InstrumentConfig;
+use crate::hardware::{Arm, Arms, Detector, Lamp};
+use crate::motion::MoveProfile;
+use libm::sqrtf;
+use protocol::{Angle, DetectorRange, Geometry};
+
+/// What the detector sees with the lamp on.
+pub trait Scene {
+    /// Signal in counts on the most sensitive range (dark offset excluded) with the arms
+    /// at these true angles, degrees.
+    fn signal_counts(&self, theta_i_deg: f32, theta_r_deg: f32) -> f32;
+}
+
+/// The same signal at every geometry.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConstantScene(pub f32);
+
+impl Scene for ConstantScene {
+    fn signal_counts(&self, _theta_i_deg: f32, _theta_r_deg: f32) -> f32 {
+        self.0
+    }
+}
+
+impl<F: Fn(f32, f32) -> f32> Scene for F {
+    fn signal_counts(&self, theta_i_deg: f32, theta_r_deg: f32) -> f32 {
+        self(theta_i_deg, theta_r_deg)
+    }
+}
+
+/// One modelled arm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FakeArm {
+    steps: i32,
+    /// True angle in ticks = steps + offset (unknown to the firmware until it homes).
+    offset_steps: i32,
+    running: Option<(MoveProfile, u64)>,
+    /// The switch never presses (broken wire).
+    pub switch_missing: bool,
+    /// The switch stays pressed (welded, stuck lever).
+    pub switch_stuck: bool,
+    /// The driver reports a fault.
+    pub driver_fault: bool,
+    /// Lowest and highest true angle reached, ticks.
+    pub travel_ticks: (i32, i32),
+}
+
+impl FakeArm {
+    fn at(true_angle: Angle) -> FakeArm {
+        let ticks = true_angle.ticks();
+        FakeArm {
+            steps: 0,
+            offset_steps: ticks,
+            running: None,
+            switch_missing: false,
+            switch_stuck: false,
+            driver_fault: false,
+            travel_ticks: (ticks, ticks),
+        }
+    }
+
+    /// True angle, ticks.
+    pub fn true_ticks(&self) -> i32 {
+        self.steps + self.offset_steps
+    }
+}
+
+/// Fake arms, detector and lamp on a virtual clock that the test advances.
+#[derive(Clone, Debug)]
+pub struct FakeHardware<S: Scene> {
+    now_us: u64,
+    /// The arms, source first.
+    pub arms: [FakeArm; 2],
+    switch_ticks: i32,
+    lamp_on: bool,
+    range: u8,
+    ranges: &'static [DetectorRange],
+    /// Dark offset, counts.
+    pub dark_counts: f32,
+    /// Standard deviation of the sample noise, counts.
+    pub noise_counts: f32,
+    next_sample_us: u64,
+    rng: u32,
+    /// What the detector sees.
+    pub scene: S,
+    /// The ADC delivers nothing.
+    pub detector_dead: bool,
+    /// Profiles handed to the step generators so far (both arms).
+    pub profiles_started: u32,
+    /// Profiles started whose speed or acceleration broke the configured limits.
+    pub profiles_over_limits: u32,
+    max_speed: f32,
+    accel: f32,
+}
+
+/// Sample period of the modelled ADC.
+const SAMPLE_PERIOD_US: u64 = 1000;
+
+impl<S: Scene> FakeHardware<S> {
+    /// The reference hardware, arms standing at these true angles (unknown to the firmware).
+    pub fn new(config: &InstrumentConfig, scene: S, true_position: Geometry) -> FakeHardware<S> {
+        FakeHardware {
+            now_us: 0,
+            arms: [FakeArm::at(true_position.theta_i), FakeArm::at(true_position.theta_r)],
+            switch_ticks: config.home_switch.ticks(),
+            lamp_on: false,
+            range: 0,
+            ranges: config.detector_ranges,
+            // INSTRUMENT.md: dark ≈ 0.3 % and read noise 0.02 % of full scale.
+            dark_counts: 0.003 * 65_535.0,
+            noise_counts: 0.0002 * 65_535.0,
+            next_sample_us: SAMPLE_PERIOD_US,
+            rng: 0x2545_f491,
+            scene,
+            detector_dead: false,
+            profiles_started: 0,
+            profiles_over_limits: 0,
+            max_speed: crate::motion::deg_to_steps(config.max_speed_deg_per_s),
+            accel: crate::motion::deg_to_steps(config.accel_deg_per_s2),
+        }
+    }
+
+    /// Advance virtual time: the arms follow their profiles.
+    pub fn advance_to(&mut self, now_us: u64) {
+        self.now_us = now_us.max(self.now_us);
+        for arm in &mut self.arms {
+            if let Some((profile, started_us)) = arm.running {
+                let elapsed = self.now_us - started_us;
+                arm.steps = profile.position_at(elapsed);
+                if elapsed >= profile.duration_us() {
+                    arm.running = None;
+                }
+                let t = arm.true_ticks();
+                arm.travel_ticks = (arm.travel_ticks.0.min(t), arm.travel_ticks.1.max(t));
+            }
+        }
+    }
+
+    /// The arms' true angles.
+    pub fn true_geometry(&self) -> Geometry {
+        Geometry::new(Angle::from_ticks(self.arms[0].true_ticks()), Angle::from_ticks(self.arms[1].true_ticks()))
+    }
+
+    /// The arm slipped: its true angle falls behind its step count by `steps`.
+    pub fn lose_steps(&mut self, arm: Arm, steps: i32) {
+        self.arms[arm.index()].offset_steps -= steps;
+    }
+
+    /// Whether the lamp is on.
+    pub fn lamp_on(&self) -> bool {
+        self.lamp_on
+    }
+
+    /// The range selected.
+    pub fn range(&self) -> u8 {
+        self.range
+    }
+
+    fn noise(&mut self) -> f32 {
+        // xorshift32; the sum of four uniforms is close enough to normal for a test.
+        let mut sum = 0.0;
+        for _ in 0..4 {
+            self.rng ^= self.rng << 13;
+            self.rng ^= self.rng >> 17;
+            self.rng ^= self.rng << 5;
+            sum += self.rng as f32 / u32::MAX as f32 - 0.5;
+        }
+        // Variance of the sum: 4/12.
+        sum * sqrtf(3.0) * self.noise_counts
+    }
+}
+
+impl<S: Scene> Arms for FakeHardware<S> {
+    fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
+        let limits_ok = profile.peak_speed() <= self.max_speed * 1.0001 && profile.accel() <= self.accel * 1.0001;
+        self.profiles_over_limits += u32::from(!limits_ok);
+        self.profiles_started += 1;
+        let arm = &mut self.arms[arm.index()];
+        assert_eq!(profile.start_steps(), arm.steps, "a profile must start where the arm is");
+        arm.running = Some((*profile, self.now_us));
+    }
+
+    fn position_steps(&self, arm: Arm) -> i32 {
+        self.arms[arm.index()].steps
+    }
+
+    fn is_moving(&self, arm: Arm) -> bool {
+        self.arms[arm.index()].running.is_some()
+    }
+
+    fn set_position_steps(&mut self, arm: Arm, steps: i32) {
+        let arm = &mut self.arms[arm.index()];
+        arm.offset_steps += arm.steps - steps;
+        arm.steps = steps;
+    }
+
+    fn home_switch_pressed(&self, arm: Arm) -> bool {
+        let arm = &self.arms[arm.index()];
+        !arm.switch_missing && (arm.switch_stuck || arm.true_ticks() >= self.switch_ticks)
+    }
+
+    fn driver_fault(&self, arm: Arm) -> bool {
+        self.arms[arm.index()].driver_fault
+    }
+}
+
+impl<S: Scene> Detector for FakeHardware<S> {
+    fn select_range(&mut self, range: u8) {
+        self.range = range;
+    }
+
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) {
+        let range = self.ranges[usize::from(self.range)];
+        let geometry = self.true_geometry();
+        let signal = if self.lamp_on {
+            self.scene.signal_counts(geometry.theta_i.deg() as f32, geometry.theta_r.deg() as f32) * range.relative_gain
+        } else {
+            0.0
+        };
+        while self.next_sample_us <= self.now_us {
+            self.next_sample_us += SAMPLE_PERIOD_US;
+            if self.detector_dead {
+                continue;
+            }
+            let counts = self.dark_counts + signal + self.noise();
+            sink(counts.clamp(0.0, range.full_scale_counts as f32) as u32);
+        }
+    }
+}
+
+impl<S: Scene> Lamp for FakeHardware<S> {
+    fn set_lamp(&mut self, on: bool) {
+        self.lamp_on = on;
+    }
+}
