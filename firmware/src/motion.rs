@@ -266,7 +266,8 @@ pub fn plan_move(from: [i32; 2], to: [i32; 2], max_speed: f32, accel: f32) -> [M
 
 /// Duration of a move of both arms, µs, as [`plan_move`] plans it.
 pub fn move_duration_us(from: [i32; 2], to: [i32; 2], max_speed: f32, accel: f32) -> u64 {
-    plan_move(from, to, max_speed, accel)[0].duration_us()
+    let [source, detector] = plan_move(from, to, max_speed, accel);
+    source.duration_us().max(detector.duration_us())
 }
 
 /// A profile an arm is running, and since when.
