@@ -392,7 +392,8 @@ impl<H: Hardware> Device<H> {
         let mut errors = [None; 2];
         for (arm, trip) in Arm::BOTH.into_iter().zip([trip_i, trip_r]) {
             let i = arm.index();
-            // Where the switch is, minus where the arm believed it was when it tripped.
+            // Where the switch is, minus where the arm believed it was when it tripped:
+            // negative when the arm fell short of its step count (steps lost on the way out).
             errors[i] = self.homed_since_reset[i].then_some(switch - trip);
             let here = self.hardware.position_steps(arm);
             self.hardware.set_position_steps(arm, switch + (here - trip));

@@ -377,3 +377,13 @@ fn take_reading_picks_the_range() {
     };
     assert_eq!((r.range, r.saturated), (0, false));
 }
+
+#[test]
+fn the_device_state_fits_the_ram_budget() {
+    // The board keeps the device in a static (or its task's future): it must leave most of
+    // the 24 KiB static RAM budget to USB and the executor. The uploaded schedule
+    // (288 × 8 bytes) and the link's frame buffers dominate.
+    let size = core::mem::size_of::<firmware::Device<Hw>>() - core::mem::size_of::<Hw>();
+    eprintln!("Device state without the hardware: {size} bytes");
+    assert!(size <= 4 * 1024, "{size}");
+}
