@@ -7,7 +7,7 @@
 //! construction; the others by an active-set projection) then polishes the best basins.
 //! After the fit, what the data cannot determine is taken out of the model and said so.
 
-use crate::model::{self, ETA, PARAM_NAMES, Params, PlaneGeometry, RHO_D, RHO_S, SIGMA};
+use crate::model::{self, ETA, PARAM_NAMES, Params, PlaneGeometry, RHO_S, SIGMA};
 use serde::Serialize;
 use thiserror::Error;
 
@@ -417,22 +417,27 @@ impl Problem {
         }
     }
 
-    /// Cost at x = [ln σ, ρs, ρd, η], with JᵀJ and Jᵀr in x when `jacobian`.
+    /// Cost at x = [ln σ, A = ρs·(η²−1), ρd, η], with JᵀJ and Jᵀr in x when `jacobian`.
     fn accumulate(&self, x: &[f64; 4], jacobian: bool) -> (f64, [[f64; 4]; 4], [f64; 4]) {
-        let p = params_of(x);
+        let sigma = x[0].exp();
+        let (amplitude, rho_d, eta) = (x[1], x[2], x[3]);
         let mut cost = 0.0;
         let mut a = [[0.0; 4]; 4];
         let mut g = [0.0; 4];
         for pt in &self.points {
-            let (f, grad) = model::evaluate(&p, &pt.geometry, self.acceptance_deg);
+            let (e, de) = self.lobe(pt.geometry.offset_deg, sigma);
+            let (fr, dfr) = model::reduced_fresnel_with_derivative(pt.geometry.sin2_psi, pt.geometry.cos_psi, eta);
+            let h = pt.geometry.attenuation_over_cosines;
+            let shape = fr * h * e;
+            let f = amplitude * shape + rho_d;
             let r = pt.sqrt_w * (f - pt.y);
             cost += r * r;
             if jacobian {
                 let j = [
-                    pt.sqrt_w * grad[SIGMA] * p.sigma_deg,
-                    pt.sqrt_w * grad[RHO_S],
-                    pt.sqrt_w * grad[RHO_D],
-                    pt.sqrt_w * grad[ETA],
+                    pt.sqrt_w * amplitude * fr * h * de * sigma,
+                    pt.sqrt_w * shape,
+                    pt.sqrt_w,
+                    pt.sqrt_w * amplitude * dfr * h * e,
                 ];
                 for row in 0..4 {
                     g[row] += j[row] * r;
@@ -468,12 +473,26 @@ impl Problem {
     }
 }
 
-fn params_of(x: &[f64; 4]) -> Params {
-    Params { sigma_deg: x[0].exp(), rho_s: x[1], rho_d: x[2], eta: x[3] }
+/// (η² − 1), the factor between the fit's amplitude A and ρs.
+fn eta_factor(eta: f64) -> f64 {
+    (eta - 1.0) * (eta + 1.0)
 }
 
+fn params_of(x: &[f64; 4]) -> Params {
+    Params { sigma_deg: x[0].exp(), rho_s: x[1] / eta_factor(x[3]), rho_d: x[2], eta: x[3] }
+}
+
+/// x = [ln σ, A, ρd, η] of parameters.
+fn x_of(p: &Params) -> [f64; 4] {
+    [p.sigma_deg.ln(), p.rho_s * eta_factor(p.eta), p.rho_d, p.eta]
+}
+
+/// η = 1 itself has F ≡ 0; the fit stops just above it, where ρs = A/(η²−1) is still
+/// finite, and reports η at its bound with ρs undetermined.
+const ETA_FLOOR: f64 = ETA_MIN + 1e-6;
+
 fn lower_bounds() -> [f64; 4] {
-    [SIGMA_MIN_DEG.ln(), 0.0, 0.0, ETA_MIN]
+    [SIGMA_MIN_DEG.ln(), 0.0, 0.0, ETA_FLOOR]
 }
 
 fn upper_bounds() -> [f64; 4] {
@@ -518,8 +537,7 @@ pub fn linear_profile(
 /// Weighted cost of given parameters (the fit's objective).
 pub fn cost(observations: &[Observation], params: &Params, acceptance_deg: Option<f64>) -> f64 {
     let problem = Problem::new(observations, acceptance_deg);
-    let x = [params.sigma_deg.ln(), params.rho_s, params.rho_d, params.eta];
-    problem.accumulate(&x, false).0
+    problem.accumulate(&x_of(params), false).0
 }
 
 /// σ grid of the global search: log-spaced, 1.25 apart, from 0.05° (finer than any
@@ -531,7 +549,7 @@ fn sigma_grid() -> impl Iterator<Item = f64> {
 }
 
 /// η grid of the global search: denser near 1, where F changes fastest relative to itself.
-const ETA_GRID: [f64; 9] = [1.01, 1.03, 1.08, 1.19, 1.35, 1.6, 2.0, 2.5, 3.0];
+const ETA_GRID: [f64; 11] = [1.005, 1.01, 1.02, 1.04, 1.08, 1.19, 1.35, 1.6, 2.0, 2.5, 3.0];
 
 /// Starting points from the grid: the best (η, ρs, ρd) at each σ, then the lowest local
 /// minima of that profile in σ, best first.
@@ -560,6 +578,7 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
     }
     let mut lobe = vec![0.0; n];
     let mut profile: Vec<(f64, [f64; 4])> = Vec::with_capacity(40);
+    let mut eta_costs: Vec<f64> = Vec::with_capacity(40 * ETA_GRID.len());
     for sigma in sigma_grid() {
         for (k, pt) in problem.points.iter().enumerate() {
             lobe[k] = problem.lobe(pt.geometry.offset_deg, sigma).0;
@@ -574,22 +593,63 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
                 sgg += uu * l * l;
             }
             let s = solve_linear(sw, sy, syy, sg, sgg, sgy);
+            eta_costs.push(s.cost);
             if s.cost < best.0 {
-                best = (s.cost, [sigma.ln(), s.rho_s, s.rho_d, eta]);
+                best = (s.cost, [sigma.ln(), s.rho_s * eta_factor(eta), s.rho_d, eta]);
             }
         }
         profile.push(best);
     }
-    let mut minima: Vec<(f64, [f64; 4])> = (0..profile.len())
+    let minima: Vec<(f64, [f64; 4])> = (0..profile.len())
         .filter(|&i| {
             let c = profile[i].0;
             (i == 0 || c <= profile[i - 1].0) && (i + 1 == profile.len() || c <= profile[i + 1].0)
         })
         .map(|i| profile[i])
         .collect();
+    let n_eta = ETA_GRID.len();
+    let mut minima: Vec<(f64, [f64; 4])> = minima
+        .into_iter()
+        .map(|(c, x)| {
+            // Polish the grid point by parabolas through its neighbours, in ln σ along the
+            // profile and in η along its row: starting in the right place of the narrow
+            // ρs–η valley of nearly-Fresnel-free papers (η → 1) saves most LM iterations.
+            let i = profile.iter().position(|p| p.1 == x).unwrap_or(0);
+            let ln_sigma = if i > 0 && i + 1 < profile.len() {
+                parabola_min([profile[i - 1].1[0], x[0], profile[i + 1].1[0]], [profile[i - 1].0, c, profile[i + 1].0]).unwrap_or(x[0])
+            } else {
+                x[0]
+            };
+            let row = &eta_costs[i * n_eta..(i + 1) * n_eta];
+            let e = ETA_GRID.iter().position(|&eta| eta == x[3]).unwrap_or(0);
+            let eta = if e > 0 && e + 1 < n_eta {
+                parabola_min([ETA_GRID[e - 1], ETA_GRID[e], ETA_GRID[e + 1]], [row[e - 1], row[e], row[e + 1]]).unwrap_or(x[3])
+            } else {
+                x[3]
+            };
+            let refined = problem.linear(ln_sigma.exp(), eta);
+            if refined.cost < c { (refined.cost, [ln_sigma, refined.rho_s * eta_factor(eta), refined.rho_d, eta]) } else { (c, x) }
+        })
+        .collect();
     minima.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Basins far worse than the best on the grid do not compete after polishing either.
+    let best_cost = minima.first().map_or(0.0, |m| m.0);
+    minima.retain(|m| m.0 <= 2.0 * best_cost + 1e-300);
     minima.truncate(max_seeds);
     minima.into_iter().map(|(_, x)| x).collect()
+}
+
+/// Abscissa of the minimum of the parabola through three points, if it opens upwards and
+/// the minimum lies between the outer points.
+fn parabola_min(x: [f64; 3], y: [f64; 3]) -> Option<f64> {
+    let d1 = (y[1] - y[0]) / (x[1] - x[0]);
+    let d2 = (y[2] - y[1]) / (x[2] - x[1]);
+    let curvature = (d2 - d1) / (x[2] - x[0]);
+    if !(curvature > 0.0) {
+        return None;
+    }
+    let m = 0.5 * (x[0] + x[1]) - d1 / (2.0 * curvature);
+    (m > x[0] && m < x[2]).then_some(m)
 }
 
 struct LmOutcome {
@@ -675,6 +735,17 @@ fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
 /// Levenberg–Marquardt with Marquardt's diagonal scaling and bounds by an active set:
 /// a parameter on a bound whose gradient points out of the box is held for that step.
 fn levenberg_marquardt(problem: &Problem, x0: [f64; 4], fixed: [bool; 4], max_iterations: usize) -> LmOutcome {
+    levenberg_marquardt_until(problem, x0, fixed, max_iterations, 0.0)
+}
+
+/// [`levenberg_marquardt`] that also stops as soon as the cost is at or below `good_enough`.
+fn levenberg_marquardt_until(
+    problem: &Problem,
+    x0: [f64; 4],
+    fixed: [bool; 4],
+    max_iterations: usize,
+    good_enough: f64,
+) -> LmOutcome {
     let (lo, hi) = (lower_bounds(), upper_bounds());
     let mut x: [f64; 4] = std::array::from_fn(|i| x0[i].clamp(lo[i], hi[i]));
     let (mut cost, mut a, mut g) = problem.accumulate(&x, true);
@@ -682,7 +753,7 @@ fn levenberg_marquardt(problem: &Problem, x0: [f64; 4], fixed: [bool; 4], max_it
     for iteration in 1..=max_iterations {
         let free: [bool; 4] =
             std::array::from_fn(|i| !fixed[i] && !((x[i] <= lo[i] && g[i] > 0.0) || (x[i] >= hi[i] && g[i] < 0.0)));
-        if !free.iter().any(|&f| f) || cost == 0.0 {
+        if !free.iter().any(|&f| f) || cost <= good_enough {
             return LmOutcome { x, cost, iterations: iteration - 1, status: Status::Converged };
         }
         let trace: f64 = (0..4).filter(|&i| free[i]).map(|i| a[i][i]).sum();
@@ -704,7 +775,7 @@ fn levenberg_marquardt(problem: &Problem, x0: [f64; 4], fixed: [bool; 4], max_it
                     cost = cost_new;
                     a = a_new;
                     g = g_new;
-                    lambda = (lambda * 0.3).max(1e-12);
+                    lambda = (lambda * 0.1).max(1e-12);
                     if small_step || small_decrease {
                         return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
                     }
@@ -775,15 +846,15 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
     // parameters are not supported.
     let lambert_cost = {
         let rho_d = lambert_fit(&problem);
-        problem.accumulate(&[0.0, 0.0, rho_d, ETA_MIN], false).0
+        problem.accumulate(&[0.0, 0.0, rho_d, ETA_MAX], false).0
     };
     let no_lobe = (lambert_cost - outcome.cost) <= CHI2_3_95 * residual_variance(outcome.cost, 4);
-    if no_lobe || at_lower(&outcome.x, RHO_S) || at_lower(&outcome.x, ETA) {
+    if no_lobe || at_lower(&outcome.x, RHO_S) {
         // F ≡ 0 or ρs = 0: the specular part is absent and only ρd remains.
         notes.push(Note::NoSpecularTerm);
         fitted = [false, false, true, false];
         let lambert = lambert_fit(&problem);
-        outcome = LmOutcome { x: [outcome.x[0], 0.0, lambert, outcome.x[3]], cost: 0.0, ..outcome };
+        outcome = LmOutcome { x: [outcome.x[0], 0.0, lambert, ETA_MAX], cost: 0.0, ..outcome };
         outcome.cost = problem.accumulate(&outcome.x, false).0;
     } else {
         // Is the peak resolved? Compare with the σ → 0 limit, others refitted.
@@ -792,15 +863,24 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
         let sigma_hat = outcome.x[0].exp();
         let mut unresolved = false;
         if sigma_hat < 10.0 {
+            // Screen: ρs, ρd solved exactly at σ → 0 over the η grid. A resolved peak is
+            // orders of magnitude worse there; only a close call needs the full refit.
+            let screen = ETA_GRID.iter().map(|&eta| problem.linear(SIGMA_MIN_DEG, eta).cost).fold(f64::INFINITY, f64::min);
+            let close_call = screen - outcome.cost <= 100.0 * (threshold - outcome.cost) || screen <= 2.0 * outcome.cost;
             let mut x_floor = outcome.x;
             x_floor[0] = lo[0];
-            let floor = levenberg_marquardt(&problem, x_floor, [true, false, false, false], options.max_iterations);
-            if floor.cost <= threshold {
+            let floor = if close_call {
+                levenberg_marquardt_until(&problem, x_floor, [true, false, false, false], options.max_iterations, threshold)
+            } else {
+                LmOutcome { x: x_floor, cost: screen, iterations: 0, status: Status::Converged }
+            };
+            if close_call && floor.cost <= threshold {
                 unresolved = true;
                 let upper = sigma_upper_deg(&problem, &outcome, threshold, options.max_iterations);
                 notes.push(Note::SigmaUnresolved { upper_deg: upper });
                 fitted[SIGMA] = false;
-                outcome = floor;
+                // The screen stopped at the threshold: finish the reduced fit.
+                outcome = levenberg_marquardt(&problem, floor.x, [true, false, false, false], options.max_iterations);
             }
         }
         if !unresolved {
@@ -812,6 +892,11 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
         if outcome.x[ETA] >= hi[ETA] {
             notes.push(Note::EtaAtBound { eta: ETA_MAX });
             fitted[ETA] = false;
+        } else if outcome.x[ETA] <= lo[ETA] {
+            // η → 1: F ∝ (η²−1), so only the amplitude ρs·(η²−1) is determined, not ρs.
+            notes.push(Note::EtaAtBound { eta: ETA_MIN });
+            fitted[ETA] = false;
+            fitted[RHO_S] = false;
         }
     }
 
@@ -832,8 +917,11 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
             free[i] = false;
         }
     }
-    if notes.iter().any(|n| matches!(n, Note::EtaAtBound { .. })) {
-        active_bounds.push(ActiveBound { param: "eta", bound: Bound::Upper });
+    for note in &notes {
+        if let Note::EtaAtBound { eta } = note {
+            let bound = if *eta >= ETA_MAX { Bound::Upper } else { Bound::Lower };
+            active_bounds.push(ActiveBound { param: "eta", bound });
+        }
     }
     let model = FittedModel(fitted);
     let p_fitted = model.count();
@@ -848,22 +936,43 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
         notes.push(Note::NoDegreesOfFreedom);
     } else if let Some(inv) = inverse_spd(&a, &free) {
         let t = t_quantile_975(dof);
-        // d(natural)/d(x): σ = e^x0.
-        let scale = [params.sigma_deg, 1.0, 1.0, 1.0];
+        // d(σ, ρs, ρd, η)/d(ln σ, A, ρd, η): σ = e^x0, ρs = A/(η²−1).
+        let k = eta_factor(x[3]);
+        let mut jac = [[0.0; 4]; 4];
+        jac[0][0] = params.sigma_deg;
+        jac[1][1] = 1.0 / k;
+        jac[1][3] = -x[1] * 2.0 * x[3] / (k * k);
+        jac[2][2] = 1.0;
+        jac[3][3] = 1.0;
         for i in 0..4 {
             for j in 0..4 {
-                covariance[i][j] = s2 * inv[i][j] * scale[i] * scale[j];
+                let mut sum = 0.0;
+                for p in 0..4 {
+                    for q in 0..4 {
+                        sum += jac[i][p] * inv[p][q] * jac[j][q];
+                    }
+                }
+                covariance[i][j] = s2 * sum;
             }
         }
+        let natural_lo = [SIGMA_MIN_DEG, 0.0, 0.0, ETA_MIN];
+        let natural_hi = [SIGMA_MAX_DEG, f64::INFINITY, f64::INFINITY, ETA_MAX];
         for i in 0..4 {
             if !free[i] {
                 continue;
             }
-            let se = (s2 * inv[i][i]).max(0.0).sqrt();
-            let (low, high) = if i == SIGMA { (x[0] - t * se, x[0] + t * se) } else { (x[i] - t * se, x[i] + t * se) };
-            let (cl, ch) = (low.max(lo[i]), high.min(hi[i]));
+            let (low, high) = if i == SIGMA {
+                // In ln σ, so the interval stays positive and follows the lobe's scale.
+                let se = (s2 * inv[0][0]).max(0.0).sqrt();
+                ((x[0] - t * se).exp(), (x[0] + t * se).exp())
+            } else {
+                let v = params.to_array()[i];
+                let se = covariance[i][i].max(0.0).sqrt();
+                (v - t * se, v + t * se)
+            };
+            let (cl, ch) = (low.max(natural_lo[i]), high.min(natural_hi[i]));
             ci_clipped[i] = cl != low || ch != high;
-            ci95[i] = Some(if i == SIGMA { (cl.exp(), ch.exp()) } else { (cl, ch) });
+            ci95[i] = Some((cl, ch));
         }
     } else if free.iter().any(|&f| f) {
         notes.push(Note::SingularJacobian);

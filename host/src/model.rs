@@ -138,6 +138,26 @@ pub fn fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f
     (f, da * q + a * b * db / q)
 }
 
+/// F / (η² − 1) and its derivative in η: finite and smooth down to η = 1, where F itself
+/// vanishes. The fit uses it with the amplitude ρs·(η² − 1), which the data determine even
+/// when η → 1 makes ρs and η separately ill-determined.
+pub fn reduced_fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f64) {
+    let r = ((eta - 1.0) * (eta + 1.0) + (1.0 - sin2_psi)).max(0.0).sqrt();
+    let c = cos_psi.max(0.0);
+    let sum = r + c;
+    if sum <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let cr = c * r;
+    let den_b = cr + sin2_psi;
+    let b = if den_b > 0.0 { (cr - sin2_psi) / den_b } else { 1.0 };
+    let q = (1.0 + b * b).sqrt();
+    let inv2 = 1.0 / (sum * sum);
+    let dr = if r > 0.0 { eta / r } else { 0.0 };
+    let db = if den_b > 0.0 { 2.0 * c * sin2_psi / (den_b * den_b) * dr } else { 0.0 };
+    (q * inv2, b * db / q * inv2 - 2.0 * q * inv2 / sum * dr)
+}
+
 /// The paper's Fresnel term F(ψ) for incidence ψ in degrees.
 pub fn fresnel(psi_deg: f64, eta: f64) -> f64 {
     let (s, c) = psi_deg.to_radians().sin_cos();
