@@ -1,41 +1,64 @@
 //! gonio firmware for the STM32F411CEU6 "Black Pill": board glue only.
 //!
-//! Clocks, pins in their idle state, USB CDC-ACM and defmt logging. Every decision is made
-//! by the `firmware` library ([`firmware::Device`]): this crate moves bytes between the
-//! USB serial port and the device and logs what happened.
+//! Clocks, pins, USB CDC-ACM, the watchdog and defmt logging. Every decision is made by
+//! the `firmware` library ([`firmware::Device`]): this crate moves bytes between the USB
+//! serial port and the device, polls it, and logs what happened.
 //!
 //! Tasks:
 //! - `usb_task`: runs the USB device stack (enumeration, control requests).
-//! - `link_task`: CDC-ACM bytes in → `Device::receive` → reply frames out.
+//! - `usb_rx_task`: CDC-ACM OUT packets → `RX` pipe; reports disconnects.
+//! - `usb_tx_task`: `TX` pipe → CDC-ACM IN transfers (64-byte packets, ZLP when needed).
+//! - `device_task` (the protocol/link task): `RX` bytes → `Device::receive`, a 1 kHz
+//!   `Device::poll`, reply frames → `TX`; feeds the watchdog. It never waits on USB, so a
+//!   host that stops reading cannot stall the fail-safe logic.
 #![no_std]
 #![no_main]
 
+mod hardware;
 mod pins;
 
-use defmt::{error, info, warn};
+use defmt::{info, warn};
 use embassy_executor::Spawner;
+use embassy_futures::select::{Either3, select3};
+use embassy_stm32::gpio::{Level, Output};
+use embassy_stm32::peripherals::{IWDG, USB_OTG_FS};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usb::{self, Driver};
-use embassy_stm32::{Config, bind_interrupts, peripherals};
-use embassy_time::Instant;
-use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{Config, bind_interrupts, pac};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::pipe::Pipe;
+use embassy_sync::signal::Signal;
+use embassy_time::{Duration, Instant, Ticker};
+use embassy_usb::class::cdc_acm::{CdcAcmClass, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
-use firmware::Device;
 use firmware::config::InstrumentConfig;
-use heapless::Vec;
+use firmware::{Device, ResetCause};
+use hardware::BoardHardware;
 use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PID, USB_PRODUCT, USB_VID};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
 bind_interrupts!(struct Irqs {
-    OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
+    OTG_FS => usb::InterruptHandler<USB_OTG_FS>;
 });
 
-type UsbDriver = Driver<'static, peripherals::USB_OTG_FS>;
+type UsbDriver = Driver<'static, USB_OTG_FS>;
 
 /// Full-speed bulk packet size of the CDC data endpoints.
-const USB_PACKET: u16 = 64;
+const USB_PACKET: usize = 64;
+/// How often the device is polled (the library asks for at least every millisecond).
+const POLL_PERIOD: Duration = Duration::from_micros(1000);
+/// Watchdog timeout: the device task feeds it every poll.
+const WATCHDOG_TIMEOUT_US: u32 = 500_000;
+
+/// Bytes from the host, waiting for the device task.
+static RX: Pipe<CriticalSectionRawMutex, { 2 * USB_PACKET }> = Pipe::new();
+/// Frames for the host, waiting for the USB IN endpoint.
+static TX: Pipe<CriticalSectionRawMutex, { 4 * MAX_FRAME_LEN }> = Pipe::new();
+/// The USB link went down (unplug, bus reset).
+static DISCONNECTED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
 /// HSE 25 MHz → PLL (VCO 192 MHz) → SYSCLK 96 MHz, USB 48 MHz.
 fn clock_config() -> Config {
@@ -46,10 +69,10 @@ fn clock_config() -> Config {
     config.rcc.hse = Some(Hse { freq: Hertz(25_000_000), mode: HseMode::Oscillator });
     config.rcc.pll_src = PllSource::HSE;
     config.rcc.pll = Some(Pll {
-        prediv: PllPreDiv::DIV25,     // 1 MHz VCO input
-        mul: PllMul::MUL192,          // 192 MHz VCO
-        divp: Some(PllPDiv::DIV2),    // 96 MHz SYSCLK
-        divq: Some(PllQDiv::DIV4),    // 48 MHz USB
+        prediv: PllPreDiv::DIV25, // 1 MHz VCO input
+        mul: PllMul::MUL192,      // 192 MHz VCO
+        divp: Some(PllPDiv::DIV2), // 96 MHz SYSCLK
+        divq: Some(PllQDiv::DIV4), // 48 MHz USB
         divr: None,
     });
     config.rcc.sys = Sysclk::PLL1_P;
@@ -59,12 +82,25 @@ fn clock_config() -> Config {
     config
 }
 
+/// Why the MCU came out of reset (RCC_CSR), clearing the flags for the next time.
+fn reset_cause() -> ResetCause {
+    let csr = pac::RCC.csr().read();
+    pac::RCC.csr().modify(|w| w.set_rmvf(true));
+    if csr.wdgrstf() { ResetCause::Watchdog } else { ResetCause::PowerOn }
+}
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    let reset_cause = reset_cause();
     let p = embassy_stm32::init(clock_config());
-    info!("gonio board: firmware {}, protocol v{}", firmware::FIRMWARE_VERSION, PROTOCOL_VERSION);
+    info!("gonio board: firmware {}, protocol v{}, reset cause {}", firmware::FIRMWARE_VERSION, PROTOCOL_VERSION, reset_cause);
 
-    let pins = pins::take_board_pins!(p).into_idle();
+    let pins = pins::take_board_pins!(p).split();
+
+    // The watchdog stops while a debugger halts the core, so breakpoints do not reset it.
+    pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
+    let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
+    watchdog.unleash();
 
     static EP_OUT_BUFFER: StaticCell<[u8; 256]> = StaticCell::new();
     let mut usb_config = usb::Config::default();
@@ -92,15 +128,20 @@ async fn main(spawner: Spawner) {
         &mut [], // no MS OS descriptors
         CONTROL_BUF.init([0; 64]),
     );
-    let class = CdcAcmClass::new(&mut builder, CDC_STATE.init(State::new()), USB_PACKET);
+    let class = CdcAcmClass::new(&mut builder, CDC_STATE.init(State::new()), USB_PACKET as u16);
     let usb = builder.build();
+    let (sender, receiver) = class.split();
+
+    let device = Device::new(InstrumentConfig::REFERENCE, pins.hardware, reset_cause);
 
     spawner.must_spawn(usb_task(usb));
-    spawner.must_spawn(link_task(class, pins.led));
+    spawner.must_spawn(usb_rx_task(receiver));
+    spawner.must_spawn(usb_tx_task(sender));
+    spawner.must_spawn(device_task(device, watchdog, pins.led));
 
-    // Keep the instrument pins at their idle levels for good (the motion and detector
-    // layers will take them over).
-    let _hold = pins.hold;
+    // STEP/DIR/EN stay idle (drivers disabled) for good in this build; the detector pin
+    // waits for the ADC layer.
+    let _motor_idle = pins.motor_idle;
     let _detector = pins.detector;
     core::future::pending::<()>().await;
 }
@@ -111,50 +152,29 @@ async fn usb_task(mut usb: UsbDevice<'static, UsbDriver>) -> ! {
 }
 
 #[embassy_executor::task]
-async fn link_task(mut class: CdcAcmClass<'static, UsbDriver>, mut led: embassy_stm32::gpio::Output<'static>) -> ! {
-    let mut device = Device::new(InstrumentConfig::REFERENCE);
+async fn usb_rx_task(mut receiver: Receiver<'static, UsbDriver>) -> ! {
+    let mut packet = [0u8; USB_PACKET];
     loop {
-        class.wait_connection().await;
+        receiver.wait_connection().await;
         info!("USB configured: serving the host");
-        let _ = serve(&mut class, &mut device, &mut led).await;
-        device.disconnected();
-        led.set_high();
-        info!("USB disconnected: waiting for a host");
+        // Ends with EndpointError::Disabled when the link goes down.
+        while let Ok(n) = receiver.read_packet(&mut packet).await {
+            RX.write_all(&packet[..n]).await;
+        }
+        info!("USB disconnected");
+        DISCONNECTED.signal(());
     }
 }
 
-/// Move bytes between the CDC-ACM port and the device until the USB link goes away.
-async fn serve(
-    class: &mut CdcAcmClass<'static, UsbDriver>,
-    device: &mut Device,
-    led: &mut embassy_stm32::gpio::Output<'static>,
-) -> Result<(), EndpointError> {
-    let mut rx = [0u8; USB_PACKET as usize];
-    // The device answers at most one frame per received byte; two frames of room.
-    let mut tx: Vec<u8, { 2 * MAX_FRAME_LEN }> = Vec::new();
+#[embassy_executor::task]
+async fn usb_tx_task(mut sender: Sender<'static, UsbDriver>) -> ! {
+    let mut transfer = [0u8; MAX_FRAME_LEN];
     loop {
-        let n = class.read_packet(&mut rx).await?;
-        for byte in &rx[..n] {
-            let mut overflow = false;
-            let was_connected = device.handshake_done();
-            device.receive(core::slice::from_ref(byte), now_us(), &mut |frame: &[u8]| {
-                overflow |= tx.extend_from_slice(frame).is_err();
-            });
-            if overflow {
-                error!("reply frames overflowed the {}-byte USB buffer; dropped", tx.capacity());
-            }
-            if let Some(version) = device.take_refused_version() {
-                warn!("handshake refused: version mismatch (host protocol v{}, firmware protocol v{})", version, PROTOCOL_VERSION);
-            }
-            match (was_connected, device.handshake_done()) {
-                (false, true) => info!("handshake done: host speaks protocol v{}", PROTOCOL_VERSION),
-                (true, false) => info!("handshake lost"),
-                _ => {}
-            }
-            led.set_level(if device.handshake_done() { embassy_stm32::gpio::Level::Low } else { embassy_stm32::gpio::Level::High });
-            if !tx.is_empty() {
-                write_transfer(class, &tx).await?;
-                tx.clear();
+        sender.wait_connection().await;
+        loop {
+            let n = TX.read(&mut transfer).await;
+            if write_transfer(&mut sender, &transfer[..n]).await.is_err() {
+                break; // disconnected: the device task clears what is left
             }
         }
     }
@@ -162,15 +182,61 @@ async fn serve(
 
 /// Send `bytes` as one USB IN transfer: 64-byte packets, closed by a zero-length packet
 /// when the last one is full (otherwise the host keeps waiting for more of the transfer).
-async fn write_transfer(class: &mut CdcAcmClass<'static, UsbDriver>, bytes: &[u8]) -> Result<(), EndpointError> {
-    let packet = class.max_packet_size() as usize;
+async fn write_transfer(sender: &mut Sender<'static, UsbDriver>, bytes: &[u8]) -> Result<(), EndpointError> {
+    let packet = usize::from(sender.max_packet_size());
     for chunk in bytes.chunks(packet) {
-        class.write_packet(chunk).await?;
+        sender.write_packet(chunk).await?;
     }
     if bytes.len() % packet == 0 {
-        class.write_packet(&[]).await?;
+        sender.write_packet(&[]).await?;
     }
     Ok(())
+}
+
+/// The protocol/link task: the firmware library's device, fed and polled.
+#[embassy_executor::task]
+async fn device_task(
+    mut device: Device<BoardHardware>,
+    mut watchdog: IndependentWatchdog<'static, IWDG>,
+    mut led: Output<'static>,
+) -> ! {
+    let mut ticker = Ticker::every(POLL_PERIOD);
+    let mut bytes = [0u8; USB_PACKET];
+    loop {
+        match select3(RX.read(&mut bytes), ticker.next(), DISCONNECTED.wait()).await {
+            Either3::First(n) => {
+                let was_done = device.handshake_done();
+                device.receive(&bytes[..n], now_us(), &mut queue_frame);
+                if let Some(version) = device.take_refused_version() {
+                    warn!(
+                        "handshake refused: protocol version mismatch (host v{}, firmware v{})",
+                        version, PROTOCOL_VERSION
+                    );
+                }
+                if !was_done && device.handshake_done() {
+                    info!("handshake done: host speaks protocol v{}", PROTOCOL_VERSION);
+                }
+            }
+            Either3::Second(()) => device.poll(now_us(), &mut queue_frame),
+            Either3::Third(()) => {
+                device.disconnected();
+                RX.clear();
+                TX.clear();
+            }
+        }
+        led.set_level(if device.handshake_done() { Level::Low } else { Level::High });
+        watchdog.pet();
+    }
+}
+
+/// Queue one whole frame for the host, or drop it whole when the queue is full (a host
+/// that does not read must not stall the device).
+fn queue_frame(frame: &[u8]) {
+    if TX.free_capacity() < frame.len() {
+        warn!("USB send queue full: dropped a {}-byte frame", frame.len());
+        return;
+    }
+    let _ = TX.try_write(frame);
 }
 
 fn now_us() -> u64 {

@@ -25,11 +25,13 @@
 //! | `en_r`     | PB15 | GPIO, active LOW                                            | high (driver off)     |
 //! | `home_i`   | PB8  | EXTI8, switch to GND, internal pull-up                      | input                 |
 //! | `home_r`   | PB9  | EXTI9, switch to GND, internal pull-up                      | input                 |
+//! | `diag_i`   | PA2  | TMC2209 DIAG (high = driver fault), internal pull-down      | input                 |
+//! | `diag_r`   | PA3  | TMC2209 DIAG (high = driver fault), internal pull-down      | input                 |
 //! | `lamp_en`  | PA8  | TIM1_CH1 (AF1), so the lamp can be PWM-dimmed later         | low (lamp off)        |
 //! | `detector` | PA1  | ADC1_IN1: transimpedance amplifier output (0..3.3 V)        | analog                |
-//! | `range0`   | PB1  | GPIO, TIA range select bit 0                                | low                   |
-//! | `range1`   | PB5  | GPIO, TIA range select bit 1                                | low                   |
-//! | `range2`   | PA15 | GPIO, TIA range select bit 2 (JTDI: free, we use SWD only)  | low                   |
+//! | `range0`   | PB1  | GPIO, TIA range 0 (most sensitive) switch                   | high (range 0)        |
+//! | `range1`   | PB5  | GPIO, TIA range 1 switch                                    | low                   |
+//! | `range2`   | PA15 | GPIO, TIA range 2 switch (JTDI: free, we use SWD only)      | low                   |
 //!
 //! Why these pins:
 //! - STEP pins sit on timer channels of two different general-purpose timers (TIM2, TIM3)
@@ -40,15 +42,20 @@
 //! - Kept free on purpose: SPI1 on PA4 (NSS) / PA5 (SCK) / PA6 (MISO) / PA7 (MOSI) for an
 //!   external SPI ADC if the internal 12-bit ADC is not enough; USART1 on PA9 / PA10 for
 //!   the TMC2209 single-wire UART (PA9 is also the OTG VBUS sense pin); I2C1 on PB6 / PB7.
+//! - Range select is one-hot: line k closes the analog switch of feedback resistor k, so
+//!   exactly one line is high (range 0, the most sensitive, at reset).
 //! - External parts the idle states rely on: a pull-up on each EN (drivers stay off while
 //!   the MCU is in reset), a pull-down on LAMP_EN.
 //!
-//! The board crate only puts these pins in their idle state; the motion and detector
-//! layers (a later issue) take them from [`BoardPins`].
+//! [`BoardPins::split`] hands the switches, DIAG inputs, lamp and range lines to the board's
+//! [`crate::hardware::BoardHardware`] and holds STEP/DIR/EN idle (drivers disabled) until
+//! the timer step generators exist (a later issue); the detector pin waits for the ADC.
 
 use embassy_stm32::Peri;
 use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals;
+
+use crate::hardware::BoardHardware;
 
 /// Declares [`BoardPins`] and `take_board_pins!` from one list, so the pin table exists once.
 macro_rules! pin_table {
@@ -85,62 +92,68 @@ pin_table! { $
     home_i: PB8,
     /// Detector arm home switch, closes to GND.
     home_r: PB9,
+    /// Source arm driver DIAG, high on a fault.
+    diag_i: PA2,
+    /// Detector arm driver DIAG, high on a fault.
+    diag_r: PA3,
     /// Lamp enable, active high.
     lamp_en: PA8,
     /// Detector amplifier output, ADC1_IN1.
     detector: PA1,
-    /// TIA range select bit 0.
+    /// TIA range 0 switch (most sensitive).
     range0: PB1,
-    /// TIA range select bit 1.
+    /// TIA range 1 switch.
     range1: PB5,
-    /// TIA range select bit 2.
+    /// TIA range 2 switch.
     range2: PA15,
     /// On-board LED, active low.
     led: PC13,
 }
 
-/// The instrument pins in their idle state.
-pub struct IdlePins {
-    /// Drivers disabled, lamp off, no step pulses, most sensitive range, home switches
-    /// pulled up. Keep it alive for as long as nothing else drives these pins.
-    pub hold: IdleHold,
-    /// The on-board LED (on = a host completed the handshake).
+/// The pins, sorted by who drives them now.
+pub struct SplitPins {
+    /// STEP/DIR/EN held idle: drivers disabled, no step pulses. Keep it alive for as long
+    /// as nothing else drives these pins (dropping it would float them).
+    pub motor_idle: MotorIdle,
+    /// Home switches, driver DIAG, lamp and range lines, for the firmware library.
+    pub hardware: BoardHardware,
+    /// The on-board LED, off.
     pub led: Output<'static>,
     /// Left for the detector layer (ADC).
     pub detector: Peri<'static, peripherals::PA1>,
 }
 
-/// Instrument outputs driven to their idle levels (dropping it would float them).
-pub struct IdleHold {
-    _outputs: [Output<'static>; 10],
-    _home: [Input<'static>; 2],
+/// Motor driver outputs at their idle levels.
+pub struct MotorIdle {
+    _outputs: [Output<'static>; 6],
 }
 
 impl BoardPins {
-    /// Drive every output to its idle level.
-    pub fn into_idle(self) -> IdlePins {
+    /// Put every pin in its idle state and hand each to its user.
+    pub fn split(self) -> SplitPins {
         fn out(pin: Peri<'static, AnyPin>, level: Level) -> Output<'static> {
             Output::new(pin, level, Speed::Low)
         }
-        let hold = IdleHold {
+        let motor_idle = MotorIdle {
             _outputs: [
                 out(self.en_i.into(), Level::High),
                 out(self.en_r.into(), Level::High),
-                out(self.lamp_en.into(), Level::Low),
                 out(self.step_i.into(), Level::Low),
                 out(self.step_r.into(), Level::Low),
                 out(self.dir_i.into(), Level::Low),
                 out(self.dir_r.into(), Level::Low),
-                out(self.range0.into(), Level::Low),
+            ],
+        };
+        let hardware = BoardHardware::new(
+            [Input::new(self.home_i, Pull::Up), Input::new(self.home_r, Pull::Up)],
+            [Input::new(self.diag_i, Pull::Down), Input::new(self.diag_r, Pull::Down)],
+            out(self.lamp_en.into(), Level::Low),
+            [
+                out(self.range0.into(), Level::High),
                 out(self.range1.into(), Level::Low),
                 out(self.range2.into(), Level::Low),
             ],
-            _home: [Input::new(self.home_i, Pull::Up), Input::new(self.home_r, Pull::Up)],
-        };
-        IdlePins {
-            hold,
-            led: Output::new(self.led, Level::High, Speed::Low),
-            detector: self.detector,
-        }
+        );
+        SplitPins { motor_idle, hardware, led: Output::new(self.led, Level::High, Speed::Low), detector: self.detector }
     }
 }
