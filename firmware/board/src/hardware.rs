@@ -24,14 +24,28 @@ pub struct BoardHardware {
 
 impl BoardHardware {
     /// From the pins of [`crate::pins`], already in their idle state.
-    pub fn new(home: [Input<'static>; 2], diag: [Input<'static>; 2], lamp: Output<'static>, range: [Output<'static>; 3]) -> Self {
-        BoardHardware { home, diag, lamp, range, steps: [0; 2] }
+    pub fn new(
+        home: [Input<'static>; 2],
+        diag: [Input<'static>; 2],
+        lamp: Output<'static>,
+        range: [Output<'static>; 3],
+    ) -> Self {
+        BoardHardware {
+            home,
+            diag,
+            lamp,
+            range,
+            steps: [0; 2],
+        }
     }
 }
 
 impl Arms for BoardHardware {
     fn run_profile(&mut self, arm: Arm, _profile: &MoveProfile) {
-        warn!("{}: no step generator in this firmware build; the arm does not move", arm);
+        warn!(
+            "{}: no step generator in this firmware build; the arm does not move",
+            arm
+        );
     }
 
     fn position_steps(&self, arm: Arm) -> i32 {

@@ -63,14 +63,18 @@ static DISCONNECTED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 /// HSE 25 MHz → PLL (VCO 192 MHz) → SYSCLK 96 MHz, USB 48 MHz.
 fn clock_config() -> Config {
     use embassy_stm32::rcc::{
-        AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv, PllSource, Sysclk,
+        AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv,
+        PllSource, Sysclk,
     };
     let mut config = Config::default();
-    config.rcc.hse = Some(Hse { freq: Hertz(25_000_000), mode: HseMode::Oscillator });
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(25_000_000),
+        mode: HseMode::Oscillator,
+    });
     config.rcc.pll_src = PllSource::HSE;
     config.rcc.pll = Some(Pll {
-        prediv: PllPreDiv::DIV25, // 1 MHz VCO input
-        mul: PllMul::MUL192,      // 192 MHz VCO
+        prediv: PllPreDiv::DIV25,  // 1 MHz VCO input
+        mul: PllMul::MUL192,       // 192 MHz VCO
         divp: Some(PllPDiv::DIV2), // 96 MHz SYSCLK
         divq: Some(PllQDiv::DIV4), // 48 MHz USB
         divr: None,
@@ -86,14 +90,23 @@ fn clock_config() -> Config {
 fn reset_cause() -> ResetCause {
     let csr = pac::RCC.csr().read();
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
-    if csr.wdgrstf() { ResetCause::Watchdog } else { ResetCause::PowerOn }
+    if csr.wdgrstf() {
+        ResetCause::Watchdog
+    } else {
+        ResetCause::PowerOn
+    }
 }
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     let reset_cause = reset_cause();
     let p = embassy_stm32::init(clock_config());
-    info!("gonio board: firmware {}, protocol v{}, reset cause {}", firmware::FIRMWARE_VERSION, PROTOCOL_VERSION, reset_cause);
+    info!(
+        "gonio board: firmware {}, protocol v{}, reset cause {}",
+        firmware::FIRMWARE_VERSION,
+        PROTOCOL_VERSION,
+        reset_cause
+    );
 
     let pins = pins::take_board_pins!(p).split();
 
@@ -106,7 +119,14 @@ async fn main(spawner: Spawner) {
     let mut usb_config = usb::Config::default();
     // Bus-powered board: no VBUS sensing (PA9 stays free for the driver UART).
     usb_config.vbus_detection = false;
-    let driver = Driver::new_fs(p.USB_OTG_FS, Irqs, p.PA12, p.PA11, EP_OUT_BUFFER.init([0; 256]), usb_config);
+    let driver = Driver::new_fs(
+        p.USB_OTG_FS,
+        Irqs,
+        p.PA12,
+        p.PA11,
+        EP_OUT_BUFFER.init([0; 256]),
+        usb_config,
+    );
 
     let mut config = embassy_usb::Config::new(USB_VID, USB_PID);
     config.manufacturer = Some("gonio");
@@ -128,7 +148,11 @@ async fn main(spawner: Spawner) {
         &mut [], // no MS OS descriptors
         CONTROL_BUF.init([0; 64]),
     );
-    let class = CdcAcmClass::new(&mut builder, CDC_STATE.init(State::new()), USB_PACKET as u16);
+    let class = CdcAcmClass::new(
+        &mut builder,
+        CDC_STATE.init(State::new()),
+        USB_PACKET as u16,
+    );
     let usb = builder.build();
     let (sender, receiver) = class.split();
 
@@ -182,7 +206,10 @@ async fn usb_tx_task(mut sender: Sender<'static, UsbDriver>) -> ! {
 
 /// Send `bytes` as one USB IN transfer: 64-byte packets, closed by a zero-length packet
 /// when the last one is full (otherwise the host keeps waiting for more of the transfer).
-async fn write_transfer(sender: &mut Sender<'static, UsbDriver>, bytes: &[u8]) -> Result<(), EndpointError> {
+async fn write_transfer(
+    sender: &mut Sender<'static, UsbDriver>,
+    bytes: &[u8],
+) -> Result<(), EndpointError> {
     let packet = usize::from(sender.max_packet_size());
     for chunk in bytes.chunks(packet) {
         sender.write_packet(chunk).await?;
@@ -224,7 +251,11 @@ async fn device_task(
                 TX.clear();
             }
         }
-        led.set_level(if device.handshake_done() { Level::Low } else { Level::High });
+        led.set_level(if device.handshake_done() {
+            Level::Low
+        } else {
+            Level::High
+        });
         watchdog.pet();
     }
 }

@@ -145,8 +145,14 @@ impl BoardPins {
             ],
         };
         let hardware = BoardHardware::new(
-            [Input::new(self.home_i, Pull::Up), Input::new(self.home_r, Pull::Up)],
-            [Input::new(self.diag_i, Pull::Down), Input::new(self.diag_r, Pull::Down)],
+            [
+                Input::new(self.home_i, Pull::Up),
+                Input::new(self.home_r, Pull::Up),
+            ],
+            [
+                Input::new(self.diag_i, Pull::Down),
+                Input::new(self.diag_r, Pull::Down),
+            ],
             out(self.lamp_en.into(), Level::Low),
             [
                 out(self.range0.into(), Level::High),
@@ -154,6 +160,11 @@ impl BoardPins {
                 out(self.range2.into(), Level::Low),
             ],
         );
-        SplitPins { motor_idle, hardware, led: Output::new(self.led, Level::High, Speed::Low), detector: self.detector }
+        SplitPins {
+            motor_idle,
+            hardware,
+            led: Output::new(self.led, Level::High, Speed::Low),
+            detector: self.detector,
+        }
     }
 }
