@@ -863,9 +863,9 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
         let sigma_hat = outcome.x[0].exp();
         let mut unresolved = false;
         if sigma_hat < 10.0 {
-            // Screen: ρs, ρd solved exactly at σ → 0 over the η grid. A resolved peak is
+            // Screen: ρs, ρd solved exactly at σ → 0 and the fitted η. A resolved peak is
             // orders of magnitude worse there; only a close call needs the full refit.
-            let screen = ETA_GRID.iter().map(|&eta| problem.linear(SIGMA_MIN_DEG, eta).cost).fold(f64::INFINITY, f64::min);
+            let screen = problem.linear(SIGMA_MIN_DEG, outcome.x[ETA]).cost;
             let close_call = screen - outcome.cost <= 100.0 * (threshold - outcome.cost) || screen <= 2.0 * outcome.cost;
             let mut x_floor = outcome.x;
             x_floor[0] = lo[0];
