@@ -118,22 +118,28 @@ fn longest_frame_that_fits_is_accepted() {
     assert_ne!(results[0], Err(FrameError::TooLong));
 }
 
+/// Hand-made frame content (payload and CRC as given), COBS-encoded and delimited with
+/// the cobs crate postcard uses.
+fn cobs_frame(raw: &[u8]) -> std::vec::Vec<u8> {
+    let mut stream = vec![0u8; cobs::max_encoding_length(raw.len())];
+    let len = cobs::encode(raw, &mut stream);
+    stream.truncate(len);
+    stream.push(0);
+    stream
+}
+
 #[test]
 fn bad_crc_is_reported_as_such() {
     let message = Request { seq: 7, command: Command::GetStatus };
     let mut buf = [0u8; MAX_FRAME_LEN];
     let frame = encode_frame(&message, &mut buf).unwrap();
     let n = frame.len();
-    // COBS-decode, flip a CRC bit, re-encode with the cobs crate postcard uses.
+    // COBS-decode, flip a CRC bit, re-encode.
     let mut raw = frame[..n - 1].to_vec();
     let len = cobs::decode_in_place(&mut raw).unwrap();
     raw.truncate(len);
     raw[len - 1] ^= 0x01;
-    let mut stream = vec![0u8; cobs::max_encoding_length(raw.len()) + 1];
-    let enc = cobs::encode(&raw, &mut stream);
-    stream.truncate(enc);
-    stream.push(0);
-    assert_eq!(decode_all::<Request>(&stream), vec![Err(FrameError::BadCrc)]);
+    assert_eq!(decode_all::<Request>(&cobs_frame(&raw)), vec![Err(FrameError::BadCrc)]);
 }
 
 #[test]
@@ -142,11 +148,7 @@ fn valid_crc_over_junk_is_unknown_message() {
     let payload = [1u8, 99]; // seq 1, command variant 99
     let mut raw = payload.to_vec();
     raw.extend(framing::CRC.checksum(&payload).to_le_bytes());
-    let mut stream = vec![0u8; cobs::max_encoding_length(raw.len()) + 1];
-    let enc = cobs::encode(&raw, &mut stream);
-    stream.truncate(enc);
-    stream.push(0);
-    assert_eq!(decode_all::<Request>(&stream), vec![Err(FrameError::UnknownMessage)]);
+    assert_eq!(decode_all::<Request>(&cobs_frame(&raw)), vec![Err(FrameError::UnknownMessage)]);
 }
 
 #[test]
