@@ -135,16 +135,25 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
     let (col_std, col_sample) = (find("std"), find("sample"));
 
     let mut sets: Vec<DataSet> = Vec::new();
+    // Sample name → index in `sets`, for files with many data sets.
+    let mut index_of: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
     let mut last_line = header_line;
+    let mut fields: Vec<std::borrow::Cow<str>> = Vec::with_capacity(names.len());
     for (line, text) in lines {
         last_line = line;
-        let fields = split_fields(text);
+        fields.clear();
+        if text.contains('"') {
+            fields.extend(split_fields(text).into_iter().map(std::borrow::Cow::Owned));
+        } else {
+            // No quoting: split in place, without a String per field.
+            fields.extend(text.split(',').map(|f| std::borrow::Cow::Borrowed(f.trim())));
+        }
         if fields.len() != names.len() {
             return Err(DatasetError::FieldCount { line, expected: names.len(), found: fields.len() });
         }
         let number = |col: usize, column: &'static str| {
             // Rust's parser accepts "NaN" and "inf"; those reach the fit's own checks.
-            fields[col].parse::<f64>().map_err(|_| DatasetError::NotANumber { line, column, value: fields[col].clone() })
+            fields[col].parse::<f64>().map_err(|_| DatasetError::NotANumber { line, column, value: fields[col].to_string() })
         };
         let std = match col_std {
             Some(c) if !fields[c].is_empty() => Some(number(c, "std")?),
@@ -156,14 +165,18 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             radiance_factor: number(col_rf, "radiance_factor")?,
             std,
         };
-        let sample = col_sample.map_or(default_sample, |c| fields[c].as_str());
+        let sample = col_sample.map_or(default_sample, |c| &*fields[c]);
         // Files list one sample after another: look at the last set first.
-        let index = match sets.iter().rposition(|s| s.sample == sample) {
-            Some(i) => i,
-            None => {
-                sets.push(DataSet { sample: sample.to_string(), observations: Vec::new(), lines: Vec::new() });
-                sets.len() - 1
-            }
+        let index = match sets.last() {
+            Some(last) if last.sample == sample => sets.len() - 1,
+            _ => match index_of.get(sample) {
+                Some(&i) => i,
+                None => {
+                    sets.push(DataSet { sample: sample.to_string(), observations: Vec::new(), lines: Vec::new() });
+                    index_of.insert(sample.to_string(), sets.len() - 1);
+                    sets.len() - 1
+                }
+            },
         };
         sets[index].observations.push(observation);
         sets[index].lines.push(line);

@@ -312,12 +312,55 @@ struct Point {
     y: f64,
     /// sqrt of the weight 1/std² (1 without uncertainties).
     sqrt_w: f64,
+    /// Index of |θr − θi| in [`Problem::abs_offsets`].
+    abs_offset: u32,
+    /// Index of θr − θi in [`Problem::signed_offsets`].
+    signed_offset: u32,
+    /// Index of (sin² ψ, cos ψ) in [`Problem::psis`].
+    psi: u32,
 }
 
+/// The fit's data with the distinct values of its geometry terms: a measurement grid
+/// repeats lobe offsets and ψ many times (284 geometries have 61 distinct |θr − θi| and
+/// 111 distinct ψ), so the exponentials and Fresnel terms are evaluated once per distinct
+/// value and per pass. Each point's terms are bit-for-bit those of a direct evaluation.
 struct Problem {
     points: Vec<Point>,
     acceptance_deg: Option<f64>,
     weighted: bool,
+    /// Distinct |θr − θi|: the lobe without the window depends only on these.
+    abs_offsets: Vec<f64>,
+    /// Distinct θr − θi: the windowed lobe.
+    signed_offsets: Vec<f64>,
+    /// Distinct (sin² ψ, cos ψ).
+    psis: Vec<(f64, f64)>,
+    /// Per-pass tables, reused across passes: lobe (value, ∂σ) per offset, Fresnel
+    /// (value, ∂η) per ψ.
+    scratch: std::cell::RefCell<Scratch>,
+}
+
+#[derive(Default)]
+struct Scratch {
+    lobe: Vec<(f64, f64)>,
+    fresnel: Vec<(f64, f64)>,
+}
+
+/// Distinct values of `keys` (by bits) and each key's index among them.
+fn distinct<K: Copy + PartialEq, F: Fn(K) -> u128>(keys: &[K], bits: F) -> (Vec<K>, Vec<u32>) {
+    let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+    order.sort_unstable_by_key(|&k| bits(keys[k as usize]));
+    let mut values: Vec<K> = Vec::new();
+    let mut index = vec![0u32; keys.len()];
+    let mut last: Option<u128> = None;
+    for k in order {
+        let b = bits(keys[k as usize]);
+        if last != Some(b) {
+            values.push(keys[k as usize]);
+            last = Some(b);
+        }
+        index[k as usize] = (values.len() - 1) as u32;
+    }
+    (values, index)
 }
 
 /// Check the input, naming the first problem.
@@ -399,21 +442,55 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
 impl Problem {
     fn new(observations: &[Observation], acceptance_deg: Option<f64>) -> Problem {
         let weighted = observations.first().is_some_and(|o| o.std.is_some());
+        let geometries: Vec<PlaneGeometry> =
+            observations.iter().map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg)).collect();
+        let abs: Vec<f64> = geometries.iter().map(|g| g.offset_deg.abs()).collect();
+        let signed: Vec<f64> = geometries.iter().map(|g| g.offset_deg).collect();
+        let psi: Vec<(f64, f64)> = geometries.iter().map(|g| (g.sin2_psi, g.cos_psi)).collect();
+        let (abs_offsets, abs_index) = distinct(&abs, |v| v.to_bits() as u128);
+        let (signed_offsets, signed_index) = distinct(&signed, |v| v.to_bits() as u128);
+        let (psis, psi_index) = distinct(&psi, |(a, b)| ((a.to_bits() as u128) << 64) | b.to_bits() as u128);
         let points = observations
             .iter()
-            .map(|o| Point {
-                geometry: PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg),
+            .zip(geometries)
+            .enumerate()
+            .map(|(k, (o, geometry))| Point {
+                geometry,
                 y: o.radiance_factor,
                 sqrt_w: o.std.map_or(1.0, |s| 1.0 / s),
+                abs_offset: abs_index[k],
+                signed_offset: signed_index[k],
+                psi: psi_index[k],
             })
             .collect();
-        Problem { points, acceptance_deg: acceptance_deg.filter(|&a| a > 0.0), weighted }
+        Problem {
+            points,
+            acceptance_deg: acceptance_deg.filter(|&a| a > 0.0),
+            weighted,
+            abs_offsets,
+            signed_offsets,
+            psis,
+            scratch: Default::default(),
+        }
     }
 
-    fn lobe(&self, offset_deg: f64, sigma_deg: f64) -> (f64, f64) {
+    /// The lobe's offset table in use (signed with the window, else |offset|) and a
+    /// point's index into it.
+    fn offsets(&self) -> &[f64] {
+        if self.acceptance_deg.is_some() { &self.signed_offsets } else { &self.abs_offsets }
+    }
+
+    #[inline]
+    fn offset_index(&self, pt: &Point) -> usize {
+        if self.acceptance_deg.is_some() { pt.signed_offset as usize } else { pt.abs_offset as usize }
+    }
+
+    /// Fill `out` with the lobe (value, ∂σ) at σ for every distinct offset in use.
+    fn lobe_table(&self, sigma_deg: f64, out: &mut Vec<(f64, f64)>) {
+        out.clear();
         match self.acceptance_deg {
-            Some(a) => model::windowed_lobe_with_derivative(offset_deg, sigma_deg, a),
-            None => model::lobe_with_derivative(offset_deg, sigma_deg),
+            Some(a) => out.extend(self.signed_offsets.iter().map(|&o| model::windowed_lobe_with_derivative(o, sigma_deg, a))),
+            None => out.extend(self.abs_offsets.iter().map(|&o| model::lobe_with_derivative(o, sigma_deg))),
         }
     }
 
@@ -424,9 +501,14 @@ impl Problem {
         let mut cost = 0.0;
         let mut a = [[0.0; 4]; 4];
         let mut g = [0.0; 4];
+        let mut scratch = self.scratch.borrow_mut();
+        let Scratch { lobe, fresnel } = &mut *scratch;
+        self.lobe_table(sigma, lobe);
+        fresnel.clear();
+        fresnel.extend(self.psis.iter().map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, eta)));
         for pt in &self.points {
-            let (e, de) = self.lobe(pt.geometry.offset_deg, sigma);
-            let (fr, dfr) = model::reduced_fresnel_with_derivative(pt.geometry.sin2_psi, pt.geometry.cos_psi, eta);
+            let (e, de) = lobe[self.offset_index(pt)];
+            let (fr, dfr) = fresnel[pt.psi as usize];
             let h = pt.geometry.attenuation_over_cosines;
             let shape = fr * h * e;
             let f = amplitude * shape + rho_d;
@@ -458,10 +540,15 @@ impl Problem {
     /// Best non-negative (ρs, ρd) at (σ, η).
     fn linear(&self, sigma_deg: f64, eta: f64) -> LinearSolution {
         let (mut sw, mut sy, mut syy, mut sg, mut sgg, mut sgy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut scratch = self.scratch.borrow_mut();
+        let Scratch { lobe, fresnel } = &mut *scratch;
+        self.lobe_table(sigma_deg, lobe);
+        fresnel.clear();
+        fresnel.extend(self.psis.iter().map(|&(s2, c)| model::fresnel_with_derivative(s2, c, eta)));
         for pt in &self.points {
             let w = pt.sqrt_w * pt.sqrt_w;
-            let (f, _) = model::fresnel_with_derivative(pt.geometry.sin2_psi, pt.geometry.cos_psi, eta);
-            let g = f * pt.geometry.attenuation_over_cosines * self.lobe(pt.geometry.offset_deg, sigma_deg).0;
+            let f = fresnel[pt.psi as usize].0;
+            let g = f * pt.geometry.attenuation_over_cosines * lobe[self.offset_index(pt)].0;
             sw += w;
             sy += w * pt.y;
             syy += w * pt.y * pt.y;
@@ -554,7 +641,6 @@ const ETA_GRID: [f64; 11] = [1.005, 1.01, 1.02, 1.04, 1.08, 1.19, 1.35, 1.6, 2.0
 /// Starting points from the grid: the best (η, ρs, ρd) at each σ, then the lowest local
 /// minima of that profile in σ, best first.
 fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
-    let n = problem.points.len();
     let (mut sw, mut sy, mut syy) = (0.0, 0.0, 0.0);
     for pt in &problem.points {
         let w = pt.sqrt_w * pt.sqrt_w;
@@ -562,36 +648,59 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
         sy += w * pt.y;
         syy += w * pt.y * pt.y;
     }
-    // Per η: u = w·F·H, u·y and u·F·H, so each (σ, η) costs three dot products.
-    let mut u = vec![0.0; ETA_GRID.len() * n];
-    let mut uy = vec![0.0; ETA_GRID.len() * n];
-    let mut uu = vec![0.0; ETA_GRID.len() * n];
+    // Per η and distinct lobe offset o: the sums over the points at o of u = w·F·H, u·y
+    // and u·F·H, so each (σ, η) costs three dot products over the distinct offsets (61
+    // for the 284-geometry grid) and each σ one exponential per distinct offset.
+    let m = problem.offsets().len();
+    let mut fresnel = vec![0.0; problem.psis.len()];
+    let mut u = vec![0.0; ETA_GRID.len() * m];
+    let mut uy = vec![0.0; ETA_GRID.len() * m];
+    let mut uu = vec![0.0; ETA_GRID.len() * m];
     for (e, &eta) in ETA_GRID.iter().enumerate() {
-        for (k, pt) in problem.points.iter().enumerate() {
-            let (f, _) = model::fresnel_with_derivative(pt.geometry.sin2_psi, pt.geometry.cos_psi, eta);
-            let fh = f * pt.geometry.attenuation_over_cosines;
+        for (f, &(s2, c)) in fresnel.iter_mut().zip(&problem.psis) {
+            *f = model::fresnel_with_derivative(s2, c, eta).0;
+        }
+        for pt in &problem.points {
+            let fh = fresnel[pt.psi as usize] * pt.geometry.attenuation_over_cosines;
             let w = pt.sqrt_w * pt.sqrt_w;
-            u[e * n + k] = w * fh;
-            uy[e * n + k] = w * fh * pt.y;
-            uu[e * n + k] = w * fh * fh;
+            let k = e * m + problem.offset_index(pt);
+            u[k] += w * fh;
+            uy[k] += w * fh * pt.y;
+            uu[k] += w * fh * fh;
         }
     }
-    let mut lobe = vec![0.0; n];
+    let mut table = Vec::with_capacity(m);
+    let mut lobe = vec![0.0; m];
     let mut profile: Vec<(f64, [f64; 4])> = Vec::with_capacity(40);
     let mut eta_costs: Vec<f64> = Vec::with_capacity(40 * ETA_GRID.len());
     for sigma in sigma_grid() {
-        for (k, pt) in problem.points.iter().enumerate() {
-            lobe[k] = problem.lobe(pt.geometry.offset_deg, sigma).0;
+        problem.lobe_table(sigma, &mut table);
+        for (l, &(v, _)) in lobe.iter_mut().zip(&table) {
+            *l = v;
         }
         let mut best = (f64::INFINITY, [0.0; 4]);
         for (e, &eta) in ETA_GRID.iter().enumerate() {
-            let range = e * n..(e + 1) * n;
-            let (mut sg, mut sgy, mut sgg) = (0.0, 0.0, 0.0);
-            for (((&l, &u), &uy), &uu) in lobe.iter().zip(&u[range.clone()]).zip(&uy[range.clone()]).zip(&uu[range]) {
-                sg += u * l;
-                sgy += uy * l;
-                sgg += uu * l * l;
+            let range = e * m..(e + 1) * m;
+            // Four partial sums per dot product: independent chains the compiler can
+            // keep in vector registers.
+            let (mut sg4, mut sgy4, mut sgg4) = ([0.0; 4], [0.0; 4], [0.0; 4]);
+            let (l, u, uy, uu) = (&lobe[..], &u[range.clone()], &uy[range.clone()], &uu[range]);
+            let whole = m / 4 * 4;
+            for c in (0..whole).step_by(4) {
+                for j in 0..4 {
+                    let lj = l[c + j];
+                    sg4[j] += u[c + j] * lj;
+                    sgy4[j] += uy[c + j] * lj;
+                    sgg4[j] += uu[c + j] * lj * lj;
+                }
             }
+            for k in whole..m {
+                sg4[0] += u[k] * l[k];
+                sgy4[0] += uy[k] * l[k];
+                sgg4[0] += uu[k] * l[k] * l[k];
+            }
+            let sum4 = |v: [f64; 4]| (v[0] + v[1]) + (v[2] + v[3]);
+            let (sg, sgy, sgg) = (sum4(sg4), sum4(sgy4), sum4(sgg4));
             let s = solve_linear(sw, sy, syy, sg, sgg, sgy);
             eta_costs.push(s.cost);
             if s.cost < best.0 {

@@ -175,8 +175,17 @@ pub fn lobe_with_derivative(offset_deg: f64, sigma_deg: f64) -> (f64, f64) {
         return (1.0, 0.0);
     }
     let t = theta_a / sigma_deg;
-    let e = (-0.5 * t * t).exp();
+    let e = exp_neg_half_square(t);
     if e == 0.0 { (0.0, 0.0) } else { (e, e * t * t / sigma_deg) }
+}
+
+/// exp(−z²/2), returning the 0 that `exp` would give for z² > 1492 (argument below
+/// −746) without calling it: the underflowing exponentials take libm's slow path, and
+/// they are most of a narrow lobe's points at small σ.
+#[inline]
+fn exp_neg_half_square(z: f64) -> f64 {
+    let z2 = z * z;
+    if z2 > 1492.0 { 0.0 } else { (-0.5 * z2).exp() }
 }
 
 /// The lobe averaged over a uniform acceptance window of full width `acceptance_deg` in θr,
@@ -191,8 +200,8 @@ pub fn windowed_lobe_with_derivative(offset_deg: f64, sigma_deg: f64, acceptance
     let p = normal_mass(z_lo, z_hi);
     let scale = w * (2.0 * std::f64::consts::PI).sqrt() / acceptance_deg;
     let mean = scale * p;
-    let e_hi = (-0.5 * z_hi * z_hi).exp();
-    let e_lo = (-0.5 * z_lo * z_lo).exp();
+    let e_hi = exp_neg_half_square(z_hi);
+    let e_lo = exp_neg_half_square(z_lo);
     let d = mean / sigma_deg - 2.0 / acceptance_deg * (z_hi * e_hi - z_lo * e_lo);
     (mean, d)
 }
