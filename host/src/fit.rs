@@ -191,6 +191,20 @@ pub enum Note {
     NoDegreesOfFreedom,
 }
 
+impl std::fmt::Display for Note {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Note::EtaAtBound { eta } => write!(f, "η at its bound {eta}: held there, not fitted"),
+            Note::NoSpecularTerm => f.write_str("no specular part: only ρd fitted (σ, η meaningless)"),
+            Note::SigmaUnresolved { upper_deg } => {
+                write!(f, "σ not resolved by the sampling: only known to be below {upper_deg:.3}°")
+            }
+            Note::SingularJacobian => f.write_str("singular normal matrix at the optimum: no confidence intervals"),
+            Note::NoDegreesOfFreedom => f.write_str("as many parameters as geometries: no confidence intervals"),
+        }
+    }
+}
+
 /// Which parameters a fit estimated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FittedModel(pub [bool; N_PARAMS]);

@@ -142,7 +142,7 @@ pub fn to_table(r: &Report) -> String {
         c.nearest_distance
     );
     for note in &f.notes {
-        s += &format!("  note: {note:?}\n");
+        s += &format!("  note: {note}\n");
     }
     s
 }
