@@ -6,7 +6,7 @@
 //! number, which the firmware answers without acting twice.
 
 use protocol::{
-    Command, DeviceError, DeviceInfo, DeviceMessage, ErrorCode, FrameDecoder, FrameError, MAX_FRAME_LEN,
+    Command, DeviceError, DeviceInfo, DeviceMessage, ErrorCode, FrameDecoder, MAX_FRAME_LEN,
     PROTOCOL_VERSION, Reply, Request,
 };
 use std::collections::VecDeque;
@@ -109,6 +109,10 @@ pub struct Client<T: Transport> {
     /// Messages that arrived while waiting for a reply (streamed readings, stops).
     unsolicited: VecDeque<DeviceMessage>,
     stats: LinkStats,
+    /// Bytes read from the transport; `rx[rx_pos..rx_len]` are not decoded yet.
+    rx: [u8; MAX_FRAME_LEN],
+    rx_pos: usize,
+    rx_len: usize,
 }
 
 fn command_name(command: &Command) -> &'static str {
@@ -137,6 +141,9 @@ impl<T: Transport> Client<T> {
             policy,
             unsolicited: VecDeque::new(),
             stats: LinkStats::default(),
+            rx: [0; MAX_FRAME_LEN],
+            rx_pos: 0,
+            rx_len: 0,
         }
     }
 
@@ -188,20 +195,15 @@ impl<T: Transport> Client<T> {
     /// Wait up to the reply timeout for the reply to `seq`; other messages are queued.
     fn wait_for_reply(&mut self, seq: u32) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
         let deadline = std::time::Instant::now() + self.policy.reply_timeout;
-        loop {
-            while let Some(message) = self.next_message(deadline)? {
-                match message {
-                    DeviceMessage::Reply { seq: answered, result } if answered == seq => return Ok(Some(result)),
-                    // A late duplicate answer to an earlier request: already handled.
-                    DeviceMessage::Reply { .. } => {}
-                    DeviceMessage::FrameRejected { .. } => self.stats.rejected_by_device += 1,
-                    other => self.unsolicited.push_back(other),
-                }
-            }
-            if std::time::Instant::now() >= deadline {
-                return Ok(None);
+        while let Some(message) = self.next_message(deadline)? {
+            match message {
+                DeviceMessage::Reply { seq: answered, result } if answered == seq => return Ok(Some(result)),
+                // A late duplicate answer to an earlier request: already handled.
+                DeviceMessage::Reply { .. } => {}
+                other => self.unsolicited.push_back(other),
             }
         }
+        Ok(None)
     }
 
     /// The next message that is not a reply (a streamed reading, a schedule end, a stop),
@@ -212,35 +214,35 @@ impl<T: Transport> Client<T> {
         }
         let deadline = std::time::Instant::now() + timeout;
         while let Some(message) = self.next_message(deadline)? {
-            match message {
-                DeviceMessage::Reply { .. } => {}
-                DeviceMessage::FrameRejected { .. } => self.stats.rejected_by_device += 1,
-                other => return Ok(Some(other)),
+            if !matches!(message, DeviceMessage::Reply { .. }) {
+                return Ok(Some(message));
             }
         }
         Ok(None)
     }
 
-    /// Read until one message is decoded or `deadline` passes.
+    /// Read until one message is decoded or `deadline` passes. Frames the device reports
+    /// it could not read are counted here and not returned.
     fn next_message(&mut self, deadline: std::time::Instant) -> Result<Option<DeviceMessage>, LinkError> {
-        let mut byte = [0u8; 1];
         loop {
+            while self.rx_pos < self.rx_len {
+                let byte = self.rx[self.rx_pos];
+                self.rx_pos += 1;
+                match self.decoder.push::<DeviceMessage>(byte) {
+                    Some(Ok(DeviceMessage::FrameRejected { .. })) => self.stats.rejected_by_device += 1,
+                    Some(Ok(message)) => return Ok(Some(message)),
+                    Some(Err(_)) => self.stats.bad_frames += 1,
+                    None => {}
+                }
+            }
             let now = std::time::Instant::now();
             if now >= deadline {
                 return Ok(None);
             }
-            // One byte at a time keeps bytes of the next frame in the transport; the
-            // transports buffer, so this costs no system call per byte.
-            if self.transport.read(&mut byte, deadline - now)? == 0 {
-                continue;
-            }
-            match self.decoder.push::<DeviceMessage>(byte[0]) {
-                Some(Ok(message)) => return Ok(Some(message)),
-                Some(Err(FrameError::UnknownMessage | FrameError::BadCrc | FrameError::BadFrame | FrameError::TooLong)) => {
-                    self.stats.bad_frames += 1
-                }
-                Some(Err(FrameError::MessageTooLarge)) | None => {}
-            }
+            // Read in chunks (one system call per chunk on a serial port); bytes after a
+            // complete frame stay in `rx` for the next call.
+            self.rx_len = self.transport.read(&mut self.rx, deadline - now)?;
+            self.rx_pos = 0;
         }
     }
 }
