@@ -28,7 +28,8 @@ pub struct DetectorParams {
     pub dark_offset_fraction: f64,
     /// Lamp output drift per hour of device time (fraction; sign drawn from the seed).
     pub lamp_drift_per_hour: f64,
-    /// ADC sample rate, per second (sets the sample count of a reading).
+    /// ADC sample rate. It sets the sample count of a reading; the noise of a reading's
+    /// mean is the stated one whatever the rate (the per-sample noise is scaled to it).
     pub sample_rate_hz: f64,
     /// Multiplies every noise term (1 = the reference instrument; 0 = noiseless).
     pub noise_scale: f64,
@@ -45,23 +46,10 @@ impl Default for DetectorParams {
             shot_noise_fraction_at_40pct: 1e-3,
             dark_offset_fraction: 3e-3,
             lamp_drift_per_hour: 2e-3,
-            sample_rate_hz: 10_000.0,
+            sample_rate_hz: 1_000.0,
             noise_scale: 1.0,
         }
     }
-}
-
-/// Statistics of one integration, before the firmware's auto-ranging looks at it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RawReading {
-    /// Mean counts, clipped at full scale.
-    pub mean_counts: f64,
-    /// Standard deviation of the samples, counts.
-    pub std_counts: f64,
-    /// Number of samples.
-    pub samples: u32,
-    /// The signal reached full scale.
-    pub saturated: bool,
 }
 
 /// Points of the acceptance quadrature (midpoint rule over the full width). 16 points
@@ -124,27 +112,30 @@ impl Detector {
         self.counts_per_unit * radiance_factor * theta_i_deg.to_radians().cos().max(0.0) * lamp * gain
     }
 
-    /// One integration: `signal_counts` above dark (0 with the lamp off) on the ADC.
-    pub fn integrate(&mut self, signal_counts: f64, integration_ms: u16) -> RawReading {
+    /// Standard deviation of one ADC sample for a signal of `signal_counts` above dark:
+    /// chosen so that the mean of the samples over an integration time T has the stated
+    /// read and shot noise at 100 ms, falling as 1/√T.
+    pub fn sample_sigma_counts(&self, signal_counts: f64) -> f64 {
         let p = &self.params;
-        let full_scale = p.full_scale_counts;
-        let time_factor = (100.0 / f64::from(integration_ms.max(1))).sqrt();
-        let read_sigma = p.read_noise_fraction * full_scale;
-        let at_40 = 0.4 * full_scale;
-        let shot_sigma = p.shot_noise_fraction_at_40pct * at_40 * (signal_counts.max(0.0) / at_40).sqrt();
-        let sigma_mean = p.noise_scale * time_factor * (read_sigma * read_sigma + shot_sigma * shot_sigma).sqrt();
-        let truth = signal_counts + self.dark_offset_counts();
+        let read = p.read_noise_fraction * p.full_scale_counts;
+        let at_40 = 0.4 * p.full_scale_counts;
+        let shot = p.shot_noise_fraction_at_40pct * at_40 * (signal_counts.max(0.0) / at_40).sqrt();
+        let samples_in_100ms = p.sample_rate_hz * 0.1;
+        p.noise_scale * (read * read + shot * shot).sqrt() * samples_in_100ms.sqrt()
+    }
+
+    /// One ADC sample: dark offset plus `signal_counts`, with noise, rounded and clipped
+    /// to the ADC's range.
+    pub fn sample(&mut self, signal_counts: f64) -> u32 {
+        let sigma = self.sample_sigma_counts(signal_counts);
         let noise: f64 = self.rng.sample(StandardNormal);
-        let samples = ((p.sample_rate_hz * f64::from(integration_ms) / 1000.0).round() as u32).max(1);
-        let mean = truth + sigma_mean * noise;
-        let saturated = truth >= full_scale;
-        RawReading {
-            mean_counts: mean.clamp(0.0, full_scale),
-            // Samples are independent, so their spread is √n times the mean's.
-            std_counts: if saturated { 0.0 } else { sigma_mean * f64::from(samples).sqrt() },
-            samples,
-            saturated,
-        }
+        let counts = self.dark_offset_counts() + signal_counts + sigma * noise;
+        counts.round().clamp(0.0, self.params.full_scale_counts) as u32
+    }
+
+    /// Time between two ADC samples, µs.
+    pub fn sample_period_us(&self) -> u64 {
+        (1e6 / self.params.sample_rate_hz).round().max(1.0) as u64
     }
 }
 
@@ -169,15 +160,44 @@ mod tests {
         assert!(detector.signal_counts(59.0, 60.0, 2, 1.0) < 65_535.0);
     }
 
+    fn mean_and_sigma_of_means(detector: &mut Detector, signal: f64, samples_per_reading: usize, readings: usize) -> (f64, f64) {
+        let means: Vec<f64> = (0..readings)
+            .map(|_| (0..samples_per_reading).map(|_| f64::from(detector.sample(signal))).sum::<f64>() / samples_per_reading as f64)
+            .collect();
+        let mean = means.iter().sum::<f64>() / readings as f64;
+        let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (readings - 1) as f64;
+        (mean, var.sqrt())
+    }
+
     #[test]
-    fn same_seed_same_noise_and_noise_falls_with_time() {
+    fn same_seed_same_samples() {
         let mut a = Detector::new(DetectorParams::default(), 7);
         let mut b = Detector::new(DetectorParams::default(), 7);
-        for _ in 0..10 {
-            assert_eq!(a.integrate(20_000.0, 100), b.integrate(20_000.0, 100));
-        }
-        let short = a.integrate(20_000.0, 25).std_counts / f64::from(a.integrate(20_000.0, 25).samples).sqrt();
-        let long = a.integrate(20_000.0, 400).std_counts / f64::from(a.integrate(20_000.0, 400).samples).sqrt();
-        assert!((short / long - 4.0).abs() < 1e-9, "σ of the mean ∝ 1/√T: {short} vs {long}");
+        let mut c = Detector::new(DetectorParams::default(), 8);
+        let sa: Vec<u32> = (0..1000).map(|_| a.sample(20_000.0)).collect();
+        let sb: Vec<u32> = (0..1000).map(|_| b.sample(20_000.0)).collect();
+        let sc: Vec<u32> = (0..1000).map(|_| c.sample(20_000.0)).collect();
+        assert_eq!(sa, sb);
+        assert_ne!(sa, sc);
+    }
+
+    #[test]
+    fn noise_of_a_reading_is_the_stated_one_and_falls_with_integration_time() {
+        let mut detector = Detector::new(DetectorParams::default(), 3);
+        let full_scale: f64 = 65_535.0;
+        let signal = 0.4 * full_scale;
+        // At 100 ms (100 samples at 1 kHz): read 0.02 % FS and shot 0.1 % of 40 % FS.
+        let expected_100 = ((2e-4 * full_scale).powi(2) + (1e-3 * signal).powi(2)).sqrt();
+        let (mean, sigma_100) = mean_and_sigma_of_means(&mut detector, signal, 100, 2000);
+        assert!((mean - (signal + 0.003 * full_scale)).abs() < 3.0, "mean {mean}");
+        assert!((sigma_100 / expected_100 - 1.0).abs() < 0.08, "σ at 100 ms {sigma_100} vs {expected_100}");
+        let (_, sigma_400) = mean_and_sigma_of_means(&mut detector, signal, 400, 2000);
+        assert!((sigma_100 / sigma_400 - 2.0).abs() < 0.2, "σ ∝ 1/√T: {sigma_100} vs {sigma_400}");
+    }
+
+    #[test]
+    fn saturation_clips_at_full_scale() {
+        let mut detector = Detector::new(DetectorParams::default(), 1);
+        assert_eq!(detector.sample(1e9), 65_535);
     }
 }

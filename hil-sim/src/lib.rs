@@ -1,81 +1,231 @@
-//! The simulated instrument: the firmware library ([`firmware::Device`]) running on the
-//! host, reached through the same byte-level protocol as the real board.
+//! The simulated instrument: the firmware library ([`firmware::Device`]) running on
+//! simulated hardware ([`hardware::SimHardware`]) and virtual time, reached through the
+//! same byte-level protocol as the real board, in process or on a pseudo-terminal
+//! ([`pty`]).
 //!
-//! Bytes written by the host go through the real framing into the firmware's command
-//! handler, and its frames come back to be read. The hardware is the library's own model
-//! ([`firmware::testing::FakeHardware`]): arms that follow the planned profiles on virtual
-//! time, home switches, a lamp, and a detector that sees a CONSTANT signal (set with
-//! [`SimInstrument::with_scene`]). The physics of a real scene (TSL samples, the white
-//! tile, acceptance, drift) is the hil-sim issue's; it will implement
-//! [`firmware::testing::Scene`] or the hardware traits with it.
+//! It models the instrument and nothing more: the arms (the firmware's own motion
+//! profiles), the home switches, the lamp, the detector ([`detector`]) and the link. The
+//! scene on the sample port is handed in by the caller ([`scene`]); while the host takes
+//! white-reference readings (the protocol marks them), the simulated operator has the
+//! white tile on the port.
 //!
-//! Virtual time does not pass on its own: [`SimInstrument::advance_ms`] runs the firmware
-//! forward (polling it every millisecond, as the board's loop does).
+//! Virtual time passes only when asked ([`SimInstrument::read`] waiting for output,
+//! [`SimInstrument::advance_ms`]): a session's device seconds take microseconds.
 
+pub mod detector;
+pub mod hardware;
+pub mod pty;
+pub mod scene;
+
+use detector::DetectorParams;
 use firmware::Device;
 use firmware::config::InstrumentConfig;
-use firmware::hardware::ResetCause;
-use firmware::testing::{ConstantScene, FakeHardware};
-use protocol::Geometry;
+use firmware::hardware::{Arm, ResetCause};
+use hardware::SimHardware;
+use protocol::{Command, FrameDecoder, Geometry, Request};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha12Rng;
+use scene::SamplePort;
 use std::collections::VecDeque;
+use std::time::Duration;
 
-/// Hardware of the simulated instrument.
-pub type SimHardware = FakeHardware<ConstantScene>;
+/// Faults to inject.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Faults {
+    /// Probability that any byte on the link (either way) is corrupted.
+    pub corrupt: f64,
+    /// Probability that any frame on the link (either way) is lost.
+    pub drop: f64,
+    /// Device time at which the USB cable is pulled, seconds.
+    pub unplug_at_s: Option<f64>,
+    /// How long it stays out, seconds.
+    pub unplugged_for_s: f64,
+    /// Steps one arm loses (it stalls) during the first move the host commands.
+    pub lose_steps: Option<(Arm, i32)>,
+    /// An arm whose home switch never triggers.
+    pub switch_missing: Option<Arm>,
+}
 
-/// Signal of the default constant scene on the most sensitive range, counts: about the
-/// white tile at θi = 20° (40 % of full scale, INSTRUMENT.md).
-pub const DEFAULT_SIGNAL_COUNTS: f32 = 0.4 * 65_535.0;
+/// Everything that makes one simulated instrument.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimConfig {
+    /// Firmware configuration (limits, timing) — the reference instrument by default.
+    pub instrument: InstrumentConfig,
+    /// Detector physics.
+    pub detector: DetectorParams,
+    /// Seed of every random draw (noise, drift direction, link faults).
+    pub seed: u64,
+    /// Injected faults.
+    pub faults: Faults,
+    /// Where the arms stand at power-up (the firmware learns it by homing).
+    pub start: Geometry,
+}
 
-/// The firmware logic behind a byte pipe, on virtual time.
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            instrument: InstrumentConfig::REFERENCE,
+            detector: DetectorParams::default(),
+            seed: 0,
+            faults: Faults { unplugged_for_s: 1.0, ..Faults::default() },
+            start: Geometry::from_whole_deg(30, 30),
+        }
+    }
+}
+
+/// Poll period of the simulated board loop (the board polls every millisecond).
+const POLL_US: u64 = 1000;
+
+/// The firmware logic on simulated hardware behind a byte pipe, on virtual time.
 pub struct SimInstrument {
     device: Device<SimHardware>,
-    /// Bytes the device sent that the host has not read yet.
+    /// Bytes the device sent that reached the host's side and are not read yet.
     to_host: VecDeque<u8>,
-    /// Virtual device time.
     now_us: u64,
+    faults: Faults,
+    link_rng: ChaCha12Rng,
+    /// The operator watches the host's requests to put the white tile on the port.
+    operator: FrameDecoder,
+    /// Whether the host frame now arriving is being lost.
+    dropping_host_frame: bool,
+    /// At a frame boundary on the host-to-device side.
+    host_frame_start: bool,
+    steps_lost: bool,
+    unplugged: bool,
+    replugged: bool,
+}
+
+/// The link is down: the cable is out.
+fn unplugged_error() -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::NotConnected, "simulated USB cable unplugged")
 }
 
 impl SimInstrument {
-    /// A simulated reference instrument, just powered up.
-    pub fn new() -> SimInstrument {
-        SimInstrument::with_config(InstrumentConfig::REFERENCE)
-    }
-
-    /// A simulated instrument with other limits.
-    pub fn with_config(config: InstrumentConfig) -> SimInstrument {
-        SimInstrument::with_scene(config, ConstantScene(DEFAULT_SIGNAL_COUNTS))
-    }
-
-    /// A simulated instrument whose detector sees `scene`; the arms power up at
-    /// (30°, 30°), which the firmware does not know until it homes.
-    pub fn with_scene(config: InstrumentConfig, scene: ConstantScene) -> SimInstrument {
-        let hardware = FakeHardware::new(&config, scene, Geometry::from_whole_deg(30, 30));
-        SimInstrument { device: Device::new(config, hardware, ResetCause::PowerOn), to_host: VecDeque::new(), now_us: 0 }
-    }
-
-    /// Bytes from the host arrive at the device.
-    pub fn write(&mut self, bytes: &[u8]) {
-        let to_host = &mut self.to_host;
-        self.device.receive(bytes, self.now_us, &mut |frame: &[u8]| to_host.extend(frame));
-    }
-
-    /// Bytes from the device to the host; returns how many were copied into `buf`.
-    pub fn read(&mut self, buf: &mut [u8]) -> usize {
-        let n = buf.len().min(self.to_host.len());
-        for (slot, byte) in buf.iter_mut().zip(self.to_host.drain(..n)) {
-            *slot = byte;
+    /// A simulated instrument with `port` on its sample port.
+    pub fn new(port: SamplePort, config: SimConfig) -> SimInstrument {
+        let mut hardware = SimHardware::new(&config.instrument, port, config.detector, config.seed, config.start);
+        if let Some(arm) = config.faults.switch_missing {
+            hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }
-        n
+        SimInstrument {
+            device: Device::new(config.instrument, hardware, ResetCause::PowerOn),
+            to_host: VecDeque::new(),
+            now_us: 0,
+            faults: config.faults,
+            // A stream of its own, so that link faults do not shift the detector noise.
+            link_rng: ChaCha12Rng::seed_from_u64(config.seed ^ 0x6c69_6e6b),
+            operator: FrameDecoder::new(),
+            dropping_host_frame: false,
+            host_frame_start: true,
+            steps_lost: false,
+            unplugged: false,
+            replugged: false,
+        }
     }
 
-    /// Run the firmware forward by `ms` of virtual time, polling it every millisecond.
+    /// Bytes from the host arrive at the device (through the link's faults).
+    pub fn write(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        if self.unplugged {
+            return Err(unplugged_error());
+        }
+        for &sent in bytes {
+            if self.host_frame_start {
+                self.dropping_host_frame = chance(&mut self.link_rng, self.faults.drop);
+            }
+            self.host_frame_start = sent == 0;
+            if self.dropping_host_frame {
+                continue;
+            }
+            let byte = corrupt(&mut self.link_rng, self.faults.corrupt, sent);
+            if let Some(Ok(request)) = self.operator.push::<Request>(byte) {
+                self.operator_sees(&request);
+            }
+            let (device, to_host, mut link) = self.split();
+            device.receive(&[byte], link.now_us, &mut |frame: &[u8]| link.deliver(frame, to_host));
+        }
+        Ok(())
+    }
+
+    /// Bytes from the device, waiting up to `wait` of device time for some to arrive.
+    pub fn read(&mut self, buf: &mut [u8], wait: Duration) -> std::io::Result<usize> {
+        let deadline = self.now_us + wait.as_micros() as u64;
+        loop {
+            if self.unplugged {
+                while self.unplugged && self.now_us < deadline {
+                    self.step();
+                }
+                return Err(unplugged_error());
+            }
+            if !self.to_host.is_empty() {
+                let n = buf.len().min(self.to_host.len());
+                for (slot, byte) in buf.iter_mut().zip(self.to_host.drain(..n)) {
+                    *slot = byte;
+                }
+                return Ok(n);
+            }
+            if self.now_us >= deadline {
+                return Ok(0);
+            }
+            self.step();
+        }
+    }
+
+    /// Run the firmware forward by `ms` of virtual time.
     pub fn advance_ms(&mut self, ms: u64) {
         for _ in 0..ms {
-            self.now_us += 1000;
-            self.device.hardware_mut().advance_to(self.now_us);
-            let to_host = &mut self.to_host;
-            self.device.poll(self.now_us, &mut |frame: &[u8]| to_host.extend(frame));
+            self.step();
         }
+    }
+
+    /// One board-loop period: hardware moves on, the firmware polls.
+    fn step(&mut self) {
+        self.now_us += POLL_US;
+        self.update_cable();
+        self.device.hardware_mut().advance_to(self.now_us);
+        let (device, to_host, mut link) = self.split();
+        device.poll(link.now_us, &mut |frame: &[u8]| link.deliver(frame, to_host));
+    }
+
+    fn update_cable(&mut self) {
+        let Some(at_s) = self.faults.unplug_at_s else { return };
+        let at_us = (at_s * 1e6) as u64;
+        let back_us = at_us + (self.faults.unplugged_for_s * 1e6) as u64;
+        if !self.unplugged && !self.replugged && self.now_us >= at_us {
+            self.unplugged = true;
+            self.to_host.clear();
+            self.device.disconnected();
+        } else if self.unplugged && self.now_us >= back_us {
+            self.unplugged = false;
+            self.replugged = true;
+            self.host_frame_start = true;
+            self.operator.reset();
+        }
+    }
+
+    fn operator_sees(&mut self, request: &Request) {
+        let hardware = self.device.hardware_mut();
+        match &request.command {
+            Command::TakeReading { target, .. } => hardware.place(*target),
+            Command::RunSchedule(run) => hardware.place(run.target),
+            _ => {}
+        }
+        if matches!(request.command, Command::MoveTo(_) | Command::RunSchedule(_)) && !self.steps_lost {
+            if let Some((arm, steps)) = self.faults.lose_steps {
+                self.steps_lost = true;
+                hardware.mechanics_mut().lose_steps(arm, steps);
+            }
+        }
+    }
+
+    /// The device, the host's receive buffer and the link, borrowed apart.
+    fn split(&mut self) -> (&mut Device<SimHardware>, &mut VecDeque<u8>, LinkSide<'_>) {
+        let link = LinkSide {
+            now_us: self.now_us,
+            faults: &self.faults,
+            rng: &mut self.link_rng,
+            unplugged: self.unplugged,
+        };
+        (&mut self.device, &mut self.to_host, link)
     }
 
     /// Whether the firmware has nothing under way.
@@ -83,23 +233,56 @@ impl SimInstrument {
         self.device.is_idle()
     }
 
-    /// The simulated hardware (true arm angles, lamp, injected faults).
+    /// Whether the simulated cable is out.
+    pub fn is_unplugged(&self) -> bool {
+        self.unplugged
+    }
+
+    /// The simulated hardware (true arm angles, lamp, what is on the port).
     pub fn hardware(&self) -> &SimHardware {
         self.device.hardware()
+    }
+
+    /// The simulated hardware, to inject faults.
+    pub fn hardware_mut(&mut self) -> &mut SimHardware {
+        self.device.hardware_mut()
     }
 
     /// Virtual device time since power-up, µs.
     pub fn device_time_us(&self) -> u64 {
         self.now_us
     }
-}
 
-impl Default for SimInstrument {
-    fn default() -> Self {
-        Self::new()
+    /// The firmware's heartbeat timeout.
+    pub fn heartbeat_timeout(&self) -> Duration {
+        Duration::from_millis(u64::from(self.device.config().heartbeat_timeout_ms))
     }
 }
 
-pub mod detector;
-pub mod scene;
-pub mod pty;
+/// The device-to-host direction of the link, with its faults.
+struct LinkSide<'a> {
+    now_us: u64,
+    faults: &'a Faults,
+    rng: &'a mut ChaCha12Rng,
+    unplugged: bool,
+}
+
+impl LinkSide<'_> {
+    fn deliver(&mut self, frame: &[u8], to_host: &mut VecDeque<u8>) {
+        if self.unplugged || chance(self.rng, self.faults.drop) {
+            return;
+        }
+        to_host.extend(frame.iter().map(|&byte| corrupt(self.rng, self.faults.corrupt, byte)));
+    }
+}
+
+/// True with probability `p` (never for p ≤ 0 or NaN, always for p ≥ 1). No draw is
+/// made when `p` is 0, so a fault-free run has the same link stream as before.
+fn chance(rng: &mut ChaCha12Rng, p: f64) -> bool {
+    p > 0.0 && rng.random::<f64>() < p
+}
+
+/// `byte`, or with probability `p` a different byte.
+fn corrupt(rng: &mut ChaCha12Rng, p: f64, byte: u8) -> u8 {
+    if chance(rng, p) { byte ^ rng.random_range(1..=255u8) } else { byte }
+}

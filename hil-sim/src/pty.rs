@@ -9,6 +9,7 @@ use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 use std::os::fd::{AsFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 /// A pseudo-terminal whose far end is the simulated instrument.
 pub struct PtyServer {
@@ -38,32 +39,69 @@ impl PtyServer {
 
     /// Serve `instrument` until `stop` is set. Whatever a client sends, garbage included,
     /// goes to the firmware's decoder, which answers bad frames and carries on.
+    ///
+    /// Virtual time runs ahead of wall time, but never more than three quarters of the
+    /// firmware's heartbeat timeout past the last frame from the host: a host that keeps
+    /// talking (as a host must while the arms move) is never taken for lost, however fast
+    /// the simulation runs. A host silent for the heartbeat timeout in wall time is gone,
+    /// and virtual time then follows wall time, so the firmware's safe stop happens.
     pub fn serve(&self, instrument: &mut SimInstrument, stop: &AtomicBool) -> std::io::Result<()> {
+        let timeout = instrument.heartbeat_timeout();
+        let lead_us = timeout.as_micros() as u64 * 3 / 4;
         let mut buf = [0u8; 4096];
+        let mut last_host_wall = Instant::now();
+        let mut last_host_virtual_us = instrument.device_time_us();
+        let mut last_loop_wall = Instant::now();
         while !stop.load(Ordering::Relaxed) {
             let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
-            let ready = match poll(&mut fds, PollTimeout::from(20u8)) {
+            let ready = match poll(&mut fds, PollTimeout::from(1u8)) {
                 Ok(n) => n,
                 Err(nix::errno::Errno::EINTR) => continue,
                 Err(e) => return Err(e.into()),
             };
             if ready > 0 {
                 match nix::unistd::read(&self.master, &mut buf) {
-                    Ok(n) => instrument.write(&buf[..n]),
+                    Ok(n) => {
+                        // With the simulated cable out the bytes are lost, as on a real link.
+                        let _ = instrument.write(&buf[..n]);
+                        last_host_wall = Instant::now();
+                        last_host_virtual_us = instrument.device_time_us();
+                    }
                     // A client closing its end is not our failure.
                     Err(nix::errno::Errno::EIO | nix::errno::Errno::EAGAIN | nix::errno::Errno::EINTR) => {}
                     Err(e) => return Err(e.into()),
                 }
             }
-            loop {
-                let n = instrument.read(&mut buf);
-                if n == 0 {
-                    break;
-                }
-                write_all(&self.master, &buf[..n])?;
-            }
+            let now_wall = Instant::now();
+            let wall_step_us = (now_wall - last_loop_wall).as_micros() as u64;
+            last_loop_wall = now_wall;
+            let now_us = instrument.device_time_us();
+            let limit_us = if now_wall - last_host_wall >= timeout {
+                now_us + wall_step_us
+            } else {
+                // At most 50 ms of device time per turn keeps the loop responsive.
+                (last_host_virtual_us + lead_us).clamp(now_us, now_us + 50_000)
+            };
+            self.run_until(instrument, limit_us, &mut buf)?;
         }
         Ok(())
+    }
+
+    /// Run the instrument up to device time `limit_us`, passing its output to the client.
+    fn run_until(&self, instrument: &mut SimInstrument, limit_us: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        loop {
+            let wait = Duration::from_micros(limit_us.saturating_sub(instrument.device_time_us()));
+            match instrument.read(buf, wait) {
+                Ok(0) => return Ok(()),
+                Ok(n) => write_all(&self.master, &buf[..n])?,
+                Err(e) if e.kind() == std::io::ErrorKind::NotConnected => {
+                    if instrument.device_time_us() >= limit_us {
+                        return Ok(());
+                    }
+                }
+                Err(e) => return Err(e),
+            }
+        }
     }
 }
 

@@ -19,6 +19,12 @@ pub trait Transport {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()>;
     /// Read what is available into `buf`, waiting at most `timeout`; `Ok(0)` on timeout.
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize>;
+    /// The clock timeouts are measured on: wall time for a real link, device time for the
+    /// simulator in process (whose waits take no wall time). Monotonic, from any origin.
+    fn now(&self) -> Duration {
+        static ORIGIN: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+        ORIGIN.get_or_init(std::time::Instant::now).elapsed()
+    }
 }
 
 /// Why a request failed.
@@ -194,7 +200,7 @@ impl<T: Transport> Client<T> {
 
     /// Wait up to the reply timeout for the reply to `seq`; other messages are queued.
     fn wait_for_reply(&mut self, seq: u32) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
-        let deadline = std::time::Instant::now() + self.policy.reply_timeout;
+        let deadline = self.transport.now() + self.policy.reply_timeout;
         while let Some(message) = self.next_message(deadline)? {
             match message {
                 DeviceMessage::Reply { seq: answered, result } if answered == seq => return Ok(Some(result)),
@@ -212,7 +218,7 @@ impl<T: Transport> Client<T> {
         if let Some(message) = self.unsolicited.pop_front() {
             return Ok(Some(message));
         }
-        let deadline = std::time::Instant::now() + timeout;
+        let deadline = self.transport.now() + timeout;
         while let Some(message) = self.next_message(deadline)? {
             if !matches!(message, DeviceMessage::Reply { .. }) {
                 return Ok(Some(message));
@@ -223,7 +229,7 @@ impl<T: Transport> Client<T> {
 
     /// Read until one message is decoded or `deadline` passes. Frames the device reports
     /// it could not read are counted here and not returned.
-    fn next_message(&mut self, deadline: std::time::Instant) -> Result<Option<DeviceMessage>, LinkError> {
+    fn next_message(&mut self, deadline: Duration) -> Result<Option<DeviceMessage>, LinkError> {
         loop {
             while self.rx_pos < self.rx_len {
                 let byte = self.rx[self.rx_pos];
@@ -235,7 +241,7 @@ impl<T: Transport> Client<T> {
                     None => {}
                 }
             }
-            let now = std::time::Instant::now();
+            let now = self.transport.now();
             if now >= deadline {
                 return Ok(None);
             }

@@ -6,12 +6,15 @@ use std::time::Duration;
 
 impl Transport for SimInstrument {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
-        self.write(bytes);
-        Ok(())
+        self.write(bytes)
     }
 
-    fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> std::io::Result<usize> {
-        // In process the device answers during `write`: nothing more will come by waiting.
-        Ok(SimInstrument::read(self, buf))
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
+        SimInstrument::read(self, buf, timeout)
+    }
+
+    /// Device time: waiting on the simulator runs it forward instead of sleeping.
+    fn now(&self) -> Duration {
+        Duration::from_micros(self.device_time_us())
     }
 }

@@ -5,9 +5,15 @@ use host::link::{Client, LinkError, RetryPolicy, Transport};
 use protocol::*;
 use std::time::Duration;
 
+/// A simulated instrument with a matte grey sample on the port.
+fn simulator() -> hil_sim::SimInstrument {
+    let port = hil_sim::scene::SamplePort::new(std::sync::Arc::new(|_: f64, _: f64| 0.5));
+    hil_sim::SimInstrument::new(port, hil_sim::SimConfig::default())
+}
+
 #[test]
 fn host_and_firmware_agree_on_the_handshake() {
-    let mut client = Client::new(hil_sim::SimInstrument::new(), RetryPolicy::default());
+    let mut client = Client::new(simulator(), RetryPolicy::default());
     let info = client.hello().expect("handshake");
     assert_eq!(info.protocol_version, PROTOCOL_VERSION);
     assert_eq!(info.board.as_str(), firmware::config::InstrumentConfig::REFERENCE.board);
@@ -62,20 +68,23 @@ fn lost_reply_is_recovered_by_retrying_the_same_sequence() {
     }
     impl Transport for DropFirstReply {
         fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
-            self.sim.write(bytes);
+            self.sim.write(bytes)?;
             if !self.dropped {
                 self.dropped = true;
                 let mut sink = [0u8; 4 * MAX_FRAME_LEN];
-                self.sim.read(&mut sink);
+                self.sim.read(&mut sink, Duration::ZERO)?;
             }
             Ok(())
         }
-        fn read(&mut self, buf: &mut [u8], _timeout: Duration) -> std::io::Result<usize> {
-            Ok(self.sim.read(buf))
+        fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
+            self.sim.read(buf, timeout)
+        }
+        fn now(&self) -> Duration {
+            Duration::from_micros(self.sim.device_time_us())
         }
     }
     let policy = RetryPolicy { reply_timeout: Duration::from_millis(20), attempts: 3 };
-    let mut client = Client::new(DropFirstReply { sim: hil_sim::SimInstrument::new(), dropped: false }, policy);
+    let mut client = Client::new(DropFirstReply { sim: simulator(), dropped: false }, policy);
     let info = client.hello().expect("handshake after a retry");
     assert_eq!(info.protocol_version, PROTOCOL_VERSION);
     assert_eq!(client.stats().retries, 1);

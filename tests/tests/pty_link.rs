@@ -28,7 +28,9 @@ fn serve() -> Served {
     let path = server.path().to_string_lossy().into_owned();
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
-    let thread = std::thread::spawn(move || server.serve(&mut hil_sim::SimInstrument::new(), &flag));
+    let port = hil_sim::scene::SamplePort::new(Arc::new(|_: f64, _: f64| 0.5));
+    let mut instrument = hil_sim::SimInstrument::new(port, hil_sim::SimConfig::default());
+    let thread = std::thread::spawn(move || server.serve(&mut instrument, &flag));
     Served { path, stop, thread: Some(thread) }
 }
 
