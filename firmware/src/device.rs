@@ -185,6 +185,7 @@ impl<H: Hardware> Device<H> {
             self.last_heard_us = now_us;
             if let Incoming::Fresh(request) = incoming {
                 match self.execute(request.seq, &request.command, send) {
+                    Some(result) if request.command.is_read_only() => self.link.reply_uncached(request.seq, result, send),
                     Some(result) => self.link.reply(request.seq, result, send),
                     None => self.link.begin(request.seq),
                 }

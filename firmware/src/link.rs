@@ -22,7 +22,8 @@ pub enum Incoming {
 /// Frame decoding, encoding and the reply cache.
 pub struct Link {
     decoder: FrameDecoder,
-    /// Sequence number and encoded frame of the last reply sent.
+    /// Sequence number and encoded frame of the last reply to a command that acts
+    /// (read-only commands are not cached, so heartbeats never push a reply out).
     last_reply: Option<(u32, Vec<u8, MAX_FRAME_LEN>)>,
     /// Sequence number of a request accepted but not answered yet.
     in_progress: Option<u32>,
@@ -65,7 +66,7 @@ impl Link {
             return Incoming::RepeatInProgress;
         }
         match &self.last_reply {
-            Some((seq, frame)) if *seq == request.seq => {
+            Some((seq, frame)) if *seq == request.seq && !request.command.is_read_only() => {
                 send(frame);
                 Incoming::Repeat
             }
@@ -80,6 +81,16 @@ impl Link {
 
     /// Answer request `seq`, and remember the answer for a retry.
     pub fn reply(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
+        self.answer(seq, result, true, send);
+    }
+
+    /// Answer a read-only request (see [`protocol::Command::is_read_only`]) without
+    /// caching: a repeat is simply carried out again.
+    pub fn reply_uncached(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
+        self.answer(seq, result, false, send);
+    }
+
+    fn answer(&mut self, seq: u32, result: Result<Reply, DeviceError>, cache: bool, send: &mut impl FnMut(&[u8])) {
         if self.in_progress == Some(seq) {
             self.in_progress = None;
         }
@@ -98,7 +109,9 @@ impl Link {
             }
         };
         send(frame);
-        self.last_reply = Vec::from_slice(frame).ok().map(|frame| (seq, frame));
+        if cache {
+            self.last_reply = Vec::from_slice(frame).ok().map(|frame| (seq, frame));
+        }
     }
 
     /// Send a message that answers no request (streamed readings, stops).

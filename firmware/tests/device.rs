@@ -235,6 +235,28 @@ fn a_repeated_sequence_number_is_not_executed_twice() {
     assert_eq!(bench.hw().profiles_started, started);
 }
 
+#[test]
+fn heartbeats_do_not_push_a_pending_reply_out_of_the_cache() {
+    let mut bench = Bench::new();
+    let request = Request { seq: 2000, command: Command::Home };
+    bench.send_bytes(&common::frame(&request));
+    // The host keeps the link alive while the arms home; the Home reply then gets lost
+    // and the host retries it after the heartbeats and a status were answered.
+    for _ in 0..3 {
+        bench.run_ms(300);
+        assert_eq!(bench.ask(Command::Heartbeat), Ok(Reply::Ack));
+    }
+    bench.wait_idle();
+    assert!(bench.ask(Command::GetStatus).is_ok());
+    let started = bench.hw().profiles_started;
+    assert_eq!(bench.replies(2000).len(), 1);
+    bench.send_bytes(&common::frame(&request));
+    bench.run_ms(10);
+    assert_eq!(bench.replies(2000).len(), 2, "the retry is answered");
+    assert_eq!(bench.replies(2000)[0], bench.replies(2000)[1]);
+    assert_eq!(bench.hw().profiles_started, started, "the arms homed a second time");
+}
+
 fn chunk(schedule_id: u16, total_len: u16, offset: u16, geometries: &[Geometry]) -> Command {
     Command::UploadSchedule(ScheduleChunk {
         schedule_id,

@@ -80,6 +80,15 @@ pub enum Command {
     Abort,
 }
 
+impl Command {
+    /// Whether carrying the command out changes nothing (heartbeat, status). The device
+    /// may carry such a command out again when it is repeated, so its replies need no
+    /// place in the reply cache that protects the commands that do act.
+    pub fn is_read_only(&self) -> bool {
+        matches!(self, Command::Heartbeat | Command::GetStatus)
+    }
+}
+
 /// What is on the sample port while a reading is taken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
