@@ -2,7 +2,7 @@
 //! link to the instrument, the session, and the command-line subcommands.
 pub mod cli;
 pub mod link;
-pub mod sim_link;
+pub mod sim;
 pub mod serial;
 pub mod model;
 pub mod fit;

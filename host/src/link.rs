@@ -80,18 +80,36 @@ fn version_advice(host: u16, device: u16) -> &'static str {
     }
 }
 
+/// How long a command may take on the device beyond a quick answer.
+fn expected_duration(command: &Command) -> Duration {
+    let ms = |ms: u64| Duration::from_millis(ms);
+    match command {
+        // Search over the whole travel, back off and re-approach slowly: under 20 s.
+        Command::Home => ms(30_000),
+        // The longest move (85°) takes under 2 s; the settle 0.1 s.
+        Command::MoveTo(_) => ms(3_000),
+        // Up to one re-take per range.
+        Command::TakeReading { integration_ms, .. } => ms(4 * u64::from(*integration_ms)),
+        Command::TakeDark { integration_ms } => ms(3 * u64::from(*integration_ms) + 500),
+        _ => Duration::ZERO,
+    }
+}
+
 /// Timing of requests.
 #[derive(Clone, Copy, Debug)]
 pub struct RetryPolicy {
     /// How long to wait for a reply before sending the request again.
     pub reply_timeout: Duration,
+    /// While waiting, a heartbeat goes out when the host has sent nothing for this long
+    /// (the firmware stops the arms after 2 s without a frame).
+    pub heartbeat_every: Duration,
     /// How many times a request is sent at most.
     pub attempts: u32,
 }
 
 impl Default for RetryPolicy {
     fn default() -> Self {
-        RetryPolicy { reply_timeout: Duration::from_millis(500), attempts: 4 }
+        RetryPolicy { reply_timeout: Duration::from_millis(500), heartbeat_every: Duration::from_millis(500), attempts: 4 }
     }
 }
 
@@ -119,6 +137,8 @@ pub struct Client<T: Transport> {
     rx: [u8; MAX_FRAME_LEN],
     rx_pos: usize,
     rx_len: usize,
+    /// When the host last sent a frame, on the transport's clock.
+    last_sent: Duration,
 }
 
 fn command_name(command: &Command) -> &'static str {
@@ -150,6 +170,7 @@ impl<T: Transport> Client<T> {
             rx: [0; MAX_FRAME_LEN],
             rx_pos: 0,
             rx_len: 0,
+            last_sent: Duration::ZERO,
         }
     }
 
@@ -179,28 +200,40 @@ impl<T: Transport> Client<T> {
 
     /// Send `command` and wait for its reply, retrying with the same sequence number.
     pub fn request(&mut self, command: Command) -> Result<Reply, LinkError> {
-        let seq = self.next_seq;
-        self.next_seq = self.next_seq.wrapping_add(1).max(1);
+        let seq = self.take_seq();
         let name = command_name(&command);
+        let timeout = self.policy.reply_timeout + expected_duration(&command);
         let request = Request { seq, command };
-        let mut buf = [0u8; MAX_FRAME_LEN];
-        let frame = protocol::encode_frame(&request, &mut buf)
-            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
         for attempt in 0..self.policy.attempts {
             if attempt > 0 {
                 self.stats.retries += 1;
             }
-            self.transport.write_all(frame)?;
-            if let Some(result) = self.wait_for_reply(seq)? {
+            self.send(&request)?;
+            if let Some(result) = self.wait_for_reply(seq, timeout)? {
                 return result.map_err(|error| LinkError::Device { command: name, error });
             }
         }
         Err(LinkError::NoReply { seq, command: name, attempts: self.policy.attempts })
     }
 
-    /// Wait up to the reply timeout for the reply to `seq`; other messages are queued.
-    fn wait_for_reply(&mut self, seq: u32) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
-        let deadline = self.transport.now() + self.policy.reply_timeout;
+    fn take_seq(&mut self) -> u32 {
+        let seq = self.next_seq;
+        self.next_seq = self.next_seq.wrapping_add(1).max(1);
+        seq
+    }
+
+    fn send(&mut self, request: &Request) -> Result<(), LinkError> {
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let frame = protocol::encode_frame(request, &mut buf)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
+        self.transport.write_all(frame)?;
+        self.last_sent = self.transport.now();
+        Ok(())
+    }
+
+    /// Wait up to `timeout` for the reply to `seq`; other messages are queued.
+    fn wait_for_reply(&mut self, seq: u32, timeout: Duration) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
+        let deadline = self.transport.now() + timeout;
         while let Some(message) = self.next_message(deadline)? {
             match message {
                 DeviceMessage::Reply { seq: answered, result } if answered == seq => return Ok(Some(result)),
@@ -245,9 +278,16 @@ impl<T: Transport> Client<T> {
             if now >= deadline {
                 return Ok(None);
             }
+            let heartbeat_due = self.last_sent + self.policy.heartbeat_every;
+            if now >= heartbeat_due {
+                // Its reply is read and dropped like any answer to an earlier request.
+                let seq = self.take_seq();
+                self.send(&Request { seq, command: Command::Heartbeat })?;
+                continue;
+            }
             // Read in chunks (one system call per chunk on a serial port); bytes after a
             // complete frame stay in `rx` for the next call.
-            self.rx_len = self.transport.read(&mut self.rx, deadline - now)?;
+            self.rx_len = self.transport.read(&mut self.rx, deadline.min(heartbeat_due) - now)?;
             self.rx_pos = 0;
         }
     }

@@ -16,6 +16,8 @@ enum Command {
     Fit(host::cli::fit::Args),
     /// List serial ports; instruments (by USB VID/PID) are marked.
     Ports(host::cli::ports::Args),
+    /// Serve the simulated instrument on a pseudo-terminal (prints its path first).
+    Sim(host::cli::sim::Args),
 }
 
 fn main() -> ExitCode {
@@ -23,6 +25,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Fit(args) => host::cli::fit::run(args),
         Command::Ports(args) => host::cli::ports::run(args),
+        Command::Sim(args) => host::cli::sim::run(args),
     };
     match result {
         Ok(code) => code,

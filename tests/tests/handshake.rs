@@ -83,7 +83,7 @@ fn lost_reply_is_recovered_by_retrying_the_same_sequence() {
             Duration::from_micros(self.sim.device_time_us())
         }
     }
-    let policy = RetryPolicy { reply_timeout: Duration::from_millis(20), attempts: 3 };
+    let policy = RetryPolicy { reply_timeout: Duration::from_millis(20), attempts: 3, ..RetryPolicy::default() };
     let mut client = Client::new(DropFirstReply { sim: simulator(), dropped: false }, policy);
     let info = client.hello().expect("handshake after a retry");
     assert_eq!(info.protocol_version, PROTOCOL_VERSION);

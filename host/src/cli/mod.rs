@@ -1,3 +1,4 @@
 //! One module per `gonio` subcommand, each with its clap `Args` and `run()`.
 pub mod fit;
 pub mod ports;
+pub mod sim;
