@@ -1,63 +1,71 @@
 //! The board's side of the firmware library's hardware traits ([`firmware::Arms`],
 //! [`firmware::Detector`], [`firmware::Lamp`]): it acts and reports, it decides nothing.
 //!
-//! Wired now: home switches, driver DIAG inputs, the lamp and the TIA range lines.
-//! Not yet (a later issue): the timer step generators and ADC sampling. Until then the
-//! arms report that they do not move and the detector reports no samples, so the
-//! library refuses or fails moves and readings by its own rules (a move that does not
-//! arrive, a reading without samples: hardware fault) instead of the board pretending.
+//! - Arms: one hardware timer per arm issues the step pulses of the library's
+//!   [`MoveProfile`] (TIM2 → source arm, TIM3 → detector arm; see [`crate::steppers`]).
+//!   The step count is kept by the timer interrupts, one count per pulse issued, so it
+//!   is the position the drivers were told, whatever the CPU was doing. The drivers are
+//!   enabled (EN low) at the first move and stay enabled to hold position.
+//! - Home switches and driver DIAG: GPIO inputs, read when the library asks.
+//! - Detector: the TIA range lines (one-hot GPIO) and the photodiode ADC (ADC1 on PA1,
+//!   256× oversampled to 16 bits, ~977 samples/s into a bounded ring; see
+//!   [`crate::detector_adc`]).
+//! - Lamp: a GPIO.
 
-use defmt::warn;
 use embassy_stm32::gpio::{Input, Output};
 use firmware::motion::MoveProfile;
 use firmware::{Arm, Arms, Detector, Lamp};
 
+use crate::detector_adc::DetectorAdc;
+use crate::steppers::Steppers;
+
 /// The instrument as the firmware library sees it.
 pub struct BoardHardware {
+    steppers: Steppers,
+    adc: DetectorAdc,
     home: [Input<'static>; 2],
     diag: [Input<'static>; 2],
     lamp: Output<'static>,
     range: [Output<'static>; 3],
-    /// Step counts: with no step generator yet, they change only by `set_position_steps`.
-    steps: [i32; 2],
 }
 
 impl BoardHardware {
-    /// From the pins of [`crate::pins`], already in their idle state.
+    /// From the running step generators and ADC, and the pins of [`crate::pins`] in their
+    /// idle state.
     pub fn new(
+        steppers: Steppers,
+        adc: DetectorAdc,
         home: [Input<'static>; 2],
         diag: [Input<'static>; 2],
         lamp: Output<'static>,
         range: [Output<'static>; 3],
     ) -> Self {
         BoardHardware {
+            steppers,
+            adc,
             home,
             diag,
             lamp,
             range,
-            steps: [0; 2],
         }
     }
 }
 
 impl Arms for BoardHardware {
-    fn run_profile(&mut self, arm: Arm, _profile: &MoveProfile) {
-        warn!(
-            "{}: no step generator in this firmware build; the arm does not move",
-            arm
-        );
+    fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
+        self.steppers.run_profile(arm, profile);
     }
 
     fn position_steps(&self, arm: Arm) -> i32 {
-        self.steps[arm.index()]
+        self.steppers.position_steps(arm)
     }
 
-    fn is_moving(&self, _arm: Arm) -> bool {
-        false
+    fn is_moving(&self, arm: Arm) -> bool {
+        self.steppers.is_moving(arm)
     }
 
     fn set_position_steps(&mut self, arm: Arm, steps: i32) {
-        self.steps[arm.index()] = steps;
+        self.steppers.set_position_steps(arm, steps);
     }
 
     fn home_switch_pressed(&self, arm: Arm) -> bool {
@@ -75,10 +83,14 @@ impl Detector for BoardHardware {
         for (index, line) in self.range.iter_mut().enumerate() {
             line.set_level((index == usize::from(range)).into());
         }
+        // Samples from before the switch belong to no reading (the library discards them
+        // too); dropping them here keeps the ring's overflow count about readings only,
+        // not about the idle time between them, when nobody drains.
+        self.adc.clear();
     }
 
-    fn drain_samples(&mut self, _sink: &mut dyn FnMut(u32)) {
-        // No ADC sampling in this firmware build.
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) {
+        self.adc.drain(sink);
     }
 }
 

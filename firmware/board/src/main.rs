@@ -1,6 +1,7 @@
 //! gonio firmware for the STM32F411CEU6 "Black Pill": board glue only.
 //!
-//! Clocks, pins, USB CDC-ACM, the watchdog and defmt logging. Every decision is made by
+//! Clocks, pins, USB CDC-ACM, the watchdog, defmt logging, the step timers (TIM2, TIM3)
+//! and the detector ADC (ADC1 + DMA2, decimated in TIM5). Every decision is made by
 //! the `firmware` library ([`firmware::Device`]): this crate moves bytes between the USB
 //! serial port and the device, polls it, and logs what happened.
 //!
@@ -14,8 +15,10 @@
 #![no_std]
 #![no_main]
 
+mod detector_adc;
 mod hardware;
 mod pins;
+mod steppers;
 
 use defmt::{info, warn};
 use embassy_executor::Spawner;
@@ -156,17 +159,23 @@ async fn main(spawner: Spawner) {
     let usb = builder.build();
     let (sender, receiver) = class.split();
 
-    let device = Device::new(InstrumentConfig::REFERENCE, pins.hardware, reset_cause);
+    let motors = pins.motors;
+    let steppers = steppers::Steppers::new(
+        p.TIM2,
+        p.TIM3,
+        motors.step_i,
+        motors.step_r,
+        motors.dir,
+        motors.en,
+    );
+    let adc = detector_adc::DetectorAdc::start(p.ADC1, p.DMA2_CH0, p.TIM5, pins.detector);
+    let hardware = BoardHardware::new(steppers, adc, pins.home, pins.diag, pins.lamp, pins.range);
+    let device = Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause);
 
     spawner.must_spawn(usb_task(usb));
     spawner.must_spawn(usb_rx_task(receiver));
     spawner.must_spawn(usb_tx_task(sender));
     spawner.must_spawn(device_task(device, watchdog, pins.led));
-
-    // STEP/DIR/EN stay idle (drivers disabled) for good in this build; the detector pin
-    // waits for the ADC layer.
-    let _motor_idle = pins.motor_idle;
-    let _detector = pins.detector;
     core::future::pending::<()>().await;
 }
 

@@ -47,15 +47,14 @@
 //! - External parts the idle states rely on: a pull-up on each EN (drivers stay off while
 //!   the MCU is in reset), a pull-down on LAMP_EN.
 //!
-//! [`BoardPins::split`] hands the switches, DIAG inputs, lamp and range lines to the board's
-//! [`crate::hardware::BoardHardware`] and holds STEP/DIR/EN idle (drivers disabled) until
-//! the timer step generators exist (a later issue); the detector pin waits for the ADC.
+//! [`BoardPins::split`] puts every pin in its idle state and sorts them by user: STEP pins to
+//! the step timers ([`crate::steppers`]), DIR/EN with them, PA1 to the ADC
+//! ([`crate::detector_adc`]), switches, DIAG inputs, lamp and range lines to
+//! [`crate::hardware::BoardHardware`].
 
 use embassy_stm32::Peri;
 use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
 use embassy_stm32::peripherals;
-
-use crate::hardware::BoardHardware;
 
 /// Declares [`BoardPins`] and `take_board_pins!` from one list, so the pin table exists once.
 macro_rules! pin_table {
@@ -112,57 +111,68 @@ pin_table! { $
 
 /// The pins, sorted by who drives them now.
 pub struct SplitPins {
-    /// STEP/DIR/EN held idle: drivers disabled, no step pulses. Keep it alive for as long
-    /// as nothing else drives these pins (dropping it would float them).
-    pub motor_idle: MotorIdle,
-    /// Home switches, driver DIAG, lamp and range lines, for the firmware library.
-    pub hardware: BoardHardware,
+    /// STEP pins for the step timers, DIR low, EN high (drivers disabled).
+    pub motors: MotorPins,
+    /// Home switches (pull-up), source arm first.
+    pub home: [Input<'static>; 2],
+    /// Driver DIAG inputs (pull-down), source arm first.
+    pub diag: [Input<'static>; 2],
+    /// Lamp enable, off.
+    pub lamp: Output<'static>,
+    /// TIA range lines, range 0 selected.
+    pub range: [Output<'static>; 3],
     /// The on-board LED, off.
     pub led: Output<'static>,
-    /// Left for the detector layer (ADC).
+    /// The detector input, for the ADC.
     pub detector: Peri<'static, peripherals::PA1>,
 }
 
-/// Motor driver outputs at their idle levels.
-pub struct MotorIdle {
-    _outputs: [Output<'static>; 6],
+/// The motor driver pins of both arms (source first in the arrays).
+pub struct MotorPins {
+    /// Source arm STEP, for TIM2_CH3.
+    pub step_i: Peri<'static, peripherals::PB10>,
+    /// Detector arm STEP, for TIM3_CH3.
+    pub step_r: Peri<'static, peripherals::PB0>,
+    /// DIR, low.
+    pub dir: [Output<'static>; 2],
+    /// EN (active low), high: drivers disabled.
+    pub en: [Output<'static>; 2],
 }
 
 impl BoardPins {
-    /// Put every pin in its idle state and hand each to its user.
+    /// Put every pin in its idle state and hand each to its user. The STEP pins stay in
+    /// their reset state (input) until the step timers take them, microseconds later.
     pub fn split(self) -> SplitPins {
         fn out(pin: Peri<'static, AnyPin>, level: Level) -> Output<'static> {
             Output::new(pin, level, Speed::Low)
         }
-        let motor_idle = MotorIdle {
-            _outputs: [
-                out(self.en_i.into(), Level::High),
-                out(self.en_r.into(), Level::High),
-                out(self.step_i.into(), Level::Low),
-                out(self.step_r.into(), Level::Low),
-                out(self.dir_i.into(), Level::Low),
-                out(self.dir_r.into(), Level::Low),
-            ],
-        };
-        let hardware = BoardHardware::new(
-            [
+        SplitPins {
+            motors: MotorPins {
+                step_i: self.step_i,
+                step_r: self.step_r,
+                dir: [
+                    out(self.dir_i.into(), Level::Low),
+                    out(self.dir_r.into(), Level::Low),
+                ],
+                en: [
+                    out(self.en_i.into(), Level::High),
+                    out(self.en_r.into(), Level::High),
+                ],
+            },
+            home: [
                 Input::new(self.home_i, Pull::Up),
                 Input::new(self.home_r, Pull::Up),
             ],
-            [
+            diag: [
                 Input::new(self.diag_i, Pull::Down),
                 Input::new(self.diag_r, Pull::Down),
             ],
-            out(self.lamp_en.into(), Level::Low),
-            [
+            lamp: out(self.lamp_en.into(), Level::Low),
+            range: [
                 out(self.range0.into(), Level::High),
                 out(self.range1.into(), Level::Low),
                 out(self.range2.into(), Level::Low),
             ],
-        );
-        SplitPins {
-            motor_idle,
-            hardware,
             led: Output::new(self.led, Level::High, Speed::Low),
             detector: self.detector,
         }
