@@ -15,14 +15,16 @@
 //! comes one tail segment in one-pulse mode (the counter stops by itself, STEP low); its
 //! end clears `is_moving`, [`TAIL_TICKS`] after the last step was issued.
 //!
-//! ISR cost (no hardware here to measure it; an estimate from the code): one
-//! `MoveProfile::step_time_us` per step is a handful of f32 multiply/adds, one VSQRT and
-//! one VDIV (14 cycles each on the M4F), an f32 → u64 conversion (a compiler-rt call,
-//! ~30 cycles) and a few branches: ≲ 150 cycles. With the interrupt entry/exit (~30 with
-//! lazy FPU stacking), the critical section and ~8 timer register accesses on APB1
-//! (2–3 cycles each), one step costs ≲ 300 cycles ≈ 3 µs at 96 MHz. Both arms at full
-//! speed: 9,600 steps/s × 300 cycles ≈ 2.9 M cycles/s, ≈ 3 % of the CPU; so no
-//! incremental step-time method in the library was needed.
+//! ISR cost (no hardware here to measure it; counted from the disassembly of the
+//! release ELF): `MoveProfile::step_time_us` is ~105 instructions with one VDIV (14
+//! cycles), one libm `sqrtf` (a software square root, not VSQRT: ~66 instructions and 3
+//! helper calls, ≈ 120 cycles) and one `__aeabi_f2ulz` (≈ 40 cycles): ≈ 300 cycles worst
+//! case, once per step. `on_update` itself is ~100 instructions (critical section, ~8
+//! timer register accesses on APB1, the segment bookkeeping), plus ~30 cycles of entry
+//! and exit with lazy FPU stacking: ≲ 500 cycles ≈ 5 µs per step at 96 MHz. Both arms at
+//! full speed: 9,600 steps/s × 500 ≈ 4.8 M cycles/s, ≈ 5 % of the CPU, and 5 µs of a
+//! 208 µs step period; so no incremental step-time method in the library was needed.
+//! (A DWT cycle count on the board would confirm it.)
 //!
 //! Assumptions the timing relies on: nothing masks interrupts for a whole segment
 //! (embassy's critical sections last microseconds), and no segment is shorter than the
