@@ -196,6 +196,13 @@ mod tests {
     }
 
     #[test]
+    fn lamp_drifts_by_the_stated_rate_in_a_seeded_direction() {
+        let drifts: Vec<f64> = (0..16).map(|seed| Detector::new(DetectorParams::default(), seed).lamp_output(3600.0) - 1.0).collect();
+        assert!(drifts.iter().all(|d| (d.abs() - 0.002).abs() < 1e-12), "{drifts:?}");
+        assert!(drifts.iter().any(|d| *d > 0.0) && drifts.iter().any(|d| *d < 0.0));
+    }
+
+    #[test]
     fn saturation_clips_at_full_scale() {
         let mut detector = Detector::new(DetectorParams::default(), 1);
         assert_eq!(detector.sample(1e9), 65_535);

@@ -55,3 +55,18 @@ fn garbage_from_a_client_does_not_bring_the_simulator_down() {
     let mut client = Client::new(SerialTransport::open(&served.path).expect("open pty"), RetryPolicy::default());
     assert!(client.hello().is_ok());
 }
+
+#[test]
+fn a_host_that_goes_quiet_on_the_pty_is_taken_for_lost() {
+    let served = serve();
+    let policy = RetryPolicy { heartbeat_every: std::time::Duration::from_millis(50), ..RetryPolicy::default() };
+    let mut client = Client::new(SerialTransport::open(&served.path).expect("open pty"), policy);
+    client.hello().unwrap();
+    assert!(matches!(client.request(Command::Home), Ok(Reply::Homed(_))));
+    assert!(matches!(client.request(Command::SetLamp { on: true }), Ok(Reply::Ack)));
+    // The host stops talking for longer than the heartbeat timeout, in wall time.
+    std::thread::sleep(std::time::Duration::from_millis(2_600));
+    let Ok(Reply::Status(status)) = client.request(Command::GetStatus) else { panic!("status") };
+    assert_eq!(status.fault, Some(protocol::ErrorCode::HeartbeatLost));
+    assert!(!status.lamp_on);
+}
