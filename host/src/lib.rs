@@ -9,3 +9,5 @@ pub mod fit;
 pub mod sampling;
 pub mod classify;
 pub mod dataset;
+pub mod plots;
+pub mod export;

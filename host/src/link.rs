@@ -19,6 +19,10 @@ pub trait Transport {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()>;
     /// Read what is available into `buf`, waiting at most `timeout`; `Ok(0)` on timeout.
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize>;
+    /// Re-open the link after a failure (a serial port that went away); no-op by default.
+    fn reconnect(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
     /// The clock timeouts are measured on: wall time for a real link, device time for the
     /// simulator in process (whose waits take no wall time). Monotonic, from any origin.
     fn now(&self) -> Duration {
@@ -109,7 +113,7 @@ pub struct RetryPolicy {
 
 impl Default for RetryPolicy {
     fn default() -> Self {
-        RetryPolicy { reply_timeout: Duration::from_millis(500), heartbeat_every: Duration::from_millis(500), attempts: 4 }
+        RetryPolicy { reply_timeout: Duration::from_millis(500), heartbeat_every: Duration::from_millis(200), attempts: 4 }
     }
 }
 

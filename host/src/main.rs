@@ -12,6 +12,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Measure a sheet: home, calibrate, Strategy 1, fit, refine until σ > σ_l, classify.
+    Measure(host::cli::measure::Args),
     /// Fit the TSL model to measured radiance factors and classify each data set.
     Fit(host::cli::fit::Args),
     /// List serial ports; instruments (by USB VID/PID) are marked.
@@ -23,6 +25,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Measure(args) => host::cli::measure::run(args),
         Command::Fit(args) => host::cli::fit::run(args),
         Command::Ports(args) => host::cli::ports::run(args),
         Command::Sim(args) => host::cli::sim::run(args),

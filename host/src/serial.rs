@@ -26,6 +26,12 @@ impl SerialTransport {
 }
 
 impl Transport for SerialTransport {
+    fn reconnect(&mut self) -> std::io::Result<()> {
+        // A CDC-ACM port that was unplugged comes back under the same path (or not yet).
+        self.port = serialport::new(&self.path, 115_200).timeout(Duration::from_millis(50)).open()?;
+        Ok(())
+    }
+
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         self.port.write_all(bytes)?;
         self.port.flush()

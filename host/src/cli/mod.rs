@@ -2,3 +2,4 @@
 pub mod fit;
 pub mod ports;
 pub mod sim;
+pub mod measure;

@@ -1,0 +1,282 @@
+//! `gonio measure`: the whole measurement session, on an instrument or the simulated one.
+use crate::calibration::Calibration;
+use crate::link::{Client, RetryPolicy, Transport};
+use crate::serial::SerialTransport;
+use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
+use crate::sim::SimOptions;
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use std::fs::{File, OpenOptions};
+use std::io::{BufRead, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+/// Arguments of `gonio measure`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run on the simulated instrument with this sample on the port (G, SG, PPC, MC,
+    /// J1…J4, custom:SIGMA,RHO_S,RHO_D,ETA), in process.
+    #[arg(long, value_name = "SAMPLE", conflicts_with = "port")]
+    pub sim: Option<String>,
+    #[command(flatten)]
+    pub sim_options: SimOptions,
+    /// Serial port of the instrument (default: the one attached instrument, by USB id).
+    #[arg(long, value_name = "PATH")]
+    pub port: Option<String>,
+    /// Name of the sample for the report and the files (default: the simulated sample, or "sample").
+    #[arg(long)]
+    pub sample: Option<String>,
+    /// Folder for the session's files (default: sessions/<time>-<sample>).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Continue an interrupted session in DIR, measuring only what is missing.
+    #[arg(long, value_name = "DIR", conflicts_with = "out")]
+    pub resume: Option<PathBuf>,
+    /// Use the calibration of an earlier session (its folder, session.json or calibration.json).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Oldest calibration accepted, hours.
+    #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
+    pub max_calibration_age_h: f64,
+    /// Integration time per reading (default: the instrument's).
+    #[arg(long, value_name = "MS")]
+    pub integration_ms: Option<u16>,
+    /// Refinement policy.
+    #[arg(long, value_enum, default_value_t = Policy::Paper)]
+    pub policy: Policy,
+    /// Re-read the white tile at the end and mark the result if it drifted.
+    #[arg(long)]
+    pub white_check: bool,
+    /// White drift beyond which the result is marked, percent.
+    #[arg(long, value_name = "PERCENT", default_value_t = 0.5)]
+    pub white_drift_limit_pct: f64,
+    /// Print one JSON object instead of the report.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Asks the person at the instrument, on the terminal.
+struct PromptOperator;
+
+impl Operator for PromptOperator {
+    fn place(&mut self, placement: Placement) -> std::io::Result<()> {
+        let what = match placement {
+            Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port",
+            Placement::Sample => "Place the SAMPLE on the sample port",
+        };
+        eprint!("{what}, then press Enter: ");
+        std::io::stderr().flush()?;
+        let mut line = String::new();
+        if std::io::stdin().lock().read_line(&mut line)? == 0 {
+            return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "no one answered (standard input closed); use --calibration"));
+        }
+        Ok(())
+    }
+}
+
+/// Appends every reading to the session folder as it arrives; shows progress.
+struct FileRecorder {
+    dir: PathBuf,
+    readings_csv: File,
+    points_jsonl: File,
+    bar: ProgressBar,
+    decisions: Vec<String>,
+    interrupted: Arc<AtomicBool>,
+}
+
+impl FileRecorder {
+    fn open(dir: &Path, interrupted: Arc<AtomicBool>) -> std::io::Result<FileRecorder> {
+        std::fs::create_dir_all(dir)?;
+        let append = |name: &str| OpenOptions::new().create(true).append(true).open(dir.join(name));
+        let mut readings_csv = append("readings.csv")?;
+        if readings_csv.metadata()?.len() == 0 {
+            writeln!(readings_csv, "theta_i,theta_r,radiance_factor,std")?;
+        }
+        let bar = ProgressBar::new(0);
+        bar.set_style(
+            ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        Ok(FileRecorder { dir: dir.to_path_buf(), readings_csv, points_jsonl: append("points.jsonl")?, bar, decisions: Vec::new(), interrupted })
+    }
+}
+
+impl Recorder for FileRecorder {
+    fn calibration(&mut self, calibration: &Calibration) -> std::io::Result<()> {
+        std::fs::write(self.dir.join("calibration.json"), serde_json::to_vec_pretty(calibration)?)
+    }
+
+    fn point(&mut self, point: &MeasuredPoint) -> std::io::Result<()> {
+        writeln!(self.points_jsonl, "{}", serde_json::to_string(point)?)?;
+        self.points_jsonl.flush()?;
+        if let (Some(r), Some(u)) = (point.radiance_factor, point.std) {
+            writeln!(self.readings_csv, "{},{},{r},{u}", point.theta_i_deg, point.theta_r_deg)?;
+            self.readings_csv.flush()?;
+        }
+        if self.interrupted.load(Ordering::Relaxed) {
+            // Recorded first: the reading that was taken is kept.
+            return Err(std::io::Error::new(std::io::ErrorKind::Interrupted, "interrupted by Ctrl-C"));
+        }
+        Ok(())
+    }
+
+    fn stage(&mut self, what: &str, planned: usize) {
+        self.bar.set_message(what.to_string());
+        self.bar.set_length(planned as u64);
+        self.bar.set_position(0);
+        self.bar.set_prefix("?");
+    }
+
+    fn progress(&mut self, progress: Progress) {
+        self.bar.set_position(progress.done as u64);
+        self.bar.set_prefix(format!("{:.1}", progress.remaining.as_secs_f64()));
+    }
+
+    fn decision(&mut self, text: &str) {
+        self.bar.println(format!("  {text}"));
+        self.decisions.push(text.to_string());
+    }
+}
+
+fn read_points(dir: &Path) -> anyhow::Result<Vec<MeasuredPoint>> {
+    let path = dir.join("points.jsonl");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    let mut points = Vec::new();
+    for (k, line) in lines.iter().enumerate() {
+        match serde_json::from_str(line) {
+            Ok(point) => points.push(point),
+            // A crash can cut the last line short; anything else is damage worth a stop.
+            Err(_) if k + 1 == lines.len() => {}
+            Err(e) => bail!("{}:{}: {e}", path.display(), k + 1),
+        }
+    }
+    Ok(points)
+}
+
+/// Run `gonio measure`.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let interrupted = Arc::new(AtomicBool::new(false));
+    let flag = interrupted.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).context("cannot install the Ctrl-C handler")?;
+    let policy = RetryPolicy::default();
+    if let Some(sample) = &args.sim {
+        let instrument = args.sim_options.instrument(sample)?;
+        run_on(Client::new(instrument, policy), &args, sample.clone(), &mut SimulatedOperator, interrupted)
+    } else {
+        let path = match &args.port {
+            Some(path) => path.clone(),
+            None => crate::serial::find_instrument()?.context(
+                "no instrument found (gonio ports lists the serial ports); give --port PATH, or --sim SAMPLE for the simulated instrument",
+            )?,
+        };
+        let transport = SerialTransport::open(&path).with_context(|| format!("cannot open {path}"))?;
+        let sample = args.sample.clone().unwrap_or_else(|| "sample".into());
+        run_on(Client::new(transport, policy), &args, sample, &mut PromptOperator, interrupted)
+    }
+}
+
+fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<ExitCode> {
+    let sample = args.sample.clone().unwrap_or(sample);
+    let info = client.hello().context("handshake with the instrument")?;
+    let dir = match (&args.resume, &args.out) {
+        (Some(dir), _) | (None, Some(dir)) => dir.clone(),
+        (None, None) => {
+            let stamp = crate::calibration::unix_now_s();
+            PathBuf::from("sessions").join(format!("{stamp}-{}", sample.replace(['/', ':', ','], "_")))
+        }
+    };
+    let max_age = Duration::from_secs_f64(args.max_calibration_age_h.max(0.0) * 3600.0);
+    let mut calibration = match &args.calibration {
+        Some(path) => {
+            let path = if path.is_dir() { path.join("calibration.json") } else { path.clone() };
+            Some(Calibration::load(&path, max_age, &info)?)
+        }
+        None => None,
+    };
+    let mut points = Vec::new();
+    if let Some(dir) = &args.resume {
+        points = read_points(dir)?;
+        if calibration.is_none() && dir.join("calibration.json").exists() {
+            calibration = Some(Calibration::load(&dir.join("calibration.json"), max_age, &info)?);
+        }
+        eprintln!("resuming {}: {} readings already taken", dir.display(), points.len());
+    }
+    let mut recorder = FileRecorder::open(&dir, interrupted.clone()).with_context(|| format!("cannot write to {}", dir.display()))?;
+    if let Some(c) = &calibration {
+        recorder.calibration(c)?;
+    }
+    let plan = Plan {
+        sample: sample.clone(),
+        integration_ms: args.integration_ms.unwrap_or(info.default_integration_ms),
+        policy: args.policy,
+        acceptance_deg: f64::from(info.acceptance_deg),
+        white_check: args.white_check,
+        white_drift_limit: args.white_drift_limit_pct / 100.0,
+    };
+    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);
+    let outcome = session.run();
+    recorder.bar.finish_and_clear();
+    let outcome = match outcome {
+        Ok(outcome) => outcome,
+        Err(error) => {
+            // Whatever happened, leave the instrument safe; the readings are on disk.
+            let _ = client.request(protocol::Command::Abort);
+            let _ = client.request(protocol::Command::SetLamp { on: false });
+            eprintln!("session stopped: {error}");
+            eprintln!("readings so far are in {}; continue with: gonio measure --resume {} ...", dir.display(), dir.display());
+            return Ok(ExitCode::FAILURE);
+        }
+    };
+    let _ = client.request(protocol::Command::SetLamp { on: false });
+    let summary = write_session(&dir, &sample, &info, &outcome, &recorder.decisions)?;
+    if args.json {
+        println!("{summary}");
+    } else {
+        print!("{}", crate::cli::fit::to_table(&outcome.report));
+        println!(
+            "  {} geometries, {:.1} device s; refinements: {}",
+            outcome.points.len(),
+            outcome.device_seconds,
+            if outcome.refinements.is_empty() { "none".to_string() } else { outcome.refinements.iter().map(|r| format!("δ = {}° (+{}: {})", r.delta_deg, r.added, r.reason)).collect::<Vec<_>>().join("; ") }
+        );
+        if let Some(drift) = outcome.white_drift {
+            println!("  white check: drift {:.2} %{}", 100.0 * drift, if outcome.white_drift_exceeded { " — BEYOND THE LIMIT, result marked" } else { "" });
+        }
+        println!("  files: {}", dir.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Write `session.json` and return the result object printed by `--json`.
+fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome: &Outcome, decisions: &[String]) -> anyhow::Result<serde_json::Value> {
+    let mut result = crate::cli::fit::to_json(&outcome.report);
+    if let Some(object) = result.as_object_mut() {
+        object.insert("sample".into(), json!(sample));
+        object.insert("geometries".into(), json!(outcome.points.len()));
+        object.insert("device_seconds".into(), json!(outcome.device_seconds));
+        object.insert("refinements".into(), json!(outcome.refinements.iter().map(|r| r.delta_deg).collect::<Vec<_>>()));
+        object.insert("covariance".into(), json!(outcome.report.fit.covariance));
+        object.insert("white_drift".into(), json!(outcome.white_drift));
+        object.insert("white_drift_exceeded".into(), json!(outcome.white_drift_exceeded));
+        object.remove("file");
+    }
+    let session = json!({
+        "sample": sample,
+        "device": info,
+        "calibration": outcome.calibration,
+        "readings": outcome.points,
+        "fits": outcome.fits,
+        "refinements": outcome.refinements,
+        "decisions": decisions,
+        "result": result,
+    });
+    let path = dir.join("session.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&session)?).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(result)
+}

@@ -1,0 +1,528 @@
+//! The measurement session: one state machine from connection to report.
+//!
+//! Home → dark → white (the operator places the tile) → Strategy 1 on the instrument →
+//! fit and σ_l check → refinements by the chosen policy, sending only geometries not yet
+//! measured → classification → optional white check. Every reading is handed to the
+//! [`Recorder`] as it arrives, so nothing measured is lost; a session can start from
+//! readings already taken ([`Session::resume_from`]) and then measures only what is missing.
+//!
+//! The link can fail under it (corruption, a lost stream reading, a pulled cable): lost
+//! readings are measured again, duplicates dropped, and after a reconnection the session
+//! says hello again, re-homes if the instrument lost its homing, and carries on.
+
+use crate::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
+use crate::cli::fit::{Report, analyse, to_json};
+use crate::dataset::DataSet;
+use crate::fit::{FitOptions, Observation};
+use crate::link::{Client, LinkError, Transport};
+use protocol::schedules::{INCIDENCE_DEG, strategy1, strategy2};
+use protocol::{
+    Command, DeviceInfo, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN,
+    ScheduleChunk, ScheduleSource, Target,
+};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeSet;
+use std::time::Duration;
+
+/// How refinements are chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Policy {
+    /// The paper's (Fig. 10): Strategy 2 with decreasing δ (10°, 9°, … 1°) until σ > σ_l.
+    Paper,
+}
+
+/// What the session is asked to do.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// Sample name for the report and files.
+    pub sample: String,
+    /// Integration time of every reading.
+    pub integration_ms: u16,
+    /// Refinement policy.
+    pub policy: Policy,
+    /// Detector acceptance to model in the fit, degrees (from the handshake by default).
+    pub acceptance_deg: f64,
+    /// Re-read the white tile at the end and report the drift.
+    pub white_check: bool,
+    /// White drift beyond which the result is marked, as a fraction.
+    pub white_drift_limit: f64,
+}
+
+/// What the operator is asked to put on the sample port.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Placement {
+    /// The white reference tile.
+    WhiteTile,
+    /// The sample.
+    Sample,
+}
+
+/// The person at the instrument (a prompt), or nobody (the simulator's operator swaps by
+/// itself when readings are marked white).
+pub trait Operator {
+    /// Ask for `placement` and wait until it is done.
+    fn place(&mut self, placement: Placement) -> std::io::Result<()>;
+}
+
+/// No one to ask: the in-process simulator places the tile itself.
+pub struct SimulatedOperator;
+
+impl Operator for SimulatedOperator {
+    fn place(&mut self, _placement: Placement) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// One measured geometry, as recorded.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MeasuredPoint {
+    /// Incidence angle reached, degrees.
+    pub theta_i_deg: f64,
+    /// Detection angle reached, degrees.
+    pub theta_r_deg: f64,
+    /// Radiance factor; `None` when the reading cannot be converted (see `note`).
+    pub radiance_factor: Option<f64>,
+    /// Its standard uncertainty.
+    pub std: Option<f64>,
+    /// The raw reading.
+    pub reading: Reading,
+    /// Schedule and index it streamed as.
+    pub schedule_id: u16,
+    /// Index in the schedule.
+    pub index: u16,
+    /// Device time of the reading, µs since the instrument's boot.
+    pub device_time_us: u64,
+    /// Why it could not be converted.
+    pub note: Option<String>,
+}
+
+impl MeasuredPoint {
+    fn geometry(&self) -> Option<Geometry> {
+        Geometry::from_deg(self.theta_i_deg, self.theta_r_deg)
+    }
+}
+
+/// Progress for a display.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Geometries measured in this stage.
+    pub done: usize,
+    /// Geometries planned in this stage.
+    pub planned: usize,
+    /// Estimated device time left in this stage.
+    pub remaining: Duration,
+}
+
+/// Where readings and decisions go as they happen (files, a progress bar).
+pub trait Recorder {
+    /// A new calibration.
+    fn calibration(&mut self, calibration: &Calibration) -> std::io::Result<()>;
+    /// A new reading.
+    fn point(&mut self, point: &MeasuredPoint) -> std::io::Result<()>;
+    /// A stage begins (`what`), with its geometry count.
+    fn stage(&mut self, what: &str, planned: usize);
+    /// Progress within the stage.
+    fn progress(&mut self, progress: Progress);
+    /// A decision of the session, in words.
+    fn decision(&mut self, text: &str);
+}
+
+/// One fit of the session and what followed from it.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitStep {
+    /// After what it was made ("strategy1", "strategy2 δ=3°").
+    pub after: String,
+    /// The full report (the `gonio fit --json` object).
+    pub report: serde_json::Value,
+}
+
+/// A refinement taken, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct Refinement {
+    /// Strategy 2's δ.
+    pub delta_deg: u8,
+    /// Geometries it added (those of Strategy 2 at δ not measured before).
+    pub added: usize,
+    /// Why.
+    pub reason: String,
+}
+
+/// What a session produced.
+pub struct Outcome {
+    /// Every reading.
+    pub points: Vec<MeasuredPoint>,
+    /// The calibration used.
+    pub calibration: Calibration,
+    /// Every fit.
+    pub fits: Vec<FitStep>,
+    /// Every refinement.
+    pub refinements: Vec<Refinement>,
+    /// The final analysis.
+    pub report: Report,
+    /// Device time of the whole session, seconds.
+    pub device_seconds: f64,
+    /// White drift at the end, fraction (when checked).
+    pub white_drift: Option<f64>,
+    /// The drift exceeded the limit: the result is marked.
+    pub white_drift_exceeded: bool,
+}
+
+/// Why a session failed.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    /// The link failed beyond recovery.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The instrument stopped on its own and did not recover.
+    #[error("the instrument stopped: {0}")]
+    Stopped(ErrorCode),
+    /// Calibration.
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    /// Recording failed: stop rather than measure what cannot be kept.
+    #[error("cannot record the session: {0}")]
+    Record(std::io::Error),
+    /// The operator could not be asked.
+    #[error("cannot ask the operator: {0}")]
+    Operator(std::io::Error),
+    /// Not enough convertible readings for a fit.
+    #[error("the fit failed: {0}")]
+    Fit(String),
+    /// Too many attempts to measure the same geometries.
+    #[error("geometries still missing after {0} attempts; the link or instrument is failing")]
+    GaveUp(u32),
+}
+
+/// Attempts at a stage's missing geometries, and at reconnecting.
+const MAX_ATTEMPTS: u32 = 8;
+
+/// The running session.
+pub struct Session<'a, T: Transport> {
+    client: &'a mut Client<T>,
+    info: DeviceInfo,
+    plan: Plan,
+    recorder: &'a mut dyn Recorder,
+    operator: &'a mut dyn Operator,
+    points: Vec<MeasuredPoint>,
+    calibration: Option<Calibration>,
+    next_schedule_id: u16,
+    device_time_used_us: u64,
+}
+
+impl<'a, T: Transport> Session<'a, T> {
+    /// A session on a connected instrument (after the handshake gave `info`).
+    pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
+        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0 }
+    }
+
+    /// Continue from readings (and a calibration) an earlier session recorded.
+    pub fn resume_from(mut self, calibration: Option<Calibration>, points: Vec<MeasuredPoint>) -> Self {
+        self.next_schedule_id = points.iter().map(|p| p.schedule_id).max().unwrap_or(0).wrapping_add(1).max(1);
+        self.calibration = calibration;
+        self.points = points;
+        self
+    }
+
+    /// Use a calibration from an earlier session instead of taking one.
+    pub fn with_calibration(mut self, calibration: Calibration) -> Self {
+        self.calibration = Some(calibration);
+        self
+    }
+
+    /// Run the whole session.
+    pub fn run(mut self) -> Result<Outcome, SessionError> {
+        let started_us = self.uptime_us()?;
+        self.make_ready()?;
+        if self.calibration.is_none() {
+            self.calibrate()?;
+        }
+        self.lamp_on()?;
+        let mut fits = Vec::new();
+        let mut refinements = Vec::new();
+        let s1: Vec<Geometry> = strategy1(12).map(|s| s.to_vec()).unwrap_or_default();
+        self.measure("strategy 1 (12 geometries)", &s1)?;
+        let mut report = self.analyse()?;
+        fits.push(FitStep { after: "strategy1".into(), report: to_json(&report) });
+        // The paper's policy: Strategy 2 with decreasing δ until σ > σ_l.
+        for delta in (1..=10u8).rev() {
+            let check = report.check;
+            if check.is_some_and(|c| c.sigma_ok) {
+                break;
+            }
+            let schedule: Vec<Geometry> = strategy2(delta).map(|s| s.to_vec()).unwrap_or_default();
+            let added = schedule.iter().filter(|g| !self.measured().contains(g)).count();
+            if added == 0 {
+                continue;
+            }
+            let reason = match (report.fit.sigma_deg(), check) {
+                (Some(sigma), Some(c)) => format!("σ = {sigma:.3}° ≤ σ_l = {:.3}° (δ = {:.1}°)", c.sigma_l_deg, c.delta_deg),
+                (None, _) => "σ not resolved by the geometries measured".to_string(),
+                (Some(sigma), None) => format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction"),
+            };
+            self.recorder.decision(&format!("refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"));
+            refinements.push(Refinement { delta_deg: delta, added, reason });
+            self.measure(&format!("strategy 2, δ = {delta}° ({added} new geometries)"), &schedule)?;
+            report = self.analyse()?;
+            fits.push(FitStep { after: format!("strategy2 δ={delta}°"), report: to_json(&report) });
+        }
+        let (white_drift, white_drift_exceeded) = if self.plan.white_check { self.white_check()? } else { (None, false) };
+        self.device_time_used_us += self.uptime_us()?.saturating_sub(started_us);
+        let calibration = self.calibration.take().ok_or(SessionError::Fit("no calibration".into()))?;
+        Ok(Outcome {
+            points: self.points,
+            calibration,
+            fits,
+            refinements,
+            report,
+            device_seconds: self.device_time_used_us as f64 * 1e-6,
+            white_drift,
+            white_drift_exceeded,
+        })
+    }
+
+    fn uptime_us(&mut self) -> Result<u64, SessionError> {
+        match self.retrying(Command::GetStatus)? {
+            Reply::Status(status) => Ok(status.uptime_us),
+            other => Err(LinkError::UnexpectedReply { command: "GetStatus", reply: Box::new(other) }.into()),
+        }
+    }
+
+    /// Geometries with a usable reading.
+    fn measured(&self) -> BTreeSet<Geometry> {
+        self.points.iter().filter(|p| p.radiance_factor.is_some()).filter_map(MeasuredPoint::geometry).collect()
+    }
+
+    /// A request, reconnecting and retrying once the link comes back.
+    fn retrying(&mut self, command: Command) -> Result<Reply, SessionError> {
+        for _ in 0..MAX_ATTEMPTS {
+            match self.client.request(command.clone()) {
+                Ok(reply) => return Ok(reply),
+                Err(error) if recoverable(&error) => self.reconnect(&error)?,
+                Err(error) => return Err(error.into()),
+            }
+        }
+        Err(SessionError::GaveUp(MAX_ATTEMPTS))
+    }
+
+    /// After a link failure: wait for the instrument, say hello, and make it ready again.
+    fn reconnect(&mut self, why: &LinkError) -> Result<(), SessionError> {
+        self.recorder.decision(&format!("link lost ({why}); reconnecting"));
+        for _ in 0..MAX_ATTEMPTS * 4 {
+            let _ = self.client.transport_mut().reconnect();
+            match self.client.hello() {
+                Ok(_) => return self.make_ready(),
+                // Waiting on the link lets a simulated instrument's time pass too.
+                Err(_) => {
+                    let _ = self.client.next_unsolicited(Duration::from_millis(500));
+                }
+            }
+        }
+        Err(SessionError::Link(LinkError::NoReply { seq: 0, command: "Hello", attempts: MAX_ATTEMPTS * 4 }))
+    }
+
+    /// Homed and lit, whatever happened before (a power cycle, a safe stop).
+    fn make_ready(&mut self) -> Result<(), SessionError> {
+        let Reply::Status(status) = self.client.request(Command::GetStatus)? else {
+            return Err(SessionError::Fit("unexpected status reply".into()));
+        };
+        if let Some(fault) = status.fault {
+            self.recorder.decision(&format!("instrument reports {fault}; homing again"));
+        }
+        if !(status.homed_i && status.homed_r) {
+            self.recorder.stage("homing", 0);
+            if let Reply::Homed(report) = self.client.request(Command::Home)? {
+                for (arm, error) in [("source", report.step_error_i), ("detector", report.step_error_r)] {
+                    if let Some(steps) = error.filter(|e| *e != 0) {
+                        self.recorder.decision(&format!("{arm} arm lost {} steps ({:.4}°) before re-homing", -steps, -f64::from(steps) * protocol::Angle::RESOLUTION_DEG));
+                    }
+                }
+            }
+        }
+        if self.calibration.is_some() {
+            self.lamp_on()?;
+        }
+        Ok(())
+    }
+
+    fn lamp_on(&mut self) -> Result<(), SessionError> {
+        self.retrying(Command::SetLamp { on: true }).map(|_| ())
+    }
+
+    /// Dark per range (lamp off), then the white tile at θr = 0 for every incidence angle.
+    fn calibrate(&mut self) -> Result<(), SessionError> {
+        self.recorder.stage("dark and white calibration", INCIDENCE_DEG.len());
+        let integration_ms = self.plan.integration_ms;
+        let Reply::Dark(dark) = self.retrying(Command::TakeDark { integration_ms })? else {
+            return Err(SessionError::Fit("unexpected dark reply".into()));
+        };
+        self.lamp_on()?;
+        self.operator.place(Placement::WhiteTile).map_err(SessionError::Operator)?;
+        let mut white = Vec::new();
+        for theta_i in INCIDENCE_DEG {
+            self.retrying(Command::MoveTo(Geometry::from_whole_deg(theta_i, 0)))?;
+            let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference })? else {
+                return Err(SessionError::Fit("unexpected reading reply".into()));
+            };
+            white.push(WhitePoint { theta_i_deg: f64::from(theta_i), reading });
+        }
+        self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;
+        let calibration = Calibration {
+            taken_unix_s: unix_now_s(),
+            instrument: instrument_name(&self.info),
+            white_radiance_factor: crate::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
+            relative_gains: self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect(),
+            dark: dark.to_vec(),
+            white,
+        };
+        self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
+        self.calibration = Some(calibration);
+        Ok(())
+    }
+
+    /// Measure every geometry of `schedule` not yet measured, re-measuring lost ones.
+    fn measure(&mut self, stage: &str, schedule: &[Geometry]) -> Result<(), SessionError> {
+        let is_builtin_s1 = strategy1(12).is_some_and(|s| s.as_slice() == schedule);
+        self.recorder.stage(stage, schedule.len());
+        for attempt in 0..MAX_ATTEMPTS {
+            let measured = self.measured();
+            let missing: Vec<Geometry> = schedule.iter().copied().filter(|g| !measured.contains(g)).collect();
+            if missing.is_empty() {
+                return Ok(());
+            }
+            let source = if is_builtin_s1 && missing.len() == schedule.len() { None } else { Some(missing.as_slice()) };
+            match self.run_schedule(source, schedule.len()) {
+                Ok(()) => {}
+                Err(SessionError::Link(error)) if recoverable(&error) => self.reconnect(&error)?,
+                Err(SessionError::Stopped(reason)) => {
+                    self.recorder.decision(&format!("the instrument stopped ({reason}); making it ready again"));
+                    self.make_ready()?;
+                }
+                Err(other) => return Err(other),
+            }
+            if attempt > 0 {
+                self.recorder.decision(&format!("re-measuring geometries lost on the link (attempt {})", attempt + 1));
+            }
+        }
+        Err(SessionError::GaveUp(MAX_ATTEMPTS))
+    }
+
+    /// Run the built-in Strategy 1 (`None`) or upload and run a list, recording readings.
+    fn run_schedule(&mut self, list: Option<&[Geometry]>, stage_len: usize) -> Result<(), SessionError> {
+        let schedule_id = self.next_schedule_id;
+        self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
+        let source = match list {
+            None => ScheduleSource::Strategy1,
+            Some(list) => {
+                let total_len = list.len() as u16;
+                for (k, chunk) in list.chunks(SCHEDULE_CHUNK_LEN).enumerate() {
+                    let geometries = heapless::Vec::from_slice(chunk).unwrap_or_default();
+                    let offset = (k * SCHEDULE_CHUNK_LEN) as u16;
+                    self.client.request(Command::UploadSchedule(ScheduleChunk { schedule_id, total_len, offset, geometries }))?;
+                }
+                ScheduleSource::Uploaded
+            }
+        };
+        let run = RunSchedule { schedule_id, source, integration_ms: self.plan.integration_ms, target: Target::Sample };
+        let Reply::ScheduleStarted { len, .. } = self.client.request(Command::RunSchedule(run))? else {
+            return Err(SessionError::Fit("unexpected reply to RunSchedule".into()));
+        };
+        let mut seen = BTreeSet::new();
+        let already = stage_len.saturating_sub(usize::from(len));
+        let started = self.client.transport_mut().now();
+        loop {
+            match self.client.next_unsolicited(Duration::from_secs(5))? {
+                Some(DeviceMessage::Reading(r)) if r.schedule_id == schedule_id => {
+                    if !seen.insert(r.index) {
+                        continue; // a duplicate
+                    }
+                    self.record(r.geometry, r.reading, schedule_id, r.index, r.device_time_us)?;
+                    let done = seen.len();
+                    let per_reading = (self.client.transport_mut().now() - started) / done as u32;
+                    let remaining = per_reading * (usize::from(len) - done.min(usize::from(len))) as u32;
+                    self.recorder.progress(Progress { done: already + done, planned: stage_len, remaining });
+                }
+                Some(DeviceMessage::ScheduleDone(done)) if done.schedule_id == schedule_id => {
+                    return match done.error {
+                        None | Some(ErrorCode::Aborted) => Ok(()),
+                        Some(reason) => Err(SessionError::Stopped(reason)),
+                    };
+                }
+                Some(DeviceMessage::Stopped { reason }) => return Err(SessionError::Stopped(reason)),
+                // Stale messages of an earlier schedule: nothing to do with this one.
+                Some(_) => {}
+                // Silence: the end may have been lost on the link. Ask.
+                None => {
+                    if let Reply::Status(status) = self.retrying(Command::GetStatus)? {
+                        if status.schedule.is_none_or(|(id, _)| id != schedule_id) {
+                            return Ok(());
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn record(&mut self, geometry: Geometry, reading: Reading, schedule_id: u16, index: u16, device_time_us: u64) -> Result<(), SessionError> {
+        let (theta_i_deg, theta_r_deg) = (geometry.theta_i.deg(), geometry.theta_r.deg());
+        let converted = self
+            .calibration
+            .as_ref()
+            .ok_or(SessionError::Fit("no calibration".into()))?
+            .radiance_factor(theta_i_deg, &reading);
+        let (radiance_factor, std, note) = match converted {
+            Ok((r, u)) => (Some(r), Some(u), None),
+            Err(e) => (None, None, Some(e.to_string())),
+        };
+        let point = MeasuredPoint { theta_i_deg, theta_r_deg, radiance_factor, std, reading, schedule_id, index, device_time_us, note };
+        self.recorder.point(&point).map_err(SessionError::Record)?;
+        self.points.push(point);
+        Ok(())
+    }
+
+    /// Fit everything measured so far, check σ against σ_l and classify.
+    fn analyse(&self) -> Result<Report, SessionError> {
+        let mut set = DataSet { sample: self.plan.sample.clone(), observations: Vec::new(), lines: Vec::new() };
+        let mut seen = BTreeSet::new();
+        for (k, p) in self.points.iter().enumerate() {
+            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { continue };
+            // A geometry measured twice (after a lost stream end) counts once.
+            if !seen.insert(g) {
+                continue;
+            }
+            set.observations.push(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std });
+            set.lines.push(k + 2);
+        }
+        let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
+        analyse(std::path::Path::new("readings.csv"), &set, &options, None).map_err(SessionError::Fit)
+    }
+
+    /// Re-read the white tile at θi = 20°, θr = 0 and compare with the calibration.
+    fn white_check(&mut self) -> Result<(Option<f64>, bool), SessionError> {
+        self.operator.place(Placement::WhiteTile).map_err(SessionError::Operator)?;
+        self.retrying(Command::MoveTo(Geometry::from_whole_deg(20, 0)))?;
+        let integration_ms = self.plan.integration_ms;
+        let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference })? else {
+            return Err(SessionError::Fit("unexpected reading reply".into()));
+        };
+        self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;
+        let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
+        let (r, _) = calibration.radiance_factor(20.0, &reading)?;
+        let drift = r / calibration.white_radiance_factor - 1.0;
+        let exceeded = drift.abs() > self.plan.white_drift_limit;
+        if exceeded {
+            self.recorder.decision(&format!("white drifted by {:.2} % (limit {:.2} %): result marked", 100.0 * drift, 100.0 * self.plan.white_drift_limit));
+        }
+        Ok((Some(drift), exceeded))
+    }
+}
+
+/// Failures a reconnection can cure.
+fn recoverable(error: &LinkError) -> bool {
+    match error {
+        LinkError::Io(_) | LinkError::NoReply { .. } => true,
+        // A device that was reset or re-plugged wants a new hello.
+        LinkError::Device { error, .. } => error.code == ErrorCode::VersionMismatch,
+        _ => false,
+    }
+}
