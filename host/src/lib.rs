@@ -9,5 +9,7 @@ pub mod fit;
 pub mod sampling;
 pub mod classify;
 pub mod dataset;
+pub mod calibration;
 pub mod plots;
+pub mod session;
 pub mod export;
