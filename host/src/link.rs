@@ -19,6 +19,10 @@ pub trait Transport {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()>;
     /// Read what is available into `buf`, waiting at most `timeout`; `Ok(0)` on timeout.
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize>;
+    /// Let `duration` pass on the transport's clock (a sleep; the simulator runs on).
+    fn pause(&mut self, duration: Duration) {
+        std::thread::sleep(duration);
+    }
     /// Re-open the link after a failure (a serial port that went away); no-op by default.
     fn reconnect(&mut self) -> std::io::Result<()> {
         Ok(())

@@ -233,7 +233,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Run the whole session.
     pub fn run(mut self) -> Result<Outcome, SessionError> {
         let started_us = self.uptime_us()?;
-        self.make_ready()?;
+        self.ensure_ready()?;
         if self.calibration.is_none() {
             self.calibrate()?;
         }
@@ -298,24 +298,38 @@ impl<'a, T: Transport> Session<'a, T> {
         for _ in 0..MAX_ATTEMPTS {
             match self.client.request(command.clone()) {
                 Ok(reply) => return Ok(reply),
-                Err(error) if recoverable(&error) => self.reconnect(&error)?,
+                Err(error) if recoverable(&error) => self.recover(&error)?,
                 Err(error) => return Err(error.into()),
             }
         }
         Err(SessionError::GaveUp(MAX_ATTEMPTS))
     }
 
-    /// After a link failure: wait for the instrument, say hello, and make it ready again.
+    /// After a link failure: reconnect, then make the instrument ready again.
+    fn recover(&mut self, why: &LinkError) -> Result<(), SessionError> {
+        self.reconnect(why)?;
+        self.ensure_ready()
+    }
+
+    /// [`Session::make_ready`], through link failures.
+    fn ensure_ready(&mut self) -> Result<(), SessionError> {
+        for _ in 0..MAX_ATTEMPTS {
+            match self.make_ready() {
+                Err(SessionError::Link(error)) if recoverable(&error) => self.reconnect(&error)?,
+                other => return other,
+            }
+        }
+        Err(SessionError::GaveUp(MAX_ATTEMPTS))
+    }
+
+    /// After a link failure: wait for the instrument and say hello again.
     fn reconnect(&mut self, why: &LinkError) -> Result<(), SessionError> {
         self.recorder.decision(&format!("link lost ({why}); reconnecting"));
         for _ in 0..MAX_ATTEMPTS * 4 {
             let _ = self.client.transport_mut().reconnect();
             match self.client.hello() {
-                Ok(_) => return self.make_ready(),
-                // Waiting on the link lets a simulated instrument's time pass too.
-                Err(_) => {
-                    let _ = self.client.next_unsolicited(Duration::from_millis(500));
-                }
+                Ok(_) => return Ok(()),
+                Err(_) => self.client.transport_mut().pause(Duration::from_millis(500)),
             }
         }
         Err(SessionError::Link(LinkError::NoReply { seq: 0, command: "Hello", attempts: MAX_ATTEMPTS * 4 }))
@@ -393,10 +407,10 @@ impl<'a, T: Transport> Session<'a, T> {
             let source = if is_builtin_s1 && missing.len() == schedule.len() { None } else { Some(missing.as_slice()) };
             match self.run_schedule(source, schedule.len()) {
                 Ok(()) => {}
-                Err(SessionError::Link(error)) if recoverable(&error) => self.reconnect(&error)?,
+                Err(SessionError::Link(error)) if recoverable(&error) => self.recover(&error)?,
                 Err(SessionError::Stopped(reason)) => {
                     self.recorder.decision(&format!("the instrument stopped ({reason}); making it ready again"));
-                    self.make_ready()?;
+                    self.ensure_ready()?;
                 }
                 Err(other) => return Err(other),
             }

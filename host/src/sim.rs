@@ -22,6 +22,10 @@ impl Transport for SimInstrument {
         SimInstrument::read(self, buf, timeout)
     }
 
+    fn pause(&mut self, duration: Duration) {
+        self.advance_ms(duration.as_millis() as u64);
+    }
+
     /// Device time: waiting on the simulator runs it forward instead of sleeping.
     fn now(&self) -> Duration {
         Duration::from_micros(self.device_time_us())
