@@ -13,3 +13,4 @@ pub mod calibration;
 pub mod plots;
 pub mod session;
 pub mod export;
+pub mod compare;

@@ -20,6 +20,8 @@ enum Command {
     Ports(host::cli::ports::Args),
     /// Serve the simulated instrument on a pseudo-terminal (prints its path first).
     Sim(host::cli::sim::Args),
+    /// Compare two measured sheets: same paper stock or not?
+    Compare(host::cli::compare::Args),
 }
 
 fn main() -> ExitCode {
@@ -29,6 +31,7 @@ fn main() -> ExitCode {
         Command::Fit(args) => host::cli::fit::run(args),
         Command::Ports(args) => host::cli::ports::run(args),
         Command::Sim(args) => host::cli::sim::run(args),
+        Command::Compare(args) => host::cli::compare::run(args),
     };
     match result {
         Ok(code) => code,

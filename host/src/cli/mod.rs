@@ -3,3 +3,4 @@ pub mod fit;
 pub mod ports;
 pub mod sim;
 pub mod measure;
+pub mod compare;

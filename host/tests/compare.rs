@@ -1,0 +1,201 @@
+//! `gonio compare`: same stock or not, from two session.json files — identical sheets,
+//! sheets far apart, different classes, parameters not determined, and bad inputs.
+use host::compare::{self, CompareError};
+use serde_json::{Value, json};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn gonio() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_gonio"))
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("gonio-compare-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+/// Standard uncertainties of a glossy sheet's (σ, ρs, ρd, η), with a ρs–η correlation as
+/// the fit gives it (both scale the peak).
+const U_GLOSSY: [f64; 4] = [0.02, 1.0, 0.005, 0.01];
+
+fn covariance(u: [f64; 4], rho_s_eta: f64) -> Vec<Vec<f64>> {
+    let mut c = vec![vec![0.0; 4]; 4];
+    for i in 0..4 {
+        c[i][i] = u[i] * u[i];
+    }
+    c[1][3] = rho_s_eta * u[1] * u[3];
+    c[3][1] = c[1][3];
+    c
+}
+
+fn session(sample: &str, values: [Option<f64>; 4], class: &str, cov: Vec<Vec<f64>>) -> Value {
+    json!({
+        "sample": sample,
+        "device": {"name": "sim"},
+        "readings": [],
+        "result": {
+            "sample": sample,
+            "sigma_deg": values[0], "rho_s": values[1], "rho_d": values[2], "eta": values[3],
+            "class": class,
+            "covariance": cov,
+            "nmae": 0.01,
+        }
+    })
+}
+
+/// Write a session folder `dir/name/session.json` and return the folder.
+fn write_session(dir: &Path, name: &str, value: &Value) -> PathBuf {
+    let folder = dir.join(name);
+    std::fs::create_dir_all(&folder).expect("folder");
+    std::fs::write(folder.join("session.json"), serde_json::to_vec_pretty(value).expect("json")).expect("write");
+    folder
+}
+
+fn glossy(sample: &str, sigma: f64, rho_s: f64, rho_d: f64, eta: f64) -> Value {
+    session(sample, [Some(sigma), Some(rho_s), Some(rho_d), Some(eta)], "G", covariance(U_GLOSSY, -0.6))
+}
+
+fn run_json(a: &Path, b: &Path, extra: &[&str]) -> Value {
+    let out = gonio().arg("compare").arg("--json").args(extra).arg(a).arg(b).output().expect("run gonio");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("one JSON object")
+}
+
+#[test]
+fn identical_sheets_are_not_distinguishable() {
+    let dir = temp_dir("identical");
+    let a = write_session(&dir, "a", &glossy("sheet-1", 0.8, 57.8, 0.855, 1.19));
+    let b = write_session(&dir, "b", &glossy("sheet-2", 0.8, 57.8, 0.855, 1.19));
+    let v = run_json(&a, &b, &[]);
+    assert_eq!(v["distinguishable"], false);
+    assert!((v["p_value"].as_f64().unwrap() - 1.0).abs() < 1e-12, "{v}");
+    assert_eq!(v["distance"].as_f64(), Some(0.0));
+    assert_eq!(v["dof"], 4);
+    assert_eq!(v["alpha"].as_f64(), Some(0.01));
+    assert_eq!((v["class_a"].as_str(), v["class_b"].as_str()), (Some("G"), Some("G")));
+    for name in ["sigma", "rho_s", "rho_d", "eta"] {
+        assert_eq!(v["z"][name].as_f64(), Some(0.0), "{name}");
+    }
+    // The table says so too; a session.json path works as well as its folder.
+    let out = gonio().arg("compare").arg(&a).arg(b.join("session.json")).output().expect("run gonio");
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && table.contains("not distinguishable at α = 0.01"), "{table}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn sheets_ten_sigma_apart_are_distinguishable() {
+    let dir = temp_dir("far");
+    let a = write_session(&dir, "a", &glossy("a", 0.8, 57.8, 0.855, 1.19));
+    // ρd 10 standard uncertainties higher; in log space z = ln(1 + 10u/x) / sqrt((u/x)² + (u/x')²).
+    let rho_d_b = 0.855 + 10.0 * U_GLOSSY[2];
+    let b = write_session(&dir, "b", &glossy("b", 0.8, 57.8, rho_d_b, 1.19));
+    let v = run_json(&a, &b, &[]);
+    assert_eq!(v["distinguishable"], true);
+    assert_eq!(v["reason"], "p < alpha");
+    assert!(v["p_value"].as_f64().unwrap() < 1e-6, "{v}");
+    let u = U_GLOSSY[2];
+    let expected_z = (rho_d_b / 0.855).ln() / ((u / 0.855).powi(2) + (u / rho_d_b).powi(2)).sqrt();
+    let z = v["z"]["rho_d"].as_f64().unwrap();
+    assert!((z - expected_z).abs() < 1e-9 && z > 6.0, "z {z} vs {expected_z}");
+    // Only ρd differs and the covariances are block-diagonal apart from ρs–η, so the
+    // distance is |z_ρd|.
+    assert!((v["distance"].as_f64().unwrap() - z).abs() < 1e-9);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn one_sigma_apart_is_not_distinguishable_and_alpha_is_respected() {
+    let a = compare::parse_session(Path::new("a.json"), &glossy("a", 0.8, 57.8, 0.855, 1.19).to_string()).expect("parse");
+    let b = compare::parse_session(Path::new("b.json"), &glossy("b", 0.82, 58.8, 0.86, 1.2).to_string()).expect("parse");
+    let c = compare::compare(&a, &b, compare::DEFAULT_ALPHA);
+    assert!(!c.distinguishable && c.p_value > 0.05, "{c:?}");
+    assert_eq!(c.dof, 4);
+    // A lenient α turns the same data into "distinguishable" once p falls below it.
+    let strict = compare::compare(&a, &b, c.p_value * 1.01);
+    assert!(strict.distinguishable && strict.reason == "p < alpha");
+    // Correlations count: ρs and η both up is along their negative correlation, so the
+    // distance exceeds the diagonal-only one.
+    let diagonal: f64 = c.parameters.iter().map(|p| p.z.unwrap().powi(2)).sum::<f64>().sqrt();
+    assert!(c.distance > diagonal, "{} vs {diagonal}", c.distance);
+}
+
+#[test]
+fn different_classes_are_distinguishable_whatever_p_says() {
+    let dir = temp_dir("classes");
+    let a = write_session(&dir, "a", &session("a", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-II", covariance([0.5, 0.02, 0.01, 0.0], 0.0)));
+    // Same numbers, other class (as a sheet right at a group boundary could get).
+    let b = write_session(&dir, "b", &session("b", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-I", covariance([0.5, 0.02, 0.01, 0.0], 0.0)));
+    let v = run_json(&a, &b, &[]);
+    assert_eq!(v["distinguishable"], true);
+    assert_eq!(v["reason"], "different classes");
+    assert!(v["p_value"].as_f64().unwrap() > 0.99);
+    assert_eq!((v["class_a"].as_str(), v["class_b"].as_str()), (Some("rough-II"), Some("rough-I")));
+    // η at its bound has zero variance: not compared.
+    assert_eq!(v["dof"], 3);
+    assert!(v["z"]["eta"].is_null());
+    let out = gonio().arg("compare").arg(&a).arg(&b).output().expect("run gonio");
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("DISTINGUISHABLE: different classes (rough-II vs rough-I)"), "{table}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn unresolved_sigma_is_left_out() {
+    let a = session("a", [None, Some(57.0), Some(0.8), Some(1.1)], "G", covariance([0.0, 1.0, 0.005, 0.01], 0.0));
+    let b = glossy("b", 0.8, 57.8, 0.855, 1.19);
+    let a = compare::parse_session(Path::new("a"), &a.to_string()).expect("null σ is allowed");
+    let b = compare::parse_session(Path::new("b"), &b.to_string()).expect("parse");
+    let c = compare::compare(&a, &b, 0.01);
+    assert_eq!(c.dof, 3);
+    assert_eq!(c.parameters[0].skipped, Some("not determined in both sessions"));
+    assert_eq!(c.parameters[1].space, Some("log"));
+    assert_eq!(c.parameters[3].space, Some("linear"));
+}
+
+#[test]
+fn bad_inputs_name_the_file_and_the_key() {
+    let dir = temp_dir("bad");
+    let good = write_session(&dir, "good", &glossy("good", 0.8, 57.8, 0.855, 1.19));
+
+    let missing = dir.join("nowhere");
+    match compare::read_session(&missing) {
+        Err(CompareError::Io { path, .. }) => assert_eq!(path, missing),
+        other => panic!("{other:?}"),
+    }
+
+    let broken = dir.join("broken.json");
+    std::fs::write(&broken, "{\"sample\": ").expect("write");
+    let e = compare::read_session(&broken).expect_err("not JSON");
+    assert!(matches!(e, CompareError::Json { .. }) && e.to_string().contains("broken.json"), "{e}");
+
+    let mut no_cov = glossy("x", 0.8, 57.8, 0.855, 1.19);
+    no_cov["result"].as_object_mut().unwrap().remove("covariance");
+    let no_cov = write_session(&dir, "no-cov", &no_cov);
+    let e = compare::read_session(&no_cov).expect_err("no covariance");
+    assert!(e.to_string().contains("no-cov/session.json") && e.to_string().contains("`result.covariance`"), "{e}");
+
+    let mut short_cov = glossy("x", 0.8, 57.8, 0.855, 1.19);
+    short_cov["result"]["covariance"] = json!([[1.0, 0.0], [0.0, 1.0]]);
+    let e = compare::parse_session(Path::new("s.json"), &short_cov.to_string()).expect_err("2×2");
+    assert!(e.to_string().contains("4×4"), "{e}");
+
+    let mut text_rho = glossy("x", 0.8, 57.8, 0.855, 1.19);
+    text_rho["result"]["rho_d"] = json!("0.8");
+    let e = compare::parse_session(Path::new("s.json"), &text_rho.to_string()).expect_err("string ρd");
+    assert!(e.to_string().contains("`result.rho_d`"), "{e}");
+
+    let e = compare::parse_session(Path::new("s.json"), "{\"result\": {}}").expect_err("no sample");
+    assert!(e.to_string().contains("`sample`"), "{e}");
+
+    // The command line: non-zero exit, the file and key on stderr.
+    let out = gonio().arg("compare").arg(&good).arg(&no_cov).output().expect("run gonio");
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("no-cov") && stderr.contains("result.covariance"), "{stderr}");
+    let out = gonio().args(["compare", "--alpha", "1.5"]).arg(&good).arg(&good).output().expect("run gonio");
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--alpha"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
