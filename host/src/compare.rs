@@ -256,7 +256,7 @@ fn mahalanobis_squared(s: &[Vec<f64>], d: &[f64]) -> Option<f64> {
         for j in 0..=i {
             let sum = s[i][j] - (0..j).map(|m| l[i][m] * l[j][m]).sum::<f64>();
             if i == j {
-                if !(sum > 0.0) {
+                if sum.is_nan() || sum <= 0.0 {
                     return None;
                 }
                 l[i][i] = sum.sqrt();
