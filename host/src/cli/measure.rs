@@ -1,5 +1,6 @@
 //! `gonio measure`: the whole measurement session, on an instrument or the simulated one.
-use crate::calibration::Calibration;
+use crate::calibration::{Calibration, instrument_name};
+use crate::fit::Observation;
 use crate::link::{Client, RetryPolicy, Transport};
 use crate::serial::SerialTransport;
 use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
@@ -278,5 +279,15 @@ fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome:
     });
     let path = dir.join("session.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&session)?).with_context(|| format!("cannot write {}", path.display()))?;
+    let observations: Vec<Observation> = outcome
+        .points
+        .iter()
+        .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std }))
+        .collect();
+    let export = dir.join("astm-e1392.csv");
+    crate::export::write_astm_e1392_csv(&export, sample, &instrument_name(info), &observations)
+        .with_context(|| format!("cannot write {}", export.display()))?;
+    crate::plots::write_plots(dir, sample, &observations, &outcome.report.fit, &outcome.report.classification)
+        .with_context(|| format!("cannot write the plots into {}", dir.display()))?;
     Ok(result)
 }
