@@ -22,6 +22,8 @@ use protocol::{
 };
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 /// How refinements are chosen.
@@ -189,6 +191,9 @@ pub enum SessionError {
     /// Not enough convertible readings for a fit.
     #[error("the fit failed: {0}")]
     Fit(String),
+    /// The user interrupted the session (Ctrl-C).
+    #[error("interrupted by the user")]
+    Interrupted,
     /// Too many attempts to measure the same geometries.
     #[error("geometries still missing after {0} attempts; the link or instrument is failing")]
     GaveUp(u32),
@@ -208,12 +213,13 @@ pub struct Session<'a, T: Transport> {
     calibration: Option<Calibration>,
     next_schedule_id: u16,
     device_time_used_us: u64,
+    interrupted: Option<Arc<AtomicBool>>,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
     /// A session on a connected instrument (after the handshake gave `info`).
     pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
-        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0 }
+        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, interrupted: None }
     }
 
     /// Continue from readings (and a calibration) an earlier session recorded.
@@ -228,6 +234,21 @@ impl<'a, T: Transport> Session<'a, T> {
     pub fn with_calibration(mut self, calibration: Calibration) -> Self {
         self.calibration = Some(calibration);
         self
+    }
+
+    /// Stop with [`SessionError::Interrupted`] as soon as `flag` is set (a Ctrl-C handler
+    /// sets it): checked before every request and while readings stream in, so the
+    /// caller can stop the instrument within one reply timeout.
+    pub fn interruptible(mut self, flag: Arc<AtomicBool>) -> Self {
+        self.interrupted = Some(flag);
+        self
+    }
+
+    fn check_interrupted(&self) -> Result<(), SessionError> {
+        match &self.interrupted {
+            Some(flag) if flag.load(Ordering::Relaxed) => Err(SessionError::Interrupted),
+            _ => Ok(()),
+        }
     }
 
     /// Run the whole session.
@@ -296,6 +317,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// A request, reconnecting and retrying once the link comes back.
     fn retrying(&mut self, command: Command) -> Result<Reply, SessionError> {
         for _ in 0..MAX_ATTEMPTS {
+            self.check_interrupted()?;
             match self.client.request(command.clone()) {
                 Ok(reply) => return Ok(reply),
                 Err(error) if recoverable(&error) => self.recover(&error)?,
@@ -399,6 +421,7 @@ impl<'a, T: Transport> Session<'a, T> {
         let is_builtin_s1 = strategy1(12).is_some_and(|s| s.as_slice() == schedule);
         self.recorder.stage(stage, schedule.len());
         for attempt in 0..MAX_ATTEMPTS {
+            self.check_interrupted()?;
             let measured = self.measured();
             let missing: Vec<Geometry> = schedule.iter().copied().filter(|g| !measured.contains(g)).collect();
             if missing.is_empty() {
@@ -445,6 +468,7 @@ impl<'a, T: Transport> Session<'a, T> {
         let already = stage_len.saturating_sub(usize::from(len));
         let started = self.client.transport_mut().now();
         loop {
+            self.check_interrupted()?;
             match self.client.next_unsolicited(Duration::from_secs(5))? {
                 Some(DeviceMessage::Reading(r)) if r.schedule_id == schedule_id => {
                     if !seen.insert(r.index) {

@@ -3,7 +3,7 @@ use crate::calibration::{Calibration, instrument_name};
 use crate::fit::Observation;
 use crate::link::{Client, RetryPolicy, Transport};
 use crate::serial::SerialTransport;
-use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
+use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, Progress, Recorder, Session, SessionError, SimulatedOperator};
 use crate::sim::SimOptions;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -86,11 +86,10 @@ struct FileRecorder {
     points_jsonl: File,
     bar: ProgressBar,
     decisions: Vec<String>,
-    interrupted: Arc<AtomicBool>,
 }
 
 impl FileRecorder {
-    fn open(dir: &Path, interrupted: Arc<AtomicBool>) -> std::io::Result<FileRecorder> {
+    fn open(dir: &Path) -> std::io::Result<FileRecorder> {
         std::fs::create_dir_all(dir)?;
         let append = |name: &str| OpenOptions::new().create(true).append(true).open(dir.join(name));
         let mut readings_csv = append("readings.csv")?;
@@ -103,7 +102,7 @@ impl FileRecorder {
                 .unwrap_or_else(|_| ProgressStyle::default_bar())
                 .progress_chars("=> "),
         );
-        Ok(FileRecorder { dir: dir.to_path_buf(), readings_csv, points_jsonl: append("points.jsonl")?, bar, decisions: Vec::new(), interrupted })
+        Ok(FileRecorder { dir: dir.to_path_buf(), readings_csv, points_jsonl: append("points.jsonl")?, bar, decisions: Vec::new() })
     }
 }
 
@@ -118,10 +117,6 @@ impl Recorder for FileRecorder {
         if let (Some(r), Some(u)) = (point.radiance_factor, point.std) {
             writeln!(self.readings_csv, "{},{},{r},{u}", point.theta_i_deg, point.theta_r_deg)?;
             self.readings_csv.flush()?;
-        }
-        if self.interrupted.load(Ordering::Relaxed) {
-            // Recorded first: the reading that was taken is kept.
-            return Err(std::io::Error::new(std::io::ErrorKind::Interrupted, "interrupted by Ctrl-C"));
         }
         Ok(())
     }
@@ -160,15 +155,70 @@ fn read_points(dir: &Path) -> anyhow::Result<Vec<MeasuredPoint>> {
     Ok(points)
 }
 
+/// Parse `gonio measure` arguments (`args` without the program and subcommand names), as
+/// the command line would.
+pub fn parse_args<I, S>(args: I) -> Result<Args, clap::Error>
+where
+    I: IntoIterator<Item = S>,
+    S: Into<std::ffi::OsString> + Clone,
+{
+    #[derive(clap::Parser)]
+    struct Measure {
+        #[command(flatten)]
+        args: Args,
+    }
+    let argv = std::iter::once(std::ffi::OsString::from("measure")).chain(args.into_iter().map(Into::into));
+    <Measure as clap::Parser>::try_parse_from(argv).map(|m| m.args)
+}
+
+/// How a measurement ended.
+pub enum Measured {
+    /// The session completed; `summary` is the `--json` object.
+    Done {
+        /// The session folder.
+        dir: PathBuf,
+        /// Everything the session produced.
+        outcome: Box<Outcome>,
+        /// The result object printed by `--json`.
+        summary: serde_json::Value,
+    },
+    /// The session stopped (Ctrl-C, a dead link); the instrument was told to stop, and the
+    /// readings taken are in `dir`.
+    Stopped {
+        /// The session folder.
+        dir: PathBuf,
+        /// Why.
+        error: SessionError,
+    },
+}
+
 /// Run `gonio measure`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let interrupted = Arc::new(AtomicBool::new(false));
     let flag = interrupted.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).context("cannot install the Ctrl-C handler")?;
+    // In process the simulated operator swaps the tile; on any port a person is asked.
+    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator) } else { Box::new(PromptOperator) };
+    match measure(&args, operator.as_mut(), interrupted)? {
+        Measured::Done { dir, outcome, summary } => {
+            print_report(&args, &dir, &outcome, &summary);
+            Ok(ExitCode::SUCCESS)
+        }
+        Measured::Stopped { dir, error } => {
+            eprintln!("session stopped: {error}");
+            eprintln!("readings so far are in {}; continue with: gonio measure --resume {} ...", dir.display(), dir.display());
+            Ok(ExitCode::FAILURE)
+        }
+    }
+}
+
+/// The whole session on the instrument `args` name, asking `operator` to place the tile;
+/// stops the instrument and returns [`Measured::Stopped`] once `interrupted` is set.
+pub fn measure(args: &Args, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
     let policy = RetryPolicy::default();
     if let Some(sample) = &args.sim {
         let instrument = args.sim_options.instrument(sample)?;
-        run_on(Client::new(instrument, policy), &args, sample.clone(), &mut SimulatedOperator, interrupted)
+        run_on(Client::new(instrument, policy), args, sample.clone(), operator, interrupted)
     } else {
         let path = match &args.port {
             Some(path) => path.clone(),
@@ -177,12 +227,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             )?,
         };
         let transport = SerialTransport::open(&path).with_context(|| format!("cannot open {path}"))?;
-        let sample = args.sample.clone().unwrap_or_else(|| "sample".into());
-        run_on(Client::new(transport, policy), &args, sample, &mut PromptOperator, interrupted)
+        run_on(Client::new(transport, policy), args, "sample".into(), operator, interrupted)
     }
 }
 
-fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<ExitCode> {
+fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
     let sample = args.sample.clone().unwrap_or(sample);
     let info = client.hello().context("handshake with the instrument")?;
     let dir = match (&args.resume, &args.out) {
@@ -208,7 +257,7 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         }
         eprintln!("resuming {}: {} readings already taken", dir.display(), points.len());
     }
-    let mut recorder = FileRecorder::open(&dir, interrupted.clone()).with_context(|| format!("cannot write to {}", dir.display()))?;
+    let mut recorder = FileRecorder::open(&dir).with_context(|| format!("cannot write to {}", dir.display()))?;
     if let Some(c) = &calibration {
         recorder.calibration(c)?;
     }
@@ -220,38 +269,40 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         white_check: args.white_check,
         white_drift_limit: args.white_drift_limit_pct / 100.0,
     };
-    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);
+    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points).interruptible(interrupted);
     let outcome = session.run();
     recorder.bar.finish_and_clear();
     let outcome = match outcome {
         Ok(outcome) => outcome,
         Err(error) => {
-            // Whatever happened, leave the instrument safe; the readings are on disk.
+            // Whatever happened, leave the instrument safe (arms stopped, lamp off); the
+            // readings are on disk already.
             let _ = client.request(protocol::Command::Abort);
             let _ = client.request(protocol::Command::SetLamp { on: false });
-            eprintln!("session stopped: {error}");
-            eprintln!("readings so far are in {}; continue with: gonio measure --resume {} ...", dir.display(), dir.display());
-            return Ok(ExitCode::FAILURE);
+            return Ok(Measured::Stopped { dir, error });
         }
     };
     let _ = client.request(protocol::Command::SetLamp { on: false });
     let summary = write_session(&dir, &sample, &info, &outcome, &recorder.decisions)?;
+    Ok(Measured::Done { dir, outcome: Box::new(outcome), summary })
+}
+
+fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json::Value) {
     if args.json {
         println!("{summary}");
-    } else {
-        print!("{}", crate::cli::fit::to_table(&outcome.report));
-        println!(
-            "  {} geometries, {:.1} device s; refinements: {}",
-            outcome.points.len(),
-            outcome.device_seconds,
-            if outcome.refinements.is_empty() { "none".to_string() } else { outcome.refinements.iter().map(|r| format!("δ = {}° (+{}: {})", r.delta_deg, r.added, r.reason)).collect::<Vec<_>>().join("; ") }
-        );
-        if let Some(drift) = outcome.white_drift {
-            println!("  white check: drift {:.2} %{}", 100.0 * drift, if outcome.white_drift_exceeded { " — BEYOND THE LIMIT, result marked" } else { "" });
-        }
-        println!("  files: {}", dir.display());
+        return;
     }
-    Ok(ExitCode::SUCCESS)
+    print!("{}", crate::cli::fit::to_table(&outcome.report));
+    println!(
+        "  {} geometries, {:.1} device s; refinements: {}",
+        outcome.points.len(),
+        outcome.device_seconds,
+        if outcome.refinements.is_empty() { "none".to_string() } else { outcome.refinements.iter().map(|r| format!("δ = {}° (+{}: {})", r.delta_deg, r.added, r.reason)).collect::<Vec<_>>().join("; ") }
+    );
+    if let Some(drift) = outcome.white_drift {
+        println!("  white check: drift {:.2} %{}", 100.0 * drift, if outcome.white_drift_exceeded { " — BEYOND THE LIMIT, result marked" } else { "" });
+    }
+    println!("  files: {}", dir.display());
 }
 
 /// Write `session.json` and return the result object printed by `--json`.
