@@ -22,6 +22,8 @@ enum Command {
     Sim(host::cli::sim::Args),
     /// Compare two measured sheets: same paper stock or not?
     Compare(host::cli::compare::Args),
+    /// Speed against accuracy: whole simulated sessions over papers, seeds and policies.
+    Trade(host::cli::trade::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +34,7 @@ fn main() -> ExitCode {
         Command::Ports(args) => host::cli::ports::run(args),
         Command::Sim(args) => host::cli::sim::run(args),
         Command::Compare(args) => host::cli::compare::run(args),
+        Command::Trade(args) => host::cli::trade::run(args),
     };
     match result {
         Ok(code) => code,

@@ -346,3 +346,65 @@ where
 pub fn has_fig7(class: Class) -> bool {
     class.group() == Group::Rough
 }
+
+/// File name of the trade study's plot.
+pub const PARETO_FILE: &str = "pareto.svg";
+
+/// The trade study's plot: device seconds against the 95th percentile of σ's relative
+/// error over the glossy papers, one point per configuration, coloured by policy, the
+/// Pareto front joined by a line. Unresolved σ (an infinite error) is drawn at the top.
+pub fn write_pareto(path: &Path, points: &[(crate::trade::ParetoPoint, bool)]) -> io::Result<()> {
+    draw_pareto(path, points).map_err(to_io)
+}
+
+fn policy_color(policy: &str) -> RGBColor {
+    match policy {
+        "strategy1" => RGBColor(120, 120, 120),
+        "strategy2" => CURVE_COLOR,
+        "paper" => RGBColor(230, 130, 0),
+        _ => SAMPLE_COLOR,
+    }
+}
+
+fn draw_pareto(path: &Path, points: &[(crate::trade::ParetoPoint, bool)]) -> DrawResult<()> {
+    const TOP: f64 = 10.0; // 1000 %: where unresolved σ is drawn
+    let y = |e: f64| if e.is_finite() { e.clamp(1e-4, TOP) } else { TOP };
+    let x_hi = points.iter().map(|(p, _)| p.device_seconds).fold(1.0, f64::max) * 1.08;
+    let y_lo = points.iter().map(|(p, _)| y(p.p95_sigma_err)).fold(TOP, f64::min) / 2.0;
+    let root = SVGBackend::new(path, (960, 680)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Glossy papers: device time against σ error (95th percentile)", ("sans-serif", 20))
+        .margin(16)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..x_hi, (y_lo..TOP * 1.5).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("device seconds measuring the sample (mean)")
+        .y_desc("σ relative error, 95th percentile")
+        .y_label_formatter(&|v| format!("{:.1} %", 100.0 * v))
+        .draw()?;
+    chart.draw_series(LineSeries::new([(0.0, crate::trade::SIGMA_TARGET), (x_hi, crate::trade::SIGMA_TARGET)], GUIDE_COLOR.stroke_width(1)))?;
+    chart.draw_series([Text::new("5 % target", (x_hi * 0.85, crate::trade::SIGMA_TARGET * 1.15), ("sans-serif", 14).into_font().color(&GUIDE_COLOR))])?;
+    chart.draw_series([Text::new("σ unresolved", (x_hi * 0.02, TOP * 0.7), ("sans-serif", 13).into_font().color(&BLACK))])?;
+    let mut front: Vec<(f64, f64)> = points.iter().filter(|(_, on)| *on).map(|(p, _)| (p.device_seconds, y(p.p95_sigma_err))).collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    chart.draw_series(LineSeries::new(front, BLACK.stroke_width(1)))?;
+    for policy in ["strategy1", "strategy2", "paper", "adaptive"] {
+        let color = policy_color(policy);
+        let mine: Vec<&crate::trade::ParetoPoint> = points.iter().map(|(p, _)| p).filter(|p| p.policy == policy).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(mine.iter().map(|p| Circle::new((p.device_seconds, y(p.p95_sigma_err)), 5, color.filled())))?
+            .label(policy)
+            .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
+        if policy == "paper" || policy == "adaptive" {
+            chart.draw_series(mine.iter().map(|p| Text::new(format!("{policy} {}", p.label), (p.device_seconds, y(p.p95_sigma_err) * 1.25), ("sans-serif", 12).into_font().color(&color))))?;
+        }
+    }
+    chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.9)).position(SeriesLabelPosition::UpperRight).draw()?;
+    root.present()
+}

@@ -14,7 +14,9 @@ use crate::calibration::{Calibration, CalibrationError, WhitePoint, instrument_n
 use crate::cli::fit::{Report, analyse, to_json};
 use crate::dataset::DataSet;
 use crate::fit::{FitOptions, Observation};
+use crate::adaptive::{self, AdaptiveTargets};
 use crate::link::{Client, LinkError, Transport};
+use crate::order::Motion;
 use protocol::schedules::{INCIDENCE_DEG, strategy1, strategy2};
 use protocol::{
     Command, DeviceInfo, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN,
@@ -26,12 +28,61 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-/// How refinements are chosen.
+/// How refinements are chosen, on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
-pub enum Policy {
+pub enum PolicyChoice {
     /// The paper's (Fig. 10): Strategy 2 with decreasing δ (10°, 9°, … 1°) until σ > σ_l.
     Paper,
+    /// Batches chosen from the current fit where they shrink σ's uncertainty the most per
+    /// second, until σ is within ±3 % (95 %), the class is settled and σ > σ_l.
+    Adaptive,
+}
+
+impl From<PolicyChoice> for Policy {
+    fn from(choice: PolicyChoice) -> Policy {
+        match choice {
+            PolicyChoice::Paper => Policy::Paper,
+            PolicyChoice::Adaptive => Policy::Adaptive(AdaptiveTargets::default()),
+        }
+    }
+}
+
+/// What the session measures after (or instead of) Strategy 1.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Policy {
+    /// The paper's: Strategy 1, then Strategy 2 with decreasing δ until σ > σ_l.
+    Paper,
+    /// Strategy 1, then batches by sequential design ([`crate::adaptive`]).
+    Adaptive(AdaptiveTargets),
+    /// One fixed schedule and nothing else (the trade study's Strategy 1 at M, Strategy 2 at δ).
+    Fixed(FixedSchedule),
+}
+
+/// A schedule of the method, measured alone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FixedSchedule {
+    /// Strategy 1 with M geometries (Table 4).
+    Strategy1 {
+        /// M.
+        m: u16,
+    },
+    /// Strategy 2 at δ (Table 5).
+    Strategy2 {
+        /// δ, degrees.
+        delta_deg: u8,
+    },
+}
+
+impl FixedSchedule {
+    /// Its geometries, in the order the paper lists them; empty for an M or δ it lacks.
+    pub fn geometries(self) -> Vec<Geometry> {
+        let s = match self {
+            FixedSchedule::Strategy1 { m } => strategy1(m),
+            FixedSchedule::Strategy2 { delta_deg } => strategy2(delta_deg),
+        };
+        s.map(|s| s.to_vec()).unwrap_or_default()
+    }
 }
 
 /// What the session is asked to do.
@@ -41,7 +92,7 @@ pub struct Plan {
     pub sample: String,
     /// Integration time of every reading.
     pub integration_ms: u16,
-    /// Refinement policy.
+    /// What to measure after Strategy 1.
     pub policy: Policy,
     /// Detector acceptance to model in the fit, degrees (from the handshake by default).
     pub acceptance_deg: f64,
@@ -142,9 +193,9 @@ pub struct FitStep {
 /// A refinement taken, and why.
 #[derive(Clone, Debug, Serialize)]
 pub struct Refinement {
-    /// Strategy 2's δ.
-    pub delta_deg: u8,
-    /// Geometries it added (those of Strategy 2 at δ not measured before).
+    /// Strategy 2's δ (the paper's policy); `None` for an adaptive batch.
+    pub delta_deg: Option<u8>,
+    /// Geometries it added (not measured before).
     pub added: usize,
     /// Why.
     pub reason: String,
@@ -162,8 +213,11 @@ pub struct Outcome {
     pub refinements: Vec<Refinement>,
     /// The final analysis.
     pub report: Report,
-    /// Device time of the whole session, seconds.
+    /// Device time measuring the sample (Strategy 1 to the last refinement and the white
+    /// check), seconds.
     pub device_seconds: f64,
+    /// Device time of homing and calibration before it, seconds.
+    pub setup_seconds: f64,
     /// White drift at the end, fraction (when checked).
     pub white_drift: Option<f64>,
     /// The drift exceeded the limit: the result is marked.
@@ -214,12 +268,14 @@ pub struct Session<'a, T: Transport> {
     next_schedule_id: u16,
     device_time_used_us: u64,
     interrupted: Option<Arc<AtomicBool>>,
+    motion: Motion,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
     /// A session on a connected instrument (after the handshake gave `info`).
     pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
-        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, interrupted: None }
+        let motion = Motion::from_info(&info).unwrap_or_else(|_| Motion::reference());
+        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, interrupted: None, motion }
     }
 
     /// Continue from readings (and a calibration) an earlier session recorded.
@@ -259,13 +315,53 @@ impl<'a, T: Transport> Session<'a, T> {
             self.calibrate()?;
         }
         self.lamp_on()?;
+        // Setup (homing, dark, white) is the same whatever the policy and a calibration
+        // serves many sheets: the sample's device time is counted from here.
+        let measuring_from_us = self.uptime_us()?;
+        let setup_seconds = measuring_from_us.saturating_sub(started_us) as f64 * 1e-6;
         let mut fits = Vec::new();
         let mut refinements = Vec::new();
-        let s1: Vec<Geometry> = strategy1(12).map(|s| s.to_vec()).unwrap_or_default();
-        self.measure("strategy 1 (12 geometries)", &s1)?;
+        let first = match self.plan.policy {
+            Policy::Fixed(schedule) => schedule.geometries(),
+            Policy::Paper | Policy::Adaptive(_) => strategy1(12).map(|s| s.to_vec()).unwrap_or_default(),
+        };
+        let first_name = match self.plan.policy {
+            Policy::Fixed(FixedSchedule::Strategy1 { m }) => format!("strategy 1 ({m} geometries)"),
+            Policy::Fixed(FixedSchedule::Strategy2 { delta_deg }) => format!("strategy 2, δ = {delta_deg}° ({} geometries)", first.len()),
+            _ => "strategy 1 (12 geometries)".into(),
+        };
+        self.measure(&first_name, &first)?;
         let mut report = self.analyse()?;
-        fits.push(FitStep { after: "strategy1".into(), report: to_json(&report) });
-        // The paper's policy: Strategy 2 with decreasing δ until σ > σ_l.
+        fits.push(FitStep { after: first_name, report: to_json(&report) });
+        match self.plan.policy {
+            Policy::Paper => self.refine_like_the_paper(&mut report, &mut fits, &mut refinements)?,
+            Policy::Adaptive(targets) => {
+                self.refine_adaptively(targets, &mut report, &mut fits, &mut refinements)?;
+                // Never below the paper's criterion: if the batches did not get σ > σ_l, the
+                // paper's policy finishes the job.
+                self.refine_like_the_paper(&mut report, &mut fits, &mut refinements)?;
+            }
+            Policy::Fixed(_) => {}
+        }
+        let (white_drift, white_drift_exceeded) = if self.plan.white_check { self.white_check()? } else { (None, false) };
+        self.device_time_used_us += self.uptime_us()?.saturating_sub(measuring_from_us);
+        let calibration = self.calibration.take().ok_or(SessionError::Fit("no calibration".into()))?;
+        Ok(Outcome {
+            points: self.points,
+            calibration,
+            fits,
+            refinements,
+            report,
+            device_seconds: self.device_time_used_us as f64 * 1e-6,
+            setup_seconds,
+            white_drift,
+            white_drift_exceeded,
+        })
+    }
+
+    /// The paper's policy: Strategy 2 with decreasing δ until σ > σ_l, sending only
+    /// geometries not measured yet.
+    fn refine_like_the_paper(&mut self, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
         for delta in (1..=10u8).rev() {
             let check = report.check;
             if check.is_some_and(|c| c.sigma_ok) {
@@ -282,24 +378,70 @@ impl<'a, T: Transport> Session<'a, T> {
                 (Some(sigma), None) => format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction"),
             };
             self.recorder.decision(&format!("refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"));
-            refinements.push(Refinement { delta_deg: delta, added, reason });
+            refinements.push(Refinement { delta_deg: Some(delta), added, reason });
             self.measure(&format!("strategy 2, δ = {delta}° ({added} new geometries)"), &schedule)?;
-            report = self.analyse()?;
-            fits.push(FitStep { after: format!("strategy2 δ={delta}°"), report: to_json(&report) });
+            *report = self.analyse()?;
+            fits.push(FitStep { after: format!("strategy2 δ={delta}°"), report: to_json(report) });
         }
-        let (white_drift, white_drift_exceeded) = if self.plan.white_check { self.white_check()? } else { (None, false) };
-        self.device_time_used_us += self.uptime_us()?.saturating_sub(started_us);
-        let calibration = self.calibration.take().ok_or(SessionError::Fit("no calibration".into()))?;
-        Ok(Outcome {
-            points: self.points,
-            calibration,
-            fits,
-            refinements,
-            report,
-            device_seconds: self.device_time_used_us as f64 * 1e-6,
-            white_drift,
-            white_drift_exceeded,
-        })
+        Ok(())
+    }
+
+    /// The adaptive policy ([`crate::adaptive`]): batches where they shrink σ's
+    /// uncertainty most per device second, until the targets are met. Rough papers whose
+    /// Strategy 1 already passes σ_l stop at once: their class rests on ρs and ρd, which
+    /// Strategy 1 measures, and more readings near the peak would not move it.
+    fn refine_adaptively(&mut self, targets: AdaptiveTargets, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
+        for batch_number in 1..=targets.max_batches {
+            let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
+            let rough = report.classification.group == crate::classify::Group::Rough;
+            let precise = adaptive::sigma_rel_half_width(&report.fit).is_some_and(|w| w <= targets.sigma_rel_half_width);
+            let settled = report.classification.confidence >= targets.class_confidence;
+            if sigma_ok && (rough || (precise && settled)) {
+                return Ok(());
+            }
+            let observations = self.observations();
+            let measured = self.measured();
+            let here = self.arm_position()?;
+            let integration_ms = u32::from(self.plan.integration_ms);
+            let (batch, reason) = if adaptive::sigma_resolved(&report.fit) {
+                let batch = adaptive::next_batch(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch);
+                let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
+                (batch, format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class.name(), report.classification.confidence, if sigma_ok { "" } else { ", σ ≤ σ_l" }))
+            } else {
+                (Some(adaptive::probe(&observations, &measured)), "σ not resolved: probe around the strongest specular peak".to_string())
+            };
+            let Some(batch) = batch.filter(|b| !b.is_empty()) else {
+                self.recorder.decision("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l");
+                return Ok(());
+            };
+            self.recorder.decision(&format!("adaptive batch {batch_number} ({} geometries): {reason}", batch.len()));
+            refinements.push(Refinement { delta_deg: None, added: batch.len(), reason });
+            self.measure(&format!("adaptive batch {batch_number} ({} geometries)", batch.len()), &batch)?;
+            *report = self.analyse()?;
+            fits.push(FitStep { after: format!("adaptive batch {batch_number}"), report: to_json(report) });
+        }
+        Ok(())
+    }
+
+    /// Where the arms are now.
+    fn arm_position(&mut self) -> Result<Geometry, SessionError> {
+        match self.retrying(Command::GetStatus)? {
+            Reply::Status(status) => Ok(status.position),
+            other => Err(LinkError::UnexpectedReply { command: "GetStatus", reply: Box::new(other) }.into()),
+        }
+    }
+
+    /// Every usable reading as a fit observation, each geometry once.
+    fn observations(&self) -> Vec<Observation> {
+        let mut seen = BTreeSet::new();
+        self.points
+            .iter()
+            .filter_map(|p| {
+                let g = p.geometry()?;
+                let r = p.radiance_factor?;
+                seen.insert(g).then_some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: r, std: p.std })
+            })
+            .collect()
     }
 
     fn uptime_us(&mut self) -> Result<u64, SessionError> {
@@ -451,6 +593,20 @@ impl<'a, T: Transport> Session<'a, T> {
         let source = match list {
             None => ScheduleSource::Strategy1,
             Some(list) => {
+                // The firmware visits a list in the order sent: send the fastest.
+                let here = self.arm_position()?;
+                let planned = crate::order::plan(&self.motion, here, list);
+                if list.len() > 1 {
+                    self.recorder.decision(&format!(
+                        "visiting order of {} geometries: {:.2} s of travel, {:.3}× the {} and {:.2}× the order listed",
+                        list.len(),
+                        planned.travel_us as f64 * 1e-6,
+                        planned.travel_ratio_to_best(),
+                        if planned.exact { "fastest" } else { "lower bound" },
+                        planned.travel_ratio_to_given()
+                    ));
+                }
+                let list = planned.order.as_slice();
                 let total_len = list.len() as u16;
                 for (k, chunk) in list.chunks(SCHEDULE_CHUNK_LEN).enumerate() {
                     let geometries = heapless::Vec::from_slice(chunk).unwrap_or_default();

@@ -102,7 +102,7 @@ fn paper(sample: &str, class: &str) {
     let served = Served::new(sample, 3, "");
     let dir = temp_dir(sample);
     let mut person = Person::default();
-    let args = ["--port", &served.path, "--sample", sample, "--out", dir.to_str().unwrap()];
+    let args = ["--port", &served.path, "--sample", sample, "--policy", "paper", "--out", dir.to_str().unwrap()];
     let Measured::Done { summary: r, .. } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session") else {
         panic!("{sample}: the session stopped");
     };
@@ -169,10 +169,9 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     let _ = std::fs::remove_dir_all(&faulty_dir);
 }
 
-#[test]
-fn an_interrupted_session_resumes_measuring_only_what_is_missing() {
-    let dir = temp_dir("resume");
-    let full = completed(&Served::new("SG", 8, ""), "SG", &dir, &[]);
+fn resume(policy: &str) {
+    let dir = temp_dir(&format!("resume-{policy}"));
+    let full = completed(&Served::new("SG", 8, ""), "SG", &dir, &["--policy", policy]);
     let all = geometries(&dir);
     // As if it had crashed after 20 readings, the last line cut short.
     let points = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
@@ -182,14 +181,32 @@ fn an_interrupted_session_resumes_measuring_only_what_is_missing() {
     std::fs::remove_file(dir.join("session.json")).unwrap();
     let served = Served::new("SG", 8, "");
     let mut person = Person::default();
-    let args = ["--port", served.path.as_str(), "--sample", "SG", "--resume", dir.to_str().unwrap()];
+    let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--resume", dir.to_str().unwrap()];
     let Measured::Done { summary: resumed, .. } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).unwrap() else { panic!("stopped") };
     assert!(person.asked.is_empty(), "the session's own calibration is reused: no tile");
     assert_eq!(resumed["class"], full["class"]);
     let g = geometries(&dir);
     assert_each_once(&g);
-    assert_eq!(g.len(), all.len());
+    assert!(g[..20] == all[..20], "the readings taken before the crash are kept as they were");
+    if policy == "paper" {
+        // A fixed procedure: exactly what the uninterrupted session measured.
+        assert_eq!(g.len(), all.len());
+    } else {
+        // The adaptive policy plans again from what it has: it may choose other geometries,
+        // never one already measured.
+        assert!(g.len() >= 21 && resumed["sigma_ok"] == true, "{resumed}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn an_interrupted_session_resumes_measuring_only_what_is_missing() {
+    resume("paper");
+}
+
+#[test]
+fn an_interrupted_adaptive_session_resumes_without_measuring_anything_twice() {
+    resume("adaptive");
 }
 
 #[test]

@@ -3,7 +3,7 @@ use crate::calibration::{Calibration, instrument_name};
 use crate::fit::Observation;
 use crate::link::{Client, RetryPolicy, Transport};
 use crate::serial::SerialTransport;
-use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, Progress, Recorder, Session, SessionError, SimulatedOperator};
+use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, PolicyChoice, Progress, Recorder, Session, SessionError, SimulatedOperator};
 use crate::sim::SimOptions;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -46,9 +46,10 @@ pub struct Args {
     /// Integration time per reading (default: the instrument's).
     #[arg(long, value_name = "MS")]
     pub integration_ms: Option<u16>,
-    /// Refinement policy.
-    #[arg(long, value_enum, default_value_t = Policy::Paper)]
-    pub policy: Policy,
+    /// Refinement policy: adaptive reaches the paper's accuracy in a fraction of its
+    /// device time (docs/TRADE.md); paper follows the paper's procedure exactly.
+    #[arg(long, value_enum, default_value_t = PolicyChoice::Adaptive)]
+    pub policy: PolicyChoice,
     /// Re-read the white tile at the end and mark the result if it drifted.
     #[arg(long)]
     pub white_check: bool,
@@ -264,7 +265,7 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
     let plan = Plan {
         sample: sample.clone(),
         integration_ms: args.integration_ms.unwrap_or(info.default_integration_ms),
-        policy: args.policy,
+        policy: args.policy.into(),
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: args.white_check,
         white_drift_limit: args.white_drift_limit_pct / 100.0,
@@ -294,10 +295,11 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     }
     print!("{}", crate::cli::fit::to_table(&outcome.report));
     println!(
-        "  {} geometries, {:.1} device s; refinements: {}",
+        "  {} geometries, {:.1} device s measuring (+{:.1} s homing and calibration); refinements: {}",
         outcome.points.len(),
         outcome.device_seconds,
-        if outcome.refinements.is_empty() { "none".to_string() } else { outcome.refinements.iter().map(|r| format!("δ = {}° (+{}: {})", r.delta_deg, r.added, r.reason)).collect::<Vec<_>>().join("; ") }
+        outcome.setup_seconds,
+        if outcome.refinements.is_empty() { "none".to_string() } else { outcome.refinements.iter().map(|r| match r.delta_deg { Some(d) => format!("δ = {d}° (+{}: {})", r.added, r.reason), None => format!("+{} ({})", r.added, r.reason) }).collect::<Vec<_>>().join("; ") }
     );
     if let Some(drift) = outcome.white_drift {
         println!("  white check: drift {:.2} %{}", 100.0 * drift, if outcome.white_drift_exceeded { " — BEYOND THE LIMIT, result marked" } else { "" });
@@ -312,7 +314,9 @@ fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome:
         object.insert("sample".into(), json!(sample));
         object.insert("geometries".into(), json!(outcome.points.len()));
         object.insert("device_seconds".into(), json!(outcome.device_seconds));
-        object.insert("refinements".into(), json!(outcome.refinements.iter().map(|r| r.delta_deg).collect::<Vec<_>>()));
+        object.insert("setup_seconds".into(), json!(outcome.setup_seconds));
+        // The paper's refinements by their δ, adaptive batches by the geometries they added.
+        object.insert("refinements".into(), json!(outcome.refinements.iter().map(|r| r.delta_deg.map_or(r.added as u64, u64::from)).collect::<Vec<_>>()));
         object.insert("covariance".into(), json!(outcome.report.fit.covariance));
         object.insert("white_drift".into(), json!(outcome.white_drift));
         object.insert("white_drift_exceeded".into(), json!(outcome.white_drift_exceeded));

@@ -4,3 +4,4 @@ pub mod ports;
 pub mod sim;
 pub mod measure;
 pub mod compare;
+pub mod trade;

@@ -1,0 +1,52 @@
+//! `gonio trade`: the speed–accuracy trade study on the simulated instrument.
+use crate::trade;
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// Arguments of `gonio trade`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Folder for trade.csv, summary.md and pareto.svg.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Seeds per paper and configuration.
+    #[arg(long, default_value_t = 20)]
+    pub seeds: u64,
+    /// Quick look: 3 seeds (unless --seeds is given) and the fixed schedules at 100 ms only.
+    #[arg(long)]
+    pub quick: bool,
+    /// Worker threads (default: one per core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// Run `gonio trade`.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let seeds_given = std::env::args().any(|a| a == "--seeds" || a.starts_with("--seeds="));
+    let seeds = if args.quick && !seeds_given { 3 } else { args.seeds };
+    if seeds == 0 {
+        bail!("--seeds must be at least 1");
+    }
+    let runs = trade::plan_runs(seeds, args.quick);
+    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let bar = ProgressBar::new(runs.len() as u64);
+    bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
+    bar.set_message("simulated sessions");
+    let rows = trade::run_all(&runs, threads, &|| bar.inc(1)).map_err(anyhow::Error::msg)?;
+    bar.finish_and_clear();
+    let csv = args.out.join("trade.csv");
+    std::fs::write(&csv, trade::to_csv(&rows)).with_context(|| format!("cannot write {}", csv.display()))?;
+    let motion = crate::order::Motion::reference();
+    let order_table = crate::order::study_markdown(&crate::order::study(&motion, u32::from(trade::TARGET_INTEGRATION_MS)));
+    let summary = trade::summary_markdown(&rows, seeds, &order_table);
+    let md = args.out.join("summary.md");
+    std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
+    let svg = args.out.join(crate::plots::PARETO_FILE);
+    crate::plots::write_pareto(&svg, &trade::pareto(&rows)).with_context(|| format!("cannot write {}", svg.display()))?;
+    print!("{summary}");
+    eprintln!("wrote {}, {} and {}", csv.display(), md.display(), svg.display());
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,443 @@
+//! The speed–accuracy trade study: whole simulated sessions (the firmware library on the
+//! simulated instrument, this host's session code, virtual time) over papers × seeds ×
+//! policies × integration times, each compared with the truth the simulator was given.
+
+use crate::classify::REFERENCES;
+use crate::link::{Client, RetryPolicy};
+use crate::model::Params;
+use crate::session::{FixedSchedule, MeasuredPoint, Outcome, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
+use crate::sim::{SimOptions, sample_params};
+use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
+use std::fmt::Write as _;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+/// The integration times studied, ms.
+pub const INTEGRATION_MS: [u16; 3] = [25, 100, 400];
+/// The integration time the adaptive policy's targets are stated at, ms.
+pub const TARGET_INTEGRATION_MS: u16 = 100;
+/// The targets: σ within this relative error …
+pub const SIGMA_TARGET: f64 = 0.05;
+/// … in at least this fraction of sessions.
+pub const SESSIONS_TARGET: f64 = 0.95;
+
+/// One session of the study.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunSpec {
+    /// `strategy1`, `strategy2`, `paper` or `adaptive`.
+    pub policy: &'static str,
+    /// M, δ or empty.
+    pub setting: String,
+    /// Reference paper on the port.
+    pub sample: &'static str,
+    /// Simulator seed.
+    pub seed: u64,
+    /// Integration time, ms.
+    pub integration_ms: u16,
+}
+
+impl RunSpec {
+    fn policy(&self) -> Policy {
+        let number = self.setting.parse().unwrap_or(0);
+        match self.policy {
+            "strategy1" => Policy::Fixed(FixedSchedule::Strategy1 { m: number }),
+            "strategy2" => Policy::Fixed(FixedSchedule::Strategy2 { delta_deg: u8::try_from(number).unwrap_or(0) }),
+            "adaptive" => Policy::Adaptive(Default::default()),
+            _ => Policy::Paper,
+        }
+    }
+}
+
+/// One session's result: a row of `trade.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    /// What was run.
+    pub spec: RunSpec,
+    /// Geometries measured.
+    pub geometries: usize,
+    /// Device time measuring the sample, s.
+    pub device_seconds: f64,
+    /// |σ̂/σ − 1|; infinite when σ was not resolved.
+    pub sigma_rel_err: f64,
+    /// |ρ̂s/ρs − 1|.
+    pub rho_s_rel_err: f64,
+    /// |ρ̂d/ρd − 1|.
+    pub rho_d_rel_err: f64,
+    /// The class found is the paper's.
+    pub class_correct: bool,
+    /// The class found.
+    pub class: String,
+    /// σ > σ_l at the end.
+    pub sigma_ok: bool,
+}
+
+/// The sessions of a study: every Strategy 1 M of Table 4 alone, every Strategy 2 δ alone,
+/// the paper's policy and the adaptive one, for every paper and seed, at every integration
+/// time (`quick`: the fixed schedules at 100 ms only).
+pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
+    let mut policies: Vec<(&'static str, String)> = Vec::new();
+    policies.extend(STRATEGY1.iter().map(|(m, _)| ("strategy1", m.to_string())));
+    policies.extend(STRATEGY2_DELTAS.map(|d| ("strategy2", d.to_string())));
+    policies.push(("paper", String::new()));
+    policies.push(("adaptive", String::new()));
+    let mut runs = Vec::new();
+    for integration_ms in INTEGRATION_MS {
+        for (policy, setting) in &policies {
+            let fixed = *policy == "strategy1" || *policy == "strategy2";
+            if quick && fixed && integration_ms != TARGET_INTEGRATION_MS {
+                continue;
+            }
+            for reference in &REFERENCES {
+                for seed in 1..=seeds {
+                    runs.push(RunSpec { policy, setting: setting.clone(), sample: reference.name, seed, integration_ms });
+                }
+            }
+        }
+    }
+    runs
+}
+
+/// Records nothing: the study keeps only the outcome.
+struct Discard;
+
+impl Recorder for Discard {
+    fn calibration(&mut self, _: &crate::calibration::Calibration) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn stage(&mut self, _: &str, _: usize) {}
+    fn progress(&mut self, _: Progress) {}
+    fn decision(&mut self, _: &str) {}
+}
+
+fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
+    estimate.filter(|e| e.is_finite()).map_or(f64::INFINITY, |e| (e / truth - 1.0).abs())
+}
+
+/// Run one whole simulated session and compare it with the truth.
+pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
+    let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
+    let expected = REFERENCES.iter().find(|r| r.name == spec.sample).map(|r| r.class.name()).unwrap_or("");
+    let options = SimOptions { seed: spec.seed, acceptance: crate::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: String::new() };
+    let instrument = options.instrument(spec.sample).map_err(|e| e.to_string())?;
+    let mut client = Client::new(instrument, RetryPolicy::default());
+    let info = client.hello().map_err(|e| e.to_string())?;
+    let plan = Plan {
+        sample: spec.sample.to_string(),
+        integration_ms: spec.integration_ms,
+        policy: spec.policy(),
+        acceptance_deg: f64::from(info.acceptance_deg),
+        white_check: false,
+        white_drift_limit: 1.0,
+    };
+    let (mut recorder, mut operator) = (Discard, SimulatedOperator);
+    let outcome: Outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
+    let fit = &outcome.report.fit;
+    let class = outcome.report.classification.class.name();
+    Ok(Row {
+        spec: spec.clone(),
+        geometries: outcome.points.len(),
+        device_seconds: outcome.device_seconds,
+        sigma_rel_err: rel_err(fit.sigma_deg(), truth.sigma_deg),
+        rho_s_rel_err: rel_err(fit.reported(crate::model::RHO_S), truth.rho_s),
+        rho_d_rel_err: rel_err(fit.reported(crate::model::RHO_D), truth.rho_d),
+        class_correct: class == expected,
+        class: class.to_string(),
+        sigma_ok: outcome.report.check.is_some_and(|c| c.sigma_ok),
+    })
+}
+
+/// Run `runs` on `threads` threads; `progress` is called after each. Rows come back in the
+/// order of `runs`; a session that fails is an error naming it.
+pub fn run_all(runs: &[RunSpec], threads: usize, progress: &(dyn Fn() + Sync)) -> Result<Vec<Row>, String> {
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Result<Row, String>>>> = Mutex::new(vec![None; runs.len()]);
+    std::thread::scope(|scope| {
+        for _ in 0..threads.max(1) {
+            scope.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(spec) = runs.get(k) else { break };
+                    let row = run_one(spec);
+                    if let Ok(mut results) = results.lock() {
+                        results[k] = Some(row);
+                    }
+                    progress();
+                }
+            });
+        }
+    });
+    let results = results.into_inner().map_err(|_| "a study thread panicked".to_string())?;
+    results
+        .into_iter()
+        .zip(runs)
+        .map(|(row, spec)| match row {
+            Some(Ok(row)) => Ok(row),
+            Some(Err(e)) => Err(format!("{} {} {} seed {} at {} ms: {e}", spec.policy, spec.setting, spec.sample, spec.seed, spec.integration_ms)),
+            None => Err(format!("{} {} {} seed {}: not run", spec.policy, spec.setting, spec.sample, spec.seed)),
+        })
+        .collect()
+}
+
+/// The CSV header of `trade.csv`.
+pub const CSV_HEADER: &str = "policy,setting,sample,seed,integration_ms,geometries,device_seconds,sigma_rel_err,rho_s_rel_err,rho_d_rel_err,class_correct,class,sigma_ok";
+
+/// `trade.csv`: one row per session.
+pub fn to_csv(rows: &[Row]) -> String {
+    let mut out = String::from(CSV_HEADER);
+    out.push('\n');
+    for r in rows {
+        let s = &r.spec;
+        let _ = writeln!(
+            out,
+            "{},{},{},{},{},{},{:.3},{:.6},{:.6},{:.6},{},{},{}",
+            s.policy, s.setting, s.sample, s.seed, s.integration_ms, r.geometries, r.device_seconds, r.sigma_rel_err, r.rho_s_rel_err, r.rho_d_rel_err, r.class_correct, r.class, r.sigma_ok
+        );
+    }
+    out
+}
+
+/// Statistics of one group of sessions.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Summary {
+    /// Sessions.
+    pub n: usize,
+    /// Mean device seconds.
+    pub mean_device_seconds: f64,
+    /// Mean geometries.
+    pub mean_geometries: f64,
+    /// Median σ relative error.
+    pub median_sigma_err: f64,
+    /// 95th percentile σ relative error.
+    pub p95_sigma_err: f64,
+    /// Fraction with σ within [`SIGMA_TARGET`].
+    pub sigma_within_target: f64,
+    /// Median ρs, ρd relative errors.
+    pub median_rho_s_err: f64,
+    /// Median ρd relative error.
+    pub median_rho_d_err: f64,
+    /// Fraction classified right.
+    pub class_accuracy: f64,
+    /// Fraction that measured Strategy 1 only (12 geometries).
+    pub stopped_after_strategy1: f64,
+}
+
+fn quantile(mut values: Vec<f64>, q: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    let k = ((values.len() - 1) as f64 * q).round() as usize;
+    values[k.min(values.len() - 1)]
+}
+
+/// Summarise the rows `keep` selects.
+pub fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
+    let rows: Vec<&Row> = rows.into_iter().collect();
+    let n = rows.len();
+    let frac = |f: &dyn Fn(&Row) -> bool| rows.iter().filter(|r| f(r)).count() as f64 / n.max(1) as f64;
+    let mean = |f: &dyn Fn(&Row) -> f64| rows.iter().map(|r| f(r)).sum::<f64>() / n.max(1) as f64;
+    Summary {
+        n,
+        mean_device_seconds: mean(&|r| r.device_seconds),
+        mean_geometries: mean(&|r| r.geometries as f64),
+        median_sigma_err: quantile(rows.iter().map(|r| r.sigma_rel_err).collect(), 0.5),
+        p95_sigma_err: quantile(rows.iter().map(|r| r.sigma_rel_err).collect(), 0.95),
+        sigma_within_target: frac(&|r| r.sigma_rel_err <= SIGMA_TARGET),
+        median_rho_s_err: quantile(rows.iter().map(|r| r.rho_s_rel_err).collect(), 0.5),
+        median_rho_d_err: quantile(rows.iter().map(|r| r.rho_d_rel_err).collect(), 0.5),
+        class_accuracy: frac(&|r| r.class_correct),
+        stopped_after_strategy1: frac(&|r| r.geometries == 12),
+    }
+}
+
+fn glossy(sample: &str) -> bool {
+    REFERENCES.iter().any(|r| r.name == sample && r.class.group() == crate::classify::Group::Glossy)
+}
+
+/// Distinct (policy, setting) pairs in the order first seen.
+fn configurations(rows: &[Row]) -> Vec<(&'static str, String)> {
+    let mut seen: Vec<(&'static str, String)> = Vec::new();
+    for r in rows {
+        let key = (r.spec.policy, r.spec.setting.clone());
+        if !seen.contains(&key) {
+            seen.push(key);
+        }
+    }
+    seen
+}
+
+/// The adaptive policy against the paper's, per paper, at [`TARGET_INTEGRATION_MS`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct TargetCheck {
+    /// Paper.
+    pub sample: &'static str,
+    /// Sessions of each policy.
+    pub sessions: usize,
+    /// The paper's policy.
+    pub paper: Summary,
+    /// The adaptive policy.
+    pub adaptive: Summary,
+    /// Whether this paper meets the targets.
+    pub met: bool,
+    /// What was checked, in words.
+    pub what: String,
+}
+
+/// Check the adaptive policy's targets paper by paper: glossy papers reach σ within 5 % in
+/// ≥ 95 % of sessions at ≤ half the paper's mean device time; rough papers stop after
+/// Strategy 1 in ≥ 95 % with the right class; no paper loses class accuracy.
+pub fn check_targets(rows: &[Row]) -> Vec<TargetCheck> {
+    let at = |policy: &str, sample: &str| -> Vec<&Row> {
+        rows.iter().filter(|r| r.spec.policy == policy && r.spec.sample == sample && r.spec.integration_ms == TARGET_INTEGRATION_MS).collect()
+    };
+    REFERENCES
+        .iter()
+        .filter_map(|reference| {
+            let (paper_rows, adaptive_rows) = (at("paper", reference.name), at("adaptive", reference.name));
+            if paper_rows.is_empty() || adaptive_rows.is_empty() {
+                return None;
+            }
+            let (paper, adaptive) = (summarise(paper_rows.iter().copied()), summarise(adaptive_rows.iter().copied()));
+            let no_worse = adaptive.class_accuracy >= paper.class_accuracy;
+            let (met, what) = if glossy(reference.name) {
+                let time_ratio = adaptive.mean_device_seconds / paper.mean_device_seconds;
+                (
+                    adaptive.sigma_within_target >= SESSIONS_TARGET && time_ratio <= 0.5 && no_worse,
+                    format!(
+                        "σ within 5 % in {:.0} % (paper {:.0} %), device time {:.2}× the paper's, class right {:.0} % (paper {:.0} %)",
+                        100.0 * adaptive.sigma_within_target,
+                        100.0 * paper.sigma_within_target,
+                        time_ratio,
+                        100.0 * adaptive.class_accuracy,
+                        100.0 * paper.class_accuracy
+                    ),
+                )
+            } else {
+                let stopped_right = adaptive_rows.iter().filter(|r| r.geometries == 12 && r.class_correct).count() as f64 / adaptive_rows.len() as f64;
+                (
+                    stopped_right >= SESSIONS_TARGET && no_worse,
+                    format!(
+                        "stopped after Strategy 1 with the right class in {:.0} %, class right {:.0} % (paper {:.0} %)",
+                        100.0 * stopped_right,
+                        100.0 * adaptive.class_accuracy,
+                        100.0 * paper.class_accuracy
+                    ),
+                )
+            };
+            Some(TargetCheck { sample: reference.name, sessions: adaptive_rows.len(), paper, adaptive, met, what })
+        })
+        .collect()
+}
+
+fn pct(x: f64) -> String {
+    if x.is_finite() { format!("{:.1} %", 100.0 * x) } else { "unresolved".into() }
+}
+
+/// The markdown summary: per configuration over the glossy and the rough papers, the
+/// targets paper by paper, and the visiting-order study.
+pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "# Speed against accuracy on the simulated instrument\n");
+    let _ = writeln!(out, "{} sessions, {seeds} seeds per paper and configuration. Device time counts the sample's measurement (Strategy 1 onwards); homing and calibration are the same for every policy and are left out.\n", rows.len());
+    for (title, group_glossy) in [("Glossy papers (G, SG)", true), ("Rough papers (PPC, MC, J1–J4)", false)] {
+        let _ = writeln!(out, "## {title}\n");
+        let _ = writeln!(out, "| policy | setting | integration ms | sessions | geometries | device s | σ error median | σ error p95 | σ within 5 % | ρs error median | ρd error median | class right |");
+        let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        for integration_ms in INTEGRATION_MS {
+            for (policy, setting) in configurations(rows) {
+                let group: Vec<&Row> = rows
+                    .iter()
+                    .filter(|r| r.spec.policy == policy && r.spec.setting == setting && r.spec.integration_ms == integration_ms && glossy(r.spec.sample) == group_glossy)
+                    .collect();
+                if group.is_empty() {
+                    continue;
+                }
+                let s = summarise(group);
+                let _ = writeln!(
+                    out,
+                    "| {policy} | {setting} | {integration_ms} | {} | {:.1} | {:.1} | {} | {} | {:.0} % | {} | {} | {:.0} % |",
+                    s.n,
+                    s.mean_geometries,
+                    s.mean_device_seconds,
+                    pct(s.median_sigma_err),
+                    pct(s.p95_sigma_err),
+                    100.0 * s.sigma_within_target,
+                    pct(s.median_rho_s_err),
+                    pct(s.median_rho_d_err),
+                    100.0 * s.class_accuracy
+                );
+            }
+        }
+        out.push('\n');
+    }
+    let _ = writeln!(out, "## The adaptive policy against the paper's, at {TARGET_INTEGRATION_MS} ms\n");
+    let _ = writeln!(out, "| paper | sessions | paper's device s | adaptive device s | paper's geometries | adaptive geometries | target | met |");
+    let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---|---|");
+    for check in check_targets(rows) {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} |",
+            check.sample,
+            check.sessions,
+            check.paper.mean_device_seconds,
+            check.adaptive.mean_device_seconds,
+            check.paper.mean_geometries,
+            check.adaptive.mean_geometries,
+            check.what,
+            if check.met { "yes" } else { "**no**" }
+        );
+    }
+    let _ = writeln!(out, "\n## Visiting order\n\n{order_table}");
+    out
+}
+
+/// One point of the Pareto plot: a configuration over the glossy papers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParetoPoint {
+    /// Policy.
+    pub policy: &'static str,
+    /// Its label ("δ=3, 100 ms").
+    pub label: String,
+    /// Mean device seconds.
+    pub device_seconds: f64,
+    /// 95th percentile of σ's relative error.
+    pub p95_sigma_err: f64,
+}
+
+/// The points of the Pareto plot (glossy papers: σ is what the time buys) and which of
+/// them are on the front (no other point is both faster and more accurate).
+pub fn pareto(rows: &[Row]) -> Vec<(ParetoPoint, bool)> {
+    let mut points = Vec::new();
+    for integration_ms in INTEGRATION_MS {
+        for (policy, setting) in configurations(rows) {
+            let group: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.spec.policy == policy && r.spec.setting == setting && r.spec.integration_ms == integration_ms && glossy(r.spec.sample))
+                .collect();
+            if group.is_empty() {
+                continue;
+            }
+            let s = summarise(group);
+            let name = match policy {
+                "strategy1" => format!("M={setting}, "),
+                "strategy2" => format!("δ={setting}, "),
+                _ => String::new(),
+            };
+            points.push(ParetoPoint { policy, label: format!("{name}{integration_ms} ms"), device_seconds: s.mean_device_seconds, p95_sigma_err: s.p95_sigma_err });
+        }
+    }
+    let front: Vec<bool> = points
+        .iter()
+        .map(|p| {
+            // An unresolved σ buys no accuracy at any price: never on the front.
+            p.p95_sigma_err.is_finite()
+                && !points.iter().any(|q| {
+                q.device_seconds <= p.device_seconds && q.p95_sigma_err <= p.p95_sigma_err && (q.device_seconds < p.device_seconds || q.p95_sigma_err < p.p95_sigma_err)
+            })
+        })
+        .collect();
+    points.into_iter().zip(front).collect()
+}

@@ -1,0 +1,80 @@
+//! The speed–accuracy study and the adaptive policy's targets, on whole simulated sessions.
+
+use host::trade::{self, RunSpec};
+use std::process::Command;
+
+/// The targets over 20 seeds per paper at 100 ms: glossy papers reach σ within 5 %
+/// in ≥ 95 % of sessions in at most half the paper's device time; rough papers stop after
+/// Strategy 1 in ≥ 95 % with the right class; no paper loses class accuracy.
+#[test]
+fn the_adaptive_policy_meets_its_targets_over_twenty_seeds() {
+    let runs: Vec<RunSpec> = trade::plan_runs(20, true)
+        .into_iter()
+        .filter(|r| (r.policy == "paper" || r.policy == "adaptive") && r.integration_ms == trade::TARGET_INTEGRATION_MS)
+        .collect();
+    assert_eq!(runs.len(), 8 * 20 * 2);
+    let rows = trade::run_all(&runs, 2, &|| {}).expect("every session completes");
+    let checks = trade::check_targets(&rows);
+    assert_eq!(checks.len(), 8);
+    for check in &checks {
+        assert_eq!(check.sessions, 20);
+        assert!(check.met, "{}: {}", check.sample, check.what);
+        assert!(check.adaptive.class_accuracy >= check.paper.class_accuracy, "{}", check.sample);
+    }
+    // Every session ends above the paper's σ_l criterion, adaptive included.
+    assert!(rows.iter().all(|r| r.sigma_ok), "a session stopped with σ ≤ σ_l");
+}
+
+#[test]
+fn the_study_covers_every_schedule_policy_and_integration_time() {
+    let runs = trade::plan_runs(2, false);
+    // 8 Strategy 1 M + 10 Strategy 2 δ + paper + adaptive, 3 integration times, 8 papers, 2 seeds.
+    assert_eq!(runs.len(), 20 * 3 * 8 * 2);
+    for policy in ["strategy1", "strategy2", "paper", "adaptive"] {
+        assert!(runs.iter().any(|r| r.policy == policy));
+    }
+    for ms in trade::INTEGRATION_MS {
+        assert!(runs.iter().any(|r| r.integration_ms == ms && r.policy == "strategy2"));
+    }
+    let quick = trade::plan_runs(2, true);
+    assert!(quick.iter().all(|r| r.integration_ms == trade::TARGET_INTEGRATION_MS || r.policy == "paper" || r.policy == "adaptive"));
+}
+
+#[test]
+fn more_integration_time_buys_a_smaller_sigma_error_under_a_fixed_schedule() {
+    // Strategy 2 at δ = 2° on SG: σ is resolved at every integration time, and its error
+    // shrinks as the noise falls with 1/√T.
+    let runs: Vec<RunSpec> = [25, 400]
+        .iter()
+        .flat_map(|&ms| (1..=8).map(move |seed| RunSpec { policy: "strategy2", setting: "2".into(), sample: "SG", seed, integration_ms: ms }))
+        .collect();
+    let rows = trade::run_all(&runs, 2, &|| {}).unwrap();
+    let (fast, slow): (Vec<_>, Vec<_>) = rows.iter().partition(|r| r.spec.integration_ms == 25);
+    let rms = |rows: &[&trade::Row]| (rows.iter().map(|r| r.sigma_rel_err.powi(2)).sum::<f64>() / rows.len() as f64).sqrt();
+    assert!(rms(&slow) < rms(&fast), "400 ms: {} vs 25 ms: {}", rms(&slow), rms(&fast));
+    assert!(slow.iter().map(|r| r.device_seconds).sum::<f64>() > fast.iter().map(|r| r.device_seconds).sum::<f64>());
+}
+
+#[test]
+fn gonio_trade_writes_the_csv_the_summary_and_the_plot() {
+    let dir = std::env::temp_dir().join(format!("gonio-trade-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = Command::new(env!("CARGO_BIN_EXE_gonio")).args(["trade", "--quick", "--seeds", "1", "--out", dir.to_str().unwrap()]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(dir.join("trade.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    for column in ["policy", "setting", "sample", "seed", "integration_ms", "geometries", "device_seconds", "sigma_rel_err", "rho_s_rel_err", "rho_d_rel_err", "class_correct"] {
+        assert!(header.contains(&column), "no column {column}");
+    }
+    assert_eq!(lines.count(), trade::plan_runs(1, true).len());
+    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    assert!(summary.contains("The adaptive policy against the paper's") && summary.contains("Visiting order"));
+    let svg = std::fs::read_to_string(dir.join("pareto.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("adaptive"));
+    // Bad input: a clear error, non-zero.
+    let out = Command::new(env!("CARGO_BIN_EXE_gonio")).args(["trade", "--seeds", "0", "--out", dir.to_str().unwrap()]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--seeds must be at least 1"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
