@@ -141,38 +141,6 @@ fn gradient(p: &Params, acceptance_deg: Option<f64>, theta_i_deg: f64, theta_r_d
     model::evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), window)
 }
 
-/// Inverse of a small symmetric positive definite matrix (Cholesky); `None` if singular.
-fn invert_spd(a: &[[f64; 4]; 4], n: usize) -> Option<[[f64; 4]; 4]> {
-    let mut l = [[0.0; 4]; 4];
-    for i in 0..n {
-        for j in 0..=i {
-            let s = a[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
-            if i == j {
-                if s.is_nan() || s <= 0.0 {
-                    return None;
-                }
-                l[i][i] = s.sqrt();
-            } else {
-                l[i][j] = s / l[j][j];
-            }
-        }
-    }
-    let mut inv = [[0.0; 4]; 4];
-    for col in 0..n {
-        // Solve L y = e_col, then Lᵀ x = y.
-        let mut y = [0.0; 4];
-        for i in 0..n {
-            let e = if i == col { 1.0 } else { 0.0 };
-            y[i] = (e - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>()) / l[i][i];
-        }
-        for i in (0..n).rev() {
-            let x = (y[i] - (i + 1..n).map(|k| l[k][i] * inv[k][col]).sum::<f64>()) / l[i][i];
-            inv[i][col] = x;
-        }
-    }
-    Some(inv)
-}
-
 /// The next batch by greedy sequential design from `here` (where the arms are), or `None`
 /// when the fit gives no usable information matrix (then probe, or fall back).
 pub fn next_batch(
@@ -184,45 +152,49 @@ pub fn next_batch(
     integration_ms: u32,
     batch: usize,
 ) -> Option<Vec<Geometry>> {
-    let fitted: Vec<usize> = (0..crate::fit::N_PARAMS).filter(|&i| fit.model.0[i]).collect();
-    let sigma_at = fitted.iter().position(|&i| i == SIGMA)?;
-    let n = fitted.len();
-    let pick = |g: [f64; 4]| {
-        let mut v = [0.0; 4];
-        for (k, &i) in fitted.iter().enumerate() {
-            v[k] = g[i];
-        }
-        v
+    let free = fit.model.0;
+    if !free[SIGMA] {
+        return None;
+    }
+    // Gradients over the fitted parameters only: the others are held, and carry no variance.
+    let fitted_gradient = |theta_i_deg: f64, theta_r_deg: f64| {
+        let (value, g) = gradient(&fit.params, fit.acceptance_deg, theta_i_deg, theta_r_deg);
+        (value, std::array::from_fn::<f64, 4, _>(|i| if free[i] { g[i] } else { 0.0 }))
     };
     let noise = NoiseModel::fit(observations);
     let mut information = [[0.0; 4]; 4];
     for o in observations {
-        let (value, g) = gradient(&fit.params, fit.acceptance_deg, o.theta_i_deg, o.theta_r_deg);
+        let (value, j) = fitted_gradient(o.theta_i_deg, o.theta_r_deg);
         let s2 = o.std.map_or_else(|| noise.variance(value), |s| s * s).max(1e-18);
-        let j = pick(g);
-        for a in 0..n {
-            for b in 0..n {
+        for a in 0..4 {
+            for b in 0..4 {
                 information[a][b] += j[a] * j[b] / s2;
             }
         }
     }
-    let mut cov = invert_spd(&information, n)?;
+    let mut cov = crate::fit::inverse_spd(&information, &free)?;
     let per_reading_s = motion.per_geometry_us(integration_ms) as f64 * 1e-6;
     let mut pool: Vec<(Geometry, [f64; 4], f64)> = candidates(measured)
         .into_iter()
         .map(|g| {
-            let (value, grad) = gradient(&fit.params, fit.acceptance_deg, g.theta_i.deg(), g.theta_r.deg());
-            (g, pick(grad), noise.variance(value).max(1e-18))
+            let (value, j) = fitted_gradient(g.theta_i.deg(), g.theta_r.deg());
+            (g, j, noise.variance(value).max(1e-18))
         })
         .collect();
+    // cov·j and jᵀ·cov·j: what one more reading at j does to the covariance.
+    let project = |cov: &[[f64; 4]; 4], j: &[f64; 4]| {
+        let cj: [f64; 4] = std::array::from_fn(|a| (0..4).map(|b| cov[a][b] * j[b]).sum());
+        let jcj: f64 = (0..4).map(|a| j[a] * cj[a]).sum();
+        (cj, jcj)
+    };
     let mut chosen = Vec::new();
     let mut at = here;
     while chosen.len() < batch && !pool.is_empty() {
         let mut best: Option<(usize, f64)> = None;
         for (k, (g, j, s2)) in pool.iter().enumerate() {
-            let cj: Vec<f64> = (0..n).map(|a| (0..n).map(|b| cov[a][b] * j[b]).sum()).collect();
-            let jcj: f64 = (0..n).map(|a| j[a] * cj[a]).sum();
-            let gain = cj[sigma_at] * cj[sigma_at] / (s2 + jcj);
+            let (cj, jcj) = project(&cov, j);
+            // Sherman–Morrison: the drop of Var(σ) this reading brings.
+            let gain = cj[SIGMA] * cj[SIGMA] / (s2 + jcj);
             let seconds = per_reading_s + motion.move_us(at, *g) as f64 * 1e-6;
             let score = gain / seconds;
             if score.is_finite() && best.is_none_or(|(_, b)| score > b) {
@@ -231,11 +203,10 @@ pub fn next_batch(
         }
         let (k, _) = best?;
         let (g, j, s2) = pool.swap_remove(k);
-        let cj: Vec<f64> = (0..n).map(|a| (0..n).map(|b| cov[a][b] * j[b]).sum()).collect();
-        let denom = s2 + (0..n).map(|a| j[a] * cj[a]).sum::<f64>();
-        for a in 0..n {
-            for b in 0..n {
-                cov[a][b] -= cj[a] * cj[b] / denom;
+        let (cj, jcj) = project(&cov, &j);
+        for a in 0..4 {
+            for b in 0..4 {
+                cov[a][b] -= cj[a] * cj[b] / (s2 + jcj);
             }
         }
         chosen.push(g);
@@ -254,19 +225,6 @@ mod tests {
         assert!(all.iter().all(|g| g.theta_r.deg() >= 0.0 && g.theta_r.deg() <= 70.0 && g.theta_r != g.theta_i));
         let measured: BTreeSet<Geometry> = all.iter().take(5).copied().collect();
         assert_eq!(candidates(&measured).len(), all.len() - 5);
-    }
-
-    #[test]
-    fn inverse_of_an_spd_matrix() {
-        let a = [[4.0, 1.0, 0.5, 0.0], [1.0, 3.0, 0.2, 0.0], [0.5, 0.2, 2.0, 0.0], [0.0; 4]];
-        let inv = invert_spd(&a, 3).unwrap();
-        for i in 0..3 {
-            for j in 0..3 {
-                let p: f64 = (0..3).map(|k| a[i][k] * inv[k][j]).sum();
-                assert!((p - if i == j { 1.0 } else { 0.0 }).abs() < 1e-12);
-            }
-        }
-        assert!(invert_spd(&[[0.0; 4]; 4], 2).is_none());
     }
 
     #[test]

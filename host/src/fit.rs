@@ -828,7 +828,7 @@ fn solve_spd(m: &[[f64; 4]; 4], b: &[f64; 4], free: &[bool; 4]) -> Option<[f64; 
 }
 
 /// Inverse of the sub-matrix on `free` (zeros elsewhere), `None` if singular.
-fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
+pub(crate) fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
     // Scale to unit diagonal first so that parameters of very different size do not
     // make a well-posed matrix look singular.
     let d: [f64; 4] = std::array::from_fn(|i| if free[i] && m[i][i] > 0.0 { 1.0 / m[i][i].sqrt() } else { 0.0 });

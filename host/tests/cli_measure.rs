@@ -3,7 +3,7 @@
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Child, Command, Output, Stdio};
 
 fn gonio(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
@@ -85,26 +85,27 @@ fn a_stale_calibration_is_refused_with_its_age() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-#[test]
-fn a_session_through_the_pseudo_terminal_with_prompts() {
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .args(["sim", "PPC", "--seed", "2"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+/// `gonio sim SAMPLE` on its pseudo-terminal and `gonio measure` on that port, the
+/// operator's two Enter presses (white tile in, sample back) already typed.
+fn measure_on_a_port(sample: &str, seed: &str, dir: &Path) -> (Child, Child) {
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio")).args(["sim", sample, "--seed", seed]).stdout(Stdio::piped()).stderr(Stdio::null()).spawn().unwrap();
     let mut path = String::new();
     BufReader::new(sim.stdout.take().unwrap()).read_line(&mut path).unwrap();
-    let dir = temp_dir("pty");
     let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .args(["measure", "--port", path.trim(), "--sample", "PPC", "--json", "--out", dir.to_str().unwrap()])
+        .args(["measure", "--port", path.trim(), "--sample", sample, "--json", "--out", dir.to_str().unwrap()])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // The operator: white tile in, then the sample back.
     measure.stdin.take().unwrap().write_all(b"\n\n").unwrap();
+    (sim, measure)
+}
+
+#[test]
+fn a_session_through_the_pseudo_terminal_with_prompts() {
+    let dir = temp_dir("pty");
+    let (mut sim, measure) = measure_on_a_port("PPC", "2", &dir);
     let out = measure.wait_with_output().unwrap();
     let _ = sim.kill();
     let _ = sim.wait();
@@ -116,18 +117,8 @@ fn a_session_through_the_pseudo_terminal_with_prompts() {
 
 #[test]
 fn ctrl_c_on_a_port_session_stops_it_keeps_the_readings_and_exits_non_zero() {
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio")).args(["sim", "G", "--seed", "4"]).stdout(Stdio::piped()).stderr(Stdio::null()).spawn().unwrap();
-    let mut path = String::new();
-    BufReader::new(sim.stdout.take().unwrap()).read_line(&mut path).unwrap();
     let dir = temp_dir("sigint");
-    let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .args(["measure", "--port", path.trim(), "--sample", "G", "--json", "--out", dir.to_str().unwrap()])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    measure.stdin.take().unwrap().write_all(b"\n\n").unwrap();
+    let (mut sim, mut measure) = measure_on_a_port("G", "4", &dir);
     let points = dir.join("points.jsonl");
     while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < 4 {
         assert!(measure.try_wait().unwrap().is_none(), "gonio measure ended before Ctrl-C");
