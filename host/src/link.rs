@@ -10,6 +10,8 @@ use protocol::{
     PROTOCOL_VERSION, Reply, Request,
 };
 use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 /// A byte pipe to an instrument: a serial port, a pseudo-terminal, or the simulator in
@@ -41,6 +43,9 @@ pub enum LinkError {
     /// The byte pipe failed.
     #[error("link I/O error: {0}")]
     Io(#[from] std::io::Error),
+    /// The user interrupted the wait (see [`Client::set_interrupt`]).
+    #[error("interrupted by the user")]
+    Interrupted,
     /// No reply after every retry.
     #[error("no reply from the instrument to request {seq} ({command}) after {attempts} attempts")]
     NoReply {
@@ -147,6 +152,8 @@ pub struct Client<T: Transport> {
     rx_len: usize,
     /// When the host last sent a frame, on the transport's clock.
     last_sent: Duration,
+    /// Set by a Ctrl-C handler: waiting stops with [`LinkError::Interrupted`].
+    interrupt: Option<Arc<AtomicBool>>,
 }
 
 fn command_name(command: &Command) -> &'static str {
@@ -179,6 +186,7 @@ impl<T: Transport> Client<T> {
             rx_pos: 0,
             rx_len: 0,
             last_sent: Duration::ZERO,
+            interrupt: None,
         }
     }
 
@@ -204,6 +212,13 @@ impl<T: Transport> Client<T> {
             }
             Err(other) => Err(other),
         }
+    }
+
+    /// Stop waiting with [`LinkError::Interrupted`] once `flag` is set (`None`: never),
+    /// so that a Ctrl-C is heard during a long command (homing takes up to 20 s) and the
+    /// caller can stop the instrument at once.
+    pub fn set_interrupt(&mut self, flag: Option<Arc<AtomicBool>>) {
+        self.interrupt = flag;
     }
 
     /// Send `command` and wait for its reply, retrying with the same sequence number.
@@ -281,6 +296,9 @@ impl<T: Transport> Client<T> {
                     Some(Err(_)) => self.stats.bad_frames += 1,
                     None => {}
                 }
+            }
+            if self.interrupt.as_ref().is_some_and(|flag| flag.load(Ordering::Relaxed)) {
+                return Err(LinkError::Interrupted);
             }
             let now = self.transport.now();
             if now >= deadline {

@@ -229,7 +229,7 @@ pub struct Outcome {
 pub enum SessionError {
     /// The link failed beyond recovery.
     #[error(transparent)]
-    Link(#[from] LinkError),
+    Link(LinkError),
     /// The instrument stopped on its own and did not recover.
     #[error("the instrument stopped: {0}")]
     Stopped(ErrorCode),
@@ -251,6 +251,15 @@ pub enum SessionError {
     /// Too many attempts to measure the same geometries.
     #[error("geometries still missing after {0} attempts; the link or instrument is failing")]
     GaveUp(u32),
+}
+
+impl From<LinkError> for SessionError {
+    fn from(error: LinkError) -> SessionError {
+        match error {
+            LinkError::Interrupted => SessionError::Interrupted,
+            other => SessionError::Link(other),
+        }
+    }
 }
 
 /// Attempts at a stage's missing geometries, and at reconnecting.
@@ -293,9 +302,11 @@ impl<'a, T: Transport> Session<'a, T> {
     }
 
     /// Stop with [`SessionError::Interrupted`] as soon as `flag` is set (a Ctrl-C handler
-    /// sets it): checked before every request and while readings stream in, so the
-    /// caller can stop the instrument within one reply timeout.
+    /// sets it): checked before every request and while any reply or reading is awaited,
+    /// so the caller can stop the instrument at once (clear the client's flag first, see
+    /// [`Client::set_interrupt`]).
     pub fn interruptible(mut self, flag: Arc<AtomicBool>) -> Self {
+        self.client.set_interrupt(Some(flag.clone()));
         self.interrupted = Some(flag);
         self
     }
@@ -493,6 +504,7 @@ impl<'a, T: Transport> Session<'a, T> {
             let _ = self.client.transport_mut().reconnect();
             match self.client.hello() {
                 Ok(_) => return Ok(()),
+                Err(LinkError::Interrupted) => return Err(SessionError::Interrupted),
                 Err(_) => self.client.transport_mut().pause(Duration::from_millis(500)),
             }
         }

@@ -244,6 +244,37 @@ fn ctrl_c_stops_the_instrument_and_keeps_every_reading() {
 }
 
 #[test]
+fn ctrl_c_during_homing_stops_the_arms_there() {
+    let dir = temp_dir("ctrl-c-homing");
+    let served = Served::new("G", 6, "");
+    let interrupted = Arc::new(AtomicBool::new(false));
+    // Homing the reference instrument takes seconds of device time; the pty lets device
+    // time lead by at most 1.5 s past the host's last frame, so 20 ms in it is still going.
+    let watcher = {
+        let flag = interrupted.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            flag.store(true, Ordering::Relaxed);
+        })
+    };
+    let args = ["--port", served.path.as_str(), "--sample", "G", "--out", dir.to_str().unwrap()];
+    let outcome = run(&args, &mut Person::default(), interrupted).expect("no failure but the interruption");
+    watcher.join().unwrap();
+    let Measured::Stopped { error, .. } = outcome else { panic!("the session went on after Ctrl-C") };
+    assert!(matches!(error, SessionError::Interrupted), "{error}");
+    // Ask the instrument, as any host would.
+    let mut client = host::link::Client::new(host::serial::SerialTransport::open(&served.path).unwrap(), host::link::RetryPolicy::default());
+    client.hello().unwrap();
+    let Ok(protocol::Reply::Status(status)) = client.request(protocol::Command::GetStatus) else { panic!("no status") };
+    assert!(!(status.homed_i && status.homed_r), "homing ran to its end: the Ctrl-C was not heard during it");
+    assert!(!status.lamp_on, "lamp left on");
+    drop(client);
+    let instrument = served.stop();
+    assert!(instrument.is_idle(), "arms still moving");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_stale_calibration_is_refused_with_its_age() {
     let dir = temp_dir("stale");
     completed(&Served::new("MC", 2, ""), "MC", &dir, &[]);

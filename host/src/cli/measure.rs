@@ -277,7 +277,8 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         Ok(outcome) => outcome,
         Err(error) => {
             // Whatever happened, leave the instrument safe (arms stopped, lamp off); the
-            // readings are on disk already.
+            // readings are on disk already. A second Ctrl-C must not stop this.
+            client.set_interrupt(None);
             let _ = client.request(protocol::Command::Abort);
             let _ = client.request(protocol::Command::SetLamp { on: false });
             return Ok(Measured::Stopped { dir, error });
