@@ -16,7 +16,7 @@
 //! which resolves any σ from a tenth of a degree to several degrees.
 
 use crate::fit::{FitResult, Observation};
-use crate::model::{self, Params, PlaneGeometry, SIGMA};
+use crate::model::{self, PlaneGeometry, SIGMA};
 use crate::order::Motion;
 use protocol::Geometry;
 use protocol::schedules::{INCIDENCE_DEG, THETA_R_MAX_DEG};
@@ -135,12 +135,6 @@ impl NoiseModel {
     }
 }
 
-/// The gradient of the radiance factor over the fitted parameters, as the fit models it.
-fn gradient(p: &Params, acceptance_deg: Option<f64>, theta_i_deg: f64, theta_r_deg: f64) -> (f64, [f64; 4]) {
-    let window = acceptance_deg.filter(|&a| model::acceptance_matters(p.sigma_deg, a));
-    model::evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), window)
-}
-
 /// The next batch by greedy sequential design from `here` (where the arms are), or `None`
 /// when the fit gives no usable information matrix (then probe, or fall back).
 pub fn next_batch(
@@ -158,7 +152,8 @@ pub fn next_batch(
     }
     // Gradients over the fitted parameters only: the others are held, and carry no variance.
     let fitted_gradient = |theta_i_deg: f64, theta_r_deg: f64| {
-        let (value, g) = gradient(&fit.params, fit.acceptance_deg, theta_i_deg, theta_r_deg);
+        // As the fit modelled it: with the acceptance window exactly where the fit used one.
+        let (value, g) = model::evaluate(&fit.params, &PlaneGeometry::new(theta_i_deg, theta_r_deg), fit.acceptance_deg);
         (value, std::array::from_fn::<f64, 4, _>(|i| if free[i] { g[i] } else { 0.0 }))
     };
     let noise = NoiseModel::fit(observations);

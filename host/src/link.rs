@@ -214,11 +214,18 @@ impl<T: Transport> Client<T> {
         }
     }
 
-    /// Stop waiting with [`LinkError::Interrupted`] once `flag` is set (`None`: never),
-    /// so that a Ctrl-C is heard during a long command (homing takes up to 20 s) and the
-    /// caller can stop the instrument at once.
+    /// Once `flag` is set (`None`: never), send nothing more and stop any wait with
+    /// [`LinkError::Interrupted`], so that a Ctrl-C is heard during a long command (homing
+    /// takes up to 20 s) and the caller can stop the instrument at once (after clearing it).
     pub fn set_interrupt(&mut self, flag: Option<Arc<AtomicBool>>) {
         self.interrupt = flag;
+    }
+
+    fn check_interrupt(&self) -> Result<(), LinkError> {
+        match &self.interrupt {
+            Some(flag) if flag.load(Ordering::Relaxed) => Err(LinkError::Interrupted),
+            _ => Ok(()),
+        }
     }
 
     /// Send `command` and wait for its reply, retrying with the same sequence number.
@@ -231,6 +238,8 @@ impl<T: Transport> Client<T> {
             if attempt > 0 {
                 self.stats.retries += 1;
             }
+            // Nothing new is started after a Ctrl-C.
+            self.check_interrupt()?;
             self.send(&request)?;
             if let Some(result) = self.wait_for_reply(seq, timeout)? {
                 return result.map_err(|error| LinkError::Device { command: name, error });
@@ -297,9 +306,7 @@ impl<T: Transport> Client<T> {
                     None => {}
                 }
             }
-            if self.interrupt.as_ref().is_some_and(|flag| flag.load(Ordering::Relaxed)) {
-                return Err(LinkError::Interrupted);
-            }
+            self.check_interrupt()?;
             let now = self.transport.now();
             if now >= deadline {
                 return Ok(None);

@@ -24,8 +24,6 @@ use protocol::{
 };
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 /// How refinements are chosen, on the command line.
@@ -245,7 +243,7 @@ pub enum SessionError {
     /// Not enough convertible readings for a fit.
     #[error("the fit failed: {0}")]
     Fit(String),
-    /// The user interrupted the session (Ctrl-C).
+    /// The user interrupted the session (Ctrl-C; see [`Client::set_interrupt`]).
     #[error("interrupted by the user")]
     Interrupted,
     /// Too many attempts to measure the same geometries.
@@ -276,7 +274,6 @@ pub struct Session<'a, T: Transport> {
     calibration: Option<Calibration>,
     next_schedule_id: u16,
     device_time_used_us: u64,
-    interrupted: Option<Arc<AtomicBool>>,
     motion: Motion,
 }
 
@@ -284,7 +281,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// A session on a connected instrument (after the handshake gave `info`).
     pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
         let motion = Motion::from_info(&info).unwrap_or_else(|_| Motion::reference());
-        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, interrupted: None, motion }
+        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, motion }
     }
 
     /// Continue from readings (and a calibration) an earlier session recorded.
@@ -299,23 +296,6 @@ impl<'a, T: Transport> Session<'a, T> {
     pub fn with_calibration(mut self, calibration: Calibration) -> Self {
         self.calibration = Some(calibration);
         self
-    }
-
-    /// Stop with [`SessionError::Interrupted`] as soon as `flag` is set (a Ctrl-C handler
-    /// sets it): checked before every request and while any reply or reading is awaited,
-    /// so the caller can stop the instrument at once (clear the client's flag first, see
-    /// [`Client::set_interrupt`]).
-    pub fn interruptible(mut self, flag: Arc<AtomicBool>) -> Self {
-        self.client.set_interrupt(Some(flag.clone()));
-        self.interrupted = Some(flag);
-        self
-    }
-
-    fn check_interrupted(&self) -> Result<(), SessionError> {
-        match &self.interrupted {
-            Some(flag) if flag.load(Ordering::Relaxed) => Err(SessionError::Interrupted),
-            _ => Ok(()),
-        }
     }
 
     /// Run the whole session.
@@ -410,7 +390,7 @@ impl<'a, T: Transport> Session<'a, T> {
             if sigma_ok && (rough || (precise && settled)) {
                 return Ok(());
             }
-            let observations = self.observations();
+            let observations: Vec<Observation> = self.usable_points().map(|(_, o)| o).collect();
             let measured = self.measured();
             let here = self.arm_position()?;
             let integration_ms = u32::from(self.plan.integration_ms);
@@ -442,17 +422,14 @@ impl<'a, T: Transport> Session<'a, T> {
         }
     }
 
-    /// Every usable reading as a fit observation, each geometry once.
-    fn observations(&self) -> Vec<Observation> {
+    /// Every usable reading as a fit observation with its index in `points`; a geometry
+    /// measured twice (after a lost stream end) counts once.
+    fn usable_points(&self) -> impl Iterator<Item = (usize, Observation)> + '_ {
         let mut seen = BTreeSet::new();
-        self.points
-            .iter()
-            .filter_map(|p| {
-                let g = p.geometry()?;
-                let r = p.radiance_factor?;
-                seen.insert(g).then_some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: r, std: p.std })
-            })
-            .collect()
+        self.points.iter().enumerate().filter_map(move |(k, p)| {
+            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
+            seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std }))
+        })
     }
 
     fn uptime_us(&mut self) -> Result<u64, SessionError> {
@@ -470,7 +447,6 @@ impl<'a, T: Transport> Session<'a, T> {
     /// A request, reconnecting and retrying once the link comes back.
     fn retrying(&mut self, command: Command) -> Result<Reply, SessionError> {
         for _ in 0..MAX_ATTEMPTS {
-            self.check_interrupted()?;
             match self.client.request(command.clone()) {
                 Ok(reply) => return Ok(reply),
                 Err(error) if recoverable(&error) => self.recover(&error)?,
@@ -575,7 +551,6 @@ impl<'a, T: Transport> Session<'a, T> {
         let is_builtin_s1 = strategy1(12).is_some_and(|s| s.as_slice() == schedule);
         self.recorder.stage(stage, schedule.len());
         for attempt in 0..MAX_ATTEMPTS {
-            self.check_interrupted()?;
             let measured = self.measured();
             let missing: Vec<Geometry> = schedule.iter().copied().filter(|g| !measured.contains(g)).collect();
             if missing.is_empty() {
@@ -636,7 +611,6 @@ impl<'a, T: Transport> Session<'a, T> {
         let already = stage_len.saturating_sub(usize::from(len));
         let started = self.client.transport_mut().now();
         loop {
-            self.check_interrupted()?;
             match self.client.next_unsolicited(Duration::from_secs(5))? {
                 Some(DeviceMessage::Reading(r)) if r.schedule_id == schedule_id => {
                     if !seen.insert(r.index) {
@@ -688,17 +662,9 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// Fit everything measured so far, check σ against σ_l and classify.
     fn analyse(&self) -> Result<Report, SessionError> {
-        let mut set = DataSet { sample: self.plan.sample.clone(), observations: Vec::new(), lines: Vec::new() };
-        let mut seen = BTreeSet::new();
-        for (k, p) in self.points.iter().enumerate() {
-            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { continue };
-            // A geometry measured twice (after a lost stream end) counts once.
-            if !seen.insert(g) {
-                continue;
-            }
-            set.observations.push(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std });
-            set.lines.push(k + 2);
-        }
+        // Lines of readings.csv: a header, then one per reading.
+        let (lines, observations) = self.usable_points().map(|(k, o)| (k + 2, o)).unzip();
+        let set = DataSet { sample: self.plan.sample.clone(), observations, lines };
         let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
         analyse(std::path::Path::new("readings.csv"), &set, &options, None).map_err(SessionError::Fit)
     }

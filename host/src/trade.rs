@@ -233,7 +233,7 @@ fn quantile(mut values: Vec<f64>, q: f64) -> f64 {
     values[k.min(values.len() - 1)]
 }
 
-/// Summarise the rows `keep` selects.
+/// Summarise a group of rows.
 pub fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
     let rows: Vec<&Row> = rows.into_iter().collect();
     let n = rows.len();
@@ -267,6 +267,13 @@ fn configurations(rows: &[Row]) -> Vec<(&'static str, String)> {
         }
     }
     seen
+}
+
+/// The rows of one configuration at one integration time, over the glossy or the rough papers.
+fn configuration_rows<'a>(rows: &'a [Row], policy: &str, setting: &str, integration_ms: u16, glossy_papers: bool) -> Vec<&'a Row> {
+    rows.iter()
+        .filter(|r| r.spec.policy == policy && r.spec.setting == setting && r.spec.integration_ms == integration_ms && glossy(r.spec.sample) == glossy_papers)
+        .collect()
 }
 
 /// The adaptive policy against the paper's, per paper, at [`TARGET_INTEGRATION_MS`].
@@ -348,10 +355,7 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
         let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         for integration_ms in INTEGRATION_MS {
             for (policy, setting) in configurations(rows) {
-                let group: Vec<&Row> = rows
-                    .iter()
-                    .filter(|r| r.spec.policy == policy && r.spec.setting == setting && r.spec.integration_ms == integration_ms && glossy(r.spec.sample) == group_glossy)
-                    .collect();
+                let group = configuration_rows(rows, policy, &setting, integration_ms, group_glossy);
                 if group.is_empty() {
                     continue;
                 }
@@ -413,10 +417,7 @@ pub fn pareto(rows: &[Row]) -> Vec<(ParetoPoint, bool)> {
     let mut points = Vec::new();
     for integration_ms in INTEGRATION_MS {
         for (policy, setting) in configurations(rows) {
-            let group: Vec<&Row> = rows
-                .iter()
-                .filter(|r| r.spec.policy == policy && r.spec.setting == setting && r.spec.integration_ms == integration_ms && glossy(r.spec.sample))
-                .collect();
+            let group = configuration_rows(rows, policy, &setting, integration_ms, true);
             if group.is_empty() {
                 continue;
             }

@@ -270,7 +270,8 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         white_check: args.white_check,
         white_drift_limit: args.white_drift_limit_pct / 100.0,
     };
-    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points).interruptible(interrupted);
+    client.set_interrupt(Some(interrupted));
+    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();
     let outcome = match outcome {

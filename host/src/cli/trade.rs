@@ -11,9 +11,9 @@ pub struct Args {
     /// Folder for trade.csv, summary.md and pareto.svg.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
-    /// Seeds per paper and configuration.
-    #[arg(long, default_value_t = 20)]
-    pub seeds: u64,
+    /// Seeds per paper and configuration [default: 20, or 3 with --quick].
+    #[arg(long)]
+    pub seeds: Option<u64>,
     /// Quick look: 3 seeds (unless --seeds is given) and the fixed schedules at 100 ms only.
     #[arg(long)]
     pub quick: bool,
@@ -24,8 +24,7 @@ pub struct Args {
 
 /// Run `gonio trade`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let seeds_given = std::env::args().any(|a| a == "--seeds" || a.starts_with("--seeds="));
-    let seeds = if args.quick && !seeds_given { 3 } else { args.seeds };
+    let seeds = args.seeds.unwrap_or(if args.quick { 3 } else { 20 });
     if seeds == 0 {
         bail!("--seeds must be at least 1");
     }
