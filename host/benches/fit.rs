@@ -2,8 +2,8 @@
 //! 12 geometries of each Table 6 paper; the data are host/benches/data/bench-*.csv, the
 //! same files host/benches/scipy_baseline.py times scipy on (docs/PERFORMANCE.md).
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use host::dataset;
-use host::fit::{FitOptions, fit};
+use host::output::dataset;
+use host::analysis::fit::{FitOptions, fit};
 use std::hint::black_box;
 use std::path::Path;
 

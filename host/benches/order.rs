@@ -1,8 +1,8 @@
-//! Planning the visiting order (host::order): Strategy 1 from home (exact), the largest
+//! Planning the visiting order (host::session::order): Strategy 1 from home (exact), the largest
 //! exact case (15 geometries), Strategy 2 lists whose bound does not meet the order found
 //! (26, the whole search budget) and the longest Strategy 2 list (91).
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use host::order::{Motion, REFERENCE_HOME, plan};
+use host::session::order::{Motion, REFERENCE_HOME, plan};
 use protocol::Geometry;
 use protocol::schedules::{strategy1, strategy2};
 use std::hint::black_box;

@@ -1,19 +1,16 @@
-//! The gonio host library: the science (model, fit, schedules' use, classification), the
-//! link to the instrument, the session, and the command-line subcommands.
+//! The gonio host library. Its folders are its parts:
+//! - [`analysis`]: the model, the fit, the sampling check, classification, comparison and
+//!   the analysis report: pure functions, no I/O;
+//! - [`instrument`]: the link to the instrument, the serial port, the simulator
+//!   connection and the calibration;
+//! - [`session`]: the measurement session's state machine, the adaptive policy and the
+//!   visiting order;
+//! - [`study`]: campaigns over simulated sessions (the speed–accuracy trade);
+//! - [`output`]: data sets, exports and plots;
+//! - [`cli`]: one module per `gonio` subcommand. No library module imports from it.
+pub mod analysis;
 pub mod cli;
-pub mod link;
-pub mod sim;
-pub mod serial;
-pub mod model;
-pub mod fit;
-pub mod sampling;
-pub mod classify;
-pub mod dataset;
-pub mod adaptive;
-pub mod calibration;
-pub mod plots;
+pub mod instrument;
+pub mod output;
 pub mod session;
-pub mod export;
-pub mod compare;
-pub mod order;
-pub mod trade;
+pub mod study;

@@ -1,6 +1,6 @@
 //! The detector's angular acceptance: needed for narrow lobes, skipped for broad ones.
 mod common;
-use host::fit::{FitOptions, fit};
+use host::analysis::fit::{FitOptions, fit};
 
 #[test]
 fn glossy_sigma_is_recovered_with_the_acceptance_term() {

@@ -14,7 +14,7 @@ fn temp_dir(name: &str) -> PathBuf {
     dir
 }
 
-fn csv(samples: &[(&str, Vec<host::fit::Observation>)], with_sample: bool) -> String {
+fn csv(samples: &[(&str, Vec<host::analysis::fit::Observation>)], with_sample: bool) -> String {
     let mut s = String::from(if with_sample { "sample,theta_i,theta_r,radiance_factor\n" } else { "theta_i,theta_r,radiance_factor\n" });
     for (name, obs) in samples {
         for o in obs {

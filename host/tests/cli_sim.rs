@@ -1,8 +1,8 @@
 //! `gonio sim`: the simulated instrument on a pseudo-terminal, reached through the host's
 //! serial-port code exactly as a real instrument is.
 
-use host::link::{Client, RetryPolicy};
-use host::serial::SerialTransport;
+use host::instrument::link::{Client, RetryPolicy};
+use host::instrument::serial::SerialTransport;
 use protocol::*;
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Command as Process, Stdio};

@@ -1,6 +1,6 @@
 //! `gonio compare`: same stock or not, from two session.json files — identical sheets,
 //! sheets far apart, different classes, parameters not determined, and bad inputs.
-use host::compare::{self, CompareError};
+use host::analysis::compare::{self, CompareError};
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,9 +1,9 @@
 //! Evidence: the paper's findings (Akao et al., Fig. 10 and its discussion) on synthetic
 //! data with the noise (1 % + 0.003) and the instrument's 1° acceptance.
 mod common;
-use host::classify::{Group, REFERENCES, classify};
-use host::fit::{FitOptions, fit};
-use host::sampling;
+use host::analysis::classify::{Group, REFERENCES, classify};
+use host::analysis::fit::{FitOptions, fit};
+use host::analysis::sampling;
 
 #[test]
 fn strategy1_m12_gets_every_group_right() {

@@ -1,7 +1,7 @@
 //! ASTM E1392-style CSV: the header, the angle convention, BRDF = radiance factor / π, and
 //! numbers that read back exactly.
-use host::export::{self, ASTM_E1392_COLUMNS};
-use host::fit::Observation;
+use host::output::export::{self, ASTM_E1392_COLUMNS};
+use host::analysis::fit::Observation;
 use std::collections::HashMap;
 use std::time::{Duration, UNIX_EPOCH};
 

@@ -1,8 +1,8 @@
 //! The fit engine: global minimum against brute force, weighting, intervals,
 //! identifiability, and errors on bad input.
 mod common;
-use host::fit::{self, Bound, FitError, FitOptions, Note, Observation, fit};
-use host::model::{self, Params};
+use host::analysis::fit::{self, Bound, FitError, FitOptions, Note, Observation, fit};
+use host::analysis::model::{self, Params};
 
 fn no_acceptance() -> FitOptions {
     FitOptions { acceptance_deg: None, ..FitOptions::default() }
@@ -61,7 +61,7 @@ fn finds_the_global_minimum_of_multimodal_glossy_problems() {
 
 #[test]
 fn noise_free_data_is_recovered_exactly() {
-    for r in host::classify::REFERENCES {
+    for r in host::analysis::classify::REFERENCES {
         let obs = common::synthetic(&r.params, &common::full_grid(), 0.0, 0.0, 0.0, 0, false);
         let result = fit(&obs, &no_acceptance()).expect("valid data");
         let p = result.params;
@@ -76,7 +76,7 @@ fn noise_free_data_is_recovered_exactly() {
 fn confidence_intervals_cover_the_truth_and_bounds_are_reported() {
     let mut covered = 0;
     let mut total = 0;
-    for (k, r) in host::classify::REFERENCES.iter().enumerate() {
+    for (k, r) in host::analysis::classify::REFERENCES.iter().enumerate() {
         for seed in 0..5u64 {
             let obs = common::synthetic(&r.params, &common::full_grid(), 0.0, 0.01, 0.003, 1000 + 10 * k as u64 + seed, true);
             let result = fit(&obs, &no_acceptance()).expect("valid data");

@@ -1,6 +1,6 @@
 //! The TSL model against the published vectors, its derivatives against finite
 //! differences, and its behaviour at the extremes.
-use host::model::{self, Params};
+use host::analysis::model::{self, Params};
 use proptest::prelude::*;
 
 fn vectors() -> Vec<(String, Params, f64, f64, f64)> {

@@ -3,7 +3,7 @@
 
 use firmware::config::InstrumentConfig;
 use firmware::schedule::STRATEGY1_ORDER;
-use host::order::{
+use host::session::order::{
     EXACT_MAX, Motion, OrderError, PlannedOrder, REFERENCE_HOME, device_us, plan, plan_with, study, study_markdown,
 };
 use proptest::prelude::*;
@@ -229,7 +229,7 @@ fn motion_comes_from_the_device_info() {
     let info = InstrumentConfig::REFERENCE.device_info();
     assert_eq!(Motion::from_info(&info), Ok(Motion::reference()));
     assert_eq!(Motion::reference().settle_us(), 100_000);
-    assert_eq!(Motion::reference().per_geometry_us(100), 100_000 + 100_000 + host::order::READING_OVERHEAD_US);
+    assert_eq!(Motion::reference().per_geometry_us(100), 100_000 + 100_000 + host::session::order::READING_OVERHEAD_US);
     let mut bad = info.clone();
     bad.max_speed_deg_per_s = f32::NAN;
     assert!(matches!(Motion::from_info(&bad), Err(OrderError::BadSpeed(_))));
@@ -265,7 +265,7 @@ fn device_time_adds_the_time_at_each_geometry() {
 #[test]
 fn lists_longer_than_a_device_holds_keep_their_order() {
     let motion = Motion::reference();
-    let list: Vec<Geometry> = (0..=host::order::SEARCH_MAX as i32)
+    let list: Vec<Geometry> = (0..=host::session::order::SEARCH_MAX as i32)
         .map(|k| Geometry::new(Angle::from_ticks(k * 17 % 6800), Angle::from_ticks(k * 23)))
         .collect();
     let planned = plan(&motion, REFERENCE_HOME, &list);

@@ -1,10 +1,10 @@
 //! SVG figures: which files are written for glossy and rough samples, that they are SVG
 //! with the sample's name and the axis labels, and that the drawn curve reaches a glossy peak.
 mod common;
-use host::classify::{self, Group};
-use host::fit::{self, FitOptions, Observation};
-use host::model;
-use host::plots::{self, FIG4_FILE, FIG5_FILE, FIG7_FILE};
+use host::analysis::classify::{self, Group};
+use host::analysis::fit::{self, FitOptions, Observation};
+use host::analysis::model;
+use host::output::plots::{self, FIG4_FILE, FIG5_FILE, FIG7_FILE};
 use std::path::{Path, PathBuf};
 
 fn temp_dir(name: &str) -> PathBuf {

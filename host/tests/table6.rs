@@ -1,8 +1,8 @@
 //! Evidence: synthetic 284-geometry data of each Table 6 paper (1 % + 0.003 noise, the
 //! instrument's 1° acceptance) gives the right class, NMAE < 4.5 %, σ within 5 %, ρd within 3 %.
 mod common;
-use host::classify::{REFERENCES, classify};
-use host::fit::{FitOptions, fit};
+use host::analysis::classify::{REFERENCES, classify};
+use host::analysis::fit::{FitOptions, fit};
 
 #[test]
 fn table6_papers_from_the_full_grid() {

@@ -1,6 +1,6 @@
 //! The speed–accuracy study and the adaptive policy's targets, on whole simulated sessions.
 
-use host::trade::{self, RunSpec};
+use host::study::trade::{self, RunSpec};
 use std::process::Command;
 
 /// The targets over 20 seeds per paper at 100 ms: glossy papers reach σ within 5 %
@@ -84,27 +84,27 @@ fn gonio_trade_writes_the_csv_the_summary_and_the_plot() {
 /// further out, which the candidates reach), never on a geometry already measured.
 #[test]
 fn the_next_batch_goes_to_the_flanks_of_the_peak() {
-    use host::fit::{FitOptions, Observation, fit};
+    use host::analysis::fit::{FitOptions, Observation, fit};
     use protocol::Geometry;
-    let g_paper = host::classify::REFERENCES[0].params;
-    let acceptance = host::model::DEFAULT_ACCEPTANCE_DEG;
+    let g_paper = host::analysis::classify::REFERENCES[0].params;
+    let acceptance = host::analysis::model::DEFAULT_ACCEPTANCE_DEG;
     let mut geometries: Vec<Geometry> = protocol::schedules::strategy1(12).unwrap().to_vec();
     geometries.extend([-1.0, 1.0, -2.0, 2.0].iter().filter_map(|d| Geometry::from_deg(45.0, 45.0 + d)));
     let observations: Vec<Observation> = geometries
         .iter()
         .map(|g| {
-            let r = host::model::observed_radiance_factor(&g_paper, g.theta_i.deg(), g.theta_r.deg(), acceptance);
+            let r = host::analysis::model::observed_radiance_factor(&g_paper, g.theta_i.deg(), g.theta_r.deg(), acceptance);
             Observation { theta_i_deg: g.theta_i.deg(), theta_r_deg: g.theta_r.deg(), radiance_factor: r, std: Some(0.002 * r + 1e-4) }
         })
         .collect();
     let result = fit(&observations, &FitOptions { acceptance_deg: Some(acceptance), ..FitOptions::default() }).unwrap();
-    assert!(host::adaptive::sigma_resolved(&result));
+    assert!(host::session::adaptive::sigma_resolved(&result));
     let measured = geometries.iter().copied().collect();
-    let motion = host::order::Motion::reference();
-    let batch = host::adaptive::next_batch(&result, &observations, &measured, geometries[geometries.len() - 1], &motion, 100, 6).unwrap();
+    let motion = host::session::order::Motion::reference();
+    let batch = host::session::adaptive::next_batch(&result, &observations, &measured, geometries[geometries.len() - 1], &motion, 100, 6).unwrap();
     assert_eq!(batch.len(), 6);
     for g in &batch {
-        let r = host::model::observed_radiance_factor(&g_paper, g.theta_i.deg(), g.theta_r.deg(), acceptance);
+        let r = host::analysis::model::observed_radiance_factor(&g_paper, g.theta_i.deg(), g.theta_r.deg(), acceptance);
         let lobe = r - g_paper.rho_d;
         assert!(g.theta_r != g.theta_i && lobe > 10.0 * (0.002 * r + 1e-4), "{g:?}: the lobe ({lobe}) is lost in the noise there");
         assert!(!measured.contains(g), "{g:?} measured twice");

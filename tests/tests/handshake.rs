@@ -1,7 +1,7 @@
 //! The handshake end to end: the host's link client against the firmware library
 //! (in the simulated instrument), through the real framing.
 
-use host::link::{Client, LinkError, RetryPolicy, Transport};
+use host::instrument::link::{Client, LinkError, RetryPolicy, Transport};
 use protocol::*;
 use std::time::Duration;
 

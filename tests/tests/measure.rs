@@ -4,7 +4,7 @@
 
 use host::cli::measure::{Measured, measure, parse_args};
 use host::session::{Operator, Placement, SessionError};
-use host::sim::SimOptions;
+use host::instrument::sim::SimOptions;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -20,7 +20,7 @@ struct Served {
 
 impl Served {
     fn new(sample: &str, seed: u64, faults: &str) -> Served {
-        let options = SimOptions { seed, acceptance: host::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: faults.into() };
+        let options = SimOptions { seed, acceptance: host::analysis::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: faults.into() };
         let mut instrument = options.instrument(sample).expect("simulated instrument");
         let server = hil_sim::pty::PtyServer::open().expect("pseudo-terminal");
         let path = server.path().to_string_lossy().into_owned();
@@ -263,7 +263,7 @@ fn ctrl_c_during_homing_stops_the_arms_there() {
     let Measured::Stopped { error, .. } = outcome else { panic!("the session went on after Ctrl-C") };
     assert!(matches!(error, SessionError::Interrupted), "{error}");
     // Ask the instrument, as any host would.
-    let mut client = host::link::Client::new(host::serial::SerialTransport::open(&served.path).unwrap(), host::link::RetryPolicy::default());
+    let mut client = host::instrument::link::Client::new(host::instrument::serial::SerialTransport::open(&served.path).unwrap(), host::instrument::link::RetryPolicy::default());
     client.hello().unwrap();
     let Ok(protocol::Reply::Status(status)) = client.request(protocol::Command::GetStatus) else { panic!("no status") };
     assert!(!(status.homed_i && status.homed_r), "homing ran to its end: the Ctrl-C was not heard during it");

@@ -1,8 +1,8 @@
 //! The host's serial-port code against the simulated instrument on a pseudo-terminal:
 //! the path a real instrument takes, minus the USB cable.
 
-use host::link::{Client, RetryPolicy};
-use host::serial::SerialTransport;
+use host::instrument::link::{Client, RetryPolicy};
+use host::instrument::serial::SerialTransport;
 use protocol::{Command, PROTOCOL_VERSION, Reply};
 use std::io::Write;
 use std::sync::Arc;

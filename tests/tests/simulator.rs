@@ -2,9 +2,9 @@
 //! repeatability by seed, readings that match the scene within the noise, and every
 //! injected fault producing what the firmware promises.
 
-use host::link::{Client, LinkError, RetryPolicy};
-use host::model;
-use host::sim::{SimOptions, sample_params};
+use host::instrument::link::{Client, LinkError, RetryPolicy};
+use host::analysis::model;
+use host::instrument::sim::{SimOptions, sample_params};
 use hil_sim::{SimConfig, SimInstrument};
 use protocol::*;
 use std::time::Duration;

@@ -1,6 +1,6 @@
 //! `gonio compare A B`: are two measured sheets distinguishable, or could they be the same
 //! paper stock? A and B are session folders (or their `session.json`) of `gonio measure`.
-use crate::compare::{self, Comparison, DEFAULT_ALPHA, PARAM_LABELS, SessionResult};
+use crate::analysis::compare::{self, Comparison, DEFAULT_ALPHA, PARAM_LABELS, SessionResult};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -1,10 +1,10 @@
 //! `gonio measure`: the whole measurement session, on an instrument or the simulated one.
-use crate::calibration::{Calibration, instrument_name};
-use crate::fit::Observation;
-use crate::link::{Client, RetryPolicy, Transport};
-use crate::serial::SerialTransport;
+use crate::instrument::calibration::{Calibration, instrument_name};
+use crate::analysis::fit::Observation;
+use crate::instrument::link::{Client, RetryPolicy, Transport};
+use crate::instrument::serial::SerialTransport;
 use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, PolicyChoice, Progress, Recorder, Session, SessionError, SimulatedOperator};
-use crate::sim::SimOptions;
+use crate::instrument::sim::SimOptions;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
@@ -223,7 +223,7 @@ pub fn measure(args: &Args, operator: &mut dyn Operator, interrupted: Arc<Atomic
     } else {
         let path = match &args.port {
             Some(path) => path.clone(),
-            None => crate::serial::find_instrument()?.context(
+            None => crate::instrument::serial::find_instrument()?.context(
                 "no instrument found (gonio ports lists the serial ports); give --port PATH, or --sim SAMPLE for the simulated instrument",
             )?,
         };
@@ -238,7 +238,7 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
     let dir = match (&args.resume, &args.out) {
         (Some(dir), _) | (None, Some(dir)) => dir.clone(),
         (None, None) => {
-            let stamp = crate::calibration::unix_now_s();
+            let stamp = crate::instrument::calibration::unix_now_s();
             PathBuf::from("sessions").join(format!("{stamp}-{}", sample.replace(['/', ':', ','], "_")))
         }
     };
@@ -295,7 +295,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
         println!("{summary}");
         return;
     }
-    print!("{}", crate::cli::fit::to_table(&outcome.report));
+    print!("{}", crate::analysis::report::to_table(&outcome.report));
     println!(
         "  {} geometries, {:.1} device s measuring (+{:.1} s homing and calibration); refinements: {}",
         outcome.points.len(),
@@ -311,7 +311,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
 
 /// Write `session.json` and return the result object printed by `--json`.
 fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome: &Outcome, decisions: &[String]) -> anyhow::Result<serde_json::Value> {
-    let mut result = crate::cli::fit::to_json(&outcome.report);
+    let mut result = crate::analysis::report::to_json(&outcome.report);
     if let Some(object) = result.as_object_mut() {
         object.insert("sample".into(), json!(sample));
         object.insert("geometries".into(), json!(outcome.points.len()));
@@ -342,9 +342,9 @@ fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome:
         .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std }))
         .collect();
     let export = dir.join("astm-e1392.csv");
-    crate::export::write_astm_e1392_csv(&export, sample, &instrument_name(info), &observations)
+    crate::output::export::write_astm_e1392_csv(&export, sample, &instrument_name(info), &observations)
         .with_context(|| format!("cannot write {}", export.display()))?;
-    crate::plots::write_plots(dir, sample, &observations, &outcome.report.fit, &outcome.report.classification)
+    crate::output::plots::write_plots(dir, sample, &observations, &outcome.report.fit, &outcome.report.classification)
         .with_context(|| format!("cannot write the plots into {}", dir.display()))?;
     Ok(result)
 }

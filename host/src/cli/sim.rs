@@ -1,5 +1,5 @@
 //! `gonio sim`: the simulated instrument on a pseudo-terminal, for any serial client.
-use crate::sim::SimOptions;
+use crate::instrument::sim::SimOptions;
 use anyhow::Context;
 use std::io::Write;
 use std::process::ExitCode;

@@ -1,5 +1,5 @@
 //! `gonio trade`: the speed–accuracy trade study on the simulated instrument.
-use crate::trade;
+use crate::study::trade;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -38,13 +38,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     bar.finish_and_clear();
     let csv = args.out.join("trade.csv");
     std::fs::write(&csv, trade::to_csv(&rows)).with_context(|| format!("cannot write {}", csv.display()))?;
-    let motion = crate::order::Motion::reference();
-    let order_table = crate::order::study_markdown(&crate::order::study(&motion, u32::from(trade::TARGET_INTEGRATION_MS)));
+    let motion = crate::session::order::Motion::reference();
+    let order_table = crate::session::order::study_markdown(&crate::session::order::study(&motion, u32::from(trade::TARGET_INTEGRATION_MS)));
     let summary = trade::summary_markdown(&rows, seeds, &order_table);
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
-    let svg = args.out.join(crate::plots::PARETO_FILE);
-    crate::plots::write_pareto(&svg, &trade::pareto(&rows)).with_context(|| format!("cannot write {}", svg.display()))?;
+    let svg = args.out.join(crate::output::plots::PARETO_FILE);
+    crate::output::plots::write_pareto(&svg, &trade::pareto(&rows)).with_context(|| format!("cannot write {}", svg.display()))?;
     print!("{summary}");
     eprintln!("wrote {}, {} and {}", csv.display(), md.display(), svg.display());
     Ok(ExitCode::SUCCESS)

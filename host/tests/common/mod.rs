@@ -2,9 +2,9 @@
 //! instrument's acceptance window (by dense quadrature, independent of the fit's closed
 //! form) and seeded noise.
 #![allow(dead_code)]
-use host::classify::REFERENCES;
-use host::fit::Observation;
-use host::model::{self, Params};
+use host::analysis::classify::REFERENCES;
+use host::analysis::fit::Observation;
+use host::analysis::model::{self, Params};
 use protocol::schedules;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,7 +1,7 @@
 //! Classification of a fitted paper (METHOD.md, Fig. 10 steps 3–5), how sure it is, and the
 //! nearest of the eight reference papers of Table 6.
-use crate::fit::{ETA_MAX, ETA_MIN, FitResult, SIGMA_MIN_DEG};
-use crate::model::{ETA, Params, RHO_D, RHO_S, SIGMA};
+use crate::analysis::fit::{ETA_MAX, ETA_MIN, FitResult, SIGMA_MIN_DEG};
+use crate::analysis::model::{ETA, Params, RHO_D, RHO_S, SIGMA};
 use serde::Serialize;
 
 /// σ at which glossy papers split into G and SG, degrees (between Table 6's 0.8 and 1.9).

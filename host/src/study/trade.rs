@@ -2,11 +2,11 @@
 //! simulated instrument, this host's session code, virtual time) over papers × seeds ×
 //! policies × integration times, each compared with the truth the simulator was given.
 
-use crate::classify::REFERENCES;
-use crate::link::{Client, RetryPolicy};
-use crate::model::Params;
+use crate::analysis::classify::REFERENCES;
+use crate::instrument::link::{Client, RetryPolicy};
+use crate::analysis::model::Params;
 use crate::session::{FixedSchedule, MeasuredPoint, Outcome, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
-use crate::sim::{SimOptions, sample_params};
+use crate::instrument::sim::{SimOptions, sample_params};
 use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -101,7 +101,7 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
 struct Discard;
 
 impl Recorder for Discard {
-    fn calibration(&mut self, _: &crate::calibration::Calibration) -> std::io::Result<()> {
+    fn calibration(&mut self, _: &crate::instrument::calibration::Calibration) -> std::io::Result<()> {
         Ok(())
     }
     fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
@@ -120,7 +120,7 @@ fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
 pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
     let expected = REFERENCES.iter().find(|r| r.name == spec.sample).map(|r| r.class.name()).unwrap_or("");
-    let options = SimOptions { seed: spec.seed, acceptance: crate::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: String::new() };
+    let options = SimOptions { seed: spec.seed, acceptance: crate::analysis::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: String::new() };
     let instrument = options.instrument(spec.sample).map_err(|e| e.to_string())?;
     let mut client = Client::new(instrument, RetryPolicy::default());
     let info = client.hello().map_err(|e| e.to_string())?;
@@ -141,8 +141,8 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
         geometries: outcome.points.len(),
         device_seconds: outcome.device_seconds,
         sigma_rel_err: rel_err(fit.sigma_deg(), truth.sigma_deg),
-        rho_s_rel_err: rel_err(fit.reported(crate::model::RHO_S), truth.rho_s),
-        rho_d_rel_err: rel_err(fit.reported(crate::model::RHO_D), truth.rho_d),
+        rho_s_rel_err: rel_err(fit.reported(crate::analysis::model::RHO_S), truth.rho_s),
+        rho_d_rel_err: rel_err(fit.reported(crate::analysis::model::RHO_D), truth.rho_d),
         class_correct: class == expected,
         class: class.to_string(),
         sigma_ok: outcome.report.check.is_some_and(|c| c.sigma_ok),
@@ -254,7 +254,7 @@ pub fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
 }
 
 fn glossy(sample: &str) -> bool {
-    REFERENCES.iter().any(|r| r.name == sample && r.class.group() == crate::classify::Group::Glossy)
+    REFERENCES.iter().any(|r| r.name == sample && r.class.group() == crate::analysis::classify::Group::Glossy)
 }
 
 /// Distinct (policy, setting) pairs in the order first seen.

@@ -2,11 +2,11 @@
 //! `gonio measure --sim`, the samples it can hold, and the in-process [`Transport`].
 //!
 //! The simulator knows no reflectance model; the samples are TSL scenes made here from
-//! [`crate::model`] and the reference papers of [`crate::classify::REFERENCES`].
+//! [`crate::analysis::model`] and the reference papers of [`crate::analysis::classify::REFERENCES`].
 
-use crate::classify::REFERENCES;
-use crate::link::Transport;
-use crate::model::{self, Params};
+use crate::analysis::classify::REFERENCES;
+use crate::instrument::link::Transport;
+use crate::analysis::model::{self, Params};
 use firmware::hardware::Arm;
 use hil_sim::scene::SamplePort;
 use hil_sim::{Faults, SimConfig, SimInstrument};

@@ -31,7 +31,7 @@ pub struct Delta {
 
 /// σ_l = δ / (4·sqrt(2 ln 2)): the σ whose lobe FWHM in θr equals δ.
 pub fn sigma_l_deg(delta_deg: f64) -> f64 {
-    delta_deg / crate::model::FWHM_PER_SIGMA
+    delta_deg / crate::analysis::model::FWHM_PER_SIGMA
 }
 
 /// Geometries as whole ticks of the protocol's angle resolution, for exact comparison.

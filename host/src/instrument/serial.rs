@@ -1,7 +1,7 @@
 //! Real instruments over a serial port (USB CDC-ACM), or anything that looks like one
 //! (the simulator's pseudo-terminal).
 
-use crate::link::Transport;
+use crate::instrument::link::Transport;
 use serialport::{SerialPort, SerialPortType};
 use std::io::{Read, Write};
 use std::time::Duration;

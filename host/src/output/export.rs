@@ -7,7 +7,7 @@
 //! (θs = θr, φs = 180°). A negative θr (detector past the normal, on the source's side) is
 //! written as θs = |θr| at φs = 0°, so every row keeps θs ≥ 0 as E1392 has it.
 //! BRDF [1/sr] = radiance factor / π (a perfect diffuser has radiance factor 1, BRDF 1/π).
-use crate::fit::Observation;
+use crate::analysis::fit::Observation;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};

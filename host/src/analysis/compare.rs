@@ -14,8 +14,8 @@
 //! follows by the delta method, Cov(ln x_i, ln x_j) = Cov(x_i, x_j) / (x_i x_j). η is
 //! bounded (1…3), not a scale, and stays linear. A parameter at or below 0 in either
 //! sheet is compared linearly.
-use crate::fit::N_PARAMS;
-use crate::model::{ETA, PARAM_NAMES};
+use crate::analysis::fit::N_PARAMS;
+use crate::analysis::model::{ETA, PARAM_NAMES};
 use serde::Serialize;
 use serde_json::Value;
 use std::path::{Path, PathBuf};

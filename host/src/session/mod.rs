@@ -10,13 +10,16 @@
 //! readings are measured again, duplicates dropped, and after a reconnection the session
 //! says hello again, re-homes if the instrument lost its homing, and carries on.
 
-use crate::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
-use crate::cli::fit::{Report, analyse, to_json};
-use crate::dataset::DataSet;
-use crate::fit::{FitOptions, Observation};
-use crate::adaptive::{self, AdaptiveTargets};
-use crate::link::{Client, LinkError, Transport};
-use crate::order::Motion;
+pub mod adaptive;
+pub mod order;
+
+use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
+use crate::analysis::report::{Report, analyse, to_json};
+use crate::output::dataset::DataSet;
+use crate::analysis::fit::{FitOptions, Observation};
+use adaptive::AdaptiveTargets;
+use crate::instrument::link::{Client, LinkError, Transport};
+use order::Motion;
 use protocol::schedules::{INCIDENCE_DEG, strategy1, strategy2};
 use protocol::{
     Command, DeviceInfo, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN,
@@ -51,7 +54,7 @@ impl From<PolicyChoice> for Policy {
 pub enum Policy {
     /// The paper's: Strategy 1, then Strategy 2 with decreasing δ until σ > σ_l.
     Paper,
-    /// Strategy 1, then batches by sequential design ([`crate::adaptive`]).
+    /// Strategy 1, then batches by sequential design ([`crate::session::adaptive`]).
     Adaptive(AdaptiveTargets),
     /// One fixed schedule and nothing else (the trade study's Strategy 1 at M, Strategy 2 at δ).
     Fixed(FixedSchedule),
@@ -377,14 +380,14 @@ impl<'a, T: Transport> Session<'a, T> {
         Ok(())
     }
 
-    /// The adaptive policy ([`crate::adaptive`]): batches where they shrink σ's
+    /// The adaptive policy ([`crate::session::adaptive`]): batches where they shrink σ's
     /// uncertainty most per device second, until the targets are met. Rough papers whose
     /// Strategy 1 already passes σ_l stop at once: their class rests on ρs and ρd, which
     /// Strategy 1 measures, and more readings near the peak would not move it.
     fn refine_adaptively(&mut self, targets: AdaptiveTargets, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
         for batch_number in 1..=targets.max_batches {
             let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
-            let rough = report.classification.group == crate::classify::Group::Rough;
+            let rough = report.classification.group == crate::analysis::classify::Group::Rough;
             let precise = adaptive::sigma_rel_half_width(&report.fit).is_some_and(|w| w <= targets.sigma_rel_half_width);
             let settled = report.classification.confidence >= targets.class_confidence;
             if sigma_ok && (rough || (precise && settled)) {
@@ -536,7 +539,7 @@ impl<'a, T: Transport> Session<'a, T> {
         let calibration = Calibration {
             taken_unix_s: unix_now_s(),
             instrument: instrument_name(&self.info),
-            white_radiance_factor: crate::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
+            white_radiance_factor: crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
             relative_gains: self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect(),
             dark: dark.to_vec(),
             white,
@@ -582,7 +585,7 @@ impl<'a, T: Transport> Session<'a, T> {
             Some(list) => {
                 // The firmware visits a list in the order sent: send the fastest.
                 let here = self.arm_position()?;
-                let planned = crate::order::plan(&self.motion, here, list);
+                let planned = crate::session::order::plan(&self.motion, here, list);
                 if list.len() > 1 {
                     self.recorder.decision(&format!(
                         "visiting order of {} geometries: {:.2} s of travel, {:.3}× the {} and {:.2}× the order listed",

@@ -7,7 +7,7 @@
 //! construction; the others by an active-set projection) then polishes the best basins.
 //! After the fit, what the data cannot determine is taken out of the model and said so.
 
-use crate::model::{self, ETA, PARAM_NAMES, Params, PlaneGeometry, RHO_S, SIGMA};
+use crate::analysis::model::{self, ETA, PARAM_NAMES, Params, PlaneGeometry, RHO_S, SIGMA};
 use serde::Serialize;
 use thiserror::Error;
 

@@ -15,9 +15,9 @@
 //! offsets around the specular direction at the incidence angle with the strongest peak,
 //! which resolves any σ from a tenth of a degree to several degrees.
 
-use crate::fit::{FitResult, Observation};
-use crate::model::{self, PlaneGeometry, SIGMA};
-use crate::order::Motion;
+use crate::analysis::fit::{FitResult, Observation};
+use crate::analysis::model::{self, PlaneGeometry, SIGMA};
+use crate::session::order::Motion;
 use protocol::Geometry;
 use protocol::schedules::{INCIDENCE_DEG, THETA_R_MAX_DEG};
 use std::collections::BTreeSet;
@@ -167,7 +167,7 @@ pub fn next_batch(
             }
         }
     }
-    let mut cov = crate::fit::inverse_spd(&information, &free)?;
+    let mut cov = crate::analysis::fit::inverse_spd(&information, &free)?;
     let per_reading_s = motion.per_geometry_us(integration_ms) as f64 * 1e-6;
     let mut pool: Vec<(Geometry, [f64; 4], f64)> = candidates(measured)
         .into_iter()

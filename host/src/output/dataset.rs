@@ -2,7 +2,7 @@
 //! `radiance_factor`, optionally `std` (standard uncertainty) and `sample` (several data
 //! sets in one file). Columns may come in any order; blank lines and lines starting with
 //! `#` are skipped. Errors carry the 1-based line number.
-use crate::fit::Observation;
+use crate::analysis::fit::Observation;
 use std::path::Path;
 use thiserror::Error;
 

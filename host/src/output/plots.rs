@@ -4,9 +4,9 @@
 //!
 //! Drawn with plotters' SVG backend only: text becomes SVG `<text>` and its size is
 //! estimated without fonts, so nothing here needs fontconfig, freetype or system fonts.
-use crate::classify::{Class, Classification, Group, REFERENCES, ROUGH_I_MAX_RATIO, ROUGH_III_MIN_RATIO};
-use crate::fit::{FitResult, Observation};
-use crate::model::{self, Params, RHO_D, RHO_S, SIGMA};
+use crate::analysis::classify::{Class, Classification, Group, REFERENCES, ROUGH_I_MAX_RATIO, ROUGH_III_MIN_RATIO};
+use crate::analysis::fit::{FitResult, Observation};
+use crate::analysis::model::{self, Params, RHO_D, RHO_S, SIGMA};
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
@@ -353,7 +353,7 @@ pub const PARETO_FILE: &str = "pareto.svg";
 /// The trade study's plot: device seconds against the 95th percentile of σ's relative
 /// error over the glossy papers, one point per configuration, coloured by policy, the
 /// Pareto front joined by a line. Unresolved σ (an infinite error) is drawn at the top.
-pub fn write_pareto(path: &Path, points: &[(crate::trade::ParetoPoint, bool)]) -> io::Result<()> {
+pub fn write_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)]) -> io::Result<()> {
     draw_pareto(path, points).map_err(to_io)
 }
 
@@ -366,7 +366,7 @@ fn policy_color(policy: &str) -> RGBColor {
     }
 }
 
-fn draw_pareto(path: &Path, points: &[(crate::trade::ParetoPoint, bool)]) -> DrawResult<()> {
+fn draw_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)]) -> DrawResult<()> {
     const TOP: f64 = 10.0; // 1000 %: where unresolved σ is drawn
     let y = |e: f64| if e.is_finite() { e.clamp(1e-4, TOP) } else { TOP };
     let x_hi = points.iter().map(|(p, _)| p.device_seconds).fold(1.0, f64::max) * 1.08;
@@ -385,15 +385,15 @@ fn draw_pareto(path: &Path, points: &[(crate::trade::ParetoPoint, bool)]) -> Dra
         .y_desc("σ relative error, 95th percentile")
         .y_label_formatter(&|v| format!("{:.1} %", 100.0 * v))
         .draw()?;
-    chart.draw_series(LineSeries::new([(0.0, crate::trade::SIGMA_TARGET), (x_hi, crate::trade::SIGMA_TARGET)], GUIDE_COLOR.stroke_width(1)))?;
-    chart.draw_series([Text::new("5 % target", (x_hi * 0.85, crate::trade::SIGMA_TARGET * 1.15), ("sans-serif", 14).into_font().color(&GUIDE_COLOR))])?;
+    chart.draw_series(LineSeries::new([(0.0, crate::study::trade::SIGMA_TARGET), (x_hi, crate::study::trade::SIGMA_TARGET)], GUIDE_COLOR.stroke_width(1)))?;
+    chart.draw_series([Text::new("5 % target", (x_hi * 0.85, crate::study::trade::SIGMA_TARGET * 1.15), ("sans-serif", 14).into_font().color(&GUIDE_COLOR))])?;
     chart.draw_series([Text::new("σ unresolved", (x_hi * 0.02, TOP * 0.7), ("sans-serif", 13).into_font().color(&BLACK))])?;
     let mut front: Vec<(f64, f64)> = points.iter().filter(|(_, on)| *on).map(|(p, _)| (p.device_seconds, y(p.p95_sigma_err))).collect();
     front.sort_by(|a, b| a.0.total_cmp(&b.0));
     chart.draw_series(LineSeries::new(front, BLACK.stroke_width(1)))?;
     for policy in ["strategy1", "strategy2", "paper", "adaptive"] {
         let color = policy_color(policy);
-        let mine: Vec<&crate::trade::ParetoPoint> = points.iter().map(|(p, _)| p).filter(|p| p.policy == policy).collect();
+        let mine: Vec<&crate::study::trade::ParetoPoint> = points.iter().map(|(p, _)| p).filter(|p| p.policy == policy).collect();
         if mine.is_empty() {
             continue;
         }

@@ -1,0 +1,2 @@
+//! Campaigns of whole simulated sessions.
+pub mod trade;
