@@ -30,6 +30,8 @@ pub struct InstrumentConfig {
     pub default_integration_ms: u16,
     /// Longest integration time accepted.
     pub max_integration_ms: u16,
+    /// Shortest integration time accepted.
+    pub min_integration_ms: u16,
     /// The host must be heard this often while the arms move or the lamp is on.
     pub heartbeat_timeout_ms: u32,
     /// Where both home switches trip, beyond the working range so that homing moves the
@@ -78,6 +80,9 @@ impl InstrumentConfig {
         max_schedule_len: protocol::schedules::MAX_SCHEDULE_LEN as u16,
         default_integration_ms: 100,
         max_integration_ms: 10_000,
+        // The amplifier settles for `range_settle_ms` (5 ms) after a range change; 10 ms
+        // leaves at least 5 samples at 1 kHz for a mean and a standard deviation.
+        min_integration_ms: 10,
         heartbeat_timeout_ms: 2_000,
         // 2.5° beyond the working range: clear of every target, inside the mechanics.
         home_switch: Angle::from_ticks(87 * 80 + 40),
@@ -95,7 +100,10 @@ impl InstrumentConfig {
     };
 
     /// The handshake answer for this configuration.
-    pub fn device_info(&self) -> DeviceInfo {
+    ///
+    /// `serial_number` is the board's unique ID as text (the STM32's 96-bit UID in hex;
+    /// the simulator's from its seed); longer text is cut at 24 characters.
+    pub fn device_info(&self, serial_number: &str) -> DeviceInfo {
         let mut firmware_version = heapless::String::new();
         let _ = firmware_version.push_str(crate::FIRMWARE_VERSION);
         let mut board = heapless::String::new();
@@ -120,6 +128,17 @@ impl InstrumentConfig {
             max_schedule_len: self.max_schedule_len,
             default_integration_ms: self.default_integration_ms,
             max_integration_ms: self.max_integration_ms,
+            min_integration_ms: self.min_integration_ms,
+            heartbeat_timeout_ms: self.heartbeat_timeout_ms,
+            serial_number: {
+                let mut serial = heapless::String::new();
+                for c in serial_number.chars() {
+                    if serial.push(c).is_err() {
+                        break;
+                    }
+                }
+                serial
+            },
         }
     }
 }

@@ -109,6 +109,8 @@ pub struct Device<H: Hardware> {
     uploaded: UploadedSchedule,
     /// Range of the last reading: where auto-ranging starts next.
     last_range: u8,
+    /// Announced in the handshake; see [`Device::with_serial_number`].
+    serial_number: heapless::String<24>,
 }
 
 type Answer = Option<Result<Reply, DeviceError>>;
@@ -135,7 +137,20 @@ impl<H: Hardware> Device<H> {
             activity: Activity::Idle,
             uploaded: UploadedSchedule::new(),
             last_range: 0,
+            serial_number: heapless::String::new(),
         }
+    }
+
+    /// The instrument's unique serial number for the handshake (the board: the MCU's
+    /// unique ID; the simulator: one of its own). Text beyond 24 characters is cut.
+    pub fn with_serial_number(mut self, serial_number: &str) -> Device<H> {
+        self.serial_number.clear();
+        for c in serial_number.chars() {
+            if self.serial_number.push(c).is_err() {
+                break;
+            }
+        }
+        self
     }
 
     /// The instrument's configuration.
@@ -303,7 +318,7 @@ impl<H: Hardware> Device<H> {
         if let Command::Hello { protocol_version } = *command {
             return Some(if protocol_version == PROTOCOL_VERSION {
                 self.handshake_done = true;
-                Ok(Reply::Hello(self.config.device_info()))
+                Ok(Reply::Hello(self.config.device_info(&self.serial_number)))
             } else {
                 self.handshake_done = false;
                 self.refused_version = Some(protocol_version);
@@ -323,7 +338,9 @@ impl<H: Hardware> Device<H> {
             Command::SetLamp { on } => self.set_lamp(*on),
             Command::Home => return self.start_homing(seq),
             Command::MoveTo(geometry) => return self.start_move_to(seq, *geometry),
-            Command::TakeReading { integration_ms, target: _ } => return self.start_reading(seq, *integration_ms),
+            // A forced range is WP-A's to carry out; until then it is refused, never ignored.
+            Command::TakeReading { range: Some(_), .. } => Err(DeviceError::new(ErrorCode::NotSupported)),
+            Command::TakeReading { integration_ms, target: _, range: None } => return self.start_reading(seq, *integration_ms),
             Command::TakeDark { integration_ms } => return self.start_dark(seq, *integration_ms),
             Command::UploadSchedule(chunk) => self.upload(chunk),
             Command::RunSchedule(run) => self.start_schedule(run),

@@ -93,7 +93,7 @@ fn every_refusal_comes_before_any_motion() {
     // Not homed.
     assert_eq!(bench.ask(Command::MoveTo(target)), err(ErrorCode::NotHomed));
     assert_eq!(
-        bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample }),
+        bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }),
         err(ErrorCode::NotHomed)
     );
     assert_eq!(run_strategy1(&mut bench, 1), err(ErrorCode::NotHomed));
@@ -111,7 +111,7 @@ fn every_refusal_comes_before_any_motion() {
     assert_eq!(bench.ask(Command::MoveTo(too_close)), err(ErrorCode::CollisionGuard));
     // Integration time 0 or over the maximum.
     assert_eq!(
-        bench.ask(Command::TakeReading { integration_ms: 0, target: Target::Sample }).unwrap_err().code,
+        bench.ask(Command::TakeReading { integration_ms: 0, target: Target::Sample, range: None }).unwrap_err().code,
         ErrorCode::InvalidArgument
     );
     assert_eq!(bench.ask(Command::TakeDark { integration_ms: 10_001 }).unwrap_err().code, ErrorCode::InvalidArgument);
@@ -377,7 +377,7 @@ fn saturation_on_the_least_sensitive_range_is_flagged() {
     let mut bench = Bench::with_scene(blinding);
     bench.home();
     bench.ask(Command::SetLamp { on: true }).unwrap();
-    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample }) else {
+    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }) else {
         panic!("no reading")
     };
     assert_eq!(r.range, 2);
@@ -389,12 +389,12 @@ fn take_reading_picks_the_range() {
     let mut bench = homed_bench();
     bench.ask(Command::SetLamp { on: true }).unwrap();
     bench.ask(Command::MoveTo(Geometry::from_whole_deg(60, 60))).unwrap();
-    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample }) else {
+    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }) else {
         panic!("no reading")
     };
     assert_eq!((r.range, r.saturated), (2, false));
     bench.ask(Command::MoveTo(Geometry::from_whole_deg(60, 0))).unwrap();
-    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample }) else {
+    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }) else {
         panic!("no reading")
     };
     assert_eq!((r.range, r.saturated), (0, false));

@@ -110,7 +110,7 @@ fn reconnect_requires_a_new_hello() {
 
 #[test]
 fn every_reply_of_the_reference_device_fits_a_frame() {
-    let info = InstrumentConfig::REFERENCE.device_info();
+    let info = InstrumentConfig::REFERENCE.device_info("");
     let mut buf = [0u8; MAX_FRAME_LEN];
     let message = DeviceMessage::Reply { seq: u32::MAX, result: Ok(Reply::Hello(info)) };
     assert!(encode_frame(&message, &mut buf).is_ok());

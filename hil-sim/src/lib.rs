@@ -59,7 +59,13 @@ pub struct SimConfig {
     pub faults: Faults,
     /// Where the arms stand at power-up (the firmware learns it by homing).
     pub start: Geometry,
+    /// The instrument's serial number in the handshake. One simulated instrument, whatever
+    /// the seed: a seed is a run, not another instrument.
+    pub serial_number: String,
 }
+
+/// Serial number of the simulated instrument.
+pub const SIM_SERIAL_NUMBER: &str = "SIM-0001";
 
 impl Default for SimConfig {
     fn default() -> Self {
@@ -69,6 +75,7 @@ impl Default for SimConfig {
             seed: 0,
             faults: Faults { unplugged_for_s: 1.0, ..Faults::default() },
             start: Geometry::from_whole_deg(30, 30),
+            serial_number: SIM_SERIAL_NUMBER.to_string(),
         }
     }
 }
@@ -108,7 +115,7 @@ impl SimInstrument {
             hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }
         SimInstrument {
-            device: Device::new(config.instrument, hardware, ResetCause::PowerOn),
+            device: Device::new(config.instrument, hardware, ResetCause::PowerOn).with_serial_number(&config.serial_number),
             to_host: VecDeque::new(),
             now_us: 0,
             faults: config.faults,

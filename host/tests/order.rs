@@ -226,7 +226,7 @@ fn absurd_positions_do_not_panic() {
 
 #[test]
 fn motion_comes_from_the_device_info() {
-    let info = InstrumentConfig::REFERENCE.device_info();
+    let info = InstrumentConfig::REFERENCE.device_info("");
     assert_eq!(Motion::from_info(&info), Ok(Motion::reference()));
     assert_eq!(Motion::reference().settle_us(), 100_000);
     assert_eq!(Motion::reference().per_geometry_us(100), 100_000 + 100_000 + host::session::order::READING_OVERHEAD_US);

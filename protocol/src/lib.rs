@@ -22,7 +22,10 @@ pub use messages::*;
 ///
 /// `Command::Hello` and the leading `protocol_version` of its reply keep their encoding
 /// across versions, so that a mismatch can always be reported in words.
-pub const PROTOCOL_VERSION: u16 = 1;
+///
+/// History: 1, the first release; 2, `DeviceInfo` gained `min_integration_ms`,
+/// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`.
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message
 /// (a schedule chunk or the device info) with margin; both sides size their buffers to it.

@@ -64,12 +64,17 @@ pub enum Command {
         /// Integration time per range.
         integration_ms: u16,
     },
-    /// One auto-ranged reading at the current position; answered with [`Reply::Reading`].
+    /// One reading at the current position; answered with [`Reply::Reading`].
     TakeReading {
         /// Integration time.
         integration_ms: u16,
         /// What is on the sample port.
         target: Target,
+        /// `None`: auto-ranged. `Some(r)`: on range `r` only, never re-taken on another
+        /// (a saturated reading comes back flagged), so that the host can read one scene on
+        /// two adjacent ranges and calibrate their gain ratio. An index beyond the device's
+        /// ranges is refused with [`ErrorCode::InvalidArgument`].
+        range: Option<u8>,
     },
     /// Part of a host-made schedule; answered with [`Reply::ScheduleLoaded`].
     UploadSchedule(ScheduleChunk),
@@ -367,6 +372,15 @@ pub struct DeviceInfo {
     pub default_integration_ms: u16,
     /// Longest integration time accepted.
     pub max_integration_ms: u16,
+    /// Shortest integration time accepted (a reading needs samples after the amplifier
+    /// settles); shorter ones are refused with [`ErrorCode::InvalidArgument`].
+    pub min_integration_ms: u16,
+    /// The host must send a frame at least this often while an arm moves or the lamp is
+    /// on, or the device takes its fail-safe stop ([`ErrorCode::HeartbeatLost`]).
+    pub heartbeat_timeout_ms: u32,
+    /// This instrument's unique serial number (the MCU's unique ID, or the simulator's):
+    /// what a session folder and a calibration record as the instrument they came from.
+    pub serial_number: String<24>,
 }
 
 /// One detector range.

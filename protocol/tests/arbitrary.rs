@@ -52,7 +52,7 @@ pub fn command() -> BoxedStrategy<Command> {
         geometry().prop_map(Command::MoveTo),
         any::<bool>().prop_map(|on| Command::SetLamp { on }),
         any::<u16>().prop_map(|integration_ms| Command::TakeDark { integration_ms }),
-        (any::<u16>(), target()).prop_map(|(integration_ms, target)| Command::TakeReading { integration_ms, target }),
+        (any::<u16>(), target(), proptest::option::of(any::<u8>())).prop_map(|(integration_ms, target, range)| Command::TakeReading { integration_ms, target, range }),
         chunk,
         run,
         Just(Command::Abort),
@@ -88,11 +88,13 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
     (
         (any::<u16>(), text::<16>(), text::<32>(), angle(), angle(), angle(), angle()),
         (finite_f32(), finite_f32(), any::<u16>(), ranges, finite_f32(), any::<u16>(), any::<u16>(), any::<u16>()),
+        (any::<u16>(), any::<u32>(), text::<24>()),
     )
         .prop_map(
             |(
                 (protocol_version, firmware_version, board, arm_min, arm_max, arm_resolution, collision_min_sum),
                 (max_speed, accel, settle_ms, ranges, acceptance_deg, max_schedule_len, default_integration_ms, max_integration_ms),
+                (min_integration_ms, heartbeat_timeout_ms, serial_number),
             )| DeviceInfo {
                 protocol_version,
                 firmware_version,
@@ -109,6 +111,9 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
                 max_schedule_len,
                 default_integration_ms,
                 max_integration_ms,
+                min_integration_ms,
+                heartbeat_timeout_ms,
+                serial_number,
             },
         ).boxed()
 }

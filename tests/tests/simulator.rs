@@ -95,7 +95,7 @@ fn measured_radiance_factor(client: &mut Client<SimInstrument>, info: &DeviceInf
     let mut per_gain = |target| -> Vec<f64> {
         (0..n)
             .map(|_| {
-                let Ok(Reply::Reading(r)) = client.request(Command::TakeReading { integration_ms: 100, target }) else {
+                let Ok(Reply::Reading(r)) = client.request(Command::TakeReading { integration_ms: 100, target, range: None }) else {
                     panic!("reading")
                 };
                 assert!(!r.saturated);

@@ -170,7 +170,8 @@ async fn main(spawner: Spawner) {
     );
     let adc = detector_adc::DetectorAdc::start(p.ADC1, p.DMA2_CH0, p.TIM5, pins.detector);
     let hardware = BoardHardware::new(steppers, adc, pins.home, pins.diag, pins.lamp, pins.range);
-    let device = Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause);
+    // The same unique ID as the USB serial string: the host records it as the instrument.
+    let device = Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause).with_serial_number(embassy_stm32::uid::uid_hex());
 
     spawner.must_spawn(usb_task(usb));
     spawner.must_spawn(usb_rx_task(receiver));

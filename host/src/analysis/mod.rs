@@ -3,6 +3,7 @@
 pub mod classify;
 pub mod compare;
 pub mod fit;
+pub mod flags;
 pub mod model;
 pub mod report;
 pub mod sampling;

@@ -4,4 +4,5 @@ pub mod ports;
 pub mod sim;
 pub mod measure;
 pub mod compare;
+pub mod exit;
 pub mod trade;

@@ -530,7 +530,7 @@ impl<'a, T: Transport> Session<'a, T> {
         let mut white = Vec::new();
         for theta_i in INCIDENCE_DEG {
             self.retrying(Command::MoveTo(Geometry::from_whole_deg(theta_i, 0)))?;
-            let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference })? else {
+            let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference, range: None })? else {
                 return Err(SessionError::Fit("unexpected reading reply".into()));
             };
             white.push(WhitePoint { theta_i_deg: f64::from(theta_i), reading });
@@ -677,7 +677,7 @@ impl<'a, T: Transport> Session<'a, T> {
         self.operator.place(Placement::WhiteTile).map_err(SessionError::Operator)?;
         self.retrying(Command::MoveTo(Geometry::from_whole_deg(20, 0)))?;
         let integration_ms = self.plan.integration_ms;
-        let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference })? else {
+        let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference, range: None })? else {
             return Err(SessionError::Fit("unexpected reading reply".into()));
         };
         self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;

@@ -1,0 +1,87 @@
+//! Conditions that make a result less than clean, as stable strings for `--json`,
+//! `session.json` and scripts. A result is `ok` when no flag but the informational ones is
+//! raised; `gonio measure` then exits 0 (the exit codes are in [`crate::cli::exit`]).
+//!
+//! The strings never change meaning once released; new conditions get new strings.
+use serde::{Deserialize, Serialize};
+
+/// One condition of a result.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Flag {
+    /// An arm lost steps during the session and the readings it affected could not all be
+    /// measured again: geometries may be off.
+    LostSteps,
+    /// The white check at the end drifted beyond its limit.
+    WhiteDrift,
+    /// The calibration used is older than the recommended age.
+    CalibrationStale,
+    /// The model does not describe the data at the stated level (goodness of fit).
+    LackOfFit,
+    /// σ ≤ σ_l at the end: the sampling was not fine enough for the fitted peak.
+    SigmaNotResolved,
+    /// A parameter the class or a comparison needs was not determined by the data.
+    NotIdentified,
+    /// Informational: the link failed and was recovered; nothing was lost.
+    LinkRecovered,
+    /// Informational: the session was resumed from an interrupted one.
+    Resumed,
+}
+
+impl Flag {
+    /// Every flag, in a stable order.
+    pub const ALL: [Flag; 8] = [
+        Flag::LostSteps,
+        Flag::WhiteDrift,
+        Flag::CalibrationStale,
+        Flag::LackOfFit,
+        Flag::SigmaNotResolved,
+        Flag::NotIdentified,
+        Flag::LinkRecovered,
+        Flag::Resumed,
+    ];
+
+    /// The stable string (as serialized).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Flag::LostSteps => "lost-steps",
+            Flag::WhiteDrift => "white-drift",
+            Flag::CalibrationStale => "calibration-stale",
+            Flag::LackOfFit => "lack-of-fit",
+            Flag::SigmaNotResolved => "sigma-not-resolved",
+            Flag::NotIdentified => "not-identified",
+            Flag::LinkRecovered => "link-recovered",
+            Flag::Resumed => "resumed",
+        }
+    }
+
+    /// Informational flags say what happened without making the result less clean.
+    pub const fn is_informational(self) -> bool {
+        matches!(self, Flag::LinkRecovered | Flag::Resumed)
+    }
+}
+
+impl std::fmt::Display for Flag {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Whether a result with these flags is clean.
+pub fn ok(flags: &[Flag]) -> bool {
+    flags.iter().all(|f| f.is_informational())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_the_serialized_strings() {
+        for flag in Flag::ALL {
+            assert_eq!(serde_json::to_value(flag).unwrap(), serde_json::Value::from(flag.name()));
+        }
+        assert!(ok(&[Flag::LinkRecovered, Flag::Resumed]));
+        assert!(!ok(&[Flag::Resumed, Flag::LackOfFit]));
+    }
+}
