@@ -3,13 +3,11 @@ use crate::instrument::calibration::{Calibration, instrument_name};
 use crate::analysis::fit::Observation;
 use crate::instrument::link::{Client, RetryPolicy, Transport};
 use crate::instrument::serial::SerialTransport;
-use crate::session::{MeasuredPoint, Operator, Outcome, Placement, Plan, PolicyChoice, Progress, Recorder, Session, SessionError, SimulatedOperator};
+use crate::output::record::{FileRecorder, read_points};
+use crate::session::{Operator, Outcome, Plan, PolicyChoice, PromptOperator, Recorder, Session, SessionError, SimulatedOperator};
 use crate::instrument::sim::SimOptions;
-use anyhow::{Context, bail};
-use indicatif::{ProgressBar, ProgressStyle};
+use anyhow::Context;
 use serde_json::json;
-use std::fs::{File, OpenOptions};
-use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -59,101 +57,6 @@ pub struct Args {
     /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,
-}
-
-/// Asks the person at the instrument, on the terminal.
-struct PromptOperator;
-
-impl Operator for PromptOperator {
-    fn place(&mut self, placement: Placement) -> std::io::Result<()> {
-        let what = match placement {
-            Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port",
-            Placement::Sample => "Place the SAMPLE on the sample port",
-        };
-        eprint!("{what}, then press Enter: ");
-        std::io::stderr().flush()?;
-        let mut line = String::new();
-        if std::io::stdin().lock().read_line(&mut line)? == 0 {
-            return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "no one answered (standard input closed); use --calibration"));
-        }
-        Ok(())
-    }
-}
-
-/// Appends every reading to the session folder as it arrives; shows progress.
-struct FileRecorder {
-    dir: PathBuf,
-    readings_csv: File,
-    points_jsonl: File,
-    bar: ProgressBar,
-    decisions: Vec<String>,
-}
-
-impl FileRecorder {
-    fn open(dir: &Path) -> std::io::Result<FileRecorder> {
-        std::fs::create_dir_all(dir)?;
-        let append = |name: &str| OpenOptions::new().create(true).append(true).open(dir.join(name));
-        let mut readings_csv = append("readings.csv")?;
-        if readings_csv.metadata()?.len() == 0 {
-            writeln!(readings_csv, "theta_i,theta_r,radiance_factor,std")?;
-        }
-        let bar = ProgressBar::new(0);
-        bar.set_style(
-            ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
-        );
-        Ok(FileRecorder { dir: dir.to_path_buf(), readings_csv, points_jsonl: append("points.jsonl")?, bar, decisions: Vec::new() })
-    }
-}
-
-impl Recorder for FileRecorder {
-    fn calibration(&mut self, calibration: &Calibration) -> std::io::Result<()> {
-        std::fs::write(self.dir.join("calibration.json"), serde_json::to_vec_pretty(calibration)?)
-    }
-
-    fn point(&mut self, point: &MeasuredPoint) -> std::io::Result<()> {
-        writeln!(self.points_jsonl, "{}", serde_json::to_string(point)?)?;
-        self.points_jsonl.flush()?;
-        if let (Some(r), Some(u)) = (point.radiance_factor, point.std) {
-            writeln!(self.readings_csv, "{},{},{r},{u}", point.theta_i_deg, point.theta_r_deg)?;
-            self.readings_csv.flush()?;
-        }
-        Ok(())
-    }
-
-    fn stage(&mut self, what: &str, planned: usize) {
-        self.bar.set_message(what.to_string());
-        self.bar.set_length(planned as u64);
-        self.bar.set_position(0);
-        self.bar.set_prefix("?");
-    }
-
-    fn progress(&mut self, progress: Progress) {
-        self.bar.set_position(progress.done as u64);
-        self.bar.set_prefix(format!("{:.1}", progress.remaining.as_secs_f64()));
-    }
-
-    fn decision(&mut self, text: &str) {
-        self.bar.println(format!("  {text}"));
-        self.decisions.push(text.to_string());
-    }
-}
-
-fn read_points(dir: &Path) -> anyhow::Result<Vec<MeasuredPoint>> {
-    let path = dir.join("points.jsonl");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
-    let mut points = Vec::new();
-    for (k, line) in lines.iter().enumerate() {
-        match serde_json::from_str(line) {
-            Ok(point) => points.push(point),
-            // A crash can cut the last line short; anything else is damage worth a stop.
-            Err(_) if k + 1 == lines.len() => {}
-            Err(e) => bail!("{}:{}: {e}", path.display(), k + 1),
-        }
-    }
-    Ok(points)
 }
 
 /// Parse `gonio measure` arguments (`args` without the program and subcommand names), as

@@ -2,3 +2,4 @@
 pub mod dataset;
 pub mod export;
 pub mod plots;
+pub mod record;

@@ -11,7 +11,10 @@
 //! says hello again, re-homes if the instrument lost its homing, and carries on.
 
 pub mod adaptive;
+pub mod operator;
 pub mod order;
+
+pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator};
 
 use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
 use crate::analysis::report::{Report, analyse, to_json};
@@ -101,31 +104,6 @@ pub struct Plan {
     pub white_check: bool,
     /// White drift beyond which the result is marked, as a fraction.
     pub white_drift_limit: f64,
-}
-
-/// What the operator is asked to put on the sample port.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Placement {
-    /// The white reference tile.
-    WhiteTile,
-    /// The sample.
-    Sample,
-}
-
-/// The person at the instrument (a prompt), or nobody (the simulator's operator swaps by
-/// itself when readings are marked white).
-pub trait Operator {
-    /// Ask for `placement` and wait until it is done.
-    fn place(&mut self, placement: Placement) -> std::io::Result<()>;
-}
-
-/// No one to ask: the in-process simulator places the tile itself.
-pub struct SimulatedOperator;
-
-impl Operator for SimulatedOperator {
-    fn place(&mut self, _placement: Placement) -> std::io::Result<()> {
-        Ok(())
-    }
 }
 
 /// One measured geometry, as recorded.
@@ -223,6 +201,15 @@ pub struct Outcome {
     pub white_drift: Option<f64>,
     /// The drift exceeded the limit: the result is marked.
     pub white_drift_exceeded: bool,
+    /// Every condition that makes the result less than clean (and the informational ones).
+    pub flags: Vec<crate::analysis::flags::Flag>,
+}
+
+impl Outcome {
+    /// No flag but the informational ones.
+    pub fn ok(&self) -> bool {
+        crate::analysis::flags::ok(&self.flags)
+    }
 }
 
 /// Why a session failed.
@@ -350,6 +337,7 @@ impl<'a, T: Transport> Session<'a, T> {
             setup_seconds,
             white_drift,
             white_drift_exceeded,
+            flags: if white_drift_exceeded { vec![crate::analysis::flags::Flag::WhiteDrift] } else { Vec::new() },
         })
     }
 
