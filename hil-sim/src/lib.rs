@@ -36,14 +36,39 @@ pub struct Faults {
     pub corrupt: f64,
     /// Probability that any frame on the link (either way) is lost.
     pub drop: f64,
-    /// Device time at which the USB cable is pulled, seconds.
-    pub unplug_at_s: Option<f64>,
-    /// How long it stays out, seconds.
-    pub unplugged_for_s: f64,
+    /// Times the USB cable is pulled, and how long it stays out each time. Outages that
+    /// overlap are one outage, until the last of them ends.
+    pub unplugs: Vec<Unplug>,
     /// Steps one arm loses (it stalls) during the first move the host commands.
     pub lose_steps: Option<(Arm, i32)>,
     /// An arm whose home switch never triggers.
     pub switch_missing: Option<Arm>,
+}
+
+/// One pull of the USB cable.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Unplug {
+    /// Device time at which the cable is pulled, seconds.
+    pub at_s: f64,
+    /// How long it stays out, seconds. Past the firmware's heartbeat timeout (2 s on the
+    /// reference instrument) a device with the lamp on or the arms moving takes its
+    /// fail-safe stop before the cable is back.
+    pub for_s: f64,
+}
+
+/// How long a pulled cable stays out when the fault does not say.
+pub const DEFAULT_UNPLUG_S: f64 = 1.0;
+
+impl Unplug {
+    /// The cable pulled at `at_s` for `for_s` seconds of device time.
+    pub fn new(at_s: f64, for_s: f64) -> Unplug {
+        Unplug { at_s, for_s }
+    }
+
+    fn span_us(&self) -> (u64, u64) {
+        let at_us = (self.at_s.max(0.0) * 1e6) as u64;
+        (at_us, at_us.saturating_add((self.for_s.max(0.0) * 1e6) as u64))
+    }
 }
 
 /// Everything that makes one simulated instrument.
@@ -73,7 +98,7 @@ impl Default for SimConfig {
             instrument: InstrumentConfig::REFERENCE,
             detector: DetectorParams::default(),
             seed: 0,
-            faults: Faults { unplugged_for_s: 1.0, ..Faults::default() },
+            faults: Faults::default(),
             start: Geometry::from_whole_deg(30, 30),
             serial_number: SIM_SERIAL_NUMBER.to_string(),
         }
@@ -98,8 +123,14 @@ pub struct SimInstrument {
     /// At a frame boundary on the host-to-device side.
     host_frame_start: bool,
     steps_lost: bool,
+    /// The outages, in device µs (pulled, back), in time order and merged where they
+    /// overlap.
+    outages: Vec<(u64, u64)>,
+    /// The next outage not yet begun.
+    next_outage: usize,
+    /// While the cable is out: when it comes back.
+    back_at_us: Option<u64>,
     unplugged: bool,
-    replugged: bool,
 }
 
 /// The link is down: the cable is out.
@@ -114,6 +145,7 @@ impl SimInstrument {
         if let Some(arm) = config.faults.switch_missing {
             hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }
+        let outages = merged_outages(&config.faults.unplugs);
         SimInstrument {
             device: Device::new(config.instrument, hardware, ResetCause::PowerOn).with_serial_number(&config.serial_number),
             to_host: VecDeque::new(),
@@ -125,8 +157,10 @@ impl SimInstrument {
             dropping_host_frame: false,
             host_frame_start: true,
             steps_lost: false,
+            outages,
+            next_outage: 0,
+            back_at_us: None,
             unplugged: false,
-            replugged: false,
         }
     }
 
@@ -194,18 +228,23 @@ impl SimInstrument {
     }
 
     fn update_cable(&mut self) {
-        let Some(at_s) = self.faults.unplug_at_s else { return };
-        let at_us = (at_s * 1e6) as u64;
-        let back_us = at_us + (self.faults.unplugged_for_s * 1e6) as u64;
-        if !self.unplugged && !self.replugged && self.now_us >= at_us {
-            self.unplugged = true;
-            self.to_host.clear();
-            self.device.disconnected();
-        } else if self.unplugged && self.now_us >= back_us {
+        if let Some(back_us) = self.back_at_us {
+            if self.now_us < back_us {
+                return;
+            }
+            self.back_at_us = None;
             self.unplugged = false;
-            self.replugged = true;
             self.host_frame_start = true;
             self.operator.reset();
+        }
+        if let Some(&(at_us, back_us)) = self.outages.get(self.next_outage) {
+            if self.now_us >= at_us {
+                self.next_outage += 1;
+                self.back_at_us = Some(back_us);
+                self.unplugged = true;
+                self.to_host.clear();
+                self.device.disconnected();
+            }
         }
     }
 
@@ -264,6 +303,22 @@ impl SimInstrument {
     pub fn heartbeat_timeout(&self) -> Duration {
         Duration::from_millis(u64::from(self.device.config().heartbeat_timeout_ms))
     }
+}
+
+/// The outages of `unplugs` as (pulled, back) in device µs, in time order, overlapping
+/// ones merged. A zero-length outage still pulls the cable for one poll period: the
+/// firmware sees the disconnect.
+fn merged_outages(unplugs: &[Unplug]) -> Vec<(u64, u64)> {
+    let mut spans: Vec<(u64, u64)> = unplugs.iter().map(Unplug::span_us).collect();
+    spans.sort_unstable();
+    let mut merged: Vec<(u64, u64)> = Vec::with_capacity(spans.len());
+    for (at, back) in spans {
+        match merged.last_mut() {
+            Some(last) if at <= last.1 => last.1 = last.1.max(back),
+            _ => merged.push((at, back)),
+        }
+    }
+    merged
 }
 
 /// The device-to-host direction of the link, with its faults.

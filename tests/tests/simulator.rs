@@ -172,8 +172,7 @@ fn the_link_recovers_from_corruption_and_loss_without_a_panic() {
 #[test]
 fn a_pulled_cable_stops_the_arms_and_lamp_and_a_new_session_must_say_hello() {
     let mut config = SimConfig { seed: 2, ..SimConfig::default() };
-    config.faults.unplug_at_s = Some(20.0);
-    config.faults.unplugged_for_s = 5.0;
+    config.faults.unplugs = vec![hil_sim::Unplug::new(20.0, 5.0)];
     let params = sample_params("SG").unwrap();
     let port = hil_sim::scene::SamplePort::new(std::sync::Arc::new(move |i: f64, r: f64| model::radiance_factor(&params, i, r)));
     let (mut client, _) = connect(SimInstrument::new(port, config));
@@ -199,7 +198,9 @@ fn a_pulled_cable_stops_the_arms_and_lamp_and_a_new_session_must_say_hello() {
     client.hello().expect("handshake after replug");
     let Ok(Reply::Status(status)) = client.request(Command::GetStatus) else { panic!("status") };
     assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost));
-    assert!(!status.lamp_on && !status.homed_i && !status.homed_r);
+    // Whether the homing survives a heartbeat loss with the arms standing still is the
+    // firmware's call (issue 11); the lamp is off either way.
+    assert!(!status.lamp_on);
 }
 
 #[test]

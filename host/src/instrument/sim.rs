@@ -9,7 +9,7 @@ use crate::instrument::link::Transport;
 use crate::analysis::model::{self, Params};
 use firmware::hardware::Arm;
 use hil_sim::scene::SamplePort;
-use hil_sim::{Faults, SimConfig, SimInstrument};
+use hil_sim::{DEFAULT_UNPLUG_S, Faults, SimConfig, SimInstrument, Unplug};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -44,11 +44,16 @@ pub struct SimOptions {
     /// Scale of every detector noise term (1 = the reference instrument, 0 = noiseless).
     #[arg(long, value_name = "FACTOR", default_value_t = 1.0)]
     pub noise_scale: f64,
-    /// Faults to inject: corrupt=P,drop=P,unplug-at=SECONDS,lose-steps=ARM:COUNT,no-switch=ARM
-    /// (ARM is source or detector).
+    /// Faults to inject: corrupt=P,drop=P,unplug-at=T[:SECONDS],lose-steps=ARM:COUNT,no-switch=ARM
+    /// (ARM is source or detector). unplug-at pulls the cable at device time T for SECONDS
+    /// (default 1; past the 2 s heartbeat timeout the instrument takes its fail-safe stop)
+    /// and may be given more than once.
     #[arg(long, value_name = "LIST", default_value = "")]
     pub faults: String,
 }
+
+/// Longest outage `unplug-at` accepts: a day of device time.
+const MAX_UNPLUG_S: f64 = 86_400.0;
 
 /// A bad simulator option.
 #[derive(Debug, thiserror::Error)]
@@ -138,7 +143,18 @@ pub fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
                 if key.trim() == "corrupt" { faults.corrupt = p } else { faults.drop = p }
             }
             "unplug-at" => {
-                faults.unplug_at_s = Some(number(value).filter(|s| *s >= 0.0).ok_or_else(|| bad("seconds of device time, ≥ 0"))?);
+                let (at, out) = match value.split_once(':') {
+                    Some((at, out)) => (at, Some(out)),
+                    None => (value, None),
+                };
+                let at_s = number(at).filter(|s| *s >= 0.0).ok_or_else(|| bad("T is seconds of device time, ≥ 0"))?;
+                let for_s = match out {
+                    None => DEFAULT_UNPLUG_S,
+                    Some(out) => number(out)
+                        .filter(|s| *s > 0.0 && *s <= MAX_UNPLUG_S)
+                        .ok_or_else(|| bad("SECONDS (how long the cable stays out) is in (0, 86400]"))?,
+                };
+                faults.unplugs.push(Unplug::new(at_s, for_s));
             }
             "lose-steps" => {
                 let (arm, count) = value.split_once(':').ok_or_else(|| bad("expected lose-steps=ARM:COUNT"))?;
@@ -189,11 +205,27 @@ mod tests {
     #[test]
     fn faults_parse_and_refuse_nonsense() {
         let f = parse_faults("corrupt=0.001, drop=0.002,unplug-at=5,lose-steps=detector:37,no-switch=source").unwrap();
-        assert_eq!((f.corrupt, f.drop, f.unplug_at_s), (0.001, 0.002, Some(5.0)));
+        assert_eq!((f.corrupt, f.drop), (0.001, 0.002));
+        assert_eq!(f.unplugs, vec![Unplug::new(5.0, DEFAULT_UNPLUG_S)]);
         assert_eq!(f.lose_steps, Some((Arm::Detector, 37)));
         assert_eq!(f.switch_missing, Some(Arm::Source));
         assert_eq!(parse_faults("").unwrap(), SimConfig::default().faults);
-        for bad in ["corrupt=2", "drop=x", "unplug-at=-1", "lose-steps=left:3", "lose-steps=source:0", "melt=1", "corrupt"] {
+        let f = parse_faults("unplug-at=3:0.25,unplug-at=40:12.5,unplug-at=7").unwrap();
+        assert_eq!(f.unplugs, vec![Unplug::new(3.0, 0.25), Unplug::new(40.0, 12.5), Unplug::new(7.0, 1.0)]);
+        for bad in [
+            "corrupt=2",
+            "drop=x",
+            "unplug-at=-1",
+            "unplug-at=5:0",
+            "unplug-at=5:-2",
+            "unplug-at=5:x",
+            "unplug-at=5:inf",
+            "unplug-at=:3",
+            "lose-steps=left:3",
+            "lose-steps=source:0",
+            "melt=1",
+            "corrupt",
+        ] {
             let error = parse_faults(bad).unwrap_err().to_string();
             assert!(error.contains(bad.split(',').next().unwrap()), "{error}");
         }
