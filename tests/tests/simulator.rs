@@ -10,7 +10,7 @@ use protocol::*;
 use std::time::Duration;
 
 fn options(seed: u64, faults: &str) -> SimOptions {
-    SimOptions { seed, acceptance: 1.0, noise_scale: 1.0, faults: faults.to_owned() }
+    SimOptions { seed, acceptance: 1.0, faults: faults.to_owned(), ..SimOptions::default() }
 }
 
 fn connect(instrument: SimInstrument) -> (Client<SimInstrument>, DeviceInfo) {
