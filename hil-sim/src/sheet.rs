@@ -20,9 +20,11 @@
 //!   (θa½ = σ·√(2 ln 2)): sin²θa½ = α²(√2 − 1)/(1 − α²). Tails fall as θa⁻⁴.
 //! - [`Lobe::Cauchy`]: D = 1 / (1 + (θa/γ)²), γ = θa½: tails fall as θa⁻².
 //!
-//! So all three have the same full width at half maximum in θr, 4·θa½ = 4.71σ (of the
-//! distribution factor; F and G/(cos θi cos θr) change it by the same small amount for
-//! each), and ggx and cauchy have heavier tails than the Gaussian.
+//! So all three lobes have the same full width at half maximum in θr, 4·θa½ = 4.71σ
+//! (METHOD.md's FWHM of the TS lobe), and ggx and cauchy have heavier tails. F and
+//! G/(cos θi cos θr) widen the whole specular term of every lobe a little, a heavy tail a
+//! little more: for σ ≤ 1.9° at θi 20–60° the whole term's FWHM is within 2.3 % (ggx) and
+//! 5.8 % (cauchy) of the Gaussian's (tests/sheet.rs).
 //!
 //! The two terms the TSL model lacks (METHOD.md's last paragraph), each with a strength
 //! that is a radiance factor:

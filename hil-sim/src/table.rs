@@ -10,7 +10,13 @@
 //! Interpolation: at each tabulated θi, monotone cubic (Fritsch–Carlson, "PCHIP") in θr
 //! through that row's nodes, so a peak is never overshot (no ringing, no negative values
 //! between positive nodes) and the nodes are reproduced exactly; between two tabulated θi,
-//! linear in θi between the two rows' values at that θr.
+//! linear in θi between the two rows' values at that θr. For a table at 1° in θr, between
+//! the nodes the replay is within 0.5 % of the scene it was made from for every paper of
+//! Table 6 but the glossy ones (SG 0.7 %, G 3 %: its lobe has 1.6° standard deviation in
+//! θr, barely two nodes). Between tabulated θi it is a blend, not the scene: a specular
+//! peak does not move with θi there (a rough paper's table is within 5 % midway between
+//! rows 10–15° apart; a glossy one is not usable): replay at the table's θi, and see
+//! [`TableScene::evaluations_between_rows`].
 //!
 //! Outside the table the edge is held: θi is clamped to the table's range and θr to its
 //! row's range. The detector's acceptance and an arm offset reach a little past any
@@ -56,6 +62,7 @@ struct Row {
 pub struct TableScene {
     rows: Vec<Row>,
     outside: AtomicU64,
+    between: AtomicU64,
 }
 
 impl TableScene {
@@ -150,7 +157,7 @@ impl TableScene {
             }
             row.slope = pchip_slopes(&row.theta_r_deg, &row.value);
         }
-        Ok(TableScene { rows, outside: AtomicU64::new(0) })
+        Ok(TableScene { rows, outside: AtomicU64::new(0), between: AtomicU64::new(0) })
     }
 
     /// The tabulated θi, ascending.
@@ -166,6 +173,11 @@ impl TableScene {
     /// How many evaluations fell more than [`OUTSIDE_TOLERANCE_DEG`] outside the table.
     pub fn evaluations_outside(&self) -> u64 {
         self.outside.load(Ordering::Relaxed)
+    }
+
+    /// How many evaluations fell between two tabulated θi (interpolated in θi).
+    pub fn evaluations_between_rows(&self) -> u64 {
+        self.between.load(Ordering::Relaxed)
     }
 
     fn note_outside(&self, by_deg: f64) {
@@ -198,6 +210,7 @@ impl Scene for TableScene {
             return self.row_value(below, theta_r_deg);
         }
         let t = (theta_i_deg - below.theta_i_deg) / (above.theta_i_deg - below.theta_i_deg);
+        self.between.fetch_add(1, Ordering::Relaxed);
         (1.0 - t) * self.row_value(below, theta_r_deg) + t * self.row_value(above, theta_r_deg)
     }
 }
