@@ -18,12 +18,13 @@
 //! rows 10–15° apart; a glossy one is not usable): replay at the table's θi, and see
 //! [`TableScene::evaluations_between_rows`].
 //!
-//! Outside the table the edge is held: θi is clamped to the table's range and θr to its
-//! row's range. The detector's acceptance and an arm offset reach a little past any
-//! table's nodes (θr = −0.5° at a detector standing at 0°), which the edge value models
-//! well; evaluations more than [`OUTSIDE_TOLERANCE_DEG`] outside are also clamped but
-//! counted ([`TableScene::evaluations_outside`]), so a caller can tell that the session
-//! went where the table has no data.
+//! Outside the table: θi is clamped to the table's range (the first or last row is
+//! used). In θr, the detector's acceptance and an arm offset reach a little past any
+//! table's nodes (θr = −0.5° and 70.5° for a detector at 0° and 70°): up to
+//! [`OUTSIDE_TOLERANCE_DEG`] past a row's end the row is continued along its end slope
+//! (never below 0), farther out that value is held, and such evaluations are counted
+//! ([`TableScene::evaluations_outside`]), so a caller can tell that the session went where
+//! the table has no data.
 //!
 //! The replayed values are seen through the simulated detector like any scene, so its
 //! acceptance window smooths them once more: replay a table taken with a window of its own
@@ -187,9 +188,18 @@ impl TableScene {
     }
 
     fn row_value(&self, row: &Row, theta_r_deg: f64) -> f64 {
-        let (lo, hi) = (row.theta_r_deg[0], *row.theta_r_deg.last().expect("≥ 2 nodes"));
+        let last = row.theta_r_deg.len() - 1;
+        let (lo, hi) = (row.theta_r_deg[0], row.theta_r_deg[last]);
         self.note_outside((lo - theta_r_deg).max(theta_r_deg - hi));
-        pchip(&row.theta_r_deg, &row.value, &row.slope, theta_r_deg.clamp(lo, hi))
+        // Past an end: along the end's slope for up to the tolerance, then held.
+        let (edge, node) = if theta_r_deg < lo {
+            ((theta_r_deg - lo).max(-OUTSIDE_TOLERANCE_DEG), 0)
+        } else if theta_r_deg > hi {
+            ((theta_r_deg - hi).min(OUTSIDE_TOLERANCE_DEG), last)
+        } else {
+            return pchip(&row.theta_r_deg, &row.value, &row.slope, theta_r_deg);
+        };
+        (row.value[node] + row.slope[node] * edge).max(0.0)
     }
 }
 
@@ -320,10 +330,24 @@ mod tests {
         let between: Vec<f64> = (0..=400).map(|k| t.radiance_factor(20.0, f64::from(k) * 0.1)).collect();
         assert!(between.iter().all(|v| (1.0..=5.0).contains(v)), "monotone between nodes");
         assert_eq!(t.evaluations_outside(), 0);
-        // Held at the edge, counted past the tolerance.
-        assert_eq!(t.radiance_factor(20.0, -0.5), 1.0);
+        // A peak's flat ends are held flat outside; θi past the last row uses the last row.
+        assert_eq!(t.radiance_factor(20.0, 40.5), 1.0);
         assert_eq!(t.evaluations_outside(), 0);
-        assert_eq!(t.radiance_factor(25.0, 45.0), 1.0);
+        assert_eq!(t.radiance_factor(25.0, 20.0), 5.0);
+        assert_eq!(t.evaluations_outside(), 1);
+    }
+
+    #[test]
+    fn past_a_row_end_the_end_slope_is_followed_for_a_degree_then_held_and_counted() {
+        let text = "theta_i,theta_r,radiance_factor\n20,0,1\n20,10,2\n20,20,4\n20,30,7\n20,40,11\n";
+        let t = TableScene::parse(text, "t.csv").unwrap();
+        let (first, last) = (t.rows[0].slope[0], t.rows[0].slope[4]);
+        assert!(first > 0.0 && last > 0.0);
+        assert_eq!(t.radiance_factor(20.0, 40.5), 11.0 + 0.5 * last);
+        assert_eq!(t.radiance_factor(20.0, -0.5), 1.0 - 0.5 * first);
+        assert_eq!(t.evaluations_outside(), 0);
+        assert_eq!(t.radiance_factor(20.0, 45.0), 11.0 + last);
+        assert_eq!(t.radiance_factor(20.0, -30.0), (1.0 - first).max(0.0));
         assert_eq!(t.evaluations_outside(), 2);
     }
 
