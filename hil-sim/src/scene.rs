@@ -1,8 +1,10 @@
 //! What is on the sample port: a reflectance function handed in by the caller.
 //!
-//! The simulator does not know any reflectance model: the host or a test supplies the
-//! sample's radiance factor as a function of (θi, θr). While white-calibration readings
-//! are taken the port holds the white reference tile instead.
+//! The caller supplies the sample's radiance factor as a function of (θi, θr): one of the
+//! simulator's own sheets ([`crate::sheet`], physics of its own, not the fit's), a replayed
+//! table ([`crate::table`]) or any function a test makes. A sample may differ from spot to
+//! spot ([`Spots`]). While white-calibration readings are taken the port holds the white
+//! reference tile instead.
 
 use std::sync::Arc;
 
