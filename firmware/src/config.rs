@@ -45,6 +45,12 @@ pub struct InstrumentConfig {
     pub home_fast_deg_per_s: f32,
     /// Homing: speed of the re-approach that locates the switch, °/s.
     pub home_slow_deg_per_s: f32,
+    /// Quick re-home: the fast move (at full speed) stops this far short of where the
+    /// step count puts the switch.
+    pub home_quick_margin: Angle,
+    /// Quick re-home: the slow approach from there goes at most this far before falling
+    /// back to the full search (the margin plus as much again for steps lost).
+    pub home_quick_approach: Angle,
     /// Samples after a range change that are discarded while the amplifier settles.
     pub range_settle_ms: u16,
     /// A reading whose largest sample reaches this fraction of full scale is saturated.
@@ -93,6 +99,11 @@ impl InstrumentConfig {
         home_fast_deg_per_s: 20.0,
         // 160 steps/s: polled every 1 ms, the trip is located to within 0.2 step.
         home_slow_deg_per_s: 2.0,
+        // 120 steps: a session that lost more than that has a gross fault, found either
+        // way (the switch trips during the fast move); the slow part costs 0.75 s.
+        home_quick_margin: Angle::from_ticks(120),
+        // The margin plus 1.5° for an arm behind its count; beyond, the full search.
+        home_quick_approach: Angle::from_ticks(240),
         range_settle_ms: 5,
         saturation_fraction: 0.98,
         // A decade more gain takes 8 % of full scale to 80 %: clear of saturation.

@@ -1,9 +1,33 @@
-//! Homing of one arm: fast search toward the switch, back off, slow re-approach.
+//! Homing of one arm: fast search toward the switch, back off, slow re-approach; or, on an
+//! arm whose step count can be trusted, the quick re-home.
 //!
 //! The switches sit beyond the working range on the far side from the normal, so homing
 //! moves every arm away from the other one. Where the slow re-approach trips the switch
 //! is the arm's reference; the step count the arm believed it had there, compared with
 //! the switch's angle, is the step error reported on re-homing (lost steps).
+//!
+//! QUICK RE-HOME ([`ArmHoming::quick`]): the step count says where the switch is, so the
+//! arm goes there at full speed (the arm's speed and acceleration limits) up to
+//! `home_quick_margin` (1.5°) short of it, then approaches slowly for at most
+//! `home_quick_approach` (3°): the switch is found by the same slow approach as in the full
+//! homing, so the step error is just as exact. Two ways out of the plan:
+//! - the switch trips during the fast move (the arm is further than it believes, by more
+//!   than the margin): stop (ramped), back off and approach slowly as in the full homing;
+//!   it overshoots the switch by about the error beyond the margin, as any move with
+//!   that error would overshoot its target;
+//! - the slow approach ends without the switch (the arm is behind its count by more than
+//!   the approach minus the margin, 1.5°): fall back to the full search from there.
+//!
+//! Device time, both arms homing at once (virtual time on `FakeHardware`, reference
+//! instrument; `tests/homing.rs` measures and bounds it):
+//!
+//! | from (θi, θr) | full homing | quick re-home | quick, 40 steps lost (0.5°) on either arm |
+//! |---------------|-------------|---------------|-------------------------------------------|
+//! | (20°, 0°)     | 6.17 s      | 2.43 s        | 2.68 s                                    |
+//! | (45°, 45°)    | 4.92 s      | 1.78 s        | 2.03 s                                    |
+//! | (60°, 70°)    | 4.17 s      | 1.54 s        | 1.79 s                                    |
+//!
+//! (Filled in from the test's output; see the test for the arm ahead of its count.)
 
 use crate::config::InstrumentConfig;
 use crate::hardware::{Arm, Arms};
@@ -13,6 +37,10 @@ use protocol::{DeviceError, ErrorCode};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     Begin,
+    /// Quick re-home: full speed to the margin short of where the count puts the switch.
+    QuickRun,
+    /// Quick re-home: slowly toward the switch, at most the quick approach distance.
+    QuickApproach,
     /// Fast toward the switch, at most the search range.
     Search,
     /// Switch found; ramping down.
@@ -45,12 +73,37 @@ pub enum HomingStatus {
 pub struct ArmHoming {
     arm: Arm,
     phase: Phase,
+    /// The quick re-home was asked for and has not fallen back to the full search.
+    quick: bool,
 }
 
 impl ArmHoming {
-    /// Homing of `arm`, not started.
+    /// The full homing of `arm` (search from anywhere), not started.
     pub const fn new(arm: Arm) -> ArmHoming {
-        ArmHoming { arm, phase: Phase::Begin }
+        ArmHoming { arm, phase: Phase::Begin, quick: false }
+    }
+
+    /// The quick re-home of `arm`, not started: for an arm whose step count still says
+    /// where it is (homed since reset, no driver fault since), so that the switch is
+    /// where the count puts it, `config.home_switch`, give or take a few lost steps.
+    pub const fn quick(arm: Arm) -> ArmHoming {
+        ArmHoming { arm, phase: Phase::Begin, quick: true }
+    }
+
+    /// Whether this homing is (still) the quick one: false after a fall-back to the full
+    /// search.
+    pub fn is_quick(&self) -> bool {
+        self.quick
+    }
+
+    fn start_slow_approach(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, distance_steps: i32, now_us: u64) {
+        self.constant_speed_move(hardware, motion, config, distance_steps, config.home_slow_deg_per_s, now_us);
+    }
+
+    fn start_search(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, now_us: u64) {
+        let search_steps = angle_to_steps(config.home_search_range);
+        self.constant_speed_move(hardware, motion, config, search_steps, config.home_fast_deg_per_s, now_us);
+        self.phase = Phase::Search;
     }
 
     fn constant_speed_move(
@@ -83,19 +136,50 @@ impl ArmHoming {
     ) -> HomingStatus {
         let pressed = hardware.home_switch_pressed(self.arm);
         let moving = motion.is_moving(hardware, self.arm);
-        let search_steps = angle_to_steps(config.home_search_range);
         let backoff_steps = angle_to_steps(config.home_backoff);
         let max_speed = deg_to_steps(config.max_speed_deg_per_s);
         let accel = deg_to_steps(config.accel_deg_per_s2);
+        // Where the count puts the end of the quick fast move.
+        let quick_target = angle_to_steps(config.home_switch) - angle_to_steps(config.home_quick_margin);
         match self.phase {
             Phase::Begin => {
                 if pressed {
                     // Already on the switch: straight to backing off.
                     self.constant_speed_move(hardware, motion, config, -backoff_steps, config.home_fast_deg_per_s, now_us);
                     self.phase = Phase::BackOff;
+                } else if !self.quick {
+                    self.start_search(hardware, motion, config, now_us);
+                } else if hardware.position_steps(self.arm) < quick_target {
+                    let here = hardware.position_steps(self.arm);
+                    motion.start(hardware, self.arm, MoveProfile::fastest(here, quick_target, 0.0, max_speed, accel), now_us);
+                    self.phase = Phase::QuickRun;
                 } else {
-                    self.constant_speed_move(hardware, motion, config, search_steps, config.home_fast_deg_per_s, now_us);
-                    self.phase = Phase::Search;
+                    // Believed within the margin already: only the slow approach is left.
+                    let approach = angle_to_steps(config.home_quick_approach);
+                    self.start_slow_approach(hardware, motion, config, approach, now_us);
+                    self.phase = Phase::QuickApproach;
+                }
+            }
+            Phase::QuickRun => {
+                if pressed {
+                    // Further than the count says: from here on as the full homing does.
+                    motion.stop(hardware, self.arm, max_speed, accel, now_us);
+                    self.phase = Phase::SearchStopping;
+                } else if !moving {
+                    let approach = angle_to_steps(config.home_quick_approach);
+                    self.start_slow_approach(hardware, motion, config, approach, now_us);
+                    self.phase = Phase::QuickApproach;
+                }
+            }
+            Phase::QuickApproach => {
+                if pressed {
+                    let trip_steps = hardware.position_steps(self.arm);
+                    motion.stop(hardware, self.arm, max_speed, accel, now_us);
+                    self.phase = Phase::ApproachStopping { trip_steps };
+                } else if !moving {
+                    // Not where the count says, by more than the approach covers: search.
+                    self.quick = false;
+                    self.start_search(hardware, motion, config, now_us);
                 }
             }
             Phase::Search => {
@@ -119,7 +203,7 @@ impl ArmHoming {
                     }
                     // Back over the whole back-off and one degree more: the switch must trip.
                     let approach = backoff_steps + angle_to_steps(protocol::Angle::from_whole_deg(1));
-                    self.constant_speed_move(hardware, motion, config, approach, config.home_slow_deg_per_s, now_us);
+                    self.start_slow_approach(hardware, motion, config, approach, now_us);
                     self.phase = Phase::Approach;
                 }
             }
