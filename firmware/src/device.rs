@@ -49,17 +49,20 @@
 //!   counted steps either, but mid-move the board cannot prove it (a step generator late, a
 //!   stall), so it is conservative there.
 //!
+//! A driver fault takes the stop once, when it begins; while a driver still reports it,
+//! `Home`, moves and schedules are refused (`HardwareFault`, detail: the arm).
+//!
 //! `Abort` is the host's stop, not a fail-safe one: it ends everything the same way but
-//! keeps the lamp and the homing (a ramped stop loses no steps). `TakeDark` leaves the
-//! lamp off.
+//! keeps the lamp and the homing, mid-move too (the host asked for it, on a healthy board,
+//! and a ramped stop loses no steps). `TakeDark` leaves the lamp off.
 //!
 //! HOMING: the first `Home` after reset searches for both switches
 //! ([`crate::homing::ArmHoming::new`]). Later ones, on arms whose step count still says
 //! where they are (homed since reset, no driver fault since), are quick
 //! ([`crate::homing::ArmHoming::quick`]: full speed to 1.5° short of where the count puts
 //! the switch, then the slow approach): 1.4–2.8 s from the measuring positions instead of
-//! 2.8–5.8 s (table in [`crate::homing`]), so a session can
-//! re-home at its end to check for lost steps. The step error is exact either way.
+//! 2.8–5.8 s (table in [`crate::homing`]), so a session can re-home at its end to check
+//! for lost steps. The step error is exact either way.
 
 use crate::config::InstrumentConfig;
 use crate::detector::{Integration, RangedReading, ReadingProgress, is_saturated};

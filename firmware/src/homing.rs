@@ -12,9 +12,11 @@
 //! `home_quick_approach` (3°): the switch is found by the same slow approach as in the full
 //! homing, so the step error is just as exact. Two ways out of the plan:
 //! - the switch trips during the fast move (the arm is further than it believes, by more
-//!   than the margin): stop (ramped), back off and approach slowly as in the full homing;
-//!   it overshoots the switch by about the error beyond the margin, as any move with
-//!   that error would overshoot its target;
+//!   than the margin): stop (ramped), back off (past the trip point, then the usual
+//!   clearance) and approach slowly as in the full homing. Tripped on the fast move's
+//!   deceleration, the arm overshoots the switch by the error beyond the margin (at most
+//!   the 10° braking distance from full speed): it ends where the fast move would have put
+//!   it, as any move with that error overshoots its target;
 //! - the slow approach ends without the switch (the arm is behind its count by more than
 //!   the approach minus the margin, 1.5°): fall back to the full search from there.
 //!
@@ -31,8 +33,8 @@
 //!
 //! The slow approach (1.5° at 2°/s, 0.75 s) is most of the quick re-home from near the
 //! switch; the full homing's search runs at 20°/s instead of 60°/s and adds a back-off.
-//! From (45°, 45°), an arm 2.5° ahead (the switch trips in the fast move) takes 2.30 s,
-//! one 5° behind (the full search after the approach) 4.10 s; both still exact.
+//! From (45°, 45°), an arm 2.5° or 8° ahead (the switch trips in the fast move) takes
+//! 2.30 s, one 5° behind (the full search after the approach) 4.10 s; all still exact.
 
 use crate::config::InstrumentConfig;
 use crate::hardware::{Arm, Arms};
@@ -48,10 +50,10 @@ enum Phase {
     QuickApproach,
     /// Fast toward the switch, at most the search range.
     Search,
-    /// Switch found; ramping down.
-    SearchStopping,
-    /// Fast away from the switch by the back-off distance; it must release.
-    BackOff,
+    /// Switch found at `trip_steps`; ramping down.
+    SearchStopping { trip_steps: i32 },
+    /// Fast away from the switch by `distance_steps`; it must release.
+    BackOff { distance_steps: i32 },
     /// Slowly toward the switch again.
     Approach,
     /// Switch tripped at `trip_steps`; ramping down.
@@ -105,6 +107,11 @@ impl ArmHoming {
         self.constant_speed_move(hardware, motion, config, distance_steps, config.home_slow_deg_per_s, now_us);
     }
 
+    fn start_backoff(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, distance_steps: i32, now_us: u64) {
+        self.constant_speed_move(hardware, motion, config, -distance_steps, config.home_fast_deg_per_s, now_us);
+        self.phase = Phase::BackOff { distance_steps };
+    }
+
     fn start_search(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, now_us: u64) {
         let search_steps = angle_to_steps(config.home_search_range);
         self.constant_speed_move(hardware, motion, config, search_steps, config.home_fast_deg_per_s, now_us);
@@ -150,8 +157,7 @@ impl ArmHoming {
             Phase::Begin => {
                 if pressed {
                     // Already on the switch: straight to backing off.
-                    self.constant_speed_move(hardware, motion, config, -backoff_steps, config.home_fast_deg_per_s, now_us);
-                    self.phase = Phase::BackOff;
+                    self.start_backoff(hardware, motion, config, backoff_steps, now_us);
                 } else if !self.quick {
                     self.start_search(hardware, motion, config, now_us);
                 } else if hardware.position_steps(self.arm) < quick_target {
@@ -168,8 +174,9 @@ impl ArmHoming {
             Phase::QuickRun => {
                 if pressed {
                     // Further than the count says: from here on as the full homing does.
+                    let trip_steps = hardware.position_steps(self.arm);
                     motion.stop(hardware, self.arm, max_speed, accel, now_us);
-                    self.phase = Phase::SearchStopping;
+                    self.phase = Phase::SearchStopping { trip_steps };
                 } else if !moving {
                     let approach = angle_to_steps(config.home_quick_approach);
                     self.start_slow_approach(hardware, motion, config, approach, now_us);
@@ -189,25 +196,31 @@ impl ArmHoming {
             }
             Phase::Search => {
                 if pressed {
+                    let trip_steps = hardware.position_steps(self.arm);
                     motion.stop(hardware, self.arm, max_speed, accel, now_us);
-                    self.phase = Phase::SearchStopping;
+                    self.phase = Phase::SearchStopping { trip_steps };
                 } else if !moving {
                     return self.fail(ErrorCode::HomeSwitchNotFound);
                 }
             }
-            Phase::SearchStopping => {
+            Phase::SearchStopping { trip_steps } => {
                 if !moving {
-                    self.constant_speed_move(hardware, motion, config, -backoff_steps, config.home_fast_deg_per_s, now_us);
-                    self.phase = Phase::BackOff;
+                    // The back-off, or more after a longer overshoot (a trip during the
+                    // quick re-home's fast move stops from up to full speed): past the trip
+                    // point by the overshoot, then half the back-off clear of it (the full
+                    // search's 1.1° overshoot leaves 1.9°).
+                    let overshoot = (hardware.position_steps(self.arm) - trip_steps).max(0);
+                    let distance = backoff_steps.max(overshoot + backoff_steps / 2);
+                    self.start_backoff(hardware, motion, config, distance, now_us);
                 }
             }
-            Phase::BackOff => {
+            Phase::BackOff { distance_steps } => {
                 if !moving {
                     if pressed {
                         return self.fail(ErrorCode::HomeSwitchStuck);
                     }
                     // Back over the whole back-off and one degree more: the switch must trip.
-                    let approach = backoff_steps + angle_to_steps(protocol::Angle::from_whole_deg(1));
+                    let approach = distance_steps + angle_to_steps(protocol::Angle::from_whole_deg(1));
                     self.start_slow_approach(hardware, motion, config, approach, now_us);
                     self.phase = Phase::Approach;
                 }

@@ -108,6 +108,21 @@ fn an_arm_further_than_it_believes_trips_during_the_fast_move() {
 }
 
 #[test]
+fn an_arm_far_ahead_of_its_count_backs_off_past_its_overshoot() {
+    // 8° ahead (a gross fault): the switch trips with the fast move still at speed, the arm
+    // stops 6.5° beyond it. A back-off of the usual 3° would leave the switch pressed and
+    // call it stuck; the back-off covers the overshoot, and the error is exact.
+    for arm in Arm::BOTH {
+        let lost = Some((arm, -640));
+        let (bench, report, us) = quick_rehome_from(Geometry::from_whole_deg(45, 45), lost);
+        assert_eq!(report, expected_report(lost));
+        assert_eq!(bench.device.status().position, bench.hw().true_geometry());
+        assert_eq!(bench.hw().profiles_over_limits, 0);
+        eprintln!("{arm:?} 8° ahead: {:.2} s", us as f64 / 1e6);
+    }
+}
+
+#[test]
 fn an_arm_far_behind_its_count_falls_back_to_the_full_search() {
     // 5° behind (more than the approach covers): the slow approach ends without the
     // switch, the full search finds it; the error is exact.
