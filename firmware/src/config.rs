@@ -39,8 +39,11 @@ pub struct InstrumentConfig {
     pub home_switch: Angle,
     /// Homing: longest travel searching for the switch (from anywhere in the range).
     pub home_search_range: Angle,
-    /// Homing: travel back off the switch; it must release within it.
+    /// Homing: travel back off the switch; it must release within it after the search.
     pub home_backoff: Angle,
+    /// Homing: most travel backing off a switch found pressed (in steps of `home_backoff`)
+    /// before it counts as stuck: an arm may stand further past it than one back-off.
+    pub home_release_max: Angle,
     /// Homing: speed of the search and the back-off, °/s.
     pub home_fast_deg_per_s: f32,
     /// Homing: speed of the re-approach that locates the switch, °/s.
@@ -96,6 +99,8 @@ impl InstrumentConfig {
         home_search_range: Angle::from_whole_deg(100),
         // The fast search overshoots the switch by its stop ramp (20²/(2·180) ≈ 1.1°).
         home_backoff: Angle::from_whole_deg(3),
+        // The full-speed braking distance (60²/(2·180) = 10°) past the switch, and margin.
+        home_release_max: Angle::from_whole_deg(12),
         home_fast_deg_per_s: 20.0,
         // 160 steps/s: polled every 1 ms, the trip is located to within 0.2 step.
         home_slow_deg_per_s: 2.0,

@@ -2,7 +2,9 @@
 //! arm whose step count can be trusted, the quick re-home.
 //!
 //! The switches sit beyond the working range on the far side from the normal, so homing
-//! moves every arm away from the other one. Where the slow re-approach trips the switch
+//! moves every arm away from the other one. An arm that starts on its switch backs off in
+//! steps of `home_backoff` until it releases (at most `home_release_max`, or the switch is
+//! stuck). Where the slow re-approach trips the switch
 //! is the arm's reference; the step count the arm believed it had there, compared with
 //! the switch's angle, is the step error reported on re-homing (lost steps).
 //!
@@ -52,8 +54,9 @@ enum Phase {
     Search,
     /// Switch found at `trip_steps`; ramping down.
     SearchStopping { trip_steps: i32 },
-    /// Fast away from the switch by `distance_steps`; it must release.
-    BackOff { distance_steps: i32 },
+    /// Fast away from the switch by `distance_steps`, `total_steps` in all since the switch
+    /// was found pressed; it must release within `home_release_max`.
+    BackOff { distance_steps: i32, total_steps: i32 },
     /// Slowly toward the switch again.
     Approach,
     /// Switch tripped at `trip_steps`; ramping down.
@@ -107,9 +110,17 @@ impl ArmHoming {
         self.constant_speed_move(hardware, motion, config, distance_steps, config.home_slow_deg_per_s, now_us);
     }
 
-    fn start_backoff(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, distance_steps: i32, now_us: u64) {
+    fn start_backoff(
+        &mut self,
+        hardware: &mut impl Arms,
+        motion: &mut ArmMotion,
+        config: &InstrumentConfig,
+        distance_steps: i32,
+        total_steps: i32,
+        now_us: u64,
+    ) {
         self.constant_speed_move(hardware, motion, config, -distance_steps, config.home_fast_deg_per_s, now_us);
-        self.phase = Phase::BackOff { distance_steps };
+        self.phase = Phase::BackOff { distance_steps, total_steps: total_steps + distance_steps };
     }
 
     fn start_search(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, now_us: u64) {
@@ -157,7 +168,7 @@ impl ArmHoming {
             Phase::Begin => {
                 if pressed {
                     // Already on the switch: straight to backing off.
-                    self.start_backoff(hardware, motion, config, backoff_steps, now_us);
+                    self.start_backoff(hardware, motion, config, backoff_steps, 0, now_us);
                 } else if !self.quick {
                     self.start_search(hardware, motion, config, now_us);
                 } else if hardware.position_steps(self.arm) < quick_target {
@@ -211,13 +222,19 @@ impl ArmHoming {
                     // search's 1.1° overshoot leaves 1.9°).
                     let overshoot = (hardware.position_steps(self.arm) - trip_steps).max(0);
                     let distance = backoff_steps.max(overshoot + backoff_steps / 2);
-                    self.start_backoff(hardware, motion, config, distance, now_us);
+                    self.start_backoff(hardware, motion, config, distance, 0, now_us);
                 }
             }
-            Phase::BackOff { distance_steps } => {
+            Phase::BackOff { distance_steps, total_steps } => {
                 if !moving {
                     if pressed {
-                        return self.fail(ErrorCode::HomeSwitchStuck);
+                        // Further past the switch than one back-off (an arm far ahead of its
+                        // count): another one, up to the limit, then it is stuck.
+                        if total_steps + backoff_steps > angle_to_steps(config.home_release_max) {
+                            return self.fail(ErrorCode::HomeSwitchStuck);
+                        }
+                        self.start_backoff(hardware, motion, config, backoff_steps, total_steps, now_us);
+                        return HomingStatus::Running;
                     }
                     // Back over the whole back-off and one degree more: the switch must trip.
                     let approach = distance_steps + angle_to_steps(protocol::Angle::from_whole_deg(1));

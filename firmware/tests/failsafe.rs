@@ -214,3 +214,47 @@ fn abort_in_a_moves_settle_answers_the_move_and_keeps_the_homing() {
     assert_eq!((status.state, status.fault), (DeviceState::Idle, None));
     assert!(status.homed_i && status.homed_r);
 }
+
+mod random {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+
+        /// The host goes silent at a random moment of a Strategy 1 run: the stop keeps the
+        /// homing exactly when both arms stood still, the step count is the truth either way
+        /// (a ramped stop loses nothing), and the device then accepts what it should.
+        #[test]
+        fn a_stop_at_any_moment_keeps_the_homing_exactly_when_the_arms_stood_still(silent_from_ms in 0u64..11_000) {
+            let mut bench = homed_bench();
+            bench.ask(Command::SetLamp { on: true }).unwrap();
+            let run = RunSchedule { schedule_id: 1, source: ScheduleSource::Strategy1, integration_ms: 100, target: Target::Sample };
+            let started = matches!(bench.ask(Command::RunSchedule(run)), Ok(Reply::ScheduleStarted { .. }));
+            prop_assert!(started);
+            bench.run_ms(silent_from_ms);
+            // The lamp stays on after the run, so the silence always ends in a stop.
+            let was_moving = silent_until_stopped(&mut bench);
+            let done = bench.schedule_done(1).expect("the schedule ended, completed or stopped");
+            prop_assert!(done.error.is_none() || done.error == Some(ErrorCode::HeartbeatLost), "{:?}", done);
+            if done.error.is_none() {
+                prop_assert!(!was_moving, "a finished schedule leaves the arms parked");
+            }
+            bench.wait_at_rest();
+            let status = bench.status();
+            prop_assert_eq!(status.homed_i && status.homed_r, !was_moving);
+            prop_assert_eq!(status.state, if was_moving { DeviceState::Stopped } else { DeviceState::Idle });
+            prop_assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost));
+            prop_assert_eq!(status.position, bench.hw().true_geometry());
+            prop_assert!(!bench.hw().lamp_on());
+            let next = Geometry::from_whole_deg(30, 30);
+            if bench.status().homed_i {
+                prop_assert_eq!(bench.ask(Command::MoveTo(next)), Ok(Reply::Ack));
+                prop_assert_eq!(bench.hw().true_geometry(), next);
+            } else {
+                prop_assert_eq!(bench.ask(Command::MoveTo(next)), Err(DeviceError::new(ErrorCode::NotHomed)));
+            }
+            prop_assert_eq!(bench.home(), HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+        }
+    }
+}

@@ -188,3 +188,35 @@ fn after_a_driver_fault_the_rehome_searches() {
     let (_, full_us) = full_homing_from(Geometry::from_whole_deg(35, 45));
     assert!(us + 200_000 >= full_us, "searched: {us} µs against {full_us} µs");
 }
+
+mod random {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+
+        /// From anywhere in the working range, with any number of steps lost (or gained) on
+        /// either arm, the re-home reports the error exactly and the count is the truth
+        /// again; with up to 40 steps lost it stays within the quick bound.
+        #[test]
+        fn the_rehome_step_error_is_exact_from_anywhere(
+            theta_i in 0i32..=85, theta_r in 10i32..=85,
+            arm in prop_oneof![Just(Arm::Source), Just(Arm::Detector)],
+            lost in -1200i32..=1200,
+        ) {
+            let at = Geometry::from_whole_deg(theta_i, theta_r);
+            // The mechanics end where a full-speed stop past the switch would (87.5° + 10°):
+            // no arm stands further out, whatever its count says.
+            let believed = if arm == Arm::Source { theta_i } else { theta_r };
+            prop_assume!(believed * 80 - lost <= 7800);
+            let (bench, report, us) = quick_rehome_from(at, Some((arm, lost)));
+            prop_assert_eq!(report, expected_report(Some((arm, lost))));
+            prop_assert_eq!(bench.device.status().position, bench.hw().true_geometry());
+            prop_assert_eq!(bench.hw().profiles_over_limits, 0);
+            if lost.abs() <= 40 {
+                prop_assert!(us <= QUICK_BOUND_US, "{} µs", us);
+            }
+        }
+    }
+}
