@@ -204,3 +204,31 @@ fn an_unknown_command_before_the_handshake_is_answered_too() {
         [DeviceMessage::Reply { seq: 7, result: Err(DeviceError::new(ErrorCode::NotSupported)) }]
     );
 }
+
+mod random {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(500))]
+
+        /// Any frame with a good CRC that is no request of this version gets exactly one
+        /// answer: `NotSupported` under its leading seq when it has one, else
+        /// `FrameRejected`; and the device goes on serving the next request.
+        #[test]
+        fn every_unreadable_frame_gets_one_answer(payload in proptest::collection::vec(any::<u8>(), 0..120)) {
+            let readable = postcard::take_from_bytes::<Request>(&payload).map(|(_, rest)| rest.is_empty()).unwrap_or(false);
+            prop_assume!(!readable);
+            let mut bench = Bench::new();
+            let from = bench.messages.len();
+            bench.send_bytes(&crc_frame(&payload));
+            let expected = match postcard::take_from_bytes::<u32>(&payload) {
+                Ok((seq, _)) => DeviceMessage::Reply { seq, result: Err(DeviceError::new(ErrorCode::NotSupported)) },
+                Err(_) => DeviceMessage::FrameRejected { code: ErrorCode::UnknownMessage },
+            };
+            prop_assert_eq!(bench.messages_since(from), &[expected][..]);
+            let served = matches!(bench.ask_as(u32::MAX, Command::GetStatus), Ok(Reply::Status(_)));
+            prop_assert!(served);
+        }
+    }
+}
