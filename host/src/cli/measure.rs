@@ -181,7 +181,7 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
     let max_calibration_age = max_age_from_hours(args.max_calibration_age_h)?;
     if let Some(limit) = args.white_drift_limit_pct {
         if !(limit > 0.0 && limit <= 100.0) {
-            bail!("--white-drift-limit-pct must be a percentage above 0 and at most 100, not {limit}");
+            bail!("--white-drift-limit-pct must be a percentage above 0 and at most 100, not {limit:?}");
         }
     }
     if let Some(sample) = &args.sample {
