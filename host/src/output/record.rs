@@ -430,6 +430,9 @@ impl Existing {
         }
         let lock = FolderLock::take(dir)?;
         let inspection = folder::inspect(dir).map_err(FolderError::Damaged)?;
+        if let Some(problem) = inspection.damage.first() {
+            return Err(FolderError::Damaged(problem.clone()));
+        }
         let Some(doc) = inspection.session.clone() else {
             return Err(FolderError::NoSession(dir.to_path_buf()));
         };
