@@ -103,7 +103,7 @@ pub enum DatasetError {
     },
     /// Uncertainties of one data set too far apart to weigh them together.
     #[error(
-        "line {line}: std {value} is more than {MAX_STD_RATIO:e} times the std {other} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
+        "line {line}: std {value:?} is more than {MAX_STD_RATIO:e} times the std {other:?} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
     )]
     StdSpread {
         /// Line of the largest std.
@@ -259,7 +259,9 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
 /// The positive uncertainties of a data set within [`MAX_STD_RATIO`] of each other.
 fn check_std_spread(set: &DataSet) -> Result<(), DatasetError> {
     let positive = set.observations.iter().zip(&set.lines).filter_map(|(o, &line)| o.std.filter(|u| *u > 0.0).map(|u| (u, line)));
-    let (mut low, mut high): (Option<(f64, usize)>, Option<(f64, usize)>) = (None, None);
+    // (std, line) of the smallest and of the largest.
+    let mut low: Option<(f64, usize)> = None;
+    let mut high: Option<(f64, usize)> = None;
     for (u, line) in positive {
         if low.is_none_or(|(l, _)| u < l) {
             low = Some((u, line));
