@@ -162,6 +162,52 @@ fn a_long_session_killed_at_random_writes_resumes_to_a_verified_folder() {
     assert_eq!(n, 60);
 }
 
+#[test]
+fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() {
+    let base = ["--sim", "G", "--seed", "16"];
+    let clean_dir = sweep_dir("full-clean");
+    let counting = Crash::counting();
+    let mut args = strings(&base);
+    args.extend(strings(&["--out", clean_dir.to_str().unwrap()]));
+    assert!(matches!(run(&args, Some(counting.clone())).unwrap(), Measured::Done { .. }));
+    let clean_class = class(&clean_dir);
+    for n in 1..=counting.writes() {
+        let dir = sweep_dir(&format!("full-{n}"));
+        let what = format!("disk full at write {n} of {}", counting.writes());
+        let mut args = strings(&base);
+        args.extend(strings(&["--out", dir.to_str().unwrap()]));
+        let message = match run(&args, Some(Crash::disk_full_at(n))) {
+            // The last write renames the manifest into place: a full disk takes no data there.
+            Ok(Measured::Done { .. }) if n == counting.writes() => {
+                host::output::verify::verify(&dir).unwrap();
+                let _ = std::fs::remove_dir_all(&dir);
+                continue;
+            }
+            Ok(Measured::Done { .. }) => panic!("{what}: finished on a full disk"),
+            Ok(Measured::Stopped { error, .. }) => error.to_string(),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(message.contains("no space left on device"), "{what}: {message}");
+        if dir.exists() {
+            // What the disk took is whole: no cut line, no temporary file, a readable session.json.
+            for name in ["points.jsonl", "readings.csv", "session.log"] {
+                let text = std::fs::read(dir.join(name)).unwrap_or_default();
+                assert!(text.is_empty() || text.ends_with(b"\n"), "{what}: {name} ends in a cut line");
+            }
+            let names = host::output::folder::entries(&dir).unwrap();
+            assert!(!names.iter().any(|n| host::output::store::is_temp_name(n)), "{what}: {names:?}");
+            if dir.join("session.json").exists() {
+                host::output::folder::read_session(&dir).unwrap_or_else(|p| panic!("{what}: {p}"));
+            }
+        }
+        let before = whole_lines(&dir);
+        resume(&dir, &base, &what);
+        check_resumed(&dir, &before, &clean_class, &what);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let _ = std::fs::remove_dir_all(&clean_dir);
+}
+
 /// The model holds for a real process: `gonio measure` SIGKILLed at random moments, then
 /// `gonio measure --resume`, then `gonio verify`.
 #[test]
