@@ -184,6 +184,8 @@ fn resume_with_another_sample_instrument_or_plan_is_refused_naming_what_differs(
     let d = dir.to_str().unwrap();
     refused(&["measure", "--sim", "PPC", "--resume", d], &dir, &["cannot resume", "the sample differs (the session: 'G'; now: 'PPC')"]);
     refused(&["measure", "--sim", "G", "--sample", "G2", "--resume", d], &dir, &["the sample differs (the session: 'G'; now: 'G2')"]);
+    // Another paper under the same name is another sample still.
+    refused(&["measure", "--sim", "PPC", "--sample", "G", "--resume", d], &dir, &["the simulated sample differs (the session: 'G'; now: 'PPC')"]);
     refused(&["measure", "--sim", "G", "--policy", "paper", "--resume", d], &dir, &["the policy differs (the session: adaptive; now: paper)"]);
     refused(&["measure", "--sim", "G", "--integration-ms", "50", "--resume", d], &dir, &["the integration time differs (the session: 100 ms; now: 50 ms)"]);
     refused(&["measure", "--sim", "G", "--white-check", "--resume", d], &dir, &["the white check differs (the session: off; now: on)"]);

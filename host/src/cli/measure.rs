@@ -313,9 +313,10 @@ fn run_on<T: Transport>(
         Some(dir) => Some(Existing::open(dir, store.clone())?),
         None => None,
     };
-    let sample = args.sample.clone().or(sim_sample).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
+    let sample = args.sample.clone().or(sim_sample.clone()).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
     let plan = plan_record(args, &info, existing.as_ref().map(|e| &e.doc().plan))?;
-    let identity = Identity::new(&sample, &info, plan.clone());
+    let mut identity = Identity::new(&sample, &info, plan.clone());
+    identity.instrument.simulated_sample = sim_sample;
     let given_calibration = match &args.calibration {
         Some(path) => Some(external_calibration(path, checked, &info)?),
         None => None,

@@ -84,6 +84,10 @@ pub struct InstrumentRecord {
     pub board: String,
     /// Firmware version.
     pub firmware_version: String,
+    /// On the simulated instrument: the sample its scene holds (`--sim`), whatever the
+    /// sample is named.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulated_sample: Option<String>,
 }
 
 /// What the session was asked to measure: a resume must ask for the same.
