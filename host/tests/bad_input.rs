@@ -87,7 +87,8 @@ fn an_integration_time_outside_the_instruments_limits_is_refused_before_anything
     // The limits are the instrument's, from its handshake.
     let out = gonio(&["measure", "--sim", "G", "--integration-ms", "0", "--out", temp_dir("limits").to_str().unwrap()]);
     let message = String::from_utf8_lossy(&out.stderr);
-    let options = host::instrument::sim::SimOptions { seed: 1, acceptance: 1.0, noise_scale: 1.0, faults: String::new() };
+    // The simulator's defaults, as the command line gives them.
+    let options = host::cli::measure::parse_args(["--sim", "G"]).unwrap().sim_options;
     let mut client = host::instrument::link::Client::new(options.instrument("G").unwrap(), host::instrument::link::RetryPolicy::default());
     let info = client.hello().unwrap();
     assert!(message.contains(&format!("accepts: {} to {} ms", info.min_integration_ms.max(1), info.max_integration_ms)), "{message}");

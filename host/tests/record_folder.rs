@@ -171,7 +171,8 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
 
 /// The simulated instrument's DeviceInfo, from a handshake.
 fn hil_sim_info() -> protocol::DeviceInfo {
-    let options = host::instrument::sim::SimOptions { seed: 1, acceptance: 1.0, noise_scale: 1.0, faults: String::new() };
+    // The simulator's defaults, as the command line gives them.
+    let options = host::cli::measure::parse_args(["--sim", "G"]).unwrap().sim_options;
     let instrument = options.instrument("G").unwrap();
     let mut client = host::instrument::link::Client::new(instrument, host::instrument::link::RetryPolicy::default());
     client.hello().unwrap()
