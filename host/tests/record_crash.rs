@@ -237,6 +237,7 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
         let status = child.wait().unwrap();
         let before = whole_lines(&dir);
         let what = format!("kill {k} (seed {seed}, {status})");
+        eprintln!("{what}: {} readings on disk", before.len());
         let resumed = std::process::Command::new(gonio).args(base).args(["--resume", dir.to_str().unwrap()]).output().unwrap();
         let stderr = String::from_utf8_lossy(&resumed.stderr);
         if !resumed.status.success() {
