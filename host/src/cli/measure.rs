@@ -344,7 +344,7 @@ fn run_on<T: Transport>(
     };
     let dir = recorder.dir().to_path_buf();
     recorder.set_resume_with(resume_command(args, &dir));
-    let resumed = !points.is_empty();
+    let resumed = args.resume.is_some();
     if let (Some(c), false) = (&calibration, dir.join("calibration.json").exists()) {
         recorder.calibration(c).with_context(|| format!("cannot write {}", dir.join("calibration.json").display()))?;
     }
