@@ -170,15 +170,32 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
 }
 
 fn resume(policy: &str) {
+    let full_dir = temp_dir(&format!("resume-{policy}-full"));
+    let full = completed(&Served::new("SG", 8, ""), "SG", &full_dir, &["--policy", policy]);
+    let all = geometries(&full_dir);
+    // The same session stopped once 20 readings are on disk, then the next line cut short
+    // as a crash while writing it leaves it.
     let dir = temp_dir(&format!("resume-{policy}"));
-    let full = completed(&Served::new("SG", 8, ""), "SG", &dir, &["--policy", policy]);
-    let all = geometries(&dir);
-    // As if it had crashed after 20 readings, the last line cut short.
-    let points = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
-    let mut kept: String = points.lines().take(20).map(|l| format!("{l}\n")).collect();
-    kept.push_str(&points.lines().nth(20).unwrap()[..30]);
-    std::fs::write(dir.join("points.jsonl"), kept).unwrap();
-    std::fs::remove_file(dir.join("session.json")).unwrap();
+    let interrupted = Arc::new(AtomicBool::new(false));
+    let watcher = {
+        let (flag, points) = (interrupted.clone(), dir.join("points.jsonl"));
+        std::thread::spawn(move || {
+            while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < 20 {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+            flag.store(true, Ordering::Relaxed);
+        })
+    };
+    let served = Served::new("SG", 8, "");
+    let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--out", dir.to_str().unwrap()];
+    let Measured::Stopped { .. } = run(&args, &mut Person::default(), interrupted).unwrap() else { panic!("not stopped") };
+    watcher.join().unwrap();
+    drop(served);
+    let before = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
+    let taken = before.lines().count();
+    let mut points = std::fs::OpenOptions::new().append(true).open(dir.join("points.jsonl")).unwrap();
+    // (The start of a reading's line, as a crash in the middle of its write leaves it.)
+    std::io::Write::write_all(&mut points, &before.lines().last().unwrap().as_bytes()[..30]).unwrap();
     let served = Served::new("SG", 8, "");
     let mut person = Person::default();
     let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--resume", dir.to_str().unwrap()];
@@ -187,16 +204,21 @@ fn resume(policy: &str) {
     assert_eq!(resumed["class"], full["class"]);
     let g = geometries(&dir);
     assert_each_once(&g);
-    assert!(g[..20] == all[..20], "the readings taken before the crash are kept as they were");
+    let after = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
+    assert!(after.starts_with(&before), "the readings taken before the crash are kept as they were");
     if policy == "paper" {
         // A fixed procedure: exactly what the uninterrupted session measured.
         assert_eq!(g.len(), all.len());
     } else {
         // The adaptive policy plans again from what it has: it may choose other geometries,
         // never one already measured.
-        assert!(g.len() >= 21 && resumed["sigma_ok"] == true, "{resumed}");
+        assert!(g.len() > taken && resumed["sigma_ok"] == true, "{resumed}");
     }
+    let log = std::fs::read_to_string(dir.join("session.log")).unwrap();
+    assert!(log.contains("points.jsonl: removed its last line, cut short by a crash"), "{log}");
+    host::output::verify::verify(&dir).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&full_dir);
 }
 
 #[test]
