@@ -348,6 +348,12 @@ pub enum Note {
     },
     /// Neither goodness-of-fit test could be made (no uncertainties and too few θr neighbours).
     FitNotTestable,
+    /// η's 95 % interval reaches 1, where ρs = A/(η²−1) is unbounded: ρs is not identified,
+    /// only known to be at least `rho_s_lower` (its value at η's upper limit).
+    RhoSUnbounded {
+        /// Lower limit of ρs.
+        rho_s_lower: f64,
+    },
 }
 
 impl std::fmt::Display for Note {
@@ -374,6 +380,9 @@ impl std::fmt::Display for Note {
                 write!(f, "the model does not describe the data: intervals widened × {:.2} (variance × {factor:.2})", factor.sqrt())
             }
             Note::FitNotTestable => f.write_str("goodness of fit not testable: no uncertainties and too few θr neighbours"),
+            Note::RhoSUnbounded { rho_s_lower } => {
+                write!(f, "η's interval reaches 1, where ρs = A/(η²−1) is unbounded (A = ρs·(η²−1) the amplitude the data fix): ρs not identified, only ≥ {rho_s_lower:.4}")
+            }
         }
     }
 }
@@ -522,10 +531,12 @@ impl FitResult {
         })
     }
 
-    /// Lower limit of ρs when σ is unresolved through a window.
+    /// Lower limit of ρs when ρs is not identified but bounded below (σ unresolved through
+    /// a window, or η's interval reaching 1).
     pub fn rho_s_lower(&self) -> Option<f64> {
         self.notes.iter().find_map(|n| match n {
             Note::SigmaUnresolved { rho_s_lower, .. } => *rho_s_lower,
+            Note::RhoSUnbounded { rho_s_lower } => Some(*rho_s_lower),
             _ => None,
         })
     }
@@ -559,6 +570,9 @@ fn not_identified_of(notes: &[Note]) -> Vec<NotIdentified> {
             }
             Note::EtaAtBound { eta } if *eta <= ETA_MIN && !no_specular => {
                 out.push(NotIdentified { param: "rho_s", reason: "η at its lower bound 1: only ρs·(η²−1) is determined" });
+            }
+            Note::RhoSUnbounded { .. } => {
+                out.push(NotIdentified { param: "rho_s", reason: "η's 95 % interval reaches 1, where ρs is unbounded: only a lower limit" });
             }
             _ => {}
         }
@@ -962,8 +976,6 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
             }
         }
     }
-    let not_identified = not_identified_of(&notes);
-    let not_identified_params: Vec<usize> = (0..4).filter(|&i| not_identified.iter().any(|u| u.param == PARAM_NAMES[i])).collect();
     if let Some(total) = &total_x {
         // d(σ, ρs, ρd, η)/d(ln σ, A, ρd, η): σ = e^x0, ρs = A/(η²−1); δ0 enters none.
         let k = engine::eta_factor(x[3]);
@@ -977,9 +989,6 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
         let to_natural = |s: &Square| -> [[f64; 4]; 4] {
             std::array::from_fn(|r| {
                 std::array::from_fn(|c| {
-                    if not_identified_params.contains(&r) || not_identified_params.contains(&c) {
-                        return 0.0;
-                    }
                     let mut sum = 0.0;
                     for a in 0..p {
                         for b in 0..p {
@@ -990,24 +999,43 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
                 })
             })
         };
-        covariance = to_natural(total);
+        let quantile = if weighted && variance_scale == 1.0 { Z_975 } else { t_quantile_975(dof) };
+        let full = to_natural(total);
+        // ρs = A/(η²−1) is unbounded above when η's interval reaches 1: then it is not
+        // identified, and only bounded below (by its value at η's upper limit).
+        if free[ETA] && free[RHO_S] {
+            let se_eta = full[ETA][ETA].max(0.0).sqrt();
+            if x[ETA] - quantile * se_eta <= engine::ETA_FLOOR {
+                let eta_hi = (x[ETA] + quantile * se_eta).min(ETA_MAX);
+                notes.push(Note::RhoSUnbounded { rho_s_lower: x[RHO_S] / engine::eta_factor(eta_hi) });
+            }
+        }
+        let not_identified = not_identified_of(&notes);
+        let unknown: Vec<usize> = (0..4).filter(|&i| not_identified.iter().any(|u| u.param == PARAM_NAMES[i])).collect();
+        let zero_unknown = |m: [[f64; 4]; 4]| -> [[f64; 4]; 4] {
+            std::array::from_fn(|r| std::array::from_fn(|c| if unknown.contains(&r) || unknown.contains(&c) { 0.0 } else { m[r][c] }))
+        };
+        covariance = zero_unknown(full);
         for (name, term) in &terms_x {
-            let natural = to_natural(term);
+            let natural = zero_unknown(to_natural(term));
             budget.push(BudgetTerm { name: name.clone(), variance: std::array::from_fn(|i| natural[i][i]) });
         }
-        let quantile = if weighted && variance_scale == 1.0 { Z_975 } else { t_quantile_975(dof) };
         let natural_lo = [SIGMA_MIN_DEG, 0.0, 0.0, ETA_MIN];
         let natural_hi = [SIGMA_MAX_DEG, f64::INFINITY, f64::INFINITY, ETA_MAX];
         for (c, &i) in free_index.iter().enumerate() {
-            if not_identified_params.contains(&i) {
+            if unknown.contains(&i) {
                 continue;
             }
+            let v = params.to_array()[i];
             let (low, high) = if i == SIGMA {
                 // In ln σ, so the interval stays positive and follows the lobe's scale.
                 let se = total.at(c, c).max(0.0).sqrt();
                 ((x[0] - quantile * se).exp(), (x[0] + quantile * se).exp())
+            } else if i == RHO_S && v > 0.0 {
+                // In ln ρs too: ρs = A/(η²−1) is a ratio whose uncertainty is relative.
+                let se = covariance[i][i].max(0.0).sqrt() / v;
+                (v * (-quantile * se).exp(), v * (quantile * se).exp())
             } else {
-                let v = params.to_array()[i];
                 let se = covariance[i][i].max(0.0).sqrt();
                 (v - quantile * se, v + quantile * se)
             };
