@@ -1232,7 +1232,9 @@ fn arm_offset_step(problem: &Problem, x: &[f64; 4]) -> Option<(Vec<usize>, Vec<f
 /// Test for an arm zero offset and fit it when the data call for it: the score statistic
 /// at δ0 = 0 screens; then Gauss–Newton steps on the profile cost c(δ0) (each a rebuilt
 /// problem and a warm Levenberg–Marquardt run), and the likelihood ratio (c(0) − c(δ̂0))/s²
-/// against [`ARM_OFFSET_LR_CRITICAL`] (s² = 1 weighted, else from the residuals with δ0).
+/// against [`ARM_OFFSET_LR_CRITICAL`] (s² = 1 weighted; without uncertainties the Wald
+/// statistic δ̂0²/Var(δ̂0) with the sandwich variance, or s² from the residuals below
+/// [`SANDWICH_MIN_DOF`]).
 fn arm_offset_search(
     observations: &[Observation],
     shared: &[SharedError],
@@ -1298,12 +1300,34 @@ fn arm_offset_search(
         return ArmSearch { statistic: score, accepted: None };
     };
     let s2 = if weighted { 1.0 } else { run.cost / dof_with };
-    let lr = (outcome.cost - run.cost) / s2.max(1e-300);
+    let mut lr = (outcome.cost - run.cost) / s2.max(1e-300);
+    if !weighted && dof_with >= SANDWICH_MIN_DOF as f64 {
+        // Without uncertainties the likelihood ratio assumes equal noise, which real
+        // readings do not have (the peak's are far noisier): use the Wald statistic of δ0
+        // with its heteroscedasticity-consistent variance instead, the sandwich the
+        // intervals use.
+        lr = robust_arm_offset_statistic(&problem, &run.x).unwrap_or(lr);
+    }
     if lr > ARM_OFFSET_LR_CRITICAL {
         ArmSearch { statistic: lr, accepted: Some((problem, run)) }
     } else {
         ArmSearch { statistic: lr, accepted: None }
     }
+}
+
+/// δ0² / Var_HC3(δ0) at the fit `x` of the shifted `problem` (unweighted).
+fn robust_arm_offset_statistic(problem: &Problem, x: &[f64; 4]) -> Option<f64> {
+    let (lo, hi) = (lower_bounds(), upper_bounds());
+    let (residuals, jacobian) = problem.rows(x);
+    let free: Vec<usize> = (0..4).filter(|&i| x[i] > lo[i] && x[i] < hi[i]).collect();
+    let mut columns: Vec<Vec<f64>> = free.iter().map(|&i| jacobian.iter().map(|row| row[i]).collect()).collect();
+    columns.push(problem.shift_column(x));
+    let normal = gls_normal(&problem.shared, &columns, None);
+    let h_inv = linalg::spd_inverse(&normal.h)?;
+    let cov = sandwich(&h_inv, &columns, &residuals);
+    let p = columns.len();
+    let variance = cov.at(p - 1, p - 1);
+    (variance > 0.0).then(|| problem.shift_deg * problem.shift_deg / variance)
 }
 
 /// Largest σ whose profile cost (others refitted) stays within `threshold`, and the
