@@ -469,3 +469,50 @@ fn unweighted_csv_says_its_noise_came_from_the_residuals() {
     let w = fit(&weighted, &FitOptions::default()).expect("valid");
     assert!(w.chi2.is_some() && w.gof_p.is_some() && w.noise_from_residuals.is_none());
 }
+
+/// `gonio fit --json` carries chi2, dof, gof_p, flags and ok, and exits 3 (flagged) when
+/// a data set is flagged and none failed; 0 when all are clean.
+#[test]
+fn gonio_fit_reports_the_goodness_of_fit_and_exits_3_when_flagged() {
+    let dir = std::env::temp_dir().join(format!("gonio-fit-gof-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let write = |name: &str, obs: &[Observation]| {
+        let mut text = String::from("theta_i,theta_r,radiance_factor,std\n");
+        for o in obs {
+            text += &format!("{},{},{},{}\n", o.theta_i_deg, o.theta_r_deg, o.radiance_factor, o.std.expect("weighted"));
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, text).expect("write");
+        path
+    };
+    let instrument = Instrument::issue();
+    let ggx = truth(&Sheet { params: common::reference("G"), lobe: Lobe::Ggx, bump: None }, &common::strategy2(2), &instrument);
+    let ideal = truth(&Sheet::ideal(common::reference("PPC")), &common::strategy2(2), &instrument);
+    let flagged = write("ggx.csv", &draw(&ggx, &instrument, 1).0);
+    let clean = write("ppc.csv", &draw(&ideal, &instrument, 1).0);
+    let run = |files: &[&std::path::Path]| std::process::Command::new(env!("CARGO_BIN_EXE_gonio")).args(["fit", "--json"]).args(files).output().expect("run gonio");
+    let out = run(&[&clean]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = run(&[&clean, &flagged]);
+    assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    for line in &lines {
+        for key in ["chi2", "dof", "gof_p", "flags", "ok", "structure", "budget", "not_identified"] {
+            assert!(line.get(key).is_some(), "missing {key}: {line}");
+        }
+    }
+    assert_eq!(lines[0]["ok"], true);
+    assert_eq!(lines[1]["ok"], false);
+    assert_eq!(lines[1]["flags"], serde_json::json!(["lack-of-fit"]));
+    assert!(lines[1]["gof_p"].as_f64().is_some_and(|p| p < 1e-6), "{}", lines[1]);
+    assert!(lines[1]["class_confidence"].as_f64().is_none_or(|c| c < 0.95));
+    // A failed file still wins: exit 1.
+    let broken = dir.join("broken.csv");
+    std::fs::write(&broken, "theta_i,theta_r,radiance_factor\n20,0,nope\n").expect("write");
+    assert_eq!(run(&[&flagged, &broken]).status.code(), Some(1));
+    // The table shows the fit's verdict.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gonio")).arg("fit").arg(&flagged).output().expect("run gonio");
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("LACK OF FIT") && table.contains("flags: lack-of-fit") && table.contains("χ²"), "{table}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

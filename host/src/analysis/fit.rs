@@ -326,8 +326,10 @@ pub enum Note {
     SingularJacobian,
     /// As many parameters as geometries: no residual variance, no confidence intervals.
     NoDegreesOfFreedom,
-    /// No standard uncertainties were given: the noise was taken equal for all readings and
-    /// estimated from the residuals (`std`, one reading's); there is no χ² test.
+    /// No standard uncertainties were given: the readings are weighted equally, the noise is
+    /// estimated from the residuals (`std`, one reading's if it were the same for all) and
+    /// the intervals from the heteroscedasticity-consistent sandwich ([`SANDWICH_MIN_DOF`]);
+    /// there is no χ² test.
     NoiseFromResiduals {
         /// The estimated standard deviation of one reading.
         std: f64,
@@ -371,7 +373,10 @@ impl std::fmt::Display for Note {
             Note::SingularJacobian => f.write_str("singular normal matrix at the optimum: no confidence intervals"),
             Note::NoDegreesOfFreedom => f.write_str("as many parameters as geometries: no confidence intervals"),
             Note::NoiseFromResiduals { std } => {
-                write!(f, "no uncertainties given: noise taken equal for all readings and estimated from the residuals (std {std:.3e}); no χ² test")
+                write!(
+                    f,
+                    "no uncertainties given: the noise is estimated from the residuals (std {std:.3e} if equal for all readings; intervals allow it to differ between readings); no χ² test"
+                )
             }
             Note::ArmOffsetFitted { deg, std_deg, lr } => {
                 write!(f, "arm zero offset fitted: θr + {deg:+.3}° ± {std_deg:.3}° (likelihood ratio {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})")
