@@ -296,7 +296,8 @@ fn non_gaussian_lobes_are_flagged_and_never_confidently_wrong() {
 /// is 1 %: χ² and the structure test at 0.5 % each).
 #[test]
 fn lack_of_fit_false_flag_rate_on_ideal_data() {
-    let mut cases: Vec<(&str, Vec<(f64, f64)>, Instrument, u64)> = Vec::new();
+    type Case = (&'static str, Vec<(f64, f64)>, Instrument, u64);
+    let mut cases: Vec<Case> = Vec::new();
     for r in &REFERENCES {
         cases.push((r.name, common::full_grid(), Instrument::issue(), 25));
         cases.push((r.name, common::full_grid(), Instrument::quiet(), 15));

@@ -691,7 +691,7 @@ pub fn validate_shared(observations: &[Observation], shared: &[SharedError]) -> 
         if term.sensitivity.len() != observations.len() {
             return Err(FitError::SharedErrorLength { name: term.name.clone(), found: term.sensitivity.len(), expected: observations.len() });
         }
-        if let Some((index, &value)) = term.sensitivity.iter().enumerate().find(|(_, v)| !(v.abs() <= RADIANCE_FACTOR_MAX)) {
+        if let Some((index, &value)) = term.sensitivity.iter().enumerate().find(|(_, v)| v.is_nan() || v.abs() > RADIANCE_FACTOR_MAX) {
             return Err(FitError::SharedErrorValue { name: term.name.clone(), index, value, max: RADIANCE_FACTOR_MAX });
         }
     }
@@ -1260,7 +1260,7 @@ fn arm_offset_search(
     // Converged when the next step is a twentieth of δ0's standard error: the cost is then
     // within 0.0025 (in noise-variance units) of its minimum, far below any level tested.
     let tolerance = 0.05 * se * s2_without.sqrt();
-    if !(score >= ARM_OFFSET_SCREEN) {
+    if score.is_nan() || score < ARM_OFFSET_SCREEN {
         return ArmSearch { statistic: score, accepted: None };
     }
     let (lo, hi) = (lower_bounds(), upper_bounds());

@@ -259,9 +259,9 @@ const GL_WEIGHTS: [f64; 5] = [0.295_524_224_714_752_9, 0.269_266_719_309_996_3, 
 ///
 /// Two evaluations of the same integrals, each where it is accurate (both to ~1e-13, so
 /// the choice never shows in a fit): a lobe narrower than the window (2σ < a) by the
-/// closed form (the recurrence M_{n+1} = −o·M_n + (w²/a)[(−a/2)^n L(o−a/2) − (a/2)^n L(o+a/2)]
-/// + n·w²·M_{n−1} from integrating by parts, w = 2σ, o the offset, which is stable while
-/// w ≲ a); a broader one, smooth across the window, by 10-point Gauss–Legendre.
+/// closed form (from integrating by parts, with w = 2σ and o the offset, the recurrence
+/// M_{n+1} = −o·M_n + (w²/a)[(−a/2)^n L(o−a/2) − (a/2)^n L(o+a/2)] + n·w²·M_{n−1},
+/// stable while w ≲ a); a broader one, smooth across the window, by 10-point Gauss–Legendre.
 pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> WindowMoments {
     let w = 2.0 * sigma_deg;
     let a = acceptance_deg;
