@@ -1,6 +1,8 @@
 //! The science, pure (no I/O): the TSL model, the fit, the sampling check σ > σ_l,
 //! classification, the comparison of two sheets, and the report of one analysis.
 pub mod classify;
+pub mod gof;
+pub mod linalg;
 pub mod compare;
 pub mod fit;
 pub mod flags;
