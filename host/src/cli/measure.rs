@@ -102,16 +102,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let flag = interrupted.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).context("cannot install the Ctrl-C handler")?;
     // In process the simulated operator swaps the tile; on any port a person is asked.
-    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator) } else { Box::new(PromptOperator) };
+    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator::default()) } else { Box::new(PromptOperator::new()) };
     match measure(&args, operator.as_mut(), interrupted)? {
-        Measured::Done { dir, outcome, summary } => {
+        Measured::Done { dir, outcome, mut summary } => {
+            // `ok` and `flags` are the result's verdict; the exit code says the same.
+            summary["ok"] = json!(outcome.ok());
+            summary["flags"] = json!(outcome.flags);
             print_report(&args, &dir, &outcome, &summary);
-            Ok(ExitCode::SUCCESS)
+            if !outcome.ok() {
+                let flags: Vec<&str> = outcome.flags.iter().filter(|f| !f.is_informational()).map(|f| f.name()).collect();
+                eprintln!("result flagged: {} (see the decisions in {})", flags.join(", "), dir.display());
+            }
+            Ok(crate::cli::exit::of_result(outcome.ok()))
         }
         Measured::Stopped { dir, error } => {
             eprintln!("session stopped: {error}");
             eprintln!("readings so far are in {}; continue with: gonio measure --resume {} ...", dir.display(), dir.display());
-            Ok(ExitCode::FAILURE)
+            let code = if matches!(error, SessionError::Interrupted) { crate::cli::exit::INTERRUPTED } else { crate::cli::exit::FAILED };
+            Ok(ExitCode::from(code))
         }
     }
 }
@@ -172,6 +180,7 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: args.white_check,
         white_drift_limit: args.white_drift_limit_pct / 100.0,
+        max_calibration_age: max_age,
     };
     client.set_interrupt(Some(interrupted));
     let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);
