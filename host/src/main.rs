@@ -24,6 +24,8 @@ enum Command {
     Compare(host::cli::compare::Args),
     /// Speed against accuracy: whole simulated sessions over papers, seeds and policies.
     Trade(host::cli::trade::Args),
+    /// Check session folders: every file against MANIFEST.sha256, the records against each other.
+    Verify(host::cli::verify::Args),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +37,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => host::cli::sim::run(args),
         Command::Compare(args) => host::cli::compare::run(args),
         Command::Trade(args) => host::cli::trade::run(args),
+        Command::Verify(args) => host::cli::verify::run(args),
     };
     match result {
         Ok(code) => code,

@@ -1,18 +1,32 @@
 //! `gonio measure`: the whole measurement session, on an instrument or the simulated one.
-use crate::instrument::calibration::{Calibration, instrument_name};
+//!
+//! Every option is checked before anything moves (numbers against their limits, the
+//! integration time against the instrument's announced limits); the session folder is
+//! made for this session alone or, with `--resume`, taken only for the same sample,
+//! instrument and plan ([`crate::output::record`]).
 use crate::analysis::fit::Observation;
+use crate::instrument::calibration::{Calibration, instrument_name, max_age_from_hours};
 use crate::instrument::link::{Client, RetryPolicy, Transport};
 use crate::instrument::serial::SerialTransport;
-use crate::output::record::{FileRecorder, read_points};
-use crate::session::{Operator, Outcome, Plan, PolicyChoice, PromptOperator, Recorder, Session, SessionError, SimulatedOperator};
 use crate::instrument::sim::SimOptions;
-use anyhow::Context;
+use crate::output::folder::{AdaptiveTargetsRecord, PlanRecord, Status};
+use crate::output::record::{Existing, FileRecorder, Identity};
+use crate::output::store::StoreOptions;
+use crate::session::adaptive::AdaptiveTargets;
+use crate::session::{Operator, Outcome, Plan, Policy, PolicyChoice, PromptOperator, Recorder, Session, SessionError, SimulatedOperator};
+use anyhow::{Context, bail};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
+
+/// The white drift limit when none is given, percent.
+pub const DEFAULT_WHITE_DRIFT_LIMIT_PCT: f64 = 0.5;
+/// The largest detector acceptance the fit models, degrees (full width): its acceptance
+/// window is a small-angle average over the lobe, and the instrument's is about 2°.
+pub const MAX_ACCEPTANCE_DEG: f64 = 10.0;
 
 /// Arguments of `gonio measure`.
 #[derive(clap::Args)]
@@ -26,34 +40,38 @@ pub struct Args {
     /// Serial port of the instrument (default: the one attached instrument, by USB id).
     #[arg(long, value_name = "PATH")]
     pub port: Option<String>,
-    /// Name of the sample for the report and the files (default: the simulated sample, or "sample").
+    /// Name of the sample for the report and the files (default: the simulated sample, the
+    /// resumed session's, or "sample").
     #[arg(long)]
     pub sample: Option<String>,
-    /// Folder for the session's files (default: sessions/<time>-<sample>).
+    /// Folder for the session's files: new or empty (default: a new
+    /// sessions/<local date-time>-<sample>).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
-    /// Continue an interrupted session in DIR, measuring only what is missing.
+    /// Continue an interrupted session in DIR, measuring only what is missing. Options not
+    /// given are the session's; options given must be the session's.
     #[arg(long, value_name = "DIR", conflicts_with = "out")]
     pub resume: Option<PathBuf>,
     /// Use the calibration of an earlier session (its folder, session.json or calibration.json).
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
-    /// Oldest calibration accepted, hours.
+    /// Oldest calibration accepted, hours (at most 8760).
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
     pub max_calibration_age_h: f64,
-    /// Integration time per reading (default: the instrument's).
+    /// Integration time per reading (default: the instrument's); within the limits the
+    /// instrument announces.
     #[arg(long, value_name = "MS")]
     pub integration_ms: Option<u16>,
-    /// Refinement policy: adaptive reaches the paper's accuracy in a fraction of its
-    /// device time (docs/TRADE.md); paper follows the paper's procedure exactly.
-    #[arg(long, value_enum, default_value_t = PolicyChoice::Adaptive)]
-    pub policy: PolicyChoice,
+    /// Refinement policy (default adaptive): adaptive reaches the paper's accuracy in a
+    /// fraction of its device time (docs/TRADE.md); paper follows the paper's procedure exactly.
+    #[arg(long, value_enum)]
+    pub policy: Option<PolicyChoice>,
     /// Re-read the white tile at the end and mark the result if it drifted.
     #[arg(long)]
     pub white_check: bool,
-    /// White drift beyond which the result is marked, percent.
-    #[arg(long, value_name = "PERCENT", default_value_t = 0.5)]
-    pub white_drift_limit_pct: f64,
+    /// White drift beyond which the result is marked, percent (default 0.5; above 0, at most 100).
+    #[arg(long, value_name = "PERCENT")]
+    pub white_drift_limit_pct: Option<f64>,
     /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,
@@ -87,12 +105,14 @@ pub enum Measured {
         summary: serde_json::Value,
     },
     /// The session stopped (Ctrl-C, a dead link); the instrument was told to stop, and the
-    /// readings taken are in `dir`.
+    /// readings taken are in `dir`, with `session.json` saying why and how to resume.
     Stopped {
         /// The session folder.
         dir: PathBuf,
         /// Why.
         error: SessionError,
+        /// The folder could not be updated with the status either (a full disk…).
+        record_error: Option<String>,
     },
 }
 
@@ -104,20 +124,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     // In process the simulated operator swaps the tile; on any port a person is asked.
     let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator::default()) } else { Box::new(PromptOperator::new()) };
     match measure(&args, operator.as_mut(), interrupted)? {
-        Measured::Done { dir, outcome, mut summary } => {
-            // `ok` and `flags` are the result's verdict; the exit code says the same.
-            summary["ok"] = json!(outcome.ok());
-            summary["flags"] = json!(outcome.flags);
+        Measured::Done { dir, outcome, summary } => {
             print_report(&args, &dir, &outcome, &summary);
-            if !outcome.ok() {
-                let flags: Vec<&str> = outcome.flags.iter().filter(|f| !f.is_informational()).map(|f| f.name()).collect();
-                eprintln!("result flagged: {} (see the decisions in {})", flags.join(", "), dir.display());
-            }
+            // The exit code says what `ok` says: 0 clean, 3 flagged.
             Ok(crate::cli::exit::of_result(outcome.ok()))
         }
-        Measured::Stopped { dir, error } => {
+        Measured::Stopped { dir, error, record_error } => {
             eprintln!("session stopped: {error}");
-            eprintln!("readings so far are in {}; continue with: gonio measure --resume {} ...", dir.display(), dir.display());
+            if let Some(record_error) = record_error {
+                eprintln!("and its folder could not be updated: {record_error}");
+            }
+            eprintln!("readings so far are in {}; continue with: {}", dir.display(), resume_command(&args, &dir));
             let code = if matches!(error, SessionError::Interrupted) { crate::cli::exit::INTERRUPTED } else { crate::cli::exit::FAILED };
             Ok(ExitCode::from(code))
         }
@@ -127,10 +144,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 /// The whole session on the instrument `args` name, asking `operator` to place the tile;
 /// stops the instrument and returns [`Measured::Stopped`] once `interrupted` is set.
 pub fn measure(args: &Args, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
+    measure_with(args, operator, interrupted, StoreOptions::default())
+}
+
+/// [`measure`], with the session folder's writes under `store` (a simulated crash, in tests).
+pub fn measure_with(args: &Args, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>, store: StoreOptions) -> anyhow::Result<Measured> {
+    // Numbers first: nothing is connected, moved or written for a bad one.
+    let checked = check_args(args)?;
     let policy = RetryPolicy::default();
     if let Some(sample) = &args.sim {
         let instrument = args.sim_options.instrument(sample)?;
-        run_on(Client::new(instrument, policy), args, sample.clone(), operator, interrupted)
+        run_on(Client::new(instrument, policy), args, &checked, Some(sample.clone()), operator, interrupted, store)
     } else {
         let path = match &args.port {
             Some(path) => path.clone(),
@@ -138,55 +162,198 @@ pub fn measure(args: &Args, operator: &mut dyn Operator, interrupted: Arc<Atomic
                 "no instrument found (gonio ports lists the serial ports); give --port PATH, or --sim SAMPLE for the simulated instrument",
             )?,
         };
-        let transport = SerialTransport::open(&path).with_context(|| format!("cannot open {path}"))?;
-        run_on(Client::new(transport, policy), args, "sample".into(), operator, interrupted)
+        check_port(&path)?;
+        let transport = SerialTransport::open(&path).map_err(|e| match e.to_string() {
+            m if m.contains("Not a typewriter") || m.contains("Inappropriate ioctl") => {
+                anyhow::anyhow!("--port {path} is not a serial port (a device, but not a terminal): give the instrument's port (gonio ports lists them)")
+            }
+            m => anyhow::anyhow!("cannot open --port {path}: {m}"),
+        })?;
+        run_on(Client::new(transport, policy), args, &checked, None, operator, interrupted, store)
     }
 }
 
-fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
-    let sample = args.sample.clone().unwrap_or(sample);
-    let info = client.hello().context("handshake with the instrument")?;
-    let dir = match (&args.resume, &args.out) {
-        (Some(dir), _) | (None, Some(dir)) => dir.clone(),
-        (None, None) => {
-            let stamp = crate::instrument::calibration::unix_now_s();
-            PathBuf::from("sessions").join(format!("{stamp}-{}", sample.replace(['/', ':', ','], "_")))
+/// Options checked before anything is connected.
+struct Checked {
+    max_calibration_age: Duration,
+}
+
+fn check_args(args: &Args) -> anyhow::Result<Checked> {
+    let max_calibration_age = max_age_from_hours(args.max_calibration_age_h)?;
+    if let Some(limit) = args.white_drift_limit_pct {
+        if !(limit > 0.0 && limit <= 100.0) {
+            bail!("--white-drift-limit-pct must be a percentage above 0 and at most 100, not {limit}");
         }
+    }
+    if let Some(sample) = &args.sample {
+        if sample.trim().is_empty() || sample.chars().any(char::is_control) {
+            bail!("--sample must be a name (no control characters), not {sample:?}");
+        }
+    }
+    Ok(Checked { max_calibration_age })
+}
+
+/// A regular file or a folder given as `--port` is no serial port: say so before opening it.
+fn check_port(path: &str) -> anyhow::Result<()> {
+    let meta = match std::fs::metadata(path) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!("--port {path}: no such port (gonio ports lists the serial ports)"),
+        Err(e) => bail!("cannot open --port {path}: {e}"),
     };
-    let max_age = Duration::from_secs_f64(args.max_calibration_age_h.max(0.0) * 3600.0);
-    let mut calibration = match &args.calibration {
-        Some(path) => {
-            let path = if path.is_dir() { path.join("calibration.json") } else { path.clone() };
-            Some(Calibration::load(&path, max_age, &info)?)
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let kind = meta.file_type();
+        if !kind.is_char_device() {
+            let what = if kind.is_dir() { "a folder" } else if kind.is_file() { "a regular file" } else { "not a device" };
+            bail!("--port {path} is not a serial port (it is {what}): give the instrument's port, e.g. /dev/ttyACM0 (gonio ports lists them)");
         }
+    }
+    #[cfg(not(unix))]
+    let _ = meta;
+    Ok(())
+}
+
+/// The command that continues a session in `dir`.
+fn resume_command(args: &Args, dir: &Path) -> String {
+    let on = match (&args.sim, &args.port) {
+        (Some(sample), _) => format!(" --sim {sample}"),
+        (None, Some(port)) => format!(" --port {port}"),
+        (None, None) => String::new(),
+    };
+    format!("gonio measure{on} --resume {}", dir.display())
+}
+
+fn policy_name(choice: PolicyChoice) -> &'static str {
+    match choice {
+        PolicyChoice::Paper => "paper",
+        PolicyChoice::Adaptive => "adaptive",
+    }
+}
+
+/// What is measured: the options given, else the resumed session's, else the defaults;
+/// checked against the instrument's announced limits.
+fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRecord>) -> anyhow::Result<PlanRecord> {
+    let policy = match (args.policy, earlier) {
+        (Some(choice), _) => choice,
+        (None, Some(plan)) => <PolicyChoice as clap::ValueEnum>::from_str(&plan.policy, true)
+            .map_err(|_| anyhow::anyhow!("the session's policy '{}' is not one this gonio knows (paper, adaptive)", plan.policy))?,
+        (None, None) => PolicyChoice::Adaptive,
+    };
+    let adaptive_targets = match Policy::from(policy) {
+        Policy::Adaptive(t) => Some(AdaptiveTargetsRecord { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
+        _ => None,
+    };
+    let (integration_ms, from) = match (args.integration_ms, earlier) {
+        (Some(ms), _) => (ms, "--integration-ms".to_string()),
+        (None, Some(plan)) => (plan.integration_ms, "the resumed session's integration time".to_string()),
+        (None, None) => (info.default_integration_ms, "the instrument's default integration time".to_string()),
+    };
+    let (min, max) = (info.min_integration_ms.max(1), info.max_integration_ms);
+    if !(min..=max).contains(&integration_ms) {
+        bail!(
+            "{from} {integration_ms} ms is outside what the instrument (serial {}) accepts: {min} to {max} ms",
+            info.serial_number
+        );
+    }
+    let acceptance_deg = f64::from(info.acceptance_deg);
+    if !(acceptance_deg.is_finite() && (0.0..=MAX_ACCEPTANCE_DEG).contains(&acceptance_deg)) {
+        bail!("the instrument (serial {}) announces a detector acceptance of {acceptance_deg}°: the fit models 0 to {MAX_ACCEPTANCE_DEG}°", info.serial_number);
+    }
+    Ok(PlanRecord {
+        policy: policy_name(policy).into(),
+        adaptive_targets,
+        integration_ms,
+        acceptance_deg,
+        white_check: args.white_check || earlier.is_some_and(|p| p.white_check),
+        white_drift_limit_pct: args.white_drift_limit_pct.or(earlier.map(|p| p.white_drift_limit_pct)).unwrap_or(DEFAULT_WHITE_DRIFT_LIMIT_PCT),
+    })
+}
+
+fn plan_of(record: &PlanRecord, sample: &str, max_calibration_age: Duration) -> Plan {
+    let policy = match &record.adaptive_targets {
+        Some(t) => Policy::Adaptive(AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
+        None => Policy::Paper,
+    };
+    Plan {
+        sample: sample.to_string(),
+        integration_ms: record.integration_ms,
+        policy,
+        acceptance_deg: record.acceptance_deg,
+        white_check: record.white_check,
+        white_drift_limit: record.white_drift_limit_pct / 100.0,
+        max_calibration_age,
+    }
+}
+
+/// `--calibration`: a session folder, its `session.json` or a `calibration.json`, checked
+/// for age and instrument (its serial number too, when a session document names it).
+fn external_calibration(path: &Path, checked: &Checked, info: &protocol::DeviceInfo) -> anyhow::Result<Calibration> {
+    let file = if path.is_dir() { path.join("calibration.json") } else { path.to_path_buf() };
+    let calibration = Calibration::load(&file, checked.max_calibration_age, info)?;
+    let session = if path.is_dir() { path.join("session.json") } else { file.with_file_name("session.json") };
+    if let Some(serial) = std::fs::read(&session).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok()).and_then(|v| v["instrument"]["serial_number"].as_str().map(str::to_string)) {
+        if serial != info.serial_number.as_str() {
+            bail!("calibration {} was taken on instrument serial {serial}, not on this one (serial {})", file.display(), info.serial_number);
+        }
+    }
+    Ok(calibration)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_on<T: Transport>(
+    mut client: Client<T>,
+    args: &Args,
+    checked: &Checked,
+    sim_sample: Option<String>,
+    operator: &mut dyn Operator,
+    interrupted: Arc<AtomicBool>,
+    store: StoreOptions,
+) -> anyhow::Result<Measured> {
+    let info = client.hello().context("handshake with the instrument")?;
+    let existing = match &args.resume {
+        Some(dir) => Some(Existing::open(dir, store.clone())?),
         None => None,
     };
-    let mut points = Vec::new();
-    if let Some(dir) = &args.resume {
-        points = read_points(dir)?;
-        if calibration.is_none() && dir.join("calibration.json").exists() {
-            calibration = Some(Calibration::load(&dir.join("calibration.json"), max_age, &info)?);
-        }
-        eprintln!("resuming {}: {} readings already taken", dir.display(), points.len());
-    }
-    let mut recorder = FileRecorder::open(&dir).with_context(|| format!("cannot write to {}", dir.display()))?;
-    if let Some(c) = &calibration {
-        recorder.calibration(c)?;
-    }
-    let plan = Plan {
-        sample: sample.clone(),
-        integration_ms: args.integration_ms.unwrap_or(info.default_integration_ms),
-        policy: args.policy.into(),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: args.white_check,
-        white_drift_limit: args.white_drift_limit_pct / 100.0,
-        max_calibration_age: max_age,
+    let sample = args.sample.clone().or(sim_sample).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
+    let plan = plan_record(args, &info, existing.as_ref().map(|e| &e.doc().plan))?;
+    let identity = Identity::new(&sample, &info, plan.clone());
+    let given_calibration = match &args.calibration {
+        Some(path) => Some(external_calibration(path, checked, &info)?),
+        None => None,
     };
+    let (mut recorder, points, calibration) = match existing {
+        Some(existing) => {
+            existing.check_matches(&identity)?;
+            if let Some(own) = existing.calibration() {
+                let file = existing_path(args, "calibration.json");
+                own.check(&file, checked.max_calibration_age, &info)?;
+                if given_calibration.as_ref().is_some_and(|given| given != own) {
+                    bail!("--calibration differs from the calibration the session's readings were converted with ({file}): a session keeps one calibration; resume without --calibration");
+                }
+            }
+            let (recorder, points, own) = existing.resume(store)?;
+            (recorder, points, own.or(given_calibration))
+        }
+        None => {
+            let recorder = match &args.out {
+                Some(dir) => FileRecorder::create(dir, identity, store)?,
+                None => FileRecorder::create_default(Path::new("sessions"), identity, store)?,
+            };
+            (recorder, Vec::new(), given_calibration)
+        }
+    };
+    let dir = recorder.dir().to_path_buf();
+    recorder.set_resume_with(resume_command(args, &dir));
+    let resumed = !points.is_empty();
+    if let (Some(c), false) = (&calibration, dir.join("calibration.json").exists()) {
+        recorder.calibration(c).with_context(|| format!("cannot write {}", dir.join("calibration.json").display()))?;
+    }
     client.set_interrupt(Some(interrupted));
-    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);
+    let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample, checked.max_calibration_age), &mut recorder, operator).resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();
-    let outcome = match outcome {
+    let mut outcome = match outcome {
         Ok(outcome) => outcome,
         Err(error) => {
             // Whatever happened, leave the instrument safe (arms stopped, lamp off); the
@@ -194,12 +361,28 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
             client.set_interrupt(None);
             let _ = client.request(protocol::Command::Abort);
             let _ = client.request(protocol::Command::SetLamp { on: false });
-            return Ok(Measured::Stopped { dir, error });
+            let status = if matches!(error, SessionError::Interrupted) { Status::Interrupted } else { Status::Failed };
+            let record_error = recorder.stop(status, &error.to_string()).err().map(|e| e.to_string());
+            return Ok(Measured::Stopped { dir, error, record_error });
         }
     };
     let _ = client.request(protocol::Command::SetLamp { on: false });
-    let summary = write_session(&dir, &sample, &info, &outcome, &recorder.decisions)?;
-    Ok(Measured::Done { dir, outcome: Box::new(outcome), summary })
+    if resumed && !outcome.flags.contains(&crate::analysis::flags::Flag::Resumed) {
+        outcome.flags.push(crate::analysis::flags::Flag::Resumed);
+    }
+    match write_session(&mut recorder, &sample, &info, &outcome) {
+        Ok(summary) => Ok(Measured::Done { dir, outcome: Box::new(outcome), summary }),
+        Err(e) => {
+            let why = format!("the session was measured but its result could not be written: {e:#}");
+            let _ = recorder.stop(Status::Failed, &why);
+            bail!("{why}; every reading is in {}: gonio measure --resume {} writes the result", dir.display(), dir.display())
+        }
+    }
+}
+
+/// A file of the resumed folder, for messages.
+fn existing_path(args: &Args, name: &str) -> String {
+    args.resume.as_ref().map_or_else(|| name.to_string(), |d| d.join(name).display().to_string())
 }
 
 fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json::Value) {
@@ -218,15 +401,25 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     if let Some(drift) = outcome.white_drift {
         println!("  white check: drift {:.2} %{}", 100.0 * drift, if outcome.white_drift_exceeded { " — BEYOND THE LIMIT, result marked" } else { "" });
     }
-    println!("  files: {}", dir.display());
+    if outcome.ok() {
+        println!("  result: ok{}", if outcome.flags.is_empty() { String::new() } else { format!(" (noted: {})", flag_names(&outcome.flags)) });
+    } else {
+        println!("  result: NOT CLEAN, flags: {}", flag_names(&outcome.flags));
+    }
+    println!("  files: {} (gonio verify {} checks them)", dir.display(), dir.display());
 }
 
-/// Write `session.json` and return the result object printed by `--json`.
-fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome: &Outcome, decisions: &[String]) -> anyhow::Result<serde_json::Value> {
+fn flag_names(flags: &[crate::analysis::flags::Flag]) -> String {
+    flags.iter().map(|f| f.name()).collect::<Vec<_>>().join(", ")
+}
+
+/// Write the result into the folder (summary files, `session.json`, the manifest) and
+/// return the result object printed by `--json`.
+fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::DeviceInfo, outcome: &Outcome) -> anyhow::Result<serde_json::Value> {
     let mut result = crate::analysis::report::to_json(&outcome.report);
     if let Some(object) = result.as_object_mut() {
         object.insert("sample".into(), json!(sample));
-        object.insert("geometries".into(), json!(outcome.points.len()));
+        object.insert("geometries".into(), json!(outcome.current_points().count()));
         object.insert("device_seconds".into(), json!(outcome.device_seconds));
         object.insert("setup_seconds".into(), json!(outcome.setup_seconds));
         // The paper's refinements by their δ, adaptive batches by the geometries they added.
@@ -234,29 +427,38 @@ fn write_session(dir: &Path, sample: &str, info: &protocol::DeviceInfo, outcome:
         object.insert("covariance".into(), json!(outcome.report.fit.covariance));
         object.insert("white_drift".into(), json!(outcome.white_drift));
         object.insert("white_drift_exceeded".into(), json!(outcome.white_drift_exceeded));
+        object.insert("ok".into(), json!(outcome.ok()));
+        object.insert("flags".into(), json!(outcome.flags));
+        object.insert("session_dir".into(), json!(recorder.dir().display().to_string()));
         object.remove("file");
     }
-    let session = json!({
-        "sample": sample,
-        "device": info,
-        "calibration": outcome.calibration,
-        "readings": outcome.points,
-        "fits": outcome.fits,
-        "refinements": outcome.refinements,
-        "decisions": decisions,
-        "result": result,
-    });
-    let path = dir.join("session.json");
-    std::fs::write(&path, serde_json::to_vec_pretty(&session)?).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut rest = serde_json::Map::new();
+    rest.insert("ok".into(), json!(outcome.ok()));
+    rest.insert("flags".into(), json!(outcome.flags));
+    rest.insert("calibration".into(), json!(outcome.calibration));
+    rest.insert("readings".into(), json!(outcome.points));
+    rest.insert("fits".into(), json!(outcome.fits));
+    rest.insert("refinements".into(), json!(outcome.refinements));
+    rest.insert("step_checks".into(), json!(outcome.step_checks));
+    rest.insert("recoveries".into(), json!(outcome.recoveries));
+    rest.insert("result".into(), result.clone());
+    // Superseded readings (taken while an arm was off) stay in session.json, marked, and
+    // out of the export.
     let observations: Vec<Observation> = outcome
-        .points
-        .iter()
+        .current_points()
         .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std }))
         .collect();
-    let export = dir.join("astm-e1392.csv");
-    crate::output::export::write_astm_e1392_csv(&export, sample, &instrument_name(info), &observations)
-        .with_context(|| format!("cannot write {}", export.display()))?;
-    crate::output::plots::write_plots(dir, sample, &observations, &outcome.report.fit, &outcome.report.classification)
-        .with_context(|| format!("cannot write the plots into {}", dir.display()))?;
+    let mut files = vec![(
+        "astm-e1392.csv".to_string(),
+        crate::output::export::astm_e1392_csv(sample, &instrument_name(info), std::time::SystemTime::now(), &observations).into_bytes(),
+    )];
+    // The plots are drawn outside the folder, then replaced into it like every summary file.
+    let staging = tempfile::tempdir().context("cannot make a temporary folder for the plots")?;
+    for path in crate::output::plots::write_plots(staging.path(), sample, &observations, &outcome.report.fit, &outcome.report.classification).context("cannot draw the plots")? {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).context("a plot without a file name")?;
+        files.push((name, std::fs::read(&path).with_context(|| format!("cannot read the plot {}", path.display()))?));
+    }
+    let dir = recorder.dir().to_path_buf();
+    recorder.finish(rest, &files).with_context(|| format!("cannot write the result into {}", dir.display()))?;
     Ok(result)
 }

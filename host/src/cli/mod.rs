@@ -6,3 +6,4 @@ pub mod measure;
 pub mod compare;
 pub mod exit;
 pub mod trade;
+pub mod verify;

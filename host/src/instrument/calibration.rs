@@ -75,6 +75,9 @@ pub enum CalibrationError {
         /// This instrument.
         this: String,
     },
+    /// A maximum age that is no number of hours (`--max-calibration-age-h`).
+    #[error("--max-calibration-age-h must be a number of hours above 0 and at most {MAX_CALIBRATION_AGE_H} (a year), not {0}")]
+    BadMaxAge(f64),
     /// The file could not be read.
     #[error("cannot read calibration {path}: {why}")]
     Unreadable {
@@ -83,6 +86,19 @@ pub enum CalibrationError {
         /// Why.
         why: String,
     },
+}
+
+/// The longest `--max-calibration-age-h` accepted: a year. A lamp and a white tile are not
+/// stable for longer, and it keeps the age a [`Duration`] can hold.
+pub const MAX_CALIBRATION_AGE_H: f64 = 8760.0;
+
+/// The oldest calibration accepted, from `--max-calibration-age-h`: a finite number of
+/// hours in (0, [`MAX_CALIBRATION_AGE_H`]], else [`CalibrationError::BadMaxAge`] naming it.
+pub fn max_age_from_hours(hours: f64) -> Result<Duration, CalibrationError> {
+    if !(hours > 0.0 && hours <= MAX_CALIBRATION_AGE_H) {
+        return Err(CalibrationError::BadMaxAge(hours));
+    }
+    Duration::try_from_secs_f64(hours * 3600.0).map_err(|_| CalibrationError::BadMaxAge(hours))
 }
 
 /// The instrument's identity as a calibration records it.
@@ -143,19 +159,22 @@ impl Calibration {
         let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
         let calibration_value = value.get("calibration").cloned().unwrap_or(value);
         let calibration: Calibration = serde_json::from_value(calibration_value).map_err(|e| unreadable(e.to_string()))?;
-        let age = calibration.age(unix_now_s());
+        calibration.check(&path.display().to_string(), max_age, info)?;
+        Ok(calibration)
+    }
+
+    /// Refuse this calibration (from `path`, for messages) when older than `max_age` or
+    /// taken on another instrument than `info`'s.
+    pub fn check(&self, path: &str, max_age: Duration, info: &DeviceInfo) -> Result<(), CalibrationError> {
+        let age = self.age(unix_now_s());
         if age > max_age {
-            return Err(CalibrationError::Stale {
-                path: path.display().to_string(),
-                age_h: age.as_secs_f64() / 3600.0,
-                max_h: max_age.as_secs_f64() / 3600.0,
-            });
+            return Err(CalibrationError::Stale { path: path.to_string(), age_h: age.as_secs_f64() / 3600.0, max_h: max_age.as_secs_f64() / 3600.0 });
         }
         let this = instrument_name(info);
-        if calibration.instrument != this {
-            return Err(CalibrationError::OtherInstrument { path: path.display().to_string(), taken_on: calibration.instrument, this });
+        if self.instrument != this {
+            return Err(CalibrationError::OtherInstrument { path: path.to_string(), taken_on: self.instrument.clone(), this });
         }
-        Ok(calibration)
+        Ok(())
     }
 }
 
@@ -188,6 +207,16 @@ mod tests {
         // Twenty times the white signal, read on range 2 (gain 0.01): R = 19.8.
         let (r, _) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
         assert!((r - 19.8).abs() < 1e-9, "{r}");
+    }
+
+    #[test]
+    fn a_maximum_age_is_a_number_of_hours_a_duration_holds() {
+        assert_eq!(max_age_from_hours(8.0).unwrap(), Duration::from_secs(8 * 3600));
+        assert_eq!(max_age_from_hours(MAX_CALIBRATION_AGE_H).unwrap(), Duration::from_secs(8760 * 3600));
+        for bad in [f64::INFINITY, f64::NAN, -1.0, 0.0, 1e300, MAX_CALIBRATION_AGE_H + 1.0, f64::NEG_INFINITY] {
+            let error = max_age_from_hours(bad).unwrap_err().to_string();
+            assert!(error.contains("--max-calibration-age-h") && error.contains(&bad.to_string()), "{error}");
+        }
     }
 
     #[test]

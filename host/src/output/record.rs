@@ -1,54 +1,562 @@
-//! The session folder as the record: every reading appended as it arrives, the
-//! calibration, and progress on the terminal.
+//! The session folder as the record of one session: created for it alone, every reading
+//! appended as it arrives, every decision logged, resumed only by the same sample,
+//! instrument and plan, closed with a manifest. The files are described in
+//! [`crate::output::folder`]; every write goes through [`crate::output::store::Store`]
+//! (whose documentation says what is synced when).
+//!
+//! A folder's life: [`FileRecorder::create`] (or [`FileRecorder::create_default`]) makes it
+//! and writes `session.json` with status `running` before anything is measured;
+//! [`Existing::open`] reads a folder to resume without changing it, refusing damage,
+//! another sample, instrument or plan ([`Existing::check_matches`]) and a finished session;
+//! [`Existing::resume`] repairs what a crash leaves (a cut-off last line, `readings.csv`
+//! behind `points.jsonl`, temporary files, a run without an end) and logs each repair;
+//! [`FileRecorder::finish`] writes the result and the manifest, [`FileRecorder::stop`] the
+//! status of a failed or interrupted session and how to resume it.
 use crate::instrument::calibration::Calibration;
+use crate::output::folder::{
+    self, CALIBRATION, CsvAgreement, InstrumentRecord, Inspection, LOG, MANIFEST, POINTS, PlanRecord, Problem, READINGS, READINGS_HEADER,
+    Run, RunOutcome, SESSION, SESSION_FORMAT, SessionDoc, Status,
+};
+use crate::output::store::{Store, StoreOptions, Sync};
 use crate::session::{MeasuredPoint, Progress, Recorder};
-use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use std::fs::{File, OpenOptions};
-use std::io::Write;
+use std::io;
 use std::path::{Path, PathBuf};
 
-/// Appends every reading to the session folder as it arrives; shows progress.
+/// This host's version, recorded with every run.
+pub const HOST_VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// Local date-time now, RFC 3339 with milliseconds (what `session.log` and the runs record).
+pub fn local_now() -> String {
+    chrono::Local::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, false)
+}
+
+/// What a session is: it is resumed only as the same.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Identity {
+    /// The sample's name.
+    pub sample: String,
+    /// The instrument.
+    pub instrument: InstrumentRecord,
+    /// The handshake's `DeviceInfo`, whole.
+    pub device: serde_json::Value,
+    /// What is measured.
+    pub plan: PlanRecord,
+}
+
+impl Identity {
+    /// The identity of a session of `sample` on the instrument `info` describes.
+    pub fn new(sample: &str, info: &protocol::DeviceInfo, plan: PlanRecord) -> Identity {
+        Identity {
+            sample: sample.to_string(),
+            instrument: InstrumentRecord {
+                serial_number: info.serial_number.to_string(),
+                board: info.board.to_string(),
+                firmware_version: info.firmware_version.to_string(),
+            },
+            device: serde_json::to_value(info).unwrap_or_default(),
+            plan,
+        }
+    }
+}
+
+/// Why a folder cannot take this session.
+#[derive(Debug, thiserror::Error)]
+pub enum FolderError {
+    /// `--out` onto a folder that holds something.
+    #[error("{} is not empty (it holds {}): a session folder holds one session only; give a new or empty folder to --out", .dir.display(), .entries)]
+    NotEmpty {
+        /// The folder.
+        dir: PathBuf,
+        /// Some of what it holds.
+        entries: String,
+    },
+    /// `--out` onto another session's folder.
+    #[error(
+        "{} holds another session (sample '{}', instrument {}, started {}, {}): continue it with gonio measure --resume {}, or give a new folder to --out",
+        .dir.display(), .sample, .serial, .started, .status, .dir.display()
+    )]
+    OtherSession {
+        /// The folder.
+        dir: PathBuf,
+        /// Its sample.
+        sample: String,
+        /// Its instrument's serial number.
+        serial: String,
+        /// When its first run started.
+        started: String,
+        /// Where it stands.
+        status: Status,
+    },
+    /// Not a folder.
+    #[error("{} is not a folder", .0.display())]
+    NotAFolder(PathBuf),
+    /// `--resume` onto a folder that holds no session.
+    #[error("{} holds no session (no session.json, no readings): nothing was measured there; start a session with --out {}", .0.display(), .0.display())]
+    NoSession(PathBuf),
+    /// `--resume` onto a missing folder.
+    #[error("no session folder {}: give the folder of the session to resume", .0.display())]
+    NoFolder(PathBuf),
+    /// A finished session is not measured again.
+    #[error(
+        "{} holds a finished session of '{}' (finished {}{}): it is not measured again; its result is in {} (gonio verify {} checks the folder); measure anew with --out NEW_FOLDER",
+        .dir.display(), .sample, .ended, .class.as_ref().map(|c| format!(", class {c}")).unwrap_or_default(), .dir.join(SESSION).display(), .dir.display()
+    )]
+    Finished {
+        /// The folder.
+        dir: PathBuf,
+        /// Its sample.
+        sample: String,
+        /// Its class.
+        class: Option<String>,
+        /// When it finished.
+        ended: String,
+    },
+    /// `--resume` with another sample, instrument or plan.
+    #[error("cannot resume {}: {}; a session is continued only as it began (or start a new one with --out)", .dir.display(), .differences.join("; "))]
+    Mismatch {
+        /// The folder.
+        dir: PathBuf,
+        /// What differs, in words.
+        differences: Vec<String>,
+    },
+    /// Damage a resume does not repair.
+    #[error("cannot resume: {0}; nothing was changed in the folder")]
+    Damaged(Problem),
+    /// Another process has the folder.
+    #[error("{} is in use by another gonio process: one session, one process", .0.display())]
+    InUse(PathBuf),
+    /// The folder could not be written.
+    #[error("cannot write the session folder {}: {source}", .dir.display())]
+    Io {
+        /// The folder.
+        dir: PathBuf,
+        /// Why.
+        source: io::Error,
+    },
+}
+
+fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
+    move |source| FolderError::Io { dir: dir.to_path_buf(), source }
+}
+
+/// Keeps other `gonio` processes out of a folder while this one writes it (an advisory
+/// lock on the folder itself, which survives the renames inside it; the kernel drops it
+/// when the process ends, however it ends).
+pub struct FolderLock {
+    #[cfg(unix)]
+    _lock: nix::fcntl::Flock<std::fs::File>,
+}
+
+impl FolderLock {
+    /// Lock `dir`, or say it is in use.
+    pub fn take(dir: &Path) -> Result<FolderLock, FolderError> {
+        #[cfg(unix)]
+        {
+            let file = std::fs::File::open(dir).map_err(io_error(dir))?;
+            match nix::fcntl::Flock::lock(file, nix::fcntl::FlockArg::LockExclusiveNonblock) {
+                Ok(lock) => Ok(FolderLock { _lock: lock }),
+                Err((_, nix::errno::Errno::EWOULDBLOCK)) => Err(FolderError::InUse(dir.to_path_buf())),
+                Err((_, errno)) => Err(FolderError::Io { dir: dir.to_path_buf(), source: io::Error::from(errno) }),
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = dir;
+            Ok(FolderLock {})
+        }
+    }
+}
+
+/// A sample's name as a file name: letters, digits, `.`, `_` and `-` kept, the rest `_`.
+pub fn file_name_of(sample: &str) -> String {
+    let name: String = sample.chars().take(48).map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect();
+    if name.is_empty() || name.starts_with('.') { format!("_{name}") } else { name }
+}
+
+/// Records a session into its folder and shows its progress.
 pub struct FileRecorder {
-    dir: PathBuf,
-    readings_csv: File,
-    points_jsonl: File,
-    /// The progress bar.
+    store: Store,
+    _lock: FolderLock,
+    doc: SessionDoc,
+    /// The progress bar (hidden when stderr is not a terminal).
     pub bar: ProgressBar,
-    /// Every decision, in order.
+    /// This run's decisions, in order.
     pub decisions: Vec<String>,
+    /// Readings in `points.jsonl`.
+    readings: usize,
+    /// The first write that failed outside `point` and `calibration` (a log line): the
+    /// next of those reports it, so that the session stops rather than go on unrecorded.
+    failed: Option<io::Error>,
+}
+
+fn progress_bar() -> ProgressBar {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar
+}
+
+fn json_bytes(value: &impl serde::Serialize) -> io::Result<Vec<u8>> {
+    let mut bytes = serde_json::to_vec_pretty(value)?;
+    bytes.push(b'\n');
+    Ok(bytes)
 }
 
 impl FileRecorder {
-    /// Open (or create) the session folder `dir` for appending.
-    pub fn open(dir: &Path) -> std::io::Result<FileRecorder> {
-        std::fs::create_dir_all(dir)?;
-        let append = |name: &str| OpenOptions::new().create(true).append(true).open(dir.join(name));
-        let mut readings_csv = append("readings.csv")?;
-        if readings_csv.metadata()?.len() == 0 {
-            writeln!(readings_csv, "theta_i,theta_r,radiance_factor,std")?;
+    /// Make the folder `dir` for a new session (`--out`): a new folder, or an empty one.
+    /// Refuses a folder that holds anything (another session or not).
+    pub fn create(dir: &Path, identity: Identity, options: StoreOptions) -> Result<FileRecorder, FolderError> {
+        if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(io_error(parent))?;
         }
-        let bar = ProgressBar::new(0);
-        bar.set_style(
-            ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
-        );
-        Ok(FileRecorder { dir: dir.to_path_buf(), readings_csv, points_jsonl: append("points.jsonl")?, bar, decisions: Vec::new() })
+        let (store, lock, cleaned) = match Store::create_dir(dir, options.clone()) {
+            Ok(store) => (store, FolderLock::take(dir)?, Vec::new()),
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                if !dir.is_dir() {
+                    return Err(FolderError::NotAFolder(dir.to_path_buf()));
+                }
+                let lock = FolderLock::take(dir)?;
+                let mut store = Store::open_dir(dir, options);
+                let cleaned = take_empty(&mut store, dir)?;
+                (store, lock, cleaned)
+            }
+            Err(e) => return Err(FolderError::Io { dir: dir.to_path_buf(), source: e }),
+        };
+        let mut recorder = FileRecorder::start(store, lock, identity)?;
+        for name in cleaned {
+            recorder.decision(&format!("removed {name}, a temporary file a killed gonio left before its session began"));
+        }
+        Ok(recorder)
+    }
+
+    /// Make a new folder `PARENT/<local date-time>-<sample>` (a suffix `-2`, `-3`… when a
+    /// session of the same second has it: the folder is made atomically, so two sessions
+    /// never get the same one).
+    pub fn create_default(parent: &Path, identity: Identity, options: StoreOptions) -> Result<FileRecorder, FolderError> {
+        std::fs::create_dir_all(parent).map_err(io_error(parent))?;
+        let base = format!("{}-{}", chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"), file_name_of(&identity.sample));
+        for k in 1..10_000 {
+            let dir = parent.join(if k == 1 { base.clone() } else { format!("{base}-{k}") });
+            match Store::create_dir(&dir, options.clone()) {
+                Ok(store) => {
+                    let lock = FolderLock::take(&dir)?;
+                    return FileRecorder::start(store, lock, identity);
+                }
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(FolderError::Io { dir, source: e }),
+            }
+        }
+        Err(FolderError::Io { dir: parent.join(base), source: io::Error::other("10 000 sessions of this sample in one second") })
+    }
+
+    /// The first `session.json` (status running, run 1) and the `readings.csv` header.
+    fn start(mut store: Store, lock: FolderLock, identity: Identity) -> Result<FileRecorder, FolderError> {
+        let dir = store.dir().to_path_buf();
+        let doc = SessionDoc {
+            format: SESSION_FORMAT.into(),
+            status: Status::Running,
+            why: None,
+            resume_with: None,
+            sample: identity.sample,
+            instrument: identity.instrument,
+            device: identity.device,
+            plan: identity.plan,
+            runs: vec![new_run(1, 0)],
+            readings_recorded: 0,
+            rest: serde_json::Map::new(),
+        };
+        store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
+        store.append(READINGS, format!("{READINGS_HEADER}\n").as_bytes(), Sync::Never).map_err(io_error(&dir))?;
+        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), readings: 0, failed: None };
+        recorder.decision(&format!("session of '{}' on instrument {} in {}", recorder.doc.sample, recorder.doc.instrument.serial_number, dir.display()));
+        Ok(recorder)
+    }
+
+    /// The folder.
+    pub fn dir(&self) -> &Path {
+        self.store.dir()
+    }
+
+    /// The session document as last written (or about to be).
+    pub fn doc(&self) -> &SessionDoc {
+        &self.doc
+    }
+
+    /// Readings recorded in `points.jsonl`, earlier runs included.
+    pub fn readings(&self) -> usize {
+        self.readings
+    }
+
+    /// The command that continues this session, for `session.json` and the messages.
+    pub fn set_resume_with(&mut self, command: String) {
+        self.doc.resume_with = Some(command);
+    }
+
+    fn close_run(&mut self, outcome: RunOutcome, why: Option<String>) {
+        let readings = self.readings;
+        let decisions = self.decisions.clone();
+        if let Some(run) = self.doc.runs.last_mut() {
+            run.ended = Some(local_now());
+            run.outcome = outcome;
+            run.why = why;
+            run.readings_after = Some(readings);
+            run.decisions = decisions;
+        }
+        self.doc.readings_recorded = readings;
+    }
+
+    /// The session finished: the summary files (`files`: name and bytes), then
+    /// `session.json` with status finished and `result` (the readings, fits, result, ok,
+    /// flags…: whatever the caller puts in it), then the manifest. Nothing is written into
+    /// the folder after it.
+    pub fn finish(&mut self, result: serde_json::Map<String, serde_json::Value>, files: &[(String, Vec<u8>)]) -> io::Result<()> {
+        self.check_failed()?;
+        self.decision("session finished: result in session.json, checksums in MANIFEST.sha256");
+        self.check_failed()?;
+        for (name, bytes) in files {
+            self.store.replace(name, bytes)?;
+        }
+        self.close_run(RunOutcome::Finished, None);
+        self.doc.status = Status::Finished;
+        self.doc.why = None;
+        self.doc.resume_with = None;
+        self.doc.rest = result;
+        let all: Vec<serde_json::Value> = self.doc.runs.iter().flat_map(|r| r.decisions.iter().cloned().map(serde_json::Value::from)).collect();
+        self.doc.rest.insert("decisions".into(), all.into());
+        self.store.replace(SESSION, &json_bytes(&self.doc)?)?;
+        self.store.sync_all()?;
+        write_manifest(&mut self.store)
+    }
+
+    /// The session stopped (`status` failed or interrupted) for `why`: the decision log,
+    /// then `session.json` with the status, why and how to resume.
+    pub fn stop(&mut self, status: Status, why: &str) -> io::Result<()> {
+        self.decision(&format!("session stopped ({status}): {why}"));
+        self.close_run(if status == Status::Interrupted { RunOutcome::Interrupted } else { RunOutcome::Failed }, Some(why.to_string()));
+        self.doc.status = status;
+        self.doc.why = Some(why.to_string());
+        self.store.replace(SESSION, &json_bytes(&self.doc)?)?;
+        self.store.sync_all()?;
+        self.check_failed()
+    }
+
+    fn check_failed(&mut self) -> io::Result<()> {
+        match self.failed.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    fn log(&mut self, text: &str) {
+        let run = self.doc.runs.last().map_or(0, |r| r.run);
+        let line = format!("{} [run {run}] {}\n", local_now(), text.replace(['\n', '\r'], " / "));
+        if let Err(e) = self.store.append(LOG, line.as_bytes(), Sync::Never) {
+            self.failed.get_or_insert(e);
+        }
     }
 }
 
-impl Recorder for FileRecorder {
-    fn calibration(&mut self, calibration: &Calibration) -> std::io::Result<()> {
-        std::fs::write(self.dir.join("calibration.json"), serde_json::to_vec_pretty(calibration)?)
+fn new_run(run: u32, readings_before: usize) -> Run {
+    Run {
+        run,
+        started: local_now(),
+        ended: None,
+        host_version: HOST_VERSION.into(),
+        outcome: RunOutcome::Running,
+        why: None,
+        readings_before,
+        readings_after: None,
+        decisions: Vec::new(),
+    }
+}
+
+/// Write `MANIFEST.sha256` for everything in the folder.
+fn write_manifest(store: &mut Store) -> io::Result<()> {
+    let text = crate::output::manifest::manifest_text(store.dir())?;
+    store.replace(MANIFEST, text.as_bytes())
+}
+
+/// An existing folder taken for `--out`: it must be empty, but for temporary files a
+/// killed gonio left before its session began (removed; their names returned).
+fn take_empty(store: &mut Store, dir: &Path) -> Result<Vec<String>, FolderError> {
+    let names = folder::entries(dir).map_err(io_error(dir))?;
+    if names.iter().any(|n| n == SESSION) {
+        // A session.json that cannot be read is still not an empty folder (below).
+        if let Ok(Some(doc)) = folder::read_session(dir) {
+            return Err(FolderError::OtherSession {
+                dir: dir.to_path_buf(),
+                sample: doc.sample,
+                serial: doc.instrument.serial_number,
+                started: doc.runs.first().map_or_else(|| "?".into(), |r| r.started.clone()),
+                status: doc.status,
+            });
+        }
+    }
+    let others: Vec<&String> = names.iter().filter(|n| !crate::output::store::is_temp_name(n)).collect();
+    if !others.is_empty() {
+        let mut listed = others.iter().take(3).map(|s| s.as_str()).collect::<Vec<_>>().join(", ");
+        if others.len() > 3 {
+            listed += &format!(" and {} more", others.len() - 3);
+        }
+        return Err(FolderError::NotEmpty { dir: dir.to_path_buf(), entries: listed });
+    }
+    for name in &names {
+        store.remove(name).map_err(io_error(dir))?;
+    }
+    Ok(names)
+}
+
+/// A folder to resume, read and checked, not yet changed.
+pub struct Existing {
+    inspection: Inspection,
+    doc: SessionDoc,
+    lock: FolderLock,
+}
+
+impl Existing {
+    /// Read `dir` for `--resume`: refuses a folder that is missing, holds no session, is in
+    /// use, is damaged beyond what a crash leaves, or holds a finished session (whose
+    /// manifest is written first if a crash kept it from being written).
+    pub fn open(dir: &Path, options: StoreOptions) -> Result<Existing, FolderError> {
+        if !dir.exists() {
+            return Err(FolderError::NoFolder(dir.to_path_buf()));
+        }
+        if !dir.is_dir() {
+            return Err(FolderError::NotAFolder(dir.to_path_buf()));
+        }
+        let lock = FolderLock::take(dir)?;
+        let inspection = folder::inspect(dir).map_err(FolderError::Damaged)?;
+        let Some(doc) = inspection.session.clone() else {
+            return Err(FolderError::NoSession(dir.to_path_buf()));
+        };
+        if doc.status == Status::Finished {
+            if !dir.join(MANIFEST).exists() {
+                // Killed between the result and its manifest: finish the closing.
+                let mut store = Store::open_dir(dir, options);
+                for name in &inspection.temp_files {
+                    store.remove(name).map_err(io_error(dir))?;
+                }
+                write_manifest(&mut store).map_err(io_error(dir))?;
+            }
+            return Err(FolderError::Finished {
+                dir: dir.to_path_buf(),
+                sample: doc.sample.clone(),
+                class: doc.rest.get("result").and_then(|r| r.get("class")).and_then(|c| c.as_str()).map(str::to_string),
+                ended: doc.runs.last().and_then(|r| r.ended.clone()).unwrap_or_else(|| "?".into()),
+            });
+        }
+        Ok(Existing { inspection, doc, lock })
     }
 
-    fn point(&mut self, point: &MeasuredPoint) -> std::io::Result<()> {
-        writeln!(self.points_jsonl, "{}", serde_json::to_string(point)?)?;
-        self.points_jsonl.flush()?;
-        if let (Some(r), Some(u)) = (point.radiance_factor, point.std) {
-            writeln!(self.readings_csv, "{},{},{r},{u}", point.theta_i_deg, point.theta_r_deg)?;
-            self.readings_csv.flush()?;
+    /// The session document.
+    pub fn doc(&self) -> &SessionDoc {
+        &self.doc
+    }
+
+    /// The calibration the session's readings were converted with, if it has one.
+    pub fn calibration(&self) -> Option<&Calibration> {
+        self.inspection.calibration.as_ref()
+    }
+
+    /// The readings recorded (whole lines of `points.jsonl`).
+    pub fn points(&self) -> &[MeasuredPoint] {
+        &self.inspection.points
+    }
+
+    /// Refuse to go on with another sample, instrument or plan, naming each difference.
+    pub fn check_matches(&self, identity: &Identity) -> Result<(), FolderError> {
+        let differences = differences(&self.doc, identity);
+        if differences.is_empty() { Ok(()) } else { Err(FolderError::Mismatch { dir: self.inspection.dir.clone(), differences }) }
+    }
+
+    /// Repair what a crash left and open the folder for a new run: temporary files removed,
+    /// a cut-off last line of `points.jsonl` or `session.log` dropped, `readings.csv`
+    /// rebuilt from `points.jsonl` when behind it, runs that never ended marked killed; each
+    /// repair is a decision of the new run. Returns the recorder and the readings taken.
+    pub fn resume(self, options: StoreOptions) -> Result<(FileRecorder, Vec<MeasuredPoint>, Option<Calibration>), FolderError> {
+        let Existing { inspection, mut doc, lock } = self;
+        let dir = inspection.dir.clone();
+        let mut store = Store::open_dir(&dir, options);
+        let mut repairs = Vec::new();
+        for name in &inspection.temp_files {
+            store.remove(name).map_err(io_error(&dir))?;
+            repairs.push(format!("removed {name}, a temporary file left by a run that was killed while replacing {}", name.trim_start_matches('.').trim_end_matches(".gonio-tmp")));
+        }
+        for (name, file) in [(POINTS, &inspection.points_file), (LOG, &inspection.log)] {
+            if let Some(tail) = &file.cut_tail {
+                store.truncate(name, file.whole_len).map_err(io_error(&dir))?;
+                let shown: String = String::from_utf8_lossy(tail).chars().take(60).collect();
+                let what = if name == POINTS { "; its reading is measured again" } else { "" };
+                repairs.push(format!("{name}: removed its last line, cut short by a crash after {} bytes ('{shown}…'){what}", tail.len()));
+            }
+        }
+        match inspection.csv {
+            CsvAgreement::Agrees => {}
+            CsvAgreement::Behind { missing, cut } => {
+                store.replace(READINGS, folder::readings_csv(&inspection.points).as_bytes()).map_err(io_error(&dir))?;
+                repairs.push(format!("{READINGS}: rebuilt from {POINTS} ({missing} rows were missing{})", if cut { ", the last one cut short" } else { "" }));
+            }
+            CsvAgreement::Differs(problem) => return Err(FolderError::Damaged(problem)),
+        }
+        for run in doc.runs.iter_mut().filter(|r| r.outcome == RunOutcome::Running) {
+            run.outcome = RunOutcome::Killed;
+            run.why = Some("the process ended without closing its run (killed, or the machine lost power)".into());
+            run.decisions = folder::logged_decisions(&inspection.log, run.run);
+            repairs.push(format!("run {} ended without closing (killed, or power lost): marked killed", run.run));
+        }
+        let readings = inspection.points.len();
+        let number = doc.runs.last().map_or(1, |r| r.run + 1);
+        doc.runs.push(new_run(number, readings));
+        doc.status = Status::Running;
+        doc.why = None;
+        doc.readings_recorded = readings;
+        store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
+        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), readings, failed: None };
+        recorder.decision(&format!("resuming {} (run {number}): {readings} readings already taken", dir.display()));
+        for repair in repairs {
+            recorder.decision(&format!("repaired: {repair}"));
+        }
+        Ok((recorder, inspection.points, inspection.calibration))
+    }
+}
+
+/// What differs between a session and the one asked for, in words.
+pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut differ = |what: &str, was: String, now: String| {
+        if was != now {
+            out.push(format!("the {what} differs (the session: {was}; now: {now})"));
+        }
+    };
+    differ("sample", format!("'{}'", doc.sample), format!("'{}'", wanted.sample));
+    differ("instrument", format!("serial {}", doc.instrument.serial_number), format!("serial {}", wanted.instrument.serial_number));
+    let (a, b) = (&doc.plan, &wanted.plan);
+    differ("policy", a.policy.clone(), b.policy.clone());
+    differ("adaptive policy's targets", format!("{:?}", a.adaptive_targets), format!("{:?}", b.adaptive_targets));
+    differ("integration time", format!("{} ms", a.integration_ms), format!("{} ms", b.integration_ms));
+    differ("detector acceptance", format!("{}°", a.acceptance_deg), format!("{}°", b.acceptance_deg));
+    differ("white check", (if a.white_check { "on" } else { "off" }).into(), (if b.white_check { "on" } else { "off" }).into());
+    differ("white drift limit", format!("{} %", a.white_drift_limit_pct), format!("{} %", b.white_drift_limit_pct));
+    out
+}
+
+impl Recorder for FileRecorder {
+    fn calibration(&mut self, calibration: &Calibration) -> io::Result<()> {
+        self.check_failed()?;
+        self.store.replace(CALIBRATION, &json_bytes(calibration)?)
+    }
+
+    fn point(&mut self, point: &MeasuredPoint) -> io::Result<()> {
+        self.check_failed()?;
+        // The primary record first, synced; the CSV row after it is derived from it.
+        self.store.append(POINTS, folder::point_line(point)?.as_bytes(), Sync::Data)?;
+        self.readings += 1;
+        if let Some(row) = folder::csv_row(point) {
+            self.store.append(READINGS, row.as_bytes(), Sync::Never)?;
         }
         Ok(())
     }
@@ -66,25 +574,24 @@ impl Recorder for FileRecorder {
     }
 
     fn decision(&mut self, text: &str) {
-        self.bar.println(format!("  {text}"));
-        self.decisions.push(text.to_string());
-    }
-}
-
-/// Every reading recorded in `dir/points.jsonl`.
-pub fn read_points(dir: &Path) -> anyhow::Result<Vec<MeasuredPoint>> {
-    let path = dir.join("points.jsonl");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
-    let mut points = Vec::new();
-    for (k, line) in lines.iter().enumerate() {
-        match serde_json::from_str(line) {
-            Ok(point) => points.push(point),
-            // A crash can cut the last line short; anything else is damage worth a stop.
-            Err(_) if k + 1 == lines.len() => {}
-            Err(e) => bail!("{}:{}: {e}", path.display(), k + 1),
+        // A hidden bar (stderr not a terminal) prints nothing: say it plainly then.
+        if self.bar.is_hidden() {
+            eprintln!("  {text}");
+        } else {
+            self.bar.println(format!("  {text}"));
         }
+        self.decisions.push(text.to_string());
+        self.log(text);
     }
-    Ok(points)
 }
 
+/// Every reading recorded in `dir/points.jsonl`, refusing any damage (a cut-off last line
+/// included: [`Existing::resume`] is what repairs it).
+pub fn read_points(dir: &Path) -> Result<Vec<MeasuredPoint>, Problem> {
+    let path = dir.join(POINTS);
+    let file = folder::read_lines(&path)?;
+    if file.cut_tail.is_some() {
+        return Err(Problem { file: path, line: Some(file.lines.len() + 1), message: "last line cut short (a crash while writing it): gonio measure --resume repairs it".into() });
+    }
+    folder::parse_points(&path, &file)
+}

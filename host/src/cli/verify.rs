@@ -1,0 +1,59 @@
+//! `gonio verify DIR…`: is each session folder whole and as its session left it?
+//!
+//! Checks every file against `MANIFEST.sha256` (no file missing, changed or added), and
+//! that `points.jsonl`, `readings.csv`, `calibration.json` and `session.json` agree. Prints
+//! one line per folder that passes and every problem as `file:line: message` on stderr.
+//!
+//! Exit codes: 0 when every folder passes; 1 when any does not (damaged, changed, or a
+//! session that never finished); 2 for a wrong command line.
+use crate::output::verify::verify;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// Arguments of `gonio verify`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Print one JSON object per folder instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Session folders.
+    #[arg(required = true, value_name = "DIR")]
+    pub dirs: Vec<PathBuf>,
+}
+
+/// Run `gonio verify`.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let mut failed = false;
+    for dir in &args.dirs {
+        match verify(dir) {
+            Ok(v) => {
+                if args.json {
+                    println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []}));
+                } else {
+                    println!(
+                        "{}: verified: {} files match MANIFEST.sha256; {} readings agree in points.jsonl, readings.csv and session.json; sample '{}' on instrument {}, {} run{}",
+                        dir.display(),
+                        v.files,
+                        v.readings,
+                        v.sample,
+                        v.serial_number,
+                        v.runs,
+                        if v.runs == 1 { "" } else { "s" }
+                    );
+                }
+            }
+            Err(problems) => {
+                failed = true;
+                for p in &problems {
+                    eprintln!("error: {p}");
+                }
+                if args.json {
+                    println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
+                } else {
+                    eprintln!("{}: NOT verified ({} problem{})", dir.display(), problems.len(), if problems.len() == 1 { "" } else { "s" });
+                }
+            }
+        }
+    }
+    Ok(ExitCode::from(if failed { crate::cli::exit::FAILED } else { crate::cli::exit::OK }))
+}

@@ -1,0 +1,463 @@
+//! The session folder as it is on disk: its files, the `session.json` document, and the
+//! read-only checks that `gonio verify` reports and that a `--resume` repairs or refuses.
+//!
+//! | file | what | written |
+//! |---|---|---|
+//! | `points.jsonl` | the primary record: every reading as it arrived, one JSON object a line | appended, synced per line |
+//! | `readings.csv` | the convertible readings of `points.jsonl`, in its order (`gonio fit` reads it) | appended; rebuilt from `points.jsonl` by a resume |
+//! | `session.json` | sample, instrument, plan, status, every run, and at the end the result | replaced atomically |
+//! | `calibration.json` | the calibration the readings were converted with | replaced atomically |
+//! | `session.log` | every decision, time-stamped, tagged with its run | appended |
+//! | `astm-e1392.csv`, `fig*.svg` | summaries of the result | replaced atomically at the end |
+//! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
+use crate::instrument::calibration::Calibration;
+use crate::output::store::is_temp_name;
+use crate::session::MeasuredPoint;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// The primary record.
+pub const POINTS: &str = "points.jsonl";
+/// The convertible readings as CSV, derived from [`POINTS`].
+pub const READINGS: &str = "readings.csv";
+/// The session document.
+pub const SESSION: &str = "session.json";
+/// The calibration.
+pub const CALIBRATION: &str = "calibration.json";
+/// The decision log.
+pub const LOG: &str = "session.log";
+/// The manifest.
+pub const MANIFEST: &str = "MANIFEST.sha256";
+/// The header of [`READINGS`].
+pub const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
+/// The `format` of a `session.json` this host writes and reads.
+pub const SESSION_FORMAT: &str = "gonio-session/1";
+
+/// Where a session stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Status {
+    /// Measuring (or the process was killed while it was: its run has no end).
+    Running,
+    /// Done: the result is in `session.json`; it is not measured again.
+    Finished,
+    /// Stopped by a failure; can be resumed.
+    Failed,
+    /// Stopped by the user; can be resumed.
+    Interrupted,
+}
+
+impl fmt::Display for Status {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Status::Running => "running",
+            Status::Finished => "finished",
+            Status::Failed => "failed",
+            Status::Interrupted => "interrupted",
+        })
+    }
+}
+
+/// How one run (one `gonio measure` process on the folder) ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RunOutcome {
+    /// Still measuring.
+    Running,
+    /// Finished the session.
+    Finished,
+    /// Stopped by a failure.
+    Failed,
+    /// Stopped by the user.
+    Interrupted,
+    /// Ended without closing its run (killed, a power loss): found by the next resume.
+    Killed,
+}
+
+/// The instrument a session is measured on, as the handshake named it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct InstrumentRecord {
+    /// Its unique serial number (the chain of custody rests on it).
+    pub serial_number: String,
+    /// Board name.
+    pub board: String,
+    /// Firmware version.
+    pub firmware_version: String,
+}
+
+/// What the session was asked to measure: a resume must ask for the same.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PlanRecord {
+    /// `paper` or `adaptive`.
+    pub policy: String,
+    /// The adaptive policy's targets (its stopping rule), when adaptive.
+    pub adaptive_targets: Option<AdaptiveTargetsRecord>,
+    /// Integration time of every reading, ms.
+    pub integration_ms: u16,
+    /// Detector acceptance modelled in the fit, degrees.
+    pub acceptance_deg: f64,
+    /// The white tile is re-read at the end.
+    pub white_check: bool,
+    /// Drift beyond which the result is marked, percent.
+    pub white_drift_limit_pct: f64,
+}
+
+/// [`crate::session::adaptive::AdaptiveTargets`] as recorded.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AdaptiveTargetsRecord {
+    /// σ's 95 % half-width relative to σ.
+    pub sigma_rel_half_width: f64,
+    /// Class confidence.
+    pub class_confidence: f64,
+    /// Geometries per batch.
+    pub batch: usize,
+    /// Batches at most.
+    pub max_batches: usize,
+}
+
+/// One run of `gonio measure` on the folder.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Run {
+    /// 1, 2, … in order.
+    pub run: u32,
+    /// Local date-time it started (RFC 3339).
+    pub started: String,
+    /// Local date-time it ended; `None` while running or when it was killed.
+    pub ended: Option<String>,
+    /// The `gonio` version that ran it.
+    pub host_version: String,
+    /// How it ended.
+    pub outcome: RunOutcome,
+    /// Why it stopped (failed, interrupted, killed).
+    pub why: Option<String>,
+    /// Readings in `points.jsonl` when it started.
+    pub readings_before: usize,
+    /// Readings in `points.jsonl` when it ended (unknown when killed).
+    pub readings_after: Option<usize>,
+    /// Its decisions, in order (for a killed run: as its `session.log` lines kept them).
+    pub decisions: Vec<String>,
+}
+
+/// `session.json`: the typed head of the document; the result's parts (readings, fits,
+/// refinements, result, ok, flags…) are kept as they are in `rest`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SessionDoc {
+    /// [`SESSION_FORMAT`].
+    pub format: String,
+    /// Where the session stands.
+    pub status: Status,
+    /// Why it stopped, when failed or interrupted.
+    pub why: Option<String>,
+    /// How to go on, when not finished.
+    pub resume_with: Option<String>,
+    /// The sample.
+    pub sample: String,
+    /// The instrument.
+    pub instrument: InstrumentRecord,
+    /// The handshake's `DeviceInfo`, whole.
+    pub device: serde_json::Value,
+    /// What was asked.
+    pub plan: PlanRecord,
+    /// Every run, in order.
+    pub runs: Vec<Run>,
+    /// Lines of `points.jsonl` when this document was written.
+    pub readings_recorded: usize,
+    /// The rest: `calibration`, `readings`, `fits`, `refinements`, `decisions`, `result`,
+    /// `ok`, `flags` once finished.
+    #[serde(flatten)]
+    pub rest: serde_json::Map<String, serde_json::Value>,
+}
+
+/// Something wrong in a session folder, at `file:line` when a line is known.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Problem {
+    /// The file (or folder) concerned.
+    pub file: PathBuf,
+    /// Its 1-based line.
+    pub line: Option<usize>,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl Problem {
+    fn new(file: &Path, line: Option<usize>, message: impl Into<String>) -> Problem {
+        Problem { file: file.to_path_buf(), line, message: message.into() }
+    }
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            Some(line) => write!(f, "{}:{line}: {}", self.file.display(), self.message),
+            None => write!(f, "{}: {}", self.file.display(), self.message),
+        }
+    }
+}
+
+/// A file of lines as a crash can leave it: whole lines, and maybe a last one cut short
+/// (no newline at its end).
+#[derive(Clone, Debug, Default)]
+pub struct LinesFile {
+    /// The whole lines (without their newline), with their 1-based line number.
+    pub lines: Vec<(usize, String)>,
+    /// Bytes up to and with the last newline.
+    pub whole_len: u64,
+    /// The last line's bytes when it has no newline.
+    pub cut_tail: Option<Vec<u8>>,
+    /// The file exists.
+    pub exists: bool,
+}
+
+/// Read a file of lines; a missing file is empty. Invalid UTF-8 in a whole line is a problem.
+pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
+    let bytes = match std::fs::read(path) {
+        Ok(bytes) => bytes,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(LinesFile::default()),
+        Err(e) => return Err(Problem::new(path, None, format!("cannot read: {e}"))),
+    };
+    let whole_len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    let cut_tail = (whole_len < bytes.len()).then(|| bytes[whole_len..].to_vec());
+    let mut lines = Vec::new();
+    for (k, line) in bytes[..whole_len].split_inclusive(|&b| b == b'\n').enumerate() {
+        let text = std::str::from_utf8(&line[..line.len() - 1]).map_err(|_| Problem::new(path, Some(k + 1), "not UTF-8 text"))?;
+        lines.push((k + 1, text.to_string()));
+    }
+    Ok(LinesFile { lines, whole_len: whole_len as u64, cut_tail, exists: true })
+}
+
+/// Parse the whole lines of `points.jsonl`.
+pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Problem> {
+    file.lines
+        .iter()
+        .map(|(line, text)| {
+            serde_json::from_str::<MeasuredPoint>(text).map_err(|e| Problem::new(path, Some(*line), format!("not a reading: {e}")))
+        })
+        .collect()
+}
+
+/// The `points.jsonl` line of a reading (with its newline), checked to read back as the
+/// same reading: a record that cannot be read back is no record.
+pub fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
+    let text = serde_json::to_string(point)?;
+    match serde_json::from_str::<MeasuredPoint>(&text) {
+        Ok(back) if back == *point => Ok(text + "\n"),
+        _ => Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("the reading at θi {}°, θr {}° holds a number JSON cannot keep (NaN or infinite): {text}", point.theta_i_deg, point.theta_r_deg),
+        )),
+    }
+}
+
+/// The `readings.csv` row of a reading (with its newline), if it was converted. Numbers
+/// in Rust's shortest round-trip form: parsing them gives the recorded f64 exactly.
+pub fn csv_row(point: &MeasuredPoint) -> Option<String> {
+    let (r, u) = (point.radiance_factor?, point.std?);
+    Some(format!("{},{},{r},{u}\n", point.theta_i_deg, point.theta_r_deg))
+}
+
+/// `readings.csv` as `points.jsonl` says it must be.
+pub fn readings_csv(points: &[MeasuredPoint]) -> String {
+    let mut text = format!("{READINGS_HEADER}\n");
+    text.extend(points.iter().filter_map(csv_row));
+    text
+}
+
+/// How `readings.csv` stands against `points.jsonl`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum CsvAgreement {
+    /// Exactly the rows `points.jsonl` gives.
+    Agrees,
+    /// A prefix of them, perhaps with a last row cut short (what a crash between the two
+    /// appends, or during the second, leaves): a resume rebuilds it.
+    Behind {
+        /// Rows missing.
+        missing: usize,
+        /// The last row was cut short.
+        cut: bool,
+    },
+    /// Something else: damage.
+    Differs(Problem),
+}
+
+/// Compare `readings.csv` with what `points.jsonl` gives.
+pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
+    let expected: Vec<String> = points.iter().filter_map(csv_row).map(|r| r.trim_end().to_string()).collect();
+    if !file.exists {
+        return CsvAgreement::Behind { missing: expected.len(), cut: false };
+    }
+    let mut lines = file.lines.iter();
+    match lines.next() {
+        Some((_, header)) if header == READINGS_HEADER => {}
+        Some((line, header)) => return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("header is '{header}', not '{READINGS_HEADER}'"))),
+        // Only the header, cut short (or nothing): a crash right after the file was made.
+        None => {
+            return match &file.cut_tail {
+                Some(tail) if !READINGS_HEADER.as_bytes().starts_with(tail) => {
+                    CsvAgreement::Differs(Problem::new(path, Some(1), format!("'{}' is not the header '{READINGS_HEADER}'", String::from_utf8_lossy(tail))))
+                }
+                tail => CsvAgreement::Behind { missing: expected.len(), cut: tail.is_some() },
+            };
+        }
+    }
+    let rows: Vec<&(usize, String)> = lines.collect();
+    if rows.len() > expected.len() {
+        let (line, text) = rows[expected.len()];
+        return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("row '{text}' has no reading in {POINTS}")));
+    }
+    for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(&expected) {
+        if !same_row(text, want) {
+            return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("row '{text}' differs from its reading in {POINTS} ('{want}')")));
+        }
+    }
+    let missing = expected.len() - rows.len();
+    if let Some(tail) = &file.cut_tail {
+        // A cut row must be the start of the next expected one.
+        let next = expected.get(rows.len()).map(String::as_bytes).unwrap_or_default();
+        if !next.starts_with(tail) {
+            let line = rows.last().map_or(2, |r| r.0 + 1);
+            return CsvAgreement::Differs(Problem::new(path, Some(line), format!("last line '{}' is no reading of {POINTS}", String::from_utf8_lossy(tail))));
+        }
+        return CsvAgreement::Behind { missing, cut: true };
+    }
+    if missing == 0 { CsvAgreement::Agrees } else { CsvAgreement::Behind { missing, cut: false } }
+}
+
+/// Two CSV rows of the same numbers (compared as the f64 they parse to).
+fn same_row(row: &str, want: &str) -> bool {
+    let parse = |s: &str| s.split(',').map(|f| f.trim().parse::<f64>().ok()).collect::<Option<Vec<f64>>>();
+    match (parse(row), parse(want)) {
+        (Some(a), Some(b)) => a.len() == b.len() && a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+        _ => false,
+    }
+}
+
+/// Read `session.json`; `None` when there is none.
+pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
+    let path = dir.join(SESSION);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(Problem::new(&path, None, format!("cannot read: {e}"))),
+    };
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
+    match value.get("format").and_then(serde_json::Value::as_str) {
+        Some(SESSION_FORMAT) => {}
+        Some(other) => return Err(Problem::new(&path, None, format!("format '{other}' is not '{SESSION_FORMAT}', which this gonio reads"))),
+        None => return Err(Problem::new(&path, None, format!("no 'format': not a session folder of this gonio ({SESSION_FORMAT})"))),
+    }
+    serde_json::from_value(value).map(Some).map_err(|e| Problem::new(&path, None, format!("not a session document: {e}")))
+}
+
+/// Read `calibration.json`; `None` when there is none.
+pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Problem> {
+    let path = dir.join(CALIBRATION);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => serde_json::from_str(&text).map(Some).map_err(|e| Problem::new(&path, Some(e.line()), format!("not a calibration: {e}"))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(Problem::new(&path, None, format!("cannot read: {e}"))),
+    }
+}
+
+/// The names in a folder (files and folders), sorted.
+pub fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)?.map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned())).collect::<Result<_, _>>()?;
+    names.sort();
+    Ok(names)
+}
+
+/// Temporary files a killed `gonio` left in `dir`.
+pub fn temp_files(dir: &Path) -> std::io::Result<Vec<String>> {
+    Ok(entries(dir)?.into_iter().filter(|n| is_temp_name(n)).collect())
+}
+
+/// The decisions of run `run` in `session.log` (a killed run's record of what it did).
+pub fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
+    let tag = format!(" [run {run}] ");
+    log.lines.iter().filter_map(|(_, l)| l.split_once(&tag).map(|(_, text)| text.to_string())).collect()
+}
+
+/// Everything a folder holds, read and cross-checked without changing it.
+pub struct Inspection {
+    /// The folder.
+    pub dir: PathBuf,
+    /// `session.json`.
+    pub session: Option<SessionDoc>,
+    /// `points.jsonl` as read.
+    pub points_file: LinesFile,
+    /// Its readings.
+    pub points: Vec<MeasuredPoint>,
+    /// `readings.csv` against them.
+    pub csv: CsvAgreement,
+    /// `session.log` as read.
+    pub log: LinesFile,
+    /// `calibration.json`.
+    pub calibration: Option<Calibration>,
+    /// Temporary files left by a kill.
+    pub temp_files: Vec<String>,
+}
+
+/// Read and cross-check a session folder. Damage that a resume cannot repair (anything
+/// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and a
+/// run that ended without closing) is an error at `file:line`.
+pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
+    if !dir.is_dir() {
+        return Err(Problem::new(dir, None, if dir.exists() { "not a folder" } else { "no such folder" }));
+    }
+    let session = read_session(dir)?;
+    let points_path = dir.join(POINTS);
+    let points_file = read_lines(&points_path)?;
+    let points = parse_points(&points_path, &points_file)?;
+    let csv_path = dir.join(READINGS);
+    let csv = csv_agreement(&csv_path, &read_lines(&csv_path)?, &points);
+    if let CsvAgreement::Differs(problem) = &csv {
+        return Err(problem.clone());
+    }
+    let log = read_lines(&dir.join(LOG))?;
+    let calibration = read_calibration(dir)?;
+    let temp_files = temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
+    let session_path = dir.join(SESSION);
+    match &session {
+        None if points_file.exists || calibration.is_some() => {
+            return Err(Problem::new(&session_path, None, format!("missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged")));
+        }
+        Some(doc) => {
+            if points.len() < doc.readings_recorded {
+                return Err(Problem::new(
+                    &points_path,
+                    Some(points_file.lines.len() + 1),
+                    format!("{} readings, but {SESSION} says {} were recorded: readings are missing", points.len(), doc.readings_recorded),
+                ));
+            }
+            if points.iter().any(|p| p.radiance_factor.is_some()) && calibration.is_none() {
+                return Err(Problem::new(&dir.join(CALIBRATION), None, "missing, but readings were converted with it"));
+            }
+            if doc.runs.is_empty() {
+                return Err(Problem::new(&session_path, None, "no runs recorded"));
+            }
+        }
+        None => {}
+    }
+    Ok(Inspection { dir: dir.to_path_buf(), session, points_file, points, csv, log, calibration, temp_files })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_and_a_cut_tail() {
+        let dir = std::env::temp_dir().join(format!("gonio-folder-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("x");
+        std::fs::write(&path, "a\nb\nc").unwrap();
+        let file = read_lines(&path).unwrap();
+        assert_eq!(file.lines, [(1, "a".to_string()), (2, "b".to_string())]);
+        assert_eq!((file.whole_len, file.cut_tail.as_deref()), (4, Some(&b"c"[..])));
+        std::fs::write(&path, "a\n").unwrap();
+        let file = read_lines(&path).unwrap();
+        assert_eq!((file.lines.len(), file.cut_tail), (1, None));
+        assert!(!read_lines(&dir.join("none")).unwrap().exists);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

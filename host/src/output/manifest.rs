@@ -1,0 +1,86 @@
+//! `MANIFEST.sha256`: the SHA-256 of every file of a finished session folder, one
+//! `HEX  NAME` line each in name order, as `sha256sum` writes them, so that
+//! `sha256sum -c MANIFEST.sha256` in the folder checks it as well as `gonio verify` does.
+use crate::output::folder::{MANIFEST, Problem, entries};
+use sha2::{Digest, Sha256};
+use std::path::Path;
+
+/// The SHA-256 of `bytes`, as lowercase hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The manifest text of every file in `dir` but the manifest itself.
+pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
+    let mut text = String::new();
+    for name in entries(dir)? {
+        let path = dir.join(&name);
+        if name == MANIFEST || !path.is_file() {
+            continue;
+        }
+        text += &format!("{}  {name}\n", sha256_hex(&std::fs::read(&path)?));
+    }
+    Ok(text)
+}
+
+/// Check `dir` against its manifest: every file listed, present and unchanged, and no other
+/// file. Returns the number of files checked, or every problem found.
+pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
+    let path = dir.join(MANIFEST);
+    let problem = |line: Option<usize>, message: String| Problem { file: path.clone(), line, message };
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(vec![problem(None, "missing: the session never finished (or the file was removed)".into())]),
+        Err(e) => return Err(vec![problem(None, format!("cannot read: {e}"))]),
+    };
+    let mut problems = Vec::new();
+    let mut listed = std::collections::BTreeSet::new();
+    for (k, line) in text.lines().enumerate() {
+        let line_no = Some(k + 1);
+        // sha256sum writes "HEX  NAME" (text mode) or "HEX *NAME" (binary mode).
+        let Some((hex, name)) = line.split_once("  ").or_else(|| line.split_once(" *")) else {
+            problems.push(problem(line_no, format!("'{line}' is not 'SHA256  NAME'")));
+            continue;
+        };
+        if hex.len() != 64 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
+            problems.push(problem(line_no, format!("'{hex}' is not a SHA-256 in hex")));
+            continue;
+        }
+        if name.contains('/') || name == MANIFEST || name.is_empty() {
+            problems.push(problem(line_no, format!("'{name}' is not a file of the folder")));
+            continue;
+        }
+        if !listed.insert(name.to_string()) {
+            problems.push(problem(line_no, format!("{name} is listed twice")));
+            continue;
+        }
+        let file = dir.join(name);
+        match std::fs::read(&file) {
+            Ok(bytes) if sha256_hex(&bytes).eq_ignore_ascii_case(hex) => {}
+            Ok(_) => problems.push(Problem { file, line: None, message: format!("changed since the session finished: its SHA-256 is not the one in {MANIFEST}:{}", k + 1) }),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => problems.push(Problem { file, line: None, message: format!("missing (listed in {MANIFEST}:{})", k + 1) }),
+            Err(e) => problems.push(Problem { file, line: None, message: format!("cannot read: {e}") }),
+        }
+    }
+    match entries(dir) {
+        Ok(names) => {
+            for name in names.into_iter().filter(|n| n != MANIFEST && !listed.contains(n)) {
+                problems.push(Problem { file: dir.join(&name), line: None, message: format!("not in {MANIFEST}: added after the session finished") });
+            }
+        }
+        Err(e) => problems.push(Problem { file: dir.to_path_buf(), line: None, message: format!("cannot list: {e}") }),
+    }
+    if problems.is_empty() { Ok(listed.len()) } else { Err(problems) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sha256_of_known_strings() {
+        // FIPS 180-2 test vectors.
+        assert_eq!(sha256_hex(b"abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+        assert_eq!(sha256_hex(b""), "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+    }
+}

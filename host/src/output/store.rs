@@ -1,0 +1,327 @@
+//! Every write into a session folder goes through [`Store`]: lines appended whole, files
+//! replaced atomically, the folder itself created atomically. One place that a test can
+//! tell to "crash" at its N-th write ([`Crash`]), leaving the folder exactly as a killed
+//! process would.
+//!
+//! # What is synced when
+//!
+//! A process that is killed (SIGKILL, a panic, the OOM killer) loses nothing that a
+//! `write(2)` returned for: the data are in the kernel's page cache. Power loss or a kernel
+//! crash loses what was not yet `fsync`ed. So:
+//!
+//! - an append ([`Store::append`]) is one `write` call of one whole line, on a file opened
+//!   for appending and never buffered in the process. The primary record `points.jsonl` is
+//!   also `fdatasync`ed after every line ([`Sync::Data`]): a reading costs tens of
+//!   milliseconds of device time or more, an `fdatasync` about a millisecond, and it bounds
+//!   the loss at power failure to the reading being written. The derived `readings.csv` and
+//!   the decision log `session.log` are not synced per line ([`Sync::Never`]); a resume
+//!   rebuilds `readings.csv` from `points.jsonl`, and both are synced at the end of every
+//!   run ([`Store::sync_all`]), so power loss can cost at most the log lines of the run in
+//!   progress;
+//! - a replaced file ([`Store::replace`]: `session.json`, `calibration.json`, the summary
+//!   files, the manifest) is written to a temporary file in the same folder, `fsync`ed,
+//!   renamed over the old one and the folder `fsync`ed: after a kill or a power loss it is
+//!   the old file or the new one, never a mix. A temporary file left by a kill is named
+//!   `.NAME.gonio-tmp` and removed by the next `--resume` ([`is_temp_name`]);
+//! - a new file or folder is made durable by an `fsync` of the folder that holds it.
+use std::collections::HashMap;
+use std::fs::{File, OpenOptions};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The suffix of a file being replaced ([`Store::replace`]).
+const TEMP_SUFFIX: &str = ".gonio-tmp";
+
+/// Whether `name` is a temporary file that [`Store::replace`] writes (and a kill can leave).
+pub fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
+}
+
+/// The temporary name [`Store::replace`] writes `name` under.
+pub fn temp_name(name: &str) -> String {
+    format!(".{name}{TEMP_SUFFIX}")
+}
+
+/// When an append is synced to the disk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sync {
+    /// `fdatasync` after the line: the primary record.
+    Data,
+    /// Only at [`Store::sync_all`] (the end of a run): derived files and the log.
+    Never,
+}
+
+/// A simulated crash: the `at`-th write (from 1) is cut short and every later write is
+/// refused, as a killed process leaves a folder. `count` counts every write made, so that a
+/// first run without a crash (`at: None`) tells how many writes a session makes.
+#[derive(Clone, Debug, Default)]
+pub struct Crash {
+    /// The write to crash at; `None` only counts.
+    pub at: Option<u64>,
+    /// Writes made so far (shared, so the test can read it after the session).
+    pub count: Arc<AtomicU64>,
+}
+
+impl Crash {
+    /// Count writes, crash at none.
+    pub fn counting() -> Crash {
+        Crash::default()
+    }
+
+    /// Crash at the `n`-th write (from 1).
+    pub fn at(n: u64) -> Crash {
+        Crash { at: Some(n), count: Arc::default() }
+    }
+
+    /// Writes made (or attempted, the crashing one included).
+    pub fn writes(&self) -> u64 {
+        self.count.load(Ordering::Relaxed)
+    }
+
+    /// Whether the crash happened.
+    pub fn crashed(&self) -> bool {
+        self.at.is_some_and(|at| self.writes() >= at)
+    }
+}
+
+/// How I/O ends in a [`Store`]: for real, or through a simulated crash.
+#[derive(Clone, Debug, Default)]
+pub struct StoreOptions {
+    /// A simulated crash (tests); `None` for real use.
+    pub crash: Option<Crash>,
+}
+
+/// What the store does at one write.
+enum Step {
+    /// Do it.
+    Whole,
+    /// Do only this many bytes of it (or nothing, for a rename), then stop.
+    Cut(usize),
+}
+
+fn crashed_error() -> io::Error {
+    io::Error::other("simulated crash: the process is gone, no more writes")
+}
+
+/// The one writer of a session folder.
+pub struct Store {
+    dir: PathBuf,
+    options: StoreOptions,
+    appenders: HashMap<String, File>,
+    dead: bool,
+}
+
+impl Store {
+    /// Create the folder `dir` (its parent must exist); fails with
+    /// [`io::ErrorKind::AlreadyExists`] if it does, so two sessions never share one.
+    pub fn create_dir(dir: &Path, options: StoreOptions) -> io::Result<Store> {
+        let mut store = Store { dir: dir.to_path_buf(), options, appenders: HashMap::new(), dead: false };
+        match store.step(0)? {
+            Step::Whole => std::fs::create_dir(dir)?,
+            Step::Cut(_) => return Err(store.die()),
+        }
+        if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+            sync_dir(parent)?;
+        }
+        Ok(store)
+    }
+
+    /// Write into the existing folder `dir`.
+    pub fn open_dir(dir: &Path, options: StoreOptions) -> Store {
+        Store { dir: dir.to_path_buf(), options, appenders: HashMap::new(), dead: false }
+    }
+
+    /// The folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Whether the store crashed (simulated) and refuses every write.
+    pub fn is_dead(&self) -> bool {
+        self.dead
+    }
+
+    fn die(&mut self) -> io::Error {
+        self.dead = true;
+        self.appenders.clear();
+        crashed_error()
+    }
+
+    /// Account for one write of `len` bytes.
+    fn step(&mut self, len: usize) -> io::Result<Step> {
+        if self.dead {
+            return Err(crashed_error());
+        }
+        let Some(crash) = &self.options.crash else { return Ok(Step::Whole) };
+        let n = crash.count.fetch_add(1, Ordering::Relaxed) + 1;
+        match crash.at {
+            // Cut short somewhere inside the write, differently for different writes.
+            Some(at) if n == at => Ok(Step::Cut(if len == 0 { 0 } else { (n as usize).wrapping_mul(2_654_435_761) % len })),
+            // Another store sharing the crash: the process is gone for it too.
+            Some(at) if n > at => Err(self.die()),
+            _ => Ok(Step::Whole),
+        }
+    }
+
+    fn appender(&mut self, name: &str) -> io::Result<&mut File> {
+        if !self.appenders.contains_key(name) {
+            let path = self.dir.join(name);
+            let existed = path.exists();
+            if !existed {
+                // Creating the file is a write of its own: it can be where the crash is.
+                if let Step::Cut(_) = self.step(0)? {
+                    return Err(self.die());
+                }
+            }
+            let file = OpenOptions::new().create(true).append(true).open(&path)?;
+            if !existed {
+                sync_dir(&self.dir)?;
+            }
+            self.appenders.insert(name.to_string(), file);
+        }
+        Ok(self.appenders.get_mut(name).expect("inserted above"))
+    }
+
+    /// Append `line` (which must end in a newline) to `name` in one `write` call.
+    pub fn append(&mut self, name: &str, line: &[u8], sync: Sync) -> io::Result<()> {
+        debug_assert!(line.ends_with(b"\n"), "appends are whole lines");
+        self.appender(name)?;
+        let step = self.step(line.len())?;
+        let file = self.appenders.get_mut(name).expect("opened above");
+        match step {
+            Step::Whole => {
+                file.write_all(line)?;
+                if sync == Sync::Data {
+                    file.sync_data()?;
+                }
+                Ok(())
+            }
+            Step::Cut(cut) => {
+                let _ = file.write_all(&line[..cut]);
+                Err(self.die())
+            }
+        }
+    }
+
+    /// Replace `name` by `bytes` atomically: a temporary file in the folder, `fsync`,
+    /// rename, `fsync` of the folder.
+    pub fn replace(&mut self, name: &str, bytes: &[u8]) -> io::Result<()> {
+        let temp = self.dir.join(temp_name(name));
+        match self.step(bytes.len())? {
+            Step::Whole => {
+                let mut file = File::create(&temp)?;
+                file.write_all(bytes)?;
+                file.sync_all()?;
+            }
+            Step::Cut(cut) => {
+                if let Ok(mut file) = File::create(&temp) {
+                    let _ = file.write_all(&bytes[..cut]);
+                }
+                return Err(self.die());
+            }
+        }
+        match self.step(0)? {
+            Step::Whole => std::fs::rename(&temp, self.dir.join(name))?,
+            Step::Cut(_) => return Err(self.die()),
+        }
+        // An appender open on the old file would write into the replaced inode.
+        self.appenders.remove(name);
+        sync_dir(&self.dir)
+    }
+
+    /// Cut `name` to its first `len` bytes (a resume drops a line cut short by a crash).
+    pub fn truncate(&mut self, name: &str, len: u64) -> io::Result<()> {
+        match self.step(0)? {
+            Step::Whole => {
+                let file = OpenOptions::new().write(true).open(self.dir.join(name))?;
+                file.set_len(len)?;
+                file.sync_all()
+            }
+            Step::Cut(_) => Err(self.die()),
+        }
+    }
+
+    /// Remove `name` (a temporary file a kill left behind).
+    pub fn remove(&mut self, name: &str) -> io::Result<()> {
+        match self.step(0)? {
+            Step::Whole => {
+                self.appenders.remove(name);
+                std::fs::remove_file(self.dir.join(name))?;
+                sync_dir(&self.dir)
+            }
+            Step::Cut(_) => Err(self.die()),
+        }
+    }
+
+    /// `fsync` every file appended to, and the folder: the end of a run.
+    pub fn sync_all(&mut self) -> io::Result<()> {
+        if self.dead {
+            return Err(crashed_error());
+        }
+        for file in self.appenders.values() {
+            file.sync_all()?;
+        }
+        sync_dir(&self.dir)
+    }
+}
+
+/// `fsync` a folder, so that the names in it (new files, renames) survive a power loss.
+pub fn sync_dir(dir: &Path) -> io::Result<()> {
+    #[cfg(unix)]
+    {
+        File::open(dir)?.sync_all()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("gonio-store-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn a_crash_cuts_one_write_and_refuses_the_rest() {
+        let dir = temp("crash");
+        let crash = Crash::at(3);
+        let mut store = Store::create_dir(&dir, StoreOptions { crash: Some(crash.clone()) }).unwrap();
+        // 1: the folder; 2: creating a.txt; 3: its first line, cut short.
+        let line = b"0123456789abcdef\n";
+        assert!(store.append("a.txt", line, Sync::Data).is_err());
+        assert!(store.is_dead() && crash.crashed());
+        let kept = std::fs::read(dir.join("a.txt")).unwrap();
+        assert!(kept.len() < line.len() && line.starts_with(&kept), "a prefix: {kept:?}");
+        assert!(store.replace("b.json", b"{}").is_err());
+        assert!(!dir.join("b.json").exists() && !dir.join(temp_name("b.json")).exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_replace_cut_short_leaves_the_old_file_and_a_temporary_one() {
+        let dir = temp("replace");
+        let mut store = Store::create_dir(&dir, StoreOptions::default()).unwrap();
+        store.replace("s.json", b"old").unwrap();
+        let crash = Crash::at(1);
+        let mut store = Store::open_dir(&dir, StoreOptions { crash: Some(crash) });
+        assert!(store.replace("s.json", b"new and longer").is_err());
+        assert_eq!(std::fs::read(dir.join("s.json")).unwrap(), b"old");
+        assert!(dir.join(temp_name("s.json")).exists());
+        assert!(is_temp_name(&temp_name("s.json")) && !is_temp_name("s.json"));
+        // Crash at the rename: the new content is complete in the temporary file only.
+        let mut store = Store::open_dir(&dir, StoreOptions { crash: Some(Crash::at(2)) });
+        assert!(store.replace("s.json", b"new").is_err());
+        assert_eq!(std::fs::read(dir.join("s.json")).unwrap(), b"old");
+        assert!(Store::create_dir(&dir, StoreOptions::default()).is_err_and(|e| e.kind() == io::ErrorKind::AlreadyExists));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
