@@ -317,23 +317,38 @@ impl<T: Transport> Client<T> {
     }
 
     /// Send `command` and wait for its reply, retrying with the same sequence number.
+    ///
+    /// The request is sent again every [`RetryPolicy::reply_timeout`] until the reply comes,
+    /// also while a long command (a homing, a move, a reading) is still being carried
+    /// out: the firmware ignores a repeat of the request in progress and answers a repeat
+    /// of one already done from its reply cache, so a lost request starts late by one
+    /// timeout, and a lost reply is had again as soon as the command is done, instead of
+    /// after the longest the command could take. [`RetryPolicy::attempts`] counts the
+    /// sends after that longest time: then the request is given up ([`LinkError::NoReply`]).
     pub fn request(&mut self, command: Command) -> Result<Reply, LinkError> {
         let seq = self.take_seq();
         let name = command_name(&command);
-        let timeout = self.policy.reply_timeout + expected_duration(&command);
+        let longest = expected_duration(&command);
+        let started = self.transport.now();
         let request = Request { seq, command };
-        for attempt in 0..self.policy.attempts {
-            if attempt > 0 {
+        let mut attempts = 0;
+        let mut sends = 0u32;
+        while attempts < self.policy.attempts {
+            if sends > 0 {
                 self.stats.retries += 1;
             }
             // Nothing new is started after a Ctrl-C.
             self.check_interrupt()?;
+            if self.transport.now() >= started + longest {
+                attempts += 1;
+            }
             self.send(&request)?;
-            if let Some(result) = self.wait_for_reply(seq, timeout)? {
+            sends += 1;
+            if let Some(result) = self.wait_for_reply(seq, self.policy.reply_timeout)? {
                 return result.map_err(|error| LinkError::Device { command: name, error });
             }
         }
-        Err(LinkError::NoReply { seq, command: name, attempts: self.policy.attempts })
+        Err(LinkError::NoReply { seq, command: name, attempts: sends })
     }
 
     fn take_seq(&mut self) -> u32 {

@@ -195,7 +195,6 @@ impl<T: Transport> Session<'_, T> {
                 false
             }
             Failure::Stopped(reason) => {
-                self.recoveries.stops += 1;
                 self.decide(&format!("the instrument took its fail-safe stop ({reason}); reading its state"));
                 false
             }
@@ -330,7 +329,9 @@ impl<T: Transport> Session<'_, T> {
             }
         };
         if let Some(fault) = status.fault.filter(|f| Some(*f) != self.steps.fault_reported) {
+            // A fault stays in the status until the next Home: told (and counted) once.
             self.steps.fault_reported = Some(fault);
+            self.recoveries.stops += 1;
             let homing = if status.homed_i && status.homed_r { "the homing was kept" } else { "the homing was lost" };
             self.decide(&format!("the instrument reports {fault} (state {}, lamp {}); {homing}", doing(status.state), if status.lamp_on { "on" } else { "off" }));
         }

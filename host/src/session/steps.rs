@@ -106,6 +106,8 @@ impl<T: Transport> Session<'_, T> {
     /// What a Home found.
     fn on_home_report(&mut self, report: HomeReport, when: &str, took_s: f64) -> Result<(), SessionError> {
         self.steps.home_in_flight = false;
+        // A Home clears the instrument's fault: a later one is a new stop.
+        self.steps.fault_reported = None;
         let arms = [("source", report.step_error_i), ("detector", report.step_error_r)];
         let lost: Vec<(&str, i32)> = arms.iter().filter_map(|&(arm, e)| e.filter(|e| e.abs() > STEP_TOLERANCE_TICKS).map(|e| (arm, e))).collect();
         let unknown = arms.iter().any(|(_, e)| e.is_none());
