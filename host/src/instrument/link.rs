@@ -283,6 +283,11 @@ impl<T: Transport> Client<T> {
         &self.transport
     }
 
+    /// The transport, the client done with.
+    pub fn into_transport(self) -> T {
+        self.transport
+    }
+
     /// What went wrong on the link so far.
     pub fn stats(&self) -> LinkStats {
         self.stats

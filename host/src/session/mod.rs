@@ -927,8 +927,9 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Re-read the white tile at every calibrated incidence angle (θr = 0) and compare
     /// with the calibration: the drift is the mean ratio's departure from 1. One reading
     /// against one would carry the noise of both (about 0.14 % at 100 ms), a third of the
-    /// default 0.5 % limit; the mean of six divides it by √6, so a flag means a lamp that
-    /// drifted, not a noisy pair.
+    /// default 0.5 % limit; the mean over the calibration's incidence angles (four on the
+    /// reference instrument) halves it, so a flag means a lamp that drifted, not a noisy
+    /// pair.
     fn white_check(&mut self) -> Result<(Option<f64>, bool), SessionError> {
         self.ask_operator(Placement::WhiteTile)?;
         let mut ratios = Vec::new();

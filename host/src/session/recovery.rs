@@ -338,11 +338,12 @@ impl<T: Transport> Session<'_, T> {
         if !(status.homed_i && status.homed_r) {
             if !self.steps.homed_once {
                 self.decide("homing the arms");
+                self.home("at the start")?;
             } else {
                 self.decide("the arms lost their homing: homing again");
                 self.recoveries.rehomings += 1;
+                self.home("on re-homing")?;
             }
-            self.home("on re-homing")?;
         } else if self.steps.home_in_flight {
             // A Home ran while the link was down, and its report went with the link.
             self.steps_unverified("the result of a Home was lost with the link").map_err(StepError::Fatal)?;
