@@ -33,11 +33,29 @@ struct Watched {
     slip: Option<(f64, Arm, i32)>,
     /// From this device time (s) on, the instrument hears nothing and says nothing.
     freeze_at_s: Option<f64>,
+    /// Over this span of device time (s) the host's bytes are lost (a host that stalls).
+    mute: Option<(f64, f64)>,
+    /// The instrument's `Stopped` messages are lost on the way (the others pass).
+    lose_stops: bool,
+    /// Device bytes read, not yet passed on (whole frames are passed, or filtered).
+    from_device: FrameDecoder,
+    to_host: std::collections::VecDeque<u8>,
 }
 
 impl Watched {
     fn new(sim: SimInstrument) -> Watched {
-        Watched { sim, decoder: FrameDecoder::new(), log: Vec::new(), logged: BTreeSet::new(), slip: None, freeze_at_s: None }
+        Watched {
+            sim,
+            decoder: FrameDecoder::new(),
+            log: Vec::new(),
+            logged: BTreeSet::new(),
+            slip: None,
+            freeze_at_s: None,
+            mute: None,
+            lose_stops: false,
+            from_device: FrameDecoder::new(),
+            to_host: Default::default(),
+        }
     }
 
     fn now_s(&self) -> f64 {
@@ -70,7 +88,7 @@ impl Transport for Watched {
                 self.slip = None;
             }
         }
-        if self.frozen() {
+        if self.frozen() || self.mute.is_some_and(|(from, to)| (from..to).contains(&now)) {
             return Ok(());
         }
         self.sim.write(bytes)
@@ -86,7 +104,32 @@ impl Transport for Watched {
             Some(at) => timeout.min(Duration::from_secs_f64((at - self.now_s()).max(0.0))),
             None => timeout,
         };
-        self.sim.read(buf, timeout)
+        if !self.lose_stops {
+            return self.sim.read(buf, timeout);
+        }
+        // Whole frames only, the stops left out.
+        let deadline = self.now_s() + timeout.as_secs_f64();
+        while self.to_host.is_empty() {
+            let mut raw = [0u8; 512];
+            let left = Duration::from_secs_f64((deadline - self.now_s()).max(0.0));
+            let n = self.sim.read(&mut raw, left)?;
+            if n == 0 {
+                return Ok(0);
+            }
+            for &byte in &raw[..n] {
+                if let Some(Ok(message)) = self.from_device.push::<protocol::DeviceMessage>(byte) {
+                    if !matches!(message, protocol::DeviceMessage::Stopped { .. }) {
+                        let mut frame = [0u8; protocol::MAX_FRAME_LEN];
+                        self.to_host.extend(protocol::encode_frame(&message, &mut frame).unwrap().iter().copied());
+                    }
+                }
+            }
+        }
+        let n = buf.len().min(self.to_host.len());
+        for (slot, byte) in buf.iter_mut().zip(self.to_host.drain(..n)) {
+            *slot = byte;
+        }
+        Ok(n)
     }
 
     fn pause(&mut self, duration: Duration) {
@@ -151,11 +194,13 @@ struct Setup {
     calibration: Option<Calibration>,
     slip: Option<(f64, Arm, i32)>,
     freeze_at_s: Option<f64>,
+    mute: Option<(f64, f64)>,
+    lose_stops: bool,
 }
 
 impl Setup {
     fn new(sample: &'static str, seed: u64) -> Setup {
-        Setup { sample, seed, faults: String::new(), policy: PolicyChoice::Adaptive, operator_s: 0.0, white_check: false, calibration: None, slip: None, freeze_at_s: None }
+        Setup { sample, seed, faults: String::new(), policy: PolicyChoice::Adaptive, operator_s: 0.0, white_check: false, calibration: None, slip: None, freeze_at_s: None, mute: None, lose_stops: false }
     }
 
     fn faults(mut self, faults: &str) -> Setup {
@@ -180,6 +225,8 @@ fn run(setup: &Setup) -> Ran {
     let mut watched = Watched::new(options.instrument(setup.sample).expect("simulated instrument"));
     watched.slip = setup.slip;
     watched.freeze_at_s = setup.freeze_at_s;
+    watched.mute = setup.mute;
+    watched.lose_stops = setup.lose_stops;
     let mut client = Client::new(watched, RetryPolicy::default());
     let info = client.hello().expect("handshake");
     let plan = Plan {
@@ -442,3 +489,29 @@ fn a_frozen_instrument_is_given_up_within_10_s_saying_nothing_answers() {
     }
 }
 
+
+#[test]
+fn a_stop_whose_message_is_lost_does_not_let_a_reading_be_taken_in_the_dark() {
+    // While the person works, the host stalls for 2.5 s (its heartbeats lost): the
+    // instrument takes its fail-safe stop (arms parked: homing kept, lamp off, idle) and
+    // its `Stopped` never arrives. The next reading (white after the first prompt, the
+    // sample's Strategy 1 after the second) would be taken with the lamp off.
+    for (seed, sample) in [(14, "G"), (15, "PPC"), (16, "SG"), (17, "J1")] {
+        let base = Setup { operator_s: 10.0, ..Setup::new(sample, seed) };
+        let clean = run(&base);
+        ok("clean", &clean);
+        for prompt in [0, 1] {
+            let at = clean.person.asked_at_s[prompt] + 3.0;
+            let what = format!("{sample} seed {seed}, host stalled during prompt {prompt} ({at:.2} s)");
+            let ran = run(&Setup { mute: Some((at, at + 2.5)), lose_stops: true, ..base.clone() });
+            let outcome = ok(&what, &ran);
+            assert!(outcome.recoveries.lamp_relit >= 1, "{what}: {:#?}", outcome.decisions);
+            assert_eq!(outcome.recoveries.rehomings, 0, "{what}");
+            // Every reading the result rests on was taken with the lamp on: the white ones
+            // (else the calibration would be off by its dark reading) and the sample's.
+            assert!(outcome.calibration.white.iter().all(|w| w.reading.mean_counts > 5_000.0), "{what}: {:?}", outcome.calibration.white);
+            assert_sound(&what, outcome);
+            assert!(outcome.ok(), "{what}: {:?}", outcome.flags);
+        }
+    }
+}

@@ -764,13 +764,18 @@ impl<'a, T: Transport> Session<'a, T> {
     }
 
     /// Move to `geometry` and take one reading there. After any recovery the move is made
-    /// again: a recovery may have re-homed the arms.
+    /// again: a recovery may have re-homed the arms. The reading is kept only if the lamp
+    /// is still on after it (see [`Session::lamp_went_out`]).
     fn reading_at(&mut self, geometry: Geometry, target: Target) -> Result<Reading, SessionError> {
         let integration_ms = self.plan.integration_ms;
         for _ in 0..recovery::MAX_RECOVERIES {
             let recoveries = self.recoveries.state_recoveries;
             self.retrying(Command::MoveTo(geometry))?;
             let reply = self.retrying(Command::TakeReading { integration_ms, target, range: None })?;
+            if let Some(failure) = self.lamp_went_out()? {
+                self.recover(failure)?;
+                continue;
+            }
             if self.recoveries.state_recoveries != recoveries {
                 continue;
             }
@@ -780,6 +785,29 @@ impl<'a, T: Transport> Session<'a, T> {
             };
         }
         Err(SessionError::GaveUp(format!("no reading at θi = {}°, θr = {}° after {} recoveries", geometry.theta_i.deg(), geometry.theta_r.deg(), recovery::MAX_RECOVERIES)))
+    }
+
+    /// Whether the instrument stopped on its own without the host hearing it in time: a
+    /// `Stopped` waiting in the queue, or the status showing the lamp off while the session
+    /// needs it. A fail-safe stop of arms at rest keeps the homing and leaves the device
+    /// idle, so it carries out the next command with the lamp off; a reading taken then is
+    /// dark, and the `Stopped` that says so may be lost on the link. So the lamp is checked
+    /// after every single reading and around every schedule.
+    fn lamp_went_out(&mut self) -> Result<Option<Failure>, SessionError> {
+        let mut stopped = None;
+        while let Ok(Some(message)) = self.client.next_unsolicited(Duration::ZERO) {
+            if let DeviceMessage::Stopped { reason } = message {
+                stopped = Some(reason);
+            }
+        }
+        if let Some(reason) = stopped {
+            return Ok(Some(Failure::Stopped(reason)));
+        }
+        if !self.lamp_wanted {
+            return Ok(None);
+        }
+        let status = self.status()?;
+        Ok((!status.lamp_on).then(|| Failure::Stopped(status.fault.unwrap_or(ErrorCode::HeartbeatLost))))
     }
 
     /// Measure every geometry of `schedule` (and any wanted one still missing) not yet
@@ -829,6 +857,10 @@ impl<'a, T: Transport> Session<'a, T> {
     fn run_schedule(&mut self, list: ScheduleList<'_>, stage_len: usize) -> Result<(), StepError> {
         let schedule_id = self.next_schedule_id;
         self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
+        // A stop the host did not hear would let the schedule run in the dark.
+        if let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? {
+            return Err(StepError::Failure(failure));
+        }
         let source = match list {
             ScheduleList::BuiltIn => ScheduleSource::Strategy1,
             ScheduleList::Upload(list) => {
@@ -878,7 +910,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 }
                 Some(DeviceMessage::ScheduleDone(done)) if done.schedule_id == schedule_id => {
                     return match done.error {
-                        None | Some(ErrorCode::Aborted) => Ok(()),
+                        None | Some(ErrorCode::Aborted) => self.lit_throughout(schedule_id),
                         Some(reason) => Err(StepError::Failure(Failure::Stopped(reason))),
                     };
                 }
@@ -890,12 +922,23 @@ impl<'a, T: Transport> Session<'a, T> {
                     let status = self.request(Command::GetStatus)?;
                     if let Reply::Status(status) = status {
                         if status.schedule.is_none_or(|(id, _)| id != schedule_id) {
-                            return Ok(());
+                            return self.lit_throughout(schedule_id);
                         }
                     }
                 }
             }
         }
+    }
+
+    /// After a schedule ended: if the lamp is off now, it went off during the schedule
+    /// (a stop whose message was lost) and some of its readings may be dark. Which ones
+    /// cannot be told: all of them are superseded and measured again.
+    fn lit_throughout(&mut self, schedule_id: u16) -> Result<(), StepError> {
+        let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? else { return Ok(()) };
+        let why = format!("the lamp was off at the end of schedule {schedule_id}: its readings may be dark");
+        let superseded = self.supersede_schedule(schedule_id, &why).map_err(StepError::Fatal)?;
+        self.decide(&format!("{why}; {superseded} readings superseded and measured again"));
+        Err(StepError::Failure(failure))
     }
 
     fn record(&mut self, geometry: Geometry, reading: Reading, schedule_id: u16, index: u16, device_time_us: u64) -> Result<(), SessionError> {

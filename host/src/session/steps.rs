@@ -183,15 +183,30 @@ impl<T: Transport> Session<'_, T> {
     /// Mark every reading since the last good check superseded; returns how many.
     fn supersede_since_check(&mut self, why: &str) -> Result<usize, SessionError> {
         let from = self.steps.checked_upto.min(self.points.len());
+        let superseded = self.supersede(from, |_| true, why)?;
+        self.steps.checked_upto = self.points.len();
+        Ok(superseded)
+    }
+
+    /// Mark every reading of schedule `schedule_id` superseded; returns how many.
+    pub(super) fn supersede_schedule(&mut self, schedule_id: u16, why: &str) -> Result<usize, SessionError> {
+        self.supersede(0, |p| p.schedule_id == schedule_id, why)
+    }
+
+    /// Mark the readings from index `from` on that `which` selects superseded, and tell the
+    /// recorder; returns how many.
+    fn supersede(&mut self, from: usize, which: impl Fn(&super::MeasuredPoint) -> bool, why: &str) -> Result<usize, SessionError> {
         let mut marked = Vec::new();
+        let from = from.min(self.points.len());
         for point in &mut self.points[from..] {
-            if !point.superseded {
+            if !point.superseded && which(point) {
                 point.superseded = true;
                 marked.push(point.clone());
             }
         }
-        self.steps.checked_upto = self.points.len();
-        self.recorder.superseded(&marked, why).map_err(SessionError::Record)?;
+        if !marked.is_empty() {
+            self.recorder.superseded(&marked, why).map_err(SessionError::Record)?;
+        }
         Ok(marked.len())
     }
 }
