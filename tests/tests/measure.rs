@@ -447,7 +447,7 @@ fn assert_given_up(how: Cut, sample: &str, seed: u64) {
     assert!(session.to_string().contains("--resume"), "{session}");
     let log = std::fs::read_to_string(dir.join("session.log")).unwrap();
     assert!(log.contains("giving up"), "{log}");
-    eprintln!("{sample}: given up {:.2} s after the cut, {:.2} s of silence", took.as_secs_f64(), silent_for.as_secs_f64());
+    eprintln!("{sample}: given up {:.2} s after the cut, {:.2} s of silence: {}", took.as_secs_f64(), silent_for.as_secs_f64(), text.lines().next().unwrap_or(""));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -111,6 +111,8 @@ impl Operator for WallClockOperator {
 #[derive(Default)]
 pub struct PromptOperator {
     lines: Option<Receiver<std::io::Result<Option<String>>>>,
+    /// Where the answers come from (`None`: standard input).
+    input: Option<Box<dyn BufRead + Send>>,
 }
 
 impl PromptOperator {
@@ -119,17 +121,25 @@ impl PromptOperator {
         PromptOperator::default()
     }
 
+    /// A prompt on standard error, answered on `input` (for tests).
+    pub fn answered_on(input: impl BufRead + Send + 'static) -> PromptOperator {
+        PromptOperator { lines: None, input: Some(Box::new(input)) }
+    }
+
     /// The reader thread, started at the first prompt: it sends every line typed, then
     /// `None` at the end of input.
     fn lines(&mut self) -> &Receiver<std::io::Result<Option<String>>> {
+        let input = self.input.take();
         self.lines.get_or_insert_with(|| {
             let (sender, receiver) = channel();
             std::thread::spawn(move || {
-                let stdin = std::io::stdin();
-                let mut stdin = stdin.lock();
+                let mut input: Box<dyn BufRead> = match input {
+                    Some(input) => input,
+                    None => Box::new(std::io::stdin().lock()),
+                };
                 loop {
                     let mut line = String::new();
-                    let read = stdin.read_line(&mut line);
+                    let read = input.read_line(&mut line);
                     let end = !matches!(read, Ok(n) if n > 0);
                     let message = read.map(|n| (n > 0).then_some(line));
                     if sender.send(message).is_err() || end {
@@ -195,5 +205,27 @@ mod tests {
         assert!(person.answered(Duration::ZERO).unwrap());
         person.ask(Placement::WhiteTile, Duration::ZERO).unwrap();
         assert!(person.answered(Duration::ZERO).unwrap(), "the last delay repeats");
+    }
+
+    /// Wait (on the reader thread) until `person` answers or fails.
+    fn wait(person: &mut PromptOperator) -> std::io::Result<bool> {
+        for _ in 0..10_000 {
+            match person.answered(Duration::ZERO) {
+                Ok(false) => std::thread::sleep(Duration::from_millis(1)),
+                other => return other,
+            }
+        }
+        Ok(false)
+    }
+
+    #[test]
+    fn the_prompt_takes_a_line_per_placement_and_says_so_when_input_ends() {
+        let mut person = PromptOperator::answered_on(std::io::Cursor::new(b"\n".to_vec()));
+        person.ask(Placement::WhiteTile, Duration::ZERO).unwrap();
+        assert!(wait(&mut person).unwrap());
+        person.ask(Placement::Sample, Duration::ZERO).unwrap();
+        let error = wait(&mut person).unwrap_err();
+        assert_eq!(error.kind(), std::io::ErrorKind::UnexpectedEof);
+        assert!(error.to_string().contains("standard input is closed") && error.to_string().contains("--calibration"), "{error}");
     }
 }
