@@ -24,7 +24,9 @@ pub mod operator;
 pub mod order;
 mod prompt;
 mod recovery;
+mod schedule;
 mod steps;
+mod white;
 
 pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};
 pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
@@ -32,16 +34,13 @@ pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 use crate::analysis::fit::{FitOptions, Observation};
 use crate::analysis::flags::Flag;
 use crate::analysis::report::{Report, analyse, to_json};
-use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
+use crate::instrument::calibration::{Calibration, CalibrationError, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
 use crate::output::dataset::DataSet;
 use adaptive::AdaptiveTargets;
 use order::Motion;
-use protocol::schedules::{INCIDENCE_DEG, strategy1, strategy2};
-use protocol::{
-    Command, DeviceInfo, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN,
-    ScheduleChunk, ScheduleSource, Target,
-};
+use protocol::schedules::{strategy1, strategy2};
+use protocol::{DeviceInfo, ErrorCode, Geometry, Reading};
 use recovery::Failure;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
@@ -388,17 +387,6 @@ impl From<LinkError> for SessionError {
     }
 }
 
-/// Rounds of a stage without a new reading before the session gives up on it.
-const MAX_STALLED_ROUNDS: u32 = 6;
-
-/// Where a stage's missing geometries come from.
-enum ScheduleList<'l> {
-    /// The instrument's built-in Strategy 1.
-    BuiltIn,
-    /// This list, uploaded.
-    Upload(&'l [Geometry]),
-}
-
 /// The running session.
 pub struct Session<'a, T: Transport> {
     client: &'a mut Client<T>,
@@ -713,251 +701,6 @@ impl<'a, T: Transport> Session<'a, T> {
         self.wanted.iter().copied().filter(|g| !measured.contains(g)).collect()
     }
 
-    fn lamp_on(&mut self) -> Result<(), SessionError> {
-        self.retrying(Command::SetLamp { on: true }).map(|_| ())
-    }
-
-    /// Dark per range (lamp off), then the white tile at θr = 0 for every incidence angle,
-    /// then a lost-steps check while the tile is still on the port (the white readings
-    /// are taken again at once if an arm was off: see [`steps`]).
-    fn calibrate(&mut self) -> Result<(), SessionError> {
-        self.recorder.stage("dark and white calibration", INCIDENCE_DEG.len());
-        let integration_ms = self.plan.integration_ms;
-        self.lamp_wanted = false;
-        let Reply::Dark(dark) = self.retrying(Command::TakeDark { integration_ms })? else {
-            return Err(SessionError::Fit("unexpected dark reply".into()));
-        };
-        self.lamp_wanted = true;
-        self.lamp_on()?;
-        self.ask_operator(Placement::WhiteTile)?;
-        let mut white = Vec::new();
-        for attempt in 1..=steps::MAX_CHECK_ROUNDS {
-            let slips_before = self.steps.slips;
-            white.clear();
-            for theta_i in INCIDENCE_DEG {
-                let reading = self.reading_at(Geometry::from_whole_deg(theta_i, 0), Target::WhiteReference)?;
-                white.push(WhitePoint { theta_i_deg: f64::from(theta_i), reading });
-            }
-            self.check_steps("after the white calibration")?;
-            if self.steps.slips == slips_before {
-                break;
-            }
-            if attempt == steps::MAX_CHECK_ROUNDS {
-                return Err(SessionError::GaveUp(format!(
-                    "an arm lost steps during each of {attempt} white calibrations: the instrument needs attention (see the decisions)"
-                )));
-            }
-            self.decide("the white readings were taken while an arm was off its step count: taking them again (the tile is still on the port)");
-        }
-        self.ask_operator(Placement::Sample)?;
-        let calibration = Calibration {
-            taken_unix_s: unix_now_s(),
-            instrument: instrument_name(&self.info),
-            white_radiance_factor: crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
-            relative_gains: self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect(),
-            dark: dark.to_vec(),
-            white,
-        };
-        self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
-        self.calibration = Some(calibration);
-        Ok(())
-    }
-
-    /// Move to `geometry` and take one reading there. After any recovery the move is made
-    /// again: a recovery may have re-homed the arms. The reading is kept only if the lamp
-    /// is still on after it (see [`Session::lamp_went_out`]).
-    fn reading_at(&mut self, geometry: Geometry, target: Target) -> Result<Reading, SessionError> {
-        let integration_ms = self.plan.integration_ms;
-        for _ in 0..recovery::MAX_RECOVERIES {
-            let recoveries = self.recoveries.state_recoveries;
-            self.retrying(Command::MoveTo(geometry))?;
-            let reply = self.retrying(Command::TakeReading { integration_ms, target, range: None })?;
-            if let Some(failure) = self.lamp_went_out()? {
-                self.recover(failure)?;
-                continue;
-            }
-            if self.recoveries.state_recoveries != recoveries {
-                continue;
-            }
-            return match reply {
-                Reply::Reading(reading) => Ok(reading),
-                other => Err(LinkError::UnexpectedReply { command: "TakeReading", reply: Box::new(other) }.into()),
-            };
-        }
-        Err(SessionError::GaveUp(format!("no reading at θi = {}°, θr = {}° after {} recoveries", geometry.theta_i.deg(), geometry.theta_r.deg(), recovery::MAX_RECOVERIES)))
-    }
-
-    /// Whether the instrument stopped on its own without the host hearing it in time: a
-    /// `Stopped` waiting in the queue, or the status showing the lamp off while the session
-    /// needs it. A fail-safe stop of arms at rest keeps the homing and leaves the device
-    /// idle, so it carries out the next command with the lamp off; a reading taken then is
-    /// dark, and the `Stopped` that says so may be lost on the link. So the lamp is checked
-    /// after every single reading and around every schedule.
-    fn lamp_went_out(&mut self) -> Result<Option<Failure>, SessionError> {
-        let mut stopped = None;
-        while let Ok(Some(message)) = self.client.next_unsolicited(Duration::ZERO) {
-            if let DeviceMessage::Stopped { reason } = message {
-                stopped = Some(reason);
-            }
-        }
-        if let Some(reason) = stopped {
-            return Ok(Some(Failure::Stopped(reason)));
-        }
-        if !self.lamp_wanted {
-            return Ok(None);
-        }
-        let status = self.status()?;
-        Ok((!status.lamp_on).then(|| Failure::Stopped(status.fault.unwrap_or(ErrorCode::HeartbeatLost))))
-    }
-
-    /// Measure every geometry of `schedule` (and any wanted one still missing) not yet
-    /// measured, measuring again what the link lost.
-    fn measure(&mut self, stage: &str, schedule: &[Geometry]) -> Result<(), SessionError> {
-        for g in schedule {
-            if !self.wanted.contains(g) {
-                self.wanted.push(*g);
-            }
-        }
-        let builtin: BTreeSet<Geometry> = strategy1(12).map(|s| s.iter().copied().collect()).unwrap_or_default();
-        self.recorder.stage(stage, schedule.len());
-        let mut stalled = 0;
-        let mut round = 0;
-        loop {
-            let missing = self.missing();
-            if missing.is_empty() {
-                return Ok(());
-            }
-            round += 1;
-            if round > 1 {
-                self.recoveries.readings_remeasured += missing.len();
-                self.decide(&format!("measuring again {} geometries lost on the link or superseded (round {round})", missing.len()));
-            }
-            let before = self.points.len();
-            let list = if missing.iter().copied().collect::<BTreeSet<_>>() == builtin { ScheduleList::BuiltIn } else { ScheduleList::Upload(&missing) };
-            match self.run_schedule(list, schedule.len().max(missing.len())) {
-                Ok(()) => {}
-                Err(StepError::Failure(failure)) => self.recover(failure)?,
-                Err(StepError::Fatal(error)) => return Err(error),
-            }
-            if self.points.len() == before {
-                stalled += 1;
-                if stalled >= MAX_STALLED_ROUNDS {
-                    return Err(SessionError::GaveUp(format!(
-                        "{} geometries still missing after {stalled} rounds without a reading: the link or the instrument is failing",
-                        self.missing().len()
-                    )));
-                }
-            } else {
-                stalled = 0;
-            }
-        }
-    }
-
-    /// Run the built-in Strategy 1 or upload and run a list, recording readings.
-    fn run_schedule(&mut self, list: ScheduleList<'_>, stage_len: usize) -> Result<(), StepError> {
-        let schedule_id = self.next_schedule_id;
-        self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
-        // A stop the host did not hear would let the schedule run in the dark.
-        if let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? {
-            return Err(StepError::Failure(failure));
-        }
-        let source = match list {
-            ScheduleList::BuiltIn => ScheduleSource::Strategy1,
-            ScheduleList::Upload(list) => {
-                // The firmware visits a list in the order sent: send the fastest.
-                let here = self.status().map_err(StepError::Fatal)?.position;
-                let planned = crate::session::order::plan(&self.motion, here, list);
-                if list.len() > 1 {
-                    self.decide(&format!(
-                        "visiting order of {} geometries: {:.2} s of travel, {:.3}× the {} and {:.2}× the order listed",
-                        list.len(),
-                        planned.travel_us as f64 * 1e-6,
-                        planned.travel_ratio_to_best(),
-                        if planned.exact { "fastest" } else { "lower bound" },
-                        planned.travel_ratio_to_given()
-                    ));
-                }
-                let list = planned.order.as_slice();
-                let total_len = list.len() as u16;
-                for (k, chunk) in list.chunks(SCHEDULE_CHUNK_LEN).enumerate() {
-                    let geometries = heapless::Vec::from_slice(chunk).unwrap_or_default();
-                    let offset = (k * SCHEDULE_CHUNK_LEN) as u16;
-                    self.request(Command::UploadSchedule(ScheduleChunk { schedule_id, total_len, offset, geometries }))?;
-                }
-                ScheduleSource::Uploaded
-            }
-        };
-        let run = RunSchedule { schedule_id, source, integration_ms: self.plan.integration_ms, target: Target::Sample };
-        let len = match self.request(Command::RunSchedule(run))? {
-            Reply::ScheduleStarted { len, .. } => len,
-            other => return Err(StepError::Fatal(LinkError::UnexpectedReply { command: "RunSchedule", reply: Box::new(other) }.into())),
-        };
-        let mut seen = BTreeSet::new();
-        let already = stage_len.saturating_sub(usize::from(len));
-        let started = self.now();
-        loop {
-            let message = self.client.next_unsolicited(Duration::from_secs(5)).map_err(StepError::from_link)?;
-            match message {
-                Some(DeviceMessage::Reading(r)) if r.schedule_id == schedule_id => {
-                    if !seen.insert(r.index) {
-                        continue; // a duplicate
-                    }
-                    self.record(r.geometry, r.reading, schedule_id, r.index, r.device_time_us).map_err(StepError::Fatal)?;
-                    let done = seen.len();
-                    let per_reading = (self.now() - started) / done as u32;
-                    let remaining = per_reading * (usize::from(len) - done.min(usize::from(len))) as u32;
-                    self.recorder.progress(Progress { done: already + done, planned: stage_len, remaining });
-                }
-                Some(DeviceMessage::ScheduleDone(done)) if done.schedule_id == schedule_id => {
-                    return match done.error {
-                        None | Some(ErrorCode::Aborted) => self.lit_throughout(schedule_id),
-                        Some(reason) => Err(StepError::Failure(Failure::Stopped(reason))),
-                    };
-                }
-                Some(DeviceMessage::Stopped { reason }) => return Err(StepError::Failure(Failure::Stopped(reason))),
-                // Stale messages of an earlier schedule: nothing to do with this one.
-                Some(_) => {}
-                // Silence: the end may have been lost on the link. Ask.
-                None => {
-                    let status = self.request(Command::GetStatus)?;
-                    if let Reply::Status(status) = status {
-                        if status.schedule.is_none_or(|(id, _)| id != schedule_id) {
-                            return self.lit_throughout(schedule_id);
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    /// After a schedule ended: if the lamp is off now, it went off during the schedule
-    /// (a stop whose message was lost) and some of its readings may be dark. Which ones
-    /// cannot be told: all of them are superseded and measured again.
-    fn lit_throughout(&mut self, schedule_id: u16) -> Result<(), StepError> {
-        let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? else { return Ok(()) };
-        let why = format!("the lamp was off at the end of schedule {schedule_id}: its readings may be dark");
-        let superseded = self.supersede_schedule(schedule_id, &why).map_err(StepError::Fatal)?;
-        self.decide(&format!("{why}; {superseded} readings superseded and measured again"));
-        Err(StepError::Failure(failure))
-    }
-
-    fn record(&mut self, geometry: Geometry, reading: Reading, schedule_id: u16, index: u16, device_time_us: u64) -> Result<(), SessionError> {
-        let (theta_i_deg, theta_r_deg) = (geometry.theta_i.deg(), geometry.theta_r.deg());
-        let converted = self
-            .calibration
-            .as_ref()
-            .ok_or(SessionError::Fit("no calibration".into()))?
-            .radiance_factor(theta_i_deg, &reading);
-        let (radiance_factor, std, note) = match converted {
-            Ok((r, u)) => (Some(r), Some(u), None),
-            Err(e) => (None, None, Some(e.to_string())),
-        };
-        let point = MeasuredPoint { theta_i_deg, theta_r_deg, radiance_factor, std, reading, schedule_id, index, device_time_us, note, superseded: false };
-        self.recorder.point(&point).map_err(SessionError::Record)?;
-        self.points.push(point);
-        Ok(())
-    }
-
     /// Fit everything measured so far, check σ against σ_l and classify.
     fn analyse(&self) -> Result<Report, SessionError> {
         // Lines of readings.csv: a header, then one per reading.
@@ -967,30 +710,6 @@ impl<'a, T: Transport> Session<'a, T> {
         analyse(std::path::Path::new("readings.csv"), &set, &options, None).map_err(SessionError::Fit)
     }
 
-    /// Re-read the white tile at every calibrated incidence angle (θr = 0) and compare
-    /// with the calibration: the drift is the mean ratio's departure from 1. One reading
-    /// against one would carry the noise of both (about 0.14 % at 100 ms), a third of the
-    /// default 0.5 % limit; the mean over the calibration's incidence angles (four on the
-    /// reference instrument) halves it, so a flag means a lamp that drifted, not a noisy
-    /// pair.
-    fn white_check(&mut self) -> Result<(Option<f64>, bool), SessionError> {
-        self.ask_operator(Placement::WhiteTile)?;
-        let mut ratios = Vec::new();
-        for theta_i in INCIDENCE_DEG {
-            let reading = self.reading_at(Geometry::from_whole_deg(theta_i, 0), Target::WhiteReference)?;
-            let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
-            let (r, _) = calibration.radiance_factor(f64::from(theta_i), &reading)?;
-            ratios.push(r / calibration.white_radiance_factor);
-        }
-        let drift = ratios.iter().sum::<f64>() / ratios.len().max(1) as f64 - 1.0;
-        let exceeded = !(drift.abs() <= self.plan.white_drift_limit);
-        if exceeded {
-            self.decide(&format!("white drifted by {:.2} % (limit {:.2} %): result flagged white-drift", 100.0 * drift, 100.0 * self.plan.white_drift_limit));
-        } else {
-            self.decide(&format!("white check: drift {:.3} % (limit {:.2} %)", 100.0 * drift, 100.0 * self.plan.white_drift_limit));
-        }
-        Ok((Some(drift), exceeded))
-    }
 }
 
 /// How one step of the session failed: something to recover from, or the end.

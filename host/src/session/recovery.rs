@@ -9,8 +9,9 @@
 //! 2. the arms are homed again only when the homing was really lost (the status's homed
 //!    flags: a stop while the arms stand still keeps it), and that Home's step errors
 //!    are a lost-steps check like any other (`steps`);
-//! 3. the lamp is lit again if it went off while the session needed it;
-//! then the step that failed is made again from its start.
+//! 3. the lamp is lit again if it went off while the session needed it.
+//!
+//! Then the step that failed is made again from its start.
 //!
 //! One deadline bounds it all: [`crate::instrument::link::RetryPolicy::give_up_after`]
 //! (10 s) of silence from the instrument, on the transport's clock. Within it the host
