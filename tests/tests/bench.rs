@@ -37,6 +37,9 @@ struct Watched {
     mute: Option<(f64, f64)>,
     /// The instrument's `Stopped` messages are lost on the way (the others pass).
     lose_stops: bool,
+    /// Another host's request, sent to the instrument just before this host's first
+    /// request of the kind `ghost_before` matches.
+    ghost: Option<(fn(&Command) -> bool, Command)>,
     /// Device bytes read, not yet passed on (whole frames are passed, or filtered).
     from_device: FrameDecoder,
     to_host: std::collections::VecDeque<u8>,
@@ -53,6 +56,7 @@ impl Watched {
             freeze_at_s: None,
             mute: None,
             lose_stops: false,
+            ghost: None,
             from_device: FrameDecoder::new(),
             to_host: Default::default(),
         }
@@ -75,12 +79,21 @@ impl Watched {
 impl Transport for Watched {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let now = self.now_s();
+        let mut ghost_now = None;
         for &byte in bytes {
             if let Some(Ok(request)) = self.decoder.push::<Request>(byte) {
+                if self.ghost.as_ref().is_some_and(|(before, _)| before(&request.command)) {
+                    ghost_now = self.ghost.take().map(|(_, command)| command);
+                }
                 if !matches!(request.command, Command::Heartbeat | Command::GetStatus) && self.logged.insert(request.seq) {
                     self.log.push((now, request.command));
                 }
             }
+        }
+        if let Some(command) = ghost_now {
+            let mut frame = [0u8; protocol::MAX_FRAME_LEN];
+            let frame = protocol::encode_frame(&Request { seq: 7, command }, &mut frame).unwrap().to_vec();
+            self.sim.write(&frame)?;
         }
         if let Some((at, arm, steps)) = self.slip {
             if now >= at {
@@ -196,11 +209,13 @@ struct Setup {
     freeze_at_s: Option<f64>,
     mute: Option<(f64, f64)>,
     lose_stops: bool,
+    ghost: Option<(fn(&Command) -> bool, Command)>,
+    max_calibration_age: Duration,
 }
 
 impl Setup {
     fn new(sample: &'static str, seed: u64) -> Setup {
-        Setup { sample, seed, faults: String::new(), policy: PolicyChoice::Adaptive, operator_s: 0.0, white_check: false, calibration: None, slip: None, freeze_at_s: None, mute: None, lose_stops: false }
+        Setup { sample, seed, faults: String::new(), policy: PolicyChoice::Adaptive, operator_s: 0.0, white_check: false, calibration: None, slip: None, freeze_at_s: None, mute: None, lose_stops: false, ghost: None, max_calibration_age: Duration::from_secs(8 * 3600) }
     }
 
     fn faults(mut self, faults: &str) -> Setup {
@@ -227,6 +242,7 @@ fn run(setup: &Setup) -> Ran {
     watched.freeze_at_s = setup.freeze_at_s;
     watched.mute = setup.mute;
     watched.lose_stops = setup.lose_stops;
+    watched.ghost = setup.ghost.clone();
     let mut client = Client::new(watched, RetryPolicy::default());
     let info = client.hello().expect("handshake");
     let plan = Plan {
@@ -236,7 +252,7 @@ fn run(setup: &Setup) -> Ran {
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: setup.white_check,
         white_drift_limit: 0.005,
-        max_calibration_age: Duration::from_secs(8 * 3600),
+        max_calibration_age: setup.max_calibration_age,
     };
     let mut person = Person::taking(setup.operator_s);
     let mut recorder = Discard;
@@ -514,4 +530,36 @@ fn a_stop_whose_message_is_lost_does_not_let_a_reading_be_taken_in_the_dark() {
             assert!(outcome.ok(), "{what}: {:?}", outcome.flags);
         }
     }
+}
+
+#[test]
+fn a_busy_refusal_is_mended_from_the_instruments_state() {
+    // Another host (or a command of this one that the host lost track of) homes the arms
+    // just as this session starts Strategy 1: RunSchedule is refused busy; the session reads
+    // the state, waits for the homing to end and starts the schedule again.
+    for (seed, sample) in [(18, "G"), (19, "PPC")] {
+        let what = format!("{sample} seed {seed}");
+        let setup = Setup { ghost: Some((|c| matches!(c, Command::RunSchedule(_)), Command::Home)), ..Setup::new(sample, seed) };
+        let ran = run(&setup);
+        let outcome = ok(&what, &ran);
+        assert!(decided(outcome, "refused RunSchedule: busy"), "{what}: {:#?}", outcome.decisions);
+        assert!(decided(outcome, "still homing: waiting"), "{what}: {:#?}", outcome.decisions);
+        assert!(outcome.recoveries.refusals >= 1, "{what}");
+        assert_sound(&what, outcome);
+        assert!(outcome.ok(), "{what}: {:?}", outcome.flags);
+    }
+}
+
+#[test]
+fn a_calibration_that_goes_stale_before_the_report_flags_the_result() {
+    let mut calibration = ok("clean", &run(&Setup::new("MC", 21))).calibration.clone();
+    calibration.taken_unix_s -= 3600;
+    let fresh = Setup { calibration: Some(calibration), max_calibration_age: Duration::from_secs(4 * 3600), ..Setup::new("MC", 22) };
+    let outcome = ok("1 h old, 4 h limit", &run(&fresh)).flags.clone();
+    assert!(!outcome.contains(&Flag::CalibrationStale), "{outcome:?}");
+    let stale = Setup { max_calibration_age: Duration::from_secs(1800), ..fresh };
+    let ran = run(&stale);
+    let outcome = ok("1 h old, 30 min limit", &ran);
+    assert!(outcome.flags.contains(&Flag::CalibrationStale) && !outcome.ok(), "{:?}", outcome.flags);
+    assert!(decided(outcome, "1.0 h old at the end of the session (limit 0.5 h)"), "{:#?}", outcome.decisions);
 }
