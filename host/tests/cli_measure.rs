@@ -41,9 +41,15 @@ fn the_main_job_measures_g_in_process() {
     assert_eq!(r["class"], "G", "{r}");
     assert_eq!(r["sigma_ok"], true, "{r}");
     assert!(r["refinements"].as_array().is_some_and(|r| !r.is_empty()), "{r}");
-    for file in ["session.json", "readings.csv", "points.jsonl", "calibration.json", "astm-e1392.csv", "fig4-radiance-factor.svg", "fig5-sigma-rho_s.svg"] {
+    // A clean result: ok, no flag, exit 0 (result() checked the exit status).
+    assert_eq!((r["ok"].clone(), r["flags"].clone()), (Value::Bool(true), serde_json::json!([])), "{r}");
+    for file in ["session.json", "readings.csv", "points.jsonl", "calibration.json", "session.log", "MANIFEST.sha256", "astm-e1392.csv", "fig4-radiance-factor.svg", "fig5-sigma-rho_s.svg"] {
         assert!(dir.join(file).exists(), "no {file}");
     }
+    let session: Value = serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    assert_eq!((session["status"].as_str(), session["ok"].as_bool()), (Some("finished"), Some(true)));
+    assert_eq!(session["flags"], r["flags"]);
+    assert!(gonio(&["verify", dir.to_str().unwrap()]).status.success());
     assert_each_once(&geometries(&dir));
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -128,10 +134,16 @@ fn ctrl_c_on_a_port_session_stops_it_keeps_the_readings_and_exits_non_zero() {
     let out = measure.wait_with_output().unwrap();
     let _ = sim.kill();
     let _ = sim.wait();
-    assert!(!out.status.success(), "an interrupted session is not a success");
+    assert_eq!(out.status.code(), Some(130), "an interrupted session exits 130");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("interrupted by the user") && stderr.contains("--resume"), "{stderr}");
     let kept = std::fs::read_to_string(&points).unwrap();
     assert!(kept.lines().count() >= 4 && kept.lines().all(|l| serde_json::from_str::<Value>(l).is_ok()), "readings kept whole");
+    // session.json says so, and how to go on; the log has the stop.
+    let session: Value = serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    assert_eq!(session["status"], "interrupted");
+    assert_eq!(session["readings_recorded"], kept.lines().count());
+    assert!(session["resume_with"].as_str().is_some_and(|c| c.contains("--resume")), "{session}");
+    assert!(std::fs::read_to_string(dir.join("session.log")).unwrap().contains("session stopped (interrupted)"));
     let _ = std::fs::remove_dir_all(&dir);
 }

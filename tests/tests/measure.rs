@@ -191,26 +191,32 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
 }
 
 fn resume(policy: &str) {
-    let full_dir = temp_dir(&format!("resume-full-{policy}"));
+    let full_dir = temp_dir(&format!("resume-{policy}-full"));
     let full = completed(&Served::new("SG", 8, ""), "SG", &full_dir, &["--policy", policy]);
     let all = geometries(&full_dir);
-    // The same session stopped (Ctrl-C) once 20 readings are on disk, then resumed.
+    // The same session stopped once 20 readings are on disk, then the next line cut short
+    // as a crash while writing it leaves it.
     let dir = temp_dir(&format!("resume-{policy}"));
     let interrupted = Arc::new(AtomicBool::new(false));
     let watcher = {
-        let (flag, dir) = (interrupted.clone(), dir.clone());
+        let (flag, points) = (interrupted.clone(), dir.join("points.jsonl"));
         std::thread::spawn(move || {
-            wait_for_readings(&dir, 20);
+            while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < 20 {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
             flag.store(true, Ordering::Relaxed);
         })
     };
     let served = Served::new("SG", 8, "");
     let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--out", dir.to_str().unwrap()];
-    let Measured::Stopped { .. } = run(&args, &mut person(), interrupted).unwrap() else { panic!("not interrupted") };
+    let Measured::Stopped { .. } = run(&args, &mut person(), interrupted).unwrap() else { panic!("not stopped") };
     watcher.join().unwrap();
     drop(served);
-    let before: Vec<Value> = std::fs::read_to_string(dir.join("points.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
-    assert!(before.len() >= 20);
+    let before = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
+    let taken = before.lines().count();
+    let mut points = std::fs::OpenOptions::new().append(true).open(dir.join("points.jsonl")).unwrap();
+    // (The start of a reading's line, as a crash in the middle of its write leaves it.)
+    std::io::Write::write_all(&mut points, &before.lines().last().unwrap().as_bytes()[..30]).unwrap();
     let served = Served::new("SG", 8, "");
     let mut person = person();
     let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--resume", dir.to_str().unwrap()];
@@ -219,16 +225,19 @@ fn resume(policy: &str) {
     assert_eq!(resumed["class"], full["class"]);
     let g = geometries(&dir);
     assert_each_once(&g);
-    let kept: Vec<(f64, f64)> = before.iter().map(|p| (p["theta_i_deg"].as_f64().unwrap(), p["theta_r_deg"].as_f64().unwrap())).collect();
-    assert!(g[..kept.len()] == kept[..], "the readings taken before the stop are kept as they were");
+    let after = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
+    assert!(after.starts_with(&before), "the readings taken before the crash are kept as they were");
     if policy == "paper" {
         // A fixed procedure: exactly what the uninterrupted session measured.
         assert_eq!(g.len(), all.len());
     } else {
         // The adaptive policy plans again from what it has: it may choose other geometries,
         // never one already measured.
-        assert!(g.len() > kept.len() && resumed["sigma_ok"] == true, "{resumed}");
+        assert!(g.len() > taken && resumed["sigma_ok"] == true, "{resumed}");
     }
+    let log = std::fs::read_to_string(dir.join("session.log")).unwrap();
+    assert!(log.contains("points.jsonl: removed its last line, cut short by a crash"), "{log}");
+    host::output::verify::verify(&dir).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&full_dir);
 }

@@ -32,9 +32,14 @@ pub struct Args {
 /// Run `gonio fit`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(d) = args.delta {
-        anyhow::ensure!(d.is_finite() && d > 0.0, "--delta must be a positive number of degrees, not {d}");
+        anyhow::ensure!(d.is_finite() && d > 0.0 && d <= 90.0, "--delta must be a number of degrees above 0 and at most 90, not {d:?}");
     }
-    anyhow::ensure!(args.acceptance.is_finite() && args.acceptance >= 0.0, "--acceptance must be ≥ 0 degrees, not {}", args.acceptance);
+    let max_acceptance = crate::cli::measure::MAX_ACCEPTANCE_DEG;
+    anyhow::ensure!(
+        args.acceptance.is_finite() && (0.0..=max_acceptance).contains(&args.acceptance),
+        "--acceptance must be between 0 and {max_acceptance} degrees (the detector's full width, which the fit models as a small window), not {:?}",
+        args.acceptance
+    );
     let options = FitOptions { acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance), ..FitOptions::default() };
 
     let mut failed = false;

@@ -182,7 +182,7 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
     let max_calibration_age = max_age_from_hours(args.max_calibration_age_h)?;
     if let Some(limit) = args.white_drift_limit_pct {
         if !(limit > 0.0 && limit <= 100.0) {
-            bail!("--white-drift-limit-pct must be a percentage above 0 and at most 100, not {limit}");
+            bail!("--white-drift-limit-pct must be a percentage above 0 and at most 100, not {limit:?}");
         }
     }
     if let Some(sample) = &args.sample {
@@ -315,9 +315,10 @@ fn run_on<T: Transport>(
         Some(dir) => Some(Existing::open(dir, store.clone())?),
         None => None,
     };
-    let sample = args.sample.clone().or(sim_sample).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
+    let sample = args.sample.clone().or(sim_sample.clone()).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
     let plan = plan_record(args, &info, existing.as_ref().map(|e| &e.doc().plan))?;
-    let identity = Identity::new(&sample, &info, plan.clone());
+    let mut identity = Identity::new(&sample, &info, plan.clone());
+    identity.instrument.simulated_sample = sim_sample;
     let given_calibration = match &args.calibration {
         Some(path) => Some(external_calibration(path, checked, &info)?),
         None => None,
@@ -345,7 +346,7 @@ fn run_on<T: Transport>(
     };
     let dir = recorder.dir().to_path_buf();
     recorder.set_resume_with(resume_command(args, &dir));
-    let resumed = !points.is_empty();
+    let resumed = args.resume.is_some();
     if let (Some(c), false) = (&calibration, dir.join("calibration.json").exists()) {
         recorder.calibration(c).with_context(|| format!("cannot write {}", dir.join("calibration.json").display()))?;
     }

@@ -12,6 +12,7 @@ use std::process::ExitCode;
 
 /// Arguments of `gonio verify`.
 #[derive(clap::Args)]
+#[command(after_help = "Exit codes: 0 every folder passes; 1 any does not (a file missing, changed or added since the session finished, records that disagree, a session not finished); 2 a wrong command line.")]
 pub struct Args {
     /// Print one JSON object per folder instead of text.
     #[arg(long)]

@@ -76,7 +76,7 @@ pub enum CalibrationError {
         this: String,
     },
     /// A maximum age that is no number of hours (`--max-calibration-age-h`).
-    #[error("--max-calibration-age-h must be a number of hours above 0 and at most {MAX_CALIBRATION_AGE_H} (a year), not {0}")]
+    #[error("--max-calibration-age-h must be a number of hours above 0 and at most {MAX_CALIBRATION_AGE_H} (a year), not {0:?}")]
     BadMaxAge(f64),
     /// The file could not be read.
     #[error("cannot read calibration {path}: {why}")]
@@ -215,7 +215,7 @@ mod tests {
         assert_eq!(max_age_from_hours(MAX_CALIBRATION_AGE_H).unwrap(), Duration::from_secs(8760 * 3600));
         for bad in [f64::INFINITY, f64::NAN, -1.0, 0.0, 1e300, MAX_CALIBRATION_AGE_H + 1.0, f64::NEG_INFINITY] {
             let error = max_age_from_hours(bad).unwrap_err().to_string();
-            assert!(error.contains("--max-calibration-age-h") && error.contains(&bad.to_string()), "{error}");
+            assert!(error.contains("--max-calibration-age-h") && error.contains(&format!("{bad:?}")), "{error}");
         }
     }
 

@@ -1,10 +1,30 @@
 //! Measured data sets from CSV: a header naming `theta_i`, `theta_r` (degrees) and
 //! `radiance_factor`, optionally `std` (standard uncertainty) and `sample` (several data
 //! sets in one file). Columns may come in any order; blank lines and lines starting with
-//! `#` are skipped. Errors carry the 1-based line number.
+//! `#` are skipped; a UTF-8 byte-order mark at the start is ignored. Errors carry the
+//! 1-based line number.
+//!
+//! Numbers are checked against what the fit can represent, so that a typo gives an error
+//! at its line instead of an infinite or NaN result: every number finite;
+//! |radiance factor| ≤ [`MAX_RADIANCE_FACTOR`] (10⁶: far above any paper's specular peak
+//! seen through the detector's window, and its square, weighted, stays far from overflow);
+//! a `std` in [[`MIN_STD`], [`MAX_STD`]] (10⁻⁹ … 10⁶: its weight 1/std² stays finite), and
+//! within one data set the largest `std` at most [`MAX_STD_RATIO`] (10⁶) times the smallest
+//! (weights within 10¹² of each other, inside the 16 digits of an f64: beyond it the
+//! lighter readings would vanish from the sums). The angles' range (0…90°) and negative
+//! radiance factors are the fit's own checks.
 use crate::analysis::fit::Observation;
 use std::path::Path;
 use thiserror::Error;
+
+/// The largest |radiance factor| read.
+pub const MAX_RADIANCE_FACTOR: f64 = 1e6;
+/// The smallest standard uncertainty read.
+pub const MIN_STD: f64 = 1e-9;
+/// The largest standard uncertainty read.
+pub const MAX_STD: f64 = 1e6;
+/// The largest ratio of the largest to the smallest `std` in one data set.
+pub const MAX_STD_RATIO: f64 = 1e6;
 
 /// One data set: the readings of one sample, with the line each came from.
 #[derive(Clone, Debug, PartialEq)]
@@ -69,6 +89,34 @@ pub enum DatasetError {
         /// The text.
         value: String,
     },
+    /// A number the fit cannot represent.
+    #[error("line {line}: {column} {value} is {why}")]
+    OutOfRange {
+        /// Line.
+        line: usize,
+        /// Column name.
+        column: &'static str,
+        /// The value as read.
+        value: String,
+        /// The limit, in words.
+        why: String,
+    },
+    /// Uncertainties of one data set too far apart to weigh them together.
+    #[error(
+        "line {line}: std {value:?} is more than {MAX_STD_RATIO:e} times the std {other:?} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
+    )]
+    StdSpread {
+        /// Line of the largest std.
+        line: usize,
+        /// The largest std.
+        value: f64,
+        /// Line of the smallest std.
+        other_line: usize,
+        /// The smallest std.
+        other: f64,
+        /// The data set.
+        sample: String,
+    },
     /// A header but no readings.
     #[error("line {line}: no readings after the header")]
     NoReadings {
@@ -87,6 +135,8 @@ impl DatasetError {
             | DatasetError::DuplicateColumn { line, .. }
             | DatasetError::FieldCount { line, .. }
             | DatasetError::NotANumber { line, .. }
+            | DatasetError::OutOfRange { line, .. }
+            | DatasetError::StdSpread { line, .. }
             | DatasetError::NoReadings { line } => Some(*line),
         }
     }
@@ -121,6 +171,8 @@ fn is_skipped(line: &str) -> bool {
 /// Parse CSV text. Data sets come out in the order their sample first appears;
 /// `default_sample` names the one data set of a file without a `sample` column.
 pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, DatasetError> {
+    // Spreadsheets on Windows start their UTF-8 with a byte-order mark.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r'))).filter(|(_, l)| !is_skipped(l));
     let (header_line, header) = lines.next().ok_or(DatasetError::Empty)?;
     let names: Vec<String> = split_fields(header).into_iter().map(|s| s.to_ascii_lowercase()).collect();
@@ -152,19 +204,33 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             return Err(DatasetError::FieldCount { line, expected: names.len(), found: fields.len() });
         }
         let number = |col: usize, column: &'static str| {
-            // Rust's parser accepts "NaN" and "inf"; those reach the fit's own checks.
-            fields[col].parse::<f64>().map_err(|_| DatasetError::NotANumber { line, column, value: fields[col].to_string() })
+            let value = fields[col].parse::<f64>().map_err(|_| DatasetError::NotANumber { line, column, value: fields[col].to_string() })?;
+            // Rust's parser accepts "NaN" and "inf", and "1e999" as infinity.
+            if !value.is_finite() {
+                return Err(DatasetError::OutOfRange { line, column, value: fields[col].to_string(), why: "not a finite number".into() });
+            }
+            Ok(value)
+        };
+        let within = |value: f64, column: &'static str, col: usize, ok: bool, why: &str| {
+            if ok { Ok(value) } else { Err(DatasetError::OutOfRange { line, column, value: fields[col].to_string(), why: why.to_string() }) }
         };
         let std = match col_std {
-            Some(c) if !fields[c].is_empty() => Some(number(c, "std")?),
+            Some(c) if !fields[c].is_empty() => {
+                let u = number(c, "std")?;
+                // 0 and negative values are the fit's BadUncertainty, named there.
+                Some(within(u, "std", c, u <= 0.0 || (MIN_STD..=MAX_STD).contains(&u), &format!("outside {MIN_STD:e} … {MAX_STD:e}, what the fit can weigh"))?)
+            }
             _ => None,
         };
-        let observation = Observation {
-            theta_i_deg: number(col_ti, "theta_i")?,
-            theta_r_deg: number(col_tr, "theta_r")?,
-            radiance_factor: number(col_rf, "radiance_factor")?,
-            std,
-        };
+        let radiance_factor = number(col_rf, "radiance_factor")?;
+        let radiance_factor = within(
+            radiance_factor,
+            "radiance_factor",
+            col_rf,
+            radiance_factor.abs() <= MAX_RADIANCE_FACTOR,
+            &format!("beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"),
+        )?;
+        let observation = Observation { theta_i_deg: number(col_ti, "theta_i")?, theta_r_deg: number(col_tr, "theta_r")?, radiance_factor, std };
         let sample = col_sample.map_or(default_sample, |c| &*fields[c]);
         // Files list one sample after another: look at the last set first.
         let index = match sets.last() {
@@ -184,7 +250,32 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
     if sets.is_empty() {
         return Err(DatasetError::NoReadings { line: last_line });
     }
+    for set in &sets {
+        check_std_spread(set)?;
+    }
     Ok(sets)
+}
+
+/// The positive uncertainties of a data set within [`MAX_STD_RATIO`] of each other.
+fn check_std_spread(set: &DataSet) -> Result<(), DatasetError> {
+    let positive = set.observations.iter().zip(&set.lines).filter_map(|(o, &line)| o.std.filter(|u| *u > 0.0).map(|u| (u, line)));
+    // (std, line) of the smallest and of the largest.
+    let mut low: Option<(f64, usize)> = None;
+    let mut high: Option<(f64, usize)> = None;
+    for (u, line) in positive {
+        if low.is_none_or(|(l, _)| u < l) {
+            low = Some((u, line));
+        }
+        if high.is_none_or(|(h, _)| u > h) {
+            high = Some((u, line));
+        }
+    }
+    match (low, high) {
+        (Some((l, l_line)), Some((h, h_line))) if h > l * MAX_STD_RATIO => {
+            Err(DatasetError::StdSpread { line: h_line, value: h, other_line: l_line, other: l, sample: set.sample.clone() })
+        }
+        _ => Ok(()),
+    }
 }
 
 /// Read a CSV file; a file without a `sample` column is named by its stem.
@@ -206,6 +297,39 @@ mod tests {
         assert_eq!(sets[0].sample, "A");
         assert_eq!(sets[0].lines, [2, 6]);
         assert_eq!(sets[1].observations[0].std, Some(0.02));
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_ignored() {
+        let sets = parse_csv("\u{feff}theta_i,theta_r,radiance_factor\n20,0,0.5\n", "f").unwrap();
+        assert_eq!(sets[0].observations.len(), 1);
+        assert_eq!(sets[0].lines, [2]);
+    }
+
+    #[test]
+    fn numbers_the_fit_cannot_represent_are_refused_at_their_line() {
+        let header = "theta_i,theta_r,radiance_factor,std\n20,0,0.5,0.01\n";
+        for (row, column, value) in [
+            ("20,20,1e308,0.1", "radiance_factor", "1e308"),
+            ("20,20,-2e6,0.1", "radiance_factor", "-2e6"),
+            ("20,20,NaN,0.1", "radiance_factor", "NaN"),
+            ("20,20,1e999,0.1", "radiance_factor", "1e999"),
+            ("20,20,3,1e-300", "std", "1e-300"),
+            ("20,20,3,inf", "std", "inf"),
+            ("20,20,3,1e7", "std", "1e7"),
+            ("inf,20,3,0.1", "theta_i", "inf"),
+        ] {
+            let e = parse_csv(&format!("{header}{row}\n"), "f").unwrap_err();
+            assert_eq!(e.line(), Some(3), "{row}: {e}");
+            let message = e.to_string();
+            assert!(message.contains(column) && message.contains(value), "{row}: {message}");
+        }
+        // At the limits (|R| = 10⁶; std 10⁻⁸ against the first row's 10⁻²: 10⁶ apart): read.
+        parse_csv(&format!("{header}20,20,1e6,1e-3\n20,25,3,1e-8\n"), "f").unwrap();
+        parse_csv(&format!("{header}20,20,1e6,1e-3\n20,25,3,0.9e-8\n"), "f").unwrap_err();
+        // Uncertainties 10⁶ apart: refused, naming both lines.
+        let e = parse_csv(&format!("{header}20,20,3,1e-9\n"), "f").unwrap_err();
+        assert!(matches!(e, DatasetError::StdSpread { line: 2, other_line: 3, .. }), "{e}");
     }
 
     #[test]

@@ -84,6 +84,10 @@ pub struct InstrumentRecord {
     pub board: String,
     /// Firmware version.
     pub firmware_version: String,
+    /// On the simulated instrument: the sample its scene holds (`--sim`), whatever the
+    /// sample is named.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulated_sample: Option<String>,
 }
 
 /// What the session was asked to measure: a resume must ask for the same.
@@ -395,11 +399,15 @@ pub struct Inspection {
     pub calibration: Option<Calibration>,
     /// Temporary files left by a kill.
     pub temp_files: Vec<String>,
+    /// Damage that a resume does not repair, found by cross-checking the files: anything
+    /// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and
+    /// a run that ended without closing.
+    pub damage: Vec<Problem>,
 }
 
-/// Read and cross-check a session folder. Damage that a resume cannot repair (anything
-/// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and a
-/// run that ended without closing) is an error at `file:line`.
+/// Read and cross-check a session folder. A file that cannot be read as what it must be
+/// is an error at `file:line`; disagreements between the files are in
+/// [`Inspection::damage`].
 pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     if !dir.is_dir() {
         return Err(Problem::new(dir, None, if dir.exists() { "not a folder" } else { "no such folder" }));
@@ -409,36 +417,38 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     let points_file = read_lines(&points_path)?;
     let points = parse_points(&points_path, &points_file)?;
     let csv_path = dir.join(READINGS);
-    let csv = csv_agreement(&csv_path, &read_lines(&csv_path)?, &points);
-    if let CsvAgreement::Differs(problem) = &csv {
-        return Err(problem.clone());
-    }
+    let csv_file = read_lines(&csv_path)?;
     let log = read_lines(&dir.join(LOG))?;
     let calibration = read_calibration(dir)?;
     let temp_files = temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
     let session_path = dir.join(SESSION);
+    let mut damage = Vec::new();
     match &session {
         None if points_file.exists || calibration.is_some() => {
-            return Err(Problem::new(&session_path, None, format!("missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged")));
+            damage.push(Problem::new(&session_path, None, "missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged"));
         }
         Some(doc) => {
             if points.len() < doc.readings_recorded {
-                return Err(Problem::new(
+                damage.push(Problem::new(
                     &points_path,
                     Some(points_file.lines.len() + 1),
                     format!("{} readings, but {SESSION} says {} were recorded: readings are missing", points.len(), doc.readings_recorded),
                 ));
             }
             if points.iter().any(|p| p.radiance_factor.is_some()) && calibration.is_none() {
-                return Err(Problem::new(&dir.join(CALIBRATION), None, "missing, but readings were converted with it"));
+                damage.push(Problem::new(&dir.join(CALIBRATION), None, "missing, but readings were converted with it"));
             }
             if doc.runs.is_empty() {
-                return Err(Problem::new(&session_path, None, "no runs recorded"));
+                damage.push(Problem::new(&session_path, None, "no runs recorded"));
             }
         }
         None => {}
     }
-    Ok(Inspection { dir: dir.to_path_buf(), session, points_file, points, csv, log, calibration, temp_files })
+    let csv = csv_agreement(&csv_path, &csv_file, &points);
+    if let CsvAgreement::Differs(problem) = &csv {
+        damage.push(problem.clone());
+    }
+    Ok(Inspection { dir: dir.to_path_buf(), session, points_file, points, csv, log, calibration, temp_files, damage })
 }
 
 #[cfg(test)]

@@ -53,6 +53,7 @@ impl Identity {
                 serial_number: info.serial_number.to_string(),
                 board: info.board.to_string(),
                 firmware_version: info.firmware_version.to_string(),
+                simulated_sample: None,
             },
             device: serde_json::to_value(info).unwrap_or_default(),
             plan,
@@ -430,6 +431,9 @@ impl Existing {
         }
         let lock = FolderLock::take(dir)?;
         let inspection = folder::inspect(dir).map_err(FolderError::Damaged)?;
+        if let Some(problem) = inspection.damage.first() {
+            return Err(FolderError::Damaged(problem.clone()));
+        }
         let Some(doc) = inspection.session.clone() else {
             return Err(FolderError::NoSession(dir.to_path_buf()));
         };
@@ -534,6 +538,8 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
     };
     differ("sample", format!("'{}'", doc.sample), format!("'{}'", wanted.sample));
     differ("instrument", format!("serial {}", doc.instrument.serial_number), format!("serial {}", wanted.instrument.serial_number));
+    let simulated = |s: &Option<String>| s.as_ref().map_or_else(|| "none".to_string(), |s| format!("'{s}'"));
+    differ("simulated sample", simulated(&doc.instrument.simulated_sample), simulated(&wanted.instrument.simulated_sample));
     let (a, b) = (&doc.plan, &wanted.plan);
     differ("policy", a.policy.clone(), b.policy.clone());
     differ("adaptive policy's targets", format!("{:?}", a.adaptive_targets), format!("{:?}", b.adaptive_targets));

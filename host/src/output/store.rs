@@ -24,7 +24,7 @@
 //!   the old file or the new one, never a mix. A temporary file left by a kill is named
 //!   `.NAME.gonio-tmp` and removed by the next `--resume` ([`is_temp_name`]);
 //! - a new file or folder is made durable by an `fsync` of the folder that holds it.
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::fs::{File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -53,43 +53,61 @@ pub enum Sync {
     Never,
 }
 
-/// A simulated crash: the `at`-th write (from 1) is cut short and every later write is
-/// refused, as a killed process leaves a folder. `count` counts every write made, so that a
-/// first run without a crash (`at: None`) tells how many writes a session makes.
+/// What a simulated fault does at its write.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Fault {
+    /// The process is killed: a prefix of the write reaches the file, then nothing more.
+    #[default]
+    Kill,
+    /// The disk is full from this write on: a prefix of it is written and it fails, and
+    /// so does every later write of data; the process goes on (and rolls back what it can).
+    DiskFull,
+}
+
+/// A simulated fault at the `at`-th write (from 1): a kill (the default) or a full disk.
+/// `count` counts every write made, so that a first run without a fault (`at: None`) tells
+/// how many writes a session makes.
 #[derive(Clone, Debug, Default)]
 pub struct Crash {
-    /// The write to crash at; `None` only counts.
+    /// The write to fail at; `None` only counts.
     pub at: Option<u64>,
+    /// What happens there.
+    pub fault: Fault,
     /// Writes made so far (shared, so the test can read it after the session).
     pub count: Arc<AtomicU64>,
 }
 
 impl Crash {
-    /// Count writes, crash at none.
+    /// Count writes, fail at none.
     pub fn counting() -> Crash {
         Crash::default()
     }
 
-    /// Crash at the `n`-th write (from 1).
+    /// Kill the process at the `n`-th write (from 1).
     pub fn at(n: u64) -> Crash {
-        Crash { at: Some(n), count: Arc::default() }
+        Crash { at: Some(n), ..Crash::default() }
     }
 
-    /// Writes made (or attempted, the crashing one included).
+    /// Fill the disk at the `n`-th write (from 1).
+    pub fn disk_full_at(n: u64) -> Crash {
+        Crash { at: Some(n), fault: Fault::DiskFull, ..Crash::default() }
+    }
+
+    /// Writes made (or attempted, the failing one included).
     pub fn writes(&self) -> u64 {
         self.count.load(Ordering::Relaxed)
     }
 
-    /// Whether the crash happened.
+    /// Whether the fault happened.
     pub fn crashed(&self) -> bool {
         self.at.is_some_and(|at| self.writes() >= at)
     }
 }
 
-/// How I/O ends in a [`Store`]: for real, or through a simulated crash.
+/// How I/O ends in a [`Store`]: for real, or through a simulated fault.
 #[derive(Clone, Debug, Default)]
 pub struct StoreOptions {
-    /// A simulated crash (tests); `None` for real use.
+    /// A simulated fault (tests); `None` for real use.
     pub crash: Option<Crash>,
 }
 
@@ -97,12 +115,17 @@ pub struct StoreOptions {
 enum Step {
     /// Do it.
     Whole,
-    /// Do only this many bytes of it (or nothing, for a rename), then stop.
-    Cut(usize),
+    /// Do only this many bytes of it (or nothing, for a rename), then fail with `error`;
+    /// `dead` when the process is gone (no more I/O at all).
+    Cut { len: usize, dead: bool },
 }
 
 fn crashed_error() -> io::Error {
     io::Error::other("simulated crash: the process is gone, no more writes")
+}
+
+fn disk_full_error() -> io::Error {
+    io::Error::new(io::ErrorKind::StorageFull, "no space left on device (simulated)")
 }
 
 /// The one writer of a session folder.
@@ -110,6 +133,9 @@ pub struct Store {
     dir: PathBuf,
     options: StoreOptions,
     appenders: HashMap<String, File>,
+    /// Files an append failed on and could not be cut back: never appended to again, so
+    /// that nothing is written onto a partial line.
+    poisoned: HashSet<String>,
     dead: bool,
 }
 
@@ -117,11 +143,10 @@ impl Store {
     /// Create the folder `dir` (its parent must exist); fails with
     /// [`io::ErrorKind::AlreadyExists`] if it does, so two sessions never share one.
     pub fn create_dir(dir: &Path, options: StoreOptions) -> io::Result<Store> {
-        let mut store = Store { dir: dir.to_path_buf(), options, appenders: HashMap::new(), dead: false };
-        match store.step(0)? {
-            Step::Whole => std::fs::create_dir(dir)?,
-            Step::Cut(_) => return Err(store.die()),
-        }
+        let mut store = Store::open_dir(dir, options);
+        let step = store.step(0)?;
+        step.whole_or(|dead| Err(store.fail(dead)))?;
+        std::fs::create_dir(dir)?;
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             sync_dir(parent)?;
         }
@@ -130,7 +155,7 @@ impl Store {
 
     /// Write into the existing folder `dir`.
     pub fn open_dir(dir: &Path, options: StoreOptions) -> Store {
-        Store { dir: dir.to_path_buf(), options, appenders: HashMap::new(), dead: false }
+        Store { dir: dir.to_path_buf(), options, appenders: HashMap::new(), poisoned: HashSet::new(), dead: false }
     }
 
     /// The folder.
@@ -143,25 +168,38 @@ impl Store {
         self.dead
     }
 
-    fn die(&mut self) -> io::Error {
-        self.dead = true;
-        self.appenders.clear();
-        crashed_error()
-    }
-
-    /// Account for one write of `len` bytes.
+    /// Account for one write of `len` bytes (0: an operation on names, or a truncation).
     fn step(&mut self, len: usize) -> io::Result<Step> {
         if self.dead {
             return Err(crashed_error());
         }
         let Some(crash) = &self.options.crash else { return Ok(Step::Whole) };
         let n = crash.count.fetch_add(1, Ordering::Relaxed) + 1;
-        match crash.at {
-            // Cut short somewhere inside the write, differently for different writes.
-            Some(at) if n == at => Ok(Step::Cut(if len == 0 { 0 } else { (n as usize).wrapping_mul(2_654_435_761) % len })),
+        // Cut somewhere inside the write, differently for different writes.
+        let cut = if len == 0 { 0 } else { (n as usize).wrapping_mul(2_654_435_761) % len };
+        match (crash.at, crash.fault) {
+            (Some(at), Fault::Kill) if n == at => Ok(Step::Cut { len: cut, dead: true }),
             // Another store sharing the crash: the process is gone for it too.
-            Some(at) if n > at => Err(self.die()),
+            (Some(at), Fault::Kill) if n > at => {
+                self.dead = true;
+                self.appenders.clear();
+                Err(crashed_error())
+            }
+            // A full disk takes data, not names or truncations.
+            (Some(at), Fault::DiskFull) if n == at && len > 0 => Ok(Step::Cut { len: cut, dead: false }),
+            (Some(at), Fault::DiskFull) if n > at && len > 0 => Ok(Step::Cut { len: 0, dead: false }),
             _ => Ok(Step::Whole),
+        }
+    }
+
+    /// After a cut write: the error to return, and the store dead if the process is.
+    fn fail(&mut self, dead: bool) -> io::Error {
+        if dead {
+            self.dead = true;
+            self.appenders.clear();
+            crashed_error()
+        } else {
+            disk_full_error()
         }
     }
 
@@ -171,8 +209,8 @@ impl Store {
             let existed = path.exists();
             if !existed {
                 // Creating the file is a write of its own: it can be where the crash is.
-                if let Step::Cut(_) = self.step(0)? {
-                    return Err(self.die());
+                if let Step::Cut { dead, .. } = self.step(0)? {
+                    return Err(self.fail(dead));
                 }
             }
             let file = OpenOptions::new().create(true).append(true).open(&path)?;
@@ -184,75 +222,88 @@ impl Store {
         Ok(self.appenders.get_mut(name).expect("inserted above"))
     }
 
-    /// Append `line` (which must end in a newline) to `name` in one `write` call.
+    /// Append `line` (which must end in a newline) to `name` in one `write` call. If the
+    /// write fails part-way (a full disk), the file is cut back to where it was; if even
+    /// that fails, the file takes no further appends.
     pub fn append(&mut self, name: &str, line: &[u8], sync: Sync) -> io::Result<()> {
         debug_assert!(line.ends_with(b"\n"), "appends are whole lines");
+        if self.poisoned.contains(name) {
+            return Err(io::Error::other(format!("{name}: an earlier write failed part-way and could not be undone; resume to repair it")));
+        }
         self.appender(name)?;
         let step = self.step(line.len())?;
         let file = self.appenders.get_mut(name).expect("opened above");
-        match step {
-            Step::Whole => {
-                file.write_all(line)?;
-                if sync == Sync::Data {
-                    file.sync_data()?;
-                }
-                Ok(())
+        let before = file.metadata()?.len();
+        let result = match step {
+            Step::Whole => file.write_all(line).and_then(|()| if sync == Sync::Data { file.sync_data() } else { Ok(()) }),
+            Step::Cut { len, dead: true } => {
+                let _ = file.write_all(&line[..len]);
+                return Err(self.fail(true));
             }
-            Step::Cut(cut) => {
-                let _ = file.write_all(&line[..cut]);
-                Err(self.die())
+            Step::Cut { len, dead: false } => {
+                let _ = file.write_all(&line[..len]);
+                Err(disk_full_error())
             }
+        };
+        if let Err(error) = result {
+            let file = self.appenders.get_mut(name).expect("opened above");
+            if file.set_len(before).and_then(|()| file.sync_data()).is_err() {
+                self.poisoned.insert(name.to_string());
+            }
+            return Err(error);
         }
+        Ok(())
     }
 
     /// Replace `name` by `bytes` atomically: a temporary file in the folder, `fsync`,
-    /// rename, `fsync` of the folder.
+    /// rename, `fsync` of the folder. A failed write (a full disk) removes the temporary file
+    /// and leaves the old one.
     pub fn replace(&mut self, name: &str, bytes: &[u8]) -> io::Result<()> {
         let temp = self.dir.join(temp_name(name));
-        match self.step(bytes.len())? {
-            Step::Whole => {
-                let mut file = File::create(&temp)?;
+        let written = match self.step(bytes.len())? {
+            Step::Whole => File::create(&temp).and_then(|mut file| {
                 file.write_all(bytes)?;
-                file.sync_all()?;
-            }
-            Step::Cut(cut) => {
+                file.sync_all()
+            }),
+            Step::Cut { len, dead } => {
                 if let Ok(mut file) = File::create(&temp) {
-                    let _ = file.write_all(&bytes[..cut]);
+                    let _ = file.write_all(&bytes[..len]);
                 }
-                return Err(self.die());
+                if dead {
+                    return Err(self.fail(true));
+                }
+                Err(disk_full_error())
             }
+        };
+        if let Err(error) = written {
+            let _ = std::fs::remove_file(&temp);
+            return Err(error);
         }
-        match self.step(0)? {
-            Step::Whole => std::fs::rename(&temp, self.dir.join(name))?,
-            Step::Cut(_) => return Err(self.die()),
-        }
+        let step = self.step(0)?;
+        step.whole_or(|dead| Err(self.fail(dead)))?;
+        std::fs::rename(&temp, self.dir.join(name))?;
         // An appender open on the old file would write into the replaced inode.
         self.appenders.remove(name);
+        self.poisoned.remove(name);
         sync_dir(&self.dir)
     }
 
     /// Cut `name` to its first `len` bytes (a resume drops a line cut short by a crash).
     pub fn truncate(&mut self, name: &str, len: u64) -> io::Result<()> {
-        match self.step(0)? {
-            Step::Whole => {
-                let file = OpenOptions::new().write(true).open(self.dir.join(name))?;
-                file.set_len(len)?;
-                file.sync_all()
-            }
-            Step::Cut(_) => Err(self.die()),
-        }
+        let step = self.step(0)?;
+        step.whole_or(|dead| Err(self.fail(dead)))?;
+        let file = OpenOptions::new().write(true).open(self.dir.join(name))?;
+        file.set_len(len)?;
+        file.sync_all()
     }
 
     /// Remove `name` (a temporary file a kill left behind).
     pub fn remove(&mut self, name: &str) -> io::Result<()> {
-        match self.step(0)? {
-            Step::Whole => {
-                self.appenders.remove(name);
-                std::fs::remove_file(self.dir.join(name))?;
-                sync_dir(&self.dir)
-            }
-            Step::Cut(_) => Err(self.die()),
-        }
+        let step = self.step(0)?;
+        step.whole_or(|dead| Err(self.fail(dead)))?;
+        self.appenders.remove(name);
+        std::fs::remove_file(self.dir.join(name))?;
+        sync_dir(&self.dir)
     }
 
     /// `fsync` every file appended to, and the folder: the end of a run.
@@ -264,6 +315,16 @@ impl Store {
             file.sync_all()?;
         }
         sync_dir(&self.dir)
+    }
+}
+
+impl Step {
+    /// `Ok` for a whole step; for a cut one (a rename or a name that is not made), `cut`.
+    fn whole_or(self, cut: impl FnOnce(bool) -> io::Result<()>) -> io::Result<()> {
+        match self {
+            Step::Whole => Ok(()),
+            Step::Cut { dead, .. } => cut(dead),
+        }
     }
 }
 
@@ -303,6 +364,26 @@ mod tests {
         assert!(kept.len() < line.len() && line.starts_with(&kept), "a prefix: {kept:?}");
         assert!(store.replace("b.json", b"{}").is_err());
         assert!(!dir.join("b.json").exists() && !dir.join(temp_name("b.json")).exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_full_disk_cuts_an_append_back_and_keeps_the_old_file() {
+        let dir = temp("full");
+        let mut store = Store::create_dir(&dir, StoreOptions::default()).unwrap();
+        store.append("a.txt", b"first\n", Sync::Data).unwrap();
+        store.replace("s.json", b"old").unwrap();
+        // 1: the append's data, cut part-way; 2: the replace's data; 3: another append.
+        let mut store = Store::open_dir(&dir, StoreOptions { crash: Some(Crash::disk_full_at(1)) });
+        let error = store.append("a.txt", b"second line\n", Sync::Data).unwrap_err();
+        assert_eq!(error.kind(), io::ErrorKind::StorageFull);
+        assert_eq!(std::fs::read(dir.join("a.txt")).unwrap(), b"first\n", "cut back to the last whole line");
+        assert_eq!(store.replace("s.json", b"new").unwrap_err().kind(), io::ErrorKind::StorageFull);
+        assert_eq!(std::fs::read(dir.join("s.json")).unwrap(), b"old");
+        assert!(!dir.join(temp_name("s.json")).exists(), "no temporary file left");
+        assert!(store.append("a.txt", b"third\n", Sync::Never).is_err());
+        assert_eq!(std::fs::read(dir.join("a.txt")).unwrap(), b"first\n");
+        assert!(!store.is_dead(), "a full disk is not a dead process");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -30,7 +30,7 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
     let Some(doc) = &inspection.session else {
         return Err(vec![problem(SESSION, None, "missing: not a session folder, or no session was started in it".into())]);
     };
-    let mut problems = Vec::new();
+    let mut problems = inspection.damage.clone();
     if doc.status != Status::Finished {
         let how = doc.resume_with.clone().unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
         problems.push(problem(SESSION, None, format!("status is {}: the session is not finished (continue it with {how})", doc.status)));
@@ -52,10 +52,11 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
         CsvAgreement::Behind { missing, cut } => {
             problems.push(problem(READINGS, None, format!("{missing} rows of {POINTS} missing{}", if *cut { ", the last one cut short" } else { "" })))
         }
-        CsvAgreement::Differs(p) => problems.push(p.clone()),
+        // Among the damage already.
+        CsvAgreement::Differs(_) => {}
     }
     let points = &inspection.points;
-    if doc.readings_recorded != points.len() {
+    if doc.status == Status::Finished && doc.readings_recorded < points.len() {
         problems.push(problem(SESSION, None, format!("readings_recorded is {}, but {POINTS} holds {}", doc.readings_recorded, points.len())));
     }
     if doc.status == Status::Finished {
