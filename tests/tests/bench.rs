@@ -13,8 +13,8 @@ use host::instrument::calibration::Calibration;
 use host::instrument::link::{Client, RetryPolicy, Transport};
 use host::instrument::sim::SimOptions;
 use host::session::{
-    LinkLoss, MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, PolicyChoice, Progress, Recorder, Session, SessionError,
-    SimulatedOperator,
+    DelayedOperator, LinkLoss, MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, PolicyChoice, Progress, Recorder, Session,
+    SessionError,
 };
 use protocol::{Command, FrameDecoder, Request};
 use std::collections::BTreeSet;
@@ -175,13 +175,13 @@ impl Recorder for Discard {
 
 /// A simulated person who takes `delay` (device time) and notes when they were asked.
 struct Person {
-    inner: SimulatedOperator,
+    inner: DelayedOperator,
     asked_at_s: Vec<f64>,
 }
 
 impl Person {
     fn taking(delay_s: f64) -> Person {
-        Person { inner: SimulatedOperator::answering_after(Duration::from_secs_f64(delay_s)), asked_at_s: Vec::new() }
+        Person { inner: DelayedOperator::answering_after(Duration::from_secs_f64(delay_s)), asked_at_s: Vec::new() }
     }
 }
 
@@ -252,11 +252,10 @@ fn run(setup: &Setup) -> Ran {
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: setup.white_check,
         white_drift_limit: 0.005,
-        max_calibration_age: setup.max_calibration_age,
     };
     let mut person = Person::taking(setup.operator_s);
     let mut recorder = Discard;
-    let mut session = Session::new(&mut client, info, plan, &mut recorder, &mut person);
+    let mut session = Session::new(&mut client, info, plan, &mut recorder, &mut person).with_calibration_limit(setup.max_calibration_age);
     if let Some(calibration) = &setup.calibration {
         session = session.with_calibration(calibration.clone());
     }

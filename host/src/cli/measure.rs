@@ -122,7 +122,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let flag = interrupted.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).context("cannot install the Ctrl-C handler")?;
     // In process the simulated operator swaps the tile; on any port a person is asked.
-    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator::default()) } else { Box::new(PromptOperator::new()) };
+    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator) } else { Box::new(PromptOperator::new()) };
     match measure(&args, operator.as_mut(), interrupted)? {
         Measured::Done { dir, outcome, summary } => {
             print_report(&args, &dir, &outcome, &summary);
@@ -270,7 +270,7 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
     })
 }
 
-fn plan_of(record: &PlanRecord, sample: &str, max_calibration_age: Duration) -> Plan {
+fn plan_of(record: &PlanRecord, sample: &str) -> Plan {
     let policy = match &record.adaptive_targets {
         Some(t) => Policy::Adaptive(AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
         None => Policy::Paper,
@@ -282,7 +282,6 @@ fn plan_of(record: &PlanRecord, sample: &str, max_calibration_age: Duration) -> 
         acceptance_deg: record.acceptance_deg,
         white_check: record.white_check,
         white_drift_limit: record.white_drift_limit_pct / 100.0,
-        max_calibration_age,
     }
 }
 
@@ -351,7 +350,9 @@ fn run_on<T: Transport>(
         recorder.calibration(c).with_context(|| format!("cannot write {}", dir.join("calibration.json").display()))?;
     }
     client.set_interrupt(Some(interrupted));
-    let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample, checked.max_calibration_age), &mut recorder, operator).resume_from(calibration, points);
+    let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample), &mut recorder, operator)
+        .with_calibration_limit(checked.max_calibration_age)
+        .resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();
     let mut outcome = match outcome {

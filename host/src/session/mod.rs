@@ -28,7 +28,7 @@ mod schedule;
 mod steps;
 mod white;
 
-pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};
+pub use operator::{DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};
 pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
 use crate::analysis::fit::{FitOptions, Observation};
@@ -119,11 +119,6 @@ pub struct Plan {
     pub white_check: bool,
     /// White drift beyond which the result is marked, as a fraction.
     pub white_drift_limit: f64,
-    /// Oldest calibration accepted. One reused from an earlier session is refused at the
-    /// start when older ([`Calibration::load`]); one that passes this age before the
-    /// session reports (a long or late-resumed session) flags the result
-    /// `calibration-stale`.
-    pub max_calibration_age: Duration,
 }
 
 /// One measured geometry, as recorded.
@@ -416,6 +411,8 @@ pub struct Session<'a, T: Transport> {
     waiting_us: u64,
     /// Device time spent on lost-steps checks before the report, µs.
     final_check_us: u64,
+    /// See [`Session::with_calibration_limit`].
+    max_calibration_age: Option<Duration>,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
@@ -443,7 +440,17 @@ impl<'a, T: Transport> Session<'a, T> {
             resumed: false,
             waiting_us: 0,
             final_check_us: 0,
+            max_calibration_age: None,
         }
+    }
+
+    /// The oldest calibration accepted. One reused from an earlier session is refused at
+    /// the start when older (`Calibration::load`, the caller's); one that passes this age
+    /// before the session reports (a long or a late-resumed session) flags the result
+    /// `calibration-stale`. Without it, no age is checked.
+    pub fn with_calibration_limit(mut self, max_age: Duration) -> Self {
+        self.max_calibration_age = Some(max_age);
+        self
     }
 
     /// Continue from readings (and a calibration) an earlier session recorded.
@@ -557,11 +564,11 @@ impl<'a, T: Transport> Session<'a, T> {
             self.flags.insert(Flag::WhiteDrift);
         }
         let age = calibration.age(unix_now_s());
-        if age > self.plan.max_calibration_age {
+        if let Some(limit) = self.max_calibration_age.filter(|limit| age > *limit) {
             self.decide(&format!(
                 "the calibration is {:.1} h old at the end of the session (limit {:.1} h): result flagged calibration-stale",
                 age.as_secs_f64() / 3600.0,
-                self.plan.max_calibration_age.as_secs_f64() / 3600.0
+                limit.as_secs_f64() / 3600.0
             ));
             self.flags.insert(Flag::CalibrationStale);
         }

@@ -42,12 +42,25 @@ pub trait Operator {
     fn answered(&mut self, now: Duration) -> std::io::Result<bool>;
 }
 
+/// No one to ask: the in-process simulator places the tile itself (when readings are
+/// marked white), so every prompt is answered at once.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SimulatedOperator;
+
+impl Operator for SimulatedOperator {
+    fn ask(&mut self, _placement: Placement, _now: Duration) -> std::io::Result<()> {
+        Ok(())
+    }
+
+    fn answered(&mut self, _now: Duration) -> std::io::Result<bool> {
+        Ok(true)
+    }
+}
+
 /// A simulated person who answers `delay` after being asked, on the transport's clock: in
 /// process that is the simulator's virtual time, so a two-minute wait takes no wall time.
-/// (The in-process simulator puts the tile on the port by itself when readings are marked
-/// white.)
 #[derive(Clone, Debug, Default)]
-pub struct SimulatedOperator {
+pub struct DelayedOperator {
     /// How long the person takes at every prompt.
     pub delay: Duration,
     asked_at: Option<Duration>,
@@ -55,14 +68,14 @@ pub struct SimulatedOperator {
     pub asked: Vec<Placement>,
 }
 
-impl SimulatedOperator {
+impl DelayedOperator {
     /// A person who takes `delay` at every prompt.
-    pub fn answering_after(delay: Duration) -> SimulatedOperator {
-        SimulatedOperator { delay, ..SimulatedOperator::default() }
+    pub fn answering_after(delay: Duration) -> DelayedOperator {
+        DelayedOperator { delay, ..DelayedOperator::default() }
     }
 }
 
-impl Operator for SimulatedOperator {
+impl Operator for DelayedOperator {
     fn ask(&mut self, placement: Placement, now: Duration) -> std::io::Result<()> {
         self.asked.push(placement);
         self.asked_at = Some(now);
@@ -188,7 +201,7 @@ mod tests {
 
     #[test]
     fn the_simulated_person_answers_after_the_delay_on_the_transports_clock() {
-        let mut person = SimulatedOperator::answering_after(Duration::from_secs(10));
+        let mut person = DelayedOperator::answering_after(Duration::from_secs(10));
         person.ask(Placement::WhiteTile, Duration::from_secs(5)).unwrap();
         assert!(!person.answered(Duration::from_secs(14)).unwrap());
         assert!(person.answered(Duration::from_secs(15)).unwrap());

@@ -17,7 +17,7 @@ use crate::analysis::flags::Flag;
 use crate::instrument::calibration::Calibration;
 use crate::instrument::link::{Client, LinkError, RetryPolicy, Transport};
 use crate::instrument::sim::SimOptions;
-use crate::session::{MeasuredPoint, Outcome, Plan, Policy, PolicyChoice, Progress, Recorder, Recoveries, Session, SessionError, SimulatedOperator};
+use crate::session::{DelayedOperator, MeasuredPoint, Outcome, Plan, Policy, PolicyChoice, Progress, Recorder, Recoveries, Session, SessionError};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
 use std::collections::BTreeSet;
@@ -207,10 +207,9 @@ pub fn run_session(spec: &Spec) -> Result<Run, String> {
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: false,
         white_drift_limit: 0.005,
-        max_calibration_age: Duration::from_secs(8 * 3600),
     };
     let mut recorder = Discard;
-    let mut operator = SimulatedOperator::answering_after(Duration::from_secs_f64(spec.operator_s));
+    let mut operator = DelayedOperator::answering_after(Duration::from_secs_f64(spec.operator_s));
     let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run();
     Ok(Run { outcome, end_s: client.transport().device_time_us() as f64 * 1e-6 })
 }

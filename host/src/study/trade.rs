@@ -131,9 +131,8 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: false,
         white_drift_limit: 1.0,
-        max_calibration_age: std::time::Duration::from_secs(8 * 3600),
     };
-    let (mut recorder, mut operator) = (Discard, SimulatedOperator::default());
+    let (mut recorder, mut operator) = (Discard, SimulatedOperator);
     let outcome: Outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
     let fit = &outcome.report.fit;
     let class = outcome.report.classification.class.name();
