@@ -24,6 +24,8 @@ enum Command {
     Compare(host::cli::compare::Args),
     /// Speed against accuracy: whole simulated sessions over papers, seeds and policies.
     Trade(host::cli::trade::Args),
+    /// Reliability under bench faults: simulated sessions with pulled cables, a noisy link and slow operators.
+    Reliability(host::cli::reliability::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
 }
@@ -37,6 +39,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => host::cli::sim::run(args),
         Command::Compare(args) => host::cli::compare::run(args),
         Command::Trade(args) => host::cli::trade::run(args),
+        Command::Reliability(args) => host::cli::reliability::run(args),
         Command::Verify(args) => host::cli::verify::run(args),
     };
     match result {

@@ -325,11 +325,15 @@ fn a_cut_off_last_line_is_repaired_and_the_repair_logged() {
 struct CtrlCAfterCalibration(Arc<AtomicBool>);
 
 impl Operator for CtrlCAfterCalibration {
-    fn place(&mut self, placement: Placement) -> std::io::Result<()> {
+    fn ask(&mut self, placement: Placement, _now: std::time::Duration) -> std::io::Result<()> {
         if placement == Placement::Sample {
             self.0.store(true, Ordering::Relaxed);
         }
         Ok(())
+    }
+
+    fn answered(&mut self, _now: std::time::Duration) -> std::io::Result<bool> {
+        Ok(true)
     }
 }
 

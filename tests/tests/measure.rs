@@ -3,7 +3,7 @@
 //! Every session here asks its operator to place the white tile, as on any port.
 
 use host::cli::measure::{Measured, measure, parse_args};
-use host::session::{Operator, Placement, SessionError};
+use host::session::{Placement, SessionError, WallClockOperator};
 use host::instrument::sim::SimOptions;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -15,7 +15,19 @@ use std::thread::JoinHandle;
 struct Served {
     path: String,
     stop: Arc<AtomicBool>,
+    /// After the serving stops: keep the pty open (a frozen instrument) until dropped.
+    keep_open: Arc<AtomicBool>,
+    released: Arc<AtomicBool>,
     thread: Option<JoinHandle<hil_sim::SimInstrument>>,
+}
+
+/// How an instrument on a pty stops answering.
+#[derive(Clone, Copy, PartialEq)]
+enum Cut {
+    /// The port goes away (the pty is closed, as a USB device that vanished).
+    Vanish,
+    /// The port stays but nothing answers (the simulator stops serving).
+    Freeze,
 }
 
 impl Served {
@@ -25,17 +37,30 @@ impl Served {
         let server = hil_sim::pty::PtyServer::open().expect("pseudo-terminal");
         let path = server.path().to_string_lossy().into_owned();
         let stop = Arc::new(AtomicBool::new(false));
-        let flag = stop.clone();
+        let keep_open = Arc::new(AtomicBool::new(false));
+        let released = Arc::new(AtomicBool::new(false));
+        let (flag, keep, release) = (stop.clone(), keep_open.clone(), released.clone());
         let thread = std::thread::spawn(move || {
             server.serve(&mut instrument, &flag).expect("serve");
+            while keep.load(Ordering::Relaxed) && !release.load(Ordering::Relaxed) {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            drop(server);
             instrument
         });
-        Served { path, stop, thread: Some(thread) }
+        Served { path, stop, keep_open, released, thread: Some(thread) }
+    }
+
+    /// Stop answering, the `how` way.
+    fn cut(&self, how: Cut) {
+        self.keep_open.store(how == Cut::Freeze, Ordering::Relaxed);
+        self.stop.store(true, Ordering::Relaxed);
     }
 
     /// Stop serving and hand back the instrument, to look at its state.
     fn stop(mut self) -> hil_sim::SimInstrument {
         self.stop.store(true, Ordering::Relaxed);
+        self.released.store(true, Ordering::Relaxed);
         self.thread.take().unwrap().join().expect("server thread")
     }
 }
@@ -43,23 +68,19 @@ impl Served {
 impl Drop for Served {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
+        self.released.store(true, Ordering::Relaxed);
         if let Some(thread) = self.thread.take() {
             let _ = thread.join();
         }
     }
 }
 
-/// The person at the instrument: does as asked at once, and remembers what.
-#[derive(Default)]
-struct Person {
-    asked: Vec<Placement>,
-}
+/// The person at the instrument: does as asked (at once unless given delays, in real
+/// time), and remembers what.
+type Person = WallClockOperator;
 
-impl Operator for Person {
-    fn place(&mut self, placement: Placement) -> std::io::Result<()> {
-        self.asked.push(placement);
-        Ok(())
-    }
+fn person() -> Person {
+    WallClockOperator::new(Vec::new())
 }
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -79,7 +100,7 @@ fn completed(served: &Served, sample: &str, dir: &Path, extra: &[&str]) -> Value
         args.extend(["--out", dir.to_str().unwrap()]);
     }
     args.extend_from_slice(extra);
-    let mut person = Person::default();
+    let mut person = person();
     match run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session") {
         Measured::Done { summary, .. } => summary,
         Measured::Stopped { error, .. } => panic!("{sample}: stopped: {error}"),
@@ -101,7 +122,7 @@ fn assert_each_once(g: &[(f64, f64)]) {
 fn paper(sample: &str, class: &str) {
     let served = Served::new(sample, 3, "");
     let dir = temp_dir(sample);
-    let mut person = Person::default();
+    let mut person = person();
     let args = ["--port", &served.path, "--sample", sample, "--policy", "paper", "--out", dir.to_str().unwrap()];
     let Measured::Done { summary: r, .. } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session") else {
         panic!("{sample}: the session stopped");
@@ -157,14 +178,14 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     let clean_dir = temp_dir("clean");
     let faulty_dir = temp_dir("faulty");
     let clean = completed(&Served::new("G", 1, ""), "G", &clean_dir, &[]);
-    let faulty = completed(&Served::new("G", 1, "corrupt=0.001,drop=0.001,unplug-at=5"), "G", &faulty_dir, &[]);
+    let faulty = completed(&Served::new("G", 1, "corrupt=0.001,drop=0.001,unplug-at=20:3"), "G", &faulty_dir, &[]);
     assert_eq!(faulty["class"], clean["class"]);
     let g = geometries(&faulty_dir);
     assert_each_once(&g);
     assert_eq!(g.len(), geometries(&clean_dir).len());
     let session: Value = serde_json::from_slice(&std::fs::read(faulty_dir.join("session.json")).unwrap()).unwrap();
     let decisions = session["decisions"].to_string();
-    assert!(decisions.contains("link lost"), "the unplug was noticed and recovered: {decisions}");
+    assert!(decisions.contains("link back"), "the unplug was noticed and recovered: {decisions}");
     let _ = std::fs::remove_dir_all(&clean_dir);
     let _ = std::fs::remove_dir_all(&faulty_dir);
 }
@@ -188,7 +209,7 @@ fn resume(policy: &str) {
     };
     let served = Served::new("SG", 8, "");
     let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--out", dir.to_str().unwrap()];
-    let Measured::Stopped { .. } = run(&args, &mut Person::default(), interrupted).unwrap() else { panic!("not stopped") };
+    let Measured::Stopped { .. } = run(&args, &mut person(), interrupted).unwrap() else { panic!("not stopped") };
     watcher.join().unwrap();
     drop(served);
     let before = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
@@ -197,7 +218,7 @@ fn resume(policy: &str) {
     // (The start of a reading's line, as a crash in the middle of its write leaves it.)
     std::io::Write::write_all(&mut points, &before.lines().last().unwrap().as_bytes()[..30]).unwrap();
     let served = Served::new("SG", 8, "");
-    let mut person = Person::default();
+    let mut person = person();
     let args = ["--port", served.path.as_str(), "--sample", "SG", "--policy", policy, "--resume", dir.to_str().unwrap()];
     let Measured::Done { summary: resumed, .. } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).unwrap() else { panic!("stopped") };
     assert!(person.asked.is_empty(), "the session's own calibration is reused: no tile");
@@ -246,7 +267,7 @@ fn ctrl_c_stops_the_instrument_and_keeps_every_reading() {
             flag.store(true, Ordering::Relaxed);
         })
     };
-    let mut person = Person::default();
+    let mut person = person();
     let args = ["--port", served.path.as_str(), "--sample", "G", "--out", dir.to_str().unwrap()];
     let outcome = run(&args, &mut person, interrupted).expect("no failure but the interruption");
     watcher.join().unwrap();
@@ -280,7 +301,7 @@ fn ctrl_c_during_homing_stops_the_arms_there() {
         })
     };
     let args = ["--port", served.path.as_str(), "--sample", "G", "--out", dir.to_str().unwrap()];
-    let outcome = run(&args, &mut Person::default(), interrupted).expect("no failure but the interruption");
+    let outcome = run(&args, &mut person(), interrupted).expect("no failure but the interruption");
     watcher.join().unwrap();
     let Measured::Stopped { error, .. } = outcome else { panic!("the session went on after Ctrl-C") };
     assert!(matches!(error, SessionError::Interrupted), "{error}");
@@ -307,14 +328,14 @@ fn a_stale_calibration_is_refused_with_its_age() {
     let served = Served::new("MC", 2, "");
     let out = temp_dir("stale2");
     let args = ["--port", served.path.as_str(), "--calibration", path.to_str().unwrap(), "--out", out.to_str().unwrap()];
-    let error = match run(&args, &mut Person::default(), Arc::new(AtomicBool::new(false))) {
+    let error = match run(&args, &mut person(), Arc::new(AtomicBool::new(false))) {
         Err(error) => format!("{error:#}"),
         Ok(_) => panic!("a 9 h old calibration was used"),
     };
     assert!(error.contains("9.0 h old") && error.contains("limit is 8.0 h"), "{error}");
     assert!(!out.join("points.jsonl").exists(), "nothing measured with a refused calibration");
     // A fresh enough one is used as is: no white tile.
-    let mut person = Person::default();
+    let mut person = person();
     let out = temp_dir("stale3");
     let args = ["--port", served.path.as_str(), "--calibration", dir.to_str().unwrap(), "--max-calibration-age-h", "24", "--out", out.to_str().unwrap()];
     let Measured::Done { summary, .. } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).unwrap() else { panic!("stopped") };
@@ -365,7 +386,7 @@ fn an_instrument_of_another_protocol_version_is_refused_saying_which_side_to_upd
     for (version, advice) in [(protocol::PROTOCOL_VERSION + 1, "update the host software"), (protocol::PROTOCOL_VERSION - 1, "update the instrument's firmware")] {
         let (path, stop, thread) = serve_device_of_version(version);
         let dir = temp_dir(&format!("version-{version}"));
-        let result = run(&["--port", path.as_str(), "--out", dir.to_str().unwrap()], &mut Person::default(), Arc::new(AtomicBool::new(false)));
+        let result = run(&["--port", path.as_str(), "--out", dir.to_str().unwrap()], &mut person(), Arc::new(AtomicBool::new(false)));
         stop.store(true, Ordering::Relaxed);
         thread.join().unwrap();
         let error = match result {
@@ -376,3 +397,136 @@ fn an_instrument_of_another_protocol_version_is_refused_saying_which_side_to_upd
         assert!(!dir.exists(), "no session folder for a refused instrument");
     }
 }
+
+/// `points.jsonl` of `dir` has at least `n` lines (read by a watcher while a session runs).
+fn wait_for_readings(dir: &Path, n: usize) {
+    let points = dir.join("points.jsonl");
+    let started = std::time::Instant::now();
+    while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < n {
+        assert!(started.elapsed() < std::time::Duration::from_secs(120), "no {n} readings in {}", points.display());
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+}
+
+/// A session on a pty whose instrument stops answering after `after` readings: how it ends.
+fn cut_off(how: Cut, sample: &str, seed: u64, after: usize) -> (SessionError, PathBuf, std::time::Duration) {
+    let dir = temp_dir(&format!("cut-{sample}-{seed}-{}", if how == Cut::Vanish { "vanish" } else { "freeze" }));
+    let served = Arc::new(Served::new(sample, seed, ""));
+    let cut_at = Arc::new(std::sync::Mutex::new(None));
+    let watcher = {
+        let (served, dir, cut_at) = (served.clone(), dir.clone(), cut_at.clone());
+        std::thread::spawn(move || {
+            wait_for_readings(&dir, after);
+            *cut_at.lock().unwrap() = Some(std::time::Instant::now());
+            served.cut(how);
+        })
+    };
+    let args = ["--port", served.path.as_str(), "--sample", sample, "--out", dir.to_str().unwrap()];
+    let outcome = run(&args, &mut person(), Arc::new(AtomicBool::new(false))).expect("no failure but the lost instrument");
+    let ended = std::time::Instant::now();
+    watcher.join().unwrap();
+    let cut_at = cut_at.lock().unwrap().expect("cut");
+    let Measured::Stopped { error, .. } = outcome else { panic!("{sample}: finished without its instrument") };
+    (error, dir, ended - cut_at)
+}
+
+fn assert_given_up(how: Cut, sample: &str, seed: u64) {
+    let (error, dir, took) = cut_off(how, sample, seed, 5);
+    let text = error.to_string();
+    let SessionError::Lost { loss, silent_for, .. } = &error else { panic!("{sample}: {text}") };
+    // Silence on the host's clock (wall time on a port): the 10 s bound, give or take a
+    // loaded machine's scheduling; and the session did end (no hang), in about that time.
+    assert!(*silent_for <= std::time::Duration::from_secs(11), "{sample}: {silent_for:?}");
+    assert!(took < std::time::Duration::from_secs(30), "{sample}: {took:?} after the cut");
+    match how {
+        Cut::Vanish => {
+            assert!(matches!(loss, host::session::LinkLoss::PortGone(_)), "{sample}: {loss:?}");
+            assert!(text.contains("port is gone") && text.contains("reconnect the cable"), "{text}");
+        }
+        Cut::Freeze => {
+            assert_eq!(*loss, host::session::LinkLoss::NoAnswer, "{sample}: {text}");
+            assert!(text.contains("the port is there") && text.contains("has not answered") && text.contains("power-cycle"), "{text}");
+        }
+    }
+    assert!(text.contains("decisions so far") && text.contains("link lost"), "{text}");
+    // Everything measured is kept, and the folder says how to resume.
+    let kept = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
+    assert!(kept.lines().count() >= 5 && kept.lines().all(|l| serde_json::from_str::<Value>(l).is_ok()));
+    let session: Value = serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    assert!(session.to_string().contains("--resume"), "{session}");
+    let log = std::fs::read_to_string(dir.join("session.log")).unwrap();
+    assert!(log.contains("giving up"), "{log}");
+    eprintln!("{sample}: given up {:.2} s after the cut, {:.2} s of silence: {}", took.as_secs_f64(), silent_for.as_secs_f64(), text.lines().next().unwrap_or(""));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_vanished_port_is_given_up_within_10_s_saying_the_port_is_gone() {
+    assert_given_up(Cut::Vanish, "G", 11);
+}
+
+#[test]
+fn a_frozen_instrument_is_given_up_within_10_s_saying_nothing_answers() {
+    assert_given_up(Cut::Freeze, "SG", 12);
+}
+
+#[test]
+fn a_person_who_takes_a_real_10_s_at_the_white_tile_finds_the_instrument_homed_and_lit() {
+    let served = Served::new("PPC", 13, "");
+    let dir = temp_dir("slow-person");
+    let mut person = WallClockOperator::new(vec![std::time::Duration::from_secs(10), std::time::Duration::ZERO]);
+    let args = ["--port", served.path.as_str(), "--sample", "PPC", "--out", dir.to_str().unwrap()];
+    let Measured::Done { summary, outcome, .. } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session") else {
+        panic!("stopped")
+    };
+    assert_eq!(person.asked, [Placement::WhiteTile, Placement::Sample]);
+    assert_eq!(summary["class"], "rough-II", "{summary}");
+    assert_eq!(summary["ok"], true, "{summary}");
+    let waited = outcome.decisions.iter().find(|d| d.contains("answered after")).expect("the wait");
+    assert!(waited.contains("after 10.") || waited.contains("after 11."), "{waited}");
+    let r = &outcome.recoveries;
+    assert_eq!((r.stops, r.rehomings, r.lamp_relit, r.reconnections), (0, 0, 0, 0), "{r:?}: {:#?}", outcome.decisions);
+    assert_each_once(&geometries(&dir));
+    let instrument = served.stop();
+    assert!(instrument.is_idle());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clean() {
+    use host::study::reliability::{self, FaultKind};
+    let durations = reliability::session_durations().expect("fault-free sessions");
+    let specs: Vec<_> = (0..30).map(|k| reliability::draw(5000 + k, &[FaultKind::Mixed], &durations)).collect();
+    let failures = std::sync::Mutex::new(Vec::new());
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    // A pty session mostly waits (the simulator keeps device time within reach of the
+    // host's heartbeats): four at a time.
+    std::thread::scope(|scope| {
+        for _ in 0..4 {
+            scope.spawn(|| {
+                while let Some(spec) = specs.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let what = format!("#{} {} {:?} seed {} faults {}", spec.index, spec.sample, spec.policy, spec.seed, spec.faults());
+                    let served = Served::new(spec.sample, spec.seed, &spec.faults());
+                    let dir = temp_dir(&format!("pty-campaign-{}", spec.index));
+                    let policy = if spec.policy == host::session::PolicyChoice::Paper { "paper" } else { "adaptive" };
+                    let args = ["--port", served.path.as_str(), "--sample", spec.sample, "--policy", policy, "--out", dir.to_str().unwrap()];
+                    let verdict = match run(&args, &mut person(), Arc::new(AtomicBool::new(false))) {
+                        Ok(Measured::Done { outcome, .. }) => {
+                            let row = reliability::judge(spec, &Ok(*outcome));
+                            row.failure.map(|why| format!("{what}: {why}"))
+                        }
+                        Ok(Measured::Stopped { error, .. }) => Some(format!("{what}: stopped: {error}")),
+                        Err(error) => Some(format!("{what}: {error:#}")),
+                    };
+                    if let Some(why) = verdict {
+                        failures.lock().unwrap().push(why);
+                    }
+                    let _ = std::fs::remove_dir_all(&dir);
+                }
+            });
+        }
+    });
+    let failures = failures.into_inner().unwrap();
+    assert!(failures.is_empty(), "{} of {} pty sessions did not finish clean:\n{}", failures.len(), specs.len(), failures.join("\n"));
+}
+

@@ -122,10 +122,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let flag = interrupted.clone();
     ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).context("cannot install the Ctrl-C handler")?;
     // In process the simulated operator swaps the tile; on any port a person is asked.
-    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator) } else { Box::new(PromptOperator) };
+    let mut operator: Box<dyn Operator> = if args.sim.is_some() { Box::new(SimulatedOperator) } else { Box::new(PromptOperator::new()) };
     match measure(&args, operator.as_mut(), interrupted)? {
         Measured::Done { dir, outcome, summary } => {
             print_report(&args, &dir, &outcome, &summary);
+            // The exit code says what `ok` says: 0 clean, 3 flagged.
             Ok(crate::cli::exit::of_result(outcome.ok()))
         }
         Measured::Stopped { dir, error, record_error } => {
@@ -349,7 +350,9 @@ fn run_on<T: Transport>(
         recorder.calibration(c).with_context(|| format!("cannot write {}", dir.join("calibration.json").display()))?;
     }
     client.set_interrupt(Some(interrupted));
-    let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample), &mut recorder, operator).resume_from(calibration, points);
+    let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample), &mut recorder, operator)
+        .with_calibration_limit(checked.max_calibration_age)
+        .resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();
     let mut outcome = match outcome {
@@ -418,7 +421,7 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
     let mut result = crate::analysis::report::to_json(&outcome.report);
     if let Some(object) = result.as_object_mut() {
         object.insert("sample".into(), json!(sample));
-        object.insert("geometries".into(), json!(outcome.points.len()));
+        object.insert("geometries".into(), json!(outcome.current_points().count()));
         object.insert("device_seconds".into(), json!(outcome.device_seconds));
         object.insert("setup_seconds".into(), json!(outcome.setup_seconds));
         // The paper's refinements by their δ, adaptive batches by the geometries they added.
@@ -438,10 +441,13 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
     rest.insert("readings".into(), json!(outcome.points));
     rest.insert("fits".into(), json!(outcome.fits));
     rest.insert("refinements".into(), json!(outcome.refinements));
+    rest.insert("step_checks".into(), json!(outcome.step_checks));
+    rest.insert("recoveries".into(), json!(outcome.recoveries));
     rest.insert("result".into(), result.clone());
+    // Superseded readings (taken while an arm was off) stay in session.json, marked, and
+    // out of the export.
     let observations: Vec<Observation> = outcome
-        .points
-        .iter()
+        .current_points()
         .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std }))
         .collect();
     let mut files = vec![(

@@ -5,5 +5,6 @@ pub mod sim;
 pub mod measure;
 pub mod compare;
 pub mod exit;
+pub mod reliability;
 pub mod trade;
 pub mod verify;

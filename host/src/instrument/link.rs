@@ -1,9 +1,16 @@
 //! The host end of the link: requests with sequence numbers, replies matched to them,
-//! timeouts and retries, and the handshake.
+//! timeouts and retries, heartbeats, and the handshake.
 //!
 //! The host never trusts that the device heard a request until it has the answer: a
 //! request whose reply does not arrive in time is sent again with the same sequence
 //! number, which the firmware answers without acting twice.
+//!
+//! One deadline bounds every wait: [`RetryPolicy::give_up_after`] of silence (nothing at
+//! all heard from the device, on the transport's clock). A live device is never silent
+//! that long, because every heartbeat (sent every [`RetryPolicy::heartbeat_every`] while
+//! the host waits) is answered; a wait that reaches the deadline ends with
+//! [`LinkError::Silent`], whatever it was waiting for. Reconnecting is the session's job
+//! (`crate::session`), under the same deadline: [`Client::silent_for`].
 
 use protocol::{
     Command, DeviceError, DeviceInfo, DeviceMessage, ErrorCode, FrameDecoder, MAX_FRAME_LEN,
@@ -29,11 +36,30 @@ pub trait Transport {
     fn reconnect(&mut self) -> std::io::Result<()> {
         Ok(())
     }
+    /// What the link is, for messages (a port's path).
+    fn name(&self) -> String {
+        "the instrument's link".to_string()
+    }
     /// The clock timeouts are measured on: wall time for a real link, device time for the
     /// simulator in process (whose waits take no wall time). Monotonic, from any origin.
     fn now(&self) -> Duration {
         static ORIGIN: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
         ORIGIN.get_or_init(std::time::Instant::now).elapsed()
+    }
+    /// The first sequence number a new [`Client`] uses, chosen so that it cannot collide
+    /// with the numbers of an earlier host process on the same instrument (whose
+    /// requests the firmware may still be carrying out or have cached).
+    ///
+    /// By default the wall clock in milliseconds since 1970 (as u32, so it wraps every
+    /// 49.7 days). It grows faster than any host process uses numbers: a host sends one
+    /// request and waits for its reply (a USB full-speed device answers in a later 1 ms
+    /// frame, so at most one request per millisecond), plus one heartbeat per 200 ms;
+    /// an earlier process that started at t₀ ms has therefore used numbers below
+    /// t₀ + (its lifetime in ms) ≤ now. A later process starting at `now` is above all
+    /// of them (unless one process outlived a wrap of the 49.7-day cycle).
+    fn first_seq(&self) -> u32 {
+        let ms = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis());
+        (ms as u32).max(1)
     }
 }
 
@@ -46,7 +72,13 @@ pub enum LinkError {
     /// The user interrupted the wait (see [`Client::set_interrupt`]).
     #[error("interrupted by the user")]
     Interrupted,
-    /// No reply after every retry.
+    /// Nothing at all heard from the device for [`RetryPolicy::give_up_after`].
+    #[error("nothing heard from the instrument for {:.1} s", silent_for.as_secs_f64())]
+    Silent {
+        /// How long since the last byte from the device.
+        silent_for: Duration,
+    },
+    /// No reply after every retry (while the device answered other frames).
     #[error("no reply from the instrument to request {seq} ({command}) after {attempts} attempts")]
     NoReply {
         /// The request.
@@ -118,11 +150,23 @@ pub struct RetryPolicy {
     pub heartbeat_every: Duration,
     /// How many times a request is sent at most.
     pub attempts: u32,
+    /// A device silent this long (not one byte) is given up: every wait ends there.
+    pub give_up_after: Duration,
 }
+
+/// The bound: a frozen or vanished instrument is given up within 10 s of silence.
+/// Five times the firmware's 2 s heartbeat timeout: an outage of a few seconds (a cable
+/// pulled and pushed back) is ridden out, a dead instrument is not waited for.
+pub const GIVE_UP_AFTER: Duration = Duration::from_secs(10);
 
 impl Default for RetryPolicy {
     fn default() -> Self {
-        RetryPolicy { reply_timeout: Duration::from_millis(500), heartbeat_every: Duration::from_millis(200), attempts: 4 }
+        RetryPolicy {
+            reply_timeout: Duration::from_millis(500),
+            heartbeat_every: Duration::from_millis(200),
+            attempts: 4,
+            give_up_after: GIVE_UP_AFTER,
+        }
     }
 }
 
@@ -152,6 +196,8 @@ pub struct Client<T: Transport> {
     rx_len: usize,
     /// When the host last sent a frame, on the transport's clock.
     last_sent: Duration,
+    /// When the last byte from the device arrived, on the transport's clock.
+    last_heard: Duration,
     /// Set by a Ctrl-C handler: waiting stops with [`LinkError::Interrupted`].
     interrupt: Option<Arc<AtomicBool>>,
 }
@@ -175,10 +221,11 @@ fn command_name(command: &Command) -> &'static str {
 impl<T: Transport> Client<T> {
     /// A client over `transport`.
     pub fn new(transport: T, policy: RetryPolicy) -> Client<T> {
+        let (next_seq, now) = (transport.first_seq(), transport.now());
         Client {
             transport,
             decoder: FrameDecoder::new(),
-            next_seq: 1,
+            next_seq,
             policy,
             unsolicited: VecDeque::new(),
             stats: LinkStats::default(),
@@ -186,13 +233,59 @@ impl<T: Transport> Client<T> {
             rx_pos: 0,
             rx_len: 0,
             last_sent: Duration::ZERO,
+            last_heard: now,
             interrupt: None,
         }
+    }
+
+    /// The retry policy.
+    pub fn policy(&self) -> RetryPolicy {
+        self.policy
+    }
+
+    /// How long since the device was last heard (any byte), on the transport's clock.
+    pub fn silent_for(&self) -> Duration {
+        self.transport.now().saturating_sub(self.last_heard)
+    }
+
+    /// When the silence reaches [`RetryPolicy::give_up_after`].
+    fn give_up_at(&self) -> Duration {
+        self.last_heard + self.policy.give_up_after
+    }
+
+    /// Forget the messages queued while waiting (after a reconnection or a recovery:
+    /// the state they told of has been read afresh).
+    pub fn clear_unsolicited(&mut self) {
+        self.unsolicited.clear();
+    }
+
+    /// Let `duration` pass on the transport's clock while keeping the instrument alive:
+    /// heartbeats go out, and whatever the device sends meanwhile is queued for
+    /// [`Client::next_unsolicited`]. Ends early with an error when the link fails, the
+    /// device has been silent for [`RetryPolicy::give_up_after`], or on a Ctrl-C.
+    pub fn keep_alive(&mut self, duration: Duration) -> Result<(), LinkError> {
+        let deadline = self.transport.now() + duration;
+        while let Some(message) = self.next_message(deadline)? {
+            if !matches!(message, DeviceMessage::Reply { .. }) {
+                self.unsolicited.push_back(message);
+            }
+        }
+        Ok(())
     }
 
     /// The transport, e.g. to inspect a simulator.
     pub fn transport_mut(&mut self) -> &mut T {
         &mut self.transport
+    }
+
+    /// The transport.
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    /// The transport, the client done with.
+    pub fn into_transport(self) -> T {
+        self.transport
     }
 
     /// What went wrong on the link so far.
@@ -229,23 +322,38 @@ impl<T: Transport> Client<T> {
     }
 
     /// Send `command` and wait for its reply, retrying with the same sequence number.
+    ///
+    /// The request is sent again every [`RetryPolicy::reply_timeout`] until the reply comes,
+    /// also while a long command (a homing, a move, a reading) is still being carried
+    /// out: the firmware ignores a repeat of the request in progress and answers a repeat
+    /// of one already done from its reply cache, so a lost request starts late by one
+    /// timeout, and a lost reply is had again as soon as the command is done, instead of
+    /// after the longest the command could take. [`RetryPolicy::attempts`] counts the
+    /// sends after that longest time: then the request is given up ([`LinkError::NoReply`]).
     pub fn request(&mut self, command: Command) -> Result<Reply, LinkError> {
         let seq = self.take_seq();
         let name = command_name(&command);
-        let timeout = self.policy.reply_timeout + expected_duration(&command);
+        let longest = expected_duration(&command);
+        let started = self.transport.now();
         let request = Request { seq, command };
-        for attempt in 0..self.policy.attempts {
-            if attempt > 0 {
+        let mut attempts = 0;
+        let mut sends = 0u32;
+        while attempts < self.policy.attempts {
+            if sends > 0 {
                 self.stats.retries += 1;
             }
             // Nothing new is started after a Ctrl-C.
             self.check_interrupt()?;
+            if self.transport.now() >= started + longest {
+                attempts += 1;
+            }
             self.send(&request)?;
-            if let Some(result) = self.wait_for_reply(seq, timeout)? {
+            sends += 1;
+            if let Some(result) = self.wait_for_reply(seq, self.policy.reply_timeout)? {
                 return result.map_err(|error| LinkError::Device { command: name, error });
             }
         }
-        Err(LinkError::NoReply { seq, command: name, attempts: self.policy.attempts })
+        Err(LinkError::NoReply { seq, command: name, attempts: sends })
     }
 
     fn take_seq(&mut self) -> u32 {
@@ -293,7 +401,9 @@ impl<T: Transport> Client<T> {
     }
 
     /// Read until one message is decoded or `deadline` passes. Frames the device reports
-    /// it could not read are counted here and not returned.
+    /// it could not read are counted here and not returned. Past the silence deadline
+    /// ([`RetryPolicy::give_up_after`] without a byte from the device) the wait ends with
+    /// [`LinkError::Silent`].
     fn next_message(&mut self, deadline: Duration) -> Result<Option<DeviceMessage>, LinkError> {
         loop {
             while self.rx_pos < self.rx_len {
@@ -308,6 +418,10 @@ impl<T: Transport> Client<T> {
             }
             self.check_interrupt()?;
             let now = self.transport.now();
+            let give_up_at = self.give_up_at();
+            if now >= give_up_at {
+                return Err(LinkError::Silent { silent_for: now - self.last_heard });
+            }
             if now >= deadline {
                 return Ok(None);
             }
@@ -320,8 +434,11 @@ impl<T: Transport> Client<T> {
             }
             // Read in chunks (one system call per chunk on a serial port); bytes after a
             // complete frame stay in `rx` for the next call.
-            self.rx_len = self.transport.read(&mut self.rx, deadline.min(heartbeat_due) - now)?;
+            self.rx_len = self.transport.read(&mut self.rx, deadline.min(heartbeat_due).min(give_up_at) - now)?;
             self.rx_pos = 0;
+            if self.rx_len > 0 {
+                self.last_heard = self.transport.now();
+            }
         }
     }
 }

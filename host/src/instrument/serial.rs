@@ -28,8 +28,13 @@ impl SerialTransport {
 impl Transport for SerialTransport {
     fn reconnect(&mut self) -> std::io::Result<()> {
         // A CDC-ACM port that was unplugged comes back under the same path (or not yet).
-        self.port = serialport::new(&self.path, 115_200).timeout(Duration::from_millis(50)).open()?;
+        // serialport says "not found" for a path that is gone: keep the OS's words.
+        self.port = serialport::new(&self.path, 115_200).timeout(Duration::from_millis(50)).open().map_err(std::io::Error::from)?;
         Ok(())
+    }
+
+    fn name(&self) -> String {
+        self.path.clone()
     }
 
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {

@@ -35,6 +35,17 @@ impl Transport for SimInstrument {
     fn now(&self) -> Duration {
         Duration::from_micros(self.device_time_us())
     }
+
+    /// The simulator in process lives and dies with this host process: no earlier host
+    /// can have used its sequence numbers. A fixed start keeps a seed's run repeatable
+    /// (the numbers' encoded length changes which bytes the link faults hit).
+    fn first_seq(&self) -> u32 {
+        1
+    }
+
+    fn name(&self) -> String {
+        "the simulated instrument (in process)".to_string()
+    }
 }
 
 /// Which set of instrument errors the simulator starts from (each one overridable).

@@ -1,33 +1,47 @@
 //! The measurement session: one state machine from connection to report.
 //!
-//! Home → dark → white (the operator places the tile) → Strategy 1 on the instrument →
-//! fit and σ_l check → refinements by the chosen policy, sending only geometries not yet
-//! measured → classification → optional white check. Every reading is handed to the
-//! [`Recorder`] as it arrives, so nothing measured is lost; a session can start from
-//! readings already taken ([`Session::resume_from`]) and then measures only what is missing.
+//! Home → dark → white (the operator places the tile) → lost-steps check → Strategy 1 on
+//! the instrument → fit and σ_l check → refinements by the chosen policy, sending only
+//! geometries not yet measured → lost-steps check → classification → optional white
+//! check. Every reading is handed to the [`Recorder`] as it arrives, so nothing measured is
+//! lost; a session can start from readings already taken ([`Session::resume_from`]) and
+//! then measures only what is missing.
 //!
-//! The link can fail under it (corruption, a lost stream reading, a pulled cable): lost
-//! readings are measured again, duplicates dropped, and after a reconnection the session
-//! says hello again, re-homes if the instrument lost its homing, and carries on.
+//! The bench is not kind to it, and it carries on through what a bench does:
+//! - a person at a prompt for minutes ([`prompt`]): the arms are parked, the lamp kept on
+//!   and the instrument kept alive by heartbeats;
+//! - a link that corrupts, drops or is pulled out ([`recovery`]): after any reconnection
+//!   and any refusal the instrument's state is read and brought back to a known one
+//!   before anything else is sent; a silent instrument is given up after 10 s;
+//! - arms that slip ([`steps`]): a Home before the report compares the switches with the
+//!   step counts; readings taken while an arm was off are superseded and measured again,
+//!   and the result is flagged.
+//!
+//! Every decision goes through [`Recorder::decision`], on the failure path too.
 
 pub mod adaptive;
 pub mod operator;
 pub mod order;
+mod prompt;
+mod recovery;
+mod schedule;
+mod steps;
+mod white;
 
-pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator};
+pub use operator::{DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};
+pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
-use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
-use crate::analysis::report::{Report, analyse, to_json};
-use crate::output::dataset::DataSet;
 use crate::analysis::fit::{FitOptions, Observation};
-use adaptive::AdaptiveTargets;
+use crate::analysis::flags::Flag;
+use crate::analysis::report::{Report, analyse, to_json};
+use crate::instrument::calibration::{Calibration, CalibrationError, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
+use crate::output::dataset::DataSet;
+use adaptive::AdaptiveTargets;
 use order::Motion;
-use protocol::schedules::{INCIDENCE_DEG, strategy1, strategy2};
-use protocol::{
-    Command, DeviceInfo, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN,
-    ScheduleChunk, ScheduleSource, Target,
-};
+use protocol::schedules::{strategy1, strategy2};
+use protocol::{DeviceInfo, ErrorCode, Geometry, Reading};
+use recovery::Failure;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::time::Duration;
@@ -100,7 +114,8 @@ pub struct Plan {
     pub policy: Policy,
     /// Detector acceptance to model in the fit, degrees (from the handshake by default).
     pub acceptance_deg: f64,
-    /// Re-read the white tile at the end and report the drift.
+    /// Re-read the white tile at the end (every calibrated incidence angle) and report the
+    /// drift.
     pub white_check: bool,
     /// White drift beyond which the result is marked, as a fraction.
     pub white_drift_limit: f64,
@@ -127,6 +142,10 @@ pub struct MeasuredPoint {
     pub device_time_us: u64,
     /// Why it could not be converted.
     pub note: Option<String>,
+    /// Taken while an arm may have been off its step count (lost steps found, or a check
+    /// that could not be made): kept in the record, left out of the fit, measured again.
+    #[serde(default)]
+    pub superseded: bool,
 }
 
 impl MeasuredPoint {
@@ -152,6 +171,12 @@ pub trait Recorder {
     fn calibration(&mut self, calibration: &Calibration) -> std::io::Result<()>;
     /// A new reading.
     fn point(&mut self, point: &MeasuredPoint) -> std::io::Result<()>;
+    /// Readings recorded earlier are superseded (`superseded` is now set on each; `why`
+    /// says what was found). They stay in the record; their geometries are measured again.
+    fn superseded(&mut self, points: &[MeasuredPoint], why: &str) -> std::io::Result<()> {
+        let _ = (points, why);
+        Ok(())
+    }
     /// A stage begins (`what`), with its geometry count.
     fn stage(&mut self, what: &str, planned: usize);
     /// Progress within the stage.
@@ -180,9 +205,38 @@ pub struct Refinement {
     pub reason: String,
 }
 
+/// What the session went through to keep the instrument and the link in hand.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Recoveries {
+    /// Times the link was lost and the instrument greeted again.
+    pub reconnections: u32,
+    /// Times the instrument's state was read and brought back to a known one (after a
+    /// reconnection, a refusal or a stop).
+    pub state_recoveries: u32,
+    /// Refusals (busy, not homed, …) recovered from.
+    pub refusals: u32,
+    /// Fail-safe stops the instrument made on its own (heartbeat lost, …).
+    pub stops: u32,
+    /// Times the homing was lost and done again.
+    pub rehomings: u32,
+    /// Times the lamp had gone off and was lit again.
+    pub lamp_relit: u32,
+    /// Readings lost on the link (or with an aborted schedule) and measured again.
+    pub readings_remeasured: usize,
+    /// Device time from each failure to the instrument being ready again, seconds.
+    pub seconds: f64,
+}
+
+impl Recoveries {
+    /// Whether anything had to be recovered.
+    pub fn any(&self) -> bool {
+        self.reconnections + self.state_recoveries + self.refusals + self.stops > 0 || self.readings_remeasured > 0
+    }
+}
+
 /// What a session produced.
 pub struct Outcome {
-    /// Every reading.
+    /// Every reading, superseded ones included (marked).
     pub points: Vec<MeasuredPoint>,
     /// The calibration used.
     pub calibration: Calibration,
@@ -192,17 +246,28 @@ pub struct Outcome {
     pub refinements: Vec<Refinement>,
     /// The final analysis.
     pub report: Report,
-    /// Device time measuring the sample (Strategy 1 to the last refinement and the white
-    /// check), seconds.
+    /// Device time measuring the sample (Strategy 1 to the last refinement, re-measured
+    /// readings and the white check; without the lost-steps check and waiting for the
+    /// operator), seconds.
     pub device_seconds: f64,
     /// Device time of homing and calibration before it, seconds.
     pub setup_seconds: f64,
+    /// Device time of the lost-steps check(s) before the report, seconds.
+    pub check_seconds: f64,
+    /// Device time of the whole session, waiting for the operator included, seconds.
+    pub session_seconds: f64,
     /// White drift at the end, fraction (when checked).
     pub white_drift: Option<f64>,
     /// The drift exceeded the limit: the result is marked.
     pub white_drift_exceeded: bool,
+    /// Every Home of the session and the step errors it found.
+    pub step_checks: Vec<StepCheck>,
+    /// What was recovered.
+    pub recoveries: Recoveries,
+    /// Every decision, in order (also given to the recorder as it was made).
+    pub decisions: Vec<String>,
     /// Every condition that makes the result less than clean (and the informational ones).
-    pub flags: Vec<crate::analysis::flags::Flag>,
+    pub flags: Vec<Flag>,
 }
 
 impl Outcome {
@@ -210,6 +275,20 @@ impl Outcome {
     pub fn ok(&self) -> bool {
         crate::analysis::flags::ok(&self.flags)
     }
+
+    /// The readings the result rests on (superseded ones left out).
+    pub fn current_points(&self) -> impl Iterator<Item = &MeasuredPoint> {
+        self.points.iter().filter(|p| !p.superseded)
+    }
+}
+
+/// How the link was lost for good.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LinkLoss {
+    /// The port went away (cable out, instrument off): the last I/O error.
+    PortGone(String),
+    /// The port is there but nothing answers (a frozen instrument).
+    NoAnswer,
 }
 
 /// Why a session failed.
@@ -218,6 +297,36 @@ pub enum SessionError {
     /// The link failed beyond recovery.
     #[error(transparent)]
     Link(LinkError),
+    /// Nothing heard from the instrument for the give-up time.
+    #[error("{}", lost_text(.link, .loss, .silent_for, .decisions))]
+    Lost {
+        /// The link (a port path, the simulator).
+        link: String,
+        /// Which way it was lost.
+        loss: LinkLoss,
+        /// How long nothing was heard.
+        silent_for: Duration,
+        /// The session's decisions so far.
+        decisions: Vec<String>,
+    },
+    /// The instrument refused or failed a command in a way the host cannot mend.
+    #[error("the instrument refused {command}: {error}; {advice}")]
+    Refused {
+        /// What was refused.
+        command: &'static str,
+        /// The device's reason.
+        error: protocol::DeviceError,
+        /// What it means and what to do.
+        advice: String,
+    },
+    /// Another instrument answers on the link than the one the session started with.
+    #[error("another instrument answers on the link after the reconnection (serial number {found}, the session started on {expected}): stopped rather than mix two instruments' readings")]
+    OtherInstrument {
+        /// The session's instrument.
+        expected: String,
+        /// The one answering now.
+        found: String,
+    },
     /// The instrument stopped on its own and did not recover.
     #[error("the instrument stopped: {0}")]
     Stopped(ErrorCode),
@@ -236,9 +345,32 @@ pub enum SessionError {
     /// The user interrupted the session (Ctrl-C; see [`Client::set_interrupt`]).
     #[error("interrupted by the user")]
     Interrupted,
-    /// Too many attempts to measure the same geometries.
-    #[error("geometries still missing after {0} attempts; the link or instrument is failing")]
-    GaveUp(u32),
+    /// Too many attempts without progress.
+    #[error("{0}")]
+    GaveUp(String),
+}
+
+fn lost_text(link: &str, loss: &LinkLoss, silent_for: &Duration, decisions: &[String]) -> String {
+    let what = match loss {
+        LinkLoss::PortGone(error) => format!(
+            "the instrument's port is gone ({link}: {error}) and nothing was heard from it for {:.1} s: reconnect the cable or power the instrument",
+            silent_for.as_secs_f64()
+        ),
+        LinkLoss::NoAnswer => format!(
+            "the port is there ({link}) but the instrument has not answered for {:.1} s: it is frozen or without power; power-cycle it",
+            silent_for.as_secs_f64()
+        ),
+    };
+    let shown = decisions.len().min(12);
+    let mut text = format!("gave up: {what}");
+    if shown > 0 {
+        text.push_str(&format!("\ndecisions so far{}:", if shown < decisions.len() { format!(" (the last {shown} of {})", decisions.len()) } else { String::new() }));
+        for d in &decisions[decisions.len() - shown..] {
+            text.push_str("\n  ");
+            text.push_str(d);
+        }
+    }
+    text
 }
 
 impl From<LinkError> for SessionError {
@@ -250,9 +382,6 @@ impl From<LinkError> for SessionError {
     }
 }
 
-/// Attempts at a stage's missing geometries, and at reconnecting.
-const MAX_ATTEMPTS: u32 = 8;
-
 /// The running session.
 pub struct Session<'a, T: Transport> {
     client: &'a mut Client<T>,
@@ -263,20 +392,88 @@ pub struct Session<'a, T: Transport> {
     points: Vec<MeasuredPoint>,
     calibration: Option<Calibration>,
     next_schedule_id: u16,
-    device_time_used_us: u64,
     motion: Motion,
+    /// Every geometry the session means to have a reading of, in the order first wanted.
+    wanted: Vec<Geometry>,
+    decisions: Vec<String>,
+    flags: BTreeSet<Flag>,
+    recoveries: Recoveries,
+    /// The lamp should be on (after the dark readings).
+    lamp_wanted: bool,
+    /// The lamp went off while wanted (a fail-safe stop): its output since is not the
+    /// calibration's for sure, so the white tile is read again at the end.
+    lamp_went_off: bool,
+    /// The last I/O error of the link, to tell a vanished port from a silent instrument.
+    last_io_error: Option<String>,
+    steps: steps::StepState,
+    resumed: bool,
+    /// Device time spent waiting for the operator, µs.
+    waiting_us: u64,
+    /// Device time spent on lost-steps checks before the report, µs.
+    final_check_us: u64,
+    /// See [`Session::with_calibration_limit`].
+    max_calibration_age: Option<Duration>,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
     /// A session on a connected instrument (after the handshake gave `info`).
     pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
         let motion = Motion::from_info(&info).unwrap_or_else(|_| Motion::reference());
-        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, motion }
+        Session {
+            client,
+            info,
+            plan,
+            recorder,
+            operator,
+            points: Vec::new(),
+            calibration: None,
+            next_schedule_id: 1,
+            motion,
+            wanted: Vec::new(),
+            decisions: Vec::new(),
+            flags: BTreeSet::new(),
+            recoveries: Recoveries::default(),
+            lamp_wanted: false,
+            lamp_went_off: false,
+            last_io_error: None,
+            steps: steps::StepState::default(),
+            resumed: false,
+            waiting_us: 0,
+            final_check_us: 0,
+            max_calibration_age: None,
+        }
+    }
+
+    /// The oldest calibration accepted. One reused from an earlier session is refused at
+    /// the start when older (`Calibration::load`, the caller's); one that passes this age
+    /// before the session reports (a long or a late-resumed session) flags the result
+    /// `calibration-stale`. Without it, no age is checked.
+    pub fn with_calibration_limit(mut self, max_age: Duration) -> Self {
+        self.max_calibration_age = Some(max_age);
+        self
     }
 
     /// Continue from readings (and a calibration) an earlier session recorded.
-    pub fn resume_from(mut self, calibration: Option<Calibration>, points: Vec<MeasuredPoint>) -> Self {
+    ///
+    /// A geometry recorded more than once without a mark (the mark of a superseded
+    /// reading was not written before a crash) keeps its last reading: a geometry is
+    /// measured again only after its earlier reading was superseded.
+    pub fn resume_from(mut self, calibration: Option<Calibration>, mut points: Vec<MeasuredPoint>) -> Self {
         self.next_schedule_id = points.iter().map(|p| p.schedule_id).max().unwrap_or(0).wrapping_add(1).max(1);
+        let mut seen = BTreeSet::new();
+        for point in points.iter_mut().rev() {
+            if let Some(g) = point.geometry().filter(|_| !point.superseded) {
+                if !seen.insert(g) {
+                    point.superseded = true;
+                }
+            }
+        }
+        for g in points.iter().filter_map(MeasuredPoint::geometry) {
+            if !self.wanted.contains(&g) {
+                self.wanted.push(g);
+            }
+        }
+        self.resumed = !points.is_empty();
         self.calibration = calibration;
         self.points = points;
         self
@@ -288,18 +485,34 @@ impl<'a, T: Transport> Session<'a, T> {
         self
     }
 
+    /// A decision, to the recorder and the session's own list.
+    fn decide(&mut self, text: &str) {
+        self.recorder.decision(text);
+        self.decisions.push(text.to_string());
+    }
+
+    /// The transport's clock.
+    fn now(&self) -> Duration {
+        self.client.transport().now()
+    }
+
     /// Run the whole session.
     pub fn run(mut self) -> Result<Outcome, SessionError> {
-        let started_us = self.uptime_us()?;
-        self.ensure_ready()?;
+        let started = self.now();
+        // The resumed readings were taken under an earlier process: a Home now tells
+        // whether the arms still agree with their step counts (`steps`).
+        self.ensure_ready(self.resumed)?;
         if self.calibration.is_none() {
             self.calibrate()?;
+        } else {
+            self.lamp_wanted = true;
+            self.lamp_on()?;
         }
-        self.lamp_on()?;
         // Setup (homing, dark, white) is the same whatever the policy and a calibration
         // serves many sheets: the sample's device time is counted from here.
-        let measuring_from_us = self.uptime_us()?;
-        let setup_seconds = measuring_from_us.saturating_sub(started_us) as f64 * 1e-6;
+        let measuring_from = self.now();
+        let waiting_before = self.waiting_us;
+        let setup_seconds = (measuring_from - started).as_secs_f64() - self.waiting_us as f64 * 1e-6;
         let mut fits = Vec::new();
         let mut refinements = Vec::new();
         let first = match self.plan.policy {
@@ -314,31 +527,91 @@ impl<'a, T: Transport> Session<'a, T> {
         self.measure(&first_name, &first)?;
         let mut report = self.analyse()?;
         fits.push(FitStep { after: first_name, report: to_json(&report) });
-        match self.plan.policy {
-            Policy::Paper => self.refine_like_the_paper(&mut report, &mut fits, &mut refinements)?,
-            Policy::Adaptive(targets) => {
-                self.refine_adaptively(targets, &mut report, &mut fits, &mut refinements)?;
-                // Never below the paper's criterion: if the batches did not get σ > σ_l, the
-                // paper's policy finishes the job.
-                self.refine_like_the_paper(&mut report, &mut fits, &mut refinements)?;
+        self.refine(&mut report, &mut fits, &mut refinements)?;
+        // Before reporting: do the step counts still agree with the switches? Readings
+        // taken while an arm was off are measured again after the re-home (the check's
+        // Home), the policy refines from the corrected fit, and the arms are checked again.
+        for round in 1..=steps::MAX_CHECK_ROUNDS {
+            let check_started = self.now();
+            let clean = self.check_steps("before the report")?;
+            self.final_check_us += (self.now() - check_started).as_micros() as u64;
+            if clean && self.missing().is_empty() {
+                break;
             }
-            Policy::Fixed(_) => {}
+            if round == steps::MAX_CHECK_ROUNDS {
+                self.decide(&format!("the arms lost steps at {round} checks in a row: the instrument needs attention; the result is flagged lost-steps"));
+                break;
+            }
+            let missing = self.missing();
+            self.measure(&format!("measuring again {} readings taken while an arm was off", missing.len()), &missing)?;
+            report = self.analyse()?;
+            fits.push(FitStep { after: format!("re-measured after lost steps (check {round})"), report: to_json(&report) });
+            self.refine(&mut report, &mut fits, &mut refinements)?;
         }
-        let (white_drift, white_drift_exceeded) = if self.plan.white_check { self.white_check()? } else { (None, false) };
-        self.device_time_used_us += self.uptime_us()?.saturating_sub(measuring_from_us);
+        let (white_drift, white_drift_exceeded) = if self.plan.white_check || self.lamp_went_off {
+            if !self.plan.white_check {
+                self.decide("the lamp went off during the session: reading the white tile again to see whether its output came back");
+            }
+            self.white_check()?
+        } else {
+            (None, false)
+        };
+        let ended = self.now();
+        let measuring_us = (ended - measuring_from).as_micros() as u64;
+        let device_us = measuring_us.saturating_sub(self.final_check_us).saturating_sub(self.waiting_us - waiting_before);
         let calibration = self.calibration.take().ok_or(SessionError::Fit("no calibration".into()))?;
+        if white_drift_exceeded {
+            self.flags.insert(Flag::WhiteDrift);
+        }
+        let age = calibration.age(unix_now_s());
+        if let Some(limit) = self.max_calibration_age.filter(|limit| age > *limit) {
+            self.decide(&format!(
+                "the calibration is {:.1} h old at the end of the session (limit {:.1} h): result flagged calibration-stale",
+                age.as_secs_f64() / 3600.0,
+                limit.as_secs_f64() / 3600.0
+            ));
+            self.flags.insert(Flag::CalibrationStale);
+        }
+        if !report.check.is_some_and(|c| c.sigma_ok) {
+            self.flags.insert(Flag::SigmaNotResolved);
+        }
+        if self.recoveries.any() {
+            self.flags.insert(Flag::LinkRecovered);
+        }
+        if self.resumed {
+            self.flags.insert(Flag::Resumed);
+        }
         Ok(Outcome {
             points: self.points,
             calibration,
             fits,
             refinements,
             report,
-            device_seconds: self.device_time_used_us as f64 * 1e-6,
+            device_seconds: device_us as f64 * 1e-6,
             setup_seconds,
+            check_seconds: self.final_check_us as f64 * 1e-6,
+            session_seconds: (ended - started).as_secs_f64(),
             white_drift,
             white_drift_exceeded,
-            flags: if white_drift_exceeded { vec![crate::analysis::flags::Flag::WhiteDrift] } else { Vec::new() },
+            step_checks: self.steps.checks,
+            recoveries: self.recoveries,
+            decisions: self.decisions,
+            flags: self.flags.into_iter().collect(),
         })
+    }
+
+    /// Refinements by the plan's policy, from `report`.
+    fn refine(&mut self, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
+        match self.plan.policy {
+            Policy::Paper => self.refine_like_the_paper(report, fits, refinements),
+            Policy::Adaptive(targets) => {
+                self.refine_adaptively(targets, report, fits, refinements)?;
+                // Never below the paper's criterion: if the batches did not get σ > σ_l, the
+                // paper's policy finishes the job.
+                self.refine_like_the_paper(report, fits, refinements)
+            }
+            Policy::Fixed(_) => Ok(()),
+        }
     }
 
     /// The paper's policy: Strategy 2 with decreasing δ until σ > σ_l, sending only
@@ -350,7 +623,8 @@ impl<'a, T: Transport> Session<'a, T> {
                 break;
             }
             let schedule: Vec<Geometry> = strategy2(delta).map(|s| s.to_vec()).unwrap_or_default();
-            let added = schedule.iter().filter(|g| !self.measured().contains(g)).count();
+            let measured = self.measured();
+            let added = schedule.iter().filter(|g| !measured.contains(g)).count();
             if added == 0 {
                 continue;
             }
@@ -359,7 +633,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 (None, _) => "σ not resolved by the geometries measured".to_string(),
                 (Some(sigma), None) => format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction"),
             };
-            self.recorder.decision(&format!("refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"));
+            self.decide(&format!("refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"));
             refinements.push(Refinement { delta_deg: Some(delta), added, reason });
             self.measure(&format!("strategy 2, δ = {delta}° ({added} new geometries)"), &schedule)?;
             *report = self.analyse()?;
@@ -373,7 +647,8 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Strategy 1 already passes σ_l stop at once: their class rests on ρs and ρd, which
     /// Strategy 1 measures, and more readings near the peak would not move it.
     fn refine_adaptively(&mut self, targets: AdaptiveTargets, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
-        for batch_number in 1..=targets.max_batches {
+        let done_before = refinements.iter().filter(|r| r.delta_deg.is_none()).count();
+        for batch_number in done_before + 1..=targets.max_batches {
             let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
             let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
             let precise = adaptive::sigma_rel_half_width(&report.fit).is_some_and(|w| w <= targets.sigma_rel_half_width);
@@ -393,10 +668,10 @@ impl<'a, T: Transport> Session<'a, T> {
                 (Some(adaptive::probe(&observations, &measured)), "σ not resolved: probe around the strongest specular peak".to_string())
             };
             let Some(batch) = batch.filter(|b| !b.is_empty()) else {
-                self.recorder.decision("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l");
+                self.decide("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l");
                 return Ok(());
             };
-            self.recorder.decision(&format!("adaptive batch {batch_number} ({} geometries): {reason}", batch.len()));
+            self.decide(&format!("adaptive batch {batch_number} ({} geometries): {reason}", batch.len()));
             refinements.push(Refinement { delta_deg: None, added: batch.len(), reason });
             self.measure(&format!("adaptive batch {batch_number} ({} geometries)", batch.len()), &batch)?;
             *report = self.analyse()?;
@@ -407,248 +682,30 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// Where the arms are now.
     fn arm_position(&mut self) -> Result<Geometry, SessionError> {
-        match self.retrying(Command::GetStatus)? {
-            Reply::Status(status) => Ok(status.position),
-            other => Err(LinkError::UnexpectedReply { command: "GetStatus", reply: Box::new(other) }.into()),
-        }
+        Ok(self.status()?.position)
     }
 
-    /// Every usable reading as a fit observation with its index in `points`; a geometry
-    /// measured twice (after a lost stream end) counts once.
+    /// Every usable reading (converted, not superseded) as a fit observation with its
+    /// index in `points`.
     fn usable_points(&self) -> impl Iterator<Item = (usize, Observation)> + '_ {
         let mut seen = BTreeSet::new();
-        self.points.iter().enumerate().filter_map(move |(k, p)| {
+        self.points.iter().enumerate().filter(|(_, p)| !p.superseded).filter_map(move |(k, p)| {
             let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
             seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std }))
         })
     }
 
-    fn uptime_us(&mut self) -> Result<u64, SessionError> {
-        match self.retrying(Command::GetStatus)? {
-            Reply::Status(status) => Ok(status.uptime_us),
-            other => Err(LinkError::UnexpectedReply { command: "GetStatus", reply: Box::new(other) }.into()),
-        }
-    }
-
-    /// Geometries with a usable reading.
+    /// Geometries with a current reading (not superseded). A reading that could not be
+    /// converted counts: measuring it again would give the same.
     fn measured(&self) -> BTreeSet<Geometry> {
-        self.points.iter().filter(|p| p.radiance_factor.is_some()).filter_map(MeasuredPoint::geometry).collect()
+        self.points.iter().filter(|p| !p.superseded).filter_map(MeasuredPoint::geometry).collect()
     }
 
-    /// A request, reconnecting and retrying once the link comes back.
-    fn retrying(&mut self, command: Command) -> Result<Reply, SessionError> {
-        for _ in 0..MAX_ATTEMPTS {
-            match self.client.request(command.clone()) {
-                Ok(reply) => return Ok(reply),
-                Err(error) if recoverable(&error) => self.recover(&error)?,
-                Err(error) => return Err(error.into()),
-            }
-        }
-        Err(SessionError::GaveUp(MAX_ATTEMPTS))
-    }
-
-    /// After a link failure: reconnect, then make the instrument ready again.
-    fn recover(&mut self, why: &LinkError) -> Result<(), SessionError> {
-        self.reconnect(why)?;
-        self.ensure_ready()
-    }
-
-    /// [`Session::make_ready`], through link failures.
-    fn ensure_ready(&mut self) -> Result<(), SessionError> {
-        for _ in 0..MAX_ATTEMPTS {
-            match self.make_ready() {
-                Err(SessionError::Link(error)) if recoverable(&error) => self.reconnect(&error)?,
-                other => return other,
-            }
-        }
-        Err(SessionError::GaveUp(MAX_ATTEMPTS))
-    }
-
-    /// After a link failure: wait for the instrument and say hello again.
-    fn reconnect(&mut self, why: &LinkError) -> Result<(), SessionError> {
-        self.recorder.decision(&format!("link lost ({why}); reconnecting"));
-        for _ in 0..MAX_ATTEMPTS * 4 {
-            let _ = self.client.transport_mut().reconnect();
-            match self.client.hello() {
-                Ok(_) => return Ok(()),
-                Err(LinkError::Interrupted) => return Err(SessionError::Interrupted),
-                Err(_) => self.client.transport_mut().pause(Duration::from_millis(500)),
-            }
-        }
-        Err(SessionError::Link(LinkError::NoReply { seq: 0, command: "Hello", attempts: MAX_ATTEMPTS * 4 }))
-    }
-
-    /// Homed and lit, whatever happened before (a power cycle, a safe stop).
-    fn make_ready(&mut self) -> Result<(), SessionError> {
-        let Reply::Status(status) = self.client.request(Command::GetStatus)? else {
-            return Err(SessionError::Fit("unexpected status reply".into()));
-        };
-        if let Some(fault) = status.fault {
-            self.recorder.decision(&format!("instrument reports {fault}; homing again"));
-        }
-        if !(status.homed_i && status.homed_r) {
-            self.recorder.stage("homing", 0);
-            if let Reply::Homed(report) = self.client.request(Command::Home)? {
-                for (arm, error) in [("source", report.step_error_i), ("detector", report.step_error_r)] {
-                    if let Some(steps) = error.filter(|e| *e != 0) {
-                        self.recorder.decision(&format!("{arm} arm lost {} steps ({:.4}°) before re-homing", -steps, -f64::from(steps) * protocol::Angle::RESOLUTION_DEG));
-                    }
-                }
-            }
-        }
-        if self.calibration.is_some() {
-            self.lamp_on()?;
-        }
-        Ok(())
-    }
-
-    fn lamp_on(&mut self) -> Result<(), SessionError> {
-        self.retrying(Command::SetLamp { on: true }).map(|_| ())
-    }
-
-    /// Dark per range (lamp off), then the white tile at θr = 0 for every incidence angle.
-    fn calibrate(&mut self) -> Result<(), SessionError> {
-        self.recorder.stage("dark and white calibration", INCIDENCE_DEG.len());
-        let integration_ms = self.plan.integration_ms;
-        let Reply::Dark(dark) = self.retrying(Command::TakeDark { integration_ms })? else {
-            return Err(SessionError::Fit("unexpected dark reply".into()));
-        };
-        self.lamp_on()?;
-        self.operator.place(Placement::WhiteTile).map_err(SessionError::Operator)?;
-        let mut white = Vec::new();
-        for theta_i in INCIDENCE_DEG {
-            self.retrying(Command::MoveTo(Geometry::from_whole_deg(theta_i, 0)))?;
-            let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference, range: None })? else {
-                return Err(SessionError::Fit("unexpected reading reply".into()));
-            };
-            white.push(WhitePoint { theta_i_deg: f64::from(theta_i), reading });
-        }
-        self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;
-        let calibration = Calibration {
-            taken_unix_s: unix_now_s(),
-            instrument: instrument_name(&self.info),
-            white_radiance_factor: crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
-            relative_gains: self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect(),
-            dark: dark.to_vec(),
-            white,
-        };
-        self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
-        self.calibration = Some(calibration);
-        Ok(())
-    }
-
-    /// Measure every geometry of `schedule` not yet measured, re-measuring lost ones.
-    fn measure(&mut self, stage: &str, schedule: &[Geometry]) -> Result<(), SessionError> {
-        let is_builtin_s1 = strategy1(12).is_some_and(|s| s.as_slice() == schedule);
-        self.recorder.stage(stage, schedule.len());
-        for attempt in 0..MAX_ATTEMPTS {
-            let measured = self.measured();
-            let missing: Vec<Geometry> = schedule.iter().copied().filter(|g| !measured.contains(g)).collect();
-            if missing.is_empty() {
-                return Ok(());
-            }
-            let source = if is_builtin_s1 && missing.len() == schedule.len() { None } else { Some(missing.as_slice()) };
-            match self.run_schedule(source, schedule.len()) {
-                Ok(()) => {}
-                Err(SessionError::Link(error)) if recoverable(&error) => self.recover(&error)?,
-                Err(SessionError::Stopped(reason)) => {
-                    self.recorder.decision(&format!("the instrument stopped ({reason}); making it ready again"));
-                    self.ensure_ready()?;
-                }
-                Err(other) => return Err(other),
-            }
-            if attempt > 0 {
-                self.recorder.decision(&format!("re-measuring geometries lost on the link (attempt {})", attempt + 1));
-            }
-        }
-        Err(SessionError::GaveUp(MAX_ATTEMPTS))
-    }
-
-    /// Run the built-in Strategy 1 (`None`) or upload and run a list, recording readings.
-    fn run_schedule(&mut self, list: Option<&[Geometry]>, stage_len: usize) -> Result<(), SessionError> {
-        let schedule_id = self.next_schedule_id;
-        self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
-        let source = match list {
-            None => ScheduleSource::Strategy1,
-            Some(list) => {
-                // The firmware visits a list in the order sent: send the fastest.
-                let here = self.arm_position()?;
-                let planned = crate::session::order::plan(&self.motion, here, list);
-                if list.len() > 1 {
-                    self.recorder.decision(&format!(
-                        "visiting order of {} geometries: {:.2} s of travel, {:.3}× the {} and {:.2}× the order listed",
-                        list.len(),
-                        planned.travel_us as f64 * 1e-6,
-                        planned.travel_ratio_to_best(),
-                        if planned.exact { "fastest" } else { "lower bound" },
-                        planned.travel_ratio_to_given()
-                    ));
-                }
-                let list = planned.order.as_slice();
-                let total_len = list.len() as u16;
-                for (k, chunk) in list.chunks(SCHEDULE_CHUNK_LEN).enumerate() {
-                    let geometries = heapless::Vec::from_slice(chunk).unwrap_or_default();
-                    let offset = (k * SCHEDULE_CHUNK_LEN) as u16;
-                    self.client.request(Command::UploadSchedule(ScheduleChunk { schedule_id, total_len, offset, geometries }))?;
-                }
-                ScheduleSource::Uploaded
-            }
-        };
-        let run = RunSchedule { schedule_id, source, integration_ms: self.plan.integration_ms, target: Target::Sample };
-        let Reply::ScheduleStarted { len, .. } = self.client.request(Command::RunSchedule(run))? else {
-            return Err(SessionError::Fit("unexpected reply to RunSchedule".into()));
-        };
-        let mut seen = BTreeSet::new();
-        let already = stage_len.saturating_sub(usize::from(len));
-        let started = self.client.transport_mut().now();
-        loop {
-            match self.client.next_unsolicited(Duration::from_secs(5))? {
-                Some(DeviceMessage::Reading(r)) if r.schedule_id == schedule_id => {
-                    if !seen.insert(r.index) {
-                        continue; // a duplicate
-                    }
-                    self.record(r.geometry, r.reading, schedule_id, r.index, r.device_time_us)?;
-                    let done = seen.len();
-                    let per_reading = (self.client.transport_mut().now() - started) / done as u32;
-                    let remaining = per_reading * (usize::from(len) - done.min(usize::from(len))) as u32;
-                    self.recorder.progress(Progress { done: already + done, planned: stage_len, remaining });
-                }
-                Some(DeviceMessage::ScheduleDone(done)) if done.schedule_id == schedule_id => {
-                    return match done.error {
-                        None | Some(ErrorCode::Aborted) => Ok(()),
-                        Some(reason) => Err(SessionError::Stopped(reason)),
-                    };
-                }
-                Some(DeviceMessage::Stopped { reason }) => return Err(SessionError::Stopped(reason)),
-                // Stale messages of an earlier schedule: nothing to do with this one.
-                Some(_) => {}
-                // Silence: the end may have been lost on the link. Ask.
-                None => {
-                    if let Reply::Status(status) = self.retrying(Command::GetStatus)? {
-                        if status.schedule.is_none_or(|(id, _)| id != schedule_id) {
-                            return Ok(());
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    fn record(&mut self, geometry: Geometry, reading: Reading, schedule_id: u16, index: u16, device_time_us: u64) -> Result<(), SessionError> {
-        let (theta_i_deg, theta_r_deg) = (geometry.theta_i.deg(), geometry.theta_r.deg());
-        let converted = self
-            .calibration
-            .as_ref()
-            .ok_or(SessionError::Fit("no calibration".into()))?
-            .radiance_factor(theta_i_deg, &reading);
-        let (radiance_factor, std, note) = match converted {
-            Ok((r, u)) => (Some(r), Some(u), None),
-            Err(e) => (None, None, Some(e.to_string())),
-        };
-        let point = MeasuredPoint { theta_i_deg, theta_r_deg, radiance_factor, std, reading, schedule_id, index, device_time_us, note };
-        self.recorder.point(&point).map_err(SessionError::Record)?;
-        self.points.push(point);
-        Ok(())
+    /// Geometries wanted and not measured (lost on the link, superseded), in the order
+    /// first wanted.
+    fn missing(&self) -> Vec<Geometry> {
+        let measured = self.measured();
+        self.wanted.iter().copied().filter(|g| !measured.contains(g)).collect()
     }
 
     /// Fit everything measured so far, check σ against σ_l and classify.
@@ -660,32 +717,25 @@ impl<'a, T: Transport> Session<'a, T> {
         analyse(std::path::Path::new("readings.csv"), &set, &options, None).map_err(SessionError::Fit)
     }
 
-    /// Re-read the white tile at θi = 20°, θr = 0 and compare with the calibration.
-    fn white_check(&mut self) -> Result<(Option<f64>, bool), SessionError> {
-        self.operator.place(Placement::WhiteTile).map_err(SessionError::Operator)?;
-        self.retrying(Command::MoveTo(Geometry::from_whole_deg(20, 0)))?;
-        let integration_ms = self.plan.integration_ms;
-        let Reply::Reading(reading) = self.retrying(Command::TakeReading { integration_ms, target: Target::WhiteReference, range: None })? else {
-            return Err(SessionError::Fit("unexpected reading reply".into()));
-        };
-        self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;
-        let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
-        let (r, _) = calibration.radiance_factor(20.0, &reading)?;
-        let drift = r / calibration.white_radiance_factor - 1.0;
-        let exceeded = drift.abs() > self.plan.white_drift_limit;
-        if exceeded {
-            self.recorder.decision(&format!("white drifted by {:.2} % (limit {:.2} %): result marked", 100.0 * drift, 100.0 * self.plan.white_drift_limit));
+}
+
+/// How one step of the session failed: something to recover from, or the end.
+enum StepError {
+    Failure(Failure),
+    Fatal(SessionError),
+}
+
+impl StepError {
+    fn from_link(error: LinkError) -> StepError {
+        match recovery::classify(error) {
+            Ok(failure) => StepError::Failure(failure),
+            Err(fatal) => StepError::Fatal(fatal),
         }
-        Ok((Some(drift), exceeded))
     }
 }
 
-/// Failures a reconnection can cure.
-fn recoverable(error: &LinkError) -> bool {
-    match error {
-        LinkError::Io(_) | LinkError::NoReply { .. } => true,
-        // A device that was reset or re-plugged wants a new hello.
-        LinkError::Device { error, .. } => error.code == ErrorCode::VersionMismatch,
-        _ => false,
+impl From<LinkError> for StepError {
+    fn from(error: LinkError) -> StepError {
+        StepError::from_link(error)
     }
 }

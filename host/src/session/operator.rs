@@ -1,6 +1,16 @@
 //! The person at the instrument: what they are asked to place on the sample port, and how
 //! the session waits for them.
+//!
+//! A person takes seconds to minutes. The session must keep the instrument alive all that
+//! time (heartbeats, and recovering the link if it breaks), so asking is split in two: the
+//! session calls [`Operator::ask`] once, then polls [`Operator::answered`] between
+//! heartbeats until the person is done. Nothing here blocks.
+//!
+//! While the person works, the arms are parked clear of the port and still, and the lamp
+//! stays on (see `Session::ask_operator` for why).
 use std::io::{BufRead, Write};
+use std::sync::mpsc::{Receiver, TryRecvError, channel};
+use std::time::{Duration, Instant};
 
 /// What the operator is asked to put on the sample port.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -11,38 +21,224 @@ pub enum Placement {
     Sample,
 }
 
-/// The person at the instrument (a prompt), or nobody (the simulator's operator swaps by
-/// itself when readings are marked white).
-pub trait Operator {
-    /// Ask for `placement` and wait until it is done.
-    fn place(&mut self, placement: Placement) -> std::io::Result<()>;
+impl Placement {
+    /// What the person is asked to do, in words.
+    pub fn instruction(self) -> &'static str {
+        match self {
+            Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port",
+            Placement::Sample => "Place the SAMPLE on the sample port",
+        }
+    }
 }
 
-/// No one to ask: the in-process simulator places the tile itself.
+/// The person at the instrument (a prompt), or a simulated one.
+pub trait Operator {
+    /// Ask for `placement` (print the prompt, start a timer); returns at once. `now` is
+    /// the transport's clock (device time in process, wall time on a port).
+    fn ask(&mut self, placement: Placement, now: Duration) -> std::io::Result<()>;
+    /// Whether the placement asked for last is done. Called often (every 100 ms of the
+    /// transport's clock) while the session keeps the instrument alive; must not block.
+    /// An error (no one can answer any more) ends the session, readings kept.
+    fn answered(&mut self, now: Duration) -> std::io::Result<bool>;
+}
+
+/// No one to ask: the in-process simulator places the tile itself (when readings are
+/// marked white), so every prompt is answered at once.
+#[derive(Clone, Copy, Debug, Default)]
 pub struct SimulatedOperator;
 
 impl Operator for SimulatedOperator {
-    fn place(&mut self, _placement: Placement) -> std::io::Result<()> {
+    fn ask(&mut self, _placement: Placement, _now: Duration) -> std::io::Result<()> {
         Ok(())
+    }
+
+    fn answered(&mut self, _now: Duration) -> std::io::Result<bool> {
+        Ok(true)
     }
 }
 
-/// Asks the person at the instrument, on the terminal.
-pub struct PromptOperator;
+/// A simulated person who answers `delay` after being asked, on the transport's clock: in
+/// process that is the simulator's virtual time, so a two-minute wait takes no wall time.
+#[derive(Clone, Debug, Default)]
+pub struct DelayedOperator {
+    /// How long the person takes at every prompt.
+    pub delay: Duration,
+    asked_at: Option<Duration>,
+    /// Every placement asked for, in order.
+    pub asked: Vec<Placement>,
+}
+
+impl DelayedOperator {
+    /// A person who takes `delay` at every prompt.
+    pub fn answering_after(delay: Duration) -> DelayedOperator {
+        DelayedOperator { delay, ..DelayedOperator::default() }
+    }
+}
+
+impl Operator for DelayedOperator {
+    fn ask(&mut self, placement: Placement, now: Duration) -> std::io::Result<()> {
+        self.asked.push(placement);
+        self.asked_at = Some(now);
+        Ok(())
+    }
+
+    fn answered(&mut self, now: Duration) -> std::io::Result<bool> {
+        Ok(self.asked_at.is_none_or(|at| now >= at + self.delay))
+    }
+}
+
+/// A person who answers after a real delay (wall time), whatever the transport's clock:
+/// for sessions on a pseudo-terminal, where the host's waits are real.
+#[derive(Clone, Debug)]
+pub struct WallClockOperator {
+    /// How long the person takes at each prompt, in order; the last one repeats.
+    pub delays: Vec<Duration>,
+    asked_at: Option<Instant>,
+    /// Every placement asked for, in order.
+    pub asked: Vec<Placement>,
+}
+
+impl WallClockOperator {
+    /// A person who takes `delays[k]` at the k-th prompt (the last delay for the rest).
+    pub fn new(delays: Vec<Duration>) -> WallClockOperator {
+        WallClockOperator { delays, asked_at: None, asked: Vec::new() }
+    }
+}
+
+impl Operator for WallClockOperator {
+    fn ask(&mut self, placement: Placement, _now: Duration) -> std::io::Result<()> {
+        self.asked.push(placement);
+        self.asked_at = Some(Instant::now());
+        Ok(())
+    }
+
+    fn answered(&mut self, _now: Duration) -> std::io::Result<bool> {
+        let k = self.asked.len().saturating_sub(1).min(self.delays.len().saturating_sub(1));
+        let delay = self.delays.get(k).copied().unwrap_or_default();
+        Ok(self.asked_at.is_none_or(|at| at.elapsed() >= delay))
+    }
+}
+
+/// Asks the person at the instrument on the terminal; Enter confirms. Standard input is
+/// read on a thread of its own, so that the session goes on sending heartbeats meanwhile.
+#[derive(Default)]
+pub struct PromptOperator {
+    lines: Option<Receiver<std::io::Result<Option<String>>>>,
+    /// Where the answers come from (`None`: standard input).
+    input: Option<Box<dyn BufRead + Send>>,
+}
+
+impl PromptOperator {
+    /// A prompt on standard error, answered on standard input.
+    pub fn new() -> PromptOperator {
+        PromptOperator::default()
+    }
+
+    /// A prompt on standard error, answered on `input` (for tests).
+    pub fn answered_on(input: impl BufRead + Send + 'static) -> PromptOperator {
+        PromptOperator { lines: None, input: Some(Box::new(input)) }
+    }
+
+    /// The reader thread, started at the first prompt: it sends every line typed, then
+    /// `None` at the end of input.
+    fn lines(&mut self) -> &Receiver<std::io::Result<Option<String>>> {
+        let input = self.input.take();
+        self.lines.get_or_insert_with(|| {
+            let (sender, receiver) = channel();
+            std::thread::spawn(move || {
+                let mut input: Box<dyn BufRead> = match input {
+                    Some(input) => input,
+                    None => Box::new(std::io::stdin().lock()),
+                };
+                loop {
+                    let mut line = String::new();
+                    let read = input.read_line(&mut line);
+                    let end = !matches!(read, Ok(n) if n > 0);
+                    let message = read.map(|n| (n > 0).then_some(line));
+                    if sender.send(message).is_err() || end {
+                        break;
+                    }
+                }
+            });
+            receiver
+        })
+    }
+}
+
+/// Standard input ended: no one can answer.
+fn no_one_answers() -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::UnexpectedEof,
+        "no one can answer the prompt: standard input is closed (to run without a person, reuse a calibration with --calibration)",
+    )
+}
 
 impl Operator for PromptOperator {
-    fn place(&mut self, placement: Placement) -> std::io::Result<()> {
-        let what = match placement {
-            Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port",
-            Placement::Sample => "Place the SAMPLE on the sample port",
-        };
-        eprint!("{what}, then press Enter: ");
-        std::io::stderr().flush()?;
-        let mut line = String::new();
-        if std::io::stdin().lock().read_line(&mut line)? == 0 {
-            return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "no one answered (standard input closed); use --calibration"));
-        }
+    fn ask(&mut self, placement: Placement, _now: Duration) -> std::io::Result<()> {
+        let mut stderr = std::io::stderr();
+        writeln!(stderr)?;
+        writeln!(stderr, "{}.", placement.instruction())?;
+        writeln!(stderr, "  The arms are parked clear of the port and the lamp stays on; take your time.")?;
+        write!(stderr, "  Press Enter when done (Ctrl-C stops the session; the readings are kept and `gonio measure --resume DIR` continues it): ")?;
+        stderr.flush()?;
+        self.lines();
         Ok(())
+    }
+
+    fn answered(&mut self, _now: Duration) -> std::io::Result<bool> {
+        match self.lines().try_recv() {
+            Ok(Ok(Some(_line))) => Ok(true),
+            Ok(Ok(None)) | Err(TryRecvError::Disconnected) => Err(no_one_answers()),
+            Ok(Err(error)) => Err(error),
+            Err(TryRecvError::Empty) => Ok(false),
+        }
     }
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_simulated_person_answers_after_the_delay_on_the_transports_clock() {
+        let mut person = DelayedOperator::answering_after(Duration::from_secs(10));
+        person.ask(Placement::WhiteTile, Duration::from_secs(5)).unwrap();
+        assert!(!person.answered(Duration::from_secs(14)).unwrap());
+        assert!(person.answered(Duration::from_secs(15)).unwrap());
+        assert_eq!(person.asked, [Placement::WhiteTile]);
+    }
+
+    #[test]
+    fn the_wall_clock_person_takes_each_delay_in_turn() {
+        let mut person = WallClockOperator::new(vec![Duration::from_secs(3600), Duration::ZERO]);
+        person.ask(Placement::WhiteTile, Duration::ZERO).unwrap();
+        // Whatever the transport's clock says: an hour of device time is not a real hour.
+        assert!(!person.answered(Duration::from_secs(7200)).unwrap());
+        person.ask(Placement::Sample, Duration::ZERO).unwrap();
+        assert!(person.answered(Duration::ZERO).unwrap());
+        person.ask(Placement::WhiteTile, Duration::ZERO).unwrap();
+        assert!(person.answered(Duration::ZERO).unwrap(), "the last delay repeats");
+    }
+
+    /// Wait (on the reader thread) until `person` answers or fails.
+    fn wait(person: &mut PromptOperator) -> std::io::Result<bool> {
+        for _ in 0..10_000 {
+            match person.answered(Duration::ZERO) {
+                Ok(false) => std::thread::sleep(Duration::from_millis(1)),
+                other => return other,
+            }
+        }
+        Ok(false)
+    }
+
+    #[test]
+    fn the_prompt_takes_a_line_per_placement_and_says_so_when_input_ends() {
+        let mut person = PromptOperator::answered_on(std::io::Cursor::new(b"\n".to_vec()));
+        person.ask(Placement::WhiteTile, Duration::ZERO).unwrap();
+        assert!(wait(&mut person).unwrap());
+        person.ask(Placement::Sample, Duration::ZERO).unwrap();
+        let error = wait(&mut person).unwrap_err();
+        assert_eq!(error.kind(), std::io::ErrorKind::UnexpectedEof);
+        assert!(error.to_string().contains("standard input is closed") && error.to_string().contains("--calibration"), "{error}");
+    }
+}

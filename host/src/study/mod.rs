@@ -1,2 +1,3 @@
 //! Campaigns of whole simulated sessions.
+pub mod reliability;
 pub mod trade;

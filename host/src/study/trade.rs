@@ -348,7 +348,7 @@ fn pct(x: f64) -> String {
 pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "# Speed against accuracy on the simulated instrument\n");
-    let _ = writeln!(out, "{} sessions, {seeds} seeds per paper and configuration. Device time counts the sample's measurement (Strategy 1 onwards); homing and calibration are the same for every policy and are left out.\n", rows.len());
+    let _ = writeln!(out, "{} sessions, {seeds} seeds per paper and configuration. Device time counts the sample's measurement (Strategy 1 onwards); homing, calibration and the lost-steps check before the report (1.5–2.5 s, docs/TRADE.md) are the same for every policy and are left out.\n", rows.len());
     for (title, group_glossy) in [("Glossy papers (G, SG)", true), ("Rough papers (PPC, MC, J1–J4)", false)] {
         let _ = writeln!(out, "## {title}\n");
         let _ = writeln!(out, "| policy | setting | integration ms | sessions | geometries | device s | σ error median | σ error p95 | σ within 5 % | ρs error median | ρd error median | class right |");
