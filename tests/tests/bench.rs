@@ -275,7 +275,7 @@ fn truth_sigma(sample: &str) -> f64 {
 /// once among the current readings, every superseded geometry measured again.
 fn assert_sound(what: &str, outcome: &Outcome) {
     let sample = outcome.report.sample.as_str();
-    assert_eq!(outcome.report.classification.class.name(), class_of(sample), "{what}: {:#?}", outcome.decisions);
+    assert_eq!(outcome.report.classification.class_name(), class_of(sample), "{what}: {:#?}", outcome.decisions);
     assert!(outcome.report.check.is_some_and(|c| c.sigma_ok), "{what}: σ ≤ σ_l");
     let key = |p: &MeasuredPoint| ((p.theta_i_deg * 1e3).round() as i64, (p.theta_r_deg * 1e3).round() as i64);
     let current: Vec<_> = outcome.current_points().map(key).collect();

@@ -572,9 +572,8 @@ impl<'a, T: Transport> Session<'a, T> {
             ));
             self.flags.insert(Flag::CalibrationStale);
         }
-        if !report.check.is_some_and(|c| c.sigma_ok) {
-            self.flags.insert(Flag::SigmaNotResolved);
-        }
+        // The analysis's own flags (lack-of-fit, not-identified, sigma-not-resolved).
+        self.flags.extend(report.flags.iter().copied());
         if self.recoveries.any() {
             self.flags.insert(Flag::LinkRecovered);
         }

@@ -295,7 +295,7 @@ pub fn judge(spec: &Spec, outcome: &Result<Outcome, SessionError>) -> Row {
             return row;
         }
     };
-    row.class = outcome.report.classification.class.name().to_string();
+    row.class = outcome.report.classification.class_name().to_string();
     row.flags = outcome.flags.clone();
     row.readings = outcome.current_points().count();
     row.superseded = outcome.points.len() - row.readings;
