@@ -230,14 +230,41 @@ pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
     Ok(LinesFile { lines, whole_len: whole_len as u64, cut_tail, exists: true })
 }
 
-/// Parse the whole lines of `points.jsonl`.
+/// A line of `points.jsonl` that is no reading: readings recorded earlier (by their
+/// 0-based position among the file's readings) are superseded, for `why`. The file stays
+/// append-only: a reading is never rewritten, a later line marks it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SupersedeMark {
+    /// Positions of the readings superseded.
+    pub superseded: Vec<usize>,
+    /// Why, in words.
+    pub why: String,
+}
+
+/// The `points.jsonl` line of a mark (with its newline).
+pub fn mark_line(mark: &SupersedeMark) -> std::io::Result<String> {
+    Ok(serde_json::to_string(mark)? + "\n")
+}
+
+/// Parse the whole lines of `points.jsonl`: its readings in order, with the marks of later
+/// lines applied (`superseded` set).
 pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Problem> {
-    file.lines
-        .iter()
-        .map(|(line, text)| {
-            serde_json::from_str::<MeasuredPoint>(text).map_err(|e| Problem::new(path, Some(*line), format!("not a reading: {e}")))
-        })
-        .collect()
+    let mut points: Vec<MeasuredPoint> = Vec::new();
+    for (line, text) in &file.lines {
+        // A mark is tried first: it has exactly its two fields, a reading has many more.
+        if let Ok(mark) = serde_json::from_str::<SupersedeMark>(text) {
+            for &k in &mark.superseded {
+                match points.get_mut(k) {
+                    Some(point) => point.superseded = true,
+                    None => return Err(Problem::new(path, Some(*line), format!("marks reading {k} superseded, but only {} come before it", points.len()))),
+                }
+            }
+            continue;
+        }
+        points.push(serde_json::from_str::<MeasuredPoint>(text).map_err(|e| Problem::new(path, Some(*line), format!("not a reading: {e}")))?);
+    }
+    Ok(points)
 }
 
 /// The `points.jsonl` line of a reading (with its newline), checked to read back as the
@@ -253,9 +280,13 @@ pub fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
     }
 }
 
-/// The `readings.csv` row of a reading (with its newline), if it was converted. Numbers
-/// in Rust's shortest round-trip form: parsing them gives the recorded f64 exactly.
+/// The `readings.csv` row of a reading (with its newline), if it was converted and is not
+/// superseded (`readings.csv` holds what the result rests on, for `gonio fit`). Numbers in
+/// Rust's shortest round-trip form: parsing them gives the recorded f64 exactly.
 pub fn csv_row(point: &MeasuredPoint) -> Option<String> {
+    if point.superseded {
+        return None;
+    }
     let (r, u) = (point.radiance_factor?, point.std?);
     Some(format!("{},{},{r},{u}\n", point.theta_i_deg, point.theta_r_deg))
 }
@@ -280,12 +311,32 @@ pub enum CsvAgreement {
         /// The last row was cut short.
         cut: bool,
     },
+    /// It still holds rows of readings superseded since (what a crash between a mark and
+    /// the rewrite of `readings.csv` leaves): a resume rebuilds it.
+    Stale {
+        /// Rows of superseded readings still in it.
+        superseded: usize,
+    },
     /// Something else: damage.
     Differs(Problem),
 }
 
 /// Compare `readings.csv` with what `points.jsonl` gives.
 pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
+    let agreement = csv_agreement_with(path, file, points);
+    let superseded = points.iter().filter(|p| p.superseded && p.radiance_factor.is_some() && p.std.is_some()).count();
+    if superseded == 0 || !matches!(agreement, CsvAgreement::Differs(_)) {
+        return agreement;
+    }
+    // Rows as they were before the marks: only stale, if the file agrees with those.
+    let unmarked: Vec<MeasuredPoint> = points.iter().map(|p| MeasuredPoint { superseded: false, ..p.clone() }).collect();
+    match csv_agreement_with(path, file, &unmarked) {
+        CsvAgreement::Differs(_) => agreement,
+        _ => CsvAgreement::Stale { superseded },
+    }
+}
+
+fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
     let expected: Vec<String> = points.iter().filter_map(csv_row).map(|r| r.trim_end().to_string()).collect();
     if !file.exists {
         return CsvAgreement::Behind { missing: expected.len(), cut: false };

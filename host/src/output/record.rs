@@ -184,8 +184,9 @@ pub struct FileRecorder {
     pub bar: ProgressBar,
     /// This run's decisions, in order.
     pub decisions: Vec<String>,
-    /// Readings in `points.jsonl`.
-    readings: usize,
+    /// Readings in `points.jsonl`, in order (marks applied): a mark names positions in it,
+    /// and `readings.csv` is rebuilt from it.
+    points: Vec<MeasuredPoint>,
     /// The first write that failed outside `point` and `calibration` (a log line): the
     /// next of those reports it, so that the session stops rather than go on unrecorded.
     failed: Option<io::Error>,
@@ -272,7 +273,7 @@ impl FileRecorder {
         };
         store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
         store.append(READINGS, format!("{READINGS_HEADER}\n").as_bytes(), Sync::Never).map_err(io_error(&dir))?;
-        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), readings: 0, failed: None };
+        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), points: Vec::new(), failed: None };
         recorder.decision(&format!("session of '{}' on instrument {} in {}", recorder.doc.sample, recorder.doc.instrument.serial_number, dir.display()));
         Ok(recorder)
     }
@@ -289,7 +290,7 @@ impl FileRecorder {
 
     /// Readings recorded in `points.jsonl`, earlier runs included.
     pub fn readings(&self) -> usize {
-        self.readings
+        self.points.len()
     }
 
     /// The command that continues this session, for `session.json` and the messages.
@@ -298,7 +299,7 @@ impl FileRecorder {
     }
 
     fn close_run(&mut self, outcome: RunOutcome, why: Option<String>) {
-        let readings = self.readings;
+        let readings = self.points.len();
         let decisions = self.decisions.clone();
         if let Some(run) = self.doc.runs.last_mut() {
             run.ended = Some(local_now());
@@ -504,6 +505,10 @@ impl Existing {
                 store.replace(READINGS, folder::readings_csv(&inspection.points).as_bytes()).map_err(io_error(&dir))?;
                 repairs.push(format!("{READINGS}: rebuilt from {POINTS} ({missing} rows were missing{})", if cut { ", the last one cut short" } else { "" }));
             }
+            CsvAgreement::Stale { superseded } => {
+                store.replace(READINGS, folder::readings_csv(&inspection.points).as_bytes()).map_err(io_error(&dir))?;
+                repairs.push(format!("{READINGS}: rebuilt from {POINTS} (it still held {superseded} rows of superseded readings)"));
+            }
             CsvAgreement::Differs(problem) => return Err(FolderError::Damaged(problem)),
         }
         for run in doc.runs.iter_mut().filter(|r| r.outcome == RunOutcome::Running) {
@@ -519,7 +524,7 @@ impl Existing {
         doc.why = None;
         doc.readings_recorded = readings;
         store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
-        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), readings, failed: None };
+        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), points: inspection.points.clone(), failed: None };
         recorder.decision(&format!("resuming {} (run {number}): {readings} readings already taken", dir.display()));
         for repair in repairs {
             recorder.decision(&format!("repaired: {repair}"));
@@ -560,11 +565,34 @@ impl Recorder for FileRecorder {
         self.check_failed()?;
         // The primary record first, synced; the CSV row after it is derived from it.
         self.store.append(POINTS, folder::point_line(point)?.as_bytes(), Sync::Data)?;
-        self.readings += 1;
+        self.points.push(point.clone());
         if let Some(row) = folder::csv_row(point) {
             self.store.append(READINGS, row.as_bytes(), Sync::Never)?;
         }
         Ok(())
+    }
+
+    fn superseded(&mut self, points: &[MeasuredPoint], why: &str) -> io::Result<()> {
+        self.check_failed()?;
+        // A reading is known by where and when it streamed: schedule, index, device time.
+        let key = |p: &MeasuredPoint| (p.schedule_id, p.index, p.device_time_us);
+        let mut positions = Vec::new();
+        for point in points {
+            let found = self.points.iter().position(|p| key(p) == key(point)).ok_or_else(|| {
+                io::Error::new(io::ErrorKind::InvalidInput, format!("superseding a reading that was never recorded (θi {}°, θr {}°)", point.theta_i_deg, point.theta_r_deg))
+            })?;
+            positions.push(found);
+        }
+        positions.sort_unstable();
+        positions.dedup();
+        let mark = folder::SupersedeMark { superseded: positions, why: why.to_string() };
+        // The primary record first (synced), then readings.csv rebuilt without those rows: a
+        // crash between the two leaves it stale, which a resume rebuilds.
+        self.store.append(POINTS, folder::mark_line(&mark)?.as_bytes(), Sync::Data)?;
+        for &k in &mark.superseded {
+            self.points[k].superseded = true;
+        }
+        self.store.replace(READINGS, folder::readings_csv(&self.points).as_bytes())
     }
 
     fn stage(&mut self, what: &str, planned: usize) {

@@ -52,6 +52,7 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
         CsvAgreement::Behind { missing, cut } => {
             problems.push(problem(READINGS, None, format!("{missing} rows of {POINTS} missing{}", if *cut { ", the last one cut short" } else { "" })))
         }
+        CsvAgreement::Stale { superseded } => problems.push(problem(READINGS, None, format!("still holds {superseded} rows of readings {POINTS} marks superseded"))),
         // Among the damage already.
         CsvAgreement::Differs(_) => {}
     }

@@ -407,6 +407,9 @@ pub struct Session<'a, T: Transport> {
     last_io_error: Option<String>,
     steps: steps::StepState,
     resumed: bool,
+    /// Resumed readings superseded by a later reading of their geometry whose mark a crash
+    /// kept from the record: marked there when the session starts.
+    unrecorded_marks: Vec<MeasuredPoint>,
     /// Device time spent waiting for the operator, µs.
     waiting_us: u64,
     /// Device time spent on lost-steps checks before the report, µs.
@@ -438,6 +441,7 @@ impl<'a, T: Transport> Session<'a, T> {
             last_io_error: None,
             steps: steps::StepState::default(),
             resumed: false,
+            unrecorded_marks: Vec::new(),
             waiting_us: 0,
             final_check_us: 0,
             max_calibration_age: None,
@@ -465,6 +469,7 @@ impl<'a, T: Transport> Session<'a, T> {
             if let Some(g) = point.geometry().filter(|_| !point.superseded) {
                 if !seen.insert(g) {
                     point.superseded = true;
+                    self.unrecorded_marks.push(point.clone());
                 }
             }
         }
@@ -498,6 +503,11 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// Run the whole session.
     pub fn run(mut self) -> Result<Outcome, SessionError> {
+        if !self.unrecorded_marks.is_empty() {
+            let marks = std::mem::take(&mut self.unrecorded_marks);
+            self.decide(&format!("{} resumed readings were measured again before the crash: the later reading of each geometry is kept", marks.len()));
+            self.recorder.superseded(&marks, "measured again before a crash kept the mark from the record").map_err(SessionError::Record)?;
+        }
         let started = self.now();
         // The resumed readings were taken under an earlier process: a Home now tells
         // whether the arms still agree with their step counts (`steps`).
