@@ -1,5 +1,5 @@
 //! `gonio measure`: the whole measurement session, on an instrument or the simulated one.
-use crate::instrument::calibration::{Calibration, instrument_name};
+use crate::instrument::calibration::{Calibration, Tile, instrument_name};
 use crate::analysis::fit::Observation;
 use crate::instrument::link::{Client, RetryPolicy, Transport};
 use crate::instrument::serial::SerialTransport;
@@ -38,6 +38,15 @@ pub struct Args {
     /// Use the calibration of an earlier session (its folder, session.json or calibration.json).
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+    /// The white tile's certified radiance factor (its certificate; recorded in
+    /// calibration.json). A reused calibration keeps the tile it was taken with.
+    #[arg(long, value_name = "FACTOR", default_value_t = crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR)]
+    pub tile_radiance_factor: f64,
+    /// Standard uncertainty (k = 1) of the tile's certified radiance factor, percent; half a
+    /// certificate's expanded (k = 2) uncertainty. The default is an assumption for a
+    /// working-standard tile certified to ±1 % at k = 2.
+    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY)]
+    pub tile_uncertainty_pct: f64,
     /// Oldest calibration accepted, hours.
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
     pub max_calibration_age_h: f64,
@@ -137,6 +146,7 @@ pub fn measure(args: &Args, operator: &mut dyn Operator, interrupted: Arc<Atomic
 
 fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
     let sample = args.sample.clone().unwrap_or(sample);
+    let tile = Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).context("--tile-radiance-factor / --tile-uncertainty-pct")?;
     let info = client.hello().context("handshake with the instrument")?;
     let dir = match (&args.resume, &args.out) {
         (Some(dir), _) | (None, Some(dir)) => dir.clone(),
@@ -172,6 +182,7 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: args.white_check,
         white_drift_limit: args.white_drift_limit_pct / 100.0,
+        tile,
     };
     client.set_interrupt(Some(interrupted));
     let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);

@@ -16,7 +16,7 @@ pub mod order;
 
 pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator};
 
-use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name, unix_now_s};
+use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name};
 use crate::analysis::report::{Report, analyse, to_json};
 use crate::output::dataset::DataSet;
 use crate::analysis::fit::{FitOptions, Observation};
@@ -104,6 +104,8 @@ pub struct Plan {
     pub white_check: bool,
     /// White drift beyond which the result is marked, as a fraction.
     pub white_drift_limit: f64,
+    /// The white tile's certificate, for a calibration taken in this session.
+    pub tile: crate::instrument::calibration::Tile,
 }
 
 /// One measured geometry, as recorded.
@@ -524,14 +526,8 @@ impl<'a, T: Transport> Session<'a, T> {
             white.push(WhitePoint { theta_i_deg: f64::from(theta_i), reading });
         }
         self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;
-        let calibration = Calibration {
-            taken_unix_s: unix_now_s(),
-            instrument: instrument_name(&self.info),
-            white_radiance_factor: crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
-            relative_gains: self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect(),
-            dark: dark.to_vec(),
-            white,
-        };
+        let gains = self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect();
+        let calibration = Calibration::new(instrument_name(&self.info), self.plan.tile, gains, dark.to_vec(), white);
         self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
         self.calibration = Some(calibration);
         Ok(())

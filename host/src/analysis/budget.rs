@@ -1,0 +1,488 @@
+//! The uncertainty budget, pure (no I/O): the errors a calibration makes common to many
+//! readings, as shared terms for the fit, and the report of what each term contributes to
+//! the variance of σ, ρs and ρd.
+//!
+//! A reading's radiance factor is R = (S − D_r)/G_r / ((W − D_w)/G_w) · T: its own counts S
+//! on range r, the dark D of a range, the white reading W at its θi (on range w), the gains
+//! G (products of the ratios of adjacent ranges) and the tile's certified T. Only S's noise
+//! is the reading's own (`Calibration::convert`'s `own_std`); every other error is shared:
+//!
+//! | term | one ε per | touches | sensitivity (radiance factor per unit ε) |
+//! |---|---|---|---|
+//! | `white θi=…°` | incidence angle | readings at that θi | −R · u(W)/(W − D_w) |
+//! | `dark range r` | range | readings on r, readings whose white is on r, and through a calibrated ratio of r every reading whose gain uses it | u(D_r) · ∂R/∂D_r |
+//! | `tile certificate` | calibration | every reading | R · u(T)/T |
+//! | `gain ranges r/r+1` | adjacent pair | readings whose range and white's range straddle the pair | ∓R · u(ρ)/ρ |
+//! | `lamp drift` | calibration | every reading, by its age | R · u(rate) · age |
+//!
+//! A reused calibration's age is in each reading's age, so the drift term grows with it.
+
+use crate::instrument::calibration::{Calibration, CalibrationError, standard_error_counts};
+use protocol::Reading;
+use serde_json::{Value, json};
+
+/// TEMPORARY (until wp-e-fit's "wp-e done:" lands in `analysis::fit`, which builds exactly
+/// these): the interface of the fit with shared errors. Replace with
+/// `pub use crate::analysis::fit::{BudgetTerm, SharedError};` once merged.
+mod interim {
+    /// An error shared by many readings: reading k is off by `sensitivity[k]`·ε, with one
+    /// ε ~ N(0, 1) for all of them.
+    #[derive(Clone, Debug, PartialEq)]
+    pub struct SharedError {
+        /// What the error is (`white θi=20°`, `dark range 1`, …).
+        pub name: String,
+        /// Per reading, in radiance factor units.
+        pub sensitivity: Vec<f64>,
+    }
+
+    /// One term of a fit's budget: its contribution to the variance of (σ [deg], ρs, ρd, η).
+    #[derive(Clone, Debug, PartialEq)]
+    pub struct BudgetTerm {
+        /// The shared error's name, or "reading noise" for the independent part.
+        pub name: String,
+        /// Contribution to each parameter's variance; additive over the terms.
+        pub variance: [f64; 4],
+    }
+}
+pub use interim::{BudgetTerm, SharedError};
+
+/// Name of the fit's independent term (the readings' own noise).
+pub const READING_NOISE: &str = "reading noise";
+/// Name of the tile's term.
+pub const TILE: &str = "tile certificate";
+/// Name of the drift term.
+pub const LAMP_DRIFT: &str = "lamp drift";
+
+/// Name of the white reading's term at `theta_i_deg`.
+pub fn white_name(theta_i_deg: f64) -> String {
+    format!("white θi={theta_i_deg}°")
+}
+
+/// Name of a range's dark term.
+pub fn dark_name(range: u8) -> String {
+    format!("dark range {range}")
+}
+
+/// Name of the gain term of ranges (r, r + 1).
+pub fn gain_name(lower_range: u8) -> String {
+    format!("gain ranges {}/{}", lower_range, u16::from(lower_range) + 1)
+}
+
+/// What kind of error a term is, by its name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum TermKind {
+    /// The readings' own noise.
+    ReadingNoise,
+    /// A white reading (one term per θi).
+    White,
+    /// A dark reading (one per range).
+    Dark,
+    /// The tile's certificate.
+    Tile,
+    /// A gain ratio (one per pair of adjacent ranges).
+    Gain,
+    /// The lamp's drift since the white readings.
+    Drift,
+    /// Anything else a caller added.
+    Other,
+}
+
+impl TermKind {
+    /// The kind of the term named `name`.
+    pub fn of(name: &str) -> TermKind {
+        if name == READING_NOISE {
+            TermKind::ReadingNoise
+        } else if name.starts_with("white ") {
+            TermKind::White
+        } else if name.starts_with("dark ") {
+            TermKind::Dark
+        } else if name == TILE {
+            TermKind::Tile
+        } else if name.starts_with("gain ") {
+            TermKind::Gain
+        } else if name == LAMP_DRIFT {
+            TermKind::Drift
+        } else {
+            TermKind::Other
+        }
+    }
+
+    /// Its name in the report.
+    pub fn name(self) -> &'static str {
+        match self {
+            TermKind::ReadingNoise => "reading noise",
+            TermKind::White => "white readings",
+            TermKind::Dark => "dark readings",
+            TermKind::Tile => "tile certificate",
+            TermKind::Gain => "range gains",
+            TermKind::Drift => "lamp drift",
+            TermKind::Other => "other",
+        }
+    }
+}
+
+/// One fitted reading as the budget needs it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BudgetReading {
+    /// Incidence angle, degrees (selects the white reading).
+    pub theta_i_deg: f64,
+    /// The raw reading.
+    pub reading: Reading,
+    /// Time since the white readings of its calibration, seconds (a reused calibration's
+    /// age included).
+    pub age_s: f64,
+}
+
+/// Each reading's time since its calibration's white readings, seconds, from the
+/// calibration's age now (`calibration_age_now_s`, wall clock) and the readings' device
+/// times: the last reading is taken as now and earlier ones are older by their device-time
+/// difference, never younger than their device time since the first reading (which a
+/// calibration always precedes). A device clock that restarted (a power cycle) makes the
+/// differences meaningless: they are then only clamped to [0, age now].
+pub fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Vec<f64> {
+    let age_now = calibration_age_now_s.max(0.0);
+    let (Some(&first), Some(&last)) = (device_times_us.iter().min(), device_times_us.iter().max()) else { return Vec::new() };
+    device_times_us
+        .iter()
+        .map(|&t| {
+            let before_last = (last - t) as f64 * 1e-6;
+            let since_first = (t - first) as f64 * 1e-6;
+            (age_now - before_last).max(since_first).max(0.0)
+        })
+        .collect()
+}
+
+/// The shared errors of `readings` (in the fit's order) under `calibration`. A term that
+/// touches none of them is left out.
+pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> Result<Vec<SharedError>, CalibrationError> {
+    let conversions = readings.iter().map(|r| calibration.convert(r.theta_i_deg, &r.reading)).collect::<Result<Vec<_>, _>>()?;
+    let n = readings.len();
+    let ranges = calibration.relative_gains.len();
+    let mut terms = Vec::new();
+    let mut push = |name: String, sensitivity: Vec<f64>| {
+        if sensitivity.iter().any(|s| *s != 0.0) {
+            terms.push(SharedError { name, sensitivity });
+        }
+    };
+
+    // The white reading at each θi.
+    for (j, white) in calibration.white.iter().enumerate() {
+        let u = standard_error_counts(&white.reading);
+        let sensitivity = conversions
+            .iter()
+            .map(|c| if c.white_index == j { -c.radiance_factor * u / c.white_net_counts } else { 0.0 })
+            .collect();
+        push(white_name(white.theta_i_deg), sensitivity);
+    }
+
+    // [p < range]: whether a range's gain contains the ratio of the pair (p, p + 1).
+    let uses = |p: usize, range: u8| usize::from(range) > p;
+    // d ln R / d ln ρ_p for a reading: its white's gain over its own.
+    let exponent = |p: usize, c: &crate::instrument::calibration::Conversion| {
+        f64::from(u8::from(uses(p, c.white_range))) - f64::from(u8::from(uses(p, c.range)))
+    };
+
+    // The dark of each range: directly, through the white, and through calibrated ratios.
+    for j in 0..ranges {
+        let Some(dark) = calibration.dark.get(j) else { continue };
+        let u = standard_error_counts(dark);
+        let mut through_ratios = Vec::new();
+        for p in 0..ranges.saturating_sub(1) {
+            let Some(g) = calibration.calibrated_ratio(p as u8) else { continue };
+            // ρ = (U − D_{p+1}) / (L − D_p): d ln ρ / dD.
+            let d_ln_rho = if j == p + 1 {
+                -1.0 / calibration.net_counts(&g.on_upper)?
+            } else if j == p {
+                1.0 / calibration.net_counts(&g.on_lower)?
+            } else {
+                continue;
+            };
+            through_ratios.push((p, d_ln_rho));
+        }
+        let sensitivity = conversions
+            .iter()
+            .map(|c| {
+                let mut d_ln_r = 0.0;
+                if usize::from(c.range) == j {
+                    d_ln_r -= 1.0 / c.net_counts;
+                }
+                if usize::from(c.white_range) == j {
+                    d_ln_r += 1.0 / c.white_net_counts;
+                }
+                for &(p, d_ln_rho) in &through_ratios {
+                    d_ln_r += exponent(p, c) * d_ln_rho;
+                }
+                c.radiance_factor * d_ln_r * u
+            })
+            .collect();
+        push(dark_name(j as u8), sensitivity);
+    }
+
+    // The tile: every reading scales with its certified value.
+    let u_tile = calibration.white_relative_uncertainty;
+    push(TILE.to_string(), conversions.iter().map(|c| c.radiance_factor * u_tile).collect());
+
+    // The gain ratio of each pair of adjacent ranges.
+    for p in 0..ranges.saturating_sub(1) {
+        let (_, relative, _) = calibration.gain_ratio(p as u8)?;
+        push(gain_name(p as u8), conversions.iter().map(|c| c.radiance_factor * exponent(p, c) * relative).collect());
+    }
+
+    // The lamp's drift: one unknown rate, times each reading's age.
+    let rate_per_s = calibration.lamp_drift_per_hour / 3600.0;
+    push(
+        LAMP_DRIFT.to_string(),
+        conversions.iter().zip(readings).map(|(c, r)| c.radiance_factor * rate_per_s * r.age_s.max(0.0)).collect(),
+    );
+    debug_assert!(terms.iter().all(|t| t.sensitivity.len() == n));
+    Ok(terms)
+}
+
+/// Indices into a budget term's variance of the parameters the report shares out.
+const REPORTED: [(usize, &str); 3] =
+    [(crate::analysis::model::SIGMA, "sigma_deg"), (crate::analysis::model::RHO_S, "rho_s"), (crate::analysis::model::RHO_D, "rho_d")];
+
+/// Each term's share of the total variance of σ, ρs, ρd (`None` where the total is 0: a
+/// parameter not fitted).
+pub fn shares(budget: &[BudgetTerm]) -> Vec<(String, [Option<f64>; 3])> {
+    let totals: [f64; 3] = std::array::from_fn(|i| budget.iter().map(|t| t.variance[REPORTED[i].0].max(0.0)).sum());
+    budget
+        .iter()
+        .map(|t| {
+            let share = std::array::from_fn(|i| (totals[i] > 0.0).then(|| t.variance[REPORTED[i].0].max(0.0) / totals[i]));
+            (t.name.clone(), share)
+        })
+        .collect()
+}
+
+/// The budget grouped by kind: (kind, variance of σ, ρs, ρd), in the kinds' order.
+pub fn by_kind(budget: &[BudgetTerm]) -> Vec<(TermKind, [f64; 3])> {
+    let mut out: Vec<(TermKind, [f64; 3])> = Vec::new();
+    for t in budget {
+        let kind = TermKind::of(&t.name);
+        let v: [f64; 3] = std::array::from_fn(|i| t.variance[REPORTED[i].0].max(0.0));
+        match out.iter_mut().find(|(k, _)| *k == kind) {
+            Some((_, sum)) => (0..3).for_each(|i| sum[i] += v[i]),
+            None => out.push((kind, v)),
+        }
+    }
+    out.sort_by_key(|(k, _)| *k);
+    out
+}
+
+fn share_json(share: [Option<f64>; 3]) -> Value {
+    let mut m = serde_json::Map::new();
+    for (i, (_, key)) in REPORTED.iter().enumerate() {
+        m.insert(key.to_string(), share[i].filter(|s| s.is_finite()).map_or(Value::Null, |s| json!(s)));
+    }
+    Value::Object(m)
+}
+
+/// The report's `budget`: every term with its variance and share of σ's, ρs's and ρd's
+/// variance, and the same grouped by kind.
+pub fn to_json(budget: &[BudgetTerm]) -> Value {
+    let terms: Vec<Value> = budget
+        .iter()
+        .zip(shares(budget))
+        .map(|(t, (_, share))| {
+            let variance: [Option<f64>; 3] = std::array::from_fn(|i| Some(t.variance[REPORTED[i].0]));
+            json!({
+                "name": t.name,
+                "kind": TermKind::of(&t.name).name(),
+                "variance": share_json(variance),
+                "share": share_json(share),
+            })
+        })
+        .collect();
+    let groups = by_kind(budget);
+    let totals: [f64; 3] = std::array::from_fn(|i| groups.iter().map(|(_, v)| v[i]).sum());
+    let kinds: Vec<Value> = groups
+        .iter()
+        .map(|(kind, v)| {
+            let share: [Option<f64>; 3] = std::array::from_fn(|i| (totals[i] > 0.0).then(|| v[i] / totals[i]));
+            json!({ "kind": kind.name(), "share": share_json(share) })
+        })
+        .collect();
+    json!({ "terms": terms, "by_kind": kinds })
+}
+
+/// A few lines for the report's table: each kind's share of σ's, ρs's and ρd's variance.
+pub fn to_table(budget: &[BudgetTerm]) -> String {
+    let groups = by_kind(budget);
+    if groups.is_empty() {
+        return String::new();
+    }
+    let totals: [f64; 3] = std::array::from_fn(|i| groups.iter().map(|(_, v)| v[i]).sum());
+    let mut s = String::from("  uncertainty budget (share of variance)    sigma    rho_s    rho_d\n");
+    for (kind, v) in &groups {
+        let cell = |i: usize| if totals[i] > 0.0 { format!("{:>6.1} %", 100.0 * v[i] / totals[i]) } else { format!("{:>8}", "—") };
+        s += &format!("    {:<38} {} {} {}\n", kind.name(), cell(0), cell(1), cell(2));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::instrument::calibration::{GainRatio, Tile, WhitePoint};
+
+    fn reading(mean_counts: f32, std_counts: f32, range: u8) -> Reading {
+        Reading { mean_counts, std_counts, samples: 100, range, integration_ms: 100, saturated: false }
+    }
+
+    /// Darks of 200 counts (σ 130 per sample), whites at 20° and 60° on range 0, and a
+    /// calibrated 1/2 ratio.
+    fn calibration() -> Calibration {
+        let mut c = Calibration::new(
+            "test".into(),
+            Tile::default(),
+            vec![1.0, 0.1, 0.01],
+            vec![reading(200.0, 130.0, 0), reading(190.0, 130.0, 1), reading(210.0, 130.0, 2)],
+            vec![
+                WhitePoint { theta_i_deg: 20.0, reading: reading(26_400.0, 290.0, 0) },
+                WhitePoint { theta_i_deg: 60.0, reading: reading(14_200.0, 230.0, 0) },
+            ],
+        );
+        let (on_lower, on_upper) = (reading(50_190.0, 400.0, 1), reading(5_240.0, 150.0, 2));
+        let (ratio, relative_uncertainty) = c.ratio_from_readings(&on_lower, &on_upper).unwrap();
+        c.gain_ratios.push(GainRatio {
+            lower_range: 1,
+            ratio,
+            relative_uncertainty,
+            theta_i_deg: 60.0,
+            theta_r_deg: 62.0,
+            scene: "sample".into(),
+            on_lower,
+            on_upper,
+            device_seconds: 1.0,
+        });
+        c
+    }
+
+    fn readings() -> Vec<BudgetReading> {
+        let at = |theta_i_deg: f64, mean: f32, range: u8, age_s: f64| BudgetReading { theta_i_deg, reading: reading(mean, 200.0, range), age_s };
+        vec![
+            at(20.0, 13_000.0, 0, 0.0),
+            at(20.0, 30_000.0, 1, 10.0),
+            at(60.0, 9_000.0, 0, 20.0),
+            at(60.0, 40_000.0, 1, 30.0),
+            at(60.0, 20_000.0, 2, 40.0),
+        ]
+    }
+
+    fn term<'a>(terms: &'a [SharedError], name: &str) -> &'a SharedError {
+        terms.iter().find(|t| t.name == name).unwrap_or_else(|| panic!("no term {name}"))
+    }
+
+    #[test]
+    fn each_term_touches_only_its_readings() {
+        let c = calibration();
+        let terms = shared_errors(&c, &readings()).unwrap();
+        let touched = |name: &str| -> Vec<bool> { term(&terms, name).sensitivity.iter().map(|s| *s != 0.0).collect() };
+        assert_eq!(touched("white θi=20°"), [true, true, false, false, false]);
+        assert_eq!(touched("white θi=60°"), [false, false, true, true, true]);
+        assert_eq!(touched("tile certificate"), [true; 5]);
+        // Range 0/1 straddles every reading on range 1 or 2 (the whites are on 0).
+        assert_eq!(touched("gain ranges 0/1"), [false, true, false, true, true]);
+        assert_eq!(touched("gain ranges 1/2"), [false, false, false, false, true]);
+        // Dark 0: the readings on 0, and every white (on 0).
+        assert_eq!(touched("dark range 0"), [true; 5]);
+        // Dark 1: readings on 1, and through the calibrated 1/2 ratio the reading on 2.
+        assert_eq!(touched("dark range 1"), [false, true, false, true, true]);
+        assert_eq!(touched("dark range 2"), [false, false, false, false, true]);
+        assert_eq!(touched("lamp drift"), [false, true, true, true, true]);
+        // No reading at 30°: no term for it.
+        assert!(terms.iter().all(|t| t.sensitivity.len() == 5));
+        assert_eq!(terms.len(), 2 + 3 + 1 + 2 + 1);
+    }
+
+    #[test]
+    fn multiplicative_terms_scale_with_the_reading() {
+        let c = calibration();
+        let rs = readings();
+        let terms = shared_errors(&c, &rs).unwrap();
+        for (k, r) in rs.iter().enumerate() {
+            let value = c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0;
+            assert!((term(&terms, TILE).sensitivity[k] - value * 0.005).abs() < 1e-15);
+            assert!((term(&terms, LAMP_DRIFT).sensitivity[k] - value * 0.002 / 3600.0 * r.age_s).abs() < 1e-15);
+        }
+        // Nominal 0/1 ratio: 1 % of each reading above the white's range, lowering R when the
+        // ratio is higher.
+        let gain = term(&terms, "gain ranges 0/1");
+        let value = c.radiance_factor(20.0, &rs[1].reading).unwrap().0;
+        assert!((gain.sensitivity[1] + 0.01 * value).abs() < 1e-12);
+    }
+
+    /// Each term's sensitivity is the derivative of the conversion with respect to the
+    /// error it names, times that error's standard uncertainty: checked by finite
+    /// differences on the calibration itself (the gain ratio recomputed from its readings,
+    /// so a dark's path through it is included).
+    #[test]
+    fn sensitivities_are_the_conversions_derivatives() {
+        let c = calibration();
+        let rs = readings();
+        let terms = shared_errors(&c, &rs).unwrap();
+        let values = |c: &Calibration| -> Vec<f64> { rs.iter().map(|r| c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0).collect() };
+        let base = values(&c);
+        let check = |name: &str, perturbed: Calibration, step_in_sigmas: f64| {
+            let moved = values(&perturbed);
+            for k in 0..rs.len() {
+                let numeric = (moved[k] - base[k]) / step_in_sigmas;
+                let analytic = term(&terms, name).sensitivity[k];
+                assert!((numeric - analytic).abs() <= 1e-3 * analytic.abs() + 1e-12, "{name} reading {k}: {numeric} vs {analytic}");
+            }
+        };
+        let h = 0.01; // a hundredth of a standard error: linear enough
+        for j in 0..c.white.len() {
+            let mut p = c.clone();
+            let u = standard_error_counts(&p.white[j].reading);
+            p.white[j].reading.mean_counts += (h * u) as f32;
+            check(&white_name(c.white[j].theta_i_deg), p, f64::from(((h * u) as f32 + c.white[j].reading.mean_counts) - c.white[j].reading.mean_counts) / u);
+        }
+        for j in 0..3usize {
+            let mut p = c.clone();
+            let u = standard_error_counts(&p.dark[j]);
+            let before = p.dark[j].mean_counts;
+            p.dark[j].mean_counts += (h * u) as f32;
+            let step = f64::from(p.dark[j].mean_counts - before) / u;
+            let g = p.gain_ratios[0].clone();
+            p.gain_ratios[0].ratio = p.ratio_from_readings(&g.on_lower, &g.on_upper).unwrap().0;
+            check(&dark_name(j as u8), p, step);
+        }
+    }
+
+    #[test]
+    fn ages_follow_the_device_clock_back_from_now() {
+        // A calibration 4 h old at the last reading; readings 10 s apart.
+        let ages = reading_ages_s(4.0 * 3600.0, &[0, 10_000_000, 20_000_000]);
+        assert_eq!(ages, [4.0 * 3600.0 - 20.0, 4.0 * 3600.0 - 10.0, 4.0 * 3600.0]);
+        // Taken in this session in virtual time (wall-clock age ~0): the device clock's.
+        assert_eq!(reading_ages_s(0.0, &[5_000_000, 15_000_000]), [0.0, 10.0]);
+        assert!(reading_ages_s(1.0, &[]).is_empty());
+    }
+
+    #[test]
+    fn shares_add_to_one_and_group_by_kind() {
+        let budget = vec![
+            BudgetTerm { name: READING_NOISE.into(), variance: [1.0, 2.0, 0.0, 0.1] },
+            BudgetTerm { name: "white θi=20°".into(), variance: [1.0, 1.0, 0.0, 0.1] },
+            BudgetTerm { name: "white θi=60°".into(), variance: [2.0, 1.0, 0.0, 0.1] },
+            BudgetTerm { name: TILE.into(), variance: [0.0, 4.0, 0.0, 0.0] },
+        ];
+        let shares = shares(&budget);
+        for i in 0..2 {
+            let total: f64 = shares.iter().map(|(_, s)| s[i].unwrap()).sum();
+            assert!((total - 1.0).abs() < 1e-12);
+        }
+        assert!(shares.iter().all(|(_, s)| s[2].is_none()), "ρd not fitted: no share");
+        let kinds = by_kind(&budget);
+        assert_eq!(kinds.iter().map(|(k, _)| *k).collect::<Vec<_>>(), [TermKind::ReadingNoise, TermKind::White, TermKind::Tile]);
+        assert_eq!(kinds[1].1, [3.0, 2.0, 0.0]);
+        let table = to_table(&budget);
+        assert!(table.contains("white readings") && table.contains("75.0 %"), "{table}");
+        let json = to_json(&budget);
+        assert_eq!(json["terms"].as_array().unwrap().len(), 4);
+        assert_eq!(json["by_kind"][1]["share"]["sigma_deg"], json!(0.75));
+        assert_eq!(json["terms"][0]["share"]["rho_d"], Value::Null);
+    }
+}
