@@ -1,6 +1,7 @@
 //! The analysis of one data set, pure (no I/O): fit the TSL model, check σ against σ_l,
 //! classify, and the report's JSON object and human table. The session, the trade study
 //! and `gonio fit` all use it.
+use crate::analysis::budget::SharedError;
 use crate::analysis::classify::{self, Classification};
 use crate::analysis::fit::{self, FitOptions, FitResult};
 use crate::analysis::model::{self, PARAM_NAMES};
@@ -27,6 +28,13 @@ pub struct Report {
 
 /// Fit, check and classify one data set; errors are `line: message`.
 pub fn analyse(file: &Path, set: &DataSet, options: &FitOptions, delta_deg: Option<f64>) -> Result<Report, String> {
+    analyse_with_shared(file, set, &[], options, delta_deg)
+}
+
+/// [`analyse`] with errors the readings share (`analysis::budget`).
+pub fn analyse_with_shared(file: &Path, set: &DataSet, shared: &[SharedError], options: &FitOptions, delta_deg: Option<f64>) -> Result<Report, String> {
+    // TEMPORARY until wp-e-fit lands `fit::fit_with_shared`: the shared errors are not yet used.
+    let _ = shared;
     let result = fit::fit(&set.observations, options).map_err(|e| {
         let line = e.reading_index().and_then(|i| set.lines.get(i)).or(set.lines.first()).copied().unwrap_or(1);
         format!("{line}: sample '{}': {e}", set.sample)

@@ -11,13 +11,14 @@
 //! says hello again, re-homes if the instrument lost its homing, and carries on.
 
 pub mod adaptive;
+pub mod gains;
 pub mod operator;
 pub mod order;
 
 pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator};
 
 use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name};
-use crate::analysis::report::{Report, analyse, to_json};
+use crate::analysis::report::{Report, analyse_with_shared, to_json};
 use crate::output::dataset::DataSet;
 use crate::analysis::fit::{FitOptions, Observation};
 use adaptive::AdaptiveTargets;
@@ -541,7 +542,7 @@ impl<'a, T: Transport> Session<'a, T> {
             let measured = self.measured();
             let missing: Vec<Geometry> = schedule.iter().copied().filter(|g| !measured.contains(g)).collect();
             if missing.is_empty() {
-                return Ok(());
+                return self.calibrate_gains();
             }
             let source = if is_builtin_s1 && missing.len() == schedule.len() { None } else { Some(missing.as_slice()) };
             match self.run_schedule(source, schedule.len()) {
@@ -650,10 +651,11 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Fit everything measured so far, check σ against σ_l and classify.
     fn analyse(&self) -> Result<Report, SessionError> {
         // Lines of readings.csv: a header, then one per reading.
-        let (lines, observations) = self.usable_points().map(|(k, o)| (k + 2, o)).unzip();
-        let set = DataSet { sample: self.plan.sample.clone(), observations, lines };
+        let (indices, observations): (Vec<usize>, _) = self.usable_points().unzip();
+        let shared = self.shared_errors_of(&indices)?;
+        let set = DataSet { sample: self.plan.sample.clone(), observations, lines: indices.iter().map(|k| k + 2).collect() };
         let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
-        analyse(std::path::Path::new("readings.csv"), &set, &options, None).map_err(SessionError::Fit)
+        analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None).map_err(SessionError::Fit)
     }
 
     /// Re-read the white tile at θi = 20°, θr = 0 and compare with the calibration.
