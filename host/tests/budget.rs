@@ -7,6 +7,7 @@ use host::analysis::budget::{self, BudgetReading, SharedError};
 use host::analysis::fit::{FitOptions, FitResult, Observation, fit};
 use host::analysis::model::{self, Params};
 use host::instrument::calibration::{Calibration, GainRatio, Tile, WhitePoint};
+use host::session::gains;
 use protocol::Reading;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -105,7 +106,9 @@ impl Instrument {
         let mut lower = vec![self.sample(base * self.true_gains[usize::from(lo)], lo, 100)];
         let mut upper = vec![self.sample(base * self.true_gains[usize::from(hi)], hi, 100)];
         let (_, u) = calibration.ratio_from_readings(&lower[0], &upper[0]).unwrap();
-        if let Some(ms) = host::session::gains::second_integration_ms(u, 100, 10, 10_000) {
+        let nets = (calibration.net_counts(&lower[0]).unwrap(), calibration.net_counts(&upper[0]).unwrap());
+        let target = gains::own_noise_target(gains::dark_relative(calibration, p, nets.0, nets.1));
+        if let Some(ms) = gains::second_integration_ms(u, target, 100, 10, 10_000) {
             lower.push(self.sample(base * self.true_gains[usize::from(lo)], lo, ms));
             upper.push(self.sample(base * self.true_gains[usize::from(hi)], hi, ms));
         }
@@ -145,7 +148,7 @@ fn session(p: &Params, geometries: &[(f64, f64)], seed: u64, errors: Errors, cal
         })
         .collect();
     if calibrate_gains {
-        for pair in host::session::gains::pairs_needed(&calibration, readings.iter().map(|r| (r.theta_i_deg, &r.reading))) {
+        for pair in gains::pairs_needed(&calibration, readings.iter().map(|r| (r.theta_i_deg, &r.reading))) {
             instrument.calibrate_ratio(&mut calibration, pair);
         }
     }

@@ -12,8 +12,9 @@
 //! when one is already at that level, else searches along θr from the brightest reading
 //! away from the specular direction (bisection with short auto-ranged probes), and reads
 //! that spot on both ranges: first at the session's integration time, then, if the ratio
-//! is not yet within [`TARGET_RELATIVE_UNCERTAINTY`], once more as long as needed (capped
-//! at [`MAX_INTEGRATION_MS`]); the readings are pooled.
+//! is not yet within [`TARGET_RELATIVE_UNCERTAINTY`] or the error the calibration's darks
+//! put into it (whichever is larger: [`own_noise_target`]), once more as long as needed
+//! (capped at [`MAX_INTEGRATION_MS`]); the readings are pooled.
 //!
 //! The darks' errors are not in the ratio's uncertainty: `analysis::budget` follows each
 //! dark through the ratio into every reading it touches.
@@ -24,7 +25,7 @@
 
 use super::{Session, SessionError};
 use crate::analysis::budget::{self, BudgetReading, SharedError};
-use crate::instrument::calibration::{Calibration, GainRatio, pool, unix_now_s};
+use crate::instrument::calibration::{Calibration, GainRatio, pool, standard_error_counts, unix_now_s};
 use crate::instrument::link::{LinkError, Transport};
 use protocol::{Command, ErrorCode, Geometry, Reading, Reply, Target};
 
@@ -86,12 +87,26 @@ pub fn choose_spot(levels: &[(Geometry, f64)], lowest: f64) -> Option<(Geometry,
         .min_by(|a, b| (a.1 - LEVEL_AIM).abs().total_cmp(&(b.1 - LEVEL_AIM).abs()))
 }
 
+/// What the ratio's own noise is measured to: [`TARGET_RELATIVE_UNCERTAINTY`], or the
+/// relative error the calibration's darks put into the ratio (`dark_relative`) if larger —
+/// integrating beyond the darks' share buys nothing.
+pub fn own_noise_target(dark_relative: f64) -> f64 {
+    if dark_relative.is_finite() { dark_relative.max(TARGET_RELATIVE_UNCERTAINTY) } else { TARGET_RELATIVE_UNCERTAINTY }
+}
+
+/// The relative error the darks of ranges r and r + 1 put into a ratio measured with net
+/// counts `on_lower` and `on_upper`.
+pub fn dark_relative(calibration: &Calibration, lower_range: u8, on_lower: f64, on_upper: f64) -> f64 {
+    let sem = |range: u8| calibration.dark.get(usize::from(range)).map_or(f64::NAN, standard_error_counts);
+    (sem(lower_range) / on_lower).hypot(sem(lower_range + 1) / on_upper)
+}
+
 /// Integration time of the second pair of readings when the first, at `first_ms`, gave a
 /// ratio of relative uncertainty `relative`: long enough that the pooled ratio reaches
-/// [`TARGET_RELATIVE_UNCERTAINTY`] (noise falls as 1/√T), within [`MAX_INTEGRATION_MS`] and
-/// the device's `max_ms`; `None` when the first pair is already good enough.
-pub fn second_integration_ms(relative: f64, first_ms: u16, min_ms: u16, max_ms: u16) -> Option<u16> {
-    let factor = (relative / TARGET_RELATIVE_UNCERTAINTY).powi(2) - 1.0;
+/// `target` (noise falls as 1/√T), within [`MAX_INTEGRATION_MS`] and the device's
+/// `max_ms`; `None` when the first pair is already good enough.
+pub fn second_integration_ms(relative: f64, target: f64, first_ms: u16, min_ms: u16, max_ms: u16) -> Option<u16> {
+    let factor = (relative / target).powi(2) - 1.0;
     if !(factor > 0.0) {
         return None;
     }
@@ -303,7 +318,9 @@ impl<T: Transport> Session<'_, T> {
                 Ok(x) => x,
                 Err(e) => return Ok(Err(Skip::Unusable(e.to_string()))),
             };
-            match second_integration_ms(relative, integration_ms, self.info.min_integration_ms, self.info.max_integration_ms) {
+            let (net_lower, net_upper) = (calibration.net_counts(&l)?, calibration.net_counts(&u)?);
+            let target = own_noise_target(dark_relative(&calibration, pair, net_lower, net_upper));
+            match second_integration_ms(relative, target, integration_ms, self.info.min_integration_ms, self.info.max_integration_ms) {
                 Some(ms) if round == 0 => integration_ms = ms,
                 _ => break,
             }
@@ -412,10 +429,15 @@ mod tests {
     #[test]
     fn a_second_reading_as_long_as_the_target_needs() {
         // 0.3 % at 100 ms: 3² − 1 = 8 → 800 ms more.
-        assert_eq!(second_integration_ms(0.003, 100, 10, 10_000), Some(800));
-        assert_eq!(second_integration_ms(0.0009, 100, 10, 10_000), None);
-        assert_eq!(second_integration_ms(0.05, 100, 10, 10_000), Some(MAX_INTEGRATION_MS));
-        assert_eq!(second_integration_ms(0.05, 100, 10, 2_000), Some(2_000));
-        assert_eq!(second_integration_ms(f64::NAN, 100, 10, 2_000), None);
+        let t = TARGET_RELATIVE_UNCERTAINTY;
+        assert_eq!(second_integration_ms(0.003, t, 100, 10, 10_000), Some(800));
+        assert_eq!(second_integration_ms(0.0009, t, 100, 10, 10_000), None);
+        assert_eq!(second_integration_ms(0.05, t, 100, 10, 10_000), Some(MAX_INTEGRATION_MS));
+        assert_eq!(second_integration_ms(0.05, t, 100, 10, 2_000), Some(2_000));
+        assert_eq!(second_integration_ms(f64::NAN, t, 100, 10, 2_000), None);
+        // Darks good to 0.3 %: no point in more than that.
+        assert_eq!(own_noise_target(0.003), 0.003);
+        assert_eq!(own_noise_target(0.0002), t);
+        assert_eq!(second_integration_ms(0.0025, own_noise_target(0.003), 100, 10, 10_000), None);
     }
 }
