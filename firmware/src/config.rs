@@ -39,12 +39,21 @@ pub struct InstrumentConfig {
     pub home_switch: Angle,
     /// Homing: longest travel searching for the switch (from anywhere in the range).
     pub home_search_range: Angle,
-    /// Homing: travel back off the switch; it must release within it.
+    /// Homing: travel back off the switch; it must release within it after the search.
     pub home_backoff: Angle,
+    /// Homing: most travel backing off a switch found pressed (in steps of `home_backoff`)
+    /// before it counts as stuck: an arm may stand further past it than one back-off.
+    pub home_release_max: Angle,
     /// Homing: speed of the search and the back-off, °/s.
     pub home_fast_deg_per_s: f32,
     /// Homing: speed of the re-approach that locates the switch, °/s.
     pub home_slow_deg_per_s: f32,
+    /// Quick re-home: the fast move (at full speed) stops this far short of where the
+    /// step count puts the switch.
+    pub home_quick_margin: Angle,
+    /// Quick re-home: the slow approach from there goes at most this far before falling
+    /// back to the full search (the margin plus as much again for steps lost).
+    pub home_quick_approach: Angle,
     /// Samples after a range change that are discarded while the amplifier settles.
     pub range_settle_ms: u16,
     /// A reading whose largest sample reaches this fraction of full scale is saturated.
@@ -90,9 +99,16 @@ impl InstrumentConfig {
         home_search_range: Angle::from_whole_deg(100),
         // The fast search overshoots the switch by its stop ramp (20²/(2·180) ≈ 1.1°).
         home_backoff: Angle::from_whole_deg(3),
+        // The full-speed braking distance (60²/(2·180) = 10°) past the switch, and margin.
+        home_release_max: Angle::from_whole_deg(12),
         home_fast_deg_per_s: 20.0,
         // 160 steps/s: polled every 1 ms, the trip is located to within 0.2 step.
         home_slow_deg_per_s: 2.0,
+        // 120 steps: a session that lost more than that has a gross fault, found either
+        // way (the switch trips during the fast move); the slow part costs 0.75 s.
+        home_quick_margin: Angle::from_ticks(120),
+        // The margin plus 1.5° for an arm behind its count; beyond, the full search.
+        home_quick_approach: Angle::from_ticks(240),
         range_settle_ms: 5,
         saturation_fraction: 0.98,
         // A decade more gain takes 8 % of full scale to 80 %: clear of saturation.

@@ -6,6 +6,9 @@
 //! range more sensitive is re-taken there (never on a range that already saturated for
 //! this reading, so it cannot oscillate). A reading that saturates on the least sensitive
 //! range is returned flagged `saturated`: its mean is a lower bound, never a value.
+//!
+//! A forced range (for the host's gain calibration) is one integration on that range,
+//! never re-taken on another, flagged `saturated` if it saturates there.
 
 use crate::config::InstrumentConfig;
 use crate::hardware::Detector;
@@ -163,7 +166,7 @@ impl Integration {
     }
 }
 
-/// What an auto-ranged reading is doing.
+/// What a reading is doing.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ReadingProgress {
     /// Still integrating.
@@ -174,36 +177,66 @@ pub enum ReadingProgress {
     NoSamples,
 }
 
-/// One auto-ranged reading: integrations until the policy accepts one.
+/// One reading: auto-ranged (integrations until the policy accepts one) or on a forced
+/// range (one integration).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct AutoRangedReading {
+pub struct RangedReading {
     integration: Integration,
     saturated_ranges: u8,
+    /// One integration on this range, whatever it reads.
+    forced: bool,
 }
 
-impl AutoRangedReading {
-    /// Start on `first_range` (the range of the previous reading is a good guess).
-    pub fn start(
+impl RangedReading {
+    /// An auto-ranged reading, started on `first_range` (the range of the previous
+    /// reading is a good guess).
+    pub fn auto(
         detector: &mut impl Detector,
         config: &InstrumentConfig,
         first_range: u8,
         integration_ms: u16,
         now_us: u64,
-    ) -> AutoRangedReading {
+    ) -> RangedReading {
         let range = first_range.min(config.detector_ranges.len().saturating_sub(1) as u8);
-        AutoRangedReading {
+        RangedReading {
             integration: Integration::start(detector, config, range, integration_ms, now_us),
             saturated_ranges: 0,
+            forced: false,
         }
     }
 
-    /// Advance; re-integrates on another range when the policy says so.
+    /// One integration on `range` (an index into the configured ranges, checked by the
+    /// caller), after the range's settle time.
+    pub fn forced(
+        detector: &mut impl Detector,
+        config: &InstrumentConfig,
+        range: u8,
+        integration_ms: u16,
+        now_us: u64,
+    ) -> RangedReading {
+        RangedReading {
+            integration: Integration::start(detector, config, range, integration_ms, now_us),
+            saturated_ranges: 0,
+            forced: true,
+        }
+    }
+
+    /// Whether the range was forced.
+    pub fn is_forced(&self) -> bool {
+        self.forced
+    }
+
+    /// Advance; an auto-ranged reading re-integrates on another range when the policy says so.
     pub fn poll(&mut self, detector: &mut impl Detector, config: &InstrumentConfig, now_us: u64) -> ReadingProgress {
         let Some(stats) = self.integration.poll(detector, now_us) else { return ReadingProgress::Running };
         if stats.count() == 0 {
             return ReadingProgress::NoSamples;
         }
         let range = self.integration.range();
+        if self.forced {
+            let saturated = is_saturated(config, range, stats.max());
+            return ReadingProgress::Done(self.integration.reading(&stats, saturated));
+        }
         match decide_range(config, range, &stats, self.saturated_ranges) {
             RangeDecision::Accept { saturated } => ReadingProgress::Done(self.integration.reading(&stats, saturated)),
             RangeDecision::Retake(next) => {

@@ -1,8 +1,10 @@
 //! The device: carries out host commands and keeps the instrument's state.
 //!
 //! HOW A BOARD DRIVES IT (board and simulator alike):
-//! 1. At boot: `Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause)`, where
-//!    `hardware` implements [`crate::hardware::Arms`], [`crate::hardware::Detector`] and
+//! 1. At boot: `Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause)`, then
+//!    [`Device::with_serial_number`] with the board's unique ID (the STM32's 96-bit UID in
+//!    hex; the simulator's own), announced in the handshake. `hardware` implements
+//!    [`crate::hardware::Arms`], [`crate::hardware::Detector`] and
 //!    [`crate::hardware::Lamp`] (timer-driven step generators, home switches, driver
 //!    fault pins, TIA range pins + ADC samples, lamp pin) and `reset_cause` comes from
 //!    RCC_CSR ([`ResetCause::Watchdog`] after an IWDG reset: reported as a fault, arms
@@ -14,22 +16,56 @@
 //!    It advances moves, homing, readings and schedules, streams readings, and makes the
 //!    fail-safe stop on heartbeat loss or a driver fault. Feed the IWDG after each poll,
 //!    so a hung loop resets the MCU.
-//! 4. On USB disconnect: `device.disconnected()`. After a refused hello,
+//! 4. On USB disconnect or reset: `device.disconnected()` (a partial frame and the reply
+//!    cache are dropped; the next host must say hello). After a refused hello,
 //!    `device.take_refused_version()` gives the host's version for the log.
 //!
 //! `now_us` is one monotonic clock (µs since boot) for both calls. Long commands (Home,
 //! MoveTo, TakeReading, TakeDark) are answered when done, from `poll`; a schedule answers
 //! at once and then streams.
 //!
-//! Safety: one fail-safe stop path ([`Device::fail_safe_stop`]): ramp both arms down,
-//! lamp off, end whatever runs, record the fault, send `Stopped`. Heartbeat loss (no
-//! frame for `heartbeat_timeout_ms` while an arm moves or the lamp is on) and driver
-//! faults take it; the arms then count as not homed until the next `Home`, which also
-//! reports the step error. An `Abort` ends everything the same way but keeps the lamp
-//! and the homing (a ramped stop loses no steps). `TakeDark` leaves the lamp off.
+//! THE LINK ([`crate::link`]): each sequence number is carried out once (a retry is
+//! answered from the reply cache). `Hello` always starts a fresh link: it is carried out
+//! whatever its number, and it empties the cache and forgets the request in progress (so a
+//! new host process may start again at 1); what runs goes on, and its reply is sent but
+//! not cached. A frame with a good CRC and a readable `seq` that holds no command of this
+//! version is answered `NotSupported` under that `seq`.
+//!
+//! SAFETY: one fail-safe stop path ([`Device::fail_safe_stop`]), taken on heartbeat loss
+//! (no frame for `heartbeat_timeout_ms` while an arm moves, the lamp is on, or a homing or
+//! schedule runs), on a driver fault, on a dead detector and when the arms come to rest
+//! off their target. It ramps both arms down, switches the lamp off, ends whatever runs (a
+//! pending command is answered with the reason, a schedule ends with it), records the
+//! reason in `Status::fault` and sends `Stopped`. The homing survives it only when it
+//! cannot have been spoiled, and the decision is made there, from the state at the moment
+//! of the stop:
+//! - both arms at rest (no profile running, no move left unfinished) and no driver fault:
+//!   the arms keep their homing and the device is `Idle`; motion commands are accepted
+//!   without a new `Home`. A still arm loses no steps, and the session (an operator at a
+//!   prompt, a pulled cable while the arms are parked) need not start over;
+//! - an arm moving, a homing under way, a move that ended off target, or a driver fault
+//!   (a de-energised motor may have moved): the arms count as not homed and the device is
+//!   `Stopped` until the next `Home`, which reports the step error. A ramped stop loses no
+//!   counted steps either, but mid-move the board cannot prove it (a step generator late, a
+//!   stall), so it is conservative there.
+//!
+//! A driver fault takes the stop once, when it begins; while a driver still reports it,
+//! `Home`, moves and schedules are refused (`HardwareFault`, detail: the arm).
+//!
+//! `Abort` is the host's stop, not a fail-safe one: it ends everything the same way but
+//! keeps the lamp and the homing, mid-move too (the host asked for it, on a healthy board,
+//! and a ramped stop loses no steps). `TakeDark` leaves the lamp off.
+//!
+//! HOMING: the first `Home` after reset searches for both switches
+//! ([`crate::homing::ArmHoming::new`]). Later ones, on arms whose step count still says
+//! where they are (homed since reset, no driver fault since), are quick
+//! ([`crate::homing::ArmHoming::quick`]: full speed to 1.5° short of where the count puts
+//! the switch, then the slow approach): 1.4–2.8 s from the measuring positions instead of
+//! 2.8–5.8 s (table in [`crate::homing`]), so a session can re-home at its end to check
+//! for lost steps. The step error is exact either way.
 
 use crate::config::InstrumentConfig;
-use crate::detector::{AutoRangedReading, Integration, ReadingProgress, is_saturated};
+use crate::detector::{Integration, RangedReading, ReadingProgress, is_saturated};
 use crate::hardware::{Arm, Hardware, ResetCause};
 use crate::homing::{ArmHoming, HomingStatus};
 use crate::link::{Incoming, Link};
@@ -53,7 +89,7 @@ struct Travel {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum RunStep {
     Travel(Travel),
-    Measure(AutoRangedReading),
+    Measure(RangedReading),
 }
 
 /// A running schedule.
@@ -76,7 +112,7 @@ enum Activity {
     Idle,
     Homing { seq: u32, arms: [ArmHoming; 2], trips: [Option<i32>; 2] },
     Moving { seq: u32, travel: Travel },
-    Reading { seq: u32, reading: AutoRangedReading },
+    Reading { seq: u32, reading: RangedReading },
     Dark { seq: u32, integration: Integration, readings: heapless::Vec<Reading, MAX_RANGES> },
     Schedule(ScheduleRun),
     /// Arms ramping down after an abort or a fault; nothing new starts until they rest.
@@ -100,9 +136,15 @@ pub struct Device<H: Hardware> {
     /// Homed at least once since reset: the step count still means something after a
     /// fault, so re-homing can report the step error.
     homed_since_reset: [bool; 2],
+    /// The step count still bounds where the arm is (homed since reset and no driver
+    /// fault since): the next `Home` may be the quick one.
+    count_trusted: [bool; 2],
+    /// A driver reported a fault at the last poll (the stop was taken when it began).
+    driver_fault_seen: bool,
     /// The last fault, until cleared by homing.
     fault: Option<ErrorCode>,
-    /// In the safe state after a fault (or a watchdog reset) until homed.
+    /// In the safe state after a fault that cost the homing (or a watchdog reset) until
+    /// homed.
     safe_stopped: bool,
     motion: ArmMotion,
     activity: Activity,
@@ -131,6 +173,8 @@ impl<H: Hardware> Device<H> {
             lamp_on: false,
             homed: [false; 2],
             homed_since_reset: [false; 2],
+            count_trusted: [false; 2],
+            driver_fault_seen: false,
             fault: watchdog.then_some(ErrorCode::WatchdogReset),
             safe_stopped: watchdog,
             motion: ArmMotion::new(),
@@ -183,8 +227,9 @@ impl<H: Hardware> Device<H> {
         self.refused_version.take()
     }
 
-    /// The host went away (USB reset, cable pulled): partial frames are dropped and a new
-    /// session must say hello again. Whatever runs goes on until the heartbeat times out.
+    /// The host went away (USB reset, cable pulled): partial frames and the reply cache
+    /// are dropped and a new session must say hello again. Whatever runs goes on until the
+    /// heartbeat times out.
     pub fn disconnected(&mut self) {
         self.link.reset();
         self.handshake_done = false;
@@ -199,8 +244,11 @@ impl<H: Hardware> Device<H> {
             // Any frame, even one we could not read, shows the host is alive.
             self.last_heard_us = now_us;
             if let Incoming::Fresh(request) = incoming {
+                // A Hello's repeat is carried out again (it changes nothing twice), so its
+                // reply must not take the cache from the new session's first command.
+                let uncached = request.command.is_read_only() || matches!(request.command, Command::Hello { .. });
                 match self.execute(request.seq, &request.command, send) {
-                    Some(result) if request.command.is_read_only() => self.link.reply_uncached(request.seq, result, send),
+                    Some(result) if uncached => self.link.reply_uncached(request.seq, result, send),
                     Some(result) => self.link.reply(request.seq, result, send),
                     None => self.link.begin(request.seq),
                 }
@@ -211,9 +259,12 @@ impl<H: Hardware> Device<H> {
     /// Advance whatever runs to device time `now_us`; messages go to `send`.
     pub fn poll(&mut self, now_us: u64, send: &mut impl FnMut(&[u8])) {
         self.now_us = now_us;
-        if self.fault != Some(ErrorCode::HardwareFault) && Arm::BOTH.iter().any(|&arm| self.hardware.driver_fault(arm)) {
+        // Once per occurrence: while the fault persists, motion is refused instead.
+        let driver_fault = Arm::BOTH.iter().any(|&arm| self.hardware.driver_fault(arm));
+        if driver_fault && !self.driver_fault_seen {
             self.fail_safe_stop(ErrorCode::HardwareFault, send);
         }
+        self.driver_fault_seen = driver_fault;
         let needs_host = self.lamp_on
             || matches!(self.activity, Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_));
         let silent_us = now_us.saturating_sub(self.last_heard_us);
@@ -225,7 +276,7 @@ impl<H: Hardware> Device<H> {
             Activity::Homing { seq, arms, trips } => self.poll_homing(seq, arms, trips, send),
             Activity::Moving { seq, travel } => match self.advance_travel(travel) {
                 Ok(Some(travel)) => self.activity = Activity::Moving { seq, travel },
-                Ok(None) => self.link.reply(seq, Ok(Reply::Ack), send),
+                Ok(None) => self.link.finish(seq, Ok(Reply::Ack), send),
                 Err(code) => {
                     self.activity = Activity::Moving { seq, travel };
                     self.fail_safe_stop(code, send);
@@ -233,9 +284,12 @@ impl<H: Hardware> Device<H> {
             },
             Activity::Reading { seq, mut reading } => match reading.poll(&mut self.hardware, &self.config, now_us) {
                 ReadingProgress::Running => self.activity = Activity::Reading { seq, reading },
-                ReadingProgress::Done(reading) => {
-                    self.last_range = reading.range;
-                    self.link.reply(seq, Ok(Reply::Reading(reading)), send);
+                ReadingProgress::Done(done) => {
+                    // A forced range says nothing about where auto-ranging should start.
+                    if !reading.is_forced() {
+                        self.last_range = done.range;
+                    }
+                    self.link.finish(seq, Ok(Reply::Reading(done)), send);
                 }
                 ReadingProgress::NoSamples => {
                     self.activity = Activity::Reading { seq, reading };
@@ -258,7 +312,7 @@ impl<H: Hardware> Device<H> {
                             let integration = Integration::start(&mut self.hardware, &self.config, next, ms, now_us);
                             self.activity = Activity::Dark { seq, integration, readings };
                         } else {
-                            self.link.reply(seq, Ok(Reply::Dark(readings)), send);
+                            self.link.finish(seq, Ok(Reply::Dark(readings)), send);
                         }
                     }
                 }
@@ -272,17 +326,45 @@ impl<H: Hardware> Device<H> {
         }
     }
 
-    /// The fail-safe stop: ramp both arms down, lamp off, end whatever runs (a pending
-    /// command is answered with `reason`, a schedule ends with it), record the fault, tell
-    /// the host. The arms count as not homed until the next `Home`.
+    /// The fail-safe stop, the one path every fault takes: ramp both arms down, lamp off,
+    /// end whatever runs (a pending command is answered with `reason`, a schedule ends with
+    /// it), record the fault, tell the host (`Stopped`). Whether the homing survives is
+    /// decided here, from the state before the ramps start: it does when both arms are at
+    /// rest with no move left unfinished and no driver reports a fault (the device is
+    /// then `Idle`); otherwise the arms count as not homed until the next `Home` (the
+    /// device is `Stopped`). See the module doc.
     pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
+        let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
+        let keeps_homing = !self.mid_move() && !driver_fault.contains(&true);
         self.halt(reason, send);
         self.hardware.set_lamp(false);
         self.lamp_on = false;
         self.fault = Some(reason);
-        self.homed = [false; 2];
-        self.safe_stopped = true;
+        if !keeps_homing {
+            self.homed = [false; 2];
+            self.safe_stopped = true;
+        }
+        for arm in Arm::BOTH {
+            // A de-energised motor may have moved anywhere: the next Home searches.
+            if driver_fault[arm.index()] {
+                self.count_trusted[arm.index()] = false;
+            }
+        }
         self.link.send(&DeviceMessage::Stopped { reason }, send);
+    }
+
+    /// Whether the arms are under way: a profile running, a homing (whose moves follow
+    /// each other), a stop ramp, or a move whose arms came to rest short of its target.
+    fn mid_move(&self) -> bool {
+        if self.motion.any_moving(&self.hardware) {
+            return true;
+        }
+        match &self.activity {
+            Activity::Homing { .. } | Activity::Stopping => true,
+            Activity::Moving { travel, .. } => self.positions() != travel.target,
+            Activity::Schedule(ScheduleRun { step: RunStep::Travel(travel), .. }) => self.positions() != travel.target,
+            Activity::Idle | Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_) => false,
+        }
     }
 
     /// End whatever runs with `reason`: arms ramp down, a pending command is answered, a
@@ -297,7 +379,7 @@ impl<H: Hardware> Device<H> {
             Activity::Homing { seq, .. }
             | Activity::Moving { seq, .. }
             | Activity::Reading { seq, .. }
-            | Activity::Dark { seq, .. } => self.link.reply(seq, Err(DeviceError::new(reason)), send),
+            | Activity::Dark { seq, .. } => self.link.finish(seq, Err(DeviceError::new(reason)), send),
             Activity::Schedule(run) => {
                 let done = ScheduleDone {
                     schedule_id: run.schedule_id,
@@ -316,6 +398,9 @@ impl<H: Hardware> Device<H> {
 
     fn execute(&mut self, seq: u32, command: &Command, send: &mut impl FnMut(&[u8])) -> Answer {
         if let Command::Hello { protocol_version } = *command {
+            // A fresh link, whoever says it: the reply cache and the request in progress
+            // belong to the host before.
+            self.link.new_session();
             return Some(if protocol_version == PROTOCOL_VERSION {
                 self.handshake_done = true;
                 Ok(Reply::Hello(self.config.device_info(&self.serial_number)))
@@ -338,9 +423,9 @@ impl<H: Hardware> Device<H> {
             Command::SetLamp { on } => self.set_lamp(*on),
             Command::Home => return self.start_homing(seq),
             Command::MoveTo(geometry) => return self.start_move_to(seq, *geometry),
-            // A forced range is WP-A's to carry out; until then it is refused, never ignored.
-            Command::TakeReading { range: Some(_), .. } => Err(DeviceError::new(ErrorCode::NotSupported)),
-            Command::TakeReading { integration_ms, target: _, range: None } => return self.start_reading(seq, *integration_ms),
+            Command::TakeReading { integration_ms, target: _, range } => {
+                return self.start_reading(seq, *integration_ms, *range);
+            }
             Command::TakeDark { integration_ms } => return self.start_dark(seq, *integration_ms),
             Command::UploadSchedule(chunk) => self.upload(chunk),
             Command::RunSchedule(run) => self.start_schedule(run),
@@ -352,16 +437,34 @@ impl<H: Hardware> Device<H> {
         if self.activity == Activity::Idle { Ok(()) } else { Err(DeviceError::new(ErrorCode::Busy)) }
     }
 
+    /// Refuse motion while a driver reports a fault (detail: the arm).
+    fn require_drivers(&self) -> Result<(), DeviceError> {
+        match Arm::BOTH.into_iter().find(|&arm| self.hardware.driver_fault(arm)) {
+            Some(arm) => Err(DeviceError::with_detail(ErrorCode::HardwareFault, arm.index() as i32)),
+            None => Ok(()),
+        }
+    }
+
     fn require_homed(&self) -> Result<(), DeviceError> {
         if self.homed == [true, true] { Ok(()) } else { Err(DeviceError::new(ErrorCode::NotHomed)) }
     }
 
+    /// Refuse an integration time outside `min_integration_ms ..= max_integration_ms`;
+    /// the detail is the limit it broke.
     fn check_integration(&self, integration_ms: u16) -> Result<(), DeviceError> {
-        if integration_ms == 0 || integration_ms > self.config.max_integration_ms {
-            Err(DeviceError::with_detail(ErrorCode::InvalidArgument, i32::from(self.config.max_integration_ms)))
+        let (min, max) = (self.config.min_integration_ms, self.config.max_integration_ms);
+        if integration_ms < min.max(1) {
+            Err(DeviceError::with_detail(ErrorCode::InvalidArgument, i32::from(min)))
+        } else if integration_ms > max {
+            Err(DeviceError::with_detail(ErrorCode::InvalidArgument, i32::from(max)))
         } else {
             Ok(())
         }
+    }
+
+    /// The number of detector ranges a forced range must stay below.
+    fn range_count(&self) -> usize {
+        self.config.detector_ranges.len().min(MAX_RANGES)
     }
 
     fn set_lamp(&mut self, on: bool) -> Result<Reply, DeviceError> {
@@ -376,11 +479,13 @@ impl<H: Hardware> Device<H> {
     }
 
     fn start_homing(&mut self, seq: u32) -> Answer {
-        if let Err(error) = self.busy() {
+        if let Err(error) = self.busy().and_then(|_| self.require_drivers()) {
             return Some(Err(error));
         }
         self.homed = [false; 2];
-        let arms = [ArmHoming::new(Arm::Source), ArmHoming::new(Arm::Detector)];
+        let arms = Arm::BOTH.map(|arm| {
+            if self.count_trusted[arm.index()] { ArmHoming::quick(arm) } else { ArmHoming::new(arm) }
+        });
         self.activity = Activity::Homing { seq, arms, trips: [None; 2] };
         None
     }
@@ -396,7 +501,7 @@ impl<H: Hardware> Device<H> {
                 HomingStatus::Failed(error) => {
                     // The other arm stops too; the host hears which arm failed and how.
                     self.halt(error.code, send);
-                    self.link.reply(seq, Err(error), send);
+                    self.link.finish(seq, Err(error), send);
                     self.fault = Some(error.code);
                     return;
                 }
@@ -417,11 +522,12 @@ impl<H: Hardware> Device<H> {
             self.hardware.set_position_steps(arm, switch + (here - trip));
             self.homed[i] = true;
             self.homed_since_reset[i] = true;
+            self.count_trusted[i] = true;
         }
         self.fault = None;
         self.safe_stopped = false;
         let report = HomeReport { step_error_i: errors[0], step_error_r: errors[1] };
-        self.link.reply(seq, Ok(Reply::Homed(report)), send);
+        self.link.finish(seq, Ok(Reply::Homed(report)), send);
     }
 
     /// Refuse a target outside the working range or breaking the collision guard.
@@ -467,7 +573,8 @@ impl<H: Hardware> Device<H> {
     }
 
     fn start_move_to(&mut self, seq: u32, geometry: Geometry) -> Answer {
-        if let Err(error) = self.busy().and_then(|_| self.require_homed()).and_then(|_| self.check_target(geometry)) {
+        let checks = self.busy().and_then(|_| self.require_drivers()).and_then(|_| self.require_homed());
+        if let Err(error) = checks.and_then(|_| self.check_target(geometry)) {
             return Some(Err(error));
         }
         let travel = self.start_travel(geometry);
@@ -478,12 +585,18 @@ impl<H: Hardware> Device<H> {
         None
     }
 
-    fn start_reading(&mut self, seq: u32, integration_ms: u16) -> Answer {
+    fn start_reading(&mut self, seq: u32, integration_ms: u16, range: Option<u8>) -> Answer {
         let checks = self.busy().and_then(|_| self.require_homed()).and_then(|_| self.check_integration(integration_ms));
         if let Err(error) = checks {
             return Some(Err(error));
         }
-        let reading = AutoRangedReading::start(&mut self.hardware, &self.config, self.last_range, integration_ms, self.now_us);
+        let reading = match range {
+            None => RangedReading::auto(&mut self.hardware, &self.config, self.last_range, integration_ms, self.now_us),
+            Some(range) if usize::from(range) < self.range_count() => {
+                RangedReading::forced(&mut self.hardware, &self.config, range, integration_ms, self.now_us)
+            }
+            Some(_) => return Some(Err(DeviceError::with_detail(ErrorCode::InvalidArgument, self.range_count() as i32))),
+        };
         self.activity = Activity::Reading { seq, reading };
         None
     }
@@ -510,6 +623,7 @@ impl<H: Hardware> Device<H> {
 
     fn start_schedule(&mut self, run: &RunSchedule) -> Result<Reply, DeviceError> {
         self.busy()?;
+        self.require_drivers()?;
         self.require_homed()?;
         self.check_integration(run.integration_ms)?;
         let len = match run.source {
@@ -547,7 +661,7 @@ impl<H: Hardware> Device<H> {
             RunStep::Travel(travel) => match self.advance_travel(travel) {
                 Ok(Some(travel)) => run.step = RunStep::Travel(travel),
                 Ok(None) => {
-                    let reading = AutoRangedReading::start(
+                    let reading = RangedReading::auto(
                         &mut self.hardware,
                         &self.config,
                         self.last_range,

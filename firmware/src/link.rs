@@ -2,20 +2,40 @@
 //!
 //! A host that lost a reply retries with the same sequence number; the link answers it
 //! from the cached reply instead of handing the command to the device a second time.
+//!
+//! The cache belongs to one host session. `Hello` starts a new one: it is never answered
+//! from the cache nor taken for a repeat of the request in progress, and
+//! [`Link::new_session`] (which the device calls on every `Hello`) empties the cache and
+//! forgets the request in progress, so a new host process may start again at sequence 1.
+//! A USB reset ([`Link::reset`]) does the same and drops a partial frame. The reply of a
+//! command accepted before either is still sent when it is done, but not cached: it must
+//! not answer the new host's request that happens to carry the same number.
+//!
+//! A frame with a good CRC that holds no request of this version but a readable sequence
+//! number is answered `Reply { seq, Err(NotSupported) }` ([`protocol::Sequenced`]), so the
+//! host stops retrying at once; only a frame without one is answered `FrameRejected`.
 
 use heapless::Vec;
-use protocol::{DeviceError, DeviceMessage, ErrorCode, FrameDecoder, FrameError, MAX_FRAME_LEN, Reply, Request};
+use protocol::{
+    Command, DeviceError, DeviceMessage, ErrorCode, FrameDecoder, FrameError, MAX_FRAME_LEN, Reply, Request,
+};
 
 /// What arrived on the link.
 #[derive(Debug, PartialEq)]
 pub enum Incoming {
-    /// A request not seen before: carry it out.
+    /// A request not seen before (or a `Hello`): carry it out.
     Fresh(Request),
     /// A repeat of the last request, already answered again from the cache.
     Repeat,
     /// A repeat of a request still being carried out: its reply is still to come.
     RepeatInProgress,
-    /// A frame that could not be read; already reported to the host.
+    /// A request this version cannot read, already answered `NotSupported` under its `seq`.
+    Unsupported {
+        /// The sequence number it carried.
+        seq: u32,
+    },
+    /// A frame that could not be read, nor its sequence number; already reported to the
+    /// host with `FrameRejected`.
     Rejected(FrameError),
 }
 
@@ -23,9 +43,9 @@ pub enum Incoming {
 pub struct Link {
     decoder: FrameDecoder,
     /// Sequence number and encoded frame of the last reply to a command that acts
-    /// (read-only commands are not cached, so heartbeats never push a reply out).
+    /// (read-only commands and `Hello` are not cached, so heartbeats never push a reply out).
     last_reply: Option<(u32, Vec<u8, MAX_FRAME_LEN>)>,
-    /// Sequence number of a request accepted but not answered yet.
+    /// Sequence number of a request accepted in this session but not answered yet.
     in_progress: Option<u32>,
 }
 
@@ -41,17 +61,30 @@ impl Link {
         Link { decoder: FrameDecoder::new(), last_reply: None, in_progress: None }
     }
 
-    /// Forget partial frames and the reply cache (after a USB reset or reconnect).
+    /// After a USB reset or reconnect: drop a partial frame and start a new session.
     pub fn reset(&mut self) {
         self.decoder.reset();
+        self.new_session();
+    }
+
+    /// A new host session (on `Hello`): forget the reply cache and the request in
+    /// progress, whose reply, when it comes, is sent but not cached.
+    pub fn new_session(&mut self) {
+        self.last_reply = None;
         self.in_progress = None;
     }
 
-    /// Take one received byte. Returns what arrived when a frame ends; repeats and bad
-    /// frames have then already been answered through `send`.
+    /// Take one received byte. Returns what arrived when a frame ends; repeats, unreadable
+    /// requests and bad frames have then already been answered through `send`.
     pub fn push(&mut self, byte: u8, send: &mut impl FnMut(&[u8])) -> Option<Incoming> {
         let incoming = match self.decoder.push::<Request>(byte)? {
             Ok(request) => self.classify(request, send),
+            Err(FrameError::UnknownMessage { seq: Some(seq) }) => {
+                // Answered, not cached (the same frame again gets the same answer) and
+                // without touching the request in progress: it starts and ends nothing.
+                self.send(&DeviceMessage::Reply { seq, result: Err(DeviceError::new(ErrorCode::NotSupported)) }, send);
+                Incoming::Unsupported { seq }
+            }
             Err(error) => {
                 self.send(&DeviceMessage::FrameRejected { code: error.code() }, send);
                 Incoming::Rejected(error)
@@ -61,8 +94,12 @@ impl Link {
     }
 
     fn classify(&mut self, request: Request, send: &mut impl FnMut(&[u8])) -> Incoming {
-        // Abort must always get through, even as a retry of a lost abort.
-        if self.in_progress == Some(request.seq) && request.command != protocol::Command::Abort {
+        // Hello starts a fresh link, whatever its number; Abort must always get through,
+        // even as a retry of a lost abort.
+        if matches!(request.command, Command::Hello { .. }) {
+            return Incoming::Fresh(request);
+        }
+        if self.in_progress == Some(request.seq) && request.command != Command::Abort {
             return Incoming::RepeatInProgress;
         }
         match &self.last_reply {
@@ -74,18 +111,26 @@ impl Link {
         }
     }
 
-    /// Mark `seq` as accepted; its reply follows later through [`Link::reply`].
+    /// Mark `seq` as accepted; its reply follows later through [`Link::finish`].
     pub fn begin(&mut self, seq: u32) {
         self.in_progress = Some(seq);
     }
 
-    /// Answer request `seq`, and remember the answer for a retry.
+    /// Answer the request `seq` just received, and remember the answer for a retry.
     pub fn reply(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
         self.answer(seq, result, true, send);
     }
 
-    /// Answer a read-only request (see [`protocol::Command::is_read_only`]) without
-    /// caching: a repeat is simply carried out again.
+    /// Answer a request accepted with [`Link::begin`], now done. Cached for a retry only if
+    /// it is still this session's request in progress (not one from before a `Hello` or a
+    /// reset).
+    pub fn finish(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
+        let ours = self.in_progress == Some(seq);
+        self.answer(seq, result, ours, send);
+    }
+
+    /// Answer a request whose repeat may simply be carried out again (read-only commands,
+    /// see [`protocol::Command::is_read_only`], and `Hello`) without caching.
     pub fn reply_uncached(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
         self.answer(seq, result, false, send);
     }

@@ -150,6 +150,9 @@ fn heartbeat_loss_stops_the_arms_and_the_lamp() {
     bench.run_ms(2);
     assert_eq!(bench.stopped_reasons(), [ErrorCode::HeartbeatLost]);
     assert!(bench.now_us - last_heard <= 2_001_000);
+    // 2 s into Strategy 1 the arms are on their way to the third geometry: a stop
+    // mid-move, which costs the homing (tests/failsafe.rs has the stops at rest).
+    assert!(firmware::Arms::is_moving(bench.hw(), Arm::Source), "the stop came mid-move");
     assert!(!bench.hw().lamp_on());
     let done = bench.schedule_done(7).expect("the schedule ends");
     assert_eq!(done.error, Some(ErrorCode::HeartbeatLost));
@@ -408,4 +411,104 @@ fn the_device_state_fits_the_ram_budget() {
     let size = core::mem::size_of::<firmware::Device<Hw>>() - core::mem::size_of::<Hw>();
     eprintln!("Device state without the hardware: {size} bytes");
     assert!(size <= 4 * 1024, "{size}");
+}
+
+#[test]
+fn integration_times_outside_the_limits_are_refused_with_the_limit_broken() {
+    let config = InstrumentConfig::REFERENCE;
+    let (min, max) = (config.min_integration_ms, config.max_integration_ms);
+    let mut bench = homed_bench();
+    bench.ask(Command::SetLamp { on: true }).unwrap();
+    let reading = |integration_ms| Command::TakeReading { integration_ms, target: Target::Sample, range: None };
+    let forced = |integration_ms| Command::TakeReading { integration_ms, target: Target::Sample, range: Some(1) };
+    let dark = |integration_ms| Command::TakeDark { integration_ms };
+    let schedule = |integration_ms| {
+        Command::RunSchedule(RunSchedule { schedule_id: 1, source: ScheduleSource::Strategy1, integration_ms, target: Target::Sample })
+    };
+    let started = bench.hw().profiles_started;
+    for command in [reading, forced, dark, schedule] {
+        for too_short in [0, 1, min - 1] {
+            assert_eq!(bench.ask(command(too_short)), err_detail(ErrorCode::InvalidArgument, i32::from(min)), "{too_short} ms");
+        }
+        for too_long in [max + 1, u16::MAX] {
+            assert_eq!(bench.ask(command(too_long)), err_detail(ErrorCode::InvalidArgument, i32::from(max)), "{too_long} ms");
+        }
+    }
+    assert_eq!(bench.hw().profiles_started, started, "nothing started");
+    // Both limits themselves are accepted; the shortest still gives a mean and a spread.
+    let Ok(Reply::Reading(r)) = bench.ask(reading(min)) else { panic!("no reading at {min} ms") };
+    assert!(r.samples >= 5 && r.std_counts > 0.0, "{r:?}");
+    let Ok(Reply::Reading(r)) = bench.ask(forced(max)) else { panic!("no reading at {max} ms") };
+    assert_eq!(r.integration_ms, max);
+}
+
+/// The same signal everywhere: 60 000 counts on the most sensitive range (92 % of full
+/// scale, below saturation), 6 000 on the next, 600 on the least.
+fn even_scene(_: f32, _: f32) -> f32 {
+    60_000.0
+}
+
+fn forced_reading(bench: &mut Bench, range: u8, integration_ms: u16) -> Result<Reply, DeviceError> {
+    bench.ask(Command::TakeReading { integration_ms, target: Target::WhiteReference, range: Some(range) })
+}
+
+#[test]
+fn forced_ranges_read_one_scene_at_the_configured_gain_ratio() {
+    let config = InstrumentConfig::REFERENCE;
+    let mut bench = Bench::with_scene(even_scene);
+    bench.home();
+    let Ok(Reply::Dark(dark)) = bench.ask(Command::TakeDark { integration_ms: 500 }) else { panic!("no dark") };
+    bench.ask(Command::SetLamp { on: true }).unwrap();
+    // Net signal and its standard error (the reading's and the dark's), per range.
+    let mut net = Vec::new();
+    let se = |r: &Reading| r.std_counts / (r.samples as f32).sqrt();
+    for range in [0u8, 1, 2] {
+        let started = bench.now_us;
+        let Ok(Reply::Reading(r)) = forced_reading(&mut bench, range, 500) else { panic!("no reading on {range}") };
+        // One integration: the range's settle time and the integration time, nothing more.
+        let took_ms = (bench.now_us - started) / 1000;
+        let one_ms = u64::from(config.range_settle_ms) + 500;
+        assert!((one_ms..=one_ms + 2).contains(&took_ms), "range {range}: {took_ms} ms");
+        assert_eq!((r.range, r.saturated, r.integration_ms), (range, false, 500), "{r:?}");
+        assert!(r.samples >= 495, "{r:?}");
+        let d = &dark[usize::from(range)];
+        net.push((r.mean_counts - d.mean_counts, se(&r).hypot(se(d))));
+    }
+    for range in 1..3 {
+        let ((low, low_se), (high, high_se)) = (net[range], net[range - 1]);
+        let measured = low / high;
+        let configured = config.detector_ranges[range].relative_gain / config.detector_ranges[range - 1].relative_gain;
+        // Within four standard errors of the ratio (noise only: the model has no other error).
+        let tolerance = 4.0 * measured * (low_se / low).hypot(high_se / high);
+        assert!(tolerance < 0.01 * configured, "the test resolves the ratio to 1 %: {tolerance}");
+        assert!((measured - configured).abs() < tolerance, "range {range}: ratio {measured} ± {tolerance}, configured {configured}");
+    }
+}
+
+#[test]
+fn a_forced_range_is_never_retaken_and_says_when_it_saturates() {
+    let mut bench = homed_bench();
+    bench.ask(Command::SetLamp { on: true }).unwrap();
+    // On the glossy specular peak the most sensitive range saturates (auto-ranging takes
+    // range 2 there): forced onto range 0 it stays there, flagged.
+    bench.ask(Command::MoveTo(Geometry::from_whole_deg(60, 60))).unwrap();
+    let started = bench.now_us;
+    let Ok(Reply::Reading(r)) = forced_reading(&mut bench, 0, 100) else { panic!("no reading") };
+    assert_eq!((r.range, r.saturated), (0, true), "{r:?}");
+    assert!(bench.now_us - started <= 107_000, "re-taken");
+    assert_eq!(bench.hw().range(), 0);
+    // Off the peak the least sensitive range reads low (auto-ranging would go more
+    // sensitive): forced, it stays.
+    bench.ask(Command::MoveTo(Geometry::from_whole_deg(60, 0))).unwrap();
+    let Ok(Reply::Reading(r)) = forced_reading(&mut bench, 2, 100) else { panic!("no reading") };
+    assert_eq!((r.range, r.saturated), (2, false), "{r:?}");
+    // Auto-ranging after forced readings starts from its own last range and still works.
+    let Ok(Reply::Reading(r)) = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }) else {
+        panic!("no reading")
+    };
+    assert_eq!((r.range, r.saturated), (0, false));
+    // A range the device does not have: refused, the detail is how many it has.
+    for range in [3u8, 4, 255] {
+        assert_eq!(forced_reading(&mut bench, range, 100), err_detail(ErrorCode::InvalidArgument, 3), "range {range}");
+    }
 }

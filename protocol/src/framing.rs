@@ -9,11 +9,26 @@
 //! the payload, and a corrupted frame could not be told from an unknown message.
 //! [`FrameDecoder`] keeps its semantics (bounded buffer, resynchronise at the next
 //! delimiter) and adds exactly one [`FrameError::TooLong`] per over-long frame.
+//!
+//! A frame whose CRC matched but whose payload this version cannot read (a newer peer's
+//! command or reply) is [`FrameError::UnknownMessage`], with the sequence number it names
+//! when the payload holds one at the place every version keeps it ([`Sequenced`]): the
+//! device answers such a request `NotSupported` (the host then stops retrying at once),
+//! and the host can fail the request an unreadable reply belongs to.
 
 use crate::MAX_FRAME_LEN;
 use core::fmt;
 use postcard::ser_flavors::{Cobs, Slice, crc::CrcModifier};
 use serde::{Serialize, de::DeserializeOwned};
+
+/// A wire message whose sequence number sits at a place of its encoding that no protocol
+/// version moves, so that a frame of this type that cannot be decoded can still be tied to
+/// the request it belongs to.
+pub trait Sequenced: DeserializeOwned {
+    /// The sequence number of `payload` (a CRC-checked postcard payload that did not decode
+    /// as `Self`), when it holds one; `None` when it is too short or names no request.
+    fn seq_of_unreadable(payload: &[u8]) -> Option<u32>;
+}
 
 /// CRC-32 (ISO-HDLC, as in Ethernet and zlib) over the postcard payload.
 pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -25,12 +40,18 @@ pub enum FrameError {
     /// More than [`MAX_FRAME_LEN`] bytes before a delimiter; the bytes up to the next
     /// delimiter were dropped.
     TooLong,
-    /// Not valid COBS, too short to hold a CRC, or bytes after the message.
+    /// Not valid COBS, or too short to hold a CRC.
     BadFrame,
     /// The CRC did not match.
     BadCrc,
-    /// The CRC matched but the payload is no message of this protocol version.
-    UnknownMessage,
+    /// The CRC matched but the payload is no message of this protocol version: an unknown
+    /// variant, a field it cannot read, or bytes after the message (the CRC rules out
+    /// corruption, so those were sent that way: a peer of another version).
+    UnknownMessage {
+        /// The sequence number the payload names ([`Sequenced::seq_of_unreadable`]): for
+        /// a request, its leading `seq`; for a device message, the `seq` of a reply.
+        seq: Option<u32>,
+    },
     /// Encoding only: the message does not fit in a frame.
     MessageTooLarge,
 }
@@ -42,7 +63,7 @@ impl FrameError {
             FrameError::TooLong => crate::ErrorCode::FrameTooLong,
             FrameError::BadFrame | FrameError::MessageTooLarge => crate::ErrorCode::BadFrame,
             FrameError::BadCrc => crate::ErrorCode::BadCrc,
-            FrameError::UnknownMessage => crate::ErrorCode::UnknownMessage,
+            FrameError::UnknownMessage { .. } => crate::ErrorCode::UnknownMessage,
         }
     }
 }
@@ -53,7 +74,7 @@ impl fmt::Display for FrameError {
             FrameError::TooLong => "frame longer than the maximum frame length",
             FrameError::BadFrame => "malformed frame",
             FrameError::BadCrc => "frame CRC mismatch",
-            FrameError::UnknownMessage => "frame holds no known message",
+            FrameError::UnknownMessage { .. } => "frame holds no known message",
             FrameError::MessageTooLarge => "message too large for one frame",
         })
     }
@@ -71,7 +92,7 @@ pub fn encode_frame<'b, T: Serialize + ?Sized>(
 }
 
 /// Decode the COBS-decoded content of one frame (payload and CRC).
-fn decode_payload<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, FrameError> {
+fn decode_payload<T: Sequenced>(bytes: &[u8]) -> Result<T, FrameError> {
     let payload_len = bytes.len().checked_sub(4).ok_or(FrameError::BadFrame)?;
     let (payload, crc_bytes) = bytes.split_at(payload_len);
     let mut sent = [0u8; 4];
@@ -81,10 +102,10 @@ fn decode_payload<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, FrameError> {
     }
     match postcard::take_from_bytes::<T>(payload) {
         Ok((message, [])) => Ok(message),
-        // The CRC over the whole payload matched, so a shorter message followed by junk
-        // was sent that way on purpose or by a buggy peer: not ours to guess.
-        Ok((_, _rest)) => Err(FrameError::BadFrame),
-        Err(_) => Err(FrameError::UnknownMessage),
+        // The CRC over the whole payload matched, so a shorter message followed by more
+        // bytes was sent that way: a message of another version (a field appended), not
+        // this one with junk. Not ours to guess what the rest means.
+        Ok((_, _)) | Err(_) => Err(FrameError::UnknownMessage { seq: T::seq_of_unreadable(payload) }),
     }
 }
 
@@ -123,7 +144,7 @@ impl<const N: usize> FrameDecoder<N> {
     }
 
     /// Take one byte; returns a decoded message or an error at each frame's end.
-    pub fn push<T: DeserializeOwned>(&mut self, byte: u8) -> Option<Result<T, FrameError>> {
+    pub fn push<T: Sequenced>(&mut self, byte: u8) -> Option<Result<T, FrameError>> {
         if byte != 0 {
             if self.overflowed {
                 return None;
@@ -153,7 +174,7 @@ impl<const N: usize> FrameDecoder<N> {
     }
 
     /// Take a chunk of bytes, calling `on_frame` for each frame that ends in it.
-    pub fn feed<T: DeserializeOwned>(&mut self, bytes: &[u8], mut on_frame: impl FnMut(Result<T, FrameError>)) {
+    pub fn feed<T: Sequenced>(&mut self, bytes: &[u8], mut on_frame: impl FnMut(Result<T, FrameError>)) {
         for &byte in bytes {
             if let Some(result) = self.push(byte) {
                 on_frame(result);

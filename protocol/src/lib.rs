@@ -13,7 +13,7 @@ pub mod geometry;
 pub mod messages;
 pub mod schedules;
 
-pub use framing::{FrameDecoder, FrameError, encode_frame};
+pub use framing::{FrameDecoder, FrameError, Sequenced, encode_frame};
 pub use geometry::{Angle, Geometry};
 pub use messages::*;
 
@@ -22,6 +22,10 @@ pub use messages::*;
 ///
 /// `Command::Hello` and the leading `protocol_version` of its reply keep their encoding
 /// across versions, so that a mismatch can always be reported in words.
+///
+/// Every encoding is pinned by `tests/data/golden.hex`; `cargo test -p protocol --test
+/// golden` fails on any change until this is bumped and the file regenerated
+/// (`GONIO_BLESS=1 cargo test -p protocol --test golden`).
 ///
 /// History: 1, the first release; 2, `DeviceInfo` gained `min_integration_ms`,
 /// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`.

@@ -8,10 +8,20 @@
 //! except for the device telling the host that it dropped a frame
 //! ([`DeviceMessage::FrameRejected`]), which has no sequence number to answer.
 //!
-//! Compatibility rule: `Command::Hello` (variant 0), `DeviceMessage::Reply` (variant 0),
-//! `Result::Err` and [`DeviceError`] never change encoding, so a peer of any version can
-//! read a version-mismatch refusal.
+//! A frame with a good CRC that holds no command of this version (a newer host's, or a
+//! field this version cannot read) still names its request: the `seq` leads every
+//! [`Request`] ([`crate::framing::Sequenced`]). The device answers it
+//! `Reply { seq, result: Err(NotSupported) }`, so the host stops retrying at once;
+//! only a frame whose `seq` cannot be read is answered `FrameRejected`.
+//!
+//! Compatibility rule: `Request::seq` (first), `Command::Hello` (variant 0),
+//! `DeviceMessage::Reply` (variant 0) and its `seq`, `Result::Err` and [`DeviceError`]
+//! never change encoding, so a peer of any version can read a version-mismatch refusal
+//! and tie an unreadable message to its request. Every other encoding is pinned by the
+//! golden file `tests/data/golden.hex` (see `tests/golden.rs`): a change there is a new
+//! [`crate::PROTOCOL_VERSION`].
 
+use crate::framing::Sequenced;
 use crate::geometry::Geometry;
 use core::fmt;
 use heapless::{String, Vec};
@@ -35,6 +45,24 @@ pub struct Request {
     pub command: Command,
 }
 
+impl Sequenced for Request {
+    /// The leading `seq`, which every version keeps first.
+    fn seq_of_unreadable(payload: &[u8]) -> Option<u32> {
+        postcard::take_from_bytes::<u32>(payload).ok().map(|(seq, _)| seq)
+    }
+}
+
+impl Sequenced for DeviceMessage {
+    /// The `seq` of a reply (variant 0, `seq` first, in every version) whose result this
+    /// version cannot read; other device messages answer no request.
+    fn seq_of_unreadable(payload: &[u8]) -> Option<u32> {
+        match postcard::take_from_bytes::<u32>(payload) {
+            Ok((0, rest)) => postcard::take_from_bytes::<u32>(rest).ok().map(|(seq, _)| seq),
+            _ => None,
+        }
+    }
+}
+
 /// What the host asks of the device.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -42,6 +70,12 @@ pub enum Command {
     /// Handshake: the host's protocol version. Answered with [`Reply::Hello`], or with
     /// [`ErrorCode::VersionMismatch`] (detail: the device's version). Until a matching
     /// `Hello`, every other command is refused with `VersionMismatch`.
+    ///
+    /// `Hello` starts a fresh link: it is always carried out (never answered from the
+    /// reply cache, never taken for a repeat of a request in progress) and it empties the
+    /// cache, so a new host process may start again at any sequence number. What runs
+    /// goes on (the new host reads the state with `GetStatus`); the reply of a command
+    /// accepted before the `Hello` is still sent but is no longer cached.
     Hello {
         /// [`crate::PROTOCOL_VERSION`] of the host.
         protocol_version: u16,
@@ -61,19 +95,22 @@ pub enum Command {
     },
     /// Dark readings, lamp off, one per detector range; answered with [`Reply::Dark`].
     TakeDark {
-        /// Integration time per range.
+        /// Integration time per range, `min_integration_ms ..= max_integration_ms` of
+        /// [`DeviceInfo`]; outside, [`ErrorCode::InvalidArgument`] with the violated limit
+        /// as detail.
         integration_ms: u16,
     },
     /// One reading at the current position; answered with [`Reply::Reading`].
     TakeReading {
-        /// Integration time.
+        /// Integration time, limited like `TakeDark`'s.
         integration_ms: u16,
         /// What is on the sample port.
         target: Target,
-        /// `None`: auto-ranged. `Some(r)`: on range `r` only, never re-taken on another
-        /// (a saturated reading comes back flagged), so that the host can read one scene on
-        /// two adjacent ranges and calibrate their gain ratio. An index beyond the device's
-        /// ranges is refused with [`ErrorCode::InvalidArgument`].
+        /// `None`: auto-ranged. `Some(r)`: one integration on range `r` (after the range's
+        /// settle time), never re-taken on another (a saturated reading comes back flagged),
+        /// so that the host can read one scene on two adjacent ranges and calibrate their
+        /// gain ratio. An index beyond the device's ranges is refused with
+        /// [`ErrorCode::InvalidArgument`] (detail: the number of ranges).
         range: Option<u8>,
     },
     /// Part of a host-made schedule; answered with [`Reply::ScheduleLoaded`].
@@ -158,12 +195,17 @@ pub enum DeviceMessage {
     Reading(StreamReading),
     /// A schedule ended (completed, aborted or failed).
     ScheduleDone(ScheduleDone),
-    /// A frame arrived that the device could not read; it has no sequence number to answer.
+    /// A frame arrived that the device could not read and whose sequence number it could
+    /// not read either (bad COBS, bad CRC, too long). A frame with a good CRC and a readable
+    /// `seq` is answered `Reply { seq, result: Err(NotSupported) }` instead.
     FrameRejected {
         /// [`ErrorCode::BadFrame`], [`ErrorCode::BadCrc`] or [`ErrorCode::UnknownMessage`].
         code: ErrorCode,
     },
-    /// The device went to its safe state on its own (arms stopped, lamp off), and why.
+    /// The device took its fail-safe stop on its own (arms ramped down, lamp off, what
+    /// ran ended with `reason`), and why. Whether the arms are still homed is in
+    /// [`Status`]: a stop with both arms at rest and no driver fault keeps the homing
+    /// (state `Idle`), one mid-move or on a driver fault loses it (state `Stopped`).
     Stopped {
         /// The reason, e.g. [`ErrorCode::HeartbeatLost`] or [`ErrorCode::HardwareFault`].
         reason: ErrorCode,
@@ -212,7 +254,9 @@ pub struct DeviceError {
     pub code: ErrorCode,
     /// Code-specific: the device's version for `VersionMismatch`, the arm (0 = source,
     /// 1 = detector) for `OutOfRange` and homing faults, the limit for `ScheduleTooLong`,
-    /// the expected offset for `BadSchedule`; otherwise 0.
+    /// the expected offset for `BadSchedule`; for `InvalidArgument`, the violated limit
+    /// (the shortest or the longest integration time, ms; the number of detector ranges
+    /// for a forced range); otherwise 0.
     pub detail: i32,
 }
 
@@ -407,7 +451,8 @@ pub struct Reading {
     pub range: u8,
     /// Integration time.
     pub integration_ms: u16,
-    /// Saturated on the least sensitive range: the mean is a lower bound, not a value.
+    /// Saturated on the least sensitive range (auto-ranged) or on the forced range: the
+    /// mean is a lower bound, not a value.
     pub saturated: bool,
 }
 
@@ -457,7 +502,10 @@ pub enum DeviceState {
     Measuring,
     /// Running a schedule.
     RunningSchedule,
-    /// In the safe state after a fault; cleared by the next `Home`.
+    /// In the safe state after a fault that cost the homing (a stop mid-move, a driver
+    /// fault, a watchdog reset); cleared by the next `Home`. A fail-safe stop with both
+    /// arms at rest keeps the homing and leaves the device `Idle` (its reason in
+    /// `Status::fault`).
     Stopped,
 }
 
@@ -475,7 +523,8 @@ pub struct Status {
     pub homed_r: bool,
     /// Lamp on.
     pub lamp_on: bool,
-    /// The last fault, until cleared by homing.
+    /// The last fault (a fail-safe stop's reason, a homing failure, a watchdog reset),
+    /// until cleared by homing; set also when the stop kept the homing.
     pub fault: Option<ErrorCode>,
     /// The running schedule: id and readings taken so far.
     pub schedule: Option<(u16, u16)>,
@@ -488,8 +537,10 @@ pub struct Status {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct HomeReport {
     /// Source arm: where the switch was found minus where the arm believed it was, in
-    /// ticks; `None` on the first homing after power-up (nothing to compare). Non-zero
-    /// means lost steps.
+    /// ticks (exact: the switch is located by the slow approach); `None` on the first
+    /// homing after power-up (nothing to compare). Non-zero means lost steps. A re-home
+    /// is quick (full speed to just short of the switch, then the slow approach), so a
+    /// session can afford one at its end to check for lost steps.
     pub step_error_i: Option<i32>,
     /// Detector arm: likewise.
     pub step_error_r: Option<i32>,

@@ -1,6 +1,7 @@
 //! Property tests of the framing: every message round-trips; no byte sequence panics
 //! the decoder; after garbage, corruption, truncation or an over-long frame the decoder
-//! is back in step at the next delimiter.
+//! is back in step at the next delimiter; a frame with a good CRC that holds no message
+//! of this version still gives the sequence number it names, exactly when it names one.
 
 mod arbitrary;
 
@@ -13,7 +14,13 @@ fn encode<T: serde::Serialize>(message: &T) -> std::vec::Vec<u8> {
     encode_frame(message, &mut buf).expect("every message fits in a frame").to_vec()
 }
 
-fn decode_all<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> std::vec::Vec<Result<T, FrameError>> {
+/// The postcard encoding (no CRC, no COBS) of `value`.
+fn to_bytes<T: serde::Serialize>(value: &T) -> std::vec::Vec<u8> {
+    let mut buf = [0u8; 2 * MAX_FRAME_LEN];
+    postcard::to_slice(value, &mut buf).expect("fits").to_vec()
+}
+
+fn decode_all<T: Sequenced>(bytes: &[u8]) -> std::vec::Vec<Result<T, FrameError>> {
     let mut decoder: FrameDecoder = FrameDecoder::new();
     let mut out = std::vec::Vec::new();
     decoder.feed(bytes, |r| out.push(r));
@@ -99,6 +106,83 @@ proptest! {
     }
 
     #[test]
+    fn unknown_command_keeps_its_seq(
+        seq in any::<u32>(),
+        variant in 11u32..100_000,
+        body in proptest::collection::vec(any::<u8>(), 0..200),
+        next in request(),
+    ) {
+        // A newer host's command: this version's variants end at 10 (Abort).
+        let mut payload = to_bytes(&seq);
+        payload.extend(to_bytes(&variant));
+        payload.extend(&body);
+        let mut stream = crc_frame(&payload);
+        stream.extend(encode(&next));
+        let results = decode_all::<Request>(&stream);
+        prop_assert_eq!(results, vec![Err(FrameError::UnknownMessage { seq: Some(seq) }), Ok(next)]);
+    }
+
+    #[test]
+    fn a_known_message_with_bytes_appended_keeps_its_seq(
+        message in request(),
+        extra in proptest::collection::vec(any::<u8>(), 1..64),
+    ) {
+        // A newer version that appended a field: readable seq, unreadable message.
+        let mut payload = to_bytes(&message);
+        payload.extend(&extra);
+        let results = decode_all::<Request>(&crc_frame(&payload));
+        prop_assert_eq!(results, vec![Err(FrameError::UnknownMessage { seq: Some(message.seq) })]);
+    }
+
+    #[test]
+    fn any_payload_with_a_good_crc_decodes_or_names_its_leading_seq(
+        payload in proptest::collection::vec(any::<u8>(), 0..(MAX_PAYLOAD_LEN - 8)),
+        next in request(),
+    ) {
+        // Whatever the payload, the decoder never panics and never guesses: either the
+        // whole payload is one request, or it is unknown with exactly the leading varint
+        // (when there is one), and the next frame still decodes.
+        let mut stream = crc_frame(&payload);
+        stream.extend(encode(&next));
+        let results = decode_all::<Request>(&stream);
+        prop_assert_eq!(results.len(), 2);
+        prop_assert_eq!(&results[1], &Ok(next));
+        match &results[0] {
+            Ok(request) => prop_assert_eq!(&to_bytes(request), &payload),
+            Err(FrameError::UnknownMessage { seq }) => {
+                let leading = postcard::take_from_bytes::<u32>(&payload).ok().map(|(s, _)| s);
+                prop_assert_eq!(*seq, leading);
+            }
+            Err(other) => prop_assert!(false, "a good CRC gave {:?}", other),
+        }
+        // The host side: a device message payload names a seq only as a reply.
+        let results = decode_all::<DeviceMessage>(&crc_frame(&payload));
+        match &results[..] {
+            [Ok(message)] => prop_assert_eq!(&to_bytes(message), &payload),
+            [Err(FrameError::UnknownMessage { seq: Some(seq) })] => {
+                // Only a reply (variant 0, however its varint is spelt) names a seq.
+                let (variant, rest) = postcard::take_from_bytes::<u32>(&payload).unwrap();
+                prop_assert_eq!(variant, 0, "only a reply names a seq");
+                prop_assert_eq!(postcard::take_from_bytes::<u32>(rest).unwrap().0, *seq);
+            }
+            [Err(FrameError::UnknownMessage { seq: None })] => {}
+            other => prop_assert!(false, "a good CRC gave {:?}", other),
+        }
+    }
+
+    #[test]
+    fn an_unreadable_reply_names_its_request(seq in any::<u32>(), variant in 8u32..1000, body in proptest::collection::vec(any::<u8>(), 0..100)) {
+        // A newer device's reply (Ok with a Reply variant this version lacks).
+        let mut payload = vec![0u8]; // DeviceMessage::Reply
+        payload.extend(to_bytes(&seq));
+        payload.push(0); // Result::Ok
+        payload.extend(to_bytes(&variant));
+        payload.extend(&body);
+        let results = decode_all::<DeviceMessage>(&crc_frame(&payload));
+        prop_assert_eq!(results, vec![Err(FrameError::UnknownMessage { seq: Some(seq) })]);
+    }
+
+    #[test]
     fn overlong_frame_gives_exactly_one_error(len in MAX_FRAME_LEN..4 * MAX_FRAME_LEN, fill in 1u8..=255, next in request()) {
         let mut stream = vec![fill; len];
         stream.push(0);
@@ -142,13 +226,25 @@ fn bad_crc_is_reported_as_such() {
     assert_eq!(decode_all::<Request>(&cobs_frame(&raw)), vec![Err(FrameError::BadCrc)]);
 }
 
+/// A frame around a hand-made payload, with its correct CRC.
+fn crc_frame(payload: &[u8]) -> std::vec::Vec<u8> {
+    let mut raw = payload.to_vec();
+    raw.extend(framing::CRC.checksum(payload).to_le_bytes());
+    cobs_frame(&raw)
+}
+
 #[test]
 fn valid_crc_over_junk_is_unknown_message() {
-    // A future message variant: a correct frame this version cannot read.
-    let payload = [1u8, 99]; // seq 1, command variant 99
-    let mut raw = payload.to_vec();
-    raw.extend(framing::CRC.checksum(&payload).to_le_bytes());
-    assert_eq!(decode_all::<Request>(&cobs_frame(&raw)), vec![Err(FrameError::UnknownMessage)]);
+    // A future message variant: a correct frame this version cannot read, whose seq can.
+    assert_eq!(decode_all::<Request>(&crc_frame(&[1, 99])), vec![Err(FrameError::UnknownMessage { seq: Some(1) })]);
+    // A multi-byte varint seq (300 = 0xac 0x02).
+    assert_eq!(decode_all::<Request>(&crc_frame(&[0xac, 0x02, 99])), vec![Err(FrameError::UnknownMessage { seq: Some(300) })]);
+    // No readable seq: an empty payload, a varint cut short, one beyond u32.
+    for payload in [&[][..], &[0x80], &[0xff, 0xff, 0xff, 0xff, 0x7f]] {
+        assert_eq!(decode_all::<Request>(&crc_frame(payload)), vec![Err(FrameError::UnknownMessage { seq: None })], "{payload:?}");
+    }
+    // Host side: a stream reading (variant 1) of junk answers no request.
+    assert_eq!(decode_all::<DeviceMessage>(&crc_frame(&[1, 2])), vec![Err(FrameError::UnknownMessage { seq: None })]);
 }
 
 #[test]

@@ -199,7 +199,9 @@ fn a_pulled_cable_stops_the_arms_and_lamp_and_a_new_session_must_say_hello() {
     client.hello().expect("handshake after replug");
     let Ok(Reply::Status(status)) = client.request(Command::GetStatus) else { panic!("status") };
     assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost));
-    assert!(!status.lamp_on && !status.homed_i && !status.homed_r);
+    // The arms stood still when the stop came: they keep their homing (firmware device.rs).
+    assert!(!status.lamp_on && status.homed_i && status.homed_r);
+    assert_eq!(status.state, protocol::DeviceState::Idle);
 }
 
 #[test]

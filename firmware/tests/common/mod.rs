@@ -145,6 +145,42 @@ impl Bench {
         panic!("no reply to {seq}")
     }
 
+    /// Send a command with a sequence number of the caller's choice (another host
+    /// process, a retry) and wait for a reply to it that arrives after it was sent.
+    pub fn ask_as(&mut self, seq: u32, command: Command) -> Result<Reply, DeviceError> {
+        let from = self.messages.len();
+        self.send_bytes(&frame(&Request { seq, command }));
+        for _ in 0..60_000 {
+            let answered = self.messages[from..].iter().find_map(|m| match m {
+                DeviceMessage::Reply { seq: s, result } if *s == seq => Some(result.clone()),
+                _ => None,
+            });
+            if let Some(result) = answered {
+                return result;
+            }
+            self.tick();
+        }
+        panic!("no reply to {seq}")
+    }
+
+    /// Messages from index `from` on.
+    pub fn messages_since(&self, from: usize) -> &[DeviceMessage] {
+        &self.messages[from..]
+    }
+
+    /// Run until the arms have stopped and the device is idle or stopped (at most a minute).
+    pub fn wait_at_rest(&mut self) {
+        for _ in 0..60_000 {
+            let moving = firmware::Arms::is_moving(self.hw(), firmware::Arm::Source)
+                || firmware::Arms::is_moving(self.hw(), firmware::Arm::Detector);
+            if !moving && self.device.is_idle() {
+                return;
+            }
+            self.tick();
+        }
+        panic!("arms never at rest")
+    }
+
     /// Send a command and wait for its reply.
     pub fn ask(&mut self, command: Command) -> Result<Reply, DeviceError> {
         let seq = self.send(command);
