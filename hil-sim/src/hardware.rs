@@ -22,11 +22,18 @@ pub struct SimHardware {
     port: SamplePort,
     /// What the operator has on the port now.
     target: Target,
+    /// The spot of the sample under the beam (counts from 0).
+    spot: u32,
+    /// Seed of the run: the spots' scenes come from it.
+    seed: u64,
+    /// θr zero error: the detector's true angle is the one the firmware believes plus this.
+    theta_r_offset_deg: f64,
     range: u8,
     now_us: u64,
     next_sample_us: u64,
-    /// Radiance factor seen at the last (geometry, target), reused while the arms stand.
-    seen: Option<(Geometry, Target, f64)>,
+    /// Radiance factor seen at the last (geometry, target, spot), reused while the arms
+    /// stand.
+    seen: Option<(Geometry, Target, u32, f64)>,
 }
 
 impl SimHardware {
@@ -40,6 +47,9 @@ impl SimHardware {
             detector,
             port,
             target: Target::Sample,
+            spot: 0,
+            seed,
+            theta_r_offset_deg: 0.0,
             range: 0,
             now_us: 0,
             next_sample_us,
@@ -53,9 +63,38 @@ impl SimHardware {
         self.mechanics.advance_to(self.now_us);
     }
 
-    /// The operator puts `target` on the sample port.
+    /// A detector arm whose true angle is the believed one plus `deg` (a zero error).
+    pub fn set_theta_r_offset_deg(&mut self, deg: f64) {
+        self.theta_r_offset_deg = deg;
+        self.seen = None;
+    }
+
+    /// The operator puts `target` on the sample port. The sample going back on after the
+    /// white tile lands on another spot of it: nobody puts a sheet back to the fibre.
     pub fn place(&mut self, target: Target) {
+        if self.target == Target::WhiteReference && target == Target::Sample {
+            self.next_spot();
+        }
         self.target = target;
+    }
+
+    /// The sample moves to its next spot (an operator shifting the sheet).
+    pub fn next_spot(&mut self) {
+        self.spot += 1;
+        if let Some(spots) = &self.port.spots {
+            self.port.sample = spots.spot(self.seed, self.spot);
+        }
+        self.seen = None;
+    }
+
+    /// The spot under the beam (0 the first).
+    pub fn spot(&self) -> u32 {
+        self.spot
+    }
+
+    /// What the port holds: the sample at its current spot and the white tile.
+    pub fn port(&self) -> &SamplePort {
+        &self.port
     }
 
     /// What is on the sample port.
@@ -78,11 +117,12 @@ impl SimHardware {
         &self.detector
     }
 
-    /// The radiance factor the detector sees now (the port's scene through the acceptance).
+    /// The radiance factor the detector sees now (the port's scene through the acceptance,
+    /// at the detector's true angle).
     pub fn seen_radiance_factor(&mut self) -> f64 {
         let geometry = self.mechanics.true_geometry();
-        if let Some((g, t, value)) = self.seen {
-            if g == geometry && t == self.target {
+        if let Some((g, t, spot, value)) = self.seen {
+            if g == geometry && t == self.target && spot == self.spot {
                 return value;
             }
         }
@@ -90,8 +130,9 @@ impl SimHardware {
             Target::Sample => self.port.sample.as_ref(),
             Target::WhiteReference => &self.port.white,
         };
-        let value = self.detector.seen_radiance_factor(scene, geometry.theta_i.deg(), geometry.theta_r.deg());
-        self.seen = Some((geometry, self.target, value));
+        let theta_r = geometry.theta_r.deg() + self.theta_r_offset_deg;
+        let value = self.detector.seen_radiance_factor(scene, geometry.theta_i.deg(), theta_r);
+        self.seen = Some((geometry, self.target, self.spot, value));
         value
     }
 }

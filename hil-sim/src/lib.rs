@@ -4,10 +4,13 @@
 //! ([`pty`]).
 //!
 //! It models the instrument and nothing more: the arms (the firmware's own motion
-//! profiles), the home switches, the lamp, the detector ([`detector`]) and the link. The
-//! scene on the sample port is handed in by the caller ([`scene`]); while the host takes
+//! profiles), the home switches, the lamp, the detector ([`detector`]) and the link, and
+//! the instrument's own errors ([`InstrumentErrors`]: range gains off their nominal
+//! values, a white tile off its certificate, a detector arm zero error). The scene on the
+//! sample port is handed in by the caller ([`scene`]): a simulated sheet ([`sheet`]), a
+//! table of measured values ([`table`]) or any function; while the host takes
 //! white-reference readings (the protocol marks them), the simulated operator has the
-//! white tile on the port.
+//! white tile on the port, and when the sample goes back on it lands on another spot.
 //!
 //! Virtual time passes only when asked ([`SimInstrument::read`] waiting for output,
 //! [`SimInstrument::advance_ms`]): a session's device seconds take microseconds.
@@ -16,6 +19,22 @@ pub mod detector;
 pub mod hardware;
 pub mod pty;
 pub mod scene;
+pub mod sheet;
+pub mod table;
+
+/// The random streams of a run: every effect draws from its own stream of the run's seed
+/// (ChaCha12 keyed by the seed, one stream number each), so switching one effect on or
+/// changing its size never changes another's draws or the detector noise.
+pub mod streams {
+    /// The detector's noise and the lamp drift's direction.
+    pub const DETECTOR: u64 = 0;
+    /// The range gains' errors.
+    pub const GAINS: u64 = 1;
+    /// The white tile's error.
+    pub const TILE: u64 = 2;
+    // Spot k of a sheet: stream 2³² + k (crate::sheet). The link's faults have a key of
+    // their own (seed ^ "link").
+}
 
 use detector::DetectorParams;
 use firmware::Device;
@@ -25,6 +44,7 @@ use hardware::SimHardware;
 use protocol::{Command, FrameDecoder, Geometry, Request};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
+use rand_distr::StandardNormal;
 use scene::SamplePort;
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -36,14 +56,39 @@ pub struct Faults {
     pub corrupt: f64,
     /// Probability that any frame on the link (either way) is lost.
     pub drop: f64,
-    /// Device time at which the USB cable is pulled, seconds.
-    pub unplug_at_s: Option<f64>,
-    /// How long it stays out, seconds.
-    pub unplugged_for_s: f64,
+    /// Times the USB cable is pulled, and how long it stays out each time. Outages that
+    /// overlap are one outage, until the last of them ends.
+    pub unplugs: Vec<Unplug>,
     /// Steps one arm loses (it stalls) during the first move the host commands.
     pub lose_steps: Option<(Arm, i32)>,
     /// An arm whose home switch never triggers.
     pub switch_missing: Option<Arm>,
+}
+
+/// One pull of the USB cable.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Unplug {
+    /// Device time at which the cable is pulled, seconds.
+    pub at_s: f64,
+    /// How long it stays out, seconds. Past the firmware's heartbeat timeout (2 s on the
+    /// reference instrument) a device with the lamp on or the arms moving takes its
+    /// fail-safe stop before the cable is back.
+    pub for_s: f64,
+}
+
+/// How long a pulled cable stays out when the fault does not say.
+pub const DEFAULT_UNPLUG_S: f64 = 1.0;
+
+impl Unplug {
+    /// The cable pulled at `at_s` for `for_s` seconds of device time.
+    pub fn new(at_s: f64, for_s: f64) -> Unplug {
+        Unplug { at_s, for_s }
+    }
+
+    fn span_us(&self) -> (u64, u64) {
+        let at_us = (self.at_s.max(0.0) * 1e6) as u64;
+        (at_us, at_us.saturating_add((self.for_s.max(0.0) * 1e6) as u64))
+    }
 }
 
 /// Everything that makes one simulated instrument.
@@ -62,6 +107,37 @@ pub struct SimConfig {
     /// The instrument's serial number in the handshake. One simulated instrument, whatever
     /// the seed: a seed is a run, not another instrument.
     pub serial_number: String,
+    /// The instrument's own errors (none by default: the ideal instrument).
+    pub errors: InstrumentErrors,
+}
+
+/// Errors of the instrument that no reading shows by itself, drawn from the seed.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct InstrumentErrors {
+    /// Relative standard deviation of each range-gain ratio's error. Range 0 is the
+    /// reference (its absolute gain cancels in the white calibration); the true ratio of
+    /// each range to the one before it, g(k)/g(k−1), is its nominal ratio (what the
+    /// firmware announces) × (1 + p·z), z ~ N(0, 1), independently for each k. So every
+    /// adjacent ratio is off by a drawn amount of standard deviation p, and range k's
+    /// gain by about p·√k relative to range 0.
+    pub gain_ratio_sd: f64,
+    /// Relative standard deviation of the white tile's error: its true radiance factor is
+    /// its certificate's × (1 + p·z).
+    pub tile_sd: f64,
+    /// Detector arm zero error, degrees: the detector's true angle is the one the
+    /// firmware believes plus this.
+    pub theta_r_offset_deg: f64,
+}
+
+/// What the instrument truly is in this run (the drawn errors), for tests and studies.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Truth {
+    /// True gain of each range relative to range 0's nominal gain.
+    pub relative_gains: Vec<f64>,
+    /// True radiance factor of the white tile.
+    pub tile_radiance_factor: f64,
+    /// Detector arm zero error, degrees.
+    pub theta_r_offset_deg: f64,
 }
 
 /// Serial number of the simulated instrument.
@@ -73,9 +149,10 @@ impl Default for SimConfig {
             instrument: InstrumentConfig::REFERENCE,
             detector: DetectorParams::default(),
             seed: 0,
-            faults: Faults { unplugged_for_s: 1.0, ..Faults::default() },
+            faults: Faults::default(),
             start: Geometry::from_whole_deg(30, 30),
             serial_number: SIM_SERIAL_NUMBER.to_string(),
+            errors: InstrumentErrors::default(),
         }
     }
 }
@@ -98,8 +175,29 @@ pub struct SimInstrument {
     /// At a frame boundary on the host-to-device side.
     host_frame_start: bool,
     steps_lost: bool,
+    /// The outages, in device µs (pulled, back), in time order and merged where they
+    /// overlap.
+    outages: Vec<(u64, u64)>,
+    /// The next outage not yet begun.
+    next_outage: usize,
+    /// While the cable is out: when it comes back.
+    back_at_us: Option<u64>,
     unplugged: bool,
-    replugged: bool,
+    truth: Truth,
+}
+
+/// A generator on `stream` of the run's `seed` (see [`streams`]).
+pub fn stream(seed: u64, stream: u64) -> ChaCha12Rng {
+    let mut rng = ChaCha12Rng::seed_from_u64(seed);
+    rng.set_stream(stream);
+    rng
+}
+
+/// A relative error factor 1 + sd·z, z ~ N(0, 1), kept positive (at 20 % and below the
+/// floor is beyond 4.5 standard deviations).
+fn error_factor(rng: &mut ChaCha12Rng, sd: f64) -> f64 {
+    let z: f64 = rng.sample(StandardNormal);
+    (1.0 + sd * z).max(0.1)
 }
 
 /// The link is down: the cable is out.
@@ -109,11 +207,28 @@ fn unplugged_error() -> std::io::Error {
 
 impl SimInstrument {
     /// A simulated instrument with `port` on its sample port.
-    pub fn new(port: SamplePort, config: SimConfig) -> SimInstrument {
-        let mut hardware = SimHardware::new(&config.instrument, port, config.detector, config.seed, config.start);
+    pub fn new(mut port: SamplePort, config: SimConfig) -> SimInstrument {
+        let errors = &config.errors;
+        let mut detector = config.detector.clone();
+        // Every ratio is drawn, used or not, so the draws of range k do not depend on p.
+        let mut gains_rng = stream(config.seed, streams::GAINS);
+        let nominal = detector.relative_gains.clone();
+        for k in 1..nominal.len() {
+            let factor = error_factor(&mut gains_rng, errors.gain_ratio_sd);
+            detector.relative_gains[k] = detector.relative_gains[k - 1] * nominal[k] / nominal[k - 1] * factor;
+        }
+        port.white.radiance_factor *= error_factor(&mut stream(config.seed, streams::TILE), errors.tile_sd);
+        let truth = Truth {
+            relative_gains: detector.relative_gains.clone(),
+            tile_radiance_factor: port.white.radiance_factor,
+            theta_r_offset_deg: errors.theta_r_offset_deg,
+        };
+        let mut hardware = SimHardware::new(&config.instrument, port, detector, config.seed, config.start);
+        hardware.set_theta_r_offset_deg(errors.theta_r_offset_deg);
         if let Some(arm) = config.faults.switch_missing {
             hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }
+        let outages = merged_outages(&config.faults.unplugs);
         SimInstrument {
             device: Device::new(config.instrument, hardware, ResetCause::PowerOn).with_serial_number(&config.serial_number),
             to_host: VecDeque::new(),
@@ -125,9 +240,23 @@ impl SimInstrument {
             dropping_host_frame: false,
             host_frame_start: true,
             steps_lost: false,
+            outages,
+            next_outage: 0,
+            back_at_us: None,
             unplugged: false,
-            replugged: false,
+            truth,
         }
+    }
+
+    /// What the instrument truly is in this run: its drawn gains, tile and zero error.
+    pub fn truth(&self) -> &Truth {
+        &self.truth
+    }
+
+    /// The operator shifts the sample to another spot (a multi-spot session asks for it);
+    /// spots also change whenever the sample goes back on after the white tile.
+    pub fn next_spot(&mut self) {
+        self.device.hardware_mut().next_spot();
     }
 
     /// Bytes from the host arrive at the device (through the link's faults).
@@ -194,18 +323,23 @@ impl SimInstrument {
     }
 
     fn update_cable(&mut self) {
-        let Some(at_s) = self.faults.unplug_at_s else { return };
-        let at_us = (at_s * 1e6) as u64;
-        let back_us = at_us + (self.faults.unplugged_for_s * 1e6) as u64;
-        if !self.unplugged && !self.replugged && self.now_us >= at_us {
-            self.unplugged = true;
-            self.to_host.clear();
-            self.device.disconnected();
-        } else if self.unplugged && self.now_us >= back_us {
+        if let Some(back_us) = self.back_at_us {
+            if self.now_us < back_us {
+                return;
+            }
+            self.back_at_us = None;
             self.unplugged = false;
-            self.replugged = true;
             self.host_frame_start = true;
             self.operator.reset();
+        }
+        if let Some(&(at_us, back_us)) = self.outages.get(self.next_outage) {
+            if self.now_us >= at_us {
+                self.next_outage += 1;
+                self.back_at_us = Some(back_us);
+                self.unplugged = true;
+                self.to_host.clear();
+                self.device.disconnected();
+            }
         }
     }
 
@@ -264,6 +398,22 @@ impl SimInstrument {
     pub fn heartbeat_timeout(&self) -> Duration {
         Duration::from_millis(u64::from(self.device.config().heartbeat_timeout_ms))
     }
+}
+
+/// The outages of `unplugs` as (pulled, back) in device µs, in time order, overlapping
+/// ones merged. A zero-length outage still pulls the cable for one poll period: the
+/// firmware sees the disconnect.
+fn merged_outages(unplugs: &[Unplug]) -> Vec<(u64, u64)> {
+    let mut spans: Vec<(u64, u64)> = unplugs.iter().map(Unplug::span_us).collect();
+    spans.sort_unstable();
+    let mut merged: Vec<(u64, u64)> = Vec::with_capacity(spans.len());
+    for (at, back) in spans {
+        match merged.last_mut() {
+            Some(last) if at <= last.1 => last.1 = last.1.max(back),
+            _ => merged.push((at, back)),
+        }
+    }
+    merged
 }
 
 /// The device-to-host direction of the link, with its faults.

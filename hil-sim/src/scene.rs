@@ -1,8 +1,10 @@
 //! What is on the sample port: a reflectance function handed in by the caller.
 //!
-//! The simulator does not know any reflectance model: the host or a test supplies the
-//! sample's radiance factor as a function of (θi, θr). While white-calibration readings
-//! are taken the port holds the white reference tile instead.
+//! The caller supplies the sample's radiance factor as a function of (θi, θr): one of the
+//! simulator's own sheets ([`crate::sheet`], physics of its own, not the fit's), a replayed
+//! table ([`crate::table`]) or any function a test makes. A sample may differ from spot to
+//! spot ([`Spots`]). While white-calibration readings are taken the port holds the white
+//! reference tile instead.
 
 use std::sync::Arc;
 
@@ -40,18 +42,34 @@ impl Scene for WhiteTile {
     }
 }
 
+/// A sample whose spots differ (a sheet of paper is not the same everywhere): the scene
+/// at each spot the operator may put under the beam.
+pub trait Spots: Send + Sync {
+    /// The scene at spot `index` (0 the first) in the run of `seed`. The same arguments
+    /// give the same scene.
+    fn spot(&self, seed: u64, index: u32) -> Arc<dyn Scene>;
+}
+
 /// The two things that can be on the port.
 #[derive(Clone)]
 pub struct SamplePort {
-    /// The sample under test.
+    /// The sample under test (at its first spot, when it has spots).
     pub sample: Arc<dyn Scene>,
     /// The white reference tile.
     pub white: WhiteTile,
+    /// Where the sample's spots differ, their scenes; `None`: the same scene everywhere.
+    pub spots: Option<Arc<dyn Spots>>,
 }
 
 impl SamplePort {
-    /// A port holding `sample`, with the default white tile for calibration.
+    /// A port holding `sample`, the same at every spot, with the default white tile for
+    /// calibration.
     pub fn new(sample: Arc<dyn Scene>) -> SamplePort {
-        SamplePort { sample, white: WhiteTile::default() }
+        SamplePort { sample, white: WhiteTile::default(), spots: None }
+    }
+
+    /// A port holding a sample with spots of its own; spot 0 is on the port at first.
+    pub fn with_spots(spots: Arc<dyn Spots>, seed: u64) -> SamplePort {
+        SamplePort { sample: spots.spot(seed, 0), white: WhiteTile::default(), spots: Some(spots) }
     }
 }

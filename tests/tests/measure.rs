@@ -20,7 +20,7 @@ struct Served {
 
 impl Served {
     fn new(sample: &str, seed: u64, faults: &str) -> Served {
-        let options = SimOptions { seed, acceptance: host::analysis::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: faults.into() };
+        let options = SimOptions { seed, faults: faults.into(), ..SimOptions::default() };
         let mut instrument = options.instrument(sample).expect("simulated instrument");
         let server = hil_sim::pty::PtyServer::open().expect("pseudo-terminal");
         let path = server.path().to_string_lossy().into_owned();

@@ -10,7 +10,7 @@ use protocol::*;
 use std::time::Duration;
 
 fn options(seed: u64, faults: &str) -> SimOptions {
-    SimOptions { seed, acceptance: 1.0, noise_scale: 1.0, faults: faults.to_owned() }
+    SimOptions { seed, acceptance: 1.0, faults: faults.to_owned(), ..SimOptions::default() }
 }
 
 fn connect(instrument: SimInstrument) -> (Client<SimInstrument>, DeviceInfo) {
@@ -172,8 +172,7 @@ fn the_link_recovers_from_corruption_and_loss_without_a_panic() {
 #[test]
 fn a_pulled_cable_stops_the_arms_and_lamp_and_a_new_session_must_say_hello() {
     let mut config = SimConfig { seed: 2, ..SimConfig::default() };
-    config.faults.unplug_at_s = Some(20.0);
-    config.faults.unplugged_for_s = 5.0;
+    config.faults.unplugs = vec![hil_sim::Unplug::new(20.0, 5.0)];
     let params = sample_params("SG").unwrap();
     let port = hil_sim::scene::SamplePort::new(std::sync::Arc::new(move |i: f64, r: f64| model::radiance_factor(&params, i, r)));
     let (mut client, _) = connect(SimInstrument::new(port, config));
@@ -236,4 +235,136 @@ fn strategy1_takes_the_device_time_of_the_instrument() {
     );
     // INSTRUMENT.md: about half a minute.
     assert!((15e6..60e6).contains(&(refined_done.device_us as f64)), "{} µs", refined_done.device_us);
+}
+
+/// Two independent implementations of the method's TSL model: the simulator's sheet
+/// (hil_sim::sheet) and the fit's model (host::analysis::model).
+#[test]
+fn the_simulators_gaussian_sheet_is_the_fits_model_at_the_reference_vectors() {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../host/tests/data/tsl-vectors.csv")).unwrap();
+    let mut worst: f64 = 0.0;
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let n = |k: usize| f[k].parse::<f64>().unwrap();
+        let stock = hil_sim::sheet::Stock { sigma_deg: n(1), rho_s: n(2), rho_d: n(3), eta: n(4) };
+        let params = model::Params { sigma_deg: n(1), rho_s: n(2), rho_d: n(3), eta: n(4) };
+        let sheet = hil_sim::sheet::SheetSpec::tsl(stock).spot(1, 0);
+        let (simulated, fitted) = (hil_sim::scene::Scene::radiance_factor(&sheet, n(5), n(6)), model::radiance_factor(&params, n(5), n(6)));
+        let relative = (simulated / fitted - 1.0).abs();
+        worst = worst.max(relative);
+        assert!(relative <= 1e-12, "{line}: sheet {simulated:.15e}, model {fitted:.15e}");
+    }
+    eprintln!("sheet vs model at the reference vectors: largest relative difference {worst:.1e}");
+    // And the names map to the same stock on both sides.
+    for sample in ["G", "SG", "PPC", "MC", "J1", "J2", "J3", "J4", "custom:2.5,10,0.8,1.5"] {
+        let p = sample_params(sample).unwrap();
+        let spot = SimOptions::default().sheet(sample).unwrap().spot(1, 0);
+        for (i, r) in [(20.0, 0.0), (45.0, 44.0), (60.0, 61.5), (30.0, 70.0)] {
+            let (a, b) = (hil_sim::scene::Scene::radiance_factor(&spot, i, r), model::radiance_factor(&p, i, r));
+            assert!((a / b - 1.0).abs() <= 1e-12, "{sample} at ({i}, {r}): {a} vs {b}");
+        }
+    }
+}
+
+/// Counts above dark over the nominal gain of the reading's range, at `g`.
+fn gain_normalised_signal(client: &mut Client<SimInstrument>, info: &DeviceInfo, dark: &[Reading], g: Geometry, target: Target) -> f64 {
+    ack(client, Command::MoveTo(g));
+    let Ok(Reply::Reading(r)) = client.request(Command::TakeReading { integration_ms: 100, target, range: None }) else { panic!("reading") };
+    let range = usize::from(r.range);
+    (f64::from(r.mean_counts) - f64::from(dark[range].mean_counts)) / f64::from(info.detector_ranges[range].relative_gain)
+}
+
+/// Centroid in believed θr of SG's lobe at θi = 30°, scanned at 1° from 14° to 46°.
+fn measured_lobe_centroid(opts: &SimOptions) -> f64 {
+    let (mut client, info) = homed("SG", opts);
+    let Ok(Reply::Dark(dark)) = client.request(Command::TakeDark { integration_ms: 100 }) else { panic!("dark") };
+    ack(&mut client, Command::SetLamp { on: true });
+    let scan: Vec<(f64, f64)> = (14..=46)
+        .map(|r| (f64::from(r), gain_normalised_signal(&mut client, &info, &dark, Geometry::from_whole_deg(30, r), Target::Sample)))
+        .collect();
+    // The diffuse part: the mean of the scan's ends (the lobe is 4 standard deviations down).
+    let base = 0.5 * (scan[0].1 + scan[scan.len() - 1].1);
+    let weight: f64 = scan.iter().map(|(_, s)| s - base).sum();
+    scan.iter().map(|(r, s)| r * (s - base)).sum::<f64>() / weight
+}
+
+#[test]
+fn an_arm_offset_moves_the_measured_peak_by_its_size() {
+    for seed in 0..8u64 {
+        // Offsets spread over ±0.5°, a different one for each seed.
+        let offset = ((seed * 37 + 11) % 101) as f64 / 100.0 - 0.5;
+        let plain = SimOptions { seed, ..SimOptions::default() };
+        let shifted = SimOptions { seed, arm_offset: Some(offset), ..SimOptions::default() };
+        let moved = measured_lobe_centroid(&shifted) - measured_lobe_centroid(&plain);
+        // The detector truly looks from θr + offset, so the lobe shows up offset earlier.
+        assert!((moved + offset).abs() < 0.02, "seed {seed}: offset {offset:+.2}° moved the peak by {moved:+.4}°");
+    }
+}
+
+#[test]
+fn gain_and_tile_errors_show_in_the_measured_radiance_factor_as_drawn() {
+    // G's peak at 45° is read on a less sensitive range than the white tile (range 0): the
+    // measured radiance factor is off by that range's true gain over its nominal (range 0
+    // is the reference), and by certificate / true tile.
+    let g = Geometry::from_whole_deg(45, 45);
+    let params = sample_params("G").unwrap();
+    let expected = (0..1000).map(|k| model::radiance_factor(&params, 45.0, 44.5 + (f64::from(k) + 0.5) / 1000.0)).sum::<f64>() / 1000.0;
+    let mut offs = Vec::new();
+    for seed in 0..24 {
+        let opts = SimOptions { seed, gain_error: Some(2.0), tile_error: Some(1.0), ..SimOptions::default() };
+        let (mut client, info) = homed("G", &opts);
+        let truth = client.transport_mut().truth().clone();
+        let (mean, se) = measured_radiance_factor(&mut client, &info, g, 10);
+        // The range the peak was read on (the white tile is read on range 0 there).
+        let Ok(Reply::Reading(peak)) = client.request(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }) else { panic!() };
+        let range = usize::from(peak.range);
+        assert!(range > 0, "the peak is read on a less sensitive range than the tile");
+        let gain_error = truth.relative_gains[range] / f64::from(info.detector_ranges[range].relative_gain);
+        let predicted = expected * gain_error * (hil_sim::scene::WHITE_TILE_RADIANCE_FACTOR / truth.tile_radiance_factor);
+        let z = (mean - predicted) / se;
+        assert!(z.abs() < 4.5, "seed {seed}: measured {mean:.4} ± {se:.4}, drawn errors predict {predicted:.4} ({z:.1} σ)");
+        offs.push(mean / expected - 1.0);
+    }
+    // The errors are real: the seeds disagree with the scene by percents.
+    let spread = (offs.iter().map(|o| o * o).sum::<f64>() / offs.len() as f64).sqrt();
+    assert!((0.01..0.06).contains(&spread), "rms error {spread}");
+}
+
+#[test]
+fn a_scene_file_made_from_a_paper_replays_its_readings() {
+    let dir = std::env::temp_dir().join(format!("gonio-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut worst = Vec::new();
+    for (sample, tolerance) in [("J1", 0.006), ("PPC", 0.006), ("SG", 0.006)] {
+        let mut sample_worst: f64 = 0.0;
+        let params = sample_params(sample).unwrap();
+        let mut text = String::from("theta_i,theta_r,radiance_factor\n");
+        for theta_i in [20, 30, 45, 60] {
+            for theta_r in 0..=70 {
+                text.push_str(&format!("{theta_i},{theta_r},{}\n", model::radiance_factor(&params, f64::from(theta_i), f64::from(theta_r))));
+            }
+        }
+        let path = dir.join(format!("{sample}.csv"));
+        std::fs::write(&path, text).unwrap();
+        for seed in [1, 2, 3] {
+            let built_in = SimOptions { seed, ..SimOptions::default() };
+            let replay = SimOptions { seed, scene_file: Some(path.clone()), ..SimOptions::default() };
+            let (mut a, _) = homed(sample, &built_in);
+            let (mut b, _) = homed("replay", &replay);
+            let (ra, _) = strategy1(&mut a);
+            let (rb, _) = strategy1(&mut b);
+            assert_eq!(ra.len(), rb.len());
+            for (x, y) in ra.iter().zip(&rb) {
+                assert_eq!((x.geometry, x.reading.range), (y.geometry, y.reading.range));
+                let relative = f64::from(y.reading.mean_counts) / f64::from(x.reading.mean_counts) - 1.0;
+                // Same seed, same noise: what differs is the table between its nodes,
+                // inside the detector's 1° window.
+                assert!(relative.abs() < tolerance, "{sample} seed {seed} at {}: {relative:+.4}", x.geometry);
+                sample_worst = sample_worst.max(relative.abs());
+            }
+        }
+        worst.push((sample, sample_worst));
+    }
+    eprintln!("Strategy 1 replayed from a 1° table vs the built-in sheet, largest relative difference: {worst:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

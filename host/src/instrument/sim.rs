@@ -1,15 +1,20 @@
 //! The simulated instrument from the host's side: the options shared by `gonio sim` and
 //! `gonio measure --sim`, the samples it can hold, and the in-process [`Transport`].
 //!
-//! The simulator knows no reflectance model; the samples are TSL scenes made here from
-//! [`crate::analysis::model`] and the reference papers of [`crate::analysis::classify::REFERENCES`].
+//! The simulator knows no fit: its sheets are its own physics ([`hil_sim::sheet`]), which
+//! this module maps the sample names to (the reference papers of
+//! [`crate::analysis::classify::REFERENCES`], or `custom:`), with the options of the
+//! realistic sheet and instrument.
 
 use crate::analysis::classify::REFERENCES;
 use crate::instrument::link::Transport;
 use crate::analysis::model::{self, Params};
 use firmware::hardware::Arm;
 use hil_sim::scene::SamplePort;
-use hil_sim::{Faults, SimConfig, SimInstrument};
+use hil_sim::sheet::{Lobe, SheetError, SheetSpec, Stock};
+use hil_sim::table::{TableError, TableScene};
+use hil_sim::{DEFAULT_UNPLUG_S, Faults, InstrumentErrors, SimConfig, SimInstrument, Unplug};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -32,23 +37,157 @@ impl Transport for SimInstrument {
     }
 }
 
+/// Which set of instrument errors the simulator starts from (each one overridable).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Physics {
+    /// The ideal instrument: exact nominal gains, the tile exactly its certificate, no
+    /// arm zero error (the detector window and the lamp drift are on, as always).
+    #[default]
+    Ideal,
+    /// The realistic set ([`REAL_PHYSICS`]): detector window, range-gain error, tile error,
+    /// lamp drift and an arm zero error, the lobe kept Gaussian.
+    Real,
+}
+
+/// The facet distribution of the simulated sheet's specular lobe.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LobeChoice {
+    /// exp(−θa²/2σ²): the TSL lobe.
+    #[default]
+    Gaussian,
+    /// Trowbridge–Reitz (GGX) with the Gaussian's FWHM: tails as θa⁻⁴.
+    Ggx,
+    /// Cauchy (Lorentzian) with the Gaussian's FWHM: tails as θa⁻².
+    Cauchy,
+}
+
+impl From<LobeChoice> for Lobe {
+    fn from(choice: LobeChoice) -> Lobe {
+        match choice {
+            LobeChoice::Gaussian => Lobe::Gaussian,
+            LobeChoice::Ggx => Lobe::Ggx,
+            LobeChoice::Cauchy => Lobe::Cauchy,
+        }
+    }
+}
+
+/// Magnitudes of one set of instrument errors.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhysicsSet {
+    /// Relative standard deviation of each adjacent range-gain ratio's error, percent.
+    pub gain_error_pct: f64,
+    /// Relative standard deviation of the white tile's true radiance factor about its
+    /// certificate, percent.
+    pub tile_error_pct: f64,
+    /// Lamp drift, percent per hour (its sign drawn from the seed).
+    pub lamp_drift_pct_per_h: f64,
+    /// Detector arm zero error, degrees.
+    pub arm_offset_deg: f64,
+}
+
+/// `--physics ideal`: today's ideal instrument.
+pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_error_pct: 0.0, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.0 };
+
+/// `--physics real`: the effects the uncertainty budget and the model account for, at
+/// magnitudes a built instrument has before its own calibration of them:
+///
+/// - gain error 1 % per adjacent ratio: the transimpedance ranges are set by 1 % feedback
+///   resistors (two per ratio, plus the amplifier's own gain error), so an uncalibrated
+///   decade is off by about 1 % (issue 12 measured that 1–2 % moves SG's ρs by 17 %);
+/// - tile error 0.5 %: a calibrated white tile's certificate states its radiance factor to
+///   about ±1 % at k = 2, i.e. 0.5 % standard uncertainty;
+/// - lamp drift 0.2 %/h: INSTRUMENT.md's value, as in the ideal set;
+/// - arm offset 0.1°: the detector's zero, set at the home switch and by aligning the
+///   aperture, is good to about 8 microsteps (0.1°), small against the glossy lobe's 1.6°
+///   standard deviation in θr but seen by a fit (0.3° moves G's σ by 5 %);
+/// - the detector window (1° full width) as in the ideal set.
+pub const REAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 1.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.1 };
+
 /// Options of the simulated instrument (the same on `gonio sim` and `gonio measure --sim`).
-#[derive(clap::Args, Clone, Debug)]
+#[derive(clap::Args, Clone, Debug, PartialEq)]
 pub struct SimOptions {
     /// Seed of the simulated noise and link faults: the same seed repeats a run exactly.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Detector acceptance, full width, degrees.
-    #[arg(long, value_name = "DEG", default_value_t = model::DEFAULT_ACCEPTANCE_DEG)]
+    #[arg(long, value_name = "DEG", default_value_t = model::DEFAULT_ACCEPTANCE_DEG, allow_negative_numbers = true)]
     pub acceptance: f64,
     /// Scale of every detector noise term (1 = the reference instrument, 0 = noiseless).
-    #[arg(long, value_name = "FACTOR", default_value_t = 1.0)]
+    #[arg(long, value_name = "FACTOR", default_value_t = 1.0, allow_negative_numbers = true)]
     pub noise_scale: f64,
-    /// Faults to inject: corrupt=P,drop=P,unplug-at=SECONDS,lose-steps=ARM:COUNT,no-switch=ARM
-    /// (ARM is source or detector).
+    /// Faults to inject: corrupt=P,drop=P,unplug-at=T[:SECONDS],lose-steps=ARM:COUNT,no-switch=ARM
+    /// (ARM is source or detector). unplug-at pulls the cable at device time T for SECONDS
+    /// (default 1; past the 2 s heartbeat timeout the instrument takes its fail-safe stop)
+    /// and may be given more than once.
     #[arg(long, value_name = "LIST", default_value = "")]
     pub faults: String,
+    /// Instrument errors to start from: ideal (exact gains and tile, no arm zero error) or
+    /// real (gain error 1 %, tile error 0.5 %, lamp drift 0.2 %/h, arm offset 0.1°); the
+    /// options below override single values.
+    #[arg(long, value_enum, default_value_t = Physics::Ideal)]
+    pub physics: Physics,
+    /// Facet distribution of the sheet's specular lobe; ggx and cauchy have the Gaussian's
+    /// FWHM in θr and heavier tails.
+    #[arg(long, value_enum, default_value_t = LobeChoice::Gaussian)]
+    pub lobe: LobeChoice,
+    /// Forward scattering of fibrous papers: F·u² added, u = (θr − θi)/(90° − θi) past
+    /// specular (0 before it): a radiance factor F at grazing θr.
+    #[arg(long, value_name = "F", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub forward_lobe: f64,
+    /// The narrow rise around specular seen on J1/J2: B·cos²θi·exp(−(θr − θi)²/(2·2.5²))
+    /// added (2.5° standard deviation in θr).
+    #[arg(long, value_name = "B", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub specular_bump: f64,
+    /// Detector arm zero error: the true θr is the firmware's plus DEG [ideal 0, real 0.1].
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    pub arm_offset: Option<f64>,
+    /// Each range-gain ratio to the range before it off its nominal by N(0, PCT %), drawn
+    /// from the seed; range 0 is the reference [ideal 0, real 1].
+    #[arg(long, value_name = "PCT", allow_negative_numbers = true)]
+    pub gain_error: Option<f64>,
+    /// The white tile's true radiance factor: its certificate (0.99) × (1 + N(0, PCT %)),
+    /// drawn from the seed [ideal 0, real 0.5].
+    #[arg(long, value_name = "PCT", allow_negative_numbers = true)]
+    pub tile_error: Option<f64>,
+    /// Lamp drift, percent per hour of device time, its sign drawn from the seed [0.2].
+    #[arg(long, value_name = "PCT", allow_negative_numbers = true)]
+    pub lamp_drift_pct_per_h: Option<f64>,
+    /// Between-spot variation of the sheet: each spot draws σ, ρs and ρd log-normally
+    /// about the stock's, relative standard deviation PCT %; a new spot whenever the
+    /// sample goes back on after the white tile.
+    #[arg(long, value_name = "PCT", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub sheet_variation: f64,
+    /// Replay a table of radiance factors (the CSV gonio fit reads: theta_i, theta_r,
+    /// radiance_factor) instead of a built-in sheet; the sample name is then a label.
+    /// PCHIP in θr, linear in θi, the edge value held outside.
+    #[arg(long, value_name = "CSV")]
+    pub scene_file: Option<PathBuf>,
 }
+
+impl Default for SimOptions {
+    /// The same as no option on the command line.
+    fn default() -> Self {
+        SimOptions {
+            seed: 1,
+            acceptance: model::DEFAULT_ACCEPTANCE_DEG,
+            noise_scale: 1.0,
+            faults: String::new(),
+            physics: Physics::Ideal,
+            lobe: LobeChoice::Gaussian,
+            forward_lobe: 0.0,
+            specular_bump: 0.0,
+            arm_offset: None,
+            gain_error: None,
+            tile_error: None,
+            lamp_drift_pct_per_h: None,
+            sheet_variation: 0.0,
+            scene_file: None,
+        }
+    }
+}
+
+/// Longest outage `unplug-at` accepts: a day of device time.
+const MAX_UNPLUG_S: f64 = 86_400.0;
 
 /// A bad simulator option.
 #[derive(Debug, thiserror::Error)]
@@ -82,6 +221,19 @@ pub enum SimOptionError {
         /// What was given.
         value: f64,
     },
+    /// Options that do not go together.
+    #[error("--{option} does not apply with --{other}: {why}")]
+    Conflict {
+        /// The option given.
+        option: &'static str,
+        /// The option it conflicts with.
+        other: &'static str,
+        /// Why.
+        why: &'static str,
+    },
+    /// A scene file that cannot be replayed.
+    #[error("--scene-file {0}")]
+    SceneFile(#[from] TableError),
 }
 
 /// The TSL parameters of a sample name: a reference paper (any case) or
@@ -138,7 +290,18 @@ pub fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
                 if key.trim() == "corrupt" { faults.corrupt = p } else { faults.drop = p }
             }
             "unplug-at" => {
-                faults.unplug_at_s = Some(number(value).filter(|s| *s >= 0.0).ok_or_else(|| bad("seconds of device time, ≥ 0"))?);
+                let (at, out) = match value.split_once(':') {
+                    Some((at, out)) => (at, Some(out)),
+                    None => (value, None),
+                };
+                let at_s = number(at).filter(|s| *s >= 0.0).ok_or_else(|| bad("T is seconds of device time, ≥ 0"))?;
+                let for_s = match out {
+                    None => DEFAULT_UNPLUG_S,
+                    Some(out) => number(out)
+                        .filter(|s| *s > 0.0 && *s <= MAX_UNPLUG_S)
+                        .ok_or_else(|| bad("SECONDS (how long the cable stays out) is in (0, 86400]"))?,
+                };
+                faults.unplugs.push(Unplug::new(at_s, for_s));
             }
             "lose-steps" => {
                 let (arm, count) = value.split_once(':').ok_or_else(|| bad("expected lose-steps=ARM:COUNT"))?;
@@ -152,22 +315,91 @@ pub fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
     Ok(faults)
 }
 
+/// Check a number option against its range.
+fn checked(option: &'static str, value: f64, why: &'static str, ok: impl Fn(f64) -> bool) -> Result<f64, SimOptionError> {
+    if value.is_finite() && ok(value) { Ok(value) } else { Err(SimOptionError::BadOption { option, why, value }) }
+}
+
 impl SimOptions {
-    /// The simulated instrument with `sample` on its port.
-    pub fn instrument(&self, sample: &str) -> Result<SimInstrument, SimOptionError> {
-        let params = sample_params(sample)?;
-        if !(self.acceptance.is_finite() && (0.0..=10.0).contains(&self.acceptance)) {
-            return Err(SimOptionError::BadOption { option: "acceptance", why: "between 0 and 10 degrees", value: self.acceptance });
+    /// The instrument errors in force: the `--physics` set with single values overridden.
+    pub fn physics_set(&self) -> PhysicsSet {
+        let base = match self.physics {
+            Physics::Ideal => IDEAL_PHYSICS,
+            Physics::Real => REAL_PHYSICS,
+        };
+        PhysicsSet {
+            gain_error_pct: self.gain_error.unwrap_or(base.gain_error_pct),
+            tile_error_pct: self.tile_error.unwrap_or(base.tile_error_pct),
+            lamp_drift_pct_per_h: self.lamp_drift_pct_per_h.unwrap_or(base.lamp_drift_pct_per_h),
+            arm_offset_deg: self.arm_offset.unwrap_or(base.arm_offset_deg),
         }
-        if !(self.noise_scale.is_finite() && self.noise_scale >= 0.0) {
-            return Err(SimOptionError::BadOption { option: "noise-scale", why: "a number ≥ 0", value: self.noise_scale });
-        }
+    }
+
+    /// The simulated instrument's configuration (everything but the sample).
+    pub fn config(&self) -> Result<SimConfig, SimOptionError> {
+        checked("acceptance", self.acceptance, "between 0 and 10 degrees", |v| (0.0..=10.0).contains(&v))?;
+        checked("noise-scale", self.noise_scale, "a number ≥ 0", |v| v >= 0.0)?;
+        let set = self.physics_set();
+        checked("gain-error", set.gain_error_pct, "a percentage in [0, 20]", |v| (0.0..=20.0).contains(&v))?;
+        checked("tile-error", set.tile_error_pct, "a percentage in [0, 20]", |v| (0.0..=20.0).contains(&v))?;
+        checked("lamp-drift-pct-per-h", set.lamp_drift_pct_per_h, "a percentage per hour in [0, 100]", |v| (0.0..=100.0).contains(&v))?;
+        checked("arm-offset", set.arm_offset_deg, "between -5 and 5 degrees", |v| (-5.0..=5.0).contains(&v))?;
         let mut config = SimConfig { seed: self.seed, faults: parse_faults(&self.faults)?, ..SimConfig::default() };
         config.detector.acceptance_deg = self.acceptance;
         config.detector.noise_scale = self.noise_scale;
-        // The detector applies its own acceptance to whatever the scene is.
-        let scene = move |theta_i_deg: f64, theta_r_deg: f64| model::radiance_factor(&params, theta_i_deg, theta_r_deg);
-        Ok(SimInstrument::new(SamplePort::new(Arc::new(scene)), config))
+        config.detector.lamp_drift_per_hour = set.lamp_drift_pct_per_h / 100.0;
+        config.errors = InstrumentErrors {
+            gain_ratio_sd: set.gain_error_pct / 100.0,
+            tile_sd: set.tile_error_pct / 100.0,
+            theta_r_offset_deg: set.arm_offset_deg,
+        };
+        Ok(config)
+    }
+
+    /// The simulated sheet of `sample` with the sheet options (not for `--scene-file`).
+    pub fn sheet(&self, sample: &str) -> Result<SheetSpec, SimOptionError> {
+        let p = sample_params(sample)?;
+        let spec = SheetSpec {
+            stock: Stock { sigma_deg: p.sigma_deg, rho_s: p.rho_s, rho_d: p.rho_d, eta: p.eta },
+            lobe: self.lobe.into(),
+            forward_lobe: checked("forward-lobe", self.forward_lobe, "a radiance factor in [0, 100]", |v| (0.0..=100.0).contains(&v))?,
+            specular_bump: checked("specular-bump", self.specular_bump, "a radiance factor in [0, 100]", |v| (0.0..=100.0).contains(&v))?,
+            spot_variation: checked("sheet-variation", self.sheet_variation, "a percentage in [0, 50]", |v| (0.0..=50.0).contains(&v))?
+                / 100.0,
+        };
+        spec.validate().map_err(|e| match e {
+            // Only the lobe's limit on σ can fail here: everything else was checked above.
+            SheetError::OutOfRange { .. } => SimOptionError::BadCustom { spec: sample.to_owned(), why: format!("with --lobe {:?}: {e}", self.lobe).to_lowercase() },
+        })?;
+        Ok(spec)
+    }
+
+    /// What is on the sample port: `sample`'s sheet, or the replayed `--scene-file`.
+    pub fn port(&self, sample: &str) -> Result<SamplePort, SimOptionError> {
+        let Some(path) = &self.scene_file else {
+            return Ok(SamplePort::with_spots(Arc::new(self.sheet(sample)?), self.seed));
+        };
+        let why = "a replayed table is the whole scene";
+        let conflict = |option| Err(SimOptionError::Conflict { option, other: "scene-file", why });
+        if self.lobe != LobeChoice::Gaussian {
+            return conflict("lobe");
+        }
+        if self.forward_lobe != 0.0 {
+            return conflict("forward-lobe");
+        }
+        if self.specular_bump != 0.0 {
+            return conflict("specular-bump");
+        }
+        if self.sheet_variation != 0.0 {
+            return conflict("sheet-variation");
+        }
+        Ok(SamplePort::new(Arc::new(TableScene::read(path)?)))
+    }
+
+    /// The simulated instrument with `sample` on its port.
+    pub fn instrument(&self, sample: &str) -> Result<SimInstrument, SimOptionError> {
+        let config = self.config()?;
+        Ok(SimInstrument::new(self.port(sample)?, config))
     }
 }
 
@@ -189,13 +421,107 @@ mod tests {
     #[test]
     fn faults_parse_and_refuse_nonsense() {
         let f = parse_faults("corrupt=0.001, drop=0.002,unplug-at=5,lose-steps=detector:37,no-switch=source").unwrap();
-        assert_eq!((f.corrupt, f.drop, f.unplug_at_s), (0.001, 0.002, Some(5.0)));
+        assert_eq!((f.corrupt, f.drop), (0.001, 0.002));
+        assert_eq!(f.unplugs, vec![Unplug::new(5.0, DEFAULT_UNPLUG_S)]);
         assert_eq!(f.lose_steps, Some((Arm::Detector, 37)));
         assert_eq!(f.switch_missing, Some(Arm::Source));
         assert_eq!(parse_faults("").unwrap(), SimConfig::default().faults);
-        for bad in ["corrupt=2", "drop=x", "unplug-at=-1", "lose-steps=left:3", "lose-steps=source:0", "melt=1", "corrupt"] {
+        let f = parse_faults("unplug-at=3:0.25,unplug-at=40:12.5,unplug-at=7").unwrap();
+        assert_eq!(f.unplugs, vec![Unplug::new(3.0, 0.25), Unplug::new(40.0, 12.5), Unplug::new(7.0, 1.0)]);
+        for bad in [
+            "corrupt=2",
+            "drop=x",
+            "unplug-at=-1",
+            "unplug-at=5:0",
+            "unplug-at=5:-2",
+            "unplug-at=5:x",
+            "unplug-at=5:inf",
+            "unplug-at=:3",
+            "lose-steps=left:3",
+            "lose-steps=source:0",
+            "melt=1",
+            "corrupt",
+        ] {
             let error = parse_faults(bad).unwrap_err().to_string();
             assert!(error.contains(bad.split(',').next().unwrap()), "{error}");
+        }
+    }
+
+    /// `gonio sim SAMPLE [options]` as clap parses it.
+    fn parsed(args: &[&str]) -> Result<SimOptions, clap::Error> {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            options: SimOptions,
+        }
+        use clap::Parser;
+        Cli::try_parse_from(std::iter::once("sim").chain(args.iter().copied())).map(|c| c.options)
+    }
+
+    #[test]
+    fn default_options_are_no_options() {
+        assert_eq!(parsed(&[]).unwrap(), SimOptions::default());
+        assert_eq!(SimOptions::default().physics_set(), IDEAL_PHYSICS);
+        let config = SimOptions::default().config().unwrap();
+        assert_eq!(config.errors, InstrumentErrors::default());
+        assert_eq!(config.detector, hil_sim::detector::DetectorParams::default());
+    }
+
+    #[test]
+    fn physics_real_is_the_documented_set_and_each_value_overrides_it() {
+        let real = parsed(&["--physics", "real"]).unwrap();
+        assert_eq!(real.physics_set(), REAL_PHYSICS);
+        let config = real.config().unwrap();
+        assert_eq!(config.errors, InstrumentErrors { gain_ratio_sd: 0.01, tile_sd: 0.005, theta_r_offset_deg: 0.1 });
+        assert_eq!(config.detector.lamp_drift_per_hour, 0.002);
+        assert_eq!(config.detector.acceptance_deg, 1.0);
+        let mixed = parsed(&["--physics", "real", "--gain-error", "2", "--arm-offset", "-0.3", "--lamp-drift-pct-per-h", "0"]).unwrap();
+        assert_eq!(
+            mixed.physics_set(),
+            PhysicsSet { gain_error_pct: 2.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.0, arm_offset_deg: -0.3 }
+        );
+        let ideal_plus = parsed(&["--tile-error", "1.5"]).unwrap();
+        assert_eq!(ideal_plus.physics_set(), PhysicsSet { tile_error_pct: 1.5, ..IDEAL_PHYSICS });
+    }
+
+    #[test]
+    fn sheet_options_reach_the_sheet() {
+        let o = parsed(&["--lobe", "cauchy", "--forward-lobe", "0.3", "--specular-bump", "0.1", "--sheet-variation", "5"]).unwrap();
+        let spec = o.sheet("J1").unwrap();
+        assert_eq!(spec.lobe, Lobe::Cauchy);
+        assert_eq!((spec.forward_lobe, spec.specular_bump, spec.spot_variation), (0.3, 0.1, 0.05));
+        assert_eq!(spec.stock, Stock { sigma_deg: 16.7, rho_s: 0.734, rho_d: 0.127, eta: 3.0 });
+        // The stock's numbers are the host's Table 6, mapped field by field.
+        let p = sample_params("SG").unwrap();
+        assert_eq!(SimOptions::default().sheet("sg").unwrap().stock, Stock { sigma_deg: p.sigma_deg, rho_s: p.rho_s, rho_d: p.rho_d, eta: p.eta });
+    }
+
+    #[test]
+    fn bad_values_are_refused_naming_option_and_value() {
+        let cases: [(&[&str], &str); 12] = [
+            (&["--gain-error", "25"], "--gain-error must be a percentage in [0, 20], got 25"),
+            (&["--gain-error", "nan"], "--gain-error must be a percentage in [0, 20], got NaN"),
+            (&["--tile-error", "-1"], "--tile-error must be a percentage in [0, 20], got -1"),
+            (&["--lamp-drift-pct-per-h", "inf"], "--lamp-drift-pct-per-h must be a percentage per hour in [0, 100], got inf"),
+            (&["--arm-offset", "7"], "--arm-offset must be between -5 and 5 degrees, got 7"),
+            (&["--forward-lobe", "-0.1"], "--forward-lobe must be a radiance factor in [0, 100], got -0.1"),
+            (&["--specular-bump", "1e9"], "--specular-bump must be a radiance factor in [0, 100], got 1000000000"),
+            (&["--sheet-variation", "60"], "--sheet-variation must be a percentage in [0, 50], got 60"),
+            (&["--acceptance", "-1"], "--acceptance must be between 0 and 10 degrees, got -1"),
+            (&["--lobe", "ggx", "--scene-file", "x.csv"], "--lobe does not apply with --scene-file"),
+            (&["--sheet-variation", "1", "--scene-file", "x.csv"], "--sheet-variation does not apply with --scene-file"),
+            (&["--scene-file", "/nonexistent/x.csv"], "--scene-file /nonexistent/x.csv: cannot read"),
+        ];
+        for (args, expected) in cases {
+            let options = parsed(args).unwrap();
+            let error = options.instrument("G").err().unwrap_or_else(|| panic!("{args:?} accepted")).to_string();
+            assert!(error.starts_with(expected), "{args:?}: {error:?} should start with {expected:?}");
+        }
+        let wide = parsed(&["--lobe", "ggx"]).unwrap().instrument("custom:80,1,1,2").err().unwrap().to_string();
+        assert!(wide.contains("custom") && wide.contains("ggx") && wide.contains("80"), "{wide}");
+        for args in [&["--lobe", "beckmann"][..], &["--physics", "perfect"], &["--gain-error", "one"]] {
+            let error = parsed(args).unwrap_err().to_string();
+            assert!(error.contains(args[1]) && error.contains(args[0]), "{args:?}: {error}");
         }
     }
 }

@@ -120,7 +120,7 @@ fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
 pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
     let expected = REFERENCES.iter().find(|r| r.name == spec.sample).map(|r| r.class.name()).unwrap_or("");
-    let options = SimOptions { seed: spec.seed, acceptance: crate::analysis::model::DEFAULT_ACCEPTANCE_DEG, noise_scale: 1.0, faults: String::new() };
+    let options = SimOptions { seed: spec.seed, ..SimOptions::default() };
     let instrument = options.instrument(spec.sample).map_err(|e| e.to_string())?;
     let mut client = Client::new(instrument, RetryPolicy::default());
     let info = client.hello().map_err(|e| e.to_string())?;
