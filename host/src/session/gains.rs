@@ -120,6 +120,89 @@ fn midpoint(a: f64, b: f64) -> f64 {
     (0.5 * (a + b) / resolution).round() * resolution
 }
 
+/// How far from the bright reading the search reaches along θr, degrees.
+pub const SEARCH_SPAN_DEG: f64 = 25.0;
+
+fn level_of(levels: &[(Geometry, f64)], g: Geometry) -> f64 {
+    levels.iter().find(|(h, _)| *h == g).map_or(f64::NAN, |(_, l)| *l)
+}
+
+/// Search the flank of a lobe along θr for a level in [[`LEVEL_GOOD`], [`LEVEL_HIGH`]]:
+/// from `bright_theta_r` (level `bright_level` > [`LEVEL_HIGH`]) towards `far` (θr and its
+/// level if known, NaN if it must be probed first). `probe(θr)` reads the level there.
+///
+/// The far end reads the diffuse base b. While the outer end of the bracket is at the base
+/// (below 2b) it says nothing of the lobe's width, and the next probe halves the bracket
+/// in ln |offset|; once both ends are on the lobe, false position (Illinois) on
+/// ln((level − b)/(aim − b)) against the squared offset, a straight line for a Gaussian
+/// lobe, lands in one or two more. The bracket keeps it safe on any lobe.
+/// Returns the spot found, if any, and every probe (θr, level).
+pub fn search_flank<E>(
+    probe: &mut dyn FnMut(f64) -> Result<Option<f64>, E>,
+    bright_theta_r: f64,
+    bright_level: f64,
+    far: (f64, f64),
+) -> Result<(Option<(f64, f64)>, Vec<(f64, f64)>), E> {
+    let good = |l: f64| (LEVEL_GOOD..=LEVEL_HIGH).contains(&l);
+    let mut probed = Vec::new();
+    let (far_theta_r, mut far_level) = far;
+    if far_level.is_nan() {
+        let Some(l) = probe(far_theta_r)? else { return Ok((None, probed)) };
+        probed.push((far_theta_r, l));
+        far_level = l;
+    }
+    if good(far_level) {
+        return Ok((Some((far_theta_r, far_level)), probed));
+    }
+    if !(far_level < LEVEL_GOOD) {
+        return Ok((None, probed)); // bright all the way
+    }
+    let base = 0.8 * far_level.max(0.0);
+    let informative = |l: f64| l > 2.0 * far_level.max(0.0) + 1e-6;
+    let f = |l: f64| ((l - base).max(1e-12) / (LEVEL_AIM - base)).ln();
+    let sign = (far_theta_r - bright_theta_r).signum();
+    // Offsets from the bright reading, with the level there: inside above the aim, outside below.
+    let bright_level = if bright_level.is_finite() { bright_level } else { 1e3 };
+    let (mut inside, mut outside) = ((0.0f64, bright_level), ((far_theta_r - bright_theta_r).abs(), far_level));
+    // The smallest offset the geometric halving starts from: a lobe is never narrower.
+    let min_offset = 0.5;
+    let mut retained: i8 = 0;
+    let mut f_scale = (1.0, 1.0);
+    for _ in 0..MAX_PROBES {
+        if outside.0 - inside.0 < 2.0 * protocol::Angle::RESOLUTION_DEG {
+            break;
+        }
+        let (xi, xo) = (inside.0 * inside.0, outside.0 * outside.0);
+        let mut offset = if informative(outside.1) && inside.0 > 0.0 {
+            let (fi, fo) = (f_scale.0 * f(inside.1), f_scale.1 * f(outside.1));
+            (xi - fi * (xo - xi) / (fo - fi)).max(0.0).sqrt()
+        } else {
+            (inside.0.max(min_offset) * outside.0).sqrt()
+        };
+        if !(offset > inside.0 && offset < outside.0) {
+            offset = 0.5 * (inside.0 + outside.0);
+        }
+        let theta_r = midpoint(bright_theta_r + sign * offset, bright_theta_r + sign * offset);
+        let Some(l) = probe(theta_r)? else { break };
+        probed.push((theta_r, l));
+        if good(l) {
+            return Ok((Some((theta_r, l)), probed));
+        }
+        let point = ((theta_r - bright_theta_r).abs(), l);
+        if l > LEVEL_HIGH {
+            inside = point;
+            // Illinois: an end kept twice in a row counts half.
+            f_scale = if retained == 1 { (1.0, 0.5 * f_scale.1) } else { (1.0, 1.0) };
+            retained = 1;
+        } else {
+            outside = point;
+            f_scale = if retained == -1 { (0.5 * f_scale.0, 1.0) } else { (1.0, 1.0) };
+            retained = -1;
+        }
+    }
+    Ok((None, probed))
+}
+
 /// Why a ratio was not calibrated.
 enum Skip {
     /// The firmware cannot force a range.
@@ -241,38 +324,34 @@ impl<T: Transport> Session<'_, T> {
         let Some((bright, _)) = levels.iter().copied().filter(|(_, l)| *l > LEVEL_HIGH).max_by(|a, b| a.1.total_cmp(&b.1)) else {
             return fallback(&usable, format!("no reading brighter than {:.0} % of range {pair}'s full scale", 100.0 * LEVEL_HIGH));
         };
-        // Away from the specular direction the lobe falls: bisect between the bright reading
-        // and a point far down its flank.
+        // Away from the specular direction the lobe falls: search between the bright reading
+        // and a point far down its flank, a reading already taken if there is one.
         let (theta_i, theta_r) = (bright.theta_i.deg(), bright.theta_r.deg());
         let (arm_min, arm_max) = (self.info.arm_min.deg(), self.info.arm_max.deg());
         let low_limit = arm_min.max(self.info.collision_min_sum.deg() - theta_i);
-        let away = if theta_r >= theta_i { 25.0 } else { -25.0 };
-        let mut far = (theta_r + away).clamp(low_limit, arm_max);
-        if (far - theta_r).abs() < 1.0 {
-            far = (theta_r - away).clamp(low_limit, arm_max);
+        let mut away = if theta_r >= theta_i { 1.0 } else { -1.0 };
+        if ((theta_r + away * SEARCH_SPAN_DEG).clamp(low_limit, arm_max) - theta_r).abs() < 1.0 {
+            away = -away;
         }
+        let far = (theta_r + away * SEARCH_SPAN_DEG).clamp(low_limit, arm_max);
+        let known_far = levels
+            .iter()
+            .filter(|(g, l)| g.theta_i == bright.theta_i && *l < LEVEL_LOW && (g.theta_r.deg() - theta_r) * away > 0.0)
+            .map(|(g, l)| (g.theta_r.deg(), *l))
+            .min_by(|a, b| (a.0 - theta_r).abs().total_cmp(&(b.0 - theta_r).abs()));
         let at = |theta_r: f64| Geometry::from_deg(theta_i, theta_r);
-        let (mut inside, mut outside) = (theta_r, far);
-        let mut probe_at = far;
-        for _ in 0..MAX_PROBES {
-            let Some(g) = at(probe_at) else { break };
-            let Some(probed) = self.probe_level(g, pair, full_scale)? else { break };
-            usable.push((g, probed));
-            if (LEVEL_GOOD..=LEVEL_HIGH).contains(&probed) {
-                return Ok(Ok((g, probed)));
+        let mut probe = |theta_r: f64| -> Result<Option<f64>, SessionError> {
+            match at(theta_r) {
+                Some(g) => self.probe_level(g, pair, full_scale),
+                None => Ok(None),
             }
-            if probed > LEVEL_HIGH {
-                if probe_at == far {
-                    break; // bright everywhere searched
-                }
-                inside = probe_at;
-            } else {
-                outside = probe_at;
+        };
+        let (found, probed) = search_flank(&mut probe, theta_r, level_of(&levels, bright), known_far.unwrap_or((far, f64::NAN)))?;
+        usable.extend(probed.iter().filter_map(|&(t, l)| Some((at(t)?, l))));
+        if let Some((t, l)) = found {
+            if let Some(g) = at(t) {
+                return Ok(Ok((g, l)));
             }
-            if (outside - inside).abs() < 2.0 * protocol::Angle::RESOLUTION_DEG {
-                break;
-            }
-            probe_at = midpoint(inside, outside);
         }
         fallback(&usable, format!("no spot between {:.0} % and {:.0} % of range {pair}'s full scale found", 100.0 * LEVEL_LOW, 100.0 * LEVEL_HIGH))
     }
@@ -424,6 +503,33 @@ mod tests {
         assert_eq!(choose_spot(&[(g(60.0), 30.0), (g(70.0), 0.1)], LEVEL_LOW), None);
         assert_eq!(choose_spot(&[(g(60.0), 30.0), (g(0.0), 0.35)], LEVEL_GOOD), None);
         assert_eq!(choose_spot(&[(g(60.0), 30.0), (g(0.0), 0.35)], LEVEL_LOW), Some((g(0.0), 0.35)));
+    }
+
+    /// A Gaussian lobe on a diffuse base, as a level on range r.
+    fn lobe(peak: f64, width_deg: f64, base: f64) -> impl Fn(f64) -> f64 {
+        move |offset: f64| base + peak * (-(offset / width_deg).powi(2) / 2.0).exp()
+    }
+
+    #[test]
+    fn the_flank_search_finds_a_spot_in_a_few_probes() {
+        // Peaks a reading on the next range up or two can have (up to ~20 × full scale), the
+        // glossy papers' widths in θr and diffuse bases.
+        for (peak, width, base) in [(8.0, 1.6, 0.02), (20.0, 1.6, 0.18), (1.3, 1.6, 0.02), (3.0, 3.8, 0.1), (1.2, 6.0, 0.01), (15.0, 1.0, 0.3)] {
+            let level = lobe(peak, width, base);
+            let mut probe = |theta_r: f64| -> Result<Option<f64>, ()> { Ok(Some(level(theta_r - 60.0))) };
+            let (found, probed) = search_flank(&mut probe, 60.0, peak + base, (85.0, f64::NAN)).unwrap();
+            let (theta_r, l) = found.unwrap_or_else(|| panic!("lobe {peak}, {width}°: {probed:?}"));
+            assert!((LEVEL_GOOD..=LEVEL_HIGH).contains(&l) && theta_r > 60.0, "{theta_r} {l}");
+            assert!((l - level(theta_r - 60.0)).abs() < 1e-12);
+            assert!(probed.len() <= 6, "lobe {peak}, {width}°: {} probes {probed:?}", probed.len());
+        }
+        // A known far reading saves the first probe; a lobe bright everywhere gives up at once.
+        let level = lobe(8.0, 1.6, 0.02);
+        let mut probe = |theta_r: f64| -> Result<Option<f64>, ()> { Ok(Some(level(theta_r - 60.0))) };
+        let (found, probed) = search_flank(&mut probe, 60.0, 8.02, (70.0, level(10.0))).unwrap();
+        assert!(found.is_some() && probed.iter().all(|(t, _)| *t != 70.0));
+        let mut bright = |_: f64| -> Result<Option<f64>, ()> { Ok(Some(5.0)) };
+        assert_eq!(search_flank(&mut bright, 60.0, 8.0, (85.0, f64::NAN)).unwrap(), (None, vec![(85.0, 5.0)]));
     }
 
     #[test]
