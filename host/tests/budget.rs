@@ -4,7 +4,7 @@
 //! them, fitted with the shared errors the budget builds.
 mod common;
 use host::analysis::budget::{self, BudgetReading, SharedError};
-use host::analysis::fit::{FitOptions, FitResult, Observation, fit};
+use host::analysis::fit::{FitOptions, FitResult, Observation, fit, fit_with_shared};
 use host::analysis::model::{self, Params};
 use host::instrument::calibration::{Calibration, GainRatio, Tile, WhitePoint};
 use host::session::gains;
@@ -213,4 +213,103 @@ fn treated_as_independent_the_shared_errors_are_not_covered() {
     println!("SG, independent: ρs covered {rho_s}/{n}, ρd {rho_d}/{n}");
     assert!(n >= 95);
     assert!((rho_d as f64) < 0.85 * n as f64, "ρd {rho_d}/{n}");
+}
+
+/// Coverage of ρs and ρd over `seeds` sessions of `paper`, the shared errors carried as such.
+fn coverage_shared(paper: &str, geometries: &[(f64, f64)], seeds: std::ops::Range<u64>, errors: Errors) -> (usize, usize, usize) {
+    let p = common::reference(paper);
+    let (mut rho_s, mut rho_d, mut n) = (0, 0, 0);
+    for seed in seeds {
+        let s = session(&p, geometries, seed, errors, true);
+        let f = fit_with_shared(&s.observations, &s.shared, &options()).expect("a fit");
+        n += 1;
+        rho_s += usize::from(covers(&f, model::RHO_S, p.rho_s));
+        rho_d += usize::from(covers(&f, model::RHO_D, p.rho_d));
+    }
+    (rho_s, rho_d, n)
+}
+
+/// 95 % intervals that cover in 90–98 % of sessions.
+fn assert_coverage(what: &str, covered: usize, n: usize) {
+    let rate = covered as f64 / n as f64;
+    assert!((0.90..=0.98).contains(&rate), "{what}: covered {covered}/{n}");
+}
+
+#[test]
+fn with_the_shared_terms_the_intervals_cover() {
+    // White, dark, tile, gains (calibrated) and drift as the reference instrument has them.
+    for (paper, geometries) in [("SG", common::strategy2(3)), ("G", common::strategy2(2)), ("PPC", common::strategy2(5)), ("J1", common::strategy2(5))] {
+        let seeds = 20_000..20_200;
+        let (rho_s, rho_d, n) = coverage_shared(paper, &geometries, seeds.clone(), Errors::REAL);
+        let (rho_s_before, rho_d_before, m) = coverage_independent(paper, &geometries, 200, Errors::REAL);
+        println!("{paper}: ρs covered {rho_s}/{n} (as independent {rho_s_before}/{m}), ρd {rho_d}/{n} ({rho_d_before}/{m})");
+        assert_coverage(&format!("{paper} ρs"), rho_s, n);
+        assert_coverage(&format!("{paper} ρd"), rho_d, n);
+    }
+}
+
+#[test]
+fn the_budget_adds_up_to_the_covariance_diagonal() {
+    for (k, (paper, geometries)) in [("G", common::strategy2(2)), ("SG", common::strategy2(3)), ("PPC", common::strategy1_m12()), ("J2", common::strategy2(5))].into_iter().enumerate() {
+        let p = common::reference(paper);
+        let s = session(&p, &geometries, 30 + k as u64, Errors::REAL, true);
+        let f = fit_with_shared(&s.observations, &s.shared, &options()).expect("a fit");
+        // Every shared term the budget built is in the fit's budget, with the reading noise.
+        for t in &s.shared {
+            assert!(f.budget.iter().any(|b| b.name == t.name), "{paper}: {} missing", t.name);
+        }
+        assert!(f.budget.iter().any(|b| budget::TermKind::of(&b.name) == budget::TermKind::ReadingNoise));
+        for i in 0..4 {
+            if !(f.model.0[i] && f.identified(i)) {
+                continue;
+            }
+            let sum: f64 = f.budget.iter().map(|t| t.variance[i]).sum();
+            let diagonal = f.covariance[i][i];
+            assert!((sum - diagonal).abs() <= 1e-9 * diagonal.abs(), "{paper} parameter {i}: Σ terms {sum} vs covariance {diagonal}");
+        }
+        let shares = budget::shares(&f);
+        for i in 0..3 {
+            let total: f64 = shares.iter().filter_map(|(_, s)| s[i]).sum();
+            assert!(total == 0.0 || (total - 1.0).abs() < 1e-9, "{paper}: shares add to {total}");
+        }
+    }
+}
+
+#[test]
+fn a_reused_calibrations_age_widens_the_intervals_by_the_drift_term() {
+    // The same instrument and noise (one seed), the calibration fresh or 4 h old.
+    for (paper, geometries) in [("SG", common::strategy2(3)), ("PPC", common::strategy2(5))] {
+        let p = common::reference(paper);
+        let fresh = Errors::REAL;
+        let aged = Errors { calibration_age_s: 4.0 * 3600.0, ..Errors::REAL };
+        let s0 = session(&p, &geometries, 77, fresh, true);
+        let f0 = fit_with_shared(&s0.observations, &s0.shared, &options()).unwrap();
+        let s1 = session(&p, &geometries, 77, aged, true);
+        let f1 = fit_with_shared(&s1.observations, &s1.shared, &options()).unwrap();
+        let drift = |f: &FitResult, i: usize| f.budget.iter().find(|t| t.name == budget::LAMP_DRIFT).map_or(0.0, |t| t.variance[i]);
+        for (i, name, truth) in [(model::RHO_S, "ρs", p.rho_s), (model::RHO_D, "ρd", p.rho_d)] {
+            let width = |f: &FitResult| f.ci95[i].map(|(lo, hi)| hi - lo).unwrap();
+            // 4 h at 0.2 %/h: every reading 0.8 % off together, as the tile's 0.5 % is.
+            let expected = (truth * 0.002 * 4.0).powi(2);
+            println!(
+                "{paper} {name}: 95 % width {:.5} → {:.5}, drift variance {:.3e} → {:.3e} (0.8 % of the value: {expected:.3e})",
+                width(&f0),
+                width(&f1),
+                drift(&f0, i),
+                drift(&f1, i)
+            );
+            assert!(width(&f1) > width(&f0), "{paper} {name}");
+            assert!((drift(&f1, i) / expected - 1.0).abs() < 0.15, "{paper} {name}: {} vs {expected}", drift(&f1, i));
+            assert!(drift(&f0, i) < 1e-3 * drift(&f1, i), "{paper} {name}: a fresh calibration's drift is negligible");
+            // The width grows as the variance does: by the drift term.
+            let (v0, v1) = (f0.covariance[i][i], f1.covariance[i][i]);
+            let predicted = width(&f0) * ((v0 + drift(&f1, i) - drift(&f0, i)) / v0).sqrt();
+            assert!((width(&f1) / predicted - 1.0).abs() < 0.05, "{paper} {name}: {} vs {predicted} ({v0} → {v1})", width(&f1));
+        }
+        // And an aged calibration's intervals still cover, the drift realised.
+        let (rho_s, rho_d, n) = coverage_shared(paper, &geometries, 40_000..40_200, aged);
+        println!("{paper} with a 4 h old calibration: ρs covered {rho_s}/{n}, ρd {rho_d}/{n}");
+        assert_coverage(&format!("{paper} aged ρs"), rho_s, n);
+        assert_coverage(&format!("{paper} aged ρd"), rho_d, n);
+    }
 }

@@ -5,11 +5,15 @@ use host::analysis::classify::{Group, REFERENCES, classify};
 use host::analysis::fit::{FitOptions, fit};
 use host::analysis::sampling;
 
+/// At M = 12 every group that is decided is right; a glossy paper may leave it undecided
+/// (flagged `not-identified`), when η ends at its lower bound and ρs is then not determined
+/// (SG's η = 1.02 is close to it) — it is never guessed.
 #[test]
 fn strategy1_m12_gets_every_group_right() {
     let geometries = common::strategy1_m12();
     let delta = sampling::delta(&geometries, None).expect("a known schedule");
     assert_eq!(delta.deg, 35.0);
+    let mut decided_glossy = 0;
     for (k, r) in REFERENCES.iter().enumerate() {
         for seed in 0..3u64 {
             let obs = common::noisy(&r.params, &geometries, 500 + 10 * k as u64 + seed);
@@ -19,8 +23,8 @@ fn strategy1_m12_gets_every_group_right() {
             println!(
                 "M=12 {:4} seed {seed}: group {} class {} ({:.2}) σ {:?} ≤ {:?} σ_l {:.2} ok {} rd/rs {:.3}",
                 r.name,
-                c.group.name(),
-                c.class.name(),
+                c.group_name(),
+                c.class_name(),
                 c.confidence,
                 result.sigma_deg(),
                 result.sigma_upper_deg(),
@@ -28,12 +32,19 @@ fn strategy1_m12_gets_every_group_right() {
                 check.sigma_ok,
                 result.params.rho_d / result.params.rho_s
             );
-            assert_eq!(c.group, r.class.group(), "{} seed {seed}", r.name);
-            if c.group == Group::Glossy {
+            if r.class.group() == Group::Rough {
+                assert_eq!(c.group, Some(Group::Rough), "{} seed {seed}", r.name);
+            } else {
+                assert!(c.group.is_none_or(|g| g == Group::Glossy), "{} seed {seed}: {:?}", r.name, c.group);
+                assert!(c.group.is_some() || !result.identified(host::analysis::model::RHO_S), "{} seed {seed}: undecided without a reason", r.name);
+                decided_glossy += usize::from(c.group.is_some());
+            }
+            if r.class.group() == Group::Glossy {
                 assert!(!check.sigma_ok, "{}: glossy papers fail the σ_l check at M = 12", r.name);
             }
         }
     }
+    assert!(decided_glossy >= 4, "the glossy group was decided in {decided_glossy} of 6 fits");
 }
 
 #[test]
@@ -43,7 +54,7 @@ fn strategy1_m12_gets_the_rough_groups_right() {
     for (k, r) in REFERENCES.iter().enumerate().filter(|(_, r)| r.class.group() == Group::Rough) {
         let obs = common::noisy(&r.params, &geometries, 700 + k as u64);
         let c = classify(&fit(&obs, &FitOptions::default()).expect("valid"));
-        assert_eq!(c.class, r.class, "{}", r.name);
+        assert_eq!(c.class, Some(r.class), "{}", r.name);
     }
 }
 

@@ -11,6 +11,7 @@ fn no_acceptance() -> FitOptions {
 /// min over a dense (σ, η) grid of the cost with ρs, ρd solved linearly at each point.
 fn brute_force_min(obs: &[Observation]) -> (f64, f64, f64) {
     let mut best = (f64::INFINITY, 0.0, 0.0);
+    let profile = fit::LinearProfile::new(obs, None).expect("valid data");
     let n_sigma = 600;
     let n_eta = 80;
     for i in 0..n_sigma {
@@ -19,7 +20,7 @@ fn brute_force_min(obs: &[Observation]) -> (f64, f64, f64) {
         for j in 0..n_eta {
             // Dense near 1, where F changes fastest.
             let eta = 1.0 + 2.0 * (j as f64 / (n_eta - 1) as f64).powi(2);
-            let s = fit::linear_profile(obs, sigma, eta, None).expect("valid data");
+            let s = profile.at(sigma, eta);
             if s.cost < best.0 {
                 best = (s.cost, sigma, eta);
             }
@@ -202,10 +203,15 @@ fn bad_input_gets_a_clear_error() {
 fn extreme_but_valid_data_gives_finite_results() {
     // Grazing angles, a zero reading, and a huge peak: finite numbers, no panic.
     let p = Params { sigma_deg: 0.05, rho_s: 1e4, rho_d: 0.0, eta: 3.0 };
-    let geometries = [(0.0, 0.0), (89.99, 89.99), (85.0, 85.0), (90.0, 0.0), (45.0, 45.0), (45.0, 50.0), (10.0, 80.0)];
+    let geometries = [(0.0, 0.0), (89.99, 89.99), (85.0, 85.0), (89.99, 0.0), (45.0, 45.0), (45.0, 50.0), (10.0, 80.0)];
     let obs: Vec<Observation> = geometries
         .iter()
-        .map(|&(ti, tr)| Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: model::radiance_factor(&p, ti, tr).min(1e12), std: None })
+        .map(|&(ti, tr)| Observation {
+            theta_i_deg: ti,
+            theta_r_deg: tr,
+            radiance_factor: model::radiance_factor(&p, ti, tr).min(fit::RADIANCE_FACTOR_MAX),
+            std: None,
+        })
         .collect();
     let result = fit(&obs, &FitOptions::default()).expect("valid");
     assert!(result.params.to_array().iter().all(|v| v.is_finite()));

@@ -32,7 +32,7 @@ fn fitted(name: &str, geometries: &[(f64, f64)]) -> (Vec<Observation>, fit::FitR
 #[test]
 fn glossy_sample_gets_fig4_and_fig5_but_no_fig7() {
     let (points, result, classification) = fitted("G", &common::strategy2(1));
-    assert_eq!(classification.group, Group::Glossy);
+    assert_eq!(classification.group, Some(Group::Glossy));
     let dir = temp_dir("glossy");
     let written = plots::write_plots(&dir, "sheet-G42", &points, &result, &classification).expect("plots written");
     assert_eq!(written, vec![dir.join(FIG4_FILE), dir.join(FIG5_FILE)]);
@@ -52,7 +52,7 @@ fn glossy_sample_gets_fig4_and_fig5_but_no_fig7() {
 #[test]
 fn rough_sample_gets_fig7_with_group_boundaries_and_rough_references() {
     let (points, result, classification) = fitted("PPC", &common::strategy1_m12());
-    assert_eq!(classification.group, Group::Rough);
+    assert_eq!(classification.group, Some(Group::Rough));
     let dir = temp_dir("rough");
     let written = plots::write_plots(&dir, "copier & co", &points, &result, &classification).expect("plots written");
     assert_eq!(written.len(), 3);

@@ -26,7 +26,7 @@ fn table6_papers_from_the_full_grid() {
             100.0 * (p.rho_d / r.params.rho_d - 1.0),
             p.eta,
             100.0 * fit.nmae,
-            c.class.name(),
+            c.class_name(),
             c.confidence,
             c.nearest_reference,
             c.nearest_distance,
@@ -34,7 +34,7 @@ fn table6_papers_from_the_full_grid() {
             fit.model.names(),
             fit.notes
         );
-        if c.class != r.class || fit.nmae >= 0.045 || sigma_err >= 0.05 || rho_d_err >= 0.03 || fit.sigma_deg().is_none() {
+        if c.class != Some(r.class) || fit.nmae >= 0.045 || sigma_err >= 0.05 || rho_d_err >= 0.03 || fit.sigma_deg().is_none() {
             failures.push(r.name);
         }
     }

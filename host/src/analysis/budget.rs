@@ -17,37 +17,19 @@
 //!
 //! A reused calibration's age is in each reading's age, so the drift term grows with it.
 
+use crate::analysis::fit::FitResult;
+use crate::analysis::model;
 use crate::instrument::calibration::{Calibration, CalibrationError, standard_error_counts};
 use protocol::Reading;
 use serde_json::{Value, json};
 
-/// TEMPORARY (until wp-e-fit's "wp-e done:" lands in `analysis::fit`, which builds exactly
-/// these): the interface of the fit with shared errors. Replace with
-/// `pub use crate::analysis::fit::{BudgetTerm, SharedError};` once merged.
-mod interim {
-    /// An error shared by many readings: reading k is off by `sensitivity[k]`·ε, with one
-    /// ε ~ N(0, 1) for all of them.
-    #[derive(Clone, Debug, PartialEq)]
-    pub struct SharedError {
-        /// What the error is (`white θi=20°`, `dark range 1`, …).
-        pub name: String,
-        /// Per reading, in radiance factor units.
-        pub sensitivity: Vec<f64>,
-    }
+pub use crate::analysis::fit::{BudgetTerm, SharedError};
 
-    /// One term of a fit's budget: its contribution to the variance of (σ [deg], ρs, ρd, η).
-    #[derive(Clone, Debug, PartialEq)]
-    pub struct BudgetTerm {
-        /// The shared error's name, or "reading noise" for the independent part.
-        pub name: String,
-        /// Contribution to each parameter's variance; additive over the terms.
-        pub variance: [f64; 4],
-    }
-}
-pub use interim::{BudgetTerm, SharedError};
-
-/// Name of the fit's independent term (the readings' own noise).
+/// Name of the fit's independent term (the readings' own noise); the fit adds "(estimated
+/// from the residuals)" when the readings carried no uncertainty.
 pub const READING_NOISE: &str = "reading noise";
+/// Name of the fit's term for the widening under lack of fit.
+pub const LACK_OF_FIT: &str = "lack of fit";
 /// Name of the tile's term.
 pub const TILE: &str = "tile certificate";
 /// Name of the drift term.
@@ -83,6 +65,8 @@ pub enum TermKind {
     Gain,
     /// The lamp's drift since the white readings.
     Drift,
+    /// The widening of the intervals when the model does not describe the data.
+    LackOfFit,
     /// Anything else a caller added.
     Other,
 }
@@ -90,8 +74,10 @@ pub enum TermKind {
 impl TermKind {
     /// The kind of the term named `name`.
     pub fn of(name: &str) -> TermKind {
-        if name == READING_NOISE {
+        if name.starts_with(READING_NOISE) {
             TermKind::ReadingNoise
+        } else if name == LACK_OF_FIT {
+            TermKind::LackOfFit
         } else if name.starts_with("white ") {
             TermKind::White
         } else if name.starts_with("dark ") {
@@ -116,6 +102,7 @@ impl TermKind {
             TermKind::Tile => "tile certificate",
             TermKind::Gain => "range gains",
             TermKind::Drift => "lamp drift",
+            TermKind::LackOfFit => "lack of fit",
             TermKind::Other => "other",
         }
     }
@@ -239,30 +226,39 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
 }
 
 /// Indices into a budget term's variance of the parameters the report shares out.
-const REPORTED: [(usize, &str); 3] =
-    [(crate::analysis::model::SIGMA, "sigma_deg"), (crate::analysis::model::RHO_S, "rho_s"), (crate::analysis::model::RHO_D, "rho_d")];
+const REPORTED: [(usize, &str); 3] = [(model::SIGMA, "sigma_deg"), (model::RHO_S, "rho_s"), (model::RHO_D, "rho_d")];
 
-/// Each term's share of the total variance of σ, ρs, ρd (`None` where the total is 0: a
-/// parameter not fitted).
-pub fn shares(budget: &[BudgetTerm]) -> Vec<(String, [Option<f64>; 3])> {
-    let totals: [f64; 3] = std::array::from_fn(|i| budget.iter().map(|t| t.variance[REPORTED[i].0].max(0.0)).sum());
-    budget
+/// The variance of σ, ρs, ρd each term of `fit`'s budget contributes; `None` for a
+/// parameter the data did not determine (it has no budget to share).
+fn reported_variances(fit: &FitResult) -> Vec<(String, [Option<f64>; 3])> {
+    let determined: [bool; 3] = std::array::from_fn(|i| fit.model.0[REPORTED[i].0] && fit.identified(REPORTED[i].0));
+    fit.budget
         .iter()
-        .map(|t| {
-            let share = std::array::from_fn(|i| (totals[i] > 0.0).then(|| t.variance[REPORTED[i].0].max(0.0) / totals[i]));
-            (t.name.clone(), share)
-        })
+        .map(|t| (t.name.clone(), std::array::from_fn(|i| determined[i].then(|| t.variance[REPORTED[i].0].max(0.0)))))
         .collect()
 }
 
+/// Each variance's share of the column total (`None` where there is none).
+fn as_shares(rows: &[[Option<f64>; 3]]) -> Vec<[Option<f64>; 3]> {
+    let totals: [f64; 3] = std::array::from_fn(|i| rows.iter().filter_map(|r| r[i]).sum());
+    rows.iter().map(|r| std::array::from_fn(|i| r[i].filter(|_| totals[i] > 0.0).map(|v| v / totals[i]))).collect()
+}
+
+/// Each term's share of the variance of σ, ρs, ρd (`None` for what was not determined).
+/// The terms add up to the covariance's diagonal, so the shares add up to 1.
+pub fn shares(fit: &FitResult) -> Vec<(String, [Option<f64>; 3])> {
+    let rows = reported_variances(fit);
+    let shares = as_shares(&rows.iter().map(|(_, v)| *v).collect::<Vec<_>>());
+    rows.into_iter().zip(shares).map(|((name, _), share)| (name, share)).collect()
+}
+
 /// The budget grouped by kind: (kind, variance of σ, ρs, ρd), in the kinds' order.
-pub fn by_kind(budget: &[BudgetTerm]) -> Vec<(TermKind, [f64; 3])> {
-    let mut out: Vec<(TermKind, [f64; 3])> = Vec::new();
-    for t in budget {
-        let kind = TermKind::of(&t.name);
-        let v: [f64; 3] = std::array::from_fn(|i| t.variance[REPORTED[i].0].max(0.0));
+pub fn by_kind(fit: &FitResult) -> Vec<(TermKind, [Option<f64>; 3])> {
+    let mut out: Vec<(TermKind, [Option<f64>; 3])> = Vec::new();
+    for (name, v) in reported_variances(fit) {
+        let kind = TermKind::of(&name);
         match out.iter_mut().find(|(k, _)| *k == kind) {
-            Some((_, sum)) => (0..3).for_each(|i| sum[i] += v[i]),
+            Some((_, sum)) => (0..3).for_each(|i| sum[i] = sum[i].zip(v[i]).map(|(a, b)| a + b)),
             None => out.push((kind, v)),
         }
     }
@@ -270,52 +266,48 @@ pub fn by_kind(budget: &[BudgetTerm]) -> Vec<(TermKind, [f64; 3])> {
     out
 }
 
-fn share_json(share: [Option<f64>; 3]) -> Value {
+fn per_parameter(values: [Option<f64>; 3]) -> Value {
     let mut m = serde_json::Map::new();
     for (i, (_, key)) in REPORTED.iter().enumerate() {
-        m.insert(key.to_string(), share[i].filter(|s| s.is_finite()).map_or(Value::Null, |s| json!(s)));
+        m.insert(key.to_string(), values[i].filter(|s| s.is_finite()).map_or(Value::Null, |s| json!(s)));
     }
     Value::Object(m)
 }
 
-/// The report's `budget`: every term with its variance and share of σ's, ρs's and ρd's
-/// variance, and the same grouped by kind.
-pub fn to_json(budget: &[BudgetTerm]) -> Value {
-    let terms: Vec<Value> = budget
+/// The report's `budget`: every term with its variance and its share of σ's, ρs's and
+/// ρd's variance, and the shares grouped by kind (null for a parameter not determined).
+pub fn to_json(fit: &FitResult) -> Value {
+    let rows = reported_variances(fit);
+    let shares = as_shares(&rows.iter().map(|(_, v)| *v).collect::<Vec<_>>());
+    let terms: Vec<Value> = rows
         .iter()
-        .zip(shares(budget))
-        .map(|(t, (_, share))| {
-            let variance: [Option<f64>; 3] = std::array::from_fn(|i| Some(t.variance[REPORTED[i].0]));
+        .zip(&shares)
+        .map(|((name, variance), share)| {
             json!({
-                "name": t.name,
-                "kind": TermKind::of(&t.name).name(),
-                "variance": share_json(variance),
-                "share": share_json(share),
+                "name": name,
+                "kind": TermKind::of(name).name(),
+                "variance": per_parameter(*variance),
+                "share": per_parameter(*share),
             })
         })
         .collect();
-    let groups = by_kind(budget);
-    let totals: [f64; 3] = std::array::from_fn(|i| groups.iter().map(|(_, v)| v[i]).sum());
-    let kinds: Vec<Value> = groups
-        .iter()
-        .map(|(kind, v)| {
-            let share: [Option<f64>; 3] = std::array::from_fn(|i| (totals[i] > 0.0).then(|| v[i] / totals[i]));
-            json!({ "kind": kind.name(), "share": share_json(share) })
-        })
-        .collect();
+    let groups = by_kind(fit);
+    let group_shares = as_shares(&groups.iter().map(|(_, v)| *v).collect::<Vec<_>>());
+    let kinds: Vec<Value> =
+        groups.iter().zip(group_shares).map(|((kind, _), share)| json!({ "kind": kind.name(), "share": per_parameter(share) })).collect();
     json!({ "terms": terms, "by_kind": kinds })
 }
 
 /// A few lines for the report's table: each kind's share of σ's, ρs's and ρd's variance.
-pub fn to_table(budget: &[BudgetTerm]) -> String {
-    let groups = by_kind(budget);
-    if groups.is_empty() {
-        return String::new();
+pub fn to_table(fit: &FitResult) -> String {
+    let groups = by_kind(fit);
+    if groups.len() < 2 {
+        return String::new(); // reading noise alone: nothing to share out
     }
-    let totals: [f64; 3] = std::array::from_fn(|i| groups.iter().map(|(_, v)| v[i]).sum());
-    let mut s = String::from("  uncertainty budget (share of variance)    sigma    rho_s    rho_d\n");
-    for (kind, v) in &groups {
-        let cell = |i: usize| if totals[i] > 0.0 { format!("{:>6.1} %", 100.0 * v[i] / totals[i]) } else { format!("{:>8}", "—") };
+    let shares = as_shares(&groups.iter().map(|(_, v)| *v).collect::<Vec<_>>());
+    let mut s = String::from("  uncertainty budget, share of variance     sigma    rho_s    rho_d\n");
+    for ((kind, _), share) in groups.iter().zip(shares) {
+        let cell = |i: usize| share[i].map_or_else(|| format!("{:>8}", "—"), |v| format!("{:>6.1} %", 100.0 * v));
         s += &format!("    {:<38} {} {} {}\n", kind.name(), cell(0), cell(1), cell(2));
     }
     s
@@ -463,26 +455,30 @@ mod tests {
 
     #[test]
     fn shares_add_to_one_and_group_by_kind() {
-        let budget = vec![
-            BudgetTerm { name: READING_NOISE.into(), variance: [1.0, 2.0, 0.0, 0.1] },
-            BudgetTerm { name: "white θi=20°".into(), variance: [1.0, 1.0, 0.0, 0.1] },
-            BudgetTerm { name: "white θi=60°".into(), variance: [2.0, 1.0, 0.0, 0.1] },
-            BudgetTerm { name: TILE.into(), variance: [0.0, 4.0, 0.0, 0.0] },
+        let obs = [(20.0, 0.0, 0.5), (20.0, 10.0, 0.51), (20.0, 20.0, 0.49), (30.0, 30.0, 0.5), (45.0, 50.0, 0.505), (60.0, 70.0, 0.495)]
+            .map(|(ti, tr, r)| crate::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: r, std: Some(0.01) });
+        // A flat scene: only ρd is fitted, so σ and ρs have no budget.
+        let mut fit = crate::analysis::fit::fit(&obs, &crate::analysis::fit::FitOptions::default()).unwrap();
+        fit.budget = vec![
+            BudgetTerm { name: READING_NOISE.into(), variance: [1.0, 2.0, 1.0, 0.1] },
+            BudgetTerm { name: "white θi=20°".into(), variance: [1.0, 1.0, 1.0, 0.1] },
+            BudgetTerm { name: "white θi=60°".into(), variance: [2.0, 1.0, 2.0, 0.1] },
+            BudgetTerm { name: TILE.into(), variance: [0.0, 4.0, 4.0, 0.0] },
         ];
-        let shares = shares(&budget);
-        for i in 0..2 {
-            let total: f64 = shares.iter().map(|(_, s)| s[i].unwrap()).sum();
-            assert!((total - 1.0).abs() < 1e-12);
-        }
-        assert!(shares.iter().all(|(_, s)| s[2].is_none()), "ρd not fitted: no share");
-        let kinds = by_kind(&budget);
+        let shares = shares(&fit);
+        let total: f64 = shares.iter().map(|(_, s)| s[2].unwrap()).sum();
+        assert!((total - 1.0).abs() < 1e-12);
+        assert!(shares.iter().all(|(_, s)| s[0].is_none() && s[1].is_none()), "σ, ρs not determined: no share");
+        let kinds = by_kind(&fit);
         assert_eq!(kinds.iter().map(|(k, _)| *k).collect::<Vec<_>>(), [TermKind::ReadingNoise, TermKind::White, TermKind::Tile]);
-        assert_eq!(kinds[1].1, [3.0, 2.0, 0.0]);
-        let table = to_table(&budget);
-        assert!(table.contains("white readings") && table.contains("75.0 %"), "{table}");
-        let json = to_json(&budget);
+        assert_eq!(kinds[1].1, [None, None, Some(3.0)]);
+        let table = to_table(&fit);
+        assert!(table.contains("white readings") && table.contains("37.5 %") && table.contains("—"), "{table}");
+        let json = to_json(&fit);
         assert_eq!(json["terms"].as_array().unwrap().len(), 4);
-        assert_eq!(json["by_kind"][1]["share"]["sigma_deg"], json!(0.75));
-        assert_eq!(json["terms"][0]["share"]["rho_d"], Value::Null);
+        assert_eq!(json["by_kind"][1]["share"]["rho_d"], json!(0.375));
+        assert_eq!(json["terms"][0]["share"]["rho_s"], Value::Null);
+        assert_eq!(TermKind::of("reading noise (estimated from the residuals)"), TermKind::ReadingNoise);
+        assert_eq!(TermKind::of(LACK_OF_FIT), TermKind::LackOfFit);
     }
 }

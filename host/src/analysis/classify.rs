@@ -130,42 +130,83 @@ pub fn class_of(sigma_deg: Option<f64>, rho_s: f64, rho_d: f64) -> Class {
     }
 }
 
-/// The classification of a fit.
+/// Largest class confidence reported from a fit flagged `lack-of-fit`. Such a fit's
+/// parameters describe the best TSL approximation of a sheet the model does not describe,
+/// and their (widened) covariance still assumes the model's shape: the class is a best
+/// guess, reported below the 0.95 that reads as settled (the session's stopping rule and a
+/// user alike), whatever the sampled share says.
+pub const LACK_OF_FIT_CONFIDENCE_CAP: f64 = 0.90;
+
+/// The classification of a fit. Only what the fit determined is used: a parameter it did
+/// not identify ([`FitResult::not_identified`]) never decides the class; when the class
+/// cannot be decided without one, `class` is `None` and `undecided` says why.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Classification {
-    /// Glossy or rough.
-    pub group: Group,
-    /// The class.
-    pub class: Class,
-    /// Share of the parameter uncertainty region that falls in `class`, 0…1.
+    /// Glossy or rough, when decided.
+    pub group: Option<Group>,
+    /// The class, when decided.
+    pub class: Option<Class>,
+    /// Share of the parameter uncertainty region that falls in `class`, 0…1 (0 without a
+    /// class); at most [`LACK_OF_FIT_CONFIDENCE_CAP`] from a fit flagged `lack-of-fit`.
     pub confidence: f64,
-    /// The nearest reference paper of Table 6.
+    /// Why the class (or the group) could not be decided.
+    pub undecided: Option<&'static str>,
+    /// The nearest reference paper of Table 6, over the parameters the fit determined.
     pub nearest_reference: &'static str,
     /// Its distance in units of the combined (fit + reference) standard uncertainty.
     pub nearest_distance: f64,
 }
 
+impl Classification {
+    /// The class as the output spells it, `undecided` without one.
+    pub fn class_name(&self) -> &'static str {
+        self.class.map_or("undecided", Class::name)
+    }
+
+    /// The group as the output spells it, `undecided` without one.
+    pub fn group_name(&self) -> &'static str {
+        self.group.map_or("undecided", Group::name)
+    }
+}
+
 /// Points used to sample the uncertainty region.
 const CONFIDENCE_SAMPLES: usize = 512;
 
-/// Classify a fit: the class of the estimate; the share of a deterministic quasi-random
-/// sample of the fit's Gaussian (its covariance, σ in log space so it stays positive;
-/// an unresolved σ drawn uniformly from (0, upper]) that gets the same class; and the
-/// nearest Table 6 paper.
+/// Classify a fit: the class of the estimate from the determined parameters; the share of
+/// a deterministic quasi-random sample of the fit's Gaussian (its covariance, σ in log
+/// space so it stays positive; an unresolved σ drawn uniformly from (0, upper]; a ρs known
+/// only from below at its lower limit) that gets the same class; and the nearest Table 6
+/// paper.
+///
+/// An unresolved σ (only σ ≤ U known) decides the group when U < ρs (or ρs's lower
+/// limit): glossy, and G when also U < 1.3°; otherwise the class is undecided. A ρs that
+/// was not identified (η at its lower bound) leaves the class undecided.
 pub fn classify(fit: &FitResult) -> Classification {
     let p = fit.params;
-    let sigma_point = if fit.has_specular_term() { Some(fit.sigma_deg().or(fit.sigma_upper_deg()).unwrap_or(p.sigma_deg)) } else { None };
-    let class = match (fit.sigma_deg(), fit.sigma_upper_deg()) {
-        // Unresolved: the group from the upper limit, G/SG by where most of (0, upper] lies.
-        (None, Some(upper)) if fit.has_specular_term() => {
-            let sigma_mid = 0.5 * upper;
-            class_of(Some(sigma_mid), p.rho_s, p.rho_d)
-        }
-        _ => class_of(sigma_point, p.rho_s, p.rho_d),
-    };
-    let confidence = confidence(fit, class);
     let (nearest_reference, nearest_distance) = nearest_reference(fit);
-    Classification { group: class.group(), class, confidence, nearest_reference, nearest_distance }
+    let (group, class, undecided) = if !fit.has_specular_term() {
+        let c = class_of(None, 0.0, p.rho_d);
+        (Some(c.group()), Some(c), None)
+    } else {
+        match (fit.sigma_deg(), fit.sigma_upper_deg(), fit.reported(RHO_S)) {
+            (Some(sigma), _, Some(rho_s)) => {
+                let c = class_of(Some(sigma), rho_s, p.rho_d);
+                (Some(c.group()), Some(c), None)
+            }
+            (None, Some(upper), rho_s) => match rho_s.or(fit.rho_s_lower()) {
+                Some(r) if upper < r && upper < G_SG_SPLIT_DEG => (Some(Group::Glossy), Some(Class::G), None),
+                Some(r) if upper < r => (Some(Group::Glossy), None, Some("σ not resolved: G or SG (σ below the limit, which is above 1.3°)")),
+                _ => (None, None, Some("σ not resolved and its upper limit not below ρs: glossy or rough undecided")),
+            },
+            (Some(_), _, None) => (None, None, Some("ρs not identified (η at its lower bound): glossy or rough undecided")),
+            (None, None, _) => (None, None, Some("σ not determined")),
+        }
+    };
+    let mut confidence = class.map_or(0.0, |c| confidence(fit, c));
+    if fit.lack_of_fit {
+        confidence = confidence.min(LACK_OF_FIT_CONFIDENCE_CAP);
+    }
+    Classification { group, class, confidence, undecided, nearest_reference, nearest_distance }
 }
 
 fn confidence(fit: &FitResult, class: Class) -> f64 {
@@ -174,7 +215,10 @@ fn confidence(fit: &FitResult, class: Class) -> f64 {
         return if class_of(None, 0.0, p.rho_d) == class { 1.0 } else { 0.0 };
     }
     let upper = fit.sigma_upper_deg();
-    // Cholesky of the covariance in (ln σ, ρs, ρd, η) on the fitted, resolved parameters.
+    let rho_s_known = fit.reported(RHO_S);
+    let rho_s_point = rho_s_known.or(fit.rho_s_lower()).unwrap_or(0.0);
+    // Cholesky of the covariance in (ln σ, ρs, ρd, η) on the fitted, identified parameters
+    // (the covariance has zero rows for the others).
     let scale = [1.0 / p.sigma_deg, 1.0, 1.0, 1.0];
     let mut cov = [[0.0; 4]; 4];
     for i in 0..4 {
@@ -197,7 +241,7 @@ fn confidence(fit: &FitResult, class: Class) -> f64 {
             Some(up) => (u[SIGMA] * up).max(SIGMA_MIN_DEG),
             None => p.sigma_deg * delta[SIGMA].exp(),
         };
-        let rho_s = (p.rho_s + delta[RHO_S]).max(0.0);
+        let rho_s = if rho_s_known.is_some() { (rho_s_point + delta[RHO_S]).max(0.0) } else { rho_s_point };
         let rho_d = (p.rho_d + delta[RHO_D]).max(0.0);
         let _eta = (p.eta + delta[ETA]).clamp(ETA_MIN, ETA_MAX);
         if class_of(Some(sigma), rho_s, rho_d) == class {
@@ -207,8 +251,10 @@ fn confidence(fit: &FitResult, class: Class) -> f64 {
     same as f64 / CONFIDENCE_SAMPLES as f64
 }
 
-/// Nearest Table 6 paper by a diagonal Mahalanobis distance over σ, ρs, ρd (and η when it
-/// was fitted), each difference divided by the combined standard uncertainty
+/// Nearest Table 6 paper by a diagonal Mahalanobis distance over the parameters the fit
+/// determined: σ (only its excess over the upper limit when unresolved), ρs (only its
+/// shortfall below the lower limit when that is all that is known), ρd, and η when it was
+/// fitted; each difference divided by the combined standard uncertainty
 /// sqrt(u_fit² + u_ref²).
 pub fn nearest_reference(fit: &FitResult) -> (&'static str, f64) {
     let p = fit.params;
@@ -221,6 +267,7 @@ pub fn nearest_reference(fit: &FitResult) -> (&'static str, f64) {
             (x - x_ref) * (x - x_ref) / u2
         };
         let u = |i: usize| fit.std_error(i).unwrap_or(0.0);
+        let u_rho_s = REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_s;
         if fit.has_specular_term() {
             let u_ref = REFERENCE_RELATIVE_UNCERTAINTY * rp.sigma_deg;
             d2 += match (fit.sigma_deg(), fit.sigma_upper_deg()) {
@@ -229,14 +276,20 @@ pub fn nearest_reference(fit: &FitResult) -> (&'static str, f64) {
                 (None, Some(up)) => term(up.min(rp.sigma_deg), rp.sigma_deg, 0.0, u_ref),
                 (None, None) => 0.0,
             };
-            if fit.model.0[ETA] {
+            if fit.model.0[ETA] && fit.identified(ETA) {
                 d2 += term(p.eta, rp.eta, u(ETA), REFERENCE_ETA_UNCERTAINTY);
             }
+            d2 += match (fit.reported(RHO_S), fit.rho_s_lower()) {
+                (Some(rho_s), _) => term(rho_s, rp.rho_s, u(RHO_S), u_rho_s),
+                // Only a lower limit: no penalty above it.
+                (None, Some(lower)) => term(lower.max(rp.rho_s), rp.rho_s, 0.0, u_rho_s),
+                (None, None) => 0.0,
+            };
         } else {
-            // No lobe at all: as far from each reference as its σ is from 90°.
+            // No lobe at all: as far from each reference as its σ is from 90°, and ρs = 0.
             d2 += term(90.0, rp.sigma_deg, 0.0, REFERENCE_RELATIVE_UNCERTAINTY * rp.sigma_deg);
+            d2 += term(0.0, rp.rho_s, u(RHO_S), u_rho_s);
         }
-        d2 += term(p.rho_s, rp.rho_s, u(RHO_S), REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_s);
         d2 += term(p.rho_d, rp.rho_d, u(RHO_D), REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_d);
         let d = d2.sqrt();
         if d < best.1 {

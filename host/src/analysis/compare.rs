@@ -7,6 +7,9 @@
 //! chi-square with k degrees of freedom, k the number of parameters compared; the sheets
 //! are distinguishable when p < α (default 0.01). Sheets of different classes are
 //! distinguishable whatever p says: the class is itself a measured property of the stock.
+//! Only what both sessions determined is used: a parameter reported as null (not
+//! identified, with its reason in the session) or with zero variance is left out, and an
+//! undecided class (null) never makes two sheets "different classes".
 //!
 //! σ, ρs and ρd are compared in log space: they are positive scale parameters whose
 //! uncertainty is multiplicative (σ's interval is asymmetric, ρs runs from 0.1 to 60
@@ -74,8 +77,9 @@ pub struct SessionResult {
     pub file: PathBuf,
     /// Sample name.
     pub sample: String,
-    /// Class as the session spelled it (G, SG, rough-I…).
-    pub class: String,
+    /// Class as the session spelled it (G, SG, rough-I…); `None` when the session could not
+    /// decide it (null in the file).
+    pub class: Option<String>,
     /// σ [deg], ρs, ρd, η; `None` where the session reported null (not determined).
     pub values: [Option<f64>; 4],
     /// Covariance of (σ [deg], ρs, ρd, η); rows/columns of parameters not fitted are 0.
@@ -113,7 +117,10 @@ pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareEr
             v => Some(v.as_f64().filter(|x| x.is_finite()).ok_or_else(|| bad(&key, "a number or null"))?),
         };
     }
-    let class = result.get("class").ok_or_else(|| missing("result.class"))?.as_str().ok_or_else(|| bad("result.class", "a string"))?.to_string();
+    let class = match result.get("class").ok_or_else(|| missing("result.class"))? {
+        Value::Null => None,
+        v => Some(v.as_str().ok_or_else(|| bad("result.class", "a string or null"))?.to_string()),
+    };
 
     let rows = result.get("covariance").ok_or_else(|| missing("result.covariance"))?;
     let shape = "a 4×4 array of numbers";
@@ -168,7 +175,7 @@ pub struct Comparison {
     pub dof: usize,
     /// Significance level used.
     pub alpha: f64,
-    /// Class of A and B.
+    /// Class of A (`undecided` when the session could not decide it).
     pub class_a: String,
     /// Class of B.
     pub class_b: String,
@@ -226,7 +233,8 @@ pub fn compare(a: &SessionResult, b: &SessionResult, alpha: f64) -> Comparison {
         None => (d.iter().enumerate().map(|(r, x)| x * x / sum[r][r]).sum(), true),
     };
     let p_value = if k == 0 { 1.0 } else { chi_square_sf(distance_squared, k as f64) };
-    let different_classes = a.class != b.class;
+    // An undecided class is not a measured property: it cannot make the sheets differ.
+    let different_classes = matches!((&a.class, &b.class), (Some(x), Some(y)) if x != y);
     let (distinguishable, reason) = if different_classes {
         (true, "different classes")
     } else if p_value < alpha {
@@ -241,8 +249,8 @@ pub fn compare(a: &SessionResult, b: &SessionResult, alpha: f64) -> Comparison {
         distance: distance_squared.sqrt(),
         dof: k,
         alpha,
-        class_a: a.class.clone(),
-        class_b: b.class.clone(),
+        class_a: a.class.clone().unwrap_or_else(|| "undecided".into()),
+        class_b: b.class.clone().unwrap_or_else(|| "undecided".into()),
         parameters,
         correlations_dropped,
     }

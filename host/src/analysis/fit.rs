@@ -1,15 +1,46 @@
-//! Least-squares fit of the TSL model (METHOD.md "Fitting") with the bounds of Table 3.
+//! Least-squares fit of the TSL model (METHOD.md "Fitting") with the bounds of Table 3,
+//! and what the data say about it: goodness of fit, the uncertainty budget, and what was
+//! not determined.
 //!
 //! How: ρs and ρd enter linearly, so for any (σ, η) their best non-negative values follow in
 //! closed form (variable projection). A grid over log σ × η with that closed form gives the
 //! profile of the cost and its basins, which is what makes the glossy papers' multimodal
 //! problem safe; Levenberg–Marquardt on all four parameters (σ as ln σ, so σ > 0 holds by
 //! construction; the others by an active-set projection) then polishes the best basins.
-//! After the fit, what the data cannot determine is taken out of the model and said so.
+//! The cost is generalised least squares, rᵀ Σ⁻¹ r with Σ = diag(std²) + Σ_k s_k s_kᵀ the
+//! readings' covariance including the errors they share ([`SharedError`]; Woodbury, see
+//! [`engine`]). The model is the whole TSL model averaged over the detector's window
+//! ([`crate::analysis::model`]).
+//!
+//! After the fit, in order: what the data cannot determine is taken out of the model and
+//! said so (no specular part; σ unresolved; η at a bound); an arm zero offset δ0
+//! (θr → θr + δ0) is fitted when the data call for it (likelihood-ratio test at 1 %,
+//! [`ARM_OFFSET_LR_CRITICAL`]); goodness of fit ([`crate::analysis::gof`]); the parameters'
+//! covariance C = G Σ Gᵀ (G the estimator's linearised map), split into the independent
+//! noise's and each shared error's share, widened when the model does not fit.
+//!
+//! **Widening under lack of fit.** When `lack-of-fit` is raised the covariance is multiplied
+//! by k = max(1, χ²/ν) · max(1, (1 + ρ)/(1 − ρ)), ρ the residuals' pooled lag-1
+//! autocorrelation (clamped to [0, 0.9]): the first factor is the Birge ratio (the misfit
+//! read as extra noise of unknown size), the second the variance inflation of positively
+//! correlated residuals (an AR(1) series of n readings carries the information of
+//! n(1 − ρ)/(1 + ρ) independent ones), since a misfit leaves correlated runs that the first
+//! factor alone would count as independent. Intervals are then Student-t on ν. A sandwich
+//! estimate was not chosen: its per-reading "meat" rests on one residual each, unstable at
+//! the 12–40 readings of the short schedules, and like the Birge ratio it still assumes
+//! independent residuals. The widening is in the budget as its own term, `lack of fit`.
+mod engine;
 
-use crate::analysis::model::{self, ETA, PARAM_NAMES, Params, PlaneGeometry, RHO_S, SIGMA};
+use crate::analysis::flags::Flag;
+use crate::analysis::gof::{self, StructureTest};
+use crate::analysis::linalg::{self, Square};
+use crate::analysis::model::{ETA, PARAM_NAMES, Params, RHO_S, SIGMA};
+use engine::{LmOutcome, Problem, global_fit, levenberg_marquardt, levenberg_marquardt_until, lower_bounds, params_of, upper_bounds, x_of};
 use serde::Serialize;
+use statrs::distribution::{ContinuousCDF, StudentsT};
 use thiserror::Error;
+
+pub use engine::inverse_spd;
 
 /// Smallest σ the fit considers, degrees: far below what any sampling here resolves.
 pub const SIGMA_MIN_DEG: f64 = 1e-3;
@@ -21,10 +52,33 @@ pub const ETA_MIN: f64 = 1.0;
 pub const ETA_MAX: f64 = 3.0;
 /// Parameters of the full model.
 pub const N_PARAMS: usize = 4;
+/// Largest radiance factor accepted: far above any paper's peak seen through a 1° window
+/// (a glossy paper's is ~60), and small enough that squares and sums of residuals stay
+/// finite with the smallest uncertainty.
+pub const RADIANCE_FACTOR_MAX: f64 = 1e6;
+/// Smallest standard uncertainty accepted (absolute, radiance factor): no detector
+/// resolves 1e-9 of the white level, and below it the weights 1/std² lose their meaning.
+pub const STD_MIN: f64 = 1e-9;
+/// Largest standard uncertainty accepted.
+pub const STD_MAX: f64 = 1e6;
+/// Largest arm zero offset the fit looks for, degrees: more is a broken instrument, not
+/// an offset to fit away.
+pub const ARM_OFFSET_MAX_DEG: f64 = 3.0;
+/// δ0 is fitted when the likelihood-ratio statistic (cost without δ0 − cost with it, in
+/// units of the noise variance) exceeds χ²(1) at 99 %.
+pub const ARM_OFFSET_LR_CRITICAL: f64 = 6.634_896_601_021_213;
+/// The score statistic (the likelihood ratio's quadratic prediction from δ0 = 0) below
+/// which the search for δ0 is not run: at 1.0 it would take a six-fold underestimate of
+/// the likelihood ratio to miss an offset that passes [`ARM_OFFSET_LR_CRITICAL`].
+const ARM_OFFSET_SCREEN: f64 = 1.0;
 /// χ²(1) at 95 %: a profile within this (× residual variance) of the minimum is consistent.
 const CHI2_1_95: f64 = 3.841_458_820_694_124;
 /// χ²(3) at 95 %.
 const CHI2_3_95: f64 = 7.814_727_903_251_178;
+/// Standard normal quantile at 0.975.
+const Z_975: f64 = 1.959_963_984_540_054;
+/// Largest lag-1 autocorrelation used in the widening factor.
+const WIDENING_MAX_LAG1: f64 = 0.9;
 
 /// One reading: geometry in degrees, radiance factor, and optionally its standard uncertainty.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,6 +93,26 @@ pub struct Observation {
     pub std: Option<f64>,
 }
 
+/// An error shared by several readings (one draw for all of them): reading k's radiance
+/// factor is off by `sensitivity[k] · ε` with ε ~ N(0, 1), the same ε for every k.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SharedError {
+    /// What it is, for the budget ("white θi = 60°", "tile certificate", "gain range 2/1", "lamp drift").
+    pub name: String,
+    /// Per observation (same order and length as the observations), radiance factor per unit ε.
+    pub sensitivity: Vec<f64>,
+}
+
+/// One term of the uncertainty budget: its contribution to the variance of σ [deg²], ρs,
+/// ρd and η. The terms add up to the diagonal of [`FitResult::covariance`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BudgetTerm {
+    /// `reading noise` (the independent part), a [`SharedError`]'s name, or `lack of fit`.
+    pub name: String,
+    /// Contribution to Var of σ [deg], ρs, ρd, η (0 for what was not determined).
+    pub variance: [f64; N_PARAMS],
+}
+
 /// Options of a fit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FitOptions {
@@ -46,11 +120,13 @@ pub struct FitOptions {
     pub acceptance_deg: Option<f64>,
     /// Levenberg–Marquardt iteration limit per start.
     pub max_iterations: usize,
+    /// Test for an arm zero offset and fit it when the data call for it.
+    pub arm_offset: bool,
 }
 
 impl Default for FitOptions {
     fn default() -> Self {
-        FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200 }
+        FitOptions { acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200, arm_offset: true }
     }
 }
 
@@ -81,8 +157,18 @@ pub enum FitError {
         /// The value.
         value: f64,
     },
-    /// An angle outside 0…90°.
-    #[error("reading {index}: {what} = {value}° is outside 0…90°")]
+    /// A radiance factor too large to be a reading.
+    #[error("reading {index}: radiance factor {value} is above the largest accepted, {max:e}")]
+    TooLarge {
+        /// Reading.
+        index: usize,
+        /// The value.
+        value: f64,
+        /// [`RADIANCE_FACTOR_MAX`].
+        max: f64,
+    },
+    /// An angle outside [0°, 90°).
+    #[error("reading {index}: {what} = {value}° is outside [0°, 90°) (at 90° the model's G/(cos θi·cos θr) is unbounded)")]
     AngleOutOfRange {
         /// Reading.
         index: usize,
@@ -98,6 +184,18 @@ pub enum FitError {
         index: usize,
         /// The value.
         value: f64,
+    },
+    /// A standard uncertainty outside [`STD_MIN`]…[`STD_MAX`].
+    #[error("reading {index}: standard uncertainty {value:e} is outside the accepted {min:e} … {max:e}")]
+    UncertaintyOutOfRange {
+        /// Reading.
+        index: usize,
+        /// The value.
+        value: f64,
+        /// [`STD_MIN`].
+        min: f64,
+        /// [`STD_MAX`].
+        max: f64,
     },
     /// Uncertainties for some readings but not all.
     #[error("reading {index} has no standard uncertainty while others have one")]
@@ -131,19 +229,53 @@ pub enum FitError {
         /// Later value.
         value: f64,
     },
+    /// A shared error's sensitivity vector does not have one entry per reading.
+    #[error("shared error '{name}': {found} sensitivities for {expected} readings")]
+    SharedErrorLength {
+        /// The shared error.
+        name: String,
+        /// Its length.
+        found: usize,
+        /// Readings.
+        expected: usize,
+    },
+    /// A shared error's sensitivity is not a finite number of at most [`RADIANCE_FACTOR_MAX`].
+    #[error("shared error '{name}', reading {index}: sensitivity {value} is not a finite number within ±{max:e}")]
+    SharedErrorValue {
+        /// The shared error.
+        name: String,
+        /// Reading.
+        index: usize,
+        /// The value.
+        value: f64,
+        /// [`RADIANCE_FACTOR_MAX`].
+        max: f64,
+    },
+    /// Shared errors given for readings without uncertainties: their size has no scale.
+    #[error("shared error '{name}' given, but the readings have no standard uncertainties to set it against")]
+    SharedErrorWithoutUncertainties {
+        /// The shared error.
+        name: String,
+    },
 }
 
 impl FitError {
     /// The reading the error is about, if it is about one.
     pub fn reading_index(&self) -> Option<usize> {
-        match *self {
+        match self {
             FitError::NotFinite { index, .. }
             | FitError::Negative { index, .. }
+            | FitError::TooLarge { index, .. }
             | FitError::AngleOutOfRange { index, .. }
             | FitError::BadUncertainty { index, .. }
+            | FitError::UncertaintyOutOfRange { index, .. }
             | FitError::MixedUncertainties { index }
-            | FitError::ConflictingDuplicates { index, .. } => Some(index),
-            FitError::TooFewGeometries { .. } | FitError::AllEqual { .. } => None,
+            | FitError::ConflictingDuplicates { index, .. }
+            | FitError::SharedErrorValue { index, .. } => Some(*index),
+            FitError::TooFewGeometries { .. }
+            | FitError::AllEqual { .. }
+            | FitError::SharedErrorLength { .. }
+            | FitError::SharedErrorWithoutUncertainties { .. } => None,
         }
     }
 }
@@ -168,7 +300,8 @@ pub enum Bound {
     Upper,
 }
 
-/// What the data did not determine, and what was done about it.
+/// What the data did not determine, what was estimated from the data alone, and what was
+/// done about it.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum Note {
@@ -181,14 +314,40 @@ pub enum Note {
     NoSpecularTerm,
     /// The cost is flat down to σ → 0: the sampling does not resolve the peak. σ is only
     /// known to be below `upper_deg`; ρs, ρd, η are fitted with the peak in its σ → 0 limit.
+    /// Through a detector window only ρs·min(1, ~σ/a) is then determined, so ρs is not
+    /// reported; `rho_s_lower` is its value at σ = `upper_deg`, the smallest the data allow.
     SigmaUnresolved {
         /// Largest σ the data allow (95 % profile), degrees.
         upper_deg: f64,
+        /// ρs at σ = `upper_deg` (with a window), the lower limit of ρs.
+        rho_s_lower: Option<f64>,
     },
     /// The normal matrix was singular at the optimum: no confidence intervals.
     SingularJacobian,
     /// As many parameters as geometries: no residual variance, no confidence intervals.
     NoDegreesOfFreedom,
+    /// No standard uncertainties were given: the noise was taken equal for all readings and
+    /// estimated from the residuals (`std`, one reading's); there is no χ² test.
+    NoiseFromResiduals {
+        /// The estimated standard deviation of one reading.
+        std: f64,
+    },
+    /// An arm zero offset was fitted: every θr is taken as θr + `deg`.
+    ArmOffsetFitted {
+        /// δ0, degrees.
+        deg: f64,
+        /// Its standard uncertainty, degrees.
+        std_deg: f64,
+        /// The likelihood-ratio statistic that called for it.
+        lr: f64,
+    },
+    /// The model does not describe the data: the covariance was multiplied by `factor`.
+    IntervalsWidened {
+        /// The variance factor k.
+        factor: f64,
+    },
+    /// Neither goodness-of-fit test could be made (no uncertainties and too few θr neighbours).
+    FitNotTestable,
 }
 
 impl std::fmt::Display for Note {
@@ -196,16 +355,32 @@ impl std::fmt::Display for Note {
         match self {
             Note::EtaAtBound { eta } => write!(f, "η at its bound {eta}: held there, not fitted"),
             Note::NoSpecularTerm => f.write_str("no specular part: only ρd fitted (σ, η meaningless)"),
-            Note::SigmaUnresolved { upper_deg } => {
-                write!(f, "σ not resolved by the sampling: only known to be below {upper_deg:.3}°")
+            Note::SigmaUnresolved { upper_deg, rho_s_lower } => {
+                write!(f, "σ not resolved by the sampling: only known to be below {upper_deg:.3}°")?;
+                match rho_s_lower {
+                    Some(r) => write!(f, "; through the detector window ρs is not determined either (≥ {r:.4})"),
+                    None => Ok(()),
+                }
             }
             Note::SingularJacobian => f.write_str("singular normal matrix at the optimum: no confidence intervals"),
             Note::NoDegreesOfFreedom => f.write_str("as many parameters as geometries: no confidence intervals"),
+            Note::NoiseFromResiduals { std } => {
+                write!(f, "no uncertainties given: noise taken equal for all readings and estimated from the residuals (std {std:.3e}); no χ² test")
+            }
+            Note::ArmOffsetFitted { deg, std_deg, lr } => {
+                write!(f, "arm zero offset fitted: θr + {deg:+.3}° ± {std_deg:.3}° (likelihood ratio {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})")
+            }
+            Note::IntervalsWidened { factor } => {
+                write!(f, "the model does not describe the data: intervals widened × {:.2} (variance × {factor:.2})", factor.sqrt())
+            }
+            Note::FitNotTestable => f.write_str("goodness of fit not testable: no uncertainties and too few θr neighbours"),
         }
     }
 }
 
-/// Which parameters a fit estimated.
+/// Which parameters a fit estimated (as parameters or, for ρs with η at its lower
+/// bound, as the amplitude ρs·(η² − 1)); see [`FitResult::not_identified`] for which of
+/// them mean something.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FittedModel(pub [bool; N_PARAMS]);
 
@@ -230,6 +405,29 @@ pub struct ActiveBound {
     pub bound: Bound,
 }
 
+/// A parameter the data did not determine, and why. It is reported as null and used by
+/// nothing downstream (class, nearest reference, comparison).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct NotIdentified {
+    /// Parameter name.
+    pub param: &'static str,
+    /// Why.
+    pub reason: &'static str,
+}
+
+/// The fitted arm zero offset.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ArmOffset {
+    /// δ0, degrees: the detector was at θr + δ0 when it said θr.
+    pub deg: f64,
+    /// Standard uncertainty, degrees.
+    pub std_deg: f64,
+    /// 95 % interval, degrees.
+    pub ci95: (f64, f64),
+    /// Likelihood-ratio statistic of the test that called for it.
+    pub lr: f64,
+}
+
 /// The outcome of a fit.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FitResult {
@@ -237,26 +435,48 @@ pub struct FitResult {
     pub params: Params,
     /// Which parameters were estimated.
     pub model: FittedModel,
-    /// 95 % confidence intervals (Student t on the Jacobian at the optimum), clipped to the
-    /// bounds; `None` for parameters not fitted or when none can be given.
+    /// 95 % confidence intervals (normal quantile for weighted fits, Student t on ν for
+    /// unweighted or widened ones), clipped to the bounds; `None` for parameters not
+    /// fitted or not identified, or when none can be given.
     pub ci95: [Option<(f64, f64)>; N_PARAMS],
     /// Whether each interval was clipped at a bound.
     pub ci_clipped: [bool; N_PARAMS],
-    /// Covariance of (σ [deg], ρs, ρd, η); rows and columns of parameters not fitted are 0.
+    /// Covariance of (σ [deg], ρs, ρd, η), arm offset marginalised, widened under lack of
+    /// fit; rows and columns of parameters not fitted or not identified are 0.
     pub covariance: [[f64; N_PARAMS]; N_PARAMS],
+    /// The covariance's diagonal by source; the terms add up to it.
+    pub budget: Vec<BudgetTerm>,
     /// Parameters sitting on a bound.
     pub active_bounds: Vec<ActiveBound>,
-    /// What the data did not determine.
+    /// What the data did not determine, and how the result was reached.
     pub notes: Vec<Note>,
     /// The acceptance window modelled, degrees, if it was.
     pub acceptance_deg: Option<f64>,
+    /// The arm zero offset, if the data called for one.
+    pub arm_offset: Option<ArmOffset>,
+    /// The statistic of the arm-offset test (likelihood ratio, or the score screen when the
+    /// search was not needed); `None` when not tested.
+    pub arm_offset_statistic: Option<f64>,
     /// Readings.
     pub n: usize,
-    /// Weighted sum of squared residuals (the objective).
+    /// Weighted sum of squared residuals rᵀΣ⁻¹r (the objective).
     pub cost: f64,
-    /// Residual variance used for the intervals (1 when uncertainties were given).
+    /// χ² = the cost for weighted fits; `None` without uncertainties.
+    pub chi2: Option<f64>,
+    /// Upper-tail p-value of χ² on `dof`; `None` without uncertainties or degrees of freedom.
+    pub gof_p: Option<f64>,
+    /// The residual-structure test, when it could be run.
+    pub structure: Option<StructureTest>,
+    /// The model does not describe the data (χ² or structure test below its level).
+    pub lack_of_fit: bool,
+    /// Factor k the covariance was multiplied by (1 unless `lack_of_fit`).
+    pub variance_scale: f64,
+    /// Without given uncertainties: the standard deviation of one reading estimated from
+    /// the residuals.
+    pub noise_from_residuals: Option<f64>,
+    /// Residual variance used for the intervals (k, or k·s² without uncertainties).
     pub residual_variance: f64,
-    /// Degrees of freedom, n − fitted parameters.
+    /// Degrees of freedom, n − fitted parameters (the arm offset included).
     pub dof: usize,
     /// Normalised mean absolute error (Eq. 5–6).
     pub nmae: f64,
@@ -268,20 +488,25 @@ pub struct FitResult {
     pub status: Status,
     /// Whether readings carried uncertainties (a weighted fit).
     pub weighted: bool,
+    /// The fit's flags ([`Flag::LackOfFit`]).
+    pub flags: Vec<Flag>,
 }
 
 impl FitResult {
+    /// The parameters the data did not determine, with the reason.
+    pub fn not_identified(&self) -> Vec<NotIdentified> {
+        not_identified_of(&self.notes)
+    }
+
+    /// Whether parameter `index` was determined by the data.
+    pub fn identified(&self, index: usize) -> bool {
+        index < N_PARAMS && !self.not_identified().iter().any(|n| n.param == PARAM_NAMES[index])
+    }
+
     /// A parameter's value if it means something: fitted, or held at a bound the data
-    /// pushed it to. `None` for σ when unresolved and for σ, η without a specular part.
+    /// pushed it to; `None` for what was not identified ([`FitResult::not_identified`]).
     pub fn reported(&self, index: usize) -> Option<f64> {
-        let p = self.params.to_array();
-        let no_specular = self.notes.contains(&Note::NoSpecularTerm);
-        match index {
-            SIGMA if no_specular || self.sigma_upper_deg().is_some() => None,
-            ETA if no_specular => None,
-            i if i < N_PARAMS => Some(p[i]),
-            _ => None,
-        }
+        self.identified(index).then(|| self.params.to_array()[index])
     }
 
     /// σ in degrees if it was resolved.
@@ -292,7 +517,15 @@ impl FitResult {
     /// Upper limit of σ when the sampling does not resolve the peak.
     pub fn sigma_upper_deg(&self) -> Option<f64> {
         self.notes.iter().find_map(|n| match n {
-            Note::SigmaUnresolved { upper_deg } => Some(*upper_deg),
+            Note::SigmaUnresolved { upper_deg, .. } => Some(*upper_deg),
+            _ => None,
+        })
+    }
+
+    /// Lower limit of ρs when σ is unresolved through a window.
+    pub fn rho_s_lower(&self) -> Option<f64> {
+        self.notes.iter().find_map(|n| match n {
+            Note::SigmaUnresolved { rho_s_lower, .. } => *rho_s_lower,
             _ => None,
         })
     }
@@ -302,10 +535,35 @@ impl FitResult {
         !self.notes.contains(&Note::NoSpecularTerm)
     }
 
-    /// Standard uncertainty of a parameter (σ in degrees), if fitted.
+    /// Standard uncertainty of a parameter (σ in degrees), if fitted and identified.
     pub fn std_error(&self, index: usize) -> Option<f64> {
-        self.model.0[index].then(|| self.covariance[index][index].max(0.0).sqrt())
+        (self.model.0[index] && self.identified(index)).then(|| self.covariance[index][index].max(0.0).sqrt())
     }
+}
+
+/// What the notes of a fit say was not identified.
+fn not_identified_of(notes: &[Note]) -> Vec<NotIdentified> {
+    let mut out = Vec::new();
+    let no_specular = notes.contains(&Note::NoSpecularTerm);
+    if no_specular {
+        out.push(NotIdentified { param: "sigma", reason: "no specular part" });
+        out.push(NotIdentified { param: "eta", reason: "no specular part" });
+    }
+    for note in notes {
+        match note {
+            Note::SigmaUnresolved { rho_s_lower, .. } => {
+                out.push(NotIdentified { param: "sigma", reason: "not resolved by the sampling (only an upper limit)" });
+                if rho_s_lower.is_some() {
+                    out.push(NotIdentified { param: "rho_s", reason: "σ unresolved: through the detector window only ρs·min(1, ~σ/a) is determined" });
+                }
+            }
+            Note::EtaAtBound { eta } if *eta <= ETA_MIN && !no_specular => {
+                out.push(NotIdentified { param: "rho_s", reason: "η at its lower bound 1: only ρs·(η²−1) is determined" });
+            }
+            _ => {}
+        }
+    }
+    out
 }
 
 /// Best non-negative ρs, ρd at a fixed (σ, η), and the cost there.
@@ -319,65 +577,9 @@ pub struct LinearSolution {
     pub cost: f64,
 }
 
-/// One reading prepared for the fit.
-#[derive(Clone, Copy, Debug)]
-struct Point {
-    geometry: PlaneGeometry,
-    y: f64,
-    /// sqrt of the weight 1/std² (1 without uncertainties).
-    sqrt_w: f64,
-    /// Index of |θr − θi| in [`Problem::abs_offsets`].
-    abs_offset: u32,
-    /// Index of θr − θi in [`Problem::signed_offsets`].
-    signed_offset: u32,
-    /// Index of (sin² ψ, cos ψ) in [`Problem::psis`].
-    psi: u32,
-}
-
-/// The fit's data with the distinct values of its geometry terms: a measurement grid
-/// repeats lobe offsets and ψ many times (284 geometries have 61 distinct |θr − θi| and
-/// 111 distinct ψ), so the exponentials and Fresnel terms are evaluated once per distinct
-/// value and per pass. Each point's terms are bit-for-bit those of a direct evaluation.
-struct Problem {
-    points: Vec<Point>,
-    acceptance_deg: Option<f64>,
-    weighted: bool,
-    /// Distinct |θr − θi|: the lobe without the window depends only on these.
-    abs_offsets: Vec<f64>,
-    /// Distinct θr − θi: the windowed lobe.
-    signed_offsets: Vec<f64>,
-    /// Distinct (sin² ψ, cos ψ).
-    psis: Vec<(f64, f64)>,
-    /// Per-pass tables, reused across passes: lobe (value, ∂σ) per offset, Fresnel
-    /// (value, ∂η) per ψ.
-    scratch: std::cell::RefCell<Scratch>,
-}
-
-#[derive(Default)]
-struct Scratch {
-    lobe: Vec<(f64, f64)>,
-    fresnel: Vec<(f64, f64)>,
-}
-
-/// Distinct values of `keys` (by bits) and each key's index among them.
-fn distinct<K: Copy + PartialEq, F: Fn(K) -> u128>(keys: &[K], bits: F) -> (Vec<K>, Vec<u32>) {
-    let mut order: Vec<u32> = (0..keys.len() as u32).collect();
-    order.sort_unstable_by_key(|&k| bits(keys[k as usize]));
-    let mut values: Vec<K> = Vec::new();
-    let mut index = vec![0u32; keys.len()];
-    let mut last: Option<u128> = None;
-    for k in order {
-        let b = bits(keys[k as usize]);
-        if last != Some(b) {
-            values.push(keys[k as usize]);
-            last = Some(b);
-        }
-        index[k as usize] = (values.len() - 1) as u32;
-    }
-    (values, index)
-}
-
-/// Check the input, naming the first problem.
+/// Check the input, naming the first problem: finite numbers, angles in [0°, 90°),
+/// 0 ≤ radiance factor ≤ [`RADIANCE_FACTOR_MAX`], [`STD_MIN`] ≤ std ≤ [`STD_MAX`],
+/// uncertainties for all readings or none, no contradicting repeats, enough geometries.
 pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
     let weighted = observations.first().is_some_and(|o| o.std.is_some());
     for (index, o) in observations.iter().enumerate() {
@@ -385,7 +587,7 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
             if !value.is_finite() {
                 return Err(FitError::NotFinite { index, what });
             }
-            if !(0.0..=90.0).contains(&value) {
+            if !(0.0..90.0).contains(&value) {
                 return Err(FitError::AngleOutOfRange { index, what, value });
             }
         }
@@ -395,9 +597,15 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
         if o.radiance_factor < 0.0 {
             return Err(FitError::Negative { index, value: o.radiance_factor });
         }
+        if o.radiance_factor > RADIANCE_FACTOR_MAX {
+            return Err(FitError::TooLarge { index, value: o.radiance_factor, max: RADIANCE_FACTOR_MAX });
+        }
         match o.std {
             Some(s) if !s.is_finite() => return Err(FitError::NotFinite { index, what: "std" }),
             Some(s) if s <= 0.0 => return Err(FitError::BadUncertainty { index, value: s }),
+            Some(s) if !(STD_MIN..=STD_MAX).contains(&s) => {
+                return Err(FitError::UncertaintyOutOfRange { index, value: s, min: STD_MIN, max: STD_MAX });
+            }
             None if weighted => return Err(FitError::MixedUncertainties { index }),
             Some(_) if !weighted => {
                 // The first reading had none: it is the odd one out.
@@ -453,174 +661,22 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
     Ok(())
 }
 
-impl Problem {
-    fn new(observations: &[Observation], acceptance_deg: Option<f64>) -> Problem {
-        let weighted = observations.first().is_some_and(|o| o.std.is_some());
-        let geometries: Vec<PlaneGeometry> =
-            observations.iter().map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg)).collect();
-        let abs: Vec<f64> = geometries.iter().map(|g| g.offset_deg.abs()).collect();
-        let signed: Vec<f64> = geometries.iter().map(|g| g.offset_deg).collect();
-        let psi: Vec<(f64, f64)> = geometries.iter().map(|g| (g.sin2_psi, g.cos_psi)).collect();
-        let (abs_offsets, abs_index) = distinct(&abs, |v| v.to_bits() as u128);
-        let (signed_offsets, signed_index) = distinct(&signed, |v| v.to_bits() as u128);
-        let (psis, psi_index) = distinct(&psi, |(a, b)| ((a.to_bits() as u128) << 64) | b.to_bits() as u128);
-        let points = observations
-            .iter()
-            .zip(geometries)
-            .enumerate()
-            .map(|(k, (o, geometry))| Point {
-                geometry,
-                y: o.radiance_factor,
-                sqrt_w: o.std.map_or(1.0, |s| 1.0 / s),
-                abs_offset: abs_index[k],
-                signed_offset: signed_index[k],
-                psi: psi_index[k],
-            })
-            .collect();
-        Problem {
-            points,
-            acceptance_deg: acceptance_deg.filter(|&a| a > 0.0),
-            weighted,
-            abs_offsets,
-            signed_offsets,
-            psis,
-            scratch: Default::default(),
+/// Check the shared errors against the (validated) readings: one finite sensitivity of at
+/// most [`RADIANCE_FACTOR_MAX`] per reading, and readings with uncertainties.
+pub fn validate_shared(observations: &[Observation], shared: &[SharedError]) -> Result<(), FitError> {
+    let weighted = observations.first().is_some_and(|o| o.std.is_some());
+    for term in shared {
+        if !weighted {
+            return Err(FitError::SharedErrorWithoutUncertainties { name: term.name.clone() });
+        }
+        if term.sensitivity.len() != observations.len() {
+            return Err(FitError::SharedErrorLength { name: term.name.clone(), found: term.sensitivity.len(), expected: observations.len() });
+        }
+        if let Some((index, &value)) = term.sensitivity.iter().enumerate().find(|(_, v)| !(v.abs() <= RADIANCE_FACTOR_MAX)) {
+            return Err(FitError::SharedErrorValue { name: term.name.clone(), index, value, max: RADIANCE_FACTOR_MAX });
         }
     }
-
-    /// The lobe's offset table in use (signed with the window, else |offset|) and a
-    /// point's index into it.
-    fn offsets(&self) -> &[f64] {
-        if self.acceptance_deg.is_some() { &self.signed_offsets } else { &self.abs_offsets }
-    }
-
-    #[inline]
-    fn offset_index(&self, pt: &Point) -> usize {
-        if self.acceptance_deg.is_some() { pt.signed_offset as usize } else { pt.abs_offset as usize }
-    }
-
-    /// Fill `out` with the lobe (value, ∂σ) at σ for every distinct offset in use.
-    fn lobe_table(&self, sigma_deg: f64, out: &mut Vec<(f64, f64)>) {
-        out.clear();
-        match self.acceptance_deg {
-            Some(a) => out.extend(self.signed_offsets.iter().map(|&o| model::windowed_lobe_with_derivative(o, sigma_deg, a))),
-            None => out.extend(self.abs_offsets.iter().map(|&o| model::lobe_with_derivative(o, sigma_deg))),
-        }
-    }
-
-    /// Cost at x = [ln σ, A = ρs·(η²−1), ρd, η], with JᵀJ and Jᵀr in x when `jacobian`.
-    fn accumulate(&self, x: &[f64; 4], jacobian: bool) -> (f64, [[f64; 4]; 4], [f64; 4]) {
-        let sigma = x[0].exp();
-        let (amplitude, rho_d, eta) = (x[1], x[2], x[3]);
-        let mut cost = 0.0;
-        let mut a = [[0.0; 4]; 4];
-        let mut g = [0.0; 4];
-        let mut scratch = self.scratch.borrow_mut();
-        let Scratch { lobe, fresnel } = &mut *scratch;
-        self.lobe_table(sigma, lobe);
-        fresnel.clear();
-        fresnel.extend(self.psis.iter().map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, eta)));
-        for pt in &self.points {
-            let (e, de) = lobe[self.offset_index(pt)];
-            let (fr, dfr) = fresnel[pt.psi as usize];
-            let h = pt.geometry.attenuation_over_cosines;
-            let shape = fr * h * e;
-            let f = amplitude * shape + rho_d;
-            let r = pt.sqrt_w * (f - pt.y);
-            cost += r * r;
-            if jacobian {
-                let j = [
-                    pt.sqrt_w * amplitude * fr * h * de * sigma,
-                    pt.sqrt_w * shape,
-                    pt.sqrt_w,
-                    pt.sqrt_w * amplitude * dfr * h * e,
-                ];
-                for row in 0..4 {
-                    g[row] += j[row] * r;
-                    for col in row..4 {
-                        a[row][col] += j[row] * j[col];
-                    }
-                }
-            }
-        }
-        for row in 0..4 {
-            for col in 0..row {
-                a[row][col] = a[col][row];
-            }
-        }
-        (cost, a, g)
-    }
-
-    /// Best non-negative (ρs, ρd) at (σ, η).
-    fn linear(&self, sigma_deg: f64, eta: f64) -> LinearSolution {
-        let (mut sw, mut sy, mut syy, mut sg, mut sgg, mut sgy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-        let mut scratch = self.scratch.borrow_mut();
-        let Scratch { lobe, fresnel } = &mut *scratch;
-        self.lobe_table(sigma_deg, lobe);
-        fresnel.clear();
-        fresnel.extend(self.psis.iter().map(|&(s2, c)| model::fresnel_with_derivative(s2, c, eta)));
-        for pt in &self.points {
-            let w = pt.sqrt_w * pt.sqrt_w;
-            let f = fresnel[pt.psi as usize].0;
-            let g = f * pt.geometry.attenuation_over_cosines * lobe[self.offset_index(pt)].0;
-            sw += w;
-            sy += w * pt.y;
-            syy += w * pt.y * pt.y;
-            sg += w * g;
-            sgg += w * g * g;
-            sgy += w * g * pt.y;
-        }
-        solve_linear(sw, sy, syy, sg, sgg, sgy)
-    }
-}
-
-/// (η² − 1), the factor between the fit's amplitude A and ρs.
-fn eta_factor(eta: f64) -> f64 {
-    (eta - 1.0) * (eta + 1.0)
-}
-
-fn params_of(x: &[f64; 4]) -> Params {
-    Params { sigma_deg: x[0].exp(), rho_s: x[1] / eta_factor(x[3]), rho_d: x[2], eta: x[3] }
-}
-
-/// x = [ln σ, A, ρd, η] of parameters.
-fn x_of(p: &Params) -> [f64; 4] {
-    [p.sigma_deg.ln(), p.rho_s * eta_factor(p.eta), p.rho_d, p.eta]
-}
-
-/// η = 1 itself has F ≡ 0; the fit stops just above it, where ρs = A/(η²−1) is still
-/// finite, and reports η at its bound with ρs undetermined.
-const ETA_FLOOR: f64 = ETA_MIN + 1e-6;
-
-fn lower_bounds() -> [f64; 4] {
-    [SIGMA_MIN_DEG.ln(), 0.0, 0.0, ETA_FLOOR]
-}
-
-fn upper_bounds() -> [f64; 4] {
-    [SIGMA_MAX_DEG.ln(), f64::INFINITY, f64::INFINITY, ETA_MAX]
-}
-
-/// Closed-form non-negative least squares for f = ρs·g + ρd from the weighted sums.
-fn solve_linear(sw: f64, sy: f64, syy: f64, sg: f64, sgg: f64, sgy: f64) -> LinearSolution {
-    let cost_of = |a: f64, b: f64| (syy - 2.0 * a * sgy - 2.0 * b * sy + a * a * sgg + 2.0 * a * b * sg + b * b * sw).max(0.0);
-    let det = sw * sgg - sg * sg;
-    if det > 1e-12 * sw * sgg {
-        let rho_s = (sw * sgy - sg * sy) / det;
-        let rho_d = (sgg * sy - sg * sgy) / det;
-        if rho_s >= 0.0 && rho_d >= 0.0 {
-            return LinearSolution { rho_s, rho_d, cost: cost_of(rho_s, rho_d) };
-        }
-    }
-    // The unconstrained optimum is infeasible (or g has no shape): the best lies on an edge.
-    let lambert = LinearSolution { rho_s: 0.0, rho_d: (sy / sw).max(0.0), cost: cost_of(0.0, (sy / sw).max(0.0)) };
-    if sgg > 0.0 {
-        let rho_s = (sgy / sgg).max(0.0);
-        let specular_only = LinearSolution { rho_s, rho_d: 0.0, cost: cost_of(rho_s, 0.0) };
-        if specular_only.cost < lambert.cost {
-            return specular_only;
-        }
-    }
-    lambert
+    Ok(())
 }
 
 /// The best non-negative ρs, ρd at a given (σ, η) and the cost there: the inner problem of
@@ -631,360 +687,77 @@ pub fn linear_profile(
     eta: f64,
     acceptance_deg: Option<f64>,
 ) -> Result<LinearSolution, FitError> {
-    validate(observations)?;
-    Ok(Problem::new(observations, acceptance_deg).linear(sigma_deg, eta))
+    Ok(LinearProfile::new(observations, acceptance_deg)?.at(sigma_deg, eta))
 }
 
-/// Weighted cost of given parameters (the fit's objective).
+/// [`linear_profile`] for many (σ, η) on the same readings, prepared once.
+pub struct LinearProfile(Problem);
+
+impl LinearProfile {
+    /// Validate and prepare the readings.
+    pub fn new(observations: &[Observation], acceptance_deg: Option<f64>) -> Result<LinearProfile, FitError> {
+        validate(observations)?;
+        Ok(LinearProfile(Problem::new(observations, &[], acceptance_deg, 0.0)))
+    }
+
+    /// The best non-negative ρs, ρd at (σ, η) and the cost there.
+    pub fn at(&self, sigma_deg: f64, eta: f64) -> LinearSolution {
+        self.0.linear(sigma_deg, eta)
+    }
+}
+
+/// Weighted cost of given parameters (the fit's objective, independent noise only).
 pub fn cost(observations: &[Observation], params: &Params, acceptance_deg: Option<f64>) -> f64 {
-    let problem = Problem::new(observations, acceptance_deg);
+    let problem = Problem::new(observations, &[], acceptance_deg, 0.0);
     problem.accumulate(&x_of(params), false).0
 }
 
-/// σ grid of the global search: log-spaced, 1.25 apart, from 0.05° (finer than any
-/// sampling here resolves) to 90°.
-fn sigma_grid() -> impl Iterator<Item = f64> {
-    const RATIO: f64 = 1.25;
-    let n = ((SIGMA_MAX_DEG / 0.05).ln() / RATIO.ln()).ceil() as i32;
-    (0..=n).map(move |k| (0.05 * RATIO.powi(k)).min(SIGMA_MAX_DEG))
-}
-
-/// η grid of the global search: denser near 1, where F changes fastest relative to itself.
-const ETA_GRID: [f64; 11] = [1.005, 1.01, 1.02, 1.04, 1.08, 1.19, 1.35, 1.6, 2.0, 2.5, 3.0];
-
-/// Starting points from the grid: the best (η, ρs, ρd) at each σ, then the lowest local
-/// minima of that profile in σ, best first.
-fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
-    let (mut sw, mut sy, mut syy) = (0.0, 0.0, 0.0);
-    for pt in &problem.points {
-        let w = pt.sqrt_w * pt.sqrt_w;
-        sw += w;
-        sy += w * pt.y;
-        syy += w * pt.y * pt.y;
-    }
-    // Per η and distinct lobe offset o: the sums over the points at o of u = w·F·H, u·y
-    // and u·F·H, so each (σ, η) costs three dot products over the distinct offsets (61
-    // for the 284-geometry grid) and each σ one exponential per distinct offset.
-    let m = problem.offsets().len();
-    let mut fresnel = vec![0.0; problem.psis.len()];
-    let mut u = vec![0.0; ETA_GRID.len() * m];
-    let mut uy = vec![0.0; ETA_GRID.len() * m];
-    let mut uu = vec![0.0; ETA_GRID.len() * m];
-    for (e, &eta) in ETA_GRID.iter().enumerate() {
-        for (f, &(s2, c)) in fresnel.iter_mut().zip(&problem.psis) {
-            *f = model::fresnel_with_derivative(s2, c, eta).0;
-        }
-        for pt in &problem.points {
-            let fh = fresnel[pt.psi as usize] * pt.geometry.attenuation_over_cosines;
-            let w = pt.sqrt_w * pt.sqrt_w;
-            let k = e * m + problem.offset_index(pt);
-            u[k] += w * fh;
-            uy[k] += w * fh * pt.y;
-            uu[k] += w * fh * fh;
-        }
-    }
-    let mut table = Vec::with_capacity(m);
-    let mut lobe = vec![0.0; m];
-    let mut profile: Vec<(f64, [f64; 4])> = Vec::with_capacity(40);
-    let mut eta_costs: Vec<f64> = Vec::with_capacity(40 * ETA_GRID.len());
-    for sigma in sigma_grid() {
-        problem.lobe_table(sigma, &mut table);
-        for (l, &(v, _)) in lobe.iter_mut().zip(&table) {
-            *l = v;
-        }
-        let mut best = (f64::INFINITY, [0.0; 4]);
-        for (e, &eta) in ETA_GRID.iter().enumerate() {
-            let range = e * m..(e + 1) * m;
-            // Four partial sums per dot product: independent chains the compiler can
-            // keep in vector registers.
-            let (mut sg4, mut sgy4, mut sgg4) = ([0.0; 4], [0.0; 4], [0.0; 4]);
-            let (l, u, uy, uu) = (&lobe[..], &u[range.clone()], &uy[range.clone()], &uu[range]);
-            let whole = m / 4 * 4;
-            for c in (0..whole).step_by(4) {
-                for j in 0..4 {
-                    let lj = l[c + j];
-                    sg4[j] += u[c + j] * lj;
-                    sgy4[j] += uy[c + j] * lj;
-                    sgg4[j] += uu[c + j] * lj * lj;
-                }
-            }
-            for k in whole..m {
-                sg4[0] += u[k] * l[k];
-                sgy4[0] += uy[k] * l[k];
-                sgg4[0] += uu[k] * l[k] * l[k];
-            }
-            let sum4 = |v: [f64; 4]| (v[0] + v[1]) + (v[2] + v[3]);
-            let (sg, sgy, sgg) = (sum4(sg4), sum4(sgy4), sum4(sgg4));
-            let s = solve_linear(sw, sy, syy, sg, sgg, sgy);
-            eta_costs.push(s.cost);
-            if s.cost < best.0 {
-                best = (s.cost, [sigma.ln(), s.rho_s * eta_factor(eta), s.rho_d, eta]);
-            }
-        }
-        profile.push(best);
-    }
-    let minima: Vec<(f64, [f64; 4])> = (0..profile.len())
-        .filter(|&i| {
-            let c = profile[i].0;
-            (i == 0 || c <= profile[i - 1].0) && (i + 1 == profile.len() || c <= profile[i + 1].0)
-        })
-        .map(|i| profile[i])
-        .collect();
-    let n_eta = ETA_GRID.len();
-    let mut minima: Vec<(f64, [f64; 4])> = minima
-        .into_iter()
-        .map(|(c, x)| {
-            // Polish the grid point by parabolas through its neighbours, in ln σ along the
-            // profile and in η along its row: starting in the right place of the narrow
-            // ρs–η valley of nearly-Fresnel-free papers (η → 1) saves most LM iterations.
-            let i = profile.iter().position(|p| p.1 == x).unwrap_or(0);
-            let ln_sigma = if i > 0 && i + 1 < profile.len() {
-                parabola_min([profile[i - 1].1[0], x[0], profile[i + 1].1[0]], [profile[i - 1].0, c, profile[i + 1].0]).unwrap_or(x[0])
-            } else {
-                x[0]
-            };
-            let row = &eta_costs[i * n_eta..(i + 1) * n_eta];
-            let e = ETA_GRID.iter().position(|&eta| eta == x[3]).unwrap_or(0);
-            let eta = if e > 0 && e + 1 < n_eta {
-                parabola_min([ETA_GRID[e - 1], ETA_GRID[e], ETA_GRID[e + 1]], [row[e - 1], row[e], row[e + 1]]).unwrap_or(x[3])
-            } else {
-                x[3]
-            };
-            let refined = problem.linear(ln_sigma.exp(), eta);
-            if refined.cost < c { (refined.cost, [ln_sigma, refined.rho_s * eta_factor(eta), refined.rho_d, eta]) } else { (c, x) }
-        })
-        .collect();
-    minima.sort_by(|a, b| a.0.total_cmp(&b.0));
-    // Basins far worse than the best on the grid do not compete after polishing either.
-    let best_cost = minima.first().map_or(0.0, |m| m.0);
-    minima.retain(|m| m.0 <= 2.0 * best_cost + 1e-300);
-    minima.truncate(max_seeds);
-    minima.into_iter().map(|(_, x)| x).collect()
-}
-
-/// Abscissa of the minimum of the parabola through three points, if it opens upwards and
-/// the minimum lies between the outer points.
-fn parabola_min(x: [f64; 3], y: [f64; 3]) -> Option<f64> {
-    let d1 = (y[1] - y[0]) / (x[1] - x[0]);
-    let d2 = (y[2] - y[1]) / (x[2] - x[1]);
-    let curvature = (d2 - d1) / (x[2] - x[0]);
-    if !(curvature > 0.0) {
-        return None;
-    }
-    let m = 0.5 * (x[0] + x[1]) - d1 / (2.0 * curvature);
-    (m > x[0] && m < x[2]).then_some(m)
-}
-
-struct LmOutcome {
-    x: [f64; 4],
-    cost: f64,
-    iterations: usize,
-    status: Status,
-}
-
-/// Solve the symmetric positive definite system m·x = b on the indices in `free`
-/// (others get 0) by Cholesky; `None` if not positive definite.
-fn solve_spd(m: &[[f64; 4]; 4], b: &[f64; 4], free: &[bool; 4]) -> Option<[f64; 4]> {
-    let idx: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
-    let k = idx.len();
-    let mut l = [[0.0; 4]; 4];
-    for i in 0..k {
-        for j in 0..=i {
-            let mut s = m[idx[i]][idx[j]];
-            for p in 0..j {
-                s -= l[i][p] * l[j][p];
-            }
-            if i == j {
-                if !(s > 0.0) || !s.is_finite() {
-                    return None;
-                }
-                l[i][i] = s.sqrt();
-            } else {
-                l[i][j] = s / l[j][j];
-            }
-        }
-    }
-    let mut y = [0.0; 4];
-    for i in 0..k {
-        let mut s = b[idx[i]];
-        for p in 0..i {
-            s -= l[i][p] * y[p];
-        }
-        y[i] = s / l[i][i];
-    }
-    let mut x = [0.0; 4];
-    for i in (0..k).rev() {
-        let mut s = y[i];
-        for p in i + 1..k {
-            s -= l[p][i] * x[p];
-        }
-        x[i] = s / l[i][i];
-    }
-    let mut out = [0.0; 4];
-    for i in 0..k {
-        out[idx[i]] = x[i];
-    }
-    Some(out)
-}
-
-/// Inverse of the sub-matrix on `free` (zeros elsewhere), `None` if singular.
-pub(crate) fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
-    // Scale to unit diagonal first so that parameters of very different size do not
-    // make a well-posed matrix look singular.
-    let d: [f64; 4] = std::array::from_fn(|i| if free[i] && m[i][i] > 0.0 { 1.0 / m[i][i].sqrt() } else { 0.0 });
-    if (0..4).any(|i| free[i] && d[i] == 0.0) {
-        return None;
-    }
-    let scaled: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| m[i][j] * d[i] * d[j]));
-    let mut inv = [[0.0; 4]; 4];
-    for c in 0..4 {
-        if !free[c] {
-            continue;
-        }
-        let mut e = [0.0; 4];
-        e[c] = 1.0;
-        let col = solve_spd(&scaled, &e, free)?;
-        for r in 0..4 {
-            inv[r][c] = col[r] * d[r] * d[c];
-        }
-    }
-    // A near-singular matrix shows as a huge scaled inverse.
-    if (0..4).any(|i| free[i] && !(inv[i][i] * m[i][i] < 1e12)) {
-        return None;
-    }
-    Some(inv)
-}
-
-/// Levenberg–Marquardt with Marquardt's diagonal scaling and bounds by an active set:
-/// a parameter on a bound whose gradient points out of the box is held for that step.
-fn levenberg_marquardt(problem: &Problem, x0: [f64; 4], fixed: [bool; 4], max_iterations: usize) -> LmOutcome {
-    levenberg_marquardt_until(problem, x0, fixed, max_iterations, 0.0)
-}
-
-/// [`levenberg_marquardt`] that also stops as soon as the cost is at or below `good_enough`.
-fn levenberg_marquardt_until(
-    problem: &Problem,
-    x0: [f64; 4],
-    fixed: [bool; 4],
-    max_iterations: usize,
-    good_enough: f64,
-) -> LmOutcome {
-    let (lo, hi) = (lower_bounds(), upper_bounds());
-    let mut x: [f64; 4] = std::array::from_fn(|i| x0[i].clamp(lo[i], hi[i]));
-    let (mut cost, mut a, mut g) = problem.accumulate(&x, true);
-    let mut lambda = 1e-3;
-    for iteration in 1..=max_iterations {
-        let free: [bool; 4] =
-            std::array::from_fn(|i| !fixed[i] && !((x[i] <= lo[i] && g[i] > 0.0) || (x[i] >= hi[i] && g[i] < 0.0)));
-        if !free.iter().any(|&f| f) || cost <= good_enough {
-            return LmOutcome { x, cost, iterations: iteration - 1, status: Status::Converged };
-        }
-        let trace: f64 = (0..4).filter(|&i| free[i]).map(|i| a[i][i]).sum();
-        let floor = 1e-12 * trace.max(f64::MIN_POSITIVE);
-        loop {
-            let mut m = a;
-            for i in 0..4 {
-                m[i][i] += lambda * a[i][i].max(floor);
-            }
-            let neg_g = [-g[0], -g[1], -g[2], -g[3]];
-            let step = solve_spd(&m, &neg_g, &free);
-            if let Some(step) = step {
-                let x_new: [f64; 4] = std::array::from_fn(|i| (x[i] + step[i]).clamp(lo[i], hi[i]));
-                let (cost_new, a_new, g_new) = problem.accumulate(&x_new, true);
-                if cost_new.is_finite() && cost_new < cost {
-                    let small_step = (0..4).all(|i| (x_new[i] - x[i]).abs() <= 1e-10 * (x[i].abs() + 1e-8));
-                    let small_decrease = cost - cost_new <= 1e-12 * cost;
-                    x = x_new;
-                    cost = cost_new;
-                    a = a_new;
-                    g = g_new;
-                    lambda = (lambda * 0.1).max(1e-12);
-                    if small_step || small_decrease {
-                        return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
-                    }
-                    break;
-                }
-            }
-            lambda *= 10.0;
-            if lambda > 1e14 {
-                // No downhill step however short: a (possibly bounded) minimum.
-                return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
-            }
-        }
-    }
-    LmOutcome { x, cost, iterations: max_iterations, status: Status::IterationLimit }
-}
-
-/// Global search then local polish, on the full model.
-fn global_fit(problem: &Problem, max_iterations: usize) -> LmOutcome {
-    let mut best: Option<LmOutcome> = None;
-    for seed in seeds(problem, 3) {
-        let run = levenberg_marquardt(problem, seed, [false; 4], max_iterations);
-        if best.as_ref().is_none_or(|b| run.cost < b.cost) {
-            best = Some(run);
-        }
-    }
-    // seeds() always returns at least one point (the grid is not empty).
-    best.unwrap_or_else(|| levenberg_marquardt(problem, [0.0, 1.0, 0.5, 1.5], [false; 4], max_iterations))
-}
-
-/// Student t quantile at 0.975 for `dof` degrees of freedom (exact for 1 and 2, else the
-/// Cornish–Fisher series, Abramowitz & Stegun 26.7.5, better than 1e-3 from 3 on).
+/// Student t quantile at 0.975 for `dof` degrees of freedom (statrs); ∞ without any.
 pub fn t_quantile_975(dof: usize) -> f64 {
-    const Z: f64 = 1.959_963_984_540_054;
-    match dof {
-        0 => f64::INFINITY,
-        1 => 12.706_204_736_174_7,
-        2 => 4.302_652_729_749_464,
-        _ => {
-            let v = dof as f64;
-            let z2 = Z * Z;
-            let g1 = (z2 + 1.0) * Z / 4.0;
-            let g2 = ((5.0 * z2 + 16.0) * z2 + 3.0) * Z / 96.0;
-            let g3 = (((3.0 * z2 + 19.0) * z2 + 17.0) * z2 - 15.0) * Z / 384.0;
-            let g4 = ((((79.0 * z2 + 776.0) * z2 + 1482.0) * z2 - 1920.0) * z2 - 945.0) * Z / 92160.0;
-            Z + g1 / v + g2 / (v * v) + g3 / (v * v * v) + g4 / (v * v * v * v)
-        }
+    if dof == 0 {
+        return f64::INFINITY;
     }
+    StudentsT::new(0.0, 1.0, dof as f64).map_or(f64::INFINITY, |t| t.inverse_cdf(0.975))
 }
 
-/// Fit the TSL model to the readings.
+/// Fit the TSL model to the readings (independent noise only).
 pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResult, FitError> {
+    fit_with_shared(observations, &[], options)
+}
+
+/// Fit the TSL model to readings whose errors are partly shared: the covariance of the
+/// readings is diag(std²) + Σ_k s_k s_kᵀ.
+pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], options: &FitOptions) -> Result<FitResult, FitError> {
     validate(observations)?;
-    let mut problem = Problem::new(observations, None);
+    validate_shared(observations, shared)?;
+    let acceptance = options.acceptance_deg.filter(|&a| a > 0.0);
     let n = observations.len();
+    let weighted = observations[0].std.is_some();
+    let mut problem = Problem::new(observations, shared, acceptance, 0.0);
     let mut outcome = global_fit(&problem, options.max_iterations);
     let mut notes = Vec::new();
     let mut fitted = [true; 4];
     let lo = lower_bounds();
     let hi = upper_bounds();
-    let at_lower = |x: &[f64; 4], i: usize| x[i] <= lo[i];
-
-    let residual_variance = |cost: f64, p: usize| {
-        if problem_weighted(observations) { 1.0 } else { cost / (n.saturating_sub(p).max(1)) as f64 }
-    };
+    let residual_variance = |cost: f64, p: usize| if weighted { 1.0 } else { cost / (n.saturating_sub(p).max(1)) as f64 };
 
     // Is there a specular part at all? A lobe that improves on a constant by less than
     // χ²(3) at 95 % (× residual variance) is noise being fitted: the three extra
     // parameters are not supported.
-    let lambert_cost = {
-        let rho_d = lambert_fit(&problem);
-        problem.accumulate(&[0.0, 0.0, rho_d, ETA_MAX], false).0
-    };
+    let lambert_cost = problem.accumulate(&[0.0, 0.0, problem.lambert(), ETA_MAX], false).0;
     let no_lobe = (lambert_cost - outcome.cost) <= CHI2_3_95 * residual_variance(outcome.cost, 4);
-    if no_lobe || at_lower(&outcome.x, RHO_S) {
+    let mut unresolved = false;
+    if no_lobe || outcome.x[RHO_S] <= lo[RHO_S] {
         // F ≡ 0 or ρs = 0: the specular part is absent and only ρd remains.
         notes.push(Note::NoSpecularTerm);
         fitted = [false, false, true, false];
-        let lambert = lambert_fit(&problem);
-        outcome = LmOutcome { x: [outcome.x[0], 0.0, lambert, ETA_MAX], cost: 0.0, ..outcome };
-        outcome.cost = problem.accumulate(&outcome.x, false).0;
+        let x = [outcome.x[0], 0.0, problem.lambert(), ETA_MAX];
+        outcome = LmOutcome { x, cost: problem.accumulate(&x, false).0, ..outcome };
     } else {
         // Is the peak resolved? Compare with the σ → 0 limit, others refitted.
         let s2 = residual_variance(outcome.cost, 4).max(1e-300);
         let threshold = outcome.cost + CHI2_1_95 * s2;
         let sigma_hat = outcome.x[0].exp();
-        let mut unresolved = false;
         if sigma_hat < 10.0 {
             // Screen: ρs, ρd solved exactly at σ → 0 and the fitted η. A resolved peak is
             // orders of magnitude worse there; only a close call needs the full refit.
@@ -992,26 +765,42 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
             let close_call = screen - outcome.cost <= 100.0 * (threshold - outcome.cost) || screen <= 2.0 * outcome.cost;
             let mut x_floor = outcome.x;
             x_floor[0] = lo[0];
-            let floor = if close_call {
-                levenberg_marquardt_until(&problem, x_floor, [true, false, false, false], options.max_iterations, threshold)
-            } else {
-                LmOutcome { x: x_floor, cost: screen, iterations: 0, status: Status::Converged }
-            };
-            if close_call && floor.cost <= threshold {
-                unresolved = true;
-                let upper = sigma_upper_deg(&problem, &outcome, threshold, options.max_iterations);
-                notes.push(Note::SigmaUnresolved { upper_deg: upper });
-                fitted[SIGMA] = false;
-                // The screen stopped at the threshold: finish the reduced fit.
-                outcome = levenberg_marquardt(&problem, floor.x, [true, false, false, false], options.max_iterations);
+            if close_call {
+                // ρs at the floor from the closed form (through a window it must grow as
+                // 1/σ to keep the specular readings), then the reduced fit to the threshold.
+                let start = problem.linear(SIGMA_MIN_DEG, outcome.x[ETA]);
+                x_floor[1] = start.rho_s * engine::eta_factor(outcome.x[ETA]);
+                x_floor[2] = start.rho_d;
+                let floor = levenberg_marquardt_until(&problem, x_floor, [true, false, false, false], options.max_iterations, threshold);
+                if floor.cost <= threshold {
+                    unresolved = true;
+                    let (upper, x_upper) = sigma_upper_deg(&problem, &outcome, threshold, options.max_iterations);
+                    let rho_s_lower = acceptance.map(|_| params_of(&x_upper).rho_s);
+                    notes.push(Note::SigmaUnresolved { upper_deg: upper, rho_s_lower });
+                    fitted[SIGMA] = false;
+                    // The screen stopped at the threshold: finish the reduced fit.
+                    outcome = levenberg_marquardt(&problem, floor.x, [true, false, false, false], options.max_iterations);
+                }
             }
         }
-        if !unresolved {
-            if let Some(a) = options.acceptance_deg.filter(|&a| model::acceptance_matters(sigma_hat, a)) {
-                problem.acceptance_deg = Some(a);
-                outcome = global_fit(&problem, options.max_iterations);
-            }
+    }
+
+    // Arm zero offset: only where the peak is resolved (an unresolved peak's position is
+    // confounded with σ; without a peak there is nothing to shift).
+    let mut arm_offset_statistic = None;
+    let mut arm_fitted = false;
+    if options.arm_offset && !unresolved && fitted[RHO_S] {
+        let fitted_count = fitted.iter().filter(|&&b| b).count();
+        let search = arm_offset_search(observations, shared, acceptance, &problem, &outcome, fitted_count, options.max_iterations);
+        arm_offset_statistic = Some(search.statistic);
+        if let Some((shifted, refit)) = search.accepted {
+            problem = shifted;
+            outcome = refit;
+            arm_fitted = true;
         }
+    }
+
+    if fitted[RHO_S] {
         if outcome.x[ETA] >= hi[ETA] {
             notes.push(Note::EtaAtBound { eta: ETA_MAX });
             fitted[ETA] = false;
@@ -1019,13 +808,12 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
             // η → 1: F ∝ (η²−1), so only the amplitude ρs·(η²−1) is determined, not ρs.
             notes.push(Note::EtaAtBound { eta: ETA_MIN });
             fitted[ETA] = false;
-            fitted[RHO_S] = false;
         }
     }
 
-    // Intervals from JᵀWJ at the optimum, on the fitted parameters off their bounds.
     let x = outcome.x;
-    let (cost, a, _) = problem.accumulate(&x, true);
+    let params = params_of(&x);
+    let cost = problem.accumulate(&x, false).0;
     let mut active_bounds = Vec::new();
     let mut free = fitted;
     for i in 0..4 {
@@ -1047,105 +835,373 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
         }
     }
     let model = FittedModel(fitted);
-    let p_fitted = model.count();
-    let dof = n.saturating_sub(p_fitted);
-    let weighted = problem.weighted;
-    let s2 = if weighted { 1.0 } else if dof > 0 { cost / dof as f64 } else { f64::NAN };
+    let dof = n.saturating_sub(model.count() + usize::from(arm_fitted));
+
+    // Goodness of fit.
+    let (residuals, jacobian) = problem.rows(&x);
+    let (chi2, gof_p, s2, noise_from_residuals) = if weighted {
+        (Some(cost), gof::chi2_upper_tail(cost, dof), 1.0, None)
+    } else if dof > 0 {
+        let s2 = cost / dof as f64;
+        notes.push(Note::NoiseFromResiduals { std: s2.sqrt() });
+        (None, None, s2, Some(s2.sqrt()))
+    } else {
+        (None, None, f64::NAN, None)
+    };
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| {
+        let (oa, ob) = (&observations[a], &observations[b]);
+        oa.theta_i_deg.total_cmp(&ob.theta_i_deg).then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg)).then(a.cmp(&b))
+    });
+    let decorrelated = gof::innovations(&residuals, &problem.shared.s, problem.shared.m, &order);
+    let theta_i_sorted: Vec<f64> = order.iter().map(|&i| observations[i].theta_i_deg).collect();
+    let structure = gof::structure_test(&theta_i_sorted, &decorrelated);
+    let lack_of_fit = gof_p.is_some_and(|p| p < gof::GOF_ALPHA) || structure.is_some_and(|s| s.p_value < gof::STRUCTURE_ALPHA);
+    if gof_p.is_none() && structure.is_none() && dof > 0 {
+        notes.push(Note::FitNotTestable);
+    }
+    let variance_scale = if lack_of_fit {
+        let birge = chi2.map_or(1.0, |c| (c / dof.max(1) as f64).max(1.0));
+        let rho = structure.map_or(0.0, |s| s.lag1.clamp(0.0, WIDENING_MAX_LAG1));
+        birge * ((1.0 + rho) / (1.0 - rho))
+    } else {
+        1.0
+    };
+    if variance_scale > 1.0 {
+        notes.push(Note::IntervalsWidened { factor: variance_scale });
+    }
+
+    // Covariance C = G Σ Gᵀ over the free parameters in x = (ln σ, A, ρd, η) and δ0, split
+    // into the independent noise's share and each shared error's.
+    let free_index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
+    let mut columns: Vec<Vec<f64>> = free_index.iter().map(|&i| jacobian.iter().map(|row| row[i]).collect()).collect();
+    if arm_fitted {
+        columns.push(problem.shift_column(&x));
+    }
+    let p = columns.len();
     let mut covariance = [[0.0; 4]; 4];
     let mut ci95 = [None; 4];
     let mut ci_clipped = [false; 4];
-    let params = params_of(&x);
+    let mut budget = Vec::new();
+    let mut arm_offset = None;
+    let mut terms_x: Vec<(String, Square)> = Vec::new();
+    let mut total_x: Option<Square> = None;
     if dof == 0 {
         notes.push(Note::NoDegreesOfFreedom);
-    } else if let Some(inv) = inverse_spd(&a, &free) {
-        let t = t_quantile_975(dof);
-        // d(σ, ρs, ρd, η)/d(ln σ, A, ρd, η): σ = e^x0, ρs = A/(η²−1).
-        let k = eta_factor(x[3]);
-        let mut jac = [[0.0; 4]; 4];
-        jac[0][0] = params.sigma_deg;
-        jac[1][1] = 1.0 / k;
-        jac[1][3] = -x[1] * 2.0 * x[3] / (k * k);
-        jac[2][2] = 1.0;
-        jac[3][3] = 1.0;
-        for i in 0..4 {
-            for j in 0..4 {
-                let mut sum = 0.0;
-                for p in 0..4 {
-                    for q in 0..4 {
-                        sum += jac[i][p] * inv[p][q] * jac[j][q];
+    } else if p > 0 {
+        let normal = gls_normal(&problem.shared, &columns, None);
+        match linalg::spd_inverse(&normal.h) {
+            None => notes.push(Note::SingularJacobian),
+            Some(h_inv) => {
+                let m = problem.shared.m;
+                let mut independent = h_inv.clone();
+                let l_inv = linalg::lower_inverse(&problem.shared.l);
+                let mut shared_terms = Vec::with_capacity(m);
+                for (k, term) in shared.iter().enumerate() {
+                    // G s_k = H⁻¹ Xᵀ Σ⁻¹ s_k = H⁻¹ P'ᵀ (L⁻¹ e_k), P' = L⁻¹ S̃ᵀ X.
+                    let c: Vec<f64> = (0..m).map(|r| l_inv.at(r, k)).collect();
+                    let xt: Vec<f64> = (0..p).map(|col| (0..m).map(|r| normal.pl[r][col] * c[r]).sum()).collect();
+                    let v: Vec<f64> = (0..p).map(|i| (0..p).map(|j| h_inv.at(i, j) * xt[j]).sum()).collect();
+                    let mut outer = Square::zeros(p);
+                    for i in 0..p {
+                        for j in 0..p {
+                            *outer.at_mut(i, j) = v[i] * v[j];
+                            *independent.at_mut(i, j) -= v[i] * v[j];
+                        }
                     }
+                    shared_terms.push((term.name.clone(), outer));
                 }
-                covariance[i][j] = s2 * sum;
+                let scale = |mut s: Square, f: f64| {
+                    s.a.iter_mut().for_each(|v| *v *= f);
+                    s
+                };
+                let noise_name = if weighted { "reading noise" } else { "reading noise (estimated from the residuals)" };
+                terms_x.push((noise_name.to_string(), scale(independent, s2)));
+                terms_x.extend(shared_terms);
+                let total = scale(h_inv, s2 * variance_scale);
+                if variance_scale > 1.0 {
+                    terms_x.push(("lack of fit".to_string(), scale(total.clone(), (variance_scale - 1.0) / variance_scale)));
+                }
+                total_x = Some(total);
             }
         }
+    }
+    let not_identified = not_identified_of(&notes);
+    let not_identified_params: Vec<usize> = (0..4).filter(|&i| not_identified.iter().any(|u| u.param == PARAM_NAMES[i])).collect();
+    if let Some(total) = &total_x {
+        // d(σ, ρs, ρd, η)/d(ln σ, A, ρd, η): σ = e^x0, ρs = A/(η²−1); δ0 enters none.
+        let k = engine::eta_factor(x[3]);
+        let mut jac_full = [[0.0; 4]; 4];
+        jac_full[0][0] = params.sigma_deg;
+        jac_full[1][1] = 1.0 / k;
+        jac_full[1][3] = -x[1] * 2.0 * x[3] / (k * k);
+        jac_full[2][2] = 1.0;
+        jac_full[3][3] = 1.0;
+        let jac: Vec<[f64; 4]> = (0..p).map(|c| std::array::from_fn(|r| if c < free_index.len() { jac_full[r][free_index[c]] } else { 0.0 })).collect();
+        let to_natural = |s: &Square| -> [[f64; 4]; 4] {
+            std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    if not_identified_params.contains(&r) || not_identified_params.contains(&c) {
+                        return 0.0;
+                    }
+                    let mut sum = 0.0;
+                    for a in 0..p {
+                        for b in 0..p {
+                            sum += jac[a][r] * s.at(a, b) * jac[b][c];
+                        }
+                    }
+                    sum
+                })
+            })
+        };
+        covariance = to_natural(total);
+        for (name, term) in &terms_x {
+            let natural = to_natural(term);
+            budget.push(BudgetTerm { name: name.clone(), variance: std::array::from_fn(|i| natural[i][i]) });
+        }
+        let quantile = if weighted && variance_scale == 1.0 { Z_975 } else { t_quantile_975(dof) };
         let natural_lo = [SIGMA_MIN_DEG, 0.0, 0.0, ETA_MIN];
         let natural_hi = [SIGMA_MAX_DEG, f64::INFINITY, f64::INFINITY, ETA_MAX];
-        for i in 0..4 {
-            if !free[i] {
+        for (c, &i) in free_index.iter().enumerate() {
+            if not_identified_params.contains(&i) {
                 continue;
             }
             let (low, high) = if i == SIGMA {
                 // In ln σ, so the interval stays positive and follows the lobe's scale.
-                let se = (s2 * inv[0][0]).max(0.0).sqrt();
-                ((x[0] - t * se).exp(), (x[0] + t * se).exp())
+                let se = total.at(c, c).max(0.0).sqrt();
+                ((x[0] - quantile * se).exp(), (x[0] + quantile * se).exp())
             } else {
                 let v = params.to_array()[i];
                 let se = covariance[i][i].max(0.0).sqrt();
-                (v - t * se, v + t * se)
+                (v - quantile * se, v + quantile * se)
             };
             let (cl, ch) = (low.max(natural_lo[i]), high.min(natural_hi[i]));
             ci_clipped[i] = cl != low || ch != high;
             ci95[i] = Some((cl, ch));
         }
-    } else if free.iter().any(|&f| f) {
-        notes.push(Note::SingularJacobian);
+        if arm_fitted {
+            let se = total.at(p - 1, p - 1).max(0.0).sqrt();
+            let deg = problem.shift_deg;
+            let lr = arm_offset_statistic.unwrap_or(f64::NAN);
+            arm_offset = Some(ArmOffset { deg, std_deg: se, ci95: (deg - quantile * se, deg + quantile * se), lr });
+            notes.push(Note::ArmOffsetFitted { deg, std_deg: se, lr });
+        }
+    } else if arm_fitted {
+        let lr = arm_offset_statistic.unwrap_or(f64::NAN);
+        let deg = problem.shift_deg;
+        arm_offset = Some(ArmOffset { deg, std_deg: f64::NAN, ci95: (f64::NAN, f64::NAN), lr });
+        notes.push(Note::ArmOffsetFitted { deg, std_deg: f64::NAN, lr });
     }
 
+    let values = problem.values(&x);
     let (mut abs_sum, mut sq_sum) = (0.0, 0.0);
     let (mut y_min, mut y_max) = (f64::INFINITY, f64::NEG_INFINITY);
-    for (pt, o) in problem.points.iter().zip(observations) {
-        let r = model::evaluate(&params, &pt.geometry, problem.acceptance_deg).0 - o.radiance_factor;
+    for (f, o) in values.iter().zip(observations) {
+        let r = f - o.radiance_factor;
         abs_sum += r.abs();
         sq_sum += r * r;
         y_min = y_min.min(o.radiance_factor);
         y_max = y_max.max(o.radiance_factor);
     }
+    let flags = if lack_of_fit { vec![Flag::LackOfFit] } else { Vec::new() };
     Ok(FitResult {
         params,
         model,
         ci95,
         ci_clipped,
         covariance,
+        budget,
         active_bounds,
         notes,
         acceptance_deg: problem.acceptance_deg,
+        arm_offset,
+        arm_offset_statistic,
         n,
         cost,
-        residual_variance: s2,
+        chi2,
+        gof_p,
+        structure,
+        lack_of_fit,
+        variance_scale,
+        noise_from_residuals,
+        residual_variance: s2 * variance_scale,
         dof,
         nmae: abs_sum / n as f64 / (y_max - y_min),
         rms: (sq_sum / n as f64).sqrt(),
         iterations: outcome.iterations,
         status: outcome.status,
         weighted,
+        flags,
     })
 }
 
-fn problem_weighted(observations: &[Observation]) -> bool {
-    observations.first().is_some_and(|o| o.std.is_some())
+/// The normal equations of whitened columns X (p × n, each a column of the Jacobian
+/// divided by the std) in the Σ⁻¹ metric: H = XᵀΣ⁻¹X, b = XᵀΣ⁻¹r (when `r` is given), and
+/// P' = L⁻¹ S̃ᵀ X (m × p) for the shared terms' shares.
+struct Normal {
+    h: Square,
+    b: Vec<f64>,
+    pl: Vec<Vec<f64>>,
 }
 
-fn lambert_fit(problem: &Problem) -> f64 {
-    let (sw, sy) = problem.points.iter().fold((0.0, 0.0), |(sw, sy), p| {
-        let w = p.sqrt_w * p.sqrt_w;
-        (sw + w, sy + w * p.y)
-    });
-    sy / sw
+fn gls_normal(shared: &engine::Shared, columns: &[Vec<f64>], r: Option<&[f64]>) -> Normal {
+    let p = columns.len();
+    let m = shared.m;
+    let n = columns.first().map_or(0, |c| c.len());
+    let mut h = Square::zeros(p);
+    let mut b = vec![0.0; p];
+    for i in 0..p {
+        for j in 0..=i {
+            let s: f64 = columns[i].iter().zip(&columns[j]).map(|(a, c)| a * c).sum();
+            *h.at_mut(i, j) = s;
+            *h.at_mut(j, i) = s;
+        }
+        if let Some(r) = r {
+            b[i] = columns[i].iter().zip(r).map(|(a, c)| a * c).sum();
+        }
+    }
+    let mut pl = vec![vec![0.0; p]; m];
+    if m > 0 {
+        let mut q = vec![0.0; m];
+        for row in 0..n {
+            let s = shared.row(row);
+            for k in 0..m {
+                for (c, column) in columns.iter().enumerate() {
+                    pl[k][c] += s[k] * column[row];
+                }
+                if let Some(r) = r {
+                    q[k] += s[k] * r[row];
+                }
+            }
+        }
+        for c in 0..p {
+            let mut column: Vec<f64> = (0..m).map(|k| pl[k][c]).collect();
+            linalg::forward_substitute(&shared.l, &mut column);
+            for k in 0..m {
+                pl[k][c] = column[k];
+            }
+        }
+        linalg::forward_substitute(&shared.l, &mut q);
+        for i in 0..p {
+            for j in 0..p {
+                *h.at_mut(i, j) -= (0..m).map(|k| pl[k][i] * pl[k][j]).sum::<f64>();
+            }
+            b[i] -= (0..m).map(|k| pl[k][i] * q[k]).sum::<f64>();
+        }
+    }
+    Normal { h, b, pl }
 }
 
-/// Largest σ whose profile cost (others refitted) stays within `threshold`: doubling, then
-/// bisection in ln σ to about 2 %.
-fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iterations: usize) -> f64 {
+/// What the arm-offset test found.
+struct ArmSearch {
+    /// The likelihood-ratio statistic, or the score screen's when the search was skipped.
+    statistic: f64,
+    /// The shifted problem and its fit, when δ0 passed the test.
+    accepted: Option<(Problem, LmOutcome)>,
+}
+
+/// The joint Gauss–Newton step in (free x, δ0) at `outcome` on `problem`, and the score
+/// statistic of δ0 (the part of the predicted decrease of the cost due to δ0).
+fn arm_offset_step(problem: &Problem, x: &[f64; 4]) -> Option<(Vec<usize>, Vec<f64>, f64)> {
+    let (lo, hi) = (lower_bounds(), upper_bounds());
+    let (residuals, jacobian) = problem.rows(x);
+    let free: Vec<usize> = (0..4).filter(|&i| x[i] > lo[i] && x[i] < hi[i]).collect();
+    let mut columns: Vec<Vec<f64>> = free.iter().map(|&i| jacobian.iter().map(|row| row[i]).collect()).collect();
+    columns.push(problem.shift_column(x));
+    let normal = gls_normal(&problem.shared, &columns, Some(&residuals));
+    let p = columns.len();
+    let h_inv = linalg::spd_inverse(&normal.h)?;
+    let step: Vec<f64> = (0..p).map(|i| -(0..p).map(|j| h_inv.at(i, j) * normal.b[j]).sum::<f64>()).collect();
+    let predicted: f64 = -step.iter().zip(&normal.b).map(|(s, b)| s * b).sum::<f64>();
+    // The same without δ0: what the other parameters alone would still gain (≈ 0 at the optimum).
+    let mut reduced = Square::zeros(p - 1);
+    for i in 0..p - 1 {
+        for j in 0..p - 1 {
+            *reduced.at_mut(i, j) = normal.h.at(i, j);
+        }
+    }
+    let without = linalg::spd_inverse(&reduced)
+        .map_or(0.0, |inv| (0..p - 1).map(|i| (0..p - 1).map(|j| normal.b[i] * inv.at(i, j) * normal.b[j]).sum::<f64>()).sum());
+    Some((free, step, (predicted - without).max(0.0)))
+}
+
+/// Test for an arm zero offset and fit it when the data call for it: the score statistic
+/// at δ0 = 0 screens; then Gauss–Newton steps on the profile cost c(δ0) (each a rebuilt
+/// problem and a warm Levenberg–Marquardt run), and the likelihood ratio (c(0) − c(δ̂0))/s²
+/// against [`ARM_OFFSET_LR_CRITICAL`] (s² = 1 weighted, else from the residuals with δ0).
+fn arm_offset_search(
+    observations: &[Observation],
+    shared: &[SharedError],
+    acceptance: Option<f64>,
+    base: &Problem,
+    outcome: &LmOutcome,
+    fitted_count: usize,
+    max_iterations: usize,
+) -> ArmSearch {
+    let n = observations.len();
+    let weighted = base.weighted;
+    let dof_with = n.saturating_sub(fitted_count + 1).max(1) as f64;
+    let s2_without = if weighted { 1.0 } else { outcome.cost / dof_with };
+    let Some((free, step, score)) = arm_offset_step(base, &outcome.x) else {
+        return ArmSearch { statistic: 0.0, accepted: None };
+    };
+    let score = score / s2_without.max(1e-300);
+    if !(score >= ARM_OFFSET_SCREEN) {
+        return ArmSearch { statistic: score, accepted: None };
+    }
+    let (lo, hi) = (lower_bounds(), upper_bounds());
+    let mut best: Option<(Problem, LmOutcome)> = None;
+    let mut delta = 0.0;
+    let mut current_cost = outcome.cost;
+    let mut current_x = outcome.x;
+    let mut next = (free, step);
+    for _ in 0..12 {
+        let (free, step) = &next;
+        let mut d_delta = step[step.len() - 1].clamp(-0.5, 0.5);
+        let mut improved = false;
+        for _ in 0..6 {
+            let trial = (delta + d_delta).clamp(-ARM_OFFSET_MAX_DEG, ARM_OFFSET_MAX_DEG);
+            let shifted = Problem::new(observations, shared, acceptance, trial);
+            let fraction = if step[step.len() - 1] != 0.0 { d_delta / step[step.len() - 1] } else { 0.0 };
+            let mut x0 = current_x;
+            for (c, &i) in free.iter().enumerate() {
+                x0[i] = (x0[i] + fraction * step[c]).clamp(lo[i], hi[i]);
+            }
+            let run = levenberg_marquardt(&shifted, x0, [false; 4], max_iterations);
+            if run.cost < current_cost {
+                delta = trial;
+                current_cost = run.cost;
+                current_x = run.x;
+                best = Some((shifted, run));
+                improved = true;
+                break;
+            }
+            d_delta *= 0.5;
+        }
+        if !improved || d_delta.abs() < 1e-4 {
+            break;
+        }
+        let Some((problem, _)) = &best else { break };
+        match arm_offset_step(problem, &current_x) {
+            Some((f, s, _)) => next = (f, s),
+            None => break,
+        }
+    }
+    let Some((problem, run)) = best else {
+        return ArmSearch { statistic: score, accepted: None };
+    };
+    let s2 = if weighted { 1.0 } else { run.cost / dof_with };
+    let lr = (outcome.cost - run.cost) / s2.max(1e-300);
+    if lr > ARM_OFFSET_LR_CRITICAL {
+        ArmSearch { statistic: lr, accepted: Some((problem, run)) }
+    } else {
+        ArmSearch { statistic: lr, accepted: None }
+    }
+}
+
+/// Largest σ whose profile cost (others refitted) stays within `threshold`, and the
+/// parameters there: doubling, then bisection in ln σ to about 2 %.
+fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iterations: usize) -> (f64, [f64; 4]) {
     let profile = |ln_sigma: f64, start: [f64; 4]| {
         let mut x = start;
         x[0] = ln_sigma;
@@ -1165,7 +1221,7 @@ fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iter
         inside = trial;
         start = run.x;
     }
-    let Some(mut outside) = outside else { return SIGMA_MAX_DEG };
+    let Some(mut outside) = outside else { return (SIGMA_MAX_DEG, start) };
     while outside - inside > 0.02 {
         let mid = 0.5 * (inside + outside);
         let run = profile(mid, start);
@@ -1176,5 +1232,5 @@ fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iter
             start = run.x;
         }
     }
-    inside.exp()
+    (inside.exp(), start)
 }

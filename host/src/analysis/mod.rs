@@ -2,6 +2,8 @@
 //! classification, the comparison of two sheets, and the report of one analysis.
 pub mod budget;
 pub mod classify;
+pub mod gof;
+pub mod linalg;
 pub mod compare;
 pub mod fit;
 pub mod flags;

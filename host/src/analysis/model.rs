@@ -10,16 +10,22 @@
 //! with θa = |θi − θr| / 2 and ψ = (θi + θr) / 2, θa and σ in degrees. Angles are in
 //! degrees throughout; θr may be negative (the detector past the normal, on the source's
 //! side), which the acceptance window needs near θr = 0.
+//!
+//! The detector sees the model averaged over its acceptance, a uniform window of full
+//! width a in θr. The whole model is averaged, not only the lobe: across the window the
+//! slowly varying factor u(θr) = F(ψ)·G/(cos θi cos θr) is replaced by the parabola
+//! through its values at the window's centre and edges, and the lobe, a Gaussian in θr,
+//! is integrated against 1, s, s² in closed form (truncated-Gaussian moments, erf). Where
+//! G has a kink inside the window (the onset of masking or shadowing, e.g. θi = 20° near
+//! θr = 66.5°) the window is split there and each piece gets its own parabola. The
+//! parabola's error is of order u'''·a³/100, about 1e-6 of the reading for a 1° window at
+//! θr ≤ 70° (host/tests/model.rs checks it against dense quadrature). It is always done when
+//! a window is given: there is no threshold at which the estimator changes.
 
 use serde::Serialize;
 
 /// Full width of the detector's angular acceptance in θr, degrees (INSTRUMENT.md).
 pub const DEFAULT_ACCEPTANCE_DEG: f64 = 1.0;
-
-/// The acceptance is modelled when the lobe's FWHM in θr is below this many acceptance
-/// widths. At the threshold the window changes the peak by about a² / (24 (2σ)²) ≈ 0.2 %,
-/// below the instrument's noise; rough papers (σ ≫ 2°) never reach it.
-pub const ACCEPTANCE_FWHM_RATIO: f64 = 10.0;
 
 /// FWHM of the TS lobe in θr per degree of σ: the lobe has standard deviation 2σ in θr.
 pub const FWHM_PER_SIGMA: f64 = 4.0 * 1.177_410_022_515_474_6; // 4·sqrt(2 ln 2)
@@ -60,12 +66,18 @@ impl Params {
     }
 }
 
-/// Smallest cosine used; keeps exactly-grazing geometries finite.
-const COS_FLOOR: f64 = 1e-300;
+/// Smallest cosine used; keeps exactly-grazing geometries finite, and products of two
+/// inverse cosines (1e30 at most) too, so that a detector window reaching past 90° gives
+/// large but finite terms, never ∞ · 0.
+const COS_FLOOR: f64 = 1e-15;
 
 /// The parts of the model that depend only on the geometry.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlaneGeometry {
+    /// θi, degrees.
+    pub theta_i_deg: f64,
+    /// θr, degrees.
+    pub theta_r_deg: f64,
     /// θr − θi, degrees (the lobe's coordinate; θa = |offset| / 2).
     pub offset_deg: f64,
     /// sin² ψ.
@@ -92,6 +104,8 @@ impl PlaneGeometry {
             .min(2.0 * cos_a / (cos_psi * cos_i))
             .min(2.0 * cos_a / (cos_psi * cos_r));
         PlaneGeometry {
+            theta_i_deg,
+            theta_r_deg,
             offset_deg: theta_r_deg - theta_i_deg,
             sin2_psi: sin_psi * sin_psi,
             cos_psi,
@@ -188,10 +202,10 @@ fn exp_neg_half_square(z: f64) -> f64 {
     if z2 > 1492.0 { 0.0 } else { (-0.5 * z2).exp() }
 }
 
-/// The lobe averaged over a uniform acceptance window of full width `acceptance_deg` in θr,
-/// and its derivative in σ. The lobe is a Gaussian of standard deviation 2σ in θr, so its
-/// window mean is exact in closed form (erf); F and G/(cos·cos), which change by well
-/// under 1 % across a 1° window, are taken at the window's centre.
+/// The lobe alone averaged over a uniform acceptance window of full width `acceptance_deg`
+/// in θr, and its derivative in σ: the window moment M0 of [`window_moments`], exact in
+/// closed form (erf). The fit's seeding grid uses it with F and G/(cos·cos) taken at the
+/// window's centre; the model itself integrates the whole product ([`evaluate`]).
 pub fn windowed_lobe_with_derivative(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> (f64, f64) {
     let w = 2.0 * sigma_deg;
     let half = 0.5 * acceptance_deg;
@@ -218,24 +232,169 @@ fn normal_mass(lo: f64, hi: f64) -> f64 {
     }
 }
 
-/// Whether the acceptance window matters for a lobe of this σ (see [`ACCEPTANCE_FWHM_RATIO`]).
-pub fn acceptance_matters(sigma_deg: f64, acceptance_deg: f64) -> bool {
-    acceptance_deg > 0.0 && FWHM_PER_SIGMA * sigma_deg < ACCEPTANCE_FWHM_RATIO * acceptance_deg
+/// The lobe's moments over the window: with s = θr' − θr the position in the window and
+/// L the lobe exp(−(offset + s)²/(2(2σ)²)),
+/// `m[k]` = (1/a) ∫ s^k L ds over s ∈ [−a/2, a/2] (k = 0, 1, 2) and `dm_dsigma[k]` = ∂m[k]/∂σ.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WindowMoments {
+    /// M0, M1 [deg], M2 [deg²].
+    pub m: [f64; 3],
+    /// Their derivatives in σ (per degree).
+    pub dm_dsigma: [f64; 3],
+}
+
+/// Gauss–Legendre nodes on [−1, 1] (positive half) and weights, 10 points.
+const GL_NODES: [f64; 5] = [0.148_874_338_981_631_2, 0.433_395_394_129_247_2, 0.679_409_568_299_024_4, 0.865_063_366_688_984_5, 0.973_906_528_517_171_7];
+const GL_WEIGHTS: [f64; 5] = [0.295_524_224_714_752_9, 0.269_266_719_309_996_3, 0.219_086_362_515_982, 0.149_451_349_150_580_6, 0.066_671_344_308_688_1];
+
+/// The lobe's window moments ([`WindowMoments`]) for a window of full width `acceptance_deg`.
+///
+/// Two evaluations of the same integrals, each where it is accurate (both to ~1e-13, so
+/// the choice never shows in a fit): a lobe narrower than the window (2σ < a) by the
+/// closed form (the recurrence M_{n+1} = −o·M_n + (w²/a)[(−a/2)^n L(o−a/2) − (a/2)^n L(o+a/2)]
+/// + n·w²·M_{n−1} from integrating by parts, w = 2σ, o the offset, which is stable while
+/// w ≲ a); a broader one, smooth across the window, by 10-point Gauss–Legendre.
+pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> WindowMoments {
+    let w = 2.0 * sigma_deg;
+    let a = acceptance_deg;
+    let h = 0.5 * a;
+    let o = offset_deg;
+    let mut m = [0.0; 5];
+    if w < a {
+        let (z_lo, z_hi) = ((o - h) / w, (o + h) / w);
+        let (l_lo, l_hi) = (exp_neg_half_square(z_lo), exp_neg_half_square(z_hi));
+        m[0] = w * (2.0 * std::f64::consts::PI).sqrt() / a * normal_mass(z_lo, z_hi);
+        let w2 = w * w;
+        let mut h_pow = 1.0; // h^n
+        for n in 0..4 {
+            let sign = if n % 2 == 0 { 1.0 } else { -1.0 };
+            let boundary = w2 / a * (sign * h_pow * l_lo - h_pow * l_hi);
+            let previous = if n > 0 { n as f64 * w2 * m[n - 1] } else { 0.0 };
+            m[n + 1] = -o * m[n] + boundary + previous;
+            h_pow *= h;
+        }
+    } else {
+        for (x, wt) in GL_NODES.iter().zip(GL_WEIGHTS) {
+            for s in [h * x, -h * x] {
+                let l = exp_neg_half_square((o + s) / w);
+                let mut sk = 0.5 * wt * l;
+                for mk in m.iter_mut() {
+                    *mk += sk;
+                    sk *= s;
+                }
+            }
+        }
+    }
+    // ∂L/∂σ = L·2y²/w³ with y = o + s: ∂M_k/∂σ = (2/w³)(o²M_k + 2o·M_{k+1} + M_{k+2}).
+    let c = 2.0 / (w * w * w);
+    let dm = std::array::from_fn(|k| c * (o * o * m[k] + 2.0 * o * m[k + 1] + m[k + 2]));
+    WindowMoments { m: [m[0], m[1], m[2]], dm_dsigma: dm }
+}
+
+/// The window's weights on the slowly varying factor u = F·G/(cos·cos) at the window's
+/// low edge, centre and high edge: the parabola through those three values integrated
+/// against the lobe gives Σ_e weight[e]·u_e. With u ≈ u0 + u1 s + u2 s²/2,
+/// u1 = (u+ − u−)/a and u2 = 4(u+ − 2u0 + u−)/a², the weights are
+/// (−M1/a + 2M2/a², M0 − 4M2/a², M1/a + 2M2/a²); they sum to M0. Returns the weights and
+/// their derivatives in σ.
+pub fn window_weights(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> ([f64; 3], [f64; 3]) {
+    let WindowMoments { m, dm_dsigma: d } = window_moments(offset_deg, sigma_deg, acceptance_deg);
+    let (ia, ia2) = (1.0 / acceptance_deg, 1.0 / (acceptance_deg * acceptance_deg));
+    let weights = |m: &[f64; 3]| [-m[1] * ia + 2.0 * m[2] * ia2, m[0] - 4.0 * m[2] * ia2, m[1] * ia + 2.0 * m[2] * ia2];
+    (weights(&m), weights(&d))
+}
+
+/// Which term of G/(cos θi cos θr) = min(1/(ci·cr), 2ca/(cψ·ci), 2ca/(cψ·cr)) is the
+/// smallest at (θi, θr): no masking, masking of the reflected ray, shadowing of the
+/// incident one. G has a kink where it switches.
+pub fn attenuation_branch(theta_i_deg: f64, theta_r_deg: f64) -> u8 {
+    let psi = 0.5 * (theta_i_deg + theta_r_deg).to_radians();
+    let cos_psi = psi.cos().max(COS_FLOOR);
+    let cos_i = theta_i_deg.to_radians().cos().max(COS_FLOOR);
+    let cos_r = theta_r_deg.to_radians().cos().max(COS_FLOOR);
+    let cos_a = (0.5 * (theta_i_deg - theta_r_deg).to_radians()).cos();
+    let terms = [1.0 / (cos_i * cos_r), 2.0 * cos_a / (cos_psi * cos_i), 2.0 * cos_a / (cos_psi * cos_r)];
+    let mut best = 0;
+    for k in 1..3 {
+        if terms[k] < terms[best] {
+            best = k;
+        }
+    }
+    best as u8
+}
+
+/// The pieces of the window [θr − a/2, θr + a/2] between the kinks of G (where its min
+/// switches branch, [`attenuation_branch`]), on each of which u = F·G/(cos·cos) is smooth
+/// and the parabola of [`window_weights`] holds: (θr at the piece's middle, its width), in
+/// order. Kinks are found on 8 sub-intervals and placed by bisection to 1e-12 of the window;
+/// they depend on the geometry only, never on the parameters, so splitting there does not
+/// make the model jump. One piece, the whole window, almost everywhere (near specular G = 1).
+pub fn window_pieces(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> Vec<(f64, f64)> {
+    const SAMPLES: usize = 8;
+    let (lo, a) = (theta_r_deg - 0.5 * acceptance_deg, acceptance_deg);
+    let at = |k: usize| lo + a * k as f64 / SAMPLES as f64;
+    let mut cuts = vec![lo];
+    let mut previous = attenuation_branch(theta_i_deg, lo);
+    for k in 1..=SAMPLES {
+        let branch = attenuation_branch(theta_i_deg, at(k));
+        if branch != previous {
+            let (mut left, mut right) = (at(k - 1), at(k));
+            while right - left > 1e-12 * a {
+                let mid = 0.5 * (left + right);
+                if attenuation_branch(theta_i_deg, mid) == previous {
+                    left = mid;
+                } else {
+                    right = mid;
+                }
+            }
+            let cut = 0.5 * (left + right);
+            if cut - cuts[cuts.len() - 1] > 1e-9 * a && at(SAMPLES) - cut > 1e-9 * a {
+                cuts.push(cut);
+            }
+            previous = branch;
+        }
+    }
+    cuts.push(lo + a);
+    cuts.windows(2).map(|w| (0.5 * (w[0] + w[1]), w[1] - w[0])).collect()
 }
 
 /// Radiance factor and its gradient [∂/∂σ (per degree), ∂/∂ρs, ∂/∂ρd, ∂/∂η] at a
-/// precomputed geometry; `acceptance_deg` = `Some(a)` averages the lobe over the window.
+/// precomputed geometry; `acceptance_deg` = `Some(a)` with a > 0 averages the whole model
+/// over the detector's window (see the module's documentation): per piece of the window
+/// between G's kinks ([`window_pieces`]), the piece's share of the window times the
+/// parabola rule of [`window_weights`] on that piece.
 #[inline]
 pub fn evaluate(p: &Params, g: &PlaneGeometry, acceptance_deg: Option<f64>) -> (f64, [f64; 4]) {
-    let (e, de) = match acceptance_deg {
-        Some(a) if a > 0.0 => windowed_lobe_with_derivative(g.offset_deg, p.sigma_deg, a),
-        _ => lobe_with_derivative(g.offset_deg, p.sigma_deg),
-    };
-    let (f, df) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, p.eta);
-    let h = g.attenuation_over_cosines;
-    let specular = f * h * e;
-    let value = p.rho_s * specular + p.rho_d;
-    (value, [p.rho_s * f * h * de, specular, 1.0, p.rho_s * df * h * e])
+    match acceptance_deg {
+        Some(a) if a > 0.0 => {
+            let (mut shape, mut d_sigma, mut d_eta) = (0.0, 0.0, 0.0);
+            for (mid, width) in window_pieces(g.theta_i_deg, g.theta_r_deg, a) {
+                let h = 0.5 * width;
+                let nodes = [
+                    PlaneGeometry::new(g.theta_i_deg, mid - h),
+                    PlaneGeometry::new(g.theta_i_deg, mid),
+                    PlaneGeometry::new(g.theta_i_deg, mid + h),
+                ];
+                let (weights, d_weights) = window_weights(mid - g.theta_i_deg, p.sigma_deg, width);
+                let share = width / a;
+                for (k, node) in nodes.iter().enumerate() {
+                    let (f, df) = fresnel_with_derivative(node.sin2_psi, node.cos_psi, p.eta);
+                    let hh = node.attenuation_over_cosines * share;
+                    shape += weights[k] * f * hh;
+                    d_sigma += d_weights[k] * f * hh;
+                    d_eta += weights[k] * df * hh;
+                }
+            }
+            (p.rho_s * shape + p.rho_d, [p.rho_s * d_sigma, shape, 1.0, p.rho_s * d_eta])
+        }
+        _ => {
+            let (e, de) = lobe_with_derivative(g.offset_deg, p.sigma_deg);
+            let (f, df) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, p.eta);
+            let h = g.attenuation_over_cosines;
+            let specular = f * h * e;
+            (p.rho_s * specular + p.rho_d, [p.rho_s * f * h * de, specular, 1.0, p.rho_s * df * h * e])
+        }
+    }
 }
 
 /// Radiance factor of the TSL model at (θi, θr), degrees.
@@ -249,10 +408,9 @@ pub fn radiance_factor_with_gradient(p: &Params, theta_i_deg: f64, theta_r_deg: 
 }
 
 /// Radiance factor seen by a detector of full acceptance `acceptance_deg` (uniform in θr):
-/// the window is modelled only when the lobe is narrow enough for it to matter.
+/// the whole model averaged over the window, at every σ (0 or less: the point model).
 pub fn observed_radiance_factor(p: &Params, theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> f64 {
-    let window = acceptance_matters(p.sigma_deg, acceptance_deg).then_some(acceptance_deg);
-    evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), window).0
+    evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), Some(acceptance_deg)).0
 }
 
 #[cfg(test)]
@@ -278,6 +436,50 @@ mod tests {
                 let textbook = (t * t + s * s).sqrt();
                 let ours = fresnel(psi, eta);
                 assert!((ours - textbook).abs() <= 1e-12 * textbook, "ψ {psi} η {eta}: {ours} vs {textbook}");
+            }
+        }
+    }
+
+    /// (1/a)∫ s^k L(o + s) ds by composite Simpson on 20,000 panels (relative error below
+    /// 1e-7 even where the narrowest lobe's tail falls steeply across the window).
+    fn dense_moments(offset: f64, sigma: f64, a: f64) -> [f64; 3] {
+        let n = 20_000;
+        let h = a / n as f64;
+        let mut m = [0.0; 3];
+        for j in 0..=n {
+            let s = -0.5 * a + h * j as f64;
+            let weight = if j == 0 || j == n { 1.0 } else if j % 2 == 1 { 4.0 } else { 2.0 };
+            let l = (-(offset + s).powi(2) / (8.0 * sigma * sigma)).exp();
+            for (k, mk) in m.iter_mut().enumerate() {
+                *mk += weight * s.powi(k as i32) * l * h / (3.0 * a);
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn window_moments_match_dense_quadrature_and_their_sigma_derivative() {
+        for a in [0.5, 1.0, 2.0] {
+            for sigma in [0.01, 0.1, 0.3, 0.49, 0.5, 0.51, 0.8, 1.9, 20.0, 90.0] {
+                for offset in [0.0, 0.2, -0.45, 0.5, 1.0, -2.5, 6.0, 40.0, -70.0] {
+                    let got = window_moments(offset, sigma, a);
+                    let want = dense_moments(offset, sigma, a);
+                    // Scale of each moment: (a/2)^k times the lobe's size in the window.
+                    let size = want[0].abs().max(1e-300);
+                    for k in 0..3 {
+                        let scale = size * (0.5 * a).powi(k as i32);
+                        assert!(
+                            (got.m[k] - want[k]).abs() <= 1e-6 * scale + 1e-280,
+                            "a {a} σ {sigma} o {offset} M{k}: {} vs {}",
+                            got.m[k],
+                            want[k]
+                        );
+                        let hstep = 1e-6 * sigma;
+                        let fd = (window_moments(offset, sigma + hstep, a).m[k] - window_moments(offset, sigma - hstep, a).m[k]) / (2.0 * hstep);
+                        let d = got.dm_dsigma[k];
+                        assert!((d - fd).abs() <= 1e-5 * (fd.abs() + scale / sigma) + 1e-280, "a {a} σ {sigma} o {offset} dM{k}: {d} vs {fd}");
+                    }
+                }
             }
         }
     }

@@ -2,7 +2,7 @@
 //!
 //! Each file is read and each data set fitted on its own: a bad file or data set is
 //! reported on stderr as `file:line: message` and the others still get their results;
-//! the exit status is non-zero if anything failed.
+//! the exit status is 1 if anything failed, else 3 if any result is flagged (not `ok`).
 use crate::analysis::fit::FitOptions;
 use crate::analysis::model;
 use crate::analysis::report::{Report, analyse, to_json, to_table};
@@ -38,6 +38,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let options = FitOptions { acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance), ..FitOptions::default() };
 
     let mut failed = false;
+    let mut flagged = false;
     // Read everything first (cheap), then fit the data sets on all cores, in input order.
     let mut jobs: Vec<(usize, &Path, DataSet)> = Vec::new();
     let mut file_errors: Vec<(usize, String)> = Vec::new();
@@ -69,6 +70,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         match result {
             Ok(report) => {
+                flagged |= !report.ok();
                 if args.json {
                     writeln!(out, "{}", to_json(&report))?;
                 } else {
@@ -86,7 +88,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     for (_, message) in file_errors {
         eprintln!("error: {message}");
     }
-    Ok(if failed { ExitCode::FAILURE } else { ExitCode::SUCCESS })
+    Ok(if failed { ExitCode::from(crate::cli::exit::FAILED) } else { crate::cli::exit::of_result(!flagged) })
 }
 
 /// Fit every data set, in parallel over the available cores; results in input order.

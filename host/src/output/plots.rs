@@ -86,7 +86,7 @@ pub fn write_plots(dir: &Path, sample: &str, points: &[Observation], fit: &FitRe
     draw_fig5(&fig5, sample, fit, classification).map_err(to_io)?;
     written.push(fig5);
 
-    if has_fig7(classification.class) {
+    if classification.class.is_some_and(has_fig7) {
         let fig7 = dir.join(FIG7_FILE);
         draw_fig7(&fig7, sample, fit, classification).map_err(to_io)?;
         written.push(fig7);
@@ -120,7 +120,7 @@ fn draw_fig4(path: &Path, sample: &str, points: &[Observation], fit: &FitResult,
     root.fill(&WHITE)?;
     let title = format!(
         "{sample}: radiance factor in the specular plane, measured and TSL fit (class {}{})",
-        classification.class.name(),
+        classification.class_name(),
         fit.acceptance_deg.map_or_else(String::new, |a| format!(", acceptance {a}°"))
     );
     let root = root.titled(&title, ("sans-serif", 22))?;
@@ -224,7 +224,7 @@ fn draw_fig5(path: &Path, sample: &str, fit: &FitResult, classification: &Classi
 
     let root = SVGBackend::new(path, (800, 720)).into_drawing_area();
     root.fill(&WHITE)?;
-    let title = format!("{sample}: σ–ρs plane (class {}, glossy when σ < ρs)", classification.class.name());
+    let title = format!("{sample}: σ–ρs plane (class {}, glossy when σ < ρs)", classification.class_name());
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
         .margin(16)
@@ -269,7 +269,7 @@ fn draw_fig7(path: &Path, sample: &str, fit: &FitResult, classification: &Classi
 
     let root = SVGBackend::new(path, (800, 720)).into_drawing_area();
     root.fill(&WHITE)?;
-    let title = format!("{sample}: ρs–ρd plane of rough papers (class {})", classification.class.name());
+    let title = format!("{sample}: ρs–ρd plane of rough papers (class {})", classification.class_name());
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
         .margin(16)

@@ -378,7 +378,7 @@ impl<'a, T: Transport> Session<'a, T> {
     fn refine_adaptively(&mut self, targets: AdaptiveTargets, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
         for batch_number in 1..=targets.max_batches {
             let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
-            let rough = report.classification.group == crate::analysis::classify::Group::Rough;
+            let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
             let precise = adaptive::sigma_rel_half_width(&report.fit).is_some_and(|w| w <= targets.sigma_rel_half_width);
             let settled = report.classification.confidence >= targets.class_confidence;
             if sigma_ok && (rough || (precise && settled)) {
@@ -391,7 +391,7 @@ impl<'a, T: Transport> Session<'a, T> {
             let (batch, reason) = if adaptive::sigma_resolved(&report.fit) {
                 let batch = adaptive::next_batch(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch);
                 let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                (batch, format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class.name(), report.classification.confidence, if sigma_ok { "" } else { ", σ ≤ σ_l" }))
+                (batch, format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { "" } else { ", σ ≤ σ_l" }))
             } else {
                 (Some(adaptive::probe(&observations, &measured)), "σ not resolved: probe around the strongest specular peak".to_string())
             };

@@ -136,7 +136,7 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let (mut recorder, mut operator) = (Discard, SimulatedOperator);
     let outcome: Outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
     let fit = &outcome.report.fit;
-    let class = outcome.report.classification.class.name();
+    let class = outcome.report.classification.class_name();
     Ok(Row {
         spec: spec.clone(),
         geometries: outcome.points.len(),

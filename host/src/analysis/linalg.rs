@@ -1,0 +1,150 @@
+//! Small dense linear algebra for the fit's covariance and its shared-error terms: a handful
+//! of parameters and a few dozen shared terms, so plain row-major `Vec<f64>` matrices and
+//! Cholesky are all that is needed (and keep the fit free of a matrix crate).
+
+/// A square row-major matrix of side `n`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Square {
+    /// Side.
+    pub n: usize,
+    /// Entries, row-major.
+    pub a: Vec<f64>,
+}
+
+impl Square {
+    /// The n × n zero matrix.
+    pub fn zeros(n: usize) -> Square {
+        Square { n, a: vec![0.0; n * n] }
+    }
+
+    /// The n × n identity.
+    pub fn identity(n: usize) -> Square {
+        let mut m = Square::zeros(n);
+        for i in 0..n {
+            m.a[i * n + i] = 1.0;
+        }
+        m
+    }
+
+    /// Entry (i, j).
+    #[inline]
+    pub fn at(&self, i: usize, j: usize) -> f64 {
+        self.a[i * self.n + j]
+    }
+
+    /// Entry (i, j), mutable.
+    #[inline]
+    pub fn at_mut(&mut self, i: usize, j: usize) -> &mut f64 {
+        &mut self.a[i * self.n + j]
+    }
+}
+
+/// Lower Cholesky factor of a symmetric positive definite matrix, `None` if it is not
+/// (a pivot NaN or ≤ 0).
+pub fn cholesky(m: &Square) -> Option<Square> {
+    let n = m.n;
+    let mut l = Square::zeros(n);
+    for i in 0..n {
+        for j in 0..=i {
+            let mut s = m.at(i, j);
+            for k in 0..j {
+                s -= l.at(i, k) * l.at(j, k);
+            }
+            if i == j {
+                if !(s > 0.0) || !s.is_finite() {
+                    return None;
+                }
+                *l.at_mut(i, i) = s.sqrt();
+            } else {
+                *l.at_mut(i, j) = s / l.at(j, j);
+            }
+        }
+    }
+    Some(l)
+}
+
+/// Solve L·x = b in place (L lower triangular).
+pub fn forward_substitute(l: &Square, b: &mut [f64]) {
+    for i in 0..l.n {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= l.at(i, k) * b[k];
+        }
+        b[i] = s / l.at(i, i);
+    }
+}
+
+/// L⁻¹ of a lower triangular L.
+pub fn lower_inverse(l: &Square) -> Square {
+    let n = l.n;
+    let mut inv = Square::zeros(n);
+    let mut column = vec![0.0; n];
+    for c in 0..n {
+        column.iter_mut().for_each(|v| *v = 0.0);
+        column[c] = 1.0;
+        forward_substitute(l, &mut column);
+        for r in 0..n {
+            *inv.at_mut(r, c) = column[r];
+        }
+    }
+    inv
+}
+
+/// Inverse of a symmetric positive definite matrix, scaled to unit diagonal first so that
+/// parameters of very different size do not make a well-posed matrix look singular;
+/// `None` if it is singular or nearly so (a scaled inverse beyond 1e12).
+pub fn spd_inverse(m: &Square) -> Option<Square> {
+    let n = m.n;
+    let d: Vec<f64> = (0..n).map(|i| if m.at(i, i) > 0.0 { 1.0 / m.at(i, i).sqrt() } else { 0.0 }).collect();
+    if d.iter().any(|&v| v == 0.0 || !v.is_finite()) {
+        return None;
+    }
+    let mut scaled = Square::zeros(n);
+    for i in 0..n {
+        for j in 0..n {
+            *scaled.at_mut(i, j) = m.at(i, j) * d[i] * d[j];
+        }
+    }
+    let l = cholesky(&scaled)?;
+    let li = lower_inverse(&l);
+    let mut inv = Square::zeros(n);
+    for i in 0..n {
+        for j in 0..n {
+            // (L Lᵀ)⁻¹ = L⁻ᵀ L⁻¹.
+            let s: f64 = (i.max(j)..n).map(|k| li.at(k, i) * li.at(k, j)).sum();
+            *inv.at_mut(i, j) = s * d[i] * d[j];
+        }
+    }
+    if (0..n).any(|i| !(inv.at(i, i) * m.at(i, i) < 1e12)) {
+        return None;
+    }
+    Some(inv)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inverse_of_a_badly_scaled_matrix() {
+        // Parameters of size 1e-3 and 1e3 with a correlation of 0.9.
+        let s = [1e-3, 1.0, 1e3];
+        let mut m = Square::zeros(3);
+        let r = [[1.0, 0.9, 0.2], [0.9, 1.0, 0.3], [0.2, 0.3, 1.0]];
+        for i in 0..3 {
+            for j in 0..3 {
+                *m.at_mut(i, j) = r[i][j] / (s[i] * s[j]);
+            }
+        }
+        let inv = spd_inverse(&m).expect("positive definite");
+        for i in 0..3 {
+            for j in 0..3 {
+                let p: f64 = (0..3).map(|k| m.at(i, k) * inv.at(k, j)).sum();
+                assert!((p - if i == j { 1.0 } else { 0.0 }).abs() < 1e-9, "({i},{j}) {p}");
+            }
+        }
+        let mut singular = Square::zeros(2);
+        singular.a = vec![1.0, 1.0, 1.0, 1.0];
+        assert!(spd_inverse(&singular).is_none());
+    }
+}
