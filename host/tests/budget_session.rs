@@ -2,6 +2,7 @@
 //! each range-gain ratio off its nominal value (`--gain-error`), the tile off its
 //! certificate (`--tile-error`) and a lamp drift; the session calibrates the ratios its
 //! readings use on the sample and carries every shared error into the fit.
+use host::analysis::budget::{self, BudgetReading};
 use host::analysis::classify::REFERENCES;
 use host::analysis::fit::{FitOptions, Observation, fit};
 use host::analysis::model::{self, Params};
@@ -148,4 +149,109 @@ fn a_gain_error_no_longer_biases_sg() {
     let (n, c) = (median(&mut nominal), median(&mut calibrated));
     println!("SG ρs |error| median: nominal gains {:.2} %, calibrated {:.2} %; worst {:.2} % → {:.2} %", 100.0 * n, 100.0 * c, 100.0 * nominal[nominal.len() - 1], 100.0 * calibrated[calibrated.len() - 1]);
     assert!(c < 0.5 * n, "calibrated {c} vs nominal {n}");
+}
+
+fn covers(f: &host::analysis::fit::FitResult, index: usize, truth: f64) -> bool {
+    f.ci95[index].is_some_and(|(lo, hi)| lo <= truth && truth <= hi)
+}
+
+/// Coverage of σ, ρs, ρd by the session's own intervals over `seeds` sessions of `paper`
+/// with `options(seed)`; sessions whose fit left a parameter undetermined count as misses.
+fn session_coverage(paper: &str, seeds: std::ops::Range<u64>, options: impl Fn(u64) -> SimOptions) -> ([usize; 3], usize) {
+    let truth = reference(paper);
+    let mut covered = [0; 3];
+    let mut n = 0;
+    for seed in seeds {
+        let (outcome, _) = run(paper, &options(seed), Policy::Paper);
+        let f = &outcome.report.fit;
+        n += 1;
+        for (k, (i, t)) in [(model::SIGMA, truth.sigma_deg), (model::RHO_S, truth.rho_s), (model::RHO_D, truth.rho_d)].into_iter().enumerate() {
+            covered[k] += usize::from(covers(f, i, t));
+        }
+    }
+    (covered, n)
+}
+
+#[test]
+fn with_gain_and_tile_errors_the_sessions_intervals_cover() {
+    // The simulator draws each gain ratio off by 2 % and the tile off its certificate by
+    // 0.5 % (its sd), the lamp drifts 0.2 %/h; the session calibrates the gains it uses and
+    // carries every shared error.
+    let options = |seed: u64| SimOptions { seed, gain_error: Some(2.0), tile_error: Some(0.5), ..SimOptions::default() };
+    for paper in ["SG", "G", "PPC", "J1"] {
+        let ([sigma, rho_s, rho_d], n) = session_coverage(paper, 500..530, options);
+        println!("{paper}: covered σ {sigma}/{n}, ρs {rho_s}/{n}, ρd {rho_d}/{n}");
+        for (what, c) in [("ρs", rho_s), ("ρd", rho_d)] {
+            // 30 sessions: at least 25 (83 %); the campaign (below) is the 90–98 % claim.
+            assert!(c >= 25, "{paper} {what}: {c}/{n}");
+        }
+    }
+}
+
+/// Today's treatment of the same readings: nominal gains, and the white's and dark's
+/// errors folded into each reading's own as if independent (the tile, gains and drift
+/// left out).
+fn as_today(outcome: &Outcome) -> Option<host::analysis::fit::FitResult> {
+    let mut nominal = outcome.calibration.clone();
+    nominal.gain_ratios.clear();
+    let observations = observations(outcome, &nominal);
+    let readings: Vec<BudgetReading> = {
+        let mut seen = std::collections::BTreeSet::new();
+        outcome
+            .points
+            .iter()
+            .filter(|p| seen.insert(((p.theta_i_deg * 1e4) as i64, (p.theta_r_deg * 1e4) as i64)))
+            .filter(|p| nominal.radiance_factor(p.theta_i_deg, &p.reading).is_ok())
+            .map(|p| BudgetReading { theta_i_deg: p.theta_i_deg, reading: p.reading, age_s: 0.0 })
+            .collect()
+    };
+    let shared = budget::shared_errors(&nominal, &readings).ok()?;
+    let folded: Vec<Observation> = observations
+        .iter()
+        .enumerate()
+        .map(|(k, o)| {
+            let extra: f64 = shared
+                .iter()
+                .filter(|t| matches!(budget::TermKind::of(&t.name), budget::TermKind::White | budget::TermKind::Dark))
+                .map(|t| t.sensitivity[k].powi(2))
+                .sum();
+            Observation { std: o.std.map(|u| (u * u + extra).sqrt()), ..*o }
+        })
+        .collect();
+    let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
+    fit(&folded, &options).ok()
+}
+
+/// The campaign: 200 sessions per paper with the simulator's gain (1 %, `--physics real`'s)
+/// and tile (0.5 %) errors and lamp drift; the session's intervals against today's
+/// treatment of the same readings. Release build:
+/// `cargo test --release -p host --test budget_session -- --ignored --nocapture`.
+#[test]
+#[ignore = "a campaign of 800 sessions: run in release"]
+fn campaign_coverage_with_gain_and_tile_errors() {
+    let options = |seed: u64| SimOptions { seed, gain_error: Some(1.0), tile_error: Some(0.5), ..SimOptions::default() };
+    for paper in ["G", "SG", "PPC", "J1"] {
+        let truth = reference(paper);
+        let targets = [(model::SIGMA, truth.sigma_deg), (model::RHO_S, truth.rho_s), (model::RHO_D, truth.rho_d)];
+        let (mut now, mut today, mut n) = ([0usize; 3], [0usize; 3], 0usize);
+        let mut gain_seconds = 0.0;
+        for seed in 1_000..1_200u64 {
+            let (outcome, _) = run(paper, &options(seed), Policy::Paper);
+            n += 1;
+            gain_seconds += outcome.calibration.gain_ratios.iter().map(|g| g.device_seconds).sum::<f64>();
+            let before = as_today(&outcome);
+            for (k, &(i, t)) in targets.iter().enumerate() {
+                now[k] += usize::from(covers(&outcome.report.fit, i, t));
+                today[k] += usize::from(before.as_ref().is_some_and(|f| covers(f, i, t)));
+            }
+        }
+        println!(
+            "{paper}: {n} sessions; covered σ {}/{n} (today {}), ρs {}/{n} (today {}), ρd {}/{n} (today {}); gain calibration {:.2} device s per session",
+            now[0], today[0], now[1], today[1], now[2], today[2], gain_seconds / n as f64
+        );
+        for (k, what) in [(1, "ρs"), (2, "ρd")] {
+            let rate = now[k] as f64 / n as f64;
+            assert!((0.90..=0.98).contains(&rate), "{paper} {what}: {}/{n}", now[k]);
+        }
+    }
 }
