@@ -152,7 +152,7 @@ fn session(p: &Params, geometries: &[(f64, f64)], seed: u64, errors: Errors, cal
             instrument.calibrate_ratio(&mut calibration, pair);
         }
     }
-    let observations = geometries
+    let observations: Vec<Observation> = geometries
         .iter()
         .zip(&readings)
         .map(|(&(ti, tr), r)| {
@@ -160,7 +160,7 @@ fn session(p: &Params, geometries: &[(f64, f64)], seed: u64, errors: Errors, cal
             Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor, std: Some(std) }
         })
         .collect();
-    let shared = budget::shared_errors(&calibration, &readings).expect("a budget");
+    let shared = budget::shared_errors_for_fit(&calibration, &readings, &observations, &options()).expect("a budget");
     Synthetic { observations, shared }
 }
 
@@ -289,10 +289,13 @@ fn a_reused_calibrations_age_widens_the_intervals_by_the_drift_term() {
         let drift = |f: &FitResult, i: usize| f.budget.iter().find(|t| t.name == budget::LAMP_DRIFT).map_or(0.0, |t| t.variance[i]);
         for (i, name, truth) in [(model::RHO_S, "ρs", p.rho_s), (model::RHO_D, "ρd", p.rho_d)] {
             let width = |f: &FitResult| f.ci95[i].map(|(lo, hi)| hi - lo).unwrap();
-            // 4 h at 0.2 %/h: every reading 0.8 % off together, as the tile's 0.5 % is.
-            let expected = (truth * 0.002 * 4.0).powi(2);
+            // 4 h at 0.2 %/h: every reading 0.8 % off together, as the tile's 0.5 % is: 0.8 %
+            // of the value (of the first pass's model, which scales the shared errors: within
+            // 15 % of the final fit's for SG, whose ρs is loosely determined).
+            let _ = truth;
+            let expected = (f1.params.to_array()[i] * 0.002 * 4.0).powi(2);
             println!(
-                "{paper} {name}: 95 % width {:.5} → {:.5}, drift variance {:.3e} → {:.3e} (0.8 % of the value: {expected:.3e})",
+                "{paper} {name}: 95 % width {:.5} → {:.5}, drift variance {:.3e} → {:.3e} (0.8 % of the fitted value: {expected:.3e})",
                 width(&f0),
                 width(&f1),
                 drift(&f0, i),

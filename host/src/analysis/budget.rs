@@ -17,7 +17,7 @@
 //!
 //! A reused calibration's age is in each reading's age, so the drift term grows with it.
 
-use crate::analysis::fit::FitResult;
+use crate::analysis::fit::{FitOptions, FitResult, Observation};
 use crate::analysis::model;
 use crate::instrument::calibration::{Calibration, CalibrationError, standard_error_counts};
 use protocol::Reading;
@@ -142,8 +142,20 @@ pub fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Ve
 /// The shared errors of `readings` (in the fit's order) under `calibration`. A term that
 /// touches none of them is left out.
 pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> Result<Vec<SharedError>, CalibrationError> {
+    shared_errors_scaled(calibration, readings, None)
+}
+
+/// [`shared_errors`] with the parts that are proportional to a reading's radiance factor
+/// (everything but a dark's direct part, which is a fixed number of counts) scaled by
+/// `values[k]` instead of the measured R_k: the model's values, see [`shared_errors_for_fit`].
+pub fn shared_errors_scaled(calibration: &Calibration, readings: &[BudgetReading], values: Option<&[f64]>) -> Result<Vec<SharedError>, CalibrationError> {
     let conversions = readings.iter().map(|r| calibration.convert(r.theta_i_deg, &r.reading)).collect::<Result<Vec<_>, _>>()?;
     let n = readings.len();
+    if values.is_some_and(|v| v.len() != n) {
+        return Err(CalibrationError::Invalid(format!("{} values for {n} readings", values.map_or(0, <[f64]>::len))));
+    }
+    // The value a multiplicative error scales: the model's, else the measured one.
+    let value: Vec<f64> = conversions.iter().enumerate().map(|(k, c)| values.map_or(c.radiance_factor, |v| v[k])).collect();
     let ranges = calibration.relative_gains.len();
     let mut terms = Vec::new();
     let mut push = |name: String, sensitivity: Vec<f64>| {
@@ -157,7 +169,8 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
         let u = standard_error_counts(&white.reading);
         let sensitivity = conversions
             .iter()
-            .map(|c| if c.white_index == j { -c.radiance_factor * u / c.white_net_counts } else { 0.0 })
+            .zip(&value)
+            .map(|(c, r)| if c.white_index == j { -r * u / c.white_net_counts } else { 0.0 })
             .collect();
         push(white_name(white.theta_i_deg), sensitivity);
     }
@@ -188,18 +201,19 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
         }
         let sensitivity = conversions
             .iter()
-            .map(|c| {
+            .zip(&value)
+            .map(|(c, r)| {
+                // The reading's own dark: a fixed offset in counts, R/net = T/(G·w) whatever
+                // the reading's value.
+                let direct = if usize::from(c.range) == j { -c.radiance_factor / c.net_counts } else { 0.0 };
                 let mut d_ln_r = 0.0;
-                if usize::from(c.range) == j {
-                    d_ln_r -= 1.0 / c.net_counts;
-                }
                 if usize::from(c.white_range) == j {
                     d_ln_r += 1.0 / c.white_net_counts;
                 }
                 for &(p, d_ln_rho) in &through_ratios {
                     d_ln_r += exponent(p, c) * d_ln_rho;
                 }
-                c.radiance_factor * d_ln_r * u
+                (direct + r * d_ln_r) * u
             })
             .collect();
         push(dark_name(j as u8), sensitivity);
@@ -207,22 +221,65 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
 
     // The tile: every reading scales with its certified value.
     let u_tile = calibration.white_relative_uncertainty;
-    push(TILE.to_string(), conversions.iter().map(|c| c.radiance_factor * u_tile).collect());
+    push(TILE.to_string(), value.iter().map(|r| r * u_tile).collect());
 
     // The gain ratio of each pair of adjacent ranges.
     for p in 0..ranges.saturating_sub(1) {
         let (_, relative, _) = calibration.gain_ratio(p as u8)?;
-        push(gain_name(p as u8), conversions.iter().map(|c| c.radiance_factor * exponent(p, c) * relative).collect());
+        push(gain_name(p as u8), conversions.iter().zip(&value).map(|(c, r)| r * exponent(p, c) * relative).collect());
     }
 
     // The lamp's drift: one unknown rate, times each reading's age.
     let rate_per_s = calibration.lamp_drift_per_hour / 3600.0;
     push(
         LAMP_DRIFT.to_string(),
-        conversions.iter().zip(readings).map(|(c, r)| c.radiance_factor * rate_per_s * r.age_s.max(0.0)).collect(),
+        value.iter().zip(readings).map(|(v, r)| v * rate_per_s * r.age_s.max(0.0)).collect(),
     );
     debug_assert!(terms.iter().all(|t| t.sensitivity.len() == n));
     Ok(terms)
+}
+
+/// The model's value at each observation under `fit` (its arm offset and window included).
+pub fn model_values(fit: &FitResult, observations: &[Observation]) -> Vec<f64> {
+    let offset = fit.arm_offset.map_or(0.0, |a| a.deg);
+    observations
+        .iter()
+        .map(|o| {
+            let theta_r = o.theta_r_deg + offset;
+            match fit.acceptance_deg.filter(|a| *a > 0.0) {
+                Some(a) => model::observed_radiance_factor(&fit.params, o.theta_i_deg, theta_r, a),
+                None => model::radiance_factor(&fit.params, o.theta_i_deg, theta_r),
+            }
+        })
+        .collect()
+}
+
+/// The shared errors to fit `observations` (the conversions of `readings`, in order) with.
+///
+/// Why not simply [`shared_errors`]: an error that scales the readings (the tile, a white,
+/// a gain, the drift) built from the *measured* values gives the generalised least squares
+/// fit a reason to scale the model down — the readings that happen to be high get the larger
+/// shared error, and the fit follows the low ones (Peelle's pertinent puzzle of nuclear data
+/// evaluation). Measured: G's ρd 0.25 % low, half its interval, on the simulator. The
+/// remedy is the usual one: scale them by the model's values, here from a fit without
+/// shared errors (unbiased, if less precise), so that no reading's noise enters its own
+/// covariance. Without that fit (it failed) the measured values serve.
+pub fn shared_errors_for_fit(
+    calibration: &Calibration,
+    readings: &[BudgetReading],
+    observations: &[Observation],
+    options: &FitOptions,
+) -> Result<Vec<SharedError>, CalibrationError> {
+    match crate::analysis::fit::fit(observations, options) {
+        Ok(first) if observations.len() == readings.len() => {
+            let values = model_values(&first, observations);
+            if values.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                return shared_errors_scaled(calibration, readings, Some(&values));
+            }
+            shared_errors(calibration, readings)
+        }
+        _ => shared_errors(calibration, readings),
+    }
 }
 
 /// Indices into a budget term's variance of the parameters the report shares out.
@@ -441,6 +498,28 @@ mod tests {
             p.gain_ratios[0].ratio = p.ratio_from_readings(&g.on_lower, &g.on_upper).unwrap().0;
             check(&dark_name(j as u8), p, step);
         }
+    }
+
+    #[test]
+    fn scaled_by_values_only_the_proportional_parts_change() {
+        let c = calibration();
+        let rs = readings();
+        let measured: Vec<f64> = rs.iter().map(|r| c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0).collect();
+        assert_eq!(shared_errors_scaled(&c, &rs, Some(&measured)).unwrap(), shared_errors(&c, &rs).unwrap());
+        let doubled: Vec<f64> = measured.iter().map(|v| 2.0 * v).collect();
+        let base = shared_errors(&c, &rs).unwrap();
+        let scaled = shared_errors_scaled(&c, &rs, Some(&doubled)).unwrap();
+        for (a, b) in base.iter().zip(&scaled) {
+            for k in 0..rs.len() {
+                if a.name == dark_name(rs[k].reading.range) {
+                    // Its direct part is a fixed offset in counts: it does not double.
+                    assert!((b.sensitivity[k] - 2.0 * a.sensitivity[k]).abs() > 1e-12, "{} {k}", a.name);
+                } else {
+                    assert!((b.sensitivity[k] - 2.0 * a.sensitivity[k]).abs() <= 1e-15 * b.sensitivity[k].abs(), "{} {k}", a.name);
+                }
+            }
+        }
+        assert!(matches!(shared_errors_scaled(&c, &rs, Some(&[1.0])), Err(CalibrationError::Invalid(_))));
     }
 
     #[test]
