@@ -179,11 +179,12 @@ fn with_gain_and_tile_errors_the_sessions_intervals_cover() {
     // carries every shared error.
     let options = |seed: u64| SimOptions { seed, gain_error: Some(2.0), tile_error: Some(0.5), ..SimOptions::default() };
     for paper in ["SG", "G", "PPC", "J1"] {
-        let ([sigma, rho_s, rho_d], n) = session_coverage(paper, 500..530, options);
+        let ([sigma, rho_s, rho_d], n) = session_coverage(paper, 500..520, options);
         println!("{paper}: covered σ {sigma}/{n}, ρs {rho_s}/{n}, ρd {rho_d}/{n}");
         for (what, c) in [("ρs", rho_s), ("ρd", rho_d)] {
-            // 30 sessions: at least 25 (83 %); the campaign (below) is the 90–98 % claim.
-            assert!(c >= 25, "{paper} {what}: {c}/{n}");
+            // 20 sessions: at least 17 (85 %; 95 % coverage gives fewer in 1.6 % of runs);
+            // the campaign (below) is the 90–98 % claim.
+            assert!(c >= 17, "{paper} {what}: {c}/{n}");
         }
     }
 }
@@ -283,7 +284,7 @@ fn errors_that_scale_the_readings_do_not_pull_the_fit_down() {
     for paper in ["G", "SG"] {
         let truth = reference(paper);
         let (mut measured, mut modelled, mut n) = (0.0, 0.0, 0.0);
-        for seed in 700..720u64 {
+        for seed in 700..712u64 {
             let (outcome, _) = run(paper, &SimOptions { seed, ..SimOptions::default() }, Policy::Paper);
             let (readings, observations) = budget_inputs(&outcome);
             let z = |shared: &[host::analysis::fit::SharedError]| {

@@ -40,12 +40,12 @@ pub struct Args {
     pub calibration: Option<PathBuf>,
     /// The white tile's certified radiance factor (its certificate; recorded in
     /// calibration.json). A reused calibration keeps the tile it was taken with.
-    #[arg(long, value_name = "FACTOR", default_value_t = crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR)]
+    #[arg(long, value_name = "FACTOR", default_value_t = crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR, allow_negative_numbers = true)]
     pub tile_radiance_factor: f64,
     /// Standard uncertainty (k = 1) of the tile's certified radiance factor, percent; half a
     /// certificate's expanded (k = 2) uncertainty. The default is an assumption for a
     /// working-standard tile certified to ±1 % at k = 2.
-    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY)]
+    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY, allow_negative_numbers = true)]
     pub tile_uncertainty_pct: f64,
     /// Oldest calibration accepted, hours.
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
