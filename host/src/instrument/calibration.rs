@@ -60,11 +60,11 @@ impl Tile {
     /// A certificate from the command line's values (the uncertainty in percent, k = 1).
     pub fn new(radiance_factor: f64, uncertainty_pct: f64) -> Result<Tile, CalibrationError> {
         let tile = Tile { radiance_factor, relative_uncertainty: uncertainty_pct / 100.0 };
-        tile.check()?;
+        tile.validate()?;
         Ok(tile)
     }
 
-    fn check(&self) -> Result<(), CalibrationError> {
+    fn validate(&self) -> Result<(), CalibrationError> {
         // A white reference reflects at most a little more than a perfect diffuser.
         if !(self.radiance_factor.is_finite() && self.radiance_factor > 0.0 && self.radiance_factor <= 1.2) {
             return Err(CalibrationError::BadTile(format!("radiance factor {} is not in (0, 1.2]", self.radiance_factor)));
@@ -375,9 +375,9 @@ impl Calibration {
     }
 
     /// Whether the values can be right: what a file says is checked before it is used.
-    pub fn check(&self) -> Result<(), CalibrationError> {
+    pub fn validate(&self) -> Result<(), CalibrationError> {
         let invalid = |why: String| Err(CalibrationError::Invalid(why));
-        self.tile().check()?;
+        self.tile().validate()?;
         if self.relative_gains.is_empty() || self.relative_gains.iter().any(|g| !(g.is_finite() && *g > 0.0)) {
             return invalid(format!("relative gains {:?} must be finite and positive", self.relative_gains));
         }
@@ -427,7 +427,7 @@ impl Calibration {
         let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
         let calibration_value = value.get("calibration").cloned().unwrap_or(value);
         let calibration: Calibration = serde_json::from_value(calibration_value).map_err(|e| unreadable(e.to_string()))?;
-        calibration.check().map_err(|e| unreadable(e.to_string()))?;
+        calibration.validate().map_err(|e| unreadable(e.to_string()))?;
         let age = calibration.age(unix_now_s());
         if age > max_age {
             return Err(CalibrationError::Stale {
@@ -498,9 +498,9 @@ mod tests {
         assert_eq!(c.gain(1).unwrap(), 0.1);
         let (r, _) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
         assert!((r - 19.8 / 1.02).abs() < 1e-9, "{r}");
-        assert!(c.check().is_ok());
+        assert!(c.validate().is_ok());
         c.gain_ratios[0].lower_range = 2;
-        assert!(matches!(c.check(), Err(CalibrationError::Invalid(_))));
+        assert!(matches!(c.validate(), Err(CalibrationError::Invalid(_))));
     }
 
     #[test]
@@ -531,6 +531,33 @@ mod tests {
         }
         let old: Calibration = serde_json::from_value(value).unwrap();
         assert_eq!(old, c);
+    }
+
+    #[test]
+    fn a_damaged_file_is_refused_saying_what_is_wrong() {
+        let info = firmware::config::InstrumentConfig::REFERENCE.device_info("test");
+        let mut c = calibration();
+        c.instrument = instrument_name(&info);
+        c.taken_unix_s = unix_now_s();
+        let path = std::env::temp_dir().join(format!("gonio-calibration-{}.json", std::process::id()));
+        let damaged = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut value = serde_json::to_value(&c).unwrap();
+            edit(&mut value);
+            std::fs::write(&path, serde_json::to_vec(&value).unwrap()).unwrap();
+            Calibration::load(&path, Duration::from_secs(3600), &info).map(|_| ()).map_err(|e| e.to_string())
+        };
+        assert_eq!(damaged(&|_| {}), Ok(()));
+        let cases: [(&dyn Fn(&mut serde_json::Value), &str); 4] = [
+            (&|v| v["relative_gains"][1] = (-0.1).into(), "relative gains"),
+            (&|v| v["white_relative_uncertainty"] = 2.0.into(), "uncertainty 200 %"),
+            (&|v| v["lamp_drift_per_hour"] = (-1.0).into(), "lamp drift"),
+            (&|v| v["dark"] = serde_json::json!([]), "dark readings"),
+        ];
+        for (edit, says) in cases {
+            let error = damaged(edit).unwrap_err();
+            assert!(error.contains(&path.display().to_string()) && error.contains(says), "{error}");
+        }
+        let _ = std::fs::remove_file(&path);
     }
 
     #[test]
