@@ -199,3 +199,49 @@ fn bad_inputs_name_the_file_and_the_key() {
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--alpha"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The `result` object a session writes for readings: the report's JSON plus the
+/// covariance (as `gonio measure` adds it).
+fn session_of(sample: &str, observations: Vec<host::analysis::fit::Observation>) -> Value {
+    use host::analysis::{fit::FitOptions, report};
+    let set = host::output::dataset::DataSet { sample: sample.into(), lines: (2..2 + observations.len()).collect(), observations };
+    let r = report::analyse(Path::new("x.csv"), &set, &FitOptions::default(), None).expect("valid");
+    let mut result = report::to_json(&r);
+    result["covariance"] = json!(r.fit.covariance);
+    json!({ "sample": sample, "result": result })
+}
+
+/// What a session did not determine is never compared: a sheet whose ρs the fit could not
+/// identify (σ = 10°, ρs = 5, η = 1.001: only ρs·(η²−1) is fixed, class undecided) is
+/// compared with another over σ and ρd only, and its undecided class does not make it a
+/// "different class".
+#[test]
+fn undetermined_parameters_and_classes_are_not_compared() {
+    let p = host::analysis::model::Params { sigma_deg: 10.0, rho_s: 5.0, rho_d: 0.5, eta: 1.001 };
+    let geometries: Vec<(f64, f64)> = protocol::schedules::full_grid().iter().map(|g| (g.theta_i.deg(), g.theta_r.deg())).collect();
+    let reading = |seed: u64| -> Vec<host::analysis::fit::Observation> {
+        // Deterministic small noise: a hash of the seed and the index, ±0.5 %.
+        geometries
+            .iter()
+            .enumerate()
+            .map(|(k, &(ti, tr))| {
+                let f = host::analysis::model::observed_radiance_factor(&p, ti, tr, 1.0);
+                let u = ((k as u64 * 2_654_435_761 + seed * 40_503) % 1000) as f64 / 1000.0 - 0.5;
+                host::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: f * (1.0 + 0.01 * u), std: Some(0.003 * f + 0.001) }
+            })
+            .collect()
+    };
+    let a = session_of("a", reading(1));
+    let b = session_of("b", reading(2));
+    assert!(a["result"]["rho_s"].is_null() && a["result"]["class"].is_null(), "{}", a["result"]);
+    let a = compare::parse_session(Path::new("a"), &a.to_string()).expect("null ρs and class are allowed");
+    let b = compare::parse_session(Path::new("b"), &b.to_string()).expect("parse");
+    assert_eq!(a.class, None);
+    let c = compare::compare(&a, &b, 0.01);
+    assert_ne!(c.reason, "different classes");
+    assert_eq!(c.parameters[1].skipped, Some("not determined in both sessions"), "{:?}", c.parameters[1]);
+    assert!(c.parameters[0].z.is_some() && c.parameters[2].z.is_some());
+    // Against a decided class: still not "different classes" on an undecided one.
+    let g = compare::parse_session(Path::new("g"), &glossy("g", 0.8, 57.8, 0.855, 1.19).to_string()).expect("parse");
+    assert_ne!(compare::compare(&a, &g, 0.01).reason, "different classes");
+}

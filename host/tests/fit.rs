@@ -182,14 +182,32 @@ fn bad_input_gets_a_clear_error() {
     o.push(again);
     let e = fit(&o, &opts).unwrap_err();
     assert!(matches!(e, FitError::ConflictingDuplicates { index: 13, .. }), "{e}");
-    // Angles outside 0…90°.
-    for (ti, tr) in [(-1.0, 10.0), (20.0, 90.5), (f64::INFINITY, 0.0)] {
+    // Angles outside [0°, 90°): 90° itself too, where G/(cos·cos) is unbounded.
+    for (ti, tr) in [(-1.0, 10.0), (20.0, 90.5), (f64::INFINITY, 0.0), (90.0, 10.0), (20.0, 90.0)] {
         let mut o = valid();
         o[7].theta_i_deg = ti;
         o[7].theta_r_deg = tr;
         let e = fit(&o, &opts).unwrap_err();
         assert_eq!(e.reading_index(), Some(7), "{e}");
     }
+    let mut o = valid();
+    o[7].theta_r_deg = 90.0;
+    let e = fit(&o, &opts).unwrap_err();
+    assert!(e.to_string().contains("[0°, 90°)"), "{e}");
+    // Values that would overflow the squares and weights: refused with the limit named.
+    let mut o = valid();
+    o[3].radiance_factor = 1e308;
+    let e = fit(&o, &opts).unwrap_err();
+    assert!(matches!(e, FitError::TooLarge { index: 3, .. }), "{e}");
+    let mut o: Vec<Observation> = valid().into_iter().map(|o| Observation { std: Some(0.01), ..o }).collect();
+    o[6].std = Some(1e-300);
+    let e = fit(&o, &opts).unwrap_err();
+    assert!(matches!(e, FitError::UncertaintyOutOfRange { index: 6, .. }), "{e}");
+    // At the limits the fit is finite.
+    let mut o: Vec<Observation> = valid().into_iter().map(|o| Observation { std: Some(fit::STD_MIN), ..o }).collect();
+    o[0].radiance_factor = fit::RADIANCE_FACTOR_MAX;
+    let at_limits = fit(&o, &opts).expect("valid at the limits");
+    assert!(at_limits.cost.is_finite() && at_limits.params.to_array().iter().all(|v| v.is_finite()));
     // Uncertainties.
     let mut o = valid();
     o[0].std = Some(0.0);
@@ -216,4 +234,286 @@ fn extreme_but_valid_data_gives_finite_results() {
     let result = fit(&obs, &FitOptions::default()).expect("valid");
     assert!(result.params.to_array().iter().all(|v| v.is_finite()));
     assert!(result.nmae.is_finite() && result.rms.is_finite());
+}
+
+// ---------------------------------------------------------------------------------------
+// Goodness of fit, shared errors and what was not determined (issue 12). Campaigns: each
+// case's noise-free readings are computed once and the noise drawn per seed.
+
+use common::{Instrument, Lobe, Sheet, covers, draw, truth};
+use host::analysis::classify::{Class, REFERENCES, classify};
+use host::analysis::flags::Flag;
+use host::analysis::report;
+
+fn class_of_reference(name: &str) -> Class {
+    REFERENCES.iter().find(|r| r.name == name).expect("a Table 6 paper").class
+}
+
+/// A G or SG sheet whose lobe is GGX or Cauchy of the same FWHM: with uncertainties the
+/// fit says `lack-of-fit` every time; with or without them it is never confidently wrong
+/// (today: SG with confidence 1.00 and no flag).
+#[test]
+fn non_gaussian_lobes_are_flagged_and_never_confidently_wrong() {
+    let mut summary = Vec::new();
+    for name in ["G", "SG"] {
+        for lobe in [Lobe::Ggx, Lobe::Cauchy] {
+            for (label, geometries) in [("full grid", common::full_grid()), ("strategy 2, δ = 2°", common::strategy2(2))] {
+                for with_std in [true, false] {
+                    let instrument = Instrument { with_std, ..Instrument::issue() };
+                    let sheet = Sheet { params: common::reference(name), lobe, bump: None };
+                    let t = truth(&sheet, &geometries, &instrument);
+                    let seeds = if with_std { 15 } else { 8 };
+                    let (mut flagged, mut right, mut confidently_wrong) = (0, 0, 0);
+                    for seed in 0..seeds {
+                        let (obs, _) = draw(&t, &instrument, 3000 + seed);
+                        let result = fit(&obs, &FitOptions::default()).expect("valid");
+                        let c = classify(&result);
+                        flagged += usize::from(result.lack_of_fit);
+                        right += usize::from(c.class == Some(class_of_reference(name)));
+                        if c.class.is_some_and(|k| k != class_of_reference(name)) && c.confidence >= 0.95 {
+                            confidently_wrong += 1;
+                        }
+                        if result.lack_of_fit {
+                            assert!(result.flags.contains(&Flag::LackOfFit));
+                            assert!(c.confidence <= host::analysis::classify::LACK_OF_FIT_CONFIDENCE_CAP);
+                            assert!(result.variance_scale > 1.0, "a flagged fit's intervals are widened");
+                        }
+                    }
+                    summary.push(format!("{name} {lobe:?} {label} std {with_std}: flagged {flagged}/{seeds}, class right {right}/{seeds}"));
+                    assert_eq!(confidently_wrong, 0, "{name} {lobe:?} {label} std {with_std}: a wrong class with confidence ≥ 0.95");
+                    if with_std {
+                        assert_eq!(flagged as u64, seeds, "{name} {lobe:?} {label}: lack of fit not detected");
+                    }
+                }
+            }
+        }
+    }
+    println!("{}", summary.join("\n"));
+}
+
+/// On ideal data (the model's own shape, the instrument's noise and window) `lack-of-fit`
+/// is raised in at most 2 % of 520 fits across the papers and schedules (the stated level
+/// is 1 %: χ² and the structure test at 0.5 % each).
+#[test]
+fn lack_of_fit_false_flag_rate_on_ideal_data() {
+    type Case = (&'static str, Vec<(f64, f64)>, Instrument, u64);
+    let mut cases: Vec<Case> = Vec::new();
+    for r in &REFERENCES {
+        cases.push((r.name, common::full_grid(), Instrument::issue(), 25));
+        cases.push((r.name, common::full_grid(), Instrument::quiet(), 15));
+    }
+    for name in ["G", "SG"] {
+        cases.push((name, common::strategy2(2), Instrument::issue(), 40));
+        cases.push((name, common::strategy2(5), Instrument::quiet(), 30));
+    }
+    for name in ["PPC", "J1"] {
+        cases.push((name, common::strategy1_m12(), Instrument::issue(), 20));
+    }
+    let (mut fits, mut flagged, mut chi2_flags, mut structure_flags) = (0, 0, 0, 0);
+    for (k, (name, geometries, instrument, seeds)) in cases.iter().enumerate() {
+        let t = truth(&Sheet::ideal(common::reference(name)), geometries, instrument);
+        for seed in 0..*seeds {
+            let (obs, _) = draw(&t, instrument, 100_000 * (k as u64 + 1) + seed);
+            let result = fit(&obs, &FitOptions::default()).expect("valid");
+            fits += 1;
+            flagged += usize::from(result.lack_of_fit);
+            chi2_flags += usize::from(result.gof_p.is_some_and(|p| p < host::analysis::gof::GOF_ALPHA));
+            structure_flags += usize::from(result.structure.is_some_and(|s| s.p_value < host::analysis::gof::STRUCTURE_ALPHA));
+        }
+    }
+    let rate = flagged as f64 / fits as f64;
+    println!("lack-of-fit on ideal data: {flagged}/{fits} = {:.2} % (χ² {chi2_flags}, structure {structure_flags})", 100.0 * rate);
+    assert!(fits >= 500);
+    assert!(rate <= 0.02, "false-flag rate {rate}");
+}
+
+/// Coverage share of each of σ, ρs, ρd over `seeds` fits of `name` on the full grid.
+fn coverage(name: &str, instrument: &Instrument, seeds: u64, base: u64, with_shared: bool) -> [f64; 3] {
+    let t = truth(&Sheet::ideal(common::reference(name)), &common::full_grid(), instrument);
+    let p = common::reference(name).to_array();
+    let mut covered = [0usize; 3];
+    for seed in 0..seeds {
+        let (obs, shared) = draw(&t, instrument, base + seed);
+        let shared = if with_shared { shared } else { Vec::new() };
+        let result = fit::fit_with_shared(&obs, &shared, &FitOptions::default()).expect("valid");
+        for i in 0..3 {
+            covered[i] += usize::from(covers(result.ci95[i], p[i]));
+        }
+    }
+    covered.map(|c| c as f64 / seeds as f64)
+}
+
+/// On ideal data the 95 % intervals of σ, ρs, ρd cover the truth in 90–98 % of 300 fits
+/// (G: η fitted; PPC: η at its bound 3).
+#[test]
+fn intervals_cover_the_truth_on_ideal_data() {
+    for name in ["G", "PPC"] {
+        let share = coverage(name, &Instrument::issue(), 300, 200_000, false);
+        println!("{name}: coverage σ {:.3} ρs {:.3} ρd {:.3} over 300 fits", share[0], share[1], share[2]);
+        for (i, s) in share.iter().enumerate() {
+            assert!((0.90..=0.98).contains(s), "{name} parameter {i}: coverage {s}");
+        }
+    }
+}
+
+/// Errors shared by readings (the white reading at each θi, 0.5 %; the tile certificate,
+/// 1 %), drawn in the data: passed to the fit as `SharedError`s the intervals still cover in
+/// 90–98 % of 300 fits; treated as independent (today's fit) they do not.
+#[test]
+fn shared_errors_keep_the_coverage_and_ignoring_them_loses_it() {
+    let instrument = Instrument { white_rel: 0.005, tile_rel: 0.01, ..Instrument::issue() };
+    let with = coverage("G", &instrument, 300, 300_000, true);
+    let without = coverage("G", &instrument, 300, 300_000, false);
+    println!("G with shared errors: coverage σ {:.3} ρs {:.3} ρd {:.3}; treated as independent: σ {:.3} ρs {:.3} ρd {:.3}", with[0], with[1], with[2], without[0], without[1], without[2]);
+    for (i, s) in with.iter().enumerate() {
+        assert!((0.90..=0.98).contains(s), "parameter {i}: coverage {s} with the shared errors");
+    }
+    assert!(without[2] < 0.5, "ρd's coverage without the shared errors: {}", without[2]);
+}
+
+/// The budget: one term per shared error plus the reading noise, adding up to the
+/// covariance's diagonal; the tile's 1 % dominates ρd.
+#[test]
+fn the_budget_adds_up_to_the_covariance() {
+    let instrument = Instrument { white_rel: 0.005, tile_rel: 0.01, ..Instrument::issue() };
+    let t = truth(&Sheet::ideal(common::reference("G")), &common::full_grid(), &instrument);
+    let (obs, shared) = draw(&t, &instrument, 7);
+    let result = fit::fit_with_shared(&obs, &shared, &FitOptions::default()).expect("valid");
+    let names: Vec<&str> = result.budget.iter().map(|b| b.name.as_str()).collect();
+    assert_eq!(names, ["reading noise", "white θi = 20°", "white θi = 30°", "white θi = 45°", "white θi = 60°", "tile certificate"]);
+    for i in 0..3 {
+        let sum: f64 = result.budget.iter().map(|b| b.variance[i]).sum();
+        assert!((sum - result.covariance[i][i]).abs() <= 1e-9 * result.covariance[i][i], "parameter {i}: {sum} vs {}", result.covariance[i][i]);
+    }
+    let tile = &result.budget[5];
+    assert!(tile.variance[model::RHO_D] > 0.5 * result.covariance[model::RHO_D][model::RHO_D], "{:?}", result.budget);
+    // ρd moves with the tile: 1 % of it.
+    assert!((tile.variance[model::RHO_D].sqrt() / result.params.rho_d - 0.01).abs() < 0.001);
+}
+
+#[test]
+fn shared_errors_are_validated() {
+    let obs: Vec<Observation> = valid().into_iter().map(|o| Observation { std: Some(0.01), ..o }).collect();
+    let opts = FitOptions::default();
+    let short = fit::SharedError { name: "tile certificate".into(), sensitivity: vec![0.01; obs.len() - 1] };
+    let e = fit::fit_with_shared(&obs, &[short], &opts).unwrap_err();
+    assert!(matches!(e, FitError::SharedErrorLength { found: 11, expected: 12, .. }), "{e}");
+    assert!(e.to_string().contains("tile certificate"), "{e}");
+    let mut sensitivity = vec![0.01; obs.len()];
+    sensitivity[4] = f64::NAN;
+    let e = fit::fit_with_shared(&obs, &[fit::SharedError { name: "white θi = 20°".into(), sensitivity }], &opts).unwrap_err();
+    assert!(matches!(e, FitError::SharedErrorValue { index: 4, .. }), "{e}");
+    assert_eq!(e.reading_index(), Some(4));
+    let unweighted = valid();
+    let e = fit::fit_with_shared(&unweighted, &[fit::SharedError { name: "lamp drift".into(), sensitivity: vec![0.01; 12] }], &opts).unwrap_err();
+    assert!(matches!(e, FitError::SharedErrorWithoutUncertainties { .. }), "{e}");
+}
+
+/// The issue's scene σ = 10°, ρs = 5, η = 1.001 (F ∝ η² − 1 ≈ 0.002): only ρs·(η²−1) is
+/// determined. ρs is null with its reason, the class is not decided from it (flag
+/// `not-identified`), and the nearest reference does not use it. Today: ρs 4924, SG 100 %.
+#[test]
+fn an_undetermined_rho_s_is_null_and_never_used() {
+    let p = Params { sigma_deg: 10.0, rho_s: 5.0, rho_d: 0.5, eta: 1.001 };
+    for (label, geometries) in [("full grid", common::full_grid()), ("M = 12", common::strategy1_m12()), ("strategy 2, δ = 3°", common::strategy2(3))] {
+        let instrument = Instrument::issue();
+        let t = truth(&Sheet::ideal(p), &geometries, &instrument);
+        for seed in 0..4 {
+            let (obs, _) = draw(&t, &instrument, 400 + seed);
+            let result = fit(&obs, &FitOptions::default()).expect("valid");
+            assert_eq!(result.reported(model::RHO_S), None, "{label} seed {seed}: ρs {} reported", result.params.rho_s);
+            assert!(result.ci95[model::RHO_S].is_none() && result.std_error(model::RHO_S).is_none());
+            assert_eq!(result.covariance[model::RHO_S], [0.0; 4]);
+            assert!(result.not_identified().iter().any(|u| u.param == "rho_s"), "{label}: no reason given");
+            let c = classify(&result);
+            assert_eq!(c.class, None, "{label} seed {seed}: class {:?} from an undetermined ρs", c.class);
+            // The nearest reference does not move with the undetermined value.
+            let mut other = result.clone();
+            other.params.rho_s *= 1e-3;
+            assert_eq!(host::analysis::classify::nearest_reference(&other), (c.nearest_reference, c.nearest_distance));
+            let set = host::output::dataset::DataSet { sample: "eta-1".into(), observations: obs.clone(), lines: (2..2 + obs.len()).collect() };
+            let r = report::analyse(std::path::Path::new("eta.csv"), &set, &FitOptions::default(), None).expect("valid");
+            assert!(r.flags.contains(&Flag::NotIdentified), "{:?}", r.flags);
+            let json = report::to_json(&r);
+            assert!(json["rho_s"].is_null() && json["class"].is_null() && json["ok"] == false, "{json}");
+            assert!(json["not_identified"].as_array().is_some_and(|a| a.iter().any(|u| u["param"] == "rho_s")), "{json}");
+        }
+    }
+}
+
+/// Without `std` the noise is estimated from the residuals and the result says so: a note,
+/// the field, no χ² p-value, the structure check still made.
+#[test]
+fn unweighted_csv_says_its_noise_came_from_the_residuals() {
+    let obs = common::noisy(&common::reference("PPC"), &common::full_grid(), 11);
+    let mut text = String::from("theta_i,theta_r,radiance_factor\n");
+    for o in &obs {
+        text += &format!("{},{},{}\n", o.theta_i_deg, o.theta_r_deg, o.radiance_factor);
+    }
+    let sets = host::output::dataset::parse_csv(&text, "ppc").expect("valid CSV");
+    let r = report::analyse(std::path::Path::new("ppc.csv"), &sets[0], &FitOptions::default(), None).expect("valid");
+    let f = &r.fit;
+    assert!(!f.weighted);
+    let std = f.noise_from_residuals.expect("the noise estimate");
+    assert!(f.notes.iter().any(|n| matches!(n, Note::NoiseFromResiduals { .. })), "{:?}", f.notes);
+    assert!(f.chi2.is_none() && f.gof_p.is_none());
+    assert!(f.structure.is_some(), "the structure check runs without uncertainties");
+    let json = report::to_json(&r);
+    assert!(json["gof_p"].is_null() && json["chi2"].is_null(), "{json}");
+    assert_eq!(json["noise_from_residuals"].as_f64(), Some(std));
+    assert!(json["dof"].as_u64().is_some() && json["flags"].is_array() && json["ok"].is_boolean(), "{json}");
+    assert!(json["notes"].as_array().is_some_and(|n| n.iter().any(|v| v["kind"] == "noise_from_residuals")), "{json}");
+    let table = report::to_table(&r);
+    assert!(table.contains("estimated from the residuals"), "{table}");
+    // The weighted fit of the same readings reports χ² and its p-value instead.
+    let weighted = common::synthetic(&common::reference("PPC"), &common::full_grid(), 1.0, 0.01, 0.003, 11, true);
+    let w = fit(&weighted, &FitOptions::default()).expect("valid");
+    assert!(w.chi2.is_some() && w.gof_p.is_some() && w.noise_from_residuals.is_none());
+}
+
+/// `gonio fit --json` carries chi2, dof, gof_p, flags and ok, and exits 3 (flagged) when
+/// a data set is flagged and none failed; 0 when all are clean.
+#[test]
+fn gonio_fit_reports_the_goodness_of_fit_and_exits_3_when_flagged() {
+    let dir = std::env::temp_dir().join(format!("gonio-fit-gof-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let write = |name: &str, obs: &[Observation]| {
+        let mut text = String::from("theta_i,theta_r,radiance_factor,std\n");
+        for o in obs {
+            text += &format!("{},{},{},{}\n", o.theta_i_deg, o.theta_r_deg, o.radiance_factor, o.std.expect("weighted"));
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, text).expect("write");
+        path
+    };
+    let instrument = Instrument::issue();
+    let ggx = truth(&Sheet { params: common::reference("G"), lobe: Lobe::Ggx, bump: None }, &common::strategy2(2), &instrument);
+    let ideal = truth(&Sheet::ideal(common::reference("PPC")), &common::strategy2(2), &instrument);
+    let flagged = write("ggx.csv", &draw(&ggx, &instrument, 1).0);
+    let clean = write("ppc.csv", &draw(&ideal, &instrument, 1).0);
+    let run = |files: &[&std::path::Path]| std::process::Command::new(env!("CARGO_BIN_EXE_gonio")).args(["fit", "--json"]).args(files).output().expect("run gonio");
+    let out = run(&[&clean]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = run(&[&clean, &flagged]);
+    assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).expect("JSON")).collect();
+    for line in &lines {
+        for key in ["chi2", "dof", "gof_p", "flags", "ok", "structure", "budget", "not_identified"] {
+            assert!(line.get(key).is_some(), "missing {key}: {line}");
+        }
+    }
+    assert_eq!(lines[0]["ok"], true);
+    assert_eq!(lines[1]["ok"], false);
+    assert_eq!(lines[1]["flags"], serde_json::json!(["lack-of-fit"]));
+    assert!(lines[1]["gof_p"].as_f64().is_some_and(|p| p < 1e-6), "{}", lines[1]);
+    assert!(lines[1]["class_confidence"].as_f64().is_none_or(|c| c < 0.95));
+    // A failed file still wins: exit 1.
+    let broken = dir.join("broken.csv");
+    std::fs::write(&broken, "theta_i,theta_r,radiance_factor\n20,0,nope\n").expect("write");
+    assert_eq!(run(&[&flagged, &broken]).status.code(), Some(1));
+    // The table shows the fit's verdict.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gonio")).arg("fit").arg(&flagged).output().expect("run gonio");
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("LACK OF FIT") && table.contains("flags: lack-of-fit") && table.contains("χ²"), "{table}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

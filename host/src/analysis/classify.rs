@@ -180,7 +180,8 @@ const CONFIDENCE_SAMPLES: usize = 512;
 ///
 /// An unresolved σ (only σ ≤ U known) decides the group when U < ρs (or ρs's lower
 /// limit): glossy, and G when also U < 1.3°; otherwise the class is undecided. A ρs that
-/// was not identified (η at its lower bound) leaves the class undecided.
+/// was not identified (η at or near its lower bound) decides only when it has a lower
+/// limit above σ's 95 % upper limit (glossy); otherwise the class is undecided.
 pub fn classify(fit: &FitResult) -> Classification {
     let p = fit.params;
     let (nearest_reference, nearest_distance) = nearest_reference(fit);
@@ -198,7 +199,14 @@ pub fn classify(fit: &FitResult) -> Classification {
                 Some(r) if upper < r => (Some(Group::Glossy), None, Some("σ not resolved: G or SG (σ below the limit, which is above 1.3°)")),
                 _ => (None, None, Some("σ not resolved and its upper limit not below ρs: glossy or rough undecided")),
             },
-            (Some(_), _, None) => (None, None, Some("ρs not identified (η at its lower bound): glossy or rough undecided")),
+            // ρs only bounded below: glossy when even σ's upper limit is below that bound.
+            (Some(sigma), _, None) => match fit.rho_s_lower() {
+                Some(r) if fit.ci95[SIGMA].map_or(sigma, |c| c.1) < r => {
+                    let c = class_of(Some(sigma), f64::INFINITY, p.rho_d);
+                    (Some(c.group()), Some(c), None)
+                }
+                _ => (None, None, Some("ρs not identified (η at or near its lower bound): glossy or rough undecided")),
+            },
             (None, None, _) => (None, None, Some("σ not determined")),
         }
     };

@@ -65,7 +65,8 @@ pub fn structure_test(theta_i_deg: &[f64], e: &[f64]) -> Option<StructureTest> {
         pairs += 1;
     }
     let energy: f64 = e.iter().map(|v| v * v).sum();
-    if pairs < STRUCTURE_MIN_PAIRS || !(sum_sq > 0.0) || !(energy > 0.0) {
+    // (NaN sums fail the tests below as well.)
+    if pairs < STRUCTURE_MIN_PAIRS || sum_sq.is_nan() || sum_sq <= 0.0 || energy.is_nan() || energy <= 0.0 {
         return None;
     }
     let statistic = sum / sum_sq.sqrt();

@@ -51,7 +51,7 @@ pub fn cholesky(m: &Square) -> Option<Square> {
                 s -= l.at(i, k) * l.at(j, k);
             }
             if i == j {
-                if !(s > 0.0) || !s.is_finite() {
+                if s.is_nan() || s <= 0.0 || s.is_infinite() {
                     return None;
                 }
                 *l.at_mut(i, i) = s.sqrt();
@@ -115,7 +115,10 @@ pub fn spd_inverse(m: &Square) -> Option<Square> {
             *inv.at_mut(i, j) = s * d[i] * d[j];
         }
     }
-    if (0..n).any(|i| !(inv.at(i, i) * m.at(i, i) < 1e12)) {
+    if (0..n).any(|i| {
+        let conditioning = inv.at(i, i) * m.at(i, i);
+        conditioning.is_nan() || conditioning >= 1e12
+    }) {
         return None;
     }
     Some(inv)

@@ -86,6 +86,8 @@ pub struct PlaneGeometry {
     pub cos_psi: f64,
     /// G / (cos θi · cos θr).
     pub attenuation_over_cosines: f64,
+    /// Which of its three terms it is (see [`attenuation_branch`]).
+    pub attenuation_branch: u8,
 }
 
 impl PlaneGeometry {
@@ -100,10 +102,16 @@ impl PlaneGeometry {
         let cos_a = theta_a.cos();
         // G/(ci·cr) = min(1/(ci·cr), 2ca/(cψ·ci), 2ca/(cψ·cr)): each term stays finite
         // where one cosine vanishes, unlike forming G first and dividing.
-        let h = (1.0 / (cos_i * cos_r))
-            .min(2.0 * cos_a / (cos_psi * cos_i))
-            .min(2.0 * cos_a / (cos_psi * cos_r));
+        let terms = [1.0 / (cos_i * cos_r), 2.0 * cos_a / (cos_psi * cos_i), 2.0 * cos_a / (cos_psi * cos_r)];
+        let mut branch = 0;
+        for k in 1..3 {
+            if terms[k] < terms[branch] {
+                branch = k;
+            }
+        }
+        let h = terms[branch];
         PlaneGeometry {
+            attenuation_branch: branch as u8,
             theta_i_deg,
             theta_r_deg,
             offset_deg: theta_r_deg - theta_i_deg,
@@ -251,9 +259,9 @@ const GL_WEIGHTS: [f64; 5] = [0.295_524_224_714_752_9, 0.269_266_719_309_996_3, 
 ///
 /// Two evaluations of the same integrals, each where it is accurate (both to ~1e-13, so
 /// the choice never shows in a fit): a lobe narrower than the window (2σ < a) by the
-/// closed form (the recurrence M_{n+1} = −o·M_n + (w²/a)[(−a/2)^n L(o−a/2) − (a/2)^n L(o+a/2)]
-/// + n·w²·M_{n−1} from integrating by parts, w = 2σ, o the offset, which is stable while
-/// w ≲ a); a broader one, smooth across the window, by 10-point Gauss–Legendre.
+/// closed form (from integrating by parts, with w = 2σ and o the offset, the recurrence
+/// M_{n+1} = −o·M_n + (w²/a)[(−a/2)^n L(o−a/2) − (a/2)^n L(o+a/2)] + n·w²·M_{n−1},
+/// stable while w ≲ a); a broader one, smooth across the window, by 10-point Gauss–Legendre.
 pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> WindowMoments {
     let w = 2.0 * sigma_deg;
     let a = acceptance_deg;
@@ -308,54 +316,58 @@ pub fn window_weights(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> (
 /// smallest at (θi, θr): no masking, masking of the reflected ray, shadowing of the
 /// incident one. G has a kink where it switches.
 pub fn attenuation_branch(theta_i_deg: f64, theta_r_deg: f64) -> u8 {
-    let psi = 0.5 * (theta_i_deg + theta_r_deg).to_radians();
-    let cos_psi = psi.cos().max(COS_FLOOR);
-    let cos_i = theta_i_deg.to_radians().cos().max(COS_FLOOR);
-    let cos_r = theta_r_deg.to_radians().cos().max(COS_FLOOR);
-    let cos_a = (0.5 * (theta_i_deg - theta_r_deg).to_radians()).cos();
-    let terms = [1.0 / (cos_i * cos_r), 2.0 * cos_a / (cos_psi * cos_i), 2.0 * cos_a / (cos_psi * cos_r)];
-    let mut best = 0;
-    for k in 1..3 {
-        if terms[k] < terms[best] {
-            best = k;
-        }
-    }
-    best as u8
+    PlaneGeometry::new(theta_i_deg, theta_r_deg).attenuation_branch
 }
 
 /// The pieces of the window [θr − a/2, θr + a/2] between the kinks of G (where its min
 /// switches branch, [`attenuation_branch`]), on each of which u = F·G/(cos·cos) is smooth
 /// and the parabola of [`window_weights`] holds: (θr at the piece's middle, its width), in
-/// order. Kinks are found on 8 sub-intervals and placed by bisection to 1e-12 of the window;
+/// order. Kinks are found between the window's ends and centre and placed by bisection to
+/// 1e-12 of the window;
 /// they depend on the geometry only, never on the parameters, so splitting there does not
 /// make the model jump. One piece, the whole window, almost everywhere (near specular G = 1).
 pub fn window_pieces(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> Vec<(f64, f64)> {
-    const SAMPLES: usize = 8;
+    window_nodes(theta_i_deg, theta_r_deg, acceptance_deg).into_iter().map(|(mid, width, _)| (mid, width)).collect()
+}
+
+/// [`window_pieces`] with each piece's geometry at its low end, middle and high end.
+pub fn window_nodes(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> Vec<(f64, f64, [PlaneGeometry; 3])> {
     let (lo, a) = (theta_r_deg - 0.5 * acceptance_deg, acceptance_deg);
-    let at = |k: usize| lo + a * k as f64 / SAMPLES as f64;
+    let hi = lo + a;
+    let ends = [lo, theta_r_deg, hi];
+    let nodes = ends.map(|t| PlaneGeometry::new(theta_i_deg, t));
+    if nodes[0].attenuation_branch == nodes[1].attenuation_branch && nodes[1].attenuation_branch == nodes[2].attenuation_branch {
+        return vec![(theta_r_deg, a, nodes)];
+    }
     let mut cuts = vec![lo];
-    let mut previous = attenuation_branch(theta_i_deg, lo);
-    for k in 1..=SAMPLES {
-        let branch = attenuation_branch(theta_i_deg, at(k));
-        if branch != previous {
-            let (mut left, mut right) = (at(k - 1), at(k));
-            while right - left > 1e-12 * a {
-                let mid = 0.5 * (left + right);
-                if attenuation_branch(theta_i_deg, mid) == previous {
-                    left = mid;
-                } else {
-                    right = mid;
-                }
+    // A branch switch between two samples half a window apart is placed by bisection; two
+    // switches within half a degree (out of a branch and back) do not occur in G.
+    for k in 0..2 {
+        let branch = nodes[k].attenuation_branch;
+        if branch == nodes[k + 1].attenuation_branch {
+            continue;
+        }
+        let (mut left, mut right) = (ends[k], ends[k + 1]);
+        while right - left > 1e-12 * a {
+            let mid = 0.5 * (left + right);
+            if attenuation_branch(theta_i_deg, mid) == branch {
+                left = mid;
+            } else {
+                right = mid;
             }
-            let cut = 0.5 * (left + right);
-            if cut - cuts[cuts.len() - 1] > 1e-9 * a && at(SAMPLES) - cut > 1e-9 * a {
-                cuts.push(cut);
-            }
-            previous = branch;
+        }
+        let cut = 0.5 * (left + right);
+        if cut - cuts[cuts.len() - 1] > 1e-9 * a && hi - cut > 1e-9 * a {
+            cuts.push(cut);
         }
     }
-    cuts.push(lo + a);
-    cuts.windows(2).map(|w| (0.5 * (w[0] + w[1]), w[1] - w[0])).collect()
+    cuts.push(hi);
+    cuts.windows(2)
+        .map(|w| {
+            let (mid, width) = (0.5 * (w[0] + w[1]), w[1] - w[0]);
+            (mid, width, [w[0], mid, w[1]].map(|t| PlaneGeometry::new(theta_i_deg, t)))
+        })
+        .collect()
 }
 
 /// Radiance factor and its gradient [∂/∂σ (per degree), ∂/∂ρs, ∂/∂ρd, ∂/∂η] at a
@@ -368,13 +380,7 @@ pub fn evaluate(p: &Params, g: &PlaneGeometry, acceptance_deg: Option<f64>) -> (
     match acceptance_deg {
         Some(a) if a > 0.0 => {
             let (mut shape, mut d_sigma, mut d_eta) = (0.0, 0.0, 0.0);
-            for (mid, width) in window_pieces(g.theta_i_deg, g.theta_r_deg, a) {
-                let h = 0.5 * width;
-                let nodes = [
-                    PlaneGeometry::new(g.theta_i_deg, mid - h),
-                    PlaneGeometry::new(g.theta_i_deg, mid),
-                    PlaneGeometry::new(g.theta_i_deg, mid + h),
-                ];
+            for (mid, width, nodes) in window_nodes(g.theta_i_deg, g.theta_r_deg, a) {
                 let (weights, d_weights) = window_weights(mid - g.theta_i_deg, p.sigma_deg, width);
                 let share = width / a;
                 for (k, node) in nodes.iter().enumerate() {
