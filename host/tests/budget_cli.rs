@@ -38,15 +38,16 @@ fn width(r: &Value, param: &str) -> f64 {
 
 #[test]
 fn the_tiles_certificate_is_an_input_recorded_and_used() {
-    let (default_dir, given_dir) = (temp_dir("tile-default"), temp_dir("tile-given"));
+    let (default_dir, factor_dir, given_dir) = (temp_dir("tile-default"), temp_dir("tile-factor"), temp_dir("tile-given"));
     let default = measure(&default_dir, &[]);
+    let factor = measure(&factor_dir, &["--tile-radiance-factor", "0.97"]);
     let given = measure(&given_dir, &["--tile-radiance-factor", "0.97", "--tile-uncertainty-pct", "0.25"]);
     let (c0, c1) = (calibration(&default_dir), calibration(&given_dir));
     assert_eq!((c0["white_radiance_factor"].as_f64(), c0["white_relative_uncertainty"].as_f64()), (Some(0.99), Some(0.005)));
     assert_eq!((c1["white_radiance_factor"].as_f64(), c1["white_relative_uncertainty"].as_f64()), (Some(0.97), Some(0.0025)));
     // The same readings (one seed) scaled by the certificate: ρd and ρs by 0.97/0.99.
     for param in ["rho_d", "rho_s"] {
-        let ratio = given[param].as_f64().unwrap() / default[param].as_f64().unwrap();
+        let ratio = factor[param].as_f64().unwrap() / default[param].as_f64().unwrap();
         assert!((ratio - 0.97 / 0.99).abs() < 1e-6, "{param}: {ratio}");
     }
     // Half the tile's uncertainty: a quarter of its variance, so a smaller share of ρd's.
