@@ -160,7 +160,7 @@ fn session(p: &Params, geometries: &[(f64, f64)], seed: u64, errors: Errors, cal
             Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor, std: Some(std) }
         })
         .collect();
-    let shared = budget::shared_errors_for_fit(&calibration, &readings, &observations, &options()).expect("a budget");
+    let shared = budget::shared_errors(&calibration, &readings).expect("a budget");
     Synthetic { observations, shared }
 }
 

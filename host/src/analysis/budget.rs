@@ -17,7 +17,7 @@
 //!
 //! A reused calibration's age is in each reading's age, so the drift term grows with it.
 
-use crate::analysis::fit::{FitOptions, FitResult, Observation};
+use crate::analysis::fit::FitResult;
 use crate::analysis::model;
 use crate::instrument::calibration::{Calibration, CalibrationError, standard_error_counts};
 use protocol::Reading;
@@ -142,20 +142,14 @@ pub fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Ve
 /// The shared errors of `readings` (in the fit's order) under `calibration`. A term that
 /// touches none of them is left out.
 pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> Result<Vec<SharedError>, CalibrationError> {
-    shared_errors_scaled(calibration, readings, None)
-}
-
-/// [`shared_errors`] with the parts that are proportional to a reading's radiance factor
-/// (everything but a dark's direct part, which is a fixed number of counts) scaled by
-/// `values[k]` instead of the measured R_k: the model's values, see [`shared_errors_for_fit`].
-pub fn shared_errors_scaled(calibration: &Calibration, readings: &[BudgetReading], values: Option<&[f64]>) -> Result<Vec<SharedError>, CalibrationError> {
     let conversions = readings.iter().map(|r| calibration.convert(r.theta_i_deg, &r.reading)).collect::<Result<Vec<_>, _>>()?;
     let n = readings.len();
-    if values.is_some_and(|v| v.len() != n) {
-        return Err(CalibrationError::Invalid(format!("{} values for {n} readings", values.map_or(0, <[f64]>::len))));
-    }
-    // The value a multiplicative error scales: the model's, else the measured one.
-    let value: Vec<f64> = conversions.iter().enumerate().map(|(k, c)| values.map_or(c.radiance_factor, |v| v[k])).collect();
+    // What a multiplicative error scales: the measured value. The fit takes sensitivities
+    // per unit of the reading and re-evaluates them at its model's values
+    // (`fit::fit_with_shared`), which keeps a reading's own noise out of its covariance
+    // (Peelle's puzzle: built from the readings, the tile's term alone put G's ρd 0.25 %,
+    // half its interval, low).
+    let value: Vec<f64> = conversions.iter().map(|c| c.radiance_factor).collect();
     let ranges = calibration.relative_gains.len();
     let mut terms = Vec::new();
     let mut push = |name: String, sensitivity: Vec<f64>| {
@@ -203,8 +197,7 @@ pub fn shared_errors_scaled(calibration: &Calibration, readings: &[BudgetReading
             .iter()
             .zip(&value)
             .map(|(c, r)| {
-                // The reading's own dark: a fixed offset in counts, R/net = T/(G·w) whatever
-                // the reading's value.
+                // The reading's own dark: a fixed offset in counts, R/net = T/(G·w).
                 let direct = if usize::from(c.range) == j { -c.radiance_factor / c.net_counts } else { 0.0 };
                 let mut d_ln_r = 0.0;
                 if usize::from(c.white_range) == j {
@@ -237,49 +230,6 @@ pub fn shared_errors_scaled(calibration: &Calibration, readings: &[BudgetReading
     );
     debug_assert!(terms.iter().all(|t| t.sensitivity.len() == n));
     Ok(terms)
-}
-
-/// The model's value at each observation under `fit` (its arm offset and window included).
-pub fn model_values(fit: &FitResult, observations: &[Observation]) -> Vec<f64> {
-    let offset = fit.arm_offset.map_or(0.0, |a| a.deg);
-    observations
-        .iter()
-        .map(|o| {
-            let theta_r = o.theta_r_deg + offset;
-            match fit.acceptance_deg.filter(|a| *a > 0.0) {
-                Some(a) => model::observed_radiance_factor(&fit.params, o.theta_i_deg, theta_r, a),
-                None => model::radiance_factor(&fit.params, o.theta_i_deg, theta_r),
-            }
-        })
-        .collect()
-}
-
-/// The shared errors to fit `observations` (the conversions of `readings`, in order) with.
-///
-/// Why not simply [`shared_errors`]: an error that scales the readings (the tile, a white,
-/// a gain, the drift) built from the *measured* values gives the generalised least squares
-/// fit a reason to scale the model down — the readings that happen to be high get the larger
-/// shared error, and the fit follows the low ones (Peelle's pertinent puzzle of nuclear data
-/// evaluation). Measured: G's ρd 0.25 % low, half its interval, on the simulator. The
-/// remedy is the usual one: scale them by the model's values, here from a fit without
-/// shared errors (unbiased, if less precise), so that no reading's noise enters its own
-/// covariance. Without that fit (it failed) the measured values serve.
-pub fn shared_errors_for_fit(
-    calibration: &Calibration,
-    readings: &[BudgetReading],
-    observations: &[Observation],
-    options: &FitOptions,
-) -> Result<Vec<SharedError>, CalibrationError> {
-    match crate::analysis::fit::fit(observations, options) {
-        Ok(first) if observations.len() == readings.len() => {
-            let values = model_values(&first, observations);
-            if values.iter().all(|v| v.is_finite() && *v >= 0.0) {
-                return shared_errors_scaled(calibration, readings, Some(&values));
-            }
-            shared_errors(calibration, readings)
-        }
-        _ => shared_errors(calibration, readings),
-    }
 }
 
 /// Indices into a budget term's variance of the parameters the report shares out.
@@ -498,28 +448,6 @@ mod tests {
             p.gain_ratios[0].ratio = p.ratio_from_readings(&g.on_lower, &g.on_upper).unwrap().0;
             check(&dark_name(j as u8), p, step);
         }
-    }
-
-    #[test]
-    fn scaled_by_values_only_the_proportional_parts_change() {
-        let c = calibration();
-        let rs = readings();
-        let measured: Vec<f64> = rs.iter().map(|r| c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0).collect();
-        assert_eq!(shared_errors_scaled(&c, &rs, Some(&measured)).unwrap(), shared_errors(&c, &rs).unwrap());
-        let doubled: Vec<f64> = measured.iter().map(|v| 2.0 * v).collect();
-        let base = shared_errors(&c, &rs).unwrap();
-        let scaled = shared_errors_scaled(&c, &rs, Some(&doubled)).unwrap();
-        for (a, b) in base.iter().zip(&scaled) {
-            for k in 0..rs.len() {
-                if a.name == dark_name(rs[k].reading.range) {
-                    // Its direct part is a fixed offset in counts: it does not double.
-                    assert!((b.sensitivity[k] - 2.0 * a.sensitivity[k]).abs() > 1e-12, "{} {k}", a.name);
-                } else {
-                    assert!((b.sensitivity[k] - 2.0 * a.sensitivity[k]).abs() <= 1e-15 * b.sensitivity[k].abs(), "{} {k}", a.name);
-                }
-            }
-        }
-        assert!(matches!(shared_errors_scaled(&c, &rs, Some(&[1.0])), Err(CalibrationError::Invalid(_))));
     }
 
     #[test]

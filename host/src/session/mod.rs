@@ -651,10 +651,10 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Fit everything measured so far, check σ against σ_l and classify.
     fn analyse(&self) -> Result<Report, SessionError> {
         // Lines of readings.csv: a header, then one per reading.
-        let (indices, observations): (Vec<usize>, Vec<Observation>) = self.usable_points().unzip();
-        let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
-        let shared = self.shared_errors_of(&indices, &observations, &options)?;
+        let (indices, observations): (Vec<usize>, _) = self.usable_points().unzip();
+        let shared = self.shared_errors_of(&indices)?;
         let set = DataSet { sample: self.plan.sample.clone(), observations, lines: indices.iter().map(|k| k + 2).collect() };
+        let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
         analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None).map_err(SessionError::Fit)
     }
 
