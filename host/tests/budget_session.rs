@@ -130,25 +130,41 @@ fn the_ratios_the_readings_use_are_calibrated_and_agree_with_the_instrument() {
 #[test]
 fn a_gain_error_no_longer_biases_sg() {
     // Issue 12: a 1–2 % gain error moved SG's ρs by 17 %. The same sessions' readings
-    // converted with the nominal gains (as before) and with the calibrated ones.
+    // converted with the nominal gains and fitted as before (no shared errors), against the
+    // session's own result: calibrated gains, every shared error in the fit.
     let truth = reference("SG");
-    let (mut nominal, mut calibrated) = (Vec::new(), Vec::new());
+    let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
+    let (mut nominal, mut session, mut z) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut covered_before, mut covered) = (0, 0);
     for seed in 300..330u64 {
         let (outcome, _) = run("SG", &with_gain_error(seed, 2.0), Policy::Paper);
-        let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
         let mut without = outcome.calibration.clone();
         without.gain_ratios.clear();
-        let rel = |c: &Calibration| fit(&observations(&outcome, c), &options).map(|f| f.params.rho_s / truth.rho_s - 1.0).unwrap_or(f64::INFINITY);
-        nominal.push(rel(&without).abs());
-        calibrated.push(rel(&outcome.calibration).abs());
+        let before = fit(&observations(&outcome, &without), &options).expect("a fit");
+        let after = &outcome.report.fit;
+        nominal.push((before.params.rho_s / truth.rho_s - 1.0).abs());
+        session.push((after.params.rho_s / truth.rho_s - 1.0).abs());
+        z.push((after.params.rho_s - truth.rho_s) / after.covariance[model::RHO_S][model::RHO_S].sqrt());
+        covered_before += usize::from(covers(&before, model::RHO_S, truth.rho_s));
+        covered += usize::from(covers(after, model::RHO_S, truth.rho_s));
     }
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let (n, c) = (median(&mut nominal), median(&mut calibrated));
-    println!("SG ρs |error| median: nominal gains {:.2} %, calibrated {:.2} %; worst {:.2} % → {:.2} %", 100.0 * n, 100.0 * c, 100.0 * nominal[nominal.len() - 1], 100.0 * calibrated[calibrated.len() - 1]);
+    let (n, c) = (median(&mut nominal), median(&mut session));
+    let mean_z = z.iter().sum::<f64>() / z.len() as f64;
+    println!(
+        "SG ρs, 2 % gain errors: |error| median {:.2} % (worst {:.2} %) with nominal gains, {:.2} % (worst {:.2} %) calibrated; covered {covered_before}/30 → {covered}/30; mean z {mean_z:+.2}",
+        100.0 * n,
+        100.0 * nominal[nominal.len() - 1],
+        100.0 * c,
+        100.0 * session[session.len() - 1]
+    );
     assert!(c < 0.5 * n, "calibrated {c} vs nominal {n}");
+    // What error remains is the fit's own, and its interval says so.
+    assert!(covered >= 26, "{covered}/30");
+    assert!(mean_z.abs() < 0.5, "{mean_z}");
 }
 
 fn covers(f: &host::analysis::fit::FitResult, index: usize, truth: f64) -> bool {
@@ -235,11 +251,12 @@ fn campaign_coverage_with_gain_and_tile_errors() {
         let truth = reference(paper);
         let targets = [(model::SIGMA, truth.sigma_deg), (model::RHO_S, truth.rho_s), (model::RHO_D, truth.rho_d)];
         let (mut now, mut today, mut n) = ([0usize; 3], [0usize; 3], 0usize);
-        let mut gain_seconds = 0.0;
+        let (mut gain_seconds, mut measuring_seconds) = (0.0, 0.0);
         for seed in 1_000..1_200u64 {
             let (outcome, _) = run(paper, &options(seed), Policy::Paper);
             n += 1;
             gain_seconds += outcome.calibration.gain_ratios.iter().map(|g| g.device_seconds).sum::<f64>();
+            measuring_seconds += outcome.device_seconds;
             let before = as_today(&outcome);
             for (k, &(i, t)) in targets.iter().enumerate() {
                 now[k] += usize::from(covers(&outcome.report.fit, i, t));
@@ -247,8 +264,8 @@ fn campaign_coverage_with_gain_and_tile_errors() {
             }
         }
         println!(
-            "{paper}: {n} sessions; covered σ {}/{n} (today {}), ρs {}/{n} (today {}), ρd {}/{n} (today {}); gain calibration {:.2} device s per session",
-            now[0], today[0], now[1], today[1], now[2], today[2], gain_seconds / n as f64
+            "{paper}: {n} sessions; covered σ {}/{n} (today {}), ρs {}/{n} (today {}), ρd {}/{n} (today {}); gain calibration {:.2} of {:.1} device s measuring per session",
+            now[0], today[0], now[1], today[1], now[2], today[2], gain_seconds / n as f64, measuring_seconds / n as f64
         );
         for (k, what) in [(1, "ρs"), (2, "ρd")] {
             let rate = now[k] as f64 / n as f64;

@@ -269,6 +269,7 @@ impl<T: Transport> Session<'_, T> {
                 Ok((r, u)) => {
                     point.radiance_factor = Some(r);
                     point.std = Some(u);
+                    point.note = None;
                 }
                 Err(e) => {
                     point.radiance_factor = None;
