@@ -1,7 +1,7 @@
 //! The budget through `gonio measure`: the tile's certificate as an input of the
 //! calibration, a reused calibration's age, and the report's `budget`.
 use serde_json::Value;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 fn gonio(args: &[&str]) -> Output {
@@ -15,7 +15,7 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 /// A session's `--json` object; a flagged result (exit 3) is a result too.
-fn measure(dir: &PathBuf, extra: &[&str]) -> Value {
+fn measure(dir: &Path, extra: &[&str]) -> Value {
     let mut args = vec!["measure", "--sim", "PPC", "--seed", "5", "--policy", "paper", "--json", "--out", dir.to_str().unwrap()];
     args.extend_from_slice(extra);
     let out = gonio(&args);
@@ -23,7 +23,7 @@ fn measure(dir: &PathBuf, extra: &[&str]) -> Value {
     serde_json::from_slice(&out.stdout).expect("one JSON object")
 }
 
-fn calibration(dir: &PathBuf) -> Value {
+fn calibration(dir: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(dir.join("calibration.json")).unwrap()).unwrap()
 }
 

@@ -547,7 +547,8 @@ mod tests {
             Calibration::load(&path, Duration::from_secs(3600), &info).map(|_| ()).map_err(|e| e.to_string())
         };
         assert_eq!(damaged(&|_| {}), Ok(()));
-        let cases: [(&dyn Fn(&mut serde_json::Value), &str); 4] = [
+        type Edit<'a> = &'a dyn Fn(&mut serde_json::Value);
+        let cases: [(Edit, &str); 4] = [
             (&|v| v["relative_gains"][1] = (-0.1).into(), "relative gains"),
             (&|v| v["white_relative_uncertainty"] = 2.0.into(), "uncertainty 200 %"),
             (&|v| v["lamp_drift_per_hour"] = (-1.0).into(), "lamp drift"),

@@ -107,7 +107,7 @@ pub fn dark_relative(calibration: &Calibration, lower_range: u8, on_lower: f64, 
 /// `max_ms`; `None` when the first pair is already good enough.
 pub fn second_integration_ms(relative: f64, target: f64, first_ms: u16, min_ms: u16, max_ms: u16) -> Option<u16> {
     let factor = (relative / target).powi(2) - 1.0;
-    if !(factor > 0.0) {
+    if factor.is_nan() || factor <= 0.0 {
         return None;
     }
     let ms = (f64::from(first_ms) * factor).ceil().min(f64::from(MAX_INTEGRATION_MS.min(max_ms)));
@@ -127,6 +127,9 @@ fn level_of(levels: &[(Geometry, f64)], g: Geometry) -> f64 {
     levels.iter().find(|(h, _)| *h == g).map_or(f64::NAN, |(_, l)| *l)
 }
 
+/// What a flank search found (θr and level), and every probe (θr, level).
+pub type FlankSearch = (Option<(f64, f64)>, Vec<(f64, f64)>);
+
 /// Search the flank of a lobe along θr for a level in [[`LEVEL_GOOD`], [`LEVEL_HIGH`]]:
 /// from `bright_theta_r` (level `bright_level` > [`LEVEL_HIGH`]) towards `far` (θr and its
 /// level if known, NaN if it must be probed first). `probe(θr)` reads the level there.
@@ -142,7 +145,7 @@ pub fn search_flank<E>(
     bright_theta_r: f64,
     bright_level: f64,
     far: (f64, f64),
-) -> Result<(Option<(f64, f64)>, Vec<(f64, f64)>), E> {
+) -> Result<FlankSearch, E> {
     let good = |l: f64| (LEVEL_GOOD..=LEVEL_HIGH).contains(&l);
     let mut probed = Vec::new();
     let (far_theta_r, mut far_level) = far;
@@ -154,7 +157,7 @@ pub fn search_flank<E>(
     if good(far_level) {
         return Ok((Some((far_theta_r, far_level)), probed));
     }
-    if !(far_level < LEVEL_GOOD) {
+    if far_level.is_nan() || far_level >= LEVEL_GOOD {
         return Ok((None, probed)); // bright all the way
     }
     let base = 0.8 * far_level.max(0.0);
@@ -417,7 +420,8 @@ impl<T: Transport> Session<'_, T> {
         let relative = relative.hypot(drift);
         let nominal = calibration.relative_gains.get(usize::from(upper)).copied().unwrap_or(f64::NAN)
             / calibration.relative_gains.get(usize::from(pair)).copied().unwrap_or(f64::NAN);
-        if !((ratio / nominal - 1.0).abs() <= MAX_DEVIATION_FROM_NOMINAL) {
+        let deviation = (ratio / nominal - 1.0).abs();
+        if deviation.is_nan() || deviation > MAX_DEVIATION_FROM_NOMINAL {
             return Ok(Err(Skip::Unusable(format!("measured ratio {ratio:.5} is more than {:.0} % from the nominal {nominal:.5}", 100.0 * MAX_DEVIATION_FROM_NOMINAL))));
         }
         Ok(Ok(GainRatio {
