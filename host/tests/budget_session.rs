@@ -74,7 +74,7 @@ fn the_ratios_the_readings_use_are_calibrated_and_agree_with_the_instrument() {
     let (mut within, mut ratios, mut worst) = (0, 0, 0.0f64);
     let (mut nominal_sq, mut calibrated_sq) = (0.0, 0.0);
     let mut seconds = Vec::new();
-    for (sample, seeds) in [("G", 0..12u64), ("SG", 100..112), ("J1", 200..204)] {
+    for (sample, seeds) in [("G", 0..8u64), ("SG", 100..108), ("J1", 200..202)] {
         for seed in seeds {
             let (outcome, truth) = run(sample, &with_gain_error(seed, 2.0), Policy::Paper);
             let c = &outcome.calibration;
@@ -121,7 +121,7 @@ fn the_ratios_the_readings_use_are_calibrated_and_agree_with_the_instrument() {
         seconds[seconds.len() / 2],
         seconds[seconds.len() - 1]
     );
-    assert!(ratios >= 30, "glossy papers use range 1 and G range 2: {ratios} ratios");
+    assert!(ratios >= 24, "glossy papers use range 1 and G range 2: {ratios} ratios");
     assert!(within as f64 >= 0.85 * ratios as f64, "{within}/{ratios}");
     assert!(worst < 4.5, "{worst}");
     assert!(rms(calibrated_sq) < 0.25 * rms(nominal_sq), "the calibration removes most of the gain error");
@@ -136,7 +136,7 @@ fn a_gain_error_no_longer_biases_sg() {
     let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
     let (mut nominal, mut session, mut z) = (Vec::new(), Vec::new(), Vec::new());
     let (mut covered_before, mut covered) = (0, 0);
-    for seed in 300..330u64 {
+    for seed in 300..320u64 {
         let (outcome, _) = run("SG", &with_gain_error(seed, 2.0), Policy::Paper);
         let mut without = outcome.calibration.clone();
         without.gain_ratios.clear();
@@ -155,7 +155,7 @@ fn a_gain_error_no_longer_biases_sg() {
     let (n, c) = (median(&mut nominal), median(&mut session));
     let mean_z = z.iter().sum::<f64>() / z.len() as f64;
     println!(
-        "SG ρs, 2 % gain errors: |error| median {:.2} % (worst {:.2} %) with nominal gains, {:.2} % (worst {:.2} %) calibrated; covered {covered_before}/30 → {covered}/30; mean z {mean_z:+.2}",
+        "SG ρs, 2 % gain errors: |error| median {:.2} % (worst {:.2} %) with nominal gains, {:.2} % (worst {:.2} %) calibrated; covered {covered_before}/20 → {covered}/20; mean z {mean_z:+.2}",
         100.0 * n,
         100.0 * nominal[nominal.len() - 1],
         100.0 * c,
@@ -163,7 +163,7 @@ fn a_gain_error_no_longer_biases_sg() {
     );
     assert!(c < 0.5 * n, "calibrated {c} vs nominal {n}");
     // What error remains is the fit's own, and its interval says so.
-    assert!(covered >= 26, "{covered}/30");
+    assert!(covered >= 17, "{covered}/20");
     assert!(mean_z.abs() < 0.5, "{mean_z}");
 }
 
