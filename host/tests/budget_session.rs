@@ -39,7 +39,6 @@ fn run(sample: &str, options: &SimOptions, policy: Policy) -> (Outcome, hil_sim:
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: false,
         white_drift_limit: 1.0,
-        tile: Default::default(),
     };
     let (mut recorder, mut operator) = (Discard, SimulatedOperator);
     let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().expect("a session");

@@ -182,10 +182,9 @@ fn run_on<T: Transport>(mut client: Client<T>, args: &Args, sample: String, oper
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: args.white_check,
         white_drift_limit: args.white_drift_limit_pct / 100.0,
-        tile,
     };
     client.set_interrupt(Some(interrupted));
-    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).resume_from(calibration, points);
+    let session = Session::new(&mut client, info.clone(), plan, &mut recorder, operator).with_tile(tile).resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();
     let outcome = match outcome {

@@ -17,7 +17,7 @@ pub mod order;
 
 pub use operator::{Operator, Placement, PromptOperator, SimulatedOperator};
 
-use crate::instrument::calibration::{Calibration, CalibrationError, WhitePoint, instrument_name};
+use crate::instrument::calibration::{Calibration, CalibrationError, Tile, WhitePoint, instrument_name};
 use crate::analysis::report::{Report, analyse_with_shared, to_json};
 use crate::output::dataset::DataSet;
 use crate::analysis::fit::{FitOptions, Observation};
@@ -105,8 +105,6 @@ pub struct Plan {
     pub white_check: bool,
     /// White drift beyond which the result is marked, as a fraction.
     pub white_drift_limit: f64,
-    /// The white tile's certificate, for a calibration taken in this session.
-    pub tile: crate::instrument::calibration::Tile,
 }
 
 /// One measured geometry, as recorded.
@@ -268,13 +266,15 @@ pub struct Session<'a, T: Transport> {
     next_schedule_id: u16,
     device_time_used_us: u64,
     motion: Motion,
+    /// The white tile's certificate, for a calibration taken in this session.
+    tile: Tile,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
     /// A session on a connected instrument (after the handshake gave `info`).
     pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
         let motion = Motion::from_info(&info).unwrap_or_else(|_| Motion::reference());
-        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, motion }
+        Session { client, info, plan, recorder, operator, points: Vec::new(), calibration: None, next_schedule_id: 1, device_time_used_us: 0, motion, tile: Tile::default() }
     }
 
     /// Continue from readings (and a calibration) an earlier session recorded.
@@ -288,6 +288,13 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Use a calibration from an earlier session instead of taking one.
     pub fn with_calibration(mut self, calibration: Calibration) -> Self {
         self.calibration = Some(calibration);
+        self
+    }
+
+    /// The white tile's certificate for a calibration taken in this session (default:
+    /// [`Tile::default`]); a calibration reused or resumed keeps its own.
+    pub fn with_tile(mut self, tile: Tile) -> Self {
+        self.tile = tile;
         self
     }
 
@@ -528,7 +535,7 @@ impl<'a, T: Transport> Session<'a, T> {
         }
         self.operator.place(Placement::Sample).map_err(SessionError::Operator)?;
         let gains = self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect();
-        let calibration = Calibration::new(instrument_name(&self.info), self.plan.tile, gains, dark.to_vec(), white);
+        let calibration = Calibration::new(instrument_name(&self.info), self.tile, gains, dark.to_vec(), white);
         self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
         self.calibration = Some(calibration);
         Ok(())

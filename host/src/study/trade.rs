@@ -131,7 +131,6 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
         acceptance_deg: f64::from(info.acceptance_deg),
         white_check: false,
         white_drift_limit: 1.0,
-        tile: crate::instrument::calibration::Tile::default(),
     };
     let (mut recorder, mut operator) = (Discard, SimulatedOperator);
     let outcome: Outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
