@@ -172,7 +172,12 @@ impl Problem {
         }
         let offsets_raw: Vec<f64> = centres.iter().map(|g| if acceptance_deg.is_some() { g.offset_deg } else { g.offset_deg.abs() }).collect();
         let keys: Vec<(f64, f64)> = raw_pieces.iter().map(|p| (p.0, p.1)).collect();
-        let psi_keys: Vec<(f64, f64)> = raw_pieces.iter().flat_map(|p| p.2.iter().map(|g| (g.sin2_psi, g.cos_psi))).collect();
+        // Without a window a piece is its middle node only.
+        let nodes_per_piece = if acceptance_deg.is_some() { 3 } else { 1 };
+        let psi_keys: Vec<(f64, f64)> = raw_pieces
+            .iter()
+            .flat_map(|p| p.2.iter().skip(3 - nodes_per_piece).take(nodes_per_piece).map(|g| (g.sin2_psi, g.cos_psi)))
+            .collect();
         let pair = |(a, b): (f64, f64)| ((a.to_bits() as u128) << 64) | b.to_bits() as u128;
         let (offsets, offset_index) = distinct(&offsets_raw, |v| v.to_bits() as u128);
         let (lobe_keys, lobe_index) = distinct(&keys, pair);
@@ -185,7 +190,7 @@ impl Problem {
             .enumerate()
             .map(|(k, (_, _, nodes))| Piece {
                 lobe: lobe_index[k],
-                psi: if windowed { [psi_index[3 * k], psi_index[3 * k + 1], psi_index[3 * k + 2]] } else { [psi_index[3 * k + 1]; 3] },
+                psi: if windowed { [psi_index[3 * k], psi_index[3 * k + 1], psi_index[3 * k + 2]] } else { [psi_index[k]; 3] },
                 h: if windowed {
                     std::array::from_fn(|e| nodes[e].attenuation_over_cosines)
                 } else {
@@ -257,9 +262,11 @@ impl Problem {
     #[inline]
     fn terms(&self, pt: &Point, lobe: &[LobeEntry], fresnel: &[(f64, f64)]) -> (f64, f64, f64) {
         let (mut shape, mut d_sigma, mut d_eta) = (0.0, 0.0, 0.0);
+        // Without a window only the middle node carries weight.
+        let nodes = if self.acceptance_deg.is_some() { 0..3 } else { 1..2 };
         for piece in &self.pieces[pt.pieces.0 as usize..pt.pieces.1 as usize] {
             let (w, dw) = &lobe[piece.lobe as usize];
-            for e in 0..3 {
+            for e in nodes.clone() {
                 let (f, df) = fresnel[piece.psi[e] as usize];
                 let wh = w[e] * piece.h[e];
                 shape += wh * f;
