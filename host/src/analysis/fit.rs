@@ -9,7 +9,7 @@
 //! construction; the others by an active-set projection) then polishes the best basins.
 //! The cost is generalised least squares, rᵀ Σ⁻¹ r with Σ = diag(std²) + Σ_k s_k s_kᵀ the
 //! readings' covariance including the errors they share ([`SharedError`]; Woodbury, see
-//! [`engine`]). The model is the whole TSL model averaged over the detector's window
+//! the engine submodule). The model is the whole TSL model averaged over the detector's window
 //! ([`crate::analysis::model`]).
 //!
 //! After the fit, in order: what the data cannot determine is taken out of the model and
@@ -105,13 +105,13 @@ pub struct SharedError {
     pub sensitivity: Vec<f64>,
 }
 
-/// One term of the uncertainty budget: its contribution to the variance of σ [deg²], ρs,
+/// One term of the uncertainty budget: its contribution to the variance of σ (deg²), ρs,
 /// ρd and η. The terms add up to the diagonal of [`FitResult::covariance`].
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct BudgetTerm {
     /// `reading noise` (the independent part), a [`SharedError`]'s name, or `lack of fit`.
     pub name: String,
-    /// Contribution to Var of σ [deg], ρs, ρd, η (0 for what was not determined).
+    /// Contribution to Var of σ (degrees), ρs, ρd, η (0 for what was not determined).
     pub variance: [f64; N_PARAMS],
 }
 
@@ -330,7 +330,7 @@ pub enum Note {
     NoDegreesOfFreedom,
     /// No standard uncertainties were given: the readings are weighted equally, the noise is
     /// estimated from the residuals (`std`, one reading's if it were the same for all) and
-    /// the intervals from the heteroscedasticity-consistent sandwich ([`SANDWICH_MIN_DOF`]);
+    /// the intervals from the heteroscedasticity-consistent sandwich (from `SANDWICH_MIN_DOF` degrees of freedom);
     /// there is no χ² test.
     NoiseFromResiduals {
         /// The estimated standard deviation of one reading.
@@ -381,7 +381,7 @@ impl std::fmt::Display for Note {
                 )
             }
             Note::ArmOffsetFitted { deg, std_deg, lr } => {
-                write!(f, "arm zero offset fitted: θr + {deg:+.3}° ± {std_deg:.3}° (likelihood ratio {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})")
+                write!(f, "arm zero offset fitted: every θr taken as θr + δ0, δ0 = {deg:+.3}° ± {std_deg:.3}° (test statistic {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})")
             }
             Note::IntervalsWidened { factor } => {
                 write!(f, "the model does not describe the data: intervals widened × {:.2} (variance × {factor:.2})", factor.sqrt())
@@ -457,7 +457,7 @@ pub struct FitResult {
     pub ci95: [Option<(f64, f64)>; N_PARAMS],
     /// Whether each interval was clipped at a bound.
     pub ci_clipped: [bool; N_PARAMS],
-    /// Covariance of (σ [deg], ρs, ρd, η), arm offset marginalised, widened under lack of
+    /// Covariance of (σ in degrees, ρs, ρd, η), arm offset marginalised, widened under lack of
     /// fit; rows and columns of parameters not fitted or not identified are 0.
     pub covariance: [[f64; N_PARAMS]; N_PARAMS],
     /// The covariance's diagonal by source; the terms add up to it.

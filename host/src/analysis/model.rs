@@ -242,10 +242,10 @@ fn normal_mass(lo: f64, hi: f64) -> f64 {
 
 /// The lobe's moments over the window: with s = θr' − θr the position in the window and
 /// L the lobe exp(−(offset + s)²/(2(2σ)²)),
-/// `m[k]` = (1/a) ∫ s^k L ds over s ∈ [−a/2, a/2] (k = 0, 1, 2) and `dm_dsigma[k]` = ∂m[k]/∂σ.
+/// `m[k]` = (1/a) ∫ s^k L ds over s ∈ \[−a/2, a/2\] (k = 0, 1, 2) and `dm_dsigma[k]` = ∂m\[k\]/∂σ.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WindowMoments {
-    /// M0, M1 [deg], M2 [deg²].
+    /// M0, M1 (degrees), M2 (deg²).
     pub m: [f64; 3],
     /// Their derivatives in σ (per degree).
     pub dm_dsigma: [f64; 3],
@@ -318,7 +318,7 @@ pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> W
 
 /// The window's weights on the slowly varying factor u = F·G/(cos·cos) at the window's
 /// low edge, centre and high edge: the parabola through those three values integrated
-/// against the lobe gives Σ_e weight[e]·u_e. With u ≈ u0 + u1 s + u2 s²/2,
+/// against the lobe gives Σ_e weight\[e\]·u_e. With u ≈ u0 + u1 s + u2 s²/2,
 /// u1 = (u+ − u−)/a and u2 = 4(u+ − 2u0 + u−)/a², the weights are
 /// (−M1/a + 2M2/a², M0 − 4M2/a², M1/a + 2M2/a²); they sum to M0. Returns the weights and
 /// their derivatives in σ.
