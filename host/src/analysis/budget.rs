@@ -16,6 +16,19 @@
 //! | `lamp drift` | calibration | every reading, by its age | R · u(rate) · age |
 //!
 //! A reused calibration's age is in each reading's age, so the drift term grows with it.
+//!
+//! The magnitudes, on the reference instrument at 100 ms, and where they come from:
+//!
+//! - white, dark: the readings' own standard errors (std/√n), as measured; a white reading
+//!   is good to 0.11 % (θi = 20°) – 0.17 % (60°), a dark to 0.02 % of full scale;
+//! - tile: the certificate's, `--tile-uncertainty-pct` (default 0.5 %, k = 1: a working
+//!   standard certified to ±1 % at k = 2), recorded in calibration.json;
+//! - gains: a ratio the session calibrated (`session::gains`: 0.25–0.4 % own noise, the
+//!   darks' share through it in the dark terms), else the nominal one at 1 %
+//!   (`NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY`, an instrument assumption: the firmware's
+//!   configuration announces exact decades without a tolerance);
+//! - drift: 0.2 %/h (INSTRUMENT.md) times the time since the white readings: nothing within
+//!   a session, 0.8 % for a calibration reused 4 h later.
 
 use crate::analysis::fit::FitResult;
 use crate::analysis::model;
