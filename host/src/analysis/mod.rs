@@ -1,5 +1,6 @@
 //! The science, pure (no I/O): the TSL model, the fit, the sampling check σ > σ_l,
 //! classification, the comparison of two sheets, and the report of one analysis.
+pub mod budget;
 pub mod classify;
 pub mod gof;
 pub mod linalg;

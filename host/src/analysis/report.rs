@@ -82,18 +82,6 @@ pub fn to_json(r: &Report) -> Value {
     for (i, name) in PARAM_NAMES.iter().enumerate() {
         ci.insert(name.to_string(), f.ci95[i].map_or(Value::Null, |(lo, hi)| json!([lo, hi])));
     }
-    let budget: Vec<Value> = f
-        .budget
-        .iter()
-        .map(|t| {
-            let mut v = serde_json::Map::new();
-            v.insert("name".into(), json!(t.name));
-            for (i, name) in PARAM_NAMES.iter().enumerate() {
-                v.insert(name.to_string(), finite_or_null((f.model.0[i] && f.identified(i)).then_some(t.variance[i])));
-            }
-            Value::Object(v)
-        })
-        .collect();
     // Two objects merged: one json! of all the keys exceeds the macro's recursion limit.
     let mut object = json!({
         "file": r.file.display().to_string(),
@@ -124,7 +112,7 @@ pub fn to_json(r: &Report) -> Value {
             "lr": finite_or_null(Some(a.lr)),
         })),
         "arm_offset_statistic": finite_or_null(f.arm_offset_statistic),
-        "budget": budget,
+        "budget": crate::analysis::budget::to_json(f),
     });
     let rest = json!({
         "delta_deg": finite_or_null(r.delta.map(|d| d.deg)),
@@ -223,16 +211,7 @@ pub fn to_table(r: &Report) -> String {
             )
         }
     }
-    if f.budget.len() > 1 {
-        s += "  uncertainty budget (share of the variance of σ, ρs, ρd):\n";
-        for t in &f.budget {
-            let share = |i: usize| {
-                let total = f.covariance[i][i];
-                if f.model.0[i] && f.identified(i) && total > 0.0 { format!("{:5.1} %", 100.0 * t.variance[i] / total) } else { "    —  ".to_string() }
-            };
-            s += &format!("    {:<28} {}  {}  {}\n", t.name, share(model::SIGMA), share(model::RHO_S), share(model::RHO_D));
-        }
-    }
+    s += &crate::analysis::budget::to_table(f);
     for note in &f.notes {
         s += &format!("  note: {note}\n");
     }

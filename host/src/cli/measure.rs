@@ -5,7 +5,7 @@
 //! made for this session alone or, with `--resume`, taken only for the same sample,
 //! instrument and plan ([`crate::output::record`]).
 use crate::analysis::fit::Observation;
-use crate::instrument::calibration::{Calibration, instrument_name, max_age_from_hours};
+use crate::instrument::calibration::{Calibration, Tile, instrument_name, max_age_from_hours};
 use crate::instrument::link::{Client, RetryPolicy, Transport};
 use crate::instrument::serial::SerialTransport;
 use crate::instrument::sim::SimOptions;
@@ -55,6 +55,15 @@ pub struct Args {
     /// Use the calibration of an earlier session (its folder, session.json or calibration.json).
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+    /// The white tile's certified radiance factor (its certificate; recorded in
+    /// calibration.json). A reused calibration keeps the tile it was taken with.
+    #[arg(long, value_name = "FACTOR", default_value_t = crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR, allow_negative_numbers = true)]
+    pub tile_radiance_factor: f64,
+    /// Standard uncertainty (k = 1) of the tile's certified radiance factor, percent; half a
+    /// certificate's expanded (k = 2) uncertainty. The default is an assumption for a
+    /// working-standard tile certified to ±1 % at k = 2.
+    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY, allow_negative_numbers = true)]
+    pub tile_uncertainty_pct: f64,
     /// Oldest calibration accepted, hours (at most 8760).
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
     pub max_calibration_age_h: f64,
@@ -176,6 +185,7 @@ pub fn measure_with(args: &Args, operator: &mut dyn Operator, interrupted: Arc<A
 /// Options checked before anything is connected.
 struct Checked {
     max_calibration_age: Duration,
+    tile: Tile,
 }
 
 fn check_args(args: &Args) -> anyhow::Result<Checked> {
@@ -190,7 +200,8 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
             bail!("--sample must be a name (no control characters), not {sample:?}");
         }
     }
-    Ok(Checked { max_calibration_age })
+    let tile = Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).context("--tile-radiance-factor / --tile-uncertainty-pct")?;
+    Ok(Checked { max_calibration_age, tile })
 }
 
 /// A regular file or a folder given as `--port` is no serial port: say so before opening it.
@@ -352,6 +363,7 @@ fn run_on<T: Transport>(
     client.set_interrupt(Some(interrupted));
     let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample), &mut recorder, operator)
         .with_calibration_limit(checked.max_calibration_age)
+        .with_tile(checked.tile)
         .resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();

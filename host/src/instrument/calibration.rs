@@ -1,18 +1,95 @@
-//! Dark and white calibration, and the conversion of detector readings to radiance
-//! factors with their uncertainty (INSTRUMENT.md, "Calibration").
+//! Dark and white calibration, the range gains, and the conversion of detector readings to
+//! radiance factors (INSTRUMENT.md, "Calibration").
 //!
-//! R = (S − S_dark) / (S_white − S_dark) · R_white at the same θi. A sample reading and
-//! the white reading at its θi may be on different ranges (a glossy peak needs the least
-//! sensitive one); the counts are then divided by the ranges' relative gains announced in
-//! the handshake.
+//! R = (S − S_dark) / (S_white − S_dark) · R_tile at the same θi. A sample reading and the
+//! white reading at its θi may be on different ranges (a glossy peak needs the least
+//! sensitive one); the counts are then divided by the ranges' relative gains: the ratios
+//! of adjacent ranges calibrated in the session where they were ([`GainRatio`], made by
+//! `session::gains`), else the nominal ones the handshake announces.
+//!
+//! The standard uncertainty a conversion gives is the reading's *own* noise only (the
+//! standard error of its mean). Everything a reading shares with others — the white
+//! reading at its θi, the dark of a range, the tile's certificate, a range gain, the lamp's
+//! drift since the white reading — is an error common to many readings, and is carried as
+//! such by `analysis::budget`, which builds those terms from this calibration.
 
 use protocol::{DeviceInfo, Reading};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-/// The white tile's certified radiance factor, unless a calibration says otherwise.
+/// The white tile's certified radiance factor unless the user gives the certificate's
+/// (`--tile-radiance-factor`): INSTRUMENT.md's reference tile.
 pub const DEFAULT_WHITE_RADIANCE_FACTOR: f64 = 0.99;
+
+/// Relative standard uncertainty (k = 1) of the tile's certified radiance factor unless the
+/// user gives the certificate's (`--tile-uncertainty-pct`). An assumption: working-standard
+/// white tiles (sintered PTFE, ceramic) are certified for 0°/45° to about ±1 % at k = 2.
+/// A certificate's expanded uncertainty (k = 2) is twice the value to give here.
+pub const DEFAULT_TILE_RELATIVE_UNCERTAINTY: f64 = 0.005;
+
+/// Relative standard uncertainty of a nominal (uncalibrated) gain ratio of adjacent ranges.
+/// An instrument assumption: the firmware's configuration (`firmware::config`, three
+/// transimpedance ranges a decade apart, announced as exactly 1, 0.1, 0.01) says nothing of
+/// their tolerance; 1 % feedback resistors and the amplifier's finite open-loop gain make a
+/// ratio good to about 1 %. A session calibrates the ratios its readings use
+/// (`session::gains`); this applies only where it could not.
+pub const NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY: f64 = 0.01;
+
+/// Lamp output drift, standard uncertainty of its rate, per hour (fraction). INSTRUMENT.md:
+/// "lamp drift 0.2 % per hour" for the reference instrument; its sign is not known, so the
+/// rate is taken as 0 ± 0.2 %/h.
+pub const DEFAULT_LAMP_DRIFT_PER_HOUR: f64 = 0.002;
+
+/// The white tile's certificate.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Tile {
+    /// Certified radiance factor.
+    pub radiance_factor: f64,
+    /// Relative standard uncertainty (k = 1) of it.
+    pub relative_uncertainty: f64,
+}
+
+impl Default for Tile {
+    fn default() -> Self {
+        Tile { radiance_factor: DEFAULT_WHITE_RADIANCE_FACTOR, relative_uncertainty: DEFAULT_TILE_RELATIVE_UNCERTAINTY }
+    }
+}
+
+impl Tile {
+    /// A certificate from the command line's values (the uncertainty in percent, k = 1).
+    pub fn new(radiance_factor: f64, uncertainty_pct: f64) -> Result<Tile, CalibrationError> {
+        let tile = Tile { radiance_factor, relative_uncertainty: uncertainty_pct / 100.0 };
+        tile.validate()?;
+        Ok(tile)
+    }
+
+    fn validate(&self) -> Result<(), CalibrationError> {
+        // A white reference reflects at most a little more than a perfect diffuser.
+        if !(self.radiance_factor.is_finite() && self.radiance_factor > 0.0 && self.radiance_factor <= 1.2) {
+            return Err(CalibrationError::BadTile(format!("radiance factor {} is not in (0, 1.2]", self.radiance_factor)));
+        }
+        if !(self.relative_uncertainty.is_finite() && (0.0..0.5).contains(&self.relative_uncertainty)) {
+            return Err(CalibrationError::BadTile(format!(
+                "uncertainty {} % is not in [0, 50) %",
+                100.0 * self.relative_uncertainty
+            )));
+        }
+        Ok(())
+    }
+}
+
+fn default_tile_relative_uncertainty() -> f64 {
+    DEFAULT_TILE_RELATIVE_UNCERTAINTY
+}
+
+fn default_nominal_gain_ratio_relative_uncertainty() -> f64 {
+    NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY
+}
+
+fn default_lamp_drift_per_hour() -> f64 {
+    DEFAULT_LAMP_DRIFT_PER_HOUR
+}
 
 /// One white-tile reading, at θr = 0 (the tile is Lambertian: one θr serves all).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -23,7 +100,33 @@ pub struct WhitePoint {
     pub reading: Reading,
 }
 
-/// A calibration: dark per range, white per incidence angle.
+/// The gain ratio of two adjacent ranges, G(r + 1) / G(r), calibrated by reading one scene
+/// at one position on both ranges (`session::gains`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GainRatio {
+    /// The more sensitive range r of the pair (r, r + 1).
+    pub lower_range: u8,
+    /// G(r + 1) / G(r): the net counts on r + 1 over the net counts on r.
+    pub ratio: f64,
+    /// Its relative standard uncertainty from the two readings' own noise (and the lamp's
+    /// drift between them). The darks' part is in the dark terms of the budget, which
+    /// follow a dark error through this ratio into every reading.
+    pub relative_uncertainty: f64,
+    /// Where the scene was read: incidence, degrees.
+    pub theta_i_deg: f64,
+    /// Where the scene was read: detection, degrees.
+    pub theta_r_deg: f64,
+    /// What was read ("sample" or "white tile").
+    pub scene: String,
+    /// The readings on range r (pooled when several were taken).
+    pub on_lower: Reading,
+    /// The readings on range r + 1 (pooled).
+    pub on_upper: Reading,
+    /// Device time the calibration of this ratio took (search, moves and readings), seconds.
+    pub device_seconds: f64,
+}
+
+/// A calibration: dark per range, white per incidence angle, the tile, the range gains.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Calibration {
     /// When it was taken, seconds since the Unix epoch.
@@ -32,8 +135,21 @@ pub struct Calibration {
     pub instrument: String,
     /// Certified radiance factor of the white tile used.
     pub white_radiance_factor: f64,
-    /// Relative gain of each detector range, most sensitive first.
+    /// Relative standard uncertainty (k = 1) of the tile's certified radiance factor
+    /// (older calibrations without it get [`DEFAULT_TILE_RELATIVE_UNCERTAINTY`]).
+    #[serde(default = "default_tile_relative_uncertainty")]
+    pub white_relative_uncertainty: f64,
+    /// Nominal relative gain of each detector range (the handshake's), most sensitive first.
     pub relative_gains: Vec<f64>,
+    /// Relative standard uncertainty assumed for a nominal ratio of adjacent ranges.
+    #[serde(default = "default_nominal_gain_ratio_relative_uncertainty")]
+    pub nominal_gain_ratio_relative_uncertainty: f64,
+    /// Calibrated ratios of adjacent ranges (only those the readings needed).
+    #[serde(default)]
+    pub gain_ratios: Vec<GainRatio>,
+    /// Standard uncertainty of the lamp's drift rate, per hour (fraction).
+    #[serde(default = "default_lamp_drift_per_hour")]
+    pub lamp_drift_per_hour: f64,
     /// Dark reading per range (lamp off), most sensitive first.
     pub dark: Vec<Reading>,
     /// White readings, one per incidence angle.
@@ -78,6 +194,12 @@ pub enum CalibrationError {
     /// A maximum age that is no number of hours (`--max-calibration-age-h`).
     #[error("--max-calibration-age-h must be a number of hours above 0 and at most {MAX_CALIBRATION_AGE_H} (a year), not {0:?}")]
     BadMaxAge(f64),
+    /// A tile certificate that cannot be right.
+    #[error("bad white tile certificate: {0}")]
+    BadTile(String),
+    /// A calibration whose values cannot be right (a hand-edited or damaged file).
+    #[error("calibration is not usable: {0}")]
+    Invalid(String),
     /// The file could not be read.
     #[error("cannot read calibration {path}: {why}")]
     Unreadable {
@@ -111,38 +233,200 @@ pub fn unix_now_s() -> u64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs())
 }
 
-/// A reading's mean above dark, in counts of the most sensitive range, and its standard
-/// uncertainty (the standard errors of both means).
-fn net_counts(reading: &Reading, dark: &[Reading], gains: &[f64]) -> Result<(f64, f64), CalibrationError> {
-    let range = usize::from(reading.range);
-    let (Some(d), Some(&gain)) = (dark.get(range), gains.get(range)) else {
-        return Err(CalibrationError::NoRange(reading.range));
-    };
-    let sem = |r: &Reading| f64::from(r.std_counts) / f64::from(r.samples.max(1)).sqrt();
-    let net = (f64::from(reading.mean_counts) - f64::from(d.mean_counts)) / gain;
-    let u = (sem(reading).powi(2) + sem(d).powi(2)).sqrt() / gain;
-    Ok((net, u))
+/// Standard error of a reading's mean, counts: its samples' standard deviation over √n.
+pub fn standard_error_counts(reading: &Reading) -> f64 {
+    f64::from(reading.std_counts) / f64::from(reading.samples.max(1)).sqrt()
+}
+
+/// Pool readings of one scene on one range into one, as if it had been one long reading:
+/// means weighted by the inverse of their squared standard errors.
+pub fn pool(readings: &[Reading]) -> Option<Reading> {
+    let first = *readings.first()?;
+    let weight = |r: &Reading| 1.0 / standard_error_counts(r).powi(2).max(1e-12);
+    let total_weight: f64 = readings.iter().map(weight).sum();
+    let mean = readings.iter().map(|r| weight(r) * f64::from(r.mean_counts)).sum::<f64>() / total_weight;
+    let samples: u32 = readings.iter().map(|r| r.samples).fold(0u32, u32::saturating_add);
+    let integration_ms = readings.iter().map(|r| u32::from(r.integration_ms)).sum::<u32>().min(u32::from(u16::MAX)) as u16;
+    let standard_error = total_weight.recip().sqrt();
+    Some(Reading {
+        mean_counts: mean as f32,
+        std_counts: (standard_error * f64::from(samples.max(1)).sqrt()) as f32,
+        samples,
+        range: first.range,
+        integration_ms,
+        saturated: readings.iter().any(|r| r.saturated),
+    })
+}
+
+/// How a reading converts: the parts the uncertainty budget differentiates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Conversion {
+    /// The radiance factor.
+    pub radiance_factor: f64,
+    /// Its standard uncertainty from the reading's own noise only.
+    pub own_std: f64,
+    /// The reading's counts above its range's dark (on its own range).
+    pub net_counts: f64,
+    /// The white reading's counts above its range's dark (on its own range).
+    pub white_net_counts: f64,
+    /// Range of the reading.
+    pub range: u8,
+    /// Range of the white reading at its θi.
+    pub white_range: u8,
+    /// Index of the white reading in [`Calibration::white`].
+    pub white_index: usize,
 }
 
 impl Calibration {
-    /// Radiance factor and its standard uncertainty of a sample reading at `theta_i_deg`.
-    pub fn radiance_factor(&self, theta_i_deg: f64, reading: &Reading) -> Result<(f64, f64), CalibrationError> {
+    /// A calibration taken now from its readings, with the tile's certificate and the
+    /// nominal gains of the handshake; no gain ratio calibrated yet.
+    pub fn new(instrument: String, tile: Tile, relative_gains: Vec<f64>, dark: Vec<Reading>, white: Vec<WhitePoint>) -> Calibration {
+        Calibration {
+            taken_unix_s: unix_now_s(),
+            instrument,
+            white_radiance_factor: tile.radiance_factor,
+            white_relative_uncertainty: tile.relative_uncertainty,
+            relative_gains,
+            nominal_gain_ratio_relative_uncertainty: NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY,
+            gain_ratios: Vec::new(),
+            lamp_drift_per_hour: DEFAULT_LAMP_DRIFT_PER_HOUR,
+            dark,
+            white,
+        }
+    }
+
+    /// The tile's certificate this calibration used.
+    pub fn tile(&self) -> Tile {
+        Tile { radiance_factor: self.white_radiance_factor, relative_uncertainty: self.white_relative_uncertainty }
+    }
+
+    /// The white reading at `theta_i_deg` and its index.
+    pub fn white_at(&self, theta_i_deg: f64) -> Option<(usize, &WhitePoint)> {
+        self.white.iter().enumerate().find(|(_, w)| (w.theta_i_deg - theta_i_deg).abs() < 1e-6)
+    }
+
+    /// The calibrated ratio G(r + 1) / G(r), if there is one.
+    pub fn calibrated_ratio(&self, lower_range: u8) -> Option<&GainRatio> {
+        self.gain_ratios.iter().rev().find(|g| g.lower_range == lower_range)
+    }
+
+    /// G(r + 1) / G(r) as the conversion uses it, its relative standard uncertainty, and
+    /// whether it was calibrated (else the handshake's nominal value and
+    /// [`Calibration::nominal_gain_ratio_relative_uncertainty`]).
+    pub fn gain_ratio(&self, lower_range: u8) -> Result<(f64, f64, bool), CalibrationError> {
+        if let Some(g) = self.calibrated_ratio(lower_range) {
+            return Ok((g.ratio, g.relative_uncertainty, true));
+        }
+        let r = usize::from(lower_range);
+        match (self.relative_gains.get(r), self.relative_gains.get(r + 1)) {
+            (Some(&lo), Some(&hi)) => Ok((hi / lo, self.nominal_gain_ratio_relative_uncertainty, false)),
+            _ => Err(CalibrationError::NoRange(lower_range.saturating_add(1))),
+        }
+    }
+
+    /// Gain of `range` relative to the most sensitive one: the product of the ratios below it.
+    pub fn gain(&self, range: u8) -> Result<f64, CalibrationError> {
+        let first = *self.relative_gains.first().ok_or(CalibrationError::NoRange(range))?;
+        if usize::from(range) >= self.relative_gains.len() {
+            return Err(CalibrationError::NoRange(range));
+        }
+        (0..range).try_fold(first, |g, q| Ok(g * self.gain_ratio(q)?.0))
+    }
+
+    /// Counts above the dark of the reading's range, on that range.
+    pub fn net_counts(&self, reading: &Reading) -> Result<f64, CalibrationError> {
+        let dark = self.dark.get(usize::from(reading.range)).ok_or(CalibrationError::NoRange(reading.range))?;
+        Ok(f64::from(reading.mean_counts) - f64::from(dark.mean_counts))
+    }
+
+    /// G(r + 1) / G(r) from one scene read on both ranges (`on_lower` on r, `on_upper` on
+    /// r + 1), and its relative standard uncertainty from the two readings' own noise.
+    pub fn ratio_from_readings(&self, on_lower: &Reading, on_upper: &Reading) -> Result<(f64, f64), CalibrationError> {
+        if on_lower.saturated || on_upper.saturated {
+            return Err(CalibrationError::Saturated);
+        }
+        let (lower, upper) = (self.net_counts(on_lower)?, self.net_counts(on_upper)?);
+        if !(lower > 0.0 && upper > 0.0) {
+            return Err(CalibrationError::Invalid(format!(
+                "gain ratio of ranges {}/{}: the scene is not above dark on both ({lower:.1} and {upper:.1} counts)",
+                on_lower.range, on_upper.range
+            )));
+        }
+        let relative = (standard_error_counts(on_lower) / lower).hypot(standard_error_counts(on_upper) / upper);
+        Ok((upper / lower, relative))
+    }
+
+    /// How a sample reading at `theta_i_deg` converts.
+    pub fn convert(&self, theta_i_deg: f64, reading: &Reading) -> Result<Conversion, CalibrationError> {
         if reading.saturated {
             return Err(CalibrationError::Saturated);
         }
-        let white = self
-            .white
-            .iter()
-            .find(|w| (w.theta_i_deg - theta_i_deg).abs() < 1e-6)
-            .ok_or(CalibrationError::NoWhite(theta_i_deg))?;
-        let (s, us) = net_counts(reading, &self.dark, &self.relative_gains)?;
-        let (w, uw) = net_counts(&white.reading, &self.dark, &self.relative_gains)?;
-        if w <= 0.0 || white.reading.saturated {
+        let (white_index, white) = self.white_at(theta_i_deg).ok_or(CalibrationError::NoWhite(theta_i_deg))?;
+        let net = self.net_counts(reading)?;
+        let gain = self.gain(reading.range)?;
+        let white_net = self.net_counts(&white.reading)?;
+        let white_gain = self.gain(white.reading.range)?;
+        if white_net <= 0.0 || white.reading.saturated {
             return Err(CalibrationError::WhiteNotAboveDark(theta_i_deg));
         }
-        let r = s / w * self.white_radiance_factor;
-        let u = self.white_radiance_factor * ((us / w).powi(2) + (s * uw / (w * w)).powi(2)).sqrt();
-        Ok((r, u))
+        // Both in counts of the most sensitive range.
+        let (s, w) = (net / gain, white_net / white_gain);
+        let radiance_factor = s / w * self.white_radiance_factor;
+        let own_std = standard_error_counts(reading) / gain / w * self.white_radiance_factor;
+        Ok(Conversion {
+            radiance_factor,
+            own_std,
+            net_counts: net,
+            white_net_counts: white_net,
+            range: reading.range,
+            white_range: white.reading.range,
+            white_index,
+        })
+    }
+
+    /// Radiance factor of a sample reading at `theta_i_deg`, and its standard uncertainty
+    /// from the reading's own noise (see the module's note on the shared errors).
+    pub fn radiance_factor(&self, theta_i_deg: f64, reading: &Reading) -> Result<(f64, f64), CalibrationError> {
+        self.convert(theta_i_deg, reading).map(|c| (c.radiance_factor, c.own_std))
+    }
+
+    /// Whether the values can be right: what a file says is checked before it is used.
+    pub fn validate(&self) -> Result<(), CalibrationError> {
+        let invalid = |why: String| Err(CalibrationError::Invalid(why));
+        self.tile().validate()?;
+        if self.relative_gains.is_empty() || self.relative_gains.iter().any(|g| !(g.is_finite() && *g > 0.0)) {
+            return invalid(format!("relative gains {:?} must be finite and positive", self.relative_gains));
+        }
+        if self.dark.len() < self.relative_gains.len() {
+            return invalid(format!("{} dark readings for {} ranges", self.dark.len(), self.relative_gains.len()));
+        }
+        let u = self.nominal_gain_ratio_relative_uncertainty;
+        if !(u.is_finite() && (0.0..1.0).contains(&u)) {
+            return invalid(format!("nominal gain ratio uncertainty {u} is not in [0, 1)"));
+        }
+        if !(self.lamp_drift_per_hour.is_finite() && (0.0..1.0).contains(&self.lamp_drift_per_hour)) {
+            return invalid(format!("lamp drift {} per hour is not in [0, 1)", self.lamp_drift_per_hour));
+        }
+        for g in &self.gain_ratios {
+            let fine = g.ratio.is_finite()
+                && g.ratio > 0.0
+                && g.relative_uncertainty.is_finite()
+                && g.relative_uncertainty >= 0.0
+                && usize::from(g.lower_range) + 1 < self.relative_gains.len();
+            if !fine {
+                return invalid(format!("gain ratio of ranges {}/{} ({} ± {})", g.lower_range, u16::from(g.lower_range) + 1, g.ratio, g.relative_uncertainty));
+            }
+        }
+        for w in &self.white {
+            let reading_fine = w.reading.mean_counts.is_finite() && w.reading.std_counts.is_finite();
+            if !(w.theta_i_deg.is_finite() && reading_fine) {
+                return invalid(format!("white reading at θi = {}° is not finite", w.theta_i_deg));
+            }
+        }
+        if self.dark.iter().any(|d| !(d.mean_counts.is_finite() && d.std_counts.is_finite())) {
+            return invalid("a dark reading is not finite".into());
+        }
+        Ok(())
     }
 
     /// Age at `now_unix_s`.
@@ -159,6 +443,8 @@ impl Calibration {
         let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
         let calibration_value = value.get("calibration").cloned().unwrap_or(value);
         let calibration: Calibration = serde_json::from_value(calibration_value).map_err(|e| unreadable(e.to_string()))?;
+        // What the file holds must be usable before its age and instrument are looked at.
+        calibration.validate().map_err(|e| unreadable(e.to_string()))?;
         calibration.check(&path.display().to_string(), max_age, info)?;
         Ok(calibration)
     }
@@ -187,26 +473,112 @@ mod tests {
     }
 
     fn calibration() -> Calibration {
-        Calibration {
-            taken_unix_s: 1_000,
-            instrument: "test".into(),
-            white_radiance_factor: 0.99,
-            relative_gains: vec![1.0, 0.1, 0.01],
-            dark: vec![reading(200.0, 0), reading(200.0, 1), reading(200.0, 2)],
-            white: vec![WhitePoint { theta_i_deg: 20.0, reading: reading(26_200.0, 0) }],
-        }
+        let mut c = Calibration::new(
+            "test".into(),
+            Tile::default(),
+            vec![1.0, 0.1, 0.01],
+            vec![reading(200.0, 0), reading(200.0, 1), reading(200.0, 2)],
+            vec![WhitePoint { theta_i_deg: 20.0, reading: reading(26_200.0, 0) }],
+        );
+        c.taken_unix_s = 1_000;
+        c
     }
 
     #[test]
-    fn converts_across_ranges_with_uncertainty() {
+    fn converts_across_ranges_with_its_own_noise_only() {
         let c = calibration();
         // Half the white signal on range 0: R = 0.495.
         let (r, u) = c.radiance_factor(20.0, &reading(13_200.0, 0)).unwrap();
         assert!((r - 0.495).abs() < 1e-12);
-        assert!(u > 0.0 && u < 1e-3);
+        // Own noise: 10 counts / √100 over the white's 26 000 net counts, times 0.99.
+        assert!((u - 1.0 / 26_000.0 * 0.99).abs() < 1e-12, "{u}");
         // Twenty times the white signal, read on range 2 (gain 0.01): R = 19.8.
-        let (r, _) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
+        let (r, u) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
         assert!((r - 19.8).abs() < 1e-9, "{r}");
+        assert!((u - 100.0 / 26_000.0 * 0.99).abs() < 1e-9, "{u}");
+    }
+
+    #[test]
+    fn calibrated_ratios_replace_the_nominal_gains() {
+        let mut c = calibration();
+        assert_eq!(c.gain_ratio(0).unwrap(), (0.1, NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY, false));
+        let on = |m: f32, range: u8| reading(m, range);
+        c.gain_ratios.push(GainRatio {
+            lower_range: 1,
+            ratio: 0.102,
+            relative_uncertainty: 0.001,
+            theta_i_deg: 60.0,
+            theta_r_deg: 62.0,
+            scene: "sample".into(),
+            on_lower: on(50_000.0, 1),
+            on_upper: on(5_300.0, 2),
+            device_seconds: 1.0,
+        });
+        assert!((c.gain(2).unwrap() - 0.1 * 0.102).abs() < 1e-15);
+        assert_eq!(c.gain(1).unwrap(), 0.1);
+        let (r, _) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
+        assert!((r - 19.8 / 1.02).abs() < 1e-9, "{r}");
+        assert!(c.validate().is_ok());
+        c.gain_ratios[0].lower_range = 2;
+        assert!(matches!(c.validate(), Err(CalibrationError::Invalid(_))));
+    }
+
+    #[test]
+    fn pooled_readings_weigh_by_their_noise() {
+        let short = Reading { std_counts: 30.0, samples: 100, ..reading(1_000.0, 1) };
+        let long = Reading { std_counts: 30.0, samples: 900, ..reading(1_100.0, 1) };
+        let p = pool(&[short, long]).unwrap();
+        // Weights 1 : 9.
+        assert!((f64::from(p.mean_counts) - 1_090.0).abs() < 1e-3, "{}", p.mean_counts);
+        assert_eq!(p.samples, 1_000);
+        assert!((standard_error_counts(&p) - 30.0 / 1000f64.sqrt()).abs() < 1e-4);
+    }
+
+    #[test]
+    fn tile_certificates_are_checked() {
+        assert_eq!(Tile::new(0.985, 0.4).unwrap().relative_uncertainty, 0.004);
+        for (rf, pct) in [(0.0, 0.5), (1.5, 0.5), (f64::NAN, 0.5), (0.99, -1.0), (0.99, 60.0), (0.99, f64::INFINITY)] {
+            assert!(matches!(Tile::new(rf, pct), Err(CalibrationError::BadTile(_))), "{rf} {pct}");
+        }
+    }
+
+    #[test]
+    fn old_calibrations_load_with_the_stated_defaults() {
+        let c = calibration();
+        let mut value = serde_json::to_value(&c).unwrap();
+        for key in ["white_relative_uncertainty", "nominal_gain_ratio_relative_uncertainty", "gain_ratios", "lamp_drift_per_hour"] {
+            value.as_object_mut().unwrap().remove(key);
+        }
+        let old: Calibration = serde_json::from_value(value).unwrap();
+        assert_eq!(old, c);
+    }
+
+    #[test]
+    fn a_damaged_file_is_refused_saying_what_is_wrong() {
+        let info = firmware::config::InstrumentConfig::REFERENCE.device_info("test");
+        let mut c = calibration();
+        c.instrument = instrument_name(&info);
+        c.taken_unix_s = unix_now_s();
+        let path = std::env::temp_dir().join(format!("gonio-calibration-{}.json", std::process::id()));
+        let damaged = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut value = serde_json::to_value(&c).unwrap();
+            edit(&mut value);
+            std::fs::write(&path, serde_json::to_vec(&value).unwrap()).unwrap();
+            Calibration::load(&path, Duration::from_secs(3600), &info).map(|_| ()).map_err(|e| e.to_string())
+        };
+        assert_eq!(damaged(&|_| {}), Ok(()));
+        type Edit<'a> = &'a dyn Fn(&mut serde_json::Value);
+        let cases: [(Edit, &str); 4] = [
+            (&|v| v["relative_gains"][1] = (-0.1).into(), "relative gains"),
+            (&|v| v["white_relative_uncertainty"] = 2.0.into(), "uncertainty 200 %"),
+            (&|v| v["lamp_drift_per_hour"] = (-1.0).into(), "lamp drift"),
+            (&|v| v["dark"] = serde_json::json!([]), "dark readings"),
+        ];
+        for (edit, says) in cases {
+            let error = damaged(edit).unwrap_err();
+            assert!(error.contains(&path.display().to_string()) && error.contains(says), "{error}");
+        }
+        let _ = std::fs::remove_file(&path);
     }
 
     #[test]

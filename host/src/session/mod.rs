@@ -20,6 +20,7 @@
 //! Every decision goes through [`Recorder::decision`], on the failure path too.
 
 pub mod adaptive;
+pub mod gains;
 pub mod operator;
 pub mod order;
 mod prompt;
@@ -33,8 +34,8 @@ pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
 use crate::analysis::fit::{FitOptions, Observation};
 use crate::analysis::flags::Flag;
-use crate::analysis::report::{Report, analyse, to_json};
-use crate::instrument::calibration::{Calibration, CalibrationError, unix_now_s};
+use crate::analysis::report::{Report, analyse_with_shared, to_json};
+use crate::instrument::calibration::{Calibration, CalibrationError, Tile, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
 use crate::output::dataset::DataSet;
 use adaptive::AdaptiveTargets;
@@ -416,6 +417,8 @@ pub struct Session<'a, T: Transport> {
     final_check_us: u64,
     /// See [`Session::with_calibration_limit`].
     max_calibration_age: Option<Duration>,
+    /// The white tile's certificate, for a calibration taken in this session.
+    tile: Tile,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
@@ -445,7 +448,15 @@ impl<'a, T: Transport> Session<'a, T> {
             waiting_us: 0,
             final_check_us: 0,
             max_calibration_age: None,
+            tile: Tile::default(),
         }
+    }
+
+    /// The white tile's certificate for a calibration taken in this session (default:
+    /// [`Tile::default`]); a calibration reused or resumed keeps its own.
+    pub fn with_tile(mut self, tile: Tile) -> Self {
+        self.tile = tile;
+        self
     }
 
     /// The oldest calibration accepted. One reused from an earlier session is refused at
@@ -720,10 +731,11 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Fit everything measured so far, check σ against σ_l and classify.
     fn analyse(&self) -> Result<Report, SessionError> {
         // Lines of readings.csv: a header, then one per reading.
-        let (lines, observations) = self.usable_points().map(|(k, o)| (k + 2, o)).unzip();
-        let set = DataSet { sample: self.plan.sample.clone(), observations, lines };
+        let (indices, observations): (Vec<usize>, _) = self.usable_points().unzip();
+        let shared = self.shared_errors_of(&indices)?;
+        let set = DataSet { sample: self.plan.sample.clone(), observations, lines: indices.iter().map(|k| k + 2).collect() };
         let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
-        analyse(std::path::Path::new("readings.csv"), &set, &options, None).map_err(SessionError::Fit)
+        analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None).map_err(SessionError::Fit)
     }
 
 }

@@ -36,7 +36,9 @@ impl<T: Transport> Session<'_, T> {
         loop {
             let missing = self.missing();
             if missing.is_empty() {
-                return Ok(());
+                // The gain ratios the readings now use, calibrated where they were not yet
+                // (`gains`); every reading is converted again with them.
+                return self.calibrate_gains();
             }
             round += 1;
             if round > 1 {

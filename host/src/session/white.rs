@@ -3,7 +3,7 @@
 //! check at the end.
 use super::recovery::{self, Failure};
 use super::{Placement, Session, SessionError, steps};
-use crate::instrument::calibration::{Calibration, WhitePoint, instrument_name, unix_now_s};
+use crate::instrument::calibration::{Calibration, WhitePoint, instrument_name};
 use crate::instrument::link::{LinkError, Transport};
 use protocol::schedules::INCIDENCE_DEG;
 use protocol::{Command, DeviceMessage, ErrorCode, Geometry, Reading, Reply, Target};
@@ -47,14 +47,8 @@ impl<T: Transport> Session<'_, T> {
             self.decide("the white readings were taken while an arm was off its step count: taking them again (the tile is still on the port)");
         }
         self.ask_operator(Placement::Sample)?;
-        let calibration = Calibration {
-            taken_unix_s: unix_now_s(),
-            instrument: instrument_name(&self.info),
-            white_radiance_factor: crate::instrument::calibration::DEFAULT_WHITE_RADIANCE_FACTOR,
-            relative_gains: self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect(),
-            dark: dark.to_vec(),
-            white,
-        };
+        let gains = self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect();
+        let calibration = Calibration::new(instrument_name(&self.info), self.tile, gains, dark.to_vec(), white);
         self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
         self.calibration = Some(calibration);
         Ok(())
