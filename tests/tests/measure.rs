@@ -499,6 +499,7 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
     let specs: Vec<_> = (0..30).map(|k| reliability::draw(5000 + k, &[FaultKind::Mixed], &durations)).collect();
     let failures = std::sync::Mutex::new(Vec::new());
     let next = std::sync::atomic::AtomicUsize::new(0);
+    let flagged = std::sync::atomic::AtomicUsize::new(0);
     // A pty session mostly waits (the simulator keeps device time within reach of the
     // host's heartbeats): four at a time.
     std::thread::scope(|scope| {
@@ -513,6 +514,9 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
                     let verdict = match run(&args, &mut person(), Arc::new(AtomicBool::new(false))) {
                         Ok(Measured::Done { outcome, .. }) => {
                             let row = reliability::judge(spec, &Ok(*outcome));
+                            if row.lack_of_fit() {
+                                flagged.fetch_add(1, Ordering::Relaxed);
+                            }
                             row.failure.map(|why| format!("{what}: {why}"))
                         }
                         Ok(Measured::Stopped { error, .. }) => Some(format!("{what}: stopped: {error}")),
@@ -528,5 +532,9 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
     });
     let failures = failures.into_inner().unwrap();
     assert!(failures.is_empty(), "{} of {} pty sessions did not finish clean:\n{}", failures.len(), specs.len(), failures.join("\n"));
+    // lack-of-fit: the goodness-of-fit test's false alarm, at its stated rate (the class
+    // of a flagged session is right all the same).
+    let flagged = flagged.into_inner();
+    assert!(flagged <= reliability::lack_of_fit_allowed(specs.len()), "lack-of-fit in {flagged} of {} pty sessions", specs.len());
 }
 

@@ -36,6 +36,10 @@ fn three_hundred_and_twenty_sessions_with_a_pulled_cable_and_a_bad_link_all_fini
         .map(|r| format!("#{} {} {:?} seed {} faults {} operator {:.1} s: {}", r.spec.index, r.spec.sample, r.spec.policy, r.spec.seed, r.spec.faults(), r.spec.operator_s, r.failure.as_deref().unwrap_or("")))
         .collect();
     assert!(failures.is_empty(), "{} of {} sessions did not finish clean:\n{}", failures.len(), rows.len(), failures.join("\n"));
+    // lack-of-fit is the goodness-of-fit test's false alarm on these ideal scenes (its class
+    // is right, checked above): no more often than its stated rate allows.
+    let flagged = rows.iter().filter(|r| r.lack_of_fit()).count();
+    assert!(flagged <= reliability::lack_of_fit_allowed(rows.len()), "lack-of-fit in {flagged} of {} sessions", rows.len());
 
     // The faults were felt, not dodged: the cable came out in (nearly) every session, the
     // long outages found the instrument stopped with its lamp off, some mid-move (homing
