@@ -119,9 +119,13 @@ impl Detector {
             return scene.radiance_factor(theta_i_deg, theta_r_deg);
         }
         let half = width / 2.0;
-        // The weights sum to 2 over (−1, 1): the mean over the window is half the sum.
-        let sum: f64 = self.acceptance_rule.iter().map(|&(x, w)| w * scene.radiance_factor(theta_i_deg, theta_r_deg + half * x)).sum();
-        sum / 2.0
+        // Divided by the weights' own sum (2 up to rounding), so that a scene the same
+        // across the window is seen as itself.
+        let (sum, weights) = self
+            .acceptance_rule
+            .iter()
+            .fold((0.0, 0.0), |(sum, weights), &(x, w)| (sum + w * scene.radiance_factor(theta_i_deg, theta_r_deg + half * x), weights + w));
+        sum / weights
     }
 
     /// Lamp output relative to its calibrated value after `device_s` seconds.

@@ -477,9 +477,23 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     check(&["calibration.json: missing (listed in MANIFEST.sha256:"]);
     std::fs::write(dir.join("MANIFEST.sha256"), "not a manifest\n").unwrap();
     check(&["MANIFEST.sha256:1: 'not a manifest' is not 'SHA256  NAME'"]);
-    // A reading edited in both points.jsonl and readings.csv, the manifest recomputed by
-    // hand: the records still disagree with session.json.
+    // A raw reading edited in points.jsonl and readings.csv rebuilt to match (a reading's
+    // record is its raw reading; its radiance factor follows from calibration.json), the
+    // manifest recomputed by hand: the records still disagree with session.json.
     let points = String::from_utf8(pristine["points.jsonl"].clone()).unwrap();
+    let mut doc: Value = serde_json::from_str(points.lines().next().unwrap()).unwrap();
+    doc["reading"]["mean_counts"] = (doc["reading"]["mean_counts"].as_f64().unwrap() * 1.01).into();
+    let edited = points.replacen(points.lines().next().unwrap(), &doc.to_string(), 1);
+    std::fs::write(dir.join("points.jsonl"), &edited).unwrap();
+    let calibration: host::instrument::calibration::Calibration = serde_json::from_slice(&pristine["calibration.json"]).unwrap();
+    let recorded: Vec<host::session::MeasuredPoint> = edited.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let rows = host::output::folder::readings_csv(&host::output::folder::converted(&recorded, Some(&calibration)));
+    std::fs::write(dir.join("readings.csv"), rows).unwrap();
+    std::fs::write(dir.join("MANIFEST.sha256"), host::output::manifest::manifest_text(&dir).unwrap()).unwrap();
+    check(&["points.jsonl:1: differs from reading 1 of session.json"]);
+    // Only the radiance factor recorded with it edited (and readings.csv with it): the
+    // conversion by calibration.json does not give it, so readings.csv is not what the
+    // record says.
     let mut doc: Value = serde_json::from_str(points.lines().next().unwrap()).unwrap();
     doc["radiance_factor"] = 0.5.into();
     let edited = points.replacen(points.lines().next().unwrap(), &doc.to_string(), 1);
@@ -487,7 +501,7 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     let rows = host::output::folder::readings_csv(&edited.lines().map(|l| serde_json::from_str(l).unwrap()).collect::<Vec<_>>());
     std::fs::write(dir.join("readings.csv"), rows).unwrap();
     std::fs::write(dir.join("MANIFEST.sha256"), host::output::manifest::manifest_text(&dir).unwrap()).unwrap();
-    check(&["points.jsonl:1: differs from reading 1 of session.json"]);
+    check(&["readings.csv: holds rows from before"]);
     // --json for scripts.
     let out = gonio(&["verify", "--json", d]);
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();

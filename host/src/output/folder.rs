@@ -311,8 +311,9 @@ pub enum CsvAgreement {
         /// The last row was cut short.
         cut: bool,
     },
-    /// It still holds rows of readings superseded since (what a crash between a mark and
-    /// the rewrite of `readings.csv` leaves): a resume rebuilds it.
+    /// It still holds rows as they were before readings were superseded or the
+    /// calibration changed (what a crash between the record and the rewrite of
+    /// `readings.csv` leaves): a resume rebuilds it.
     Stale {
         /// Rows of superseded readings still in it.
         superseded: usize,
@@ -321,19 +322,34 @@ pub enum CsvAgreement {
     Differs(Problem),
 }
 
-/// Compare `readings.csv` with what `points.jsonl` gives.
-pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
+/// The readings with their conversion by `calibration` (`calibration.json`): a reading's
+/// record is its raw reading; its radiance factor follows from the calibration now in the
+/// folder, which a gain calibration may have changed since the reading was appended.
+pub fn converted(points: &[MeasuredPoint], calibration: Option<&Calibration>) -> Vec<MeasuredPoint> {
+    let mut out = points.to_vec();
+    if let Some(calibration) = calibration {
+        out.iter_mut().for_each(|p| p.convert_with(calibration));
+    }
+    out
+}
+
+/// Compare `readings.csv` with what `points.jsonl` gives (`points` converted with the
+/// folder's calibration; `recorded` as appended).
+pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint], recorded: &[MeasuredPoint]) -> CsvAgreement {
     let agreement = csv_agreement_with(path, file, points);
-    let superseded = points.iter().filter(|p| p.superseded && p.radiance_factor.is_some() && p.std.is_some()).count();
-    if superseded == 0 || !matches!(agreement, CsvAgreement::Differs(_)) {
+    if !matches!(agreement, CsvAgreement::Differs(_)) {
         return agreement;
     }
-    // Rows as they were before the marks: only stale, if the file agrees with those.
-    let unmarked: Vec<MeasuredPoint> = points.iter().map(|p| MeasuredPoint { superseded: false, ..p.clone() }).collect();
-    match csv_agreement_with(path, file, &unmarked) {
-        CsvAgreement::Differs(_) => agreement,
-        _ => CsvAgreement::Stale { superseded },
+    // Only stale if the file agrees with the rows as they stood before a mark or before a
+    // new calibration (a crash between the record and the rewrite of readings.csv).
+    let unmarked = |points: &[MeasuredPoint]| points.iter().map(|p| MeasuredPoint { superseded: false, ..p.clone() }).collect::<Vec<_>>();
+    let superseded = points.iter().filter(|p| p.superseded).count();
+    for before in [unmarked(points), recorded.to_vec(), unmarked(recorded)] {
+        if !matches!(csv_agreement_with(path, file, &before), CsvAgreement::Differs(_)) {
+            return CsvAgreement::Stale { superseded };
+        }
     }
+    agreement
 }
 
 fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
@@ -466,11 +482,12 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     let session = read_session(dir)?;
     let points_path = dir.join(POINTS);
     let points_file = read_lines(&points_path)?;
-    let points = parse_points(&points_path, &points_file)?;
+    let recorded = parse_points(&points_path, &points_file)?;
     let csv_path = dir.join(READINGS);
     let csv_file = read_lines(&csv_path)?;
     let log = read_lines(&dir.join(LOG))?;
     let calibration = read_calibration(dir)?;
+    let points = converted(&recorded, calibration.as_ref());
     let temp_files = temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
     let session_path = dir.join(SESSION);
     let mut damage = Vec::new();
@@ -495,7 +512,7 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
         }
         None => {}
     }
-    let csv = csv_agreement(&csv_path, &csv_file, &points);
+    let csv = csv_agreement(&csv_path, &csv_file, &points, &recorded);
     if let CsvAgreement::Differs(problem) = &csv {
         damage.push(problem.clone());
     }

@@ -507,7 +507,7 @@ impl Existing {
             }
             CsvAgreement::Stale { superseded } => {
                 store.replace(READINGS, folder::readings_csv(&inspection.points).as_bytes()).map_err(io_error(&dir))?;
-                repairs.push(format!("{READINGS}: rebuilt from {POINTS} (it still held {superseded} rows of superseded readings)"));
+                repairs.push(format!("{READINGS}: rebuilt from {POINTS} and {CALIBRATION} (it held rows from before {superseded} readings were superseded or the calibration changed)"));
             }
             CsvAgreement::Differs(problem) => return Err(FolderError::Damaged(problem)),
         }
@@ -558,7 +558,15 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
 impl Recorder for FileRecorder {
     fn calibration(&mut self, calibration: &Calibration) -> io::Result<()> {
         self.check_failed()?;
-        self.store.replace(CALIBRATION, &json_bytes(calibration)?)
+        self.store.replace(CALIBRATION, &json_bytes(calibration)?)?;
+        // A new calibration (gain ratios calibrated on the sample) converts the readings
+        // taken anew: readings.csv follows (a crash before leaves it stale, which a resume
+        // rebuilds).
+        if !self.points.is_empty() {
+            self.points = folder::converted(&self.points, Some(calibration));
+            self.store.replace(READINGS, folder::readings_csv(&self.points).as_bytes())?;
+        }
+        Ok(())
     }
 
     fn point(&mut self, point: &MeasuredPoint) -> io::Result<()> {

@@ -52,7 +52,7 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
         CsvAgreement::Behind { missing, cut } => {
             problems.push(problem(READINGS, None, format!("{missing} rows of {POINTS} missing{}", if *cut { ", the last one cut short" } else { "" })))
         }
-        CsvAgreement::Stale { superseded } => problems.push(problem(READINGS, None, format!("still holds {superseded} rows of readings {POINTS} marks superseded"))),
+        CsvAgreement::Stale { .. } => problems.push(problem(READINGS, None, format!("holds rows from before readings were superseded or {CALIBRATION} changed"))),
         // Among the damage already.
         CsvAgreement::Differs(_) => {}
     }

@@ -268,18 +268,7 @@ impl<T: Transport> Session<'_, T> {
         let Some(calibration) = self.calibration.as_ref() else { return Ok(()) };
         self.recorder.calibration(calibration).map_err(SessionError::Record)?;
         for point in &mut self.points {
-            match calibration.radiance_factor(point.theta_i_deg, &point.reading) {
-                Ok((r, u)) => {
-                    point.radiance_factor = Some(r);
-                    point.std = Some(u);
-                    point.note = None;
-                }
-                Err(e) => {
-                    point.radiance_factor = None;
-                    point.std = None;
-                    point.note = Some(e.to_string());
-                }
-            }
+            point.convert_with(calibration);
         }
         Ok(())
     }

@@ -150,6 +150,17 @@ pub struct MeasuredPoint {
 }
 
 impl MeasuredPoint {
+    /// Its radiance factor and own standard uncertainty from the raw reading with
+    /// `calibration` (or why it cannot be converted, in `note`). The one conversion of the
+    /// session, of a gain calibration's re-conversion and of the folder's checks: a reading's
+    /// record is its raw reading; what it converts to follows from the calibration.
+    pub fn convert_with(&mut self, calibration: &Calibration) {
+        match calibration.radiance_factor(self.theta_i_deg, &self.reading) {
+            Ok((r, u)) => (self.radiance_factor, self.std, self.note) = (Some(r), Some(u), None),
+            Err(e) => (self.radiance_factor, self.std, self.note) = (None, None, Some(e.to_string())),
+        }
+    }
+
     fn geometry(&self) -> Option<Geometry> {
         Geometry::from_deg(self.theta_i_deg, self.theta_r_deg)
     }
