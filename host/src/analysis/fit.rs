@@ -741,23 +741,6 @@ pub fn t_quantile_975(dof: usize) -> f64 {
     StudentsT::new(0.0, 1.0, dof as f64).map_or(f64::INFINITY, |t| t.inverse_cdf(0.975))
 }
 
-/// The shared errors' sensitivities per unit of the reading, evaluated at the model's
-/// `values` instead: s_ik · f̂_i / y_i (the ratio held within ½…2; see [`fit_with_shared`]).
-fn rescale_shared(shared: &[SharedError], observations: &[Observation], values: &[f64]) -> Vec<SharedError> {
-    shared
-        .iter()
-        .map(|term| SharedError {
-            name: term.name.clone(),
-            sensitivity: term
-                .sensitivity
-                .iter()
-                .zip(values.iter().zip(observations))
-                .map(|(&s, (&f, o))| if o.radiance_factor > 0.0 && f > 0.0 { s * (f / o.radiance_factor).clamp(0.5, 2.0) } else { s })
-                .collect(),
-        })
-        .collect()
-}
-
 /// Fit the TSL model to the readings (independent noise only).
 pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResult, FitError> {
     fit_with_shared(observations, &[], options)
@@ -778,14 +761,24 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     validate(observations)?;
     validate_shared(observations, shared)?;
     let acceptance = options.acceptance_deg.filter(|&a| a > 0.0);
-    let given = shared;
     let rescaled;
     let shared = if shared.is_empty() {
         shared
     } else {
         let first = Problem::new(observations, shared, acceptance, 0.0);
         let values = first.values(&global_fit(&first, options.max_iterations).x);
-        rescaled = rescale_shared(given, observations, &values);
+        rescaled = shared
+            .iter()
+            .map(|term| SharedError {
+                name: term.name.clone(),
+                sensitivity: term
+                    .sensitivity
+                    .iter()
+                    .zip(values.iter().zip(observations))
+                    .map(|(&s, (&f, o))| if o.radiance_factor > 0.0 && f > 0.0 { s * (f / o.radiance_factor).clamp(0.5, 2.0) } else { s })
+                    .collect(),
+            })
+            .collect::<Vec<_>>();
         &rescaled[..]
     };
     let n = observations.len();
@@ -851,18 +844,8 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
         let search = arm_offset_search(observations, shared, acceptance, &problem, &outcome, fitted_count, options.max_iterations);
         arm_offset_statistic = Some(search.statistic);
         if let Some((shifted, refit)) = search.accepted {
-            if given.is_empty() {
-                problem = shifted;
-                outcome = refit;
-            } else {
-                // The sensitivities were scaled to the first pass's model, which had no offset:
-                // on a shifted peak's flanks its values are far from the readings, and the
-                // additive terms (darks) came out scaled by up to 2 or ½. Scaled again to the
-                // shifted model, they are what they should be, and the fit is redone with them.
-                let values = shifted.values(&refit.x);
-                problem = Problem::new(observations, &rescale_shared(given, observations, &values), acceptance, shifted.shift_deg);
-                outcome = levenberg_marquardt(&problem, refit.x, [false; 4], options.max_iterations);
-            }
+            problem = shifted;
+            outcome = refit;
             arm_fitted = true;
         }
     }
