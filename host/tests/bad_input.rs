@@ -1,18 +1,14 @@
 //! Bad input through the `gonio` binary: each gets an error that names the value and where
 //! it came from, exits non-zero, and loses nothing already measured (a resumed folder is
 //! left exactly as it was).
+mod cli_support;
+use cli_support::gonio;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
 
-fn gonio(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
-}
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gonio-bad-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    cli_support::temp_dir("bad", name)
 }
 
 fn contents(dir: &Path) -> BTreeMap<String, Vec<u8>> {

@@ -1,17 +1,13 @@
 //! The budget through `gonio measure`: the tile's certificate as an input of the
 //! calibration, a reused calibration's age, and the report's `budget`.
+mod cli_support;
+use cli_support::gonio;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
 
-fn gonio(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
-}
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gonio-budget-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    cli_support::temp_dir("budget", name)
 }
 
 /// A session's `--json` object; a flagged result (exit 3) is a result too.

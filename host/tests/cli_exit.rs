@@ -1,19 +1,15 @@
 //! `gonio measure`'s exit code says what its result's `ok` says (README, "Exit codes"):
 //! 0 clean, 3 flagged, 130 interrupted, 1 failed (here: an instrument that went away).
+mod cli_support;
+use cli_support::gonio;
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 
-fn gonio(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
-}
-
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gonio-exit-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    cli_support::temp_dir("exit", name)
 }
 
 fn json(out: &Output) -> Value {

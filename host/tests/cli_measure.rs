@@ -1,18 +1,14 @@
 //! `gonio measure` end to end on the simulated instrument: the main job.
+mod cli_support;
+use cli_support::gonio;
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 
-fn gonio(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
-}
-
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gonio-measure-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+    cli_support::temp_dir("measure", name)
 }
 
 fn result(out: &Output) -> Value {

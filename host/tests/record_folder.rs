@@ -3,6 +3,9 @@
 //! finished session, of damage), the default names, the repairs a resume makes and the
 //! chain of custody across resumes (folder, sample, instrument serial, runs, manifest);
 //! `gonio verify` and its exit codes. Through the `gonio` binary where it is a command line.
+mod cli_support;
+use cli_support::gonio;
+use cli_support::stderr;
 use host::cli::measure::{Measured, measure_with, parse_args};
 use host::output::record::{FileRecorder, FolderError, FolderLock, Identity};
 use host::output::store::{Crash, StoreOptions};
@@ -10,22 +13,12 @@ use host::session::{Operator, Placement, SimulatedOperator};
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-fn gonio(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
-}
-
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gonio-folder-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
+    cli_support::temp_dir("folder", name)
 }
 
 fn session(dir: &Path) -> Value {
