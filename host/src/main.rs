@@ -26,6 +26,8 @@ enum Command {
     Trade(host::cli::trade::Args),
     /// Reliability under bench faults: simulated sessions with pulled cables, a noisy link and slow operators.
     Reliability(host::cli::reliability::Args),
+    /// Accuracy on sheets and instruments that are not the model: coverage of the intervals, never confidently wrong.
+    Accuracy(host::cli::accuracy::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
 }
@@ -40,6 +42,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => host::cli::compare::run(args),
         Command::Trade(args) => host::cli::trade::run(args),
         Command::Reliability(args) => host::cli::reliability::run(args),
+        Command::Accuracy(args) => host::cli::accuracy::run(args),
         Command::Verify(args) => host::cli::verify::run(args),
     };
     match result {

@@ -10,22 +10,7 @@ use host::instrument::calibration::Calibration;
 use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::SimOptions;
 use host::session::gains;
-use host::session::{MeasuredPoint, Outcome, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
-
-/// Keeps nothing.
-struct Discard;
-
-impl Recorder for Discard {
-    fn calibration(&mut self, _: &Calibration) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn stage(&mut self, _: &str, _: usize) {}
-    fn progress(&mut self, _: Progress) {}
-    fn decision(&mut self, _: &str) {}
-}
+use host::session::{DiscardRecorder, MeasuredPoint, Outcome, Plan, Policy, Session, SimulatedOperator};
 
 /// A whole session of `sample` on the simulator `options` make, and the instrument's truth.
 fn run(sample: &str, options: &SimOptions, policy: Policy) -> (Outcome, hil_sim::Truth) {
@@ -40,7 +25,7 @@ fn run(sample: &str, options: &SimOptions, policy: Policy) -> (Outcome, hil_sim:
         white_check: false,
         white_drift_limit: 1.0,
     };
-    let (mut recorder, mut operator) = (Discard, SimulatedOperator);
+    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
     let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().expect("a session");
     let truth = client.transport_mut().truth().clone();
     (outcome, truth)

@@ -12,10 +12,7 @@ use host::analysis::flags::Flag;
 use host::instrument::calibration::Calibration;
 use host::instrument::link::{Client, RetryPolicy, Transport};
 use host::instrument::sim::SimOptions;
-use host::session::{
-    DelayedOperator, LinkLoss, MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, PolicyChoice, Progress, Recorder, Session,
-    SessionError,
-};
+use host::session::{DiscardRecorder, DelayedOperator, LinkLoss, MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, PolicyChoice, Progress, Recorder, Session, SessionError};
 use protocol::{Command, FrameDecoder, Request};
 use std::collections::BTreeSet;
 use std::time::Duration;
@@ -158,21 +155,6 @@ impl Transport for Watched {
     }
 }
 
-/// Keeps nothing (the outcome has the decisions).
-struct Discard;
-
-impl Recorder for Discard {
-    fn calibration(&mut self, _: &Calibration) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn stage(&mut self, _: &str, _: usize) {}
-    fn progress(&mut self, _: Progress) {}
-    fn decision(&mut self, _: &str) {}
-}
-
 /// A simulated person who takes `delay` (device time) and notes when they were asked.
 struct Person {
     inner: DelayedOperator,
@@ -254,7 +236,7 @@ fn run(setup: &Setup) -> Ran {
         white_drift_limit: 0.005,
     };
     let mut person = Person::taking(setup.operator_s);
-    let mut recorder = Discard;
+    let mut recorder = DiscardRecorder;
     let mut session = Session::new(&mut client, info, plan, &mut recorder, &mut person).with_calibration_limit(setup.max_calibration_age);
     if let Some(calibration) = &setup.calibration {
         session = session.with_calibration(calibration.clone());
@@ -503,7 +485,6 @@ fn a_frozen_instrument_is_given_up_within_10_s_saying_nothing_answers() {
         assert!(text.contains("port is there") && text.contains("has not answered for 10.0 s") && text.contains("power-cycle"), "{what}: {text}");
     }
 }
-
 
 #[test]
 fn a_stop_whose_message_is_lost_does_not_let_a_reading_be_taken_in_the_dark() {

@@ -3,6 +3,7 @@ pub mod fit;
 pub mod ports;
 pub mod sim;
 pub mod measure;
+pub mod accuracy;
 pub mod compare;
 pub mod exit;
 pub mod reliability;

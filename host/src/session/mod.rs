@@ -197,6 +197,22 @@ pub trait Recorder {
     fn decision(&mut self, text: &str);
 }
 
+/// A [`Recorder`] that keeps nothing: for campaigns of simulated sessions, which keep
+/// only the [`Outcome`].
+pub struct DiscardRecorder;
+
+impl Recorder for DiscardRecorder {
+    fn calibration(&mut self, _: &Calibration) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn stage(&mut self, _: &str, _: usize) {}
+    fn progress(&mut self, _: Progress) {}
+    fn decision(&mut self, _: &str) {}
+}
+
 /// One fit of the session and what followed from it.
 #[derive(Clone, Debug, Serialize)]
 pub struct FitStep {

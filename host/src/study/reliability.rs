@@ -14,16 +14,13 @@
 
 use crate::analysis::classify::REFERENCES;
 use crate::analysis::flags::Flag;
-use crate::instrument::calibration::Calibration;
 use crate::instrument::link::{Client, LinkError, RetryPolicy, Transport};
 use crate::instrument::sim::SimOptions;
-use crate::session::{DelayedOperator, MeasuredPoint, Outcome, Plan, Policy, PolicyChoice, Progress, Recorder, Recoveries, Session, SessionError};
+use crate::session::{DiscardRecorder, DelayedOperator, Outcome, Plan, Policy, PolicyChoice, Recoveries, Session, SessionError};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 /// The papers of the campaign: two glossy (refined at length), two rough (Strategy 1).
@@ -168,21 +165,6 @@ pub fn draw(index: usize, kinds: &[FaultKind], durations: &Durations) -> Spec {
     Spec { index, sample, policy, seed, kind, unplug, corrupt, drop, operator_s }
 }
 
-/// Keeps nothing: the outcome has what the campaign needs.
-struct Discard;
-
-impl Recorder for Discard {
-    fn calibration(&mut self, _: &Calibration) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn stage(&mut self, _: &str, _: usize) {}
-    fn progress(&mut self, _: Progress) {}
-    fn decision(&mut self, _: &str) {}
-}
-
 /// One simulated session as run.
 pub struct Run {
     /// What the session produced, or why it failed.
@@ -208,7 +190,7 @@ pub fn run_session(spec: &Spec) -> Result<Run, String> {
         white_check: false,
         white_drift_limit: 0.005,
     };
-    let mut recorder = Discard;
+    let mut recorder = DiscardRecorder;
     let mut operator = DelayedOperator::answering_after(Duration::from_secs_f64(spec.operator_s));
     let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run();
     Ok(Run { outcome, end_s: client.transport().device_time_us() as f64 * 1e-6 })
@@ -361,28 +343,7 @@ pub fn run_one(spec: &Spec, twin: bool) -> Row {
 
 /// Run `specs` on `threads` threads, rows in the order of `specs`; `progress` after each.
 pub fn run_all(specs: &[Spec], twins: bool, threads: usize, progress: &(dyn Fn() + Sync)) -> Vec<Row> {
-    parallel(specs, threads, progress, |spec| run_one(spec, twins))
-}
-
-fn parallel<I: Sync, O: Send + Clone>(items: &[I], threads: usize, progress: &(dyn Fn() + Sync), work: impl Fn(&I) -> O + Sync) -> Vec<O> {
-    let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<O>>> = Mutex::new(vec![None; items.len()]);
-    std::thread::scope(|scope| {
-        for _ in 0..threads.max(1) {
-            scope.spawn(|| {
-                loop {
-                    let k = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(item) = items.get(k) else { break };
-                    let out = work(item);
-                    if let Ok(mut results) = results.lock() {
-                        results[k] = Some(out);
-                    }
-                    progress();
-                }
-            });
-        }
-    });
-    results.into_inner().unwrap_or_default().into_iter().flatten().collect()
+    super::parallel(specs, threads, progress, |spec| run_one(spec, twins))
 }
 
 /// The cable pulled for good: how the session ends.
@@ -409,7 +370,7 @@ pub fn give_ups(sessions: usize, durations: &Durations, threads: usize) -> Vec<G
             spec
         })
         .collect();
-    parallel(&specs, threads, &|| {}, |spec| {
+    super::parallel(&specs, threads, &|| {}, |spec| {
         let at = spec.unplug.map_or(0.0, |(at, _)| at);
         let run = run_session(spec).ok();
         let end_s = run.as_ref().map_or(0.0, |r| r.end_s);

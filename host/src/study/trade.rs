@@ -5,12 +5,10 @@
 use crate::analysis::classify::REFERENCES;
 use crate::instrument::link::{Client, RetryPolicy};
 use crate::analysis::model::Params;
-use crate::session::{FixedSchedule, MeasuredPoint, Outcome, Plan, Policy, Progress, Recorder, Session, SimulatedOperator};
+use crate::session::{DiscardRecorder, FixedSchedule, Outcome, Plan, Policy, Session, SimulatedOperator};
 use crate::instrument::sim::{SimOptions, sample_params};
 use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
 use std::fmt::Write as _;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
 
 /// The integration times studied, ms.
 pub const INTEGRATION_MS: [u16; 3] = [25, 100, 400];
@@ -97,21 +95,6 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
     runs
 }
 
-/// Records nothing: the study keeps only the outcome.
-struct Discard;
-
-impl Recorder for Discard {
-    fn calibration(&mut self, _: &crate::instrument::calibration::Calibration) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn point(&mut self, _: &MeasuredPoint) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn stage(&mut self, _: &str, _: usize) {}
-    fn progress(&mut self, _: Progress) {}
-    fn decision(&mut self, _: &str) {}
-}
-
 fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
     estimate.filter(|e| e.is_finite()).map_or(f64::INFINITY, |e| (e / truth - 1.0).abs())
 }
@@ -132,7 +115,7 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
         white_check: false,
         white_drift_limit: 1.0,
     };
-    let (mut recorder, mut operator) = (Discard, SimulatedOperator);
+    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
     let outcome: Outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
     let fit = &outcome.report.fit;
     let class = outcome.report.classification.class_name();
@@ -152,32 +135,14 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
 /// Run `runs` on `threads` threads; `progress` is called after each. Rows come back in the
 /// order of `runs`; a session that fails is an error naming it.
 pub fn run_all(runs: &[RunSpec], threads: usize, progress: &(dyn Fn() + Sync)) -> Result<Vec<Row>, String> {
-    let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<Row, String>>>> = Mutex::new(vec![None; runs.len()]);
-    std::thread::scope(|scope| {
-        for _ in 0..threads.max(1) {
-            scope.spawn(|| {
-                loop {
-                    let k = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(spec) = runs.get(k) else { break };
-                    let row = run_one(spec);
-                    if let Ok(mut results) = results.lock() {
-                        results[k] = Some(row);
-                    }
-                    progress();
-                }
-            });
-        }
-    });
-    let results = results.into_inner().map_err(|_| "a study thread panicked".to_string())?;
+    let results = super::parallel(runs, threads, progress, run_one);
+    if results.len() != runs.len() {
+        return Err("a study thread panicked".to_string());
+    }
     results
         .into_iter()
         .zip(runs)
-        .map(|(row, spec)| match row {
-            Some(Ok(row)) => Ok(row),
-            Some(Err(e)) => Err(format!("{} {} {} seed {} at {} ms: {e}", spec.policy, spec.setting, spec.sample, spec.seed, spec.integration_ms)),
-            None => Err(format!("{} {} {} seed {}: not run", spec.policy, spec.setting, spec.sample, spec.seed)),
-        })
+        .map(|(row, spec)| row.map_err(|e| format!("{} {} {} seed {} at {} ms: {e}", spec.policy, spec.setting, spec.sample, spec.seed, spec.integration_ms)))
         .collect()
 }
 
