@@ -32,6 +32,8 @@ pub mod streams {
     pub const GAINS: u64 = 1;
     /// The white tile's error.
     pub const TILE: u64 = 2;
+    /// The detector arm zero's drawn error.
+    pub const ARM_ZERO: u64 = 3;
     // Spot k of a sheet: stream 2³² + k (crate::sheet). The link's faults have a key of
     // their own (seed ^ "link").
 }
@@ -125,8 +127,11 @@ pub struct InstrumentErrors {
     /// its certificate's × (1 + p·z).
     pub tile_sd: f64,
     /// Detector arm zero error, degrees: the detector's true angle is the one the
-    /// firmware believes plus this.
+    /// firmware believes plus this (plus the drawn part below).
     pub theta_r_offset_deg: f64,
+    /// Standard deviation of a drawn detector arm zero error, degrees: an instrument whose
+    /// zero is good to this much, its actual error N(0, sd²) drawn from the seed.
+    pub theta_r_offset_sd_deg: f64,
 }
 
 /// What the instrument truly is in this run (the drawn errors), for tests and studies.
@@ -218,13 +223,14 @@ impl SimInstrument {
             detector.relative_gains[k] = detector.relative_gains[k - 1] * nominal[k] / nominal[k - 1] * factor;
         }
         port.white.radiance_factor *= error_factor(&mut stream(config.seed, streams::TILE), errors.tile_sd);
-        let truth = Truth {
-            relative_gains: detector.relative_gains.clone(),
-            tile_radiance_factor: port.white.radiance_factor,
-            theta_r_offset_deg: errors.theta_r_offset_deg,
+        let drawn_zero_deg: f64 = {
+            let z: f64 = stream(config.seed, streams::ARM_ZERO).sample(StandardNormal);
+            errors.theta_r_offset_sd_deg * z
         };
+        let theta_r_offset_deg = errors.theta_r_offset_deg + drawn_zero_deg;
+        let truth = Truth { relative_gains: detector.relative_gains.clone(), tile_radiance_factor: port.white.radiance_factor, theta_r_offset_deg };
         let mut hardware = SimHardware::new(&config.instrument, port, detector, config.seed, config.start);
-        hardware.set_theta_r_offset_deg(errors.theta_r_offset_deg);
+        hardware.set_theta_r_offset_deg(theta_r_offset_deg);
         if let Some(arm) = config.faults.switch_missing {
             hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }

@@ -41,10 +41,9 @@ fn bench_fit(c: &mut Criterion) {
             .iter()
             .map(|&ti| SharedError {
                 name: format!("white θi = {ti}°"),
-                sensitivity: obs.iter().map(|o| if o.theta_i_deg == ti { 0.005 * o.radiance_factor } else { 0.0 }).collect(),
-            })
+                sensitivity: obs.iter().map(|o| if o.theta_i_deg == ti { 0.005 * o.radiance_factor } else { 0.0 }).collect(), additive: Vec::new() })
             .collect();
-        shared.push(SharedError { name: "tile certificate".into(), sensitivity: obs.iter().map(|o| 0.01 * o.radiance_factor).collect() });
+        shared.push(SharedError { name: "tile certificate".into(), sensitivity: obs.iter().map(|o| 0.01 * o.radiance_factor).collect(), additive: Vec::new() });
         group.bench_with_input(BenchmarkId::from_parameter(&set.sample), &(obs, shared), |b, (obs, shared)| {
             b.iter(|| fit_with_shared(black_box(obs), shared, &FitOptions::default()).expect("valid bench data"))
         });

@@ -179,7 +179,7 @@ fn as_independent(s: &Synthetic) -> Vec<Observation> {
                 .shared
                 .iter()
                 .filter(|t| matches!(budget::TermKind::of(&t.name), budget::TermKind::White | budget::TermKind::Dark))
-                .map(|t| t.sensitivity[k].powi(2))
+                .map(|t| t.total(k).powi(2))
                 .sum();
             Observation { std: o.std.map(|u| (u * u + folded).sqrt()), ..*o }
         })

@@ -90,8 +90,11 @@ fn a_reused_calibrations_age_is_in_the_budget() {
         let (w0, w1) = (width(&fresh, param), width(&aged, param));
         println!("{param}: drift's share {s0:.2e} fresh, {s1:.3} at 4 h; 95 % width {w0:.5} → {w1:.5}");
         assert!(s0 < 1e-3, "{param}: a fresh calibration drifts for seconds: {s0}");
-        // 0.8 % of the value against the tile's 0.5 %: the largest term.
-        assert!(s1 > 0.4, "{param}: {s1}");
-        assert!(w1 > 1.2 * w0, "{param}: {w0} → {w1}");
+        // 0.8 % of the value against the tile's 0.5 %: among the largest terms (on PPC's
+        // ρs the arm zero's 0.1° rivals it).
+        let largest = aged["budget"]["by_kind"].as_array().unwrap().iter().filter_map(|k| k["share"][param].as_f64()).fold(0.0, f64::max);
+        assert!(s1 > 0.25 && s1 > 0.5 * largest, "{param}: {s1}, the largest share {largest}");
+        // A share s of the variance widens the interval by 1/√(1 − s): 1.18 at 0.3.
+        assert!(w1 > (1.0 / (1.0 - 0.9 * s1)).sqrt() * w0, "{param}: {w0} → {w1}");
     }
 }

@@ -214,7 +214,7 @@ fn as_today(outcome: &Outcome) -> Option<host::analysis::fit::FitResult> {
             let extra: f64 = shared
                 .iter()
                 .filter(|t| matches!(budget::TermKind::of(&t.name), budget::TermKind::White | budget::TermKind::Dark))
-                .map(|t| t.sensitivity[k].powi(2))
+                .map(|t| t.total(k).powi(2))
                 .sum();
             Observation { std: o.std.map(|u| (u * u + extra).sqrt()), ..*o }
         })
@@ -307,8 +307,7 @@ fn errors_that_scale_the_readings_do_not_pull_the_fit_down() {
                 .iter()
                 .map(|t| host::analysis::fit::SharedError {
                     name: t.name.clone(),
-                    sensitivity: t.sensitivity.iter().zip(&values).zip(&observations).map(|((s, f), o)| s * o.radiance_factor / f).collect(),
-                })
+                    sensitivity: t.sensitivity.iter().zip(&values).zip(&observations).map(|((s, f), o)| s * o.radiance_factor / f).collect(), additive: t.additive.clone() })
                 .collect();
             measured += z(&at_the_readings);
             n += 1.0;

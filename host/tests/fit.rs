@@ -395,17 +395,17 @@ fn the_budget_adds_up_to_the_covariance() {
 fn shared_errors_are_validated() {
     let obs: Vec<Observation> = valid().into_iter().map(|o| Observation { std: Some(0.01), ..o }).collect();
     let opts = FitOptions::default();
-    let short = fit::SharedError { name: "tile certificate".into(), sensitivity: vec![0.01; obs.len() - 1] };
+    let short = fit::SharedError { name: "tile certificate".into(), sensitivity: vec![0.01; obs.len() - 1], additive: Vec::new() };
     let e = fit::fit_with_shared(&obs, &[short], &opts).unwrap_err();
     assert!(matches!(e, FitError::SharedErrorLength { found: 11, expected: 12, .. }), "{e}");
     assert!(e.to_string().contains("tile certificate"), "{e}");
     let mut sensitivity = vec![0.01; obs.len()];
     sensitivity[4] = f64::NAN;
-    let e = fit::fit_with_shared(&obs, &[fit::SharedError { name: "white θi = 20°".into(), sensitivity }], &opts).unwrap_err();
+    let e = fit::fit_with_shared(&obs, &[fit::SharedError { name: "white θi = 20°".into(), sensitivity, additive: Vec::new() }], &opts).unwrap_err();
     assert!(matches!(e, FitError::SharedErrorValue { index: 4, .. }), "{e}");
     assert_eq!(e.reading_index(), Some(4));
     let unweighted = valid();
-    let e = fit::fit_with_shared(&unweighted, &[fit::SharedError { name: "lamp drift".into(), sensitivity: vec![0.01; 12] }], &opts).unwrap_err();
+    let e = fit::fit_with_shared(&unweighted, &[fit::SharedError { name: "lamp drift".into(), sensitivity: vec![0.01; 12], additive: Vec::new() }], &opts).unwrap_err();
     assert!(matches!(e, FitError::SharedErrorWithoutUncertainties { .. }), "{e}");
 }
 

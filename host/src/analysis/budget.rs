@@ -78,6 +78,8 @@ pub enum TermKind {
     Gain,
     /// The lamp's drift since the white readings.
     Drift,
+    /// The detector arm's zero ([`crate::analysis::fit::ARM_ZERO`]), where no offset was fitted.
+    ArmZero,
     /// The widening of the intervals when the model does not describe the data.
     LackOfFit,
     /// Anything else a caller added.
@@ -101,6 +103,8 @@ impl TermKind {
             TermKind::Gain
         } else if name == LAMP_DRIFT {
             TermKind::Drift
+        } else if name == crate::analysis::fit::ARM_ZERO {
+            TermKind::ArmZero
         } else {
             TermKind::Other
         }
@@ -115,6 +119,7 @@ impl TermKind {
             TermKind::Tile => "tile certificate",
             TermKind::Gain => "range gains",
             TermKind::Drift => "lamp drift",
+            TermKind::ArmZero => "arm zero",
             TermKind::LackOfFit => "lack of fit",
             TermKind::Other => "other",
         }
@@ -165,11 +170,13 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
     let value: Vec<f64> = conversions.iter().map(|c| c.radiance_factor).collect();
     let ranges = calibration.relative_gains.len();
     let mut terms = Vec::new();
-    let mut push = |name: String, sensitivity: Vec<f64>| {
-        if sensitivity.iter().any(|s| *s != 0.0) {
-            terms.push(SharedError { name, sensitivity });
+    let mut push = |name: String, sensitivity: Vec<f64>, additive: Vec<f64>| {
+        if sensitivity.iter().chain(&additive).any(|s| *s != 0.0) {
+            let additive = if additive.iter().any(|s| *s != 0.0) { additive } else { Vec::new() };
+            terms.push(SharedError { name, sensitivity, additive });
         }
     };
+
 
     // The white reading at each θi.
     for (j, white) in calibration.white.iter().enumerate() {
@@ -179,7 +186,7 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
             .zip(&value)
             .map(|(c, r)| if c.white_index == j { -r * u / c.white_net_counts } else { 0.0 })
             .collect();
-        push(white_name(white.theta_i_deg), sensitivity);
+        push(white_name(white.theta_i_deg), sensitivity, Vec::new());
     }
 
     // [p < range]: whether a range's gain contains the ratio of the pair (p, p + 1).
@@ -206,12 +213,14 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
             };
             through_ratios.push((p, d_ln_rho));
         }
+        // The reading's own dark: a fixed offset in counts, R/net = T/(G·w) per count,
+        // whatever the reading: additive. Through the white and the ratios it scales R.
+        let additive: Vec<f64> =
+            conversions.iter().map(|c| if usize::from(c.range) == j { -c.radiance_factor / c.net_counts * u } else { 0.0 }).collect();
         let sensitivity = conversions
             .iter()
             .zip(&value)
             .map(|(c, r)| {
-                // The reading's own dark: a fixed offset in counts, R/net = T/(G·w).
-                let direct = if usize::from(c.range) == j { -c.radiance_factor / c.net_counts } else { 0.0 };
                 let mut d_ln_r = 0.0;
                 if usize::from(c.white_range) == j {
                     d_ln_r += 1.0 / c.white_net_counts;
@@ -219,20 +228,20 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
                 for &(p, d_ln_rho) in &through_ratios {
                     d_ln_r += exponent(p, c) * d_ln_rho;
                 }
-                (direct + r * d_ln_r) * u
+                r * d_ln_r * u
             })
             .collect();
-        push(dark_name(j as u8), sensitivity);
+        push(dark_name(j as u8), sensitivity, additive);
     }
 
     // The tile: every reading scales with its certified value.
     let u_tile = calibration.white_relative_uncertainty;
-    push(TILE.to_string(), value.iter().map(|r| r * u_tile).collect());
+    push(TILE.to_string(), value.iter().map(|r| r * u_tile).collect(), Vec::new());
 
     // The gain ratio of each pair of adjacent ranges.
     for p in 0..ranges.saturating_sub(1) {
         let (_, relative, _) = calibration.gain_ratio(p as u8)?;
-        push(gain_name(p as u8), conversions.iter().zip(&value).map(|(c, r)| r * exponent(p, c) * relative).collect());
+        push(gain_name(p as u8), conversions.iter().zip(&value).map(|(c, r)| r * exponent(p, c) * relative).collect(), Vec::new());
     }
 
     // The lamp's drift: one unknown rate, times each reading's age.
@@ -240,6 +249,7 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
     push(
         LAMP_DRIFT.to_string(),
         value.iter().zip(readings).map(|(v, r)| v * rate_per_s * r.age_s.max(0.0)).collect(),
+        Vec::new(),
     );
     debug_assert!(terms.iter().all(|t| t.sensitivity.len() == n));
     Ok(terms)
@@ -390,7 +400,7 @@ mod tests {
     fn each_term_touches_only_its_readings() {
         let c = calibration();
         let terms = shared_errors(&c, &readings()).unwrap();
-        let touched = |name: &str| -> Vec<bool> { term(&terms, name).sensitivity.iter().map(|s| *s != 0.0).collect() };
+        let touched = |name: &str| -> Vec<bool> { (0..5).map(|k| term(&terms, name).total(k) != 0.0).collect() };
         assert_eq!(touched("white θi=20°"), [true, true, false, false, false]);
         assert_eq!(touched("white θi=60°"), [false, false, true, true, true]);
         assert_eq!(touched("tile certificate"), [true; 5]);
@@ -440,7 +450,7 @@ mod tests {
             let moved = values(&perturbed);
             for k in 0..rs.len() {
                 let numeric = (moved[k] - base[k]) / step_in_sigmas;
-                let analytic = term(&terms, name).sensitivity[k];
+                let analytic = term(&terms, name).total(k);
                 assert!((numeric - analytic).abs() <= 1e-3 * analytic.abs() + 1e-12, "{name} reading {k}: {numeric} vs {analytic}");
             }
         };

@@ -96,14 +96,35 @@ pub struct Observation {
 }
 
 /// An error shared by several readings (one draw for all of them): reading k's radiance
-/// factor is off by `sensitivity[k] · ε` with ε ~ N(0, 1), the same ε for every k.
-#[derive(Clone, Debug, PartialEq)]
+/// factor is off by `(sensitivity[k] + additive[k]) · ε` with ε ~ N(0, 1), the same ε for
+/// every k.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct SharedError {
     /// What it is, for the budget ("white θi = 60°", "tile certificate", "gain range 2/1", "lamp drift").
     pub name: String,
-    /// Per observation (same order and length as the observations), radiance factor per unit ε.
+    /// Per observation (same order and length as the observations), radiance factor per
+    /// unit ε of the part that scales with the reading (a tile, a white, a gain ratio),
+    /// stated at the reading: the fit re-evaluates it at its model ([`fit_with_shared`]).
     pub sensitivity: Vec<f64>,
+    /// Per observation, radiance factor per unit ε of the part that does not scale with the
+    /// reading (a dark offset, an arm zero error), used as it is; empty: none.
+    pub additive: Vec<f64>,
 }
+
+impl SharedError {
+    /// Reading k's whole sensitivity at the readings (scaling and additive parts).
+    pub fn total(&self, k: usize) -> f64 {
+        self.sensitivity.get(k).copied().unwrap_or(0.0) + self.additive.get(k).copied().unwrap_or(0.0)
+    }
+}
+
+/// The name of the arm zero's term in the budget.
+pub const ARM_ZERO: &str = "arm zero";
+
+/// Standard uncertainty of the detector arm's zero that a session assumes unless told
+/// otherwise, degrees: the zero is set at the home switch and by aligning the aperture, good
+/// to about 8 microsteps of 0.0125°.
+pub const DEFAULT_ARM_ZERO_UNCERTAINTY_DEG: f64 = 0.1;
 
 /// One term of the uncertainty budget: its contribution to the variance of σ (deg²), ρs,
 /// ρd and η. The terms add up to the diagonal of [`FitResult::covariance`].
@@ -124,11 +145,17 @@ pub struct FitOptions {
     pub max_iterations: usize,
     /// Test for an arm zero offset and fit it when the data call for it.
     pub arm_offset: bool,
+    /// Standard uncertainty of the detector arm's zero, degrees: where the data do not call
+    /// for a fitted offset, an offset of this size is a shared error of every reading
+    /// (the [`ARM_ZERO`] term, ∂f/∂θr times it). 0: the zero is exact.
+    pub arm_zero_uncertainty_deg: f64,
 }
 
 impl Default for FitOptions {
+    /// Readings of unknown provenance: no arm zero error is assumed (a session states its
+    /// instrument's, [`DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]).
     fn default() -> Self {
-        FitOptions { acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200, arm_offset: true }
+        FitOptions { acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200, arm_offset: true, arm_zero_uncertainty_deg: 0.0 }
     }
 }
 
@@ -693,7 +720,12 @@ pub fn validate_shared(observations: &[Observation], shared: &[SharedError]) -> 
         if term.sensitivity.len() != observations.len() {
             return Err(FitError::SharedErrorLength { name: term.name.clone(), found: term.sensitivity.len(), expected: observations.len() });
         }
-        if let Some((index, &value)) = term.sensitivity.iter().enumerate().find(|(_, v)| v.is_nan() || v.abs() > RADIANCE_FACTOR_MAX) {
+        if !term.additive.is_empty() && term.additive.len() != observations.len() {
+            return Err(FitError::SharedErrorLength { name: term.name.clone(), found: term.additive.len(), expected: observations.len() });
+        }
+        let mut values = term.sensitivity.iter().chain(&term.additive).enumerate();
+        if let Some((index, &value)) = values.find(|(_, v)| v.is_nan() || v.abs() > RADIANCE_FACTOR_MAX) {
+            let index = index % observations.len().max(1);
             return Err(FitError::SharedErrorValue { name: term.name.clone(), index, value, max: RADIANCE_FACTOR_MAX });
         }
     }
@@ -741,49 +773,74 @@ pub fn t_quantile_975(dof: usize) -> f64 {
     StudentsT::new(0.0, 1.0, dof as f64).map_or(f64::INFINITY, |t| t.inverse_cdf(0.975))
 }
 
+fn weighted_input(observations: &[Observation]) -> bool {
+    observations.first().is_some_and(|o| o.std.is_some())
+}
+
 /// Fit the TSL model to the readings (independent noise only).
 pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResult, FitError> {
     fit_with_shared(observations, &[], options)
 }
 
+/// The shared errors as the fit uses them: each term's scaling part evaluated at the model's
+/// `values` (s_ik · f̂_i / y_i, the ratio held within ½…2; `None`: at the readings) plus its
+/// additive part, in one sensitivity.
+fn at_model(shared: &[SharedError], observations: &[Observation], values: Option<&[f64]>) -> Vec<SharedError> {
+    shared
+        .iter()
+        .map(|term| {
+            let sensitivity = term
+                .sensitivity
+                .iter()
+                .enumerate()
+                .map(|(i, &s)| {
+                    let y = observations[i].radiance_factor;
+                    let scaled = match values.map(|v| v[i]) {
+                        Some(f) if y > 0.0 && f > 0.0 => s * (f / y).clamp(0.5, 2.0),
+                        _ => s,
+                    };
+                    scaled + term.additive.get(i).copied().unwrap_or(0.0)
+                })
+                .collect();
+            SharedError { name: term.name.clone(), sensitivity, additive: Vec::new() }
+        })
+        .collect()
+}
+
 /// Fit the TSL model to readings whose errors are partly shared: the covariance of the
 /// readings is diag(std²) + Σ_k s_k s_kᵀ.
 ///
-/// The sensitivities are taken per unit of the reading: the fit re-evaluates them at its
-/// own model values, s_ik · f̂_i / y_i, after a first pass. A covariance built from the
+/// The scaling parts of the sensitivities are taken per unit of the reading: the fit
+/// re-evaluates them at its own model values, s_ik · f̂_i / y_i, after a first pass (and
+/// again at the shifted model when it accepts an arm offset). A covariance built from the
 /// readings themselves (s = reading × relative uncertainty, all a budget can know before
 /// the fit) pulls the estimate towards the low readings, which get the smaller errors
 /// (Peelle's pertinent puzzle: −2 % on ρd with a 1 % tile error over 284 readings);
 /// evaluated at the model, the covariance no longer depends on the noise of the readings.
-/// For an additive shared error (a dark offset) the factor f̂/y differs from 1 only by a
-/// reading's relative noise, which changes nothing of note.
+/// The additive parts (a dark offset) are used as they are: scaled by f̂/y they came out up
+/// to 2× or ½× on a shifted peak's flanks, where the first pass's model is far from the
+/// readings.
+///
+/// With [`FitOptions::arm_zero_uncertainty_deg`] and no fitted offset, the arm zero's
+/// possible offset is one more shared error, ∂f/∂θr at the model times its uncertainty: a
+/// 0.1° zero error is below what the offset test can see on a rough paper's 12 readings,
+/// yet it moved J1's σ by 2–3 standard errors (its interval covered the truth in 28 % of
+/// sessions).
 pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], options: &FitOptions) -> Result<FitResult, FitError> {
     validate(observations)?;
     validate_shared(observations, shared)?;
     let acceptance = options.acceptance_deg.filter(|&a| a > 0.0);
-    let rescaled;
-    let shared = if shared.is_empty() {
-        shared
+    let given = shared;
+    let mut shared: Vec<SharedError> = if given.is_empty() {
+        Vec::new()
     } else {
-        let first = Problem::new(observations, shared, acceptance, 0.0);
+        let first = Problem::new(observations, &at_model(given, observations, None), acceptance, 0.0);
         let values = first.values(&global_fit(&first, options.max_iterations).x);
-        rescaled = shared
-            .iter()
-            .map(|term| SharedError {
-                name: term.name.clone(),
-                sensitivity: term
-                    .sensitivity
-                    .iter()
-                    .zip(values.iter().zip(observations))
-                    .map(|(&s, (&f, o))| if o.radiance_factor > 0.0 && f > 0.0 { s * (f / o.radiance_factor).clamp(0.5, 2.0) } else { s })
-                    .collect(),
-            })
-            .collect::<Vec<_>>();
-        &rescaled[..]
+        at_model(given, observations, Some(&values))
     };
     let n = observations.len();
     let weighted = observations[0].std.is_some();
-    let mut problem = Problem::new(observations, shared, acceptance, 0.0);
+    let mut problem = Problem::new(observations, &shared, acceptance, 0.0);
     let mut outcome = global_fit(&problem, options.max_iterations);
     let mut notes = Vec::new();
     let mut fitted = [true; 4];
@@ -841,14 +898,36 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     let mut arm_fitted = false;
     if options.arm_offset && !unresolved && fitted[RHO_S] {
         let fitted_count = fitted.iter().filter(|&&b| b).count();
-        let search = arm_offset_search(observations, shared, acceptance, &problem, &outcome, fitted_count, options.max_iterations);
+        let search = arm_offset_search(observations, &shared, acceptance, &problem, &outcome, fitted_count, options.max_iterations);
         arm_offset_statistic = Some(search.statistic);
         if let Some((shifted, refit)) = search.accepted {
-            problem = shifted;
-            outcome = refit;
+            if given.is_empty() {
+                (problem, outcome) = (shifted, refit);
+            } else {
+                // The scaling parts were evaluated at the first pass's model, which had no
+                // offset: evaluated again at the shifted model, and the fit redone with them.
+                let values = shifted.values(&refit.x);
+                shared = at_model(given, observations, Some(&values));
+                problem = Problem::new(observations, &shared, acceptance, shifted.shift_deg);
+                outcome = levenberg_marquardt(&problem, refit.x, [false; 4], options.max_iterations);
+            }
             arm_fitted = true;
         }
     }
+    // An offset too small for the test to call for is still possible: the arm zero's
+    // uncertainty as a shared error, at the model, and the fit redone with it.
+    if options.arm_zero_uncertainty_deg > 0.0 && options.arm_zero_uncertainty_deg.is_finite() && !arm_fitted && !unresolved && fitted[RHO_S] && weighted_input(observations) {
+        let u = options.arm_zero_uncertainty_deg;
+        let whitened = problem.shift_column(&outcome.x);
+        let additive: Vec<f64> = whitened.iter().zip(observations).map(|(d, o)| d * o.std.unwrap_or(1.0) * u).collect();
+        if additive.iter().all(|v| v.is_finite()) && additive.iter().any(|v| *v != 0.0) {
+            shared.push(SharedError { name: ARM_ZERO.to_string(), sensitivity: additive, additive: Vec::new() });
+            problem = Problem::new(observations, &shared, acceptance, 0.0);
+            let fixed = std::array::from_fn(|i| !fitted[i]);
+            outcome = levenberg_marquardt(&problem, outcome.x, fixed, options.max_iterations);
+        }
+    }
+    let shared = &shared[..];
 
     if fitted[RHO_S] {
         if outcome.x[ETA] >= hi[ETA] {
@@ -1439,7 +1518,7 @@ mod tests {
         let obs: Vec<Observation> = grid().into_iter().step_by(12).collect();
         let n = obs.len();
         let shared: Vec<SharedError> = (0..3)
-            .map(|k| SharedError { name: format!("term {k}"), sensitivity: (0..n).map(|i| 0.01 * ((i * (k + 2)) % 7) as f64).collect() })
+            .map(|k| SharedError { name: format!("term {k}"), sensitivity: (0..n).map(|i| 0.01 * ((i * (k + 2)) % 7) as f64).collect(), additive: Vec::new() })
             .collect();
         let p = Params { sigma_deg: 5.0, rho_s: 0.5, rho_d: 0.9, eta: 1.5 };
         let problem = Problem::new(&obs, &shared, Some(1.0), 0.0);

@@ -64,6 +64,12 @@ pub struct Args {
     /// working-standard tile certified to ±1 % at k = 2.
     #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY, allow_negative_numbers = true)]
     pub tile_uncertainty_pct: f64,
+    /// Standard uncertainty of the detector arm's zero, degrees: the fit carries an offset
+    /// of this size as an error shared by every reading, wherever the data do not call for
+    /// fitting one. The default is the reference instrument's alignment (about 8
+    /// microsteps); 0 trusts the zero exactly.
+    #[arg(long, value_name = "DEG", default_value_t = crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG, allow_negative_numbers = true)]
+    pub arm_zero_uncertainty_deg: f64,
     /// Oldest calibration accepted, hours (at most 8760).
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
     pub max_calibration_age_h: f64,
@@ -201,6 +207,10 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
         }
     }
     let tile = Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).context("--tile-radiance-factor / --tile-uncertainty-pct")?;
+    let zero = args.arm_zero_uncertainty_deg;
+    if !(0.0..=5.0).contains(&zero) {
+        bail!("--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}");
+    }
     Ok(Checked { max_calibration_age, tile })
 }
 
@@ -364,6 +374,7 @@ fn run_on<T: Transport>(
     let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample), &mut recorder, operator)
         .with_calibration_limit(checked.max_calibration_age)
         .with_tile(checked.tile)
+        .with_arm_zero_uncertainty(args.arm_zero_uncertainty_deg)
         .resume_from(calibration, points);
     let outcome = session.run();
     recorder.bar.finish_and_clear();

@@ -94,10 +94,13 @@ pub struct PhysicsSet {
     pub lamp_drift_pct_per_h: f64,
     /// Detector arm zero error, degrees.
     pub arm_offset_deg: f64,
+    /// Standard deviation of a drawn detector arm zero error, degrees (added to the fixed
+    /// one, drawn from the seed).
+    pub arm_zero_sd_deg: f64,
 }
 
 /// `--physics ideal`: today's ideal instrument.
-pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_error_pct: 0.0, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.0 };
+pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_error_pct: 0.0, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.0, arm_zero_sd_deg: 0.0 };
 
 /// `--physics real`: the effects the uncertainty budget and the model account for, at
 /// magnitudes a built instrument has before its own calibration of them:
@@ -108,11 +111,14 @@ pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_err
 /// - tile error 0.5 %: a calibrated white tile's certificate states its radiance factor to
 ///   about ±1 % at k = 2, i.e. 0.5 % standard uncertainty;
 /// - lamp drift 0.2 %/h: INSTRUMENT.md's value, as in the ideal set;
-/// - arm offset 0.1°: the detector's zero, set at the home switch and by aligning the
-///   aperture, is good to about 8 microsteps (0.1°), small against the glossy lobe's 1.6°
-///   standard deviation in θr but seen by a fit (0.3° moves G's σ by 5 %);
+/// - arm offset N(0, 0.1°), drawn from the seed: the detector's zero, set at the home
+///   switch and by aligning the aperture, is good to about 8 microsteps (0.1°), small
+///   against the glossy lobe's 1.6° standard deviation in θr but seen by a fit (0.3° moves
+///   G's σ by 5 %); drawn like the gains and the tile, so that over many seeds the
+///   instruments are a population whose zero is known to 0.1°, the uncertainty a session
+///   assumes ([`crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]);
 /// - the detector window (1° full width) as in the ideal set.
-pub const REAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 1.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.1 };
+pub const REAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 1.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.0, arm_zero_sd_deg: 0.1 };
 
 /// Options of the simulated instrument (the same on `gonio sim` and `gonio measure --sim`).
 #[derive(clap::Args, Clone, Debug, PartialEq)]
@@ -133,7 +139,7 @@ pub struct SimOptions {
     #[arg(long, value_name = "LIST", default_value = "")]
     pub faults: String,
     /// Instrument errors to start from: ideal (exact gains and tile, no arm zero error) or
-    /// real (gain error 1 %, tile error 0.5 %, lamp drift 0.2 %/h, arm offset 0.1°); the
+    /// real (gain error 1 %, tile error 0.5 %, lamp drift 0.2 %/h, arm offset drawn N(0, 0.1°)); the
     /// options below override single values.
     #[arg(long, value_enum, default_value_t = Physics::Ideal)]
     pub physics: Physics,
@@ -149,7 +155,7 @@ pub struct SimOptions {
     /// added (2.5° standard deviation in θr).
     #[arg(long, value_name = "B", default_value_t = 0.0, allow_negative_numbers = true)]
     pub specular_bump: f64,
-    /// Detector arm zero error: the true θr is the firmware's plus DEG [ideal 0, real 0.1].
+    /// Detector arm zero error: the true θr is the firmware's plus DEG exactly [ideal 0, real: drawn N(0, 0.1°) from the seed].
     #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
     pub arm_offset: Option<f64>,
     /// Each range-gain ratio to the range before it off its nominal by N(0, PCT %), drawn
@@ -343,6 +349,8 @@ impl SimOptions {
             tile_error_pct: self.tile_error.unwrap_or(base.tile_error_pct),
             lamp_drift_pct_per_h: self.lamp_drift_pct_per_h.unwrap_or(base.lamp_drift_pct_per_h),
             arm_offset_deg: self.arm_offset.unwrap_or(base.arm_offset_deg),
+            // An offset given is the offset: nothing drawn on top.
+            arm_zero_sd_deg: if self.arm_offset.is_some() { 0.0 } else { base.arm_zero_sd_deg },
         }
     }
 
@@ -363,6 +371,7 @@ impl SimOptions {
             gain_ratio_sd: set.gain_error_pct / 100.0,
             tile_sd: set.tile_error_pct / 100.0,
             theta_r_offset_deg: set.arm_offset_deg,
+            theta_r_offset_sd_deg: set.arm_zero_sd_deg,
         };
         Ok(config)
     }
@@ -483,13 +492,13 @@ mod tests {
         let real = parsed(&["--physics", "real"]).unwrap();
         assert_eq!(real.physics_set(), REAL_PHYSICS);
         let config = real.config().unwrap();
-        assert_eq!(config.errors, InstrumentErrors { gain_ratio_sd: 0.01, tile_sd: 0.005, theta_r_offset_deg: 0.1 });
+        assert_eq!(config.errors, InstrumentErrors { gain_ratio_sd: 0.01, tile_sd: 0.005, theta_r_offset_deg: 0.0, theta_r_offset_sd_deg: 0.1 });
         assert_eq!(config.detector.lamp_drift_per_hour, 0.002);
         assert_eq!(config.detector.acceptance_deg, 1.0);
         let mixed = parsed(&["--physics", "real", "--gain-error", "2", "--arm-offset", "-0.3", "--lamp-drift-pct-per-h", "0"]).unwrap();
         assert_eq!(
             mixed.physics_set(),
-            PhysicsSet { gain_error_pct: 2.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.0, arm_offset_deg: -0.3 }
+            PhysicsSet { gain_error_pct: 2.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.0, arm_offset_deg: -0.3, arm_zero_sd_deg: 0.0 }
         );
         let ideal_plus = parsed(&["--tile-error", "1.5"]).unwrap();
         assert_eq!(ideal_plus.physics_set(), PhysicsSet { tile_error_pct: 1.5, ..IDEAL_PHYSICS });

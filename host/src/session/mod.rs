@@ -446,6 +446,8 @@ pub struct Session<'a, T: Transport> {
     max_calibration_age: Option<Duration>,
     /// The white tile's certificate, for a calibration taken in this session.
     tile: Tile,
+    /// See [`Session::with_arm_zero_uncertainty`].
+    arm_zero_uncertainty_deg: f64,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
@@ -476,7 +478,16 @@ impl<'a, T: Transport> Session<'a, T> {
             final_check_us: 0,
             max_calibration_age: None,
             tile: Tile::default(),
+            arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
         }
+    }
+
+    /// The standard uncertainty of the detector arm's zero, degrees (default
+    /// [`crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]): a shared error of every
+    /// reading in the fit wherever the data do not call for a fitted offset.
+    pub fn with_arm_zero_uncertainty(mut self, deg: f64) -> Self {
+        self.arm_zero_uncertainty_deg = deg;
+        self
     }
 
     /// The white tile's certificate for a calibration taken in this session (default:
@@ -761,7 +772,7 @@ impl<'a, T: Transport> Session<'a, T> {
         let (indices, observations): (Vec<usize>, _) = self.usable_points().unzip();
         let shared = self.shared_errors_of(&indices)?;
         let set = DataSet { sample: self.plan.sample.clone(), observations, lines: indices.iter().map(|k| k + 2).collect() };
-        let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), ..FitOptions::default() };
+        let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg, ..FitOptions::default() };
         analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None).map_err(SessionError::Fit)
     }
 

@@ -22,7 +22,9 @@ use crate::analysis::classify::{Class, REFERENCES};
 use crate::analysis::flags::Flag;
 use crate::analysis::model::{Params, RHO_D, RHO_S, SIGMA};
 use crate::instrument::link::{Client, RetryPolicy};
-use crate::instrument::sim::{LobeChoice, Physics, SimOptions, sample_params};
+use crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG;
+use crate::instrument::calibration::{DEFAULT_WHITE_RADIANCE_FACTOR, Tile};
+use crate::instrument::sim::{IDEAL_PHYSICS, LobeChoice, Physics, REAL_PHYSICS, SimOptions, sample_params};
 use crate::session::{DiscardRecorder, Outcome, Plan, Policy, PolicyChoice, Session, SimulatedOperator};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
@@ -270,6 +272,24 @@ pub fn run_with_options(case: &Case, spec: &Spec, options: SimOptions) -> Row {
     row
 }
 
+/// What the operator states of the instrument, as `--tile-uncertainty-pct` and
+/// `--arm-zero-uncertainty-deg` would: its physics' own figures (the ideal instrument's tile
+/// and zero are exact; the real one's tile is good to 0.5 %, its zero to 0.1°), so that an
+/// interval's coverage is judged against uncertainties that are true. The arm-offset cases
+/// are instruments misaligned beyond what the operator believes: the default 0.1° stated,
+/// 0.3° real.
+pub fn stated_uncertainties(case: &Case) -> (f64, f64) {
+    let set = match case.physics {
+        Physics::Ideal => IDEAL_PHYSICS,
+        Physics::Real => REAL_PHYSICS,
+    };
+    let zero = match case.effect {
+        Effect::ArmOffset(_) => DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+        _ => set.arm_zero_sd_deg,
+    };
+    (set.tile_error_pct, zero)
+}
+
 fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Params), String> {
     let truth = sample_params(case.sample).map_err(|e| e.to_string())?;
     let instrument = options.instrument(case.sample).map_err(|e| e.to_string())?;
@@ -283,8 +303,14 @@ fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Pa
         white_check: false,
         white_drift_limit: 0.005,
     };
+    let (tile_pct, arm_zero_deg) = stated_uncertainties(case);
+    let tile = Tile::new(DEFAULT_WHITE_RADIANCE_FACTOR, tile_pct).map_err(|e| e.to_string())?;
     let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
+    let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator)
+        .with_tile(tile)
+        .with_arm_zero_uncertainty(arm_zero_deg)
+        .run()
+        .map_err(|e| e.to_string())?;
     Ok((outcome, truth))
 }
 
@@ -463,15 +489,42 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
     for (c, policy, t) in &tallies {
         let case = &cases[*c];
         if case.part == Part::Coverage {
+            // One case's count is a binomial draw: with 200 sessions at a true 94 % it falls
+            // below 90 % one time in 130, and there are 48 such counts. A case holds when
+            // its count is consistent with the target (its Wilson interval meets it); the
+            // pooled coverage below must lie within the target itself.
             for (k, what) in ["σ", "ρs", "ρd"].iter().enumerate() {
-                let share = t.coverage(k);
+                let n = t.sessions - t.failed;
+                let (lo, hi) = wilson95(t.covered[k], n);
                 out.push((
-                    format!("{} {}: {what}'s 95 % interval covers the truth in {:.1} % of {} sessions", case.name(), policy_name(*policy), 100.0 * share, t.sessions),
-                    (COVERAGE_TARGET.0..=COVERAGE_TARGET.1).contains(&share),
+                    format!(
+                        "{} {}: {what}'s 95 % interval covers the truth in {:.1} % of {n} sessions (95 % CI {:.1}–{:.1} %)",
+                        case.name(),
+                        policy_name(*policy),
+                        100.0 * t.coverage(k),
+                        100.0 * lo,
+                        100.0 * hi
+                    ),
+                    n > 0 && hi >= COVERAGE_TARGET.0 && lo <= COVERAGE_TARGET.1,
                 ));
             }
         } else {
             out.push((format!("{} {}: {} confidently wrong of {}", case.name(), policy_name(*policy), t.confidently_wrong, t.sessions), t.confidently_wrong == 0));
+        }
+    }
+    for physics in [Physics::Ideal, Physics::Real] {
+        let of: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == physics).map(|(_, _, t)| t).collect();
+        let n: usize = of.iter().map(|t| t.sessions - t.failed).sum();
+        if n == 0 {
+            continue;
+        }
+        for (k, what) in ["σ", "ρs", "ρd"].iter().enumerate() {
+            let covered: usize = of.iter().map(|t| t.covered[k]).sum();
+            let share = covered as f64 / n as f64;
+            out.push((
+                format!("{} physics, all papers and policies: {what} covered in {:.1} % of {n} sessions", if physics == Physics::Real { "real" } else { "ideal" }, 100.0 * share),
+                (COVERAGE_TARGET.0..=COVERAGE_TARGET.1).contains(&share),
+            ));
         }
     }
     let ideal: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == Physics::Ideal).map(|(_, _, t)| t).collect();

@@ -220,11 +220,11 @@ pub fn draw(truth: &[(f64, f64, f64)], instrument: &Instrument, seed: u64) -> (V
     if instrument.white_rel > 0.0 {
         for &theta_i in &incidences {
             let sensitivity = obs.iter().map(|o| if o.theta_i_deg == theta_i { o.radiance_factor * instrument.white_rel } else { 0.0 }).collect();
-            shared.push(SharedError { name: format!("white θi = {theta_i}°"), sensitivity });
+            shared.push(SharedError { name: format!("white θi = {theta_i}°"), sensitivity, additive: Vec::new() });
         }
     }
     if instrument.tile_rel > 0.0 {
-        shared.push(SharedError { name: "tile certificate".into(), sensitivity: obs.iter().map(|o| o.radiance_factor * instrument.tile_rel).collect() });
+        shared.push(SharedError { name: "tile certificate".into(), sensitivity: obs.iter().map(|o| o.radiance_factor * instrument.tile_rel).collect(), additive: Vec::new() });
     }
     (obs, shared)
 }
