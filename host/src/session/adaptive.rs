@@ -14,6 +14,13 @@
 //! the gradient there means nothing, so the first batch is a probe instead: a ladder of
 //! offsets around the specular direction at the incidence angle with the strongest peak,
 //! which resolves any σ from a tenth of a degree to several degrees.
+//!
+//! A fit flagged lack-of-fit is no place to stop, nor to design on the model alone: the
+//! flag may be a false alarm (noise), or the sheet may not be the model (heavy tails, a
+//! forward lobe, a bump at specular), and only readings where the model has not been
+//! tested tell which. So a flagged fit gets a lack-of-fit batch ([`lack_of_fit_batch`]):
+//! the tails, at each incidence angle the θr farthest from every reading there, and
+//! greedy picks over the whole θr range rather than the lobe's ±10°.
 
 use crate::analysis::fit::{FitResult, Observation};
 use crate::analysis::model::{self, PlaneGeometry, SIGMA};
@@ -50,6 +57,24 @@ const CANDIDATE_HALF_WIDTH_DEG: f64 = 10.0;
 /// The probe's offsets from specular, degrees, on both sides.
 const PROBE_OFFSETS_DEG: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
 
+/// Lack-of-fit batches a session may take. One lands a single new θr per incidence angle
+/// in Strategy 1's widest gaps, which a bump or a lobe's shoulder can miss; the second
+/// puts the next one in each angle's widest gap left, so each angle then has θr no more
+/// than about 15° apart from 0 to 70°. Each costs about 8 geometries (some 6 device
+/// seconds on the reference instrument, Strategy 1 is 9.4 s): a rough paper's
+/// session at most about doubles. A flag that outlives both is the sheet's, not the noise's.
+pub const LACK_OF_FIT_BATCHES: usize = 2;
+
+/// Where the greedy design may look.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CandidateSpan {
+    /// ±10° around specular: where σ is measured, when the model holds.
+    Lobe,
+    /// The whole θr range, 0…70°: under lack of fit the model's idea of where σ is
+    /// measured is not to be trusted, and the tails are where a wrong lobe shape shows.
+    Whole,
+}
+
 /// Whether the fit pins σ down well enough to design on (else probe first).
 pub fn sigma_resolved(fit: &FitResult) -> bool {
     match (fit.sigma_deg(), fit.std_error(SIGMA)) {
@@ -65,9 +90,19 @@ pub fn sigma_rel_half_width(fit: &FitResult) -> Option<f64> {
     (sigma > 0.0 && se.is_finite()).then(|| 1.96 * se / sigma)
 }
 
-/// Every geometry the adaptive policy may choose, not yet measured.
+/// Every geometry the adaptive policy may choose around the lobe, not yet measured.
 pub fn candidates(measured: &BTreeSet<Geometry>) -> Vec<Geometry> {
-    let n = (CANDIDATE_HALF_WIDTH_DEG / CANDIDATE_STEP_DEG).round() as i32;
+    candidates_over(measured, CandidateSpan::Lobe)
+}
+
+/// Every geometry the adaptive policy may choose within `span`, not yet measured.
+pub fn candidates_over(measured: &BTreeSet<Geometry>, span: CandidateSpan) -> Vec<Geometry> {
+    let half_width = match span {
+        CandidateSpan::Lobe => CANDIDATE_HALF_WIDTH_DEG,
+        // Far enough from any θi to reach both ends of 0…70°; the range check trims it.
+        CandidateSpan::Whole => f64::from(THETA_R_MAX_DEG),
+    };
+    let n = (half_width / CANDIDATE_STEP_DEG).round() as i32;
     let mut out = Vec::new();
     for theta_i in INCIDENCE_DEG {
         for k in -n..=n {
@@ -103,6 +138,61 @@ pub fn probe(observations: &[Observation], measured: &BTreeSet<Geometry>) -> Vec
         .filter_map(|d| Geometry::from_deg(f64::from(best), f64::from(best) + d))
         .filter(|g| g.theta_r.deg() <= f64::from(THETA_R_MAX_DEG) && !measured.contains(g))
         .collect()
+}
+
+/// The tails: at each incidence angle of the schedule, `per_incidence` whole-degree θr in
+/// 0…70° each as far as can be from every reading at that angle and from the ones picked
+/// before it (the widest gaps' middles). After Strategy 1 (θr = 0, θi, 70°) these are
+/// the lobe's far flanks, the region past specular toward grazing and the retro side:
+/// where a lobe with heavier tails or forward scattering departs from the model. On a tie
+/// the larger θr, past specular, where fibrous papers scatter forward.
+pub fn tails(measured: &BTreeSet<Geometry>, per_incidence: usize) -> Vec<Geometry> {
+    let mut out = Vec::new();
+    for theta_i in INCIDENCE_DEG {
+        let Some(specular) = Geometry::from_deg(f64::from(theta_i), f64::from(theta_i)) else { continue };
+        let mut taken: Vec<f64> = measured.iter().filter(|g| g.theta_i == specular.theta_i).map(|g| g.theta_r.deg()).collect();
+        for _ in 0..per_incidence {
+            let farthest = (0..=THETA_R_MAX_DEG)
+                .filter_map(|theta_r| {
+                    let g = Geometry::from_deg(f64::from(theta_i), f64::from(theta_r))?;
+                    let gap = taken.iter().map(|t| (t - f64::from(theta_r)).abs()).fold(f64::INFINITY, f64::min);
+                    // Nothing measured at this angle yet: any θr is as far; specular first.
+                    let gap = if gap.is_finite() { gap } else { f64::from(THETA_R_MAX_DEG) - (f64::from(theta_r - theta_i)).abs() };
+                    (gap >= 1.0 && !measured.contains(&g)).then_some((g, gap))
+                })
+                .fold(None, |best: Option<(Geometry, f64)>, (g, gap)| if best.is_none_or(|(_, b)| gap >= b) { Some((g, gap)) } else { best });
+            let Some((g, _)) = farthest else { break };
+            taken.push(g.theta_r.deg());
+            out.push(g);
+        }
+    }
+    out
+}
+
+/// The batch for a fit flagged lack-of-fit: the tails ([`tails`], one θr per incidence
+/// angle) and, besides, `batch / 2` greedy picks ([`next_batch_over`]) over the whole θr
+/// range; when the fit gives no design (σ not resolved, no information matrix), a second
+/// round of tails instead. Cheap on purpose: its job is to tell a false alarm from a sheet
+/// that is not the model, not to pin σ down.
+pub fn lack_of_fit_batch(
+    fit: &FitResult,
+    observations: &[Observation],
+    measured: &BTreeSet<Geometry>,
+    here: Geometry,
+    motion: &Motion,
+    integration_ms: u32,
+    batch: usize,
+) -> Vec<Geometry> {
+    let mut chosen = tails(measured, 1);
+    let mut taken = measured.clone();
+    taken.extend(chosen.iter().copied());
+    let designed = next_batch_over(fit, observations, &taken, here, motion, integration_ms, batch / 2, CandidateSpan::Whole).unwrap_or_default();
+    if designed.is_empty() {
+        chosen.extend(tails(&taken, 1));
+    } else {
+        chosen.extend(designed);
+    }
+    chosen
 }
 
 /// Predicted standard uncertainty of a reading of radiance factor `r`: s² = a² + (b·r)²,
@@ -146,6 +236,21 @@ pub fn next_batch(
     integration_ms: u32,
     batch: usize,
 ) -> Option<Vec<Geometry>> {
+    next_batch_over(fit, observations, measured, here, motion, integration_ms, batch, CandidateSpan::Lobe)
+}
+
+/// [`next_batch`] with the candidates within `span`.
+#[allow(clippy::too_many_arguments)]
+pub fn next_batch_over(
+    fit: &FitResult,
+    observations: &[Observation],
+    measured: &BTreeSet<Geometry>,
+    here: Geometry,
+    motion: &Motion,
+    integration_ms: u32,
+    batch: usize,
+    span: CandidateSpan,
+) -> Option<Vec<Geometry>> {
     let free = fit.model.0;
     if !free[SIGMA] {
         return None;
@@ -169,7 +274,7 @@ pub fn next_batch(
     }
     let mut cov = crate::analysis::fit::inverse_spd(&information, &free)?;
     let per_reading_s = motion.per_geometry_us(integration_ms) as f64 * 1e-6;
-    let mut pool: Vec<(Geometry, [f64; 4], f64)> = candidates(measured)
+    let mut pool: Vec<(Geometry, [f64; 4], f64)> = candidates_over(measured, span)
         .into_iter()
         .map(|g| {
             let (value, j) = fitted_gradient(g.theta_i.deg(), g.theta_r.deg());
@@ -220,6 +325,55 @@ mod tests {
         assert!(all.iter().all(|g| g.theta_r.deg() >= 0.0 && g.theta_r.deg() <= 70.0 && g.theta_r != g.theta_i));
         let measured: BTreeSet<Geometry> = all.iter().take(5).copied().collect();
         assert_eq!(candidates(&measured).len(), all.len() - 5);
+    }
+
+    fn strategy1() -> BTreeSet<Geometry> {
+        protocol::schedules::strategy1(12).map(|s| s.iter().copied().collect()).unwrap_or_default()
+    }
+
+    fn whole(theta_i: i32, theta_r: i32) -> Geometry {
+        Geometry::from_whole_deg(theta_i, theta_r)
+    }
+
+    #[test]
+    fn tails_after_strategy1_fill_each_angles_widest_gap() {
+        // Strategy 1 has θr = 0, θi and 70° at each angle: the widest gaps' middles, the
+        // tie at 45° (22 and 23 both 22° from a reading) going past specular's side.
+        assert_eq!(tails(&strategy1(), 1), vec![whole(20, 45), whole(30, 50), whole(45, 23), whole(60, 30)]);
+    }
+
+    #[test]
+    fn tails_spread_out_never_repeat_a_reading_and_stay_in_range() {
+        let measured = strategy1();
+        let picked = tails(&measured, 3);
+        assert_eq!(picked.len(), 12);
+        let distinct: BTreeSet<Geometry> = picked.iter().copied().collect();
+        assert_eq!(distinct.len(), picked.len());
+        for g in &picked {
+            assert!(!measured.contains(g), "{g:?} was measured");
+            assert!((0.0..=70.0).contains(&g.theta_r.deg()) && g.theta_r.deg().fract() == 0.0, "{g:?}");
+            // Three more at an angle leave no θr more than 15° from a reading there.
+            let at: Vec<f64> = measured.iter().chain(&picked).filter(|h| h.theta_i == g.theta_i).map(|h| h.theta_r.deg()).collect();
+            assert!((0..=70).all(|r| at.iter().any(|t| (t - f64::from(r)).abs() <= 15.0)), "{at:?}");
+        }
+        // Nothing left to add where every whole degree is measured; nothing at all measured:
+        // specular first.
+        let grid: BTreeSet<Geometry> = protocol::schedules::full_grid().iter().copied().collect();
+        assert!(tails(&grid, 2).is_empty());
+        assert_eq!(tails(&BTreeSet::new(), 1), vec![whole(20, 20), whole(30, 30), whole(45, 45), whole(60, 60)]);
+    }
+
+    #[test]
+    fn the_whole_span_reaches_both_ends_of_the_detection_range() {
+        let lobe: BTreeSet<Geometry> = candidates(&BTreeSet::new()).into_iter().collect();
+        let all: BTreeSet<Geometry> = candidates_over(&BTreeSet::new(), CandidateSpan::Whole).into_iter().collect();
+        assert!(lobe.is_subset(&all));
+        for theta_i in INCIDENCE_DEG {
+            assert!(all.contains(&whole(theta_i, 0)) && all.contains(&whole(theta_i, 70)), "θi = {theta_i}°");
+            assert!(!lobe.contains(&whole(theta_i, 0)), "θi = {theta_i}°: 0° is beyond the lobe's ±10°");
+        }
+        // 0…70° at 0.5°, specular left out, at each of the four angles.
+        assert_eq!(all.len(), 4 * 140);
     }
 
     #[test]

@@ -231,6 +231,10 @@ pub struct Refinement {
     pub added: usize,
     /// Why.
     pub reason: String,
+    /// An adaptive batch taken because the fit was flagged lack-of-fit (the tails; see
+    /// [`adaptive::lack_of_fit_batch`]): these count against [`adaptive::LACK_OF_FIT_BATCHES`].
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub lack_of_fit: bool,
 }
 
 /// What the session went through to keep the instrument and the link in hand.
@@ -692,7 +696,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 (Some(sigma), None) => format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction"),
             };
             self.decide(&format!("refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"));
-            refinements.push(Refinement { delta_deg: Some(delta), added, reason });
+            refinements.push(Refinement { delta_deg: Some(delta), added, reason, lack_of_fit: false });
             self.measure(&format!("strategy 2, δ = {delta}° ({added} new geometries)"), &schedule)?;
             *report = self.analyse()?;
             fits.push(FitStep { after: format!("strategy2 δ={delta}°"), report: to_json(report) });
@@ -704,36 +708,98 @@ impl<'a, T: Transport> Session<'a, T> {
     /// uncertainty most per device second, until the targets are met. Rough papers whose
     /// Strategy 1 already passes σ_l stop at once: their class rests on ρs and ρd, which
     /// Strategy 1 measures, and more readings near the peak would not move it.
+    ///
+    /// Except when the fit is flagged lack-of-fit: then no paper stops while lack-of-fit
+    /// batches remain ([`adaptive::LACK_OF_FIT_BATCHES`], within `max_batches`). Each samples
+    /// the tails and the whole θr range, so the flag either goes (a false alarm: the policy
+    /// carries on as without it) or stays with more evidence behind it. A flag that outlives
+    /// the budget ends the batches and the result keeps it: the class cannot settle under it
+    /// (its confidence is capped), so only a σ ≤ σ_l still gets batches, designed over the
+    /// whole θr range, until σ > σ_l.
     fn refine_adaptively(&mut self, targets: AdaptiveTargets, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
-        let done_before = refinements.iter().filter(|r| r.delta_deg.is_none()).count();
-        for batch_number in done_before + 1..=targets.max_batches {
+        let adaptive_batches = |refinements: &[Refinement]| refinements.iter().filter(|r| r.delta_deg.is_none()).count();
+        let lack_of_fit_batches = |refinements: &[Refinement]| refinements.iter().filter(|r| r.lack_of_fit).count();
+        for batch_number in adaptive_batches(refinements) + 1..=targets.max_batches {
+            let flagged = report.fit.lack_of_fit;
             let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
             let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
             let precise = adaptive::sigma_rel_half_width(&report.fit).is_some_and(|w| w <= targets.sigma_rel_half_width);
             let settled = report.classification.confidence >= targets.class_confidence;
-            if sigma_ok && (rough || (precise && settled)) {
+            let taken = lack_of_fit_batches(refinements);
+            // The flag outlived its batches: the model does not describe this sheet, and the
+            // class cannot settle under it (its confidence is capped), so the only target
+            // left is the paper's σ > σ_l.
+            let confirmed = flagged && taken >= adaptive::LACK_OF_FIT_BATCHES;
+            if confirmed && sigma_ok {
+                self.decide(&format!(
+                    "adaptive: lack-of-fit ({}) persists after {taken} lack-of-fit batches: the model does not describe this sheet; no more batches, the result keeps the flag",
+                    lack_of_fit_evidence(&report.fit)
+                ));
+                return Ok(());
+            }
+            if !flagged && refinements.last().is_some_and(|r| r.lack_of_fit) {
+                self.decide(&format!(
+                    "adaptive: lack-of-fit gone with the readings of {taken} lack-of-fit batch{} ({}): a false alarm; the policy goes on as without it",
+                    if taken == 1 { "" } else { "es" },
+                    lack_of_fit_evidence(&report.fit)
+                ));
+            }
+            if !flagged && sigma_ok && (rough || (precise && settled)) {
                 return Ok(());
             }
             let observations: Vec<Observation> = self.usable_points().map(|(_, o)| o).collect();
             let measured = self.measured();
             let here = self.arm_position()?;
             let integration_ms = u32::from(self.plan.integration_ms);
-            let (batch, reason) = if adaptive::sigma_resolved(&report.fit) {
-                let batch = adaptive::next_batch(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch);
+            let resolved = adaptive::sigma_resolved(&report.fit);
+            // A flag on a fit that has not seen the peak says little about the lobe: the
+            // probe comes first, the tails after it if the flag stays.
+            let probe = (!resolved).then(|| adaptive::probe(&observations, &measured)).filter(|b| !b.is_empty());
+            let (batch, reason, for_lack_of_fit) = if let Some(probe) = probe {
+                (Some(probe), "σ not resolved: probe around the strongest specular peak".to_string(), false)
+            } else if flagged && !confirmed {
+                let batch = adaptive::lack_of_fit_batch(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch);
+                let reason = format!(
+                    "lack-of-fit ({}): sampling the tails and the whole θr range (lack-of-fit batch {} of {})",
+                    lack_of_fit_evidence(&report.fit),
+                    taken + 1,
+                    adaptive::LACK_OF_FIT_BATCHES
+                );
+                (Some(batch), reason, true)
+            } else if resolved {
+                // Under a flag the model's idea of where σ is measured is not to be trusted:
+                // the design looks over the whole θr range.
+                let span = if flagged { adaptive::CandidateSpan::Whole } else { adaptive::CandidateSpan::Lobe };
+                let batch = adaptive::next_batch_over(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch, span);
                 let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                (batch, format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { "" } else { ", σ ≤ σ_l" }))
+                let mut reason = format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { "" } else { ", σ ≤ σ_l" });
+                if confirmed {
+                    reason.push_str(&format!(
+                        "; lack-of-fit ({}) persists after {taken} lack-of-fit batches: the result keeps the flag, the batches go on over the whole θr range only until σ > σ_l",
+                        lack_of_fit_evidence(&report.fit)
+                    ));
+                }
+                (batch, reason, false)
             } else {
-                (Some(adaptive::probe(&observations, &measured)), "σ not resolved: probe around the strongest specular peak".to_string())
+                (None, String::new(), false)
             };
             let Some(batch) = batch.filter(|b| !b.is_empty()) else {
-                self.decide("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l");
+                let flag = if flagged { "; the result keeps the lack-of-fit flag" } else { "" };
+                self.decide(&format!("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l{flag}"));
                 return Ok(());
             };
             self.decide(&format!("adaptive batch {batch_number} ({} geometries): {reason}", batch.len()));
-            refinements.push(Refinement { delta_deg: None, added: batch.len(), reason });
+            refinements.push(Refinement { delta_deg: None, added: batch.len(), reason, lack_of_fit: for_lack_of_fit });
             self.measure(&format!("adaptive batch {batch_number} ({} geometries)", batch.len()), &batch)?;
             *report = self.analyse()?;
             fits.push(FitStep { after: format!("adaptive batch {batch_number}"), report: to_json(report) });
+        }
+        if report.fit.lack_of_fit {
+            self.decide(&format!(
+                "adaptive: the {} batches are spent and lack-of-fit ({}) remains: the result keeps the flag",
+                targets.max_batches,
+                lack_of_fit_evidence(&report.fit)
+            ));
         }
         Ok(())
     }
@@ -776,6 +842,17 @@ impl<'a, T: Transport> Session<'a, T> {
         analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None).map_err(SessionError::Fit)
     }
 
+}
+
+/// What flagged a fit lack-of-fit, in words: the χ² test's and the structure test's
+/// p-values, where they were made.
+fn lack_of_fit_evidence(fit: &crate::analysis::fit::FitResult) -> String {
+    // Plain below a thousandth would read 0.000 for a flag's typical p-values.
+    let p = |p: f64| if p >= 1e-3 { format!("{p:.3}") } else { format!("{p:.1e}") };
+    let chi2 = fit.gof_p.map(|v| format!("χ² p = {}", p(v)));
+    let structure = fit.structure.map(|s| format!("structure p = {}", p(s.p_value)));
+    let parts: Vec<String> = chi2.into_iter().chain(structure).collect();
+    if parts.is_empty() { "no test p-value".to_string() } else { parts.join(", ") }
 }
 
 /// How one step of the session failed: something to recover from, or the end.
