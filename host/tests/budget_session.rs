@@ -10,7 +10,7 @@ use host::instrument::calibration::Calibration;
 use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::SimOptions;
 use host::session::gains;
-use host::session::{DiscardRecorder, MeasuredPoint, Outcome, Plan, Policy, Session, SimulatedOperator};
+use host::session::{DiscardRecorder, Outcome, Plan, Policy, Session, SimulatedOperator};
 
 /// A whole session of `sample` on the simulator `options` make, and the instrument's truth.
 fn run(sample: &str, options: &SimOptions, policy: Policy) -> (Outcome, hil_sim::Truth) {

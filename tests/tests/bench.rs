@@ -12,7 +12,7 @@ use host::analysis::flags::Flag;
 use host::instrument::calibration::Calibration;
 use host::instrument::link::{Client, RetryPolicy, Transport};
 use host::instrument::sim::SimOptions;
-use host::session::{DiscardRecorder, DelayedOperator, LinkLoss, MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, PolicyChoice, Progress, Recorder, Session, SessionError};
+use host::session::{DiscardRecorder, DelayedOperator, LinkLoss, MeasuredPoint, Operator, Outcome, Placement, Plan, Policy, PolicyChoice, Session, SessionError};
 use protocol::{Command, FrameDecoder, Request};
 use std::collections::BTreeSet;
 use std::time::Duration;
