@@ -20,7 +20,7 @@ enum Command {
     Ports(host::cli::ports::Args),
     /// Serve the simulated instrument on a pseudo-terminal (prints its path first).
     Sim(host::cli::sim::Args),
-    /// Compare two measured sheets: same paper stock or not?
+    /// Compare two measured sheets: the likelihood ratio of "same paper stock" against "different stocks".
     Compare(host::cli::compare::Args),
     /// Speed against accuracy: whole simulated sessions over papers, seeds and policies.
     Trade(host::cli::trade::Args),
@@ -28,6 +28,8 @@ enum Command {
     Reliability(host::cli::reliability::Args),
     /// Accuracy on sheets and instruments that are not the model: coverage of the intervals, never confidently wrong.
     Accuracy(host::cli::accuracy::Args),
+    /// Forensic validation: a simulated population of stocks, likelihood ratios of held-out pairs, Cllr and a Tippett plot.
+    Forensic(host::cli::forensic::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
 }
@@ -43,6 +45,7 @@ fn main() -> ExitCode {
         Command::Trade(args) => host::cli::trade::run(args),
         Command::Reliability(args) => host::cli::reliability::run(args),
         Command::Accuracy(args) => host::cli::accuracy::run(args),
+        Command::Forensic(args) => host::cli::forensic::run(args),
         Command::Verify(args) => host::cli::verify::run(args),
     };
     match result {

@@ -57,52 +57,51 @@ fn glossy(sample: &str, sigma: f64, rho_s: f64, rho_d: f64, eta: f64) -> Value {
     session(sample, [Some(sigma), Some(rho_s), Some(rho_d), Some(eta)], "G", covariance(U_GLOSSY, -0.6))
 }
 
-fn run_json(a: &Path, b: &Path, extra: &[&str]) -> Value {
+/// `gonio compare --json`: the object and the exit code (0 same, 1 different, 3 inconclusive).
+fn run_json(a: &Path, b: &Path, extra: &[&str]) -> (Value, i32) {
     let out = gonio().arg("compare").arg("--json").args(extra).arg(a).arg(b).output().expect("run gonio");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&out.stdout).expect("one JSON object")
+    let code = out.status.code().expect("an exit code");
+    assert!([0, 1, 3].contains(&code), "exit {code}: {}", String::from_utf8_lossy(&out.stderr));
+    (serde_json::from_slice(&out.stdout).expect("one JSON object"), code)
 }
 
 #[test]
-fn identical_sheets_are_not_distinguishable() {
+fn identical_sheets_support_the_same_stock() {
     let dir = temp_dir("identical");
     let a = write_session(&dir, "a", &glossy("sheet-1", 0.8, 57.8, 0.855, 1.19));
     let b = write_session(&dir, "b", &glossy("sheet-2", 0.8, 57.8, 0.855, 1.19));
-    let v = run_json(&a, &b, &[]);
-    assert_eq!(v["distinguishable"], false);
-    assert!((v["p_value"].as_f64().unwrap() - 1.0).abs() < 1e-12, "{v}");
-    assert_eq!(v["distance"].as_f64(), Some(0.0));
-    assert_eq!(v["dof"], 4);
-    assert_eq!(v["alpha"].as_f64(), Some(0.01));
-    assert_eq!((v["class_a"].as_str(), v["class_b"].as_str()), (Some("G"), Some("G")));
-    for name in ["sigma", "rho_s", "rho_d", "eta"] {
-        assert_eq!(v["z"][name].as_f64(), Some(0.0), "{name}");
-    }
-    // The table says so too; a session.json path works as well as its folder.
+    let (v, code) = run_json(&a, &b, &[]);
+    assert_eq!(code, 0, "{v}");
+    assert!(v["log10_lr"].as_f64().unwrap() > 1.0, "{v}");
+    assert_eq!(v["support"], "same-stock");
+    assert!(v["verbal"].as_str().unwrap().contains("support for the same stock"), "{v}");
+    assert_eq!(v["population"]["source"]["kind"], "default");
+    assert_eq!(v["n_spots"], serde_json::json!([1, 1]));
+    assert_eq!(v["parameters"], serde_json::json!(["sigma_deg", "rho_s", "rho_d"]));
+    assert_eq!((v["a"]["class"].as_str(), v["b"]["class"].as_str()), (Some("G"), Some("G")));
+    // The report says so too, with labelled intervals; a session.json path works as well as its folder.
     let out = gonio().arg("compare").arg(&a).arg(b.join("session.json")).output().expect("run gonio");
     let table = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && table.contains("not distinguishable at α = 0.01"), "{table}");
+    assert_eq!(out.status.code(), Some(0), "{table}");
+    assert!(table.contains("95 % interval") && table.contains("likelihood ratio") && table.contains("population: the default"), "{table}");
+    assert!(table.contains("within-sheet variation is unknown"), "one spot each: said: {table}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
-fn sheets_ten_sigma_apart_are_distinguishable() {
+fn sheets_far_apart_support_different_stocks_and_exit_1() {
     let dir = temp_dir("far");
     let a = write_session(&dir, "a", &glossy("a", 0.8, 57.8, 0.855, 1.19));
-    // ρd 10 standard uncertainties higher; in log space z = ln(1 + 10u/x) / sqrt((u/x)² + (u/x')²).
-    let rho_d_b = 0.855 + 10.0 * U_GLOSSY[2];
-    let b = write_session(&dir, "b", &glossy("b", 0.8, 57.8, rho_d_b, 1.19));
-    let v = run_json(&a, &b, &[]);
-    assert_eq!(v["distinguishable"], true);
-    assert_eq!(v["reason"], "p < alpha");
-    assert!(v["p_value"].as_f64().unwrap() < 1e-6, "{v}");
-    let u = U_GLOSSY[2];
-    let expected_z = (rho_d_b / 0.855).ln() / ((u / 0.855).powi(2) + (u / rho_d_b).powi(2)).sqrt();
-    let z = v["z"]["rho_d"].as_f64().unwrap();
-    assert!((z - expected_z).abs() < 1e-9 && z > 6.0, "z {z} vs {expected_z}");
-    // Only ρd differs and the covariances are block-diagonal apart from ρs–η, so the
-    // distance is |z_ρd|.
-    assert!((v["distance"].as_f64().unwrap() - z).abs() < 1e-9);
+    // ρd 20 % higher: far beyond the 3 % spot-to-spot variation of the default population.
+    let b = write_session(&dir, "b", &glossy("b", 0.8, 57.8, 0.855 * 1.2, 1.19));
+    let (v, code) = run_json(&a, &b, &[]);
+    assert_eq!(code, 1, "{v}");
+    assert!(v["log10_lr"].as_f64().unwrap() < -1.0, "{v}");
+    assert_eq!(v["support"], "different-stocks");
+    // ρd carries it: its contribution is the most negative.
+    let contributions = v["contributions"].as_array().unwrap();
+    let worst = contributions.iter().min_by(|x, y| x["log10_lr"].as_f64().unwrap().total_cmp(&y["log10_lr"].as_f64().unwrap())).unwrap();
+    assert_eq!(worst["parameter"], "rho_d", "{v}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -123,22 +122,18 @@ fn one_sigma_apart_is_not_distinguishable_and_alpha_is_respected() {
 }
 
 #[test]
-fn different_classes_are_distinguishable_whatever_p_says() {
+fn a_class_boundary_between_two_sheets_is_not_evidence_of_different_stocks() {
     let dir = temp_dir("classes");
-    let a = write_session(&dir, "a", &session("a", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-II", covariance([0.5, 0.02, 0.01, 0.0], 0.0)));
+    let a = write_session(&dir, "a", &session("a", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-II", covariance([0.05, 0.002, 0.001, 0.0], 0.0)));
     // Same numbers, other class (as a sheet right at a group boundary could get).
-    let b = write_session(&dir, "b", &session("b", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-I", covariance([0.5, 0.02, 0.01, 0.0], 0.0)));
-    let v = run_json(&a, &b, &[]);
-    assert_eq!(v["distinguishable"], true);
-    assert_eq!(v["reason"], "different classes");
-    assert!(v["p_value"].as_f64().unwrap() > 0.99);
-    assert_eq!((v["class_a"].as_str(), v["class_b"].as_str()), (Some("rough-II"), Some("rough-I")));
-    // η at its bound has zero variance: not compared.
-    assert_eq!(v["dof"], 3);
-    assert!(v["z"]["eta"].is_null());
+    let b = write_session(&dir, "b", &session("b", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-I", covariance([0.05, 0.002, 0.001, 0.0], 0.0)));
+    let (v, code) = run_json(&a, &b, &[]);
+    assert_eq!(code, 0, "the parameters agree: {v}");
+    assert!(v["log10_lr"].as_f64().unwrap() > 1.0, "{v}");
+    assert_eq!((v["a"]["class"].as_str(), v["b"]["class"].as_str()), (Some("rough-II"), Some("rough-I")));
     let out = gonio().arg("compare").arg(&a).arg(&b).output().expect("run gonio");
     let table = String::from_utf8_lossy(&out.stdout);
-    assert!(table.contains("DISTINGUISHABLE: different classes (rough-II vs rough-I)"), "{table}");
+    assert!(table.contains("not the class boundaries"), "{table}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -190,13 +185,14 @@ fn bad_inputs_name_the_file_and_the_key() {
     let e = compare::parse_session(Path::new("s.json"), "{\"result\": {}}").expect_err("no sample");
     assert!(e.to_string().contains("`sample`"), "{e}");
 
-    // The command line: non-zero exit, the file and key on stderr.
+    // The command line: exit 2 (an error, apart from the verdicts' 0, 1 and 3), the file
+    // and key on stderr.
     let out = gonio().arg("compare").arg(&good).arg(&no_cov).output().expect("run gonio");
-    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("no-cov") && stderr.contains("result.covariance"), "{stderr}");
-    let out = gonio().args(["compare", "--alpha", "1.5"]).arg(&good).arg(&good).output().expect("run gonio");
-    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--alpha"));
+    let out = gonio().args(["compare", "--no-such-option"]).arg(&good).arg(&good).output().expect("run gonio");
+    assert_eq!(out.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

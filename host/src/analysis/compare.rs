@@ -86,6 +86,16 @@ pub struct SessionResult {
     pub covariance: [[f64; 4]; 4],
 }
 
+impl SessionResult {
+    /// The sheet it measured, as the evidence weighs it: one spot (σ, ρs, ρd and their
+    /// covariance; a parameter the session left null stays undetermined).
+    pub fn sheet(&self) -> crate::analysis::evidence::Sheet {
+        let values = std::array::from_fn(|i| self.values[i]);
+        let covariance = std::array::from_fn(|r| std::array::from_fn(|c| self.covariance[r][c]));
+        crate::analysis::evidence::Sheet { spots: vec![crate::analysis::evidence::Spot { values, covariance }] }
+    }
+}
+
 /// The `session.json` of a session folder, or the path itself when it is a file.
 pub fn session_file(path: &Path) -> PathBuf {
     if path.is_dir() { path.join("session.json") } else { path.to_path_buf() }

@@ -5,6 +5,7 @@ pub mod classify;
 pub mod gof;
 pub mod linalg;
 pub mod compare;
+pub mod evidence;
 pub mod fit;
 pub mod flags;
 pub mod model;

@@ -1,19 +1,28 @@
-//! `gonio compare A B`: are two measured sheets distinguishable, or could they be the same
-//! paper stock? A and B are session folders (or their `session.json`) of `gonio measure`.
-use crate::analysis::compare::{self, Comparison, DEFAULT_ALPHA, PARAM_LABELS, SessionResult};
+//! `gonio compare A B`: how strongly do two measured sheets support "the same paper stock"
+//! over "different stocks"? A likelihood ratio from a two-level model
+//! ([`crate::analysis::evidence`]), weighed against a population of stocks. A and B are
+//! session folders (or their `session.json`) of `gonio measure`.
+use crate::analysis::compare::{self, SessionResult};
+use crate::analysis::evidence::{self, Evidence, PARAM_LABELS, Population, PopulationSource, Support};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// Exit code: the evidence supports the same stock (log10 LR ≥ 1).
+pub const EXIT_SAME: u8 = 0;
+/// Exit code: the evidence supports different stocks (log10 LR ≤ −1).
+pub const EXIT_DIFFERENT: u8 = 1;
+/// Exit code: a file could not be read or the command line was wrong.
+pub const EXIT_ERROR: u8 = 2;
+/// Exit code: inconclusive (LR between 1/10 and 10).
+pub const EXIT_INCONCLUSIVE: u8 = 3;
+
 /// Arguments of `gonio compare`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Print one JSON object instead of the table.
+    /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,
-    /// Significance level: distinguishable when the chi-square p-value is below it.
-    #[arg(long, value_name = "P", default_value_t = DEFAULT_ALPHA)]
-    pub alpha: f64,
     /// First sheet: a session folder or its session.json.
     #[arg(value_name = "A")]
     pub a: PathBuf,
@@ -22,76 +31,119 @@ pub struct Args {
     pub b: PathBuf,
 }
 
-/// The JSON object of `--json`.
-pub fn to_json(a: &SessionResult, b: &SessionResult, c: &Comparison) -> serde_json::Value {
-    let z: serde_json::Map<String, serde_json::Value> = c.parameters.iter().map(|p| (p.name.to_string(), json!(p.z))).collect();
+fn population_json(population: &Population) -> serde_json::Value {
     json!({
-        "distinguishable": c.distinguishable,
-        "reason": c.reason,
-        "p_value": c.p_value,
-        "distance": c.distance,
-        "dof": c.dof,
-        "alpha": c.alpha,
-        "z": z,
-        "class_a": c.class_a,
-        "class_b": c.class_b,
-        "sample_a": a.sample,
-        "sample_b": b.sample,
-        "file_a": a.file.display().to_string(),
-        "file_b": b.file.display().to_string(),
-        "parameters": c.parameters,
-        "correlations_dropped": c.correlations_dropped,
+        "source": population.source,
+        "stocks": population.stocks.iter().map(|(name, _)| name).collect::<Vec<_>>(),
     })
 }
 
-fn value_with_uncertainty(v: Option<f64>, u: Option<f64>) -> String {
-    match (v, u) {
-        (Some(v), Some(u)) => format!("{v:.4} ± {u:.4}"),
+/// The JSON object of `--json`.
+pub fn to_json(a: &SessionResult, b: &SessionResult, e: &Evidence, population: &Population) -> serde_json::Value {
+    let side = |r: &SessionResult| {
+        json!({
+            "file": r.file.display().to_string(),
+            "sample": r.sample,
+            "class": r.class,
+            "n_spots": 1,
+            "values": evidence::PARAMS.iter().enumerate().map(|(i, name)| (name.to_string(), json!(r.values[i]))).collect::<serde_json::Map<_, _>>(),
+            "ci95": evidence::PARAMS.iter().enumerate().map(|(i, name)| (name.to_string(), json!(interval(r, i)))).collect::<serde_json::Map<_, _>>(),
+        })
+    };
+    json!({
+        "log10_lr": e.log10_lr,
+        "verbal": e.verbal,
+        "support": e.support,
+        "population": population_json(population),
+        "n_spots": [e.n_spots.0, e.n_spots.1],
+        "within_sheet_variation_known": [e.within_known.0, e.within_known.1],
+        "parameters": e.parameters,
+        "left_out": e.left_out.iter().map(|(p, why)| json!({"parameter": p, "why": why})).collect::<Vec<_>>(),
+        "contributions": e.contributions.iter().map(|(p, v)| json!({"parameter": p, "log10_lr": v})).collect::<Vec<_>>(),
+        "a": side(a),
+        "b": side(b),
+    })
+}
+
+/// A 95 % interval (±1.96 standard uncertainties) of parameter `i`, if determined.
+fn interval(r: &SessionResult, i: usize) -> Option<(f64, f64)> {
+    let v = r.values[i]?;
+    let var = r.covariance[i][i];
+    (var >= 0.0 && var.is_finite()).then(|| (v - 1.96 * var.sqrt(), v + 1.96 * var.sqrt()))
+}
+
+fn cell(r: &SessionResult, i: usize) -> String {
+    match (r.values[i], interval(r, i)) {
+        (Some(v), Some((lo, hi))) => format!("{v:.4} [{lo:.4}, {hi:.4}]"),
         (Some(v), None) => format!("{v:.4}"),
-        _ => "—".to_string(),
+        _ => "not determined".to_string(),
     }
 }
 
-/// The human table.
-pub fn to_table(a: &SessionResult, b: &SessionResult, c: &Comparison) -> String {
-    let mut s = format!("A  {}  sample {}  class {}\n", a.file.display(), a.sample, c.class_a);
-    s += &format!("B  {}  sample {}  class {}\n", b.file.display(), b.sample, c.class_b);
-    s += &format!("  {:<12} {:>20} {:>20}  {:<7} {:>8}\n", "parameter", "A", "B", "space", "z");
-    for (p, label) in c.parameters.iter().zip(PARAM_LABELS) {
-        let z = p.z.map_or_else(|| "—".to_string(), |z| format!("{z:+.2}"));
-        let space = p.space.unwrap_or("skipped");
-        s += &format!("  {label:<12} {:>20} {:>20}  {space:<7} {z:>8}", value_with_uncertainty(p.a, p.u_a), value_with_uncertainty(p.b, p.u_b));
-        if let Some(why) = p.skipped {
-            s += &format!("  ({why})");
-        }
-        s += "\n";
+/// The report for a person.
+pub fn to_table(a: &SessionResult, b: &SessionResult, e: &Evidence, population: &Population) -> String {
+    let mut s = format!("A  {}  sample {}  class {}\n", a.file.display(), a.sample, a.class.as_deref().unwrap_or("undecided"));
+    s += &format!("B  {}  sample {}  class {}\n", b.file.display(), b.sample, b.class.as_deref().unwrap_or("undecided"));
+    s += &format!("  {:<10} {:>34} {:>34}\n", "parameter", "A: value [95 % interval]", "B: value [95 % interval]");
+    for (i, label) in PARAM_LABELS.iter().enumerate() {
+        s += &format!("  {label:<10} {:>34} {:>34}\n", cell(a, i), cell(b, i));
     }
     s += &format!(
-        "  Mahalanobis distance {:.3} over {} parameter(s); chi-square p = {}{}\n",
-        c.distance,
-        c.dof,
-        if c.p_value >= 1e-3 { format!("{:.3}", c.p_value) } else { format!("{:.2e}", c.p_value) },
-        if c.correlations_dropped { " (correlations dropped: summed covariance not positive definite)" } else { "" }
+        "  likelihood ratio (same stock : different stocks): LR = 10^{:.2}  (log10 LR = {:+.2})\n",
+        e.log10_lr, e.log10_lr
     );
-    let verdict = match c.reason {
-        "different classes" => format!("DISTINGUISHABLE: different classes ({} vs {}), whatever p says", c.class_a, c.class_b),
-        "p < alpha" => format!("DISTINGUISHABLE at α = {}: p < α, not the same paper stock", c.alpha),
-        _ => format!("not distinguishable at α = {}: p ≥ α, consistent with the same paper stock", c.alpha),
-    };
-    s += &format!("  verdict: {verdict}\n");
+    s += &format!("  {}\n", e.verbal);
+    let contributors: Vec<String> = e.contributions.iter().map(|(p, v)| format!("{p} {v:+.2}")).collect();
+    if !contributors.is_empty() {
+        s += &format!("  each parameter alone, log10 LR: {} (correlated: they do not add up to the whole)\n", contributors.join(", "));
+    }
+    for (p, why) in &e.left_out {
+        s += &format!("  {p} left out: {why}\n");
+    }
+    match population.source {
+        PopulationSource::Default => {
+            s += &format!(
+                "  population: the default ({} reference papers of Akao et al. Table 6, within-stock variation {} % per spot, an assumption: a library of your own stocks replaces it)\n",
+                population.len(),
+                100.0 * evidence::DEFAULT_WITHIN_RELATIVE_SD[0]
+            )
+        }
+        PopulationSource::Sheets { stocks, sheets, spots } => s += &format!("  population: {stocks} stocks, {sheets} sheets, {spots} spots\n"),
+    }
+    for (name, n, known) in [("A", e.n_spots.0, e.within_known.0), ("B", e.n_spots.1, e.within_known.1)] {
+        if !known {
+            s += &format!("  {name}: {n} spot: its own within-sheet variation is unknown; the population's within-stock variation stands for it\n");
+        }
+    }
+    s += "  classes are shown for information: the evidence weighs the parameters, not the class boundaries\n";
     s
 }
 
-/// Run `gonio compare`.
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(args.alpha > 0.0 && args.alpha < 1.0, "--alpha must lie strictly between 0 and 1, not {}", args.alpha);
-    let a = compare::read_session(&args.a)?;
-    let b = compare::read_session(&args.b)?;
-    let c = compare::compare(&a, &b, args.alpha);
-    if args.json {
-        println!("{}", to_json(&a, &b, &c));
-    } else {
-        print!("{}", to_table(&a, &b, &c));
+fn exit_of(e: &Evidence) -> u8 {
+    match e.support {
+        Support::SameStock => EXIT_SAME,
+        Support::DifferentStocks => EXIT_DIFFERENT,
+        Support::Inconclusive => EXIT_INCONCLUSIVE,
     }
-    Ok(ExitCode::SUCCESS)
+}
+
+/// Run `gonio compare`: exit 0 when the evidence supports the same stock, 1 different
+/// stocks, 3 inconclusive, 2 for an error.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let read = |path: &PathBuf| compare::read_session(path);
+    let (a, b) = match (read(&args.a), read(&args.b)) {
+        (Ok(a), Ok(b)) => (a, b),
+        (Err(e), _) | (_, Err(e)) => {
+            eprintln!("error: {e}");
+            return Ok(ExitCode::from(EXIT_ERROR));
+        }
+    };
+    let population = Population::default_population();
+    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &population);
+    if args.json {
+        println!("{}", to_json(&a, &b, &e, &population));
+    } else {
+        print!("{}", to_table(&a, &b, &e, &population));
+    }
+    Ok(ExitCode::from(exit_of(&e)))
 }

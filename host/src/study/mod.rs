@@ -1,5 +1,6 @@
 //! Campaigns of whole simulated sessions.
 pub mod accuracy;
+pub mod forensic;
 pub mod reliability;
 pub mod trade;
 
