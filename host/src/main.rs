@@ -30,6 +30,8 @@ enum Command {
     Accuracy(host::cli::accuracy::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
+    /// The reference library of paper stocks: add measured sheets, list, remove, export, import, search.
+    Library(host::cli::library::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +46,7 @@ fn main() -> ExitCode {
         Command::Reliability(args) => host::cli::reliability::run(args),
         Command::Accuracy(args) => host::cli::accuracy::run(args),
         Command::Verify(args) => host::cli::verify::run(args),
+        Command::Library(args) => host::cli::library::run(args),
     };
     match result {
         Ok(code) => code,
