@@ -85,6 +85,15 @@ fn add_list_export_import_and_remove_measured_sheets() {
     let out = gonio(&["library", "import", "--library", s(&copy), s(&exported)]);
     assert!(stdout(&out).contains("0 sessions added, 3 already present"), "{}", stdout(&out));
 
+    // A bad exchange file is refused at its line, and creates no library.
+    let bad = root.join("bad.jsonl");
+    std::fs::write(&bad, format!("{}not a record\n", first.lines().next().map(|l| format!("{l}\n")).unwrap_or_default())).expect("write");
+    let fresh = root.join("fresh.sqlite");
+    let out = gonio(&["library", "import", "--library", s(&fresh), s(&bad)]);
+    assert_eq!(code(&out), 1);
+    assert!(stderr(&out).contains(&format!("{}:2:", bad.display())), "{}", stderr(&out));
+    assert!(!fresh.exists());
+
     // Remove one session by a prefix of its SHA-256 (that of its MANIFEST.sha256), then a stock.
     let manifest = std::fs::read(ppc1.join("MANIFEST.sha256")).expect("manifest");
     let sha = host::output::manifest::sha256_hex(&manifest);

@@ -6,7 +6,7 @@
 //! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
 //! changes nothing); 2 a wrong command line.
 use crate::output::evidence_standin::{Population, Sheet, likelihood_ratio};
-use crate::output::library::{self, Library, OpenMode, StockInfo};
+use crate::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
 use anyhow::Context;
 use serde_json::json;
 use std::io::Write;
@@ -218,15 +218,14 @@ fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
 
 fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
     // The file is read and checked first, so a bad file creates no empty library.
-    let mut input: Box<dyn std::io::BufRead> = if args.file.as_os_str() == "-" {
-        Box::new(std::io::BufReader::new(std::io::stdin()))
+    let file = if args.file.as_os_str() == "-" {
+        ExchangeFile::read(&mut std::io::stdin().lock(), Path::new("(standard input)"))?
     } else {
-        Box::new(std::io::BufReader::new(std::fs::File::open(&args.file).with_context(|| format!("{}: cannot read", args.file.display()))?))
+        let opened = std::fs::File::open(&args.file).with_context(|| format!("{}: cannot read", args.file.display()))?;
+        ExchangeFile::read(&mut std::io::BufReader::new(opened), &args.file)?
     };
-    let mut text = Vec::new();
-    input.read_to_end(&mut text).with_context(|| format!("{}: cannot read", args.file.display()))?;
     let mut library = Library::open(path, OpenMode::Add)?;
-    let counts = library.import(&mut text.as_slice(), &args.file)?;
+    let counts = library.import(&file)?;
     println!(
         "{}: {} records read; {} session{} added, {} already present (skipped); {} new stock{}",
         path.display(),

@@ -734,16 +734,15 @@ impl Library {
         Ok(records.len())
     }
 
-    /// Import an exchange file, all or nothing: sessions already in the library (by
-    /// SHA-256) are skipped; every record is checked before anything is written.
-    /// `in_path` is only for messages.
-    pub fn import(&mut self, input: &mut dyn BufRead, in_path: &Path) -> Result<ImportCounts> {
-        let sessions = parse_exchange(input, in_path)?;
-        let mut counts = ImportCounts { records: sessions.iter().map(|s| s.sheet.spots.len()).sum(), ..Default::default() };
+    /// Import a checked exchange file ([`ExchangeFile::read`]) in one transaction:
+    /// sessions already in the library (by SHA-256) are skipped.
+    pub fn import(&mut self, file: &ExchangeFile) -> Result<ImportCounts> {
+        let (sessions, in_path) = (&file.sessions, &file.path);
+        let mut counts = ImportCounts { records: file.records(), ..Default::default() };
         let path = self.path.clone();
         let sqlite = move |source| LibraryError::Sqlite { path: path.clone(), source };
         let tx = self.write()?;
-        for session in &sessions {
+        for session in sessions {
             let present: Option<String> = tx
                 .query_row(
                     "SELECT s.name FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.session_sha256 = ?1",
@@ -871,7 +870,28 @@ fn count_spots(tx: &rusqlite::Transaction<'_>, condition: &str, id: i64) -> rusq
     tx.query_row(&format!("SELECT count(*) FROM spots p JOIN sheets h ON p.sheet_id = h.id WHERE {condition}"), [id], |r| get_count(r, 0))
 }
 
+/// An exchange file read whole and checked, ready for [`Library::import`]: reading it
+/// first means a bad file is refused before any library is opened or created.
+#[derive(Debug)]
+pub struct ExchangeFile {
+    path: PathBuf,
+    sessions: Vec<ImportedSession>,
+}
+
+impl ExchangeFile {
+    /// Read and check the whole exchange file from `input`; `path` names it in messages.
+    pub fn read(input: &mut dyn BufRead, path: &Path) -> Result<ExchangeFile> {
+        Ok(ExchangeFile { path: path.to_path_buf(), sessions: parse_exchange(input, path)? })
+    }
+
+    /// The spot records it holds.
+    pub fn records(&self) -> usize {
+        self.sessions.iter().map(|s| s.sheet.spots.len()).sum()
+    }
+}
+
 /// One session of an exchange file, its records gathered.
+#[derive(Debug)]
 struct ImportedSession {
     stock: StockInfo,
     sheet: SheetRecord,
@@ -1159,14 +1179,14 @@ mod tests {
         let exported = export_bytes(&first);
         assert_eq!(exported.iter().filter(|&&b| b == b'\n').count(), 7, "one line per spot");
         let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
-        let counts = second.import(&mut exported.as_slice(), Path::new("x.jsonl")).expect("import");
+        let counts = second.import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read")).expect("import");
         assert_eq!(counts, ImportCounts { records: 7, sessions_added: 4, sessions_skipped: 0, stocks_added: 2 });
         assert_eq!(String::from_utf8(export_bytes(&second)).expect("utf-8"), String::from_utf8(exported.clone()).expect("utf-8"));
         // Lossless: the sheets (every f64 bit, every None) are the ones added.
         assert_eq!(second.sheets().expect("sheets"), first.sheets().expect("sheets"));
         assert_eq!(second.stocks().expect("stocks"), first.stocks().expect("stocks"));
         // Again: every session is already present.
-        let counts = second.import(&mut exported.as_slice(), Path::new("x.jsonl")).expect("import");
+        let counts = second.import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read")).expect("import");
         assert_eq!(counts, ImportCounts { records: 7, sessions_added: 0, sessions_skipped: 4, stocks_added: 0 });
         assert_eq!(export_bytes(&second), exported);
     }
@@ -1184,13 +1204,11 @@ mod tests {
             (lines.iter().enumerate().filter(|(k, _)| *k != 1).map(|(_, l)| format!("{l}\n")).collect(), 0),
         ];
         for (bad, line) in cases {
-            let mut library = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
-            let err = library.import(&mut bad.as_bytes(), Path::new("x.jsonl")).expect_err("bad");
+            let err = ExchangeFile::read(&mut bad.as_bytes(), Path::new("x.jsonl")).expect_err("bad");
             assert!(matches!(err, LibraryError::Import { .. }), "{err}");
             if line > 0 {
                 assert!(err.to_string().starts_with(&format!("x.jsonl:{line}:")), "{err}");
             }
-            assert!(library.stocks().expect("stocks").is_empty(), "{err}");
         }
     }
 
