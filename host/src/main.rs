@@ -32,6 +32,8 @@ enum Command {
     Forensic(host::cli::forensic::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
+    /// The reference library of paper stocks: add measured sheets, list, remove, export, import, search.
+    Library(host::cli::library::Args),
 }
 
 fn main() -> ExitCode {
@@ -47,6 +49,7 @@ fn main() -> ExitCode {
         Command::Accuracy(args) => host::cli::accuracy::run(args),
         Command::Forensic(args) => host::cli::forensic::run(args),
         Command::Verify(args) => host::cli::verify::run(args),
+        Command::Library(args) => host::cli::library::run(args),
     };
     match result {
         Ok(code) => code,

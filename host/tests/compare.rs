@@ -5,8 +5,11 @@ use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// `gonio` with no user library: the default population, whatever this machine's user has.
 fn gonio() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let mut command = Command::new(env!("CARGO_BIN_EXE_gonio"));
+    command.env("XDG_DATA_HOME", std::env::temp_dir().join(format!("gonio-compare-no-library-{}", std::process::id())));
+    command
 }
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -85,6 +88,18 @@ fn identical_sheets_support_the_same_stock() {
     assert_eq!(out.status.code(), Some(0), "{table}");
     assert!(table.contains("95 % interval") && table.contains("likelihood ratio") && table.contains("population: the default"), "{table}");
     assert!(table.contains("within-sheet variation is unknown"), "one spot each: said: {table}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_library_too_small_for_a_population_says_so_and_the_default_is_used() {
+    let dir = temp_dir("library");
+    let a = write_session(&dir, "a", &glossy("a", 0.8, 57.8, 0.855, 1.19));
+    let b = write_session(&dir, "b", &glossy("b", 0.8, 57.8, 0.855, 1.19));
+    let missing = dir.join("no-such-library.sqlite");
+    let out = gonio().arg("compare").arg("--library").arg(&missing).arg(&a).arg(&b).output().expect("run gonio");
+    assert_eq!(out.status.code(), Some(2), "a library that is not there is an error");
+    assert!(!missing.exists(), "and is not created");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -29,6 +29,29 @@ pub struct Args {
     /// Second sheet: a session folder or its session.json.
     #[arg(value_name = "B")]
     pub b: PathBuf,
+    /// The stock library whose stocks make the population (default: the user's library,
+    /// `gonio library`, when it exists; else the documented default population).
+    #[arg(long, value_name = "FILE")]
+    pub library: Option<PathBuf>,
+}
+
+/// The population to weigh against: the library's stocks (given, or the user's default
+/// library when it exists), else the default population; with a note on which and why.
+fn population_of(library: Option<&PathBuf>) -> anyhow::Result<(Population, Option<String>)> {
+    use crate::output::library::{self, Library, OpenMode};
+    let path = match library {
+        Some(path) => path.clone(),
+        None => match library::default_path().filter(|p| p.is_file()) {
+            Some(path) => path,
+            None => return Ok((Population::default_population(), None)),
+        },
+    };
+    let sheets = Library::open(&path, OpenMode::Existing)?.sheets()?;
+    let labelled: Vec<(String, evidence::Sheet)> = sheets.into_iter().map(|(stock, _, sheet)| (stock, sheet)).collect();
+    Ok(match Population::from_sheets(&labelled) {
+        Ok(population) => (population, Some(format!("the library {}", path.display()))),
+        Err(e) => (Population::default_population(), Some(format!("the library {} cannot make a population ({e}): the default population is used", path.display()))),
+    })
 }
 
 fn population_json(population: &Population) -> serde_json::Value {
@@ -138,12 +161,23 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             return Ok(ExitCode::from(EXIT_ERROR));
         }
     };
-    let population = Population::default_population();
+    let (population, note) = match population_of(args.library.as_ref()) {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return Ok(ExitCode::from(EXIT_ERROR));
+        }
+    };
     let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &population);
     if args.json {
-        println!("{}", to_json(&a, &b, &e, &population));
+        let mut v = to_json(&a, &b, &e, &population);
+        v["population"]["note"] = json!(note);
+        println!("{v}");
     } else {
         print!("{}", to_table(&a, &b, &e, &population));
+        if let Some(note) = note {
+            println!("  population from {note}");
+        }
     }
     Ok(ExitCode::from(exit_of(&e)))
 }

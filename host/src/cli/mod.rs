@@ -7,6 +7,7 @@ pub mod measure;
 pub mod accuracy;
 pub mod compare;
 pub mod exit;
+pub mod library;
 pub mod reliability;
 pub mod trade;
 pub mod verify;

@@ -8,3 +8,5 @@ pub mod plots;
 pub mod record;
 pub mod store;
 pub mod verify;
+pub mod library;
+// TEMPORARY: stands in for analysis::evidence until it lands on main (see the file).

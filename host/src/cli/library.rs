@@ -1,0 +1,308 @@
+//! `gonio library …`: the reference library of measured paper stocks (issue 13), one
+//! SQLite file (`host::output::library`). Add session folders under a stock, list, remove,
+//! exchange with other labs (JSON Lines, `docs/LIBRARY.md`), and search: which stock is a
+//! measured sheet most likely from.
+//!
+//! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
+//! changes nothing); 2 a wrong command line.
+use crate::analysis::evidence::{Population, Sheet, likelihood_ratio};
+use crate::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
+use anyhow::Context;
+use serde_json::json;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Arguments of `gonio library`.
+#[derive(clap::Args)]
+#[command(after_help = "Exit codes: 0 done; 1 failed (nothing is changed by a refused add, import or remove); 2 a wrong command line.")]
+pub struct Args {
+    /// The library file [default: $XDG_DATA_HOME/gonio/library.sqlite, else ~/.local/share/gonio/library.sqlite].
+    #[arg(long, global = true, value_name = "FILE")]
+    pub library: Option<PathBuf>,
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// `gonio library` subcommands.
+#[derive(clap::Subcommand)]
+pub enum Command {
+    /// Add measured sheets (session folders of `gonio measure`) under a stock; creates the library when missing.
+    Add(AddArgs),
+    /// List the stocks with their sheet and spot counts.
+    List(ListArgs),
+    /// Remove a stock (with all its sheets) or one session.
+    Remove(RemoveArgs),
+    /// Write every spot to FILE as JSON Lines (the exchange format, docs/LIBRARY.md); `-` for standard output.
+    Export(ExportArgs),
+    /// Add the records of an exchange file; sessions already in the library are skipped. `-` for standard input.
+    Import(ImportArgs),
+    /// Rank the library's stocks by the likelihood ratio of a measured sheet against each.
+    Search(SearchArgs),
+}
+
+/// Arguments of `gonio library add`.
+#[derive(clap::Args)]
+pub struct AddArgs {
+    /// The stock the sheets are of (made when new).
+    #[arg(long, value_name = "NAME")]
+    pub stock: String,
+    /// Lot or ream of these sheets.
+    #[arg(long, value_name = "L")]
+    pub lot: Option<String>,
+    /// The stock's manufacturer (recorded when the library has none; must agree when it has).
+    #[arg(long, value_name = "M")]
+    pub manufacturer: Option<String>,
+    /// Notes on the stock (recorded when the library has none; must agree when it has).
+    #[arg(long, value_name = "TEXT")]
+    pub notes: Option<String>,
+    /// Add sessions whose result is flagged (`ok: false`) too.
+    #[arg(long)]
+    pub allow_flagged: bool,
+    /// Session folders, each finished and verifying as `gonio verify` checks it.
+    #[arg(required = true, value_name = "DIR")]
+    pub dirs: Vec<PathBuf>,
+}
+
+/// Arguments of `gonio library list`.
+#[derive(clap::Args)]
+pub struct ListArgs {
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Arguments of `gonio library remove`.
+#[derive(clap::Args)]
+#[group(required = true, multiple = false)]
+pub struct RemoveArgs {
+    /// Remove this stock with all its sheets.
+    #[arg(long, value_name = "NAME")]
+    pub stock: Option<String>,
+    /// Remove this session: its SHA-256 (as `list --json`/`export` show it) or a prefix only it has.
+    #[arg(long, value_name = "SHA")]
+    pub session: Option<String>,
+}
+
+/// Arguments of `gonio library export`.
+#[derive(clap::Args)]
+pub struct ExportArgs {
+    /// The exchange file to write (replaced whole), or `-`.
+    #[arg(value_name = "FILE")]
+    pub file: PathBuf,
+}
+
+/// Arguments of `gonio library import`.
+#[derive(clap::Args)]
+pub struct ImportArgs {
+    /// The exchange file to read, or `-`.
+    #[arg(value_name = "FILE")]
+    pub file: PathBuf,
+}
+
+/// Arguments of `gonio library search`.
+#[derive(clap::Args)]
+pub struct SearchArgs {
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Show only the K best stocks.
+    #[arg(long, value_name = "K")]
+    pub top: Option<usize>,
+    /// The measured sheet: a session folder (or its session.json).
+    #[arg(value_name = "DIR")]
+    pub dir: PathBuf,
+}
+
+/// Run `gonio library`.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let path = match args.library {
+        Some(path) => path,
+        None => library::default_path().context("no library file: give --library FILE (neither XDG_DATA_HOME nor HOME is set)")?,
+    };
+    match args.command {
+        Command::Add(add) => run_add(&path, add),
+        Command::List(list) => run_list(&path, list),
+        Command::Remove(remove) => run_remove(&path, remove),
+        Command::Export(export) => run_export(&path, export),
+        Command::Import(import) => run_import(&path, import),
+        Command::Search(search) => run_search(&path, search),
+    }?;
+    Ok(ExitCode::from(crate::cli::exit::OK))
+}
+
+fn short(sha256: &str) -> &str {
+    sha256.get(..12).unwrap_or(sha256)
+}
+
+fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
+    // Every folder is read and checked before the library is opened: a refused add
+    // leaves no new, empty library behind.
+    let mut sheets = Vec::new();
+    for dir in &args.dirs {
+        let sheet = library::read_session_folder(dir, args.lot.as_deref(), args.allow_flagged)?;
+        if let Some(earlier) = sheets.iter().find(|s: &&library::SheetRecord| s.session_sha256 == sheet.session_sha256) {
+            anyhow::bail!("{} and {} are the same session ({}): given twice; nothing was added", earlier.session_path, dir.display(), sheet.session_sha256);
+        }
+        sheets.push(sheet);
+    }
+    let stock = StockInfo { name: args.stock.clone(), manufacturer: args.manufacturer, notes: args.notes };
+    let mut library = Library::open(path, OpenMode::Add)?;
+    library.add_sheets(&stock, &sheets)?;
+    for sheet in &sheets {
+        println!("added {} (sample '{}', instrument {}, session {}) to stock '{}'", sheet.session_path, sheet.sample, sheet.instrument_serial, short(&sheet.session_sha256), args.stock);
+    }
+    println!("{}: {} sheet{} added", path.display(), sheets.len(), if sheets.len() == 1 { "" } else { "s" });
+    Ok(())
+}
+
+fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
+    let library = Library::open(path, OpenMode::Existing)?;
+    let stocks = library.stocks()?;
+    if args.json {
+        println!("{}", json!({"library": path.display().to_string(), "schema_version": library::SCHEMA_VERSION, "stocks": stocks}));
+        return Ok(());
+    }
+    println!("{}: {} stock{}", path.display(), stocks.len(), if stocks.len() == 1 { "" } else { "s" });
+    if stocks.is_empty() {
+        return Ok(());
+    }
+    let width = stocks.iter().map(|s| s.name.chars().count()).max().unwrap_or(0).max(5);
+    println!("  {:<width$}  {:>6}  {:>6}  manufacturer", "stock", "sheets", "spots");
+    for s in &stocks {
+        println!("  {:<width$}  {:>6}  {:>6}  {}", s.name, s.sheets, s.spots, s.manufacturer.as_deref().unwrap_or("—"));
+    }
+    Ok(())
+}
+
+fn run_remove(path: &Path, args: RemoveArgs) -> anyhow::Result<()> {
+    let mut library = Library::open(path, OpenMode::Existing)?;
+    let removed = match (&args.stock, &args.session) {
+        (Some(stock), _) => library.remove_stock(stock)?,
+        (None, Some(session)) => library.remove_session(session)?,
+        (None, None) => anyhow::bail!("give --stock NAME or --session SHA"),
+    };
+    for sha in &removed.sessions {
+        println!("removed session {sha}");
+    }
+    for stock in &removed.stocks {
+        println!("removed stock '{stock}'");
+    }
+    println!("{}: {} session{} and {} spot{} removed", path.display(), removed.sessions.len(), if removed.sessions.len() == 1 { "" } else { "s" }, removed.spots, if removed.spots == 1 { "" } else { "s" });
+    Ok(())
+}
+
+fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
+    let library = Library::open(path, OpenMode::Existing)?;
+    if args.file.as_os_str() == "-" {
+        let stdout = std::io::stdout();
+        library.export(&mut stdout.lock(), Path::new("(standard output)"))?;
+        return Ok(());
+    }
+    // Written beside the target and renamed over it: an interrupted export never leaves
+    // a half file that a later import would take for a whole one.
+    let dir = args.file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let mut temp = tempfile::NamedTempFile::new_in(dir).with_context(|| format!("{}: cannot write there", dir.display()))?;
+    let records = {
+        let mut out = std::io::BufWriter::new(temp.as_file_mut());
+        let records = library.export(&mut out, &args.file)?;
+        out.flush().with_context(|| args.file.display().to_string())?;
+        records
+    };
+    temp.as_file().sync_all().with_context(|| args.file.display().to_string())?;
+    temp.persist(&args.file).with_context(|| format!("{}: cannot write", args.file.display()))?;
+    eprintln!("{}: {records} record{} (one per spot) written to {}", path.display(), if records == 1 { "" } else { "s" }, args.file.display());
+    Ok(())
+}
+
+fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
+    // The file is read and checked first, so a bad file creates no empty library.
+    let file = if args.file.as_os_str() == "-" {
+        ExchangeFile::read(&mut std::io::stdin().lock(), Path::new("(standard input)"))?
+    } else {
+        let opened = std::fs::File::open(&args.file).with_context(|| format!("{}: cannot read", args.file.display()))?;
+        ExchangeFile::read(&mut std::io::BufReader::new(opened), &args.file)?
+    };
+    let mut library = Library::open(path, OpenMode::Add)?;
+    let counts = library.import(&file)?;
+    println!(
+        "{}: {} records read; {} session{} added, {} already present (skipped); {} new stock{}",
+        path.display(),
+        counts.records,
+        counts.sessions_added,
+        if counts.sessions_added == 1 { "" } else { "s" },
+        counts.sessions_skipped,
+        counts.stocks_added,
+        if counts.stocks_added == 1 { "" } else { "s" }
+    );
+    Ok(())
+}
+
+/// One stock's result in `search`.
+#[derive(serde::Serialize)]
+struct Ranked {
+    stock: String,
+    sheets: usize,
+    spots: usize,
+    log10_lr: f64,
+    verbal: String,
+}
+
+fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
+    let measured = crate::analysis::compare::read_session(&args.dir)?;
+    let query = Sheet {
+        spots: vec![crate::analysis::evidence::Spot {
+            values: [measured.values[0], measured.values[1], measured.values[2]],
+            covariance: std::array::from_fn(|i| std::array::from_fn(|j| measured.covariance[i][j])),
+        }],
+    };
+    // The measured sheet, when it is itself in the library, is left out of its stock and
+    // of the population: it would otherwise be evidence for itself.
+    let own_identity = if args.dir.is_dir() { library::session_identity(&args.dir).ok() } else { None };
+    let library = Library::open(path, OpenMode::Existing)?;
+    let all = library.sheets()?;
+    let excluded = own_identity.filter(|own| all.iter().any(|(_, sha, _)| sha == own));
+    let sheets: Vec<(String, String, Sheet)> = all.into_iter().filter(|(_, sha, _)| Some(sha) != excluded.as_ref()).collect();
+    anyhow::ensure!(!sheets.is_empty(), "{}: no sheets to search{}", path.display(), if excluded.is_some() { " but the measured one" } else { "" });
+    let labelled: Vec<(String, Sheet)> = sheets.iter().map(|(stock, _, sheet)| (stock.clone(), sheet.clone())).collect();
+    let (population, population_note) = match Population::from_sheets(&labelled) {
+        Ok(p) => (p, "library".to_string()),
+        Err(e) => (Population::default_population(), format!("default (the library's cannot be used: {e})")),
+    };
+    // Each stock's sheets pooled as one sheet of all their spots.
+    let mut pooled: std::collections::BTreeMap<&str, (usize, Sheet)> = Default::default();
+    for (stock, _, sheet) in &sheets {
+        let entry = pooled.entry(stock).or_insert_with(|| (0, Sheet { spots: Vec::new() }));
+        entry.0 += 1;
+        entry.1.spots.extend(sheet.spots.iter().cloned());
+    }
+    let mut ranking: Vec<Ranked> = pooled
+        .into_iter()
+        .map(|(stock, (sheets, sheet))| {
+            let evidence = likelihood_ratio(&query, &sheet, &population);
+            Ranked { stock: stock.to_string(), sheets, spots: sheet.spots.len(), log10_lr: evidence.log10_lr, verbal: evidence.verbal.clone() }
+        })
+        .collect();
+    // Best first; a NaN (should the model give one) last; ties by name for a stable order.
+    ranking.sort_by(|a, b| b.log10_lr.partial_cmp(&a.log10_lr).unwrap_or_else(|| a.log10_lr.is_nan().cmp(&b.log10_lr.is_nan())).then_with(|| a.stock.cmp(&b.stock)));
+    let stocks = ranking.len();
+    ranking.truncate(args.top.unwrap_or(usize::MAX));
+    if args.json {
+        println!(
+            "{}",
+            json!({"sheet": args.dir.display().to_string(), "sample": measured.sample, "library": path.display().to_string(), "stocks": stocks, "population": population_note, "excluded_own_session": excluded, "ranking": ranking})
+        );
+        return Ok(());
+    }
+    if let Some(sha) = &excluded {
+        println!("(the measured session {} is in the library: left out of its stock and the population)", short(sha));
+    }
+    println!("{} (sample '{}') against {} stock{} of {}; population: {population_note}", args.dir.display(), measured.sample, stocks, if stocks == 1 { "" } else { "s" }, path.display());
+    let width = ranking.iter().map(|r| r.stock.chars().count()).max().unwrap_or(0).max(5);
+    println!("  {:>4}  {:<width$}  {:>6}  {:>9}  verbal", "rank", "stock", "sheets", "log10 LR");
+    for (k, r) in ranking.iter().enumerate() {
+        println!("  {:>4}  {:<width$}  {:>6}  {:>+9.2}  {}", k + 1, r.stock, r.sheets, r.log10_lr, r.verbal);
+    }
+    Ok(())
+}
