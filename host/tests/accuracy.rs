@@ -2,9 +2,9 @@
 //! whole simulated sessions on the realistic instrument and on sheets that are not the
 //! model, judged against the truth the simulator was given.
 use host::analysis::model::{self, SIGMA};
-use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::{SimOptions, sample_params};
-use host::session::{DiscardRecorder, Outcome, Plan, Policy, Session, SimulatedOperator};
+use host::session::{Outcome, Policy};
+use host::study::{SimulatedRun, simulated_session};
 use host::study::accuracy::{self, Case, Part, Row, Tally};
 
 fn threads() -> usize {
@@ -86,12 +86,8 @@ fn sheets_that_are_not_the_model_are_never_confidently_wrong() {
 }
 
 fn session(sample: &str, options: &SimOptions) -> Outcome {
-    let instrument = options.instrument(sample).expect("a simulated instrument");
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().expect("handshake");
-    let plan = Plan { sample: sample.to_string(), integration_ms: info.default_integration_ms, policy: Policy::from(host::session::PolicyChoice::Adaptive), acceptance_deg: f64::from(info.acceptance_deg), white_check: false, white_drift_limit: 0.005 };
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().expect("a session")
+    let run = SimulatedRun { sample, options, policy: Policy::from(host::session::PolicyChoice::Adaptive), integration_ms: None };
+    simulated_session(&run, |session| session).expect("a session").0
 }
 
 /// A table of one of the papers, replayed with `--scene-file`, gives the built-in scene's

@@ -4,26 +4,15 @@
 //! batches sample either clear the flag or confirm it, and a flag that outlives the budget
 //! stays on the result. Scenes the model describes keep their geometry counts.
 use host::analysis::flags::Flag;
-use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::{LobeChoice, SimOptions};
 use host::session::adaptive::{AdaptiveTargets, LACK_OF_FIT_BATCHES};
-use host::session::{DiscardRecorder, Outcome, Plan, Policy, Session, SimulatedOperator};
+use host::session::{Outcome, Policy};
+use host::study::{SimulatedRun, simulated_session};
 
 /// A whole session of `sample` under the adaptive policy on the simulator `options` make.
 fn adaptive_session(sample: &str, options: &SimOptions) -> Outcome {
-    let instrument = options.instrument(sample).expect("a simulated instrument");
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().expect("handshake");
-    let plan = Plan {
-        sample: sample.to_string(),
-        integration_ms: info.default_integration_ms,
-        policy: Policy::Adaptive(AdaptiveTargets::default()),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 1.0,
-    };
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().expect("a session")
+    let run = SimulatedRun { sample, options, policy: Policy::Adaptive(AdaptiveTargets::default()), integration_ms: None };
+    simulated_session(&run, |session| session).expect("a session").0
 }
 
 /// Whether the fit after Strategy 1 (the session's first) was flagged lack-of-fit.

@@ -7,28 +7,14 @@ use host::analysis::classify::REFERENCES;
 use host::analysis::fit::{FitOptions, Observation, fit};
 use host::analysis::model::{self, Params};
 use host::instrument::calibration::Calibration;
-use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::SimOptions;
 use host::session::gains;
-use host::session::{DiscardRecorder, Outcome, Plan, Policy, Session, SimulatedOperator};
+use host::session::{Outcome, Policy};
+use host::study::{SimulatedRun, simulated_session};
 
 /// A whole session of `sample` on the simulator `options` make, and the instrument's truth.
 fn run(sample: &str, options: &SimOptions, policy: Policy) -> (Outcome, hil_sim::Truth) {
-    let instrument = options.instrument(sample).expect("a simulated instrument");
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().expect("handshake");
-    let plan = Plan {
-        sample: sample.to_string(),
-        integration_ms: info.default_integration_ms,
-        policy,
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 1.0,
-    };
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().expect("a session");
-    let truth = client.transport_mut().truth().clone();
-    (outcome, truth)
+    simulated_session(&SimulatedRun { sample, options, policy, integration_ms: None }, |session| session).expect("a session")
 }
 
 fn reference(name: &str) -> Params {

@@ -4,20 +4,18 @@
 use host::analysis::evidence::{self, Population, Sheet, Spot};
 use host::analysis::model::{RHO_D, RHO_S, SIGMA};
 use host::instrument::calibration::Tile;
-use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::{Physics, SimOptions};
-use host::session::{DiscardRecorder, Plan, Policy, PolicyChoice, Session, SimulatedOperator};
+use host::session::{Policy, PolicyChoice};
+use host::study::{SimulatedRun, simulated_session};
 use host::study::forensic::{self, Design};
 
 /// One spot: a whole session of `sample` on the realistic instrument, the tile's
 /// certificate stated as `tile_radiance_factor`.
 fn spot(sample: &str, seed: u64, tile_radiance_factor: f64) -> Spot {
     let options = SimOptions { seed, physics: Physics::Real, sheet_variation: forensic::SPOT_VARIATION_PCT, ..SimOptions::default() };
-    let mut client = Client::new(options.instrument(sample).expect("a simulated instrument"), RetryPolicy::default());
-    let info = client.hello().expect("handshake");
-    let plan = Plan { sample: sample.into(), integration_ms: info.default_integration_ms, policy: Policy::from(PolicyChoice::Adaptive), acceptance_deg: f64::from(info.acceptance_deg), white_check: false, white_drift_limit: 0.005 };
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).with_tile(Tile::new(tile_radiance_factor, 0.5).unwrap()).run().expect("a session");
+    let run = SimulatedRun { sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
+    let tile = Tile::new(tile_radiance_factor, 0.5).expect("a tile");
+    let (outcome, _) = simulated_session(&run, |session| session.with_tile(tile)).expect("a session");
     let f = &outcome.report.fit;
     let index = [SIGMA, RHO_S, RHO_D];
     Spot { values: index.map(|i| f.reported(i)), covariance: std::array::from_fn(|r| std::array::from_fn(|c| f.covariance[index[r]][index[c]])) }

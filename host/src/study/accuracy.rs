@@ -21,11 +21,10 @@
 use crate::analysis::classify::{Class, REFERENCES};
 use crate::analysis::flags::Flag;
 use crate::analysis::model::{Params, RHO_D, RHO_S, SIGMA};
-use crate::instrument::link::{Client, RetryPolicy};
 use crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG;
 use crate::instrument::calibration::{DEFAULT_WHITE_RADIANCE_FACTOR, Tile};
 use crate::instrument::sim::{IDEAL_PHYSICS, LobeChoice, Physics, REAL_PHYSICS, SimOptions, sample_params};
-use crate::session::{DiscardRecorder, Outcome, Plan, Policy, PolicyChoice, Session, SimulatedOperator};
+use crate::session::{Outcome, Policy, PolicyChoice};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
 use std::fmt::Write as _;
@@ -292,25 +291,10 @@ pub fn stated_uncertainties(case: &Case) -> (f64, f64) {
 
 fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Params), String> {
     let truth = sample_params(case.sample).map_err(|e| e.to_string())?;
-    let instrument = options.instrument(case.sample).map_err(|e| e.to_string())?;
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().map_err(|e| e.to_string())?;
-    let plan = Plan {
-        sample: case.sample.to_string(),
-        integration_ms: info.default_integration_ms,
-        policy: Policy::from(spec.policy),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 0.005,
-    };
     let (tile_pct, arm_zero_deg) = stated_uncertainties(case);
     let tile = Tile::new(DEFAULT_WHITE_RADIANCE_FACTOR, tile_pct).map_err(|e| e.to_string())?;
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator)
-        .with_tile(tile)
-        .with_arm_zero_uncertainty(arm_zero_deg)
-        .run()
-        .map_err(|e| e.to_string())?;
+    let run = super::SimulatedRun { sample: case.sample, options: &options, policy: Policy::from(spec.policy), integration_ms: None };
+    let (outcome, _) = super::simulated_session(&run, |session| session.with_tile(tile).with_arm_zero_uncertainty(arm_zero_deg))?;
     Ok((outcome, truth))
 }
 

@@ -13,9 +13,8 @@
 use crate::analysis::classify::{Class, REFERENCES};
 use crate::analysis::evidence::{self, Population, Sheet, Spot};
 use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
-use crate::instrument::link::{Client, RetryPolicy};
 use crate::instrument::sim::{Physics, SimOptions};
-use crate::session::{DiscardRecorder, Plan, Policy, PolicyChoice, Session, SimulatedOperator};
+use crate::session::{Policy, PolicyChoice};
 use plotters::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha12Rng;
@@ -112,19 +111,8 @@ pub fn plan(design: &Design, stocks: &[Stock]) -> Vec<SpotSpec> {
 pub fn measure(stocks: &[Stock], spec: &SpotSpec) -> Result<Spot, String> {
     let stock = &stocks[spec.stock];
     let options = SimOptions { seed: spec.seed, physics: Physics::Real, sheet_variation: SPOT_VARIATION_PCT, ..SimOptions::default() };
-    let instrument = options.instrument(&stock.sample).map_err(|e| e.to_string())?;
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().map_err(|e| e.to_string())?;
-    let plan = Plan {
-        sample: stock.name.clone(),
-        integration_ms: info.default_integration_ms,
-        policy: Policy::from(PolicyChoice::Adaptive),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 0.005,
-    };
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
+    let run = super::SimulatedRun { sample: &stock.sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
+    let (outcome, _) = super::simulated_session(&run, |session| session)?;
     let fit = &outcome.report.fit;
     let index = [SIGMA, RHO_S, RHO_D];
     Ok(Spot {

@@ -4,6 +4,10 @@ pub mod forensic;
 pub mod reliability;
 pub mod trade;
 
+use crate::instrument::link::{Client, RetryPolicy};
+use crate::instrument::sim::SimOptions;
+use crate::session::{DiscardRecorder, Outcome, Plan, Policy, Session, SimulatedOperator};
+use hil_sim::SimInstrument;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -30,4 +34,40 @@ pub fn parallel<I: Sync, O: Send>(items: &[I], threads: usize, progress: &(dyn F
     });
     // A worker that panicked leaves its item's result out (and poisons nothing else).
     results.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner()).into_iter().flatten().collect()
+}
+
+/// What a campaign's session is: the sample, the simulator, the policy, the integration
+/// time (`None`: the instrument's default).
+pub struct SimulatedRun<'a> {
+    /// The sample on the port (a reference paper's name or `custom:…`).
+    pub sample: &'a str,
+    /// The simulated instrument and sheet.
+    pub options: &'a SimOptions,
+    /// The refinement policy.
+    pub policy: Policy,
+    /// Integration time per reading, ms.
+    pub integration_ms: Option<u16>,
+}
+
+/// One whole session as `gonio measure --sim` runs it, in process, with an operator who
+/// answers at once and nothing recorded; `configure` states what the operator would (the
+/// tile, the arm zero). Returns the outcome and what the instrument truly was.
+pub fn simulated_session(
+    run: &SimulatedRun<'_>,
+    configure: impl for<'s> FnOnce(Session<'s, SimInstrument>) -> Session<'s, SimInstrument>,
+) -> Result<(Outcome, hil_sim::Truth), String> {
+    let instrument = run.options.instrument(run.sample).map_err(|e| e.to_string())?;
+    let mut client = Client::new(instrument, RetryPolicy::default());
+    let info = client.hello().map_err(|e| e.to_string())?;
+    let plan = Plan {
+        sample: run.sample.to_string(),
+        integration_ms: run.integration_ms.unwrap_or(info.default_integration_ms),
+        policy: run.policy.clone(),
+        acceptance_deg: f64::from(info.acceptance_deg),
+        white_check: false,
+        white_drift_limit: 0.005,
+    };
+    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
+    let outcome = configure(Session::new(&mut client, info, plan, &mut recorder, &mut operator)).run().map_err(|e| e.to_string())?;
+    Ok((outcome, client.transport().truth().clone()))
 }

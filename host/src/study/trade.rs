@@ -3,9 +3,8 @@
 //! policies × integration times, each compared with the truth the simulator was given.
 
 use crate::analysis::classify::REFERENCES;
-use crate::instrument::link::{Client, RetryPolicy};
 use crate::analysis::model::Params;
-use crate::session::{DiscardRecorder, FixedSchedule, Outcome, Plan, Policy, Session, SimulatedOperator};
+use crate::session::{FixedSchedule, Outcome, Policy};
 use crate::instrument::sim::{SimOptions, sample_params};
 use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
 use std::fmt::Write as _;
@@ -104,19 +103,8 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
     let expected = REFERENCES.iter().find(|r| r.name == spec.sample).map(|r| r.class.name()).unwrap_or("");
     let options = SimOptions { seed: spec.seed, ..SimOptions::default() };
-    let instrument = options.instrument(spec.sample).map_err(|e| e.to_string())?;
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().map_err(|e| e.to_string())?;
-    let plan = Plan {
-        sample: spec.sample.to_string(),
-        integration_ms: spec.integration_ms,
-        policy: spec.policy(),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 1.0,
-    };
-    let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome: Outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run().map_err(|e| e.to_string())?;
+    let run = super::SimulatedRun { sample: spec.sample, options: &options, policy: spec.policy(), integration_ms: Some(spec.integration_ms) };
+    let (outcome, _): (Outcome, _) = super::simulated_session(&run, |session| session)?;
     let fit = &outcome.report.fit;
     let class = outcome.report.classification.class_name();
     Ok(Row {
