@@ -388,7 +388,7 @@ pub fn tippett_svg(pairs: &[Pair], path: &std::path::Path) -> Result<(), String>
         chart.draw_series(LineSeries::new(curve(&same), BLUE.stroke_width(2)))?.label(format!("same stock ({} pairs)", same.len())).legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         chart.draw_series(LineSeries::new(curve(&different), RED.stroke_width(2)))?.label(format!("different stocks ({} pairs)", different.len())).legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
         chart.draw_series(LineSeries::new(vec![(0.0, 0.0), (0.0, 1.0)], BLACK.mix(0.4)))?;
-        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.9)).position(SeriesLabelPosition::UpperRight).draw()?;
+        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.9)).position(SeriesLabelPosition::MiddleLeft).draw()?;
         root.present()?;
         Ok(())
     };
