@@ -1,6 +1,7 @@
 //! `gonio compare`: same stock or not, from two session.json files — identical sheets,
 //! sheets far apart, different classes, parameters not determined, and bad inputs.
 use host::analysis::compare::{self, CompareError};
+use host::analysis::evidence;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -121,19 +122,12 @@ fn sheets_far_apart_support_different_stocks_and_exit_1() {
 }
 
 #[test]
-fn one_sigma_apart_is_not_distinguishable_and_alpha_is_respected() {
+fn one_standard_error_apart_supports_the_same_stock() {
     let a = compare::parse_session(Path::new("a.json"), &glossy("a", 0.8, 57.8, 0.855, 1.19).to_string()).expect("parse");
     let b = compare::parse_session(Path::new("b.json"), &glossy("b", 0.82, 58.8, 0.86, 1.2).to_string()).expect("parse");
-    let c = compare::compare(&a, &b, compare::DEFAULT_ALPHA);
-    assert!(!c.distinguishable && c.p_value > 0.05, "{c:?}");
-    assert_eq!(c.dof, 4);
-    // A lenient α turns the same data into "distinguishable" once p falls below it.
-    let strict = compare::compare(&a, &b, c.p_value * 1.01);
-    assert!(strict.distinguishable && strict.reason == "p < alpha");
-    // Correlations count: ρs and η both up is along their negative correlation, so the
-    // distance exceeds the diagonal-only one.
-    let diagonal: f64 = c.parameters.iter().map(|p| p.z.unwrap().powi(2)).sum::<f64>().sqrt();
-    assert!(c.distance > diagonal, "{} vs {diagonal}", c.distance);
+    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &evidence::Population::default_population());
+    assert!(e.log10_lr > 1.0 && e.support == evidence::Support::SameStock, "{e:?}");
+    assert_eq!(e.parameters, ["sigma_deg", "rho_s", "rho_d"], "η is not weighed");
 }
 
 #[test]
@@ -158,11 +152,10 @@ fn unresolved_sigma_is_left_out() {
     let b = glossy("b", 0.8, 57.8, 0.855, 1.19);
     let a = compare::parse_session(Path::new("a"), &a.to_string()).expect("null σ is allowed");
     let b = compare::parse_session(Path::new("b"), &b.to_string()).expect("parse");
-    let c = compare::compare(&a, &b, 0.01);
-    assert_eq!(c.dof, 3);
-    assert_eq!(c.parameters[0].skipped, Some("not determined in both sessions"));
-    assert_eq!(c.parameters[1].space, Some("log"));
-    assert_eq!(c.parameters[3].space, Some("linear"));
+    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &evidence::Population::default_population());
+    assert_eq!(e.parameters, ["rho_s", "rho_d"]);
+    assert_eq!(e.left_out, [("sigma_deg", "not determined by A")]);
+    assert!(e.log10_lr.is_finite());
 }
 
 #[test]
@@ -248,11 +241,9 @@ fn undetermined_parameters_and_classes_are_not_compared() {
     let a = compare::parse_session(Path::new("a"), &a.to_string()).expect("null ρs and class are allowed");
     let b = compare::parse_session(Path::new("b"), &b.to_string()).expect("parse");
     assert_eq!(a.class, None);
-    let c = compare::compare(&a, &b, 0.01);
-    assert_ne!(c.reason, "different classes");
-    assert_eq!(c.parameters[1].skipped, Some("not determined in both sessions"), "{:?}", c.parameters[1]);
-    assert!(c.parameters[0].z.is_some() && c.parameters[2].z.is_some());
-    // Against a decided class: still not "different classes" on an undecided one.
-    let g = compare::parse_session(Path::new("g"), &glossy("g", 0.8, 57.8, 0.855, 1.19).to_string()).expect("parse");
-    assert_ne!(compare::compare(&a, &g, 0.01).reason, "different classes");
+    let population = evidence::Population::default_population();
+    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &population);
+    assert_eq!(e.left_out, [("rho_s", "determined by neither sheet")], "{e:?}");
+    assert_eq!(e.parameters, ["sigma_deg", "rho_d"]);
+    assert!(e.log10_lr > 0.0, "the same sheet measured twice: {e:?}");
 }
