@@ -177,7 +177,6 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
         }
     };
 
-
     // The white reading at each θi.
     for (j, white) in calibration.white.iter().enumerate() {
         let u = standard_error_counts(&white.reading);

@@ -109,25 +109,44 @@ impl Sheet {
         }
         s
     }
+}
 
-    /// The spots' own covariance in log space over `params` (needs two spots).
-    pub fn within_log_covariance(&self, params: &[usize]) -> Option<Square> {
-        (self.spots.len() >= 2).then(|| {
-            let mean = self.mean_log(params);
-            scatter(self.spots.iter().map(|s| params.iter().map(|&i| s.log_values()[i].unwrap_or(f64::NAN)).collect()), &mean, self.spots.len() - 1)
-        })
+/// Each stock's sheets pooled as one sheet of all their spots, by stock name (sorted),
+/// with how many sheets went into it.
+pub fn pool_by_stock(sheets: &[(String, Sheet)]) -> Vec<(String, usize, Sheet)> {
+    let mut pooled: std::collections::BTreeMap<&str, (usize, Sheet)> = Default::default();
+    for (stock, sheet) in sheets {
+        let entry = pooled.entry(stock).or_insert_with(|| (0, Sheet { spots: Vec::new() }));
+        entry.0 += 1;
+        entry.1.spots.extend(sheet.spots.iter().cloned());
     }
+    pooled.into_iter().map(|(stock, (n, sheet))| (stock.to_string(), n, sheet)).collect()
+}
 
-    /// Mean values in natural units over the determined parameters (geometric mean).
-    pub fn mean(&self) -> [Option<f64>; 3] {
-        let determined = self.determined();
-        let means = self.mean_log(&determined);
-        let mut out = [None; 3];
-        for (k, &i) in determined.iter().enumerate() {
-            out[i] = Some(means[k].exp());
-        }
-        out
-    }
+/// One stock of a search, with the evidence of the searched sheet against it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RankedStock {
+    /// The stock's name.
+    pub stock: String,
+    /// Its sheets and spots, pooled.
+    pub sheets: usize,
+    /// Its spots.
+    pub spots: usize,
+    /// The searched sheet against the pooled stock.
+    pub evidence: Evidence,
+}
+
+/// The stocks of `library` (sheets labelled by stock) ranked by the likelihood ratio of
+/// `query` against each stock's sheets pooled as one sheet: best first, a NaN last, ties
+/// by name. What `gonio library search` prints and the forensic study counts.
+pub fn rank_stocks(query: &Sheet, library: &[(String, Sheet)], population: &Population) -> Vec<RankedStock> {
+    let mut ranking: Vec<RankedStock> = pool_by_stock(library)
+        .into_iter()
+        .map(|(stock, sheets, pooled)| RankedStock { stock, sheets, spots: pooled.spots.len(), evidence: likelihood_ratio(query, &pooled, population) })
+        .collect();
+    let lr = |r: &RankedStock| r.evidence.log10_lr;
+    ranking.sort_by(|a, b| lr(b).partial_cmp(&lr(a)).unwrap_or_else(|| lr(a).is_nan().cmp(&lr(b).is_nan())).then_with(|| a.stock.cmp(&b.stock)));
+    ranking
 }
 
 fn scatter(rows: impl Iterator<Item = Vec<f64>>, mean: &[f64], dof: usize) -> Square {
@@ -220,25 +239,19 @@ impl Population {
     /// determine σ, ρs and ρd are left out; the within-stock covariance is pooled over every
     /// stock's spots about its mean (sheets of a stock differ as its spots do).
     pub fn from_sheets(sheets: &[(String, Sheet)]) -> Result<Population, EvidenceError> {
-        let mut names: Vec<&String> = sheets.iter().map(|(s, _)| s).collect();
-        names.sort();
-        names.dedup();
+        // Only sheets whose every spot determined σ, ρs and ρd describe a stock in full.
+        let complete: Vec<(String, Sheet)> = sheets.iter().filter(|(_, sheet)| sheet.determined().len() == 3).cloned().collect();
         let mut stocks = Vec::new();
         let mut rows_about_mean: Vec<Vec<f64>> = Vec::new();
         let mut dof = 0usize;
         let (mut n_sheets, mut n_spots) = (0, 0);
-        for name in names {
-            let spots: Vec<&Spot> = sheets.iter().filter(|(s, sheet)| s == name && sheet.determined().len() == 3).flat_map(|(_, sheet)| &sheet.spots).collect();
-            if spots.is_empty() {
-                continue;
-            }
-            n_sheets += sheets.iter().filter(|(s, sheet)| s == name && sheet.determined().len() == 3).count();
-            n_spots += spots.len();
-            let logs: Vec<[f64; 3]> = spots.iter().map(|s| s.log_values().map(|v| v.unwrap_or(f64::NAN))).collect();
-            let mean: [f64; 3] = std::array::from_fn(|i| logs.iter().map(|l| l[i]).sum::<f64>() / logs.len() as f64);
-            rows_about_mean.extend(logs.iter().map(|l| (0..3).map(|i| l[i] - mean[i]).collect::<Vec<f64>>()));
-            dof += logs.len() - 1;
-            stocks.push((name.clone(), mean));
+        for (name, sheets_of_stock, pooled) in pool_by_stock(&complete) {
+            n_sheets += sheets_of_stock;
+            n_spots += pooled.spots.len();
+            let mean = pooled.mean_log(&[0, 1, 2]);
+            rows_about_mean.extend(pooled.spots.iter().map(|s| (0..3).map(|i| s.log_values()[i].unwrap_or(f64::NAN) - mean[i]).collect::<Vec<f64>>()));
+            dof += pooled.spots.len() - 1;
+            stocks.push((name, [mean[0], mean[1], mean[2]]));
         }
         const MIN_STOCKS: usize = 4;
         if stocks.len() < MIN_STOCKS {

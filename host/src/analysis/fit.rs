@@ -98,7 +98,7 @@ pub struct Observation {
 /// An error shared by several readings (one draw for all of them): reading k's radiance
 /// factor is off by `(sensitivity[k] + additive[k]) · ε` with ε ~ N(0, 1), the same ε for
 /// every k.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct SharedError {
     /// What it is, for the budget ("white θi = 60°", "tile certificate", "gain range 2/1", "lamp drift").
     pub name: String,
@@ -773,10 +773,6 @@ pub fn t_quantile_975(dof: usize) -> f64 {
     StudentsT::new(0.0, 1.0, dof as f64).map_or(f64::INFINITY, |t| t.inverse_cdf(0.975))
 }
 
-fn weighted_input(observations: &[Observation]) -> bool {
-    observations.first().is_some_and(|o| o.std.is_some())
-}
-
 /// Fit the TSL model to the readings (independent noise only).
 pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResult, FitError> {
     fit_with_shared(observations, &[], options)
@@ -916,7 +912,7 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     }
     // An offset too small for the test to call for is still possible: the arm zero's
     // uncertainty as a shared error, at the model, and the fit redone with it.
-    if options.arm_zero_uncertainty_deg > 0.0 && options.arm_zero_uncertainty_deg.is_finite() && !arm_fitted && !unresolved && fitted[RHO_S] && weighted_input(observations) {
+    if options.arm_zero_uncertainty_deg > 0.0 && options.arm_zero_uncertainty_deg.is_finite() && !arm_fitted && !unresolved && fitted[RHO_S] && weighted {
         let u = options.arm_zero_uncertainty_deg;
         let whitened = problem.shift_column(&outcome.x);
         let additive: Vec<f64> = whitened.iter().zip(observations).map(|(d, o)| d * o.std.unwrap_or(1.0) * u).collect();

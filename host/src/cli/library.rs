@@ -5,7 +5,7 @@
 //!
 //! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
 //! changes nothing); 2 a wrong command line.
-use crate::analysis::evidence::{Population, Sheet, likelihood_ratio};
+use crate::analysis::evidence::{Population, Sheet, rank_stocks};
 use crate::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
 use anyhow::Context;
 use serde_json::json;
@@ -251,12 +251,7 @@ struct Ranked {
 
 fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
     let measured = crate::analysis::compare::read_session(&args.dir)?;
-    let query = Sheet {
-        spots: vec![crate::analysis::evidence::Spot {
-            values: [measured.values[0], measured.values[1], measured.values[2]],
-            covariance: std::array::from_fn(|i| std::array::from_fn(|j| measured.covariance[i][j])),
-        }],
-    };
+    let query = measured.sheet();
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.
     let own_identity = if args.dir.is_dir() { library::session_identity(&args.dir).ok() } else { None };
@@ -270,22 +265,10 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
         Ok(p) => (p, "library".to_string()),
         Err(e) => (Population::default_population(), format!("default (the library's cannot be used: {e})")),
     };
-    // Each stock's sheets pooled as one sheet of all their spots.
-    let mut pooled: std::collections::BTreeMap<&str, (usize, Sheet)> = Default::default();
-    for (stock, _, sheet) in &sheets {
-        let entry = pooled.entry(stock).or_insert_with(|| (0, Sheet { spots: Vec::new() }));
-        entry.0 += 1;
-        entry.1.spots.extend(sheet.spots.iter().cloned());
-    }
-    let mut ranking: Vec<Ranked> = pooled
+    let mut ranking: Vec<Ranked> = rank_stocks(&query, &labelled, &population)
         .into_iter()
-        .map(|(stock, (sheets, sheet))| {
-            let evidence = likelihood_ratio(&query, &sheet, &population);
-            Ranked { stock: stock.to_string(), sheets, spots: sheet.spots.len(), log10_lr: evidence.log10_lr, verbal: evidence.verbal.clone() }
-        })
+        .map(|r| Ranked { stock: r.stock, sheets: r.sheets, spots: r.spots, log10_lr: r.evidence.log10_lr, verbal: r.evidence.verbal })
         .collect();
-    // Best first; a NaN (should the model give one) last; ties by name for a stable order.
-    ranking.sort_by(|a, b| b.log10_lr.partial_cmp(&a.log10_lr).unwrap_or_else(|| a.log10_lr.is_nan().cmp(&b.log10_lr.is_nan())).then_with(|| a.stock.cmp(&b.stock)));
     let stocks = ranking.len();
     ranking.truncate(args.top.unwrap_or(usize::MAX));
     if args.json {

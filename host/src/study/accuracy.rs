@@ -246,11 +246,6 @@ impl Row {
 
 /// Run one session of `case` as `gonio measure --sim` would, in process.
 pub fn run_one(case: &Case, spec: &Spec) -> Row {
-    run_with_options(case, spec, sim_options(case, spec))
-}
-
-/// [`run_one`] on a simulator with `options` (the campaign's own, or varied by a study).
-pub fn run_with_options(case: &Case, spec: &Spec, options: SimOptions) -> Row {
     let mut row = Row {
         spec: spec.clone(),
         failure: None,
@@ -264,7 +259,7 @@ pub fn run_with_options(case: &Case, spec: &Spec, options: SimOptions) -> Row {
         geometries: 0,
         device_seconds: 0.0,
     };
-    match session(case, spec, options) {
+    match session(case, spec, sim_options(case, spec)) {
         Ok((outcome, truth)) => judge(&mut row, &outcome, &truth),
         Err(e) => row.failure = Some(e),
     }
@@ -425,16 +420,21 @@ impl Tally {
             geometries += r.geometries as f64;
             seconds += r.device_seconds;
         }
-        let finished = (t.sessions - t.failed).max(1) as f64;
+        let finished = t.finished().max(1) as f64;
         t.mean_geometries = geometries / finished;
         t.mean_device_seconds = seconds / finished;
         t
     }
 
+    /// Sessions that finished.
+    pub fn finished(&self) -> usize {
+        self.sessions - self.failed
+    }
+
     /// Coverage of parameter `k` over the finished sessions (an interval not reported is a
     /// miss).
     pub fn coverage(&self, k: usize) -> f64 {
-        self.covered[k] as f64 / (self.sessions - self.failed).max(1) as f64
+        self.covered[k] as f64 / self.finished().max(1) as f64
     }
 }
 
@@ -478,7 +478,7 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
             // its count is consistent with the target (its Wilson interval meets it); the
             // pooled coverage below must lie within the target itself.
             for (k, what) in ["σ", "ρs", "ρd"].iter().enumerate() {
-                let n = t.sessions - t.failed;
+                let n = t.finished();
                 let (lo, hi) = wilson95(t.covered[k], n);
                 out.push((
                     format!(
@@ -498,7 +498,7 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
     }
     for physics in [Physics::Ideal, Physics::Real] {
         let of: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == physics).map(|(_, _, t)| t).collect();
-        let n: usize = of.iter().map(|t| t.sessions - t.failed).sum();
+        let n: usize = of.iter().map(|t| t.finished()).sum();
         if n == 0 {
             continue;
         }
@@ -512,7 +512,7 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
         }
     }
     let ideal: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == Physics::Ideal).map(|(_, _, t)| t).collect();
-    let (flags, n) = ideal.iter().fold((0, 0), |(f, n), t| (f + t.lack_of_fit, n + t.sessions - t.failed));
+    let (flags, n) = ideal.iter().fold((0, 0), |(f, n), t| (f + t.lack_of_fit, n + t.finished()));
     if n > 0 {
         out.push((format!("lack-of-fit on ideal scenes: {flags} of {n} sessions ({:.2} %)", 100.0 * flags as f64 / n as f64), flags as f64 <= FALSE_FLAG_LIMIT * n as f64));
     }
@@ -524,7 +524,7 @@ fn pct(k: usize, n: usize) -> String {
 }
 
 fn covered_cell(t: &Tally, k: usize) -> String {
-    let n = t.sessions - t.failed;
+    let n = t.finished();
     let (lo, hi) = wilson95(t.covered[k], n);
     let missing = if t.undetermined[k] > 0 { format!(", {} without", t.undetermined[k]) } else { String::new() };
     format!("{} ({:.0}–{:.0}{missing})", pct(t.covered[k], n), 100.0 * lo, 100.0 * hi)
@@ -540,7 +540,7 @@ pub fn summary_markdown(cases: &[Case], rows: &[Row]) -> String {
     let _ = writeln!(out, "| case | policy | sessions | σ | ρs | ρd | lack-of-fit | class right | geometries | device s |");
     let _ = writeln!(out, "|---|---|---:|---|---|---|---:|---:|---:|---:|");
     for (c, policy, t) in tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage) {
-        let n = t.sessions - t.failed;
+        let n = t.finished();
         let _ = writeln!(
             out,
             "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} |",
@@ -561,7 +561,7 @@ pub fn summary_markdown(cases: &[Case], rows: &[Row]) -> String {
     let _ = writeln!(out, "| case | policy | sessions | class right | lack-of-fit | any flag | undecided | wrong but said | confidently wrong | geometries | device s |");
     let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for (c, policy, t) in tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Robustness) {
-        let n = t.sessions - t.failed;
+        let n = t.finished();
         let _ = writeln!(
             out,
             "| {} | {} | {} | {} | {} | {} | {} | {} | **{}** | {:.1} | {:.1} |",

@@ -181,22 +181,10 @@ pub fn pairs(stocks: &[Stock], sheets: &[MeasuredSheet]) -> Result<(Population, 
 /// How often a held-out sheet's own stock ranks first among the library's stocks (each
 /// stock's library sheets pooled as one sheet), as `gonio library search` ranks them.
 pub fn search_rank_one(stocks: &[Stock], sheets: &[MeasuredSheet], population: &Population) -> (usize, usize) {
-    let pooled: Vec<(usize, Sheet)> = (0..stocks.len())
-        .map(|k| (k, Sheet { spots: sheets.iter().filter(|s| s.in_library && s.stock == k).flat_map(|s| s.measured.spots.clone()).collect() }))
-        .filter(|(_, s)| !s.spots.is_empty())
-        .collect();
-    let mut first = 0;
-    let mut trials = 0;
-    for sheet in sheets.iter().filter(|s| !s.in_library) {
-        trials += 1;
-        let best = pooled
-            .iter()
-            .map(|(k, pool)| (*k, evidence::likelihood_ratio(&sheet.measured, pool, population).log10_lr))
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(k, _)| k);
-        first += usize::from(best == Some(sheet.stock));
-    }
-    (first, trials)
+    let library: Vec<(String, Sheet)> = sheets.iter().filter(|s| s.in_library).map(|s| (stocks[s.stock].name.clone(), s.measured.clone())).collect();
+    let held: Vec<&MeasuredSheet> = sheets.iter().filter(|s| !s.in_library).collect();
+    let first = held.iter().filter(|s| evidence::rank_stocks(&s.measured, &library, population).first().is_some_and(|r| r.stock == stocks[s.stock].name)).count();
+    (first, held.len())
 }
 
 /// Cllr: the log-likelihood-ratio cost (bits); 0 for perfect, 1 for an uninformative
