@@ -104,6 +104,7 @@ fn completed(served: &Served, sample: &str, dir: &Path, extra: &[&str]) -> Value
     match run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session") {
         Measured::Done { summary, .. } => summary,
         Measured::Stopped { error, .. } => panic!("{sample}: stopped: {error}"),
+        Measured::Sheet { .. } => panic!("{sample}: measured a sheet of several spots"),
     }
 }
 

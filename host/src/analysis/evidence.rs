@@ -62,6 +62,14 @@ pub struct Spot {
 }
 
 impl Spot {
+    /// A fit's σ (degrees), ρs, ρd and their covariance: `None` for a parameter the fit
+    /// did not determine.
+    pub fn of_fit(fit: &crate::analysis::fit::FitResult) -> Spot {
+        use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
+        let index = [SIGMA, RHO_S, RHO_D];
+        Spot { values: index.map(|i| fit.reported(i)), covariance: std::array::from_fn(|r| std::array::from_fn(|c| fit.covariance[index[r]][index[c]])) }
+    }
+
     /// The determined parameters' logs (`None`: not determined or not positive).
     fn log_values(&self) -> [Option<f64>; 3] {
         self.values.map(|v| v.filter(|v| *v > 0.0 && v.is_finite()).map(f64::ln))

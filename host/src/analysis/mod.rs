@@ -11,3 +11,4 @@ pub mod flags;
 pub mod model;
 pub mod report;
 pub mod sampling;
+pub mod sheet;

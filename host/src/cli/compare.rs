@@ -2,7 +2,7 @@
 //! over "different stocks"? A likelihood ratio from a two-level model
 //! ([`crate::analysis::evidence`]), weighed against a population of stocks. A and B are
 //! session folders (or their `session.json`) of `gonio measure`.
-use crate::analysis::compare::{self, SessionResult};
+use crate::output::sheet::{MeasuredSheet, read_measured};
 use crate::analysis::evidence::{self, Evidence, PARAM_LABELS, Population, PopulationSource, Support};
 use serde_json::json;
 use std::path::PathBuf;
@@ -62,14 +62,16 @@ fn population_json(population: &Population) -> serde_json::Value {
 }
 
 /// The JSON object of `--json`.
-pub fn to_json(a: &SessionResult, b: &SessionResult, e: &Evidence, population: &Population) -> serde_json::Value {
-    let side = |r: &SessionResult| {
+pub fn to_json(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: &Population) -> serde_json::Value {
+    let side = |r: &MeasuredSheet| {
         json!({
-            "file": r.file.display().to_string(),
+            "file": r.path.display().to_string(),
             "sample": r.sample,
-            "class": r.class,
-            "n_spots": 1,
-            "values": evidence::PARAMS.iter().enumerate().map(|(i, name)| (name.to_string(), json!(r.values[i]))).collect::<serde_json::Map<_, _>>(),
+            "class": r.classes.first().cloned().flatten(),
+            "spot_classes": r.classes,
+            "n_spots": r.sheet.spots.len(),
+            "within_relative_sd": r.summary.as_ref().and_then(|s| s.within_relative_sd),
+            "values": evidence::PARAMS.iter().enumerate().map(|(i, name)| (name.to_string(), json!(value(r, i)))).collect::<serde_json::Map<_, _>>(),
             "ci95": evidence::PARAMS.iter().enumerate().map(|(i, name)| (name.to_string(), json!(interval(r, i)))).collect::<serde_json::Map<_, _>>(),
         })
     };
@@ -88,15 +90,33 @@ pub fn to_json(a: &SessionResult, b: &SessionResult, e: &Evidence, population: &
     })
 }
 
-/// A 95 % interval (±1.96 standard uncertainties) of parameter `i`, if determined.
-fn interval(r: &SessionResult, i: usize) -> Option<(f64, f64)> {
-    let v = r.values[i]?;
-    let var = r.covariance[i][i];
-    (var >= 0.0 && var.is_finite()).then(|| (v - 1.96 * var.sqrt(), v + 1.96 * var.sqrt()))
+/// Parameter `i` of a sheet: one spot's value, or the geometric mean of its spots.
+fn value(r: &MeasuredSheet, i: usize) -> Option<f64> {
+    match &r.summary {
+        Some(summary) => summary.mean[i],
+        None => r.sheet.spots.first().and_then(|s| s.values[i]),
+    }
 }
 
-fn cell(r: &SessionResult, i: usize) -> String {
-    match (r.values[i], interval(r, i)) {
+/// A 95 % interval of parameter `i` of the sheet's mean, if determined: ±1.96 standard
+/// uncertainties of one spot's fit; for several spots, in log space from the spots' own
+/// scatter over √n and their fits' mean relative variance (the calibration's share does
+/// not average out).
+fn interval(r: &MeasuredSheet, i: usize) -> Option<(f64, f64)> {
+    let v = value(r, i)?;
+    let spots = &r.sheet.spots;
+    if spots.len() == 1 {
+        let var = spots[0].covariance[i][i];
+        return (var >= 0.0 && var.is_finite()).then(|| (v - 1.96 * var.sqrt(), v + 1.96 * var.sqrt()));
+    }
+    let fit_relative_var = spots.iter().map(|s| s.values[i].map_or(f64::NAN, |x| s.covariance[i][i] / (x * x))).sum::<f64>() / spots.len() as f64;
+    let scatter = r.summary.as_ref().and_then(|s| s.within_log_covariance).map_or(0.0, |c| c[i][i] / spots.len() as f64);
+    let half = 1.96 * (fit_relative_var + scatter).sqrt();
+    half.is_finite().then(|| (v * (-half).exp(), v * half.exp()))
+}
+
+fn cell(r: &MeasuredSheet, i: usize) -> String {
+    match (value(r, i), interval(r, i)) {
         (Some(v), Some((lo, hi))) => format!("{v:.4} [{lo:.4}, {hi:.4}]"),
         (Some(v), None) => format!("{v:.4}"),
         _ => "not determined".to_string(),
@@ -104,9 +124,12 @@ fn cell(r: &SessionResult, i: usize) -> String {
 }
 
 /// The report for a person.
-pub fn to_table(a: &SessionResult, b: &SessionResult, e: &Evidence, population: &Population) -> String {
-    let mut s = format!("A  {}  sample {}  class {}\n", a.file.display(), a.sample, a.class.as_deref().unwrap_or("undecided"));
-    s += &format!("B  {}  sample {}  class {}\n", b.file.display(), b.sample, b.class.as_deref().unwrap_or("undecided"));
+pub fn to_table(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: &Population) -> String {
+    let side = |name: &str, r: &MeasuredSheet| {
+        let spots = r.sheet.spots.len();
+        format!("{name}  {}  sample {}  {spots} spot{}  class {}\n", r.path.display(), r.sample, if spots == 1 { "" } else { "s" }, r.class_text())
+    };
+    let mut s = side("A", a) + &side("B", b);
     s += &format!("  {:<10} {:>34} {:>34}\n", "parameter", "A: value [95 % interval]", "B: value [95 % interval]");
     for (i, label) in PARAM_LABELS.iter().enumerate() {
         s += &format!("  {label:<10} {:>34} {:>34}\n", cell(a, i), cell(b, i));
@@ -153,7 +176,7 @@ fn exit_of(e: &Evidence) -> u8 {
 /// Run `gonio compare`: exit 0 when the evidence supports the same stock, 1 different
 /// stocks, 3 inconclusive, 2 for an error.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let read = |path: &PathBuf| compare::read_session(path);
+    let read = |path: &PathBuf| read_measured(path);
     let (a, b) = match (read(&args.a), read(&args.b)) {
         (Ok(a), Ok(b)) => (a, b),
         (Err(e), _) | (_, Err(e)) => {
@@ -168,7 +191,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             return Ok(ExitCode::from(EXIT_ERROR));
         }
     };
-    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &population);
+    let e = evidence::likelihood_ratio(&a.sheet, &b.sheet, &population);
     if args.json {
         let mut v = to_json(&a, &b, &e, &population);
         v["population"]["note"] = json!(note);

@@ -87,10 +87,22 @@ pub struct Args {
     /// White drift beyond which the result is marked, percent (default 0.5; above 0, at most 100).
     #[arg(long, value_name = "PERCENT")]
     pub white_drift_limit_pct: Option<f64>,
+    /// Spots of the sheet to measure (1 to 20): from 2 on, the operator is asked to move
+    /// the sheet between spots, the calibration is shared, a flagged spot is replaced (at
+    /// most twice) or excluded with the reason, and the folder holds one session per spot
+    /// and the sheet's result (its mean and its spot-to-spot variation). Forensic
+    /// comparison wants several (docs/FORENSIC.md); a resumed session keeps its own.
+    #[arg(long, value_name = "N")]
+    pub spots: Option<u16>,
     /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,
 }
+
+/// Spots of a sheet when `--spots` is not given.
+pub const DEFAULT_SPOTS: u16 = 1;
+/// The most spots a sheet takes.
+pub const MAX_SPOTS: u16 = 20;
 
 /// Parse `gonio measure` arguments (`args` without the program and subcommand names), as
 /// the command line would.
@@ -119,6 +131,15 @@ pub enum Measured {
         /// The result object printed by `--json`.
         summary: serde_json::Value,
     },
+    /// A sheet of several spots was measured (`--spots N`).
+    Sheet {
+        /// The sheet's folder.
+        dir: PathBuf,
+        /// The sheet as recorded (read back from its folder).
+        sheet: Box<crate::output::sheet::ReadSheet>,
+        /// The object printed by `--json`.
+        json: serde_json::Value,
+    },
     /// The session stopped (Ctrl-C, a dead link); the instrument was told to stop, and the
     /// readings taken are in `dir`, with `session.json` saying why and how to resume.
     Stopped {
@@ -143,6 +164,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             print_report(&args, &dir, &outcome, &summary);
             // The exit code says what `ok` says: 0 clean, 3 flagged.
             Ok(crate::cli::exit::of_result(outcome.ok()))
+        }
+        Measured::Sheet { dir, sheet, json } => {
+            if args.json {
+                println!("{json}");
+            } else {
+                print_sheet(&dir, &sheet);
+            }
+            Ok(crate::cli::exit::of_result(sheet.summary.ok()))
         }
         Measured::Stopped { dir, error, record_error } => {
             eprintln!("session stopped: {error}");
@@ -192,6 +221,7 @@ pub fn measure_with(args: &Args, operator: &mut dyn Operator, interrupted: Arc<A
 struct Checked {
     max_calibration_age: Duration,
     tile: Tile,
+    spots: u16,
 }
 
 fn check_args(args: &Args) -> anyhow::Result<Checked> {
@@ -211,7 +241,11 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
     if !(0.0..=5.0).contains(&zero) {
         bail!("--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}");
     }
-    Ok(Checked { max_calibration_age, tile })
+    let spots = args.spots.unwrap_or(DEFAULT_SPOTS);
+    if !(1..=MAX_SPOTS).contains(&spots) {
+        bail!("--spots must be 1 to {MAX_SPOTS}, not {spots}");
+    }
+    Ok(Checked { max_calibration_age, tile, spots })
 }
 
 /// A regular file or a folder given as `--port` is no serial port: say so before opening it.
@@ -331,67 +365,121 @@ fn run_on<T: Transport>(
     store: StoreOptions,
 ) -> anyhow::Result<Measured> {
     let info = client.hello().context("handshake with the instrument")?;
-    let existing = match &args.resume {
-        Some(dir) => Some(Existing::open(dir, store.clone())?),
-        None => None,
+    let mut context = Run { client: &mut client, info, args, checked, sim_sample, operator, interrupted, store };
+    let sheet = args.resume.as_deref().is_some_and(crate::output::sheet::is_sheet_folder) || (args.resume.is_none() && checked.spots > 1);
+    if sheet {
+        return run_sheet(&mut context);
+    }
+    if let (Some(dir), Some(spots)) = (&args.resume, args.spots.filter(|n| *n > 1)) {
+        bail!("{} is a session of one spot: it is continued as it began, without --spots {spots} (or start a sheet of {spots} spots with --out)", dir.display());
+    }
+    let folder = match &args.resume {
+        Some(dir) => SessionFolder::Resume(dir.clone()),
+        None => SessionFolder::New(args.out.clone()),
     };
-    let sample = args.sample.clone().or(sim_sample.clone()).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
+    run_session(&mut context, folder, None)
+}
+
+/// What every session of one `gonio measure` shares.
+struct Run<'a, T: Transport> {
+    client: &'a mut Client<T>,
+    info: protocol::DeviceInfo,
+    args: &'a Args,
+    checked: &'a Checked,
+    sim_sample: Option<String>,
+    operator: &'a mut dyn Operator,
+    interrupted: Arc<AtomicBool>,
+    store: StoreOptions,
+}
+
+/// Where a session is recorded.
+enum SessionFolder {
+    /// A new folder (`None`: a new one under `sessions/`).
+    New(Option<PathBuf>),
+    /// An interrupted session's folder.
+    Resume(PathBuf),
+}
+
+/// A spot of a multi-spot sheet.
+struct SpotContext {
+    number: u16,
+    of: u16,
+    /// The sheet's calibration, once its first spot has taken it.
+    calibration: Option<Calibration>,
+    /// The command that continues the sheet.
+    resume_with: String,
+}
+
+/// One session (a whole measurement, or one spot of a sheet) in `folder`.
+fn run_session<T: Transport>(cx: &mut Run<'_, T>, folder: SessionFolder, spot: Option<SpotContext>) -> anyhow::Result<Measured> {
+    let (args, checked, info) = (cx.args, cx.checked, cx.info.clone());
+    let existing = match &folder {
+        SessionFolder::Resume(dir) => Some(Existing::open(dir, cx.store.clone())?),
+        SessionFolder::New(_) => None,
+    };
+    let sample = args.sample.clone().or(cx.sim_sample.clone()).or_else(|| existing.as_ref().map(|e| e.doc().sample.clone())).unwrap_or_else(|| "sample".into());
     let plan = plan_record(args, &info, existing.as_ref().map(|e| &e.doc().plan))?;
     let mut identity = Identity::new(&sample, &info, plan.clone());
-    identity.instrument.simulated_sample = sim_sample;
-    let given_calibration = match &args.calibration {
-        Some(path) => Some(external_calibration(path, checked, &info)?),
-        None => None,
+    identity.instrument.simulated_sample = cx.sim_sample.clone();
+    let given_calibration = match (spot.as_ref().and_then(|s| s.calibration.clone()), &args.calibration) {
+        (Some(sheet), _) => Some(sheet),
+        (None, Some(path)) => Some(external_calibration(path, checked, &info)?),
+        (None, None) => None,
     };
     let (mut recorder, points, calibration) = match existing {
         Some(existing) => {
             existing.check_matches(&identity)?;
             if let Some(own) = existing.calibration() {
-                let file = existing_path(args, "calibration.json");
+                let file = existing_path(&folder, "calibration.json");
                 own.check(&file, checked.max_calibration_age, &info)?;
                 if given_calibration.as_ref().is_some_and(|given| given != own) {
                     bail!("--calibration differs from the calibration the session's readings were converted with ({file}): a session keeps one calibration; resume without --calibration");
                 }
             }
-            let (recorder, points, own) = existing.resume(store)?;
+            let (recorder, points, own) = existing.resume(cx.store.clone())?;
             (recorder, points, own.or(given_calibration))
         }
         None => {
-            let recorder = match &args.out {
-                Some(dir) => FileRecorder::create(dir, identity, store)?,
-                None => FileRecorder::create_default(Path::new("sessions"), identity, store)?,
+            let recorder = match &folder {
+                SessionFolder::New(Some(dir)) => FileRecorder::create(dir, identity, cx.store.clone())?,
+                _ => FileRecorder::create_default(Path::new("sessions"), identity, cx.store.clone())?,
             };
             (recorder, Vec::new(), given_calibration)
         }
     };
     let dir = recorder.dir().to_path_buf();
-    recorder.set_resume_with(resume_command(args, &dir));
-    let resumed = args.resume.is_some();
+    recorder.set_resume_with(spot.as_ref().map_or_else(|| resume_command(args, &dir), |s| s.resume_with.clone()));
+    let resumed = matches!(folder, SessionFolder::Resume(_));
     if let (Some(c), false) = (&calibration, dir.join("calibration.json").exists()) {
         recorder.calibration(c).with_context(|| format!("cannot write {}", dir.join("calibration.json").display()))?;
     }
-    client.set_interrupt(Some(interrupted));
-    let session = Session::new(&mut client, info.clone(), plan_of(&plan, &sample), &mut recorder, operator)
+    cx.client.set_interrupt(Some(cx.interrupted.clone()));
+    let mut session = Session::new(cx.client, info.clone(), plan_of(&plan, &sample), &mut recorder, cx.operator)
         .with_calibration_limit(checked.max_calibration_age)
         .with_tile(checked.tile)
-        .with_arm_zero_uncertainty(args.arm_zero_uncertainty_deg)
-        .resume_from(calibration, points);
-    let outcome = session.run();
+        .with_arm_zero_uncertainty(args.arm_zero_uncertainty_deg);
+    if let Some(spot) = &spot {
+        session = session.at_spot(spot.number, spot.of);
+    }
+    let outcome = session.resume_from(calibration, points).run();
     recorder.bar.finish_and_clear();
     let mut outcome = match outcome {
         Ok(outcome) => outcome,
         Err(error) => {
             // Whatever happened, leave the instrument safe (arms stopped, lamp off); the
             // readings are on disk already. A second Ctrl-C must not stop this.
-            client.set_interrupt(None);
-            let _ = client.request(protocol::Command::Abort);
-            let _ = client.request(protocol::Command::SetLamp { on: false });
+            cx.client.set_interrupt(None);
+            let _ = cx.client.request(protocol::Command::Abort);
+            let _ = cx.client.request(protocol::Command::SetLamp { on: false });
             let status = if matches!(error, SessionError::Interrupted) { Status::Interrupted } else { Status::Failed };
             let record_error = recorder.stop(status, &error.to_string()).err().map(|e| e.to_string());
             return Ok(Measured::Stopped { dir, error, record_error });
         }
     };
-    let _ = client.request(protocol::Command::SetLamp { on: false });
+    // The lamp stays on between the spots of a sheet: the calibration holds for its output.
+    if spot.as_ref().is_none_or(|s| s.number >= s.of) {
+        let _ = cx.client.request(protocol::Command::SetLamp { on: false });
+    }
     if resumed && !outcome.flags.contains(&crate::analysis::flags::Flag::Resumed) {
         outcome.flags.push(crate::analysis::flags::Flag::Resumed);
     }
@@ -400,14 +488,156 @@ fn run_on<T: Transport>(
         Err(e) => {
             let why = format!("the session was measured but its result could not be written: {e:#}");
             let _ = recorder.stop(Status::Failed, &why);
-            bail!("{why}; every reading is in {}: gonio measure --resume {} writes the result", dir.display(), dir.display())
+            let how = spot.as_ref().map_or_else(|| format!("gonio measure --resume {}", dir.display()), |s| s.resume_with.clone());
+            bail!("{why}; every reading is in {}: {how} writes the result", dir.display())
         }
     }
 }
 
+/// How a spot of a sheet ended, when not measured.
+enum SpotStop {
+    /// The session stopped (see [`Measured::Stopped`]).
+    Stopped(SessionError, Option<String>),
+    /// Anything else (a folder that cannot be written, a bad calibration…).
+    Other(anyhow::Error),
+}
+
+/// A sheet of several spots (`--spots N`, or `--resume` of a sheet's folder): one session
+/// per spot in `DIR/spot-K` ([`crate::output::sheet`]), the first spot's calibration for all.
+fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
+    use crate::analysis::sheet::SpotResult;
+    use crate::output::record::FolderError;
+    use crate::output::sheet::{SheetFolder, SheetResult, read_sheet, read_spot};
+    let args = cx.args;
+    let sample = args.sample.clone().or(cx.sim_sample.clone()).unwrap_or_else(|| "sample".into());
+    let mut folder = match &args.resume {
+        Some(dir) => {
+            let folder = SheetFolder::open(dir, cx.store.clone())?;
+            if let Some(spots) = args.spots.filter(|n| *n != folder.doc.spots_planned) {
+                bail!("{} is a sheet of {} spots: it is continued as it began (without --spots, or --spots {}), not with --spots {spots}", dir.display(), folder.doc.spots_planned, folder.doc.spots_planned);
+            }
+            if args.sample.as_ref().is_some_and(|s| *s != folder.doc.sample) {
+                bail!("{} is a sheet of '{}', not of '{sample}': a sheet is continued as it began", dir.display(), folder.doc.sample);
+            }
+            folder
+        }
+        None => match &args.out {
+            Some(dir) => SheetFolder::create(dir, &sample, cx.checked.spots, crate::analysis::sheet::MAX_REPLACEMENTS, cx.store.clone())?,
+            None => SheetFolder::create_default(Path::new("sessions"), &sample, cx.checked.spots, crate::analysis::sheet::MAX_REPLACEMENTS, cx.store.clone())?,
+        },
+    };
+    let dir = folder.dir().to_path_buf();
+    let resume_with = resume_command(args, &dir);
+    folder.start_run(resume_with.clone()).with_context(|| format!("cannot write {}", dir.join(crate::output::sheet::SHEET).display()))?;
+    let plan = crate::session::sheet::SheetPlan { spots: folder.doc.spots_planned, replacements: folder.doc.replacements };
+    // Spots of an earlier run: finished ones count as they are, an unfinished one is resumed.
+    let mut done: Vec<SpotResult> = Vec::new();
+    for entry in folder.doc.spots.clone() {
+        let spot_dir = dir.join(&entry.folder);
+        match Existing::open(&spot_dir, cx.store.clone()) {
+            Err(FolderError::Finished { .. }) => done.push(read_spot(&spot_dir, entry.number).map_err(|p| anyhow::anyhow!("{p}"))?.result),
+            Ok(_) | Err(FolderError::NoSession(_) | FolderError::NoFolder(_)) => break,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let first = dir.join(crate::output::sheet::spot_folder(1)).join("calibration.json");
+    let mut calibration = if first.is_file() { Some(Calibration::load(&first, cx.checked.max_calibration_age, &cx.info)?) } else { None };
+    let decisions = std::cell::RefCell::new(Vec::<String>::new());
+    let measured = crate::session::sheet::measure_sheet(
+        plan,
+        done,
+        |number, of| -> Result<SpotResult, SpotStop> {
+            let spot_dir = folder.start_spot(number).map_err(|e| SpotStop::Other(anyhow::anyhow!("cannot write {}: {e}", dir.join(crate::output::sheet::SHEET).display())))?;
+            let kind = if spot_dir.join(crate::output::folder::SESSION).is_file() { SessionFolder::Resume(spot_dir.clone()) } else { SessionFolder::New(Some(spot_dir.clone())) };
+            let context = SpotContext { number, of, calibration: calibration.clone(), resume_with: resume_with.clone() };
+            match run_session(cx, kind, Some(context)).map_err(SpotStop::Other)? {
+                Measured::Done { outcome, .. } => {
+                    calibration.get_or_insert_with(|| outcome.calibration.clone());
+                    read_spot(&spot_dir, number).map(|s| s.result).map_err(|p| SpotStop::Other(anyhow::anyhow!("{p}")))
+                }
+                Measured::Stopped { error, record_error, .. } => Err(SpotStop::Stopped(error, record_error)),
+                Measured::Sheet { .. } => Err(SpotStop::Other(anyhow::anyhow!("a spot measured as a sheet"))),
+            }
+        },
+        |text| decisions.borrow_mut().push(text.to_string()),
+    );
+    for text in decisions.into_inner() {
+        folder.decision(&text);
+    }
+    let summary = match measured {
+        Ok((_, summary)) => summary,
+        Err(SpotStop::Stopped(error, record_error)) => {
+            let status = if matches!(error, SessionError::Interrupted) { Status::Interrupted } else { Status::Failed };
+            let sheet_error = folder.stop(status, &error.to_string()).err().map(|e| e.to_string());
+            return Ok(Measured::Stopped { dir, error, record_error: record_error.or(sheet_error) });
+        }
+        Err(SpotStop::Other(error)) => {
+            let _ = folder.stop(Status::Failed, &format!("{error:#}"));
+            return Err(error.context(format!("the sheet in {} stopped; continue it with {resume_with}", dir.display())));
+        }
+    };
+    let _ = cx.client.request(protocol::Command::SetLamp { on: false });
+    let spots: Vec<crate::output::sheet::ReadSpot> =
+        folder.doc.spots.iter().map(|s| read_spot(&dir.join(&s.folder), s.number)).collect::<Result<_, _>>().map_err(|p| anyhow::anyhow!("{p}"))?;
+    let result = SheetResult {
+        summary,
+        device_seconds: spots.iter().map(|s| s.seconds.0).sum(),
+        setup_seconds: spots.iter().map(|s| s.seconds.1).sum(),
+        spot_classes: spots.iter().map(|s| s.session.class.clone()).collect(),
+    };
+    folder.finish(result).with_context(|| format!("cannot write the sheet's result into {}", dir.display()))?;
+    let sheet = read_sheet(&dir).map_err(|p| anyhow::anyhow!("{p}"))?;
+    let json = sheet_json(&sheet);
+    Ok(Measured::Sheet { dir, sheet: Box::new(sheet), json })
+}
+
+/// The `--json` object of a sheet.
+fn sheet_json(sheet: &crate::output::sheet::ReadSheet) -> serde_json::Value {
+    let summary = &sheet.summary;
+    let result = sheet.doc.result.as_ref();
+    let spots: Vec<serde_json::Value> = sheet
+        .spots
+        .iter()
+        .map(|s| {
+            let verdict = summary.verdicts.iter().find(|j| j.number == s.result.number).map(|j| j.verdict.clone());
+            json!({
+                "number": s.result.number,
+                "folder": s.dir.display().to_string(),
+                "class": s.session.class,
+                "sigma_deg": s.session.values[0],
+                "rho_s": s.session.values[1],
+                "rho_d": s.session.values[2],
+                "flags": s.result.flags,
+                "verdict": verdict,
+            })
+        })
+        .collect();
+    json!({
+        "format": crate::output::sheet::SHEET_FORMAT,
+        "sample": sheet.doc.sample,
+        "session_dir": sheet.dir.display().to_string(),
+        "spots_planned": sheet.doc.spots_planned,
+        "n_spots": summary.accepted,
+        "spots": spots,
+        "sigma_deg": summary.mean[0],
+        "rho_s": summary.mean[1],
+        "rho_d": summary.mean[2],
+        "within_relative_sd": summary.within_relative_sd,
+        "within_log_covariance": summary.within_log_covariance,
+        "notes": summary.notes,
+        "device_seconds": result.map(|r| r.device_seconds),
+        "setup_seconds": result.map(|r| r.setup_seconds),
+        "ok": summary.ok(),
+        "flags": summary.flags,
+    })
+}
+
 /// A file of the resumed folder, for messages.
-fn existing_path(args: &Args, name: &str) -> String {
-    args.resume.as_ref().map_or_else(|| name.to_string(), |d| d.join(name).display().to_string())
+fn existing_path(folder: &SessionFolder, name: &str) -> String {
+    match folder {
+        SessionFolder::Resume(dir) => dir.join(name).display().to_string(),
+        SessionFolder::New(_) => name.to_string(),
+    }
 }
 
 fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json::Value) {
@@ -430,6 +660,50 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
         println!("  result: ok{}", if outcome.flags.is_empty() { String::new() } else { format!(" (noted: {})", flag_names(&outcome.flags)) });
     } else {
         println!("  result: NOT CLEAN, flags: {}", flag_names(&outcome.flags));
+    }
+    println!("  files: {} (gonio verify {} checks them)", dir.display(), dir.display());
+}
+
+fn print_sheet(dir: &Path, sheet: &crate::output::sheet::ReadSheet) {
+    use crate::analysis::sheet::SpotVerdict;
+    let summary = &sheet.summary;
+    println!("sheet of '{}': {} spots planned, {} measured, {} accepted", sheet.doc.sample, sheet.doc.spots_planned, sheet.spots.len(), summary.accepted);
+    let value = |v: Option<f64>, digits: usize| v.map_or_else(|| "—".to_string(), |v| format!("{v:.digits$}"));
+    for s in &sheet.spots {
+        let verdict = match summary.verdicts.iter().find(|j| j.number == s.result.number).map(|j| &j.verdict) {
+            Some(SpotVerdict::Accepted) => "accepted".to_string(),
+            Some(SpotVerdict::Excluded { reason }) => format!("EXCLUDED: {reason}"),
+            None => "?".to_string(),
+        };
+        println!(
+            "  spot {}: class {:<9} σ = {}°, ρs = {}, ρd = {}  {verdict}",
+            s.result.number,
+            s.session.class.as_deref().unwrap_or("undecided"),
+            value(s.session.values[0], 3),
+            value(s.session.values[1], 4),
+            value(s.session.values[2], 4)
+        );
+    }
+    let spread = |i: usize| summary.within_relative_sd.map_or_else(|| "spot-to-spot unknown".to_string(), |sd| format!("spot-to-spot sd {:.1} %", 100.0 * sd[i]));
+    println!(
+        "  sheet (geometric mean of the accepted spots): σ = {}° ({}), ρs = {} ({}), ρd = {} ({})",
+        value(summary.mean[0], 3),
+        spread(0),
+        value(summary.mean[1], 4),
+        spread(1),
+        value(summary.mean[2], 4),
+        spread(2)
+    );
+    for note in &summary.notes {
+        println!("  note: {note}");
+    }
+    if let Some(result) = &sheet.doc.result {
+        println!("  {:.1} device s measuring the spots (+{:.1} s homing, calibration and moving the sheet)", result.device_seconds, result.setup_seconds);
+    }
+    if summary.ok() {
+        println!("  result: ok{}", if summary.flags.is_empty() { String::new() } else { format!(" (noted: {})", flag_names(&summary.flags)) });
+    } else {
+        println!("  result: NOT CLEAN, flags: {}", flag_names(&summary.flags));
     }
     println!("  files: {} (gonio verify {} checks them)", dir.display(), dir.display());
 }

@@ -26,6 +26,10 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut failed = false;
     for dir in &args.dirs {
+        if crate::output::sheet::is_sheet_folder(dir) {
+            failed |= !verify_sheet(dir, args.json);
+            continue;
+        }
         match verify(dir) {
             Ok(v) => {
                 if args.json {
@@ -57,4 +61,35 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::from(if failed { crate::cli::exit::FAILED } else { crate::cli::exit::OK }))
+}
+
+/// Check a sheet folder and print the result; whether it verified.
+fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
+    match crate::output::sheet::verify_sheet(dir) {
+        Ok(v) => {
+            let readings: usize = v.spots.iter().map(|s| s.readings).sum();
+            if json {
+                println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []}));
+            } else {
+                println!(
+                    "{}: verified: a sheet of {} spots of '{}'; MANIFEST.sha256 matches sheet.json and every spot's manifest; every spot folder verifies ({readings} readings); the sheet's result is the one its spots give",
+                    dir.display(),
+                    v.spots.len(),
+                    v.sheet.doc.sample
+                );
+            }
+            true
+        }
+        Err(problems) => {
+            for p in &problems {
+                eprintln!("error: {p}");
+            }
+            if json {
+                println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
+            } else {
+                eprintln!("{}: NOT verified ({} problem{})", dir.display(), problems.len(), if problems.len() == 1 { "" } else { "s" });
+            }
+            false
+        }
+    }
 }

@@ -36,6 +36,10 @@ pub trait Transport {
     fn reconnect(&mut self) -> std::io::Result<()> {
         Ok(())
     }
+    /// The operator moved the sample so that another spot lies on the port (a multi-spot
+    /// session asked them to). A real instrument cannot tell; the simulator in process moves
+    /// its sheet. No-op by default.
+    fn sample_moved(&mut self) {}
     /// What the link is, for messages (a port's path).
     fn name(&self) -> String {
         "the instrument's link".to_string()

@@ -43,6 +43,10 @@ impl Transport for SimInstrument {
         1
     }
 
+    fn sample_moved(&mut self) {
+        self.next_spot();
+    }
+
     fn name(&self) -> String {
         "the simulated instrument (in process)".to_string()
     }

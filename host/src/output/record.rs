@@ -113,6 +113,19 @@ pub enum FolderError {
         /// When it finished.
         ended: String,
     },
+    /// A finished sheet of several spots is not measured again.
+    #[error(
+        "{} holds a finished sheet of '{}' ({} spots): it is not measured again; its result is in {} (gonio verify {} checks the folder); measure anew with --out NEW_FOLDER",
+        .dir.display(), .sample, .spots, .dir.join(crate::output::sheet::SHEET).display(), .dir.display()
+    )]
+    FinishedSheet {
+        /// The folder.
+        dir: PathBuf,
+        /// Its sample.
+        sample: String,
+        /// Its spots measured.
+        spots: usize,
+    },
     /// `--resume` with another sample, instrument or plan.
     #[error("cannot resume {}: {}; a session is continued only as it began (or start a new one with --out)", .dir.display(), .differences.join("; "))]
     Mismatch {

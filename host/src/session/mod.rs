@@ -26,6 +26,7 @@ pub mod order;
 mod prompt;
 mod recovery;
 mod schedule;
+pub mod sheet;
 mod steps;
 mod white;
 
@@ -452,6 +453,8 @@ pub struct Session<'a, T: Transport> {
     tile: Tile,
     /// See [`Session::with_arm_zero_uncertainty`].
     arm_zero_uncertainty_deg: f64,
+    /// See [`Session::at_spot`].
+    spot: Option<(u16, u16)>,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
@@ -483,7 +486,16 @@ impl<'a, T: Transport> Session<'a, T> {
             max_calibration_age: None,
             tile: Tile::default(),
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+            spot: None,
         }
+    }
+
+    /// Spot `spot` of `of` of a multi-spot session ([`crate::session::sheet`]): a spot
+    /// after the first asks the operator to move the sheet before its first reading (a
+    /// spot resumed with readings does not: the sheet has not moved since).
+    pub fn at_spot(mut self, spot: u16, of: u16) -> Self {
+        self.spot = Some((spot, of));
+        self
     }
 
     /// The standard uncertainty of the detector arm's zero, degrees (default
@@ -570,6 +582,10 @@ impl<'a, T: Transport> Session<'a, T> {
         } else {
             self.lamp_wanted = true;
             self.lamp_on()?;
+        }
+        if let Some((spot, of)) = self.spot.filter(|(spot, _)| *spot > 1 && !self.resumed) {
+            self.ask_operator(Placement::NextSpot { spot, of })?;
+            self.client.transport_mut().sample_moved();
         }
         // Setup (homing, dark, white) is the same whatever the policy and a calibration
         // serves many sheets: the sample's device time is counted from here.

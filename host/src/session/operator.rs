@@ -19,14 +19,27 @@ pub enum Placement {
     WhiteTile,
     /// The sample.
     Sample,
+    /// The sheet moved so that another spot of it is under the beam (spot `spot` of `of`
+    /// of a multi-spot session).
+    NextSpot {
+        /// The spot to come, from 1.
+        spot: u16,
+        /// The spots planned.
+        of: u16,
+    },
 }
 
 impl Placement {
     /// What the person is asked to do, in words.
-    pub fn instruction(self) -> &'static str {
+    pub fn instruction(self) -> String {
         match self {
-            Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port",
-            Placement::Sample => "Place the SAMPLE on the sample port",
+            Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port".to_string(),
+            Placement::Sample => "Place the SAMPLE on the sample port".to_string(),
+            // Spots a centimetre or more apart see different fibres and coating; a spot
+            // measured twice would only repeat its own noise.
+            Placement::NextSpot { spot, of } => format!(
+                "MOVE THE SHEET so that a fresh area (at least 1 cm from the spots measured) lies on the sample port: spot {spot} of {of}"
+            ),
         }
     }
 }

@@ -71,3 +71,35 @@ pub fn simulated_session(
     let outcome = configure(Session::new(&mut client, info, plan, &mut recorder, &mut operator)).run().map_err(|e| e.to_string())?;
     Ok((outcome, client.transport().truth().clone()))
 }
+
+/// One sheet measured at `spots` spots as `gonio measure --sim --spots N` measures it (one
+/// connection, the first spot's calibration for all, a flagged spot replaced), with an
+/// operator who answers at once and nothing recorded. Returns every spot's outcome and
+/// the sheet's result.
+pub fn simulated_sheet(run: &SimulatedRun<'_>, spots: u16) -> Result<(Vec<Outcome>, crate::analysis::sheet::SheetSummary, Vec<crate::analysis::sheet::SpotResult>), String> {
+    let instrument = run.options.instrument(run.sample).map_err(|e| e.to_string())?;
+    let mut client = Client::new(instrument, RetryPolicy::default());
+    let info = client.hello().map_err(|e| e.to_string())?;
+    let plan = Plan {
+        sample: run.sample.to_string(),
+        integration_ms: run.integration_ms.unwrap_or(info.default_integration_ms),
+        policy: run.policy.clone(),
+        acceptance_deg: f64::from(info.acceptance_deg),
+        white_check: false,
+        white_drift_limit: 0.005,
+    };
+    let mut outcomes: Vec<Outcome> = Vec::new();
+    let measure_spot = |number: u16, of: u16| -> Result<crate::analysis::sheet::SpotResult, crate::session::SessionError> {
+        let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
+        let mut session = Session::new(&mut client, info.clone(), plan.clone(), &mut recorder, &mut operator).at_spot(number, of);
+        if let Some(first) = outcomes.first() {
+            session = session.with_calibration(first.calibration.clone());
+        }
+        let outcome = session.run()?;
+        let result = crate::analysis::sheet::SpotResult { number, flags: outcome.flags.clone(), spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit) };
+        outcomes.push(outcome);
+        Ok(result)
+    };
+    let (results, summary) = crate::session::sheet::measure_sheet(crate::session::sheet::SheetPlan::new(spots), Vec::new(), measure_spot, |_| {}).map_err(|e| e.to_string())?;
+    Ok((outcomes, summary, results))
+}

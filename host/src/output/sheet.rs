@@ -1,0 +1,423 @@
+//! The folder of a sheet measured at several spots (`gonio measure --spots N`, N ≥ 2):
+//!
+//! | file | what | written |
+//! |---|---|---|
+//! | `sheet.json` | sample, the spots planned, every spot started (its folder), the decisions, and at the end the sheet's result | replaced atomically, before each spot and at the end |
+//! | `spot-1/`, `spot-2/`, … | one whole session folder per spot ([`crate::output::folder`]): each verifies on its own | as a session folder |
+//! | `MANIFEST.sha256` | the SHA-256 of `sheet.json` and of every spot's `MANIFEST.sha256` (`sha256sum -c` checks it) | last, atomically |
+//!
+//! Spot 1's folder holds the calibration taken; every later spot's holds the same one
+//! (it was reused), so each spot folder stands alone. A kill at any write leaves a folder
+//! `gonio measure --resume` continues: finished spots are kept, an unfinished spot is
+//! resumed as any session is, and the spots still missing are measured.
+use crate::analysis::compare::{SessionResult, parse_session};
+use crate::analysis::evidence::{Sheet, Spot};
+use crate::analysis::flags::Flag;
+use crate::analysis::sheet::{self, SheetSummary, SpotResult};
+use crate::output::folder::{MANIFEST, Problem, SESSION, SessionDoc, Status};
+use crate::output::record::{FolderError, FolderLock};
+use crate::output::store::{Store, StoreOptions};
+use serde::{Deserialize, Serialize};
+use std::io;
+use std::path::{Path, PathBuf};
+
+/// The sheet document.
+pub const SHEET: &str = "sheet.json";
+/// The `format` of a `sheet.json` this host writes and reads.
+pub const SHEET_FORMAT: &str = "gonio-sheet/1";
+
+/// One spot started.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SpotEntry {
+    /// Its number, from 1, in the order measured.
+    pub number: u16,
+    /// Its session folder, relative to the sheet's.
+    pub folder: String,
+}
+
+/// The sheet's result, once its spots are measured.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SheetResult {
+    /// Which spots count, the sheet's mean parameters and their spot-to-spot variation.
+    #[serde(flatten)]
+    pub summary: SheetSummary,
+    /// Device time measuring the spots (their sessions' `device_seconds`), seconds.
+    pub device_seconds: f64,
+    /// Device time of homing and calibration, and of waiting for the operator to move
+    /// the sheet, seconds.
+    pub setup_seconds: f64,
+    /// Each spot's class, in the order measured (`null`: undecided).
+    pub spot_classes: Vec<Option<String>>,
+}
+
+/// `sheet.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SheetDoc {
+    /// [`SHEET_FORMAT`].
+    pub format: String,
+    /// Where the sheet stands.
+    pub status: Status,
+    /// Why it stopped, when failed or interrupted.
+    pub why: Option<String>,
+    /// How to go on, when not finished.
+    pub resume_with: Option<String>,
+    /// The sample.
+    pub sample: String,
+    /// Clean spots wanted.
+    pub spots_planned: u16,
+    /// More spots measured, at most, in place of flagged ones.
+    pub replacements: u16,
+    /// Every spot started, in order.
+    pub spots: Vec<SpotEntry>,
+    /// The sheet's decisions, in order (each spot's own are in its folder).
+    pub decisions: Vec<String>,
+    /// The result, once finished.
+    pub result: Option<SheetResult>,
+}
+
+/// Whether `dir` is the folder of a multi-spot sheet.
+pub fn is_sheet_folder(dir: &Path) -> bool {
+    dir.join(SHEET).is_file()
+}
+
+/// The folder name of spot `number`.
+pub fn spot_folder(number: u16) -> String {
+    format!("spot-{number}")
+}
+
+fn json_bytes(value: &impl Serialize) -> io::Result<Vec<u8>> {
+    let mut bytes = serde_json::to_vec_pretty(value)?;
+    bytes.push(b'\n');
+    Ok(bytes)
+}
+
+fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
+    move |source| FolderError::Io { dir: dir.to_path_buf(), source }
+}
+
+/// Read `sheet.json` of `dir`.
+pub fn read_doc(dir: &Path) -> Result<SheetDoc, Problem> {
+    let file = dir.join(SHEET);
+    let problem = |message: String| Problem { file: file.clone(), line: None, message };
+    let text = std::fs::read_to_string(&file).map_err(|e| problem(format!("cannot read: {e}")))?;
+    let doc: SheetDoc = serde_json::from_str(&text).map_err(|e| problem(format!("not a sheet document: {e}")))?;
+    if doc.format != SHEET_FORMAT {
+        return Err(problem(format!("format '{}' is not '{SHEET_FORMAT}' (written by another version of gonio)", doc.format)));
+    }
+    for (k, entry) in doc.spots.iter().enumerate() {
+        if entry.number as usize != k + 1 || entry.folder != spot_folder(entry.number) {
+            return Err(problem(format!("spot entry {} is not spot {} in {}", k + 1, k + 1, spot_folder(k as u16 + 1))));
+        }
+    }
+    Ok(doc)
+}
+
+/// Writes a sheet's folder: its `sheet.json` and, at the end, its manifest. The spots'
+/// folders are written by their sessions' own recorders.
+pub struct SheetFolder {
+    store: Store,
+    _lock: FolderLock,
+    /// The document as last written.
+    pub doc: SheetDoc,
+}
+
+impl SheetFolder {
+    /// Make `dir` (new, or empty) for a new sheet of `sample`.
+    pub fn create(dir: &Path, sample: &str, spots_planned: u16, replacements: u16, options: StoreOptions) -> Result<SheetFolder, FolderError> {
+        if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(io_error(parent))?;
+        }
+        match Store::create_dir(dir, options.clone()) {
+            Ok(_) => {}
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                if !dir.is_dir() {
+                    return Err(FolderError::NotAFolder(dir.to_path_buf()));
+                }
+                // A temporary file alone is a first sheet.json a killed gonio left: the
+                // folder is as empty as before it.
+                let names = crate::output::folder::entries(dir).map_err(io_error(dir))?;
+                let (temp, names): (Vec<String>, Vec<String>) = names.into_iter().partition(|n| crate::output::store::is_temp_name(n));
+                if names.is_empty() {
+                    let mut store = Store::open_dir(dir, options.clone());
+                    for name in temp {
+                        store.remove(&name).map_err(io_error(dir))?;
+                    }
+                } else {
+                    let shown: Vec<&str> = names.iter().take(3).map(String::as_str).collect();
+                    return Err(FolderError::NotEmpty { dir: dir.to_path_buf(), entries: shown.join(", ") });
+                }
+            }
+            Err(e) => return Err(FolderError::Io { dir: dir.to_path_buf(), source: e }),
+        }
+        let lock = FolderLock::take(dir)?;
+        let doc = SheetDoc {
+            format: SHEET_FORMAT.into(),
+            status: Status::Running,
+            why: None,
+            resume_with: None,
+            sample: sample.to_string(),
+            spots_planned,
+            replacements,
+            spots: Vec::new(),
+            decisions: Vec::new(),
+            result: None,
+        };
+        let mut folder = SheetFolder { store: Store::open_dir(dir, options), _lock: lock, doc };
+        folder.write().map_err(io_error(dir))?;
+        Ok(folder)
+    }
+
+    /// A new folder `PARENT/<local date-time>-<sample>` (a suffix when taken).
+    pub fn create_default(parent: &Path, sample: &str, spots_planned: u16, replacements: u16, options: StoreOptions) -> Result<SheetFolder, FolderError> {
+        std::fs::create_dir_all(parent).map_err(io_error(parent))?;
+        let base = format!("{}-{}", chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"), crate::output::record::file_name_of(sample));
+        for k in 1..10_000 {
+            let dir = parent.join(if k == 1 { base.clone() } else { format!("{base}-{k}") });
+            if !dir.exists() {
+                return SheetFolder::create(&dir, sample, spots_planned, replacements, options);
+            }
+        }
+        Err(FolderError::Io { dir: parent.join(base), source: io::Error::other("10 000 sheets of this sample in one second") })
+    }
+
+    /// Open the sheet folder `dir` to continue it: refuses a missing folder, one in use, a
+    /// damaged `sheet.json`, or a finished sheet (whose manifest is written first when a
+    /// crash kept it from being written).
+    pub fn open(dir: &Path, options: StoreOptions) -> Result<SheetFolder, FolderError> {
+        if !dir.exists() {
+            return Err(FolderError::NoFolder(dir.to_path_buf()));
+        }
+        let lock = FolderLock::take(dir)?;
+        let mut store = Store::open_dir(dir, options);
+        // A temporary file is a replacement of sheet.json that a kill cut short.
+        for name in crate::output::folder::entries(dir).map_err(io_error(dir))? {
+            if crate::output::store::is_temp_name(&name) {
+                store.remove(&name).map_err(io_error(dir))?;
+            }
+        }
+        let doc = read_doc(dir).map_err(FolderError::Damaged)?;
+        let mut folder = SheetFolder { store, _lock: lock, doc };
+        if folder.doc.status == Status::Finished {
+            if !dir.join(MANIFEST).exists() {
+                folder.write_manifest().map_err(io_error(dir))?;
+            }
+            return Err(FolderError::FinishedSheet { dir: dir.to_path_buf(), sample: folder.doc.sample.clone(), spots: folder.doc.spots.len() });
+        }
+        Ok(folder)
+    }
+
+    /// The folder.
+    pub fn dir(&self) -> &Path {
+        self.store.dir()
+    }
+
+    fn write(&mut self) -> io::Result<()> {
+        let bytes = json_bytes(&self.doc)?;
+        self.store.replace(SHEET, &bytes)
+    }
+
+    /// Status running, and how to go on if this run stops.
+    pub fn start_run(&mut self, resume_with: String) -> io::Result<()> {
+        self.doc.status = Status::Running;
+        self.doc.why = None;
+        self.doc.resume_with = Some(resume_with);
+        self.write()
+    }
+
+    /// Spot `number` begins: recorded before its folder is made, so a resume finds it.
+    pub fn start_spot(&mut self, number: u16) -> io::Result<PathBuf> {
+        if !self.doc.spots.iter().any(|s| s.number == number) {
+            self.doc.spots.push(SpotEntry { number, folder: spot_folder(number) });
+            self.write()?;
+        }
+        Ok(self.dir().join(spot_folder(number)))
+    }
+
+    /// A decision of the sheet (kept in `sheet.json` at the next write).
+    pub fn decision(&mut self, text: &str) {
+        self.doc.decisions.push(text.to_string());
+    }
+
+    /// The sheet is measured: its result, then the manifest.
+    pub fn finish(&mut self, result: SheetResult) -> io::Result<()> {
+        self.doc.result = Some(result);
+        self.doc.status = Status::Finished;
+        self.doc.why = None;
+        self.doc.resume_with = None;
+        self.write()?;
+        self.write_manifest()
+    }
+
+    /// The sheet stopped (`status` failed or interrupted), and why.
+    pub fn stop(&mut self, status: Status, why: &str) -> io::Result<()> {
+        self.doc.status = status;
+        self.doc.why = Some(why.to_string());
+        self.write()
+    }
+
+    fn write_manifest(&mut self) -> io::Result<()> {
+        let text = manifest_text(self.store.dir(), &self.doc)?;
+        self.store.replace(MANIFEST, text.as_bytes())
+    }
+}
+
+/// The sheet's manifest: `sheet.json` and every spot's manifest, in `sha256sum` format.
+fn manifest_text(dir: &Path, doc: &SheetDoc) -> io::Result<String> {
+    let mut names = vec![SHEET.to_string()];
+    names.extend(doc.spots.iter().map(|s| format!("{}/{MANIFEST}", s.folder)));
+    let mut text = String::new();
+    for name in names {
+        text += &format!("{}  {name}\n", crate::output::manifest::sha256_hex(&std::fs::read(dir.join(&name))?));
+    }
+    Ok(text)
+}
+
+/// A finished spot of a sheet, read back from its folder.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReadSpot {
+    /// Its folder.
+    pub dir: PathBuf,
+    /// Its `session.json` as the comparison reads it.
+    pub session: SessionResult,
+    /// What it contributes to the sheet.
+    pub result: SpotResult,
+    /// Its session's device seconds measuring, and homing-and-calibration seconds.
+    pub seconds: (f64, f64),
+}
+
+/// Read a finished spot folder's result.
+pub fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Problem> {
+    let file = dir.join(SESSION);
+    let problem = |message: String| Problem { file: file.clone(), line: None, message };
+    let text = std::fs::read_to_string(&file).map_err(|e| problem(format!("cannot read: {e}")))?;
+    let session = parse_session(&file, &text).map_err(|e| problem(e.to_string()))?;
+    let doc: SessionDoc = serde_json::from_str(&text).map_err(|e| problem(e.to_string()))?;
+    if doc.status != Status::Finished {
+        return Err(problem(format!("status is {}: the spot is not finished", doc.status)));
+    }
+    let flags: Vec<Flag> = doc.rest.get("flags").cloned().map(serde_json::from_value).transpose().map_err(|e| problem(format!("flags: {e}")))?.unwrap_or_default();
+    let number_of = |key: &str| doc.rest.get("result").and_then(|r| r.get(key)).and_then(serde_json::Value::as_f64).unwrap_or(0.0);
+    let mut covariance = [[0.0; 3]; 3];
+    for (r, row) in covariance.iter_mut().enumerate() {
+        row.copy_from_slice(&session.covariance[r][..3]);
+    }
+    let spot = Spot { values: [session.values[0], session.values[1], session.values[2]], covariance };
+    Ok(ReadSpot { dir: dir.to_path_buf(), seconds: (number_of("device_seconds"), number_of("setup_seconds")), result: SpotResult { number, flags, spot }, session })
+}
+
+/// A finished sheet folder, read back.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReadSheet {
+    /// Its folder.
+    pub dir: PathBuf,
+    /// `sheet.json`.
+    pub doc: SheetDoc,
+    /// Every spot measured, in order.
+    pub spots: Vec<ReadSpot>,
+    /// The result recomputed from the spots (it must be the recorded one).
+    pub summary: SheetSummary,
+}
+
+impl ReadSheet {
+    /// The accepted spots, as the evidence weighs the sheet.
+    pub fn sheet(&self) -> Sheet {
+        let results: Vec<SpotResult> = self.spots.iter().map(|s| s.result.clone()).collect();
+        self.summary.sheet(&results)
+    }
+}
+
+/// Read the finished sheet folder `dir`: `sheet.json` and every spot's result.
+pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Problem> {
+    let doc = read_doc(dir)?;
+    if doc.status != Status::Finished {
+        let how = doc.resume_with.clone().unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
+        return Err(Problem { file: dir.join(SHEET), line: None, message: format!("status is {}: the sheet is not finished (continue it with {how})", doc.status) });
+    }
+    let spots = doc.spots.iter().map(|s| read_spot(&dir.join(&s.folder), s.number)).collect::<Result<Vec<_>, _>>()?;
+    let results: Vec<SpotResult> = spots.iter().map(|s| s.result.clone()).collect();
+    let summary = sheet::assess(doc.spots_planned, &results);
+    Ok(ReadSheet { dir: dir.to_path_buf(), doc, spots, summary })
+}
+
+/// A sheet folder that passed every check.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VerifiedSheet {
+    /// The sheet.
+    pub sheet: ReadSheet,
+    /// Each spot's check.
+    pub spots: Vec<crate::output::verify::Verified>,
+}
+
+/// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
+/// checks a session, and the recorded result against the one its spots give.
+pub fn verify_sheet(dir: &Path) -> Result<VerifiedSheet, Vec<Problem>> {
+    let doc = read_doc(dir).map_err(|p| vec![p])?;
+    let mut problems = Vec::new();
+    let manifest = dir.join(MANIFEST);
+    match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
+        (Ok(recorded), Ok(now)) if recorded == now => {}
+        (Ok(_), Ok(_)) => problems.push(Problem { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
+        (Err(e), _) => problems.push(Problem { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
+        (_, Err(e)) => problems.push(Problem { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
+    }
+    let expected: Vec<String> = std::iter::once(SHEET.to_string()).chain(std::iter::once(MANIFEST.to_string())).chain(doc.spots.iter().map(|s| s.folder.clone())).collect();
+    if let Ok(names) = crate::output::folder::entries(dir) {
+        for name in names.into_iter().filter(|n| !expected.contains(n)) {
+            problems.push(Problem { file: dir.join(&name), line: None, message: format!("not part of the sheet ({SHEET} lists no such spot)") });
+        }
+    }
+    let mut verified = Vec::new();
+    for entry in &doc.spots {
+        match crate::output::verify::verify(&dir.join(&entry.folder)) {
+            Ok(v) => verified.push(v),
+            Err(found) => problems.extend(found),
+        }
+    }
+    if !problems.is_empty() {
+        return Err(problems);
+    }
+    let sheet = read_sheet(dir).map_err(|p| vec![p])?;
+    let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
+    if recorded != Some(&sheet.summary) {
+        return Err(vec![Problem { file: dir.join(SHEET), line: None, message: "its result is not the one its spots give".into() }]);
+    }
+    Ok(VerifiedSheet { sheet, spots: verified })
+}
+
+/// A measured sheet as `gonio compare` and `gonio library` read it: a sheet folder (its
+/// accepted spots), or a session of one spot (its folder or `session.json`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeasuredSheet {
+    /// What was read (the folder, or the `session.json`).
+    pub path: PathBuf,
+    /// The sample.
+    pub sample: String,
+    /// Each accepted spot's class (`None`: undecided).
+    pub classes: Vec<Option<String>>,
+    /// The accepted spots.
+    pub sheet: Sheet,
+    /// The sheet's result when it is a sheet folder; `None` for a session of one spot.
+    pub summary: Option<SheetSummary>,
+}
+
+impl MeasuredSheet {
+    /// The classes of its spots in words ("G", "G, G, SG", "undecided").
+    pub fn class_text(&self) -> String {
+        let names: Vec<&str> = self.classes.iter().map(|c| c.as_deref().unwrap_or("undecided")).collect();
+        if names.is_empty() { "undecided".to_string() } else { names.join(", ") }
+    }
+}
+
+/// Read a sheet folder, a session folder or a `session.json`. A sheet folder must be
+/// finished; its result is recomputed from its spots' files.
+pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
+    if is_sheet_folder(path) {
+        let read = read_sheet(path).map_err(|p| p.to_string())?;
+        let sheet = read.sheet();
+        let accepted = |n: u16| read.summary.verdicts.iter().any(|j| j.number == n && j.verdict == sheet::SpotVerdict::Accepted);
+        let classes = read.spots.iter().filter(|s| accepted(s.result.number)).map(|s| s.session.class.clone()).collect();
+        return Ok(MeasuredSheet { path: path.to_path_buf(), sample: read.doc.sample.clone(), classes, sheet, summary: Some(read.summary) });
+    }
+    let session = crate::analysis::compare::read_session(path).map_err(|e| e.to_string())?;
+    Ok(MeasuredSheet { path: session.file.clone(), sample: session.sample.clone(), classes: vec![session.class.clone()], sheet: session.sheet(), summary: None })
+}
