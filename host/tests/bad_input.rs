@@ -30,7 +30,7 @@ fn rejected(args: &[&str], needles: &[&str]) -> String {
 /// `gonio measure --sim G` with `bad`, into a new folder: refused before any folder is made.
 fn measure_rejected(bad: &[&str], needles: &[&str]) {
     let dir = temp_dir("never");
-    let mut args = vec!["measure", "--sim", "G", "--out", dir.to_str().unwrap()];
+    let mut args = vec!["measure", "--spots", "1", "--sim", "G", "--out", dir.to_str().unwrap()];
     args.extend_from_slice(bad);
     rejected(&args, needles);
     assert!(!dir.exists(), "{bad:?}: a folder was made for a refused session");
@@ -40,7 +40,7 @@ fn measure_rejected(bad: &[&str], needles: &[&str]) {
 fn interrupted_session(name: &str) -> PathBuf {
     let dir = temp_dir(name);
     let crash = host::output::store::Crash::at(30);
-    let args = host::cli::measure::parse_args(["--sim", "G", "--out", dir.to_str().unwrap()]).unwrap();
+    let args = host::cli::measure::parse_args(["--spots", "1", "--sim", "G", "--out", dir.to_str().unwrap()]).unwrap();
     let _ = host::cli::measure::measure_with(
         &args,
         &mut host::session::SimulatedOperator,
@@ -62,7 +62,7 @@ fn a_maximum_calibration_age_that_is_no_number_of_hours_is_refused() {
     // On a resume, nothing measured is touched.
     let dir = interrupted_session("age");
     let before = contents(&dir);
-    rejected(&["measure", "--sim", "G", "--resume", dir.to_str().unwrap(), "--max-calibration-age-h", "inf"], &["--max-calibration-age-h", "not inf"]);
+    rejected(&["measure", "--spots", "1", "--sim", "G", "--resume", dir.to_str().unwrap(), "--max-calibration-age-h", "inf"], &["--max-calibration-age-h", "not inf"]);
     assert!(contents(&dir) == before);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -81,17 +81,17 @@ fn an_integration_time_outside_the_instruments_limits_is_refused_before_anything
         measure_rejected(&["--integration-ms", bad], &[&format!("--integration-ms {bad} ms is outside what the instrument (serial SIM-0001) accepts:"), " to ", " ms"]);
     }
     // The limits are the instrument's, from its handshake.
-    let out = gonio(&["measure", "--sim", "G", "--integration-ms", "0", "--out", temp_dir("limits").to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--integration-ms", "0", "--out", temp_dir("limits").to_str().unwrap()]);
     let message = String::from_utf8_lossy(&out.stderr);
     // The simulator's defaults, as the command line gives them.
-    let options = host::cli::measure::parse_args(["--sim", "G"]).unwrap().sim_options;
+    let options = host::cli::measure::parse_args(["--spots", "1", "--sim", "G"]).unwrap().sim_options;
     let mut client = host::instrument::link::Client::new(options.instrument("G").unwrap(), host::instrument::link::RetryPolicy::default());
     let info = client.hello().unwrap();
     assert!(message.contains(&format!("accepts: {} to {} ms", info.min_integration_ms.max(1), info.max_integration_ms)), "{message}");
     // The instrument's own shortest time is taken.
     let dir = temp_dir("shortest");
     let min = info.min_integration_ms.max(1).to_string();
-    let out = gonio(&["measure", "--sim", "PPC", "--integration-ms", &min, "--json", "--out", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "PPC", "--integration-ms", &min, "--json", "--out", dir.to_str().unwrap()]);
     assert!(out.status.code().is_some_and(|c| c == 0 || c == 3), "{}", String::from_utf8_lossy(&out.stderr));
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -116,7 +116,7 @@ fn csv_numbers_the_fit_cannot_represent_are_refused_at_their_line_and_a_bom_is_a
     std::fs::create_dir_all(&dir).unwrap();
     // A real session's readings as the base.
     let session = temp_dir("csv-session");
-    assert!(gonio(&["measure", "--sim", "G", "--out", session.to_str().unwrap()]).status.success());
+    assert!(gonio(&["measure", "--spots", "1", "--sim", "G", "--out", session.to_str().unwrap()]).status.success());
     let readings = std::fs::read_to_string(session.join("readings.csv")).unwrap();
     let rows: Vec<&str> = readings.lines().collect();
     let with_row = |line: usize, row: String| {
@@ -190,13 +190,13 @@ fn bad_options_on_a_resume_leave_the_folder_as_it_was() {
         (vec!["--integration-ms", "1"], "--integration-ms 1 ms is outside"),
         (vec!["--sample", ""], "--sample must be a name"),
     ] {
-        let mut args = vec!["measure", "--sim", "G", "--resume", d];
+        let mut args = vec!["measure", "--spots", "1", "--sim", "G", "--resume", d];
         args.extend_from_slice(&bad);
         rejected(&args, &[needle]);
         assert!(contents(&dir) == before, "{bad:?} changed the folder");
     }
     // And with good ones it finishes, every reading kept.
-    let out = gonio(&["measure", "--sim", "G", "--resume", d]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--resume", d]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let points = String::from_utf8(before["points.jsonl"].clone()).unwrap();
     let whole = &points[..points.rfind('\n').map_or(0, |i| i + 1)];

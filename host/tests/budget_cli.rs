@@ -12,7 +12,7 @@ fn temp_dir(name: &str) -> PathBuf {
 
 /// A session's `--json` object; a flagged result (exit 3) is a result too.
 fn measure(dir: &Path, extra: &[&str]) -> Value {
-    let mut args = vec!["measure", "--sim", "PPC", "--seed", "5", "--policy", "paper", "--json", "--out", dir.to_str().unwrap()];
+    let mut args = vec!["measure", "--spots", "1", "--sim", "PPC", "--seed", "5", "--policy", "paper", "--json", "--out", dir.to_str().unwrap()];
     args.extend_from_slice(extra);
     let out = gonio(&args);
     assert!(matches!(out.status.code(), Some(0) | Some(3)), "gonio failed: {}", String::from_utf8_lossy(&out.stderr));
@@ -65,7 +65,7 @@ fn a_bad_tile_certificate_is_refused_before_measuring() {
         ("--tile-uncertainty-pct", "75", "uncertainty 75 %"),
     ] {
         let dir = temp_dir(&format!("bad-tile-{}", value.replace('-', "m")));
-        let out = gonio(&["measure", "--sim", "PPC", "--out", dir.to_str().unwrap(), option, value]);
+        let out = gonio(&["measure", "--spots", "1", "--sim", "PPC", "--out", dir.to_str().unwrap(), option, value]);
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{option} {value}: {stderr}");
         assert!(stderr.contains("tile") && stderr.contains(says), "{option} {value}: {stderr}");

@@ -19,13 +19,13 @@ fn json(out: &Output) -> Value {
 #[test]
 fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
     let dir = temp_dir("clean");
-    let out = gonio(&["measure", "--sim", "G", "--seed", "4", "--json", "--out", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "4", "--json", "--out", dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let r = json(&out);
     assert_eq!((r["ok"].clone(), r["flags"].clone()), (Value::from(true), Value::from(Vec::<String>::new())), "{r}");
     // A slip of the detector arm: measured again, the class right, but flagged.
     let dir = temp_dir("slip");
-    let out = gonio(&["measure", "--sim", "G", "--seed", "4", "--json", "--faults", "lose-steps=detector:40", "--out", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "4", "--json", "--faults", "lose-steps=detector:40", "--out", dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
     let r = json(&out);
     assert_eq!(r["ok"], false, "{r}");
@@ -33,7 +33,7 @@ fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
     assert_eq!(r["class"], "G", "{r}");
     // The cable pulled and pushed back: recovered, informational only.
     let dir = temp_dir("unplug");
-    let out = gonio(&["measure", "--sim", "SG", "--json", "--faults", "unplug-at=16:4", "--out", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "SG", "--json", "--faults", "unplug-at=16:4", "--out", dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let r = json(&out);
     assert_eq!((r["ok"].clone(), r["flags"].clone()), (Value::from(true), Value::from(vec!["link-recovered"])), "{r}");
@@ -49,7 +49,7 @@ fn measure_on_a_port(sample: &str, dir: &Path) -> (Child, Child) {
     let mut path = String::new();
     BufReader::new(sim.stdout.take().unwrap()).read_line(&mut path).unwrap();
     let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .args(["measure", "--port", path.trim(), "--sample", sample, "--json", "--out", dir.to_str().unwrap()])
+        .args(["measure", "--spots", "1", "--port", path.trim(), "--sample", sample, "--json", "--out", dir.to_str().unwrap()])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

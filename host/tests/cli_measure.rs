@@ -33,7 +33,7 @@ fn assert_each_once(g: &[(f64, f64)]) {
 #[test]
 fn the_main_job_measures_g_in_process() {
     let dir = temp_dir("G");
-    let r = result(&gonio(&["measure", "--sim", "G", "--seed", "3", "--json", "--out", dir.to_str().unwrap()]));
+    let r = result(&gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "3", "--json", "--out", dir.to_str().unwrap()]));
     assert_eq!(r["class"], "G", "{r}");
     assert_eq!(r["sigma_ok"], true, "{r}");
     assert!(r["refinements"].as_array().is_some_and(|r| !r.is_empty()), "{r}");
@@ -54,9 +54,9 @@ fn the_main_job_measures_g_in_process() {
 fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     let clean_dir = temp_dir("clean");
     let faulty_dir = temp_dir("faulty");
-    let clean = result(&gonio(&["measure", "--sim", "G", "--json", "--out", clean_dir.to_str().unwrap()]));
+    let clean = result(&gonio(&["measure", "--spots", "1", "--sim", "G", "--json", "--out", clean_dir.to_str().unwrap()]));
     let faulty = result(&gonio(&[
-        "measure", "--sim", "G", "--json", "--faults", "corrupt=0.001,drop=0.001,unplug-at=5", "--out", faulty_dir.to_str().unwrap(),
+        "measure", "--spots", "1", "--sim", "G", "--json", "--faults", "corrupt=0.001,drop=0.001,unplug-at=5", "--out", faulty_dir.to_str().unwrap(),
     ]));
     assert_eq!(faulty["class"], clean["class"]);
     let g = geometries(&faulty_dir);
@@ -72,17 +72,17 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
 #[test]
 fn a_stale_calibration_is_refused_with_its_age() {
     let dir = temp_dir("stale");
-    result(&gonio(&["measure", "--sim", "MC", "--json", "--out", dir.to_str().unwrap()]));
+    result(&gonio(&["measure", "--spots", "1", "--sim", "MC", "--json", "--out", dir.to_str().unwrap()]));
     let path = dir.join("calibration.json");
     let mut calibration: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
     calibration["taken_unix_s"] = Value::from(calibration["taken_unix_s"].as_u64().unwrap() - 9 * 3600);
     std::fs::write(&path, calibration.to_string()).unwrap();
-    let out = gonio(&["measure", "--sim", "MC", "--calibration", path.to_str().unwrap(), "--out", temp_dir("stale2").to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "MC", "--calibration", path.to_str().unwrap(), "--out", temp_dir("stale2").to_str().unwrap()]);
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("9.0 h old") && stderr.contains("limit is 8.0 h"), "{stderr}");
     // A fresh one is used as is: no white tile needed.
-    let out = gonio(&["measure", "--sim", "MC", "--json", "--calibration", dir.to_str().unwrap(), "--max-calibration-age-h", "24", "--out", temp_dir("stale3").to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "MC", "--json", "--calibration", dir.to_str().unwrap(), "--max-calibration-age-h", "24", "--out", temp_dir("stale3").to_str().unwrap()]);
     assert_eq!(result(&out)["class"], "rough-III");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -94,7 +94,7 @@ fn measure_on_a_port(sample: &str, seed: &str, dir: &Path) -> (Child, Child) {
     let mut path = String::new();
     BufReader::new(sim.stdout.take().unwrap()).read_line(&mut path).unwrap();
     let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .args(["measure", "--port", path.trim(), "--sample", sample, "--json", "--out", dir.to_str().unwrap()])
+        .args(["measure", "--spots", "1", "--port", path.trim(), "--sample", sample, "--json", "--out", dir.to_str().unwrap()])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

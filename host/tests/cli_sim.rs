@@ -97,8 +97,8 @@ fn bad_physics_options_name_the_option_and_the_value_and_exit_non_zero() {
         (vec!["sim", "replay", "--scene-file", &bad_table_arg], &bad_table_message),
         (vec!["sim", "replay", "--scene-file", "/nonexistent/scene.csv"], "--scene-file /nonexistent/scene.csv: cannot read"),
         (vec!["sim", "G", "--lobe", "ggx", "--scene-file", &bad_table_arg], "--lobe does not apply with --scene-file"),
-        (vec!["measure", "--sim", "G", "--forward-lobe", "-2"], "--forward-lobe must be a radiance factor in [0, 100], got -2"),
-        (vec!["measure", "--sim", "PPC", "--lamp-drift-pct-per-h", "1e6"], "--lamp-drift-pct-per-h must be a percentage per hour in [0, 100], got 1000000"),
+        (vec!["measure", "--spots", "1", "--sim", "G", "--forward-lobe", "-2"], "--forward-lobe must be a radiance factor in [0, 100], got -2"),
+        (vec!["measure", "--spots", "1", "--sim", "PPC", "--lamp-drift-pct-per-h", "1e6"], "--lamp-drift-pct-per-h must be a percentage per hour in [0, 100], got 1000000"),
     ];
     for (args, expected) in cases {
         let (code, stdout, stderr) = run_gonio(&args);

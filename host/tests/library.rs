@@ -8,7 +8,7 @@ use std::process::{Command, Output, Stdio};
 /// Measure `sample` on the simulator into `parent/name`, with `seed`.
 fn measure(parent: &Path, name: &str, sample: &str, seed: u64) -> PathBuf {
     let dir = parent.join(name);
-    let out = gonio(&["measure", "--sim", sample, "--out", s(&dir), "--seed", &seed.to_string()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", sample, "--out", s(&dir), "--seed", &seed.to_string()]);
     assert!(out.status.success(), "measure {sample} seed {seed}: {}", stderr(&out));
     dir
 }

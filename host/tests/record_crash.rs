@@ -32,9 +32,19 @@ fn sweep_dir(name: &str) -> PathBuf {
     dir
 }
 
+/// A session of one spot (these tests are about one session's folder; sheets of several
+/// spots have their own crash test in `sheet.rs`).
 fn run(args: &[String], crash: Option<Crash>) -> anyhow::Result<Measured> {
-    let args = parse_args(args).expect("arguments");
+    let args = parse_args(one_spot(args)).expect("arguments");
     measure_with(&args, &mut SimulatedOperator, Arc::new(AtomicBool::new(false)), StoreOptions { crash })
+}
+
+fn one_spot(args: &[String]) -> Vec<String> {
+    let mut out = args.to_vec();
+    if !out.iter().any(|a| a == "--spots") {
+        out.splice(0..0, ["--spots".to_string(), "1".to_string()]);
+    }
+    out
 }
 
 fn strings(args: &[&str]) -> Vec<String> {
@@ -84,6 +94,7 @@ fn resume(dir: &Path, base: &[&str], what: &str) {
     match run(&args, None) {
         Ok(Measured::Done { .. }) => {}
         Ok(Measured::Stopped { error, .. }) => panic!("{what}: the resumed session stopped: {error}"),
+        Ok(Measured::Sheet { .. }) => panic!("{what}: a sheet, not one spot"),
         Err(e) => match e.downcast_ref::<FolderError>() {
             // Killed while closing: the result was written, the manifest now is.
             Some(FolderError::Finished { .. }) => {}
@@ -126,6 +137,7 @@ fn crash_at_each(name: &str, base: &[&str], writes: impl Fn(u64) -> Vec<u64>) ->
         match run(&args, Some(crash.clone())) {
             Ok(Measured::Done { .. }) => panic!("{what}: the session finished through its crash"),
             Ok(Measured::Stopped { record_error, .. }) => assert!(record_error.is_some(), "{what}: a dead folder took the status"),
+            Ok(Measured::Sheet { .. }) => panic!("{what}: a sheet, not one spot"),
             Err(_) => {}
         }
         assert!(crash.crashed(), "{what}: no crash");
@@ -191,6 +203,7 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
             }
             Ok(Measured::Done { .. }) => panic!("{what}: finished on a full disk"),
             Ok(Measured::Stopped { error, .. }) => error.to_string(),
+            Ok(Measured::Sheet { .. }) => panic!("{what}: a sheet, not one spot"),
             Err(e) => format!("{e:#}"),
         };
         assert!(message.contains("no space left on device"), "{what}: {message}");
@@ -222,7 +235,7 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
     let seed: u64 = rand::rng().random();
     eprintln!("seed {seed}");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let base = ["measure", "--sim", "G", "--seed", "14", "--policy", "paper", "--json"];
+    let base = ["measure", "--spots", "1", "--sim", "G", "--seed", "14", "--policy", "paper", "--json"];
     let clean_dir = temp_dir("kill-clean");
     let started = std::time::Instant::now();
     let out = std::process::Command::new(gonio).args(base).args(["--out", clean_dir.to_str().unwrap()]).output().unwrap();
@@ -268,7 +281,7 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
 #[test]
 fn measure_writes_a_folder_that_verifies() {
     let dir = temp_dir("plain");
-    let args = parse_args(["--sim", "SG", "--out", dir.to_str().unwrap()]).unwrap();
+    let args = parse_args(["--spots", "1", "--sim", "SG", "--out", dir.to_str().unwrap()]).unwrap();
     assert!(matches!(measure(&args, &mut SimulatedOperator, Arc::new(AtomicBool::new(false))).unwrap(), Measured::Done { .. }));
     host::output::verify::verify(&dir).unwrap();
     let _ = std::fs::remove_dir_all(&dir);

@@ -46,14 +46,16 @@ fn refused(args: &[&str], dir: &Path, needles: &[&str]) -> String {
 }
 
 fn finished(sample: &str, dir: &Path, extra: &[&str]) {
-    let mut args = vec!["measure", "--sim", sample, "--json", "--out", dir.to_str().unwrap()];
+    let mut args = vec!["measure", "--spots", "1", "--sim", sample, "--json", "--out", dir.to_str().unwrap()];
     args.extend_from_slice(extra);
     let out = gonio(&args);
     assert!(out.status.success(), "{}", stderr(&out));
 }
 
+/// A session of one spot (these tests are about one session's folder).
 fn run_in_process(args: &[&str], crash: Option<Crash>, operator: &mut dyn Operator, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
-    measure_with(&parse_args(args).unwrap(), operator, interrupted, StoreOptions { crash })
+    let one_spot: Vec<&str> = if args.contains(&"--spots") { args.to_vec() } else { [&["--spots", "1"], args].concat() };
+    measure_with(&parse_args(one_spot).unwrap(), operator, interrupted, StoreOptions { crash })
 }
 
 /// A G session killed at its `n`-th write (readings taken, no end recorded).
@@ -70,20 +72,20 @@ fn out_onto_another_sessions_folder_or_any_non_empty_folder_is_refused() {
     let dir = temp_dir("another");
     finished("G", &dir, &[]);
     let d = dir.to_str().unwrap();
-    refused(&["measure", "--sim", "G", "--out", d], &dir, &["holds another session (sample 'G', instrument SIM-0001", "finished", "--resume"]);
-    refused(&["measure", "--sim", "PPC", "--out", d], &dir, &["holds another session"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--out", d], &dir, &["holds another session (sample 'G', instrument SIM-0001", "finished", "--resume"]);
+    refused(&["measure", "--spots", "1", "--sim", "PPC", "--out", d], &dir, &["holds another session"]);
     // An interrupted one too: it is continued with --resume, never appended to.
     let stopped = temp_dir("another-killed");
     killed(&stopped, 30, &[]);
-    refused(&["measure", "--sim", "G", "--out", stopped.to_str().unwrap()], &stopped, &["holds another session", "running", "--resume"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--out", stopped.to_str().unwrap()], &stopped, &["holds another session", "running", "--resume"]);
     // Any other non-empty folder.
     let other = temp_dir("not-empty");
     std::fs::create_dir_all(&other).unwrap();
     std::fs::write(other.join("notes.txt"), "mine").unwrap();
-    refused(&["measure", "--sim", "G", "--out", other.to_str().unwrap()], &other, &["is not empty (it holds notes.txt)", "new or empty folder"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--out", other.to_str().unwrap()], &other, &["is not empty (it holds notes.txt)", "new or empty folder"]);
     // A file.
     let file = other.join("notes.txt");
-    refused(&["measure", "--sim", "G", "--out", file.to_str().unwrap()], &other, &["is not a folder"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--out", file.to_str().unwrap()], &other, &["is not a folder"]);
     // An empty folder is taken.
     let empty = temp_dir("empty");
     std::fs::create_dir_all(&empty).unwrap();
@@ -101,7 +103,7 @@ fn a_folder_left_by_a_kill_before_its_session_began_is_taken_by_a_new_session() 
         let _ = std::fs::remove_dir_all(&dir);
         killed(&dir, n, &[]);
         assert!(!dir.join("session.json").exists());
-        let out = gonio(&["measure", "--sim", "G", "--resume", dir.to_str().unwrap()]);
+        let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--resume", dir.to_str().unwrap()]);
         assert_eq!(out.status.code(), Some(1));
         assert!(stderr(&out).contains("holds no session") && stderr(&out).contains("--out"), "{}", stderr(&out));
         finished("G", &dir, &[]);
@@ -119,7 +121,7 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
     let cwd = temp_dir("default-names");
     std::fs::create_dir_all(&cwd).unwrap();
     let spawn = || {
-        Command::new(env!("CARGO_BIN_EXE_gonio")).args(["measure", "--sim", "PPC", "--json"]).current_dir(&cwd).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap()
+        Command::new(env!("CARGO_BIN_EXE_gonio")).args(["measure", "--spots", "1", "--sim", "PPC", "--json"]).current_dir(&cwd).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap()
     };
     let (a, b) = (spawn(), spawn());
     for child in [a, b] {
@@ -165,7 +167,7 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
 /// The simulated instrument's DeviceInfo, from a handshake.
 fn hil_sim_info() -> protocol::DeviceInfo {
     // The simulator's defaults, as the command line gives them.
-    let options = host::cli::measure::parse_args(["--sim", "G"]).unwrap().sim_options;
+    let options = host::cli::measure::parse_args(["--spots", "1", "--sim", "G"]).unwrap().sim_options;
     let instrument = options.instrument("G").unwrap();
     let mut client = host::instrument::link::Client::new(instrument, host::instrument::link::RetryPolicy::default());
     client.hello().unwrap()
@@ -176,21 +178,21 @@ fn resume_with_another_sample_instrument_or_plan_is_refused_naming_what_differs(
     let dir = temp_dir("mismatch");
     killed(&dir, 30, &[]);
     let d = dir.to_str().unwrap();
-    refused(&["measure", "--sim", "PPC", "--resume", d], &dir, &["cannot resume", "the sample differs (the session: 'G'; now: 'PPC')"]);
-    refused(&["measure", "--sim", "G", "--sample", "G2", "--resume", d], &dir, &["the sample differs (the session: 'G'; now: 'G2')"]);
+    refused(&["measure", "--spots", "1", "--sim", "PPC", "--resume", d], &dir, &["cannot resume", "the sample differs (the session: 'G'; now: 'PPC')"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--sample", "G2", "--resume", d], &dir, &["the sample differs (the session: 'G'; now: 'G2')"]);
     // Another paper under the same name is another sample still.
-    refused(&["measure", "--sim", "PPC", "--sample", "G", "--resume", d], &dir, &["the simulated sample differs (the session: 'G'; now: 'PPC')"]);
-    refused(&["measure", "--sim", "G", "--policy", "paper", "--resume", d], &dir, &["the policy differs (the session: adaptive; now: paper)"]);
-    refused(&["measure", "--sim", "G", "--integration-ms", "50", "--resume", d], &dir, &["the integration time differs (the session: 100 ms; now: 50 ms)"]);
-    refused(&["measure", "--sim", "G", "--white-check", "--resume", d], &dir, &["the white check differs (the session: off; now: on)"]);
-    refused(&["measure", "--sim", "G", "--white-drift-limit-pct", "2", "--resume", d], &dir, &["the white drift limit differs (the session: 0.5 %; now: 2 %)"]);
+    refused(&["measure", "--spots", "1", "--sim", "PPC", "--sample", "G", "--resume", d], &dir, &["the simulated sample differs (the session: 'G'; now: 'PPC')"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--policy", "paper", "--resume", d], &dir, &["the policy differs (the session: adaptive; now: paper)"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--integration-ms", "50", "--resume", d], &dir, &["the integration time differs (the session: 100 ms; now: 50 ms)"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--white-check", "--resume", d], &dir, &["the white check differs (the session: off; now: on)"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--white-drift-limit-pct", "2", "--resume", d], &dir, &["the white drift limit differs (the session: 0.5 %; now: 2 %)"]);
     // Several at once, all named.
-    refused(&["measure", "--sim", "SG", "--policy", "paper", "--resume", d], &dir, &["the sample differs", "the policy differs"]);
+    refused(&["measure", "--spots", "1", "--sim", "SG", "--policy", "paper", "--resume", d], &dir, &["the sample differs", "the policy differs"]);
     // Another instrument: the folder of one whose serial is not the simulator's.
     let mut doc = session(&dir);
     doc["instrument"]["serial_number"] = "GONIO-0042".into();
     std::fs::write(dir.join("session.json"), serde_json::to_vec_pretty(&doc).unwrap()).unwrap();
-    refused(&["measure", "--sim", "G", "--resume", d], &dir, &["the instrument differs (the session: serial GONIO-0042; now: serial SIM-0001)"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", d], &dir, &["the instrument differs (the session: serial GONIO-0042; now: serial SIM-0001)"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -199,7 +201,7 @@ fn a_finished_session_is_not_measured_again_and_says_where_its_result_is() {
     let dir = temp_dir("finished");
     finished("SG", &dir, &[]);
     let d = dir.to_str().unwrap();
-    let message = refused(&["measure", "--sim", "SG", "--resume", d], &dir, &["holds a finished session of 'SG'", "class SG", "it is not measured again", "its result is in"]);
+    let message = refused(&["measure", "--spots", "1", "--sim", "SG", "--resume", d], &dir, &["holds a finished session of 'SG'", "class SG", "it is not measured again", "its result is in"]);
     assert!(message.contains(&dir.join("session.json").display().to_string()), "{message}");
     assert!(gonio(&["verify", d]).status.success());
     // Killed between its result and its manifest: the resume writes the manifest, and
@@ -215,7 +217,7 @@ fn a_finished_session_is_not_measured_again_and_says_where_its_result_is() {
     assert_eq!(session(&dir2)["status"], "finished");
     assert!(!dir2.join("MANIFEST.sha256").exists());
     let points = std::fs::read(dir2.join("points.jsonl")).unwrap();
-    let out = gonio(&["measure", "--sim", "SG", "--resume", dir2.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "SG", "--resume", dir2.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
     assert!(stderr(&out).contains("holds a finished session"), "{}", stderr(&out));
     assert_eq!(std::fs::read(dir2.join("points.jsonl")).unwrap(), points, "nothing measured");
@@ -227,10 +229,10 @@ fn a_finished_session_is_not_measured_again_and_says_where_its_result_is() {
 #[test]
 fn resume_of_no_session_or_of_damage_is_refused_at_file_and_line() {
     let missing = temp_dir("missing");
-    refused(&["measure", "--sim", "G", "--resume", missing.to_str().unwrap()], &missing, &["no session folder"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", missing.to_str().unwrap()], &missing, &["no session folder"]);
     let empty = temp_dir("empty-resume");
     std::fs::create_dir_all(&empty).unwrap();
-    refused(&["measure", "--sim", "G", "--resume", empty.to_str().unwrap()], &empty, &["holds no session", "nothing was measured there"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", empty.to_str().unwrap()], &empty, &["holds no session", "nothing was measured there"]);
 
     let dir = temp_dir("damaged");
     killed(&dir, 40, &[]);
@@ -248,26 +250,26 @@ fn resume_of_no_session_or_of_damage_is_refused_at_file_and_line() {
     let merged = format!("{}{}", &lines[1][..40], lines[2]);
     lines[1] = &merged;
     std::fs::write(dir.join("points.jsonl"), lines.join("\n") + "\n").unwrap();
-    refused(&["measure", "--sim", "G", "--resume", d], &dir, &["points.jsonl:2: not a reading", "nothing was changed"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", d], &dir, &["points.jsonl:2: not a reading", "nothing was changed"]);
     restore();
     // readings.csv contradicting points.jsonl.
     let csv = String::from_utf8(pristine["readings.csv"].clone()).unwrap().replacen(",0.", ",9.", 2);
     std::fs::write(dir.join("readings.csv"), csv).unwrap();
-    refused(&["measure", "--sim", "G", "--resume", d], &dir, &["readings.csv:2: row", "differs from its reading in points.jsonl"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", d], &dir, &["readings.csv:2: row", "differs from its reading in points.jsonl"]);
     restore();
     // A session.json that is not JSON.
     std::fs::write(dir.join("session.json"), "{\n \"format\": \"gonio-session/1\",\n  oops\n}").unwrap();
-    refused(&["measure", "--sim", "G", "--resume", d], &dir, &["session.json:3: not JSON"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", d], &dir, &["session.json:3: not JSON"]);
     restore();
     // Readings that session.json says were recorded, gone.
     std::fs::write(dir.join("points.jsonl"), lines[..1].join("\n") + "\n").unwrap();
     let mut doc = session(&dir);
     doc["readings_recorded"] = 3.into();
     std::fs::write(dir.join("session.json"), serde_json::to_vec_pretty(&doc).unwrap()).unwrap();
-    refused(&["measure", "--sim", "G", "--resume", d], &dir, &["points.jsonl:2: 1 readings, but session.json says 3 were recorded"]);
+    refused(&["measure", "--spots", "1", "--sim", "G", "--resume", d], &dir, &["points.jsonl:2: 1 readings, but session.json says 3 were recorded"]);
     restore();
     // Restored, it resumes.
-    assert!(gonio(&["measure", "--sim", "G", "--seed", "21", "--resume", d]).status.success());
+    assert!(gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "21", "--resume", d]).status.success());
     assert!(gonio(&["verify", d]).status.success());
     for d in [missing, empty, dir] {
         let _ = std::fs::remove_dir_all(d);
@@ -300,7 +302,7 @@ fn a_cut_off_last_line_is_repaired_and_the_repair_logged() {
     let lines = text[..whole].lines().count();
     assert!(stderr(&out).contains(&format!("points.jsonl:{}: last line cut short ({cut} bytes", lines + 1)), "{}", stderr(&out));
     assert!(stderr(&out).contains("status is running: the session is not finished"), "{}", stderr(&out));
-    let out = gonio(&["measure", "--sim", "G", "--seed", "21", "--resume", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "21", "--resume", dir.to_str().unwrap()]);
     assert!(out.status.success(), "{}", stderr(&out));
     let after = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
     assert!(after.starts_with(&text[..whole]), "the whole lines kept as they were");
@@ -358,7 +360,7 @@ fn the_chain_of_custody_holds_across_a_kill_an_interruption_and_the_end() {
     let readings_before_3 = text.rfind('\n').map_or(0, |i| text[..=i].lines().count());
     assert!(readings_before_3 > 0);
     // Run 3, the binary: finishes.
-    let out = gonio(&["measure", "--sim", "G", "--seed", "22", "--json", "--resume", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "22", "--json", "--resume", dir.to_str().unwrap()]);
     assert!(out.status.success(), "{}", stderr(&out));
     let result: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(result["ok"], true, "{result}");
@@ -399,7 +401,7 @@ fn the_chain_of_custody_holds_across_a_kill_an_interruption_and_the_end() {
 #[test]
 fn a_failed_session_writes_its_status_and_log_and_decisions_reach_stderr_when_it_is_not_a_terminal() {
     let dir = temp_dir("failed");
-    let out = gonio(&["measure", "--sim", "G", "--faults", "no-switch=source", "--out", dir.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--faults", "no-switch=source", "--out", dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
     let doc = session(&dir);
     assert_eq!(doc["status"], "failed");
@@ -417,7 +419,7 @@ fn a_failed_session_writes_its_status_and_log_and_decisions_reach_stderr_when_it
     // A session that goes through refinements prints them on a non-terminal stderr, as
     // session.log has them.
     let dir2 = temp_dir("decisions");
-    let out = gonio(&["measure", "--sim", "G", "--out", dir2.to_str().unwrap()]);
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--out", dir2.to_str().unwrap()]);
     assert!(out.status.success());
     let log = std::fs::read_to_string(dir2.join("session.log")).unwrap();
     let batch = log.lines().find(|l| l.contains("adaptive batch 1")).expect("a batch in the log");
@@ -436,7 +438,7 @@ fn a_folder_in_use_by_another_process_is_refused() {
     assert!(matches!(error.downcast_ref::<FolderError>(), Some(FolderError::InUse(_))), "{error:#}");
     assert!(error.to_string().contains("in use by another gonio process"));
     drop(lock);
-    assert!(gonio(&["measure", "--sim", "G", "--seed", "21", "--resume", dir.to_str().unwrap()]).status.success());
+    assert!(gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "21", "--resume", dir.to_str().unwrap()]).status.success());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -205,7 +205,7 @@ fn a_sheet_folder_that_was_changed_does_not_verify_and_bad_spot_options_are_refu
     let single = dir("single");
     let single_text = single.display().to_string();
     let crash = Crash::at(30);
-    let _ = run(&args(&["--sim", "J1", "--out", &single_text]), &mut SimulatedOperator, Some(crash));
+    let _ = run(&args(&["--sim", "J1", "--spots", "1", "--out", &single_text]), &mut SimulatedOperator, Some(crash));
     let refused = run(&args(&["--sim", "J1", "--spots", "3", "--resume", &single_text]), &mut SimulatedOperator, None).err().expect("refused").to_string();
     assert!(refused.contains("without --spots 3"), "{refused}");
     let _ = std::fs::remove_dir_all(&single);

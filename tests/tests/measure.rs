@@ -90,7 +90,10 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn run(args: &[&str], person: &mut Person, interrupted: Arc<AtomicBool>) -> anyhow::Result<Measured> {
-    measure(&parse_args(args).expect("arguments"), person, interrupted)
+    // Sessions of one spot: the simulator behind a pseudo-terminal cannot see the sheet
+    // move, so sheets of several spots are tested in process (host/tests/sheet.rs).
+    let one_spot: Vec<&str> = if args.contains(&"--spots") { args.to_vec() } else { [&["--spots", "1"], args].concat() };
+    measure(&parse_args(one_spot).expect("arguments"), person, interrupted)
 }
 
 /// A completed session's `--json` object.
@@ -521,6 +524,7 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
                             row.failure.map(|why| format!("{what}: {why}"))
                         }
                         Ok(Measured::Stopped { error, .. }) => Some(format!("{what}: stopped: {error}")),
+                        Ok(Measured::Sheet { .. }) => Some(format!("{what}: measured a sheet, not one spot")),
                         Err(error) => Some(format!("{what}: {error:#}")),
                     };
                     if let Some(why) = verdict {

@@ -12,6 +12,13 @@ pub struct Args {
     /// Folder for summary.md, pairs.csv and tippett.svg.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Independent draws of the population of stocks (each its own seed).
+    #[arg(long, default_value_t = Design::FULL.draws)]
+    pub draws: usize,
+    /// The number of the first draw: draws from it on (their seeds follow from it). The
+    /// default study is draws 0–9; `--first-draw 10` confirms its figures on draws it never used.
+    #[arg(long, default_value_t = 0)]
+    pub first_draw: usize,
     /// Stocks drawn about each of the eight reference papers besides the paper itself.
     #[arg(long, default_value_t = Design::FULL.drawn_per_paper)]
     pub drawn_per_paper: usize,
@@ -21,9 +28,13 @@ pub struct Args {
     /// Sheets of each stock held out for the pairs.
     #[arg(long, default_value_t = Design::FULL.held_out_sheets)]
     pub held_out_sheets: usize,
-    /// Spots per sheet.
+    /// Clean spots planned per sheet for the claims (as `gonio measure --spots`).
     #[arg(long, default_value_t = Design::FULL.spots)]
     pub spots: usize,
+    /// Numbers of spots per sheet to compare, the same sheets measured with each
+    /// (comma-separated; give only --spots' number to skip the comparison).
+    #[arg(long, value_delimiter = ',', default_values_t = forensic::SPOTS_STUDY)]
+    pub spots_study: Vec<usize>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -31,34 +42,47 @@ pub struct Args {
 
 /// Run `gonio forensic`: exit 0 when every claim held, 3 when any did not.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    if args.library_sheets == 0 || args.held_out_sheets < 2 || args.spots == 0 {
-        bail!("the study needs at least 1 library sheet, 2 held-out sheets and 1 spot per sheet");
+    if args.draws == 0 || args.library_sheets == 0 || args.held_out_sheets < 2 {
+        bail!("the study needs at least 1 draw, 1 library sheet and 2 held-out sheets");
     }
-    if args.spots < 2 && args.library_sheets < 2 {
-        bail!("the library needs two spots of a stock (--spots 2 or --library-sheets 2) to estimate the within-stock variation");
+    if args.first_draw + args.draws > 100_000 {
+        bail!("draws are numbered below 100000 (each sheet's seed is made of its draw's number)");
+    }
+    if args.library_sheets + args.held_out_sheets > 999 || args.drawn_per_paper > 999 {
+        bail!("at most 999 sheets per stock and 999 stocks drawn per paper (each sheet's seed is made of them)");
+    }
+    let design = Design { draws: args.draws, first_draw: args.first_draw, drawn_per_paper: args.drawn_per_paper, library_sheets: args.library_sheets, held_out_sheets: args.held_out_sheets, spots: args.spots };
+    let counts = forensic::spot_counts_of(&design, &args.spots_study);
+    if counts.iter().any(|&n| n == 0 || n > 20) {
+        bail!("spots per sheet must be 1 to 20");
+    }
+    if counts[0] < 2 && args.library_sheets < 2 {
+        bail!("the library needs two spots of a stock (--spots 2 or --library-sheets 2, for every number of --spots-study) to estimate the within-stock variation");
     }
     let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
-    let design = Design { drawn_per_paper: args.drawn_per_paper, library_sheets: args.library_sheets, held_out_sheets: args.held_out_sheets, spots: args.spots };
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
-    let stocks = forensic::stocks(&design);
-    let bar = ProgressBar::new(forensic::plan(&design, &stocks).len() as u64);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} spots, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
-    bar.set_message("simulated sheets of the population");
-    let sheets = forensic::measure_all(&design, &stocks, threads, &|| bar.inc(1)).map_err(anyhow::Error::msg)?;
+    let bar = ProgressBar::new(forensic::plan(&design, &counts).len() as u64);
+    bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sheets, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
+    bar.set_message(format!("simulated sheets of {} population draws", design.draws));
+    let campaign = forensic::measure_all(&design, &counts, threads, &|| bar.inc(1)).map_err(anyhow::Error::msg)?;
     bar.finish_and_clear();
-    let (population, pairs) = forensic::pairs(&stocks, &sheets)?;
-    let search = forensic::search_rank_one(&stocks, &sheets, &population);
-    let figures = forensic::figures(&stocks, &sheets, &pairs, search);
-    let mut csv = String::from("stock_a,stock_b,class_a,class_b,same_stock,log10_lr\n");
+    let (figures, pairs) = forensic::figures(&campaign, design.spots, threads)?;
+    let mut study = Vec::new();
+    if counts.len() > 1 {
+        for &n in &counts {
+            study.push(if n == design.spots { figures.clone() } else { forensic::figures(&campaign, n, threads)?.0 });
+        }
+    }
+    let mut csv = String::from("draw,stock_a,stock_b,class_a,class_b,same_stock,log10_lr\n");
     for p in &pairs {
-        let (a, b) = (&stocks[p.stock_a], &stocks[p.stock_b]);
-        csv += &format!("{},{},{},{},{},{:.4}\n", a.name, b.name, a.class.name(), b.class.name(), p.stock_a == p.stock_b, p.log10_lr);
+        let (a, b) = (&campaign.stocks[p.draw][p.stock_a], &campaign.stocks[p.draw][p.stock_b]);
+        csv += &format!("{},{},{},{},{},{},{:.4}\n", p.draw, a.name, b.name, a.class.name(), b.class.name(), p.stock_a == p.stock_b, p.log10_lr);
     }
     let csv_path = args.out.join("pairs.csv");
     std::fs::write(&csv_path, csv).with_context(|| format!("cannot write {}", csv_path.display()))?;
     let svg = args.out.join("tippett.svg");
-    forensic::tippett_svg(&pairs, &svg).map_err(anyhow::Error::msg)?;
-    let summary = forensic::summary_markdown(&figures);
+    forensic::tippett_svg(&pairs, design.draws, &svg).map_err(anyhow::Error::msg)?;
+    let summary = forensic::summary_markdown(&figures, &study);
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
     print!("{summary}");

@@ -99,8 +99,8 @@ pub struct Args {
     pub json: bool,
 }
 
-/// Spots of a sheet when `--spots` is not given.
-pub const DEFAULT_SPOTS: u16 = 1;
+/// Spots of a sheet when `--spots` is not given ([`crate::analysis::sheet::DEFAULT_SPOTS`]).
+pub const DEFAULT_SPOTS: u16 = crate::analysis::sheet::DEFAULT_SPOTS;
 /// The most spots a sheet takes.
 pub const MAX_SPOTS: u16 = 20;
 
@@ -675,13 +675,34 @@ fn print_sheet(dir: &Path, sheet: &crate::output::sheet::ReadSheet) {
             Some(SpotVerdict::Excluded { reason }) => format!("EXCLUDED: {reason}"),
             None => "?".to_string(),
         };
+        // The spot's own report, as its session.json holds it.
+        let result = std::fs::read(s.dir.join(crate::output::folder::SESSION))
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .map(|v| v["result"].clone())
+            .unwrap_or_default();
+        let interval = |key: &str, digits: usize| match result["ci95"][key].as_array().map(|a| (a[0].as_f64(), a[1].as_f64())) {
+            Some((Some(lo), Some(hi))) => format!(" [{lo:.digits$}, {hi:.digits$}]"),
+            _ => String::new(),
+        };
+        let confidence = result["class_confidence"].as_f64().map_or_else(String::new, |c| format!(" (confidence {c:.2})"));
+        println!("  spot {}: class {}{confidence}  {verdict}", s.result.number, s.session.class.as_deref().unwrap_or("undecided"));
         println!(
-            "  spot {}: class {:<9} σ = {}°, ρs = {}, ρd = {}  {verdict}",
-            s.result.number,
-            s.session.class.as_deref().unwrap_or("undecided"),
+            "    σ = {}°{}   ρs = {}{}   ρd = {}{}   (95 % intervals)",
             value(s.session.values[0], 3),
+            interval("sigma", 3),
             value(s.session.values[1], 4),
-            value(s.session.values[2], 4)
+            interval("rho_s", 4),
+            value(s.session.values[2], 4),
+            interval("rho_d", 4)
+        );
+        println!(
+            "    NMAE {:.2} %, {} geometries, {:.1} device s; flags: {}; report: {}",
+            100.0 * result["nmae"].as_f64().unwrap_or(f64::NAN),
+            result["geometries"].as_u64().unwrap_or(0),
+            result["device_seconds"].as_f64().unwrap_or(f64::NAN),
+            if s.result.flags.is_empty() { "none".to_string() } else { flag_names(&s.result.flags) },
+            s.dir.join(crate::output::folder::SESSION).display()
         );
     }
     let spread = |i: usize| summary.within_relative_sd.map_or_else(|| "spot-to-spot unknown".to_string(), |sd| format!("spot-to-spot sd {:.1} %", 100.0 * sd[i]));

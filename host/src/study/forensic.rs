@@ -1,18 +1,23 @@
-//! The forensic validation: a simulated population of paper stocks, sheets of each measured
-//! at several spots on the realistic instrument, a library built from some sheets of every
-//! stock, and the likelihood ratios of held-out pairs judged as a forensic LR system is:
-//! by Cllr (and its minimum after calibration), the rates of misleading evidence and a
-//! Tippett plot (the practice of the Netherlands Forensic Institute's `lir` and the ENFSI
-//! guideline).
+//! The forensic validation: simulated populations of paper stocks, sheets of each measured
+//! as `gonio measure --spots N` measures a sheet on the realistic instrument, a library
+//! built from some sheets of every stock, and the likelihood ratios of held-out pairs
+//! judged as a forensic LR system is: by Cllr (and its minimum after calibration), the
+//! rates of misleading evidence and a Tippett plot (the practice of the Netherlands
+//! Forensic Institute's `lir` and the ENFSI guideline).
 //!
 //! Stocks: the eight reference papers of Table 6 and, about each, more stocks of its kind
 //! with σ, ρs and ρd drawn log-normally with [`evidence::DEFAULT_BETWEEN_RELATIVE_SD`]
-//! (η kept). A spot is one whole simulated session (`--physics real`, `--sheet-variation`
-//! [`SPOT_VARIATION_PCT`]: each seed is another spot of the stock); a sheet is its spots.
+//! (η kept). One draw of the stocks is one population; the study is a campaign over
+//! [`Design::draws`] independent draws (each its own seed, [`draw_seed`]), so that no one
+//! lucky or unlucky draw decides a claim. A sheet is one multi-spot session
+//! ([`super::simulated_sheet`]: one connection, the first spot's calibration for all, a
+//! flagged spot replaced) with `--physics real` and `--sheet-variation`
+//! [`SPOT_VARIATION_PCT`], each sheet its own seed; the evidence weighs its accepted spots.
+//! The same sheets measured with other numbers of spots ([`SPOTS_STUDY`], the same seeds)
+//! tell what a spot more buys, for the default of `gonio measure --spots`.
 
 use crate::analysis::classify::{Class, REFERENCES};
-use crate::analysis::evidence::{self, Population, Sheet, Spot};
-use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
+use crate::analysis::evidence::{self, Population, Sheet};
 use crate::instrument::sim::{Physics, SimOptions};
 use crate::session::{Policy, PolicyChoice};
 use plotters::prelude::*;
@@ -24,40 +29,71 @@ use std::fmt::Write as _;
 /// Between-spot variation of every simulated sheet, percent (`--sheet-variation`).
 pub const SPOT_VARIATION_PCT: f64 = 3.0;
 
+/// The seed of the first draw of the stocks; draw `r` is seeded [`FIRST_DRAW_SEED`] + r.
+pub const FIRST_DRAW_SEED: u64 = 0xf0_2e_75_1c;
+
+/// The numbers of spots per sheet the full study compares (`gonio forensic --spots-study`).
+pub const SPOTS_STUDY: [usize; 5] = [1, 2, 3, 4, 5];
+
+/// Distances (in between-stock standard deviations, over σ, ρs and ρd together) below
+/// which two stocks of a draw are counted as close: 0.5, near twins whose means differ by
+/// about 3 % in each parameter or less (as much as two spots of one sheet do), and 1.
+pub const CLOSE: [f64; 2] = [0.5, 1.0];
+
 /// The size of a study.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Design {
+    /// Independent draws of the population (each: the reference papers and stocks drawn
+    /// about each).
+    pub draws: usize,
+    /// The number of the first draw (its seed [`draw_seed`]): a study of draws not used
+    /// before confirms one whose figures chose something (the number of spots).
+    pub first_draw: usize,
     /// Stocks drawn about each reference paper besides the paper itself.
     pub drawn_per_paper: usize,
     /// Sheets of each stock in the library.
     pub library_sheets: usize,
     /// Sheets of each stock held out for the pairs.
     pub held_out_sheets: usize,
-    /// Spots per sheet.
+    /// Clean spots planned per sheet (`gonio measure --spots`) for the claims.
     pub spots: usize,
 }
 
 impl Design {
-    /// The study of docs/FORENSIC.md: 32 stocks, 2 library and 4 held-out sheets of 3 spots.
-    pub const FULL: Design = Design { drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 4, spots: 3 };
-    /// A small one for the tests.
-    pub const SMALL: Design = Design { drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 2, spots: 2 };
+    /// The study of docs/FORENSIC.md: 10 draws of 32 stocks, 2 library and 4 held-out
+    /// sheets of 3 spots.
+    pub const FULL: Design = Design { draws: 10, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 4, spots: crate::analysis::sheet::DEFAULT_SPOTS as usize };
+    /// A small one for the tests: 2 draws of 32 stocks, 2 library and 2 held-out sheets
+    /// of 2 spots.
+    pub const SMALL: Design = Design { draws: 2, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 2, spots: 2 };
+
+    /// Sheets of every stock.
+    pub fn sheets_per_stock(&self) -> usize {
+        self.library_sheets + self.held_out_sheets
+    }
 }
 
 /// A simulated stock.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Stock {
-    /// Its name (`G`, `G#1`, …).
+    /// Its name (`G`, `G#1`, …), unique within its draw.
     pub name: String,
     /// The simulator's sample (`custom:σ,ρs,ρd,η`).
     pub sample: String,
+    /// Its true σ (degrees), ρs, ρd.
+    pub params: [f64; 3],
     /// The class of the reference paper it was drawn about.
     pub class: Class,
 }
 
-/// The stocks of a study: each reference paper and `drawn_per_paper` drawn about it.
-pub fn stocks(design: &Design) -> Vec<Stock> {
-    let mut rng = ChaCha12Rng::seed_from_u64(0xf0_2e_75_1c);
+/// The seed of draw `draw` of the population.
+pub fn draw_seed(draw: usize) -> u64 {
+    FIRST_DRAW_SEED + draw as u64
+}
+
+/// The stocks of draw `draw`: each reference paper and `drawn_per_paper` drawn about it.
+pub fn stocks(design: &Design, draw: usize) -> Vec<Stock> {
+    let mut rng = ChaCha12Rng::seed_from_u64(draw_seed(draw));
     let mut out = Vec::new();
     for r in &REFERENCES {
         let p = r.params;
@@ -73,88 +109,148 @@ pub fn stocks(design: &Design) -> Vec<Stock> {
             let sd = evidence::DEFAULT_BETWEEN_RELATIVE_SD;
             let (sigma, rho_s, rho_d) = (draw(p.sigma_deg, sd[0]), draw(p.rho_s, sd[1]), draw(p.rho_d, sd[2]));
             let name = if k == 0 { r.name.to_string() } else { format!("{}#{k}", r.name) };
-            out.push(Stock { name, sample: format!("custom:{sigma},{rho_s},{rho_d},{}", p.eta), class: r.class });
+            out.push(Stock { name, sample: format!("custom:{sigma},{rho_s},{rho_d},{}", p.eta), params: [sigma, rho_s, rho_d], class: r.class });
         }
     }
     out
 }
 
-/// One spot of one sheet to measure.
+/// How far apart two stocks' true means are, in between-stock standard deviations
+/// ([`evidence::DEFAULT_BETWEEN_RELATIVE_SD`], in log space) over σ, ρs and ρd together:
+/// two stocks drawn about one paper are 2.3 apart on average, a drawn stock and its paper 1.6.
+pub fn distance(a: &Stock, b: &Stock) -> f64 {
+    let sd = evidence::DEFAULT_BETWEEN_RELATIVE_SD;
+    (0..3).map(|i| ((a.params[i] / b.params[i]).ln() / (1.0 + sd[i] * sd[i]).ln().sqrt()).powi(2)).sum::<f64>().sqrt()
+}
+
+/// One sheet to measure.
 #[derive(Clone, Debug, PartialEq)]
-pub struct SpotSpec {
-    /// Index into the stocks.
+pub struct SheetSpec {
+    /// The draw of the population.
+    pub draw: usize,
+    /// Index into the draw's stocks.
     pub stock: usize,
     /// Sheet number within the stock (library sheets first).
     pub sheet: usize,
-    /// Spot number within the sheet.
-    pub spot: usize,
-    /// The simulator's seed (another spot of the stock, another instrument draw).
+    /// Clean spots planned (`gonio measure --spots`).
+    pub spots: usize,
+    /// The simulator's seed: the sheet's own (its spots, its instrument draw), the same
+    /// whatever its number of spots, so that the spots study compares like with like.
     pub seed: u64,
 }
 
-/// Every spot of the study.
-pub fn plan(design: &Design, stocks: &[Stock]) -> Vec<SpotSpec> {
-    let sheets = design.library_sheets + design.held_out_sheets;
+/// The seed of a sheet.
+pub fn sheet_seed(draw: usize, stock: usize, sheet: usize) -> u64 {
+    1 + ((draw as u64 * 10_000 + stock as u64) * 1_000 + sheet as u64)
+}
+
+/// Every sheet of the study, measured with each number of spots of `spot_counts` (and the
+/// design's own).
+pub fn plan(design: &Design, spot_counts: &[usize]) -> Vec<SheetSpec> {
+    let counts = spot_counts_of(design, spot_counts);
+    let n_stocks = REFERENCES.len() * (1 + design.drawn_per_paper);
     let mut out = Vec::new();
-    for stock in 0..stocks.len() {
-        for sheet in 0..sheets {
-            for spot in 0..design.spots {
-                let seed = 1 + ((stock * 1000 + sheet) * 100 + spot) as u64;
-                out.push(SpotSpec { stock, sheet, spot, seed });
+    for draw in 0..design.draws {
+        for stock in 0..n_stocks {
+            for sheet in 0..design.sheets_per_stock() {
+                for &spots in &counts {
+                    out.push(SheetSpec { draw, stock, sheet, spots, seed: sheet_seed(design.first_draw + draw, stock, sheet) });
+                }
             }
         }
     }
     out
 }
 
-/// Measure one spot: a whole simulated session; `None` when it failed.
-pub fn measure(stocks: &[Stock], spec: &SpotSpec) -> Result<Spot, String> {
-    let stock = &stocks[spec.stock];
-    let options = SimOptions { seed: spec.seed, physics: Physics::Real, sheet_variation: SPOT_VARIATION_PCT, ..SimOptions::default() };
-    let run = super::SimulatedRun { sample: &stock.sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
-    let (outcome, _) = super::simulated_session(&run, |session| session)?;
-    let fit = &outcome.report.fit;
-    let index = [SIGMA, RHO_S, RHO_D];
-    Ok(Spot {
-        values: index.map(|i| fit.reported(i)),
-        covariance: std::array::from_fn(|r| std::array::from_fn(|c| fit.covariance[index[r]][index[c]])),
-    })
+/// `spot_counts` with the design's own, sorted, without repeats.
+pub fn spot_counts_of(design: &Design, spot_counts: &[usize]) -> Vec<usize> {
+    let mut counts: Vec<usize> = spot_counts.iter().copied().chain([design.spots]).collect();
+    counts.sort_unstable();
+    counts.dedup();
+    counts
 }
 
 /// A measured sheet of the study.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MeasuredSheet {
-    /// Index into the stocks.
+    /// The draw of the population.
+    pub draw: usize,
+    /// Index into the draw's stocks.
     pub stock: usize,
     /// Sheet number within the stock.
     pub sheet: usize,
     /// Whether it belongs to the library (else held out).
     pub in_library: bool,
-    /// Its spots.
+    /// Clean spots planned.
+    pub planned: usize,
+    /// Spots measured, replacements of flagged spots included.
+    pub measured_spots: usize,
+    /// Spots excluded (flagged while the sheet had a clean one).
+    pub excluded: usize,
+    /// No spot came out clean: every spot was kept, with its flags.
+    pub no_clean_spot: bool,
+    /// Device time of the sheet: every spot's measuring time and the first spot's setup
+    /// (homing, dark, white), seconds.
+    pub device_seconds: f64,
+    /// The sheet as the evidence weighs it: its accepted spots.
     pub measured: Sheet,
 }
 
-/// Measure the whole study on `threads` threads.
-pub fn measure_all(design: &Design, stocks: &[Stock], threads: usize, progress: &(dyn Fn() + Sync)) -> Result<Vec<MeasuredSheet>, String> {
-    let specs = plan(design, stocks);
-    let spots = super::parallel(&specs, threads, progress, |spec| measure(stocks, spec));
-    if spots.len() != specs.len() {
+/// Measure one sheet: one multi-spot session, as `gonio measure --sim --spots N`.
+pub fn measure(stocks: &[Stock], spec: &SheetSpec, design: &Design) -> Result<MeasuredSheet, String> {
+    let stock = &stocks[spec.stock];
+    let options = SimOptions { seed: spec.seed, physics: Physics::Real, sheet_variation: SPOT_VARIATION_PCT, ..SimOptions::default() };
+    let run = super::SimulatedRun { sample: &stock.sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
+    let planned = u16::try_from(spec.spots).map_err(|_| format!("{} spots per sheet", spec.spots))?;
+    let (outcomes, summary, results) = super::simulated_sheet(&run, planned, |session| session)?;
+    let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>() + outcomes.first().map_or(0.0, |o| o.setup_seconds);
+    Ok(MeasuredSheet {
+        draw: spec.draw,
+        stock: spec.stock,
+        sheet: spec.sheet,
+        in_library: spec.sheet < design.library_sheets,
+        planned: spec.spots,
+        measured_spots: results.len(),
+        excluded: results.len() - summary.accepted,
+        no_clean_spot: !results.is_empty() && !results.iter().any(|r| crate::analysis::flags::ok(&r.flags)),
+        device_seconds,
+        measured: summary.sheet(&results),
+    })
+}
+
+/// A measured study: its design, every draw's stocks and every sheet.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Campaign {
+    /// The design.
+    pub design: Design,
+    /// The stocks of each draw.
+    pub stocks: Vec<Vec<Stock>>,
+    /// Every sheet, with every number of spots measured.
+    pub sheets: Vec<MeasuredSheet>,
+}
+
+/// Measure the whole study (every sheet with each number of spots of `spot_counts` and the
+/// design's own) on `threads` threads; `progress` after each sheet.
+pub fn measure_all(design: &Design, spot_counts: &[usize], threads: usize, progress: &(dyn Fn() + Sync)) -> Result<Campaign, String> {
+    let stocks: Vec<Vec<Stock>> = (0..design.draws).map(|draw| self::stocks(design, design.first_draw + draw)).collect();
+    let specs = plan(design, spot_counts);
+    let measured = super::parallel(&specs, threads, progress, |spec| measure(&stocks[spec.draw], spec, design));
+    if measured.len() != specs.len() {
         return Err("a worker panicked".to_string());
     }
-    let mut sheets: Vec<MeasuredSheet> = Vec::new();
-    for (spec, spot) in specs.iter().zip(spots) {
-        let spot = spot.map_err(|e| format!("{} sheet {} spot {}: {e}", stocks[spec.stock].name, spec.sheet, spec.spot))?;
-        match sheets.iter_mut().find(|s| s.stock == spec.stock && s.sheet == spec.sheet) {
-            Some(sheet) => sheet.measured.spots.push(spot),
-            None => sheets.push(MeasuredSheet { stock: spec.stock, sheet: spec.sheet, in_library: spec.sheet < design.library_sheets, measured: Sheet { spots: vec![spot] } }),
-        }
-    }
-    Ok(sheets)
+    let sheets = specs
+        .iter()
+        .zip(measured)
+        .map(|(spec, sheet)| sheet.map_err(|e| format!("draw {} {} sheet {} ({} spots): {e}", spec.draw, stocks[spec.draw][spec.stock].name, spec.sheet, spec.spots)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Campaign { design: *design, stocks, sheets })
 }
 
 /// One held-out pair and its evidence.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Pair {
+    /// The draw of the population.
+    pub draw: usize,
     /// Stock of the first sheet.
     pub stock_a: usize,
     /// Stock of the second.
@@ -163,28 +259,45 @@ pub struct Pair {
     pub log10_lr: f64,
 }
 
-/// The library's population and every held-out pair's log10 LR.
-pub fn pairs(stocks: &[Stock], sheets: &[MeasuredSheet]) -> Result<(Population, Vec<Pair>), evidence::EvidenceError> {
-    let library: Vec<(String, Sheet)> = sheets.iter().filter(|s| s.in_library).map(|s| (stocks[s.stock].name.clone(), s.measured.clone())).collect();
+/// One draw's evidence: every held-out pair and the library searches.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DrawEvidence {
+    /// Every pair of held-out sheets.
+    pub pairs: Vec<Pair>,
+    /// Held-out sheets whose own stock ranked first, and sheets searched.
+    pub search: (usize, usize),
+    /// Each search that missed: the sheet's stock and the stock ranked first.
+    pub misses: Vec<(usize, usize)>,
+}
+
+/// The library of `sheets` labelled by stock name.
+fn library(stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Vec<(String, Sheet)> {
+    sheets.iter().filter(|s| s.in_library).map(|s| (stocks[s.stock].name.clone(), s.measured.clone())).collect()
+}
+
+/// One draw's evidence from its sheets (of one number of spots): the library's population,
+/// every held-out pair's log10 LR, and each held-out sheet searched against the library's
+/// stocks (each stock's library sheets pooled) as `gonio library search` ranks them.
+pub fn draw_evidence(draw: usize, stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Result<DrawEvidence, evidence::EvidenceError> {
+    let library = library(stocks, sheets);
     let population = Population::from_sheets(&library)?;
-    let held: Vec<&MeasuredSheet> = sheets.iter().filter(|s| !s.in_library).collect();
-    let mut out = Vec::new();
+    let held: Vec<&&MeasuredSheet> = sheets.iter().filter(|s| !s.in_library).collect();
+    let mut pairs = Vec::new();
     for (i, a) in held.iter().enumerate() {
         for b in &held[i + 1..] {
             let e = evidence::likelihood_ratio(&a.measured, &b.measured, &population);
-            out.push(Pair { stock_a: a.stock, stock_b: b.stock, log10_lr: e.log10_lr });
+            pairs.push(Pair { draw, stock_a: a.stock, stock_b: b.stock, log10_lr: e.log10_lr });
         }
     }
-    Ok((population, out))
-}
-
-/// How often a held-out sheet's own stock ranks first among the library's stocks (each
-/// stock's library sheets pooled as one sheet), as `gonio library search` ranks them.
-pub fn search_rank_one(stocks: &[Stock], sheets: &[MeasuredSheet], population: &Population) -> (usize, usize) {
-    let library: Vec<(String, Sheet)> = sheets.iter().filter(|s| s.in_library).map(|s| (stocks[s.stock].name.clone(), s.measured.clone())).collect();
-    let held: Vec<&MeasuredSheet> = sheets.iter().filter(|s| !s.in_library).collect();
-    let first = held.iter().filter(|s| evidence::rank_stocks(&s.measured, &library, population).first().is_some_and(|r| r.stock == stocks[s.stock].name)).count();
-    (first, held.len())
+    let mut misses = Vec::new();
+    for s in &held {
+        let first = evidence::rank_stocks(&s.measured, &library, &population).into_iter().next();
+        let first = first.and_then(|r| stocks.iter().position(|k| k.name == r.stock));
+        if first != Some(s.stock) {
+            misses.push((s.stock, first.unwrap_or(usize::MAX)));
+        }
+    }
+    Ok(DrawEvidence { pairs, search: (held.len() - misses.len(), held.len()), misses })
 }
 
 /// Cllr: the log-likelihood-ratio cost (bits); 0 for perfect, 1 for an uninformative
@@ -238,11 +351,111 @@ pub fn cllr_min(same: &[f64], different: &[f64]) -> f64 {
     cllr(&calibrated_same, &calibrated_different)
 }
 
-/// The figures of a study.
+/// The 95 % Wilson score interval of a rate of `k` in `n` (for n = 0, [0, 1]).
+pub fn wilson(k: usize, n: usize) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 1.0);
+    }
+    let z = 1.959_963_984_540_054_f64;
+    let (n, p) = (n as f64, k as f64 / n as f64);
+    let denominator = 1.0 + z * z / n;
+    let centre = (p + z * z / (2.0 * n)) / denominator;
+    let half = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / denominator;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+/// How the planned spots went: measured, replaced, excluded.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SpotUse {
+    /// Sheets measured.
+    pub sheets: usize,
+    /// Spots measured, replacements included.
+    pub measured: usize,
+    /// Spots measured in place of flagged ones (beyond the planned).
+    pub replaced: usize,
+    /// Spots excluded from their sheet (flagged while the sheet had a clean one).
+    pub excluded: usize,
+    /// Sheets with no clean spot (every spot kept, with its flags).
+    pub no_clean_spot: usize,
+    /// Sheets with fewer accepted spots than planned (the replacements spent).
+    pub short: usize,
+}
+
+/// The nearest two different stocks of a draw.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Nearest {
+    /// Their names.
+    pub stocks: (String, String),
+    /// Their distance ([`distance`]).
+    pub distance: f64,
+    /// Their relative differences in σ, ρs, ρd, percent.
+    pub difference_pct: [f64; 3],
+    /// Pairs of the draw's stocks closer than each distance of [`CLOSE`].
+    pub close_pairs: [usize; 2],
+}
+
+/// The nearest two different stocks of `stocks`.
+pub fn nearest(stocks: &[Stock]) -> Option<Nearest> {
+    let mut best: Option<(usize, usize, f64)> = None;
+    let mut close_pairs = [0; 2];
+    for i in 0..stocks.len() {
+        for j in i + 1..stocks.len() {
+            let d = distance(&stocks[i], &stocks[j]);
+            for (count, limit) in close_pairs.iter_mut().zip(CLOSE) {
+                *count += usize::from(d < limit);
+            }
+            if best.is_none_or(|(_, _, b)| d < b) {
+                best = Some((i, j, d));
+            }
+        }
+    }
+    best.map(|(i, j, d)| Nearest {
+        stocks: (stocks[i].name.clone(), stocks[j].name.clone()),
+        distance: d,
+        difference_pct: std::array::from_fn(|k| 100.0 * (stocks[j].params[k] / stocks[i].params[k] - 1.0)),
+        close_pairs,
+    })
+}
+
+/// One draw's figures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DrawRow {
+    /// The draw.
+    pub draw: usize,
+    /// Its seed ([`draw_seed`]).
+    pub seed: u64,
+    /// Same-stock and different-stock pairs.
+    pub pairs: (usize, usize),
+    /// Cllr, bits.
+    pub cllr: f64,
+    /// Cllr after PAV, bits.
+    pub cllr_min: f64,
+    /// Same-stock pairs with LR < 1.
+    pub same_misleading: usize,
+    /// Different-stock pairs with LR > 1.
+    pub different_misleading: usize,
+    /// Held-out sheets whose stock ranked first, and sheets searched.
+    pub search: (usize, usize),
+    /// The draw's nearest two stocks.
+    pub nearest: Option<Nearest>,
+    /// The largest distance between a missed sheet's stock and the stock ranked first in
+    /// its place (`None` without a miss): how close two stocks must be to be confused.
+    pub farthest_miss: Option<f64>,
+}
+
+/// The figures of a study for one number of spots per sheet, pooled over its draws.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Figures {
-    /// Stocks, library sheets, held-out sheets, spots measured.
+    /// Clean spots planned per sheet.
+    pub spots: usize,
+    /// Draws of the population.
+    pub draws: usize,
+    /// Stocks per draw, library sheets, held-out sheets (over every draw), spots accepted.
     pub counts: (usize, usize, usize, usize),
+    /// How the planned spots went.
+    pub spot_use: SpotUse,
+    /// Mean device time per sheet, seconds (its spots' and the first spot's setup).
+    pub device_seconds_per_sheet: f64,
     /// Same-stock and different-stock pairs.
     pub pairs: (usize, usize),
     /// Cllr, bits.
@@ -259,7 +472,15 @@ pub struct Figures {
     pub search: (usize, usize),
     /// Median log10 LR of same-stock and of different-stock pairs.
     pub medians: (f64, f64),
+    /// Each draw's figures.
+    pub per_draw: Vec<DrawRow>,
+    /// The issue's named pairs of reference papers, over every draw: (paper a, paper b,
+    /// pairs, pairs with log10 LR < −2, the largest log10 LR).
+    pub named: Vec<(&'static str, &'static str, usize, usize, f64)>,
 }
+
+/// Pairs of reference papers the issue names as to be told apart (LR < 1/100).
+pub const NAMED_PAIRS: [(&str, &str); 2] = [("J3", "J4"), ("PPC", "J3")];
 
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
@@ -269,14 +490,50 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// The figures of `pairs`.
-pub fn figures(stocks: &[Stock], sheets: &[MeasuredSheet], pairs: &[Pair], search: (usize, usize)) -> Figures {
-    let same: Vec<f64> = pairs.iter().filter(|p| p.stock_a == p.stock_b).map(|p| p.log10_lr).collect();
+fn split(pairs: &[Pair]) -> (Vec<f64>, Vec<f64>) {
+    let same = pairs.iter().filter(|p| p.stock_a == p.stock_b).map(|p| p.log10_lr).collect();
+    let different = pairs.iter().filter(|p| p.stock_a != p.stock_b).map(|p| p.log10_lr).collect();
+    (same, different)
+}
+
+/// The figures of `campaign`'s sheets of `spots` spots, and every held-out pair of every
+/// draw; the draws weighed on `threads` threads.
+pub fn figures(campaign: &Campaign, spots: usize, threads: usize) -> Result<(Figures, Vec<Pair>), evidence::EvidenceError> {
+    let sheets: Vec<&MeasuredSheet> = campaign.sheets.iter().filter(|s| s.planned == spots).collect();
+    let draws: Vec<usize> = (0..campaign.stocks.len()).collect();
+    let weighed = super::parallel(&draws, threads, &|| {}, |&draw| {
+        let of_draw: Vec<&MeasuredSheet> = sheets.iter().copied().filter(|s| s.draw == draw).collect();
+        draw_evidence(draw, &campaign.stocks[draw], &of_draw)
+    });
+    assert_eq!(weighed.len(), draws.len(), "a worker panicked");
+    let mut pairs: Vec<Pair> = Vec::new();
+    let mut per_draw = Vec::new();
+    let mut search = (0, 0);
+    for ((draw, stocks), e) in campaign.stocks.iter().enumerate().zip(weighed) {
+        let e = e?;
+        let (same, different) = split(&e.pairs);
+        per_draw.push(DrawRow {
+            draw: campaign.design.first_draw + draw,
+            seed: draw_seed(campaign.design.first_draw + draw),
+            pairs: (same.len(), different.len()),
+            cllr: cllr(&same, &different),
+            cllr_min: cllr_min(&same, &different),
+            same_misleading: same.iter().filter(|&&x| x < 0.0).count(),
+            different_misleading: different.iter().filter(|&&x| x > 0.0).count(),
+            search: e.search,
+            nearest: nearest(stocks),
+            farthest_miss: e.misses.iter().filter_map(|&(a, b)| stocks.get(b).map(|b| distance(&stocks[a], b))).max_by(f64::total_cmp),
+        });
+        search.0 += e.search.0;
+        search.1 += e.search.1;
+        pairs.extend(e.pairs);
+    }
+    let class = |p: &Pair, stock: usize| campaign.stocks[p.draw][stock].class;
+    let (same, different_lr) = split(&pairs);
     let different: Vec<&Pair> = pairs.iter().filter(|p| p.stock_a != p.stock_b).collect();
-    let different_lr: Vec<f64> = different.iter().map(|p| p.log10_lr).collect();
     let mut by_classes: Vec<(Class, Class, usize, usize)> = Vec::new();
     for p in &different {
-        let (mut a, mut b) = (stocks[p.stock_a].class, stocks[p.stock_b].class);
+        let (mut a, mut b) = (class(p, p.stock_a), class(p, p.stock_b));
         if a.name() > b.name() {
             std::mem::swap(&mut a, &mut b);
         }
@@ -290,41 +547,149 @@ pub fn figures(stocks: &[Stock], sheets: &[MeasuredSheet], pairs: &[Pair], searc
         }
     }
     by_classes.sort_by(|x, y| (x.0.name(), x.1.name()).cmp(&(y.0.name(), y.1.name())));
-    Figures {
-        counts: (stocks.len(), sheets.iter().filter(|s| s.in_library).count(), sheets.iter().filter(|s| !s.in_library).count(), sheets.iter().map(|s| s.measured.spots.len()).sum()),
+    let mut spot_use = SpotUse::default();
+    for s in &sheets {
+        spot_use.sheets += 1;
+        spot_use.measured += s.measured_spots;
+        spot_use.replaced += s.measured_spots.saturating_sub(s.planned);
+        spot_use.excluded += s.excluded;
+        spot_use.no_clean_spot += usize::from(s.no_clean_spot);
+        spot_use.short += usize::from(s.measured.spots.len() < s.planned);
+    }
+    let name = |p: &Pair, k: usize| campaign.stocks[p.draw][k].name.as_str();
+    let named = NAMED_PAIRS
+        .iter()
+        .map(|&(a, b)| {
+            let lrs: Vec<f64> = pairs.iter().filter(|p| (name(p, p.stock_a), name(p, p.stock_b)) == (a, b) || (name(p, p.stock_a), name(p, p.stock_b)) == (b, a)).map(|p| p.log10_lr).collect();
+            (a, b, lrs.len(), lrs.iter().filter(|&&x| x < -2.0).count(), lrs.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+        })
+        .collect();
+    let figures = Figures {
+        named,
+        spots,
+        draws: campaign.stocks.len(),
+        counts: (
+            campaign.stocks.first().map_or(0, Vec::len),
+            sheets.iter().filter(|s| s.in_library).count(),
+            sheets.iter().filter(|s| !s.in_library).count(),
+            sheets.iter().map(|s| s.measured.spots.len()).sum(),
+        ),
+        spot_use,
+        device_seconds_per_sheet: sheets.iter().map(|s| s.device_seconds).sum::<f64>() / sheets.len().max(1) as f64,
         pairs: (same.len(), different.len()),
         cllr: cllr(&same, &different_lr),
         cllr_min: cllr_min(&same, &different_lr),
         same_misleading: (same.iter().filter(|&&x| x < 0.0).count(), same.iter().filter(|&&x| x < -2.0).count()),
         different_misleading: (
             different.iter().filter(|p| p.log10_lr > 0.0).count(),
-            different.iter().filter(|p| p.log10_lr > 2.0 && stocks[p.stock_a].class != stocks[p.stock_b].class).count(),
+            different.iter().filter(|p| p.log10_lr > 2.0 && class(p, p.stock_a) != class(p, p.stock_b)).count(),
         ),
         by_classes,
         search,
         medians: (median(same), median(different_lr)),
-    }
+        per_draw,
+    };
+    Ok((figures, pairs))
 }
 
-/// The claims of issue 13, checked: each with whether it held.
+fn percent(k: usize, n: usize) -> f64 {
+    100.0 * k as f64 / n.max(1) as f64
+}
+
+/// "k of n (r %, 95 % CI a–b %)".
+fn rate_with_interval(k: usize, n: usize) -> String {
+    let (lo, hi) = wilson(k, n);
+    format!("{k} of {n} ({:.2} %; 95 % CI {:.2}–{:.2} %)", percent(k, n), 100.0 * lo, 100.0 * hi)
+}
+
+/// The claims of issue 13, checked on the figures pooled over the draws: each with whether
+/// it held. Rates are judged on the pooled rate; the Wilson interval is stated with it
+/// (it treats the pooled trials as independent, though trials of one draw share its
+/// stocks: the per-draw table shows how much the draws differ).
 pub fn claims(f: &Figures) -> Vec<(String, bool)> {
+    let mut out = pooled_claims(f);
+    for &(a, b, n, below, largest) in &f.named {
+        out.push((format!("{a} against {b}: {below} of {n} pairs with log10 LR < −2 (the largest {largest:+.2})"), n > 0 && below == n));
+    }
+    out
+}
+
+fn pooled_claims(f: &Figures) -> Vec<(String, bool)> {
     let (same_n, diff_n) = f.pairs;
     let rate = f.same_misleading.0 as f64 / same_n.max(1) as f64;
+    let same_upper = wilson(f.same_misleading.0, same_n).1;
     let search_rate = f.search.0 as f64 / f.search.1.max(1) as f64;
+    let search_lower = wilson(f.search.0, f.search.1).0;
+    let worst = f.per_draw.iter().map(|d| d.cllr).fold(f64::NAN, f64::max);
+    let draw_rates: Vec<f64> = f.per_draw.iter().map(|d| percent(d.search.0, d.search.1)).collect();
+    let draw_range = match (draw_rates.iter().copied().reduce(f64::min), draw_rates.iter().copied().reduce(f64::max)) {
+        (Some(lo), Some(hi)) if draw_rates.len() > 1 => format!("; per draw {lo:.1}–{hi:.1} %"),
+        _ => String::new(),
+    };
     vec![
-        (format!("Cllr {:.3} bits < 0.3 (Cllr_min {:.3})", f.cllr, f.cllr_min), f.cllr < 0.3),
-        (format!("same-stock pairs with LR < 1: {} of {same_n} ({:.2} %) ≤ 2 %", f.same_misleading.0, 100.0 * rate), rate <= 0.02),
+        (format!("Cllr {:.3} bits < 0.3 over {} draws (Cllr_min {:.3}; the worst draw's Cllr {worst:.3})", f.cllr, f.draws, f.cllr_min), f.cllr < 0.3),
+        (
+            format!(
+                "same-stock pairs with LR < 1: {} ≤ 2 % (the upper bound {} 2 %)",
+                rate_with_interval(f.same_misleading.0, same_n),
+                if same_upper <= 0.02 { "is within" } else { "exceeds" }
+            ),
+            rate <= 0.02,
+        ),
         (format!("same-stock pairs with log10 LR < −2: {}", f.same_misleading.1), f.same_misleading.1 == 0),
         (format!("different-stock pairs of different classes with log10 LR > 2: {} (of {diff_n} different-stock pairs)", f.different_misleading.1), f.different_misleading.1 == 0),
-        (format!("a held-out sheet's stock ranks first in a library search: {} of {} ({:.1} %) ≥ 95 %", f.search.0, f.search.1, 100.0 * search_rate), search_rate >= 0.95),
+        (
+            format!(
+                "a held-out sheet's stock ranks first in a library search: {} ≥ 95 % (the lower bound {} 95 %{draw_range})",
+                rate_with_interval(f.search.0, f.search.1),
+                if search_lower >= 0.95 { "also reaches" } else { "is below" }
+            ),
+            search_rate >= 0.95,
+        ),
     ]
 }
 
-/// `summary.md`.
-pub fn summary_markdown(f: &Figures) -> String {
+/// The spots study's table: one row per number of spots per sheet.
+pub fn spots_table(study: &[Figures]) -> String {
+    let mut s = String::from(
+        "| spots per sheet | Cllr (bits) | Cllr_min | median log10 LR, same stock | same-stock LR < 1 | different-stock LR > 1 | search rank-1 (95 % CI) | worst draw's search rank-1 | spots measured per sheet | device s per sheet |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for f in study {
+        let (lo, hi) = wilson(f.search.0, f.search.1);
+        let worst = f.per_draw.iter().map(|d| percent(d.search.0, d.search.1)).reduce(f64::min).unwrap_or(f64::NAN);
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {:.3} | {:+.2} | {} of {} | {:.2} % | {} of {}: {:.1} % ({:.1}–{:.1} %) | {worst:.1} % | {:.2} | {:.1} |",
+            f.spots,
+            f.cllr,
+            f.cllr_min,
+            f.medians.0,
+            f.same_misleading.0,
+            f.pairs.0,
+            percent(f.different_misleading.0, f.pairs.1),
+            f.search.0,
+            f.search.1,
+            percent(f.search.0, f.search.1),
+            100.0 * lo,
+            100.0 * hi,
+            f.spot_use.measured as f64 / f.spot_use.sheets.max(1) as f64,
+            f.device_seconds_per_sheet,
+        );
+    }
+    s
+}
+
+/// `summary.md`: the claims' figures pooled over the draws, each draw's row, and the spots
+/// study (`study`: the figures of each number of spots; may be empty).
+pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
     let mut s = String::new();
     let (stocks, library, held, spots) = f.counts;
-    let _ = writeln!(s, "# Forensic validation: {stocks} stocks, {library} library sheets, {held} held-out sheets, {spots} spots\n");
+    let _ = writeln!(
+        s,
+        "# Forensic validation: {} draws of {stocks} stocks, {library} library sheets, {held} held-out sheets of {} planned spots, {spots} spots accepted\n",
+        f.draws, f.spots
+    );
+    let u = &f.spot_use;
     let _ = writeln!(s, "| measure | value |\n|---|---|");
     let _ = writeln!(s, "| same-stock pairs | {} |", f.pairs.0);
     let _ = writeln!(s, "| different-stock pairs | {} |", f.pairs.1);
@@ -332,15 +697,66 @@ pub fn summary_markdown(f: &Figures) -> String {
     let _ = writeln!(s, "| Cllr_min (bits, after PAV) | {:.3} |", f.cllr_min);
     let _ = writeln!(s, "| median log10 LR, same stock | {:+.2} |", f.medians.0);
     let _ = writeln!(s, "| median log10 LR, different stocks | {:+.2} |", f.medians.1);
-    let _ = writeln!(s, "| same-stock pairs with LR < 1 (misleading) | {} ({:.2} %) |", f.same_misleading.0, 100.0 * f.same_misleading.0 as f64 / f.pairs.0.max(1) as f64);
+    let _ = writeln!(s, "| same-stock pairs with LR < 1 (misleading) | {} |", rate_with_interval(f.same_misleading.0, f.pairs.0));
     let _ = writeln!(s, "| same-stock pairs with log10 LR < −2 | {} |", f.same_misleading.1);
-    let _ = writeln!(s, "| different-stock pairs with LR > 1 (misleading) | {} ({:.2} %) |", f.different_misleading.0, 100.0 * f.different_misleading.0 as f64 / f.pairs.1.max(1) as f64);
+    let _ = writeln!(s, "| different-stock pairs with LR > 1 (misleading) | {} |", rate_with_interval(f.different_misleading.0, f.pairs.1));
     let _ = writeln!(s, "| different-class pairs with log10 LR > 2 | {} |", f.different_misleading.1);
-    let _ = writeln!(s, "| library search: own stock ranked first | {} of {} |", f.search.0, f.search.1);
+    let _ = writeln!(s, "| library search: own stock ranked first | {} |", rate_with_interval(f.search.0, f.search.1));
+    let _ = writeln!(
+        s,
+        "| spots measured (of {} planned) | {} ({} replacements of flagged spots) |",
+        u.sheets * f.spots,
+        u.measured,
+        u.replaced
+    );
+    let _ = writeln!(s, "| spots excluded (flagged) | {} |", u.excluded);
+    let _ = writeln!(s, "| sheets short of their planned spots / with no clean spot | {} / {} |", u.short, u.no_clean_spot);
+    let _ = writeln!(s, "| device time per sheet (s) | {:.0} |", f.device_seconds_per_sheet);
+    let _ = writeln!(s, "\n## Each draw of the population\n");
+    let _ = writeln!(
+        s,
+        "Distances in between-stock standard deviations (10 %) over σ, ρs and ρd together (two stocks drawn about one paper are 2.3 apart on average, a drawn stock and its paper 1.6); close pairs: pairs of the draw's stocks closer than {} and {}; farthest miss: the largest distance from a missed sheet's stock to the stock ranked above it.\n",
+        CLOSE[0], CLOSE[1]
+    );
+    let _ = writeln!(s, "| draw | seed | Cllr | Cllr_min | same-stock LR < 1 | different-stock LR > 1 | search rank-1 | nearest stocks | distance | Δσ, Δρs, Δρd | close pairs (< {}, < {}) | farthest miss |", CLOSE[0], CLOSE[1]);
+    let _ = writeln!(s, "|---:|---|---:|---:|---:|---:|---:|---|---:|---|---:|---:|");
+    for d in &f.per_draw {
+        let (names, dist, diff, close) = match &d.nearest {
+            Some(n) => (
+                format!("{} – {}", n.stocks.0, n.stocks.1),
+                format!("{:.2}", n.distance),
+                format!("{:+.1} %, {:+.1} %, {:+.1} %", n.difference_pct[0], n.difference_pct[1], n.difference_pct[2]),
+                format!("{}, {}", n.close_pairs[0], n.close_pairs[1]),
+            ),
+            None => ("–".into(), "–".into(), "–".into(), "–".into()),
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {:#x} | {:.3} | {:.3} | {} of {} | {} of {} ({:.2} %) | {} of {} ({:.1} %) | {names} | {dist} | {diff} | {close} | {} |",
+            d.draw,
+            d.seed,
+            d.cllr,
+            d.cllr_min,
+            d.same_misleading,
+            d.pairs.0,
+            d.different_misleading,
+            d.pairs.1,
+            percent(d.different_misleading, d.pairs.1),
+            d.search.0,
+            d.search.1,
+            percent(d.search.0, d.search.1),
+            d.farthest_miss.map_or("–".to_string(), |m| format!("{m:.2}")),
+        );
+    }
     let _ = writeln!(s, "\n## Misleading evidence for different stocks, by pair of classes\n");
     let _ = writeln!(s, "| classes | pairs | LR > 1 | rate |\n|---|---:|---:|---:|");
     for (a, b, misleading, n) in &f.by_classes {
-        let _ = writeln!(s, "| {} – {} | {n} | {misleading} | {:.2} % |", a.name(), b.name(), 100.0 * *misleading as f64 / (*n).max(1) as f64);
+        let _ = writeln!(s, "| {} – {} | {n} | {misleading} | {:.2} % |", a.name(), b.name(), percent(*misleading, *n));
+    }
+    if !study.is_empty() {
+        let _ = writeln!(s, "\n## Spots per sheet\n");
+        let _ = writeln!(s, "The same sheets (the same seeds) measured with each number of spots, library and held-out alike, over the {} draws.\n", f.draws);
+        s += &spots_table(study);
     }
     let _ = writeln!(s, "\n## Claims\n");
     for (claim, held) in claims(f) {
@@ -350,10 +766,9 @@ pub fn summary_markdown(f: &Figures) -> String {
 }
 
 /// A Tippett plot: for each log10 LR x, the share of same-stock and of different-stock
-/// pairs whose log10 LR exceeds x.
-pub fn tippett_svg(pairs: &[Pair], path: &std::path::Path) -> Result<(), String> {
-    let same: Vec<f64> = pairs.iter().filter(|p| p.stock_a == p.stock_b).map(|p| p.log10_lr).collect();
-    let different: Vec<f64> = pairs.iter().filter(|p| p.stock_a != p.stock_b).map(|p| p.log10_lr).collect();
+/// pairs whose log10 LR exceeds x (every draw's pairs together).
+pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Result<(), String> {
+    let (same, different) = split(pairs);
     let (lo, hi) = (-10.0f64, 6.0f64);
     let curve = |values: &[f64]| -> Vec<(f64, f64)> {
         let n = values.len().max(1) as f64;
@@ -362,19 +777,17 @@ pub fn tippett_svg(pairs: &[Pair], path: &std::path::Path) -> Result<(), String>
     let root = SVGBackend::new(path, (720, 460)).into_drawing_area();
     let draw = || -> Result<(), Box<dyn std::error::Error>> {
         root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption("Tippett plot: held-out pairs", ("sans-serif", 20))
-            .margin(15)
-            .x_label_area_size(45)
-            .y_label_area_size(60)
-            .build_cartesian_2d(lo..hi, 0.0..1.0)?;
+        let caption = if draws == 1 { "Tippett plot: held-out pairs".to_string() } else { format!("Tippett plot: held-out pairs of {draws} population draws") };
+        let mut chart = ChartBuilder::on(&root).caption(caption, ("sans-serif", 20)).margin(15).x_label_area_size(45).y_label_area_size(60).build_cartesian_2d(lo..hi, 0.0..1.0)?;
+        chart.configure_mesh().x_desc("log10 LR (same stock : different stocks), x").y_desc("share of pairs with log10 LR > x").draw()?;
         chart
-            .configure_mesh()
-            .x_desc("log10 LR (same stock : different stocks), x")
-            .y_desc("share of pairs with log10 LR > x")
-            .draw()?;
-        chart.draw_series(LineSeries::new(curve(&same), BLUE.stroke_width(2)))?.label(format!("same stock ({} pairs)", same.len())).legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
-        chart.draw_series(LineSeries::new(curve(&different), RED.stroke_width(2)))?.label(format!("different stocks ({} pairs)", different.len())).legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+            .draw_series(LineSeries::new(curve(&same), BLUE.stroke_width(2)))?
+            .label(format!("same stock ({} pairs)", same.len()))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        chart
+            .draw_series(LineSeries::new(curve(&different), RED.stroke_width(2)))?
+            .label(format!("different stocks ({} pairs)", different.len()))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
         chart.draw_series(LineSeries::new(vec![(0.0, 0.0), (0.0, 1.0)], BLACK.mix(0.4)))?;
         chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.9)).position(SeriesLabelPosition::MiddleLeft).draw()?;
         root.present()?;

@@ -49,6 +49,22 @@ pub struct SimulatedRun<'a> {
     pub integration_ms: Option<u16>,
 }
 
+/// The simulated instrument of `run`, greeted, and the plan `gonio measure` would make.
+fn connect(run: &SimulatedRun<'_>) -> Result<(Client<SimInstrument>, protocol::DeviceInfo, Plan), String> {
+    let instrument = run.options.instrument(run.sample).map_err(|e| e.to_string())?;
+    let mut client = Client::new(instrument, RetryPolicy::default());
+    let info = client.hello().map_err(|e| e.to_string())?;
+    let plan = Plan {
+        sample: run.sample.to_string(),
+        integration_ms: run.integration_ms.unwrap_or(info.default_integration_ms),
+        policy: run.policy.clone(),
+        acceptance_deg: f64::from(info.acceptance_deg),
+        white_check: false,
+        white_drift_limit: 0.005,
+    };
+    Ok((client, info, plan))
+}
+
 /// One whole session as `gonio measure --sim` runs it, in process, with an operator who
 /// answers at once and nothing recorded; `configure` states what the operator would (the
 /// tile, the arm zero). Returns the outcome and what the instrument truly was.
@@ -56,17 +72,7 @@ pub fn simulated_session(
     run: &SimulatedRun<'_>,
     configure: impl for<'s> FnOnce(Session<'s, SimInstrument>) -> Session<'s, SimInstrument>,
 ) -> Result<(Outcome, hil_sim::Truth), String> {
-    let instrument = run.options.instrument(run.sample).map_err(|e| e.to_string())?;
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().map_err(|e| e.to_string())?;
-    let plan = Plan {
-        sample: run.sample.to_string(),
-        integration_ms: run.integration_ms.unwrap_or(info.default_integration_ms),
-        policy: run.policy.clone(),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 0.005,
-    };
+    let (mut client, info, plan) = connect(run)?;
     let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
     let outcome = configure(Session::new(&mut client, info, plan, &mut recorder, &mut operator)).run().map_err(|e| e.to_string())?;
     Ok((outcome, client.transport().truth().clone()))
@@ -74,24 +80,19 @@ pub fn simulated_session(
 
 /// One sheet measured at `spots` spots as `gonio measure --sim --spots N` measures it (one
 /// connection, the first spot's calibration for all, a flagged spot replaced), with an
-/// operator who answers at once and nothing recorded. Returns every spot's outcome and
-/// the sheet's result.
-pub fn simulated_sheet(run: &SimulatedRun<'_>, spots: u16) -> Result<(Vec<Outcome>, crate::analysis::sheet::SheetSummary, Vec<crate::analysis::sheet::SpotResult>), String> {
-    let instrument = run.options.instrument(run.sample).map_err(|e| e.to_string())?;
-    let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().map_err(|e| e.to_string())?;
-    let plan = Plan {
-        sample: run.sample.to_string(),
-        integration_ms: run.integration_ms.unwrap_or(info.default_integration_ms),
-        policy: run.policy.clone(),
-        acceptance_deg: f64::from(info.acceptance_deg),
-        white_check: false,
-        white_drift_limit: 0.005,
-    };
+/// operator who answers at once and nothing recorded; `configure` states what the operator
+/// would, for every spot's session (the tile). Returns every spot's outcome, the sheet's
+/// result and the spots' results.
+pub fn simulated_sheet(
+    run: &SimulatedRun<'_>,
+    spots: u16,
+    configure: impl for<'s> Fn(Session<'s, SimInstrument>) -> Session<'s, SimInstrument>,
+) -> Result<(Vec<Outcome>, crate::analysis::sheet::SheetSummary, Vec<crate::analysis::sheet::SpotResult>), String> {
+    let (mut client, info, plan) = connect(run)?;
     let mut outcomes: Vec<Outcome> = Vec::new();
     let measure_spot = |number: u16, of: u16| -> Result<crate::analysis::sheet::SpotResult, crate::session::SessionError> {
         let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-        let mut session = Session::new(&mut client, info.clone(), plan.clone(), &mut recorder, &mut operator).at_spot(number, of);
+        let mut session = configure(Session::new(&mut client, info.clone(), plan.clone(), &mut recorder, &mut operator).at_spot(number, of));
         if let Some(first) = outcomes.first() {
             session = session.with_calibration(first.calibration.clone());
         }
