@@ -183,13 +183,15 @@ fn a_changed_or_flagged_session_is_not_added() {
     assert!(stderr(&out).contains("does not verify"), "{}", stderr(&out));
     assert!(!library.exists(), "a refused add leaves no library behind");
 
-    // A flagged result: `ok` made false and the manifest rewritten, so the folder verifies.
+    // A flagged result: `ok` made false, the manifest rewritten and the report drawn again,
+    // so the folder verifies.
     let flagged = measure(&root, "flagged", "PPC", 32);
     let file = flagged.join("session.json");
     let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file).expect("read")).expect("JSON");
     doc["ok"] = serde_json::Value::Bool(false);
     std::fs::write(&file, serde_json::to_string_pretty(&doc).expect("JSON")).expect("write");
     std::fs::write(flagged.join("MANIFEST.sha256"), host::output::manifest::manifest_text(&flagged).expect("manifest")).expect("write");
+    assert!(gonio(&["report", s(&flagged)]).status.success(), "the report drawn from the changed files");
     let out = gonio(&["library", "add", "--library", s(&library), "--stock", "PPC", s(&flagged)]);
     assert_eq!(code(&out), 1);
     assert!(stderr(&out).contains("flagged") && stderr(&out).contains("--allow-flagged"), "{}", stderr(&out));

@@ -94,6 +94,15 @@ pub struct Args {
     /// comparison wants several (docs/FORENSIC.md); a resumed session keeps its own.
     #[arg(long, value_name = "N")]
     pub spots: Option<u16>,
+    /// The case or job number, recorded in session.json and the report.
+    #[arg(long = "case", value_name = "ID")]
+    pub case_id: Option<String>,
+    /// Who measures, recorded in session.json and the report.
+    #[arg(long, value_name = "NAME")]
+    pub operator: Option<String>,
+    /// A note (the item, where on it), recorded in session.json and the report.
+    #[arg(long, value_name = "TEXT")]
+    pub note: Option<String>,
     /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,
@@ -222,6 +231,7 @@ struct Checked {
     max_calibration_age: Duration,
     tile: Tile,
     spots: u16,
+    case: Option<crate::output::folder::CaseRecord>,
 }
 
 fn check_args(args: &Args) -> anyhow::Result<Checked> {
@@ -245,7 +255,15 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
     if !(1..=MAX_SPOTS).contains(&spots) {
         bail!("--spots must be 1 to {MAX_SPOTS}, not {spots}");
     }
-    Ok(Checked { max_calibration_age, tile, spots })
+    for (option, value) in [("--case", &args.case_id), ("--operator", &args.operator), ("--note", &args.note)] {
+        if let Some(v) = value {
+            if v.trim().is_empty() || v.chars().any(char::is_control) || v.chars().count() > 500 {
+                bail!("{option} must be text of 1 to 500 characters without control characters, not {v:?}");
+            }
+        }
+    }
+    let case = crate::output::folder::CaseRecord { case_id: args.case_id.clone(), operator: args.operator.clone(), note: args.note.clone() };
+    Ok(Checked { max_calibration_age, tile, spots, case: (!case.is_empty()).then_some(case) })
 }
 
 /// A regular file or a folder given as `--port` is no serial port: say so before opening it.
@@ -421,6 +439,7 @@ fn run_session<T: Transport>(cx: &mut Run<'_, T>, folder: SessionFolder, spot: O
     let plan = plan_record(args, &info, existing.as_ref().map(|e| &e.doc().plan))?;
     let mut identity = Identity::new(&sample, &info, plan.clone());
     identity.instrument.simulated_sample = cx.sim_sample.clone();
+    identity.case = checked.case.clone();
     let given_calibration = match (spot.as_ref().and_then(|s| s.calibration.clone()), &args.calibration) {
         (Some(sheet), _) => Some(sheet),
         (None, Some(path)) => Some(external_calibration(path, checked, &info)?),
@@ -484,13 +503,27 @@ fn run_session<T: Transport>(cx: &mut Run<'_, T>, folder: SessionFolder, spot: O
         outcome.flags.push(crate::analysis::flags::Flag::Resumed);
     }
     match write_session(&mut recorder, &sample, &info, &outcome) {
-        Ok(summary) => Ok(Measured::Done { dir, outcome: Box::new(outcome), summary }),
+        Ok(summary) => {
+            // A spot's report is its sheet's.
+            if spot.is_none() {
+                draw_report(&dir);
+            }
+            Ok(Measured::Done { dir, outcome: Box::new(outcome), summary })
+        }
         Err(e) => {
             let why = format!("the session was measured but its result could not be written: {e:#}");
             let _ = recorder.stop(Status::Failed, &why);
             let how = spot.as_ref().map_or_else(|| format!("gonio measure --resume {}", dir.display()), |s| s.resume_with.clone());
             bail!("{why}; every reading is in {}: {how} writes the result", dir.display())
         }
+    }
+}
+
+/// The report of the finished folder `dir`; a failure is told, not fatal: the record is
+/// complete and `gonio report DIR` draws the report from it.
+fn draw_report(dir: &Path) {
+    if let Err(e) = crate::output::report::write_into(dir) {
+        eprintln!("warning: the report could not be drawn ({e}); the session's files are complete: gonio report {} draws it", dir.display());
     }
 }
 
@@ -516,6 +549,9 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
             if let Some(spots) = args.spots.filter(|n| *n != folder.doc.spots_planned) {
                 bail!("{} is a sheet of {} spots: it is continued as it began (without --spots, or --spots {}), not with --spots {spots}", dir.display(), folder.doc.spots_planned, folder.doc.spots_planned);
             }
+            if cx.checked.case.as_ref().is_some_and(|c| Some(c) != folder.doc.case.as_ref()) {
+                bail!("{} was measured under other case fields ({:?}): a sheet is continued as it began (leave out --case, --operator and --note)", dir.display(), folder.doc.case);
+            }
             if args.sample.as_ref().is_some_and(|s| *s != folder.doc.sample) {
                 bail!("{} is a sheet of '{}', not of '{sample}': a sheet is continued as it began", dir.display(), folder.doc.sample);
             }
@@ -526,6 +562,9 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
             None => SheetFolder::create_default(Path::new("sessions"), &sample, cx.checked.spots, crate::analysis::sheet::MAX_REPLACEMENTS, cx.store.clone())?,
         },
     };
+    if args.resume.is_none() {
+        folder.doc.case = cx.checked.case.clone();
+    }
     let dir = folder.dir().to_path_buf();
     let resume_with = resume_command(args, &dir);
     folder.start_run(resume_with.clone()).with_context(|| format!("cannot write {}", dir.join(crate::output::sheet::SHEET).display()))?;
@@ -586,6 +625,7 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
         spot_classes: spots.iter().map(|s| s.session.class.clone()).collect(),
     };
     folder.finish(result).with_context(|| format!("cannot write the sheet's result into {}", dir.display()))?;
+    draw_report(&dir);
     let sheet = read_sheet(&dir).map_err(|p| anyhow::anyhow!("{p}"))?;
     let json = sheet_json(&sheet);
     Ok(Measured::Sheet { dir, sheet: Box::new(sheet), json })

@@ -9,5 +9,6 @@ pub mod compare;
 pub mod exit;
 pub mod library;
 pub mod reliability;
+pub mod report;
 pub mod trade;
 pub mod verify;

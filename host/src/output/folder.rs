@@ -90,6 +90,28 @@ pub struct InstrumentRecord {
     pub simulated_sample: Option<String>,
 }
 
+/// The case a session belongs to (`gonio measure --case --operator --note`), as the
+/// examiner states it; every field optional.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CaseRecord {
+    /// The case or job number.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub case_id: Option<String>,
+    /// Who measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub operator: Option<String>,
+    /// A free note (the item, where on it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+impl CaseRecord {
+    /// Whether no field is given.
+    pub fn is_empty(&self) -> bool {
+        self.case_id.is_none() && self.operator.is_none() && self.note.is_none()
+    }
+}
+
 /// What the session was asked to measure: a resume must ask for the same.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PlanRecord {
@@ -167,6 +189,9 @@ pub struct SessionDoc {
     pub runs: Vec<Run>,
     /// Lines of `points.jsonl` when this document was written.
     pub readings_recorded: usize,
+    /// The case, when given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub case: Option<CaseRecord>,
     /// The rest: `calibration`, `readings`, `fits`, `refinements`, `decisions`, `result`,
     /// `ok`, `flags` once finished.
     #[serde(flatten)]

@@ -15,7 +15,9 @@ pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
     let mut text = String::new();
     for name in entries(dir)? {
         let path = dir.join(&name);
-        if name == MANIFEST || !path.is_file() {
+        // The report is drawn from the files the manifest lists (it shows their hashes), so
+        // it cannot be among them; `gonio verify` checks it against them instead.
+        if name == MANIFEST || name == crate::output::report::REPORT || !path.is_file() {
             continue;
         }
         text += &format!("{}  {name}\n", sha256_hex(&std::fs::read(&path)?));
@@ -64,7 +66,10 @@ pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
     }
     match entries(dir) {
         Ok(names) => {
-            for name in names.into_iter().filter(|n| n != MANIFEST && !listed.contains(n)) {
+            // The report is drawn from the record, not part of it (nor is a report a kill cut
+            // short, which the next `gonio report` replaces).
+            let report = |n: &str| n == crate::output::report::REPORT || n == crate::output::store::temp_name(crate::output::report::REPORT);
+            for name in names.into_iter().filter(|n| n != MANIFEST && !report(n) && !listed.contains(n)) {
                 problems.push(Problem { file: dir.join(&name), line: None, message: format!("not in {MANIFEST}: added after the session finished") });
             }
         }

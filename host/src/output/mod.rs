@@ -8,6 +8,7 @@ pub mod library;
 pub mod manifest;
 pub mod plots;
 pub mod record;
+pub mod report;
 pub mod sheet;
 pub mod store;
 pub mod verify;

@@ -42,6 +42,8 @@ pub struct Identity {
     pub device: serde_json::Value,
     /// What is measured.
     pub plan: PlanRecord,
+    /// The case, when given.
+    pub case: Option<crate::output::folder::CaseRecord>,
 }
 
 impl Identity {
@@ -57,6 +59,7 @@ impl Identity {
             },
             device: serde_json::to_value(info).unwrap_or_default(),
             plan,
+            case: None,
         }
     }
 }
@@ -282,6 +285,7 @@ impl FileRecorder {
             plan: identity.plan,
             runs: vec![new_run(1, 0)],
             readings_recorded: 0,
+            case: identity.case,
             rest: serde_json::Map::new(),
         };
         store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
@@ -565,6 +569,16 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
     differ("detector acceptance", format!("{}°", a.acceptance_deg), format!("{}°", b.acceptance_deg));
     differ("white check", (if a.white_check { "on" } else { "off" }).into(), (if b.white_check { "on" } else { "off" }).into());
     differ("white drift limit", format!("{} %", a.white_drift_limit_pct), format!("{} %", b.white_drift_limit_pct));
+    // Case fields given again must be the session's; left out, the session's stand.
+    if let Some(case) = wanted.case.as_ref().filter(|c| !c.is_empty()) {
+        let theirs = doc.case.clone().unwrap_or_default();
+        let text = |v: &Option<String>| v.as_ref().map_or_else(|| "none".to_string(), |s| format!("'{s}'"));
+        for (what, now, was) in [("case", &case.case_id, &theirs.case_id), ("operator", &case.operator, &theirs.operator), ("note", &case.note, &theirs.note)] {
+            if now.is_some() {
+                differ(what, text(was), text(now));
+            }
+        }
+    }
     out
 }
 

@@ -73,6 +73,9 @@ pub struct SheetDoc {
     pub decisions: Vec<String>,
     /// The result, once finished.
     pub result: Option<SheetResult>,
+    /// The case, when given (every spot's `session.json` holds it too).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub case: Option<crate::output::folder::CaseRecord>,
 }
 
 /// Whether `dir` is the folder of a multi-spot sheet.
@@ -161,6 +164,7 @@ impl SheetFolder {
             spots: Vec::new(),
             decisions: Vec::new(),
             result: None,
+            case: None,
         };
         let mut folder = SheetFolder { store: Store::open_dir(dir, options), _lock: lock, doc };
         folder.write().map_err(io_error(dir))?;
@@ -360,7 +364,8 @@ pub fn verify_sheet(dir: &Path) -> Result<VerifiedSheet, Vec<Problem>> {
         (Err(e), _) => problems.push(Problem { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
         (_, Err(e)) => problems.push(Problem { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
     }
-    let expected: Vec<String> = std::iter::once(SHEET.to_string()).chain(std::iter::once(MANIFEST.to_string())).chain(doc.spots.iter().map(|s| s.folder.clone())).collect();
+    let expected: Vec<String> =
+        [SHEET, MANIFEST, crate::output::report::REPORT].iter().map(|s| s.to_string()).chain(doc.spots.iter().map(|s| s.folder.clone())).collect();
     if let Ok(names) = crate::output::folder::entries(dir) {
         for name in names.into_iter().filter(|n| !expected.contains(n)) {
             problems.push(Problem { file: dir.join(&name), line: None, message: format!("not part of the sheet ({SHEET} lists no such spot)") });
@@ -380,6 +385,9 @@ pub fn verify_sheet(dir: &Path) -> Result<VerifiedSheet, Vec<Problem>> {
     let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
     if recorded != Some(&sheet.summary) {
         return Err(vec![Problem { file: dir.join(SHEET), line: None, message: "its result is not the one its spots give".into() }]);
+    }
+    if let Some(problem) = crate::output::report::check_report(dir) {
+        return Err(vec![problem]);
     }
     Ok(VerifiedSheet { sheet, spots: verified })
 }

@@ -42,6 +42,9 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
             0
         }
     };
+    if problems.is_empty() {
+        problems.extend(crate::output::report::check_report(dir));
+    }
     for (name, file) in [(POINTS, &inspection.points_file), (LOG, &inspection.log)] {
         if let Some(tail) = &file.cut_tail {
             problems.push(problem(name, Some(file.lines.len() + 1), format!("last line cut short ({} bytes, no newline)", tail.len())));
