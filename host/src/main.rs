@@ -32,6 +32,8 @@ enum Command {
     Forensic(host::cli::forensic::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
+    /// List the session and sheet folders under a folder (default sessions/): date, sample, class, state, device time.
+    Sessions(host::cli::sessions::Args),
     /// Draw the report a person reads (report.html) of finished session or sheet folders.
     Report(host::cli::report::Args),
     /// The reference library of paper stocks: add measured sheets, list, remove, export, import, search.
@@ -53,6 +55,7 @@ fn main() -> ExitCode {
         Command::Verify(args) => host::cli::verify::run(args),
         Command::Library(args) => host::cli::library::run(args),
         Command::Report(args) => host::cli::report::run(args),
+        Command::Sessions(args) => host::cli::sessions::run(args),
     };
     match result {
         Ok(code) => code,

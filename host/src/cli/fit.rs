@@ -24,8 +24,11 @@ pub struct Args {
     /// Full width of the detector's angular acceptance, degrees (0 leaves it out).
     #[arg(long, value_name = "DEG", default_value_t = model::DEFAULT_ACCEPTANCE_DEG)]
     pub acceptance: f64,
-    /// CSV files: header with theta_i, theta_r, radiance_factor; optional std, sample.
-    #[arg(required = true, value_name = "FILE")]
+    /// CSV files (header with theta_i, theta_r, radiance_factor; optional std, sample), or
+    /// finished session or sheet folders: analysed again from their own readings,
+    /// calibration and settings, and compared with the result they reported (--delta and
+    /// --acceptance do not apply to them).
+    #[arg(required = true, value_name = "FILE|DIR")]
     pub files: Vec<PathBuf>,
 }
 
@@ -47,7 +50,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     // Read everything first (cheap), then fit the data sets on all cores, in input order.
     let mut jobs: Vec<(usize, &Path, DataSet)> = Vec::new();
     let mut file_errors: Vec<(usize, String)> = Vec::new();
+    let mut folders: Vec<(usize, PathBuf)> = Vec::new();
     for (k, path) in args.files.iter().enumerate() {
+        if path.is_dir() {
+            match crate::output::reanalysis::session_folders(path) {
+                Ok(dirs) => folders.extend(dirs.into_iter().map(|d| (k, d))),
+                Err(e) => {
+                    failed = true;
+                    file_errors.push((k, e));
+                }
+            }
+            continue;
+        }
         match dataset::read_file(path) {
             Ok(sets) => jobs.extend(sets.into_iter().map(|s| (k, path.as_path(), s))),
             Err(e) => {
@@ -66,6 +80,34 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
     let stdout = std::io::stdout();
     let mut out = std::io::BufWriter::new(stdout.lock());
+    // Folders first, in the order given: each its session's analysis made again.
+    for (_, dir) in &folders {
+        match crate::output::reanalysis::reanalyse(dir) {
+            Ok(again) => {
+                flagged |= !again.report.ok();
+                let same = again.differences.is_empty();
+                if args.json {
+                    let mut v = to_json(&again.report);
+                    v["session_dir"] = serde_json::json!(dir.display().to_string());
+                    v["same_as_session"] = serde_json::json!(same);
+                    v["differs_from_session_in"] = serde_json::json!(again.differences);
+                    writeln!(out, "{v}")?;
+                } else {
+                    writeln!(out, "{}", to_table(&again.report))?;
+                    if same {
+                        writeln!(out, "  re-analysed from the folder's readings and calibration: the same result as the session reported\n")?;
+                    } else {
+                        writeln!(out, "  re-analysed from the folder's readings and calibration: DIFFERS from the session's result in {}\n", again.differences.join(", "))?;
+                    }
+                }
+            }
+            Err(message) => {
+                failed = true;
+                out.flush()?;
+                eprintln!("error: {message}");
+            }
+        }
+    }
     let mut file_errors = file_errors.into_iter().peekable();
     for ((k, path, _), result) in jobs.iter().zip(results) {
         // Keep errors of unreadable files in file order relative to the results.

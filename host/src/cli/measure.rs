@@ -790,6 +790,9 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
         object.insert("ok".into(), json!(outcome.ok()));
         object.insert("flags".into(), json!(outcome.flags));
         object.insert("session_dir".into(), json!(recorder.dir().display().to_string()));
+        // What `gonio fit DIR` needs to make this analysis again from the folder.
+        object.insert("analysis_settings".into(), json!(outcome.analysis_settings));
+        object.insert("analysed_unix_s".into(), json!(outcome.analysed_unix_s));
         object.remove("file");
     }
     let mut rest = serde_json::Map::new();

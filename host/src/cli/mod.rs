@@ -10,5 +10,6 @@ pub mod exit;
 pub mod library;
 pub mod reliability;
 pub mod report;
+pub mod sessions;
 pub mod trade;
 pub mod verify;

@@ -25,7 +25,7 @@
 
 use super::{Session, SessionError};
 use crate::analysis::budget::{self, BudgetReading, SharedError};
-use crate::instrument::calibration::{Calibration, GainRatio, pool, standard_error_counts, unix_now_s};
+use crate::instrument::calibration::{Calibration, GainRatio, pool, standard_error_counts};
 use crate::instrument::link::{LinkError, Transport};
 use protocol::{Command, ErrorCode, Geometry, Reading, Reply, Target};
 
@@ -446,17 +446,15 @@ impl<T: Transport> Session<'_, T> {
         }))
     }
 
-    /// The shared errors of the readings `indices` (into the session's points, in the fit's
-    /// order), with each reading's age since the calibration's white readings.
-    pub(super) fn shared_errors_of(&self, indices: &[usize]) -> Result<Vec<SharedError>, SessionError> {
-        let Some(calibration) = self.calibration.as_ref() else { return Ok(Vec::new()) };
-        let points: Vec<&super::MeasuredPoint> = indices.iter().filter_map(|&k| self.points.get(k)).collect();
-        let age_now_s = unix_now_s().saturating_sub(calibration.taken_unix_s) as f64;
-        let ages = budget::reading_ages_s(age_now_s, &points.iter().map(|p| p.device_time_us).collect::<Vec<_>>());
-        let readings: Vec<BudgetReading> =
-            points.iter().zip(ages).map(|(p, age_s)| BudgetReading { theta_i_deg: p.theta_i_deg, reading: p.reading, age_s }).collect();
-        Ok(budget::shared_errors(calibration, &readings)?)
-    }
+}
+
+/// The errors `calibration` shares among `points` (white per θi, darks, tile, gain ratios,
+/// lamp drift as of `now_unix_s`).
+pub(super) fn shared_errors(calibration: &Calibration, points: &[&super::MeasuredPoint], now_unix_s: u64) -> Result<Vec<SharedError>, crate::instrument::calibration::CalibrationError> {
+    let age_now_s = now_unix_s.saturating_sub(calibration.taken_unix_s) as f64;
+    let ages = budget::reading_ages_s(age_now_s, &points.iter().map(|p| p.device_time_us).collect::<Vec<_>>());
+    let readings: Vec<BudgetReading> = points.iter().zip(ages).map(|(p, age_s)| BudgetReading { theta_i_deg: p.theta_i_deg, reading: p.reading, age_s }).collect();
+    budget::shared_errors(calibration, &readings)
 }
 
 #[cfg(test)]

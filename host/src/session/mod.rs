@@ -301,6 +301,10 @@ pub struct Outcome {
     pub decisions: Vec<String>,
     /// Every condition that makes the result less than clean (and the informational ones).
     pub flags: Vec<Flag>,
+    /// What the final analysis was made with besides the readings and the calibration.
+    pub analysis_settings: AnalysisSettings,
+    /// When the final analysis was made (the calibration's age in its budget is as of it).
+    pub analysed_unix_s: u64,
 }
 
 impl Outcome {
@@ -455,6 +459,8 @@ pub struct Session<'a, T: Transport> {
     arm_zero_uncertainty_deg: f64,
     /// See [`Session::at_spot`].
     spot: Option<(u16, u16)>,
+    /// The time of the last analysis (the calibration's age in the budget is as of it).
+    analysed_unix_s: u64,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
@@ -487,6 +493,7 @@ impl<'a, T: Transport> Session<'a, T> {
             tile: Tile::default(),
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
             spot: None,
+            analysed_unix_s: 0,
         }
     }
 
@@ -675,6 +682,8 @@ impl<'a, T: Transport> Session<'a, T> {
             recoveries: self.recoveries,
             decisions: self.decisions,
             flags: self.flags.into_iter().collect(),
+            analysis_settings: AnalysisSettings { acceptance_deg: self.plan.acceptance_deg, arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg },
+            analysed_unix_s: self.analysed_unix_s,
         })
     }
 
@@ -828,11 +837,8 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Every usable reading (converted, not superseded) as a fit observation with its
     /// index in `points`.
     fn usable_points(&self) -> impl Iterator<Item = (usize, Observation)> + '_ {
-        let mut seen = BTreeSet::new();
-        self.points.iter().enumerate().filter(|(_, p)| !p.superseded).filter_map(move |(k, p)| {
-            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
-            seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std }))
-        })
+        let (indices, observations) = usable_observations(&self.points);
+        indices.into_iter().zip(observations)
     }
 
     /// Geometries with a current reading (not superseded). A reading that could not be
@@ -848,16 +854,58 @@ impl<'a, T: Transport> Session<'a, T> {
         self.wanted.iter().copied().filter(|g| !measured.contains(g)).collect()
     }
 
-    /// Fit everything measured so far, check σ against σ_l and classify.
-    fn analyse(&self) -> Result<Report, SessionError> {
-        // Lines of readings.csv: a header, then one per reading.
-        let (indices, observations): (Vec<usize>, _) = self.usable_points().unzip();
-        let shared = self.shared_errors_of(&indices)?;
-        let set = DataSet { sample: self.plan.sample.clone(), observations, lines: indices.iter().map(|k| k + 2).collect() };
-        let options = FitOptions { acceptance_deg: Some(self.plan.acceptance_deg), arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg, ..FitOptions::default() };
-        analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None).map_err(SessionError::Fit)
+    /// Fit everything measured so far, check σ against σ_l and classify, as of now (the
+    /// calibration's age sets the lamp drift's share); the time is kept for the record.
+    fn analyse(&mut self) -> Result<Report, SessionError> {
+        let now = unix_now_s();
+        self.analysed_unix_s = now;
+        analyse_points(&self.plan.sample, &self.points, self.calibration.as_ref(), &self.analysis_settings(), now).map_err(SessionError::Fit)
     }
 
+    /// What the session's analysis is made with besides the readings.
+    fn analysis_settings(&self) -> AnalysisSettings {
+        AnalysisSettings { acceptance_deg: self.plan.acceptance_deg, arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg }
+    }
+}
+
+/// What an analysis of a session's readings is made with besides the readings and the
+/// calibration: recorded in the result so that a re-analysis makes the same one.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AnalysisSettings {
+    /// Detector acceptance modelled in the fit, degrees.
+    pub acceptance_deg: f64,
+    /// Standard uncertainty of the detector arm's zero, degrees.
+    pub arm_zero_uncertainty_deg: f64,
+}
+
+/// The readings the result rests on (converted, not superseded, the last of each
+/// geometry once), as fit observations, with their indices in `points`.
+pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
+    let mut seen = BTreeSet::new();
+    points
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| !p.superseded)
+        .filter_map(|(k, p)| {
+            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
+            seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std }))
+        })
+        .unzip()
+}
+
+/// The session's analysis of `points` (marks applied, converted with `calibration`): the
+/// fit with the calibration's shared errors as of `now_unix_s`, the σ_l check and the
+/// class. What a session reports, and what `gonio fit DIR` makes again from its folder.
+pub fn analyse_points(sample: &str, points: &[MeasuredPoint], calibration: Option<&Calibration>, settings: &AnalysisSettings, now_unix_s: u64) -> Result<Report, String> {
+    let (indices, observations) = usable_observations(points);
+    let shared = match calibration {
+        Some(calibration) => gains::shared_errors(calibration, &indices.iter().filter_map(|&k| points.get(k)).collect::<Vec<_>>(), now_unix_s).map_err(|e| e.to_string())?,
+        None => Vec::new(),
+    };
+    // Lines of readings.csv: a header, then one per reading.
+    let set = DataSet { sample: sample.to_string(), observations, lines: indices.iter().map(|k| k + 2).collect() };
+    let options = FitOptions { acceptance_deg: Some(settings.acceptance_deg), arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg, ..FitOptions::default() };
+    analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None)
 }
 
 /// What flagged a fit lack-of-fit, in words: the χ² test's and the structure test's

@@ -1,0 +1,96 @@
+//! The sessions under a folder (`gonio sessions [ROOT]`): each session or sheet folder
+//! with its date, sample, class, state and device time, read from its own documents.
+use crate::output::folder::{SESSION, SessionDoc, Status};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// One session or sheet folder.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Entry {
+    /// The folder.
+    pub dir: PathBuf,
+    /// `session` (one spot) or `sheet` (several).
+    pub kind: &'static str,
+    /// When its first run started (local RFC 3339).
+    pub started: Option<String>,
+    /// The sample.
+    pub sample: String,
+    /// Where it stands (`finished`, `interrupted`, …).
+    pub status: String,
+    /// The class of each spot (one for a session); `None`: undecided or not finished.
+    pub classes: Vec<Option<String>>,
+    /// Clean, when finished.
+    pub ok: Option<bool>,
+    /// Its flags, when finished.
+    pub flags: Vec<String>,
+    /// Device seconds measuring, when finished.
+    pub device_seconds: Option<f64>,
+    /// What could not be read, when something could not.
+    pub problem: Option<String>,
+}
+
+fn session_doc(dir: &Path) -> Result<SessionDoc, String> {
+    let file = dir.join(SESSION);
+    let text = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))
+}
+
+fn session_entry(dir: &Path) -> Entry {
+    let mut entry = Entry { dir: dir.to_path_buf(), kind: "session", started: None, sample: String::new(), status: "unreadable".into(), classes: Vec::new(), ok: None, flags: Vec::new(), device_seconds: None, problem: None };
+    match session_doc(dir) {
+        Ok(doc) => {
+            entry.started = doc.runs.first().map(|r| r.started.clone());
+            entry.sample = doc.sample.clone();
+            entry.status = doc.status.to_string();
+            if doc.status == Status::Finished {
+                let result = doc.rest.get("result");
+                entry.classes = vec![result.and_then(|r| r["class"].as_str()).map(str::to_string)];
+                entry.ok = doc.rest.get("ok").and_then(serde_json::Value::as_bool);
+                entry.flags = doc.rest.get("flags").and_then(|f| f.as_array()).map(|a| a.iter().filter_map(|f| f.as_str().map(str::to_string)).collect()).unwrap_or_default();
+                entry.device_seconds = result.and_then(|r| r["device_seconds"].as_f64());
+            }
+        }
+        Err(e) => entry.problem = Some(e),
+    }
+    entry
+}
+
+fn sheet_entry(dir: &Path) -> Entry {
+    let mut entry = Entry { dir: dir.to_path_buf(), kind: "sheet", started: None, sample: String::new(), status: "unreadable".into(), classes: Vec::new(), ok: None, flags: Vec::new(), device_seconds: None, problem: None };
+    match crate::output::sheet::read_doc(dir) {
+        Ok(doc) => {
+            entry.sample = doc.sample.clone();
+            entry.status = doc.status.to_string();
+            entry.started = doc.spots.first().and_then(|s| session_doc(&dir.join(&s.folder)).ok()).and_then(|d| d.runs.first().map(|r| r.started.clone()));
+            if let Some(result) = &doc.result {
+                entry.classes = result.spot_classes.clone();
+                entry.ok = Some(result.summary.ok());
+                entry.flags = result.summary.flags.iter().map(|f| f.name().to_string()).collect();
+                entry.device_seconds = Some(result.device_seconds);
+            }
+        }
+        Err(p) => entry.problem = Some(p.to_string()),
+    }
+    entry
+}
+
+/// The session and sheet folders directly under `root`, oldest first (by their first
+/// run's start, then name); a folder that is neither is left out.
+pub fn list(root: &Path) -> Result<Vec<Entry>, String> {
+    let names = crate::output::folder::entries(root).map_err(|e| format!("{}: {e}", root.display()))?;
+    let mut out: Vec<Entry> = names
+        .iter()
+        .map(|n| root.join(n))
+        .filter_map(|dir| {
+            if crate::output::sheet::is_sheet_folder(&dir) {
+                Some(sheet_entry(&dir))
+            } else if dir.join(SESSION).is_file() {
+                Some(session_entry(&dir))
+            } else {
+                None
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| (&a.started, &a.dir).cmp(&(&b.started, &b.dir)));
+    Ok(out)
+}

@@ -1,0 +1,73 @@
+//! A finished session folder analysed again from its own record (`gonio fit DIR`): the
+//! readings of `points.jsonl` (marks applied) converted with `calibration.json`, the
+//! analysis settings and time the session recorded in its result, through the session's
+//! own analysis ([`crate::session::analyse_points`]), and compared with the result the
+//! session reported.
+use crate::analysis::report::{Report, to_json};
+use crate::instrument::calibration::Calibration;
+use crate::output::folder::{CALIBRATION, SESSION, SessionDoc, Status};
+use crate::session::{AnalysisSettings, analyse_points};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+/// The session folders of `path`: a sheet's spots, or the session itself.
+pub fn session_folders(path: &Path) -> Result<Vec<PathBuf>, String> {
+    if crate::output::sheet::is_sheet_folder(path) {
+        let doc = crate::output::sheet::read_doc(path).map_err(|p| p.to_string())?;
+        return Ok(doc.spots.iter().map(|s| path.join(&s.folder)).collect());
+    }
+    Ok(vec![path.to_path_buf()])
+}
+
+/// A re-analysis and how it compares with the session's own result.
+pub struct Reanalysis {
+    /// The analysis made again.
+    pub report: Report,
+    /// Keys of the result whose value differs from the session's (empty: the same result).
+    pub differences: Vec<String>,
+}
+
+/// Analyse the finished session folder `dir` again from its record.
+pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
+    let file = dir.join(SESSION);
+    let text = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let doc: SessionDoc = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    if doc.status != Status::Finished {
+        return Err(format!("{}: the session is not finished (status {}); its readings are in {}", file.display(), doc.status, dir.join("readings.csv").display()));
+    }
+    let recorded = doc.rest.get("result").cloned().ok_or_else(|| format!("{}: no result", file.display()))?;
+    let calibration: Option<Calibration> = match std::fs::read(dir.join(CALIBRATION)) {
+        Ok(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", dir.join(CALIBRATION).display()))?),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(format!("{}: {e}", dir.join(CALIBRATION).display())),
+    };
+    let mut points = crate::output::record::read_points(dir).map_err(|p| p.to_string())?;
+    if let Some(c) = &calibration {
+        for p in &mut points {
+            p.convert_with(c);
+        }
+    }
+    // Sessions before these were recorded: the plan's acceptance, the default arm zero, the
+    // session's end as the time of the analysis (the result then differs in the drift's share).
+    let settings: AnalysisSettings = recorded.get("analysis_settings").cloned().and_then(|v| serde_json::from_value(v).ok()).unwrap_or(AnalysisSettings {
+        acceptance_deg: doc.plan.acceptance_deg,
+        arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+    });
+    let ended = doc.runs.last().and_then(|r| r.ended.as_deref()).and_then(|t| chrono::DateTime::parse_from_rfc3339(t).ok()).map_or(0, |t| t.timestamp().max(0) as u64);
+    let now = recorded.get("analysed_unix_s").and_then(Value::as_u64).unwrap_or(ended);
+    let mut report = analyse_points(&doc.sample, &points, calibration.as_ref(), &settings, now)?;
+    report.file = dir.to_path_buf();
+    let again = to_json(&report);
+    // The session's `flags` and `ok` are the session's (lost steps, a resume, …) over the
+    // analysis's own: those must be among them.
+    let session_level = ["file", "flags", "ok"];
+    let mut differences: Vec<String> = again
+        .as_object()
+        .map(|o| o.iter().filter(|(k, v)| !session_level.contains(&k.as_str()) && recorded.get(k.as_str()) != Some(v)).map(|(k, _)| k.clone()).collect())
+        .unwrap_or_default();
+    let recorded_flags: Vec<&str> = recorded.get("flags").and_then(Value::as_array).map(|a| a.iter().filter_map(Value::as_str).collect()).unwrap_or_default();
+    if report.flags.iter().any(|f| !recorded_flags.contains(&f.name())) {
+        differences.push("flags".to_string());
+    }
+    Ok(Reanalysis { report, differences })
+}
