@@ -1,4 +1,4 @@
-//! Limits of the reference instrument (INSTRUMENT.md). Each value is where it is
+//! Limits of the reference instrument. Each value is where it is
 //! defined; change one only with a reason written beside it.
 
 use protocol::{Angle, DetectorRange, DeviceInfo, PROTOCOL_VERSION};
@@ -74,7 +74,7 @@ const REFERENCE_RANGES: [DetectorRange; 3] = [
 ];
 
 impl InstrumentConfig {
-    /// The reference instrument of INSTRUMENT.md.
+    /// The reference instrument.
     pub const REFERENCE: InstrumentConfig = InstrumentConfig {
         board: "gonio STM32F411 black pill",
         arm_min: Angle::from_whole_deg(0),

@@ -114,7 +114,7 @@ impl<S: Scene> FakeHardware<S> {
             lamp_on: false,
             range: 0,
             ranges: config.detector_ranges,
-            // INSTRUMENT.md: dark ≈ 0.3 % and read noise 0.02 % of full scale.
+            // the reference instrument: dark ≈ 0.3 % and read noise 0.02 % of full scale.
             dark_counts: 0.003 * 65_535.0,
             noise_counts: 0.0002 * 65_535.0,
             next_sample_us: SAMPLE_PERIOD_US,

@@ -1,4 +1,4 @@
-//! The detector as the instrument has it (INSTRUMENT.md), and nothing more: angular
+//! The detector as the instrument has it (the reference instrument), and nothing more: angular
 //! acceptance, dark offset, shot and read noise that fall with integration time, lamp
 //! drift, range gains and saturation, all drawn from a seeded generator so that a run
 //! repeats exactly.

@@ -20,7 +20,7 @@ impl<F: Fn(f64, f64) -> f64 + Send + Sync> Scene for F {
     }
 }
 
-/// Certified radiance factor of the reference instrument's white tile (INSTRUMENT.md).
+/// Certified radiance factor of the reference instrument's white tile.
 pub const WHITE_TILE_RADIANCE_FACTOR: f64 = 0.99;
 
 /// The white reference tile: Lambertian, so the same radiance factor in every direction.

@@ -1,5 +1,5 @@
 //! A simulated sheet of paper: the simulator's own physics of the scene on the sample
-//! port, written from the method's text (METHOD.md) and independent of any fit.
+//! port, written from the method's text (Akao et al.) and independent of any fit.
 //!
 //! One spot of a sheet has the radiance factor (BRDF × π) in the specular plane
 //!
@@ -10,7 +10,7 @@
 //! ```
 //!
 //! with θa = |θi − θr| / 2 and ψ = (θi + θr) / 2; F is the paper's Fresnel term exactly
-//! as METHOD.md writes it, G Blinn's geometric attenuation, and D the facet distribution
+//! as Akao et al. writes it, G Blinn's geometric attenuation, and D the facet distribution
 //! normalised to 1 at its peak (θa = 0), so that ρs means the same for every [`Lobe`]:
 //!
 //! - [`Lobe::Gaussian`]: D = exp(−θa² / (2σ²)), θa and σ in degrees: the TSL lobe. With
@@ -21,12 +21,12 @@
 //! - [`Lobe::Cauchy`]: D = 1 / (1 + (θa/γ)²), γ = θa½: tails fall as θa⁻².
 //!
 //! So all three lobes have the same full width at half maximum in θr, 4·θa½ = 4.71σ
-//! (METHOD.md's FWHM of the TS lobe), and ggx and cauchy have heavier tails. F and
+//! (the paper's FWHM of the TS lobe), and ggx and cauchy have heavier tails. F and
 //! G/(cos θi cos θr) widen the whole specular term of every lobe a little, a heavy tail a
 //! little more: for σ ≤ 1.9° at θi 20–60° the whole term's FWHM is within 2.3 % (ggx) and
 //! 5.8 % (cauchy) of the Gaussian's (tests/sheet.rs).
 //!
-//! The two terms the TSL model lacks (METHOD.md's last paragraph), each with a strength
+//! The two terms the TSL model lacks (the paper's last paragraph), each with a strength
 //! that is a radiance factor:
 //!
 //! - **forward lobe** (fibrous papers scatter forward, a lobe at θr well beyond specular):
@@ -258,7 +258,7 @@ impl Scene for Sheet {
     }
 }
 
-/// The paper's Fresnel term as METHOD.md writes it: the root of the sum of the squared
+/// The paper's Fresnel term as Akao et al. writes it: the root of the sum of the squared
 /// amplitude ratios, F(ψ) = √((tan(ψ−δ)/tan(ψ+δ))² + (sin(ψ−δ)/sin(ψ+δ))²),
 /// δ = asin(sin ψ / η), ψ in degrees.
 ///

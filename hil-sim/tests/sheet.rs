@@ -7,7 +7,7 @@ use hil_sim::scene::Scene;
 use hil_sim::sheet::{BUMP_SD_DEG, Lobe, Sheet, SheetSpec, Stock};
 use hil_sim::table::TableScene;
 
-/// Table 6 of METHOD.md.
+/// Table 6 of Akao et al.
 const PAPERS: [(&str, Stock); 8] = [
     ("G", Stock { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 }),
     ("SG", Stock { sigma_deg: 1.9, rho_s: 57.1, rho_d: 0.795, eta: 1.02 }),

@@ -1,6 +1,6 @@
 //! `gonio`: the host command line. One module per subcommand in `host::cli`, each with
 //! its own clap struct and `run()`.
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -32,6 +32,8 @@ enum Command {
     Forensic(host::cli::forensic::Args),
     /// Check session folders: every file against MANIFEST.sha256, the records against each other.
     Verify(host::cli::verify::Args),
+    /// Print the completion script of a shell (bash, zsh, fish, elvish, powershell).
+    Completions(host::cli::completions::Args),
     /// List the session and sheet folders under a folder (default sessions/): date, sample, class, state, device time.
     Sessions(host::cli::sessions::Args),
     /// Draw the report a person reads (report.html) of finished session or sheet folders.
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::Library(args) => host::cli::library::run(args),
         Command::Report(args) => host::cli::report::run(args),
         Command::Sessions(args) => host::cli::sessions::run(args),
+        Command::Completions(args) => host::cli::completions::run(args, &mut Cli::command()),
     };
     match result {
         Ok(code) => code,

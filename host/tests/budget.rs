@@ -37,7 +37,7 @@ impl Errors {
     const REAL: Errors = Errors { gain_sd: 0.01, tile_sd: 0.005, drift_per_hour: 0.002, calibration_age_s: 0.0 };
 }
 
-/// The reference instrument of INSTRUMENT.md, at counts: the white tile reads 40 % of full
+/// The reference instrument, at counts: the white tile reads 40 % of full
 /// scale at θi = 20° on range 0, read noise 0.02 % of full scale and shot noise 0.1 % at
 /// 40 % for 100 ms, dark 0.3 % of full scale, 1 kHz samples.
 struct Instrument {

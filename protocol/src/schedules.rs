@@ -1,4 +1,4 @@
-//! The measurement schedules of the method (METHOD.md, Tables 2, 4 and 5).
+//! The measurement schedules of the method (Akao et al., Tables 2, 4 and 5).
 //!
 //! All geometries lie in the specular plane at θi ∈ {20, 30, 45, 60}° with
 //! 0 ≤ θr ≤ 70°, in whole degrees as in the paper. Generated lists are sorted by θi,

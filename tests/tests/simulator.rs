@@ -210,7 +210,7 @@ fn strategy1_takes_the_device_time_of_the_instrument() {
     let (readings, done) = strategy1(&mut client);
     eprintln!("Strategy 1 on the simulator: {:.2} device s in {:.3} wall s", done.device_us as f64 * 1e-6, wall.elapsed().as_secs_f64());
     assert_eq!(readings.len(), 12);
-    // INSTRUMENT.md: on the order of 10 s (moves, settling, 100 ms integrations, re-takes).
+    // the reference instrument: on the order of 10 s (moves, settling, 100 ms integrations, re-takes).
     assert!((5e6..20e6).contains(&(done.device_us as f64)), "{} µs", done.device_us);
     // Every reading carries the geometry reached, which is the schedule's.
     let mut reached: Vec<Geometry> = readings.iter().map(|r| r.geometry).collect();
@@ -233,7 +233,7 @@ fn strategy1_takes_the_device_time_of_the_instrument() {
         refined_done.device_us as f64 * 1e-6,
         wall.elapsed().as_secs_f64()
     );
-    // INSTRUMENT.md: about half a minute.
+    // the reference instrument: about half a minute.
     assert!((15e6..60e6).contains(&(refined_done.device_us as f64)), "{} µs", refined_done.device_us);
 }
 

@@ -27,7 +27,7 @@
 //!   darks' share through it in the dark terms), else the nominal one at 1 %
 //!   (`NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY`, an instrument assumption: the firmware's
 //!   configuration announces exact decades without a tolerance);
-//! - drift: 0.2 %/h (INSTRUMENT.md) times the time since the white readings: nothing within
+//! - drift: 0.2 %/h (the reference instrument) times the time since the white readings: nothing within
 //!   a session, 0.8 % for a calibration reused 4 h later.
 
 use crate::analysis::fit::FitResult;

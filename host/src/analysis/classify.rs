@@ -1,4 +1,4 @@
-//! Classification of a fitted paper (METHOD.md, Fig. 10 steps 3–5), how sure it is, and the
+//! Classification of a fitted paper (Akao et al., Fig. 10 steps 3–5), how sure it is, and the
 //! nearest of the eight reference papers of Table 6.
 use crate::analysis::fit::{ETA_MAX, ETA_MIN, FitResult, SIGMA_MIN_DEG};
 use crate::analysis::model::{ETA, Params, RHO_D, RHO_S, SIGMA};
@@ -87,7 +87,7 @@ const fn reference(name: &'static str, description: &'static str, p: [f64; 4], c
     Reference { name, description, params: Params { sigma_deg: p[0], rho_s: p[1], rho_d: p[2], eta: p[3] }, class }
 }
 
-/// Table 6 (METHOD.md).
+/// Table 6 (Akao et al.).
 pub const REFERENCES: [Reference; 8] = [
     reference("G", "glossy inkjet paper", [0.8, 57.8, 0.855, 1.19], Class::G),
     reference("SG", "semi-glossy inkjet paper", [1.9, 57.1, 0.795, 1.02], Class::SG),

@@ -1,4 +1,4 @@
-//! Least-squares fit of the TSL model (METHOD.md "Fitting") with the bounds of Table 3,
+//! Least-squares fit of the TSL model (Akao et al., "Fitting") with the bounds of Table 3,
 //! and what the data say about it: goodness of fit, the uncertainty budget, and what was
 //! not determined.
 //!

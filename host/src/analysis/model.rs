@@ -1,5 +1,5 @@
 //! The Torrance–Sparrow + Lambert (TSL) reflectance model in the specular plane
-//! (METHOD.md, Eq. 1–4), its analytic derivatives, and the detector's angular acceptance.
+//! (Akao et al., Eq. 1–4), its analytic derivatives, and the detector's angular acceptance.
 //!
 //! Radiance factor (BRDF × π):
 //!
@@ -24,7 +24,7 @@
 
 use serde::Serialize;
 
-/// Full width of the detector's angular acceptance in θr, degrees (INSTRUMENT.md).
+/// Full width of the detector's angular acceptance in θr, degrees (the reference instrument).
 pub const DEFAULT_ACCEPTANCE_DEG: f64 = 1.0;
 
 /// FWHM of the TS lobe in θr per degree of σ: the lobe has standard deviation 2σ in θr.

@@ -1,4 +1,4 @@
-//! The sampling interval δ of a data set and the adequacy check σ > σ_l (METHOD.md).
+//! The sampling interval δ of a data set and the adequacy check σ > σ_l (Akao et al.).
 use protocol::schedules;
 use serde::Serialize;
 use std::collections::BTreeSet;

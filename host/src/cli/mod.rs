@@ -6,6 +6,7 @@ pub mod sim;
 pub mod measure;
 pub mod accuracy;
 pub mod compare;
+pub mod completions;
 pub mod exit;
 pub mod library;
 pub mod reliability;

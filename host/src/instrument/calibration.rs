@@ -1,5 +1,5 @@
 //! Dark and white calibration, the range gains, and the conversion of detector readings to
-//! radiance factors (INSTRUMENT.md, "Calibration").
+//! radiance factors (the reference instrument's calibration).
 //!
 //! R = (S − S_dark) / (S_white − S_dark) · R_tile at the same θi. A sample reading and the
 //! white reading at its θi may be on different ranges (a glossy peak needs the least
@@ -19,7 +19,7 @@ use std::path::Path;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 /// The white tile's certified radiance factor unless the user gives the certificate's
-/// (`--tile-radiance-factor`): INSTRUMENT.md's reference tile.
+/// (`--tile-radiance-factor`): the reference instrument's tile.
 pub const DEFAULT_WHITE_RADIANCE_FACTOR: f64 = 0.99;
 
 /// Relative standard uncertainty (k = 1) of the tile's certified radiance factor unless the
@@ -36,7 +36,7 @@ pub const DEFAULT_TILE_RELATIVE_UNCERTAINTY: f64 = 0.005;
 /// (`session::gains`); this applies only where it could not.
 pub const NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY: f64 = 0.01;
 
-/// Lamp output drift, standard uncertainty of its rate, per hour (fraction). INSTRUMENT.md:
+/// Lamp output drift, standard uncertainty of its rate, per hour (fraction). The reference instrument:
 /// "lamp drift 0.2 % per hour" for the reference instrument; its sign is not known, so the
 /// rate is taken as 0 ± 0.2 %/h.
 pub const DEFAULT_LAMP_DRIFT_PER_HOUR: f64 = 0.002;

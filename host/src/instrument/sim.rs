@@ -114,7 +114,7 @@ pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_err
 ///   decade is off by about 1 % (issue 12 measured that 1–2 % moves SG's ρs by 17 %);
 /// - tile error 0.5 %: a calibrated white tile's certificate states its radiance factor to
 ///   about ±1 % at k = 2, i.e. 0.5 % standard uncertainty;
-/// - lamp drift 0.2 %/h: INSTRUMENT.md's value, as in the ideal set;
+/// - lamp drift 0.2 %/h: the reference instrument's value, as in the ideal set;
 /// - arm offset N(0, 0.1°), drawn from the seed: the detector's zero, set at the home
 ///   switch and by aligning the aperture, is good to about 8 microsteps (0.1°), small
 ///   against the glossy lobe's 1.6° standard deviation in θr but seen by a fit (0.3° moves
