@@ -39,7 +39,7 @@ fn the_main_job_measures_g_in_process() {
     assert!(r["refinements"].as_array().is_some_and(|r| !r.is_empty()), "{r}");
     // A clean result: ok, no flag, exit 0 (result() checked the exit status).
     assert_eq!((r["ok"].clone(), r["flags"].clone()), (Value::Bool(true), serde_json::json!([])), "{r}");
-    for file in ["session.json", "readings.csv", "points.jsonl", "calibration.json", "session.log", "MANIFEST.sha256", "astm-e1392.csv", "fig4-radiance-factor.svg", "fig5-sigma-rho_s.svg"] {
+    for file in ["session.json", "readings.csv", "points.jsonl", "calibration.json", "session.log", "MANIFEST.sha256", "G.astm", "fig4-radiance-factor.svg", "fig5-sigma-rho_s.svg"] {
         assert!(dir.join(file).exists(), "no {file}");
     }
     let session: Value = serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();

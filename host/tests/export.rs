@@ -1,8 +1,14 @@
-//! ASTM E1392-style CSV: the header, the angle convention, BRDF = radiance factor / π, and
-//! numbers that read back exactly.
-use host::output::export::{self, ASTM_E1392_COLUMNS};
+//! The `.astm` export (ASTM E1392 / E2387 exchange format), read back by a reader written
+//! here from the format's description (header keyword lines, `NUM_POINTS n`, a `VARS` line
+//! of comma-separated column names ending the header, then comma-separated rows of
+//! θi, φi, θs, φs in radians and the BRDF in sr⁻¹), not from the writer: the angle
+//! convention, BRDF = radiance factor / π, numbers that read back exactly, the metadata,
+//! and a session folder's export against its readings.csv.
+mod cli_support;
 use host::analysis::fit::Observation;
+use host::output::export::{self, AstmMetadata};
 use std::collections::HashMap;
+use std::f64::consts::PI;
 use std::time::{Duration, UNIX_EPOCH};
 
 fn readings() -> Vec<Observation> {
@@ -15,79 +21,89 @@ fn readings() -> Vec<Observation> {
     ]
 }
 
-struct Parsed {
-    header: HashMap<String, String>,
-    rows: Vec<[Option<f64>; 7]>,
+fn meta(sample: &str) -> AstmMetadata {
+    AstmMetadata {
+        sample: sample.to_string(),
+        instrument: "gonio STM32F411 serial SIM-0001".into(),
+        measured_at: UNIX_EPOCH + Duration::from_secs(1_764_000_000),
+        acceptance_deg: 1.0,
+        integration_ms: 100,
+        white_radiance_factor: 0.987,
+        white_relative_uncertainty: 0.004,
+    }
 }
 
-fn parse(text: &str) -> Parsed {
-    let mut header = HashMap::new();
+/// An ASTM file as a reader of the format sees it.
+struct AstmFile {
+    keywords: HashMap<String, String>,
+    num_points: usize,
+    vars: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+fn read_astm(text: &str) -> AstmFile {
+    let mut keywords = HashMap::new();
+    let mut num_points = None;
+    let mut vars = None;
     let mut lines = text.lines();
-    let mut columns = None;
     for line in lines.by_ref() {
-        if let Some(rest) = line.strip_prefix("# ") {
-            let (key, value) = rest.split_once(": ").expect("`# key: value`");
-            header.insert(key.to_string(), value.to_string());
-        } else {
-            columns = Some(line);
-            break;
+        let (key, value) = line.split_once(' ').unwrap_or((line, ""));
+        match key {
+            "NUM_POINTS" => num_points = Some(value.trim().parse::<usize>().expect("NUM_POINTS is a count")),
+            "VARS" => {
+                vars = Some(value.split(',').map(|v| v.trim().to_string()).collect::<Vec<_>>());
+                break;
+            }
+            _ => {
+                assert!(!key.is_empty(), "an empty header line");
+                keywords.insert(key.to_string(), value.to_string());
+            }
         }
     }
-    assert_eq!(columns, Some(ASTM_E1392_COLUMNS));
-    let rows = lines
-        .map(|line| {
-            let fields: Vec<&str> = line.split(',').collect();
-            assert_eq!(fields.len(), 7, "{line}");
-            std::array::from_fn(|i| (!fields[i].is_empty()).then(|| fields[i].parse::<f64>().expect("a number")))
-        })
-        .collect();
-    Parsed { header, rows }
+    let vars = vars.expect("a VARS line ends the header");
+    let rows: Vec<Vec<f64>> = lines.filter(|l| !l.trim().is_empty()).map(|l| l.split(',').map(|f| f.trim().parse::<f64>().expect("a number")).collect()).collect();
+    AstmFile { keywords, num_points: num_points.expect("NUM_POINTS"), vars, rows }
 }
 
 #[test]
-fn numbers_angles_and_brdf_round_trip() {
+fn an_astm_reader_gets_the_angles_in_radians_and_the_brdf() {
     let points = readings();
-    let dir = std::env::temp_dir().join(format!("gonio-export-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let path = dir.join("sheet.csv");
-    export::write_astm_e1392_csv(&path, "sheet A7", "gonio sim", &points).expect("written");
-    let parsed = parse(&std::fs::read_to_string(&path).expect("read back"));
-
-    assert_eq!(parsed.header["sample"], "sheet A7");
-    assert_eq!(parsed.header["instrument"], "gonio sim");
-    assert_eq!(parsed.header["wavelength"], "photopic V(λ)");
-    assert!(parsed.header["quantity"].starts_with("radiance factor (BRDF × π)"));
-    assert!(parsed.header["angles"].contains("phi_i = 0°") && parsed.header["angles"].contains("phi_s = 180°"));
-    assert_eq!(parsed.header["points"], "5");
-    let date = &parsed.header["date"];
-    assert!(date.len() == 20 && date.ends_with('Z') && &date[10..11] == "T" && date.starts_with("20"), "ISO 8601 UTC: {date}");
-
-    assert_eq!(parsed.rows.len(), points.len());
-    for (row, o) in parsed.rows.iter().zip(&points) {
-        let [ti, phi_i, ts, phi_s, brdf, rf, std] = *row;
-        assert_eq!(ti, Some(o.theta_i_deg));
-        assert_eq!(phi_i, Some(0.0));
+    let file = read_astm(&export::astm(&meta("sheet A7"), &points));
+    assert_eq!(file.vars, ["theta_i", "phi_i", "theta_s", "phi_s", "BRDF"]);
+    assert_eq!(file.num_points, points.len());
+    assert_eq!(file.rows.len(), file.num_points, "NUM_POINTS rows");
+    for (row, o) in file.rows.iter().zip(&points) {
+        assert_eq!(row.len(), 5);
+        let (ti, phi_i, ts, phi_s, brdf) = (row[0], row[1], row[2], row[3], row[4]);
+        assert_eq!(ti, o.theta_i_deg.to_radians(), "radians, exactly");
+        assert_eq!(phi_i, 0.0);
         // The detector's side of the normal decides φs; θs is never negative.
         if o.theta_r_deg >= 0.0 {
-            assert_eq!((ts, phi_s), (Some(o.theta_r_deg), Some(180.0)));
+            assert_eq!((ts, phi_s), (o.theta_r_deg.to_radians(), PI));
         } else {
-            assert_eq!((ts, phi_s), (Some(-o.theta_r_deg), Some(0.0)));
+            assert_eq!((ts, phi_s), ((-o.theta_r_deg).to_radians(), 0.0));
         }
-        assert_eq!(rf, Some(o.radiance_factor), "exact round trip");
-        assert_eq!(std, o.std);
-        let brdf = brdf.expect("brdf");
-        assert!((brdf * std::f64::consts::PI - o.radiance_factor).abs() <= 1e-15 * o.radiance_factor, "BRDF = R/π");
+        assert!((0.0..=PI / 2.0).contains(&ti) && (0.0..=PI / 2.0).contains(&ts));
+        assert!((brdf * PI - o.radiance_factor).abs() <= 1e-15 * o.radiance_factor, "BRDF = R/π: {brdf}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    let k = &file.keywords;
+    assert_eq!(k["SAMPLE_NAME"], "sheet A7");
+    assert_eq!(k["DATE"], "2025-11-24T16:00:00Z");
+    assert_eq!(k["WHITE_STANDARD_RADIANCE_FACTOR"], "0.987");
+    assert_eq!(k["WHITE_STANDARD_RELATIVE_UNCERTAINTY"], "0.004");
+    assert_eq!(k["INTEGRATION_MS"], "100");
+    let omega: f64 = k["SOLID_ANGLE_SR"].parse().unwrap();
+    assert!((omega - 2.392_2e-4).abs() < 1e-7, "a 1° cone: {omega}");
+    assert!(k["SOURCE"].starts_with("gonio "));
 }
 
 #[test]
-fn header_values_stay_on_one_line() {
-    let text = export::astm_e1392_csv("two\nlines", "bench\r\n2", UNIX_EPOCH, &readings());
-    let parsed = parse(&text);
-    assert_eq!(parsed.header["sample"], "two lines");
-    assert_eq!(parsed.header["instrument"], "bench  2");
-    assert_eq!(parsed.header["date"], "1970-01-01T00:00:00Z");
+fn a_header_value_cannot_end_the_header_or_break_a_line() {
+    let file = read_astm(&export::astm(&meta("two\nlines VARS NUM_POINTS"), &readings()));
+    assert_eq!(file.keywords["SAMPLE_NAME"], "two lines _VARS _NUM_POINTS");
+    assert_eq!(file.num_points, 5);
+    assert_eq!(file.rows.len(), 5);
+    assert_eq!(read_astm(&export::astm(&meta("   "), &[])).keywords["SAMPLE_NAME"], "-");
 }
 
 #[test]
@@ -99,8 +115,26 @@ fn dates_are_iso8601_utc() {
     assert_eq!(at(4_102_444_800), "2100-01-01T00:00:00Z");
 }
 
+/// A measured session's export holds its readings (as readings.csv has them) and its
+/// calibration's white standard; readings.csv reads with a plain CSV reader.
 #[test]
-fn unwritable_path_is_an_error() {
-    let path = std::env::temp_dir().join(format!("gonio-export-missing-{}", std::process::id())).join("no/such/dir/x.csv");
-    assert!(export::write_astm_e1392_csv(&path, "s", "i", &readings()).is_err());
+fn a_sessions_export_holds_its_readings_and_white_standard() {
+    let dir = cli_support::temp_dir("export", "session");
+    let out = cli_support::gonio(&["measure", "--sim", "SG", "--spots", "1", "--tile-radiance-factor", "0.97", "--tile-uncertainty-pct", "0.3", "--out", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", cli_support::stderr(&out));
+    let file = read_astm(&std::fs::read_to_string(dir.join("SG.astm")).expect("SG.astm"));
+    assert_eq!(file.keywords["WHITE_STANDARD_RADIANCE_FACTOR"], "0.97");
+    assert_eq!(file.keywords["WHITE_STANDARD_RELATIVE_UNCERTAINTY"], "0.003");
+    assert!(file.keywords["INSTRUMENT"].contains("SIM-0001"));
+    let csv = std::fs::read_to_string(dir.join("readings.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("theta_i,theta_r,radiance_factor,std"), "one header line, then numbers");
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|f| f.parse().expect("a number")).collect()).collect();
+    assert_eq!(rows.len(), file.num_points);
+    for (csv_row, astm_row) in rows.iter().zip(&file.rows) {
+        assert_eq!(astm_row[0], csv_row[0].to_radians());
+        assert_eq!(astm_row[2], csv_row[1].abs().to_radians());
+        assert!((astm_row[4] * PI - csv_row[2]).abs() <= 1e-14 * csv_row[2]);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

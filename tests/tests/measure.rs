@@ -146,7 +146,8 @@ fn paper(sample: &str, class: &str) {
         let last = refinements.last().and_then(Value::as_u64).unwrap();
         assert!(if sample == "G" { last <= 3 } else { last <= 8 }, "{sample}: {r}");
     }
-    let mut files = vec!["session.json", "readings.csv", "points.jsonl", "calibration.json", "astm-e1392.csv", "fig4-radiance-factor.svg", "fig5-sigma-rho_s.svg"];
+    let astm = format!("{sample}.astm");
+    let mut files = vec!["session.json", "readings.csv", "points.jsonl", "calibration.json", astm.as_str(), "fig4-radiance-factor.svg", "fig5-sigma-rho_s.svg"];
     if class.starts_with("rough") {
         files.push("fig7-rho_s-rho_d.svg");
     }

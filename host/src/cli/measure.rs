@@ -811,10 +811,16 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
         .current_points()
         .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std }))
         .collect();
-    let mut files = vec![(
-        "astm-e1392.csv".to_string(),
-        crate::output::export::astm_e1392_csv(sample, &instrument_name(info), std::time::SystemTime::now(), &observations).into_bytes(),
-    )];
+    let meta = crate::output::export::AstmMetadata {
+        sample: sample.to_string(),
+        instrument: format!("{} serial {}", instrument_name(info), info.serial_number),
+        measured_at: std::time::SystemTime::now(),
+        acceptance_deg: outcome.analysis_settings.acceptance_deg,
+        integration_ms: outcome.points.first().map_or(0, |p| p.reading.integration_ms),
+        white_radiance_factor: outcome.calibration.white_radiance_factor,
+        white_relative_uncertainty: outcome.calibration.white_relative_uncertainty,
+    };
+    let mut files = vec![(crate::output::export::astm_file_name(sample), crate::output::export::astm(&meta, &observations).into_bytes())];
     // The plots are drawn outside the folder, then replaced into it like every summary file.
     let staging = tempfile::tempdir().context("cannot make a temporary folder for the plots")?;
     for path in crate::output::plots::write_plots(staging.path(), sample, &observations, &outcome.report.fit, &outcome.report.classification).context("cannot draw the plots")? {

@@ -8,7 +8,7 @@
 //! | `session.json` | sample, instrument, plan, status, every run, and at the end the result | replaced atomically |
 //! | `calibration.json` | the calibration the readings were converted with | replaced atomically |
 //! | `session.log` | every decision, time-stamped, tagged with its run | appended |
-//! | `astm-e1392.csv`, `fig*.svg` | summaries of the result | replaced atomically at the end |
+//! | `<sample>.astm`, `fig*.svg` | summaries of the result (the ASTM E1392/E2387 exchange format, plots) | replaced atomically at the end |
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
 use crate::instrument::calibration::Calibration;
 use crate::output::store::is_temp_name;
