@@ -467,6 +467,7 @@ fn run_session<T: Transport>(cx: &mut Run<'_, T>, folder: SessionFolder, spot: O
         }
     };
     let dir = recorder.dir().to_path_buf();
+    cx.operator.attach_progress(&recorder.bar);
     recorder.set_resume_with(spot.as_ref().map_or_else(|| resume_command(args, &dir), |s| s.resume_with.clone()));
     let resumed = matches!(folder, SessionFolder::Resume(_));
     if let (Some(c), false) = (&calibration, dir.join("calibration.json").exists()) {

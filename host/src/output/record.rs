@@ -208,13 +208,22 @@ pub struct FileRecorder {
     failed: Option<io::Error>,
 }
 
+/// The bar of a stage of geometries.
+fn geometries_style() -> ProgressStyle {
+    ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> ")
+}
+
+/// Before the first stage of geometries (connecting, homing, the dark and white
+/// readings) a phase line, not a bar of "0/0 geometries".
 fn progress_bar() -> ProgressBar {
-    let bar = ProgressBar::new(0);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    progress_bar_to(indicatif::ProgressDrawTarget::stderr())
+}
+
+/// A session's progress bar drawn to `target` (the terminal's standard error in use).
+pub fn progress_bar_to(target: indicatif::ProgressDrawTarget) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(0), target);
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg}").unwrap_or_else(|_| ProgressStyle::default_spinner()));
+    bar.set_message("getting ready: homing, calibration, the operator (no geometry measured yet)");
     bar
 }
 
@@ -631,6 +640,7 @@ impl Recorder for FileRecorder {
     }
 
     fn stage(&mut self, what: &str, planned: usize) {
+        self.bar.set_style(geometries_style());
         self.bar.set_message(what.to_string());
         self.bar.set_length(planned as u64);
         self.bar.set_position(0);

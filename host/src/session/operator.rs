@@ -53,6 +53,11 @@ pub trait Operator {
     /// transport's clock) while the session keeps the instrument alive; must not block.
     /// An error (no one can answer any more) ends the session, readings kept.
     fn answered(&mut self, now: Duration) -> std::io::Result<bool>;
+    /// The progress bar on the terminal, if any: a prompt is printed above it (with the
+    /// bar suspended), so that no frozen copy of the bar is left in the scrollback.
+    fn attach_progress(&mut self, bar: &indicatif::ProgressBar) {
+        let _ = bar;
+    }
 }
 
 /// No one to ask: the in-process simulator places the tile itself (when readings are
@@ -139,6 +144,8 @@ pub struct PromptOperator {
     lines: Option<Receiver<std::io::Result<Option<String>>>>,
     /// Where the answers come from (`None`: standard input).
     input: Option<Box<dyn BufRead + Send>>,
+    /// The progress bar the prompt is printed above.
+    bar: Option<indicatif::ProgressBar>,
 }
 
 impl PromptOperator {
@@ -149,7 +156,7 @@ impl PromptOperator {
 
     /// A prompt on standard error, answered on `input` (for tests).
     pub fn answered_on(input: impl BufRead + Send + 'static) -> PromptOperator {
-        PromptOperator { lines: None, input: Some(Box::new(input)) }
+        PromptOperator { lines: None, input: Some(Box::new(input)), bar: None }
     }
 
     /// The reader thread, started at the first prompt: it sends every line typed, then
@@ -178,6 +185,15 @@ impl PromptOperator {
     }
 }
 
+/// What the person is asked, as printed: the instruction and how to answer, each on a line
+/// of its own (the bar, when there is one, is drawn again below it).
+pub fn prompt_text(placement: Placement) -> String {
+    format!(
+        "\n{}.\n  The arms are parked clear of the port and the lamp stays on; take your time.\n  Press Enter when done (Ctrl-C stops the session; the readings are kept and `gonio measure --resume DIR` continues it).\n",
+        placement.instruction()
+    )
+}
+
 /// Standard input ended: no one can answer.
 fn no_one_answers() -> std::io::Error {
     std::io::Error::new(
@@ -188,14 +204,22 @@ fn no_one_answers() -> std::io::Error {
 
 impl Operator for PromptOperator {
     fn ask(&mut self, placement: Placement, _now: Duration) -> std::io::Result<()> {
-        let mut stderr = std::io::stderr();
-        writeln!(stderr)?;
-        writeln!(stderr, "{}.", placement.instruction())?;
-        writeln!(stderr, "  The arms are parked clear of the port and the lamp stays on; take your time.")?;
-        write!(stderr, "  Press Enter when done (Ctrl-C stops the session; the readings are kept and `gonio measure --resume DIR` continues it): ")?;
-        stderr.flush()?;
+        let text = prompt_text(placement);
+        match &self.bar {
+            // Printed above the bar, which is drawn again below it: no frozen copy.
+            Some(bar) if !bar.is_hidden() => bar.println(text.trim_end()),
+            _ => {
+                let mut stderr = std::io::stderr();
+                write!(stderr, "{text}")?;
+                stderr.flush()?;
+            }
+        }
         self.lines();
         Ok(())
+    }
+
+    fn attach_progress(&mut self, bar: &indicatif::ProgressBar) {
+        self.bar = Some(bar.clone());
     }
 
     fn answered(&mut self, _now: Duration) -> std::io::Result<bool> {
