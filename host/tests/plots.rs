@@ -109,3 +109,29 @@ fn unwritable_directory_is_an_io_error() {
     assert!(plots::write_plots(&file, "j1", &points, &result, &classification).is_err());
     let _ = std::fs::remove_file(&file);
 }
+
+/// The texts of an SVG's `<text>` elements.
+fn texts(svg: &str) -> Vec<String> {
+    svg.split("<text").skip(1).filter_map(|t| t.split_once('>').and_then(|(_, rest)| rest.split_once("</text>")).map(|(text, _)| text.trim().to_string())).collect()
+}
+
+#[test]
+fn fig4_labels_every_decade_shows_one_legend_and_a_residual_panel_per_incidence() {
+    assert_eq!(plots::log_ticks(0.6, 90.0), [1.0, 2.0, 5.0, 10.0, 20.0, 50.0]);
+    assert_eq!(plots::log_ticks(0.05, 0.3), [0.05, 0.1, 0.2]);
+    assert!(plots::log_ticks(0.0, 1.0).is_empty());
+    let (points, result, classification) = fitted("G", &common::strategy2(1));
+    let dir = temp_dir("fig4-ticks");
+    plots::write_plots(&dir, "G", &points, &result, &classification).expect("plots written");
+    let svg = read_svg(&dir.join(FIG4_FILE));
+    let t = texts(&svg);
+    let panels = plots::incidence_angles(&points).len();
+    // G's peaks reach ~57: the decade 10–100 is labelled, not only 1 and 10.
+    for label in ["1", "2", "5", "10", "20", "50"] {
+        assert_eq!(t.iter().filter(|x| *x == label).count(), panels, "the tick {label} in every panel: {t:?}");
+    }
+    assert_eq!(t.iter().filter(|x| *x == "TSL fit").count(), 1, "one legend");
+    assert_eq!(t.iter().filter(|x| x.starts_with("residual")).count(), panels, "a residual panel per θi");
+    assert!(svg.matches("<circle").count() >= 2 * points.len(), "each reading in its panel and its residual");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -96,84 +96,127 @@ pub fn write_plots(dir: &Path, sample: &str, points: &[Observation], fit: &FitRe
 
 // ---------------------------------------------------------------- Fig. 4
 
+/// One panel of Fig. 4: the readings at one θi and the fitted curve.
 struct Panel {
     theta_i_deg: f64,
     curve: Vec<(f64, f64)>,
-    /// (θr, radiance factor, std) of the readings at this θi.
-    readings: Vec<(f64, f64, Option<f64>)>,
+    /// (θr, radiance factor, std, fitted value there) of the readings at this θi.
+    readings: Vec<(f64, f64, Option<f64>, f64)>,
+}
+
+/// Tick values 1, 2, 5 × 10^k within `lo..hi`: every decade labelled, the peak's included.
+pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if !(lo > 0.0 && hi > lo && hi.is_finite()) {
+        return Vec::new();
+    }
+    let (first, last) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+    (first..=last).flat_map(|k| [1.0, 2.0, 5.0].map(|m| m * 10f64.powi(k))).filter(|v| (lo..=hi).contains(v)).collect()
+}
+
+/// A tick label: as many digits as the value needs, no trailing ".0" on whole numbers.
+fn tick_label(v: &f64) -> String {
+    if *v >= 1.0 { format!("{}", (v * 1e6).round() / 1e6) } else { format!("{}", (v * 1e9).round() / 1e9) }
 }
 
 fn draw_fig4(path: &Path, sample: &str, points: &[Observation], fit: &FitResult, classification: &Classification) -> DrawResult<()> {
+    let fitted = |ti: f64, tr: f64| match fit.acceptance_deg {
+        Some(a) => model::observed_radiance_factor(&fit.params, ti, tr, a),
+        None => model::radiance_factor(&fit.params, ti, tr),
+    };
     let panels: Vec<Panel> = incidence_angles(points)
         .into_iter()
         .map(|ti| Panel {
             theta_i_deg: ti,
             curve: fig4_curve(&fit.params, fit.acceptance_deg, ti),
-            readings: points.iter().filter(|o| (o.theta_i_deg - ti).abs() < 1e-6).map(|o| (o.theta_r_deg, o.radiance_factor, o.std)).collect(),
+            readings: points.iter().filter(|o| (o.theta_i_deg - ti).abs() < 1e-6).map(|o| (o.theta_r_deg, o.radiance_factor, o.std, fitted(ti, o.theta_r_deg))).collect(),
         })
         .collect();
 
     let columns = panels.len().clamp(1, 2);
     let rows = panels.len().div_ceil(2).max(1);
-    let size = (1000, 60 + 380 * rows as u32);
+    let size = (1000, 60 + 500 * rows as u32);
     let root = SVGBackend::new(path, size).into_drawing_area();
     root.fill(&WHITE)?;
     let title = format!(
-        "{sample}: radiance factor in the specular plane, measured and TSL fit (class {}{})",
+        "{sample}: radiance factor in the specular plane, measured (±1 standard uncertainty) and TSL fit (class {}{})",
         classification.class_name(),
         fit.acceptance_deg.map_or_else(String::new, |a| format!(", acceptance {a}°"))
     );
-    let root = root.titled(&title, ("sans-serif", 22))?;
+    let root = root.titled(&title, ("sans-serif", 18))?;
 
     // One y range for all panels, so that the panels compare at a glance.
     let curve_values = panels.iter().flat_map(|p| p.curve.iter().map(|&(_, f)| f));
-    let reading_values = panels.iter().flat_map(|p| p.readings.iter().flat_map(|&(_, f, s)| [f - s.unwrap_or(0.0), f + s.unwrap_or(0.0)]));
+    let reading_values = panels.iter().flat_map(|p| p.readings.iter().flat_map(|&(_, f, s, _)| [f - s.unwrap_or(0.0), f + s.unwrap_or(0.0)]));
     let all: Vec<f64> = curve_values.chain(reading_values).filter(|v| v.is_finite()).collect();
     let max = all.iter().copied().fold(0.0, f64::max).max(1e-3);
     let min_positive = all.iter().copied().filter(|&v| v > 0.0).fold(f64::INFINITY, f64::min).min(max);
     let curve_max = panels.iter().flat_map(|p| p.curve.iter().map(|c| c.1)).fold(0.0, f64::max);
     let curve_min = panels.iter().flat_map(|p| p.curve.iter().map(|c| c.1)).fold(f64::INFINITY, f64::min);
     let log_axis = curve_min > 0.0 && curve_max / curve_min > LOG_AXIS_MIN_SPAN;
+    // Residuals in standard uncertainties where the readings have them, else relative.
+    let normalised = panels.iter().flat_map(|p| &p.readings).all(|r| r.2.is_some_and(|s| s > 0.0 && s.is_finite()));
+    let residual = |&(_, f, s, m): &(f64, f64, Option<f64>, f64)| if normalised { (f - m) / s.unwrap_or(1.0) } else { (f - m) / m.abs().max(1e-12) };
+    let extreme = panels.iter().flat_map(|p| p.readings.iter().map(residual)).filter(|v| v.is_finite()).fold(0.0f64, |a, v| a.max(v.abs()));
+    let limit = if normalised { extreme.max(3.0) * 1.15 } else { extreme.max(0.02) * 1.15 };
 
     let areas = root.split_evenly((rows, columns));
-    for (panel, area) in panels.iter().zip(areas.iter()) {
+    for (k, (panel, area)) in panels.iter().zip(areas.iter()).enumerate() {
+        let (upper, lower) = area.split_vertically(area.dim_in_pixel().1 * 68 / 100);
         let caption = format!("θi = {}°", panel.theta_i_deg);
-        let mut builder = ChartBuilder::on(area);
-        builder.caption(caption, ("sans-serif", 18)).margin(12).x_label_area_size(40).y_label_area_size(60);
+        let mut builder = ChartBuilder::on(&upper);
+        builder.caption(caption, ("sans-serif", 16)).margin(10).margin_bottom(0).x_label_area_size(22).y_label_area_size(60);
+        // The legend once, in the first panel.
+        let legend = k == 0;
         if log_axis {
-            let mut chart = builder.build_cartesian_2d(0.0..THETA_R_MAX_DEG, (0.7 * min_positive..1.5 * max).log_scale())?;
-            fill_fig4_panel(&mut chart, panel, Some(0.7 * min_positive))?;
+            let (lo, hi) = (0.7 * min_positive, 1.5 * max);
+            let mut chart = builder.build_cartesian_2d(0.0..THETA_R_MAX_DEG, (lo..hi).log_scale().with_key_points(log_ticks(lo, hi)))?;
+            fill_fig4_panel(&mut chart, panel, Some(lo), legend)?;
         } else {
             let mut chart = builder.build_cartesian_2d(0.0..THETA_R_MAX_DEG, 0.0..1.1 * max)?;
-            fill_fig4_panel(&mut chart, panel, None)?;
+            fill_fig4_panel(&mut chart, panel, None, legend)?;
         }
+        let mut residuals = ChartBuilder::on(&lower).margin(10).margin_top(2).x_label_area_size(36).y_label_area_size(60).build_cartesian_2d(0.0..THETA_R_MAX_DEG, -limit..limit)?;
+        residuals
+            .configure_mesh()
+            .x_desc("θr [deg]")
+            .y_desc(if normalised { "residual / u" } else { "relative residual" })
+            .y_labels(5)
+            .light_line_style(WHITE)
+            .draw()?;
+        residuals.draw_series(LineSeries::new([(0.0, 0.0), (THETA_R_MAX_DEG, 0.0)], CURVE_COLOR.stroke_width(1)))?;
+        if normalised {
+            for band in [-2.0, 2.0] {
+                residuals.draw_series(LineSeries::new([(0.0, band), (THETA_R_MAX_DEG, band)], BLACK.mix(0.3).stroke_width(1)))?;
+            }
+        }
+        residuals.draw_series(panel.readings.iter().filter_map(|r| residual(r).is_finite().then(|| Circle::new((r.0, residual(r)), 3, SAMPLE_COLOR.filled()))))?;
     }
     root.present()
 }
 
 /// Mesh, fitted curve, readings and error bars of one panel; `log_floor` is the bottom of
 /// a log axis (readings at or below 0 cannot be drawn there and are left out).
-fn fill_fig4_panel<'a, Y>(chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<RangedCoordf64, Y>>, panel: &Panel, log_floor: Option<f64>) -> DrawResult<()>
+fn fill_fig4_panel<'a, Y>(chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<RangedCoordf64, Y>>, panel: &Panel, log_floor: Option<f64>, legend: bool) -> DrawResult<()>
 where
     Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
 {
-    chart.configure_mesh().x_desc("θr [deg]").y_desc("radiance factor").light_line_style(WHITE).draw()?;
-    chart
-        .draw_series(LineSeries::new(panel.curve.iter().copied().filter(|&(_, f)| log_floor.is_none_or(|_| f > 0.0)), CURVE_COLOR.stroke_width(2)))?
-        .label("TSL fit")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], CURVE_COLOR.stroke_width(2)));
+    chart.configure_mesh().y_desc("radiance factor").y_label_formatter(&tick_label).x_label_formatter(&|_| String::new()).light_line_style(WHITE).draw()?;
+    let curve = chart.draw_series(LineSeries::new(panel.curve.iter().copied().filter(|&(_, f)| log_floor.is_none_or(|_| f > 0.0)), CURVE_COLOR.stroke_width(2)))?;
+    if legend {
+        curve.label("TSL fit").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], CURVE_COLOR.stroke_width(2)));
+    }
     let drawable = |f: f64| log_floor.is_none_or(|_| f > 0.0);
-    chart.draw_series(panel.readings.iter().filter_map(|&(tr, f, std)| {
+    chart.draw_series(panel.readings.iter().filter_map(|&(tr, f, std, _)| {
         let std = std.filter(|s| s.is_finite() && *s > 0.0)?;
         let lo = log_floor.map_or(f - std, |floor| (f - std).max(floor));
         drawable(f).then(|| PathElement::new(vec![(tr, lo), (tr, f + std)], SAMPLE_COLOR.stroke_width(1)))
     }))?;
-    chart
-        .draw_series(panel.readings.iter().filter(|r| drawable(r.1)).map(|&(tr, f, _)| Circle::new((tr, f), 3, SAMPLE_COLOR.filled())))?
-        .label("measured")
-        .legend(|(x, y)| Circle::new((x + 10, y), 3, SAMPLE_COLOR.filled()));
-    // Upper left: the peaks sit at θr = θi ≥ 20° and rough curves rise towards 70°.
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).position(SeriesLabelPosition::UpperLeft).draw()?;
+    let measured = chart.draw_series(panel.readings.iter().filter(|r| drawable(r.1)).map(|&(tr, f, _, _)| Circle::new((tr, f), 3, SAMPLE_COLOR.filled())))?;
+    if legend {
+        measured.label("measured ± u").legend(|(x, y)| Circle::new((x + 10, y), 3, SAMPLE_COLOR.filled()));
+        // Upper left: the peaks sit at θr = θi ≥ 20° and rough curves rise towards 70°.
+        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).position(SeriesLabelPosition::UpperLeft).draw()?;
+    }
     Ok(())
 }
 
