@@ -59,7 +59,7 @@ fn rough_sample_gets_fig7_with_group_boundaries_and_rough_references() {
     let fig7 = read_svg(&dir.join(FIG7_FILE));
     // The name is escaped in SVG text.
     assert!(fig7.contains("copier &amp; co"), "sample name");
-    for needle in ["ρs", "ρd", "ρd/ρs = 1/2.53", "ρd/ρs = 1.83", "group I", "group III", "PPC", "MC", "J1", "J4"] {
+    for needle in ["ρs", "ρd", "ρd/ρs = 1/2.53", "ρd/ρs = 1.83", "rough-I", "rough-III", "PPC", "MC", "J1", "J4"] {
         assert!(fig7.contains(needle), "Fig. 7 lacks {needle:?}");
     }
     // Only the six rough papers are labelled: the glossy ones' names never stand alone.
@@ -133,5 +133,25 @@ fn fig4_labels_every_decade_shows_one_legend_and_a_residual_panel_per_incidence(
     assert_eq!(t.iter().filter(|x| *x == "TSL fit").count(), 1, "one legend");
     assert_eq!(t.iter().filter(|x| x.starts_with("residual")).count(), panels, "a residual panel per θi");
     assert!(svg.matches("<circle").count() >= 2 * points.len(), "each reading in its panel and its residual");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn fig5_and_fig7_name_the_sheet_in_a_legend_and_the_groups_as_the_report_does() {
+    let (points, result, classification) = fitted("PPC", &common::strategy1_m12());
+    let dir = temp_dir("fig57-legend");
+    plots::write_plots(&dir, "PPC", &points, &result, &classification).expect("plots written");
+    for file in [FIG5_FILE, FIG7_FILE] {
+        let t = texts(&read_svg(&dir.join(file)));
+        // "PPC" once: the reference's label; the sheet is named in the legend, not over it.
+        assert_eq!(t.iter().filter(|x| *x == "PPC").count(), 1, "{file}: {t:?}");
+        assert!(t.iter().any(|x| x == "this sheet: PPC (95 % intervals)"), "{file}: {t:?}");
+        assert!(t.iter().any(|x| x.starts_with("reference papers")), "{file}: {t:?}");
+    }
+    let t = texts(&read_svg(&dir.join(FIG7_FILE)));
+    for group in ["rough-I", "rough-II", "rough-III"] {
+        assert!(t.iter().any(|x| x == group), "{group}: {t:?}");
+    }
+    assert!(!t.iter().any(|x| x.starts_with("group")), "the report's class names: {t:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

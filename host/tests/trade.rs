@@ -72,6 +72,8 @@ fn gonio_trade_writes_the_csv_the_summary_and_the_plot() {
     assert!(summary.contains("The adaptive policy against the paper's") && summary.contains("Visiting order"));
     let svg = std::fs::read_to_string(dir.join("pareto.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("adaptive"));
+    // Unresolved σ is a labelled band, not a "1000 %" error.
+    assert!(svg.contains("σ unresolved") && !svg.contains("1000"), "the pareto plot's unresolved band");
     // Bad input: a clear error, non-zero.
     let out = Command::new(env!("CARGO_BIN_EXE_gonio")).args(["trade", "--seeds", "0", "--out", dir.to_str().unwrap()]).output().unwrap();
     assert!(!out.status.success());

@@ -10,6 +10,7 @@ use crate::analysis::model::{self, Params, RHO_D, RHO_S, SIGMA};
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::io;
 use std::path::{Path, PathBuf};
 
@@ -330,9 +331,9 @@ fn draw_fig7(path: &Path, sample: &str, fit: &FitResult, classification: &Classi
     }
     // Group names inside their wedges: below 1/2.53, between, above 1.83.
     chart.draw_series([
-        Text::new("group I", (0.8 * x_hi, 0.1 * y_hi.min(ROUGH_I_MAX_RATIO * x_hi)), font.clone().color(&GUIDE_COLOR)),
-        Text::new("group II", (0.75 * x_hi.min(y_hi), 0.9 * x_hi.min(y_hi)), font.clone().color(&GUIDE_COLOR)),
-        Text::new("group III", (0.05 * x_hi, 0.93 * y_hi), font.color(&GUIDE_COLOR)),
+        Text::new("rough-I", (0.8 * x_hi, 0.1 * y_hi.min(ROUGH_I_MAX_RATIO * x_hi)), font.clone().color(&GUIDE_COLOR)),
+        Text::new("rough-II", (0.75 * x_hi.min(y_hi), 0.9 * x_hi.min(y_hi)), font.clone().color(&GUIDE_COLOR)),
+        Text::new("rough-III", (0.05 * x_hi, 0.93 * y_hi), font.color(&GUIDE_COLOR)),
     ])?;
 
     draw_references(&mut chart, rough.iter().map(|r| (r.params.rho_s, r.params.rho_d, r.name)))?;
@@ -366,9 +367,11 @@ fn label_offset_px(name: &str) -> (i32, i32) {
     }
 }
 
-/// The sample as a red point with its 95 % intervals as bars, cut at the plot's lower
-/// corner `floor` (a log axis cannot show 0).
-fn draw_sample<X, Y>(chart: &mut ChartContext<'_, SVGBackend<'_>, Cartesian2d<X, Y>>, sample: &str, x: Estimate, y: Estimate, floor: (f64, f64)) -> DrawResult<()>
+/// The sample as a red ring (its bars show through) with its 95 % intervals as bars with
+/// end caps, cut at the plot's lower corner `floor` (a log axis cannot show 0); named in a
+/// legend with the references, not beside its point, where it would overprint a reference
+/// of the same name.
+fn draw_sample<'a, X, Y>(chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>, sample: &str, x: Estimate, y: Estimate, floor: (f64, f64)) -> DrawResult<()>
 where
     X: Ranged<ValueType = f64>,
     Y: Ranged<ValueType = f64>,
@@ -380,8 +383,18 @@ where
         PathElement::new(vec![(x_interval.0, y.value), (x_interval.1, y.value)], style),
         PathElement::new(vec![(x.value, y_interval.0), (x.value, y_interval.1)], style),
     ])?;
-    let font = ("sans-serif", 16).into_font().color(&SAMPLE_COLOR);
-    chart.draw_series([EmptyElement::at((x.value, y.value)) + Circle::new((0, 0), 5, SAMPLE_COLOR.filled()) + Text::new(sample.to_string(), (8, 4), font)])?;
+    // End caps, 5 px across, so that an interval shorter than the ring still shows.
+    chart.draw_series([x_interval.0, x_interval.1].map(|at| EmptyElement::at((at, y.value)) + PathElement::new(vec![(0, -5), (0, 5)], style)))?;
+    chart.draw_series([y_interval.0, y_interval.1].map(|at| EmptyElement::at((x.value, at)) + PathElement::new(vec![(-5, 0), (5, 0)], style)))?;
+    chart
+        .draw_series([EmptyElement::at((x.value, y.value)) + Circle::new((0, 0), 6, style)])?
+        .label(format!("this sheet: {sample} (95 % intervals)"))
+        .legend(|(x, y)| Circle::new((x + 10, y), 6, SAMPLE_COLOR.stroke_width(2)));
+    chart
+        .draw_series([Circle::new((f64::NAN, f64::NAN), 0, REFERENCE_COLOR.filled())])?
+        .label("reference papers (Akao et al., Table 6)")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, REFERENCE_COLOR.filled()));
+    chart.configure_series_labels().background_style(WHITE.mix(0.9)).border_style(BLACK).position(SeriesLabelPosition::LowerLeft).label_font(("sans-serif", 14)).draw()?;
     Ok(())
 }
 
@@ -410,7 +423,9 @@ fn policy_color(policy: &str) -> RGBColor {
 }
 
 fn draw_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)]) -> DrawResult<()> {
-    const TOP: f64 = 10.0; // 1000 %: where unresolved σ is drawn
+    // Unresolved σ has no error to plot: such points go in a band above the errors,
+    // labelled as what they are (not as a "1000 %" error).
+    const TOP: f64 = 10.0;
     let y = |e: f64| if e.is_finite() { e.clamp(1e-4, TOP) } else { TOP };
     let x_hi = points.iter().map(|(p, _)| p.device_seconds).fold(1.0, f64::max) * 1.08;
     let y_lo = points.iter().map(|(p, _)| y(p.p95_sigma_err)).fold(TOP, f64::min) / 2.0;
@@ -421,16 +436,16 @@ fn draw_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)])
         .margin(16)
         .x_label_area_size(45)
         .y_label_area_size(70)
-        .build_cartesian_2d(0.0..x_hi, (y_lo..TOP * 1.5).log_scale())?;
+        .build_cartesian_2d(0.0..x_hi, (y_lo..TOP * 1.5).log_scale().with_key_points(log_ticks(y_lo, 1.0).into_iter().chain([TOP]).collect()))?;
     chart
         .configure_mesh()
         .x_desc("device seconds measuring the sample (mean)")
         .y_desc("σ relative error, 95th percentile")
-        .y_label_formatter(&|v| format!("{:.1} %", 100.0 * v))
+        .y_label_formatter(&|v| if *v >= TOP * 0.99 { "σ unresolved".to_string() } else { format!("{} %", tick_label(&(100.0 * v))) })
         .draw()?;
+    chart.draw_series(LineSeries::new([(0.0, TOP / 2.0), (x_hi, TOP / 2.0)], BLACK.mix(0.4).stroke_width(1)))?;
     chart.draw_series(LineSeries::new([(0.0, crate::study::trade::SIGMA_TARGET), (x_hi, crate::study::trade::SIGMA_TARGET)], GUIDE_COLOR.stroke_width(1)))?;
     chart.draw_series([Text::new("5 % target", (x_hi * 0.85, crate::study::trade::SIGMA_TARGET * 1.15), ("sans-serif", 14).into_font().color(&GUIDE_COLOR))])?;
-    chart.draw_series([Text::new("σ unresolved", (x_hi * 0.02, TOP * 0.7), ("sans-serif", 13).into_font().color(&BLACK))])?;
     let mut front: Vec<(f64, f64)> = points.iter().filter(|(_, on)| *on).map(|(p, _)| (p.device_seconds, y(p.p95_sigma_err))).collect();
     front.sort_by(|a, b| a.0.total_cmp(&b.0));
     chart.draw_series(LineSeries::new(front, BLACK.stroke_width(1)))?;
@@ -445,7 +460,11 @@ fn draw_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)])
             .label(policy)
             .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
         if policy == "paper" || policy == "adaptive" {
-            chart.draw_series(mine.iter().map(|p| Text::new(format!("{policy} {}", p.label), (p.device_seconds, y(p.p95_sigma_err) * 1.25), ("sans-serif", 12).into_font().color(&color))))?;
+            // Labels of points near the right edge end at their point instead of starting there.
+            chart.draw_series(mine.iter().map(|p| {
+                let pos = if p.device_seconds > 0.8 * x_hi { Pos::new(HPos::Right, VPos::Bottom) } else { Pos::new(HPos::Left, VPos::Bottom) };
+                Text::new(format!("{policy} {}", p.label), (p.device_seconds, y(p.p95_sigma_err) * 1.15), ("sans-serif", 12).into_font().color(&color).pos(pos))
+            }))?;
         }
     }
     chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.9)).position(SeriesLabelPosition::UpperRight).draw()?;
