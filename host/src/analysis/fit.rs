@@ -319,6 +319,16 @@ pub enum Status {
     IterationLimit,
 }
 
+impl Status {
+    /// As the JSON spells it (`converged`, `iteration_limit`): one spelling in every output.
+    pub fn name(self) -> &'static str {
+        match self {
+            Status::Converged => "converged",
+            Status::IterationLimit => "iteration_limit",
+        }
+    }
+}
+
 /// Which side of its range a parameter sits on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]

@@ -168,7 +168,7 @@ pub fn to_table(r: &Report) -> String {
     for u in f.not_identified() {
         s += &format!("  not identified: {} ({})\n", u.param, u.reason);
     }
-    s += &format!("  NMAE {:.2} %   RMS {:.4}   {} iterations, {:?}\n", 100.0 * f.nmae, f.rms, f.iterations, f.status);
+    s += &format!("  NMAE {:.2} %   RMS {:.4} (radiance factor)   {} iterations, {}\n", 100.0 * f.nmae, f.rms, f.iterations, f.status.name());
     let chi2 = match (f.chi2, f.gof_p) {
         (Some(chi2), Some(p)) => format!("χ² {chi2:.1} on {} dof (χ²/ν {:.2}, p {p:.3})", f.dof, chi2 / f.dof.max(1) as f64),
         (Some(chi2), None) => format!("χ² {chi2:.1} on {} dof", f.dof),

@@ -503,6 +503,8 @@ fn run_session<T: Transport>(cx: &mut Run<'_, T>, folder: SessionFolder, spot: O
     if resumed && !outcome.flags.contains(&crate::analysis::flags::Flag::Resumed) {
         outcome.flags.push(crate::analysis::flags::Flag::Resumed);
     }
+    // The report names the session's folder, not the file name of its readings inside it.
+    outcome.report.file = dir.clone();
     match write_session(&mut recorder, &sample, &info, &outcome) {
         Ok(summary) => {
             // A spot's report is its sheet's.
