@@ -7,10 +7,12 @@
 //!   visiting order;
 //! - [`study`]: campaigns over simulated sessions (the speed–accuracy trade);
 //! - [`output`]: data sets, exports and plots;
+//! - [`schema`]: the names and versions of gonio's JSON documents;
 //! - [`cli`]: one module per `gonio` subcommand. No library module imports from it.
 pub mod analysis;
 pub mod cli;
 pub mod instrument;
 pub mod output;
+pub mod schema;
 pub mod session;
 pub mod study;

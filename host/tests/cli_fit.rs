@@ -70,7 +70,7 @@ fn json_lines_for_many_samples_and_files_with_errors_located() {
     assert_eq!(lines[2]["sample"], "mc_paper", "file stem without a sample column");
     assert_eq!(lines[2]["class"], "rough-III");
     assert_eq!(lines[2]["nearest_reference"], "MC");
-    assert!(lines[2]["ci95"]["sigma"].as_array().is_some_and(|a| a.len() == 2));
+    assert!(lines[2]["ci95"]["sigma_deg"].as_array().is_some_and(|a| a.len() == 2));
 
     // --delta overrides; the table output works too.
     let out = gonio().args(["fit", "--delta", "0.5"]).arg(&multi).output().expect("run gonio");

@@ -30,6 +30,7 @@ fn meta(sample: &str) -> AstmMetadata {
         integration_ms: 100,
         white_radiance_factor: 0.987,
         white_relative_uncertainty: 0.004,
+        white_certificate: None,
     }
 }
 

@@ -17,7 +17,7 @@ fn sheet_with_tile(sample: &str, seed: u64, tile_radiance_factor: f64) -> Sheet 
     let options = SimOptions { seed, physics: Physics::Real, sheet_variation: forensic::SPOT_VARIATION_PCT, ..SimOptions::default() };
     let run = SimulatedRun { sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
     let tile = Tile::new(tile_radiance_factor, 0.5).expect("a tile");
-    let (_, summary, results) = simulated_sheet(&run, host::analysis::sheet::DEFAULT_SPOTS, |session| session.with_tile(tile)).expect("a sheet");
+    let (_, summary, results) = simulated_sheet(&run, host::analysis::sheet::DEFAULT_SPOTS, |session| session.with_tile(tile.clone())).expect("a sheet");
     summary.sheet(&results)
 }
 

@@ -71,7 +71,7 @@ fn add_list_export_import_and_remove_measured_sheets() {
     let first = std::fs::read_to_string(&exported).expect("export written");
     assert_eq!(first.lines().count(), 3);
     let record: serde_json::Value = serde_json::from_str(first.lines().next().expect("a line")).expect("JSON");
-    assert_eq!(record["format"], "gonio-library/1");
+    assert_eq!(record["schema"], host::schema::LIBRARY_RECORD);
     assert_eq!(record["stock"], "G");
     assert_eq!(record["instrument_serial"].as_str().map(|x| x.is_empty()), Some(false));
     let copy = root.join("copy.sqlite");

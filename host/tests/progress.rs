@@ -7,7 +7,7 @@ use host::output::folder::PlanRecord;
 use host::output::record::{FileRecorder, Identity, progress_bar_to};
 use host::output::store::StoreOptions;
 use host::session::{Operator, Placement, Progress, PromptOperator, Recorder};
-use indicatif::{InMemoryTerm, ProgressDrawTarget, TermLike};
+use indicatif::{InMemoryTerm, ProgressDrawTarget};
 use std::time::Duration;
 
 fn lines(term: &InMemoryTerm) -> Vec<String> {

@@ -255,7 +255,7 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
 }
 
 /// Indices into a budget term's variance of the parameters the report shares out.
-const REPORTED: [(usize, &str); 3] = [(model::SIGMA, "sigma_deg"), (model::RHO_S, "rho_s"), (model::RHO_D, "rho_d")];
+const REPORTED: [(usize, &str); 3] = [(model::SIGMA, model::PARAM_NAMES[model::SIGMA]), (model::RHO_S, model::PARAM_NAMES[model::RHO_S]), (model::RHO_D, model::PARAM_NAMES[model::RHO_D])];
 
 /// The variance of σ, ρs, ρd each term of `fit`'s budget contributes; `None` for a
 /// parameter the data did not determine (it has no budget to share).

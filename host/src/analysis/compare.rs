@@ -88,6 +88,17 @@ pub fn read_session(path: &Path) -> Result<SessionResult, CompareError> {
 /// Parse the text of a `session.json` (`file` is only for messages).
 pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareError> {
     let root: Value = serde_json::from_str(text).map_err(|e| CompareError::Json { path: file.to_path_buf(), message: e.to_string() })?;
+    session_result(file, &root)
+}
+
+/// The result of a `session.json` document (`file` is only for messages). A document that
+/// names its schema must be one whose result this gonio reads (the result's keys are the
+/// same in both versions); one without (written by hand) is read by its keys alone.
+pub fn session_result(file: &Path, root: &Value) -> Result<SessionResult, CompareError> {
+    use crate::schema;
+    if schema::of(root).is_some() || root.get("format").is_some() {
+        schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|message| CompareError::Json { path: file.to_path_buf(), message })?;
+    }
     let missing = |key: &str| CompareError::MissingKey { path: file.to_path_buf(), key: key.to_string() };
     let bad = |key: &str, expected: &'static str| CompareError::BadValue { path: file.to_path_buf(), key: key.to_string(), expected };
     let object = root.as_object().ok_or_else(|| bad("(top level)", "an object"))?;
@@ -97,7 +108,7 @@ pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareEr
     let result = result.as_object().ok_or_else(|| bad("result", "an object"))?;
 
     let mut values = [None; 4];
-    for (i, name) in ["sigma_deg", "rho_s", "rho_d", "eta"].iter().enumerate() {
+    for (i, name) in crate::analysis::model::PARAM_NAMES.iter().enumerate() {
         let key = format!("result.{name}");
         values[i] = match result.get(*name).ok_or_else(|| missing(&key))? {
             Value::Null => None,

@@ -26,10 +26,11 @@
 
 use crate::analysis::linalg::{self, Square};
 use crate::analysis::classify::REFERENCES;
+use crate::analysis::model::PARAM_NAMES;
 use serde::{Deserialize, Serialize};
 
 /// The parameters compared, in order: σ (degrees), ρs, ρd.
-pub const PARAMS: [&str; 3] = ["sigma_deg", "rho_s", "rho_d"];
+pub const PARAMS: [&str; 3] = [PARAM_NAMES[0], PARAM_NAMES[1], PARAM_NAMES[2]];
 /// Their labels for a person.
 pub const PARAM_LABELS: [&str; 3] = ["σ (deg)", "ρs", "ρd"];
 

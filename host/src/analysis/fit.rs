@@ -601,13 +601,13 @@ fn not_identified_of(notes: &[Note]) -> Vec<NotIdentified> {
     let mut out = Vec::new();
     let no_specular = notes.contains(&Note::NoSpecularTerm);
     if no_specular {
-        out.push(NotIdentified { param: "sigma", reason: "no specular part" });
+        out.push(NotIdentified { param: PARAM_NAMES[SIGMA], reason: "no specular part" });
         out.push(NotIdentified { param: "eta", reason: "no specular part" });
     }
     for note in notes {
         match note {
             Note::SigmaUnresolved { rho_s_lower, .. } => {
-                out.push(NotIdentified { param: "sigma", reason: "not resolved by the sampling (only an upper limit)" });
+                out.push(NotIdentified { param: PARAM_NAMES[SIGMA], reason: "not resolved by the sampling (only an upper limit)" });
                 if rho_s_lower.is_some() {
                     out.push(NotIdentified { param: "rho_s", reason: "σ unresolved: through the detector window only ρs·min(1, ~σ/a) is determined" });
                 }

@@ -38,8 +38,10 @@ pub const RHO_S: usize = 1;
 pub const RHO_D: usize = 2;
 /// Index of η in gradient arrays.
 pub const ETA: usize = 3;
-/// Parameter names in gradient order, as the JSON output spells them.
-pub const PARAM_NAMES: [&str; 4] = ["sigma", "rho_s", "rho_d", "eta"];
+/// Parameter names in gradient order, as every JSON output spells them: the key of the
+/// value (`sigma_deg`: σ is in degrees there), of its interval in `ci95`, in `model`,
+/// `not_identified`, `active_bounds` and the uncertainty budget.
+pub const PARAM_NAMES: [&str; 4] = ["sigma_deg", "rho_s", "rho_d", "eta"];
 
 /// The four TSL parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]

@@ -139,7 +139,7 @@ pub fn to_json(r: &Report) -> Value {
     if let (Some(object), Value::Object(rest)) = (object.as_object_mut(), rest) {
         object.extend(rest);
     }
-    object
+    crate::schema::tagged(crate::schema::ANALYSIS, object)
 }
 
 fn fmt_value(x: Option<f64>) -> String {

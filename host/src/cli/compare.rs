@@ -76,6 +76,7 @@ pub fn to_json(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: &
         })
     };
     json!({
+        "schema": crate::schema::COMPARE,
         "log10_lr": e.log10_lr,
         "verbal": e.verbal,
         "support": e.support,

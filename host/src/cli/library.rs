@@ -161,7 +161,7 @@ fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
     let library = Library::open(path, OpenMode::Existing)?;
     let stocks = library.stocks()?;
     if args.json {
-        println!("{}", json!({"library": path.display().to_string(), "schema_version": library::SCHEMA_VERSION, "stocks": stocks}));
+        println!("{}", json!({"schema": crate::schema::LIBRARY_LIST, "library": path.display().to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks}));
         return Ok(());
     }
     println!("{}: {} stock{}", path.display(), stocks.len(), if stocks.len() == 1 { "" } else { "s" });
@@ -274,7 +274,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
     if args.json {
         println!(
             "{}",
-            json!({"sheet": args.dir.display().to_string(), "sample": measured.sample, "library": path.display().to_string(), "stocks": stocks, "population": population_note, "excluded_own_session": excluded, "ranking": ranking})
+            json!({"schema": crate::schema::LIBRARY_SEARCH, "sheet": args.dir.display().to_string(), "sample": measured.sample, "library": path.display().to_string(), "stocks": stocks, "population": population_note, "excluded_own_session": excluded, "ranking": ranking})
         );
         return Ok(());
     }

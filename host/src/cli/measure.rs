@@ -64,6 +64,12 @@ pub struct Args {
     /// working-standard tile certified to ±1 % at k = 2.
     #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY, allow_negative_numbers = true)]
     pub tile_uncertainty_pct: f64,
+    /// The white tile's certificate, transcribed into a JSON file (tile, certificate,
+    /// issued, radiance_factor, expanded_uncertainty, coverage_factor; docs/FORMATS.md):
+    /// its values calibrate, and it is recorded in calibration.json, the export and the
+    /// report. Refused when expired. Instead of --tile-radiance-factor/--tile-uncertainty-pct.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["tile_radiance_factor", "tile_uncertainty_pct"])]
+    pub tile_certificate: Option<PathBuf>,
     /// Standard uncertainty of the detector arm's zero, degrees: the fit carries an offset
     /// of this size as an error shared by every reading, wherever the data do not call for
     /// fitting one. The default is the reference instrument's alignment (about 8
@@ -246,7 +252,12 @@ fn check_args(args: &Args) -> anyhow::Result<Checked> {
             bail!("--sample must be a name (no control characters), not {sample:?}");
         }
     }
-    let tile = Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).context("--tile-radiance-factor / --tile-uncertainty-pct")?;
+    let tile = match &args.tile_certificate {
+        Some(path) => crate::instrument::calibration::TileCertificate::read(path, chrono::Local::now().date_naive())
+            .and_then(|c| c.tile())
+            .context("--tile-certificate")?,
+        None => Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).context("--tile-radiance-factor / --tile-uncertainty-pct")?,
+    };
     let zero = args.arm_zero_uncertainty_deg;
     if !(0.0..=5.0).contains(&zero) {
         bail!("--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}");
@@ -476,7 +487,7 @@ fn run_session<T: Transport>(cx: &mut Run<'_, T>, folder: SessionFolder, spot: O
     cx.client.set_interrupt(Some(cx.interrupted.clone()));
     let mut session = Session::new(cx.client, info.clone(), plan_of(&plan, &sample), &mut recorder, cx.operator)
         .with_calibration_limit(checked.max_calibration_age)
-        .with_tile(checked.tile)
+        .with_tile(checked.tile.clone())
         .with_arm_zero_uncertainty(args.arm_zero_uncertainty_deg);
     if let Some(spot) = &spot {
         session = session.at_spot(spot.number, spot.of);
@@ -656,11 +667,11 @@ fn sheet_json(sheet: &crate::output::sheet::ReadSheet) -> serde_json::Value {
         })
         .collect();
     json!({
-        "format": crate::output::sheet::SHEET_FORMAT,
+        "schema": crate::schema::SHEET_RESULT,
         "sample": sheet.doc.sample,
         "session_dir": sheet.dir.display().to_string(),
         "spots_planned": sheet.doc.spots_planned,
-        "n_spots": summary.accepted,
+        "accepted": summary.accepted,
         "spots": spots,
         "sigma_deg": summary.mean[0],
         "rho_s": summary.mean[1],
@@ -733,7 +744,7 @@ fn print_sheet(dir: &Path, sheet: &crate::output::sheet::ReadSheet) {
         println!(
             "    σ = {}°{}   ρs = {}{}   ρd = {}{}   (95 % intervals)",
             value(s.session.values[0], 3),
-            interval("sigma", 3),
+            interval("sigma_deg", 3),
             value(s.session.values[1], 4),
             interval("rho_s", 4),
             value(s.session.values[2], 4),
@@ -785,8 +796,7 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
         object.insert("geometries".into(), json!(outcome.current_points().count()));
         object.insert("device_seconds".into(), json!(outcome.device_seconds));
         object.insert("setup_seconds".into(), json!(outcome.setup_seconds));
-        // The paper's refinements by their δ, adaptive batches by the geometries they added.
-        object.insert("refinements".into(), json!(outcome.refinements.iter().map(|r| r.delta_deg.map_or(r.added as u64, u64::from)).collect::<Vec<_>>()));
+        object.insert("refinements".into(), json!(outcome.refinements));
         object.insert("covariance".into(), json!(outcome.report.fit.covariance));
         object.insert("white_drift".into(), json!(outcome.white_drift));
         object.insert("white_drift_exceeded".into(), json!(outcome.white_drift_exceeded));
@@ -798,6 +808,7 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
         object.insert("analysed_unix_s".into(), json!(outcome.analysed_unix_s));
         object.remove("file");
     }
+    let result = crate::schema::tagged(crate::schema::SPOT_RESULT, result);
     let mut rest = serde_json::Map::new();
     rest.insert("ok".into(), json!(outcome.ok()));
     rest.insert("flags".into(), json!(outcome.flags));
@@ -822,6 +833,7 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
         integration_ms: outcome.points.first().map_or(0, |p| p.reading.integration_ms),
         white_radiance_factor: outcome.calibration.white_radiance_factor,
         white_relative_uncertainty: outcome.calibration.white_relative_uncertainty,
+        white_certificate: outcome.calibration.white_certificate.clone(),
     };
     let mut files = vec![(crate::output::export::astm_file_name(sample), crate::output::export::astm(&meta, &observations).into_bytes())];
     // The plots are drawn outside the folder, then replaced into it like every summary file.

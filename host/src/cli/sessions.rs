@@ -24,7 +24,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let entries = catalogue::list(&args.root).map_err(anyhow::Error::msg)?;
     if args.json {
         for e in &entries {
-            println!("{}", serde_json::to_string(e)?);
+            println!("{}", crate::schema::tagged(crate::schema::SESSIONS_ENTRY, serde_json::to_value(e)?));
         }
         return Ok(ExitCode::SUCCESS);
     }

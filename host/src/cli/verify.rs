@@ -33,7 +33,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         match verify(dir) {
             Ok(v) => {
                 if args.json {
-                    println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []}));
+                    println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []}));
                 } else {
                     println!(
                         "{}: verified: {} files match MANIFEST.sha256; {} readings agree in points.jsonl, readings.csv and session.json; sample '{}' on instrument {}, {} run{}",
@@ -53,7 +53,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     eprintln!("error: {p}");
                 }
                 if args.json {
-                    println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
+                    println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
                 } else {
                     eprintln!("{}: NOT verified ({} problem{})", dir.display(), problems.len(), if problems.len() == 1 { "" } else { "s" });
                 }
@@ -69,7 +69,7 @@ fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
         Ok(v) => {
             let readings: usize = v.spots.iter().map(|s| s.readings).sum();
             if json {
-                println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []}));
+                println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []}));
             } else {
                 println!(
                     "{}: verified: a sheet of {} spots of '{}'; MANIFEST.sha256 matches sheet.json and every spot's manifest; every spot folder verifies ({readings} readings); the sheet's result is the one its spots give",
@@ -85,7 +85,7 @@ fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
                 eprintln!("error: {p}");
             }
             if json {
-                println!("{}", serde_json::json!({"dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
+                println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
             } else {
                 eprintln!("{}: NOT verified ({} problem{})", dir.display(), problems.len(), if problems.len() == 1 { "" } else { "s" });
             }

@@ -41,25 +41,131 @@ pub const NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY: f64 = 0.01;
 /// rate is taken as 0 ± 0.2 %/h.
 pub const DEFAULT_LAMP_DRIFT_PER_HOUR: f64 = 0.002;
 
-/// The white tile's certificate.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+/// The white tile a calibration is taken with: its certified radiance factor and that
+/// value's uncertainty, and the certificate they come from when one was given.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Tile {
     /// Certified radiance factor.
     pub radiance_factor: f64,
     /// Relative standard uncertainty (k = 1) of it.
     pub relative_uncertainty: f64,
+    /// The certificate (`--tile-certificate`); `None` when the values were given on the
+    /// command line or are the defaults.
+    pub certificate: Option<TileCertificate>,
 }
 
 impl Default for Tile {
     fn default() -> Self {
-        Tile { radiance_factor: DEFAULT_WHITE_RADIANCE_FACTOR, relative_uncertainty: DEFAULT_TILE_RELATIVE_UNCERTAINTY }
+        Tile { radiance_factor: DEFAULT_WHITE_RADIANCE_FACTOR, relative_uncertainty: DEFAULT_TILE_RELATIVE_UNCERTAINTY, certificate: None }
+    }
+}
+
+/// A white tile's calibration certificate as the user transcribes it into a small JSON
+/// file (`gonio measure --tile-certificate FILE`; its fields in docs/FORMATS.md), and as
+/// every calibration taken with it records it (with the file's SHA-256).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TileCertificate {
+    /// [`crate::schema::TILE_CERTIFICATE`]; optional in the file a person writes.
+    #[serde(default)]
+    pub schema: Option<String>,
+    /// The tile: maker, model and serial number.
+    pub tile: String,
+    /// The certificate's number.
+    pub certificate: String,
+    /// The laboratory that issued it.
+    #[serde(default)]
+    pub issued_by: Option<String>,
+    /// Date of issue, YYYY-MM-DD.
+    pub issued: String,
+    /// Date until which it is valid, YYYY-MM-DD, when it says.
+    #[serde(default)]
+    pub valid_until: Option<String>,
+    /// The certified radiance factor for the instrument's geometry (0° incidence onto the
+    /// tile as the detector at θr = 0 sees it; V(λ)-weighted, as the detector is).
+    pub radiance_factor: f64,
+    /// The certificate's expanded uncertainty of it, absolute (the same unit).
+    pub expanded_uncertainty: f64,
+    /// Its coverage factor k (2 when the certificate gives none: about 95 %).
+    #[serde(default = "default_coverage_factor")]
+    pub coverage_factor: f64,
+    /// SHA-256 of the certificate file as read (filled in by gonio; not in the user's file).
+    #[serde(default)]
+    pub file_sha256: Option<String>,
+}
+
+fn default_coverage_factor() -> f64 {
+    2.0
+}
+
+impl TileCertificate {
+    /// Read and check a certificate file. `today` is the local date of the session: a
+    /// certificate issued after it, or expired before it, is refused.
+    pub fn read(path: &Path, today: chrono::NaiveDate) -> Result<TileCertificate, CalibrationError> {
+        let bad = |what: String| CalibrationError::BadTile(format!("{}: {what}", path.display()));
+        let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+        let text = std::str::from_utf8(&bytes).map_err(|_| bad("not UTF-8 text".into()))?;
+        let mut certificate: TileCertificate = serde_json::from_str(text).map_err(|e| bad(format!("line {}: {e}", e.line())))?;
+        if let Some(schema) = &certificate.schema {
+            if schema != crate::schema::TILE_CERTIFICATE {
+                return Err(bad(format!("schema '{schema}' is not '{}'", crate::schema::TILE_CERTIFICATE)));
+            }
+        }
+        certificate.validate(today).map_err(bad)?;
+        use sha2::Digest as _;
+        certificate.file_sha256 = Some(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect());
+        certificate.schema = Some(crate::schema::TILE_CERTIFICATE.into());
+        Ok(certificate)
+    }
+
+    fn validate(&self, today: chrono::NaiveDate) -> Result<(), String> {
+        for (key, text) in [("tile", Some(&self.tile)), ("certificate", Some(&self.certificate)), ("issued_by", self.issued_by.as_ref())] {
+            if let Some(text) = text {
+                if text.trim().is_empty() || text.chars().any(char::is_control) || text.chars().count() > 200 {
+                    return Err(format!("'{key}' must be a name of 1 to 200 characters without control characters, not {text:?}"));
+                }
+            }
+        }
+        let date = |key: &str, text: &str| {
+            chrono::NaiveDate::parse_from_str(text, "%Y-%m-%d").map_err(|_| format!("'{key}' must be a date YYYY-MM-DD, not {text:?}"))
+        };
+        let issued = date("issued", &self.issued)?;
+        if issued > today {
+            return Err(format!("issued {issued}, after today ({today}): check the date"));
+        }
+        if let Some(until) = &self.valid_until {
+            let until = date("valid_until", until)?;
+            if until < today {
+                return Err(format!(
+                    "expired on {until}: have the tile certified again, or give its values with --tile-radiance-factor and --tile-uncertainty-pct (then no certificate is recorded)"
+                ));
+            }
+        }
+        if !(self.coverage_factor.is_finite() && (1.0..=4.0).contains(&self.coverage_factor)) {
+            return Err(format!("'coverage_factor' must be between 1 and 4, not {}", self.coverage_factor));
+        }
+        if !(self.expanded_uncertainty.is_finite() && self.expanded_uncertainty >= 0.0) {
+            return Err(format!("'expanded_uncertainty' must be a number at least 0 (absolute, in radiance factor), not {}", self.expanded_uncertainty));
+        }
+        Ok(())
+    }
+
+    /// The tile it certifies.
+    pub fn tile(self) -> Result<Tile, CalibrationError> {
+        let tile = Tile {
+            radiance_factor: self.radiance_factor,
+            relative_uncertainty: self.expanded_uncertainty / self.coverage_factor / self.radiance_factor,
+            certificate: None,
+        };
+        tile.validate()?;
+        Ok(Tile { certificate: Some(self), ..tile })
     }
 }
 
 impl Tile {
     /// A certificate from the command line's values (the uncertainty in percent, k = 1).
     pub fn new(radiance_factor: f64, uncertainty_pct: f64) -> Result<Tile, CalibrationError> {
-        let tile = Tile { radiance_factor, relative_uncertainty: uncertainty_pct / 100.0 };
+        let tile = Tile { radiance_factor, relative_uncertainty: uncertainty_pct / 100.0, certificate: None };
         tile.validate()?;
         Ok(tile)
     }
@@ -139,6 +245,9 @@ pub struct Calibration {
     /// (older calibrations without it get [`DEFAULT_TILE_RELATIVE_UNCERTAINTY`]).
     #[serde(default = "default_tile_relative_uncertainty")]
     pub white_relative_uncertainty: f64,
+    /// The tile's certificate, when one was given (`--tile-certificate`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub white_certificate: Option<TileCertificate>,
     /// Nominal relative gain of each detector range (the handshake's), most sensitive first.
     pub relative_gains: Vec<f64>,
     /// Relative standard uncertainty assumed for a nominal ratio of adjacent ranges.
@@ -286,6 +395,7 @@ impl Calibration {
             instrument,
             white_radiance_factor: tile.radiance_factor,
             white_relative_uncertainty: tile.relative_uncertainty,
+            white_certificate: tile.certificate,
             relative_gains,
             nominal_gain_ratio_relative_uncertainty: NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY,
             gain_ratios: Vec::new(),
@@ -297,7 +407,7 @@ impl Calibration {
 
     /// The tile's certificate this calibration used.
     pub fn tile(&self) -> Tile {
-        Tile { radiance_factor: self.white_radiance_factor, relative_uncertainty: self.white_relative_uncertainty }
+        Tile { radiance_factor: self.white_radiance_factor, relative_uncertainty: self.white_relative_uncertainty, certificate: self.white_certificate.clone() }
     }
 
     /// The white reading at `theta_i_deg` and its index.
@@ -434,6 +544,24 @@ impl Calibration {
         Duration::from_secs(now_unix_s.saturating_sub(self.taken_unix_s))
     }
 
+    /// The document of `calibration.json`: the calibration with its `schema`.
+    pub fn to_document(&self) -> serde_json::Result<serde_json::Value> {
+        Ok(crate::schema::tagged(crate::schema::CALIBRATION, serde_json::to_value(self)?))
+    }
+
+    /// The calibration of a `calibration.json` document (one without `schema` was written
+    /// before gonio named its documents, and is read as this version).
+    pub fn from_document(value: serde_json::Value) -> Result<Calibration, String> {
+        crate::schema::check(&value, &[crate::schema::CALIBRATION], Some(crate::schema::CALIBRATION))?;
+        serde_json::from_value(value).map_err(|e| format!("not a calibration: {e}"))
+    }
+
+    /// [`Calibration::from_document`] of a file's text; errors with the line when known.
+    pub fn from_json(text: &str) -> Result<Calibration, (Option<usize>, String)> {
+        let value: serde_json::Value = serde_json::from_str(text).map_err(|e| (Some(e.line()), format!("not JSON: {e}")))?;
+        Calibration::from_document(value).map_err(|m| (None, m))
+    }
+
     /// Read a calibration saved by an earlier session (its `calibration.json`, or the
     /// `session.json` that holds one), refusing it when older than `max_age` or taken on
     /// another instrument.
@@ -441,8 +569,11 @@ impl Calibration {
         let unreadable = |why: String| CalibrationError::Unreadable { path: path.display().to_string(), why };
         let text = std::fs::read_to_string(path).map_err(|e| unreadable(e.to_string()))?;
         let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
-        let calibration_value = value.get("calibration").cloned().unwrap_or(value);
-        let calibration: Calibration = serde_json::from_value(calibration_value).map_err(|e| unreadable(e.to_string()))?;
+        // A session's document holds the calibration it was converted with.
+        let calibration = match value.get("calibration") {
+            Some(inner) => serde_json::from_value(inner.clone()).map_err(|e| unreadable(format!("calibration: {e}")))?,
+            None => Calibration::from_document(value).map_err(unreadable)?,
+        };
         // What the file holds must be usable before its age and instrument are looked at.
         calibration.validate().map_err(|e| unreadable(e.to_string()))?;
         calibration.check(&path.display().to_string(), max_age, info)?;

@@ -30,9 +30,7 @@ pub struct Entry {
 }
 
 fn session_doc(dir: &Path) -> Result<SessionDoc, String> {
-    let file = dir.join(SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))
+    crate::output::folder::require_session(dir).map_err(|p| p.to_string())
 }
 
 fn session_entry(dir: &Path) -> Entry {

@@ -34,6 +34,8 @@ pub struct AstmMetadata {
     pub white_radiance_factor: f64,
     /// Its relative standard uncertainty (k = 1).
     pub white_relative_uncertainty: f64,
+    /// The certificate those values come from, when one was given.
+    pub white_certificate: Option<crate::instrument::calibration::TileCertificate>,
 }
 
 /// The solid angle of a circular acceptance of full width `acceptance_deg`, sr.
@@ -57,7 +59,22 @@ fn header_value(text: &str) -> String {
 /// them back gives the same f64.
 pub fn astm(meta: &AstmMetadata, points: &[Observation]) -> String {
     let mut s = String::new();
-    let header: [(&str, String); 12] = [
+    let certificate = meta.white_certificate.as_ref().map_or_else(
+        || "none given (the tile's values were entered or are the defaults)".to_string(),
+        |c| {
+            format!(
+                "tile {}, certificate {}{}, issued {}{}, expanded uncertainty {} at k = {}",
+                c.tile,
+                c.certificate,
+                c.issued_by.as_ref().map_or_else(String::new, |by| format!(" by {by}")),
+                c.issued,
+                c.valid_until.as_ref().map_or_else(String::new, |u| format!(", valid until {u}")),
+                c.expanded_uncertainty,
+                c.coverage_factor
+            )
+        },
+    );
+    let header: [(&str, String); 13] = [
         ("SOURCE", format!("gonio {}", env!("CARGO_PKG_VERSION"))),
         ("SAMPLE_NAME", meta.sample.clone()),
         ("INSTRUMENT", meta.instrument.clone()),
@@ -70,6 +87,7 @@ pub fn astm(meta: &AstmMetadata, points: &[Observation]) -> String {
         ("INTEGRATION_MS", meta.integration_ms.to_string()),
         ("WHITE_STANDARD_RADIANCE_FACTOR", meta.white_radiance_factor.to_string()),
         ("WHITE_STANDARD_RELATIVE_UNCERTAINTY", meta.white_relative_uncertainty.to_string()),
+        ("WHITE_STANDARD_CERTIFICATE", certificate),
     ];
     for (key, value) in header {
         // Writing to a String cannot fail.
@@ -88,23 +106,8 @@ pub fn astm(meta: &AstmMetadata, points: &[Observation]) -> String {
 /// `YYYY-MM-DDThh:mm:ssZ` of a time (UTC; times before 1970 are written as 1970-01-01).
 pub fn iso8601_utc(t: SystemTime) -> String {
     let secs = t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    let days = (secs / 86_400) as i64;
-    let rem = secs % 86_400;
-    let (year, month, day) = civil_from_days(days);
-    format!("{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
-}
-
-/// Proleptic Gregorian (year, month, day) of a day count since 1970-01-01
-/// (H. Hinnant's `civil_from_days`), to avoid a date-time crate for one header line.
-fn civil_from_days(days: i64) -> (i64, u32, u32) {
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    (year, month, day)
+    chrono::DateTime::from_timestamp(i64::try_from(secs).unwrap_or(i64::MAX), 0)
+        .unwrap_or_default()
+        .format("%Y-%m-%dT%H:%M:%SZ")
+        .to_string()
 }

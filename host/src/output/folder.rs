@@ -12,6 +12,7 @@
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
 use crate::instrument::calibration::Calibration;
 use crate::output::store::is_temp_name;
+use crate::schema;
 use crate::session::MeasuredPoint;
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -31,8 +32,6 @@ pub const LOG: &str = "session.log";
 pub const MANIFEST: &str = "MANIFEST.sha256";
 /// The header of [`READINGS`].
 pub const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
-/// The `format` of a `session.json` this host writes and reads.
-pub const SESSION_FORMAT: &str = "gonio-session/1";
 
 /// Where a session stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -169,8 +168,8 @@ pub struct Run {
 /// refinements, result, ok, flags…) are kept as they are in `rest`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SessionDoc {
-    /// [`SESSION_FORMAT`].
-    pub format: String,
+    /// [`crate::schema::SESSION`] (an older document is upgraded as it is read).
+    pub schema: String,
     /// Where the session stands.
     pub status: Status,
     /// Why it stopped, when failed or interrupted.
@@ -267,9 +266,34 @@ pub struct SupersedeMark {
     pub why: String,
 }
 
-/// The `points.jsonl` line of a mark (with its newline).
+/// The `points.jsonl` line of a mark (with its newline), tagged [`schema::SUPERSEDE`].
 pub fn mark_line(mark: &SupersedeMark) -> std::io::Result<String> {
-    Ok(serde_json::to_string(mark)? + "\n")
+    Ok(serde_json::to_string(&schema::tagged(schema::SUPERSEDE, serde_json::to_value(mark)?))? + "\n")
+}
+
+/// A line of `points.jsonl`.
+enum PointsLine {
+    Reading(Box<MeasuredPoint>),
+    Mark(SupersedeMark),
+}
+
+/// Parse one line of `points.jsonl`: by its `schema`; a line without one was written
+/// before gonio named its documents (a mark then has exactly its two fields, a reading
+/// many more).
+fn parse_points_line(text: &str) -> Result<PointsLine, String> {
+    let mut value: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not a reading (not JSON): {e}"))?;
+    let found = schema::of(&value).map(str::to_string);
+    if let Some(object) = value.as_object_mut() {
+        object.remove("schema");
+    }
+    let reading = |value: serde_json::Value| serde_json::from_value::<MeasuredPoint>(value).map(|p| PointsLine::Reading(Box::new(p))).map_err(|e| format!("not a reading: {e}"));
+    let mark = |value: serde_json::Value| serde_json::from_value::<SupersedeMark>(value).map(PointsLine::Mark);
+    match found.as_deref() {
+        Some(schema::POINT) => reading(value),
+        Some(schema::SUPERSEDE) => mark(value).map_err(|e| format!("not a mark of superseded readings: {e}")),
+        Some(other) => Err(format!("schema '{other}' is not one this gonio reads here ({}, {})", schema::POINT, schema::SUPERSEDE)),
+        None => mark(value.clone()).or_else(|_| reading(value)),
+    }
 }
 
 /// Parse the whole lines of `points.jsonl`: its readings in order, with the marks of later
@@ -277,27 +301,27 @@ pub fn mark_line(mark: &SupersedeMark) -> std::io::Result<String> {
 pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Problem> {
     let mut points: Vec<MeasuredPoint> = Vec::new();
     for (line, text) in &file.lines {
-        // A mark is tried first: it has exactly its two fields, a reading has many more.
-        if let Ok(mark) = serde_json::from_str::<SupersedeMark>(text) {
-            for &k in &mark.superseded {
-                match points.get_mut(k) {
-                    Some(point) => point.superseded = true,
-                    None => return Err(Problem::new(path, Some(*line), format!("marks reading {k} superseded, but only {} come before it", points.len()))),
+        match parse_points_line(text).map_err(|m| Problem::new(path, Some(*line), m))? {
+            PointsLine::Mark(mark) => {
+                for &k in &mark.superseded {
+                    match points.get_mut(k) {
+                        Some(point) => point.superseded = true,
+                        None => return Err(Problem::new(path, Some(*line), format!("marks reading {k} superseded, but only {} come before it", points.len()))),
+                    }
                 }
             }
-            continue;
+            PointsLine::Reading(point) => points.push(*point),
         }
-        points.push(serde_json::from_str::<MeasuredPoint>(text).map_err(|e| Problem::new(path, Some(*line), format!("not a reading: {e}")))?);
     }
     Ok(points)
 }
 
-/// The `points.jsonl` line of a reading (with its newline), checked to read back as the
-/// same reading: a record that cannot be read back is no record.
+/// The `points.jsonl` line of a reading (with its newline), tagged [`schema::POINT`],
+/// checked to read back as the same reading: a record that cannot be read back is no record.
 pub fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
-    let text = serde_json::to_string(point)?;
-    match serde_json::from_str::<MeasuredPoint>(&text) {
-        Ok(back) if back == *point => Ok(text + "\n"),
+    let text = serde_json::to_string(&schema::tagged(schema::POINT, serde_json::to_value(point)?))?;
+    match parse_points_line(&text) {
+        Ok(PointsLine::Reading(back)) if *back == *point => Ok(text + "\n"),
         _ => Err(std::io::Error::new(
             std::io::ErrorKind::InvalidData,
             format!("the reading at θi {}°, θr {}° holds a number JSON cannot keep (NaN or infinite): {text}", point.theta_i_deg, point.theta_r_deg),
@@ -428,7 +452,9 @@ fn same_row(row: &str, want: &str) -> bool {
     }
 }
 
-/// Read `session.json`; `None` when there is none.
+/// Read `session.json`; `None` when there is none. A document of an older version
+/// ([`crate::schema::SESSION_V1`]) is upgraded in memory (the file stays as it is: its
+/// manifest vouches for its bytes).
 pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
     let path = dir.join(SESSION);
     let text = match std::fs::read_to_string(&path) {
@@ -436,20 +462,81 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(Problem::new(&path, None, format!("cannot read: {e}"))),
     };
-    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
-    match value.get("format").and_then(serde_json::Value::as_str) {
-        Some(SESSION_FORMAT) => {}
-        Some(other) => return Err(Problem::new(&path, None, format!("format '{other}' is not '{SESSION_FORMAT}', which this gonio reads"))),
-        None => return Err(Problem::new(&path, None, format!("no 'format': not a session folder of this gonio ({SESSION_FORMAT})"))),
+    let mut value: serde_json::Value = serde_json::from_str(&text).map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
+    let schema = schema::check(&value, &[schema::SESSION, schema::SESSION_V1], None).map_err(|m| Problem::new(&path, None, format!("{m}: not a session folder of this gonio")))?;
+    if schema == schema::SESSION_V1 {
+        upgrade_session_v1(&mut value);
     }
     serde_json::from_value(value).map(Some).map_err(|e| Problem::new(&path, None, format!("not a session document: {e}")))
+}
+
+/// [`read_session`] of a folder that must hold a session.
+pub fn require_session(dir: &Path) -> Result<SessionDoc, Problem> {
+    read_session(dir)?.ok_or_else(|| Problem::new(&dir.join(SESSION), None, "missing: not a session folder"))
+}
+
+/// [`require_session`] of a session that must be finished (to report, re-analyse or
+/// weigh its result).
+pub fn require_finished(dir: &Path) -> Result<SessionDoc, Problem> {
+    let doc = require_session(dir)?;
+    if doc.status != Status::Finished {
+        return Err(Problem::new(
+            &dir.join(SESSION),
+            None,
+            format!("the session is not finished (status {}): it has no result yet; its readings so far are in {}", doc.status, dir.join(READINGS).display()),
+        ));
+    }
+    Ok(doc)
+}
+
+/// A `gonio-session/1` document as `gonio-session/2`: `format` was `schema`; σ's key in
+/// the analyses' `ci95`, `model`, `not_identified` and `active_bounds` was `sigma` (now
+/// `sigma_deg` everywhere, as its value's key); the result's `refinements` were bare numbers
+/// (δ or geometries added), now the objects the document's own `refinements` holds.
+fn upgrade_session_v1(doc: &mut serde_json::Value) {
+    use serde_json::Value;
+    let Some(object) = doc.as_object_mut() else { return };
+    object.remove("format");
+    object.insert("schema".into(), Value::from(schema::SESSION));
+    let sigma = crate::analysis::model::PARAM_NAMES[crate::analysis::model::SIGMA];
+    let upgrade_analysis = |analysis: &mut Value| {
+        if let Some(ci) = analysis.get_mut("ci95").and_then(Value::as_object_mut) {
+            if let Some(v) = ci.remove("sigma") {
+                ci.insert(sigma.into(), v);
+            }
+        }
+        if let Some(names) = analysis.get_mut("model").and_then(Value::as_array_mut) {
+            names.iter_mut().filter(|n| n.as_str() == Some("sigma")).for_each(|n| *n = Value::from(sigma));
+        }
+        for key in ["not_identified", "active_bounds"] {
+            if let Some(items) = analysis.get_mut(key).and_then(Value::as_array_mut) {
+                items.iter_mut().filter_map(|i| i.get_mut("param")).filter(|p| p.as_str() == Some("sigma")).for_each(|p| *p = Value::from(sigma));
+            }
+        }
+    };
+    let refinements = object.get("refinements").cloned();
+    if let Some(result) = object.get_mut("result") {
+        upgrade_analysis(result);
+        if let (Some(r), Some(refinements)) = (result.as_object_mut(), refinements) {
+            r.insert("refinements".into(), refinements);
+            r.insert("schema".into(), Value::from(schema::SPOT_RESULT));
+        }
+    }
+    if let Some(fits) = object.get_mut("fits").and_then(Value::as_array_mut) {
+        for report in fits.iter_mut().filter_map(|f| f.get_mut("report")) {
+            upgrade_analysis(report);
+            if let Some(r) = report.as_object_mut() {
+                r.insert("schema".into(), Value::from(schema::ANALYSIS));
+            }
+        }
+    }
 }
 
 /// Read `calibration.json`; `None` when there is none.
 pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Problem> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
-        Ok(text) => serde_json::from_str(&text).map(Some).map_err(|e| Problem::new(&path, Some(e.line()), format!("not a calibration: {e}"))),
+        Ok(text) => Calibration::from_json(&text).map(Some).map_err(|(line, m)| Problem::new(&path, line, m)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Problem::new(&path, None, format!("cannot read: {e}"))),
     }

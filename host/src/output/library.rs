@@ -31,9 +31,6 @@ pub const SCHEMA_VERSION: i64 = 1;
 /// tool can tell a gonio library from other SQLite files.
 pub const APPLICATION_ID: i32 = 0x676F_4C42;
 
-/// The `format` field of every exchange record.
-pub const EXCHANGE_FORMAT: &str = "gonio-library/1";
-
 /// How long a writer waits for another process's transaction before giving up. Adds are
 /// milliseconds long; 30 s covers a slow disk and many concurrent adds.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
@@ -221,8 +218,10 @@ pub struct SheetRecord {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExchangeRecord {
-    /// [`EXCHANGE_FORMAT`].
-    pub format: String,
+    /// [`crate::schema::LIBRARY_RECORD`] (the older [`crate::schema::LIBRARY_RECORD_V1`],
+    /// whose key was `format`, is imported too: the records are otherwise the same).
+    #[serde(alias = "format")]
+    pub schema: String,
     /// Stock name.
     pub stock: String,
     /// Stock manufacturer.
@@ -774,7 +773,7 @@ impl Library {
                     }
                 }
                 Ok(ExchangeRecord {
-                    format: EXCHANGE_FORMAT.to_string(),
+                    schema: crate::schema::LIBRARY_RECORD.to_string(),
                     stock: r.get(0)?,
                     manufacturer: r.get(1)?,
                     stock_notes: r.get(2)?,
@@ -998,8 +997,8 @@ fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<Importe
             continue;
         }
         let record: ExchangeRecord = serde_json::from_str(text).map_err(|e| fail(line_no, format!("not an exchange record: {e}")))?;
-        if record.format != EXCHANGE_FORMAT {
-            return Err(fail(line_no, format!("format '{}', this gonio reads '{EXCHANGE_FORMAT}'", record.format)));
+        if ![crate::schema::LIBRARY_RECORD, crate::schema::LIBRARY_RECORD_V1].contains(&record.schema.as_str()) {
+            return Err(fail(line_no, format!("schema '{}', this gonio reads {} and {}", record.schema, crate::schema::LIBRARY_RECORD, crate::schema::LIBRARY_RECORD_V1)));
         }
         check_text("stock name", &record.stock).map_err(|e| fail(line_no, e.to_string()))?;
         if !is_sha256_hex(&record.session_sha256) {
@@ -1269,6 +1268,19 @@ mod tests {
     }
 
     #[test]
+    fn an_exchange_file_of_the_first_version_still_imports() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let exported = String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite")))).expect("utf-8");
+        // What gonio wrote before its documents carried `schema`: the key was `format`.
+        let old = exported.replace(&format!("\"schema\":\"{}\"", crate::schema::LIBRARY_RECORD), &format!("\"format\":\"{}\"", crate::schema::LIBRARY_RECORD_V1));
+        assert_ne!(old, exported, "the records name their schema");
+        let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
+        let counts = second.import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read")).expect("import");
+        assert_eq!(counts.records, exported.lines().count());
+        assert_eq!(String::from_utf8(export_bytes(&second)).expect("utf-8"), exported, "imported as the same records");
+    }
+
+    #[test]
     fn a_bad_exchange_file_imports_nothing_and_names_the_line() {
         let dir = tempfile::tempdir().expect("temp dir");
         let exported = export_bytes(&filled(&dir.path().join("first.sqlite")));
@@ -1276,7 +1288,7 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         let cases = [
             (format!("{}\n{}\nnot json\n", lines[0], lines[1]), 3),
-            (format!("{}\n{}\n", lines[0], lines[1].replace("gonio-library/1", "gonio-library/9")), 2),
+            (format!("{}\n{}\n", lines[0], lines[1].replace(crate::schema::LIBRARY_RECORD, "gonio-library/9")), 2),
             // The second spot of the first sheet (stock "Bond…", two spots) missing.
             (lines.iter().enumerate().filter(|(k, _)| *k != 1).map(|(_, l)| format!("{l}\n")).collect(), 0),
         ];

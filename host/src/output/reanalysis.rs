@@ -4,8 +4,7 @@
 //! own analysis ([`crate::session::analyse_points`]), and compared with the result the
 //! session reported.
 use crate::analysis::report::{Report, to_json};
-use crate::instrument::calibration::Calibration;
-use crate::output::folder::{CALIBRATION, SESSION, SessionDoc, Status};
+use crate::output::folder::{self, SESSION};
 use crate::session::{AnalysisSettings, analyse_points};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -30,17 +29,9 @@ pub struct Reanalysis {
 /// Analyse the finished session folder `dir` again from its record.
 pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
     let file = dir.join(SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-    let doc: SessionDoc = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))?;
-    if doc.status != Status::Finished {
-        return Err(format!("{}: the session is not finished (status {}); its readings are in {}", file.display(), doc.status, dir.join("readings.csv").display()));
-    }
+    let doc = folder::require_finished(dir).map_err(|p| p.to_string())?;
     let recorded = doc.rest.get("result").cloned().ok_or_else(|| format!("{}: no result", file.display()))?;
-    let calibration: Option<Calibration> = match std::fs::read(dir.join(CALIBRATION)) {
-        Ok(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", dir.join(CALIBRATION).display()))?),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-        Err(e) => return Err(format!("{}: {e}", dir.join(CALIBRATION).display())),
-    };
+    let calibration = folder::read_calibration(dir).map_err(|p| p.to_string())?;
     let mut points = crate::output::record::read_points(dir).map_err(|p| p.to_string())?;
     if let Some(c) = &calibration {
         for p in &mut points {
@@ -60,7 +51,8 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
     let again = to_json(&report);
     // The session's `flags` and `ok` are the session's (lost steps, a resume, …) over the
     // analysis's own: those must be among them.
-    let session_level = ["file", "flags", "ok"];
+    // Its `schema` is the analysis's, the recorded one the spot result's.
+    let session_level = ["schema", "file", "flags", "ok"];
     let mut differences: Vec<String> = again
         .as_object()
         .map(|o| o.iter().filter(|(k, v)| !session_level.contains(&k.as_str()) && recorded.get(k.as_str()) != Some(v)).map(|(k, _)| k.clone()).collect())

@@ -15,7 +15,7 @@
 use crate::instrument::calibration::Calibration;
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, InstrumentRecord, Inspection, LOG, MANIFEST, POINTS, PlanRecord, Problem, READINGS, READINGS_HEADER,
-    Run, RunOutcome, SESSION, SESSION_FORMAT, SessionDoc, Status,
+    Run, RunOutcome, SESSION, SessionDoc, Status,
 };
 use crate::output::store::{Store, StoreOptions, Sync};
 use crate::session::{MeasuredPoint, Progress, Recorder};
@@ -153,7 +153,7 @@ pub enum FolderError {
     },
 }
 
-fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
+pub(crate) fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
     move |source| FolderError::Io { dir: dir.to_path_buf(), source }
 }
 
@@ -189,6 +189,12 @@ impl FolderLock {
 pub fn file_name_of(sample: &str) -> String {
     let name: String = sample.chars().take(48).map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect();
     if name.is_empty() || name.starts_with('.') { format!("_{name}") } else { name }
+}
+
+/// The name of a new folder for `sample` under `sessions/`: `<local date-time>-<sample>`
+/// (a session's and a sheet's alike; the caller adds `-2`, `-3`… when it is taken).
+pub(crate) fn dated_folder_name(sample: &str) -> String {
+    format!("{}-{}", chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"), file_name_of(sample))
 }
 
 /// Records a session into its folder and shows its progress.
@@ -227,7 +233,8 @@ pub fn progress_bar_to(target: indicatif::ProgressDrawTarget) -> ProgressBar {
     bar
 }
 
-fn json_bytes(value: &impl serde::Serialize) -> io::Result<Vec<u8>> {
+/// A document's bytes as gonio writes its JSON files: pretty, with a last newline.
+pub(crate) fn json_bytes(value: &impl serde::Serialize) -> io::Result<Vec<u8>> {
     let mut bytes = serde_json::to_vec_pretty(value)?;
     bytes.push(b'\n');
     Ok(bytes)
@@ -265,7 +272,7 @@ impl FileRecorder {
     /// never get the same one).
     pub fn create_default(parent: &Path, identity: Identity, options: StoreOptions) -> Result<FileRecorder, FolderError> {
         std::fs::create_dir_all(parent).map_err(io_error(parent))?;
-        let base = format!("{}-{}", chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"), file_name_of(&identity.sample));
+        let base = dated_folder_name(&identity.sample);
         for k in 1..10_000 {
             let dir = parent.join(if k == 1 { base.clone() } else { format!("{base}-{k}") });
             match Store::create_dir(&dir, options.clone()) {
@@ -284,7 +291,7 @@ impl FileRecorder {
     fn start(mut store: Store, lock: FolderLock, identity: Identity) -> Result<FileRecorder, FolderError> {
         let dir = store.dir().to_path_buf();
         let doc = SessionDoc {
-            format: SESSION_FORMAT.into(),
+            schema: crate::schema::SESSION.into(),
             status: Status::Running,
             why: None,
             resume_with: None,
@@ -594,7 +601,7 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
 impl Recorder for FileRecorder {
     fn calibration(&mut self, calibration: &Calibration) -> io::Result<()> {
         self.check_failed()?;
-        self.store.replace(CALIBRATION, &json_bytes(calibration)?)?;
+        self.store.replace(CALIBRATION, &json_bytes(&calibration.to_document()?)?)?;
         // A new calibration (gain ratios calibrated on the sample) converts the readings
         // taken anew: readings.csv follows (a crash before leaves it stale, which a resume
         // rebuilds).

@@ -8,7 +8,7 @@
 //! into a finished folder can be checked against its manifest like every other file.
 use crate::analysis::flags::Flag;
 use crate::instrument::calibration::Calibration;
-use crate::output::folder::{MANIFEST, SESSION, SessionDoc, Status};
+use crate::output::folder::{MANIFEST, SessionDoc};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -121,9 +121,9 @@ fn result_section(dir: &Path, doc: &SessionDoc, heading: &str) -> Result<String,
         }
     }
     let _ = writeln!(s, "<h{heading}>Parameters</h{heading}>\n<table>\n<tr><th>parameter</th><th>value</th><th>95 % interval, lower</th><th>95 % interval, upper</th></tr>");
-    for (label, key, ci_key, digits) in [("σ, lobe width (degrees)", "sigma_deg", "sigma", 3), ("ρs, specular weight", "rho_s", "rho_s", 4), ("ρd, diffuse (Lambert) weight", "rho_d", "rho_d", 4), ("η, refractive index", "eta", "eta", 3)] {
-        let ci = &result["ci95"][ci_key];
-        let fitted = result["model"].as_array().is_none_or(|names| names.iter().any(|n| n.as_str() == Some(ci_key)));
+    for (label, key, digits) in [("σ, lobe width (degrees)", "sigma_deg", 3), ("ρs, specular weight", "rho_s", 4), ("ρd, diffuse (Lambert) weight", "rho_d", 4), ("η, refractive index", "eta", 3)] {
+        let ci = &result["ci95"][key];
+        let fitted = result["model"].as_array().is_none_or(|names| names.iter().any(|n| n.as_str() == Some(key)));
         let (lower, upper) = if fitted { (number(&ci[0], digits), number(&ci[1], digits)) } else { ("fixed, not fitted".to_string(), String::new()) };
         let _ = write!(s, "{}", row(&[esc(label), number(&result[key], digits), lower, upper]).replace("<td>", "<td class=\"num\">").replacen("<td class=\"num\">", "<td>", 1));
     }
@@ -185,10 +185,10 @@ fn instrument_section(doc: &SessionDoc) -> String {
 }
 
 fn calibration_section(dir: &Path, doc: &SessionDoc) -> String {
-    let file = dir.join(crate::output::folder::CALIBRATION);
-    let calibration: Option<Calibration> = std::fs::read(&file).ok().and_then(|b| serde_json::from_slice(&b).ok());
-    let Some(c) = calibration else {
-        return "<p>No calibration file.</p>\n".to_string();
+    let c: Calibration = match crate::output::folder::read_calibration(dir) {
+        Ok(Some(c)) => c,
+        Ok(None) => return "<p>No calibration file.</p>\n".to_string(),
+        Err(p) => return format!("<p class=\"note\">The calibration file cannot be read: {}</p>\n", esc(&p.to_string())),
     };
     let taken = chrono::DateTime::from_timestamp(c.taken_unix_s as i64, 0).map_or("?".to_string(), |t| t.format("%Y-%m-%d %H:%M:%S UTC").to_string());
     let ended = doc.runs.last().and_then(|r| r.ended.as_deref()).and_then(|t| chrono::DateTime::parse_from_rfc3339(t).ok());
@@ -204,6 +204,23 @@ fn calibration_section(dir: &Path, doc: &SessionDoc) -> String {
         c.white_radiance_factor,
         100.0 * c.white_relative_uncertainty
     );
+    match &c.white_certificate {
+        Some(cert) => {
+            s += &format!(
+                "<tr><th>tile certificate</th><td>tile {}, certificate {}{}, issued {}{}: radiance factor {} ± {} (expanded, k = {}); file SHA-256 {}</td></tr>\n",
+                esc(&cert.tile),
+                esc(&cert.certificate),
+                cert.issued_by.as_ref().map_or_else(String::new, |by| format!(" by {}", esc(by))),
+                esc(&cert.issued),
+                cert.valid_until.as_ref().map_or_else(String::new, |u| format!(", valid until {}", esc(u))),
+                cert.radiance_factor,
+                cert.expanded_uncertainty,
+                cert.coverage_factor,
+                esc(cert.file_sha256.as_deref().unwrap_or("not recorded"))
+            );
+        }
+        None => s += "<tr><th>tile certificate</th><td>none given: the tile's values were entered on the command line or are gonio's defaults (an assumption, not a certificate)</td></tr>\n",
+    }
     s += &format!("<tr><th>white readings</th><td>{} incidence angles; dark readings on {} ranges</td></tr>\n", c.white.len(), c.dark.len());
     s + "</table>\n"
 }
@@ -269,13 +286,7 @@ fn folder_name(dir: &Path) -> String {
 }
 
 fn session_doc(dir: &Path) -> Result<SessionDoc, String> {
-    let file = dir.join(SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-    let doc: SessionDoc = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))?;
-    if doc.status != Status::Finished {
-        return Err(format!("{}: the session is not finished (status {}): there is no result to report", file.display(), doc.status));
-    }
-    Ok(doc)
+    crate::output::folder::require_finished(dir).map_err(|p| p.to_string())
 }
 
 fn flags_of(doc: &SessionDoc) -> Vec<Flag> {

@@ -10,12 +10,12 @@
 //! (it was reused), so each spot folder stands alone. A kill at any write leaves a folder
 //! `gonio measure --resume` continues: finished spots are kept, an unfinished spot is
 //! resumed as any session is, and the spots still missing are measured.
-use crate::analysis::compare::{SessionResult, parse_session};
+use crate::analysis::compare::{SessionResult, session_result};
 use crate::analysis::evidence::{Sheet, Spot};
 use crate::analysis::flags::Flag;
 use crate::analysis::sheet::{self, SheetSummary, SpotResult};
-use crate::output::folder::{MANIFEST, Problem, SESSION, SessionDoc, Status};
-use crate::output::record::{FolderError, FolderLock};
+use crate::output::folder::{MANIFEST, Problem, SESSION, Status};
+use crate::output::record::{FolderError, FolderLock, dated_folder_name, io_error, json_bytes};
 use crate::output::store::{Store, StoreOptions};
 use serde::{Deserialize, Serialize};
 use std::io;
@@ -23,8 +23,6 @@ use std::path::{Path, PathBuf};
 
 /// The sheet document.
 pub const SHEET: &str = "sheet.json";
-/// The `format` of a `sheet.json` this host writes and reads.
-pub const SHEET_FORMAT: &str = "gonio-sheet/1";
 
 /// One spot started.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -53,8 +51,10 @@ pub struct SheetResult {
 /// `sheet.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SheetDoc {
-    /// [`SHEET_FORMAT`].
-    pub format: String,
+    /// [`crate::schema::SHEET`] (an older document is read as this version: the two differ
+    /// only in this key's name, which was `format`).
+    #[serde(alias = "format")]
+    pub schema: String,
     /// Where the sheet stands.
     pub status: Status,
     /// Why it stopped, when failed or interrupted.
@@ -88,25 +88,15 @@ pub fn spot_folder(number: u16) -> String {
     format!("spot-{number}")
 }
 
-fn json_bytes(value: &impl Serialize) -> io::Result<Vec<u8>> {
-    let mut bytes = serde_json::to_vec_pretty(value)?;
-    bytes.push(b'\n');
-    Ok(bytes)
-}
-
-fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
-    move |source| FolderError::Io { dir: dir.to_path_buf(), source }
-}
-
 /// Read `sheet.json` of `dir`.
 pub fn read_doc(dir: &Path) -> Result<SheetDoc, Problem> {
     let file = dir.join(SHEET);
     let problem = |message: String| Problem { file: file.clone(), line: None, message };
     let text = std::fs::read_to_string(&file).map_err(|e| problem(format!("cannot read: {e}")))?;
-    let doc: SheetDoc = serde_json::from_str(&text).map_err(|e| problem(format!("not a sheet document: {e}")))?;
-    if doc.format != SHEET_FORMAT {
-        return Err(problem(format!("format '{}' is not '{SHEET_FORMAT}' (written by another version of gonio)", doc.format)));
-    }
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| problem(format!("not JSON: {e}")))?;
+    crate::schema::check(&value, &[crate::schema::SHEET, crate::schema::SHEET_V1], None).map_err(|m| problem(format!("{m}: not a sheet folder of this gonio")))?;
+    let mut doc: SheetDoc = serde_json::from_value(value).map_err(|e| problem(format!("not a sheet document: {e}")))?;
+    doc.schema = crate::schema::SHEET.into();
     for (k, entry) in doc.spots.iter().enumerate() {
         if entry.number as usize != k + 1 || entry.folder != spot_folder(entry.number) {
             return Err(problem(format!("spot entry {} is not spot {} in {}", k + 1, k + 1, spot_folder(k as u16 + 1))));
@@ -154,7 +144,7 @@ impl SheetFolder {
         }
         let lock = FolderLock::take(dir)?;
         let doc = SheetDoc {
-            format: SHEET_FORMAT.into(),
+            schema: crate::schema::SHEET.into(),
             status: Status::Running,
             why: None,
             resume_with: None,
@@ -174,7 +164,7 @@ impl SheetFolder {
     /// A new folder `PARENT/<local date-time>-<sample>` (a suffix when taken).
     pub fn create_default(parent: &Path, sample: &str, spots_planned: u16, replacements: u16, options: StoreOptions) -> Result<SheetFolder, FolderError> {
         std::fs::create_dir_all(parent).map_err(io_error(parent))?;
-        let base = format!("{}-{}", chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"), crate::output::record::file_name_of(sample));
+        let base = dated_folder_name(sample);
         for k in 1..10_000 {
             let dir = parent.join(if k == 1 { base.clone() } else { format!("{base}-{k}") });
             if !dir.exists() {
@@ -293,12 +283,8 @@ pub struct ReadSpot {
 pub fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Problem> {
     let file = dir.join(SESSION);
     let problem = |message: String| Problem { file: file.clone(), line: None, message };
-    let text = std::fs::read_to_string(&file).map_err(|e| problem(format!("cannot read: {e}")))?;
-    let session = parse_session(&file, &text).map_err(|e| problem(e.to_string()))?;
-    let doc: SessionDoc = serde_json::from_str(&text).map_err(|e| problem(e.to_string()))?;
-    if doc.status != Status::Finished {
-        return Err(problem(format!("status is {}: the spot is not finished", doc.status)));
-    }
+    let doc = crate::output::folder::require_finished(dir)?;
+    let session = serde_json::to_value(&doc).map_err(|e| problem(e.to_string())).and_then(|v| session_result(&file, &v).map_err(|e| problem(e.to_string())))?;
     let flags: Vec<Flag> = doc.rest.get("flags").cloned().map(serde_json::from_value).transpose().map_err(|e| problem(format!("flags: {e}")))?.unwrap_or_default();
     let number_of = |key: &str| doc.rest.get("result").and_then(|r| r.get(key)).and_then(serde_json::Value::as_f64).unwrap_or(0.0);
     let mut covariance = [[0.0; 3]; 3];

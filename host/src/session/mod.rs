@@ -234,7 +234,6 @@ pub struct Refinement {
     pub reason: String,
     /// An adaptive batch taken because the fit was flagged lack-of-fit (the tails; see
     /// [`adaptive::lack_of_fit_batch`]): these count against [`adaptive::LACK_OF_FIT_BATCHES`].
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub lack_of_fit: bool,
 }
 

@@ -48,7 +48,7 @@ impl<T: Transport> Session<'_, T> {
         }
         self.ask_operator(Placement::Sample)?;
         let gains = self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect();
-        let calibration = Calibration::new(instrument_name(&self.info), self.tile, gains, dark.to_vec(), white);
+        let calibration = Calibration::new(instrument_name(&self.info), self.tile.clone(), gains, dark.to_vec(), white);
         self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
         self.calibration = Some(calibration);
         Ok(())

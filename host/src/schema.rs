@@ -1,0 +1,147 @@
+//! The names and versions of gonio's JSON documents: every JSON object gonio prints
+//! (`--json`) and every JSON file it writes carries one of these as its `schema` key, so a
+//! program that reads it knows what it is reading and which version of it. Each has a
+//! JSON Schema under `docs/schemas/` (`<name>-<version>.schema.json`); `docs/FORMATS.md`
+//! describes them. A change to a document's fields is a new version here and a new schema
+//! file; the tests validate every output against its schema, so a field cannot change
+//! silently.
+//!
+//! Readers of gonio's own files accept the versions listed as readable next to each
+//! writer's version (older session and sheet folders still verify, re-analyse and compare).
+use serde_json::Value;
+
+/// `session.json` of a session folder.
+pub const SESSION: &str = "gonio-session/2";
+/// `session.json` before `schema` (it was `format`), with `ci95.sigma` and the refinements
+/// of `result` as bare numbers: still read, upgraded in memory ([`crate::output::folder`]).
+pub const SESSION_V1: &str = "gonio-session/1";
+/// `sheet.json` of a sheet folder.
+pub const SHEET: &str = "gonio-sheet/2";
+/// `sheet.json` before `schema` (it was `format`): still read.
+pub const SHEET_V1: &str = "gonio-sheet/1";
+/// `calibration.json` (and the `calibration` of `session.json`).
+pub const CALIBRATION: &str = "gonio-calibration/1";
+/// A reading's line of `points.jsonl`.
+pub const POINT: &str = "gonio-point/1";
+/// A line of `points.jsonl` that marks earlier readings superseded.
+pub const SUPERSEDE: &str = "gonio-supersede/1";
+/// The analysis of one data set: a line of `gonio fit --json`, and each `fits[].report`
+/// of `session.json`.
+pub const ANALYSIS: &str = "gonio-analysis/1";
+/// The result of one spot: `gonio measure --json` of one spot and `result` of
+/// `session.json` (the analysis and what the session adds to it).
+pub const SPOT_RESULT: &str = "gonio-spot-result/1";
+/// `gonio measure --json` of a sheet of several spots.
+pub const SHEET_RESULT: &str = "gonio-sheet-result/1";
+/// `gonio compare --json`.
+pub const COMPARE: &str = "gonio-compare/1";
+/// A line of `gonio verify --json`.
+pub const VERIFY: &str = "gonio-verify/1";
+/// A line of `gonio sessions --json`.
+pub const SESSIONS_ENTRY: &str = "gonio-sessions-entry/1";
+/// `gonio library list --json`.
+pub const LIBRARY_LIST: &str = "gonio-library-list/1";
+/// `gonio library search --json`.
+pub const LIBRARY_SEARCH: &str = "gonio-library-search/1";
+/// A line of `gonio library export` (one measured sheet of a known stock).
+pub const LIBRARY_RECORD: &str = "gonio-library/2";
+/// A `gonio library export` line before `schema` (it was `format`): still imported.
+pub const LIBRARY_RECORD_V1: &str = "gonio-library/1";
+/// A white tile's certificate (`gonio measure --tile-certificate FILE`), as the user
+/// writes it; `schema` is optional there.
+pub const TILE_CERTIFICATE: &str = "gonio-tile-certificate/1";
+
+/// Every schema gonio writes, for the documentation's check that each has its file.
+pub const WRITTEN: [&str; 14] = [
+    SESSION,
+    SHEET,
+    CALIBRATION,
+    POINT,
+    SUPERSEDE,
+    ANALYSIS,
+    SPOT_RESULT,
+    SHEET_RESULT,
+    COMPARE,
+    VERIFY,
+    SESSIONS_ENTRY,
+    LIBRARY_LIST,
+    LIBRARY_SEARCH,
+    LIBRARY_RECORD,
+];
+
+/// The file name of a schema's JSON Schema under `docs/schemas/`: `gonio-session/2` →
+/// `gonio-session-2.schema.json`.
+pub fn file_name(schema: &str) -> String {
+    format!("{}.schema.json", schema.replace('/', "-"))
+}
+
+/// `value` (an object) with `schema` set to `schema`; anything else is returned as it is.
+pub fn tagged(schema: &str, mut value: Value) -> Value {
+    if let Some(object) = value.as_object_mut() {
+        object.insert("schema".into(), Value::from(schema));
+    }
+    value
+}
+
+/// The `schema` of a JSON object, if it has one that is a string.
+pub fn of(value: &Value) -> Option<&str> {
+    value.get("schema").and_then(Value::as_str)
+}
+
+/// Check that a document is of a schema this gonio reads: `reads` lists them, newest
+/// first. A document without `schema` (nor the `format` that older versions wrote) is
+/// accepted only when `unversioned` names what it is then taken for (a file a person
+/// wrote, or one written before gonio named its documents). Returns the schema it is read
+/// as; the error says what was found and what this gonio reads.
+pub fn check<'a>(value: &'a Value, reads: &[&'a str], unversioned: Option<&'a str>) -> Result<&'a str, String> {
+    let found = of(value).or_else(|| value.get("format").and_then(Value::as_str));
+    match (found, unversioned) {
+        (Some(found), _) if reads.contains(&found) => Ok(found),
+        (Some(found), _) => {
+            let newer = reads.first().is_some_and(|newest| same_name(found, newest) && version(found) > version(newest));
+            let hint = if newer { ": written by a newer gonio; update gonio to read it" } else { "" };
+            Err(format!("schema '{found}' is not one this gonio reads ({}){hint}", reads.join(", ")))
+        }
+        (None, Some(taken_as)) => Ok(taken_as),
+        (None, None) => Err(format!("no 'schema': not a document this gonio reads ({})", reads.join(", "))),
+    }
+}
+
+fn same_name(a: &str, b: &str) -> bool {
+    a.split_once('/').map(|(n, _)| n) == b.split_once('/').map(|(n, _)| n)
+}
+
+fn version(schema: &str) -> Option<u32> {
+    schema.split_once('/').and_then(|(_, v)| v.parse().ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_and_tags() {
+        assert_eq!(file_name(SESSION), "gonio-session-2.schema.json");
+        let v = tagged(ANALYSIS, serde_json::json!({"n": 1}));
+        assert_eq!(of(&v), Some(ANALYSIS));
+        assert_eq!(tagged(ANALYSIS, Value::from(3)), Value::from(3));
+        let mut names = WRITTEN.to_vec();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), WRITTEN.len(), "a schema listed twice");
+    }
+
+    #[test]
+    fn a_document_is_read_only_as_a_schema_this_gonio_reads() {
+        let reads = [SESSION, SESSION_V1];
+        assert_eq!(check(&serde_json::json!({"schema": SESSION}), &reads, None), Ok(SESSION));
+        assert_eq!(check(&serde_json::json!({"format": SESSION_V1}), &reads, None), Ok(SESSION_V1));
+        let newer = check(&serde_json::json!({"schema": "gonio-session/3"}), &reads, None).unwrap_err();
+        assert!(newer.contains("'gonio-session/3'") && newer.contains("update gonio"), "{newer}");
+        let other = check(&serde_json::json!({"schema": SHEET}), &reads, None).unwrap_err();
+        assert!(other.contains("gonio-sheet/2") && !other.contains("update"), "{other}");
+        assert!(check(&serde_json::json!({}), &reads, None).unwrap_err().contains("no 'schema'"));
+        assert_eq!(check(&serde_json::json!({}), &[CALIBRATION], Some(CALIBRATION)), Ok(CALIBRATION));
+        assert!(check(&serde_json::json!({"schema": 3}), &reads, None).is_err());
+    }
+}
