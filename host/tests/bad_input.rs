@@ -203,3 +203,25 @@ fn bad_options_on_a_resume_leave_the_folder_as_it_was() {
     assert!(std::fs::read_to_string(dir.join("points.jsonl")).unwrap().starts_with(whole));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_bad_or_expired_tile_certificate_is_refused_before_anything_is_measured() {
+    let dir = temp_dir("certificates");
+    std::fs::create_dir_all(&dir).unwrap();
+    let write = |name: &str, text: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path.display().to_string()
+    };
+    let expired = write("expired.json", r#"{"tile": "T", "certificate": "C", "issued": "2020-01-01", "valid_until": "2021-01-01", "radiance_factor": 0.98, "expanded_uncertainty": 0.01}"#);
+    measure_rejected(&["--tile-certificate", &expired], &["--tile-certificate", "expired.json", "expired on 2021-01-01"]);
+    let broken = write("broken.json", r#"{"tile": "T", "certificate": "C", "#);
+    measure_rejected(&["--tile-certificate", &broken], &["broken.json", "line 1"]);
+    let missing = dir.join("missing.json").display().to_string();
+    measure_rejected(&["--tile-certificate", &missing], &["missing.json", "cannot read"]);
+    // Values and a certificate at once: which to believe is not guessed.
+    let out = gonio(&["measure", "--sim", "G", "--tile-certificate", &expired, "--tile-radiance-factor", "0.9"]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

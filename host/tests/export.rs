@@ -139,3 +139,40 @@ fn a_sessions_export_holds_its_readings_and_white_standard() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A session calibrated with a tile certificate: its values are the calibration's, and the
+/// certificate is named in calibration.json, the export and the report.
+#[test]
+fn a_tile_certificate_is_recorded_in_every_export() {
+    let dir = cli_support::temp_dir("export", "certificate");
+    std::fs::create_dir_all(&dir).unwrap();
+    let certificate = dir.join("tile.json");
+    let today = chrono::Local::now().date_naive();
+    let issued = (today - chrono::Days::new(100)).to_string();
+    std::fs::write(
+        &certificate,
+        format!(r#"{{"tile": "Ceramic tile #9", "certificate": "LAB-77", "issued_by": "a laboratory", "issued": "{issued}", "radiance_factor": 0.975, "expanded_uncertainty": 0.0078}}"#),
+    )
+    .unwrap();
+    let session = dir.join("session");
+    let out = cli_support::gonio(&["measure", "--sim", "PPC", "--spots", "1", "--tile-certificate", certificate.to_str().unwrap(), "--out", session.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", cli_support::stderr(&out));
+    let file = read_astm(&std::fs::read_to_string(session.join("PPC.astm")).expect("PPC.astm"));
+    assert_eq!(file.keywords["WHITE_STANDARD_RADIANCE_FACTOR"], "0.975");
+    // 0.0078 at k = 2 over 0.975: 0.4 % standard.
+    let u: f64 = file.keywords["WHITE_STANDARD_RELATIVE_UNCERTAINTY"].parse().unwrap();
+    assert!((u - 0.004).abs() < 1e-12, "{u}");
+    let named = &file.keywords["WHITE_STANDARD_CERTIFICATE"];
+    assert!(named.contains("Ceramic tile #9") && named.contains("LAB-77") && named.contains(&issued) && named.contains("k = 2"), "{named}");
+    let calibration: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(session.join("calibration.json")).unwrap()).unwrap();
+    assert_eq!(calibration["white_certificate"]["certificate"], "LAB-77");
+    assert_eq!(calibration["white_certificate"]["file_sha256"].as_str().map(str::len), Some(64));
+    let report = std::fs::read_to_string(session.join("report.html")).unwrap();
+    assert!(report.contains("certificate LAB-77") && report.contains("Ceramic tile #9"), "the report names the certificate");
+    // Without one, the export says so rather than leaving it out.
+    let plain = dir.join("plain");
+    assert!(cli_support::gonio(&["measure", "--sim", "PPC", "--spots", "1", "--out", plain.to_str().unwrap()]).status.success());
+    let file = read_astm(&std::fs::read_to_string(plain.join("PPC.astm")).unwrap());
+    assert!(file.keywords["WHITE_STANDARD_CERTIFICATE"].starts_with("none given"), "{}", file.keywords["WHITE_STANDARD_CERTIFICATE"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}

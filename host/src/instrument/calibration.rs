@@ -112,6 +112,10 @@ impl TileCertificate {
             }
         }
         certificate.validate(today).map_err(bad)?;
+        // The values as the tile they give, checked here to name the file.
+        if let Err(CalibrationError::BadTile(what)) = certificate.clone().tile() {
+            return Err(bad(what));
+        }
         use sha2::Digest as _;
         certificate.file_sha256 = Some(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect());
         certificate.schema = Some(crate::schema::TILE_CERTIFICATE.into());
@@ -671,6 +675,68 @@ mod tests {
         for (rf, pct) in [(0.0, 0.5), (1.5, 0.5), (f64::NAN, 0.5), (0.99, -1.0), (0.99, 60.0), (0.99, f64::INFINITY)] {
             assert!(matches!(Tile::new(rf, pct), Err(CalibrationError::BadTile(_))), "{rf} {pct}");
         }
+    }
+
+    fn certificate_file(text: &str) -> (tempfile::TempDir, std::path::PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tile.json");
+        std::fs::write(&path, text).unwrap();
+        (dir, path)
+    }
+
+    const CERTIFICATE: &str = r#"{"tile": "PTFE #7", "certificate": "C-1", "issued": "2026-03-01", "valid_until": "2027-03-01",
+        "radiance_factor": 0.98, "expanded_uncertainty": 0.0098, "coverage_factor": 2}"#;
+
+    fn day(text: &str) -> chrono::NaiveDate {
+        chrono::NaiveDate::parse_from_str(text, "%Y-%m-%d").unwrap()
+    }
+
+    #[test]
+    fn a_tile_certificate_gives_the_tile_and_is_recorded_with_its_file_hash() {
+        let (_dir, path) = certificate_file(CERTIFICATE);
+        let tile = TileCertificate::read(&path, day("2026-12-02")).and_then(TileCertificate::tile).expect("a good certificate");
+        assert_eq!(tile.radiance_factor, 0.98);
+        // Expanded 0.0098 at k = 2 over 0.98: 0.5 % standard.
+        assert!((tile.relative_uncertainty - 0.005).abs() < 1e-15, "{}", tile.relative_uncertainty);
+        let certificate = tile.certificate.clone().expect("recorded");
+        use sha2::Digest as _;
+        let sha: String = sha2::Sha256::digest(CERTIFICATE.as_bytes()).iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(certificate.file_sha256.as_deref(), Some(sha.as_str()));
+        let c = Calibration::new("test".into(), tile, vec![1.0], vec![reading(200.0, 0)], vec![]);
+        let back = Calibration::from_document(c.to_document().unwrap()).unwrap();
+        assert_eq!(back.white_certificate, Some(certificate));
+        assert_eq!(back.tile(), c.tile(), "the tile read back is the one calibrated with");
+        // Without k, it is 2.
+        let (_dir, path) = certificate_file(&CERTIFICATE.replace(r#", "coverage_factor": 2"#, ""));
+        assert_eq!(TileCertificate::read(&path, day("2026-12-02")).unwrap().coverage_factor, 2.0);
+    }
+
+    #[test]
+    fn a_bad_tile_certificate_is_refused_naming_the_file_and_what_is_wrong() {
+        let cases: [(String, &str, &str); 10] = [
+            (CERTIFICATE.to_string(), "2027-03-02", "expired on 2027-03-01"),
+            (CERTIFICATE.to_string(), "2026-02-28", "after today"),
+            (CERTIFICATE.replace("2026-03-01\"", "01/03/2026\""), "2026-12-02", "'issued' must be a date YYYY-MM-DD"),
+            (CERTIFICATE.replace("\"coverage_factor\": 2", "\"coverage_factor\": 0.5"), "2026-12-02", "'coverage_factor' must be between 1 and 4"),
+            (CERTIFICATE.replace("0.0098", "-0.01"), "2026-12-02", "'expanded_uncertainty' must be a number at least 0"),
+            (CERTIFICATE.replace("\"radiance_factor\": 0.98", "\"radiance_factor\": 1.98"), "2026-12-02", "radiance factor 1.98 is not in (0, 1.2]"),
+            (CERTIFICATE.replace("0.0098", "1.2"), "2026-12-02", "is not in [0, 50) %"),
+            (CERTIFICATE.replace("\"tile\"", "\"colour\": \"white\", \"tile\""), "2026-12-02", "unknown field `colour`"),
+            (CERTIFICATE.replace("\"PTFE #7\"", "\"\""), "2026-12-02", "'tile' must be a name"),
+            (CERTIFICATE.replacen('{', "{\"schema\": \"gonio-tile-certificate/9\", ", 1), "2026-12-02", "schema 'gonio-tile-certificate/9'"),
+        ];
+        for (text, today, expected) in cases {
+            let (_dir, path) = certificate_file(&text);
+            let err = TileCertificate::read(&path, day(today)).and_then(TileCertificate::tile).expect_err(expected).to_string();
+            assert!(err.contains(expected) && err.contains("tile.json"), "{expected}: {err}");
+        }
+        let (_dir, path) = certificate_file("{\"tile\": ");
+        assert!(TileCertificate::read(&path, day("2026-12-02")).unwrap_err().to_string().contains("line 1"));
+        let missing = std::path::Path::new("/nowhere/tile.json");
+        assert!(TileCertificate::read(missing, day("2026-12-02")).unwrap_err().to_string().contains("cannot read"));
+        let (_dir, path) = certificate_file("");
+        std::fs::write(&path, [0xff, 0xfe, b'{']).unwrap();
+        assert!(TileCertificate::read(&path, day("2026-12-02")).unwrap_err().to_string().contains("not UTF-8"));
     }
 
     #[test]

@@ -796,7 +796,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 let span = if flagged { adaptive::CandidateSpan::Whole } else { adaptive::CandidateSpan::Lobe };
                 let batch = adaptive::next_batch_over(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch, span);
                 let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                let mut reason = format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { "" } else { ", σ ≤ σ_l" });
+                let mut reason = format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { String::new() } else { sigma_l_text(&report) });
                 if confirmed {
                     reason.push_str(&format!(
                         "; lack-of-fit ({}) persists after {taken} lack-of-fit batches: the result keeps the flag, the batches go on over the whole θr range only until σ > σ_l",
@@ -905,6 +905,15 @@ pub fn analyse_points(sample: &str, points: &[MeasuredPoint], calibration: Optio
     let set = DataSet { sample: sample.to_string(), observations, lines: indices.iter().map(|k| k + 2).collect() };
     let options = FitOptions { acceptance_deg: Some(settings.acceptance_deg), arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg, ..FitOptions::default() };
     analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None)
+}
+
+/// ", σ ≤ σ_l = …°" of a report whose σ fails the check (the value, so a reader sees how
+/// far the sampling is from resolving the peak).
+fn sigma_l_text(report: &crate::analysis::report::Report) -> String {
+    match report.check {
+        Some(check) => format!(", σ ≤ σ_l = {:.3}° (δ = {:.2}°)", check.sigma_l_deg, report.delta.map_or(f64::NAN, |d| d.deg)),
+        None => ", σ_l unknown (no δ found)".to_string(),
+    }
 }
 
 /// What flagged a fit lack-of-fit, in words: the χ² test's and the structure test's
