@@ -182,7 +182,7 @@ pub fn to_table(r: &Report) -> String {
     match (r.delta, r.check) {
         (Some(d), Some(chk)) => {
             s += &format!(
-                "  δ {:.3}°   σ_l {:.3}°   σ > σ_l: {}\n",
+                "  δ {:.3}° (spacing around the specular direction)   σ_l {:.3}° (the narrowest lobe it resolves)   σ > σ_l: {}\n",
                 d.deg,
                 chk.sigma_l_deg,
                 if chk.sigma_ok { "yes" } else { "NO (measure closer to the specular direction)" }
@@ -193,7 +193,7 @@ pub fn to_table(r: &Report) -> String {
     match c.class {
         Some(class) => {
             s += &format!(
-                "  class {} ({}), confidence {:.0} %, nearest reference {} (distance {:.2})\n",
+                "  class {} ({}), confidence {:.0} % (of the parameters' uncertainty region in the class), nearest reference {} ({:.2} combined standard uncertainties away)\n",
                 class.name(),
                 class.group().name(),
                 100.0 * c.confidence,
@@ -203,7 +203,7 @@ pub fn to_table(r: &Report) -> String {
         }
         None => {
             s += &format!(
-                "  class undecided (group {}): {}; nearest reference {} (distance {:.2})\n",
+                "  class undecided (group {}): {}; nearest reference {} ({:.2} combined standard uncertainties away)\n",
                 c.group_name(),
                 c.undecided.unwrap_or("not determined"),
                 c.nearest_reference,

@@ -701,7 +701,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     }
     print!("{}", crate::analysis::report::to_table(&outcome.report));
     println!(
-        "  {} geometries, {:.1} device s measuring (+{:.1} s homing and calibration); refinements: {}",
+        "  {} geometries, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
         outcome.points.len(),
         outcome.device_seconds,
         outcome.setup_seconds,
@@ -715,7 +715,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     } else {
         println!("  result: NOT CLEAN, flags: {}", flag_names(&outcome.flags));
     }
-    println!("  files: {} (gonio verify {} checks them)", dir.display(), dir.display());
+    println!("  files: {} (gonio verify {} checks them; report.html is the report to read, its glossary and the README's explain the terms)", dir.display(), dir.display());
 }
 
 fn print_sheet(dir: &Path, sheet: &crate::output::sheet::ReadSheet) {
