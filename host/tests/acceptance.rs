@@ -136,7 +136,7 @@ fn the_window_model_is_exact_to_far_below_the_noise() {
         let p = common::reference(name);
         let obs: Vec<Observation> = common::strategy2(2)
             .iter()
-            .map(|&(ti, tr)| Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: exact(&p, ti, tr), std: Some(1e-3) })
+            .map(|&(ti, tr)| Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: exact(&p, ti, tr), std: Some(1e-3), theta_r_span_deg: 0.0 })
             .collect();
         let result = fit(&obs, &FitOptions::default()).expect("valid");
         let error = result.params.sigma_deg / p.sigma_deg - 1.0;

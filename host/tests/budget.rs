@@ -157,7 +157,7 @@ fn session(p: &Params, geometries: &[(f64, f64)], seed: u64, errors: Errors, cal
         .zip(&readings)
         .map(|(&(ti, tr), r)| {
             let (radiance_factor, std) = calibration.radiance_factor(ti, &r.reading).expect("convertible");
-            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor, std: Some(std) }
+            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor, std: Some(std), theta_r_span_deg: 0.0 }
         })
         .collect();
     let shared = budget::shared_errors(&calibration, &readings).expect("a budget");

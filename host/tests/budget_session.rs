@@ -34,7 +34,7 @@ fn observations(outcome: &Outcome, calibration: &Calibration) -> Vec<Observation
         .filter(|p| seen.insert(((p.theta_i_deg * 1e4) as i64, (p.theta_r_deg * 1e4) as i64)))
         .filter_map(|p| {
             let (radiance_factor, std) = calibration.radiance_factor(p.theta_i_deg, &p.reading).ok()?;
-            Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: Some(std) })
+            Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: Some(std), theta_r_span_deg: 0.0 })
         })
         .collect()
 }
@@ -256,7 +256,7 @@ fn budget_inputs(outcome: &Outcome) -> (Vec<BudgetReading>, Vec<Observation>) {
             let (radiance_factor, std) = c.radiance_factor(p.theta_i_deg, &p.reading).ok()?;
             Some((
                 BudgetReading { theta_i_deg: p.theta_i_deg, reading: p.reading, age_s: 0.0 },
-                Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: Some(std) },
+                Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: Some(std), theta_r_span_deg: 0.0 },
             ))
         })
         .unzip()

@@ -231,7 +231,7 @@ fn undetermined_parameters_and_classes_are_not_compared() {
             .map(|(k, &(ti, tr))| {
                 let f = host::analysis::model::observed_radiance_factor(&p, ti, tr, 1.0);
                 let u = ((k as u64 * 2_654_435_761 + seed * 40_503) % 1000) as f64 / 1000.0 - 0.5;
-                host::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: f * (1.0 + 0.01 * u), std: Some(0.003 * f + 0.001) }
+                host::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: f * (1.0 + 0.01 * u), std: Some(0.003 * f + 0.001), theta_r_span_deg: 0.0 }
             })
             .collect()
     };

@@ -13,11 +13,11 @@ use std::time::{Duration, UNIX_EPOCH};
 
 fn readings() -> Vec<Observation> {
     vec![
-        Observation { theta_i_deg: 20.0, theta_r_deg: 0.0, radiance_factor: 0.8612345678901234, std: Some(0.0091) },
-        Observation { theta_i_deg: 20.0, theta_r_deg: 20.0, radiance_factor: 9.123456789, std: None },
-        Observation { theta_i_deg: 45.0, theta_r_deg: 44.75, radiance_factor: 31.4159, std: Some(0.31) },
-        Observation { theta_i_deg: 60.0, theta_r_deg: 70.0, radiance_factor: 1e-3 / 3.0, std: Some(0.003) },
-        Observation { theta_i_deg: 30.0, theta_r_deg: -0.5, radiance_factor: 0.5, std: None },
+        Observation { theta_i_deg: 20.0, theta_r_deg: 0.0, radiance_factor: 0.8612345678901234, std: Some(0.0091), theta_r_span_deg: 0.0 },
+        Observation { theta_i_deg: 20.0, theta_r_deg: 20.0, radiance_factor: 9.123456789, std: None, theta_r_span_deg: 0.0 },
+        Observation { theta_i_deg: 45.0, theta_r_deg: 44.75, radiance_factor: 31.4159, std: Some(0.31), theta_r_span_deg: 0.0 },
+        Observation { theta_i_deg: 60.0, theta_r_deg: 70.0, radiance_factor: 1e-3 / 3.0, std: Some(0.003), theta_r_span_deg: 0.0 },
+        Observation { theta_i_deg: 30.0, theta_r_deg: -0.5, radiance_factor: 0.5, std: None, theta_r_span_deg: 0.0 },
     ]
 }
 

@@ -96,7 +96,7 @@ fn the_next_batch_goes_to_the_flanks_of_the_peak() {
         .iter()
         .map(|g| {
             let r = host::analysis::model::observed_radiance_factor(&g_paper, g.theta_i.deg(), g.theta_r.deg(), acceptance);
-            Observation { theta_i_deg: g.theta_i.deg(), theta_r_deg: g.theta_r.deg(), radiance_factor: r, std: Some(0.002 * r + 1e-4) }
+            Observation { theta_i_deg: g.theta_i.deg(), theta_r_deg: g.theta_r.deg(), radiance_factor: r, std: Some(0.002 * r + 1e-4), theta_r_span_deg: 0.0 }
         })
         .collect();
     let result = fit(&observations, &FitOptions { acceptance_deg: Some(acceptance), ..FitOptions::default() }).unwrap();

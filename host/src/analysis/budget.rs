@@ -485,7 +485,7 @@ mod tests {
     #[test]
     fn shares_add_to_one_and_group_by_kind() {
         let obs = [(20.0, 0.0, 0.5), (20.0, 10.0, 0.51), (20.0, 20.0, 0.49), (30.0, 30.0, 0.5), (45.0, 50.0, 0.505), (60.0, 70.0, 0.495)]
-            .map(|(ti, tr, r)| crate::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: r, std: Some(0.01) });
+            .map(|(ti, tr, r)| crate::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: r, std: Some(0.01), theta_r_span_deg: 0.0 });
         // A flat scene: only ρd is fitted, so σ and ρs have no budget.
         let mut fit = crate::analysis::fit::fit(&obs, &crate::analysis::fit::FitOptions::default()).unwrap();
         fit.budget = vec![

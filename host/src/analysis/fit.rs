@@ -77,6 +77,9 @@ const ARM_OFFSET_SCREEN: f64 = 2.0;
 const CHI2_1_95: f64 = 3.841_458_820_694_124;
 /// χ²(3) at 95 %.
 const CHI2_3_95: f64 = 7.814_727_903_251_178;
+/// The widest detector travel a reading may have, degrees: a sweep's bin is a fraction of
+/// a degree to a few degrees; beyond this it would average the specular peak away.
+pub const MAX_SPAN_DEG: f64 = 20.0;
 /// Standard normal quantile at 0.975.
 const Z_975: f64 = 1.959_963_984_540_054;
 /// Largest lag-1 autocorrelation used in the widening factor.
@@ -93,6 +96,10 @@ pub struct Observation {
     pub radiance_factor: f64,
     /// Standard uncertainty of the radiance factor, if known.
     pub std: Option<f64>,
+    /// How far the detector arm moved in θr while the reading integrated, degrees (a
+    /// sweep's bin; 0 for a reading taken with the arms still): the reading is the mean
+    /// over θr ± span/2 of what the detector sees there ([`crate::analysis::model::evaluate_reading`]).
+    pub theta_r_span_deg: f64,
 }
 
 /// An error shared by several readings (one draw for all of them): reading k's radiance
@@ -206,6 +213,14 @@ pub enum FitError {
         /// The angle.
         value: f64,
     },
+    /// A detector travel that is no span a bin can have.
+    #[error("reading {index}: the detector's travel while it integrated, {value}°, is outside [0°, {MAX_SPAN_DEG}°]")]
+    SpanOutOfRange {
+        /// Reading.
+        index: usize,
+        /// The span.
+        value: f64,
+    },
     /// A standard uncertainty that is not positive.
     #[error("reading {index}: standard uncertainty {value} is not positive")]
     BadUncertainty {
@@ -296,6 +311,7 @@ impl FitError {
             | FitError::Negative { index, .. }
             | FitError::TooLarge { index, .. }
             | FitError::AngleOutOfRange { index, .. }
+            | FitError::SpanOutOfRange { index, .. }
             | FitError::BadUncertainty { index, .. }
             | FitError::UncertaintyOutOfRange { index, .. }
             | FitError::MixedUncertainties { index }
@@ -648,6 +664,9 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
             if !(0.0..90.0).contains(&value) {
                 return Err(FitError::AngleOutOfRange { index, what, value });
             }
+        }
+        if !(0.0..=MAX_SPAN_DEG).contains(&o.theta_r_span_deg) {
+            return Err(FitError::SpanOutOfRange { index, value: o.theta_r_span_deg });
         }
         if !o.radiance_factor.is_finite() {
             return Err(FitError::NotFinite { index, what: "radiance_factor" });
@@ -1471,7 +1490,7 @@ mod tests {
         for ti in [20.0, 30.0, 45.0, 60.0] {
             for k in 0..=140 {
                 let tr = 0.5 * k as f64;
-                out.push(Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: 1.0 + tr * 1e-3, std: Some(0.01) });
+                out.push(Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: 1.0 + tr * 1e-3, std: Some(0.01), theta_r_span_deg: 0.0 });
             }
         }
         out
@@ -1504,6 +1523,43 @@ mod tests {
                         assert!((jac[k][1] - want_a).abs() <= 1e-9 * (want_a.abs() + 1e-6), "A {o:?}: {} vs {want_a}", jac[k][1]);
                     }
                     // The shift column against a difference of the engine's own values.
+                    let column = problem.shift_column(&x);
+                    let h = 1e-4;
+                    let up = Problem::new(&obs, &[], acceptance, shift + h).values(&x);
+                    let down = Problem::new(&obs, &[], acceptance, shift - h).values(&x);
+                    for k in 0..obs.len() {
+                        let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
+                        assert!((column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0), "{acceptance:?} {p:?} reading {k}: {} vs {fd}", column[k]);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Readings taken while the detector moved (a sweep's bins, mixed with still ones): the
+    /// engine's tables give the public model's mean over the travel, its gradient, and
+    /// the shift column, with and without the window.
+    #[test]
+    fn engine_matches_the_model_for_bins() {
+        let obs: Vec<Observation> = grid()
+            .into_iter()
+            .step_by(3)
+            .enumerate()
+            .map(|(k, o)| Observation { theta_r_span_deg: [0.0, 0.06, 0.3, 1.5][k % 4], ..o })
+            .collect();
+        for acceptance in [None, Some(1.0)] {
+            for shift in [0.0, 0.3] {
+                let problem = Problem::new(&obs, &[], acceptance, shift);
+                for p in [Params { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 }, Params { sigma_deg: 21.7, rho_s: 0.409, rho_d: 0.414, eta: 2.5 }] {
+                    let x = x_of(&p);
+                    let values = problem.values(&x);
+                    let (_, jac) = problem.rows(&x);
+                    for (k, o) in obs.iter().enumerate() {
+                        let (v, g) = model::evaluate_reading(&p, o.theta_i_deg, o.theta_r_deg + shift, o.theta_r_span_deg, acceptance);
+                        assert!((values[k] - v).abs() <= 1e-12 * v.abs(), "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}", values[k]);
+                        let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
+                        assert!((jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6), "σ {o:?}: {} vs {want_sigma}", jac[k][0]);
+                    }
                     let column = problem.shift_column(&x);
                     let h = 1e-4;
                     let up = Problem::new(&obs, &[], acceptance, shift + h).values(&x);

@@ -422,6 +422,75 @@ pub fn evaluate(p: &Params, g: &PlaneGeometry, acceptance_deg: Option<f64>) -> (
     }
 }
 
+/// The detector's positions, as (offset from the reading's centre in θr, degrees;
+/// weight), over a reading taken while its arm moved `span_deg` at a constant speed (a
+/// sweep's bin): the reading is the mean over its travel of what a still detector of
+/// window `window_deg` sees, and the weights sum to 1. A still reading (span 0) is its
+/// centre alone. Otherwise the travel is cut into segments of at most half the window and
+/// each gets 3-point Gauss–Legendre: the still detector's reading, a lobe convolved with
+/// the window, is smooth on the scale of the window, so that is within 3e-7 of the
+/// travel's mean for σ ≥ 0.5° (host/tests/model.rs checks it against dense quadrature;
+/// segments of a whole window would err by 5e-6).
+/// The nodes depend on the geometry alone, never on the parameters, so the model does not
+/// jump as σ changes.
+pub fn travel_nodes(span_deg: f64, window_deg: f64) -> Vec<(f64, f64)> {
+    let span = span_deg.abs();
+    if span == 0.0 || !span.is_finite() || !(window_deg > 0.0) {
+        return vec![(0.0, 1.0)];
+    }
+    const X: f64 = 0.774_596_669_241_483_4; // √(3/5)
+    const W: [f64; 3] = [5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0];
+    let segments = (span / (0.5 * window_deg)).ceil().max(1.0) as usize;
+    let width = span / segments as f64;
+    let mut out = Vec::with_capacity(3 * segments);
+    for j in 0..segments {
+        let centre = -0.5 * span + (j as f64 + 0.5) * width;
+        for (k, x) in [-X, 0.0, X].iter().enumerate() {
+            out.push((centre + 0.5 * width * x, W[k] / segments as f64));
+        }
+    }
+    out
+}
+
+/// The widest uniform window the parabola rule of [`window_weights`] is given when a
+/// point detector's travel is the window, degrees: wider, u = F·G/(cos·cos) is no longer
+/// a parabola across it to 1e-6.
+const MAX_TRAVEL_WINDOW_DEG: f64 = 0.5;
+
+/// The window a reading is averaged over, degrees, and the detector's positions across
+/// its travel ([`travel_nodes`]): with an acceptance `a`, the window a and the travel's
+/// nodes; without one, a detector that moved `span` sees a uniform window of the span
+/// itself, taken as n adjacent windows of span/n ≤ 0.5° (exactly the same mean); a still
+/// point detector, no window.
+pub fn reading_window(span_deg: f64, acceptance_deg: Option<f64>) -> (Option<f64>, Vec<(f64, f64)>) {
+    let span = span_deg.abs();
+    match acceptance_deg.filter(|&a| a > 0.0) {
+        Some(a) => (Some(a), travel_nodes(span, a)),
+        None if span > 0.0 && span.is_finite() => {
+            let n = (span / MAX_TRAVEL_WINDOW_DEG).ceil().max(1.0) as usize;
+            let width = span / n as f64;
+            (Some(width), (0..n).map(|j| (-0.5 * span + (j as f64 + 0.5) * width, 1.0 / n as f64)).collect())
+        }
+        None => (None, vec![(0.0, 1.0)]),
+    }
+}
+
+/// Radiance factor and gradient of a reading centred at (θi, θr) whose detector moved
+/// `span_deg` in θr while it integrated (0: a still reading), seen through the acceptance
+/// `acceptance_deg`: the mean over the travel ([`reading_window`]) of [`evaluate`].
+pub fn evaluate_reading(p: &Params, theta_i_deg: f64, theta_r_deg: f64, span_deg: f64, acceptance_deg: Option<f64>) -> (f64, [f64; 4]) {
+    let (window, nodes) = reading_window(span_deg, acceptance_deg);
+    let (mut value, mut gradient) = (0.0, [0.0; 4]);
+    for (offset, weight) in nodes {
+        let (v, g) = evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg + offset), window);
+        value += weight * v;
+        for (total, gi) in gradient.iter_mut().zip(g) {
+            *total += weight * gi;
+        }
+    }
+    (value, gradient)
+}
+
 /// Radiance factor of the TSL model at (θi, θr), degrees.
 pub fn radiance_factor(p: &Params, theta_i_deg: f64, theta_r_deg: f64) -> f64 {
     evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), None).0

@@ -823,7 +823,7 @@ fn write_session(recorder: &mut FileRecorder, sample: &str, info: &protocol::Dev
     // out of the export.
     let observations: Vec<Observation> = outcome
         .current_points()
-        .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std }))
+        .filter_map(|p| Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor: p.radiance_factor?, std: p.std, theta_r_span_deg: 0.0 }))
         .collect();
     let meta = crate::output::export::AstmMetadata {
         sample: sample.to_string(),

@@ -230,7 +230,7 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             radiance_factor.abs() <= MAX_RADIANCE_FACTOR,
             &format!("beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"),
         )?;
-        let observation = Observation { theta_i_deg: number(col_ti, "theta_i")?, theta_r_deg: number(col_tr, "theta_r")?, radiance_factor, std };
+        let observation = Observation { theta_i_deg: number(col_ti, "theta_i")?, theta_r_deg: number(col_tr, "theta_r")?, radiance_factor, std, theta_r_span_deg: 0.0 };
         let sample = col_sample.map_or(default_sample, |c| &*fields[c]);
         // Files list one sample after another: look at the last set first.
         let index = match sets.last() {

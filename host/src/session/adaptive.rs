@@ -380,7 +380,7 @@ mod tests {
     fn noise_model_recovers_floor_and_relative_terms() {
         let obs: Vec<Observation> = [0.5, 1.0, 5.0, 20.0]
             .iter()
-            .map(|&r| Observation { theta_i_deg: 20.0, theta_r_deg: 0.0, radiance_factor: r, std: Some((1e-6 + 1e-4 * r * r).sqrt()) })
+            .map(|&r| Observation { theta_i_deg: 20.0, theta_r_deg: 0.0, radiance_factor: r, std: Some((1e-6 + 1e-4 * r * r).sqrt()), theta_r_span_deg: 0.0 })
             .collect();
         let m = NoiseModel::fit(&obs);
         assert!((m.variance(10.0) - (1e-6 + 1e-2)).abs() < 1e-9);

@@ -887,7 +887,7 @@ pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observa
         .filter(|(_, p)| !p.superseded)
         .filter_map(|(k, p)| {
             let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
-            seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std }))
+            seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std, theta_r_span_deg: 0.0 }))
         })
         .unzip()
 }

@@ -71,7 +71,7 @@ pub fn synthetic(
             let f = windowed_truth(p, ti, tr, acceptance_deg);
             let std = (rel * f).hypot(abs);
             let y = if std > 0.0 { (f + std * standard_normal(&mut rng)).max(0.0) } else { f };
-            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: y, std: with_std.then_some(std) }
+            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: y, std: with_std.then_some(std), theta_r_span_deg: 0.0 }
         })
         .collect()
 }
@@ -213,7 +213,7 @@ pub fn draw(truth: &[(f64, f64, f64)], instrument: &Instrument, seed: u64) -> (V
             let scaled = f * (1.0 + instrument.white_rel * white[k]) * (1.0 + instrument.tile_rel * tile);
             let std = (instrument.rel * f).hypot(instrument.abs);
             let y = (scaled + std * standard_normal(&mut rng)).max(0.0);
-            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: y, std: instrument.with_std.then_some(std) }
+            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: y, std: instrument.with_std.then_some(std), theta_r_span_deg: 0.0 }
         })
         .collect();
     let mut shared = Vec::new();

@@ -19,6 +19,8 @@ use crate::analysis::model::{self, Params, PlaneGeometry};
 pub(super) struct Point {
     /// Geometry at the window's centre (θr shifted by the arm offset in use).
     pub geometry: PlaneGeometry,
+    /// The detector's travel while the reading integrated, degrees (0: a still reading).
+    pub span_deg: f64,
     pub y: f64,
     /// sqrt of the weight 1/std² (1 without uncertainties).
     pub sqrt_w: f64,
@@ -42,6 +44,10 @@ struct Piece {
     psi: [u32; 3],
     /// G/(cos θi cos θr) there (ends 0 without a window).
     h: [f64; 3],
+    /// Its share of the reading beyond its share of the acceptance window (which the lobe
+    /// table holds): its place's weight along the detector's travel, and without an
+    /// acceptance its width over the travel window's (1 for every piece of a still reading).
+    share: f64,
 }
 
 /// The shared errors, whitened, with the Cholesky factor of M = I + S̃ᵀS̃.
@@ -155,47 +161,59 @@ impl Problem {
         let acceptance_deg = acceptance_deg.filter(|&a| a > 0.0);
         let centres: Vec<PlaneGeometry> =
             observations.iter().map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift_deg)).collect();
-        // Per reading its pieces as (offset of the middle, width, the three nodes).
-        let mut raw_pieces: Vec<(f64, f64, [PlaneGeometry; 3])> = Vec::with_capacity(centres.len());
+        // Per reading its pieces as (lobe offset: of the piece's middle with a window, |θr − θi|
+        // without; the piece's width, 0 without a window; its three nodes; its share of the
+        // reading). A reading taken while the detector moved (a sweep's bin) is the mean of
+        // the windows along its travel (model::reading_window).
+        let mut raw_pieces: Vec<(f64, f64, [PlaneGeometry; 3], f64)> = Vec::with_capacity(centres.len());
         let mut ranges = Vec::with_capacity(centres.len());
-        for g in &centres {
+        for (o, g) in observations.iter().zip(&centres) {
             let start = raw_pieces.len() as u32;
-            match acceptance_deg {
-                Some(a) => {
-                    for (mid, width, nodes) in model::window_nodes(g.theta_i_deg, g.theta_r_deg, a) {
-                        raw_pieces.push((mid - g.theta_i_deg, width, nodes));
+            let (window, travel) = model::reading_window(o.theta_r_span_deg, acceptance_deg);
+            for (along, weight) in travel {
+                let theta_r = g.theta_r_deg + along;
+                match window {
+                    Some(a) => {
+                        for (mid, width, nodes) in model::window_nodes(g.theta_i_deg, theta_r, a) {
+                            // The share of the acceptance window is in the lobe table; of a
+                            // travel window (no acceptance), here.
+                            let share = if acceptance_deg.is_some() { weight } else { weight * width / a };
+                            raw_pieces.push((mid - g.theta_i_deg, width, nodes, share));
+                        }
+                    }
+                    None => {
+                        let point = if along == 0.0 { *g } else { PlaneGeometry::new(g.theta_i_deg, theta_r) };
+                        raw_pieces.push((point.offset_deg.abs(), 0.0, [point; 3], weight));
                     }
                 }
-                None => raw_pieces.push((g.offset_deg.abs(), 0.0, [*g, *g, *g])),
             }
             ranges.push((start, raw_pieces.len() as u32));
         }
         let offsets_raw: Vec<f64> = centres.iter().map(|g| if acceptance_deg.is_some() { g.offset_deg } else { g.offset_deg.abs() }).collect();
         let keys: Vec<(f64, f64)> = raw_pieces.iter().map(|p| (p.0, p.1)).collect();
-        // Without a window a piece is its middle node only.
-        let nodes_per_piece = if acceptance_deg.is_some() { 3 } else { 1 };
-        let psi_keys: Vec<(f64, f64)> = raw_pieces
-            .iter()
-            .flat_map(|p| p.2.iter().skip(3 - nodes_per_piece).take(nodes_per_piece).map(|g| (g.sin2_psi, g.cos_psi)))
-            .collect();
+        // A piece without a window is its middle node only.
+        let psi_keys: Vec<(f64, f64)> = raw_pieces.iter().flat_map(|p| p.2.iter().map(|g| (g.sin2_psi, g.cos_psi))).collect();
         let pair = |(a, b): (f64, f64)| ((a.to_bits() as u128) << 64) | b.to_bits() as u128;
         let (offsets, offset_index) = distinct(&offsets_raw, |v| v.to_bits() as u128);
         let (lobe_keys, lobe_index) = distinct(&keys, pair);
         let (psis, psi_index) = distinct(&psi_keys, pair);
         let centre_keys: Vec<(f64, f64)> = centres.iter().map(|g| (g.sin2_psi, g.cos_psi)).collect();
         let (centre_psis, centre_index) = distinct(&centre_keys, pair);
-        let windowed = acceptance_deg.is_some();
         let pieces = raw_pieces
             .iter()
             .enumerate()
-            .map(|(k, (_, _, nodes))| Piece {
-                lobe: lobe_index[k],
-                psi: if windowed { [psi_index[3 * k], psi_index[3 * k + 1], psi_index[3 * k + 2]] } else { [psi_index[k]; 3] },
-                h: if windowed {
-                    std::array::from_fn(|e| nodes[e].attenuation_over_cosines)
-                } else {
-                    [0.0, nodes[1].attenuation_over_cosines, 0.0]
-                },
+            .map(|(k, (_, width, nodes, share))| {
+                let windowed = *width > 0.0;
+                Piece {
+                    lobe: lobe_index[k],
+                    psi: if windowed { [psi_index[3 * k], psi_index[3 * k + 1], psi_index[3 * k + 2]] } else { [psi_index[3 * k + 1]; 3] },
+                    h: if windowed {
+                        std::array::from_fn(|e| nodes[e].attenuation_over_cosines)
+                    } else {
+                        [0.0, nodes[1].attenuation_over_cosines, 0.0]
+                    },
+                    share: *share,
+                }
             })
             .collect();
         let points = observations
@@ -204,6 +222,7 @@ impl Problem {
             .enumerate()
             .map(|(k, (o, geometry))| Point {
                 geometry: *geometry,
+                span_deg: o.theta_r_span_deg,
                 y: o.radiance_factor,
                 sqrt_w: o.std.map_or(1.0, |s| 1.0 / s),
                 offset: offset_index[k],
@@ -227,20 +246,22 @@ impl Problem {
     }
 
     /// Fill `out` with the lobe's window weights on each distinct piece, scaled by the
-    /// piece's share of the window (or the point lobe without a window), at σ.
+    /// piece's share of the acceptance window (a piece of width 0: the point lobe), at σ;
+    /// a reading taken while moving scales them further by its pieces' shares of its travel.
     fn lobe_table(&self, sigma_deg: f64, out: &mut Vec<LobeEntry>) {
         out.clear();
-        match self.acceptance_deg {
-            Some(a) => out.extend(self.lobe_keys.iter().map(|&(o, width)| {
+        out.extend(self.lobe_keys.iter().map(|&(o, width)| {
+            if width > 0.0 {
                 let (w, dw) = model::window_weights(o, sigma_deg, width);
-                let share = width / a;
+                // Without an acceptance the window is a moving detector's travel, whose
+                // share is all in the piece's.
+                let share = self.acceptance_deg.map_or(1.0, |a| width / a);
                 (w.map(|v| v * share), dw.map(|v| v * share))
-            })),
-            None => out.extend(self.lobe_keys.iter().map(|&(o, _)| {
+            } else {
                 let (e, de) = model::lobe_with_derivative(o, sigma_deg);
                 ([0.0, e, 0.0], [0.0, de, 0.0])
-            })),
-        }
+            }
+        }));
     }
 
     /// The lobe alone (window mean M0, or the point lobe) per distinct reading offset: the
@@ -266,11 +287,16 @@ impl Problem {
         let nodes = if self.acceptance_deg.is_some() { 0..3 } else { 1..2 };
         for piece in &self.pieces[pt.pieces.0 as usize..pt.pieces.1 as usize] {
             let (w, dw) = &lobe[piece.lobe as usize];
-            for e in nodes.clone() {
+            // A still reading's pieces have share 1: its terms are added as they are, so
+            // its model is the same to the last bit as before bins were modelled.
+            let share = piece.share;
+            // A moving point detector's pieces are windows (its travel) even without an
+            // acceptance: all three nodes (zero at the ends of a point piece).
+            for e in if pt.span_deg > 0.0 { 0..3 } else { nodes.clone() } {
                 let (f, df) = fresnel[piece.psi[e] as usize];
-                let wh = w[e] * piece.h[e];
+                let (wh, dwh) = if share == 1.0 { (w[e] * piece.h[e], dw[e] * piece.h[e]) } else { (share * w[e] * piece.h[e], share * dw[e] * piece.h[e]) };
                 shape += wh * f;
-                d_sigma += dw[e] * piece.h[e] * f;
+                d_sigma += dwh * f;
                 d_eta += wh * df;
             }
         }
@@ -793,9 +819,13 @@ impl Problem {
                     .map(|&o| (model::lobe_with_derivative(o - h, sigma).0, model::lobe_with_derivative(o + h, sigma).0))
                     .collect();
                 let fresnel: Vec<f64> = self.psis.iter().map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, x[3]).0).collect();
+                let p = params_of(x);
                 self.points
                     .iter()
                     .map(|pt| {
+                        if pt.span_deg > 0.0 {
+                            return pt.sqrt_w * self.moving_shift_derivative(&p, pt);
+                        }
                         let (l_lo, l_hi) = edges[pt.offset as usize];
                         let first = &self.pieces[pt.pieces.0 as usize];
                         let last = &self.pieces[pt.pieces.1 as usize - 1];
@@ -810,6 +840,9 @@ impl Problem {
                 self.points
                     .iter()
                     .map(|pt| {
+                        if pt.span_deg > 0.0 {
+                            return pt.sqrt_w * self.moving_shift_derivative(&p, pt);
+                        }
                         let (ti, tr) = (pt.geometry.theta_i_deg, pt.geometry.theta_r_deg);
                         let up = model::evaluate(&p, &PlaneGeometry::new(ti, tr + step), None).0;
                         let down = model::evaluate(&p, &PlaneGeometry::new(ti, tr - step), None).0;
@@ -818,5 +851,14 @@ impl Problem {
                     .collect()
             }
         }
+    }
+
+    /// ∂f/∂δ0 of a reading taken while the detector moved: a central difference of its
+    /// mean over the travel (model::evaluate_reading), the travel moving with the zero.
+    fn moving_shift_derivative(&self, p: &Params, pt: &Point) -> f64 {
+        let step = 1e-4;
+        let (ti, tr) = (pt.geometry.theta_i_deg, pt.geometry.theta_r_deg);
+        let at = |d: f64| model::evaluate_reading(p, ti, tr + d, pt.span_deg, self.acceptance_deg).0;
+        (at(step) - at(-step)) / (2.0 * step)
     }
 }
