@@ -1,6 +1,7 @@
 //! Measured data sets from CSV: a header naming `theta_i`, `theta_r` (degrees) and
-//! `radiance_factor`, optionally `std` (standard uncertainty) and `sample` (several data
-//! sets in one file). Columns may come in any order; blank lines and lines starting with
+//! `radiance_factor`, optionally `std` (standard uncertainty), `theta_r_span` (degrees the
+//! detector moved while a reading integrated: a sweep's bin, centred on `theta_r`; empty or
+//! absent for a still reading) and `sample` (several data sets in one file). Columns may come in any order; blank lines and lines starting with
 //! `#` are skipped; a UTF-8 byte-order mark at the start is ignored. Errors carry the
 //! 1-based line number.
 //!
@@ -184,7 +185,7 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
     let find = |c: &str| names.iter().position(|n| n == c);
     let required = |c: &'static str| find(c).ok_or(DatasetError::MissingColumn { line: header_line, column: c });
     let (col_ti, col_tr, col_rf) = (required("theta_i")?, required("theta_r")?, required("radiance_factor")?);
-    let (col_std, col_sample) = (find("std"), find("sample"));
+    let (col_std, col_sample, col_span) = (find("std"), find("sample"), find("theta_r_span"));
 
     let mut sets: Vec<DataSet> = Vec::new();
     // Sample name → index in `sets`, for files with many data sets.
@@ -230,7 +231,14 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             radiance_factor.abs() <= MAX_RADIANCE_FACTOR,
             &format!("beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"),
         )?;
-        let observation = Observation { theta_i_deg: number(col_ti, "theta_i")?, theta_r_deg: number(col_tr, "theta_r")?, radiance_factor, std, theta_r_span_deg: 0.0 };
+        let theta_r_span_deg = match col_span {
+            Some(c) if !fields[c].is_empty() => {
+                let span = number(c, "theta_r_span")?;
+                within(span, "theta_r_span", c, (0.0..=crate::analysis::fit::MAX_SPAN_DEG).contains(&span), &format!("outside 0 … {}°, the detector's travel a bin can have", crate::analysis::fit::MAX_SPAN_DEG))?
+            }
+            _ => 0.0,
+        };
+        let observation = Observation { theta_i_deg: number(col_ti, "theta_i")?, theta_r_deg: number(col_tr, "theta_r")?, radiance_factor, std, theta_r_span_deg };
         let sample = col_sample.map_or(default_sample, |c| &*fields[c]);
         // Files list one sample after another: look at the last set first.
         let index = match sets.last() {
@@ -297,6 +305,18 @@ mod tests {
         assert_eq!(sets[0].sample, "A");
         assert_eq!(sets[0].lines, [2, 6]);
         assert_eq!(sets[1].observations[0].std, Some(0.02));
+    }
+
+    #[test]
+    fn a_bins_travel_is_read_from_its_column() {
+        let text = "theta_i,theta_r,radiance_factor,std,theta_r_span\n60,59.5,40,0.1,0.25\n60,60,50,0.1,\n";
+        let sets = parse_csv(text, "f").unwrap();
+        assert_eq!(sets[0].observations.iter().map(|o| o.theta_r_span_deg).collect::<Vec<_>>(), [0.25, 0.0]);
+        for (bad, why) in [("-0.1", "outside 0"), ("25", "outside 0"), ("x", "not a number")] {
+            let text = format!("theta_i,theta_r,radiance_factor,theta_r_span\n60,59.5,40,{bad}\n");
+            let err = parse_csv(&text, "f").unwrap_err().to_string();
+            assert!(err.contains("line 2") && err.contains("theta_r_span") && err.contains(why), "{bad}: {err}");
+        }
     }
 
     #[test]

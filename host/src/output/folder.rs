@@ -32,6 +32,14 @@ pub const LOG: &str = "session.log";
 pub const MANIFEST: &str = "MANIFEST.sha256";
 /// The header of [`READINGS`].
 pub const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
+/// The header of [`READINGS`] once a reading was taken while the detector moved (a sweep's
+/// bin): its travel in θr, degrees, in a fifth column.
+pub const READINGS_HEADER_WITH_SPAN: &str = "theta_i,theta_r,radiance_factor,std,theta_r_span";
+
+/// The header `readings.csv` has for `points`: the span column once any was taken moving.
+pub fn readings_header(points: &[MeasuredPoint]) -> &'static str {
+    if points.iter().any(|p| p.theta_r_span_deg > 0.0) { READINGS_HEADER_WITH_SPAN } else { READINGS_HEADER }
+}
 
 /// Where a session stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -330,20 +338,26 @@ pub fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
 }
 
 /// The `readings.csv` row of a reading (with its newline), if it was converted and is not
-/// superseded (`readings.csv` holds what the result rests on, for `gonio fit`). Numbers in
-/// Rust's shortest round-trip form: parsing them gives the recorded f64 exactly.
-pub fn csv_row(point: &MeasuredPoint) -> Option<String> {
+/// superseded (`readings.csv` holds what the result rests on, for `gonio fit`), under the
+/// header `header` (with or without the span column). Numbers in Rust's shortest
+/// round-trip form: parsing them gives the recorded f64 exactly.
+pub fn csv_row(point: &MeasuredPoint, header: &str) -> Option<String> {
     if point.superseded {
         return None;
     }
     let (r, u) = (point.radiance_factor?, point.std?);
-    Some(format!("{},{},{r},{u}\n", point.theta_i_deg, point.theta_r_deg))
+    Some(if header == READINGS_HEADER_WITH_SPAN {
+        format!("{},{},{r},{u},{}\n", point.theta_i_deg, point.theta_r_deg, point.theta_r_span_deg)
+    } else {
+        format!("{},{},{r},{u}\n", point.theta_i_deg, point.theta_r_deg)
+    })
 }
 
 /// `readings.csv` as `points.jsonl` says it must be.
 pub fn readings_csv(points: &[MeasuredPoint]) -> String {
-    let mut text = format!("{READINGS_HEADER}\n");
-    text.extend(points.iter().filter_map(csv_row));
+    let header = readings_header(points);
+    let mut text = format!("{header}\n");
+    text.extend(points.iter().filter_map(|p| csv_row(p, header)));
     text
 }
 
@@ -402,24 +416,42 @@ pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint], re
 }
 
 fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
-    let expected: Vec<String> = points.iter().filter_map(csv_row).map(|r| r.trim_end().to_string()).collect();
+    let wanted = readings_header(points);
+    let expected_with = |header: &str| -> Vec<String> { points.iter().filter_map(|p| csv_row(p, header)).map(|r| r.trim_end().to_string()).collect() };
     if !file.exists {
-        return CsvAgreement::Behind { missing: expected.len(), cut: false };
+        return CsvAgreement::Behind { missing: expected_with(wanted).len(), cut: false };
     }
     let mut lines = file.lines.iter();
-    match lines.next() {
-        Some((_, header)) if header == READINGS_HEADER => {}
-        Some((line, header)) => return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("header is '{header}', not '{READINGS_HEADER}'"))),
+    // The file's header: the one its readings need, or the one without the span column
+    // while no reading was taken moving yet (the file is rewritten with the span column
+    // when the first bin arrives).
+    let header = match lines.next() {
+        Some((_, header)) if header == wanted || (header == READINGS_HEADER && wanted == READINGS_HEADER) => wanted,
+        Some((line, header)) if header == READINGS_HEADER => {
+            // What a crash between the first bin's record and the rewrite leaves: the rows
+            // of the readings before it, under the old header; a resume rebuilds the file.
+            let first_moving = points.iter().position(|p| p.theta_r_span_deg > 0.0).unwrap_or(points.len());
+            return match csv_agreement_with(path, file, &points[..first_moving]) {
+                CsvAgreement::Differs(_) => CsvAgreement::Differs(Problem::new(
+                    path,
+                    Some(*line),
+                    format!("header is '{header}', without the theta_r_span column the readings taken while moving need"),
+                )),
+                _ => CsvAgreement::Stale { superseded: 0 },
+            };
+        }
+        Some((line, header)) => return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("header is '{header}', not '{wanted}'"))),
         // Only the header, cut short (or nothing): a crash right after the file was made.
         None => {
             return match &file.cut_tail {
-                Some(tail) if !READINGS_HEADER.as_bytes().starts_with(tail) => {
-                    CsvAgreement::Differs(Problem::new(path, Some(1), format!("'{}' is not the header '{READINGS_HEADER}'", String::from_utf8_lossy(tail))))
+                Some(tail) if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN].iter().any(|h| h.as_bytes().starts_with(tail)) => {
+                    CsvAgreement::Differs(Problem::new(path, Some(1), format!("'{}' is not the header '{wanted}'", String::from_utf8_lossy(tail))))
                 }
-                tail => CsvAgreement::Behind { missing: expected.len(), cut: tail.is_some() },
+                tail => CsvAgreement::Behind { missing: expected_with(wanted).len(), cut: tail.is_some() },
             };
         }
-    }
+    };
+    let expected = expected_with(header);
     let rows: Vec<&(usize, String)> = lines.collect();
     if rows.len() > expected.len() {
         let (line, text) = rows[expected.len()];
@@ -634,6 +666,45 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn point(theta_r_deg: f64, theta_r_span_deg: f64, index: u16) -> MeasuredPoint {
+        MeasuredPoint {
+            theta_i_deg: 60.0,
+            theta_r_deg,
+            theta_r_span_deg,
+            radiance_factor: Some(1.0 + theta_r_deg / 100.0),
+            std: Some(0.01),
+            reading: protocol::Reading { mean_counts: 1000.0, std_counts: 5.0, samples: 100, range: 0, integration_ms: 100, saturated: false },
+            schedule_id: 1,
+            index,
+            device_time_us: u64::from(index) * 1000,
+            note: None,
+            superseded: false,
+        }
+    }
+
+    /// readings.csv gains its span column with the first bin; a file a crash left under
+    /// the old header, with the rows of the readings before the bin, is stale (a resume
+    /// rebuilds it); one whose rows are not those readings is damage.
+    #[test]
+    fn readings_csv_takes_the_span_column_with_the_first_bin() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(READINGS);
+        let still = vec![point(50.0, 0.0, 0), point(55.0, 0.0, 1)];
+        let mut moving = still.clone();
+        moving.push(point(59.5, 0.25, 2));
+        assert!(readings_csv(&still).starts_with(&format!("{READINGS_HEADER}\n")));
+        let text = readings_csv(&moving);
+        assert!(text.starts_with(&format!("{READINGS_HEADER_WITH_SPAN}\n")) && text.contains("55,1.55,0.01,0\n") && text.ends_with(",0.25\n"), "{text}");
+        let agree = |content: &str| {
+            std::fs::write(&path, content).unwrap();
+            csv_agreement(&path, &read_lines(&path).unwrap(), &moving, &moving)
+        };
+        assert_eq!(agree(&text), CsvAgreement::Agrees);
+        assert_eq!(agree(&readings_csv(&still)), CsvAgreement::Stale { superseded: 0 });
+        assert_eq!(agree(&readings_csv(&still[..1])), CsvAgreement::Stale { superseded: 0 });
+        assert!(matches!(agree(&readings_csv(&still).replace("1.55", "9.55")), CsvAgreement::Differs(_)));
+    }
 
     #[test]
     fn lines_and_a_cut_tail() {

@@ -616,8 +616,15 @@ impl Recorder for FileRecorder {
         self.check_failed()?;
         // The primary record first, synced; the CSV row after it is derived from it.
         self.store.append(POINTS, folder::point_line(point)?.as_bytes(), Sync::Data)?;
+        let header_before = folder::readings_header(&self.points);
         self.points.push(point.clone());
-        if let Some(row) = folder::csv_row(point) {
+        let header = folder::readings_header(&self.points);
+        if header != header_before {
+            // The first reading taken while moving: readings.csv gains its span column
+            // (rewritten whole; a crash before leaves it stale, which a resume rebuilds).
+            return self.store.replace(READINGS, folder::readings_csv(&self.points).as_bytes());
+        }
+        if let Some(row) = folder::csv_row(point, header) {
             self.store.append(READINGS, row.as_bytes(), Sync::Never)?;
         }
         Ok(())

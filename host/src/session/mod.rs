@@ -128,8 +128,13 @@ pub struct Plan {
 pub struct MeasuredPoint {
     /// Incidence angle reached, degrees.
     pub theta_i_deg: f64,
-    /// Detection angle reached, degrees.
+    /// Detection angle reached, degrees; for a sweep's bin, the middle of its travel.
     pub theta_r_deg: f64,
+    /// How far the detector arm moved while the reading integrated, degrees: a sweep's
+    /// bin spans θr ± span/2; 0 for a reading taken with the arms still (and for every
+    /// reading recorded before sweeps existed).
+    #[serde(default)]
+    pub theta_r_span_deg: f64,
     /// Radiance factor; `None` when the reading cannot be converted (see `note`).
     pub radiance_factor: Option<f64>,
     /// Its standard uncertainty.
@@ -877,8 +882,9 @@ pub struct AnalysisSettings {
     pub arm_zero_uncertainty_deg: f64,
 }
 
-/// The readings the result rests on (converted, not superseded, the last of each
-/// geometry once), as fit observations, with their indices in `points`.
+/// The readings the result rests on (converted, not superseded, each still geometry
+/// once: the first reading of it), as fit observations, with their indices in `points`.
+/// A sweep's bins are each their own reading (two sweeps may put bins at one θr).
 pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
     let mut seen = BTreeSet::new();
     points
@@ -887,7 +893,8 @@ pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observa
         .filter(|(_, p)| !p.superseded)
         .filter_map(|(k, p)| {
             let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
-            seen.insert(g).then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std, theta_r_span_deg: 0.0 }))
+            let first = p.theta_r_span_deg > 0.0 || seen.insert(g);
+            first.then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std, theta_r_span_deg: p.theta_r_span_deg }))
         })
         .unzip()
 }
