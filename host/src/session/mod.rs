@@ -28,6 +28,7 @@ mod recovery;
 mod schedule;
 pub mod sheet;
 mod steps;
+pub mod sweep;
 mod white;
 
 pub use operator::{DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};

@@ -113,6 +113,15 @@ impl Motion {
         total
     }
 
+    /// The firmware's time for a sweep of the detector arm from `from_deg` to `to_deg` at a
+    /// top speed of `speed_deg_per_s` (from rest to rest at the instrument's
+    /// acceleration), µs; the source arm holds still.
+    pub fn sweep_us(&self, from_deg: f64, to_deg: f64, speed_deg_per_s: f64) -> u64 {
+        let to_steps = |deg: f64| protocol::Angle::from_deg(deg).map_or(0, angle_to_steps).clamp(-STEPS_LIMIT, STEPS_LIMIT);
+        let top = deg_to_steps(speed_deg_per_s as f32).min(self.max_speed_steps_per_s);
+        firmware::motion::MoveProfile::fastest(to_steps(from_deg), to_steps(to_deg), 0.0, top, self.accel_steps_per_s2).duration_us()
+    }
+
     /// Settling time after a move, µs.
     pub fn settle_us(&self) -> u64 {
         self.settle_us
