@@ -7,8 +7,10 @@
 //!    [`crate::hardware::Arms`], [`crate::hardware::Detector`] and
 //!    [`crate::hardware::Lamp`] (timer-driven step generators, home switches, driver
 //!    fault pins, TIA range pins + ADC samples, lamp pin) and `reset_cause` comes from
-//!    RCC_CSR ([`ResetCause::Watchdog`] after an IWDG reset: reported as a fault, arms
-//!    not homed). `new` switches the lamp off.
+//!    RCC_CSR and the board's fault record ([`crate::fault`]): after an IWDG reset
+//!    ([`ResetCause::Watchdog`]) or the fail-safe reset of a panic or a processor fault
+//!    ([`ResetCause::Fault`]) it is reported as a fault, arms not homed; the handshake
+//!    announces it. `new` switches the lamp off.
 //! 2. For every chunk of bytes from USB: `device.receive(bytes, now_us, &mut send)`;
 //!    `send` gets whole frames to write back, in order.
 //! 3. Often, and at least every millisecond while anything runs (homing samples the
@@ -72,7 +74,7 @@ use crate::link::{Incoming, Link};
 use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
 use protocol::{
-    Command, DeviceError, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
+    Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
     PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource, Status, StreamReading, Target,
 };
 
@@ -153,6 +155,8 @@ pub struct Device<H: Hardware> {
     last_range: u8,
     /// Announced in the handshake; see [`Device::with_serial_number`].
     serial_number: heapless::String<24>,
+    /// Why the MCU last came out of reset, announced in the handshake.
+    reset_cause: ResetCause,
 }
 
 type Answer = Option<Result<Reply, DeviceError>>;
@@ -161,7 +165,9 @@ impl<H: Hardware> Device<H> {
     /// A device just out of reset, driving `hardware`.
     pub fn new(config: InstrumentConfig, mut hardware: H, reset_cause: ResetCause) -> Device<H> {
         hardware.set_lamp(false);
-        let watchdog = reset_cause == ResetCause::Watchdog;
+        // After a watchdog reset or a fault of the firmware's own, the arms may have moved
+        // while nobody counted: not homed, and the reason stands until the next homing.
+        let fault = reset_cause.fault();
         Device {
             config,
             link: Link::new(),
@@ -175,13 +181,14 @@ impl<H: Hardware> Device<H> {
             homed_since_reset: [false; 2],
             count_trusted: [false; 2],
             driver_fault_seen: false,
-            fault: watchdog.then_some(ErrorCode::WatchdogReset),
-            safe_stopped: watchdog,
+            fault,
+            safe_stopped: fault.is_some(),
             motion: ArmMotion::new(),
             activity: Activity::Idle,
             uploaded: UploadedSchedule::new(),
             last_range: 0,
             serial_number: heapless::String::new(),
+            reset_cause,
         }
     }
 
@@ -403,7 +410,7 @@ impl<H: Hardware> Device<H> {
             self.link.new_session();
             return Some(if protocol_version == PROTOCOL_VERSION {
                 self.handshake_done = true;
-                Ok(Reply::Hello(self.config.device_info(&self.serial_number)))
+                Ok(Reply::Hello(DeviceInfo { reset_cause: self.reset_cause, ..self.config.device_info(&self.serial_number) }))
             } else {
                 self.handshake_done = false;
                 self.refused_version = Some(protocol_version);

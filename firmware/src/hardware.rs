@@ -69,12 +69,6 @@ pub trait Hardware: Arms + Detector + Lamp {}
 
 impl<T: Arms + Detector + Lamp> Hardware for T {}
 
-/// Why the MCU last came out of reset (the board reads it from RCC_CSR).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum ResetCause {
-    /// Power-up, reset pin, or a software reset.
-    PowerOn,
-    /// The independent watchdog reset a hung MCU: reported as a fault until homed.
-    Watchdog,
-}
+/// Why the MCU last came out of reset: the board reads RCC_CSR and the fault record that
+/// its fail-safe reset left in RAM ([`crate::fault`]); announced in the handshake.
+pub use protocol::ResetCause;
