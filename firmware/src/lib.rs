@@ -9,7 +9,10 @@
 //! - [`hardware`]: the traits a board implements (arms, detector, lamp).
 //! - [`motion`]: angle ↔ microsteps, velocity profiles, both arms arriving together.
 //! - [`homing`]: one arm's homing state machine.
+//! - [`stepgen`]: step pulses from a hardware timer (segments, runt-free replacement,
+//!   late-interrupt detection), behind [`stepgen::StepTimer`].
 //! - [`detector`]: reading statistics and auto-ranging.
+//! - [`sampling`]: ADC decimation and the sample ring, with the overrun rule.
 //! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
 //! - [`config`]: the reference instrument's limits, announced in the handshake.
 //! - [`testing`]: hardware models on virtual time, for the tests and the simulator.
@@ -23,7 +26,9 @@ pub mod hardware;
 pub mod homing;
 pub mod link;
 pub mod motion;
+pub mod sampling;
 pub mod schedule;
+pub mod stepgen;
 pub mod testing;
 
 pub use device::Device;
