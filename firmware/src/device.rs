@@ -35,8 +35,13 @@
 //!
 //! SAFETY: one fail-safe stop path ([`Device::fail_safe_stop`]), taken on heartbeat loss
 //! (no frame for `heartbeat_timeout_ms` while an arm moves, the lamp is on, or a homing or
-//! schedule runs), on a driver fault, on a dead detector and when the arms come to rest
-//! off their target. It ramps both arms down, switches the lamp off, ends whatever runs (a
+//! schedule runs), on a driver fault, on a dead detector, when the arms come to rest off
+//! their target, on a step interrupt that ran too late ([`ErrorCode::StepLate`]: the arms
+//! always lose their homing) and on lost detector samples ([`ErrorCode::AdcOverrun`]: an
+//! overrun of the ADC path is seen at the poll after it, reading or not; a reading with a
+//! gap fails). The board's panic
+//! and processor-fault handlers have their own stop, outputs first, then a reset
+//! ([`crate::fault`]). It ramps both arms down, switches the lamp off, ends whatever runs (a
 //! pending command is answered with the reason, a schedule ends with it), records the
 //! reason in `Status::fault` and sends `Stopped`. The homing survives it only when it
 //! cannot have been spoiled, and the decision is made there, from the state at the moment
@@ -272,6 +277,14 @@ impl<H: Hardware> Device<H> {
             self.fail_safe_stop(ErrorCode::HardwareFault, send);
         }
         self.driver_fault_seen = driver_fault;
+        // A step interrupt too late: a step may have gone uncounted (the timer stopped).
+        if Arm::BOTH.iter().any(|&arm| self.hardware.take_step_fault(arm)) {
+            self.fail_safe_stop(ErrorCode::StepLate, send);
+        }
+        // The ADC path overran: seen when it happens, reading or not.
+        if self.hardware.take_sample_fault().is_some() {
+            self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+        }
         let needs_host = self.lamp_on
             || matches!(self.activity, Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_));
         let silent_us = now_us.saturating_sub(self.last_heard_us);
@@ -302,15 +315,23 @@ impl<H: Hardware> Device<H> {
                     self.activity = Activity::Reading { seq, reading };
                     self.fail_safe_stop(ErrorCode::HardwareFault, send);
                 }
+                ReadingProgress::SamplesLost(_) => {
+                    self.activity = Activity::Reading { seq, reading };
+                    self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+                }
             },
             Activity::Dark { seq, mut integration, mut readings } => {
                 match integration.poll(&mut self.hardware, now_us) {
-                    None => self.activity = Activity::Dark { seq, integration, readings },
-                    Some(stats) if stats.count() == 0 => {
+                    Err(_) => {
+                        self.activity = Activity::Dark { seq, integration, readings };
+                        self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+                    }
+                    Ok(None) => self.activity = Activity::Dark { seq, integration, readings },
+                    Ok(Some(stats)) if stats.count() == 0 => {
                         self.activity = Activity::Dark { seq, integration, readings };
                         self.fail_safe_stop(ErrorCode::HardwareFault, send);
                     }
-                    Some(stats) => {
+                    Ok(Some(stats)) => {
                         let saturated = is_saturated(&self.config, integration.range(), stats.max());
                         let _ = readings.push(integration.reading(&stats, saturated));
                         let next = integration.range() + 1;
@@ -342,7 +363,8 @@ impl<H: Hardware> Device<H> {
     /// device is `Stopped`). See the module doc.
     pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
         let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
-        let keeps_homing = !self.mid_move() && !driver_fault.contains(&true);
+        // A late step interrupt may have cost a step whatever the arms do now.
+        let keeps_homing = !self.mid_move() && !driver_fault.contains(&true) && reason != ErrorCode::StepLate;
         self.halt(reason, send);
         self.hardware.set_lamp(false);
         self.lamp_on = false;
@@ -687,6 +709,10 @@ impl<H: Hardware> Device<H> {
                 ReadingProgress::NoSamples => {
                     self.activity = Activity::Schedule(run);
                     return self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                }
+                ReadingProgress::SamplesLost(_) => {
+                    self.activity = Activity::Schedule(run);
+                    return self.fail_safe_stop(ErrorCode::AdcOverrun, send);
                 }
                 ReadingProgress::Done(reading) => {
                     self.last_range = reading.range;

@@ -15,6 +15,8 @@
 //! - [`sampling`]: ADC decimation and the sample ring, with the overrun rule.
 //! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
 //! - [`config`]: the reference instrument's limits, announced in the handshake.
+//! - [`fault`]: the fault handlers' safe stop, their record across the reset, the reset cause.
+//! - [`txqueue`]: frames for the host, queued whole or dropped whole.
 //! - [`testing`]: hardware models on virtual time, for the tests and the simulator.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
@@ -22,6 +24,7 @@
 pub mod config;
 pub mod detector;
 pub mod device;
+pub mod fault;
 pub mod hardware;
 pub mod homing;
 pub mod link;
@@ -30,6 +33,7 @@ pub mod sampling;
 pub mod schedule;
 pub mod stepgen;
 pub mod testing;
+pub mod txqueue;
 
 pub use device::Device;
 pub use hardware::{Arm, Arms, Detector, Hardware, Lamp, ResetCause};

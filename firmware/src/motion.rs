@@ -290,9 +290,14 @@ impl ArmMotion {
         ArmMotion { running: [None, None] }
     }
 
-    /// Hand `profile` to the arm's step generator at `now_us`.
+    /// Hand `profile` to the arm's step generator at `now_us`. A profile of no steps
+    /// still reaches a moving arm: it ends what runs (a stop at zero speed, in the same
+    /// poll as the start, must not let the move run on).
     pub fn start(&mut self, hardware: &mut impl Arms, arm: Arm, profile: MoveProfile, now_us: u64) {
         if profile.step_count() == 0 {
+            if hardware.is_moving(arm) {
+                hardware.run_profile(arm, &profile);
+            }
             self.running[arm.index()] = None;
             return;
         }

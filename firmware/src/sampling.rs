@@ -18,11 +18,14 @@
 //!    [`SampleLoss::DmaLapped`], the decimation goes on from the block being written;
 //! 3. the ring was full when a sample came (nobody drained for 262 ms): [`SampleLoss::RingFull`].
 //!
-//! Each is recorded in the ring, and the next drain reports it
-//! ([`SampleRing::take_loss`]), whatever was or was not read in between: a range change
-//! empties the ring of samples (they belong to no reading) but never of a loss. The device
-//! drains every poll; a reading with a loss in it fails, and the device takes its fail-safe
-//! stop ([`protocol::ErrorCode::AdcOverrun`], detail [`SampleLoss::detail`]).
+//! Each is recorded in the ring and reported by the next drain ([`SampleRing::take_loss`]):
+//! a reading with a loss in it fails. An overrun or a lap is the ADC path missing its
+//! deadline whether or not a reading runs, so it is also kept for
+//! [`SampleRing::take_fault`], which the device asks every poll; a range change empties
+//! the ring of samples (they belong to no reading) and of a full ring's loss, never of an
+//! overrun or a lap. Either way the device takes its fail-safe stop
+//! ([`protocol::ErrorCode::AdcOverrun`], detail [`SampleLoss::detail`]). Between readings
+//! nobody drains, so a full ring there is no fault.
 
 /// Conversions summed into one sample.
 pub const OVERSAMPLE: usize = 256;
@@ -59,13 +62,16 @@ impl SampleLoss {
     }
 }
 
-/// The decoded samples, oldest first, and the first loss since the last drain.
+/// The decoded samples, oldest first; the first loss since the last drain; the first
+/// loss of the ADC path itself (an overrun or a lap, not a full ring) since it was last
+/// taken.
 #[derive(Clone, Debug)]
 pub struct SampleRing {
     samples: [u16; RING_LEN],
     head: usize,
     len: usize,
     loss: Option<SampleLoss>,
+    fault: Option<SampleLoss>,
 }
 
 impl Default for SampleRing {
@@ -77,7 +83,7 @@ impl Default for SampleRing {
 impl SampleRing {
     /// Empty.
     pub const fn new() -> SampleRing {
-        SampleRing { samples: [0; RING_LEN], head: 0, len: 0, loss: None }
+        SampleRing { samples: [0; RING_LEN], head: 0, len: 0, loss: None, fault: None }
     }
 
     /// Add a sample; when full, it is dropped and the loss recorded.
@@ -90,9 +96,13 @@ impl SampleRing {
         self.len += 1;
     }
 
-    /// Record a loss (the first one since the last [`SampleRing::take_loss`] is kept).
+    /// Record a loss (the first one since the last [`SampleRing::take_loss`] is kept; an
+    /// overrun or a lap is also kept for [`SampleRing::take_fault`]).
     pub fn mark_loss(&mut self, loss: SampleLoss) {
         self.loss.get_or_insert(loss);
+        if loss != SampleLoss::RingFull {
+            self.fault.get_or_insert(loss);
+        }
     }
 
     /// Move up to `out.len()` samples, oldest first, into `out`; how many.
@@ -116,15 +126,25 @@ impl SampleRing {
         self.len == 0
     }
 
-    /// The loss recorded since the last call, if any.
+    /// The loss recorded since the last call, if any: what a drain reports.
     pub fn take_loss(&mut self) -> Option<SampleLoss> {
         self.loss.take()
     }
 
-    /// Drop the samples (a range change: they belong to no reading). A loss stays.
+    /// The ADC path's own loss (an overrun or a lap) since the last call, drained or not:
+    /// what the device checks every poll.
+    pub fn take_fault(&mut self) -> Option<SampleLoss> {
+        self.fault.take()
+    }
+
+    /// Drop the samples (a range change: they belong to no reading), and a full ring's
+    /// loss with them (it was of samples nobody wanted). An overrun or a lap stays.
     pub fn clear(&mut self) {
         self.head = 0;
         self.len = 0;
+        if self.loss == Some(SampleLoss::RingFull) {
+            self.loss = None;
+        }
     }
 }
 

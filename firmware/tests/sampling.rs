@@ -207,7 +207,7 @@ proptest! {
 }
 
 #[test]
-fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss() {
+fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss_in_a_reading() {
     let on_time = Step { gap: 96_000, overrun: false, drain: true };
     // 3 ms late: the DMA has come round to unread data.
     let outcome = simulate(&[on_time, on_time, Step { gap: 3 * 96_000 + 50_000, ..on_time }, on_time, on_time, on_time]);
@@ -215,12 +215,24 @@ fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss() {
     let mut ring = SampleRing::new();
     let mut decimator = Decimator::new(384, 0);
     assert!(decimator.service(0, true, 1000, |_| 0, &mut ring), "an ADC overrun asks for a restart");
+    // A range change empties the ring, never of an overrun: both the drain and the
+    // device's fault check hear of it, each once.
+    ring.clear();
     assert_eq!(ring.take_loss(), Some(SampleLoss::AdcOverrun));
     assert_eq!(ring.take_loss(), None, "reported once");
+    assert_eq!(ring.take_fault(), Some(SampleLoss::AdcOverrun));
+    assert_eq!(ring.take_fault(), None);
+    // A full ring between readings is of samples nobody wanted: a range change forgets it;
+    // within a reading the drain reports it; it is never an ADC fault.
     for _ in 0..RING_LEN + 1 {
         ring.push(7);
     }
+    assert_eq!(ring.take_fault(), None);
     ring.clear();
-    assert_eq!(ring.take_loss(), Some(SampleLoss::RingFull), "a range change empties the ring, never of a loss");
+    assert_eq!(ring.take_loss(), None);
+    for _ in 0..RING_LEN + 1 {
+        ring.push(7);
+    }
+    assert_eq!(ring.take_loss(), Some(SampleLoss::RingFull));
     assert_eq!([SampleLoss::AdcOverrun, SampleLoss::DmaLapped, SampleLoss::RingFull].map(SampleLoss::detail), [1, 2, 3]);
 }
