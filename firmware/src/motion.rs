@@ -75,7 +75,9 @@ impl MoveProfile {
         if distance == 0.0 || accel <= 0.0 || max_speed <= 0.0 {
             return MoveProfile::rest(start);
         }
-        let start_speed = start_speed.clamp(0.0, max_speed);
+        // Not f32::clamp: its check of the bounds formats floats in its panic message,
+        // which links core::fmt's float code (12 KiB) into the firmware.
+        let start_speed = start_speed.max(0.0).min(max_speed);
         // Accelerate to v and decelerate to 0 in `distance`: (v² − v0²)/2a + v²/2a = d.
         let triangle_peak = sqrtf(accel * distance + start_speed * start_speed / 2.0);
         let (peak_speed, cruise_s) = if triangle_peak <= max_speed {
