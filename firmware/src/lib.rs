@@ -18,6 +18,8 @@
 //! - [`fault`]: the fault handlers' safe stop, their record across the reset, the reset cause.
 //! - [`txqueue`]: frames for the host, queued whole or dropped whole.
 //! - [`testing`]: hardware models on virtual time, for the tests and the simulator.
+//! - [`scenarios`]: whole-device scenarios on those models, `no_std`, run on the host and
+//!   on the Cortex-M4 under QEMU (`firmware/target-tests`).
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
@@ -30,6 +32,7 @@ pub mod homing;
 pub mod link;
 pub mod motion;
 pub mod sampling;
+pub mod scenarios;
 pub mod schedule;
 pub mod stepgen;
 pub mod testing;
