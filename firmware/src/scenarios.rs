@@ -159,8 +159,14 @@ impl Bench {
         self.device.hardware()
     }
 
-    fn hw_mut(&mut self) -> &mut Hw {
+    /// The fake hardware (what a fault handler makes safe).
+    pub fn hw_mut(&mut self) -> &mut Hw {
         self.device.hardware_mut()
+    }
+
+    /// Virtual time, µs.
+    pub fn now_us(&self) -> u64 {
+        self.now_us
     }
 
     fn send(&mut self, command: Command) -> u32 {
@@ -385,15 +391,21 @@ fn watchdog_reset() -> Outcome {
     Ok(bench.digest())
 }
 
-/// What a fault handler does, on the library's side (the target tests also do it with a
-/// real panic and a real reset): outputs safe mid-move with the lamp on, the record, and
-/// the next boot's report.
-fn panic_safe_stop() -> Outcome {
+/// A homed bench mid-move with the lamp on: a fault handler's worst moment.
+pub fn moving_with_lamp_on() -> Result<Bench, Failure> {
     let mut bench = homed()?;
     ensure!(bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)), "lamp");
     bench.send(Command::MoveTo(Geometry::from_whole_deg(15, 70)));
     bench.run_ms(250);
-    ensure!(bench.moving(), "moving at the fault");
+    ensure!(bench.moving() && bench.hw().lamp_on(), "moving at the fault, lamp on");
+    Ok(bench)
+}
+
+/// What a fault handler does, on the library's side (the target tests also do it with a
+/// real panic and a real reset): outputs safe mid-move with the lamp on, the record, and
+/// the next boot's report.
+fn panic_safe_stop() -> Outcome {
+    let mut bench = moving_with_lamp_on()?;
     let later = bench.now_us + 1_000_000;
     let hardware = bench.hw_mut();
     make_safe(hardware);

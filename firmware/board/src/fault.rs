@@ -150,25 +150,11 @@ unsafe extern "C" {
     static _ram_end: u32;
 }
 
-// The HardFault entry: pick the stack the fault was on, move the stack pointer back into
-// the stack region (a stack overflow left it below the SRAM; any push would fault again),
-// then the handler, with the faulting stack pointer in r0. Nothing here uses the stack.
-core::arch::global_asm!(
-    ".section .HardFault.gonio, \"ax\"",
-    ".global HardFault",
-    ".type HardFault, %function",
-    ".thumb_func",
-    "HardFault:",
-    "    tst lr, #4",
-    "    ite eq",
-    "    mrseq r0, msp",
-    "    mrsne r0, psp",
-    "    ldr r1, =_stack_start",
-    "    msr msp, r1",
-    "    b {handler}",
-    ".ltorg",
-    handler = sym hard_fault,
-);
+// The HardFault entry (hard_fault_entry.s, shared with the on-target tests): pick the
+// stack the fault was on, move the stack pointer back into the stack region (a stack
+// overflow left it below the SRAM; any push would fault again), then the handler, with
+// the faulting stack pointer in r0. Nothing there uses the stack.
+core::arch::global_asm!(include_str!("hard_fault_entry.s"), handler = sym hard_fault);
 
 /// The HardFault handler proper, on a fresh stack; `sp` is the stack pointer at the fault.
 extern "C" fn hard_fault(sp: u32) -> ! {
