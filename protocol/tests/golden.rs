@@ -61,6 +61,7 @@ fn device_info() -> DeviceInfo {
         max_integration_ms: 10_000,
         min_integration_ms: 10,
         heartbeat_timeout_ms: 2_000,
+        longest_home_ms: 21_500,
         serial_number: text("0123456789ABCDEF01234567"),
         reset_cause: ResetCause::Fault(DeviceError::with_detail(ErrorCode::Panic, 417)),
     }
