@@ -1,8 +1,15 @@
-//! Link scripts: `memory.x` comes from embassy-stm32 (feature `memory-x`, the F411CE's
-//! 512 KiB flash / 128 KiB RAM), `link.x` from cortex-m-rt, `defmt.x` from defmt.
+//! Link scripts: `memory.x` is this crate's (the flipped layout: stack at the bottom of
+//! the SRAM, see the file), `link.x` from cortex-m-rt, `defmt.x` from defmt.
 //! They are passed as plain linker arguments so that both rust-lld (the default for
 //! thumbv7em-none-eabihf) and a system `ld.lld` (the Debian CI path) understand them.
+use std::path::PathBuf;
+
 fn main() {
+    // link.x INCLUDEs memory.x from the linker's search path: put it in OUT_DIR.
+    let out = PathBuf::from(std::env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+    std::fs::write(out.join("memory.x"), include_bytes!("memory.x")).expect("write memory.x to OUT_DIR");
+    println!("cargo:rustc-link-search={}", out.display());
+    println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rustc-link-arg-bins=--nmagic");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");

@@ -1,7 +1,7 @@
 //! Limits of the reference instrument. Each value is where it is
 //! defined; change one only with a reason written beside it.
 
-use protocol::{Angle, DetectorRange, DeviceInfo, PROTOCOL_VERSION};
+use protocol::{Angle, DetectorRange, DeviceInfo, PROTOCOL_VERSION, ResetCause};
 
 /// Limits and timing of the instrument a firmware build drives.
 #[derive(Clone, Debug, PartialEq)]
@@ -118,7 +118,9 @@ impl InstrumentConfig {
     /// The handshake answer for this configuration.
     ///
     /// `serial_number` is the board's unique ID as text (the STM32's 96-bit UID in hex;
-    /// the simulator's from its seed); longer text is cut at 24 characters.
+    /// the simulator's from its seed); longer text is cut at 24 characters. The reset
+    /// cause is [`ResetCause::PowerOn`]; a device puts in its own
+    /// ([`crate::Device`] does).
     pub fn device_info(&self, serial_number: &str) -> DeviceInfo {
         let mut firmware_version = heapless::String::new();
         let _ = firmware_version.push_str(crate::FIRMWARE_VERSION);
@@ -146,6 +148,7 @@ impl InstrumentConfig {
             max_integration_ms: self.max_integration_ms,
             min_integration_ms: self.min_integration_ms,
             heartbeat_timeout_ms: self.heartbeat_timeout_ms,
+            longest_home_ms: crate::homing::longest_homing_us(self).div_ceil(1000).min(u64::from(u32::MAX)) as u32,
             serial_number: {
                 let mut serial = heapless::String::new();
                 for c in serial_number.chars() {
@@ -155,6 +158,7 @@ impl InstrumentConfig {
                 }
                 serial
             },
+            reset_cause: ResetCause::PowerOn,
         }
     }
 }

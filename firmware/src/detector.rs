@@ -12,6 +12,7 @@
 
 use crate::config::InstrumentConfig;
 use crate::hardware::Detector;
+use crate::sampling::SampleLoss;
 use libm::sqrtf;
 use protocol::Reading;
 
@@ -111,6 +112,8 @@ pub struct Integration {
     collect_from_us: u64,
     end_us: u64,
     stats: SampleStats,
+    /// Samples were lost during this integration (or just before it started).
+    loss: Option<SampleLoss>,
 }
 
 impl Integration {
@@ -123,8 +126,9 @@ impl Integration {
         now_us: u64,
     ) -> Integration {
         detector.select_range(range);
-        // Samples from before the range change belong to no reading.
-        detector.drain_samples(&mut |_| {});
+        // Samples from before the range change belong to no reading; a loss among them
+        // is still a loss (the device drains every poll, so it is a recent one).
+        let loss = detector.drain_samples(&mut |_| {}).err();
         let collect_from_us = now_us + u64::from(config.range_settle_ms) * 1000;
         Integration {
             range,
@@ -132,6 +136,7 @@ impl Integration {
             collect_from_us,
             end_us: collect_from_us + u64::from(integration_ms) * 1000,
             stats: SampleStats::new(),
+            loss,
         }
     }
 
@@ -140,17 +145,21 @@ impl Integration {
         self.range
     }
 
-    /// Collect samples; the statistics once the integration time is over. Samples are
+    /// Collect samples; the statistics once the integration time is over, or the loss
+    /// as soon as samples were lost (a reading with a gap is no reading). Samples are
     /// timed by when they are drained, so the board polls often (every ms or so).
-    pub fn poll(&mut self, detector: &mut impl Detector, now_us: u64) -> Option<SampleStats> {
+    pub fn poll(&mut self, detector: &mut impl Detector, now_us: u64) -> Result<Option<SampleStats>, SampleLoss> {
         let collecting = now_us > self.collect_from_us;
         let stats = &mut self.stats;
-        detector.drain_samples(&mut |sample| {
+        let drained = detector.drain_samples(&mut |sample| {
             if collecting {
                 stats.add(sample);
             }
         });
-        (now_us >= self.end_us).then_some(self.stats)
+        if let Some(loss) = self.loss.take().or(drained.err()) {
+            return Err(loss);
+        }
+        Ok((now_us >= self.end_us).then_some(self.stats))
     }
 
     /// The reading these statistics make on this integration's range.
@@ -175,6 +184,8 @@ pub enum ReadingProgress {
     Done(Reading),
     /// The detector gave no samples: a hardware fault.
     NoSamples,
+    /// Samples were lost during the reading ([`crate::sampling`]).
+    SamplesLost(SampleLoss),
 }
 
 /// One reading: auto-ranged (integrations until the policy accepts one) or on a forced
@@ -228,7 +239,11 @@ impl RangedReading {
 
     /// Advance; an auto-ranged reading re-integrates on another range when the policy says so.
     pub fn poll(&mut self, detector: &mut impl Detector, config: &InstrumentConfig, now_us: u64) -> ReadingProgress {
-        let Some(stats) = self.integration.poll(detector, now_us) else { return ReadingProgress::Running };
+        let stats = match self.integration.poll(detector, now_us) {
+            Ok(Some(stats)) => stats,
+            Ok(None) => return ReadingProgress::Running,
+            Err(loss) => return ReadingProgress::SamplesLost(loss),
+        };
         if stats.count() == 0 {
             return ReadingProgress::NoSamples;
         }

@@ -7,8 +7,10 @@
 //!    [`crate::hardware::Arms`], [`crate::hardware::Detector`] and
 //!    [`crate::hardware::Lamp`] (timer-driven step generators, home switches, driver
 //!    fault pins, TIA range pins + ADC samples, lamp pin) and `reset_cause` comes from
-//!    RCC_CSR ([`ResetCause::Watchdog`] after an IWDG reset: reported as a fault, arms
-//!    not homed). `new` switches the lamp off.
+//!    RCC_CSR and the board's fault record ([`crate::fault`]): after an IWDG reset
+//!    ([`ResetCause::Watchdog`]) or the fail-safe reset of a panic or a processor fault
+//!    ([`ResetCause::Fault`]) it is reported as a fault, arms not homed; the handshake
+//!    announces it. `new` switches the lamp off.
 //! 2. For every chunk of bytes from USB: `device.receive(bytes, now_us, &mut send)`;
 //!    `send` gets whole frames to write back, in order.
 //! 3. Often, and at least every millisecond while anything runs (homing samples the
@@ -33,8 +35,13 @@
 //!
 //! SAFETY: one fail-safe stop path ([`Device::fail_safe_stop`]), taken on heartbeat loss
 //! (no frame for `heartbeat_timeout_ms` while an arm moves, the lamp is on, or a homing or
-//! schedule runs), on a driver fault, on a dead detector and when the arms come to rest
-//! off their target. It ramps both arms down, switches the lamp off, ends whatever runs (a
+//! schedule runs), on a driver fault, on a dead detector, when the arms come to rest off
+//! their target, on a step interrupt that ran too late ([`ErrorCode::StepLate`]: the arms
+//! always lose their homing) and on lost detector samples ([`ErrorCode::AdcOverrun`]: an
+//! overrun of the ADC path is seen at the poll after it, reading or not; a reading with a
+//! gap fails). The board's panic
+//! and processor-fault handlers have their own stop, outputs first, then a reset
+//! ([`crate::fault`]). It ramps both arms down, switches the lamp off, ends whatever runs (a
 //! pending command is answered with the reason, a schedule ends with it), records the
 //! reason in `Status::fault` and sends `Stopped`. The homing survives it only when it
 //! cannot have been spoiled, and the decision is made there, from the state at the moment
@@ -72,7 +79,7 @@ use crate::link::{Incoming, Link};
 use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
 use protocol::{
-    Command, DeviceError, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
+    Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
     PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource, Status, StreamReading, Target,
 };
 
@@ -153,6 +160,8 @@ pub struct Device<H: Hardware> {
     last_range: u8,
     /// Announced in the handshake; see [`Device::with_serial_number`].
     serial_number: heapless::String<24>,
+    /// Why the MCU last came out of reset, announced in the handshake.
+    reset_cause: ResetCause,
 }
 
 type Answer = Option<Result<Reply, DeviceError>>;
@@ -161,7 +170,9 @@ impl<H: Hardware> Device<H> {
     /// A device just out of reset, driving `hardware`.
     pub fn new(config: InstrumentConfig, mut hardware: H, reset_cause: ResetCause) -> Device<H> {
         hardware.set_lamp(false);
-        let watchdog = reset_cause == ResetCause::Watchdog;
+        // After a watchdog reset or a fault of the firmware's own, the arms may have moved
+        // while nobody counted: not homed, and the reason stands until the next homing.
+        let fault = reset_cause.fault();
         Device {
             config,
             link: Link::new(),
@@ -175,13 +186,14 @@ impl<H: Hardware> Device<H> {
             homed_since_reset: [false; 2],
             count_trusted: [false; 2],
             driver_fault_seen: false,
-            fault: watchdog.then_some(ErrorCode::WatchdogReset),
-            safe_stopped: watchdog,
+            fault,
+            safe_stopped: fault.is_some(),
             motion: ArmMotion::new(),
             activity: Activity::Idle,
             uploaded: UploadedSchedule::new(),
             last_range: 0,
             serial_number: heapless::String::new(),
+            reset_cause,
         }
     }
 
@@ -265,6 +277,14 @@ impl<H: Hardware> Device<H> {
             self.fail_safe_stop(ErrorCode::HardwareFault, send);
         }
         self.driver_fault_seen = driver_fault;
+        // A step interrupt too late: a step may have gone uncounted (the timer stopped).
+        if Arm::BOTH.iter().any(|&arm| self.hardware.take_step_fault(arm)) {
+            self.fail_safe_stop(ErrorCode::StepLate, send);
+        }
+        // The ADC path overran: seen when it happens, reading or not.
+        if self.hardware.take_sample_fault().is_some() {
+            self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+        }
         let needs_host = self.lamp_on
             || matches!(self.activity, Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_));
         let silent_us = now_us.saturating_sub(self.last_heard_us);
@@ -295,15 +315,23 @@ impl<H: Hardware> Device<H> {
                     self.activity = Activity::Reading { seq, reading };
                     self.fail_safe_stop(ErrorCode::HardwareFault, send);
                 }
+                ReadingProgress::SamplesLost(_) => {
+                    self.activity = Activity::Reading { seq, reading };
+                    self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+                }
             },
             Activity::Dark { seq, mut integration, mut readings } => {
                 match integration.poll(&mut self.hardware, now_us) {
-                    None => self.activity = Activity::Dark { seq, integration, readings },
-                    Some(stats) if stats.count() == 0 => {
+                    Err(_) => {
+                        self.activity = Activity::Dark { seq, integration, readings };
+                        self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+                    }
+                    Ok(None) => self.activity = Activity::Dark { seq, integration, readings },
+                    Ok(Some(stats)) if stats.count() == 0 => {
                         self.activity = Activity::Dark { seq, integration, readings };
                         self.fail_safe_stop(ErrorCode::HardwareFault, send);
                     }
-                    Some(stats) => {
+                    Ok(Some(stats)) => {
                         let saturated = is_saturated(&self.config, integration.range(), stats.max());
                         let _ = readings.push(integration.reading(&stats, saturated));
                         let next = integration.range() + 1;
@@ -335,7 +363,8 @@ impl<H: Hardware> Device<H> {
     /// device is `Stopped`). See the module doc.
     pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
         let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
-        let keeps_homing = !self.mid_move() && !driver_fault.contains(&true);
+        // A late step interrupt may have cost a step whatever the arms do now.
+        let keeps_homing = !self.mid_move() && !driver_fault.contains(&true) && reason != ErrorCode::StepLate;
         self.halt(reason, send);
         self.hardware.set_lamp(false);
         self.lamp_on = false;
@@ -403,7 +432,7 @@ impl<H: Hardware> Device<H> {
             self.link.new_session();
             return Some(if protocol_version == PROTOCOL_VERSION {
                 self.handshake_done = true;
-                Ok(Reply::Hello(self.config.device_info(&self.serial_number)))
+                Ok(Reply::Hello(DeviceInfo { reset_cause: self.reset_cause, ..self.config.device_info(&self.serial_number) }))
             } else {
                 self.handshake_done = false;
                 self.refused_version = Some(protocol_version);
@@ -680,6 +709,10 @@ impl<H: Hardware> Device<H> {
                 ReadingProgress::NoSamples => {
                     self.activity = Activity::Schedule(run);
                     return self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                }
+                ReadingProgress::SamplesLost(_) => {
+                    self.activity = Activity::Schedule(run);
+                    return self.fail_safe_stop(ErrorCode::AdcOverrun, send);
                 }
                 ReadingProgress::Done(reading) => {
                     self.last_range = reading.range;

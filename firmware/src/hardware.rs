@@ -3,6 +3,7 @@
 //! time. Nothing here decides anything: the traits only act and report.
 
 use crate::motion::MoveProfile;
+use crate::sampling::SampleLoss;
 
 /// One of the two arms.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -47,6 +48,9 @@ pub trait Arms {
     fn home_switch_pressed(&self, arm: Arm) -> bool;
     /// Whether the arm's stepper driver reports a fault (over-temperature, short, …).
     fn driver_fault(&self, arm: Arm) -> bool;
+    /// Whether the arm's step interrupt ran too late since the last call (the timer may
+    /// have issued a step nobody counted; [`crate::stepgen`]); cleared by the call.
+    fn take_step_fault(&mut self, arm: Arm) -> bool;
 }
 
 /// The photodiode, its transimpedance ranges and the ADC.
@@ -54,8 +58,13 @@ pub trait Detector {
     /// Switch the amplifier to `range` (index into the configured ranges, most sensitive
     /// first). Samples taken while it settles are discarded by the library.
     fn select_range(&mut self, range: u8);
-    /// Hand every ADC sample (counts) taken since the last call to `sink`, oldest first.
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32));
+    /// Hand every ADC sample (counts) taken since the last call to `sink`, oldest first;
+    /// `Err` when samples were lost or could have been mixed since the last call (the
+    /// overrun rule of [`crate::sampling`]).
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss>;
+    /// An overrun of the ADC path itself (the ADC, or its DMA lapping the decimation)
+    /// since the last call, whether or not samples were drained; cleared by the call.
+    fn take_sample_fault(&mut self) -> Option<SampleLoss>;
 }
 
 /// The light source.
@@ -69,12 +78,6 @@ pub trait Hardware: Arms + Detector + Lamp {}
 
 impl<T: Arms + Detector + Lamp> Hardware for T {}
 
-/// Why the MCU last came out of reset (the board reads it from RCC_CSR).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum ResetCause {
-    /// Power-up, reset pin, or a software reset.
-    PowerOn,
-    /// The independent watchdog reset a hung MCU: reported as a fault until homed.
-    Watchdog,
-}
+/// Why the MCU last came out of reset: the board reads RCC_CSR and the fault record that
+/// its fail-safe reset left in RAM ([`crate::fault`]); announced in the handshake.
+pub use protocol::ResetCause;

@@ -262,3 +262,45 @@ impl ArmHoming {
         HomingStatus::Running
     }
 }
+
+/// The longest a `Home` of both arms can take on an instrument with `config`, µs: a bound
+/// over the ways through the state machine above (the arms home at once, so one arm's
+/// worst is the device's). Announced in the handshake (`DeviceInfo::longest_home_ms`), so
+/// that a host waits for the answer as long as the device may need and not much longer;
+/// tested against homings on the fake hardware (`tests/homing.rs`).
+///
+/// Every homing begins with at most a quick run over the whole travel at full speed and
+/// its stop, then goes one of two ways:
+/// - the switch trips in the fast run (an arm ahead of its count): a back-off past the
+///   overshoot (at most the full-speed braking distance) and half a back-off, then the
+///   slow approach over that and a degree more;
+/// - the quick approach misses (or the homing is a full one): the quick approach, the full
+///   search over the search range, its stop, back-offs up to the longest release (one ramp
+///   pair each), and the slow approach over a back-off and a degree more.
+pub fn longest_homing_us(config: &InstrumentConfig) -> u64 {
+    let accel = deg_to_steps(config.accel_deg_per_s2).max(1.0);
+    let full = deg_to_steps(config.max_speed_deg_per_s);
+    let fast = deg_to_steps(config.home_fast_deg_per_s.min(config.max_speed_deg_per_s));
+    let slow = deg_to_steps(config.home_slow_deg_per_s.min(config.max_speed_deg_per_s));
+    let travel = |steps: i32, speed: f32| MoveProfile::fastest(0, steps.max(0), 0.0, speed, accel).duration_us();
+    let stop = |speed: f32| (speed / accel * 1e6) as u64 + 1;
+    let degree = angle_to_steps(protocol::Angle::from_whole_deg(1));
+    let backoff = angle_to_steps(config.home_backoff).max(1);
+    let braking = (full * full / (2.0 * accel)) as i32 + 1;
+    let quick_run = travel(angle_to_steps(config.home_switch) - angle_to_steps(config.arm_min), full) + stop(full);
+    let tripped_in_the_run = {
+        let back = braking + backoff / 2 + backoff;
+        travel(back, fast) + stop(fast) + travel(back + degree, slow) + stop(slow)
+    };
+    let searched = {
+        let releases = angle_to_steps(config.home_release_max) / backoff + 1;
+        travel(angle_to_steps(config.home_quick_approach), slow)
+            + stop(slow)
+            + travel(angle_to_steps(config.home_search_range), fast)
+            + stop(fast)
+            + releases as u64 * (travel(backoff, fast) + stop(fast))
+            + travel(backoff + degree, slow)
+            + stop(slow)
+    };
+    quick_run + tripped_in_the_run.max(searched)
+}

@@ -9,22 +9,34 @@
 //! - [`hardware`]: the traits a board implements (arms, detector, lamp).
 //! - [`motion`]: angle ↔ microsteps, velocity profiles, both arms arriving together.
 //! - [`homing`]: one arm's homing state machine.
+//! - [`stepgen`]: step pulses from a hardware timer (segments, runt-free replacement,
+//!   late-interrupt detection), behind [`stepgen::StepTimer`].
 //! - [`detector`]: reading statistics and auto-ranging.
+//! - [`sampling`]: ADC decimation and the sample ring, with the overrun rule.
 //! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
 //! - [`config`]: the reference instrument's limits, announced in the handshake.
+//! - [`fault`]: the fault handlers' safe stop, their record across the reset, the reset cause.
+//! - [`txqueue`]: frames for the host, queued whole or dropped whole.
 //! - [`testing`]: hardware models on virtual time, for the tests and the simulator.
+//! - [`scenarios`]: whole-device scenarios on those models, `no_std`, run on the host and
+//!   on the Cortex-M4 under QEMU (`firmware/target-tests`).
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
 pub mod config;
 pub mod detector;
 pub mod device;
+pub mod fault;
 pub mod hardware;
 pub mod homing;
 pub mod link;
 pub mod motion;
+pub mod sampling;
+pub mod scenarios;
 pub mod schedule;
+pub mod stepgen;
 pub mod testing;
+pub mod txqueue;
 
 pub use device::Device;
 pub use hardware::{Arm, Arms, Detector, Hardware, Lamp, ResetCause};

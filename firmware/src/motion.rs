@@ -75,7 +75,9 @@ impl MoveProfile {
         if distance == 0.0 || accel <= 0.0 || max_speed <= 0.0 {
             return MoveProfile::rest(start);
         }
-        let start_speed = start_speed.clamp(0.0, max_speed);
+        // Not f32::clamp: its check of the bounds formats floats in its panic message,
+        // which links core::fmt's float code (12 KiB) into the firmware.
+        let start_speed = start_speed.max(0.0).min(max_speed);
         // Accelerate to v and decelerate to 0 in `distance`: (v² − v0²)/2a + v²/2a = d.
         let triangle_peak = sqrtf(accel * distance + start_speed * start_speed / 2.0);
         let (peak_speed, cruise_s) = if triangle_peak <= max_speed {
@@ -290,9 +292,14 @@ impl ArmMotion {
         ArmMotion { running: [None, None] }
     }
 
-    /// Hand `profile` to the arm's step generator at `now_us`.
+    /// Hand `profile` to the arm's step generator at `now_us`. A profile of no steps
+    /// still reaches a moving arm: it ends what runs (a stop at zero speed, in the same
+    /// poll as the start, must not let the move run on).
     pub fn start(&mut self, hardware: &mut impl Arms, arm: Arm, profile: MoveProfile, now_us: u64) {
         if profile.step_count() == 0 {
+            if hardware.is_moving(arm) {
+                hardware.run_profile(arm, &profile);
+            }
             self.running[arm.index()] = None;
             return;
         }

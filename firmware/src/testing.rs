@@ -5,11 +5,15 @@
 //! press at the configured angle. The detector samples at 1 kHz: dark offset plus, with
 //! the lamp on, a [`Scene`]'s signal times the range gain, plus deterministic noise,
 //! clipped at full scale. Faults (a missing or stuck switch, a driver fault, a dead ADC,
-//! lost steps) can be injected. Nothing here is linked into the board firmware.
+//! lost samples, a late step interrupt, lost steps) can be injected, and a fault handler's
+//! safe stop ([`crate::fault::SafeOutputs`]) applied. Nothing here is linked into the
+//! board firmware.
 
 use crate::config::InstrumentConfig;
+use crate::fault::SafeOutputs;
 use crate::hardware::{Arm, Arms, Detector, Lamp};
 use crate::motion::MoveProfile;
+use crate::sampling::SampleLoss;
 use libm::sqrtf;
 use protocol::{Angle, DetectorRange, Geometry};
 
@@ -49,6 +53,10 @@ pub struct FakeArm {
     pub switch_stuck: bool,
     /// The driver reports a fault.
     pub driver_fault: bool,
+    /// The step interrupt ran late once (taken by the next `take_step_fault`).
+    pub step_late: bool,
+    /// The driver is enabled (from the first move until a fault handler disables it).
+    pub driver_enabled: bool,
     /// Lowest and highest true angle reached, ticks.
     pub travel_ticks: (i32, i32),
 }
@@ -63,6 +71,8 @@ impl FakeArm {
             switch_missing: false,
             switch_stuck: false,
             driver_fault: false,
+            step_late: false,
+            driver_enabled: false,
             travel_ticks: (ticks, ticks),
         }
     }
@@ -70,6 +80,11 @@ impl FakeArm {
     /// True angle, ticks.
     pub fn true_ticks(&self) -> i32 {
         self.steps + self.offset_steps
+    }
+
+    /// Whether its step timer runs (a profile is being stepped).
+    pub fn step_timer_running(&self) -> bool {
+        self.running.is_some()
     }
 }
 
@@ -93,6 +108,8 @@ pub struct FakeHardware<S: Scene> {
     pub scene: S,
     /// The ADC delivers nothing.
     pub detector_dead: bool,
+    /// Samples were lost (taken by the next drain or fault check, which reports it).
+    pub sample_loss: Option<SampleLoss>,
     /// Profiles handed to the step generators so far (both arms).
     pub profiles_started: u32,
     /// Profiles started whose speed or acceleration broke the configured limits.
@@ -121,6 +138,7 @@ impl<S: Scene> FakeHardware<S> {
             rng: 0x2545_f491,
             scene,
             detector_dead: false,
+            sample_loss: None,
             profiles_started: 0,
             profiles_over_limits: 0,
             max_speed: crate::motion::deg_to_steps(config.max_speed_deg_per_s),
@@ -185,6 +203,12 @@ impl<S: Scene> Arms for FakeHardware<S> {
         self.profiles_started += 1;
         let arm = &mut self.arms[arm.index()];
         assert_eq!(profile.start_steps(), arm.steps, "a profile must start where the arm is");
+        if profile.step_count() == 0 {
+            // Ends what runs (the arm stops where it is: a perfect step generator).
+            arm.running = None;
+            return;
+        }
+        arm.driver_enabled = true;
         arm.running = Some((*profile, self.now_us));
     }
 
@@ -210,6 +234,10 @@ impl<S: Scene> Arms for FakeHardware<S> {
     fn driver_fault(&self, arm: Arm) -> bool {
         self.arms[arm.index()].driver_fault
     }
+
+    fn take_step_fault(&mut self, arm: Arm) -> bool {
+        core::mem::take(&mut self.arms[arm.index()].step_late)
+    }
 }
 
 impl<S: Scene> Detector for FakeHardware<S> {
@@ -217,7 +245,7 @@ impl<S: Scene> Detector for FakeHardware<S> {
         self.range = range;
     }
 
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) {
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
         let range = self.ranges[usize::from(self.range)];
         let geometry = self.true_geometry();
         let signal = if self.lamp_on {
@@ -233,11 +261,41 @@ impl<S: Scene> Detector for FakeHardware<S> {
             let counts = self.dark_counts + signal + self.noise();
             sink(counts.clamp(0.0, range.full_scale_counts as f32) as u32);
         }
+        match self.sample_loss.take() {
+            Some(loss) => Err(loss),
+            None => Ok(()),
+        }
+    }
+
+    fn take_sample_fault(&mut self) -> Option<SampleLoss> {
+        self.sample_loss.take_if(|loss| *loss != SampleLoss::RingFull)
     }
 }
 
 impl<S: Scene> Lamp for FakeHardware<S> {
     fn set_lamp(&mut self, on: bool) {
         self.lamp_on = on;
+    }
+}
+
+/// What a fault handler does to the board's outputs, done to the models: the arms stop
+/// dead where they are, the drivers are disabled, the lamp goes off.
+impl<S: Scene> SafeOutputs for FakeHardware<S> {
+    fn stop_step_timers(&mut self) {
+        let now_us = self.now_us;
+        self.advance_to(now_us);
+        for arm in &mut self.arms {
+            arm.running = None;
+        }
+    }
+
+    fn disable_drivers(&mut self) {
+        for arm in &mut self.arms {
+            arm.driver_enabled = false;
+        }
+    }
+
+    fn lamp_off(&mut self) {
+        self.lamp_on = false;
     }
 }

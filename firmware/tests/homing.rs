@@ -220,3 +220,35 @@ mod random {
         }
     }
 }
+
+/// `DeviceInfo::longest_home_ms` bounds every homing, failures included (a host waits for
+/// the answer that long): full homings from across the range, quick re-homes with steps
+/// lost either way (the fall-back to the full search included), and a missing switch.
+#[test]
+fn every_homing_ends_within_the_announced_longest() {
+    let config = InstrumentConfig::REFERENCE;
+    let longest_us = firmware::homing::longest_homing_us(&config);
+    assert_eq!(config.device_info("").longest_home_ms as u64, longest_us.div_ceil(1000));
+    let mut worst = 0u64;
+    for theta_i in (0..=85).step_by(17) {
+        for theta_r in (0..=85).step_by(17) {
+            let (_, us) = full_homing_from(Geometry::from_whole_deg(theta_i, theta_r));
+            worst = worst.max(us);
+        }
+    }
+    for lost in [-900, -400, -40, 40, 400, 900] {
+        let (_, _, us) = quick_rehome_from(Geometry::from_whole_deg(10, 20), Some((Arm::Detector, lost)));
+        worst = worst.max(us);
+    }
+    // A switch that never trips: the search runs out, and the answer comes in time too.
+    let hardware: Hw = FakeHardware::new(&config, glossy_scene, Geometry::from_whole_deg(0, 40));
+    let mut bench = Bench::with_hardware(hardware, ResetCause::PowerOn);
+    bench.hw_mut().arms[0].switch_missing = true;
+    let started = bench.now_us;
+    assert_eq!(bench.ask(Command::Home), Err(DeviceError::with_detail(ErrorCode::HomeSwitchNotFound, 0)));
+    worst = worst.max(bench.now_us - started);
+    println!("longest homing measured {:.2} s, announced {:.2} s", worst as f64 * 1e-6, longest_us as f64 * 1e-6);
+    assert!(worst <= longest_us, "a homing took {worst} µs, over the announced {longest_us} µs");
+    // A bound, not a guess: within twice the worst seen.
+    assert!(longest_us <= 2 * worst + 2_000_000, "the bound {longest_us} µs is loose against {worst} µs");
+}

@@ -11,6 +11,7 @@ use crate::scene::{SamplePort, Scene};
 use firmware::config::InstrumentConfig;
 use firmware::hardware::{Arm, Arms, Detector as DetectorTrait, Lamp};
 use firmware::motion::MoveProfile;
+use firmware::sampling::SampleLoss;
 use firmware::testing::{ConstantScene, FakeHardware};
 use protocol::{Geometry, Target};
 
@@ -161,6 +162,11 @@ impl Arms for SimHardware {
     fn driver_fault(&self, arm: Arm) -> bool {
         self.mechanics.driver_fault(arm)
     }
+
+    fn take_step_fault(&mut self, arm: Arm) -> bool {
+        // The simulated step generator is perfect, unless a test made it late.
+        self.mechanics.take_step_fault(arm)
+    }
 }
 
 impl Lamp for SimHardware {
@@ -174,9 +180,11 @@ impl DetectorTrait for SimHardware {
         self.range = range;
     }
 
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) {
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+        // Losses injected into the mechanics' model are reported here too.
+        let injected = self.mechanics.sample_loss.take();
         if self.next_sample_us > self.now_us {
-            return;
+            return injected.map_or(Ok(()), Err);
         }
         let signal = if self.mechanics.lamp_on() {
             let radiance_factor = self.seen_radiance_factor();
@@ -191,5 +199,10 @@ impl DetectorTrait for SimHardware {
             self.next_sample_us += period;
             sink(self.detector.sample(signal));
         }
+        injected.map_or(Ok(()), Err)
+    }
+
+    fn take_sample_fault(&mut self) -> Option<SampleLoss> {
+        self.mechanics.take_sample_fault()
     }
 }

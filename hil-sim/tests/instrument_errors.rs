@@ -33,11 +33,11 @@ fn samples(sim: &mut SimInstrument, target: Target, range: u8, ms: u64, clock_us
     hardware.place(target);
     hardware.select_range(range);
     hardware.advance_to(*clock_us);
-    hardware.drain_samples(&mut |_| {});
+    hardware.drain_samples(&mut |_| {}).expect("the simulated ADC loses nothing");
     *clock_us += ms * 1000;
     hardware.advance_to(*clock_us);
     let mut taken = Vec::new();
-    hardware.drain_samples(&mut |s| taken.push(s));
+    hardware.drain_samples(&mut |s| taken.push(s)).expect("the simulated ADC loses nothing");
     taken
 }
 

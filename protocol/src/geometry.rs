@@ -5,13 +5,14 @@
 //! device is exactly a reachable arm position and equality is exact.
 
 use core::fmt;
+use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Ticks per degree: 200 steps × 16 microsteps × 9 / 360°.
 pub const TICKS_PER_DEG: i32 = 80;
 
 /// A polar angle of one arm, in device ticks of [`Angle::RESOLUTION_DEG`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Angle(i32);
 
@@ -73,7 +74,7 @@ impl fmt::Display for Angle {
 
 /// One measurement geometry in the specular plane: the source arm at `theta_i` on one
 /// side of the normal, the detector arm at `theta_r` on the other.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Geometry {
     /// Polar angle of the source.

@@ -12,10 +12,12 @@ pub mod framing;
 pub mod geometry;
 pub mod messages;
 pub mod schedules;
+pub mod schema;
 
 pub use framing::{FrameDecoder, FrameError, Sequenced, encode_frame};
 pub use geometry::{Angle, Geometry};
 pub use messages::*;
+pub use schema::SCHEMA_HASH;
 
 /// Version of this wire contract. Bumped on any change to the encoding of a message;
 /// the handshake refuses a peer with a different version.
@@ -28,8 +30,19 @@ pub use messages::*;
 /// (`GONIO_BLESS=1 cargo test -p protocol --test golden`).
 ///
 /// History: 1, the first release; 2, `DeviceInfo` gained `min_integration_ms`,
-/// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`.
-pub const PROTOCOL_VERSION: u16 = 2;
+/// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`;
+/// 3, `DeviceInfo` gained `reset_cause` (why the device restarted: a fault of its own
+/// with the reason, the watchdog, power-on) and `longest_home_ms`.
+///
+/// The shape of every message is also pinned as one number, [`schema::SCHEMA_HASH`],
+/// which must be the hash of this version in [`SCHEMA_HISTORY`] (`tests/schema.rs`).
+pub const PROTOCOL_VERSION: u16 = 3;
+
+/// The wire schema hash ([`schema::SCHEMA_HASH`]) of each protocol version since 2, oldest
+/// first. A change of any message's encoding changes the hash: then bump
+/// [`PROTOCOL_VERSION`] and append `(new version, new hash)` here (`cargo test -p protocol
+/// --test schema` prints it); an entry is never edited.
+pub const SCHEMA_HISTORY: &[(u16, u64)] = &[(2, 0xf4fc_c159_3ea1_cc3a), (3, 0xe291_1f63_e599_b75a)];
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message
 /// (a schedule chunk or the device info) with margin; both sides size their buffers to it.

@@ -25,18 +25,25 @@ use crate::framing::Sequenced;
 use crate::geometry::Geometry;
 use core::fmt;
 use heapless::{String, Vec};
+use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Geometries per [`ScheduleChunk`]; a longer schedule is uploaded in several chunks.
 pub const SCHEDULE_CHUNK_LEN: usize = 16;
 /// Most detector ranges a device can announce.
 pub const MAX_RANGES: usize = 4;
+/// Longest [`DeviceInfo::firmware_version`], bytes.
+pub const FIRMWARE_VERSION_LEN: usize = 16;
+/// Longest [`DeviceInfo::board`], bytes.
+pub const BOARD_NAME_LEN: usize = 32;
+/// Longest [`DeviceInfo::serial_number`], bytes.
+pub const SERIAL_NUMBER_LEN: usize = 24;
 
 /// A host request: a sequence number and a command.
 ///
 /// The device answers every request exactly once per sequence number: a request repeated
 /// with the same `seq` (a retry after a lost reply) is answered again, not executed again.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Request {
     /// Chosen by the host, increasing; echoed in the reply.
@@ -64,7 +71,7 @@ impl Sequenced for DeviceMessage {
 }
 
 /// What the host asks of the device.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Command {
     /// Handshake: the host's protocol version. Answered with [`Reply::Hello`], or with
@@ -132,7 +139,7 @@ impl Command {
 }
 
 /// What is on the sample port while a reading is taken.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Target {
     /// The sample under test.
@@ -143,7 +150,7 @@ pub enum Target {
 
 /// One chunk of a host-made schedule. Chunks arrive in order: `offset` is the number of
 /// geometries already received for this `schedule_id`; a chunk with `offset` 0 starts over.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ScheduleChunk {
     /// Host-chosen id, echoed by every streamed reading of the schedule.
@@ -157,7 +164,7 @@ pub struct ScheduleChunk {
 }
 
 /// Which schedule to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ScheduleSource {
     /// The built-in 12 geometries of Strategy 1, in the device's fixed fast order.
@@ -167,7 +174,7 @@ pub enum ScheduleSource {
 }
 
 /// Run a schedule.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RunSchedule {
     /// Labels the streamed readings (for `Uploaded`, selects the schedule).
@@ -181,7 +188,7 @@ pub struct RunSchedule {
 }
 
 /// Everything the device may send.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DeviceMessage {
     /// The answer to the request with sequence number `seq`.
@@ -213,7 +220,7 @@ pub enum DeviceMessage {
 }
 
 /// A successful answer.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Reply {
     /// Answer to `Hello`.
@@ -247,7 +254,7 @@ pub enum Reply {
 }
 
 /// A refused or failed request: a stable code and a code-specific detail.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DeviceError {
     /// What went wrong.
@@ -256,7 +263,8 @@ pub struct DeviceError {
     /// 1 = detector) for `OutOfRange` and homing faults, the limit for `ScheduleTooLong`,
     /// the expected offset for `BadSchedule`; for `InvalidArgument`, the violated limit
     /// (the shortest or the longest integration time, ms; the number of detector ranges
-    /// for a forced range); otherwise 0.
+    /// for a forced range); for the firmware's own faults, as each [`ErrorCode`] says;
+    /// otherwise 0.
     pub detail: i32,
 }
 
@@ -368,6 +376,29 @@ error_codes! {
     WatchdogReset = 19, "reset by watchdog";
     /// A command this firmware build does not carry out.
     NotSupported = 20, "not supported by this firmware";
+    /// The firmware panicked (a broken invariant); it stopped every output and reset.
+    /// Detail: the source line of the panic.
+    Panic = 21, "firmware panic";
+    /// The processor faulted (a bad memory access, an undefined instruction); the
+    /// firmware stopped every output and reset. Detail: the faulting instruction's address.
+    ProcessorFault = 22, "processor fault";
+    /// The stack ran into the end of RAM (it is placed there so that an overflow faults
+    /// instead of overwriting data); the firmware stopped every output and reset.
+    StackOverflow = 23, "stack overflow";
+    /// A step timer's interrupt ran too late to load the next segment, so the timer may
+    /// have issued a step nobody counted: fail-safe stop, arms not homed. Detail: the arm.
+    StepLate = 24, "step interrupt late";
+    /// Detector samples were lost or could have been mixed (the ADC or its DMA overran,
+    /// or nobody drained the decoded samples in time): fail-safe stop. Detail: 1 ADC
+    /// overrun, 2 DMA lapped the decimation, 3 decoded samples lost.
+    AdcOverrun = 25, "detector samples lost";
+}
+
+/// On the wire an error code is its number (a `u16`), whatever the variant: a code this
+/// version does not know still decodes, as [`ErrorCode::Unknown`].
+impl Schema for ErrorCode {
+    const SCHEMA: &'static postcard_schema::schema::NamedType =
+        &postcard_schema::schema::NamedType { name: "ErrorCode", ty: <u16 as Schema>::SCHEMA.ty };
 }
 
 impl From<ErrorCode> for u16 {
@@ -383,15 +414,15 @@ impl fmt::Display for ErrorCode {
 }
 
 /// What the device is and can do: the answer to `Hello`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DeviceInfo {
     /// The device's [`crate::PROTOCOL_VERSION`]; first, so it is readable by any version.
     pub protocol_version: u16,
     /// Firmware version (semver).
-    pub firmware_version: String<16>,
+    pub firmware_version: String<FIRMWARE_VERSION_LEN>,
     /// Board name.
-    pub board: String<32>,
+    pub board: String<BOARD_NAME_LEN>,
     /// Working range of both arms: lowest angle.
     pub arm_min: crate::Angle,
     /// Working range of both arms: highest angle.
@@ -422,13 +453,61 @@ pub struct DeviceInfo {
     /// The host must send a frame at least this often while an arm moves or the lamp is
     /// on, or the device takes its fail-safe stop ([`ErrorCode::HeartbeatLost`]).
     pub heartbeat_timeout_ms: u32,
+    /// The longest a `Home` can take on this instrument, from anywhere, failures
+    /// included: how long a host waits for its answer.
+    pub longest_home_ms: u32,
     /// This instrument's unique serial number (the MCU's unique ID, or the simulator's):
     /// what a session folder and a calibration record as the instrument they came from.
-    pub serial_number: String<24>,
+    pub serial_number: String<SERIAL_NUMBER_LEN>,
+    /// Why the MCU last came out of reset: after a fault of the firmware's own (a panic,
+    /// a processor fault, a stack overflow) or a watchdog reset the arms are not homed
+    /// and [`Status::fault`] holds the reason until the next homing.
+    pub reset_cause: ResetCause,
+}
+
+/// Why the device last came out of reset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetCause {
+    /// Power-up or a brown-out.
+    PowerOn,
+    /// The reset pin: the board's button or a debug probe.
+    ResetPin,
+    /// A software reset without a recorded fault (a debugger's reset request).
+    Software,
+    /// The independent watchdog reset a hung MCU ([`ErrorCode::WatchdogReset`]).
+    Watchdog,
+    /// The firmware's own fail-safe reset after a fault: every output was made safe first,
+    /// and this is why ([`ErrorCode::Panic`], [`ErrorCode::ProcessorFault`],
+    /// [`ErrorCode::StackOverflow`], with their detail).
+    Fault(DeviceError),
+}
+
+impl ResetCause {
+    /// The fault a device reports after this reset (in [`Status::fault`]), if any.
+    pub const fn fault(self) -> Option<ErrorCode> {
+        match self {
+            ResetCause::PowerOn | ResetCause::ResetPin | ResetCause::Software => None,
+            ResetCause::Watchdog => Some(ErrorCode::WatchdogReset),
+            ResetCause::Fault(error) => Some(error.code),
+        }
+    }
+}
+
+impl fmt::Display for ResetCause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ResetCause::PowerOn => f.write_str("power-on"),
+            ResetCause::ResetPin => f.write_str("reset pin"),
+            ResetCause::Software => f.write_str("software reset"),
+            ResetCause::Watchdog => f.write_str("watchdog reset (the firmware hung)"),
+            ResetCause::Fault(error) => write!(f, "fail-safe reset after {error}"),
+        }
+    }
 }
 
 /// One detector range.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DetectorRange {
     /// Gain relative to the most sensitive range (1, 0.1, 0.01 for decade steps).
@@ -438,7 +517,7 @@ pub struct DetectorRange {
 }
 
 /// One detector reading: statistics of the samples taken over the integration time.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Reading {
     /// Mean of the samples, in ADC counts (dark offset included).
@@ -457,7 +536,7 @@ pub struct Reading {
 }
 
 /// One reading of a running schedule.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StreamReading {
     /// The schedule.
@@ -475,7 +554,7 @@ pub struct StreamReading {
 }
 
 /// The end of a schedule.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ScheduleDone {
     /// The schedule.
@@ -489,7 +568,7 @@ pub struct ScheduleDone {
 }
 
 /// What the device is doing.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DeviceState {
     /// Waiting for a command.
@@ -510,7 +589,7 @@ pub enum DeviceState {
 }
 
 /// The answer to `GetStatus`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Status {
     /// What the device is doing.
@@ -533,7 +612,7 @@ pub struct Status {
 }
 
 /// The answer to `Home`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct HomeReport {
     /// Source arm: where the switch was found minus where the arm believed it was, in

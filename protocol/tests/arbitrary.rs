@@ -88,13 +88,13 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
     (
         (any::<u16>(), text::<16>(), text::<32>(), angle(), angle(), angle(), angle()),
         (finite_f32(), finite_f32(), any::<u16>(), ranges, finite_f32(), any::<u16>(), any::<u16>(), any::<u16>()),
-        (any::<u16>(), any::<u32>(), text::<24>()),
+        (any::<u16>(), any::<u32>(), any::<u32>(), text::<24>(), reset_cause()),
     )
         .prop_map(
             |(
                 (protocol_version, firmware_version, board, arm_min, arm_max, arm_resolution, collision_min_sum),
                 (max_speed, accel, settle_ms, ranges, acceptance_deg, max_schedule_len, default_integration_ms, max_integration_ms),
-                (min_integration_ms, heartbeat_timeout_ms, serial_number),
+                (min_integration_ms, heartbeat_timeout_ms, longest_home_ms, serial_number, reset_cause),
             )| DeviceInfo {
                 protocol_version,
                 firmware_version,
@@ -113,9 +113,21 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
                 max_integration_ms,
                 min_integration_ms,
                 heartbeat_timeout_ms,
+                longest_home_ms,
                 serial_number,
+                reset_cause,
             },
         ).boxed()
+}
+
+pub fn reset_cause() -> BoxedStrategy<ResetCause> {
+    prop_oneof![
+        Just(ResetCause::PowerOn),
+        Just(ResetCause::ResetPin),
+        Just(ResetCause::Software),
+        Just(ResetCause::Watchdog),
+        (error_code(), any::<i32>()).prop_map(|(code, detail)| ResetCause::Fault(DeviceError::with_detail(code, detail))),
+    ].boxed()
 }
 
 fn state() -> BoxedStrategy<DeviceState> {

@@ -271,6 +271,11 @@ fn error_codes_are_stable() {
         (ErrorCode::InvalidArgument, 18),
         (ErrorCode::WatchdogReset, 19),
         (ErrorCode::NotSupported, 20),
+        (ErrorCode::Panic, 21),
+        (ErrorCode::ProcessorFault, 22),
+        (ErrorCode::StackOverflow, 23),
+        (ErrorCode::StepLate, 24),
+        (ErrorCode::AdcOverrun, 25),
     ];
     assert_eq!(ErrorCode::ALL.len(), expected.len());
     for &(code, number) in expected {

@@ -39,7 +39,7 @@ fn text<const N: usize>(s: &str) -> String<N> {
 
 fn device_info() -> DeviceInfo {
     DeviceInfo {
-        protocol_version: 2,
+        protocol_version: 3,
         firmware_version: text("0.1.0"),
         board: text("gonio STM32F411 black pill"),
         arm_min: Angle::from_whole_deg(0),
@@ -61,8 +61,20 @@ fn device_info() -> DeviceInfo {
         max_integration_ms: 10_000,
         min_integration_ms: 10,
         heartbeat_timeout_ms: 2_000,
+        longest_home_ms: 21_500,
         serial_number: text("0123456789ABCDEF01234567"),
+        reset_cause: ResetCause::Fault(DeviceError::with_detail(ErrorCode::Panic, 417)),
     }
+}
+
+fn reset_causes() -> std::vec::Vec<ResetCause> {
+    vec![
+        ResetCause::PowerOn,
+        ResetCause::ResetPin,
+        ResetCause::Software,
+        ResetCause::Watchdog,
+        ResetCause::Fault(DeviceError::with_detail(ErrorCode::ProcessorFault, 0x0800_1234)),
+    ]
 }
 
 fn reading() -> Reading {
@@ -191,6 +203,12 @@ fn golden_lines() -> std::vec::Vec<(std::string::String, std::vec::Vec<u8>)> {
     add("error_code.not_supported".into(), bytes(&ErrorCode::NotSupported));
     add("error_code.unknown".into(), bytes(&ErrorCode::Unknown(999)));
     add("geometry".into(), bytes(&Geometry::new(Angle::from_ticks(6840), Angle::from_ticks(-6840))));
+    for (i, cause) in reset_causes().into_iter().enumerate() {
+        add(format!("reset_cause.{i}"), bytes(&cause));
+    }
+    // The shape of every message as one number (protocol::schema): a change of any type
+    // shows here too, and cannot be blessed under the same version.
+    add("schema_hash".into(), SCHEMA_HASH.to_le_bytes().to_vec());
     lines
 }
 
@@ -306,6 +324,7 @@ fn every_variant_has_a_golden_instance() {
         &device_messages().iter().map(|(_, m)| bytes(m)).collect::<std::vec::Vec<_>>(),
     );
     assert_all_variants::<DeviceState>("DeviceState", &device_states().iter().map(bytes).collect::<std::vec::Vec<_>>());
+    assert_all_variants::<ResetCause>("ResetCause", &reset_causes().iter().map(bytes).collect::<std::vec::Vec<_>>());
     assert_all_variants::<Target>("Target", &[bytes(&Target::Sample), bytes(&Target::WhiteReference)]);
     assert_all_variants::<ScheduleSource>(
         "ScheduleSource",

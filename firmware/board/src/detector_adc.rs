@@ -2,25 +2,31 @@
 //! into a raw circular buffer, decimated by 256 in a 1 kHz TIM5 interrupt into a bounded
 //! ring of 16-bit-effective samples that `drain_samples` empties.
 //!
-//! Rates: ADCCLK = PCLK2 96 MHz / 4 = 24 MHz (embassy's `Adc::new` prescaler); 84-cycle
-//! sampling + 12-cycle conversion = 96 ADC clocks, so 250,000 conversions/s, paced by
-//! the crystal. 256 summed conversions (20 bits) shifted right by 4 make one sample of
-//! full scale 65,520 counts (`InstrumentConfig` full scale is 65,535) every 1.024 ms,
-//! 976.5625 samples/s. 256× oversampling gains 4 bits of resolution when the input
-//! noise dithers the ADC by about an LSB (a TIA output does); it also averages down
-//! mains and switching ripple within each 1 ms.
+//! The decimation and the ring, with the overrun rule (an ADC overrun, a DMA lap, a full
+//! ring: each reported), are the library's ([`firmware::sampling`]); this module runs the
+//! ADC, the DMA and the interrupt, and hands the library the DMA position, the ADC's
+//! overrun flag and the DWT cycle count.
 //!
-//! Nothing blocks: when the ring is full (nobody drained for 256 samples, 262 ms), the
-//! newest sample is dropped and counted; `drain_samples` logs the count. No DMA
-//! interrupt is used (embassy owns those vectors): TIM5 reads the DMA position (NDTR).
+//! Rates: ADCCLK = PCLK2 96 MHz / 4 = 24 MHz (embassy's `Adc::new` prescaler); 84-cycle
+//! sampling + 12-cycle conversion = 96 ADC clocks, so 250,000 conversions/s, one every 384
+//! CPU cycles, paced by the crystal. 256 summed conversions (20 bits) shifted right by 4
+//! make one sample of full scale 65,520 counts (`InstrumentConfig` full scale is 65,535)
+//! every 1.024 ms, 976.5625 samples/s. 256× oversampling gains 4 bits of resolution when
+//! the input noise dithers the ADC by about an LSB (a TIA output does); it also averages
+//! down mains and switching ripple within each 1 ms.
+//!
+//! Nothing blocks. No DMA interrupt is used (embassy owns those vectors): TIM5 reads the
+//! DMA position (NDTR), and the time since its last run tells one lap of the raw buffer
+//! from two.
 //!
 //! ISR cost: 256 loads and adds per sample (~6 cycles each at opt-level "z") plus a short
-//! critical section: ≲ 2,000 cycles ≈ 20 µs per 1.024 ms, ≈ 2 % of the CPU, at a lower
-//! priority than the step timers, which preempt it.
+//! critical section: ≲ 2,000 cycles ≈ 20 µs per 1.024 ms, ≈ 2 % of the CPU, at P1: below
+//! the step timers, which preempt it, above USB and the time driver.
 
 use core::cell::RefCell;
-use core::sync::atomic::{AtomicU16, AtomicUsize, Ordering};
+use core::sync::atomic::{AtomicU16, Ordering};
 
+use cortex_m::peripheral::DWT;
 use defmt::warn;
 use embassy_stm32::Peri;
 use embassy_stm32::adc::Adc;
@@ -32,16 +38,13 @@ use embassy_stm32::pac::adc::vals as adc_vals;
 use embassy_stm32::pac::dma::vals as dma_vals;
 use embassy_stm32::peripherals::{ADC1, DMA2_CH0, PA1, TIM5};
 use embassy_stm32::time::Hertz;
-use embassy_stm32::timer::low_level::Timer;
+use embassy_stm32::timer::low_level::{RoundTo, Timer};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use firmware::sampling::{Decimator, RAW_LEN, SampleLoss, SampleRing};
 
-/// Conversions summed into one sample.
-const OVERSAMPLE: usize = 256;
-/// Raw DMA buffer: 4 blocks, 4.1 ms; the 1 kHz decimation interrupt reads one or two.
-const RAW_LEN: usize = 4 * OVERSAMPLE;
-/// Decoded samples held for `drain_samples` (262 ms; the device drains every 1 ms).
-const RING_LEN: usize = 256;
+/// CPU cycles per conversion: 96 ADC clocks at 24 MHz, at a 96 MHz SYSCLK.
+const CYCLES_PER_CONVERSION: u32 = crate::SYSCLK_HZ / 250_000;
 /// ADC1 channel of PA1.
 const ADC_CHANNEL: u8 = 1;
 /// DMA2 stream 0, channel 0 is ADC1.
@@ -50,45 +53,15 @@ const DMA_STREAM: usize = 0;
 /// Written by the DMA, read by the TIM5 interrupt. Atomics, so that memory another bus
 /// master writes is never assumed unchanged by the compiler.
 static RAW: [AtomicU16; RAW_LEN] = [const { AtomicU16::new(0) }; RAW_LEN];
-/// Next raw index the decimation reads.
-static READ_POS: AtomicUsize = AtomicUsize::new(0);
 
-/// Decoded samples, oldest at `head`.
-struct Ring {
-    samples: [u16; RING_LEN],
-    head: usize,
-    len: usize,
-    /// Samples dropped because the ring was full, since the last report.
-    lost: u32,
+/// The decimation's state (TIM5 only) and the decoded samples (TIM5 and the device task).
+struct Sampling {
+    decimator: Decimator,
+    ring: SampleRing,
 }
 
-impl Ring {
-    fn push(&mut self, sample: u16) {
-        if self.len == RING_LEN {
-            self.lost = self.lost.saturating_add(1);
-            return;
-        }
-        self.samples[(self.head + self.len) % RING_LEN] = sample;
-        self.len += 1;
-    }
-
-    fn pop(&mut self) -> Option<u16> {
-        if self.len == 0 {
-            return None;
-        }
-        let sample = self.samples[self.head];
-        self.head = (self.head + 1) % RING_LEN;
-        self.len -= 1;
-        Some(sample)
-    }
-}
-
-static RING: Mutex<CriticalSectionRawMutex, RefCell<Ring>> = Mutex::new(RefCell::new(Ring {
-    samples: [0; RING_LEN],
-    head: 0,
-    len: 0,
-    lost: 0,
-}));
+static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<Sampling>> =
+    Mutex::new(RefCell::new(Sampling { decimator: Decimator::new(CYCLES_PER_CONVERSION, 0), ring: SampleRing::new() }));
 
 /// (Re)start the DMA stream from the start of `RAW`, then the conversions.
 fn start_conversions() {
@@ -120,7 +93,6 @@ fn start_conversions() {
         w.set_pl(dma_vals::Pl::HIGH);
         w.set_en(true);
     });
-    READ_POS.store(0, Ordering::Relaxed);
     adc.sr().modify(|w| w.set_ovr(false));
     adc.cr2().modify(|w| w.set_dma(true));
     adc.cr2().modify(|w| w.set_swstart(true));
@@ -134,27 +106,22 @@ fn TIM5() {
         return;
     }
     tim.sr().modify(|w| w.set_uif(false));
-    if pac::ADC1.sr().read().ovr() {
-        // The DMA missed a conversion (should not happen: it has priority "high" and
-        // nothing else uses DMA2). The ADC stops on overrun: restart it.
-        warn!("detector ADC overrun: conversions restarted");
-        start_conversions();
-        return;
-    }
+    // The clock first, then the DMA position: the lap test errs on the side of a loss.
+    let now = DWT::cycle_count();
+    let overrun = pac::ADC1.sr().read().ovr();
     let remaining = usize::from(pac::DMA2.st(DMA_STREAM).ndtr().read().ndt());
-    let write = (RAW_LEN - remaining) % RAW_LEN;
-    let mut read = READ_POS.load(Ordering::Relaxed);
-    while (write + RAW_LEN - read) % RAW_LEN >= OVERSAMPLE {
-        let sum: u32 = RAW[read..read + OVERSAMPLE]
-            .iter()
-            .map(|raw| u32::from(raw.load(Ordering::Relaxed)))
-            .sum();
-        // 256 × 4095 = 1,048,320 → 65,520: fits u16.
-        let sample = (sum >> 4) as u16;
-        RING.lock(|ring| ring.borrow_mut().push(sample));
-        read = (read + OVERSAMPLE) % RAW_LEN;
+    let restart = SAMPLING.lock(|sampling| {
+        let sampling = &mut *sampling.borrow_mut();
+        let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
+        sampling.decimator.service(RAW_LEN - remaining, overrun, now, raw, &mut sampling.ring)
+    });
+    if restart {
+        // The DMA missed a conversion and the ADC stopped (it should not: the DMA has
+        // priority "high" and nothing else uses DMA2): restart from slot 0.
+        start_conversions();
+        let now = DWT::cycle_count();
+        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(now));
     }
-    READ_POS.store(read, Ordering::Relaxed);
 }
 
 /// The running ADC path: owns ADC1, the DMA stream, TIM5 and PA1.
@@ -198,12 +165,14 @@ impl DetectorAdc {
         cortex_m::asm::delay(96 * 3); // tSTAB: 3 µs at 96 MHz
         start_conversions();
 
+        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(DWT::cycle_count()));
         let timer = Timer::new(tim5);
-        timer.set_frequency(Hertz(1_000));
+        timer.set_frequency(Hertz(1_000), RoundTo::Slower);
         timer.enable_update_interrupt(true);
         interrupt::TIM5.unpend();
-        // Below the step timers: they preempt the decimation.
-        interrupt::TIM5.set_priority(Priority::P2);
+        // Below the step timers (they preempt the decimation), above USB and the time
+        // driver: it has 2 ms before the DMA laps the raw buffer.
+        interrupt::TIM5.set_priority(Priority::P1);
         // SAFETY: the TIM5 handler is defined above and shares state only through atomics
         // and a critical-section mutex.
         unsafe { interrupt::TIM5.enable() };
@@ -217,20 +186,16 @@ impl DetectorAdc {
     }
 
     /// Hand every sample decoded since the last call to `sink`, oldest first, in short
-    /// batches so that interrupts are never masked for long.
-    pub fn drain(&mut self, sink: &mut dyn FnMut(u32)) {
-        let mut lost = 0;
+    /// batches so that interrupts are never masked for long; the loss since the last
+    /// drain, if any.
+    pub fn drain(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+        let mut loss = None;
         loop {
             let mut batch = [0u16; 16];
-            let mut n = 0;
-            RING.lock(|ring| {
-                let mut ring = ring.borrow_mut();
-                lost += core::mem::take(&mut ring.lost);
-                while n < batch.len() {
-                    let Some(sample) = ring.pop() else { break };
-                    batch[n] = sample;
-                    n += 1;
-                }
+            let n = SAMPLING.lock(|sampling| {
+                let mut sampling = sampling.borrow_mut();
+                loss = loss.or(sampling.ring.take_loss());
+                sampling.ring.pop_into(&mut batch)
             });
             for &sample in &batch[..n] {
                 sink(u32::from(sample));
@@ -239,18 +204,22 @@ impl DetectorAdc {
                 break;
             }
         }
-        if lost > 0 {
-            warn!("detector: {} samples lost (ring full, not drained for 262 ms)", lost);
+        match loss {
+            Some(loss) => {
+                warn!("detector: samples lost ({})", loss);
+                Err(loss)
+            }
+            None => Ok(()),
         }
     }
 
-    /// Forget the samples taken so far (and their losses).
+    /// An overrun of the ADC path since the last call (drained or not).
+    pub fn take_fault(&mut self) -> Option<SampleLoss> {
+        SAMPLING.lock(|sampling| sampling.borrow_mut().ring.take_fault())
+    }
+
+    /// Forget the samples taken so far (not an overrun: see `firmware::sampling`).
     pub fn clear(&mut self) {
-        RING.lock(|ring| {
-            let mut ring = ring.borrow_mut();
-            ring.head = 0;
-            ring.len = 0;
-            ring.lost = 0;
-        });
+        SAMPLING.lock(|sampling| sampling.borrow_mut().ring.clear());
     }
 }

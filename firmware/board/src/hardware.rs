@@ -12,8 +12,10 @@
 //!   [`crate::detector_adc`]).
 //! - Lamp: a GPIO.
 
+use defmt::warn;
 use embassy_stm32::gpio::{Input, Output};
 use firmware::motion::MoveProfile;
+use firmware::sampling::SampleLoss;
 use firmware::{Arm, Arms, Detector, Lamp};
 
 use crate::detector_adc::DetectorAdc;
@@ -75,6 +77,15 @@ impl Arms for BoardHardware {
     fn driver_fault(&self, arm: Arm) -> bool {
         self.diag[arm.index()].is_high()
     }
+
+    fn take_step_fault(&mut self, arm: Arm) -> bool {
+        let Some(fault) = self.steppers.take_fault(arm) else { return false };
+        warn!(
+            "{} arm: step interrupt {} µs into a {} µs segment: too late, timer stopped",
+            arm, fault.late_ticks, fault.segment_ticks
+        );
+        true
+    }
 }
 
 impl Detector for BoardHardware {
@@ -84,13 +95,17 @@ impl Detector for BoardHardware {
             line.set_level((index == usize::from(range)).into());
         }
         // Samples from before the switch belong to no reading (the library discards them
-        // too); dropping them here keeps the ring's overflow count about readings only,
-        // not about the idle time between them, when nobody drains.
+        // too); dropping them here keeps a full ring between readings, when nobody drains,
+        // from counting as a loss (an ADC overrun still does: firmware::sampling).
         self.adc.clear();
     }
 
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) {
-        self.adc.drain(sink);
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+        self.adc.drain(sink)
+    }
+
+    fn take_sample_fault(&mut self) -> Option<SampleLoss> {
+        self.adc.take_fault()
     }
 }
 

@@ -12,10 +12,15 @@
 //! - `device_task` (the protocol/link task): `RX` bytes → `Device::receive`, a 1 kHz
 //!   `Device::poll`, reply frames → `TX`; feeds the watchdog. It never waits on USB, so a
 //!   host that stops reading cannot stall the fail-safe logic.
+//!
+//! Interrupt priorities (lower number first): TIM2/TIM3 step timers P0, TIM5 ADC
+//! decimation P1, OTG_FS P2, TIM4 (the embassy time driver) P3; the tasks in thread mode.
+//! Panics, processor faults and stack overflows take the safe stop of [`fault`].
 #![no_std]
 #![no_main]
 
 mod detector_adc;
+mod fault;
 mod hardware;
 mod pins;
 mod steppers;
@@ -23,12 +28,16 @@ mod steppers;
 use defmt::{info, warn};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
+use core::cell::RefCell;
+
 use embassy_stm32::gpio::{Level, Output};
+use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::peripherals::{IWDG, USB_OTG_FS};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts, pac};
+use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
@@ -36,12 +45,13 @@ use embassy_time::{Duration, Instant, Ticker};
 use embassy_usb::class::cdc_acm::{CdcAcmClass, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
+use firmware::Device;
 use firmware::config::InstrumentConfig;
-use firmware::{Device, ResetCause};
+use firmware::txqueue::FrameQueue;
 use hardware::BoardHardware;
 use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PID, USB_PRODUCT, USB_VID};
 use static_cell::StaticCell;
-use {defmt_rtt as _, panic_probe as _};
+use defmt_rtt as _;
 
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<USB_OTG_FS>;
@@ -56,10 +66,17 @@ const POLL_PERIOD: Duration = Duration::from_micros(1000);
 /// Watchdog timeout: the device task feeds it every poll.
 const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 
+/// SYSCLK, Hz (`clock_config`): the step timers' and the ADC's cycle counts depend on it.
+pub(crate) const SYSCLK_HZ: u32 = 96_000_000;
+
 /// Bytes from the host, waiting for the device task.
 static RX: Pipe<CriticalSectionRawMutex, { 2 * USB_PACKET }> = Pipe::new();
-/// Frames for the host, waiting for the USB IN endpoint.
-static TX: Pipe<CriticalSectionRawMutex, { 4 * MAX_FRAME_LEN }> = Pipe::new();
+/// Frames for the host, waiting for the USB IN endpoint: whole frames or none (the
+/// library's drop policy, `firmware::txqueue`).
+static TX: Mutex<CriticalSectionRawMutex, RefCell<FrameQueue<{ 4 * MAX_FRAME_LEN }>>> =
+    Mutex::new(RefCell::new(FrameQueue::new()));
+/// Something was queued in `TX`.
+static TX_QUEUED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 /// The USB link went down (unplug, bus reset).
 static DISCONNECTED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
@@ -89,21 +106,26 @@ fn clock_config() -> Config {
     config
 }
 
-/// Why the MCU came out of reset (RCC_CSR), clearing the flags for the next time.
-fn reset_cause() -> ResetCause {
-    let csr = pac::RCC.csr().read();
-    pac::RCC.csr().modify(|w| w.set_rmvf(true));
-    if csr.wdgrstf() {
-        ResetCause::Watchdog
-    } else {
-        ResetCause::PowerOn
-    }
-}
-
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    let reset_cause = reset_cause();
+    // First: the record a fault handler left is read and cleared before anything can fault.
+    let reset_cause = fault::reset_cause();
     let p = embassy_stm32::init(clock_config());
+    // The flash accelerator (ART): embassy's clock setup writes the wait states and leaves
+    // prefetch and the instruction and data caches off; at 3 wait states they hide the
+    // flash latency for loops and constants (the step and ADC interrupts run from flash).
+    pac::FLASH.acr().modify(|w| {
+        w.set_prften(true);
+        w.set_icen(true);
+        w.set_dcen(true);
+    });
+    // The cycle counter: the step timers' and the ADC decimation's clock.
+    let mut core = cortex_m::Peripherals::take().expect("the core peripherals, once");
+    core.DCB.enable_trace();
+    core.DWT.enable_cycle_counter();
+    // Below the step timers (P0) and the ADC decimation (P1): USB, then the time driver.
+    embassy_stm32::interrupt::OTG_FS.set_priority(Priority::P2);
+    embassy_stm32::interrupt::TIM4.set_priority(Priority::P3);
     info!(
         "gonio board: firmware {}, protocol v{}, reset cause {}",
         firmware::FIRMWARE_VERSION,
@@ -173,10 +195,11 @@ async fn main(spawner: Spawner) {
     // The same unique ID as the USB serial string: the host records it as the instrument.
     let device = Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause).with_serial_number(embassy_stm32::uid::uid_hex());
 
-    spawner.must_spawn(usb_task(usb));
-    spawner.must_spawn(usb_rx_task(receiver));
-    spawner.must_spawn(usb_tx_task(sender));
-    spawner.must_spawn(device_task(device, watchdog, pins.led));
+    // Each task is spawned once into a pool of one: these cannot fail.
+    spawner.spawn(defmt::unwrap!(usb_task(usb)));
+    spawner.spawn(defmt::unwrap!(usb_rx_task(receiver)));
+    spawner.spawn(defmt::unwrap!(usb_tx_task(sender)));
+    spawner.spawn(defmt::unwrap!(device_task(device, watchdog, pins.led)));
     core::future::pending::<()>().await;
 }
 
@@ -206,7 +229,11 @@ async fn usb_tx_task(mut sender: Sender<'static, UsbDriver>) -> ! {
     loop {
         sender.wait_connection().await;
         loop {
-            let n = TX.read(&mut transfer).await;
+            let n = TX.lock(|queue| queue.borrow_mut().pop(&mut transfer));
+            if n == 0 {
+                TX_QUEUED.wait().await;
+                continue;
+            }
             if write_transfer(&mut sender, &transfer[..n]).await.is_err() {
                 break; // disconnected: the device task clears what is left
             }
@@ -258,7 +285,7 @@ async fn device_task(
             Either3::Third(()) => {
                 device.disconnected();
                 RX.clear();
-                TX.clear();
+                TX.lock(|queue| queue.borrow_mut().clear());
             }
         }
         led.set_level(if device.handshake_done() {
@@ -271,13 +298,18 @@ async fn device_task(
 }
 
 /// Queue one whole frame for the host, or drop it whole when the queue is full (a host
-/// that does not read must not stall the device).
+/// that does not read must not stall the device; `firmware::txqueue`).
 fn queue_frame(frame: &[u8]) {
-    if TX.free_capacity() < frame.len() {
-        warn!("USB send queue full: dropped a {}-byte frame", frame.len());
-        return;
+    let (queued, dropped) = TX.lock(|queue| {
+        let mut queue = queue.borrow_mut();
+        (queue.push_frame(frame).is_ok(), queue.take_dropped())
+    });
+    if queued {
+        TX_QUEUED.signal(());
     }
-    let _ = TX.try_write(frame);
+    if dropped > 0 {
+        warn!("USB send queue full: dropped a {}-byte frame", frame.len());
+    }
 }
 
 fn now_us() -> u64 {

@@ -53,7 +53,7 @@
 //! [`crate::hardware::BoardHardware`].
 
 use embassy_stm32::Peri;
-use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pull, Speed};
+use embassy_stm32::gpio::{AnyPin, Input, Level, Output, Pin, Pull, Speed};
 use embassy_stm32::peripherals;
 
 /// Declares [`BoardPins`] and `take_board_pins!` from one list, so the pin table exists once.
@@ -146,6 +146,11 @@ impl BoardPins {
         fn out(pin: Peri<'static, AnyPin>, level: Level) -> Output<'static> {
             Output::new(pin, level, Speed::Low)
         }
+        // The fault handlers' safe stop drives these by register writes (crate::fault).
+        crate::fault::register_safe_pins(
+            [(self.en_i.port(), self.en_i.pin()), (self.en_r.port(), self.en_r.pin())],
+            (self.lamp_en.port(), self.lamp_en.pin()),
+        );
         SplitPins {
             motors: MotorPins {
                 step_i: self.step_i,

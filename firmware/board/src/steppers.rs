@@ -1,39 +1,28 @@
 //! Step pulses from hardware timers: TIM2 drives the source arm's STEP (PB10, TIM2_CH3),
 //! TIM3 the detector arm's (PB0, TIM3_CH3). No busy loop, no async wake per step.
 //!
-//! How: the timer counts 1 µs ticks in PWM mode 1 with ARR and CCR3 preloaded. Each timer
-//! period is a *segment* that starts with a step pulse (CCR3 = [`PULSE_TICKS`]) or without
-//! one (CCR3 = 0). The update interrupt fires when a segment starts (the hardware has just
-//! loaded it from the preload registers and raised STEP): it counts the step if the
-//! segment has one and writes the segment after it into the preload registers. So the
-//! pulse edges come from the hardware, and the interrupt only has to run at some time
-//! during the segment (≥ 208 µs at 4,800 steps/s) for the timing to stay exact.
-//!
-//! Segment lengths come from the library's profile: `step_time_us(k + 1) − step_time_us(k)`.
-//! Gaps longer than the 16-bit counter (65.5 ms, slow steps of a scaled-down arm) are
-//! split into several segments, only the first with a pulse. After the last step's pulse
-//! comes one tail segment in one-pulse mode (the counter stops by itself, STEP low); its
-//! end clears `is_moving`, [`TAIL_TICKS`] after the last step was issued.
+//! The logic (segments, the runt-free replacement of a running profile, the late-interrupt
+//! check) is the library's [`firmware::stepgen::StepChannel`]; this module is its
+//! [`StepTimer`]: the registers of one timer in PWM mode 1 at 1 µs ticks with ARR and CCR3
+//! preloaded, the arm's DIR and EN pins, and the DWT cycle counter as the free-running
+//! clock (96 cycles per tick: the CPU and the timer run from the same PLL, so the
+//! interrupt's deadline check does not drift). Each channel and its pins sit behind a
+//! critical-section mutex shared by the timer's update interrupt and the device task.
 //!
 //! ISR cost (no hardware here to measure it; counted from the disassembly of the
-//! release ELF): `MoveProfile::step_time_us` is ~105 instructions with one VDIV (14
-//! cycles), one libm `sqrtf` (a software square root, not VSQRT: ~66 instructions and 3
-//! helper calls, ≈ 120 cycles) and one `__aeabi_f2ulz` (≈ 40 cycles): ≈ 300 cycles worst
-//! case, once per step. `on_update` itself is ~100 instructions (critical section, ~8
-//! timer register accesses on APB1, the segment bookkeeping), plus ~30 cycles of entry
-//! and exit with lazy FPU stacking: ≲ 500 cycles ≈ 5 µs per step at 96 MHz. Both arms at
-//! full speed: 9,600 steps/s × 500 ≈ 4.8 M cycles/s, ≈ 5 % of the CPU, and 5 µs of a
-//! 208 µs step period; so no incremental step-time method in the library was needed.
-//! (A DWT cycle count on the board would confirm it.)
+//! release ELF before the move into the library): `MoveProfile::step_time_us` ≈ 300 cycles
+//! worst case (one VDIV, one software `sqrtf`, one float-to-u64), the bookkeeping and ~8
+//! timer register accesses on APB1 ≲ 200 more: ≲ 500 cycles ≈ 5 µs per step at 96 MHz,
+//! ≈ 5 % of the CPU with both arms at full speed, within `LATE_MARGIN_TICKS` (8 µs).
 //!
-//! Assumptions the timing relies on: nothing masks interrupts for a whole segment
-//! (embassy's critical sections last microseconds), and no segment is shorter than the
-//! worst interrupt latency ([`MIN_SEGMENT_TICKS`], [`TAIL_TICKS`]). A late interrupt would
-//! let the hardware repeat the previous segment (an uncounted step).
+//! Interrupt priority P0, above everything else (TIM5 P1, USB P2, the time driver P3):
+//! a step interrupt has its segment (≥ 20 µs, 208 µs at full speed) to run. Critical
+//! sections (embassy's, defmt-rtt's) still mask it; one that lasts longer than a segment is
+//! caught by the deadline check and stops the arm ([`firmware::stepgen`]).
 
 use core::cell::RefCell;
-use core::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
+use cortex_m::peripheral::DWT;
 use embassy_stm32::Peri;
 use embassy_stm32::gpio::{Level, Output, OutputType};
 use embassy_stm32::interrupt;
@@ -48,113 +37,30 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use firmware::Arm;
 use firmware::motion::MoveProfile;
+use firmware::stepgen::{PULSE_TICKS, Segment, StepChannel, StepFault, StepTimer};
 
 /// Timer tick: 1 µs, the unit of `MoveProfile::step_time_us`.
 const TICK_HZ: u32 = 1_000_000;
-/// STEP high time, ticks (TMC2209: ≥ 100 ns).
-const PULSE_TICKS: u16 = 2;
-/// Shortest segment: keeps a rounding artefact from asking for a period shorter than the
-/// pulse or than the interrupt latency (full speed is 208 µs per step).
-const MIN_SEGMENT_TICKS: u32 = 20;
-/// Longest segment: ARR is 16 bits (TIM3; TIM2 is used the same way) and counts 0..=ARR.
-const MAX_SEGMENT_TICKS: u32 = 1 << 16;
-/// The segment after the last step: long enough for its interrupt to set one-pulse mode
-/// in time (the same latency margin as a step at full speed).
-const TAIL_TICKS: u32 = 200;
+/// CPU cycles (DWT) per timer tick: SYSCLK 96 MHz (`main::clock_config`).
+const CYCLES_PER_TICK: u32 = crate::SYSCLK_HZ / TICK_HZ;
 /// CCR/CCMR index of channel 3.
 const CH3: usize = 2;
 
-/// One timer period.
-#[derive(Clone, Copy)]
-struct Segment {
-    ticks: u32,
-    pulse: bool,
+/// One arm's step generator and the pins it drives.
+struct Arm1 {
+    channel: StepChannel,
+    dir: Output<'static>,
+    /// TMC2209 EN, active low.
+    en: Output<'static>,
+    /// The last late interrupt, for the log.
+    fault: Option<StepFault>,
 }
 
-/// Turns a profile into segments, one step time computed per step.
-#[derive(Clone, Copy)]
-struct StepGen {
-    profile: MoveProfile,
-    count: u32,
-    /// The step whose time ends the segment being generated (count + 1 after the last).
-    next_step: u32,
-    /// `step_time_us(next_step)`.
-    next_time_us: u64,
-    /// Where the segments generated so far end, µs after the start.
-    planned_us: u64,
-    /// The next segment starts with a step pulse.
-    pulse_next: bool,
-}
-
-impl StepGen {
-    fn new(profile: &MoveProfile) -> StepGen {
-        StepGen {
-            profile: *profile,
-            count: profile.step_count(),
-            next_step: 1,
-            next_time_us: profile.step_time_us(1),
-            planned_us: 0,
-            pulse_next: false,
-        }
-    }
-
-    fn next(&mut self) -> Option<Segment> {
-        let pulse = core::mem::replace(&mut self.pulse_next, false);
-        if self.next_step > self.count {
-            // The last step's pulse, then nothing.
-            return pulse.then_some(Segment {
-                ticks: TAIL_TICKS,
-                pulse: true,
-            });
-        }
-        let gap = self.next_time_us.saturating_sub(self.planned_us);
-        if gap > u64::from(MAX_SEGMENT_TICKS) {
-            self.planned_us += u64::from(MAX_SEGMENT_TICKS);
-            return Some(Segment {
-                ticks: MAX_SEGMENT_TICKS,
-                pulse,
-            });
-        }
-        let ticks = (gap as u32).max(MIN_SEGMENT_TICKS);
-        self.planned_us += u64::from(ticks);
-        self.next_step += 1;
-        if self.next_step <= self.count {
-            self.next_time_us = self.profile.step_time_us(self.next_step);
-        }
-        self.pulse_next = true;
-        Some(Segment { ticks, pulse })
-    }
-}
-
-/// What the interrupt of one arm's timer works on.
-struct Run {
-    generator: Option<StepGen>,
-    /// The segment in the preload registers: `Some(has a pulse)`, or `None` when the
-    /// running segment is the last (one-pulse mode set) or the timer is idle.
-    preloaded: Option<bool>,
-    /// +1 or −1: what each pulse adds to the position.
-    direction: i32,
-}
-
-static RUNS: [Mutex<CriticalSectionRawMutex, RefCell<Run>>; 2] = [
-    Mutex::new(RefCell::new(Run::IDLE)),
-    Mutex::new(RefCell::new(Run::IDLE)),
-];
-/// Step counts, one per pulse issued (signed by direction).
-static POSITION: [AtomicI32; 2] = [AtomicI32::new(0), AtomicI32::new(0)];
-/// A profile is running (until its tail segment ends).
-static MOVING: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
-
-impl Run {
-    const IDLE: Run = Run {
-        generator: None,
-        preloaded: None,
-        direction: 0,
-    };
-}
+static ARMS: [Mutex<CriticalSectionRawMutex, RefCell<Option<Arm1>>>; 2] =
+    [Mutex::new(RefCell::new(None)), Mutex::new(RefCell::new(None))];
 
 /// The registers of arm `index`'s step timer.
-fn timer(index: usize) -> TimGp16 {
+pub(crate) fn timer(index: usize) -> TimGp16 {
     if index == 0 {
         // SAFETY: TIM2 is a 32-bit general-purpose timer whose register block is a superset
         // of the 16-bit one at the same offsets (embassy's `regs_gp16` does the same); we
@@ -165,42 +71,73 @@ fn timer(index: usize) -> TimGp16 {
     }
 }
 
-/// Write `segment` into the preload registers (it starts at the next update event).
-fn preload(tim: TimGp16, segment: Segment) {
-    tim.arr().write(|w| w.set_arr((segment.ticks - 1) as u16));
-    let ccr = if segment.pulse { PULSE_TICKS } else { 0 };
-    tim.ccr(CH3).write(|w| w.set_ccr(ccr));
+/// [`StepTimer`] on one timer and its arm's pins.
+struct BoardTimer<'a> {
+    tim: TimGp16,
+    dir: &'a mut Output<'static>,
+    en: &'a mut Output<'static>,
+}
+
+impl StepTimer for BoardTimer<'_> {
+    const CYCLES_PER_TICK: u32 = CYCLES_PER_TICK;
+
+    fn preload(&mut self, segment: Segment) {
+        self.tim.arr().write(|w| w.set_arr((segment.ticks - 1) as u16));
+        let ccr = if segment.pulse { PULSE_TICKS } else { 0 };
+        self.tim.ccr(CH3).write(|w| w.set_ccr(ccr));
+    }
+
+    fn start(&mut self) {
+        self.tim.cr1().modify(|w| w.set_opm(false));
+        // UG loads the preloaded segment, CNT = 0; no interrupt (URS = counter only).
+        self.tim.egr().write(|w| w.set_ug(true));
+        self.tim.sr().modify(|w| w.set_uif(false));
+        self.tim.cr1().modify(|w| w.set_cen(true));
+    }
+
+    fn stop_at_end_of_segment(&mut self) {
+        self.tim.ccr(CH3).write(|w| w.set_ccr(0));
+        self.tim.cr1().modify(|w| w.set_opm(true));
+    }
+
+    fn take_update(&mut self) -> bool {
+        if !self.tim.sr().read().uif() {
+            return false;
+        }
+        self.tim.sr().modify(|w| w.set_uif(false));
+        true
+    }
+
+    fn set_direction(&mut self, positive: bool) {
+        // DIR high = positive steps.
+        self.dir.set_level(Level::from(positive));
+    }
+
+    fn enable_driver(&mut self) {
+        self.en.set_low();
+    }
+
+    fn now_cycles(&self) -> u32 {
+        DWT::cycle_count()
+    }
+}
+
+/// With arm `index`'s channel and its timer.
+fn with_arm<R>(index: usize, f: impl FnOnce(&mut StepChannel, &mut BoardTimer<'_>, &mut Option<StepFault>) -> R) -> Option<R> {
+    ARMS[index].lock(|arm| {
+        let mut arm = arm.borrow_mut();
+        let arm = arm.as_mut()?;
+        let mut timer = BoardTimer { tim: timer(index), dir: &mut arm.dir, en: &mut arm.en };
+        Some(f(&mut arm.channel, &mut timer, &mut arm.fault))
+    })
 }
 
 /// The update interrupt of arm `index`: a segment has just started.
 fn on_update(index: usize) {
-    let tim = timer(index);
-    if !tim.sr().read().uif() {
-        return; // already accounted for by `halt`
-    }
-    tim.sr().modify(|w| w.set_uif(false));
-    RUNS[index].lock(|run| {
-        let run = &mut *run.borrow_mut();
-        let Some(pulse) = run.preloaded.take() else {
-            // The tail segment ended and one-pulse mode stopped the counter.
-            run.generator = None;
-            tim.dier().modify(|w| w.set_uie(false));
-            MOVING[index].store(false, Ordering::Release);
-            return;
-        };
-        if pulse {
-            POSITION[index].fetch_add(run.direction, Ordering::Relaxed);
-        }
-        match run.generator.as_mut().and_then(StepGen::next) {
-            Some(next) => {
-                preload(tim, next);
-                run.preloaded = Some(next.pulse);
-            }
-            None => {
-                // The running segment is the last: stop at its end with STEP low.
-                tim.ccr(CH3).write(|w| w.set_ccr(0));
-                tim.cr1().modify(|w| w.set_opm(true));
-            }
+    with_arm(index, |channel, timer, fault| {
+        channel.on_update(timer);
+        if let Some(late) = channel.take_fault() {
+            fault.get_or_insert(late);
         }
     });
 }
@@ -215,36 +152,13 @@ fn TIM3() {
     on_update(1);
 }
 
-/// Stop arm `index`'s timer now, without cutting a step pulse short, and count a pulse
-/// whose interrupt has not run yet. Called with the arm's `Run` locked (interrupts off).
-fn halt(tim: TimGp16, run: &mut Run, index: usize) {
-    if tim.cr1().read().cen() {
-        // At most PULSE_TICKS µs: wait until STEP is low again (CNT restarts at each
-        // segment, and every segment is far longer than the pulse).
-        while tim.cnt().read().cnt() < PULSE_TICKS {}
-        tim.cr1().modify(|w| w.set_cen(false));
-    }
-    if tim.sr().read().uif() {
-        tim.sr().modify(|w| w.set_uif(false));
-        if run.preloaded == Some(true) {
-            POSITION[index].fetch_add(run.direction, Ordering::Relaxed);
-        }
-    }
-    *run = Run::IDLE;
-    tim.dier().modify(|w| w.set_uie(false));
-    MOVING[index].store(false, Ordering::Release);
-}
-
 /// The two step generators with their DIR and EN outputs.
 pub struct Steppers {
     _timers: (Timer<'static, TIM2>, Timer<'static, TIM3>),
     _step_pins: (PwmPin<'static, TIM2, Ch3>, PwmPin<'static, TIM3, Ch3>),
-    dir: [Output<'static>; 2],
-    /// TMC2209 EN, active low.
-    en: [Output<'static>; 2],
 }
 
-/// Prescaler, PWM mode 1 on CH3 with preload, STEP low, update interrupt unmasked.
+/// Prescaler, PWM mode 1 on CH3 with preload, STEP low, update interrupt on.
 fn init_timer<T: GeneralInstance4Channel>(tim: &Timer<'static, T>, irq: interrupt::Interrupt) {
     let regs = tim.regs_gp16();
     let psc = tim.get_clock_frequency().0 / TICK_HZ - 1; // 96 MHz timer clock → 95
@@ -261,17 +175,20 @@ fn init_timer<T: GeneralInstance4Channel>(tim: &Timer<'static, T>, irq: interrup
     regs.arr().write(|w| w.set_arr(u16::MAX));
     regs.egr().write(|w| w.set_ug(true));
     regs.ccer().modify(|w| w.set_cce(CH3, true));
+    regs.sr().modify(|w| w.set_uif(false));
+    // The interrupt runs only on counter overflows, i.e. while a move runs.
+    regs.dier().modify(|w| w.set_uie(true));
     irq.unpend();
     // Highest priority: a step interrupt must run within its segment.
     irq.set_priority(Priority::P0);
     // SAFETY: the handlers for TIM2/TIM3 are defined above and share state only
-    // through critical-section mutexes and atomics.
+    // through critical-section mutexes.
     unsafe { irq.enable() };
 }
 
 impl Steppers {
     /// Take the step timers and the STEP/DIR/EN pins; drivers stay disabled until the
-    /// first move.
+    /// first move. The DWT cycle counter must run (`main` starts it).
     pub fn new(
         tim2: Peri<'static, TIM2>,
         tim3: Peri<'static, TIM3>,
@@ -280,72 +197,44 @@ impl Steppers {
         dir: [Output<'static>; 2],
         en: [Output<'static>; 2],
     ) -> Steppers {
+        let [dir_i, dir_r] = dir;
+        let [en_i, en_r] = en;
+        for (index, (dir, en)) in [(dir_i, en_i), (dir_r, en_r)].into_iter().enumerate() {
+            ARMS[index].lock(|arm| {
+                *arm.borrow_mut() = Some(Arm1 { channel: StepChannel::new(), dir, en, fault: None });
+            });
+        }
         let timers = (Timer::new(tim2), Timer::new(tim3));
         init_timer(&timers.0, interrupt::TIM2);
         init_timer(&timers.1, interrupt::TIM3);
         // The channels drive low now, so the pins switch to the timer without a glitch.
-        let step_pins = (
-            PwmPin::new(step_i, OutputType::PushPull),
-            PwmPin::new(step_r, OutputType::PushPull),
-        );
-        Steppers {
-            _timers: timers,
-            _step_pins: step_pins,
-            dir,
-            en,
-        }
+        let step_pins = (PwmPin::new(step_i, OutputType::PushPull), PwmPin::new(step_r, OutputType::PushPull));
+        Steppers { _timers: timers, _step_pins: step_pins }
     }
 
-    /// Start `profile` on `arm`, replacing what it ran. The step count carries on from the
-    /// pulses actually issued.
+    /// Run `profile` on `arm` (from rest at once; while moving, after the committed
+    /// segments: see `firmware::stepgen`).
     pub fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
-        let index = arm.index();
-        let tim = timer(index);
-        let direction = profile.direction();
-        RUNS[index].lock(|run| {
-            let run = &mut *run.borrow_mut();
-            halt(tim, run, index);
-            if profile.step_count() == 0 {
-                return;
-            }
-            // DIR high = positive steps. Set while STEP is low, ≥ 20 µs before the first
-            // pulse (TMC2209 needs 20 ns).
-            self.dir[index].set_level(Level::from(direction > 0));
-            self.en[index].set_low();
-            let mut generator = StepGen::new(profile);
-            // The first segment is the wait for step 1 (no pulse); a profile with steps
-            // always has a second one (step 1's pulse).
-            let (Some(first), Some(second)) = (generator.next(), generator.next()) else {
-                return;
-            };
-            tim.cr1().modify(|w| w.set_opm(false));
-            preload(tim, first);
-            tim.egr().write(|w| w.set_ug(true)); // load it now, CNT = 0
-            preload(tim, second);
-            tim.sr().modify(|w| w.set_uif(false));
-            *run = Run {
-                generator: Some(generator),
-                preloaded: Some(second.pulse),
-                direction,
-            };
-            MOVING[index].store(true, Ordering::Release);
-            tim.dier().modify(|w| w.set_uie(true));
-            tim.cr1().modify(|w| w.set_cen(true));
-        });
+        with_arm(arm.index(), |channel, timer, _| channel.run_profile(timer, profile));
     }
 
     /// Steps issued, signed, from the zero homing defined.
     pub fn position_steps(&self, arm: Arm) -> i32 {
-        POSITION[arm.index()].load(Ordering::Relaxed)
+        with_arm(arm.index(), |channel, _, _| channel.position()).unwrap_or(0)
     }
 
     /// A profile is still running.
     pub fn is_moving(&self, arm: Arm) -> bool {
-        MOVING[arm.index()].load(Ordering::Acquire)
+        with_arm(arm.index(), |channel, _, _| channel.is_moving()).unwrap_or(false)
     }
 
     /// Redefine the count (arm at rest).
     pub fn set_position_steps(&mut self, arm: Arm, steps: i32) {
-        POSITION[arm.index()].store(steps, Ordering::Relaxed);
+        with_arm(arm.index(), |channel, _, _| channel.set_position(steps));
+    }
+
+    /// The late interrupt of `arm` since the last call, if any.
+    pub fn take_fault(&mut self, arm: Arm) -> Option<StepFault> {
+        with_arm(arm.index(), |_, _, fault| fault.take()).flatten()
     }
 }

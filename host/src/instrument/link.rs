@@ -129,18 +129,73 @@ fn version_advice(host: u16, device: u16) -> &'static str {
     }
 }
 
-/// How long a command may take on the device beyond a quick answer.
-fn expected_duration(command: &Command) -> Duration {
-    let ms = |ms: u64| Duration::from_millis(ms);
-    match command {
-        // Search over the whole travel, back off and re-approach slowly: under 20 s.
-        Command::Home => ms(30_000),
-        // The longest move (85°) takes under 2 s; the settle 0.1 s.
-        Command::MoveTo(_) => ms(3_000),
-        // Up to one re-take per range.
-        Command::TakeReading { integration_ms, .. } => ms(4 * u64::from(*integration_ms)),
-        Command::TakeDark { integration_ms } => ms(3 * u64::from(*integration_ms) + 500),
-        _ => Duration::ZERO,
+/// How long the device's commands may take, from what it announced in the handshake
+/// (the reference instrument's until then): its motion limits through the firmware's own
+/// planner ([`firmware::motion::move_duration_us`]), its homing bound and its heartbeat
+/// timeout. Nothing of the device's timing is restated here.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DeviceTiming {
+    /// The longest move (both arms over the whole working range) and its settling.
+    pub longest_move: Duration,
+    /// `DeviceInfo::longest_home_ms`.
+    pub longest_home: Duration,
+    /// `DeviceInfo::heartbeat_timeout_ms`.
+    pub heartbeat_timeout: Duration,
+}
+
+impl DeviceTiming {
+    /// From the device's handshake. Limits that make no motion (a device that announced a
+    /// zero or a non-finite speed) leave the reference instrument's move time.
+    pub fn from_info(info: &DeviceInfo) -> DeviceTiming {
+        use firmware::motion::{angle_to_steps, deg_to_steps, move_duration_us};
+        let (low, high) = (angle_to_steps(info.arm_min), angle_to_steps(info.arm_max));
+        let move_us = move_duration_us(
+            [low, low],
+            [high, high],
+            deg_to_steps(info.max_speed_deg_per_s),
+            deg_to_steps(info.accel_deg_per_s2),
+        );
+        let reference = Self::reference();
+        let longest_move = if move_us == 0 && high != low {
+            reference.longest_move
+        } else {
+            Duration::from_micros(move_us) + Duration::from_millis(u64::from(info.settle_ms))
+        };
+        DeviceTiming {
+            longest_move,
+            longest_home: Duration::from_millis(u64::from(info.longest_home_ms)),
+            heartbeat_timeout: Duration::from_millis(u64::from(info.heartbeat_timeout_ms)),
+        }
+    }
+
+    /// The reference instrument's (before the handshake).
+    pub fn reference() -> DeviceTiming {
+        let info = firmware::config::InstrumentConfig::REFERENCE.device_info("");
+        let (low, high) = (firmware::motion::angle_to_steps(info.arm_min), firmware::motion::angle_to_steps(info.arm_max));
+        let move_us = firmware::motion::move_duration_us(
+            [low, low],
+            [high, high],
+            firmware::motion::deg_to_steps(info.max_speed_deg_per_s),
+            firmware::motion::deg_to_steps(info.accel_deg_per_s2),
+        );
+        DeviceTiming {
+            longest_move: Duration::from_micros(move_us) + Duration::from_millis(u64::from(info.settle_ms)),
+            longest_home: Duration::from_millis(u64::from(info.longest_home_ms)),
+            heartbeat_timeout: Duration::from_millis(u64::from(info.heartbeat_timeout_ms)),
+        }
+    }
+
+    /// How long `command` may take on the device beyond a quick answer.
+    pub fn expected_duration(&self, command: &Command) -> Duration {
+        let ms = |ms: u64| Duration::from_millis(ms);
+        match command {
+            Command::Home => self.longest_home,
+            Command::MoveTo(_) => self.longest_move,
+            // Up to one re-take per range.
+            Command::TakeReading { integration_ms, .. } => ms(4 * u64::from(*integration_ms)),
+            Command::TakeDark { integration_ms } => ms(3 * u64::from(*integration_ms) + 500),
+            _ => Duration::ZERO,
+        }
     }
 }
 
@@ -149,8 +204,9 @@ fn expected_duration(command: &Command) -> Duration {
 pub struct RetryPolicy {
     /// How long to wait for a reply before sending the request again.
     pub reply_timeout: Duration,
-    /// While waiting, a heartbeat goes out when the host has sent nothing for this long
-    /// (the firmware stops the arms after 2 s without a frame).
+    /// While waiting, a heartbeat goes out when the host has sent nothing for this long,
+    /// or for a fifth of the device's heartbeat timeout (`DeviceInfo::heartbeat_timeout_ms`)
+    /// if that is shorter.
     pub heartbeat_every: Duration,
     /// How many times a request is sent at most.
     pub attempts: u32,
@@ -204,6 +260,8 @@ pub struct Client<T: Transport> {
     last_heard: Duration,
     /// Set by a Ctrl-C handler: waiting stops with [`LinkError::Interrupted`].
     interrupt: Option<Arc<AtomicBool>>,
+    /// The device's timing, from its last handshake.
+    timing: DeviceTiming,
 }
 
 fn command_name(command: &Command) -> &'static str {
@@ -239,6 +297,7 @@ impl<T: Transport> Client<T> {
             last_sent: Duration::ZERO,
             last_heard: now,
             interrupt: None,
+            timing: DeviceTiming::reference(),
         }
     }
 
@@ -297,11 +356,27 @@ impl<T: Transport> Client<T> {
         self.stats
     }
 
-    /// Handshake: our protocol version for the device's description.
+    /// The device's timing, as its last handshake gave it.
+    pub fn timing(&self) -> DeviceTiming {
+        self.timing
+    }
+
+    /// The interval of heartbeats while waiting: the policy's, or a fifth of the device's
+    /// heartbeat timeout if that is shorter (but not under 20 ms, whatever a device says:
+    /// a zero would send heartbeats without end).
+    fn heartbeat_every(&self) -> Duration {
+        self.policy.heartbeat_every.min(self.timing.heartbeat_timeout / 5).max(Duration::from_millis(20))
+    }
+
+    /// Handshake: our protocol version for the device's description (whose timing the
+    /// client then waits by).
     pub fn hello(&mut self) -> Result<DeviceInfo, LinkError> {
         let version_error = |device: u16| LinkError::VersionMismatch { host: PROTOCOL_VERSION, device };
         match self.request(Command::Hello { protocol_version: PROTOCOL_VERSION }) {
-            Ok(Reply::Hello(info)) if info.protocol_version == PROTOCOL_VERSION => Ok(info),
+            Ok(Reply::Hello(info)) if info.protocol_version == PROTOCOL_VERSION => {
+                self.timing = DeviceTiming::from_info(&info);
+                Ok(info)
+            }
             Ok(Reply::Hello(info)) => Err(version_error(info.protocol_version)),
             Ok(reply) => Err(LinkError::UnexpectedReply { command: "Hello", reply: Box::new(reply) }),
             Err(LinkError::Device { error, .. }) if error.code == ErrorCode::VersionMismatch => {
@@ -337,7 +412,7 @@ impl<T: Transport> Client<T> {
     pub fn request(&mut self, command: Command) -> Result<Reply, LinkError> {
         let seq = self.take_seq();
         let name = command_name(&command);
-        let longest = expected_duration(&command);
+        let longest = self.timing.expected_duration(&command);
         let started = self.transport.now();
         let request = Request { seq, command };
         let mut attempts = 0;
@@ -429,7 +504,7 @@ impl<T: Transport> Client<T> {
             if now >= deadline {
                 return Ok(None);
             }
-            let heartbeat_due = self.last_sent + self.policy.heartbeat_every;
+            let heartbeat_due = self.last_sent + self.heartbeat_every();
             if now >= heartbeat_due {
                 // Its reply is read and dropped like any answer to an earlier request.
                 let seq = self.take_seq();

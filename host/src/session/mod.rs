@@ -585,6 +585,11 @@ impl<'a, T: Transport> Session<'a, T> {
             self.decide(&format!("{} resumed readings were measured again before the crash: the later reading of each geometry is kept", marks.len()));
             self.recorder.superseded(&marks, "measured again before a crash kept the mark from the record").map_err(SessionError::Record)?;
         }
+        if self.info.reset_cause.fault().is_some() {
+            // A fault the instrument took before this session (a panic, a processor fault,
+            // the watchdog): the homing that follows starts afresh.
+            self.decide(&format!("the instrument last restarted after a fault: {}", self.info.reset_cause));
+        }
         let started = self.now();
         // The resumed readings were taken under an earlier process: a Home now tells
         // whether the arms still agree with their step counts (`steps`).

@@ -68,6 +68,9 @@ pub(super) fn classify(error: LinkError) -> Result<Failure, SessionError> {
             | ErrorCode::HeartbeatLost
             | ErrorCode::Aborted
             | ErrorCode::WatchdogReset
+            // The device's own fail-safe stops that leave it whole: re-homed from there.
+            | ErrorCode::StepLate
+            | ErrorCode::AdcOverrun
             | ErrorCode::NoSchedule
             | ErrorCode::BadSchedule => Ok(Failure::Refused { command, error: refusal }),
             _ => Err(SessionError::Refused { command, error: refusal, advice: advice(command, refusal) }),
@@ -257,6 +260,10 @@ impl<T: Transport> Session<'_, T> {
                     self.recoveries.reconnections += 1;
                     let outage = (self.now() - lost_at).as_secs_f64();
                     self.decide(&format!("link back: the instrument greeted again, {outage:.1} s after it was last heard"));
+                    // A restart the host did not see: say why (the state recovery re-homes).
+                    if info.reset_cause.fault().is_some() {
+                        self.decide(&format!("the instrument had restarted: {}; its arms are homed again", info.reset_cause));
+                    }
                     return Ok(());
                 }
                 Err(LinkError::Interrupted) => return Err(SessionError::Interrupted),
