@@ -447,6 +447,37 @@ impl Calibration {
         (0..range).try_fold(first, |g, q| Ok(g * self.gain_ratio(q)?.0))
     }
 
+    /// The standard deviation of one detector sample (block) on `range` at `net_counts`
+    /// above dark, counts, from the calibration's own readings: the dark reading's scatter
+    /// on that range (read noise) and the white readings' scatter beyond it (shot noise,
+    /// whose variance grows with the signal and, for the same light, with the range's
+    /// gain: on range r it is k·(g_r/g_w)·counts for k measured on the white's range w).
+    /// A sweep's bin needs it: its few blocks were read while the signal changed, so
+    /// their own scatter is the scene's slope as much as noise.
+    pub fn block_std_counts(&self, range: u8, net_counts: f64) -> Result<f64, CalibrationError> {
+        let dark = self.dark.get(usize::from(range)).ok_or(CalibrationError::NoRange(range))?;
+        let read_var = f64::from(dark.std_counts).powi(2);
+        let mut shot = Vec::new();
+        for w in self.white.iter().filter(|w| !w.reading.saturated) {
+            let w_dark = self.dark.get(usize::from(w.reading.range)).ok_or(CalibrationError::NoRange(w.reading.range))?;
+            let net = self.net_counts(&w.reading)?;
+            if net > 0.0 {
+                let excess = f64::from(w.reading.std_counts).powi(2) - f64::from(w_dark.std_counts).powi(2);
+                shot.push((excess.max(0.0) / net, w.reading.range));
+            }
+        }
+        let per_count = if shot.is_empty() {
+            0.0
+        } else {
+            let mut sum = 0.0;
+            for &(k, white_range) in &shot {
+                sum += k * self.gain(range)? / self.gain(white_range)?;
+            }
+            sum / shot.len() as f64
+        };
+        Ok((read_var + per_count * net_counts.max(0.0)).sqrt())
+    }
+
     /// Counts above the dark of the reading's range, on that range.
     pub fn net_counts(&self, reading: &Reading) -> Result<f64, CalibrationError> {
         let dark = self.dark.get(usize::from(reading.range)).ok_or(CalibrationError::NoRange(reading.range))?;
@@ -675,6 +706,28 @@ mod tests {
         for (rf, pct) in [(0.0, 0.5), (1.5, 0.5), (f64::NAN, 0.5), (0.99, -1.0), (0.99, 60.0), (0.99, f64::INFINITY)] {
             assert!(matches!(Tile::new(rf, pct), Err(CalibrationError::BadTile(_))), "{rf} {pct}");
         }
+    }
+
+    /// A block's noise: the dark's scatter at dark, growing with the signal as the white's
+    /// scatter says, and for the same light on a less sensitive range as its gain says.
+    #[test]
+    fn a_blocks_noise_follows_the_dark_and_white_readings() {
+        let mut c = calibration();
+        let dark = f64::from(c.dark[0].std_counts);
+        assert!((c.block_std_counts(0, 0.0).unwrap() - dark).abs() < 1e-9);
+        for w in &mut c.white {
+            // 10 000 counts above a dark of 200 on range 0, scattered by 30 counts.
+            w.reading = Reading { mean_counts: 10_200.0, std_counts: 30.0, samples: 100, range: 0, integration_ms: 100, saturated: false };
+        }
+        let k = (900.0 - dark * dark) / 10_000.0;
+        assert!((c.block_std_counts(0, 10_000.0).unwrap() - 30.0).abs() < 1e-6);
+        assert!((c.block_std_counts(0, 2_500.0).unwrap() - (dark * dark + k * 2_500.0).sqrt()).abs() < 1e-9);
+        // Range 1 is 10× less sensitive: the same light gives a tenth of the counts and a
+        // tenth of the shot variance per count.
+        let on_1 = c.block_std_counts(1, 1_000.0).unwrap();
+        let dark_1 = f64::from(c.dark[1].std_counts);
+        assert!((on_1 * on_1 - dark_1 * dark_1 - 0.1 * k * 1_000.0).abs() < 1e-6, "{on_1}");
+        assert!(c.block_std_counts(9, 1.0).is_err());
     }
 
     fn certificate_file(text: &str) -> (tempfile::TempDir, std::path::PathBuf) {

@@ -4,8 +4,10 @@
 //! because the arms neither stop nor settle between its bins. This module plans them and
 //! times them as the firmware will run them ([`Motion::sweep_us`]); the session runs them
 //! and the fit models each bin's travel ([`crate::analysis::model::evaluate_reading`]).
+use crate::instrument::calibration::Calibration;
+use crate::session::MeasuredPoint;
 use crate::session::order::Motion;
-use protocol::Geometry;
+use protocol::{Geometry, Reading};
 use serde::Serialize;
 
 /// θr swept at every incidence by a full-plane pass, degrees (Strategy 1's and Table 2's
@@ -83,6 +85,73 @@ pub fn device_us(motion: &Motion, here: Geometry, plans: &[SweepPlan]) -> u64 {
     total
 }
 
+/// One bin as the instrument reported it, in the host's units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BinReading {
+    /// θr at the start of its first block, degrees (from the detector arm's step count).
+    pub start_deg: f64,
+    /// θr at the end of its last block, degrees.
+    pub end_deg: f64,
+    /// Mean of its blocks, ADC counts (dark offset included).
+    pub mean_counts: f32,
+    /// Blocks averaged (at least one).
+    pub blocks: u16,
+    /// The detector range it was read on.
+    pub range: u8,
+    /// Saturated on the least sensitive (or the forced) range: a lower bound, not a value.
+    pub saturated: bool,
+    /// Device time at its end, µs.
+    pub device_time_us: u64,
+}
+
+/// A bin as a recorded reading: θr at the middle of its travel less the amplifier's lag
+/// (while the arm moves at v the reading trails the angle by v·τ of the range's time
+/// constant; the mean of that exponential kernel, its spread (vτ)² being second order),
+/// its travel as the span, and its raw reading with the noise of its blocks as the
+/// calibration's dark and white readings give it ([`Calibration::block_std_counts`]), not
+/// their own scatter, which holds the scene's slope across the bin. Then converted like
+/// any reading. `block_s` is one detector block, `tau_s` the range's time constant.
+#[allow(clippy::too_many_arguments)]
+pub fn bin_point(
+    theta_i_deg: f64,
+    bin: &BinReading,
+    sweep_id: u16,
+    index: u16,
+    block_s: f64,
+    tau_s: f64,
+    calibration: &Calibration,
+) -> MeasuredPoint {
+    let span = (bin.end_deg - bin.start_deg).abs();
+    let direction = (bin.end_deg - bin.start_deg).signum();
+    let seconds = f64::from(bin.blocks.max(1)) * block_s;
+    let lag_deg = span / seconds * tau_s;
+    let net = calibration.net_counts(&Reading { mean_counts: bin.mean_counts, std_counts: 0.0, samples: 1, range: bin.range, integration_ms: 1, saturated: false }).unwrap_or(0.0);
+    let std_counts = calibration.block_std_counts(bin.range, net).unwrap_or(f64::NAN) as f32;
+    let reading = Reading {
+        mean_counts: bin.mean_counts,
+        std_counts,
+        samples: u32::from(bin.blocks),
+        range: bin.range,
+        integration_ms: (seconds * 1e3).round().clamp(1.0, f64::from(u16::MAX)) as u16,
+        saturated: bin.saturated,
+    };
+    let mut point = MeasuredPoint {
+        theta_i_deg,
+        theta_r_deg: 0.5 * (bin.start_deg + bin.end_deg) - direction * lag_deg,
+        theta_r_span_deg: span,
+        radiance_factor: None,
+        std: None,
+        reading,
+        schedule_id: sweep_id,
+        index,
+        device_time_us: bin.device_time_us,
+        note: None,
+        superseded: false,
+    };
+    point.convert_with(calibration);
+    point
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,5 +192,32 @@ mod tests {
         assert_eq!(plan.bins(), 4);
         assert_eq!(SweepPlan { bin_deg: 0.25, ..plan }.bins(), 4);
         assert_eq!(SweepPlan { to_deg: 39.0, ..plan }.bins(), 4, "backwards alike");
+    }
+
+    #[test]
+    fn a_bin_is_recorded_at_its_middle_less_the_lag_with_its_blocks_noise() {
+        use crate::instrument::calibration::{Tile, WhitePoint};
+        let reading = |mean_counts: f32, std_counts: f32, range: u8| Reading { mean_counts, std_counts, samples: 100, range, integration_ms: 100, saturated: false };
+        let calibration = Calibration::new(
+            "test".into(),
+            Tile::default(),
+            vec![1.0, 0.1, 0.01],
+            vec![reading(200.0, 10.0, 0), reading(200.0, 10.0, 1), reading(200.0, 10.0, 2)],
+            vec![WhitePoint { theta_i_deg: 60.0, reading: reading(10_200.0, 30.0, 0) }],
+        );
+        // 0.1° in two 1 ms blocks: 50 °/s; with τ = 0.2 ms the reading trails by 0.01°.
+        let bin = BinReading { start_deg: 59.95, end_deg: 60.05, mean_counts: 5_200.0, blocks: 2, range: 0, saturated: false, device_time_us: 9 };
+        let up = bin_point(60.0, &bin, 3, 7, 1e-3, 2e-4, &calibration);
+        assert!((up.theta_r_deg - 59.99).abs() < 1e-12 && (up.theta_r_span_deg - 0.1).abs() < 1e-12, "{up:?}");
+        let down = bin_point(60.0, &BinReading { start_deg: 60.05, end_deg: 59.95, ..bin }, 3, 7, 1e-3, 2e-4, &calibration);
+        assert!((down.theta_r_deg - 60.01).abs() < 1e-12, "backwards it trails the other way: {down:?}");
+        // Half the white's net counts: half its radiance factor; the noise of two blocks.
+        assert!((up.radiance_factor.unwrap() - 0.5 * 0.99).abs() < 1e-12);
+        let block = calibration.block_std_counts(0, 5_000.0).unwrap();
+        assert!((up.std.unwrap() - block / 2f64.sqrt() / 10_000.0 * 0.99).abs() < 1e-9, "{:?}", up.std);
+        assert_eq!((up.schedule_id, up.index, up.reading.samples, up.reading.integration_ms), (3, 7, 2, 2));
+        // A saturated bin is not converted: its mean is only a lower bound.
+        let saturated = bin_point(60.0, &BinReading { saturated: true, ..bin }, 3, 8, 1e-3, 2e-4, &calibration);
+        assert!(saturated.radiance_factor.is_none() && saturated.note.is_some());
     }
 }
