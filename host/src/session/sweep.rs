@@ -4,6 +4,8 @@
 //! because the arms neither stop nor settle between its bins. This module plans them and
 //! times them as the firmware will run them ([`Motion::sweep_us`]); the session runs them
 //! and the fit models each bin's travel ([`crate::analysis::model::evaluate_reading`]).
+use crate::analysis::fit::{FitResult, Observation, inverse_spd};
+use crate::analysis::model::{self, SIGMA};
 use crate::instrument::calibration::Calibration;
 use crate::session::MeasuredPoint;
 use crate::session::order::Motion;
@@ -152,6 +154,164 @@ pub fn bin_point(
     point
 }
 
+/// The narrowest bin a sweep at `speed_deg_per_s` can have: one detector block's travel,
+/// rounded up to the arms' 0.0125° ticks.
+pub fn min_bin_deg(speed_deg_per_s: f64, block_s: f64) -> f64 {
+    let tick = protocol::Angle::RESOLUTION_DEG;
+    ((speed_deg_per_s * block_s / tick).ceil().max(1.0)) * tick
+}
+
+/// A bin length for a lobe of standard deviation `lobe_sd_deg` in θr swept at
+/// `speed_deg_per_s`: a sixth of the lobe's width, so the bins resolve its shape (the fit
+/// models their travel, so nothing is lost but resolution), and never under one block.
+pub fn bin_for_lobe(lobe_sd_deg: f64, speed_deg_per_s: f64, block_s: f64) -> f64 {
+    let tick = protocol::Angle::RESOLUTION_DEG;
+    let wanted = ((lobe_sd_deg / 6.0) / tick).floor().max(1.0) * tick;
+    wanted.max(min_bin_deg(speed_deg_per_s, block_s))
+}
+
+/// The lobe's standard deviation in θr as the detector sees it, degrees: the TS lobe's
+/// 2σ widened by the acceptance window (a uniform window of width a adds a²/12).
+pub fn lobe_sd_deg(sigma_deg: f64, acceptance_deg: Option<f64>) -> f64 {
+    let a = acceptance_deg.unwrap_or(0.0);
+    ((2.0 * sigma_deg).powi(2) + a * a / 12.0).sqrt()
+}
+
+/// Top speeds the design considers for sweeps across a peak, °/s: the instrument's
+/// fastest and three slower ones, each halving the noise variance per degree.
+pub const DESIGN_SPEEDS_DEG_PER_S: [f64; 4] = [60.0, 30.0, 15.0, 7.5];
+
+/// Sweeps across the specular peak at each of Strategy 1's incidences: ±3 lobe standard
+/// deviations (at least ±1°) about specular, at each of [`DESIGN_SPEEDS_DEG_PER_S`] (up to
+/// the instrument's own top speed), bins from [`bin_for_lobe`], each started at the end
+/// nearer the detector's position `from_theta_r_deg`.
+pub fn peak_candidates(sigma_deg: f64, acceptance_deg: Option<f64>, max_speed_deg_per_s: f64, block_s: f64, from_theta_r_deg: f64) -> Vec<SweepPlan> {
+    let sd = lobe_sd_deg(sigma_deg, acceptance_deg);
+    let half = (3.0 * sd).clamp(1.0, 15.0);
+    let tick = protocol::Angle::RESOLUTION_DEG;
+    let round = |deg: f64| (deg / tick).round() * tick;
+    let mut out = Vec::new();
+    for &theta_i in &protocol::schedules::INCIDENCE_DEG {
+        let centre = f64::from(theta_i);
+        let (lo, hi) = (round((centre - half).max(0.0)), round((centre + half).min(THETA_R_MAX_DEG)));
+        let (from_deg, to_deg) = if (from_theta_r_deg - lo).abs() <= (from_theta_r_deg - hi).abs() { (lo, hi) } else { (hi, lo) };
+        for &speed in DESIGN_SPEEDS_DEG_PER_S.iter().filter(|&&v| v <= max_speed_deg_per_s) {
+            out.push(SweepPlan { theta_i_deg: centre, from_deg, to_deg, speed_deg_per_s: speed, bin_deg: bin_for_lobe(sd, speed, block_s) });
+        }
+    }
+    out
+}
+
+/// The information a sweep's bins would bring, as the fit would model them (each bin's
+/// travel through the acceptance), with the noise `per_block_variance` predicts for one
+/// detector block at a bin's radiance factor over the blocks a bin gets (the sweep's time
+/// shared out over its bins).
+pub fn sweep_information(fit: &FitResult, plan: &SweepPlan, motion: &Motion, block_s: f64, per_block_variance: &dyn Fn(f64) -> f64) -> [[f64; 4]; 4] {
+    let free = fit.model.0;
+    let bins = plan.bins();
+    let blocks = (plan.sweep_us(motion) as f64 * 1e-6 / block_s / bins as f64).max(1.0);
+    let step = (plan.to_deg - plan.from_deg) / bins as f64;
+    let mut information = [[0.0; 4]; 4];
+    for k in 0..bins {
+        let centre = plan.from_deg + (k as f64 + 0.5) * step;
+        let (value, g) = model::evaluate_reading(&fit.params, plan.theta_i_deg, centre, step.abs(), fit.acceptance_deg);
+        let j: [f64; 4] = std::array::from_fn(|i| if free[i] { g[i] } else { 0.0 });
+        let variance = (per_block_variance(value) / blocks).max(1e-18);
+        for a in 0..4 {
+            for b in 0..4 {
+                information[a][b] += j[a] * j[b] / variance;
+            }
+        }
+    }
+    information
+}
+
+/// The information the readings taken bring (as the fit modelled them), each with the
+/// variance it was given.
+pub fn readings_information(fit: &FitResult, observations: &[Observation]) -> [[f64; 4]; 4] {
+    let free = fit.model.0;
+    let mut information = [[0.0; 4]; 4];
+    for o in observations {
+        let Some(std) = o.std else { continue };
+        let (_, g) = model::evaluate_reading(&fit.params, o.theta_i_deg, o.theta_r_deg, o.theta_r_span_deg, fit.acceptance_deg);
+        let j: [f64; 4] = std::array::from_fn(|i| if free[i] { g[i] } else { 0.0 });
+        let variance = (std * std).max(1e-18);
+        for a in 0..4 {
+            for b in 0..4 {
+                information[a][b] += j[a] * j[b] / variance;
+            }
+        }
+    }
+    information
+}
+
+/// A design's choice: the sweeps, and what they are predicted to leave of σ's 95 %
+/// half-width relative to σ.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SweepDesign {
+    /// The sweeps, in the order to run them.
+    pub plans: Vec<SweepPlan>,
+    /// σ's predicted 95 % relative half-width after them.
+    pub predicted_rel_half_width: f64,
+    /// Their device time with the moves between them, seconds.
+    pub seconds: f64,
+}
+
+/// Sweeps across the peak chosen greedily by the drop of σ's variance per device second
+/// (the move to each sweep's start, its settling and the sweep itself), until σ's 95 %
+/// relative half-width is predicted to reach `target_rel_half_width` or `max_sweeps` are
+/// chosen. The fit's variance of σ holds errors the readings share (the white, darks,
+/// tile, gains) that more readings do not shrink: the prediction takes the fit's variance
+/// less the part the readings' own noise leaves, which is what the sweeps reduce.
+/// Nothing is chosen when σ is not fitted or no candidate helps.
+#[allow(clippy::too_many_arguments)]
+pub fn design_peak_sweeps(
+    fit: &FitResult,
+    observations: &[Observation],
+    here: Geometry,
+    motion: &Motion,
+    max_speed_deg_per_s: f64,
+    block_s: f64,
+    per_block_variance: &dyn Fn(f64) -> f64,
+    target_rel_half_width: f64,
+    max_sweeps: usize,
+) -> SweepDesign {
+    let none = SweepDesign { plans: Vec::new(), predicted_rel_half_width: f64::INFINITY, seconds: 0.0 };
+    let (Some(sigma), Some(se)) = (fit.sigma_deg(), fit.std_error(SIGMA)) else { return none };
+    let free = fit.model.0;
+    let mut information = readings_information(fit, observations);
+    let Some(noise_cov) = inverse_spd(&information, &free) else { return none };
+    // What the readings' noise contributes now; the rest of the fit's variance stays.
+    let floor = (se * se - noise_cov[SIGMA][SIGMA]).max(0.0);
+    let half_width = |noise_var: f64| 1.96 * (floor + noise_var).max(0.0).sqrt() / sigma;
+    let mut noise_var = noise_cov[SIGMA][SIGMA];
+    let mut design = SweepDesign { plans: Vec::new(), predicted_rel_half_width: half_width(noise_var), seconds: 0.0 };
+    let mut at = here;
+    while design.plans.len() < max_sweeps && design.predicted_rel_half_width > target_rel_half_width {
+        let mut best: Option<(f64, SweepPlan, [[f64; 4]; 4], f64, f64)> = None;
+        for plan in peak_candidates(sigma, fit.acceptance_deg, max_speed_deg_per_s, block_s, at.theta_r.deg()) {
+            let Some(start) = plan.start() else { continue };
+            let added = sweep_information(fit, &plan, motion, block_s, per_block_variance);
+            let total: [[f64; 4]; 4] = std::array::from_fn(|a| std::array::from_fn(|b| information[a][b] + added[a][b]));
+            let Some(cov) = inverse_spd(&total, &free) else { continue };
+            let moving = motion.move_us(at, start);
+            let seconds = (moving + if moving > 0 { motion.settle_us() } else { 0 } + plan.sweep_us(motion)) as f64 * 1e-6;
+            let score = (noise_var - cov[SIGMA][SIGMA]) / seconds;
+            if score.is_finite() && score > 0.0 && best.as_ref().is_none_or(|b| score > b.0) {
+                best = Some((score, plan, total, cov[SIGMA][SIGMA], seconds));
+            }
+        }
+        let Some((_, plan, total, var, seconds)) = best else { break };
+        information = total;
+        noise_var = var;
+        design.plans.push(plan);
+        design.seconds += seconds;
+        design.predicted_rel_half_width = half_width(noise_var);
+        at = plan.end().unwrap_or(at);
+    }
+    design
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -219,5 +379,60 @@ mod tests {
         // A saturated bin is not converted: its mean is only a lower bound.
         let saturated = bin_point(60.0, &BinReading { saturated: true, ..bin }, 3, 8, 1e-3, 2e-4, &calibration);
         assert!(saturated.radiance_factor.is_none() && saturated.note.is_some());
+    }
+
+    fn fitted(sigma_deg: f64, rho_s: f64, rho_d: f64, eta: f64, step_deg: f64, relative_noise: f64) -> (FitResult, Vec<Observation>) {
+        let truth = crate::analysis::model::Params { sigma_deg, rho_s, rho_d, eta };
+        let mut observations = Vec::new();
+        for theta_i in [20.0, 30.0, 45.0, 60.0] {
+            let mut theta_r = 0.0;
+            while theta_r <= 70.0 {
+                let value = model::evaluate_reading(&truth, theta_i, theta_r, step_deg, Some(1.0)).0;
+                observations.push(Observation { theta_i_deg: theta_i, theta_r_deg: theta_r, radiance_factor: value, std: Some(relative_noise * value + 1e-4), theta_r_span_deg: step_deg });
+                theta_r += step_deg;
+            }
+        }
+        (crate::analysis::fit::fit(&observations, &crate::analysis::fit::FitOptions::default()).expect("fit"), observations)
+    }
+
+    /// After a coarse, noisy pass over glossy paper, the design sweeps across the peak
+    /// until σ is predicted to the target, each sweep lowering the prediction; a rough
+    /// paper's σ, already known well, gets none.
+    #[test]
+    fn the_design_sweeps_the_peak_until_sigma_is_known_to_the_target() {
+        let motion = Motion::reference();
+        let block_s = 1.024e-3;
+        let (fit, observations) = fitted(0.8, 57.8, 0.855, 1.19, 1.0, 0.02);
+        let now = 1.96 * fit.std_error(SIGMA).unwrap() / fit.sigma_deg().unwrap();
+        // 2 % per bin at a 1° bin of ~16 blocks: a block has √16 times that noise.
+        let per_block = |r: f64| (0.02 * r * 4.0).powi(2);
+        let here = Geometry::from_deg(60.0, 0.0).unwrap();
+        let design = design_peak_sweeps(&fit, &observations, here, &motion, 60.0, block_s, &per_block, 0.5 * now, 6);
+        assert!(!design.plans.is_empty() && design.predicted_rel_half_width <= 0.5 * now, "{now} → {design:?}");
+        for plan in &design.plans {
+            assert!((plan.from_deg - plan.theta_i_deg).abs() <= 15.0 && (plan.to_deg - plan.theta_i_deg).abs() <= 15.0, "{plan:?}: across the peak");
+            assert!(plan.bin_deg >= min_bin_deg(plan.speed_deg_per_s, block_s) && plan.bin_deg <= lobe_sd_deg(0.8, Some(1.0)) / 6.0 + 1e-9, "{plan:?}");
+        }
+        assert!(design.seconds > 0.0 && design.seconds < 10.0, "{design:?}");
+        // Fewer sweeps allowed, a wider prediction.
+        let one = design_peak_sweeps(&fit, &observations, here, &motion, 60.0, block_s, &per_block, 0.0, 1);
+        assert_eq!(one.plans.len(), 1);
+        assert!(one.predicted_rel_half_width < now && one.predicted_rel_half_width >= design.predicted_rel_half_width);
+        let (rough, rough_obs) = fitted(21.7, 0.409, 0.414, 3.0, 1.0, 0.002);
+        let rough_now = 1.96 * rough.std_error(SIGMA).unwrap() / rough.sigma_deg().unwrap();
+        let design = design_peak_sweeps(&rough, &rough_obs, here, &motion, 60.0, block_s, &per_block, rough_now * 1.01, 6);
+        assert!(design.plans.is_empty(), "{design:?}");
+    }
+
+    #[test]
+    fn bins_never_go_below_one_block_and_resolve_the_lobe() {
+        let block_s = 1.024e-3;
+        assert!((min_bin_deg(60.0, block_s) - 0.0625).abs() < 1e-12, "0.0614° rounded up to 5 ticks");
+        assert!((min_bin_deg(1.0, block_s) - 0.0125).abs() < 1e-12);
+        // G's lobe (σ = 0.8°, 1° window): sd 1.63°, bins of 0.2625°; at 60 °/s still above a block.
+        let sd = lobe_sd_deg(0.8, Some(1.0));
+        assert!((sd - (2.56f64 + 1.0 / 12.0).sqrt()).abs() < 1e-12);
+        assert!((bin_for_lobe(sd, 60.0, block_s) - 0.2625).abs() < 1e-12);
+        assert!((bin_for_lobe(0.05, 60.0, block_s) - 0.0625).abs() < 1e-12, "a lobe too narrow for the speed gets one block");
     }
 }
