@@ -20,8 +20,13 @@ pub struct InstrumentConfig {
     pub accel_deg_per_s2: f32,
     /// Settling time after a move.
     pub settle_ms: u16,
-    /// Detector ranges, most sensitive first.
+    /// Detector ranges, most sensitive first, each with its amplifier's time constant and
+    /// settling time (the reasons are at [`REFERENCE_RANGES`]).
     pub detector_ranges: &'static [DetectorRange],
+    /// The detector's block period, µs: one ADC sample (a block of oversampled
+    /// conversions) per period. The fake hardware and the simulator sample at this rate;
+    /// the board announces its own (its ADC's clock makes 1,024 µs, `firmware/board`).
+    pub detector_block_us: u32,
     /// Detector acceptance, full width, degrees.
     pub acceptance_deg: f32,
     /// Longest schedule held.
@@ -67,10 +72,28 @@ pub struct InstrumentConfig {
 const FULL_SCALE_COUNTS: u32 = 65_535;
 
 /// Three transimpedance ranges a decade apart, most sensitive first.
-const REFERENCE_RANGES: [DetectorRange; 3] = [
-    DetectorRange { relative_gain: 1.0, full_scale_counts: FULL_SCALE_COUNTS },
-    DetectorRange { relative_gain: 0.1, full_scale_counts: FULL_SCALE_COUNTS },
-    DetectorRange { relative_gain: 0.01, full_scale_counts: FULL_SCALE_COUNTS },
+///
+/// INSTRUMENT ASSUMPTIONS (no board has been measured yet; these are a plausible design, to
+/// be replaced by a measured step response): the photodiode feeds a transimpedance
+/// amplifier whose feedback resistor is switched a decade apart per range, 100 MΩ, 10 MΩ
+/// and 1 MΩ (the white tile reads 40 % of full scale on the most sensitive range from a
+/// few nA of photocurrent into 3.3 V), each with the same 4.7 pF compensation capacitor
+/// across it (stable with a ~100 pF photodiode on a 10 MHz op-amp, which needs well under
+/// 1 pF on 100 MΩ and about 1.3 pF on 1 MΩ; the larger value also limits the noise
+/// bandwidth). A first-order response, so τ = R·C: 470 µs, 47 µs and 4.7 µs. While the
+/// detector arm moves at v, a reading trails the angle by v·τ: 0.028° at 60 °/s on the
+/// most sensitive range (where the diffuse part is read, flat), 0.003° and 0.0003° on the
+/// others (the specular peak): the host corrects bins for it from these announced values.
+///
+/// Settling after a switch to a range: a full-scale step decays below 1e-4 of full scale
+/// (20 times below one block's noise) in τ·ln(10⁴) = 9.2 τ, plus 100 µs for the analog
+/// switch's charge injection and the op-amp's recovery: 4.43, 0.53 and 0.14 ms, rounded up
+/// to 4.5, 0.6 and 0.15 ms. A sweep drops the blocks within it after each switch; a still
+/// reading waits [`InstrumentConfig::range_settle_ms`] (5 ms), which covers the slowest.
+pub const REFERENCE_RANGES: [DetectorRange; 3] = [
+    DetectorRange { relative_gain: 1.0, full_scale_counts: FULL_SCALE_COUNTS, time_constant_us: 470.0, settle_us: 4_500 },
+    DetectorRange { relative_gain: 0.1, full_scale_counts: FULL_SCALE_COUNTS, time_constant_us: 47.0, settle_us: 600 },
+    DetectorRange { relative_gain: 0.01, full_scale_counts: FULL_SCALE_COUNTS, time_constant_us: 4.7, settle_us: 150 },
 ];
 
 impl InstrumentConfig {
@@ -84,6 +107,8 @@ impl InstrumentConfig {
         accel_deg_per_s2: 180.0,
         settle_ms: 100,
         detector_ranges: &REFERENCE_RANGES,
+        // INSTRUMENT.md's 1 kHz decimated detector.
+        detector_block_us: 1_000,
         acceptance_deg: 1.0,
         // Strategy 2 at δ = 1° is 91 geometries and the full grid 284: hold the full grid.
         max_schedule_len: protocol::schedules::MAX_SCHEDULE_LEN as u16,
@@ -159,6 +184,7 @@ impl InstrumentConfig {
                 serial
             },
             reset_cause: ResetCause::PowerOn,
+            detector_block_us: self.detector_block_us,
         }
     }
 }

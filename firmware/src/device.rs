@@ -458,6 +458,7 @@ impl<H: Hardware> Device<H> {
             Command::TakeDark { integration_ms } => return self.start_dark(seq, *integration_ms),
             Command::UploadSchedule(chunk) => self.upload(chunk),
             Command::RunSchedule(run) => self.start_schedule(run),
+            Command::Sweep(_) => Err(DeviceError::new(ErrorCode::NotSupported)),
         };
         Some(result)
     }

@@ -105,6 +105,7 @@ impl Received {
         match message {
             DeviceMessage::Reply { seq, result } if Some(seq) == self.awaiting => self.answer = Some(result),
             DeviceMessage::Reply { .. } | DeviceMessage::FrameRejected { .. } => {}
+            DeviceMessage::SweepBin(_) | DeviceMessage::SweepDone { .. } => {}
             DeviceMessage::Reading(reading) => {
                 let _ = self.streamed.push((reading.index, reading.geometry));
             }

@@ -32,17 +32,22 @@ pub use schema::SCHEMA_HASH;
 /// History: 1, the first release; 2, `DeviceInfo` gained `min_integration_ms`,
 /// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`;
 /// 3, `DeviceInfo` gained `reset_cause` (why the device restarted: a fault of its own
-/// with the reason, the watchdog, power-on) and `longest_home_ms`.
+/// with the reason, the watchdog, power-on) and `longest_home_ms`; 4, sweeps
+/// (`Command::Sweep`, `Reply::Sweep`, `DeviceMessage::SweepBin` and `SweepDone`,
+/// `DeviceState::Sweeping`), and what a host needs to plan and correct them: each
+/// `DetectorRange`'s amplifier time constant and settling time, `DeviceInfo`'s
+/// `detector_block_us`, and `MAX_SWEEP_BINS`.
 ///
 /// The shape of every message is also pinned as one number, [`schema::SCHEMA_HASH`],
 /// which must be the hash of this version in [`SCHEMA_HISTORY`] (`tests/schema.rs`).
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// The wire schema hash ([`schema::SCHEMA_HASH`]) of each protocol version since 2, oldest
 /// first. A change of any message's encoding changes the hash: then bump
 /// [`PROTOCOL_VERSION`] and append `(new version, new hash)` here (`cargo test -p protocol
 /// --test schema` prints it); an entry is never edited.
-pub const SCHEMA_HISTORY: &[(u16, u64)] = &[(2, 0xf4fc_c159_3ea1_cc3a), (3, 0xe291_1f63_e599_b75a)];
+pub const SCHEMA_HISTORY: &[(u16, u64)] =
+    &[(2, 0xf4fc_c159_3ea1_cc3a), (3, 0xe291_1f63_e599_b75a), (4, 0x78b7_4927_8f9f_7663)];
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message
 /// (a schedule chunk or the device info) with margin; both sides size their buffers to it.

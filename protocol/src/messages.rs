@@ -125,8 +125,15 @@ pub enum Command {
     /// Run a schedule; answered with [`Reply::ScheduleStarted`], then one
     /// [`DeviceMessage::Reading`] per geometry and a [`DeviceMessage::ScheduleDone`].
     RunSchedule(RunSchedule),
-    /// Stop motion (ramped) and any schedule now; answered with `Ack`. Accepted in any state.
+    /// Stop motion (ramped) and any schedule or sweep now; answered with `Ack`. Accepted in
+    /// any state.
     Abort,
+    /// Sweep the detector arm across `from ..= to` at a constant speed, the source arm held,
+    /// streaming the detector's blocks as bins; answered with [`Reply::Sweep`] once accepted
+    /// (before the arms move), then one [`DeviceMessage::SweepBin`] per bin, in order, and a
+    /// [`DeviceMessage::SweepDone`] once the detector arm has stopped at `to`. See [`Sweep`]
+    /// for what is refused.
+    Sweep(Sweep),
 }
 
 impl Command {
@@ -187,6 +194,137 @@ pub struct RunSchedule {
     pub target: Target,
 }
 
+/// Most bins one sweep may have; a sweep of more is refused ([`ErrorCode::InvalidArgument`],
+/// detail: this number).
+pub const MAX_SWEEP_BINS: u16 = 4096;
+
+/// Sweep the detector arm at a constant speed across `[from, to]` with the source arm held
+/// at `theta_i`, streaming one [`SweepBin`] per bin.
+///
+/// The device moves both arms to (`theta_i`, `from`) and settles there (also when it is
+/// already there: auto-ranging finds the range at rest), then runs one profile of the
+/// detector arm from `from` to `to`: it accelerates from rest at
+/// [`DeviceInfo::accel_deg_per_s2`] up to `speed_mdeg_per_s` and decelerates to rest on
+/// `to` (a short sweep never reaches the speed: a triangular profile). The ramps are kept:
+/// every bin has its true interval from the step counts, ramps included.
+///
+/// A bin is whole detector blocks ([`DeviceInfo::detector_block_us`] each, stamped with
+/// the detector arm's step count at the block's end): bin `k` closes with the first block
+/// whose end reaches its nominal end `from + (k + 1)·bin_ticks` (towards `to`; the last
+/// bin's is `to`), so its `start` is the previous bin's `end`, the first starts at `from`,
+/// the last ends at `to`, and the bins are `⌈|to − from| / bin_ticks⌉`.
+///
+/// Refused before anything moves, in this order (so that a host can tell which limit an
+/// `InvalidArgument` detail names): `Busy` while anything runs; `HardwareFault` (detail:
+/// the arm) while a driver reports a fault; `NotHomed`; `InvalidArgument` for `sweep_id`
+/// 0 (detail 0) and for a forced `range` beyond the detector's (detail: the number of
+/// ranges); `OutOfRange` (detail: the arm) for `theta_i`, `from` or `to` outside the arms'
+/// range; `CollisionGuard` when θi + θr on the path falls below the collision minimum;
+/// `InvalidArgument` for a speed outside `100 ..=` the maximum (detail: the limit broken,
+/// mdeg/s), a bin shorter than the travel of one detector block at the sweep's speed
+/// (detail: the shortest bin accepted, ticks), a bin longer than the sweep (detail:
+/// `|to − from|`, ticks; a sweep of no travel is refused so), more than [`MAX_SWEEP_BINS`]
+/// bins (detail: that number).
+///
+/// Heartbeats as for a schedule: the host must be heard every
+/// [`DeviceInfo::heartbeat_timeout_ms`]. `Abort` or a fail-safe stop ends the sweep with the
+/// arm ramped down; no `SweepDone` follows then (the host has the bins it got, each named).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Sweep {
+    /// Chosen by the host; names every bin (like a schedule id). 0 is refused.
+    pub sweep_id: u16,
+    /// The source arm's angle, held through the sweep.
+    pub theta_i: crate::Angle,
+    /// θr where the detector arm starts (at rest) and the first bin starts.
+    pub from: crate::Angle,
+    /// θr where it stops and the last bin ends (`to < from` sweeps backwards).
+    pub to: crate::Angle,
+    /// The profile's top speed, millidegrees per second: `100 ..=` 1000 × the
+    /// [`DeviceInfo::max_speed_deg_per_s`].
+    pub speed_mdeg_per_s: u32,
+    /// Bin length, ticks of [`crate::Angle`] (0.0125°): at least the travel of one detector
+    /// block at the top speed (rounded up to whole ticks, and one more tick for the step
+    /// count's quantisation: one bin per block at most), at most `|to − from|`.
+    pub bin_ticks: u16,
+    /// `None`: auto-ranged while moving (thresholds on each block, blanking for the new
+    /// range's settling time after each switch). `Some(r)`: held on range `r` (a saturated
+    /// bin is flagged).
+    pub range: Option<u8>,
+}
+
+/// The answer to [`Command::Sweep`]: accepted, before the arms move.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SweepPlan {
+    /// Bins that will stream: `⌈|to − from| / bin_ticks⌉`.
+    pub bins: u16,
+    /// Device time planned, ms: the move to (θi, `from`), its settle, and the sweep's
+    /// profile (rounded up). A range switch found at rest may add its settling time.
+    pub duration_ms: u32,
+}
+
+/// One bin of a running sweep, sent after its last block.
+///
+/// `start` and `end` are the detector arm's step counts at the start of the bin's first
+/// block and at the end of its last: the bins tile the sweep exactly. `mean_counts` is the
+/// mean of the blocks kept (`blocks` of them), dark offset included; while the arm moves at
+/// v the amplifier makes the reading trail the angle by v·τ (the range's
+/// [`DetectorRange::time_constant_us`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SweepBin {
+    /// The sweep.
+    pub sweep_id: u16,
+    /// `0 ..= bins − 1`, in order.
+    pub index: u16,
+    /// θr at the start of the bin's first block (the step count).
+    pub start: crate::Angle,
+    /// θr at the end of its last block.
+    pub end: crate::Angle,
+    /// Mean of the blocks kept, ADC counts (dark offset included, like [`Reading`]); 0 when
+    /// none was kept ([`SweepBin::EMPTY`]).
+    pub mean_counts: f32,
+    /// Standard deviation of the kept blocks' values (n − 1; 0 for one block), counts.
+    pub std_counts: f32,
+    /// Detector blocks averaged (0: none usable, see `flags`).
+    pub blocks: u16,
+    /// The range the kept blocks were taken on (a bin never mixes ranges).
+    pub range: u8,
+    /// [`SweepBin::SATURATED`], [`SweepBin::BLANKED`], [`SweepBin::EMPTY`], or'ed.
+    pub flags: u8,
+    /// Device time at the bin's end (when its last block was read), µs since boot.
+    pub device_time_us: u64,
+}
+
+impl SweepBin {
+    /// A kept block saturated on the least sensitive range (auto-ranged) or on the forced
+    /// range: the mean is a lower bound, not a value (never clipped by the firmware).
+    pub const SATURATED: u8 = 1;
+    /// Blocks of the bin were dropped: the settling after a range switch, or a block that
+    /// saturated a more sensitive range (its switch follows). The mean is of the `blocks`
+    /// kept, which cover only part of `start ..= end` (a host that needs the interval's
+    /// mean measures it again with a short sweep over it).
+    pub const BLANKED: u8 = 2;
+    /// No usable block: `mean_counts` and `std_counts` are 0 and mean nothing.
+    pub const EMPTY: u8 = 4;
+
+    /// Whether [`SweepBin::SATURATED`] is set.
+    pub const fn is_saturated(&self) -> bool {
+        self.flags & SweepBin::SATURATED != 0
+    }
+
+    /// Whether [`SweepBin::BLANKED`] is set.
+    pub const fn is_blanked(&self) -> bool {
+        self.flags & SweepBin::BLANKED != 0
+    }
+
+    /// Whether [`SweepBin::EMPTY`] is set.
+    pub const fn is_empty(&self) -> bool {
+        self.flags & SweepBin::EMPTY != 0
+    }
+}
+
 /// Everything the device may send.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -216,6 +354,16 @@ pub enum DeviceMessage {
     Stopped {
         /// The reason, e.g. [`ErrorCode::HeartbeatLost`] or [`ErrorCode::HardwareFault`].
         reason: ErrorCode,
+    },
+    /// One bin of a running sweep ([`Command::Sweep`]), sent after its last block.
+    SweepBin(SweepBin),
+    /// A sweep ended: every bin was sent and the detector arm stopped at `to`. Not sent
+    /// after an `Abort` or a fail-safe stop.
+    SweepDone {
+        /// The sweep.
+        sweep_id: u16,
+        /// Bins sent (the plan's count).
+        bins: u16,
     },
 }
 
@@ -251,6 +399,8 @@ pub enum Reply {
         /// Number of readings that will stream.
         len: u16,
     },
+    /// Answer to `Sweep`: accepted; the arms start moving.
+    Sweep(SweepPlan),
 }
 
 /// A refused or failed request: a stable code and a code-specific detail.
@@ -463,6 +613,10 @@ pub struct DeviceInfo {
     /// a processor fault, a stack overflow) or a watchdog reset the arms are not homed
     /// and [`Status::fault`] holds the reason until the next homing.
     pub reset_cause: ResetCause,
+    /// The detector's block period, µs: one ADC sample (a block of oversampled
+    /// conversions) per period, the unit a sweep's bins are made of. While the arm moves at
+    /// v a block covers v × this.
+    pub detector_block_us: u32,
 }
 
 /// Why the device last came out of reset.
@@ -514,6 +668,13 @@ pub struct DetectorRange {
     pub relative_gain: f32,
     /// ADC counts at full scale.
     pub full_scale_counts: u32,
+    /// The amplifier's time constant on this range, µs (its feedback R·C): a first-order
+    /// response, so while the arm moves at v a reading trails the angle by v·τ (the mean
+    /// of the exponential kernel; its spread (v·τ)² is second order).
+    pub time_constant_us: f32,
+    /// How long the amplifier takes to settle after a switch to this range, µs: the blocks
+    /// of a sweep within it are dropped, and a reading waits it out.
+    pub settle_us: u32,
 }
 
 /// One detector reading: statistics of the samples taken over the integration time.
@@ -586,6 +747,9 @@ pub enum DeviceState {
     /// arms at rest keeps the homing and leaves the device `Idle` (its reason in
     /// `Status::fault`).
     Stopped,
+    /// Running a sweep ([`Command::Sweep`]); [`Status::schedule`] holds its id and the
+    /// bins sent so far.
+    Sweeping,
 }
 
 /// The answer to `GetStatus`.
@@ -605,7 +769,7 @@ pub struct Status {
     /// The last fault (a fail-safe stop's reason, a homing failure, a watchdog reset),
     /// until cleared by homing; set also when the stop kept the homing.
     pub fault: Option<ErrorCode>,
-    /// The running schedule: id and readings taken so far.
+    /// The running schedule or sweep: its id and the readings or bins sent so far.
     pub schedule: Option<(u16, u16)>,
     /// µs since boot.
     pub uptime_us: u64,

@@ -24,7 +24,8 @@
 //! carried) and a golden instance in `tests/golden.rs`.
 
 use crate::messages::{
-    BOARD_NAME_LEN, DeviceMessage, FIRMWARE_VERSION_LEN, MAX_RANGES, Request, SCHEDULE_CHUNK_LEN, SERIAL_NUMBER_LEN,
+    BOARD_NAME_LEN, DeviceMessage, FIRMWARE_VERSION_LEN, MAX_RANGES, MAX_SWEEP_BINS, Request, SCHEDULE_CHUNK_LEN,
+    SERIAL_NUMBER_LEN,
 };
 use postcard_schema::Schema;
 use postcard_schema::schema::{DataModelType, DataModelVariant, NamedType, NamedValue};
@@ -42,6 +43,8 @@ pub const WIRE_LIMITS: &[(&str, usize)] = &[
     ("FIRMWARE_VERSION_LEN", FIRMWARE_VERSION_LEN),
     ("BOARD_NAME_LEN", BOARD_NAME_LEN),
     ("SERIAL_NUMBER_LEN", SERIAL_NUMBER_LEN),
+    // Not a buffer, but a limit a host plans by: a change must not go unnoticed.
+    ("MAX_SWEEP_BINS", MAX_SWEEP_BINS as usize),
 ];
 
 /// The hash of [`WIRE_TYPES`] and [`WIRE_LIMITS`] (see the module doc).

@@ -44,6 +44,11 @@ pub fn command() -> BoxedStrategy<Command> {
             target,
         })
     });
+    let sweep = (any::<u16>(), angle(), angle(), angle(), any::<u32>(), any::<u16>(), proptest::option::of(any::<u8>())).prop_map(
+        |(sweep_id, theta_i, from, to, speed_mdeg_per_s, bin_ticks, range)| {
+            Command::Sweep(Sweep { sweep_id, theta_i, from, to, speed_mdeg_per_s, bin_ticks, range })
+        },
+    );
     prop_oneof![
         any::<u16>().prop_map(|protocol_version| Command::Hello { protocol_version }),
         Just(Command::Heartbeat),
@@ -56,6 +61,7 @@ pub fn command() -> BoxedStrategy<Command> {
         chunk,
         run,
         Just(Command::Abort),
+        sweep,
     ].boxed()
 }
 
@@ -82,19 +88,21 @@ fn text<const N: usize>() -> impl Strategy<Value = String<N>> {
 
 pub fn device_info() -> BoxedStrategy<DeviceInfo> {
     let ranges = proptest::collection::vec(
-        (finite_f32(), any::<u32>()).prop_map(|(relative_gain, full_scale_counts)| DetectorRange { relative_gain, full_scale_counts }),
+        (finite_f32(), any::<u32>(), finite_f32(), any::<u32>()).prop_map(|(relative_gain, full_scale_counts, time_constant_us, settle_us)| {
+            DetectorRange { relative_gain, full_scale_counts, time_constant_us, settle_us }
+        }),
         0..=MAX_RANGES,
     );
     (
         (any::<u16>(), text::<16>(), text::<32>(), angle(), angle(), angle(), angle()),
         (finite_f32(), finite_f32(), any::<u16>(), ranges, finite_f32(), any::<u16>(), any::<u16>(), any::<u16>()),
-        (any::<u16>(), any::<u32>(), any::<u32>(), text::<24>(), reset_cause()),
+        (any::<u16>(), any::<u32>(), any::<u32>(), text::<24>(), reset_cause(), any::<u32>()),
     )
         .prop_map(
             |(
                 (protocol_version, firmware_version, board, arm_min, arm_max, arm_resolution, collision_min_sum),
                 (max_speed, accel, settle_ms, ranges, acceptance_deg, max_schedule_len, default_integration_ms, max_integration_ms),
-                (min_integration_ms, heartbeat_timeout_ms, longest_home_ms, serial_number, reset_cause),
+                (min_integration_ms, heartbeat_timeout_ms, longest_home_ms, serial_number, reset_cause, detector_block_us),
             )| DeviceInfo {
                 protocol_version,
                 firmware_version,
@@ -116,6 +124,7 @@ pub fn device_info() -> BoxedStrategy<DeviceInfo> {
                 longest_home_ms,
                 serial_number,
                 reset_cause,
+                detector_block_us,
             },
         ).boxed()
 }
@@ -138,6 +147,7 @@ fn state() -> BoxedStrategy<DeviceState> {
         Just(DeviceState::Measuring),
         Just(DeviceState::RunningSchedule),
         Just(DeviceState::Stopped),
+        Just(DeviceState::Sweeping),
     ].boxed()
 }
 
@@ -156,6 +166,7 @@ pub fn reply() -> BoxedStrategy<Reply> {
         proptest::collection::vec(reading(), 0..=MAX_RANGES).prop_map(|rs| Reply::Dark(Vec::from_slice(&rs).unwrap())),
         any::<(u16, u16, u16)>().prop_map(|(schedule_id, received, total_len)| Reply::ScheduleLoaded { schedule_id, received, total_len }),
         any::<(u16, u16)>().prop_map(|(schedule_id, len)| Reply::ScheduleStarted { schedule_id, len }),
+        any::<(u16, u32)>().prop_map(|(bins, duration_ms)| Reply::Sweep(SweepPlan { bins, duration_ms })),
     ].boxed()
 }
 
@@ -177,5 +188,27 @@ pub fn device_message() -> BoxedStrategy<DeviceMessage> {
         ),
         error_code().prop_map(|code| DeviceMessage::FrameRejected { code }),
         error_code().prop_map(|reason| DeviceMessage::Stopped { reason }),
+        sweep_bin().prop_map(DeviceMessage::SweepBin),
+        any::<(u16, u16)>().prop_map(|(sweep_id, bins)| DeviceMessage::SweepDone { sweep_id, bins }),
     ].boxed()
+}
+
+pub fn sweep_bin() -> BoxedStrategy<SweepBin> {
+    (
+        (any::<u16>(), any::<u16>(), angle(), angle()),
+        (finite_f32(), finite_f32(), any::<u16>(), any::<u8>(), any::<u8>(), any::<u64>()),
+    )
+        .prop_map(|((sweep_id, index, start, end), (mean_counts, std_counts, blocks, range, flags, device_time_us))| SweepBin {
+            sweep_id,
+            index,
+            start,
+            end,
+            mean_counts,
+            std_counts,
+            blocks,
+            range,
+            flags,
+            device_time_us,
+        })
+        .boxed()
 }

@@ -39,7 +39,7 @@ fn text<const N: usize>(s: &str) -> String<N> {
 
 fn device_info() -> DeviceInfo {
     DeviceInfo {
-        protocol_version: 3,
+        protocol_version: 4,
         firmware_version: text("0.1.0"),
         board: text("gonio STM32F411 black pill"),
         arm_min: Angle::from_whole_deg(0),
@@ -50,9 +50,9 @@ fn device_info() -> DeviceInfo {
         accel_deg_per_s2: 180.0,
         settle_ms: 100,
         detector_ranges: Vec::from_slice(&[
-            DetectorRange { relative_gain: 1.0, full_scale_counts: 65_535 },
-            DetectorRange { relative_gain: 0.1, full_scale_counts: 65_535 },
-            DetectorRange { relative_gain: 0.01, full_scale_counts: 65_535 },
+            DetectorRange { relative_gain: 1.0, full_scale_counts: 65_535, time_constant_us: 470.0, settle_us: 4_500 },
+            DetectorRange { relative_gain: 0.1, full_scale_counts: 65_535, time_constant_us: 47.0, settle_us: 600 },
+            DetectorRange { relative_gain: 0.01, full_scale_counts: 65_535, time_constant_us: 4.7, settle_us: 150 },
         ])
         .unwrap(),
         acceptance_deg: 1.0,
@@ -64,6 +64,34 @@ fn device_info() -> DeviceInfo {
         longest_home_ms: 21_500,
         serial_number: text("0123456789ABCDEF01234567"),
         reset_cause: ResetCause::Fault(DeviceError::with_detail(ErrorCode::Panic, 417)),
+        detector_block_us: 1_024,
+    }
+}
+
+fn sweep() -> Sweep {
+    Sweep {
+        sweep_id: 9,
+        theta_i: Angle::from_whole_deg(60),
+        from: Angle::from_whole_deg(70),
+        to: Angle::from_ticks(-40),
+        speed_mdeg_per_s: 60_000,
+        bin_ticks: 8,
+        range: Some(2),
+    }
+}
+
+fn sweep_bin() -> SweepBin {
+    SweepBin {
+        sweep_id: 9,
+        index: 137,
+        start: Angle::from_ticks(4_504),
+        end: Angle::from_ticks(4_496),
+        mean_counts: 40_123.25,
+        std_counts: 101.5,
+        blocks: 2,
+        range: 2,
+        flags: SweepBin::SATURATED | SweepBin::BLANKED,
+        device_time_us: 12_345_678,
     }
 }
 
@@ -122,6 +150,7 @@ fn commands() -> std::vec::Vec<(&'static str, Command)> {
         ("upload_schedule", Command::UploadSchedule(chunk())),
         ("run_schedule", Command::RunSchedule(run())),
         ("abort", Command::Abort),
+        ("sweep", Command::Sweep(sweep())),
     ]
 }
 
@@ -135,6 +164,7 @@ fn replies() -> std::vec::Vec<(&'static str, Reply)> {
         ("dark", Reply::Dark(Vec::from_slice(&[reading(), Reading { saturated: true, range: 0, ..reading() }]).unwrap())),
         ("schedule_loaded", Reply::ScheduleLoaded { schedule_id: 3, received: 32, total_len: 40 }),
         ("schedule_started", Reply::ScheduleStarted { schedule_id: 12, len: 12 }),
+        ("sweep", Reply::Sweep(SweepPlan { bins: 1_100, duration_ms: 1_612 })),
     ]
 }
 
@@ -162,6 +192,8 @@ fn device_messages() -> std::vec::Vec<(&'static str, DeviceMessage)> {
         ),
         ("frame_rejected", DeviceMessage::FrameRejected { code: ErrorCode::BadCrc }),
         ("stopped", DeviceMessage::Stopped { reason: ErrorCode::HardwareFault }),
+        ("sweep_bin", DeviceMessage::SweepBin(sweep_bin())),
+        ("sweep_done", DeviceMessage::SweepDone { sweep_id: 9, bins: 1_100 }),
     ]
 }
 
@@ -192,7 +224,15 @@ fn golden_lines() -> std::vec::Vec<(std::string::String, std::vec::Vec<u8>)> {
     }
     add("home_report".into(), bytes(&HomeReport { step_error_i: Some(0), step_error_r: Some(40) }));
     add("reading".into(), bytes(&reading()));
-    add("detector_range".into(), bytes(&DetectorRange { relative_gain: 0.1, full_scale_counts: 65_535 }));
+    add(
+        "detector_range".into(),
+        bytes(&DetectorRange { relative_gain: 0.1, full_scale_counts: 65_535, time_constant_us: 47.0, settle_us: 600 }),
+    );
+    add("sweep".into(), bytes(&sweep()));
+    add("sweep.auto_range".into(), bytes(&Sweep { range: None, ..sweep() }));
+    add("sweep_plan".into(), bytes(&SweepPlan { bins: 875, duration_ms: 1_600 }));
+    add("sweep_bin".into(), bytes(&sweep_bin()));
+    add("sweep_bin.empty".into(), bytes(&SweepBin { mean_counts: 0.0, std_counts: 0.0, blocks: 0, flags: SweepBin::EMPTY | SweepBin::BLANKED, ..sweep_bin() }));
     add("schedule_chunk".into(), bytes(&chunk()));
     add("run_schedule".into(), bytes(&run()));
     add("schedule_source.strategy1".into(), bytes(&ScheduleSource::Strategy1));
@@ -220,6 +260,7 @@ fn device_states() -> std::vec::Vec<DeviceState> {
         DeviceState::Measuring,
         DeviceState::RunningSchedule,
         DeviceState::Stopped,
+        DeviceState::Sweeping,
     ]
 }
 

@@ -277,6 +277,7 @@ fn command_name(command: &Command) -> &'static str {
         Command::UploadSchedule(_) => "UploadSchedule",
         Command::RunSchedule(_) => "RunSchedule",
         Command::Abort => "Abort",
+        Command::Sweep(_) => "Sweep",
     }
 }
 

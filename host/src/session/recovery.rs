@@ -107,6 +107,7 @@ fn doing(state: DeviceState) -> &'static str {
         DeviceState::RunningSchedule => "running a schedule",
         DeviceState::Idle => "idle",
         DeviceState::Stopped => "stopped",
+        DeviceState::Sweeping => "sweeping",
     }
 }
 
