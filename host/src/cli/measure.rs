@@ -309,10 +309,7 @@ fn resume_command(args: &Args, dir: &Path) -> String {
 }
 
 fn policy_name(choice: PolicyChoice) -> &'static str {
-    match choice {
-        PolicyChoice::Paper => "paper",
-        PolicyChoice::Adaptive => "adaptive",
-    }
+    choice.name()
 }
 
 /// What is measured: the options given, else the resumed session's, else the defaults;
@@ -321,7 +318,7 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
     let policy = match (args.policy, earlier) {
         (Some(choice), _) => choice,
         (None, Some(plan)) => <PolicyChoice as clap::ValueEnum>::from_str(&plan.policy, true)
-            .map_err(|_| anyhow::anyhow!("the session's policy '{}' is not one this gonio knows (paper, adaptive)", plan.policy))?,
+            .map_err(|_| anyhow::anyhow!("the session's policy '{}' is not one this gonio knows (paper, adaptive, sweep)", plan.policy))?,
         (None, None) => PolicyChoice::Adaptive,
     };
     let adaptive_targets = match Policy::from(policy) {

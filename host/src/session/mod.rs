@@ -29,6 +29,7 @@ mod schedule;
 pub mod sheet;
 mod steps;
 pub mod sweep;
+mod sweeping;
 mod white;
 
 pub use operator::{DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};
@@ -58,6 +59,20 @@ pub enum PolicyChoice {
     /// Batches chosen from the current fit where they shrink σ's uncertainty the most per
     /// second, until σ is within ±3 % (95 %), the class is settled and σ > σ_l.
     Adaptive,
+    /// Sweeps only: the whole plane at full speed, then sweeps across the specular peak
+    /// chosen by the information they bring per second, until the adaptive policy's targets.
+    Sweep,
+}
+
+impl PolicyChoice {
+    /// Its name on the command line, in session.json and the studies' files.
+    pub fn name(self) -> &'static str {
+        match self {
+            PolicyChoice::Paper => "paper",
+            PolicyChoice::Adaptive => "adaptive",
+            PolicyChoice::Sweep => "sweep",
+        }
+    }
 }
 
 impl From<PolicyChoice> for Policy {
@@ -65,6 +80,7 @@ impl From<PolicyChoice> for Policy {
         match choice {
             PolicyChoice::Paper => Policy::Paper,
             PolicyChoice::Adaptive => Policy::Adaptive(AdaptiveTargets::default()),
+            PolicyChoice::Sweep => Policy::Sweep(sweep::SweepTargets::default()),
         }
     }
 }
@@ -78,6 +94,8 @@ pub enum Policy {
     Adaptive(AdaptiveTargets),
     /// One fixed schedule and nothing else (the trade study's Strategy 1 at M, Strategy 2 at δ).
     Fixed(FixedSchedule),
+    /// A full-plane pass of sweeps, then sweeps across the peak ([`crate::session::sweep`]).
+    Sweep(sweep::SweepTargets),
 }
 
 /// A schedule of the method, measured alone.
@@ -437,6 +455,8 @@ pub struct Session<'a, T: Transport> {
     motion: Motion,
     /// Every geometry the session means to have a reading of, in the order first wanted.
     wanted: Vec<Geometry>,
+    /// Every sweep the session means to have the bins of, in the order first wanted.
+    wanted_sweeps: Vec<sweep::SweepPlan>,
     decisions: Vec<String>,
     flags: BTreeSet<Flag>,
     recoveries: Recoveries,
@@ -483,6 +503,7 @@ impl<'a, T: Transport> Session<'a, T> {
             next_schedule_id: 1,
             motion,
             wanted: Vec::new(),
+            wanted_sweeps: Vec::new(),
             decisions: Vec::new(),
             flags: BTreeSet::new(),
             recoveries: Recoveries::default(),
@@ -611,16 +632,34 @@ impl<'a, T: Transport> Session<'a, T> {
         let setup_seconds = (measuring_from - started).as_secs_f64() - self.waiting_us as f64 * 1e-6;
         let mut fits = Vec::new();
         let mut refinements = Vec::new();
-        let first = match self.plan.policy {
-            Policy::Fixed(schedule) => schedule.geometries(),
-            Policy::Paper | Policy::Adaptive(_) => strategy1(12).map(|s| s.to_vec()).unwrap_or_default(),
+        let first_name = match &self.plan.policy {
+            Policy::Sweep(targets) => {
+                let pass = sweep::full_plane(targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)), targets.pass_bin_deg);
+                let name = format!(
+                    "full-plane pass ({} sweeps of θr 0–{}° at {} °/s, bins of {}°)",
+                    pass.len(),
+                    sweep::THETA_R_MAX_DEG,
+                    pass[0].speed_deg_per_s,
+                    targets.pass_bin_deg
+                );
+                self.decide(&name);
+                self.sweep_stage(&name, &pass)?;
+                name
+            }
+            policy => {
+                let first = match policy {
+                    Policy::Fixed(schedule) => schedule.geometries(),
+                    _ => strategy1(12).map(|s| s.to_vec()).unwrap_or_default(),
+                };
+                let name = match policy {
+                    Policy::Fixed(FixedSchedule::Strategy1 { m }) => format!("strategy 1 ({m} geometries)"),
+                    Policy::Fixed(FixedSchedule::Strategy2 { delta_deg }) => format!("strategy 2, δ = {delta_deg}° ({} geometries)", first.len()),
+                    _ => "strategy 1 (12 geometries)".into(),
+                };
+                self.measure(&name, &first)?;
+                name
+            }
         };
-        let first_name = match self.plan.policy {
-            Policy::Fixed(FixedSchedule::Strategy1 { m }) => format!("strategy 1 ({m} geometries)"),
-            Policy::Fixed(FixedSchedule::Strategy2 { delta_deg }) => format!("strategy 2, δ = {delta_deg}° ({} geometries)", first.len()),
-            _ => "strategy 1 (12 geometries)".into(),
-        };
-        self.measure(&first_name, &first)?;
         let mut report = self.analyse()?;
         fits.push(FitStep { after: first_name, report: to_json(&report) });
         self.refine(&mut report, &mut fits, &mut refinements)?;
@@ -631,7 +670,7 @@ impl<'a, T: Transport> Session<'a, T> {
             let check_started = self.now();
             let clean = self.check_steps("before the report")?;
             self.final_check_us += (self.now() - check_started).as_micros() as u64;
-            if clean && self.missing().is_empty() {
+            if clean && self.missing().is_empty() && self.uncovered_sweeps().is_empty() {
                 break;
             }
             if round == steps::MAX_CHECK_ROUNDS {
@@ -639,7 +678,13 @@ impl<'a, T: Transport> Session<'a, T> {
                 break;
             }
             let missing = self.missing();
-            self.measure(&format!("measuring again {} readings taken while an arm was off", missing.len()), &missing)?;
+            if !missing.is_empty() {
+                self.measure(&format!("measuring again {} readings taken while an arm was off", missing.len()), &missing)?;
+            }
+            let uncovered = self.uncovered_sweeps();
+            if !uncovered.is_empty() {
+                self.sweep_stage(&format!("measuring again {} stretches of sweeps taken while an arm was off", uncovered.len()), &[])?;
+            }
             report = self.analyse()?;
             fits.push(FitStep { after: format!("re-measured after lost steps (check {round})"), report: to_json(&report) });
             self.refine(&mut report, &mut fits, &mut refinements)?;
@@ -699,7 +744,7 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// Refinements by the plan's policy, from `report`.
     fn refine(&mut self, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
-        match self.plan.policy {
+        match self.plan.policy.clone() {
             Policy::Paper => self.refine_like_the_paper(report, fits, refinements),
             Policy::Adaptive(targets) => {
                 self.refine_adaptively(targets, report, fits, refinements)?;
@@ -707,6 +752,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 // paper's policy finishes the job.
                 self.refine_like_the_paper(report, fits, refinements)
             }
+            Policy::Sweep(targets) => self.refine_by_sweeps(targets, report, fits, refinements),
             Policy::Fixed(_) => Ok(()),
         }
     }

@@ -317,9 +317,10 @@ impl<T: Transport> Session<'_, T> {
             };
             match status.state {
                 DeviceState::Idle | DeviceState::Stopped => break status,
-                DeviceState::RunningSchedule if !aborted => {
+                DeviceState::RunningSchedule | DeviceState::Sweeping if !aborted => {
                     let (id, taken) = status.schedule.unwrap_or_default();
-                    self.decide(&format!("the instrument is still running schedule {id} ({taken} readings taken): aborting it; what it missed is measured again"));
+                    let what = if status.state == DeviceState::Sweeping { format!("sweep {id} ({taken} bins sent)") } else { format!("schedule {id} ({taken} readings taken)") };
+                    self.decide(&format!("the instrument is still running {what}: aborting it; what it missed is measured again"));
                     self.request(Command::Abort)?;
                     aborted = true;
                 }

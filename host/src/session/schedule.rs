@@ -146,7 +146,7 @@ impl<T: Transport> Session<'_, T> {
     /// After a schedule ended: if the lamp is off now, it went off during the schedule
     /// (a stop whose message was lost) and some of its readings may be dark. Which ones
     /// cannot be told: all of them are superseded and measured again.
-    fn lit_throughout(&mut self, schedule_id: u16) -> Result<(), StepError> {
+    pub(super) fn lit_throughout(&mut self, schedule_id: u16) -> Result<(), StepError> {
         let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? else { return Ok(()) };
         let why = format!("the lamp was off at the end of schedule {schedule_id}: its readings may be dark");
         let superseded = self.supersede_schedule(schedule_id, &why).map_err(StepError::Fatal)?;

@@ -10,11 +10,42 @@ use crate::instrument::calibration::Calibration;
 use crate::session::MeasuredPoint;
 use crate::session::order::Motion;
 use protocol::{Geometry, Reading};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// θr swept at every incidence by a full-plane pass, degrees (Strategy 1's and Table 2's
 /// range).
 pub const THETA_R_MAX_DEG: f64 = protocol::schedules::THETA_R_MAX_DEG as f64;
+
+/// Targets and limits of the sweep policy.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SweepTargets {
+    /// The full-plane pass's top speed, °/s (the instrument's own maximum at most).
+    pub pass_speed_deg_per_s: f64,
+    /// The full-plane pass's bin length, degrees.
+    pub pass_bin_deg: f64,
+    /// Stop when σ's 95 % half-width relative to σ is at most this …
+    pub sigma_rel_half_width: f64,
+    /// … and the class confidence is at least this (the adaptive policy's targets).
+    pub class_confidence: f64,
+    /// Sweeps across the peak per round (one fit after each round).
+    pub sweeps_per_round: usize,
+    /// Rounds before giving up on the targets.
+    pub max_rounds: usize,
+}
+
+impl Default for SweepTargets {
+    fn default() -> Self {
+        let adaptive = crate::session::adaptive::AdaptiveTargets::default();
+        SweepTargets {
+            pass_speed_deg_per_s: 60.0,
+            pass_bin_deg: 0.1,
+            sigma_rel_half_width: adaptive.sigma_rel_half_width,
+            class_confidence: adaptive.class_confidence,
+            sweeps_per_round: 2,
+            max_rounds: 4,
+        }
+    }
+}
 
 /// A sweep of the detector arm at one incidence.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]

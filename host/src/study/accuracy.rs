@@ -149,10 +149,7 @@ pub struct Spec {
 
 /// The name of a policy in the CSV and the summary.
 pub fn policy_name(policy: PolicyChoice) -> &'static str {
-    match policy {
-        PolicyChoice::Paper => "paper",
-        PolicyChoice::Adaptive => "adaptive",
-    }
+    policy.name()
 }
 
 /// Every session: `coverage_sessions` per coverage case and `robust_sessions` per

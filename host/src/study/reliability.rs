@@ -110,10 +110,7 @@ impl Spec {
     }
 
     fn policy_name(&self) -> &'static str {
-        match self.policy {
-            PolicyChoice::Paper => "paper",
-            PolicyChoice::Adaptive => "adaptive",
-        }
+        self.policy.name()
     }
 }
 

@@ -4,6 +4,7 @@
 
 use crate::analysis::classify::REFERENCES;
 use crate::analysis::model::Params;
+use crate::session::sweep::SweepTargets;
 use crate::session::{FixedSchedule, Outcome, Policy};
 use crate::instrument::sim::{SimOptions, sample_params};
 use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
@@ -21,9 +22,9 @@ pub const SESSIONS_TARGET: f64 = 0.95;
 /// One session of the study.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RunSpec {
-    /// `strategy1`, `strategy2`, `paper` or `adaptive`.
+    /// `strategy1`, `strategy2`, `paper`, `adaptive` or `sweep`.
     pub policy: &'static str,
-    /// M, δ or empty.
+    /// M, δ, a sweep's `SPEED/BIN`, or empty.
     pub setting: String,
     /// Reference paper on the port.
     pub sample: &'static str,
@@ -40,8 +41,23 @@ impl RunSpec {
             "strategy1" => Policy::Fixed(FixedSchedule::Strategy1 { m: number }),
             "strategy2" => Policy::Fixed(FixedSchedule::Strategy2 { delta_deg: u8::try_from(number).unwrap_or(0) }),
             "adaptive" => Policy::Adaptive(Default::default()),
+            "sweep" => Policy::Sweep(sweep_targets(&self.setting)),
             _ => Policy::Paper,
         }
+    }
+}
+
+/// The sweep policy's settings studied: the full-plane pass's top speed (°/s) and bin
+/// length (degrees), as `SPEED/BIN`; the first is the policy's default.
+pub const SWEEP_SETTINGS: [&str; 5] = ["60/0.1", "60/0.2", "30/0.1", "30/0.05", "15/0.05"];
+
+/// The sweep policy's targets for a `SPEED/BIN` setting (the defaults otherwise).
+pub fn sweep_targets(setting: &str) -> SweepTargets {
+    let defaults = SweepTargets::default();
+    let mut parts = setting.split('/').map(|p| p.parse::<f64>().ok());
+    match (parts.next().flatten(), parts.next().flatten()) {
+        (Some(speed), Some(bin)) => SweepTargets { pass_speed_deg_per_s: speed, pass_bin_deg: bin, ..defaults },
+        _ => defaults,
     }
 }
 
@@ -77,11 +93,17 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
     policies.extend(STRATEGY2_DELTAS.map(|d| ("strategy2", d.to_string())));
     policies.push(("paper", String::new()));
     policies.push(("adaptive", String::new()));
+    policies.extend(SWEEP_SETTINGS.iter().map(|s| ("sweep", s.to_string())));
     let mut runs = Vec::new();
     for integration_ms in INTEGRATION_MS {
         for (policy, setting) in &policies {
             let fixed = *policy == "strategy1" || *policy == "strategy2";
             if quick && fixed && integration_ms != TARGET_INTEGRATION_MS {
+                continue;
+            }
+            // A sweep's bins are the detector's blocks: the integration time sets only the
+            // calibration's readings, so sweeps are studied at one.
+            if *policy == "sweep" && (integration_ms != TARGET_INTEGRATION_MS || (quick && setting != SWEEP_SETTINGS[0])) {
                 continue;
             }
             for reference in &REFERENCES {
@@ -378,6 +400,7 @@ pub fn pareto(rows: &[Row]) -> Vec<(ParetoPoint, bool)> {
             let name = match policy {
                 "strategy1" => format!("M={setting}, "),
                 "strategy2" => format!("δ={setting}, "),
+                "sweep" => format!("sweep {setting}°, "),
                 _ => String::new(),
             };
             points.push(ParetoPoint { policy, label: format!("{name}{integration_ms} ms"), device_seconds: s.mean_device_seconds, p95_sigma_err: s.p95_sigma_err });

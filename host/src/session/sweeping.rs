@@ -1,0 +1,301 @@
+//! Measuring a stage of sweeps: each sweep run on the instrument, its bins recorded as
+//! they stream, and whatever of its θr range is left without a usable bin — bins lost on
+//! the link, bins blanked by a range switch or empty, bins superseded after lost steps —
+//! measured again by short sweeps over just those intervals, until every planned sweep is
+//! covered.
+use super::recovery::Failure;
+use super::sweep::{BinReading, SweepPlan, bin_point, min_bin_deg};
+use super::{MeasuredPoint, Progress, Session, SessionError, StepError};
+use crate::instrument::link::{LinkError, Transport};
+use protocol::{Angle, Command, DeviceMessage, Reply, Sweep, SweepBin};
+use std::collections::BTreeSet;
+use std::time::Duration;
+
+/// Rounds of a sweep stage without a new bin before the session gives up on it.
+const MAX_STALLED_ROUNDS: u32 = 6;
+
+/// How far apart two bins' intervals may be and still count as touching, degrees: the
+/// lag correction moves a bin's recorded middle by v·τ (0.03° at 60 °/s on the most
+/// sensitive range) and the step counts' quantisation by a tick.
+const COVER_TOLERANCE_DEG: f64 = 0.05;
+
+/// The shortest stretch measured again, degrees: shorter gaps are closed by a sweep of
+/// this length about them (a few bins, a triangular profile).
+const SHORTEST_RESWEEP_DEG: f64 = 0.5;
+
+impl<T: Transport> Session<'_, T> {
+    /// Measure every sweep of `plans` (and any wanted sweep still not covered), measuring
+    /// again what was lost.
+    pub(super) fn sweep_stage(&mut self, stage: &str, plans: &[SweepPlan]) -> Result<(), SessionError> {
+        for plan in plans {
+            if !self.wanted_sweeps.contains(plan) {
+                self.wanted_sweeps.push(*plan);
+            }
+        }
+        let planned: usize = if plans.is_empty() { self.uncovered_sweeps().iter().map(SweepPlan::bins).sum() } else { plans.iter().map(SweepPlan::bins).sum() };
+        self.recorder.stage(stage, planned);
+        let mut stalled = 0;
+        let mut round = 0;
+        let mut done = 0;
+        loop {
+            let gaps = self.uncovered_sweeps();
+            if gaps.is_empty() {
+                return self.calibrate_gains();
+            }
+            round += 1;
+            if round > 1 {
+                let bins: usize = gaps.iter().map(SweepPlan::bins).sum();
+                self.recoveries.readings_remeasured += bins;
+                self.decide(&format!(
+                    "measuring again {} stretch{} of θr left without a usable bin (lost on the link, blanked by a range switch, or superseded), {bins} bins (round {round})",
+                    gaps.len(),
+                    if gaps.len() == 1 { "" } else { "es" }
+                ));
+            }
+            let before = self.points.len();
+            for plan in gaps {
+                match self.run_sweep(&plan, &mut done, planned) {
+                    Ok(()) => {}
+                    Err(StepError::Failure(failure)) => {
+                        self.recover(failure)?;
+                        break;
+                    }
+                    Err(StepError::Fatal(error)) => return Err(error),
+                }
+            }
+            if self.points.len() == before {
+                stalled += 1;
+                if stalled >= MAX_STALLED_ROUNDS {
+                    return Err(SessionError::GaveUp(format!(
+                        "{} sweeps still not covered after {stalled} rounds without a bin: the link or the instrument is failing",
+                        self.uncovered_sweeps().len()
+                    )));
+                }
+            } else {
+                stalled = 0;
+            }
+        }
+    }
+
+    /// The sweep policy after its full-plane pass: rounds of sweeps across the specular
+    /// peak, designed on the current fit by the drop of σ's variance per device second
+    /// ([`super::sweep::design_peak_sweeps`]), until σ is known to the target and the class
+    /// is settled, as the adaptive policy stops (a rough paper whose pass already passes
+    /// σ_l stops at once). A fit whose σ the pass did not resolve gets slow sweeps across
+    /// every incidence's specular direction first; a fit flagged lack-of-fit carries on
+    /// only while its σ is not known well, and keeps its flag.
+    pub(super) fn refine_by_sweeps(
+        &mut self,
+        targets: super::sweep::SweepTargets,
+        report: &mut crate::analysis::report::Report,
+        fits: &mut Vec<super::FitStep>,
+        refinements: &mut Vec<super::Refinement>,
+    ) -> Result<(), SessionError> {
+        use super::sweep::{SweepTargets, design_peak_sweeps, peak_candidates};
+        let SweepTargets { sigma_rel_half_width, class_confidence, sweeps_per_round, max_rounds, .. } = targets;
+        for round in 1..=max_rounds {
+            let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
+            let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
+            let width = super::adaptive::sigma_rel_half_width(&report.fit);
+            let precise = width.is_some_and(|w| w <= sigma_rel_half_width);
+            let settled = report.classification.confidence >= class_confidence;
+            if sigma_ok && (rough || (precise && settled)) && !report.fit.lack_of_fit {
+                return Ok(());
+            }
+            if report.fit.lack_of_fit && precise && sigma_ok {
+                self.decide("sweeps: lack-of-fit with σ known to its target: the bins already span the whole plane, more would not tell the model from the sheet; the result keeps the flag");
+                return Ok(());
+            }
+            let here = self.status()?.position;
+            let max_speed = f64::from(self.info.max_speed_deg_per_s);
+            let block_s = self.block_s();
+            let (plans, reason) = match report.fit.sigma_deg() {
+                Some(_) if width.is_some() => {
+                    let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
+                    let per_block = self.per_block_variance();
+                    let design = design_peak_sweeps(&report.fit, &observations, here, &self.motion, max_speed, block_s, &per_block, sigma_rel_half_width, sweeps_per_round);
+                    let reason = format!(
+                        "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}: {} sweep{} across the peak predicted to bring it to ± {:.1} % in {:.1} device s",
+                        report.fit.sigma_deg().unwrap_or(f64::NAN),
+                        100.0 * width.unwrap_or(f64::INFINITY),
+                        report.classification.class_name(),
+                        report.classification.confidence,
+                        design.plans.len(),
+                        if design.plans.len() == 1 { "" } else { "s" },
+                        100.0 * design.predicted_rel_half_width,
+                        design.seconds
+                    );
+                    (design.plans, reason)
+                }
+                _ => {
+                    // Unresolved: slow sweeps across specular at every incidence, bins fine
+                    // enough for the narrowest lobe the fit allows.
+                    let plans: Vec<SweepPlan> = peak_candidates(0.25, report.fit.acceptance_deg, max_speed, block_s, here.theta_r.deg())
+                        .into_iter()
+                        .filter(|p| p.speed_deg_per_s == 15.0_f64.min(max_speed))
+                        .collect();
+                    (plans, "σ not resolved by the pass: slow sweeps across the specular direction at every incidence".to_string())
+                }
+            };
+            if plans.is_empty() {
+                self.decide("sweeps: no sweep left that would help; the result is as measured");
+                return Ok(());
+            }
+            let bins: usize = plans.iter().map(SweepPlan::bins).sum();
+            self.decide(&format!("sweep round {round} ({} sweeps, {bins} bins): {reason}", plans.len()));
+            refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit: report.fit.lack_of_fit });
+            self.sweep_stage(&format!("sweep round {round} ({} sweeps)", plans.len()), &plans)?;
+            *report = self.analyse()?;
+            fits.push(super::FitStep { after: format!("sweep round {round}"), report: crate::analysis::report::to_json(report) });
+        }
+        Ok(())
+    }
+
+    /// The predicted variance of one detector block's radiance factor at a radiance
+    /// factor, from the readings taken: each reading's variance times its blocks, fitted
+    /// as a floor and a relative term.
+    fn per_block_variance(&self) -> impl Fn(f64) -> f64 + use<T> {
+        let per_block: Vec<crate::analysis::fit::Observation> = self
+            .usable_points()
+            .filter_map(|(k, o)| {
+                let blocks = f64::from(self.points[k].reading.samples.max(1));
+                Some(crate::analysis::fit::Observation { std: Some(o.std? * blocks.sqrt()), ..o })
+            })
+            .collect();
+        let noise = super::adaptive::NoiseModel::fit(&per_block);
+        move |r: f64| noise.variance(r)
+    }
+
+    /// The sweeps that would cover what the wanted sweeps still lack: for each wanted sweep,
+    /// its θr range less the intervals of the usable bins at its incidence (converted and not
+    /// superseded, or saturated: measuring those again would saturate again), each gap
+    /// widened to [`SHORTEST_RESWEEP_DEG`], at the sweep's speed and bin length.
+    pub(super) fn uncovered_sweeps(&self) -> Vec<SweepPlan> {
+        let mut out = Vec::new();
+        for plan in &self.wanted_sweeps {
+            let (lo, hi) = (plan.from_deg.min(plan.to_deg), plan.from_deg.max(plan.to_deg));
+            let mut covered: Vec<(f64, f64)> = self
+                .points
+                .iter()
+                .filter(|p| !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg)
+                .filter(|p| p.radiance_factor.is_some() || p.reading.saturated)
+                .map(|p| (p.theta_r_deg - 0.5 * p.theta_r_span_deg, p.theta_r_deg + 0.5 * p.theta_r_span_deg))
+                .filter(|(a, b)| *b > lo && *a < hi)
+                .collect();
+            covered.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut at = lo;
+            let mut gaps = Vec::new();
+            for (a, b) in covered {
+                if a > at + COVER_TOLERANCE_DEG {
+                    gaps.push((at, a));
+                }
+                at = at.max(b);
+            }
+            if hi > at + COVER_TOLERANCE_DEG {
+                gaps.push((at, hi));
+            }
+            let block_s = self.block_s();
+            let shortest = SHORTEST_RESWEEP_DEG.max(2.0 * min_bin_deg(plan.speed_deg_per_s, block_s));
+            let tick = Angle::RESOLUTION_DEG;
+            for (a, b) in gaps {
+                let middle = 0.5 * (a + b);
+                let half = (0.5 * (b - a)).max(0.5 * shortest);
+                let (from, to) = (((middle - half).max(0.0) / tick).floor() * tick, ((middle + half) / tick).ceil() * tick);
+                let bin_deg = plan.bin_deg.min(to - from).max(min_bin_deg(plan.speed_deg_per_s, block_s));
+                out.push(SweepPlan { from_deg: from, to_deg: to, bin_deg, ..*plan });
+            }
+        }
+        out
+    }
+
+    /// One detector block, seconds, as the instrument announced it.
+    pub(super) fn block_s(&self) -> f64 {
+        f64::from(self.info.detector_block_us.max(1)) * 1e-6
+    }
+
+    /// Run one sweep and record its bins; the lost ones are found by [`Self::uncovered_sweeps`].
+    fn run_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize) -> Result<(), StepError> {
+        let sweep_id = self.next_schedule_id;
+        self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
+        if let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? {
+            return Err(StepError::Failure(failure));
+        }
+        let (Some(theta_i), Some(from), Some(to)) = (Angle::from_deg(plan.theta_i_deg), Angle::from_deg(plan.from_deg), Angle::from_deg(plan.to_deg)) else {
+            return Err(StepError::Fatal(SessionError::Fit(format!("a sweep outside the arms' angles: {plan:?}"))));
+        };
+        let tick = Angle::RESOLUTION_DEG;
+        let command = Sweep {
+            sweep_id,
+            theta_i,
+            from,
+            to,
+            speed_mdeg_per_s: (plan.speed_deg_per_s * 1000.0).round() as u32,
+            bin_ticks: (plan.bin_deg / tick).round().clamp(1.0, f64::from(u16::MAX)) as u16,
+            range: None,
+        };
+        let bins = match self.request(Command::Sweep(command))? {
+            Reply::Sweep(planned) => planned.bins,
+            other => return Err(StepError::Fatal(LinkError::UnexpectedReply { command: "Sweep", reply: Box::new(other) }.into())),
+        };
+        let mut seen = BTreeSet::new();
+        let started = self.now();
+        loop {
+            let message = self.client.next_unsolicited(Duration::from_secs(5)).map_err(StepError::from_link)?;
+            match message {
+                Some(DeviceMessage::SweepBin(bin)) if bin.sweep_id == sweep_id => {
+                    if !seen.insert(bin.index) {
+                        continue; // a duplicate
+                    }
+                    self.record_bin(plan.theta_i_deg, &bin).map_err(StepError::Fatal)?;
+                    *done += 1;
+                    let per_bin = (self.now() - started) / seen.len() as u32;
+                    let remaining = per_bin * u32::from(bins).saturating_sub(seen.len() as u32);
+                    self.recorder.progress(Progress { done: (*done).min(planned), planned, remaining });
+                }
+                Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => return self.lit_throughout(sweep_id),
+                Some(DeviceMessage::Stopped { reason }) => return Err(StepError::Failure(Failure::Stopped(reason))),
+                // Stale messages of an earlier schedule or sweep.
+                Some(_) => {}
+                // Silence: the end may have been lost on the link. Ask.
+                None => {
+                    if let Reply::Status(status) = self.request(Command::GetStatus)? {
+                        if status.schedule.is_none_or(|(id, _)| id != sweep_id) {
+                            return self.lit_throughout(sweep_id);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Record one bin: usable, or kept in the record with why it is not (blanked, empty).
+    fn record_bin(&mut self, theta_i_deg: f64, bin: &SweepBin) -> Result<(), SessionError> {
+        let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
+        let reading = BinReading {
+            start_deg: bin.start.deg(),
+            end_deg: bin.end.deg(),
+            mean_counts: bin.mean_counts,
+            blocks: bin.blocks.max(1),
+            range: bin.range,
+            saturated: bin.is_saturated(),
+            device_time_us: bin.device_time_us,
+        };
+        let tau_s = self.info.detector_ranges.get(usize::from(bin.range)).map_or(0.0, |r| f64::from(r.time_constant_us) * 1e-6);
+        let mut point: MeasuredPoint = bin_point(theta_i_deg, &reading, bin.sweep_id, bin.index, self.block_s(), tau_s, calibration);
+        let unusable = if bin.is_empty() {
+            Some("no usable detector block in this bin (all within a range switch's settling)")
+        } else if bin.is_blanked() {
+            Some("blocks of this bin were dropped after a range switch: its mean is of part of its interval only; measured again")
+        } else {
+            None
+        };
+        if let Some(why) = unusable {
+            point.radiance_factor = None;
+            point.std = None;
+            point.note = Some(why.to_string());
+        }
+        self.recorder.point(&point).map_err(SessionError::Record)?;
+        self.points.push(point);
+        Ok(())
+    }
+}
