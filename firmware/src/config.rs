@@ -66,6 +66,14 @@ pub struct InstrumentConfig {
     /// Auto-ranging goes one range more sensitive when the mean, scaled by the gain
     /// ratio, would stay below this fraction of full scale there.
     pub more_sensitive_below_fraction: f32,
+    /// Sweeps: a block at or above this fraction of full scale switches to the next less
+    /// sensitive range (the block itself is kept unless it saturated).
+    pub sweep_less_sensitive_above_fraction: f32,
+    /// Sweeps: a block that, scaled by the gain ratio, would read below this fraction of
+    /// full scale on the next more sensitive range switches there.
+    pub sweep_more_sensitive_below_fraction: f32,
+    /// Sweeps: the lowest top speed accepted, mdeg/s.
+    pub sweep_min_speed_mdeg_per_s: u32,
 }
 
 /// 16-bit-effective ADC path: full scale in counts.
@@ -138,6 +146,16 @@ impl InstrumentConfig {
         saturation_fraction: 0.98,
         // A decade more gain takes 8 % of full scale to 80 %: clear of saturation.
         more_sensitive_below_fraction: 0.8,
+        // While the arm moves the signal goes on changing through the blanking after a
+        // switch, so the sweep's thresholds leave more room than a still reading's: out of
+        // a range at 90 % of full scale (a specular peak rises by less than a tenth within
+        // the few blocks of a switch at 60 °/s), into the more sensitive one when it
+        // would read below 60 % there (6 % here for decade ranges). A still signal never
+        // switches back: 90 % here is 9 % on the less sensitive range, above its 6 %.
+        sweep_less_sensitive_above_fraction: 0.9,
+        sweep_more_sensitive_below_fraction: 0.6,
+        // 0.1 °/s: slower is a still reading (and its blocks' stamps would repeat).
+        sweep_min_speed_mdeg_per_s: 100,
     };
 
     /// The handshake answer for this configuration.

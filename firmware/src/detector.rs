@@ -153,7 +153,7 @@ impl Integration {
         let stats = &mut self.stats;
         let drained = detector.drain_samples(&mut |sample| {
             if collecting {
-                stats.add(sample);
+                stats.add(sample.counts);
             }
         });
         if let Some(loss) = self.loss.take().or(drained.err()) {

@@ -78,10 +78,16 @@ use crate::homing::{ArmHoming, HomingStatus};
 use crate::link::{Incoming, Link};
 use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
+use crate::sweep::{AutoRange, Binner, check_sweep, sweep_profile};
 use protocol::{
     Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
-    PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource, Status, StreamReading, Target,
+    PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource, Status, StreamReading, Sweep,
+    SweepPlan, Target,
 };
+
+/// A sweep whose detector gives no block for this long has a dead detector: fail-safe stop
+/// ([`ErrorCode::HardwareFault`]); without blocks its last bin would never close.
+const SWEEP_SILENT_BLOCKS: u64 = 20;
 
 /// A move under way: where to, whether the arms actually move, and the settle deadline
 /// once they are there.
@@ -113,6 +119,27 @@ struct ScheduleRun {
     step: RunStep,
 }
 
+/// Where a running sweep is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum SweepPhase {
+    /// Both arms to (θi, `from`) and settling there (always, also without a move: the
+    /// range is found at rest), then until the auto-ranging has found the range.
+    Approach(Travel),
+    /// The detector arm's profile runs; its blocks make the bins.
+    Sweeping(Binner),
+}
+
+/// A running sweep ([`crate::sweep`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct SweepRun {
+    sweep: Sweep,
+    bins: u16,
+    ranging: AutoRange,
+    phase: SweepPhase,
+    /// When the detector last gave a block.
+    last_block_us: u64,
+}
+
 /// What the device is doing. Long commands keep the sequence number they answer.
 #[derive(Clone, Debug, PartialEq)]
 enum Activity {
@@ -122,6 +149,7 @@ enum Activity {
     Reading { seq: u32, reading: RangedReading },
     Dark { seq: u32, integration: Integration, readings: heapless::Vec<Reading, MAX_RANGES> },
     Schedule(ScheduleRun),
+    Sweep(SweepRun),
     /// Arms ramping down after an abort or a fault; nothing new starts until they rest.
     Stopping,
 }
@@ -286,7 +314,10 @@ impl<H: Hardware> Device<H> {
             self.fail_safe_stop(ErrorCode::AdcOverrun, send);
         }
         let needs_host = self.lamp_on
-            || matches!(self.activity, Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_));
+            || matches!(
+                self.activity,
+                Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_) | Activity::Sweep(_)
+            );
         let silent_us = now_us.saturating_sub(self.last_heard_us);
         if needs_host && silent_us > u64::from(self.config.heartbeat_timeout_ms) * 1000 {
             self.fail_safe_stop(ErrorCode::HeartbeatLost, send);
@@ -346,6 +377,7 @@ impl<H: Hardware> Device<H> {
                 }
             }
             Activity::Schedule(run) => self.poll_schedule(run, send),
+            Activity::Sweep(run) => self.poll_sweep(run, send),
             Activity::Stopping => {
                 if self.motion.any_moving(&self.hardware) {
                     self.activity = Activity::Stopping;
@@ -392,6 +424,10 @@ impl<H: Hardware> Device<H> {
             Activity::Homing { .. } | Activity::Stopping => true,
             Activity::Moving { travel, .. } => self.positions() != travel.target,
             Activity::Schedule(ScheduleRun { step: RunStep::Travel(travel), .. }) => self.positions() != travel.target,
+            Activity::Sweep(SweepRun { phase: SweepPhase::Approach(travel), .. }) => self.positions() != travel.target,
+            Activity::Sweep(SweepRun { sweep, .. }) => {
+                self.positions() != [angle_to_steps(sweep.theta_i), angle_to_steps(sweep.to)]
+            }
             Activity::Idle | Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_) => false,
         }
     }
@@ -418,7 +454,8 @@ impl<H: Hardware> Device<H> {
                 };
                 self.link.send(&DeviceMessage::ScheduleDone(done), send);
             }
-            Activity::Idle | Activity::Stopping => {}
+            // Answered when it started; the host has every bin sent, each named.
+            Activity::Sweep(_) | Activity::Idle | Activity::Stopping => {}
         }
         if self.motion.any_moving(&self.hardware) {
             self.activity = Activity::Stopping;
@@ -458,7 +495,7 @@ impl<H: Hardware> Device<H> {
             Command::TakeDark { integration_ms } => return self.start_dark(seq, *integration_ms),
             Command::UploadSchedule(chunk) => self.upload(chunk),
             Command::RunSchedule(run) => self.start_schedule(run),
-            Command::Sweep(_) => Err(DeviceError::new(ErrorCode::NotSupported)),
+            Command::Sweep(sweep) => self.start_sweep(sweep),
         };
         Some(result)
     }
@@ -498,7 +535,10 @@ impl<H: Hardware> Device<H> {
     }
 
     fn set_lamp(&mut self, on: bool) -> Result<Reply, DeviceError> {
-        let measuring = matches!(self.activity, Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_));
+        let measuring = matches!(
+            self.activity,
+            Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_) | Activity::Sweep(_)
+        );
         // Off is always allowed (safety); on would spoil a reading under way.
         if on && measuring {
             return Err(DeviceError::new(ErrorCode::Busy));
@@ -754,6 +794,104 @@ impl<H: Hardware> Device<H> {
         self.activity = Activity::Schedule(run);
     }
 
+    /// Accept a sweep: every check before anything moves ([`crate::sweep`]), then the
+    /// range selected and the move to (θi, `from`) started; the plan is the answer.
+    fn start_sweep(&mut self, sweep: &Sweep) -> Result<Reply, DeviceError> {
+        self.busy()?;
+        self.require_drivers()?;
+        self.require_homed()?;
+        let bins = check_sweep(&self.config, sweep)?;
+        let start = [angle_to_steps(sweep.theta_i), angle_to_steps(sweep.from)];
+        let (max_speed, accel) = (deg_to_steps(self.config.max_speed_deg_per_s), deg_to_steps(self.config.accel_deg_per_s2));
+        let profile = sweep_profile(&self.config, start[1], angle_to_steps(sweep.to), sweep.speed_mdeg_per_s);
+        let duration_us = crate::motion::move_duration_us(self.positions(), start, max_speed, accel)
+            + u64::from(self.config.settle_ms) * 1000
+            + profile.duration_us();
+        let mut ranging = AutoRange::new(&self.config, sweep.range.unwrap_or(self.last_range), sweep.range.is_some());
+        if let Some(range) = ranging.take_switch() {
+            self.hardware.select_range(range);
+        }
+        let mut travel = self.start_travel(Geometry::new(sweep.theta_i, sweep.from));
+        // Settle also when already there: the range is found at rest, before any bin.
+        travel.moved = true;
+        self.activity = Activity::Sweep(SweepRun {
+            sweep: *sweep,
+            bins,
+            ranging,
+            phase: SweepPhase::Approach(travel),
+            last_block_us: self.now_us,
+        });
+        let duration_ms = duration_us.div_ceil(1000).min(u64::from(u32::MAX)) as u32;
+        Ok(Reply::Sweep(SweepPlan { bins, duration_ms }))
+    }
+
+    fn poll_sweep(&mut self, mut run: SweepRun, send: &mut impl FnMut(&[u8])) {
+        let now = self.now_us;
+        let (config, link, hardware) = (&self.config, &mut self.link, &mut self.hardware);
+        let mut blocks = 0u32;
+        let drained = hardware.drain_samples(&mut |sample| {
+            blocks += 1;
+            let class = run.ranging.block(config, sample.counts);
+            if let SweepPhase::Sweeping(binner) = &mut run.phase {
+                if let Some(bin) = binner.block(sample, class, run.ranging.range(), now) {
+                    link.send(&DeviceMessage::SweepBin(bin), send);
+                }
+            }
+        });
+        if let Some(range) = run.ranging.take_switch() {
+            hardware.select_range(range);
+        }
+        if blocks > 0 {
+            run.last_block_us = now;
+        }
+        let silent = now.saturating_sub(run.last_block_us) > SWEEP_SILENT_BLOCKS * u64::from(config.detector_block_us);
+        let fault = if drained.is_err() {
+            Some(ErrorCode::AdcOverrun)
+        } else if silent {
+            Some(ErrorCode::HardwareFault)
+        } else {
+            None
+        };
+        if let Some(code) = fault {
+            self.activity = Activity::Sweep(run);
+            return self.fail_safe_stop(code, send);
+        }
+        match run.phase {
+            SweepPhase::Approach(travel) => match self.advance_travel(travel) {
+                Ok(Some(travel)) => run.phase = SweepPhase::Approach(travel),
+                // Settled, but a range switch is still settling: wait for it at rest.
+                Ok(None) if !run.ranging.is_found() => {
+                    run.phase = SweepPhase::Approach(Travel { settle_until_us: Some(now), ..travel });
+                }
+                Ok(None) => {
+                    let from = angle_to_steps(run.sweep.from);
+                    let profile = sweep_profile(&self.config, from, angle_to_steps(run.sweep.to), run.sweep.speed_mdeg_per_s);
+                    self.motion.start(&mut self.hardware, Arm::Detector, profile, now);
+                    run.phase = SweepPhase::Sweeping(Binner::new(&run.sweep, run.bins));
+                }
+                Err(code) => {
+                    self.activity = Activity::Sweep(run);
+                    return self.fail_safe_stop(code, send);
+                }
+            },
+            SweepPhase::Sweeping(binner) => {
+                if binner.is_done() && !self.motion.any_moving(&self.hardware) {
+                    if self.positions() != [angle_to_steps(run.sweep.theta_i), angle_to_steps(run.sweep.to)] {
+                        self.activity = Activity::Sweep(run);
+                        return self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                    }
+                    if run.sweep.range.is_none() {
+                        self.last_range = run.ranging.range();
+                    }
+                    let done = DeviceMessage::SweepDone { sweep_id: run.sweep.sweep_id, bins: binner.bins_sent() };
+                    self.link.send(&done, send);
+                    return;
+                }
+            }
+        }
+        self.activity = Activity::Sweep(run);
+    }
+
     /// The answer to `GetStatus`.
     pub fn status(&self) -> Status {
         let state = match self.activity {
@@ -763,11 +901,16 @@ impl<H: Hardware> Device<H> {
             Activity::Moving { .. } => DeviceState::Moving,
             Activity::Reading { .. } | Activity::Dark { .. } => DeviceState::Measuring,
             Activity::Schedule(_) => DeviceState::RunningSchedule,
+            Activity::Sweep(_) => DeviceState::Sweeping,
             Activity::Stopping if self.safe_stopped => DeviceState::Stopped,
             Activity::Stopping => DeviceState::Moving,
         };
         let schedule = match &self.activity {
             Activity::Schedule(run) => Some((run.schedule_id, run.index)),
+            Activity::Sweep(SweepRun { sweep, phase: SweepPhase::Sweeping(binner), .. }) => {
+                Some((sweep.sweep_id, binner.bins_sent()))
+            }
+            Activity::Sweep(SweepRun { sweep, .. }) => Some((sweep.sweep_id, 0)),
             _ => None,
         };
         Status {

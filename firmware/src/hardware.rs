@@ -53,15 +53,29 @@ pub trait Arms {
     fn take_step_fault(&mut self, arm: Arm) -> bool;
 }
 
+/// One detector sample: one block of oversampled ADC conversions
+/// ([`crate::config::InstrumentConfig::detector_block_us`] long), and where the detector
+/// arm was when it ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Sample {
+    /// ADC counts (dark offset included).
+    pub counts: u32,
+    /// The detector arm's step count at the end of the block (the board's decimation
+    /// interrupt reads the step generator's count when it closes the block): a sweep's
+    /// bins take their angles from these.
+    pub detector_steps: i32,
+}
+
 /// The photodiode, its transimpedance ranges and the ADC.
 pub trait Detector {
     /// Switch the amplifier to `range` (index into the configured ranges, most sensitive
     /// first). Samples taken while it settles are discarded by the library.
     fn select_range(&mut self, range: u8);
-    /// Hand every ADC sample (counts) taken since the last call to `sink`, oldest first;
-    /// `Err` when samples were lost or could have been mixed since the last call (the
-    /// overrun rule of [`crate::sampling`]).
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss>;
+    /// Hand every sample taken since the last call to `sink`, oldest first, each stamped
+    /// with the detector arm's step count at its end; `Err` when samples were lost or
+    /// could have been mixed since the last call (the overrun rule of [`crate::sampling`]).
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss>;
     /// An overrun of the ADC path itself (the ADC, or its DMA lapping the decimation)
     /// since the last call, whether or not samples were drained; cleared by the call.
     fn take_sample_fault(&mut self) -> Option<SampleLoss>;

@@ -14,6 +14,7 @@
 //! - [`detector`]: reading statistics and auto-ranging.
 //! - [`sampling`]: ADC decimation and the sample ring, with the overrun rule.
 //! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
+//! - [`sweep`]: sweeps: the checks, the profile, auto-ranging while moving, the bins.
 //! - [`config`]: the reference instrument's limits, announced in the handshake.
 //! - [`fault`]: the fault handlers' safe stop, their record across the reset, the reset cause.
 //! - [`txqueue`]: frames for the host, queued whole or dropped whole.
@@ -35,11 +36,12 @@ pub mod sampling;
 pub mod scenarios;
 pub mod schedule;
 pub mod stepgen;
+pub mod sweep;
 pub mod testing;
 pub mod txqueue;
 
 pub use device::Device;
-pub use hardware::{Arm, Arms, Detector, Hardware, Lamp, ResetCause};
+pub use hardware::{Arm, Arms, Detector, Hardware, Lamp, ResetCause, Sample};
 pub use link::Link;
 
 /// Firmware version announced in the handshake.

@@ -1,8 +1,9 @@
 //! Detector samples from a free-running ADC, the logic of it: decimating the DMA's raw
 //! circular buffer into 16-bit-effective samples ([`Decimator`]), the bounded ring the
 //! device drains ([`SampleRing`]), and the rule that no lost sample goes unreported.
-//! The board's TIM5 interrupt feeds the decimator the DMA's write position and the ADC's
-//! overrun flag; the tests a model of the DMA (`tests/sampling.rs`).
+//! The board's TIM5 interrupt feeds the decimator the DMA's write position, the ADC's
+//! overrun flag and the detector arm's step count; the tests a model of the DMA
+//! (`tests/sampling.rs`).
 //!
 //! The board's ADC converts continuously, paced by the crystal: one conversion every
 //! `cycles_per_conversion` CPU cycles (384 at 96 MHz: ADCCLK 24 MHz, 96 ADC clocks per
@@ -33,6 +34,7 @@ pub const OVERSAMPLE: usize = 256;
 /// one or two at a time.
 pub const RAW_LEN: usize = 4 * OVERSAMPLE;
 /// Decoded samples held for the device (262 ms of samples; the device drains every 1 ms).
+/// Each with the detector arm's step count at its end: 6 bytes a sample, 1.5 KiB.
 pub const RING_LEN: usize = 256;
 /// Margin of the lap test, conversions: the clock and the DMA position are read a few
 /// cycles apart, and the clock is not read at the instant of a conversion. (The summing
@@ -62,12 +64,14 @@ impl SampleLoss {
     }
 }
 
-/// The decoded samples, oldest first; the first loss since the last drain; the first
-/// loss of the ADC path itself (an overrun or a lap, not a full ring) since it was last
-/// taken.
+/// The decoded samples, oldest first, each with the detector arm's step count at its end;
+/// the first loss since the last drain; the first loss of the ADC path itself (an overrun
+/// or a lap, not a full ring) since it was last taken.
 #[derive(Clone, Debug)]
 pub struct SampleRing {
     samples: [u16; RING_LEN],
+    /// `detector_steps[i]` stamps `samples[i]` (two arrays: 6 bytes a sample, not 8).
+    detector_steps: [i32; RING_LEN],
     head: usize,
     len: usize,
     loss: Option<SampleLoss>,
@@ -83,16 +87,19 @@ impl Default for SampleRing {
 impl SampleRing {
     /// Empty.
     pub const fn new() -> SampleRing {
-        SampleRing { samples: [0; RING_LEN], head: 0, len: 0, loss: None, fault: None }
+        SampleRing { samples: [0; RING_LEN], detector_steps: [0; RING_LEN], head: 0, len: 0, loss: None, fault: None }
     }
 
-    /// Add a sample; when full, it is dropped and the loss recorded.
-    pub fn push(&mut self, sample: u16) {
+    /// Add a sample and the detector arm's step count at its end; when full, it is
+    /// dropped and the loss recorded.
+    pub fn push(&mut self, sample: u16, detector_steps: i32) {
         if self.len == RING_LEN {
             self.mark_loss(SampleLoss::RingFull);
             return;
         }
-        self.samples[(self.head + self.len) % RING_LEN] = sample;
+        let slot = (self.head + self.len) % RING_LEN;
+        self.samples[slot] = sample;
+        self.detector_steps[slot] = detector_steps;
         self.len += 1;
     }
 
@@ -106,10 +113,13 @@ impl SampleRing {
     }
 
     /// Move up to `out.len()` samples, oldest first, into `out`; how many.
-    pub fn pop_into(&mut self, out: &mut [u16]) -> usize {
+    pub fn pop_into(&mut self, out: &mut [crate::hardware::Sample]) -> usize {
         let n = out.len().min(self.len);
         for slot in &mut out[..n] {
-            *slot = self.samples[self.head];
+            *slot = crate::hardware::Sample {
+                counts: u32::from(self.samples[self.head]),
+                detector_steps: self.detector_steps[self.head],
+            };
             self.head = (self.head + 1) % RING_LEN;
         }
         self.len -= n;
@@ -173,11 +183,15 @@ impl Decimator {
         self.last_cycles = now_cycles;
     }
 
-    /// One service (the 1 kHz decimation interrupt): `write` is the DMA's next slot
-    /// (`RAW_LEN - NDTR`), `adc_overrun` the ADC's overrun flag, `now_cycles` the clock,
-    /// `raw(i)` the conversion in slot `i`. Every whole block found becomes a sample in
-    /// `ring`; a loss is recorded there. Returns whether the board must restart the
-    /// conversions and the DMA (after an ADC overrun; then call [`Decimator::restart`]).
+    /// One service (the decimation interrupt, once per block): `write` is the DMA's next
+    /// slot (`RAW_LEN - NDTR`), `adc_overrun` the ADC's overrun flag, `now_cycles` the
+    /// clock, `raw(i)` the conversion in slot `i`, `detector_steps` the detector arm's step
+    /// count now. Every whole block found becomes a sample in `ring`, stamped with
+    /// `detector_steps` (the board runs this interrupt just after each block ends, so the
+    /// stamp is the count at the block's end; should a late service find two blocks, both
+    /// get the later count); a loss is recorded there. Returns whether the board must
+    /// restart the conversions and the DMA (after an ADC overrun; then call
+    /// [`Decimator::restart`]).
     #[must_use]
     pub fn service(
         &mut self,
@@ -185,6 +199,7 @@ impl Decimator {
         adc_overrun: bool,
         now_cycles: u32,
         raw: impl Fn(usize) -> u16,
+        detector_steps: i32,
         ring: &mut SampleRing,
     ) -> bool {
         if adc_overrun {
@@ -206,7 +221,7 @@ impl Decimator {
             while (write + RAW_LEN - self.read) % RAW_LEN >= OVERSAMPLE {
                 let sum: u32 = (self.read..self.read + OVERSAMPLE).map(|i| u32::from(raw(i) & 0x0fff)).sum();
                 // 256 × 4095 = 1,048,320 → 65,520: fits u16.
-                ring.push((sum >> 4) as u16);
+                ring.push((sum >> 4) as u16, detector_steps);
                 self.read = (self.read + OVERSAMPLE) % RAW_LEN;
             }
         }

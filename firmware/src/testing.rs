@@ -2,16 +2,19 @@
 //!
 //! Arms follow the profiles they are given exactly (a perfect step generator), with their
 //! true angle offset from the step count by an unknown amount until homed; home switches
-//! press at the configured angle. The detector samples at 1 kHz: dark offset plus, with
-//! the lamp on, a [`Scene`]'s signal times the range gain, plus deterministic noise,
-//! clipped at full scale. Faults (a missing or stuck switch, a driver fault, a dead ADC,
+//! press at the configured angle. The detector samples once per block period (1 kHz):
+//! dark offset plus, with the lamp on, a [`Scene`]'s signal at the arms' true angles at the
+//! sample's time, times the range gain, plus deterministic noise, clipped at full scale;
+//! each sample is stamped with the detector arm's step count at its time. The amplifier's
+//! settling after a range switch can be made visible ([`FakeHardware::settling_counts`]).
+//! Faults (a missing or stuck switch, a driver fault, a dead ADC,
 //! lost samples, a late step interrupt, lost steps) can be injected, and a fault handler's
 //! safe stop ([`crate::fault::SafeOutputs`]) applied. Nothing here is linked into the
 //! board firmware.
 
 use crate::config::InstrumentConfig;
 use crate::fault::SafeOutputs;
-use crate::hardware::{Arm, Arms, Detector, Lamp};
+use crate::hardware::{Arm, Arms, Detector, Lamp, Sample};
 use crate::motion::MoveProfile;
 use crate::sampling::SampleLoss;
 use libm::sqrtf;
@@ -47,6 +50,10 @@ pub struct FakeArm {
     /// True angle in ticks = steps + offset (unknown to the firmware until it homes).
     offset_steps: i32,
     running: Option<(MoveProfile, u64)>,
+    /// The last profile and its start, kept after it ends: where the arm was at a time
+    /// before now (a sample's stamp). `None` after the count was redefined or the arm was
+    /// stopped dead.
+    last: Option<(MoveProfile, u64)>,
     /// The switch never presses (broken wire).
     pub switch_missing: bool,
     /// The switch stays pressed (welded, stuck lever).
@@ -68,6 +75,7 @@ impl FakeArm {
             steps: 0,
             offset_steps: ticks,
             running: None,
+            last: None,
             switch_missing: false,
             switch_stuck: false,
             driver_fault: false,
@@ -86,6 +94,15 @@ impl FakeArm {
     pub fn step_timer_running(&self) -> bool {
         self.running.is_some()
     }
+
+    /// The step count at `t_us` (at or before the last `advance_to`): from the last
+    /// profile (its start before it began: the arm was arriving there).
+    pub fn steps_at(&self, t_us: u64) -> i32 {
+        match self.last {
+            Some((profile, started_us)) => profile.position_at(t_us.saturating_sub(started_us)),
+            None => self.steps,
+        }
+    }
 }
 
 /// Fake arms, detector and lamp on a virtual clock that the test advances.
@@ -97,7 +114,10 @@ pub struct FakeHardware<S: Scene> {
     switch_ticks: i32,
     lamp_on: bool,
     range: u8,
+    /// When the range was last selected.
+    range_selected_us: u64,
     ranges: &'static [DetectorRange],
+    sample_period_us: u64,
     /// Dark offset, counts.
     pub dark_counts: f32,
     /// Standard deviation of the sample noise, counts.
@@ -114,12 +134,15 @@ pub struct FakeHardware<S: Scene> {
     pub profiles_started: u32,
     /// Profiles started whose speed or acceleration broke the configured limits.
     pub profiles_over_limits: u32,
+    /// `Some(counts)`: a sample whose block overlaps the settling time of the range just
+    /// selected (its [`DetectorRange::settle_us`] after the switch) reads `counts`, the
+    /// amplifier's transient made obvious: no sweep bin may contain one.
+    pub settling_counts: Option<u32>,
+    /// Every range selected, with its time (the tests' record of the switches).
+    pub range_log: heapless::Vec<(u64, u8), 64>,
     max_speed: f32,
     accel: f32,
 }
-
-/// Sample period of the modelled ADC.
-const SAMPLE_PERIOD_US: u64 = 1000;
 
 impl<S: Scene> FakeHardware<S> {
     /// The reference hardware, arms standing at these true angles (unknown to the firmware).
@@ -130,17 +153,21 @@ impl<S: Scene> FakeHardware<S> {
             switch_ticks: config.home_switch.ticks(),
             lamp_on: false,
             range: 0,
+            range_selected_us: 0,
             ranges: config.detector_ranges,
+            sample_period_us: u64::from(config.detector_block_us.max(1)),
             // the reference instrument: dark ≈ 0.3 % and read noise 0.02 % of full scale.
             dark_counts: 0.003 * 65_535.0,
             noise_counts: 0.0002 * 65_535.0,
-            next_sample_us: SAMPLE_PERIOD_US,
+            next_sample_us: u64::from(config.detector_block_us.max(1)),
             rng: 0x2545_f491,
             scene,
             detector_dead: false,
             sample_loss: None,
             profiles_started: 0,
             profiles_over_limits: 0,
+            settling_counts: None,
+            range_log: heapless::Vec::new(),
             max_speed: crate::motion::deg_to_steps(config.max_speed_deg_per_s),
             accel: crate::motion::deg_to_steps(config.accel_deg_per_s2),
         }
@@ -165,6 +192,17 @@ impl<S: Scene> FakeHardware<S> {
     /// The arms' true angles.
     pub fn true_geometry(&self) -> Geometry {
         Geometry::new(Angle::from_ticks(self.arms[0].true_ticks()), Angle::from_ticks(self.arms[1].true_ticks()))
+    }
+
+    /// The arms' true angles at `t_us` (at or before now; see [`FakeArm::steps_at`]).
+    pub fn true_geometry_at(&self, t_us: u64) -> Geometry {
+        let [i, r] = self.arms.map(|arm| arm.steps_at(t_us) + arm.offset_steps);
+        Geometry::new(Angle::from_ticks(i), Angle::from_ticks(r))
+    }
+
+    /// Virtual time now, µs.
+    pub fn now_us(&self) -> u64 {
+        self.now_us
     }
 
     /// The arm slipped: its true angle falls behind its step count by `steps`.
@@ -206,10 +244,12 @@ impl<S: Scene> Arms for FakeHardware<S> {
         if profile.step_count() == 0 {
             // Ends what runs (the arm stops where it is: a perfect step generator).
             arm.running = None;
+            arm.last = None;
             return;
         }
         arm.driver_enabled = true;
         arm.running = Some((*profile, self.now_us));
+        arm.last = arm.running;
     }
 
     fn position_steps(&self, arm: Arm) -> i32 {
@@ -224,6 +264,7 @@ impl<S: Scene> Arms for FakeHardware<S> {
         let arm = &mut self.arms[arm.index()];
         arm.offset_steps += arm.steps - steps;
         arm.steps = steps;
+        arm.last = None;
     }
 
     fn home_switch_pressed(&self, arm: Arm) -> bool {
@@ -243,23 +284,35 @@ impl<S: Scene> Arms for FakeHardware<S> {
 impl<S: Scene> Detector for FakeHardware<S> {
     fn select_range(&mut self, range: u8) {
         self.range = range;
+        self.range_selected_us = self.now_us;
+        if self.range_log.is_full() {
+            self.range_log.remove(0);
+        }
+        let _ = self.range_log.push((self.now_us, range));
     }
 
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss> {
         let range = self.ranges[usize::from(self.range)];
-        let geometry = self.true_geometry();
-        let signal = if self.lamp_on {
-            self.scene.signal_counts(geometry.theta_i.deg() as f32, geometry.theta_r.deg() as f32) * range.relative_gain
-        } else {
-            0.0
-        };
+        let settled_us = self.range_selected_us + u64::from(range.settle_us);
         while self.next_sample_us <= self.now_us {
-            self.next_sample_us += SAMPLE_PERIOD_US;
+            let at_us = self.next_sample_us;
+            self.next_sample_us += self.sample_period_us;
             if self.detector_dead {
                 continue;
             }
+            let geometry = self.true_geometry_at(at_us);
+            let signal = if self.lamp_on {
+                self.scene.signal_counts(geometry.theta_i.deg() as f32, geometry.theta_r.deg() as f32) * range.relative_gain
+            } else {
+                0.0
+            };
             let counts = self.dark_counts + signal + self.noise();
-            sink(counts.clamp(0.0, range.full_scale_counts as f32) as u32);
+            let counts = match self.settling_counts {
+                // The block ended after the switch and began before the amplifier settled.
+                Some(transient) if at_us > self.range_selected_us && at_us - self.sample_period_us < settled_us => transient,
+                _ => counts.clamp(0.0, range.full_scale_counts as f32) as u32,
+            };
+            sink(Sample { counts, detector_steps: self.arms[Arm::Detector.index()].steps_at(at_us) });
         }
         match self.sample_loss.take() {
             Some(loss) => Err(loss),
@@ -286,6 +339,7 @@ impl<S: Scene> SafeOutputs for FakeHardware<S> {
         self.advance_to(now_us);
         for arm in &mut self.arms {
             arm.running = None;
+            arm.last = None;
         }
     }
 

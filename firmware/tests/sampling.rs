@@ -81,7 +81,8 @@ fn simulate(steps: &[Step]) -> Outcome {
     let mut ring = SampleRing::new();
     // The conversions each sample summed, in the order the decimator read them.
     let reads: RefCell<Vec<u64>> = RefCell::new(Vec::new());
-    let mut sample_blocks: std::collections::VecDeque<u64> = Default::default();
+    // The first conversion of each block in the ring, and the service that found it.
+    let mut sample_blocks: std::collections::VecDeque<(u64, usize)> = Default::default();
     let mut outcome = Outcome { blocks: Vec::new(), loss_drains: Vec::new(), losses: 0 };
     for (drain_index, step) in steps.iter().enumerate() {
         now += step.gap;
@@ -97,6 +98,8 @@ fn simulate(steps: &[Step]) -> Outcome {
                 reads.borrow_mut().push(n);
                 value(n)
             },
+            // The detector arm's count: the service's number, to check the stamps.
+            drain_index as i32,
             &mut ring,
         );
         // Check the reads: whole blocks of consecutive conversions, aligned to the lap.
@@ -109,7 +112,7 @@ fn simulate(steps: &[Step]) -> Outcome {
             for (k, &n) in block.iter().enumerate() {
                 assert_eq!(n, first + k as u64, "a block mixed from two laps: {block:?}");
             }
-            sample_blocks.push_back(first);
+            sample_blocks.push_back((first, drain_index));
         }
         // What did not fit in the ring was dropped (and must be reported).
         let kept = ring.len() - before;
@@ -123,12 +126,13 @@ fn simulate(steps: &[Step]) -> Outcome {
         }
         if step.drain {
             let loss = ring.take_loss();
-            let mut out = [0u16; RING_LEN];
+            let mut out = [firmware::Sample { counts: 0, detector_steps: 0 }; RING_LEN];
             let n = ring.pop_into(&mut out);
             for &sample in &out[..n] {
-                let first = sample_blocks.pop_front().expect("a sample for every block");
+                let (first, service) = sample_blocks.pop_front().expect("a sample for every block");
                 let expected: u32 = (first..first + BLOCK).map(|k| u32::from(value(k))).sum::<u32>() >> 4;
-                assert_eq!(u32::from(sample), expected);
+                assert_eq!(sample.counts, expected);
+                assert_eq!(sample.detector_steps, service as i32, "stamped by the service that found it");
                 outcome.blocks.push((first, drain_index));
             }
             if loss.is_some() {
@@ -214,7 +218,7 @@ fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss_in_a_read
     assert_eq!(outcome.loss_drains, [2]);
     let mut ring = SampleRing::new();
     let mut decimator = Decimator::new(384, 0);
-    assert!(decimator.service(0, true, 1000, |_| 0, &mut ring), "an ADC overrun asks for a restart");
+    assert!(decimator.service(0, true, 1000, |_| 0, 0, &mut ring), "an ADC overrun asks for a restart");
     // A range change empties the ring, never of an overrun: both the drain and the
     // device's fault check hear of it, each once.
     ring.clear();
@@ -225,13 +229,13 @@ fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss_in_a_read
     // A full ring between readings is of samples nobody wanted: a range change forgets it;
     // within a reading the drain reports it; it is never an ADC fault.
     for _ in 0..RING_LEN + 1 {
-        ring.push(7);
+        ring.push(7, 0);
     }
     assert_eq!(ring.take_fault(), None);
     ring.clear();
     assert_eq!(ring.take_loss(), None);
     for _ in 0..RING_LEN + 1 {
-        ring.push(7);
+        ring.push(7, 0);
     }
     assert_eq!(ring.take_loss(), Some(SampleLoss::RingFull));
     assert_eq!([SampleLoss::AdcOverrun, SampleLoss::DmaLapped, SampleLoss::RingFull].map(SampleLoss::detail), [1, 2, 3]);

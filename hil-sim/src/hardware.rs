@@ -9,7 +9,7 @@
 use crate::detector::{Detector, DetectorParams};
 use crate::scene::{SamplePort, Scene};
 use firmware::config::InstrumentConfig;
-use firmware::hardware::{Arm, Arms, Detector as DetectorTrait, Lamp};
+use firmware::hardware::{Arm, Arms, Detector as DetectorTrait, Lamp, Sample};
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
 use firmware::testing::{ConstantScene, FakeHardware};
@@ -180,7 +180,7 @@ impl DetectorTrait for SimHardware {
         self.range = range;
     }
 
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss> {
         // Losses injected into the mechanics' model are reported here too.
         let injected = self.mechanics.sample_loss.take();
         if self.next_sample_us > self.now_us {
@@ -196,8 +196,9 @@ impl DetectorTrait for SimHardware {
         };
         let period = self.detector.sample_period_us();
         while self.next_sample_us <= self.now_us {
+            let detector_steps = self.mechanics.arms[Arm::Detector.index()].steps_at(self.next_sample_us);
             self.next_sample_us += period;
-            sink(self.detector.sample(signal));
+            sink(Sample { counts: self.detector.sample(signal), detector_steps });
         }
         injected.map_or(Ok(()), Err)
     }

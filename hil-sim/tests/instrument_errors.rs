@@ -37,7 +37,7 @@ fn samples(sim: &mut SimInstrument, target: Target, range: u8, ms: u64, clock_us
     *clock_us += ms * 1000;
     hardware.advance_to(*clock_us);
     let mut taken = Vec::new();
-    hardware.drain_samples(&mut |s| taken.push(s)).expect("the simulated ADC loses nothing");
+    hardware.drain_samples(&mut |s| taken.push(s.counts)).expect("the simulated ADC loses nothing");
     taken
 }
 

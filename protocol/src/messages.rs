@@ -271,6 +271,17 @@ pub struct SweepPlan {
 /// mean of the blocks kept (`blocks` of them), dark offset included; while the arm moves at
 /// v the amplifier makes the reading trail the angle by v·τ (the range's
 /// [`DetectorRange::time_constant_us`]).
+///
+/// THE LINK. At most one bin is sent per detector block (the shortest bin is longer than a
+/// block's travel), so at most 1,000 bins/s (976.6 on the board's 1.024 ms blocks). A bin is
+/// at most 46 bytes as a frame, and at most 31 with angles in the arms' range, a sweep id
+/// below 16,384, fewer than 128 blocks and under 9.5 hours of uptime (`tests/framing.rs`):
+/// at most 31 kB/s (46 kB/s whatever the values). USB full speed carries up to 19 bulk
+/// packets of 64 bytes per 1 ms frame (1.2 MB/s) and the host's CDC-ACM driver keeps reads
+/// pending on the IN endpoint, so that is under 3 % of the link, and under half of even one
+/// packet per frame (64 kB/s). The board's TX queue holds 1 KiB, 33 such bins: 33 ms of a
+/// host that does not read; past that, bins are dropped whole (never half a frame), which
+/// the host sees as a gap in `index` and measures again with a short sweep over the gap.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SweepBin {

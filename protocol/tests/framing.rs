@@ -297,3 +297,39 @@ fn version_mismatch_refusal_keeps_its_encoding() {
     let hello = Request { seq: 1, command: Command::Hello { protocol_version: 1 } };
     assert_eq!(postcard::to_slice(&hello, &mut [0u8; 32]).unwrap(), &[1, 0, 1]);
 }
+
+#[test]
+fn a_sweep_bin_fits_the_link_budget() {
+    // What the protocol's SweepBin doc promises (the bin rate against USB full speed).
+    let frame_len = |bin: SweepBin| encode(&DeviceMessage::SweepBin(bin)).len();
+    let worst = SweepBin {
+        sweep_id: u16::MAX,
+        index: u16::MAX,
+        start: Angle::from_ticks(i32::MIN),
+        end: Angle::from_ticks(i32::MAX),
+        mean_counts: f32::MAX,
+        std_counts: f32::MAX,
+        blocks: u16::MAX,
+        range: u8::MAX,
+        flags: u8::MAX,
+        device_time_us: u64::MAX,
+    };
+    assert_eq!(frame_len(worst), 46);
+    let session = SweepBin {
+        sweep_id: 16_383,
+        index: MAX_SWEEP_BINS - 1,
+        start: Angle::from_ticks(-6800),
+        end: Angle::from_ticks(6800),
+        blocks: 127,
+        range: 3,
+        flags: 7,
+        device_time_us: (1 << 35) - 1,
+        ..worst
+    };
+    assert!((1u64 << 35) as f64 / 3.6e9 > 9.5, "9.5 hours of µs");
+    assert!(frame_len(session) <= 31, "{}", frame_len(session));
+    // 1000 bins/s against one 64-byte packet per 1 ms USB frame.
+    assert!(1000 * 31 < 64_000 / 2 && 1000 * 46 < 64_000);
+    // The board's 1 KiB TX queue holds 33 of them.
+    assert_eq!(1024 / 31, 33);
+}

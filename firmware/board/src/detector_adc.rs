@@ -1,17 +1,28 @@
 //! Photodiode sampling: ADC1 on PA1 (IN1), converting continuously at a fixed rate, DMA
-//! into a raw circular buffer, decimated by 256 in a 1 kHz TIM5 interrupt into a bounded
-//! ring of 16-bit-effective samples that `drain_samples` empties.
+//! into a raw circular buffer, decimated by 256 in a TIM5 interrupt (once per block) into a
+//! bounded ring of 16-bit-effective samples, each stamped with the detector arm's step
+//! count at the block's end, that `drain_samples` empties.
 //!
 //! The decimation and the ring, with the overrun rule (an ADC overrun, a DMA lap, a full
 //! ring: each reported), are the library's ([`firmware::sampling`]); this module runs the
 //! ADC, the DMA and the interrupt, and hands the library the DMA position, the ADC's
-//! overrun flag and the DWT cycle count.
+//! overrun flag, the DWT cycle count and the detector arm's step count (one atomic load,
+//! [`crate::steppers::detector_steps`]).
+//!
+//! TIM5 IS LOCKED TO THE BLOCKS: its period is one block (98,304 cycles of the 96 MHz
+//! clock that also makes ADCCLK, so they never drift apart) and it is started
+//! [`PHASE_CYCLES`] after the conversions, so each interrupt comes just after a block
+//! ended: it finds exactly that block and the step count it stamps is the count at the
+//! block's end, to within the interrupt's latency (≲ 10 µs: a twentieth of a step at full
+//! speed). A sweep's bins take their angles from these stamps. (A free-running 1 kHz
+//! timer would stamp each block 0–1 ms late, sliding with the 24 µs difference: up to
+//! 4.9 steps off at 60 °/s.)
 //!
 //! Rates: ADCCLK = PCLK2 96 MHz / 4 = 24 MHz (embassy's `Adc::new` prescaler); 84-cycle
 //! sampling + 12-cycle conversion = 96 ADC clocks, so 250,000 conversions/s, one every 384
 //! CPU cycles, paced by the crystal. 256 summed conversions (20 bits) shifted right by 4
 //! make one sample of full scale 65,520 counts (`InstrumentConfig` full scale is 65,535)
-//! every 1.024 ms, 976.5625 samples/s. 256× oversampling gains 4 bits of resolution when
+//! every 1.024 ms ([`BLOCK_US`], announced in the handshake), 976.5625 samples/s. 256× oversampling gains 4 bits of resolution when
 //! the input noise dithers the ADC by about an LSB (a TIA output does); it also averages
 //! down mains and switching ripple within each 1 ms.
 //!
@@ -22,9 +33,13 @@
 //! ISR cost: 256 loads and adds per sample (~6 cycles each at opt-level "z") plus a short
 //! critical section: ≲ 2,000 cycles ≈ 20 µs per 1.024 ms, ≈ 2 % of the CPU, at P1: below
 //! the step timers, which preempt it, above USB and the time driver.
+//!
+//! RAM: the ring holds 256 samples and their stamps, 1.5 KiB (`firmware::sampling`).
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU16, Ordering};
+
+use firmware::Sample;
 
 use cortex_m::peripheral::DWT;
 use defmt::warn;
@@ -37,14 +52,20 @@ use embassy_stm32::pac;
 use embassy_stm32::pac::adc::vals as adc_vals;
 use embassy_stm32::pac::dma::vals as dma_vals;
 use embassy_stm32::peripherals::{ADC1, DMA2_CH0, PA1, TIM5};
-use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use firmware::sampling::{Decimator, RAW_LEN, SampleLoss, SampleRing};
+use firmware::sampling::{Decimator, OVERSAMPLE, RAW_LEN, SampleLoss, SampleRing};
 
 /// CPU cycles per conversion: 96 ADC clocks at 24 MHz, at a 96 MHz SYSCLK.
 const CYCLES_PER_CONVERSION: u32 = crate::SYSCLK_HZ / 250_000;
+/// CPU cycles per block (one sample): 98,304.
+const BLOCK_CYCLES: u32 = OVERSAMPLE as u32 * CYCLES_PER_CONVERSION;
+/// The block period, µs: 1,024 (what the handshake announces as `detector_block_us`).
+pub const BLOCK_US: u32 = BLOCK_CYCLES / (crate::SYSCLK_HZ / 1_000_000);
+/// TIM5 starts this long after the conversions, so its interrupt follows each block's end
+/// by this much: two conversions, for the last one's DMA transfer and margin.
+const PHASE_CYCLES: u32 = 2 * CYCLES_PER_CONVERSION;
 /// ADC1 channel of PA1.
 const ADC_CHANNEL: u8 = 1;
 /// DMA2 stream 0, channel 0 is ADC1.
@@ -63,10 +84,16 @@ struct Sampling {
 static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<Sampling>> =
     Mutex::new(RefCell::new(Sampling { decimator: Decimator::new(CYCLES_PER_CONVERSION, 0), ring: SampleRing::new() }));
 
-/// (Re)start the DMA stream from the start of `RAW`, then the conversions.
-fn start_conversions() {
+/// (Re)start the DMA stream from the start of `RAW`, then the conversions, then TIM5
+/// [`PHASE_CYCLES`] later (from 0, so that its interrupts follow the blocks' ends); the
+/// cycle count at which the conversions started.
+fn start_conversions() -> u32 {
     let adc = pac::ADC1;
     let stream = pac::DMA2.st(DMA_STREAM);
+    let tim = pac::TIM5;
+    tim.cr1().modify(|w| w.set_cen(false));
+    tim.cnt().write_value(0);
+    tim.sr().modify(|w| w.set_uif(false));
     adc.cr2().modify(|w| w.set_dma(false));
     stream.cr().modify(|w| w.set_en(false));
     while stream.cr().read().en() {}
@@ -95,10 +122,18 @@ fn start_conversions() {
     });
     adc.sr().modify(|w| w.set_ovr(false));
     adc.cr2().modify(|w| w.set_dma(true));
-    adc.cr2().modify(|w| w.set_swstart(true));
+    // Nothing may come between the start of the conversions and of TIM5.
+    cortex_m::interrupt::free(|_| {
+        adc.cr2().modify(|w| w.set_swstart(true));
+        let started = DWT::cycle_count();
+        while DWT::cycle_count().wrapping_sub(started) < PHASE_CYCLES {}
+        tim.cr1().modify(|w| w.set_cen(true));
+        started
+    })
 }
 
-/// 1 kHz: turn every whole block of conversions the DMA has written into one sample.
+/// Once per block, just after it ended: turn every whole block of conversions the DMA has
+/// written into one sample, stamped with the detector arm's step count.
 #[interrupt]
 fn TIM5() {
     let tim = pac::TIM5;
@@ -108,19 +143,19 @@ fn TIM5() {
     tim.sr().modify(|w| w.set_uif(false));
     // The clock first, then the DMA position: the lap test errs on the side of a loss.
     let now = DWT::cycle_count();
+    let steps = crate::steppers::detector_steps();
     let overrun = pac::ADC1.sr().read().ovr();
     let remaining = usize::from(pac::DMA2.st(DMA_STREAM).ndtr().read().ndt());
     let restart = SAMPLING.lock(|sampling| {
         let sampling = &mut *sampling.borrow_mut();
         let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
-        sampling.decimator.service(RAW_LEN - remaining, overrun, now, raw, &mut sampling.ring)
+        sampling.decimator.service(RAW_LEN - remaining, overrun, now, raw, steps, &mut sampling.ring)
     });
     if restart {
         // The DMA missed a conversion and the ADC stopped (it should not: the DMA has
-        // priority "high" and nothing else uses DMA2): restart from slot 0.
-        start_conversions();
-        let now = DWT::cycle_count();
-        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(now));
+        // priority "high" and nothing else uses DMA2): restart from slot 0, TIM5 with it.
+        let started = start_conversions();
+        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(started));
     }
 }
 
@@ -163,11 +198,13 @@ impl DetectorAdc {
             w.set_adon(true);
         });
         cortex_m::asm::delay(96 * 3); // tSTAB: 3 µs at 96 MHz
-        start_conversions();
 
-        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(DWT::cycle_count()));
+        // TIM5 (32 bits) counts its own clock (2 × PCLK1 = SYSCLK here) for one block.
         let timer = Timer::new(tim5);
-        timer.set_frequency(Hertz(1_000), RoundTo::Slower);
+        let timer_clocks = u64::from(BLOCK_CYCLES) * u64::from(timer.get_clock_frequency().0) / u64::from(crate::SYSCLK_HZ);
+        // Exact: PSC 0, ARR 98,303.
+        timer.set_period_clocks(timer_clocks, RoundTo::Slower);
+        timer.generate_update_event();
         timer.enable_update_interrupt(true);
         interrupt::TIM5.unpend();
         // Below the step timers (they preempt the decimation), above USB and the time
@@ -176,7 +213,9 @@ impl DetectorAdc {
         // SAFETY: the TIM5 handler is defined above and shares state only through atomics
         // and a critical-section mutex.
         unsafe { interrupt::TIM5.enable() };
-        timer.start();
+        // The conversions, and TIM5 locked to them.
+        let started = start_conversions();
+        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(started));
         DetectorAdc {
             _adc: adc,
             _dma: dma,
@@ -188,17 +227,17 @@ impl DetectorAdc {
     /// Hand every sample decoded since the last call to `sink`, oldest first, in short
     /// batches so that interrupts are never masked for long; the loss since the last
     /// drain, if any.
-    pub fn drain(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+    pub fn drain(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss> {
         let mut loss = None;
         loop {
-            let mut batch = [0u16; 16];
+            let mut batch = [Sample { counts: 0, detector_steps: 0 }; 16];
             let n = SAMPLING.lock(|sampling| {
                 let mut sampling = sampling.borrow_mut();
                 loss = loss.or(sampling.ring.take_loss());
                 sampling.ring.pop_into(&mut batch)
             });
             for &sample in &batch[..n] {
-                sink(u32::from(sample));
+                sink(sample);
             }
             if n < batch.len() {
                 break;

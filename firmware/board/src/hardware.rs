@@ -8,7 +8,8 @@
 //!   enabled (EN low) at the first move and stay enabled to hold position.
 //! - Home switches and driver DIAG: GPIO inputs, read when the library asks.
 //! - Detector: the TIA range lines (one-hot GPIO) and the photodiode ADC (ADC1 on PA1,
-//!   256× oversampled to 16 bits, ~977 samples/s into a bounded ring; see
+//!   256× oversampled to 16 bits, one sample per 1.024 ms block into a bounded ring, each
+//!   stamped with the detector arm's step count at the block's end; see
 //!   [`crate::detector_adc`]).
 //! - Lamp: a GPIO.
 
@@ -16,7 +17,7 @@ use defmt::warn;
 use embassy_stm32::gpio::{Input, Output};
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
-use firmware::{Arm, Arms, Detector, Lamp};
+use firmware::{Arm, Arms, Detector, Lamp, Sample};
 
 use crate::detector_adc::DetectorAdc;
 use crate::steppers::Steppers;
@@ -100,7 +101,7 @@ impl Detector for BoardHardware {
         self.adc.clear();
     }
 
-    fn drain_samples(&mut self, sink: &mut dyn FnMut(u32)) -> Result<(), SampleLoss> {
+    fn drain_samples(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss> {
         self.adc.drain(sink)
     }
 

@@ -14,7 +14,7 @@
 //!   host that stops reading cannot stall the fail-safe logic.
 //!
 //! Interrupt priorities (lower number first): TIM2/TIM3 step timers P0, TIM5 ADC
-//! decimation P1, OTG_FS P2, TIM4 (the embassy time driver) P3; the tasks in thread mode.
+//! decimation P1 (once per 1.024 ms block, locked to the ADC), OTG_FS P2, TIM4 (the embassy time driver) P3; the tasks in thread mode.
 //! Panics, processor faults and stack overflows take the safe stop of [`fault`].
 #![no_std]
 #![no_main]
@@ -193,7 +193,9 @@ async fn main(spawner: Spawner) {
     let adc = detector_adc::DetectorAdc::start(p.ADC1, p.DMA2_CH0, p.TIM5, pins.detector);
     let hardware = BoardHardware::new(steppers, adc, pins.home, pins.diag, pins.lamp, pins.range);
     // The same unique ID as the USB serial string: the host records it as the instrument.
-    let device = Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause).with_serial_number(embassy_stm32::uid::uid_hex());
+    // The reference instrument with this board's own detector block (its ADC clock's 1.024 ms).
+    let config = InstrumentConfig { detector_block_us: detector_adc::BLOCK_US, ..InstrumentConfig::REFERENCE };
+    let device = Device::new(config, hardware, reset_cause).with_serial_number(embassy_stm32::uid::uid_hex());
 
     // Each task is spawned once into a pool of one: these cannot fail.
     spawner.spawn(defmt::unwrap!(usb_task(usb)));

@@ -21,6 +21,7 @@
 //! caught by the deadline check and stops the arm ([`firmware::stepgen`]).
 
 use core::cell::RefCell;
+use core::sync::atomic::{AtomicI32, Ordering};
 
 use cortex_m::peripheral::DWT;
 use embassy_stm32::Peri;
@@ -58,6 +59,17 @@ struct Arm1 {
 
 static ARMS: [Mutex<CriticalSectionRawMutex, RefCell<Option<Arm1>>>; 2] =
     [Mutex::new(RefCell::new(None)), Mutex::new(RefCell::new(None))];
+
+/// The detector arm's step count, mirrored from its channel whenever it changes (its step
+/// interrupt, a redefinition), so that the ADC's decimation interrupt (TIM5, P1) stamps
+/// each block with one atomic load instead of a critical section that would hold off the
+/// step interrupts (P0).
+static DETECTOR_STEPS: AtomicI32 = AtomicI32::new(0);
+
+/// The detector arm's step count now (one load; any context).
+pub(crate) fn detector_steps() -> i32 {
+    DETECTOR_STEPS.load(Ordering::Relaxed)
+}
 
 /// The registers of arm `index`'s step timer.
 pub(crate) fn timer(index: usize) -> TimGp16 {
@@ -138,6 +150,9 @@ fn on_update(index: usize) {
         channel.on_update(timer);
         if let Some(late) = channel.take_fault() {
             fault.get_or_insert(late);
+        }
+        if index == Arm::Detector.index() {
+            DETECTOR_STEPS.store(channel.position(), Ordering::Relaxed);
         }
     });
 }
@@ -230,7 +245,12 @@ impl Steppers {
 
     /// Redefine the count (arm at rest).
     pub fn set_position_steps(&mut self, arm: Arm, steps: i32) {
-        with_arm(arm.index(), |channel, _, _| channel.set_position(steps));
+        with_arm(arm.index(), |channel, _, _| {
+            channel.set_position(steps);
+            if arm == Arm::Detector {
+                DETECTOR_STEPS.store(steps, Ordering::Relaxed);
+            }
+        });
     }
 
     /// The late interrupt of `arm` since the last call, if any.

@@ -5,7 +5,7 @@
 use firmware::Device;
 use firmware::config::InstrumentConfig;
 use firmware::hardware::ResetCause;
-use firmware::testing::FakeHardware;
+use firmware::testing::{FakeHardware, Scene};
 use protocol::*;
 
 /// A scene as a plain function: signal counts on the most sensitive range at (θi, θr)°.
@@ -26,8 +26,9 @@ pub fn glossy_scene(theta_i_deg: f32, theta_r_deg: f32) -> f32 {
     counts_for_radiance_factor(radiance_factor, theta_i_deg)
 }
 
-pub struct Bench {
-    pub device: Device<Hw>,
+/// The bench, over fake hardware seeing the scene `S` (a plain function by default).
+pub struct Bench<S: Scene = SceneFn> {
+    pub device: Device<FakeHardware<S>>,
     pub now_us: u64,
     next_seq: u32,
     /// Everything the device sent, in order.
@@ -42,19 +43,27 @@ pub fn frame(request: &Request) -> Vec<u8> {
     encode_frame(request, &mut buf).unwrap().to_vec()
 }
 
-impl Bench {
+impl Bench<SceneFn> {
     /// The reference device on fake hardware, arms at (30°, 30°), handshake done.
     pub fn new() -> Bench {
         Bench::with_scene(glossy_scene)
     }
 
     pub fn with_scene(scene: SceneFn) -> Bench {
+        Bench::seeing(scene)
+    }
+}
+
+impl<S: Scene> Bench<S> {
+    /// The reference device on fake hardware seeing `scene`, arms at (30°, 30°), handshake
+    /// done.
+    pub fn seeing(scene: S) -> Bench<S> {
         let config = InstrumentConfig::REFERENCE;
         let hardware = FakeHardware::new(&config, scene, Geometry::from_whole_deg(30, 30));
         Bench::with_hardware(hardware, ResetCause::PowerOn)
     }
 
-    pub fn with_hardware(hardware: Hw, reset_cause: ResetCause) -> Bench {
+    pub fn with_hardware(hardware: FakeHardware<S>, reset_cause: ResetCause) -> Bench<S> {
         let device = Device::new(InstrumentConfig::REFERENCE, hardware, reset_cause);
         let mut bench = Bench {
             device,
@@ -69,11 +78,11 @@ impl Bench {
         bench
     }
 
-    pub fn hw(&self) -> &Hw {
+    pub fn hw(&self) -> &FakeHardware<S> {
         self.device.hardware()
     }
 
-    pub fn hw_mut(&mut self) -> &mut Hw {
+    pub fn hw_mut(&mut self) -> &mut FakeHardware<S> {
         self.device.hardware_mut()
     }
 
