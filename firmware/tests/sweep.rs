@@ -74,6 +74,7 @@ fn sweep(theta_i: i32, from: i32, to: i32, speed_mdeg_per_s: u32, bin_ticks: u16
         speed_mdeg_per_s,
         bin_ticks,
         range,
+        target: Target::Sample,
     }
 }
 
@@ -488,7 +489,7 @@ proptest! {
         let step = 10;
         let total = (blocks * step) as i32;
         let sweep = Sweep { sweep_id: 1, theta_i: Angle::from_ticks(3000), from: Angle::from_ticks(0), to: Angle::from_ticks(total),
-            speed_mdeg_per_s: 1000, bin_ticks: (bin_blocks * step) as u16, range: None };
+            speed_mdeg_per_s: 1000, bin_ticks: (bin_blocks * step) as u16, range: None, target: Target::Sample };
         let bins = (total as u32).div_ceil((bin_blocks * step) as u32) as u16;
         let mut ranging = AutoRange::new(&config, 0, false);
         let mut binner = Binner::new(&sweep, bins);

@@ -354,6 +354,7 @@ impl SimInstrument {
         match &request.command {
             Command::TakeReading { target, .. } => hardware.place(*target),
             Command::RunSchedule(run) => hardware.place(run.target),
+            Command::Sweep(sweep) => hardware.place(sweep.target),
             _ => {}
         }
         if matches!(request.command, Command::MoveTo(_) | Command::RunSchedule(_)) && !self.steps_lost {

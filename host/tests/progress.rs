@@ -18,7 +18,7 @@ fn lines(term: &InMemoryTerm) -> Vec<String> {
 fn decisions_and_prompts_go_above_one_bar_and_no_copy_is_left_behind() {
     let mut client = Client::new(SimOptions::default().instrument("G").unwrap(), RetryPolicy::default());
     let info = client.hello().unwrap();
-    let plan = PlanRecord { policy: "adaptive".into(), adaptive_targets: None, integration_ms: 100, acceptance_deg: 1.0, white_check: false, white_drift_limit_pct: 0.5 };
+    let plan = PlanRecord { policy: "adaptive".into(), adaptive_targets: None, sweep_targets: None, integration_ms: 100, acceptance_deg: 1.0, white_check: false, white_drift_limit_pct: 0.5 };
     let dir = std::env::temp_dir().join(format!("gonio-progress-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let mut recorder = FileRecorder::create(&dir, Identity::new("G", &info, plan), StoreOptions::default()).unwrap();

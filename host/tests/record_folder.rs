@@ -142,6 +142,7 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
     let plan = host::output::folder::PlanRecord {
         policy: "paper".into(),
         adaptive_targets: None,
+        sweep_targets: None,
         integration_ms: 100,
         acceptance_deg: 1.0,
         white_check: false,

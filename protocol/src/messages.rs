@@ -251,6 +251,9 @@ pub struct Sweep {
     /// range's settling time after each switch). `Some(r)`: held on range `r` (a saturated
     /// bin is flagged).
     pub range: Option<u8>,
+    /// What is on the sample port (as for a schedule): the device does not act on it; it
+    /// tells a simulated instrument, or a bench with a sample changer, what to place.
+    pub target: Target,
 }
 
 /// The answer to [`Command::Sweep`]: accepted, before the arms move.

@@ -44,9 +44,10 @@ pub fn command() -> BoxedStrategy<Command> {
             target,
         })
     });
-    let sweep = (any::<u16>(), angle(), angle(), angle(), any::<u32>(), any::<u16>(), proptest::option::of(any::<u8>())).prop_map(
-        |(sweep_id, theta_i, from, to, speed_mdeg_per_s, bin_ticks, range)| {
-            Command::Sweep(Sweep { sweep_id, theta_i, from, to, speed_mdeg_per_s, bin_ticks, range })
+    let sweep = (any::<u16>(), angle(), angle(), angle(), any::<u32>(), any::<u16>(), proptest::option::of(any::<u8>()), any::<bool>()).prop_map(
+        |(sweep_id, theta_i, from, to, speed_mdeg_per_s, bin_ticks, range, white)| {
+            let target = if white { Target::WhiteReference } else { Target::Sample };
+            Command::Sweep(Sweep { sweep_id, theta_i, from, to, speed_mdeg_per_s, bin_ticks, range, target })
         },
     );
     prop_oneof![

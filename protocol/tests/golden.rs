@@ -77,6 +77,7 @@ fn sweep() -> Sweep {
         speed_mdeg_per_s: 60_000,
         bin_ticks: 8,
         range: Some(2),
+        target: Target::Sample,
     }
 }
 

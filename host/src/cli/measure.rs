@@ -84,7 +84,9 @@ pub struct Args {
     #[arg(long, value_name = "MS")]
     pub integration_ms: Option<u16>,
     /// Refinement policy (default adaptive): adaptive reaches the paper's accuracy in a
-    /// fraction of its device time (docs/TRADE.md); paper follows the paper's procedure exactly.
+    /// fraction of its device time (docs/TRADE.md); paper follows the paper's procedure
+    /// exactly; sweep reads the detector while its arm moves (a full-plane pass, then
+    /// sweeps across the peak).
     #[arg(long, value_enum)]
     pub policy: Option<PolicyChoice>,
     /// Re-read the white tile at the end and mark the result if it drifted.
@@ -341,9 +343,14 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
     if !(acceptance_deg.is_finite() && (0.0..=MAX_ACCEPTANCE_DEG).contains(&acceptance_deg)) {
         bail!("the instrument (serial {}) announces a detector acceptance of {acceptance_deg}°: the fit models 0 to {MAX_ACCEPTANCE_DEG}°", info.serial_number);
     }
+    let sweep_targets = match Policy::from(policy) {
+        Policy::Sweep(t) => Some(t),
+        _ => None,
+    };
     Ok(PlanRecord {
         policy: policy_name(policy).into(),
         adaptive_targets,
+        sweep_targets,
         integration_ms,
         acceptance_deg,
         white_check: args.white_check || earlier.is_some_and(|p| p.white_check),
@@ -352,9 +359,10 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
 }
 
 fn plan_of(record: &PlanRecord, sample: &str) -> Plan {
-    let policy = match &record.adaptive_targets {
-        Some(t) => Policy::Adaptive(AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
-        None => Policy::Paper,
+    let policy = match (record.policy.as_str(), &record.adaptive_targets) {
+        ("sweep", _) => Policy::Sweep(record.sweep_targets.unwrap_or_default()),
+        (_, Some(t)) => Policy::Adaptive(AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
+        (_, None) => Policy::Paper,
     };
     Plan {
         sample: sample.to_string(),

@@ -122,10 +122,13 @@ impl CaseRecord {
 /// What the session was asked to measure: a resume must ask for the same.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PlanRecord {
-    /// `paper` or `adaptive`.
+    /// `paper`, `adaptive` or `sweep`.
     pub policy: String,
     /// The adaptive policy's targets (its stopping rule), when adaptive.
     pub adaptive_targets: Option<AdaptiveTargetsRecord>,
+    /// The sweep policy's pass and targets, when `sweep`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sweep_targets: Option<crate::session::sweep::SweepTargets>,
     /// Integration time of every reading, ms.
     pub integration_ms: u16,
     /// Detector acceptance modelled in the fit, degrees.

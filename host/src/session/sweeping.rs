@@ -7,7 +7,7 @@ use super::recovery::Failure;
 use super::sweep::{BinReading, SweepPlan, bin_point, min_bin_deg};
 use super::{MeasuredPoint, Progress, Session, SessionError, StepError};
 use crate::instrument::link::{LinkError, Transport};
-use protocol::{Angle, Command, DeviceMessage, Reply, Sweep, SweepBin};
+use protocol::{Angle, Command, DeviceMessage, Reply, Sweep, SweepBin, Target};
 use std::collections::BTreeSet;
 use std::time::Duration;
 
@@ -232,6 +232,7 @@ impl<T: Transport> Session<'_, T> {
             speed_mdeg_per_s: (plan.speed_deg_per_s * 1000.0).round() as u32,
             bin_ticks: (plan.bin_deg / tick).round().clamp(1.0, f64::from(u16::MAX)) as u16,
             range: None,
+            target: Target::Sample,
         };
         let bins = match self.request(Command::Sweep(command))? {
             Reply::Sweep(planned) => planned.bins,
