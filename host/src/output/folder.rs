@@ -683,6 +683,7 @@ mod tests {
             device_time_us: u64::from(index) * 1000,
             note: None,
             superseded: false,
+            unusable: None,
         }
     }
 

@@ -612,10 +612,17 @@ impl Recorder for FileRecorder {
         Ok(())
     }
 
+    fn sweep_done(&mut self) -> io::Result<()> {
+        self.check_failed()?;
+        self.store.sync_file(POINTS)
+    }
+
     fn point(&mut self, point: &MeasuredPoint) -> io::Result<()> {
         self.check_failed()?;
-        // The primary record first, synced; the CSV row after it is derived from it.
-        self.store.append(POINTS, folder::point_line(point)?.as_bytes(), Sync::Data)?;
+        // The primary record first, synced (a sweep's bins at its end: `sweep_done`); the
+        // CSV row after it is derived from it.
+        let sync = if point.theta_r_span_deg > 0.0 { Sync::Never } else { Sync::Data };
+        self.store.append(POINTS, folder::point_line(point)?.as_bytes(), sync)?;
         let header_before = folder::readings_header(&self.points);
         self.points.push(point.clone());
         let header = folder::readings_header(&self.points);

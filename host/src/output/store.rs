@@ -306,6 +306,17 @@ impl Store {
         sync_dir(&self.dir)
     }
 
+    /// `fdatasync` one appended file (lines appended with [`Sync::Never`] become durable).
+    pub fn sync_file(&mut self, name: &str) -> io::Result<()> {
+        if self.dead {
+            return Err(crashed_error());
+        }
+        match self.appenders.get(name) {
+            Some(file) => file.sync_data(),
+            None => Ok(()),
+        }
+    }
+
     /// `fsync` every file appended to, and the folder: the end of a run.
     pub fn sync_all(&mut self) -> io::Result<()> {
         if self.dead {

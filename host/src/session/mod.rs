@@ -172,6 +172,11 @@ pub struct MeasuredPoint {
     /// that could not be made): kept in the record, left out of the fit, measured again.
     #[serde(default)]
     pub superseded: bool,
+    /// Why a sweep's bin is no value at all (every block blanked by a range switch, or a
+    /// part of them: the mean is of part of the interval): kept in the record, never
+    /// converted — by the session, a gain calibration's re-conversion or a re-analysis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unusable: Option<String>,
 }
 
 impl MeasuredPoint {
@@ -180,6 +185,10 @@ impl MeasuredPoint {
     /// session, of a gain calibration's re-conversion and of the folder's checks: a reading's
     /// record is its raw reading; what it converts to follows from the calibration.
     pub fn convert_with(&mut self, calibration: &Calibration) {
+        if let Some(why) = &self.unusable {
+            (self.radiance_factor, self.std, self.note) = (None, None, Some(why.clone()));
+            return;
+        }
         match calibration.radiance_factor(self.theta_i_deg, &self.reading) {
             Ok((r, u)) => (self.radiance_factor, self.std, self.note) = (Some(r), Some(u), None),
             Err(e) => (self.radiance_factor, self.std, self.note) = (None, None, Some(e.to_string())),
@@ -206,8 +215,15 @@ pub struct Progress {
 pub trait Recorder {
     /// A new calibration.
     fn calibration(&mut self, calibration: &Calibration) -> std::io::Result<()>;
-    /// A new reading.
+    /// A new reading. A point reading is durable when this returns; a sweep's bin (one
+    /// every 1–2 ms, faster than a disk syncs) once [`Recorder::sweep_done`] returns.
     fn point(&mut self, point: &MeasuredPoint) -> std::io::Result<()>;
+    /// A sweep's bins are all recorded (or the sweep ended early): make them durable. A
+    /// power loss before it costs the bins of the sweep in progress, which a resume finds
+    /// uncovered and measures again.
+    fn sweep_done(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
     /// Readings recorded earlier are superseded (`superseded` is now set on each; `why`
     /// says what was found). They stay in the record; their geometries are measured again.
     fn superseded(&mut self, points: &[MeasuredPoint], why: &str) -> std::io::Result<()> {

@@ -157,7 +157,7 @@ impl<T: Transport> Session<'_, T> {
     fn record(&mut self, geometry: Geometry, reading: Reading, schedule_id: u16, index: u16, device_time_us: u64) -> Result<(), SessionError> {
         let (theta_i_deg, theta_r_deg) = (geometry.theta_i.deg(), geometry.theta_r.deg());
         let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
-        let mut point = MeasuredPoint { theta_i_deg, theta_r_deg, theta_r_span_deg: 0.0, radiance_factor: None, std: None, reading, schedule_id, index, device_time_us, note: None, superseded: false };
+        let mut point = MeasuredPoint { theta_i_deg, theta_r_deg, theta_r_span_deg: 0.0, radiance_factor: None, std: None, reading, schedule_id, index, device_time_us, note: None, superseded: false, unusable: None };
         point.convert_with(calibration);
         self.recorder.point(&point).map_err(SessionError::Record)?;
         self.points.push(point);

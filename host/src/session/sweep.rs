@@ -180,6 +180,7 @@ pub fn bin_point(
         device_time_us: bin.device_time_us,
         note: None,
         superseded: false,
+        unusable: None,
     };
     point.convert_with(calibration);
     point

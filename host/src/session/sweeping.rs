@@ -23,6 +23,34 @@ const COVER_TOLERANCE_DEG: f64 = 0.05;
 /// this length about them (a few bins, a triangular profile).
 const SHORTEST_RESWEEP_DEG: f64 = 0.5;
 
+/// The widest stretch left without a usable bin by a range switch's blanking that is not
+/// measured again, degrees. A switch blanks its block and the new range's settling (at
+/// most 4.5 ms, 5 blocks: 0.36° at 60 °/s, with the part-blanked bins either side under
+/// 0.5°); the bins either side are there, and where σ needs the flank the peak sweeps
+/// that follow are slow (15 °/s: a blanking of 0.09°). A re-sweep of such a stretch costs
+/// an approach, a settle and two ramps (≈ 0.6 s of device time each) and would be
+/// blanked at the same level again. Stretches lost on the link, or superseded after lost
+/// steps, are always measured again.
+const MAX_BLANKED_GAP_DEG: f64 = 0.5;
+
+/// The stretches of `lo ..= hi` that `intervals` (sorted here) leave uncovered, beyond
+/// [`COVER_TOLERANCE_DEG`].
+fn gaps_in(lo: f64, hi: f64, intervals: &mut [(f64, f64)]) -> Vec<(f64, f64)> {
+    intervals.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut at = lo;
+    let mut gaps = Vec::new();
+    for &(a, b) in intervals.iter().filter(|(a, b)| *b > lo && *a < hi) {
+        if a > at + COVER_TOLERANCE_DEG {
+            gaps.push((at, a));
+        }
+        at = at.max(b);
+    }
+    if hi > at + COVER_TOLERANCE_DEG {
+        gaps.push((at, hi));
+    }
+    gaps
+}
+
 impl<T: Transport> Session<'_, T> {
     /// Measure every sweep of `plans` (and any wanted sweep still not covered), measuring
     /// again what was lost.
@@ -45,9 +73,8 @@ impl<T: Transport> Session<'_, T> {
             round += 1;
             if round > 1 {
                 let bins: usize = gaps.iter().map(SweepPlan::bins).sum();
-                self.recoveries.readings_remeasured += bins;
                 self.decide(&format!(
-                    "measuring again {} stretch{} of θr left without a usable bin (lost on the link, blanked by a range switch, or superseded), {bins} bins (round {round})",
+                    "measuring again {} stretch{} of θr left without a usable bin (lost on the link, blanked by a range switch over more than {MAX_BLANKED_GAP_DEG}°, or superseded), {bins} bins (round {round})",
                     gaps.len(),
                     if gaps.len() == 1 { "" } else { "es" }
                 ));
@@ -180,30 +207,41 @@ impl<T: Transport> Session<'_, T> {
                 .filter(|p| !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg)
                 .filter(|p| p.radiance_factor.is_some() || p.reading.saturated)
                 .map(|p| (p.theta_r_deg - 0.5 * p.theta_r_span_deg, p.theta_r_deg + 0.5 * p.theta_r_span_deg))
-                .filter(|(a, b)| *b > lo && *a < hi)
                 .collect();
-            covered.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let mut at = lo;
-            let mut gaps = Vec::new();
-            for (a, b) in covered {
-                if a > at + COVER_TOLERANCE_DEG {
-                    gaps.push((at, a));
-                }
-                at = at.max(b);
-            }
-            if hi > at + COVER_TOLERANCE_DEG {
-                gaps.push((at, hi));
-            }
+            // Every bin received (usable or blanked): a gap only blanked bins fill was
+            // received, and a short one is left as it is (MAX_BLANKED_GAP_DEG).
+            let mut received: Vec<(f64, f64)> = self
+                .points
+                .iter()
+                .filter(|p| !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg)
+                .map(|p| (p.theta_r_deg - 0.5 * p.theta_r_span_deg, p.theta_r_deg + 0.5 * p.theta_r_span_deg))
+                .collect();
+            let not_received = gaps_in(lo, hi, &mut received);
+            let gaps: Vec<(f64, f64)> = gaps_in(lo, hi, &mut covered)
+                .into_iter()
+                .filter(|&(a, b)| b - a > MAX_BLANKED_GAP_DEG || not_received.iter().any(|&(c, d)| c < b && d > a))
+                .collect();
             let block_s = self.block_s();
             let shortest = SHORTEST_RESWEEP_DEG.max(2.0 * min_bin_deg(plan.speed_deg_per_s, block_s));
             let tick = Angle::RESOLUTION_DEG;
-            for (a, b) in gaps {
-                let middle = 0.5 * (a + b);
-                let half = (0.5 * (b - a)).max(0.5 * shortest);
-                let (from, to) = (((middle - half).max(0.0) / tick).floor() * tick, ((middle + half) / tick).ceil() * tick);
-                let bin_deg = plan.bin_deg.min(to - from).max(min_bin_deg(plan.speed_deg_per_s, block_s));
-                out.push(SweepPlan { from_deg: from, to_deg: to, bin_deg, ..*plan });
+            // In the wanted sweep's direction, so that a whole sweep runs as planned (the
+            // full-plane pass alternates to start each sweep where the last one ended).
+            let backwards = plan.to_deg < plan.from_deg;
+            let mut stretches: Vec<SweepPlan> = gaps
+                .into_iter()
+                .map(|(a, b)| {
+                    let middle = 0.5 * (a + b);
+                    let half = (0.5 * (b - a)).max(0.5 * shortest);
+                    let (low, high) = (((middle - half).max(0.0) / tick).floor() * tick, ((middle + half) / tick).ceil() * tick);
+                    let bin_deg = plan.bin_deg.min(high - low).max(min_bin_deg(plan.speed_deg_per_s, block_s));
+                    let (from_deg, to_deg) = if backwards { (high, low) } else { (low, high) };
+                    SweepPlan { from_deg, to_deg, bin_deg, ..*plan }
+                })
+                .collect();
+            if backwards {
+                stretches.reverse();
             }
+            out.extend(stretches);
         }
         out
     }
@@ -215,6 +253,13 @@ impl<T: Transport> Session<'_, T> {
 
     /// Run one sweep and record its bins; the lost ones are found by [`Self::uncovered_sweeps`].
     fn run_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize) -> Result<(), StepError> {
+        let streamed = self.stream_sweep(plan, done, planned);
+        // The bins received are made durable however the sweep ended.
+        let synced = self.recorder.sweep_done().map_err(|e| StepError::Fatal(SessionError::Record(e)));
+        streamed.and(synced)
+    }
+
+    fn stream_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize) -> Result<(), StepError> {
         let sweep_id = self.next_schedule_id;
         self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
         if let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? {
@@ -253,7 +298,10 @@ impl<T: Transport> Session<'_, T> {
                     let remaining = per_bin * u32::from(bins).saturating_sub(seen.len() as u32);
                     self.recorder.progress(Progress { done: (*done).min(planned), planned, remaining });
                 }
-                Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => return self.lit_throughout(sweep_id),
+                Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => {
+                    self.recoveries.readings_remeasured += usize::from(bins).saturating_sub(seen.len());
+                    return self.lit_throughout(sweep_id);
+                }
                 Some(DeviceMessage::Stopped { reason }) => return Err(StepError::Failure(Failure::Stopped(reason))),
                 // Stale messages of an earlier schedule or sweep.
                 Some(_) => {}
@@ -261,6 +309,8 @@ impl<T: Transport> Session<'_, T> {
                 None => {
                     if let Reply::Status(status) = self.request(Command::GetStatus)? {
                         if status.schedule.is_none_or(|(id, _)| id != sweep_id) {
+                            // Bins lost on the link (a gap in the indices): measured again.
+                            self.recoveries.readings_remeasured += usize::from(bins).saturating_sub(seen.len());
                             return self.lit_throughout(sweep_id);
                         }
                     }
@@ -291,9 +341,8 @@ impl<T: Transport> Session<'_, T> {
             None
         };
         if let Some(why) = unusable {
-            point.radiance_factor = None;
-            point.std = None;
-            point.note = Some(why.to_string());
+            point.unusable = Some(why.to_string());
+            point.convert_with(calibration);
         }
         self.recorder.point(&point).map_err(SessionError::Record)?;
         self.points.push(point);
