@@ -46,7 +46,7 @@ fn more_integration_time_buys_a_smaller_sigma_error_under_a_fixed_schedule() {
     // shrinks as the noise falls with 1/√T.
     let runs: Vec<RunSpec> = [25, 400]
         .iter()
-        .flat_map(|&ms| (1..=8).map(move |seed| RunSpec { policy: "strategy2", setting: "2".into(), sample: "SG", seed, integration_ms: ms }))
+        .flat_map(|&ms| (1..=8).map(move |seed| RunSpec { policy: "strategy2", setting: "2".into(), sample: "SG", seed, integration_ms: ms, physics: Default::default() }))
         .collect();
     let rows = trade::run_all(&runs, 2, &|| {}).unwrap();
     let (fast, slow): (Vec<_>, Vec<_>) = rows.iter().partition(|r| r.spec.integration_ms == 25);

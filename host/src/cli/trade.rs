@@ -20,6 +20,10 @@ pub struct Args {
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// The simulated instrument's errors: ideal, or the accuracy study's realistic set
+    /// (range-gain, tile and arm-zero errors, docs/ACCURACY.md).
+    #[arg(long, value_enum, default_value = "ideal")]
+    pub physics: crate::instrument::sim::Physics,
 }
 
 /// Run `gonio trade`.
@@ -28,7 +32,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if seeds == 0 {
         bail!("--seeds must be at least 1");
     }
-    let runs = trade::plan_runs(seeds, args.quick);
+    let mut runs = trade::plan_runs(seeds, args.quick);
+    for run in &mut runs {
+        run.physics = args.physics;
+    }
     let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let bar = ProgressBar::new(runs.len() as u64);

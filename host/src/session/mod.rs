@@ -650,7 +650,9 @@ impl<'a, T: Transport> Session<'a, T> {
         let mut refinements = Vec::new();
         let first_name = match &self.plan.policy {
             Policy::Sweep(targets) => {
-                let pass = sweep::full_plane(targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)), targets.pass_bin_deg);
+                let targets = *targets;
+                let here = self.status()?.position;
+                let pass = sweep::full_plane_from(&self.motion, here, targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)), targets.pass_bin_deg);
                 let name = format!(
                     "full-plane pass ({} sweeps of θr 0–{}° at {} °/s, bins of {}°)",
                     pass.len(),

@@ -101,6 +101,24 @@ pub fn full_plane(speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
         .collect()
 }
 
+/// The full-plane pass in the order that is fastest from where the arms are (`here`):
+/// the incidences ascending or descending, the first sweep forwards or backwards (then
+/// alternating). From the park position (85°, 85°) that is θi = 60° first, from θr = 70°:
+/// 1.3 s less device time than starting at (20°, 0°).
+pub fn full_plane_from(motion: &Motion, here: Geometry, speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
+    let forwards = full_plane(speed_deg_per_s, bin_deg);
+    let flip = |plans: &[SweepPlan]| plans.iter().map(|p| SweepPlan { from_deg: p.to_deg, to_deg: p.from_deg, ..*p }).collect::<Vec<_>>();
+    let descending: Vec<SweepPlan> = {
+        let mut d = forwards.clone();
+        d.reverse();
+        // Reversed, the last sweep's direction leads: keep each sweep starting where the
+        // one before it ended.
+        flip(&d)
+    };
+    let candidates = [flip(&forwards), descending.clone(), flip(&descending), forwards];
+    candidates.into_iter().min_by_key(|plans| device_us(motion, here, plans)).expect("four candidates")
+}
+
 /// Device time of `plans` run in order from where the arms are (`here`): for each, the
 /// move to its start and the settle after it, then the sweep, µs. A plan outside the
 /// arms' angles counts as no time (the instrument refuses it before it moves).
@@ -356,6 +374,24 @@ mod tests {
             assert_eq!(pair[0].to_deg, pair[1].from_deg, "each sweep starts where the last ended");
         }
         assert!(pass.iter().all(|p| p.bins() == 700));
+    }
+
+    #[test]
+    fn the_pass_starts_at_the_end_nearest_the_arms() {
+        let motion = Motion::reference();
+        let park = Geometry::from_deg(85.0, 85.0).unwrap();
+        let pass = full_plane_from(&motion, park, 60.0, 0.1);
+        assert_eq!((pass[0].theta_i_deg, pass[0].from_deg), (60.0, 70.0), "{pass:?}");
+        for pair in pass.windows(2) {
+            assert_eq!(pair[0].to_deg, pair[1].from_deg, "each sweep starts where the last ended");
+        }
+        let mut incidences: Vec<f64> = pass.iter().map(|p| p.theta_i_deg).collect();
+        incidences.sort_by(f64::total_cmp);
+        assert_eq!(incidences, [20.0, 30.0, 45.0, 60.0]);
+        let fixed = device_us(&motion, park, &full_plane(60.0, 0.1));
+        assert!(device_us(&motion, park, &pass) + 1_000_000 < fixed, "saves more than a second from the park");
+        let low = Geometry::from_deg(20.0, 0.0).unwrap();
+        assert_eq!(full_plane_from(&motion, low, 60.0, 0.1), full_plane(60.0, 0.1), "from (20°, 0°) the ascending order is fastest");
     }
 
     /// The reference instrument (60 °/s, 180 °/s²): a 70° sweep at full speed is 1.5 s with

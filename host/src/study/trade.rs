@@ -32,6 +32,8 @@ pub struct RunSpec {
     pub seed: u64,
     /// Integration time, ms.
     pub integration_ms: u16,
+    /// The simulated instrument's errors: ideal, or the accuracy study's realistic set.
+    pub physics: crate::instrument::sim::Physics,
 }
 
 impl RunSpec {
@@ -108,7 +110,7 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
             }
             for reference in &REFERENCES {
                 for seed in 1..=seeds {
-                    runs.push(RunSpec { policy, setting: setting.clone(), sample: reference.name, seed, integration_ms });
+                    runs.push(RunSpec { policy, setting: setting.clone(), sample: reference.name, seed, integration_ms, physics: Default::default() });
                 }
             }
         }
@@ -124,7 +126,7 @@ fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
 pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
     let expected = REFERENCES.iter().find(|r| r.name == spec.sample).map(|r| r.class.name()).unwrap_or("");
-    let options = SimOptions { seed: spec.seed, ..SimOptions::default() };
+    let options = SimOptions { seed: spec.seed, physics: spec.physics, ..SimOptions::default() };
     let run = super::SimulatedRun { sample: spec.sample, options: &options, policy: spec.policy(), integration_ms: Some(spec.integration_ms) };
     let (outcome, _): (Outcome, _) = super::simulated_session(&run, |session| session)?;
     let fit = &outcome.report.fit;
@@ -323,7 +325,11 @@ fn pct(x: f64) -> String {
 pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "# Speed against accuracy on the simulated instrument\n");
-    let _ = writeln!(out, "{} sessions, {seeds} seeds per paper and configuration. Device time counts the sample's measurement (Strategy 1 onwards); homing, calibration and the lost-steps check before the report (1.5–2.5 s, docs/TRADE.md) are the same for every policy and are left out.\n", rows.len());
+    let physics = match rows.first().map(|r| r.spec.physics) {
+        Some(crate::instrument::sim::Physics::Real) => "the realistic instrument errors (`--physics real`: range-gain, tile and arm-zero errors)",
+        _ => "the ideal instrument (`--physics ideal`)",
+    };
+    let _ = writeln!(out, "{} sessions, {seeds} seeds per paper and configuration, on {physics}. Device time counts the sample's measurement (Strategy 1 onwards); homing, calibration and the lost-steps check before the report (1.5–2.5 s, docs/TRADE.md) are the same for every policy and are left out.\n", rows.len());
     for (title, group_glossy) in [("Glossy papers (G, SG)", true), ("Rough papers (PPC, MC, J1–J4)", false)] {
         let _ = writeln!(out, "## {title}\n");
         let _ = writeln!(out, "| policy | setting | integration ms | sessions | geometries | device s | σ error median | σ error p95 | σ within 5 % | ρs error median | ρd error median | class right |");
@@ -369,7 +375,88 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
             if check.met { "yes" } else { "**no**" }
         );
     }
+    let sweeps = sweep_checks(rows);
+    if !sweeps.is_empty() {
+        let _ = writeln!(out, "\n## Sweeps against their targets\n");
+        let _ = writeln!(out, "Targets: class right in ≥ 95 % of sessions; G and SG: σ within 5 % in ≥ 95 %; rough papers: ρs and ρd as close as the adaptive policy's (median error at most 1.5× its, or within 1 %); device time ≤ {SWEEP_DEVICE_TARGET_S} s (mean and worst session).\n");
+        let _ = writeln!(out, "| setting | paper | sessions | device s mean | device s max | adaptive device s | class right | σ within 5 % | ρs error median (adaptive) | ρd error median (adaptive) | accuracy met | time met |");
+        let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---|---|---|---|");
+        for c in &sweeps {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {:.1} | {:.1} | {} | {:.0} % | {:.0} % | {} ({}) | {} ({}) | {} | {} |",
+                c.setting,
+                c.sample,
+                c.sweep.n,
+                c.sweep.mean_device_seconds,
+                c.max_device_seconds,
+                c.adaptive.as_ref().map_or("–".into(), |a| format!("{:.1}", a.mean_device_seconds)),
+                100.0 * c.sweep.class_accuracy,
+                100.0 * c.sweep.sigma_within_target,
+                pct(c.sweep.median_rho_s_err),
+                c.adaptive.as_ref().map_or("–".into(), |a| pct(a.median_rho_s_err)),
+                pct(c.sweep.median_rho_d_err),
+                c.adaptive.as_ref().map_or("–".into(), |a| pct(a.median_rho_d_err)),
+                if c.accuracy_met { "yes" } else { "**no**" },
+                if c.time_met { "yes" } else { "**no**" }
+            );
+        }
+    }
     let _ = writeln!(out, "\n## Visiting order\n\n{order_table}");
+    out
+}
+
+/// The sample device time the sweep policy is to stay within, seconds (issue 16).
+pub const SWEEP_DEVICE_TARGET_S: f64 = 8.0;
+
+/// One sweep setting on one paper against the sweep policy's targets.
+#[derive(Clone, Debug)]
+pub struct SweepCheck {
+    /// `SPEED/BIN`.
+    pub setting: String,
+    /// The paper.
+    pub sample: &'static str,
+    /// The sweep sessions.
+    pub sweep: Summary,
+    /// The adaptive policy's sessions of the same paper at the target integration time,
+    /// when the study ran them.
+    pub adaptive: Option<Summary>,
+    /// The longest session, device seconds.
+    pub max_device_seconds: f64,
+    /// Class right in ≥ 95 %, σ within 5 % in ≥ 95 % (glossy), ρs and ρd as close as
+    /// the adaptive policy's (rough: median at most 1.5× its, or within 1 %).
+    pub accuracy_met: bool,
+    /// Mean and worst device time within [`SWEEP_DEVICE_TARGET_S`].
+    pub time_met: bool,
+}
+
+/// Every sweep setting on every paper against the targets.
+pub fn sweep_checks(rows: &[Row]) -> Vec<SweepCheck> {
+    let mut out = Vec::new();
+    for (policy, setting) in configurations(rows) {
+        if policy != "sweep" {
+            continue;
+        }
+        for reference in &REFERENCES {
+            let group: Vec<&Row> = rows.iter().filter(|r| r.spec.policy == "sweep" && r.spec.setting == setting && r.spec.sample == reference.name).collect();
+            if group.is_empty() {
+                continue;
+            }
+            let max_device_seconds = group.iter().map(|r| r.device_seconds).fold(0.0, f64::max);
+            let sweep = summarise(group);
+            let adaptive_rows: Vec<&Row> = rows.iter().filter(|r| r.spec.policy == "adaptive" && r.spec.sample == reference.name && r.spec.integration_ms == TARGET_INTEGRATION_MS).collect();
+            let adaptive = (!adaptive_rows.is_empty()).then(|| summarise(adaptive_rows));
+            let as_close = |ours: f64, theirs: Option<f64>| ours <= 0.01 || theirs.is_some_and(|t| ours <= 1.5 * t);
+            let accuracy_met = sweep.class_accuracy >= 0.95
+                && if glossy(reference.name) {
+                    sweep.sigma_within_target >= 0.95
+                } else {
+                    as_close(sweep.median_rho_s_err, adaptive.as_ref().map(|a| a.median_rho_s_err)) && as_close(sweep.median_rho_d_err, adaptive.as_ref().map(|a| a.median_rho_d_err))
+                };
+            let time_met = sweep.mean_device_seconds <= SWEEP_DEVICE_TARGET_S && max_device_seconds <= SWEEP_DEVICE_TARGET_S;
+            out.push(SweepCheck { setting: setting.clone(), sample: reference.name, sweep, adaptive, max_device_seconds, accuracy_met, time_met });
+        }
+    }
     out
 }
 
