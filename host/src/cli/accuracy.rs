@@ -18,6 +18,9 @@ pub struct Args {
     /// and policy.
     #[arg(long, default_value_t = 100)]
     pub robust_sessions: usize,
+    /// Policies to run every case under.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = accuracy::DEFAULT_POLICIES)]
+    pub policies: Vec<crate::session::PolicyChoice>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -34,7 +37,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let cases = accuracy::cases();
-    let specs = accuracy::plan(&cases, args.coverage_sessions, args.robust_sessions);
+    if args.policies.is_empty() {
+        bail!("--policies needs at least one policy");
+    }
+    let specs = accuracy::plan_policies(&cases, args.coverage_sessions, args.robust_sessions, &args.policies);
     let bar = ProgressBar::new(specs.len() as u64);
     bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
     bar.set_message("simulated sessions against the truth");

@@ -152,16 +152,24 @@ pub fn policy_name(policy: PolicyChoice) -> &'static str {
     policy.name()
 }
 
+/// The policies the campaign runs unless told otherwise.
+pub const DEFAULT_POLICIES: [PolicyChoice; 2] = [PolicyChoice::Adaptive, PolicyChoice::Paper];
+
 /// Every session: `coverage_sessions` per coverage case and `robust_sessions` per
-/// robustness case, each under both policies.
+/// robustness case, each under both default policies.
 pub fn plan(cases: &[Case], coverage_sessions: usize, robust_sessions: usize) -> Vec<Spec> {
+    plan_policies(cases, coverage_sessions, robust_sessions, &DEFAULT_POLICIES)
+}
+
+/// [`plan`] under `policies` (each policy's draws are its own: adding one changes no other's).
+pub fn plan_policies(cases: &[Case], coverage_sessions: usize, robust_sessions: usize, policies: &[PolicyChoice]) -> Vec<Spec> {
     let mut specs = Vec::new();
     for (c, case) in cases.iter().enumerate() {
         let n = match case.part {
             Part::Coverage => coverage_sessions,
             Part::Robustness => robust_sessions,
         };
-        for policy in [PolicyChoice::Adaptive, PolicyChoice::Paper] {
+        for &policy in policies {
             for index in 0..n {
                 specs.push(draw(c, case, policy, index));
             }
@@ -171,7 +179,12 @@ pub fn plan(cases: &[Case], coverage_sessions: usize, robust_sessions: usize) ->
 }
 
 fn draw(c: usize, case: &Case, policy: PolicyChoice, index: usize) -> Spec {
-    let stream = (c as u64) << 40 | u64::from(policy == PolicyChoice::Paper) << 32 | index as u64;
+    let policy_stream: u64 = match policy {
+        PolicyChoice::Adaptive => 0,
+        PolicyChoice::Paper => 1,
+        PolicyChoice::Sweep => 2,
+    };
+    let stream = (c as u64) << 40 | policy_stream << 32 | index as u64;
     let mut rng = ChaCha12Rng::seed_from_u64(0xacc0_2ac7 ^ stream.wrapping_mul(0x9e37_79b9_7f4a_7c15));
     let seed = rng.random_range(1..1_000_000_000u64);
     let magnitude = match case.effect {
@@ -451,7 +464,7 @@ pub fn wilson95(k: usize, n: usize) -> (f64, f64) {
 pub fn tallies(cases: &[Case], rows: &[Row]) -> Vec<(usize, PolicyChoice, Tally)> {
     let mut out = Vec::new();
     for (c, case) in cases.iter().enumerate() {
-        for policy in [PolicyChoice::Adaptive, PolicyChoice::Paper] {
+        for policy in [PolicyChoice::Adaptive, PolicyChoice::Paper, PolicyChoice::Sweep] {
             let of_case: Vec<&Row> = rows.iter().filter(|r| r.spec.case == c && r.spec.policy == policy).collect();
             if !of_case.is_empty() {
                 out.push((c, policy, Tally::of(case, of_case)));
