@@ -28,9 +28,10 @@ fn the_adaptive_policy_meets_its_targets_over_twenty_seeds() {
 #[test]
 fn the_study_covers_every_schedule_policy_and_integration_time() {
     let runs = trade::plan_runs(2, false);
-    // 8 Strategy 1 M + 10 Strategy 2 δ + paper + adaptive, 3 integration times, 8 papers, 2 seeds.
-    assert_eq!(runs.len(), 20 * 3 * 8 * 2);
-    for policy in ["strategy1", "strategy2", "paper", "adaptive"] {
+    // 8 Strategy 1 M + 10 Strategy 2 δ + paper + adaptive, 3 integration times, 8 papers,
+    // 2 seeds; and the 5 sweep settings at one integration time (a sweep's bins are blocks).
+    assert_eq!(runs.len(), 20 * 3 * 8 * 2 + trade::SWEEP_SETTINGS.len() * 8 * 2);
+    for policy in ["strategy1", "strategy2", "paper", "adaptive", "sweep"] {
         assert!(runs.iter().any(|r| r.policy == policy));
     }
     for ms in trade::INTEGRATION_MS {

@@ -454,17 +454,35 @@ impl Calibration {
     /// gain: on range r it is k·(g_r/g_w)·counts for k measured on the white's range w).
     /// A sweep's bin needs it: its few blocks were read while the signal changed, so
     /// their own scatter is the scene's slope as much as noise.
+    ///
+    /// Where the calibration read a steady scene on `range` itself (the white tile, or the
+    /// sample for a gain ratio), the shot term is that range's own, measured: how the shot
+    /// noise in counts scales from one range to another is the amplifier's, and assuming
+    /// it (k ∝ gain) put the glossy peaks' bins on the least sensitive range at a fifth of
+    /// their variance on the reference instrument, whose shot noise in counts is the same
+    /// on every range. Only a range no steady reading was taken on is scaled by its gain.
     pub fn block_std_counts(&self, range: u8, net_counts: f64) -> Result<f64, CalibrationError> {
         let dark = self.dark.get(usize::from(range)).ok_or(CalibrationError::NoRange(range))?;
         let read_var = f64::from(dark.std_counts).powi(2);
+        let steady = self
+            .white
+            .iter()
+            .map(|w| &w.reading)
+            .chain(self.gain_ratios.iter().flat_map(|g| [&g.on_lower, &g.on_upper]))
+            .filter(|r| !r.saturated);
         let mut shot = Vec::new();
-        for w in self.white.iter().filter(|w| !w.reading.saturated) {
-            let w_dark = self.dark.get(usize::from(w.reading.range)).ok_or(CalibrationError::NoRange(w.reading.range))?;
-            let net = self.net_counts(&w.reading)?;
+        for reading in steady {
+            let r_dark = self.dark.get(usize::from(reading.range)).ok_or(CalibrationError::NoRange(reading.range))?;
+            let net = self.net_counts(reading)?;
             if net > 0.0 {
-                let excess = f64::from(w.reading.std_counts).powi(2) - f64::from(w_dark.std_counts).powi(2);
-                shot.push((excess.max(0.0) / net, w.reading.range));
+                let excess = f64::from(reading.std_counts).powi(2) - f64::from(r_dark.std_counts).powi(2);
+                shot.push((excess.max(0.0) / net, reading.range));
             }
+        }
+        let own: Vec<f64> = shot.iter().filter(|(_, r)| *r == range).map(|(k, _)| *k).collect();
+        if !own.is_empty() {
+            let per_count = own.iter().sum::<f64>() / own.len() as f64;
+            return Ok((read_var + per_count * net_counts.max(0.0)).sqrt());
         }
         let per_count = if shot.is_empty() {
             0.0

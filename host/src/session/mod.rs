@@ -189,6 +189,15 @@ impl MeasuredPoint {
             (self.radiance_factor, self.std, self.note) = (None, None, Some(why.clone()));
             return;
         }
+        if self.theta_r_span_deg > 0.0 {
+            // A sweep's bin carries its blocks' noise as the calibration gives it
+            // (sweep::bin_point): a calibration that learnt more (a range's own noise, with
+            // its gain ratio) gives it again.
+            let net = calibration.net_counts(&self.reading).unwrap_or(0.0);
+            if let Ok(block_std) = calibration.block_std_counts(self.reading.range, net) {
+                self.reading.std_counts = block_std as f32;
+            }
+        }
         match calibration.radiance_factor(self.theta_i_deg, &self.reading) {
             Ok((r, u)) => (self.radiance_factor, self.std, self.note) = (Some(r), Some(u), None),
             Err(e) => (self.radiance_factor, self.std, self.note) = (None, None, Some(e.to_string())),
