@@ -965,6 +965,12 @@ pub struct AnalysisSettings {
 /// once: the first reading of it), as fit observations, with their indices in `points`.
 /// A sweep's bins are each their own reading (two sweeps may put bins at one θr).
 pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
+    let (indices, mut observations) = first_readings(points);
+    sweep::scale_bin_noise(points, &indices, &mut observations);
+    (indices, observations)
+}
+
+fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
     let mut seen = BTreeSet::new();
     points
         .iter()
