@@ -230,3 +230,50 @@ fn gonio_flash_names_a_file_it_cannot_read() {
     assert_eq!(out.status.code(), Some(1), "{message}");
     assert!(message.contains("nothing-here.elf") && message.contains("cannot read"), "{message}");
 }
+
+#[test]
+fn gonio_flash_without_an_image_asks_for_one_when_none_is_built_in() {
+    // A build with GONIO_FIRMWARE_IMAGE carries an image, and would flash it.
+    if option_env!("GONIO_FIRMWARE_IMAGE").is_some_and(|p| !p.is_empty()) {
+        eprintln!("skipped: this gonio has a firmware image built in");
+        return;
+    }
+    for args in [&["flash"][..], &["flash", "--check"]] {
+        let out = gonio(args);
+        let message = cli_support::stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{message}");
+        assert!(message.contains("no firmware image built in") && message.contains("gonio flash IMAGE"), "{message}");
+    }
+}
+
+#[test]
+fn gonio_flash_with_no_probe_attached_says_what_it_looked_for() {
+    // probe-rs's own lister, as gonio flash uses it; with a probe attached this test would
+    // flash a board, so it only runs where there is none (the test machines).
+    use host::instrument::flash::Flasher;
+    let probes = host::instrument::probe::ProbeRsFlasher::new().list_probes();
+    if !probes.is_empty() {
+        eprintln!("skipped: a debug probe is attached ({probes:?})");
+        return;
+    }
+    let path = write_image(&dir("no-probe"), "good.elf", &ElfSpec::good().build());
+    let out = gonio(&["flash", path.to_str().unwrap(), "--wait-s", "1"]);
+    let message = cli_support::stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{message}");
+    for needle in ["no debug probe found", "ST-Link", "0483:3748", "CMSIS-DAP", "SWDIO"] {
+        assert!(message.contains(needle), "no {needle:?} in: {message}");
+    }
+    assert!(!message.contains("panicked"), "{message}");
+}
+
+#[test]
+fn gonio_flash_refuses_a_wait_that_is_no_number_of_seconds() {
+    let path = write_image(&dir("wait"), "good.elf", &ElfSpec::good().build());
+    for bad in ["0", "-1", "inf", "NaN", "1e9"] {
+        let option = format!("--wait-s={bad}");
+        let out = gonio(&["flash", path.to_str().unwrap(), &option]);
+        let message = cli_support::stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{bad}: {message}");
+        assert!(message.contains("--wait-s must be a number of seconds above 0 and at most 600"), "{bad}: {message}");
+    }
+}
