@@ -27,6 +27,8 @@ struct RecordingProbe {
     fail_program_after: Option<usize>,
     /// Damage this byte of the first segment as it is written (a flash that does not take it).
     corrupt_byte: Option<usize>,
+    /// When it was reset.
+    reset_at: Option<std::time::Instant>,
 }
 
 fn stlink(serial: &str) -> ProbeDescription {
@@ -96,6 +98,7 @@ impl Flasher for RecordingProbe {
 
     fn reset(&mut self) -> Result<(), String> {
         self.calls.push("reset".into());
+        self.reset_at = Some(std::time::Instant::now());
         Ok(())
     }
 }
@@ -110,7 +113,7 @@ fn simulator() -> hil_sim::SimInstrument {
 }
 
 fn quick() -> FlashOptions {
-    FlashOptions { probe: None, enumerate_timeout: Duration::from_millis(400), poll_every: Duration::from_millis(5) }
+    FlashOptions { probe: None, enumerate_timeout: Duration::from_millis(400), poll_every: Duration::from_millis(5), first_look_after: Duration::from_millis(20) }
 }
 
 /// The instrument appears at the `appears_at`-th look (0: the first), and the looks counted.
@@ -169,6 +172,20 @@ fn a_flash_programs_verifies_resets_then_handshakes_with_the_new_firmware() {
         assert_eq!(flashed.probe, stlink("A1"));
         assert_eq!(flashed.port, simulator().name());
     }
+}
+
+#[test]
+fn the_old_firmware_s_port_is_given_time_to_go_before_the_first_look() {
+    let mut probe = RecordingProbe::with_probes(vec![stlink("A1")]);
+    let mut first_look = None;
+    let mut find = || {
+        first_look.get_or_insert_with(std::time::Instant::now);
+        Ok(Some(simulator()))
+    };
+    let options = FlashOptions { first_look_after: Duration::from_millis(150), ..quick() };
+    flash(&mut probe, &image(), options, &mut |_| {}, &mut find).expect("flashed");
+    let waited = first_look.unwrap() - probe.reset_at.unwrap();
+    assert!(waited >= Duration::from_millis(150), "looked {waited:?} after the reset");
 }
 
 #[test]

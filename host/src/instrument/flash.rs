@@ -181,11 +181,19 @@ pub struct FlashOptions {
     pub enumerate_timeout: Duration,
     /// How often to look for it meanwhile.
     pub poll_every: Duration,
+    /// How long after the reset before the first look: the old firmware's USB port takes a
+    /// moment to go away, and must not be mistaken for the new one.
+    pub first_look_after: Duration,
 }
 
 impl Default for FlashOptions {
     fn default() -> Self {
-        FlashOptions { probe: None, enumerate_timeout: Duration::from_secs(10), poll_every: Duration::from_millis(100) }
+        FlashOptions {
+            probe: None,
+            enumerate_timeout: Duration::from_secs(10),
+            poll_every: Duration::from_millis(100),
+            first_look_after: Duration::from_millis(500),
+        }
     }
 }
 
@@ -212,7 +220,8 @@ pub fn choose_probe(probes: Vec<ProbeDescription>, chosen: Option<usize>) -> Res
 
 /// Flash `image` through `flasher` and wait for the instrument: `find_instrument` is asked
 /// until it returns the instrument's link (`Ok(None)`: not there yet; `Err`: a problem
-/// that may pass, such as a port that is not ready), at most `options.enumerate_timeout`.
+/// that may pass, such as a port that is not ready), at most `options.enumerate_timeout`
+/// after the reset.
 pub fn flash<F: Flasher + ?Sized, T: Transport>(
     flasher: &mut F,
     image: &FirmwareImage,
@@ -227,6 +236,7 @@ pub fn flash<F: Flasher + ?Sized, T: Transport>(
     flasher.reset().map_err(FlashError::Reset)?;
 
     let started = Instant::now();
+    std::thread::sleep(options.first_look_after.min(options.enumerate_timeout));
     let mut last_problem = None;
     let transport = loop {
         match find_instrument() {
