@@ -16,6 +16,8 @@ enum Command {
     Measure(host::cli::measure::Args),
     /// Fit the TSL model to measured radiance factors and classify each data set.
     Fit(host::cli::fit::Args),
+    /// Put firmware on the instrument through a debug probe (probe-rs): check the image, program, verify, reset, handshake.
+    Flash(host::cli::flash::Args),
     /// List serial ports; instruments (by USB VID/PID) are marked.
     Ports(host::cli::ports::Args),
     /// Serve the simulated instrument on a pseudo-terminal (prints its path first).
@@ -47,6 +49,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Measure(args) => host::cli::measure::run(args),
         Command::Fit(args) => host::cli::fit::run(args),
+        Command::Flash(args) => host::cli::flash::run(args),
         Command::Ports(args) => host::cli::ports::run(args),
         Command::Sim(args) => host::cli::sim::run(args),
         Command::Compare(args) => host::cli::compare::run(args),

@@ -3,17 +3,20 @@
 //! One small `no_std`, allocation-free crate that firmware, simulator and host all
 //! share (the postcard-rpc "ICD" pattern): every message ([`messages`]), the framing
 //! ([`framing`]: postcard + CRC-32 + COBS), the geometry type ([`geometry`]) and the
-//! measurement schedules of the method ([`schedules`]). Nothing else lives here.
+//! measurement schedules of the method ([`schedules`]); and what a firmware image says it
+//! is ([`firmware_info`], not a wire message). Nothing else lives here.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod firmware_info;
 pub mod framing;
 pub mod geometry;
 pub mod messages;
 pub mod schedules;
 pub mod schema;
 
+pub use firmware_info::{F411_BOARD_NAME, FIRMWARE_INFO_LEN, FirmwareInfo, FirmwareInfoError};
 pub use framing::{FrameDecoder, FrameError, Sequenced, encode_frame};
 pub use geometry::{Angle, Geometry};
 pub use messages::*;

@@ -22,19 +22,26 @@ fn host_and_firmware_agree_on_the_handshake() {
 }
 
 /// A device of another protocol version: it refuses our hello the way every version must.
-struct NewerDevice {
+struct DeviceOfVersion {
+    version: u16,
     decoder: FrameDecoder,
     out: Vec<u8>,
 }
 
-impl Transport for NewerDevice {
+impl DeviceOfVersion {
+    fn new(version: u16) -> DeviceOfVersion {
+        DeviceOfVersion { version, decoder: FrameDecoder::new(), out: Vec::new() }
+    }
+}
+
+impl Transport for DeviceOfVersion {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let mut requests = Vec::new();
         self.decoder.feed(bytes, |r: Result<Request, FrameError>| requests.push(r));
         for request in requests.into_iter().flatten() {
             let reply = DeviceMessage::Reply {
                 seq: request.seq,
-                result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION) + 1)),
+                result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(self.version))),
             };
             let mut buf = [0u8; MAX_FRAME_LEN];
             self.out.extend_from_slice(encode_frame(&reply, &mut buf).unwrap());
@@ -52,11 +59,30 @@ impl Transport for NewerDevice {
 
 #[test]
 fn host_refuses_a_newer_device_and_says_which_side_to_update() {
-    let mut client = Client::new(NewerDevice { decoder: FrameDecoder::new(), out: Vec::new() }, RetryPolicy::default());
+    let mut client = Client::new(DeviceOfVersion::new(PROTOCOL_VERSION + 1), RetryPolicy::default());
     let error = client.hello().unwrap_err();
     assert!(matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == PROTOCOL_VERSION + 1));
     let text = error.to_string();
     assert!(text.contains("update the host software"), "{text}");
+    assert!(!text.contains("gonio flash"), "{text}");
+}
+
+#[test]
+fn host_finding_older_firmware_tells_the_user_to_run_gonio_flash() {
+    for older in [0, 1, PROTOCOL_VERSION - 1] {
+        let mut client = Client::new(DeviceOfVersion::new(older), RetryPolicy::default());
+        let error = client.hello().unwrap_err();
+        assert!(matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == older));
+        let text = error.to_string();
+        for needle in [
+            &format!("this host speaks version {PROTOCOL_VERSION}, the instrument version {older}"),
+            "firmware is older than this host",
+            "`gonio flash`",
+            &format!("protocol version {PROTOCOL_VERSION}"),
+        ] {
+            assert!(text.contains(needle), "no {needle:?} in: {text}");
+        }
+    }
 }
 
 #[test]

@@ -388,7 +388,7 @@ fn serve_device_of_version(version: u16) -> (String, Arc<AtomicBool>, JoinHandle
 
 #[test]
 fn an_instrument_of_another_protocol_version_is_refused_saying_which_side_to_update() {
-    for (version, advice) in [(protocol::PROTOCOL_VERSION + 1, "update the host software"), (protocol::PROTOCOL_VERSION - 1, "update the instrument's firmware")] {
+    for (version, advice) in [(protocol::PROTOCOL_VERSION + 1, "update the host software"), (protocol::PROTOCOL_VERSION - 1, "update the instrument's firmware with `gonio flash`")] {
         let (path, stop, thread) = serve_device_of_version(version);
         let dir = temp_dir(&format!("version-{version}"));
         let result = run(&["--port", path.as_str(), "--out", dir.to_str().unwrap()], &mut person(), Arc::new(AtomicBool::new(false)));

@@ -59,6 +59,14 @@ bind_interrupts!(struct Irqs {
 
 type UsbDriver = Driver<'static, USB_OTG_FS>;
 
+/// What this image is, for `gonio flash` to check before it writes it: the firmware
+/// version (the one `DeviceInfo` reports), the protocol version and the board. In a
+/// section that `gonio-info.x` keeps out of flash and RAM (an INFO section of the ELF).
+#[used]
+#[unsafe(link_section = ".gonio.info")]
+static GONIO_INFO: [u8; protocol::FIRMWARE_INFO_LEN] =
+    protocol::FirmwareInfo::encode(firmware::FIRMWARE_VERSION, PROTOCOL_VERSION, protocol::F411_BOARD_NAME);
+
 /// Full-speed bulk packet size of the CDC data endpoints.
 const USB_PACKET: usize = 64;
 /// How often the device is polled (the library asks for at least every millisecond).

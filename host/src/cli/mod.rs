@@ -1,5 +1,6 @@
 //! One module per `gonio` subcommand, each with its clap `Args` and `run()`.
 pub mod fit;
+pub mod flash;
 pub mod forensic;
 pub mod ports;
 pub mod sim;

@@ -121,11 +121,15 @@ pub enum LinkError {
     },
 }
 
-fn version_advice(host: u16, device: u16) -> &'static str {
+fn version_advice(host: u16, device: u16) -> String {
     if device > host {
-        "update the host software (gonio) to a release that speaks the instrument's version"
+        "update the host software (gonio) to a release that speaks the instrument's version".to_string()
     } else {
-        "update the instrument's firmware (see firmware/board/README.md)"
+        // The field user has the gonio binary and a debug probe, not the source: say the
+        // command that fixes it.
+        format!(
+            "the instrument's firmware is older than this host: update the instrument's firmware with `gonio flash` (the image of this gonio release, or `gonio flash IMAGE` with a firmware of protocol version {host}; a debug probe on the board's SWD pins)"
+        )
     }
 }
 

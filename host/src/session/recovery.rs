@@ -89,7 +89,7 @@ fn advice(command: &str, error: DeviceError) -> String {
         ErrorCode::HardwareFault => "a stepper driver, the detector or the lamp reported a fault: check the instrument's power and cables, then resume the session".into(),
         ErrorCode::HomeSwitchNotFound => format!("the {} arm's home switch did not trip within its search range: check the switch and its wire, then resume", arm_name(error.detail)),
         ErrorCode::HomeSwitchStuck => format!("the {} arm's home switch does not release: check the switch lever, then resume", arm_name(error.detail)),
-        ErrorCode::NotSupported => format!("this firmware does not carry out {command}: update the instrument's firmware (firmware/board/README.md)"),
+        ErrorCode::NotSupported => format!("this firmware does not carry out {command}: update the instrument's firmware with `gonio flash` (README, \"Flashing the firmware\")"),
         ErrorCode::OutOfRange => format!("a {command} target outside the {} arm's working range: a host fault, please report it", arm_name(error.detail)),
         ErrorCode::CollisionGuard => format!("a {command} target that would bring the arms together (θi + θr below the guard): a host fault, please report it"),
         ErrorCode::InvalidArgument => format!("a parameter of {command} is outside what the instrument accepts (an integration time, a range): check the options"),
