@@ -1,7 +1,8 @@
 //! Scenarios of the whole device on the fake hardware, written without `std` so that the
 //! same code runs on the host (`tests/scenarios.rs`, `examples/scenarios.rs`) and compiled
 //! for the Cortex-M4 under QEMU (`firmware/target-tests`): the handshake, homing, a whole
-//! Strategy 1, and the fail-safe paths. Each returns a digest of every byte the device
+//! Strategy 1, a sweep across the specular peak with its range switches, and the fail-safe
+//! paths. Each returns a digest of every byte the device
 //! sent (FNV-1a), so that the two runs can be compared byte for byte.
 //!
 //! A scenario talks to the device through the real framing, polled every millisecond of
@@ -16,7 +17,8 @@ use crate::schedule::STRATEGY1_ORDER;
 use crate::testing::{FakeHardware, Scene};
 use protocol::{
     Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, FrameDecoder, Geometry, HomeReport,
-    MAX_FRAME_LEN, PROTOCOL_VERSION, Reply, Request, RunSchedule, ScheduleDone, ScheduleSource, Status, Target,
+    MAX_FRAME_LEN, PROTOCOL_VERSION, Reply, Request, RunSchedule, ScheduleDone, ScheduleSource, Status, Sweep, SweepBin,
+    SweepPlan, Target,
 };
 
 /// Why a scenario failed: what did not hold, and where (the line in this file).
@@ -52,6 +54,7 @@ pub const SCENARIOS: &[Scenario] = &[
     Scenario { name: "handshake", run: handshake },
     Scenario { name: "homing", run: homing },
     Scenario { name: "strategy1", run: strategy1 },
+    Scenario { name: "sweep", run: sweep },
     Scenario { name: "heartbeat_loss", run: heartbeat_loss },
     Scenario { name: "driver_fault", run: driver_fault },
     Scenario { name: "late_step", run: late_step },
@@ -87,6 +90,55 @@ struct Received {
     streamed: heapless::Vec<(u16, Geometry), 16>,
     done: Option<ScheduleDone>,
     bad_frames: u32,
+    sweep: SweepSeen,
+}
+
+/// What a sweep's bins showed, as they came (a bin is not kept: 200 of them would double
+/// the bench, and the target's stack holds two benches).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct SweepSeen {
+    /// Bins received.
+    bins: u16,
+    /// Every bin had the next index and started where the one before ended (the first at
+    /// `first_start`).
+    tiled: bool,
+    /// Where the first bin started and the last one ended.
+    first_start: Option<protocol::Angle>,
+    last_end: Option<protocol::Angle>,
+    /// Bit r set: a bin on range r with blocks in it.
+    ranges: u8,
+    /// Bins that lost blocks to a range switch's blanking; bins flagged saturated or empty.
+    blanked: u16,
+    saturated: u16,
+    empty: u16,
+    /// The range of the last bin, and how many times it changed from bin to bin.
+    last_range: Option<u8>,
+    switches: u16,
+    /// `SweepDone`'s count.
+    done: Option<u16>,
+}
+
+impl SweepSeen {
+    fn bin(&mut self, bin: &SweepBin) {
+        if self.bins == 0 {
+            self.tiled = bin.index == 0;
+            self.first_start = Some(bin.start);
+        } else {
+            self.tiled &= bin.index == self.bins && Some(bin.start) == self.last_end;
+        }
+        self.bins += 1;
+        self.last_end = Some(bin.end);
+        if bin.flags & SweepBin::EMPTY == 0 {
+            self.ranges |= 1 << bin.range;
+        }
+        self.blanked += u16::from(bin.flags & SweepBin::BLANKED != 0);
+        self.saturated += u16::from(bin.flags & SweepBin::SATURATED != 0);
+        self.empty += u16::from(bin.flags & SweepBin::EMPTY != 0);
+        if self.last_range.is_some_and(|r| r != bin.range) {
+            self.switches += 1;
+        }
+        self.last_range = Some(bin.range);
+    }
 }
 
 impl Received {
@@ -105,7 +157,8 @@ impl Received {
         match message {
             DeviceMessage::Reply { seq, result } if Some(seq) == self.awaiting => self.answer = Some(result),
             DeviceMessage::Reply { .. } | DeviceMessage::FrameRejected { .. } => {}
-            DeviceMessage::SweepBin(_) | DeviceMessage::SweepDone { .. } => {}
+            DeviceMessage::SweepBin(bin) => self.sweep.bin(&bin),
+            DeviceMessage::SweepDone { bins, .. } => self.sweep.done = Some(bins),
             DeviceMessage::Reading(reading) => {
                 let _ = self.streamed.push((reading.index, reading.geometry));
             }
@@ -147,6 +200,7 @@ impl Bench {
                 streamed: heapless::Vec::new(),
                 done: None,
                 bad_frames: 0,
+                sweep: SweepSeen::default(),
             },
         }
     }
@@ -315,6 +369,44 @@ fn strategy1() -> Outcome {
     for (k, &(index, geometry)) in bench.rx.streamed.iter().enumerate() {
         ensure!(usize::from(index) == k && geometry == STRATEGY1_ORDER[k], "in order, where planned");
     }
+    ensure!(bench.rx.stops.is_empty() && bench.hw().profiles_over_limits == 0, "no stop, within limits");
+    Ok(bench.digest())
+}
+
+/// A sweep of the detector arm across the specular peak at θi = 30° (θr 20° → 40° at
+/// 20 °/s, 0.1° bins), auto-ranged: the diffuse part on the most sensitive range, the peak
+/// (61 times brighter) on the least, blocks blanked after each switch, the bins tiling the
+/// sweep, as many as planned.
+fn sweep() -> Outcome {
+    let mut bench = homed()?;
+    ensure!(bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)), "lamp");
+    let (from, to) = (protocol::Angle::from_whole_deg(20), protocol::Angle::from_whole_deg(40));
+    let sweep = Sweep {
+        sweep_id: 9,
+        theta_i: protocol::Angle::from_whole_deg(30),
+        from,
+        to,
+        speed_mdeg_per_s: 20_000,
+        bin_ticks: 8,
+        range: None,
+        target: Target::Sample,
+    };
+    let Some(Ok(Reply::Sweep(SweepPlan { bins, duration_ms }))) = bench.ask(Command::Sweep(sweep)) else {
+        return Err(Failure { what: "sweep accepted", line: line!() });
+    };
+    ensure!(bins == 200, "the plan's bins");
+    for _ in 0..u64::from(duration_ms) + 1000 {
+        if bench.rx.sweep.done.is_some() {
+            break;
+        }
+        bench.tick();
+    }
+    let seen = bench.rx.sweep;
+    ensure!(seen.done == Some(bins) && seen.bins == bins, "every bin, then SweepDone");
+    ensure!(seen.tiled && seen.first_start == Some(from) && seen.last_end == Some(to), "the bins tile the sweep");
+    ensure!(seen.ranges == 0b111 && seen.switches >= 4, "up to the least sensitive range and back");
+    ensure!(seen.blanked >= seen.switches && seen.saturated == 0 && seen.empty < 10, "switches blanked, nothing saturated");
+    ensure!(bench.hw().true_geometry() == Geometry::new(sweep.theta_i, to), "the arm rests on `to`");
     ensure!(bench.rx.stops.is_empty() && bench.hw().profiles_over_limits == 0, "no stop, within limits");
     Ok(bench.digest())
 }

@@ -165,6 +165,14 @@ impl Detector {
         counts.round().clamp(0.0, self.params.full_scale_counts) as u32
     }
 
+    /// A sample whose every conversion was at full scale: full scale, without noise (the
+    /// noise is drawn all the same, so that the stream of every later sample is the one it
+    /// would have been).
+    pub fn saturated_sample(&mut self) -> u32 {
+        let _: f64 = self.rng.sample(StandardNormal);
+        self.params.full_scale_counts as u32
+    }
+
     /// Time between two ADC samples, µs.
     pub fn sample_period_us(&self) -> u64 {
         (1e6 / self.params.sample_rate_hz).round().max(1.0) as u64

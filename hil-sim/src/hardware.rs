@@ -3,9 +3,33 @@
 //! Mechanics (steppers that follow the firmware's own motion profiles, home switches,
 //! driver faults, lost steps, the lamp switch) are the firmware's model,
 //! [`firmware::testing::FakeHardware`], so there is one arm model. The detector is this
-//! crate's physics ([`crate::detector`]): the scene on the port seen through the
-//! acceptance, lamp drift, range gains, noise and saturation, sample by sample.
+//! crate's physics ([`crate::detector`], [`crate::amplifier`]): the scene on the port seen
+//! through the acceptance, lamp drift, range gains, the amplifier's response, noise and
+//! saturation, block by block.
+//!
+//! A BLOCK (one detector sample, [`Detector::sample_period_us`]) reads the amplifier's
+//! output averaged over the block, which is what the board's decimation makes of its 256
+//! conversions. The input over the block is what the detector truly sees while the arms go
+//! where the mechanics put them: the arms stand on a microstep between two step pulses
+//! ([`firmware::testing::FakeArm::steps_at`]), so the input is piecewise constant in time,
+//! one piece per geometry the block visits (one piece at rest; about five at 60 °/s), and
+//! the amplifier's first-order response is solved exactly over each piece
+//! ([`crate::amplifier::respond`]), its state carried from block to block. A piece's input
+//! is the scene through the acceptance at that geometry; where a block crosses many
+//! microsteps, the scene is evaluated at the ends and the middle of the block's path and
+//! only further where it is not linear within [`INTERPOLATION_TOLERANCE_FRACTION`] of full
+//! scale (a lobe narrow against the block's travel), else interpolated.
+//!
+//! Events between two drains (a range switch, the lamp, the operator changing what is on
+//! the port, a new profile or a redefined step count) first bring the detector up to the
+//! event's time, so every block reads what was there while it was taken, in order.
+//!
+//! At rest, once the amplifier has settled (its output equals its input exactly), a block
+//! reads what it read before the amplifier was modelled, to the bit: the same radiance
+//! factor, the same noise draw (one per block from the detector's stream), so point
+//! readings taken standing keep their values.
 
+use crate::amplifier::{self, Response};
 use crate::detector::{Detector, DetectorParams};
 use crate::scene::{SamplePort, Scene};
 use firmware::config::InstrumentConfig;
@@ -13,13 +37,21 @@ use firmware::hardware::{Arm, Arms, Detector as DetectorTrait, Lamp, Sample};
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
 use firmware::testing::{ConstantScene, FakeHardware};
-use protocol::{Geometry, Target};
+use protocol::{DetectorRange, Geometry, Target};
+use std::collections::VecDeque;
+
+/// Where a block's path crosses several microsteps, the scene is taken as linear between
+/// two evaluated points when the middle one is within this fraction of full scale of the
+/// line through them (0.07 counts: below the ADC's rounding, ~1/2000 of one block's noise).
+pub const INTERPOLATION_TOLERANCE_FRACTION: f64 = 1e-6;
 
 /// Simulated arms, lamp and detector on virtual time.
 pub struct SimHardware {
     /// Arms, switches and lamp (its own detector model is not used).
     mechanics: FakeHardware<ConstantScene>,
     detector: Detector,
+    /// The instrument's ranges (their amplifier time constants).
+    ranges: &'static [DetectorRange],
     port: SamplePort,
     /// What the operator has on the port now.
     target: Target,
@@ -31,10 +63,42 @@ pub struct SimHardware {
     theta_r_offset_deg: f64,
     range: u8,
     now_us: u64,
+    /// The end of the block being taken.
     next_sample_us: u64,
     /// Radiance factor seen at the last (geometry, target, spot), reused while the arms
     /// stand.
     seen: Option<(Geometry, Target, u32, f64)>,
+    /// Radiance factors seen at the last few geometries of the path (cleared when what is
+    /// on the port changes): a block's end is the next block's start.
+    seen_on_path: VecDeque<(Geometry, f64)>,
+    /// The amplifier's output, counts above dark on the current range, with the lamp's
+    /// drift factored out (it changes by 6e-10 per block: far too slow for τ to matter).
+    amp_output: f64,
+    /// The amplifier is recovering from a range switch until then, µs: output held.
+    amp_hold_until_us: f64,
+    /// The detector is simulated up to this time, µs.
+    simulated_us: u64,
+    /// The block being taken: the output's integral so far (counts·µs), time at the rail.
+    block_integral: f64,
+    block_rail_us: f64,
+    /// The block has been at rest with the amplifier settled so far: the radiance factor
+    /// and θi it saw (`None` once anything changed during it).
+    block_steady: Option<(f64, f64)>,
+    /// Blocks taken and not yet drained.
+    pending: VecDeque<Sample>,
+    /// Scratch: the pieces of constant geometry of the interval being simulated.
+    pieces: Vec<Piece>,
+}
+
+/// A stretch of time on one geometry.
+#[derive(Clone, Copy, Debug)]
+struct Piece {
+    geometry: Geometry,
+    duration_us: u64,
+    /// Microsteps travelled along the path from the interval's start (both arms).
+    path: i64,
+    /// The amplifier's input, counts (lamp drift factored out).
+    input: f64,
 }
 
 impl SimHardware {
@@ -46,6 +110,7 @@ impl SimHardware {
         SimHardware {
             mechanics: FakeHardware::new(config, ConstantScene(0.0), start),
             detector,
+            ranges: config.detector_ranges,
             port,
             target: Target::Sample,
             spot: 0,
@@ -55,6 +120,15 @@ impl SimHardware {
             now_us: 0,
             next_sample_us,
             seen: None,
+            seen_on_path: VecDeque::new(),
+            amp_output: 0.0,
+            amp_hold_until_us: 0.0,
+            simulated_us: 0,
+            block_integral: 0.0,
+            block_rail_us: 0.0,
+            block_steady: None,
+            pending: VecDeque::new(),
+            pieces: Vec::new(),
         }
     }
 
@@ -66,26 +140,37 @@ impl SimHardware {
 
     /// A detector arm whose true angle is the believed one plus `deg` (a zero error).
     pub fn set_theta_r_offset_deg(&mut self, deg: f64) {
+        self.simulate_detector();
         self.theta_r_offset_deg = deg;
-        self.seen = None;
+        self.scene_changed();
     }
 
     /// The operator puts `target` on the sample port. The sample going back on after the
     /// white tile lands on another spot of it: nobody puts a sheet back to the fibre.
     pub fn place(&mut self, target: Target) {
+        self.simulate_detector();
         if self.target == Target::WhiteReference && target == Target::Sample {
             self.next_spot();
+        }
+        if self.target != target {
+            self.scene_changed();
         }
         self.target = target;
     }
 
     /// The sample moves to its next spot (an operator shifting the sheet).
     pub fn next_spot(&mut self) {
+        self.simulate_detector();
         self.spot += 1;
         if let Some(spots) = &self.port.spots {
             self.port.sample = spots.spot(self.seed, self.spot);
         }
+        self.scene_changed();
+    }
+
+    fn scene_changed(&mut self) {
         self.seen = None;
+        self.seen_on_path.clear();
     }
 
     /// The spot under the beam (0 the first).
@@ -108,8 +193,11 @@ impl SimHardware {
         &self.mechanics
     }
 
-    /// The mechanics, to inject faults (lost steps, a switch that never triggers).
+    /// The mechanics, to inject faults (lost steps, a switch that never triggers). The
+    /// detector is brought up to now first: the fault happens now.
     pub fn mechanics_mut(&mut self) -> &mut FakeHardware<ConstantScene> {
+        self.simulate_detector();
+        self.seen_on_path.clear();
         &mut self.mechanics
     }
 
@@ -118,28 +206,217 @@ impl SimHardware {
         &self.detector
     }
 
+    /// The range selected.
+    pub fn range(&self) -> u8 {
+        self.range
+    }
+
+    /// The amplifier's output now, counts above dark on the current range (lamp drift
+    /// factored out): what the blocks read, before noise.
+    pub fn amplifier_output_counts(&mut self) -> f64 {
+        self.simulate_detector();
+        self.amp_output
+    }
+
+    fn scene(&self) -> &dyn Scene {
+        match self.target {
+            Target::Sample => self.port.sample.as_ref(),
+            Target::WhiteReference => &self.port.white,
+        }
+    }
+
     /// The radiance factor the detector sees now (the port's scene through the acceptance,
     /// at the detector's true angle).
     pub fn seen_radiance_factor(&mut self) -> f64 {
         let geometry = self.mechanics.true_geometry();
+        self.seen_at(geometry)
+    }
+
+    /// The radiance factor the detector sees with the arms truly at `geometry`.
+    fn seen_at(&mut self, geometry: Geometry) -> f64 {
         if let Some((g, t, spot, value)) = self.seen {
             if g == geometry && t == self.target && spot == self.spot {
                 return value;
             }
         }
-        let scene: &dyn Scene = match self.target {
-            Target::Sample => self.port.sample.as_ref(),
-            Target::WhiteReference => &self.port.white,
-        };
+        if let Some(&(_, value)) = self.seen_on_path.iter().find(|(g, _)| *g == geometry) {
+            return value;
+        }
         let theta_r = geometry.theta_r.deg() + self.theta_r_offset_deg;
-        let value = self.detector.seen_radiance_factor(scene, geometry.theta_i.deg(), theta_r);
-        self.seen = Some((geometry, self.target, self.spot, value));
+        let value = self.detector.seen_radiance_factor(self.scene(), geometry.theta_i.deg(), theta_r);
+        if self.mechanics.true_geometry() == geometry {
+            self.seen = Some((geometry, self.target, self.spot, value));
+        }
+        if self.seen_on_path.len() == 4 {
+            self.seen_on_path.pop_front();
+        }
+        self.seen_on_path.push_back((geometry, value));
         value
+    }
+
+    /// The amplifier's input at `geometry` on the current range, counts above dark (lamp
+    /// drift factored out).
+    fn input_at(&mut self, geometry: Geometry) -> f64 {
+        if !self.mechanics.lamp_on() {
+            return 0.0;
+        }
+        let radiance_factor = self.seen_at(geometry);
+        self.detector.signal_counts(radiance_factor, geometry.theta_i.deg(), usize::from(self.range), 1.0)
+    }
+
+    /// The amplifier's output limit, counts above dark: where the ADC reads full scale.
+    fn rail_counts(&self) -> f64 {
+        self.detector.params().full_scale_counts - self.detector.dark_offset_counts()
+    }
+
+    fn time_constant_us(&self) -> f64 {
+        self.ranges.get(usize::from(self.range)).map_or(0.0, |r| f64::from(r.time_constant_us))
+    }
+
+    /// Take the detector's blocks up to now (into `pending`), the amplifier following.
+    fn simulate_detector(&mut self) {
+        while self.simulated_us < self.now_us {
+            let until = self.now_us.min(self.next_sample_us);
+            self.simulate_interval(self.simulated_us, until);
+            self.simulated_us = until;
+            if until == self.next_sample_us {
+                self.close_block();
+            }
+        }
+    }
+
+    /// The pieces of constant true geometry of [from, to) (µs; the geometry at time t holds
+    /// over [t, t + 1)). Within a block each arm follows one profile (profiles start at
+    /// polls, which are block boundaries or events that simulate up to themselves first),
+    /// so it is monotonic: equal ends mean no motion between.
+    fn split_into_pieces(&mut self, from: u64, to: u64) {
+        self.pieces.clear();
+        let first = self.mechanics.true_geometry_at(from);
+        let last = self.mechanics.true_geometry_at(to - 1);
+        if first == last {
+            self.pieces.push(Piece { geometry: first, duration_us: to - from, path: 0, input: 0.0 });
+            return;
+        }
+        let mut stack = vec![(from, to, first, last)];
+        // Depth first, left half first: pieces come out in time order.
+        while let Some((a, b, ga, gl)) = stack.pop() {
+            if ga == gl || b - a == 1 {
+                match self.pieces.last_mut() {
+                    Some(piece) if piece.geometry == ga => piece.duration_us += b - a,
+                    _ => self.pieces.push(Piece { geometry: ga, duration_us: b - a, path: 0, input: 0.0 }),
+                }
+                continue;
+            }
+            let mid = a + (b - a) / 2;
+            let (g_left_end, g_mid) = (self.mechanics.true_geometry_at(mid - 1), self.mechanics.true_geometry_at(mid));
+            stack.push((mid, b, g_mid, gl));
+            stack.push((a, mid, ga, g_left_end));
+        }
+        let mut path = 0;
+        for k in 1..self.pieces.len() {
+            let (before, here) = (self.pieces[k - 1].geometry, self.pieces[k].geometry);
+            path += i64::from((here.theta_i.ticks() - before.theta_i.ticks()).abs()) + i64::from((here.theta_r.ticks() - before.theta_r.ticks()).abs());
+            self.pieces[k].path = path;
+        }
+    }
+
+    /// The inputs of the pieces `lo..=hi`, the ends already set: evaluated where the scene
+    /// bends, interpolated along the path where it is straight.
+    fn fill_inputs(&mut self, lo: usize, hi: usize) {
+        if hi <= lo + 1 {
+            return;
+        }
+        let mid = lo + (hi - lo) / 2;
+        let geometry = self.pieces[mid].geometry;
+        self.pieces[mid].input = self.input_at(geometry);
+        let (a, b, m) = (self.pieces[lo], self.pieces[hi], self.pieces[mid]);
+        let along = |p: &Piece| (p.path - a.path) as f64 / (b.path - a.path).max(1) as f64;
+        let line = a.input + (b.input - a.input) * along(&m);
+        let tolerance = INTERPOLATION_TOLERANCE_FRACTION * self.detector.params().full_scale_counts;
+        if (m.input - line).abs() <= tolerance {
+            for k in lo + 1..hi {
+                if k != mid {
+                    let f = along(&self.pieces[k]);
+                    self.pieces[k].input = a.input + (b.input - a.input) * f;
+                }
+            }
+        } else {
+            self.fill_inputs(lo, mid);
+            self.fill_inputs(mid, hi);
+        }
+    }
+
+    /// The amplifier over [from, to), within one block.
+    fn simulate_interval(&mut self, from: u64, to: u64) {
+        self.split_into_pieces(from, to);
+        let last = self.pieces.len() - 1;
+        for k in [0, last] {
+            let geometry = self.pieces[k].geometry;
+            self.pieces[k].input = self.input_at(geometry);
+        }
+        self.fill_inputs(0, last);
+        let (tau_us, rail) = (self.time_constant_us(), self.rail_counts());
+        let mut t = from as f64;
+        for k in 0..self.pieces.len() {
+            let piece = self.pieces[k];
+            let duration = piece.duration_us as f64;
+            // Settled at rest: the output is the input, and the block reads it as before.
+            let steady = self.amp_output == piece.input && piece.input < rail && t >= self.amp_hold_until_us;
+            if !steady || self.block_steady.is_some_and(|(rf, _)| rf.to_bits() != self.seen_at(piece.geometry).to_bits()) {
+                self.block_steady = None;
+            }
+            let held_us = (self.amp_hold_until_us - t).clamp(0.0, duration);
+            let mut response = Response { end: self.amp_output, integral: 0.0, rail_us: 0.0 };
+            if held_us > 0.0 {
+                response.integral = self.amp_output * held_us;
+                response.rail_us = if self.amp_output >= rail { held_us } else { 0.0 };
+            }
+            let follows = amplifier::respond(self.amp_output, piece.input, duration - held_us, tau_us, rail);
+            response.end = follows.end;
+            response.integral += follows.integral;
+            response.rail_us += follows.rail_us;
+            self.amp_output = response.end;
+            self.block_integral += response.integral;
+            self.block_rail_us += response.rail_us;
+            t += duration;
+        }
+    }
+
+    /// The block ending at `next_sample_us` is over: its sample, stamped with the detector
+    /// arm's step count at its end.
+    fn close_block(&mut self) {
+        let end_us = self.next_sample_us;
+        let period = self.detector.sample_period_us();
+        let lamp = self.detector.lamp_output(end_us as f64 * 1e-6);
+        let counts = if self.block_rail_us >= period as f64 {
+            // Every conversion at full scale.
+            self.detector.saturated_sample()
+        } else {
+            let signal = match self.block_steady {
+                Some((radiance_factor, theta_i)) if self.mechanics.lamp_on() => {
+                    self.detector.signal_counts(radiance_factor, theta_i, usize::from(self.range), lamp)
+                }
+                Some(_) => 0.0,
+                None => self.block_integral / period as f64 * lamp,
+            };
+            self.detector.sample(signal)
+        };
+        let detector_steps = self.mechanics.arms[Arm::Detector.index()].steps_at(end_us);
+        self.pending.push_back(Sample { counts, detector_steps });
+        self.next_sample_us += period;
+        self.block_integral = 0.0;
+        self.block_rail_us = 0.0;
+        // The next block starts steady if the arms stand and the output is its input.
+        let geometry = self.mechanics.true_geometry_at(end_us);
+        let radiance_factor = self.seen_at(geometry);
+        self.block_steady = Some((radiance_factor, geometry.theta_i.deg()));
     }
 }
 
 impl Arms for SimHardware {
     fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
+        // The blocks so far were taken on the old profile's path.
+        self.simulate_detector();
         self.mechanics.run_profile(arm, profile);
     }
 
@@ -152,6 +429,7 @@ impl Arms for SimHardware {
     }
 
     fn set_position_steps(&mut self, arm: Arm, steps: i32) {
+        self.simulate_detector();
         self.mechanics.set_position_steps(arm, steps);
     }
 
@@ -171,34 +449,32 @@ impl Arms for SimHardware {
 
 impl Lamp for SimHardware {
     fn set_lamp(&mut self, on: bool) {
+        self.simulate_detector();
         self.mechanics.set_lamp(on);
     }
 }
 
 impl DetectorTrait for SimHardware {
     fn select_range(&mut self, range: u8) {
+        // The blocks so far were taken on the old range.
+        self.simulate_detector();
+        if range != self.range {
+            // The output stays where it is and relaxes to the new range's level with the new
+            // τ, after the switch's charge and the op-amp's recovery.
+            let kick = amplifier::SWITCH_KICK_FRACTION * self.detector.params().full_scale_counts;
+            self.amp_output = (self.amp_output + kick).min(self.rail_counts());
+            self.amp_hold_until_us = self.now_us as f64 + amplifier::SWITCH_RECOVERY_US;
+            self.block_steady = None;
+        }
         self.range = range;
     }
 
     fn drain_samples(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss> {
         // Losses injected into the mechanics' model are reported here too.
         let injected = self.mechanics.sample_loss.take();
-        if self.next_sample_us > self.now_us {
-            return injected.map_or(Ok(()), Err);
-        }
-        let signal = if self.mechanics.lamp_on() {
-            let radiance_factor = self.seen_radiance_factor();
-            let theta_i = self.mechanics.true_geometry().theta_i.deg();
-            let lamp = self.detector.lamp_output(self.now_us as f64 * 1e-6);
-            self.detector.signal_counts(radiance_factor, theta_i, usize::from(self.range), lamp)
-        } else {
-            0.0
-        };
-        let period = self.detector.sample_period_us();
-        while self.next_sample_us <= self.now_us {
-            let detector_steps = self.mechanics.arms[Arm::Detector.index()].steps_at(self.next_sample_us);
-            self.next_sample_us += period;
-            sink(Sample { counts: self.detector.sample(signal), detector_steps });
+        self.simulate_detector();
+        while let Some(sample) = self.pending.pop_front() {
+            sink(sample);
         }
         injected.map_or(Ok(()), Err)
     }

@@ -4,7 +4,9 @@
 //! ([`pty`]).
 //!
 //! It models the instrument and nothing more: the arms (the firmware's own motion
-//! profiles), the home switches, the lamp, the detector ([`detector`]) and the link, and
+//! profiles), the home switches, the lamp, the detector ([`detector`]: its amplifier's
+//! response in time, [`amplifier`], so that a sweep's bins read the scene integrated over
+//! the arm's motion, lagged and range-switched as the instrument's) and the link, and
 //! the instrument's own errors ([`InstrumentErrors`]: range gains off their nominal
 //! values, a white tile off its certificate, a detector arm zero error). The scene on the
 //! sample port is handed in by the caller ([`scene`]): a simulated sheet ([`sheet`]), a
@@ -15,6 +17,7 @@
 //! Virtual time passes only when asked ([`SimInstrument::read`] waiting for output,
 //! [`SimInstrument::advance_ms`]): a session's device seconds take microseconds.
 
+pub mod amplifier;
 pub mod detector;
 pub mod hardware;
 pub mod pty;

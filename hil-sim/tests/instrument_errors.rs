@@ -6,6 +6,7 @@
 //! Read at the detector itself (the firmware's hardware interface), so that a ratio is
 //! what the hardware does, not what a calibration makes of it.
 
+use firmware::config::InstrumentConfig;
 use firmware::hardware::{Detector as _, Lamp as _};
 use hil_sim::scene::{SamplePort, Scene};
 use hil_sim::sheet::{SheetSpec, Stock};
@@ -26,12 +27,16 @@ fn constant(radiance_factor: f64) -> SamplePort {
 }
 
 /// The detector's ADC samples over `ms` with `target` on the port, on `range`, the lamp
-/// on, the arms where they stand (30°, 30° at power-up). `clock_us` is the hardware's time.
+/// on, the arms where they stand (30°, 30° at power-up), after the amplifier has settled
+/// for as long as the firmware waits after a range change. `clock_us` is the hardware's
+/// time.
 fn samples(sim: &mut SimInstrument, target: Target, range: u8, ms: u64, clock_us: &mut u64) -> Vec<u32> {
     let hardware = sim.hardware_mut();
     hardware.set_lamp(true);
     hardware.place(target);
+    hardware.advance_to(*clock_us);
     hardware.select_range(range);
+    *clock_us += u64::from(InstrumentConfig::REFERENCE.range_settle_ms) * 1000;
     hardware.advance_to(*clock_us);
     hardware.drain_samples(&mut |_| {}).expect("the simulated ADC loses nothing");
     *clock_us += ms * 1000;
