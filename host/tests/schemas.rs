@@ -141,10 +141,11 @@ fn every_output_and_file_of_real_sessions_validates_against_its_schema() {
     )
     .unwrap();
     let cert = certificate.to_str().unwrap();
-    // One spot each: the glossy and rough papers, both policies, the realistic instrument,
+    // One spot each: the glossy and rough papers, every policy (sweeps with a lossy link), the realistic instrument,
     // sheets that are not the model, a fault on the link, a tile certificate.
-    let spots: [(&str, Vec<&str>); 7] = [
+    let spots: [(&str, Vec<&str>); 8] = [
         ("g", vec!["--sim", "G"]),
+        ("sg-sweep", vec!["--sim", "SG", "--policy", "sweep", "--faults", "drop=0.001"]),
         ("ppc", vec!["--sim", "PPC", "--policy", "paper"]),
         ("j2-real", vec!["--sim", "J2", "--physics", "real"]),
         ("g-cauchy", vec!["--sim", "G", "--physics", "real", "--lobe", "cauchy"]),
