@@ -372,10 +372,12 @@ const NOISE_WINDOW: usize = 5;
 const CHI2_1_MEDIAN: f64 = 0.454_936;
 
 /// Each range's bins' noise scaled to their own scatter: the calibration's model of one
-/// block's noise ([`bin_point`]) is of blocks read at rest, but a sweep's neighbouring
-/// blocks are not independent (the amplifier's response carries each block into the
-/// next) and a bin of one or two blocks is what the fit weighs: on the simulated reference
-/// instrument a bin's variance was about 1.2 times the model's, and 2,800 bins made a
+/// block's noise ([`bin_point`]) is of steady readings (the white tile, the gain ratios'),
+/// but a bin of one or two blocks is what the fit weighs, and on the simulated reference
+/// instrument a bin's variance was about 1.2 times the model's on a rough paper's broad
+/// lobe (the cause is not established: the simulator's block noise is independent and a
+/// linear scene's bins scatter as stated, so the arm's dwell on whole microsteps within a
+/// bin and the model's estimate from few steady readings are suspects); 2,800 bins made a
 /// lack-of-fit flag of that alone in two sessions of five.
 ///
 /// The scatter is measured by fourth divided differences of five neighbouring bins of one
