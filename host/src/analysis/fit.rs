@@ -156,13 +156,17 @@ pub struct FitOptions {
     /// for a fitted offset, an offset of this size is a shared error of every reading
     /// (the [`ARM_ZERO`] term, ∂f/∂θr times it). 0: the zero is exact.
     pub arm_zero_uncertainty_deg: f64,
+    /// Variance of the log of the readings' noise scale where that scale was estimated
+    /// from the data (a sweep's bins scaled to their own scatter): the χ² test allows for
+    /// it ([`gof::chi2_upper_tail_scaled`]). 0: the stated noise is taken as exact.
+    pub noise_scale_log_variance: f64,
 }
 
 impl Default for FitOptions {
     /// Readings of unknown provenance: no arm zero error is assumed (a session states its
     /// instrument's, [`DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]).
     fn default() -> Self {
-        FitOptions { acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200, arm_offset: true, arm_zero_uncertainty_deg: 0.0 }
+        FitOptions { acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200, arm_offset: true, arm_zero_uncertainty_deg: 0.0, noise_scale_log_variance: 0.0 }
     }
 }
 
@@ -994,7 +998,7 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     // Goodness of fit.
     let (residuals, jacobian) = problem.rows(&x);
     let (chi2, gof_p, s2, noise_from_residuals) = if weighted {
-        (Some(cost), gof::chi2_upper_tail(cost, dof), 1.0, None)
+        (Some(cost), gof::chi2_upper_tail_scaled(cost, dof, options.noise_scale_log_variance), 1.0, None)
     } else if dof > 0 {
         let s2 = cost / dof as f64;
         notes.push(Note::NoiseFromResiduals { std: s2.sqrt() });

@@ -37,6 +37,38 @@ pub fn chi2_upper_tail(chi2: f64, dof: usize) -> Option<f64> {
     Some(distribution.sf(chi2.max(0.0)).clamp(0.0, 1.0))
 }
 
+/// Upper tail of χ² when the readings' noise was itself estimated from the data with a
+/// relative uncertainty: the weights used were off by a factor e^ε, ε ~ N(0,
+/// `scale_log_variance`) (the variance of the log of the estimated noise variance), so
+/// that under the model χ² = X·e^−ε with X ~ χ²(`dof`) and P(χ² > c) = E[P(X > c·e^ε)].
+/// A sweep's bins have their noise scaled to their own scatter (the session's
+/// `scale_bin_noise`); 2,800 bins make χ²/ν's own spread 2.7 % while the scale's is 6 %, and testing against
+/// χ²(ν) alone raised the flag in one ideal sweep session in six. 0: exactly
+/// [`chi2_upper_tail`].
+pub fn chi2_upper_tail_scaled(chi2: f64, dof: usize, scale_log_variance: f64) -> Option<f64> {
+    if !(scale_log_variance.is_finite() && scale_log_variance > 0.0) {
+        return chi2_upper_tail(chi2, dof);
+    }
+    if dof == 0 || !chi2.is_finite() {
+        return None;
+    }
+    let distribution = ChiSquared::new(dof as f64).ok()?;
+    // Trapezoid rule in u = ε/sd over ±8 sd: the Gaussian weight's tails beyond are
+    // below 1e-15, and the integrand is smooth on the scale of the step.
+    const STEPS: usize = 320;
+    const HALF_WIDTH: f64 = 8.0;
+    let sd = scale_log_variance.sqrt();
+    let (mut sum, mut weights) = (0.0, 0.0);
+    for k in 0..=STEPS {
+        let u = -HALF_WIDTH + 2.0 * HALF_WIDTH * k as f64 / STEPS as f64;
+        let end = if k == 0 || k == STEPS { 0.5 } else { 1.0 };
+        let w = end * (-0.5 * u * u).exp();
+        sum += w * distribution.sf(chi2.max(0.0) * (sd * u).exp());
+        weights += w;
+    }
+    Some((sum / weights).clamp(0.0, 1.0))
+}
+
 /// The residual-structure test's result.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct StructureTest {
@@ -119,6 +151,55 @@ mod tests {
         assert!((chi2_upper_tail(124.342_113_404_2, 100).unwrap() - 0.05).abs() < 1e-9);
         assert_eq!(chi2_upper_tail(1.0, 0), None);
         assert!(chi2_upper_tail(1e7, 280).unwrap() < 1e-300);
+    }
+
+    #[test]
+    fn an_uncertain_noise_scale_widens_the_chi2_tail_and_none_leaves_it() {
+        let dof = 2800;
+        for chi2 in [2500.0, 2800.0, 3000.0, 3200.0] {
+            assert_eq!(chi2_upper_tail_scaled(chi2, dof, 0.0), chi2_upper_tail(chi2, dof));
+        }
+        // χ²/ν = 1.09: far in χ²(ν)'s tail (sd 2.7 %), but 1.4 sd of a 6 % scale.
+        let exact = chi2_upper_tail(1.09 * 2800.0, dof).unwrap();
+        let scaled = chi2_upper_tail_scaled(1.09 * 2800.0, dof, 0.06_f64.powi(2)).unwrap();
+        assert!(exact < 1e-3 && scaled > 0.05 && scaled < 0.2, "{exact} {scaled}");
+        // At the centre the tail stays about a half, and it falls with χ².
+        let centre = chi2_upper_tail_scaled(2800.0, dof, 0.0036).unwrap();
+        assert!((centre - 0.5).abs() < 0.02, "{centre}");
+        let mut last = 1.0;
+        for k in 0..40 {
+            let p = chi2_upper_tail_scaled(2000.0 + 50.0 * k as f64, dof, 0.0036).unwrap();
+            assert!(p <= last + 1e-12);
+            last = p;
+        }
+        assert_eq!(chi2_upper_tail_scaled(f64::NAN, dof, 0.01), None);
+        assert_eq!(chi2_upper_tail_scaled(10.0, 0, 0.01), None);
+    }
+
+    /// Under the model with a noise scale estimated with a known log-variance, the scaled
+    /// tail is uniform: it falls under 0.5 % in about 0.5 % of draws, where the plain χ²
+    /// tail falls there far more often.
+    #[test]
+    fn the_scaled_tail_is_uniform_when_the_scale_is_estimated() {
+        use rand::{Rng, SeedableRng};
+        use rand_distr::StandardNormal;
+        let dof = 2800;
+        let log_variance: f64 = 0.06_f64.powi(2);
+        let distribution = ChiSquared::new(dof as f64).unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let draws = 4000;
+        let (mut scaled_low, mut plain_low) = (0, 0);
+        for _ in 0..draws {
+            // χ²(ν) as ν + √(2ν)·z is close enough at ν = 2800 for this count.
+            let x: f64 = rng.sample::<f64, _>(StandardNormal) * (2.0 * dof as f64).sqrt() + dof as f64;
+            let epsilon: f64 = rng.sample::<f64, _>(StandardNormal) * log_variance.sqrt();
+            let observed = x * (-epsilon).exp();
+            scaled_low += usize::from(chi2_upper_tail_scaled(observed, dof, log_variance).unwrap() < 0.005);
+            plain_low += usize::from(distribution.sf(observed) < 0.005);
+        }
+        // 0.5 % of 4000 is 20 (sd 4.5).
+        assert!(scaled_low <= 40, "scaled: {scaled_low} of {draws}");
+        assert!(plain_low > 200, "plain: {plain_low} of {draws}");
     }
 
     #[test]

@@ -965,9 +965,15 @@ pub struct AnalysisSettings {
 /// once: the first reading of it), as fit observations, with their indices in `points`.
 /// A sweep's bins are each their own reading (two sweeps may put bins at one θr).
 pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
-    let (indices, mut observations) = first_readings(points);
-    sweep::scale_bin_noise(points, &indices, &mut observations);
+    let (indices, observations, _) = usable_observations_scaled(points);
     (indices, observations)
+}
+
+/// [`usable_observations`] with how the bins' noise was scaled to their scatter.
+pub fn usable_observations_scaled(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>, sweep::NoiseScaling) {
+    let (indices, mut observations) = first_readings(points);
+    let scaling = sweep::scale_bin_noise(points, &indices, &mut observations);
+    (indices, observations, scaling)
 }
 
 fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
@@ -988,14 +994,15 @@ fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
 /// fit with the calibration's shared errors as of `now_unix_s`, the σ_l check and the
 /// class. What a session reports, and what `gonio fit DIR` makes again from its folder.
 pub fn analyse_points(sample: &str, points: &[MeasuredPoint], calibration: Option<&Calibration>, settings: &AnalysisSettings, now_unix_s: u64) -> Result<Report, String> {
-    let (indices, observations) = usable_observations(points);
+    let (indices, observations, scaling) = usable_observations_scaled(points);
+    let noise_scale_log_variance = scaling.chi2_log_variance(observations.len());
     let shared = match calibration {
         Some(calibration) => gains::shared_errors(calibration, &indices.iter().filter_map(|&k| points.get(k)).collect::<Vec<_>>(), now_unix_s).map_err(|e| e.to_string())?,
         None => Vec::new(),
     };
     // Lines of readings.csv: a header, then one per reading.
     let set = DataSet { sample: sample.to_string(), observations, lines: indices.iter().map(|k| k + 2).collect() };
-    let options = FitOptions { acceptance_deg: Some(settings.acceptance_deg), arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg, ..FitOptions::default() };
+    let options = FitOptions { acceptance_deg: Some(settings.acceptance_deg), arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg, noise_scale_log_variance, ..FitOptions::default() };
     analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None)
 }
 
