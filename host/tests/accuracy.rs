@@ -149,3 +149,22 @@ fn sweep_sessions_on_ideal_scenes_raise_lack_of_fit_at_its_stated_rate() {
     assert!(low <= 8, "χ² p-values pile up near 0: {p_values:?}");
     assert!(flags <= host::study::reliability::lack_of_fit_allowed(rows.len()), "lack-of-fit in {flags} of 40 ideal sweep sessions");
 }
+
+/// The simulator without noise (`--noise-scale 0`, documented as noiseless): every policy's
+/// session finishes with the paper's class and σ within 0.5 % of the truth. Its readings are
+/// known to the ADC's resolution; before, their uncertainty was 0 and every such session
+/// stopped with "the fit failed".
+#[test]
+fn a_noiseless_instrument_gives_finished_sessions_and_the_truth() {
+    use host::session::PolicyChoice;
+    for (sample, class, policy) in [("PPC", "rough-II", PolicyChoice::Adaptive), ("G", "G", PolicyChoice::Paper), ("SG", "SG", PolicyChoice::Sweep)] {
+        let options = SimOptions { seed: 4, noise_scale: 0.0, ..SimOptions::default() };
+        let run = SimulatedRun { sample, options: &options, policy: Policy::from(policy), integration_ms: None };
+        let (outcome, _) = simulated_session(&run, |session| session).unwrap_or_else(|e| panic!("{sample} {policy:?}: {e}"));
+        let truth = sample_params(sample).unwrap().sigma_deg;
+        let sigma = outcome.report.fit.sigma_deg().expect("σ resolved");
+        println!("{sample} {policy:?} noiseless: σ {sigma:.5} (truth {truth}), class {}", outcome.report.classification.class_name());
+        assert_eq!(outcome.report.classification.class_name(), class, "{sample} {policy:?}");
+        assert!((sigma / truth - 1.0).abs() < 0.005, "{sample} {policy:?}: σ {sigma} against {truth}");
+    }
+}

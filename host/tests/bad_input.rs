@@ -225,3 +225,10 @@ fn a_bad_or_expired_tile_certificate_is_refused_before_anything_is_measured() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_trade_study_policy_that_is_not_one_is_refused_naming_the_known_ones() {
+    let out = temp_dir("trade-policies");
+    rejected(&["trade", "--quick", "--policies", "sweep,sweeps", "--out", out.to_str().unwrap()], &["--policies", "'sweeps'", "strategy1, strategy2, paper, adaptive, sweep"]);
+    assert!(!out.join("trade.csv").exists(), "nothing run");
+}

@@ -24,6 +24,11 @@ pub struct Args {
     /// (range-gain, tile and arm-zero errors, docs/ACCURACY.md).
     #[arg(long, value_enum, default_value = "ideal")]
     pub physics: crate::instrument::sim::Physics,
+    /// Only these policies (comma-separated: strategy1, strategy2, paper, adaptive, sweep);
+    /// all by default. `--policies sweep,adaptive` is the sweep settings' front with the
+    /// adaptive policy to compare against, in a fraction of the whole study's time.
+    #[arg(long, value_delimiter = ',', value_name = "LIST")]
+    pub policies: Vec<String>,
 }
 
 /// Run `gonio trade`.
@@ -33,6 +38,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         bail!("--seeds must be at least 1");
     }
     let mut runs = trade::plan_runs(seeds, args.quick);
+    if let Some(unknown) = args.policies.iter().find(|p| !trade::POLICIES.contains(&p.as_str())) {
+        bail!("--policies: unknown policy '{unknown}' (known: {})", trade::POLICIES.join(", "));
+    }
+    if !args.policies.is_empty() {
+        runs.retain(|r| args.policies.iter().any(|p| p == r.policy));
+    }
     for run in &mut runs {
         run.physics = args.physics;
     }

@@ -346,9 +346,19 @@ pub fn unix_now_s() -> u64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs())
 }
 
-/// Standard error of a reading's mean, counts: its samples' standard deviation over √n.
+/// The least standard uncertainty of a reading's mean, counts: the ADC's resolution of
+/// one count as a rectangular distribution (GUM 4.3.7: 1/√12). Noise averages the rounding
+/// down over many samples; without noise (a quiet detector, the simulator's
+/// `--noise-scale 0`) every sample rounds the same way and the mean is known to no better.
+/// Without the floor such a reading had an uncertainty of 0 and no fit could weigh it.
+pub const RESOLUTION_STD_COUNTS: f64 = 0.288_675_134_594_812_9;
+
+/// Standard error of a reading's mean, counts: its samples' standard deviation over √n, at
+/// least [`RESOLUTION_STD_COUNTS`].
 pub fn standard_error_counts(reading: &Reading) -> f64 {
-    f64::from(reading.std_counts) / f64::from(reading.samples.max(1)).sqrt()
+    let noise = f64::from(reading.std_counts) / f64::from(reading.samples.max(1)).sqrt();
+    // (NaN stays NaN: the conversion's checks report it.)
+    if noise.is_nan() { noise } else { noise.max(RESOLUTION_STD_COUNTS) }
 }
 
 /// Pool readings of one scene on one range into one, as if it had been one long reading:
@@ -716,6 +726,16 @@ mod tests {
         assert!((f64::from(p.mean_counts) - 1_090.0).abs() < 1e-3, "{}", p.mean_counts);
         assert_eq!(p.samples, 1_000);
         assert!((standard_error_counts(&p) - 30.0 / 1000f64.sqrt()).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_reading_without_noise_is_known_to_the_adcs_resolution() {
+        let quiet = Reading { std_counts: 0.0, samples: 100, ..reading(1_000.0, 1) };
+        assert_eq!(standard_error_counts(&quiet), RESOLUTION_STD_COUNTS);
+        assert!((RESOLUTION_STD_COUNTS - 1.0 / 12f64.sqrt()).abs() < 1e-15);
+        let noisy = Reading { std_counts: 30.0, samples: 100, ..reading(1_000.0, 1) };
+        assert_eq!(standard_error_counts(&noisy), 3.0, "above the floor a reading's own noise is its uncertainty");
+        assert!(standard_error_counts(&Reading { std_counts: f32::NAN, ..quiet }).is_nan());
     }
 
     #[test]

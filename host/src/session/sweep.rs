@@ -497,7 +497,12 @@ pub fn scale_bin_noise(points: &[MeasuredPoint], indices: &[usize], observations
         for (o, &k) in observations.iter_mut().zip(indices) {
             let Some(p) = points.get(k) else { continue };
             if p.theta_r_span_deg > 0.0 && p.reading.range == range {
-                o.std = o.std.map(|s| s * factor.sqrt());
+                // Never below what the ADC's resolution alone leaves: on a quiet detector
+                // most windows of a smooth profile read the same counts, their differences
+                // are 0 and so is the median.
+                let counts = crate::instrument::calibration::standard_error_counts(&p.reading);
+                let resolution = p.std.map_or(0.0, |s| s * crate::instrument::calibration::RESOLUTION_STD_COUNTS / counts);
+                o.std = o.std.map(|s| (s * factor.sqrt()).max(resolution));
                 scaled += 1;
             }
         }
@@ -536,20 +541,7 @@ mod tests {
                 let truth = 0.85 + 60.0 * (-(theta_r - 20.0).powi(2) / (2.0 * 0.8 * 0.8)).exp();
                 let std = 0.002 * (1.0 + truth / 10.0);
                 let noise: f64 = rng.sample(StandardNormal);
-                points.push(MeasuredPoint {
-                    theta_i_deg: 20.0,
-                    theta_r_deg: theta_r,
-                    theta_r_span_deg: 0.1,
-                    radiance_factor: Some(truth + 1.5 * std * noise),
-                    std: Some(std),
-                    reading: Reading { mean_counts: 1000.0, std_counts: 10.0, samples: 2, range: 0, integration_ms: 2, saturated: false },
-                    schedule_id: 1,
-                    index: k,
-                    device_time_us: 0,
-                    note: None,
-                    superseded: false,
-                    unusable: None,
-                });
+                points.push(test_bin(20.0, theta_r, truth + 1.5 * std * noise, std, 0, k));
             }
             // A point reading (no span) is left as it is.
             let mut still = points[0].clone();
@@ -632,30 +624,34 @@ mod tests {
         assert_eq!(SweepPlan { to_deg: 39.0, ..plan }.bins(), 4, "backwards alike");
     }
 
-    /// Bins of one sweep on one range whose noise is exactly their std, `n` of them.
+    /// Bin `index` of sweep 1, 0.1° long, converted to `radiance_factor` ± `std` on `range`.
+    fn test_bin(theta_i_deg: f64, theta_r_deg: f64, radiance_factor: f64, std: f64, range: u8, index: u16) -> MeasuredPoint {
+        MeasuredPoint {
+            theta_i_deg,
+            theta_r_deg,
+            theta_r_span_deg: 0.1,
+            radiance_factor: Some(radiance_factor),
+            std: Some(std),
+            reading: Reading { mean_counts: 1000.0, std_counts: 10.0, samples: 2, range, integration_ms: 2, saturated: false },
+            schedule_id: 1,
+            index,
+            device_time_us: 0,
+            note: None,
+            superseded: false,
+            unusable: None,
+        }
+    }
+
+    /// Bins of one sweep whose noise is exactly their std, `n` of them.
     fn noisy_bins(rng: &mut rand_chacha::ChaCha12Rng, n: u16, range_of: impl Fn(u16) -> u8) -> Vec<MeasuredPoint> {
         use rand::Rng;
         use rand_distr::StandardNormal;
         (0..n)
             .map(|k| {
                 let theta_r = 0.05 + 0.1 * f64::from(k) + if k % 3 == 1 { 0.03 } else { 0.0 };
-                let truth = 0.4 + 0.002 * theta_r;
                 let std = 0.004;
                 let noise: f64 = rng.sample(StandardNormal);
-                MeasuredPoint {
-                    theta_i_deg: 30.0,
-                    theta_r_deg: theta_r,
-                    theta_r_span_deg: 0.1,
-                    radiance_factor: Some(truth + std * noise),
-                    std: Some(std),
-                    reading: Reading { mean_counts: 1000.0, std_counts: 10.0, samples: 2, range: range_of(k), integration_ms: 2, saturated: false },
-                    schedule_id: 1,
-                    index: k,
-                    device_time_us: 0,
-                    note: None,
-                    superseded: false,
-                    unusable: None,
-                }
+                test_bin(30.0, theta_r, 0.4 + 0.002 * theta_r + std * noise, std, range_of(k), k)
             })
             .collect()
     }

@@ -49,6 +49,9 @@ impl RunSpec {
     }
 }
 
+/// The study's policies, as `trade.csv` names them.
+pub const POLICIES: [&str; 5] = ["strategy1", "strategy2", "paper", "adaptive", "sweep"];
+
 /// The sweep policy's settings studied: the full-plane pass's top speed (°/s) and bin
 /// length (degrees), as `SPEED/BIN`; the first is the policy's default.
 pub const SWEEP_SETTINGS: [&str; 5] = ["60/0.1", "60/0.2", "30/0.1", "30/0.05", "15/0.05"];
