@@ -106,6 +106,12 @@ impl Detector {
         Detector { params, rng, drift_sign, counts_per_unit, acceptance_rule: gauss_legendre(ACCEPTANCE_POINTS) }
     }
 
+    /// Its noise drawn from `seed` from now on (the drift's direction and every other
+    /// property kept): an instrument switched on again does not repeat its noise.
+    pub fn reseed_noise(&mut self, seed: u64) {
+        self.rng = ChaCha12Rng::seed_from_u64(seed);
+    }
+
     /// The parameters.
     pub fn params(&self) -> &DetectorParams {
         &self.params

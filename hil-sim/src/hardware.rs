@@ -201,6 +201,11 @@ impl SimHardware {
         &mut self.mechanics
     }
 
+    /// The detector, to change (its noise stream: [`Detector::reseed_noise`]).
+    pub fn detector_mut(&mut self) -> &mut Detector {
+        &mut self.detector
+    }
+
     /// The detector model.
     pub fn detector(&self) -> &Detector {
         &self.detector

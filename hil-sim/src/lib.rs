@@ -105,6 +105,12 @@ pub struct SimConfig {
     pub detector: DetectorParams,
     /// Seed of every random draw (noise, drift direction, link faults).
     pub seed: u64,
+    /// Times the instrument was switched on before this one (0: the first). Its errors,
+    /// sheet and drift stay those of `seed`; its detector noise is drawn afresh from
+    /// `seed` and this count, as a real detector's does not repeat after a restart (with
+    /// the noise replayed, a session resumed after a crash read its sample with the very
+    /// noise of its first run's dark and white readings, and its fit failed χ²).
+    pub power_on: u64,
     /// Injected faults.
     pub faults: Faults,
     /// Where the arms stand at power-up (the firmware learns it by homing).
@@ -157,6 +163,7 @@ impl Default for SimConfig {
             instrument: InstrumentConfig::REFERENCE,
             detector: DetectorParams::default(),
             seed: 0,
+            power_on: 0,
             faults: Faults::default(),
             start: Geometry::from_whole_deg(30, 30),
             serial_number: SIM_SERIAL_NUMBER.to_string(),
@@ -234,6 +241,10 @@ impl SimInstrument {
         let truth = Truth { relative_gains: detector.relative_gains.clone(), tile_radiance_factor: port.white.radiance_factor, theta_r_offset_deg };
         let mut hardware = SimHardware::new(&config.instrument, port, detector, config.seed, config.start);
         hardware.set_theta_r_offset_deg(theta_r_offset_deg);
+        if config.power_on > 0 {
+            let noise_seed = stream(config.seed ^ config.power_on.wrapping_mul(0x9e37_79b9_7f4a_7c15), streams::GAINS).random::<u64>();
+            hardware.detector_mut().reseed_noise(noise_seed);
+        }
         if let Some(arm) = config.faults.switch_missing {
             hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }

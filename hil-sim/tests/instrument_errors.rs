@@ -206,3 +206,33 @@ fn the_sample_lands_on_a_new_spot_after_the_white_tile_and_on_request() {
     assert_eq!(plain.hardware_mut().seen_radiance_factor(), 0.5);
     let _ = Scene::radiance_factor(&SheetSpec::tsl(SG).spot(1, 0), 20.0, 20.0);
 }
+
+/// Switched on again (a session resumed after a crash), the instrument is the same one —
+/// its drawn gains, tile and arm zero, its sheet — but its detector noise is not its first
+/// run's again: that replay made a resumed session read the sample with the very noise of
+/// its first run's dark and white readings, and fail the goodness of fit.
+#[test]
+fn an_instrument_switched_on_again_keeps_its_errors_and_draws_new_noise() {
+    let errors = InstrumentErrors { gain_ratio_sd: 0.01, tile_sd: 0.005, theta_r_offset_deg: 0.0, theta_r_offset_sd_deg: 0.1 };
+    let start = |power_on: u64| {
+        let config = SimConfig { seed: 7, power_on, errors: errors.clone(), ..SimConfig::default() };
+        SimInstrument::new(SamplePort::with_spots(Arc::new(SheetSpec::tsl(SG)), 0), config)
+    };
+    let (mut first, mut again, mut first_twin) = (start(0), start(1), start(0));
+    assert_eq!(first.truth(), again.truth(), "the same instrument");
+    let mut clocks = [0u64; 3];
+    let a = samples(&mut first, Target::Sample, 0, 50, &mut clocks[0]);
+    let b = samples(&mut again, Target::Sample, 0, 50, &mut clocks[1]);
+    let c = samples(&mut first_twin, Target::Sample, 0, 50, &mut clocks[2]);
+    assert_eq!(a, c, "the same power-on repeats its noise exactly");
+    assert_ne!(a, b, "another power-on draws other noise");
+    let mean = |v: &[u32]| v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len() as f64;
+    let sd = detector_sd(&a);
+    assert!((mean(&a) - mean(&b)).abs() < 6.0 * sd * (2.0 / a.len() as f64).sqrt(), "the same signal: {} against {}", mean(&a), mean(&b));
+}
+
+/// The samples' standard deviation, counts.
+fn detector_sd(taken: &[u32]) -> f64 {
+    let mean = taken.iter().map(|&x| f64::from(x)).sum::<f64>() / taken.len() as f64;
+    (taken.iter().map(|&x| (f64::from(x) - mean).powi(2)).sum::<f64>() / (taken.len() - 1) as f64).sqrt()
+}

@@ -214,7 +214,10 @@ pub fn measure_with(args: &Args, operator: &mut dyn Operator, interrupted: Arc<A
     let checked = check_args(args)?;
     let policy = RetryPolicy::default();
     if let Some(sample) = &args.sim {
-        let instrument = args.sim_options.instrument(sample)?;
+        let mut options = args.sim_options.clone();
+        // A resumed session's simulated instrument was switched on before, once per run.
+        options.power_on = args.resume.as_deref().map_or(0, crate::instrument::sim::runs_recorded);
+        let instrument = options.instrument(sample)?;
         run_on(Client::new(instrument, policy), args, &checked, Some(sample.clone()), operator, interrupted, store)
     } else {
         let path = match &args.port {

@@ -183,6 +183,11 @@ pub struct SimOptions {
     /// PCHIP in θr, linear in θi, the edge value held outside.
     #[arg(long, value_name = "CSV")]
     pub scene_file: Option<PathBuf>,
+    /// Times the simulated instrument was switched on before for this session (0: a new
+    /// session; a resumed one counts its earlier runs): its detector noise is then its
+    /// own, as a real instrument's is after a restart ([`hil_sim::SimConfig::power_on`]).
+    #[arg(skip)]
+    pub power_on: u64,
 }
 
 impl Default for SimOptions {
@@ -203,8 +208,31 @@ impl Default for SimOptions {
             lamp_drift_pct_per_h: None,
             sheet_variation: 0.0,
             scene_file: None,
+            power_on: 0,
         }
     }
+}
+
+/// Runs a session folder (or a sheet folder and its spots' sessions) records: what a
+/// resumed session's simulated instrument counts as its earlier power-ons. 0 for a folder
+/// that is not there or not readable (the resume itself says what is wrong with it).
+pub fn runs_recorded(dir: &std::path::Path) -> u64 {
+    let runs_in = |file: PathBuf| -> u64 {
+        std::fs::read(&file)
+            .ok()
+            .and_then(|bytes| serde_json::from_slice::<serde_json::Value>(&bytes).ok())
+            .and_then(|doc| doc.get("runs").and_then(serde_json::Value::as_array).map(|runs| runs.len() as u64))
+            .unwrap_or(0)
+    };
+    let mut total = runs_in(dir.join("session.json")) + runs_in(dir.join("sheet.json"));
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for entry in entries.flatten() {
+            if entry.path().is_dir() {
+                total += runs_in(entry.path().join("session.json"));
+            }
+        }
+    }
+    total
 }
 
 /// Longest outage `unplug-at` accepts: a day of device time.
@@ -367,7 +395,7 @@ impl SimOptions {
         checked("tile-error", set.tile_error_pct, "a percentage in [0, 20]", |v| (0.0..=20.0).contains(&v))?;
         checked("lamp-drift-pct-per-h", set.lamp_drift_pct_per_h, "a percentage per hour in [0, 100]", |v| (0.0..=100.0).contains(&v))?;
         checked("arm-offset", set.arm_offset_deg, "between -5 and 5 degrees", |v| (-5.0..=5.0).contains(&v))?;
-        let mut config = SimConfig { seed: self.seed, faults: parse_faults(&self.faults)?, ..SimConfig::default() };
+        let mut config = SimConfig { seed: self.seed, power_on: self.power_on, faults: parse_faults(&self.faults)?, ..SimConfig::default() };
         config.detector.acceptance_deg = self.acceptance;
         config.detector.noise_scale = self.noise_scale;
         config.detector.lamp_drift_per_hour = set.lamp_drift_pct_per_h / 100.0;
