@@ -242,7 +242,7 @@ impl SimInstrument {
         let mut hardware = SimHardware::new(&config.instrument, port, detector, config.seed, config.start);
         hardware.set_theta_r_offset_deg(theta_r_offset_deg);
         if config.power_on > 0 {
-            let noise_seed = stream(config.seed ^ config.power_on.wrapping_mul(0x9e37_79b9_7f4a_7c15), streams::GAINS).random::<u64>();
+            let noise_seed = stream(config.seed ^ config.power_on.wrapping_mul(0x9e37_79b9_7f4a_7c15), streams::DETECTOR).random::<u64>();
             hardware.detector_mut().reseed_noise(noise_seed);
         }
         if let Some(arm) = config.faults.switch_missing {

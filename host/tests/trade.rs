@@ -117,8 +117,10 @@ fn the_next_batch_goes_to_the_flanks_of_the_peak() {
 /// The sweep policy at its first setting (60 °/s, 0.1° bins) on every paper, 3 seeds
 /// (`gonio trade` runs 20 and every setting, docs/TRADE.md): the class right in every
 /// session, G's and SG's σ within 5 %, the glossy papers measured in less device time
-/// than the adaptive policy takes, and the full-plane pass (all a rough paper needs, less
-/// the ranges' gain calibration) within the 10 s.
+/// than the adaptive policy takes, and every paper's sample time (homing and calibration
+/// apart: less the ranges' gain calibration on the sample) within the 8 s, in the
+/// mean and in the longest session. Device time is the simulated instrument's clock, the
+/// reference kinematics', not this machine's.
 #[test]
 fn the_sweep_policy_gets_the_class_and_sigma_in_less_device_time() {
     let runs: Vec<RunSpec> = trade::plan_runs(3, true)
@@ -130,9 +132,9 @@ fn the_sweep_policy_gets_the_class_and_sigma_in_less_device_time() {
     let checks = trade::sweep_checks(&rows);
     assert_eq!(checks.len(), 8);
     for c in &checks {
-        println!("{} {}: {:.1} s (max {:.1}, less gain calibration {:.1}), adaptive {:.1} s", c.setting, c.sample, c.sweep.mean_device_seconds, c.max_device_seconds, c.mean_less_gain_calibration_seconds, c.adaptive.as_ref().unwrap().mean_device_seconds);
+        println!("{} {}: {:.1} s (max {:.1}, less gain calibration {:.1}, max {:.1}), adaptive {:.1} s", c.setting, c.sample, c.sweep.mean_device_seconds, c.max_device_seconds, c.mean_less_gain_calibration_seconds, c.max_less_gain_calibration_seconds, c.adaptive.as_ref().unwrap().mean_device_seconds);
         assert_eq!(c.sweep.class_accuracy, 1.0, "{}: {:?}", c.sample, c.sweep);
-        assert!(c.mean_less_gain_calibration_seconds <= 10.0, "{}: the pass within 10 s", c.sample);
+        assert!(c.time_met && c.max_less_gain_calibration_seconds <= trade::SWEEP_DEVICE_TARGET_S, "{}: {:.2} s at most", c.sample, c.max_less_gain_calibration_seconds);
         if c.sample == "G" || c.sample == "SG" {
             assert_eq!(c.sweep.sigma_within_target, 1.0, "{}", c.sample);
             assert!(c.sweep.mean_device_seconds < c.adaptive.as_ref().unwrap().mean_device_seconds, "{}: sweeps are faster than point readings", c.sample);

@@ -573,15 +573,16 @@ fn sweep_gaps(readings: &[Value], theta_i_deg: f64, usable_only: bool, tolerance
 }
 
 /// Sweep sessions through the pty with a corrupting, dropping link and the cable pulled at
-/// a random moment of the full-plane pass (a different one for every seed): each finishes
+/// a random moment of the first pass (a different one for every seed): each finishes
 /// with the clean session's class, every bin it received recorded once (a duplicate on
-/// the link is not a second bin), and the whole plane covered at every incidence — the
+/// the link is not a second bin), and θr 0–70° covered on every whole line it swept (the
+/// first pass's 20° and 60°, 30° and 45° too where the fit lacked fit) — the
 /// bins lost on the link or cut off by the unplug measured again, only a range switch's
 /// blanking (≤ 0.5°) left as it is.
 #[test]
 fn sweep_sessions_with_a_bad_link_and_a_pulled_cable_finish_with_every_bin_once() {
-    // (sample, class, seed): the pass runs from about 12 s of device time (homing and the
-    // calibration before it) to about 21 s.
+    // (sample, class, seed): the first pass runs from about 12 s of device time (homing and
+    // the calibration before it) to about 17 s.
     let cases = [("G", "G", 11u64), ("G", "G", 12), ("SG", "SG", 13), ("J1", "rough-I", 14)];
     std::thread::scope(|scope| {
         for &(sample, class, seed) in &cases {
@@ -590,7 +591,7 @@ fn sweep_sessions_with_a_bad_link_and_a_pulled_cable_finish_with_every_bin_once(
                 let mut z = seed.wrapping_add(0x9e37_79b9_7f4a_7c15);
                 z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
                 z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-                let unplug_at_s = 12.5 + 8.5 * ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64;
+                let unplug_at_s = 12.3 + 4.6 * ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64;
                 let faults = format!("corrupt=0.001,drop=0.001,unplug-at={unplug_at_s:.3}:2");
                 let what = format!("{sample} seed {seed} faults {faults}");
                 let dir = temp_dir(&format!("sweep-faulty-{sample}-{seed}"));
@@ -607,11 +608,15 @@ fn sweep_sessions_with_a_bad_link_and_a_pulled_cable_finish_with_every_bin_once(
                     .map(|p| (p["schedule_id"].as_u64().unwrap(), p["index"].as_u64().unwrap()))
                     .collect();
                 let received = bins.len();
-                assert!(received > 2000, "{what}: {received} bins");
+                assert!(received > 1300, "{what}: {received} bins");
                 bins.sort_unstable();
                 bins.dedup();
                 assert_eq!(bins.len(), received, "{what}: a bin was recorded twice");
-                for theta_i in [20.0, 30.0, 45.0, 60.0] {
+                // Whole lines: the first pass's, and the rest of the full plane's where the
+                // fit lacked fit (sweeps across the peak cover only its neighbourhood).
+                let whole_plane = decisions.contains("the rest of the full plane");
+                let lines: &[f64] = if whole_plane { &[20.0, 30.0, 45.0, 60.0] } else { &[20.0, 60.0] };
+                for &theta_i in lines {
                     let lost = sweep_gaps(readings, theta_i, false, 0.05);
                     assert!(lost.is_empty(), "{what}: θi = {theta_i}°: stretches never received: {lost:?}");
                     let unusable = sweep_gaps(readings, theta_i, true, 0.5);

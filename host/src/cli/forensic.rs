@@ -35,6 +35,10 @@ pub struct Args {
     /// (comma-separated; give only --spots' number to skip the comparison).
     #[arg(long, value_delimiter = ',', default_values_t = forensic::SPOTS_STUDY)]
     pub spots_study: Vec<usize>,
+    /// How each spot is measured, as `gonio measure --policy` (default adaptive, the
+    /// policy of docs/FORENSIC.md's figures; docs/TRADE.md has the study with sweeps).
+    #[arg(long, value_enum, default_value_t = crate::session::PolicyChoice::Adaptive)]
+    pub policy: crate::session::PolicyChoice,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -51,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.library_sheets + args.held_out_sheets > 999 || args.drawn_per_paper > 999 {
         bail!("at most 999 sheets per stock and 999 stocks drawn per paper (each sheet's seed is made of them)");
     }
-    let design = Design { draws: args.draws, first_draw: args.first_draw, drawn_per_paper: args.drawn_per_paper, library_sheets: args.library_sheets, held_out_sheets: args.held_out_sheets, spots: args.spots };
+    let design = Design { draws: args.draws, first_draw: args.first_draw, drawn_per_paper: args.drawn_per_paper, library_sheets: args.library_sheets, held_out_sheets: args.held_out_sheets, spots: args.spots, policy: args.policy };
     let counts = forensic::spot_counts_of(&design, &args.spots_study);
     if counts.iter().any(|&n| n == 0 || n > 20) {
         bail!("spots per sheet must be 1 to 20");
@@ -82,7 +86,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     std::fs::write(&csv_path, csv).with_context(|| format!("cannot write {}", csv_path.display()))?;
     let svg = args.out.join("tippett.svg");
     forensic::tippett_svg(&pairs, design.draws, &svg).map_err(anyhow::Error::msg)?;
-    let summary = forensic::summary_markdown(&figures, &study);
+    let summary = format!("{}\nEvery spot measured with `--policy {}`.\n", forensic::summary_markdown(&figures, &study).trim_end(), args.policy.name());
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
     print!("{summary}");

@@ -85,8 +85,8 @@ pub struct Args {
     pub integration_ms: Option<u16>,
     /// Refinement policy (default adaptive): adaptive reaches the paper's accuracy in a
     /// fraction of its device time (docs/TRADE.md); paper follows the paper's procedure
-    /// exactly; sweep reads the detector while its arm moves (a full-plane pass, then
-    /// sweeps across the peak).
+    /// exactly; sweep reads the detector while its arm moves (θr 0…70° at θi = 20° and 60°,
+    /// then sweeps across the peak where σ needs them; the whole plane if the fit lacks fit).
     #[arg(long, value_enum)]
     pub policy: Option<PolicyChoice>,
     /// Re-read the white tile at the end and mark the result if it drifted.

@@ -59,8 +59,9 @@ pub enum PolicyChoice {
     /// Batches chosen from the current fit where they shrink σ's uncertainty the most per
     /// second, until σ is within ±3 % (95 %), the class is settled and σ > σ_l.
     Adaptive,
-    /// Sweeps only: the whole plane at full speed, then sweeps across the specular peak
-    /// chosen by the information they bring per second, until the adaptive policy's targets.
+    /// Sweeps only: θr 0…70° at θi = 20° and 60° at full speed, then sweeps across the
+    /// specular peak chosen by the information they bring per second, until the adaptive
+    /// policy's targets (and the rest of the full plane where the fit lacks fit).
     Sweep,
 }
 
@@ -94,7 +95,7 @@ pub enum Policy {
     Adaptive(AdaptiveTargets),
     /// One fixed schedule and nothing else (the trade study's Strategy 1 at M, Strategy 2 at δ).
     Fixed(FixedSchedule),
-    /// A full-plane pass of sweeps, then sweeps across the peak ([`crate::session::sweep`]).
+    /// A first pass of sweeps, then sweeps across the peak ([`crate::session::sweep`]).
     Sweep(sweep::SweepTargets),
 }
 
@@ -661,12 +662,14 @@ impl<'a, T: Transport> Session<'a, T> {
             Policy::Sweep(targets) => {
                 let targets = *targets;
                 let here = self.status()?.position;
-                let pass = sweep::full_plane_from(&self.motion, here, targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)), targets.pass_bin_deg);
+                let pass = sweep::first_pass_from(&self.motion, here, targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)), targets.pass_bin_deg);
+                let incidences: Vec<String> = pass.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
                 let name = format!(
-                    "full-plane pass ({} sweeps of θr 0–{}° at {} °/s, bins of {}°)",
+                    "first pass ({} sweeps of θr 0–{}° at θi = {}, {} °/s, bins of {}°)",
                     pass.len(),
                     sweep::THETA_R_MAX_DEG,
-                    pass[0].speed_deg_per_s,
+                    incidences.join(" and "),
+                    targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)),
                     targets.pass_bin_deg
                 );
                 self.decide(&name);

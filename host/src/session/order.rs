@@ -122,6 +122,14 @@ impl Motion {
         firmware::motion::MoveProfile::fastest(to_steps(from_deg), to_steps(to_deg), 0.0, top, self.accel_steps_per_s2).duration_us()
     }
 
+    /// The detector arm's profile for a sweep as the firmware plans it
+    /// (`firmware::sweep::sweep_profile`): from rest at `from_steps` to rest at `to_steps`,
+    /// the top speed as the request states it, the instrument's acceleration.
+    pub fn sweep_profile(&self, from_steps: i32, to_steps: i32, speed_mdeg_per_s: u32) -> firmware::motion::MoveProfile {
+        let top = speed_mdeg_per_s as f32 * (firmware::motion::STEPS_PER_DEG / 1000.0);
+        firmware::motion::MoveProfile::fastest(from_steps, to_steps, 0.0, top, self.accel_steps_per_s2)
+    }
+
     /// Settling time after a move, µs.
     pub fn settle_us(&self) -> u64 {
         self.settle_us

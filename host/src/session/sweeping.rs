@@ -4,12 +4,17 @@
 //! measured again by short sweeps over just those intervals, until every planned sweep is
 //! covered.
 use super::recovery::Failure;
-use super::sweep::{BinReading, SweepPlan, bin_point, min_bin_deg};
+use super::sweep::{BinReading, BinStamp, SweepPlan, bin_point, dwell_centres_steps, min_bin_deg};
+use firmware::motion::angle_to_steps;
 use super::{MeasuredPoint, Progress, Session, SessionError, StepError};
 use crate::instrument::link::{LinkError, Transport};
 use protocol::{Angle, Command, DeviceMessage, Reply, Sweep, SweepBin, Target};
 use std::collections::BTreeSet;
 use std::time::Duration;
+
+/// Least relative narrowing of σ's interval a round of peak sweeps must be predicted to
+/// bring for it to be run.
+const MIN_PREDICTED_GAIN: f64 = 0.1;
 
 /// Rounds of a sweep stage without a new bin before the session gives up on it.
 const MAX_STALLED_ROUNDS: u32 = 6;
@@ -104,7 +109,7 @@ impl<T: Transport> Session<'_, T> {
         }
     }
 
-    /// The sweep policy after its full-plane pass: rounds of sweeps across the specular
+    /// The sweep policy after its first pass: rounds of sweeps across the specular
     /// peak, designed on the current fit by the drop of σ's variance per device second
     /// ([`super::sweep::design_peak_sweeps`]), until σ is known to the target and the class
     /// is settled, as the adaptive policy stops (a rough paper whose pass already passes
@@ -129,13 +134,38 @@ impl<T: Transport> Session<'_, T> {
             if sigma_ok && (rough || (precise && settled)) && !report.fit.lack_of_fit {
                 return Ok(());
             }
+            let here = self.status()?.position;
+            let max_speed = f64::from(self.info.max_speed_deg_per_s);
+            let block_s = self.block_s();
+            // A fit the model does not describe is tested on the whole plane before it is
+            // reported: the lines the first pass left out may show where the sheet departs
+            // from the model (or that the departure was the noise's), and a flag then rests
+            // on every incidence of Strategy 1.
+            if report.fit.lack_of_fit {
+                let rest = self.rest_of_full_plane(here, targets.pass_speed_deg_per_s.min(max_speed), targets.pass_bin_deg);
+                if !rest.is_empty() {
+                    let incidences: Vec<String> = rest.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
+                    let reason = format!(
+                        "lack-of-fit after {} readings (χ² p = {:.1e}): θr 0–{}° at θi = {} too, the rest of the full plane",
+                        report.fit.n,
+                        report.fit.gof_p.unwrap_or(f64::NAN),
+                        super::sweep::THETA_R_MAX_DEG,
+                        incidences.join(" and ")
+                    );
+                    let bins: usize = rest.iter().map(SweepPlan::bins).sum();
+                    self.decide(&format!("sweep round {round} ({} sweeps, {bins} bins): {reason}", rest.len()));
+                    refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit: true });
+                    self.sweep_stage(&format!("sweep round {round}: the rest of the full plane ({} sweeps)", rest.len()), &rest)?;
+                    *report = self.analyse()?;
+                    fits.push(super::FitStep { after: format!("sweep round {round}"), report: crate::analysis::report::to_json(report) });
+                    continue;
+                }
+            }
             if report.fit.lack_of_fit && precise && sigma_ok {
                 self.decide("sweeps: lack-of-fit with σ known to its target: the bins already span the whole plane, more would not tell the model from the sheet; the result keeps the flag");
                 return Ok(());
             }
-            let here = self.status()?.position;
-            let max_speed = f64::from(self.info.max_speed_deg_per_s);
-            let block_s = self.block_s();
+            let mut predicted = None;
             let (plans, reason) = match report.fit.sigma_deg() {
                 Some(_) if width.is_some() => {
                     let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
@@ -152,6 +182,7 @@ impl<T: Transport> Session<'_, T> {
                         100.0 * design.predicted_rel_half_width,
                         design.seconds
                     );
+                    predicted = Some(design.predicted_rel_half_width);
                     (design.plans, reason)
                 }
                 _ => {
@@ -168,6 +199,19 @@ impl<T: Transport> Session<'_, T> {
                 self.decide("sweeps: no sweep left that would help; the result is as measured");
                 return Ok(());
             }
+            // What the readings share (or a sheet the model does not describe) can leave σ's
+            // interval where more sweeps will not move it: rounds that would narrow it by
+            // under a tenth are not run.
+            if let (Some(now), Some(after)) = (width, predicted) {
+                if after > (1.0 - MIN_PREDICTED_GAIN) * now {
+                    self.decide(&format!(
+                        "sweeps: the best sweeps across the peak would take σ's interval only from ± {:.1} % to ± {:.1} %; the result is as measured",
+                        100.0 * now,
+                        100.0 * after
+                    ));
+                    return Ok(());
+                }
+            }
             let bins: usize = plans.iter().map(SweepPlan::bins).sum();
             self.decide(&format!("sweep round {round} ({} sweeps, {bins} bins): {reason}", plans.len()));
             refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit: report.fit.lack_of_fit });
@@ -176,6 +220,17 @@ impl<T: Transport> Session<'_, T> {
             fits.push(super::FitStep { after: format!("sweep round {round}"), report: crate::analysis::report::to_json(report) });
         }
         Ok(())
+    }
+
+    /// The full plane's lines ([`super::sweep::full_plane`]) that no wanted sweep has run
+    /// whole yet, in the order fastest from `here`.
+    fn rest_of_full_plane(&self, here: protocol::Geometry, speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
+        let whole = |p: &SweepPlan| p.from_deg.min(p.to_deg) <= 0.0 && p.from_deg.max(p.to_deg) >= super::sweep::THETA_R_MAX_DEG;
+        let missing: Vec<i32> = protocol::schedules::INCIDENCE_DEG
+            .into_iter()
+            .filter(|&theta_i| !self.wanted_sweeps.iter().any(|p| p.theta_i_deg == f64::from(theta_i) && whole(p)))
+            .collect();
+        super::sweep::lines_from(&self.motion, here, &missing, speed_deg_per_s, bin_deg)
     }
 
     /// The predicted variance of one detector block's radiance factor at a radiance
@@ -225,7 +280,7 @@ impl<T: Transport> Session<'_, T> {
             let shortest = SHORTEST_RESWEEP_DEG.max(2.0 * min_bin_deg(plan.speed_deg_per_s, block_s));
             let tick = Angle::RESOLUTION_DEG;
             // In the wanted sweep's direction, so that a whole sweep runs as planned (the
-            // full-plane pass alternates to start each sweep where the last one ended).
+            // passes alternate to start each sweep where the last one ended).
             let backwards = plan.to_deg < plan.from_deg;
             let mut stretches: Vec<SweepPlan> = gaps
                 .into_iter()
@@ -253,13 +308,24 @@ impl<T: Transport> Session<'_, T> {
 
     /// Run one sweep and record its bins; the lost ones are found by [`Self::uncovered_sweeps`].
     fn run_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize) -> Result<(), StepError> {
-        let streamed = self.stream_sweep(plan, done, planned);
-        // The bins received are made durable however the sweep ended.
+        let mut received = Vec::new();
+        let mut sent = None;
+        let streamed = self.stream_sweep(plan, done, planned, &mut received, &mut sent);
+        // The bins received are recorded however the sweep ended (the dwell model wants
+        // the whole sweep's stamps), then checked against the lamp, then made durable.
+        let recorded = self.record_bins(plan.theta_i_deg, sent.as_ref(), &received);
+        let checked = match (streamed, recorded) {
+            (_, Err(error)) => Err(StepError::Fatal(error)),
+            (Ok(sweep_id), Ok(())) => self.lit_throughout(sweep_id),
+            (Err(error), Ok(())) => Err(error),
+        };
         let synced = self.recorder.sweep_done().map_err(|e| StepError::Fatal(SessionError::Record(e)));
-        streamed.and(synced)
+        checked.and(synced)
     }
 
-    fn stream_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize) -> Result<(), StepError> {
+    /// Run the sweep, collecting its bins (once each) into `received` and the request the
+    /// instrument accepted, with its bin count, into `sent`; the sweep's id when it ended.
+    fn stream_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize, received: &mut Vec<SweepBin>, sent: &mut Option<(Sweep, u16)>) -> Result<u16, StepError> {
         let sweep_id = self.next_schedule_id;
         self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
         if let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? {
@@ -283,6 +349,7 @@ impl<T: Transport> Session<'_, T> {
             Reply::Sweep(planned) => planned.bins,
             other => return Err(StepError::Fatal(LinkError::UnexpectedReply { command: "Sweep", reply: Box::new(other) }.into())),
         };
+        *sent = Some((command, bins));
         let mut seen = BTreeSet::new();
         let started = self.now();
         loop {
@@ -292,7 +359,7 @@ impl<T: Transport> Session<'_, T> {
                     if !seen.insert(bin.index) {
                         continue; // a duplicate
                     }
-                    self.record_bin(plan.theta_i_deg, &bin).map_err(StepError::Fatal)?;
+                    received.push(bin);
                     *done += 1;
                     let per_bin = (self.now() - started) / seen.len() as u32;
                     let remaining = per_bin * u32::from(bins).saturating_sub(seen.len() as u32);
@@ -300,7 +367,7 @@ impl<T: Transport> Session<'_, T> {
                 }
                 Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => {
                     self.recoveries.readings_remeasured += usize::from(bins).saturating_sub(seen.len());
-                    return self.lit_throughout(sweep_id);
+                    return Ok(sweep_id);
                 }
                 Some(DeviceMessage::Stopped { reason }) => return Err(StepError::Failure(Failure::Stopped(reason))),
                 // Stale messages of an earlier schedule or sweep.
@@ -311,7 +378,7 @@ impl<T: Transport> Session<'_, T> {
                         if status.schedule.is_none_or(|(id, _)| id != sweep_id) {
                             // Bins lost on the link (a gap in the indices): measured again.
                             self.recoveries.readings_remeasured += usize::from(bins).saturating_sub(seen.len());
-                            return self.lit_throughout(sweep_id);
+                            return Ok(sweep_id);
                         }
                     }
                 }
@@ -319,8 +386,36 @@ impl<T: Transport> Session<'_, T> {
         }
     }
 
+    /// Record a sweep's bins, each at where the arm stood on average while it was read
+    /// ([`super::sweep::dwell_centres_steps`]; the middle of its interval when the model
+    /// finds no phase of the block clock that gives the bins received).
+    fn record_bins(&mut self, theta_i_deg: f64, sent: Option<&(Sweep, u16)>, bins: &[SweepBin]) -> Result<(), SessionError> {
+        if bins.is_empty() {
+            return Ok(());
+        }
+        let centres = sent.and_then(|(command, total)| {
+            let (from, to) = (angle_to_steps(command.from), angle_to_steps(command.to));
+            let profile = self.motion.sweep_profile(from, to, command.speed_mdeg_per_s);
+            let stamps: Vec<BinStamp> =
+                bins.iter().map(|b| BinStamp { index: b.index, end_steps: angle_to_steps(b.end), blocks: b.blocks, whole: !b.is_blanked() && !b.is_empty() }).collect();
+            dwell_centres_steps(&profile, from, to, command.bin_ticks, *total, self.info.detector_block_us, &stamps)
+        });
+        if centres.is_none() {
+            self.decide(&format!(
+                "sweep {}: no phase of the block clock gives its {} bins' step counts as the firmware's profile would; the bins are taken at their intervals' middles",
+                bins[0].sweep_id,
+                bins.len()
+            ));
+        }
+        for bin in bins {
+            let centre_deg = centres.as_ref().and_then(|c| c.get(usize::from(bin.index)).copied().flatten()).map(|steps| steps * Angle::RESOLUTION_DEG);
+            self.record_bin(theta_i_deg, bin, centre_deg)?;
+        }
+        Ok(())
+    }
+
     /// Record one bin: usable, or kept in the record with why it is not (blanked, empty).
-    fn record_bin(&mut self, theta_i_deg: f64, bin: &SweepBin) -> Result<(), SessionError> {
+    fn record_bin(&mut self, theta_i_deg: f64, bin: &SweepBin, centre_deg: Option<f64>) -> Result<(), SessionError> {
         let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
         let reading = BinReading {
             start_deg: bin.start.deg(),
@@ -330,6 +425,7 @@ impl<T: Transport> Session<'_, T> {
             range: bin.range,
             saturated: bin.is_saturated(),
             device_time_us: bin.device_time_us,
+            centre_deg,
         };
         let tau_s = self.info.detector_ranges.get(usize::from(bin.range)).map_or(0.0, |r| f64::from(r.time_constant_us) * 1e-6);
         let mut point: MeasuredPoint = bin_point(theta_i_deg, &reading, bin.sweep_id, bin.index, self.block_s(), tau_s, calibration);

@@ -57,15 +57,17 @@ pub struct Design {
     pub held_out_sheets: usize,
     /// Clean spots planned per sheet (`gonio measure --spots`) for the claims.
     pub spots: usize,
+    /// How each spot is measured (`gonio measure --policy`).
+    pub policy: PolicyChoice,
 }
 
 impl Design {
     /// The study of docs/FORENSIC.md: 10 draws of 32 stocks, 2 library and 4 held-out
     /// sheets of 3 spots.
-    pub const FULL: Design = Design { draws: 10, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 4, spots: crate::analysis::sheet::DEFAULT_SPOTS as usize };
+    pub const FULL: Design = Design { draws: 10, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 4, spots: crate::analysis::sheet::DEFAULT_SPOTS as usize, policy: PolicyChoice::Adaptive };
     /// A small one for the tests: 2 draws of 32 stocks, 2 library and 2 held-out sheets
     /// of 2 spots.
-    pub const SMALL: Design = Design { draws: 2, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 2, spots: 2 };
+    pub const SMALL: Design = Design { draws: 2, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 2, spots: 2, policy: PolicyChoice::Adaptive };
 
     /// Sheets of every stock.
     pub fn sheets_per_stock(&self) -> usize {
@@ -200,7 +202,7 @@ pub struct MeasuredSheet {
 pub fn measure(stocks: &[Stock], spec: &SheetSpec, design: &Design) -> Result<MeasuredSheet, String> {
     let stock = &stocks[spec.stock];
     let options = SimOptions { seed: spec.seed, physics: Physics::Real, sheet_variation: SPOT_VARIATION_PCT, ..SimOptions::default() };
-    let run = super::SimulatedRun { sample: &stock.sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
+    let run = super::SimulatedRun { sample: &stock.sample, options: &options, policy: Policy::from(design.policy), integration_ms: None };
     let planned = u16::try_from(spec.spots).map_err(|_| format!("{} spots per sheet", spec.spots))?;
     let (outcomes, summary, results) = super::simulated_sheet(&run, planned, |session| session)?;
     let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>() + outcomes.first().map_or(0.0, |o| o.setup_seconds);

@@ -52,7 +52,7 @@ impl RunSpec {
 /// The study's policies, as `trade.csv` names them.
 pub const POLICIES: [&str; 5] = ["strategy1", "strategy2", "paper", "adaptive", "sweep"];
 
-/// The sweep policy's settings studied: the full-plane pass's top speed (°/s) and bin
+/// The sweep policy's settings studied: the first pass's top speed (°/s) and bin
 /// length (degrees), as `SPEED/BIN`; the first is the policy's default.
 pub const SWEEP_SETTINGS: [&str; 5] = ["60/0.1", "60/0.2", "30/0.1", "30/0.05", "15/0.05"];
 
@@ -398,19 +398,20 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
     let sweeps = sweep_checks(rows);
     if !sweeps.is_empty() {
         let _ = writeln!(out, "\n## Sweeps against their targets\n");
-        let _ = writeln!(out, "Targets: class right in ≥ 95 % of sessions; G and SG: σ within 5 % in ≥ 95 %; rough papers: ρs and ρd as close as the adaptive policy's (median error at most 1.5× its, or within 1 %); device time ≤ {SWEEP_DEVICE_TARGET_S} s (mean and worst session).\n");
-        let _ = writeln!(out, "| setting | paper | sessions | device s mean | device s max | less gain calibration | adaptive device s | class right | σ within 5 % | ρs error median (adaptive) | ρd error median (adaptive) | accuracy met | time met |");
+        let _ = writeln!(out, "Targets: class right in ≥ 95 % of sessions; G and SG: σ within 5 % in ≥ 95 %; rough papers: ρs and ρd as close as the adaptive policy's (median error at most 1.5× its, or within 1 %); sample device time ≤ {SWEEP_DEVICE_TARGET_S} s (mean and worst session, homing and calibration apart: less the gain calibration on the sample, which a calibration's later sheets do not repeat).\n");
+        let _ = writeln!(out, "| setting | paper | sessions | device s mean | device s max | less gain calibration, mean (max) | adaptive device s | class right | σ within 5 % | ρs error median (adaptive) | ρd error median (adaptive) | accuracy met | time met |");
         let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|");
         for c in &sweeps {
             let _ = writeln!(
                 out,
-                "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {} | {:.0} % | {:.0} % | {} ({}) | {} ({}) | {} | {} |",
+                "| {} | {} | {} | {:.1} | {:.1} | {:.1} ({:.1}) | {} | {:.0} % | {:.0} % | {} ({}) | {} ({}) | {} | {} |",
                 c.setting,
                 c.sample,
                 c.sweep.n,
                 c.sweep.mean_device_seconds,
                 c.max_device_seconds,
                 c.mean_less_gain_calibration_seconds,
+                c.max_less_gain_calibration_seconds,
                 c.adaptive.as_ref().map_or("–".into(), |a| format!("{:.1}", a.mean_device_seconds)),
                 100.0 * c.sweep.class_accuracy,
                 100.0 * c.sweep.sigma_within_target,
@@ -450,7 +451,11 @@ pub struct SweepCheck {
     /// Class right in ≥ 95 %, σ within 5 % in ≥ 95 % (glossy), ρs and ρd as close as
     /// the adaptive policy's (rough: median at most 1.5× its, or within 1 %).
     pub accuracy_met: bool,
-    /// Mean and worst device time within [`SWEEP_DEVICE_TARGET_S`].
+    /// The longest session less its gain calibration, device seconds.
+    pub max_less_gain_calibration_seconds: f64,
+    /// Mean and worst device time less the gain calibration within
+    /// [`SWEEP_DEVICE_TARGET_S`]: the issue's sample time has "homing and calibration
+    /// apart", and a gain ratio calibrated on one sheet serves the spots after it.
     pub time_met: bool,
 }
 
@@ -467,6 +472,7 @@ pub fn sweep_checks(rows: &[Row]) -> Vec<SweepCheck> {
                 continue;
             }
             let max_device_seconds = group.iter().map(|r| r.device_seconds).fold(0.0, f64::max);
+            let max_less_gain_calibration_seconds = group.iter().map(|r| r.device_seconds - r.gain_calibration_seconds).fold(0.0, f64::max);
             let mean_less_gain_calibration_seconds = group.iter().map(|r| r.device_seconds - r.gain_calibration_seconds).sum::<f64>() / group.len() as f64;
             let sweep = summarise(group);
             let adaptive_rows: Vec<&Row> = rows.iter().filter(|r| r.spec.policy == "adaptive" && r.spec.sample == reference.name && r.spec.integration_ms == TARGET_INTEGRATION_MS).collect();
@@ -478,8 +484,18 @@ pub fn sweep_checks(rows: &[Row]) -> Vec<SweepCheck> {
                 } else {
                     as_close(sweep.median_rho_s_err, adaptive.as_ref().map(|a| a.median_rho_s_err)) && as_close(sweep.median_rho_d_err, adaptive.as_ref().map(|a| a.median_rho_d_err))
                 };
-            let time_met = sweep.mean_device_seconds <= SWEEP_DEVICE_TARGET_S && max_device_seconds <= SWEEP_DEVICE_TARGET_S;
-            out.push(SweepCheck { setting: setting.clone(), sample: reference.name, sweep, adaptive, max_device_seconds, mean_less_gain_calibration_seconds, accuracy_met, time_met });
+            let time_met = mean_less_gain_calibration_seconds <= SWEEP_DEVICE_TARGET_S && max_less_gain_calibration_seconds <= SWEEP_DEVICE_TARGET_S;
+            out.push(SweepCheck {
+                setting: setting.clone(),
+                sample: reference.name,
+                sweep,
+                adaptive,
+                max_device_seconds,
+                mean_less_gain_calibration_seconds,
+                max_less_gain_calibration_seconds,
+                accuracy_met,
+                time_met,
+            });
         }
     }
     out
