@@ -86,7 +86,8 @@ pub struct Args {
     /// Refinement policy (default adaptive): adaptive reaches the paper's accuracy in a
     /// fraction of its device time (docs/TRADE.md); paper follows the paper's procedure
     /// exactly; sweep reads the detector while its arm moves (θr 0…70° at θi = 20° and 60°,
-    /// then sweeps across the peak where σ needs them; the whole plane if the fit lacks fit).
+    /// then sweeps across the peak where σ needs them; the whole plane if the fit lacks fit);
+    /// mixed is adaptive with sweeps across the peak as candidates next to its batches.
     #[arg(long, value_enum)]
     pub policy: Option<PolicyChoice>,
     /// Re-read the white tile at the end and mark the result if it drifted.
@@ -323,11 +324,11 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
     let policy = match (args.policy, earlier) {
         (Some(choice), _) => choice,
         (None, Some(plan)) => <PolicyChoice as clap::ValueEnum>::from_str(&plan.policy, true)
-            .map_err(|_| anyhow::anyhow!("the session's policy '{}' is not one this gonio knows (paper, adaptive, sweep)", plan.policy))?,
+            .map_err(|_| anyhow::anyhow!("the session's policy '{}' is not one this gonio knows (paper, adaptive, sweep, mixed)", plan.policy))?,
         (None, None) => PolicyChoice::Adaptive,
     };
     let adaptive_targets = match Policy::from(policy) {
-        Policy::Adaptive(t) => Some(AdaptiveTargetsRecord { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
+        Policy::Adaptive(t) | Policy::Mixed(t, _) => Some(AdaptiveTargetsRecord { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
         _ => None,
     };
     let (integration_ms, from) = match (args.integration_ms, earlier) {
@@ -347,7 +348,7 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
         bail!("the instrument (serial {}) announces a detector acceptance of {acceptance_deg}°: the fit models 0 to {MAX_ACCEPTANCE_DEG}°", info.serial_number);
     }
     let sweep_targets = match Policy::from(policy) {
-        Policy::Sweep(t) => Some(t),
+        Policy::Sweep(t) | Policy::Mixed(_, t) => Some(t),
         _ => None,
     };
     Ok(PlanRecord {
@@ -364,6 +365,10 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
 fn plan_of(record: &PlanRecord, sample: &str) -> Plan {
     let policy = match (record.policy.as_str(), &record.adaptive_targets) {
         ("sweep", _) => Policy::Sweep(record.sweep_targets.unwrap_or_default()),
+        ("mixed", Some(t)) => Policy::Mixed(
+            AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches },
+            record.sweep_targets.unwrap_or_default(),
+        ),
         (_, Some(t)) => Policy::Adaptive(AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
         (_, None) => Policy::Paper,
     };

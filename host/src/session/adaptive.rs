@@ -170,7 +170,7 @@ pub fn tails(measured: &BTreeSet<Geometry>, per_incidence: usize) -> Vec<Geometr
 }
 
 /// The batch for a fit flagged lack-of-fit: the tails ([`tails`], one θr per incidence
-/// angle) and, besides, `batch / 2` greedy picks ([`next_batch_over`]) over the whole θr
+/// angle) and, besides, `batch / 2` greedy picks ([`next_batch_scored`]) over the whole θr
 /// range; when the fit gives no design (σ not resolved, no information matrix), a second
 /// round of tails instead. Cheap on purpose: its job is to tell a false alarm from a sheet
 /// that is not the model, not to pin σ down.
@@ -186,7 +186,7 @@ pub fn lack_of_fit_batch(
     let mut chosen = tails(measured, 1);
     let mut taken = measured.clone();
     taken.extend(chosen.iter().copied());
-    let designed = next_batch_over(fit, observations, &taken, here, motion, integration_ms, batch / 2, CandidateSpan::Whole).unwrap_or_default();
+    let designed = next_batch_scored(fit, observations, &taken, here, motion, integration_ms, batch / 2, CandidateSpan::Whole).map(|b| b.geometries).unwrap_or_default();
     if designed.is_empty() {
         chosen.extend(tails(&taken, 1));
     } else {
@@ -236,12 +236,26 @@ pub fn next_batch(
     integration_ms: u32,
     batch: usize,
 ) -> Option<Vec<Geometry>> {
-    next_batch_over(fit, observations, measured, here, motion, integration_ms, batch, CandidateSpan::Lobe)
+    next_batch_scored(fit, observations, measured, here, motion, integration_ms, batch, CandidateSpan::Lobe).map(|b| b.geometries)
 }
 
-/// [`next_batch`] with the candidates within `span`.
+/// A designed batch with what it is predicted to bring.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScoredBatch {
+    /// The geometries, in the order to visit them.
+    pub geometries: Vec<Geometry>,
+    /// The drop of σ's variance (the readings' noise part, degrees²) the batch is
+    /// predicted to bring.
+    pub sigma_variance_drop: f64,
+    /// Its device time: each reading's move from the last, settling and integration, s.
+    pub seconds: f64,
+}
+
+/// [`next_batch`] with the candidates within `span`, and the batch's predicted drop of σ's
+/// variance and its device time, so that other candidates (sweeps) can be weighed against
+/// it per device second.
 #[allow(clippy::too_many_arguments)]
-pub fn next_batch_over(
+pub fn next_batch_scored(
     fit: &FitResult,
     observations: &[Observation],
     measured: &BTreeSet<Geometry>,
@@ -250,7 +264,7 @@ pub fn next_batch_over(
     integration_ms: u32,
     batch: usize,
     span: CandidateSpan,
-) -> Option<Vec<Geometry>> {
+) -> Option<ScoredBatch> {
     let free = fit.model.0;
     if !free[SIGMA] {
         return None;
@@ -288,6 +302,7 @@ pub fn next_batch_over(
         (cj, jcj)
     };
     let mut chosen = Vec::new();
+    let (mut sigma_variance_drop, mut total_seconds) = (0.0, 0.0);
     let mut at = here;
     while chosen.len() < batch && !pool.is_empty() {
         let mut best: Option<(usize, f64)> = None;
@@ -304,6 +319,8 @@ pub fn next_batch_over(
         let (k, _) = best?;
         let (g, j, s2) = pool.swap_remove(k);
         let (cj, jcj) = project(&cov, &j);
+        sigma_variance_drop += cj[SIGMA] * cj[SIGMA] / (s2 + jcj);
+        total_seconds += per_reading_s + motion.move_us(at, g) as f64 * 1e-6;
         for a in 0..4 {
             for b in 0..4 {
                 cov[a][b] -= cj[a] * cj[b] / (s2 + jcj);
@@ -312,7 +329,7 @@ pub fn next_batch_over(
         chosen.push(g);
         at = g;
     }
-    (!chosen.is_empty()).then_some(chosen)
+    (!chosen.is_empty()).then_some(ScoredBatch { geometries: chosen, sigma_variance_drop, seconds: total_seconds })
 }
 
 #[cfg(test)]

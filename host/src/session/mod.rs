@@ -63,6 +63,10 @@ pub enum PolicyChoice {
     /// specular peak chosen by the information they bring per second, until the adaptive
     /// policy's targets (and the rest of the full plane where the fit lacks fit).
     Sweep,
+    /// The adaptive policy with sweeps across the specular peak as candidates next to its
+    /// batches of point readings: each round measures whichever is predicted to shrink σ's
+    /// variance more per device second.
+    Mixed,
 }
 
 impl PolicyChoice {
@@ -72,6 +76,7 @@ impl PolicyChoice {
             PolicyChoice::Paper => "paper",
             PolicyChoice::Adaptive => "adaptive",
             PolicyChoice::Sweep => "sweep",
+            PolicyChoice::Mixed => "mixed",
         }
     }
 }
@@ -82,6 +87,7 @@ impl From<PolicyChoice> for Policy {
             PolicyChoice::Paper => Policy::Paper,
             PolicyChoice::Adaptive => Policy::Adaptive(AdaptiveTargets::default()),
             PolicyChoice::Sweep => Policy::Sweep(sweep::SweepTargets::default()),
+            PolicyChoice::Mixed => Policy::Mixed(AdaptiveTargets::default(), sweep::SweepTargets::default()),
         }
     }
 }
@@ -97,6 +103,9 @@ pub enum Policy {
     Fixed(FixedSchedule),
     /// A first pass of sweeps, then sweeps across the peak ([`crate::session::sweep`]).
     Sweep(sweep::SweepTargets),
+    /// Strategy 1, then the adaptive policy's batches or sweeps across the peak (at the
+    /// sweep targets' speeds), whichever brings more per device second.
+    Mixed(AdaptiveTargets, sweep::SweepTargets),
 }
 
 /// A schedule of the method, measured alone.
@@ -777,7 +786,13 @@ impl<'a, T: Transport> Session<'a, T> {
         match self.plan.policy.clone() {
             Policy::Paper => self.refine_like_the_paper(report, fits, refinements),
             Policy::Adaptive(targets) => {
-                self.refine_adaptively(targets, report, fits, refinements)?;
+                self.refine_adaptively(targets, None, report, fits, refinements)?;
+                // Never below the paper's criterion: if the batches did not get σ > σ_l, the
+                // paper's policy finishes the job.
+                self.refine_like_the_paper(report, fits, refinements)
+            }
+            Policy::Mixed(targets, sweeps) => {
+                self.refine_adaptively(targets, Some(sweeps), report, fits, refinements)?;
                 // Never below the paper's criterion: if the batches did not get σ > σ_l, the
                 // paper's policy finishes the job.
                 self.refine_like_the_paper(report, fits, refinements)
@@ -827,7 +842,14 @@ impl<'a, T: Transport> Session<'a, T> {
     /// the budget ends the batches and the result keeps it: the class cannot settle under it
     /// (its confidence is capped), so only a σ ≤ σ_l still gets batches, designed over the
     /// whole θr range, until σ > σ_l.
-    fn refine_adaptively(&mut self, targets: AdaptiveTargets, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
+    fn refine_adaptively(
+        &mut self,
+        targets: AdaptiveTargets,
+        sweeps: Option<sweep::SweepTargets>,
+        report: &mut Report,
+        fits: &mut Vec<FitStep>,
+        refinements: &mut Vec<Refinement>,
+    ) -> Result<(), SessionError> {
         let adaptive_batches = |refinements: &[Refinement]| refinements.iter().filter(|r| r.delta_deg.is_none()).count();
         let lack_of_fit_batches = |refinements: &[Refinement]| refinements.iter().filter(|r| r.lack_of_fit).count();
         for batch_number in adaptive_batches(refinements) + 1..=targets.max_batches {
@@ -866,6 +888,36 @@ impl<'a, T: Transport> Session<'a, T> {
             // A flag on a fit that has not seen the peak says little about the lobe: the
             // probe comes first, the tails after it if the flag stays.
             let probe = (!resolved).then(|| adaptive::probe(&observations, &measured)).filter(|b| !b.is_empty());
+            // The mixed policy probes with a slow sweep across the specular direction where
+            // Strategy 1 read the strongest peak: a lobe narrower than its spacing is then
+            // read at every 0.05° in a second, where the probe's points take several.
+            if let (Some(sweep_targets), Some(_)) = (sweeps, probe.as_ref()) {
+                let max_speed = sweep_targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s));
+                let strongest = observations
+                    .iter()
+                    .filter(|o| (o.theta_r_deg - o.theta_i_deg).abs() < 0.5)
+                    .max_by(|a, b| a.radiance_factor.total_cmp(&b.radiance_factor))
+                    .map_or(60.0, |o| o.theta_i_deg);
+                // There and back: what a sweep's direction does to its bins' angles (the
+                // amplifier's lag, the arm's dwell) then cancels in the peak's position
+                // rather than leaning on σ.
+                let plans: Vec<sweep::SweepPlan> = sweep::peak_candidates(0.25, report.fit.acceptance_deg, max_speed, self.block_s(), here.theta_r.deg())
+                    .into_iter()
+                    .filter(|p| p.theta_i_deg == strongest && p.speed_deg_per_s == 15.0_f64.min(max_speed))
+                    .take(1)
+                    .flat_map(|p| [p, sweep::SweepPlan { from_deg: p.to_deg, to_deg: p.from_deg, ..p }])
+                    .collect();
+                if !plans.is_empty() {
+                    let bins: usize = plans.iter().map(sweep::SweepPlan::bins).sum();
+                    let reason = format!("σ not resolved: slow sweeps across the specular direction and back at θi = {strongest}°, where Strategy 1 read the strongest peak");
+                    self.decide(&format!("adaptive round {batch_number} (2 sweeps, {bins} bins): {reason}"));
+                    refinements.push(Refinement { delta_deg: None, added: bins, reason, lack_of_fit: false });
+                    self.sweep_stage(&format!("adaptive round {batch_number} (sweeps across the specular direction and back)"), &plans)?;
+                    *report = self.analyse()?;
+                    fits.push(FitStep { after: format!("adaptive round {batch_number}"), report: to_json(report) });
+                    continue;
+                }
+            }
             let (batch, reason, for_lack_of_fit) = if let Some(probe) = probe {
                 (Some(probe), "σ not resolved: probe around the strongest specular peak".to_string(), false)
             } else if flagged && !confirmed {
@@ -881,7 +933,48 @@ impl<'a, T: Transport> Session<'a, T> {
                 // Under a flag the model's idea of where σ is measured is not to be trusted:
                 // the design looks over the whole θr range.
                 let span = if flagged { adaptive::CandidateSpan::Whole } else { adaptive::CandidateSpan::Lobe };
-                let batch = adaptive::next_batch_over(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch, span);
+                let scored = adaptive::next_batch_scored(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch, span);
+                // Sweeps as candidates (the mixed policy): a round of sweeps across the
+                // peak, designed as the sweep policy designs them, when it is predicted to
+                // shrink σ's variance more per device second than the batch. Not under a
+                // flag: there the batches look over the whole θr range, which a sweep
+                // across the peak does not.
+                if let Some(sweep_targets) = sweeps.filter(|_| !flagged) {
+                    let max_speed = sweep_targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s));
+                    let per_block = self.per_block_variance();
+                    // σ ≤ σ_l is a matter of spacing, which any sweep across the peak settles
+                    // (its bins are 0.1° apart or closer): the best single sweep then, else
+                    // the sweep policy's round against the batch.
+                    let (target, most) = if sigma_ok { (targets.sigma_rel_half_width, sweep_targets.sweeps_per_round) } else { (0.0, 1) };
+                    let design = sweep::design_peak_sweeps(&report.fit, &observations, here, &self.motion, max_speed, self.block_s(), &per_block, target, most);
+                    let per_second = |drop: f64, seconds: f64| if seconds > 0.0 { drop / seconds } else { 0.0 };
+                    let batch_rate = scored.as_ref().map_or(0.0, |b| per_second(b.sigma_variance_drop, b.seconds));
+                    let sweep_rate = per_second(design.sigma_variance_drop, design.seconds);
+                    if !design.plans.is_empty() && (!sigma_ok || sweep_rate > batch_rate) {
+                        let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
+                        let bins: usize = design.plans.iter().map(sweep::SweepPlan::bins).sum();
+                        let reason = format!(
+                            "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}: {} sweep{} across the peak predicted to bring it to ± {:.1} % in {:.1} device s, {:.1}× the information per second of the best batch of point readings",
+                            report.fit.sigma_deg().unwrap_or(f64::NAN),
+                            100.0 * width,
+                            report.classification.class_name(),
+                            report.classification.confidence,
+                            if sigma_ok { String::new() } else { sigma_l_text(report) },
+                            design.plans.len(),
+                            if design.plans.len() == 1 { "" } else { "s" },
+                            100.0 * design.predicted_rel_half_width,
+                            design.seconds,
+                            if batch_rate > 0.0 { sweep_rate / batch_rate } else { f64::INFINITY }
+                        );
+                        self.decide(&format!("adaptive round {batch_number} ({} sweep{}, {bins} bins): {reason}", design.plans.len(), if design.plans.len() == 1 { "" } else { "s" }));
+                        refinements.push(Refinement { delta_deg: None, added: bins, reason, lack_of_fit: false });
+                        self.sweep_stage(&format!("adaptive round {batch_number} ({} sweep{} across the peak)", design.plans.len(), if design.plans.len() == 1 { "" } else { "s" }), &design.plans)?;
+                        *report = self.analyse()?;
+                        fits.push(FitStep { after: format!("adaptive round {batch_number}"), report: to_json(report) });
+                        continue;
+                    }
+                }
+                let batch = scored.map(|b| b.geometries);
                 let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
                 let mut reason = format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { String::new() } else { sigma_l_text(&report) });
                 if confirmed {

@@ -443,6 +443,9 @@ pub struct SweepDesign {
     pub predicted_rel_half_width: f64,
     /// Their device time with the moves between them, seconds.
     pub seconds: f64,
+    /// The drop of σ's variance (the readings' noise part, degrees²) they are predicted to
+    /// bring.
+    pub sigma_variance_drop: f64,
 }
 
 /// Sweeps across the peak chosen greedily by the drop of σ's variance per device second
@@ -464,7 +467,7 @@ pub fn design_peak_sweeps(
     target_rel_half_width: f64,
     max_sweeps: usize,
 ) -> SweepDesign {
-    let none = SweepDesign { plans: Vec::new(), predicted_rel_half_width: f64::INFINITY, seconds: 0.0 };
+    let none = SweepDesign { plans: Vec::new(), predicted_rel_half_width: f64::INFINITY, seconds: 0.0, sigma_variance_drop: 0.0 };
     let (Some(sigma), Some(se)) = (fit.sigma_deg(), fit.std_error(SIGMA)) else { return none };
     let free = fit.model.0;
     let mut information = readings_information(fit, observations);
@@ -473,7 +476,8 @@ pub fn design_peak_sweeps(
     let floor = (se * se - noise_cov[SIGMA][SIGMA]).max(0.0);
     let half_width = |noise_var: f64| 1.96 * (floor + noise_var).max(0.0).sqrt() / sigma;
     let mut noise_var = noise_cov[SIGMA][SIGMA];
-    let mut design = SweepDesign { plans: Vec::new(), predicted_rel_half_width: half_width(noise_var), seconds: 0.0 };
+    let noise_var_now = noise_var;
+    let mut design = SweepDesign { plans: Vec::new(), predicted_rel_half_width: half_width(noise_var), seconds: 0.0, sigma_variance_drop: 0.0 };
     let mut at = here;
     while design.plans.len() < max_sweeps && design.predicted_rel_half_width > target_rel_half_width {
         let mut best: Option<(f64, SweepPlan, [[f64; 4]; 4], f64, f64)> = None;
@@ -495,6 +499,7 @@ pub fn design_peak_sweeps(
         design.plans.push(plan);
         design.seconds += seconds;
         design.predicted_rel_half_width = half_width(noise_var);
+        design.sigma_variance_drop = noise_var_now - noise_var;
         at = plan.end().unwrap_or(at);
     }
     design

@@ -236,7 +236,7 @@ impl<T: Transport> Session<'_, T> {
     /// The predicted variance of one detector block's radiance factor at a radiance
     /// factor, from the readings taken: each reading's variance times its blocks, fitted
     /// as a floor and a relative term.
-    fn per_block_variance(&self) -> impl Fn(f64) -> f64 + use<T> {
+    pub(super) fn per_block_variance(&self) -> impl Fn(f64) -> f64 + use<T> {
         let per_block: Vec<crate::analysis::fit::Observation> = self
             .usable_points()
             .filter_map(|(k, o)| {

@@ -183,6 +183,7 @@ fn draw(c: usize, case: &Case, policy: PolicyChoice, index: usize) -> Spec {
         PolicyChoice::Adaptive => 0,
         PolicyChoice::Paper => 1,
         PolicyChoice::Sweep => 2,
+        PolicyChoice::Mixed => 3,
     };
     let stream = (c as u64) << 40 | policy_stream << 32 | index as u64;
     let mut rng = ChaCha12Rng::seed_from_u64(0xacc0_2ac7 ^ stream.wrapping_mul(0x9e37_79b9_7f4a_7c15));
@@ -464,7 +465,7 @@ pub fn wilson95(k: usize, n: usize) -> (f64, f64) {
 pub fn tallies(cases: &[Case], rows: &[Row]) -> Vec<(usize, PolicyChoice, Tally)> {
     let mut out = Vec::new();
     for (c, case) in cases.iter().enumerate() {
-        for policy in [PolicyChoice::Adaptive, PolicyChoice::Paper, PolicyChoice::Sweep] {
+        for policy in [PolicyChoice::Adaptive, PolicyChoice::Paper, PolicyChoice::Sweep, PolicyChoice::Mixed] {
             let of_case: Vec<&Row> = rows.iter().filter(|r| r.spec.case == c && r.spec.policy == policy).collect();
             if !of_case.is_empty() {
                 out.push((c, policy, Tally::of(case, of_case)));

@@ -44,13 +44,14 @@ impl RunSpec {
             "strategy2" => Policy::Fixed(FixedSchedule::Strategy2 { delta_deg: u8::try_from(number).unwrap_or(0) }),
             "adaptive" => Policy::Adaptive(Default::default()),
             "sweep" => Policy::Sweep(sweep_targets(&self.setting)),
+            "mixed" => Policy::Mixed(Default::default(), Default::default()),
             _ => Policy::Paper,
         }
     }
 }
 
 /// The study's policies, as `trade.csv` names them.
-pub const POLICIES: [&str; 5] = ["strategy1", "strategy2", "paper", "adaptive", "sweep"];
+pub const POLICIES: [&str; 6] = ["strategy1", "strategy2", "paper", "adaptive", "sweep", "mixed"];
 
 /// The sweep policy's settings studied: the first pass's top speed (°/s) and bin
 /// length (degrees), as `SPEED/BIN`; the first is the policy's default.
@@ -101,6 +102,7 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
     policies.push(("paper", String::new()));
     policies.push(("adaptive", String::new()));
     policies.extend(SWEEP_SETTINGS.iter().map(|s| ("sweep", s.to_string())));
+    policies.push(("mixed", String::new()));
     let mut runs = Vec::new();
     for integration_ms in INTEGRATION_MS {
         for (policy, setting) in &policies {
@@ -111,6 +113,11 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
             // A sweep's bins are the detector's blocks: the integration time sets only the
             // calibration's readings, so sweeps are studied at one.
             if *policy == "sweep" && (integration_ms != TARGET_INTEGRATION_MS || (quick && setting != SWEEP_SETTINGS[0])) {
+                continue;
+            }
+            // The mixed policy at the study's reference integration time: its sweeps do
+            // not depend on it, and its point readings are the adaptive policy's.
+            if *policy == "mixed" && integration_ms != TARGET_INTEGRATION_MS {
                 continue;
             }
             for reference in &REFERENCES {
@@ -529,6 +536,7 @@ pub fn pareto(rows: &[Row]) -> Vec<(ParetoPoint, bool)> {
                 "strategy1" => format!("M={setting}, "),
                 "strategy2" => format!("δ={setting}, "),
                 "sweep" => format!("sweep {setting}°, "),
+                "mixed" => "mixed, ".to_string(),
                 _ => String::new(),
             };
             points.push(ParetoPoint { policy, label: format!("{name}{integration_ms} ms"), device_seconds: s.mean_device_seconds, p95_sigma_err: s.p95_sigma_err });
