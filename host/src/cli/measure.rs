@@ -363,13 +363,11 @@ fn plan_record(args: &Args, info: &protocol::DeviceInfo, earlier: Option<&PlanRe
 }
 
 fn plan_of(record: &PlanRecord, sample: &str) -> Plan {
-    let policy = match (record.policy.as_str(), &record.adaptive_targets) {
+    let adaptive = record.adaptive_targets.as_ref().map(|t| AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches });
+    let policy = match (record.policy.as_str(), adaptive) {
         ("sweep", _) => Policy::Sweep(record.sweep_targets.unwrap_or_default()),
-        ("mixed", Some(t)) => Policy::Mixed(
-            AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches },
-            record.sweep_targets.unwrap_or_default(),
-        ),
-        (_, Some(t)) => Policy::Adaptive(AdaptiveTargets { sigma_rel_half_width: t.sigma_rel_half_width, class_confidence: t.class_confidence, batch: t.batch, max_batches: t.max_batches }),
+        ("mixed", Some(t)) => Policy::Mixed(t, record.sweep_targets.unwrap_or_default()),
+        (_, Some(t)) => Policy::Adaptive(t),
         (_, None) => Policy::Paper,
     };
     Plan {

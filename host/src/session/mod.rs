@@ -783,23 +783,17 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// Refinements by the plan's policy, from `report`.
     fn refine(&mut self, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
-        match self.plan.policy.clone() {
-            Policy::Paper => self.refine_like_the_paper(report, fits, refinements),
-            Policy::Adaptive(targets) => {
-                self.refine_adaptively(targets, None, report, fits, refinements)?;
-                // Never below the paper's criterion: if the batches did not get σ > σ_l, the
-                // paper's policy finishes the job.
-                self.refine_like_the_paper(report, fits, refinements)
-            }
-            Policy::Mixed(targets, sweeps) => {
-                self.refine_adaptively(targets, Some(sweeps), report, fits, refinements)?;
-                // Never below the paper's criterion: if the batches did not get σ > σ_l, the
-                // paper's policy finishes the job.
-                self.refine_like_the_paper(report, fits, refinements)
-            }
-            Policy::Sweep(targets) => self.refine_by_sweeps(targets, report, fits, refinements),
-            Policy::Fixed(_) => Ok(()),
-        }
+        let (targets, sweeps) = match self.plan.policy.clone() {
+            Policy::Paper => return self.refine_like_the_paper(report, fits, refinements),
+            Policy::Sweep(targets) => return self.refine_by_sweeps(targets, report, fits, refinements),
+            Policy::Fixed(_) => return Ok(()),
+            Policy::Adaptive(targets) => (targets, None),
+            Policy::Mixed(targets, sweeps) => (targets, Some(sweeps)),
+        };
+        self.refine_adaptively(targets, sweeps, report, fits, refinements)?;
+        // Never below the paper's criterion: if the batches did not get σ > σ_l, the
+        // paper's policy finishes the job.
+        self.refine_like_the_paper(report, fits, refinements)
     }
 
     /// The paper's policy: Strategy 2 with decreasing δ until σ > σ_l, sending only
@@ -908,13 +902,9 @@ impl<'a, T: Transport> Session<'a, T> {
                     .flat_map(|p| [p, sweep::SweepPlan { from_deg: p.to_deg, to_deg: p.from_deg, ..p }])
                     .collect();
                 if !plans.is_empty() {
-                    let bins: usize = plans.iter().map(sweep::SweepPlan::bins).sum();
                     let reason = format!("σ not resolved: slow sweeps across the specular direction and back at θi = {strongest}°, where Strategy 1 read the strongest peak");
-                    self.decide(&format!("adaptive round {batch_number} (2 sweeps, {bins} bins): {reason}"));
-                    refinements.push(Refinement { delta_deg: None, added: bins, reason, lack_of_fit: false });
-                    self.sweep_stage(&format!("adaptive round {batch_number} (sweeps across the specular direction and back)"), &plans)?;
-                    *report = self.analyse()?;
-                    fits.push(FitStep { after: format!("adaptive round {batch_number}"), report: to_json(report) });
+                    let name = format!("adaptive round {batch_number}");
+                    self.sweep_round(&name, &format!("{name} (sweeps across the specular direction and back)"), reason, false, &plans, report, fits, refinements)?;
                     continue;
                 }
             }
@@ -952,25 +942,21 @@ impl<'a, T: Transport> Session<'a, T> {
                     let sweep_rate = per_second(design.sigma_variance_drop, design.seconds);
                     if !design.plans.is_empty() && (!sigma_ok || sweep_rate > batch_rate) {
                         let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                        let bins: usize = design.plans.iter().map(sweep::SweepPlan::bins).sum();
                         let reason = format!(
-                            "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}: {} sweep{} across the peak predicted to bring it to ± {:.1} % in {:.1} device s, {:.1}× the information per second of the best batch of point readings",
+                            "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}: {} across the peak predicted to bring it to ± {:.1} % in {:.1} device s, {:.1}× the information per second of the best batch of point readings",
                             report.fit.sigma_deg().unwrap_or(f64::NAN),
                             100.0 * width,
                             report.classification.class_name(),
                             report.classification.confidence,
                             if sigma_ok { String::new() } else { sigma_l_text(report) },
-                            design.plans.len(),
-                            if design.plans.len() == 1 { "" } else { "s" },
+                            sweeping::sweeps_text(design.plans.len()),
                             100.0 * design.predicted_rel_half_width,
                             design.seconds,
                             if batch_rate > 0.0 { sweep_rate / batch_rate } else { f64::INFINITY }
                         );
-                        self.decide(&format!("adaptive round {batch_number} ({} sweep{}, {bins} bins): {reason}", design.plans.len(), if design.plans.len() == 1 { "" } else { "s" }));
-                        refinements.push(Refinement { delta_deg: None, added: bins, reason, lack_of_fit: false });
-                        self.sweep_stage(&format!("adaptive round {batch_number} ({} sweep{} across the peak)", design.plans.len(), if design.plans.len() == 1 { "" } else { "s" }), &design.plans)?;
-                        *report = self.analyse()?;
-                        fits.push(FitStep { after: format!("adaptive round {batch_number}"), report: to_json(report) });
+                        let name = format!("adaptive round {batch_number}");
+                        let stage = format!("{name} ({} across the peak)", sweeping::sweeps_text(design.plans.len()));
+                        self.sweep_round(&name, &stage, reason, false, &design.plans, report, fits, refinements)?;
                         continue;
                     }
                 }

@@ -152,12 +152,8 @@ impl<T: Transport> Session<'_, T> {
                         super::sweep::THETA_R_MAX_DEG,
                         incidences.join(" and ")
                     );
-                    let bins: usize = rest.iter().map(SweepPlan::bins).sum();
-                    self.decide(&format!("sweep round {round} ({} sweeps, {bins} bins): {reason}", rest.len()));
-                    refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit: true });
-                    self.sweep_stage(&format!("sweep round {round}: the rest of the full plane ({} sweeps)", rest.len()), &rest)?;
-                    *report = self.analyse()?;
-                    fits.push(super::FitStep { after: format!("sweep round {round}"), report: crate::analysis::report::to_json(report) });
+                    let stage = format!("sweep round {round}: the rest of the full plane ({})", sweeps_text(rest.len()));
+                    self.sweep_round(&format!("sweep round {round}"), &stage, reason, true, &rest, report, fits, refinements)?;
                     continue;
                 }
             }
@@ -212,13 +208,34 @@ impl<T: Transport> Session<'_, T> {
                     return Ok(());
                 }
             }
-            let bins: usize = plans.iter().map(SweepPlan::bins).sum();
-            self.decide(&format!("sweep round {round} ({} sweeps, {bins} bins): {reason}", plans.len()));
-            refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit: report.fit.lack_of_fit });
-            self.sweep_stage(&format!("sweep round {round} ({} sweeps)", plans.len()), &plans)?;
-            *report = self.analyse()?;
-            fits.push(super::FitStep { after: format!("sweep round {round}"), report: crate::analysis::report::to_json(report) });
+            let (name, lack_of_fit) = (format!("sweep round {round}"), report.fit.lack_of_fit);
+            let stage = format!("{name} ({})", sweeps_text(plans.len()));
+            self.sweep_round(&name, &stage, reason, lack_of_fit, &plans, report, fits, refinements)?;
         }
+        Ok(())
+    }
+
+    /// One round of sweeps as a refinement: the decision (`name`, its sweeps and bins,
+    /// `reason`), the refinement's record, the sweeps measured as stage `stage`, and the fit
+    /// after them, recorded as after `name`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn sweep_round(
+        &mut self,
+        name: &str,
+        stage: &str,
+        reason: String,
+        lack_of_fit: bool,
+        plans: &[SweepPlan],
+        report: &mut crate::analysis::report::Report,
+        fits: &mut Vec<super::FitStep>,
+        refinements: &mut Vec<super::Refinement>,
+    ) -> Result<(), SessionError> {
+        let bins: usize = plans.iter().map(SweepPlan::bins).sum();
+        self.decide(&format!("{name} ({}, {bins} bins): {reason}", sweeps_text(plans.len())));
+        refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit });
+        self.sweep_stage(stage, plans)?;
+        *report = self.analyse()?;
+        fits.push(super::FitStep { after: name.to_string(), report: crate::analysis::report::to_json(report) });
         Ok(())
     }
 
@@ -444,4 +461,9 @@ impl<T: Transport> Session<'_, T> {
         self.points.push(point);
         Ok(())
     }
+}
+
+/// "1 sweep", "2 sweeps".
+pub(super) fn sweeps_text(n: usize) -> String {
+    format!("{n} sweep{}", if n == 1 { "" } else { "s" })
 }
