@@ -581,9 +581,11 @@ fn sweep_gaps(readings: &[Value], theta_i_deg: f64, usable_only: bool, tolerance
 /// blanking (≤ 0.5°) left as it is.
 #[test]
 fn sweep_sessions_with_a_bad_link_and_a_pulled_cable_finish_with_every_bin_once() {
-    // (sample, class, seed): the first pass runs from about 12 s of device time (homing and
-    // the calibration before it) to about 17 s.
-    let cases = [("G", "G", 11u64), ("G", "G", 12), ("SG", "SG", 13), ("J1", "rough-I", 14)];
+    // (sample, class, seed), the seeds (and so the unplug's moments) drawn for this run and
+    // named in every message: the first pass runs from about 12 s of device time (homing
+    // and the calibration before it) to about 17 s.
+    let drawn = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(11, |d| 1 + u64::from(d.subsec_nanos()) % 100_000);
+    let cases = [("G", "G", drawn), ("G", "G", drawn + 1), ("SG", "SG", drawn + 2), ("J1", "rough-I", drawn + 3)];
     std::thread::scope(|scope| {
         for &(sample, class, seed) in &cases {
             scope.spawn(move || {
