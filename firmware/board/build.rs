@@ -8,9 +8,11 @@ use std::path::PathBuf;
 fn main() {
     // link.x INCLUDEs memory.x from the linker's search path: put it in OUT_DIR.
     let out = PathBuf::from(std::env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    std::fs::write(out.join("memory.x"), include_bytes!("memory.x")).expect("write memory.x to OUT_DIR");
+    std::fs::write(out.join("memory.x"), include_bytes!("memory.x"))
+        .expect("write memory.x to OUT_DIR");
     println!("cargo:rustc-link-search={}", out.display());
-    std::fs::write(out.join("gonio-info.x"), include_bytes!("gonio-info.x")).expect("write gonio-info.x to OUT_DIR");
+    std::fs::write(out.join("gonio-info.x"), include_bytes!("gonio-info.x"))
+        .expect("write gonio-info.x to OUT_DIR");
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=gonio-info.x");
     println!("cargo:rustc-link-arg-bins=--nmagic");

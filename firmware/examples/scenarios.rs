@@ -11,7 +11,10 @@ fn main() {
             Ok(digest) => println!("scenario {} ok digest {digest:08x}", scenario.name),
             Err(failure) => {
                 failed += 1;
-                println!("scenario {} FAILED: {} (scenarios.rs:{})", scenario.name, failure.what, failure.line);
+                println!(
+                    "scenario {} FAILED: {} (scenarios.rs:{})",
+                    scenario.name, failure.what, failure.line
+                );
             }
         }
     }

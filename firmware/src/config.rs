@@ -99,9 +99,24 @@ const FULL_SCALE_COUNTS: u32 = 65_535;
 /// to 4.5, 0.6 and 0.15 ms. A sweep drops the blocks within it after each switch; a still
 /// reading waits [`InstrumentConfig::range_settle_ms`] (5 ms), which covers the slowest.
 pub const REFERENCE_RANGES: [DetectorRange; 3] = [
-    DetectorRange { relative_gain: 1.0, full_scale_counts: FULL_SCALE_COUNTS, time_constant_us: 470.0, settle_us: 4_500 },
-    DetectorRange { relative_gain: 0.1, full_scale_counts: FULL_SCALE_COUNTS, time_constant_us: 47.0, settle_us: 600 },
-    DetectorRange { relative_gain: 0.01, full_scale_counts: FULL_SCALE_COUNTS, time_constant_us: 4.7, settle_us: 150 },
+    DetectorRange {
+        relative_gain: 1.0,
+        full_scale_counts: FULL_SCALE_COUNTS,
+        time_constant_us: 470.0,
+        settle_us: 4_500,
+    },
+    DetectorRange {
+        relative_gain: 0.1,
+        full_scale_counts: FULL_SCALE_COUNTS,
+        time_constant_us: 47.0,
+        settle_us: 600,
+    },
+    DetectorRange {
+        relative_gain: 0.01,
+        full_scale_counts: FULL_SCALE_COUNTS,
+        time_constant_us: 4.7,
+        settle_us: 150,
+    },
 ];
 
 impl InstrumentConfig {
@@ -191,7 +206,9 @@ impl InstrumentConfig {
             max_integration_ms: self.max_integration_ms,
             min_integration_ms: self.min_integration_ms,
             heartbeat_timeout_ms: self.heartbeat_timeout_ms,
-            longest_home_ms: crate::homing::longest_homing_us(self).div_ceil(1000).min(u64::from(u32::MAX)) as u32,
+            longest_home_ms: crate::homing::longest_homing_us(self)
+                .div_ceil(1000)
+                .min(u64::from(u32::MAX)) as u32,
             serial_number: {
                 let mut serial = heapless::String::new();
                 for c in serial_number.chars() {

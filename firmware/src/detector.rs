@@ -29,7 +29,12 @@ pub struct SampleStats {
 impl SampleStats {
     /// No samples.
     pub const fn new() -> SampleStats {
-        SampleStats { count: 0, mean: 0.0, sum_sq_dev: 0.0, max: 0 }
+        SampleStats {
+            count: 0,
+            mean: 0.0,
+            sum_sq_dev: 0.0,
+            max: 0,
+        }
     }
 
     /// Add one sample.
@@ -54,7 +59,11 @@ impl SampleStats {
 
     /// Sample standard deviation (n − 1), counts; 0 below two samples.
     pub fn std_dev(&self) -> f32 {
-        if self.count < 2 { 0.0 } else { sqrtf(self.sum_sq_dev.max(0.0) / (self.count - 1) as f32) }
+        if self.count < 2 {
+            0.0
+        } else {
+            sqrtf(self.sum_sq_dev.max(0.0) / (self.count - 1) as f32)
+        }
     }
 
     /// Largest sample.
@@ -83,7 +92,12 @@ pub fn is_saturated(config: &InstrumentConfig, range: u8, max_sample: u32) -> bo
 
 /// The auto-ranging policy. `saturated_ranges` has bit r set for every range that
 /// saturated earlier in the same reading.
-pub fn decide_range(config: &InstrumentConfig, range: u8, stats: &SampleStats, saturated_ranges: u8) -> RangeDecision {
+pub fn decide_range(
+    config: &InstrumentConfig,
+    range: u8,
+    stats: &SampleStats,
+    saturated_ranges: u8,
+) -> RangeDecision {
     let ranges = config.detector_ranges;
     let index = usize::from(range);
     if is_saturated(config, range, stats.max()) {
@@ -148,7 +162,11 @@ impl Integration {
     /// Collect samples; the statistics once the integration time is over, or the loss
     /// as soon as samples were lost (a reading with a gap is no reading). Samples are
     /// timed by when they are drained, so the board polls often (every ms or so).
-    pub fn poll(&mut self, detector: &mut impl Detector, now_us: u64) -> Result<Option<SampleStats>, SampleLoss> {
+    pub fn poll(
+        &mut self,
+        detector: &mut impl Detector,
+        now_us: u64,
+    ) -> Result<Option<SampleStats>, SampleLoss> {
         let collecting = now_us > self.collect_from_us;
         let stats = &mut self.stats;
         let drained = detector.drain_samples(&mut |sample| {
@@ -238,7 +256,12 @@ impl RangedReading {
     }
 
     /// Advance; an auto-ranged reading re-integrates on another range when the policy says so.
-    pub fn poll(&mut self, detector: &mut impl Detector, config: &InstrumentConfig, now_us: u64) -> ReadingProgress {
+    pub fn poll(
+        &mut self,
+        detector: &mut impl Detector,
+        config: &InstrumentConfig,
+        now_us: u64,
+    ) -> ReadingProgress {
         let stats = match self.integration.poll(detector, now_us) {
             Ok(Some(stats)) => stats,
             Ok(None) => return ReadingProgress::Running,
@@ -253,12 +276,20 @@ impl RangedReading {
             return ReadingProgress::Done(self.integration.reading(&stats, saturated));
         }
         match decide_range(config, range, &stats, self.saturated_ranges) {
-            RangeDecision::Accept { saturated } => ReadingProgress::Done(self.integration.reading(&stats, saturated)),
+            RangeDecision::Accept { saturated } => {
+                ReadingProgress::Done(self.integration.reading(&stats, saturated))
+            }
             RangeDecision::Retake(next) => {
                 if is_saturated(config, range, stats.max()) {
                     self.saturated_ranges |= 1 << range;
                 }
-                self.integration = Integration::start(detector, config, next, self.integration.integration_ms, now_us);
+                self.integration = Integration::start(
+                    detector,
+                    config,
+                    next,
+                    self.integration.integration_ms,
+                    now_us,
+                );
                 ReadingProgress::Running
             }
         }
@@ -289,14 +320,29 @@ mod tests {
     fn ranging_policy() {
         let config = InstrumentConfig::REFERENCE;
         // Saturated on range 0: go less sensitive.
-        assert_eq!(decide_range(&config, 0, &stats(&[65_535; 4]), 0), RangeDecision::Retake(1));
+        assert_eq!(
+            decide_range(&config, 0, &stats(&[65_535; 4]), 0),
+            RangeDecision::Retake(1)
+        );
         // Saturated on the least sensitive range: flagged, kept.
-        assert_eq!(decide_range(&config, 2, &stats(&[65_535; 4]), 0b011), RangeDecision::Accept { saturated: true });
+        assert_eq!(
+            decide_range(&config, 2, &stats(&[65_535; 4]), 0b011),
+            RangeDecision::Accept { saturated: true }
+        );
         // Low on range 1: more sensitive would read 10× more, still below 80 %.
-        assert_eq!(decide_range(&config, 1, &stats(&[3000; 4]), 0), RangeDecision::Retake(0));
+        assert_eq!(
+            decide_range(&config, 1, &stats(&[3000; 4]), 0),
+            RangeDecision::Retake(0)
+        );
         // ... unless range 0 already saturated for this reading.
-        assert_eq!(decide_range(&config, 1, &stats(&[3000; 4]), 0b001), RangeDecision::Accept { saturated: false });
+        assert_eq!(
+            decide_range(&config, 1, &stats(&[3000; 4]), 0b001),
+            RangeDecision::Accept { saturated: false }
+        );
         // Mid-scale: kept.
-        assert_eq!(decide_range(&config, 1, &stats(&[30_000; 4]), 0), RangeDecision::Accept { saturated: false });
+        assert_eq!(
+            decide_range(&config, 1, &stats(&[30_000; 4]), 0),
+            RangeDecision::Accept { saturated: false }
+        );
     }
 }

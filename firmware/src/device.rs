@@ -80,9 +80,9 @@ use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
 use crate::sweep::{AutoRange, Binner, check_sweep, sweep_profile};
 use protocol::{
-    Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport, MAX_RANGES,
-    PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource, Status, StreamReading, Sweep,
-    SweepPlan, Target,
+    Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport,
+    MAX_RANGES, PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource,
+    Status, StreamReading, Sweep, SweepPlan, Target,
 };
 
 /// A sweep whose detector gives no block for this long has a dead detector: fail-safe stop
@@ -144,10 +144,24 @@ struct SweepRun {
 #[derive(Clone, Debug, PartialEq)]
 enum Activity {
     Idle,
-    Homing { seq: u32, arms: [ArmHoming; 2], trips: [Option<i32>; 2] },
-    Moving { seq: u32, travel: Travel },
-    Reading { seq: u32, reading: RangedReading },
-    Dark { seq: u32, integration: Integration, readings: heapless::Vec<Reading, MAX_RANGES> },
+    Homing {
+        seq: u32,
+        arms: [ArmHoming; 2],
+        trips: [Option<i32>; 2],
+    },
+    Moving {
+        seq: u32,
+        travel: Travel,
+    },
+    Reading {
+        seq: u32,
+        reading: RangedReading,
+    },
+    Dark {
+        seq: u32,
+        integration: Integration,
+        readings: heapless::Vec<Reading, MAX_RANGES>,
+    },
     Schedule(ScheduleRun),
     Sweep(SweepRun),
     /// Arms ramping down after an abort or a fault; nothing new starts until they rest.
@@ -280,13 +294,16 @@ impl<H: Hardware> Device<H> {
     pub fn receive(&mut self, bytes: &[u8], now_us: u64, send: &mut impl FnMut(&[u8])) {
         self.now_us = now_us;
         for &byte in bytes {
-            let Some(incoming) = self.link.push(byte, send) else { continue };
+            let Some(incoming) = self.link.push(byte, send) else {
+                continue;
+            };
             // Any frame, even one we could not read, shows the host is alive.
             self.last_heard_us = now_us;
             if let Incoming::Fresh(request) = incoming {
                 // A Hello's repeat is carried out again (it changes nothing twice), so its
                 // reply must not take the cache from the new session's first command.
-                let uncached = request.command.is_read_only() || matches!(request.command, Command::Hello { .. });
+                let uncached = request.command.is_read_only()
+                    || matches!(request.command, Command::Hello { .. });
                 match self.execute(request.seq, &request.command, send) {
                     Some(result) if uncached => self.link.reply_uncached(request.seq, result, send),
                     Some(result) => self.link.reply(request.seq, result, send),
@@ -306,7 +323,10 @@ impl<H: Hardware> Device<H> {
         }
         self.driver_fault_seen = driver_fault;
         // A step interrupt too late: a step may have gone uncounted (the timer stopped).
-        if Arm::BOTH.iter().any(|&arm| self.hardware.take_step_fault(arm)) {
+        if Arm::BOTH
+            .iter()
+            .any(|&arm| self.hardware.take_step_fault(arm))
+        {
             self.fail_safe_stop(ErrorCode::StepLate, send);
         }
         // The ADC path overran: seen when it happens, reading or not.
@@ -316,7 +336,10 @@ impl<H: Hardware> Device<H> {
         let needs_host = self.lamp_on
             || matches!(
                 self.activity,
-                Activity::Homing { .. } | Activity::Moving { .. } | Activity::Schedule(_) | Activity::Sweep(_)
+                Activity::Homing { .. }
+                    | Activity::Moving { .. }
+                    | Activity::Schedule(_)
+                    | Activity::Sweep(_)
             );
         let silent_us = now_us.saturating_sub(self.last_heard_us);
         if needs_host && silent_us > u64::from(self.config.heartbeat_timeout_ms) * 1000 {
@@ -333,49 +356,72 @@ impl<H: Hardware> Device<H> {
                     self.fail_safe_stop(code, send);
                 }
             },
-            Activity::Reading { seq, mut reading } => match reading.poll(&mut self.hardware, &self.config, now_us) {
-                ReadingProgress::Running => self.activity = Activity::Reading { seq, reading },
-                ReadingProgress::Done(done) => {
-                    // A forced range says nothing about where auto-ranging should start.
-                    if !reading.is_forced() {
-                        self.last_range = done.range;
+            Activity::Reading { seq, mut reading } => {
+                match reading.poll(&mut self.hardware, &self.config, now_us) {
+                    ReadingProgress::Running => self.activity = Activity::Reading { seq, reading },
+                    ReadingProgress::Done(done) => {
+                        // A forced range says nothing about where auto-ranging should start.
+                        if !reading.is_forced() {
+                            self.last_range = done.range;
+                        }
+                        self.link.finish(seq, Ok(Reply::Reading(done)), send);
                     }
-                    self.link.finish(seq, Ok(Reply::Reading(done)), send);
-                }
-                ReadingProgress::NoSamples => {
-                    self.activity = Activity::Reading { seq, reading };
-                    self.fail_safe_stop(ErrorCode::HardwareFault, send);
-                }
-                ReadingProgress::SamplesLost(_) => {
-                    self.activity = Activity::Reading { seq, reading };
-                    self.fail_safe_stop(ErrorCode::AdcOverrun, send);
-                }
-            },
-            Activity::Dark { seq, mut integration, mut readings } => {
-                match integration.poll(&mut self.hardware, now_us) {
-                    Err(_) => {
-                        self.activity = Activity::Dark { seq, integration, readings };
-                        self.fail_safe_stop(ErrorCode::AdcOverrun, send);
-                    }
-                    Ok(None) => self.activity = Activity::Dark { seq, integration, readings },
-                    Ok(Some(stats)) if stats.count() == 0 => {
-                        self.activity = Activity::Dark { seq, integration, readings };
+                    ReadingProgress::NoSamples => {
+                        self.activity = Activity::Reading { seq, reading };
                         self.fail_safe_stop(ErrorCode::HardwareFault, send);
                     }
-                    Ok(Some(stats)) => {
-                        let saturated = is_saturated(&self.config, integration.range(), stats.max());
-                        let _ = readings.push(integration.reading(&stats, saturated));
-                        let next = integration.range() + 1;
-                        if usize::from(next) < self.config.detector_ranges.len().min(MAX_RANGES) {
-                            let ms = readings[0].integration_ms;
-                            let integration = Integration::start(&mut self.hardware, &self.config, next, ms, now_us);
-                            self.activity = Activity::Dark { seq, integration, readings };
-                        } else {
-                            self.link.finish(seq, Ok(Reply::Dark(readings)), send);
-                        }
+                    ReadingProgress::SamplesLost(_) => {
+                        self.activity = Activity::Reading { seq, reading };
+                        self.fail_safe_stop(ErrorCode::AdcOverrun, send);
                     }
                 }
             }
+            Activity::Dark {
+                seq,
+                mut integration,
+                mut readings,
+            } => match integration.poll(&mut self.hardware, now_us) {
+                Err(_) => {
+                    self.activity = Activity::Dark {
+                        seq,
+                        integration,
+                        readings,
+                    };
+                    self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+                }
+                Ok(None) => {
+                    self.activity = Activity::Dark {
+                        seq,
+                        integration,
+                        readings,
+                    }
+                }
+                Ok(Some(stats)) if stats.count() == 0 => {
+                    self.activity = Activity::Dark {
+                        seq,
+                        integration,
+                        readings,
+                    };
+                    self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                }
+                Ok(Some(stats)) => {
+                    let saturated = is_saturated(&self.config, integration.range(), stats.max());
+                    let _ = readings.push(integration.reading(&stats, saturated));
+                    let next = integration.range() + 1;
+                    if usize::from(next) < self.config.detector_ranges.len().min(MAX_RANGES) {
+                        let ms = readings[0].integration_ms;
+                        let integration =
+                            Integration::start(&mut self.hardware, &self.config, next, ms, now_us);
+                        self.activity = Activity::Dark {
+                            seq,
+                            integration,
+                            readings,
+                        };
+                    } else {
+                        self.link.finish(seq, Ok(Reply::Dark(readings)), send);
+                    }
+                }
+            },
             Activity::Schedule(run) => self.poll_schedule(run, send),
             Activity::Sweep(run) => self.poll_sweep(run, send),
             Activity::Stopping => {
@@ -396,7 +442,8 @@ impl<H: Hardware> Device<H> {
     pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
         let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
         // A late step interrupt may have cost a step whatever the arms do now.
-        let keeps_homing = !self.mid_move() && !driver_fault.contains(&true) && reason != ErrorCode::StepLate;
+        let keeps_homing =
+            !self.mid_move() && !driver_fault.contains(&true) && reason != ErrorCode::StepLate;
         self.halt(reason, send);
         self.hardware.set_lamp(false);
         self.lamp_on = false;
@@ -423,12 +470,21 @@ impl<H: Hardware> Device<H> {
         match &self.activity {
             Activity::Homing { .. } | Activity::Stopping => true,
             Activity::Moving { travel, .. } => self.positions() != travel.target,
-            Activity::Schedule(ScheduleRun { step: RunStep::Travel(travel), .. }) => self.positions() != travel.target,
-            Activity::Sweep(SweepRun { phase: SweepPhase::Approach(travel), .. }) => self.positions() != travel.target,
+            Activity::Schedule(ScheduleRun {
+                step: RunStep::Travel(travel),
+                ..
+            }) => self.positions() != travel.target,
+            Activity::Sweep(SweepRun {
+                phase: SweepPhase::Approach(travel),
+                ..
+            }) => self.positions() != travel.target,
             Activity::Sweep(SweepRun { sweep, .. }) => {
                 self.positions() != [angle_to_steps(sweep.theta_i), angle_to_steps(sweep.to)]
             }
-            Activity::Idle | Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_) => false,
+            Activity::Idle
+            | Activity::Reading { .. }
+            | Activity::Dark { .. }
+            | Activity::Schedule(_) => false,
         }
     }
 
@@ -438,13 +494,16 @@ impl<H: Hardware> Device<H> {
         let max_speed = deg_to_steps(self.config.max_speed_deg_per_s);
         let accel = deg_to_steps(self.config.accel_deg_per_s2);
         for arm in Arm::BOTH {
-            self.motion.stop(&mut self.hardware, arm, max_speed, accel, self.now_us);
+            self.motion
+                .stop(&mut self.hardware, arm, max_speed, accel, self.now_us);
         }
         match core::mem::replace(&mut self.activity, Activity::Idle) {
             Activity::Homing { seq, .. }
             | Activity::Moving { seq, .. }
             | Activity::Reading { seq, .. }
-            | Activity::Dark { seq, .. } => self.link.finish(seq, Err(DeviceError::new(reason)), send),
+            | Activity::Dark { seq, .. } => {
+                self.link.finish(seq, Err(DeviceError::new(reason)), send)
+            }
             Activity::Schedule(run) => {
                 let done = ScheduleDone {
                     schedule_id: run.schedule_id,
@@ -469,15 +528,24 @@ impl<H: Hardware> Device<H> {
             self.link.new_session();
             return Some(if protocol_version == PROTOCOL_VERSION {
                 self.handshake_done = true;
-                Ok(Reply::Hello(DeviceInfo { reset_cause: self.reset_cause, ..self.config.device_info(&self.serial_number) }))
+                Ok(Reply::Hello(DeviceInfo {
+                    reset_cause: self.reset_cause,
+                    ..self.config.device_info(&self.serial_number)
+                }))
             } else {
                 self.handshake_done = false;
                 self.refused_version = Some(protocol_version);
-                Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION)))
+                Err(DeviceError::with_detail(
+                    ErrorCode::VersionMismatch,
+                    i32::from(PROTOCOL_VERSION),
+                ))
             });
         }
         if !self.handshake_done {
-            return Some(Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(PROTOCOL_VERSION))));
+            return Some(Err(DeviceError::with_detail(
+                ErrorCode::VersionMismatch,
+                i32::from(PROTOCOL_VERSION),
+            )));
         }
         let result = match command {
             Command::Hello { .. } | Command::Heartbeat => Ok(Reply::Ack),
@@ -489,7 +557,11 @@ impl<H: Hardware> Device<H> {
             Command::SetLamp { on } => self.set_lamp(*on),
             Command::Home => return self.start_homing(seq),
             Command::MoveTo(geometry) => return self.start_move_to(seq, *geometry),
-            Command::TakeReading { integration_ms, target: _, range } => {
+            Command::TakeReading {
+                integration_ms,
+                target: _,
+                range,
+            } => {
                 return self.start_reading(seq, *integration_ms, *range);
             }
             Command::TakeDark { integration_ms } => return self.start_dark(seq, *integration_ms),
@@ -501,29 +573,52 @@ impl<H: Hardware> Device<H> {
     }
 
     fn busy(&self) -> Result<(), DeviceError> {
-        if self.activity == Activity::Idle { Ok(()) } else { Err(DeviceError::new(ErrorCode::Busy)) }
+        if self.activity == Activity::Idle {
+            Ok(())
+        } else {
+            Err(DeviceError::new(ErrorCode::Busy))
+        }
     }
 
     /// Refuse motion while a driver reports a fault (detail: the arm).
     fn require_drivers(&self) -> Result<(), DeviceError> {
-        match Arm::BOTH.into_iter().find(|&arm| self.hardware.driver_fault(arm)) {
-            Some(arm) => Err(DeviceError::with_detail(ErrorCode::HardwareFault, arm.index() as i32)),
+        match Arm::BOTH
+            .into_iter()
+            .find(|&arm| self.hardware.driver_fault(arm))
+        {
+            Some(arm) => Err(DeviceError::with_detail(
+                ErrorCode::HardwareFault,
+                arm.index() as i32,
+            )),
             None => Ok(()),
         }
     }
 
     fn require_homed(&self) -> Result<(), DeviceError> {
-        if self.homed == [true, true] { Ok(()) } else { Err(DeviceError::new(ErrorCode::NotHomed)) }
+        if self.homed == [true, true] {
+            Ok(())
+        } else {
+            Err(DeviceError::new(ErrorCode::NotHomed))
+        }
     }
 
     /// Refuse an integration time outside `min_integration_ms ..= max_integration_ms`;
     /// the detail is the limit it broke.
     fn check_integration(&self, integration_ms: u16) -> Result<(), DeviceError> {
-        let (min, max) = (self.config.min_integration_ms, self.config.max_integration_ms);
+        let (min, max) = (
+            self.config.min_integration_ms,
+            self.config.max_integration_ms,
+        );
         if integration_ms < min.max(1) {
-            Err(DeviceError::with_detail(ErrorCode::InvalidArgument, i32::from(min)))
+            Err(DeviceError::with_detail(
+                ErrorCode::InvalidArgument,
+                i32::from(min),
+            ))
         } else if integration_ms > max {
-            Err(DeviceError::with_detail(ErrorCode::InvalidArgument, i32::from(max)))
+            Err(DeviceError::with_detail(
+                ErrorCode::InvalidArgument,
+                i32::from(max),
+            ))
         } else {
             Ok(())
         }
@@ -537,7 +632,10 @@ impl<H: Hardware> Device<H> {
     fn set_lamp(&mut self, on: bool) -> Result<Reply, DeviceError> {
         let measuring = matches!(
             self.activity,
-            Activity::Reading { .. } | Activity::Dark { .. } | Activity::Schedule(_) | Activity::Sweep(_)
+            Activity::Reading { .. }
+                | Activity::Dark { .. }
+                | Activity::Schedule(_)
+                | Activity::Sweep(_)
         );
         // Off is always allowed (safety); on would spoil a reading under way.
         if on && measuring {
@@ -554,18 +652,37 @@ impl<H: Hardware> Device<H> {
         }
         self.homed = [false; 2];
         let arms = Arm::BOTH.map(|arm| {
-            if self.count_trusted[arm.index()] { ArmHoming::quick(arm) } else { ArmHoming::new(arm) }
+            if self.count_trusted[arm.index()] {
+                ArmHoming::quick(arm)
+            } else {
+                ArmHoming::new(arm)
+            }
         });
-        self.activity = Activity::Homing { seq, arms, trips: [None; 2] };
+        self.activity = Activity::Homing {
+            seq,
+            arms,
+            trips: [None; 2],
+        };
         None
     }
 
-    fn poll_homing(&mut self, seq: u32, mut arms: [ArmHoming; 2], mut trips: [Option<i32>; 2], send: &mut impl FnMut(&[u8])) {
+    fn poll_homing(
+        &mut self,
+        seq: u32,
+        mut arms: [ArmHoming; 2],
+        mut trips: [Option<i32>; 2],
+        send: &mut impl FnMut(&[u8]),
+    ) {
         for arm in Arm::BOTH {
             if trips[arm.index()].is_some() {
                 continue;
             }
-            match arms[arm.index()].poll(&mut self.hardware, &mut self.motion, &self.config, self.now_us) {
+            match arms[arm.index()].poll(
+                &mut self.hardware,
+                &mut self.motion,
+                &self.config,
+                self.now_us,
+            ) {
                 HomingStatus::Running => {}
                 HomingStatus::Homed { trip_steps } => trips[arm.index()] = Some(trip_steps),
                 HomingStatus::Failed(error) => {
@@ -589,14 +706,18 @@ impl<H: Hardware> Device<H> {
             // negative when the arm fell short of its step count (steps lost on the way out).
             errors[i] = self.homed_since_reset[i].then_some(switch - trip);
             let here = self.hardware.position_steps(arm);
-            self.hardware.set_position_steps(arm, switch + (here - trip));
+            self.hardware
+                .set_position_steps(arm, switch + (here - trip));
             self.homed[i] = true;
             self.homed_since_reset[i] = true;
             self.count_trusted[i] = true;
         }
         self.fault = None;
         self.safe_stopped = false;
-        let report = HomeReport { step_error_i: errors[0], step_error_r: errors[1] };
+        let report = HomeReport {
+            step_error_i: errors[0],
+            step_error_r: errors[1],
+        };
         self.link.finish(seq, Ok(Reply::Homed(report)), send);
     }
 
@@ -616,7 +737,10 @@ impl<H: Hardware> Device<H> {
 
     fn start_travel(&mut self, geometry: Geometry) -> Travel {
         let from = self.positions();
-        let target = [angle_to_steps(geometry.theta_i), angle_to_steps(geometry.theta_r)];
+        let target = [
+            angle_to_steps(geometry.theta_i),
+            angle_to_steps(geometry.theta_r),
+        ];
         let profiles = plan_move(
             from,
             target,
@@ -624,9 +748,14 @@ impl<H: Hardware> Device<H> {
             deg_to_steps(self.config.accel_deg_per_s2),
         );
         for arm in Arm::BOTH {
-            self.motion.start(&mut self.hardware, arm, profiles[arm.index()], self.now_us);
+            self.motion
+                .start(&mut self.hardware, arm, profiles[arm.index()], self.now_us);
         }
-        Travel { target, moved: from != target, settle_until_us: None }
+        Travel {
+            target,
+            moved: from != target,
+            settle_until_us: None,
+        }
     }
 
     /// `Ok(None)` when arrived and settled; an error when the arms came to rest elsewhere.
@@ -637,13 +766,22 @@ impl<H: Hardware> Device<H> {
         if self.positions() != travel.target {
             return Err(ErrorCode::HardwareFault);
         }
-        let settle_us = if travel.moved { u64::from(self.config.settle_ms) * 1000 } else { 0 };
-        let until = *travel.settle_until_us.get_or_insert(self.now_us + settle_us);
+        let settle_us = if travel.moved {
+            u64::from(self.config.settle_ms) * 1000
+        } else {
+            0
+        };
+        let until = *travel
+            .settle_until_us
+            .get_or_insert(self.now_us + settle_us);
         Ok((self.now_us < until).then_some(travel))
     }
 
     fn start_move_to(&mut self, seq: u32, geometry: Geometry) -> Answer {
-        let checks = self.busy().and_then(|_| self.require_drivers()).and_then(|_| self.require_homed());
+        let checks = self
+            .busy()
+            .and_then(|_| self.require_drivers())
+            .and_then(|_| self.require_homed());
         if let Err(error) = checks.and_then(|_| self.check_target(geometry)) {
             return Some(Err(error));
         }
@@ -656,29 +794,60 @@ impl<H: Hardware> Device<H> {
     }
 
     fn start_reading(&mut self, seq: u32, integration_ms: u16, range: Option<u8>) -> Answer {
-        let checks = self.busy().and_then(|_| self.require_homed()).and_then(|_| self.check_integration(integration_ms));
+        let checks = self
+            .busy()
+            .and_then(|_| self.require_homed())
+            .and_then(|_| self.check_integration(integration_ms));
         if let Err(error) = checks {
             return Some(Err(error));
         }
         let reading = match range {
-            None => RangedReading::auto(&mut self.hardware, &self.config, self.last_range, integration_ms, self.now_us),
-            Some(range) if usize::from(range) < self.range_count() => {
-                RangedReading::forced(&mut self.hardware, &self.config, range, integration_ms, self.now_us)
+            None => RangedReading::auto(
+                &mut self.hardware,
+                &self.config,
+                self.last_range,
+                integration_ms,
+                self.now_us,
+            ),
+            Some(range) if usize::from(range) < self.range_count() => RangedReading::forced(
+                &mut self.hardware,
+                &self.config,
+                range,
+                integration_ms,
+                self.now_us,
+            ),
+            Some(_) => {
+                return Some(Err(DeviceError::with_detail(
+                    ErrorCode::InvalidArgument,
+                    self.range_count() as i32,
+                )));
             }
-            Some(_) => return Some(Err(DeviceError::with_detail(ErrorCode::InvalidArgument, self.range_count() as i32))),
         };
         self.activity = Activity::Reading { seq, reading };
         None
     }
 
     fn start_dark(&mut self, seq: u32, integration_ms: u16) -> Answer {
-        if let Err(error) = self.busy().and_then(|_| self.check_integration(integration_ms)) {
+        if let Err(error) = self
+            .busy()
+            .and_then(|_| self.check_integration(integration_ms))
+        {
             return Some(Err(error));
         }
         self.hardware.set_lamp(false);
         self.lamp_on = false;
-        let integration = Integration::start(&mut self.hardware, &self.config, 0, integration_ms, self.now_us);
-        self.activity = Activity::Dark { seq, integration, readings: heapless::Vec::new() };
+        let integration = Integration::start(
+            &mut self.hardware,
+            &self.config,
+            0,
+            integration_ms,
+            self.now_us,
+        );
+        self.activity = Activity::Dark {
+            seq,
+            integration,
+            readings: heapless::Vec::new(),
+        };
         None
     }
 
@@ -687,8 +856,14 @@ impl<H: Hardware> Device<H> {
             return Err(DeviceError::new(ErrorCode::Busy));
         }
         let config = &self.config;
-        let received = self.uploaded.add_chunk(chunk, config.max_schedule_len, |g| check_target(config, g))?;
-        Ok(Reply::ScheduleLoaded { schedule_id: chunk.schedule_id, received, total_len: chunk.total_len })
+        let received = self
+            .uploaded
+            .add_chunk(chunk, config.max_schedule_len, |g| check_target(config, g))?;
+        Ok(Reply::ScheduleLoaded {
+            schedule_id: chunk.schedule_id,
+            received,
+            total_len: chunk.total_len,
+        })
     }
 
     fn start_schedule(&mut self, run: &RunSchedule) -> Result<Reply, DeviceError> {
@@ -703,7 +878,9 @@ impl<H: Hardware> Device<H> {
                 None => return Err(DeviceError::new(ErrorCode::NoSchedule)),
             },
         };
-        let first = self.schedule_geometry(run.source, 0).ok_or(DeviceError::new(ErrorCode::NoSchedule))?;
+        let first = self
+            .schedule_geometry(run.source, 0)
+            .ok_or(DeviceError::new(ErrorCode::NoSchedule))?;
         self.check_target(first)?;
         let travel = self.start_travel(first);
         self.activity = Activity::Schedule(ScheduleRun {
@@ -716,7 +893,10 @@ impl<H: Hardware> Device<H> {
             started_us: self.now_us,
             step: RunStep::Travel(travel),
         });
-        Ok(Reply::ScheduleStarted { schedule_id: run.schedule_id, len })
+        Ok(Reply::ScheduleStarted {
+            schedule_id: run.schedule_id,
+            len,
+        })
     }
 
     fn schedule_geometry(&self, source: ScheduleSource, index: u16) -> Option<Geometry> {
@@ -745,51 +925,53 @@ impl<H: Hardware> Device<H> {
                     return self.fail_safe_stop(code, send);
                 }
             },
-            RunStep::Measure(mut reading) => match reading.poll(&mut self.hardware, &self.config, self.now_us) {
-                ReadingProgress::Running => run.step = RunStep::Measure(reading),
-                ReadingProgress::NoSamples => {
-                    self.activity = Activity::Schedule(run);
-                    return self.fail_safe_stop(ErrorCode::HardwareFault, send);
-                }
-                ReadingProgress::SamplesLost(_) => {
-                    self.activity = Activity::Schedule(run);
-                    return self.fail_safe_stop(ErrorCode::AdcOverrun, send);
-                }
-                ReadingProgress::Done(reading) => {
-                    self.last_range = reading.range;
-                    let streamed = StreamReading {
-                        schedule_id: run.schedule_id,
-                        index: run.index,
-                        geometry: self.position(),
-                        target: run.target,
-                        reading,
-                        device_time_us: self.now_us,
-                    };
-                    self.link.send(&DeviceMessage::Reading(streamed), send);
-                    run.index += 1;
-                    let next = self.schedule_geometry(run.source, run.index);
-                    match next {
-                        Some(geometry) if run.index < run.len => {
-                            if let Err(error) = self.check_target(geometry) {
-                                // Checked at upload; a failure here is a firmware fault.
-                                self.activity = Activity::Schedule(run);
-                                return self.fail_safe_stop(error.code, send);
+            RunStep::Measure(mut reading) => {
+                match reading.poll(&mut self.hardware, &self.config, self.now_us) {
+                    ReadingProgress::Running => run.step = RunStep::Measure(reading),
+                    ReadingProgress::NoSamples => {
+                        self.activity = Activity::Schedule(run);
+                        return self.fail_safe_stop(ErrorCode::HardwareFault, send);
+                    }
+                    ReadingProgress::SamplesLost(_) => {
+                        self.activity = Activity::Schedule(run);
+                        return self.fail_safe_stop(ErrorCode::AdcOverrun, send);
+                    }
+                    ReadingProgress::Done(reading) => {
+                        self.last_range = reading.range;
+                        let streamed = StreamReading {
+                            schedule_id: run.schedule_id,
+                            index: run.index,
+                            geometry: self.position(),
+                            target: run.target,
+                            reading,
+                            device_time_us: self.now_us,
+                        };
+                        self.link.send(&DeviceMessage::Reading(streamed), send);
+                        run.index += 1;
+                        let next = self.schedule_geometry(run.source, run.index);
+                        match next {
+                            Some(geometry) if run.index < run.len => {
+                                if let Err(error) = self.check_target(geometry) {
+                                    // Checked at upload; a failure here is a firmware fault.
+                                    self.activity = Activity::Schedule(run);
+                                    return self.fail_safe_stop(error.code, send);
+                                }
+                                run.step = RunStep::Travel(self.start_travel(geometry));
                             }
-                            run.step = RunStep::Travel(self.start_travel(geometry));
-                        }
-                        _ => {
-                            let done = ScheduleDone {
-                                schedule_id: run.schedule_id,
-                                readings: run.index,
-                                device_us: self.now_us - run.started_us,
-                                error: None,
-                            };
-                            self.link.send(&DeviceMessage::ScheduleDone(done), send);
-                            return;
+                            _ => {
+                                let done = ScheduleDone {
+                                    schedule_id: run.schedule_id,
+                                    readings: run.index,
+                                    device_us: self.now_us - run.started_us,
+                                    error: None,
+                                };
+                                self.link.send(&DeviceMessage::ScheduleDone(done), send);
+                                return;
+                            }
                         }
                     }
                 }
-            },
+            }
         }
         self.activity = Activity::Schedule(run);
     }
@@ -802,12 +984,25 @@ impl<H: Hardware> Device<H> {
         self.require_homed()?;
         let bins = check_sweep(&self.config, sweep)?;
         let start = [angle_to_steps(sweep.theta_i), angle_to_steps(sweep.from)];
-        let (max_speed, accel) = (deg_to_steps(self.config.max_speed_deg_per_s), deg_to_steps(self.config.accel_deg_per_s2));
-        let profile = sweep_profile(&self.config, start[1], angle_to_steps(sweep.to), sweep.speed_mdeg_per_s);
-        let duration_us = crate::motion::move_duration_us(self.positions(), start, max_speed, accel)
-            + u64::from(self.config.settle_ms) * 1000
-            + profile.duration_us();
-        let mut ranging = AutoRange::new(&self.config, sweep.range.unwrap_or(self.last_range), sweep.range.is_some());
+        let (max_speed, accel) = (
+            deg_to_steps(self.config.max_speed_deg_per_s),
+            deg_to_steps(self.config.accel_deg_per_s2),
+        );
+        let profile = sweep_profile(
+            &self.config,
+            start[1],
+            angle_to_steps(sweep.to),
+            sweep.speed_mdeg_per_s,
+        );
+        let duration_us =
+            crate::motion::move_duration_us(self.positions(), start, max_speed, accel)
+                + u64::from(self.config.settle_ms) * 1000
+                + profile.duration_us();
+        let mut ranging = AutoRange::new(
+            &self.config,
+            sweep.range.unwrap_or(self.last_range),
+            sweep.range.is_some(),
+        );
         if let Some(range) = ranging.take_switch() {
             self.hardware.select_range(range);
         }
@@ -844,7 +1039,8 @@ impl<H: Hardware> Device<H> {
         if blocks > 0 {
             run.last_block_us = now;
         }
-        let silent = now.saturating_sub(run.last_block_us) > SWEEP_SILENT_BLOCKS * u64::from(config.detector_block_us);
+        let silent = now.saturating_sub(run.last_block_us)
+            > SWEEP_SILENT_BLOCKS * u64::from(config.detector_block_us);
         let fault = if drained.is_err() {
             Some(ErrorCode::AdcOverrun)
         } else if silent {
@@ -861,12 +1057,21 @@ impl<H: Hardware> Device<H> {
                 Ok(Some(travel)) => run.phase = SweepPhase::Approach(travel),
                 // Settled, but a range switch is still settling: wait for it at rest.
                 Ok(None) if !run.ranging.is_found() => {
-                    run.phase = SweepPhase::Approach(Travel { settle_until_us: Some(now), ..travel });
+                    run.phase = SweepPhase::Approach(Travel {
+                        settle_until_us: Some(now),
+                        ..travel
+                    });
                 }
                 Ok(None) => {
                     let from = angle_to_steps(run.sweep.from);
-                    let profile = sweep_profile(&self.config, from, angle_to_steps(run.sweep.to), run.sweep.speed_mdeg_per_s);
-                    self.motion.start(&mut self.hardware, Arm::Detector, profile, now);
+                    let profile = sweep_profile(
+                        &self.config,
+                        from,
+                        angle_to_steps(run.sweep.to),
+                        run.sweep.speed_mdeg_per_s,
+                    );
+                    self.motion
+                        .start(&mut self.hardware, Arm::Detector, profile, now);
                     run.phase = SweepPhase::Sweeping(Binner::new(&run.sweep, run.bins));
                 }
                 Err(code) => {
@@ -876,14 +1081,22 @@ impl<H: Hardware> Device<H> {
             },
             SweepPhase::Sweeping(binner) => {
                 if binner.is_done() && !self.motion.any_moving(&self.hardware) {
-                    if self.positions() != [angle_to_steps(run.sweep.theta_i), angle_to_steps(run.sweep.to)] {
+                    if self.positions()
+                        != [
+                            angle_to_steps(run.sweep.theta_i),
+                            angle_to_steps(run.sweep.to),
+                        ]
+                    {
                         self.activity = Activity::Sweep(run);
                         return self.fail_safe_stop(ErrorCode::HardwareFault, send);
                     }
                     if run.sweep.range.is_none() {
                         self.last_range = run.ranging.range();
                     }
-                    let done = DeviceMessage::SweepDone { sweep_id: run.sweep.sweep_id, bins: binner.bins_sent() };
+                    let done = DeviceMessage::SweepDone {
+                        sweep_id: run.sweep.sweep_id,
+                        bins: binner.bins_sent(),
+                    };
                     self.link.send(&done, send);
                     return;
                 }
@@ -907,9 +1120,11 @@ impl<H: Hardware> Device<H> {
         };
         let schedule = match &self.activity {
             Activity::Schedule(run) => Some((run.schedule_id, run.index)),
-            Activity::Sweep(SweepRun { sweep, phase: SweepPhase::Sweeping(binner), .. }) => {
-                Some((sweep.sweep_id, binner.bins_sent()))
-            }
+            Activity::Sweep(SweepRun {
+                sweep,
+                phase: SweepPhase::Sweeping(binner),
+                ..
+            }) => Some((sweep.sweep_id, binner.bins_sent())),
             Activity::Sweep(SweepRun { sweep, .. }) => Some((sweep.sweep_id, 0)),
             _ => None,
         };

@@ -66,7 +66,10 @@ impl FaultRecord {
         if magic != MAGIC || check != check_word(code, detail) || code > u32::from(u16::MAX) {
             return None;
         }
-        Some(DeviceError::with_detail(ErrorCode::from(code as u16), detail as i32))
+        Some(DeviceError::with_detail(
+            ErrorCode::from(code as u16),
+            detail as i32,
+        ))
     }
 }
 

@@ -53,14 +53,21 @@ enum Phase {
     /// Fast toward the switch, at most the search range.
     Search,
     /// Switch found at `trip_steps`; ramping down.
-    SearchStopping { trip_steps: i32 },
+    SearchStopping {
+        trip_steps: i32,
+    },
     /// Fast away from the switch by `distance_steps`, `total_steps` in all since the switch
     /// was found pressed; it must release within `home_release_max`.
-    BackOff { distance_steps: i32, total_steps: i32 },
+    BackOff {
+        distance_steps: i32,
+        total_steps: i32,
+    },
     /// Slowly toward the switch again.
     Approach,
     /// Switch tripped at `trip_steps`; ramping down.
-    ApproachStopping { trip_steps: i32 },
+    ApproachStopping {
+        trip_steps: i32,
+    },
     Finished,
 }
 
@@ -90,14 +97,22 @@ pub struct ArmHoming {
 impl ArmHoming {
     /// The full homing of `arm` (search from anywhere), not started.
     pub const fn new(arm: Arm) -> ArmHoming {
-        ArmHoming { arm, phase: Phase::Begin, quick: false }
+        ArmHoming {
+            arm,
+            phase: Phase::Begin,
+            quick: false,
+        }
     }
 
     /// The quick re-home of `arm`, not started: for an arm whose step count still says
     /// where it is (homed since reset, no driver fault since), so that the switch is
     /// where the count puts it, `config.home_switch`, give or take a few lost steps.
     pub const fn quick(arm: Arm) -> ArmHoming {
-        ArmHoming { arm, phase: Phase::Begin, quick: true }
+        ArmHoming {
+            arm,
+            phase: Phase::Begin,
+            quick: true,
+        }
     }
 
     /// Whether this homing is (still) the quick one: false after a fall-back to the full
@@ -106,8 +121,22 @@ impl ArmHoming {
         self.quick
     }
 
-    fn start_slow_approach(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, distance_steps: i32, now_us: u64) {
-        self.constant_speed_move(hardware, motion, config, distance_steps, config.home_slow_deg_per_s, now_us);
+    fn start_slow_approach(
+        &mut self,
+        hardware: &mut impl Arms,
+        motion: &mut ArmMotion,
+        config: &InstrumentConfig,
+        distance_steps: i32,
+        now_us: u64,
+    ) {
+        self.constant_speed_move(
+            hardware,
+            motion,
+            config,
+            distance_steps,
+            config.home_slow_deg_per_s,
+            now_us,
+        );
     }
 
     fn start_backoff(
@@ -119,13 +148,36 @@ impl ArmHoming {
         total_steps: i32,
         now_us: u64,
     ) {
-        self.constant_speed_move(hardware, motion, config, -distance_steps, config.home_fast_deg_per_s, now_us);
-        self.phase = Phase::BackOff { distance_steps, total_steps: total_steps + distance_steps };
+        self.constant_speed_move(
+            hardware,
+            motion,
+            config,
+            -distance_steps,
+            config.home_fast_deg_per_s,
+            now_us,
+        );
+        self.phase = Phase::BackOff {
+            distance_steps,
+            total_steps: total_steps + distance_steps,
+        };
     }
 
-    fn start_search(&mut self, hardware: &mut impl Arms, motion: &mut ArmMotion, config: &InstrumentConfig, now_us: u64) {
+    fn start_search(
+        &mut self,
+        hardware: &mut impl Arms,
+        motion: &mut ArmMotion,
+        config: &InstrumentConfig,
+        now_us: u64,
+    ) {
         let search_steps = angle_to_steps(config.home_search_range);
-        self.constant_speed_move(hardware, motion, config, search_steps, config.home_fast_deg_per_s, now_us);
+        self.constant_speed_move(
+            hardware,
+            motion,
+            config,
+            search_steps,
+            config.home_fast_deg_per_s,
+            now_us,
+        );
         self.phase = Phase::Search;
     }
 
@@ -140,7 +192,13 @@ impl ArmHoming {
     ) {
         let here = hardware.position_steps(self.arm);
         let speed = deg_to_steps(speed_deg_per_s.min(config.max_speed_deg_per_s));
-        let profile = MoveProfile::fastest(here, here + distance_steps, 0.0, speed, deg_to_steps(config.accel_deg_per_s2));
+        let profile = MoveProfile::fastest(
+            here,
+            here + distance_steps,
+            0.0,
+            speed,
+            deg_to_steps(config.accel_deg_per_s2),
+        );
         motion.start(hardware, self.arm, profile, now_us);
     }
 
@@ -163,7 +221,8 @@ impl ArmHoming {
         let max_speed = deg_to_steps(config.max_speed_deg_per_s);
         let accel = deg_to_steps(config.accel_deg_per_s2);
         // Where the count puts the end of the quick fast move.
-        let quick_target = angle_to_steps(config.home_switch) - angle_to_steps(config.home_quick_margin);
+        let quick_target =
+            angle_to_steps(config.home_switch) - angle_to_steps(config.home_quick_margin);
         match self.phase {
             Phase::Begin => {
                 if pressed {
@@ -173,7 +232,12 @@ impl ArmHoming {
                     self.start_search(hardware, motion, config, now_us);
                 } else if hardware.position_steps(self.arm) < quick_target {
                     let here = hardware.position_steps(self.arm);
-                    motion.start(hardware, self.arm, MoveProfile::fastest(here, quick_target, 0.0, max_speed, accel), now_us);
+                    motion.start(
+                        hardware,
+                        self.arm,
+                        MoveProfile::fastest(here, quick_target, 0.0, max_speed, accel),
+                        now_us,
+                    );
                     self.phase = Phase::QuickRun;
                 } else {
                     // Believed within the margin already: only the slow approach is left.
@@ -225,7 +289,10 @@ impl ArmHoming {
                     self.start_backoff(hardware, motion, config, distance, 0, now_us);
                 }
             }
-            Phase::BackOff { distance_steps, total_steps } => {
+            Phase::BackOff {
+                distance_steps,
+                total_steps,
+            } => {
                 if !moving {
                     if pressed {
                         // Further past the switch than one back-off (an arm far ahead of its
@@ -233,11 +300,19 @@ impl ArmHoming {
                         if total_steps + backoff_steps > angle_to_steps(config.home_release_max) {
                             return self.fail(ErrorCode::HomeSwitchStuck);
                         }
-                        self.start_backoff(hardware, motion, config, backoff_steps, total_steps, now_us);
+                        self.start_backoff(
+                            hardware,
+                            motion,
+                            config,
+                            backoff_steps,
+                            total_steps,
+                            now_us,
+                        );
                         return HomingStatus::Running;
                     }
                     // Back over the whole back-off and one degree more: the switch must trip.
-                    let approach = distance_steps + angle_to_steps(protocol::Angle::from_whole_deg(1));
+                    let approach =
+                        distance_steps + angle_to_steps(protocol::Angle::from_whole_deg(1));
                     self.start_slow_approach(hardware, motion, config, approach, now_us);
                     self.phase = Phase::Approach;
                 }
@@ -282,12 +357,17 @@ pub fn longest_homing_us(config: &InstrumentConfig) -> u64 {
     let full = deg_to_steps(config.max_speed_deg_per_s);
     let fast = deg_to_steps(config.home_fast_deg_per_s.min(config.max_speed_deg_per_s));
     let slow = deg_to_steps(config.home_slow_deg_per_s.min(config.max_speed_deg_per_s));
-    let travel = |steps: i32, speed: f32| MoveProfile::fastest(0, steps.max(0), 0.0, speed, accel).duration_us();
+    let travel = |steps: i32, speed: f32| {
+        MoveProfile::fastest(0, steps.max(0), 0.0, speed, accel).duration_us()
+    };
     let stop = |speed: f32| (speed / accel * 1e6) as u64 + 1;
     let degree = angle_to_steps(protocol::Angle::from_whole_deg(1));
     let backoff = angle_to_steps(config.home_backoff).max(1);
     let braking = (full * full / (2.0 * accel)) as i32 + 1;
-    let quick_run = travel(angle_to_steps(config.home_switch) - angle_to_steps(config.arm_min), full) + stop(full);
+    let quick_run = travel(
+        angle_to_steps(config.home_switch) - angle_to_steps(config.arm_min),
+        full,
+    ) + stop(full);
     let tripped_in_the_run = {
         let back = braking + backoff / 2 + backoff;
         travel(back, fast) + stop(fast) + travel(back + degree, slow) + stop(slow)

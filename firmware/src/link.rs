@@ -17,7 +17,8 @@
 
 use heapless::Vec;
 use protocol::{
-    Command, DeviceError, DeviceMessage, ErrorCode, FrameDecoder, FrameError, MAX_FRAME_LEN, Reply, Request,
+    Command, DeviceError, DeviceMessage, ErrorCode, FrameDecoder, FrameError, MAX_FRAME_LEN, Reply,
+    Request,
 };
 
 /// What arrived on the link.
@@ -58,7 +59,11 @@ impl Default for Link {
 impl Link {
     /// A link with nothing received.
     pub const fn new() -> Link {
-        Link { decoder: FrameDecoder::new(), last_reply: None, in_progress: None }
+        Link {
+            decoder: FrameDecoder::new(),
+            last_reply: None,
+            in_progress: None,
+        }
     }
 
     /// After a USB reset or reconnect: drop a partial frame and start a new session.
@@ -82,7 +87,13 @@ impl Link {
             Err(FrameError::UnknownMessage { seq: Some(seq) }) => {
                 // Answered, not cached (the same frame again gets the same answer) and
                 // without touching the request in progress: it starts and ends nothing.
-                self.send(&DeviceMessage::Reply { seq, result: Err(DeviceError::new(ErrorCode::NotSupported)) }, send);
+                self.send(
+                    &DeviceMessage::Reply {
+                        seq,
+                        result: Err(DeviceError::new(ErrorCode::NotSupported)),
+                    },
+                    send,
+                );
                 Incoming::Unsupported { seq }
             }
             Err(error) => {
@@ -117,25 +128,46 @@ impl Link {
     }
 
     /// Answer the request `seq` just received, and remember the answer for a retry.
-    pub fn reply(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
+    pub fn reply(
+        &mut self,
+        seq: u32,
+        result: Result<Reply, DeviceError>,
+        send: &mut impl FnMut(&[u8]),
+    ) {
         self.answer(seq, result, true, send);
     }
 
     /// Answer a request accepted with [`Link::begin`], now done. Cached for a retry only if
     /// it is still this session's request in progress (not one from before a `Hello` or a
     /// reset).
-    pub fn finish(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
+    pub fn finish(
+        &mut self,
+        seq: u32,
+        result: Result<Reply, DeviceError>,
+        send: &mut impl FnMut(&[u8]),
+    ) {
         let ours = self.in_progress == Some(seq);
         self.answer(seq, result, ours, send);
     }
 
     /// Answer a request whose repeat may simply be carried out again (read-only commands,
     /// see [`protocol::Command::is_read_only`], and `Hello`) without caching.
-    pub fn reply_uncached(&mut self, seq: u32, result: Result<Reply, DeviceError>, send: &mut impl FnMut(&[u8])) {
+    pub fn reply_uncached(
+        &mut self,
+        seq: u32,
+        result: Result<Reply, DeviceError>,
+        send: &mut impl FnMut(&[u8]),
+    ) {
         self.answer(seq, result, false, send);
     }
 
-    fn answer(&mut self, seq: u32, result: Result<Reply, DeviceError>, cache: bool, send: &mut impl FnMut(&[u8])) {
+    fn answer(
+        &mut self,
+        seq: u32,
+        result: Result<Reply, DeviceError>,
+        cache: bool,
+        send: &mut impl FnMut(&[u8]),
+    ) {
         if self.in_progress == Some(seq) {
             self.in_progress = None;
         }
@@ -146,7 +178,10 @@ impl Link {
             // Every reply fits by construction (checked by the protocol tests); should
             // one not, the host must still hear about it.
             Err(_) => {
-                let fallback = DeviceMessage::Reply { seq, result: Err(DeviceError::new(ErrorCode::HardwareFault)) };
+                let fallback = DeviceMessage::Reply {
+                    seq,
+                    result: Err(DeviceError::new(ErrorCode::HardwareFault)),
+                };
                 match protocol::encode_frame(&fallback, &mut buf) {
                     Ok(frame) => frame,
                     Err(_) => return,

@@ -70,7 +70,13 @@ impl MoveProfile {
     /// The fastest move from `start` to `target` within `max_speed` and `accel`, entered
     /// at `start_speed` towards the target. Needs room to stop:
     /// |target − start| ≥ start_speed² / (2·accel) (true for a move from rest).
-    pub fn fastest(start: i32, target: i32, start_speed: f32, max_speed: f32, accel: f32) -> MoveProfile {
+    pub fn fastest(
+        start: i32,
+        target: i32,
+        start_speed: f32,
+        max_speed: f32,
+        accel: f32,
+    ) -> MoveProfile {
         let distance = (target - start).unsigned_abs() as f32;
         if distance == 0.0 || accel <= 0.0 || max_speed <= 0.0 {
             return MoveProfile::rest(start);
@@ -188,7 +194,8 @@ impl MoveProfile {
         }
         if t_s < self.duration_s() {
             let tau = t_s - self.accel_s - self.cruise_s;
-            let s = accel_end + self.peak_speed * self.cruise_s + self.peak_speed * tau - 0.5 * self.accel * tau * tau;
+            let s = accel_end + self.peak_speed * self.cruise_s + self.peak_speed * tau
+                - 0.5 * self.accel * tau * tau;
             return s.min(distance);
         }
         distance
@@ -239,7 +246,8 @@ impl MoveProfile {
         } else {
             // vp·τ − a·τ²/2 = s − cruise_end
             let rest = s - cruise_end;
-            let root = sqrtf((self.peak_speed * self.peak_speed - 2.0 * self.accel * rest).max(0.0));
+            let root =
+                sqrtf((self.peak_speed * self.peak_speed - 2.0 * self.accel * rest).max(0.0));
             self.accel_s + self.cruise_s + 2.0 * rest / (self.peak_speed + root)
         };
         t.min(self.duration_s())
@@ -257,7 +265,11 @@ impl MoveProfile {
 
 /// Plan a move of both arms (source, detector) from `from` to `to`, arriving together.
 pub fn plan_move(from: [i32; 2], to: [i32; 2], max_speed: f32, accel: f32) -> [MoveProfile; 2] {
-    let leader = if (to[0] - from[0]).unsigned_abs() >= (to[1] - from[1]).unsigned_abs() { 0 } else { 1 };
+    let leader = if (to[0] - from[0]).unsigned_abs() >= (to[1] - from[1]).unsigned_abs() {
+        0
+    } else {
+        1
+    };
     let follower = 1 - leader;
     let lead = MoveProfile::fastest(from[leader], to[leader], 0.0, max_speed, accel);
     let follow = lead.scaled(from[follower], to[follower]);
@@ -289,7 +301,9 @@ pub struct ArmMotion {
 impl ArmMotion {
     /// No arm moving.
     pub const fn new() -> ArmMotion {
-        ArmMotion { running: [None, None] }
+        ArmMotion {
+            running: [None, None],
+        }
     }
 
     /// Hand `profile` to the arm's step generator at `now_us`. A profile of no steps
@@ -304,12 +318,24 @@ impl ArmMotion {
             return;
         }
         hardware.run_profile(arm, &profile);
-        self.running[arm.index()] = Some(RunningProfile { profile, started_us: now_us });
+        self.running[arm.index()] = Some(RunningProfile {
+            profile,
+            started_us: now_us,
+        });
     }
 
     /// Bring the arm to rest with a deceleration ramp from the speed it has now.
-    pub fn stop(&mut self, hardware: &mut impl Arms, arm: Arm, max_speed: f32, accel: f32, now_us: u64) {
-        let Some(running) = self.running[arm.index()] else { return };
+    pub fn stop(
+        &mut self,
+        hardware: &mut impl Arms,
+        arm: Arm,
+        max_speed: f32,
+        accel: f32,
+        now_us: u64,
+    ) {
+        let Some(running) = self.running[arm.index()] else {
+            return;
+        };
         if !hardware.is_moving(arm) {
             self.running[arm.index()] = None;
             return;

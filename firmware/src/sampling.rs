@@ -87,7 +87,14 @@ impl Default for SampleRing {
 impl SampleRing {
     /// Empty.
     pub const fn new() -> SampleRing {
-        SampleRing { samples: [0; RING_LEN], detector_steps: [0; RING_LEN], head: 0, len: 0, loss: None, fault: None }
+        SampleRing {
+            samples: [0; RING_LEN],
+            detector_steps: [0; RING_LEN],
+            head: 0,
+            len: 0,
+            loss: None,
+            fault: None,
+        }
     }
 
     /// Add a sample and the detector arm's step count at its end; when full, it is
@@ -173,7 +180,12 @@ impl Decimator {
     /// For an ADC converting every `cycles_per_conversion` cycles of the clock that
     /// [`Decimator::service`] is given, started from slot 0 at `now_cycles`.
     pub const fn new(cycles_per_conversion: u32, now_cycles: u32) -> Decimator {
-        Decimator { cycles_per_conversion, read: 0, last_write: 0, last_cycles: now_cycles }
+        Decimator {
+            cycles_per_conversion,
+            read: 0,
+            last_write: 0,
+            last_cycles: now_cycles,
+        }
     }
 
     /// The conversions and the DMA were restarted from slot 0 at `now_cycles`.
@@ -219,7 +231,9 @@ impl Decimator {
             self.read = write / OVERSAMPLE * OVERSAMPLE;
         } else {
             while (write + RAW_LEN - self.read) % RAW_LEN >= OVERSAMPLE {
-                let sum: u32 = (self.read..self.read + OVERSAMPLE).map(|i| u32::from(raw(i) & 0x0fff)).sum();
+                let sum: u32 = (self.read..self.read + OVERSAMPLE)
+                    .map(|i| u32::from(raw(i) & 0x0fff))
+                    .sum();
                 // 256 × 4095 = 1,048,320 → 65,520: fits u16.
                 ring.push((sum >> 4) as u16, detector_steps);
                 self.read = (self.read + OVERSAMPLE) % RAW_LEN;

@@ -16,9 +16,9 @@ use crate::sampling::SampleLoss;
 use crate::schedule::STRATEGY1_ORDER;
 use crate::testing::{FakeHardware, Scene};
 use protocol::{
-    Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, FrameDecoder, Geometry, HomeReport,
-    MAX_FRAME_LEN, PROTOCOL_VERSION, Reply, Request, RunSchedule, ScheduleDone, ScheduleSource, Status, Sweep, SweepBin,
-    SweepPlan, Target,
+    Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, FrameDecoder,
+    Geometry, HomeReport, MAX_FRAME_LEN, PROTOCOL_VERSION, Reply, Request, RunSchedule,
+    ScheduleDone, ScheduleSource, Status, Sweep, SweepBin, SweepPlan, Target,
 };
 
 /// Why a scenario failed: what did not hold, and where (the line in this file).
@@ -44,23 +44,56 @@ pub struct Scenario {
 macro_rules! ensure {
     ($cond:expr, $what:literal) => {
         if !$cond {
-            return Err(Failure { what: $what, line: line!() });
+            return Err(Failure {
+                what: $what,
+                line: line!(),
+            });
         }
     };
 }
 
 /// Every scenario, in order.
 pub const SCENARIOS: &[Scenario] = &[
-    Scenario { name: "handshake", run: handshake },
-    Scenario { name: "homing", run: homing },
-    Scenario { name: "strategy1", run: strategy1 },
-    Scenario { name: "sweep", run: sweep },
-    Scenario { name: "heartbeat_loss", run: heartbeat_loss },
-    Scenario { name: "driver_fault", run: driver_fault },
-    Scenario { name: "late_step", run: late_step },
-    Scenario { name: "adc_overrun", run: adc_overrun },
-    Scenario { name: "watchdog_reset", run: watchdog_reset },
-    Scenario { name: "panic_safe_stop", run: panic_safe_stop },
+    Scenario {
+        name: "handshake",
+        run: handshake,
+    },
+    Scenario {
+        name: "homing",
+        run: homing,
+    },
+    Scenario {
+        name: "strategy1",
+        run: strategy1,
+    },
+    Scenario {
+        name: "sweep",
+        run: sweep,
+    },
+    Scenario {
+        name: "heartbeat_loss",
+        run: heartbeat_loss,
+    },
+    Scenario {
+        name: "driver_fault",
+        run: driver_fault,
+    },
+    Scenario {
+        name: "late_step",
+        run: late_step,
+    },
+    Scenario {
+        name: "adc_overrun",
+        run: adc_overrun,
+    },
+    Scenario {
+        name: "watchdog_reset",
+        run: watchdog_reset,
+    },
+    Scenario {
+        name: "panic_safe_stop",
+        run: panic_safe_stop,
+    },
 ];
 
 /// Signal on the most sensitive range: a mid-scale diffuse sheet with a specular peak.
@@ -155,7 +188,9 @@ impl Received {
 
     fn message(&mut self, message: DeviceMessage) {
         match message {
-            DeviceMessage::Reply { seq, result } if Some(seq) == self.awaiting => self.answer = Some(result),
+            DeviceMessage::Reply { seq, result } if Some(seq) == self.awaiting => {
+                self.answer = Some(result)
+            }
             DeviceMessage::Reply { .. } | DeviceMessage::FrameRejected { .. } => {}
             DeviceMessage::SweepBin(bin) => self.sweep.bin(&bin),
             DeviceMessage::SweepDone { bins, .. } => self.sweep.done = Some(bins),
@@ -230,7 +265,8 @@ impl Bench {
         let mut buf = [0u8; MAX_FRAME_LEN];
         if let Ok(frame) = protocol::encode_frame(&Request { seq, command }, &mut buf) {
             let rx = &mut self.rx;
-            self.device.receive(frame, self.now_us, &mut |bytes: &[u8]| rx.bytes(bytes));
+            self.device
+                .receive(frame, self.now_us, &mut |bytes: &[u8]| rx.bytes(bytes));
         }
         seq
     }
@@ -238,7 +274,10 @@ impl Bench {
     /// One millisecond of virtual time.
     fn tick(&mut self) {
         self.now_us += 1000;
-        if self.heartbeat_every_ms.is_some_and(|every| self.now_us % (every * 1000) == 0) {
+        if self
+            .heartbeat_every_ms
+            .is_some_and(|every| self.now_us % (every * 1000) == 0)
+        {
             let awaiting = self.rx.awaiting;
             self.send(Command::Heartbeat);
             self.rx.awaiting = awaiting;
@@ -279,7 +318,9 @@ impl Bench {
     }
 
     fn hello(&mut self) -> Option<DeviceInfo> {
-        match self.ask(Command::Hello { protocol_version: PROTOCOL_VERSION }) {
+        match self.ask(Command::Hello {
+            protocol_version: PROTOCOL_VERSION,
+        }) {
             Some(Ok(Reply::Hello(info))) => Some(info),
             _ => None,
         }
@@ -314,62 +355,153 @@ fn err(code: ErrorCode) -> Option<Result<Reply, DeviceError>> {
 fn homed() -> Result<Bench, Failure> {
     let mut bench = Bench::new(Geometry::from_whole_deg(30, 30), ResetCause::PowerOn);
     ensure!(bench.hello().is_some(), "hello answered");
-    ensure!(bench.home() == Some(HomeReport { step_error_i: None, step_error_r: None }), "first homing");
+    ensure!(
+        bench.home()
+            == Some(HomeReport {
+                step_error_i: None,
+                step_error_r: None
+            }),
+        "first homing"
+    );
     Ok(bench)
 }
 
 fn handshake() -> Outcome {
     let mut bench = Bench::new(Geometry::from_whole_deg(30, 30), ResetCause::PowerOn);
-    ensure!(bench.ask(Command::Home) == Some(Err(DeviceError::with_detail(ErrorCode::VersionMismatch, PROTOCOL_VERSION.into()))), "nothing before hello");
     ensure!(
-        bench.ask(Command::Hello { protocol_version: PROTOCOL_VERSION + 1 })
-            == Some(Err(DeviceError::with_detail(ErrorCode::VersionMismatch, PROTOCOL_VERSION.into()))),
+        bench.ask(Command::Home)
+            == Some(Err(DeviceError::with_detail(
+                ErrorCode::VersionMismatch,
+                PROTOCOL_VERSION.into()
+            ))),
+        "nothing before hello"
+    );
+    ensure!(
+        bench.ask(Command::Hello {
+            protocol_version: PROTOCOL_VERSION + 1
+        }) == Some(Err(DeviceError::with_detail(
+            ErrorCode::VersionMismatch,
+            PROTOCOL_VERSION.into()
+        ))),
         "another version refused with ours"
     );
-    let Some(info) = bench.hello() else { return Err(Failure { what: "hello", line: line!() }) };
-    ensure!(info.protocol_version == PROTOCOL_VERSION, "protocol version");
-    ensure!(info.firmware_version.as_str() == crate::FIRMWARE_VERSION, "firmware version");
-    ensure!(info.heartbeat_timeout_ms == InstrumentConfig::REFERENCE.heartbeat_timeout_ms, "heartbeat timeout announced");
+    let Some(info) = bench.hello() else {
+        return Err(Failure {
+            what: "hello",
+            line: line!(),
+        });
+    };
+    ensure!(
+        info.protocol_version == PROTOCOL_VERSION,
+        "protocol version"
+    );
+    ensure!(
+        info.firmware_version.as_str() == crate::FIRMWARE_VERSION,
+        "firmware version"
+    );
+    ensure!(
+        info.heartbeat_timeout_ms == InstrumentConfig::REFERENCE.heartbeat_timeout_ms,
+        "heartbeat timeout announced"
+    );
     ensure!(info.reset_cause == ResetCause::PowerOn, "reset cause");
     ensure!(info.serial_number.as_str() == "SCENARIO", "serial number");
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.state == DeviceState::Idle && !status.homed_i && status.fault.is_none(), "idle, not homed");
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.state == DeviceState::Idle && !status.homed_i && status.fault.is_none(),
+        "idle, not homed"
+    );
     ensure!(bench.rx.bad_frames == 0, "every frame readable");
     Ok(bench.digest())
 }
 
 fn homing() -> Outcome {
     let mut bench = homed()?;
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.homed_i && status.homed_r && status.position == bench.hw().true_geometry(), "homed where it is");
-    ensure!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(45, 45))) == Some(Ok(Reply::Ack)), "move");
-    ensure!(bench.hw().true_geometry() == Geometry::from_whole_deg(45, 45), "arrived");
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.homed_i && status.homed_r && status.position == bench.hw().true_geometry(),
+        "homed where it is"
+    );
+    ensure!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(45, 45))) == Some(Ok(Reply::Ack)),
+        "move"
+    );
+    ensure!(
+        bench.hw().true_geometry() == Geometry::from_whole_deg(45, 45),
+        "arrived"
+    );
     ensure!(bench.hw().profiles_over_limits == 0, "within the limits");
     // 37 steps lost on the source arm: the quick re-home says so, exactly.
     bench.hw_mut().lose_steps(Arm::Source, 37);
-    ensure!(bench.home() == Some(HomeReport { step_error_i: Some(-37), step_error_r: Some(0) }), "step error");
-    ensure!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(5, 2))) == err(ErrorCode::CollisionGuard), "collision guard");
+    ensure!(
+        bench.home()
+            == Some(HomeReport {
+                step_error_i: Some(-37),
+                step_error_r: Some(0)
+            }),
+        "step error"
+    );
+    ensure!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(5, 2)))
+            == err(ErrorCode::CollisionGuard),
+        "collision guard"
+    );
     Ok(bench.digest())
 }
 
 fn strategy1() -> Outcome {
     let mut bench = homed()?;
-    ensure!(bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)), "lamp");
-    let run = RunSchedule { schedule_id: 7, source: ScheduleSource::Strategy1, integration_ms: 50, target: Target::Sample };
-    ensure!(bench.ask(Command::RunSchedule(run)) == Some(Ok(Reply::ScheduleStarted { schedule_id: 7, len: 12 })), "started");
+    ensure!(
+        bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)),
+        "lamp"
+    );
+    let run = RunSchedule {
+        schedule_id: 7,
+        source: ScheduleSource::Strategy1,
+        integration_ms: 50,
+        target: Target::Sample,
+    };
+    ensure!(
+        bench.ask(Command::RunSchedule(run))
+            == Some(Ok(Reply::ScheduleStarted {
+                schedule_id: 7,
+                len: 12
+            })),
+        "started"
+    );
     for _ in 0..120_000 {
         if bench.rx.done.is_some() {
             break;
         }
         bench.tick();
     }
-    let Some(done) = bench.rx.done else { return Err(Failure { what: "schedule done", line: line!() }) };
+    let Some(done) = bench.rx.done else {
+        return Err(Failure {
+            what: "schedule done",
+            line: line!(),
+        });
+    };
     ensure!(done.error.is_none() && done.readings == 12, "completed");
     ensure!(bench.rx.streamed.len() == 12, "twelve readings");
     for (k, &(index, geometry)) in bench.rx.streamed.iter().enumerate() {
-        ensure!(usize::from(index) == k && geometry == STRATEGY1_ORDER[k], "in order, where planned");
+        ensure!(
+            usize::from(index) == k && geometry == STRATEGY1_ORDER[k],
+            "in order, where planned"
+        );
     }
-    ensure!(bench.rx.stops.is_empty() && bench.hw().profiles_over_limits == 0, "no stop, within limits");
+    ensure!(
+        bench.rx.stops.is_empty() && bench.hw().profiles_over_limits == 0,
+        "no stop, within limits"
+    );
     Ok(bench.digest())
 }
 
@@ -379,8 +511,14 @@ fn strategy1() -> Outcome {
 /// sweep, as many as planned.
 fn sweep() -> Outcome {
     let mut bench = homed()?;
-    ensure!(bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)), "lamp");
-    let (from, to) = (protocol::Angle::from_whole_deg(20), protocol::Angle::from_whole_deg(40));
+    ensure!(
+        bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)),
+        "lamp"
+    );
+    let (from, to) = (
+        protocol::Angle::from_whole_deg(20),
+        protocol::Angle::from_whole_deg(40),
+    );
     let sweep = Sweep {
         sweep_id: 9,
         theta_i: protocol::Angle::from_whole_deg(30),
@@ -391,8 +529,12 @@ fn sweep() -> Outcome {
         range: None,
         target: Target::Sample,
     };
-    let Some(Ok(Reply::Sweep(SweepPlan { bins, duration_ms }))) = bench.ask(Command::Sweep(sweep)) else {
-        return Err(Failure { what: "sweep accepted", line: line!() });
+    let Some(Ok(Reply::Sweep(SweepPlan { bins, duration_ms }))) = bench.ask(Command::Sweep(sweep))
+    else {
+        return Err(Failure {
+            what: "sweep accepted",
+            line: line!(),
+        });
     };
     ensure!(bins == 200, "the plan's bins");
     for _ in 0..u64::from(duration_ms) + 1000 {
@@ -402,26 +544,58 @@ fn sweep() -> Outcome {
         bench.tick();
     }
     let seen = bench.rx.sweep;
-    ensure!(seen.done == Some(bins) && seen.bins == bins, "every bin, then SweepDone");
-    ensure!(seen.tiled && seen.first_start == Some(from) && seen.last_end == Some(to), "the bins tile the sweep");
-    ensure!(seen.ranges == 0b111 && seen.switches >= 4, "up to the least sensitive range and back");
-    ensure!(seen.blanked >= seen.switches && seen.saturated == 0 && seen.empty < 10, "switches blanked, nothing saturated");
-    ensure!(bench.hw().true_geometry() == Geometry::new(sweep.theta_i, to), "the arm rests on `to`");
-    ensure!(bench.rx.stops.is_empty() && bench.hw().profiles_over_limits == 0, "no stop, within limits");
+    ensure!(
+        seen.done == Some(bins) && seen.bins == bins,
+        "every bin, then SweepDone"
+    );
+    ensure!(
+        seen.tiled && seen.first_start == Some(from) && seen.last_end == Some(to),
+        "the bins tile the sweep"
+    );
+    ensure!(
+        seen.ranges == 0b111 && seen.switches >= 4,
+        "up to the least sensitive range and back"
+    );
+    ensure!(
+        seen.blanked >= seen.switches && seen.saturated == 0 && seen.empty < 10,
+        "switches blanked, nothing saturated"
+    );
+    ensure!(
+        bench.hw().true_geometry() == Geometry::new(sweep.theta_i, to),
+        "the arm rests on `to`"
+    );
+    ensure!(
+        bench.rx.stops.is_empty() && bench.hw().profiles_over_limits == 0,
+        "no stop, within limits"
+    );
     Ok(bench.digest())
 }
 
 fn heartbeat_loss() -> Outcome {
     let mut bench = homed()?;
-    ensure!(bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)), "lamp");
+    ensure!(
+        bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)),
+        "lamp"
+    );
     bench.heartbeat_every_ms = None;
     bench.run_ms(u64::from(InstrumentConfig::REFERENCE.heartbeat_timeout_ms) + 100);
-    ensure!(bench.rx.stops.as_slice() == [ErrorCode::HeartbeatLost], "stopped for the heartbeat");
+    ensure!(
+        bench.rx.stops.as_slice() == [ErrorCode::HeartbeatLost],
+        "stopped for the heartbeat"
+    );
     ensure!(!bench.hw().lamp_on(), "lamp off");
     bench.heartbeat_every_ms = Some(500);
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
     // At rest: the homing stays.
-    ensure!(status.fault == Some(ErrorCode::HeartbeatLost) && status.homed_i && !status.lamp_on, "status");
+    ensure!(
+        status.fault == Some(ErrorCode::HeartbeatLost) && status.homed_i && !status.lamp_on,
+        "status"
+    );
     Ok(bench.digest())
 }
 
@@ -431,12 +605,27 @@ fn driver_fault() -> Outcome {
     bench.run_ms(200);
     bench.hw_mut().arms[1].driver_fault = true;
     bench.run_ms(1);
-    ensure!(bench.rx.stops.as_slice() == [ErrorCode::HardwareFault], "stopped for the driver");
+    ensure!(
+        bench.rx.stops.as_slice() == [ErrorCode::HardwareFault],
+        "stopped for the driver"
+    );
     bench.wait_at_rest();
-    ensure!(bench.ask(Command::Home) == Some(Err(DeviceError::with_detail(ErrorCode::HardwareFault, 1))), "no homing while faulted");
+    ensure!(
+        bench.ask(Command::Home)
+            == Some(Err(DeviceError::with_detail(ErrorCode::HardwareFault, 1))),
+        "no homing while faulted"
+    );
     bench.hw_mut().arms[1].driver_fault = false;
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.state == DeviceState::Stopped && !status.homed_r, "not homed after a fault mid-move");
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.state == DeviceState::Stopped && !status.homed_r,
+        "not homed after a fault mid-move"
+    );
     ensure!(bench.home().is_some(), "homes again");
     Ok(bench.digest())
 }
@@ -447,12 +636,30 @@ fn late_step() -> Outcome {
     bench.run_ms(100);
     bench.hw_mut().arms[0].step_late = true;
     bench.run_ms(1);
-    ensure!(bench.rx.stops.as_slice() == [ErrorCode::StepLate], "stopped for the late step");
+    ensure!(
+        bench.rx.stops.as_slice() == [ErrorCode::StepLate],
+        "stopped for the late step"
+    );
     bench.wait_at_rest();
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.state == DeviceState::Stopped && !status.homed_i && !status.homed_r, "homing lost");
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.state == DeviceState::Stopped && !status.homed_i && !status.homed_r,
+        "homing lost"
+    );
     ensure!(status.fault == Some(ErrorCode::StepLate), "the reason");
-    ensure!(bench.home() == Some(HomeReport { step_error_i: Some(0), step_error_r: Some(0) }), "quick re-home, exact");
+    ensure!(
+        bench.home()
+            == Some(HomeReport {
+                step_error_i: Some(0),
+                step_error_r: Some(0)
+            }),
+        "quick re-home, exact"
+    );
     Ok(bench.digest())
 }
 
@@ -460,26 +667,64 @@ fn adc_overrun() -> Outcome {
     let mut bench = homed()?;
     let seq = bench.next_seq;
     bench.rx.awaiting = Some(seq);
-    bench.send(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None });
+    bench.send(Command::TakeReading {
+        integration_ms: 100,
+        target: Target::Sample,
+        range: None,
+    });
     bench.run_ms(30);
     bench.hw_mut().sample_loss = Some(SampleLoss::DmaLapped);
     bench.run_ms(1);
-    ensure!(bench.rx.answer == err(ErrorCode::AdcOverrun), "the reading fails");
-    ensure!(bench.rx.stops.as_slice() == [ErrorCode::AdcOverrun], "stopped for the overrun");
-    match bench.ask(Command::TakeReading { integration_ms: 50, target: Target::Sample, range: None }) {
-        Some(Ok(Reply::Reading(reading))) => ensure!(reading.samples > 30 && !reading.saturated, "a reading after it"),
-        _ => return Err(Failure { what: "a reading after it", line: line!() }),
+    ensure!(
+        bench.rx.answer == err(ErrorCode::AdcOverrun),
+        "the reading fails"
+    );
+    ensure!(
+        bench.rx.stops.as_slice() == [ErrorCode::AdcOverrun],
+        "stopped for the overrun"
+    );
+    match bench.ask(Command::TakeReading {
+        integration_ms: 50,
+        target: Target::Sample,
+        range: None,
+    }) {
+        Some(Ok(Reply::Reading(reading))) => ensure!(
+            reading.samples > 30 && !reading.saturated,
+            "a reading after it"
+        ),
+        _ => {
+            return Err(Failure {
+                what: "a reading after it",
+                line: line!(),
+            });
+        }
     }
     Ok(bench.digest())
 }
 
 fn watchdog_reset() -> Outcome {
     let mut bench = Bench::new(Geometry::from_whole_deg(50, 20), ResetCause::Watchdog);
-    let Some(info) = bench.hello() else { return Err(Failure { what: "hello", line: line!() }) };
+    let Some(info) = bench.hello() else {
+        return Err(Failure {
+            what: "hello",
+            line: line!(),
+        });
+    };
     ensure!(info.reset_cause == ResetCause::Watchdog, "announced");
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.state == DeviceState::Stopped && status.fault == Some(ErrorCode::WatchdogReset), "stopped");
-    ensure!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))) == err(ErrorCode::NotHomed), "not homed");
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.state == DeviceState::Stopped && status.fault == Some(ErrorCode::WatchdogReset),
+        "stopped"
+    );
+    ensure!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))) == err(ErrorCode::NotHomed),
+        "not homed"
+    );
     ensure!(bench.home().is_some(), "homes");
     Ok(bench.digest())
 }
@@ -487,10 +732,16 @@ fn watchdog_reset() -> Outcome {
 /// A homed bench mid-move with the lamp on: a fault handler's worst moment.
 pub fn moving_with_lamp_on() -> Result<Bench, Failure> {
     let mut bench = homed()?;
-    ensure!(bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)), "lamp");
+    ensure!(
+        bench.ask(Command::SetLamp { on: true }) == Some(Ok(Reply::Ack)),
+        "lamp"
+    );
     bench.send(Command::MoveTo(Geometry::from_whole_deg(15, 70)));
     bench.run_ms(250);
-    ensure!(bench.moving() && bench.hw().lamp_on(), "moving at the fault, lamp on");
+    ensure!(
+        bench.moving() && bench.hw().lamp_on(),
+        "moving at the fault, lamp on"
+    );
     Ok(bench)
 }
 
@@ -508,28 +759,67 @@ fn panic_safe_stop() -> Outcome {
     hardware.advance_to(later);
     ensure!(bench.hw().true_geometry() == at, "nothing moves after");
     let digest = bench.digest();
-    let flags = ResetFlags { power: false, pin: true, software: true, watchdog: false };
+    let flags = ResetFlags {
+        power: false,
+        pin: true,
+        software: true,
+        watchdog: false,
+    };
     report_after_reset(at, reset_cause(flags, &record), panic_error(321)).map(|d| d ^ digest)
 }
 
 /// Whether the fake hardware is as a fault handler must leave it: step timers stopped,
 /// drivers disabled, lamp off.
 pub fn hardware_is_safe(hardware: &Hw) -> bool {
-    hardware.arms.iter().all(|arm| !arm.step_timer_running() && !arm.driver_enabled) && !hardware.lamp_on()
+    hardware
+        .arms
+        .iter()
+        .all(|arm| !arm.step_timer_running() && !arm.driver_enabled)
+        && !hardware.lamp_on()
 }
 
 /// The boot after a fault reset for `cause`, arms at `at`: the handshake and the status say
 /// `expected`, the arms are not homed until a homing.
 pub fn report_after_reset(at: Geometry, cause: ResetCause, expected: DeviceError) -> Outcome {
     let mut bench = Bench::new(at, cause);
-    let Some(info) = bench.hello() else { return Err(Failure { what: "hello after the reset", line: line!() }) };
-    ensure!(info.reset_cause == ResetCause::Fault(expected), "the reason announced");
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.state == DeviceState::Stopped && status.fault == Some(expected.code), "stopped with the reason");
-    ensure!(!status.homed_i && !status.homed_r && !status.lamp_on, "not homed, lamp off");
-    ensure!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))) == err(ErrorCode::NotHomed), "no motion unhomed");
+    let Some(info) = bench.hello() else {
+        return Err(Failure {
+            what: "hello after the reset",
+            line: line!(),
+        });
+    };
+    ensure!(
+        info.reset_cause == ResetCause::Fault(expected),
+        "the reason announced"
+    );
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.state == DeviceState::Stopped && status.fault == Some(expected.code),
+        "stopped with the reason"
+    );
+    ensure!(
+        !status.homed_i && !status.homed_r && !status.lamp_on,
+        "not homed, lamp off"
+    );
+    ensure!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))) == err(ErrorCode::NotHomed),
+        "no motion unhomed"
+    );
     ensure!(bench.home().is_some(), "homes");
-    let Some(status) = bench.status() else { return Err(Failure { what: "status", line: line!() }) };
-    ensure!(status.state == DeviceState::Idle && status.fault.is_none(), "fault cleared by homing");
+    let Some(status) = bench.status() else {
+        return Err(Failure {
+            what: "status",
+            line: line!(),
+        });
+    };
+    ensure!(
+        status.state == DeviceState::Idle && status.fault.is_none(),
+        "fault cleared by homing"
+    );
     Ok(bench.digest())
 }

@@ -41,7 +41,11 @@ pub struct UploadedSchedule {
 impl UploadedSchedule {
     /// Nothing uploaded.
     pub const fn new() -> UploadedSchedule {
-        UploadedSchedule { schedule_id: 0, total_len: 0, geometries: heapless::Vec::new() }
+        UploadedSchedule {
+            schedule_id: 0,
+            total_len: 0,
+            geometries: heapless::Vec::new(),
+        }
     }
 
     /// Take one chunk. `max_len` is the device's limit; `check` validates each geometry
@@ -54,17 +58,26 @@ impl UploadedSchedule {
         check: impl Fn(Geometry) -> Result<(), DeviceError>,
     ) -> Result<u16, DeviceError> {
         if usize::from(chunk.total_len) > usize::from(max_len).min(MAX_SCHEDULE_LEN) {
-            return Err(DeviceError::with_detail(ErrorCode::ScheduleTooLong, i32::from(max_len)));
+            return Err(DeviceError::with_detail(
+                ErrorCode::ScheduleTooLong,
+                i32::from(max_len),
+            ));
         }
         let continues = chunk.offset != 0;
-        let expected = if continues && chunk.schedule_id == self.schedule_id && chunk.total_len == self.total_len {
+        let expected = if continues
+            && chunk.schedule_id == self.schedule_id
+            && chunk.total_len == self.total_len
+        {
             self.geometries.len() as u16
         } else {
             0
         };
         let end = usize::from(chunk.offset) + chunk.geometries.len();
         if chunk.total_len == 0 || chunk.offset != expected || end > usize::from(chunk.total_len) {
-            return Err(DeviceError::with_detail(ErrorCode::BadSchedule, i32::from(expected)));
+            return Err(DeviceError::with_detail(
+                ErrorCode::BadSchedule,
+                i32::from(expected),
+            ));
         }
         for &geometry in &chunk.geometries {
             check(geometry)?;

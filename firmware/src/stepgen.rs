@@ -100,7 +100,8 @@ impl StepGen {
     /// would step faster than the profile allows).
     pub fn after(profile: &MoveProfile, elapsed_us: u32) -> StepGen {
         let first_us = profile.step_time_us(1);
-        let elapsed_us = u64::from(elapsed_us).min(first_us.saturating_sub(u64::from(MIN_SEGMENT_TICKS)));
+        let elapsed_us =
+            u64::from(elapsed_us).min(first_us.saturating_sub(u64::from(MIN_SEGMENT_TICKS)));
         StepGen {
             profile: *profile,
             count: profile.step_count(),
@@ -116,12 +117,18 @@ impl StepGen {
         let pulse = core::mem::replace(&mut self.pulse_next, false);
         if self.next_step > self.count {
             // The last step's pulse, then nothing.
-            return pulse.then_some(Segment { ticks: TAIL_TICKS, pulse: true });
+            return pulse.then_some(Segment {
+                ticks: TAIL_TICKS,
+                pulse: true,
+            });
         }
         let gap = self.next_time_us.saturating_sub(self.planned_us);
         if gap > u64::from(MAX_SEGMENT_TICKS) {
             self.planned_us += u64::from(MAX_SEGMENT_TICKS);
-            return Some(Segment { ticks: MAX_SEGMENT_TICKS, pulse });
+            return Some(Segment {
+                ticks: MAX_SEGMENT_TICKS,
+                pulse,
+            });
         }
         let ticks = (gap as u32).max(MIN_SEGMENT_TICKS);
         self.planned_us += u64::from(ticks);
@@ -207,7 +214,10 @@ impl StepChannel {
     pub const fn new() -> StepChannel {
         StepChannel {
             generator: None,
-            running: Segment { ticks: 0, pulse: false },
+            running: Segment {
+                ticks: 0,
+                pulse: false,
+            },
             running_start: 0,
             preloaded: None,
             pulse_age: None,
@@ -241,7 +251,8 @@ impl StepChannel {
         timer.enable_driver();
         let mut generator = StepGen::new(profile);
         // The wait for step 1, then step 1's pulse: a profile with steps has both.
-        let (Some(first), Some(second)) = (generator.next_segment(), generator.next_segment()) else {
+        let (Some(first), Some(second)) = (generator.next_segment(), generator.next_segment())
+        else {
             return;
         };
         timer.preload(first);
@@ -266,7 +277,9 @@ impl StepChannel {
         }
         let now = timer.now_cycles();
         let cycles_per_tick = T::CYCLES_PER_TICK.max(1);
-        let began = self.running_start.wrapping_add(self.running.ticks.wrapping_mul(cycles_per_tick));
+        let began = self
+            .running_start
+            .wrapping_add(self.running.ticks.wrapping_mul(cycles_per_tick));
         let Some(segment) = self.preloaded.take() else {
             // The last segment ended and the counter stopped.
             self.moving = false;
@@ -282,7 +295,10 @@ impl StepChannel {
         if late_ticks + LATE_MARGIN_TICKS >= segment.ticks {
             // The hardware may be a segment ahead of this record now: stop at the end of
             // the segment it runs, whatever it is, and take no profile until at rest.
-            self.fault.get_or_insert(StepFault { late_ticks, segment_ticks: segment.ticks });
+            self.fault.get_or_insert(StepFault {
+                late_ticks,
+                segment_ticks: segment.ticks,
+            });
             self.halted = true;
             self.generator = None;
             self.replacement = None;
@@ -291,7 +307,8 @@ impl StepChannel {
         self.pulse_age = if segment.pulse {
             Some(0)
         } else {
-            self.pulse_age.map(|age| age.saturating_add(self.running.ticks))
+            self.pulse_age
+                .map(|age| age.saturating_add(self.running.ticks))
         };
         self.running = segment;
         self.running_start = began;
@@ -306,7 +323,9 @@ impl StepChannel {
                 self.generator = None;
             } else {
                 // Its time 0 is the last pulse; its first segment follows this one.
-                let elapsed_us = self.pulse_age.map_or(0, |age| age.saturating_add(segment.ticks));
+                let elapsed_us = self
+                    .pulse_age
+                    .map_or(0, |age| age.saturating_add(segment.ticks));
                 // DIR changes at the start of the new profile's first segment, which has
                 // no pulse: STEP is low then, and the first new pulse is a segment away.
                 let direction = profile.direction();

@@ -60,7 +60,12 @@ use protocol::{DeviceError, ErrorCode, MAX_SWEEP_BINS, Sweep, SweepBin};
 /// The detector arm's profile of a sweep from `from` to `to` (steps) at a top speed of
 /// `speed_mdeg_per_s`: from rest to rest at the instrument's acceleration (triangular when
 /// too short to reach the speed). The host times sweeps with this same function.
-pub fn sweep_profile(config: &InstrumentConfig, from: i32, to: i32, speed_mdeg_per_s: u32) -> MoveProfile {
+pub fn sweep_profile(
+    config: &InstrumentConfig,
+    from: i32,
+    to: i32,
+    speed_mdeg_per_s: u32,
+) -> MoveProfile {
     let top = speed_mdeg_per_s as f32 * (STEPS_PER_DEG / 1000.0);
     MoveProfile::fastest(from, to, 0.0, top, deg_to_steps(config.accel_deg_per_s2))
 }
@@ -71,7 +76,8 @@ pub fn sweep_profile(config: &InstrumentConfig, from: i32, to: i32, speed_mdeg_p
 /// the board the stamp's few µs of jitter).
 pub fn min_bin_ticks(config: &InstrumentConfig, speed_mdeg_per_s: u32) -> u32 {
     // mdeg/s × ticks/deg × µs → ticks × 10⁹.
-    let per_block = u64::from(speed_mdeg_per_s) * STEPS_PER_DEG as u64 * u64::from(config.detector_block_us);
+    let per_block =
+        u64::from(speed_mdeg_per_s) * STEPS_PER_DEG as u64 * u64::from(config.detector_block_us);
     (per_block.div_ceil(1_000_000_000) + 1) as u32
 }
 
@@ -84,7 +90,12 @@ pub fn max_speed_mdeg_per_s(config: &InstrumentConfig) -> u32 {
 /// homing); its number of bins, or the refusal (see [`protocol::Sweep`] for the order and
 /// the details). Nothing moves before this passes.
 pub fn check_sweep(config: &InstrumentConfig, sweep: &Sweep) -> Result<u16, DeviceError> {
-    let invalid = |detail: i64| Err(DeviceError::with_detail(ErrorCode::InvalidArgument, detail as i32));
+    let invalid = |detail: i64| {
+        Err(DeviceError::with_detail(
+            ErrorCode::InvalidArgument,
+            detail as i32,
+        ))
+    };
     if sweep.sweep_id == 0 {
         return invalid(0);
     }
@@ -92,16 +103,25 @@ pub fn check_sweep(config: &InstrumentConfig, sweep: &Sweep) -> Result<u16, Devi
     if sweep.range.is_some_and(|r| usize::from(r) >= ranges) {
         return invalid(ranges as i64);
     }
-    for (arm, angle) in [sweep.theta_i, sweep.from, sweep.to].into_iter().enumerate() {
+    for (arm, angle) in [sweep.theta_i, sweep.from, sweep.to]
+        .into_iter()
+        .enumerate()
+    {
         if angle < config.arm_min || angle > config.arm_max {
-            return Err(DeviceError::with_detail(ErrorCode::OutOfRange, arm.min(1) as i32));
+            return Err(DeviceError::with_detail(
+                ErrorCode::OutOfRange,
+                arm.min(1) as i32,
+            ));
         }
     }
     let lowest_r = sweep.from.min(sweep.to);
     if sweep.theta_i.ticks() + lowest_r.ticks() < config.collision_min_sum.ticks() {
         return Err(DeviceError::new(ErrorCode::CollisionGuard));
     }
-    let (slowest, fastest) = (config.sweep_min_speed_mdeg_per_s, max_speed_mdeg_per_s(config));
+    let (slowest, fastest) = (
+        config.sweep_min_speed_mdeg_per_s,
+        max_speed_mdeg_per_s(config),
+    );
     if sweep.speed_mdeg_per_s < slowest {
         return invalid(i64::from(slowest));
     }
@@ -156,7 +176,13 @@ impl AutoRange {
     /// ([`AutoRange::take_switch`]), so its settling is blanked too.
     pub fn new(config: &InstrumentConfig, range: u8, forced: bool) -> AutoRange {
         let last = config.detector_ranges.len().saturating_sub(1) as u8;
-        let mut ranging = AutoRange { range: 0, forced, blanking: 0, found: false, pending: None };
+        let mut ranging = AutoRange {
+            range: 0,
+            forced,
+            blanking: 0,
+            found: false,
+            pending: None,
+        };
         ranging.switch(config, range.min(last));
         ranging
     }
@@ -202,7 +228,10 @@ impl AutoRange {
         let less_sensitive = (index + 1 < ranges.len()).then_some(self.range + 1);
         if self.forced {
             self.found = true;
-            return BlockClass::Kept { range: self.range, saturated };
+            return BlockClass::Kept {
+                range: self.range,
+                saturated,
+            };
         }
         if saturated {
             return match less_sensitive {
@@ -213,19 +242,29 @@ impl AutoRange {
                 }
                 None => {
                     self.found = true;
-                    BlockClass::Kept { range: self.range, saturated: true }
+                    BlockClass::Kept {
+                        range: self.range,
+                        saturated: true,
+                    }
                 }
             };
         }
-        let kept = BlockClass::Kept { range: self.range, saturated: false };
-        if let Some(next) = less_sensitive.filter(|_| value >= config.sweep_less_sensitive_above_fraction * full_scale) {
+        let kept = BlockClass::Kept {
+            range: self.range,
+            saturated: false,
+        };
+        if let Some(next) = less_sensitive
+            .filter(|_| value >= config.sweep_less_sensitive_above_fraction * full_scale)
+        {
             self.switch(config, next);
             return kept;
         }
         if index > 0 {
             let more = ranges[index - 1];
             let predicted = value * (more.relative_gain / here.relative_gain);
-            if predicted < config.sweep_more_sensitive_below_fraction * more.full_scale_counts as f32 {
+            if predicted
+                < config.sweep_more_sensitive_below_fraction * more.full_scale_counts as f32
+            {
                 self.switch(config, self.range - 1);
                 return kept;
             }
@@ -288,12 +327,22 @@ impl Binner {
 
     /// Where bin `index` nominally ends, steps.
     fn nominal_end(&self, index: u16) -> i32 {
-        if index + 1 >= self.bins { self.to } else { self.from + self.direction * (i32::from(index) + 1) * self.bin_ticks }
+        if index + 1 >= self.bins {
+            self.to
+        } else {
+            self.from + self.direction * (i32::from(index) + 1) * self.bin_ticks
+        }
     }
 
     /// One block: its sample, what [`AutoRange`] made of it, the range in effect (an empty
     /// bin's), the device time now. The bin it closes, if it closes one.
-    pub fn block(&mut self, sample: Sample, class: BlockClass, range_now: u8, now_us: u64) -> Option<SweepBin> {
+    pub fn block(
+        &mut self,
+        sample: Sample,
+        class: BlockClass,
+        range_now: u8,
+        now_us: u64,
+    ) -> Option<SweepBin> {
         if self.is_done() {
             return None;
         }

@@ -149,7 +149,10 @@ impl<S: Scene> FakeHardware<S> {
     pub fn new(config: &InstrumentConfig, scene: S, true_position: Geometry) -> FakeHardware<S> {
         FakeHardware {
             now_us: 0,
-            arms: [FakeArm::at(true_position.theta_i), FakeArm::at(true_position.theta_r)],
+            arms: [
+                FakeArm::at(true_position.theta_i),
+                FakeArm::at(true_position.theta_r),
+            ],
             switch_ticks: config.home_switch.ticks(),
             lamp_on: false,
             range: 0,
@@ -191,7 +194,10 @@ impl<S: Scene> FakeHardware<S> {
 
     /// The arms' true angles.
     pub fn true_geometry(&self) -> Geometry {
-        Geometry::new(Angle::from_ticks(self.arms[0].true_ticks()), Angle::from_ticks(self.arms[1].true_ticks()))
+        Geometry::new(
+            Angle::from_ticks(self.arms[0].true_ticks()),
+            Angle::from_ticks(self.arms[1].true_ticks()),
+        )
     }
 
     /// The arms' true angles at `t_us` (at or before now; see [`FakeArm::steps_at`]).
@@ -236,11 +242,16 @@ impl<S: Scene> FakeHardware<S> {
 
 impl<S: Scene> Arms for FakeHardware<S> {
     fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
-        let limits_ok = profile.peak_speed() <= self.max_speed * 1.0001 && profile.accel() <= self.accel * 1.0001;
+        let limits_ok = profile.peak_speed() <= self.max_speed * 1.0001
+            && profile.accel() <= self.accel * 1.0001;
         self.profiles_over_limits += u32::from(!limits_ok);
         self.profiles_started += 1;
         let arm = &mut self.arms[arm.index()];
-        assert_eq!(profile.start_steps(), arm.steps, "a profile must start where the arm is");
+        assert_eq!(
+            profile.start_steps(),
+            arm.steps,
+            "a profile must start where the arm is"
+        );
         if profile.step_count() == 0 {
             // Ends what runs (the arm stops where it is: a perfect step generator).
             arm.running = None;
@@ -302,17 +313,27 @@ impl<S: Scene> Detector for FakeHardware<S> {
             }
             let geometry = self.true_geometry_at(at_us);
             let signal = if self.lamp_on {
-                self.scene.signal_counts(geometry.theta_i.deg() as f32, geometry.theta_r.deg() as f32) * range.relative_gain
+                self.scene
+                    .signal_counts(geometry.theta_i.deg() as f32, geometry.theta_r.deg() as f32)
+                    * range.relative_gain
             } else {
                 0.0
             };
             let counts = self.dark_counts + signal + self.noise();
             let counts = match self.settling_counts {
                 // The block ended after the switch and began before the amplifier settled.
-                Some(transient) if at_us > self.range_selected_us && at_us - self.sample_period_us < settled_us => transient,
+                Some(transient)
+                    if at_us > self.range_selected_us
+                        && at_us - self.sample_period_us < settled_us =>
+                {
+                    transient
+                }
                 _ => counts.clamp(0.0, range.full_scale_counts as f32) as u32,
             };
-            sink(Sample { counts, detector_steps: self.arms[Arm::Detector.index()].steps_at(at_us) });
+            sink(Sample {
+                counts,
+                detector_steps: self.arms[Arm::Detector.index()].steps_at(at_us),
+            });
         }
         match self.sample_loss.take() {
             Some(loss) => Err(loss),
@@ -321,7 +342,8 @@ impl<S: Scene> Detector for FakeHardware<S> {
     }
 
     fn take_sample_fault(&mut self) -> Option<SampleLoss> {
-        self.sample_loss.take_if(|loss| *loss != SampleLoss::RingFull)
+        self.sample_loss
+            .take_if(|loss| *loss != SampleLoss::RingFull)
     }
 }
 

@@ -31,7 +31,12 @@ pub struct Dropped;
 impl<const N: usize> FrameQueue<N> {
     /// Empty.
     pub const fn new() -> Self {
-        FrameQueue { bytes: [0; N], head: 0, len: 0, dropped: 0 }
+        FrameQueue {
+            bytes: [0; N],
+            head: 0,
+            len: 0,
+            dropped: 0,
+        }
     }
 
     /// Queue `frame` whole, or drop it whole (and count it) when it does not fit.

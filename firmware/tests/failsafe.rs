@@ -15,7 +15,8 @@ fn homed_bench() -> Bench {
 }
 
 fn moving(bench: &Bench) -> bool {
-    firmware::Arms::is_moving(bench.hw(), Arm::Source) || firmware::Arms::is_moving(bench.hw(), Arm::Detector)
+    firmware::Arms::is_moving(bench.hw(), Arm::Source)
+        || firmware::Arms::is_moving(bench.hw(), Arm::Detector)
 }
 
 fn upload(bench: &mut Bench, schedule_id: u16, geometries: &[Geometry]) {
@@ -25,12 +26,23 @@ fn upload(bench: &mut Bench, schedule_id: u16, geometries: &[Geometry]) {
         offset: 0,
         geometries: heapless::Vec::from_slice(geometries).unwrap(),
     };
-    assert!(matches!(bench.ask(Command::UploadSchedule(chunk)), Ok(Reply::ScheduleLoaded { .. })));
+    assert!(matches!(
+        bench.ask(Command::UploadSchedule(chunk)),
+        Ok(Reply::ScheduleLoaded { .. })
+    ));
 }
 
 fn run(bench: &mut Bench, schedule_id: u16, integration_ms: u16) {
-    let run = RunSchedule { schedule_id, source: ScheduleSource::Uploaded, integration_ms, target: Target::Sample };
-    assert!(matches!(bench.ask(Command::RunSchedule(run)), Ok(Reply::ScheduleStarted { .. })));
+    let run = RunSchedule {
+        schedule_id,
+        source: ScheduleSource::Uploaded,
+        integration_ms,
+        target: Target::Sample,
+    };
+    assert!(matches!(
+        bench.ask(Command::RunSchedule(run)),
+        Ok(Reply::ScheduleStarted { .. })
+    ));
 }
 
 /// Run silent (no frame from the host) until the device takes its stop; returns whether
@@ -60,9 +72,17 @@ fn heartbeat_loss_while_parked_with_the_lamp_on_keeps_the_homing() {
     assert_eq!(bench.stopped_reasons(), [ErrorCode::HeartbeatLost]);
     assert!(!bench.hw().lamp_on(), "the lamp goes off");
     let status = bench.status();
-    assert_eq!(status.state, DeviceState::Idle, "not Stopped: nothing was lost");
+    assert_eq!(
+        status.state,
+        DeviceState::Idle,
+        "not Stopped: nothing was lost"
+    );
     assert!(status.homed_i && status.homed_r);
-    assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost), "the stop is on record");
+    assert_eq!(
+        status.fault,
+        Some(ErrorCode::HeartbeatLost),
+        "the stop is on record"
+    );
     assert!(!status.lamp_on);
     assert_eq!(status.position, bench.hw().true_geometry());
     // The session goes on without a new Home.
@@ -71,11 +91,21 @@ fn heartbeat_loss_while_parked_with_the_lamp_on_keeps_the_homing() {
     assert_eq!(bench.hw().true_geometry(), next);
     assert_eq!(bench.ask(Command::SetLamp { on: true }), Ok(Reply::Ack));
     assert!(matches!(
-        bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }),
+        bench.ask(Command::TakeReading {
+            integration_ms: 100,
+            target: Target::Sample,
+            range: None
+        }),
         Ok(Reply::Reading(_))
     ));
     // And the next Home finds no lost steps.
-    assert_eq!(bench.home(), HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+    assert_eq!(
+        bench.home(),
+        HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(0)
+        }
+    );
 }
 
 #[test]
@@ -85,14 +115,20 @@ fn heartbeat_loss_mid_move_loses_the_homing() {
     // Long moves back and forth with short readings: the arms are under way most of the
     // time. The first move (from the switches, 87.5°, to (0°, 85°)) and its reading take
     // 1.9 s, so 2 s of silence after the start land in the second move.
-    let far = [Geometry::from_whole_deg(0, 85), Geometry::from_whole_deg(85, 0)];
+    let far = [
+        Geometry::from_whole_deg(0, 85),
+        Geometry::from_whole_deg(85, 0),
+    ];
     upload(&mut bench, 5, &[far[0], far[1], far[0], far[1]]);
     run(&mut bench, 5, 10);
     assert!(silent_until_stopped(&mut bench), "the stop came mid-move");
     assert_eq!(bench.stopped_reasons(), [ErrorCode::HeartbeatLost]);
     assert!(!bench.hw().lamp_on());
     let done = bench.schedule_done(5).expect("the schedule ends");
-    assert_eq!((done.readings, done.error), (1, Some(ErrorCode::HeartbeatLost)));
+    assert_eq!(
+        (done.readings, done.error),
+        (1, Some(ErrorCode::HeartbeatLost))
+    );
     // While the arms ramp down the device is stopped, and stays so at rest.
     assert_eq!(bench.status().state, DeviceState::Stopped);
     bench.wait_at_rest();
@@ -100,10 +136,22 @@ fn heartbeat_loss_mid_move_loses_the_homing() {
     let status = bench.status();
     assert_eq!(status.state, DeviceState::Stopped);
     assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost));
-    assert!(!status.homed_i && !status.homed_r, "conservative mid-move: not homed");
-    assert_eq!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))), Err(DeviceError::new(ErrorCode::NotHomed)));
+    assert!(
+        !status.homed_i && !status.homed_r,
+        "conservative mid-move: not homed"
+    );
+    assert_eq!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))),
+        Err(DeviceError::new(ErrorCode::NotHomed))
+    );
     // The ramped stop lost nothing, as the re-home shows; the fault is cleared.
-    assert_eq!(bench.home(), HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+    assert_eq!(
+        bench.home(),
+        HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(0)
+        }
+    );
     let status = bench.status();
     assert_eq!((status.state, status.fault), (DeviceState::Idle, None));
 }
@@ -114,16 +162,31 @@ fn heartbeat_loss_during_a_schedules_integration_keeps_the_homing() {
     bench.ask(Command::SetLamp { on: true }).unwrap();
     // One geometry, a long integration: the arms get there in under a second and then
     // stand still for 5 s while the reading integrates.
-    upload(&mut bench, 6, &[Geometry::from_whole_deg(60, 60), Geometry::from_whole_deg(20, 20)]);
+    upload(
+        &mut bench,
+        6,
+        &[
+            Geometry::from_whole_deg(60, 60),
+            Geometry::from_whole_deg(20, 20),
+        ],
+    );
     run(&mut bench, 6, 5_000);
     bench.run_ms(1_200);
     assert!(!moving(&bench));
     assert_eq!(bench.status().state, DeviceState::RunningSchedule);
     assert!(!silent_until_stopped(&mut bench), "the arms stood still");
     assert_eq!(bench.stopped_reasons(), [ErrorCode::HeartbeatLost]);
-    let done = bench.schedule_done(6).expect("the schedule ends with the reason");
-    assert_eq!((done.readings, done.error), (0, Some(ErrorCode::HeartbeatLost)));
-    assert!(bench.streamed(6).is_empty(), "no half-integrated reading is streamed");
+    let done = bench
+        .schedule_done(6)
+        .expect("the schedule ends with the reason");
+    assert_eq!(
+        (done.readings, done.error),
+        (0, Some(ErrorCode::HeartbeatLost))
+    );
+    assert!(
+        bench.streamed(6).is_empty(),
+        "no half-integrated reading is streamed"
+    );
     assert!(!bench.hw().lamp_on());
     let status = bench.status();
     assert_eq!(status.state, DeviceState::Idle);
@@ -131,7 +194,14 @@ fn heartbeat_loss_during_a_schedules_integration_keeps_the_homing() {
     assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost));
     assert_eq!(status.schedule, None);
     // The host re-runs what was lost without homing again.
-    upload(&mut bench, 7, &[Geometry::from_whole_deg(60, 60), Geometry::from_whole_deg(20, 20)]);
+    upload(
+        &mut bench,
+        7,
+        &[
+            Geometry::from_whole_deg(60, 60),
+            Geometry::from_whole_deg(20, 20),
+        ],
+    );
     run(&mut bench, 7, 100);
     let done = bench.wait_schedule(7);
     assert_eq!(done.error, None);
@@ -142,9 +212,16 @@ fn heartbeat_loss_during_a_schedules_integration_keeps_the_homing() {
 fn heartbeat_loss_while_a_reading_integrates_answers_it_and_keeps_the_homing() {
     let mut bench = homed_bench();
     bench.ask(Command::SetLamp { on: true }).unwrap();
-    let seq = bench.send(Command::TakeReading { integration_ms: 5_000, target: Target::Sample, range: None });
+    let seq = bench.send(Command::TakeReading {
+        integration_ms: 5_000,
+        target: Target::Sample,
+        range: None,
+    });
     assert!(!silent_until_stopped(&mut bench));
-    assert_eq!(bench.reply(seq), Some(Err(DeviceError::new(ErrorCode::HeartbeatLost))));
+    assert_eq!(
+        bench.reply(seq),
+        Some(Err(DeviceError::new(ErrorCode::HeartbeatLost)))
+    );
     let status = bench.status();
     assert_eq!(status.state, DeviceState::Idle);
     assert!(status.homed_i && status.homed_r);
@@ -153,7 +230,9 @@ fn heartbeat_loss_while_a_reading_integrates_answers_it_and_keeps_the_homing() {
 #[test]
 fn a_driver_fault_at_rest_still_loses_the_homing() {
     let mut bench = homed_bench();
-    bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))).unwrap();
+    bench
+        .ask(Command::MoveTo(Geometry::from_whole_deg(30, 30)))
+        .unwrap();
     // A de-energised motor may have moved: the step count no longer says where the arm is.
     bench.hw_mut().arms[1].driver_fault = true;
     bench.run_ms(2);
@@ -165,19 +244,34 @@ fn a_driver_fault_at_rest_still_loses_the_homing() {
     // While the driver reports the fault, nothing moves (detail: the arm); the stop is
     // taken once, not at every poll.
     let refused = Err(DeviceError::with_detail(ErrorCode::HardwareFault, 1));
-    assert_eq!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(40, 40))), refused);
+    assert_eq!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(40, 40))),
+        refused
+    );
     assert_eq!(bench.ask(Command::Home), refused);
     bench.run_ms(100);
     assert_eq!(bench.stopped_reasons().len(), 1);
     // Cleared (the driver cooled down): homing is needed, and it searches (the count of a
     // de-energised motor is no guide) and reports the step error.
     bench.hw_mut().arms[1].driver_fault = false;
-    assert_eq!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(40, 40))), Err(DeviceError::new(ErrorCode::NotHomed)));
-    assert_eq!(bench.home(), HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+    assert_eq!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(40, 40))),
+        Err(DeviceError::new(ErrorCode::NotHomed))
+    );
+    assert_eq!(
+        bench.home(),
+        HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(0)
+        }
+    );
     // A second driver fault is a new occurrence: a new stop.
     bench.hw_mut().arms[0].driver_fault = true;
     bench.run_ms(2);
-    assert_eq!(bench.stopped_reasons(), [ErrorCode::HardwareFault, ErrorCode::HardwareFault]);
+    assert_eq!(
+        bench.stopped_reasons(),
+        [ErrorCode::HardwareFault, ErrorCode::HardwareFault]
+    );
 }
 
 #[test]
@@ -186,7 +280,11 @@ fn a_dead_detector_at_rest_keeps_the_homing() {
     let mut bench = homed_bench();
     bench.ask(Command::SetLamp { on: true }).unwrap();
     bench.hw_mut().detector_dead = true;
-    let reading = bench.ask(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None });
+    let reading = bench.ask(Command::TakeReading {
+        integration_ms: 100,
+        target: Target::Sample,
+        range: None,
+    });
     assert_eq!(reading, Err(DeviceError::new(ErrorCode::HardwareFault)));
     assert_eq!(bench.stopped_reasons(), [ErrorCode::HardwareFault]);
     assert!(!bench.hw().lamp_on());
@@ -209,7 +307,10 @@ fn abort_in_a_moves_settle_answers_the_move_and_keeps_the_homing() {
     assert_eq!(bench.hw().true_geometry(), target);
     assert_eq!(bench.reply(seq), None, "still settling");
     assert_eq!(bench.ask(Command::Abort), Ok(Reply::Ack));
-    assert_eq!(bench.reply(seq), Some(Err(DeviceError::new(ErrorCode::Aborted))));
+    assert_eq!(
+        bench.reply(seq),
+        Some(Err(DeviceError::new(ErrorCode::Aborted)))
+    );
     let status = bench.status();
     assert_eq!((status.state, status.fault), (DeviceState::Idle, None));
     assert!(status.homed_i && status.homed_r);

@@ -6,7 +6,10 @@ mod common;
 
 use common::{Bench, Hw, glossy_scene};
 use firmware::config::InstrumentConfig;
-use firmware::fault::{FaultRecord, MAGIC, ResetFlags, SafeOutputs, make_safe, panic_error, processor_fault_error, reset_cause};
+use firmware::fault::{
+    FaultRecord, MAGIC, ResetFlags, SafeOutputs, make_safe, panic_error, processor_fault_error,
+    reset_cause,
+};
 use firmware::hardware::{Arm, Arms, ResetCause};
 use firmware::sampling::SampleLoss;
 use firmware::testing::FakeHardware;
@@ -54,23 +57,52 @@ proptest! {
 #[test]
 fn reset_causes_without_a_record() {
     let none = FaultRecord::CLEARED;
-    let flags = |power, pin, software, watchdog| ResetFlags { power, pin, software, watchdog };
-    assert_eq!(reset_cause(flags(true, true, false, false), &none), ResetCause::PowerOn);
-    assert_eq!(reset_cause(flags(false, true, false, true), &none), ResetCause::Watchdog);
+    let flags = |power, pin, software, watchdog| ResetFlags {
+        power,
+        pin,
+        software,
+        watchdog,
+    };
+    assert_eq!(
+        reset_cause(flags(true, true, false, false), &none),
+        ResetCause::PowerOn
+    );
+    assert_eq!(
+        reset_cause(flags(false, true, false, true), &none),
+        ResetCause::Watchdog
+    );
     // A debugger's reset request sets software and pin.
-    assert_eq!(reset_cause(flags(false, true, true, false), &none), ResetCause::Software);
-    assert_eq!(reset_cause(flags(false, true, false, false), &none), ResetCause::ResetPin);
+    assert_eq!(
+        reset_cause(flags(false, true, true, false), &none),
+        ResetCause::Software
+    );
+    assert_eq!(
+        reset_cause(flags(false, true, false, false), &none),
+        ResetCause::ResetPin
+    );
     assert_eq!(none.error(), None);
 }
 
 #[test]
 fn a_processor_fault_below_the_stack_is_a_stack_overflow() {
     let limit = 0x2000_0000;
-    assert_eq!(processor_fault_error(limit - 32, limit, 0).code, ErrorCode::StackOverflow);
-    assert_eq!(processor_fault_error(limit + 16, limit, 0).code, ErrorCode::StackOverflow);
+    assert_eq!(
+        processor_fault_error(limit - 32, limit, 0).code,
+        ErrorCode::StackOverflow
+    );
+    assert_eq!(
+        processor_fault_error(limit + 16, limit, 0).code,
+        ErrorCode::StackOverflow
+    );
     let fault = processor_fault_error(limit + 0x400, limit, 0x0800_1234);
-    assert_eq!(fault, DeviceError::with_detail(ErrorCode::ProcessorFault, 0x0800_1234));
-    assert_eq!(panic_error(417), DeviceError::with_detail(ErrorCode::Panic, 417));
+    assert_eq!(
+        fault,
+        DeviceError::with_detail(ErrorCode::ProcessorFault, 0x0800_1234)
+    );
+    assert_eq!(
+        panic_error(417),
+        DeviceError::with_detail(ErrorCode::Panic, 417)
+    );
 }
 
 #[derive(Default)]
@@ -117,25 +149,49 @@ fn a_panic_mid_move_stops_everything_and_is_reported_after_the_reset() {
     let stopped_at = hardware.true_geometry();
     let record = FaultRecord::new(panic_error(123));
     assert!(!hardware.is_moving(Arm::Source) && !hardware.is_moving(Arm::Detector));
-    assert!(hardware.arms.iter().all(|arm| !arm.driver_enabled && !arm.step_timer_running()));
+    assert!(
+        hardware
+            .arms
+            .iter()
+            .all(|arm| !arm.driver_enabled && !arm.step_timer_running())
+    );
     assert!(!hardware.lamp_on());
     // Time passes; nothing moves any more.
     hardware.advance_to(bench.now_us + 2_000_000);
     assert_eq!(hardware.true_geometry(), stopped_at);
     // The reset: the handler's SYSRESETREQ sets the software and pin flags.
-    let cause = reset_cause(ResetFlags { power: false, pin: true, software: true, watchdog: false }, &record);
+    let cause = reset_cause(
+        ResetFlags {
+            power: false,
+            pin: true,
+            software: true,
+            watchdog: false,
+        },
+        &record,
+    );
     let config = InstrumentConfig::REFERENCE;
     let hardware: Hw = FakeHardware::new(&config, glossy_scene, stopped_at);
     let mut bench = Bench::with_hardware(hardware, cause);
-    let info = match bench.ask(Command::Hello { protocol_version: PROTOCOL_VERSION }) {
+    let info = match bench.ask(Command::Hello {
+        protocol_version: PROTOCOL_VERSION,
+    }) {
         Ok(Reply::Hello(info)) => info,
         other => panic!("{other:?}"),
     };
-    assert_eq!(info.reset_cause, ResetCause::Fault(DeviceError::with_detail(ErrorCode::Panic, 123)));
+    assert_eq!(
+        info.reset_cause,
+        ResetCause::Fault(DeviceError::with_detail(ErrorCode::Panic, 123))
+    );
     let status = bench.status();
-    assert_eq!((status.state, status.fault), (DeviceState::Stopped, Some(ErrorCode::Panic)));
+    assert_eq!(
+        (status.state, status.fault),
+        (DeviceState::Stopped, Some(ErrorCode::Panic))
+    );
     assert!(!status.homed_i && !status.homed_r && !status.lamp_on);
-    assert_eq!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))), err(ErrorCode::NotHomed));
+    assert_eq!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 30))),
+        err(ErrorCode::NotHomed)
+    );
     bench.home();
     let status = bench.status();
     assert_eq!((status.state, status.fault), (DeviceState::Idle, None));
@@ -152,17 +208,30 @@ fn a_late_step_interrupt_stops_the_move_and_costs_the_homing() {
     assert_eq!(bench.reply(seq), Some(err(ErrorCode::StepLate)));
     bench.wait_at_rest();
     let status = bench.status();
-    assert_eq!((status.state, status.fault), (DeviceState::Stopped, Some(ErrorCode::StepLate)));
+    assert_eq!(
+        (status.state, status.fault),
+        (DeviceState::Stopped, Some(ErrorCode::StepLate))
+    );
     assert!(!status.homed_i && !status.homed_r);
     // The step count is still near the truth: the next homing is the quick one and
     // reports the error (none here: the model lost no step).
-    assert_eq!(bench.home(), HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+    assert_eq!(
+        bench.home(),
+        HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(0)
+        }
+    );
 }
 
 #[test]
 fn lost_samples_fail_the_reading_and_an_adc_overrun_stops_even_when_idle() {
     let mut bench = homed_bench();
-    let seq = bench.send(Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None });
+    let seq = bench.send(Command::TakeReading {
+        integration_ms: 100,
+        target: Target::Sample,
+        range: None,
+    });
     bench.run_ms(40);
     bench.hw_mut().sample_loss = Some(SampleLoss::RingFull);
     bench.run_ms(1);
@@ -170,17 +239,27 @@ fn lost_samples_fail_the_reading_and_an_adc_overrun_stops_even_when_idle() {
     assert_eq!(bench.stopped_reasons(), [ErrorCode::AdcOverrun]);
     // Arms at rest: the homing stays.
     let status = bench.status();
-    assert_eq!((status.state, status.fault, status.homed_i), (DeviceState::Idle, Some(ErrorCode::AdcOverrun), true));
+    assert_eq!(
+        (status.state, status.fault, status.homed_i),
+        (DeviceState::Idle, Some(ErrorCode::AdcOverrun), true)
+    );
     // Idle: a full ring is nobody's loss, an overrun of the ADC path is a fault.
     bench.hw_mut().sample_loss = Some(SampleLoss::RingFull);
     bench.run_ms(5);
     assert_eq!(bench.stopped_reasons().len(), 1);
     bench.hw_mut().sample_loss = Some(SampleLoss::DmaLapped);
     bench.run_ms(1);
-    assert_eq!(bench.stopped_reasons(), [ErrorCode::AdcOverrun, ErrorCode::AdcOverrun]);
+    assert_eq!(
+        bench.stopped_reasons(),
+        [ErrorCode::AdcOverrun, ErrorCode::AdcOverrun]
+    );
     // A reading after it is fine.
     assert!(matches!(
-        bench.ask(Command::TakeReading { integration_ms: 50, target: Target::Sample, range: None }),
+        bench.ask(Command::TakeReading {
+            integration_ms: 50,
+            target: Target::Sample,
+            range: None
+        }),
         Ok(Reply::Reading(_))
     ));
 }
@@ -191,11 +270,21 @@ fn a_stop_in_the_same_instant_as_the_start_stops_the_move() {
     // no steps), which used to leave the move running to its end.
     let mut bench = homed_bench();
     let start = bench.hw().true_geometry();
-    let mut bytes = common::frame(&Request { seq: 500, command: Command::MoveTo(Geometry::from_whole_deg(10, 70)) });
-    bytes.extend(common::frame(&Request { seq: 501, command: Command::Abort }));
+    let mut bytes = common::frame(&Request {
+        seq: 500,
+        command: Command::MoveTo(Geometry::from_whole_deg(10, 70)),
+    });
+    bytes.extend(common::frame(&Request {
+        seq: 501,
+        command: Command::Abort,
+    }));
     bench.send_bytes(&bytes);
     bench.wait_at_rest();
     assert_eq!(bench.reply(501), Some(Ok(Reply::Ack)));
     assert_eq!(bench.reply(500), Some(err(ErrorCode::Aborted)));
-    assert_eq!(bench.hw().true_geometry(), start, "the arms moved after the abort");
+    assert_eq!(
+        bench.hw().true_geometry(),
+        start,
+        "the arms moved after the abort"
+    );
 }

@@ -47,7 +47,10 @@ fn expected_report(lost: Option<(Arm, i32)>) -> HomeReport {
         // Where the switch is minus where the arm believed it was: behind by `steps`.
         errors[arm.index()] = Some(-steps);
     }
-    HomeReport { step_error_i: errors[0], step_error_r: errors[1] }
+    HomeReport {
+        step_error_i: errors[0],
+        step_error_r: errors[1],
+    }
 }
 
 const POSITIONS: [(i32, i32); 3] = [(20, 0), (45, 45), (60, 70)];
@@ -65,7 +68,13 @@ fn quick_rehome_is_exact_and_fast_from_measuring_positions() {
     for (i, r) in POSITIONS {
         let at = Geometry::from_whole_deg(i, r);
         let (full_report, full_us) = full_homing_from(at);
-        assert_eq!(full_report, HomeReport { step_error_i: None, step_error_r: None });
+        assert_eq!(
+            full_report,
+            HomeReport {
+                step_error_i: None,
+                step_error_r: None
+            }
+        );
         let mut row = format!("({i:2},{r:2})  {:5.2}", s(full_us));
         let cases = [
             None,
@@ -77,10 +86,23 @@ fn quick_rehome_is_exact_and_fast_from_measuring_positions() {
         for lost in cases {
             let (bench, report, us) = quick_rehome_from(at, lost);
             assert_eq!(report, expected_report(lost), "from {at}, {lost:?}");
-            assert_eq!(bench.device.status().position, bench.hw().true_geometry(), "the count is the truth again");
+            assert_eq!(
+                bench.device.status().position,
+                bench.hw().true_geometry(),
+                "the count is the truth again"
+            );
             assert_eq!(bench.hw().profiles_over_limits, 0);
-            assert!(us <= QUICK_BOUND_US, "quick re-home from {at}, {lost:?}: {} s", s(us));
-            assert!(us * 4 <= full_us * 3, "quick re-home from {at}, {lost:?}: {} s against {} s full", s(us), s(full_us));
+            assert!(
+                us <= QUICK_BOUND_US,
+                "quick re-home from {at}, {lost:?}: {} s",
+                s(us)
+            );
+            assert!(
+                us * 4 <= full_us * 3,
+                "quick re-home from {at}, {lost:?}: {} s against {} s full",
+                s(us),
+                s(full_us)
+            );
             row += &format!("  {:5.2} ", s(us));
         }
         eprintln!("{row}");
@@ -101,7 +123,11 @@ fn an_arm_further_than_it_believes_trips_during_the_fast_move() {
         // Overshoot past the switch: about the error beyond the margin (1°), no more than
         // the full search's own stop (1.1°) on top.
         let (_, highest) = bench.hw().arms[arm.index()].travel_ticks;
-        assert!(highest <= switch + 80 + 90, "overshoot {} ticks", highest - switch);
+        assert!(
+            highest <= switch + 80 + 90,
+            "overshoot {} ticks",
+            highest - switch
+        );
         eprintln!("{arm:?} 2.5° ahead: {:.2} s", us as f64 / 1e6);
         assert!(us <= 5_000_000);
     }
@@ -141,12 +167,24 @@ fn rehoming_on_the_switch_and_just_after_homing() {
     let mut bench = Bench::new();
     bench.home();
     let (report, us) = timed_home(&mut bench);
-    assert_eq!(report, HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+    assert_eq!(
+        report,
+        HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(0)
+        }
+    );
     assert!(us <= QUICK_BOUND_US, "{us}");
     // An arm sitting on its switch (pressed before anything moves): back off, approach.
     bench.hw_mut().lose_steps(Arm::Source, -30);
     let (report, _) = timed_home(&mut bench);
-    assert_eq!(report, HomeReport { step_error_i: Some(30), step_error_r: Some(0) });
+    assert_eq!(
+        report,
+        HomeReport {
+            step_error_i: Some(30),
+            step_error_r: Some(0)
+        }
+    );
 }
 
 #[test]
@@ -156,10 +194,23 @@ fn after_a_fail_safe_stop_mid_move_the_rehome_is_quick_and_exact() {
     let mut bench = Bench::new();
     bench.home();
     bench.ask(Command::SetLamp { on: true }).unwrap();
-    let far = [Geometry::from_whole_deg(0, 85), Geometry::from_whole_deg(85, 0)];
-    let chunk = ScheduleChunk { schedule_id: 1, total_len: 2, offset: 0, geometries: heapless::Vec::from_slice(&far).unwrap() };
+    let far = [
+        Geometry::from_whole_deg(0, 85),
+        Geometry::from_whole_deg(85, 0),
+    ];
+    let chunk = ScheduleChunk {
+        schedule_id: 1,
+        total_len: 2,
+        offset: 0,
+        geometries: heapless::Vec::from_slice(&far).unwrap(),
+    };
     bench.ask(Command::UploadSchedule(chunk)).unwrap();
-    let run = RunSchedule { schedule_id: 1, source: ScheduleSource::Uploaded, integration_ms: 10, target: Target::Sample };
+    let run = RunSchedule {
+        schedule_id: 1,
+        source: ScheduleSource::Uploaded,
+        integration_ms: 10,
+        target: Target::Sample,
+    };
     bench.ask(Command::RunSchedule(run)).unwrap();
     bench.heartbeat_every_ms = None;
     bench.run_ms(2_100);
@@ -168,7 +219,13 @@ fn after_a_fail_safe_stop_mid_move_the_rehome_is_quick_and_exact() {
     bench.wait_at_rest();
     assert!(!bench.status().homed_i);
     let (report, us) = timed_home(&mut bench);
-    assert_eq!(report, HomeReport { step_error_i: Some(0), step_error_r: Some(0) });
+    assert_eq!(
+        report,
+        HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(0)
+        }
+    );
     assert!(us <= QUICK_BOUND_US, "{us}");
 }
 
@@ -177,16 +234,27 @@ fn after_a_driver_fault_the_rehome_searches() {
     // A de-energised motor may have moved anywhere: the count is no guide to go fast by.
     let mut bench = Bench::new();
     bench.home();
-    bench.ask(Command::MoveTo(Geometry::from_whole_deg(45, 45))).unwrap();
+    bench
+        .ask(Command::MoveTo(Geometry::from_whole_deg(45, 45)))
+        .unwrap();
     bench.hw_mut().arms[0].driver_fault = true;
     bench.run_ms(2);
     bench.hw_mut().arms[0].driver_fault = false;
     // The arm dropped 10° while its driver was off.
     bench.hw_mut().lose_steps(Arm::Source, 800);
     let (report, us) = timed_home(&mut bench);
-    assert_eq!(report, HomeReport { step_error_i: Some(-800), step_error_r: Some(0) });
+    assert_eq!(
+        report,
+        HomeReport {
+            step_error_i: Some(-800),
+            step_error_r: Some(0)
+        }
+    );
     let (_, full_us) = full_homing_from(Geometry::from_whole_deg(35, 45));
-    assert!(us + 200_000 >= full_us, "searched: {us} µs against {full_us} µs");
+    assert!(
+        us + 200_000 >= full_us,
+        "searched: {us} µs against {full_us} µs"
+    );
 }
 
 mod random {
@@ -228,7 +296,10 @@ mod random {
 fn every_homing_ends_within_the_announced_longest() {
     let config = InstrumentConfig::REFERENCE;
     let longest_us = firmware::homing::longest_homing_us(&config);
-    assert_eq!(config.device_info("").longest_home_ms as u64, longest_us.div_ceil(1000));
+    assert_eq!(
+        config.device_info("").longest_home_ms as u64,
+        longest_us.div_ceil(1000)
+    );
     let mut worst = 0u64;
     for theta_i in (0..=85).step_by(17) {
         for theta_r in (0..=85).step_by(17) {
@@ -237,7 +308,10 @@ fn every_homing_ends_within_the_announced_longest() {
         }
     }
     for lost in [-900, -400, -40, 40, 400, 900] {
-        let (_, _, us) = quick_rehome_from(Geometry::from_whole_deg(10, 20), Some((Arm::Detector, lost)));
+        let (_, _, us) = quick_rehome_from(
+            Geometry::from_whole_deg(10, 20),
+            Some((Arm::Detector, lost)),
+        );
         worst = worst.max(us);
     }
     // A switch that never trips: the search runs out, and the answer comes in time too.
@@ -245,10 +319,23 @@ fn every_homing_ends_within_the_announced_longest() {
     let mut bench = Bench::with_hardware(hardware, ResetCause::PowerOn);
     bench.hw_mut().arms[0].switch_missing = true;
     let started = bench.now_us;
-    assert_eq!(bench.ask(Command::Home), Err(DeviceError::with_detail(ErrorCode::HomeSwitchNotFound, 0)));
+    assert_eq!(
+        bench.ask(Command::Home),
+        Err(DeviceError::with_detail(ErrorCode::HomeSwitchNotFound, 0))
+    );
     worst = worst.max(bench.now_us - started);
-    println!("longest homing measured {:.2} s, announced {:.2} s", worst as f64 * 1e-6, longest_us as f64 * 1e-6);
-    assert!(worst <= longest_us, "a homing took {worst} µs, over the announced {longest_us} µs");
+    println!(
+        "longest homing measured {:.2} s, announced {:.2} s",
+        worst as f64 * 1e-6,
+        longest_us as f64 * 1e-6
+    );
+    assert!(
+        worst <= longest_us,
+        "a homing took {worst} µs, over the announced {longest_us} µs"
+    );
     // A bound, not a guess: within twice the worst seen.
-    assert!(longest_us <= 2 * worst + 2_000_000, "the bound {longest_us} µs is loose against {worst} µs");
+    assert!(
+        longest_us <= 2 * worst + 2_000_000,
+        "the bound {longest_us} µs is loose against {worst} µs"
+    );
 }

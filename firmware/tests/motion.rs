@@ -26,22 +26,37 @@ fn check_profile(profile: &MoveProfile, vmax: f32, amax: f32) -> Result<(), Test
             let accel = (speed - last_speed).abs() / dt;
             // The speed is continuous and piecewise linear, so its difference quotient is
             // bounded by the acceleration; the tolerance covers f32 rounding of v.
-            prop_assert!(accel <= amax * (1.0 + EPS) + 0.01 / dt, "accel {accel} at {t}");
+            prop_assert!(
+                accel <= amax * (1.0 + EPS) + 0.01 / dt,
+                "accel {accel} at {t}"
+            );
         }
         last_speed = speed;
         let position = profile.position_at((t * 1e6) as u64);
-        prop_assert!((position - last_position) * profile.direction() >= 0, "position went back at {t}");
+        prop_assert!(
+            (position - last_position) * profile.direction() >= 0,
+            "position went back at {t}"
+        );
         last_position = position;
     }
-    prop_assert_eq!(profile.position_at(profile.duration_us()), profile.target_steps());
-    prop_assert_eq!(profile.position_at(profile.duration_us() + 1_000_000), profile.target_steps());
+    prop_assert_eq!(
+        profile.position_at(profile.duration_us()),
+        profile.target_steps()
+    );
+    prop_assert_eq!(
+        profile.position_at(profile.duration_us() + 1_000_000),
+        profile.target_steps()
+    );
     // Step times: increasing, no two steps closer than the speed limit allows, last at the end.
     let mut last_us = 0u64;
     for k in 1..=profile.step_count() {
         let at = profile.step_time_us(k);
         prop_assert!(at >= last_us);
         if k > 1 {
-            prop_assert!((at - last_us) as f32 >= 1e6 / vmax * (1.0 - 1e-2) - 1.0, "steps {k} too close");
+            prop_assert!(
+                (at - last_us) as f32 >= 1e6 / vmax * (1.0 - 1e-2) - 1.0,
+                "steps {k} too close"
+            );
         }
         last_us = at;
     }

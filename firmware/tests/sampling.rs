@@ -76,14 +76,21 @@ struct Outcome {
 
 fn simulate(steps: &[Step]) -> Outcome {
     let mut now: u64 = 1_000;
-    let mut dma = Dma { start: now, base: 0 };
+    let mut dma = Dma {
+        start: now,
+        base: 0,
+    };
     let mut decimator = Decimator::new(CYCLES_PER_CONVERSION as u32, now as u32);
     let mut ring = SampleRing::new();
     // The conversions each sample summed, in the order the decimator read them.
     let reads: RefCell<Vec<u64>> = RefCell::new(Vec::new());
     // The first conversion of each block in the ring, and the service that found it.
     let mut sample_blocks: std::collections::VecDeque<(u64, usize)> = Default::default();
-    let mut outcome = Outcome { blocks: Vec::new(), loss_drains: Vec::new(), losses: 0 };
+    let mut outcome = Outcome {
+        blocks: Vec::new(),
+        loss_drains: Vec::new(),
+        losses: 0,
+    };
     for (drain_index, step) in steps.iter().enumerate() {
         now += step.gap;
         let before = ring.len();
@@ -110,7 +117,11 @@ fn simulate(steps: &[Step]) -> Outcome {
             let first = block[0];
             assert_eq!((first - dma.base) % BLOCK, 0, "block not aligned: {first}");
             for (k, &n) in block.iter().enumerate() {
-                assert_eq!(n, first + k as u64, "a block mixed from two laps: {block:?}");
+                assert_eq!(
+                    n,
+                    first + k as u64,
+                    "a block mixed from two laps: {block:?}"
+                );
             }
             sample_blocks.push_back((first, drain_index));
         }
@@ -121,18 +132,30 @@ fn simulate(steps: &[Step]) -> Outcome {
         }
         if restart {
             // The board restarts the conversions and the DMA from slot 0.
-            dma = Dma { start: now, base: dma.base + dma.completed(now) + 10 * BLOCK };
+            dma = Dma {
+                start: now,
+                base: dma.base + dma.completed(now) + 10 * BLOCK,
+            };
             decimator.restart(now as u32);
         }
         if step.drain {
             let loss = ring.take_loss();
-            let mut out = [firmware::Sample { counts: 0, detector_steps: 0 }; RING_LEN];
+            let mut out = [firmware::Sample {
+                counts: 0,
+                detector_steps: 0,
+            }; RING_LEN];
             let n = ring.pop_into(&mut out);
             for &sample in &out[..n] {
                 let (first, service) = sample_blocks.pop_front().expect("a sample for every block");
-                let expected: u32 = (first..first + BLOCK).map(|k| u32::from(value(k))).sum::<u32>() >> 4;
+                let expected: u32 = (first..first + BLOCK)
+                    .map(|k| u32::from(value(k)))
+                    .sum::<u32>()
+                    >> 4;
                 assert_eq!(sample.counts, expected);
-                assert_eq!(sample.detector_steps, service as i32, "stamped by the service that found it");
+                assert_eq!(
+                    sample.detector_steps, service as i32,
+                    "stamped by the service that found it"
+                );
                 outcome.blocks.push((first, drain_index));
             }
             if loss.is_some() {
@@ -152,7 +175,10 @@ fn check_gaps(outcome: &Outcome) -> Result<(), TestCaseError> {
         prop_assert!(b > a, "blocks out of order");
         if b != a + BLOCK {
             prop_assert!(
-                outcome.loss_drains.iter().any(|&d| d >= drain_a && d <= drain_b),
+                outcome
+                    .loss_drains
+                    .iter()
+                    .any(|&d| d >= drain_a && d <= drain_b),
                 "conversions {}..{} lost without a report (drains {}..={})",
                 a + BLOCK,
                 b,
@@ -164,13 +190,21 @@ fn check_gaps(outcome: &Outcome) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-fn step(max_gap_cycles: u64, overrun_weight: u32, skip_drain_weight: u32) -> impl Strategy<Value = Step> {
+fn step(
+    max_gap_cycles: u64,
+    overrun_weight: u32,
+    skip_drain_weight: u32,
+) -> impl Strategy<Value = Step> {
     (
         1u64..max_gap_cycles,
         prop::bool::weighted(f64::from(overrun_weight) / 1000.0),
         prop::bool::weighted(1.0 - f64::from(skip_drain_weight) / 1000.0),
     )
-        .prop_map(|(gap, overrun, drain)| Step { gap, overrun, drain })
+        .prop_map(|(gap, overrun, drain)| Step {
+            gap,
+            overrun,
+            drain,
+        })
 }
 
 /// 1 ms services, some a little late, some very late (the decimation held up).
@@ -212,13 +246,30 @@ proptest! {
 
 #[test]
 fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss_in_a_reading() {
-    let on_time = Step { gap: 96_000, overrun: false, drain: true };
+    let on_time = Step {
+        gap: 96_000,
+        overrun: false,
+        drain: true,
+    };
     // 3 ms late: the DMA has come round to unread data.
-    let outcome = simulate(&[on_time, on_time, Step { gap: 3 * 96_000 + 50_000, ..on_time }, on_time, on_time, on_time]);
+    let outcome = simulate(&[
+        on_time,
+        on_time,
+        Step {
+            gap: 3 * 96_000 + 50_000,
+            ..on_time
+        },
+        on_time,
+        on_time,
+        on_time,
+    ]);
     assert_eq!(outcome.loss_drains, [2]);
     let mut ring = SampleRing::new();
     let mut decimator = Decimator::new(384, 0);
-    assert!(decimator.service(0, true, 1000, |_| 0, 0, &mut ring), "an ADC overrun asks for a restart");
+    assert!(
+        decimator.service(0, true, 1000, |_| 0, 0, &mut ring),
+        "an ADC overrun asks for a restart"
+    );
     // A range change empties the ring, never of an overrun: both the drain and the
     // device's fault check hear of it, each once.
     ring.clear();
@@ -238,5 +289,13 @@ fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss_in_a_read
         ring.push(7, 0);
     }
     assert_eq!(ring.take_loss(), Some(SampleLoss::RingFull));
-    assert_eq!([SampleLoss::AdcOverrun, SampleLoss::DmaLapped, SampleLoss::RingFull].map(SampleLoss::detail), [1, 2, 3]);
+    assert_eq!(
+        [
+            SampleLoss::AdcOverrun,
+            SampleLoss::DmaLapped,
+            SampleLoss::RingFull
+        ]
+        .map(SampleLoss::detail),
+        [1, 2, 3]
+    );
 }

@@ -12,7 +12,12 @@ fn steps(g: Geometry) -> [i32; 2] {
 
 fn move_us(from: [i32; 2], to: Geometry) -> u64 {
     let config = InstrumentConfig::REFERENCE;
-    move_duration_us(from, steps(to), deg_to_steps(config.max_speed_deg_per_s), deg_to_steps(config.accel_deg_per_s2))
+    move_duration_us(
+        from,
+        steps(to),
+        deg_to_steps(config.max_speed_deg_per_s),
+        deg_to_steps(config.accel_deg_per_s2),
+    )
 }
 
 /// Where homing leaves both arms.
@@ -68,7 +73,12 @@ fn strategy1_order_is_optimal() {
     let optimum = *best[(1 << n) - 1].iter().min().unwrap();
     let ours = order_move_us(&STRATEGY1_ORDER);
     let paper = order_move_us(&points);
-    eprintln!("Strategy 1 move time from home: built-in order {ours} µs, optimum {optimum} µs, paper's order {paper} µs");
+    eprintln!(
+        "Strategy 1 move time from home: built-in order {ours} µs, optimum {optimum} µs, paper's order {paper} µs"
+    );
     assert_eq!(ours, optimum);
-    assert!(ours * 10 < paper * 6, "the built-in order saves over 40 % of the move time");
+    assert!(
+        ours * 10 < paper * 6,
+        "the built-in order saves over 40 % of the move time"
+    );
 }

@@ -48,7 +48,10 @@ struct Model {
 
 impl Model {
     fn new() -> Model {
-        let idle = Segment { ticks: MIN_SEGMENT_TICKS, pulse: false };
+        let idle = Segment {
+            ticks: MIN_SEGMENT_TICKS,
+            pulse: false,
+        };
         Model {
             now: 0,
             counting: false,
@@ -67,7 +70,8 @@ impl Model {
     }
 
     fn segment_end(&self) -> Option<u64> {
-        self.counting.then(|| self.segment_start + u64::from(self.shadow.ticks) * CPT)
+        self.counting
+            .then(|| self.segment_start + u64::from(self.shadow.ticks) * CPT)
     }
 
     /// Let the hardware run until `to`.
@@ -89,14 +93,19 @@ impl Model {
             self.segment_start = end;
             self.preload_written = false;
             if self.shadow.pulse {
-                self.pulses.push(Pulse { at: end, positive: self.dir_positive });
+                self.pulses.push(Pulse {
+                    at: end,
+                    positive: self.dir_positive,
+                });
             }
         }
         self.now = self.now.max(to);
     }
 
     fn step_high(&self, at: u64) -> bool {
-        self.pulses.last().is_some_and(|p| at >= p.at && at < p.at + u64::from(PULSE_TICKS) * CPT)
+        self.pulses
+            .last()
+            .is_some_and(|p| at >= p.at && at < p.at + u64::from(PULSE_TICKS) * CPT)
     }
 }
 
@@ -112,25 +121,37 @@ impl StepTimer for ModelTimer<'_> {
 
     fn preload(&mut self, segment: Segment) {
         self.model.advance(self.write_at);
-        assert!((MIN_SEGMENT_TICKS..=MAX_SEGMENT_TICKS).contains(&segment.ticks), "segment {segment:?}");
+        assert!(
+            (MIN_SEGMENT_TICKS..=MAX_SEGMENT_TICKS).contains(&segment.ticks),
+            "segment {segment:?}"
+        );
         self.model.preload = segment;
         self.model.preload_written = true;
     }
 
     fn start(&mut self) {
         self.model.advance(self.write_at);
-        assert!(!self.model.counting, "start() while the counter runs would cut a segment short");
+        assert!(
+            !self.model.counting,
+            "start() while the counter runs would cut a segment short"
+        );
         self.model.shadow = self.model.preload;
         self.model.segment_start = self.write_at;
         self.model.counting = true;
         self.model.one_pulse = false;
         self.model.preload_written = false;
-        assert!(!self.model.shadow.pulse, "a move must begin with a pulse-less segment (DIR setup)");
+        assert!(
+            !self.model.shadow.pulse,
+            "a move must begin with a pulse-less segment (DIR setup)"
+        );
     }
 
     fn stop_at_end_of_segment(&mut self) {
         self.model.advance(self.write_at);
-        self.model.preload = Segment { ticks: MIN_SEGMENT_TICKS, pulse: false };
+        self.model.preload = Segment {
+            ticks: MIN_SEGMENT_TICKS,
+            pulse: false,
+        };
         self.model.preload_written = true;
         self.model.one_pulse = true;
     }
@@ -141,7 +162,10 @@ impl StepTimer for ModelTimer<'_> {
 
     fn set_direction(&mut self, positive: bool) {
         self.model.advance(self.write_at);
-        assert!(!self.model.step_high(self.write_at), "DIR changed while STEP is high");
+        assert!(
+            !self.model.step_high(self.write_at),
+            "DIR changed while STEP is high"
+        );
         if positive != self.model.dir_positive {
             self.model.dir_changes.push(self.write_at);
         }
@@ -197,18 +221,35 @@ enum Latency {
 
 /// Run `profile` from rest to the end, interrupts `latencies` (cycles, cycled through) late,
 /// each interrupt's writes `exec` cycles after it begins; optionally replace it at `replace_at`.
-fn run(profile: &MoveProfile, latencies: &[u64], exec: u64, replace: Option<(u64, Replace)>) -> Run {
+fn run(
+    profile: &MoveProfile,
+    latencies: &[u64],
+    exec: u64,
+    replace: Option<(u64, Replace)>,
+) -> Run {
     let latencies: Vec<Latency> = latencies.iter().map(|&l| Latency::After(l)).collect();
     run_with(profile, &latencies, exec, replace)
 }
 
-fn run_with(profile: &MoveProfile, latencies: &[Latency], exec: u64, replace: Option<(u64, Replace)>) -> Run {
+fn run_with(
+    profile: &MoveProfile,
+    latencies: &[Latency],
+    exec: u64,
+    replace: Option<(u64, Replace)>,
+) -> Run {
     let mut model = Model::new();
     let mut channel = StepChannel::new();
     channel.set_position(profile.start_steps());
     let started_at = 10;
     model.advance(started_at);
-    channel.run_profile(&mut ModelTimer { model: &mut model, entry: started_at - exec.min(10), write_at: started_at }, profile);
+    channel.run_profile(
+        &mut ModelTimer {
+            model: &mut model,
+            entry: started_at - exec.min(10),
+            write_at: started_at,
+        },
+        profile,
+    );
     let mut replace = replace.map(|(at, how)| (started_at + at, how));
     let mut replaced = None;
     let mut faults = Vec::new();
@@ -221,7 +262,9 @@ fn run_with(profile: &MoveProfile, latencies: &[Latency], exec: u64, replace: Op
             let segment_cycles = u64::from(model.shadow.ticks) * CPT;
             isr_at = Some(match next_latency.next().unwrap_or(Latency::After(0)) {
                 Latency::After(cycles) => since + cycles,
-                Latency::BeforeEnd(cycles) => (since as i64 + segment_cycles as i64 - cycles).max(since as i64) as u64,
+                Latency::BeforeEnd(cycles) => {
+                    (since as i64 + segment_cycles as i64 - cycles).max(since as i64) as u64
+                }
             });
         }
         let next_hardware = isr_at.or(model.segment_end());
@@ -232,12 +275,27 @@ fn run_with(profile: &MoveProfile, latencies: &[Latency], exec: u64, replace: Op
             let here = channel.position();
             let elapsed_s = (at - started_at) as f32 / CPT as f32 * 1e-6;
             let second = match how {
-                Replace::Stop => MoveProfile::stop(here, profile.direction(), profile.speed_at(elapsed_s), VMAX, AMAX),
-                Replace::Move(distance) => MoveProfile::fastest(here, here + distance, 0.0, VMAX, AMAX),
+                Replace::Stop => MoveProfile::stop(
+                    here,
+                    profile.direction(),
+                    profile.speed_at(elapsed_s),
+                    VMAX,
+                    AMAX,
+                ),
+                Replace::Move(distance) => {
+                    MoveProfile::fastest(here, here + distance, 0.0, VMAX, AMAX)
+                }
                 Replace::Cancel => MoveProfile::rest(here),
             };
             replaced = Some((at, second, model.pulses.len()));
-            channel.run_profile(&mut ModelTimer { model: &mut model, entry: at, write_at: at + exec }, &second);
+            channel.run_profile(
+                &mut ModelTimer {
+                    model: &mut model,
+                    entry: at,
+                    write_at: at + exec,
+                },
+                &second,
+            );
             replace = None;
             continue;
         }
@@ -245,7 +303,11 @@ fn run_with(profile: &MoveProfile, latencies: &[Latency], exec: u64, replace: Op
             (Some(at), _) => {
                 let repeats_before = model.repeats;
                 model.advance(at);
-                channel.on_update(&mut ModelTimer { model: &mut model, entry: at, write_at: at + exec });
+                channel.on_update(&mut ModelTimer {
+                    model: &mut model,
+                    entry: at,
+                    write_at: at + exec,
+                });
                 isr_at = None;
                 let fault = channel.take_fault();
                 // A segment repeated while this interrupt was pending or writing: this
@@ -262,19 +324,40 @@ fn run_with(profile: &MoveProfile, latencies: &[Latency], exec: u64, replace: Op
             (None, None) => break,
         }
     }
-    assert!(!channel.is_moving(), "the channel still moves after the timer stopped");
-    Run { model, channel, started_at, replaced, faults, unreported_repeats, first_fault_at }
+    assert!(
+        !channel.is_moving(),
+        "the channel still moves after the timer stopped"
+    );
+    Run {
+        model,
+        channel,
+        started_at,
+        replaced,
+        faults,
+        unreported_repeats,
+        first_fault_at,
+    }
 }
 
 fn signed_pulses(model: &Model, from: i32) -> i32 {
-    model.pulses.iter().fold(from, |p, pulse| p + if pulse.positive { 1 } else { -1 })
+    model
+        .pulses
+        .iter()
+        .fold(from, |p, pulse| p + if pulse.positive { 1 } else { -1 })
 }
 
 fn profile_strategy() -> impl Strategy<Value = MoveProfile> {
     // Full speed down to very slow (a scaled-down arm: gaps past the 16-bit counter).
-    (-3000i32..3000, -3000i32..3000, prop_oneof![Just(VMAX), 100.0f32..VMAX, 2.0f32..40.0], 200.0f32..AMAX)
+    (
+        -3000i32..3000,
+        -3000i32..3000,
+        prop_oneof![Just(VMAX), 100.0f32..VMAX, 2.0f32..40.0],
+        200.0f32..AMAX,
+    )
         .prop_filter("a move", |(a, b, _, _)| a != b && (a - b).abs() <= 2500)
-        .prop_map(|(start, target, speed, accel)| MoveProfile::fastest(start, target, 0.0, speed, accel))
+        .prop_map(|(start, target, speed, accel)| {
+            MoveProfile::fastest(start, target, 0.0, speed, accel)
+        })
         .prop_filter("not too long to simulate", |p| p.duration_s() < 300.0)
 }
 
@@ -415,7 +498,11 @@ fn segments_add_up_to_the_profile() {
         }
         assert_eq!(pulses, profile.step_count());
         // The last pulse at the end of the profile, then its tail.
-        assert_eq!(ticks, profile.duration_us() + u64::from(TAIL_TICKS), "target {target}");
+        assert_eq!(
+            ticks,
+            profile.duration_us() + u64::from(TAIL_TICKS),
+            "target {target}"
+        );
         // A slow move splits its gaps; only the first part of each carries the pulse.
         if speed < 10.0 {
             assert!(segments > pulses + 1);
@@ -430,6 +517,10 @@ fn a_stop_at_once_after_the_start_still_stops() {
     // not let the first profile run on.
     let profile = MoveProfile::fastest(0, 4000, 0.0, VMAX, AMAX);
     let run = run(&profile, &[30], 2, Some((0, Replace::Cancel)));
-    assert!(run.model.pulses.len() <= 1, "{} pulses", run.model.pulses.len());
+    assert!(
+        run.model.pulses.len() <= 1,
+        "{} pulses",
+        run.model.pulses.len()
+    );
     assert_eq!(run.channel.position(), signed_pulses(&run.model, 0));
 }

@@ -54,7 +54,11 @@ struct Step {
 
 impl Scene for Step {
     fn signal_counts(&self, _theta_i_deg: f32, theta_r_deg: f32) -> f32 {
-        if theta_r_deg < self.edge_deg { self.below } else { self.above }
+        if theta_r_deg < self.edge_deg {
+            self.below
+        } else {
+            self.above
+        }
     }
 }
 
@@ -65,7 +69,14 @@ fn homed<S: Scene>(scene: S) -> Bench<S> {
     bench
 }
 
-fn sweep(theta_i: i32, from: i32, to: i32, speed_mdeg_per_s: u32, bin_ticks: u16, range: Option<u8>) -> Sweep {
+fn sweep(
+    theta_i: i32,
+    from: i32,
+    to: i32,
+    speed_mdeg_per_s: u32,
+    bin_ticks: u16,
+    range: Option<u8>,
+) -> Sweep {
     Sweep {
         sweep_id: 5,
         theta_i: Angle::from_ticks(theta_i),
@@ -79,10 +90,14 @@ fn sweep(theta_i: i32, from: i32, to: i32, speed_mdeg_per_s: u32, bin_ticks: u16
 }
 
 fn bins_of<S: Scene>(bench: &Bench<S>, from: usize, sweep_id: u16) -> Vec<SweepBin> {
-    bench.messages_since(from).iter().filter_map(|m| match m {
-        DeviceMessage::SweepBin(bin) if bin.sweep_id == sweep_id => Some(*bin),
-        _ => None,
-    }).collect()
+    bench
+        .messages_since(from)
+        .iter()
+        .filter_map(|m| match m {
+            DeviceMessage::SweepBin(bin) if bin.sweep_id == sweep_id => Some(*bin),
+            _ => None,
+        })
+        .collect()
 }
 
 fn done_of<S: Scene>(bench: &Bench<S>, from: usize, sweep_id: u16) -> Option<u16> {
@@ -95,43 +110,71 @@ fn done_of<S: Scene>(bench: &Bench<S>, from: usize, sweep_id: u16) -> Option<u16
 /// Run a sweep to its end: the plan, the bins, the SweepDone's count.
 fn run<S: Scene>(bench: &mut Bench<S>, sweep: Sweep) -> (SweepPlan, Vec<SweepBin>, u16) {
     let from = bench.messages.len();
-    let Ok(Reply::Sweep(plan)) = bench.ask(Command::Sweep(sweep)) else { panic!("sweep refused: {sweep:?}") };
+    let Ok(Reply::Sweep(plan)) = bench.ask(Command::Sweep(sweep)) else {
+        panic!("sweep refused: {sweep:?}")
+    };
     let started_us = bench.now_us;
     while done_of(bench, from, sweep.sweep_id).is_none() {
-        assert!(bench.now_us - started_us < u64::from(plan.duration_ms) * 1000 + 1_000_000, "no SweepDone: {sweep:?}");
+        assert!(
+            bench.now_us - started_us < u64::from(plan.duration_ms) * 1000 + 1_000_000,
+            "no SweepDone: {sweep:?}"
+        );
         bench.tick();
     }
     // Planned to the block: the plan is what the host waits for.
     let took_us = bench.now_us - started_us;
-    assert!(took_us <= u64::from(plan.duration_ms) * 1000 + 10 * BLOCK_US, "took {took_us} µs, planned {plan:?}");
-    (plan, bins_of(bench, from, sweep.sweep_id), done_of(bench, from, sweep.sweep_id).unwrap())
+    assert!(
+        took_us <= u64::from(plan.duration_ms) * 1000 + 10 * BLOCK_US,
+        "took {took_us} µs, planned {plan:?}"
+    );
+    (
+        plan,
+        bins_of(bench, from, sweep.sweep_id),
+        done_of(bench, from, sweep.sweep_id).unwrap(),
+    )
 }
 
 /// Bin `k`'s nominal end, ticks.
 fn nominal_end(sweep: &Sweep, bins: u16, k: u16) -> i32 {
     let (from, to) = (sweep.from.ticks(), sweep.to.ticks());
-    if k + 1 == bins { to } else { from + (to - from).signum() * (i32::from(k) + 1) * i32::from(sweep.bin_ticks) }
+    if k + 1 == bins {
+        to
+    } else {
+        from + (to - from).signum() * (i32::from(k) + 1) * i32::from(sweep.bin_ticks)
+    }
 }
 
 /// A sweep the device accepts: θi, from and to in range and clear of the guard, a speed, a
 /// bin length from the shortest up to the whole travel (within the bin count); at most
 /// 2.5 s of travel at the top speed, so that a case runs in a few ms.
 fn valid_sweep() -> impl Strategy<Value = Sweep> {
-    (0i32..=6800, 0i32..=6800, any::<bool>(), 100u32..=60_000, 0.0f64..1.0, 0.0f64..1.0, proptest::option::of(0u8..3))
-        .prop_filter_map("a valid sweep", |(theta_i, from, up, speed, length, bin_at, range)| {
-            let room = if up { 6800 - from } else { from };
-            let longest = (f64::from(speed) * 0.08 * 2.5) as i32;
-            // Short sweeps often: a triangular profile, a few bins.
-            let travel = (f64::from(room.min(longest)) * length.powi(2)) as i32;
-            let to = if up { from + travel } else { from - travel };
-            let shortest = min_bin_ticks(&CONFIG, speed).max((travel as u32).div_ceil(u32::from(MAX_SWEEP_BINS)));
-            if (travel as u32) < shortest || theta_i + from.min(to) < 800 {
-                return None;
-            }
-            // Mostly short bins, the interesting ones.
-            let bin = shortest + ((travel as u32 - shortest) as f64 * bin_at.powi(4)) as u32;
-            Some(sweep(theta_i, from, to, speed, bin as u16, range))
-        })
+    (
+        0i32..=6800,
+        0i32..=6800,
+        any::<bool>(),
+        100u32..=60_000,
+        0.0f64..1.0,
+        0.0f64..1.0,
+        proptest::option::of(0u8..3),
+    )
+        .prop_filter_map(
+            "a valid sweep",
+            |(theta_i, from, up, speed, length, bin_at, range)| {
+                let room = if up { 6800 - from } else { from };
+                let longest = (f64::from(speed) * 0.08 * 2.5) as i32;
+                // Short sweeps often: a triangular profile, a few bins.
+                let travel = (f64::from(room.min(longest)) * length.powi(2)) as i32;
+                let to = if up { from + travel } else { from - travel };
+                let shortest = min_bin_ticks(&CONFIG, speed)
+                    .max((travel as u32).div_ceil(u32::from(MAX_SWEEP_BINS)));
+                if (travel as u32) < shortest || theta_i + from.min(to) < 800 {
+                    return None;
+                }
+                // Mostly short bins, the interesting ones.
+                let bin = shortest + ((travel as u32 - shortest) as f64 * bin_at.powi(4)) as u32;
+                Some(sweep(theta_i, from, to, speed, bin as u16, range))
+            },
+        )
 }
 
 proptest! {
@@ -287,7 +330,12 @@ proptest! {
 /// The refusals as `protocol::Sweep` documents them, in their order (busy, drivers and
 /// homing are the device's own and pass here).
 fn model_check(sweep: &Sweep) -> Result<u16, DeviceError> {
-    let invalid = |detail: i64| Err(DeviceError::with_detail(ErrorCode::InvalidArgument, detail as i32));
+    let invalid = |detail: i64| {
+        Err(DeviceError::with_detail(
+            ErrorCode::InvalidArgument,
+            detail as i32,
+        ))
+    };
     if sweep.sweep_id == 0 {
         return invalid(0);
     }
@@ -327,29 +375,55 @@ fn model_check(sweep: &Sweep) -> Result<u16, DeviceError> {
 
 #[test]
 fn the_device_refuses_a_sweep_while_busy_unhomed_or_faulted() {
-    let mut bench = Bench::seeing(Peak { base: 3_000.0, height: 0.0, center_deg: 0.0, width_deg: 1.0 });
+    let mut bench = Bench::seeing(Peak {
+        base: 3_000.0,
+        height: 0.0,
+        center_deg: 0.0,
+        width_deg: 1.0,
+    });
     let ok = sweep(2400, 800, 4000, 60_000, 8, None);
-    assert_eq!(bench.ask(Command::Sweep(ok)), Err(DeviceError::new(ErrorCode::NotHomed)));
+    assert_eq!(
+        bench.ask(Command::Sweep(ok)),
+        Err(DeviceError::new(ErrorCode::NotHomed))
+    );
     assert_eq!(bench.hw().profiles_started, 0);
     bench.home();
     bench.hw_mut().arms[0].driver_fault = true;
     bench.tick();
     let started = bench.hw().profiles_started;
-    assert_eq!(bench.ask(Command::Sweep(ok)), Err(DeviceError::with_detail(ErrorCode::HardwareFault, 0)));
+    assert_eq!(
+        bench.ask(Command::Sweep(ok)),
+        Err(DeviceError::with_detail(ErrorCode::HardwareFault, 0))
+    );
     bench.hw_mut().arms[0].driver_fault = false;
     bench.home();
     let seq = bench.send(Command::MoveTo(Geometry::from_whole_deg(50, 50)));
     let started_move = bench.hw().profiles_started;
-    assert_eq!(bench.ask(Command::Sweep(ok)), Err(DeviceError::new(ErrorCode::Busy)));
-    assert!(started_move >= started && bench.hw().profiles_started == started_move, "the busy refusal moved nothing");
+    assert_eq!(
+        bench.ask(Command::Sweep(ok)),
+        Err(DeviceError::new(ErrorCode::Busy))
+    );
+    assert!(
+        started_move >= started && bench.hw().profiles_started == started_move,
+        "the busy refusal moved nothing"
+    );
     assert_eq!(bench.wait_reply(seq), Ok(Reply::Ack));
     // And one running sweep at a time.
     assert!(matches!(bench.ask(Command::Sweep(ok)), Ok(Reply::Sweep(_))));
-    assert_eq!(bench.ask(Command::Sweep(Sweep { sweep_id: 6, ..ok })), Err(DeviceError::new(ErrorCode::Busy)));
+    assert_eq!(
+        bench.ask(Command::Sweep(Sweep { sweep_id: 6, ..ok })),
+        Err(DeviceError::new(ErrorCode::Busy))
+    );
     let status = bench.status();
-    assert_eq!((status.state, status.schedule.map(|s| s.0)), (DeviceState::Sweeping, Some(5)));
+    assert_eq!(
+        (status.state, status.schedule.map(|s| s.0)),
+        (DeviceState::Sweeping, Some(5))
+    );
     // The lamp cannot go on mid-sweep (it would spoil the bins); off always can.
-    assert_eq!(bench.ask(Command::SetLamp { on: true }), Err(DeviceError::new(ErrorCode::Busy)));
+    assert_eq!(
+        bench.ask(Command::SetLamp { on: true }),
+        Err(DeviceError::new(ErrorCode::Busy))
+    );
 }
 
 #[test]
@@ -357,7 +431,10 @@ fn the_reference_limits() {
     // 60 °/s for 1 ms is 4.8 ticks: 5, and one for the count's quantisation.
     assert_eq!(min_bin_ticks(&CONFIG, 60_000), 6);
     // The board's 1.024 ms blocks: 4.9 ticks, also 6.
-    let board = InstrumentConfig { detector_block_us: 1024, ..CONFIG };
+    let board = InstrumentConfig {
+        detector_block_us: 1024,
+        ..CONFIG
+    };
     assert_eq!(min_bin_ticks(&board, 60_000), 6);
     assert_eq!(min_bin_ticks(&CONFIG, 100), 2);
     // A 70° sweep at 60 °/s: 70/60 s plus one ramp time (1/3 s).
@@ -372,7 +449,11 @@ fn the_reference_limits() {
 #[test]
 fn no_block_within_a_settling_goes_into_a_bin_or_decides_a_switch() {
     // 30 % of full scale on range 0 below 40°; 5 times that above (range 1, 15 %).
-    let scene = Step { below: 0.3 * 65_535.0, above: 1.5 * 65_535.0, edge_deg: 40.0 };
+    let scene = Step {
+        below: 0.3 * 65_535.0,
+        above: 1.5 * 65_535.0,
+        edge_deg: 40.0,
+    };
     for (from, to, switches) in [(20.0, 60.0, [0u8, 1]), (60.0, 20.0, [1, 0])] {
         let mut bench = homed(scene);
         bench.hw_mut().noise_counts = 0.0;
@@ -382,13 +463,24 @@ fn no_block_within_a_settling_goes_into_a_bin_or_decides_a_switch() {
         let level = |counts: f32| (dark + counts) as u32 as f32;
         let (r0_low, r1_high) = (level(scene.below), level(scene.above * 0.1));
         bench.hw_mut().range_log.clear();
-        let command = sweep(3200, (from * 80.0) as i32, (to * 80.0) as i32, 60_000, 8, None);
+        let command = sweep(
+            3200,
+            (from * 80.0) as i32,
+            (to * 80.0) as i32,
+            60_000,
+            8,
+            None,
+        );
         let (_, bins, _) = run(&mut bench, command);
         let ranges: Vec<u8> = bench.hw().range_log.iter().map(|&(_, r)| r).collect();
         // Selected at the start (the last range: 0), ranged on the way from the home
         // position (87.5°: above the edge) to `from`, then the edge; no switch that the
         // marker (1.5 % of full scale) would have asked for.
-        let expected_log: &[u8] = if switches[0] == 0 { &[0, 1, 0, 1] } else { &[0, 1, 0] };
+        let expected_log: &[u8] = if switches[0] == 0 {
+            &[0, 1, 0, 1]
+        } else {
+            &[0, 1, 0]
+        };
         assert_eq!(ranges, expected_log);
         let r1_low = level(scene.below * 0.1);
         let mut blanked = 0;
@@ -397,7 +489,10 @@ fn no_block_within_a_settling_goes_into_a_bin_or_decides_a_switch() {
                 blanked += 1;
                 continue;
             }
-            let (n, sum) = (f64::from(bin.blocks), f64::from(bin.mean_counts) * f64::from(bin.blocks));
+            let (n, sum) = (
+                f64::from(bin.blocks),
+                f64::from(bin.mean_counts) * f64::from(bin.blocks),
+            );
             if bin.range == 0 {
                 assert_eq!(bin.mean_counts, r0_low, "{bin:?}");
             } else {
@@ -405,7 +500,11 @@ fn no_block_within_a_settling_goes_into_a_bin_or_decides_a_switch() {
                 // the lower one.
                 let (hi, lo) = (f64::from(r1_high), f64::from(r1_low));
                 let low_blocks = (n * hi - sum) / (hi - lo);
-                assert!((low_blocks - low_blocks.round()).abs() < 1e-3 && (0.0..=n).contains(&low_blocks.round()), "{bin:?}");
+                assert!(
+                    (low_blocks - low_blocks.round()).abs() < 1e-3
+                        && (0.0..=n).contains(&low_blocks.round()),
+                    "{bin:?}"
+                );
             }
             blanked += usize::from(bin.is_blanked());
         }
@@ -417,7 +516,12 @@ fn no_block_within_a_settling_goes_into_a_bin_or_decides_a_switch() {
 /// A scene that saturates even the least sensitive range: flagged, the mean kept.
 #[test]
 fn a_bin_saturated_on_the_least_sensitive_range_is_flagged() {
-    let mut bench = homed(Peak { base: 3_000.0, height: 1e9, center_deg: 45.0, width_deg: 1.0 });
+    let mut bench = homed(Peak {
+        base: 3_000.0,
+        height: 1e9,
+        center_deg: 45.0,
+        width_deg: 1.0,
+    });
     let (_, bins, _) = run(&mut bench, sweep(3600, 3200, 4000, 30_000, 8, None));
     let saturated: Vec<&SweepBin> = bins.iter().filter(|b| b.is_saturated()).collect();
     assert!(!saturated.is_empty());
@@ -426,9 +530,19 @@ fn a_bin_saturated_on_the_least_sensitive_range_is_flagged() {
         assert!(bin.blocks > 0, "kept, not dropped: {bin:?}");
     }
     // Where every block saturates, the bin reads what the ADC gave: full scale, a lower bound.
-    assert!(saturated.iter().any(|b| b.mean_counts == 65_535.0 && b.std_counts == 0.0), "{saturated:?}");
+    assert!(
+        saturated
+            .iter()
+            .any(|b| b.mean_counts == 65_535.0 && b.std_counts == 0.0),
+        "{saturated:?}"
+    );
     // The same on a forced sensitive range: flagged there.
-    let mut bench = homed(Peak { base: 3_000.0, height: 1e5, center_deg: 45.0, width_deg: 1.0 });
+    let mut bench = homed(Peak {
+        base: 3_000.0,
+        height: 1e5,
+        center_deg: 45.0,
+        width_deg: 1.0,
+    });
     let (_, bins, _) = run(&mut bench, sweep(3600, 3200, 4000, 30_000, 8, Some(0)));
     assert!(bins.iter().any(|b| b.is_saturated() && b.range == 0));
     assert!(bins.iter().all(|b| b.range == 0 && !b.is_blanked()));
@@ -437,8 +551,16 @@ fn a_bin_saturated_on_the_least_sensitive_range_is_flagged() {
 /// A sweep with a dead detector stops instead of waiting for ever.
 #[test]
 fn a_dead_detector_stops_the_sweep() {
-    let mut bench = homed(Peak { base: 3_000.0, height: 0.0, center_deg: 0.0, width_deg: 1.0 });
-    assert!(matches!(bench.ask(Command::Sweep(sweep(2400, 800, 4000, 60_000, 8, None))), Ok(Reply::Sweep(_))));
+    let mut bench = homed(Peak {
+        base: 3_000.0,
+        height: 0.0,
+        center_deg: 0.0,
+        width_deg: 1.0,
+    });
+    assert!(matches!(
+        bench.ask(Command::Sweep(sweep(2400, 800, 4000, 60_000, 8, None))),
+        Ok(Reply::Sweep(_))
+    ));
     bench.run_ms(300);
     bench.hw_mut().detector_dead = true;
     bench.run_ms(100);
@@ -450,13 +572,25 @@ fn a_dead_detector_stops_the_sweep() {
 /// A sweep already at its start still settles and finds its range there.
 #[test]
 fn a_sweep_from_where_the_arms_are_finds_the_range_at_rest() {
-    let scene = Peak { base: 1.5 * 65_535.0, height: 0.0, center_deg: 0.0, width_deg: 1.0 };
+    let scene = Peak {
+        base: 1.5 * 65_535.0,
+        height: 0.0,
+        center_deg: 0.0,
+        width_deg: 1.0,
+    };
     let mut bench = homed(scene);
-    assert_eq!(bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 20))), Ok(Reply::Ack));
+    assert_eq!(
+        bench.ask(Command::MoveTo(Geometry::from_whole_deg(30, 20))),
+        Ok(Reply::Ack)
+    );
     bench.hw_mut().range_log.clear();
     let (plan, bins, _) = run(&mut bench, sweep(2400, 1600, 2400, 60_000, 8, None));
     assert!(plan.duration_ms >= u32::from(CONFIG.settle_ms));
-    assert!(bins.iter().all(|b| b.range == 1 && !b.is_blanked() && !b.is_empty()), "{bins:?}");
+    assert!(
+        bins.iter()
+            .all(|b| b.range == 1 && !b.is_blanked() && !b.is_empty()),
+        "{bins:?}"
+    );
 }
 
 // The auto-ranging and the binning on their own, on a model of the board's timing: block j

@@ -28,7 +28,9 @@ fn op() -> impl Strategy<Value = Op> {
 
 /// Frame `id` of `len` bytes: `len - 1` bytes that name it (never 0), then 0.
 fn frame(id: u32, len: usize) -> Vec<u8> {
-    let mut bytes: Vec<u8> = (0..len - 1).map(|k| 1 + ((id as usize * 7 + k) % 255) as u8).collect();
+    let mut bytes: Vec<u8> = (0..len - 1)
+        .map(|k| 1 + ((id as usize * 7 + k) % 255) as u8)
+        .collect();
     bytes.push(0);
     bytes
 }
@@ -87,7 +89,10 @@ proptest! {
 fn check(received: &[u8], accepted: &[Vec<u8>], cleared: bool) -> Result<(), TestCaseError> {
     let all: Vec<u8> = accepted.concat();
     if cleared {
-        prop_assert!(all.starts_with(received), "bytes the device never queued, or out of order");
+        prop_assert!(
+            all.starts_with(received),
+            "bytes the device never queued, or out of order"
+        );
     } else {
         prop_assert_eq!(received, &all[..], "lost or reordered bytes");
     }

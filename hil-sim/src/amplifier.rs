@@ -46,28 +46,52 @@ pub struct Response {
 /// constant `tau_us`, held at or below `rail` (`start` is at or below it).
 pub fn respond(start: f64, input: f64, duration_us: f64, tau_us: f64, rail: f64) -> Response {
     if duration_us <= 0.0 {
-        return Response { end: start, integral: 0.0, rail_us: 0.0 };
+        return Response {
+            end: start,
+            integral: 0.0,
+            rail_us: 0.0,
+        };
     }
     if start >= rail && input >= rail {
-        return Response { end: rail, integral: rail * duration_us, rail_us: duration_us };
+        return Response {
+            end: rail,
+            integral: rail * duration_us,
+            rail_us: duration_us,
+        };
     }
     if tau_us <= 0.0 {
         // An ideal amplifier: the output is the input (clipped).
         let end = input.min(rail);
         let rail_us = if input >= rail { duration_us } else { 0.0 };
-        return Response { end, integral: end * duration_us, rail_us };
+        return Response {
+            end,
+            integral: end * duration_us,
+            rail_us,
+        };
     }
     // Below the rail the closed form; `free_us` is how long it stays below.
-    let free_us = if input > rail { (tau_us * ((input - start) / (input - rail)).ln()).min(duration_us) } else { duration_us };
+    let free_us = if input > rail {
+        (tau_us * ((input - start) / (input - rail)).ln()).min(duration_us)
+    } else {
+        duration_us
+    };
     let decay = (-free_us / tau_us).exp();
     let away = start - input;
     let free_end = input + away * decay;
     let free_integral = input * free_us + away * tau_us * (1.0 - decay);
     if free_us >= duration_us {
-        Response { end: free_end, integral: free_integral, rail_us: 0.0 }
+        Response {
+            end: free_end,
+            integral: free_integral,
+            rail_us: 0.0,
+        }
     } else {
         let rail_us = duration_us - free_us;
-        Response { end: rail, integral: free_integral + rail * rail_us, rail_us }
+        Response {
+            end: rail,
+            integral: free_integral + rail * rail_us,
+            rail_us,
+        }
     }
 }
 
@@ -89,7 +113,11 @@ mod tests {
             }
             y = next;
         }
-        Response { end: y, integral, rail_us }
+        Response {
+            end: y,
+            integral,
+            rail_us,
+        }
     }
 
     #[test]
@@ -104,9 +132,18 @@ mod tests {
             let rail = 65_000.0;
             let exact = respond(start, input, duration, tau, rail);
             let reference = numeric(start, input, duration, tau, rail);
-            assert!((exact.end - reference.end).abs() < 1e-3 * rail.max(1.0) * 1e-3, "{start} → {input}: {exact:?} vs {reference:?}");
-            assert!((exact.integral - reference.integral).abs() < 1e-5 * rail * duration, "{start} → {input}: {exact:?} vs {reference:?}");
-            assert!((exact.rail_us - reference.rail_us).abs() < 0.01 * duration, "{start} → {input}: {exact:?} vs {reference:?}");
+            assert!(
+                (exact.end - reference.end).abs() < 1e-3 * rail.max(1.0) * 1e-3,
+                "{start} → {input}: {exact:?} vs {reference:?}"
+            );
+            assert!(
+                (exact.integral - reference.integral).abs() < 1e-5 * rail * duration,
+                "{start} → {input}: {exact:?} vs {reference:?}"
+            );
+            assert!(
+                (exact.rail_us - reference.rail_us).abs() < 0.01 * duration,
+                "{start} → {input}: {exact:?} vs {reference:?}"
+            );
         }
     }
 
@@ -131,8 +168,20 @@ mod tests {
             let rail = 65_000.0;
             // A full-scale step plus the switch's kick, held for the recovery, then relaxing.
             let start = rail;
-            let left = respond(start, 0.0, f64::from(range.settle_us) - SWITCH_RECOVERY_US, f64::from(range.time_constant_us), rail).end;
-            assert!(left < 1e-4 * rail, "τ {} µs: {left} counts left after {} µs", range.time_constant_us, range.settle_us);
+            let left = respond(
+                start,
+                0.0,
+                f64::from(range.settle_us) - SWITCH_RECOVERY_US,
+                f64::from(range.time_constant_us),
+                rail,
+            )
+            .end;
+            assert!(
+                left < 1e-4 * rail,
+                "τ {} µs: {left} counts left after {} µs",
+                range.time_constant_us,
+                range.settle_us
+            );
         }
     }
 }

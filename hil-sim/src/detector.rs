@@ -103,7 +103,13 @@ impl Detector {
         let drift_sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
         let white = crate::scene::WHITE_TILE_RADIANCE_FACTOR * 20f64.to_radians().cos();
         let counts_per_unit = params.white_fraction_at_20deg * params.full_scale_counts / white;
-        Detector { params, rng, drift_sign, counts_per_unit, acceptance_rule: gauss_legendre(ACCEPTANCE_POINTS) }
+        Detector {
+            params,
+            rng,
+            drift_sign,
+            counts_per_unit,
+            acceptance_rule: gauss_legendre(ACCEPTANCE_POINTS),
+        }
     }
 
     /// Its noise drawn from `seed` from now on (the drift's direction and every other
@@ -119,7 +125,12 @@ impl Detector {
 
     /// The scene's radiance factor as the detector sees it: averaged over the acceptance
     /// window in θr (the arms move in one plane, so the window is in-plane).
-    pub fn seen_radiance_factor(&self, scene: &dyn Scene, theta_i_deg: f64, theta_r_deg: f64) -> f64 {
+    pub fn seen_radiance_factor(
+        &self,
+        scene: &dyn Scene,
+        theta_i_deg: f64,
+        theta_r_deg: f64,
+    ) -> f64 {
         let width = self.params.acceptance_deg;
         if width <= 0.0 {
             return scene.radiance_factor(theta_i_deg, theta_r_deg);
@@ -127,10 +138,15 @@ impl Detector {
         let half = width / 2.0;
         // Divided by the weights' own sum (2 up to rounding), so that a scene the same
         // across the window is seen as itself.
-        let (sum, weights) = self
-            .acceptance_rule
-            .iter()
-            .fold((0.0, 0.0), |(sum, weights), &(x, w)| (sum + w * scene.radiance_factor(theta_i_deg, theta_r_deg + half * x), weights + w));
+        let (sum, weights) =
+            self.acceptance_rule
+                .iter()
+                .fold((0.0, 0.0), |(sum, weights), &(x, w)| {
+                    (
+                        sum + w * scene.radiance_factor(theta_i_deg, theta_r_deg + half * x),
+                        weights + w,
+                    )
+                });
         sum / weights
     }
 
@@ -145,9 +161,24 @@ impl Detector {
     }
 
     /// The noiseless signal above dark, in counts, on `range`.
-    pub fn signal_counts(&self, radiance_factor: f64, theta_i_deg: f64, range: usize, lamp: f64) -> f64 {
-        let gain = self.params.relative_gains.get(range).copied().unwrap_or(0.0);
-        self.counts_per_unit * radiance_factor * theta_i_deg.to_radians().cos().max(0.0) * lamp * gain
+    pub fn signal_counts(
+        &self,
+        radiance_factor: f64,
+        theta_i_deg: f64,
+        range: usize,
+        lamp: f64,
+    ) -> f64 {
+        let gain = self
+            .params
+            .relative_gains
+            .get(range)
+            .copied()
+            .unwrap_or(0.0);
+        self.counts_per_unit
+            * radiance_factor
+            * theta_i_deg.to_radians().cos().max(0.0)
+            * lamp
+            * gain
     }
 
     /// Standard deviation of one ADC sample for a signal of `signal_counts` above dark:
@@ -206,9 +237,19 @@ mod tests {
         assert!(detector.signal_counts(59.0, 60.0, 2, 1.0) < 65_535.0);
     }
 
-    fn mean_and_sigma_of_means(detector: &mut Detector, signal: f64, samples_per_reading: usize, readings: usize) -> (f64, f64) {
+    fn mean_and_sigma_of_means(
+        detector: &mut Detector,
+        signal: f64,
+        samples_per_reading: usize,
+        readings: usize,
+    ) -> (f64, f64) {
         let means: Vec<f64> = (0..readings)
-            .map(|_| (0..samples_per_reading).map(|_| f64::from(detector.sample(signal))).sum::<f64>() / samples_per_reading as f64)
+            .map(|_| {
+                (0..samples_per_reading)
+                    .map(|_| f64::from(detector.sample(signal)))
+                    .sum::<f64>()
+                    / samples_per_reading as f64
+            })
             .collect();
         let mean = means.iter().sum::<f64>() / readings as f64;
         let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (readings - 1) as f64;
@@ -235,16 +276,30 @@ mod tests {
         // At 100 ms (100 samples at 1 kHz): read 0.02 % FS and shot 0.1 % of 40 % FS.
         let expected_100 = ((2e-4 * full_scale).powi(2) + (1e-3 * signal).powi(2)).sqrt();
         let (mean, sigma_100) = mean_and_sigma_of_means(&mut detector, signal, 100, 2000);
-        assert!((mean - (signal + 0.003 * full_scale)).abs() < 3.0, "mean {mean}");
-        assert!((sigma_100 / expected_100 - 1.0).abs() < 0.08, "σ at 100 ms {sigma_100} vs {expected_100}");
+        assert!(
+            (mean - (signal + 0.003 * full_scale)).abs() < 3.0,
+            "mean {mean}"
+        );
+        assert!(
+            (sigma_100 / expected_100 - 1.0).abs() < 0.08,
+            "σ at 100 ms {sigma_100} vs {expected_100}"
+        );
         let (_, sigma_400) = mean_and_sigma_of_means(&mut detector, signal, 400, 2000);
-        assert!((sigma_100 / sigma_400 - 2.0).abs() < 0.2, "σ ∝ 1/√T: {sigma_100} vs {sigma_400}");
+        assert!(
+            (sigma_100 / sigma_400 - 2.0).abs() < 0.2,
+            "σ ∝ 1/√T: {sigma_100} vs {sigma_400}"
+        );
     }
 
     #[test]
     fn lamp_drifts_by_the_stated_rate_in_a_seeded_direction() {
-        let drifts: Vec<f64> = (0..16).map(|seed| Detector::new(DetectorParams::default(), seed).lamp_output(3600.0) - 1.0).collect();
-        assert!(drifts.iter().all(|d| (d.abs() - 0.002).abs() < 1e-12), "{drifts:?}");
+        let drifts: Vec<f64> = (0..16)
+            .map(|seed| Detector::new(DetectorParams::default(), seed).lamp_output(3600.0) - 1.0)
+            .collect();
+        assert!(
+            drifts.iter().all(|d| (d.abs() - 0.002).abs() < 1e-12),
+            "{drifts:?}"
+        );
         assert!(drifts.iter().any(|d| *d > 0.0) && drifts.iter().any(|d| *d < 0.0));
     }
 
@@ -254,8 +309,15 @@ mod tests {
         // Exact for polynomials up to degree 2n − 1 over (−1, 1).
         for degree in 0..2 * ACCEPTANCE_POINTS {
             let integral: f64 = rule.iter().map(|&(x, w)| w * x.powi(degree as i32)).sum();
-            let exact = if degree % 2 == 1 { 0.0 } else { 2.0 / (degree as f64 + 1.0) };
-            assert!((integral - exact).abs() < 1e-14, "degree {degree}: {integral} vs {exact}");
+            let exact = if degree % 2 == 1 {
+                0.0
+            } else {
+                2.0 / (degree as f64 + 1.0)
+            };
+            assert!(
+                (integral - exact).abs() < 1e-14,
+                "degree {degree}: {integral} vs {exact}"
+            );
         }
     }
 
@@ -264,12 +326,20 @@ mod tests {
         // A lobe as narrow as glossy paper G's (standard deviation 1.6° in θr) seen through
         // the 1° window, on its flank and at its top: against a 20 001-point midpoint sum.
         let detector = Detector::new(DetectorParams::default(), 1);
-        let lobe = |_: f64, theta_r: f64| (-(theta_r - 60.0).powi(2) / (2.0 * 1.6f64.powi(2))).exp() * 50.0 + 0.8;
+        let lobe = |_: f64, theta_r: f64| {
+            (-(theta_r - 60.0).powi(2) / (2.0 * 1.6f64.powi(2))).exp() * 50.0 + 0.8
+        };
         for theta_r in [60.0, 60.5, 62.0, 63.5, 66.0] {
             let n = 20_001;
-            let dense: f64 = (0..n).map(|k| lobe(60.0, theta_r - 0.5 + (k as f64 + 0.5) / n as f64)).sum::<f64>() / n as f64;
+            let dense: f64 = (0..n)
+                .map(|k| lobe(60.0, theta_r - 0.5 + (k as f64 + 0.5) / n as f64))
+                .sum::<f64>()
+                / n as f64;
             let seen = detector.seen_radiance_factor(&lobe, 60.0, theta_r);
-            assert!((seen / dense - 1.0).abs() < 1e-9, "θr {theta_r}: {seen} vs {dense}");
+            assert!(
+                (seen / dense - 1.0).abs() < 1e-9,
+                "θr {theta_r}: {seen} vs {dense}"
+            );
         }
     }
 

@@ -104,7 +104,13 @@ struct Piece {
 impl SimHardware {
     /// Hardware of `config` with the arms standing at `start` (unknown to the firmware
     /// until it homes), the detector drawing its noise from `seed`.
-    pub fn new(config: &InstrumentConfig, port: SamplePort, detector: DetectorParams, seed: u64, start: Geometry) -> SimHardware {
+    pub fn new(
+        config: &InstrumentConfig,
+        port: SamplePort,
+        detector: DetectorParams,
+        seed: u64,
+        start: Geometry,
+    ) -> SimHardware {
         let detector = Detector::new(detector, seed);
         let next_sample_us = detector.sample_period_us();
         SimHardware {
@@ -248,7 +254,9 @@ impl SimHardware {
             return value;
         }
         let theta_r = geometry.theta_r.deg() + self.theta_r_offset_deg;
-        let value = self.detector.seen_radiance_factor(self.scene(), geometry.theta_i.deg(), theta_r);
+        let value =
+            self.detector
+                .seen_radiance_factor(self.scene(), geometry.theta_i.deg(), theta_r);
         if self.mechanics.true_geometry() == geometry {
             self.seen = Some((geometry, self.target, self.spot, value));
         }
@@ -266,7 +274,12 @@ impl SimHardware {
             return 0.0;
         }
         let radiance_factor = self.seen_at(geometry);
-        self.detector.signal_counts(radiance_factor, geometry.theta_i.deg(), usize::from(self.range), 1.0)
+        self.detector.signal_counts(
+            radiance_factor,
+            geometry.theta_i.deg(),
+            usize::from(self.range),
+            1.0,
+        )
     }
 
     /// The amplifier's output limit, counts above dark: where the ADC reads full scale.
@@ -275,7 +288,9 @@ impl SimHardware {
     }
 
     fn time_constant_us(&self) -> f64 {
-        self.ranges.get(usize::from(self.range)).map_or(0.0, |r| f64::from(r.time_constant_us))
+        self.ranges
+            .get(usize::from(self.range))
+            .map_or(0.0, |r| f64::from(r.time_constant_us))
     }
 
     /// Take the detector's blocks up to now (into `pending`), the amplifier following.
@@ -299,7 +314,12 @@ impl SimHardware {
         let first = self.mechanics.true_geometry_at(from);
         let last = self.mechanics.true_geometry_at(to - 1);
         if first == last {
-            self.pieces.push(Piece { geometry: first, duration_us: to - from, path: 0, input: 0.0 });
+            self.pieces.push(Piece {
+                geometry: first,
+                duration_us: to - from,
+                path: 0,
+                input: 0.0,
+            });
             return;
         }
         let mut stack = vec![(from, to, first, last)];
@@ -308,19 +328,28 @@ impl SimHardware {
             if ga == gl || b - a == 1 {
                 match self.pieces.last_mut() {
                     Some(piece) if piece.geometry == ga => piece.duration_us += b - a,
-                    _ => self.pieces.push(Piece { geometry: ga, duration_us: b - a, path: 0, input: 0.0 }),
+                    _ => self.pieces.push(Piece {
+                        geometry: ga,
+                        duration_us: b - a,
+                        path: 0,
+                        input: 0.0,
+                    }),
                 }
                 continue;
             }
             let mid = a + (b - a) / 2;
-            let (g_left_end, g_mid) = (self.mechanics.true_geometry_at(mid - 1), self.mechanics.true_geometry_at(mid));
+            let (g_left_end, g_mid) = (
+                self.mechanics.true_geometry_at(mid - 1),
+                self.mechanics.true_geometry_at(mid),
+            );
             stack.push((mid, b, g_mid, gl));
             stack.push((a, mid, ga, g_left_end));
         }
         let mut path = 0;
         for k in 1..self.pieces.len() {
             let (before, here) = (self.pieces[k - 1].geometry, self.pieces[k].geometry);
-            path += i64::from((here.theta_i.ticks() - before.theta_i.ticks()).abs()) + i64::from((here.theta_r.ticks() - before.theta_r.ticks()).abs());
+            path += i64::from((here.theta_i.ticks() - before.theta_i.ticks()).abs())
+                + i64::from((here.theta_r.ticks() - before.theta_r.ticks()).abs());
             self.pieces[k].path = path;
         }
     }
@@ -366,17 +395,36 @@ impl SimHardware {
             let piece = self.pieces[k];
             let duration = piece.duration_us as f64;
             // Settled at rest: the output is the input, and the block reads it as before.
-            let steady = self.amp_output == piece.input && piece.input < rail && t >= self.amp_hold_until_us;
-            if !steady || self.block_steady.is_some_and(|(rf, _)| rf.to_bits() != self.seen_at(piece.geometry).to_bits()) {
+            let steady =
+                self.amp_output == piece.input && piece.input < rail && t >= self.amp_hold_until_us;
+            if !steady
+                || self
+                    .block_steady
+                    .is_some_and(|(rf, _)| rf.to_bits() != self.seen_at(piece.geometry).to_bits())
+            {
                 self.block_steady = None;
             }
             let held_us = (self.amp_hold_until_us - t).clamp(0.0, duration);
-            let mut response = Response { end: self.amp_output, integral: 0.0, rail_us: 0.0 };
+            let mut response = Response {
+                end: self.amp_output,
+                integral: 0.0,
+                rail_us: 0.0,
+            };
             if held_us > 0.0 {
                 response.integral = self.amp_output * held_us;
-                response.rail_us = if self.amp_output >= rail { held_us } else { 0.0 };
+                response.rail_us = if self.amp_output >= rail {
+                    held_us
+                } else {
+                    0.0
+                };
             }
-            let follows = amplifier::respond(self.amp_output, piece.input, duration - held_us, tau_us, rail);
+            let follows = amplifier::respond(
+                self.amp_output,
+                piece.input,
+                duration - held_us,
+                tau_us,
+                rail,
+            );
             response.end = follows.end;
             response.integral += follows.integral;
             response.rail_us += follows.rail_us;
@@ -398,16 +446,19 @@ impl SimHardware {
             self.detector.saturated_sample()
         } else {
             let signal = match self.block_steady {
-                Some((radiance_factor, theta_i)) if self.mechanics.lamp_on() => {
-                    self.detector.signal_counts(radiance_factor, theta_i, usize::from(self.range), lamp)
-                }
+                Some((radiance_factor, theta_i)) if self.mechanics.lamp_on() => self
+                    .detector
+                    .signal_counts(radiance_factor, theta_i, usize::from(self.range), lamp),
                 Some(_) => 0.0,
                 None => self.block_integral / period as f64 * lamp,
             };
             self.detector.sample(signal)
         };
         let detector_steps = self.mechanics.arms[Arm::Detector.index()].steps_at(end_us);
-        self.pending.push_back(Sample { counts, detector_steps });
+        self.pending.push_back(Sample {
+            counts,
+            detector_steps,
+        });
         self.next_sample_us += period;
         self.block_integral = 0.0;
         self.block_rail_us = 0.0;

@@ -92,7 +92,10 @@ impl Unplug {
 
     fn span_us(&self) -> (u64, u64) {
         let at_us = (self.at_s.max(0.0) * 1e6) as u64;
-        (at_us, at_us.saturating_add((self.for_s.max(0.0) * 1e6) as u64))
+        (
+            at_us,
+            at_us.saturating_add((self.for_s.max(0.0) * 1e6) as u64),
+        )
     }
 }
 
@@ -217,7 +220,10 @@ fn error_factor(rng: &mut ChaCha12Rng, sd: f64) -> f64 {
 
 /// The link is down: the cable is out.
 fn unplugged_error() -> std::io::Error {
-    std::io::Error::new(std::io::ErrorKind::NotConnected, "simulated USB cable unplugged")
+    std::io::Error::new(
+        std::io::ErrorKind::NotConnected,
+        "simulated USB cable unplugged",
+    )
 }
 
 impl SimInstrument {
@@ -230,19 +236,35 @@ impl SimInstrument {
         let nominal = detector.relative_gains.clone();
         for k in 1..nominal.len() {
             let factor = error_factor(&mut gains_rng, errors.gain_ratio_sd);
-            detector.relative_gains[k] = detector.relative_gains[k - 1] * nominal[k] / nominal[k - 1] * factor;
+            detector.relative_gains[k] =
+                detector.relative_gains[k - 1] * nominal[k] / nominal[k - 1] * factor;
         }
-        port.white.radiance_factor *= error_factor(&mut stream(config.seed, streams::TILE), errors.tile_sd);
+        port.white.radiance_factor *=
+            error_factor(&mut stream(config.seed, streams::TILE), errors.tile_sd);
         let drawn_zero_deg: f64 = {
             let z: f64 = stream(config.seed, streams::ARM_ZERO).sample(StandardNormal);
             errors.theta_r_offset_sd_deg * z
         };
         let theta_r_offset_deg = errors.theta_r_offset_deg + drawn_zero_deg;
-        let truth = Truth { relative_gains: detector.relative_gains.clone(), tile_radiance_factor: port.white.radiance_factor, theta_r_offset_deg };
-        let mut hardware = SimHardware::new(&config.instrument, port, detector, config.seed, config.start);
+        let truth = Truth {
+            relative_gains: detector.relative_gains.clone(),
+            tile_radiance_factor: port.white.radiance_factor,
+            theta_r_offset_deg,
+        };
+        let mut hardware = SimHardware::new(
+            &config.instrument,
+            port,
+            detector,
+            config.seed,
+            config.start,
+        );
         hardware.set_theta_r_offset_deg(theta_r_offset_deg);
         if config.power_on > 0 {
-            let noise_seed = stream(config.seed ^ config.power_on.wrapping_mul(0x9e37_79b9_7f4a_7c15), streams::DETECTOR).random::<u64>();
+            let noise_seed = stream(
+                config.seed ^ config.power_on.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+                streams::DETECTOR,
+            )
+            .random::<u64>();
             hardware.detector_mut().reseed_noise(noise_seed);
         }
         if let Some(arm) = config.faults.switch_missing {
@@ -250,7 +272,8 @@ impl SimInstrument {
         }
         let outages = merged_outages(&config.faults.unplugs);
         SimInstrument {
-            device: Device::new(config.instrument, hardware, ResetCause::PowerOn).with_serial_number(&config.serial_number),
+            device: Device::new(config.instrument, hardware, ResetCause::PowerOn)
+                .with_serial_number(&config.serial_number),
             to_host: VecDeque::new(),
             now_us: 0,
             faults: config.faults,
@@ -297,7 +320,9 @@ impl SimInstrument {
                 self.operator_sees(&request);
             }
             let (device, to_host, mut link) = self.split();
-            device.receive(&[byte], link.now_us, &mut |frame: &[u8]| link.deliver(frame, to_host));
+            device.receive(&[byte], link.now_us, &mut |frame: &[u8]| {
+                link.deliver(frame, to_host)
+            });
         }
         Ok(())
     }
@@ -339,7 +364,9 @@ impl SimInstrument {
         self.update_cable();
         self.device.hardware_mut().advance_to(self.now_us);
         let (device, to_host, mut link) = self.split();
-        device.poll(link.now_us, &mut |frame: &[u8]| link.deliver(frame, to_host));
+        device.poll(link.now_us, &mut |frame: &[u8]| {
+            link.deliver(frame, to_host)
+        });
     }
 
     fn update_cable(&mut self) {
@@ -371,7 +398,11 @@ impl SimInstrument {
             Command::Sweep(sweep) => hardware.place(sweep.target),
             _ => {}
         }
-        if matches!(request.command, Command::MoveTo(_) | Command::RunSchedule(_)) && !self.steps_lost {
+        if matches!(
+            request.command,
+            Command::MoveTo(_) | Command::RunSchedule(_)
+        ) && !self.steps_lost
+        {
             if let Some((arm, steps)) = self.faults.lose_steps {
                 self.steps_lost = true;
                 hardware.mechanics_mut().lose_steps(arm, steps);
@@ -450,7 +481,11 @@ impl LinkSide<'_> {
         if self.unplugged || chance(self.rng, self.faults.drop) {
             return;
         }
-        to_host.extend(frame.iter().map(|&byte| corrupt(self.rng, self.faults.corrupt, byte)));
+        to_host.extend(
+            frame
+                .iter()
+                .map(|&byte| corrupt(self.rng, self.faults.corrupt, byte)),
+        );
     }
 }
 
@@ -462,5 +497,9 @@ fn chance(rng: &mut ChaCha12Rng, p: f64) -> bool {
 
 /// `byte`, or with probability `p` a different byte.
 fn corrupt(rng: &mut ChaCha12Rng, p: f64, byte: u8) -> u8 {
-    if chance(rng, p) { byte ^ rng.random_range(1..=255u8) } else { byte }
+    if chance(rng, p) {
+        byte ^ rng.random_range(1..=255u8)
+    } else {
+        byte
+    }
 }

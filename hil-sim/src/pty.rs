@@ -29,7 +29,11 @@ impl PtyServer {
         cfmakeraw(&mut termios);
         tcsetattr(&pty.slave, SetArg::TCSANOW, &termios)?;
         let path = nix::unistd::ttyname(&pty.slave)?;
-        Ok(PtyServer { master: pty.master, _slave: pty.slave, path })
+        Ok(PtyServer {
+            master: pty.master,
+            _slave: pty.slave,
+            path,
+        })
     }
 
     /// The device path clients open (`/dev/pts/N`).
@@ -68,7 +72,11 @@ impl PtyServer {
                         last_host_virtual_us = instrument.device_time_us();
                     }
                     // A client closing its end is not our failure.
-                    Err(nix::errno::Errno::EIO | nix::errno::Errno::EAGAIN | nix::errno::Errno::EINTR) => {}
+                    Err(
+                        nix::errno::Errno::EIO
+                        | nix::errno::Errno::EAGAIN
+                        | nix::errno::Errno::EINTR,
+                    ) => {}
                     Err(e) => return Err(e.into()),
                 }
             }
@@ -88,7 +96,12 @@ impl PtyServer {
     }
 
     /// Run the instrument up to device time `limit_us`, passing its output to the client.
-    fn run_until(&self, instrument: &mut SimInstrument, limit_us: u64, buf: &mut [u8]) -> std::io::Result<()> {
+    fn run_until(
+        &self,
+        instrument: &mut SimInstrument,
+        limit_us: u64,
+        buf: &mut [u8],
+    ) -> std::io::Result<()> {
         loop {
             let wait = Duration::from_micros(limit_us.saturating_sub(instrument.device_time_us()));
             match instrument.read(buf, wait) {

@@ -32,7 +32,9 @@ pub struct WhiteTile {
 
 impl Default for WhiteTile {
     fn default() -> Self {
-        WhiteTile { radiance_factor: WHITE_TILE_RADIANCE_FACTOR }
+        WhiteTile {
+            radiance_factor: WHITE_TILE_RADIANCE_FACTOR,
+        }
     }
 }
 
@@ -65,11 +67,19 @@ impl SamplePort {
     /// A port holding `sample`, the same at every spot, with the default white tile for
     /// calibration.
     pub fn new(sample: Arc<dyn Scene>) -> SamplePort {
-        SamplePort { sample, white: WhiteTile::default(), spots: None }
+        SamplePort {
+            sample,
+            white: WhiteTile::default(),
+            spots: None,
+        }
     }
 
     /// A port holding a sample with spots of its own; spot 0 is on the port at first.
     pub fn with_spots(spots: Arc<dyn Spots>, seed: u64) -> SamplePort {
-        SamplePort { sample: spots.spot(seed, 0), white: WhiteTile::default(), spots: Some(spots) }
+        SamplePort {
+            sample: spots.spot(seed, 0),
+            white: WhiteTile::default(),
+            spots: Some(spots),
+        }
     }
 }

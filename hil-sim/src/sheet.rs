@@ -121,14 +121,31 @@ pub enum SheetError {
 impl SheetSpec {
     /// The plain TSL sheet of `stock`: Gaussian lobe, nothing else, every spot the same.
     pub fn tsl(stock: Stock) -> SheetSpec {
-        SheetSpec { stock, lobe: Lobe::Gaussian, forward_lobe: 0.0, specular_bump: 0.0, spot_variation: 0.0 }
+        SheetSpec {
+            stock,
+            lobe: Lobe::Gaussian,
+            forward_lobe: 0.0,
+            specular_bump: 0.0,
+            spot_variation: 0.0,
+        }
     }
 
     /// Check every parameter; the simulator's options are checked here.
     pub fn validate(&self) -> Result<(), SheetError> {
         let s = &self.stock;
-        let check = |name, range, value: f64, ok: bool| if ok && value.is_finite() { Ok(()) } else { Err(SheetError::OutOfRange { name, range, value }) };
-        check("sigma", "in (0, 90] degrees", s.sigma_deg, s.sigma_deg > 0.0 && s.sigma_deg <= 90.0)?;
+        let check = |name, range, value: f64, ok: bool| {
+            if ok && value.is_finite() {
+                Ok(())
+            } else {
+                Err(SheetError::OutOfRange { name, range, value })
+            }
+        };
+        check(
+            "sigma",
+            "in (0, 90] degrees",
+            s.sigma_deg,
+            s.sigma_deg > 0.0 && s.sigma_deg <= 90.0,
+        )?;
         check("rho_s", "≥ 0", s.rho_s, s.rho_s >= 0.0)?;
         check("rho_d", "≥ 0", s.rho_d, s.rho_d >= 0.0)?;
         check("eta", "in [1, 3]", s.eta, (1.0..=3.0).contains(&s.eta))?;
@@ -140,9 +157,24 @@ impl SheetSpec {
                 s.sigma_deg <= MAX_HEAVY_TAILED_SIGMA_DEG,
             )?;
         }
-        check("forward lobe", "a radiance factor in [0, 100]", self.forward_lobe, (0.0..=100.0).contains(&self.forward_lobe))?;
-        check("specular bump", "a radiance factor in [0, 100]", self.specular_bump, (0.0..=100.0).contains(&self.specular_bump))?;
-        check("sheet variation", "a fraction in [0, 0.5]", self.spot_variation, (0.0..=0.5).contains(&self.spot_variation))?;
+        check(
+            "forward lobe",
+            "a radiance factor in [0, 100]",
+            self.forward_lobe,
+            (0.0..=100.0).contains(&self.forward_lobe),
+        )?;
+        check(
+            "specular bump",
+            "a radiance factor in [0, 100]",
+            self.specular_bump,
+            (0.0..=100.0).contains(&self.specular_bump),
+        )?;
+        check(
+            "sheet variation",
+            "a fraction in [0, 0.5]",
+            self.spot_variation,
+            (0.0..=0.5).contains(&self.spot_variation),
+        )?;
         Ok(())
     }
 
@@ -161,7 +193,11 @@ impl SheetSpec {
             stock.rho_s = draw(stock.rho_s);
             stock.rho_d = draw(stock.rho_d);
             // A spot is still a surface the lobe can describe.
-            let max_sigma = if self.lobe == Lobe::Gaussian { 90.0 } else { MAX_HEAVY_TAILED_SIGMA_DEG };
+            let max_sigma = if self.lobe == Lobe::Gaussian {
+                90.0
+            } else {
+                MAX_HEAVY_TAILED_SIGMA_DEG
+            };
             stock.sigma_deg = stock.sigma_deg.min(max_sigma);
         }
         Sheet::new(stock, self.lobe, self.forward_lobe, self.specular_bump)
@@ -197,7 +233,13 @@ impl Sheet {
             }
             Lobe::Cauchy => half_width_deg,
         };
-        Sheet { params, lobe, shape, forward_lobe, specular_bump }
+        Sheet {
+            params,
+            lobe,
+            shape,
+            forward_lobe,
+            specular_bump,
+        }
     }
 
     /// The spot's parameters.
@@ -230,7 +272,10 @@ impl Sheet {
         let psi = 0.5 * (theta_i_deg + theta_r_deg);
         let theta_a = 0.5 * (theta_i_deg - theta_r_deg).abs();
         let attenuation_over_cosines = blinn_attenuation_over_cosines(theta_i_deg, theta_r_deg);
-        self.params.rho_s * fresnel(psi, self.params.eta) * attenuation_over_cosines * self.distribution(theta_a)
+        self.params.rho_s
+            * fresnel(psi, self.params.eta)
+            * attenuation_over_cosines
+            * self.distribution(theta_a)
     }
 
     /// The forward lobe's term.
@@ -254,7 +299,10 @@ impl Sheet {
 
 impl Scene for Sheet {
     fn radiance_factor(&self, theta_i_deg: f64, theta_r_deg: f64) -> f64 {
-        self.specular(theta_i_deg, theta_r_deg) + self.params.rho_d + self.forward(theta_i_deg, theta_r_deg) + self.bump(theta_i_deg, theta_r_deg)
+        self.specular(theta_i_deg, theta_r_deg)
+            + self.params.rho_d
+            + self.forward(theta_i_deg, theta_r_deg)
+            + self.bump(theta_i_deg, theta_r_deg)
     }
 }
 
@@ -275,7 +323,11 @@ pub fn fresnel(psi_deg: f64, eta: f64) -> f64 {
     let delta = (psi.sin() / eta).asin();
     let sum = psi + delta;
     let difference = psi - delta;
-    let tan_ratio = if sum.cos().abs() < 1e-15 { 0.0 } else { difference.tan() / sum.tan() };
+    let tan_ratio = if sum.cos().abs() < 1e-15 {
+        0.0
+    } else {
+        difference.tan() / sum.tan()
+    };
     let sin_ratio = difference.sin() / sum.sin();
     tan_ratio.hypot(sin_ratio)
 }
@@ -294,7 +346,9 @@ fn blinn_attenuation_over_cosines(theta_i_deg: f64, theta_r_deg: f64) -> f64 {
     let (n_i, n_r, n_a, r_a) = cosines(theta_i_deg, theta_r_deg);
     let floor = 1e-300;
     let (n_i, n_r) = (n_i.max(floor), n_r.max(floor));
-    (1.0 / (n_i * n_r)).min(2.0 * n_a / (r_a * n_i)).min(2.0 * n_a / (r_a * n_r))
+    (1.0 / (n_i * n_r))
+        .min(2.0 * n_a / (r_a * n_i))
+        .min(2.0 * n_a / (r_a * n_r))
 }
 
 /// (n·i, n·r, n·a, r·a) in the specular plane.
@@ -302,7 +356,10 @@ fn cosines(theta_i_deg: f64, theta_r_deg: f64) -> (f64, f64, f64, f64) {
     let n_i = theta_i_deg.to_radians().cos();
     let n_r = theta_r_deg.to_radians().cos();
     let n_a = (0.5 * (theta_i_deg - theta_r_deg)).to_radians().cos();
-    let r_a = (0.5 * (theta_i_deg + theta_r_deg)).to_radians().cos().max(1e-300);
+    let r_a = (0.5 * (theta_i_deg + theta_r_deg))
+        .to_radians()
+        .cos()
+        .max(1e-300);
     (n_i, n_r, n_a, r_a)
 }
 
@@ -310,7 +367,12 @@ fn cosines(theta_i_deg: f64, theta_r_deg: f64) -> (f64, f64, f64, f64) {
 mod tests {
     use super::*;
 
-    const G: Stock = Stock { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 };
+    const G: Stock = Stock {
+        sigma_deg: 0.8,
+        rho_s: 57.8,
+        rho_d: 0.855,
+        eta: 1.19,
+    };
 
     #[test]
     fn fresnel_has_the_limits_the_method_states() {
@@ -319,7 +381,10 @@ mod tests {
             assert_eq!(fresnel(0.0, eta), at_zero);
             // Continuous into ψ = 0.
             assert!((fresnel(1e-6, eta) / at_zero - 1.0).abs() < 1e-9, "η {eta}");
-            assert!((fresnel(-1e-3, eta) / at_zero - 1.0).abs() < 1e-6, "η {eta}");
+            assert!(
+                (fresnel(-1e-3, eta) / at_zero - 1.0).abs() < 1e-6,
+                "η {eta}"
+            );
         }
         assert_eq!(fresnel(30.0, 1.0), 0.0);
         // Brewster: ψ + δ = 90° at tan ψ = η; the tan ratio vanishes there, F = |sin ratio|.
@@ -327,7 +392,10 @@ mod tests {
         let brewster = eta.atan().to_degrees();
         let psi = brewster.to_radians();
         let delta = (psi.sin() / eta).asin();
-        assert!((fresnel(brewster, eta) - ((psi - delta).sin() / (psi + delta).sin()).abs()).abs() < 1e-12);
+        assert!(
+            (fresnel(brewster, eta) - ((psi - delta).sin() / (psi + delta).sin()).abs()).abs()
+                < 1e-12
+        );
     }
 
     #[test]
@@ -342,9 +410,21 @@ mod tests {
         for sigma in [0.3, 0.8, 1.9, 16.7, 43.5, 72.0] {
             let half = sigma * SQRT_2_LN_2;
             for lobe in [Lobe::Gaussian, Lobe::Ggx, Lobe::Cauchy] {
-                let sheet = Sheet::new(Stock { sigma_deg: sigma, ..G }, lobe, 0.0, 0.0);
+                let sheet = Sheet::new(
+                    Stock {
+                        sigma_deg: sigma,
+                        ..G
+                    },
+                    lobe,
+                    0.0,
+                    0.0,
+                );
                 assert_eq!(sheet.distribution(0.0), 1.0, "{lobe:?} σ {sigma}");
-                assert!((sheet.distribution(half) - 0.5).abs() < 1e-12, "{lobe:?} σ {sigma}: {}", sheet.distribution(half));
+                assert!(
+                    (sheet.distribution(half) - 0.5).abs() < 1e-12,
+                    "{lobe:?} σ {sigma}: {}",
+                    sheet.distribution(half)
+                );
             }
         }
     }
@@ -354,7 +434,10 @@ mod tests {
         let spec = SheetSpec::tsl(G);
         assert_eq!(spec.spot(1, 0).params(), G);
         assert_eq!(spec.spot(9, 5).params(), G);
-        let varied = SheetSpec { spot_variation: 0.1, ..spec };
+        let varied = SheetSpec {
+            spot_variation: 0.1,
+            ..spec
+        };
         assert_eq!(varied.spot(3, 2), varied.spot(3, 2));
         assert_ne!(varied.spot(3, 2), varied.spot(3, 1));
         assert_ne!(varied.spot(3, 2), varied.spot(4, 2));
@@ -364,13 +447,34 @@ mod tests {
     #[test]
     fn bad_sheets_are_refused_by_name() {
         let bad = [
-            SheetSpec::tsl(Stock { sigma_deg: 0.0, ..G }),
-            SheetSpec::tsl(Stock { rho_s: f64::NAN, ..G }),
+            SheetSpec::tsl(Stock {
+                sigma_deg: 0.0,
+                ..G
+            }),
+            SheetSpec::tsl(Stock {
+                rho_s: f64::NAN,
+                ..G
+            }),
             SheetSpec::tsl(Stock { eta: 0.9, ..G }),
-            SheetSpec { lobe: Lobe::Ggx, ..SheetSpec::tsl(Stock { sigma_deg: 80.0, ..G }) },
-            SheetSpec { forward_lobe: -1.0, ..SheetSpec::tsl(G) },
-            SheetSpec { specular_bump: f64::INFINITY, ..SheetSpec::tsl(G) },
-            SheetSpec { spot_variation: 0.9, ..SheetSpec::tsl(G) },
+            SheetSpec {
+                lobe: Lobe::Ggx,
+                ..SheetSpec::tsl(Stock {
+                    sigma_deg: 80.0,
+                    ..G
+                })
+            },
+            SheetSpec {
+                forward_lobe: -1.0,
+                ..SheetSpec::tsl(G)
+            },
+            SheetSpec {
+                specular_bump: f64::INFINITY,
+                ..SheetSpec::tsl(G)
+            },
+            SheetSpec {
+                spot_variation: 0.9,
+                ..SheetSpec::tsl(G)
+            },
         ];
         for spec in bad {
             assert!(spec.validate().is_err(), "{spec:?}");

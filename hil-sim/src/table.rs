@@ -70,54 +70,106 @@ impl TableScene {
     /// Read and check `path`.
     pub fn read(path: &Path) -> Result<TableScene, TableError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| TableError { file: name.clone(), line: None, what: format!("cannot read: {e}") })?;
+        let text = std::fs::read_to_string(path).map_err(|e| TableError {
+            file: name.clone(),
+            line: None,
+            what: format!("cannot read: {e}"),
+        })?;
         TableScene::parse(&text, &name)
     }
 
     /// Parse CSV text; `file` names it in errors.
     pub fn parse(text: &str, file: &str) -> Result<TableScene, TableError> {
-        let error = |line: usize, what: String| TableError { file: file.to_owned(), line: Some(line), what };
+        let error = |line: usize, what: String| TableError {
+            file: file.to_owned(),
+            line: Some(line),
+            what,
+        };
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-        let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r'))).filter(|(_, l)| {
-            let t = l.trim();
-            !t.is_empty() && !t.starts_with('#')
-        });
-        let (header_line, header) =
-            lines.next().ok_or_else(|| error(1, "empty file: expected a header with theta_i, theta_r, radiance_factor".into()))?;
-        let names: Vec<String> = split_fields(header).into_iter().map(|n| n.to_ascii_lowercase()).collect();
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
+            .filter(|(_, l)| {
+                let t = l.trim();
+                !t.is_empty() && !t.starts_with('#')
+            });
+        let (header_line, header) = lines.next().ok_or_else(|| {
+            error(
+                1,
+                "empty file: expected a header with theta_i, theta_r, radiance_factor".into(),
+            )
+        })?;
+        let names: Vec<String> = split_fields(header)
+            .into_iter()
+            .map(|n| n.to_ascii_lowercase())
+            .collect();
         let column = |wanted: &str| -> Result<usize, TableError> {
-            let mut found = names.iter().enumerate().filter(|(_, n)| n.as_str() == wanted).map(|(i, _)| i);
+            let mut found = names
+                .iter()
+                .enumerate()
+                .filter(|(_, n)| n.as_str() == wanted)
+                .map(|(i, _)| i);
             match (found.next(), found.next()) {
                 (Some(i), None) => Ok(i),
-                (None, _) => Err(error(header_line, format!("the header has no '{wanted}' column"))),
-                (Some(_), Some(_)) => Err(error(header_line, format!("column '{wanted}' appears twice in the header"))),
+                (None, _) => Err(error(
+                    header_line,
+                    format!("the header has no '{wanted}' column"),
+                )),
+                (Some(_), Some(_)) => Err(error(
+                    header_line,
+                    format!("column '{wanted}' appears twice in the header"),
+                )),
             }
         };
-        let (col_i, col_r, col_f) = (column("theta_i")?, column("theta_r")?, column("radiance_factor")?);
+        let (col_i, col_r, col_f) = (
+            column("theta_i")?,
+            column("theta_r")?,
+            column("radiance_factor")?,
+        );
         let col_sample = names.iter().position(|n| n == "sample");
 
         // (θi, θr) → (sum, count, first line), θ keyed in exact bits after normalising −0.
-        let mut nodes: std::collections::BTreeMap<(OrdF64, OrdF64), (f64, u32, usize)> = Default::default();
+        let mut nodes: std::collections::BTreeMap<(OrdF64, OrdF64), (f64, u32, usize)> =
+            Default::default();
         let mut sample: Option<(String, usize)> = None;
         let mut last_line = header_line;
         for (line, text) in lines {
             last_line = line;
             let fields = split_fields(text);
             if fields.len() != names.len() {
-                return Err(error(line, format!("{} fields, the header has {}", fields.len(), names.len())));
+                return Err(error(
+                    line,
+                    format!("{} fields, the header has {}", fields.len(), names.len()),
+                ));
             }
             let number = |col: usize, what: &str| -> Result<f64, TableError> {
-                let v = fields[col].parse::<f64>().map_err(|_| error(line, format!("{what} '{}' is not a number", fields[col])))?;
-                if v.is_finite() { Ok(v) } else { Err(error(line, format!("{what} '{}' is not finite", fields[col]))) }
+                let v = fields[col].parse::<f64>().map_err(|_| {
+                    error(line, format!("{what} '{}' is not a number", fields[col]))
+                })?;
+                if v.is_finite() {
+                    Ok(v)
+                } else {
+                    Err(error(
+                        line,
+                        format!("{what} '{}' is not finite", fields[col]),
+                    ))
+                }
             };
             let theta_i = number(col_i, "theta_i")?;
             let theta_r = number(col_r, "theta_r")?;
             let value = number(col_f, "radiance_factor")?;
             if !(0.0..90.0).contains(&theta_i) {
-                return Err(error(line, format!("theta_i {theta_i} is outside [0, 90) degrees")));
+                return Err(error(
+                    line,
+                    format!("theta_i {theta_i} is outside [0, 90) degrees"),
+                ));
             }
             if !(-90.0 < theta_r && theta_r < 90.0) {
-                return Err(error(line, format!("theta_r {theta_r} is outside (-90, 90) degrees")));
+                return Err(error(
+                    line,
+                    format!("theta_r {theta_r} is outside (-90, 90) degrees"),
+                ));
             }
             if value < 0.0 {
                 return Err(error(line, format!("radiance_factor {value} is negative")));
@@ -128,13 +180,18 @@ impl TableScene {
                     Some((first, first_line)) if *first != fields[c] => {
                         return Err(error(
                             line,
-                            format!("sample '{}' here, '{first}' on line {first_line}: a scene file holds one sample", fields[c]),
+                            format!(
+                                "sample '{}' here, '{first}' on line {first_line}: a scene file holds one sample",
+                                fields[c]
+                            ),
                         ));
                     }
                     Some(_) => {}
                 }
             }
-            let entry = nodes.entry((OrdF64::new(theta_i), OrdF64::new(theta_r))).or_insert((0.0, 0, line));
+            let entry = nodes
+                .entry((OrdF64::new(theta_i), OrdF64::new(theta_r)))
+                .or_insert((0.0, 0, line));
             entry.0 += value;
             entry.1 += 1;
         }
@@ -145,7 +202,12 @@ impl TableScene {
         let mut first_line_of_row = Vec::new();
         for ((theta_i, theta_r), (sum, count, line)) in nodes {
             if rows.last().is_none_or(|r| r.theta_i_deg != theta_i.0) {
-                rows.push(Row { theta_i_deg: theta_i.0, theta_r_deg: Vec::new(), value: Vec::new(), slope: Vec::new() });
+                rows.push(Row {
+                    theta_i_deg: theta_i.0,
+                    theta_r_deg: Vec::new(),
+                    value: Vec::new(),
+                    slope: Vec::new(),
+                });
                 first_line_of_row.push(line);
             }
             let row = rows.last_mut().expect("pushed");
@@ -154,11 +216,21 @@ impl TableScene {
         }
         for (row, line) in rows.iter_mut().zip(first_line_of_row) {
             if row.theta_r_deg.len() < 2 {
-                return Err(error(line, format!("theta_i {} has one theta_r only: a row needs two to interpolate", row.theta_i_deg)));
+                return Err(error(
+                    line,
+                    format!(
+                        "theta_i {} has one theta_r only: a row needs two to interpolate",
+                        row.theta_i_deg
+                    ),
+                ));
             }
             row.slope = pchip_slopes(&row.theta_r_deg, &row.value);
         }
-        Ok(TableScene { rows, outside: AtomicU64::new(0), between: AtomicU64::new(0) })
+        Ok(TableScene {
+            rows,
+            outside: AtomicU64::new(0),
+            between: AtomicU64::new(0),
+        })
     }
 
     /// The tabulated θi, ascending.
@@ -168,7 +240,10 @@ impl TableScene {
 
     /// The θr range of the row at tabulated θi `theta_i_deg`, if there is one.
     pub fn theta_r_range_deg(&self, theta_i_deg: f64) -> Option<(f64, f64)> {
-        self.rows.iter().find(|r| r.theta_i_deg == theta_i_deg).map(|r| (r.theta_r_deg[0], *r.theta_r_deg.last().expect("≥ 2 nodes")))
+        self.rows
+            .iter()
+            .find(|r| r.theta_i_deg == theta_i_deg)
+            .map(|r| (r.theta_r_deg[0], *r.theta_r_deg.last().expect("≥ 2 nodes")))
     }
 
     /// How many evaluations fell more than [`OUTSIDE_TOLERANCE_DEG`] outside the table.
@@ -322,13 +397,25 @@ mod tests {
 
     #[test]
     fn nodes_come_back_exactly_and_a_peak_is_not_overshot() {
-        let text = "theta_i,theta_r,radiance_factor\n20,0,1\n20,10,1.2\n20,20,5\n20,30,1.2\n20,40,1\n";
+        let text =
+            "theta_i,theta_r,radiance_factor\n20,0,1\n20,10,1.2\n20,20,5\n20,30,1.2\n20,40,1\n";
         let t = TableScene::parse(text, "t.csv").unwrap();
-        for (r, v) in [(0.0, 1.0), (10.0, 1.2), (20.0, 5.0), (30.0, 1.2), (40.0, 1.0)] {
+        for (r, v) in [
+            (0.0, 1.0),
+            (10.0, 1.2),
+            (20.0, 5.0),
+            (30.0, 1.2),
+            (40.0, 1.0),
+        ] {
             assert_eq!(t.radiance_factor(20.0, r), v);
         }
-        let between: Vec<f64> = (0..=400).map(|k| t.radiance_factor(20.0, f64::from(k) * 0.1)).collect();
-        assert!(between.iter().all(|v| (1.0..=5.0).contains(v)), "monotone between nodes");
+        let between: Vec<f64> = (0..=400)
+            .map(|k| t.radiance_factor(20.0, f64::from(k) * 0.1))
+            .collect();
+        assert!(
+            between.iter().all(|v| (1.0..=5.0).contains(v)),
+            "monotone between nodes"
+        );
         assert_eq!(t.evaluations_outside(), 0);
         // A peak's flat ends are held flat outside; θi past the last row uses the last row.
         assert_eq!(t.radiance_factor(20.0, 40.5), 1.0);
@@ -365,22 +452,57 @@ mod tests {
     fn bad_files_name_the_file_and_line() {
         let cases = [
             ("", "t.csv:1: empty file"),
-            ("theta_i,radiance_factor\n20,1\n", "t.csv:1: the header has no 'theta_r' column"),
-            ("theta_i,theta_r,theta_r,radiance_factor\n", "t.csv:1: column 'theta_r' appears twice"),
+            (
+                "theta_i,radiance_factor\n20,1\n",
+                "t.csv:1: the header has no 'theta_r' column",
+            ),
+            (
+                "theta_i,theta_r,theta_r,radiance_factor\n",
+                "t.csv:1: column 'theta_r' appears twice",
+            ),
             ("theta_i,theta_r,radiance_factor\n", "t.csv:1: no readings"),
-            ("theta_i,theta_r,radiance_factor\n20,0,1\n20,x,1\n", "t.csv:3: theta_r 'x' is not a number"),
-            ("theta_i,theta_r,radiance_factor\n20,0,1\n\n20,1\n", "t.csv:4: 2 fields, the header has 3"),
-            ("theta_i,theta_r,radiance_factor\n90,0,1\n", "t.csv:2: theta_i 90 is outside"),
-            ("theta_i,theta_r,radiance_factor\n20,0,-1\n", "t.csv:2: radiance_factor -1 is negative"),
-            ("theta_i,theta_r,radiance_factor\n20,0,inf\n", "t.csv:2: radiance_factor 'inf' is not finite"),
-            ("theta_i,theta_r,radiance_factor\n20,0,1\n20,5,1\n30,0,1\n", "t.csv:4: theta_i 30 has one theta_r only"),
-            ("sample,theta_i,theta_r,radiance_factor\nA,20,0,1\nB,20,5,1\n", "t.csv:3: sample 'B' here, 'A' on line 2"),
+            (
+                "theta_i,theta_r,radiance_factor\n20,0,1\n20,x,1\n",
+                "t.csv:3: theta_r 'x' is not a number",
+            ),
+            (
+                "theta_i,theta_r,radiance_factor\n20,0,1\n\n20,1\n",
+                "t.csv:4: 2 fields, the header has 3",
+            ),
+            (
+                "theta_i,theta_r,radiance_factor\n90,0,1\n",
+                "t.csv:2: theta_i 90 is outside",
+            ),
+            (
+                "theta_i,theta_r,radiance_factor\n20,0,-1\n",
+                "t.csv:2: radiance_factor -1 is negative",
+            ),
+            (
+                "theta_i,theta_r,radiance_factor\n20,0,inf\n",
+                "t.csv:2: radiance_factor 'inf' is not finite",
+            ),
+            (
+                "theta_i,theta_r,radiance_factor\n20,0,1\n20,5,1\n30,0,1\n",
+                "t.csv:4: theta_i 30 has one theta_r only",
+            ),
+            (
+                "sample,theta_i,theta_r,radiance_factor\nA,20,0,1\nB,20,5,1\n",
+                "t.csv:3: sample 'B' here, 'A' on line 2",
+            ),
         ];
         for (text, expected) in cases {
             let message = TableScene::parse(text, "t.csv").unwrap_err().to_string();
-            assert!(message.starts_with(expected), "{message:?} should start with {expected:?}");
+            assert!(
+                message.starts_with(expected),
+                "{message:?} should start with {expected:?}"
+            );
         }
-        let missing = TableScene::read(Path::new("/nonexistent/scene.csv")).unwrap_err().to_string();
-        assert!(missing.starts_with("/nonexistent/scene.csv: cannot read"), "{missing}");
+        let missing = TableScene::read(Path::new("/nonexistent/scene.csv"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            missing.starts_with("/nonexistent/scene.csv: cannot read"),
+            "{missing}"
+        );
     }
 }

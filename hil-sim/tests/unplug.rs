@@ -37,13 +37,24 @@ enum Failure {
 
 impl Host {
     fn new(sim: SimInstrument) -> Host {
-        Host { sim, seq: 0, decoder: FrameDecoder::new() }
+        Host {
+            sim,
+            seq: 0,
+            decoder: FrameDecoder::new(),
+        }
     }
 
     fn send(&mut self, command: Command) -> Result<u32, Failure> {
         self.seq += 1;
         let mut buf = [0u8; MAX_FRAME_LEN];
-        let frame = encode_frame(&Request { seq: self.seq, command }, &mut buf).expect("frame");
+        let frame = encode_frame(
+            &Request {
+                seq: self.seq,
+                command,
+            },
+            &mut buf,
+        )
+        .expect("frame");
         self.sim.write(frame).map_err(|_| Failure::Unplugged)?;
         Ok(self.seq)
     }
@@ -55,9 +66,14 @@ impl Host {
         let mut next_heartbeat = self.sim.device_time_us() + HEARTBEAT_MS * 1000;
         let mut buf = [0u8; 256];
         while self.sim.device_time_us() < deadline {
-            let n = self.sim.read(&mut buf, Duration::from_millis(10)).map_err(|_| Failure::Unplugged)?;
+            let n = self
+                .sim
+                .read(&mut buf, Duration::from_millis(10))
+                .map_err(|_| Failure::Unplugged)?;
             for &byte in &buf[..n] {
-                if let Some(Ok(DeviceMessage::Reply { seq: got, result })) = self.decoder.push::<DeviceMessage>(byte) {
+                if let Some(Ok(DeviceMessage::Reply { seq: got, result })) =
+                    self.decoder.push::<DeviceMessage>(byte)
+                {
                     if got == seq {
                         return result.map_err(Failure::Device);
                     }
@@ -72,7 +88,12 @@ impl Host {
     }
 
     fn hello(&mut self) -> DeviceInfo {
-        match self.request(Command::Hello { protocol_version: PROTOCOL_VERSION }, 1.0) {
+        match self.request(
+            Command::Hello {
+                protocol_version: PROTOCOL_VERSION,
+            },
+            1.0,
+        ) {
             Ok(Reply::Hello(info)) => info,
             other => panic!("hello: {other:?}"),
         }
@@ -93,7 +114,11 @@ impl Host {
         let mut next_send_us = 0;
         while (self.sim.device_time_us() as f64) < until_s * 1e6 || self.sim.is_unplugged() {
             if self.sim.device_time_us() >= next_send_us {
-                let wait_ms = if self.send(Command::Heartbeat).is_ok() { HEARTBEAT_MS } else { 100 };
+                let wait_ms = if self.send(Command::Heartbeat).is_ok() {
+                    HEARTBEAT_MS
+                } else {
+                    100
+                };
                 next_send_us = self.sim.device_time_us() + wait_ms * 1000;
             }
             self.sim.advance_ms(1);
@@ -104,7 +129,10 @@ impl Host {
 }
 
 fn instrument(seed: u64, unplugs: Vec<Unplug>) -> SimInstrument {
-    let mut config = SimConfig { seed, ..SimConfig::default() };
+    let mut config = SimConfig {
+        seed,
+        ..SimConfig::default()
+    };
     config.faults.unplugs = unplugs;
     SimInstrument::new(SamplePort::new(Arc::new(|_: f64, _: f64| 0.5)), config)
 }
@@ -113,8 +141,14 @@ fn instrument(seed: u64, unplugs: Vec<Unplug>) -> SimInstrument {
 fn ready(seed: u64, unplugs: Vec<Unplug>) -> Host {
     let mut host = Host::new(instrument(seed, unplugs));
     host.hello();
-    assert!(matches!(host.request(Command::Home, 60.0), Ok(Reply::Homed(_))), "home");
-    assert!(matches!(host.request(Command::SetLamp { on: true }, 1.0), Ok(Reply::Ack)));
+    assert!(
+        matches!(host.request(Command::Home, 60.0), Ok(Reply::Homed(_))),
+        "home"
+    );
+    assert!(matches!(
+        host.request(Command::SetLamp { on: true }, 1.0),
+        Ok(Reply::Ack)
+    ));
     host
 }
 
@@ -140,8 +174,14 @@ fn the_cable_is_out_exactly_as_long_as_asked() {
             }
         }
         let first = first_out_ms.expect("the cable was pulled") as f64 * 1e-3;
-        assert!((first - at_s).abs() <= 0.0015, "pulled at {first} s, asked {at_s} s");
-        assert!((out_ms as f64 * 1e-3 - for_s).abs() <= 0.0015, "out for {out_ms} ms, asked {for_s} s");
+        assert!(
+            (first - at_s).abs() <= 0.0015,
+            "pulled at {first} s, asked {at_s} s"
+        );
+        assert!(
+            (out_ms as f64 * 1e-3 - for_s).abs() <= 0.0015,
+            "out for {out_ms} ms, asked {for_s} s"
+        );
     }
 }
 
@@ -156,8 +196,14 @@ fn ready_at_s(seed: u64) -> f64 {
 fn idle_outage(seed: u64, rng: &mut ChaCha12Rng, for_s: f64) -> Status {
     let at_s = ready_at_s(seed) + rng.random_range(0.05..5.0);
     let mut host = ready(seed, vec![Unplug::new(at_s, for_s)]);
-    assert!(!host.sim.is_unplugged(), "seed {seed}: the outage came before the instrument was ready");
-    assert!(host.idle_until(at_s + for_s + 0.5), "seed {seed}: the cable was never pulled");
+    assert!(
+        !host.sim.is_unplugged(),
+        "seed {seed}: the outage came before the instrument was ready"
+    );
+    assert!(
+        host.idle_until(at_s + for_s + 0.5),
+        "seed {seed}: the cable was never pulled"
+    );
     // Back: the device wants a new handshake (the link was reset)...
     assert!(
         matches!(host.request(Command::GetStatus, 1.0), Err(Failure::Device(e)) if e.code == ErrorCode::VersionMismatch),
@@ -175,7 +221,10 @@ fn a_short_outage_while_idle_costs_nothing_but_the_handshake() {
         let for_s = rng.random_range(0.02..1.6);
         let status = idle_outage(seed, &mut rng, for_s);
         assert_eq!(status.fault, None, "seed {seed}: out {for_s:.2} s");
-        assert!(status.lamp_on && status.homed_i && status.homed_r, "seed {seed}: out {for_s:.2} s: {status:?}");
+        assert!(
+            status.lamp_on && status.homed_i && status.homed_r,
+            "seed {seed}: out {for_s:.2} s: {status:?}"
+        );
     }
 }
 
@@ -186,36 +235,64 @@ fn a_long_outage_while_idle_takes_the_fail_safe_stop() {
         // Well past the 2 s timeout: up to two minutes.
         let for_s = rng.random_range(2.3..120.0);
         let status = idle_outage(seed, &mut rng, for_s);
-        assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost), "seed {seed}: out {for_s:.2} s");
-        assert!(!status.lamp_on, "seed {seed}: the lamp stays on after a {for_s:.1} s outage");
+        assert_eq!(
+            status.fault,
+            Some(ErrorCode::HeartbeatLost),
+            "seed {seed}: out {for_s:.2} s"
+        );
+        assert!(
+            !status.lamp_on,
+            "seed {seed}: the lamp stays on after a {for_s:.1} s outage"
+        );
         // The arms stood still: the stop keeps their homing and leaves the device idle.
         assert_eq!(status.state, DeviceState::Idle, "seed {seed}");
-        assert!(status.homed_i && status.homed_r, "seed {seed}: homing lost at rest");
+        assert!(
+            status.homed_i && status.homed_r,
+            "seed {seed}: homing lost at rest"
+        );
     }
 }
 
 /// Strategy 1 (about 10 s of moves and readings) started on a ready instrument, the
 /// cable pulled at a drawn time while it runs: the host and the status once it is back.
 fn outage_during_a_schedule(seed: u64, rng: &mut ChaCha12Rng, for_s: f64) -> (Host, Status) {
-    let run = RunSchedule { schedule_id: 3, source: ScheduleSource::Strategy1, integration_ms: 100, target: Target::Sample };
+    let run = RunSchedule {
+        schedule_id: 3,
+        source: ScheduleSource::Strategy1,
+        integration_ms: 100,
+        target: Target::Sample,
+    };
     let at_s = ready_at_s(seed) + rng.random_range(0.05..6.0);
     let mut host = ready(seed, vec![Unplug::new(at_s, for_s)]);
-    assert!(matches!(host.request(Command::RunSchedule(run), 1.0), Ok(Reply::ScheduleStarted { len: 12, .. })));
-    assert!(host.idle_until(at_s + 0.01), "seed {seed}: the cable was never pulled");
+    assert!(matches!(
+        host.request(Command::RunSchedule(run), 1.0),
+        Ok(Reply::ScheduleStarted { len: 12, .. })
+    ));
+    assert!(
+        host.idle_until(at_s + 0.01),
+        "seed {seed}: the cable was never pulled"
+    );
     // Where the arms are once the cable is out and for as long as it is out.
     let mut moved_while_stopped = false;
     let mut stopped_at = None;
     while host.sim.is_unplugged() {
         host.sim.advance_ms(1);
-        let still = Arm::BOTH.iter().all(|&arm| !host.sim.hardware().is_moving(arm));
+        let still = Arm::BOTH
+            .iter()
+            .all(|&arm| !host.sim.hardware().is_moving(arm));
         let geometry = host.sim.hardware().mechanics().true_geometry();
         match stopped_at {
             Some(at) if at != geometry => moved_while_stopped = true,
-            None if still && !host.sim.hardware().mechanics().lamp_on() => stopped_at = Some(geometry),
+            None if still && !host.sim.hardware().mechanics().lamp_on() => {
+                stopped_at = Some(geometry)
+            }
             _ => {}
         }
     }
-    assert!(!moved_while_stopped, "seed {seed}: the arms moved after the fail-safe stop");
+    assert!(
+        !moved_while_stopped,
+        "seed {seed}: the arms moved after the fail-safe stop"
+    );
     host.idle_until(0.0);
     host.hello();
     let status = host.status();
@@ -231,10 +308,20 @@ fn a_short_outage_during_a_schedule_lets_it_run_on() {
         assert_eq!(status.fault, None, "seed {seed}: out {for_s:.2} s");
         assert!(status.lamp_on, "seed {seed}");
         // The schedule goes on (or is done) without the host having said anything.
-        assert!(matches!(status.state, DeviceState::RunningSchedule | DeviceState::Idle), "seed {seed}: {status:?}");
+        assert!(
+            matches!(
+                status.state,
+                DeviceState::RunningSchedule | DeviceState::Idle
+            ),
+            "seed {seed}: {status:?}"
+        );
         host.idle_until(now_s(&host) + 20.0);
         let status = host.status();
-        assert_eq!((status.state, status.fault), (DeviceState::Idle, None), "seed {seed}");
+        assert_eq!(
+            (status.state, status.fault),
+            (DeviceState::Idle, None),
+            "seed {seed}"
+        );
     }
 }
 
@@ -245,18 +332,38 @@ fn a_long_outage_during_a_schedule_ends_it_and_stops_the_arms() {
     for seed in 0..10 {
         let for_s = rng.random_range(2.3..60.0);
         let (host, status) = outage_during_a_schedule(seed, &mut rng, for_s);
-        assert_eq!(status.fault, Some(ErrorCode::HeartbeatLost), "seed {seed}: out {for_s:.2} s");
+        assert_eq!(
+            status.fault,
+            Some(ErrorCode::HeartbeatLost),
+            "seed {seed}: out {for_s:.2} s"
+        );
         assert_eq!(status.schedule, None, "seed {seed}");
         // A stop mid-move costs the homing (Stopped until homed); one while the arms stood
         // still (integrating, settling) keeps it (Idle).
         let homed = status.homed_i && status.homed_r;
-        assert_eq!(status.state, if homed { DeviceState::Idle } else { DeviceState::Stopped }, "seed {seed}: {status:?}");
+        assert_eq!(
+            status.state,
+            if homed {
+                DeviceState::Idle
+            } else {
+                DeviceState::Stopped
+            },
+            "seed {seed}: {status:?}"
+        );
         assert!(!status.lamp_on, "seed {seed}");
-        assert!(Arm::BOTH.iter().all(|&arm| !host.sim.hardware().is_moving(arm)), "seed {seed}: the arms still move");
+        assert!(
+            Arm::BOTH
+                .iter()
+                .all(|&arm| !host.sim.hardware().is_moving(arm)),
+            "seed {seed}: the arms still move"
+        );
         kept[usize::from(homed)] += 1;
     }
     // The drawn moments fall both mid-move and at rest: both rules were exercised.
-    assert!(kept[0] > 0 && kept[1] > 0, "stops mid-move / at rest: {kept:?}");
+    assert!(
+        kept[0] > 0 && kept[1] > 0,
+        "stops mid-move / at rest: {kept:?}"
+    );
 }
 
 #[test]
@@ -267,19 +374,40 @@ fn several_outages_in_one_run_each_come_and_go() {
         let short_s = rng.random_range(0.02..1.6);
         let second_s = first_s + short_s + rng.random_range(1.0..5.0);
         let long_s = rng.random_range(2.3..30.0);
-        let mut host = ready(seed, vec![Unplug::new(second_s, long_s), Unplug::new(first_s, short_s)]);
+        let mut host = ready(
+            seed,
+            vec![Unplug::new(second_s, long_s), Unplug::new(first_s, short_s)],
+        );
         assert!(host.idle_until(first_s + short_s + 0.3));
         host.hello();
-        assert_eq!(host.status().fault, None, "seed {seed}: the short outage ({short_s:.2} s) tripped the timeout");
-        assert!(host.idle_until(second_s + long_s + 0.3), "seed {seed}: the second outage never came");
+        assert_eq!(
+            host.status().fault,
+            None,
+            "seed {seed}: the short outage ({short_s:.2} s) tripped the timeout"
+        );
+        assert!(
+            host.idle_until(second_s + long_s + 0.3),
+            "seed {seed}: the second outage never came"
+        );
         host.hello();
-        assert_eq!(host.status().fault, Some(ErrorCode::HeartbeatLost), "seed {seed}: out {long_s:.2} s");
+        assert_eq!(
+            host.status().fault,
+            Some(ErrorCode::HeartbeatLost),
+            "seed {seed}: out {long_s:.2} s"
+        );
     }
 }
 
 #[test]
 fn overlapping_outages_are_one_until_the_last_ends() {
-    let mut sim = instrument(3, vec![Unplug::new(1.0, 2.0), Unplug::new(2.5, 0.1), Unplug::new(2.9, 1.1)]);
+    let mut sim = instrument(
+        3,
+        vec![
+            Unplug::new(1.0, 2.0),
+            Unplug::new(2.5, 0.1),
+            Unplug::new(2.9, 1.1),
+        ],
+    );
     let mut out = Vec::new();
     for _ in 0..5000 {
         sim.advance_ms(1);
@@ -289,5 +417,8 @@ fn overlapping_outages_are_one_until_the_last_ends() {
     let first = out.iter().position(|o| *o).unwrap();
     let last = out.iter().rposition(|o| *o).unwrap();
     assert_eq!(out_ms, last - first + 1, "one outage");
-    assert!((first as i64 - 999).abs() <= 1 && (last as i64 - 3999).abs() <= 1, "{first}..{last} ms");
+    assert!(
+        (first as i64 - 999).abs() <= 1 && (last as i64 - 3999).abs() <= 1,
+        "{first}..{last} ms"
+    );
 }

@@ -12,7 +12,11 @@ fn bench_plan(c: &mut Criterion) {
     let after_strategy1 = Geometry::from_whole_deg(60, 0);
     let s2 = |delta| strategy2(delta).expect("δ in 1..=10").to_vec();
     let cases: [(&str, Geometry, Vec<Geometry>); 5] = [
-        ("strategy1-12-home", REFERENCE_HOME, strategy1(12).expect("M = 12").to_vec()),
+        (
+            "strategy1-12-home",
+            REFERENCE_HOME,
+            strategy1(12).expect("M = 12").to_vec(),
+        ),
         ("exact-15-home", REFERENCE_HOME, s2(1)[..15].to_vec()),
         ("strategy2-d8-26-home", REFERENCE_HOME, s2(8)),
         ("strategy2-d1-91-home", REFERENCE_HOME, s2(1)),

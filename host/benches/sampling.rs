@@ -50,10 +50,14 @@ fn bench_delta(c: &mut Criterion) {
     group.sample_size(10);
     for n in [1_000, 10_000, 100_000, 1_000_000] {
         let set = distinct_incidences(n);
-        group.bench_with_input(BenchmarkId::new("n-log-n", n), &set, |b, set| b.iter(|| measured_delta_deg(black_box(set))));
+        group.bench_with_input(BenchmarkId::new("n-log-n", n), &set, |b, set| {
+            b.iter(|| measured_delta_deg(black_box(set)))
+        });
         // 10⁵ readings already take the quadratic version minutes.
         if n <= 10_000 {
-            group.bench_with_input(BenchmarkId::new("quadratic", n), &set, |b, set| b.iter(|| quadratic(black_box(set))));
+            group.bench_with_input(BenchmarkId::new("quadratic", n), &set, |b, set| {
+                b.iter(|| quadratic(black_box(set)))
+            });
         }
     }
     group.finish();

@@ -4,7 +4,11 @@ use clap::{CommandFactory, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "gonio", version, about = "Gonio-reflectometer host: measure, fit and classify white papers")]
+#[command(
+    name = "gonio",
+    version,
+    about = "Gonio-reflectometer host: measure, fit and classify white papers"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

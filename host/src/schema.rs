@@ -93,17 +93,33 @@ pub fn of(value: &Value) -> Option<&str> {
 /// accepted only when `unversioned` names what it is then taken for (a file a person
 /// wrote, or one written before gonio named its documents). Returns the schema it is read
 /// as; the error says what was found and what this gonio reads.
-pub fn check<'a>(value: &'a Value, reads: &[&'a str], unversioned: Option<&'a str>) -> Result<&'a str, String> {
+pub fn check<'a>(
+    value: &'a Value,
+    reads: &[&'a str],
+    unversioned: Option<&'a str>,
+) -> Result<&'a str, String> {
     let found = of(value).or_else(|| value.get("format").and_then(Value::as_str));
     match (found, unversioned) {
         (Some(found), _) if reads.contains(&found) => Ok(found),
         (Some(found), _) => {
-            let newer = reads.first().is_some_and(|newest| same_name(found, newest) && version(found) > version(newest));
-            let hint = if newer { ": written by a newer gonio; update gonio to read it" } else { "" };
-            Err(format!("schema '{found}' is not one this gonio reads ({}){hint}", reads.join(", ")))
+            let newer = reads
+                .first()
+                .is_some_and(|newest| same_name(found, newest) && version(found) > version(newest));
+            let hint = if newer {
+                ": written by a newer gonio; update gonio to read it"
+            } else {
+                ""
+            };
+            Err(format!(
+                "schema '{found}' is not one this gonio reads ({}){hint}",
+                reads.join(", ")
+            ))
         }
         (None, Some(taken_as)) => Ok(taken_as),
-        (None, None) => Err(format!("no 'schema': not a document this gonio reads ({})", reads.join(", "))),
+        (None, None) => Err(format!(
+            "no 'schema': not a document this gonio reads ({})",
+            reads.join(", ")
+        )),
     }
 }
 
@@ -134,14 +150,38 @@ mod tests {
     #[test]
     fn a_document_is_read_only_as_a_schema_this_gonio_reads() {
         let reads = [SESSION, SESSION_V1];
-        assert_eq!(check(&serde_json::json!({"schema": SESSION}), &reads, None), Ok(SESSION));
-        assert_eq!(check(&serde_json::json!({"format": SESSION_V1}), &reads, None), Ok(SESSION_V1));
-        let newer = check(&serde_json::json!({"schema": "gonio-session/3"}), &reads, None).unwrap_err();
-        assert!(newer.contains("'gonio-session/3'") && newer.contains("update gonio"), "{newer}");
+        assert_eq!(
+            check(&serde_json::json!({"schema": SESSION}), &reads, None),
+            Ok(SESSION)
+        );
+        assert_eq!(
+            check(&serde_json::json!({"format": SESSION_V1}), &reads, None),
+            Ok(SESSION_V1)
+        );
+        let newer = check(
+            &serde_json::json!({"schema": "gonio-session/3"}),
+            &reads,
+            None,
+        )
+        .unwrap_err();
+        assert!(
+            newer.contains("'gonio-session/3'") && newer.contains("update gonio"),
+            "{newer}"
+        );
         let other = check(&serde_json::json!({"schema": SHEET}), &reads, None).unwrap_err();
-        assert!(other.contains("gonio-sheet/2") && !other.contains("update"), "{other}");
-        assert!(check(&serde_json::json!({}), &reads, None).unwrap_err().contains("no 'schema'"));
-        assert_eq!(check(&serde_json::json!({}), &[CALIBRATION], Some(CALIBRATION)), Ok(CALIBRATION));
+        assert!(
+            other.contains("gonio-sheet/2") && !other.contains("update"),
+            "{other}"
+        );
+        assert!(
+            check(&serde_json::json!({}), &reads, None)
+                .unwrap_err()
+                .contains("no 'schema'")
+        );
+        assert_eq!(
+            check(&serde_json::json!({}), &[CALIBRATION], Some(CALIBRATION)),
+            Ok(CALIBRATION)
+        );
         assert!(check(&serde_json::json!({"schema": 3}), &reads, None).is_err());
     }
 }

@@ -4,8 +4,8 @@
 use host::analysis::model::{self, SIGMA};
 use host::instrument::sim::{SimOptions, sample_params};
 use host::session::{Outcome, Policy};
-use host::study::{SimulatedRun, simulated_session};
 use host::study::accuracy::{self, Case, Part, Row, Tally};
+use host::study::{SimulatedRun, simulated_session};
 
 fn threads() -> usize {
     std::thread::available_parallelism().map_or(2, |n| n.get())
@@ -14,7 +14,10 @@ fn threads() -> usize {
 /// The campaign's sessions of `part`, `n` per case and policy.
 fn campaign(part: Part, n: usize) -> (Vec<Case>, Vec<Row>) {
     let cases = accuracy::cases();
-    let specs: Vec<_> = accuracy::plan(&cases, n, n).into_iter().filter(|s| cases[s.case].part == part).collect();
+    let specs: Vec<_> = accuracy::plan(&cases, n, n)
+        .into_iter()
+        .filter(|s| cases[s.case].part == part)
+        .collect();
     let rows = accuracy::run_all(&cases, &specs, threads(), &|| {});
     assert_eq!(rows.len(), specs.len(), "every session ran");
     (cases, rows)
@@ -29,27 +32,54 @@ fn campaign(part: Part, n: usize) -> (Vec<Case>, Vec<Row>) {
 fn the_intervals_cover_the_truth_on_the_real_and_the_ideal_instrument() {
     let (cases, rows) = campaign(Part::Coverage, 12);
     let tallies = accuracy::tallies(&cases, &rows);
-    for physics in [host::instrument::sim::Physics::Ideal, host::instrument::sim::Physics::Real] {
-        let of: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].physics == physics).map(|(_, _, t)| t).collect();
+    for physics in [
+        host::instrument::sim::Physics::Ideal,
+        host::instrument::sim::Physics::Real,
+    ] {
+        let of: Vec<&Tally> = tallies
+            .iter()
+            .filter(|(c, _, _)| cases[*c].physics == physics)
+            .map(|(_, _, t)| t)
+            .collect();
         let n: usize = of.iter().map(|t| t.sessions).sum();
-        assert_eq!(of.iter().map(|t| t.failed).sum::<usize>(), 0, "{physics:?}: every session finishes");
+        assert_eq!(
+            of.iter().map(|t| t.failed).sum::<usize>(),
+            0,
+            "{physics:?}: every session finishes"
+        );
         for (k, what) in ["σ", "ρs", "ρd"].iter().enumerate() {
             let covered: usize = of.iter().map(|t| t.covered[k]).sum();
             let share = covered as f64 / n as f64;
-            println!("{physics:?}: {what} covered {covered}/{n} ({:.1} %)", 100.0 * share);
+            println!(
+                "{physics:?}: {what} covered {covered}/{n} ({:.1} %)",
+                100.0 * share
+            );
             // 96 sessions at a true 95 %: below 85 % with probability < 0.1 %.
-            assert!((0.85..=1.0).contains(&share), "{physics:?} {what}: {covered}/{n}");
+            assert!(
+                (0.85..=1.0).contains(&share),
+                "{physics:?} {what}: {covered}/{n}"
+            );
         }
         for t in &of {
-            assert!(t.class_right == t.sessions, "the class is right on scenes the model describes: {t:?}");
+            assert!(
+                t.class_right == t.sessions,
+                "the class is right on scenes the model describes: {t:?}"
+            );
         }
     }
     // On ideal scenes lack-of-fit is a false alarm, at most 2 % (here ≤ 4 of 96: a binomial
     // at 2 % exceeds that in 5 % of campaigns).
-    let ideal: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].physics == host::instrument::sim::Physics::Ideal).map(|(_, _, t)| t).collect();
+    let ideal: Vec<&Tally> = tallies
+        .iter()
+        .filter(|(c, _, _)| cases[*c].physics == host::instrument::sim::Physics::Ideal)
+        .map(|(_, _, t)| t)
+        .collect();
     let flags: usize = ideal.iter().map(|t| t.lack_of_fit).sum();
     println!("lack-of-fit on ideal scenes: {flags}/96");
-    assert!(flags <= 4, "{flags} false lack-of-fit flags in 96 ideal sessions");
+    assert!(
+        flags <= 4,
+        "{flags} false lack-of-fit flags in 96 ideal sessions"
+    );
 }
 
 /// Sheets the model does not describe (GGX and Cauchy lobes of G and SG, a specular bump on
@@ -74,9 +104,23 @@ fn sheets_that_are_not_the_model_are_never_confidently_wrong() {
             t.confidently_wrong
         );
         assert_eq!(t.failed, 0, "{}: every session finishes", case.name());
-        assert_eq!(t.confidently_wrong, 0, "{} {}: confidently wrong", case.name(), accuracy::policy_name(policy));
-        if matches!(case.effect, accuracy::Effect::Lobe(_) | accuracy::Effect::SpecularBump) {
-            assert_eq!(t.lack_of_fit, t.sessions, "{}: the sheet is not the model and the result says so", case.name());
+        assert_eq!(
+            t.confidently_wrong,
+            0,
+            "{} {}: confidently wrong",
+            case.name(),
+            accuracy::policy_name(policy)
+        );
+        if matches!(
+            case.effect,
+            accuracy::Effect::Lobe(_) | accuracy::Effect::SpecularBump
+        ) {
+            assert_eq!(
+                t.lack_of_fit,
+                t.sessions,
+                "{}: the sheet is not the model and the result says so",
+                case.name()
+            );
         }
         if matches!(case.effect, accuracy::Effect::ArmOffset(_)) {
             // An offset the fit models (fitted, or in the budget) costs nothing of the class.
@@ -86,8 +130,15 @@ fn sheets_that_are_not_the_model_are_never_confidently_wrong() {
 }
 
 fn session(sample: &str, options: &SimOptions) -> Outcome {
-    let run = SimulatedRun { sample, options, policy: Policy::from(host::session::PolicyChoice::Adaptive), integration_ms: None };
-    simulated_session(&run, |session| session).expect("a session").0
+    let run = SimulatedRun {
+        sample,
+        options,
+        policy: Policy::from(host::session::PolicyChoice::Adaptive),
+        integration_ms: None,
+    };
+    simulated_session(&run, |session| session)
+        .expect("a session")
+        .0
 }
 
 /// A table of one of the papers, replayed with `--scene-file`, gives the built-in scene's
@@ -104,20 +155,44 @@ fn a_replayed_table_gives_the_built_in_scenes_class_and_sigma() {
         for theta_i in [20, 30, 45, 60] {
             for step in 0..=280 {
                 let theta_r = f64::from(step) * 0.25;
-                text.push_str(&format!("{theta_i},{theta_r},{}\n", model::radiance_factor(&params, f64::from(theta_i), theta_r)));
+                text.push_str(&format!(
+                    "{theta_i},{theta_r},{}\n",
+                    model::radiance_factor(&params, f64::from(theta_i), theta_r)
+                ));
             }
         }
         let path = dir.join(format!("{sample}.csv"));
         std::fs::write(&path, text).unwrap();
         for seed in [11, 12, 13] {
-            let built_in = session(sample, &SimOptions { seed, ..SimOptions::default() });
-            let replayed = session("replay", &SimOptions { seed, scene_file: Some(path.clone()), ..SimOptions::default() });
+            let built_in = session(
+                sample,
+                &SimOptions {
+                    seed,
+                    ..SimOptions::default()
+                },
+            );
+            let replayed = session(
+                "replay",
+                &SimOptions {
+                    seed,
+                    scene_file: Some(path.clone()),
+                    ..SimOptions::default()
+                },
+            );
             let (a, b) = (&built_in.report, &replayed.report);
-            assert_eq!(a.classification.class, b.classification.class, "{sample} seed {seed}: the replay's class");
+            assert_eq!(
+                a.classification.class, b.classification.class,
+                "{sample} seed {seed}: the replay's class"
+            );
             let (sa, sb) = (a.fit.sigma_deg().unwrap(), b.fit.sigma_deg().unwrap());
             let (lo, hi) = a.fit.ci95[SIGMA].unwrap();
-            println!("{sample} seed {seed}: σ built-in {sa:.4} [{lo:.4}, {hi:.4}], replayed {sb:.4}");
-            assert!((lo..=hi).contains(&sb), "{sample} seed {seed}: replayed σ {sb} outside the built-in's [{lo}, {hi}]");
+            println!(
+                "{sample} seed {seed}: σ built-in {sa:.4} [{lo:.4}, {hi:.4}], replayed {sb:.4}"
+            );
+            assert!(
+                (lo..=hi).contains(&sb),
+                "{sample} seed {seed}: replayed σ {sb} outside the built-in's [{lo}, {hi}]"
+            );
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
@@ -141,13 +216,20 @@ fn sweep_sessions_on_ideal_scenes_raise_lack_of_fit_at_its_stated_rate() {
     let rows = accuracy::run_all(&cases, &specs, threads(), &|| {});
     assert_eq!(rows.len(), specs.len(), "every session ran");
     let p_values: Vec<f64> = rows.iter().filter_map(|r| r.gof_p).collect();
-    assert_eq!(p_values.len(), rows.len(), "every sweep fit is weighted and has a χ² test");
+    assert_eq!(
+        p_values.len(),
+        rows.len(),
+        "every sweep fit is weighted and has a χ² test"
+    );
     let low = p_values.iter().filter(|&&p| p < 0.05).count();
     let flags = rows.iter().filter(|r| r.lack_of_fit()).count();
     println!("sweeps on ideal scenes: χ² p < 0.05 in {low} of 40, lack-of-fit in {flags}");
     // p < 0.05 in 2 of 40 expected; 9 or more has probability < 0.1 % under the model.
     assert!(low <= 8, "χ² p-values pile up near 0: {p_values:?}");
-    assert!(flags <= host::study::reliability::lack_of_fit_allowed(rows.len()), "lack-of-fit in {flags} of 40 ideal sweep sessions");
+    assert!(
+        flags <= host::study::reliability::lack_of_fit_allowed(rows.len()),
+        "lack-of-fit in {flags} of 40 ideal sweep sessions"
+    );
 }
 
 /// The simulator without noise (`--noise-scale 0`, documented as noiseless): every policy's
@@ -157,15 +239,39 @@ fn sweep_sessions_on_ideal_scenes_raise_lack_of_fit_at_its_stated_rate() {
 #[test]
 fn a_noiseless_instrument_gives_finished_sessions_and_the_truth() {
     use host::session::PolicyChoice;
-    for (sample, class, policy) in [("PPC", "rough-II", PolicyChoice::Adaptive), ("G", "G", PolicyChoice::Paper), ("SG", "SG", PolicyChoice::Sweep)] {
-        let options = SimOptions { seed: 4, noise_scale: 0.0, ..SimOptions::default() };
-        let run = SimulatedRun { sample, options: &options, policy: Policy::from(policy), integration_ms: None };
-        let (outcome, _) = simulated_session(&run, |session| session).unwrap_or_else(|e| panic!("{sample} {policy:?}: {e}"));
+    for (sample, class, policy) in [
+        ("PPC", "rough-II", PolicyChoice::Adaptive),
+        ("G", "G", PolicyChoice::Paper),
+        ("SG", "SG", PolicyChoice::Sweep),
+    ] {
+        let options = SimOptions {
+            seed: 4,
+            noise_scale: 0.0,
+            ..SimOptions::default()
+        };
+        let run = SimulatedRun {
+            sample,
+            options: &options,
+            policy: Policy::from(policy),
+            integration_ms: None,
+        };
+        let (outcome, _) = simulated_session(&run, |session| session)
+            .unwrap_or_else(|e| panic!("{sample} {policy:?}: {e}"));
         let truth = sample_params(sample).unwrap().sigma_deg;
         let sigma = outcome.report.fit.sigma_deg().expect("σ resolved");
-        println!("{sample} {policy:?} noiseless: σ {sigma:.5} (truth {truth}), class {}", outcome.report.classification.class_name());
-        assert_eq!(outcome.report.classification.class_name(), class, "{sample} {policy:?}");
-        assert!((sigma / truth - 1.0).abs() < 0.005, "{sample} {policy:?}: σ {sigma} against {truth}");
+        println!(
+            "{sample} {policy:?} noiseless: σ {sigma:.5} (truth {truth}), class {}",
+            outcome.report.classification.class_name()
+        );
+        assert_eq!(
+            outcome.report.classification.class_name(),
+            class,
+            "{sample} {policy:?}"
+        );
+        assert!(
+            (sigma / truth - 1.0).abs() < 0.005,
+            "{sample} {policy:?}: σ {sigma} against {truth}"
+        );
     }
 }
 
@@ -179,10 +285,16 @@ fn a_noiseless_instrument_gives_finished_sessions_and_the_truth() {
 fn a_sweep_session_that_lacks_fit_measures_the_whole_plane() {
     use host::instrument::sim::LobeChoice;
     use host::session::PolicyChoice;
-    let drawn = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(5, |d| d.subsec_nanos() as u64 % 100_000);
+    let drawn = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(5, |d| d.subsec_nanos() as u64 % 100_000);
     let incidences = |outcome: &Outcome| {
         let mut seen: Vec<f64> = Vec::new();
-        for p in outcome.points.iter().filter(|p| p.theta_r_span_deg > 0.0 && p.radiance_factor.is_some()) {
+        for p in outcome
+            .points
+            .iter()
+            .filter(|p| p.theta_r_span_deg > 0.0 && p.radiance_factor.is_some())
+        {
             if !seen.contains(&p.theta_i_deg) {
                 seen.push(p.theta_i_deg);
             }
@@ -191,34 +303,102 @@ fn a_sweep_session_that_lacks_fit_measures_the_whole_plane() {
         seen
     };
     let whole = |outcome: &Outcome, theta_i: f64| {
-        let bins: Vec<f64> = outcome.points.iter().filter(|p| p.theta_i_deg == theta_i && p.theta_r_span_deg > 0.0).map(|p| p.theta_r_deg).collect();
+        let bins: Vec<f64> = outcome
+            .points
+            .iter()
+            .filter(|p| p.theta_i_deg == theta_i && p.theta_r_span_deg > 0.0)
+            .map(|p| p.theta_r_deg)
+            .collect();
         bins.iter().any(|&r| r < 0.5) && bins.iter().any(|&r| r > 69.5)
     };
     for k in 0..2 {
         let seed = drawn + k;
         let cases = [
-            ("G", SimOptions { seed, lobe: LobeChoice::Cauchy, ..SimOptions::default() }, true),
-            ("J1", SimOptions { seed, specular_bump: 0.3, ..SimOptions::default() }, true),
-            ("G", SimOptions { seed, ..SimOptions::default() }, false),
+            (
+                "G",
+                SimOptions {
+                    seed,
+                    lobe: LobeChoice::Cauchy,
+                    ..SimOptions::default()
+                },
+                true,
+            ),
+            (
+                "J1",
+                SimOptions {
+                    seed,
+                    specular_bump: 0.3,
+                    ..SimOptions::default()
+                },
+                true,
+            ),
+            (
+                "G",
+                SimOptions {
+                    seed,
+                    ..SimOptions::default()
+                },
+                false,
+            ),
         ];
         for (sample, options, departs) in cases {
-            let run = SimulatedRun { sample, options: &options, policy: Policy::from(PolicyChoice::Sweep), integration_ms: None };
-            let (outcome, _) = simulated_session(&run, |session| session).unwrap_or_else(|e| panic!("{sample} seed {seed}: {e}"));
+            let run = SimulatedRun {
+                sample,
+                options: &options,
+                policy: Policy::from(PolicyChoice::Sweep),
+                integration_ms: None,
+            };
+            let (outcome, _) = simulated_session(&run, |session| session)
+                .unwrap_or_else(|e| panic!("{sample} seed {seed}: {e}"));
             let seen = incidences(&outcome);
-            let flagged = outcome.flags.contains(&host::analysis::flags::Flag::LackOfFit);
-            println!("{sample} seed {seed} ({}): incidences {seen:?}, flagged {flagged}, class {} at {:.2}", if departs { "not the model" } else { "the model" }, outcome.report.classification.class_name(), outcome.report.classification.confidence);
+            let flagged = outcome
+                .flags
+                .contains(&host::analysis::flags::Flag::LackOfFit);
+            println!(
+                "{sample} seed {seed} ({}): incidences {seen:?}, flagged {flagged}, class {} at {:.2}",
+                if departs {
+                    "not the model"
+                } else {
+                    "the model"
+                },
+                outcome.report.classification.class_name(),
+                outcome.report.classification.confidence
+            );
             if departs {
-                assert!(flagged, "{sample} seed {seed}: a sheet the model does not describe is flagged");
-                assert_eq!(seen, [20.0, 30.0, 45.0, 60.0], "{sample} seed {seed}: the whole plane");
+                assert!(
+                    flagged,
+                    "{sample} seed {seed}: a sheet the model does not describe is flagged"
+                );
+                assert_eq!(
+                    seen,
+                    [20.0, 30.0, 45.0, 60.0],
+                    "{sample} seed {seed}: the whole plane"
+                );
                 for theta_i in seen {
-                    assert!(whole(&outcome, theta_i), "{sample} seed {seed}: θr 0–70° at θi = {theta_i}°");
+                    assert!(
+                        whole(&outcome, theta_i),
+                        "{sample} seed {seed}: θr 0–70° at θi = {theta_i}°"
+                    );
                 }
             } else if outcome.refinements.is_empty() {
                 // The first pass was enough (the usual case): its two lines only, in the
                 // issue's 8 s with the gain calibration apart.
-                assert_eq!(seen, [20.0, 60.0], "{sample} seed {seed}: the first pass only");
-                let gains: f64 = outcome.calibration.gain_ratios.iter().map(|g| g.device_seconds).sum();
-                assert!(outcome.device_seconds - gains < 8.0, "{sample} seed {seed}: {} s less {gains} s", outcome.device_seconds);
+                assert_eq!(
+                    seen,
+                    [20.0, 60.0],
+                    "{sample} seed {seed}: the first pass only"
+                );
+                let gains: f64 = outcome
+                    .calibration
+                    .gain_ratios
+                    .iter()
+                    .map(|g| g.device_seconds)
+                    .sum();
+                assert!(
+                    outcome.device_seconds - gains < 8.0,
+                    "{sample} seed {seed}: {} s less {gains} s",
+                    outcome.device_seconds
+                );
             }
         }
     }
@@ -236,28 +416,61 @@ fn a_sweep_session_that_lacks_fit_measures_the_whole_plane() {
 #[test]
 fn a_sweep_s_bins_read_the_scene_where_they_are_recorded() {
     use host::session::PolicyChoice;
-    let drawn = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(9, |d| d.subsec_nanos() as u64 % 100_000);
+    let drawn = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(9, |d| d.subsec_nanos() as u64 % 100_000);
     let noise_scale = 0.01;
     for (k, sample) in ["G", "SG", "J1"].into_iter().enumerate() {
         let seed = drawn + k as u64;
-        let options = SimOptions { seed, noise_scale, ..SimOptions::default() };
-        let run = SimulatedRun { sample, options: &options, policy: Policy::from(PolicyChoice::Sweep), integration_ms: None };
-        let (outcome, _) = simulated_session(&run, |session| session).unwrap_or_else(|e| panic!("{sample} seed {seed}: {e}"));
+        let options = SimOptions {
+            seed,
+            noise_scale,
+            ..SimOptions::default()
+        };
+        let run = SimulatedRun {
+            sample,
+            options: &options,
+            policy: Policy::from(PolicyChoice::Sweep),
+            integration_ms: None,
+        };
+        let (outcome, _) = simulated_session(&run, |session| session)
+            .unwrap_or_else(|e| panic!("{sample} seed {seed}: {e}"));
         let truth = sample_params(sample).unwrap();
         let acceptance = Some(model::DEFAULT_ACCEPTANCE_DEG);
         let mut worst = (0.0_f64, 0.0, 0.0);
         let mut bins = 0;
-        for p in outcome.points.iter().filter(|p| p.theta_r_span_deg > 0.0 && !p.superseded && p.unusable.is_none()) {
-            let (Some(r), Some(std)) = (p.radiance_factor, p.std) else { continue };
-            let (m, _) = model::evaluate_reading(&truth, p.theta_i_deg, p.theta_r_deg, p.theta_r_span_deg, acceptance);
+        for p in outcome
+            .points
+            .iter()
+            .filter(|p| p.theta_r_span_deg > 0.0 && !p.superseded && p.unusable.is_none())
+        {
+            let (Some(r), Some(std)) = (p.radiance_factor, p.std) else {
+                continue;
+            };
+            let (m, _) = model::evaluate_reading(
+                &truth,
+                p.theta_i_deg,
+                p.theta_r_deg,
+                p.theta_r_span_deg,
+                acceptance,
+            );
             let z = (r - m) / (std / noise_scale);
             bins += 1;
             if z.abs() > worst.0.abs() {
                 worst = (z, p.theta_i_deg, p.theta_r_deg);
             }
         }
-        println!("{sample} seed {seed}: {bins} bins, the worst {:.3} reference sd off at ({}°, {:.3}°)", worst.0, worst.1, worst.2);
+        println!(
+            "{sample} seed {seed}: {bins} bins, the worst {:.3} reference sd off at ({}°, {:.3}°)",
+            worst.0, worst.1, worst.2
+        );
         assert!(bins >= 1_300, "{sample} seed {seed}: {bins} bins");
-        assert!(worst.0.abs() < 0.6, "{sample} seed {seed}: a bin {:.3} reference sd off the truth at ({}°, {:.3}°)", worst.0, worst.1, worst.2);
+        assert!(
+            worst.0.abs() < 0.6,
+            "{sample} seed {seed}: a bin {:.3} reference sd off the truth at ({}°, {:.3}°)",
+            worst.0,
+            worst.1,
+            worst.2
+        );
     }
 }

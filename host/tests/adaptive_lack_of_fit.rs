@@ -11,13 +11,23 @@ use host::study::{SimulatedRun, simulated_session};
 
 /// A whole session of `sample` under the adaptive policy on the simulator `options` make.
 fn adaptive_session(sample: &str, options: &SimOptions) -> Outcome {
-    let run = SimulatedRun { sample, options, policy: Policy::Adaptive(AdaptiveTargets::default()), integration_ms: None };
-    simulated_session(&run, |session| session).expect("a session").0
+    let run = SimulatedRun {
+        sample,
+        options,
+        policy: Policy::Adaptive(AdaptiveTargets::default()),
+        integration_ms: None,
+    };
+    simulated_session(&run, |session| session)
+        .expect("a session")
+        .0
 }
 
 /// Whether the fit after Strategy 1 (the session's first) was flagged lack-of-fit.
 fn flagged_after_strategy1(outcome: &Outcome) -> bool {
-    outcome.fits.first().is_some_and(|f| f.report["lack_of_fit"].as_bool() == Some(true))
+    outcome
+        .fits
+        .first()
+        .is_some_and(|f| f.report["lack_of_fit"].as_bool() == Some(true))
 }
 
 fn lack_of_fit_batches(outcome: &Outcome) -> usize {
@@ -26,9 +36,26 @@ fn lack_of_fit_batches(outcome: &Outcome) -> usize {
 
 /// Every lack-of-fit batch was logged with the tests' p-values and the budget it spends.
 fn each_lack_of_fit_batch_says_why(outcome: &Outcome) {
-    let logged = outcome.decisions.iter().filter(|d| d.starts_with("adaptive batch") && d.contains("lack-of-fit (") && d.contains("sampling the tails")).count();
-    assert_eq!(logged, lack_of_fit_batches(outcome), "{:#?}", outcome.decisions);
-    assert!(outcome.decisions.iter().any(|d| d.contains("χ² p = ")), "{:#?}", outcome.decisions);
+    let logged = outcome
+        .decisions
+        .iter()
+        .filter(|d| {
+            d.starts_with("adaptive batch")
+                && d.contains("lack-of-fit (")
+                && d.contains("sampling the tails")
+        })
+        .count();
+    assert_eq!(
+        logged,
+        lack_of_fit_batches(outcome),
+        "{:#?}",
+        outcome.decisions
+    );
+    assert!(
+        outcome.decisions.iter().any(|d| d.contains("χ² p = ")),
+        "{:#?}",
+        outcome.decisions
+    );
 }
 
 /// A rough paper the model does not describe (a forward lobe on J3, a bump at specular on
@@ -37,12 +64,33 @@ fn each_lack_of_fit_batch_says_why(outcome: &Outcome) {
 /// result keeps the flag unless the readings cleared it.
 #[test]
 fn a_rough_paper_flagged_after_strategy_1_does_not_stop_there() {
-    let scenes = [("J3", SimOptions { forward_lobe: 0.3, ..SimOptions::default() }), ("J2", SimOptions { specular_bump: 0.1, ..SimOptions::default() })];
+    let scenes = [
+        (
+            "J3",
+            SimOptions {
+                forward_lobe: 0.3,
+                ..SimOptions::default()
+            },
+        ),
+        (
+            "J2",
+            SimOptions {
+                specular_bump: 0.1,
+                ..SimOptions::default()
+            },
+        ),
+    ];
     let mut flagged = 0;
     let mut sessions = 0;
     for (sample, scene) in &scenes {
         for seed in [3, 17, 101] {
-            let outcome = adaptive_session(sample, &SimOptions { seed, ..scene.clone() });
+            let outcome = adaptive_session(
+                sample,
+                &SimOptions {
+                    seed,
+                    ..scene.clone()
+                },
+            );
             sessions += 1;
             let what = format!("{sample} seed {seed}: {:#?}", outcome.decisions);
             if !flagged_after_strategy1(&outcome) {
@@ -51,21 +99,42 @@ fn a_rough_paper_flagged_after_strategy_1_does_not_stop_there() {
             flagged += 1;
             assert!(outcome.current_points().count() > 12, "{what}");
             let batches = lack_of_fit_batches(&outcome);
-            assert!((1..=LACK_OF_FIT_BATCHES).contains(&batches), "{batches} lack-of-fit batches; {what}");
+            assert!(
+                (1..=LACK_OF_FIT_BATCHES).contains(&batches),
+                "{batches} lack-of-fit batches; {what}"
+            );
             each_lack_of_fit_batch_says_why(&outcome);
             if outcome.report.fit.lack_of_fit {
                 assert!(outcome.flags.contains(&Flag::LackOfFit), "{what}");
-                assert_eq!(batches, LACK_OF_FIT_BATCHES, "the flag stayed, so the whole budget was spent; {what}");
-                assert!(outcome.decisions.iter().any(|d| d.contains("persists after")), "{what}");
+                assert_eq!(
+                    batches, LACK_OF_FIT_BATCHES,
+                    "the flag stayed, so the whole budget was spent; {what}"
+                );
+                assert!(
+                    outcome
+                        .decisions
+                        .iter()
+                        .any(|d| d.contains("persists after")),
+                    "{what}"
+                );
             } else {
                 // Cleared only by the readings taken for it.
-                assert!(outcome.decisions.iter().any(|d| d.contains("lack-of-fit gone")), "{what}");
+                assert!(
+                    outcome
+                        .decisions
+                        .iter()
+                        .any(|d| d.contains("lack-of-fit gone")),
+                    "{what}"
+                );
                 assert!(!outcome.flags.contains(&Flag::LackOfFit), "{what}");
             }
         }
     }
     // The scenes are meant to be flagged after Strategy 1: else this tested nothing.
-    assert!(flagged * 6 >= sessions * 5, "only {flagged} of {sessions} sessions flagged after Strategy 1");
+    assert!(
+        flagged * 6 >= sessions * 5,
+        "only {flagged} of {sessions} sessions flagged after Strategy 1"
+    );
 }
 
 /// The same papers under the budget: at most LACK_OF_FIT_BATCHES lack-of-fit batches, and a
@@ -73,14 +142,38 @@ fn a_rough_paper_flagged_after_strategy_1_does_not_stop_there() {
 /// model (GGX) is flagged through every batch: its session ends, flagged.
 #[test]
 fn a_flag_that_outlives_its_batches_stays_on_the_result() {
-    for (sample, lobe, seed) in [("G", LobeChoice::Ggx, 5), ("SG", LobeChoice::Cauchy, 11), ("G", LobeChoice::Cauchy, 23)] {
-        let outcome = adaptive_session(sample, &SimOptions { seed, lobe, ..SimOptions::default() });
+    for (sample, lobe, seed) in [
+        ("G", LobeChoice::Ggx, 5),
+        ("SG", LobeChoice::Cauchy, 11),
+        ("G", LobeChoice::Cauchy, 23),
+    ] {
+        let outcome = adaptive_session(
+            sample,
+            &SimOptions {
+                seed,
+                lobe,
+                ..SimOptions::default()
+            },
+        );
         let what = format!("{sample} {lobe:?} seed {seed}: {:#?}", outcome.decisions);
         assert_eq!(lack_of_fit_batches(&outcome), LACK_OF_FIT_BATCHES, "{what}");
         each_lack_of_fit_batch_says_why(&outcome);
-        assert!(outcome.report.fit.lack_of_fit && outcome.flags.contains(&Flag::LackOfFit), "{what}");
-        assert!(outcome.decisions.iter().any(|d| d.contains("persists after") && d.contains("keeps the flag")), "{what}");
-        let adaptive = outcome.refinements.iter().filter(|r| r.delta_deg.is_none()).count();
+        assert!(
+            outcome.report.fit.lack_of_fit && outcome.flags.contains(&Flag::LackOfFit),
+            "{what}"
+        );
+        assert!(
+            outcome
+                .decisions
+                .iter()
+                .any(|d| d.contains("persists after") && d.contains("keeps the flag")),
+            "{what}"
+        );
+        let adaptive = outcome
+            .refinements
+            .iter()
+            .filter(|r| r.delta_deg.is_none())
+            .count();
         assert!(adaptive <= AdaptiveTargets::default().max_batches, "{what}");
         // Flagged, so never a confident class.
         assert!(outcome.report.classification.confidence < 0.95, "{what}");
@@ -95,15 +188,35 @@ fn scenes_the_model_describes_keep_their_geometry_counts() {
     let mut rough = (0, 0);
     let mut with_lack_of_fit_batches = 0;
     let mut sessions = 0;
-    for (sample, seeds) in [("PPC", 1..=20u64), ("J1", 1..=20), ("G", 1..=4), ("SG", 1..=4)] {
+    for (sample, seeds) in [
+        ("PPC", 1..=20u64),
+        ("J1", 1..=20),
+        ("G", 1..=4),
+        ("SG", 1..=4),
+    ] {
         for seed in seeds {
-            let outcome = adaptive_session(sample, &SimOptions { seed, ..SimOptions::default() });
+            let outcome = adaptive_session(
+                sample,
+                &SimOptions {
+                    seed,
+                    ..SimOptions::default()
+                },
+            );
             sessions += 1;
             let took_lack_of_fit_batches = lack_of_fit_batches(&outcome) > 0;
             with_lack_of_fit_batches += usize::from(took_lack_of_fit_batches);
             // Without a flag after Strategy 1 nothing is taken for one there.
-            if !flagged_after_strategy1(&outcome) && !outcome.fits.iter().any(|f| f.report["lack_of_fit"].as_bool() == Some(true)) {
-                assert!(!took_lack_of_fit_batches, "{sample} seed {seed}: {:#?}", outcome.decisions);
+            if !flagged_after_strategy1(&outcome)
+                && !outcome
+                    .fits
+                    .iter()
+                    .any(|f| f.report["lack_of_fit"].as_bool() == Some(true))
+            {
+                assert!(
+                    !took_lack_of_fit_batches,
+                    "{sample} seed {seed}: {:#?}",
+                    outcome.decisions
+                );
             }
             if matches!(sample, "PPC" | "J1") {
                 rough.1 += 1;
@@ -113,6 +226,14 @@ fn scenes_the_model_describes_keep_their_geometry_counts() {
             }
         }
     }
-    assert!(rough.0 * 100 >= rough.1 * 95, "rough papers: {} of {} sessions stopped after Strategy 1", rough.0, rough.1);
-    assert!(with_lack_of_fit_batches * 100 <= sessions * 5, "{with_lack_of_fit_batches} of {sessions} sessions took lack-of-fit batches");
+    assert!(
+        rough.0 * 100 >= rough.1 * 95,
+        "rough papers: {} of {} sessions stopped after Strategy 1",
+        rough.0,
+        rough.1
+    );
+    assert!(
+        with_lack_of_fit_batches * 100 <= sessions * 5,
+        "{with_lack_of_fit_batches} of {sessions} sessions took lack-of-fit batches"
+    );
 }

@@ -14,15 +14,32 @@ use host::study::{SimulatedRun, simulated_session};
 
 /// A whole session of `sample` on the simulator `options` make, and the instrument's truth.
 fn run(sample: &str, options: &SimOptions, policy: Policy) -> (Outcome, hil_sim::Truth) {
-    simulated_session(&SimulatedRun { sample, options, policy, integration_ms: None }, |session| session).expect("a session")
+    simulated_session(
+        &SimulatedRun {
+            sample,
+            options,
+            policy,
+            integration_ms: None,
+        },
+        |session| session,
+    )
+    .expect("a session")
 }
 
 fn reference(name: &str) -> Params {
-    REFERENCES.iter().find(|r| r.name == name).expect("a Table 6 paper").params
+    REFERENCES
+        .iter()
+        .find(|r| r.name == name)
+        .expect("a Table 6 paper")
+        .params
 }
 
 fn with_gain_error(seed: u64, pct: f64) -> SimOptions {
-    SimOptions { seed, gain_error: Some(pct), ..SimOptions::default() }
+    SimOptions {
+        seed,
+        gain_error: Some(pct),
+        ..SimOptions::default()
+    }
 }
 
 /// The session's readings converted again with `calibration`, one per geometry.
@@ -33,8 +50,16 @@ fn observations(outcome: &Outcome, calibration: &Calibration) -> Vec<Observation
         .iter()
         .filter(|p| seen.insert(((p.theta_i_deg * 1e4) as i64, (p.theta_r_deg * 1e4) as i64)))
         .filter_map(|p| {
-            let (radiance_factor, std) = calibration.radiance_factor(p.theta_i_deg, &p.reading).ok()?;
-            Some(Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: Some(std), theta_r_span_deg: 0.0 })
+            let (radiance_factor, std) = calibration
+                .radiance_factor(p.theta_i_deg, &p.reading)
+                .ok()?;
+            Some(Observation {
+                theta_i_deg: p.theta_i_deg,
+                theta_r_deg: p.theta_r_deg,
+                radiance_factor,
+                std: Some(std),
+                theta_r_span_deg: 0.0,
+            })
         })
         .collect()
 }
@@ -51,15 +76,26 @@ fn the_ratios_the_readings_use_are_calibrated_and_agree_with_the_instrument() {
             // Every pair a reading uses is calibrated, and no other.
             let mut nominal = c.clone();
             nominal.gain_ratios.clear();
-            let used = gains::pairs_needed(&nominal, outcome.points.iter().map(|p| (p.theta_i_deg, &p.reading)));
+            let used = gains::pairs_needed(
+                &nominal,
+                outcome.points.iter().map(|p| (p.theta_i_deg, &p.reading)),
+            );
             let calibrated: Vec<u8> = c.gain_ratios.iter().map(|g| g.lower_range).collect();
             assert_eq!(calibrated, used, "{sample} seed {seed}");
             for g in &c.gain_ratios {
                 let p = usize::from(g.lower_range);
                 let true_ratio = truth.relative_gains[p + 1] / truth.relative_gains[p];
                 let nominal_ratio = c.relative_gains[p + 1] / c.relative_gains[p];
-                let (lower, upper) = (c.net_counts(&g.on_lower).unwrap(), c.net_counts(&g.on_upper).unwrap());
-                let u = g.relative_uncertainty.hypot(gains::dark_relative(c, g.lower_range, lower, upper));
+                let (lower, upper) = (
+                    c.net_counts(&g.on_lower).unwrap(),
+                    c.net_counts(&g.on_upper).unwrap(),
+                );
+                let u = g.relative_uncertainty.hypot(gains::dark_relative(
+                    c,
+                    g.lower_range,
+                    lower,
+                    upper,
+                ));
                 let z = (g.ratio / true_ratio - 1.0) / u;
                 ratios += 1;
                 within += usize::from(z.abs() <= 1.96);
@@ -91,10 +127,16 @@ fn the_ratios_the_readings_use_are_calibrated_and_agree_with_the_instrument() {
         seconds[seconds.len() / 2],
         seconds[seconds.len() - 1]
     );
-    assert!(ratios >= 24, "glossy papers use range 1 and G range 2: {ratios} ratios");
+    assert!(
+        ratios >= 24,
+        "glossy papers use range 1 and G range 2: {ratios} ratios"
+    );
     assert!(within as f64 >= 0.85 * ratios as f64, "{within}/{ratios}");
     assert!(worst < 4.5, "{worst}");
-    assert!(rms(calibrated_sq) < 0.25 * rms(nominal_sq), "the calibration removes most of the gain error");
+    assert!(
+        rms(calibrated_sq) < 0.25 * rms(nominal_sq),
+        "the calibration removes most of the gain error"
+    );
 }
 
 #[test]
@@ -103,7 +145,10 @@ fn a_gain_error_no_longer_biases_sg() {
     // converted with the nominal gains and fitted as before (no shared errors), against the
     // session's own result: calibrated gains, every shared error in the fit.
     let truth = reference("SG");
-    let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
+    let options = FitOptions {
+        acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG),
+        ..FitOptions::default()
+    };
     let (mut nominal, mut session, mut z) = (Vec::new(), Vec::new(), Vec::new());
     let (mut covered_before, mut covered) = (0, 0);
     for seed in 300..320u64 {
@@ -114,7 +159,10 @@ fn a_gain_error_no_longer_biases_sg() {
         let after = &outcome.report.fit;
         nominal.push((before.params.rho_s / truth.rho_s - 1.0).abs());
         session.push((after.params.rho_s / truth.rho_s - 1.0).abs());
-        z.push((after.params.rho_s - truth.rho_s) / after.covariance[model::RHO_S][model::RHO_S].sqrt());
+        z.push(
+            (after.params.rho_s - truth.rho_s)
+                / after.covariance[model::RHO_S][model::RHO_S].sqrt(),
+        );
         covered_before += usize::from(covers(&before, model::RHO_S, truth.rho_s));
         covered += usize::from(covers(after, model::RHO_S, truth.rho_s));
     }
@@ -143,7 +191,11 @@ fn covers(f: &host::analysis::fit::FitResult, index: usize, truth: f64) -> bool 
 
 /// Coverage of σ, ρs, ρd by the session's own intervals over `seeds` sessions of `paper`
 /// with `options(seed)`; sessions whose fit left a parameter undetermined count as misses.
-fn session_coverage(paper: &str, seeds: std::ops::Range<u64>, options: impl Fn(u64) -> SimOptions) -> ([usize; 3], usize) {
+fn session_coverage(
+    paper: &str,
+    seeds: std::ops::Range<u64>,
+    options: impl Fn(u64) -> SimOptions,
+) -> ([usize; 3], usize) {
     let truth = reference(paper);
     let mut covered = [0; 3];
     let mut n = 0;
@@ -151,7 +203,14 @@ fn session_coverage(paper: &str, seeds: std::ops::Range<u64>, options: impl Fn(u
         let (outcome, _) = run(paper, &options(seed), Policy::Paper);
         let f = &outcome.report.fit;
         n += 1;
-        for (k, (i, t)) in [(model::SIGMA, truth.sigma_deg), (model::RHO_S, truth.rho_s), (model::RHO_D, truth.rho_d)].into_iter().enumerate() {
+        for (k, (i, t)) in [
+            (model::SIGMA, truth.sigma_deg),
+            (model::RHO_S, truth.rho_s),
+            (model::RHO_D, truth.rho_d),
+        ]
+        .into_iter()
+        .enumerate()
+        {
             covered[k] += usize::from(covers(f, i, t));
         }
     }
@@ -163,7 +222,12 @@ fn with_gain_and_tile_errors_the_sessions_intervals_cover() {
     // The simulator draws each gain ratio off by 2 % and the tile off its certificate by
     // 0.5 % (its sd), the lamp drifts 0.2 %/h; the session calibrates the gains it uses and
     // carries every shared error.
-    let options = |seed: u64| SimOptions { seed, gain_error: Some(2.0), tile_error: Some(0.5), ..SimOptions::default() };
+    let options = |seed: u64| SimOptions {
+        seed,
+        gain_error: Some(2.0),
+        tile_error: Some(0.5),
+        ..SimOptions::default()
+    };
     for paper in ["SG", "G", "PPC", "J1"] {
         let ([sigma, rho_s, rho_d], n) = session_coverage(paper, 500..520, options);
         println!("{paper}: covered σ {sigma}/{n}, ρs {rho_s}/{n}, ρd {rho_d}/{n}");
@@ -189,7 +253,11 @@ fn as_today(outcome: &Outcome) -> Option<host::analysis::fit::FitResult> {
             .iter()
             .filter(|p| seen.insert(((p.theta_i_deg * 1e4) as i64, (p.theta_r_deg * 1e4) as i64)))
             .filter(|p| nominal.radiance_factor(p.theta_i_deg, &p.reading).is_ok())
-            .map(|p| BudgetReading { theta_i_deg: p.theta_i_deg, reading: p.reading, age_s: 0.0 })
+            .map(|p| BudgetReading {
+                theta_i_deg: p.theta_i_deg,
+                reading: p.reading,
+                age_s: 0.0,
+            })
             .collect()
     };
     let shared = budget::shared_errors(&nominal, &readings).ok()?;
@@ -199,13 +267,24 @@ fn as_today(outcome: &Outcome) -> Option<host::analysis::fit::FitResult> {
         .map(|(k, o)| {
             let extra: f64 = shared
                 .iter()
-                .filter(|t| matches!(budget::TermKind::of(&t.name), budget::TermKind::White | budget::TermKind::Dark))
+                .filter(|t| {
+                    matches!(
+                        budget::TermKind::of(&t.name),
+                        budget::TermKind::White | budget::TermKind::Dark
+                    )
+                })
                 .map(|t| t.total(k).powi(2))
                 .sum();
-            Observation { std: o.std.map(|u| (u * u + extra).sqrt()), ..*o }
+            Observation {
+                std: o.std.map(|u| (u * u + extra).sqrt()),
+                ..*o
+            }
         })
         .collect();
-    let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
+    let options = FitOptions {
+        acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG),
+        ..FitOptions::default()
+    };
     fit(&folded, &options).ok()
 }
 
@@ -216,16 +295,30 @@ fn as_today(outcome: &Outcome) -> Option<host::analysis::fit::FitResult> {
 #[test]
 #[ignore = "a campaign of 800 sessions: run in release"]
 fn campaign_coverage_with_gain_and_tile_errors() {
-    let options = |seed: u64| SimOptions { seed, gain_error: Some(1.0), tile_error: Some(0.5), ..SimOptions::default() };
+    let options = |seed: u64| SimOptions {
+        seed,
+        gain_error: Some(1.0),
+        tile_error: Some(0.5),
+        ..SimOptions::default()
+    };
     for paper in ["G", "SG", "PPC", "J1"] {
         let truth = reference(paper);
-        let targets = [(model::SIGMA, truth.sigma_deg), (model::RHO_S, truth.rho_s), (model::RHO_D, truth.rho_d)];
+        let targets = [
+            (model::SIGMA, truth.sigma_deg),
+            (model::RHO_S, truth.rho_s),
+            (model::RHO_D, truth.rho_d),
+        ];
         let (mut now, mut today, mut n) = ([0usize; 3], [0usize; 3], 0usize);
         let (mut gain_seconds, mut measuring_seconds) = (0.0, 0.0);
         for seed in 1_000..1_200u64 {
             let (outcome, _) = run(paper, &options(seed), Policy::Paper);
             n += 1;
-            gain_seconds += outcome.calibration.gain_ratios.iter().map(|g| g.device_seconds).sum::<f64>();
+            gain_seconds += outcome
+                .calibration
+                .gain_ratios
+                .iter()
+                .map(|g| g.device_seconds)
+                .sum::<f64>();
             measuring_seconds += outcome.device_seconds;
             let before = as_today(&outcome);
             for (k, &(i, t)) in targets.iter().enumerate() {
@@ -235,11 +328,22 @@ fn campaign_coverage_with_gain_and_tile_errors() {
         }
         println!(
             "{paper}: {n} sessions; covered σ {}/{n} (today {}), ρs {}/{n} (today {}), ρd {}/{n} (today {}); gain calibration {:.2} of {:.1} device s measuring per session",
-            now[0], today[0], now[1], today[1], now[2], today[2], gain_seconds / n as f64, measuring_seconds / n as f64
+            now[0],
+            today[0],
+            now[1],
+            today[1],
+            now[2],
+            today[2],
+            gain_seconds / n as f64,
+            measuring_seconds / n as f64
         );
         for (k, what) in [(1, "ρs"), (2, "ρd")] {
             let rate = now[k] as f64 / n as f64;
-            assert!((0.90..=0.98).contains(&rate), "{paper} {what}: {}/{n}", now[k]);
+            assert!(
+                (0.90..=0.98).contains(&rate),
+                "{paper} {what}: {}/{n}",
+                now[k]
+            );
         }
     }
 }
@@ -255,8 +359,18 @@ fn budget_inputs(outcome: &Outcome) -> (Vec<BudgetReading>, Vec<Observation>) {
         .filter_map(|p| {
             let (radiance_factor, std) = c.radiance_factor(p.theta_i_deg, &p.reading).ok()?;
             Some((
-                BudgetReading { theta_i_deg: p.theta_i_deg, reading: p.reading, age_s: 0.0 },
-                Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: Some(std), theta_r_span_deg: 0.0 },
+                BudgetReading {
+                    theta_i_deg: p.theta_i_deg,
+                    reading: p.reading,
+                    age_s: 0.0,
+                },
+                Observation {
+                    theta_i_deg: p.theta_i_deg,
+                    theta_r_deg: p.theta_r_deg,
+                    radiance_factor,
+                    std: Some(std),
+                    theta_r_span_deg: 0.0,
+                },
             ))
         })
         .unzip()
@@ -266,7 +380,12 @@ fn budget_inputs(outcome: &Outcome) -> (Vec<BudgetReading>, Vec<Observation>) {
 fn model_values(f: &host::analysis::fit::FitResult, observations: &[Observation]) -> Vec<f64> {
     let offset = f.arm_offset.map_or(0.0, |a| a.deg);
     let a = f.acceptance_deg.unwrap_or(0.0);
-    observations.iter().map(|o| model::observed_radiance_factor(&f.params, o.theta_i_deg, o.theta_r_deg + offset, a)).collect()
+    observations
+        .iter()
+        .map(|o| {
+            model::observed_radiance_factor(&f.params, o.theta_i_deg, o.theta_r_deg + offset, a)
+        })
+        .collect()
 }
 
 #[test]
@@ -275,15 +394,26 @@ fn errors_that_scale_the_readings_do_not_pull_the_fit_down() {
     // follow the low readings (Peelle's puzzle): G's ρd came out 0.25 % low, half its
     // interval, in every session. The fit evaluates the budget's sensitivities at its model
     // (fit_with_shared); undoing that (×y/f̂ before the fit) shows what it guards against.
-    let options = FitOptions { acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG), ..FitOptions::default() };
+    let options = FitOptions {
+        acceptance_deg: Some(model::DEFAULT_ACCEPTANCE_DEG),
+        ..FitOptions::default()
+    };
     for paper in ["G", "SG"] {
         let truth = reference(paper);
         let (mut measured, mut budgeted, mut n) = (0.0, 0.0, 0.0);
         for seed in 700..712u64 {
-            let (outcome, _) = run(paper, &SimOptions { seed, ..SimOptions::default() }, Policy::Paper);
+            let (outcome, _) = run(
+                paper,
+                &SimOptions {
+                    seed,
+                    ..SimOptions::default()
+                },
+                Policy::Paper,
+            );
             let (readings, observations) = budget_inputs(&outcome);
             let z = |shared: &[host::analysis::fit::SharedError]| {
-                let f = host::analysis::fit::fit_with_shared(&observations, shared, &options).expect("a fit");
+                let f = host::analysis::fit::fit_with_shared(&observations, shared, &options)
+                    .expect("a fit");
                 (f.params.rho_d - truth.rho_d) / f.covariance[model::RHO_D][model::RHO_D].sqrt()
             };
             let shared = budget::shared_errors(&outcome.calibration, &readings).unwrap();
@@ -293,16 +423,29 @@ fn errors_that_scale_the_readings_do_not_pull_the_fit_down() {
                 .iter()
                 .map(|t| host::analysis::fit::SharedError {
                     name: t.name.clone(),
-                    sensitivity: t.sensitivity.iter().zip(&values).zip(&observations).map(|((s, f), o)| s * o.radiance_factor / f).collect(), additive: t.additive.clone() })
+                    sensitivity: t
+                        .sensitivity
+                        .iter()
+                        .zip(&values)
+                        .zip(&observations)
+                        .map(|((s, f), o)| s * o.radiance_factor / f)
+                        .collect(),
+                    additive: t.additive.clone(),
+                })
                 .collect();
             measured += z(&at_the_readings);
             n += 1.0;
         }
         let (measured, budgeted) = (measured / n, budgeted / n);
-        println!("{paper}: ρd's mean z over {n} sessions: covariance at the readings {measured:+.3}, at the model (the session's) {budgeted:+.3}");
+        println!(
+            "{paper}: ρd's mean z over {n} sessions: covariance at the readings {measured:+.3}, at the model (the session's) {budgeted:+.3}"
+        );
         assert!(budgeted.abs() < 0.15, "{paper}: {budgeted}");
         if paper == "G" {
-            assert!(measured < -0.3, "the effect this guards against: {measured}");
+            assert!(
+                measured < -0.3,
+                "the effect this guards against: {measured}"
+            );
         }
     }
 }

@@ -13,30 +13,95 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn json(out: &Output) -> Value {
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)))
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)))
 }
 
 #[test]
 fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
     let dir = temp_dir("clean");
-    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "4", "--json", "--out", dir.to_str().unwrap()]);
-    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--seed",
+        "4",
+        "--json",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r = json(&out);
-    assert_eq!((r["ok"].clone(), r["flags"].clone()), (Value::from(true), Value::from(Vec::<String>::new())), "{r}");
+    assert_eq!(
+        (r["ok"].clone(), r["flags"].clone()),
+        (Value::from(true), Value::from(Vec::<String>::new())),
+        "{r}"
+    );
     // A slip of the detector arm: measured again, the class right, but flagged.
     let dir = temp_dir("slip");
-    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--seed", "4", "--json", "--faults", "lose-steps=detector:40", "--out", dir.to_str().unwrap()]);
-    assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--seed",
+        "4",
+        "--json",
+        "--faults",
+        "lose-steps=detector:40",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r = json(&out);
     assert_eq!(r["ok"], false, "{r}");
-    assert!(r["flags"].as_array().unwrap().contains(&Value::from("lost-steps")), "{r}");
+    assert!(
+        r["flags"]
+            .as_array()
+            .unwrap()
+            .contains(&Value::from("lost-steps")),
+        "{r}"
+    );
     assert_eq!(r["class"], "G", "{r}");
     // The cable pulled and pushed back: recovered, informational only.
     let dir = temp_dir("unplug");
-    let out = gonio(&["measure", "--spots", "1", "--sim", "SG", "--json", "--faults", "unplug-at=16:4", "--out", dir.to_str().unwrap()]);
-    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "SG",
+        "--json",
+        "--faults",
+        "unplug-at=16:4",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r = json(&out);
-    assert_eq!((r["ok"].clone(), r["flags"].clone()), (Value::from(true), Value::from(vec!["link-recovered"])), "{r}");
+    assert_eq!(
+        (r["ok"].clone(), r["flags"].clone()),
+        (Value::from(true), Value::from(vec!["link-recovered"])),
+        "{r}"
+    );
     for name in ["clean", "slip", "unplug"] {
         let _ = std::fs::remove_dir_all(temp_dir(name));
     }
@@ -45,11 +110,29 @@ fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
 /// `gonio sim` on its pseudo-terminal and `gonio measure` on that port, Enter typed for
 /// both prompts.
 fn measure_on_a_port(sample: &str, dir: &Path) -> (Child, Child) {
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio")).args(["sim", sample]).stdout(Stdio::piped()).stderr(Stdio::null()).spawn().unwrap();
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["sim", sample])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
     let mut path = String::new();
-    BufReader::new(sim.stdout.take().unwrap()).read_line(&mut path).unwrap();
+    BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
     let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
-        .args(["measure", "--spots", "1", "--port", path.trim(), "--sample", sample, "--json", "--out", dir.to_str().unwrap()])
+        .args([
+            "measure",
+            "--spots",
+            "1",
+            "--port",
+            path.trim(),
+            "--sample",
+            sample,
+            "--json",
+            "--out",
+            dir.to_str().unwrap(),
+        ])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -62,7 +145,10 @@ fn measure_on_a_port(sample: &str, dir: &Path) -> (Child, Child) {
 fn wait_for_readings(dir: &Path, n: usize, measure: &mut Child) {
     let points = dir.join("points.jsonl");
     while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < n {
-        assert!(measure.try_wait().unwrap().is_none(), "gonio measure ended early");
+        assert!(
+            measure.try_wait().unwrap().is_none(),
+            "gonio measure ended early"
+        );
         std::thread::sleep(std::time::Duration::from_millis(2));
     }
 }
@@ -72,11 +158,20 @@ fn ctrl_c_exits_130() {
     let dir = temp_dir("sigint");
     let (mut sim, mut measure) = measure_on_a_port("PPC", &dir);
     wait_for_readings(&dir, 3, &mut measure);
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(measure.id() as i32), nix::sys::signal::Signal::SIGINT).unwrap();
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(measure.id() as i32),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .unwrap();
     let out = measure.wait_with_output().unwrap();
     let _ = sim.kill();
     let _ = sim.wait();
-    assert_eq!(out.status.code(), Some(130), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -91,6 +186,11 @@ fn an_instrument_that_goes_away_exits_1_saying_so_and_how_to_resume() {
     let out = measure.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("port is gone") && stderr.contains("decisions so far") && stderr.contains("--resume"), "{stderr}");
+    assert!(
+        stderr.contains("port is gone")
+            && stderr.contains("decisions so far")
+            && stderr.contains("--resume"),
+        "{stderr}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

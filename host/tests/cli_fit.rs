@@ -15,13 +15,20 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn csv(samples: &[(&str, Vec<host::analysis::fit::Observation>)], with_sample: bool) -> String {
-    let mut s = String::from(if with_sample { "sample,theta_i,theta_r,radiance_factor\n" } else { "theta_i,theta_r,radiance_factor\n" });
+    let mut s = String::from(if with_sample {
+        "sample,theta_i,theta_r,radiance_factor\n"
+    } else {
+        "theta_i,theta_r,radiance_factor\n"
+    });
     for (name, obs) in samples {
         for o in obs {
             if with_sample {
                 s += &format!("{name},");
             }
-            s += &format!("{},{},{}\n", o.theta_i_deg, o.theta_r_deg, o.radiance_factor);
+            s += &format!(
+                "{},{},{}\n",
+                o.theta_i_deg, o.theta_r_deg, o.radiance_factor
+            );
         }
     }
     s
@@ -38,21 +45,59 @@ fn json_lines_for_many_samples_and_files_with_errors_located() {
     let single = dir.join("mc_paper.csv");
     std::fs::write(&single, csv(&[("x", mc)], false)).expect("write");
     let bad = dir.join("broken.csv");
-    std::fs::write(&bad, "theta_i,theta_r,radiance_factor\n20,0,0.5\n20,20,nope\n").expect("write");
+    std::fs::write(
+        &bad,
+        "theta_i,theta_r,radiance_factor\n20,0,0.5\n20,20,nope\n",
+    )
+    .expect("write");
     let bad_fit = dir.join("negative.csv");
-    std::fs::write(&bad_fit, "theta_i,theta_r,radiance_factor\n20,0,0.5\n20,20,3\n30,0,0.5\n30,30,-4\n45,0,0.5\n").expect("write");
+    std::fs::write(
+        &bad_fit,
+        "theta_i,theta_r,radiance_factor\n20,0,0.5\n20,20,3\n30,0,0.5\n30,30,-4\n45,0,0.5\n",
+    )
+    .expect("write");
 
-    let out = gonio().args(["fit", "--json"]).arg(&multi).arg(&bad).arg(&single).arg(&bad_fit).output().expect("run gonio");
-    assert!(!out.status.success(), "a bad file makes the exit status non-zero");
+    let out = gonio()
+        .args(["fit", "--json"])
+        .arg(&multi)
+        .arg(&bad)
+        .arg(&single)
+        .arg(&bad_fit)
+        .output()
+        .expect("run gonio");
+    assert!(
+        !out.status.success(),
+        "a bad file makes the exit status non-zero"
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("broken.csv:3:"), "{stderr}");
-    assert!(stderr.contains("negative.csv:5:") && stderr.contains("negative"), "{stderr}");
+    assert!(
+        stderr.contains("negative.csv:5:") && stderr.contains("negative"),
+        "{stderr}"
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    let lines: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("JSON Lines")).collect();
+    let lines: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("JSON Lines"))
+        .collect();
     assert_eq!(lines.len(), 3, "{stdout}");
     let keys = [
-        "sample", "n", "sigma_deg", "rho_s", "rho_d", "eta", "nmae", "delta_deg", "sigma_l_deg", "sigma_ok", "group", "class",
-        "class_confidence", "nearest_reference", "ci95", "model",
+        "sample",
+        "n",
+        "sigma_deg",
+        "rho_s",
+        "rho_d",
+        "eta",
+        "nmae",
+        "delta_deg",
+        "sigma_l_deg",
+        "sigma_ok",
+        "group",
+        "class",
+        "class_confidence",
+        "nearest_reference",
+        "ci95",
+        "model",
     ];
     for line in &lines {
         for k in keys {
@@ -67,22 +112,39 @@ fn json_lines_for_many_samples_and_files_with_errors_located() {
     assert_eq!(lines[1]["group"], "rough");
     assert_eq!(lines[1]["class"], "rough-I");
     assert_eq!(lines[1]["delta_deg"], 35.0);
-    assert_eq!(lines[2]["sample"], "mc_paper", "file stem without a sample column");
+    assert_eq!(
+        lines[2]["sample"], "mc_paper",
+        "file stem without a sample column"
+    );
     assert_eq!(lines[2]["class"], "rough-III");
     assert_eq!(lines[2]["nearest_reference"], "MC");
-    assert!(lines[2]["ci95"]["sigma_deg"].as_array().is_some_and(|a| a.len() == 2));
+    assert!(
+        lines[2]["ci95"]["sigma_deg"]
+            .as_array()
+            .is_some_and(|a| a.len() == 2)
+    );
 
     // --delta overrides; the table output works too.
-    let out = gonio().args(["fit", "--delta", "0.5"]).arg(&multi).output().expect("run gonio");
+    let out = gonio()
+        .args(["fit", "--delta", "0.5"])
+        .arg(&multi)
+        .output()
+        .expect("run gonio");
     assert!(out.status.success());
     let table = String::from_utf8_lossy(&out.stdout);
-    assert!(table.contains("G-sheet") && table.contains("δ 0.500°") && table.contains("class G"), "{table}");
+    assert!(
+        table.contains("G-sheet") && table.contains("δ 0.500°") && table.contains("class G"),
+        "{table}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn a_missing_file_is_an_error_naming_it() {
-    let out = gonio().args(["fit", "/nonexistent/file.csv"]).output().expect("run gonio");
+    let out = gonio()
+        .args(["fit", "/nonexistent/file.csv"])
+        .output()
+        .expect("run gonio");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/file.csv"));
 }

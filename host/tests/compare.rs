@@ -9,7 +9,10 @@ use std::process::Command;
 /// `gonio` with no user library: the default population, whatever this machine's user has.
 fn gonio() -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_gonio"));
-    command.env("XDG_DATA_HOME", std::env::temp_dir().join(format!("gonio-compare-no-library-{}", std::process::id())));
+    command.env(
+        "XDG_DATA_HOME",
+        std::env::temp_dir().join(format!("gonio-compare-no-library-{}", std::process::id())),
+    );
     command
 }
 
@@ -53,20 +56,43 @@ fn session(sample: &str, values: [Option<f64>; 4], class: &str, cov: Vec<Vec<f64
 fn write_session(dir: &Path, name: &str, value: &Value) -> PathBuf {
     let folder = dir.join(name);
     std::fs::create_dir_all(&folder).expect("folder");
-    std::fs::write(folder.join("session.json"), serde_json::to_vec_pretty(value).expect("json")).expect("write");
+    std::fs::write(
+        folder.join("session.json"),
+        serde_json::to_vec_pretty(value).expect("json"),
+    )
+    .expect("write");
     folder
 }
 
 fn glossy(sample: &str, sigma: f64, rho_s: f64, rho_d: f64, eta: f64) -> Value {
-    session(sample, [Some(sigma), Some(rho_s), Some(rho_d), Some(eta)], "G", covariance(U_GLOSSY, -0.6))
+    session(
+        sample,
+        [Some(sigma), Some(rho_s), Some(rho_d), Some(eta)],
+        "G",
+        covariance(U_GLOSSY, -0.6),
+    )
 }
 
 /// `gonio compare --json`: the object and the exit code (0 same, 1 different, 3 inconclusive).
 fn run_json(a: &Path, b: &Path, extra: &[&str]) -> (Value, i32) {
-    let out = gonio().arg("compare").arg("--json").args(extra).arg(a).arg(b).output().expect("run gonio");
+    let out = gonio()
+        .arg("compare")
+        .arg("--json")
+        .args(extra)
+        .arg(a)
+        .arg(b)
+        .output()
+        .expect("run gonio");
     let code = out.status.code().expect("an exit code");
-    assert!([0, 1, 3].contains(&code), "exit {code}: {}", String::from_utf8_lossy(&out.stderr));
-    (serde_json::from_slice(&out.stdout).expect("one JSON object"), code)
+    assert!(
+        [0, 1, 3].contains(&code),
+        "exit {code}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (
+        serde_json::from_slice(&out.stdout).expect("one JSON object"),
+        code,
+    )
 }
 
 #[test]
@@ -78,17 +104,42 @@ fn identical_sheets_support_the_same_stock() {
     assert_eq!(code, 0, "{v}");
     assert!(v["log10_lr"].as_f64().unwrap() > 1.0, "{v}");
     assert_eq!(v["support"], "same-stock");
-    assert!(v["verbal"].as_str().unwrap().contains("support for the same stock"), "{v}");
+    assert!(
+        v["verbal"]
+            .as_str()
+            .unwrap()
+            .contains("support for the same stock"),
+        "{v}"
+    );
     assert_eq!(v["population"]["source"]["kind"], "default");
     assert_eq!(v["n_spots"], serde_json::json!([1, 1]));
-    assert_eq!(v["parameters"], serde_json::json!(["sigma_deg", "rho_s", "rho_d"]));
-    assert_eq!((v["a"]["class"].as_str(), v["b"]["class"].as_str()), (Some("G"), Some("G")));
+    assert_eq!(
+        v["parameters"],
+        serde_json::json!(["sigma_deg", "rho_s", "rho_d"])
+    );
+    assert_eq!(
+        (v["a"]["class"].as_str(), v["b"]["class"].as_str()),
+        (Some("G"), Some("G"))
+    );
     // The report says so too, with labelled intervals; a session.json path works as well as its folder.
-    let out = gonio().arg("compare").arg(&a).arg(b.join("session.json")).output().expect("run gonio");
+    let out = gonio()
+        .arg("compare")
+        .arg(&a)
+        .arg(b.join("session.json"))
+        .output()
+        .expect("run gonio");
     let table = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(0), "{table}");
-    assert!(table.contains("95 % interval") && table.contains("likelihood ratio") && table.contains("population: the default"), "{table}");
-    assert!(table.contains("within-sheet variation is unknown"), "one spot each: said: {table}");
+    assert!(
+        table.contains("95 % interval")
+            && table.contains("likelihood ratio")
+            && table.contains("population: the default"),
+        "{table}"
+    );
+    assert!(
+        table.contains("within-sheet variation is unknown"),
+        "one spot each: said: {table}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -98,8 +149,19 @@ fn a_library_too_small_for_a_population_says_so_and_the_default_is_used() {
     let a = write_session(&dir, "a", &glossy("a", 0.8, 57.8, 0.855, 1.19));
     let b = write_session(&dir, "b", &glossy("b", 0.8, 57.8, 0.855, 1.19));
     let missing = dir.join("no-such-library.sqlite");
-    let out = gonio().arg("compare").arg("--library").arg(&missing).arg(&a).arg(&b).output().expect("run gonio");
-    assert_eq!(out.status.code(), Some(2), "a library that is not there is an error");
+    let out = gonio()
+        .arg("compare")
+        .arg("--library")
+        .arg(&missing)
+        .arg(&a)
+        .arg(&b)
+        .output()
+        .expect("run gonio");
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "a library that is not there is an error"
+    );
     assert!(!missing.exists(), "and is not created");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -116,31 +178,84 @@ fn sheets_far_apart_support_different_stocks_and_exit_1() {
     assert_eq!(v["support"], "different-stocks");
     // ρd carries it: its contribution is the most negative.
     let contributions = v["contributions"].as_array().unwrap();
-    let worst = contributions.iter().min_by(|x, y| x["log10_lr"].as_f64().unwrap().total_cmp(&y["log10_lr"].as_f64().unwrap())).unwrap();
+    let worst = contributions
+        .iter()
+        .min_by(|x, y| {
+            x["log10_lr"]
+                .as_f64()
+                .unwrap()
+                .total_cmp(&y["log10_lr"].as_f64().unwrap())
+        })
+        .unwrap();
     assert_eq!(worst["parameter"], "rho_d", "{v}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn one_standard_error_apart_supports_the_same_stock() {
-    let a = compare::parse_session(Path::new("a.json"), &glossy("a", 0.8, 57.8, 0.855, 1.19).to_string()).expect("parse");
-    let b = compare::parse_session(Path::new("b.json"), &glossy("b", 0.82, 58.8, 0.86, 1.2).to_string()).expect("parse");
-    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &evidence::Population::default_population());
-    assert!(e.log10_lr > 1.0 && e.support == evidence::Support::SameStock, "{e:?}");
-    assert_eq!(e.parameters, ["sigma_deg", "rho_s", "rho_d"], "η is not weighed");
+    let a = compare::parse_session(
+        Path::new("a.json"),
+        &glossy("a", 0.8, 57.8, 0.855, 1.19).to_string(),
+    )
+    .expect("parse");
+    let b = compare::parse_session(
+        Path::new("b.json"),
+        &glossy("b", 0.82, 58.8, 0.86, 1.2).to_string(),
+    )
+    .expect("parse");
+    let e = evidence::likelihood_ratio(
+        &a.sheet(),
+        &b.sheet(),
+        &evidence::Population::default_population(),
+    );
+    assert!(
+        e.log10_lr > 1.0 && e.support == evidence::Support::SameStock,
+        "{e:?}"
+    );
+    assert_eq!(
+        e.parameters,
+        ["sigma_deg", "rho_s", "rho_d"],
+        "η is not weighed"
+    );
 }
 
 #[test]
 fn a_class_boundary_between_two_sheets_is_not_evidence_of_different_stocks() {
     let dir = temp_dir("classes");
-    let a = write_session(&dir, "a", &session("a", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-II", covariance([0.05, 0.002, 0.001, 0.0], 0.0)));
+    let a = write_session(
+        &dir,
+        "a",
+        &session(
+            "a",
+            [Some(21.7), Some(0.409), Some(0.414), Some(3.0)],
+            "rough-II",
+            covariance([0.05, 0.002, 0.001, 0.0], 0.0),
+        ),
+    );
     // Same numbers, other class (as a sheet right at a group boundary could get).
-    let b = write_session(&dir, "b", &session("b", [Some(21.7), Some(0.409), Some(0.414), Some(3.0)], "rough-I", covariance([0.05, 0.002, 0.001, 0.0], 0.0)));
+    let b = write_session(
+        &dir,
+        "b",
+        &session(
+            "b",
+            [Some(21.7), Some(0.409), Some(0.414), Some(3.0)],
+            "rough-I",
+            covariance([0.05, 0.002, 0.001, 0.0], 0.0),
+        ),
+    );
     let (v, code) = run_json(&a, &b, &[]);
     assert_eq!(code, 0, "the parameters agree: {v}");
     assert!(v["log10_lr"].as_f64().unwrap() > 1.0, "{v}");
-    assert_eq!((v["a"]["class"].as_str(), v["b"]["class"].as_str()), (Some("rough-II"), Some("rough-I")));
-    let out = gonio().arg("compare").arg(&a).arg(&b).output().expect("run gonio");
+    assert_eq!(
+        (v["a"]["class"].as_str(), v["b"]["class"].as_str()),
+        (Some("rough-II"), Some("rough-I"))
+    );
+    let out = gonio()
+        .arg("compare")
+        .arg(&a)
+        .arg(&b)
+        .output()
+        .expect("run gonio");
     let table = String::from_utf8_lossy(&out.stdout);
     assert!(table.contains("not the class boundaries"), "{table}");
     let _ = std::fs::remove_dir_all(&dir);
@@ -148,11 +263,20 @@ fn a_class_boundary_between_two_sheets_is_not_evidence_of_different_stocks() {
 
 #[test]
 fn unresolved_sigma_is_left_out() {
-    let a = session("a", [None, Some(57.0), Some(0.8), Some(1.1)], "G", covariance([0.0, 1.0, 0.005, 0.01], 0.0));
+    let a = session(
+        "a",
+        [None, Some(57.0), Some(0.8), Some(1.1)],
+        "G",
+        covariance([0.0, 1.0, 0.005, 0.01], 0.0),
+    );
     let b = glossy("b", 0.8, 57.8, 0.855, 1.19);
     let a = compare::parse_session(Path::new("a"), &a.to_string()).expect("null σ is allowed");
     let b = compare::parse_session(Path::new("b"), &b.to_string()).expect("parse");
-    let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &evidence::Population::default_population());
+    let e = evidence::likelihood_ratio(
+        &a.sheet(),
+        &b.sheet(),
+        &evidence::Population::default_population(),
+    );
     assert_eq!(e.parameters, ["rho_s", "rho_d"]);
     assert_eq!(e.left_out, [("sigma_deg", "not determined by A")]);
     assert!(e.log10_lr.is_finite());
@@ -172,13 +296,23 @@ fn bad_inputs_name_the_file_and_the_key() {
     let broken = dir.join("broken.json");
     std::fs::write(&broken, "{\"sample\": ").expect("write");
     let e = compare::read_session(&broken).expect_err("not JSON");
-    assert!(matches!(e, CompareError::Json { .. }) && e.to_string().contains("broken.json"), "{e}");
+    assert!(
+        matches!(e, CompareError::Json { .. }) && e.to_string().contains("broken.json"),
+        "{e}"
+    );
 
     let mut no_cov = glossy("x", 0.8, 57.8, 0.855, 1.19);
-    no_cov["result"].as_object_mut().unwrap().remove("covariance");
+    no_cov["result"]
+        .as_object_mut()
+        .unwrap()
+        .remove("covariance");
     let no_cov = write_session(&dir, "no-cov", &no_cov);
     let e = compare::read_session(&no_cov).expect_err("no covariance");
-    assert!(e.to_string().contains("no-cov/session.json") && e.to_string().contains("`result.covariance`"), "{e}");
+    assert!(
+        e.to_string().contains("no-cov/session.json")
+            && e.to_string().contains("`result.covariance`"),
+        "{e}"
+    );
 
     let mut short_cov = glossy("x", 0.8, 57.8, 0.855, 1.19);
     short_cov["result"]["covariance"] = json!([[1.0, 0.0], [0.0, 1.0]]);
@@ -187,7 +321,8 @@ fn bad_inputs_name_the_file_and_the_key() {
 
     let mut text_rho = glossy("x", 0.8, 57.8, 0.855, 1.19);
     text_rho["result"]["rho_d"] = json!("0.8");
-    let e = compare::parse_session(Path::new("s.json"), &text_rho.to_string()).expect_err("string ρd");
+    let e =
+        compare::parse_session(Path::new("s.json"), &text_rho.to_string()).expect_err("string ρd");
     assert!(e.to_string().contains("`result.rho_d`"), "{e}");
 
     let e = compare::parse_session(Path::new("s.json"), "{\"result\": {}}").expect_err("no sample");
@@ -195,11 +330,24 @@ fn bad_inputs_name_the_file_and_the_key() {
 
     // The command line: exit 2 (an error, apart from the verdicts' 0, 1 and 3), the file
     // and key on stderr.
-    let out = gonio().arg("compare").arg(&good).arg(&no_cov).output().expect("run gonio");
+    let out = gonio()
+        .arg("compare")
+        .arg(&good)
+        .arg(&no_cov)
+        .output()
+        .expect("run gonio");
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("no-cov") && stderr.contains("result.covariance"), "{stderr}");
-    let out = gonio().args(["compare", "--no-such-option"]).arg(&good).arg(&good).output().expect("run gonio");
+    assert!(
+        stderr.contains("no-cov") && stderr.contains("result.covariance"),
+        "{stderr}"
+    );
+    let out = gonio()
+        .args(["compare", "--no-such-option"])
+        .arg(&good)
+        .arg(&good)
+        .output()
+        .expect("run gonio");
     assert_eq!(out.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -208,7 +356,11 @@ fn bad_inputs_name_the_file_and_the_key() {
 /// covariance (as `gonio measure` adds it).
 fn session_of(sample: &str, observations: Vec<host::analysis::fit::Observation>) -> Value {
     use host::analysis::{fit::FitOptions, report};
-    let set = host::output::dataset::DataSet { sample: sample.into(), lines: (2..2 + observations.len()).collect(), observations };
+    let set = host::output::dataset::DataSet {
+        sample: sample.into(),
+        lines: (2..2 + observations.len()).collect(),
+        observations,
+    };
     let r = report::analyse(Path::new("x.csv"), &set, &FitOptions::default(), None).expect("valid");
     let mut result = report::to_json(&r);
     result["covariance"] = json!(r.fit.covariance);
@@ -221,8 +373,16 @@ fn session_of(sample: &str, observations: Vec<host::analysis::fit::Observation>)
 /// "different class".
 #[test]
 fn undetermined_parameters_and_classes_are_not_compared() {
-    let p = host::analysis::model::Params { sigma_deg: 10.0, rho_s: 5.0, rho_d: 0.5, eta: 1.001 };
-    let geometries: Vec<(f64, f64)> = protocol::schedules::full_grid().iter().map(|g| (g.theta_i.deg(), g.theta_r.deg())).collect();
+    let p = host::analysis::model::Params {
+        sigma_deg: 10.0,
+        rho_s: 5.0,
+        rho_d: 0.5,
+        eta: 1.001,
+    };
+    let geometries: Vec<(f64, f64)> = protocol::schedules::full_grid()
+        .iter()
+        .map(|g| (g.theta_i.deg(), g.theta_r.deg()))
+        .collect();
     let reading = |seed: u64| -> Vec<host::analysis::fit::Observation> {
         // Deterministic small noise: a hash of the seed and the index, ±0.5 %.
         geometries
@@ -231,19 +391,34 @@ fn undetermined_parameters_and_classes_are_not_compared() {
             .map(|(k, &(ti, tr))| {
                 let f = host::analysis::model::observed_radiance_factor(&p, ti, tr, 1.0);
                 let u = ((k as u64 * 2_654_435_761 + seed * 40_503) % 1000) as f64 / 1000.0 - 0.5;
-                host::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: f * (1.0 + 0.01 * u), std: Some(0.003 * f + 0.001), theta_r_span_deg: 0.0 }
+                host::analysis::fit::Observation {
+                    theta_i_deg: ti,
+                    theta_r_deg: tr,
+                    radiance_factor: f * (1.0 + 0.01 * u),
+                    std: Some(0.003 * f + 0.001),
+                    theta_r_span_deg: 0.0,
+                }
             })
             .collect()
     };
     let a = session_of("a", reading(1));
     let b = session_of("b", reading(2));
-    assert!(a["result"]["rho_s"].is_null() && a["result"]["class"].is_null(), "{}", a["result"]);
-    let a = compare::parse_session(Path::new("a"), &a.to_string()).expect("null ρs and class are allowed");
+    assert!(
+        a["result"]["rho_s"].is_null() && a["result"]["class"].is_null(),
+        "{}",
+        a["result"]
+    );
+    let a = compare::parse_session(Path::new("a"), &a.to_string())
+        .expect("null ρs and class are allowed");
     let b = compare::parse_session(Path::new("b"), &b.to_string()).expect("parse");
     assert_eq!(a.class, None);
     let population = evidence::Population::default_population();
     let e = evidence::likelihood_ratio(&a.sheet(), &b.sheet(), &population);
-    assert_eq!(e.left_out, [("rho_s", "determined by neither sheet")], "{e:?}");
+    assert_eq!(
+        e.left_out,
+        [("rho_s", "determined by neither sheet")],
+        "{e:?}"
+    );
     assert_eq!(e.parameters, ["sigma_deg", "rho_d"]);
     assert!(e.log10_lr > 0.0, "the same sheet measured twice: {e:?}");
 }

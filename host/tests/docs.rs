@@ -9,7 +9,10 @@ fn root() -> PathBuf {
 
 /// The Markdown files a user reads: the README, docs/, the board's README.
 fn documents() -> Vec<PathBuf> {
-    let mut out = vec![root().join("README.md"), root().join("firmware/board/README.md")];
+    let mut out = vec![
+        root().join("README.md"),
+        root().join("firmware/board/README.md"),
+    ];
     for entry in std::fs::read_dir(root().join("docs")).expect("docs/") {
         let path = entry.expect("entry").path();
         if path.extension().is_some_and(|e| e == "md") {
@@ -49,20 +52,37 @@ fn every_relative_link_names_a_file_of_the_project() {
         }
     }
     assert!(links > 20, "only {links} links found: the parser is wrong");
-    assert!(broken.is_empty(), "links to nothing:\n  {}", broken.join("\n  "));
+    assert!(
+        broken.is_empty(),
+        "links to nothing:\n  {}",
+        broken.join("\n  ")
+    );
 }
 
 #[test]
 fn no_document_names_the_unshipped_specifications() {
     for doc in documents() {
         let text = std::fs::read_to_string(&doc).expect("read");
-        for name in ["INSTRUMENT.md", "METHOD.md", "shared/spec", "../shared", "akao-tsl-paper.txt"] {
-            assert!(!text.contains(name), "{} names {name}, which the project does not hold", doc.display());
+        for name in [
+            "INSTRUMENT.md",
+            "METHOD.md",
+            "shared/spec",
+            "../shared",
+            "akao-tsl-paper.txt",
+        ] {
+            assert!(
+                !text.contains(name),
+                "{} names {name}, which the project does not hold",
+                doc.display()
+            );
         }
     }
 }
 
 #[test]
 fn the_link_parser_finds_what_it_must() {
-    assert_eq!(relative_links("see [a](docs/A.md#x), [b](https://x.org/b) and [c](c.svg)"), ["docs/A.md", "c.svg"]);
+    assert_eq!(
+        relative_links("see [a](docs/A.md#x), [b](https://x.org/b) and [c](c.svg)"),
+        ["docs/A.md", "c.svg"]
+    );
 }

@@ -35,23 +35,43 @@ fn strategy1_m12_gets_every_group_right() {
             if r.class.group() == Group::Rough {
                 assert_eq!(c.group, Some(Group::Rough), "{} seed {seed}", r.name);
             } else {
-                assert!(c.group.is_none_or(|g| g == Group::Glossy), "{} seed {seed}: {:?}", r.name, c.group);
-                assert!(c.group.is_some() || !result.identified(host::analysis::model::RHO_S), "{} seed {seed}: undecided without a reason", r.name);
+                assert!(
+                    c.group.is_none_or(|g| g == Group::Glossy),
+                    "{} seed {seed}: {:?}",
+                    r.name,
+                    c.group
+                );
+                assert!(
+                    c.group.is_some() || !result.identified(host::analysis::model::RHO_S),
+                    "{} seed {seed}: undecided without a reason",
+                    r.name
+                );
                 decided_glossy += usize::from(c.group.is_some());
             }
             if r.class.group() == Group::Glossy {
-                assert!(!check.sigma_ok, "{}: glossy papers fail the σ_l check at M = 12", r.name);
+                assert!(
+                    !check.sigma_ok,
+                    "{}: glossy papers fail the σ_l check at M = 12",
+                    r.name
+                );
             }
         }
     }
-    assert!(decided_glossy >= 4, "the glossy group was decided in {decided_glossy} of 6 fits");
+    assert!(
+        decided_glossy >= 4,
+        "the glossy group was decided in {decided_glossy} of 6 fits"
+    );
 }
 
 #[test]
 fn strategy1_m12_gets_the_rough_groups_right() {
     // The paper: the rough groups (by ρd/ρs) were right even from 12 geometries.
     let geometries = common::strategy1_m12();
-    for (k, r) in REFERENCES.iter().enumerate().filter(|(_, r)| r.class.group() == Group::Rough) {
+    for (k, r) in REFERENCES
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.class.group() == Group::Rough)
+    {
         let obs = common::noisy(&r.params, &geometries, 700 + k as u64);
         let c = classify(&fit(&obs, &FitOptions::default()).expect("valid"));
         assert_eq!(c.class, Some(r.class), "{}", r.name);
@@ -64,8 +84,19 @@ fn sigma_check_by_delta(name: &str, rel: f64, abs: f64, acceptance: f64) -> Vec<
     (1..=10u8)
         .map(|d| {
             let geometries = common::strategy2(d);
-            let obs = common::synthetic(&p, &geometries, acceptance, rel, abs, 900 + u64::from(d), false);
-            let options = FitOptions { acceptance_deg: (acceptance > 0.0).then_some(acceptance), ..FitOptions::default() };
+            let obs = common::synthetic(
+                &p,
+                &geometries,
+                acceptance,
+                rel,
+                abs,
+                900 + u64::from(d),
+                false,
+            );
+            let options = FitOptions {
+                acceptance_deg: (acceptance > 0.0).then_some(acceptance),
+                ..FitOptions::default()
+            };
             let result = fit(&obs, &options).expect("valid");
             let delta = sampling::delta(&geometries, None).expect("a known schedule");
             assert_eq!(delta.deg, f64::from(d));
@@ -104,9 +135,21 @@ fn a_specular_bump_is_flagged_or_honestly_bounded() {
     let p = common::reference("J2");
     let mut summary = Vec::new();
     for bump in [(0.3, 1.0), (0.1, 2.0)] {
-        for (label, geometries) in [("full grid", common::full_grid()), ("strategy 2, δ = 2°", common::strategy2(2)), ("M = 12", common::strategy1_m12())] {
+        for (label, geometries) in [
+            ("full grid", common::full_grid()),
+            ("strategy 2, δ = 2°", common::strategy2(2)),
+            ("M = 12", common::strategy1_m12()),
+        ] {
             let instrument = Instrument::issue();
-            let t = truth(&Sheet { params: p, lobe: Lobe::Gaussian, bump: Some(bump) }, &geometries, &instrument);
+            let t = truth(
+                &Sheet {
+                    params: p,
+                    lobe: Lobe::Gaussian,
+                    bump: Some(bump),
+                },
+                &geometries,
+                &instrument,
+            );
             let (mut flagged, mut right) = (0, 0);
             let seeds = 10;
             for seed in 0..seeds {
@@ -115,17 +158,30 @@ fn a_specular_bump_is_flagged_or_honestly_bounded() {
                 let c = classify(&result);
                 let truth = p.to_array();
                 let honest = (0..3).all(|i| covers(result.ci95[i], truth[i]));
-                assert!(result.lack_of_fit || honest, "bump {bump:?} {label} seed {seed}: unflagged and the intervals miss the truth: {:?}", result.ci95);
-                assert!(!(c.class.is_some_and(|k| k != r_class("J2")) && c.confidence >= 0.95), "bump {bump:?} {label} seed {seed}: confidently wrong");
+                assert!(
+                    result.lack_of_fit || honest,
+                    "bump {bump:?} {label} seed {seed}: unflagged and the intervals miss the truth: {:?}",
+                    result.ci95
+                );
+                assert!(
+                    !(c.class.is_some_and(|k| k != r_class("J2")) && c.confidence >= 0.95),
+                    "bump {bump:?} {label} seed {seed}: confidently wrong"
+                );
                 flagged += usize::from(result.lack_of_fit);
                 right += usize::from(c.class == Some(r_class("J2")));
             }
-            summary.push(format!("J2 + bump {bump:?} {label}: flagged {flagged}/{seeds}, class right {right}/{seeds}"));
+            summary.push(format!(
+                "J2 + bump {bump:?} {label}: flagged {flagged}/{seeds}, class right {right}/{seeds}"
+            ));
         }
     }
     println!("{}", summary.join("\n"));
 }
 
 fn r_class(name: &str) -> host::analysis::classify::Class {
-    REFERENCES.iter().find(|r| r.name == name).expect("a Table 6 paper").class
+    REFERENCES
+        .iter()
+        .find(|r| r.name == name)
+        .expect("a Table 6 paper")
+        .class
 }

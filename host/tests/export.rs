@@ -13,11 +13,41 @@ use std::time::{Duration, UNIX_EPOCH};
 
 fn readings() -> Vec<Observation> {
     vec![
-        Observation { theta_i_deg: 20.0, theta_r_deg: 0.0, radiance_factor: 0.8612345678901234, std: Some(0.0091), theta_r_span_deg: 0.0 },
-        Observation { theta_i_deg: 20.0, theta_r_deg: 20.0, radiance_factor: 9.123456789, std: None, theta_r_span_deg: 0.0 },
-        Observation { theta_i_deg: 45.0, theta_r_deg: 44.75, radiance_factor: 31.4159, std: Some(0.31), theta_r_span_deg: 0.0 },
-        Observation { theta_i_deg: 60.0, theta_r_deg: 70.0, radiance_factor: 1e-3 / 3.0, std: Some(0.003), theta_r_span_deg: 0.0 },
-        Observation { theta_i_deg: 30.0, theta_r_deg: -0.5, radiance_factor: 0.5, std: None, theta_r_span_deg: 0.0 },
+        Observation {
+            theta_i_deg: 20.0,
+            theta_r_deg: 0.0,
+            radiance_factor: 0.8612345678901234,
+            std: Some(0.0091),
+            theta_r_span_deg: 0.0,
+        },
+        Observation {
+            theta_i_deg: 20.0,
+            theta_r_deg: 20.0,
+            radiance_factor: 9.123456789,
+            std: None,
+            theta_r_span_deg: 0.0,
+        },
+        Observation {
+            theta_i_deg: 45.0,
+            theta_r_deg: 44.75,
+            radiance_factor: 31.4159,
+            std: Some(0.31),
+            theta_r_span_deg: 0.0,
+        },
+        Observation {
+            theta_i_deg: 60.0,
+            theta_r_deg: 70.0,
+            radiance_factor: 1e-3 / 3.0,
+            std: Some(0.003),
+            theta_r_span_deg: 0.0,
+        },
+        Observation {
+            theta_i_deg: 30.0,
+            theta_r_deg: -0.5,
+            radiance_factor: 0.5,
+            std: None,
+            theta_r_span_deg: 0.0,
+        },
     ]
 }
 
@@ -50,9 +80,21 @@ fn read_astm(text: &str) -> AstmFile {
     for line in lines.by_ref() {
         let (key, value) = line.split_once(' ').unwrap_or((line, ""));
         match key {
-            "NUM_POINTS" => num_points = Some(value.trim().parse::<usize>().expect("NUM_POINTS is a count")),
+            "NUM_POINTS" => {
+                num_points = Some(
+                    value
+                        .trim()
+                        .parse::<usize>()
+                        .expect("NUM_POINTS is a count"),
+                )
+            }
             "VARS" => {
-                vars = Some(value.split(',').map(|v| v.trim().to_string()).collect::<Vec<_>>());
+                vars = Some(
+                    value
+                        .split(',')
+                        .map(|v| v.trim().to_string())
+                        .collect::<Vec<_>>(),
+                );
                 break;
             }
             _ => {
@@ -62,8 +104,20 @@ fn read_astm(text: &str) -> AstmFile {
         }
     }
     let vars = vars.expect("a VARS line ends the header");
-    let rows: Vec<Vec<f64>> = lines.filter(|l| !l.trim().is_empty()).map(|l| l.split(',').map(|f| f.trim().parse::<f64>().expect("a number")).collect()).collect();
-    AstmFile { keywords, num_points: num_points.expect("NUM_POINTS"), vars, rows }
+    let rows: Vec<Vec<f64>> = lines
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| {
+            l.split(',')
+                .map(|f| f.trim().parse::<f64>().expect("a number"))
+                .collect()
+        })
+        .collect();
+    AstmFile {
+        keywords,
+        num_points: num_points.expect("NUM_POINTS"),
+        vars,
+        rows,
+    }
 }
 
 #[test]
@@ -85,7 +139,10 @@ fn an_astm_reader_gets_the_angles_in_radians_and_the_brdf() {
             assert_eq!((ts, phi_s), ((-o.theta_r_deg).to_radians(), 0.0));
         }
         assert!((0.0..=PI / 2.0).contains(&ti) && (0.0..=PI / 2.0).contains(&ts));
-        assert!((brdf * PI - o.radiance_factor).abs() <= 1e-15 * o.radiance_factor, "BRDF = R/π: {brdf}");
+        assert!(
+            (brdf * PI - o.radiance_factor).abs() <= 1e-15 * o.radiance_factor,
+            "BRDF = R/π: {brdf}"
+        );
     }
     let k = &file.keywords;
     assert_eq!(k["SAMPLE_NAME"], "sheet A7");
@@ -100,11 +157,17 @@ fn an_astm_reader_gets_the_angles_in_radians_and_the_brdf() {
 
 #[test]
 fn a_header_value_cannot_end_the_header_or_break_a_line() {
-    let file = read_astm(&export::astm(&meta("two\nlines VARS NUM_POINTS"), &readings()));
+    let file = read_astm(&export::astm(
+        &meta("two\nlines VARS NUM_POINTS"),
+        &readings(),
+    ));
     assert_eq!(file.keywords["SAMPLE_NAME"], "two lines _VARS _NUM_POINTS");
     assert_eq!(file.num_points, 5);
     assert_eq!(file.rows.len(), 5);
-    assert_eq!(read_astm(&export::astm(&meta("   "), &[])).keywords["SAMPLE_NAME"], "-");
+    assert_eq!(
+        read_astm(&export::astm(&meta("   "), &[])).keywords["SAMPLE_NAME"],
+        "-"
+    );
 }
 
 #[test]
@@ -121,16 +184,37 @@ fn dates_are_iso8601_utc() {
 #[test]
 fn a_sessions_export_holds_its_readings_and_white_standard() {
     let dir = cli_support::temp_dir("export", "session");
-    let out = cli_support::gonio(&["measure", "--sim", "SG", "--spots", "1", "--tile-radiance-factor", "0.97", "--tile-uncertainty-pct", "0.3", "--out", dir.to_str().unwrap()]);
+    let out = cli_support::gonio(&[
+        "measure",
+        "--sim",
+        "SG",
+        "--spots",
+        "1",
+        "--tile-radiance-factor",
+        "0.97",
+        "--tile-uncertainty-pct",
+        "0.3",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", cli_support::stderr(&out));
     let file = read_astm(&std::fs::read_to_string(dir.join("SG.astm")).expect("SG.astm"));
     assert_eq!(file.keywords["WHITE_STANDARD_RADIANCE_FACTOR"], "0.97");
-    assert_eq!(file.keywords["WHITE_STANDARD_RELATIVE_UNCERTAINTY"], "0.003");
+    assert_eq!(
+        file.keywords["WHITE_STANDARD_RELATIVE_UNCERTAINTY"],
+        "0.003"
+    );
     assert!(file.keywords["INSTRUMENT"].contains("SIM-0001"));
     let csv = std::fs::read_to_string(dir.join("readings.csv")).unwrap();
     let mut lines = csv.lines();
-    assert_eq!(lines.next(), Some("theta_i,theta_r,radiance_factor,std"), "one header line, then numbers");
-    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|f| f.parse().expect("a number")).collect()).collect();
+    assert_eq!(
+        lines.next(),
+        Some("theta_i,theta_r,radiance_factor,std"),
+        "one header line, then numbers"
+    );
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|f| f.parse().expect("a number")).collect())
+        .collect();
     assert_eq!(rows.len(), file.num_points);
     for (csv_row, astm_row) in rows.iter().zip(&file.rows) {
         assert_eq!(astm_row[0], csv_row[0].to_radians());
@@ -155,24 +239,68 @@ fn a_tile_certificate_is_recorded_in_every_export() {
     )
     .unwrap();
     let session = dir.join("session");
-    let out = cli_support::gonio(&["measure", "--sim", "PPC", "--spots", "1", "--tile-certificate", certificate.to_str().unwrap(), "--out", session.to_str().unwrap()]);
+    let out = cli_support::gonio(&[
+        "measure",
+        "--sim",
+        "PPC",
+        "--spots",
+        "1",
+        "--tile-certificate",
+        certificate.to_str().unwrap(),
+        "--out",
+        session.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", cli_support::stderr(&out));
     let file = read_astm(&std::fs::read_to_string(session.join("PPC.astm")).expect("PPC.astm"));
     assert_eq!(file.keywords["WHITE_STANDARD_RADIANCE_FACTOR"], "0.975");
     // 0.0078 at k = 2 over 0.975: 0.4 % standard.
-    let u: f64 = file.keywords["WHITE_STANDARD_RELATIVE_UNCERTAINTY"].parse().unwrap();
+    let u: f64 = file.keywords["WHITE_STANDARD_RELATIVE_UNCERTAINTY"]
+        .parse()
+        .unwrap();
     assert!((u - 0.004).abs() < 1e-12, "{u}");
     let named = &file.keywords["WHITE_STANDARD_CERTIFICATE"];
-    assert!(named.contains("Ceramic tile #9") && named.contains("LAB-77") && named.contains(&issued) && named.contains("k = 2"), "{named}");
-    let calibration: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(session.join("calibration.json")).unwrap()).unwrap();
+    assert!(
+        named.contains("Ceramic tile #9")
+            && named.contains("LAB-77")
+            && named.contains(&issued)
+            && named.contains("k = 2"),
+        "{named}"
+    );
+    let calibration: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(session.join("calibration.json")).unwrap())
+            .unwrap();
     assert_eq!(calibration["white_certificate"]["certificate"], "LAB-77");
-    assert_eq!(calibration["white_certificate"]["file_sha256"].as_str().map(str::len), Some(64));
+    assert_eq!(
+        calibration["white_certificate"]["file_sha256"]
+            .as_str()
+            .map(str::len),
+        Some(64)
+    );
     let report = std::fs::read_to_string(session.join("report.html")).unwrap();
-    assert!(report.contains("certificate LAB-77") && report.contains("Ceramic tile #9"), "the report names the certificate");
+    assert!(
+        report.contains("certificate LAB-77") && report.contains("Ceramic tile #9"),
+        "the report names the certificate"
+    );
     // Without one, the export says so rather than leaving it out.
     let plain = dir.join("plain");
-    assert!(cli_support::gonio(&["measure", "--sim", "PPC", "--spots", "1", "--out", plain.to_str().unwrap()]).status.success());
+    assert!(
+        cli_support::gonio(&[
+            "measure",
+            "--sim",
+            "PPC",
+            "--spots",
+            "1",
+            "--out",
+            plain.to_str().unwrap()
+        ])
+        .status
+        .success()
+    );
     let file = read_astm(&std::fs::read_to_string(plain.join("PPC.astm")).unwrap());
-    assert!(file.keywords["WHITE_STANDARD_CERTIFICATE"].starts_with("none given"), "{}", file.keywords["WHITE_STANDARD_CERTIFICATE"]);
+    assert!(
+        file.keywords["WHITE_STANDARD_CERTIFICATE"].starts_with("none given"),
+        "{}",
+        file.keywords["WHITE_STANDARD_CERTIFICATE"]
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

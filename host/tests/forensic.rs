@@ -6,18 +6,32 @@ use host::analysis::evidence::{self, Population, Sheet};
 use host::instrument::calibration::Tile;
 use host::instrument::sim::{Physics, SimOptions};
 use host::session::{Policy, PolicyChoice};
-use host::study::{SimulatedRun, simulated_sheet};
 use host::study::forensic::{self, Design};
+use host::study::{SimulatedRun, simulated_sheet};
 
 /// A sheet of `sample` measured at the product's default number of spots as `gonio
 /// measure` measures it
 /// (one multi-spot session on the realistic instrument, 3 % between spots), the tile's
 /// certificate stated as `tile_radiance_factor`.
 fn sheet_with_tile(sample: &str, seed: u64, tile_radiance_factor: f64) -> Sheet {
-    let options = SimOptions { seed, physics: Physics::Real, sheet_variation: forensic::SPOT_VARIATION_PCT, ..SimOptions::default() };
-    let run = SimulatedRun { sample, options: &options, policy: Policy::from(PolicyChoice::Adaptive), integration_ms: None };
+    let options = SimOptions {
+        seed,
+        physics: Physics::Real,
+        sheet_variation: forensic::SPOT_VARIATION_PCT,
+        ..SimOptions::default()
+    };
+    let run = SimulatedRun {
+        sample,
+        options: &options,
+        policy: Policy::from(PolicyChoice::Adaptive),
+        integration_ms: None,
+    };
     let tile = Tile::new(tile_radiance_factor, 0.5).expect("a tile");
-    let (_, summary, results) = simulated_sheet(&run, host::analysis::sheet::DEFAULT_SPOTS, |session| session.with_tile(tile.clone())).expect("a sheet");
+    let (_, summary, results) =
+        simulated_sheet(&run, host::analysis::sheet::DEFAULT_SPOTS, |session| {
+            session.with_tile(tile.clone())
+        })
+        .expect("a sheet");
     summary.sheet(&results)
 }
 
@@ -33,17 +47,31 @@ fn sheet(sample: &str, seed: u64) -> Sheet {
 fn the_issues_cases_point_the_right_way() {
     let population = Population::default_population();
     for seed in [3, 4, 5] {
-        let same = evidence::likelihood_ratio(&sheet("G", seed), &sheet("G", seed + 100), &population);
-        assert!(same.log10_lr > 0.0, "seed {seed}: two sessions of one G sheet: {same:?}");
+        let same =
+            evidence::likelihood_ratio(&sheet("G", seed), &sheet("G", seed + 100), &population);
+        assert!(
+            same.log10_lr > 0.0,
+            "seed {seed}: two sessions of one G sheet: {same:?}"
+        );
         // The second session's tile certificate 0.5 % off: every reading 0.5 % off.
-        let calibrated_apart = evidence::likelihood_ratio(&sheet("G", seed), &sheet_with_tile("G", seed + 200, 0.99 * 1.005), &population);
-        assert!(calibrated_apart.log10_lr > 0.0, "seed {seed}: a 0.5 % calibration difference: {calibrated_apart:?}");
+        let calibrated_apart = evidence::likelihood_ratio(
+            &sheet("G", seed),
+            &sheet_with_tile("G", seed + 200, 0.99 * 1.005),
+            &population,
+        );
+        assert!(
+            calibrated_apart.log10_lr > 0.0,
+            "seed {seed}: a 0.5 % calibration difference: {calibrated_apart:?}"
+        );
         for (a, b) in [("J3", "J4"), ("PPC", "J3")] {
             let e = evidence::likelihood_ratio(&sheet(a, seed), &sheet(b, seed + 300), &population);
             println!("seed {seed}: {a} vs {b} {:+.2}", e.log10_lr);
             assert!(e.log10_lr < -2.0, "seed {seed}: {a} vs {b}: {e:?}");
         }
-        println!("seed {seed}: same G {:+.2}, 0.5 % apart {:+.2}", same.log10_lr, calibrated_apart.log10_lr);
+        println!(
+            "seed {seed}: same G {:+.2}, 0.5 % apart {:+.2}",
+            same.log10_lr, calibrated_apart.log10_lr
+        );
     }
 }
 
@@ -61,37 +89,94 @@ fn a_small_campaign_over_draws_validates_the_likelihood_ratios() {
     assert_eq!((a.len(), b.len()), (32, 32));
     assert_eq!(a[0], b[0], "the reference paper G in both draws");
     assert_ne!(a[1].params, b[1].params, "G#1 drawn anew");
-    let (f, pairs) = forensic::figures(&campaign, design.spots, threads).expect("a population per draw");
+    let (f, pairs) =
+        forensic::figures(&campaign, design.spots, threads).expect("a population per draw");
     let (one, _) = forensic::figures(&campaign, 1, threads).expect("a population per draw");
-    print!("{}", forensic::summary_markdown(&f, &[one.clone(), f.clone()]));
+    print!(
+        "{}",
+        forensic::summary_markdown(&f, &[one.clone(), f.clone()])
+    );
     assert_eq!(f.pairs.0, 64, "one same-stock pair per stock and draw");
-    assert_eq!(pairs.iter().filter(|p| p.draw == 1).count(), pairs.len() / 2);
+    assert_eq!(
+        pairs.iter().filter(|p| p.draw == 1).count(),
+        pairs.len() / 2
+    );
     assert_eq!(f.per_draw.len(), 2);
-    assert!(f.per_draw.iter().all(|d| d.pairs.0 == 32 && d.search.1 == 64), "{:?}", f.per_draw);
+    assert!(
+        f.per_draw
+            .iter()
+            .all(|d| d.pairs.0 == 32 && d.search.1 == 64),
+        "{:?}",
+        f.per_draw
+    );
     // The sheets are the product's: the planned spots, flagged ones replaced and left out.
     let u = f.spot_use;
     assert_eq!(u.sheets, 2 * 32 * 4);
-    assert!(u.measured >= u.sheets * 2 && u.measured <= u.sheets * 2 + u.replaced, "{u:?}");
+    assert!(
+        u.measured >= u.sheets * 2 && u.measured <= u.sheets * 2 + u.replaced,
+        "{u:?}"
+    );
     assert_eq!(u.measured, u.sheets * 2 + u.replaced, "{u:?}");
-    assert_eq!(f.counts.3, u.measured - u.excluded, "the evidence weighs the accepted spots: {u:?}");
+    assert_eq!(
+        f.counts.3,
+        u.measured - u.excluded,
+        "the evidence weighs the accepted spots: {u:?}"
+    );
     // One calibration per sheet: the second spot costs its measuring time, not a second setup.
-    assert!(f.device_seconds_per_sheet > one.device_seconds_per_sheet, "{} s, 1 spot {} s", f.device_seconds_per_sheet, one.device_seconds_per_sheet);
-    assert!(f.device_seconds_per_sheet < 1.8 * one.device_seconds_per_sheet, "{} s, 1 spot {} s", f.device_seconds_per_sheet, one.device_seconds_per_sheet);
+    assert!(
+        f.device_seconds_per_sheet > one.device_seconds_per_sheet,
+        "{} s, 1 spot {} s",
+        f.device_seconds_per_sheet,
+        one.device_seconds_per_sheet
+    );
+    assert!(
+        f.device_seconds_per_sheet < 1.8 * one.device_seconds_per_sheet,
+        "{} s, 1 spot {} s",
+        f.device_seconds_per_sheet,
+        one.device_seconds_per_sheet
+    );
     // The claims, at this size.
     assert!(f.cllr < 0.3, "Cllr {}", f.cllr);
     assert!(f.cllr_min <= f.cllr + 1e-12);
-    assert_eq!(f.same_misleading.1, 0, "a same-stock pair with log10 LR < −2");
-    assert_eq!(f.different_misleading.1, 0, "a different-class pair with log10 LR > 2");
-    assert!(f.same_misleading.0 <= 2, "{} of 64 same-stock pairs misleading", f.same_misleading.0);
+    assert_eq!(
+        f.same_misleading.1, 0,
+        "a same-stock pair with log10 LR < −2"
+    );
+    assert_eq!(
+        f.different_misleading.1, 0,
+        "a different-class pair with log10 LR > 2"
+    );
+    assert!(
+        f.same_misleading.0 <= 2,
+        "{} of 64 same-stock pairs misleading",
+        f.same_misleading.0
+    );
     // The full study's pooled rate is 94.8 % at 3 spots (docs/FORENSIC.md); at 2 spots and
     // this size what is measured is held here.
-    assert!(f.search.0 as f64 >= 0.85 * f.search.1 as f64, "search {:?}", f.search);
+    assert!(
+        f.search.0 as f64 >= 0.85 * f.search.1 as f64,
+        "search {:?}",
+        f.search
+    );
     // A second spot per sheet weighs more: the same stock's LRs higher, Cllr lower.
-    assert!(f.medians.0 > one.medians.0, "median same-stock log10 LR {} with 2 spots, {} with 1", f.medians.0, one.medians.0);
-    assert!(f.cllr < one.cllr, "Cllr {} with 2 spots, {} with 1", f.cllr, one.cllr);
+    assert!(
+        f.medians.0 > one.medians.0,
+        "median same-stock log10 LR {} with 2 spots, {} with 1",
+        f.medians.0,
+        one.medians.0
+    );
+    assert!(
+        f.cllr < one.cllr,
+        "Cllr {} with 2 spots, {} with 1",
+        f.cllr,
+        one.cllr
+    );
     // The first draw's nearest stocks are the near twins G and G#1 (0.6–1.2 % apart).
     let nearest = f.per_draw[0].nearest.as_ref().expect("stocks");
-    assert_eq!((nearest.stocks.0.as_str(), nearest.stocks.1.as_str()), ("G", "G#1"));
+    assert_eq!(
+        (nearest.stocks.0.as_str(), nearest.stocks.1.as_str()),
+        ("G", "G#1")
+    );
     assert!(nearest.distance < 0.2, "{nearest:?}");
 }
 
@@ -101,12 +186,26 @@ fn every_sheet_has_its_own_seed_and_every_draw_its_own_stocks() {
     let design = Design::FULL;
     let plan = forensic::plan(&design, &forensic::SPOTS_STUDY);
     assert_eq!(plan.len(), 10 * 32 * 6 * forensic::SPOTS_STUDY.len());
-    let mut seeds: Vec<(u64, (usize, usize, usize))> = plan.iter().map(|s| (s.seed, (s.draw, s.stock, s.sheet))).collect();
+    let mut seeds: Vec<(u64, (usize, usize, usize))> = plan
+        .iter()
+        .map(|s| (s.seed, (s.draw, s.stock, s.sheet)))
+        .collect();
     seeds.sort_unstable();
     seeds.dedup();
-    assert_eq!(seeds.len(), 10 * 32 * 6, "one seed per sheet, shared by its numbers of spots");
-    assert!(seeds.windows(2).all(|w| w[0].0 != w[1].0), "two sheets with one seed");
-    assert_eq!(forensic::draw_seed(0), 0xf02e751c, "the first draw is the study's former one");
+    assert_eq!(
+        seeds.len(),
+        10 * 32 * 6,
+        "one seed per sheet, shared by its numbers of spots"
+    );
+    assert!(
+        seeds.windows(2).all(|w| w[0].0 != w[1].0),
+        "two sheets with one seed"
+    );
+    assert_eq!(
+        forensic::draw_seed(0),
+        0xf02e751c,
+        "the first draw is the study's former one"
+    );
     let drawn: Vec<Vec<forensic::Stock>> = (0..3).map(|d| forensic::stocks(&design, d)).collect();
     assert_ne!(drawn[0], drawn[1]);
     assert_ne!(drawn[1], drawn[2]);
@@ -117,7 +216,10 @@ fn wilson_intervals_match_the_formula_and_a_claim_can_fail() {
     let (lo, hi) = forensic::wilson(0, 10);
     assert!(lo == 0.0 && (hi - 0.277_533).abs() < 1e-5, "{lo} {hi}");
     let (lo, hi) = forensic::wilson(117, 128);
-    assert!((lo - 0.852_659).abs() < 1e-5 && (hi - 0.951_337).abs() < 1e-5, "{lo} {hi}");
+    assert!(
+        (lo - 0.852_659).abs() < 1e-5 && (hi - 0.951_337).abs() < 1e-5,
+        "{lo} {hi}"
+    );
     assert_eq!(forensic::wilson(5, 5).1, 1.0);
     let f = forensic::Figures {
         spots: 3,
@@ -136,19 +238,51 @@ fn wilson_intervals_match_the_formula_and_a_claim_can_fail() {
         per_draw: Vec::new(),
         named: vec![("J3", "J4", 16, 16, -3.1), ("PPC", "J3", 16, 16, -15.0)],
     };
-    assert!(forensic::claims(&f).iter().all(|(_, held)| *held), "{:?}", forensic::claims(&f));
+    assert!(
+        forensic::claims(&f).iter().all(|(_, held)| *held),
+        "{:?}",
+        forensic::claims(&f)
+    );
     let failing = [
-        forensic::Figures { cllr: 0.31, ..f.clone() },
-        forensic::Figures { same_misleading: (4, 0), ..f.clone() },
-        forensic::Figures { same_misleading: (1, 1), ..f.clone() },
-        forensic::Figures { different_misleading: (300, 1), ..f.clone() },
-        forensic::Figures { search: (121, 128), ..f.clone() },
-        forensic::Figures { named: vec![("J3", "J4", 16, 15, -1.9), ("PPC", "J3", 16, 16, -15.0)], ..f.clone() },
-        forensic::Figures { named: vec![("J3", "J4", 16, 16, -3.1), ("PPC", "J3", 0, 0, f64::NEG_INFINITY)], ..f.clone() },
+        forensic::Figures {
+            cllr: 0.31,
+            ..f.clone()
+        },
+        forensic::Figures {
+            same_misleading: (4, 0),
+            ..f.clone()
+        },
+        forensic::Figures {
+            same_misleading: (1, 1),
+            ..f.clone()
+        },
+        forensic::Figures {
+            different_misleading: (300, 1),
+            ..f.clone()
+        },
+        forensic::Figures {
+            search: (121, 128),
+            ..f.clone()
+        },
+        forensic::Figures {
+            named: vec![("J3", "J4", 16, 15, -1.9), ("PPC", "J3", 16, 16, -15.0)],
+            ..f.clone()
+        },
+        forensic::Figures {
+            named: vec![
+                ("J3", "J4", 16, 16, -3.1),
+                ("PPC", "J3", 0, 0, f64::NEG_INFINITY),
+            ],
+            ..f.clone()
+        },
     ];
     for (k, g) in failing.iter().enumerate() {
         let claims = forensic::claims(g);
-        assert_eq!(claims.iter().filter(|(_, held)| !held).count(), 1, "case {k}: {claims:?}");
+        assert_eq!(
+            claims.iter().filter(|(_, held)| !held).count(),
+            1,
+            "case {k}: {claims:?}"
+        );
         assert!(!claims[k].1, "case {k}: {claims:?}");
     }
 }
@@ -170,12 +304,28 @@ fn a_sheet_with_more_spots_is_the_same_sheet_with_spots_added() {
     let design = Design::SMALL;
     let stocks = forensic::stocks(&design, 0);
     for stock in [0, 9, 20] {
-        let spec = |spots| forensic::SheetSpec { draw: 0, stock, sheet: 3, spots, seed: forensic::sheet_seed(0, stock, 3) };
+        let spec = |spots| forensic::SheetSpec {
+            draw: 0,
+            stock,
+            sheet: 3,
+            spots,
+            seed: forensic::sheet_seed(0, stock, 3),
+        };
         let three = forensic::measure(&stocks, &spec(3), &design).expect("a sheet");
         let five = forensic::measure(&stocks, &spec(5), &design).expect("a sheet");
         assert!(!three.in_library && three.planned == 3 && five.planned == 5);
-        assert_eq!((three.measured.spots.len(), five.measured.spots.len()), (3, 5), "{}: no spot flagged here", stocks[stock].name);
-        assert_eq!(three.measured.spots[..], five.measured.spots[..3], "{}", stocks[stock].name);
+        assert_eq!(
+            (three.measured.spots.len(), five.measured.spots.len()),
+            (3, 5),
+            "{}: no spot flagged here",
+            stocks[stock].name
+        );
+        assert_eq!(
+            three.measured.spots[..],
+            five.measured.spots[..3],
+            "{}",
+            stocks[stock].name
+        );
         assert!(five.device_seconds > three.device_seconds);
     }
 }

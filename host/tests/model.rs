@@ -11,7 +11,12 @@ fn vectors() -> Vec<(String, Params, f64, f64, f64)> {
         .map(|line| {
             let f: Vec<&str> = line.split(',').collect();
             let num = |i: usize| f[i].trim().parse::<f64>().expect("vector file is numeric");
-            let p = Params { sigma_deg: num(1), rho_s: num(2), rho_d: num(3), eta: num(4) };
+            let p = Params {
+                sigma_deg: num(1),
+                rho_s: num(2),
+                rho_d: num(3),
+                eta: num(4),
+            };
             (f[0].to_string(), p, num(5), num(6), num(7))
         })
         .collect()
@@ -24,7 +29,10 @@ fn matches_tsl_vectors_to_1e9_relative() {
     for (name, p, ti, tr, expected) in v {
         let got = model::radiance_factor(&p, ti, tr);
         let rel = (got - expected).abs() / expected.abs();
-        assert!(rel <= 1e-9, "{name} ({ti}, {tr}): {got} vs {expected} (rel {rel:e})");
+        assert!(
+            rel <= 1e-9,
+            "{name} ({ti}, {tr}): {got} vs {expected} (rel {rel:e})"
+        );
     }
 }
 
@@ -36,18 +44,48 @@ fn finite_difference(p: &Params, ti: f64, tr: f64, index: usize) -> f64 {
     let mut down = base;
     up[index] += h;
     down[index] -= h;
-    (model::radiance_factor(&Params::from_array(up), ti, tr) - model::radiance_factor(&Params::from_array(down), ti, tr))
+    (model::radiance_factor(&Params::from_array(up), ti, tr)
+        - model::radiance_factor(&Params::from_array(down), ti, tr))
         / (2.0 * h)
 }
 
 #[test]
 fn analytic_derivatives_match_finite_differences() {
-    let geometries = [(0.0, 0.0), (20.0, 21.0), (30.0, 33.0), (45.0, 46.5), (60.0, 62.0), (60.0, 70.0), (20.0, 0.0), (45.0, 30.0)];
+    let geometries = [
+        (0.0, 0.0),
+        (20.0, 21.0),
+        (30.0, 33.0),
+        (45.0, 46.5),
+        (60.0, 62.0),
+        (60.0, 70.0),
+        (20.0, 0.0),
+        (45.0, 30.0),
+    ];
     let params = [
-        Params { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 },
-        Params { sigma_deg: 1.9, rho_s: 57.1, rho_d: 0.795, eta: 1.02 },
-        Params { sigma_deg: 21.7, rho_s: 0.409, rho_d: 0.414, eta: 2.5 },
-        Params { sigma_deg: 43.5, rho_s: 0.123, rho_d: 0.642, eta: 2.99 },
+        Params {
+            sigma_deg: 0.8,
+            rho_s: 57.8,
+            rho_d: 0.855,
+            eta: 1.19,
+        },
+        Params {
+            sigma_deg: 1.9,
+            rho_s: 57.1,
+            rho_d: 0.795,
+            eta: 1.02,
+        },
+        Params {
+            sigma_deg: 21.7,
+            rho_s: 0.409,
+            rho_d: 0.414,
+            eta: 2.5,
+        },
+        Params {
+            sigma_deg: 43.5,
+            rho_s: 0.123,
+            rho_d: 0.642,
+            eta: 2.99,
+        },
     ];
     for p in params {
         for (ti, tr) in geometries {
@@ -55,7 +93,12 @@ fn analytic_derivatives_match_finite_differences() {
             for i in 0..4 {
                 let fd = finite_difference(&p, ti, tr, i);
                 let tol = 1e-6 * (fd.abs() + value.abs() * 1e-3) + 1e-12;
-                assert!((grad[i] - fd).abs() <= tol, "{p:?} ({ti},{tr}) d/d{}: analytic {} vs fd {fd}", model::PARAM_NAMES[i], grad[i]);
+                assert!(
+                    (grad[i] - fd).abs() <= tol,
+                    "{p:?} ({ti},{tr}) d/d{}: analytic {} vs fd {fd}",
+                    model::PARAM_NAMES[i],
+                    grad[i]
+                );
             }
         }
     }
@@ -70,7 +113,10 @@ fn windowed_lobe_derivative_matches_finite_difference() {
             let fd = (model::windowed_lobe_with_derivative(offset, sigma + h, 1.0).0
                 - model::windowed_lobe_with_derivative(offset, sigma - h, 1.0).0)
                 / (2.0 * h);
-            assert!((d - fd).abs() <= 1e-6 * (fd.abs() + 1e-6), "σ {sigma} offset {offset}: {d} vs {fd}");
+            assert!(
+                (d - fd).abs() <= 1e-6 * (fd.abs() + 1e-6),
+                "σ {sigma} offset {offset}: {d} vs {fd}"
+            );
         }
     }
 }
@@ -86,12 +132,20 @@ fn finite_everywhere_on_the_extremes_matrix() {
     for &sigma_deg in &sigmas {
         for &eta in &etas {
             for &rho_s in &rho_ss {
-                let p = Params { sigma_deg, rho_s, rho_d: 0.5, eta };
+                let p = Params {
+                    sigma_deg,
+                    rho_s,
+                    rho_d: 0.5,
+                    eta,
+                };
                 for &ti in &thetas {
                     for &tr in &thetas {
                         let (v, g) = model::radiance_factor_with_gradient(&p, ti, tr);
                         assert!(v.is_finite() && v >= 0.5, "{p:?} ({ti},{tr}) = {v}");
-                        assert!(g.iter().all(|d| d.is_finite()), "{p:?} ({ti},{tr}) gradient {g:?}");
+                        assert!(
+                            g.iter().all(|d| d.is_finite()),
+                            "{p:?} ({ti},{tr}) gradient {g:?}"
+                        );
                         for a in [0.5, 1.0] {
                             let w = model::observed_radiance_factor(&p, ti, tr, a);
                             assert!(w.is_finite(), "{p:?} ({ti},{tr}) acceptance {a}: {w}");
@@ -108,11 +162,21 @@ fn finite_everywhere_on_the_extremes_matrix() {
 #[test]
 fn normal_incidence_and_eta_one_limits() {
     // ψ = 0 exactly (θi = θr = 0): F = √2(η−1)/(η+1), computed, not 0/0.
-    let p = Params { sigma_deg: 0.8, rho_s: 1.0, rho_d: 0.0, eta: 1.5 };
+    let p = Params {
+        sigma_deg: 0.8,
+        rho_s: 1.0,
+        rho_d: 0.0,
+        eta: 1.5,
+    };
     let f = model::radiance_factor(&p, 0.0, 0.0);
     assert!((f - std::f64::consts::SQRT_2 * 0.5 / 2.5).abs() < 1e-15);
     // η = 1: no specular part at all, at any geometry.
-    let p = Params { sigma_deg: 5.0, rho_s: 1e4, rho_d: 0.3, eta: 1.0 };
+    let p = Params {
+        sigma_deg: 5.0,
+        rho_s: 1e4,
+        rho_d: 0.3,
+        eta: 1.0,
+    };
     for (ti, tr) in [(0.0, 0.0), (30.0, 30.0), (89.99, 89.99), (90.0, 90.0)] {
         assert_eq!(model::radiance_factor(&p, ti, tr), 0.3);
     }
@@ -131,7 +195,12 @@ fn normal_incidence_and_eta_one_limits() {
 
 #[test]
 fn tiny_sigma_derivative_is_zero_not_nan() {
-    let p = Params { sigma_deg: 1e-4, rho_s: 58.0, rho_d: 0.8, eta: 1.19 };
+    let p = Params {
+        sigma_deg: 1e-4,
+        rho_s: 58.0,
+        rho_d: 0.8,
+        eta: 1.19,
+    };
     let (v, g) = model::radiance_factor_with_gradient(&p, 45.0, 50.0);
     assert_eq!(v, 0.8);
     assert_eq!(g[model::SIGMA], 0.0);
@@ -159,12 +228,24 @@ proptest! {
 
 /// The mean over a detector's travel of what it sees, by dense quadrature (4001 points,
 /// Simpson): the reference the fit's travel nodes are held to.
-fn dense_travel_mean(p: &Params, theta_i: f64, theta_r: f64, span: f64, acceptance: Option<f64>) -> f64 {
+fn dense_travel_mean(
+    p: &Params,
+    theta_i: f64,
+    theta_r: f64,
+    span: f64,
+    acceptance: Option<f64>,
+) -> f64 {
     let n = 4000;
     let h = span / n as f64;
     let mut sum = 0.0;
     for k in 0..=n {
-        let weight = if k == 0 || k == n { 1.0 } else if k % 2 == 1 { 4.0 } else { 2.0 };
+        let weight = if k == 0 || k == n {
+            1.0
+        } else if k % 2 == 1 {
+            4.0
+        } else {
+            2.0
+        };
         let at = theta_r - 0.5 * span + k as f64 * h;
         sum += weight * model::evaluate(p, &model::PlaneGeometry::new(theta_i, at), acceptance).0;
     }
@@ -176,10 +257,20 @@ fn dense_travel_mean(p: &Params, theta_i: f64, theta_r: f64, span: f64, acceptan
 /// from the glossiest paper's to the roughest, bins from 0.05° to 3°, across the peak.
 #[test]
 fn a_bin_read_while_moving_is_the_mean_over_its_travel() {
-    let papers = [(0.5, 60.0, 0.85, 1.2), (0.8, 57.8, 0.855, 1.19), (1.9, 57.1, 0.795, 1.02), (21.7, 0.409, 0.414, 3.0)];
+    let papers = [
+        (0.5, 60.0, 0.85, 1.2),
+        (0.8, 57.8, 0.855, 1.19),
+        (1.9, 57.1, 0.795, 1.02),
+        (21.7, 0.409, 0.414, 3.0),
+    ];
     let mut worst: f64 = 0.0;
     for (sigma_deg, rho_s, rho_d, eta) in papers {
-        let p = Params { sigma_deg, rho_s, rho_d, eta };
+        let p = Params {
+            sigma_deg,
+            rho_s,
+            rho_d,
+            eta,
+        };
         for theta_i in [20.0, 45.0, 60.0] {
             for offset in [-3.0, -1.2, -0.4, 0.0, 0.3, 0.9, 2.5, 8.0] {
                 for span in [0.05, 0.1, 0.25, 0.5, 1.0, 3.0] {
@@ -189,7 +280,10 @@ fn a_bin_read_while_moving_is_the_mean_over_its_travel() {
                         let want = dense_travel_mean(&p, theta_i, theta_r, span, acceptance);
                         let err = (got - want).abs() / want.abs().max(1e-3);
                         worst = worst.max(err);
-                        assert!(err < 2e-6, "σ {sigma_deg} θi {theta_i} θr {theta_r} span {span} {acceptance:?}: {got} vs {want} ({err:e})");
+                        assert!(
+                            err < 2e-6,
+                            "σ {sigma_deg} θi {theta_i} θr {theta_r} span {span} {acceptance:?}: {got} vs {want} ({err:e})"
+                        );
                     }
                 }
             }
@@ -197,14 +291,27 @@ fn a_bin_read_while_moving_is_the_mean_over_its_travel() {
     }
     eprintln!("worst relative error of a bin's model: {worst:e}");
     // A still reading is the window's reading, exactly.
-    let p = Params { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 };
-    assert_eq!(model::evaluate_reading(&p, 60.0, 60.3, 0.0, Some(1.0)), model::evaluate(&p, &model::PlaneGeometry::new(60.0, 60.3), Some(1.0)));
+    let p = Params {
+        sigma_deg: 0.8,
+        rho_s: 57.8,
+        rho_d: 0.855,
+        eta: 1.19,
+    };
+    assert_eq!(
+        model::evaluate_reading(&p, 60.0, 60.3, 0.0, Some(1.0)),
+        model::evaluate(&p, &model::PlaneGeometry::new(60.0, 60.3), Some(1.0))
+    );
 }
 
 /// The bin's gradient is the derivative of its value (central differences in each parameter).
 #[test]
 fn a_bins_gradient_is_the_derivative_of_its_value() {
-    let p = Params { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 };
+    let p = Params {
+        sigma_deg: 0.8,
+        rho_s: 57.8,
+        rho_d: 0.855,
+        eta: 1.19,
+    };
     for (span, acceptance) in [(0.3, Some(1.0)), (2.0, Some(1.0)), (0.4, None)] {
         let (_, g) = model::evaluate_reading(&p, 60.0, 60.6, span, acceptance);
         let h = [1e-6, 1e-5, 1e-6, 1e-6];
@@ -220,7 +327,12 @@ fn a_bins_gradient_is_the_derivative_of_its_value() {
                 model::evaluate_reading(&q, 60.0, 60.6, span, acceptance).0
             };
             let fd = (at(h[i]) - at(-h[i])) / (2.0 * h[i]);
-            assert!((g[i] - fd).abs() <= 1e-5 * (fd.abs() + 1e-3), "span {span} {acceptance:?} d/d{}: {} vs {fd}", model::PARAM_NAMES[i], g[i]);
+            assert!(
+                (g[i] - fd).abs() <= 1e-5 * (fd.abs() + 1e-3),
+                "span {span} {acceptance:?} d/d{}: {} vs {fd}",
+                model::PARAM_NAMES[i],
+                g[i]
+            );
         }
     }
 }

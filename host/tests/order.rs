@@ -4,7 +4,8 @@
 use firmware::config::InstrumentConfig;
 use firmware::schedule::STRATEGY1_ORDER;
 use host::session::order::{
-    EXACT_MAX, Motion, OrderError, PlannedOrder, REFERENCE_HOME, device_us, plan, plan_with, study, study_markdown,
+    EXACT_MAX, Motion, OrderError, PlannedOrder, REFERENCE_HOME, device_us, plan, plan_with, study,
+    study_markdown,
 };
 use proptest::prelude::*;
 use protocol::schedules::{strategy1, strategy2};
@@ -48,11 +49,18 @@ fn brute_force_us(motion: &Motion, start: Geometry, list: &[Geometry]) -> u64 {
 
 /// The promises every plan keeps, whatever the method.
 fn check_consistent(motion: &Motion, start: Geometry, list: &[Geometry], planned: &PlannedOrder) {
-    assert_eq!(sorted(&planned.order), sorted(list), "the order is a permutation of the list");
+    assert_eq!(
+        sorted(&planned.order),
+        sorted(list),
+        "the order is a permutation of the list"
+    );
     assert_eq!(planned.travel_us, motion.travel_us(start, &planned.order));
     assert_eq!(planned.given_order_travel_us, motion.travel_us(start, list));
     assert!(planned.lower_bound_us <= planned.travel_us);
-    assert!(planned.travel_us <= planned.given_order_travel_us, "never worse than the order given");
+    assert!(
+        planned.travel_us <= planned.given_order_travel_us,
+        "never worse than the order given"
+    );
     if planned.exact {
         assert_eq!(planned.best_travel_us, planned.travel_us);
         assert_eq!(planned.lower_bound_us, planned.travel_us);
@@ -61,7 +69,10 @@ fn check_consistent(motion: &Motion, start: Geometry, list: &[Geometry], planned
 
 /// Angles on a coarse 5° grid (so that lists repeat geometries) or anywhere in 0…85°.
 fn angle() -> impl Strategy<Value = Angle> {
-    prop_oneof![(0..=17i32).prop_map(|k| Angle::from_whole_deg(5 * k)), (0..=85 * 80).prop_map(Angle::from_ticks)]
+    prop_oneof![
+        (0..=17i32).prop_map(|k| Angle::from_whole_deg(5 * k)),
+        (0..=85 * 80).prop_map(Angle::from_ticks)
+    ]
 }
 
 fn geometry() -> impl Strategy<Value = Geometry> {
@@ -107,7 +118,10 @@ fn strategy1_from_home_is_the_firmware_order() {
     let planned = plan(&motion, REFERENCE_HOME, &list);
     check_consistent(&motion, REFERENCE_HOME, &list, &planned);
     assert!(planned.exact);
-    assert_eq!(planned.travel_us, motion.travel_us(REFERENCE_HOME, &STRATEGY1_ORDER));
+    assert_eq!(
+        planned.travel_us,
+        motion.travel_us(REFERENCE_HOME, &STRATEGY1_ORDER)
+    );
     // 6.98 s against 13.60 s in the paper's order (firmware/src/schedule.rs).
     assert!(planned.travel_ratio_to_given() < 0.6);
 }
@@ -121,7 +135,10 @@ fn strategy2_lists_are_within_two_percent_of_the_bound() {
             let planned = plan(&motion, start, &list);
             check_consistent(&motion, start, &list, &planned);
             let ratio = planned.travel_ratio_to_best();
-            assert!(ratio <= 1.02, "δ = {delta}° from {start}: planned/best {ratio:.4}");
+            assert!(
+                ratio <= 1.02,
+                "δ = {delta}° from {start}: planned/best {ratio:.4}"
+            );
             assert!(
                 planned.travel_us < planned.given_order_travel_us,
                 "δ = {delta}° from {start}: not faster than the paper's order"
@@ -139,7 +156,10 @@ fn the_study_covers_strategy1_and_every_refinement() {
     assert_eq!(rows.len(), 21);
     assert_eq!(rows[0].n, 12);
     assert!(rows[0].exact);
-    assert_eq!(rows[1..11].iter().map(|r| r.n).max(), Some(strategy2(1).unwrap().len()));
+    assert_eq!(
+        rows[1..11].iter().map(|r| r.n).max(),
+        Some(strategy2(1).unwrap().len())
+    );
     // The refinements add up, with Strategy 1, to everything Strategy 2 at δ = 1..10 holds.
     let mut all: Vec<Geometry> = strategy1(12).unwrap().to_vec();
     for delta in 1..=10 {
@@ -147,7 +167,10 @@ fn the_study_covers_strategy1_and_every_refinement() {
     }
     all.sort();
     all.dedup();
-    assert_eq!(12 + rows[11..].iter().map(|r| r.n).sum::<usize>(), all.len());
+    assert_eq!(
+        12 + rows[11..].iter().map(|r| r.n).sum::<usize>(),
+        all.len()
+    );
     for row in &rows {
         assert!(
             row.travel_ratio_best >= 1.0 && row.travel_ratio_best <= 1.02,
@@ -155,7 +178,12 @@ fn the_study_covers_strategy1_and_every_refinement() {
             row.name,
             row.travel_ratio_best
         );
-        assert!(row.travel_ratio_paper <= 1.0, "{}: {}", row.name, row.travel_ratio_paper);
+        assert!(
+            row.travel_ratio_paper <= 1.0,
+            "{}: {}",
+            row.name,
+            row.travel_ratio_paper
+        );
         // Time at the geometries dilutes the travel's share of device time.
         assert!(row.device_ratio_best >= 1.0 && row.device_ratio_best <= row.travel_ratio_best);
         assert!(row.device_ratio_paper >= row.travel_ratio_paper && row.device_ratio_paper <= 1.0);
@@ -170,7 +198,14 @@ fn empty_and_single_lists() {
     let motion = Motion::reference();
     let empty = plan(&motion, REFERENCE_HOME, &[]);
     assert!(empty.order.is_empty() && empty.exact);
-    assert_eq!((empty.travel_us, empty.lower_bound_us, empty.given_order_travel_us), (0, 0, 0));
+    assert_eq!(
+        (
+            empty.travel_us,
+            empty.lower_bound_us,
+            empty.given_order_travel_us
+        ),
+        (0, 0, 0)
+    );
     assert_eq!(empty.travel_ratio_to_best(), 1.0);
     assert_eq!(empty.device_ratio_to_given(205_000), 1.0);
 
@@ -195,7 +230,10 @@ fn repeated_geometries_are_visited_back_to_back() {
     list.extend(distinct.iter().rev().step_by(3).copied());
     let planned = plan(&motion, after_strategy1(), &list);
     check_consistent(&motion, after_strategy1(), &list, &planned);
-    assert_eq!(planned.travel_us, plan(&motion, after_strategy1(), &distinct).travel_us);
+    assert_eq!(
+        planned.travel_us,
+        plan(&motion, after_strategy1(), &distinct).travel_us
+    );
     let mut seen = Vec::new();
     for pair in planned.order.chunk_by(|a, b| a == b) {
         assert!(!seen.contains(&pair[0]), "{} visited twice apart", pair[0]);
@@ -208,7 +246,10 @@ fn repeated_geometries_are_visited_back_to_back() {
 fn plans_are_deterministic() {
     let motion = Motion::reference();
     let list = strategy2(8).unwrap().to_vec();
-    assert_eq!(plan(&motion, REFERENCE_HOME, &list), plan(&motion, REFERENCE_HOME, &list));
+    assert_eq!(
+        plan(&motion, REFERENCE_HOME, &list),
+        plan(&motion, REFERENCE_HOME, &list)
+    );
 }
 
 #[test]
@@ -219,7 +260,11 @@ fn absurd_positions_do_not_panic() {
         Geometry::new(Angle::from_ticks(i32::MIN), Angle::from_ticks(i32::MAX)),
         Geometry::from_whole_deg(20, 0),
     ];
-    let planned = plan(&motion, Geometry::new(Angle::from_ticks(i32::MIN), Angle::ZERO), &far);
+    let planned = plan(
+        &motion,
+        Geometry::new(Angle::from_ticks(i32::MIN), Angle::ZERO),
+        &far,
+    );
     assert_eq!(planned.order.len(), 3);
     assert!(planned.travel_us > 0);
 }
@@ -229,18 +274,30 @@ fn motion_comes_from_the_device_info() {
     let info = InstrumentConfig::REFERENCE.device_info("");
     assert_eq!(Motion::from_info(&info), Ok(Motion::reference()));
     assert_eq!(Motion::reference().settle_us(), 100_000);
-    assert_eq!(Motion::reference().per_geometry_us(100), 100_000 + 100_000 + host::session::order::READING_OVERHEAD_US);
+    assert_eq!(
+        Motion::reference().per_geometry_us(100),
+        100_000 + 100_000 + host::session::order::READING_OVERHEAD_US
+    );
     let mut bad = info.clone();
     bad.max_speed_deg_per_s = f32::NAN;
-    assert!(matches!(Motion::from_info(&bad), Err(OrderError::BadSpeed(_))));
+    assert!(matches!(
+        Motion::from_info(&bad),
+        Err(OrderError::BadSpeed(_))
+    ));
     let mut bad = info;
     bad.accel_deg_per_s2 = 0.0;
     assert_eq!(Motion::from_info(&bad), Err(OrderError::BadAccel(0.0)));
     // A slower instrument takes longer for the same move.
     let slow = Motion::new(30.0, 180.0, 100).unwrap();
-    let (a, b) = (Geometry::from_whole_deg(20, 0), Geometry::from_whole_deg(60, 70));
+    let (a, b) = (
+        Geometry::from_whole_deg(20, 0),
+        Geometry::from_whole_deg(60, 70),
+    );
     assert!(slow.move_us(a, b) > Motion::reference().move_us(a, b));
-    assert_eq!(Motion::reference().move_us(a, b), Motion::reference().move_us(b, a));
+    assert_eq!(
+        Motion::reference().move_us(a, b),
+        Motion::reference().move_us(b, a)
+    );
 }
 
 #[test]

@@ -26,7 +26,11 @@ fn temp_dir(name: &str) -> PathBuf {
 /// not wait on an fsync per reading; the SIGKILLs below use the real temporary folder.
 fn sweep_dir(name: &str) -> PathBuf {
     let ram = Path::new("/dev/shm");
-    let base = if ram.is_dir() { ram.to_path_buf() } else { std::env::temp_dir() };
+    let base = if ram.is_dir() {
+        ram.to_path_buf()
+    } else {
+        std::env::temp_dir()
+    };
     let dir = base.join(format!("gonio-crash-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir
@@ -36,7 +40,12 @@ fn sweep_dir(name: &str) -> PathBuf {
 /// spots have their own crash test in `sheet.rs`).
 fn run(args: &[String], crash: Option<Crash>) -> anyhow::Result<Measured> {
     let args = parse_args(one_spot(args)).expect("arguments");
-    measure_with(&args, &mut SimulatedOperator, Arc::new(AtomicBool::new(false)), StoreOptions { crash })
+    measure_with(
+        &args,
+        &mut SimulatedOperator,
+        Arc::new(AtomicBool::new(false)),
+        StoreOptions { crash },
+    )
 }
 
 fn one_spot(args: &[String]) -> Vec<String> {
@@ -59,7 +68,8 @@ fn whole_lines(dir: &Path) -> Vec<String> {
 }
 
 fn class(dir: &Path) -> String {
-    let session: Value = serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    let session: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
     session["result"]["class"].as_str().unwrap().to_string()
 }
 
@@ -67,20 +77,43 @@ fn class(dir: &Path) -> String {
 /// crash was lost or changed, nothing is recorded twice, and the class is the clean one.
 fn check_resumed(dir: &Path, before: &[String], clean_class: &str, what: &str) {
     if let Err(problems) = host::output::verify::verify(dir) {
-        panic!("{what}: the resumed folder does not verify:\n{}", problems.iter().map(|p| format!("  {p}\n")).collect::<String>());
+        panic!(
+            "{what}: the resumed folder does not verify:\n{}",
+            problems
+                .iter()
+                .map(|p| format!("  {p}\n"))
+                .collect::<String>()
+        );
     }
     let after = whole_lines(dir);
-    assert!(after.len() >= before.len() && after[..before.len()] == *before, "{what}: a reading recorded before the crash was lost or changed");
+    assert!(
+        after.len() >= before.len() && after[..before.len()] == *before,
+        "{what}: a reading recorded before the crash was lost or changed"
+    );
     // Readings with the marks of later lines applied (a reading superseded after lost steps
     // is measured again: its geometry then has two readings, one marked).
     let path = dir.join("points.jsonl");
-    let points: Vec<MeasuredPoint> = host::output::folder::parse_points(&path, &host::output::folder::read_lines(&path).unwrap()).unwrap();
+    let points: Vec<MeasuredPoint> = host::output::folder::parse_points(
+        &path,
+        &host::output::folder::read_lines(&path).unwrap(),
+    )
+    .unwrap();
     let mut ids = BTreeSet::new();
     let mut geometries = BTreeSet::new();
     for p in &points {
-        assert!(ids.insert((p.schedule_id, p.index)), "{what}: reading {}:{} recorded twice", p.schedule_id, p.index);
+        assert!(
+            ids.insert((p.schedule_id, p.index)),
+            "{what}: reading {}:{} recorded twice",
+            p.schedule_id,
+            p.index
+        );
         if p.radiance_factor.is_some() && !p.superseded {
-            assert!(geometries.insert((p.theta_i_deg.to_bits(), p.theta_r_deg.to_bits())), "{what}: geometry ({}, {}) measured twice", p.theta_i_deg, p.theta_r_deg);
+            assert!(
+                geometries.insert((p.theta_i_deg.to_bits(), p.theta_r_deg.to_bits())),
+                "{what}: geometry ({}, {}) measured twice",
+                p.theta_i_deg,
+                p.theta_r_deg
+            );
         }
     }
     assert_eq!(class(dir), clean_class, "{what}");
@@ -93,7 +126,9 @@ fn resume(dir: &Path, base: &[&str], what: &str) {
     args.extend(strings(&["--resume", dir.to_str().unwrap()]));
     match run(&args, None) {
         Ok(Measured::Done { .. }) => {}
-        Ok(Measured::Stopped { error, .. }) => panic!("{what}: the resumed session stopped: {error}"),
+        Ok(Measured::Stopped { error, .. }) => {
+            panic!("{what}: the resumed session stopped: {error}")
+        }
         Ok(Measured::Sheet { .. }) => panic!("{what}: a sheet, not one spot"),
         Err(e) => match e.downcast_ref::<FolderError>() {
             // Killed while closing: the result was written, the manifest now is.
@@ -101,15 +136,24 @@ fn resume(dir: &Path, base: &[&str], what: &str) {
             // Killed before its session.json: nothing was measured, and the folder is
             // free for a new session.
             Some(FolderError::NoSession(_)) => {
-                assert!(whole_lines(dir).is_empty(), "{what}: readings in a folder without session.json");
+                assert!(
+                    whole_lines(dir).is_empty(),
+                    "{what}: readings in a folder without session.json"
+                );
                 let mut args = strings(base);
                 args.extend(strings(&["--out", dir.to_str().unwrap()]));
-                assert!(matches!(run(&args, None), Ok(Measured::Done { .. })), "{what}: a new session in the folder");
+                assert!(
+                    matches!(run(&args, None), Ok(Measured::Done { .. })),
+                    "{what}: a new session in the folder"
+                );
             }
             Some(FolderError::NoFolder(_)) => {
                 let mut args = strings(base);
                 args.extend(strings(&["--out", dir.to_str().unwrap()]));
-                assert!(matches!(run(&args, None), Ok(Measured::Done { .. })), "{what}: a new session in the folder");
+                assert!(
+                    matches!(run(&args, None), Ok(Measured::Done { .. })),
+                    "{what}: a new session in the folder"
+                );
             }
             _ => panic!("{what}: resume refused: {e:#}"),
         },
@@ -122,12 +166,18 @@ fn crash_at_each(name: &str, base: &[&str], writes: impl Fn(u64) -> Vec<u64>) ->
     let counting = Crash::counting();
     let mut args = strings(base);
     args.extend(strings(&["--out", clean_dir.to_str().unwrap()]));
-    assert!(matches!(run(&args, Some(counting.clone())).unwrap(), Measured::Done { .. }));
+    assert!(matches!(
+        run(&args, Some(counting.clone())).unwrap(),
+        Measured::Done { .. }
+    ));
     let clean_class = class(&clean_dir);
     let total = counting.writes();
     assert!(total > 20, "{name}: only {total} writes counted");
     let chosen = writes(total);
-    eprintln!("{name}: {total} writes, crashing at {} of them", chosen.len());
+    eprintln!(
+        "{name}: {total} writes, crashing at {} of them",
+        chosen.len()
+    );
     for &n in &chosen {
         let dir = sweep_dir(&format!("{name}-{n}"));
         let what = format!("{name}, crash at write {n} of {total}");
@@ -136,7 +186,10 @@ fn crash_at_each(name: &str, base: &[&str], writes: impl Fn(u64) -> Vec<u64>) ->
         args.extend(strings(&["--out", dir.to_str().unwrap()]));
         match run(&args, Some(crash.clone())) {
             Ok(Measured::Done { .. }) => panic!("{what}: the session finished through its crash"),
-            Ok(Measured::Stopped { record_error, .. }) => assert!(record_error.is_some(), "{what}: a dead folder took the status"),
+            Ok(Measured::Stopped { record_error, .. }) => assert!(
+                record_error.is_some(),
+                "{what}: a dead folder took the status"
+            ),
             Ok(Measured::Sheet { .. }) => panic!("{what}: a sheet, not one spot"),
             Err(_) => {}
         }
@@ -154,13 +207,37 @@ fn crash_at_each(name: &str, base: &[&str], writes: impl Fn(u64) -> Vec<u64>) ->
 fn a_session_killed_at_any_of_its_writes_resumes_to_a_verified_folder() {
     // Every write of a whole adaptive session of G (calibration, Strategy 1, batches,
     // summaries, manifest) and of a rough paper by the paper's policy.
-    let g = crash_at_each("G-adaptive", &["--sim", "G", "--seed", "11"], |total| (1..=total).collect());
-    let ppc = crash_at_each("PPC-paper", &["--sim", "PPC", "--seed", "12", "--policy", "paper"], |total| (1..=total).collect());
-    let sg = crash_at_each("SG-adaptive-white-check", &["--sim", "SG", "--seed", "15", "--white-check"], |total| (1..=total).collect());
+    let g = crash_at_each("G-adaptive", &["--sim", "G", "--seed", "11"], |total| {
+        (1..=total).collect()
+    });
+    let ppc = crash_at_each(
+        "PPC-paper",
+        &["--sim", "PPC", "--seed", "12", "--policy", "paper"],
+        |total| (1..=total).collect(),
+    );
+    let sg = crash_at_each(
+        "SG-adaptive-white-check",
+        &["--sim", "SG", "--seed", "15", "--white-check"],
+        |total| (1..=total).collect(),
+    );
     // An arm that slips: readings superseded (a mark in points.jsonl, readings.csv rebuilt)
     // and measured again; a crash at any write of that too.
-    let slipped = crash_at_each("J1-lost-steps", &["--sim", "J1", "--seed", "16", "--faults", "lose-steps=detector:40"], |total| (1..=total).collect());
-    assert!(g + ppc + sg + slipped >= 200, "{g} + {ppc} + {sg} + {slipped} crash points");
+    let slipped = crash_at_each(
+        "J1-lost-steps",
+        &[
+            "--sim",
+            "J1",
+            "--seed",
+            "16",
+            "--faults",
+            "lose-steps=detector:40",
+        ],
+        |total| (1..=total).collect(),
+    );
+    assert!(
+        g + ppc + sg + slipped >= 200,
+        "{g} + {ppc} + {sg} + {slipped} crash points"
+    );
 }
 
 #[test]
@@ -169,14 +246,18 @@ fn a_long_session_killed_at_random_writes_resumes_to_a_verified_folder() {
     // (another draw every run: the seed is printed to repeat it).
     let seed: u64 = rand::rng().random();
     eprintln!("seed {seed}");
-    let n = crash_at_each("G-paper", &["--sim", "G", "--seed", "13", "--policy", "paper"], |total| {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let mut chosen: BTreeSet<u64> = BTreeSet::new();
-        while chosen.len() < 60.min(total as usize) {
-            chosen.insert(rng.random_range(1..=total));
-        }
-        chosen.into_iter().collect()
-    });
+    let n = crash_at_each(
+        "G-paper",
+        &["--sim", "G", "--seed", "13", "--policy", "paper"],
+        |total| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let mut chosen: BTreeSet<u64> = BTreeSet::new();
+            while chosen.len() < 60.min(total as usize) {
+                chosen.insert(rng.random_range(1..=total));
+            }
+            chosen.into_iter().collect()
+        },
+    );
     assert_eq!(n, 60);
 }
 
@@ -187,7 +268,10 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
     let counting = Crash::counting();
     let mut args = strings(&base);
     args.extend(strings(&["--out", clean_dir.to_str().unwrap()]));
-    assert!(matches!(run(&args, Some(counting.clone())).unwrap(), Measured::Done { .. }));
+    assert!(matches!(
+        run(&args, Some(counting.clone())).unwrap(),
+        Measured::Done { .. }
+    ));
     let clean_class = class(&clean_dir);
     for n in 1..=counting.writes() {
         let dir = sweep_dir(&format!("full-{n}"));
@@ -206,15 +290,24 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
             Ok(Measured::Sheet { .. }) => panic!("{what}: a sheet, not one spot"),
             Err(e) => format!("{e:#}"),
         };
-        assert!(message.contains("no space left on device"), "{what}: {message}");
+        assert!(
+            message.contains("no space left on device"),
+            "{what}: {message}"
+        );
         if dir.exists() {
             // What the disk took is whole: no cut line, no temporary file, a readable session.json.
             for name in ["points.jsonl", "readings.csv", "session.log"] {
                 let text = std::fs::read(dir.join(name)).unwrap_or_default();
-                assert!(text.is_empty() || text.ends_with(b"\n"), "{what}: {name} ends in a cut line");
+                assert!(
+                    text.is_empty() || text.ends_with(b"\n"),
+                    "{what}: {name} ends in a cut line"
+                );
             }
             let names = host::output::folder::entries(&dir).unwrap();
-            assert!(!names.iter().any(|n| host::output::store::is_temp_name(n)), "{what}: {names:?}");
+            assert!(
+                !names.iter().any(|n| host::output::store::is_temp_name(n)),
+                "{what}: {names:?}"
+            );
             if dir.join("session.json").exists() {
                 host::output::folder::read_session(&dir).unwrap_or_else(|p| panic!("{what}: {p}"));
             }
@@ -235,11 +328,21 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
     let seed: u64 = rand::rng().random();
     eprintln!("seed {seed}");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let base = ["measure", "--spots", "1", "--sim", "G", "--seed", "14", "--policy", "paper", "--json"];
+    let base = [
+        "measure", "--spots", "1", "--sim", "G", "--seed", "14", "--policy", "paper", "--json",
+    ];
     let clean_dir = temp_dir("kill-clean");
     let started = std::time::Instant::now();
-    let out = std::process::Command::new(gonio).args(base).args(["--out", clean_dir.to_str().unwrap()]).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = std::process::Command::new(gonio)
+        .args(base)
+        .args(["--out", clean_dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let duration_us = started.elapsed().as_micros() as u64;
     let clean_class = class(&clean_dir);
     for k in 0..8 {
@@ -251,26 +354,50 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        std::thread::sleep(std::time::Duration::from_micros(rng.random_range(0..duration_us)));
+        std::thread::sleep(std::time::Duration::from_micros(
+            rng.random_range(0..duration_us),
+        ));
         let _ = child.kill(); // SIGKILL
         let status = child.wait().unwrap();
         let before = whole_lines(&dir);
         let what = format!("kill {k} (seed {seed}, {status})");
         eprintln!("{what}: {} readings on disk", before.len());
-        let resumed = std::process::Command::new(gonio).args(base).args(["--resume", dir.to_str().unwrap()]).output().unwrap();
+        let resumed = std::process::Command::new(gonio)
+            .args(base)
+            .args(["--resume", dir.to_str().unwrap()])
+            .output()
+            .unwrap();
         let stderr = String::from_utf8_lossy(&resumed.stderr);
         if !resumed.status.success() {
             if stderr.contains("holds no session") || stderr.contains("no session folder") {
                 // Killed before its session.json: start it anew, as the message says.
-                let out = std::process::Command::new(gonio).args(base).args(["--out", dir.to_str().unwrap()]).output().unwrap();
-                assert!(out.status.success(), "{what}: {}", String::from_utf8_lossy(&out.stderr));
+                let out = std::process::Command::new(gonio)
+                    .args(base)
+                    .args(["--out", dir.to_str().unwrap()])
+                    .output()
+                    .unwrap();
+                assert!(
+                    out.status.success(),
+                    "{what}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
             } else {
                 // Killed after the result: the session is finished and not measured again.
-                assert!(stderr.contains("holds a finished session"), "{what}: {stderr}");
+                assert!(
+                    stderr.contains("holds a finished session"),
+                    "{what}: {stderr}"
+                );
             }
         }
-        let verify = std::process::Command::new(gonio).args(["verify", dir.to_str().unwrap()]).output().unwrap();
-        assert!(verify.status.success(), "{what}: {}", String::from_utf8_lossy(&verify.stderr));
+        let verify = std::process::Command::new(gonio)
+            .args(["verify", dir.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(
+            verify.status.success(),
+            "{what}: {}",
+            String::from_utf8_lossy(&verify.stderr)
+        );
         check_resumed(&dir, &before, &clean_class, &what);
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -281,8 +408,24 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
 #[test]
 fn measure_writes_a_folder_that_verifies() {
     let dir = temp_dir("plain");
-    let args = parse_args(["--spots", "1", "--sim", "SG", "--out", dir.to_str().unwrap()]).unwrap();
-    assert!(matches!(measure(&args, &mut SimulatedOperator, Arc::new(AtomicBool::new(false))).unwrap(), Measured::Done { .. }));
+    let args = parse_args([
+        "--spots",
+        "1",
+        "--sim",
+        "SG",
+        "--out",
+        dir.to_str().unwrap(),
+    ])
+    .unwrap();
+    assert!(matches!(
+        measure(
+            &args,
+            &mut SimulatedOperator,
+            Arc::new(AtomicBool::new(false))
+        )
+        .unwrap(),
+        Measured::Done { .. }
+    ));
     host::output::verify::verify(&dir).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

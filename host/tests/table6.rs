@@ -34,7 +34,12 @@ fn table6_papers_from_the_full_grid() {
             fit.model.names(),
             fit.notes
         );
-        if c.class != Some(r.class) || fit.nmae >= 0.045 || sigma_err >= 0.05 || rho_d_err >= 0.03 || fit.sigma_deg().is_none() {
+        if c.class != Some(r.class)
+            || fit.nmae >= 0.045
+            || sigma_err >= 0.05
+            || rho_d_err >= 0.03
+            || fit.sigma_deg().is_none()
+        {
             failures.push(r.name);
         }
     }

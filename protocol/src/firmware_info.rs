@@ -78,13 +78,21 @@ pub enum FirmwareInfoError {
 impl fmt::Display for FirmwareInfoError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            FirmwareInfoError::Length(len) => write!(f, "{len} bytes, where the layout has {FIRMWARE_INFO_LEN}"),
+            FirmwareInfoError::Length(len) => {
+                write!(f, "{len} bytes, where the layout has {FIRMWARE_INFO_LEN}")
+            }
             FirmwareInfoError::Magic => write!(f, "does not start with \"GONIOINF\""),
             FirmwareInfoError::Layout(layout) => {
-                write!(f, "layout version {layout}, where this host reads version {FIRMWARE_INFO_LAYOUT}")
+                write!(
+                    f,
+                    "layout version {layout}, where this host reads version {FIRMWARE_INFO_LAYOUT}"
+                )
             }
             FirmwareInfoError::FieldTooLong { field, len, max } => {
-                write!(f, "the {field} is {len} bytes long, longer than its field ({max} bytes)")
+                write!(
+                    f,
+                    "the {field} is {len} bytes long, longer than its field ({max} bytes)"
+                )
             }
             FirmwareInfoError::NotUtf8(field) => write!(f, "the {field} is not UTF-8 text"),
             FirmwareInfoError::NonZeroPadding(at) => write!(f, "byte {at} (padding) is not zero"),
@@ -97,7 +105,11 @@ impl core::error::Error for FirmwareInfoError {}
 impl FirmwareInfo {
     /// The encoded section, at compile time: a field too long for the layout is a compile
     /// error in a `static` initialiser.
-    pub const fn encode(firmware_version: &str, protocol_version: u16, board: &str) -> [u8; FIRMWARE_INFO_LEN] {
+    pub const fn encode(
+        firmware_version: &str,
+        protocol_version: u16,
+        board: &str,
+    ) -> [u8; FIRMWARE_INFO_LEN] {
         let mut out = [0u8; FIRMWARE_INFO_LEN];
         let mut i = 0;
         while i < FIRMWARE_INFO_MAGIC.len() {
@@ -108,7 +120,12 @@ impl FirmwareInfo {
         let protocol = protocol_version.to_le_bytes();
         out[10] = protocol[0];
         out[11] = protocol[1];
-        let out = put_text(out, VERSION_AT, firmware_version.as_bytes(), FIRMWARE_VERSION_LEN);
+        let out = put_text(
+            out,
+            VERSION_AT,
+            firmware_version.as_bytes(),
+            FIRMWARE_VERSION_LEN,
+        );
         put_text(out, BOARD_AT, board.as_bytes(), BOARD_NAME_LEN)
     }
 
@@ -132,12 +149,24 @@ impl FirmwareInfo {
         let protocol_version = u16::from_le_bytes([bytes[10], bytes[11]]);
         let firmware_version = text(bytes, VERSION_AT, FIRMWARE_VERSION_LEN, "firmware version")?;
         let board = text(bytes, BOARD_AT, BOARD_NAME_LEN, "board name")?;
-        Ok(FirmwareInfo { firmware_version, protocol_version, board })
+        Ok(FirmwareInfo {
+            firmware_version,
+            protocol_version,
+            board,
+        })
     }
 }
 
-const fn put_text(mut out: [u8; FIRMWARE_INFO_LEN], at: usize, text: &[u8], max: usize) -> [u8; FIRMWARE_INFO_LEN] {
-    assert!(text.len() <= max, "a .gonio.info text field is longer than the layout allows");
+const fn put_text(
+    mut out: [u8; FIRMWARE_INFO_LEN],
+    at: usize,
+    text: &[u8],
+    max: usize,
+) -> [u8; FIRMWARE_INFO_LEN] {
+    assert!(
+        text.len() <= max,
+        "a .gonio.info text field is longer than the layout allows"
+    );
     out[at] = text.len() as u8;
     let mut i = 0;
     while i < text.len() {
@@ -147,7 +176,12 @@ const fn put_text(mut out: [u8; FIRMWARE_INFO_LEN], at: usize, text: &[u8], max:
     out
 }
 
-fn text<const N: usize>(bytes: &[u8], at: usize, max: usize, field: &'static str) -> Result<String<N>, FirmwareInfoError> {
+fn text<const N: usize>(
+    bytes: &[u8],
+    at: usize,
+    max: usize,
+    field: &'static str,
+) -> Result<String<N>, FirmwareInfoError> {
     let len = usize::from(bytes[at]);
     if len > max {
         return Err(FirmwareInfoError::FieldTooLong { field, len, max });
@@ -159,7 +193,8 @@ fn text<const N: usize>(bytes: &[u8], at: usize, max: usize, field: &'static str
     let text = core::str::from_utf8(&area[..len]).map_err(|_| FirmwareInfoError::NotUtf8(field))?;
     let mut out = String::new();
     // Cannot fail: len <= max == N.
-    out.push_str(text).map_err(|()| FirmwareInfoError::FieldTooLong { field, len, max: N })?;
+    out.push_str(text)
+        .map_err(|()| FirmwareInfoError::FieldTooLong { field, len, max: N })?;
     Ok(out)
 }
 
@@ -184,34 +219,72 @@ mod tests {
 
     #[test]
     fn what_is_encoded_decodes() {
-        for (version, protocol, board) in [("0.1.0", 4, F411_BOARD_NAME), ("", 0, ""), ("16-bytes-exactly", u16::MAX, "a board name of 32 bytes exactly")] {
-            let info = FirmwareInfo::decode(&FirmwareInfo::encode(version, protocol, board)).unwrap();
-            assert_eq!((info.firmware_version.as_str(), info.protocol_version, info.board.as_str()), (version, protocol, board));
+        for (version, protocol, board) in [
+            ("0.1.0", 4, F411_BOARD_NAME),
+            ("", 0, ""),
+            (
+                "16-bytes-exactly",
+                u16::MAX,
+                "a board name of 32 bytes exactly",
+            ),
+        ] {
+            let info =
+                FirmwareInfo::decode(&FirmwareInfo::encode(version, protocol, board)).unwrap();
+            assert_eq!(
+                (
+                    info.firmware_version.as_str(),
+                    info.protocol_version,
+                    info.board.as_str()
+                ),
+                (version, protocol, board)
+            );
         }
     }
 
     #[test]
     fn every_damage_is_named() {
         let good = FirmwareInfo::encode("0.1.0", 4, F411_BOARD_NAME);
-        assert_eq!(FirmwareInfo::decode(&good[..63]), Err(FirmwareInfoError::Length(63)));
+        assert_eq!(
+            FirmwareInfo::decode(&good[..63]),
+            Err(FirmwareInfoError::Length(63))
+        );
         let mut bad = good;
         bad[0] = b'X';
         assert_eq!(FirmwareInfo::decode(&bad), Err(FirmwareInfoError::Magic));
         let mut bad = good;
         bad[8] = 2;
-        assert_eq!(FirmwareInfo::decode(&bad), Err(FirmwareInfoError::Layout(2)));
+        assert_eq!(
+            FirmwareInfo::decode(&bad),
+            Err(FirmwareInfoError::Layout(2))
+        );
         let mut bad = good;
         bad[12] = 17;
-        assert!(matches!(FirmwareInfo::decode(&bad), Err(FirmwareInfoError::FieldTooLong { len: 17, max: 16, .. })));
+        assert!(matches!(
+            FirmwareInfo::decode(&bad),
+            Err(FirmwareInfoError::FieldTooLong {
+                len: 17,
+                max: 16,
+                ..
+            })
+        ));
         let mut bad = good;
         bad[13] = 0xff;
-        assert_eq!(FirmwareInfo::decode(&bad), Err(FirmwareInfoError::NotUtf8("firmware version")));
+        assert_eq!(
+            FirmwareInfo::decode(&bad),
+            Err(FirmwareInfoError::NotUtf8("firmware version"))
+        );
         let mut bad = good;
         bad[63] = 1;
-        assert_eq!(FirmwareInfo::decode(&bad), Err(FirmwareInfoError::NonZeroPadding(63)));
+        assert_eq!(
+            FirmwareInfo::decode(&bad),
+            Err(FirmwareInfoError::NonZeroPadding(63))
+        );
         let mut bad = good;
         bad[20] = b'x';
-        assert_eq!(FirmwareInfo::decode(&bad), Err(FirmwareInfoError::NonZeroPadding(20)));
+        assert_eq!(
+            FirmwareInfo::decode(&bad),
+            Err(FirmwareInfoError::NonZeroPadding(20))
+        );
     }
 
     #[test]

@@ -86,7 +86,8 @@ pub fn encode_frame<'b, T: Serialize + ?Sized>(
     buf: &'b mut [u8],
 ) -> Result<&'b mut [u8], FrameError> {
     let limit = buf.len().min(MAX_FRAME_LEN);
-    let flavor = Cobs::try_new(Slice::new(&mut buf[..limit])).map_err(|_| FrameError::MessageTooLarge)?;
+    let flavor =
+        Cobs::try_new(Slice::new(&mut buf[..limit])).map_err(|_| FrameError::MessageTooLarge)?;
     postcard::serialize_with_flavor(message, CrcModifier::new(flavor, CRC.digest()))
         .map_err(|_| FrameError::MessageTooLarge)
 }
@@ -105,7 +106,9 @@ fn decode_payload<T: Sequenced>(bytes: &[u8]) -> Result<T, FrameError> {
         // The CRC over the whole payload matched, so a shorter message followed by more
         // bytes was sent that way: a message of another version (a field appended), not
         // this one with junk. Not ours to guess what the rest means.
-        Ok((_, _)) | Err(_) => Err(FrameError::UnknownMessage { seq: T::seq_of_unreadable(payload) }),
+        Ok((_, _)) | Err(_) => Err(FrameError::UnknownMessage {
+            seq: T::seq_of_unreadable(payload),
+        }),
     }
 }
 
@@ -129,7 +132,11 @@ impl<const N: usize> Default for FrameDecoder<N> {
 impl<const N: usize> FrameDecoder<N> {
     /// An empty decoder.
     pub const fn new() -> Self {
-        FrameDecoder { buf: [0; N], len: 0, overflowed: false }
+        FrameDecoder {
+            buf: [0; N],
+            len: 0,
+            overflowed: false,
+        }
     }
 
     /// Drop a partly received frame (after a link reset).
@@ -174,7 +181,11 @@ impl<const N: usize> FrameDecoder<N> {
     }
 
     /// Take a chunk of bytes, calling `on_frame` for each frame that ends in it.
-    pub fn feed<T: Sequenced>(&mut self, bytes: &[u8], mut on_frame: impl FnMut(Result<T, FrameError>)) {
+    pub fn feed<T: Sequenced>(
+        &mut self,
+        bytes: &[u8],
+        mut on_frame: impl FnMut(Result<T, FrameError>),
+    ) {
         for &byte in bytes {
             if let Some(result) = self.push(byte) {
                 on_frame(result);

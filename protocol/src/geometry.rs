@@ -12,7 +12,20 @@ use serde::{Deserialize, Serialize};
 pub const TICKS_PER_DEG: i32 = 80;
 
 /// A polar angle of one arm, in device ticks of [`Angle::RESOLUTION_DEG`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize, Schema)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Hash,
+    Serialize,
+    Deserialize,
+    Schema,
+)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Angle(i32);
 
@@ -74,7 +87,20 @@ impl fmt::Display for Angle {
 
 /// One measurement geometry in the specular plane: the source arm at `theta_i` on one
 /// side of the normal, the detector arm at `theta_r` on the other.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize, Schema)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Hash,
+    Serialize,
+    Deserialize,
+    Schema,
+)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Geometry {
     /// Polar angle of the source.
@@ -91,13 +117,19 @@ impl Geometry {
 
     /// A geometry from whole degrees (exact).
     pub const fn from_whole_deg(theta_i: i32, theta_r: i32) -> Geometry {
-        Geometry::new(Angle::from_whole_deg(theta_i), Angle::from_whole_deg(theta_r))
+        Geometry::new(
+            Angle::from_whole_deg(theta_i),
+            Angle::from_whole_deg(theta_r),
+        )
     }
 
     /// The nearest geometry to the given angles in degrees; `None` if either is not finite
     /// or absurdly large.
     pub fn from_deg(theta_i: f64, theta_r: f64) -> Option<Geometry> {
-        Some(Geometry::new(Angle::from_deg(theta_i)?, Angle::from_deg(theta_r)?))
+        Some(Geometry::new(
+            Angle::from_deg(theta_i)?,
+            Angle::from_deg(theta_r)?,
+        ))
     }
 
     /// The mirror direction of this geometry's source.

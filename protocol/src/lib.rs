@@ -49,8 +49,11 @@ pub const PROTOCOL_VERSION: u16 = 4;
 /// first. A change of any message's encoding changes the hash: then bump
 /// [`PROTOCOL_VERSION`] and append `(new version, new hash)` here (`cargo test -p protocol
 /// --test schema` prints it); an entry is never edited.
-pub const SCHEMA_HISTORY: &[(u16, u64)] =
-    &[(2, 0xf4fc_c159_3ea1_cc3a), (3, 0xe291_1f63_e599_b75a), (4, 0x2e9e_016a_ac26_78b5)];
+pub const SCHEMA_HISTORY: &[(u16, u64)] = &[
+    (2, 0xf4fc_c159_3ea1_cc3a),
+    (3, 0xe291_1f63_e599_b75a),
+    (4, 0x2e9e_016a_ac26_78b5),
+];
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message
 /// (a schedule chunk or the device info) with margin; both sides size their buffers to it.

@@ -55,7 +55,9 @@ pub struct Request {
 impl Sequenced for Request {
     /// The leading `seq`, which every version keeps first.
     fn seq_of_unreadable(payload: &[u8]) -> Option<u32> {
-        postcard::take_from_bytes::<u32>(payload).ok().map(|(seq, _)| seq)
+        postcard::take_from_bytes::<u32>(payload)
+            .ok()
+            .map(|(seq, _)| seq)
     }
 }
 
@@ -64,7 +66,9 @@ impl Sequenced for DeviceMessage {
     /// version cannot read; other device messages answer no request.
     fn seq_of_unreadable(payload: &[u8]) -> Option<u32> {
         match postcard::take_from_bytes::<u32>(payload) {
-            Ok((0, rest)) => postcard::take_from_bytes::<u32>(rest).ok().map(|(seq, _)| seq),
+            Ok((0, rest)) => postcard::take_from_bytes::<u32>(rest)
+                .ok()
+                .map(|(seq, _)| seq),
             _ => None,
         }
     }
@@ -562,7 +566,10 @@ error_codes! {
 /// version does not know still decodes, as [`ErrorCode::Unknown`].
 impl Schema for ErrorCode {
     const SCHEMA: &'static postcard_schema::schema::NamedType =
-        &postcard_schema::schema::NamedType { name: "ErrorCode", ty: <u16 as Schema>::SCHEMA.ty };
+        &postcard_schema::schema::NamedType {
+            name: "ErrorCode",
+            ty: <u16 as Schema>::SCHEMA.ty,
+        };
 }
 
 impl From<ErrorCode> for u16 {

@@ -20,8 +20,16 @@ pub const INCIDENCE_DEG: [i32; 4] = [20, 30, 45, 60];
 pub const THETA_R_MAX_DEG: i32 = 70;
 
 /// The M of Table 4 with their nominal interval δ in degrees.
-pub const STRATEGY1: [(u16, u8); 8] =
-    [(12, 35), (16, 24), (20, 18), (24, 14), (36, 9), (60, 5), (76, 4), (144, 2)];
+pub const STRATEGY1: [(u16, u8); 8] = [
+    (12, 35),
+    (16, 24),
+    (20, 18),
+    (24, 14),
+    (36, 9),
+    (60, 5),
+    (76, 4),
+    (144, 2),
+];
 
 /// The δ of Table 5, degrees.
 pub const STRATEGY2_DELTAS: core::ops::RangeInclusive<u8> = 1..=10;
@@ -62,11 +70,19 @@ fn strategy1_split(theta_i: i32, intervals: i32) -> (i32, i32) {
         let n_above = intervals - n_below;
         // Compare max(below/n_below, above/n_above) by cross-multiplication (exact).
         let worst = |(nb, na): (i32, i32)| -> (i32, i32) {
-            if below * na >= above * nb { (below, nb) } else { (above, na) }
+            if below * na >= above * nb {
+                (below, nb)
+            } else {
+                (above, na)
+            }
         };
         let (wn, wd) = worst((n_below, n_above));
         let (bn, bd) = worst(best);
-        let longer_gets_more = if above >= below { n_above > best.1 } else { n_below > best.0 };
+        let longer_gets_more = if above >= below {
+            n_above > best.1
+        } else {
+            n_below > best.0
+        };
         if wn * bd < bn * wd || (wn * bd == bn * wd && longer_gets_more) {
             best = (n_below, n_above);
         }
@@ -90,7 +106,10 @@ pub fn strategy1(m: u16) -> Option<Schedule> {
     for theta_i in INCIDENCE_DEG {
         let (n_below, n_above) = strategy1_split(theta_i, per_incidence - 1);
         for j in 0..n_below {
-            let _ = out.push(Geometry::from_whole_deg(theta_i, round_half_up(theta_i * j, n_below)));
+            let _ = out.push(Geometry::from_whole_deg(
+                theta_i,
+                round_half_up(theta_i * j, n_below),
+            ));
         }
         for j in 0..=n_above {
             let theta_r = theta_i + round_half_up((THETA_R_MAX_DEG - theta_i) * j, n_above);
@@ -114,7 +133,9 @@ pub fn strategy2(delta_deg: u8) -> Option<Schedule> {
         let mut theta_rs: Vec<i32, 32> = Vec::new();
         let keep_70 = theta_i != 60 || STRATEGY2_HALF_WIDTH_DEG % delta == 0;
         let fixed = [Some(0), Some(theta_i), keep_70.then_some(THETA_R_MAX_DEG)];
-        let band = (-n..=n).map(|k| theta_i + k * delta).filter(|r| (0..=THETA_R_MAX_DEG).contains(r));
+        let band = (-n..=n)
+            .map(|k| theta_i + k * delta)
+            .filter(|r| (0..=THETA_R_MAX_DEG).contains(r));
         for theta_r in fixed.into_iter().flatten().chain(band) {
             if !theta_rs.contains(&theta_r) {
                 // At most 3 + 21 points: fits in 32.
@@ -148,8 +169,14 @@ mod tests {
             assert_eq!(s.len(), usize::from(m), "M = {m}");
             for theta_i in INCIDENCE_DEG {
                 let rs = theta_rs(&s, theta_i);
-                assert!(rs.contains(&0) && rs.contains(&theta_i) && rs.contains(&70), "M = {m}, θi = {theta_i}");
-                assert!(rs.windows(2).all(|w| w[0] < w[1]), "M = {m}, θi = {theta_i}: {rs:?}");
+                assert!(
+                    rs.contains(&0) && rs.contains(&theta_i) && rs.contains(&70),
+                    "M = {m}, θi = {theta_i}"
+                );
+                assert!(
+                    rs.windows(2).all(|w| w[0] < w[1]),
+                    "M = {m}, θi = {theta_i}: {rs:?}"
+                );
             }
         }
         assert!(strategy1(13).is_none());

@@ -24,8 +24,8 @@
 //! carried) and a golden instance in `tests/golden.rs`.
 
 use crate::messages::{
-    BOARD_NAME_LEN, DeviceMessage, FIRMWARE_VERSION_LEN, MAX_RANGES, MAX_SWEEP_BINS, Request, SCHEDULE_CHUNK_LEN,
-    SERIAL_NUMBER_LEN,
+    BOARD_NAME_LEN, DeviceMessage, FIRMWARE_VERSION_LEN, MAX_RANGES, MAX_SWEEP_BINS, Request,
+    SCHEDULE_CHUNK_LEN, SERIAL_NUMBER_LEN,
 };
 use postcard_schema::Schema;
 use postcard_schema::schema::{DataModelType, DataModelVariant, NamedType, NamedValue};
@@ -249,23 +249,53 @@ mod tests {
     #[test]
     fn names_and_nesting_do_not_count_the_encoding_does() {
         // Nesting and names: same bytes, same hash.
-        assert!(encodes_alike(&Nested { inner: Inner { a: 1, b: 300 }, c: true }, &Flat { x: 1, y: 300, z: true }));
+        assert!(encodes_alike(
+            &Nested {
+                inner: Inner { a: 1, b: 300 },
+                c: true
+            },
+            &Flat {
+                x: 1,
+                y: 300,
+                z: true
+            }
+        ));
         assert_eq!(hash_of::<Nested>(), hash_of::<Flat>());
         assert_eq!(hash_of::<Two>(), hash_of::<TwoRenamed>());
         // Field order, width, an added or moved variant, a bracket moved: different hashes.
-        assert!(!encodes_alike(&Flat { x: 1, y: 300, z: true }, &Swapped { y: 300, x: 1, z: true }));
+        assert!(!encodes_alike(
+            &Flat {
+                x: 1,
+                y: 300,
+                z: true
+            },
+            &Swapped {
+                y: 300,
+                x: 1,
+                z: true
+            }
+        ));
         assert_ne!(hash_of::<Flat>(), hash_of::<Swapped>());
         assert_ne!(hash_of::<Flat>(), hash_of::<Wider>());
         assert_ne!(hash_of::<Two>(), hash_of::<Three>());
         assert_ne!(hash_of::<Two>(), hash_of::<TwoSwapped>());
-        assert!(!encodes_alike(&OptionOfPair(None), &PairWithOption(None, 0)));
+        assert!(!encodes_alike(
+            &OptionOfPair(None),
+            &PairWithOption(None, 0)
+        ));
         assert_ne!(hash_of::<OptionOfPair>(), hash_of::<PairWithOption>());
     }
 
     #[test]
     fn limits_count() {
-        assert_ne!(wire_hash(WIRE_TYPES, &[("N", 16)]), wire_hash(WIRE_TYPES, &[("N", 32)]));
+        assert_ne!(
+            wire_hash(WIRE_TYPES, &[("N", 16)]),
+            wire_hash(WIRE_TYPES, &[("N", 32)])
+        );
         // Only the value: the label documents it.
-        assert_eq!(wire_hash(WIRE_TYPES, &[("N", 16)]), wire_hash(WIRE_TYPES, &[("M", 16)]));
+        assert_eq!(
+            wire_hash(WIRE_TYPES, &[("N", 16)]),
+            wire_hash(WIRE_TYPES, &[("M", 16)])
+        );
     }
 }

@@ -11,7 +11,9 @@ use protocol::*;
 
 fn encode<T: serde::Serialize>(message: &T) -> std::vec::Vec<u8> {
     let mut buf = [0u8; MAX_FRAME_LEN];
-    encode_frame(message, &mut buf).expect("every message fits in a frame").to_vec()
+    encode_frame(message, &mut buf)
+        .expect("every message fits in a frame")
+        .to_vec()
 }
 
 /// The postcard encoding (no CRC, no COBS) of `value`.
@@ -214,7 +216,10 @@ fn cobs_frame(raw: &[u8]) -> std::vec::Vec<u8> {
 
 #[test]
 fn bad_crc_is_reported_as_such() {
-    let message = Request { seq: 7, command: Command::GetStatus };
+    let message = Request {
+        seq: 7,
+        command: Command::GetStatus,
+    };
     let mut buf = [0u8; MAX_FRAME_LEN];
     let frame = encode_frame(&message, &mut buf).unwrap();
     let n = frame.len();
@@ -223,7 +228,10 @@ fn bad_crc_is_reported_as_such() {
     let len = cobs::decode_in_place(&mut raw).unwrap();
     raw.truncate(len);
     raw[len - 1] ^= 0x01;
-    assert_eq!(decode_all::<Request>(&cobs_frame(&raw)), vec![Err(FrameError::BadCrc)]);
+    assert_eq!(
+        decode_all::<Request>(&cobs_frame(&raw)),
+        vec![Err(FrameError::BadCrc)]
+    );
 }
 
 /// A frame around a hand-made payload, with its correct CRC.
@@ -236,15 +244,28 @@ fn crc_frame(payload: &[u8]) -> std::vec::Vec<u8> {
 #[test]
 fn valid_crc_over_junk_is_unknown_message() {
     // A future message variant: a correct frame this version cannot read, whose seq can.
-    assert_eq!(decode_all::<Request>(&crc_frame(&[1, 99])), vec![Err(FrameError::UnknownMessage { seq: Some(1) })]);
+    assert_eq!(
+        decode_all::<Request>(&crc_frame(&[1, 99])),
+        vec![Err(FrameError::UnknownMessage { seq: Some(1) })]
+    );
     // A multi-byte varint seq (300 = 0xac 0x02).
-    assert_eq!(decode_all::<Request>(&crc_frame(&[0xac, 0x02, 99])), vec![Err(FrameError::UnknownMessage { seq: Some(300) })]);
+    assert_eq!(
+        decode_all::<Request>(&crc_frame(&[0xac, 0x02, 99])),
+        vec![Err(FrameError::UnknownMessage { seq: Some(300) })]
+    );
     // No readable seq: an empty payload, a varint cut short, one beyond u32.
     for payload in [&[][..], &[0x80], &[0xff, 0xff, 0xff, 0xff, 0x7f]] {
-        assert_eq!(decode_all::<Request>(&crc_frame(payload)), vec![Err(FrameError::UnknownMessage { seq: None })], "{payload:?}");
+        assert_eq!(
+            decode_all::<Request>(&crc_frame(payload)),
+            vec![Err(FrameError::UnknownMessage { seq: None })],
+            "{payload:?}"
+        );
     }
     // Host side: a stream reading (variant 1) of junk answers no request.
-    assert_eq!(decode_all::<DeviceMessage>(&crc_frame(&[1, 2])), vec![Err(FrameError::UnknownMessage { seq: None })]);
+    assert_eq!(
+        decode_all::<DeviceMessage>(&crc_frame(&[1, 2])),
+        vec![Err(FrameError::UnknownMessage { seq: None })]
+    );
 }
 
 #[test]
@@ -282,7 +303,10 @@ fn error_codes_are_stable() {
         assert_eq!(code.code(), number);
         assert_eq!(ErrorCode::from(number), code);
         let mut buf = [0u8; 8];
-        assert_eq!(postcard::to_slice(&code, &mut buf).unwrap(), postcard::to_slice(&number, &mut [0u8; 8]).unwrap());
+        assert_eq!(
+            postcard::to_slice(&code, &mut buf).unwrap(),
+            postcard::to_slice(&number, &mut [0u8; 8]).unwrap()
+        );
     }
     assert_eq!(ErrorCode::from(999), ErrorCode::Unknown(999));
 }
@@ -290,12 +314,23 @@ fn error_codes_are_stable() {
 #[test]
 fn version_mismatch_refusal_keeps_its_encoding() {
     // A peer of any protocol version must be able to read this refusal: its bytes are frozen.
-    let message = DeviceMessage::Reply { seq: 1, result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, 1)) };
+    let message = DeviceMessage::Reply {
+        seq: 1,
+        result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, 1)),
+    };
     let mut buf = [0u8; 32];
     let bytes = postcard::to_slice(&message, &mut buf).unwrap();
     assert_eq!(bytes, &[0, 1, 1, 5, 2]);
-    let hello = Request { seq: 1, command: Command::Hello { protocol_version: 1 } };
-    assert_eq!(postcard::to_slice(&hello, &mut [0u8; 32]).unwrap(), &[1, 0, 1]);
+    let hello = Request {
+        seq: 1,
+        command: Command::Hello {
+            protocol_version: 1,
+        },
+    };
+    assert_eq!(
+        postcard::to_slice(&hello, &mut [0u8; 32]).unwrap(),
+        &[1, 0, 1]
+    );
 }
 
 #[test]

@@ -50,9 +50,24 @@ fn device_info() -> DeviceInfo {
         accel_deg_per_s2: 180.0,
         settle_ms: 100,
         detector_ranges: Vec::from_slice(&[
-            DetectorRange { relative_gain: 1.0, full_scale_counts: 65_535, time_constant_us: 470.0, settle_us: 4_500 },
-            DetectorRange { relative_gain: 0.1, full_scale_counts: 65_535, time_constant_us: 47.0, settle_us: 600 },
-            DetectorRange { relative_gain: 0.01, full_scale_counts: 65_535, time_constant_us: 4.7, settle_us: 150 },
+            DetectorRange {
+                relative_gain: 1.0,
+                full_scale_counts: 65_535,
+                time_constant_us: 470.0,
+                settle_us: 4_500,
+            },
+            DetectorRange {
+                relative_gain: 0.1,
+                full_scale_counts: 65_535,
+                time_constant_us: 47.0,
+                settle_us: 600,
+            },
+            DetectorRange {
+                relative_gain: 0.01,
+                full_scale_counts: 65_535,
+                time_constant_us: 4.7,
+                settle_us: 150,
+            },
         ])
         .unwrap(),
         acceptance_deg: 1.0,
@@ -102,12 +117,22 @@ fn reset_causes() -> std::vec::Vec<ResetCause> {
         ResetCause::ResetPin,
         ResetCause::Software,
         ResetCause::Watchdog,
-        ResetCause::Fault(DeviceError::with_detail(ErrorCode::ProcessorFault, 0x0800_1234)),
+        ResetCause::Fault(DeviceError::with_detail(
+            ErrorCode::ProcessorFault,
+            0x0800_1234,
+        )),
     ]
 }
 
 fn reading() -> Reading {
-    Reading { mean_counts: 26_214.5, std_counts: 13.25, samples: 100, range: 2, integration_ms: 100, saturated: false }
+    Reading {
+        mean_counts: 26_214.5,
+        std_counts: 13.25,
+        samples: 100,
+        range: 2,
+        integration_ms: 100,
+        saturated: false,
+    }
 }
 
 fn status() -> Status {
@@ -128,26 +153,64 @@ fn chunk() -> ScheduleChunk {
         schedule_id: 3,
         total_len: 40,
         offset: 16,
-        geometries: Vec::from_slice(&[Geometry::from_whole_deg(20, 0), Geometry::new(Angle::from_ticks(-1), Angle::from_ticks(6800))])
-            .unwrap(),
+        geometries: Vec::from_slice(&[
+            Geometry::from_whole_deg(20, 0),
+            Geometry::new(Angle::from_ticks(-1), Angle::from_ticks(6800)),
+        ])
+        .unwrap(),
     }
 }
 
 fn run() -> RunSchedule {
-    RunSchedule { schedule_id: 12, source: ScheduleSource::Uploaded, integration_ms: 250, target: Target::WhiteReference }
+    RunSchedule {
+        schedule_id: 12,
+        source: ScheduleSource::Uploaded,
+        integration_ms: 250,
+        target: Target::WhiteReference,
+    }
 }
 
 fn commands() -> std::vec::Vec<(&'static str, Command)> {
     vec![
-        ("hello", Command::Hello { protocol_version: 2 }),
+        (
+            "hello",
+            Command::Hello {
+                protocol_version: 2,
+            },
+        ),
         ("heartbeat", Command::Heartbeat),
         ("get_status", Command::GetStatus),
         ("home", Command::Home),
-        ("move_to", Command::MoveTo(Geometry::new(Angle::from_ticks(3600), Angle::from_ticks(-40)))),
+        (
+            "move_to",
+            Command::MoveTo(Geometry::new(
+                Angle::from_ticks(3600),
+                Angle::from_ticks(-40),
+            )),
+        ),
         ("set_lamp", Command::SetLamp { on: true }),
-        ("take_dark", Command::TakeDark { integration_ms: 100 }),
-        ("take_reading_auto", Command::TakeReading { integration_ms: 100, target: Target::Sample, range: None }),
-        ("take_reading_forced", Command::TakeReading { integration_ms: 300, target: Target::WhiteReference, range: Some(1) }),
+        (
+            "take_dark",
+            Command::TakeDark {
+                integration_ms: 100,
+            },
+        ),
+        (
+            "take_reading_auto",
+            Command::TakeReading {
+                integration_ms: 100,
+                target: Target::Sample,
+                range: None,
+            },
+        ),
+        (
+            "take_reading_forced",
+            Command::TakeReading {
+                integration_ms: 300,
+                target: Target::WhiteReference,
+                range: Some(1),
+            },
+        ),
         ("upload_schedule", Command::UploadSchedule(chunk())),
         ("run_schedule", Command::RunSchedule(run())),
         ("abort", Command::Abort),
@@ -160,12 +223,50 @@ fn replies() -> std::vec::Vec<(&'static str, Reply)> {
         ("hello", Reply::Hello(device_info())),
         ("ack", Reply::Ack),
         ("status", Reply::Status(status())),
-        ("homed", Reply::Homed(HomeReport { step_error_i: Some(-37), step_error_r: None })),
+        (
+            "homed",
+            Reply::Homed(HomeReport {
+                step_error_i: Some(-37),
+                step_error_r: None,
+            }),
+        ),
         ("reading", Reply::Reading(reading())),
-        ("dark", Reply::Dark(Vec::from_slice(&[reading(), Reading { saturated: true, range: 0, ..reading() }]).unwrap())),
-        ("schedule_loaded", Reply::ScheduleLoaded { schedule_id: 3, received: 32, total_len: 40 }),
-        ("schedule_started", Reply::ScheduleStarted { schedule_id: 12, len: 12 }),
-        ("sweep", Reply::Sweep(SweepPlan { bins: 1_100, duration_ms: 1_612 })),
+        (
+            "dark",
+            Reply::Dark(
+                Vec::from_slice(&[
+                    reading(),
+                    Reading {
+                        saturated: true,
+                        range: 0,
+                        ..reading()
+                    },
+                ])
+                .unwrap(),
+            ),
+        ),
+        (
+            "schedule_loaded",
+            Reply::ScheduleLoaded {
+                schedule_id: 3,
+                received: 32,
+                total_len: 40,
+            },
+        ),
+        (
+            "schedule_started",
+            Reply::ScheduleStarted {
+                schedule_id: 12,
+                len: 12,
+            },
+        ),
+        (
+            "sweep",
+            Reply::Sweep(SweepPlan {
+                bins: 1_100,
+                duration_ms: 1_612,
+            }),
+        ),
     ]
 }
 
@@ -179,8 +280,20 @@ fn device_messages() -> std::vec::Vec<(&'static str, DeviceMessage)> {
         device_time_us: 9_876_543,
     };
     vec![
-        ("reply_ok", DeviceMessage::Reply { seq: 300, result: Ok(Reply::Ack) }),
-        ("reply_err", DeviceMessage::Reply { seq: 70_000, result: Err(DeviceError::with_detail(ErrorCode::OutOfRange, 1)) }),
+        (
+            "reply_ok",
+            DeviceMessage::Reply {
+                seq: 300,
+                result: Ok(Reply::Ack),
+            },
+        ),
+        (
+            "reply_err",
+            DeviceMessage::Reply {
+                seq: 70_000,
+                result: Err(DeviceError::with_detail(ErrorCode::OutOfRange, 1)),
+            },
+        ),
         ("reading", DeviceMessage::Reading(streamed)),
         (
             "schedule_done",
@@ -191,17 +304,34 @@ fn device_messages() -> std::vec::Vec<(&'static str, DeviceMessage)> {
                 error: Some(ErrorCode::HeartbeatLost),
             }),
         ),
-        ("frame_rejected", DeviceMessage::FrameRejected { code: ErrorCode::BadCrc }),
-        ("stopped", DeviceMessage::Stopped { reason: ErrorCode::HardwareFault }),
+        (
+            "frame_rejected",
+            DeviceMessage::FrameRejected {
+                code: ErrorCode::BadCrc,
+            },
+        ),
+        (
+            "stopped",
+            DeviceMessage::Stopped {
+                reason: ErrorCode::HardwareFault,
+            },
+        ),
         ("sweep_bin", DeviceMessage::SweepBin(sweep_bin())),
-        ("sweep_done", DeviceMessage::SweepDone { sweep_id: 9, bins: 1_100 }),
+        (
+            "sweep_done",
+            DeviceMessage::SweepDone {
+                sweep_id: 9,
+                bins: 1_100,
+            },
+        ),
     ]
 }
 
 /// Every golden line: name and encoding.
 fn golden_lines() -> std::vec::Vec<(std::string::String, std::vec::Vec<u8>)> {
     let mut lines = std::vec::Vec::new();
-    let mut add = |name: std::string::String, encoded: std::vec::Vec<u8>| lines.push((name, encoded));
+    let mut add =
+        |name: std::string::String, encoded: std::vec::Vec<u8>| lines.push((name, encoded));
     for (name, command) in commands() {
         add(format!("command.{name}"), bytes(&command));
     }
@@ -211,39 +341,117 @@ fn golden_lines() -> std::vec::Vec<(std::string::String, std::vec::Vec<u8>)> {
     for (name, message) in device_messages() {
         add(format!("device_message.{name}"), bytes(&message));
     }
-    add("request".into(), bytes(&Request { seq: 1_000_000, command: Command::MoveTo(Geometry::from_whole_deg(20, 70)) }));
-    add("request.hello_v1".into(), bytes(&Request { seq: 1, command: Command::Hello { protocol_version: 1 } }));
+    add(
+        "request".into(),
+        bytes(&Request {
+            seq: 1_000_000,
+            command: Command::MoveTo(Geometry::from_whole_deg(20, 70)),
+        }),
+    );
+    add(
+        "request.hello_v1".into(),
+        bytes(&Request {
+            seq: 1,
+            command: Command::Hello {
+                protocol_version: 1,
+            },
+        }),
+    );
     add(
         "device_message.version_mismatch".into(),
-        bytes(&DeviceMessage::Reply { seq: 1, result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, 1)) }),
+        bytes(&DeviceMessage::Reply {
+            seq: 1,
+            result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, 1)),
+        }),
     );
     add("device_info".into(), bytes(&device_info()));
     add("status".into(), bytes(&status()));
-    add("status.idle_no_fault".into(), bytes(&Status { state: DeviceState::Idle, fault: None, schedule: None, ..status() }));
+    add(
+        "status.idle_no_fault".into(),
+        bytes(&Status {
+            state: DeviceState::Idle,
+            fault: None,
+            schedule: None,
+            ..status()
+        }),
+    );
     for (i, state) in device_states().into_iter().enumerate() {
         add(format!("device_state.{i}"), bytes(&state));
     }
-    add("home_report".into(), bytes(&HomeReport { step_error_i: Some(0), step_error_r: Some(40) }));
+    add(
+        "home_report".into(),
+        bytes(&HomeReport {
+            step_error_i: Some(0),
+            step_error_r: Some(40),
+        }),
+    );
     add("reading".into(), bytes(&reading()));
     add(
         "detector_range".into(),
-        bytes(&DetectorRange { relative_gain: 0.1, full_scale_counts: 65_535, time_constant_us: 47.0, settle_us: 600 }),
+        bytes(&DetectorRange {
+            relative_gain: 0.1,
+            full_scale_counts: 65_535,
+            time_constant_us: 47.0,
+            settle_us: 600,
+        }),
     );
     add("sweep".into(), bytes(&sweep()));
-    add("sweep.auto_range".into(), bytes(&Sweep { range: None, ..sweep() }));
-    add("sweep_plan".into(), bytes(&SweepPlan { bins: 875, duration_ms: 1_600 }));
+    add(
+        "sweep.auto_range".into(),
+        bytes(&Sweep {
+            range: None,
+            ..sweep()
+        }),
+    );
+    add(
+        "sweep_plan".into(),
+        bytes(&SweepPlan {
+            bins: 875,
+            duration_ms: 1_600,
+        }),
+    );
     add("sweep_bin".into(), bytes(&sweep_bin()));
-    add("sweep_bin.empty".into(), bytes(&SweepBin { mean_counts: 0.0, std_counts: 0.0, blocks: 0, flags: SweepBin::EMPTY | SweepBin::BLANKED, ..sweep_bin() }));
+    add(
+        "sweep_bin.empty".into(),
+        bytes(&SweepBin {
+            mean_counts: 0.0,
+            std_counts: 0.0,
+            blocks: 0,
+            flags: SweepBin::EMPTY | SweepBin::BLANKED,
+            ..sweep_bin()
+        }),
+    );
     add("schedule_chunk".into(), bytes(&chunk()));
     add("run_schedule".into(), bytes(&run()));
-    add("schedule_source.strategy1".into(), bytes(&ScheduleSource::Strategy1));
-    add("schedule_source.uploaded".into(), bytes(&ScheduleSource::Uploaded));
+    add(
+        "schedule_source.strategy1".into(),
+        bytes(&ScheduleSource::Strategy1),
+    );
+    add(
+        "schedule_source.uploaded".into(),
+        bytes(&ScheduleSource::Uploaded),
+    );
     add("target.sample".into(), bytes(&Target::Sample));
-    add("target.white_reference".into(), bytes(&Target::WhiteReference));
-    add("device_error".into(), bytes(&DeviceError::with_detail(ErrorCode::InvalidArgument, 10)));
-    add("error_code.not_supported".into(), bytes(&ErrorCode::NotSupported));
+    add(
+        "target.white_reference".into(),
+        bytes(&Target::WhiteReference),
+    );
+    add(
+        "device_error".into(),
+        bytes(&DeviceError::with_detail(ErrorCode::InvalidArgument, 10)),
+    );
+    add(
+        "error_code.not_supported".into(),
+        bytes(&ErrorCode::NotSupported),
+    );
     add("error_code.unknown".into(), bytes(&ErrorCode::Unknown(999)));
-    add("geometry".into(), bytes(&Geometry::new(Angle::from_ticks(6840), Angle::from_ticks(-6840))));
+    add(
+        "geometry".into(),
+        bytes(&Geometry::new(
+            Angle::from_ticks(6840),
+            Angle::from_ticks(-6840),
+        )),
+    );
     for (i, cause) in reset_causes().into_iter().enumerate() {
         add(format!("reset_cause.{i}"), bytes(&cause));
     }
@@ -279,10 +487,19 @@ fn render(lines: &[(std::string::String, std::vec::Vec<u8>)]) -> std::string::St
 }
 
 /// The file's version and lines.
-fn parse(text: &str) -> (Option<u16>, std::vec::Vec<(std::string::String, std::string::String)>) {
+fn parse(
+    text: &str,
+) -> (
+    Option<u16>,
+    std::vec::Vec<(std::string::String, std::string::String)>,
+) {
     let mut version = None;
     let mut lines = std::vec::Vec::new();
-    for line in text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')) {
+    for line in text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#'))
+    {
         let (name, value) = line.split_once(' ').unwrap_or((line, ""));
         if name == "version" {
             version = value.trim().parse().ok();
@@ -318,7 +535,9 @@ fn the_wire_encoding_matches_the_golden_file() {
     for (name, value) in &ours_hex {
         match theirs.iter().find(|(n, _)| n == name) {
             None => differences.push(format!("  {name}: not in the golden file; now {value}")),
-            Some((_, old)) if old != value => differences.push(format!("  {name}:\n    golden {old}\n    now    {value}")),
+            Some((_, old)) if old != value => {
+                differences.push(format!("  {name}:\n    golden {old}\n    now    {value}"))
+            }
             Some(_) => {}
         }
     }
@@ -348,7 +567,11 @@ fn assert_all_variants<T: DeserializeOwned>(what: &str, encodings: &[std::vec::V
     indices.sort();
     indices.dedup();
     let n = indices.len() as u8;
-    assert_eq!(indices, (0..n).collect::<std::vec::Vec<u8>>(), "{what}: golden instances skip a variant");
+    assert_eq!(
+        indices,
+        (0..n).collect::<std::vec::Vec<u8>>(),
+        "{what}: golden instances skip a variant"
+    );
     let mut next = vec![n];
     next.extend([0u8; 64]);
     assert!(
@@ -359,18 +582,51 @@ fn assert_all_variants<T: DeserializeOwned>(what: &str, encodings: &[std::vec::V
 
 #[test]
 fn every_variant_has_a_golden_instance() {
-    assert_all_variants::<Command>("Command", &commands().iter().map(|(_, c)| bytes(c)).collect::<std::vec::Vec<_>>());
-    assert_all_variants::<Reply>("Reply", &replies().iter().map(|(_, r)| bytes(r)).collect::<std::vec::Vec<_>>());
+    assert_all_variants::<Command>(
+        "Command",
+        &commands()
+            .iter()
+            .map(|(_, c)| bytes(c))
+            .collect::<std::vec::Vec<_>>(),
+    );
+    assert_all_variants::<Reply>(
+        "Reply",
+        &replies()
+            .iter()
+            .map(|(_, r)| bytes(r))
+            .collect::<std::vec::Vec<_>>(),
+    );
     assert_all_variants::<DeviceMessage>(
         "DeviceMessage",
-        &device_messages().iter().map(|(_, m)| bytes(m)).collect::<std::vec::Vec<_>>(),
+        &device_messages()
+            .iter()
+            .map(|(_, m)| bytes(m))
+            .collect::<std::vec::Vec<_>>(),
     );
-    assert_all_variants::<DeviceState>("DeviceState", &device_states().iter().map(bytes).collect::<std::vec::Vec<_>>());
-    assert_all_variants::<ResetCause>("ResetCause", &reset_causes().iter().map(bytes).collect::<std::vec::Vec<_>>());
-    assert_all_variants::<Target>("Target", &[bytes(&Target::Sample), bytes(&Target::WhiteReference)]);
+    assert_all_variants::<DeviceState>(
+        "DeviceState",
+        &device_states()
+            .iter()
+            .map(bytes)
+            .collect::<std::vec::Vec<_>>(),
+    );
+    assert_all_variants::<ResetCause>(
+        "ResetCause",
+        &reset_causes()
+            .iter()
+            .map(bytes)
+            .collect::<std::vec::Vec<_>>(),
+    );
+    assert_all_variants::<Target>(
+        "Target",
+        &[bytes(&Target::Sample), bytes(&Target::WhiteReference)],
+    );
     assert_all_variants::<ScheduleSource>(
         "ScheduleSource",
-        &[bytes(&ScheduleSource::Strategy1), bytes(&ScheduleSource::Uploaded)],
+        &[
+            bytes(&ScheduleSource::Strategy1),
+            bytes(&ScheduleSource::Uploaded),
+        ],
     );
     // Result (Ok, Err) inside a reply.
     let results: std::vec::Vec<std::vec::Vec<u8>> = device_messages()
@@ -387,14 +643,35 @@ fn every_variant_has_a_golden_instance() {
 fn hello_and_the_version_refusal_never_change() {
     // Frozen across every version (not only this one's golden file): a peer of any version
     // must be able to say hello and to read the refusal. Bless cannot move these.
-    let hello = Request { seq: 1, command: Command::Hello { protocol_version: 1 } };
+    let hello = Request {
+        seq: 1,
+        command: Command::Hello {
+            protocol_version: 1,
+        },
+    };
     assert_eq!(bytes(&hello), [1, 0, 1]);
-    let hello = Request { seq: 1, command: Command::Hello { protocol_version: PROTOCOL_VERSION } };
+    let hello = Request {
+        seq: 1,
+        command: Command::Hello {
+            protocol_version: PROTOCOL_VERSION,
+        },
+    };
     assert_eq!(&bytes(&hello)[..2], [1, 0]);
-    let refusal = DeviceMessage::Reply { seq: 1, result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, 1)) };
+    let refusal = DeviceMessage::Reply {
+        seq: 1,
+        result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, 1)),
+    };
     assert_eq!(bytes(&refusal), [0, 1, 1, 5, 2]);
     // The reply to Hello starts with the device's version, whatever follows.
-    let reply = DeviceMessage::Reply { seq: 1, result: Ok(Reply::Hello(device_info())) };
+    let reply = DeviceMessage::Reply {
+        seq: 1,
+        result: Ok(Reply::Hello(device_info())),
+    };
     assert_eq!(&bytes(&reply)[..4], [0, 1, 0, 0]);
-    assert_eq!(postcard::take_from_bytes::<u16>(&bytes(&reply)[4..]).unwrap().0, device_info().protocol_version);
+    assert_eq!(
+        postcard::take_from_bytes::<u16>(&bytes(&reply)[4..])
+            .unwrap()
+            .0,
+        device_info().protocol_version
+    );
 }

@@ -8,7 +8,11 @@ fn parse_rows(csv: &str) -> Vec<Vec<i32>> {
     csv.lines()
         .skip(1)
         .filter(|l| !l.trim().is_empty())
-        .map(|l| l.split(',').map(|f| f.trim().parse().expect("integer field")).collect())
+        .map(|l| {
+            l.split(',')
+                .map(|f| f.trim().parse().expect("integer field"))
+                .collect()
+        })
         .collect()
 }
 
@@ -32,7 +36,15 @@ fn strategy2_is_exactly_the_table_for_every_delta() {
             .filter(|r| r[0] == i32::from(delta))
             .map(|r| Geometry::from_whole_deg(r[1], r[2]))
             .collect();
-        assert_eq!(expected.len(), expected_sizes[usize::from(delta) - 1], "table size at δ = {delta}");
-        assert_eq!(strategy2(delta).unwrap().as_slice(), expected.as_slice(), "δ = {delta}");
+        assert_eq!(
+            expected.len(),
+            expected_sizes[usize::from(delta) - 1],
+            "table size at δ = {delta}"
+        );
+        assert_eq!(
+            strategy2(delta).unwrap().as_slice(),
+            expected.as_slice(),
+            "δ = {delta}"
+        );
     }
 }

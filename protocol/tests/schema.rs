@@ -23,7 +23,10 @@ fn the_history_only_grows() {
     for pair in SCHEMA_HISTORY.windows(2) {
         let [(v0, h0), (v1, h1)] = [pair[0], pair[1]];
         assert!(v1 > v0, "SCHEMA_HISTORY: version {v1} after {v0}");
-        assert_ne!(h0, h1, "SCHEMA_HISTORY: versions {v0} and {v1} have the same schema; no bump was needed");
+        assert_ne!(
+            h0, h1,
+            "SCHEMA_HISTORY: versions {v0} and {v1} have the same schema; no bump was needed"
+        );
     }
     for (i, (v, h)) in SCHEMA_HISTORY.iter().enumerate() {
         assert!(

@@ -16,8 +16,14 @@ fn host_and_firmware_agree_on_the_handshake() {
     let mut client = Client::new(simulator(), RetryPolicy::default());
     let info = client.hello().expect("handshake");
     assert_eq!(info.protocol_version, PROTOCOL_VERSION);
-    assert_eq!(info.board.as_str(), firmware::config::InstrumentConfig::REFERENCE.board);
-    assert!(matches!(client.request(Command::GetStatus), Ok(Reply::Status(_))));
+    assert_eq!(
+        info.board.as_str(),
+        firmware::config::InstrumentConfig::REFERENCE.board
+    );
+    assert!(matches!(
+        client.request(Command::GetStatus),
+        Ok(Reply::Status(_))
+    ));
     assert_eq!(client.stats().retries, 0);
 }
 
@@ -30,21 +36,30 @@ struct DeviceOfVersion {
 
 impl DeviceOfVersion {
     fn new(version: u16) -> DeviceOfVersion {
-        DeviceOfVersion { version, decoder: FrameDecoder::new(), out: Vec::new() }
+        DeviceOfVersion {
+            version,
+            decoder: FrameDecoder::new(),
+            out: Vec::new(),
+        }
     }
 }
 
 impl Transport for DeviceOfVersion {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let mut requests = Vec::new();
-        self.decoder.feed(bytes, |r: Result<Request, FrameError>| requests.push(r));
+        self.decoder
+            .feed(bytes, |r: Result<Request, FrameError>| requests.push(r));
         for request in requests.into_iter().flatten() {
             let reply = DeviceMessage::Reply {
                 seq: request.seq,
-                result: Err(DeviceError::with_detail(ErrorCode::VersionMismatch, i32::from(self.version))),
+                result: Err(DeviceError::with_detail(
+                    ErrorCode::VersionMismatch,
+                    i32::from(self.version),
+                )),
             };
             let mut buf = [0u8; MAX_FRAME_LEN];
-            self.out.extend_from_slice(encode_frame(&reply, &mut buf).unwrap());
+            self.out
+                .extend_from_slice(encode_frame(&reply, &mut buf).unwrap());
         }
         Ok(())
     }
@@ -59,9 +74,14 @@ impl Transport for DeviceOfVersion {
 
 #[test]
 fn host_refuses_a_newer_device_and_says_which_side_to_update() {
-    let mut client = Client::new(DeviceOfVersion::new(PROTOCOL_VERSION + 1), RetryPolicy::default());
+    let mut client = Client::new(
+        DeviceOfVersion::new(PROTOCOL_VERSION + 1),
+        RetryPolicy::default(),
+    );
     let error = client.hello().unwrap_err();
-    assert!(matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == PROTOCOL_VERSION + 1));
+    assert!(
+        matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == PROTOCOL_VERSION + 1)
+    );
     let text = error.to_string();
     assert!(text.contains("update the host software"), "{text}");
     assert!(!text.contains("gonio flash"), "{text}");
@@ -72,7 +92,9 @@ fn host_finding_older_firmware_tells_the_user_to_run_gonio_flash() {
     for older in [0, 1, PROTOCOL_VERSION - 1] {
         let mut client = Client::new(DeviceOfVersion::new(older), RetryPolicy::default());
         let error = client.hello().unwrap_err();
-        assert!(matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == older));
+        assert!(
+            matches!(error, LinkError::VersionMismatch { host, device } if host == PROTOCOL_VERSION && device == older)
+        );
         let text = error.to_string();
         for needle in [
             &format!("this host speaks version {PROTOCOL_VERSION}, the instrument version {older}"),
@@ -109,8 +131,18 @@ fn lost_reply_is_recovered_by_retrying_the_same_sequence() {
             Duration::from_micros(self.sim.device_time_us())
         }
     }
-    let policy = RetryPolicy { reply_timeout: Duration::from_millis(20), attempts: 3, ..RetryPolicy::default() };
-    let mut client = Client::new(DropFirstReply { sim: simulator(), dropped: false }, policy);
+    let policy = RetryPolicy {
+        reply_timeout: Duration::from_millis(20),
+        attempts: 3,
+        ..RetryPolicy::default()
+    };
+    let mut client = Client::new(
+        DropFirstReply {
+            sim: simulator(),
+            dropped: false,
+        },
+        policy,
+    );
     let info = client.hello().expect("handshake after a retry");
     assert_eq!(info.protocol_version, PROTOCOL_VERSION);
     assert_eq!(client.stats().retries, 1);

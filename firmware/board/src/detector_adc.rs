@@ -82,7 +82,10 @@ struct Sampling {
 }
 
 static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<Sampling>> =
-    Mutex::new(RefCell::new(Sampling { decimator: Decimator::new(CYCLES_PER_CONVERSION, 0), ring: SampleRing::new() }));
+    Mutex::new(RefCell::new(Sampling {
+        decimator: Decimator::new(CYCLES_PER_CONVERSION, 0),
+        ring: SampleRing::new(),
+    }));
 
 /// (Re)start the DMA stream from the start of `RAW`, then the conversions, then TIM5
 /// [`PHASE_CYCLES`] later (from 0, so that its interrupts follow the blocks' ends); the
@@ -108,7 +111,9 @@ fn start_conversions() -> u32 {
     stream.par().write_value(adc.dr().as_ptr() as u32);
     stream.m0ar().write_value(RAW.as_ptr() as u32);
     stream.ndtr().write(|w| w.set_ndt(RAW_LEN as u16));
-    stream.fcr().write(|w| w.set_dmdis(dma_vals::Dmdis::ENABLED)); // direct mode
+    stream
+        .fcr()
+        .write(|w| w.set_dmdis(dma_vals::Dmdis::ENABLED)); // direct mode
     // No interrupt enables: embassy's DMA2_STREAM0 handler stays idle.
     stream.cr().write(|w| {
         w.set_chsel(0);
@@ -149,7 +154,14 @@ fn TIM5() {
     let restart = SAMPLING.lock(|sampling| {
         let sampling = &mut *sampling.borrow_mut();
         let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
-        sampling.decimator.service(RAW_LEN - remaining, overrun, now, raw, steps, &mut sampling.ring)
+        sampling.decimator.service(
+            RAW_LEN - remaining,
+            overrun,
+            now,
+            raw,
+            steps,
+            &mut sampling.ring,
+        )
     });
     if restart {
         // The DMA missed a conversion and the ADC stopped (it should not: the DMA has
@@ -183,7 +195,8 @@ impl DetectorAdc {
         pac::RCC.ahb1enr().modify(|w| w.set_dma2en(true));
         let regs = pac::ADC1;
         regs.cr2().modify(|w| w.set_adon(false));
-        regs.smpr2().modify(|w| w.set_smp(usize::from(ADC_CHANNEL), adc_vals::SampleTime::CYCLES84));
+        regs.smpr2()
+            .modify(|w| w.set_smp(usize::from(ADC_CHANNEL), adc_vals::SampleTime::CYCLES84));
         regs.sqr1().modify(|w| w.set_l(0)); // one conversion per sequence
         regs.sqr3().modify(|w| w.set_sq(0, ADC_CHANNEL));
         regs.cr1().modify(|w| {
@@ -201,7 +214,8 @@ impl DetectorAdc {
 
         // TIM5 (32 bits) counts its own clock (2 × PCLK1 = SYSCLK here) for one block.
         let timer = Timer::new(tim5);
-        let timer_clocks = u64::from(BLOCK_CYCLES) * u64::from(timer.get_clock_frequency().0) / u64::from(crate::SYSCLK_HZ);
+        let timer_clocks = u64::from(BLOCK_CYCLES) * u64::from(timer.get_clock_frequency().0)
+            / u64::from(crate::SYSCLK_HZ);
         // Exact: PSC 0, ARR 98,303.
         timer.set_period_clocks(timer_clocks, RoundTo::Slower);
         timer.generate_update_event();
@@ -230,7 +244,10 @@ impl DetectorAdc {
     pub fn drain(&mut self, sink: &mut dyn FnMut(Sample)) -> Result<(), SampleLoss> {
         let mut loss = None;
         loop {
-            let mut batch = [Sample { counts: 0, detector_steps: 0 }; 16];
+            let mut batch = [Sample {
+                counts: 0,
+                detector_steps: 0,
+            }; 16];
             let n = SAMPLING.lock(|sampling| {
                 let mut sampling = sampling.borrow_mut();
                 loss = loss.or(sampling.ring.take_loss());

@@ -23,8 +23,10 @@ use cortex_m::peripheral::SCB;
 use defmt::error;
 use embassy_stm32::pac;
 use embassy_stm32::pac::timer::vals;
-use firmware::fault::{FaultRecord, ResetFlags, SafeOutputs, make_safe, panic_error, processor_fault_error};
 use firmware::ResetCause;
+use firmware::fault::{
+    FaultRecord, ResetFlags, SafeOutputs, make_safe, panic_error, processor_fault_error,
+};
 use protocol::DeviceError;
 
 /// The record for the next boot: in `.uninit`, which cortex-m-rt neither zeroes nor
@@ -36,7 +38,9 @@ static mut RECORD: MaybeUninit<[u32; 4]> = MaybeUninit::uninit();
 fn write_record(record: FaultRecord) {
     // SAFETY: the handlers run with interrupts off and the boot before anything else:
     // nothing else touches RECORD. Volatile: it must reach RAM before the reset.
-    unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(RECORD).cast::<[u32; 4]>(), record.0) }
+    unsafe {
+        core::ptr::write_volatile(core::ptr::addr_of_mut!(RECORD).cast::<[u32; 4]>(), record.0)
+    }
 }
 
 /// The record the last fault left (or RAM content that is none), cleared for the next time.
@@ -92,7 +96,13 @@ fn drive(slot: usize, high: bool) {
     // SAFETY: GPIOA.. GPIOH of the F411 are 0x400 apart from 0x4002_0000; the port number
     // is embassy's for a pin of this chip.
     let gpio = unsafe { pac::gpio::Gpio::from_ptr((0x4002_0000 + 0x400 * port) as *mut ()) };
-    gpio.bsrr().write(|w| if high { w.set_bs(pin, true) } else { w.set_br(pin, true) });
+    gpio.bsrr().write(|w| {
+        if high {
+            w.set_bs(pin, true)
+        } else {
+            w.set_br(pin, true)
+        }
+    });
 }
 
 /// The outputs, by register writes only.
@@ -104,7 +114,8 @@ impl SafeOutputs for BoardOutputs {
             let tim = crate::steppers::timer(index);
             // STEP low now (output compare forced inactive: not preloaded), counter stopped,
             // no more update interrupts.
-            tim.ccmr_output(1).modify(|w| w.set_ocm(0, vals::Ocm::FORCE_INACTIVE));
+            tim.ccmr_output(1)
+                .modify(|w| w.set_ocm(0, vals::Ocm::FORCE_INACTIVE));
             tim.cr1().modify(|w| w.set_cen(false));
             tim.dier().modify(|w| w.set_uie(false));
         }
@@ -138,9 +149,16 @@ fn stop_and_reset(error: DeviceError, log: impl FnOnce(DeviceError)) -> ! {
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    let (file, line) = info.location().map_or(("?", 0), |at| (at.file(), at.line()));
+    let (file, line) = info
+        .location()
+        .map_or(("?", 0), |at| (at.file(), at.line()));
     // The message is not formatted: that would link core::fmt (22 KiB with floats).
-    stop_and_reset(panic_error(line), |_| error!("panic at {=str}:{=u32}: outputs safe, resetting", file, line))
+    stop_and_reset(panic_error(line), |_| {
+        error!(
+            "panic at {=str}:{=u32}: outputs safe, resetting",
+            file, line
+        )
+    })
 }
 
 unsafe extern "C" {
@@ -159,7 +177,10 @@ core::arch::global_asm!(include_str!("hard_fault_entry.s"), handler = sym hard_f
 /// The HardFault handler proper, on a fresh stack; `sp` is the stack pointer at the fault.
 extern "C" fn hard_fault(sp: u32) -> ! {
     // Linker symbols: only their addresses are used.
-    let (floor, end) = (core::ptr::addr_of!(_stack_end) as u32, core::ptr::addr_of!(_ram_end) as u32);
+    let (floor, end) = (
+        core::ptr::addr_of!(_stack_end) as u32,
+        core::ptr::addr_of!(_ram_end) as u32,
+    );
     // The stacked PC is the 7th word of the frame, if the frame is in RAM.
     let pc = if sp >= floor.saturating_add(32) && sp.saturating_add(32) <= end {
         // SAFETY: inside the SRAM, 4-byte aligned (exception frames are).
@@ -168,7 +189,12 @@ extern "C" fn hard_fault(sp: u32) -> ! {
         0
     };
     let error = processor_fault_error(sp, floor, pc);
-    stop_and_reset(error, |error| error!("processor fault (SP {=u32:#x}): {}; outputs safe, resetting", sp, error))
+    stop_and_reset(error, |error| {
+        error!(
+            "processor fault (SP {=u32:#x}): {}; outputs safe, resetting",
+            sp, error
+        )
+    })
 }
 
 /// An interrupt with no handler: the program is not what it thinks it is.

@@ -80,7 +80,9 @@ impl Arms for BoardHardware {
     }
 
     fn take_step_fault(&mut self, arm: Arm) -> bool {
-        let Some(fault) = self.steppers.take_fault(arm) else { return false };
+        let Some(fault) = self.steppers.take_fault(arm) else {
+            return false;
+        };
         warn!(
             "{} arm: step interrupt {} µs into a {} µs segment: too late, timer stopped",
             arm, fault.late_ticks, fault.segment_ticks

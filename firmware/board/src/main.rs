@@ -25,11 +25,12 @@ mod hardware;
 mod pins;
 mod steppers;
 
+use core::cell::RefCell;
 use defmt::{info, warn};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
-use core::cell::RefCell;
 
+use defmt_rtt as _;
 use embassy_stm32::gpio::{Level, Output};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::peripherals::{IWDG, USB_OTG_FS};
@@ -51,7 +52,6 @@ use firmware::txqueue::FrameQueue;
 use hardware::BoardHardware;
 use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PID, USB_PRODUCT, USB_VID};
 use static_cell::StaticCell;
-use defmt_rtt as _;
 
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<USB_OTG_FS>;
@@ -64,8 +64,11 @@ type UsbDriver = Driver<'static, USB_OTG_FS>;
 /// section that `gonio-info.x` keeps out of flash and RAM (an INFO section of the ELF).
 #[used]
 #[unsafe(link_section = ".gonio.info")]
-static GONIO_INFO: [u8; protocol::FIRMWARE_INFO_LEN] =
-    protocol::FirmwareInfo::encode(firmware::FIRMWARE_VERSION, PROTOCOL_VERSION, protocol::F411_BOARD_NAME);
+static GONIO_INFO: [u8; protocol::FIRMWARE_INFO_LEN] = protocol::FirmwareInfo::encode(
+    firmware::FIRMWARE_VERSION,
+    PROTOCOL_VERSION,
+    protocol::F411_BOARD_NAME,
+);
 
 /// Full-speed bulk packet size of the CDC data endpoints.
 const USB_PACKET: usize = 64;
@@ -202,8 +205,12 @@ async fn main(spawner: Spawner) {
     let hardware = BoardHardware::new(steppers, adc, pins.home, pins.diag, pins.lamp, pins.range);
     // The same unique ID as the USB serial string: the host records it as the instrument.
     // The reference instrument with this board's own detector block (its ADC clock's 1.024 ms).
-    let config = InstrumentConfig { detector_block_us: detector_adc::BLOCK_US, ..InstrumentConfig::REFERENCE };
-    let device = Device::new(config, hardware, reset_cause).with_serial_number(embassy_stm32::uid::uid_hex());
+    let config = InstrumentConfig {
+        detector_block_us: detector_adc::BLOCK_US,
+        ..InstrumentConfig::REFERENCE
+    };
+    let device = Device::new(config, hardware, reset_cause)
+        .with_serial_number(embassy_stm32::uid::uid_hex());
 
     // Each task is spawned once into a pool of one: these cannot fail.
     spawner.spawn(defmt::unwrap!(usb_task(usb)));

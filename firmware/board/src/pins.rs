@@ -148,7 +148,10 @@ impl BoardPins {
         }
         // The fault handlers' safe stop drives these by register writes (crate::fault).
         crate::fault::register_safe_pins(
-            [(self.en_i.port(), self.en_i.pin()), (self.en_r.port(), self.en_r.pin())],
+            [
+                (self.en_i.port(), self.en_i.pin()),
+                (self.en_r.port(), self.en_r.pin()),
+            ],
             (self.lamp_en.port(), self.lamp_en.pin()),
         );
         SplitPins {

@@ -57,8 +57,10 @@ struct Arm1 {
     fault: Option<StepFault>,
 }
 
-static ARMS: [Mutex<CriticalSectionRawMutex, RefCell<Option<Arm1>>>; 2] =
-    [Mutex::new(RefCell::new(None)), Mutex::new(RefCell::new(None))];
+static ARMS: [Mutex<CriticalSectionRawMutex, RefCell<Option<Arm1>>>; 2] = [
+    Mutex::new(RefCell::new(None)),
+    Mutex::new(RefCell::new(None)),
+];
 
 /// The detector arm's step count, mirrored from its channel whenever it changes (its step
 /// interrupt, a redefinition), so that the ADC's decimation interrupt (TIM5, P1) stamps
@@ -94,7 +96,9 @@ impl StepTimer for BoardTimer<'_> {
     const CYCLES_PER_TICK: u32 = CYCLES_PER_TICK;
 
     fn preload(&mut self, segment: Segment) {
-        self.tim.arr().write(|w| w.set_arr((segment.ticks - 1) as u16));
+        self.tim
+            .arr()
+            .write(|w| w.set_arr((segment.ticks - 1) as u16));
         let ccr = if segment.pulse { PULSE_TICKS } else { 0 };
         self.tim.ccr(CH3).write(|w| w.set_ccr(ccr));
     }
@@ -135,11 +139,18 @@ impl StepTimer for BoardTimer<'_> {
 }
 
 /// With arm `index`'s channel and its timer.
-fn with_arm<R>(index: usize, f: impl FnOnce(&mut StepChannel, &mut BoardTimer<'_>, &mut Option<StepFault>) -> R) -> Option<R> {
+fn with_arm<R>(
+    index: usize,
+    f: impl FnOnce(&mut StepChannel, &mut BoardTimer<'_>, &mut Option<StepFault>) -> R,
+) -> Option<R> {
     ARMS[index].lock(|arm| {
         let mut arm = arm.borrow_mut();
         let arm = arm.as_mut()?;
-        let mut timer = BoardTimer { tim: timer(index), dir: &mut arm.dir, en: &mut arm.en };
+        let mut timer = BoardTimer {
+            tim: timer(index),
+            dir: &mut arm.dir,
+            en: &mut arm.en,
+        };
         Some(f(&mut arm.channel, &mut timer, &mut arm.fault))
     })
 }
@@ -216,21 +227,34 @@ impl Steppers {
         let [en_i, en_r] = en;
         for (index, (dir, en)) in [(dir_i, en_i), (dir_r, en_r)].into_iter().enumerate() {
             ARMS[index].lock(|arm| {
-                *arm.borrow_mut() = Some(Arm1 { channel: StepChannel::new(), dir, en, fault: None });
+                *arm.borrow_mut() = Some(Arm1 {
+                    channel: StepChannel::new(),
+                    dir,
+                    en,
+                    fault: None,
+                });
             });
         }
         let timers = (Timer::new(tim2), Timer::new(tim3));
         init_timer(&timers.0, interrupt::TIM2);
         init_timer(&timers.1, interrupt::TIM3);
         // The channels drive low now, so the pins switch to the timer without a glitch.
-        let step_pins = (PwmPin::new(step_i, OutputType::PushPull), PwmPin::new(step_r, OutputType::PushPull));
-        Steppers { _timers: timers, _step_pins: step_pins }
+        let step_pins = (
+            PwmPin::new(step_i, OutputType::PushPull),
+            PwmPin::new(step_r, OutputType::PushPull),
+        );
+        Steppers {
+            _timers: timers,
+            _step_pins: step_pins,
+        }
     }
 
     /// Run `profile` on `arm` (from rest at once; while moving, after the committed
     /// segments: see `firmware::stepgen`).
     pub fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
-        with_arm(arm.index(), |channel, timer, _| channel.run_profile(timer, profile));
+        with_arm(arm.index(), |channel, timer, _| {
+            channel.run_profile(timer, profile)
+        });
     }
 
     /// Steps issued, signed, from the zero homing defined.

@@ -26,7 +26,9 @@ use core::ptr::{addr_of, addr_of_mut};
 use cortex_m::peripheral::SCB;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
-use firmware::fault::{FaultRecord, ResetFlags, make_safe, panic_error, processor_fault_error, reset_cause};
+use firmware::fault::{
+    FaultRecord, ResetFlags, make_safe, panic_error, processor_fault_error, reset_cause,
+};
 use firmware::hardware::ResetCause;
 use firmware::scenarios::{self, Bench, SCENARIOS, hardware_is_safe};
 use protocol::{Angle, DeviceError, ErrorCode, Geometry};
@@ -115,23 +117,44 @@ fn finish(p: &mut Persist) -> ! {
     hprintln!("{} passed, {} failed", p.passed, p.failed);
     let ok = p.failed == 0;
     p.magic = 0;
-    debug::exit(if ok { debug::EXIT_SUCCESS } else { debug::EXIT_FAILURE });
+    debug::exit(if ok {
+        debug::EXIT_SUCCESS
+    } else {
+        debug::EXIT_FAILURE
+    });
     loop {}
 }
 
 /// The reset flags a fault handler's own SYSRESETREQ leaves on the STM32 (QEMU's machine
 /// has no RCC).
-const HANDLER_RESET: ResetFlags = ResetFlags { power: false, pin: true, software: true, watchdog: false };
+const HANDLER_RESET: ResetFlags = ResetFlags {
+    power: false,
+    pin: true,
+    software: true,
+    watchdog: false,
+};
 
 #[entry]
 fn main() -> ! {
     let p = persist();
     if p.magic != MAGIC {
-        *p = Persist { magic: MAGIC, phase: SCENARIOS_PHASE, passed: 0, failed: 0, stack_used: 0, safe: 0, at: [0; 2], record: [0; 4] };
+        *p = Persist {
+            magic: MAGIC,
+            phase: SCENARIOS_PHASE,
+            passed: 0,
+            failed: 0,
+            stack_used: 0,
+            safe: 0,
+            at: [0; 2],
+            record: [0; 4],
+        };
     }
     match p.phase {
         SCENARIOS_PHASE => {
-            hprintln!("gonio target tests: {} scenarios, then a panic and a stack overflow, on the Cortex-M4", SCENARIOS.len());
+            hprintln!(
+                "gonio target tests: {} scenarios, then a panic and a stack overflow, on the Cortex-M4",
+                SCENARIOS.len()
+            );
             for scenario in SCENARIOS {
                 match (scenario.run)() {
                     Ok(digest) => {
@@ -141,7 +164,12 @@ fn main() -> ! {
                     }
                     Err(failure) => {
                         p.failed += 1;
-                        hprintln!("scenario {} FAILED: {} (scenarios.rs:{})", scenario.name, failure.what, failure.line);
+                        hprintln!(
+                            "scenario {} FAILED: {} (scenarios.rs:{})",
+                            scenario.name,
+                            failure.what,
+                            failure.line
+                        );
                     }
                 }
             }
@@ -152,7 +180,12 @@ fn main() -> ! {
                     // SAFETY: written once, before the panic that reads it.
                     let bench = unsafe { (*addr_of_mut!(BENCH)).write(bench) };
                     let _ = deliberate_panic(bench);
-                    check(p, "deliberate_panic", false, "the index out of bounds did not panic");
+                    check(
+                        p,
+                        "deliberate_panic",
+                        false,
+                        "the index out of bounds did not panic",
+                    );
                 }
                 Err(failure) => check(p, "deliberate_panic", false, failure.what),
             }
@@ -162,24 +195,49 @@ fn main() -> ! {
         AFTER_PANIC => {
             let record = FaultRecord(p.record);
             let expected = panic_error(PANIC_LINE);
-            check(p, "panic_record", record.error() == Some(expected), "the record is not the panic's");
-            check(p, "panic_left_outputs_safe", p.safe == 1, "timers running, a driver enabled or the lamp on");
+            check(
+                p,
+                "panic_record",
+                record.error() == Some(expected),
+                "the record is not the panic's",
+            );
+            check(
+                p,
+                "panic_left_outputs_safe",
+                p.safe == 1,
+                "timers running, a driver enabled or the lamp on",
+            );
             let cause = reset_cause(HANDLER_RESET, &record);
             let at = Geometry::new(Angle::from_ticks(p.at[0]), Angle::from_ticks(p.at[1]));
             let reported = scenarios::report_after_reset(at, cause, expected);
-            check(p, "panic_reported_after_reset", reported.is_ok(), reported.err().map_or("", |f| f.what));
+            check(
+                p,
+                "panic_reported_after_reset",
+                reported.is_ok(),
+                reported.err().map_or("", |f| f.what),
+            );
             p.phase = OVERFLOW_PHASE;
             SCB::sys_reset()
         }
         OVERFLOW_PHASE => {
             let _ = core::hint::black_box(deeper(0));
-            check(p, "stack_overflow", false, "the stack ran out without a fault");
+            check(
+                p,
+                "stack_overflow",
+                false,
+                "the stack ran out without a fault",
+            );
             finish(p)
         }
         AFTER_OVERFLOW => {
             let record = FaultRecord(p.record);
             let overflow = DeviceError::new(ErrorCode::StackOverflow);
-            check(p, "stack_overflow_faults", record.error() == Some(overflow), "not recorded as a stack overflow");
+            check(
+                p,
+                "stack_overflow_faults",
+                record.error() == Some(overflow),
+                "not recorded as a stack overflow",
+            );
             check(
                 p,
                 "stack_overflow_reported_after_reset",
@@ -214,7 +272,10 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
         let at = hardware.true_geometry();
         p.at = [at.theta_i.ticks(), at.theta_r.ticks()];
         p.phase = AFTER_PANIC;
-        hprintln!("panicked at line {}: fake outputs made safe, resetting", line);
+        hprintln!(
+            "panicked at line {}: fake outputs made safe, resetting",
+            line
+        );
         SCB::sys_reset()
     }
     hprintln!("unexpected panic at line {}", line);
@@ -232,7 +293,11 @@ extern "C" fn hard_fault(sp: u32) -> ! {
     if p.magic == MAGIC && p.phase == OVERFLOW_PHASE {
         p.record = FaultRecord::new(error).0;
         p.phase = AFTER_OVERFLOW;
-        hprintln!("processor fault with SP {:#010x} (stack floor {:#010x}): resetting", sp, floor);
+        hprintln!(
+            "processor fault with SP {:#010x} (stack floor {:#010x}): resetting",
+            sp,
+            floor
+        );
         SCB::sys_reset()
     }
     hprintln!("unexpected processor fault, SP {:#010x}", sp);

@@ -73,7 +73,9 @@ impl<S: Scene> Bench<S> {
             decoder: FrameDecoder::new(),
             heartbeat_every_ms: Some(500),
         };
-        let hello = bench.ask(Command::Hello { protocol_version: PROTOCOL_VERSION });
+        let hello = bench.ask(Command::Hello {
+            protocol_version: PROTOCOL_VERSION,
+        });
         assert!(matches!(hello, Ok(Reply::Hello(_))));
         bench
     }
@@ -88,13 +90,17 @@ impl<S: Scene> Bench<S> {
 
     fn collect(&mut self, bytes: &[u8]) {
         let messages = &mut self.messages;
-        self.decoder.feed(bytes, |r: Result<DeviceMessage, FrameError>| messages.push(r.expect("valid frame")));
+        self.decoder
+            .feed(bytes, |r: Result<DeviceMessage, FrameError>| {
+                messages.push(r.expect("valid frame"))
+            });
     }
 
     /// Send raw bytes now.
     pub fn send_bytes(&mut self, bytes: &[u8]) {
         let mut out = Vec::new();
-        self.device.receive(bytes, self.now_us, &mut |f: &[u8]| out.extend_from_slice(f));
+        self.device
+            .receive(bytes, self.now_us, &mut |f: &[u8]| out.extend_from_slice(f));
         self.collect(&out);
     }
 
@@ -117,7 +123,8 @@ impl<S: Scene> Bench<S> {
         let now = self.now_us;
         self.device.hardware_mut().advance_to(now);
         let mut out = Vec::new();
-        self.device.poll(now, &mut |f: &[u8]| out.extend_from_slice(f));
+        self.device
+            .poll(now, &mut |f: &[u8]| out.extend_from_slice(f));
         self.collect(&out);
     }
 

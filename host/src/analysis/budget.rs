@@ -146,7 +146,10 @@ pub struct BudgetReading {
 /// differences meaningless: they are then only clamped to [0, age now].
 pub fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Vec<f64> {
     let age_now = calibration_age_now_s.max(0.0);
-    let (Some(&first), Some(&last)) = (device_times_us.iter().min(), device_times_us.iter().max()) else { return Vec::new() };
+    let (Some(&first), Some(&last)) = (device_times_us.iter().min(), device_times_us.iter().max())
+    else {
+        return Vec::new();
+    };
     device_times_us
         .iter()
         .map(|&t| {
@@ -159,8 +162,14 @@ pub fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Ve
 
 /// The shared errors of `readings` (in the fit's order) under `calibration`. A term that
 /// touches none of them is left out.
-pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> Result<Vec<SharedError>, CalibrationError> {
-    let conversions = readings.iter().map(|r| calibration.convert(r.theta_i_deg, &r.reading)).collect::<Result<Vec<_>, _>>()?;
+pub fn shared_errors(
+    calibration: &Calibration,
+    readings: &[BudgetReading],
+) -> Result<Vec<SharedError>, CalibrationError> {
+    let conversions = readings
+        .iter()
+        .map(|r| calibration.convert(r.theta_i_deg, &r.reading))
+        .collect::<Result<Vec<_>, _>>()?;
     let n = readings.len();
     // What a multiplicative error scales: the measured value. The fit takes sensitivities
     // per unit of the reading and re-evaluates them at its model's values
@@ -172,8 +181,16 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
     let mut terms = Vec::new();
     let mut push = |name: String, sensitivity: Vec<f64>, additive: Vec<f64>| {
         if sensitivity.iter().chain(&additive).any(|s| *s != 0.0) {
-            let additive = if additive.iter().any(|s| *s != 0.0) { additive } else { Vec::new() };
-            terms.push(SharedError { name, sensitivity, additive });
+            let additive = if additive.iter().any(|s| *s != 0.0) {
+                additive
+            } else {
+                Vec::new()
+            };
+            terms.push(SharedError {
+                name,
+                sensitivity,
+                additive,
+            });
         }
     };
 
@@ -183,7 +200,13 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
         let sensitivity = conversions
             .iter()
             .zip(&value)
-            .map(|(c, r)| if c.white_index == j { -r * u / c.white_net_counts } else { 0.0 })
+            .map(|(c, r)| {
+                if c.white_index == j {
+                    -r * u / c.white_net_counts
+                } else {
+                    0.0
+                }
+            })
             .collect();
         push(white_name(white.theta_i_deg), sensitivity, Vec::new());
     }
@@ -197,11 +220,15 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
 
     // The dark of each range: directly, through the white, and through calibrated ratios.
     for j in 0..ranges {
-        let Some(dark) = calibration.dark.get(j) else { continue };
+        let Some(dark) = calibration.dark.get(j) else {
+            continue;
+        };
         let u = standard_error_counts(dark);
         let mut through_ratios = Vec::new();
         for p in 0..ranges.saturating_sub(1) {
-            let Some(g) = calibration.calibrated_ratio(p as u8) else { continue };
+            let Some(g) = calibration.calibrated_ratio(p as u8) else {
+                continue;
+            };
             // ρ = (U − D_{p+1}) / (L − D_p): d ln ρ / dD.
             let d_ln_rho = if j == p + 1 {
                 -1.0 / calibration.net_counts(&g.on_upper)?
@@ -214,8 +241,16 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
         }
         // The reading's own dark: a fixed offset in counts, R/net = T/(G·w) per count,
         // whatever the reading: additive. Through the white and the ratios it scales R.
-        let additive: Vec<f64> =
-            conversions.iter().map(|c| if usize::from(c.range) == j { -c.radiance_factor / c.net_counts * u } else { 0.0 }).collect();
+        let additive: Vec<f64> = conversions
+            .iter()
+            .map(|c| {
+                if usize::from(c.range) == j {
+                    -c.radiance_factor / c.net_counts * u
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let sensitivity = conversions
             .iter()
             .zip(&value)
@@ -235,19 +270,35 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
 
     // The tile: every reading scales with its certified value.
     let u_tile = calibration.white_relative_uncertainty;
-    push(TILE.to_string(), value.iter().map(|r| r * u_tile).collect(), Vec::new());
+    push(
+        TILE.to_string(),
+        value.iter().map(|r| r * u_tile).collect(),
+        Vec::new(),
+    );
 
     // The gain ratio of each pair of adjacent ranges.
     for p in 0..ranges.saturating_sub(1) {
         let (_, relative, _) = calibration.gain_ratio(p as u8)?;
-        push(gain_name(p as u8), conversions.iter().zip(&value).map(|(c, r)| r * exponent(p, c) * relative).collect(), Vec::new());
+        push(
+            gain_name(p as u8),
+            conversions
+                .iter()
+                .zip(&value)
+                .map(|(c, r)| r * exponent(p, c) * relative)
+                .collect(),
+            Vec::new(),
+        );
     }
 
     // The lamp's drift: one unknown rate, times each reading's age.
     let rate_per_s = calibration.lamp_drift_per_hour / 3600.0;
     push(
         LAMP_DRIFT.to_string(),
-        value.iter().zip(readings).map(|(v, r)| v * rate_per_s * r.age_s.max(0.0)).collect(),
+        value
+            .iter()
+            .zip(readings)
+            .map(|(v, r)| v * rate_per_s * r.age_s.max(0.0))
+            .collect(),
         Vec::new(),
     );
     debug_assert!(terms.iter().all(|t| t.sensitivity.len() == n));
@@ -255,22 +306,34 @@ pub fn shared_errors(calibration: &Calibration, readings: &[BudgetReading]) -> R
 }
 
 /// Indices into a budget term's variance of the parameters the report shares out.
-const REPORTED: [(usize, &str); 3] = [(model::SIGMA, model::PARAM_NAMES[model::SIGMA]), (model::RHO_S, model::PARAM_NAMES[model::RHO_S]), (model::RHO_D, model::PARAM_NAMES[model::RHO_D])];
+const REPORTED: [(usize, &str); 3] = [
+    (model::SIGMA, model::PARAM_NAMES[model::SIGMA]),
+    (model::RHO_S, model::PARAM_NAMES[model::RHO_S]),
+    (model::RHO_D, model::PARAM_NAMES[model::RHO_D]),
+];
 
 /// The variance of σ, ρs, ρd each term of `fit`'s budget contributes; `None` for a
 /// parameter the data did not determine (it has no budget to share).
 fn reported_variances(fit: &FitResult) -> Vec<(String, [Option<f64>; 3])> {
-    let determined: [bool; 3] = std::array::from_fn(|i| fit.model.0[REPORTED[i].0] && fit.identified(REPORTED[i].0));
+    let determined: [bool; 3] =
+        std::array::from_fn(|i| fit.model.0[REPORTED[i].0] && fit.identified(REPORTED[i].0));
     fit.budget
         .iter()
-        .map(|t| (t.name.clone(), std::array::from_fn(|i| determined[i].then(|| t.variance[REPORTED[i].0].max(0.0)))))
+        .map(|t| {
+            (
+                t.name.clone(),
+                std::array::from_fn(|i| determined[i].then(|| t.variance[REPORTED[i].0].max(0.0))),
+            )
+        })
         .collect()
 }
 
 /// Each variance's share of the column total (`None` where there is none).
 fn as_shares(rows: &[[Option<f64>; 3]]) -> Vec<[Option<f64>; 3]> {
     let totals: [f64; 3] = std::array::from_fn(|i| rows.iter().filter_map(|r| r[i]).sum());
-    rows.iter().map(|r| std::array::from_fn(|i| r[i].filter(|_| totals[i] > 0.0).map(|v| v / totals[i]))).collect()
+    rows.iter()
+        .map(|r| std::array::from_fn(|i| r[i].filter(|_| totals[i] > 0.0).map(|v| v / totals[i])))
+        .collect()
 }
 
 /// Each term's share of the variance of σ, ρs, ρd (`None` for what was not determined).
@@ -278,7 +341,10 @@ fn as_shares(rows: &[[Option<f64>; 3]]) -> Vec<[Option<f64>; 3]> {
 pub fn shares(fit: &FitResult) -> Vec<(String, [Option<f64>; 3])> {
     let rows = reported_variances(fit);
     let shares = as_shares(&rows.iter().map(|(_, v)| *v).collect::<Vec<_>>());
-    rows.into_iter().zip(shares).map(|((name, _), share)| (name, share)).collect()
+    rows.into_iter()
+        .zip(shares)
+        .map(|((name, _), share)| (name, share))
+        .collect()
 }
 
 /// The budget grouped by kind: (kind, variance of σ, ρs, ρd), in the kinds' order.
@@ -298,7 +364,12 @@ pub fn by_kind(fit: &FitResult) -> Vec<(TermKind, [Option<f64>; 3])> {
 fn per_parameter(values: [Option<f64>; 3]) -> Value {
     let mut m = serde_json::Map::new();
     for (i, (_, key)) in REPORTED.iter().enumerate() {
-        m.insert(key.to_string(), values[i].filter(|s| s.is_finite()).map_or(Value::Null, |s| json!(s)));
+        m.insert(
+            key.to_string(),
+            values[i]
+                .filter(|s| s.is_finite())
+                .map_or(Value::Null, |s| json!(s)),
+        );
     }
     Value::Object(m)
 }
@@ -322,8 +393,11 @@ pub fn to_json(fit: &FitResult) -> Value {
         .collect();
     let groups = by_kind(fit);
     let group_shares = as_shares(&groups.iter().map(|(_, v)| *v).collect::<Vec<_>>());
-    let kinds: Vec<Value> =
-        groups.iter().zip(group_shares).map(|((kind, _), share)| json!({ "kind": kind.name(), "share": per_parameter(share) })).collect();
+    let kinds: Vec<Value> = groups
+        .iter()
+        .zip(group_shares)
+        .map(|((kind, _), share)| json!({ "kind": kind.name(), "share": per_parameter(share) }))
+        .collect();
     json!({ "terms": terms, "by_kind": kinds })
 }
 
@@ -334,10 +408,22 @@ pub fn to_table(fit: &FitResult) -> String {
         return String::new(); // reading noise alone: nothing to share out
     }
     let shares = as_shares(&groups.iter().map(|(_, v)| *v).collect::<Vec<_>>());
-    let mut s = String::from("  uncertainty budget, share of variance     sigma    rho_s    rho_d\n");
+    let mut s =
+        String::from("  uncertainty budget, share of variance     sigma    rho_s    rho_d\n");
     for ((kind, _), share) in groups.iter().zip(shares) {
-        let cell = |i: usize| share[i].map_or_else(|| format!("{:>8}", "—"), |v| format!("{:>6.1} %", 100.0 * v));
-        s += &format!("    {:<38} {} {} {}\n", kind.name(), cell(0), cell(1), cell(2));
+        let cell = |i: usize| {
+            share[i].map_or_else(
+                || format!("{:>8}", "—"),
+                |v| format!("{:>6.1} %", 100.0 * v),
+            )
+        };
+        s += &format!(
+            "    {:<38} {} {} {}\n",
+            kind.name(),
+            cell(0),
+            cell(1),
+            cell(2)
+        );
     }
     s
 }
@@ -348,7 +434,14 @@ mod tests {
     use crate::instrument::calibration::{GainRatio, Tile, WhitePoint};
 
     fn reading(mean_counts: f32, std_counts: f32, range: u8) -> Reading {
-        Reading { mean_counts, std_counts, samples: 100, range, integration_ms: 100, saturated: false }
+        Reading {
+            mean_counts,
+            std_counts,
+            samples: 100,
+            range,
+            integration_ms: 100,
+            saturated: false,
+        }
     }
 
     /// Darks of 200 counts (σ 130 per sample), whites at 20° and 60° on range 0, and a
@@ -358,10 +451,20 @@ mod tests {
             "test".into(),
             Tile::default(),
             vec![1.0, 0.1, 0.01],
-            vec![reading(200.0, 130.0, 0), reading(190.0, 130.0, 1), reading(210.0, 130.0, 2)],
             vec![
-                WhitePoint { theta_i_deg: 20.0, reading: reading(26_400.0, 290.0, 0) },
-                WhitePoint { theta_i_deg: 60.0, reading: reading(14_200.0, 230.0, 0) },
+                reading(200.0, 130.0, 0),
+                reading(190.0, 130.0, 1),
+                reading(210.0, 130.0, 2),
+            ],
+            vec![
+                WhitePoint {
+                    theta_i_deg: 20.0,
+                    reading: reading(26_400.0, 290.0, 0),
+                },
+                WhitePoint {
+                    theta_i_deg: 60.0,
+                    reading: reading(14_200.0, 230.0, 0),
+                },
             ],
         );
         let (on_lower, on_upper) = (reading(50_190.0, 400.0, 1), reading(5_240.0, 150.0, 2));
@@ -381,7 +484,11 @@ mod tests {
     }
 
     fn readings() -> Vec<BudgetReading> {
-        let at = |theta_i_deg: f64, mean: f32, range: u8, age_s: f64| BudgetReading { theta_i_deg, reading: reading(mean, 200.0, range), age_s };
+        let at = |theta_i_deg: f64, mean: f32, range: u8, age_s: f64| BudgetReading {
+            theta_i_deg,
+            reading: reading(mean, 200.0, range),
+            age_s,
+        };
         vec![
             at(20.0, 13_000.0, 0, 0.0),
             at(20.0, 30_000.0, 1, 10.0),
@@ -392,20 +499,28 @@ mod tests {
     }
 
     fn term<'a>(terms: &'a [SharedError], name: &str) -> &'a SharedError {
-        terms.iter().find(|t| t.name == name).unwrap_or_else(|| panic!("no term {name}"))
+        terms
+            .iter()
+            .find(|t| t.name == name)
+            .unwrap_or_else(|| panic!("no term {name}"))
     }
 
     #[test]
     fn each_term_touches_only_its_readings() {
         let c = calibration();
         let terms = shared_errors(&c, &readings()).unwrap();
-        let touched = |name: &str| -> Vec<bool> { (0..5).map(|k| term(&terms, name).total(k) != 0.0).collect() };
+        let touched = |name: &str| -> Vec<bool> {
+            (0..5).map(|k| term(&terms, name).total(k) != 0.0).collect()
+        };
         assert_eq!(touched("white θi=20°"), [true, true, false, false, false]);
         assert_eq!(touched("white θi=60°"), [false, false, true, true, true]);
         assert_eq!(touched("tile certificate"), [true; 5]);
         // Range 0/1 straddles every reading on range 1 or 2 (the whites are on 0).
         assert_eq!(touched("gain ranges 0/1"), [false, true, false, true, true]);
-        assert_eq!(touched("gain ranges 1/2"), [false, false, false, false, true]);
+        assert_eq!(
+            touched("gain ranges 1/2"),
+            [false, false, false, false, true]
+        );
         // Dark 0: the readings on 0, and every white (on 0).
         assert_eq!(touched("dark range 0"), [true; 5]);
         // Dark 1: readings on 1, and through the calibrated 1/2 ratio the reading on 2.
@@ -425,7 +540,10 @@ mod tests {
         for (k, r) in rs.iter().enumerate() {
             let value = c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0;
             assert!((term(&terms, TILE).sensitivity[k] - value * 0.005).abs() < 1e-15);
-            assert!((term(&terms, LAMP_DRIFT).sensitivity[k] - value * 0.002 / 3600.0 * r.age_s).abs() < 1e-15);
+            assert!(
+                (term(&terms, LAMP_DRIFT).sensitivity[k] - value * 0.002 / 3600.0 * r.age_s).abs()
+                    < 1e-15
+            );
         }
         // Nominal 0/1 ratio: 1 % of each reading above the white's range, lowering R when the
         // ratio is higher.
@@ -443,14 +561,21 @@ mod tests {
         let c = calibration();
         let rs = readings();
         let terms = shared_errors(&c, &rs).unwrap();
-        let values = |c: &Calibration| -> Vec<f64> { rs.iter().map(|r| c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0).collect() };
+        let values = |c: &Calibration| -> Vec<f64> {
+            rs.iter()
+                .map(|r| c.radiance_factor(r.theta_i_deg, &r.reading).unwrap().0)
+                .collect()
+        };
         let base = values(&c);
         let check = |name: &str, perturbed: Calibration, step_in_sigmas: f64| {
             let moved = values(&perturbed);
             for k in 0..rs.len() {
                 let numeric = (moved[k] - base[k]) / step_in_sigmas;
                 let analytic = term(&terms, name).total(k);
-                assert!((numeric - analytic).abs() <= 1e-3 * analytic.abs() + 1e-12, "{name} reading {k}: {numeric} vs {analytic}");
+                assert!(
+                    (numeric - analytic).abs() <= 1e-3 * analytic.abs() + 1e-12,
+                    "{name} reading {k}: {numeric} vs {analytic}"
+                );
             }
         };
         let h = 0.01; // a hundredth of a standard error: linear enough
@@ -458,7 +583,14 @@ mod tests {
             let mut p = c.clone();
             let u = standard_error_counts(&p.white[j].reading);
             p.white[j].reading.mean_counts += (h * u) as f32;
-            check(&white_name(c.white[j].theta_i_deg), p, f64::from(((h * u) as f32 + c.white[j].reading.mean_counts) - c.white[j].reading.mean_counts) / u);
+            check(
+                &white_name(c.white[j].theta_i_deg),
+                p,
+                f64::from(
+                    ((h * u) as f32 + c.white[j].reading.mean_counts)
+                        - c.white[j].reading.mean_counts,
+                ) / u,
+            );
         }
         for j in 0..3usize {
             let mut p = c.clone();
@@ -476,7 +608,10 @@ mod tests {
     fn ages_follow_the_device_clock_back_from_now() {
         // A calibration 4 h old at the last reading; readings 10 s apart.
         let ages = reading_ages_s(4.0 * 3600.0, &[0, 10_000_000, 20_000_000]);
-        assert_eq!(ages, [4.0 * 3600.0 - 20.0, 4.0 * 3600.0 - 10.0, 4.0 * 3600.0]);
+        assert_eq!(
+            ages,
+            [4.0 * 3600.0 - 20.0, 4.0 * 3600.0 - 10.0, 4.0 * 3600.0]
+        );
         // Taken in this session in virtual time (wall-clock age ~0): the device clock's.
         assert_eq!(reading_ages_s(0.0, &[5_000_000, 15_000_000]), [0.0, 10.0]);
         assert!(reading_ages_s(1.0, &[]).is_empty());
@@ -484,30 +619,68 @@ mod tests {
 
     #[test]
     fn shares_add_to_one_and_group_by_kind() {
-        let obs = [(20.0, 0.0, 0.5), (20.0, 10.0, 0.51), (20.0, 20.0, 0.49), (30.0, 30.0, 0.5), (45.0, 50.0, 0.505), (60.0, 70.0, 0.495)]
-            .map(|(ti, tr, r)| crate::analysis::fit::Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: r, std: Some(0.01), theta_r_span_deg: 0.0 });
+        let obs = [
+            (20.0, 0.0, 0.5),
+            (20.0, 10.0, 0.51),
+            (20.0, 20.0, 0.49),
+            (30.0, 30.0, 0.5),
+            (45.0, 50.0, 0.505),
+            (60.0, 70.0, 0.495),
+        ]
+        .map(|(ti, tr, r)| crate::analysis::fit::Observation {
+            theta_i_deg: ti,
+            theta_r_deg: tr,
+            radiance_factor: r,
+            std: Some(0.01),
+            theta_r_span_deg: 0.0,
+        });
         // A flat scene: only ρd is fitted, so σ and ρs have no budget.
-        let mut fit = crate::analysis::fit::fit(&obs, &crate::analysis::fit::FitOptions::default()).unwrap();
+        let mut fit =
+            crate::analysis::fit::fit(&obs, &crate::analysis::fit::FitOptions::default()).unwrap();
         fit.budget = vec![
-            BudgetTerm { name: READING_NOISE.into(), variance: [1.0, 2.0, 1.0, 0.1] },
-            BudgetTerm { name: "white θi=20°".into(), variance: [1.0, 1.0, 1.0, 0.1] },
-            BudgetTerm { name: "white θi=60°".into(), variance: [2.0, 1.0, 2.0, 0.1] },
-            BudgetTerm { name: TILE.into(), variance: [0.0, 4.0, 4.0, 0.0] },
+            BudgetTerm {
+                name: READING_NOISE.into(),
+                variance: [1.0, 2.0, 1.0, 0.1],
+            },
+            BudgetTerm {
+                name: "white θi=20°".into(),
+                variance: [1.0, 1.0, 1.0, 0.1],
+            },
+            BudgetTerm {
+                name: "white θi=60°".into(),
+                variance: [2.0, 1.0, 2.0, 0.1],
+            },
+            BudgetTerm {
+                name: TILE.into(),
+                variance: [0.0, 4.0, 4.0, 0.0],
+            },
         ];
         let shares = shares(&fit);
         let total: f64 = shares.iter().map(|(_, s)| s[2].unwrap()).sum();
         assert!((total - 1.0).abs() < 1e-12);
-        assert!(shares.iter().all(|(_, s)| s[0].is_none() && s[1].is_none()), "σ, ρs not determined: no share");
+        assert!(
+            shares.iter().all(|(_, s)| s[0].is_none() && s[1].is_none()),
+            "σ, ρs not determined: no share"
+        );
         let kinds = by_kind(&fit);
-        assert_eq!(kinds.iter().map(|(k, _)| *k).collect::<Vec<_>>(), [TermKind::ReadingNoise, TermKind::White, TermKind::Tile]);
+        assert_eq!(
+            kinds.iter().map(|(k, _)| *k).collect::<Vec<_>>(),
+            [TermKind::ReadingNoise, TermKind::White, TermKind::Tile]
+        );
         assert_eq!(kinds[1].1, [None, None, Some(3.0)]);
         let table = to_table(&fit);
-        assert!(table.contains("white readings") && table.contains("37.5 %") && table.contains("—"), "{table}");
+        assert!(
+            table.contains("white readings") && table.contains("37.5 %") && table.contains("—"),
+            "{table}"
+        );
         let json = to_json(&fit);
         assert_eq!(json["terms"].as_array().unwrap().len(), 4);
         assert_eq!(json["by_kind"][1]["share"]["rho_d"], json!(0.375));
         assert_eq!(json["terms"][0]["share"]["rho_s"], Value::Null);
-        assert_eq!(TermKind::of("reading noise (estimated from the residuals)"), TermKind::ReadingNoise);
+        assert_eq!(
+            TermKind::of("reading noise (estimated from the residuals)"),
+            TermKind::ReadingNoise
+        );
         assert_eq!(TermKind::of(LACK_OF_FIT), TermKind::LackOfFit);
     }
 }

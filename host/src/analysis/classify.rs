@@ -83,20 +83,75 @@ pub struct Reference {
     pub class: Class,
 }
 
-const fn reference(name: &'static str, description: &'static str, p: [f64; 4], class: Class) -> Reference {
-    Reference { name, description, params: Params { sigma_deg: p[0], rho_s: p[1], rho_d: p[2], eta: p[3] }, class }
+const fn reference(
+    name: &'static str,
+    description: &'static str,
+    p: [f64; 4],
+    class: Class,
+) -> Reference {
+    Reference {
+        name,
+        description,
+        params: Params {
+            sigma_deg: p[0],
+            rho_s: p[1],
+            rho_d: p[2],
+            eta: p[3],
+        },
+        class,
+    }
 }
 
 /// Table 6 (Akao et al.).
 pub const REFERENCES: [Reference; 8] = [
-    reference("G", "glossy inkjet paper", [0.8, 57.8, 0.855, 1.19], Class::G),
-    reference("SG", "semi-glossy inkjet paper", [1.9, 57.1, 0.795, 1.02], Class::SG),
-    reference("PPC", "plain photocopy paper", [21.7, 0.409, 0.414, 3.0], Class::RoughII),
-    reference("MC", "matte coated paper", [43.5, 0.123, 0.642, 3.0], Class::RoughIII),
-    reference("J1", "Japanese washi, slight gloss", [16.7, 0.734, 0.127, 3.0], Class::RoughI),
-    reference("J2", "Japanese washi, slight gloss", [17.9, 0.729, 0.06, 3.0], Class::RoughI),
-    reference("J3", "Japanese washi, no gloss", [24.5, 0.404, 0.333, 3.0], Class::RoughII),
-    reference("J4", "Japanese washi, no gloss", [21.9, 0.469, 0.346, 3.0], Class::RoughII),
+    reference(
+        "G",
+        "glossy inkjet paper",
+        [0.8, 57.8, 0.855, 1.19],
+        Class::G,
+    ),
+    reference(
+        "SG",
+        "semi-glossy inkjet paper",
+        [1.9, 57.1, 0.795, 1.02],
+        Class::SG,
+    ),
+    reference(
+        "PPC",
+        "plain photocopy paper",
+        [21.7, 0.409, 0.414, 3.0],
+        Class::RoughII,
+    ),
+    reference(
+        "MC",
+        "matte coated paper",
+        [43.5, 0.123, 0.642, 3.0],
+        Class::RoughIII,
+    ),
+    reference(
+        "J1",
+        "Japanese washi, slight gloss",
+        [16.7, 0.734, 0.127, 3.0],
+        Class::RoughI,
+    ),
+    reference(
+        "J2",
+        "Japanese washi, slight gloss",
+        [17.9, 0.729, 0.06, 3.0],
+        Class::RoughI,
+    ),
+    reference(
+        "J3",
+        "Japanese washi, no gloss",
+        [24.5, 0.404, 0.333, 3.0],
+        Class::RoughII,
+    ),
+    reference(
+        "J4",
+        "Japanese washi, no gloss",
+        [21.9, 0.469, 0.346, 3.0],
+        Class::RoughII,
+    ),
 ];
 
 /// Relative standard uncertainty assumed for Table 6's σ, ρs, ρd: the paper gives one
@@ -118,7 +173,11 @@ pub fn class_of(sigma_deg: Option<f64>, rho_s: f64, rho_d: f64) -> Class {
             }
         }
         _ => {
-            let ratio = if rho_s > 0.0 { rho_d / rho_s } else { f64::INFINITY };
+            let ratio = if rho_s > 0.0 {
+                rho_d / rho_s
+            } else {
+                f64::INFINITY
+            };
             if ratio < ROUGH_I_MAX_RATIO {
                 Class::RoughI
             } else if ratio < ROUGH_III_MIN_RATIO {
@@ -195,9 +254,21 @@ pub fn classify(fit: &FitResult) -> Classification {
                 (Some(c.group()), Some(c), None)
             }
             (None, Some(upper), rho_s) => match rho_s.or(fit.rho_s_lower()) {
-                Some(r) if upper < r && upper < G_SG_SPLIT_DEG => (Some(Group::Glossy), Some(Class::G), None),
-                Some(r) if upper < r => (Some(Group::Glossy), None, Some("σ not resolved: G or SG (σ below the limit, which is above 1.3°)")),
-                _ => (None, None, Some("σ not resolved and its upper limit not below ρs: glossy or rough undecided")),
+                Some(r) if upper < r && upper < G_SG_SPLIT_DEG => {
+                    (Some(Group::Glossy), Some(Class::G), None)
+                }
+                Some(r) if upper < r => (
+                    Some(Group::Glossy),
+                    None,
+                    Some("σ not resolved: G or SG (σ below the limit, which is above 1.3°)"),
+                ),
+                _ => (
+                    None,
+                    None,
+                    Some(
+                        "σ not resolved and its upper limit not below ρs: glossy or rough undecided",
+                    ),
+                ),
             },
             // ρs only bounded below: glossy when even σ's upper limit is below that bound.
             (Some(sigma), _, None) => match fit.rho_s_lower() {
@@ -205,7 +276,13 @@ pub fn classify(fit: &FitResult) -> Classification {
                     let c = class_of(Some(sigma), f64::INFINITY, p.rho_d);
                     (Some(c.group()), Some(c), None)
                 }
-                _ => (None, None, Some("ρs not identified (η at or near its lower bound): glossy or rough undecided")),
+                _ => (
+                    None,
+                    None,
+                    Some(
+                        "ρs not identified (η at or near its lower bound): glossy or rough undecided",
+                    ),
+                ),
             },
             (None, None, _) => (None, None, Some("σ not determined")),
         }
@@ -214,13 +291,24 @@ pub fn classify(fit: &FitResult) -> Classification {
     if fit.lack_of_fit {
         confidence = confidence.min(LACK_OF_FIT_CONFIDENCE_CAP);
     }
-    Classification { group, class, confidence, undecided, nearest_reference, nearest_distance }
+    Classification {
+        group,
+        class,
+        confidence,
+        undecided,
+        nearest_reference,
+        nearest_distance,
+    }
 }
 
 fn confidence(fit: &FitResult, class: Class) -> f64 {
     let p = fit.params;
     if !fit.has_specular_term() {
-        return if class_of(None, 0.0, p.rho_d) == class { 1.0 } else { 0.0 };
+        return if class_of(None, 0.0, p.rho_d) == class {
+            1.0
+        } else {
+            0.0
+        };
     }
     let upper = fit.sigma_upper_deg();
     let rho_s_known = fit.reported(RHO_S);
@@ -249,7 +337,11 @@ fn confidence(fit: &FitResult, class: Class) -> f64 {
             Some(up) => (u[SIGMA] * up).max(SIGMA_MIN_DEG),
             None => p.sigma_deg * delta[SIGMA].exp(),
         };
-        let rho_s = if rho_s_known.is_some() { (rho_s_point + delta[RHO_S]).max(0.0) } else { rho_s_point };
+        let rho_s = if rho_s_known.is_some() {
+            (rho_s_point + delta[RHO_S]).max(0.0)
+        } else {
+            rho_s_point
+        };
         let rho_d = (p.rho_d + delta[RHO_D]).max(0.0);
         let _eta = (p.eta + delta[ETA]).clamp(ETA_MIN, ETA_MAX);
         if class_of(Some(sigma), rho_s, rho_d) == class {
@@ -295,10 +387,20 @@ pub fn nearest_reference(fit: &FitResult) -> (&'static str, f64) {
             };
         } else {
             // No lobe at all: as far from each reference as its σ is from 90°, and ρs = 0.
-            d2 += term(90.0, rp.sigma_deg, 0.0, REFERENCE_RELATIVE_UNCERTAINTY * rp.sigma_deg);
+            d2 += term(
+                90.0,
+                rp.sigma_deg,
+                0.0,
+                REFERENCE_RELATIVE_UNCERTAINTY * rp.sigma_deg,
+            );
             d2 += term(0.0, rp.rho_s, u(RHO_S), u_rho_s);
         }
-        d2 += term(p.rho_d, rp.rho_d, u(RHO_D), REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_d);
+        d2 += term(
+            p.rho_d,
+            rp.rho_d,
+            u(RHO_D),
+            REFERENCE_RELATIVE_UNCERTAINTY * rp.rho_d,
+        );
         let d = d2.sqrt();
         if d < best.1 {
             best = (r.name, d);
@@ -340,15 +442,41 @@ fn halton(mut index: usize, base: usize) -> f64 {
 
 /// Φ⁻¹(p) by Acklam's rational approximation (relative error < 1.2e-9), p in (0, 1).
 pub fn inverse_normal_cdf(p: f64) -> f64 {
-    const A: [f64; 6] = [-3.969683028665376e1, 2.209460984245205e2, -2.759285104469687e2, 1.383577518672690e2, -3.066479806614716e1, 2.506628277459239];
-    const B: [f64; 5] = [-5.447609879822406e1, 1.615858368580409e2, -1.556989798598866e2, 6.680131188771972e1, -1.328068155288572e1];
-    const C: [f64; 6] = [-7.784894002430293e-3, -3.223964580411365e-1, -2.400758277161838, -2.549732539343734, 4.374664141464968, 2.938163982698783];
-    const D: [f64; 4] = [7.784695709041462e-3, 3.224671290700398e-1, 2.445134137142996, 3.754408661907416];
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.383577518672690e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
     let p = p.clamp(1e-300, 1.0 - 1e-16);
     let low = 0.02425;
     if p < low {
         let q = (-2.0 * p.ln()).sqrt();
-        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
     } else if p <= 1.0 - low {
         let q = p - 0.5;
         let r = q * q;
@@ -356,7 +484,8 @@ pub fn inverse_normal_cdf(p: f64) -> f64 {
             / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
     } else {
         let q = (-2.0 * (1.0 - p).ln()).sqrt();
-        -(((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+        -(((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
     }
 }
 
@@ -367,7 +496,12 @@ mod tests {
     #[test]
     fn table6_papers_get_their_class() {
         for r in &REFERENCES {
-            assert_eq!(class_of(Some(r.params.sigma_deg), r.params.rho_s, r.params.rho_d), r.class, "{}", r.name);
+            assert_eq!(
+                class_of(Some(r.params.sigma_deg), r.params.rho_s, r.params.rho_d),
+                r.class,
+                "{}",
+                r.name
+            );
         }
     }
 

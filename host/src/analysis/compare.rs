@@ -7,7 +7,6 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
-
 /// Why a session result cannot be read. Every variant names the file; key errors name the key.
 #[derive(Debug, Error)]
 pub enum CompareError {
@@ -69,25 +68,37 @@ impl SessionResult {
     pub fn sheet(&self) -> crate::analysis::evidence::Sheet {
         let values = std::array::from_fn(|i| self.values[i]);
         let covariance = std::array::from_fn(|r| std::array::from_fn(|c| self.covariance[r][c]));
-        crate::analysis::evidence::Sheet { spots: vec![crate::analysis::evidence::Spot { values, covariance }] }
+        crate::analysis::evidence::Sheet {
+            spots: vec![crate::analysis::evidence::Spot { values, covariance }],
+        }
     }
 }
 
 /// The `session.json` of a session folder, or the path itself when it is a file.
 pub fn session_file(path: &Path) -> PathBuf {
-    if path.is_dir() { path.join("session.json") } else { path.to_path_buf() }
+    if path.is_dir() {
+        path.join("session.json")
+    } else {
+        path.to_path_buf()
+    }
 }
 
 /// Read a session result from a session folder or its `session.json`.
 pub fn read_session(path: &Path) -> Result<SessionResult, CompareError> {
     let file = session_file(path);
-    let text = std::fs::read_to_string(&file).map_err(|source| CompareError::Io { path: file.clone(), source })?;
+    let text = std::fs::read_to_string(&file).map_err(|source| CompareError::Io {
+        path: file.clone(),
+        source,
+    })?;
     parse_session(&file, &text)
 }
 
 /// Parse the text of a `session.json` (`file` is only for messages).
 pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareError> {
-    let root: Value = serde_json::from_str(text).map_err(|e| CompareError::Json { path: file.to_path_buf(), message: e.to_string() })?;
+    let root: Value = serde_json::from_str(text).map_err(|e| CompareError::Json {
+        path: file.to_path_buf(),
+        message: e.to_string(),
+    })?;
     session_result(file, &root)
 }
 
@@ -97,35 +108,72 @@ pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareEr
 pub fn session_result(file: &Path, root: &Value) -> Result<SessionResult, CompareError> {
     use crate::schema;
     if schema::of(root).is_some() || root.get("format").is_some() {
-        schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|message| CompareError::Json { path: file.to_path_buf(), message })?;
+        schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|message| {
+            CompareError::Json {
+                path: file.to_path_buf(),
+                message,
+            }
+        })?;
     }
-    let missing = |key: &str| CompareError::MissingKey { path: file.to_path_buf(), key: key.to_string() };
-    let bad = |key: &str, expected: &'static str| CompareError::BadValue { path: file.to_path_buf(), key: key.to_string(), expected };
-    let object = root.as_object().ok_or_else(|| bad("(top level)", "an object"))?;
+    let missing = |key: &str| CompareError::MissingKey {
+        path: file.to_path_buf(),
+        key: key.to_string(),
+    };
+    let bad = |key: &str, expected: &'static str| CompareError::BadValue {
+        path: file.to_path_buf(),
+        key: key.to_string(),
+        expected,
+    };
+    let object = root
+        .as_object()
+        .ok_or_else(|| bad("(top level)", "an object"))?;
 
-    let sample = object.get("sample").ok_or_else(|| missing("sample"))?.as_str().ok_or_else(|| bad("sample", "a string"))?.to_string();
+    let sample = object
+        .get("sample")
+        .ok_or_else(|| missing("sample"))?
+        .as_str()
+        .ok_or_else(|| bad("sample", "a string"))?
+        .to_string();
     let result = object.get("result").ok_or_else(|| missing("result"))?;
-    let result = result.as_object().ok_or_else(|| bad("result", "an object"))?;
+    let result = result
+        .as_object()
+        .ok_or_else(|| bad("result", "an object"))?;
 
     let mut values = [None; 4];
     for (i, name) in crate::analysis::model::PARAM_NAMES.iter().enumerate() {
         let key = format!("result.{name}");
         values[i] = match result.get(*name).ok_or_else(|| missing(&key))? {
             Value::Null => None,
-            v => Some(v.as_f64().filter(|x| x.is_finite()).ok_or_else(|| bad(&key, "a number or null"))?),
+            v => Some(
+                v.as_f64()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| bad(&key, "a number or null"))?,
+            ),
         };
     }
     let class = match result.get("class").ok_or_else(|| missing("result.class"))? {
         Value::Null => None,
-        v => Some(v.as_str().ok_or_else(|| bad("result.class", "a string or null"))?.to_string()),
+        v => Some(
+            v.as_str()
+                .ok_or_else(|| bad("result.class", "a string or null"))?
+                .to_string(),
+        ),
     };
 
-    let rows = result.get("covariance").ok_or_else(|| missing("result.covariance"))?;
+    let rows = result
+        .get("covariance")
+        .ok_or_else(|| missing("result.covariance"))?;
     let shape = "a 4×4 array of numbers";
-    let rows = rows.as_array().filter(|r| r.len() == 4).ok_or_else(|| bad("result.covariance", shape))?;
+    let rows = rows
+        .as_array()
+        .filter(|r| r.len() == 4)
+        .ok_or_else(|| bad("result.covariance", shape))?;
     let mut covariance = [[0.0; 4]; 4];
     for (i, row) in rows.iter().enumerate() {
-        let row = row.as_array().filter(|r| r.len() == 4).ok_or_else(|| bad("result.covariance", shape))?;
+        let row = row
+            .as_array()
+            .filter(|r| r.len() == 4)
+            .ok_or_else(|| bad("result.covariance", shape))?;
         for (j, v) in row.iter().enumerate() {
             // serde_json writes a non-finite covariance as null: treat it as not determined.
             covariance[i][j] = match v {
@@ -134,5 +182,11 @@ pub fn session_result(file: &Path, root: &Value) -> Result<SessionResult, Compar
             };
         }
     }
-    Ok(SessionResult { file: file.to_path_buf(), sample, class, values, covariance })
+    Ok(SessionResult {
+        file: file.to_path_buf(),
+        sample,
+        class,
+        values,
+        covariance,
+    })
 }

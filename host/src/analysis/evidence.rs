@@ -24,8 +24,8 @@
 //! Classes play no part: two sheets either side of a class boundary are weighed by their
 //! parameters, not declared different by the boundary.
 
-use crate::analysis::linalg::{self, Square};
 use crate::analysis::classify::REFERENCES;
+use crate::analysis::linalg::{self, Square};
 use crate::analysis::model::PARAM_NAMES;
 use serde::{Deserialize, Serialize};
 
@@ -68,12 +68,18 @@ impl Spot {
     pub fn of_fit(fit: &crate::analysis::fit::FitResult) -> Spot {
         use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
         let index = [SIGMA, RHO_S, RHO_D];
-        Spot { values: index.map(|i| fit.reported(i)), covariance: std::array::from_fn(|r| std::array::from_fn(|c| fit.covariance[index[r]][index[c]])) }
+        Spot {
+            values: index.map(|i| fit.reported(i)),
+            covariance: std::array::from_fn(|r| {
+                std::array::from_fn(|c| fit.covariance[index[r]][index[c]])
+            }),
+        }
     }
 
     /// The determined parameters' logs (`None`: not determined or not positive).
     fn log_values(&self) -> [Option<f64>; 3] {
-        self.values.map(|v| v.filter(|v| *v > 0.0 && v.is_finite()).map(f64::ln))
+        self.values
+            .map(|v| v.filter(|v| *v > 0.0 && v.is_finite()).map(f64::ln))
     }
 
     /// Covariance of the logs by the delta method: cov(ln a, ln b) = cov(a, b)/(a·b).
@@ -81,7 +87,10 @@ impl Spot {
         let mut s = Square::zeros(params.len());
         for (r, &i) in params.iter().enumerate() {
             for (c, &j) in params.iter().enumerate() {
-                let (vi, vj) = (self.values[i].unwrap_or(f64::NAN), self.values[j].unwrap_or(f64::NAN));
+                let (vi, vj) = (
+                    self.values[i].unwrap_or(f64::NAN),
+                    self.values[j].unwrap_or(f64::NAN),
+                );
                 let v = self.covariance[i][j] / (vi * vj);
                 *s.at_mut(r, c) = if v.is_finite() { v } else { 0.0 };
             }
@@ -100,13 +109,26 @@ pub struct Sheet {
 impl Sheet {
     /// The parameters every spot determined.
     pub fn determined(&self) -> Vec<usize> {
-        (0..3).filter(|&i| !self.spots.is_empty() && self.spots.iter().all(|s| s.log_values()[i].is_some())).collect()
+        (0..3)
+            .filter(|&i| {
+                !self.spots.is_empty() && self.spots.iter().all(|s| s.log_values()[i].is_some())
+            })
+            .collect()
     }
 
     /// Mean of the spots' logs over `params`.
     fn mean_log(&self, params: &[usize]) -> Vec<f64> {
         let n = self.spots.len().max(1) as f64;
-        params.iter().map(|&i| self.spots.iter().filter_map(|s| s.log_values()[i]).sum::<f64>() / n).collect()
+        params
+            .iter()
+            .map(|&i| {
+                self.spots
+                    .iter()
+                    .filter_map(|s| s.log_values()[i])
+                    .sum::<f64>()
+                    / n
+            })
+            .collect()
     }
 
     /// Mean of the spots' log covariances over `params`.
@@ -114,7 +136,9 @@ impl Sheet {
         let mut s = Square::zeros(params.len());
         for spot in &self.spots {
             let c = spot.log_covariance(params);
-            s.a.iter_mut().zip(&c.a).for_each(|(a, b)| *a += b / self.spots.len() as f64);
+            s.a.iter_mut()
+                .zip(&c.a)
+                .for_each(|(a, b)| *a += b / self.spots.len() as f64);
         }
         s
     }
@@ -125,11 +149,16 @@ impl Sheet {
 pub fn pool_by_stock(sheets: &[(String, Sheet)]) -> Vec<(String, usize, Sheet)> {
     let mut pooled: std::collections::BTreeMap<&str, (usize, Sheet)> = Default::default();
     for (stock, sheet) in sheets {
-        let entry = pooled.entry(stock).or_insert_with(|| (0, Sheet { spots: Vec::new() }));
+        let entry = pooled
+            .entry(stock)
+            .or_insert_with(|| (0, Sheet { spots: Vec::new() }));
         entry.0 += 1;
         entry.1.spots.extend(sheet.spots.iter().cloned());
     }
-    pooled.into_iter().map(|(stock, (n, sheet))| (stock.to_string(), n, sheet)).collect()
+    pooled
+        .into_iter()
+        .map(|(stock, (n, sheet))| (stock.to_string(), n, sheet))
+        .collect()
 }
 
 /// One stock of a search, with the evidence of the searched sheet against it.
@@ -148,13 +177,27 @@ pub struct RankedStock {
 /// The stocks of `library` (sheets labelled by stock) ranked by the likelihood ratio of
 /// `query` against each stock's sheets pooled as one sheet: best first, a NaN last, ties
 /// by name. What `gonio library search` prints and the forensic study counts.
-pub fn rank_stocks(query: &Sheet, library: &[(String, Sheet)], population: &Population) -> Vec<RankedStock> {
+pub fn rank_stocks(
+    query: &Sheet,
+    library: &[(String, Sheet)],
+    population: &Population,
+) -> Vec<RankedStock> {
     let mut ranking: Vec<RankedStock> = pool_by_stock(library)
         .into_iter()
-        .map(|(stock, sheets, pooled)| RankedStock { stock, sheets, spots: pooled.spots.len(), evidence: likelihood_ratio(query, &pooled, population) })
+        .map(|(stock, sheets, pooled)| RankedStock {
+            stock,
+            sheets,
+            spots: pooled.spots.len(),
+            evidence: likelihood_ratio(query, &pooled, population),
+        })
         .collect();
     let lr = |r: &RankedStock| r.evidence.log10_lr;
-    ranking.sort_by(|a, b| lr(b).partial_cmp(&lr(a)).unwrap_or_else(|| lr(a).is_nan().cmp(&lr(b).is_nan())).then_with(|| a.stock.cmp(&b.stock)));
+    ranking.sort_by(|a, b| {
+        lr(b)
+            .partial_cmp(&lr(a))
+            .unwrap_or_else(|| lr(a).is_nan().cmp(&lr(b).is_nan()))
+            .then_with(|| a.stock.cmp(&b.stock))
+    });
     ranking
 }
 
@@ -177,7 +220,9 @@ fn scatter(rows: impl Iterator<Item = Vec<f64>>, mean: &[f64], dof: usize) -> Sq
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum EvidenceError {
     /// Too few stocks for a between-stock density.
-    #[error("a population needs sheets of at least {needed} stocks with σ, ρs and ρd determined; it has {found}")]
+    #[error(
+        "a population needs sheets of at least {needed} stocks with σ, ρs and ρd determined; it has {found}"
+    )]
     TooFewStocks {
         /// Stocks needed.
         needed: usize,
@@ -188,7 +233,9 @@ pub enum EvidenceError {
     #[error("no stock has two or more spots: the within-stock variation cannot be estimated")]
     NoWithinStockVariation,
     /// The variation came out degenerate (a parameter that never varies).
-    #[error("the population's {what} covariance is not positive definite (a parameter that does not vary)")]
+    #[error(
+        "the population's {what} covariance is not positive definite (a parameter that does not vary)"
+    )]
     Degenerate {
         /// Within or between.
         what: &'static str,
@@ -249,7 +296,11 @@ impl Population {
     /// stock's spots about its mean (sheets of a stock differ as its spots do).
     pub fn from_sheets(sheets: &[(String, Sheet)]) -> Result<Population, EvidenceError> {
         // Only sheets whose every spot determined σ, ρs and ρd describe a stock in full.
-        let complete: Vec<(String, Sheet)> = sheets.iter().filter(|(_, sheet)| sheet.determined().len() == 3).cloned().collect();
+        let complete: Vec<(String, Sheet)> = sheets
+            .iter()
+            .filter(|(_, sheet)| sheet.determined().len() == 3)
+            .cloned()
+            .collect();
         let mut stocks = Vec::new();
         let mut rows_about_mean: Vec<Vec<f64>> = Vec::new();
         let mut dof = 0usize;
@@ -258,26 +309,39 @@ impl Population {
             n_sheets += sheets_of_stock;
             n_spots += pooled.spots.len();
             let mean = pooled.mean_log(&[0, 1, 2]);
-            rows_about_mean.extend(pooled.spots.iter().map(|s| (0..3).map(|i| s.log_values()[i].unwrap_or(f64::NAN) - mean[i]).collect::<Vec<f64>>()));
+            rows_about_mean.extend(pooled.spots.iter().map(|s| {
+                (0..3)
+                    .map(|i| s.log_values()[i].unwrap_or(f64::NAN) - mean[i])
+                    .collect::<Vec<f64>>()
+            }));
             dof += pooled.spots.len() - 1;
             stocks.push((name, [mean[0], mean[1], mean[2]]));
         }
         const MIN_STOCKS: usize = 4;
         if stocks.len() < MIN_STOCKS {
-            return Err(EvidenceError::TooFewStocks { needed: MIN_STOCKS, found: stocks.len() });
+            return Err(EvidenceError::TooFewStocks {
+                needed: MIN_STOCKS,
+                found: stocks.len(),
+            });
         }
         if dof == 0 {
             return Err(EvidenceError::NoWithinStockVariation);
         }
         let within = scatter(rows_about_mean.into_iter(), &[0.0; 3], dof);
         let means: Vec<Vec<f64>> = stocks.iter().map(|(_, m)| m.to_vec()).collect();
-        let grand: Vec<f64> = (0..3).map(|i| means.iter().map(|m| m[i]).sum::<f64>() / means.len() as f64).collect();
+        let grand: Vec<f64> = (0..3)
+            .map(|i| means.iter().map(|m| m[i]).sum::<f64>() / means.len() as f64)
+            .collect();
         let between = scatter(means.into_iter(), &grand, stocks.len() - 1);
         if linalg::cholesky(&within).is_none() {
-            return Err(EvidenceError::Degenerate { what: "within-stock" });
+            return Err(EvidenceError::Degenerate {
+                what: "within-stock",
+            });
         }
         if linalg::cholesky(&between).is_none() {
-            return Err(EvidenceError::Degenerate { what: "between-stock" });
+            return Err(EvidenceError::Degenerate {
+                what: "between-stock",
+            });
         }
         let n_stocks = stocks.len();
         let kernel = scale(&between, silverman_bandwidth(n_stocks, 3).powi(2));
@@ -285,7 +349,11 @@ impl Population {
             stocks,
             within: to_array(&within),
             kernel: to_array(&kernel),
-            source: PopulationSource::Sheets { stocks: n_stocks, sheets: n_sheets, spots: n_spots },
+            source: PopulationSource::Sheets {
+                stocks: n_stocks,
+                sheets: n_sheets,
+                spots: n_spots,
+            },
         })
     }
 
@@ -293,10 +361,36 @@ impl Population {
     /// the eight reference papers of Table 6, their means scattered about each paper by
     /// [`DEFAULT_BETWEEN_RELATIVE_SD`], with [`DEFAULT_WITHIN_RELATIVE_SD`] between spots.
     pub fn default_population() -> Population {
-        let stocks: Vec<(String, [f64; 3])> =
-            REFERENCES.iter().map(|r| (r.name.to_string(), [r.params.sigma_deg.ln(), r.params.rho_s.ln(), r.params.rho_d.ln()])).collect();
-        let log_variance = |sd: &[f64; 3]| -> [[f64; 3]; 3] { std::array::from_fn(|r| std::array::from_fn(|c| if r == c { (1.0 + sd[r].powi(2)).ln() } else { 0.0 })) };
-        Population { stocks, within: log_variance(&DEFAULT_WITHIN_RELATIVE_SD), kernel: log_variance(&DEFAULT_BETWEEN_RELATIVE_SD), source: PopulationSource::Default }
+        let stocks: Vec<(String, [f64; 3])> = REFERENCES
+            .iter()
+            .map(|r| {
+                (
+                    r.name.to_string(),
+                    [
+                        r.params.sigma_deg.ln(),
+                        r.params.rho_s.ln(),
+                        r.params.rho_d.ln(),
+                    ],
+                )
+            })
+            .collect();
+        let log_variance = |sd: &[f64; 3]| -> [[f64; 3]; 3] {
+            std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    if r == c {
+                        (1.0 + sd[r].powi(2)).ln()
+                    } else {
+                        0.0
+                    }
+                })
+            })
+        };
+        Population {
+            stocks,
+            within: log_variance(&DEFAULT_WITHIN_RELATIVE_SD),
+            kernel: log_variance(&DEFAULT_BETWEEN_RELATIVE_SD),
+            source: PopulationSource::Default,
+        }
     }
 
     /// The number of stocks.
@@ -385,11 +479,17 @@ fn log_normal_density(x: &[f64], mean: &[f64], cov: &Square) -> Option<f64> {
 }
 
 fn add(a: &Square, b: &Square) -> Square {
-    Square { n: a.n, a: a.a.iter().zip(&b.a).map(|(x, y)| x + y).collect() }
+    Square {
+        n: a.n,
+        a: a.a.iter().zip(&b.a).map(|(x, y)| x + y).collect(),
+    }
 }
 
 fn scale(a: &Square, f: f64) -> Square {
-    Square { n: a.n, a: a.a.iter().map(|x| x * f).collect() }
+    Square {
+        n: a.n,
+        a: a.a.iter().map(|x| x * f).collect(),
+    }
 }
 
 fn log_mean_exp(values: &[f64]) -> f64 {
@@ -406,22 +506,53 @@ fn log_lr(a: &Sheet, b: &Sheet, population: &Population, params: &[usize]) -> Op
     let within = restrict(&population.within, params);
     let kernel = restrict(&population.kernel, params);
     let (ya, yb) = (a.mean_log(params), b.mean_log(params));
-    let ua = add(&scale(&within, 1.0 / a.spots.len() as f64), &a.mean_log_covariance(params));
-    let ub = add(&scale(&within, 1.0 / b.spots.len() as f64), &b.mean_log_covariance(params));
-    let means: Vec<Vec<f64>> = population.stocks.iter().map(|(_, m)| params.iter().map(|&i| m[i]).collect()).collect();
+    let ua = add(
+        &scale(&within, 1.0 / a.spots.len() as f64),
+        &a.mean_log_covariance(params),
+    );
+    let ub = add(
+        &scale(&within, 1.0 / b.spots.len() as f64),
+        &b.mean_log_covariance(params),
+    );
+    let means: Vec<Vec<f64>> = population
+        .stocks
+        .iter()
+        .map(|(_, m)| params.iter().map(|&i| m[i]).collect())
+        .collect();
     // Same stock: the difference, and the precision-weighted mean against the population.
-    let difference = log_normal_density(&ya.iter().zip(&yb).map(|(p, q)| p - q).collect::<Vec<_>>(), &vec![0.0; d], &add(&ua, &ub))?;
+    let difference = log_normal_density(
+        &ya.iter().zip(&yb).map(|(p, q)| p - q).collect::<Vec<_>>(),
+        &vec![0.0; d],
+        &add(&ua, &ub),
+    )?;
     let (pa, pb) = (linalg::spd_inverse(&ua)?, linalg::spd_inverse(&ub)?);
     let v_star = linalg::spd_inverse(&add(&pa, &pb))?;
-    let weighted: Vec<f64> = (0..d).map(|r| (0..d).map(|c| pa.at(r, c) * ya[c] + pb.at(r, c) * yb[c]).sum()).collect();
-    let theta: Vec<f64> = (0..d).map(|r| (0..d).map(|c| v_star.at(r, c) * weighted[c]).sum()).collect();
+    let weighted: Vec<f64> = (0..d)
+        .map(|r| {
+            (0..d)
+                .map(|c| pa.at(r, c) * ya[c] + pb.at(r, c) * yb[c])
+                .sum()
+        })
+        .collect();
+    let theta: Vec<f64> = (0..d)
+        .map(|r| (0..d).map(|c| v_star.at(r, c) * weighted[c]).sum())
+        .collect();
     let around = add(&v_star, &kernel);
-    let same_density: Vec<f64> = means.iter().map(|m| log_normal_density(&theta, m, &around)).collect::<Option<_>>()?;
+    let same_density: Vec<f64> = means
+        .iter()
+        .map(|m| log_normal_density(&theta, m, &around))
+        .collect::<Option<_>>()?;
     let numerator = difference + log_mean_exp(&same_density);
     // Different stocks: each sheet against the population on its own.
     let (ka, kb) = (add(&ua, &kernel), add(&ub, &kernel));
-    let da: Vec<f64> = means.iter().map(|m| log_normal_density(&ya, m, &ka)).collect::<Option<_>>()?;
-    let db: Vec<f64> = means.iter().map(|m| log_normal_density(&yb, m, &kb)).collect::<Option<_>>()?;
+    let da: Vec<f64> = means
+        .iter()
+        .map(|m| log_normal_density(&ya, m, &ka))
+        .collect::<Option<_>>()?;
+    let db: Vec<f64> = means
+        .iter()
+        .map(|m| log_normal_density(&yb, m, &kb))
+        .collect::<Option<_>>()?;
     let denominator = log_mean_exp(&da) + log_mean_exp(&db);
     let out = numerator - denominator;
     out.is_finite().then_some(out)
@@ -432,15 +563,40 @@ fn log_lr(a: &Sheet, b: &Sheet, population: &Population, params: &[usize]) -> Op
 /// degenerate covariance, gives LR = 1 with the reason in `left_out`.
 pub fn likelihood_ratio(a: &Sheet, b: &Sheet, population: &Population) -> Evidence {
     let (da, db) = (a.determined(), b.determined());
-    let params: Vec<usize> = (0..3).filter(|i| da.contains(i) && db.contains(i)).collect();
+    let params: Vec<usize> = (0..3)
+        .filter(|i| da.contains(i) && db.contains(i))
+        .collect();
     let left_out: Vec<(&'static str, &'static str)> = (0..3)
         .filter(|i| !params.contains(i))
-        .map(|i| (PARAMS[i], if !da.contains(&i) && !db.contains(&i) { "determined by neither sheet" } else if !da.contains(&i) { "not determined by A" } else { "not determined by B" }))
+        .map(|i| {
+            (
+                PARAMS[i],
+                if !da.contains(&i) && !db.contains(&i) {
+                    "determined by neither sheet"
+                } else if !da.contains(&i) {
+                    "not determined by A"
+                } else {
+                    "not determined by B"
+                },
+            )
+        })
         .collect();
     let ln10 = std::f64::consts::LN_10;
-    let joint = if params.is_empty() || population.is_empty() { None } else { log_lr(a, b, population, &params) };
+    let joint = if params.is_empty() || population.is_empty() {
+        None
+    } else {
+        log_lr(a, b, population, &params)
+    };
     let log10_lr = joint.map_or(0.0, |v| v / ln10);
-    let contributions = params.iter().map(|&i| (PARAMS[i], log_lr(a, b, population, &[i]).map_or(0.0, |v| v / ln10))).collect();
+    let contributions = params
+        .iter()
+        .map(|&i| {
+            (
+                PARAMS[i],
+                log_lr(a, b, population, &[i]).map_or(0.0, |v| v / ln10),
+            )
+        })
+        .collect();
     let support = if log10_lr >= INCONCLUSIVE_LOG10 {
         Support::SameStock
     } else if log10_lr <= -INCONCLUSIVE_LOG10 {
@@ -450,7 +606,10 @@ pub fn likelihood_ratio(a: &Sheet, b: &Sheet, population: &Population) -> Eviden
     };
     let mut left_out = left_out;
     if joint.is_none() && !params.is_empty() {
-        left_out.push(("all", "a covariance was not positive definite: no evidence weighed"));
+        left_out.push((
+            "all",
+            "a covariance was not positive definite: no evidence weighed",
+        ));
     }
     Evidence {
         log10_lr,
@@ -470,11 +629,27 @@ mod tests {
 
     fn spot(sigma: f64, rho_s: f64, rho_d: f64, relative_u: f64) -> Spot {
         let values = [sigma, rho_s, rho_d];
-        Spot { values: values.map(Some), covariance: std::array::from_fn(|r| std::array::from_fn(|c| if r == c { (values[r] * relative_u).powi(2) } else { 0.0 })) }
+        Spot {
+            values: values.map(Some),
+            covariance: std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    if r == c {
+                        (values[r] * relative_u).powi(2)
+                    } else {
+                        0.0
+                    }
+                })
+            }),
+        }
     }
 
     fn sheet(spots: &[(f64, f64, f64)]) -> Sheet {
-        Sheet { spots: spots.iter().map(|&(a, b, c)| spot(a, b, c, 0.002)).collect() }
+        Sheet {
+            spots: spots
+                .iter()
+                .map(|&(a, b, c)| spot(a, b, c, 0.002))
+                .collect(),
+        }
     }
 
     #[test]
@@ -495,8 +670,16 @@ mod tests {
     #[test]
     fn more_spots_weigh_more() {
         let p = Population::default_population();
-        let one = likelihood_ratio(&sheet(&[(21.7, 0.409, 0.414)]), &sheet(&[(21.7, 0.409, 0.414)]), &p);
-        let five = likelihood_ratio(&sheet(&[(21.7, 0.409, 0.414); 5]), &sheet(&[(21.7, 0.409, 0.414); 5]), &p);
+        let one = likelihood_ratio(
+            &sheet(&[(21.7, 0.409, 0.414)]),
+            &sheet(&[(21.7, 0.409, 0.414)]),
+            &p,
+        );
+        let five = likelihood_ratio(
+            &sheet(&[(21.7, 0.409, 0.414); 5]),
+            &sheet(&[(21.7, 0.409, 0.414); 5]),
+            &p,
+        );
         assert!(five.log10_lr > one.log10_lr && one.log10_lr > 0.0);
         assert_eq!(five.within_known, (true, true));
         assert_eq!(one.within_known, (false, false));
@@ -512,36 +695,92 @@ mod tests {
         assert_eq!(e.parameters, ["sigma_deg", "rho_d"]);
         assert_eq!(e.left_out, [("rho_s", "not determined by B")]);
         assert!(e.log10_lr.is_finite());
-        let none = Sheet { spots: vec![Spot { values: [None; 3], covariance: [[0.0; 3]; 3] }] };
+        let none = Sheet {
+            spots: vec![Spot {
+                values: [None; 3],
+                covariance: [[0.0; 3]; 3],
+            }],
+        };
         let e = likelihood_ratio(&a, &none, &p);
         assert_eq!((e.log10_lr, e.support), (0.0, Support::Inconclusive));
     }
 
     #[test]
     fn a_population_needs_stocks_and_spots() {
-        let one_each: Vec<(String, Sheet)> = (0..6).map(|k| (format!("s{k}"), sheet(&[(10.0 + k as f64, 0.4, 0.4)]))).collect();
-        assert_eq!(Population::from_sheets(&one_each), Err(EvidenceError::NoWithinStockVariation));
-        let few: Vec<(String, Sheet)> = (0..2).map(|k| (format!("s{k}"), sheet(&[(10.0, 0.4, 0.4), (10.2, 0.41, 0.39)]))).collect();
-        assert!(matches!(Population::from_sheets(&few), Err(EvidenceError::TooFewStocks { found: 2, .. })));
+        let one_each: Vec<(String, Sheet)> = (0..6)
+            .map(|k| (format!("s{k}"), sheet(&[(10.0 + k as f64, 0.4, 0.4)])))
+            .collect();
+        assert_eq!(
+            Population::from_sheets(&one_each),
+            Err(EvidenceError::NoWithinStockVariation)
+        );
+        let few: Vec<(String, Sheet)> = (0..2)
+            .map(|k| {
+                (
+                    format!("s{k}"),
+                    sheet(&[(10.0, 0.4, 0.4), (10.2, 0.41, 0.39)]),
+                )
+            })
+            .collect();
+        assert!(matches!(
+            Population::from_sheets(&few),
+            Err(EvidenceError::TooFewStocks { found: 2, .. })
+        ));
         let good: Vec<(String, Sheet)> = (0..6)
             .map(|k| {
-                let (x, y, z) = (1.0 + 0.3 * k as f64, 0.4 + 0.07 * (k % 3) as f64, 0.4 + 0.05 * (k % 4) as f64);
+                let (x, y, z) = (
+                    1.0 + 0.3 * k as f64,
+                    0.4 + 0.07 * (k % 3) as f64,
+                    0.4 + 0.05 * (k % 4) as f64,
+                );
                 let e = 0.01 * (k as f64 - 2.5);
-                (format!("s{k}"), sheet(&[(10.0 * x, y, z), (10.3 * x, (0.98 + e) * y, 1.02 * z), (9.8 * x, 1.02 * y, (0.99 - e) * z)]))
+                (
+                    format!("s{k}"),
+                    sheet(&[
+                        (10.0 * x, y, z),
+                        (10.3 * x, (0.98 + e) * y, 1.02 * z),
+                        (9.8 * x, 1.02 * y, (0.99 - e) * z),
+                    ]),
+                )
             })
             .collect();
         let p = Population::from_sheets(&good).expect("six stocks of three spots");
-        assert_eq!(p.source, PopulationSource::Sheets { stocks: 6, sheets: 6, spots: 18 });
+        assert_eq!(
+            p.source,
+            PopulationSource::Sheets {
+                stocks: 6,
+                sheets: 6,
+                spots: 18
+            }
+        );
     }
 
     #[test]
     fn the_verbal_scale_follows_enfsi() {
-        assert_eq!(verbal(0.5), "weak support for the same stock over different stocks");
-        assert_eq!(verbal(-1.5), "moderate support for different stocks over the same stock");
-        assert_eq!(verbal(2.5), "moderately strong support for the same stock over different stocks");
-        assert_eq!(verbal(3.5), "strong support for the same stock over different stocks");
-        assert_eq!(verbal(-5.0), "very strong support for different stocks over the same stock");
-        assert_eq!(verbal(7.0), "extremely strong support for the same stock over different stocks");
+        assert_eq!(
+            verbal(0.5),
+            "weak support for the same stock over different stocks"
+        );
+        assert_eq!(
+            verbal(-1.5),
+            "moderate support for different stocks over the same stock"
+        );
+        assert_eq!(
+            verbal(2.5),
+            "moderately strong support for the same stock over different stocks"
+        );
+        assert_eq!(
+            verbal(3.5),
+            "strong support for the same stock over different stocks"
+        );
+        assert_eq!(
+            verbal(-5.0),
+            "very strong support for different stocks over the same stock"
+        );
+        assert_eq!(
+            verbal(7.0),
+            "extremely strong support for the same stock over different stocks"
+        );
         assert_eq!(verbal(0.0), "no support for either proposition");
     }
 }

@@ -35,7 +35,10 @@ use crate::analysis::flags::Flag;
 use crate::analysis::gof::{self, StructureTest};
 use crate::analysis::linalg::{self, Square};
 use crate::analysis::model::{ETA, PARAM_NAMES, Params, RHO_S, SIGMA};
-use engine::{LmOutcome, Problem, global_fit, levenberg_marquardt, levenberg_marquardt_until, lower_bounds, params_of, upper_bounds, x_of};
+use engine::{
+    LmOutcome, Problem, global_fit, levenberg_marquardt, levenberg_marquardt_until, lower_bounds,
+    params_of, upper_bounds, x_of,
+};
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 use thiserror::Error;
@@ -121,7 +124,8 @@ pub struct SharedError {
 impl SharedError {
     /// Reading k's whole sensitivity at the readings (scaling and additive parts).
     pub fn total(&self, k: usize) -> f64 {
-        self.sensitivity.get(k).copied().unwrap_or(0.0) + self.additive.get(k).copied().unwrap_or(0.0)
+        self.sensitivity.get(k).copied().unwrap_or(0.0)
+            + self.additive.get(k).copied().unwrap_or(0.0)
     }
 }
 
@@ -166,7 +170,13 @@ impl Default for FitOptions {
     /// Readings of unknown provenance: no arm zero error is assumed (a session states its
     /// instrument's, [`DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]).
     fn default() -> Self {
-        FitOptions { acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG), max_iterations: 200, arm_offset: true, arm_zero_uncertainty_deg: 0.0, noise_scale_log_variance: 0.0 }
+        FitOptions {
+            acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG),
+            max_iterations: 200,
+            arm_offset: true,
+            arm_zero_uncertainty_deg: 0.0,
+            noise_scale_log_variance: 0.0,
+        }
     }
 }
 
@@ -174,7 +184,9 @@ impl Default for FitOptions {
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum FitError {
     /// Fewer distinct geometries than model parameters.
-    #[error("only {found} distinct geometries: at least {needed} are needed to fit the {needed} parameters")]
+    #[error(
+        "only {found} distinct geometries: at least {needed} are needed to fit the {needed} parameters"
+    )]
     TooFewGeometries {
         /// Distinct geometries found.
         found: usize,
@@ -208,7 +220,9 @@ pub enum FitError {
         max: f64,
     },
     /// An angle outside [0°, 90°).
-    #[error("reading {index}: {what} = {value}° is outside [0°, 90°) (at 90° the model's G/(cos θi·cos θr) is unbounded)")]
+    #[error(
+        "reading {index}: {what} = {value}° is outside [0°, 90°) (at 90° the model's G/(cos θi·cos θr) is unbounded)"
+    )]
     AngleOutOfRange {
         /// Reading.
         index: usize,
@@ -218,7 +232,9 @@ pub enum FitError {
         value: f64,
     },
     /// A detector travel that is no span a bin can have.
-    #[error("reading {index}: the detector's travel while it integrated, {value}°, is outside [0°, {MAX_SPAN_DEG}°]")]
+    #[error(
+        "reading {index}: the detector's travel while it integrated, {value}°, is outside [0°, {MAX_SPAN_DEG}°]"
+    )]
     SpanOutOfRange {
         /// Reading.
         index: usize,
@@ -234,7 +250,9 @@ pub enum FitError {
         value: f64,
     },
     /// A standard uncertainty outside [`STD_MIN`]…[`STD_MAX`].
-    #[error("reading {index}: standard uncertainty {value:e} is outside the accepted {min:e} … {max:e}")]
+    #[error(
+        "reading {index}: standard uncertainty {value:e} is outside the accepted {min:e} … {max:e}"
+    )]
     UncertaintyOutOfRange {
         /// Reading.
         index: usize,
@@ -288,7 +306,9 @@ pub enum FitError {
         expected: usize,
     },
     /// A shared error's sensitivity is not a finite number of at most [`RADIANCE_FACTOR_MAX`].
-    #[error("shared error '{name}', reading {index}: sensitivity {value} is not a finite number within ±{max:e}")]
+    #[error(
+        "shared error '{name}', reading {index}: sensitivity {value} is not a finite number within ±{max:e}"
+    )]
     SharedErrorValue {
         /// The shared error.
         name: String,
@@ -300,7 +320,9 @@ pub enum FitError {
         max: f64,
     },
     /// Shared errors given for readings without uncertainties: their size has no scale.
-    #[error("shared error '{name}' given, but the readings have no standard uncertainties to set it against")]
+    #[error(
+        "shared error '{name}' given, but the readings have no standard uncertainties to set it against"
+    )]
     SharedErrorWithoutUncertainties {
         /// The shared error.
         name: String,
@@ -421,16 +443,31 @@ impl std::fmt::Display for Note {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Note::EtaAtBound { eta } => write!(f, "η at its bound {eta}: held there, not fitted"),
-            Note::NoSpecularTerm => f.write_str("no specular part: only ρd fitted (σ, η meaningless)"),
-            Note::SigmaUnresolved { upper_deg, rho_s_lower } => {
-                write!(f, "σ not resolved by the sampling: only known to be below {upper_deg:.3}°")?;
+            Note::NoSpecularTerm => {
+                f.write_str("no specular part: only ρd fitted (σ, η meaningless)")
+            }
+            Note::SigmaUnresolved {
+                upper_deg,
+                rho_s_lower,
+            } => {
+                write!(
+                    f,
+                    "σ not resolved by the sampling: only known to be below {upper_deg:.3}°"
+                )?;
                 match rho_s_lower {
-                    Some(r) => write!(f, "; through the detector window ρs is not determined either (≥ {r:.4})"),
+                    Some(r) => write!(
+                        f,
+                        "; through the detector window ρs is not determined either (≥ {r:.4})"
+                    ),
                     None => Ok(()),
                 }
             }
-            Note::SingularJacobian => f.write_str("singular normal matrix at the optimum: no confidence intervals"),
-            Note::NoDegreesOfFreedom => f.write_str("as many parameters as geometries: no confidence intervals"),
+            Note::SingularJacobian => {
+                f.write_str("singular normal matrix at the optimum: no confidence intervals")
+            }
+            Note::NoDegreesOfFreedom => {
+                f.write_str("as many parameters as geometries: no confidence intervals")
+            }
             Note::NoiseFromResiduals { std } => {
                 write!(
                     f,
@@ -438,14 +475,26 @@ impl std::fmt::Display for Note {
                 )
             }
             Note::ArmOffsetFitted { deg, std_deg, lr } => {
-                write!(f, "arm zero offset fitted: every θr taken as θr + δ0, δ0 = {deg:+.3}° ± {std_deg:.3}° (test statistic {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})")
+                write!(
+                    f,
+                    "arm zero offset fitted: every θr taken as θr + δ0, δ0 = {deg:+.3}° ± {std_deg:.3}° (test statistic {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})"
+                )
             }
             Note::IntervalsWidened { factor } => {
-                write!(f, "the model does not describe the data: intervals widened × {:.2} (variance × {factor:.2})", factor.sqrt())
+                write!(
+                    f,
+                    "the model does not describe the data: intervals widened × {:.2} (variance × {factor:.2})",
+                    factor.sqrt()
+                )
             }
-            Note::FitNotTestable => f.write_str("goodness of fit not testable: no uncertainties and too few θr neighbours"),
+            Note::FitNotTestable => f.write_str(
+                "goodness of fit not testable: no uncertainties and too few θr neighbours",
+            ),
             Note::RhoSUnbounded { rho_s_lower } => {
-                write!(f, "η's interval reaches 1, where ρs = A/(η²−1) is unbounded (A = ρs·(η²−1) the amplitude the data fix): ρs not identified, only ≥ {rho_s_lower:.4}")
+                write!(
+                    f,
+                    "η's interval reaches 1, where ρs = A/(η²−1) is unbounded (A = ρs·(η²−1) the amplitude the data fix): ρs not identified, only ≥ {rho_s_lower:.4}"
+                )
             }
         }
     }
@@ -460,7 +509,10 @@ pub struct FittedModel(pub [bool; N_PARAMS]);
 impl FittedModel {
     /// Names of the fitted parameters, in the order σ, ρs, ρd, η.
     pub fn names(&self) -> Vec<&'static str> {
-        (0..N_PARAMS).filter(|&i| self.0[i]).map(|i| PARAM_NAMES[i]).collect()
+        (0..N_PARAMS)
+            .filter(|&i| self.0[i])
+            .map(|i| PARAM_NAMES[i])
+            .collect()
     }
 
     /// Number of fitted parameters.
@@ -573,13 +625,18 @@ impl FitResult {
 
     /// Whether parameter `index` was determined by the data.
     pub fn identified(&self, index: usize) -> bool {
-        index < N_PARAMS && !self.not_identified().iter().any(|n| n.param == PARAM_NAMES[index])
+        index < N_PARAMS
+            && !self
+                .not_identified()
+                .iter()
+                .any(|n| n.param == PARAM_NAMES[index])
     }
 
     /// A parameter's value if it means something: fitted, or held at a bound the data
     /// pushed it to; `None` for what was not identified ([`FitResult::not_identified`]).
     pub fn reported(&self, index: usize) -> Option<f64> {
-        self.identified(index).then(|| self.params.to_array()[index])
+        self.identified(index)
+            .then(|| self.params.to_array()[index])
     }
 
     /// σ in degrees if it was resolved.
@@ -612,7 +669,8 @@ impl FitResult {
 
     /// Standard uncertainty of a parameter (σ in degrees), if fitted and identified.
     pub fn std_error(&self, index: usize) -> Option<f64> {
-        (self.model.0[index] && self.identified(index)).then(|| self.covariance[index][index].max(0.0).sqrt())
+        (self.model.0[index] && self.identified(index))
+            .then(|| self.covariance[index][index].max(0.0).sqrt())
     }
 }
 
@@ -621,19 +679,31 @@ fn not_identified_of(notes: &[Note]) -> Vec<NotIdentified> {
     let mut out = Vec::new();
     let no_specular = notes.contains(&Note::NoSpecularTerm);
     if no_specular {
-        out.push(NotIdentified { param: PARAM_NAMES[SIGMA], reason: "no specular part" });
-        out.push(NotIdentified { param: "eta", reason: "no specular part" });
+        out.push(NotIdentified {
+            param: PARAM_NAMES[SIGMA],
+            reason: "no specular part",
+        });
+        out.push(NotIdentified {
+            param: "eta",
+            reason: "no specular part",
+        });
     }
     for note in notes {
         match note {
             Note::SigmaUnresolved { rho_s_lower, .. } => {
-                out.push(NotIdentified { param: PARAM_NAMES[SIGMA], reason: "not resolved by the sampling (only an upper limit)" });
+                out.push(NotIdentified {
+                    param: PARAM_NAMES[SIGMA],
+                    reason: "not resolved by the sampling (only an upper limit)",
+                });
                 if rho_s_lower.is_some() {
                     out.push(NotIdentified { param: "rho_s", reason: "σ unresolved: through the detector window only ρs·min(1, ~σ/a) is determined" });
                 }
             }
             Note::EtaAtBound { eta } if *eta <= ETA_MIN && !no_specular => {
-                out.push(NotIdentified { param: "rho_s", reason: "η at its lower bound 1: only ρs·(η²−1) is determined" });
+                out.push(NotIdentified {
+                    param: "rho_s",
+                    reason: "η at its lower bound 1: only ρs·(η²−1) is determined",
+                });
             }
             Note::RhoSUnbounded { .. } => {
                 out.push(NotIdentified { param: "rho_s", reason: "η's 95 % interval reaches 1, where ρs is unbounded: only a lower limit" });
@@ -670,22 +740,40 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
             }
         }
         if !(0.0..=MAX_SPAN_DEG).contains(&o.theta_r_span_deg) {
-            return Err(FitError::SpanOutOfRange { index, value: o.theta_r_span_deg });
+            return Err(FitError::SpanOutOfRange {
+                index,
+                value: o.theta_r_span_deg,
+            });
         }
         if !o.radiance_factor.is_finite() {
-            return Err(FitError::NotFinite { index, what: "radiance_factor" });
+            return Err(FitError::NotFinite {
+                index,
+                what: "radiance_factor",
+            });
         }
         if o.radiance_factor < 0.0 {
-            return Err(FitError::Negative { index, value: o.radiance_factor });
+            return Err(FitError::Negative {
+                index,
+                value: o.radiance_factor,
+            });
         }
         if o.radiance_factor > RADIANCE_FACTOR_MAX {
-            return Err(FitError::TooLarge { index, value: o.radiance_factor, max: RADIANCE_FACTOR_MAX });
+            return Err(FitError::TooLarge {
+                index,
+                value: o.radiance_factor,
+                max: RADIANCE_FACTOR_MAX,
+            });
         }
         match o.std {
             Some(s) if !s.is_finite() => return Err(FitError::NotFinite { index, what: "std" }),
             Some(s) if s <= 0.0 => return Err(FitError::BadUncertainty { index, value: s }),
             Some(s) if !(STD_MIN..=STD_MAX).contains(&s) => {
-                return Err(FitError::UncertaintyOutOfRange { index, value: s, min: STD_MIN, max: STD_MAX });
+                return Err(FitError::UncertaintyOutOfRange {
+                    index,
+                    value: s,
+                    min: STD_MIN,
+                    max: STD_MAX,
+                });
             }
             None if weighted => return Err(FitError::MixedUncertainties { index }),
             Some(_) if !weighted => {
@@ -700,7 +788,10 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
     let mut order: Vec<usize> = (0..observations.len()).collect();
     order.sort_by(|&a, &b| {
         let (oa, ob) = (&observations[a], &observations[b]);
-        oa.theta_i_deg.total_cmp(&ob.theta_i_deg).then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg)).then(a.cmp(&b))
+        oa.theta_i_deg
+            .total_cmp(&ob.theta_i_deg)
+            .then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg))
+            .then(a.cmp(&b))
     });
     let mut distinct = 0;
     for (k, &i) in order.iter().enumerate() {
@@ -731,35 +822,63 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
         }
     }
     if distinct < N_PARAMS {
-        return Err(FitError::TooFewGeometries { found: distinct, needed: N_PARAMS });
+        return Err(FitError::TooFewGeometries {
+            found: distinct,
+            needed: N_PARAMS,
+        });
     }
     let (lo, hi) = observations
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| (lo.min(o.radiance_factor), hi.max(o.radiance_factor)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| {
+            (lo.min(o.radiance_factor), hi.max(o.radiance_factor))
+        });
     if lo == hi {
-        return Err(FitError::AllEqual { n: observations.len(), value: lo });
+        return Err(FitError::AllEqual {
+            n: observations.len(),
+            value: lo,
+        });
     }
     Ok(())
 }
 
 /// Check the shared errors against the (validated) readings: one finite sensitivity of at
 /// most [`RADIANCE_FACTOR_MAX`] per reading, and readings with uncertainties.
-pub fn validate_shared(observations: &[Observation], shared: &[SharedError]) -> Result<(), FitError> {
+pub fn validate_shared(
+    observations: &[Observation],
+    shared: &[SharedError],
+) -> Result<(), FitError> {
     let weighted = observations.first().is_some_and(|o| o.std.is_some());
     for term in shared {
         if !weighted {
-            return Err(FitError::SharedErrorWithoutUncertainties { name: term.name.clone() });
+            return Err(FitError::SharedErrorWithoutUncertainties {
+                name: term.name.clone(),
+            });
         }
         if term.sensitivity.len() != observations.len() {
-            return Err(FitError::SharedErrorLength { name: term.name.clone(), found: term.sensitivity.len(), expected: observations.len() });
+            return Err(FitError::SharedErrorLength {
+                name: term.name.clone(),
+                found: term.sensitivity.len(),
+                expected: observations.len(),
+            });
         }
         if !term.additive.is_empty() && term.additive.len() != observations.len() {
-            return Err(FitError::SharedErrorLength { name: term.name.clone(), found: term.additive.len(), expected: observations.len() });
+            return Err(FitError::SharedErrorLength {
+                name: term.name.clone(),
+                found: term.additive.len(),
+                expected: observations.len(),
+            });
         }
         let mut values = term.sensitivity.iter().chain(&term.additive).enumerate();
-        if let Some((index, &value)) = values.find(|(_, v)| v.is_nan() || v.abs() > RADIANCE_FACTOR_MAX) {
+        if let Some((index, &value)) =
+            values.find(|(_, v)| v.is_nan() || v.abs() > RADIANCE_FACTOR_MAX)
+        {
             let index = index % observations.len().max(1);
-            return Err(FitError::SharedErrorValue { name: term.name.clone(), index, value, max: RADIANCE_FACTOR_MAX });
+            return Err(FitError::SharedErrorValue {
+                name: term.name.clone(),
+                index,
+                value,
+                max: RADIANCE_FACTOR_MAX,
+            });
         }
     }
     Ok(())
@@ -781,9 +900,17 @@ pub struct LinearProfile(Problem);
 
 impl LinearProfile {
     /// Validate and prepare the readings.
-    pub fn new(observations: &[Observation], acceptance_deg: Option<f64>) -> Result<LinearProfile, FitError> {
+    pub fn new(
+        observations: &[Observation],
+        acceptance_deg: Option<f64>,
+    ) -> Result<LinearProfile, FitError> {
         validate(observations)?;
-        Ok(LinearProfile(Problem::new(observations, &[], acceptance_deg, 0.0)))
+        Ok(LinearProfile(Problem::new(
+            observations,
+            &[],
+            acceptance_deg,
+            0.0,
+        )))
     }
 
     /// The best non-negative ρs, ρd at (σ, η) and the cost there.
@@ -814,7 +941,11 @@ pub fn fit(observations: &[Observation], options: &FitOptions) -> Result<FitResu
 /// The shared errors as the fit uses them: each term's scaling part evaluated at the model's
 /// `values` (s_ik · f̂_i / y_i, the ratio held within ½…2; `None`: at the readings) plus its
 /// additive part, in one sensitivity.
-fn at_model(shared: &[SharedError], observations: &[Observation], values: Option<&[f64]>) -> Vec<SharedError> {
+fn at_model(
+    shared: &[SharedError],
+    observations: &[Observation],
+    values: Option<&[f64]>,
+) -> Vec<SharedError> {
     shared
         .iter()
         .map(|term| {
@@ -831,7 +962,11 @@ fn at_model(shared: &[SharedError], observations: &[Observation], values: Option
                     scaled + term.additive.get(i).copied().unwrap_or(0.0)
                 })
                 .collect();
-            SharedError { name: term.name.clone(), sensitivity, additive: Vec::new() }
+            SharedError {
+                name: term.name.clone(),
+                sensitivity,
+                additive: Vec::new(),
+            }
         })
         .collect()
 }
@@ -855,7 +990,11 @@ fn at_model(shared: &[SharedError], observations: &[Observation], values: Option
 /// 0.1° zero error is below what the offset test can see on a rough paper's 12 readings,
 /// yet it moved J1's σ by 2–3 standard errors (its interval covered the truth in 28 % of
 /// sessions).
-pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], options: &FitOptions) -> Result<FitResult, FitError> {
+pub fn fit_with_shared(
+    observations: &[Observation],
+    shared: &[SharedError],
+    options: &FitOptions,
+) -> Result<FitResult, FitError> {
     validate(observations)?;
     validate_shared(observations, shared)?;
     let acceptance = options.acceptance_deg.filter(|&a| a > 0.0);
@@ -863,7 +1002,12 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     let mut shared: Vec<SharedError> = if given.is_empty() {
         Vec::new()
     } else {
-        let first = Problem::new(observations, &at_model(given, observations, None), acceptance, 0.0);
+        let first = Problem::new(
+            observations,
+            &at_model(given, observations, None),
+            acceptance,
+            0.0,
+        );
         let values = first.values(&global_fit(&first, options.max_iterations).x);
         at_model(given, observations, Some(&values))
     };
@@ -875,12 +1019,20 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     let mut fitted = [true; 4];
     let lo = lower_bounds();
     let hi = upper_bounds();
-    let residual_variance = |cost: f64, p: usize| if weighted { 1.0 } else { cost / (n.saturating_sub(p).max(1)) as f64 };
+    let residual_variance = |cost: f64, p: usize| {
+        if weighted {
+            1.0
+        } else {
+            cost / (n.saturating_sub(p).max(1)) as f64
+        }
+    };
 
     // Is there a specular part at all? A lobe that improves on a constant by less than
     // χ²(3) at 95 % (× residual variance) is noise being fitted: the three extra
     // parameters are not supported.
-    let lambert_cost = problem.accumulate(&[0.0, 0.0, problem.lambert(), ETA_MAX], false).0;
+    let lambert_cost = problem
+        .accumulate(&[0.0, 0.0, problem.lambert(), ETA_MAX], false)
+        .0;
     let no_lobe = (lambert_cost - outcome.cost) <= CHI2_3_95 * residual_variance(outcome.cost, 4);
     let mut unresolved = false;
     if no_lobe || outcome.x[RHO_S] <= lo[RHO_S] {
@@ -888,7 +1040,11 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
         notes.push(Note::NoSpecularTerm);
         fitted = [false, false, true, false];
         let x = [outcome.x[0], 0.0, problem.lambert(), ETA_MAX];
-        outcome = LmOutcome { x, cost: problem.accumulate(&x, false).0, ..outcome };
+        outcome = LmOutcome {
+            x,
+            cost: problem.accumulate(&x, false).0,
+            ..outcome
+        };
     } else {
         // Is the peak resolved? Compare with the σ → 0 limit, others refitted.
         let s2 = residual_variance(outcome.cost, 4).max(1e-300);
@@ -898,7 +1054,8 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
             // Screen: ρs, ρd solved exactly at σ → 0 and the fitted η. A resolved peak is
             // orders of magnitude worse there; only a close call needs the full refit.
             let screen = problem.linear(SIGMA_MIN_DEG, outcome.x[ETA]).cost;
-            let close_call = screen - outcome.cost <= 100.0 * (threshold - outcome.cost) || screen <= 2.0 * outcome.cost;
+            let close_call = screen - outcome.cost <= 100.0 * (threshold - outcome.cost)
+                || screen <= 2.0 * outcome.cost;
             let mut x_floor = outcome.x;
             x_floor[0] = lo[0];
             if close_call {
@@ -907,15 +1064,30 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
                 let start = problem.linear(SIGMA_MIN_DEG, outcome.x[ETA]);
                 x_floor[1] = start.rho_s * engine::eta_factor(outcome.x[ETA]);
                 x_floor[2] = start.rho_d;
-                let floor = levenberg_marquardt_until(&problem, x_floor, [true, false, false, false], options.max_iterations, threshold);
+                let floor = levenberg_marquardt_until(
+                    &problem,
+                    x_floor,
+                    [true, false, false, false],
+                    options.max_iterations,
+                    threshold,
+                );
                 if floor.cost <= threshold {
                     unresolved = true;
-                    let (upper, x_upper) = sigma_upper_deg(&problem, &outcome, threshold, options.max_iterations);
+                    let (upper, x_upper) =
+                        sigma_upper_deg(&problem, &outcome, threshold, options.max_iterations);
                     let rho_s_lower = acceptance.map(|_| params_of(&x_upper).rho_s);
-                    notes.push(Note::SigmaUnresolved { upper_deg: upper, rho_s_lower });
+                    notes.push(Note::SigmaUnresolved {
+                        upper_deg: upper,
+                        rho_s_lower,
+                    });
                     fitted[SIGMA] = false;
                     // The screen stopped at the threshold: finish the reduced fit.
-                    outcome = levenberg_marquardt(&problem, floor.x, [true, false, false, false], options.max_iterations);
+                    outcome = levenberg_marquardt(
+                        &problem,
+                        floor.x,
+                        [true, false, false, false],
+                        options.max_iterations,
+                    );
                 }
             }
         }
@@ -927,7 +1099,15 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     let mut arm_fitted = false;
     if options.arm_offset && !unresolved && fitted[RHO_S] {
         let fitted_count = fitted.iter().filter(|&&b| b).count();
-        let search = arm_offset_search(observations, &shared, acceptance, &problem, &outcome, fitted_count, options.max_iterations);
+        let search = arm_offset_search(
+            observations,
+            &shared,
+            acceptance,
+            &problem,
+            &outcome,
+            fitted_count,
+            options.max_iterations,
+        );
         arm_offset_statistic = Some(search.statistic);
         if let Some((shifted, refit)) = search.accepted {
             if given.is_empty() {
@@ -938,19 +1118,34 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
                 let values = shifted.values(&refit.x);
                 shared = at_model(given, observations, Some(&values));
                 problem = Problem::new(observations, &shared, acceptance, shifted.shift_deg);
-                outcome = levenberg_marquardt(&problem, refit.x, [false; 4], options.max_iterations);
+                outcome =
+                    levenberg_marquardt(&problem, refit.x, [false; 4], options.max_iterations);
             }
             arm_fitted = true;
         }
     }
     // An offset too small for the test to call for is still possible: the arm zero's
     // uncertainty as a shared error, at the model, and the fit redone with it.
-    if options.arm_zero_uncertainty_deg > 0.0 && options.arm_zero_uncertainty_deg.is_finite() && !arm_fitted && !unresolved && fitted[RHO_S] && weighted {
+    if options.arm_zero_uncertainty_deg > 0.0
+        && options.arm_zero_uncertainty_deg.is_finite()
+        && !arm_fitted
+        && !unresolved
+        && fitted[RHO_S]
+        && weighted
+    {
         let u = options.arm_zero_uncertainty_deg;
         let whitened = problem.shift_column(&outcome.x);
-        let additive: Vec<f64> = whitened.iter().zip(observations).map(|(d, o)| d * o.std.unwrap_or(1.0) * u).collect();
+        let additive: Vec<f64> = whitened
+            .iter()
+            .zip(observations)
+            .map(|(d, o)| d * o.std.unwrap_or(1.0) * u)
+            .collect();
         if additive.iter().all(|v| v.is_finite()) && additive.iter().any(|v| *v != 0.0) {
-            shared.push(SharedError { name: ARM_ZERO.to_string(), sensitivity: additive, additive: Vec::new() });
+            shared.push(SharedError {
+                name: ARM_ZERO.to_string(),
+                sensitivity: additive,
+                additive: Vec::new(),
+            });
             problem = Problem::new(observations, &shared, acceptance, 0.0);
             let fixed = std::array::from_fn(|i| !fitted[i]);
             outcome = levenberg_marquardt(&problem, outcome.x, fixed, options.max_iterations);
@@ -979,17 +1174,30 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
             continue;
         }
         if x[i] <= lo[i] {
-            active_bounds.push(ActiveBound { param: PARAM_NAMES[i], bound: Bound::Lower });
+            active_bounds.push(ActiveBound {
+                param: PARAM_NAMES[i],
+                bound: Bound::Lower,
+            });
             free[i] = false;
         } else if x[i] >= hi[i] {
-            active_bounds.push(ActiveBound { param: PARAM_NAMES[i], bound: Bound::Upper });
+            active_bounds.push(ActiveBound {
+                param: PARAM_NAMES[i],
+                bound: Bound::Upper,
+            });
             free[i] = false;
         }
     }
     for note in &notes {
         if let Note::EtaAtBound { eta } = note {
-            let bound = if *eta >= ETA_MAX { Bound::Upper } else { Bound::Lower };
-            active_bounds.push(ActiveBound { param: "eta", bound });
+            let bound = if *eta >= ETA_MAX {
+                Bound::Upper
+            } else {
+                Bound::Lower
+            };
+            active_bounds.push(ActiveBound {
+                param: "eta",
+                bound,
+            });
         }
     }
     let model = FittedModel(fitted);
@@ -998,7 +1206,12 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     // Goodness of fit.
     let (residuals, jacobian) = problem.rows(&x);
     let (chi2, gof_p, s2, noise_from_residuals) = if weighted {
-        (Some(cost), gof::chi2_upper_tail_scaled(cost, dof, options.noise_scale_log_variance), 1.0, None)
+        (
+            Some(cost),
+            gof::chi2_upper_tail_scaled(cost, dof, options.noise_scale_log_variance),
+            1.0,
+            None,
+        )
     } else if dof > 0 {
         let s2 = cost / dof as f64;
         notes.push(Note::NoiseFromResiduals { std: s2.sqrt() });
@@ -1009,12 +1222,16 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| {
         let (oa, ob) = (&observations[a], &observations[b]);
-        oa.theta_i_deg.total_cmp(&ob.theta_i_deg).then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg)).then(a.cmp(&b))
+        oa.theta_i_deg
+            .total_cmp(&ob.theta_i_deg)
+            .then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg))
+            .then(a.cmp(&b))
     });
     let decorrelated = gof::innovations(&residuals, &problem.shared.s, problem.shared.m, &order);
     let theta_i_sorted: Vec<f64> = order.iter().map(|&i| observations[i].theta_i_deg).collect();
     let structure = gof::structure_test(&theta_i_sorted, &decorrelated);
-    let lack_of_fit = gof_p.is_some_and(|p| p < gof::GOF_ALPHA) || structure.is_some_and(|s| s.p_value < gof::STRUCTURE_ALPHA);
+    let lack_of_fit = gof_p.is_some_and(|p| p < gof::GOF_ALPHA)
+        || structure.is_some_and(|s| s.p_value < gof::STRUCTURE_ALPHA);
     if gof_p.is_none() && structure.is_none() && dof > 0 {
         notes.push(Note::FitNotTestable);
     }
@@ -1026,13 +1243,18 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
         1.0
     };
     if variance_scale > 1.0 {
-        notes.push(Note::IntervalsWidened { factor: variance_scale });
+        notes.push(Note::IntervalsWidened {
+            factor: variance_scale,
+        });
     }
 
     // Covariance C = G Σ Gᵀ over the free parameters in x = (ln σ, A, ρd, η) and δ0, split
     // into the independent noise's share and each shared error's.
     let free_index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
-    let mut columns: Vec<Vec<f64>> = free_index.iter().map(|&i| jacobian.iter().map(|row| row[i]).collect()).collect();
+    let mut columns: Vec<Vec<f64>> = free_index
+        .iter()
+        .map(|&i| jacobian.iter().map(|row| row[i]).collect())
+        .collect();
     if arm_fitted {
         columns.push(problem.shift_column(&x));
     }
@@ -1058,8 +1280,12 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
                 for (k, term) in shared.iter().enumerate() {
                     // G s_k = H⁻¹ Xᵀ Σ⁻¹ s_k = H⁻¹ P'ᵀ (L⁻¹ e_k), P' = L⁻¹ S̃ᵀ X.
                     let c: Vec<f64> = (0..m).map(|r| l_inv.at(r, k)).collect();
-                    let xt: Vec<f64> = (0..p).map(|col| (0..m).map(|r| normal.pl[r][col] * c[r]).sum()).collect();
-                    let v: Vec<f64> = (0..p).map(|i| (0..p).map(|j| h_inv.at(i, j) * xt[j]).sum()).collect();
+                    let xt: Vec<f64> = (0..p)
+                        .map(|col| (0..m).map(|r| normal.pl[r][col] * c[r]).sum())
+                        .collect();
+                    let v: Vec<f64> = (0..p)
+                        .map(|i| (0..p).map(|j| h_inv.at(i, j) * xt[j]).sum())
+                        .collect();
                     let mut outer = Square::zeros(p);
                     for i in 0..p {
                         for j in 0..p {
@@ -1076,16 +1302,29 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
                 let (noise_name, noise) = if weighted {
                     ("reading noise", independent)
                 } else if dof >= SANDWICH_MIN_DOF {
-                    ("reading noise (estimated from the residuals)", sandwich(&h_inv, &columns, &residuals))
+                    (
+                        "reading noise (estimated from the residuals)",
+                        sandwich(&h_inv, &columns, &residuals),
+                    )
                 } else {
-                    ("reading noise (estimated from the residuals)", scale(independent, s2))
+                    (
+                        "reading noise (estimated from the residuals)",
+                        scale(independent, s2),
+                    )
                 };
                 // Weighted: H⁻¹ = G Σ Gᵀ, the noise's and the shared terms' shares together.
-                let total = if weighted { scale(h_inv, variance_scale) } else { scale(noise.clone(), variance_scale) };
+                let total = if weighted {
+                    scale(h_inv, variance_scale)
+                } else {
+                    scale(noise.clone(), variance_scale)
+                };
                 terms_x.push((noise_name.to_string(), noise));
                 terms_x.extend(shared_terms);
                 if variance_scale > 1.0 {
-                    terms_x.push(("lack of fit".to_string(), scale(total.clone(), (variance_scale - 1.0) / variance_scale)));
+                    terms_x.push((
+                        "lack of fit".to_string(),
+                        scale(total.clone(), (variance_scale - 1.0) / variance_scale),
+                    ));
                 }
                 total_x = Some(total);
             }
@@ -1100,7 +1339,17 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
         jac_full[1][3] = -x[1] * 2.0 * x[3] / (k * k);
         jac_full[2][2] = 1.0;
         jac_full[3][3] = 1.0;
-        let jac: Vec<[f64; 4]> = (0..p).map(|c| std::array::from_fn(|r| if c < free_index.len() { jac_full[r][free_index[c]] } else { 0.0 })).collect();
+        let jac: Vec<[f64; 4]> = (0..p)
+            .map(|c| {
+                std::array::from_fn(|r| {
+                    if c < free_index.len() {
+                        jac_full[r][free_index[c]]
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect();
         let to_natural = |s: &Square| -> [[f64; 4]; 4] {
             std::array::from_fn(|r| {
                 std::array::from_fn(|c| {
@@ -1114,7 +1363,11 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
                 })
             })
         };
-        let quantile = if weighted && variance_scale == 1.0 { Z_975 } else { t_quantile_975(dof) };
+        let quantile = if weighted && variance_scale == 1.0 {
+            Z_975
+        } else {
+            t_quantile_975(dof)
+        };
         let full = to_natural(total);
         // ρs = A/(η²−1) is unbounded above when η's interval reaches 1: then it is not
         // identified, and only bounded below (by its value at η's upper limit).
@@ -1122,18 +1375,33 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
             let se_eta = full[ETA][ETA].max(0.0).sqrt();
             if x[ETA] - quantile * se_eta <= engine::ETA_FLOOR {
                 let eta_hi = (x[ETA] + quantile * se_eta).min(ETA_MAX);
-                notes.push(Note::RhoSUnbounded { rho_s_lower: x[RHO_S] / engine::eta_factor(eta_hi) });
+                notes.push(Note::RhoSUnbounded {
+                    rho_s_lower: x[RHO_S] / engine::eta_factor(eta_hi),
+                });
             }
         }
         let not_identified = not_identified_of(&notes);
-        let unknown: Vec<usize> = (0..4).filter(|&i| not_identified.iter().any(|u| u.param == PARAM_NAMES[i])).collect();
+        let unknown: Vec<usize> = (0..4)
+            .filter(|&i| not_identified.iter().any(|u| u.param == PARAM_NAMES[i]))
+            .collect();
         let zero_unknown = |m: [[f64; 4]; 4]| -> [[f64; 4]; 4] {
-            std::array::from_fn(|r| std::array::from_fn(|c| if unknown.contains(&r) || unknown.contains(&c) { 0.0 } else { m[r][c] }))
+            std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    if unknown.contains(&r) || unknown.contains(&c) {
+                        0.0
+                    } else {
+                        m[r][c]
+                    }
+                })
+            })
         };
         covariance = zero_unknown(full);
         for (name, term) in &terms_x {
             let natural = zero_unknown(to_natural(term));
-            budget.push(BudgetTerm { name: name.clone(), variance: std::array::from_fn(|i| natural[i][i]) });
+            budget.push(BudgetTerm {
+                name: name.clone(),
+                variance: std::array::from_fn(|i| natural[i][i]),
+            });
         }
         let natural_lo = [SIGMA_MIN_DEG, 0.0, 0.0, ETA_MIN];
         let natural_hi = [SIGMA_MAX_DEG, f64::INFINITY, f64::INFINITY, ETA_MAX];
@@ -1162,14 +1430,32 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
             let se = total.at(p - 1, p - 1).max(0.0).sqrt();
             let deg = problem.shift_deg;
             let lr = arm_offset_statistic.unwrap_or(f64::NAN);
-            arm_offset = Some(ArmOffset { deg, std_deg: se, ci95: (deg - quantile * se, deg + quantile * se), lr });
-            notes.push(Note::ArmOffsetFitted { deg, std_deg: se, lr });
+            arm_offset = Some(ArmOffset {
+                deg,
+                std_deg: se,
+                ci95: (deg - quantile * se, deg + quantile * se),
+                lr,
+            });
+            notes.push(Note::ArmOffsetFitted {
+                deg,
+                std_deg: se,
+                lr,
+            });
         }
     } else if arm_fitted {
         let lr = arm_offset_statistic.unwrap_or(f64::NAN);
         let deg = problem.shift_deg;
-        arm_offset = Some(ArmOffset { deg, std_deg: f64::NAN, ci95: (f64::NAN, f64::NAN), lr });
-        notes.push(Note::ArmOffsetFitted { deg, std_deg: f64::NAN, lr });
+        arm_offset = Some(ArmOffset {
+            deg,
+            std_deg: f64::NAN,
+            ci95: (f64::NAN, f64::NAN),
+            lr,
+        });
+        notes.push(Note::ArmOffsetFitted {
+            deg,
+            std_deg: f64::NAN,
+            lr,
+        });
     }
 
     let values = problem.values(&x);
@@ -1182,7 +1468,11 @@ pub fn fit_with_shared(observations: &[Observation], shared: &[SharedError], opt
         y_min = y_min.min(o.radiance_factor);
         y_max = y_max.max(o.radiance_factor);
     }
-    let flags = if lack_of_fit { vec![Flag::LackOfFit] } else { Vec::new() };
+    let flags = if lack_of_fit {
+        vec![Flag::LackOfFit]
+    } else {
+        Vec::new()
+    };
     Ok(FitResult {
         params,
         model,
@@ -1289,7 +1579,9 @@ fn sandwich(h_inv: &Square, columns: &[Vec<f64>], residuals: &[f64]) -> Square {
         for (xa, c) in x.iter_mut().zip(columns) {
             *xa = c[i];
         }
-        let leverage: f64 = (0..p).map(|a| (0..p).map(|b| x[a] * h_inv.at(a, b) * x[b]).sum::<f64>()).sum();
+        let leverage: f64 = (0..p)
+            .map(|a| (0..p).map(|b| x[a] * h_inv.at(a, b) * x[b]).sum::<f64>())
+            .sum();
         let w = r * r / (1.0 - leverage.clamp(0.0, 0.99)).powi(2);
         for a in 0..p {
             for b in 0..p {
@@ -1326,12 +1618,17 @@ fn arm_offset_step(problem: &Problem, x: &[f64; 4]) -> Option<(Vec<usize>, Vec<f
     let (lo, hi) = (lower_bounds(), upper_bounds());
     let (residuals, jacobian) = problem.rows(x);
     let free: Vec<usize> = (0..4).filter(|&i| x[i] > lo[i] && x[i] < hi[i]).collect();
-    let mut columns: Vec<Vec<f64>> = free.iter().map(|&i| jacobian.iter().map(|row| row[i]).collect()).collect();
+    let mut columns: Vec<Vec<f64>> = free
+        .iter()
+        .map(|&i| jacobian.iter().map(|row| row[i]).collect())
+        .collect();
     columns.push(problem.shift_column(x));
     let normal = gls_normal(&problem.shared, &columns, Some(&residuals));
     let p = columns.len();
     let h_inv = linalg::spd_inverse(&normal.h)?;
-    let step: Vec<f64> = (0..p).map(|i| -(0..p).map(|j| h_inv.at(i, j) * normal.b[j]).sum::<f64>()).collect();
+    let step: Vec<f64> = (0..p)
+        .map(|i| -(0..p).map(|j| h_inv.at(i, j) * normal.b[j]).sum::<f64>())
+        .collect();
     let predicted: f64 = -step.iter().zip(&normal.b).map(|(s, b)| s * b).sum::<f64>();
     // The same without δ0: what the other parameters alone would still gain (≈ 0 at the optimum).
     let mut reduced = Square::zeros(p - 1);
@@ -1340,8 +1637,15 @@ fn arm_offset_step(problem: &Problem, x: &[f64; 4]) -> Option<(Vec<usize>, Vec<f
             *reduced.at_mut(i, j) = normal.h.at(i, j);
         }
     }
-    let without = linalg::spd_inverse(&reduced)
-        .map_or(0.0, |inv| (0..p - 1).map(|i| (0..p - 1).map(|j| normal.b[i] * inv.at(i, j) * normal.b[j]).sum::<f64>()).sum());
+    let without = linalg::spd_inverse(&reduced).map_or(0.0, |inv| {
+        (0..p - 1)
+            .map(|i| {
+                (0..p - 1)
+                    .map(|j| normal.b[i] * inv.at(i, j) * normal.b[j])
+                    .sum::<f64>()
+            })
+            .sum()
+    });
     // δ0's standard error at unit noise: the step below which the search has converged.
     let se = h_inv.at(p - 1, p - 1).max(0.0).sqrt();
     Some((free, step, (predicted - without).max(0.0), se))
@@ -1365,16 +1669,26 @@ fn arm_offset_search(
     let n = observations.len();
     let weighted = base.weighted;
     let dof_with = n.saturating_sub(fitted_count + 1).max(1) as f64;
-    let s2_without = if weighted { 1.0 } else { outcome.cost / dof_with };
+    let s2_without = if weighted {
+        1.0
+    } else {
+        outcome.cost / dof_with
+    };
     let Some((free, step, score, se)) = arm_offset_step(base, &outcome.x) else {
-        return ArmSearch { statistic: 0.0, accepted: None };
+        return ArmSearch {
+            statistic: 0.0,
+            accepted: None,
+        };
     };
     let score = score / s2_without.max(1e-300);
     // Converged when the next step is a twentieth of δ0's standard error: the cost is then
     // within 0.0025 (in noise-variance units) of its minimum, far below any level tested.
     let tolerance = 0.05 * se * s2_without.sqrt();
     if score.is_nan() || score < ARM_OFFSET_SCREEN {
-        return ArmSearch { statistic: score, accepted: None };
+        return ArmSearch {
+            statistic: score,
+            accepted: None,
+        };
     }
     let (lo, hi) = (lower_bounds(), upper_bounds());
     let mut best: Option<(Problem, LmOutcome)> = None;
@@ -1389,7 +1703,11 @@ fn arm_offset_search(
         for _ in 0..6 {
             let trial = (delta + d_delta).clamp(-ARM_OFFSET_MAX_DEG, ARM_OFFSET_MAX_DEG);
             let shifted = Problem::new(observations, shared, acceptance, trial);
-            let fraction = if step[step.len() - 1] != 0.0 { d_delta / step[step.len() - 1] } else { 0.0 };
+            let fraction = if step[step.len() - 1] != 0.0 {
+                d_delta / step[step.len() - 1]
+            } else {
+                0.0
+            };
             let mut x0 = current_x;
             for (c, &i) in free.iter().enumerate() {
                 x0[i] = (x0[i] + fraction * step[c]).clamp(lo[i], hi[i]);
@@ -1415,7 +1733,10 @@ fn arm_offset_search(
         }
     }
     let Some((problem, run)) = best else {
-        return ArmSearch { statistic: score, accepted: None };
+        return ArmSearch {
+            statistic: score,
+            accepted: None,
+        };
     };
     let s2 = if weighted { 1.0 } else { run.cost / dof_with };
     let mut lr = (outcome.cost - run.cost) / s2.max(1e-300);
@@ -1427,9 +1748,15 @@ fn arm_offset_search(
         lr = robust_arm_offset_statistic(&problem, &run.x).unwrap_or(lr);
     }
     if lr > ARM_OFFSET_LR_CRITICAL {
-        ArmSearch { statistic: lr, accepted: Some((problem, run)) }
+        ArmSearch {
+            statistic: lr,
+            accepted: Some((problem, run)),
+        }
     } else {
-        ArmSearch { statistic: lr, accepted: None }
+        ArmSearch {
+            statistic: lr,
+            accepted: None,
+        }
     }
 }
 
@@ -1438,7 +1765,10 @@ fn robust_arm_offset_statistic(problem: &Problem, x: &[f64; 4]) -> Option<f64> {
     let (lo, hi) = (lower_bounds(), upper_bounds());
     let (residuals, jacobian) = problem.rows(x);
     let free: Vec<usize> = (0..4).filter(|&i| x[i] > lo[i] && x[i] < hi[i]).collect();
-    let mut columns: Vec<Vec<f64>> = free.iter().map(|&i| jacobian.iter().map(|row| row[i]).collect()).collect();
+    let mut columns: Vec<Vec<f64>> = free
+        .iter()
+        .map(|&i| jacobian.iter().map(|row| row[i]).collect())
+        .collect();
     columns.push(problem.shift_column(x));
     let normal = gls_normal(&problem.shared, &columns, None);
     let h_inv = linalg::spd_inverse(&normal.h)?;
@@ -1450,7 +1780,12 @@ fn robust_arm_offset_statistic(problem: &Problem, x: &[f64; 4]) -> Option<f64> {
 
 /// Largest σ whose profile cost (others refitted) stays within `threshold`, and the
 /// parameters there: doubling, then bisection in ln σ to about 2 %.
-fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iterations: usize) -> (f64, [f64; 4]) {
+fn sigma_upper_deg(
+    problem: &Problem,
+    best: &LmOutcome,
+    threshold: f64,
+    max_iterations: usize,
+) -> (f64, [f64; 4]) {
     let profile = |ln_sigma: f64, start: [f64; 4]| {
         let mut x = start;
         x[0] = ln_sigma;
@@ -1470,7 +1805,9 @@ fn sigma_upper_deg(problem: &Problem, best: &LmOutcome, threshold: f64, max_iter
         inside = trial;
         start = run.x;
     }
-    let Some(mut outside) = outside else { return (SIGMA_MAX_DEG, start) };
+    let Some(mut outside) = outside else {
+        return (SIGMA_MAX_DEG, start);
+    };
     while outside - inside > 0.02 {
         let mid = 0.5 * (inside + outside);
         let run = profile(mid, start);
@@ -1494,7 +1831,13 @@ mod tests {
         for ti in [20.0, 30.0, 45.0, 60.0] {
             for k in 0..=140 {
                 let tr = 0.5 * k as f64;
-                out.push(Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: 1.0 + tr * 1e-3, std: Some(0.01), theta_r_span_deg: 0.0 });
+                out.push(Observation {
+                    theta_i_deg: ti,
+                    theta_r_deg: tr,
+                    radiance_factor: 1.0 + tr * 1e-3,
+                    std: Some(0.01),
+                    theta_r_span_deg: 0.0,
+                });
             }
         }
         out
@@ -1510,21 +1853,52 @@ mod tests {
             for shift in [0.0, 0.3] {
                 let problem = Problem::new(&obs, &[], acceptance, shift);
                 for p in [
-                    Params { sigma_deg: 0.3, rho_s: 40.0, rho_d: 0.8, eta: 1.19 },
-                    Params { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 },
-                    Params { sigma_deg: 21.7, rho_s: 0.409, rho_d: 0.414, eta: 2.5 },
+                    Params {
+                        sigma_deg: 0.3,
+                        rho_s: 40.0,
+                        rho_d: 0.8,
+                        eta: 1.19,
+                    },
+                    Params {
+                        sigma_deg: 0.8,
+                        rho_s: 57.8,
+                        rho_d: 0.855,
+                        eta: 1.19,
+                    },
+                    Params {
+                        sigma_deg: 21.7,
+                        rho_s: 0.409,
+                        rho_d: 0.414,
+                        eta: 2.5,
+                    },
                 ] {
                     let x = x_of(&p);
                     let values = problem.values(&x);
                     let (_, jac) = problem.rows(&x);
                     for (k, o) in obs.iter().enumerate() {
-                        let (v, g) = model::evaluate(&p, &PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift), acceptance);
-                        assert!((values[k] - v).abs() <= 1e-12 * v.abs(), "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}", values[k]);
+                        let (v, g) = model::evaluate(
+                            &p,
+                            &PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift),
+                            acceptance,
+                        );
+                        assert!(
+                            (values[k] - v).abs() <= 1e-12 * v.abs(),
+                            "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}",
+                            values[k]
+                        );
                         // x = (ln σ, A, ρd, η): ∂/∂ln σ = σ ∂/∂σ, ∂/∂A = ∂/∂ρs / (η²−1).
                         let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
                         let want_a = g[RHO_S] / engine::eta_factor(p.eta) / 0.01;
-                        assert!((jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6), "σ {o:?}: {} vs {want_sigma}", jac[k][0]);
-                        assert!((jac[k][1] - want_a).abs() <= 1e-9 * (want_a.abs() + 1e-6), "A {o:?}: {} vs {want_a}", jac[k][1]);
+                        assert!(
+                            (jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6),
+                            "σ {o:?}: {} vs {want_sigma}",
+                            jac[k][0]
+                        );
+                        assert!(
+                            (jac[k][1] - want_a).abs() <= 1e-9 * (want_a.abs() + 1e-6),
+                            "A {o:?}: {} vs {want_a}",
+                            jac[k][1]
+                        );
                     }
                     // The shift column against a difference of the engine's own values.
                     let column = problem.shift_column(&x);
@@ -1533,7 +1907,11 @@ mod tests {
                     let down = Problem::new(&obs, &[], acceptance, shift - h).values(&x);
                     for k in 0..obs.len() {
                         let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
-                        assert!((column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0), "{acceptance:?} {p:?} reading {k}: {} vs {fd}", column[k]);
+                        assert!(
+                            (column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0),
+                            "{acceptance:?} {p:?} reading {k}: {} vs {fd}",
+                            column[k]
+                        );
                     }
                 }
             }
@@ -1549,20 +1927,50 @@ mod tests {
             .into_iter()
             .step_by(3)
             .enumerate()
-            .map(|(k, o)| Observation { theta_r_span_deg: [0.0, 0.06, 0.3, 1.5][k % 4], ..o })
+            .map(|(k, o)| Observation {
+                theta_r_span_deg: [0.0, 0.06, 0.3, 1.5][k % 4],
+                ..o
+            })
             .collect();
         for acceptance in [None, Some(1.0)] {
             for shift in [0.0, 0.3] {
                 let problem = Problem::new(&obs, &[], acceptance, shift);
-                for p in [Params { sigma_deg: 0.8, rho_s: 57.8, rho_d: 0.855, eta: 1.19 }, Params { sigma_deg: 21.7, rho_s: 0.409, rho_d: 0.414, eta: 2.5 }] {
+                for p in [
+                    Params {
+                        sigma_deg: 0.8,
+                        rho_s: 57.8,
+                        rho_d: 0.855,
+                        eta: 1.19,
+                    },
+                    Params {
+                        sigma_deg: 21.7,
+                        rho_s: 0.409,
+                        rho_d: 0.414,
+                        eta: 2.5,
+                    },
+                ] {
                     let x = x_of(&p);
                     let values = problem.values(&x);
                     let (_, jac) = problem.rows(&x);
                     for (k, o) in obs.iter().enumerate() {
-                        let (v, g) = model::evaluate_reading(&p, o.theta_i_deg, o.theta_r_deg + shift, o.theta_r_span_deg, acceptance);
-                        assert!((values[k] - v).abs() <= 1e-12 * v.abs(), "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}", values[k]);
+                        let (v, g) = model::evaluate_reading(
+                            &p,
+                            o.theta_i_deg,
+                            o.theta_r_deg + shift,
+                            o.theta_r_span_deg,
+                            acceptance,
+                        );
+                        assert!(
+                            (values[k] - v).abs() <= 1e-12 * v.abs(),
+                            "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}",
+                            values[k]
+                        );
                         let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
-                        assert!((jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6), "σ {o:?}: {} vs {want_sigma}", jac[k][0]);
+                        assert!(
+                            (jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6),
+                            "σ {o:?}: {} vs {want_sigma}",
+                            jac[k][0]
+                        );
                     }
                     let column = problem.shift_column(&x);
                     let h = 1e-4;
@@ -1570,7 +1978,11 @@ mod tests {
                     let down = Problem::new(&obs, &[], acceptance, shift - h).values(&x);
                     for k in 0..obs.len() {
                         let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
-                        assert!((column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0), "{acceptance:?} {p:?} reading {k}: {} vs {fd}", column[k]);
+                        assert!(
+                            (column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0),
+                            "{acceptance:?} {p:?} reading {k}: {} vs {fd}",
+                            column[k]
+                        );
                     }
                 }
             }
@@ -1584,22 +1996,40 @@ mod tests {
         let obs: Vec<Observation> = grid().into_iter().step_by(12).collect();
         let n = obs.len();
         let shared: Vec<SharedError> = (0..3)
-            .map(|k| SharedError { name: format!("term {k}"), sensitivity: (0..n).map(|i| 0.01 * ((i * (k + 2)) % 7) as f64).collect(), additive: Vec::new() })
+            .map(|k| SharedError {
+                name: format!("term {k}"),
+                sensitivity: (0..n).map(|i| 0.01 * ((i * (k + 2)) % 7) as f64).collect(),
+                additive: Vec::new(),
+            })
             .collect();
-        let p = Params { sigma_deg: 5.0, rho_s: 0.5, rho_d: 0.9, eta: 1.5 };
+        let p = Params {
+            sigma_deg: 5.0,
+            rho_s: 0.5,
+            rho_d: 0.9,
+            eta: 1.5,
+        };
         let problem = Problem::new(&obs, &shared, Some(1.0), 0.0);
         let cost = problem.accumulate(&x_of(&p), false).0;
         let mut sigma = Square::zeros(n);
         for i in 0..n {
             for j in 0..n {
-                let shared_part: f64 = shared.iter().map(|s| s.sensitivity[i] * s.sensitivity[j]).sum();
+                let shared_part: f64 = shared
+                    .iter()
+                    .map(|s| s.sensitivity[i] * s.sensitivity[j])
+                    .sum();
                 *sigma.at_mut(i, j) = shared_part + if i == j { 1e-4 } else { 0.0 };
             }
         }
         let inv = linalg::spd_inverse(&sigma).expect("positive definite");
         let values = problem.values(&x_of(&p));
-        let r: Vec<f64> = values.iter().zip(&obs).map(|(f, o)| f - o.radiance_factor).collect();
-        let dense: f64 = (0..n).map(|i| (0..n).map(|j| r[i] * inv.at(i, j) * r[j]).sum::<f64>()).sum();
+        let r: Vec<f64> = values
+            .iter()
+            .zip(&obs)
+            .map(|(f, o)| f - o.radiance_factor)
+            .collect();
+        let dense: f64 = (0..n)
+            .map(|i| (0..n).map(|j| r[i] * inv.at(i, j) * r[j]).sum::<f64>())
+            .sum();
         assert!((cost - dense).abs() <= 1e-9 * dense, "{cost} vs {dense}");
     }
 }

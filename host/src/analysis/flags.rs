@@ -79,7 +79,10 @@ mod tests {
     #[test]
     fn names_are_the_serialized_strings() {
         for flag in Flag::ALL {
-            assert_eq!(serde_json::to_value(flag).unwrap(), serde_json::Value::from(flag.name()));
+            assert_eq!(
+                serde_json::to_value(flag).unwrap(),
+                serde_json::Value::from(flag.name())
+            );
         }
         assert!(ok(&[Flag::LinkRecovered, Flag::Resumed]));
         assert!(!ok(&[Flag::Resumed, Flag::LackOfFit]));

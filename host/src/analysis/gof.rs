@@ -98,12 +98,22 @@ pub fn structure_test(theta_i_deg: &[f64], e: &[f64]) -> Option<StructureTest> {
     }
     let energy: f64 = e.iter().map(|v| v * v).sum();
     // (NaN sums fail the tests below as well.)
-    if pairs < STRUCTURE_MIN_PAIRS || sum_sq.is_nan() || sum_sq <= 0.0 || energy.is_nan() || energy <= 0.0 {
+    if pairs < STRUCTURE_MIN_PAIRS
+        || sum_sq.is_nan()
+        || sum_sq <= 0.0
+        || energy.is_nan()
+        || energy <= 0.0
+    {
         return None;
     }
     let statistic = sum / sum_sq.sqrt();
     let p_value = 0.5 * libm::erfc(statistic * std::f64::consts::FRAC_1_SQRT_2);
-    Some(StructureTest { pairs, lag1: sum / energy, statistic, p_value })
+    Some(StructureTest {
+        pairs,
+        lag1: sum / energy,
+        statistic,
+        p_value,
+    })
 }
 
 /// Decorrelated residuals (innovations) of whitened residuals `r` (r_i / std_i) whose
@@ -157,12 +167,18 @@ mod tests {
     fn an_uncertain_noise_scale_widens_the_chi2_tail_and_none_leaves_it() {
         let dof = 2800;
         for chi2 in [2500.0, 2800.0, 3000.0, 3200.0] {
-            assert_eq!(chi2_upper_tail_scaled(chi2, dof, 0.0), chi2_upper_tail(chi2, dof));
+            assert_eq!(
+                chi2_upper_tail_scaled(chi2, dof, 0.0),
+                chi2_upper_tail(chi2, dof)
+            );
         }
         // χ²/ν = 1.09: far in χ²(ν)'s tail (sd 2.7 %), but 1.4 sd of a 6 % scale.
         let exact = chi2_upper_tail(1.09 * 2800.0, dof).unwrap();
         let scaled = chi2_upper_tail_scaled(1.09 * 2800.0, dof, 0.06_f64.powi(2)).unwrap();
-        assert!(exact < 1e-3 && scaled > 0.05 && scaled < 0.2, "{exact} {scaled}");
+        assert!(
+            exact < 1e-3 && scaled > 0.05 && scaled < 0.2,
+            "{exact} {scaled}"
+        );
         // At the centre the tail stays about a half, and it falls with χ².
         let centre = chi2_upper_tail_scaled(2800.0, dof, 0.0036).unwrap();
         assert!((centre - 0.5).abs() < 0.02, "{centre}");
@@ -191,10 +207,12 @@ mod tests {
         let (mut scaled_low, mut plain_low) = (0, 0);
         for _ in 0..draws {
             // χ²(ν) as ν + √(2ν)·z is close enough at ν = 2800 for this count.
-            let x: f64 = rng.sample::<f64, _>(StandardNormal) * (2.0 * dof as f64).sqrt() + dof as f64;
+            let x: f64 =
+                rng.sample::<f64, _>(StandardNormal) * (2.0 * dof as f64).sqrt() + dof as f64;
             let epsilon: f64 = rng.sample::<f64, _>(StandardNormal) * log_variance.sqrt();
             let observed = x * (-epsilon).exp();
-            scaled_low += usize::from(chi2_upper_tail_scaled(observed, dof, log_variance).unwrap() < 0.005);
+            scaled_low +=
+                usize::from(chi2_upper_tail_scaled(observed, dof, log_variance).unwrap() < 0.005);
             plain_low += usize::from(distribution.sf(observed) < 0.005);
         }
         // 0.5 % of 4000 is 20 (sd 4.5).

@@ -14,7 +14,10 @@ pub struct Square {
 impl Square {
     /// The n × n zero matrix.
     pub fn zeros(n: usize) -> Square {
-        Square { n, a: vec![0.0; n * n] }
+        Square {
+            n,
+            a: vec![0.0; n * n],
+        }
     }
 
     /// The n × n identity.
@@ -95,7 +98,15 @@ pub fn lower_inverse(l: &Square) -> Square {
 /// `None` if it is singular or nearly so (a scaled inverse beyond 1e12).
 pub fn spd_inverse(m: &Square) -> Option<Square> {
     let n = m.n;
-    let d: Vec<f64> = (0..n).map(|i| if m.at(i, i) > 0.0 { 1.0 / m.at(i, i).sqrt() } else { 0.0 }).collect();
+    let d: Vec<f64> = (0..n)
+        .map(|i| {
+            if m.at(i, i) > 0.0 {
+                1.0 / m.at(i, i).sqrt()
+            } else {
+                0.0
+            }
+        })
+        .collect();
     if d.iter().any(|&v| v == 0.0 || !v.is_finite()) {
         return None;
     }
@@ -143,7 +154,10 @@ mod tests {
         for i in 0..3 {
             for j in 0..3 {
                 let p: f64 = (0..3).map(|k| m.at(i, k) * inv.at(k, j)).sum();
-                assert!((p - if i == j { 1.0 } else { 0.0 }).abs() < 1e-9, "({i},{j}) {p}");
+                assert!(
+                    (p - if i == j { 1.0 } else { 0.0 }).abs() < 1e-9,
+                    "({i},{j}) {p}"
+                );
             }
         }
         let mut singular = Square::zeros(2);

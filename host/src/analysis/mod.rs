@@ -2,12 +2,12 @@
 //! classification, the comparison of two sheets, and the report of one analysis.
 pub mod budget;
 pub mod classify;
-pub mod gof;
-pub mod linalg;
 pub mod compare;
 pub mod evidence;
 pub mod fit;
 pub mod flags;
+pub mod gof;
+pub mod linalg;
 pub mod model;
 pub mod report;
 pub mod sampling;

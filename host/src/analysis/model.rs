@@ -64,7 +64,12 @@ impl Params {
 
     /// Parameters from an array in gradient order.
     pub fn from_array(a: [f64; 4]) -> Params {
-        Params { sigma_deg: a[SIGMA], rho_s: a[RHO_S], rho_d: a[RHO_D], eta: a[ETA] }
+        Params {
+            sigma_deg: a[SIGMA],
+            rho_s: a[RHO_S],
+            rho_d: a[RHO_D],
+            eta: a[ETA],
+        }
     }
 }
 
@@ -104,7 +109,11 @@ impl PlaneGeometry {
         let cos_a = theta_a.cos();
         // G/(ci·cr) = min(1/(ci·cr), 2ca/(cψ·ci), 2ca/(cψ·cr)): each term stays finite
         // where one cosine vanishes, unlike forming G first and dividing.
-        let terms = [1.0 / (cos_i * cos_r), 2.0 * cos_a / (cos_psi * cos_i), 2.0 * cos_a / (cos_psi * cos_r)];
+        let terms = [
+            1.0 / (cos_i * cos_r),
+            2.0 * cos_a / (cos_psi * cos_i),
+            2.0 * cos_a / (cos_psi * cos_r),
+        ];
         let mut branch = 0;
         for k in 1..3 {
             if terms[k] < terms[branch] {
@@ -131,7 +140,8 @@ pub fn geometric_attenuation(theta_i_deg: f64, theta_r_deg: f64) -> f64 {
     let cos_psi = psi.cos().max(COS_FLOOR);
     let cos_i = theta_i_deg.to_radians().cos();
     let cos_r = theta_r_deg.to_radians().cos();
-    1f64.min(2.0 * cos_a * cos_r / cos_psi).min(2.0 * cos_a * cos_i / cos_psi)
+    1f64.min(2.0 * cos_a * cos_r / cos_psi)
+        .min(2.0 * cos_a * cos_i / cos_psi)
 }
 
 /// The paper's Fresnel term F(ψ) and dF/dη, from sin² ψ and cos ψ.
@@ -153,12 +163,20 @@ pub fn fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f
     let a = eta2_minus_1 / (sum * sum);
     let cr = c * r;
     let den_b = cr + sin2_psi;
-    let b = if den_b > 0.0 { (cr - sin2_psi) / den_b } else { 1.0 };
+    let b = if den_b > 0.0 {
+        (cr - sin2_psi) / den_b
+    } else {
+        1.0
+    };
     let q = (1.0 + b * b).sqrt();
     let f = a * q;
     let dr = if r > 0.0 { eta / r } else { 0.0 };
     let da = 2.0 * eta / (sum * sum) - 2.0 * a / sum * dr;
-    let db = if den_b > 0.0 { 2.0 * c * sin2_psi / (den_b * den_b) * dr } else { 0.0 };
+    let db = if den_b > 0.0 {
+        2.0 * c * sin2_psi / (den_b * den_b) * dr
+    } else {
+        0.0
+    };
     (f, da * q + a * b * db / q)
 }
 
@@ -166,7 +184,9 @@ pub fn fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f
 /// vanishes. The fit uses it with the amplitude ρs·(η² − 1), which the data determine even
 /// when η → 1 makes ρs and η separately ill-determined.
 pub fn reduced_fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f64) {
-    let r = ((eta - 1.0) * (eta + 1.0) + (1.0 - sin2_psi)).max(0.0).sqrt();
+    let r = ((eta - 1.0) * (eta + 1.0) + (1.0 - sin2_psi))
+        .max(0.0)
+        .sqrt();
     let c = cos_psi.max(0.0);
     let sum = r + c;
     if sum <= 0.0 {
@@ -174,11 +194,19 @@ pub fn reduced_fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) ->
     }
     let cr = c * r;
     let den_b = cr + sin2_psi;
-    let b = if den_b > 0.0 { (cr - sin2_psi) / den_b } else { 1.0 };
+    let b = if den_b > 0.0 {
+        (cr - sin2_psi) / den_b
+    } else {
+        1.0
+    };
     let q = (1.0 + b * b).sqrt();
     let inv2 = 1.0 / (sum * sum);
     let dr = if r > 0.0 { eta / r } else { 0.0 };
-    let db = if den_b > 0.0 { 2.0 * c * sin2_psi / (den_b * den_b) * dr } else { 0.0 };
+    let db = if den_b > 0.0 {
+        2.0 * c * sin2_psi / (den_b * den_b) * dr
+    } else {
+        0.0
+    };
     (q * inv2, b * db / q * inv2 - 2.0 * q * inv2 / sum * dr)
 }
 
@@ -200,7 +228,11 @@ pub fn lobe_with_derivative(offset_deg: f64, sigma_deg: f64) -> (f64, f64) {
     }
     let t = theta_a / sigma_deg;
     let e = exp_neg_half_square(t);
-    if e == 0.0 { (0.0, 0.0) } else { (e, e * t * t / sigma_deg) }
+    if e == 0.0 {
+        (0.0, 0.0)
+    } else {
+        (e, e * t * t / sigma_deg)
+    }
 }
 
 /// exp(−z²/2), returning the 0 that `exp` would give for z² > 1492 (argument below
@@ -216,7 +248,11 @@ fn exp_neg_half_square(z: f64) -> f64 {
 /// in θr, and its derivative in σ: the window moment M0 of [`window_moments`], exact in
 /// closed form (erf). The fit's seeding grid uses it with F and G/(cos·cos) taken at the
 /// window's centre; the model itself integrates the whole product ([`evaluate`]).
-pub fn windowed_lobe_with_derivative(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> (f64, f64) {
+pub fn windowed_lobe_with_derivative(
+    offset_deg: f64,
+    sigma_deg: f64,
+    acceptance_deg: f64,
+) -> (f64, f64) {
     let w = 2.0 * sigma_deg;
     let half = 0.5 * acceptance_deg;
     let z_hi = (offset_deg + half) / w;
@@ -254,11 +290,27 @@ pub struct WindowMoments {
 }
 
 /// Gauss–Legendre nodes on [−1, 1] (positive half) and weights, 10 points.
-const GL10_NODES: [f64; 5] = [0.148_874_338_981_631_2, 0.433_395_394_129_247_2, 0.679_409_568_299_024_4, 0.865_063_366_688_984_5, 0.973_906_528_517_171_7];
-const GL10_WEIGHTS: [f64; 5] = [0.295_524_224_714_752_9, 0.269_266_719_309_996_3, 0.219_086_362_515_982, 0.149_451_349_150_580_6, 0.066_671_344_308_688_1];
+const GL10_NODES: [f64; 5] = [
+    0.148_874_338_981_631_2,
+    0.433_395_394_129_247_2,
+    0.679_409_568_299_024_4,
+    0.865_063_366_688_984_5,
+    0.973_906_528_517_171_7,
+];
+const GL10_WEIGHTS: [f64; 5] = [
+    0.295_524_224_714_752_9,
+    0.269_266_719_309_996_3,
+    0.219_086_362_515_982,
+    0.149_451_349_150_580_6,
+    0.066_671_344_308_688_1,
+];
 /// Gauss–Legendre nodes on [−1, 1] (non-negative half, 0 counted once) and weights, 5 points.
 const GL5_NODES: [f64; 3] = [0.0, 0.538_469_310_105_683_1, 0.906_179_845_938_664];
-const GL5_WEIGHTS: [f64; 3] = [0.568_888_888_888_888_9, 0.478_628_670_499_366_5, 0.236_926_885_056_189_1];
+const GL5_WEIGHTS: [f64; 3] = [
+    0.568_888_888_888_888_9,
+    0.478_628_670_499_366_5,
+    0.236_926_885_056_189_1,
+];
 
 /// The lobe's window moments ([`WindowMoments`]) for a window of full width `acceptance_deg`.
 ///
@@ -293,8 +345,11 @@ pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> W
         // Broad: Gauss–Legendre, 5 points where the lobe changes by at most an e-fold
         // across the window, else 10 (at most 5.6 e-folds at w ≥ 4a, o ≤ 90°); both err
         // below 1e-9.
-        let (nodes, weights): (&[f64], &[f64]) =
-            if o.abs() * a <= w * w { (&GL5_NODES, &GL5_WEIGHTS) } else { (&GL10_NODES, &GL10_WEIGHTS) };
+        let (nodes, weights): (&[f64], &[f64]) = if o.abs() * a <= w * w {
+            (&GL5_NODES, &GL5_WEIGHTS)
+        } else {
+            (&GL10_NODES, &GL10_WEIGHTS)
+        };
         for (x, wt) in nodes.iter().zip(weights) {
             let mut add = |s: f64, wt: f64| {
                 let l = exp_neg_half_square((o + s) / w);
@@ -315,7 +370,10 @@ pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> W
     // ∂L/∂σ = L·2y²/w³ with y = o + s: ∂M_k/∂σ = (2/w³)(o²M_k + 2o·M_{k+1} + M_{k+2}).
     let c = 2.0 / (w * w * w);
     let dm = std::array::from_fn(|k| c * (o * o * m[k] + 2.0 * o * m[k + 1] + m[k + 2]));
-    WindowMoments { m: [m[0], m[1], m[2]], dm_dsigma: dm }
+    WindowMoments {
+        m: [m[0], m[1], m[2]],
+        dm_dsigma: dm,
+    }
 }
 
 /// The window's weights on the slowly varying factor u = F·G/(cos·cos) at the window's
@@ -324,10 +382,23 @@ pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> W
 /// u1 = (u+ − u−)/a and u2 = 4(u+ − 2u0 + u−)/a², the weights are
 /// (−M1/a + 2M2/a², M0 − 4M2/a², M1/a + 2M2/a²); they sum to M0. Returns the weights and
 /// their derivatives in σ.
-pub fn window_weights(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> ([f64; 3], [f64; 3]) {
+pub fn window_weights(
+    offset_deg: f64,
+    sigma_deg: f64,
+    acceptance_deg: f64,
+) -> ([f64; 3], [f64; 3]) {
     let WindowMoments { m, dm_dsigma: d } = window_moments(offset_deg, sigma_deg, acceptance_deg);
-    let (ia, ia2) = (1.0 / acceptance_deg, 1.0 / (acceptance_deg * acceptance_deg));
-    let weights = |m: &[f64; 3]| [-m[1] * ia + 2.0 * m[2] * ia2, m[0] - 4.0 * m[2] * ia2, m[1] * ia + 2.0 * m[2] * ia2];
+    let (ia, ia2) = (
+        1.0 / acceptance_deg,
+        1.0 / (acceptance_deg * acceptance_deg),
+    );
+    let weights = |m: &[f64; 3]| {
+        [
+            -m[1] * ia + 2.0 * m[2] * ia2,
+            m[0] - 4.0 * m[2] * ia2,
+            m[1] * ia + 2.0 * m[2] * ia2,
+        ]
+    };
     (weights(&m), weights(&d))
 }
 
@@ -346,16 +417,25 @@ pub fn attenuation_branch(theta_i_deg: f64, theta_r_deg: f64) -> u8 {
 /// they depend on the geometry only, never on the parameters, so splitting there does not
 /// make the model jump. One piece, the whole window, almost everywhere (near specular G = 1).
 pub fn window_pieces(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> Vec<(f64, f64)> {
-    window_nodes(theta_i_deg, theta_r_deg, acceptance_deg).into_iter().map(|(mid, width, _)| (mid, width)).collect()
+    window_nodes(theta_i_deg, theta_r_deg, acceptance_deg)
+        .into_iter()
+        .map(|(mid, width, _)| (mid, width))
+        .collect()
 }
 
 /// [`window_pieces`] with each piece's geometry at its low end, middle and high end.
-pub fn window_nodes(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> Vec<(f64, f64, [PlaneGeometry; 3])> {
+pub fn window_nodes(
+    theta_i_deg: f64,
+    theta_r_deg: f64,
+    acceptance_deg: f64,
+) -> Vec<(f64, f64, [PlaneGeometry; 3])> {
     let (lo, a) = (theta_r_deg - 0.5 * acceptance_deg, acceptance_deg);
     let hi = lo + a;
     let ends = [lo, theta_r_deg, hi];
     let nodes = ends.map(|t| PlaneGeometry::new(theta_i_deg, t));
-    if nodes[0].attenuation_branch == nodes[1].attenuation_branch && nodes[1].attenuation_branch == nodes[2].attenuation_branch {
+    if nodes[0].attenuation_branch == nodes[1].attenuation_branch
+        && nodes[1].attenuation_branch == nodes[2].attenuation_branch
+    {
         return vec![(theta_r_deg, a, nodes)];
     }
     let mut cuts = vec![lo];
@@ -384,7 +464,11 @@ pub fn window_nodes(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> 
     cuts.windows(2)
         .map(|w| {
             let (mid, width) = (0.5 * (w[0] + w[1]), w[1] - w[0]);
-            (mid, width, [w[0], mid, w[1]].map(|t| PlaneGeometry::new(theta_i_deg, t)))
+            (
+                mid,
+                width,
+                [w[0], mid, w[1]].map(|t| PlaneGeometry::new(theta_i_deg, t)),
+            )
         })
         .collect()
 }
@@ -410,14 +494,20 @@ pub fn evaluate(p: &Params, g: &PlaneGeometry, acceptance_deg: Option<f64>) -> (
                     d_eta += weights[k] * df * hh;
                 }
             }
-            (p.rho_s * shape + p.rho_d, [p.rho_s * d_sigma, shape, 1.0, p.rho_s * d_eta])
+            (
+                p.rho_s * shape + p.rho_d,
+                [p.rho_s * d_sigma, shape, 1.0, p.rho_s * d_eta],
+            )
         }
         _ => {
             let (e, de) = lobe_with_derivative(g.offset_deg, p.sigma_deg);
             let (f, df) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, p.eta);
             let h = g.attenuation_over_cosines;
             let specular = f * h * e;
-            (p.rho_s * specular + p.rho_d, [p.rho_s * f * h * de, specular, 1.0, p.rho_s * df * h * e])
+            (
+                p.rho_s * specular + p.rho_d,
+                [p.rho_s * f * h * de, specular, 1.0, p.rho_s * df * h * e],
+            )
         }
     }
 }
@@ -462,14 +552,22 @@ const MAX_TRAVEL_WINDOW_DEG: f64 = 0.5;
 /// nodes; without one, a detector that moved `span` sees a uniform window of the span
 /// itself, taken as n adjacent windows of span/n ≤ 0.5° (exactly the same mean); a still
 /// point detector, no window.
-pub fn reading_window(span_deg: f64, acceptance_deg: Option<f64>) -> (Option<f64>, Vec<(f64, f64)>) {
+pub fn reading_window(
+    span_deg: f64,
+    acceptance_deg: Option<f64>,
+) -> (Option<f64>, Vec<(f64, f64)>) {
     let span = span_deg.abs();
     match acceptance_deg.filter(|&a| a > 0.0) {
         Some(a) => (Some(a), travel_nodes(span, a)),
         None if span > 0.0 && span.is_finite() => {
             let n = (span / MAX_TRAVEL_WINDOW_DEG).ceil().max(1.0) as usize;
             let width = span / n as f64;
-            (Some(width), (0..n).map(|j| (-0.5 * span + (j as f64 + 0.5) * width, 1.0 / n as f64)).collect())
+            (
+                Some(width),
+                (0..n)
+                    .map(|j| (-0.5 * span + (j as f64 + 0.5) * width, 1.0 / n as f64))
+                    .collect(),
+            )
         }
         None => (None, vec![(0.0, 1.0)]),
     }
@@ -478,11 +576,21 @@ pub fn reading_window(span_deg: f64, acceptance_deg: Option<f64>) -> (Option<f64
 /// Radiance factor and gradient of a reading centred at (θi, θr) whose detector moved
 /// `span_deg` in θr while it integrated (0: a still reading), seen through the acceptance
 /// `acceptance_deg`: the mean over the travel ([`reading_window`]) of [`evaluate`].
-pub fn evaluate_reading(p: &Params, theta_i_deg: f64, theta_r_deg: f64, span_deg: f64, acceptance_deg: Option<f64>) -> (f64, [f64; 4]) {
+pub fn evaluate_reading(
+    p: &Params,
+    theta_i_deg: f64,
+    theta_r_deg: f64,
+    span_deg: f64,
+    acceptance_deg: Option<f64>,
+) -> (f64, [f64; 4]) {
     let (window, nodes) = reading_window(span_deg, acceptance_deg);
     let (mut value, mut gradient) = (0.0, [0.0; 4]);
     for (offset, weight) in nodes {
-        let (v, g) = evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg + offset), window);
+        let (v, g) = evaluate(
+            p,
+            &PlaneGeometry::new(theta_i_deg, theta_r_deg + offset),
+            window,
+        );
         value += weight * v;
         for (total, gi) in gradient.iter_mut().zip(g) {
             *total += weight * gi;
@@ -497,14 +605,28 @@ pub fn radiance_factor(p: &Params, theta_i_deg: f64, theta_r_deg: f64) -> f64 {
 }
 
 /// Radiance factor and its analytic gradient [∂/∂σ, ∂/∂ρs, ∂/∂ρd, ∂/∂η].
-pub fn radiance_factor_with_gradient(p: &Params, theta_i_deg: f64, theta_r_deg: f64) -> (f64, [f64; 4]) {
+pub fn radiance_factor_with_gradient(
+    p: &Params,
+    theta_i_deg: f64,
+    theta_r_deg: f64,
+) -> (f64, [f64; 4]) {
     evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), None)
 }
 
 /// Radiance factor seen by a detector of full acceptance `acceptance_deg` (uniform in θr):
 /// the whole model averaged over the window, at every σ (0 or less: the point model).
-pub fn observed_radiance_factor(p: &Params, theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) -> f64 {
-    evaluate(p, &PlaneGeometry::new(theta_i_deg, theta_r_deg), Some(acceptance_deg)).0
+pub fn observed_radiance_factor(
+    p: &Params,
+    theta_i_deg: f64,
+    theta_r_deg: f64,
+    acceptance_deg: f64,
+) -> f64 {
+    evaluate(
+        p,
+        &PlaneGeometry::new(theta_i_deg, theta_r_deg),
+        Some(acceptance_deg),
+    )
+    .0
 }
 
 #[cfg(test)]
@@ -529,7 +651,10 @@ mod tests {
                 let s = (p - d).sin() / (p + d).sin();
                 let textbook = (t * t + s * s).sqrt();
                 let ours = fresnel(psi, eta);
-                assert!((ours - textbook).abs() <= 1e-12 * textbook, "ψ {psi} η {eta}: {ours} vs {textbook}");
+                assert!(
+                    (ours - textbook).abs() <= 1e-12 * textbook,
+                    "ψ {psi} η {eta}: {ours} vs {textbook}"
+                );
             }
         }
     }
@@ -542,7 +667,13 @@ mod tests {
         let mut m = [0.0; 3];
         for j in 0..=n {
             let s = -0.5 * a + h * j as f64;
-            let weight = if j == 0 || j == n { 1.0 } else if j % 2 == 1 { 4.0 } else { 2.0 };
+            let weight = if j == 0 || j == n {
+                1.0
+            } else if j % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
             let l = (-(offset + s).powi(2) / (8.0 * sigma * sigma)).exp();
             for (k, mk) in m.iter_mut().enumerate() {
                 *mk += weight * s.powi(k as i32) * l * h / (3.0 * a);
@@ -554,8 +685,12 @@ mod tests {
     #[test]
     fn window_moments_match_dense_quadrature_and_their_sigma_derivative() {
         for a in [0.5, 1.0, 2.0] {
-            for sigma in [0.01, 0.1, 0.3, 0.5, 0.8, 1.9, 1.99, 2.01, 3.9, 4.1, 20.0, 90.0] {
-                for offset in [0.0, 0.2, -0.45, 0.5, 1.0, -2.5, 6.0, 15.0, 17.0, 40.0, -70.0, 89.0] {
+            for sigma in [
+                0.01, 0.1, 0.3, 0.5, 0.8, 1.9, 1.99, 2.01, 3.9, 4.1, 20.0, 90.0,
+            ] {
+                for offset in [
+                    0.0, 0.2, -0.45, 0.5, 1.0, -2.5, 6.0, 15.0, 17.0, 40.0, -70.0, 89.0,
+                ] {
                     let got = window_moments(offset, sigma, a);
                     let want = dense_moments(offset, sigma, a);
                     // Scale of each moment: (a/2)^k times the lobe's size in the window.
@@ -569,9 +704,14 @@ mod tests {
                             want[k]
                         );
                         let hstep = 1e-6 * sigma;
-                        let fd = (window_moments(offset, sigma + hstep, a).m[k] - window_moments(offset, sigma - hstep, a).m[k]) / (2.0 * hstep);
+                        let fd = (window_moments(offset, sigma + hstep, a).m[k]
+                            - window_moments(offset, sigma - hstep, a).m[k])
+                            / (2.0 * hstep);
                         let d = got.dm_dsigma[k];
-                        assert!((d - fd).abs() <= 1e-5 * (fd.abs() + scale / sigma) + 1e-280, "a {a} σ {sigma} o {offset} dM{k}: {d} vs {fd}");
+                        assert!(
+                            (d - fd).abs() <= 1e-5 * (fd.abs() + scale / sigma) + 1e-280,
+                            "a {a} σ {sigma} o {offset} dM{k}: {d} vs {fd}"
+                        );
                     }
                 }
             }
@@ -583,7 +723,10 @@ mod tests {
         for offset in [0.0, 0.7, 2.0] {
             let (e, de) = lobe_with_derivative(offset, 0.8);
             let (m, dm) = windowed_lobe_with_derivative(offset, 0.8, 1e-4);
-            assert!((e - m).abs() < 1e-8 && (de - dm).abs() < 1e-6, "{offset}: {e} {m} {de} {dm}");
+            assert!(
+                (e - m).abs() < 1e-8 && (de - dm).abs() < 1e-6,
+                "{offset}: {e} {m} {de} {dm}"
+            );
         }
     }
 }

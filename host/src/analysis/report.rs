@@ -38,30 +38,59 @@ impl Report {
 }
 
 /// Fit, check and classify one data set; errors are `line: message`.
-pub fn analyse(file: &Path, set: &DataSet, options: &FitOptions, delta_deg: Option<f64>) -> Result<Report, String> {
+pub fn analyse(
+    file: &Path,
+    set: &DataSet,
+    options: &FitOptions,
+    delta_deg: Option<f64>,
+) -> Result<Report, String> {
     analyse_with_shared(file, set, &[], options, delta_deg)
 }
 
 /// [`analyse`] with errors the readings share (the calibration's uncertainty budget).
-pub fn analyse_with_shared(file: &Path, set: &DataSet, shared: &[SharedError], options: &FitOptions, delta_deg: Option<f64>) -> Result<Report, String> {
+pub fn analyse_with_shared(
+    file: &Path,
+    set: &DataSet,
+    shared: &[SharedError],
+    options: &FitOptions,
+    delta_deg: Option<f64>,
+) -> Result<Report, String> {
     let result = fit::fit_with_shared(&set.observations, shared, options).map_err(|e| {
-        let line = e.reading_index().and_then(|i| set.lines.get(i)).or(set.lines.first()).copied().unwrap_or(1);
+        let line = e
+            .reading_index()
+            .and_then(|i| set.lines.get(i))
+            .or(set.lines.first())
+            .copied()
+            .unwrap_or(1);
         format!("{line}: sample '{}': {e}", set.sample)
     })?;
     let delta = sampling::delta(&set.geometries(), delta_deg);
     let check = delta.map(|d| sampling::check_sigma(result.sigma_deg(), d.deg));
     let classification = classify::classify(&result);
     let flags = flags_of(&result, check.as_ref(), &classification);
-    Ok(Report { file: file.to_path_buf(), sample: set.sample.clone(), fit: result, delta, check, classification, flags })
+    Ok(Report {
+        file: file.to_path_buf(),
+        sample: set.sample.clone(),
+        fit: result,
+        delta,
+        check,
+        classification,
+        flags,
+    })
 }
 
 /// The analysis's flags, sorted and without repeats.
-pub fn flags_of(fit: &FitResult, check: Option<&SigmaCheck>, classification: &Classification) -> Vec<Flag> {
+pub fn flags_of(
+    fit: &FitResult,
+    check: Option<&SigmaCheck>,
+    classification: &Classification,
+) -> Vec<Flag> {
     let mut out = fit.flags.clone();
     if classification.class.is_none() {
         out.push(Flag::NotIdentified);
     }
-    let sigma_failed = fit.has_specular_term() && (fit.sigma_upper_deg().is_some() || check.is_some_and(|c| !c.sigma_ok));
+    let sigma_failed = fit.has_specular_term()
+        && (fit.sigma_upper_deg().is_some() || check.is_some_and(|c| !c.sigma_ok));
     if sigma_failed {
         out.push(Flag::SigmaNotResolved);
     }
@@ -71,7 +100,8 @@ pub fn flags_of(fit: &FitResult, check: Option<&SigmaCheck>, classification: &Cl
 }
 
 fn finite_or_null(x: Option<f64>) -> Value {
-    x.filter(|v| v.is_finite()).map_or(Value::Null, |v| json!(v))
+    x.filter(|v| v.is_finite())
+        .map_or(Value::Null, |v| json!(v))
 }
 
 /// The JSON object of a report (one line of `--json`; the session's `result` too).
@@ -80,7 +110,10 @@ pub fn to_json(r: &Report) -> Value {
     let c = &r.classification;
     let mut ci = serde_json::Map::new();
     for (i, name) in PARAM_NAMES.iter().enumerate() {
-        ci.insert(name.to_string(), f.ci95[i].map_or(Value::Null, |(lo, hi)| json!([lo, hi])));
+        ci.insert(
+            name.to_string(),
+            f.ci95[i].map_or(Value::Null, |(lo, hi)| json!([lo, hi])),
+        );
     }
     // Two objects merged: one json! of all the keys exceeds the macro's recursion limit.
     let mut object = json!({
@@ -150,9 +183,20 @@ fn fmt_value(x: Option<f64>) -> String {
 pub fn to_table(r: &Report) -> String {
     let f = &r.fit;
     let c = &r.classification;
-    let mut s = format!("{}  sample {}  (n = {}, fitted: {})\n", r.file.display(), r.sample, f.n, f.model.names().join(" "));
+    let mut s = format!(
+        "{}  sample {}  (n = {}, fitted: {})\n",
+        r.file.display(),
+        r.sample,
+        f.n,
+        f.model.names().join(" ")
+    );
     s += "  parameter        value       95 % interval\n";
-    let values = [f.sigma_deg(), f.reported(model::RHO_S), f.reported(model::RHO_D), f.reported(model::ETA)];
+    let values = [
+        f.sigma_deg(),
+        f.reported(model::RHO_S),
+        f.reported(model::RHO_D),
+        f.reported(model::ETA),
+    ];
     for (i, name) in ["sigma [deg]", "rho_s", "rho_d", "eta"].iter().enumerate() {
         let ci = f.ci95[i].map_or_else(String::new, |(lo, hi)| format!("[{lo:.4}, {hi:.4}]"));
         let value = match (i, f.sigma_upper_deg(), f.rho_s_lower()) {
@@ -163,29 +207,58 @@ pub fn to_table(r: &Report) -> String {
         s += &format!("  {name:<14} {value:>10}   {ci}\n");
     }
     if let Some(a) = f.arm_offset {
-        s += &format!("  arm offset     {:>+10.4}   [{:.4}, {:.4}] (θr + δ0)\n", a.deg, a.ci95.0, a.ci95.1);
+        s += &format!(
+            "  arm offset     {:>+10.4}   [{:.4}, {:.4}] (θr + δ0)\n",
+            a.deg, a.ci95.0, a.ci95.1
+        );
     }
     for u in f.not_identified() {
         s += &format!("  not identified: {} ({})\n", u.param, u.reason);
     }
-    s += &format!("  NMAE {:.2} %   RMS {:.4} (radiance factor)   {} iterations, {}\n", 100.0 * f.nmae, f.rms, f.iterations, f.status.name());
+    s += &format!(
+        "  NMAE {:.2} %   RMS {:.4} (radiance factor)   {} iterations, {}\n",
+        100.0 * f.nmae,
+        f.rms,
+        f.iterations,
+        f.status.name()
+    );
     let chi2 = match (f.chi2, f.gof_p) {
-        (Some(chi2), Some(p)) => format!("χ² {chi2:.1} on {} dof (χ²/ν {:.2}, p {p:.3})", f.dof, chi2 / f.dof.max(1) as f64),
+        (Some(chi2), Some(p)) => format!(
+            "χ² {chi2:.1} on {} dof (χ²/ν {:.2}, p {p:.3})",
+            f.dof,
+            chi2 / f.dof.max(1) as f64
+        ),
         (Some(chi2), None) => format!("χ² {chi2:.1} on {} dof", f.dof),
         _ => format!("no χ² (noise from the residuals), {} dof", f.dof),
     };
     let structure = f.structure.map_or_else(
         || "structure test not run".to_string(),
-        |t| format!("residual structure Z {:.2} (lag-1 {:.2}, p {:.3}, {} pairs)", t.statistic, t.lag1, t.p_value, t.pairs),
+        |t| {
+            format!(
+                "residual structure Z {:.2} (lag-1 {:.2}, p {:.3}, {} pairs)",
+                t.statistic, t.lag1, t.p_value, t.pairs
+            )
+        },
     );
-    s += &format!("  fit: {chi2}; {structure}{}\n", if f.lack_of_fit { " — LACK OF FIT" } else { "" });
+    s += &format!(
+        "  fit: {chi2}; {structure}{}\n",
+        if f.lack_of_fit {
+            " — LACK OF FIT"
+        } else {
+            ""
+        }
+    );
     match (r.delta, r.check) {
         (Some(d), Some(chk)) => {
             s += &format!(
                 "  δ {:.3}° (spacing around the specular direction)   σ_l {:.3}° (the narrowest lobe it resolves)   σ > σ_l: {}\n",
                 d.deg,
                 chk.sigma_l_deg,
-                if chk.sigma_ok { "yes" } else { "NO (measure closer to the specular direction)" }
+                if chk.sigma_ok {
+                    "yes"
+                } else {
+                    "NO (measure closer to the specular direction)"
+                }
             )
         }
         _ => s += "  δ unknown (no neighbours of the specular direction): σ_l check not made\n",
@@ -217,7 +290,15 @@ pub fn to_table(r: &Report) -> String {
     }
     s += &format!(
         "  flags: {}\n",
-        if r.flags.is_empty() { "none".to_string() } else { r.flags.iter().map(|g| g.name()).collect::<Vec<_>>().join(", ") }
+        if r.flags.is_empty() {
+            "none".to_string()
+        } else {
+            r.flags
+                .iter()
+                .map(|g| g.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
     );
     s
 }

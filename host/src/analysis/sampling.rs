@@ -46,7 +46,9 @@ fn tick_set(geometries: &[(f64, f64)]) -> Option<BTreeSet<(i32, i32)>> {
 }
 
 fn schedule_set(s: &schedules::Schedule) -> BTreeSet<(i32, i32)> {
-    s.iter().map(|g| (g.theta_i.ticks(), g.theta_r.ticks())).collect()
+    s.iter()
+        .map(|g| (g.theta_i.ticks(), g.theta_r.ticks()))
+        .collect()
 }
 
 /// The nominal δ when the geometries are exactly one of the method's schedules.
@@ -55,14 +57,20 @@ pub fn nominal_delta(geometries: &[(f64, f64)]) -> Option<Delta> {
     for (m, delta) in schedules::STRATEGY1 {
         if let Some(s) = schedules::strategy1(m) {
             if schedule_set(&s) == set {
-                return Some(Delta { deg: f64::from(delta), source: DeltaSource::Strategy1 { m } });
+                return Some(Delta {
+                    deg: f64::from(delta),
+                    source: DeltaSource::Strategy1 { m },
+                });
             }
         }
     }
     for delta in schedules::STRATEGY2_DELTAS {
         if let Some(s) = schedules::strategy2(delta) {
             if schedule_set(&s) == set {
-                return Some(Delta { deg: f64::from(delta), source: DeltaSource::Strategy2 });
+                return Some(Delta {
+                    deg: f64::from(delta),
+                    source: DeltaSource::Strategy2,
+                });
             }
         }
     }
@@ -79,7 +87,11 @@ pub fn nominal_delta(geometries: &[(f64, f64)]) -> Option<Delta> {
 /// `benches/sampling.rs`).
 pub fn measured_delta_deg(geometries: &[(f64, f64)]) -> Option<f64> {
     // A NaN θi is no incidence angle (it equals nothing, itself included).
-    let mut sorted: Vec<(f64, f64)> = geometries.iter().copied().filter(|g| !g.0.is_nan()).collect();
+    let mut sorted: Vec<(f64, f64)> = geometries
+        .iter()
+        .copied()
+        .filter(|g| !g.0.is_nan())
+        .collect();
     sorted.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let mut smallest: Option<f64> = None;
     // Runs of equal θi (−0 and +0 are equal, and adjacent in this order).
@@ -109,10 +121,17 @@ pub fn measured_delta_deg(geometries: &[(f64, f64)]) -> Option<f64> {
 /// δ of a data set: `given` if any, else the schedule's nominal δ, else the measured one.
 pub fn delta(geometries: &[(f64, f64)], given_deg: Option<f64>) -> Option<Delta> {
     if let Some(deg) = given_deg {
-        return Some(Delta { deg, source: DeltaSource::Given });
+        return Some(Delta {
+            deg,
+            source: DeltaSource::Given,
+        });
     }
-    nominal_delta(geometries)
-        .or_else(|| measured_delta_deg(geometries).map(|deg| Delta { deg, source: DeltaSource::Measured }))
+    nominal_delta(geometries).or_else(|| {
+        measured_delta_deg(geometries).map(|deg| Delta {
+            deg,
+            source: DeltaSource::Measured,
+        })
+    })
 }
 
 /// The verdict of the adequacy check.
@@ -129,7 +148,11 @@ pub struct SigmaCheck {
 /// σ > σ_l(δ)? An unresolved σ (`None`) never passes.
 pub fn check_sigma(sigma_deg: Option<f64>, delta_deg: f64) -> SigmaCheck {
     let sigma_l = sigma_l_deg(delta_deg);
-    SigmaCheck { delta_deg, sigma_l_deg: sigma_l, sigma_ok: sigma_deg.is_some_and(|s| s > sigma_l) }
+    SigmaCheck {
+        delta_deg,
+        sigma_l_deg: sigma_l,
+        sigma_ok: sigma_deg.is_some_and(|s| s > sigma_l),
+    }
 }
 
 #[cfg(test)]
@@ -138,7 +161,9 @@ mod tests {
     use proptest::strategy::Strategy as _;
 
     fn pairs(s: &schedules::Schedule) -> Vec<(f64, f64)> {
-        s.iter().map(|g| (g.theta_i.deg(), g.theta_r.deg())).collect()
+        s.iter()
+            .map(|g| (g.theta_i.deg(), g.theta_r.deg()))
+            .collect()
     }
 
     #[test]
@@ -150,7 +175,10 @@ mod tests {
             assert_eq!(delta(&s2, None).unwrap().deg, f64::from(d));
             assert_eq!(measured_delta_deg(&s2), Some(f64::from(d)), "δ {d}");
         }
-        assert_eq!(measured_delta_deg(&pairs(&schedules::full_grid())), Some(1.0));
+        assert_eq!(
+            measured_delta_deg(&pairs(&schedules::full_grid())),
+            Some(1.0)
+        );
         assert_eq!(delta(&s1, Some(7.5)).unwrap().deg, 7.5);
     }
 
@@ -222,7 +250,11 @@ mod tests {
         // In a scrambled order (k·7919 mod n visits every k once: n is not a multiple of 7919).
         for k in (0..n).map(|i| i * 7919 % n) {
             let ti = 5.0 + 80.0 * k as f64 / n as f64;
-            let gap = if k == n - 1 { 0.25 } else { 0.5 + 4.0 * (1.0 - k as f64 / n as f64) };
+            let gap = if k == n - 1 {
+                0.25
+            } else {
+                0.5 + 4.0 * (1.0 - k as f64 / n as f64)
+            };
             geometries.push((ti, ti - gap));
             geometries.push((ti, ti + 0.5 * gap));
         }
@@ -232,7 +264,14 @@ mod tests {
     #[test]
     fn measured_delta_is_the_smallest_of_the_largest_gaps() {
         // θi 20: neighbours 15 and 22 → 5; θi 40: neighbours 38, 41 → 2.
-        let g = [(20.0, 15.0), (20.0, 20.0), (20.0, 22.0), (40.0, 38.0), (40.0, 41.0), (40.0, 0.0)];
+        let g = [
+            (20.0, 15.0),
+            (20.0, 20.0),
+            (20.0, 22.0),
+            (40.0, 38.0),
+            (40.0, 41.0),
+            (40.0, 0.0),
+        ];
         assert_eq!(measured_delta_deg(&g), Some(2.0));
         assert!((sigma_l_deg(4.71) - 1.0).abs() < 1e-3);
     }

@@ -99,8 +99,18 @@ impl SheetSummary {
 
     /// The accepted spots of `results`, as the evidence weighs the sheet.
     pub fn sheet(&self, results: &[SpotResult]) -> Sheet {
-        let accepted = |n: u16| self.verdicts.iter().any(|j| j.number == n && j.verdict == SpotVerdict::Accepted);
-        Sheet { spots: results.iter().filter(|r| accepted(r.number)).map(|r| r.spot.clone()).collect() }
+        let accepted = |n: u16| {
+            self.verdicts
+                .iter()
+                .any(|j| j.number == n && j.verdict == SpotVerdict::Accepted)
+        };
+        Sheet {
+            spots: results
+                .iter()
+                .filter(|r| accepted(r.number))
+                .map(|r| r.spot.clone())
+                .collect(),
+        }
     }
 }
 
@@ -127,23 +137,43 @@ pub fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
     if !results.is_empty() && !any_clean {
         notes.push(format!("no spot of {} came out clean: the sheet's parameters are from flagged spots and carry their flags", results.len()));
     }
-    let accepted: Vec<&SpotResult> = results.iter().filter(|r| verdicts.iter().any(|j| j.number == r.number && j.verdict == SpotVerdict::Accepted)).collect();
+    let accepted: Vec<&SpotResult> = results
+        .iter()
+        .filter(|r| {
+            verdicts
+                .iter()
+                .any(|j| j.number == r.number && j.verdict == SpotVerdict::Accepted)
+        })
+        .collect();
     if accepted.len() < planned as usize && any_clean {
         notes.push(format!("{} clean spot{} of the {planned} planned: the replacements for flagged spots were spent", accepted.len(), if accepted.len() == 1 { "" } else { "s" }));
     }
     if accepted.len() == 1 {
         notes.push("one spot: the sheet's spot-to-spot variation is unknown; comparisons use the population's".to_string());
     }
-    let logs: Vec<[Option<f64>; 3]> = accepted.iter().map(|r| r.spot.values.map(|v| v.filter(|v| *v > 0.0 && v.is_finite()).map(f64::ln))).collect();
+    let logs: Vec<[Option<f64>; 3]> = accepted
+        .iter()
+        .map(|r| {
+            r.spot
+                .values
+                .map(|v| v.filter(|v| *v > 0.0 && v.is_finite()).map(f64::ln))
+        })
+        .collect();
     let n = logs.len();
     let mean_log: [Option<f64>; 3] = std::array::from_fn(|i| {
         let all: Option<Vec<f64>> = logs.iter().map(|l| l[i]).collect();
-        all.filter(|v| !v.is_empty()).map(|v| v.iter().sum::<f64>() / v.len() as f64)
+        all.filter(|v| !v.is_empty())
+            .map(|v| v.iter().sum::<f64>() / v.len() as f64)
     });
     let within_log_covariance = (n >= 2 && mean_log.iter().all(Option::is_some)).then(|| {
         let m = mean_log.map(|v| v.unwrap_or(0.0));
         std::array::from_fn(|r| {
-            std::array::from_fn(|c| logs.iter().map(|l| (l[r].unwrap_or(m[r]) - m[r]) * (l[c].unwrap_or(m[c]) - m[c])).sum::<f64>() / (n - 1) as f64)
+            std::array::from_fn(|c| {
+                logs.iter()
+                    .map(|l| (l[r].unwrap_or(m[r]) - m[r]) * (l[c].unwrap_or(m[c]) - m[c]))
+                    .sum::<f64>()
+                    / (n - 1) as f64
+            })
         })
     });
     SheetSummary {
@@ -151,7 +181,8 @@ pub fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
         accepted: n,
         mean: mean_log.map(|v| v.map(f64::exp)),
         // exp(s) − 1 is the relative spread a log-normal spread of s means.
-        within_relative_sd: within_log_covariance.map(|c: [[f64; 3]; 3]| std::array::from_fn(|i| c[i][i].sqrt().exp_m1())),
+        within_relative_sd: within_log_covariance
+            .map(|c: [[f64; 3]; 3]| std::array::from_fn(|i| c[i][i].sqrt().exp_m1())),
         within_log_covariance,
         flags: sheet_flags,
         notes,
@@ -164,7 +195,14 @@ mod tests {
 
     fn result(number: u16, flags: &[Flag], sigma: f64) -> SpotResult {
         let values = [Some(sigma), Some(0.4), Some(0.41)];
-        SpotResult { number, flags: flags.to_vec(), spot: Spot { values, covariance: [[1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]] } }
+        SpotResult {
+            number,
+            flags: flags.to_vec(),
+            spot: Spot {
+                values,
+                covariance: [[1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]],
+            },
+        }
     }
 
     #[test]
@@ -175,29 +213,66 @@ mod tests {
         assert_eq!(next_spot(3, 2, &[clean(1), clean(2)]), Some(3));
         assert_eq!(next_spot(3, 2, &[clean(1), clean(2), clean(3)]), None);
         assert_eq!(next_spot(3, 2, &[clean(1), flagged(2), clean(3)]), Some(4));
-        assert_eq!(next_spot(3, 2, &[clean(1), flagged(2), clean(3), clean(4)]), None);
-        assert_eq!(next_spot(3, 2, &[flagged(1), flagged(2), flagged(3), flagged(4)]), Some(5));
-        assert_eq!(next_spot(3, 2, &[flagged(1), flagged(2), flagged(3), flagged(4), flagged(5)]), None);
+        assert_eq!(
+            next_spot(3, 2, &[clean(1), flagged(2), clean(3), clean(4)]),
+            None
+        );
+        assert_eq!(
+            next_spot(3, 2, &[flagged(1), flagged(2), flagged(3), flagged(4)]),
+            Some(5)
+        );
+        assert_eq!(
+            next_spot(
+                3,
+                2,
+                &[flagged(1), flagged(2), flagged(3), flagged(4), flagged(5)]
+            ),
+            None
+        );
         assert_eq!(next_spot(1, 0, &[flagged(1)]), None);
     }
 
     #[test]
     fn flagged_spots_are_excluded_with_the_reason_while_a_clean_one_exists() {
-        let results = [result(1, &[], 20.0), result(2, &[Flag::LostSteps, Flag::LinkRecovered], 30.0), result(3, &[], 21.0)];
+        let results = [
+            result(1, &[], 20.0),
+            result(2, &[Flag::LostSteps, Flag::LinkRecovered], 30.0),
+            result(3, &[], 21.0),
+        ];
         let s = assess(3, &results);
         assert_eq!(s.accepted, 2);
-        assert!(matches!(&s.verdicts[1].verdict, SpotVerdict::Excluded { reason } if reason.contains("lost-steps") && !reason.contains("link-recovered")), "{:?}", s.verdicts);
-        assert_eq!(s.flags, [Flag::LinkRecovered], "informational flags carry to the sheet, the excluded spot's others do not");
+        assert!(
+            matches!(&s.verdicts[1].verdict, SpotVerdict::Excluded { reason } if reason.contains("lost-steps") && !reason.contains("link-recovered")),
+            "{:?}",
+            s.verdicts
+        );
+        assert_eq!(
+            s.flags,
+            [Flag::LinkRecovered],
+            "informational flags carry to the sheet, the excluded spot's others do not"
+        );
         assert!(s.ok());
         let mean = s.mean[0].unwrap();
-        assert!((mean - (20.0f64 * 21.0).sqrt()).abs() < 1e-9, "geometric mean of the accepted spots: {mean}");
+        assert!(
+            (mean - (20.0f64 * 21.0).sqrt()).abs() < 1e-9,
+            "geometric mean of the accepted spots: {mean}"
+        );
         assert_eq!(s.sheet(&results).spots.len(), 2);
-        assert!(s.notes.iter().any(|n| n.contains("2 clean spots of the 3 planned")), "{:?}", s.notes);
+        assert!(
+            s.notes
+                .iter()
+                .any(|n| n.contains("2 clean spots of the 3 planned")),
+            "{:?}",
+            s.notes
+        );
     }
 
     #[test]
     fn with_no_clean_spot_the_sheet_keeps_every_spot_and_their_flags() {
-        let results = [result(1, &[Flag::LackOfFit], 20.0), result(2, &[Flag::LackOfFit, Flag::SigmaNotResolved], 21.0)];
+        let results = [
+            result(1, &[Flag::LackOfFit], 20.0),
+            result(2, &[Flag::LackOfFit, Flag::SigmaNotResolved], 21.0),
+        ];
         let s = assess(2, &results);
         assert_eq!(s.accepted, 2);
         assert_eq!(s.flags, [Flag::LackOfFit, Flag::SigmaNotResolved]);
@@ -208,9 +283,19 @@ mod tests {
     #[test]
     fn the_within_sheet_variation_is_unknown_for_one_spot_and_measured_for_more() {
         let one = assess(1, &[result(1, &[], 20.0)]);
-        assert_eq!((one.within_relative_sd, one.within_log_covariance), (None, None));
+        assert_eq!(
+            (one.within_relative_sd, one.within_log_covariance),
+            (None, None)
+        );
         assert!(one.notes.iter().any(|n| n.contains("variation is unknown")));
-        let three = assess(3, &[result(1, &[], 20.0), result(2, &[], 21.0), result(3, &[], 19.0)]);
+        let three = assess(
+            3,
+            &[
+                result(1, &[], 20.0),
+                result(2, &[], 21.0),
+                result(3, &[], 19.0),
+            ],
+        );
         let sd = three.within_relative_sd.unwrap();
         assert!(sd[0] > 0.04 && sd[0] < 0.06, "{sd:?}");
         assert_eq!(sd[1], 0.0);

@@ -2,8 +2,10 @@
 //! over "different stocks"? A likelihood ratio from a two-level model
 //! ([`crate::analysis::evidence`]), weighed against a population of stocks. A and B are
 //! session folders (or their `session.json`) of `gonio measure`.
+use crate::analysis::evidence::{
+    self, Evidence, PARAM_LABELS, Population, PopulationSource, Support,
+};
 use crate::output::sheet::{MeasuredSheet, read_measured};
-use crate::analysis::evidence::{self, Evidence, PARAM_LABELS, Population, PopulationSource, Support};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -47,10 +49,19 @@ fn population_of(library: Option<&PathBuf>) -> anyhow::Result<(Population, Optio
         },
     };
     let sheets = Library::open(&path, OpenMode::Existing)?.sheets()?;
-    let labelled: Vec<(String, evidence::Sheet)> = sheets.into_iter().map(|(stock, _, sheet)| (stock, sheet)).collect();
+    let labelled: Vec<(String, evidence::Sheet)> = sheets
+        .into_iter()
+        .map(|(stock, _, sheet)| (stock, sheet))
+        .collect();
     Ok(match Population::from_sheets(&labelled) {
         Ok(population) => (population, Some(format!("the library {}", path.display()))),
-        Err(e) => (Population::default_population(), Some(format!("the library {} cannot make a population ({e}): the default population is used", path.display()))),
+        Err(e) => (
+            Population::default_population(),
+            Some(format!(
+                "the library {} cannot make a population ({e}): the default population is used",
+                path.display()
+            )),
+        ),
     })
 }
 
@@ -62,7 +73,12 @@ fn population_json(population: &Population) -> serde_json::Value {
 }
 
 /// The JSON object of `--json`.
-pub fn to_json(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: &Population) -> serde_json::Value {
+pub fn to_json(
+    a: &MeasuredSheet,
+    b: &MeasuredSheet,
+    e: &Evidence,
+    population: &Population,
+) -> serde_json::Value {
     let side = |r: &MeasuredSheet| {
         json!({
             "file": r.path.display().to_string(),
@@ -108,12 +124,22 @@ fn interval(r: &MeasuredSheet, i: usize) -> Option<(f64, f64)> {
     let spots = &r.sheet.spots;
     if spots.len() == 1 {
         let var = spots[0].covariance[i][i];
-        return (var >= 0.0 && var.is_finite()).then(|| (v - 1.96 * var.sqrt(), v + 1.96 * var.sqrt()));
+        return (var >= 0.0 && var.is_finite())
+            .then(|| (v - 1.96 * var.sqrt(), v + 1.96 * var.sqrt()));
     }
-    let fit_relative_var = spots.iter().map(|s| s.values[i].map_or(f64::NAN, |x| s.covariance[i][i] / (x * x))).sum::<f64>() / spots.len() as f64;
-    let scatter = r.summary.as_ref().and_then(|s| s.within_log_covariance).map_or(0.0, |c| c[i][i] / spots.len() as f64);
+    let fit_relative_var = spots
+        .iter()
+        .map(|s| s.values[i].map_or(f64::NAN, |x| s.covariance[i][i] / (x * x)))
+        .sum::<f64>()
+        / spots.len() as f64;
+    let scatter = r
+        .summary
+        .as_ref()
+        .and_then(|s| s.within_log_covariance)
+        .map_or(0.0, |c| c[i][i] / spots.len() as f64);
     let half = 1.96 * (fit_relative_var + scatter).sqrt();
-    half.is_finite().then(|| (v * (-half).exp(), v * half.exp()))
+    half.is_finite()
+        .then(|| (v * (-half).exp(), v * half.exp()))
 }
 
 fn cell(r: &MeasuredSheet, i: usize) -> String {
@@ -125,13 +151,27 @@ fn cell(r: &MeasuredSheet, i: usize) -> String {
 }
 
 /// The report for a person.
-pub fn to_table(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: &Population) -> String {
+pub fn to_table(
+    a: &MeasuredSheet,
+    b: &MeasuredSheet,
+    e: &Evidence,
+    population: &Population,
+) -> String {
     let side = |name: &str, r: &MeasuredSheet| {
         let spots = r.sheet.spots.len();
-        format!("{name}  {}  sample {}  {spots} spot{}  class {}\n", r.path.display(), r.sample, if spots == 1 { "" } else { "s" }, r.class_text())
+        format!(
+            "{name}  {}  sample {}  {spots} spot{}  class {}\n",
+            r.path.display(),
+            r.sample,
+            if spots == 1 { "" } else { "s" },
+            r.class_text()
+        )
     };
     let mut s = side("A", a) + &side("B", b);
-    s += &format!("  {:<10} {:>34} {:>34}\n", "parameter", "A: value [95 % interval]", "B: value [95 % interval]");
+    s += &format!(
+        "  {:<10} {:>34} {:>34}\n",
+        "parameter", "A: value [95 % interval]", "B: value [95 % interval]"
+    );
     for (i, label) in PARAM_LABELS.iter().enumerate() {
         s += &format!("  {label:<10} {:>34} {:>34}\n", cell(a, i), cell(b, i));
     }
@@ -140,9 +180,16 @@ pub fn to_table(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: 
         e.log10_lr, e.log10_lr
     );
     s += &format!("  {}\n", e.verbal);
-    let contributors: Vec<String> = e.contributions.iter().map(|(p, v)| format!("{p} {v:+.2}")).collect();
+    let contributors: Vec<String> = e
+        .contributions
+        .iter()
+        .map(|(p, v)| format!("{p} {v:+.2}"))
+        .collect();
     if !contributors.is_empty() {
-        s += &format!("  each parameter alone, log10 LR: {} (correlated: they do not add up to the whole)\n", contributors.join(", "));
+        s += &format!(
+            "  each parameter alone, log10 LR: {} (correlated: they do not add up to the whole)\n",
+            contributors.join(", ")
+        );
     }
     for (p, why) in &e.left_out {
         s += &format!("  {p} left out: {why}\n");
@@ -155,11 +202,20 @@ pub fn to_table(a: &MeasuredSheet, b: &MeasuredSheet, e: &Evidence, population: 
                 100.0 * evidence::DEFAULT_WITHIN_RELATIVE_SD[0]
             )
         }
-        PopulationSource::Sheets { stocks, sheets, spots } => s += &format!("  population: {stocks} stocks, {sheets} sheets, {spots} spots\n"),
+        PopulationSource::Sheets {
+            stocks,
+            sheets,
+            spots,
+        } => s += &format!("  population: {stocks} stocks, {sheets} sheets, {spots} spots\n"),
     }
-    for (name, n, known) in [("A", e.n_spots.0, e.within_known.0), ("B", e.n_spots.1, e.within_known.1)] {
+    for (name, n, known) in [
+        ("A", e.n_spots.0, e.within_known.0),
+        ("B", e.n_spots.1, e.within_known.1),
+    ] {
         if !known {
-            s += &format!("  {name}: {n} spot: its own within-sheet variation is unknown; the population's within-stock variation stands for it\n");
+            s += &format!(
+                "  {name}: {n} spot: its own within-sheet variation is unknown; the population's within-stock variation stands for it\n"
+            );
         }
     }
     s += "  classes are shown for information: the evidence weighs the parameters, not the class boundaries\n";

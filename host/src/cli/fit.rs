@@ -35,7 +35,10 @@ pub struct Args {
 /// Run `gonio fit`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(d) = args.delta {
-        anyhow::ensure!(d.is_finite() && d > 0.0 && d <= 90.0, "--delta must be a number of degrees above 0 and at most 90, not {d:?}");
+        anyhow::ensure!(
+            d.is_finite() && d > 0.0 && d <= 90.0,
+            "--delta must be a number of degrees above 0 and at most 90, not {d:?}"
+        );
     }
     let max_acceptance = crate::cli::measure::MAX_ACCEPTANCE_DEG;
     anyhow::ensure!(
@@ -43,7 +46,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--acceptance must be between 0 and {max_acceptance} degrees (the detector's full width, which the fit models as a small window), not {:?}",
         args.acceptance
     );
-    let options = FitOptions { acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance), ..FitOptions::default() };
+    let options = FitOptions {
+        acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance),
+        ..FitOptions::default()
+    };
 
     let mut failed = false;
     let mut flagged = false;
@@ -66,11 +72,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             Ok(sets) => jobs.extend(sets.into_iter().map(|s| (k, path.as_path(), s))),
             Err(e) => {
                 failed = true;
-                let location = e.line().map_or_else(|| path.display().to_string(), |l| format!("{}:{l}", path.display()));
+                let location = e.line().map_or_else(
+                    || path.display().to_string(),
+                    |l| format!("{}:{l}", path.display()),
+                );
                 let message = match e {
                     dataset::DatasetError::Io(io) => io.to_string(),
                     // The line is in the location already; drop the "line N: " prefix.
-                    other => other.to_string().split_once(": ").map_or_else(|| other.to_string(), |(_, m)| m.to_string()),
+                    other => other
+                        .to_string()
+                        .split_once(": ")
+                        .map_or_else(|| other.to_string(), |(_, m)| m.to_string()),
                 };
                 file_errors.push((k, format!("{location}: {message}")));
             }
@@ -95,9 +107,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 } else {
                     writeln!(out, "{}", to_table(&again.report))?;
                     if same {
-                        writeln!(out, "  re-analysed from the folder's readings and calibration: the same result as the session reported\n")?;
+                        writeln!(
+                            out,
+                            "  re-analysed from the folder's readings and calibration: the same result as the session reported\n"
+                        )?;
                     } else {
-                        writeln!(out, "  re-analysed from the folder's readings and calibration: DIFFERS from the session's result in {}\n", again.differences.join(", "))?;
+                        writeln!(
+                            out,
+                            "  re-analysed from the folder's readings and calibration: DIFFERS from the session's result in {}\n",
+                            again.differences.join(", ")
+                        )?;
                     }
                 }
             }
@@ -135,21 +154,38 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     for (_, message) in file_errors {
         eprintln!("error: {message}");
     }
-    Ok(if failed { ExitCode::from(crate::cli::exit::FAILED) } else { crate::cli::exit::of_result(!flagged) })
+    Ok(if failed {
+        ExitCode::from(crate::cli::exit::FAILED)
+    } else {
+        crate::cli::exit::of_result(!flagged)
+    })
 }
 
 /// Fit every data set, in parallel over the available cores; results in input order.
-fn analyse_all(jobs: &[(usize, &Path, DataSet)], options: &FitOptions, delta: Option<f64>) -> Vec<Result<Report, String>> {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(jobs.len().max(1));
+fn analyse_all(
+    jobs: &[(usize, &Path, DataSet)],
+    options: &FitOptions,
+    delta: Option<f64>,
+) -> Vec<Result<Report, String>> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(jobs.len().max(1));
     if threads <= 1 || jobs.len() < 8 {
-        return jobs.iter().map(|(_, path, set)| analyse(path, set, options, delta)).collect();
+        return jobs
+            .iter()
+            .map(|(_, path, set)| analyse(path, set, options, delta))
+            .collect();
     }
     let chunk = jobs.len().div_ceil(threads);
     std::thread::scope(|scope| {
         let handles: Vec<_> = jobs
             .chunks(chunk)
             .map(|part| {
-                let handle = scope.spawn(move || part.iter().map(|(_, path, set)| analyse(path, set, options, delta)).collect::<Vec<_>>());
+                let handle = scope.spawn(move || {
+                    part.iter()
+                        .map(|(_, path, set)| analyse(path, set, options, delta))
+                        .collect::<Vec<_>>()
+                });
                 (part.len(), handle)
             })
             .collect();
@@ -157,7 +193,11 @@ fn analyse_all(jobs: &[(usize, &Path, DataSet)], options: &FitOptions, delta: Op
             .into_iter()
             .flat_map(|(len, h)| {
                 // Keep one result per data set even if a thread died, so that results stay aligned.
-                h.join().unwrap_or_else(|_| (0..len).map(|_| Err("1: internal error: the fit panicked".to_string())).collect())
+                h.join().unwrap_or_else(|_| {
+                    (0..len)
+                        .map(|_| Err("1: internal error: the fit panicked".to_string()))
+                        .collect()
+                })
             })
             .collect()
     })

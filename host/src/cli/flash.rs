@@ -23,7 +23,9 @@ mod built_in {
 
 /// Arguments of `gonio flash`.
 #[derive(clap::Args)]
-#[command(after_help = "Exit codes: 0 the image is written, verified and the instrument answered (with --check: the image passed); 1 it was refused or flashing failed (the message says what and where); 2 a wrong command line.")]
+#[command(
+    after_help = "Exit codes: 0 the image is written, verified and the instrument answered (with --check: the image passed); 1 it was refused or flashing failed (the message says what and where); 2 a wrong command line."
+)]
 pub struct Args {
     /// The board's firmware ELF (firmware/board/target/thumbv7em-none-eabihf/release/gonio-board).
     /// Default: the image built into this release, if it has one.
@@ -44,11 +46,15 @@ pub struct Args {
 fn load(image: Option<&PathBuf>) -> anyhow::Result<(String, Vec<u8>)> {
     match image {
         Some(path) => {
-            let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read the firmware image", path.display()))?;
+            let bytes = std::fs::read(path)
+                .with_context(|| format!("{}: cannot read the firmware image", path.display()))?;
             Ok((path.display().to_string(), bytes))
         }
         None => match built_in::BUILT_IN {
-            Some((path, bytes)) => Ok((format!("the built-in firmware image ({path})"), bytes.to_vec())),
+            Some((path, bytes)) => Ok((
+                format!("the built-in firmware image ({path})"),
+                bytes.to_vec(),
+            )),
             None => bail!(
                 "this gonio has no firmware image built in: pass the image to flash, `gonio flash IMAGE` (the board's ELF, firmware/board/target/thumbv7em-none-eabihf/release/gonio-board after `cargo build --release` in firmware/board)"
             ),
@@ -59,29 +65,49 @@ fn load(image: Option<&PathBuf>) -> anyhow::Result<(String, Vec<u8>)> {
 /// Run `gonio flash`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if !(args.wait_s.is_finite() && args.wait_s > 0.0 && args.wait_s <= 600.0) {
-        bail!("--wait-s must be a number of seconds above 0 and at most 600, not {}", args.wait_s);
+        bail!(
+            "--wait-s must be a number of seconds above 0 and at most 600, not {}",
+            args.wait_s
+        );
     }
     let (name, bytes) = load(args.image.as_ref())?;
-    let image = FirmwareImage::check(&bytes).with_context(|| format!("{name}: not a firmware image gonio can flash"))?;
+    let image = FirmwareImage::check(&bytes)
+        .with_context(|| format!("{name}: not a firmware image gonio can flash"))?;
     print!("{name}:\n{}", image.describe());
     if args.check {
         println!("image checked: it can be flashed (nothing was written)");
         return Ok(ExitCode::from(crate::cli::exit::OK));
     }
 
-    let options = FlashOptions { probe: args.probe, enumerate_timeout: Duration::from_secs_f64(args.wait_s), ..FlashOptions::default() };
+    let options = FlashOptions {
+        probe: args.probe,
+        enumerate_timeout: Duration::from_secs_f64(args.wait_s),
+        ..FlashOptions::default()
+    };
     let mut bars = Bars::default();
     let mut find = || match find_instrument() {
-        Ok(Some(path)) => SerialTransport::open(&path).map(Some).map_err(|e| format!("{path}: {e}")),
+        Ok(Some(path)) => SerialTransport::open(&path)
+            .map(Some)
+            .map_err(|e| format!("{path}: {e}")),
         Ok(None) => Ok(None),
         Err(e) => Err(e.to_string()),
     };
-    let flashed = flash(&mut ProbeRsFlasher::new(), &image, options, &mut |p| bars.report(p), &mut find);
+    let flashed = flash(
+        &mut ProbeRsFlasher::new(),
+        &image,
+        options,
+        &mut |p| bars.report(p),
+        &mut find,
+    );
     bars.finish();
     let flashed = flashed?;
     println!(
         "flashed through {}; the instrument is at {}: firmware {}, board {}, protocol version {}",
-        flashed.probe, flashed.port, flashed.device.firmware_version, flashed.device.board, flashed.device.protocol_version
+        flashed.probe,
+        flashed.port,
+        flashed.device.firmware_version,
+        flashed.device.board,
+        flashed.device.protocol_version
     );
     Ok(ExitCode::from(crate::cli::exit::OK))
 }
@@ -98,7 +124,13 @@ impl Bars {
             FlashProgress::Started { step, total_bytes } => {
                 self.finish();
                 let bar = ProgressBar::new(total_bytes.unwrap_or(0));
-                bar.set_style(ProgressStyle::with_template("{msg:>12} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec})").expect("a valid template").progress_chars("=> "));
+                bar.set_style(
+                    ProgressStyle::with_template(
+                        "{msg:>12} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec})",
+                    )
+                    .expect("a valid template")
+                    .progress_chars("=> "),
+                );
                 bar.set_message(step.name());
                 self.current = Some((step, bar));
             }

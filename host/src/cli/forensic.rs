@@ -53,44 +53,98 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         bail!("draws are numbered below 100000 (each sheet's seed is made of its draw's number)");
     }
     if args.library_sheets + args.held_out_sheets > 999 || args.drawn_per_paper > 999 {
-        bail!("at most 999 sheets per stock and 999 stocks drawn per paper (each sheet's seed is made of them)");
+        bail!(
+            "at most 999 sheets per stock and 999 stocks drawn per paper (each sheet's seed is made of them)"
+        );
     }
-    let design = Design { draws: args.draws, first_draw: args.first_draw, drawn_per_paper: args.drawn_per_paper, library_sheets: args.library_sheets, held_out_sheets: args.held_out_sheets, spots: args.spots, policy: args.policy };
+    let design = Design {
+        draws: args.draws,
+        first_draw: args.first_draw,
+        drawn_per_paper: args.drawn_per_paper,
+        library_sheets: args.library_sheets,
+        held_out_sheets: args.held_out_sheets,
+        spots: args.spots,
+        policy: args.policy,
+    };
     let counts = forensic::spot_counts_of(&design, &args.spots_study);
     if counts.iter().any(|&n| n == 0 || n > 20) {
         bail!("spots per sheet must be 1 to 20");
     }
     if counts[0] < 2 && args.library_sheets < 2 {
-        bail!("the library needs two spots of a stock (--spots 2 or --library-sheets 2, for every number of --spots-study) to estimate the within-stock variation");
+        bail!(
+            "the library needs two spots of a stock (--spots 2 or --library-sheets 2, for every number of --spots-study) to estimate the within-stock variation"
+        );
     }
-    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .max(1);
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let bar = ProgressBar::new(forensic::plan(&design, &counts).len() as u64);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sheets, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
-    bar.set_message(format!("simulated sheets of {} population draws", design.draws));
-    let campaign = forensic::measure_all(&design, &counts, threads, &|| bar.inc(1)).map_err(anyhow::Error::msg)?;
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sheets, {elapsed} ({eta} left)")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message(format!(
+        "simulated sheets of {} population draws",
+        design.draws
+    ));
+    let campaign = forensic::measure_all(&design, &counts, threads, &|| bar.inc(1))
+        .map_err(anyhow::Error::msg)?;
     bar.finish_and_clear();
     let (figures, pairs) = forensic::figures(&campaign, design.spots, threads)?;
     let mut study = Vec::new();
     if counts.len() > 1 {
         for &n in &counts {
-            study.push(if n == design.spots { figures.clone() } else { forensic::figures(&campaign, n, threads)?.0 });
+            study.push(if n == design.spots {
+                figures.clone()
+            } else {
+                forensic::figures(&campaign, n, threads)?.0
+            });
         }
     }
     let mut csv = String::from("draw,stock_a,stock_b,class_a,class_b,same_stock,log10_lr\n");
     for p in &pairs {
-        let (a, b) = (&campaign.stocks[p.draw][p.stock_a], &campaign.stocks[p.draw][p.stock_b]);
-        csv += &format!("{},{},{},{},{},{},{:.4}\n", p.draw, a.name, b.name, a.class.name(), b.class.name(), p.stock_a == p.stock_b, p.log10_lr);
+        let (a, b) = (
+            &campaign.stocks[p.draw][p.stock_a],
+            &campaign.stocks[p.draw][p.stock_b],
+        );
+        csv += &format!(
+            "{},{},{},{},{},{},{:.4}\n",
+            p.draw,
+            a.name,
+            b.name,
+            a.class.name(),
+            b.class.name(),
+            p.stock_a == p.stock_b,
+            p.log10_lr
+        );
     }
     let csv_path = args.out.join("pairs.csv");
-    std::fs::write(&csv_path, csv).with_context(|| format!("cannot write {}", csv_path.display()))?;
+    std::fs::write(&csv_path, csv)
+        .with_context(|| format!("cannot write {}", csv_path.display()))?;
     let svg = args.out.join("tippett.svg");
     forensic::tippett_svg(&pairs, design.draws, &svg).map_err(anyhow::Error::msg)?;
-    let summary = format!("{}\nEvery spot measured with `--policy {}`.\n", forensic::summary_markdown(&figures, &study).trim_end(), args.policy.name());
+    let summary = format!(
+        "{}\nEvery spot measured with `--policy {}`.\n",
+        forensic::summary_markdown(&figures, &study).trim_end(),
+        args.policy.name()
+    );
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
     print!("{summary}");
-    eprintln!("wrote {}, {} and {}", md.display(), csv_path.display(), svg.display());
+    eprintln!(
+        "wrote {}, {} and {}",
+        md.display(),
+        csv_path.display(),
+        svg.display()
+    );
     let held = forensic::claims(&figures).iter().all(|(_, held)| *held);
-    Ok(if held { ExitCode::SUCCESS } else { ExitCode::from(crate::cli::exit::FLAGGED) })
+    Ok(if held {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(crate::cli::exit::FLAGGED)
+    })
 }

@@ -15,7 +15,9 @@ use std::process::ExitCode;
 
 /// Arguments of `gonio library`.
 #[derive(clap::Args)]
-#[command(after_help = "Exit codes: 0 done; 1 failed (nothing is changed by a refused add, import or remove); 2 a wrong command line.")]
+#[command(
+    after_help = "Exit codes: 0 done; 1 failed (nothing is changed by a refused add, import or remove); 2 a wrong command line."
+)]
 pub struct Args {
     /// The library file [default: $XDG_DATA_HOME/gonio/library.sqlite, else ~/.local/share/gonio/library.sqlite].
     #[arg(long, global = true, value_name = "FILE")]
@@ -119,7 +121,9 @@ pub struct SearchArgs {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let path = match args.library {
         Some(path) => path,
-        None => library::default_path().context("no library file: give --library FILE (neither XDG_DATA_HOME nor HOME is set)")?,
+        None => library::default_path().context(
+            "no library file: give --library FILE (neither XDG_DATA_HOME nor HOME is set)",
+        )?,
     };
     match args.command {
         Command::Add(add) => run_add(&path, add),
@@ -142,18 +146,42 @@ fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
     let mut sheets = Vec::new();
     for dir in &args.dirs {
         let sheet = library::read_session_folder(dir, args.lot.as_deref(), args.allow_flagged)?;
-        if let Some(earlier) = sheets.iter().find(|s: &&library::SheetRecord| s.session_sha256 == sheet.session_sha256) {
-            anyhow::bail!("{} and {} are the same session ({}): given twice; nothing was added", earlier.session_path, dir.display(), sheet.session_sha256);
+        if let Some(earlier) = sheets
+            .iter()
+            .find(|s: &&library::SheetRecord| s.session_sha256 == sheet.session_sha256)
+        {
+            anyhow::bail!(
+                "{} and {} are the same session ({}): given twice; nothing was added",
+                earlier.session_path,
+                dir.display(),
+                sheet.session_sha256
+            );
         }
         sheets.push(sheet);
     }
-    let stock = StockInfo { name: args.stock.clone(), manufacturer: args.manufacturer, notes: args.notes };
+    let stock = StockInfo {
+        name: args.stock.clone(),
+        manufacturer: args.manufacturer,
+        notes: args.notes,
+    };
     let mut library = Library::open(path, OpenMode::Add)?;
     library.add_sheets(&stock, &sheets)?;
     for sheet in &sheets {
-        println!("added {} (sample '{}', instrument {}, session {}) to stock '{}'", sheet.session_path, sheet.sample, sheet.instrument_serial, short(&sheet.session_sha256), args.stock);
+        println!(
+            "added {} (sample '{}', instrument {}, session {}) to stock '{}'",
+            sheet.session_path,
+            sheet.sample,
+            sheet.instrument_serial,
+            short(&sheet.session_sha256),
+            args.stock
+        );
     }
-    println!("{}: {} sheet{} added", path.display(), sheets.len(), if sheets.len() == 1 { "" } else { "s" });
+    println!(
+        "{}: {} sheet{} added",
+        path.display(),
+        sheets.len(),
+        if sheets.len() == 1 { "" } else { "s" }
+    );
     Ok(())
 }
 
@@ -161,17 +189,39 @@ fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
     let library = Library::open(path, OpenMode::Existing)?;
     let stocks = library.stocks()?;
     if args.json {
-        println!("{}", json!({"schema": crate::schema::LIBRARY_LIST, "library": path.display().to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks}));
+        println!(
+            "{}",
+            json!({"schema": crate::schema::LIBRARY_LIST, "library": path.display().to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks})
+        );
         return Ok(());
     }
-    println!("{}: {} stock{}", path.display(), stocks.len(), if stocks.len() == 1 { "" } else { "s" });
+    println!(
+        "{}: {} stock{}",
+        path.display(),
+        stocks.len(),
+        if stocks.len() == 1 { "" } else { "s" }
+    );
     if stocks.is_empty() {
         return Ok(());
     }
-    let width = stocks.iter().map(|s| s.name.chars().count()).max().unwrap_or(0).max(5);
-    println!("  {:<width$}  {:>6}  {:>6}  manufacturer", "stock", "sheets", "spots");
+    let width = stocks
+        .iter()
+        .map(|s| s.name.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(5);
+    println!(
+        "  {:<width$}  {:>6}  {:>6}  manufacturer",
+        "stock", "sheets", "spots"
+    );
     for s in &stocks {
-        println!("  {:<width$}  {:>6}  {:>6}  {}", s.name, s.sheets, s.spots, s.manufacturer.as_deref().unwrap_or("—"));
+        println!(
+            "  {:<width$}  {:>6}  {:>6}  {}",
+            s.name,
+            s.sheets,
+            s.spots,
+            s.manufacturer.as_deref().unwrap_or("—")
+        );
     }
     Ok(())
 }
@@ -189,7 +239,14 @@ fn run_remove(path: &Path, args: RemoveArgs) -> anyhow::Result<()> {
     for stock in &removed.stocks {
         println!("removed stock '{stock}'");
     }
-    println!("{}: {} session{} and {} spot{} removed", path.display(), removed.sessions.len(), if removed.sessions.len() == 1 { "" } else { "s" }, removed.spots, if removed.spots == 1 { "" } else { "s" });
+    println!(
+        "{}: {} session{} and {} spot{} removed",
+        path.display(),
+        removed.sessions.len(),
+        if removed.sessions.len() == 1 { "" } else { "s" },
+        removed.spots,
+        if removed.spots == 1 { "" } else { "s" }
+    );
     Ok(())
 }
 
@@ -202,17 +259,31 @@ fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
     }
     // Written beside the target and renamed over it: an interrupted export never leaves
     // a half file that a later import would take for a whole one.
-    let dir = args.file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut temp = tempfile::NamedTempFile::new_in(dir).with_context(|| format!("{}: cannot write there", dir.display()))?;
+    let dir = args
+        .file
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let mut temp = tempfile::NamedTempFile::new_in(dir)
+        .with_context(|| format!("{}: cannot write there", dir.display()))?;
     let records = {
         let mut out = std::io::BufWriter::new(temp.as_file_mut());
         let records = library.export(&mut out, &args.file)?;
-        out.flush().with_context(|| args.file.display().to_string())?;
+        out.flush()
+            .with_context(|| args.file.display().to_string())?;
         records
     };
-    temp.as_file().sync_all().with_context(|| args.file.display().to_string())?;
-    temp.persist(&args.file).with_context(|| format!("{}: cannot write", args.file.display()))?;
-    eprintln!("{}: {records} record{} (one per spot) written to {}", path.display(), if records == 1 { "" } else { "s" }, args.file.display());
+    temp.as_file()
+        .sync_all()
+        .with_context(|| args.file.display().to_string())?;
+    temp.persist(&args.file)
+        .with_context(|| format!("{}: cannot write", args.file.display()))?;
+    eprintln!(
+        "{}: {records} record{} (one per spot) written to {}",
+        path.display(),
+        if records == 1 { "" } else { "s" },
+        args.file.display()
+    );
     Ok(())
 }
 
@@ -221,7 +292,8 @@ fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
     let file = if args.file.as_os_str() == "-" {
         ExchangeFile::read(&mut std::io::stdin().lock(), Path::new("(standard input)"))?
     } else {
-        let opened = std::fs::File::open(&args.file).with_context(|| format!("{}: cannot read", args.file.display()))?;
+        let opened = std::fs::File::open(&args.file)
+            .with_context(|| format!("{}: cannot read", args.file.display()))?;
         ExchangeFile::read(&mut std::io::BufReader::new(opened), &args.file)?
     };
     let mut library = Library::open(path, OpenMode::Add)?;
@@ -254,20 +326,48 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
     let query = measured.sheet.clone();
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.
-    let own_identity = if args.dir.is_dir() { library::session_identity(&args.dir).ok() } else { None };
+    let own_identity = if args.dir.is_dir() {
+        library::session_identity(&args.dir).ok()
+    } else {
+        None
+    };
     let library = Library::open(path, OpenMode::Existing)?;
     let all = library.sheets()?;
     let excluded = own_identity.filter(|own| all.iter().any(|(_, sha, _)| sha == own));
-    let sheets: Vec<(String, String, Sheet)> = all.into_iter().filter(|(_, sha, _)| Some(sha) != excluded.as_ref()).collect();
-    anyhow::ensure!(!sheets.is_empty(), "{}: no sheets to search{}", path.display(), if excluded.is_some() { " but the measured one" } else { "" });
-    let labelled: Vec<(String, Sheet)> = sheets.iter().map(|(stock, _, sheet)| (stock.clone(), sheet.clone())).collect();
+    let sheets: Vec<(String, String, Sheet)> = all
+        .into_iter()
+        .filter(|(_, sha, _)| Some(sha) != excluded.as_ref())
+        .collect();
+    anyhow::ensure!(
+        !sheets.is_empty(),
+        "{}: no sheets to search{}",
+        path.display(),
+        if excluded.is_some() {
+            " but the measured one"
+        } else {
+            ""
+        }
+    );
+    let labelled: Vec<(String, Sheet)> = sheets
+        .iter()
+        .map(|(stock, _, sheet)| (stock.clone(), sheet.clone()))
+        .collect();
     let (population, population_note) = match Population::from_sheets(&labelled) {
         Ok(p) => (p, "library".to_string()),
-        Err(e) => (Population::default_population(), format!("default (the library's cannot be used: {e})")),
+        Err(e) => (
+            Population::default_population(),
+            format!("default (the library's cannot be used: {e})"),
+        ),
     };
     let mut ranking: Vec<Ranked> = rank_stocks(&query, &labelled, &population)
         .into_iter()
-        .map(|r| Ranked { stock: r.stock, sheets: r.sheets, spots: r.spots, log10_lr: r.evidence.log10_lr, verbal: r.evidence.verbal })
+        .map(|r| Ranked {
+            stock: r.stock,
+            sheets: r.sheets,
+            spots: r.spots,
+            log10_lr: r.evidence.log10_lr,
+            verbal: r.evidence.verbal,
+        })
         .collect();
     let stocks = ranking.len();
     ranking.truncate(args.top.unwrap_or(usize::MAX));
@@ -279,13 +379,38 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     if let Some(sha) = &excluded {
-        println!("(the measured session {} is in the library: left out of its stock and the population)", short(sha));
+        println!(
+            "(the measured session {} is in the library: left out of its stock and the population)",
+            short(sha)
+        );
     }
-    println!("{} (sample '{}') against {} stock{} of {}; population: {population_note}", args.dir.display(), measured.sample, stocks, if stocks == 1 { "" } else { "s" }, path.display());
-    let width = ranking.iter().map(|r| r.stock.chars().count()).max().unwrap_or(0).max(5);
-    println!("  {:>4}  {:<width$}  {:>6}  {:>9}  verbal", "rank", "stock", "sheets", "log10 LR");
+    println!(
+        "{} (sample '{}') against {} stock{} of {}; population: {population_note}",
+        args.dir.display(),
+        measured.sample,
+        stocks,
+        if stocks == 1 { "" } else { "s" },
+        path.display()
+    );
+    let width = ranking
+        .iter()
+        .map(|r| r.stock.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(5);
+    println!(
+        "  {:>4}  {:<width$}  {:>6}  {:>9}  verbal",
+        "rank", "stock", "sheets", "log10 LR"
+    );
     for (k, r) in ranking.iter().enumerate() {
-        println!("  {:>4}  {:<width$}  {:>6}  {:>+9.2}  {}", k + 1, r.stock, r.sheets, r.log10_lr, r.verbal);
+        println!(
+            "  {:>4}  {:<width$}  {:>6}  {:>+9.2}  {}",
+            k + 1,
+            r.stock,
+            r.sheets,
+            r.log10_lr,
+            r.verbal
+        );
     }
     Ok(())
 }

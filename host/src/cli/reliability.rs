@@ -27,21 +27,33 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.sessions == 0 {
         bail!("--sessions must be at least 1");
     }
-    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     if threads == 0 {
         bail!("--threads must be at least 1");
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let durations = reliability::session_durations().map_err(anyhow::Error::msg)?;
-    let specs: Vec<_> = (0..args.sessions).map(|k| reliability::draw(k, &FaultKind::ALL, &durations)).collect();
+    let specs: Vec<_> = (0..args.sessions)
+        .map(|k| reliability::draw(k, &FaultKind::ALL, &durations))
+        .collect();
     let bar = ProgressBar::new(specs.len() as u64);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
     bar.set_message("faulty sessions and their clean twins");
     let rows = reliability::run_all(&specs, true, threads, &|| bar.inc(1));
     bar.finish_and_clear();
     let give_ups = reliability::give_ups(args.give_ups, &durations, threads);
     let csv = args.out.join("reliability.csv");
-    std::fs::write(&csv, reliability::to_csv(&rows)).with_context(|| format!("cannot write {}", csv.display()))?;
+    std::fs::write(&csv, reliability::to_csv(&rows))
+        .with_context(|| format!("cannot write {}", csv.display()))?;
     let summary = reliability::summary_markdown(&rows, &give_ups);
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;

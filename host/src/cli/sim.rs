@@ -21,11 +21,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let server = hil_sim::pty::PtyServer::open().context("cannot open a pseudo-terminal")?;
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
-    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).context("cannot install the Ctrl-C handler")?;
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
+        .context("cannot install the Ctrl-C handler")?;
     let mut stdout = std::io::stdout().lock();
     writeln!(stdout, "{}", server.path().display())?;
     stdout.flush()?;
-    eprintln!("simulated instrument with sample {} on {}; Ctrl-C stops it", args.sample, server.path().display());
-    server.serve(&mut instrument, &stop).context("simulated instrument stopped")?;
+    eprintln!(
+        "simulated instrument with sample {} on {}; Ctrl-C stops it",
+        args.sample,
+        server.path().display()
+    );
+    server
+        .serve(&mut instrument, &stop)
+        .context("simulated instrument stopped")?;
     Ok(ExitCode::SUCCESS)
 }

@@ -38,8 +38,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         bail!("--seeds must be at least 1");
     }
     let mut runs = trade::plan_runs(seeds, args.quick);
-    if let Some(unknown) = args.policies.iter().find(|p| !trade::POLICIES.contains(&p.as_str())) {
-        bail!("--policies: unknown policy '{unknown}' (known: {})", trade::POLICIES.join(", "));
+    if let Some(unknown) = args
+        .policies
+        .iter()
+        .find(|p| !trade::POLICIES.contains(&p.as_str()))
+    {
+        bail!(
+            "--policies: unknown policy '{unknown}' (known: {})",
+            trade::POLICIES.join(", ")
+        );
     }
     if !args.policies.is_empty() {
         runs.retain(|r| args.policies.iter().any(|p| p == r.policy));
@@ -47,23 +54,42 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     for run in &mut runs {
         run.physics = args.physics;
     }
-    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let bar = ProgressBar::new(runs.len() as u64);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> "));
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
     bar.set_message("simulated sessions");
     let rows = trade::run_all(&runs, threads, &|| bar.inc(1)).map_err(anyhow::Error::msg)?;
     bar.finish_and_clear();
     let csv = args.out.join("trade.csv");
-    std::fs::write(&csv, trade::to_csv(&rows)).with_context(|| format!("cannot write {}", csv.display()))?;
+    std::fs::write(&csv, trade::to_csv(&rows))
+        .with_context(|| format!("cannot write {}", csv.display()))?;
     let motion = crate::session::order::Motion::reference();
-    let order_table = crate::session::order::study_markdown(&crate::session::order::study(&motion, u32::from(trade::TARGET_INTEGRATION_MS)));
+    let order_table = crate::session::order::study_markdown(&crate::session::order::study(
+        &motion,
+        u32::from(trade::TARGET_INTEGRATION_MS),
+    ));
     let summary = trade::summary_markdown(&rows, seeds, &order_table);
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
     let svg = args.out.join(crate::output::plots::PARETO_FILE);
-    crate::output::plots::write_pareto(&svg, &trade::pareto(&rows)).with_context(|| format!("cannot write {}", svg.display()))?;
+    crate::output::plots::write_pareto(&svg, &trade::pareto(&rows))
+        .with_context(|| format!("cannot write {}", svg.display()))?;
     print!("{summary}");
-    eprintln!("wrote {}, {} and {}", csv.display(), md.display(), svg.display());
+    eprintln!(
+        "wrote {}, {} and {}",
+        csv.display(),
+        md.display(),
+        svg.display()
+    );
     Ok(ExitCode::SUCCESS)
 }

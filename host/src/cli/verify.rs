@@ -12,7 +12,9 @@ use std::process::ExitCode;
 
 /// Arguments of `gonio verify`.
 #[derive(clap::Args)]
-#[command(after_help = "Exit codes: 0 every folder passes; 1 any does not (a file missing, changed or added since the session finished, records that disagree, a session not finished); 2 a wrong command line.")]
+#[command(
+    after_help = "Exit codes: 0 every folder passes; 1 any does not (a file missing, changed or added since the session finished, records that disagree, a session not finished); 2 a wrong command line."
+)]
 pub struct Args {
     /// Print one JSON object per folder instead of text.
     #[arg(long)]
@@ -33,7 +35,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         match verify(dir) {
             Ok(v) => {
                 if args.json {
-                    println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []}));
+                    println!(
+                        "{}",
+                        serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []})
+                    );
                 } else {
                     println!(
                         "{}: verified: {} files match MANIFEST.sha256; {} readings agree in points.jsonl, readings.csv and session.json; sample '{}' on instrument {}, {} run{}",
@@ -53,14 +58,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     eprintln!("error: {p}");
                 }
                 if args.json {
-                    println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
+                    println!(
+                        "{}",
+                        serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()})
+                    );
                 } else {
-                    eprintln!("{}: NOT verified ({} problem{})", dir.display(), problems.len(), if problems.len() == 1 { "" } else { "s" });
+                    eprintln!(
+                        "{}: NOT verified ({} problem{})",
+                        dir.display(),
+                        problems.len(),
+                        if problems.len() == 1 { "" } else { "s" }
+                    );
                 }
             }
         }
     }
-    Ok(ExitCode::from(if failed { crate::cli::exit::FAILED } else { crate::cli::exit::OK }))
+    Ok(ExitCode::from(if failed {
+        crate::cli::exit::FAILED
+    } else {
+        crate::cli::exit::OK
+    }))
 }
 
 /// Check a sheet folder and print the result; whether it verified.
@@ -69,7 +86,10 @@ fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
         Ok(v) => {
             let readings: usize = v.spots.iter().map(|s| s.readings).sum();
             if json {
-                println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []}));
+                println!(
+                    "{}",
+                    serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []})
+                );
             } else {
                 println!(
                     "{}: verified: a sheet of {} spots of '{}'; MANIFEST.sha256 matches sheet.json and every spot's manifest; every spot folder verifies ({readings} readings); the sheet's result is the one its spots give",
@@ -85,9 +105,17 @@ fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
                 eprintln!("error: {p}");
             }
             if json {
-                println!("{}", serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()}));
+                println!(
+                    "{}",
+                    serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()})
+                );
             } else {
-                eprintln!("{}: NOT verified ({} problem{})", dir.display(), problems.len(), if problems.len() == 1 { "" } else { "s" });
+                eprintln!(
+                    "{}: NOT verified ({} problem{})",
+                    dir.display(),
+                    problems.len(),
+                    if problems.len() == 1 { "" } else { "s" }
+                );
             }
             false
         }

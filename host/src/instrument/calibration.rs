@@ -56,7 +56,11 @@ pub struct Tile {
 
 impl Default for Tile {
     fn default() -> Self {
-        Tile { radiance_factor: DEFAULT_WHITE_RADIANCE_FACTOR, relative_uncertainty: DEFAULT_TILE_RELATIVE_UNCERTAINTY, certificate: None }
+        Tile {
+            radiance_factor: DEFAULT_WHITE_RADIANCE_FACTOR,
+            relative_uncertainty: DEFAULT_TILE_RELATIVE_UNCERTAINTY,
+            certificate: None,
+        }
     }
 }
 
@@ -101,14 +105,21 @@ fn default_coverage_factor() -> f64 {
 impl TileCertificate {
     /// Read and check a certificate file. `today` is the local date of the session: a
     /// certificate issued after it, or expired before it, is refused.
-    pub fn read(path: &Path, today: chrono::NaiveDate) -> Result<TileCertificate, CalibrationError> {
+    pub fn read(
+        path: &Path,
+        today: chrono::NaiveDate,
+    ) -> Result<TileCertificate, CalibrationError> {
         let bad = |what: String| CalibrationError::BadTile(format!("{}: {what}", path.display()));
         let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
         let text = std::str::from_utf8(&bytes).map_err(|_| bad("not UTF-8 text".into()))?;
-        let mut certificate: TileCertificate = serde_json::from_str(text).map_err(|e| bad(format!("line {}: {e}", e.line())))?;
+        let mut certificate: TileCertificate =
+            serde_json::from_str(text).map_err(|e| bad(format!("line {}: {e}", e.line())))?;
         if let Some(schema) = &certificate.schema {
             if schema != crate::schema::TILE_CERTIFICATE {
-                return Err(bad(format!("schema '{schema}' is not '{}'", crate::schema::TILE_CERTIFICATE)));
+                return Err(bad(format!(
+                    "schema '{schema}' is not '{}'",
+                    crate::schema::TILE_CERTIFICATE
+                )));
             }
         }
         certificate.validate(today).map_err(bad)?;
@@ -117,25 +128,42 @@ impl TileCertificate {
             return Err(bad(what));
         }
         use sha2::Digest as _;
-        certificate.file_sha256 = Some(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect());
+        certificate.file_sha256 = Some(
+            sha2::Sha256::digest(&bytes)
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect(),
+        );
         certificate.schema = Some(crate::schema::TILE_CERTIFICATE.into());
         Ok(certificate)
     }
 
     fn validate(&self, today: chrono::NaiveDate) -> Result<(), String> {
-        for (key, text) in [("tile", Some(&self.tile)), ("certificate", Some(&self.certificate)), ("issued_by", self.issued_by.as_ref())] {
+        for (key, text) in [
+            ("tile", Some(&self.tile)),
+            ("certificate", Some(&self.certificate)),
+            ("issued_by", self.issued_by.as_ref()),
+        ] {
             if let Some(text) = text {
-                if text.trim().is_empty() || text.chars().any(char::is_control) || text.chars().count() > 200 {
-                    return Err(format!("'{key}' must be a name of 1 to 200 characters without control characters, not {text:?}"));
+                if text.trim().is_empty()
+                    || text.chars().any(char::is_control)
+                    || text.chars().count() > 200
+                {
+                    return Err(format!(
+                        "'{key}' must be a name of 1 to 200 characters without control characters, not {text:?}"
+                    ));
                 }
             }
         }
         let date = |key: &str, text: &str| {
-            chrono::NaiveDate::parse_from_str(text, "%Y-%m-%d").map_err(|_| format!("'{key}' must be a date YYYY-MM-DD, not {text:?}"))
+            chrono::NaiveDate::parse_from_str(text, "%Y-%m-%d")
+                .map_err(|_| format!("'{key}' must be a date YYYY-MM-DD, not {text:?}"))
         };
         let issued = date("issued", &self.issued)?;
         if issued > today {
-            return Err(format!("issued {issued}, after today ({today}): check the date"));
+            return Err(format!(
+                "issued {issued}, after today ({today}): check the date"
+            ));
         }
         if let Some(until) = &self.valid_until {
             let until = date("valid_until", until)?;
@@ -146,10 +174,16 @@ impl TileCertificate {
             }
         }
         if !(self.coverage_factor.is_finite() && (1.0..=4.0).contains(&self.coverage_factor)) {
-            return Err(format!("'coverage_factor' must be between 1 and 4, not {}", self.coverage_factor));
+            return Err(format!(
+                "'coverage_factor' must be between 1 and 4, not {}",
+                self.coverage_factor
+            ));
         }
         if !(self.expanded_uncertainty.is_finite() && self.expanded_uncertainty >= 0.0) {
-            return Err(format!("'expanded_uncertainty' must be a number at least 0 (absolute, in radiance factor), not {}", self.expanded_uncertainty));
+            return Err(format!(
+                "'expanded_uncertainty' must be a number at least 0 (absolute, in radiance factor), not {}",
+                self.expanded_uncertainty
+            ));
         }
         Ok(())
     }
@@ -158,28 +192,45 @@ impl TileCertificate {
     pub fn tile(self) -> Result<Tile, CalibrationError> {
         let tile = Tile {
             radiance_factor: self.radiance_factor,
-            relative_uncertainty: self.expanded_uncertainty / self.coverage_factor / self.radiance_factor,
+            relative_uncertainty: self.expanded_uncertainty
+                / self.coverage_factor
+                / self.radiance_factor,
             certificate: None,
         };
         tile.validate()?;
-        Ok(Tile { certificate: Some(self), ..tile })
+        Ok(Tile {
+            certificate: Some(self),
+            ..tile
+        })
     }
 }
 
 impl Tile {
     /// A certificate from the command line's values (the uncertainty in percent, k = 1).
     pub fn new(radiance_factor: f64, uncertainty_pct: f64) -> Result<Tile, CalibrationError> {
-        let tile = Tile { radiance_factor, relative_uncertainty: uncertainty_pct / 100.0, certificate: None };
+        let tile = Tile {
+            radiance_factor,
+            relative_uncertainty: uncertainty_pct / 100.0,
+            certificate: None,
+        };
         tile.validate()?;
         Ok(tile)
     }
 
     fn validate(&self) -> Result<(), CalibrationError> {
         // A white reference reflects at most a little more than a perfect diffuser.
-        if !(self.radiance_factor.is_finite() && self.radiance_factor > 0.0 && self.radiance_factor <= 1.2) {
-            return Err(CalibrationError::BadTile(format!("radiance factor {} is not in (0, 1.2]", self.radiance_factor)));
+        if !(self.radiance_factor.is_finite()
+            && self.radiance_factor > 0.0
+            && self.radiance_factor <= 1.2)
+        {
+            return Err(CalibrationError::BadTile(format!(
+                "radiance factor {} is not in (0, 1.2]",
+                self.radiance_factor
+            )));
         }
-        if !(self.relative_uncertainty.is_finite() && (0.0..0.5).contains(&self.relative_uncertainty)) {
+        if !(self.relative_uncertainty.is_finite()
+            && (0.0..0.5).contains(&self.relative_uncertainty))
+        {
             return Err(CalibrationError::BadTile(format!(
                 "uncertainty {} % is not in [0, 50) %",
                 100.0 * self.relative_uncertainty
@@ -282,10 +333,14 @@ pub enum CalibrationError {
     #[error("the reading saturated the detector's least sensitive range")]
     Saturated,
     /// The white reading is not above dark.
-    #[error("the white reading at θi = {0}° is not above dark: was the lamp on and the tile in place?")]
+    #[error(
+        "the white reading at θi = {0}° is not above dark: was the lamp on and the tile in place?"
+    )]
     WhiteNotAboveDark(f64),
     /// Older than allowed.
-    #[error("calibration {path} is {age_h:.1} h old; the limit is {max_h:.1} h: calibrate again (omit --calibration)")]
+    #[error(
+        "calibration {path} is {age_h:.1} h old; the limit is {max_h:.1} h: calibrate again (omit --calibration)"
+    )]
     Stale {
         /// The file.
         path: String,
@@ -305,7 +360,9 @@ pub enum CalibrationError {
         this: String,
     },
     /// A maximum age that is no number of hours (`--max-calibration-age-h`).
-    #[error("--max-calibration-age-h must be a number of hours above 0 and at most {MAX_CALIBRATION_AGE_H} (a year), not {0:?}")]
+    #[error(
+        "--max-calibration-age-h must be a number of hours above 0 and at most {MAX_CALIBRATION_AGE_H} (a year), not {0:?}"
+    )]
     BadMaxAge(f64),
     /// A tile certificate that cannot be right.
     #[error("bad white tile certificate: {0}")]
@@ -343,7 +400,9 @@ pub fn instrument_name(info: &DeviceInfo) -> String {
 
 /// Seconds since the Unix epoch now.
 pub fn unix_now_s() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs())
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
 }
 
 /// The least standard uncertainty of a reading's mean, counts: the ADC's resolution of
@@ -358,7 +417,11 @@ pub const RESOLUTION_STD_COUNTS: f64 = 0.288_675_134_594_812_9;
 pub fn standard_error_counts(reading: &Reading) -> f64 {
     let noise = f64::from(reading.std_counts) / f64::from(reading.samples.max(1)).sqrt();
     // (NaN stays NaN: the conversion's checks report it.)
-    if noise.is_nan() { noise } else { noise.max(RESOLUTION_STD_COUNTS) }
+    if noise.is_nan() {
+        noise
+    } else {
+        noise.max(RESOLUTION_STD_COUNTS)
+    }
 }
 
 /// Pool readings of one scene on one range into one, as if it had been one long reading:
@@ -367,9 +430,20 @@ pub fn pool(readings: &[Reading]) -> Option<Reading> {
     let first = *readings.first()?;
     let weight = |r: &Reading| 1.0 / standard_error_counts(r).powi(2).max(1e-12);
     let total_weight: f64 = readings.iter().map(weight).sum();
-    let mean = readings.iter().map(|r| weight(r) * f64::from(r.mean_counts)).sum::<f64>() / total_weight;
-    let samples: u32 = readings.iter().map(|r| r.samples).fold(0u32, u32::saturating_add);
-    let integration_ms = readings.iter().map(|r| u32::from(r.integration_ms)).sum::<u32>().min(u32::from(u16::MAX)) as u16;
+    let mean = readings
+        .iter()
+        .map(|r| weight(r) * f64::from(r.mean_counts))
+        .sum::<f64>()
+        / total_weight;
+    let samples: u32 = readings
+        .iter()
+        .map(|r| r.samples)
+        .fold(0u32, u32::saturating_add);
+    let integration_ms = readings
+        .iter()
+        .map(|r| u32::from(r.integration_ms))
+        .sum::<u32>()
+        .min(u32::from(u16::MAX)) as u16;
     let standard_error = total_weight.recip().sqrt();
     Some(Reading {
         mean_counts: mean as f32,
@@ -403,7 +477,13 @@ pub struct Conversion {
 impl Calibration {
     /// A calibration taken now from its readings, with the tile's certificate and the
     /// nominal gains of the handshake; no gain ratio calibrated yet.
-    pub fn new(instrument: String, tile: Tile, relative_gains: Vec<f64>, dark: Vec<Reading>, white: Vec<WhitePoint>) -> Calibration {
+    pub fn new(
+        instrument: String,
+        tile: Tile,
+        relative_gains: Vec<f64>,
+        dark: Vec<Reading>,
+        white: Vec<WhitePoint>,
+    ) -> Calibration {
         Calibration {
             taken_unix_s: unix_now_s(),
             instrument,
@@ -421,17 +501,27 @@ impl Calibration {
 
     /// The tile's certificate this calibration used.
     pub fn tile(&self) -> Tile {
-        Tile { radiance_factor: self.white_radiance_factor, relative_uncertainty: self.white_relative_uncertainty, certificate: self.white_certificate.clone() }
+        Tile {
+            radiance_factor: self.white_radiance_factor,
+            relative_uncertainty: self.white_relative_uncertainty,
+            certificate: self.white_certificate.clone(),
+        }
     }
 
     /// The white reading at `theta_i_deg` and its index.
     pub fn white_at(&self, theta_i_deg: f64) -> Option<(usize, &WhitePoint)> {
-        self.white.iter().enumerate().find(|(_, w)| (w.theta_i_deg - theta_i_deg).abs() < 1e-6)
+        self.white
+            .iter()
+            .enumerate()
+            .find(|(_, w)| (w.theta_i_deg - theta_i_deg).abs() < 1e-6)
     }
 
     /// The calibrated ratio G(r + 1) / G(r), if there is one.
     pub fn calibrated_ratio(&self, lower_range: u8) -> Option<&GainRatio> {
-        self.gain_ratios.iter().rev().find(|g| g.lower_range == lower_range)
+        self.gain_ratios
+            .iter()
+            .rev()
+            .find(|g| g.lower_range == lower_range)
     }
 
     /// G(r + 1) / G(r) as the conversion uses it, its relative standard uncertainty, and
@@ -443,14 +533,19 @@ impl Calibration {
         }
         let r = usize::from(lower_range);
         match (self.relative_gains.get(r), self.relative_gains.get(r + 1)) {
-            (Some(&lo), Some(&hi)) => Ok((hi / lo, self.nominal_gain_ratio_relative_uncertainty, false)),
+            (Some(&lo), Some(&hi)) => {
+                Ok((hi / lo, self.nominal_gain_ratio_relative_uncertainty, false))
+            }
             _ => Err(CalibrationError::NoRange(lower_range.saturating_add(1))),
         }
     }
 
     /// Gain of `range` relative to the most sensitive one: the product of the ratios below it.
     pub fn gain(&self, range: u8) -> Result<f64, CalibrationError> {
-        let first = *self.relative_gains.first().ok_or(CalibrationError::NoRange(range))?;
+        let first = *self
+            .relative_gains
+            .first()
+            .ok_or(CalibrationError::NoRange(range))?;
         if usize::from(range) >= self.relative_gains.len() {
             return Err(CalibrationError::NoRange(range));
         }
@@ -472,24 +567,39 @@ impl Calibration {
     /// their variance on the reference instrument, whose shot noise in counts is the same
     /// on every range. Only a range no steady reading was taken on is scaled by its gain.
     pub fn block_std_counts(&self, range: u8, net_counts: f64) -> Result<f64, CalibrationError> {
-        let dark = self.dark.get(usize::from(range)).ok_or(CalibrationError::NoRange(range))?;
+        let dark = self
+            .dark
+            .get(usize::from(range))
+            .ok_or(CalibrationError::NoRange(range))?;
         let read_var = f64::from(dark.std_counts).powi(2);
         let steady = self
             .white
             .iter()
             .map(|w| &w.reading)
-            .chain(self.gain_ratios.iter().flat_map(|g| [&g.on_lower, &g.on_upper]))
+            .chain(
+                self.gain_ratios
+                    .iter()
+                    .flat_map(|g| [&g.on_lower, &g.on_upper]),
+            )
             .filter(|r| !r.saturated);
         let mut shot = Vec::new();
         for reading in steady {
-            let r_dark = self.dark.get(usize::from(reading.range)).ok_or(CalibrationError::NoRange(reading.range))?;
+            let r_dark = self
+                .dark
+                .get(usize::from(reading.range))
+                .ok_or(CalibrationError::NoRange(reading.range))?;
             let net = self.net_counts(reading)?;
             if net > 0.0 {
-                let excess = f64::from(reading.std_counts).powi(2) - f64::from(r_dark.std_counts).powi(2);
+                let excess =
+                    f64::from(reading.std_counts).powi(2) - f64::from(r_dark.std_counts).powi(2);
                 shot.push((excess.max(0.0) / net, reading.range));
             }
         }
-        let own: Vec<f64> = shot.iter().filter(|(_, r)| *r == range).map(|(k, _)| *k).collect();
+        let own: Vec<f64> = shot
+            .iter()
+            .filter(|(_, r)| *r == range)
+            .map(|(k, _)| *k)
+            .collect();
         if !own.is_empty() {
             let per_count = own.iter().sum::<f64>() / own.len() as f64;
             return Ok((read_var + per_count * net_counts.max(0.0)).sqrt());
@@ -508,13 +618,20 @@ impl Calibration {
 
     /// Counts above the dark of the reading's range, on that range.
     pub fn net_counts(&self, reading: &Reading) -> Result<f64, CalibrationError> {
-        let dark = self.dark.get(usize::from(reading.range)).ok_or(CalibrationError::NoRange(reading.range))?;
+        let dark = self
+            .dark
+            .get(usize::from(reading.range))
+            .ok_or(CalibrationError::NoRange(reading.range))?;
         Ok(f64::from(reading.mean_counts) - f64::from(dark.mean_counts))
     }
 
     /// G(r + 1) / G(r) from one scene read on both ranges (`on_lower` on r, `on_upper` on
     /// r + 1), and its relative standard uncertainty from the two readings' own noise.
-    pub fn ratio_from_readings(&self, on_lower: &Reading, on_upper: &Reading) -> Result<(f64, f64), CalibrationError> {
+    pub fn ratio_from_readings(
+        &self,
+        on_lower: &Reading,
+        on_upper: &Reading,
+    ) -> Result<(f64, f64), CalibrationError> {
         if on_lower.saturated || on_upper.saturated {
             return Err(CalibrationError::Saturated);
         }
@@ -525,16 +642,23 @@ impl Calibration {
                 on_lower.range, on_upper.range
             )));
         }
-        let relative = (standard_error_counts(on_lower) / lower).hypot(standard_error_counts(on_upper) / upper);
+        let relative = (standard_error_counts(on_lower) / lower)
+            .hypot(standard_error_counts(on_upper) / upper);
         Ok((upper / lower, relative))
     }
 
     /// How a sample reading at `theta_i_deg` converts.
-    pub fn convert(&self, theta_i_deg: f64, reading: &Reading) -> Result<Conversion, CalibrationError> {
+    pub fn convert(
+        &self,
+        theta_i_deg: f64,
+        reading: &Reading,
+    ) -> Result<Conversion, CalibrationError> {
         if reading.saturated {
             return Err(CalibrationError::Saturated);
         }
-        let (white_index, white) = self.white_at(theta_i_deg).ok_or(CalibrationError::NoWhite(theta_i_deg))?;
+        let (white_index, white) = self
+            .white_at(theta_i_deg)
+            .ok_or(CalibrationError::NoWhite(theta_i_deg))?;
         let net = self.net_counts(reading)?;
         let gain = self.gain(reading.range)?;
         let white_net = self.net_counts(&white.reading)?;
@@ -559,26 +683,49 @@ impl Calibration {
 
     /// Radiance factor of a sample reading at `theta_i_deg`, and its standard uncertainty
     /// from the reading's own noise (see the module's note on the shared errors).
-    pub fn radiance_factor(&self, theta_i_deg: f64, reading: &Reading) -> Result<(f64, f64), CalibrationError> {
-        self.convert(theta_i_deg, reading).map(|c| (c.radiance_factor, c.own_std))
+    pub fn radiance_factor(
+        &self,
+        theta_i_deg: f64,
+        reading: &Reading,
+    ) -> Result<(f64, f64), CalibrationError> {
+        self.convert(theta_i_deg, reading)
+            .map(|c| (c.radiance_factor, c.own_std))
     }
 
     /// Whether the values can be right: what a file says is checked before it is used.
     pub fn validate(&self) -> Result<(), CalibrationError> {
         let invalid = |why: String| Err(CalibrationError::Invalid(why));
         self.tile().validate()?;
-        if self.relative_gains.is_empty() || self.relative_gains.iter().any(|g| !(g.is_finite() && *g > 0.0)) {
-            return invalid(format!("relative gains {:?} must be finite and positive", self.relative_gains));
+        if self.relative_gains.is_empty()
+            || self
+                .relative_gains
+                .iter()
+                .any(|g| !(g.is_finite() && *g > 0.0))
+        {
+            return invalid(format!(
+                "relative gains {:?} must be finite and positive",
+                self.relative_gains
+            ));
         }
         if self.dark.len() < self.relative_gains.len() {
-            return invalid(format!("{} dark readings for {} ranges", self.dark.len(), self.relative_gains.len()));
+            return invalid(format!(
+                "{} dark readings for {} ranges",
+                self.dark.len(),
+                self.relative_gains.len()
+            ));
         }
         let u = self.nominal_gain_ratio_relative_uncertainty;
         if !(u.is_finite() && (0.0..1.0).contains(&u)) {
-            return invalid(format!("nominal gain ratio uncertainty {u} is not in [0, 1)"));
+            return invalid(format!(
+                "nominal gain ratio uncertainty {u} is not in [0, 1)"
+            ));
         }
-        if !(self.lamp_drift_per_hour.is_finite() && (0.0..1.0).contains(&self.lamp_drift_per_hour)) {
-            return invalid(format!("lamp drift {} per hour is not in [0, 1)", self.lamp_drift_per_hour));
+        if !(self.lamp_drift_per_hour.is_finite() && (0.0..1.0).contains(&self.lamp_drift_per_hour))
+        {
+            return invalid(format!(
+                "lamp drift {} per hour is not in [0, 1)",
+                self.lamp_drift_per_hour
+            ));
         }
         for g in &self.gain_ratios {
             let fine = g.ratio.is_finite()
@@ -587,16 +734,30 @@ impl Calibration {
                 && g.relative_uncertainty >= 0.0
                 && usize::from(g.lower_range) + 1 < self.relative_gains.len();
             if !fine {
-                return invalid(format!("gain ratio of ranges {}/{} ({} ± {})", g.lower_range, u16::from(g.lower_range) + 1, g.ratio, g.relative_uncertainty));
+                return invalid(format!(
+                    "gain ratio of ranges {}/{} ({} ± {})",
+                    g.lower_range,
+                    u16::from(g.lower_range) + 1,
+                    g.ratio,
+                    g.relative_uncertainty
+                ));
             }
         }
         for w in &self.white {
-            let reading_fine = w.reading.mean_counts.is_finite() && w.reading.std_counts.is_finite();
+            let reading_fine =
+                w.reading.mean_counts.is_finite() && w.reading.std_counts.is_finite();
             if !(w.theta_i_deg.is_finite() && reading_fine) {
-                return invalid(format!("white reading at θi = {}° is not finite", w.theta_i_deg));
+                return invalid(format!(
+                    "white reading at θi = {}° is not finite",
+                    w.theta_i_deg
+                ));
             }
         }
-        if self.dark.iter().any(|d| !(d.mean_counts.is_finite() && d.std_counts.is_finite())) {
+        if self
+            .dark
+            .iter()
+            .any(|d| !(d.mean_counts.is_finite() && d.std_counts.is_finite()))
+        {
             return invalid("a dark reading is not finite".into());
         }
         Ok(())
@@ -609,50 +770,82 @@ impl Calibration {
 
     /// The document of `calibration.json`: the calibration with its `schema`.
     pub fn to_document(&self) -> serde_json::Result<serde_json::Value> {
-        Ok(crate::schema::tagged(crate::schema::CALIBRATION, serde_json::to_value(self)?))
+        Ok(crate::schema::tagged(
+            crate::schema::CALIBRATION,
+            serde_json::to_value(self)?,
+        ))
     }
 
     /// The calibration of a `calibration.json` document (one without `schema` was written
     /// before gonio named its documents, and is read as this version).
     pub fn from_document(value: serde_json::Value) -> Result<Calibration, String> {
-        crate::schema::check(&value, &[crate::schema::CALIBRATION], Some(crate::schema::CALIBRATION))?;
+        crate::schema::check(
+            &value,
+            &[crate::schema::CALIBRATION],
+            Some(crate::schema::CALIBRATION),
+        )?;
         serde_json::from_value(value).map_err(|e| format!("not a calibration: {e}"))
     }
 
     /// [`Calibration::from_document`] of a file's text; errors with the line when known.
     pub fn from_json(text: &str) -> Result<Calibration, (Option<usize>, String)> {
-        let value: serde_json::Value = serde_json::from_str(text).map_err(|e| (Some(e.line()), format!("not JSON: {e}")))?;
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| (Some(e.line()), format!("not JSON: {e}")))?;
         Calibration::from_document(value).map_err(|m| (None, m))
     }
 
     /// Read a calibration saved by an earlier session (its `calibration.json`, or the
     /// `session.json` that holds one), refusing it when older than `max_age` or taken on
     /// another instrument.
-    pub fn load(path: &Path, max_age: Duration, info: &DeviceInfo) -> Result<Calibration, CalibrationError> {
-        let unreadable = |why: String| CalibrationError::Unreadable { path: path.display().to_string(), why };
+    pub fn load(
+        path: &Path,
+        max_age: Duration,
+        info: &DeviceInfo,
+    ) -> Result<Calibration, CalibrationError> {
+        let unreadable = |why: String| CalibrationError::Unreadable {
+            path: path.display().to_string(),
+            why,
+        };
         let text = std::fs::read_to_string(path).map_err(|e| unreadable(e.to_string()))?;
-        let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
+        let value: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
         // A session's document holds the calibration it was converted with.
         let calibration = match value.get("calibration") {
-            Some(inner) => serde_json::from_value(inner.clone()).map_err(|e| unreadable(format!("calibration: {e}")))?,
+            Some(inner) => serde_json::from_value(inner.clone())
+                .map_err(|e| unreadable(format!("calibration: {e}")))?,
             None => Calibration::from_document(value).map_err(unreadable)?,
         };
         // What the file holds must be usable before its age and instrument are looked at.
-        calibration.validate().map_err(|e| unreadable(e.to_string()))?;
+        calibration
+            .validate()
+            .map_err(|e| unreadable(e.to_string()))?;
         calibration.check(&path.display().to_string(), max_age, info)?;
         Ok(calibration)
     }
 
     /// Refuse this calibration (from `path`, for messages) when older than `max_age` or
     /// taken on another instrument than `info`'s.
-    pub fn check(&self, path: &str, max_age: Duration, info: &DeviceInfo) -> Result<(), CalibrationError> {
+    pub fn check(
+        &self,
+        path: &str,
+        max_age: Duration,
+        info: &DeviceInfo,
+    ) -> Result<(), CalibrationError> {
         let age = self.age(unix_now_s());
         if age > max_age {
-            return Err(CalibrationError::Stale { path: path.to_string(), age_h: age.as_secs_f64() / 3600.0, max_h: max_age.as_secs_f64() / 3600.0 });
+            return Err(CalibrationError::Stale {
+                path: path.to_string(),
+                age_h: age.as_secs_f64() / 3600.0,
+                max_h: max_age.as_secs_f64() / 3600.0,
+            });
         }
         let this = instrument_name(info);
         if self.instrument != this {
-            return Err(CalibrationError::OtherInstrument { path: path.to_string(), taken_on: self.instrument.clone(), this });
+            return Err(CalibrationError::OtherInstrument {
+                path: path.to_string(),
+                taken_on: self.instrument.clone(),
+                this,
+            });
         }
         Ok(())
     }
@@ -663,7 +856,14 @@ mod tests {
     use super::*;
 
     fn reading(mean_counts: f32, range: u8) -> Reading {
-        Reading { mean_counts, std_counts: 10.0, samples: 100, range, integration_ms: 100, saturated: false }
+        Reading {
+            mean_counts,
+            std_counts: 10.0,
+            samples: 100,
+            range,
+            integration_ms: 100,
+            saturated: false,
+        }
     }
 
     fn calibration() -> Calibration {
@@ -672,7 +872,10 @@ mod tests {
             Tile::default(),
             vec![1.0, 0.1, 0.01],
             vec![reading(200.0, 0), reading(200.0, 1), reading(200.0, 2)],
-            vec![WhitePoint { theta_i_deg: 20.0, reading: reading(26_200.0, 0) }],
+            vec![WhitePoint {
+                theta_i_deg: 20.0,
+                reading: reading(26_200.0, 0),
+            }],
         );
         c.taken_unix_s = 1_000;
         c
@@ -687,7 +890,9 @@ mod tests {
         // Own noise: 10 counts / √100 over the white's 26 000 net counts, times 0.99.
         assert!((u - 1.0 / 26_000.0 * 0.99).abs() < 1e-12, "{u}");
         // Twenty times the white signal, read on range 2 (gain 0.01): R = 19.8.
-        let (r, u) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
+        let (r, u) = c
+            .radiance_factor(20.0, &reading(200.0 + 5_200.0, 2))
+            .unwrap();
         assert!((r - 19.8).abs() < 1e-9, "{r}");
         assert!((u - 100.0 / 26_000.0 * 0.99).abs() < 1e-9, "{u}");
     }
@@ -695,7 +900,10 @@ mod tests {
     #[test]
     fn calibrated_ratios_replace_the_nominal_gains() {
         let mut c = calibration();
-        assert_eq!(c.gain_ratio(0).unwrap(), (0.1, NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY, false));
+        assert_eq!(
+            c.gain_ratio(0).unwrap(),
+            (0.1, NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY, false)
+        );
         let on = |m: f32, range: u8| reading(m, range);
         c.gain_ratios.push(GainRatio {
             lower_range: 1,
@@ -710,7 +918,9 @@ mod tests {
         });
         assert!((c.gain(2).unwrap() - 0.1 * 0.102).abs() < 1e-15);
         assert_eq!(c.gain(1).unwrap(), 0.1);
-        let (r, _) = c.radiance_factor(20.0, &reading(200.0 + 5_200.0, 2)).unwrap();
+        let (r, _) = c
+            .radiance_factor(20.0, &reading(200.0 + 5_200.0, 2))
+            .unwrap();
         assert!((r - 19.8 / 1.02).abs() < 1e-9, "{r}");
         assert!(c.validate().is_ok());
         c.gain_ratios[0].lower_range = 2;
@@ -719,30 +929,70 @@ mod tests {
 
     #[test]
     fn pooled_readings_weigh_by_their_noise() {
-        let short = Reading { std_counts: 30.0, samples: 100, ..reading(1_000.0, 1) };
-        let long = Reading { std_counts: 30.0, samples: 900, ..reading(1_100.0, 1) };
+        let short = Reading {
+            std_counts: 30.0,
+            samples: 100,
+            ..reading(1_000.0, 1)
+        };
+        let long = Reading {
+            std_counts: 30.0,
+            samples: 900,
+            ..reading(1_100.0, 1)
+        };
         let p = pool(&[short, long]).unwrap();
         // Weights 1 : 9.
-        assert!((f64::from(p.mean_counts) - 1_090.0).abs() < 1e-3, "{}", p.mean_counts);
+        assert!(
+            (f64::from(p.mean_counts) - 1_090.0).abs() < 1e-3,
+            "{}",
+            p.mean_counts
+        );
         assert_eq!(p.samples, 1_000);
         assert!((standard_error_counts(&p) - 30.0 / 1000f64.sqrt()).abs() < 1e-4);
     }
 
     #[test]
     fn a_reading_without_noise_is_known_to_the_adcs_resolution() {
-        let quiet = Reading { std_counts: 0.0, samples: 100, ..reading(1_000.0, 1) };
+        let quiet = Reading {
+            std_counts: 0.0,
+            samples: 100,
+            ..reading(1_000.0, 1)
+        };
         assert_eq!(standard_error_counts(&quiet), RESOLUTION_STD_COUNTS);
         assert!((RESOLUTION_STD_COUNTS - 1.0 / 12f64.sqrt()).abs() < 1e-15);
-        let noisy = Reading { std_counts: 30.0, samples: 100, ..reading(1_000.0, 1) };
-        assert_eq!(standard_error_counts(&noisy), 3.0, "above the floor a reading's own noise is its uncertainty");
-        assert!(standard_error_counts(&Reading { std_counts: f32::NAN, ..quiet }).is_nan());
+        let noisy = Reading {
+            std_counts: 30.0,
+            samples: 100,
+            ..reading(1_000.0, 1)
+        };
+        assert_eq!(
+            standard_error_counts(&noisy),
+            3.0,
+            "above the floor a reading's own noise is its uncertainty"
+        );
+        assert!(
+            standard_error_counts(&Reading {
+                std_counts: f32::NAN,
+                ..quiet
+            })
+            .is_nan()
+        );
     }
 
     #[test]
     fn tile_certificates_are_checked() {
         assert_eq!(Tile::new(0.985, 0.4).unwrap().relative_uncertainty, 0.004);
-        for (rf, pct) in [(0.0, 0.5), (1.5, 0.5), (f64::NAN, 0.5), (0.99, -1.0), (0.99, 60.0), (0.99, f64::INFINITY)] {
-            assert!(matches!(Tile::new(rf, pct), Err(CalibrationError::BadTile(_))), "{rf} {pct}");
+        for (rf, pct) in [
+            (0.0, 0.5),
+            (1.5, 0.5),
+            (f64::NAN, 0.5),
+            (0.99, -1.0),
+            (0.99, 60.0),
+            (0.99, f64::INFINITY),
+        ] {
+            assert!(
+                matches!(Tile::new(rf, pct), Err(CalibrationError::BadTile(_))),
+                "{rf} {pct}"
+            );
         }
     }
 
@@ -755,16 +1005,29 @@ mod tests {
         assert!((c.block_std_counts(0, 0.0).unwrap() - dark).abs() < 1e-9);
         for w in &mut c.white {
             // 10 000 counts above a dark of 200 on range 0, scattered by 30 counts.
-            w.reading = Reading { mean_counts: 10_200.0, std_counts: 30.0, samples: 100, range: 0, integration_ms: 100, saturated: false };
+            w.reading = Reading {
+                mean_counts: 10_200.0,
+                std_counts: 30.0,
+                samples: 100,
+                range: 0,
+                integration_ms: 100,
+                saturated: false,
+            };
         }
         let k = (900.0 - dark * dark) / 10_000.0;
         assert!((c.block_std_counts(0, 10_000.0).unwrap() - 30.0).abs() < 1e-6);
-        assert!((c.block_std_counts(0, 2_500.0).unwrap() - (dark * dark + k * 2_500.0).sqrt()).abs() < 1e-9);
+        assert!(
+            (c.block_std_counts(0, 2_500.0).unwrap() - (dark * dark + k * 2_500.0).sqrt()).abs()
+                < 1e-9
+        );
         // Range 1 is 10× less sensitive: the same light gives a tenth of the counts and a
         // tenth of the shot variance per count.
         let on_1 = c.block_std_counts(1, 1_000.0).unwrap();
         let dark_1 = f64::from(c.dark[1].std_counts);
-        assert!((on_1 * on_1 - dark_1 * dark_1 - 0.1 * k * 1_000.0).abs() < 1e-6, "{on_1}");
+        assert!(
+            (on_1 * on_1 - dark_1 * dark_1 - 0.1 * k * 1_000.0).abs() < 1e-6,
+            "{on_1}"
+        );
         assert!(c.block_std_counts(9, 1.0).is_err());
     }
 
@@ -785,56 +1048,142 @@ mod tests {
     #[test]
     fn a_tile_certificate_gives_the_tile_and_is_recorded_with_its_file_hash() {
         let (_dir, path) = certificate_file(CERTIFICATE);
-        let tile = TileCertificate::read(&path, day("2026-12-02")).and_then(TileCertificate::tile).expect("a good certificate");
+        let tile = TileCertificate::read(&path, day("2026-12-02"))
+            .and_then(TileCertificate::tile)
+            .expect("a good certificate");
         assert_eq!(tile.radiance_factor, 0.98);
         // Expanded 0.0098 at k = 2 over 0.98: 0.5 % standard.
-        assert!((tile.relative_uncertainty - 0.005).abs() < 1e-15, "{}", tile.relative_uncertainty);
+        assert!(
+            (tile.relative_uncertainty - 0.005).abs() < 1e-15,
+            "{}",
+            tile.relative_uncertainty
+        );
         let certificate = tile.certificate.clone().expect("recorded");
         use sha2::Digest as _;
-        let sha: String = sha2::Sha256::digest(CERTIFICATE.as_bytes()).iter().map(|b| format!("{b:02x}")).collect();
+        let sha: String = sha2::Sha256::digest(CERTIFICATE.as_bytes())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
         assert_eq!(certificate.file_sha256.as_deref(), Some(sha.as_str()));
-        let c = Calibration::new("test".into(), tile, vec![1.0], vec![reading(200.0, 0)], vec![]);
+        let c = Calibration::new(
+            "test".into(),
+            tile,
+            vec![1.0],
+            vec![reading(200.0, 0)],
+            vec![],
+        );
         let back = Calibration::from_document(c.to_document().unwrap()).unwrap();
         assert_eq!(back.white_certificate, Some(certificate));
-        assert_eq!(back.tile(), c.tile(), "the tile read back is the one calibrated with");
+        assert_eq!(
+            back.tile(),
+            c.tile(),
+            "the tile read back is the one calibrated with"
+        );
         // Without k, it is 2.
         let (_dir, path) = certificate_file(&CERTIFICATE.replace(r#", "coverage_factor": 2"#, ""));
-        assert_eq!(TileCertificate::read(&path, day("2026-12-02")).unwrap().coverage_factor, 2.0);
+        assert_eq!(
+            TileCertificate::read(&path, day("2026-12-02"))
+                .unwrap()
+                .coverage_factor,
+            2.0
+        );
     }
 
     #[test]
     fn a_bad_tile_certificate_is_refused_naming_the_file_and_what_is_wrong() {
         let cases: [(String, &str, &str); 10] = [
-            (CERTIFICATE.to_string(), "2027-03-02", "expired on 2027-03-01"),
+            (
+                CERTIFICATE.to_string(),
+                "2027-03-02",
+                "expired on 2027-03-01",
+            ),
             (CERTIFICATE.to_string(), "2026-02-28", "after today"),
-            (CERTIFICATE.replace("2026-03-01\"", "01/03/2026\""), "2026-12-02", "'issued' must be a date YYYY-MM-DD"),
-            (CERTIFICATE.replace("\"coverage_factor\": 2", "\"coverage_factor\": 0.5"), "2026-12-02", "'coverage_factor' must be between 1 and 4"),
-            (CERTIFICATE.replace("0.0098", "-0.01"), "2026-12-02", "'expanded_uncertainty' must be a number at least 0"),
-            (CERTIFICATE.replace("\"radiance_factor\": 0.98", "\"radiance_factor\": 1.98"), "2026-12-02", "radiance factor 1.98 is not in (0, 1.2]"),
-            (CERTIFICATE.replace("0.0098", "1.2"), "2026-12-02", "is not in [0, 50) %"),
-            (CERTIFICATE.replace("\"tile\"", "\"colour\": \"white\", \"tile\""), "2026-12-02", "unknown field `colour`"),
-            (CERTIFICATE.replace("\"PTFE #7\"", "\"\""), "2026-12-02", "'tile' must be a name"),
-            (CERTIFICATE.replacen('{', "{\"schema\": \"gonio-tile-certificate/9\", ", 1), "2026-12-02", "schema 'gonio-tile-certificate/9'"),
+            (
+                CERTIFICATE.replace("2026-03-01\"", "01/03/2026\""),
+                "2026-12-02",
+                "'issued' must be a date YYYY-MM-DD",
+            ),
+            (
+                CERTIFICATE.replace("\"coverage_factor\": 2", "\"coverage_factor\": 0.5"),
+                "2026-12-02",
+                "'coverage_factor' must be between 1 and 4",
+            ),
+            (
+                CERTIFICATE.replace("0.0098", "-0.01"),
+                "2026-12-02",
+                "'expanded_uncertainty' must be a number at least 0",
+            ),
+            (
+                CERTIFICATE.replace("\"radiance_factor\": 0.98", "\"radiance_factor\": 1.98"),
+                "2026-12-02",
+                "radiance factor 1.98 is not in (0, 1.2]",
+            ),
+            (
+                CERTIFICATE.replace("0.0098", "1.2"),
+                "2026-12-02",
+                "is not in [0, 50) %",
+            ),
+            (
+                CERTIFICATE.replace("\"tile\"", "\"colour\": \"white\", \"tile\""),
+                "2026-12-02",
+                "unknown field `colour`",
+            ),
+            (
+                CERTIFICATE.replace("\"PTFE #7\"", "\"\""),
+                "2026-12-02",
+                "'tile' must be a name",
+            ),
+            (
+                CERTIFICATE.replacen('{', "{\"schema\": \"gonio-tile-certificate/9\", ", 1),
+                "2026-12-02",
+                "schema 'gonio-tile-certificate/9'",
+            ),
         ];
         for (text, today, expected) in cases {
             let (_dir, path) = certificate_file(&text);
-            let err = TileCertificate::read(&path, day(today)).and_then(TileCertificate::tile).expect_err(expected).to_string();
-            assert!(err.contains(expected) && err.contains("tile.json"), "{expected}: {err}");
+            let err = TileCertificate::read(&path, day(today))
+                .and_then(TileCertificate::tile)
+                .expect_err(expected)
+                .to_string();
+            assert!(
+                err.contains(expected) && err.contains("tile.json"),
+                "{expected}: {err}"
+            );
         }
         let (_dir, path) = certificate_file("{\"tile\": ");
-        assert!(TileCertificate::read(&path, day("2026-12-02")).unwrap_err().to_string().contains("line 1"));
+        assert!(
+            TileCertificate::read(&path, day("2026-12-02"))
+                .unwrap_err()
+                .to_string()
+                .contains("line 1")
+        );
         let missing = std::path::Path::new("/nowhere/tile.json");
-        assert!(TileCertificate::read(missing, day("2026-12-02")).unwrap_err().to_string().contains("cannot read"));
+        assert!(
+            TileCertificate::read(missing, day("2026-12-02"))
+                .unwrap_err()
+                .to_string()
+                .contains("cannot read")
+        );
         let (_dir, path) = certificate_file("");
         std::fs::write(&path, [0xff, 0xfe, b'{']).unwrap();
-        assert!(TileCertificate::read(&path, day("2026-12-02")).unwrap_err().to_string().contains("not UTF-8"));
+        assert!(
+            TileCertificate::read(&path, day("2026-12-02"))
+                .unwrap_err()
+                .to_string()
+                .contains("not UTF-8")
+        );
     }
 
     #[test]
     fn old_calibrations_load_with_the_stated_defaults() {
         let c = calibration();
         let mut value = serde_json::to_value(&c).unwrap();
-        for key in ["white_relative_uncertainty", "nominal_gain_ratio_relative_uncertainty", "gain_ratios", "lamp_drift_per_hour"] {
+        for key in [
+            "white_relative_uncertainty",
+            "nominal_gain_ratio_relative_uncertainty",
+            "gain_ratios",
+            "lamp_drift_per_hour",
+        ] {
             value.as_object_mut().unwrap().remove(key);
         }
         let old: Calibration = serde_json::from_value(value).unwrap();
@@ -847,44 +1196,85 @@ mod tests {
         let mut c = calibration();
         c.instrument = instrument_name(&info);
         c.taken_unix_s = unix_now_s();
-        let path = std::env::temp_dir().join(format!("gonio-calibration-{}.json", std::process::id()));
+        let path =
+            std::env::temp_dir().join(format!("gonio-calibration-{}.json", std::process::id()));
         let damaged = |edit: &dyn Fn(&mut serde_json::Value)| {
             let mut value = serde_json::to_value(&c).unwrap();
             edit(&mut value);
             std::fs::write(&path, serde_json::to_vec(&value).unwrap()).unwrap();
-            Calibration::load(&path, Duration::from_secs(3600), &info).map(|_| ()).map_err(|e| e.to_string())
+            Calibration::load(&path, Duration::from_secs(3600), &info)
+                .map(|_| ())
+                .map_err(|e| e.to_string())
         };
         assert_eq!(damaged(&|_| {}), Ok(()));
         type Edit<'a> = &'a dyn Fn(&mut serde_json::Value);
         let cases: [(Edit, &str); 4] = [
-            (&|v| v["relative_gains"][1] = (-0.1).into(), "relative gains"),
-            (&|v| v["white_relative_uncertainty"] = 2.0.into(), "uncertainty 200 %"),
+            (
+                &|v| v["relative_gains"][1] = (-0.1).into(),
+                "relative gains",
+            ),
+            (
+                &|v| v["white_relative_uncertainty"] = 2.0.into(),
+                "uncertainty 200 %",
+            ),
             (&|v| v["lamp_drift_per_hour"] = (-1.0).into(), "lamp drift"),
             (&|v| v["dark"] = serde_json::json!([]), "dark readings"),
         ];
         for (edit, says) in cases {
             let error = damaged(edit).unwrap_err();
-            assert!(error.contains(&path.display().to_string()) && error.contains(says), "{error}");
+            assert!(
+                error.contains(&path.display().to_string()) && error.contains(says),
+                "{error}"
+            );
         }
         let _ = std::fs::remove_file(&path);
     }
 
     #[test]
     fn a_maximum_age_is_a_number_of_hours_a_duration_holds() {
-        assert_eq!(max_age_from_hours(8.0).unwrap(), Duration::from_secs(8 * 3600));
-        assert_eq!(max_age_from_hours(MAX_CALIBRATION_AGE_H).unwrap(), Duration::from_secs(8760 * 3600));
-        for bad in [f64::INFINITY, f64::NAN, -1.0, 0.0, 1e300, MAX_CALIBRATION_AGE_H + 1.0, f64::NEG_INFINITY] {
+        assert_eq!(
+            max_age_from_hours(8.0).unwrap(),
+            Duration::from_secs(8 * 3600)
+        );
+        assert_eq!(
+            max_age_from_hours(MAX_CALIBRATION_AGE_H).unwrap(),
+            Duration::from_secs(8760 * 3600)
+        );
+        for bad in [
+            f64::INFINITY,
+            f64::NAN,
+            -1.0,
+            0.0,
+            1e300,
+            MAX_CALIBRATION_AGE_H + 1.0,
+            f64::NEG_INFINITY,
+        ] {
             let error = max_age_from_hours(bad).unwrap_err().to_string();
-            assert!(error.contains("--max-calibration-age-h") && error.contains(&format!("{bad:?}")), "{error}");
+            assert!(
+                error.contains("--max-calibration-age-h") && error.contains(&format!("{bad:?}")),
+                "{error}"
+            );
         }
     }
 
     #[test]
     fn refuses_what_it_cannot_convert() {
         let c = calibration();
-        assert!(matches!(c.radiance_factor(30.0, &reading(1.0, 0)), Err(CalibrationError::NoWhite(_))));
-        assert!(matches!(c.radiance_factor(20.0, &reading(1.0, 3)), Err(CalibrationError::NoRange(3))));
-        let saturated = Reading { saturated: true, ..reading(65_535.0, 2) };
-        assert!(matches!(c.radiance_factor(20.0, &saturated), Err(CalibrationError::Saturated)));
+        assert!(matches!(
+            c.radiance_factor(30.0, &reading(1.0, 0)),
+            Err(CalibrationError::NoWhite(_))
+        ));
+        assert!(matches!(
+            c.radiance_factor(20.0, &reading(1.0, 3)),
+            Err(CalibrationError::NoRange(3))
+        ));
+        let saturated = Reading {
+            saturated: true,
+            ..reading(65_535.0, 2)
+        };
+        assert!(matches!(
+            c.radiance_factor(20.0, &saturated),
+            Err(CalibrationError::Saturated)
+        ));
     }
 }

@@ -75,7 +75,13 @@ impl FirmwareImage {
         );
         for s in &self.segments {
             let end = u64::from(s.address) + s.data.len() as u64;
-            text.push_str(&format!("  segment {}: {:#010x}..{:#010x}, {} bytes\n", s.index, s.address, end, s.data.len()));
+            text.push_str(&format!(
+                "  segment {}: {:#010x}..{:#010x}, {} bytes\n",
+                s.index,
+                s.address,
+                end,
+                s.data.len()
+            ));
         }
         text
     }
@@ -88,12 +94,22 @@ impl FirmwareImage {
         let (initial_sp, reset_vector) = vector_table(&segments)?;
         let info = info_section(header, endian, bytes)?;
         if info.protocol_version != PROTOCOL_VERSION {
-            return Err(ImageError::ProtocolVersion { image: info.protocol_version, host: PROTOCOL_VERSION });
+            return Err(ImageError::ProtocolVersion {
+                image: info.protocol_version,
+                host: PROTOCOL_VERSION,
+            });
         }
         if info.board.as_str() != F411_BOARD_NAME {
-            return Err(ImageError::WrongBoard { board: info.board.as_str().to_owned() });
+            return Err(ImageError::WrongBoard {
+                board: info.board.as_str().to_owned(),
+            });
         }
-        Ok(FirmwareImage { info, segments, initial_sp, reset_vector })
+        Ok(FirmwareImage {
+            info,
+            segments,
+            initial_sp,
+            reset_vector,
+        })
     }
 }
 
@@ -101,7 +117,9 @@ impl FirmwareImage {
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum ImageError {
     /// Not an ELF file at all.
-    #[error("not an ELF file (it starts with {first_bytes}); gonio flash takes the board's ELF (firmware/board/target/thumbv7em-none-eabihf/release/gonio-board)")]
+    #[error(
+        "not an ELF file (it starts with {first_bytes}); gonio flash takes the board's ELF (firmware/board/target/thumbv7em-none-eabihf/release/gonio-board)"
+    )]
     NotElf {
         /// Its first bytes, in hex.
         first_bytes: String,
@@ -121,13 +139,19 @@ pub enum ImageError {
         detail: String,
     },
     /// Not for ARM.
-    #[error("an ELF file for machine {machine} (e_machine), not ARM ({}): not built for the STM32F411", elf::EM_ARM)]
+    #[error(
+        "an ELF file for machine {machine} (e_machine), not ARM ({}): not built for the STM32F411",
+        elf::EM_ARM
+    )]
     WrongMachine {
         /// Its `e_machine`.
         machine: u16,
     },
     /// Not an executable (an object file or a shared library).
-    #[error("an ELF file of type {e_type} (e_type), not an executable ({}): a linked firmware image is needed", elf::ET_EXEC)]
+    #[error(
+        "an ELF file of type {e_type} (e_type), not an executable ({}): a linked firmware image is needed",
+        elf::ET_EXEC
+    )]
     NotExecutable {
         /// Its `e_type`.
         e_type: u16,
@@ -148,7 +172,9 @@ pub enum ImageError {
         size: u64,
     },
     /// Two load segments write the same flash.
-    #[error("load segments {first} and {second} overlap in flash ({start:#010x}..{end:#010x}): the image is ambiguous")]
+    #[error(
+        "load segments {first} and {second} overlap in flash ({start:#010x}..{end:#010x}): the image is ambiguous"
+    )]
     SegmentsOverlap {
         /// The earlier program header.
         first: usize,
@@ -163,7 +189,9 @@ pub enum ImageError {
     #[error("no load segment with contents: nothing to flash")]
     NothingToFlash,
     /// No segment holds the start of flash, where the vector table must be.
-    #[error("no vector table at the start of flash ({FLASH_START:#010x}): no load segment holds the 8 bytes there")]
+    #[error(
+        "no vector table at the start of flash ({FLASH_START:#010x}): no load segment holds the 8 bytes there"
+    )]
     NoVectorTable,
     /// The initial stack pointer is not in SRAM.
     #[error(
@@ -175,7 +203,9 @@ pub enum ImageError {
         sp: u32,
     },
     /// The initial stack pointer is not 8-byte aligned (AAPCS; cortex-m-rt asserts it).
-    #[error("vector table at {FLASH_START:#010x}: the initial stack pointer {sp:#010x} is not aligned to 8 bytes")]
+    #[error(
+        "vector table at {FLASH_START:#010x}: the initial stack pointer {sp:#010x} is not aligned to 8 bytes"
+    )]
     StackPointerUnaligned {
         /// The vector table's first word.
         sp: u32,
@@ -196,16 +226,22 @@ pub enum ImageError {
         reset: u32,
     },
     /// No `.gonio.info`.
-    #[error("no {INFO_SECTION} section: not a gonio firmware image (the board crate writes one saying its version, protocol and board)")]
+    #[error(
+        "no {INFO_SECTION} section: not a gonio firmware image (the board crate writes one saying its version, protocol and board)"
+    )]
     MissingInfo,
     /// `.gonio.info` is an allocated section: it would take room in the target's memory.
-    #[error("section {INFO_SECTION} is allocated (SHF_ALLOC, at {address:#010x}): it must be an INFO section of the link script, not loaded into the target (firmware/board/gonio-info.x)")]
+    #[error(
+        "section {INFO_SECTION} is allocated (SHF_ALLOC, at {address:#010x}): it must be an INFO section of the link script, not loaded into the target (firmware/board/gonio-info.x)"
+    )]
     InfoAllocated {
         /// Its address.
         address: u32,
     },
     /// `.gonio.info` lies in a load segment: it would be flashed.
-    #[error("section {INFO_SECTION} (file bytes {start:#x}..{end:#x}) lies inside load segment {segment}: it would be written to flash")]
+    #[error(
+        "section {INFO_SECTION} (file bytes {start:#x}..{end:#x}) lies inside load segment {segment}: it would be written to flash"
+    )]
     InfoInLoadSegment {
         /// Its first byte in the file.
         start: u64,
@@ -233,7 +269,9 @@ pub enum ImageError {
         host: u16,
     },
     /// Built for another board.
-    #[error("the image is built for board {board:?}, and gonio flash programs the {F411_BOARD_NAME} (STM32F411) board")]
+    #[error(
+        "the image is built for board {board:?}, and gonio flash programs the {F411_BOARD_NAME} (STM32F411) board"
+    )]
     WrongBoard {
         /// The image's board.
         board: String,
@@ -241,7 +279,10 @@ pub enum ImageError {
 }
 
 fn malformed(what: &'static str) -> impl FnOnce(object::read::Error) -> ImageError {
-    move |e| ImageError::Malformed { what, detail: e.to_string() }
+    move |e| ImageError::Malformed {
+        what,
+        detail: e.to_string(),
+    }
 }
 
 /// The ELF header, once it is known to be a 32-bit little-endian ARM executable.
@@ -255,29 +296,50 @@ fn elf_header(bytes: &[u8]) -> Result<&elf::FileHeader32<Endianness>, ImageError
             let first_bytes = if bytes.is_empty() {
                 "nothing: the file is empty".to_string()
             } else {
-                bytes.iter().take(8).map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ")
+                bytes
+                    .iter()
+                    .take(8)
+                    .map(|b| format!("{b:02x}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
             };
             return Err(ImageError::NotElf { first_bytes });
         }
     }
-    let header = elf::FileHeader32::<Endianness>::parse(bytes).map_err(malformed("the ELF header"))?;
-    let endian = header.endian().map_err(malformed("the ELF header's byte order"))?;
+    let header =
+        elf::FileHeader32::<Endianness>::parse(bytes).map_err(malformed("the ELF header"))?;
+    let endian = header
+        .endian()
+        .map_err(malformed("the ELF header's byte order"))?;
     if endian != Endianness::Little {
         return Err(ImageError::BigEndian);
     }
     if header.e_machine(endian) != elf::EM_ARM {
-        return Err(ImageError::WrongMachine { machine: header.e_machine(endian) });
+        return Err(ImageError::WrongMachine {
+            machine: header.e_machine(endian),
+        });
     }
     if header.e_type(endian) != elf::ET_EXEC {
-        return Err(ImageError::NotExecutable { e_type: header.e_type(endian) });
+        return Err(ImageError::NotExecutable {
+            e_type: header.e_type(endian),
+        });
     }
     Ok(header)
 }
 
-fn load_segments(header: &elf::FileHeader32<Endianness>, endian: Endianness, bytes: &[u8]) -> Result<Vec<LoadSegment>, ImageError> {
+fn load_segments(
+    header: &elf::FileHeader32<Endianness>,
+    endian: Endianness,
+    bytes: &[u8],
+) -> Result<Vec<LoadSegment>, ImageError> {
     let flash = u64::from(FLASH_START)..u64::from(FLASH_START) + u64::from(FLASH_LEN);
     let mut segments = Vec::new();
-    for (index, ph) in header.program_headers(endian, bytes).map_err(malformed("the program headers"))?.iter().enumerate() {
+    for (index, ph) in header
+        .program_headers(endian, bytes)
+        .map_err(malformed("the program headers"))?
+        .iter()
+        .enumerate()
+    {
         if ph.p_type(endian) != elf::PT_LOAD || ph.p_filesz(endian) == 0 {
             continue;
         }
@@ -285,14 +347,23 @@ fn load_segments(header: &elf::FileHeader32<Endianness>, endian: Endianness, byt
         let size = u64::from(ph.p_filesz(endian));
         let end = start + size;
         if start < flash.start || end > flash.end {
-            return Err(ImageError::SegmentOutsideFlash { index, start, end, size });
+            return Err(ImageError::SegmentOutsideFlash {
+                index,
+                start,
+                end,
+                size,
+            });
         }
         let data = ph.data(endian, bytes).map_err(|()| ImageError::Malformed {
             what: "a load segment's contents",
             detail: format!("program header {index} says {size} bytes at file offset {:#x}, past the end of the file ({} bytes)", ph.p_offset(endian), bytes.len()),
         })?;
         // In flash by the check above, so the address fits in 32 bits.
-        segments.push(LoadSegment { index, address: start as u32, data: data.to_vec() });
+        segments.push(LoadSegment {
+            index,
+            address: start as u32,
+            data: data.to_vec(),
+        });
     }
     if segments.is_empty() {
         return Err(ImageError::NothingToFlash);
@@ -302,7 +373,12 @@ fn load_segments(header: &elf::FileHeader32<Endianness>, endian: Endianness, byt
         for b in &segments[i + 1..] {
             let (start, stop) = (a.address.max(b.address), end(a).min(end(b)));
             if start < stop {
-                return Err(ImageError::SegmentsOverlap { first: a.index, second: b.index, start, end: stop });
+                return Err(ImageError::SegmentsOverlap {
+                    first: a.index,
+                    second: b.index,
+                    start,
+                    end: stop,
+                });
             }
         }
     }
@@ -335,27 +411,53 @@ fn vector_table(segments: &[LoadSegment]) -> Result<(u32, u32), ImageError> {
     Ok((sp, reset))
 }
 
-fn info_section(header: &elf::FileHeader32<Endianness>, endian: Endianness, bytes: &[u8]) -> Result<FirmwareInfo, ImageError> {
-    let sections = header.sections(endian, bytes).map_err(malformed("the section headers"))?;
+fn info_section(
+    header: &elf::FileHeader32<Endianness>,
+    endian: Endianness,
+    bytes: &[u8],
+) -> Result<FirmwareInfo, ImageError> {
+    let sections = header
+        .sections(endian, bytes)
+        .map_err(malformed("the section headers"))?;
     let Some((_, section)) = sections.section_by_name(endian, INFO_SECTION.as_bytes()) else {
         return Err(ImageError::MissingInfo);
     };
     if u64::from(section.sh_flags(endian)) & u64::from(elf::SHF_ALLOC) != 0 {
-        return Err(ImageError::InfoAllocated { address: section.sh_addr(endian) });
+        return Err(ImageError::InfoAllocated {
+            address: section.sh_addr(endian),
+        });
     }
     let Some((start, size)) = section.file_range(endian) else {
         return Err(ImageError::InfoEmpty);
     };
     let end = start + size;
-    for (index, ph) in header.program_headers(endian, bytes).map_err(malformed("the program headers"))?.iter().enumerate() {
+    for (index, ph) in header
+        .program_headers(endian, bytes)
+        .map_err(malformed("the program headers"))?
+        .iter()
+        .enumerate()
+    {
         let (seg_start, seg_size) = ph.file_range(endian);
-        if ph.p_type(endian) == elf::PT_LOAD && seg_size > 0 && start < seg_start + seg_size && seg_start < end {
-            return Err(ImageError::InfoInLoadSegment { start, end, segment: index });
+        if ph.p_type(endian) == elf::PT_LOAD
+            && seg_size > 0
+            && start < seg_start + seg_size
+            && seg_start < end
+        {
+            return Err(ImageError::InfoInLoadSegment {
+                start,
+                end,
+                segment: index,
+            });
         }
     }
-    let data = section.data(endian, bytes).map_err(|e| ImageError::Malformed {
-        what: "the .gonio.info section's contents",
-        detail: format!("{size} bytes at file offset {start:#x} in a file of {} bytes: {e}", bytes.len()),
-    })?;
+    let data = section
+        .data(endian, bytes)
+        .map_err(|e| ImageError::Malformed {
+            what: "the .gonio.info section's contents",
+            detail: format!(
+                "{size} bytes at file offset {start:#x} in a file of {} bytes: {e}",
+                bytes.len()
+            ),
+        })?;
     FirmwareInfo::decode(data).map_err(ImageError::InfoFormat)
 }

@@ -27,7 +27,11 @@ pub struct ProbeDescription {
 
 impl std::fmt::Display for ProbeDescription {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} (USB {:04x}:{:04x}", self.identifier, self.vendor_id, self.product_id)?;
+        write!(
+            f,
+            "{} (USB {:04x}:{:04x}",
+            self.identifier, self.vendor_id, self.product_id
+        )?;
         if let Some(serial) = &self.serial_number {
             write!(f, ", serial {serial}")?;
         }
@@ -87,10 +91,18 @@ pub trait Flasher {
     /// Open `probe` and attach to the STM32F411 through it (halting the core).
     fn attach(&mut self, probe: &ProbeDescription) -> Result<(), String>;
     /// Erase what the image needs and write it, reporting progress.
-    fn program(&mut self, image: &FirmwareImage, progress: &mut dyn FnMut(FlashProgress)) -> Result<(), String>;
+    fn program(
+        &mut self,
+        image: &FirmwareImage,
+        progress: &mut dyn FnMut(FlashProgress),
+    ) -> Result<(), String>;
     /// Read the flash back and compare it with the image (Err: where it differs or why it
     /// could not be read).
-    fn verify(&mut self, image: &FirmwareImage, progress: &mut dyn FnMut(FlashProgress)) -> Result<(), String>;
+    fn verify(
+        &mut self,
+        image: &FirmwareImage,
+        progress: &mut dyn FnMut(FlashProgress),
+    ) -> Result<(), String>;
     /// Reset the chip and let it run the new firmware; the probe is let go.
     fn reset(&mut self) -> Result<(), String>;
 }
@@ -121,7 +133,9 @@ pub enum FlashError {
         chosen: Option<usize>,
     },
     /// The chip could not be reached through the probe.
-    #[error("cannot attach to the {CHIP} through {probe}: {detail}. Check the SWD wiring and the board's power; a board whose firmware disabled SWD needs BOOT0 high during the reset")]
+    #[error(
+        "cannot attach to the {CHIP} through {probe}: {detail}. Check the SWD wiring and the board's power; a board whose firmware disabled SWD needs BOOT0 high during the reset"
+    )]
     Attach {
         /// The probe.
         probe: ProbeDescription,
@@ -129,13 +143,19 @@ pub enum FlashError {
         detail: String,
     },
     /// Erasing or writing failed.
-    #[error("writing the flash failed: {0}. The instrument holds no usable firmware now: flash again")]
+    #[error(
+        "writing the flash failed: {0}. The instrument holds no usable firmware now: flash again"
+    )]
     Program(String),
     /// The flash does not hold the image after writing.
-    #[error("verify after writing failed: {0}. The instrument's flash does not hold the image: flash again, and do not use the instrument until a verify passes")]
+    #[error(
+        "verify after writing failed: {0}. The instrument's flash does not hold the image: flash again, and do not use the instrument until a verify passes"
+    )]
     Verify(String),
     /// The chip could not be reset.
-    #[error("the image is written and verified, but the reset failed: {0}. Press the board's reset button (or unplug it) to start it")]
+    #[error(
+        "the image is written and verified, but the reset failed: {0}. Press the board's reset button (or unplug it) to start it"
+    )]
     Reset(String),
     /// The instrument did not enumerate after the reset.
     #[error(
@@ -149,7 +169,9 @@ pub enum FlashError {
         last_problem: Option<String>,
     },
     /// It enumerated but the handshake failed.
-    #[error("the image is written and verified, and the instrument appeared at {port}, but the handshake failed: {source}")]
+    #[error(
+        "the image is written and verified, and the instrument appeared at {port}, but the handshake failed: {source}"
+    )]
     Handshake {
         /// Where it appeared.
         port: String,
@@ -157,7 +179,9 @@ pub enum FlashError {
         source: LinkError,
     },
     /// The instrument runs another firmware than the one flashed.
-    #[error("the instrument at {port} reports firmware {running}, not {flashed}, the version just flashed: the new image did not start; flash again")]
+    #[error(
+        "the instrument at {port} reports firmware {running}, not {flashed}, the version just flashed: the new image did not start; flash again"
+    )]
     OtherFirmwareRunning {
         /// Where it is.
         port: String,
@@ -169,7 +193,12 @@ pub enum FlashError {
 }
 
 fn list_probes(probes: &[ProbeDescription]) -> String {
-    probes.iter().enumerate().map(|(i, p)| format!("  {i}: {p}")).collect::<Vec<_>>().join("\n")
+    probes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| format!("  {i}: {p}"))
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 /// How to flash.
@@ -209,7 +238,10 @@ pub struct Flashed {
 }
 
 /// The probe to use: the only one, or the one chosen.
-pub fn choose_probe(probes: Vec<ProbeDescription>, chosen: Option<usize>) -> Result<ProbeDescription, FlashError> {
+pub fn choose_probe(
+    probes: Vec<ProbeDescription>,
+    chosen: Option<usize>,
+) -> Result<ProbeDescription, FlashError> {
     match (probes.len(), chosen) {
         (0, _) => Err(FlashError::NoProbe),
         (1, None) => Ok(probes.into_iter().next().expect("one probe")),
@@ -230,9 +262,18 @@ pub fn flash<F: Flasher + ?Sized, T: Transport>(
     find_instrument: &mut dyn FnMut() -> Result<Option<T>, String>,
 ) -> Result<Flashed, FlashError> {
     let probe = choose_probe(flasher.list_probes(), options.probe)?;
-    flasher.attach(&probe).map_err(|detail| FlashError::Attach { probe: probe.clone(), detail })?;
-    flasher.program(image, progress).map_err(FlashError::Program)?;
-    flasher.verify(image, progress).map_err(FlashError::Verify)?;
+    flasher
+        .attach(&probe)
+        .map_err(|detail| FlashError::Attach {
+            probe: probe.clone(),
+            detail,
+        })?;
+    flasher
+        .program(image, progress)
+        .map_err(FlashError::Program)?;
+    flasher
+        .verify(image, progress)
+        .map_err(FlashError::Verify)?;
     flasher.reset().map_err(FlashError::Reset)?;
 
     let started = Instant::now();
@@ -245,13 +286,19 @@ pub fn flash<F: Flasher + ?Sized, T: Transport>(
             Err(problem) => last_problem = Some(problem),
         }
         if started.elapsed() >= options.enumerate_timeout {
-            return Err(FlashError::NotEnumerated { waited: started.elapsed(), last_problem });
+            return Err(FlashError::NotEnumerated {
+                waited: started.elapsed(),
+                last_problem,
+            });
         }
         std::thread::sleep(options.poll_every);
     };
     let port = transport.name();
     let mut client = Client::new(transport, RetryPolicy::default());
-    let device = client.hello().map_err(|source| FlashError::Handshake { port: port.clone(), source })?;
+    let device = client.hello().map_err(|source| FlashError::Handshake {
+        port: port.clone(),
+        source,
+    })?;
     if device.firmware_version != image.info.firmware_version {
         return Err(FlashError::OtherFirmwareRunning {
             port,
@@ -259,5 +306,9 @@ pub fn flash<F: Flasher + ?Sized, T: Transport>(
             flashed: image.info.firmware_version.as_str().to_owned(),
         });
     }
-    Ok(Flashed { probe, port, device })
+    Ok(Flashed {
+        probe,
+        port,
+        device,
+    })
 }

@@ -62,7 +62,9 @@ pub trait Transport {
     /// t₀ + (its lifetime in ms) ≤ now. A later process starting at `now` is above all
     /// of them (unless one process outlived a wrap of the 49.7-day cycle).
     fn first_seq(&self) -> u32 {
-        let ms = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis());
+        let ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis());
         (ms as u32).max(1)
     }
 }
@@ -123,7 +125,8 @@ pub enum LinkError {
 
 fn version_advice(host: u16, device: u16) -> String {
     if device > host {
-        "update the host software (gonio) to a release that speaks the instrument's version".to_string()
+        "update the host software (gonio) to a release that speaks the instrument's version"
+            .to_string()
     } else {
         // The field user has the gonio binary and a debug probe, not the source: say the
         // command that fixes it.
@@ -175,7 +178,10 @@ impl DeviceTiming {
     /// The reference instrument's (before the handshake).
     pub fn reference() -> DeviceTiming {
         let info = firmware::config::InstrumentConfig::REFERENCE.device_info("");
-        let (low, high) = (firmware::motion::angle_to_steps(info.arm_min), firmware::motion::angle_to_steps(info.arm_max));
+        let (low, high) = (
+            firmware::motion::angle_to_steps(info.arm_min),
+            firmware::motion::angle_to_steps(info.arm_max),
+        );
         let move_us = firmware::motion::move_duration_us(
             [low, low],
             [high, high],
@@ -183,7 +189,8 @@ impl DeviceTiming {
             firmware::motion::deg_to_steps(info.accel_deg_per_s2),
         );
         DeviceTiming {
-            longest_move: Duration::from_micros(move_us) + Duration::from_millis(u64::from(info.settle_ms)),
+            longest_move: Duration::from_micros(move_us)
+                + Duration::from_millis(u64::from(info.settle_ms)),
             longest_home: Duration::from_millis(u64::from(info.longest_home_ms)),
             heartbeat_timeout: Duration::from_millis(u64::from(info.heartbeat_timeout_ms)),
         }
@@ -370,22 +377,35 @@ impl<T: Transport> Client<T> {
     /// heartbeat timeout if that is shorter (but not under 20 ms, whatever a device says:
     /// a zero would send heartbeats without end).
     fn heartbeat_every(&self) -> Duration {
-        self.policy.heartbeat_every.min(self.timing.heartbeat_timeout / 5).max(Duration::from_millis(20))
+        self.policy
+            .heartbeat_every
+            .min(self.timing.heartbeat_timeout / 5)
+            .max(Duration::from_millis(20))
     }
 
     /// Handshake: our protocol version for the device's description (whose timing the
     /// client then waits by).
     pub fn hello(&mut self) -> Result<DeviceInfo, LinkError> {
-        let version_error = |device: u16| LinkError::VersionMismatch { host: PROTOCOL_VERSION, device };
-        match self.request(Command::Hello { protocol_version: PROTOCOL_VERSION }) {
+        let version_error = |device: u16| LinkError::VersionMismatch {
+            host: PROTOCOL_VERSION,
+            device,
+        };
+        match self.request(Command::Hello {
+            protocol_version: PROTOCOL_VERSION,
+        }) {
             Ok(Reply::Hello(info)) if info.protocol_version == PROTOCOL_VERSION => {
                 self.timing = DeviceTiming::from_info(&info);
                 Ok(info)
             }
             Ok(Reply::Hello(info)) => Err(version_error(info.protocol_version)),
-            Ok(reply) => Err(LinkError::UnexpectedReply { command: "Hello", reply: Box::new(reply) }),
+            Ok(reply) => Err(LinkError::UnexpectedReply {
+                command: "Hello",
+                reply: Box::new(reply),
+            }),
             Err(LinkError::Device { error, .. }) if error.code == ErrorCode::VersionMismatch => {
-                Err(version_error(u16::try_from(error.detail).unwrap_or(u16::MAX)))
+                Err(version_error(
+                    u16::try_from(error.detail).unwrap_or(u16::MAX),
+                ))
             }
             Err(other) => Err(other),
         }
@@ -434,10 +454,17 @@ impl<T: Transport> Client<T> {
             self.send(&request)?;
             sends += 1;
             if let Some(result) = self.wait_for_reply(seq, self.policy.reply_timeout)? {
-                return result.map_err(|error| LinkError::Device { command: name, error });
+                return result.map_err(|error| LinkError::Device {
+                    command: name,
+                    error,
+                });
             }
         }
-        Err(LinkError::NoReply { seq, command: name, attempts: sends })
+        Err(LinkError::NoReply {
+            seq,
+            command: name,
+            attempts: sends,
+        })
     }
 
     fn take_seq(&mut self) -> u32 {
@@ -456,11 +483,18 @@ impl<T: Transport> Client<T> {
     }
 
     /// Wait up to `timeout` for the reply to `seq`; other messages are queued.
-    fn wait_for_reply(&mut self, seq: u32, timeout: Duration) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
+    fn wait_for_reply(
+        &mut self,
+        seq: u32,
+        timeout: Duration,
+    ) -> Result<Option<Result<Reply, DeviceError>>, LinkError> {
         let deadline = self.transport.now() + timeout;
         while let Some(message) = self.next_message(deadline)? {
             match message {
-                DeviceMessage::Reply { seq: answered, result } if answered == seq => return Ok(Some(result)),
+                DeviceMessage::Reply {
+                    seq: answered,
+                    result,
+                } if answered == seq => return Ok(Some(result)),
                 // A late duplicate answer to an earlier request: already handled.
                 DeviceMessage::Reply { .. } => {}
                 other => self.unsolicited.push_back(other),
@@ -471,7 +505,10 @@ impl<T: Transport> Client<T> {
 
     /// The next message that is not a reply (a streamed reading, a schedule end, a stop),
     /// waiting at most `timeout`.
-    pub fn next_unsolicited(&mut self, timeout: Duration) -> Result<Option<DeviceMessage>, LinkError> {
+    pub fn next_unsolicited(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Option<DeviceMessage>, LinkError> {
         if let Some(message) = self.unsolicited.pop_front() {
             return Ok(Some(message));
         }
@@ -494,7 +531,9 @@ impl<T: Transport> Client<T> {
                 let byte = self.rx[self.rx_pos];
                 self.rx_pos += 1;
                 match self.decoder.push::<DeviceMessage>(byte) {
-                    Some(Ok(DeviceMessage::FrameRejected { .. })) => self.stats.rejected_by_device += 1,
+                    Some(Ok(DeviceMessage::FrameRejected { .. })) => {
+                        self.stats.rejected_by_device += 1
+                    }
                     Some(Ok(message)) => return Ok(Some(message)),
                     Some(Err(_)) => self.stats.bad_frames += 1,
                     None => {}
@@ -504,7 +543,9 @@ impl<T: Transport> Client<T> {
             let now = self.transport.now();
             let give_up_at = self.give_up_at();
             if now >= give_up_at {
-                return Err(LinkError::Silent { silent_for: now - self.last_heard });
+                return Err(LinkError::Silent {
+                    silent_for: now - self.last_heard,
+                });
             }
             if now >= deadline {
                 return Ok(None);
@@ -513,12 +554,18 @@ impl<T: Transport> Client<T> {
             if now >= heartbeat_due {
                 // Its reply is read and dropped like any answer to an earlier request.
                 let seq = self.take_seq();
-                self.send(&Request { seq, command: Command::Heartbeat })?;
+                self.send(&Request {
+                    seq,
+                    command: Command::Heartbeat,
+                })?;
                 continue;
             }
             // Read in chunks (one system call per chunk on a serial port); bytes after a
             // complete frame stay in `rx` for the next call.
-            self.rx_len = self.transport.read(&mut self.rx, deadline.min(heartbeat_due).min(give_up_at) - now)?;
+            self.rx_len = self.transport.read(
+                &mut self.rx,
+                deadline.min(heartbeat_due).min(give_up_at) - now,
+            )?;
             self.rx_pos = 0;
             if self.rx_len > 0 {
                 self.last_heard = self.transport.now();

@@ -32,7 +32,9 @@ impl ProbeRsFlasher {
     }
 
     fn session(&mut self) -> Result<&mut Session, String> {
-        self.session.as_mut().ok_or_else(|| "no probe is attached".to_string())
+        self.session
+            .as_mut()
+            .ok_or_else(|| "no probe is attached".to_string())
     }
 }
 
@@ -73,10 +75,15 @@ impl Forward<'_> {
             }
             ProgressEvent::Started(operation) => {
                 if let Some(step) = step(operation) {
-                    (self.progress)(FlashProgress::Started { step, total_bytes: self.totals[slot(step)] });
+                    (self.progress)(FlashProgress::Started {
+                        step,
+                        total_bytes: self.totals[slot(step)],
+                    });
                 }
             }
-            ProgressEvent::Progress { operation, size, .. } => {
+            ProgressEvent::Progress {
+                operation, size, ..
+            } => {
                 if let Some(step) = step(operation) {
                     (self.progress)(FlashProgress::Advanced { step, bytes: size });
                 }
@@ -103,40 +110,81 @@ impl Flasher for ProbeRsFlasher {
     }
 
     fn attach(&mut self, probe: &ProbeDescription) -> Result<(), String> {
-        let info = self.found.iter().find(|info| describe(info) == *probe).ok_or_else(|| format!("{probe} is no longer attached"))?;
-        let opened = info.open().map_err(|e| format!("cannot open the probe: {e}"))?;
-        let session = opened.attach(CHIP, Permissions::default()).map_err(|e| e.to_string())?;
+        let info = self
+            .found
+            .iter()
+            .find(|info| describe(info) == *probe)
+            .ok_or_else(|| format!("{probe} is no longer attached"))?;
+        let opened = info
+            .open()
+            .map_err(|e| format!("cannot open the probe: {e}"))?;
+        let session = opened
+            .attach(CHIP, Permissions::default())
+            .map_err(|e| e.to_string())?;
         self.session = Some(session);
         Ok(())
     }
 
-    fn program(&mut self, image: &FirmwareImage, progress: &mut dyn FnMut(FlashProgress)) -> Result<(), String> {
+    fn program(
+        &mut self,
+        image: &FirmwareImage,
+        progress: &mut dyn FnMut(FlashProgress),
+    ) -> Result<(), String> {
         let session = self.session()?;
         let mut loader = session.target().flash_loader();
         for segment in &image.segments {
-            loader.add_data(u64::from(segment.address), &segment.data).map_err(|e| format!("segment {} at {:#010x}: {e}", segment.index, segment.address))?;
+            loader
+                .add_data(u64::from(segment.address), &segment.data)
+                .map_err(|e| {
+                    format!(
+                        "segment {} at {:#010x}: {e}",
+                        segment.index, segment.address
+                    )
+                })?;
         }
         let mut options = DownloadOptions::default();
         // Verified on its own afterwards (Flasher::verify), so that a failure says which.
         options.verify = false;
-        let mut forward = Forward { totals: [None; 3], progress };
+        let mut forward = Forward {
+            totals: [None; 3],
+            progress,
+        };
         options.progress = flashing::FlashProgress::new(move |event| forward.event(event));
         loader.commit(session, options).map_err(|e| e.to_string())?;
         self.loader = Some(loader);
         Ok(())
     }
 
-    fn verify(&mut self, _image: &FirmwareImage, progress: &mut dyn FnMut(FlashProgress)) -> Result<(), String> {
-        let loader = self.loader.take().ok_or_else(|| "nothing was programmed".to_string())?;
+    fn verify(
+        &mut self,
+        _image: &FirmwareImage,
+        progress: &mut dyn FnMut(FlashProgress),
+    ) -> Result<(), String> {
+        let loader = self
+            .loader
+            .take()
+            .ok_or_else(|| "nothing was programmed".to_string())?;
         let session = self.session()?;
-        let mut forward = Forward { totals: [None; 3], progress };
+        let mut forward = Forward {
+            totals: [None; 3],
+            progress,
+        };
         let mut reporter = flashing::FlashProgress::new(move |event| forward.event(event));
-        loader.verify(session, &mut reporter).map_err(|e| e.to_string())
+        loader
+            .verify(session, &mut reporter)
+            .map_err(|e| e.to_string())
     }
 
     fn reset(&mut self) -> Result<(), String> {
-        let mut session = self.session.take().ok_or_else(|| "no probe is attached".to_string())?;
-        session.core(0).map_err(|e| e.to_string())?.reset().map_err(|e| e.to_string())
+        let mut session = self
+            .session
+            .take()
+            .ok_or_else(|| "no probe is attached".to_string())?;
+        session
+            .core(0)
+            .map_err(|e| e.to_string())?
+            .reset()
+            .map_err(|e| e.to_string())
         // The session is dropped here: the probe lets the core run.
     }
 }

@@ -15,8 +15,13 @@ pub struct SerialTransport {
 impl SerialTransport {
     /// Open `path`. CDC-ACM ignores the baud rate; it is set for UART bridges.
     pub fn open(path: &str) -> Result<SerialTransport, serialport::Error> {
-        let port = serialport::new(path, 115_200).timeout(Duration::from_millis(50)).open()?;
-        Ok(SerialTransport { port, path: path.to_owned() })
+        let port = serialport::new(path, 115_200)
+            .timeout(Duration::from_millis(50))
+            .open()?;
+        Ok(SerialTransport {
+            port,
+            path: path.to_owned(),
+        })
     }
 
     /// The device path.
@@ -29,7 +34,10 @@ impl Transport for SerialTransport {
     fn reconnect(&mut self) -> std::io::Result<()> {
         // A CDC-ACM port that was unplugged comes back under the same path (or not yet).
         // serialport says "not found" for a path that is gone: keep the OS's words.
-        self.port = serialport::new(&self.path, 115_200).timeout(Duration::from_millis(50)).open().map_err(std::io::Error::from)?;
+        self.port = serialport::new(&self.path, 115_200)
+            .timeout(Duration::from_millis(50))
+            .open()
+            .map_err(std::io::Error::from)?;
         Ok(())
     }
 
@@ -43,7 +51,8 @@ impl Transport for SerialTransport {
     }
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
-        self.port.set_timeout(timeout.max(Duration::from_millis(1)))?;
+        self.port
+            .set_timeout(timeout.max(Duration::from_millis(1)))?;
         match self.port.read(buf) {
             Ok(n) => Ok(n),
             Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(0),
@@ -81,7 +90,12 @@ pub fn list_ports() -> Result<Vec<PortCandidate>, serialport::Error> {
                 is_instrument: is_instrument(usb.vid, usb.pid),
                 product: usb.product,
             },
-            _ => PortCandidate { path: info.port_name, usb_id: None, product: None, is_instrument: false },
+            _ => PortCandidate {
+                path: info.port_name,
+                usb_id: None,
+                product: None,
+                is_instrument: false,
+            },
         })
         .collect();
     ports.sort_by_key(|p| (!p.is_instrument, p.path.clone()));
@@ -90,7 +104,11 @@ pub fn list_ports() -> Result<Vec<PortCandidate>, serialport::Error> {
 
 /// The one attached instrument, if exactly one is attached.
 pub fn find_instrument() -> Result<Option<String>, FindError> {
-    let found: Vec<String> = list_ports()?.into_iter().filter(|p| p.is_instrument).map(|p| p.path).collect();
+    let found: Vec<String> = list_ports()?
+        .into_iter()
+        .filter(|p| p.is_instrument)
+        .map(|p| p.path)
+        .collect();
     match found.as_slice() {
         [] => Ok(None),
         [one] => Ok(Some(one.clone())),

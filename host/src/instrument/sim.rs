@@ -7,8 +7,8 @@
 //! realistic sheet and instrument.
 
 use crate::analysis::classify::REFERENCES;
-use crate::instrument::link::Transport;
 use crate::analysis::model::{self, Params};
+use crate::instrument::link::Transport;
 use firmware::hardware::Arm;
 use hil_sim::scene::SamplePort;
 use hil_sim::sheet::{Lobe, SheetError, SheetSpec, Stock};
@@ -104,7 +104,13 @@ pub struct PhysicsSet {
 }
 
 /// `--physics ideal`: today's ideal instrument.
-pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_error_pct: 0.0, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.0, arm_zero_sd_deg: 0.0 };
+pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet {
+    gain_error_pct: 0.0,
+    tile_error_pct: 0.0,
+    lamp_drift_pct_per_h: 0.2,
+    arm_offset_deg: 0.0,
+    arm_zero_sd_deg: 0.0,
+};
 
 /// `--physics real`: the effects the uncertainty budget and the model account for, at
 /// magnitudes a built instrument has before its own calibration of them:
@@ -122,7 +128,13 @@ pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 0.0, tile_err
 ///   instruments are a population whose zero is known to 0.1°, the uncertainty a session
 ///   assumes ([`crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]);
 /// - the detector window (1° full width) as in the ideal set.
-pub const REAL_PHYSICS: PhysicsSet = PhysicsSet { gain_error_pct: 1.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.2, arm_offset_deg: 0.0, arm_zero_sd_deg: 0.1 };
+pub const REAL_PHYSICS: PhysicsSet = PhysicsSet {
+    gain_error_pct: 1.0,
+    tile_error_pct: 0.5,
+    lamp_drift_pct_per_h: 0.2,
+    arm_offset_deg: 0.0,
+    arm_zero_sd_deg: 0.1,
+};
 
 /// Options of the simulated instrument (the same on `gonio sim` and `gonio measure --sim`).
 #[derive(clap::Args, Clone, Debug, PartialEq)]
@@ -134,7 +146,12 @@ pub struct SimOptions {
     #[arg(long, value_name = "DEG", default_value_t = model::DEFAULT_ACCEPTANCE_DEG, allow_negative_numbers = true)]
     pub acceptance: f64,
     /// Scale of every detector noise term (1 = the reference instrument, 0 = noiseless).
-    #[arg(long, value_name = "FACTOR", default_value_t = 1.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "FACTOR",
+        default_value_t = 1.0,
+        allow_negative_numbers = true
+    )]
     pub noise_scale: f64,
     /// Faults to inject: corrupt=P,drop=P,unplug-at=T[:SECONDS],lose-steps=ARM:COUNT,no-switch=ARM
     /// (ARM is source or detector). unplug-at pulls the cable at device time T for SECONDS
@@ -153,11 +170,21 @@ pub struct SimOptions {
     pub lobe: LobeChoice,
     /// Forward scattering of fibrous papers: F·u² added, u = (θr − θi)/(90° − θi) past
     /// specular (0 before it): a radiance factor F at grazing θr.
-    #[arg(long, value_name = "F", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub forward_lobe: f64,
     /// The narrow rise around specular seen on J1/J2: B·cos²θi·exp(−(θr − θi)²/(2·2.5²))
     /// added (2.5° standard deviation in θr).
-    #[arg(long, value_name = "B", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "B",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub specular_bump: f64,
     /// Detector arm zero error: the true θr is the firmware's plus DEG exactly [ideal 0, real: drawn N(0, 0.1°) from the seed].
     #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
@@ -176,7 +203,12 @@ pub struct SimOptions {
     /// Between-spot variation of the sheet: each spot draws σ, ρs and ρd log-normally
     /// about the stock's, relative standard deviation PCT %; a new spot whenever the
     /// sample goes back on after the white tile.
-    #[arg(long, value_name = "PCT", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "PCT",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub sheet_variation: f64,
     /// Replay a table of radiance factors (the CSV gonio fit reads: theta_i, theta_r,
     /// radiance_factor) instead of a built-in sheet; the sample name is then a label.
@@ -221,7 +253,11 @@ pub fn runs_recorded(dir: &std::path::Path) -> u64 {
         std::fs::read(&file)
             .ok()
             .and_then(|bytes| serde_json::from_slice::<serde_json::Value>(&bytes).ok())
-            .and_then(|doc| doc.get("runs").and_then(serde_json::Value::as_array).map(|runs| runs.len() as u64))
+            .and_then(|doc| {
+                doc.get("runs")
+                    .and_then(serde_json::Value::as_array)
+                    .map(|runs| runs.len() as u64)
+            })
             .unwrap_or(0)
     };
     let mut total = runs_in(dir.join("session.json")) + runs_in(dir.join("sheet.json"));
@@ -242,7 +278,9 @@ const MAX_UNPLUG_S: f64 = 86_400.0;
 #[derive(Debug, thiserror::Error)]
 pub enum SimOptionError {
     /// Not a sample the simulator knows.
-    #[error("unknown sample '{0}': use one of G, SG, PPC, MC, J1, J2, J3, J4 or custom:SIGMA,RHO_S,RHO_D,ETA")]
+    #[error(
+        "unknown sample '{0}': use one of G, SG, PPC, MC, J1, J2, J3, J4 or custom:SIGMA,RHO_S,RHO_D,ETA"
+    )]
     UnknownSample(String),
     /// A custom sample with bad parameters.
     #[error("bad custom sample '{spec}': {why}")]
@@ -289,10 +327,17 @@ pub enum SimOptionError {
 /// `custom:SIGMA,RHO_S,RHO_D,ETA`.
 pub fn sample_params(name: &str) -> Result<Params, SimOptionError> {
     if let Some(spec) = name.strip_prefix("custom:") {
-        let bad = |why: &str| SimOptionError::BadCustom { spec: spec.to_owned(), why: why.to_owned() };
+        let bad = |why: &str| SimOptionError::BadCustom {
+            spec: spec.to_owned(),
+            why: why.to_owned(),
+        };
         let values: Vec<f64> = spec
             .split(',')
-            .map(|v| v.trim().parse::<f64>().map_err(|_| bad(&format!("'{}' is not a number", v.trim()))))
+            .map(|v| {
+                v.trim()
+                    .parse::<f64>()
+                    .map_err(|_| bad(&format!("'{}' is not a number", v.trim())))
+            })
             .collect::<Result<_, _>>()?;
         let [sigma_deg, rho_s, rho_d, eta] = values[..] else {
             return Err(bad("four numbers are needed: SIGMA,RHO_S,RHO_D,ETA"));
@@ -309,7 +354,12 @@ pub fn sample_params(name: &str) -> Result<Params, SimOptionError> {
         if !(1.0..=3.0).contains(&eta) {
             return Err(bad("ETA must be in [1, 3]"));
         }
-        return Ok(Params { sigma_deg, rho_s, rho_d, eta });
+        return Ok(Params {
+            sigma_deg,
+            rho_s,
+            rho_d,
+            eta,
+        });
     }
     REFERENCES
         .iter()
@@ -322,7 +372,10 @@ fn parse_arm(item: &str, value: &str) -> Result<Arm, SimOptionError> {
     match value.to_ascii_lowercase().as_str() {
         "source" | "i" | "0" => Ok(Arm::Source),
         "detector" | "r" | "1" => Ok(Arm::Detector),
-        _ => Err(SimOptionError::BadFault { item: item.to_owned(), why: "ARM is source or detector".into() }),
+        _ => Err(SimOptionError::BadFault {
+            item: item.to_owned(),
+            why: "ARM is source or detector".into(),
+        }),
     }
 }
 
@@ -330,43 +383,78 @@ fn parse_arm(item: &str, value: &str) -> Result<Arm, SimOptionError> {
 pub fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
     let mut faults = SimConfig::default().faults;
     for item in spec.split(',').map(str::trim).filter(|i| !i.is_empty()) {
-        let bad = |why: &str| SimOptionError::BadFault { item: item.to_owned(), why: why.to_owned() };
-        let (key, value) = item.split_once('=').ok_or_else(|| bad("expected KEY=VALUE"))?;
+        let bad = |why: &str| SimOptionError::BadFault {
+            item: item.to_owned(),
+            why: why.to_owned(),
+        };
+        let (key, value) = item
+            .split_once('=')
+            .ok_or_else(|| bad("expected KEY=VALUE"))?;
         let number = |v: &str| v.trim().parse::<f64>().ok().filter(|x| x.is_finite());
         match key.trim() {
             "corrupt" | "drop" => {
-                let p = number(value).filter(|p| (0.0..=1.0).contains(p)).ok_or_else(|| bad("a probability in [0, 1]"))?;
-                if key.trim() == "corrupt" { faults.corrupt = p } else { faults.drop = p }
+                let p = number(value)
+                    .filter(|p| (0.0..=1.0).contains(p))
+                    .ok_or_else(|| bad("a probability in [0, 1]"))?;
+                if key.trim() == "corrupt" {
+                    faults.corrupt = p
+                } else {
+                    faults.drop = p
+                }
             }
             "unplug-at" => {
                 let (at, out) = match value.split_once(':') {
                     Some((at, out)) => (at, Some(out)),
                     None => (value, None),
                 };
-                let at_s = number(at).filter(|s| *s >= 0.0).ok_or_else(|| bad("T is seconds of device time, ≥ 0"))?;
+                let at_s = number(at)
+                    .filter(|s| *s >= 0.0)
+                    .ok_or_else(|| bad("T is seconds of device time, ≥ 0"))?;
                 let for_s = match out {
                     None => DEFAULT_UNPLUG_S,
                     Some(out) => number(out)
                         .filter(|s| *s > 0.0 && *s <= MAX_UNPLUG_S)
-                        .ok_or_else(|| bad("SECONDS (how long the cable stays out) is in (0, 86400]"))?,
+                        .ok_or_else(|| {
+                            bad("SECONDS (how long the cable stays out) is in (0, 86400]")
+                        })?,
                 };
                 faults.unplugs.push(Unplug::new(at_s, for_s));
             }
             "lose-steps" => {
-                let (arm, count) = value.split_once(':').ok_or_else(|| bad("expected lose-steps=ARM:COUNT"))?;
-                let count = count.trim().parse::<i32>().ok().filter(|c| *c > 0).ok_or_else(|| bad("COUNT is a positive whole number"))?;
+                let (arm, count) = value
+                    .split_once(':')
+                    .ok_or_else(|| bad("expected lose-steps=ARM:COUNT"))?;
+                let count = count
+                    .trim()
+                    .parse::<i32>()
+                    .ok()
+                    .filter(|c| *c > 0)
+                    .ok_or_else(|| bad("COUNT is a positive whole number"))?;
                 faults.lose_steps = Some((parse_arm(item, arm)?, count));
             }
             "no-switch" => faults.switch_missing = Some(parse_arm(item, value)?),
-            _ => return Err(bad("known faults: corrupt, drop, unplug-at, lose-steps, no-switch")),
+            _ => {
+                return Err(bad(
+                    "known faults: corrupt, drop, unplug-at, lose-steps, no-switch",
+                ));
+            }
         }
     }
     Ok(faults)
 }
 
 /// Check a number option against its range.
-fn checked(option: &'static str, value: f64, why: &'static str, ok: impl Fn(f64) -> bool) -> Result<f64, SimOptionError> {
-    if value.is_finite() && ok(value) { Ok(value) } else { Err(SimOptionError::BadOption { option, why, value }) }
+fn checked(
+    option: &'static str,
+    value: f64,
+    why: &'static str,
+    ok: impl Fn(f64) -> bool,
+) -> Result<f64, SimOptionError> {
+    if value.is_finite() && ok(value) {
+        Ok(value)
+    } else {
+        Err(SimOptionError::BadOption { option, why, value })
+    }
 }
 
 impl SimOptions {
@@ -379,23 +467,61 @@ impl SimOptions {
         PhysicsSet {
             gain_error_pct: self.gain_error.unwrap_or(base.gain_error_pct),
             tile_error_pct: self.tile_error.unwrap_or(base.tile_error_pct),
-            lamp_drift_pct_per_h: self.lamp_drift_pct_per_h.unwrap_or(base.lamp_drift_pct_per_h),
+            lamp_drift_pct_per_h: self
+                .lamp_drift_pct_per_h
+                .unwrap_or(base.lamp_drift_pct_per_h),
             arm_offset_deg: self.arm_offset.unwrap_or(base.arm_offset_deg),
             // An offset given is the offset: nothing drawn on top.
-            arm_zero_sd_deg: if self.arm_offset.is_some() { 0.0 } else { base.arm_zero_sd_deg },
+            arm_zero_sd_deg: if self.arm_offset.is_some() {
+                0.0
+            } else {
+                base.arm_zero_sd_deg
+            },
         }
     }
 
     /// The simulated instrument's configuration (everything but the sample).
     pub fn config(&self) -> Result<SimConfig, SimOptionError> {
-        checked("acceptance", self.acceptance, "between 0 and 10 degrees", |v| (0.0..=10.0).contains(&v))?;
-        checked("noise-scale", self.noise_scale, "a number ≥ 0", |v| v >= 0.0)?;
+        checked(
+            "acceptance",
+            self.acceptance,
+            "between 0 and 10 degrees",
+            |v| (0.0..=10.0).contains(&v),
+        )?;
+        checked("noise-scale", self.noise_scale, "a number ≥ 0", |v| {
+            v >= 0.0
+        })?;
         let set = self.physics_set();
-        checked("gain-error", set.gain_error_pct, "a percentage in [0, 20]", |v| (0.0..=20.0).contains(&v))?;
-        checked("tile-error", set.tile_error_pct, "a percentage in [0, 20]", |v| (0.0..=20.0).contains(&v))?;
-        checked("lamp-drift-pct-per-h", set.lamp_drift_pct_per_h, "a percentage per hour in [0, 100]", |v| (0.0..=100.0).contains(&v))?;
-        checked("arm-offset", set.arm_offset_deg, "between -5 and 5 degrees", |v| (-5.0..=5.0).contains(&v))?;
-        let mut config = SimConfig { seed: self.seed, power_on: self.power_on, faults: parse_faults(&self.faults)?, ..SimConfig::default() };
+        checked(
+            "gain-error",
+            set.gain_error_pct,
+            "a percentage in [0, 20]",
+            |v| (0.0..=20.0).contains(&v),
+        )?;
+        checked(
+            "tile-error",
+            set.tile_error_pct,
+            "a percentage in [0, 20]",
+            |v| (0.0..=20.0).contains(&v),
+        )?;
+        checked(
+            "lamp-drift-pct-per-h",
+            set.lamp_drift_pct_per_h,
+            "a percentage per hour in [0, 100]",
+            |v| (0.0..=100.0).contains(&v),
+        )?;
+        checked(
+            "arm-offset",
+            set.arm_offset_deg,
+            "between -5 and 5 degrees",
+            |v| (-5.0..=5.0).contains(&v),
+        )?;
+        let mut config = SimConfig {
+            seed: self.seed,
+            power_on: self.power_on,
+            faults: parse_faults(&self.faults)?,
+            ..SimConfig::default()
+        };
         config.detector.acceptance_deg = self.acceptance;
         config.detector.noise_scale = self.noise_scale;
         config.detector.lamp_drift_per_hour = set.lamp_drift_pct_per_h / 100.0;
@@ -412,16 +538,38 @@ impl SimOptions {
     pub fn sheet(&self, sample: &str) -> Result<SheetSpec, SimOptionError> {
         let p = sample_params(sample)?;
         let spec = SheetSpec {
-            stock: Stock { sigma_deg: p.sigma_deg, rho_s: p.rho_s, rho_d: p.rho_d, eta: p.eta },
+            stock: Stock {
+                sigma_deg: p.sigma_deg,
+                rho_s: p.rho_s,
+                rho_d: p.rho_d,
+                eta: p.eta,
+            },
             lobe: self.lobe.into(),
-            forward_lobe: checked("forward-lobe", self.forward_lobe, "a radiance factor in [0, 100]", |v| (0.0..=100.0).contains(&v))?,
-            specular_bump: checked("specular-bump", self.specular_bump, "a radiance factor in [0, 100]", |v| (0.0..=100.0).contains(&v))?,
-            spot_variation: checked("sheet-variation", self.sheet_variation, "a percentage in [0, 50]", |v| (0.0..=50.0).contains(&v))?
-                / 100.0,
+            forward_lobe: checked(
+                "forward-lobe",
+                self.forward_lobe,
+                "a radiance factor in [0, 100]",
+                |v| (0.0..=100.0).contains(&v),
+            )?,
+            specular_bump: checked(
+                "specular-bump",
+                self.specular_bump,
+                "a radiance factor in [0, 100]",
+                |v| (0.0..=100.0).contains(&v),
+            )?,
+            spot_variation: checked(
+                "sheet-variation",
+                self.sheet_variation,
+                "a percentage in [0, 50]",
+                |v| (0.0..=50.0).contains(&v),
+            )? / 100.0,
         };
         spec.validate().map_err(|e| match e {
             // Only the lobe's limit on σ can fail here: everything else was checked above.
-            SheetError::OutOfRange { .. } => SimOptionError::BadCustom { spec: sample.to_owned(), why: format!("with --lobe {:?}: {e}", self.lobe).to_lowercase() },
+            SheetError::OutOfRange { .. } => SimOptionError::BadCustom {
+                spec: sample.to_owned(),
+                why: format!("with --lobe {:?}: {e}", self.lobe).to_lowercase(),
+            },
         })?;
         Ok(spec)
     }
@@ -429,10 +577,19 @@ impl SimOptions {
     /// What is on the sample port: `sample`'s sheet, or the replayed `--scene-file`.
     pub fn port(&self, sample: &str) -> Result<SamplePort, SimOptionError> {
         let Some(path) = &self.scene_file else {
-            return Ok(SamplePort::with_spots(Arc::new(self.sheet(sample)?), self.seed));
+            return Ok(SamplePort::with_spots(
+                Arc::new(self.sheet(sample)?),
+                self.seed,
+            ));
         };
         let why = "a replayed table is the whole scene";
-        let conflict = |option| Err(SimOptionError::Conflict { option, other: "scene-file", why });
+        let conflict = |option| {
+            Err(SimOptionError::Conflict {
+                option,
+                other: "scene-file",
+                why,
+            })
+        };
         if self.lobe != LobeChoice::Gaussian {
             return conflict("lobe");
         }
@@ -464,22 +621,43 @@ mod tests {
         assert_eq!(sample_params("g").unwrap().sigma_deg, 0.8);
         assert_eq!(sample_params("J4").unwrap().rho_d, 0.346);
         let p = sample_params("custom:2.5,10,0.8,1.5").unwrap();
-        assert_eq!((p.sigma_deg, p.rho_s, p.rho_d, p.eta), (2.5, 10.0, 0.8, 1.5));
-        for bad in ["XX", "custom:1,2,3", "custom:0,1,1,1.5", "custom:1,-1,1,1.5", "custom:1,1,1,4", "custom:1,a,1,2", "custom:nan,1,1,2"] {
+        assert_eq!(
+            (p.sigma_deg, p.rho_s, p.rho_d, p.eta),
+            (2.5, 10.0, 0.8, 1.5)
+        );
+        for bad in [
+            "XX",
+            "custom:1,2,3",
+            "custom:0,1,1,1.5",
+            "custom:1,-1,1,1.5",
+            "custom:1,1,1,4",
+            "custom:1,a,1,2",
+            "custom:nan,1,1,2",
+        ] {
             assert!(sample_params(bad).is_err(), "{bad}");
         }
     }
 
     #[test]
     fn faults_parse_and_refuse_nonsense() {
-        let f = parse_faults("corrupt=0.001, drop=0.002,unplug-at=5,lose-steps=detector:37,no-switch=source").unwrap();
+        let f = parse_faults(
+            "corrupt=0.001, drop=0.002,unplug-at=5,lose-steps=detector:37,no-switch=source",
+        )
+        .unwrap();
         assert_eq!((f.corrupt, f.drop), (0.001, 0.002));
         assert_eq!(f.unplugs, vec![Unplug::new(5.0, DEFAULT_UNPLUG_S)]);
         assert_eq!(f.lose_steps, Some((Arm::Detector, 37)));
         assert_eq!(f.switch_missing, Some(Arm::Source));
         assert_eq!(parse_faults("").unwrap(), SimConfig::default().faults);
         let f = parse_faults("unplug-at=3:0.25,unplug-at=40:12.5,unplug-at=7").unwrap();
-        assert_eq!(f.unplugs, vec![Unplug::new(3.0, 0.25), Unplug::new(40.0, 12.5), Unplug::new(7.0, 1.0)]);
+        assert_eq!(
+            f.unplugs,
+            vec![
+                Unplug::new(3.0, 0.25),
+                Unplug::new(40.0, 12.5),
+                Unplug::new(7.0, 1.0)
+            ]
+        );
         for bad in [
             "corrupt=2",
             "drop=x",
@@ -516,7 +694,10 @@ mod tests {
         assert_eq!(SimOptions::default().physics_set(), IDEAL_PHYSICS);
         let config = SimOptions::default().config().unwrap();
         assert_eq!(config.errors, InstrumentErrors::default());
-        assert_eq!(config.detector, hil_sim::detector::DetectorParams::default());
+        assert_eq!(
+            config.detector,
+            hil_sim::detector::DetectorParams::default()
+        );
     }
 
     #[test]
@@ -524,56 +705,173 @@ mod tests {
         let real = parsed(&["--physics", "real"]).unwrap();
         assert_eq!(real.physics_set(), REAL_PHYSICS);
         let config = real.config().unwrap();
-        assert_eq!(config.errors, InstrumentErrors { gain_ratio_sd: 0.01, tile_sd: 0.005, theta_r_offset_deg: 0.0, theta_r_offset_sd_deg: 0.1 });
+        assert_eq!(
+            config.errors,
+            InstrumentErrors {
+                gain_ratio_sd: 0.01,
+                tile_sd: 0.005,
+                theta_r_offset_deg: 0.0,
+                theta_r_offset_sd_deg: 0.1
+            }
+        );
         assert_eq!(config.detector.lamp_drift_per_hour, 0.002);
         assert_eq!(config.detector.acceptance_deg, 1.0);
-        let mixed = parsed(&["--physics", "real", "--gain-error", "2", "--arm-offset", "-0.3", "--lamp-drift-pct-per-h", "0"]).unwrap();
+        let mixed = parsed(&[
+            "--physics",
+            "real",
+            "--gain-error",
+            "2",
+            "--arm-offset",
+            "-0.3",
+            "--lamp-drift-pct-per-h",
+            "0",
+        ])
+        .unwrap();
         assert_eq!(
             mixed.physics_set(),
-            PhysicsSet { gain_error_pct: 2.0, tile_error_pct: 0.5, lamp_drift_pct_per_h: 0.0, arm_offset_deg: -0.3, arm_zero_sd_deg: 0.0 }
+            PhysicsSet {
+                gain_error_pct: 2.0,
+                tile_error_pct: 0.5,
+                lamp_drift_pct_per_h: 0.0,
+                arm_offset_deg: -0.3,
+                arm_zero_sd_deg: 0.0
+            }
         );
         let ideal_plus = parsed(&["--tile-error", "1.5"]).unwrap();
-        assert_eq!(ideal_plus.physics_set(), PhysicsSet { tile_error_pct: 1.5, ..IDEAL_PHYSICS });
+        assert_eq!(
+            ideal_plus.physics_set(),
+            PhysicsSet {
+                tile_error_pct: 1.5,
+                ..IDEAL_PHYSICS
+            }
+        );
     }
 
     #[test]
     fn sheet_options_reach_the_sheet() {
-        let o = parsed(&["--lobe", "cauchy", "--forward-lobe", "0.3", "--specular-bump", "0.1", "--sheet-variation", "5"]).unwrap();
+        let o = parsed(&[
+            "--lobe",
+            "cauchy",
+            "--forward-lobe",
+            "0.3",
+            "--specular-bump",
+            "0.1",
+            "--sheet-variation",
+            "5",
+        ])
+        .unwrap();
         let spec = o.sheet("J1").unwrap();
         assert_eq!(spec.lobe, Lobe::Cauchy);
-        assert_eq!((spec.forward_lobe, spec.specular_bump, spec.spot_variation), (0.3, 0.1, 0.05));
-        assert_eq!(spec.stock, Stock { sigma_deg: 16.7, rho_s: 0.734, rho_d: 0.127, eta: 3.0 });
+        assert_eq!(
+            (spec.forward_lobe, spec.specular_bump, spec.spot_variation),
+            (0.3, 0.1, 0.05)
+        );
+        assert_eq!(
+            spec.stock,
+            Stock {
+                sigma_deg: 16.7,
+                rho_s: 0.734,
+                rho_d: 0.127,
+                eta: 3.0
+            }
+        );
         // The stock's numbers are the host's Table 6, mapped field by field.
         let p = sample_params("SG").unwrap();
-        assert_eq!(SimOptions::default().sheet("sg").unwrap().stock, Stock { sigma_deg: p.sigma_deg, rho_s: p.rho_s, rho_d: p.rho_d, eta: p.eta });
+        assert_eq!(
+            SimOptions::default().sheet("sg").unwrap().stock,
+            Stock {
+                sigma_deg: p.sigma_deg,
+                rho_s: p.rho_s,
+                rho_d: p.rho_d,
+                eta: p.eta
+            }
+        );
     }
 
     #[test]
     fn bad_values_are_refused_naming_option_and_value() {
         let cases: [(&[&str], &str); 12] = [
-            (&["--gain-error", "25"], "--gain-error must be a percentage in [0, 20], got 25"),
-            (&["--gain-error", "nan"], "--gain-error must be a percentage in [0, 20], got NaN"),
-            (&["--tile-error", "-1"], "--tile-error must be a percentage in [0, 20], got -1"),
-            (&["--lamp-drift-pct-per-h", "inf"], "--lamp-drift-pct-per-h must be a percentage per hour in [0, 100], got inf"),
-            (&["--arm-offset", "7"], "--arm-offset must be between -5 and 5 degrees, got 7"),
-            (&["--forward-lobe", "-0.1"], "--forward-lobe must be a radiance factor in [0, 100], got -0.1"),
-            (&["--specular-bump", "1e9"], "--specular-bump must be a radiance factor in [0, 100], got 1000000000"),
-            (&["--sheet-variation", "60"], "--sheet-variation must be a percentage in [0, 50], got 60"),
-            (&["--acceptance", "-1"], "--acceptance must be between 0 and 10 degrees, got -1"),
-            (&["--lobe", "ggx", "--scene-file", "x.csv"], "--lobe does not apply with --scene-file"),
-            (&["--sheet-variation", "1", "--scene-file", "x.csv"], "--sheet-variation does not apply with --scene-file"),
-            (&["--scene-file", "/nonexistent/x.csv"], "--scene-file /nonexistent/x.csv: cannot read"),
+            (
+                &["--gain-error", "25"],
+                "--gain-error must be a percentage in [0, 20], got 25",
+            ),
+            (
+                &["--gain-error", "nan"],
+                "--gain-error must be a percentage in [0, 20], got NaN",
+            ),
+            (
+                &["--tile-error", "-1"],
+                "--tile-error must be a percentage in [0, 20], got -1",
+            ),
+            (
+                &["--lamp-drift-pct-per-h", "inf"],
+                "--lamp-drift-pct-per-h must be a percentage per hour in [0, 100], got inf",
+            ),
+            (
+                &["--arm-offset", "7"],
+                "--arm-offset must be between -5 and 5 degrees, got 7",
+            ),
+            (
+                &["--forward-lobe", "-0.1"],
+                "--forward-lobe must be a radiance factor in [0, 100], got -0.1",
+            ),
+            (
+                &["--specular-bump", "1e9"],
+                "--specular-bump must be a radiance factor in [0, 100], got 1000000000",
+            ),
+            (
+                &["--sheet-variation", "60"],
+                "--sheet-variation must be a percentage in [0, 50], got 60",
+            ),
+            (
+                &["--acceptance", "-1"],
+                "--acceptance must be between 0 and 10 degrees, got -1",
+            ),
+            (
+                &["--lobe", "ggx", "--scene-file", "x.csv"],
+                "--lobe does not apply with --scene-file",
+            ),
+            (
+                &["--sheet-variation", "1", "--scene-file", "x.csv"],
+                "--sheet-variation does not apply with --scene-file",
+            ),
+            (
+                &["--scene-file", "/nonexistent/x.csv"],
+                "--scene-file /nonexistent/x.csv: cannot read",
+            ),
         ];
         for (args, expected) in cases {
             let options = parsed(args).unwrap();
-            let error = options.instrument("G").err().unwrap_or_else(|| panic!("{args:?} accepted")).to_string();
-            assert!(error.starts_with(expected), "{args:?}: {error:?} should start with {expected:?}");
+            let error = options
+                .instrument("G")
+                .err()
+                .unwrap_or_else(|| panic!("{args:?} accepted"))
+                .to_string();
+            assert!(
+                error.starts_with(expected),
+                "{args:?}: {error:?} should start with {expected:?}"
+            );
         }
-        let wide = parsed(&["--lobe", "ggx"]).unwrap().instrument("custom:80,1,1,2").err().unwrap().to_string();
-        assert!(wide.contains("custom") && wide.contains("ggx") && wide.contains("80"), "{wide}");
-        for args in [&["--lobe", "beckmann"][..], &["--physics", "perfect"], &["--gain-error", "one"]] {
+        let wide = parsed(&["--lobe", "ggx"])
+            .unwrap()
+            .instrument("custom:80,1,1,2")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            wide.contains("custom") && wide.contains("ggx") && wide.contains("80"),
+            "{wide}"
+        );
+        for args in [
+            &["--lobe", "beckmann"][..],
+            &["--physics", "perfect"],
+            &["--gain-error", "one"],
+        ] {
             let error = parsed(args).unwrap_err().to_string();
-            assert!(error.contains(args[1]) && error.contains(args[0]), "{args:?}: {error}");
+            assert!(
+                error.contains(args[1]) && error.contains(args[0]),
+                "{args:?}: {error}"
+            );
         }
     }
 }

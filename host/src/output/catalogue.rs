@@ -34,7 +34,18 @@ fn session_doc(dir: &Path) -> Result<SessionDoc, String> {
 }
 
 fn session_entry(dir: &Path) -> Entry {
-    let mut entry = Entry { dir: dir.to_path_buf(), kind: "session", started: None, sample: String::new(), status: "unreadable".into(), classes: Vec::new(), ok: None, flags: Vec::new(), device_seconds: None, problem: None };
+    let mut entry = Entry {
+        dir: dir.to_path_buf(),
+        kind: "session",
+        started: None,
+        sample: String::new(),
+        status: "unreadable".into(),
+        classes: Vec::new(),
+        ok: None,
+        flags: Vec::new(),
+        device_seconds: None,
+        problem: None,
+    };
     match session_doc(dir) {
         Ok(doc) => {
             entry.started = doc.runs.first().map(|r| r.started.clone());
@@ -44,7 +55,16 @@ fn session_entry(dir: &Path) -> Entry {
                 let result = doc.rest.get("result");
                 entry.classes = vec![result.and_then(|r| r["class"].as_str()).map(str::to_string)];
                 entry.ok = doc.rest.get("ok").and_then(serde_json::Value::as_bool);
-                entry.flags = doc.rest.get("flags").and_then(|f| f.as_array()).map(|a| a.iter().filter_map(|f| f.as_str().map(str::to_string)).collect()).unwrap_or_default();
+                entry.flags = doc
+                    .rest
+                    .get("flags")
+                    .and_then(|f| f.as_array())
+                    .map(|a| {
+                        a.iter()
+                            .filter_map(|f| f.as_str().map(str::to_string))
+                            .collect()
+                    })
+                    .unwrap_or_default();
                 entry.device_seconds = result.and_then(|r| r["device_seconds"].as_f64());
             }
         }
@@ -54,16 +74,36 @@ fn session_entry(dir: &Path) -> Entry {
 }
 
 fn sheet_entry(dir: &Path) -> Entry {
-    let mut entry = Entry { dir: dir.to_path_buf(), kind: "sheet", started: None, sample: String::new(), status: "unreadable".into(), classes: Vec::new(), ok: None, flags: Vec::new(), device_seconds: None, problem: None };
+    let mut entry = Entry {
+        dir: dir.to_path_buf(),
+        kind: "sheet",
+        started: None,
+        sample: String::new(),
+        status: "unreadable".into(),
+        classes: Vec::new(),
+        ok: None,
+        flags: Vec::new(),
+        device_seconds: None,
+        problem: None,
+    };
     match crate::output::sheet::read_doc(dir) {
         Ok(doc) => {
             entry.sample = doc.sample.clone();
             entry.status = doc.status.to_string();
-            entry.started = doc.spots.first().and_then(|s| session_doc(&dir.join(&s.folder)).ok()).and_then(|d| d.runs.first().map(|r| r.started.clone()));
+            entry.started = doc
+                .spots
+                .first()
+                .and_then(|s| session_doc(&dir.join(&s.folder)).ok())
+                .and_then(|d| d.runs.first().map(|r| r.started.clone()));
             if let Some(result) = &doc.result {
                 entry.classes = result.spot_classes.clone();
                 entry.ok = Some(result.summary.ok());
-                entry.flags = result.summary.flags.iter().map(|f| f.name().to_string()).collect();
+                entry.flags = result
+                    .summary
+                    .flags
+                    .iter()
+                    .map(|f| f.name().to_string())
+                    .collect();
                 entry.device_seconds = Some(result.device_seconds);
             }
         }
@@ -75,7 +115,8 @@ fn sheet_entry(dir: &Path) -> Entry {
 /// The session and sheet folders directly under `root`, oldest first (by their first
 /// run's start, then name); a folder that is neither is left out.
 pub fn list(root: &Path) -> Result<Vec<Entry>, String> {
-    let names = crate::output::folder::entries(root).map_err(|e| format!("{}: {e}", root.display()))?;
+    let names =
+        crate::output::folder::entries(root).map_err(|e| format!("{}: {e}", root.display()))?;
     let mut out: Vec<Entry> = names
         .iter()
         .map(|n| root.join(n))

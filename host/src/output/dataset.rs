@@ -41,7 +41,10 @@ pub struct DataSet {
 impl DataSet {
     /// The (θi, θr) pairs, degrees.
     pub fn geometries(&self) -> Vec<(f64, f64)> {
-        self.observations.iter().map(|o| (o.theta_i_deg, o.theta_r_deg)).collect()
+        self.observations
+            .iter()
+            .map(|o| (o.theta_i_deg, o.theta_r_deg))
+            .collect()
     }
 }
 
@@ -174,17 +177,36 @@ fn is_skipped(line: &str) -> bool {
 pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, DatasetError> {
     // Spreadsheets on Windows start their UTF-8 with a byte-order mark.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r'))).filter(|(_, l)| !is_skipped(l));
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
+        .filter(|(_, l)| !is_skipped(l));
     let (header_line, header) = lines.next().ok_or(DatasetError::Empty)?;
-    let names: Vec<String> = split_fields(header).into_iter().map(|s| s.to_ascii_lowercase()).collect();
+    let names: Vec<String> = split_fields(header)
+        .into_iter()
+        .map(|s| s.to_ascii_lowercase())
+        .collect();
     for (i, n) in names.iter().enumerate() {
         if names[..i].contains(n) {
-            return Err(DatasetError::DuplicateColumn { line: header_line, column: n.clone() });
+            return Err(DatasetError::DuplicateColumn {
+                line: header_line,
+                column: n.clone(),
+            });
         }
     }
     let find = |c: &str| names.iter().position(|n| n == c);
-    let required = |c: &'static str| find(c).ok_or(DatasetError::MissingColumn { line: header_line, column: c });
-    let (col_ti, col_tr, col_rf) = (required("theta_i")?, required("theta_r")?, required("radiance_factor")?);
+    let required = |c: &'static str| {
+        find(c).ok_or(DatasetError::MissingColumn {
+            line: header_line,
+            column: c,
+        })
+    };
+    let (col_ti, col_tr, col_rf) = (
+        required("theta_i")?,
+        required("theta_r")?,
+        required("radiance_factor")?,
+    );
     let (col_std, col_sample, col_span) = (find("std"), find("sample"), find("theta_r_span"));
 
     let mut sets: Vec<DataSet> = Vec::new();
@@ -199,27 +221,60 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             fields.extend(split_fields(text).into_iter().map(std::borrow::Cow::Owned));
         } else {
             // No quoting: split in place, without a String per field.
-            fields.extend(text.split(',').map(|f| std::borrow::Cow::Borrowed(f.trim())));
+            fields.extend(
+                text.split(',')
+                    .map(|f| std::borrow::Cow::Borrowed(f.trim())),
+            );
         }
         if fields.len() != names.len() {
-            return Err(DatasetError::FieldCount { line, expected: names.len(), found: fields.len() });
+            return Err(DatasetError::FieldCount {
+                line,
+                expected: names.len(),
+                found: fields.len(),
+            });
         }
         let number = |col: usize, column: &'static str| {
-            let value = fields[col].parse::<f64>().map_err(|_| DatasetError::NotANumber { line, column, value: fields[col].to_string() })?;
+            let value = fields[col]
+                .parse::<f64>()
+                .map_err(|_| DatasetError::NotANumber {
+                    line,
+                    column,
+                    value: fields[col].to_string(),
+                })?;
             // Rust's parser accepts "NaN" and "inf", and "1e999" as infinity.
             if !value.is_finite() {
-                return Err(DatasetError::OutOfRange { line, column, value: fields[col].to_string(), why: "not a finite number".into() });
+                return Err(DatasetError::OutOfRange {
+                    line,
+                    column,
+                    value: fields[col].to_string(),
+                    why: "not a finite number".into(),
+                });
             }
             Ok(value)
         };
         let within = |value: f64, column: &'static str, col: usize, ok: bool, why: &str| {
-            if ok { Ok(value) } else { Err(DatasetError::OutOfRange { line, column, value: fields[col].to_string(), why: why.to_string() }) }
+            if ok {
+                Ok(value)
+            } else {
+                Err(DatasetError::OutOfRange {
+                    line,
+                    column,
+                    value: fields[col].to_string(),
+                    why: why.to_string(),
+                })
+            }
         };
         let std = match col_std {
             Some(c) if !fields[c].is_empty() => {
                 let u = number(c, "std")?;
                 // 0 and negative values are the fit's BadUncertainty, named there.
-                Some(within(u, "std", c, u <= 0.0 || (MIN_STD..=MAX_STD).contains(&u), &format!("outside {MIN_STD:e} … {MAX_STD:e}, what the fit can weigh"))?)
+                Some(within(
+                    u,
+                    "std",
+                    c,
+                    u <= 0.0 || (MIN_STD..=MAX_STD).contains(&u),
+                    &format!("outside {MIN_STD:e} … {MAX_STD:e}, what the fit can weigh"),
+                )?)
             }
             _ => None,
         };
@@ -229,16 +284,33 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             "radiance_factor",
             col_rf,
             radiance_factor.abs() <= MAX_RADIANCE_FACTOR,
-            &format!("beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"),
+            &format!(
+                "beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"
+            ),
         )?;
         let theta_r_span_deg = match col_span {
             Some(c) if !fields[c].is_empty() => {
                 let span = number(c, "theta_r_span")?;
-                within(span, "theta_r_span", c, (0.0..=crate::analysis::fit::MAX_SPAN_DEG).contains(&span), &format!("outside 0 … {}°, the detector's travel a bin can have", crate::analysis::fit::MAX_SPAN_DEG))?
+                within(
+                    span,
+                    "theta_r_span",
+                    c,
+                    (0.0..=crate::analysis::fit::MAX_SPAN_DEG).contains(&span),
+                    &format!(
+                        "outside 0 … {}°, the detector's travel a bin can have",
+                        crate::analysis::fit::MAX_SPAN_DEG
+                    ),
+                )?
             }
             _ => 0.0,
         };
-        let observation = Observation { theta_i_deg: number(col_ti, "theta_i")?, theta_r_deg: number(col_tr, "theta_r")?, radiance_factor, std, theta_r_span_deg };
+        let observation = Observation {
+            theta_i_deg: number(col_ti, "theta_i")?,
+            theta_r_deg: number(col_tr, "theta_r")?,
+            radiance_factor,
+            std,
+            theta_r_span_deg,
+        };
         let sample = col_sample.map_or(default_sample, |c| &*fields[c]);
         // Files list one sample after another: look at the last set first.
         let index = match sets.last() {
@@ -246,7 +318,11 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
             _ => match index_of.get(sample) {
                 Some(&i) => i,
                 None => {
-                    sets.push(DataSet { sample: sample.to_string(), observations: Vec::new(), lines: Vec::new() });
+                    sets.push(DataSet {
+                        sample: sample.to_string(),
+                        observations: Vec::new(),
+                        lines: Vec::new(),
+                    });
                     index_of.insert(sample.to_string(), sets.len() - 1);
                     sets.len() - 1
                 }
@@ -266,7 +342,11 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
 
 /// The positive uncertainties of a data set within [`MAX_STD_RATIO`] of each other.
 fn check_std_spread(set: &DataSet) -> Result<(), DatasetError> {
-    let positive = set.observations.iter().zip(&set.lines).filter_map(|(o, &line)| o.std.filter(|u| *u > 0.0).map(|u| (u, line)));
+    let positive = set
+        .observations
+        .iter()
+        .zip(&set.lines)
+        .filter_map(|(o, &line)| o.std.filter(|u| *u > 0.0).map(|u| (u, line)));
     // (std, line) of the smallest and of the largest.
     let mut low: Option<(f64, usize)> = None;
     let mut high: Option<(f64, usize)> = None;
@@ -280,7 +360,13 @@ fn check_std_spread(set: &DataSet) -> Result<(), DatasetError> {
     }
     match (low, high) {
         (Some((l, l_line)), Some((h, h_line))) if h > l * MAX_STD_RATIO => {
-            Err(DatasetError::StdSpread { line: h_line, value: h, other_line: l_line, other: l, sample: set.sample.clone() })
+            Err(DatasetError::StdSpread {
+                line: h_line,
+                value: h,
+                other_line: l_line,
+                other: l,
+                sample: set.sample.clone(),
+            })
         }
         _ => Ok(()),
     }
@@ -289,7 +375,10 @@ fn check_std_spread(set: &DataSet) -> Result<(), DatasetError> {
 /// Read a CSV file; a file without a `sample` column is named by its stem.
 pub fn read_file(path: &Path) -> Result<Vec<DataSet>, DatasetError> {
     let text = std::fs::read_to_string(path)?;
-    let stem = path.file_stem().map_or_else(|| path.display().to_string(), |s| s.to_string_lossy().into_owned());
+    let stem = path.file_stem().map_or_else(
+        || path.display().to_string(),
+        |s| s.to_string_lossy().into_owned(),
+    );
     parse_csv(&text, &stem)
 }
 
@@ -311,11 +400,25 @@ mod tests {
     fn a_bins_travel_is_read_from_its_column() {
         let text = "theta_i,theta_r,radiance_factor,std,theta_r_span\n60,59.5,40,0.1,0.25\n60,60,50,0.1,\n";
         let sets = parse_csv(text, "f").unwrap();
-        assert_eq!(sets[0].observations.iter().map(|o| o.theta_r_span_deg).collect::<Vec<_>>(), [0.25, 0.0]);
-        for (bad, why) in [("-0.1", "outside 0"), ("25", "outside 0"), ("x", "not a number")] {
+        assert_eq!(
+            sets[0]
+                .observations
+                .iter()
+                .map(|o| o.theta_r_span_deg)
+                .collect::<Vec<_>>(),
+            [0.25, 0.0]
+        );
+        for (bad, why) in [
+            ("-0.1", "outside 0"),
+            ("25", "outside 0"),
+            ("x", "not a number"),
+        ] {
             let text = format!("theta_i,theta_r,radiance_factor,theta_r_span\n60,59.5,40,{bad}\n");
             let err = parse_csv(&text, "f").unwrap_err().to_string();
-            assert!(err.contains("line 2") && err.contains("theta_r_span") && err.contains(why), "{bad}: {err}");
+            assert!(
+                err.contains("line 2") && err.contains("theta_r_span") && err.contains(why),
+                "{bad}: {err}"
+            );
         }
     }
 
@@ -342,25 +445,48 @@ mod tests {
             let e = parse_csv(&format!("{header}{row}\n"), "f").unwrap_err();
             assert_eq!(e.line(), Some(3), "{row}: {e}");
             let message = e.to_string();
-            assert!(message.contains(column) && message.contains(value), "{row}: {message}");
+            assert!(
+                message.contains(column) && message.contains(value),
+                "{row}: {message}"
+            );
         }
         // At the limits (|R| = 10⁶; std 10⁻⁸ against the first row's 10⁻²: 10⁶ apart): read.
         parse_csv(&format!("{header}20,20,1e6,1e-3\n20,25,3,1e-8\n"), "f").unwrap();
         parse_csv(&format!("{header}20,20,1e6,1e-3\n20,25,3,0.9e-8\n"), "f").unwrap_err();
         // Uncertainties 10⁶ apart: refused, naming both lines.
         let e = parse_csv(&format!("{header}20,20,3,1e-9\n"), "f").unwrap_err();
-        assert!(matches!(e, DatasetError::StdSpread { line: 2, other_line: 3, .. }), "{e}");
+        assert!(
+            matches!(
+                e,
+                DatasetError::StdSpread {
+                    line: 2,
+                    other_line: 3,
+                    ..
+                }
+            ),
+            "{e}"
+        );
     }
 
     #[test]
     fn errors_name_the_line() {
-        let e = parse_csv("theta_i,theta_r,radiance_factor\n20,0,0.5\n20,x,0.5\n", "f").unwrap_err();
+        let e =
+            parse_csv("theta_i,theta_r,radiance_factor\n20,0,0.5\n20,x,0.5\n", "f").unwrap_err();
         assert_eq!(e.line(), Some(3));
         assert!(e.to_string().contains("theta_r 'x'"), "{e}");
         let e = parse_csv("theta_i,radiance_factor\n20,0.5\n", "f").unwrap_err();
-        assert!(matches!(e, DatasetError::MissingColumn { column: "theta_r", .. }));
+        assert!(matches!(
+            e,
+            DatasetError::MissingColumn {
+                column: "theta_r",
+                ..
+            }
+        ));
         let e = parse_csv("theta_i,theta_r,radiance_factor\n20,0\n", "f").unwrap_err();
         assert!(matches!(e, DatasetError::FieldCount { line: 2, .. }));
-        assert!(matches!(parse_csv("", "f").unwrap_err(), DatasetError::Empty));
+        assert!(matches!(
+            parse_csv("", "f").unwrap_err(),
+            DatasetError::Empty
+        ));
     }
 }

@@ -51,8 +51,21 @@ pub fn astm_file_name(sample: &str) -> String {
 /// A header value as whitespace-separated words on one line; a word a reader would take
 /// for `NUM_POINTS` or `VARS` is written with a leading `_`.
 fn header_value(text: &str) -> String {
-    let words: Vec<String> = text.split_whitespace().map(|w| if w == "NUM_POINTS" || w == "VARS" { format!("_{w}") } else { w.to_string() }).collect();
-    if words.is_empty() { "-".to_string() } else { words.join(" ") }
+    let words: Vec<String> = text
+        .split_whitespace()
+        .map(|w| {
+            if w == "NUM_POINTS" || w == "VARS" {
+                format!("_{w}")
+            } else {
+                w.to_string()
+            }
+        })
+        .collect();
+    if words.is_empty() {
+        "-".to_string()
+    } else {
+        words.join(" ")
+    }
 }
 
 /// The `.astm` text. Numbers are written in Rust's shortest round-trip form, so reading
@@ -66,9 +79,13 @@ pub fn astm(meta: &AstmMetadata, points: &[Observation]) -> String {
                 "tile {}, certificate {}{}, issued {}{}, expanded uncertainty {} at k = {}",
                 c.tile,
                 c.certificate,
-                c.issued_by.as_ref().map_or_else(String::new, |by| format!(" by {by}")),
+                c.issued_by
+                    .as_ref()
+                    .map_or_else(String::new, |by| format!(" by {by}")),
                 c.issued,
-                c.valid_until.as_ref().map_or_else(String::new, |u| format!(", valid until {u}")),
+                c.valid_until
+                    .as_ref()
+                    .map_or_else(String::new, |u| format!(", valid until {u}")),
                 c.expanded_uncertainty,
                 c.coverage_factor
             )
@@ -96,9 +113,21 @@ pub fn astm(meta: &AstmMetadata, points: &[Observation]) -> String {
     let _ = writeln!(s, "NUM_POINTS {}", points.len());
     let _ = writeln!(s, "VARS {ASTM_VARS}");
     for o in points {
-        let (theta_s_deg, phi_s) = if o.theta_r_deg < 0.0 { (-o.theta_r_deg, 0.0) } else { (o.theta_r_deg, std::f64::consts::PI) };
+        let (theta_s_deg, phi_s) = if o.theta_r_deg < 0.0 {
+            (-o.theta_r_deg, 0.0)
+        } else {
+            (o.theta_r_deg, std::f64::consts::PI)
+        };
         let brdf_per_sr = o.radiance_factor / std::f64::consts::PI;
-        let _ = writeln!(s, "{},{},{},{},{}", o.theta_i_deg.to_radians(), 0.0, theta_s_deg.to_radians(), phi_s, brdf_per_sr);
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{}",
+            o.theta_i_deg.to_radians(),
+            0.0,
+            theta_s_deg.to_radians(),
+            phi_s,
+            brdf_per_sr
+        );
     }
     s
 }

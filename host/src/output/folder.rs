@@ -38,7 +38,11 @@ pub const READINGS_HEADER_WITH_SPAN: &str = "theta_i,theta_r,radiance_factor,std
 
 /// The header `readings.csv` has for `points`: the span column once any was taken moving.
 pub fn readings_header(points: &[MeasuredPoint]) -> &'static str {
-    if points.iter().any(|p| p.theta_r_span_deg > 0.0) { READINGS_HEADER_WITH_SPAN } else { READINGS_HEADER }
+    if points.iter().any(|p| p.theta_r_span_deg > 0.0) {
+        READINGS_HEADER_WITH_SPAN
+    } else {
+        READINGS_HEADER
+    }
 }
 
 /// Where a session stands.
@@ -221,7 +225,11 @@ pub struct Problem {
 
 impl Problem {
     fn new(file: &Path, line: Option<usize>, message: impl Into<String>) -> Problem {
-        Problem { file: file.to_path_buf(), line, message: message.into() }
+        Problem {
+            file: file.to_path_buf(),
+            line,
+            message: message.into(),
+        }
     }
 }
 
@@ -258,11 +266,20 @@ pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
     let whole_len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
     let cut_tail = (whole_len < bytes.len()).then(|| bytes[whole_len..].to_vec());
     let mut lines = Vec::new();
-    for (k, line) in bytes[..whole_len].split_inclusive(|&b| b == b'\n').enumerate() {
-        let text = std::str::from_utf8(&line[..line.len() - 1]).map_err(|_| Problem::new(path, Some(k + 1), "not UTF-8 text"))?;
+    for (k, line) in bytes[..whole_len]
+        .split_inclusive(|&b| b == b'\n')
+        .enumerate()
+    {
+        let text = std::str::from_utf8(&line[..line.len() - 1])
+            .map_err(|_| Problem::new(path, Some(k + 1), "not UTF-8 text"))?;
         lines.push((k + 1, text.to_string()));
     }
-    Ok(LinesFile { lines, whole_len: whole_len as u64, cut_tail, exists: true })
+    Ok(LinesFile {
+        lines,
+        whole_len: whole_len as u64,
+        cut_tail,
+        exists: true,
+    })
 }
 
 /// A line of `points.jsonl` that is no reading: readings recorded earlier (by their
@@ -279,7 +296,10 @@ pub struct SupersedeMark {
 
 /// The `points.jsonl` line of a mark (with its newline), tagged [`schema::SUPERSEDE`].
 pub fn mark_line(mark: &SupersedeMark) -> std::io::Result<String> {
-    Ok(serde_json::to_string(&schema::tagged(schema::SUPERSEDE, serde_json::to_value(mark)?))? + "\n")
+    Ok(serde_json::to_string(&schema::tagged(
+        schema::SUPERSEDE,
+        serde_json::to_value(mark)?,
+    ))? + "\n")
 }
 
 /// A line of `points.jsonl`.
@@ -292,17 +312,30 @@ enum PointsLine {
 /// before gonio named its documents (a mark then has exactly its two fields, a reading
 /// many more).
 fn parse_points_line(text: &str) -> Result<PointsLine, String> {
-    let mut value: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not a reading (not JSON): {e}"))?;
+    let mut value: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| format!("not a reading (not JSON): {e}"))?;
     let found = schema::of(&value).map(str::to_string);
     if let Some(object) = value.as_object_mut() {
         object.remove("schema");
     }
-    let reading = |value: serde_json::Value| serde_json::from_value::<MeasuredPoint>(value).map(|p| PointsLine::Reading(Box::new(p))).map_err(|e| format!("not a reading: {e}"));
-    let mark = |value: serde_json::Value| serde_json::from_value::<SupersedeMark>(value).map(PointsLine::Mark);
+    let reading = |value: serde_json::Value| {
+        serde_json::from_value::<MeasuredPoint>(value)
+            .map(|p| PointsLine::Reading(Box::new(p)))
+            .map_err(|e| format!("not a reading: {e}"))
+    };
+    let mark = |value: serde_json::Value| {
+        serde_json::from_value::<SupersedeMark>(value).map(PointsLine::Mark)
+    };
     match found.as_deref() {
         Some(schema::POINT) => reading(value),
-        Some(schema::SUPERSEDE) => mark(value).map_err(|e| format!("not a mark of superseded readings: {e}")),
-        Some(other) => Err(format!("schema '{other}' is not one this gonio reads here ({}, {})", schema::POINT, schema::SUPERSEDE)),
+        Some(schema::SUPERSEDE) => {
+            mark(value).map_err(|e| format!("not a mark of superseded readings: {e}"))
+        }
+        Some(other) => Err(format!(
+            "schema '{other}' is not one this gonio reads here ({}, {})",
+            schema::POINT,
+            schema::SUPERSEDE
+        )),
         None => mark(value.clone()).or_else(|_| reading(value)),
     }
 }
@@ -317,7 +350,16 @@ pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>,
                 for &k in &mark.superseded {
                     match points.get_mut(k) {
                         Some(point) => point.superseded = true,
-                        None => return Err(Problem::new(path, Some(*line), format!("marks reading {k} superseded, but only {} come before it", points.len()))),
+                        None => {
+                            return Err(Problem::new(
+                                path,
+                                Some(*line),
+                                format!(
+                                    "marks reading {k} superseded, but only {} come before it",
+                                    points.len()
+                                ),
+                            ));
+                        }
                     }
                 }
             }
@@ -335,7 +377,10 @@ pub fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
         Ok(PointsLine::Reading(back)) if *back == *point => Ok(text + "\n"),
         _ => Err(std::io::Error::new(
             std::io::ErrorKind::InvalidData,
-            format!("the reading at θi {}°, θr {}° holds a number JSON cannot keep (NaN or infinite): {text}", point.theta_i_deg, point.theta_r_deg),
+            format!(
+                "the reading at θi {}°, θr {}° holds a number JSON cannot keep (NaN or infinite): {text}",
+                point.theta_i_deg, point.theta_r_deg
+            ),
         )),
     }
 }
@@ -350,7 +395,10 @@ pub fn csv_row(point: &MeasuredPoint, header: &str) -> Option<String> {
     }
     let (r, u) = (point.radiance_factor?, point.std?);
     Some(if header == READINGS_HEADER_WITH_SPAN {
-        format!("{},{},{r},{u},{}\n", point.theta_i_deg, point.theta_r_deg, point.theta_r_span_deg)
+        format!(
+            "{},{},{r},{u},{}\n",
+            point.theta_i_deg, point.theta_r_deg, point.theta_r_span_deg
+        )
     } else {
         format!("{},{},{r},{u}\n", point.theta_i_deg, point.theta_r_deg)
     })
@@ -391,7 +439,10 @@ pub enum CsvAgreement {
 /// The readings with their conversion by `calibration` (`calibration.json`): a reading's
 /// record is its raw reading; its radiance factor follows from the calibration now in the
 /// folder, which a gain calibration may have changed since the reading was appended.
-pub fn converted(points: &[MeasuredPoint], calibration: Option<&Calibration>) -> Vec<MeasuredPoint> {
+pub fn converted(
+    points: &[MeasuredPoint],
+    calibration: Option<&Calibration>,
+) -> Vec<MeasuredPoint> {
     let mut out = points.to_vec();
     if let Some(calibration) = calibration {
         out.iter_mut().for_each(|p| p.convert_with(calibration));
@@ -401,17 +452,33 @@ pub fn converted(points: &[MeasuredPoint], calibration: Option<&Calibration>) ->
 
 /// Compare `readings.csv` with what `points.jsonl` gives (`points` converted with the
 /// folder's calibration; `recorded` as appended).
-pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint], recorded: &[MeasuredPoint]) -> CsvAgreement {
+pub fn csv_agreement(
+    path: &Path,
+    file: &LinesFile,
+    points: &[MeasuredPoint],
+    recorded: &[MeasuredPoint],
+) -> CsvAgreement {
     let agreement = csv_agreement_with(path, file, points);
     if !matches!(agreement, CsvAgreement::Differs(_)) {
         return agreement;
     }
     // Only stale if the file agrees with the rows as they stood before a mark or before a
     // new calibration (a crash between the record and the rewrite of readings.csv).
-    let unmarked = |points: &[MeasuredPoint]| points.iter().map(|p| MeasuredPoint { superseded: false, ..p.clone() }).collect::<Vec<_>>();
+    let unmarked = |points: &[MeasuredPoint]| {
+        points
+            .iter()
+            .map(|p| MeasuredPoint {
+                superseded: false,
+                ..p.clone()
+            })
+            .collect::<Vec<_>>()
+    };
     let superseded = points.iter().filter(|p| p.superseded).count();
     for before in [unmarked(points), recorded.to_vec(), unmarked(recorded)] {
-        if !matches!(csv_agreement_with(path, file, &before), CsvAgreement::Differs(_)) {
+        if !matches!(
+            csv_agreement_with(path, file, &before),
+            CsvAgreement::Differs(_)
+        ) {
             return CsvAgreement::Stale { superseded };
         }
     }
@@ -420,37 +487,75 @@ pub fn csv_agreement(path: &Path, file: &LinesFile, points: &[MeasuredPoint], re
 
 fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
     let wanted = readings_header(points);
-    let expected_with = |header: &str| -> Vec<String> { points.iter().filter_map(|p| csv_row(p, header)).map(|r| r.trim_end().to_string()).collect() };
+    let expected_with = |header: &str| -> Vec<String> {
+        points
+            .iter()
+            .filter_map(|p| csv_row(p, header))
+            .map(|r| r.trim_end().to_string())
+            .collect()
+    };
     if !file.exists {
-        return CsvAgreement::Behind { missing: expected_with(wanted).len(), cut: false };
+        return CsvAgreement::Behind {
+            missing: expected_with(wanted).len(),
+            cut: false,
+        };
     }
     let mut lines = file.lines.iter();
     // The file's header: the one its readings need, or the one without the span column
     // while no reading was taken moving yet (the file is rewritten with the span column
     // when the first bin arrives).
     let header = match lines.next() {
-        Some((_, header)) if header == wanted || (header == READINGS_HEADER && wanted == READINGS_HEADER) => wanted,
+        Some((_, header))
+            if header == wanted || (header == READINGS_HEADER && wanted == READINGS_HEADER) =>
+        {
+            wanted
+        }
         Some((line, header)) if header == READINGS_HEADER => {
             // What a crash between the first bin's record and the rewrite leaves: the rows
             // of the readings before it, under the old header; a resume rebuilds the file.
-            let first_moving = points.iter().position(|p| p.theta_r_span_deg > 0.0).unwrap_or(points.len());
+            let first_moving = points
+                .iter()
+                .position(|p| p.theta_r_span_deg > 0.0)
+                .unwrap_or(points.len());
             return match csv_agreement_with(path, file, &points[..first_moving]) {
                 CsvAgreement::Differs(_) => CsvAgreement::Differs(Problem::new(
                     path,
                     Some(*line),
-                    format!("header is '{header}', without the theta_r_span column the readings taken while moving need"),
+                    format!(
+                        "header is '{header}', without the theta_r_span column the readings taken while moving need"
+                    ),
                 )),
                 _ => CsvAgreement::Stale { superseded: 0 },
             };
         }
-        Some((line, header)) => return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("header is '{header}', not '{wanted}'"))),
+        Some((line, header)) => {
+            return CsvAgreement::Differs(Problem::new(
+                path,
+                Some(*line),
+                format!("header is '{header}', not '{wanted}'"),
+            ));
+        }
         // Only the header, cut short (or nothing): a crash right after the file was made.
         None => {
             return match &file.cut_tail {
-                Some(tail) if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN].iter().any(|h| h.as_bytes().starts_with(tail)) => {
-                    CsvAgreement::Differs(Problem::new(path, Some(1), format!("'{}' is not the header '{wanted}'", String::from_utf8_lossy(tail))))
+                Some(tail)
+                    if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN]
+                        .iter()
+                        .any(|h| h.as_bytes().starts_with(tail)) =>
+                {
+                    CsvAgreement::Differs(Problem::new(
+                        path,
+                        Some(1),
+                        format!(
+                            "'{}' is not the header '{wanted}'",
+                            String::from_utf8_lossy(tail)
+                        ),
+                    ))
                 }
-                tail => CsvAgreement::Behind { missing: expected_with(wanted).len(), cut: tail.is_some() },
+                tail => CsvAgreement::Behind {
+                    missing: expected_with(wanted).len(),
+                    cut: tail.is_some(),
+                },
             };
         }
     };
@@ -458,31 +563,62 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
     let rows: Vec<&(usize, String)> = lines.collect();
     if rows.len() > expected.len() {
         let (line, text) = rows[expected.len()];
-        return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("row '{text}' has no reading in {POINTS}")));
+        return CsvAgreement::Differs(Problem::new(
+            path,
+            Some(*line),
+            format!("row '{text}' has no reading in {POINTS}"),
+        ));
     }
     for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(&expected) {
         if !same_row(text, want) {
-            return CsvAgreement::Differs(Problem::new(path, Some(*line), format!("row '{text}' differs from its reading in {POINTS} ('{want}')")));
+            return CsvAgreement::Differs(Problem::new(
+                path,
+                Some(*line),
+                format!("row '{text}' differs from its reading in {POINTS} ('{want}')"),
+            ));
         }
     }
     let missing = expected.len() - rows.len();
     if let Some(tail) = &file.cut_tail {
         // A cut row must be the start of the next expected one.
-        let next = expected.get(rows.len()).map(String::as_bytes).unwrap_or_default();
+        let next = expected
+            .get(rows.len())
+            .map(String::as_bytes)
+            .unwrap_or_default();
         if !next.starts_with(tail) {
             let line = rows.last().map_or(2, |r| r.0 + 1);
-            return CsvAgreement::Differs(Problem::new(path, Some(line), format!("last line '{}' is no reading of {POINTS}", String::from_utf8_lossy(tail))));
+            return CsvAgreement::Differs(Problem::new(
+                path,
+                Some(line),
+                format!(
+                    "last line '{}' is no reading of {POINTS}",
+                    String::from_utf8_lossy(tail)
+                ),
+            ));
         }
         return CsvAgreement::Behind { missing, cut: true };
     }
-    if missing == 0 { CsvAgreement::Agrees } else { CsvAgreement::Behind { missing, cut: false } }
+    if missing == 0 {
+        CsvAgreement::Agrees
+    } else {
+        CsvAgreement::Behind {
+            missing,
+            cut: false,
+        }
+    }
 }
 
 /// Two CSV rows of the same numbers (compared as the f64 they parse to).
 fn same_row(row: &str, want: &str) -> bool {
-    let parse = |s: &str| s.split(',').map(|f| f.trim().parse::<f64>().ok()).collect::<Option<Vec<f64>>>();
+    let parse = |s: &str| {
+        s.split(',')
+            .map(|f| f.trim().parse::<f64>().ok())
+            .collect::<Option<Vec<f64>>>()
+    };
     match (parse(row), parse(want)) {
-        (Some(a), Some(b)) => a.len() == b.len() && a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+        (Some(a), Some(b)) => {
+            a.len() == b.len() && a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits())
+        }
         _ => false,
     }
 }
@@ -497,17 +633,28 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(Problem::new(&path, None, format!("cannot read: {e}"))),
     };
-    let mut value: serde_json::Value = serde_json::from_str(&text).map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
-    let schema = schema::check(&value, &[schema::SESSION, schema::SESSION_V1], None).map_err(|m| Problem::new(&path, None, format!("{m}: not a session folder of this gonio")))?;
+    let mut value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
+    let schema =
+        schema::check(&value, &[schema::SESSION, schema::SESSION_V1], None).map_err(|m| {
+            Problem::new(
+                &path,
+                None,
+                format!("{m}: not a session folder of this gonio"),
+            )
+        })?;
     if schema == schema::SESSION_V1 {
         upgrade_session_v1(&mut value);
     }
-    serde_json::from_value(value).map(Some).map_err(|e| Problem::new(&path, None, format!("not a session document: {e}")))
+    serde_json::from_value(value)
+        .map(Some)
+        .map_err(|e| Problem::new(&path, None, format!("not a session document: {e}")))
 }
 
 /// [`read_session`] of a folder that must hold a session.
 pub fn require_session(dir: &Path) -> Result<SessionDoc, Problem> {
-    read_session(dir)?.ok_or_else(|| Problem::new(&dir.join(SESSION), None, "missing: not a session folder"))
+    read_session(dir)?
+        .ok_or_else(|| Problem::new(&dir.join(SESSION), None, "missing: not a session folder"))
 }
 
 /// [`require_session`] of a session that must be finished (to report, re-analyse or
@@ -518,7 +665,11 @@ pub fn require_finished(dir: &Path) -> Result<SessionDoc, Problem> {
         return Err(Problem::new(
             &dir.join(SESSION),
             None,
-            format!("the session is not finished (status {}): it has no result yet; its readings so far are in {}", doc.status, dir.join(READINGS).display()),
+            format!(
+                "the session is not finished (status {}): it has no result yet; its readings so far are in {}",
+                doc.status,
+                dir.join(READINGS).display()
+            ),
         ));
     }
     Ok(doc)
@@ -530,7 +681,9 @@ pub fn require_finished(dir: &Path) -> Result<SessionDoc, Problem> {
 /// (δ or geometries added), now the objects the document's own `refinements` holds.
 fn upgrade_session_v1(doc: &mut serde_json::Value) {
     use serde_json::Value;
-    let Some(object) = doc.as_object_mut() else { return };
+    let Some(object) = doc.as_object_mut() else {
+        return;
+    };
     object.remove("format");
     object.insert("schema".into(), Value::from(schema::SESSION));
     let sigma = crate::analysis::model::PARAM_NAMES[crate::analysis::model::SIGMA];
@@ -541,11 +694,18 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
             }
         }
         if let Some(names) = analysis.get_mut("model").and_then(Value::as_array_mut) {
-            names.iter_mut().filter(|n| n.as_str() == Some("sigma")).for_each(|n| *n = Value::from(sigma));
+            names
+                .iter_mut()
+                .filter(|n| n.as_str() == Some("sigma"))
+                .for_each(|n| *n = Value::from(sigma));
         }
         for key in ["not_identified", "active_bounds"] {
             if let Some(items) = analysis.get_mut(key).and_then(Value::as_array_mut) {
-                items.iter_mut().filter_map(|i| i.get_mut("param")).filter(|p| p.as_str() == Some("sigma")).for_each(|p| *p = Value::from(sigma));
+                items
+                    .iter_mut()
+                    .filter_map(|i| i.get_mut("param"))
+                    .filter(|p| p.as_str() == Some("sigma"))
+                    .for_each(|p| *p = Value::from(sigma));
             }
         }
     };
@@ -571,7 +731,9 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Problem> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
-        Ok(text) => Calibration::from_json(&text).map(Some).map_err(|(line, m)| Problem::new(&path, line, m)),
+        Ok(text) => Calibration::from_json(&text)
+            .map(Some)
+            .map_err(|(line, m)| Problem::new(&path, line, m)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Problem::new(&path, None, format!("cannot read: {e}"))),
     }
@@ -579,20 +741,28 @@ pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Problem> {
 
 /// The names in a folder (files and folders), sorted.
 pub fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)?.map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned())).collect::<Result<_, _>>()?;
+    let mut names: Vec<String> = std::fs::read_dir(dir)?
+        .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+        .collect::<Result<_, _>>()?;
     names.sort();
     Ok(names)
 }
 
 /// Temporary files a killed `gonio` left in `dir`.
 pub fn temp_files(dir: &Path) -> std::io::Result<Vec<String>> {
-    Ok(entries(dir)?.into_iter().filter(|n| is_temp_name(n)).collect())
+    Ok(entries(dir)?
+        .into_iter()
+        .filter(|n| is_temp_name(n))
+        .collect())
 }
 
 /// The decisions of run `run` in `session.log` (a killed run's record of what it did).
 pub fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
     let tag = format!(" [run {run}] ");
-    log.lines.iter().filter_map(|(_, l)| l.split_once(&tag).map(|(_, text)| text.to_string())).collect()
+    log.lines
+        .iter()
+        .filter_map(|(_, l)| l.split_once(&tag).map(|(_, text)| text.to_string()))
+        .collect()
 }
 
 /// Everything a folder holds, read and cross-checked without changing it.
@@ -624,7 +794,15 @@ pub struct Inspection {
 /// [`Inspection::damage`].
 pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     if !dir.is_dir() {
-        return Err(Problem::new(dir, None, if dir.exists() { "not a folder" } else { "no such folder" }));
+        return Err(Problem::new(
+            dir,
+            None,
+            if dir.exists() {
+                "not a folder"
+            } else {
+                "no such folder"
+            },
+        ));
     }
     let session = read_session(dir)?;
     let points_path = dir.join(POINTS);
@@ -635,7 +813,8 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     let log = read_lines(&dir.join(LOG))?;
     let calibration = read_calibration(dir)?;
     let points = converted(&recorded, calibration.as_ref());
-    let temp_files = temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
+    let temp_files =
+        temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
     let session_path = dir.join(SESSION);
     let mut damage = Vec::new();
     match &session {
@@ -647,11 +826,19 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
                 damage.push(Problem::new(
                     &points_path,
                     Some(points_file.lines.len() + 1),
-                    format!("{} readings, but {SESSION} says {} were recorded: readings are missing", points.len(), doc.readings_recorded),
+                    format!(
+                        "{} readings, but {SESSION} says {} were recorded: readings are missing",
+                        points.len(),
+                        doc.readings_recorded
+                    ),
                 ));
             }
             if points.iter().any(|p| p.radiance_factor.is_some()) && calibration.is_none() {
-                damage.push(Problem::new(&dir.join(CALIBRATION), None, "missing, but readings were converted with it"));
+                damage.push(Problem::new(
+                    &dir.join(CALIBRATION),
+                    None,
+                    "missing, but readings were converted with it",
+                ));
             }
             if doc.runs.is_empty() {
                 damage.push(Problem::new(&session_path, None, "no runs recorded"));
@@ -663,7 +850,17 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     if let CsvAgreement::Differs(problem) = &csv {
         damage.push(problem.clone());
     }
-    Ok(Inspection { dir: dir.to_path_buf(), session, points_file, points, csv, log, calibration, temp_files, damage })
+    Ok(Inspection {
+        dir: dir.to_path_buf(),
+        session,
+        points_file,
+        points,
+        csv,
+        log,
+        calibration,
+        temp_files,
+        damage,
+    })
 }
 
 #[cfg(test)]
@@ -677,7 +874,14 @@ mod tests {
             theta_r_span_deg,
             radiance_factor: Some(1.0 + theta_r_deg / 100.0),
             std: Some(0.01),
-            reading: protocol::Reading { mean_counts: 1000.0, std_counts: 5.0, samples: 100, range: 0, integration_ms: 100, saturated: false },
+            reading: protocol::Reading {
+                mean_counts: 1000.0,
+                std_counts: 5.0,
+                samples: 100,
+                range: 0,
+                integration_ms: 100,
+                saturated: false,
+            },
             schedule_id: 1,
             index,
             device_time_us: u64::from(index) * 1000,
@@ -699,15 +903,29 @@ mod tests {
         moving.push(point(59.5, 0.25, 2));
         assert!(readings_csv(&still).starts_with(&format!("{READINGS_HEADER}\n")));
         let text = readings_csv(&moving);
-        assert!(text.starts_with(&format!("{READINGS_HEADER_WITH_SPAN}\n")) && text.contains("55,1.55,0.01,0\n") && text.ends_with(",0.25\n"), "{text}");
+        assert!(
+            text.starts_with(&format!("{READINGS_HEADER_WITH_SPAN}\n"))
+                && text.contains("55,1.55,0.01,0\n")
+                && text.ends_with(",0.25\n"),
+            "{text}"
+        );
         let agree = |content: &str| {
             std::fs::write(&path, content).unwrap();
             csv_agreement(&path, &read_lines(&path).unwrap(), &moving, &moving)
         };
         assert_eq!(agree(&text), CsvAgreement::Agrees);
-        assert_eq!(agree(&readings_csv(&still)), CsvAgreement::Stale { superseded: 0 });
-        assert_eq!(agree(&readings_csv(&still[..1])), CsvAgreement::Stale { superseded: 0 });
-        assert!(matches!(agree(&readings_csv(&still).replace("1.55", "9.55")), CsvAgreement::Differs(_)));
+        assert_eq!(
+            agree(&readings_csv(&still)),
+            CsvAgreement::Stale { superseded: 0 }
+        );
+        assert_eq!(
+            agree(&readings_csv(&still[..1])),
+            CsvAgreement::Stale { superseded: 0 }
+        );
+        assert!(matches!(
+            agree(&readings_csv(&still).replace("1.55", "9.55")),
+            CsvAgreement::Differs(_)
+        ));
     }
 
     #[test]
@@ -718,7 +936,10 @@ mod tests {
         std::fs::write(&path, "a\nb\nc").unwrap();
         let file = read_lines(&path).unwrap();
         assert_eq!(file.lines, [(1, "a".to_string()), (2, "b".to_string())]);
-        assert_eq!((file.whole_len, file.cut_tail.as_deref()), (4, Some(&b"c"[..])));
+        assert_eq!(
+            (file.whole_len, file.cut_tail.as_deref()),
+            (4, Some(&b"c"[..]))
+        );
         std::fs::write(&path, "a\n").unwrap();
         let file = read_lines(&path).unwrap();
         assert_eq!((file.lines.len(), file.cut_tail), (1, None));

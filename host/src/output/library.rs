@@ -57,7 +57,9 @@ pub enum LibraryError {
         what: String,
     },
     /// An SQLite database that is damaged (truncated, pages corrupt).
-    #[error("{path}: damaged library: {what}; left as it is (restore it from a backup or an export)")]
+    #[error(
+        "{path}: damaged library: {what}; left as it is (restore it from a backup or an export)"
+    )]
     Corrupt {
         /// The file.
         path: PathBuf,
@@ -73,7 +75,9 @@ pub enum LibraryError {
         what: String,
     },
     /// A library written by a newer gonio.
-    #[error("{path}: written by a newer gonio (schema {found}); this gonio reads up to {SCHEMA_VERSION}: update gonio")]
+    #[error(
+        "{path}: written by a newer gonio (schema {found}); this gonio reads up to {SCHEMA_VERSION}: update gonio"
+    )]
     Newer {
         /// The file.
         path: PathBuf,
@@ -115,7 +119,9 @@ pub enum LibraryError {
         flags: String,
     },
     /// The session is already in the library.
-    #[error("{what}: already in the library under stock '{stock}' (session {sha256}); nothing was added")]
+    #[error(
+        "{what}: already in the library under stock '{stock}' (session {sha256}); nothing was added"
+    )]
     Duplicate {
         /// The folder or import line.
         what: String,
@@ -144,7 +150,9 @@ pub enum LibraryError {
         what: String,
     },
     /// A stock's manufacturer or notes given differently from the library's.
-    #[error("stock '{stock}': {field} is '{existing}' in the library, not '{given}'; nothing was changed")]
+    #[error(
+        "stock '{stock}': {field} is '{existing}' in the library, not '{given}'; nothing was changed"
+    )]
     StockConflict {
         /// The stock.
         stock: String,
@@ -301,16 +309,25 @@ pub struct Removed {
 /// (the XDG base-directory rule, computed from the environment on every platform so the
 /// place is the same wherever gonio runs). `None` when neither variable is set.
 pub fn default_path() -> Option<PathBuf> {
-    let nonempty = |name: &str| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
+    let nonempty = |name: &str| {
+        std::env::var_os(name)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
     // XDG says a relative XDG_DATA_HOME is invalid and to be ignored.
-    let base = nonempty("XDG_DATA_HOME").filter(|p| p.is_absolute()).or_else(|| nonempty("HOME").map(|home| home.join(".local").join("share")))?;
+    let base = nonempty("XDG_DATA_HOME")
+        .filter(|p| p.is_absolute())
+        .or_else(|| nonempty("HOME").map(|home| home.join(".local").join("share")))?;
     Some(base.join("gonio").join("library.sqlite"))
 }
 
 /// The identity of the session folder `dir`: SHA-256 (hex) of its `MANIFEST.sha256`.
 pub fn session_identity(dir: &Path) -> Result<String> {
     let manifest = dir.join(crate::output::folder::MANIFEST);
-    let bytes = std::fs::read(&manifest).map_err(|source| LibraryError::Io { path: manifest, source })?;
+    let bytes = std::fs::read(&manifest).map_err(|source| LibraryError::Io {
+        path: manifest,
+        source,
+    })?;
     Ok(crate::output::manifest::sha256_hex(&bytes))
 }
 
@@ -318,7 +335,11 @@ pub fn session_identity(dir: &Path) -> Result<String> {
 /// folder (one spot), after checking it as `gonio verify` does (every file against the
 /// manifest, the records against each other). A flagged result (`ok: false`) is refused
 /// unless `allow_flagged`.
-pub fn read_session_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
+pub fn read_session_folder(
+    dir: &Path,
+    lot: Option<&str>,
+    allow_flagged: bool,
+) -> Result<SheetRecord> {
     if crate::output::sheet::is_sheet_folder(dir) {
         return read_sheet_folder(dir, lot, allow_flagged);
     }
@@ -326,24 +347,41 @@ pub fn read_session_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -
 }
 
 fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
-    let bad = |what: String| LibraryError::BadSession { dir: dir.to_path_buf(), what };
+    let bad = |what: String| LibraryError::BadSession {
+        dir: dir.to_path_buf(),
+        what,
+    };
     let verified = crate::output::sheet::verify_sheet(dir).map_err(|problems| {
         let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
-        bad(format!("it does not verify (gonio verify {}):{}", dir.display(), lines.concat()))
+        bad(format!(
+            "it does not verify (gonio verify {}):{}",
+            dir.display(),
+            lines.concat()
+        ))
     })?;
     let read = verified.sheet;
     if !read.summary.ok() && !allow_flagged {
         let flags: Vec<&str> = read.summary.flags.iter().map(|f| f.name()).collect();
-        return Err(LibraryError::Flagged { dir: dir.to_path_buf(), flags: format!("{flags:?}") });
+        return Err(LibraryError::Flagged {
+            dir: dir.to_path_buf(),
+            flags: format!("{flags:?}"),
+        });
     }
     let sheet = read.sheet();
     for spot in &sheet.spots {
         check_spot(spot).map_err(bad)?;
     }
-    let first = read.spots.first().ok_or_else(|| bad("a sheet without spots".into()))?;
+    let first = read
+        .spots
+        .first()
+        .ok_or_else(|| bad("a sheet without spots".into()))?;
     let file = first.dir.join(crate::output::folder::SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|source| LibraryError::Io { path: file.clone(), source })?;
-    let doc: crate::output::folder::SessionDoc = serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
+    let text = std::fs::read_to_string(&file).map_err(|source| LibraryError::Io {
+        path: file.clone(),
+        source,
+    })?;
+    let doc: crate::output::folder::SessionDoc =
+        serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
         measured_at: doc.runs.first().map(|r| r.started.clone()),
@@ -357,26 +395,51 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
 }
 
 fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
-    let bad = |what: String| LibraryError::BadSession { dir: dir.to_path_buf(), what };
+    let bad = |what: String| LibraryError::BadSession {
+        dir: dir.to_path_buf(),
+        what,
+    };
     if let Err(problems) = crate::output::verify::verify(dir) {
         let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
-        return Err(bad(format!("it does not verify (gonio verify {}):{}", dir.display(), lines.concat())));
+        return Err(bad(format!(
+            "it does not verify (gonio verify {}):{}",
+            dir.display(),
+            lines.concat()
+        )));
     }
     let session_sha256 = session_identity(dir)?;
     let file = dir.join(crate::output::folder::SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|source| LibraryError::Io { path: file.clone(), source })?;
-    let doc: crate::output::folder::SessionDoc = serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
-    let ok = doc.rest.get("ok").and_then(serde_json::Value::as_bool).ok_or_else(|| bad(format!("{}: no boolean 'ok'", file.display())))?;
+    let text = std::fs::read_to_string(&file).map_err(|source| LibraryError::Io {
+        path: file.clone(),
+        source,
+    })?;
+    let doc: crate::output::folder::SessionDoc =
+        serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
+    let ok = doc
+        .rest
+        .get("ok")
+        .and_then(serde_json::Value::as_bool)
+        .ok_or_else(|| bad(format!("{}: no boolean 'ok'", file.display())))?;
     if !ok && !allow_flagged {
-        let flags = doc.rest.get("flags").map_or_else(|| "no flags recorded".to_string(), |f| f.to_string());
-        return Err(LibraryError::Flagged { dir: dir.to_path_buf(), flags });
+        let flags = doc
+            .rest
+            .get("flags")
+            .map_or_else(|| "no flags recorded".to_string(), |f| f.to_string());
+        return Err(LibraryError::Flagged {
+            dir: dir.to_path_buf(),
+            flags,
+        });
     }
-    let result = crate::analysis::compare::parse_session(&file, &text).map_err(|e| bad(e.to_string()))?;
+    let result =
+        crate::analysis::compare::parse_session(&file, &text).map_err(|e| bad(e.to_string()))?;
     let mut covariance = [[0.0; 3]; 3];
     for (i, row) in covariance.iter_mut().enumerate() {
         row.copy_from_slice(&result.covariance[i][..3]);
     }
-    let spot = Spot { values: [result.values[0], result.values[1], result.values[2]], covariance };
+    let spot = Spot {
+        values: [result.values[0], result.values[1], result.values[2]],
+        covariance,
+    };
     check_spot(&spot).map_err(bad)?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
@@ -397,20 +460,33 @@ fn now_utc() -> String {
 
 /// Every number finite: SQLite stores NaN as NULL, which would change the spot.
 fn check_spot(spot: &Spot) -> std::result::Result<(), String> {
-    let finite = spot.values.iter().flatten().chain(spot.covariance.iter().flatten()).all(|x| x.is_finite());
-    if finite { Ok(()) } else { Err("a spot value or covariance is not a finite number".into()) }
+    let finite = spot
+        .values
+        .iter()
+        .flatten()
+        .chain(spot.covariance.iter().flatten())
+        .all(|x| x.is_finite());
+    if finite {
+        Ok(())
+    } else {
+        Err("a spot value or covariance is not a finite number".into())
+    }
 }
 
 fn check_text(what: &str, value: &str) -> Result<()> {
     if value.trim().is_empty() || value.trim() != value || value.chars().any(char::is_control) {
-        return Err(LibraryError::Invalid(format!("{what} '{value}' must be non-empty, without leading or trailing spaces or control characters")));
+        return Err(LibraryError::Invalid(format!(
+            "{what} '{value}' must be non-empty, without leading or trailing spaces or control characters"
+        )));
     }
     Ok(())
 }
 
 /// A session's SHA-256 as the library keeps it: 64 lowercase hex digits.
 fn is_sha256_hex(s: &str) -> bool {
-    s.len() == 64 && s.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    s.len() == 64
+        && s.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
 
 const SCHEMA: &str = "
@@ -474,22 +550,38 @@ impl std::fmt::Debug for Library {
 /// only on first use, and a truncated one not at all until the missing pages are read.
 /// Returns the file's length.
 fn check_header(path: &Path) -> Result<u64> {
-    let io = |source| LibraryError::Io { path: path.to_path_buf(), source };
+    let io = |source| LibraryError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
     let mut file = std::fs::File::open(path).map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
     if len == 0 {
         return Ok(0);
     }
     let mut header = Vec::with_capacity(100);
-    Read::by_ref(&mut file).take(100).read_to_end(&mut header).map_err(io)?;
-    let not_sqlite = |what: String| LibraryError::NotSqlite { path: path.to_path_buf(), what };
+    Read::by_ref(&mut file)
+        .take(100)
+        .read_to_end(&mut header)
+        .map_err(io)?;
+    let not_sqlite = |what: String| LibraryError::NotSqlite {
+        path: path.to_path_buf(),
+        what,
+    };
     if header.len() < 16 || &header[..16] != SQLITE_MAGIC {
-        return Err(not_sqlite("it does not begin with the SQLite header".into()));
+        return Err(not_sqlite(
+            "it does not begin with the SQLite header".into(),
+        ));
     }
     if header.len() < 100 {
-        return Err(LibraryError::Corrupt { path: path.to_path_buf(), what: format!("{len} bytes: shorter than an SQLite header (100 bytes)") });
+        return Err(LibraryError::Corrupt {
+            path: path.to_path_buf(),
+            what: format!("{len} bytes: shorter than an SQLite header (100 bytes)"),
+        });
     }
-    let be_u32 = |at: usize| u32::from_be_bytes([header[at], header[at + 1], header[at + 2], header[at + 3]]);
+    let be_u32 = |at: usize| {
+        u32::from_be_bytes([header[at], header[at + 1], header[at + 2], header[at + 3]])
+    };
     let page_size = match u16::from_be_bytes([header[16], header[17]]) {
         1 => 65_536u64,
         n => u64::from(n),
@@ -498,9 +590,19 @@ fn check_header(path: &Path) -> Result<u64> {
     // version-valid-for number (92). With a WAL file beside it the WAL may hold newer
     // pages, so the length is only checked without one.
     let pages = u64::from(be_u32(28));
-    let wal = path.with_file_name(format!("{}-wal", path.file_name().map_or_else(Default::default, |n| n.to_string_lossy())));
+    let wal = path.with_file_name(format!(
+        "{}-wal",
+        path.file_name()
+            .map_or_else(Default::default, |n| n.to_string_lossy())
+    ));
     if be_u32(24) == be_u32(92) && pages > 0 && !wal.exists() && len < pages * page_size {
-        return Err(LibraryError::Corrupt { path: path.to_path_buf(), what: format!("truncated: {len} bytes, its header says {} pages of {page_size} bytes", pages) });
+        return Err(LibraryError::Corrupt {
+            path: path.to_path_buf(),
+            what: format!(
+                "truncated: {len} bytes, its header says {} pages of {page_size} bytes",
+                pages
+            ),
+        });
     }
     Ok(len)
 }
@@ -512,24 +614,51 @@ fn check_header(path: &Path) -> Result<u64> {
 /// is creating: "database is locked" in one run of three); the loser of the race opens the
 /// winner's.
 fn create_whole(path: &Path) -> Result<()> {
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
-    let name = path.file_name().map_or_else(|| "library".into(), |n| n.to_string_lossy().into_owned());
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let name = path
+        .file_name()
+        .map_or_else(|| "library".into(), |n| n.to_string_lossy().into_owned());
     let temporary = path.with_file_name(format!(".{name}.new-{}-{nanos}", std::process::id()));
-    let sqlite = |source| LibraryError::Sqlite { path: temporary.clone(), source };
+    let sqlite = |source| LibraryError::Sqlite {
+        path: temporary.clone(),
+        source,
+    };
     let made = (|| -> Result<()> {
-        let conn = Connection::open_with_flags(&temporary, OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_CREATE | OpenFlags::SQLITE_OPEN_NO_MUTEX).map_err(sqlite)?;
-        let library = Library { conn, path: temporary.clone() };
-        library.conn.pragma_update(None, "journal_mode", "WAL").map_err(sqlite)?;
+        let conn = Connection::open_with_flags(
+            &temporary,
+            OpenFlags::SQLITE_OPEN_READ_WRITE
+                | OpenFlags::SQLITE_OPEN_CREATE
+                | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .map_err(sqlite)?;
+        let library = Library {
+            conn,
+            path: temporary.clone(),
+        };
+        library
+            .conn
+            .pragma_update(None, "journal_mode", "WAL")
+            .map_err(sqlite)?;
         library.create_schema()?;
         // Closing checkpoints the WAL into the file and removes it.
         library.conn.close().map_err(|(_, e)| sqlite(e))?;
         match std::fs::hard_link(&temporary, path) {
             Ok(()) => Ok(()),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
-            Err(source) => Err(LibraryError::Io { path: path.to_path_buf(), source }),
+            Err(source) => Err(LibraryError::Io {
+                path: path.to_path_buf(),
+                source,
+            }),
         }
     })();
-    for leftover in [temporary.clone(), temporary.with_extension("new-wal"), PathBuf::from(format!("{}-wal", temporary.display())), PathBuf::from(format!("{}-shm", temporary.display()))] {
+    for leftover in [
+        temporary.clone(),
+        temporary.with_extension("new-wal"),
+        PathBuf::from(format!("{}-wal", temporary.display())),
+        PathBuf::from(format!("{}-shm", temporary.display())),
+    ] {
         let _ = std::fs::remove_file(leftover);
     }
     made
@@ -541,40 +670,73 @@ impl Library {
     pub fn open(path: &Path, mode: OpenMode) -> Result<Library> {
         let exists = match std::fs::metadata(path) {
             Ok(m) if m.is_file() => true,
-            Ok(_) => return Err(LibraryError::NotSqlite { path: path.to_path_buf(), what: "not a regular file".into() }),
+            Ok(_) => {
+                return Err(LibraryError::NotSqlite {
+                    path: path.to_path_buf(),
+                    what: "not a regular file".into(),
+                });
+            }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
-            Err(source) => return Err(LibraryError::Io { path: path.to_path_buf(), source }),
+            Err(source) => {
+                return Err(LibraryError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                });
+            }
         };
         if !exists && mode == OpenMode::Existing {
-            return Err(LibraryError::Missing { path: path.to_path_buf() });
+            return Err(LibraryError::Missing {
+                path: path.to_path_buf(),
+            });
         }
         if exists && check_header(path)? == 0 && mode == OpenMode::Existing {
             // An empty file is what an adding process leaves between creating the file and
             // its first commit (or after a crash there): no library content yet.
-            return Err(LibraryError::Missing { path: path.to_path_buf() });
+            return Err(LibraryError::Missing {
+                path: path.to_path_buf(),
+            });
         }
         if !exists && let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent).map_err(|source| LibraryError::Io { path: parent.to_path_buf(), source })?;
+            std::fs::create_dir_all(parent).map_err(|source| LibraryError::Io {
+                path: parent.to_path_buf(),
+                source,
+            })?;
         }
         if !exists {
             create_whole(path)?;
         }
-        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX | OpenFlags::SQLITE_OPEN_URI;
+        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE
+            | OpenFlags::SQLITE_OPEN_NO_MUTEX
+            | OpenFlags::SQLITE_OPEN_URI;
         if mode == OpenMode::Add {
             flags |= OpenFlags::SQLITE_OPEN_CREATE;
         }
-        let sqlite = |source| LibraryError::Sqlite { path: path.to_path_buf(), source };
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.to_path_buf(),
+            source,
+        };
         let conn = Connection::open_with_flags(path, flags).map_err(sqlite)?;
         conn.busy_timeout(BUSY_TIMEOUT).map_err(sqlite)?;
-        let library = Library { conn, path: path.to_path_buf() };
+        let library = Library {
+            conn,
+            path: path.to_path_buf(),
+        };
         let found = library.probe()?;
         if matches!(found, Found::Empty) && mode == OpenMode::Existing {
-            return Err(LibraryError::Missing { path: path.to_path_buf() });
+            return Err(LibraryError::Missing {
+                path: path.to_path_buf(),
+            });
         }
         // Only now, the file known to be ours or empty, anything is written to it.
         // WAL: readers never block the writer and writers queue on the busy timeout.
-        library.conn.pragma_update(None, "journal_mode", "WAL").map_err(sqlite)?;
-        library.conn.pragma_update(None, "foreign_keys", true).map_err(sqlite)?;
+        library
+            .conn
+            .pragma_update(None, "journal_mode", "WAL")
+            .map_err(sqlite)?;
+        library
+            .conn
+            .pragma_update(None, "foreign_keys", true)
+            .map_err(sqlite)?;
         if matches!(found, Found::Empty) {
             library.create_schema()?;
         }
@@ -587,45 +749,97 @@ impl Library {
     }
 
     fn sqlite(&self) -> impl Fn(rusqlite::Error) -> LibraryError + '_ {
-        |source| LibraryError::Sqlite { path: self.path.clone(), source }
+        |source| LibraryError::Sqlite {
+            path: self.path.clone(),
+            source,
+        }
     }
 
     /// What the file is, read-only. SQLite's errors here mean damage: the header was
     /// SQLite's, the rest is not.
     fn probe(&self) -> Result<Found> {
         let corrupt = |e: rusqlite::Error| match e {
-            rusqlite::Error::SqliteFailure(f, _) if f.code == rusqlite::ErrorCode::DatabaseBusy || f.code == rusqlite::ErrorCode::DatabaseLocked => {
-                LibraryError::Sqlite { path: self.path.clone(), source: e }
+            rusqlite::Error::SqliteFailure(f, _)
+                if f.code == rusqlite::ErrorCode::DatabaseBusy
+                    || f.code == rusqlite::ErrorCode::DatabaseLocked =>
+            {
+                LibraryError::Sqlite {
+                    path: self.path.clone(),
+                    source: e,
+                }
             }
-            e => LibraryError::Corrupt { path: self.path.clone(), what: e.to_string() },
+            e => LibraryError::Corrupt {
+                path: self.path.clone(),
+                what: e.to_string(),
+            },
         };
         // One read transaction: the reads below see one snapshot. Read one by one, another
         // process creating the library between them showed its tables with the header still
         // empty ("not a gonio library", one run in three of the two-process test). Dropped
         // unfinished, it rolls back: nothing is written here.
-        let _snapshot = rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Deferred).map_err(corrupt)?;
-        let application_id: i32 = self.conn.pragma_query_value(None, "application_id", |r| r.get(0)).map_err(corrupt)?;
-        let user_version: i64 = self.conn.pragma_query_value(None, "user_version", |r| r.get(0)).map_err(corrupt)?;
-        let objects: i64 = self.conn.query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get(0)).map_err(corrupt)?;
-        let check: String = self.conn.pragma_query_value(None, "quick_check", |r| r.get(0)).map_err(corrupt)?;
+        let _snapshot =
+            rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Deferred)
+                .map_err(corrupt)?;
+        let application_id: i32 = self
+            .conn
+            .pragma_query_value(None, "application_id", |r| r.get(0))
+            .map_err(corrupt)?;
+        let user_version: i64 = self
+            .conn
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .map_err(corrupt)?;
+        let objects: i64 = self
+            .conn
+            .query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get(0))
+            .map_err(corrupt)?;
+        let check: String = self
+            .conn
+            .pragma_query_value(None, "quick_check", |r| r.get(0))
+            .map_err(corrupt)?;
         if check != "ok" {
-            return Err(LibraryError::Corrupt { path: self.path.clone(), what: format!("SQLite's quick_check: {check}") });
+            return Err(LibraryError::Corrupt {
+                path: self.path.clone(),
+                what: format!("SQLite's quick_check: {check}"),
+            });
         }
         if application_id == 0 && user_version == 0 && objects == 0 {
             return Ok(Found::Empty);
         }
         if application_id != APPLICATION_ID {
-            return Err(LibraryError::Foreign { path: self.path.clone(), what: format!("application id {application_id:#010x}, a gonio library's is {APPLICATION_ID:#010x}") });
+            return Err(LibraryError::Foreign {
+                path: self.path.clone(),
+                what: format!(
+                    "application id {application_id:#010x}, a gonio library's is {APPLICATION_ID:#010x}"
+                ),
+            });
         }
         if user_version > SCHEMA_VERSION {
-            return Err(LibraryError::Newer { path: self.path.clone(), found: user_version });
+            return Err(LibraryError::Newer {
+                path: self.path.clone(),
+                found: user_version,
+            });
         }
-        let schema_version: Option<i64> =
-            self.conn.query_row("SELECT value FROM meta WHERE key = 'schema_version'", [], |r| r.get(0)).optional().map_err(corrupt)?;
+        let schema_version: Option<i64> = self
+            .conn
+            .query_row(
+                "SELECT value FROM meta WHERE key = 'schema_version'",
+                [],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(corrupt)?;
         match schema_version {
-            Some(v) if v > SCHEMA_VERSION => Err(LibraryError::Newer { path: self.path.clone(), found: v }),
+            Some(v) if v > SCHEMA_VERSION => Err(LibraryError::Newer {
+                path: self.path.clone(),
+                found: v,
+            }),
             Some(v) if v == user_version && v >= 1 => Ok(Found::Library),
-            v => Err(LibraryError::Corrupt { path: self.path.clone(), what: format!("schema_version {v:?} in meta disagrees with user_version {user_version}") }),
+            v => Err(LibraryError::Corrupt {
+                path: self.path.clone(),
+                what: format!(
+                    "schema_version {v:?} in meta disagrees with user_version {user_version}"
+                ),
+            }),
         }
     }
 
@@ -635,8 +849,11 @@ impl Library {
         let sqlite = self.sqlite();
         // Immediate: the check for tables and their creation are one under the write lock.
         // The connection is not shared, so an unchecked transaction (no `&mut`) is safe.
-        let tx = rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Immediate).map_err(&sqlite)?;
-        let objects: i64 = tx.query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get(0)).map_err(&sqlite)?;
+        let tx = rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Immediate)
+            .map_err(&sqlite)?;
+        let objects: i64 = tx
+            .query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get(0))
+            .map_err(&sqlite)?;
         if objects == 0 {
             tx.execute_batch(SCHEMA).map_err(&sqlite)?;
             tx.execute(
@@ -644,8 +861,10 @@ impl Library {
                 params![SCHEMA_VERSION, APPLICATION_ID, format!("gonio {}", env!("CARGO_PKG_VERSION")), now_utc()],
             )
             .map_err(&sqlite)?;
-            tx.pragma_update(None, "application_id", APPLICATION_ID).map_err(&sqlite)?;
-            tx.pragma_update(None, "user_version", SCHEMA_VERSION).map_err(&sqlite)?;
+            tx.pragma_update(None, "application_id", APPLICATION_ID)
+                .map_err(&sqlite)?;
+            tx.pragma_update(None, "user_version", SCHEMA_VERSION)
+                .map_err(&sqlite)?;
         }
         tx.commit().map_err(&sqlite)?;
         Ok(())
@@ -655,7 +874,9 @@ impl Library {
     /// timeout), so that checks made in it hold until it commits.
     fn write(&mut self) -> Result<rusqlite::Transaction<'_>> {
         let path = self.path.clone();
-        self.conn.transaction_with_behavior(TransactionBehavior::Immediate).map_err(|source| LibraryError::Sqlite { path, source })
+        self.conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(|source| LibraryError::Sqlite { path, source })
     }
 
     /// Add sheets under one stock, all or none: a session already in the library (by
@@ -666,11 +887,15 @@ impl Library {
             check_text("lot", lot)?;
         }
         let path = self.path.clone();
-        let sqlite = move |source| LibraryError::Sqlite { path: path.clone(), source };
+        let sqlite = move |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
         let tx = self.write()?;
         let stock_id = upsert_stock(&tx, stock).map_err(|e| e.into_library(&sqlite))?;
         for sheet in sheets {
-            insert_sheet(&tx, stock_id, sheet, &sheet.session_path).map_err(|e| e.into_library(&sqlite))?;
+            insert_sheet(&tx, stock_id, sheet, &sheet.session_path)
+                .map_err(|e| e.into_library(&sqlite))?;
         }
         tx.commit().map_err(sqlite)?;
         Ok(())
@@ -689,7 +914,15 @@ impl Library {
             )
             .map_err(&sqlite)?;
         let rows = stmt
-            .query_map([], |r| Ok(StockSummary { name: r.get(0)?, manufacturer: r.get(1)?, notes: r.get(2)?, sheets: get_count(r, 3)?, spots: get_count(r, 4)? }))
+            .query_map([], |r| {
+                Ok(StockSummary {
+                    name: r.get(0)?,
+                    manufacturer: r.get(1)?,
+                    notes: r.get(2)?,
+                    sheets: get_count(r, 3)?,
+                    spots: get_count(r, 4)?,
+                })
+            })
             .map_err(&sqlite)?;
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
     }
@@ -697,17 +930,38 @@ impl Library {
     /// Remove a stock with all its sheets and spots.
     pub fn remove_stock(&mut self, name: &str) -> Result<Removed> {
         let path = self.path.clone();
-        let sqlite = |source| LibraryError::Sqlite { path: path.clone(), source };
-        let tx = self.write()?;
-        let id: Option<i64> = tx.query_row("SELECT id FROM stocks WHERE name = ?1", [name], |r| r.get(0)).optional().map_err(sqlite)?;
-        let Some(id) = id else {
-            return Err(LibraryError::UnknownStock { path: path.clone(), name: name.to_string() });
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
         };
-        let sessions = column_strings(&tx, "SELECT session_sha256 FROM sheets WHERE stock_id = ?1 ORDER BY session_sha256", id).map_err(sqlite)?;
+        let tx = self.write()?;
+        let id: Option<i64> = tx
+            .query_row("SELECT id FROM stocks WHERE name = ?1", [name], |r| {
+                r.get(0)
+            })
+            .optional()
+            .map_err(sqlite)?;
+        let Some(id) = id else {
+            return Err(LibraryError::UnknownStock {
+                path: path.clone(),
+                name: name.to_string(),
+            });
+        };
+        let sessions = column_strings(
+            &tx,
+            "SELECT session_sha256 FROM sheets WHERE stock_id = ?1 ORDER BY session_sha256",
+            id,
+        )
+        .map_err(sqlite)?;
         let spots = count_spots(&tx, "h.stock_id = ?1", id).map_err(sqlite)?;
-        tx.execute("DELETE FROM stocks WHERE id = ?1", [id]).map_err(sqlite)?;
+        tx.execute("DELETE FROM stocks WHERE id = ?1", [id])
+            .map_err(sqlite)?;
         tx.commit().map_err(sqlite)?;
-        Ok(Removed { stocks: vec![name.to_string()], sessions, spots })
+        Ok(Removed {
+            stocks: vec![name.to_string()],
+            sessions,
+            spots,
+        })
     }
 
     /// Remove one session, named by its SHA-256 or a prefix that only it has; its stock
@@ -716,37 +970,71 @@ impl Library {
         let prefix = sha256_prefix.to_ascii_lowercase();
         let path = self.path.clone();
         if prefix.is_empty() || !prefix.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return Err(LibraryError::SessionPrefix { path, what: format!("'{sha256_prefix}' is not a SHA-256 or a prefix of one (hex digits)") });
+            return Err(LibraryError::SessionPrefix {
+                path,
+                what: format!("'{sha256_prefix}' is not a SHA-256 or a prefix of one (hex digits)"),
+            });
         }
-        let sqlite = |source| LibraryError::Sqlite { path: path.clone(), source };
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
         let tx = self.write()?;
         // Hex digits only, so the prefix holds no LIKE wildcards.
         let mut stmt = tx.prepare("SELECT id, stock_id, session_sha256 FROM sheets WHERE session_sha256 LIKE ?1 || '%' ORDER BY session_sha256").map_err(sqlite)?;
-        let matches: Vec<(i64, i64, String)> =
-            stmt.query_map([&prefix], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?))).map_err(sqlite)?.collect::<rusqlite::Result<_>>().map_err(sqlite)?;
+        let matches: Vec<(i64, i64, String)> = stmt
+            .query_map([&prefix], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+            .map_err(sqlite)?
+            .collect::<rusqlite::Result<_>>()
+            .map_err(sqlite)?;
         drop(stmt);
         let (sheet_id, stock_id, sha256) = match matches.as_slice() {
             [one] => one.clone(),
-            [] => return Err(LibraryError::SessionPrefix { path: path.clone(), what: format!("no session {prefix}… in the library") }),
+            [] => {
+                return Err(LibraryError::SessionPrefix {
+                    path: path.clone(),
+                    what: format!("no session {prefix}… in the library"),
+                });
+            }
             many => {
                 let names: Vec<&str> = many.iter().map(|m| m.2.as_str()).collect();
                 return Err(LibraryError::SessionPrefix {
                     path: path.clone(),
-                    what: format!("{} sessions begin with {prefix} ({}): give more of the SHA-256", many.len(), names.join(", ")),
+                    what: format!(
+                        "{} sessions begin with {prefix} ({}): give more of the SHA-256",
+                        many.len(),
+                        names.join(", ")
+                    ),
                 });
             }
         };
         let spots = count_spots(&tx, "h.id = ?1", sheet_id).map_err(sqlite)?;
-        tx.execute("DELETE FROM sheets WHERE id = ?1", [sheet_id]).map_err(sqlite)?;
-        let left: i64 = tx.query_row("SELECT count(*) FROM sheets WHERE stock_id = ?1", [stock_id], |r| r.get(0)).map_err(sqlite)?;
+        tx.execute("DELETE FROM sheets WHERE id = ?1", [sheet_id])
+            .map_err(sqlite)?;
+        let left: i64 = tx
+            .query_row(
+                "SELECT count(*) FROM sheets WHERE stock_id = ?1",
+                [stock_id],
+                |r| r.get(0),
+            )
+            .map_err(sqlite)?;
         let mut stocks = Vec::new();
         if left == 0 {
-            let name: String = tx.query_row("SELECT name FROM stocks WHERE id = ?1", [stock_id], |r| r.get(0)).map_err(sqlite)?;
-            tx.execute("DELETE FROM stocks WHERE id = ?1", [stock_id]).map_err(sqlite)?;
+            let name: String = tx
+                .query_row("SELECT name FROM stocks WHERE id = ?1", [stock_id], |r| {
+                    r.get(0)
+                })
+                .map_err(sqlite)?;
+            tx.execute("DELETE FROM stocks WHERE id = ?1", [stock_id])
+                .map_err(sqlite)?;
             stocks.push(name);
         }
         tx.commit().map_err(sqlite)?;
-        Ok(Removed { stocks, sessions: vec![sha256], spots })
+        Ok(Removed {
+            stocks,
+            sessions: vec![sha256],
+            spots,
+        })
     }
 
     /// Every spot as an exchange record, ordered by stock name, session SHA-256 and spot
@@ -800,7 +1088,10 @@ impl Library {
     /// number of records. `out_path` is only for messages.
     pub fn export(&self, out: &mut dyn Write, out_path: &Path) -> Result<usize> {
         let records = self.records()?;
-        let io = |source| LibraryError::Io { path: out_path.to_path_buf(), source };
+        let io = |source| LibraryError::Io {
+            path: out_path.to_path_buf(),
+            source,
+        };
         for record in &records {
             let line = serde_json::to_string(record).map_err(|e| io(std::io::Error::other(e)))?;
             out.write_all(line.as_bytes()).map_err(io)?;
@@ -814,9 +1105,15 @@ impl Library {
     /// sessions already in the library (by SHA-256) are skipped.
     pub fn import(&mut self, file: &ExchangeFile) -> Result<ImportCounts> {
         let (sessions, in_path) = (&file.sessions, &file.path);
-        let mut counts = ImportCounts { records: file.records(), ..Default::default() };
+        let mut counts = ImportCounts {
+            records: file.records(),
+            ..Default::default()
+        };
         let path = self.path.clone();
-        let sqlite = move |source| LibraryError::Sqlite { path: path.clone(), source };
+        let sqlite = move |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
         let tx = self.write()?;
         for session in sessions {
             let present: Option<String> = tx
@@ -831,11 +1128,19 @@ impl Library {
                 counts.sessions_skipped += 1;
                 continue;
             }
-            let known: bool = tx.query_row("SELECT count(*) > 0 FROM stocks WHERE name = ?1", [&session.stock.name], |r| r.get(0)).map_err(&sqlite)?;
+            let known: bool = tx
+                .query_row(
+                    "SELECT count(*) > 0 FROM stocks WHERE name = ?1",
+                    [&session.stock.name],
+                    |r| r.get(0),
+                )
+                .map_err(&sqlite)?;
             counts.stocks_added += usize::from(!known);
-            let stock_id = upsert_stock(&tx, &session.stock).map_err(|e| e.into_library(&sqlite))?;
+            let stock_id =
+                upsert_stock(&tx, &session.stock).map_err(|e| e.into_library(&sqlite))?;
             let what = format!("{}:{}", in_path.display(), session.first_line);
-            insert_sheet(&tx, stock_id, &session.sheet, &what).map_err(|e| e.into_library(&sqlite))?;
+            insert_sheet(&tx, stock_id, &session.sheet, &what)
+                .map_err(|e| e.into_library(&sqlite))?;
             counts.sessions_added += 1;
         }
         tx.commit().map_err(&sqlite)?;
@@ -846,10 +1151,17 @@ impl Library {
     pub fn sheets(&self) -> Result<Vec<(String, String, Sheet)>> {
         let mut out: Vec<(String, String, Sheet)> = Vec::new();
         for record in self.records()? {
-            let spot = Spot { values: [record.sigma_deg, record.rho_s, record.rho_d], covariance: record.covariance };
+            let spot = Spot {
+                values: [record.sigma_deg, record.rho_s, record.rho_d],
+                covariance: record.covariance,
+            };
             match out.last_mut() {
                 Some(last) if last.1 == record.session_sha256 => last.2.spots.push(spot),
-                _ => out.push((record.stock, record.session_sha256, Sheet { spots: vec![spot] })),
+                _ => out.push((
+                    record.stock,
+                    record.session_sha256,
+                    Sheet { spots: vec![spot] },
+                )),
             }
         }
         Ok(out)
@@ -881,20 +1193,39 @@ impl TxError {
 /// The stock's id, made when new; manufacturer and notes given fill the library's when
 /// it has none, and must agree when it has.
 fn upsert_stock(tx: &rusqlite::Transaction<'_>, stock: &StockInfo) -> Result<i64, TxError> {
-    let row: Option<(i64, Option<String>, Option<String>)> =
-        tx.query_row("SELECT id, manufacturer, notes FROM stocks WHERE name = ?1", [&stock.name], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?))).optional()?;
+    let row: Option<(i64, Option<String>, Option<String>)> = tx
+        .query_row(
+            "SELECT id, manufacturer, notes FROM stocks WHERE name = ?1",
+            [&stock.name],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+        )
+        .optional()?;
     let Some((id, manufacturer, notes)) = row else {
-        tx.execute("INSERT INTO stocks (name, manufacturer, notes) VALUES (?1, ?2, ?3)", params![stock.name, stock.manufacturer, stock.notes])?;
+        tx.execute(
+            "INSERT INTO stocks (name, manufacturer, notes) VALUES (?1, ?2, ?3)",
+            params![stock.name, stock.manufacturer, stock.notes],
+        )?;
         return Ok(tx.last_insert_rowid());
     };
-    for (field, existing, given) in [("manufacturer", &manufacturer, &stock.manufacturer), ("notes", &notes, &stock.notes)] {
+    for (field, existing, given) in [
+        ("manufacturer", &manufacturer, &stock.manufacturer),
+        ("notes", &notes, &stock.notes),
+    ] {
         match (existing, given) {
             (Some(existing), Some(given)) if existing != given => {
-                return Err(TxError::Library(LibraryError::StockConflict { stock: stock.name.clone(), field, existing: existing.clone(), given: given.clone() }));
+                return Err(TxError::Library(LibraryError::StockConflict {
+                    stock: stock.name.clone(),
+                    field,
+                    existing: existing.clone(),
+                    given: given.clone(),
+                }));
             }
             (None, Some(given)) => {
                 // `field` is one of two fixed column names, never user text.
-                tx.execute(&format!("UPDATE stocks SET {field} = ?1 WHERE id = ?2"), params![given, id])?;
+                tx.execute(
+                    &format!("UPDATE stocks SET {field} = ?1 WHERE id = ?2"),
+                    params![given, id],
+                )?;
             }
             _ => {}
         }
@@ -904,12 +1235,21 @@ fn upsert_stock(tx: &rusqlite::Transaction<'_>, stock: &StockInfo) -> Result<i64
 
 /// Insert one sheet and its spots; a session already present is [`LibraryError::Duplicate`]
 /// naming its stock. `what` names the sheet's source in messages.
-fn insert_sheet(tx: &rusqlite::Transaction<'_>, stock_id: i64, sheet: &SheetRecord, what: &str) -> Result<(), TxError> {
+fn insert_sheet(
+    tx: &rusqlite::Transaction<'_>,
+    stock_id: i64,
+    sheet: &SheetRecord,
+    what: &str,
+) -> Result<(), TxError> {
     let present: Option<String> = tx
         .query_row("SELECT s.name FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.session_sha256 = ?1", [&sheet.session_sha256], |r| r.get(0))
         .optional()?;
     if let Some(stock) = present {
-        return Err(TxError::Library(LibraryError::Duplicate { what: what.to_string(), sha256: sheet.session_sha256.clone(), stock }));
+        return Err(TxError::Library(LibraryError::Duplicate {
+            what: what.to_string(),
+            sha256: sheet.session_sha256.clone(),
+            stock,
+        }));
     }
     tx.execute(
         "INSERT INTO sheets (stock_id, lot, measured_at, instrument_serial, session_path, session_sha256, sample, added_at)
@@ -924,7 +1264,20 @@ fn insert_sheet(tx: &rusqlite::Transaction<'_>, stock_id: i64, sheet: &SheetReco
     for (k, spot) in sheet.spots.iter().enumerate() {
         let c = &spot.covariance;
         insert.execute(params![
-            sheet_id, k as i64, spot.values[0], spot.values[1], spot.values[2], c[0][0], c[0][1], c[0][2], c[1][0], c[1][1], c[1][2], c[2][0], c[2][1], c[2][2]
+            sheet_id,
+            k as i64,
+            spot.values[0],
+            spot.values[1],
+            spot.values[2],
+            c[0][0],
+            c[0][1],
+            c[0][2],
+            c[1][0],
+            c[1][1],
+            c[1][2],
+            c[2][0],
+            c[2][1],
+            c[2][2]
         ])?;
     }
     Ok(())
@@ -937,13 +1290,27 @@ fn get_count(row: &rusqlite::Row<'_>, index: usize) -> rusqlite::Result<usize> {
     usize::try_from(value).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(index, value))
 }
 
-fn column_strings(tx: &rusqlite::Transaction<'_>, sql: &str, id: i64) -> rusqlite::Result<Vec<String>> {
+fn column_strings(
+    tx: &rusqlite::Transaction<'_>,
+    sql: &str,
+    id: i64,
+) -> rusqlite::Result<Vec<String>> {
     let mut stmt = tx.prepare(sql)?;
     stmt.query_map([id], |r| r.get(0))?.collect()
 }
 
-fn count_spots(tx: &rusqlite::Transaction<'_>, condition: &str, id: i64) -> rusqlite::Result<usize> {
-    tx.query_row(&format!("SELECT count(*) FROM spots p JOIN sheets h ON p.sheet_id = h.id WHERE {condition}"), [id], |r| get_count(r, 0))
+fn count_spots(
+    tx: &rusqlite::Transaction<'_>,
+    condition: &str,
+    id: i64,
+) -> rusqlite::Result<usize> {
+    tx.query_row(
+        &format!(
+            "SELECT count(*) FROM spots p JOIN sheets h ON p.sheet_id = h.id WHERE {condition}"
+        ),
+        [id],
+        |r| get_count(r, 0),
+    )
 }
 
 /// An exchange file read whole and checked, ready for [`Library::import`]: reading it
@@ -957,7 +1324,10 @@ pub struct ExchangeFile {
 impl ExchangeFile {
     /// Read and check the whole exchange file from `input`; `path` names it in messages.
     pub fn read(input: &mut dyn BufRead, path: &Path) -> Result<ExchangeFile> {
-        Ok(ExchangeFile { path: path.to_path_buf(), sessions: parse_exchange(input, path)? })
+        Ok(ExchangeFile {
+            path: path.to_path_buf(),
+            sessions: parse_exchange(input, path)?,
+        })
     }
 
     /// The spot records it holds.
@@ -979,7 +1349,11 @@ struct ImportedSession {
 /// Read and check a whole exchange file: every line a record of this format, the records
 /// of one session together, agreeing on the sheet and stock, with spots 0…n-1 in order.
 fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<ImportedSession>> {
-    let fail = |line: usize, what: String| LibraryError::Import { path: in_path.to_path_buf(), line, what };
+    let fail = |line: usize, what: String| LibraryError::Import {
+        path: in_path.to_path_buf(),
+        line,
+        what,
+    };
     let mut sessions: Vec<ImportedSession> = Vec::new();
     let mut seen = std::collections::HashSet::new();
     let mut stocks: std::collections::HashMap<String, StockInfo> = Default::default();
@@ -987,7 +1361,12 @@ fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<Importe
     let mut line = String::new();
     loop {
         line.clear();
-        let n = input.read_line(&mut line).map_err(|source| LibraryError::Io { path: in_path.to_path_buf(), source })?;
+        let n = input
+            .read_line(&mut line)
+            .map_err(|source| LibraryError::Io {
+                path: in_path.to_path_buf(),
+                source,
+            })?;
         if n == 0 {
             break;
         }
@@ -996,31 +1375,80 @@ fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<Importe
         if text.trim().is_empty() {
             continue;
         }
-        let record: ExchangeRecord = serde_json::from_str(text).map_err(|e| fail(line_no, format!("not an exchange record: {e}")))?;
-        if ![crate::schema::LIBRARY_RECORD, crate::schema::LIBRARY_RECORD_V1].contains(&record.schema.as_str()) {
-            return Err(fail(line_no, format!("schema '{}', this gonio reads {} and {}", record.schema, crate::schema::LIBRARY_RECORD, crate::schema::LIBRARY_RECORD_V1)));
+        let record: ExchangeRecord = serde_json::from_str(text)
+            .map_err(|e| fail(line_no, format!("not an exchange record: {e}")))?;
+        if ![
+            crate::schema::LIBRARY_RECORD,
+            crate::schema::LIBRARY_RECORD_V1,
+        ]
+        .contains(&record.schema.as_str())
+        {
+            return Err(fail(
+                line_no,
+                format!(
+                    "schema '{}', this gonio reads {} and {}",
+                    record.schema,
+                    crate::schema::LIBRARY_RECORD,
+                    crate::schema::LIBRARY_RECORD_V1
+                ),
+            ));
         }
         check_text("stock name", &record.stock).map_err(|e| fail(line_no, e.to_string()))?;
         if !is_sha256_hex(&record.session_sha256) {
-            return Err(fail(line_no, format!("session_sha256 '{}' is not 64 lowercase hex digits", record.session_sha256)));
+            return Err(fail(
+                line_no,
+                format!(
+                    "session_sha256 '{}' is not 64 lowercase hex digits",
+                    record.session_sha256
+                ),
+            ));
         }
-        let spot = Spot { values: [record.sigma_deg, record.rho_s, record.rho_d], covariance: record.covariance };
+        let spot = Spot {
+            values: [record.sigma_deg, record.rho_s, record.rho_d],
+            covariance: record.covariance,
+        };
         check_spot(&spot).map_err(|e| fail(line_no, e))?;
-        let stock = StockInfo { name: record.stock.clone(), manufacturer: record.manufacturer.clone(), notes: record.stock_notes.clone() };
+        let stock = StockInfo {
+            name: record.stock.clone(),
+            manufacturer: record.manufacturer.clone(),
+            notes: record.stock_notes.clone(),
+        };
         match stocks.get(&stock.name) {
-            Some(known) if *known != stock => return Err(fail(line_no, format!("stock '{}' has a different manufacturer or notes than on earlier lines", stock.name))),
+            Some(known) if *known != stock => {
+                return Err(fail(
+                    line_no,
+                    format!(
+                        "stock '{}' has a different manufacturer or notes than on earlier lines",
+                        stock.name
+                    ),
+                ));
+            }
             Some(_) => {}
             None => {
                 stocks.insert(stock.name.clone(), stock.clone());
             }
         }
-        let continues = sessions.last().is_some_and(|s| s.sheet.session_sha256 == record.session_sha256);
+        let continues = sessions
+            .last()
+            .is_some_and(|s| s.sheet.session_sha256 == record.session_sha256);
         if !continues {
             if record.spot != 0 {
-                return Err(fail(line_no, format!("session {} begins at spot {}, not 0", record.session_sha256, record.spot)));
+                return Err(fail(
+                    line_no,
+                    format!(
+                        "session {} begins at spot {}, not 0",
+                        record.session_sha256, record.spot
+                    ),
+                ));
             }
             if !seen.insert(record.session_sha256.clone()) {
-                return Err(fail(line_no, format!("session {} appears again after other sessions: a session's records must be together", record.session_sha256)));
+                return Err(fail(
+                    line_no,
+                    format!(
+                        "session {} appears again after other sessions: a session's records must be together",
+                        record.session_sha256
+                    ),
+                ));
             }
             if let Some(last) = sessions.last() {
                 check_whole(last).map_err(|what| fail(line_no - 1, what))?;
@@ -1042,7 +1470,9 @@ fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<Importe
             });
             continue;
         }
-        let Some(last) = sessions.last_mut() else { continue };
+        let Some(last) = sessions.last_mut() else {
+            continue;
+        };
         let same_sheet = last.stock == stock
             && last.sheet.lot == record.lot
             && last.sheet.measured_at == record.measured_at
@@ -1052,10 +1482,24 @@ fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<Importe
             && last.sheet.added_at == record.added_at;
         let same_sheet = same_sheet && last.declared_spots == record.spots;
         if !same_sheet {
-            return Err(fail(line_no, format!("a record of session {} whose sheet or stock fields differ from its first record's", record.session_sha256)));
+            return Err(fail(
+                line_no,
+                format!(
+                    "a record of session {} whose sheet or stock fields differ from its first record's",
+                    record.session_sha256
+                ),
+            ));
         }
         if record.spot != last.sheet.spots.len() {
-            return Err(fail(line_no, format!("spot {} of session {} out of order (expected {})", record.spot, record.session_sha256, last.sheet.spots.len())));
+            return Err(fail(
+                line_no,
+                format!(
+                    "spot {} of session {} out of order (expected {})",
+                    record.spot,
+                    record.session_sha256,
+                    last.sheet.spots.len()
+                ),
+            ));
         }
         last.sheet.spots.push(spot);
     }
@@ -1070,7 +1514,12 @@ fn check_whole(session: &ImportedSession) -> std::result::Result<(), String> {
     if session.sheet.spots.len() == session.declared_spots {
         Ok(())
     } else {
-        Err(format!("session {} has {} spot records, its records say {}", session.sheet.session_sha256, session.sheet.spots.len(), session.declared_spots))
+        Err(format!(
+            "session {} has {} spot records, its records say {}",
+            session.sheet.session_sha256,
+            session.sheet.spots.len(),
+            session.declared_spots
+        ))
     }
 }
 
@@ -1081,8 +1530,16 @@ mod tests {
 
     fn sheet(n: u64, spots: usize) -> SheetRecord {
         let spot = |k: usize| Spot {
-            values: [Some(4.0 + n as f64 * 0.1 + k as f64), if k == 1 { None } else { Some(0.1 + 0.2) }, Some(0.8 + 1e-17 * k as f64)],
-            covariance: [[1e-300, 2.5e-3, -1.0 / 3.0], [2.5e-3, 0.0, 7.0], [-1.0 / 3.0, 7.0, f64::MAX]],
+            values: [
+                Some(4.0 + n as f64 * 0.1 + k as f64),
+                if k == 1 { None } else { Some(0.1 + 0.2) },
+                Some(0.8 + 1e-17 * k as f64),
+            ],
+            covariance: [
+                [1e-300, 2.5e-3, -1.0 / 3.0],
+                [2.5e-3, 0.0, 7.0],
+                [-1.0 / 3.0, 7.0, f64::MAX],
+            ],
         };
         SheetRecord {
             lot: (n % 2 == 0).then(|| format!("ream {n}")),
@@ -1097,7 +1554,11 @@ mod tests {
     }
 
     fn stock(name: &str) -> StockInfo {
-        StockInfo { name: name.into(), manufacturer: Some("Acme «Papier»".into()), notes: None }
+        StockInfo {
+            name: name.into(),
+            manufacturer: Some("Acme «Papier»".into()),
+            notes: None,
+        }
     }
 
     fn export_bytes(library: &Library) -> Vec<u8> {
@@ -1109,9 +1570,22 @@ mod tests {
     /// A library of a few stocks, sheets and spots.
     fn filled(path: &Path) -> Library {
         let mut library = Library::open(path, OpenMode::Add).expect("create");
-        library.add_sheets(&stock("PPC"), &[sheet(1, 1), sheet(2, 3)]).expect("add");
-        library.add_sheets(&StockInfo { name: "Bond 80 g/m²".into(), manufacturer: None, notes: Some("from a \"ream\"\nline two".into()) }, &[sheet(3, 2)]).expect("add");
-        library.add_sheets(&stock("PPC"), &[sheet(4, 1)]).expect("add to an existing stock");
+        library
+            .add_sheets(&stock("PPC"), &[sheet(1, 1), sheet(2, 3)])
+            .expect("add");
+        library
+            .add_sheets(
+                &StockInfo {
+                    name: "Bond 80 g/m²".into(),
+                    manufacturer: None,
+                    notes: Some("from a \"ream\"\nline two".into()),
+                },
+                &[sheet(3, 2)],
+            )
+            .expect("add");
+        library
+            .add_sheets(&stock("PPC"), &[sheet(4, 1)])
+            .expect("add to an existing stock");
         library
     }
 
@@ -1121,12 +1595,28 @@ mod tests {
         let path = dir.path().join("sub").join("library.sqlite");
         drop(Library::open(&path, OpenMode::Add).expect("create"));
         let conn = Connection::open(&path).expect("open");
-        let id: i32 = conn.pragma_query_value(None, "application_id", |r| r.get(0)).expect("id");
-        let user_version: i64 = conn.pragma_query_value(None, "user_version", |r| r.get(0)).expect("version");
-        let schema_version: i64 = conn.query_row("SELECT value FROM meta WHERE key = 'schema_version'", [], |r| r.get(0)).expect("meta");
+        let id: i32 = conn
+            .pragma_query_value(None, "application_id", |r| r.get(0))
+            .expect("id");
+        let user_version: i64 = conn
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .expect("version");
+        let schema_version: i64 = conn
+            .query_row(
+                "SELECT value FROM meta WHERE key = 'schema_version'",
+                [],
+                |r| r.get(0),
+            )
+            .expect("meta");
         assert_eq!((id, user_version, schema_version), (APPLICATION_ID, 1, 1));
         // Reopening finds it, empty.
-        assert!(Library::open(&path, OpenMode::Existing).expect("reopen").stocks().expect("stocks").is_empty());
+        assert!(
+            Library::open(&path, OpenMode::Existing)
+                .expect("reopen")
+                .stocks()
+                .expect("stocks")
+                .is_empty()
+        );
     }
 
     #[test]
@@ -1141,7 +1631,11 @@ mod tests {
 
     /// Every file beside the library (WAL, shared memory), for "left as it is".
     fn folder_bytes(dir: &Path) -> Vec<(std::ffi::OsString, Vec<u8>)> {
-        let mut files: Vec<_> = std::fs::read_dir(dir).expect("list").map(|e| e.expect("entry")).map(|e| (e.file_name(), std::fs::read(e.path()).expect("read"))).collect();
+        let mut files: Vec<_> = std::fs::read_dir(dir)
+            .expect("list")
+            .map(|e| e.expect("entry"))
+            .map(|e| (e.file_name(), std::fs::read(e.path()).expect("read")))
+            .collect();
         files.sort();
         files
     }
@@ -1153,15 +1647,25 @@ mod tests {
         drop(filled(&path));
         {
             let conn = Connection::open(&path).expect("open");
-            conn.execute("UPDATE meta SET value = 2 WHERE key = 'schema_version'", []).expect("update");
-            conn.pragma_update(None, "user_version", 2).expect("version");
+            conn.execute("UPDATE meta SET value = 2 WHERE key = 'schema_version'", [])
+                .expect("update");
+            conn.pragma_update(None, "user_version", 2)
+                .expect("version");
         }
         let before = folder_bytes(dir.path());
         for mode in [OpenMode::Existing, OpenMode::Add] {
             let err = Library::open(&path, mode).expect_err("newer");
             assert!(matches!(err, LibraryError::Newer { found: 2, .. }), "{err}");
-            assert!(err.to_string().contains("written by a newer gonio (schema 2); this gonio reads up to 1: update gonio"), "{err}");
-            assert!(err.to_string().contains(&path.display().to_string()), "{err}");
+            assert!(
+                err.to_string().contains(
+                    "written by a newer gonio (schema 2); this gonio reads up to 1: update gonio"
+                ),
+                "{err}"
+            );
+            assert!(
+                err.to_string().contains(&path.display().to_string()),
+                "{err}"
+            );
         }
         assert_eq!(folder_bytes(dir.path()), before);
     }
@@ -1176,10 +1680,20 @@ mod tests {
             std::fs::write(&path, &bytes).expect("write");
             for mode in [OpenMode::Existing, OpenMode::Add] {
                 let err = Library::open(&path, mode).expect_err("not SQLite");
-                assert!(matches!(err, LibraryError::NotSqlite { .. }), "{len} bytes: {err}");
-                assert!(err.to_string().starts_with(&path.display().to_string()), "{err}");
+                assert!(
+                    matches!(err, LibraryError::NotSqlite { .. }),
+                    "{len} bytes: {err}"
+                );
+                assert!(
+                    err.to_string().starts_with(&path.display().to_string()),
+                    "{err}"
+                );
             }
-            assert_eq!(folder_bytes(dir.path()), vec![(path.file_name().expect("name").to_owned(), bytes)], "{len} bytes");
+            assert_eq!(
+                folder_bytes(dir.path()),
+                vec![(path.file_name().expect("name").to_owned(), bytes)],
+                "{len} bytes"
+            );
         }
     }
 
@@ -1210,9 +1724,16 @@ mod tests {
             for mode in [OpenMode::Existing, OpenMode::Add] {
                 let err = Library::open(&path, mode).expect_err(what);
                 assert!(matches!(err, LibraryError::Corrupt { .. }), "{what}: {err}");
-                assert!(err.to_string().starts_with(&path.display().to_string()), "{err}");
+                assert!(
+                    err.to_string().starts_with(&path.display().to_string()),
+                    "{err}"
+                );
             }
-            assert_eq!(folder_bytes(dir.path()), vec![(path.file_name().expect("name").to_owned(), bytes)], "{what}");
+            assert_eq!(
+                folder_bytes(dir.path()),
+                vec![(path.file_name().expect("name").to_owned(), bytes)],
+                "{what}"
+            );
         }
     }
 
@@ -1220,7 +1741,10 @@ mod tests {
     fn an_sqlite_file_of_another_program_is_refused() {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("other.sqlite");
-        Connection::open(&path).expect("open").execute_batch("CREATE TABLE t (x); INSERT INTO t VALUES (1);").expect("create");
+        Connection::open(&path)
+            .expect("open")
+            .execute_batch("CREATE TABLE t (x); INSERT INTO t VALUES (1);")
+            .expect("create");
         let before = folder_bytes(dir.path());
         let err = Library::open(&path, OpenMode::Add).expect_err("foreign");
         assert!(matches!(err, LibraryError::Foreign { .. }), "{err}");
@@ -1233,19 +1757,52 @@ mod tests {
         let mut library = filled(&dir.path().join("library.sqlite"));
         let before = export_bytes(&library);
         // Under another stock, and together with a new sheet: nothing of the add is kept.
-        let err = library.add_sheets(&stock("Other"), &[sheet(50, 1), sheet(2, 1)]).expect_err("duplicate");
-        assert!(matches!(&err, LibraryError::Duplicate { stock, .. } if stock == "PPC"), "{err}");
-        assert!(err.to_string().contains("already in the library under stock 'PPC'"), "{err}");
+        let err = library
+            .add_sheets(&stock("Other"), &[sheet(50, 1), sheet(2, 1)])
+            .expect_err("duplicate");
+        assert!(
+            matches!(&err, LibraryError::Duplicate { stock, .. } if stock == "PPC"),
+            "{err}"
+        );
+        assert!(
+            err.to_string()
+                .contains("already in the library under stock 'PPC'"),
+            "{err}"
+        );
         assert_eq!(export_bytes(&library), before);
-        assert!(library.stocks().expect("stocks").iter().all(|s| s.name != "Other"));
+        assert!(
+            library
+                .stocks()
+                .expect("stocks")
+                .iter()
+                .all(|s| s.name != "Other")
+        );
     }
 
     #[test]
     fn a_different_manufacturer_for_a_stock_is_refused() {
         let dir = tempfile::tempdir().expect("temp dir");
         let mut library = filled(&dir.path().join("library.sqlite"));
-        let err = library.add_sheets(&StockInfo { name: "PPC".into(), manufacturer: Some("Other".into()), notes: None }, &[sheet(60, 1)]).expect_err("conflict");
-        assert!(matches!(err, LibraryError::StockConflict { field: "manufacturer", .. }), "{err}");
+        let err = library
+            .add_sheets(
+                &StockInfo {
+                    name: "PPC".into(),
+                    manufacturer: Some("Other".into()),
+                    notes: None,
+                },
+                &[sheet(60, 1)],
+            )
+            .expect_err("conflict");
+        assert!(
+            matches!(
+                err,
+                LibraryError::StockConflict {
+                    field: "manufacturer",
+                    ..
+                }
+            ),
+            "{err}"
+        );
     }
 
     #[test]
@@ -1253,31 +1810,80 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         let first = filled(&dir.path().join("first.sqlite"));
         let exported = export_bytes(&first);
-        assert_eq!(exported.iter().filter(|&&b| b == b'\n').count(), 7, "one line per spot");
-        let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
-        let counts = second.import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read")).expect("import");
-        assert_eq!(counts, ImportCounts { records: 7, sessions_added: 4, sessions_skipped: 0, stocks_added: 2 });
-        assert_eq!(String::from_utf8(export_bytes(&second)).expect("utf-8"), String::from_utf8(exported.clone()).expect("utf-8"));
+        assert_eq!(
+            exported.iter().filter(|&&b| b == b'\n').count(),
+            7,
+            "one line per spot"
+        );
+        let mut second =
+            Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
+        let counts = second
+            .import(
+                &ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"),
+            )
+            .expect("import");
+        assert_eq!(
+            counts,
+            ImportCounts {
+                records: 7,
+                sessions_added: 4,
+                sessions_skipped: 0,
+                stocks_added: 2
+            }
+        );
+        assert_eq!(
+            String::from_utf8(export_bytes(&second)).expect("utf-8"),
+            String::from_utf8(exported.clone()).expect("utf-8")
+        );
         // Lossless: the sheets (every f64 bit, every None) are the ones added.
-        assert_eq!(second.sheets().expect("sheets"), first.sheets().expect("sheets"));
-        assert_eq!(second.stocks().expect("stocks"), first.stocks().expect("stocks"));
+        assert_eq!(
+            second.sheets().expect("sheets"),
+            first.sheets().expect("sheets")
+        );
+        assert_eq!(
+            second.stocks().expect("stocks"),
+            first.stocks().expect("stocks")
+        );
         // Again: every session is already present.
-        let counts = second.import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read")).expect("import");
-        assert_eq!(counts, ImportCounts { records: 7, sessions_added: 0, sessions_skipped: 4, stocks_added: 0 });
+        let counts = second
+            .import(
+                &ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"),
+            )
+            .expect("import");
+        assert_eq!(
+            counts,
+            ImportCounts {
+                records: 7,
+                sessions_added: 0,
+                sessions_skipped: 4,
+                stocks_added: 0
+            }
+        );
         assert_eq!(export_bytes(&second), exported);
     }
 
     #[test]
     fn an_exchange_file_of_the_first_version_still_imports() {
         let dir = tempfile::tempdir().expect("temp dir");
-        let exported = String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite")))).expect("utf-8");
+        let exported = String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite"))))
+            .expect("utf-8");
         // What gonio wrote before its documents carried `schema`: the key was `format`.
-        let old = exported.replace(&format!("\"schema\":\"{}\"", crate::schema::LIBRARY_RECORD), &format!("\"format\":\"{}\"", crate::schema::LIBRARY_RECORD_V1));
+        let old = exported.replace(
+            &format!("\"schema\":\"{}\"", crate::schema::LIBRARY_RECORD),
+            &format!("\"format\":\"{}\"", crate::schema::LIBRARY_RECORD_V1),
+        );
         assert_ne!(old, exported, "the records name their schema");
-        let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
-        let counts = second.import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read")).expect("import");
+        let mut second =
+            Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
+        let counts = second
+            .import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read"))
+            .expect("import");
         assert_eq!(counts.records, exported.lines().count());
-        assert_eq!(String::from_utf8(export_bytes(&second)).expect("utf-8"), exported, "imported as the same records");
+        assert_eq!(
+            String::from_utf8(export_bytes(&second)).expect("utf-8"),
+            exported,
+            "imported as the same records"
+        );
     }
 
     #[test]
@@ -1288,15 +1894,34 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         let cases = [
             (format!("{}\n{}\nnot json\n", lines[0], lines[1]), 3),
-            (format!("{}\n{}\n", lines[0], lines[1].replace(crate::schema::LIBRARY_RECORD, "gonio-library/9")), 2),
+            (
+                format!(
+                    "{}\n{}\n",
+                    lines[0],
+                    lines[1].replace(crate::schema::LIBRARY_RECORD, "gonio-library/9")
+                ),
+                2,
+            ),
             // The second spot of the first sheet (stock "Bond…", two spots) missing.
-            (lines.iter().enumerate().filter(|(k, _)| *k != 1).map(|(_, l)| format!("{l}\n")).collect(), 0),
+            (
+                lines
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, _)| *k != 1)
+                    .map(|(_, l)| format!("{l}\n"))
+                    .collect(),
+                0,
+            ),
         ];
         for (bad, line) in cases {
-            let err = ExchangeFile::read(&mut bad.as_bytes(), Path::new("x.jsonl")).expect_err("bad");
+            let err =
+                ExchangeFile::read(&mut bad.as_bytes(), Path::new("x.jsonl")).expect_err("bad");
             assert!(matches!(err, LibraryError::Import { .. }), "{err}");
             if line > 0 {
-                assert!(err.to_string().starts_with(&format!("x.jsonl:{line}:")), "{err}");
+                assert!(
+                    err.to_string().starts_with(&format!("x.jsonl:{line}:")),
+                    "{err}"
+                );
             }
         }
     }
@@ -1306,17 +1931,35 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         let mut library = filled(&dir.path().join("library.sqlite"));
         let sha = sheet(3, 2).session_sha256;
-        let removed = library.remove_session(&sha[..10].to_uppercase()).expect("remove");
-        assert_eq!(removed, Removed { stocks: vec!["Bond 80 g/m²".into()], sessions: vec![sha.clone()], spots: 2 });
-        assert!(matches!(library.remove_session(&sha), Err(LibraryError::SessionPrefix { .. })));
-        assert!(matches!(library.remove_session("zz"), Err(LibraryError::SessionPrefix { .. })));
+        let removed = library
+            .remove_session(&sha[..10].to_uppercase())
+            .expect("remove");
+        assert_eq!(
+            removed,
+            Removed {
+                stocks: vec!["Bond 80 g/m²".into()],
+                sessions: vec![sha.clone()],
+                spots: 2
+            }
+        );
+        assert!(matches!(
+            library.remove_session(&sha),
+            Err(LibraryError::SessionPrefix { .. })
+        ));
+        assert!(matches!(
+            library.remove_session("zz"),
+            Err(LibraryError::SessionPrefix { .. })
+        ));
         // The empty prefix would match every session: refused.
         assert!(library.remove_session("").is_err());
         let removed = library.remove_stock("PPC").expect("remove");
         assert_eq!((removed.sessions.len(), removed.spots), (3, 5));
         assert!(library.stocks().expect("stocks").is_empty());
         assert!(library.records().expect("records").is_empty());
-        assert!(matches!(library.remove_stock("PPC"), Err(LibraryError::UnknownStock { .. })));
+        assert!(matches!(
+            library.remove_stock("PPC"),
+            Err(LibraryError::UnknownStock { .. })
+        ));
     }
 
     #[test]
@@ -1331,7 +1974,12 @@ mod tests {
                     barrier.wait();
                     let mut library = Library::open(&path, OpenMode::Add).expect("open");
                     for n in 0..25 {
-                        library.add_sheets(&stock(&format!("stock {}", n % 3)), &[sheet(1000 * (t + 1) + n, 1)]).expect("add");
+                        library
+                            .add_sheets(
+                                &stock(&format!("stock {}", n % 3)),
+                                &[sheet(1000 * (t + 1) + n, 1)],
+                            )
+                            .expect("add");
                     }
                 })
             })

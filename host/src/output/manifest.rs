@@ -7,7 +7,10 @@ use std::path::Path;
 
 /// The SHA-256 of `bytes`, as lowercase hex.
 pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// The manifest text of every file in `dir` but the manifest itself.
@@ -29,10 +32,19 @@ pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
 /// file. Returns the number of files checked, or every problem found.
 pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
     let path = dir.join(MANIFEST);
-    let problem = |line: Option<usize>, message: String| Problem { file: path.clone(), line, message };
+    let problem = |line: Option<usize>, message: String| Problem {
+        file: path.clone(),
+        line,
+        message,
+    };
     let text = match std::fs::read_to_string(&path) {
         Ok(text) => text,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(vec![problem(None, "missing: the session never finished (or the file was removed)".into())]),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(vec![problem(
+                None,
+                "missing: the session never finished (or the file was removed)".into(),
+            )]);
+        }
         Err(e) => return Err(vec![problem(None, format!("cannot read: {e}"))]),
     };
     let mut problems = Vec::new();
@@ -49,7 +61,10 @@ pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
             continue;
         }
         if name.contains('/') || name == MANIFEST || name.is_empty() {
-            problems.push(problem(line_no, format!("'{name}' is not a file of the folder")));
+            problems.push(problem(
+                line_no,
+                format!("'{name}' is not a file of the folder"),
+            ));
             continue;
         }
         if !listed.insert(name.to_string()) {
@@ -68,14 +83,32 @@ pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
         Ok(names) => {
             // The report is drawn from the record, not part of it (nor is a report a kill cut
             // short, which the next `gonio report` replaces).
-            let report = |n: &str| n == crate::output::report::REPORT || n == crate::output::store::temp_name(crate::output::report::REPORT);
-            for name in names.into_iter().filter(|n| n != MANIFEST && !report(n) && !listed.contains(n)) {
-                problems.push(Problem { file: dir.join(&name), line: None, message: format!("not in {MANIFEST}: added after the session finished") });
+            let report = |n: &str| {
+                n == crate::output::report::REPORT
+                    || n == crate::output::store::temp_name(crate::output::report::REPORT)
+            };
+            for name in names
+                .into_iter()
+                .filter(|n| n != MANIFEST && !report(n) && !listed.contains(n))
+            {
+                problems.push(Problem {
+                    file: dir.join(&name),
+                    line: None,
+                    message: format!("not in {MANIFEST}: added after the session finished"),
+                });
             }
         }
-        Err(e) => problems.push(Problem { file: dir.to_path_buf(), line: None, message: format!("cannot list: {e}") }),
+        Err(e) => problems.push(Problem {
+            file: dir.to_path_buf(),
+            line: None,
+            message: format!("cannot list: {e}"),
+        }),
     }
-    if problems.is_empty() { Ok(listed.len()) } else { Err(problems) }
+    if problems.is_empty() {
+        Ok(listed.len())
+    } else {
+        Err(problems)
+    }
 }
 
 #[cfg(test)]
@@ -85,7 +118,13 @@ mod tests {
     #[test]
     fn sha256_of_known_strings() {
         // FIPS 180-2 test vectors.
-        assert_eq!(sha256_hex(b"abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
-        assert_eq!(sha256_hex(b""), "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+        assert_eq!(
+            sha256_hex(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert_eq!(
+            sha256_hex(b""),
+            "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+        );
     }
 }

@@ -30,7 +30,11 @@ pub struct Reanalysis {
 pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
     let file = dir.join(SESSION);
     let doc = folder::require_finished(dir).map_err(|p| p.to_string())?;
-    let recorded = doc.rest.get("result").cloned().ok_or_else(|| format!("{}: no result", file.display()))?;
+    let recorded = doc
+        .rest
+        .get("result")
+        .cloned()
+        .ok_or_else(|| format!("{}: no result", file.display()))?;
     let calibration = folder::read_calibration(dir).map_err(|p| p.to_string())?;
     let mut points = crate::output::record::read_points(dir).map_err(|p| p.to_string())?;
     if let Some(c) = &calibration {
@@ -40,12 +44,24 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
     }
     // Sessions before these were recorded: the plan's acceptance, the default arm zero, the
     // session's end as the time of the analysis (the result then differs in the drift's share).
-    let settings: AnalysisSettings = recorded.get("analysis_settings").cloned().and_then(|v| serde_json::from_value(v).ok()).unwrap_or(AnalysisSettings {
-        acceptance_deg: doc.plan.acceptance_deg,
-        arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
-    });
-    let ended = doc.runs.last().and_then(|r| r.ended.as_deref()).and_then(|t| chrono::DateTime::parse_from_rfc3339(t).ok()).map_or(0, |t| t.timestamp().max(0) as u64);
-    let now = recorded.get("analysed_unix_s").and_then(Value::as_u64).unwrap_or(ended);
+    let settings: AnalysisSettings = recorded
+        .get("analysis_settings")
+        .cloned()
+        .and_then(|v| serde_json::from_value(v).ok())
+        .unwrap_or(AnalysisSettings {
+            acceptance_deg: doc.plan.acceptance_deg,
+            arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+        });
+    let ended = doc
+        .runs
+        .last()
+        .and_then(|r| r.ended.as_deref())
+        .and_then(|t| chrono::DateTime::parse_from_rfc3339(t).ok())
+        .map_or(0, |t| t.timestamp().max(0) as u64);
+    let now = recorded
+        .get("analysed_unix_s")
+        .and_then(Value::as_u64)
+        .unwrap_or(ended);
     let mut report = analyse_points(&doc.sample, &points, calibration.as_ref(), &settings, now)?;
     report.file = dir.to_path_buf();
     let again = to_json(&report);
@@ -55,11 +71,29 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
     let session_level = ["schema", "file", "flags", "ok"];
     let mut differences: Vec<String> = again
         .as_object()
-        .map(|o| o.iter().filter(|(k, v)| !session_level.contains(&k.as_str()) && recorded.get(k.as_str()) != Some(v)).map(|(k, _)| k.clone()).collect())
+        .map(|o| {
+            o.iter()
+                .filter(|(k, v)| {
+                    !session_level.contains(&k.as_str()) && recorded.get(k.as_str()) != Some(v)
+                })
+                .map(|(k, _)| k.clone())
+                .collect()
+        })
         .unwrap_or_default();
-    let recorded_flags: Vec<&str> = recorded.get("flags").and_then(Value::as_array).map(|a| a.iter().filter_map(Value::as_str).collect()).unwrap_or_default();
-    if report.flags.iter().any(|f| !recorded_flags.contains(&f.name())) {
+    let recorded_flags: Vec<&str> = recorded
+        .get("flags")
+        .and_then(Value::as_array)
+        .map(|a| a.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    if report
+        .flags
+        .iter()
+        .any(|f| !recorded_flags.contains(&f.name()))
+    {
         differences.push("flags".to_string());
     }
-    Ok(Reanalysis { report, differences })
+    Ok(Reanalysis {
+        report,
+        differences,
+    })
 }

@@ -14,8 +14,8 @@
 //! status of a failed or interrupted session and how to resume it.
 use crate::instrument::calibration::Calibration;
 use crate::output::folder::{
-    self, CALIBRATION, CsvAgreement, InstrumentRecord, Inspection, LOG, MANIFEST, POINTS, PlanRecord, Problem, READINGS, READINGS_HEADER,
-    Run, RunOutcome, SESSION, SessionDoc, Status,
+    self, CALIBRATION, CsvAgreement, Inspection, InstrumentRecord, LOG, MANIFEST, POINTS,
+    PlanRecord, Problem, READINGS, READINGS_HEADER, Run, RunOutcome, SESSION, SessionDoc, Status,
 };
 use crate::output::store::{Store, StoreOptions, Sync};
 use crate::session::{MeasuredPoint, Progress, Recorder};
@@ -154,7 +154,10 @@ pub enum FolderError {
 }
 
 pub(crate) fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
-    move |source| FolderError::Io { dir: dir.to_path_buf(), source }
+    move |source| FolderError::Io {
+        dir: dir.to_path_buf(),
+        source,
+    }
 }
 
 /// Keeps other `gonio` processes out of a folder while this one writes it (an advisory
@@ -173,8 +176,13 @@ impl FolderLock {
             let file = std::fs::File::open(dir).map_err(io_error(dir))?;
             match nix::fcntl::Flock::lock(file, nix::fcntl::FlockArg::LockExclusiveNonblock) {
                 Ok(lock) => Ok(FolderLock { _lock: lock }),
-                Err((_, nix::errno::Errno::EWOULDBLOCK)) => Err(FolderError::InUse(dir.to_path_buf())),
-                Err((_, errno)) => Err(FolderError::Io { dir: dir.to_path_buf(), source: io::Error::from(errno) }),
+                Err((_, nix::errno::Errno::EWOULDBLOCK)) => {
+                    Err(FolderError::InUse(dir.to_path_buf()))
+                }
+                Err((_, errno)) => Err(FolderError::Io {
+                    dir: dir.to_path_buf(),
+                    source: io::Error::from(errno),
+                }),
             }
         }
         #[cfg(not(unix))]
@@ -187,14 +195,32 @@ impl FolderLock {
 
 /// A sample's name as a file name: letters, digits, `.`, `_` and `-` kept, the rest `_`.
 pub fn file_name_of(sample: &str) -> String {
-    let name: String = sample.chars().take(48).map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect();
-    if name.is_empty() || name.starts_with('.') { format!("_{name}") } else { name }
+    let name: String = sample
+        .chars()
+        .take(48)
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() || name.starts_with('.') {
+        format!("_{name}")
+    } else {
+        name
+    }
 }
 
 /// The name of a new folder for `sample` under `sessions/`: `<local date-time>-<sample>`
 /// (a session's and a sheet's alike; the caller adds `-2`, `-3`… when it is taken).
 pub(crate) fn dated_folder_name(sample: &str) -> String {
-    format!("{}-{}", chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"), file_name_of(sample))
+    format!(
+        "{}-{}",
+        chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"),
+        file_name_of(sample)
+    )
 }
 
 /// Records a session into its folder and shows its progress.
@@ -216,7 +242,11 @@ pub struct FileRecorder {
 
 /// The bar of a stage of geometries.
 fn geometries_style() -> ProgressStyle {
-    ProgressStyle::with_template("{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left").unwrap_or_else(|_| ProgressStyle::default_bar()).progress_chars("=> ")
+    ProgressStyle::with_template(
+        "{msg:40} [{bar:30}] {pos}/{len} geometries, {prefix} device s left",
+    )
+    .unwrap_or_else(|_| ProgressStyle::default_bar())
+    .progress_chars("=> ")
 }
 
 /// Before the first stage of geometries (connecting, homing, the dark and white
@@ -228,7 +258,10 @@ fn progress_bar() -> ProgressBar {
 /// A session's progress bar drawn to `target` (the terminal's standard error in use).
 pub fn progress_bar_to(target: indicatif::ProgressDrawTarget) -> ProgressBar {
     let bar = ProgressBar::with_draw_target(Some(0), target);
-    bar.set_style(ProgressStyle::with_template("{spinner} {msg}").unwrap_or_else(|_| ProgressStyle::default_spinner()));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
     bar.set_message("getting ready: homing, calibration, the operator (no geometry measured yet)");
     bar
 }
@@ -243,7 +276,11 @@ pub(crate) fn json_bytes(value: &impl serde::Serialize) -> io::Result<Vec<u8>> {
 impl FileRecorder {
     /// Make the folder `dir` for a new session (`--out`): a new folder, or an empty one.
     /// Refuses a folder that holds anything (another session or not).
-    pub fn create(dir: &Path, identity: Identity, options: StoreOptions) -> Result<FileRecorder, FolderError> {
+    pub fn create(
+        dir: &Path,
+        identity: Identity,
+        options: StoreOptions,
+    ) -> Result<FileRecorder, FolderError> {
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).map_err(io_error(parent))?;
         }
@@ -258,11 +295,18 @@ impl FileRecorder {
                 let cleaned = take_empty(&mut store, dir)?;
                 (store, lock, cleaned)
             }
-            Err(e) => return Err(FolderError::Io { dir: dir.to_path_buf(), source: e }),
+            Err(e) => {
+                return Err(FolderError::Io {
+                    dir: dir.to_path_buf(),
+                    source: e,
+                });
+            }
         };
         let mut recorder = FileRecorder::start(store, lock, identity)?;
         for name in cleaned {
-            recorder.decision(&format!("removed {name}, a temporary file a killed gonio left before its session began"));
+            recorder.decision(&format!(
+                "removed {name}, a temporary file a killed gonio left before its session began"
+            ));
         }
         Ok(recorder)
     }
@@ -270,11 +314,19 @@ impl FileRecorder {
     /// Make a new folder `PARENT/<local date-time>-<sample>` (a suffix `-2`, `-3`… when a
     /// session of the same second has it: the folder is made atomically, so two sessions
     /// never get the same one).
-    pub fn create_default(parent: &Path, identity: Identity, options: StoreOptions) -> Result<FileRecorder, FolderError> {
+    pub fn create_default(
+        parent: &Path,
+        identity: Identity,
+        options: StoreOptions,
+    ) -> Result<FileRecorder, FolderError> {
         std::fs::create_dir_all(parent).map_err(io_error(parent))?;
         let base = dated_folder_name(&identity.sample);
         for k in 1..10_000 {
-            let dir = parent.join(if k == 1 { base.clone() } else { format!("{base}-{k}") });
+            let dir = parent.join(if k == 1 {
+                base.clone()
+            } else {
+                format!("{base}-{k}")
+            });
             match Store::create_dir(&dir, options.clone()) {
                 Ok(store) => {
                     let lock = FolderLock::take(&dir)?;
@@ -284,11 +336,18 @@ impl FileRecorder {
                 Err(e) => return Err(FolderError::Io { dir, source: e }),
             }
         }
-        Err(FolderError::Io { dir: parent.join(base), source: io::Error::other("10 000 sessions of this sample in one second") })
+        Err(FolderError::Io {
+            dir: parent.join(base),
+            source: io::Error::other("10 000 sessions of this sample in one second"),
+        })
     }
 
     /// The first `session.json` (status running, run 1) and the `readings.csv` header.
-    fn start(mut store: Store, lock: FolderLock, identity: Identity) -> Result<FileRecorder, FolderError> {
+    fn start(
+        mut store: Store,
+        lock: FolderLock,
+        identity: Identity,
+    ) -> Result<FileRecorder, FolderError> {
         let dir = store.dir().to_path_buf();
         let doc = SessionDoc {
             schema: crate::schema::SESSION.into(),
@@ -304,10 +363,31 @@ impl FileRecorder {
             case: identity.case,
             rest: serde_json::Map::new(),
         };
-        store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
-        store.append(READINGS, format!("{READINGS_HEADER}\n").as_bytes(), Sync::Never).map_err(io_error(&dir))?;
-        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), points: Vec::new(), failed: None };
-        recorder.decision(&format!("session of '{}' on instrument {} in {}", recorder.doc.sample, recorder.doc.instrument.serial_number, dir.display()));
+        store
+            .replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?)
+            .map_err(io_error(&dir))?;
+        store
+            .append(
+                READINGS,
+                format!("{READINGS_HEADER}\n").as_bytes(),
+                Sync::Never,
+            )
+            .map_err(io_error(&dir))?;
+        let mut recorder = FileRecorder {
+            store,
+            _lock: lock,
+            doc,
+            bar: progress_bar(),
+            decisions: Vec::new(),
+            points: Vec::new(),
+            failed: None,
+        };
+        recorder.decision(&format!(
+            "session of '{}' on instrument {} in {}",
+            recorder.doc.sample,
+            recorder.doc.instrument.serial_number,
+            dir.display()
+        ));
         Ok(recorder)
     }
 
@@ -348,7 +428,11 @@ impl FileRecorder {
     /// `session.json` with status finished and `result` (the readings, fits, result, ok,
     /// flags…: whatever the caller puts in it), then the manifest. Nothing is written into
     /// the folder after it.
-    pub fn finish(&mut self, result: serde_json::Map<String, serde_json::Value>, files: &[(String, Vec<u8>)]) -> io::Result<()> {
+    pub fn finish(
+        &mut self,
+        result: serde_json::Map<String, serde_json::Value>,
+        files: &[(String, Vec<u8>)],
+    ) -> io::Result<()> {
         self.check_failed()?;
         self.decision("session finished: result in session.json, checksums in MANIFEST.sha256");
         self.check_failed()?;
@@ -360,7 +444,12 @@ impl FileRecorder {
         self.doc.why = None;
         self.doc.resume_with = None;
         self.doc.rest = result;
-        let all: Vec<serde_json::Value> = self.doc.runs.iter().flat_map(|r| r.decisions.iter().cloned().map(serde_json::Value::from)).collect();
+        let all: Vec<serde_json::Value> = self
+            .doc
+            .runs
+            .iter()
+            .flat_map(|r| r.decisions.iter().cloned().map(serde_json::Value::from))
+            .collect();
         self.doc.rest.insert("decisions".into(), all.into());
         self.store.replace(SESSION, &json_bytes(&self.doc)?)?;
         self.store.sync_all()?;
@@ -371,7 +460,14 @@ impl FileRecorder {
     /// then `session.json` with the status, why and how to resume.
     pub fn stop(&mut self, status: Status, why: &str) -> io::Result<()> {
         self.decision(&format!("session stopped ({status}): {why}"));
-        self.close_run(if status == Status::Interrupted { RunOutcome::Interrupted } else { RunOutcome::Failed }, Some(why.to_string()));
+        self.close_run(
+            if status == Status::Interrupted {
+                RunOutcome::Interrupted
+            } else {
+                RunOutcome::Failed
+            },
+            Some(why.to_string()),
+        );
         self.doc.status = status;
         self.doc.why = Some(why.to_string());
         self.store.replace(SESSION, &json_bytes(&self.doc)?)?;
@@ -388,7 +484,11 @@ impl FileRecorder {
 
     fn log(&mut self, text: &str) {
         let run = self.doc.runs.last().map_or(0, |r| r.run);
-        let line = format!("{} [run {run}] {}\n", local_now(), text.replace(['\n', '\r'], " / "));
+        let line = format!(
+            "{} [run {run}] {}\n",
+            local_now(),
+            text.replace(['\n', '\r'], " / ")
+        );
         if let Err(e) = self.store.append(LOG, line.as_bytes(), Sync::Never) {
             self.failed.get_or_insert(e);
         }
@@ -426,18 +526,32 @@ fn take_empty(store: &mut Store, dir: &Path) -> Result<Vec<String>, FolderError>
                 dir: dir.to_path_buf(),
                 sample: doc.sample,
                 serial: doc.instrument.serial_number,
-                started: doc.runs.first().map_or_else(|| "?".into(), |r| r.started.clone()),
+                started: doc
+                    .runs
+                    .first()
+                    .map_or_else(|| "?".into(), |r| r.started.clone()),
                 status: doc.status,
             });
         }
     }
-    let others: Vec<&String> = names.iter().filter(|n| !crate::output::store::is_temp_name(n)).collect();
+    let others: Vec<&String> = names
+        .iter()
+        .filter(|n| !crate::output::store::is_temp_name(n))
+        .collect();
     if !others.is_empty() {
-        let mut listed = others.iter().take(3).map(|s| s.as_str()).collect::<Vec<_>>().join(", ");
+        let mut listed = others
+            .iter()
+            .take(3)
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>()
+            .join(", ");
         if others.len() > 3 {
             listed += &format!(" and {} more", others.len() - 3);
         }
-        return Err(FolderError::NotEmpty { dir: dir.to_path_buf(), entries: listed });
+        return Err(FolderError::NotEmpty {
+            dir: dir.to_path_buf(),
+            entries: listed,
+        });
     }
     for name in &names {
         store.remove(name).map_err(io_error(dir))?;
@@ -483,11 +597,24 @@ impl Existing {
             return Err(FolderError::Finished {
                 dir: dir.to_path_buf(),
                 sample: doc.sample.clone(),
-                class: doc.rest.get("result").and_then(|r| r.get("class")).and_then(|c| c.as_str()).map(str::to_string),
-                ended: doc.runs.last().and_then(|r| r.ended.clone()).unwrap_or_else(|| "?".into()),
+                class: doc
+                    .rest
+                    .get("result")
+                    .and_then(|r| r.get("class"))
+                    .and_then(|c| c.as_str())
+                    .map(str::to_string),
+                ended: doc
+                    .runs
+                    .last()
+                    .and_then(|r| r.ended.clone())
+                    .unwrap_or_else(|| "?".into()),
             });
         }
-        Ok(Existing { inspection, doc, lock })
+        Ok(Existing {
+            inspection,
+            doc,
+            lock,
+        })
     }
 
     /// The session document.
@@ -508,47 +635,93 @@ impl Existing {
     /// Refuse to go on with another sample, instrument or plan, naming each difference.
     pub fn check_matches(&self, identity: &Identity) -> Result<(), FolderError> {
         let differences = differences(&self.doc, identity);
-        if differences.is_empty() { Ok(()) } else { Err(FolderError::Mismatch { dir: self.inspection.dir.clone(), differences }) }
+        if differences.is_empty() {
+            Ok(())
+        } else {
+            Err(FolderError::Mismatch {
+                dir: self.inspection.dir.clone(),
+                differences,
+            })
+        }
     }
 
     /// Repair what a crash left and open the folder for a new run: temporary files removed,
     /// a cut-off last line of `points.jsonl` or `session.log` dropped, `readings.csv`
     /// rebuilt from `points.jsonl` when behind it, runs that never ended marked killed; each
     /// repair is a decision of the new run. Returns the recorder and the readings taken.
-    pub fn resume(self, options: StoreOptions) -> Result<(FileRecorder, Vec<MeasuredPoint>, Option<Calibration>), FolderError> {
-        let Existing { inspection, mut doc, lock } = self;
+    pub fn resume(
+        self,
+        options: StoreOptions,
+    ) -> Result<(FileRecorder, Vec<MeasuredPoint>, Option<Calibration>), FolderError> {
+        let Existing {
+            inspection,
+            mut doc,
+            lock,
+        } = self;
         let dir = inspection.dir.clone();
         let mut store = Store::open_dir(&dir, options);
         let mut repairs = Vec::new();
         for name in &inspection.temp_files {
             store.remove(name).map_err(io_error(&dir))?;
-            repairs.push(format!("removed {name}, a temporary file left by a run that was killed while replacing {}", name.trim_start_matches('.').trim_end_matches(".gonio-tmp")));
+            repairs.push(format!(
+                "removed {name}, a temporary file left by a run that was killed while replacing {}",
+                name.trim_start_matches('.').trim_end_matches(".gonio-tmp")
+            ));
         }
         for (name, file) in [(POINTS, &inspection.points_file), (LOG, &inspection.log)] {
             if let Some(tail) = &file.cut_tail {
-                store.truncate(name, file.whole_len).map_err(io_error(&dir))?;
+                store
+                    .truncate(name, file.whole_len)
+                    .map_err(io_error(&dir))?;
                 let shown: String = String::from_utf8_lossy(tail).chars().take(60).collect();
-                let what = if name == POINTS { "; its reading is measured again" } else { "" };
+                let what = if name == POINTS {
+                    "; its reading is measured again"
+                } else {
+                    ""
+                };
                 repairs.push(format!("{name}: removed its last line, cut short by a crash after {} bytes ('{shown}…'){what}", tail.len()));
             }
         }
         match inspection.csv {
             CsvAgreement::Agrees => {}
             CsvAgreement::Behind { missing, cut } => {
-                store.replace(READINGS, folder::readings_csv(&inspection.points).as_bytes()).map_err(io_error(&dir))?;
-                repairs.push(format!("{READINGS}: rebuilt from {POINTS} ({missing} rows were missing{})", if cut { ", the last one cut short" } else { "" }));
+                store
+                    .replace(
+                        READINGS,
+                        folder::readings_csv(&inspection.points).as_bytes(),
+                    )
+                    .map_err(io_error(&dir))?;
+                repairs.push(format!(
+                    "{READINGS}: rebuilt from {POINTS} ({missing} rows were missing{})",
+                    if cut { ", the last one cut short" } else { "" }
+                ));
             }
             CsvAgreement::Stale { superseded } => {
-                store.replace(READINGS, folder::readings_csv(&inspection.points).as_bytes()).map_err(io_error(&dir))?;
+                store
+                    .replace(
+                        READINGS,
+                        folder::readings_csv(&inspection.points).as_bytes(),
+                    )
+                    .map_err(io_error(&dir))?;
                 repairs.push(format!("{READINGS}: rebuilt from {POINTS} and {CALIBRATION} (it held rows from before {superseded} readings were superseded or the calibration changed)"));
             }
             CsvAgreement::Differs(problem) => return Err(FolderError::Damaged(problem)),
         }
-        for run in doc.runs.iter_mut().filter(|r| r.outcome == RunOutcome::Running) {
+        for run in doc
+            .runs
+            .iter_mut()
+            .filter(|r| r.outcome == RunOutcome::Running)
+        {
             run.outcome = RunOutcome::Killed;
-            run.why = Some("the process ended without closing its run (killed, or the machine lost power)".into());
+            run.why = Some(
+                "the process ended without closing its run (killed, or the machine lost power)"
+                    .into(),
+            );
             run.decisions = folder::logged_decisions(&inspection.log, run.run);
-            repairs.push(format!("run {} ended without closing (killed, or power lost): marked killed", run.run));
+            repairs.push(format!(
+                "run {} ended without closing (killed, or power lost): marked killed",
+                run.run
+            ));
         }
         let readings = inspection.points.len();
         let number = doc.runs.last().map_or(1, |r| r.run + 1);
@@ -556,9 +729,22 @@ impl Existing {
         doc.status = Status::Running;
         doc.why = None;
         doc.readings_recorded = readings;
-        store.replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?).map_err(io_error(&dir))?;
-        let mut recorder = FileRecorder { store, _lock: lock, doc, bar: progress_bar(), decisions: Vec::new(), points: inspection.points.clone(), failed: None };
-        recorder.decision(&format!("resuming {} (run {number}): {readings} readings already taken", dir.display()));
+        store
+            .replace(SESSION, &json_bytes(&doc).map_err(io_error(&dir))?)
+            .map_err(io_error(&dir))?;
+        let mut recorder = FileRecorder {
+            store,
+            _lock: lock,
+            doc,
+            bar: progress_bar(),
+            decisions: Vec::new(),
+            points: inspection.points.clone(),
+            failed: None,
+        };
+        recorder.decision(&format!(
+            "resuming {} (run {number}): {readings} readings already taken",
+            dir.display()
+        ));
         for repair in repairs {
             recorder.decision(&format!("repaired: {repair}"));
         }
@@ -571,25 +757,69 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
     let mut out = Vec::new();
     let mut differ = |what: &str, was: String, now: String| {
         if was != now {
-            out.push(format!("the {what} differs (the session: {was}; now: {now})"));
+            out.push(format!(
+                "the {what} differs (the session: {was}; now: {now})"
+            ));
         }
     };
-    differ("sample", format!("'{}'", doc.sample), format!("'{}'", wanted.sample));
-    differ("instrument", format!("serial {}", doc.instrument.serial_number), format!("serial {}", wanted.instrument.serial_number));
-    let simulated = |s: &Option<String>| s.as_ref().map_or_else(|| "none".to_string(), |s| format!("'{s}'"));
-    differ("simulated sample", simulated(&doc.instrument.simulated_sample), simulated(&wanted.instrument.simulated_sample));
+    differ(
+        "sample",
+        format!("'{}'", doc.sample),
+        format!("'{}'", wanted.sample),
+    );
+    differ(
+        "instrument",
+        format!("serial {}", doc.instrument.serial_number),
+        format!("serial {}", wanted.instrument.serial_number),
+    );
+    let simulated = |s: &Option<String>| {
+        s.as_ref()
+            .map_or_else(|| "none".to_string(), |s| format!("'{s}'"))
+    };
+    differ(
+        "simulated sample",
+        simulated(&doc.instrument.simulated_sample),
+        simulated(&wanted.instrument.simulated_sample),
+    );
     let (a, b) = (&doc.plan, &wanted.plan);
     differ("policy", a.policy.clone(), b.policy.clone());
-    differ("adaptive policy's targets", format!("{:?}", a.adaptive_targets), format!("{:?}", b.adaptive_targets));
-    differ("integration time", format!("{} ms", a.integration_ms), format!("{} ms", b.integration_ms));
-    differ("detector acceptance", format!("{}°", a.acceptance_deg), format!("{}°", b.acceptance_deg));
-    differ("white check", (if a.white_check { "on" } else { "off" }).into(), (if b.white_check { "on" } else { "off" }).into());
-    differ("white drift limit", format!("{} %", a.white_drift_limit_pct), format!("{} %", b.white_drift_limit_pct));
+    differ(
+        "adaptive policy's targets",
+        format!("{:?}", a.adaptive_targets),
+        format!("{:?}", b.adaptive_targets),
+    );
+    differ(
+        "integration time",
+        format!("{} ms", a.integration_ms),
+        format!("{} ms", b.integration_ms),
+    );
+    differ(
+        "detector acceptance",
+        format!("{}°", a.acceptance_deg),
+        format!("{}°", b.acceptance_deg),
+    );
+    differ(
+        "white check",
+        (if a.white_check { "on" } else { "off" }).into(),
+        (if b.white_check { "on" } else { "off" }).into(),
+    );
+    differ(
+        "white drift limit",
+        format!("{} %", a.white_drift_limit_pct),
+        format!("{} %", b.white_drift_limit_pct),
+    );
     // Case fields given again must be the session's; left out, the session's stand.
     if let Some(case) = wanted.case.as_ref().filter(|c| !c.is_empty()) {
         let theirs = doc.case.clone().unwrap_or_default();
-        let text = |v: &Option<String>| v.as_ref().map_or_else(|| "none".to_string(), |s| format!("'{s}'"));
-        for (what, now, was) in [("case", &case.case_id, &theirs.case_id), ("operator", &case.operator, &theirs.operator), ("note", &case.note, &theirs.note)] {
+        let text = |v: &Option<String>| {
+            v.as_ref()
+                .map_or_else(|| "none".to_string(), |s| format!("'{s}'"))
+        };
+        for (what, now, was) in [
+            ("case", &case.case_id, &theirs.case_id),
+            ("operator", &case.operator, &theirs.operator),
+            ("note", &case.note, &theirs.note),
+        ] {
             if now.is_some() {
                 differ(what, text(was), text(now));
             }
@@ -601,13 +831,15 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
 impl Recorder for FileRecorder {
     fn calibration(&mut self, calibration: &Calibration) -> io::Result<()> {
         self.check_failed()?;
-        self.store.replace(CALIBRATION, &json_bytes(&calibration.to_document()?)?)?;
+        self.store
+            .replace(CALIBRATION, &json_bytes(&calibration.to_document()?)?)?;
         // A new calibration (gain ratios calibrated on the sample) converts the readings
         // taken anew: readings.csv follows (a crash before leaves it stale, which a resume
         // rebuilds).
         if !self.points.is_empty() {
             self.points = folder::converted(&self.points, Some(calibration));
-            self.store.replace(READINGS, folder::readings_csv(&self.points).as_bytes())?;
+            self.store
+                .replace(READINGS, folder::readings_csv(&self.points).as_bytes())?;
         }
         Ok(())
     }
@@ -621,15 +853,22 @@ impl Recorder for FileRecorder {
         self.check_failed()?;
         // The primary record first, synced (a sweep's bins at its end: `sweep_done`); the
         // CSV row after it is derived from it.
-        let sync = if point.theta_r_span_deg > 0.0 { Sync::Never } else { Sync::Data };
-        self.store.append(POINTS, folder::point_line(point)?.as_bytes(), sync)?;
+        let sync = if point.theta_r_span_deg > 0.0 {
+            Sync::Never
+        } else {
+            Sync::Data
+        };
+        self.store
+            .append(POINTS, folder::point_line(point)?.as_bytes(), sync)?;
         let header_before = folder::readings_header(&self.points);
         self.points.push(point.clone());
         let header = folder::readings_header(&self.points);
         if header != header_before {
             // The first reading taken while moving: readings.csv gains its span column
             // (rewritten whole; a crash before leaves it stale, which a resume rebuilds).
-            return self.store.replace(READINGS, folder::readings_csv(&self.points).as_bytes());
+            return self
+                .store
+                .replace(READINGS, folder::readings_csv(&self.points).as_bytes());
         }
         if let Some(row) = folder::csv_row(point, header) {
             self.store.append(READINGS, row.as_bytes(), Sync::Never)?;
@@ -643,21 +882,36 @@ impl Recorder for FileRecorder {
         let key = |p: &MeasuredPoint| (p.schedule_id, p.index, p.device_time_us);
         let mut positions = Vec::new();
         for point in points {
-            let found = self.points.iter().position(|p| key(p) == key(point)).ok_or_else(|| {
-                io::Error::new(io::ErrorKind::InvalidInput, format!("superseding a reading that was never recorded (θi {}°, θr {}°)", point.theta_i_deg, point.theta_r_deg))
-            })?;
+            let found = self
+                .points
+                .iter()
+                .position(|p| key(p) == key(point))
+                .ok_or_else(|| {
+                    io::Error::new(
+                        io::ErrorKind::InvalidInput,
+                        format!(
+                            "superseding a reading that was never recorded (θi {}°, θr {}°)",
+                            point.theta_i_deg, point.theta_r_deg
+                        ),
+                    )
+                })?;
             positions.push(found);
         }
         positions.sort_unstable();
         positions.dedup();
-        let mark = folder::SupersedeMark { superseded: positions, why: why.to_string() };
+        let mark = folder::SupersedeMark {
+            superseded: positions,
+            why: why.to_string(),
+        };
         // The primary record first (synced), then readings.csv rebuilt without those rows: a
         // crash between the two leaves it stale, which a resume rebuilds.
-        self.store.append(POINTS, folder::mark_line(&mark)?.as_bytes(), Sync::Data)?;
+        self.store
+            .append(POINTS, folder::mark_line(&mark)?.as_bytes(), Sync::Data)?;
         for &k in &mark.superseded {
             self.points[k].superseded = true;
         }
-        self.store.replace(READINGS, folder::readings_csv(&self.points).as_bytes())
+        self.store
+            .replace(READINGS, folder::readings_csv(&self.points).as_bytes())
     }
 
     fn stage(&mut self, what: &str, planned: usize) {
@@ -670,7 +924,8 @@ impl Recorder for FileRecorder {
 
     fn progress(&mut self, progress: Progress) {
         self.bar.set_position(progress.done as u64);
-        self.bar.set_prefix(format!("{:.1}", progress.remaining.as_secs_f64()));
+        self.bar
+            .set_prefix(format!("{:.1}", progress.remaining.as_secs_f64()));
     }
 
     fn decision(&mut self, text: &str) {
@@ -691,7 +946,13 @@ pub fn read_points(dir: &Path) -> Result<Vec<MeasuredPoint>, Problem> {
     let path = dir.join(POINTS);
     let file = folder::read_lines(&path)?;
     if file.cut_tail.is_some() {
-        return Err(Problem { file: path, line: Some(file.lines.len() + 1), message: "last line cut short (a crash while writing it): gonio measure --resume repairs it".into() });
+        return Err(Problem {
+            file: path,
+            line: Some(file.lines.len() + 1),
+            message:
+                "last line cut short (a crash while writing it): gonio measure --resume repairs it"
+                    .into(),
+        });
     }
     folder::parse_points(&path, &file)
 }

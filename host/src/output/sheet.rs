@@ -91,15 +91,31 @@ pub fn spot_folder(number: u16) -> String {
 /// Read `sheet.json` of `dir`.
 pub fn read_doc(dir: &Path) -> Result<SheetDoc, Problem> {
     let file = dir.join(SHEET);
-    let problem = |message: String| Problem { file: file.clone(), line: None, message };
+    let problem = |message: String| Problem {
+        file: file.clone(),
+        line: None,
+        message,
+    };
     let text = std::fs::read_to_string(&file).map_err(|e| problem(format!("cannot read: {e}")))?;
-    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| problem(format!("not JSON: {e}")))?;
-    crate::schema::check(&value, &[crate::schema::SHEET, crate::schema::SHEET_V1], None).map_err(|m| problem(format!("{m}: not a sheet folder of this gonio")))?;
-    let mut doc: SheetDoc = serde_json::from_value(value).map_err(|e| problem(format!("not a sheet document: {e}")))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| problem(format!("not JSON: {e}")))?;
+    crate::schema::check(
+        &value,
+        &[crate::schema::SHEET, crate::schema::SHEET_V1],
+        None,
+    )
+    .map_err(|m| problem(format!("{m}: not a sheet folder of this gonio")))?;
+    let mut doc: SheetDoc =
+        serde_json::from_value(value).map_err(|e| problem(format!("not a sheet document: {e}")))?;
     doc.schema = crate::schema::SHEET.into();
     for (k, entry) in doc.spots.iter().enumerate() {
         if entry.number as usize != k + 1 || entry.folder != spot_folder(entry.number) {
-            return Err(problem(format!("spot entry {} is not spot {} in {}", k + 1, k + 1, spot_folder(k as u16 + 1))));
+            return Err(problem(format!(
+                "spot entry {} is not spot {} in {}",
+                k + 1,
+                k + 1,
+                spot_folder(k as u16 + 1)
+            )));
         }
     }
     Ok(doc)
@@ -116,7 +132,13 @@ pub struct SheetFolder {
 
 impl SheetFolder {
     /// Make `dir` (new, or empty) for a new sheet of `sample`.
-    pub fn create(dir: &Path, sample: &str, spots_planned: u16, replacements: u16, options: StoreOptions) -> Result<SheetFolder, FolderError> {
+    pub fn create(
+        dir: &Path,
+        sample: &str,
+        spots_planned: u16,
+        replacements: u16,
+        options: StoreOptions,
+    ) -> Result<SheetFolder, FolderError> {
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).map_err(io_error(parent))?;
         }
@@ -129,7 +151,9 @@ impl SheetFolder {
                 // A temporary file alone is a first sheet.json a killed gonio left: the
                 // folder is as empty as before it.
                 let names = crate::output::folder::entries(dir).map_err(io_error(dir))?;
-                let (temp, names): (Vec<String>, Vec<String>) = names.into_iter().partition(|n| crate::output::store::is_temp_name(n));
+                let (temp, names): (Vec<String>, Vec<String>) = names
+                    .into_iter()
+                    .partition(|n| crate::output::store::is_temp_name(n));
                 if names.is_empty() {
                     let mut store = Store::open_dir(dir, options.clone());
                     for name in temp {
@@ -137,10 +161,18 @@ impl SheetFolder {
                     }
                 } else {
                     let shown: Vec<&str> = names.iter().take(3).map(String::as_str).collect();
-                    return Err(FolderError::NotEmpty { dir: dir.to_path_buf(), entries: shown.join(", ") });
+                    return Err(FolderError::NotEmpty {
+                        dir: dir.to_path_buf(),
+                        entries: shown.join(", "),
+                    });
                 }
             }
-            Err(e) => return Err(FolderError::Io { dir: dir.to_path_buf(), source: e }),
+            Err(e) => {
+                return Err(FolderError::Io {
+                    dir: dir.to_path_buf(),
+                    source: e,
+                });
+            }
         }
         let lock = FolderLock::take(dir)?;
         let doc = SheetDoc {
@@ -156,22 +188,39 @@ impl SheetFolder {
             result: None,
             case: None,
         };
-        let mut folder = SheetFolder { store: Store::open_dir(dir, options), _lock: lock, doc };
+        let mut folder = SheetFolder {
+            store: Store::open_dir(dir, options),
+            _lock: lock,
+            doc,
+        };
         folder.write().map_err(io_error(dir))?;
         Ok(folder)
     }
 
     /// A new folder `PARENT/<local date-time>-<sample>` (a suffix when taken).
-    pub fn create_default(parent: &Path, sample: &str, spots_planned: u16, replacements: u16, options: StoreOptions) -> Result<SheetFolder, FolderError> {
+    pub fn create_default(
+        parent: &Path,
+        sample: &str,
+        spots_planned: u16,
+        replacements: u16,
+        options: StoreOptions,
+    ) -> Result<SheetFolder, FolderError> {
         std::fs::create_dir_all(parent).map_err(io_error(parent))?;
         let base = dated_folder_name(sample);
         for k in 1..10_000 {
-            let dir = parent.join(if k == 1 { base.clone() } else { format!("{base}-{k}") });
+            let dir = parent.join(if k == 1 {
+                base.clone()
+            } else {
+                format!("{base}-{k}")
+            });
             if !dir.exists() {
                 return SheetFolder::create(&dir, sample, spots_planned, replacements, options);
             }
         }
-        Err(FolderError::Io { dir: parent.join(base), source: io::Error::other("10 000 sheets of this sample in one second") })
+        Err(FolderError::Io {
+            dir: parent.join(base),
+            source: io::Error::other("10 000 sheets of this sample in one second"),
+        })
     }
 
     /// Open the sheet folder `dir` to continue it: refuses a missing folder, one in use, a
@@ -190,12 +239,20 @@ impl SheetFolder {
             }
         }
         let doc = read_doc(dir).map_err(FolderError::Damaged)?;
-        let mut folder = SheetFolder { store, _lock: lock, doc };
+        let mut folder = SheetFolder {
+            store,
+            _lock: lock,
+            doc,
+        };
         if folder.doc.status == Status::Finished {
             if !dir.join(MANIFEST).exists() {
                 folder.write_manifest().map_err(io_error(dir))?;
             }
-            return Err(FolderError::FinishedSheet { dir: dir.to_path_buf(), sample: folder.doc.sample.clone(), spots: folder.doc.spots.len() });
+            return Err(FolderError::FinishedSheet {
+                dir: dir.to_path_buf(),
+                sample: folder.doc.sample.clone(),
+                spots: folder.doc.spots.len(),
+            });
         }
         Ok(folder)
     }
@@ -221,7 +278,10 @@ impl SheetFolder {
     /// Spot `number` begins: recorded before its folder is made, so a resume finds it.
     pub fn start_spot(&mut self, number: u16) -> io::Result<PathBuf> {
         if !self.doc.spots.iter().any(|s| s.number == number) {
-            self.doc.spots.push(SpotEntry { number, folder: spot_folder(number) });
+            self.doc.spots.push(SpotEntry {
+                number,
+                folder: spot_folder(number),
+            });
             self.write()?;
         }
         Ok(self.dir().join(spot_folder(number)))
@@ -261,7 +321,10 @@ fn manifest_text(dir: &Path, doc: &SheetDoc) -> io::Result<String> {
     names.extend(doc.spots.iter().map(|s| format!("{}/{MANIFEST}", s.folder)));
     let mut text = String::new();
     for name in names {
-        text += &format!("{}  {name}\n", crate::output::manifest::sha256_hex(&std::fs::read(dir.join(&name))?));
+        text += &format!(
+            "{}  {name}\n",
+            crate::output::manifest::sha256_hex(&std::fs::read(dir.join(&name))?)
+        );
     }
     Ok(text)
 }
@@ -282,17 +345,48 @@ pub struct ReadSpot {
 /// Read a finished spot folder's result.
 pub fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Problem> {
     let file = dir.join(SESSION);
-    let problem = |message: String| Problem { file: file.clone(), line: None, message };
+    let problem = |message: String| Problem {
+        file: file.clone(),
+        line: None,
+        message,
+    };
     let doc = crate::output::folder::require_finished(dir)?;
-    let session = serde_json::to_value(&doc).map_err(|e| problem(e.to_string())).and_then(|v| session_result(&file, &v).map_err(|e| problem(e.to_string())))?;
-    let flags: Vec<Flag> = doc.rest.get("flags").cloned().map(serde_json::from_value).transpose().map_err(|e| problem(format!("flags: {e}")))?.unwrap_or_default();
-    let number_of = |key: &str| doc.rest.get("result").and_then(|r| r.get(key)).and_then(serde_json::Value::as_f64).unwrap_or(0.0);
+    let session = serde_json::to_value(&doc)
+        .map_err(|e| problem(e.to_string()))
+        .and_then(|v| session_result(&file, &v).map_err(|e| problem(e.to_string())))?;
+    let flags: Vec<Flag> = doc
+        .rest
+        .get("flags")
+        .cloned()
+        .map(serde_json::from_value)
+        .transpose()
+        .map_err(|e| problem(format!("flags: {e}")))?
+        .unwrap_or_default();
+    let number_of = |key: &str| {
+        doc.rest
+            .get("result")
+            .and_then(|r| r.get(key))
+            .and_then(serde_json::Value::as_f64)
+            .unwrap_or(0.0)
+    };
     let mut covariance = [[0.0; 3]; 3];
     for (r, row) in covariance.iter_mut().enumerate() {
         row.copy_from_slice(&session.covariance[r][..3]);
     }
-    let spot = Spot { values: [session.values[0], session.values[1], session.values[2]], covariance };
-    Ok(ReadSpot { dir: dir.to_path_buf(), seconds: (number_of("device_seconds"), number_of("setup_seconds")), result: SpotResult { number, flags, spot }, session })
+    let spot = Spot {
+        values: [session.values[0], session.values[1], session.values[2]],
+        covariance,
+    };
+    Ok(ReadSpot {
+        dir: dir.to_path_buf(),
+        seconds: (number_of("device_seconds"), number_of("setup_seconds")),
+        result: SpotResult {
+            number,
+            flags,
+            spot,
+        },
+        session,
+    })
 }
 
 /// A finished sheet folder, read back.
@@ -320,13 +414,32 @@ impl ReadSheet {
 pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Problem> {
     let doc = read_doc(dir)?;
     if doc.status != Status::Finished {
-        let how = doc.resume_with.clone().unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
-        return Err(Problem { file: dir.join(SHEET), line: None, message: format!("status is {}: the sheet is not finished (continue it with {how})", doc.status) });
+        let how = doc
+            .resume_with
+            .clone()
+            .unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
+        return Err(Problem {
+            file: dir.join(SHEET),
+            line: None,
+            message: format!(
+                "status is {}: the sheet is not finished (continue it with {how})",
+                doc.status
+            ),
+        });
     }
-    let spots = doc.spots.iter().map(|s| read_spot(&dir.join(&s.folder), s.number)).collect::<Result<Vec<_>, _>>()?;
+    let spots = doc
+        .spots
+        .iter()
+        .map(|s| read_spot(&dir.join(&s.folder), s.number))
+        .collect::<Result<Vec<_>, _>>()?;
     let results: Vec<SpotResult> = spots.iter().map(|s| s.result.clone()).collect();
     let summary = sheet::assess(doc.spots_planned, &results);
-    Ok(ReadSheet { dir: dir.to_path_buf(), doc, spots, summary })
+    Ok(ReadSheet {
+        dir: dir.to_path_buf(),
+        doc,
+        spots,
+        summary,
+    })
 }
 
 /// A sheet folder that passed every check.
@@ -350,11 +463,18 @@ pub fn verify_sheet(dir: &Path) -> Result<VerifiedSheet, Vec<Problem>> {
         (Err(e), _) => problems.push(Problem { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
         (_, Err(e)) => problems.push(Problem { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
     }
-    let expected: Vec<String> =
-        [SHEET, MANIFEST, crate::output::report::REPORT].iter().map(|s| s.to_string()).chain(doc.spots.iter().map(|s| s.folder.clone())).collect();
+    let expected: Vec<String> = [SHEET, MANIFEST, crate::output::report::REPORT]
+        .iter()
+        .map(|s| s.to_string())
+        .chain(doc.spots.iter().map(|s| s.folder.clone()))
+        .collect();
     if let Ok(names) = crate::output::folder::entries(dir) {
         for name in names.into_iter().filter(|n| !expected.contains(n)) {
-            problems.push(Problem { file: dir.join(&name), line: None, message: format!("not part of the sheet ({SHEET} lists no such spot)") });
+            problems.push(Problem {
+                file: dir.join(&name),
+                line: None,
+                message: format!("not part of the sheet ({SHEET} lists no such spot)"),
+            });
         }
     }
     let mut verified = Vec::new();
@@ -370,12 +490,19 @@ pub fn verify_sheet(dir: &Path) -> Result<VerifiedSheet, Vec<Problem>> {
     let sheet = read_sheet(dir).map_err(|p| vec![p])?;
     let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
     if recorded != Some(&sheet.summary) {
-        return Err(vec![Problem { file: dir.join(SHEET), line: None, message: "its result is not the one its spots give".into() }]);
+        return Err(vec![Problem {
+            file: dir.join(SHEET),
+            line: None,
+            message: "its result is not the one its spots give".into(),
+        }]);
     }
     if let Some(problem) = crate::output::report::check_report(dir) {
         return Err(vec![problem]);
     }
-    Ok(VerifiedSheet { sheet, spots: verified })
+    Ok(VerifiedSheet {
+        sheet,
+        spots: verified,
+    })
 }
 
 /// A measured sheet as `gonio compare` and `gonio library` read it: a sheet folder (its
@@ -397,8 +524,16 @@ pub struct MeasuredSheet {
 impl MeasuredSheet {
     /// The classes of its spots in words ("G", "G, G, SG", "undecided").
     pub fn class_text(&self) -> String {
-        let names: Vec<&str> = self.classes.iter().map(|c| c.as_deref().unwrap_or("undecided")).collect();
-        if names.is_empty() { "undecided".to_string() } else { names.join(", ") }
+        let names: Vec<&str> = self
+            .classes
+            .iter()
+            .map(|c| c.as_deref().unwrap_or("undecided"))
+            .collect();
+        if names.is_empty() {
+            "undecided".to_string()
+        } else {
+            names.join(", ")
+        }
     }
 }
 
@@ -408,10 +543,32 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
     if is_sheet_folder(path) {
         let read = read_sheet(path).map_err(|p| p.to_string())?;
         let sheet = read.sheet();
-        let accepted = |n: u16| read.summary.verdicts.iter().any(|j| j.number == n && j.verdict == sheet::SpotVerdict::Accepted);
-        let classes = read.spots.iter().filter(|s| accepted(s.result.number)).map(|s| s.session.class.clone()).collect();
-        return Ok(MeasuredSheet { path: path.to_path_buf(), sample: read.doc.sample.clone(), classes, sheet, summary: Some(read.summary) });
+        let accepted = |n: u16| {
+            read.summary
+                .verdicts
+                .iter()
+                .any(|j| j.number == n && j.verdict == sheet::SpotVerdict::Accepted)
+        };
+        let classes = read
+            .spots
+            .iter()
+            .filter(|s| accepted(s.result.number))
+            .map(|s| s.session.class.clone())
+            .collect();
+        return Ok(MeasuredSheet {
+            path: path.to_path_buf(),
+            sample: read.doc.sample.clone(),
+            classes,
+            sheet,
+            summary: Some(read.summary),
+        });
     }
     let session = crate::analysis::compare::read_session(path).map_err(|e| e.to_string())?;
-    Ok(MeasuredSheet { path: session.file.clone(), sample: session.sample.clone(), classes: vec![session.class.clone()], sheet: session.sheet(), summary: None })
+    Ok(MeasuredSheet {
+        path: session.file.clone(),
+        sample: session.sample.clone(),
+        classes: vec![session.class.clone()],
+        sheet: session.sheet(),
+        summary: None,
+    })
 }

@@ -85,12 +85,19 @@ impl Crash {
 
     /// Kill the process at the `n`-th write (from 1).
     pub fn at(n: u64) -> Crash {
-        Crash { at: Some(n), ..Crash::default() }
+        Crash {
+            at: Some(n),
+            ..Crash::default()
+        }
     }
 
     /// Fill the disk at the `n`-th write (from 1).
     pub fn disk_full_at(n: u64) -> Crash {
-        Crash { at: Some(n), fault: Fault::DiskFull, ..Crash::default() }
+        Crash {
+            at: Some(n),
+            fault: Fault::DiskFull,
+            ..Crash::default()
+        }
     }
 
     /// Writes made (or attempted, the failing one included).
@@ -125,7 +132,10 @@ fn crashed_error() -> io::Error {
 }
 
 fn disk_full_error() -> io::Error {
-    io::Error::new(io::ErrorKind::StorageFull, "no space left on device (simulated)")
+    io::Error::new(
+        io::ErrorKind::StorageFull,
+        "no space left on device (simulated)",
+    )
 }
 
 /// The one writer of a session folder.
@@ -155,7 +165,13 @@ impl Store {
 
     /// Write into the existing folder `dir`.
     pub fn open_dir(dir: &Path, options: StoreOptions) -> Store {
-        Store { dir: dir.to_path_buf(), options, appenders: HashMap::new(), poisoned: HashSet::new(), dead: false }
+        Store {
+            dir: dir.to_path_buf(),
+            options,
+            appenders: HashMap::new(),
+            poisoned: HashSet::new(),
+            dead: false,
+        }
     }
 
     /// The folder.
@@ -173,12 +189,21 @@ impl Store {
         if self.dead {
             return Err(crashed_error());
         }
-        let Some(crash) = &self.options.crash else { return Ok(Step::Whole) };
+        let Some(crash) = &self.options.crash else {
+            return Ok(Step::Whole);
+        };
         let n = crash.count.fetch_add(1, Ordering::Relaxed) + 1;
         // Cut somewhere inside the write, differently for different writes.
-        let cut = if len == 0 { 0 } else { (n as usize).wrapping_mul(2_654_435_761) % len };
+        let cut = if len == 0 {
+            0
+        } else {
+            (n as usize).wrapping_mul(2_654_435_761) % len
+        };
         match (crash.at, crash.fault) {
-            (Some(at), Fault::Kill) if n == at => Ok(Step::Cut { len: cut, dead: true }),
+            (Some(at), Fault::Kill) if n == at => Ok(Step::Cut {
+                len: cut,
+                dead: true,
+            }),
             // Another store sharing the crash: the process is gone for it too.
             (Some(at), Fault::Kill) if n > at => {
                 self.dead = true;
@@ -186,8 +211,14 @@ impl Store {
                 Err(crashed_error())
             }
             // A full disk takes data, not names or truncations.
-            (Some(at), Fault::DiskFull) if n == at && len > 0 => Ok(Step::Cut { len: cut, dead: false }),
-            (Some(at), Fault::DiskFull) if n > at && len > 0 => Ok(Step::Cut { len: 0, dead: false }),
+            (Some(at), Fault::DiskFull) if n == at && len > 0 => Ok(Step::Cut {
+                len: cut,
+                dead: false,
+            }),
+            (Some(at), Fault::DiskFull) if n > at && len > 0 => Ok(Step::Cut {
+                len: 0,
+                dead: false,
+            }),
             _ => Ok(Step::Whole),
         }
     }
@@ -228,14 +259,22 @@ impl Store {
     pub fn append(&mut self, name: &str, line: &[u8], sync: Sync) -> io::Result<()> {
         debug_assert!(line.ends_with(b"\n"), "appends are whole lines");
         if self.poisoned.contains(name) {
-            return Err(io::Error::other(format!("{name}: an earlier write failed part-way and could not be undone; resume to repair it")));
+            return Err(io::Error::other(format!(
+                "{name}: an earlier write failed part-way and could not be undone; resume to repair it"
+            )));
         }
         self.appender(name)?;
         let step = self.step(line.len())?;
         let file = self.appenders.get_mut(name).expect("opened above");
         let before = file.metadata()?.len();
         let result = match step {
-            Step::Whole => file.write_all(line).and_then(|()| if sync == Sync::Data { file.sync_data() } else { Ok(()) }),
+            Step::Whole => file.write_all(line).and_then(|()| {
+                if sync == Sync::Data {
+                    file.sync_data()
+                } else {
+                    Ok(())
+                }
+            }),
             Step::Cut { len, dead: true } => {
                 let _ = file.write_all(&line[..len]);
                 return Err(self.fail(true));
@@ -247,7 +286,11 @@ impl Store {
         };
         if let Err(error) = result {
             let file = self.appenders.get_mut(name).expect("opened above");
-            if file.set_len(before).and_then(|()| file.sync_data()).is_err() {
+            if file
+                .set_len(before)
+                .and_then(|()| file.sync_data())
+                .is_err()
+            {
                 self.poisoned.insert(name.to_string());
             }
             return Err(error);
@@ -366,13 +409,22 @@ mod tests {
     fn a_crash_cuts_one_write_and_refuses_the_rest() {
         let dir = temp("crash");
         let crash = Crash::at(3);
-        let mut store = Store::create_dir(&dir, StoreOptions { crash: Some(crash.clone()) }).unwrap();
+        let mut store = Store::create_dir(
+            &dir,
+            StoreOptions {
+                crash: Some(crash.clone()),
+            },
+        )
+        .unwrap();
         // 1: the folder; 2: creating a.txt; 3: its first line, cut short.
         let line = b"0123456789abcdef\n";
         assert!(store.append("a.txt", line, Sync::Data).is_err());
         assert!(store.is_dead() && crash.crashed());
         let kept = std::fs::read(dir.join("a.txt")).unwrap();
-        assert!(kept.len() < line.len() && line.starts_with(&kept), "a prefix: {kept:?}");
+        assert!(
+            kept.len() < line.len() && line.starts_with(&kept),
+            "a prefix: {kept:?}"
+        );
         assert!(store.replace("b.json", b"{}").is_err());
         assert!(!dir.join("b.json").exists() && !dir.join(temp_name("b.json")).exists());
         let _ = std::fs::remove_dir_all(&dir);
@@ -385,13 +437,30 @@ mod tests {
         store.append("a.txt", b"first\n", Sync::Data).unwrap();
         store.replace("s.json", b"old").unwrap();
         // 1: the append's data, cut part-way; 2: the replace's data; 3: another append.
-        let mut store = Store::open_dir(&dir, StoreOptions { crash: Some(Crash::disk_full_at(1)) });
-        let error = store.append("a.txt", b"second line\n", Sync::Data).unwrap_err();
+        let mut store = Store::open_dir(
+            &dir,
+            StoreOptions {
+                crash: Some(Crash::disk_full_at(1)),
+            },
+        );
+        let error = store
+            .append("a.txt", b"second line\n", Sync::Data)
+            .unwrap_err();
         assert_eq!(error.kind(), io::ErrorKind::StorageFull);
-        assert_eq!(std::fs::read(dir.join("a.txt")).unwrap(), b"first\n", "cut back to the last whole line");
-        assert_eq!(store.replace("s.json", b"new").unwrap_err().kind(), io::ErrorKind::StorageFull);
+        assert_eq!(
+            std::fs::read(dir.join("a.txt")).unwrap(),
+            b"first\n",
+            "cut back to the last whole line"
+        );
+        assert_eq!(
+            store.replace("s.json", b"new").unwrap_err().kind(),
+            io::ErrorKind::StorageFull
+        );
         assert_eq!(std::fs::read(dir.join("s.json")).unwrap(), b"old");
-        assert!(!dir.join(temp_name("s.json")).exists(), "no temporary file left");
+        assert!(
+            !dir.join(temp_name("s.json")).exists(),
+            "no temporary file left"
+        );
         assert!(store.append("a.txt", b"third\n", Sync::Never).is_err());
         assert_eq!(std::fs::read(dir.join("a.txt")).unwrap(), b"first\n");
         assert!(!store.is_dead(), "a full disk is not a dead process");
@@ -410,10 +479,18 @@ mod tests {
         assert!(dir.join(temp_name("s.json")).exists());
         assert!(is_temp_name(&temp_name("s.json")) && !is_temp_name("s.json"));
         // Crash at the rename: the new content is complete in the temporary file only.
-        let mut store = Store::open_dir(&dir, StoreOptions { crash: Some(Crash::at(2)) });
+        let mut store = Store::open_dir(
+            &dir,
+            StoreOptions {
+                crash: Some(Crash::at(2)),
+            },
+        );
         assert!(store.replace("s.json", b"new").is_err());
         assert_eq!(std::fs::read(dir.join("s.json")).unwrap(), b"old");
-        assert!(Store::create_dir(&dir, StoreOptions::default()).is_err_and(|e| e.kind() == io::ErrorKind::AlreadyExists));
+        assert!(
+            Store::create_dir(&dir, StoreOptions::default())
+                .is_err_and(|e| e.kind() == io::ErrorKind::AlreadyExists)
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -45,7 +45,12 @@ pub struct AdaptiveTargets {
 impl Default for AdaptiveTargets {
     fn default() -> Self {
         // 1.96·SE ≤ 3 % leaves room for an underestimated SE against the 5 % goal.
-        AdaptiveTargets { sigma_rel_half_width: 0.03, class_confidence: 0.95, batch: 6, max_batches: 8 }
+        AdaptiveTargets {
+            sigma_rel_half_width: 0.03,
+            class_confidence: 0.95,
+            batch: 6,
+            max_batches: 8,
+        }
     }
 }
 
@@ -123,11 +128,16 @@ pub fn candidates_over(measured: &BTreeSet<Geometry>, span: CandidateSpan) -> Ve
 /// The probe batch: offsets ±0.5…4° around specular at the incidence angle whose
 /// specular reading stands highest above the diffuse level.
 pub fn probe(observations: &[Observation], measured: &BTreeSet<Geometry>) -> Vec<Geometry> {
-    let diffuse = observations.iter().map(|o| o.radiance_factor).fold(f64::INFINITY, f64::min);
+    let diffuse = observations
+        .iter()
+        .map(|o| o.radiance_factor)
+        .fold(f64::INFINITY, f64::min);
     let best = INCIDENCE_DEG
         .iter()
         .filter_map(|&ti| {
-            let peak = observations.iter().find(|o| o.theta_i_deg == f64::from(ti) && o.theta_r_deg == f64::from(ti))?;
+            let peak = observations
+                .iter()
+                .find(|o| o.theta_i_deg == f64::from(ti) && o.theta_r_deg == f64::from(ti))?;
             Some((ti, peak.radiance_factor - diffuse))
         })
         .max_by(|a, b| a.1.total_cmp(&b.1))
@@ -149,18 +159,37 @@ pub fn probe(observations: &[Observation], measured: &BTreeSet<Geometry>) -> Vec
 pub fn tails(measured: &BTreeSet<Geometry>, per_incidence: usize) -> Vec<Geometry> {
     let mut out = Vec::new();
     for theta_i in INCIDENCE_DEG {
-        let Some(specular) = Geometry::from_deg(f64::from(theta_i), f64::from(theta_i)) else { continue };
-        let mut taken: Vec<f64> = measured.iter().filter(|g| g.theta_i == specular.theta_i).map(|g| g.theta_r.deg()).collect();
+        let Some(specular) = Geometry::from_deg(f64::from(theta_i), f64::from(theta_i)) else {
+            continue;
+        };
+        let mut taken: Vec<f64> = measured
+            .iter()
+            .filter(|g| g.theta_i == specular.theta_i)
+            .map(|g| g.theta_r.deg())
+            .collect();
         for _ in 0..per_incidence {
             let farthest = (0..=THETA_R_MAX_DEG)
                 .filter_map(|theta_r| {
                     let g = Geometry::from_deg(f64::from(theta_i), f64::from(theta_r))?;
-                    let gap = taken.iter().map(|t| (t - f64::from(theta_r)).abs()).fold(f64::INFINITY, f64::min);
+                    let gap = taken
+                        .iter()
+                        .map(|t| (t - f64::from(theta_r)).abs())
+                        .fold(f64::INFINITY, f64::min);
                     // Nothing measured at this angle yet: any θr is as far; specular first.
-                    let gap = if gap.is_finite() { gap } else { f64::from(THETA_R_MAX_DEG) - (f64::from(theta_r - theta_i)).abs() };
+                    let gap = if gap.is_finite() {
+                        gap
+                    } else {
+                        f64::from(THETA_R_MAX_DEG) - (f64::from(theta_r - theta_i)).abs()
+                    };
                     (gap >= 1.0 && !measured.contains(&g)).then_some((g, gap))
                 })
-                .fold(None, |best: Option<(Geometry, f64)>, (g, gap)| if best.is_none_or(|(_, b)| gap >= b) { Some((g, gap)) } else { best });
+                .fold(None, |best: Option<(Geometry, f64)>, (g, gap)| {
+                    if best.is_none_or(|(_, b)| gap >= b) {
+                        Some((g, gap))
+                    } else {
+                        best
+                    }
+                });
             let Some((g, _)) = farthest else { break };
             taken.push(g.theta_r.deg());
             out.push(g);
@@ -186,7 +215,18 @@ pub fn lack_of_fit_batch(
     let mut chosen = tails(measured, 1);
     let mut taken = measured.clone();
     taken.extend(chosen.iter().copied());
-    let designed = next_batch_scored(fit, observations, &taken, here, motion, integration_ms, batch / 2, CandidateSpan::Whole).map(|b| b.geometries).unwrap_or_default();
+    let designed = next_batch_scored(
+        fit,
+        observations,
+        &taken,
+        here,
+        motion,
+        integration_ms,
+        batch / 2,
+        CandidateSpan::Whole,
+    )
+    .map(|b| b.geometries)
+    .unwrap_or_default();
     if designed.is_empty() {
         chosen.extend(tails(&taken, 1));
     } else {
@@ -206,17 +246,37 @@ pub struct NoiseModel {
 impl NoiseModel {
     /// Fit to the observations that carry an uncertainty.
     pub fn fit(observations: &[Observation]) -> NoiseModel {
-        let pts: Vec<(f64, f64)> = observations.iter().filter_map(|o| Some((o.radiance_factor * o.radiance_factor, o.std? * o.std?))).collect();
-        let fallback = NoiseModel { floor_sq: 1e-6, relative_sq: 1e-4 };
+        let pts: Vec<(f64, f64)> = observations
+            .iter()
+            .filter_map(|o| Some((o.radiance_factor * o.radiance_factor, o.std? * o.std?)))
+            .collect();
+        let fallback = NoiseModel {
+            floor_sq: 1e-6,
+            relative_sq: 1e-4,
+        };
         if pts.len() < 2 {
             return fallback;
         }
         // Least squares of s² on [1, r²], then clamped; failing that, one relative term.
-        let (n, sx, sy, sxx, sxy) = pts.iter().fold((0.0, 0.0, 0.0, 0.0, 0.0), |(n, sx, sy, sxx, sxy), &(x, y)| (n + 1.0, sx + x, sy + y, sxx + x * x, sxy + x * y));
+        let (n, sx, sy, sxx, sxy) = pts.iter().fold(
+            (0.0, 0.0, 0.0, 0.0, 0.0),
+            |(n, sx, sy, sxx, sxy), &(x, y)| (n + 1.0, sx + x, sy + y, sxx + x * x, sxy + x * y),
+        );
         let det = n * sxx - sx * sx;
-        let (a, b) = if det.abs() > 1e-300 { ((sxx * sy - sx * sxy) / det, (n * sxy - sx * sy) / det) } else { (sy / n, 0.0) };
-        let model = NoiseModel { floor_sq: a.max(1e-12), relative_sq: b.max(0.0) };
-        if model.floor_sq.is_finite() && model.relative_sq.is_finite() { model } else { fallback }
+        let (a, b) = if det.abs() > 1e-300 {
+            ((sxx * sy - sx * sxy) / det, (n * sxy - sx * sy) / det)
+        } else {
+            (sy / n, 0.0)
+        };
+        let model = NoiseModel {
+            floor_sq: a.max(1e-12),
+            relative_sq: b.max(0.0),
+        };
+        if model.floor_sq.is_finite() && model.relative_sq.is_finite() {
+            model
+        } else {
+            fallback
+        }
     }
 
     /// Predicted variance at radiance factor `r`.
@@ -236,7 +296,17 @@ pub fn next_batch(
     integration_ms: u32,
     batch: usize,
 ) -> Option<Vec<Geometry>> {
-    next_batch_scored(fit, observations, measured, here, motion, integration_ms, batch, CandidateSpan::Lobe).map(|b| b.geometries)
+    next_batch_scored(
+        fit,
+        observations,
+        measured,
+        here,
+        motion,
+        integration_ms,
+        batch,
+        CandidateSpan::Lobe,
+    )
+    .map(|b| b.geometries)
 }
 
 /// A designed batch with what it is predicted to bring.
@@ -272,14 +342,24 @@ pub fn next_batch_scored(
     // Gradients over the fitted parameters only: the others are held, and carry no variance.
     let fitted_gradient = |theta_i_deg: f64, theta_r_deg: f64| {
         // As the fit modelled it: with the acceptance window exactly where the fit used one.
-        let (value, g) = model::evaluate(&fit.params, &PlaneGeometry::new(theta_i_deg, theta_r_deg), fit.acceptance_deg);
-        (value, std::array::from_fn::<f64, 4, _>(|i| if free[i] { g[i] } else { 0.0 }))
+        let (value, g) = model::evaluate(
+            &fit.params,
+            &PlaneGeometry::new(theta_i_deg, theta_r_deg),
+            fit.acceptance_deg,
+        );
+        (
+            value,
+            std::array::from_fn::<f64, 4, _>(|i| if free[i] { g[i] } else { 0.0 }),
+        )
     };
     let noise = NoiseModel::fit(observations);
     let mut information = [[0.0; 4]; 4];
     for o in observations {
         let (value, j) = fitted_gradient(o.theta_i_deg, o.theta_r_deg);
-        let s2 = o.std.map_or_else(|| noise.variance(value), |s| s * s).max(1e-18);
+        let s2 = o
+            .std
+            .map_or_else(|| noise.variance(value), |s| s * s)
+            .max(1e-18);
         for a in 0..4 {
             for b in 0..4 {
                 information[a][b] += j[a] * j[b] / s2;
@@ -329,7 +409,11 @@ pub fn next_batch_scored(
         chosen.push(g);
         at = g;
     }
-    (!chosen.is_empty()).then_some(ScoredBatch { geometries: chosen, sigma_variance_drop, seconds: total_seconds })
+    (!chosen.is_empty()).then_some(ScoredBatch {
+        geometries: chosen,
+        sigma_variance_drop,
+        seconds: total_seconds,
+    })
 }
 
 #[cfg(test)]
@@ -339,13 +423,19 @@ mod tests {
     #[test]
     fn candidates_skip_what_was_measured_and_stay_in_range() {
         let all = candidates(&BTreeSet::new());
-        assert!(all.iter().all(|g| g.theta_r.deg() >= 0.0 && g.theta_r.deg() <= 70.0 && g.theta_r != g.theta_i));
+        assert!(
+            all.iter().all(|g| g.theta_r.deg() >= 0.0
+                && g.theta_r.deg() <= 70.0
+                && g.theta_r != g.theta_i)
+        );
         let measured: BTreeSet<Geometry> = all.iter().take(5).copied().collect();
         assert_eq!(candidates(&measured).len(), all.len() - 5);
     }
 
     fn strategy1() -> BTreeSet<Geometry> {
-        protocol::schedules::strategy1(12).map(|s| s.iter().copied().collect()).unwrap_or_default()
+        protocol::schedules::strategy1(12)
+            .map(|s| s.iter().copied().collect())
+            .unwrap_or_default()
     }
 
     fn whole(theta_i: i32, theta_r: i32) -> Geometry {
@@ -356,7 +446,10 @@ mod tests {
     fn tails_after_strategy1_fill_each_angles_widest_gap() {
         // Strategy 1 has θr = 0, θi and 70° at each angle: the widest gaps' middles, the
         // tie at 45° (22 and 23 both 22° from a reading) going past specular's side.
-        assert_eq!(tails(&strategy1(), 1), vec![whole(20, 45), whole(30, 50), whole(45, 23), whole(60, 30)]);
+        assert_eq!(
+            tails(&strategy1(), 1),
+            vec![whole(20, 45), whole(30, 50), whole(45, 23), whole(60, 30)]
+        );
     }
 
     #[test]
@@ -368,26 +461,48 @@ mod tests {
         assert_eq!(distinct.len(), picked.len());
         for g in &picked {
             assert!(!measured.contains(g), "{g:?} was measured");
-            assert!((0.0..=70.0).contains(&g.theta_r.deg()) && g.theta_r.deg().fract() == 0.0, "{g:?}");
+            assert!(
+                (0.0..=70.0).contains(&g.theta_r.deg()) && g.theta_r.deg().fract() == 0.0,
+                "{g:?}"
+            );
             // Three more at an angle leave no θr more than 15° from a reading there.
-            let at: Vec<f64> = measured.iter().chain(&picked).filter(|h| h.theta_i == g.theta_i).map(|h| h.theta_r.deg()).collect();
-            assert!((0..=70).all(|r| at.iter().any(|t| (t - f64::from(r)).abs() <= 15.0)), "{at:?}");
+            let at: Vec<f64> = measured
+                .iter()
+                .chain(&picked)
+                .filter(|h| h.theta_i == g.theta_i)
+                .map(|h| h.theta_r.deg())
+                .collect();
+            assert!(
+                (0..=70).all(|r| at.iter().any(|t| (t - f64::from(r)).abs() <= 15.0)),
+                "{at:?}"
+            );
         }
         // Nothing left to add where every whole degree is measured; nothing at all measured:
         // specular first.
         let grid: BTreeSet<Geometry> = protocol::schedules::full_grid().iter().copied().collect();
         assert!(tails(&grid, 2).is_empty());
-        assert_eq!(tails(&BTreeSet::new(), 1), vec![whole(20, 20), whole(30, 30), whole(45, 45), whole(60, 60)]);
+        assert_eq!(
+            tails(&BTreeSet::new(), 1),
+            vec![whole(20, 20), whole(30, 30), whole(45, 45), whole(60, 60)]
+        );
     }
 
     #[test]
     fn the_whole_span_reaches_both_ends_of_the_detection_range() {
         let lobe: BTreeSet<Geometry> = candidates(&BTreeSet::new()).into_iter().collect();
-        let all: BTreeSet<Geometry> = candidates_over(&BTreeSet::new(), CandidateSpan::Whole).into_iter().collect();
+        let all: BTreeSet<Geometry> = candidates_over(&BTreeSet::new(), CandidateSpan::Whole)
+            .into_iter()
+            .collect();
         assert!(lobe.is_subset(&all));
         for theta_i in INCIDENCE_DEG {
-            assert!(all.contains(&whole(theta_i, 0)) && all.contains(&whole(theta_i, 70)), "θi = {theta_i}°");
-            assert!(!lobe.contains(&whole(theta_i, 0)), "θi = {theta_i}°: 0° is beyond the lobe's ±10°");
+            assert!(
+                all.contains(&whole(theta_i, 0)) && all.contains(&whole(theta_i, 70)),
+                "θi = {theta_i}°"
+            );
+            assert!(
+                !lobe.contains(&whole(theta_i, 0)),
+                "θi = {theta_i}°: 0° is beyond the lobe's ±10°"
+            );
         }
         // 0…70° at 0.5°, specular left out, at each of the four angles.
         assert_eq!(all.len(), 4 * 140);
@@ -397,7 +512,13 @@ mod tests {
     fn noise_model_recovers_floor_and_relative_terms() {
         let obs: Vec<Observation> = [0.5, 1.0, 5.0, 20.0]
             .iter()
-            .map(|&r| Observation { theta_i_deg: 20.0, theta_r_deg: 0.0, radiance_factor: r, std: Some((1e-6 + 1e-4 * r * r).sqrt()), theta_r_span_deg: 0.0 })
+            .map(|&r| Observation {
+                theta_i_deg: 20.0,
+                theta_r_deg: 0.0,
+                radiance_factor: r,
+                std: Some((1e-6 + 1e-4 * r * r).sqrt()),
+                theta_r_span_deg: 0.0,
+            })
             .collect();
         let m = NoiseModel::fit(&obs);
         assert!((m.variance(10.0) - (1e-6 + 1e-2)).abs() < 1e-9);

@@ -32,7 +32,9 @@ pub mod sweep;
 mod sweeping;
 mod white;
 
-pub use operator::{DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator};
+pub use operator::{
+    DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator,
+};
 pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
 use crate::analysis::fit::{FitOptions, Observation};
@@ -87,7 +89,9 @@ impl From<PolicyChoice> for Policy {
             PolicyChoice::Paper => Policy::Paper,
             PolicyChoice::Adaptive => Policy::Adaptive(AdaptiveTargets::default()),
             PolicyChoice::Sweep => Policy::Sweep(sweep::SweepTargets::default()),
-            PolicyChoice::Mixed => Policy::Mixed(AdaptiveTargets::default(), sweep::SweepTargets::default()),
+            PolicyChoice::Mixed => {
+                Policy::Mixed(AdaptiveTargets::default(), sweep::SweepTargets::default())
+            }
         }
     }
 }
@@ -210,7 +214,9 @@ impl MeasuredPoint {
         }
         match calibration.radiance_factor(self.theta_i_deg, &self.reading) {
             Ok((r, u)) => (self.radiance_factor, self.std, self.note) = (Some(r), Some(u), None),
-            Err(e) => (self.radiance_factor, self.std, self.note) = (None, None, Some(e.to_string())),
+            Err(e) => {
+                (self.radiance_factor, self.std, self.note) = (None, None, Some(e.to_string()))
+            }
         }
     }
 
@@ -321,7 +327,8 @@ pub struct Recoveries {
 impl Recoveries {
     /// Whether anything had to be recovered.
     pub fn any(&self) -> bool {
-        self.reconnections + self.state_recoveries + self.refusals + self.stops > 0 || self.readings_remeasured > 0
+        self.reconnections + self.state_recoveries + self.refusals + self.stops > 0
+            || self.readings_remeasured > 0
     }
 }
 
@@ -415,7 +422,9 @@ pub enum SessionError {
         advice: String,
     },
     /// Another instrument answers on the link than the one the session started with.
-    #[error("another instrument answers on the link after the reconnection (serial number {found}, the session started on {expected}): stopped rather than mix two instruments' readings")]
+    #[error(
+        "another instrument answers on the link after the reconnection (serial number {found}, the session started on {expected}): stopped rather than mix two instruments' readings"
+    )]
     OtherInstrument {
         /// The session's instrument.
         expected: String,
@@ -459,7 +468,14 @@ fn lost_text(link: &str, loss: &LinkLoss, silent_for: &Duration, decisions: &[St
     let shown = decisions.len().min(12);
     let mut text = format!("gave up: {what}");
     if shown > 0 {
-        text.push_str(&format!("\ndecisions so far{}:", if shown < decisions.len() { format!(" (the last {shown} of {})", decisions.len()) } else { String::new() }));
+        text.push_str(&format!(
+            "\ndecisions so far{}:",
+            if shown < decisions.len() {
+                format!(" (the last {shown} of {})", decisions.len())
+            } else {
+                String::new()
+            }
+        ));
         for d in &decisions[decisions.len() - shown..] {
             text.push_str("\n  ");
             text.push_str(d);
@@ -525,7 +541,13 @@ pub struct Session<'a, T: Transport> {
 
 impl<'a, T: Transport> Session<'a, T> {
     /// A session on a connected instrument (after the handshake gave `info`).
-    pub fn new(client: &'a mut Client<T>, info: DeviceInfo, plan: Plan, recorder: &'a mut dyn Recorder, operator: &'a mut dyn Operator) -> Self {
+    pub fn new(
+        client: &'a mut Client<T>,
+        info: DeviceInfo,
+        plan: Plan,
+        recorder: &'a mut dyn Recorder,
+        operator: &'a mut dyn Operator,
+    ) -> Self {
         let motion = Motion::from_info(&info).unwrap_or_else(|_| Motion::reference());
         Session {
             client,
@@ -595,8 +617,18 @@ impl<'a, T: Transport> Session<'a, T> {
     /// A geometry recorded more than once without a mark (the mark of a superseded
     /// reading was not written before a crash) keeps its last reading: a geometry is
     /// measured again only after its earlier reading was superseded.
-    pub fn resume_from(mut self, calibration: Option<Calibration>, mut points: Vec<MeasuredPoint>) -> Self {
-        self.next_schedule_id = points.iter().map(|p| p.schedule_id).max().unwrap_or(0).wrapping_add(1).max(1);
+    pub fn resume_from(
+        mut self,
+        calibration: Option<Calibration>,
+        mut points: Vec<MeasuredPoint>,
+    ) -> Self {
+        self.next_schedule_id = points
+            .iter()
+            .map(|p| p.schedule_id)
+            .max()
+            .unwrap_or(0)
+            .wrapping_add(1)
+            .max(1);
         let mut seen = BTreeSet::new();
         for point in points.iter_mut().rev() {
             if let Some(g) = point.geometry().filter(|_| !point.superseded) {
@@ -639,12 +671,20 @@ impl<'a, T: Transport> Session<'a, T> {
         if !self.unrecorded_marks.is_empty() {
             let marks = std::mem::take(&mut self.unrecorded_marks);
             self.decide(&format!("{} resumed readings were measured again before the crash: the later reading of each geometry is kept", marks.len()));
-            self.recorder.superseded(&marks, "measured again before a crash kept the mark from the record").map_err(SessionError::Record)?;
+            self.recorder
+                .superseded(
+                    &marks,
+                    "measured again before a crash kept the mark from the record",
+                )
+                .map_err(SessionError::Record)?;
         }
         if self.info.reset_cause.fault().is_some() {
             // A fault the instrument took before this session (a panic, a processor fault,
             // the watchdog): the homing that follows starts afresh.
-            self.decide(&format!("the instrument last restarted after a fault: {}", self.info.reset_cause));
+            self.decide(&format!(
+                "the instrument last restarted after a fault: {}",
+                self.info.reset_cause
+            ));
         }
         let started = self.now();
         // The resumed readings were taken under an earlier process: a Home now tells
@@ -664,21 +704,32 @@ impl<'a, T: Transport> Session<'a, T> {
         // serves many sheets: the sample's device time is counted from here.
         let measuring_from = self.now();
         let waiting_before = self.waiting_us;
-        let setup_seconds = (measuring_from - started).as_secs_f64() - self.waiting_us as f64 * 1e-6;
+        let setup_seconds =
+            (measuring_from - started).as_secs_f64() - self.waiting_us as f64 * 1e-6;
         let mut fits = Vec::new();
         let mut refinements = Vec::new();
         let first_name = match &self.plan.policy {
             Policy::Sweep(targets) => {
                 let targets = *targets;
                 let here = self.status()?.position;
-                let pass = sweep::first_pass_from(&self.motion, here, targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)), targets.pass_bin_deg);
-                let incidences: Vec<String> = pass.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
+                let pass = sweep::first_pass_from(
+                    &self.motion,
+                    here,
+                    targets
+                        .pass_speed_deg_per_s
+                        .min(f64::from(self.info.max_speed_deg_per_s)),
+                    targets.pass_bin_deg,
+                );
+                let incidences: Vec<String> =
+                    pass.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
                 let name = format!(
                     "first pass ({} sweeps of θr 0–{}° at θi = {}, {} °/s, bins of {}°)",
                     pass.len(),
                     sweep::THETA_R_MAX_DEG,
                     incidences.join(" and "),
-                    targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s)),
+                    targets
+                        .pass_speed_deg_per_s
+                        .min(f64::from(self.info.max_speed_deg_per_s)),
                     targets.pass_bin_deg
                 );
                 self.decide(&name);
@@ -691,8 +742,12 @@ impl<'a, T: Transport> Session<'a, T> {
                     _ => strategy1(12).map(|s| s.to_vec()).unwrap_or_default(),
                 };
                 let name = match policy {
-                    Policy::Fixed(FixedSchedule::Strategy1 { m }) => format!("strategy 1 ({m} geometries)"),
-                    Policy::Fixed(FixedSchedule::Strategy2 { delta_deg }) => format!("strategy 2, δ = {delta_deg}° ({} geometries)", first.len()),
+                    Policy::Fixed(FixedSchedule::Strategy1 { m }) => {
+                        format!("strategy 1 ({m} geometries)")
+                    }
+                    Policy::Fixed(FixedSchedule::Strategy2 { delta_deg }) => {
+                        format!("strategy 2, δ = {delta_deg}° ({} geometries)", first.len())
+                    }
                     _ => "strategy 1 (12 geometries)".into(),
                 };
                 self.measure(&name, &first)?;
@@ -700,7 +755,10 @@ impl<'a, T: Transport> Session<'a, T> {
             }
         };
         let mut report = self.analyse()?;
-        fits.push(FitStep { after: first_name, report: to_json(&report) });
+        fits.push(FitStep {
+            after: first_name,
+            report: to_json(&report),
+        });
         self.refine(&mut report, &mut fits, &mut refinements)?;
         // Before reporting: do the step counts still agree with the switches? Readings
         // taken while an arm was off are measured again after the re-home (the check's
@@ -718,14 +776,29 @@ impl<'a, T: Transport> Session<'a, T> {
             }
             let missing = self.missing();
             if !missing.is_empty() {
-                self.measure(&format!("measuring again {} readings taken while an arm was off", missing.len()), &missing)?;
+                self.measure(
+                    &format!(
+                        "measuring again {} readings taken while an arm was off",
+                        missing.len()
+                    ),
+                    &missing,
+                )?;
             }
             let uncovered = self.uncovered_sweeps();
             if !uncovered.is_empty() {
-                self.sweep_stage(&format!("measuring again {} stretches of sweeps taken while an arm was off", uncovered.len()), &[])?;
+                self.sweep_stage(
+                    &format!(
+                        "measuring again {} stretches of sweeps taken while an arm was off",
+                        uncovered.len()
+                    ),
+                    &[],
+                )?;
             }
             report = self.analyse()?;
-            fits.push(FitStep { after: format!("re-measured after lost steps (check {round})"), report: to_json(&report) });
+            fits.push(FitStep {
+                after: format!("re-measured after lost steps (check {round})"),
+                report: to_json(&report),
+            });
             self.refine(&mut report, &mut fits, &mut refinements)?;
         }
         let (white_drift, white_drift_exceeded) = if self.plan.white_check || self.lamp_went_off {
@@ -738,8 +811,13 @@ impl<'a, T: Transport> Session<'a, T> {
         };
         let ended = self.now();
         let measuring_us = (ended - measuring_from).as_micros() as u64;
-        let device_us = measuring_us.saturating_sub(self.final_check_us).saturating_sub(self.waiting_us - waiting_before);
-        let calibration = self.calibration.take().ok_or(SessionError::Fit("no calibration".into()))?;
+        let device_us = measuring_us
+            .saturating_sub(self.final_check_us)
+            .saturating_sub(self.waiting_us - waiting_before);
+        let calibration = self
+            .calibration
+            .take()
+            .ok_or(SessionError::Fit("no calibration".into()))?;
         if white_drift_exceeded {
             self.flags.insert(Flag::WhiteDrift);
         }
@@ -776,16 +854,26 @@ impl<'a, T: Transport> Session<'a, T> {
             recoveries: self.recoveries,
             decisions: self.decisions,
             flags: self.flags.into_iter().collect(),
-            analysis_settings: AnalysisSettings { acceptance_deg: self.plan.acceptance_deg, arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg },
+            analysis_settings: AnalysisSettings {
+                acceptance_deg: self.plan.acceptance_deg,
+                arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg,
+            },
             analysed_unix_s: self.analysed_unix_s,
         })
     }
 
     /// Refinements by the plan's policy, from `report`.
-    fn refine(&mut self, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
+    fn refine(
+        &mut self,
+        report: &mut Report,
+        fits: &mut Vec<FitStep>,
+        refinements: &mut Vec<Refinement>,
+    ) -> Result<(), SessionError> {
         let (targets, sweeps) = match self.plan.policy.clone() {
             Policy::Paper => return self.refine_like_the_paper(report, fits, refinements),
-            Policy::Sweep(targets) => return self.refine_by_sweeps(targets, report, fits, refinements),
+            Policy::Sweep(targets) => {
+                return self.refine_by_sweeps(targets, report, fits, refinements);
+            }
             Policy::Fixed(_) => return Ok(()),
             Policy::Adaptive(targets) => (targets, None),
             Policy::Mixed(targets, sweeps) => (targets, Some(sweeps)),
@@ -798,7 +886,12 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// The paper's policy: Strategy 2 with decreasing δ until σ > σ_l, sending only
     /// geometries not measured yet.
-    fn refine_like_the_paper(&mut self, report: &mut Report, fits: &mut Vec<FitStep>, refinements: &mut Vec<Refinement>) -> Result<(), SessionError> {
+    fn refine_like_the_paper(
+        &mut self,
+        report: &mut Report,
+        fits: &mut Vec<FitStep>,
+        refinements: &mut Vec<Refinement>,
+    ) -> Result<(), SessionError> {
         for delta in (1..=10u8).rev() {
             let check = report.check;
             if check.is_some_and(|c| c.sigma_ok) {
@@ -811,15 +904,33 @@ impl<'a, T: Transport> Session<'a, T> {
                 continue;
             }
             let reason = match (report.fit.sigma_deg(), check) {
-                (Some(sigma), Some(c)) => format!("σ = {sigma:.3}° ≤ σ_l = {:.3}° (δ = {:.1}°)", c.sigma_l_deg, c.delta_deg),
+                (Some(sigma), Some(c)) => format!(
+                    "σ = {sigma:.3}° ≤ σ_l = {:.3}° (δ = {:.1}°)",
+                    c.sigma_l_deg, c.delta_deg
+                ),
                 (None, _) => "σ not resolved by the geometries measured".to_string(),
-                (Some(sigma), None) => format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction"),
+                (Some(sigma), None) => {
+                    format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction")
+                }
             };
-            self.decide(&format!("refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"));
-            refinements.push(Refinement { delta_deg: Some(delta), added, reason, lack_of_fit: false });
-            self.measure(&format!("strategy 2, δ = {delta}° ({added} new geometries)"), &schedule)?;
+            self.decide(&format!(
+                "refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"
+            ));
+            refinements.push(Refinement {
+                delta_deg: Some(delta),
+                added,
+                reason,
+                lack_of_fit: false,
+            });
+            self.measure(
+                &format!("strategy 2, δ = {delta}° ({added} new geometries)"),
+                &schedule,
+            )?;
             *report = self.analyse()?;
-            fits.push(FitStep { after: format!("strategy2 δ={delta}°"), report: to_json(report) });
+            fits.push(FitStep {
+                after: format!("strategy2 δ={delta}°"),
+                report: to_json(report),
+            });
         }
         Ok(())
     }
@@ -844,13 +955,18 @@ impl<'a, T: Transport> Session<'a, T> {
         fits: &mut Vec<FitStep>,
         refinements: &mut Vec<Refinement>,
     ) -> Result<(), SessionError> {
-        let adaptive_batches = |refinements: &[Refinement]| refinements.iter().filter(|r| r.delta_deg.is_none()).count();
-        let lack_of_fit_batches = |refinements: &[Refinement]| refinements.iter().filter(|r| r.lack_of_fit).count();
+        let adaptive_batches = |refinements: &[Refinement]| {
+            refinements.iter().filter(|r| r.delta_deg.is_none()).count()
+        };
+        let lack_of_fit_batches =
+            |refinements: &[Refinement]| refinements.iter().filter(|r| r.lack_of_fit).count();
         for batch_number in adaptive_batches(refinements) + 1..=targets.max_batches {
             let flagged = report.fit.lack_of_fit;
             let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
-            let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
-            let precise = adaptive::sigma_rel_half_width(&report.fit).is_some_and(|w| w <= targets.sigma_rel_half_width);
+            let rough =
+                report.classification.group == Some(crate::analysis::classify::Group::Rough);
+            let precise = adaptive::sigma_rel_half_width(&report.fit)
+                .is_some_and(|w| w <= targets.sigma_rel_half_width);
             let settled = report.classification.confidence >= targets.class_confidence;
             let taken = lack_of_fit_batches(refinements);
             // The flag outlived its batches: the model does not describe this sheet, and the
@@ -881,12 +997,16 @@ impl<'a, T: Transport> Session<'a, T> {
             let resolved = adaptive::sigma_resolved(&report.fit);
             // A flag on a fit that has not seen the peak says little about the lobe: the
             // probe comes first, the tails after it if the flag stays.
-            let probe = (!resolved).then(|| adaptive::probe(&observations, &measured)).filter(|b| !b.is_empty());
+            let probe = (!resolved)
+                .then(|| adaptive::probe(&observations, &measured))
+                .filter(|b| !b.is_empty());
             // The mixed policy probes with a slow sweep across the specular direction where
             // Strategy 1 read the strongest peak: a lobe narrower than its spacing is then
             // read at every 0.05° in a second, where the probe's points take several.
             if let (Some(sweep_targets), Some(_)) = (sweeps, probe.as_ref()) {
-                let max_speed = sweep_targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s));
+                let max_speed = sweep_targets
+                    .pass_speed_deg_per_s
+                    .min(f64::from(self.info.max_speed_deg_per_s));
                 let strongest = observations
                     .iter()
                     .filter(|o| (o.theta_r_deg - o.theta_i_deg).abs() < 0.5)
@@ -895,23 +1015,63 @@ impl<'a, T: Transport> Session<'a, T> {
                 // There and back: what a sweep's direction does to its bins' angles (the
                 // amplifier's lag, the arm's dwell) then cancels in the peak's position
                 // rather than leaning on σ.
-                let plans: Vec<sweep::SweepPlan> = sweep::peak_candidates(0.25, report.fit.acceptance_deg, max_speed, self.block_s(), here.theta_r.deg())
-                    .into_iter()
-                    .filter(|p| p.theta_i_deg == strongest && p.speed_deg_per_s == 15.0_f64.min(max_speed))
-                    .take(1)
-                    .flat_map(|p| [p, sweep::SweepPlan { from_deg: p.to_deg, to_deg: p.from_deg, ..p }])
-                    .collect();
+                let plans: Vec<sweep::SweepPlan> = sweep::peak_candidates(
+                    0.25,
+                    report.fit.acceptance_deg,
+                    max_speed,
+                    self.block_s(),
+                    here.theta_r.deg(),
+                )
+                .into_iter()
+                .filter(|p| {
+                    p.theta_i_deg == strongest && p.speed_deg_per_s == 15.0_f64.min(max_speed)
+                })
+                .take(1)
+                .flat_map(|p| {
+                    [
+                        p,
+                        sweep::SweepPlan {
+                            from_deg: p.to_deg,
+                            to_deg: p.from_deg,
+                            ..p
+                        },
+                    ]
+                })
+                .collect();
                 if !plans.is_empty() {
-                    let reason = format!("σ not resolved: slow sweeps across the specular direction and back at θi = {strongest}°, where Strategy 1 read the strongest peak");
+                    let reason = format!(
+                        "σ not resolved: slow sweeps across the specular direction and back at θi = {strongest}°, where Strategy 1 read the strongest peak"
+                    );
                     let name = format!("adaptive round {batch_number}");
-                    self.sweep_round(&name, &format!("{name} (sweeps across the specular direction and back)"), reason, false, &plans, report, fits, refinements)?;
+                    self.sweep_round(
+                        &name,
+                        &format!("{name} (sweeps across the specular direction and back)"),
+                        reason,
+                        false,
+                        &plans,
+                        report,
+                        fits,
+                        refinements,
+                    )?;
                     continue;
                 }
             }
             let (batch, reason, for_lack_of_fit) = if let Some(probe) = probe {
-                (Some(probe), "σ not resolved: probe around the strongest specular peak".to_string(), false)
+                (
+                    Some(probe),
+                    "σ not resolved: probe around the strongest specular peak".to_string(),
+                    false,
+                )
             } else if flagged && !confirmed {
-                let batch = adaptive::lack_of_fit_batch(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch);
+                let batch = adaptive::lack_of_fit_batch(
+                    &report.fit,
+                    &observations,
+                    &measured,
+                    here,
+                    &self.motion,
+                    integration_ms,
+                    targets.batch,
+                );
                 let reason = format!(
                     "lack-of-fit ({}): sampling the tails and the whole θr range (lack-of-fit batch {} of {})",
                     lack_of_fit_evidence(&report.fit),
@@ -922,47 +1082,111 @@ impl<'a, T: Transport> Session<'a, T> {
             } else if resolved {
                 // Under a flag the model's idea of where σ is measured is not to be trusted:
                 // the design looks over the whole θr range.
-                let span = if flagged { adaptive::CandidateSpan::Whole } else { adaptive::CandidateSpan::Lobe };
-                let scored = adaptive::next_batch_scored(&report.fit, &observations, &measured, here, &self.motion, integration_ms, targets.batch, span);
+                let span = if flagged {
+                    adaptive::CandidateSpan::Whole
+                } else {
+                    adaptive::CandidateSpan::Lobe
+                };
+                let scored = adaptive::next_batch_scored(
+                    &report.fit,
+                    &observations,
+                    &measured,
+                    here,
+                    &self.motion,
+                    integration_ms,
+                    targets.batch,
+                    span,
+                );
                 // Sweeps as candidates (the mixed policy): a round of sweeps across the
                 // peak, designed as the sweep policy designs them, when it is predicted to
                 // shrink σ's variance more per device second than the batch. Not under a
                 // flag: there the batches look over the whole θr range, which a sweep
                 // across the peak does not.
                 if let Some(sweep_targets) = sweeps.filter(|_| !flagged) {
-                    let max_speed = sweep_targets.pass_speed_deg_per_s.min(f64::from(self.info.max_speed_deg_per_s));
+                    let max_speed = sweep_targets
+                        .pass_speed_deg_per_s
+                        .min(f64::from(self.info.max_speed_deg_per_s));
                     let per_block = self.per_block_variance();
                     // σ ≤ σ_l is a matter of spacing, which any sweep across the peak settles
                     // (its bins are 0.1° apart or closer): the best single sweep then, else
                     // the sweep policy's round against the batch.
-                    let (target, most) = if sigma_ok { (targets.sigma_rel_half_width, sweep_targets.sweeps_per_round) } else { (0.0, 1) };
-                    let design = sweep::design_peak_sweeps(&report.fit, &observations, here, &self.motion, max_speed, self.block_s(), &per_block, target, most);
-                    let per_second = |drop: f64, seconds: f64| if seconds > 0.0 { drop / seconds } else { 0.0 };
-                    let batch_rate = scored.as_ref().map_or(0.0, |b| per_second(b.sigma_variance_drop, b.seconds));
+                    let (target, most) = if sigma_ok {
+                        (targets.sigma_rel_half_width, sweep_targets.sweeps_per_round)
+                    } else {
+                        (0.0, 1)
+                    };
+                    let design = sweep::design_peak_sweeps(
+                        &report.fit,
+                        &observations,
+                        here,
+                        &self.motion,
+                        max_speed,
+                        self.block_s(),
+                        &per_block,
+                        target,
+                        most,
+                    );
+                    let per_second =
+                        |drop: f64, seconds: f64| if seconds > 0.0 { drop / seconds } else { 0.0 };
+                    let batch_rate = scored
+                        .as_ref()
+                        .map_or(0.0, |b| per_second(b.sigma_variance_drop, b.seconds));
                     let sweep_rate = per_second(design.sigma_variance_drop, design.seconds);
                     if !design.plans.is_empty() && (!sigma_ok || sweep_rate > batch_rate) {
-                        let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
+                        let width =
+                            adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
                         let reason = format!(
                             "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}: {} across the peak predicted to bring it to ± {:.1} % in {:.1} device s, {:.1}× the information per second of the best batch of point readings",
                             report.fit.sigma_deg().unwrap_or(f64::NAN),
                             100.0 * width,
                             report.classification.class_name(),
                             report.classification.confidence,
-                            if sigma_ok { String::new() } else { sigma_l_text(report) },
+                            if sigma_ok {
+                                String::new()
+                            } else {
+                                sigma_l_text(report)
+                            },
                             sweeping::sweeps_text(design.plans.len()),
                             100.0 * design.predicted_rel_half_width,
                             design.seconds,
-                            if batch_rate > 0.0 { sweep_rate / batch_rate } else { f64::INFINITY }
+                            if batch_rate > 0.0 {
+                                sweep_rate / batch_rate
+                            } else {
+                                f64::INFINITY
+                            }
                         );
                         let name = format!("adaptive round {batch_number}");
-                        let stage = format!("{name} ({} across the peak)", sweeping::sweeps_text(design.plans.len()));
-                        self.sweep_round(&name, &stage, reason, false, &design.plans, report, fits, refinements)?;
+                        let stage = format!(
+                            "{name} ({} across the peak)",
+                            sweeping::sweeps_text(design.plans.len())
+                        );
+                        self.sweep_round(
+                            &name,
+                            &stage,
+                            reason,
+                            false,
+                            &design.plans,
+                            report,
+                            fits,
+                            refinements,
+                        )?;
                         continue;
                     }
                 }
                 let batch = scored.map(|b| b.geometries);
                 let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                let mut reason = format!("σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}", report.fit.sigma_deg().unwrap_or(f64::NAN), 100.0 * width, report.classification.class_name(), report.classification.confidence, if sigma_ok { String::new() } else { sigma_l_text(&report) });
+                let mut reason = format!(
+                    "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}",
+                    report.fit.sigma_deg().unwrap_or(f64::NAN),
+                    100.0 * width,
+                    report.classification.class_name(),
+                    report.classification.confidence,
+                    if sigma_ok {
+                        String::new()
+                    } else {
+                        sigma_l_text(&report)
+                    }
+                );
                 if confirmed {
                     reason.push_str(&format!(
                         "; lack-of-fit ({}) persists after {taken} lack-of-fit batches: the result keeps the flag, the batches go on over the whole θr range only until σ > σ_l",
@@ -974,15 +1198,33 @@ impl<'a, T: Transport> Session<'a, T> {
                 (None, String::new(), false)
             };
             let Some(batch) = batch.filter(|b| !b.is_empty()) else {
-                let flag = if flagged { "; the result keeps the lack-of-fit flag" } else { "" };
+                let flag = if flagged {
+                    "; the result keeps the lack-of-fit flag"
+                } else {
+                    ""
+                };
                 self.decide(&format!("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l{flag}"));
                 return Ok(());
             };
-            self.decide(&format!("adaptive batch {batch_number} ({} geometries): {reason}", batch.len()));
-            refinements.push(Refinement { delta_deg: None, added: batch.len(), reason, lack_of_fit: for_lack_of_fit });
-            self.measure(&format!("adaptive batch {batch_number} ({} geometries)", batch.len()), &batch)?;
+            self.decide(&format!(
+                "adaptive batch {batch_number} ({} geometries): {reason}",
+                batch.len()
+            ));
+            refinements.push(Refinement {
+                delta_deg: None,
+                added: batch.len(),
+                reason,
+                lack_of_fit: for_lack_of_fit,
+            });
+            self.measure(
+                &format!("adaptive batch {batch_number} ({} geometries)", batch.len()),
+                &batch,
+            )?;
             *report = self.analyse()?;
-            fits.push(FitStep { after: format!("adaptive batch {batch_number}"), report: to_json(report) });
+            fits.push(FitStep {
+                after: format!("adaptive batch {batch_number}"),
+                report: to_json(report),
+            });
         }
         if report.fit.lack_of_fit {
             self.decide(&format!(
@@ -1009,14 +1251,22 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Geometries with a current reading (not superseded). A reading that could not be
     /// converted counts: measuring it again would give the same.
     fn measured(&self) -> BTreeSet<Geometry> {
-        self.points.iter().filter(|p| !p.superseded).filter_map(MeasuredPoint::geometry).collect()
+        self.points
+            .iter()
+            .filter(|p| !p.superseded)
+            .filter_map(MeasuredPoint::geometry)
+            .collect()
     }
 
     /// Geometries wanted and not measured (lost on the link, superseded), in the order
     /// first wanted.
     fn missing(&self) -> Vec<Geometry> {
         let measured = self.measured();
-        self.wanted.iter().copied().filter(|g| !measured.contains(g)).collect()
+        self.wanted
+            .iter()
+            .copied()
+            .filter(|g| !measured.contains(g))
+            .collect()
     }
 
     /// Fit everything measured so far, check σ against σ_l and classify, as of now (the
@@ -1024,12 +1274,22 @@ impl<'a, T: Transport> Session<'a, T> {
     fn analyse(&mut self) -> Result<Report, SessionError> {
         let now = unix_now_s();
         self.analysed_unix_s = now;
-        analyse_points(&self.plan.sample, &self.points, self.calibration.as_ref(), &self.analysis_settings(), now).map_err(SessionError::Fit)
+        analyse_points(
+            &self.plan.sample,
+            &self.points,
+            self.calibration.as_ref(),
+            &self.analysis_settings(),
+            now,
+        )
+        .map_err(SessionError::Fit)
     }
 
     /// What the session's analysis is made with besides the readings.
     fn analysis_settings(&self) -> AnalysisSettings {
-        AnalysisSettings { acceptance_deg: self.plan.acceptance_deg, arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg }
+        AnalysisSettings {
+            acceptance_deg: self.plan.acceptance_deg,
+            arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg,
+        }
     }
 }
 
@@ -1052,7 +1312,9 @@ pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observa
 }
 
 /// [`usable_observations`] with how the bins' noise was scaled to their scatter.
-pub fn usable_observations_scaled(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>, sweep::NoiseScaling) {
+pub fn usable_observations_scaled(
+    points: &[MeasuredPoint],
+) -> (Vec<usize>, Vec<Observation>, sweep::NoiseScaling) {
     let (indices, mut observations) = first_readings(points);
     let scaling = sweep::scale_bin_noise(points, &indices, &mut observations);
     (indices, observations, scaling)
@@ -1065,9 +1327,20 @@ fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
         .enumerate()
         .filter(|(_, p)| !p.superseded)
         .filter_map(|(k, p)| {
-            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else { return None };
+            let (Some(radiance_factor), Some(g)) = (p.radiance_factor, p.geometry()) else {
+                return None;
+            };
             let first = p.theta_r_span_deg > 0.0 || seen.insert(g);
-            first.then_some((k, Observation { theta_i_deg: p.theta_i_deg, theta_r_deg: p.theta_r_deg, radiance_factor, std: p.std, theta_r_span_deg: p.theta_r_span_deg }))
+            first.then_some((
+                k,
+                Observation {
+                    theta_i_deg: p.theta_i_deg,
+                    theta_r_deg: p.theta_r_deg,
+                    radiance_factor,
+                    std: p.std,
+                    theta_r_span_deg: p.theta_r_span_deg,
+                },
+            ))
         })
         .unzip()
 }
@@ -1075,24 +1348,57 @@ fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
 /// The session's analysis of `points` (marks applied, converted with `calibration`): the
 /// fit with the calibration's shared errors as of `now_unix_s`, the σ_l check and the
 /// class. What a session reports, and what `gonio fit DIR` makes again from its folder.
-pub fn analyse_points(sample: &str, points: &[MeasuredPoint], calibration: Option<&Calibration>, settings: &AnalysisSettings, now_unix_s: u64) -> Result<Report, String> {
+pub fn analyse_points(
+    sample: &str,
+    points: &[MeasuredPoint],
+    calibration: Option<&Calibration>,
+    settings: &AnalysisSettings,
+    now_unix_s: u64,
+) -> Result<Report, String> {
     let (indices, observations, scaling) = usable_observations_scaled(points);
     let noise_scale_log_variance = scaling.chi2_log_variance(observations.len());
     let shared = match calibration {
-        Some(calibration) => gains::shared_errors(calibration, &indices.iter().filter_map(|&k| points.get(k)).collect::<Vec<_>>(), now_unix_s).map_err(|e| e.to_string())?,
+        Some(calibration) => gains::shared_errors(
+            calibration,
+            &indices
+                .iter()
+                .filter_map(|&k| points.get(k))
+                .collect::<Vec<_>>(),
+            now_unix_s,
+        )
+        .map_err(|e| e.to_string())?,
         None => Vec::new(),
     };
     // Lines of readings.csv: a header, then one per reading.
-    let set = DataSet { sample: sample.to_string(), observations, lines: indices.iter().map(|k| k + 2).collect() };
-    let options = FitOptions { acceptance_deg: Some(settings.acceptance_deg), arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg, noise_scale_log_variance, ..FitOptions::default() };
-    analyse_with_shared(std::path::Path::new("readings.csv"), &set, &shared, &options, None)
+    let set = DataSet {
+        sample: sample.to_string(),
+        observations,
+        lines: indices.iter().map(|k| k + 2).collect(),
+    };
+    let options = FitOptions {
+        acceptance_deg: Some(settings.acceptance_deg),
+        arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg,
+        noise_scale_log_variance,
+        ..FitOptions::default()
+    };
+    analyse_with_shared(
+        std::path::Path::new("readings.csv"),
+        &set,
+        &shared,
+        &options,
+        None,
+    )
 }
 
 /// ", σ ≤ σ_l = …°" of a report whose σ fails the check (the value, so a reader sees how
 /// far the sampling is from resolving the peak).
 fn sigma_l_text(report: &crate::analysis::report::Report) -> String {
     match report.check {
-        Some(check) => format!(", σ ≤ σ_l = {:.3}° (δ = {:.2}°)", check.sigma_l_deg, report.delta.map_or(f64::NAN, |d| d.deg)),
+        Some(check) => format!(
+            ", σ ≤ σ_l = {:.3}° (δ = {:.2}°)",
+            check.sigma_l_deg,
+            report.delta.map_or(f64::NAN, |d| d.deg)
+        ),
         None => ", σ_l unknown (no δ found)".to_string(),
     }
 }
@@ -1101,11 +1407,23 @@ fn sigma_l_text(report: &crate::analysis::report::Report) -> String {
 /// p-values, where they were made.
 fn lack_of_fit_evidence(fit: &crate::analysis::fit::FitResult) -> String {
     // Plain below a thousandth would read 0.000 for a flag's typical p-values.
-    let p = |p: f64| if p >= 1e-3 { format!("{p:.3}") } else { format!("{p:.1e}") };
+    let p = |p: f64| {
+        if p >= 1e-3 {
+            format!("{p:.3}")
+        } else {
+            format!("{p:.1e}")
+        }
+    };
     let chi2 = fit.gof_p.map(|v| format!("χ² p = {}", p(v)));
-    let structure = fit.structure.map(|s| format!("structure p = {}", p(s.p_value)));
+    let structure = fit
+        .structure
+        .map(|s| format!("structure p = {}", p(s.p_value)));
     let parts: Vec<String> = chi2.into_iter().chain(structure).collect();
-    if parts.is_empty() { "no test p-value".to_string() } else { parts.join(", ") }
+    if parts.is_empty() {
+        "no test p-value".to_string()
+    } else {
+        parts.join(", ")
+    }
 }
 
 /// How one step of the session failed: something to recover from, or the end.

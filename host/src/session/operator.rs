@@ -89,7 +89,10 @@ pub struct DelayedOperator {
 impl DelayedOperator {
     /// A person who takes `delay` at every prompt.
     pub fn answering_after(delay: Duration) -> DelayedOperator {
-        DelayedOperator { delay, ..DelayedOperator::default() }
+        DelayedOperator {
+            delay,
+            ..DelayedOperator::default()
+        }
     }
 }
 
@@ -119,7 +122,11 @@ pub struct WallClockOperator {
 impl WallClockOperator {
     /// A person who takes `delays[k]` at the k-th prompt (the last delay for the rest).
     pub fn new(delays: Vec<Duration>) -> WallClockOperator {
-        WallClockOperator { delays, asked_at: None, asked: Vec::new() }
+        WallClockOperator {
+            delays,
+            asked_at: None,
+            asked: Vec::new(),
+        }
     }
 }
 
@@ -131,7 +138,11 @@ impl Operator for WallClockOperator {
     }
 
     fn answered(&mut self, _now: Duration) -> std::io::Result<bool> {
-        let k = self.asked.len().saturating_sub(1).min(self.delays.len().saturating_sub(1));
+        let k = self
+            .asked
+            .len()
+            .saturating_sub(1)
+            .min(self.delays.len().saturating_sub(1));
         let delay = self.delays.get(k).copied().unwrap_or_default();
         Ok(self.asked_at.is_none_or(|at| at.elapsed() >= delay))
     }
@@ -156,7 +167,11 @@ impl PromptOperator {
 
     /// A prompt on standard error, answered on `input` (for tests).
     pub fn answered_on(input: impl BufRead + Send + 'static) -> PromptOperator {
-        PromptOperator { lines: None, input: Some(Box::new(input)), bar: None }
+        PromptOperator {
+            lines: None,
+            input: Some(Box::new(input)),
+            bar: None,
+        }
     }
 
     /// The reader thread, started at the first prompt: it sends every line typed, then
@@ -239,7 +254,9 @@ mod tests {
     #[test]
     fn the_simulated_person_answers_after_the_delay_on_the_transports_clock() {
         let mut person = DelayedOperator::answering_after(Duration::from_secs(10));
-        person.ask(Placement::WhiteTile, Duration::from_secs(5)).unwrap();
+        person
+            .ask(Placement::WhiteTile, Duration::from_secs(5))
+            .unwrap();
         assert!(!person.answered(Duration::from_secs(14)).unwrap());
         assert!(person.answered(Duration::from_secs(15)).unwrap());
         assert_eq!(person.asked, [Placement::WhiteTile]);
@@ -254,7 +271,10 @@ mod tests {
         person.ask(Placement::Sample, Duration::ZERO).unwrap();
         assert!(person.answered(Duration::ZERO).unwrap());
         person.ask(Placement::WhiteTile, Duration::ZERO).unwrap();
-        assert!(person.answered(Duration::ZERO).unwrap(), "the last delay repeats");
+        assert!(
+            person.answered(Duration::ZERO).unwrap(),
+            "the last delay repeats"
+        );
     }
 
     /// Wait (on the reader thread) until `person` answers or fails.
@@ -276,6 +296,10 @@ mod tests {
         person.ask(Placement::Sample, Duration::ZERO).unwrap();
         let error = wait(&mut person).unwrap_err();
         assert_eq!(error.kind(), std::io::ErrorKind::UnexpectedEof);
-        assert!(error.to_string().contains("standard input is closed") && error.to_string().contains("--calibration"), "{error}");
+        assert!(
+            error.to_string().contains("standard input is closed")
+                && error.to_string().contains("--calibration"),
+            "{error}"
+        );
     }
 }

@@ -44,8 +44,10 @@ pub const READING_OVERHEAD_US: u64 = 5_000;
 
 /// Where homing leaves both arms on the reference instrument: on the home switches, 2.5°
 /// beyond the working range (a position, not a target the device accepts).
-pub const REFERENCE_HOME: Geometry =
-    Geometry::new(InstrumentConfig::REFERENCE.home_switch, InstrumentConfig::REFERENCE.home_switch);
+pub const REFERENCE_HOME: Geometry = Geometry::new(
+    InstrumentConfig::REFERENCE.home_switch,
+    InstrumentConfig::REFERENCE.home_switch,
+);
 
 /// A device description the planner cannot use.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
@@ -69,7 +71,11 @@ pub struct Motion {
 impl Motion {
     /// The limits an instrument reported in its handshake.
     pub fn from_info(info: &DeviceInfo) -> Result<Motion, OrderError> {
-        Motion::new(info.max_speed_deg_per_s, info.accel_deg_per_s2, info.settle_ms)
+        Motion::new(
+            info.max_speed_deg_per_s,
+            info.accel_deg_per_s2,
+            info.settle_ms,
+        )
     }
 
     /// The reference instrument (60 °/s, 180 °/s², settle 100 ms).
@@ -83,7 +89,11 @@ impl Motion {
     }
 
     /// Limits in °/s, °/s² and ms.
-    pub fn new(max_speed_deg_per_s: f32, accel_deg_per_s2: f32, settle_ms: u16) -> Result<Motion, OrderError> {
+    pub fn new(
+        max_speed_deg_per_s: f32,
+        accel_deg_per_s2: f32,
+        settle_ms: u16,
+    ) -> Result<Motion, OrderError> {
         if !(max_speed_deg_per_s.is_finite() && max_speed_deg_per_s > 0.0) {
             return Err(OrderError::BadSpeed(max_speed_deg_per_s));
         }
@@ -99,7 +109,12 @@ impl Motion {
 
     /// The firmware's time for the move from `from` to `to`, µs (both arms at once).
     pub fn move_us(&self, from: Geometry, to: Geometry) -> u64 {
-        move_duration_us(steps(from), steps(to), self.max_speed_steps_per_s, self.accel_steps_per_s2)
+        move_duration_us(
+            steps(from),
+            steps(to),
+            self.max_speed_steps_per_s,
+            self.accel_steps_per_s2,
+        )
     }
 
     /// Travel from `start` through `order` in that order, µs.
@@ -117,17 +132,39 @@ impl Motion {
     /// top speed of `speed_deg_per_s` (from rest to rest at the instrument's
     /// acceleration), µs; the source arm holds still.
     pub fn sweep_us(&self, from_deg: f64, to_deg: f64, speed_deg_per_s: f64) -> u64 {
-        let to_steps = |deg: f64| protocol::Angle::from_deg(deg).map_or(0, angle_to_steps).clamp(-STEPS_LIMIT, STEPS_LIMIT);
+        let to_steps = |deg: f64| {
+            protocol::Angle::from_deg(deg)
+                .map_or(0, angle_to_steps)
+                .clamp(-STEPS_LIMIT, STEPS_LIMIT)
+        };
         let top = deg_to_steps(speed_deg_per_s as f32).min(self.max_speed_steps_per_s);
-        firmware::motion::MoveProfile::fastest(to_steps(from_deg), to_steps(to_deg), 0.0, top, self.accel_steps_per_s2).duration_us()
+        firmware::motion::MoveProfile::fastest(
+            to_steps(from_deg),
+            to_steps(to_deg),
+            0.0,
+            top,
+            self.accel_steps_per_s2,
+        )
+        .duration_us()
     }
 
     /// The detector arm's profile for a sweep as the firmware plans it
     /// (`firmware::sweep::sweep_profile`): from rest at `from_steps` to rest at `to_steps`,
     /// the top speed as the request states it, the instrument's acceleration.
-    pub fn sweep_profile(&self, from_steps: i32, to_steps: i32, speed_mdeg_per_s: u32) -> firmware::motion::MoveProfile {
+    pub fn sweep_profile(
+        &self,
+        from_steps: i32,
+        to_steps: i32,
+        speed_mdeg_per_s: u32,
+    ) -> firmware::motion::MoveProfile {
         let top = speed_mdeg_per_s as f32 * (firmware::motion::STEPS_PER_DEG / 1000.0);
-        firmware::motion::MoveProfile::fastest(from_steps, to_steps, 0.0, top, self.accel_steps_per_s2)
+        firmware::motion::MoveProfile::fastest(
+            from_steps,
+            to_steps,
+            0.0,
+            top,
+            self.accel_steps_per_s2,
+        )
     }
 
     /// Settling time after a move, µs.
@@ -149,7 +186,10 @@ const STEPS_LIMIT: i32 = (1 << 30) - 1;
 
 fn steps(g: Geometry) -> [i32; 2] {
     let clamp = |steps: i32| steps.clamp(-STEPS_LIMIT, STEPS_LIMIT);
-    [clamp(angle_to_steps(g.theta_i)), clamp(angle_to_steps(g.theta_r))]
+    [
+        clamp(angle_to_steps(g.theta_i)),
+        clamp(angle_to_steps(g.theta_r)),
+    ]
 }
 
 /// Device time of a list of `n` geometries: travel plus `n` times the per-geometry time, µs.
@@ -159,7 +199,11 @@ pub fn device_us(travel_us: u64, n: usize, per_geometry_us: u64) -> u64 {
 
 /// `numerator / denominator`, 1 when both are 0.
 fn ratio(numerator: u64, denominator: u64) -> f64 {
-    if numerator == denominator { 1.0 } else { numerator as f64 / denominator as f64 }
+    if numerator == denominator {
+        1.0
+    } else {
+        numerator as f64 / denominator as f64
+    }
 }
 
 /// A planned visiting order and how good it is.
@@ -182,7 +226,11 @@ pub struct PlannedOrder {
 impl PlannedOrder {
     /// What the order is judged against: the optimum when exact, else the lower bound, µs.
     pub fn reference_us(&self) -> u64 {
-        if self.exact { self.best_travel_us } else { self.lower_bound_us }
+        if self.exact {
+            self.best_travel_us
+        } else {
+            self.lower_bound_us
+        }
     }
 
     /// Travel over the optimum (or over the lower bound when not exact): ≥ 1.
@@ -199,13 +247,19 @@ impl PlannedOrder {
     /// each geometry.
     pub fn device_ratio_to_best(&self, per_geometry_us: u64) -> f64 {
         let n = self.order.len();
-        ratio(device_us(self.travel_us, n, per_geometry_us), device_us(self.reference_us(), n, per_geometry_us))
+        ratio(
+            device_us(self.travel_us, n, per_geometry_us),
+            device_us(self.reference_us(), n, per_geometry_us),
+        )
     }
 
     /// Device time over that of the order given.
     pub fn device_ratio_to_given(&self, per_geometry_us: u64) -> f64 {
         let n = self.order.len();
-        ratio(device_us(self.travel_us, n, per_geometry_us), device_us(self.given_order_travel_us, n, per_geometry_us))
+        ratio(
+            device_us(self.travel_us, n, per_geometry_us),
+            device_us(self.given_order_travel_us, n, per_geometry_us),
+        )
     }
 }
 
@@ -218,7 +272,12 @@ pub fn plan(motion: &Motion, start: Geometry, list: &[Geometry]) -> PlannedOrder
 /// [`plan`] with exact search only up to `exact_max` distinct geometries (at most
 /// [`EXACT_MAX`]); `0` always takes the heuristic and the bound (which tests use to check
 /// them against the exact optimum).
-pub fn plan_with(motion: &Motion, start: Geometry, list: &[Geometry], exact_max: usize) -> PlannedOrder {
+pub fn plan_with(
+    motion: &Motion,
+    start: Geometry,
+    list: &[Geometry],
+    exact_max: usize,
+) -> PlannedOrder {
     let given_order_travel_us = motion.travel_us(start, list);
     // Distinct geometries in order of first appearance, and how often each appears.
     let mut distinct: Vec<Geometry> = Vec::new();
@@ -329,7 +388,9 @@ fn nearest_neighbour(costs: &Costs) -> Vec<usize> {
     let mut path = Vec::with_capacity(n);
     let mut here = n;
     for _ in 0..n {
-        let next = (0..n).filter(|&b| !visited[b]).min_by_key(|&b| (costs.get(here, b), b));
+        let next = (0..n)
+            .filter(|&b| !visited[b])
+            .min_by_key(|&b| (costs.get(here, b), b));
         let Some(next) = next else { break };
         visited[next] = true;
         path.push(next);
@@ -363,16 +424,19 @@ fn held_karp(costs: &Costs) -> (Vec<usize>, u64) {
             }
         }
     }
-    let (mut last, optimum) =
-        (0..n).map(|last| (last, best[full * n + last])).min_by_key(|&(last, t)| (t, last)).unwrap_or((0, 0));
+    let (mut last, optimum) = (0..n)
+        .map(|last| (last, best[full * n + last]))
+        .min_by_key(|&(last, t)| (t, last))
+        .unwrap_or((0, 0));
     // Walk back: the predecessor is any node whose entry plus the step gives the entry.
     let mut path = vec![last];
     let mut mask = full;
     while mask != 1 << last {
         let target = best[mask * n + last];
         let rest = mask & !(1 << last);
-        let previous =
-            (0..n).find(|&p| rest & (1 << p) != 0 && best[rest * n + p].saturating_add(costs.get(p, last)) == target);
+        let previous = (0..n).find(|&p| {
+            rest & (1 << p) != 0 && best[rest * n + p].saturating_add(costs.get(p, last)) == target
+        });
         let Some(previous) = previous else { break };
         path.push(previous);
         mask = rest;
@@ -409,7 +473,10 @@ struct Tour {
 
 impl Tour {
     fn new(path: Vec<usize>) -> Tour {
-        let mut tour = Tour { pos: vec![-1; path.len() + 1], path };
+        let mut tour = Tour {
+            pos: vec![-1; path.len() + 1],
+            path,
+        };
         tour.reindex();
         tour
     }
@@ -422,7 +489,11 @@ impl Tour {
 
     /// The node at position `p` (the start at −1), or `None` past the end.
     fn at(&self, p: isize) -> Option<usize> {
-        if p < 0 { Some(self.path.len()) } else { self.path.get(p as usize).copied() }
+        if p < 0 {
+            Some(self.path.len())
+        } else {
+            self.path.get(p as usize).copied()
+        }
     }
 }
 
@@ -433,7 +504,12 @@ enum Move {
     Reverse { i: usize, j: usize },
     /// Take the run `path[s..s + len]` out and put it in the gap before position `at` of
     /// the path as it was (`at` = length: at the end), reversed or not.
-    Shift { s: usize, len: usize, at: usize, reversed: bool },
+    Shift {
+        s: usize,
+        len: usize,
+        at: usize,
+        reversed: bool,
+    },
 }
 
 impl<'a> LocalSearch<'a> {
@@ -447,7 +523,11 @@ impl<'a> LocalSearch<'a> {
                 others
             })
             .collect();
-        LocalSearch { costs, neighbours, rng: 0x9E37_79B9_7F4A_7C15 }
+        LocalSearch {
+            costs,
+            neighbours,
+            rng: 0x9E37_79B9_7F4A_7C15,
+        }
     }
 
     /// xorshift64*: a fixed sequence, so the plan is deterministic.
@@ -472,7 +552,14 @@ impl<'a> LocalSearch<'a> {
     }
 
     /// Change of travel by the shift (see [`Move::Shift`]); `None` if `at` is no new place.
-    fn shift_delta(&self, tour: &Tour, s: usize, len: usize, at: usize, reversed: bool) -> Option<i64> {
+    fn shift_delta(
+        &self,
+        tour: &Tour,
+        s: usize,
+        len: usize,
+        at: usize,
+        reversed: bool,
+    ) -> Option<i64> {
         let n = tour.path.len();
         if s + len > n || (at >= s && at <= s + len) || at > n {
             return None;
@@ -484,7 +571,11 @@ impl<'a> LocalSearch<'a> {
         let removed = self.step(prev, next) - self.step(prev, Some(first)) - self.step(last, next);
         let x = tour.at(at as isize - 1).unwrap_or(start);
         let y = tour.at(at as isize);
-        let (head, tail) = if reversed { (last, first) } else { (first, last) };
+        let (head, tail) = if reversed {
+            (last, first)
+        } else {
+            (first, last)
+        };
         Some(removed + self.step(x, Some(head)) + self.step(tail, y) - self.step(x, y))
     }
 
@@ -502,7 +593,11 @@ impl<'a> LocalSearch<'a> {
         // 2-opt: the new edge v–w, as (segment's predecessor, segment's last) or
         // (segment's first, its successor); and the tails after and from v.
         for &w in &self.neighbours[v] {
-            let (p, q) = if pv < tour.pos[w] { (pv, tour.pos[w]) } else { (tour.pos[w], pv) };
+            let (p, q) = if pv < tour.pos[w] {
+                (pv, tour.pos[w])
+            } else {
+                (tour.pos[w], pv)
+            };
             if q >= p + 2 {
                 let (i, j) = ((p + 1) as usize, q as usize);
                 consider(self.reverse_delta(tour, i, j), Move::Reverse { i, j });
@@ -523,7 +618,11 @@ impl<'a> LocalSearch<'a> {
         // (that end last).
         if pv >= 0 {
             for len in 1..=3usize {
-                let starts = if len == 1 { [pv, -1] } else { [pv, pv - len as isize + 1] };
+                let starts = if len == 1 {
+                    [pv, -1]
+                } else {
+                    [pv, pv - len as isize + 1]
+                };
                 for s in starts {
                     if s < 0 || s as usize + len > n as usize {
                         continue;
@@ -539,13 +638,31 @@ impl<'a> LocalSearch<'a> {
                             // After w: `end` leads, so the run is reversed if `end` is its last.
                             let after = (pw + 1) as usize;
                             if let Some(delta) = self.shift_delta(tour, s, len, after, is_last) {
-                                consider(delta, Move::Shift { s, len, at: after, reversed: is_last });
+                                consider(
+                                    delta,
+                                    Move::Shift {
+                                        s,
+                                        len,
+                                        at: after,
+                                        reversed: is_last,
+                                    },
+                                );
                             }
                             // Before w (not before the start): `end` trails.
                             if pw >= 0 {
                                 let before = pw as usize;
-                                if let Some(delta) = self.shift_delta(tour, s, len, before, !is_last && len > 1) {
-                                    consider(delta, Move::Shift { s, len, at: before, reversed: !is_last && len > 1 });
+                                if let Some(delta) =
+                                    self.shift_delta(tour, s, len, before, !is_last && len > 1)
+                                {
+                                    consider(
+                                        delta,
+                                        Move::Shift {
+                                            s,
+                                            len,
+                                            at: before,
+                                            reversed: !is_last && len > 1,
+                                        },
+                                    );
                                 }
                             }
                         }
@@ -571,7 +688,12 @@ impl<'a> LocalSearch<'a> {
                 tour.path[i..=j].reverse();
                 touched
             }
-            Move::Shift { s, len, at, reversed } => {
+            Move::Shift {
+                s,
+                len,
+                at,
+                reversed,
+            } => {
                 let touched = vec![
                     node(tour, s as isize - 1),
                     node(tour, s as isize),
@@ -606,7 +728,9 @@ impl<'a> LocalSearch<'a> {
         }
         while let Some(v) = queue.pop_front() {
             queued[v] = false;
-            let Some((_, m)) = self.best_move(tour, v) else { continue };
+            let Some((_, m)) = self.best_move(tour, v) else {
+                continue;
+            };
             for u in self.apply(tour, m).into_iter().chain([v]) {
                 if !queued[u] {
                     queued[u] = true;
@@ -650,8 +774,10 @@ impl<'a> LocalSearch<'a> {
             kicked.extend_from_slice(&path[b..c]);
             kicked.extend_from_slice(&path[a..b]);
             kicked.extend_from_slice(&path[c..]);
-            let dirty: Vec<usize> =
-                [a.wrapping_sub(1), a, b - 1, b, c - 1, c].into_iter().filter_map(|p| path.get(p).copied()).collect();
+            let dirty: Vec<usize> = [a.wrapping_sub(1), a, b - 1, b, c - 1, c]
+                .into_iter()
+                .filter_map(|p| path.get(p).copied())
+                .collect();
             let mut tour = Tour::new(kicked);
             self.improve(&mut tour, dirty);
             let kicked_cost = self.costs.path_cost(&tour.path);
@@ -750,7 +876,9 @@ fn penalised_one_tree(costs: &Costs, pi: &[f64], degree: &mut [i64]) -> f64 {
     // D–start, then D to the geometry of least penalty.
     total += pi[start];
     degree[start] += 1;
-    let last = (0..m).filter(|&v| v != start).min_by(|&a, &b| pi[a].total_cmp(&pi[b]).then(a.cmp(&b)));
+    let last = (0..m)
+        .filter(|&v| v != start)
+        .min_by(|&a, &b| pi[a].total_cmp(&pi[b]).then(a.cmp(&b)));
     if let Some(last) = last {
         total += pi[last];
         degree[last] += 1;
@@ -810,9 +938,16 @@ pub fn study(motion: &Motion, integration_ms: u32) -> Vec<OrderRow> {
     let mut rows = Vec::new();
     let strategy1: Vec<Geometry> = strategy1(12).map(|s| s.to_vec()).unwrap_or_default();
     let first = plan(motion, REFERENCE_HOME, &strategy1);
-    rows.push(OrderRow::new("Strategy 1 (M = 12), from home".into(), &first, per_geometry_us));
+    rows.push(OrderRow::new(
+        "Strategy 1 (M = 12), from home".into(),
+        &first,
+        per_geometry_us,
+    ));
 
-    let after_builtin = firmware::schedule::STRATEGY1_ORDER.last().copied().unwrap_or(REFERENCE_HOME);
+    let after_builtin = firmware::schedule::STRATEGY1_ORDER
+        .last()
+        .copied()
+        .unwrap_or(REFERENCE_HOME);
     for delta in (1..=10u8).rev() {
         let list: Vec<Geometry> = strategy2(delta).map(|s| s.to_vec()).unwrap_or_default();
         let planned = plan(motion, after_builtin, &list);
@@ -833,7 +968,11 @@ pub fn study(motion: &Motion, integration_ms: u32) -> Vec<OrderRow> {
             .filter(|g| !measured.contains(g))
             .collect();
         let planned = plan(motion, here, &new);
-        rows.push(OrderRow::new(format!("refinement δ = {delta}°, new geometries only"), &planned, per_geometry_us));
+        rows.push(OrderRow::new(
+            format!("refinement δ = {delta}°, new geometries only"),
+            &planned,
+            per_geometry_us,
+        ));
         measured.extend(new);
         here = planned.order.last().copied().unwrap_or(here);
     }
@@ -872,7 +1011,8 @@ mod tests {
     use protocol::Angle;
 
     fn geometry() -> impl Strategy<Value = Geometry> {
-        (0..=85 * 80, 0..=85 * 80).prop_map(|(i, r)| Geometry::new(Angle::from_ticks(i), Angle::from_ticks(r)))
+        (0..=85 * 80, 0..=85 * 80)
+            .prop_map(|(i, r)| Geometry::new(Angle::from_ticks(i), Angle::from_ticks(r)))
     }
 
     proptest! {

@@ -47,17 +47,24 @@ impl<T: Transport> Session<'_, T> {
             placement.instruction().to_lowercase(),
             park.theta_i.deg()
         ));
-        self.operator.ask(placement, asked_at).map_err(SessionError::Operator)?;
+        self.operator
+            .ask(placement, asked_at)
+            .map_err(SessionError::Operator)?;
         loop {
             let now = self.now();
-            if self.operator.answered(now).map_err(SessionError::Operator)? {
+            if self
+                .operator
+                .answered(now)
+                .map_err(SessionError::Operator)?
+            {
                 break;
             }
             let failure = match self.client.keep_alive(ANSWER_POLL) {
                 Ok(()) => self.stop_heard(),
                 Err(error) => match super::recovery::classify(error) {
                     Ok(failure) => {
-                        if let Failure::Link(crate::instrument::link::LinkError::Io(io)) = &failure {
+                        if let Failure::Link(crate::instrument::link::LinkError::Io(io)) = &failure
+                        {
                             self.last_io_error = Some(io.to_string());
                         }
                         Some(failure)
@@ -71,7 +78,10 @@ impl<T: Transport> Session<'_, T> {
         }
         let waited = self.now() - asked_at;
         self.waiting_us += waited.as_micros() as u64;
-        self.decide(&format!("the operator answered after {:.1} s", waited.as_secs_f64()));
+        self.decide(&format!(
+            "the operator answered after {:.1} s",
+            waited.as_secs_f64()
+        ));
         Ok(())
     }
 

@@ -57,8 +57,13 @@ pub(super) enum Failure {
 pub(super) fn classify(error: LinkError) -> Result<Failure, SessionError> {
     match error {
         LinkError::Interrupted => Err(SessionError::Interrupted),
-        LinkError::Io(_) | LinkError::Silent { .. } | LinkError::NoReply { .. } => Ok(Failure::Link(error)),
-        LinkError::Device { command, error: refusal } => match refusal.code {
+        LinkError::Io(_) | LinkError::Silent { .. } | LinkError::NoReply { .. } => {
+            Ok(Failure::Link(error))
+        }
+        LinkError::Device {
+            command,
+            error: refusal,
+        } => match refusal.code {
             // A replug or a reset the host did not see: the instrument wants a hello.
             ErrorCode::VersionMismatch => Ok(Failure::Link(LinkError::Device { command, error: refusal })),
             // The instrument is doing something else, lost its homing, stopped, or lost
@@ -75,7 +80,9 @@ pub(super) fn classify(error: LinkError) -> Result<Failure, SessionError> {
             | ErrorCode::BadSchedule => Ok(Failure::Refused { command, error: refusal }),
             _ => Err(SessionError::Refused { command, error: refusal, advice: advice(command, refusal) }),
         },
-        other @ (LinkError::VersionMismatch { .. } | LinkError::UnexpectedReply { .. }) => Err(SessionError::Link(other)),
+        other @ (LinkError::VersionMismatch { .. } | LinkError::UnexpectedReply { .. }) => {
+            Err(SessionError::Link(other))
+        }
     }
 }
 
@@ -114,7 +121,9 @@ fn doing(state: DeviceState) -> &'static str {
 impl<T: Transport> Session<'_, T> {
     /// One request, as it goes: a failure is for the caller to recover from.
     pub(super) fn request(&mut self, command: Command) -> Result<Reply, StepError> {
-        self.client.request(command).map_err(|e| self.link_failed(e))
+        self.client
+            .request(command)
+            .map_err(|e| self.link_failed(e))
     }
 
     /// Remember an I/O error (to tell a vanished port from a silent instrument) and sort
@@ -136,21 +145,33 @@ impl<T: Transport> Session<'_, T> {
                 Err(StepError::Fatal(error)) => return Err(error),
             }
         }
-        Err(SessionError::GaveUp(format!("the instrument still could not carry out a command after {MAX_RECOVERIES} recoveries in a row (see the decisions)")))
+        Err(SessionError::GaveUp(format!(
+            "the instrument still could not carry out a command after {MAX_RECOVERIES} recoveries in a row (see the decisions)"
+        )))
     }
 
     /// The instrument's state, through failures.
     pub(super) fn status(&mut self) -> Result<Status, SessionError> {
         match self.retrying(Command::GetStatus)? {
             Reply::Status(status) => Ok(status),
-            other => Err(LinkError::UnexpectedReply { command: "GetStatus", reply: Box::new(other) }.into()),
+            other => Err(LinkError::UnexpectedReply {
+                command: "GetStatus",
+                reply: Box::new(other),
+            }
+            .into()),
         }
     }
 
     fn request_status(&mut self) -> Result<Status, StepError> {
         match self.request(Command::GetStatus)? {
             Reply::Status(status) => Ok(status),
-            other => Err(StepError::Fatal(LinkError::UnexpectedReply { command: "GetStatus", reply: Box::new(other) }.into())),
+            other => Err(StepError::Fatal(
+                LinkError::UnexpectedReply {
+                    command: "GetStatus",
+                    reply: Box::new(other),
+                }
+                .into(),
+            )),
         }
     }
 
@@ -169,7 +190,9 @@ impl<T: Transport> Session<'_, T> {
             }
         }
         if !done {
-            return Err(SessionError::GaveUp(format!("the instrument could not be made ready after {MAX_RECOVERIES} recoveries (see the decisions)")));
+            return Err(SessionError::GaveUp(format!(
+                "the instrument could not be made ready after {MAX_RECOVERIES} recoveries (see the decisions)"
+            )));
         }
         if check && self.steps.checked_upto < self.points.len() {
             self.check_steps("of the readings taken before the resume")?;
@@ -196,11 +219,15 @@ impl<T: Transport> Session<'_, T> {
                 if *command == "Home" {
                     self.steps.home_in_flight = false;
                 }
-                self.decide(&format!("the instrument refused {command}: {error}; reading its state"));
+                self.decide(&format!(
+                    "the instrument refused {command}: {error}; reading its state"
+                ));
                 false
             }
             Failure::Stopped(reason) => {
-                self.decide(&format!("the instrument took its fail-safe stop ({reason}); reading its state"));
+                self.decide(&format!(
+                    "the instrument took its fail-safe stop ({reason}); reading its state"
+                ));
                 false
             }
         };
@@ -208,7 +235,9 @@ impl<T: Transport> Session<'_, T> {
         loop {
             rounds += 1;
             if rounds > MAX_RECOVERIES {
-                return Err(SessionError::GaveUp(format!("the instrument could not be brought to a known state in {MAX_RECOVERIES} attempts (see the decisions)")));
+                return Err(SessionError::GaveUp(format!(
+                    "the instrument could not be brought to a known state in {MAX_RECOVERIES} attempts (see the decisions)"
+                )));
             }
             if reconnect {
                 self.reconnect()?;
@@ -217,11 +246,15 @@ impl<T: Transport> Session<'_, T> {
                 Ok(()) => break,
                 Err(StepError::Fatal(error)) => return Err(error),
                 Err(StepError::Failure(Failure::Link(error))) => {
-                    self.decide(&format!("link lost again while recovering ({error}); reconnecting"));
+                    self.decide(&format!(
+                        "link lost again while recovering ({error}); reconnecting"
+                    ));
                     reconnect = true;
                 }
                 Err(StepError::Failure(failure)) => {
-                    self.decide(&format!("while recovering: {failure:?}; reading the state again"));
+                    self.decide(&format!(
+                        "while recovering: {failure:?}; reading the state again"
+                    ));
                     reconnect = false;
                 }
             }
@@ -245,14 +278,19 @@ impl<T: Transport> Session<'_, T> {
             if reopen {
                 if let Err(error) = self.client.transport_mut().reconnect() {
                     self.last_io_error = Some(error.to_string());
-                    self.client.transport_mut().pause(RECONNECT_PAUSE.min(give_up_after - silent_for));
+                    self.client
+                        .transport_mut()
+                        .pause(RECONNECT_PAUSE.min(give_up_after - silent_for));
                     continue;
                 }
             }
             match self.client.hello() {
                 Ok(info) => {
                     if info.serial_number != self.info.serial_number {
-                        let error = SessionError::OtherInstrument { expected: self.info.serial_number.to_string(), found: info.serial_number.to_string() };
+                        let error = SessionError::OtherInstrument {
+                            expected: self.info.serial_number.to_string(),
+                            found: info.serial_number.to_string(),
+                        };
                         self.decide(&error.to_string());
                         return Err(error);
                     }
@@ -263,7 +301,10 @@ impl<T: Transport> Session<'_, T> {
                     self.decide(&format!("link back: the instrument greeted again, {outage:.1} s after it was last heard"));
                     // A restart the host did not see: say why (the state recovery re-homes).
                     if info.reset_cause.fault().is_some() {
-                        self.decide(&format!("the instrument had restarted: {}; its arms are homed again", info.reset_cause));
+                        self.decide(&format!(
+                            "the instrument had restarted: {}; its arms are homed again",
+                            info.reset_cause
+                        ));
                     }
                     return Ok(());
                 }
@@ -272,7 +313,9 @@ impl<T: Transport> Session<'_, T> {
                     self.last_io_error = Some(error.to_string());
                     reopen = true;
                     let silent_for = self.client.silent_for();
-                    self.client.transport_mut().pause(RECONNECT_PAUSE.min(give_up_after.saturating_sub(silent_for)));
+                    self.client
+                        .transport_mut()
+                        .pause(RECONNECT_PAUSE.min(give_up_after.saturating_sub(silent_for)));
                 }
                 // The hello went out and nothing came back: try again (the deadline decides).
                 Err(LinkError::Silent { .. } | LinkError::NoReply { .. }) => {}
@@ -294,11 +337,22 @@ impl<T: Transport> Session<'_, T> {
         };
         let link = self.client.transport().name();
         let decision = match &loss {
-            LinkLoss::PortGone(error) => format!("giving up: the port is gone ({error}), nothing heard for {:.1} s", silent_for.as_secs_f64()),
-            LinkLoss::NoAnswer => format!("giving up: the port is there but the instrument has not answered for {:.1} s", silent_for.as_secs_f64()),
+            LinkLoss::PortGone(error) => format!(
+                "giving up: the port is gone ({error}), nothing heard for {:.1} s",
+                silent_for.as_secs_f64()
+            ),
+            LinkLoss::NoAnswer => format!(
+                "giving up: the port is there but the instrument has not answered for {:.1} s",
+                silent_for.as_secs_f64()
+            ),
         };
         self.decide(&decision);
-        SessionError::Lost { link, loss, silent_for, decisions: self.decisions.clone() }
+        SessionError::Lost {
+            link,
+            loss,
+            silent_for,
+            decisions: self.decisions.clone(),
+        }
     }
 
     /// Read the state and bring the instrument to a known one: nothing running, homed,
@@ -312,38 +366,64 @@ impl<T: Transport> Session<'_, T> {
             let limit = match status.state {
                 // Homing takes up to 20 s; a reading up to one re-take per range.
                 DeviceState::Homing => Duration::from_secs(40),
-                DeviceState::Measuring => Duration::from_millis(4 * u64::from(self.plan.integration_ms) + 2000),
+                DeviceState::Measuring => {
+                    Duration::from_millis(4 * u64::from(self.plan.integration_ms) + 2000)
+                }
                 _ => Duration::from_secs(5),
             };
             match status.state {
                 DeviceState::Idle | DeviceState::Stopped => break status,
                 DeviceState::RunningSchedule | DeviceState::Sweeping if !aborted => {
                     let (id, taken) = status.schedule.unwrap_or_default();
-                    let what = if status.state == DeviceState::Sweeping { format!("sweep {id} ({taken} bins sent)") } else { format!("schedule {id} ({taken} readings taken)") };
+                    let what = if status.state == DeviceState::Sweeping {
+                        format!("sweep {id} ({taken} bins sent)")
+                    } else {
+                        format!("schedule {id} ({taken} readings taken)")
+                    };
                     self.decide(&format!("the instrument is still running {what}: aborting it; what it missed is measured again"));
                     self.request(Command::Abort)?;
                     aborted = true;
                 }
                 state if waited < limit => {
                     if waited.is_zero() {
-                        self.decide(&format!("the instrument is still {}: waiting for it to finish", doing(state)));
+                        self.decide(&format!(
+                            "the instrument is still {}: waiting for it to finish",
+                            doing(state)
+                        ));
                     }
-                    self.client.keep_alive(STATE_POLL).map_err(|e| self.link_failed(e))?;
+                    self.client
+                        .keep_alive(STATE_POLL)
+                        .map_err(|e| self.link_failed(e))?;
                     waited += STATE_POLL;
                 }
                 state => {
-                    self.decide(&format!("the instrument is still {} after {:.1} s: aborting", doing(state), waited.as_secs_f64()));
+                    self.decide(&format!(
+                        "the instrument is still {} after {:.1} s: aborting",
+                        doing(state),
+                        waited.as_secs_f64()
+                    ));
                     self.request(Command::Abort)?;
                     waited = Duration::ZERO;
                 }
             }
         };
-        if let Some(fault) = status.fault.filter(|f| Some(*f) != self.steps.fault_reported) {
+        if let Some(fault) = status
+            .fault
+            .filter(|f| Some(*f) != self.steps.fault_reported)
+        {
             // A fault stays in the status until the next Home: told (and counted) once.
             self.steps.fault_reported = Some(fault);
             self.recoveries.stops += 1;
-            let homing = if status.homed_i && status.homed_r { "the homing was kept" } else { "the homing was lost" };
-            self.decide(&format!("the instrument reports {fault} (state {}, lamp {}); {homing}", doing(status.state), if status.lamp_on { "on" } else { "off" }));
+            let homing = if status.homed_i && status.homed_r {
+                "the homing was kept"
+            } else {
+                "the homing was lost"
+            };
+            self.decide(&format!(
+                "the instrument reports {fault} (state {}, lamp {}); {homing}",
+                doing(status.state),
+                if status.lamp_on { "on" } else { "off" }
+            ));
         }
         if !(status.homed_i && status.homed_r) {
             if !self.steps.homed_once {
@@ -356,10 +436,13 @@ impl<T: Transport> Session<'_, T> {
             }
         } else if self.steps.home_in_flight {
             // A Home ran while the link was down, and its report went with the link.
-            self.steps_unverified("the result of a Home was lost with the link").map_err(StepError::Fatal)?;
+            self.steps_unverified("the result of a Home was lost with the link")
+                .map_err(StepError::Fatal)?;
         }
         if self.lamp_wanted && !status.lamp_on {
-            self.decide("the lamp is off (the instrument's stop switched it off): lighting it again");
+            self.decide(
+                "the lamp is off (the instrument's stop switched it off): lighting it again",
+            );
             self.request(Command::SetLamp { on: true })?;
             self.recoveries.lamp_relit += 1;
             self.lamp_went_off = true;

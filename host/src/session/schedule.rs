@@ -5,7 +5,10 @@ use super::recovery::Failure;
 use super::{MeasuredPoint, Progress, Session, SessionError, StepError};
 use crate::instrument::link::{LinkError, Transport};
 use protocol::schedules::strategy1;
-use protocol::{Command, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN, ScheduleChunk, ScheduleSource, Target};
+use protocol::{
+    Command, DeviceMessage, ErrorCode, Geometry, Reading, Reply, RunSchedule, SCHEDULE_CHUNK_LEN,
+    ScheduleChunk, ScheduleSource, Target,
+};
 use std::collections::BTreeSet;
 use std::time::Duration;
 
@@ -23,13 +26,19 @@ enum ScheduleList<'l> {
 impl<T: Transport> Session<'_, T> {
     /// Measure every geometry of `schedule` (and any wanted one still missing) not yet
     /// measured, measuring again what the link lost.
-    pub(super) fn measure(&mut self, stage: &str, schedule: &[Geometry]) -> Result<(), SessionError> {
+    pub(super) fn measure(
+        &mut self,
+        stage: &str,
+        schedule: &[Geometry],
+    ) -> Result<(), SessionError> {
         for g in schedule {
             if !self.wanted.contains(g) {
                 self.wanted.push(*g);
             }
         }
-        let builtin: BTreeSet<Geometry> = strategy1(12).map(|s| s.iter().copied().collect()).unwrap_or_default();
+        let builtin: BTreeSet<Geometry> = strategy1(12)
+            .map(|s| s.iter().copied().collect())
+            .unwrap_or_default();
         self.recorder.stage(stage, schedule.len());
         let mut stalled = 0;
         let mut round = 0;
@@ -43,10 +52,17 @@ impl<T: Transport> Session<'_, T> {
             round += 1;
             if round > 1 {
                 self.recoveries.readings_remeasured += missing.len();
-                self.decide(&format!("measuring again {} geometries lost on the link or superseded (round {round})", missing.len()));
+                self.decide(&format!(
+                    "measuring again {} geometries lost on the link or superseded (round {round})",
+                    missing.len()
+                ));
             }
             let before = self.points.len();
-            let list = if missing.iter().copied().collect::<BTreeSet<_>>() == builtin { ScheduleList::BuiltIn } else { ScheduleList::Upload(&missing) };
+            let list = if missing.iter().copied().collect::<BTreeSet<_>>() == builtin {
+                ScheduleList::BuiltIn
+            } else {
+                ScheduleList::Upload(&missing)
+            };
             match self.run_schedule(list, schedule.len().max(missing.len())) {
                 Ok(()) => {}
                 Err(StepError::Failure(failure)) => self.recover(failure)?,
@@ -95,31 +111,64 @@ impl<T: Transport> Session<'_, T> {
                 for (k, chunk) in list.chunks(SCHEDULE_CHUNK_LEN).enumerate() {
                     let geometries = heapless::Vec::from_slice(chunk).unwrap_or_default();
                     let offset = (k * SCHEDULE_CHUNK_LEN) as u16;
-                    self.request(Command::UploadSchedule(ScheduleChunk { schedule_id, total_len, offset, geometries }))?;
+                    self.request(Command::UploadSchedule(ScheduleChunk {
+                        schedule_id,
+                        total_len,
+                        offset,
+                        geometries,
+                    }))?;
                 }
                 ScheduleSource::Uploaded
             }
         };
-        let run = RunSchedule { schedule_id, source, integration_ms: self.plan.integration_ms, target: Target::Sample };
+        let run = RunSchedule {
+            schedule_id,
+            source,
+            integration_ms: self.plan.integration_ms,
+            target: Target::Sample,
+        };
         let len = match self.request(Command::RunSchedule(run))? {
             Reply::ScheduleStarted { len, .. } => len,
-            other => return Err(StepError::Fatal(LinkError::UnexpectedReply { command: "RunSchedule", reply: Box::new(other) }.into())),
+            other => {
+                return Err(StepError::Fatal(
+                    LinkError::UnexpectedReply {
+                        command: "RunSchedule",
+                        reply: Box::new(other),
+                    }
+                    .into(),
+                ));
+            }
         };
         let mut seen = BTreeSet::new();
         let already = stage_len.saturating_sub(usize::from(len));
         let started = self.now();
         loop {
-            let message = self.client.next_unsolicited(Duration::from_secs(5)).map_err(StepError::from_link)?;
+            let message = self
+                .client
+                .next_unsolicited(Duration::from_secs(5))
+                .map_err(StepError::from_link)?;
             match message {
                 Some(DeviceMessage::Reading(r)) if r.schedule_id == schedule_id => {
                     if !seen.insert(r.index) {
                         continue; // a duplicate
                     }
-                    self.record(r.geometry, r.reading, schedule_id, r.index, r.device_time_us).map_err(StepError::Fatal)?;
+                    self.record(
+                        r.geometry,
+                        r.reading,
+                        schedule_id,
+                        r.index,
+                        r.device_time_us,
+                    )
+                    .map_err(StepError::Fatal)?;
                     let done = seen.len();
                     let per_reading = (self.now() - started) / done as u32;
-                    let remaining = per_reading * (usize::from(len) - done.min(usize::from(len))) as u32;
-                    self.recorder.progress(Progress { done: already + done, planned: stage_len, remaining });
+                    let remaining =
+                        per_reading * (usize::from(len) - done.min(usize::from(len))) as u32;
+                    self.recorder.progress(Progress {
+                        done: already + done,
+                        planned: stage_len,
+                        remaining,
+                    });
                 }
                 Some(DeviceMessage::ScheduleDone(done)) if done.schedule_id == schedule_id => {
                     return match done.error {
@@ -127,7 +176,9 @@ impl<T: Transport> Session<'_, T> {
                         Some(reason) => Err(StepError::Failure(Failure::Stopped(reason))),
                     };
                 }
-                Some(DeviceMessage::Stopped { reason }) => return Err(StepError::Failure(Failure::Stopped(reason))),
+                Some(DeviceMessage::Stopped { reason }) => {
+                    return Err(StepError::Failure(Failure::Stopped(reason)));
+                }
                 // Stale messages of an earlier schedule: nothing to do with this one.
                 Some(_) => {}
                 // Silence: the end may have been lost on the link. Ask.
@@ -147,21 +198,51 @@ impl<T: Transport> Session<'_, T> {
     /// (a stop whose message was lost) and some of its readings may be dark. Which ones
     /// cannot be told: all of them are superseded and measured again.
     pub(super) fn lit_throughout(&mut self, schedule_id: u16) -> Result<(), StepError> {
-        let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? else { return Ok(()) };
-        let why = format!("the lamp was off at the end of schedule {schedule_id}: its readings may be dark");
-        let superseded = self.supersede_schedule(schedule_id, &why).map_err(StepError::Fatal)?;
-        self.decide(&format!("{why}; {superseded} readings superseded and measured again"));
+        let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? else {
+            return Ok(());
+        };
+        let why = format!(
+            "the lamp was off at the end of schedule {schedule_id}: its readings may be dark"
+        );
+        let superseded = self
+            .supersede_schedule(schedule_id, &why)
+            .map_err(StepError::Fatal)?;
+        self.decide(&format!(
+            "{why}; {superseded} readings superseded and measured again"
+        ));
         Err(StepError::Failure(failure))
     }
 
-    fn record(&mut self, geometry: Geometry, reading: Reading, schedule_id: u16, index: u16, device_time_us: u64) -> Result<(), SessionError> {
+    fn record(
+        &mut self,
+        geometry: Geometry,
+        reading: Reading,
+        schedule_id: u16,
+        index: u16,
+        device_time_us: u64,
+    ) -> Result<(), SessionError> {
         let (theta_i_deg, theta_r_deg) = (geometry.theta_i.deg(), geometry.theta_r.deg());
-        let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
-        let mut point = MeasuredPoint { theta_i_deg, theta_r_deg, theta_r_span_deg: 0.0, radiance_factor: None, std: None, reading, schedule_id, index, device_time_us, note: None, superseded: false, unusable: None };
+        let calibration = self
+            .calibration
+            .as_ref()
+            .ok_or(SessionError::Fit("no calibration".into()))?;
+        let mut point = MeasuredPoint {
+            theta_i_deg,
+            theta_r_deg,
+            theta_r_span_deg: 0.0,
+            radiance_factor: None,
+            std: None,
+            reading,
+            schedule_id,
+            index,
+            device_time_us,
+            note: None,
+            superseded: false,
+            unusable: None,
+        };
         point.convert_with(calibration);
         self.recorder.point(&point).map_err(SessionError::Record)?;
         self.points.push(point);
         Ok(())
     }
-
 }

@@ -18,7 +18,10 @@ pub struct SheetPlan {
 impl SheetPlan {
     /// `spots` clean spots, with [`sheet::MAX_REPLACEMENTS`] replacements.
     pub fn new(spots: u16) -> SheetPlan {
-        SheetPlan { spots, replacements: sheet::MAX_REPLACEMENTS }
+        SheetPlan {
+            spots,
+            replacements: sheet::MAX_REPLACEMENTS,
+        }
     }
 }
 
@@ -33,13 +36,25 @@ pub fn measure_sheet<E>(
     mut decide: impl FnMut(&str),
 ) -> Result<(Vec<SpotResult>, SheetSummary), E> {
     while let Some(number) = sheet::next_spot(plan.spots, plan.replacements, &done) {
-        let clean_so_far = done.iter().filter(|r| crate::analysis::flags::ok(&r.flags)).count() as u16;
+        let clean_so_far = done
+            .iter()
+            .filter(|r| crate::analysis::flags::ok(&r.flags))
+            .count() as u16;
         let of = number + plan.spots.saturating_sub(clean_so_far + 1);
         if number > plan.spots {
-            decide(&format!("measuring spot {number} in place of a flagged spot ({} of {} replacements)", number - plan.spots, plan.replacements));
+            decide(&format!(
+                "measuring spot {number} in place of a flagged spot ({} of {} replacements)",
+                number - plan.spots,
+                plan.replacements
+            ));
         }
         let result = measure_spot(number, of)?;
-        let flagged: Vec<&str> = result.flags.iter().filter(|f| !f.is_informational()).map(|f| f.name()).collect();
+        let flagged: Vec<&str> = result
+            .flags
+            .iter()
+            .filter(|f| !f.is_informational())
+            .map(|f| f.name())
+            .collect();
         if flagged.is_empty() {
             decide(&format!("spot {number}: clean"));
         } else {

@@ -83,9 +83,16 @@ impl<T: Transport> Session<'_, T> {
         match self.request(Command::Home)? {
             Reply::Homed(report) => {
                 let took = (self.now() - started).as_secs_f64();
-                self.on_home_report(report, when, took).map_err(StepError::Fatal)
+                self.on_home_report(report, when, took)
+                    .map_err(StepError::Fatal)
             }
-            other => Err(StepError::Fatal(crate::instrument::link::LinkError::UnexpectedReply { command: "Home", reply: Box::new(other) }.into())),
+            other => Err(StepError::Fatal(
+                crate::instrument::link::LinkError::UnexpectedReply {
+                    command: "Home",
+                    reply: Box::new(other),
+                }
+                .into(),
+            )),
         }
     }
 
@@ -100,16 +107,33 @@ impl<T: Transport> Session<'_, T> {
                 Err(StepError::Fatal(error)) => return Err(error),
             }
         }
-        Err(SessionError::GaveUp(format!("the lost-steps check {when} could not be made after {} recoveries", super::recovery::MAX_RECOVERIES)))
+        Err(SessionError::GaveUp(format!(
+            "the lost-steps check {when} could not be made after {} recoveries",
+            super::recovery::MAX_RECOVERIES
+        )))
     }
 
     /// What a Home found.
-    fn on_home_report(&mut self, report: HomeReport, when: &str, took_s: f64) -> Result<(), SessionError> {
+    fn on_home_report(
+        &mut self,
+        report: HomeReport,
+        when: &str,
+        took_s: f64,
+    ) -> Result<(), SessionError> {
         self.steps.home_in_flight = false;
         // A Home clears the instrument's fault: a later one is a new stop.
         self.steps.fault_reported = None;
-        let arms = [("source", report.step_error_i), ("detector", report.step_error_r)];
-        let lost: Vec<(&str, i32)> = arms.iter().filter_map(|&(arm, e)| e.filter(|e| e.abs() > STEP_TOLERANCE_TICKS).map(|e| (arm, e))).collect();
+        let arms = [
+            ("source", report.step_error_i),
+            ("detector", report.step_error_r),
+        ];
+        let lost: Vec<(&str, i32)> = arms
+            .iter()
+            .filter_map(|&(arm, e)| {
+                e.filter(|e| e.abs() > STEP_TOLERANCE_TICKS)
+                    .map(|e| (arm, e))
+            })
+            .collect();
         let unknown = arms.iter().any(|(_, e)| e.is_none());
         let mut check = StepCheck {
             when: when.to_string(),
@@ -127,18 +151,25 @@ impl<T: Transport> Session<'_, T> {
                 .map(|(arm, e)| {
                     let deg = f64::from(*e) * protocol::Angle::RESOLUTION_DEG;
                     let sense = if *e < 0 { "short of" } else { "beyond" };
-                    format!("the {arm} arm stood {} steps ({:.3}°) {sense} its step count", e.abs(), deg.abs())
+                    format!(
+                        "the {arm} arm stood {} steps ({:.3}°) {sense} its step count",
+                        e.abs(),
+                        deg.abs()
+                    )
                 })
                 .collect();
             let words = words.join(" and ");
-            check.superseded = self.supersede_since_check(&format!("lost steps {when}: {words}"))?;
+            check.superseded =
+                self.supersede_since_check(&format!("lost steps {when}: {words}"))?;
             self.decide(&format!(
                 "LOST STEPS found {when}: {words}; re-homed; {} readings taken since the last good check are superseded and measured again; the result is flagged lost-steps",
                 check.superseded
             ));
         } else if unknown && self.steps.homed_once {
             self.steps.slips += 1;
-            check.superseded = self.supersede_since_check(&format!("the instrument restarted: no step count to check {when}"))?;
+            check.superseded = self.supersede_since_check(&format!(
+                "the instrument restarted: no step count to check {when}"
+            ))?;
             self.decide(&format!(
                 "the instrument has no step count to compare {when} (it restarted): the {} readings since the last check cannot be vouched for; superseded and measured again",
                 check.superseded
@@ -189,13 +220,22 @@ impl<T: Transport> Session<'_, T> {
     }
 
     /// Mark every reading of schedule `schedule_id` superseded; returns how many.
-    pub(super) fn supersede_schedule(&mut self, schedule_id: u16, why: &str) -> Result<usize, SessionError> {
+    pub(super) fn supersede_schedule(
+        &mut self,
+        schedule_id: u16,
+        why: &str,
+    ) -> Result<usize, SessionError> {
         self.supersede(0, |p| p.schedule_id == schedule_id, why)
     }
 
     /// Mark the readings from index `from` on that `which` selects superseded, and tell the
     /// recorder; returns how many.
-    fn supersede(&mut self, from: usize, which: impl Fn(&super::MeasuredPoint) -> bool, why: &str) -> Result<usize, SessionError> {
+    fn supersede(
+        &mut self,
+        from: usize,
+        which: impl Fn(&super::MeasuredPoint) -> bool,
+        why: &str,
+    ) -> Result<usize, SessionError> {
         let mut marked = Vec::new();
         let from = from.min(self.points.len());
         for point in &mut self.points[from..] {
@@ -205,7 +245,9 @@ impl<T: Transport> Session<'_, T> {
             }
         }
         if !marked.is_empty() {
-            self.recorder.superseded(&marked, why).map_err(SessionError::Record)?;
+            self.recorder
+                .superseded(&marked, why)
+                .map_err(SessionError::Record)?;
         }
         Ok(marked.len())
     }

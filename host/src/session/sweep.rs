@@ -104,8 +104,18 @@ pub fn lines(incidences_deg: &[i32], speed_deg_per_s: f64, bin_deg: f64) -> Vec<
         .iter()
         .enumerate()
         .map(|(k, &theta_i)| {
-            let (from_deg, to_deg) = if k % 2 == 0 { (0.0, THETA_R_MAX_DEG) } else { (THETA_R_MAX_DEG, 0.0) };
-            SweepPlan { theta_i_deg: f64::from(theta_i), from_deg, to_deg, speed_deg_per_s, bin_deg }
+            let (from_deg, to_deg) = if k % 2 == 0 {
+                (0.0, THETA_R_MAX_DEG)
+            } else {
+                (THETA_R_MAX_DEG, 0.0)
+            };
+            SweepPlan {
+                theta_i_deg: f64::from(theta_i),
+                from_deg,
+                to_deg,
+                speed_deg_per_s,
+                bin_deg,
+            }
         })
         .collect()
 }
@@ -113,16 +123,35 @@ pub fn lines(incidences_deg: &[i32], speed_deg_per_s: f64, bin_deg: f64) -> Vec<
 /// The full-plane pass: the four incidences of Strategy 1 (20°, 30°, 45°, 60°), as
 /// [`lines`] lays them out.
 pub fn full_plane(speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
-    lines(&protocol::schedules::INCIDENCE_DEG, speed_deg_per_s, bin_deg)
+    lines(
+        &protocol::schedules::INCIDENCE_DEG,
+        speed_deg_per_s,
+        bin_deg,
+    )
 }
 
 /// [`lines`] at `incidences_deg` (ascending) in the order that is fastest from where the
 /// arms are (`here`): the incidences ascending or descending, the first sweep forwards or
 /// backwards (then alternating). From the park position (85°, 85°) that is θi = 60° first,
 /// from θr = 70°: for the full plane 1.3 s less device time than starting at (20°, 0°).
-pub fn lines_from(motion: &Motion, here: Geometry, incidences_deg: &[i32], speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
+pub fn lines_from(
+    motion: &Motion,
+    here: Geometry,
+    incidences_deg: &[i32],
+    speed_deg_per_s: f64,
+    bin_deg: f64,
+) -> Vec<SweepPlan> {
     let forwards = lines(incidences_deg, speed_deg_per_s, bin_deg);
-    let flip = |plans: &[SweepPlan]| plans.iter().map(|p| SweepPlan { from_deg: p.to_deg, to_deg: p.from_deg, ..*p }).collect::<Vec<_>>();
+    let flip = |plans: &[SweepPlan]| {
+        plans
+            .iter()
+            .map(|p| SweepPlan {
+                from_deg: p.to_deg,
+                to_deg: p.from_deg,
+                ..*p
+            })
+            .collect::<Vec<_>>()
+    };
     let descending: Vec<SweepPlan> = {
         let mut d = forwards.clone();
         d.reverse();
@@ -130,19 +159,49 @@ pub fn lines_from(motion: &Motion, here: Geometry, incidences_deg: &[i32], speed
         // one before it ended.
         flip(&d)
     };
-    let candidates = [flip(&forwards), descending.clone(), flip(&descending), forwards];
-    candidates.into_iter().min_by_key(|plans| device_us(motion, here, plans)).unwrap_or_default()
+    let candidates = [
+        flip(&forwards),
+        descending.clone(),
+        flip(&descending),
+        forwards,
+    ];
+    candidates
+        .into_iter()
+        .min_by_key(|plans| device_us(motion, here, plans))
+        .unwrap_or_default()
 }
 
 /// The full-plane pass in the order that is fastest from `here` ([`lines_from`]).
-pub fn full_plane_from(motion: &Motion, here: Geometry, speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
-    lines_from(motion, here, &protocol::schedules::INCIDENCE_DEG, speed_deg_per_s, bin_deg)
+pub fn full_plane_from(
+    motion: &Motion,
+    here: Geometry,
+    speed_deg_per_s: f64,
+    bin_deg: f64,
+) -> Vec<SweepPlan> {
+    lines_from(
+        motion,
+        here,
+        &protocol::schedules::INCIDENCE_DEG,
+        speed_deg_per_s,
+        bin_deg,
+    )
 }
 
 /// The sweep policy's first pass ([`FIRST_PASS_INCIDENCE_DEG`]) in the order that is
 /// fastest from `here`.
-pub fn first_pass_from(motion: &Motion, here: Geometry, speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
-    lines_from(motion, here, &FIRST_PASS_INCIDENCE_DEG, speed_deg_per_s, bin_deg)
+pub fn first_pass_from(
+    motion: &Motion,
+    here: Geometry,
+    speed_deg_per_s: f64,
+    bin_deg: f64,
+) -> Vec<SweepPlan> {
+    lines_from(
+        motion,
+        here,
+        &FIRST_PASS_INCIDENCE_DEG,
+        speed_deg_per_s,
+        bin_deg,
+    )
 }
 
 /// Device time of `plans` run in order from where the arms are (`here`): for each, the
@@ -152,11 +211,16 @@ pub fn device_us(motion: &Motion, here: Geometry, plans: &[SweepPlan]) -> u64 {
     let mut at = here;
     let mut total = 0u64;
     for plan in plans {
-        let (Some(start), Some(end)) = (plan.start(), plan.end()) else { continue };
+        let (Some(start), Some(end)) = (plan.start(), plan.end()) else {
+            continue;
+        };
         let moving = motion.move_us(at, start);
         // A move of nothing needs no settling.
         let settling = if moving > 0 { motion.settle_us() } else { 0 };
-        total = total.saturating_add(moving).saturating_add(settling).saturating_add(plan.sweep_us(motion));
+        total = total
+            .saturating_add(moving)
+            .saturating_add(settling)
+            .saturating_add(plan.sweep_us(motion));
         at = end;
     }
     total
@@ -206,8 +270,19 @@ pub fn bin_point(
     let direction = (bin.end_deg - bin.start_deg).signum();
     let seconds = f64::from(bin.blocks.max(1)) * block_s;
     let lag_deg = span / seconds * tau_s;
-    let net = calibration.net_counts(&Reading { mean_counts: bin.mean_counts, std_counts: 0.0, samples: 1, range: bin.range, integration_ms: 1, saturated: false }).unwrap_or(0.0);
-    let std_counts = calibration.block_std_counts(bin.range, net).unwrap_or(f64::NAN) as f32;
+    let net = calibration
+        .net_counts(&Reading {
+            mean_counts: bin.mean_counts,
+            std_counts: 0.0,
+            samples: 1,
+            range: bin.range,
+            integration_ms: 1,
+            saturated: false,
+        })
+        .unwrap_or(0.0);
+    let std_counts = calibration
+        .block_std_counts(bin.range, net)
+        .unwrap_or(f64::NAN) as f32;
     let reading = Reading {
         mean_counts: bin.mean_counts,
         std_counts,
@@ -218,7 +293,10 @@ pub fn bin_point(
     };
     let mut point = MeasuredPoint {
         theta_i_deg,
-        theta_r_deg: bin.centre_deg.unwrap_or(0.5 * (bin.start_deg + bin.end_deg)) - direction * lag_deg,
+        theta_r_deg: bin
+            .centre_deg
+            .unwrap_or(0.5 * (bin.start_deg + bin.end_deg))
+            - direction * lag_deg,
         theta_r_span_deg: span,
         radiance_factor: None,
         std: None,
@@ -266,16 +344,37 @@ pub struct BinStamp {
 /// whose end passes its nominal end) gives every received bin's end step count, and every
 /// whole bin's block count. `None` when no phase does (a profile or clock other than this
 /// model's): the bins keep their middles. Bins not received are `None`.
-pub fn dwell_centres_steps(profile: &firmware::motion::MoveProfile, from_steps: i32, to_steps: i32, bin_ticks: u16, bins: u16, block_us: u32, stamps: &[BinStamp]) -> Option<Vec<Option<f64>>> {
+pub fn dwell_centres_steps(
+    profile: &firmware::motion::MoveProfile,
+    from_steps: i32,
+    to_steps: i32,
+    bin_ticks: u16,
+    bins: u16,
+    block_us: u32,
+    stamps: &[BinStamp],
+) -> Option<Vec<Option<f64>>> {
     if stamps.is_empty() || bins == 0 || block_us == 0 || bin_ticks == 0 {
         return None;
     }
     let block = i64::from(block_us);
     let direction = (to_steps - from_steps).signum();
-    let nominal_end = |index: u16| if index + 1 >= bins { to_steps } else { from_steps + direction * (i32::from(index) + 1) * i32::from(bin_ticks) };
-    let position = |elapsed_us: i64| if elapsed_us <= 0 { from_steps } else { profile.position_at(elapsed_us as u64) };
+    let nominal_end = |index: u16| {
+        if index + 1 >= bins {
+            to_steps
+        } else {
+            from_steps + direction * (i32::from(index) + 1) * i32::from(bin_ticks)
+        }
+    };
+    let position = |elapsed_us: i64| {
+        if elapsed_us <= 0 {
+            from_steps
+        } else {
+            profile.position_at(elapsed_us as u64)
+        }
+    };
     let last_block = (profile.duration_us() as i64) / block + 3;
-    let by_index: std::collections::BTreeMap<u16, &BinStamp> = stamps.iter().map(|s| (s.index, s)).collect();
+    let by_index: std::collections::BTreeMap<u16, &BinStamp> =
+        stamps.iter().map(|s| (s.index, s)).collect();
     // The block (counted from the first one the sweep's binning took) that closes each
     // bin, for the first block ending `first_end_us` after the profile's start; `None` as
     // soon as a received bin disagrees.
@@ -292,7 +391,9 @@ pub fn dwell_centres_steps(profile: &firmware::motion::MoveProfile, from_steps: 
                 continue;
             }
             if let Some(stamp) = by_index.get(&index) {
-                if stamp.end_steps != end || (stamp.whole && i64::from(stamp.blocks) != j - previous) {
+                if stamp.end_steps != end
+                    || (stamp.whole && i64::from(stamp.blocks) != j - previous)
+                {
                     return None;
                 }
             }
@@ -305,7 +406,9 @@ pub fn dwell_centres_steps(profile: &firmware::motion::MoveProfile, from_steps: 
     // The first block ends within one block after the profile's start (a block that ended
     // before it was taken at rest), or up to one block before it on a board whose
     // interrupt came late.
-    let matching: Vec<(i64, Vec<i64>)> = (-block + 1..=block).filter_map(|first_end_us| closing_blocks(first_end_us).map(|c| (first_end_us, c))).collect();
+    let matching: Vec<(i64, Vec<i64>)> = (-block + 1..=block)
+        .filter_map(|first_end_us| closing_blocks(first_end_us).map(|c| (first_end_us, c)))
+        .collect();
     if matching.is_empty() {
         return None;
     }
@@ -328,7 +431,10 @@ pub fn dwell_centres_steps(profile: &firmware::motion::MoveProfile, from_steps: 
     for (first_end_us, closing) in &matching {
         let mut start_block = 0i64;
         for (index, &j) in closing.iter().enumerate() {
-            let (a, b) = (first_end_us + (start_block - 1) * block, first_end_us + j * block);
+            let (a, b) = (
+                first_end_us + (start_block - 1) * block,
+                first_end_us + j * block,
+            );
             if b > a {
                 sums[index] += integral(a, b) / (b - a) as f64;
             }
@@ -337,7 +443,11 @@ pub fn dwell_centres_steps(profile: &firmware::motion::MoveProfile, from_steps: 
     }
     let phases = matching.len() as f64;
     let out = (0..usize::from(bins))
-        .map(|index| by_index.contains_key(&(index as u16)).then(|| f64::from(from_steps) + f64::from(direction) * sums[index] / phases))
+        .map(|index| {
+            by_index
+                .contains_key(&(index as u16))
+                .then(|| f64::from(from_steps) + f64::from(direction) * sums[index] / phases)
+        })
         .collect();
     Some(out)
 }
@@ -373,7 +483,13 @@ pub const DESIGN_SPEEDS_DEG_PER_S: [f64; 4] = [60.0, 30.0, 15.0, 7.5];
 /// deviations (at least ±1°) about specular, at each of [`DESIGN_SPEEDS_DEG_PER_S`] (up to
 /// the instrument's own top speed), bins from [`bin_for_lobe`], each started at the end
 /// nearer the detector's position `from_theta_r_deg`.
-pub fn peak_candidates(sigma_deg: f64, acceptance_deg: Option<f64>, max_speed_deg_per_s: f64, block_s: f64, from_theta_r_deg: f64) -> Vec<SweepPlan> {
+pub fn peak_candidates(
+    sigma_deg: f64,
+    acceptance_deg: Option<f64>,
+    max_speed_deg_per_s: f64,
+    block_s: f64,
+    from_theta_r_deg: f64,
+) -> Vec<SweepPlan> {
     let sd = lobe_sd_deg(sigma_deg, acceptance_deg);
     let half = (3.0 * sd).clamp(1.0, 15.0);
     let tick = protocol::Angle::RESOLUTION_DEG;
@@ -381,10 +497,26 @@ pub fn peak_candidates(sigma_deg: f64, acceptance_deg: Option<f64>, max_speed_de
     let mut out = Vec::new();
     for &theta_i in &protocol::schedules::INCIDENCE_DEG {
         let centre = f64::from(theta_i);
-        let (lo, hi) = (round((centre - half).max(0.0)), round((centre + half).min(THETA_R_MAX_DEG)));
-        let (from_deg, to_deg) = if (from_theta_r_deg - lo).abs() <= (from_theta_r_deg - hi).abs() { (lo, hi) } else { (hi, lo) };
-        for &speed in DESIGN_SPEEDS_DEG_PER_S.iter().filter(|&&v| v <= max_speed_deg_per_s) {
-            out.push(SweepPlan { theta_i_deg: centre, from_deg, to_deg, speed_deg_per_s: speed, bin_deg: bin_for_lobe(sd, speed, block_s) });
+        let (lo, hi) = (
+            round((centre - half).max(0.0)),
+            round((centre + half).min(THETA_R_MAX_DEG)),
+        );
+        let (from_deg, to_deg) = if (from_theta_r_deg - lo).abs() <= (from_theta_r_deg - hi).abs() {
+            (lo, hi)
+        } else {
+            (hi, lo)
+        };
+        for &speed in DESIGN_SPEEDS_DEG_PER_S
+            .iter()
+            .filter(|&&v| v <= max_speed_deg_per_s)
+        {
+            out.push(SweepPlan {
+                theta_i_deg: centre,
+                from_deg,
+                to_deg,
+                speed_deg_per_s: speed,
+                bin_deg: bin_for_lobe(sd, speed, block_s),
+            });
         }
     }
     out
@@ -394,7 +526,13 @@ pub fn peak_candidates(sigma_deg: f64, acceptance_deg: Option<f64>, max_speed_de
 /// travel through the acceptance), with the noise `per_block_variance` predicts for one
 /// detector block at a bin's radiance factor over the blocks a bin gets (the sweep's time
 /// shared out over its bins).
-pub fn sweep_information(fit: &FitResult, plan: &SweepPlan, motion: &Motion, block_s: f64, per_block_variance: &dyn Fn(f64) -> f64) -> [[f64; 4]; 4] {
+pub fn sweep_information(
+    fit: &FitResult,
+    plan: &SweepPlan,
+    motion: &Motion,
+    block_s: f64,
+    per_block_variance: &dyn Fn(f64) -> f64,
+) -> [[f64; 4]; 4] {
     let free = fit.model.0;
     let bins = plan.bins();
     let blocks = (plan.sweep_us(motion) as f64 * 1e-6 / block_s / bins as f64).max(1.0);
@@ -402,7 +540,13 @@ pub fn sweep_information(fit: &FitResult, plan: &SweepPlan, motion: &Motion, blo
     let mut information = [[0.0; 4]; 4];
     for k in 0..bins {
         let centre = plan.from_deg + (k as f64 + 0.5) * step;
-        let (value, g) = model::evaluate_reading(&fit.params, plan.theta_i_deg, centre, step.abs(), fit.acceptance_deg);
+        let (value, g) = model::evaluate_reading(
+            &fit.params,
+            plan.theta_i_deg,
+            centre,
+            step.abs(),
+            fit.acceptance_deg,
+        );
         let j: [f64; 4] = std::array::from_fn(|i| if free[i] { g[i] } else { 0.0 });
         let variance = (per_block_variance(value) / blocks).max(1e-18);
         for a in 0..4 {
@@ -421,7 +565,13 @@ pub fn readings_information(fit: &FitResult, observations: &[Observation]) -> [[
     let mut information = [[0.0; 4]; 4];
     for o in observations {
         let Some(std) = o.std else { continue };
-        let (_, g) = model::evaluate_reading(&fit.params, o.theta_i_deg, o.theta_r_deg, o.theta_r_span_deg, fit.acceptance_deg);
+        let (_, g) = model::evaluate_reading(
+            &fit.params,
+            o.theta_i_deg,
+            o.theta_r_deg,
+            o.theta_r_span_deg,
+            fit.acceptance_deg,
+        );
         let j: [f64; 4] = std::array::from_fn(|i| if free[i] { g[i] } else { 0.0 });
         let variance = (std * std).max(1e-18);
         for a in 0..4 {
@@ -467,33 +617,62 @@ pub fn design_peak_sweeps(
     target_rel_half_width: f64,
     max_sweeps: usize,
 ) -> SweepDesign {
-    let none = SweepDesign { plans: Vec::new(), predicted_rel_half_width: f64::INFINITY, seconds: 0.0, sigma_variance_drop: 0.0 };
-    let (Some(sigma), Some(se)) = (fit.sigma_deg(), fit.std_error(SIGMA)) else { return none };
+    let none = SweepDesign {
+        plans: Vec::new(),
+        predicted_rel_half_width: f64::INFINITY,
+        seconds: 0.0,
+        sigma_variance_drop: 0.0,
+    };
+    let (Some(sigma), Some(se)) = (fit.sigma_deg(), fit.std_error(SIGMA)) else {
+        return none;
+    };
     let free = fit.model.0;
     let mut information = readings_information(fit, observations);
-    let Some(noise_cov) = inverse_spd(&information, &free) else { return none };
+    let Some(noise_cov) = inverse_spd(&information, &free) else {
+        return none;
+    };
     // What the readings' noise contributes now; the rest of the fit's variance stays.
     let floor = (se * se - noise_cov[SIGMA][SIGMA]).max(0.0);
     let half_width = |noise_var: f64| 1.96 * (floor + noise_var).max(0.0).sqrt() / sigma;
     let mut noise_var = noise_cov[SIGMA][SIGMA];
     let noise_var_now = noise_var;
-    let mut design = SweepDesign { plans: Vec::new(), predicted_rel_half_width: half_width(noise_var), seconds: 0.0, sigma_variance_drop: 0.0 };
+    let mut design = SweepDesign {
+        plans: Vec::new(),
+        predicted_rel_half_width: half_width(noise_var),
+        seconds: 0.0,
+        sigma_variance_drop: 0.0,
+    };
     let mut at = here;
-    while design.plans.len() < max_sweeps && design.predicted_rel_half_width > target_rel_half_width {
+    while design.plans.len() < max_sweeps && design.predicted_rel_half_width > target_rel_half_width
+    {
         let mut best: Option<(f64, SweepPlan, [[f64; 4]; 4], f64, f64)> = None;
-        for plan in peak_candidates(sigma, fit.acceptance_deg, max_speed_deg_per_s, block_s, at.theta_r.deg()) {
+        for plan in peak_candidates(
+            sigma,
+            fit.acceptance_deg,
+            max_speed_deg_per_s,
+            block_s,
+            at.theta_r.deg(),
+        ) {
             let Some(start) = plan.start() else { continue };
             let added = sweep_information(fit, &plan, motion, block_s, per_block_variance);
-            let total: [[f64; 4]; 4] = std::array::from_fn(|a| std::array::from_fn(|b| information[a][b] + added[a][b]));
-            let Some(cov) = inverse_spd(&total, &free) else { continue };
+            let total: [[f64; 4]; 4] =
+                std::array::from_fn(|a| std::array::from_fn(|b| information[a][b] + added[a][b]));
+            let Some(cov) = inverse_spd(&total, &free) else {
+                continue;
+            };
             let moving = motion.move_us(at, start);
-            let seconds = (moving + if moving > 0 { motion.settle_us() } else { 0 } + plan.sweep_us(motion)) as f64 * 1e-6;
+            let seconds = (moving
+                + if moving > 0 { motion.settle_us() } else { 0 }
+                + plan.sweep_us(motion)) as f64
+                * 1e-6;
             let score = (noise_var - cov[SIGMA][SIGMA]) / seconds;
             if score.is_finite() && score > 0.0 && best.as_ref().is_none_or(|b| score > b.0) {
                 best = Some((score, plan, total, cov[SIGMA][SIGMA], seconds));
             }
         }
-        let Some((_, plan, total, var, seconds)) = best else { break };
+        let Some((_, plan, total, var, seconds)) = best else {
+            break;
+        };
         information = total;
         noise_var = var;
         design.plans.push(plan);
@@ -558,7 +737,10 @@ impl NoiseScaling {
         if n == 0 {
             return 0.0;
         }
-        self.ranges.iter().map(|r| (r.observations as f64 / n as f64).powi(2) * r.log_variance).sum()
+        self.ranges
+            .iter()
+            .map(|r| (r.observations as f64 / n as f64).powi(2) * r.log_variance)
+            .sum()
     }
 }
 
@@ -571,30 +753,58 @@ fn median_factor(z: &[f64]) -> Option<(f64, f64)> {
 
 /// The windows' z of `observations` by range: each window five neighbouring bins of one
 /// sweep on one range (see [`scale_bin_noise`]), in the order of the bins.
-fn window_z_by_range(points: &[MeasuredPoint], indices: &[usize], observations: &[Observation]) -> std::collections::BTreeMap<u8, Vec<f64>> {
-    let mut z_by_range: std::collections::BTreeMap<u8, Vec<f64>> = std::collections::BTreeMap::new();
+fn window_z_by_range(
+    points: &[MeasuredPoint],
+    indices: &[usize],
+    observations: &[Observation],
+) -> std::collections::BTreeMap<u8, Vec<f64>> {
+    let mut z_by_range: std::collections::BTreeMap<u8, Vec<f64>> =
+        std::collections::BTreeMap::new();
     for w in 0..observations.len().saturating_sub(NOISE_WINDOW - 1) {
-        let window: Vec<&MeasuredPoint> = indices[w..w + NOISE_WINDOW].iter().filter_map(|&k| points.get(k)).collect();
-        let Some(first) = window.first() else { continue };
+        let window: Vec<&MeasuredPoint> = indices[w..w + NOISE_WINDOW]
+            .iter()
+            .filter_map(|&k| points.get(k))
+            .collect();
+        let Some(first) = window.first() else {
+            continue;
+        };
         let neighbours = window.len() == NOISE_WINDOW
-            && window.iter().all(|p| p.theta_r_span_deg > 0.0 && p.schedule_id == first.schedule_id && p.reading.range == first.reading.range && !p.reading.saturated)
-            && window.windows(2).all(|pair| pair[1].index == pair[0].index.wrapping_add(1));
+            && window.iter().all(|p| {
+                p.theta_r_span_deg > 0.0
+                    && p.schedule_id == first.schedule_id
+                    && p.reading.range == first.reading.range
+                    && !p.reading.saturated
+            })
+            && window
+                .windows(2)
+                .all(|pair| pair[1].index == pair[0].index.wrapping_add(1));
         if !neighbours {
             continue;
         }
         let obs = &observations[w..w + NOISE_WINDOW];
         let weights: Vec<f64> = (0..NOISE_WINDOW)
-            .map(|j| 1.0 / (0..NOISE_WINDOW).filter(|&k| k != j).map(|k| obs[j].theta_r_deg - obs[k].theta_r_deg).product::<f64>())
+            .map(|j| {
+                1.0 / (0..NOISE_WINDOW)
+                    .filter(|&k| k != j)
+                    .map(|k| obs[j].theta_r_deg - obs[k].theta_r_deg)
+                    .product::<f64>()
+            })
             .collect();
         let mut variance = 0.0;
         let mut difference = 0.0;
         for (o, wj) in obs.iter().zip(&weights) {
-            let Some(s) = o.std else { variance = f64::NAN; break };
+            let Some(s) = o.std else {
+                variance = f64::NAN;
+                break;
+            };
             variance += wj * wj * s * s;
             difference += wj * o.radiance_factor;
         }
         if variance > 0.0 && variance.is_finite() && difference.is_finite() {
-            z_by_range.entry(first.reading.range).or_default().push(difference * difference / variance);
+            z_by_range
+                .entry(first.reading.range)
+                .or_default()
+                .push(difference * difference / variance);
         }
     }
     z_by_range
@@ -620,22 +830,40 @@ fn window_z_by_range(points: &[MeasuredPoint], indices: &[usize], observations: 
 /// when there are not that many in all. The factor is an estimate — ln of it has a
 /// variance of [`MEDIAN_LOG_VARIANCE_PER_WINDOW`] over the windows, 6 % in sd for a pass —
 /// which the χ² test takes into account ([`NoiseScaling::chi2_log_variance`]).
-pub fn scale_bin_noise(points: &[MeasuredPoint], indices: &[usize], observations: &mut [Observation]) -> NoiseScaling {
+pub fn scale_bin_noise(
+    points: &[MeasuredPoint],
+    indices: &[usize],
+    observations: &mut [Observation],
+) -> NoiseScaling {
     let z_by_range = window_z_by_range(points, indices, observations);
     let mut pooled: Vec<f64> = z_by_range.values().flatten().copied().collect();
     pooled.sort_by(f64::total_cmp);
-    let pooled_factor = (pooled.len() >= MIN_NOISE_WINDOWS).then(|| median_factor(&pooled)).flatten();
-    let mut bin_ranges: Vec<u8> = indices.iter().filter_map(|&k| points.get(k)).filter(|p| p.theta_r_span_deg > 0.0).map(|p| p.reading.range).collect();
+    let pooled_factor = (pooled.len() >= MIN_NOISE_WINDOWS)
+        .then(|| median_factor(&pooled))
+        .flatten();
+    let mut bin_ranges: Vec<u8> = indices
+        .iter()
+        .filter_map(|&k| points.get(k))
+        .filter(|p| p.theta_r_span_deg > 0.0)
+        .map(|p| p.reading.range)
+        .collect();
     bin_ranges.sort_unstable();
     bin_ranges.dedup();
     let mut scaling = NoiseScaling::default();
     for range in bin_ranges {
-        let own = z_by_range.get(&range).filter(|z| z.len() >= MIN_NOISE_WINDOWS).and_then(|z| {
-            let mut z = z.clone();
-            z.sort_by(f64::total_cmp);
-            median_factor(&z).map(|f| (f, z.len()))
-        });
-        let Some(((factor, log_variance), windows)) = own.or_else(|| pooled_factor.map(|f| (f, pooled.len()))) else { continue };
+        let own = z_by_range
+            .get(&range)
+            .filter(|z| z.len() >= MIN_NOISE_WINDOWS)
+            .and_then(|z| {
+                let mut z = z.clone();
+                z.sort_by(f64::total_cmp);
+                median_factor(&z).map(|f| (f, z.len()))
+            });
+        let Some(((factor, log_variance), windows)) =
+            own.or_else(|| pooled_factor.map(|f| (f, pooled.len())))
+        else {
+            continue;
+        };
         let mut scaled = 0;
         for (o, &k) in observations.iter_mut().zip(indices) {
             let Some(p) = points.get(k) else { continue };
@@ -644,12 +872,20 @@ pub fn scale_bin_noise(points: &[MeasuredPoint], indices: &[usize], observations
                 // most windows of a smooth profile read the same counts, their differences
                 // are 0 and so is the median.
                 let counts = crate::instrument::calibration::standard_error_counts(&p.reading);
-                let resolution = p.std.map_or(0.0, |s| s * crate::instrument::calibration::RESOLUTION_STD_COUNTS / counts);
+                let resolution = p.std.map_or(0.0, |s| {
+                    s * crate::instrument::calibration::RESOLUTION_STD_COUNTS / counts
+                });
                 o.std = o.std.map(|s| (s * factor.sqrt()).max(resolution));
                 scaled += 1;
             }
         }
-        scaling.ranges.push(RangeNoiseScale { range, factor, log_variance, windows, observations: scaled });
+        scaling.ranges.push(RangeNoiseScale {
+            range,
+            factor,
+            log_variance,
+            windows,
+            observations: scaled,
+        });
     }
     scaling
 }
@@ -663,7 +899,10 @@ mod tests {
         let pass = full_plane(60.0, 0.1);
         assert_eq!(pass.len(), 4);
         for pair in pass.windows(2) {
-            assert_eq!(pair[0].to_deg, pair[1].from_deg, "each sweep starts where the last ended");
+            assert_eq!(
+                pair[0].to_deg, pair[1].from_deg,
+                "each sweep starts where the last ended"
+            );
         }
         assert!(pass.iter().all(|p| p.bins() == 700));
     }
@@ -684,14 +923,25 @@ mod tests {
                 let truth = 0.85 + 60.0 * (-(theta_r - 20.0).powi(2) / (2.0 * 0.8 * 0.8)).exp();
                 let std = 0.002 * (1.0 + truth / 10.0);
                 let noise: f64 = rng.sample(StandardNormal);
-                points.push(test_bin(20.0, theta_r, truth + 1.5 * std * noise, std, 0, k));
+                points.push(test_bin(
+                    20.0,
+                    theta_r,
+                    truth + 1.5 * std * noise,
+                    std,
+                    0,
+                    k,
+                ));
             }
             // A point reading (no span) is left as it is.
             let mut still = points[0].clone();
             (still.theta_r_span_deg, still.schedule_id, still.theta_r_deg) = (0.0, 2, 45.0);
             points.push(still);
             let (indices, observations) = crate::session::usable_observations(&points);
-            let scaled: Vec<f64> = observations.iter().zip(&indices).map(|(o, &k)| o.std.unwrap() / points[k].std.unwrap()).collect();
+            let scaled: Vec<f64> = observations
+                .iter()
+                .zip(&indices)
+                .map(|(o, &k)| o.std.unwrap() / points[k].std.unwrap())
+                .collect();
             let factor = scaled[0].powi(2);
             // The median of 696 χ²₁ draws: 1σ ≈ 6 %, and overlapping windows are correlated.
             assert!((factor / 2.25 - 1.0).abs() < 0.2, "seed {seed}: {factor}");
@@ -705,17 +955,31 @@ mod tests {
         let motion = Motion::reference();
         let park = Geometry::from_deg(85.0, 85.0).unwrap();
         let pass = full_plane_from(&motion, park, 60.0, 0.1);
-        assert_eq!((pass[0].theta_i_deg, pass[0].from_deg), (60.0, 70.0), "{pass:?}");
+        assert_eq!(
+            (pass[0].theta_i_deg, pass[0].from_deg),
+            (60.0, 70.0),
+            "{pass:?}"
+        );
         for pair in pass.windows(2) {
-            assert_eq!(pair[0].to_deg, pair[1].from_deg, "each sweep starts where the last ended");
+            assert_eq!(
+                pair[0].to_deg, pair[1].from_deg,
+                "each sweep starts where the last ended"
+            );
         }
         let mut incidences: Vec<f64> = pass.iter().map(|p| p.theta_i_deg).collect();
         incidences.sort_by(f64::total_cmp);
         assert_eq!(incidences, [20.0, 30.0, 45.0, 60.0]);
         let fixed = device_us(&motion, park, &full_plane(60.0, 0.1));
-        assert!(device_us(&motion, park, &pass) + 1_000_000 < fixed, "saves more than a second from the park");
+        assert!(
+            device_us(&motion, park, &pass) + 1_000_000 < fixed,
+            "saves more than a second from the park"
+        );
         let low = Geometry::from_deg(20.0, 0.0).unwrap();
-        assert_eq!(full_plane_from(&motion, low, 60.0, 0.1), full_plane(60.0, 0.1), "from (20°, 0°) the ascending order is fastest");
+        assert_eq!(
+            full_plane_from(&motion, low, 60.0, 0.1),
+            full_plane(60.0, 0.1),
+            "from (20°, 0°) the ascending order is fastest"
+        );
     }
 
     /// From the park (85°, 85°) the pass is at the reference kinematics' floor for four
@@ -733,18 +997,32 @@ mod tests {
         let accel = 180.0_f64;
         let triangular = |d: f64| 2.0 * (d / accel).sqrt();
         let trapezoid = |d: f64| d / 60.0 + 60.0 / accel;
-        let floor_s = 4.0 * trapezoid(70.0) + trapezoid(25.0) + 2.0 * triangular(15.0) + triangular(10.0) + 4.0 * 0.1;
+        let floor_s = 4.0 * trapezoid(70.0)
+            + trapezoid(25.0)
+            + 2.0 * triangular(15.0)
+            + triangular(10.0)
+            + 4.0 * 0.1;
         let planned_s = device_us(&motion, park, &pass) as f64 * 1e-6;
         assert!((floor_s - 8.776).abs() < 0.001, "{floor_s}");
-        assert!((planned_s - floor_s).abs() < 0.005, "planned {planned_s} s against the floor {floor_s} s");
+        assert!(
+            (planned_s - floor_s).abs() < 0.005,
+            "planned {planned_s} s against the floor {floor_s} s"
+        );
     }
 
     /// The firmware's own binning of a sweep (its `Binner`, the block ends at
     /// `first_end_us + j·block` after the profile's start, the arm on the profile's step
     /// count), and the time-average of the step count over each bin by brute force (1 µs).
-    fn firmware_bins(motion: &Motion, from: i32, to: i32, speed_mdeg: u32, bin_ticks: u16, first_end_us: i64) -> (Vec<BinStamp>, Vec<f64>, u16) {
+    fn firmware_bins(
+        motion: &Motion,
+        from: i32,
+        to: i32,
+        speed_mdeg: u32,
+        bin_ticks: u16,
+        first_end_us: i64,
+    ) -> (Vec<BinStamp>, Vec<f64>, u16) {
         use firmware::hardware::Sample;
-        use firmware::sweep::{BlockClass, Binner};
+        use firmware::sweep::{Binner, BlockClass};
         let profile = motion.sweep_profile(from, to, speed_mdeg);
         let sweep = protocol::Sweep {
             sweep_id: 1,
@@ -758,17 +1036,44 @@ mod tests {
         };
         let bins = ((to - from).unsigned_abs().div_ceil(u32::from(bin_ticks))) as u16;
         let mut binner = Binner::new(&sweep, bins);
-        let at = |t: i64| if t <= 0 { from } else { profile.position_at(t as u64) };
+        let at = |t: i64| {
+            if t <= 0 {
+                from
+            } else {
+                profile.position_at(t as u64)
+            }
+        };
         let (mut stamps, mut means) = (Vec::new(), Vec::new());
         let mut started = first_end_us - 1000;
         let mut j = 0i64;
         while !binner.is_done() {
             let end_us = first_end_us + j * 1000;
-            let sample = Sample { counts: 100, detector_steps: at(end_us) };
-            if let Some(bin) = binner.block(sample, BlockClass::Kept { range: 0, saturated: false }, 0, end_us as u64) {
-                stamps.push(BinStamp { index: bin.index, end_steps: bin.end.ticks(), blocks: bin.blocks, whole: true });
+            let sample = Sample {
+                counts: 100,
+                detector_steps: at(end_us),
+            };
+            if let Some(bin) = binner.block(
+                sample,
+                BlockClass::Kept {
+                    range: 0,
+                    saturated: false,
+                },
+                0,
+                end_us as u64,
+            ) {
+                stamps.push(BinStamp {
+                    index: bin.index,
+                    end_steps: bin.end.ticks(),
+                    blocks: bin.blocks,
+                    whole: true,
+                });
                 let n = (end_us - started) as f64;
-                means.push((started..end_us).map(|t| f64::from(at(t) + at(t + 1)) * 0.5).sum::<f64>() / n);
+                means.push(
+                    (started..end_us)
+                        .map(|t| f64::from(at(t) + at(t + 1)) * 0.5)
+                        .sum::<f64>()
+                        / n,
+                );
                 started = end_us;
             }
             j += 1;
@@ -787,32 +1092,56 @@ mod tests {
     #[test]
     fn the_dwell_model_puts_each_bin_where_the_arm_stood_on_average() {
         let motion = Motion::reference();
-        let drawn = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(1, |d| d.subsec_nanos() as i64);
-        for (k, (from, to, speed_mdeg, bin_ticks)) in [(5600, 0, 60_000u32, 8u16), (0, 5600, 60_000, 8), (4400, 5200, 7_500, 2), (5200, 4400, 15_000, 4), (4000, 4800, 30_000, 3)].into_iter().enumerate() {
+        let drawn = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(1, |d| d.subsec_nanos() as i64);
+        for (k, (from, to, speed_mdeg, bin_ticks)) in [
+            (5600, 0, 60_000u32, 8u16),
+            (0, 5600, 60_000, 8),
+            (4400, 5200, 7_500, 2),
+            (5200, 4400, 15_000, 4),
+            (4000, 4800, 30_000, 3),
+        ]
+        .into_iter()
+        .enumerate()
+        {
             let first_end_us = 1 + (drawn + 7919 * k as i64).rem_euclid(1000);
-            let (stamps, means, bins) = firmware_bins(&motion, from, to, speed_mdeg, bin_ticks, first_end_us);
+            let (stamps, means, bins) =
+                firmware_bins(&motion, from, to, speed_mdeg, bin_ticks, first_end_us);
             let profile = motion.sweep_profile(from, to, speed_mdeg);
-            let centres = dwell_centres_steps(&profile, from, to, bin_ticks, bins, 1000, &stamps).expect("a phase gives the firmware's bins");
+            let centres = dwell_centres_steps(&profile, from, to, bin_ticks, bins, 1000, &stamps)
+                .expect("a phase gives the firmware's bins");
             let mut worst_model: f64 = 0.0;
             let mut worst_middle: f64 = 0.0;
             let mut previous_end = from;
             for (stamp, mean) in stamps.iter().zip(&means) {
-                let centre = centres[usize::from(stamp.index)].expect("every bin received has a centre");
+                let centre =
+                    centres[usize::from(stamp.index)].expect("every bin received has a centre");
                 worst_model = worst_model.max((centre - mean).abs());
-                worst_middle = worst_middle.max((0.5 * f64::from(previous_end + stamp.end_steps) - mean).abs());
+                worst_middle = worst_middle
+                    .max((0.5 * f64::from(previous_end + stamp.end_steps) - mean).abs());
                 previous_end = stamp.end_steps;
             }
-            println!("{from}→{to} at {speed_mdeg} m°/s, bins of {bin_ticks}, first block end {first_end_us} µs: model within {worst_model:.4} steps, middles {worst_middle:.3}");
-            assert!(worst_model < 0.1, "{from}→{to} at {speed_mdeg}: {worst_model} steps");
+            println!(
+                "{from}→{to} at {speed_mdeg} m°/s, bins of {bin_ticks}, first block end {first_end_us} µs: model within {worst_model:.4} steps, middles {worst_middle:.3}"
+            );
+            assert!(
+                worst_model < 0.1,
+                "{from}→{to} at {speed_mdeg}: {worst_model} steps"
+            );
             assert!(worst_middle > 0.5, "the case shows what the model corrects");
             // A lost bin has no centre; the others keep theirs.
             let lost: Vec<BinStamp> = stamps.iter().copied().filter(|s| s.index != 3).collect();
-            let partial = dwell_centres_steps(&profile, from, to, bin_ticks, bins, 1000, &lost).unwrap();
+            let partial =
+                dwell_centres_steps(&profile, from, to, bin_ticks, bins, 1000, &lost).unwrap();
             assert!(partial[3].is_none() && partial[4] == centres[4]);
             // A step count the profile cannot give at any phase.
             let mut wrong = stamps.clone();
             wrong[5].end_steps += 3 * (to - from).signum();
-            assert_eq!(dwell_centres_steps(&profile, from, to, bin_ticks, bins, 1000, &wrong), None);
+            assert_eq!(
+                dwell_centres_steps(&profile, from, to, bin_ticks, bins, 1000, &wrong),
+                None
+            );
         }
     }
 
@@ -826,15 +1155,24 @@ mod tests {
         let motion = Motion::reference();
         let park = Geometry::from_deg(85.0, 85.0).unwrap();
         let pass = first_pass_from(&motion, park, 60.0, 0.1);
-        let at: Vec<(f64, f64, f64)> = pass.iter().map(|p| (p.theta_i_deg, p.from_deg, p.to_deg)).collect();
+        let at: Vec<(f64, f64, f64)> = pass
+            .iter()
+            .map(|p| (p.theta_i_deg, p.from_deg, p.to_deg))
+            .collect();
         assert_eq!(at, [(60.0, 70.0, 0.0), (20.0, 0.0, 70.0)]);
         let trapezoid = |d: f64| d / 60.0 + 60.0 / 180.0;
         let floor_s = 2.0 * trapezoid(70.0) + trapezoid(25.0) + trapezoid(40.0) + 2.0 * 0.1;
         let planned_s = device_us(&motion, park, &pass) as f64 * 1e-6;
         assert!((floor_s - 4.95).abs() < 0.001, "{floor_s}");
-        assert!((planned_s - floor_s).abs() < 0.005, "planned {planned_s} s against {floor_s} s");
+        assert!(
+            (planned_s - floor_s).abs() < 0.005,
+            "planned {planned_s} s against {floor_s} s"
+        );
         // Every order of the two lines from the park is slower or the same.
-        for plans in [lines(&FIRST_PASS_INCIDENCE_DEG, 60.0, 0.1), lines(&[60, 20], 60.0, 0.1)] {
+        for plans in [
+            lines(&FIRST_PASS_INCIDENCE_DEG, 60.0, 0.1),
+            lines(&[60, 20], 60.0, 0.1),
+        ] {
             assert!(device_us(&motion, park, &plans) >= device_us(&motion, park, &pass));
         }
         // No sweep breaks the collision guard (θi + θr ≥ 10°) at any point.
@@ -857,7 +1195,13 @@ mod tests {
         assert!(total < 10.0 && total > 4.0 * one, "{total} s");
         // Slower is longer; a short sweep never reaches its top speed.
         assert!(full_plane(30.0, 0.1)[0].sweep_us(&motion) > pass[0].sweep_us(&motion));
-        let short = SweepPlan { theta_i_deg: 60.0, from_deg: 58.0, to_deg: 62.0, speed_deg_per_s: 60.0, bin_deg: 0.05 };
+        let short = SweepPlan {
+            theta_i_deg: 60.0,
+            from_deg: 58.0,
+            to_deg: 62.0,
+            speed_deg_per_s: 60.0,
+            bin_deg: 0.05,
+        };
         let triangle = 2.0 * (4.0_f64 / 180.0).sqrt();
         assert!((short.sweep_us(&motion) as f64 * 1e-6 - triangle).abs() < 0.005);
         assert_eq!(short.bins(), 80);
@@ -865,21 +1209,56 @@ mod tests {
 
     #[test]
     fn bins_round_up_to_cover_the_sweep() {
-        let plan = SweepPlan { theta_i_deg: 45.0, from_deg: 40.0, to_deg: 41.0, speed_deg_per_s: 10.0, bin_deg: 0.3 };
+        let plan = SweepPlan {
+            theta_i_deg: 45.0,
+            from_deg: 40.0,
+            to_deg: 41.0,
+            speed_deg_per_s: 10.0,
+            bin_deg: 0.3,
+        };
         assert_eq!(plan.bins(), 4);
-        assert_eq!(SweepPlan { bin_deg: 0.25, ..plan }.bins(), 4);
-        assert_eq!(SweepPlan { to_deg: 39.0, ..plan }.bins(), 4, "backwards alike");
+        assert_eq!(
+            SweepPlan {
+                bin_deg: 0.25,
+                ..plan
+            }
+            .bins(),
+            4
+        );
+        assert_eq!(
+            SweepPlan {
+                to_deg: 39.0,
+                ..plan
+            }
+            .bins(),
+            4,
+            "backwards alike"
+        );
     }
 
     /// Bin `index` of sweep 1, 0.1° long, converted to `radiance_factor` ± `std` on `range`.
-    fn test_bin(theta_i_deg: f64, theta_r_deg: f64, radiance_factor: f64, std: f64, range: u8, index: u16) -> MeasuredPoint {
+    fn test_bin(
+        theta_i_deg: f64,
+        theta_r_deg: f64,
+        radiance_factor: f64,
+        std: f64,
+        range: u8,
+        index: u16,
+    ) -> MeasuredPoint {
         MeasuredPoint {
             theta_i_deg,
             theta_r_deg,
             theta_r_span_deg: 0.1,
             radiance_factor: Some(radiance_factor),
             std: Some(std),
-            reading: Reading { mean_counts: 1000.0, std_counts: 10.0, samples: 2, range, integration_ms: 2, saturated: false },
+            reading: Reading {
+                mean_counts: 1000.0,
+                std_counts: 10.0,
+                samples: 2,
+                range,
+                integration_ms: 2,
+                saturated: false,
+            },
             schedule_id: 1,
             index,
             device_time_us: 0,
@@ -890,7 +1269,11 @@ mod tests {
     }
 
     /// Bins of one sweep whose noise is exactly their std, `n` of them.
-    fn noisy_bins(rng: &mut rand_chacha::ChaCha12Rng, n: u16, range_of: impl Fn(u16) -> u8) -> Vec<MeasuredPoint> {
+    fn noisy_bins(
+        rng: &mut rand_chacha::ChaCha12Rng,
+        n: u16,
+        range_of: impl Fn(u16) -> u8,
+    ) -> Vec<MeasuredPoint> {
         use rand::Rng;
         use rand_distr::StandardNormal;
         (0..n)
@@ -898,7 +1281,14 @@ mod tests {
                 let theta_r = 0.05 + 0.1 * f64::from(k) + if k % 3 == 1 { 0.03 } else { 0.0 };
                 let std = 0.004;
                 let noise: f64 = rng.sample(StandardNormal);
-                test_bin(30.0, theta_r, 0.4 + 0.002 * theta_r + std * noise, std, range_of(k), k)
+                test_bin(
+                    30.0,
+                    theta_r,
+                    0.4 + 0.002 * theta_r + std * noise,
+                    std,
+                    range_of(k),
+                    k,
+                )
             })
             .collect()
     }
@@ -926,8 +1316,14 @@ mod tests {
             let mean = logs.iter().sum::<f64>() / n;
             let variance = logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / (n - 1.0);
             // The mean of 400 logs has sd √(variance/400): about 0.003 and 0.018.
-            assert!(mean.abs() < 4.0 * (variance / n).sqrt() + 0.01, "{bins} bins: mean ln factor {mean}");
-            assert!((variance / stated - 1.0).abs() < tolerance, "{bins} bins: variance {variance} against stated {stated}");
+            assert!(
+                mean.abs() < 4.0 * (variance / n).sqrt() + 0.01,
+                "{bins} bins: mean ln factor {mean}"
+            );
+            assert!(
+                (variance / stated - 1.0).abs() < tolerance,
+                "{bins} bins: variance {variance} against stated {stated}"
+            );
         }
     }
 
@@ -947,12 +1343,16 @@ mod tests {
         assert_eq!(scaling.ranges.len(), 2, "{scaling:?}");
         let (own, short) = (scaling.ranges[0], scaling.ranges[1]);
         assert_eq!((own.range, short.range), (0, 1));
-        assert!(own.windows < 600 && short.windows >= own.windows, "{scaling:?}");
+        assert!(
+            own.windows < 600 && short.windows >= own.windows,
+            "{scaling:?}"
+        );
         assert!((own.factor / 4.0 - 1.0).abs() < 0.25, "{own:?}");
         assert!((short.factor / own.factor - 1.0).abs() < 0.1, "{short:?}");
         assert_eq!(own.observations + short.observations, 620);
         let v = scaling.chi2_log_variance(620);
-        let expected = (600.0f64 / 620.0).powi(2) * own.log_variance + (20.0f64 / 620.0).powi(2) * short.log_variance;
+        let expected = (600.0f64 / 620.0).powi(2) * own.log_variance
+            + (20.0f64 / 620.0).powi(2) * short.log_variance;
         assert!((v - expected).abs() < 1e-15);
         assert_eq!(NoiseScaling::default().chi2_log_variance(10), 0.0);
     }
@@ -960,45 +1360,147 @@ mod tests {
     #[test]
     fn a_bin_is_recorded_at_its_mean_position_less_the_lag_with_its_blocks_noise() {
         use crate::instrument::calibration::{Tile, WhitePoint};
-        let reading = |mean_counts: f32, std_counts: f32, range: u8| Reading { mean_counts, std_counts, samples: 100, range, integration_ms: 100, saturated: false };
+        let reading = |mean_counts: f32, std_counts: f32, range: u8| Reading {
+            mean_counts,
+            std_counts,
+            samples: 100,
+            range,
+            integration_ms: 100,
+            saturated: false,
+        };
         let calibration = Calibration::new(
             "test".into(),
             Tile::default(),
             vec![1.0, 0.1, 0.01],
-            vec![reading(200.0, 10.0, 0), reading(200.0, 10.0, 1), reading(200.0, 10.0, 2)],
-            vec![WhitePoint { theta_i_deg: 60.0, reading: reading(10_200.0, 30.0, 0) }],
+            vec![
+                reading(200.0, 10.0, 0),
+                reading(200.0, 10.0, 1),
+                reading(200.0, 10.0, 2),
+            ],
+            vec![WhitePoint {
+                theta_i_deg: 60.0,
+                reading: reading(10_200.0, 30.0, 0),
+            }],
         );
         // 0.1° in two 1 ms blocks: 50 °/s; with τ = 0.2 ms the reading trails by 0.01°.
-        let bin = BinReading { start_deg: 59.95, end_deg: 60.05, mean_counts: 5_200.0, blocks: 2, range: 0, saturated: false, device_time_us: 9, centre_deg: None };
+        let bin = BinReading {
+            start_deg: 59.95,
+            end_deg: 60.05,
+            mean_counts: 5_200.0,
+            blocks: 2,
+            range: 0,
+            saturated: false,
+            device_time_us: 9,
+            centre_deg: None,
+        };
         let up = bin_point(60.0, &bin, 3, 7, 1e-3, 2e-4, &calibration);
-        assert!((up.theta_r_deg - 59.99).abs() < 1e-12 && (up.theta_r_span_deg - 0.1).abs() < 1e-12, "{up:?}");
-        let down = bin_point(60.0, &BinReading { start_deg: 60.05, end_deg: 59.95, ..bin }, 3, 7, 1e-3, 2e-4, &calibration);
-        assert!((down.theta_r_deg - 60.01).abs() < 1e-12, "backwards it trails the other way: {down:?}");
+        assert!(
+            (up.theta_r_deg - 59.99).abs() < 1e-12 && (up.theta_r_span_deg - 0.1).abs() < 1e-12,
+            "{up:?}"
+        );
+        let down = bin_point(
+            60.0,
+            &BinReading {
+                start_deg: 60.05,
+                end_deg: 59.95,
+                ..bin
+            },
+            3,
+            7,
+            1e-3,
+            2e-4,
+            &calibration,
+        );
+        assert!(
+            (down.theta_r_deg - 60.01).abs() < 1e-12,
+            "backwards it trails the other way: {down:?}"
+        );
         // Where the dwell model put the arm's mean, less the lag.
-        let dwelt = bin_point(60.0, &BinReading { centre_deg: Some(59.997), ..bin }, 3, 7, 1e-3, 2e-4, &calibration);
-        assert!((dwelt.theta_r_deg - 59.987).abs() < 1e-12 && (dwelt.theta_r_span_deg - 0.1).abs() < 1e-12, "{dwelt:?}");
+        let dwelt = bin_point(
+            60.0,
+            &BinReading {
+                centre_deg: Some(59.997),
+                ..bin
+            },
+            3,
+            7,
+            1e-3,
+            2e-4,
+            &calibration,
+        );
+        assert!(
+            (dwelt.theta_r_deg - 59.987).abs() < 1e-12
+                && (dwelt.theta_r_span_deg - 0.1).abs() < 1e-12,
+            "{dwelt:?}"
+        );
         // Half the white's net counts: half its radiance factor; the noise of two blocks.
         assert!((up.radiance_factor.unwrap() - 0.5 * 0.99).abs() < 1e-12);
         let block = calibration.block_std_counts(0, 5_000.0).unwrap();
-        assert!((up.std.unwrap() - block / 2f64.sqrt() / 10_000.0 * 0.99).abs() < 1e-9, "{:?}", up.std);
-        assert_eq!((up.schedule_id, up.index, up.reading.samples, up.reading.integration_ms), (3, 7, 2, 2));
+        assert!(
+            (up.std.unwrap() - block / 2f64.sqrt() / 10_000.0 * 0.99).abs() < 1e-9,
+            "{:?}",
+            up.std
+        );
+        assert_eq!(
+            (
+                up.schedule_id,
+                up.index,
+                up.reading.samples,
+                up.reading.integration_ms
+            ),
+            (3, 7, 2, 2)
+        );
         // A saturated bin is not converted: its mean is only a lower bound.
-        let saturated = bin_point(60.0, &BinReading { saturated: true, ..bin }, 3, 8, 1e-3, 2e-4, &calibration);
+        let saturated = bin_point(
+            60.0,
+            &BinReading {
+                saturated: true,
+                ..bin
+            },
+            3,
+            8,
+            1e-3,
+            2e-4,
+            &calibration,
+        );
         assert!(saturated.radiance_factor.is_none() && saturated.note.is_some());
     }
 
-    fn fitted(sigma_deg: f64, rho_s: f64, rho_d: f64, eta: f64, step_deg: f64, relative_noise: f64) -> (FitResult, Vec<Observation>) {
-        let truth = crate::analysis::model::Params { sigma_deg, rho_s, rho_d, eta };
+    fn fitted(
+        sigma_deg: f64,
+        rho_s: f64,
+        rho_d: f64,
+        eta: f64,
+        step_deg: f64,
+        relative_noise: f64,
+    ) -> (FitResult, Vec<Observation>) {
+        let truth = crate::analysis::model::Params {
+            sigma_deg,
+            rho_s,
+            rho_d,
+            eta,
+        };
         let mut observations = Vec::new();
         for theta_i in [20.0, 30.0, 45.0, 60.0] {
             let mut theta_r = 0.0;
             while theta_r <= 70.0 {
-                let value = model::evaluate_reading(&truth, theta_i, theta_r, step_deg, Some(1.0)).0;
-                observations.push(Observation { theta_i_deg: theta_i, theta_r_deg: theta_r, radiance_factor: value, std: Some(relative_noise * value + 1e-4), theta_r_span_deg: step_deg });
+                let value =
+                    model::evaluate_reading(&truth, theta_i, theta_r, step_deg, Some(1.0)).0;
+                observations.push(Observation {
+                    theta_i_deg: theta_i,
+                    theta_r_deg: theta_r,
+                    radiance_factor: value,
+                    std: Some(relative_noise * value + 1e-4),
+                    theta_r_span_deg: step_deg,
+                });
                 theta_r += step_deg;
             }
         }
-        (crate::analysis::fit::fit(&observations, &crate::analysis::fit::FitOptions::default()).expect("fit"), observations)
+        (
+            crate::analysis::fit::fit(&observations, &crate::analysis::fit::FitOptions::default())
+                .expect("fit"),
+            observations,
+        )
     }
 
     /// After a coarse, noisy pass over glossy paper, the design sweeps across the peak
@@ -1013,32 +1515,82 @@ mod tests {
         // 2 % per bin at a 1° bin of ~16 blocks: a block has √16 times that noise.
         let per_block = |r: f64| (0.02 * r * 4.0).powi(2);
         let here = Geometry::from_deg(60.0, 0.0).unwrap();
-        let design = design_peak_sweeps(&fit, &observations, here, &motion, 60.0, block_s, &per_block, 0.5 * now, 6);
-        assert!(!design.plans.is_empty() && design.predicted_rel_half_width <= 0.5 * now, "{now} → {design:?}");
+        let design = design_peak_sweeps(
+            &fit,
+            &observations,
+            here,
+            &motion,
+            60.0,
+            block_s,
+            &per_block,
+            0.5 * now,
+            6,
+        );
+        assert!(
+            !design.plans.is_empty() && design.predicted_rel_half_width <= 0.5 * now,
+            "{now} → {design:?}"
+        );
         for plan in &design.plans {
-            assert!((plan.from_deg - plan.theta_i_deg).abs() <= 15.0 && (plan.to_deg - plan.theta_i_deg).abs() <= 15.0, "{plan:?}: across the peak");
-            assert!(plan.bin_deg >= min_bin_deg(plan.speed_deg_per_s, block_s) && plan.bin_deg <= lobe_sd_deg(0.8, Some(1.0)) / 6.0 + 1e-9, "{plan:?}");
+            assert!(
+                (plan.from_deg - plan.theta_i_deg).abs() <= 15.0
+                    && (plan.to_deg - plan.theta_i_deg).abs() <= 15.0,
+                "{plan:?}: across the peak"
+            );
+            assert!(
+                plan.bin_deg >= min_bin_deg(plan.speed_deg_per_s, block_s)
+                    && plan.bin_deg <= lobe_sd_deg(0.8, Some(1.0)) / 6.0 + 1e-9,
+                "{plan:?}"
+            );
         }
         assert!(design.seconds > 0.0 && design.seconds < 10.0, "{design:?}");
         // Fewer sweeps allowed, a wider prediction.
-        let one = design_peak_sweeps(&fit, &observations, here, &motion, 60.0, block_s, &per_block, 0.0, 1);
+        let one = design_peak_sweeps(
+            &fit,
+            &observations,
+            here,
+            &motion,
+            60.0,
+            block_s,
+            &per_block,
+            0.0,
+            1,
+        );
         assert_eq!(one.plans.len(), 1);
-        assert!(one.predicted_rel_half_width < now && one.predicted_rel_half_width >= design.predicted_rel_half_width);
+        assert!(
+            one.predicted_rel_half_width < now
+                && one.predicted_rel_half_width >= design.predicted_rel_half_width
+        );
         let (rough, rough_obs) = fitted(21.7, 0.409, 0.414, 3.0, 1.0, 0.002);
         let rough_now = 1.96 * rough.std_error(SIGMA).unwrap() / rough.sigma_deg().unwrap();
-        let design = design_peak_sweeps(&rough, &rough_obs, here, &motion, 60.0, block_s, &per_block, rough_now * 1.01, 6);
+        let design = design_peak_sweeps(
+            &rough,
+            &rough_obs,
+            here,
+            &motion,
+            60.0,
+            block_s,
+            &per_block,
+            rough_now * 1.01,
+            6,
+        );
         assert!(design.plans.is_empty(), "{design:?}");
     }
 
     #[test]
     fn bins_never_go_below_one_block_and_resolve_the_lobe() {
         let block_s = 1.024e-3;
-        assert!((min_bin_deg(60.0, block_s) - 0.0625).abs() < 1e-12, "0.0614° rounded up to 5 ticks");
+        assert!(
+            (min_bin_deg(60.0, block_s) - 0.0625).abs() < 1e-12,
+            "0.0614° rounded up to 5 ticks"
+        );
         assert!((min_bin_deg(1.0, block_s) - 0.0125).abs() < 1e-12);
         // G's lobe (σ = 0.8°, 1° window): sd 1.63°, bins of 0.2625°; at 60 °/s still above a block.
         let sd = lobe_sd_deg(0.8, Some(1.0));
         assert!((sd - (2.56f64 + 1.0 / 12.0).sqrt()).abs() < 1e-12);
         assert!((bin_for_lobe(sd, 60.0, block_s) - 0.2625).abs() < 1e-12);
-        assert!((bin_for_lobe(0.05, 60.0, block_s) - 0.0625).abs() < 1e-12, "a lobe too narrow for the speed gets one block");
+        assert!(
+            (bin_for_lobe(0.05, 60.0, block_s) - 0.0625).abs() < 1e-12,
+            "a lobe too narrow for the speed gets one block"
+        );
     }
 }

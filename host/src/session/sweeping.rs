@@ -5,9 +5,9 @@
 //! covered.
 use super::recovery::Failure;
 use super::sweep::{BinReading, BinStamp, SweepPlan, bin_point, dwell_centres_steps, min_bin_deg};
-use firmware::motion::angle_to_steps;
 use super::{MeasuredPoint, Progress, Session, SessionError, StepError};
 use crate::instrument::link::{LinkError, Transport};
+use firmware::motion::angle_to_steps;
 use protocol::{Angle, Command, DeviceMessage, Reply, Sweep, SweepBin, Target};
 use std::collections::BTreeSet;
 use std::time::Duration;
@@ -59,13 +59,21 @@ fn gaps_in(lo: f64, hi: f64, intervals: &mut [(f64, f64)]) -> Vec<(f64, f64)> {
 impl<T: Transport> Session<'_, T> {
     /// Measure every sweep of `plans` (and any wanted sweep still not covered), measuring
     /// again what was lost.
-    pub(super) fn sweep_stage(&mut self, stage: &str, plans: &[SweepPlan]) -> Result<(), SessionError> {
+    pub(super) fn sweep_stage(
+        &mut self,
+        stage: &str,
+        plans: &[SweepPlan],
+    ) -> Result<(), SessionError> {
         for plan in plans {
             if !self.wanted_sweeps.contains(plan) {
                 self.wanted_sweeps.push(*plan);
             }
         }
-        let planned: usize = if plans.is_empty() { self.uncovered_sweeps().iter().map(SweepPlan::bins).sum() } else { plans.iter().map(SweepPlan::bins).sum() };
+        let planned: usize = if plans.is_empty() {
+            self.uncovered_sweeps().iter().map(SweepPlan::bins).sum()
+        } else {
+            plans.iter().map(SweepPlan::bins).sum()
+        };
         self.recorder.stage(stage, planned);
         let mut stalled = 0;
         let mut round = 0;
@@ -124,10 +132,17 @@ impl<T: Transport> Session<'_, T> {
         refinements: &mut Vec<super::Refinement>,
     ) -> Result<(), SessionError> {
         use super::sweep::{SweepTargets, design_peak_sweeps, peak_candidates};
-        let SweepTargets { sigma_rel_half_width, class_confidence, sweeps_per_round, max_rounds, .. } = targets;
+        let SweepTargets {
+            sigma_rel_half_width,
+            class_confidence,
+            sweeps_per_round,
+            max_rounds,
+            ..
+        } = targets;
         for round in 1..=max_rounds {
             let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
-            let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
+            let rough =
+                report.classification.group == Some(crate::analysis::classify::Group::Rough);
             let width = super::adaptive::sigma_rel_half_width(&report.fit);
             let precise = width.is_some_and(|w| w <= sigma_rel_half_width);
             let settled = report.classification.confidence >= class_confidence;
@@ -142,9 +157,14 @@ impl<T: Transport> Session<'_, T> {
             // from the model (or that the departure was the noise's), and a flag then rests
             // on every incidence of Strategy 1.
             if report.fit.lack_of_fit {
-                let rest = self.rest_of_full_plane(here, targets.pass_speed_deg_per_s.min(max_speed), targets.pass_bin_deg);
+                let rest = self.rest_of_full_plane(
+                    here,
+                    targets.pass_speed_deg_per_s.min(max_speed),
+                    targets.pass_bin_deg,
+                );
                 if !rest.is_empty() {
-                    let incidences: Vec<String> = rest.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
+                    let incidences: Vec<String> =
+                        rest.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
                     let reason = format!(
                         "lack-of-fit after {} readings (χ² p = {:.1e}): θr 0–{}° at θi = {} too, the rest of the full plane",
                         report.fit.n,
@@ -152,8 +172,20 @@ impl<T: Transport> Session<'_, T> {
                         super::sweep::THETA_R_MAX_DEG,
                         incidences.join(" and ")
                     );
-                    let stage = format!("sweep round {round}: the rest of the full plane ({})", sweeps_text(rest.len()));
-                    self.sweep_round(&format!("sweep round {round}"), &stage, reason, true, &rest, report, fits, refinements)?;
+                    let stage = format!(
+                        "sweep round {round}: the rest of the full plane ({})",
+                        sweeps_text(rest.len())
+                    );
+                    self.sweep_round(
+                        &format!("sweep round {round}"),
+                        &stage,
+                        reason,
+                        true,
+                        &rest,
+                        report,
+                        fits,
+                        refinements,
+                    )?;
                     continue;
                 }
             }
@@ -166,7 +198,17 @@ impl<T: Transport> Session<'_, T> {
                 Some(_) if width.is_some() => {
                     let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
                     let per_block = self.per_block_variance();
-                    let design = design_peak_sweeps(&report.fit, &observations, here, &self.motion, max_speed, block_s, &per_block, sigma_rel_half_width, sweeps_per_round);
+                    let design = design_peak_sweeps(
+                        &report.fit,
+                        &observations,
+                        here,
+                        &self.motion,
+                        max_speed,
+                        block_s,
+                        &per_block,
+                        sigma_rel_half_width,
+                        sweeps_per_round,
+                    );
                     let reason = format!(
                         "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}: {} sweep{} across the peak predicted to bring it to ± {:.1} % in {:.1} device s",
                         report.fit.sigma_deg().unwrap_or(f64::NAN),
@@ -184,10 +226,16 @@ impl<T: Transport> Session<'_, T> {
                 _ => {
                     // Unresolved: slow sweeps across specular at every incidence, bins fine
                     // enough for the narrowest lobe the fit allows.
-                    let plans: Vec<SweepPlan> = peak_candidates(0.25, report.fit.acceptance_deg, max_speed, block_s, here.theta_r.deg())
-                        .into_iter()
-                        .filter(|p| p.speed_deg_per_s == 15.0_f64.min(max_speed))
-                        .collect();
+                    let plans: Vec<SweepPlan> = peak_candidates(
+                        0.25,
+                        report.fit.acceptance_deg,
+                        max_speed,
+                        block_s,
+                        here.theta_r.deg(),
+                    )
+                    .into_iter()
+                    .filter(|p| p.speed_deg_per_s == 15.0_f64.min(max_speed))
+                    .collect();
                     (plans, "σ not resolved by the pass: slow sweeps across the specular direction at every incidence".to_string())
                 }
             };
@@ -210,7 +258,16 @@ impl<T: Transport> Session<'_, T> {
             }
             let (name, lack_of_fit) = (format!("sweep round {round}"), report.fit.lack_of_fit);
             let stage = format!("{name} ({})", sweeps_text(plans.len()));
-            self.sweep_round(&name, &stage, reason, lack_of_fit, &plans, report, fits, refinements)?;
+            self.sweep_round(
+                &name,
+                &stage,
+                reason,
+                lack_of_fit,
+                &plans,
+                report,
+                fits,
+                refinements,
+            )?;
         }
         Ok(())
     }
@@ -231,21 +288,45 @@ impl<T: Transport> Session<'_, T> {
         refinements: &mut Vec<super::Refinement>,
     ) -> Result<(), SessionError> {
         let bins: usize = plans.iter().map(SweepPlan::bins).sum();
-        self.decide(&format!("{name} ({}, {bins} bins): {reason}", sweeps_text(plans.len())));
-        refinements.push(super::Refinement { delta_deg: None, added: bins, reason, lack_of_fit });
+        self.decide(&format!(
+            "{name} ({}, {bins} bins): {reason}",
+            sweeps_text(plans.len())
+        ));
+        refinements.push(super::Refinement {
+            delta_deg: None,
+            added: bins,
+            reason,
+            lack_of_fit,
+        });
         self.sweep_stage(stage, plans)?;
         *report = self.analyse()?;
-        fits.push(super::FitStep { after: name.to_string(), report: crate::analysis::report::to_json(report) });
+        fits.push(super::FitStep {
+            after: name.to_string(),
+            report: crate::analysis::report::to_json(report),
+        });
         Ok(())
     }
 
     /// The full plane's lines ([`super::sweep::full_plane`]) that no wanted sweep has run
     /// whole yet, in the order fastest from `here`.
-    fn rest_of_full_plane(&self, here: protocol::Geometry, speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
-        let whole = |p: &SweepPlan| p.from_deg.min(p.to_deg) <= 0.0 && p.from_deg.max(p.to_deg) >= super::sweep::THETA_R_MAX_DEG;
+    fn rest_of_full_plane(
+        &self,
+        here: protocol::Geometry,
+        speed_deg_per_s: f64,
+        bin_deg: f64,
+    ) -> Vec<SweepPlan> {
+        let whole = |p: &SweepPlan| {
+            p.from_deg.min(p.to_deg) <= 0.0
+                && p.from_deg.max(p.to_deg) >= super::sweep::THETA_R_MAX_DEG
+        };
         let missing: Vec<i32> = protocol::schedules::INCIDENCE_DEG
             .into_iter()
-            .filter(|&theta_i| !self.wanted_sweeps.iter().any(|p| p.theta_i_deg == f64::from(theta_i) && whole(p)))
+            .filter(|&theta_i| {
+                !self
+                    .wanted_sweeps
+                    .iter()
+                    .any(|p| p.theta_i_deg == f64::from(theta_i) && whole(p))
+            })
             .collect();
         super::sweep::lines_from(&self.motion, here, &missing, speed_deg_per_s, bin_deg)
     }
@@ -258,7 +339,10 @@ impl<T: Transport> Session<'_, T> {
             .usable_points()
             .filter_map(|(k, o)| {
                 let blocks = f64::from(self.points[k].reading.samples.max(1));
-                Some(crate::analysis::fit::Observation { std: Some(o.std? * blocks.sqrt()), ..o })
+                Some(crate::analysis::fit::Observation {
+                    std: Some(o.std? * blocks.sqrt()),
+                    ..o
+                })
             })
             .collect();
         let noise = super::adaptive::NoiseModel::fit(&per_block);
@@ -272,29 +356,49 @@ impl<T: Transport> Session<'_, T> {
     pub(super) fn uncovered_sweeps(&self) -> Vec<SweepPlan> {
         let mut out = Vec::new();
         for plan in &self.wanted_sweeps {
-            let (lo, hi) = (plan.from_deg.min(plan.to_deg), plan.from_deg.max(plan.to_deg));
+            let (lo, hi) = (
+                plan.from_deg.min(plan.to_deg),
+                plan.from_deg.max(plan.to_deg),
+            );
             let mut covered: Vec<(f64, f64)> = self
                 .points
                 .iter()
-                .filter(|p| !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg)
+                .filter(|p| {
+                    !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg
+                })
                 .filter(|p| p.radiance_factor.is_some() || p.reading.saturated)
-                .map(|p| (p.theta_r_deg - 0.5 * p.theta_r_span_deg, p.theta_r_deg + 0.5 * p.theta_r_span_deg))
+                .map(|p| {
+                    (
+                        p.theta_r_deg - 0.5 * p.theta_r_span_deg,
+                        p.theta_r_deg + 0.5 * p.theta_r_span_deg,
+                    )
+                })
                 .collect();
             // Every bin received (usable or blanked): a gap only blanked bins fill was
             // received, and a short one is left as it is (MAX_BLANKED_GAP_DEG).
             let mut received: Vec<(f64, f64)> = self
                 .points
                 .iter()
-                .filter(|p| !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg)
-                .map(|p| (p.theta_r_deg - 0.5 * p.theta_r_span_deg, p.theta_r_deg + 0.5 * p.theta_r_span_deg))
+                .filter(|p| {
+                    !p.superseded && p.theta_r_span_deg > 0.0 && p.theta_i_deg == plan.theta_i_deg
+                })
+                .map(|p| {
+                    (
+                        p.theta_r_deg - 0.5 * p.theta_r_span_deg,
+                        p.theta_r_deg + 0.5 * p.theta_r_span_deg,
+                    )
+                })
                 .collect();
             let not_received = gaps_in(lo, hi, &mut received);
             let gaps: Vec<(f64, f64)> = gaps_in(lo, hi, &mut covered)
                 .into_iter()
-                .filter(|&(a, b)| b - a > MAX_BLANKED_GAP_DEG || not_received.iter().any(|&(c, d)| c < b && d > a))
+                .filter(|&(a, b)| {
+                    b - a > MAX_BLANKED_GAP_DEG || not_received.iter().any(|&(c, d)| c < b && d > a)
+                })
                 .collect();
             let block_s = self.block_s();
-            let shortest = SHORTEST_RESWEEP_DEG.max(2.0 * min_bin_deg(plan.speed_deg_per_s, block_s));
+            let shortest =
+                SHORTEST_RESWEEP_DEG.max(2.0 * min_bin_deg(plan.speed_deg_per_s, block_s));
             let tick = Angle::RESOLUTION_DEG;
             // In the wanted sweep's direction, so that a whole sweep runs as planned (the
             // passes alternate to start each sweep where the last one ended).
@@ -304,10 +408,21 @@ impl<T: Transport> Session<'_, T> {
                 .map(|(a, b)| {
                     let middle = 0.5 * (a + b);
                     let half = (0.5 * (b - a)).max(0.5 * shortest);
-                    let (low, high) = (((middle - half).max(0.0) / tick).floor() * tick, ((middle + half) / tick).ceil() * tick);
-                    let bin_deg = plan.bin_deg.min(high - low).max(min_bin_deg(plan.speed_deg_per_s, block_s));
+                    let (low, high) = (
+                        ((middle - half).max(0.0) / tick).floor() * tick,
+                        ((middle + half) / tick).ceil() * tick,
+                    );
+                    let bin_deg = plan
+                        .bin_deg
+                        .min(high - low)
+                        .max(min_bin_deg(plan.speed_deg_per_s, block_s));
                     let (from_deg, to_deg) = if backwards { (high, low) } else { (low, high) };
-                    SweepPlan { from_deg, to_deg, bin_deg, ..*plan }
+                    SweepPlan {
+                        from_deg,
+                        to_deg,
+                        bin_deg,
+                        ..*plan
+                    }
                 })
                 .collect();
             if backwards {
@@ -324,7 +439,12 @@ impl<T: Transport> Session<'_, T> {
     }
 
     /// Run one sweep and record its bins; the lost ones are found by [`Self::uncovered_sweeps`].
-    fn run_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize) -> Result<(), StepError> {
+    fn run_sweep(
+        &mut self,
+        plan: &SweepPlan,
+        done: &mut usize,
+        planned: usize,
+    ) -> Result<(), StepError> {
         let mut received = Vec::new();
         let mut sent = None;
         let streamed = self.stream_sweep(plan, done, planned, &mut received, &mut sent);
@@ -336,20 +456,36 @@ impl<T: Transport> Session<'_, T> {
             (Ok(sweep_id), Ok(())) => self.lit_throughout(sweep_id),
             (Err(error), Ok(())) => Err(error),
         };
-        let synced = self.recorder.sweep_done().map_err(|e| StepError::Fatal(SessionError::Record(e)));
+        let synced = self
+            .recorder
+            .sweep_done()
+            .map_err(|e| StepError::Fatal(SessionError::Record(e)));
         checked.and(synced)
     }
 
     /// Run the sweep, collecting its bins (once each) into `received` and the request the
     /// instrument accepted, with its bin count, into `sent`; the sweep's id when it ended.
-    fn stream_sweep(&mut self, plan: &SweepPlan, done: &mut usize, planned: usize, received: &mut Vec<SweepBin>, sent: &mut Option<(Sweep, u16)>) -> Result<u16, StepError> {
+    fn stream_sweep(
+        &mut self,
+        plan: &SweepPlan,
+        done: &mut usize,
+        planned: usize,
+        received: &mut Vec<SweepBin>,
+        sent: &mut Option<(Sweep, u16)>,
+    ) -> Result<u16, StepError> {
         let sweep_id = self.next_schedule_id;
         self.next_schedule_id = self.next_schedule_id.wrapping_add(1).max(1);
         if let Some(failure) = self.lamp_went_out().map_err(StepError::Fatal)? {
             return Err(StepError::Failure(failure));
         }
-        let (Some(theta_i), Some(from), Some(to)) = (Angle::from_deg(plan.theta_i_deg), Angle::from_deg(plan.from_deg), Angle::from_deg(plan.to_deg)) else {
-            return Err(StepError::Fatal(SessionError::Fit(format!("a sweep outside the arms' angles: {plan:?}"))));
+        let (Some(theta_i), Some(from), Some(to)) = (
+            Angle::from_deg(plan.theta_i_deg),
+            Angle::from_deg(plan.from_deg),
+            Angle::from_deg(plan.to_deg),
+        ) else {
+            return Err(StepError::Fatal(SessionError::Fit(format!(
+                "a sweep outside the arms' angles: {plan:?}"
+            ))));
         };
         let tick = Angle::RESOLUTION_DEG;
         let command = Sweep {
@@ -358,19 +494,32 @@ impl<T: Transport> Session<'_, T> {
             from,
             to,
             speed_mdeg_per_s: (plan.speed_deg_per_s * 1000.0).round() as u32,
-            bin_ticks: (plan.bin_deg / tick).round().clamp(1.0, f64::from(u16::MAX)) as u16,
+            bin_ticks: (plan.bin_deg / tick)
+                .round()
+                .clamp(1.0, f64::from(u16::MAX)) as u16,
             range: None,
             target: Target::Sample,
         };
         let bins = match self.request(Command::Sweep(command))? {
             Reply::Sweep(planned) => planned.bins,
-            other => return Err(StepError::Fatal(LinkError::UnexpectedReply { command: "Sweep", reply: Box::new(other) }.into())),
+            other => {
+                return Err(StepError::Fatal(
+                    LinkError::UnexpectedReply {
+                        command: "Sweep",
+                        reply: Box::new(other),
+                    }
+                    .into(),
+                ));
+            }
         };
         *sent = Some((command, bins));
         let mut seen = BTreeSet::new();
         let started = self.now();
         loop {
-            let message = self.client.next_unsolicited(Duration::from_secs(5)).map_err(StepError::from_link)?;
+            let message = self
+                .client
+                .next_unsolicited(Duration::from_secs(5))
+                .map_err(StepError::from_link)?;
             match message {
                 Some(DeviceMessage::SweepBin(bin)) if bin.sweep_id == sweep_id => {
                     if !seen.insert(bin.index) {
@@ -380,13 +529,20 @@ impl<T: Transport> Session<'_, T> {
                     *done += 1;
                     let per_bin = (self.now() - started) / seen.len() as u32;
                     let remaining = per_bin * u32::from(bins).saturating_sub(seen.len() as u32);
-                    self.recorder.progress(Progress { done: (*done).min(planned), planned, remaining });
+                    self.recorder.progress(Progress {
+                        done: (*done).min(planned),
+                        planned,
+                        remaining,
+                    });
                 }
                 Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => {
-                    self.recoveries.readings_remeasured += usize::from(bins).saturating_sub(seen.len());
+                    self.recoveries.readings_remeasured +=
+                        usize::from(bins).saturating_sub(seen.len());
                     return Ok(sweep_id);
                 }
-                Some(DeviceMessage::Stopped { reason }) => return Err(StepError::Failure(Failure::Stopped(reason))),
+                Some(DeviceMessage::Stopped { reason }) => {
+                    return Err(StepError::Failure(Failure::Stopped(reason)));
+                }
                 // Stale messages of an earlier schedule or sweep.
                 Some(_) => {}
                 // Silence: the end may have been lost on the link. Ask.
@@ -394,7 +550,8 @@ impl<T: Transport> Session<'_, T> {
                     if let Reply::Status(status) = self.request(Command::GetStatus)? {
                         if status.schedule.is_none_or(|(id, _)| id != sweep_id) {
                             // Bins lost on the link (a gap in the indices): measured again.
-                            self.recoveries.readings_remeasured += usize::from(bins).saturating_sub(seen.len());
+                            self.recoveries.readings_remeasured +=
+                                usize::from(bins).saturating_sub(seen.len());
                             return Ok(sweep_id);
                         }
                     }
@@ -406,16 +563,38 @@ impl<T: Transport> Session<'_, T> {
     /// Record a sweep's bins, each at where the arm stood on average while it was read
     /// ([`super::sweep::dwell_centres_steps`]; the middle of its interval when the model
     /// finds no phase of the block clock that gives the bins received).
-    fn record_bins(&mut self, theta_i_deg: f64, sent: Option<&(Sweep, u16)>, bins: &[SweepBin]) -> Result<(), SessionError> {
+    fn record_bins(
+        &mut self,
+        theta_i_deg: f64,
+        sent: Option<&(Sweep, u16)>,
+        bins: &[SweepBin],
+    ) -> Result<(), SessionError> {
         if bins.is_empty() {
             return Ok(());
         }
         let centres = sent.and_then(|(command, total)| {
             let (from, to) = (angle_to_steps(command.from), angle_to_steps(command.to));
-            let profile = self.motion.sweep_profile(from, to, command.speed_mdeg_per_s);
-            let stamps: Vec<BinStamp> =
-                bins.iter().map(|b| BinStamp { index: b.index, end_steps: angle_to_steps(b.end), blocks: b.blocks, whole: !b.is_blanked() && !b.is_empty() }).collect();
-            dwell_centres_steps(&profile, from, to, command.bin_ticks, *total, self.info.detector_block_us, &stamps)
+            let profile = self
+                .motion
+                .sweep_profile(from, to, command.speed_mdeg_per_s);
+            let stamps: Vec<BinStamp> = bins
+                .iter()
+                .map(|b| BinStamp {
+                    index: b.index,
+                    end_steps: angle_to_steps(b.end),
+                    blocks: b.blocks,
+                    whole: !b.is_blanked() && !b.is_empty(),
+                })
+                .collect();
+            dwell_centres_steps(
+                &profile,
+                from,
+                to,
+                command.bin_ticks,
+                *total,
+                self.info.detector_block_us,
+                &stamps,
+            )
         });
         if centres.is_none() {
             self.decide(&format!(
@@ -425,15 +604,26 @@ impl<T: Transport> Session<'_, T> {
             ));
         }
         for bin in bins {
-            let centre_deg = centres.as_ref().and_then(|c| c.get(usize::from(bin.index)).copied().flatten()).map(|steps| steps * Angle::RESOLUTION_DEG);
+            let centre_deg = centres
+                .as_ref()
+                .and_then(|c| c.get(usize::from(bin.index)).copied().flatten())
+                .map(|steps| steps * Angle::RESOLUTION_DEG);
             self.record_bin(theta_i_deg, bin, centre_deg)?;
         }
         Ok(())
     }
 
     /// Record one bin: usable, or kept in the record with why it is not (blanked, empty).
-    fn record_bin(&mut self, theta_i_deg: f64, bin: &SweepBin, centre_deg: Option<f64>) -> Result<(), SessionError> {
-        let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
+    fn record_bin(
+        &mut self,
+        theta_i_deg: f64,
+        bin: &SweepBin,
+        centre_deg: Option<f64>,
+    ) -> Result<(), SessionError> {
+        let calibration = self
+            .calibration
+            .as_ref()
+            .ok_or(SessionError::Fit("no calibration".into()))?;
         let reading = BinReading {
             start_deg: bin.start.deg(),
             end_deg: bin.end.deg(),
@@ -444,12 +634,26 @@ impl<T: Transport> Session<'_, T> {
             device_time_us: bin.device_time_us,
             centre_deg,
         };
-        let tau_s = self.info.detector_ranges.get(usize::from(bin.range)).map_or(0.0, |r| f64::from(r.time_constant_us) * 1e-6);
-        let mut point: MeasuredPoint = bin_point(theta_i_deg, &reading, bin.sweep_id, bin.index, self.block_s(), tau_s, calibration);
+        let tau_s = self
+            .info
+            .detector_ranges
+            .get(usize::from(bin.range))
+            .map_or(0.0, |r| f64::from(r.time_constant_us) * 1e-6);
+        let mut point: MeasuredPoint = bin_point(
+            theta_i_deg,
+            &reading,
+            bin.sweep_id,
+            bin.index,
+            self.block_s(),
+            tau_s,
+            calibration,
+        );
         let unusable = if bin.is_empty() {
             Some("no usable detector block in this bin (all within a range switch's settling)")
         } else if bin.is_blanked() {
-            Some("blocks of this bin were dropped after a range switch: its mean is of part of its interval only; measured again")
+            Some(
+                "blocks of this bin were dropped after a range switch: its mean is of part of its interval only; measured again",
+            )
         } else {
             None
         };

@@ -18,7 +18,8 @@ impl<T: Transport> Session<'_, T> {
     /// then a lost-steps check while the tile is still on the port (the white readings
     /// are taken again at once if an arm was off: see [`steps`]).
     pub(super) fn calibrate(&mut self) -> Result<(), SessionError> {
-        self.recorder.stage("dark and white calibration", INCIDENCE_DEG.len());
+        self.recorder
+            .stage("dark and white calibration", INCIDENCE_DEG.len());
         let integration_ms = self.plan.integration_ms;
         self.lamp_wanted = false;
         let Reply::Dark(dark) = self.retrying(Command::TakeDark { integration_ms })? else {
@@ -32,8 +33,12 @@ impl<T: Transport> Session<'_, T> {
             let slips_before = self.steps.slips;
             white.clear();
             for theta_i in INCIDENCE_DEG {
-                let reading = self.reading_at(Geometry::from_whole_deg(theta_i, 0), Target::WhiteReference)?;
-                white.push(WhitePoint { theta_i_deg: f64::from(theta_i), reading });
+                let reading =
+                    self.reading_at(Geometry::from_whole_deg(theta_i, 0), Target::WhiteReference)?;
+                white.push(WhitePoint {
+                    theta_i_deg: f64::from(theta_i),
+                    reading,
+                });
             }
             self.check_steps("after the white calibration")?;
             if self.steps.slips == slips_before {
@@ -47,9 +52,22 @@ impl<T: Transport> Session<'_, T> {
             self.decide("the white readings were taken while an arm was off its step count: taking them again (the tile is still on the port)");
         }
         self.ask_operator(Placement::Sample)?;
-        let gains = self.info.detector_ranges.iter().map(|r| f64::from(r.relative_gain)).collect();
-        let calibration = Calibration::new(instrument_name(&self.info), self.tile.clone(), gains, dark.to_vec(), white);
-        self.recorder.calibration(&calibration).map_err(SessionError::Record)?;
+        let gains = self
+            .info
+            .detector_ranges
+            .iter()
+            .map(|r| f64::from(r.relative_gain))
+            .collect();
+        let calibration = Calibration::new(
+            instrument_name(&self.info),
+            self.tile.clone(),
+            gains,
+            dark.to_vec(),
+            white,
+        );
+        self.recorder
+            .calibration(&calibration)
+            .map_err(SessionError::Record)?;
         self.calibration = Some(calibration);
         Ok(())
     }
@@ -57,12 +75,20 @@ impl<T: Transport> Session<'_, T> {
     /// Move to `geometry` and take one reading there. After any recovery the move is made
     /// again: a recovery may have re-homed the arms. The reading is kept only if the lamp
     /// is still on after it (see [`Session::lamp_went_out`]).
-    pub(super) fn reading_at(&mut self, geometry: Geometry, target: Target) -> Result<Reading, SessionError> {
+    pub(super) fn reading_at(
+        &mut self,
+        geometry: Geometry,
+        target: Target,
+    ) -> Result<Reading, SessionError> {
         let integration_ms = self.plan.integration_ms;
         for _ in 0..recovery::MAX_RECOVERIES {
             let recoveries = self.recoveries.state_recoveries;
             self.retrying(Command::MoveTo(geometry))?;
-            let reply = self.retrying(Command::TakeReading { integration_ms, target, range: None })?;
+            let reply = self.retrying(Command::TakeReading {
+                integration_ms,
+                target,
+                range: None,
+            })?;
             if let Some(failure) = self.lamp_went_out()? {
                 self.recover(failure)?;
                 continue;
@@ -72,10 +98,19 @@ impl<T: Transport> Session<'_, T> {
             }
             return match reply {
                 Reply::Reading(reading) => Ok(reading),
-                other => Err(LinkError::UnexpectedReply { command: "TakeReading", reply: Box::new(other) }.into()),
+                other => Err(LinkError::UnexpectedReply {
+                    command: "TakeReading",
+                    reply: Box::new(other),
+                }
+                .into()),
             };
         }
-        Err(SessionError::GaveUp(format!("no reading at θi = {}°, θr = {}° after {} recoveries", geometry.theta_i.deg(), geometry.theta_r.deg(), recovery::MAX_RECOVERIES)))
+        Err(SessionError::GaveUp(format!(
+            "no reading at θi = {}°, θr = {}° after {} recoveries",
+            geometry.theta_i.deg(),
+            geometry.theta_r.deg(),
+            recovery::MAX_RECOVERIES
+        )))
     }
 
     /// Whether the instrument stopped on its own without the host hearing it in time: a
@@ -98,7 +133,8 @@ impl<T: Transport> Session<'_, T> {
             return Ok(None);
         }
         let status = self.status()?;
-        Ok((!status.lamp_on).then(|| Failure::Stopped(status.fault.unwrap_or(ErrorCode::HeartbeatLost))))
+        Ok((!status.lamp_on)
+            .then(|| Failure::Stopped(status.fault.unwrap_or(ErrorCode::HeartbeatLost))))
     }
 
     /// Re-read the white tile at every calibrated incidence angle (θr = 0) and compare
@@ -111,18 +147,33 @@ impl<T: Transport> Session<'_, T> {
         self.ask_operator(Placement::WhiteTile)?;
         let mut ratios = Vec::new();
         for theta_i in INCIDENCE_DEG {
-            let reading = self.reading_at(Geometry::from_whole_deg(theta_i, 0), Target::WhiteReference)?;
-            let calibration = self.calibration.as_ref().ok_or(SessionError::Fit("no calibration".into()))?;
+            let reading =
+                self.reading_at(Geometry::from_whole_deg(theta_i, 0), Target::WhiteReference)?;
+            let calibration = self
+                .calibration
+                .as_ref()
+                .ok_or(SessionError::Fit("no calibration".into()))?;
             let (r, _) = calibration.radiance_factor(f64::from(theta_i), &reading)?;
             ratios.push(r / calibration.white_radiance_factor);
         }
         let drift = ratios.iter().sum::<f64>() / ratios.len().max(1) as f64 - 1.0;
         // A drift or a limit that is not a number is no proof of a steady lamp.
-        let exceeded = !matches!(drift.abs().partial_cmp(&self.plan.white_drift_limit), Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal));
+        let exceeded = !matches!(
+            drift.abs().partial_cmp(&self.plan.white_drift_limit),
+            Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+        );
         if exceeded {
-            self.decide(&format!("white drifted by {:.2} % (limit {:.2} %): result flagged white-drift", 100.0 * drift, 100.0 * self.plan.white_drift_limit));
+            self.decide(&format!(
+                "white drifted by {:.2} % (limit {:.2} %): result flagged white-drift",
+                100.0 * drift,
+                100.0 * self.plan.white_drift_limit
+            ));
         } else {
-            self.decide(&format!("white check: drift {:.3} % (limit {:.2} %)", 100.0 * drift, 100.0 * self.plan.white_drift_limit));
+            self.decide(&format!(
+                "white check: drift {:.3} % (limit {:.2} %)",
+                100.0 * drift,
+                100.0 * self.plan.white_drift_limit
+            ));
         }
         Ok((Some(drift), exceeded))
     }

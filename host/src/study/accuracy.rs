@@ -19,11 +19,13 @@
 //! session's index, so a campaign repeats exactly.
 
 use crate::analysis::classify::{Class, REFERENCES};
+use crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG;
 use crate::analysis::flags::Flag;
 use crate::analysis::model::{Params, RHO_D, RHO_S, SIGMA};
-use crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG;
 use crate::instrument::calibration::{DEFAULT_WHITE_RADIANCE_FACTOR, Tile};
-use crate::instrument::sim::{IDEAL_PHYSICS, LobeChoice, Physics, REAL_PHYSICS, SimOptions, sample_params};
+use crate::instrument::sim::{
+    IDEAL_PHYSICS, LobeChoice, Physics, REAL_PHYSICS, SimOptions, sample_params,
+};
 use crate::session::{Outcome, Policy, PolicyChoice};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
@@ -101,7 +103,10 @@ impl Case {
 
     /// The paper's class.
     pub fn expected_class(&self) -> Option<Class> {
-        REFERENCES.iter().find(|r| r.name == self.sample).map(|r| r.class)
+        REFERENCES
+            .iter()
+            .find(|r| r.name == self.sample)
+            .map(|r| r.class)
     }
 }
 
@@ -110,10 +115,20 @@ pub fn cases() -> Vec<Case> {
     let mut out = Vec::new();
     for physics in [Physics::Ideal, Physics::Real] {
         for sample in ["G", "SG", "PPC", "J1"] {
-            out.push(Case { part: Part::Coverage, sample, physics, effect: Effect::None });
+            out.push(Case {
+                part: Part::Coverage,
+                sample,
+                physics,
+                effect: Effect::None,
+            });
         }
     }
-    let robust = |sample, effect| Case { part: Part::Robustness, sample, physics: Physics::Ideal, effect };
+    let robust = |sample, effect| Case {
+        part: Part::Robustness,
+        sample,
+        physics: Physics::Ideal,
+        effect,
+    };
     for sample in ["G", "SG"] {
         for lobe in [LobeChoice::Ggx, LobeChoice::Cauchy] {
             out.push(robust(sample, Effect::Lobe(lobe)));
@@ -162,7 +177,12 @@ pub fn plan(cases: &[Case], coverage_sessions: usize, robust_sessions: usize) ->
 }
 
 /// [`plan`] under `policies` (each policy's draws are its own: adding one changes no other's).
-pub fn plan_policies(cases: &[Case], coverage_sessions: usize, robust_sessions: usize, policies: &[PolicyChoice]) -> Vec<Spec> {
+pub fn plan_policies(
+    cases: &[Case],
+    coverage_sessions: usize,
+    robust_sessions: usize,
+    policies: &[PolicyChoice],
+) -> Vec<Spec> {
     let mut specs = Vec::new();
     for (c, case) in cases.iter().enumerate() {
         let n = match case.part {
@@ -186,20 +206,37 @@ fn draw(c: usize, case: &Case, policy: PolicyChoice, index: usize) -> Spec {
         PolicyChoice::Mixed => 3,
     };
     let stream = (c as u64) << 40 | policy_stream << 32 | index as u64;
-    let mut rng = ChaCha12Rng::seed_from_u64(0xacc0_2ac7 ^ stream.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+    let mut rng =
+        ChaCha12Rng::seed_from_u64(0xacc0_2ac7 ^ stream.wrapping_mul(0x9e37_79b9_7f4a_7c15));
     let seed = rng.random_range(1..1_000_000_000u64);
     let magnitude = match case.effect {
         Effect::None | Effect::Lobe(_) => 0.0,
         Effect::ForwardLobe => rng.random_range(FORWARD_LOBE.0..FORWARD_LOBE.1),
         Effect::SpecularBump => rng.random_range(SPECULAR_BUMP.0..SPECULAR_BUMP.1),
-        Effect::ArmOffset(deg) => if rng.random::<bool>() { deg } else { -deg },
+        Effect::ArmOffset(deg) => {
+            if rng.random::<bool>() {
+                deg
+            } else {
+                -deg
+            }
+        }
     };
-    Spec { case: c, index, policy, seed, magnitude }
+    Spec {
+        case: c,
+        index,
+        policy,
+        seed,
+        magnitude,
+    }
 }
 
 /// The simulator's options for `spec` of `case`.
 pub fn sim_options(case: &Case, spec: &Spec) -> SimOptions {
-    let mut options = SimOptions { seed: spec.seed, physics: case.physics, ..SimOptions::default() };
+    let mut options = SimOptions {
+        seed: spec.seed,
+        physics: case.physics,
+        ..SimOptions::default()
+    };
     match case.effect {
         Effect::None => {}
         Effect::Lobe(lobe) => options.lobe = lobe,
@@ -251,7 +288,10 @@ impl Row {
     /// A wrong class with confidence ≥ [`CONFIDENT`] and no `lack-of-fit`: the failure this
     /// campaign counts.
     pub fn confidently_wrong(&self, case: &Case) -> bool {
-        self.class.is_some() && !self.class_right(case) && self.confidence >= CONFIDENT && !self.lack_of_fit()
+        self.class.is_some()
+            && !self.class_right(case)
+            && self.confidence >= CONFIDENT
+            && !self.lack_of_fit()
     }
 }
 
@@ -299,8 +339,17 @@ fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Pa
     let truth = sample_params(case.sample).map_err(|e| e.to_string())?;
     let (tile_pct, arm_zero_deg) = stated_uncertainties(case);
     let tile = Tile::new(DEFAULT_WHITE_RADIANCE_FACTOR, tile_pct).map_err(|e| e.to_string())?;
-    let run = super::SimulatedRun { sample: case.sample, options: &options, policy: Policy::from(spec.policy), integration_ms: None };
-    let (outcome, _) = super::simulated_session(&run, |session| session.with_tile(tile).with_arm_zero_uncertainty(arm_zero_deg))?;
+    let run = super::SimulatedRun {
+        sample: case.sample,
+        options: &options,
+        policy: Policy::from(spec.policy),
+        integration_ms: None,
+    };
+    let (outcome, _) = super::simulated_session(&run, |session| {
+        session
+            .with_tile(tile)
+            .with_arm_zero_uncertainty(arm_zero_deg)
+    })?;
     Ok((outcome, truth))
 }
 
@@ -310,7 +359,11 @@ fn judge(row: &mut Row, outcome: &Outcome, truth: &Params) {
     row.class = report.classification.class;
     row.confidence = report.classification.confidence;
     row.flags = outcome.flags.clone();
-    let targets = [(SIGMA, truth.sigma_deg), (RHO_S, truth.rho_s), (RHO_D, truth.rho_d)];
+    let targets = [
+        (SIGMA, truth.sigma_deg),
+        (RHO_S, truth.rho_s),
+        (RHO_D, truth.rho_d),
+    ];
     for (k, (index, value)) in targets.into_iter().enumerate() {
         row.estimates[k] = fit.reported(index);
         row.covered[k] = fit.ci95[index].map(|(lo, hi)| lo <= value && value <= hi);
@@ -322,8 +375,15 @@ fn judge(row: &mut Row, outcome: &Outcome, truth: &Params) {
 }
 
 /// Run `specs` on `threads` threads; `progress` after each session.
-pub fn run_all(cases: &[Case], specs: &[Spec], threads: usize, progress: &(dyn Fn() + Sync)) -> Vec<Row> {
-    super::parallel(specs, threads, progress, |spec| run_one(&cases[spec.case], spec))
+pub fn run_all(
+    cases: &[Case],
+    specs: &[Spec],
+    threads: usize,
+    progress: &(dyn Fn() + Sync),
+) -> Vec<Row> {
+    super::parallel(specs, threads, progress, |spec| {
+        run_one(&cases[spec.case], spec)
+    })
 }
 
 /// The CSV header of `accuracy.csv`.
@@ -343,9 +403,17 @@ pub fn to_csv(cases: &[Case], rows: &[Row]) -> String {
             out,
             "{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{},{},{},{},{:.3}",
             case.name(),
-            if case.part == Part::Coverage { "coverage" } else { "robustness" },
+            if case.part == Part::Coverage {
+                "coverage"
+            } else {
+                "robustness"
+            },
             case.sample,
-            if case.physics == Physics::Real { "real" } else { "ideal" },
+            if case.physics == Physics::Real {
+                "real"
+            } else {
+                "ideal"
+            },
             policy_name(r.spec.policy),
             r.spec.index,
             r.spec.seed,
@@ -354,7 +422,11 @@ pub fn to_csv(cases: &[Case], rows: &[Row]) -> String {
             r.class.map_or("undecided", Class::name),
             case.expected_class().map_or("", Class::name),
             r.confidence,
-            r.flags.iter().map(|f| f.name()).collect::<Vec<_>>().join(" "),
+            r.flags
+                .iter()
+                .map(|f| f.name())
+                .collect::<Vec<_>>()
+                .join(" "),
             opt(r.estimates[0]),
             opt(r.estimates[1]),
             opt(r.estimates[2]),
@@ -465,8 +537,16 @@ pub fn wilson95(k: usize, n: usize) -> (f64, f64) {
 pub fn tallies(cases: &[Case], rows: &[Row]) -> Vec<(usize, PolicyChoice, Tally)> {
     let mut out = Vec::new();
     for (c, case) in cases.iter().enumerate() {
-        for policy in [PolicyChoice::Adaptive, PolicyChoice::Paper, PolicyChoice::Sweep, PolicyChoice::Mixed] {
-            let of_case: Vec<&Row> = rows.iter().filter(|r| r.spec.case == c && r.spec.policy == policy).collect();
+        for policy in [
+            PolicyChoice::Adaptive,
+            PolicyChoice::Paper,
+            PolicyChoice::Sweep,
+            PolicyChoice::Mixed,
+        ] {
+            let of_case: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.spec.case == c && r.spec.policy == policy)
+                .collect();
             if !of_case.is_empty() {
                 out.push((c, policy, Tally::of(case, of_case)));
             }
@@ -480,7 +560,10 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
     let tallies = tallies(cases, rows);
     let mut out = Vec::new();
     let failed: usize = tallies.iter().map(|(_, _, t)| t.failed).sum();
-    out.push((format!("every session finished ({failed} did not)"), failed == 0));
+    out.push((
+        format!("every session finished ({failed} did not)"),
+        failed == 0,
+    ));
     for (c, policy, t) in &tallies {
         let case = &cases[*c];
         if case.part == Part::Coverage {
@@ -504,11 +587,24 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
                 ));
             }
         } else {
-            out.push((format!("{} {}: {} confidently wrong of {}", case.name(), policy_name(*policy), t.confidently_wrong, t.sessions), t.confidently_wrong == 0));
+            out.push((
+                format!(
+                    "{} {}: {} confidently wrong of {}",
+                    case.name(),
+                    policy_name(*policy),
+                    t.confidently_wrong,
+                    t.sessions
+                ),
+                t.confidently_wrong == 0,
+            ));
         }
     }
     for physics in [Physics::Ideal, Physics::Real] {
-        let of: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == physics).map(|(_, _, t)| t).collect();
+        let of: Vec<&Tally> = tallies
+            .iter()
+            .filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == physics)
+            .map(|(_, _, t)| t)
+            .collect();
         let n: usize = of.iter().map(|t| t.finished()).sum();
         if n == 0 {
             continue;
@@ -522,35 +618,73 @@ pub fn verdicts(cases: &[Case], rows: &[Row]) -> Vec<(String, bool)> {
             ));
         }
     }
-    let ideal: Vec<&Tally> = tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == Physics::Ideal).map(|(_, _, t)| t).collect();
-    let (flags, n) = ideal.iter().fold((0, 0), |(f, n), t| (f + t.lack_of_fit, n + t.finished()));
+    let ideal: Vec<&Tally> = tallies
+        .iter()
+        .filter(|(c, _, _)| cases[*c].part == Part::Coverage && cases[*c].physics == Physics::Ideal)
+        .map(|(_, _, t)| t)
+        .collect();
+    let (flags, n) = ideal
+        .iter()
+        .fold((0, 0), |(f, n), t| (f + t.lack_of_fit, n + t.finished()));
     if n > 0 {
-        out.push((format!("lack-of-fit on ideal scenes: {flags} of {n} sessions ({:.2} %)", 100.0 * flags as f64 / n as f64), flags as f64 <= FALSE_FLAG_LIMIT * n as f64));
+        out.push((
+            format!(
+                "lack-of-fit on ideal scenes: {flags} of {n} sessions ({:.2} %)",
+                100.0 * flags as f64 / n as f64
+            ),
+            flags as f64 <= FALSE_FLAG_LIMIT * n as f64,
+        ));
     }
     out
 }
 
 fn pct(k: usize, n: usize) -> String {
-    if n == 0 { "–".to_string() } else { format!("{:.1} %", 100.0 * k as f64 / n as f64) }
+    if n == 0 {
+        "–".to_string()
+    } else {
+        format!("{:.1} %", 100.0 * k as f64 / n as f64)
+    }
 }
 
 fn covered_cell(t: &Tally, k: usize) -> String {
     let n = t.finished();
     let (lo, hi) = wilson95(t.covered[k], n);
-    let missing = if t.undetermined[k] > 0 { format!(", {} without", t.undetermined[k]) } else { String::new() };
-    format!("{} ({:.0}–{:.0}{missing})", pct(t.covered[k], n), 100.0 * lo, 100.0 * hi)
+    let missing = if t.undetermined[k] > 0 {
+        format!(", {} without", t.undetermined[k])
+    } else {
+        String::new()
+    };
+    format!(
+        "{} ({:.0}–{:.0}{missing})",
+        pct(t.covered[k], n),
+        100.0 * lo,
+        100.0 * hi
+    )
 }
 
 /// `summary.md`: the tables of docs/ACCURACY.md.
 pub fn summary_markdown(cases: &[Case], rows: &[Row]) -> String {
     let tallies = tallies(cases, rows);
     let mut out = String::new();
-    let _ = writeln!(out, "# Accuracy campaign: {} simulated sessions\n", rows.len());
+    let _ = writeln!(
+        out,
+        "# Accuracy campaign: {} simulated sessions\n",
+        rows.len()
+    );
     let _ = writeln!(out, "## Coverage of the 95 % intervals (target 90–98 %)\n");
-    let _ = writeln!(out, "Cells: the share of sessions whose interval holds the truth (its 95 % Wilson interval; \"without\": results that reported none, counted as misses).\n");
-    let _ = writeln!(out, "| case | policy | sessions | σ | ρs | ρd | lack-of-fit | class right | geometries | device s |");
+    let _ = writeln!(
+        out,
+        "Cells: the share of sessions whose interval holds the truth (its 95 % Wilson interval; \"without\": results that reported none, counted as misses).\n"
+    );
+    let _ = writeln!(
+        out,
+        "| case | policy | sessions | σ | ρs | ρd | lack-of-fit | class right | geometries | device s |"
+    );
     let _ = writeln!(out, "|---|---|---:|---|---|---|---:|---:|---:|---:|");
-    for (c, policy, t) in tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Coverage) {
+    for (c, policy, t) in tallies
+        .iter()
+        .filter(|(c, _, _)| cases[*c].part == Part::Coverage)
+    {
         let n = t.finished();
         let _ = writeln!(
             out,
@@ -567,11 +701,26 @@ pub fn summary_markdown(cases: &[Case], rows: &[Row]) -> String {
             t.mean_device_seconds
         );
     }
-    let _ = writeln!(out, "\n## Sheets that are not the model: never confidently wrong\n");
-    let _ = writeln!(out, "Confidently wrong: a wrong class with confidence ≥ {CONFIDENT} and no `lack-of-fit` flag. Wrong but said: a wrong class that the result flags or gives a confidence below {CONFIDENT}.\n");
-    let _ = writeln!(out, "| case | policy | sessions | class right | lack-of-fit | any flag | undecided | wrong but said | confidently wrong | geometries | device s |");
-    let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    for (c, policy, t) in tallies.iter().filter(|(c, _, _)| cases[*c].part == Part::Robustness) {
+    let _ = writeln!(
+        out,
+        "\n## Sheets that are not the model: never confidently wrong\n"
+    );
+    let _ = writeln!(
+        out,
+        "Confidently wrong: a wrong class with confidence ≥ {CONFIDENT} and no `lack-of-fit` flag. Wrong but said: a wrong class that the result flags or gives a confidence below {CONFIDENT}.\n"
+    );
+    let _ = writeln!(
+        out,
+        "| case | policy | sessions | class right | lack-of-fit | any flag | undecided | wrong but said | confidently wrong | geometries | device s |"
+    );
+    let _ = writeln!(
+        out,
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    for (c, policy, t) in tallies
+        .iter()
+        .filter(|(c, _, _)| cases[*c].part == Part::Robustness)
+    {
         let n = t.finished();
         let _ = writeln!(
             out,

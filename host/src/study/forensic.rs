@@ -64,10 +64,26 @@ pub struct Design {
 impl Design {
     /// The study of docs/FORENSIC.md: 10 draws of 32 stocks, 2 library and 4 held-out
     /// sheets of 3 spots.
-    pub const FULL: Design = Design { draws: 10, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 4, spots: crate::analysis::sheet::DEFAULT_SPOTS as usize, policy: PolicyChoice::Adaptive };
+    pub const FULL: Design = Design {
+        draws: 10,
+        first_draw: 0,
+        drawn_per_paper: 3,
+        library_sheets: 2,
+        held_out_sheets: 4,
+        spots: crate::analysis::sheet::DEFAULT_SPOTS as usize,
+        policy: PolicyChoice::Adaptive,
+    };
     /// A small one for the tests: 2 draws of 32 stocks, 2 library and 2 held-out sheets
     /// of 2 spots.
-    pub const SMALL: Design = Design { draws: 2, first_draw: 0, drawn_per_paper: 3, library_sheets: 2, held_out_sheets: 2, spots: 2, policy: PolicyChoice::Adaptive };
+    pub const SMALL: Design = Design {
+        draws: 2,
+        first_draw: 0,
+        drawn_per_paper: 3,
+        library_sheets: 2,
+        held_out_sheets: 2,
+        spots: 2,
+        policy: PolicyChoice::Adaptive,
+    };
 
     /// Sheets of every stock.
     pub fn sheets_per_stock(&self) -> usize {
@@ -109,9 +125,22 @@ pub fn stocks(design: &Design, draw: usize) -> Vec<Stock> {
                 x * (s2.sqrt() * z - 0.5 * s2).exp()
             };
             let sd = evidence::DEFAULT_BETWEEN_RELATIVE_SD;
-            let (sigma, rho_s, rho_d) = (draw(p.sigma_deg, sd[0]), draw(p.rho_s, sd[1]), draw(p.rho_d, sd[2]));
-            let name = if k == 0 { r.name.to_string() } else { format!("{}#{k}", r.name) };
-            out.push(Stock { name, sample: format!("custom:{sigma},{rho_s},{rho_d},{}", p.eta), params: [sigma, rho_s, rho_d], class: r.class });
+            let (sigma, rho_s, rho_d) = (
+                draw(p.sigma_deg, sd[0]),
+                draw(p.rho_s, sd[1]),
+                draw(p.rho_d, sd[2]),
+            );
+            let name = if k == 0 {
+                r.name.to_string()
+            } else {
+                format!("{}#{k}", r.name)
+            };
+            out.push(Stock {
+                name,
+                sample: format!("custom:{sigma},{rho_s},{rho_d},{}", p.eta),
+                params: [sigma, rho_s, rho_d],
+                class: r.class,
+            });
         }
     }
     out
@@ -122,7 +151,10 @@ pub fn stocks(design: &Design, draw: usize) -> Vec<Stock> {
 /// two stocks drawn about one paper are 2.3 apart on average, a drawn stock and its paper 1.6.
 pub fn distance(a: &Stock, b: &Stock) -> f64 {
     let sd = evidence::DEFAULT_BETWEEN_RELATIVE_SD;
-    (0..3).map(|i| ((a.params[i] / b.params[i]).ln() / (1.0 + sd[i] * sd[i]).ln().sqrt()).powi(2)).sum::<f64>().sqrt()
+    (0..3)
+        .map(|i| ((a.params[i] / b.params[i]).ln() / (1.0 + sd[i] * sd[i]).ln().sqrt()).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// One sheet to measure.
@@ -156,7 +188,13 @@ pub fn plan(design: &Design, spot_counts: &[usize]) -> Vec<SheetSpec> {
         for stock in 0..n_stocks {
             for sheet in 0..design.sheets_per_stock() {
                 for &spots in &counts {
-                    out.push(SheetSpec { draw, stock, sheet, spots, seed: sheet_seed(design.first_draw + draw, stock, sheet) });
+                    out.push(SheetSpec {
+                        draw,
+                        stock,
+                        sheet,
+                        spots,
+                        seed: sheet_seed(design.first_draw + draw, stock, sheet),
+                    });
                 }
             }
         }
@@ -199,13 +237,29 @@ pub struct MeasuredSheet {
 }
 
 /// Measure one sheet: one multi-spot session, as `gonio measure --sim --spots N`.
-pub fn measure(stocks: &[Stock], spec: &SheetSpec, design: &Design) -> Result<MeasuredSheet, String> {
+pub fn measure(
+    stocks: &[Stock],
+    spec: &SheetSpec,
+    design: &Design,
+) -> Result<MeasuredSheet, String> {
     let stock = &stocks[spec.stock];
-    let options = SimOptions { seed: spec.seed, physics: Physics::Real, sheet_variation: SPOT_VARIATION_PCT, ..SimOptions::default() };
-    let run = super::SimulatedRun { sample: &stock.sample, options: &options, policy: Policy::from(design.policy), integration_ms: None };
-    let planned = u16::try_from(spec.spots).map_err(|_| format!("{} spots per sheet", spec.spots))?;
+    let options = SimOptions {
+        seed: spec.seed,
+        physics: Physics::Real,
+        sheet_variation: SPOT_VARIATION_PCT,
+        ..SimOptions::default()
+    };
+    let run = super::SimulatedRun {
+        sample: &stock.sample,
+        options: &options,
+        policy: Policy::from(design.policy),
+        integration_ms: None,
+    };
+    let planned =
+        u16::try_from(spec.spots).map_err(|_| format!("{} spots per sheet", spec.spots))?;
     let (outcomes, summary, results) = super::simulated_sheet(&run, planned, |session| session)?;
-    let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>() + outcomes.first().map_or(0.0, |o| o.setup_seconds);
+    let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>()
+        + outcomes.first().map_or(0.0, |o| o.setup_seconds);
     Ok(MeasuredSheet {
         draw: spec.draw,
         stock: spec.stock,
@@ -214,7 +268,8 @@ pub fn measure(stocks: &[Stock], spec: &SheetSpec, design: &Design) -> Result<Me
         planned: spec.spots,
         measured_spots: results.len(),
         excluded: results.len() - summary.accepted,
-        no_clean_spot: !results.is_empty() && !results.iter().any(|r| crate::analysis::flags::ok(&r.flags)),
+        no_clean_spot: !results.is_empty()
+            && !results.iter().any(|r| crate::analysis::flags::ok(&r.flags)),
         device_seconds,
         measured: summary.sheet(&results),
     })
@@ -233,19 +288,39 @@ pub struct Campaign {
 
 /// Measure the whole study (every sheet with each number of spots of `spot_counts` and the
 /// design's own) on `threads` threads; `progress` after each sheet.
-pub fn measure_all(design: &Design, spot_counts: &[usize], threads: usize, progress: &(dyn Fn() + Sync)) -> Result<Campaign, String> {
-    let stocks: Vec<Vec<Stock>> = (0..design.draws).map(|draw| self::stocks(design, design.first_draw + draw)).collect();
+pub fn measure_all(
+    design: &Design,
+    spot_counts: &[usize],
+    threads: usize,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Campaign, String> {
+    let stocks: Vec<Vec<Stock>> = (0..design.draws)
+        .map(|draw| self::stocks(design, design.first_draw + draw))
+        .collect();
     let specs = plan(design, spot_counts);
-    let measured = super::parallel(&specs, threads, progress, |spec| measure(&stocks[spec.draw], spec, design));
+    let measured = super::parallel(&specs, threads, progress, |spec| {
+        measure(&stocks[spec.draw], spec, design)
+    });
     if measured.len() != specs.len() {
         return Err("a worker panicked".to_string());
     }
     let sheets = specs
         .iter()
         .zip(measured)
-        .map(|(spec, sheet)| sheet.map_err(|e| format!("draw {} {} sheet {} ({} spots): {e}", spec.draw, stocks[spec.draw][spec.stock].name, spec.sheet, spec.spots)))
+        .map(|(spec, sheet)| {
+            sheet.map_err(|e| {
+                format!(
+                    "draw {} {} sheet {} ({} spots): {e}",
+                    spec.draw, stocks[spec.draw][spec.stock].name, spec.sheet, spec.spots
+                )
+            })
+        })
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(Campaign { design: *design, stocks, sheets })
+    Ok(Campaign {
+        design: *design,
+        stocks,
+        sheets,
+    })
 }
 
 /// One held-out pair and its evidence.
@@ -274,13 +349,21 @@ pub struct DrawEvidence {
 
 /// The library of `sheets` labelled by stock name.
 fn library(stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Vec<(String, Sheet)> {
-    sheets.iter().filter(|s| s.in_library).map(|s| (stocks[s.stock].name.clone(), s.measured.clone())).collect()
+    sheets
+        .iter()
+        .filter(|s| s.in_library)
+        .map(|s| (stocks[s.stock].name.clone(), s.measured.clone()))
+        .collect()
 }
 
 /// One draw's evidence from its sheets (of one number of spots): the library's population,
 /// every held-out pair's log10 LR, and each held-out sheet searched against the library's
 /// stocks (each stock's library sheets pooled) as `gonio library search` ranks them.
-pub fn draw_evidence(draw: usize, stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Result<DrawEvidence, evidence::EvidenceError> {
+pub fn draw_evidence(
+    draw: usize,
+    stocks: &[Stock],
+    sheets: &[&MeasuredSheet],
+) -> Result<DrawEvidence, evidence::EvidenceError> {
     let library = library(stocks, sheets);
     let population = Population::from_sheets(&library)?;
     let held: Vec<&&MeasuredSheet> = sheets.iter().filter(|s| !s.in_library).collect();
@@ -288,18 +371,29 @@ pub fn draw_evidence(draw: usize, stocks: &[Stock], sheets: &[&MeasuredSheet]) -
     for (i, a) in held.iter().enumerate() {
         for b in &held[i + 1..] {
             let e = evidence::likelihood_ratio(&a.measured, &b.measured, &population);
-            pairs.push(Pair { draw, stock_a: a.stock, stock_b: b.stock, log10_lr: e.log10_lr });
+            pairs.push(Pair {
+                draw,
+                stock_a: a.stock,
+                stock_b: b.stock,
+                log10_lr: e.log10_lr,
+            });
         }
     }
     let mut misses = Vec::new();
     for s in &held {
-        let first = evidence::rank_stocks(&s.measured, &library, &population).into_iter().next();
+        let first = evidence::rank_stocks(&s.measured, &library, &population)
+            .into_iter()
+            .next();
         let first = first.and_then(|r| stocks.iter().position(|k| k.name == r.stock));
         if first != Some(s.stock) {
             misses.push((s.stock, first.unwrap_or(usize::MAX)));
         }
     }
-    Ok(DrawEvidence { pairs, search: (held.len() - misses.len(), held.len()), misses })
+    Ok(DrawEvidence {
+        pairs,
+        search: (held.len() - misses.len(), held.len()),
+        misses,
+    })
 }
 
 /// Cllr: the log-likelihood-ratio cost (bits); 0 for perfect, 1 for an uninformative
@@ -313,14 +407,19 @@ pub fn cllr(same: &[f64], different: &[f64]) -> f64 {
         nat / std::f64::consts::LN_2
     };
     let s = same.iter().map(|&x| softplus_bits(x)).sum::<f64>() / same.len().max(1) as f64;
-    let d = different.iter().map(|&x| softplus_bits(-x)).sum::<f64>() / different.len().max(1) as f64;
+    let d =
+        different.iter().map(|&x| softplus_bits(-x)).sum::<f64>() / different.len().max(1) as f64;
     0.5 * (s + d)
 }
 
 /// Cllr after the best monotone recalibration of the same scores (pool-adjacent-violators):
 /// what remains is the scores' discrimination, the rest of Cllr their calibration.
 pub fn cllr_min(same: &[f64], different: &[f64]) -> f64 {
-    let mut scored: Vec<(f64, f64)> = same.iter().map(|&x| (x, 1.0)).chain(different.iter().map(|&x| (x, 0.0))).collect();
+    let mut scored: Vec<(f64, f64)> = same
+        .iter()
+        .map(|&x| (x, 1.0))
+        .chain(different.iter().map(|&x| (x, 0.0)))
+        .collect();
     scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
     // Blocks of (sum of labels, count), merged while they decrease.
     let mut blocks: Vec<(f64, f64)> = Vec::new();
@@ -344,9 +443,19 @@ pub fn cllr_min(same: &[f64], different: &[f64]) -> f64 {
     let mut k = 0;
     for (sum, count) in blocks {
         let p = sum / count;
-        let log10_lr = if p >= 1.0 { f64::INFINITY } else if p <= 0.0 { f64::NEG_INFINITY } else { (p / (1.0 - p) / prior_odds).log10() };
+        let log10_lr = if p >= 1.0 {
+            f64::INFINITY
+        } else if p <= 0.0 {
+            f64::NEG_INFINITY
+        } else {
+            (p / (1.0 - p) / prior_odds).log10()
+        };
         for _ in 0..count as usize {
-            if scored[k].1 > 0.5 { calibrated_same.push(log10_lr) } else { calibrated_different.push(log10_lr) }
+            if scored[k].1 > 0.5 {
+                calibrated_same.push(log10_lr)
+            } else {
+                calibrated_different.push(log10_lr)
+            }
             k += 1;
         }
     }
@@ -414,7 +523,9 @@ pub fn nearest(stocks: &[Stock]) -> Option<Nearest> {
     best.map(|(i, j, d)| Nearest {
         stocks: (stocks[i].name.clone(), stocks[j].name.clone()),
         distance: d,
-        difference_pct: std::array::from_fn(|k| 100.0 * (stocks[j].params[k] / stocks[i].params[k] - 1.0)),
+        difference_pct: std::array::from_fn(|k| {
+            100.0 * (stocks[j].params[k] / stocks[i].params[k] - 1.0)
+        }),
         close_pairs,
     })
 }
@@ -493,18 +604,35 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn split(pairs: &[Pair]) -> (Vec<f64>, Vec<f64>) {
-    let same = pairs.iter().filter(|p| p.stock_a == p.stock_b).map(|p| p.log10_lr).collect();
-    let different = pairs.iter().filter(|p| p.stock_a != p.stock_b).map(|p| p.log10_lr).collect();
+    let same = pairs
+        .iter()
+        .filter(|p| p.stock_a == p.stock_b)
+        .map(|p| p.log10_lr)
+        .collect();
+    let different = pairs
+        .iter()
+        .filter(|p| p.stock_a != p.stock_b)
+        .map(|p| p.log10_lr)
+        .collect();
     (same, different)
 }
 
 /// The figures of `campaign`'s sheets of `spots` spots, and every held-out pair of every
 /// draw; the draws weighed on `threads` threads.
-pub fn figures(campaign: &Campaign, spots: usize, threads: usize) -> Result<(Figures, Vec<Pair>), evidence::EvidenceError> {
-    let sheets: Vec<&MeasuredSheet> = campaign.sheets.iter().filter(|s| s.planned == spots).collect();
+pub fn figures(
+    campaign: &Campaign,
+    spots: usize,
+    threads: usize,
+) -> Result<(Figures, Vec<Pair>), evidence::EvidenceError> {
+    let sheets: Vec<&MeasuredSheet> = campaign
+        .sheets
+        .iter()
+        .filter(|s| s.planned == spots)
+        .collect();
     let draws: Vec<usize> = (0..campaign.stocks.len()).collect();
     let weighed = super::parallel(&draws, threads, &|| {}, |&draw| {
-        let of_draw: Vec<&MeasuredSheet> = sheets.iter().copied().filter(|s| s.draw == draw).collect();
+        let of_draw: Vec<&MeasuredSheet> =
+            sheets.iter().copied().filter(|s| s.draw == draw).collect();
         draw_evidence(draw, &campaign.stocks[draw], &of_draw)
     });
     assert_eq!(weighed.len(), draws.len(), "a worker panicked");
@@ -524,7 +652,11 @@ pub fn figures(campaign: &Campaign, spots: usize, threads: usize) -> Result<(Fig
             different_misleading: different.iter().filter(|&&x| x > 0.0).count(),
             search: e.search,
             nearest: nearest(stocks),
-            farthest_miss: e.misses.iter().filter_map(|&(a, b)| stocks.get(b).map(|b| distance(&stocks[a], b))).max_by(f64::total_cmp),
+            farthest_miss: e
+                .misses
+                .iter()
+                .filter_map(|&(a, b)| stocks.get(b).map(|b| distance(&stocks[a], b)))
+                .max_by(f64::total_cmp),
         });
         search.0 += e.search.0;
         search.1 += e.search.1;
@@ -540,7 +672,10 @@ pub fn figures(campaign: &Campaign, spots: usize, threads: usize) -> Result<(Fig
             std::mem::swap(&mut a, &mut b);
         }
         let misleading = usize::from(p.log10_lr > 0.0);
-        match by_classes.iter_mut().find(|(x, y, _, _)| *x == a && *y == b) {
+        match by_classes
+            .iter_mut()
+            .find(|(x, y, _, _)| *x == a && *y == b)
+        {
             Some(row) => {
                 row.2 += misleading;
                 row.3 += 1;
@@ -562,8 +697,21 @@ pub fn figures(campaign: &Campaign, spots: usize, threads: usize) -> Result<(Fig
     let named = NAMED_PAIRS
         .iter()
         .map(|&(a, b)| {
-            let lrs: Vec<f64> = pairs.iter().filter(|p| (name(p, p.stock_a), name(p, p.stock_b)) == (a, b) || (name(p, p.stock_a), name(p, p.stock_b)) == (b, a)).map(|p| p.log10_lr).collect();
-            (a, b, lrs.len(), lrs.iter().filter(|&&x| x < -2.0).count(), lrs.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+            let lrs: Vec<f64> = pairs
+                .iter()
+                .filter(|p| {
+                    (name(p, p.stock_a), name(p, p.stock_b)) == (a, b)
+                        || (name(p, p.stock_a), name(p, p.stock_b)) == (b, a)
+                })
+                .map(|p| p.log10_lr)
+                .collect();
+            (
+                a,
+                b,
+                lrs.len(),
+                lrs.iter().filter(|&&x| x < -2.0).count(),
+                lrs.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            )
         })
         .collect();
     let figures = Figures {
@@ -577,14 +725,21 @@ pub fn figures(campaign: &Campaign, spots: usize, threads: usize) -> Result<(Fig
             sheets.iter().map(|s| s.measured.spots.len()).sum(),
         ),
         spot_use,
-        device_seconds_per_sheet: sheets.iter().map(|s| s.device_seconds).sum::<f64>() / sheets.len().max(1) as f64,
+        device_seconds_per_sheet: sheets.iter().map(|s| s.device_seconds).sum::<f64>()
+            / sheets.len().max(1) as f64,
         pairs: (same.len(), different.len()),
         cllr: cllr(&same, &different_lr),
         cllr_min: cllr_min(&same, &different_lr),
-        same_misleading: (same.iter().filter(|&&x| x < 0.0).count(), same.iter().filter(|&&x| x < -2.0).count()),
+        same_misleading: (
+            same.iter().filter(|&&x| x < 0.0).count(),
+            same.iter().filter(|&&x| x < -2.0).count(),
+        ),
         different_misleading: (
             different.iter().filter(|p| p.log10_lr > 0.0).count(),
-            different.iter().filter(|p| p.log10_lr > 2.0 && class(p, p.stock_a) != class(p, p.stock_b)).count(),
+            different
+                .iter()
+                .filter(|p| p.log10_lr > 2.0 && class(p, p.stock_a) != class(p, p.stock_b))
+                .count(),
         ),
         by_classes,
         search,
@@ -601,7 +756,12 @@ fn percent(k: usize, n: usize) -> f64 {
 /// "k of n (r %, 95 % CI a–b %)".
 fn rate_with_interval(k: usize, n: usize) -> String {
     let (lo, hi) = wilson(k, n);
-    format!("{k} of {n} ({:.2} %; 95 % CI {:.2}–{:.2} %)", percent(k, n), 100.0 * lo, 100.0 * hi)
+    format!(
+        "{k} of {n} ({:.2} %; 95 % CI {:.2}–{:.2} %)",
+        percent(k, n),
+        100.0 * lo,
+        100.0 * hi
+    )
 }
 
 /// The claims of issue 13, checked on the figures pooled over the draws: each with whether
@@ -623,28 +783,61 @@ fn pooled_claims(f: &Figures) -> Vec<(String, bool)> {
     let search_rate = f.search.0 as f64 / f.search.1.max(1) as f64;
     let search_lower = wilson(f.search.0, f.search.1).0;
     let worst = f.per_draw.iter().map(|d| d.cllr).fold(f64::NAN, f64::max);
-    let draw_rates: Vec<f64> = f.per_draw.iter().map(|d| percent(d.search.0, d.search.1)).collect();
-    let draw_range = match (draw_rates.iter().copied().reduce(f64::min), draw_rates.iter().copied().reduce(f64::max)) {
+    let draw_rates: Vec<f64> = f
+        .per_draw
+        .iter()
+        .map(|d| percent(d.search.0, d.search.1))
+        .collect();
+    let draw_range = match (
+        draw_rates.iter().copied().reduce(f64::min),
+        draw_rates.iter().copied().reduce(f64::max),
+    ) {
         (Some(lo), Some(hi)) if draw_rates.len() > 1 => format!("; per draw {lo:.1}–{hi:.1} %"),
         _ => String::new(),
     };
     vec![
-        (format!("Cllr {:.3} bits < 0.3 over {} draws (Cllr_min {:.3}; the worst draw's Cllr {worst:.3})", f.cllr, f.draws, f.cllr_min), f.cllr < 0.3),
+        (
+            format!(
+                "Cllr {:.3} bits < 0.3 over {} draws (Cllr_min {:.3}; the worst draw's Cllr {worst:.3})",
+                f.cllr, f.draws, f.cllr_min
+            ),
+            f.cllr < 0.3,
+        ),
         (
             format!(
                 "same-stock pairs with LR < 1: {} ≤ 2 % (the upper bound {} 2 %)",
                 rate_with_interval(f.same_misleading.0, same_n),
-                if same_upper <= 0.02 { "is within" } else { "exceeds" }
+                if same_upper <= 0.02 {
+                    "is within"
+                } else {
+                    "exceeds"
+                }
             ),
             rate <= 0.02,
         ),
-        (format!("same-stock pairs with log10 LR < −2: {}", f.same_misleading.1), f.same_misleading.1 == 0),
-        (format!("different-stock pairs of different classes with log10 LR > 2: {} (of {diff_n} different-stock pairs)", f.different_misleading.1), f.different_misleading.1 == 0),
+        (
+            format!(
+                "same-stock pairs with log10 LR < −2: {}",
+                f.same_misleading.1
+            ),
+            f.same_misleading.1 == 0,
+        ),
+        (
+            format!(
+                "different-stock pairs of different classes with log10 LR > 2: {} (of {diff_n} different-stock pairs)",
+                f.different_misleading.1
+            ),
+            f.different_misleading.1 == 0,
+        ),
         (
             format!(
                 "a held-out sheet's stock ranks first in a library search: {} ≥ 95 % (the lower bound {} 95 %{draw_range})",
                 rate_with_interval(f.search.0, f.search.1),
-                if search_lower >= 0.95 { "also reaches" } else { "is below" }
+                if search_lower >= 0.95 {
+                    "also reaches"
+                } else {
+                    "is below"
+                }
             ),
             search_rate >= 0.95,
         ),
@@ -658,7 +851,12 @@ pub fn spots_table(study: &[Figures]) -> String {
     );
     for f in study {
         let (lo, hi) = wilson(f.search.0, f.search.1);
-        let worst = f.per_draw.iter().map(|d| percent(d.search.0, d.search.1)).reduce(f64::min).unwrap_or(f64::NAN);
+        let worst = f
+            .per_draw
+            .iter()
+            .map(|d| percent(d.search.0, d.search.1))
+            .reduce(f64::min)
+            .unwrap_or(f64::NAN);
         let _ = writeln!(
             s,
             "| {} | {:.3} | {:.3} | {:+.2} | {} of {} | {:.2} % | {} of {}: {:.1} % ({:.1}–{:.1} %) | {worst:.1} % | {:.2} | {:.1} |",
@@ -698,12 +896,36 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
     let _ = writeln!(s, "| Cllr (bits) | {:.3} |", f.cllr);
     let _ = writeln!(s, "| Cllr_min (bits, after PAV) | {:.3} |", f.cllr_min);
     let _ = writeln!(s, "| median log10 LR, same stock | {:+.2} |", f.medians.0);
-    let _ = writeln!(s, "| median log10 LR, different stocks | {:+.2} |", f.medians.1);
-    let _ = writeln!(s, "| same-stock pairs with LR < 1 (misleading) | {} |", rate_with_interval(f.same_misleading.0, f.pairs.0));
-    let _ = writeln!(s, "| same-stock pairs with log10 LR < −2 | {} |", f.same_misleading.1);
-    let _ = writeln!(s, "| different-stock pairs with LR > 1 (misleading) | {} |", rate_with_interval(f.different_misleading.0, f.pairs.1));
-    let _ = writeln!(s, "| different-class pairs with log10 LR > 2 | {} |", f.different_misleading.1);
-    let _ = writeln!(s, "| library search: own stock ranked first | {} |", rate_with_interval(f.search.0, f.search.1));
+    let _ = writeln!(
+        s,
+        "| median log10 LR, different stocks | {:+.2} |",
+        f.medians.1
+    );
+    let _ = writeln!(
+        s,
+        "| same-stock pairs with LR < 1 (misleading) | {} |",
+        rate_with_interval(f.same_misleading.0, f.pairs.0)
+    );
+    let _ = writeln!(
+        s,
+        "| same-stock pairs with log10 LR < −2 | {} |",
+        f.same_misleading.1
+    );
+    let _ = writeln!(
+        s,
+        "| different-stock pairs with LR > 1 (misleading) | {} |",
+        rate_with_interval(f.different_misleading.0, f.pairs.1)
+    );
+    let _ = writeln!(
+        s,
+        "| different-class pairs with log10 LR > 2 | {} |",
+        f.different_misleading.1
+    );
+    let _ = writeln!(
+        s,
+        "| library search: own stock ranked first | {} |",
+        rate_with_interval(f.search.0, f.search.1)
+    );
     let _ = writeln!(
         s,
         "| spots measured (of {} planned) | {} ({} replacements of flagged spots) |",
@@ -712,22 +934,40 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
         u.replaced
     );
     let _ = writeln!(s, "| spots excluded (flagged) | {} |", u.excluded);
-    let _ = writeln!(s, "| sheets short of their planned spots / with no clean spot | {} / {} |", u.short, u.no_clean_spot);
-    let _ = writeln!(s, "| device time per sheet (s) | {:.0} |", f.device_seconds_per_sheet);
+    let _ = writeln!(
+        s,
+        "| sheets short of their planned spots / with no clean spot | {} / {} |",
+        u.short, u.no_clean_spot
+    );
+    let _ = writeln!(
+        s,
+        "| device time per sheet (s) | {:.0} |",
+        f.device_seconds_per_sheet
+    );
     let _ = writeln!(s, "\n## Each draw of the population\n");
     let _ = writeln!(
         s,
         "Distances in between-stock standard deviations (10 %) over σ, ρs and ρd together (two stocks drawn about one paper are 2.3 apart on average, a drawn stock and its paper 1.6); close pairs: pairs of the draw's stocks closer than {} and {}; farthest miss: the largest distance from a missed sheet's stock to the stock ranked above it.\n",
         CLOSE[0], CLOSE[1]
     );
-    let _ = writeln!(s, "| draw | seed | Cllr | Cllr_min | same-stock LR < 1 | different-stock LR > 1 | search rank-1 | nearest stocks | distance | Δσ, Δρs, Δρd | close pairs (< {}, < {}) | farthest miss |", CLOSE[0], CLOSE[1]);
-    let _ = writeln!(s, "|---:|---|---:|---:|---:|---:|---:|---|---:|---|---:|---:|");
+    let _ = writeln!(
+        s,
+        "| draw | seed | Cllr | Cllr_min | same-stock LR < 1 | different-stock LR > 1 | search rank-1 | nearest stocks | distance | Δσ, Δρs, Δρd | close pairs (< {}, < {}) | farthest miss |",
+        CLOSE[0], CLOSE[1]
+    );
+    let _ = writeln!(
+        s,
+        "|---:|---|---:|---:|---:|---:|---:|---|---:|---|---:|---:|"
+    );
     for d in &f.per_draw {
         let (names, dist, diff, close) = match &d.nearest {
             Some(n) => (
                 format!("{} – {}", n.stocks.0, n.stocks.1),
                 format!("{:.2}", n.distance),
-                format!("{:+.1} %, {:+.1} %, {:+.1} %", n.difference_pct[0], n.difference_pct[1], n.difference_pct[2]),
+                format!(
+                    "{:+.1} %, {:+.1} %, {:+.1} %",
+                    n.difference_pct[0], n.difference_pct[1], n.difference_pct[2]
+                ),
                 format!("{}, {}", n.close_pairs[0], n.close_pairs[1]),
             ),
             None => ("–".into(), "–".into(), "–".into(), "–".into()),
@@ -747,17 +987,34 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
             d.search.0,
             d.search.1,
             percent(d.search.0, d.search.1),
-            d.farthest_miss.map_or("–".to_string(), |m| format!("{m:.2}")),
+            d.farthest_miss
+                .map_or("–".to_string(), |m| format!("{m:.2}")),
         );
     }
-    let _ = writeln!(s, "\n## Misleading evidence for different stocks, by pair of classes\n");
-    let _ = writeln!(s, "| classes | pairs | LR > 1 | rate |\n|---|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "\n## Misleading evidence for different stocks, by pair of classes\n"
+    );
+    let _ = writeln!(
+        s,
+        "| classes | pairs | LR > 1 | rate |\n|---|---:|---:|---:|"
+    );
     for (a, b, misleading, n) in &f.by_classes {
-        let _ = writeln!(s, "| {} – {} | {n} | {misleading} | {:.2} % |", a.name(), b.name(), percent(*misleading, *n));
+        let _ = writeln!(
+            s,
+            "| {} – {} | {n} | {misleading} | {:.2} % |",
+            a.name(),
+            b.name(),
+            percent(*misleading, *n)
+        );
     }
     if !study.is_empty() {
         let _ = writeln!(s, "\n## Spots per sheet\n");
-        let _ = writeln!(s, "The same sheets (the same seeds) measured with each number of spots, library and held-out alike, over the {} draws.\n", f.draws);
+        let _ = writeln!(
+            s,
+            "The same sheets (the same seeds) measured with each number of spots, library and held-out alike, over the {} draws.\n",
+            f.draws
+        );
         s += &spots_table(study);
     }
     let _ = writeln!(s, "\n## Claims\n");
@@ -774,14 +1031,30 @@ pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Resu
     let (lo, hi) = (-10.0f64, 6.0f64);
     let curve = |values: &[f64]| -> Vec<(f64, f64)> {
         let n = values.len().max(1) as f64;
-        (0..=320).map(|k| lo + (hi - lo) * k as f64 / 320.0).map(|x| (x, values.iter().filter(|&&v| v > x).count() as f64 / n)).collect()
+        (0..=320)
+            .map(|k| lo + (hi - lo) * k as f64 / 320.0)
+            .map(|x| (x, values.iter().filter(|&&v| v > x).count() as f64 / n))
+            .collect()
     };
     let root = SVGBackend::new(path, (720, 460)).into_drawing_area();
     let draw = || -> Result<(), Box<dyn std::error::Error>> {
         root.fill(&WHITE)?;
-        let caption = if draws == 1 { "Tippett plot: held-out pairs".to_string() } else { format!("Tippett plot: held-out pairs of {draws} population draws") };
-        let mut chart = ChartBuilder::on(&root).caption(caption, ("sans-serif", 20)).margin(15).x_label_area_size(45).y_label_area_size(60).build_cartesian_2d(lo..hi, 0.0..1.0)?;
-        chart.configure_mesh().x_desc("log10 LR (same stock : different stocks), x").y_desc("share of pairs with log10 LR > x").draw()?;
+        let caption = if draws == 1 {
+            "Tippett plot: held-out pairs".to_string()
+        } else {
+            format!("Tippett plot: held-out pairs of {draws} population draws")
+        };
+        let mut chart = ChartBuilder::on(&root)
+            .caption(caption, ("sans-serif", 20))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(60)
+            .build_cartesian_2d(lo..hi, 0.0..1.0)?;
+        chart
+            .configure_mesh()
+            .x_desc("log10 LR (same stock : different stocks), x")
+            .y_desc("share of pairs with log10 LR > x")
+            .draw()?;
         chart
             .draw_series(LineSeries::new(curve(&same), BLUE.stroke_width(2)))?
             .label(format!("same stock ({} pairs)", same.len()))
@@ -790,8 +1063,16 @@ pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Resu
             .draw_series(LineSeries::new(curve(&different), RED.stroke_width(2)))?
             .label(format!("different stocks ({} pairs)", different.len()))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
-        chart.draw_series(LineSeries::new(vec![(0.0, 0.0), (0.0, 1.0)], BLACK.mix(0.4)))?;
-        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.9)).position(SeriesLabelPosition::MiddleLeft).draw()?;
+        chart.draw_series(LineSeries::new(
+            vec![(0.0, 0.0), (0.0, 1.0)],
+            BLACK.mix(0.4),
+        ))?;
+        chart
+            .configure_series_labels()
+            .border_style(BLACK)
+            .background_style(WHITE.mix(0.9))
+            .position(SeriesLabelPosition::MiddleLeft)
+            .draw()?;
         root.present()?;
         Ok(())
     };

@@ -14,7 +14,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 /// `work` on every item on `threads` threads, the results in the items' order; `progress`
 /// is called after each. Sessions of a campaign are independent and take from a few ms to
 /// a second each, so the items are handed out one at a time.
-pub fn parallel<I: Sync, O: Send>(items: &[I], threads: usize, progress: &(dyn Fn() + Sync), work: impl Fn(&I) -> O + Sync) -> Vec<O> {
+pub fn parallel<I: Sync, O: Send>(
+    items: &[I],
+    threads: usize,
+    progress: &(dyn Fn() + Sync),
+    work: impl Fn(&I) -> O + Sync,
+) -> Vec<O> {
     let next = AtomicUsize::new(0);
     let results: Mutex<Vec<Option<O>>> = Mutex::new((0..items.len()).map(|_| None).collect());
     std::thread::scope(|scope| {
@@ -33,7 +38,12 @@ pub fn parallel<I: Sync, O: Send>(items: &[I], threads: usize, progress: &(dyn F
         }
     });
     // A worker that panicked leaves its item's result out (and poisons nothing else).
-    results.into_inner().unwrap_or_else(|poisoned| poisoned.into_inner()).into_iter().flatten().collect()
+    results
+        .into_inner()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+        .into_iter()
+        .flatten()
+        .collect()
 }
 
 /// What a campaign's session is: the sample, the simulator, the policy, the integration
@@ -50,8 +60,13 @@ pub struct SimulatedRun<'a> {
 }
 
 /// The simulated instrument of `run`, greeted, and the plan `gonio measure` would make.
-fn connect(run: &SimulatedRun<'_>) -> Result<(Client<SimInstrument>, protocol::DeviceInfo, Plan), String> {
-    let instrument = run.options.instrument(run.sample).map_err(|e| e.to_string())?;
+fn connect(
+    run: &SimulatedRun<'_>,
+) -> Result<(Client<SimInstrument>, protocol::DeviceInfo, Plan), String> {
+    let instrument = run
+        .options
+        .instrument(run.sample)
+        .map_err(|e| e.to_string())?;
     let mut client = Client::new(instrument, RetryPolicy::default());
     let info = client.hello().map_err(|e| e.to_string())?;
     let plan = Plan {
@@ -74,7 +89,15 @@ pub fn simulated_session(
 ) -> Result<(Outcome, hil_sim::Truth), String> {
     let (mut client, info, plan) = connect(run)?;
     let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-    let outcome = configure(Session::new(&mut client, info, plan, &mut recorder, &mut operator)).run().map_err(|e| e.to_string())?;
+    let outcome = configure(Session::new(
+        &mut client,
+        info,
+        plan,
+        &mut recorder,
+        &mut operator,
+    ))
+    .run()
+    .map_err(|e| e.to_string())?;
     Ok((outcome, client.transport().truth().clone()))
 }
 
@@ -87,20 +110,49 @@ pub fn simulated_sheet(
     run: &SimulatedRun<'_>,
     spots: u16,
     configure: impl for<'s> Fn(Session<'s, SimInstrument>) -> Session<'s, SimInstrument>,
-) -> Result<(Vec<Outcome>, crate::analysis::sheet::SheetSummary, Vec<crate::analysis::sheet::SpotResult>), String> {
+) -> Result<
+    (
+        Vec<Outcome>,
+        crate::analysis::sheet::SheetSummary,
+        Vec<crate::analysis::sheet::SpotResult>,
+    ),
+    String,
+> {
     let (mut client, info, plan) = connect(run)?;
     let mut outcomes: Vec<Outcome> = Vec::new();
-    let measure_spot = |number: u16, of: u16| -> Result<crate::analysis::sheet::SpotResult, crate::session::SessionError> {
-        let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-        let mut session = configure(Session::new(&mut client, info.clone(), plan.clone(), &mut recorder, &mut operator).at_spot(number, of));
-        if let Some(first) = outcomes.first() {
-            session = session.with_calibration(first.calibration.clone());
-        }
-        let outcome = session.run()?;
-        let result = crate::analysis::sheet::SpotResult { number, flags: outcome.flags.clone(), spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit) };
-        outcomes.push(outcome);
-        Ok(result)
-    };
-    let (results, summary) = crate::session::sheet::measure_sheet(crate::session::sheet::SheetPlan::new(spots), Vec::new(), measure_spot, |_| {}).map_err(|e| e.to_string())?;
+    let measure_spot =
+        |number: u16,
+         of: u16|
+         -> Result<crate::analysis::sheet::SpotResult, crate::session::SessionError> {
+            let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
+            let mut session = configure(
+                Session::new(
+                    &mut client,
+                    info.clone(),
+                    plan.clone(),
+                    &mut recorder,
+                    &mut operator,
+                )
+                .at_spot(number, of),
+            );
+            if let Some(first) = outcomes.first() {
+                session = session.with_calibration(first.calibration.clone());
+            }
+            let outcome = session.run()?;
+            let result = crate::analysis::sheet::SpotResult {
+                number,
+                flags: outcome.flags.clone(),
+                spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit),
+            };
+            outcomes.push(outcome);
+            Ok(result)
+        };
+    let (results, summary) = crate::session::sheet::measure_sheet(
+        crate::session::sheet::SheetPlan::new(spots),
+        Vec::new(),
+        measure_spot,
+        |_| {},
+    )
+    .map_err(|e| e.to_string())?;
     Ok((outcomes, summary, results))
 }

@@ -16,7 +16,10 @@ use crate::analysis::classify::REFERENCES;
 use crate::analysis::flags::Flag;
 use crate::instrument::link::{Client, LinkError, RetryPolicy, Transport};
 use crate::instrument::sim::SimOptions;
-use crate::session::{DiscardRecorder, DelayedOperator, Outcome, Plan, Policy, PolicyChoice, Recoveries, Session, SessionError};
+use crate::session::{
+    DelayedOperator, DiscardRecorder, Outcome, Plan, Policy, PolicyChoice, Recoveries, Session,
+    SessionError,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
 use std::collections::BTreeSet;
@@ -52,7 +55,12 @@ pub enum FaultKind {
 
 impl FaultKind {
     /// Every kind, in the summary's order.
-    pub const ALL: [FaultKind; 4] = [FaultKind::Unplug, FaultKind::Corrupt, FaultKind::Drop, FaultKind::Mixed];
+    pub const ALL: [FaultKind; 4] = [
+        FaultKind::Unplug,
+        FaultKind::Corrupt,
+        FaultKind::Drop,
+        FaultKind::Mixed,
+    ];
 
     /// Its name in the CSV and the summary.
     pub fn name(self) -> &'static str {
@@ -106,7 +114,10 @@ impl Spec {
 
     /// The paper's class (what the fault-free session finds, always: docs/TRADE.md).
     pub fn expected_class(&self) -> &'static str {
-        REFERENCES.iter().find(|r| r.name == self.sample).map_or("", |r| r.class.name())
+        REFERENCES
+            .iter()
+            .find(|r| r.name == self.sample)
+            .map_or("", |r| r.class.name())
     }
 
     fn policy_name(&self) -> &'static str {
@@ -122,7 +133,10 @@ pub struct Durations(Vec<(&'static str, PolicyChoice, f64)>);
 
 impl Durations {
     fn get(&self, sample: &str, policy: PolicyChoice) -> f64 {
-        self.0.iter().find(|(s, p, _)| *s == sample && *p == policy).map_or(120.0, |(_, _, d)| *d)
+        self.0
+            .iter()
+            .find(|(s, p, _)| *s == sample && *p == policy)
+            .map_or(120.0, |(_, _, d)| *d)
     }
 }
 
@@ -131,9 +145,21 @@ pub fn session_durations() -> Result<Durations, String> {
     let mut durations = Vec::new();
     for sample in SAMPLES {
         for policy in [PolicyChoice::Paper, PolicyChoice::Adaptive] {
-            let spec = Spec { index: 0, sample, policy, seed: 1, kind: FaultKind::Mixed, unplug: None, corrupt: 0.0, drop: 0.0, operator_s: 0.0 };
+            let spec = Spec {
+                index: 0,
+                sample,
+                policy,
+                seed: 1,
+                kind: FaultKind::Mixed,
+                unplug: None,
+                corrupt: 0.0,
+                drop: 0.0,
+                operator_s: 0.0,
+            };
             let run = run_session(&spec)?;
-            let outcome = run.outcome.map_err(|e| format!("fault-free {sample} {policy:?}: {e}"))?;
+            let outcome = run
+                .outcome
+                .map_err(|e| format!("fault-free {sample} {policy:?}: {e}"))?;
             durations.push((sample, policy, run.end_s.max(outcome.session_seconds)));
         }
     }
@@ -143,14 +169,27 @@ pub fn session_durations() -> Result<Durations, String> {
 /// Draw session `index` of a campaign over `kinds`, its unplug time uniform over the whole
 /// session (`durations`).
 pub fn draw(index: usize, kinds: &[FaultKind], durations: &Durations) -> Spec {
-    let mut rng = ChaCha12Rng::seed_from_u64(0x5e55_1011_u64 ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+    let mut rng = ChaCha12Rng::seed_from_u64(
+        0x5e55_1011_u64 ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+    );
     let sample = SAMPLES[rng.random_range(0..SAMPLES.len())];
-    let policy = if rng.random::<bool>() { PolicyChoice::Paper } else { PolicyChoice::Adaptive };
-    let kind = if kinds.is_empty() { FaultKind::Mixed } else { kinds[rng.random_range(0..kinds.len())] };
+    let policy = if rng.random::<bool>() {
+        PolicyChoice::Paper
+    } else {
+        PolicyChoice::Adaptive
+    };
+    let kind = if kinds.is_empty() {
+        FaultKind::Mixed
+    } else {
+        kinds[rng.random_range(0..kinds.len())]
+    };
     let seed = rng.random_range(1..1_000_000u64);
     let operator_s = rng.random_range(0.0..MAX_OPERATOR_S);
     let span = durations.get(sample, policy) + 2.0 * operator_s;
-    let unplug_draw = (rng.random_range(0.0..span), rng.random_range(OUTAGE_S.0..OUTAGE_S.1));
+    let unplug_draw = (
+        rng.random_range(0.0..span),
+        rng.random_range(OUTAGE_S.0..OUTAGE_S.1),
+    );
     let corrupt_draw = rng.random_range(0.0..MAX_CORRUPT);
     let drop_draw = rng.random_range(0.0..MAX_DROP);
     let (unplug, corrupt, drop) = match kind {
@@ -159,7 +198,17 @@ pub fn draw(index: usize, kinds: &[FaultKind], durations: &Durations) -> Spec {
         FaultKind::Drop => (None, 0.0, drop_draw),
         FaultKind::Mixed => (Some(unplug_draw), corrupt_draw, drop_draw),
     };
-    Spec { index, sample, policy, seed, kind, unplug, corrupt, drop, operator_s }
+    Spec {
+        index,
+        sample,
+        policy,
+        seed,
+        kind,
+        unplug,
+        corrupt,
+        drop,
+        operator_s,
+    }
 }
 
 /// One simulated session as run.
@@ -172,12 +221,21 @@ pub struct Run {
 
 /// Run `spec` as `gonio measure --sim` would (with a simulated person), in process.
 pub fn run_session(spec: &Spec) -> Result<Run, String> {
-    let options = SimOptions { seed: spec.seed, faults: spec.faults(), ..SimOptions::default() };
+    let options = SimOptions {
+        seed: spec.seed,
+        faults: spec.faults(),
+        ..SimOptions::default()
+    };
     let instrument = options.instrument(spec.sample).map_err(|e| e.to_string())?;
     let mut client = Client::new(instrument, RetryPolicy::default());
     let info = match hello(&mut client) {
         Ok(info) => info,
-        Err(error) => return Ok(Run { outcome: Err(error.into()), end_s: client.transport().device_time_us() as f64 * 1e-6 }),
+        Err(error) => {
+            return Ok(Run {
+                outcome: Err(error.into()),
+                end_s: client.transport().device_time_us() as f64 * 1e-6,
+            });
+        }
     };
     let plan = Plan {
         sample: spec.sample.to_string(),
@@ -190,7 +248,10 @@ pub fn run_session(spec: &Spec) -> Result<Run, String> {
     let mut recorder = DiscardRecorder;
     let mut operator = DelayedOperator::answering_after(Duration::from_secs_f64(spec.operator_s));
     let outcome = Session::new(&mut client, info, plan, &mut recorder, &mut operator).run();
-    Ok(Run { outcome, end_s: client.transport().device_time_us() as f64 * 1e-6 })
+    Ok(Run {
+        outcome,
+        end_s: client.transport().device_time_us() as f64 * 1e-6,
+    })
 }
 
 /// The first handshake, through a cable pulled at that very moment: as often as it takes
@@ -198,7 +259,9 @@ pub fn run_session(spec: &Spec) -> Result<Run, String> {
 fn hello<T: Transport>(client: &mut Client<T>) -> Result<protocol::DeviceInfo, LinkError> {
     loop {
         match client.hello() {
-            Err(LinkError::Io(_) | LinkError::NoReply { .. }) if client.silent_for() < client.policy().give_up_after => {
+            Err(LinkError::Io(_) | LinkError::NoReply { .. })
+                if client.silent_for() < client.policy().give_up_after =>
+            {
                 client.transport_mut().pause(Duration::from_millis(250));
             }
             other => return other,
@@ -256,7 +319,9 @@ impl Row {
 
     /// Device time the faults cost (against the clean twin), seconds.
     pub fn time_lost(&self) -> Option<f64> {
-        self.clean.as_ref().map(|clean| self.session_seconds - clean.session_seconds)
+        self.clean
+            .as_ref()
+            .map(|clean| self.session_seconds - clean.session_seconds)
     }
 }
 
@@ -276,7 +341,10 @@ pub fn judge(spec: &Spec, outcome: &Result<Outcome, SessionError>) -> Row {
     let outcome = match outcome {
         Ok(outcome) => outcome,
         Err(error) => {
-            row.failure = Some(format!("failed: {}", error.to_string().lines().next().unwrap_or("")));
+            row.failure = Some(format!(
+                "failed: {}",
+                error.to_string().lines().next().unwrap_or("")
+            ));
             return row;
         }
     };
@@ -286,14 +354,40 @@ pub fn judge(spec: &Spec, outcome: &Result<Outcome, SessionError>) -> Row {
     row.superseded = outcome.points.len() - row.readings;
     row.recoveries = outcome.recoveries.clone();
     row.session_seconds = outcome.session_seconds;
-    let geometries: Vec<(i64, i64)> = outcome.current_points().map(|p| ((p.theta_i_deg * 1e3).round() as i64, (p.theta_r_deg * 1e3).round() as i64)).collect();
+    let geometries: Vec<(i64, i64)> = outcome
+        .current_points()
+        .map(|p| {
+            (
+                (p.theta_i_deg * 1e3).round() as i64,
+                (p.theta_r_deg * 1e3).round() as i64,
+            )
+        })
+        .collect();
     let distinct: BTreeSet<_> = geometries.iter().collect();
     if row.class != spec.expected_class() {
-        row.failure = Some(format!("class {} instead of {}", row.class, spec.expected_class()));
+        row.failure = Some(format!(
+            "class {} instead of {}",
+            row.class,
+            spec.expected_class()
+        ));
     } else if distinct.len() != geometries.len() {
-        row.failure = Some(format!("{} geometries recorded twice", geometries.len() - distinct.len()));
-    } else if row.flags.iter().any(|f| !f.is_informational() && *f != Flag::LackOfFit) {
-        row.failure = Some(format!("flagged {}", row.flags.iter().map(|f| f.name()).collect::<Vec<_>>().join(",")));
+        row.failure = Some(format!(
+            "{} geometries recorded twice",
+            geometries.len() - distinct.len()
+        ));
+    } else if row
+        .flags
+        .iter()
+        .any(|f| !f.is_informational() && *f != Flag::LackOfFit)
+    {
+        row.failure = Some(format!(
+            "flagged {}",
+            row.flags
+                .iter()
+                .map(|f| f.name())
+                .collect::<Vec<_>>()
+                .join(",")
+        ));
     }
     row
 }
@@ -309,8 +403,12 @@ pub const LACK_OF_FIT_FALSE_ALARM_RATE: f64 = 0.02;
 /// of [`LACK_OF_FIT_FALSE_ALARM_RATE`] exceeds with probability below 0.1 %.
 pub fn lack_of_fit_allowed(sessions: usize) -> usize {
     use statrs::distribution::{Binomial, DiscreteCDF};
-    let Ok(binomial) = Binomial::new(LACK_OF_FIT_FALSE_ALARM_RATE, sessions as u64) else { return 0 };
-    (0..=sessions).find(|&k| 1.0 - binomial.cdf(k as u64) < 1e-3).unwrap_or(sessions)
+    let Ok(binomial) = Binomial::new(LACK_OF_FIT_FALSE_ALARM_RATE, sessions as u64) else {
+        return 0;
+    };
+    (0..=sessions)
+        .find(|&k| 1.0 - binomial.cdf(k as u64) < 1e-3)
+        .unwrap_or(sessions)
 }
 
 /// Run and judge one session; with `twin`, also the same session without faults.
@@ -325,13 +423,27 @@ pub fn run_one(spec: &Spec, twin: bool) -> Row {
     };
     let mut row = judge(spec, &run.outcome);
     if twin {
-        let clean = Spec { unplug: None, corrupt: 0.0, drop: 0.0, ..spec.clone() };
-        if let Ok(Run { outcome: Ok(outcome), .. }) = run_session(&clean) {
+        let clean = Spec {
+            unplug: None,
+            corrupt: 0.0,
+            drop: 0.0,
+            ..spec.clone()
+        };
+        if let Ok(Run {
+            outcome: Ok(outcome),
+            ..
+        }) = run_session(&clean)
+        {
             row.clean = Some(Twin {
                 session_seconds: outcome.session_seconds,
                 device_seconds: outcome.device_seconds,
                 check_seconds: outcome.check_seconds,
-                calibration_check_seconds: outcome.step_checks.iter().filter(|c| c.when.contains("white calibration")).map(|c| c.device_seconds).sum(),
+                calibration_check_seconds: outcome
+                    .step_checks
+                    .iter()
+                    .filter(|c| c.when.contains("white calibration"))
+                    .map(|c| c.device_seconds)
+                    .sum(),
             });
         }
     }
@@ -339,7 +451,12 @@ pub fn run_one(spec: &Spec, twin: bool) -> Row {
 }
 
 /// Run `specs` on `threads` threads, rows in the order of `specs`; `progress` after each.
-pub fn run_all(specs: &[Spec], twins: bool, threads: usize, progress: &(dyn Fn() + Sync)) -> Vec<Row> {
+pub fn run_all(
+    specs: &[Spec],
+    twins: bool,
+    threads: usize,
+    progress: &(dyn Fn() + Sync),
+) -> Vec<Row> {
     super::parallel(specs, threads, progress, |spec| run_one(spec, twins))
 }
 
@@ -372,13 +489,28 @@ pub fn give_ups(sessions: usize, durations: &Durations, threads: usize) -> Vec<G
         let run = run_session(spec).ok();
         let end_s = run.as_ref().map_or(0.0, |r| r.end_s);
         let (silent_s, says_port_gone, lists_decisions) = match run.as_ref().map(|r| &r.outcome) {
-            Some(Err(error @ SessionError::Lost { silent_for, loss, .. })) => {
+            Some(Err(
+                error @ SessionError::Lost {
+                    silent_for, loss, ..
+                },
+            )) => {
                 let text = error.to_string();
-                (Some(silent_for.as_secs_f64()), matches!(loss, crate::session::LinkLoss::PortGone(_)) && text.contains("port is gone"), text.contains("decisions so far"))
+                (
+                    Some(silent_for.as_secs_f64()),
+                    matches!(loss, crate::session::LinkLoss::PortGone(_))
+                        && text.contains("port is gone"),
+                    text.contains("decisions so far"),
+                )
             }
             _ => (None, false, false),
         };
-        GiveUp { spec: spec.clone(), after_pull_s: end_s - at, silent_s, says_port_gone, lists_decisions }
+        GiveUp {
+            spec: spec.clone(),
+            after_pull_s: end_s - at,
+            silent_s,
+            says_port_gone,
+            lists_decisions,
+        }
     })
 }
 
@@ -390,7 +522,9 @@ pub fn to_csv(rows: &[Row]) -> String {
     let mut out = format!("{CSV_HEADER}\n");
     for r in rows {
         let s = &r.spec;
-        let (at, length) = s.unplug.map_or((String::new(), String::new()), |(a, l)| (format!("{a:.3}"), format!("{l:.3}")));
+        let (at, length) = s.unplug.map_or((String::new(), String::new()), |(a, l)| {
+            (format!("{a:.3}"), format!("{l:.3}"))
+        });
         let c = &r.recoveries;
         let _ = writeln!(
             out,
@@ -406,7 +540,11 @@ pub fn to_csv(rows: &[Row]) -> String {
             r.survived(),
             r.failure.as_deref().unwrap_or("").replace(',', ";"),
             r.class,
-            r.flags.iter().map(|f| f.name()).collect::<Vec<_>>().join(";"),
+            r.flags
+                .iter()
+                .map(|f| f.name())
+                .collect::<Vec<_>>()
+                .join(";"),
             r.readings,
             r.superseded,
             c.reconnections,
@@ -418,9 +556,13 @@ pub fn to_csv(rows: &[Row]) -> String {
             c.readings_remeasured,
             c.seconds,
             r.session_seconds,
-            r.clean.as_ref().map_or(String::new(), |t| format!("{:.3}", t.session_seconds)),
+            r.clean
+                .as_ref()
+                .map_or(String::new(), |t| format!("{:.3}", t.session_seconds)),
             r.time_lost().map_or(String::new(), |x| format!("{x:.3}")),
-            r.clean.as_ref().map_or(String::new(), |t| format!("{:.3}", t.check_seconds)),
+            r.clean
+                .as_ref()
+                .map_or(String::new(), |t| format!("{:.3}", t.check_seconds)),
         );
     }
     out
@@ -468,7 +610,12 @@ fn survival_line(out: &mut String, label: &str, rows: &[&Row]) {
 pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
     let mut out = String::new();
     let survived = rows.iter().filter(|r| r.survived()).count();
-    let _ = writeln!(out, "{} sessions, {survived} survived ({:.2} %).\n", rows.len(), 100.0 * survived as f64 / rows.len().max(1) as f64);
+    let _ = writeln!(
+        out,
+        "{} sessions, {survived} survived ({:.2} %).\n",
+        rows.len(),
+        100.0 * survived as f64 / rows.len().max(1) as f64
+    );
     let flagged = rows.iter().filter(|r| r.lack_of_fit()).count();
     let _ = writeln!(
         out,
@@ -479,36 +626,75 @@ pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
         lack_of_fit_allowed(rows.len())
     );
     let header = "| sessions | n | survived | survival | reconnections | fail-safe stops | re-homings | lamp relit | readings re-measured | time lost median s | p95 s | max s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|";
-    let _ = writeln!(out, "## By fault kind\n\nPer session, means; time lost is device time against the same session without faults.\n\n{header}");
+    let _ = writeln!(
+        out,
+        "## By fault kind\n\nPer session, means; time lost is device time against the same session without faults.\n\n{header}"
+    );
     for kind in FaultKind::ALL {
         let selected: Vec<&Row> = rows.iter().filter(|r| r.spec.kind == kind).collect();
         survival_line(&mut out, kind.name(), &selected);
     }
     survival_line(&mut out, "all", &rows.iter().collect::<Vec<_>>());
-    let _ = writeln!(out, "\n## Sessions with an unplug, by outage length\n\nThe firmware's heartbeat timeout is 2 s: longer outages find the instrument stopped (lamp off; homing kept if the arms stood still).\n\n{header}");
+    let _ = writeln!(
+        out,
+        "\n## Sessions with an unplug, by outage length\n\nThe firmware's heartbeat timeout is 2 s: longer outages find the instrument stopped (lamp off; homing kept if the arms stood still).\n\n{header}"
+    );
     for (lo, hi) in [(0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 6.0), (6.0, 8.0)] {
-        let selected: Vec<&Row> = rows.iter().filter(|r| r.spec.unplug.is_some_and(|(_, l)| (lo..hi).contains(&l))).collect();
+        let selected: Vec<&Row> = rows
+            .iter()
+            .filter(|r| r.spec.unplug.is_some_and(|(_, l)| (lo..hi).contains(&l)))
+            .collect();
         survival_line(&mut out, &format!("{lo:.0}–{hi:.0} s"), &selected);
     }
     let _ = writeln!(out, "\n## By paper and policy\n\n{header}");
     for sample in SAMPLES {
         for policy in [PolicyChoice::Paper, PolicyChoice::Adaptive] {
-            let selected: Vec<&Row> = rows.iter().filter(|r| r.spec.sample == sample && r.spec.policy == policy).collect();
-            let label = format!("{sample} {}", if policy == PolicyChoice::Paper { "paper" } else { "adaptive" });
+            let selected: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.spec.sample == sample && r.spec.policy == policy)
+                .collect();
+            let label = format!(
+                "{sample} {}",
+                if policy == PolicyChoice::Paper {
+                    "paper"
+                } else {
+                    "adaptive"
+                }
+            );
             survival_line(&mut out, &label, &selected);
         }
     }
     let failures: Vec<&Row> = rows.iter().filter(|r| !r.survived()).collect();
     if !failures.is_empty() {
-        let _ = writeln!(out, "\n## Sessions that did not survive\n\n| index | sample | policy | seed | faults | operator s | why |\n|---:|---|---|---:|---|---:|---|");
+        let _ = writeln!(
+            out,
+            "\n## Sessions that did not survive\n\n| index | sample | policy | seed | faults | operator s | why |\n|---:|---|---|---:|---|---:|---|"
+        );
         for r in failures.iter().take(50) {
-            let _ = writeln!(out, "| {} | {} | {} | {} | {} | {:.1} | {} |", r.spec.index, r.spec.sample, r.spec.policy_name(), r.spec.seed, r.spec.faults(), r.spec.operator_s, r.failure.as_deref().unwrap_or(""));
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} | {:.1} | {} |",
+                r.spec.index,
+                r.spec.sample,
+                r.spec.policy_name(),
+                r.spec.seed,
+                r.spec.faults(),
+                r.spec.operator_s,
+                r.failure.as_deref().unwrap_or("")
+            );
         }
     }
-    let _ = writeln!(out, "\n## The lost-steps check (the clean twins)\n\nDevice seconds of the Home before the report, paid by every session, against the sample's measuring time (Strategy 1 to the last refinement); and of the Home after the white calibration, paid once per calibration.\n\n| paper | policy | sessions | check before the report: median s | max s | measuring s, median | check / measuring, median | after the white calibration: median s |\n|---|---|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        out,
+        "\n## The lost-steps check (the clean twins)\n\nDevice seconds of the Home before the report, paid by every session, against the sample's measuring time (Strategy 1 to the last refinement); and of the Home after the white calibration, paid once per calibration.\n\n| paper | policy | sessions | check before the report: median s | max s | measuring s, median | check / measuring, median | after the white calibration: median s |\n|---|---|---:|---:|---:|---:|---:|---:|"
+    );
     for sample in SAMPLES {
         for policy in [PolicyChoice::Paper, PolicyChoice::Adaptive] {
-            let twins: Vec<&Twin> = rows.iter().filter(|r| r.spec.sample == sample && r.spec.policy == policy).filter_map(|r| r.clean.as_ref()).collect();
+            let twins: Vec<&Twin> = rows
+                .iter()
+                .filter(|r| r.spec.sample == sample && r.spec.policy == policy)
+                .filter_map(|r| r.clean.as_ref())
+                .collect();
             if twins.is_empty() {
                 continue;
             }
@@ -516,21 +702,41 @@ pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
             let _ = writeln!(
                 out,
                 "| {sample} | {} | {} | {:.2} | {:.2} | {:.1} | {:.1} % | {:.2} |",
-                if policy == PolicyChoice::Paper { "paper" } else { "adaptive" },
+                if policy == PolicyChoice::Paper {
+                    "paper"
+                } else {
+                    "adaptive"
+                },
                 twins.len(),
                 quantile(checks.clone(), 0.5),
                 checks.iter().copied().fold(f64::NAN, f64::max),
                 quantile(twins.iter().map(|t| t.device_seconds).collect(), 0.5),
-                100.0 * quantile(twins.iter().map(|t| t.check_seconds / t.device_seconds.max(1e-9)).collect(), 0.5),
-                quantile(twins.iter().map(|t| t.calibration_check_seconds).collect(), 0.5)
+                100.0
+                    * quantile(
+                        twins
+                            .iter()
+                            .map(|t| t.check_seconds / t.device_seconds.max(1e-9))
+                            .collect(),
+                        0.5
+                    ),
+                quantile(
+                    twins.iter().map(|t| t.calibration_check_seconds).collect(),
+                    0.5
+                )
             );
         }
     }
-    let pulled: Vec<&GiveUp> = give_ups.iter().filter(|g| g.silent_s.is_some() || g.after_pull_s > 0.0).collect();
+    let pulled: Vec<&GiveUp> = give_ups
+        .iter()
+        .filter(|g| g.silent_s.is_some() || g.after_pull_s > 0.0)
+        .collect();
     if !pulled.is_empty() {
         let after: Vec<f64> = pulled.iter().map(|g| g.after_pull_s).collect();
         let silent: Vec<f64> = pulled.iter().filter_map(|g| g.silent_s).collect();
-        let worded = pulled.iter().filter(|g| g.says_port_gone && g.lists_decisions).count();
+        let worded = pulled
+            .iter()
+            .filter(|g| g.says_port_gone && g.lists_decisions)
+            .count();
         let _ = writeln!(
             out,
             "\n## Given up\n\n{} sessions whose cable is pulled at a random moment and never put back ({} more had finished before their pull): {} ended saying the port is gone, with the decisions so far. Device time from the pull to the end: median {:.2} s, max {:.2} s; silence reported: median {:.2} s, max {:.2} s (the bound is 10 s of silence).",

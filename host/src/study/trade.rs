@@ -4,9 +4,9 @@
 
 use crate::analysis::classify::REFERENCES;
 use crate::analysis::model::Params;
+use crate::instrument::sim::{SimOptions, sample_params};
 use crate::session::sweep::SweepTargets;
 use crate::session::{FixedSchedule, Outcome, Policy};
-use crate::instrument::sim::{SimOptions, sample_params};
 use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
 use std::fmt::Write as _;
 
@@ -41,7 +41,9 @@ impl RunSpec {
         let number = self.setting.parse().unwrap_or(0);
         match self.policy {
             "strategy1" => Policy::Fixed(FixedSchedule::Strategy1 { m: number }),
-            "strategy2" => Policy::Fixed(FixedSchedule::Strategy2 { delta_deg: u8::try_from(number).unwrap_or(0) }),
+            "strategy2" => Policy::Fixed(FixedSchedule::Strategy2 {
+                delta_deg: u8::try_from(number).unwrap_or(0),
+            }),
             "adaptive" => Policy::Adaptive(Default::default()),
             "sweep" => Policy::Sweep(sweep_targets(&self.setting)),
             "mixed" => Policy::Mixed(Default::default(), Default::default()),
@@ -51,7 +53,14 @@ impl RunSpec {
 }
 
 /// The study's policies, as `trade.csv` names them.
-pub const POLICIES: [&str; 6] = ["strategy1", "strategy2", "paper", "adaptive", "sweep", "mixed"];
+pub const POLICIES: [&str; 6] = [
+    "strategy1",
+    "strategy2",
+    "paper",
+    "adaptive",
+    "sweep",
+    "mixed",
+];
 
 /// The sweep policy's settings studied: the first pass's top speed (°/s) and bin
 /// length (degrees), as `SPEED/BIN`; the first is the policy's default.
@@ -62,7 +71,11 @@ pub fn sweep_targets(setting: &str) -> SweepTargets {
     let defaults = SweepTargets::default();
     let mut parts = setting.split('/').map(|p| p.parse::<f64>().ok());
     match (parts.next().flatten(), parts.next().flatten()) {
-        (Some(speed), Some(bin)) => SweepTargets { pass_speed_deg_per_s: speed, pass_bin_deg: bin, ..defaults },
+        (Some(speed), Some(bin)) => SweepTargets {
+            pass_speed_deg_per_s: speed,
+            pass_bin_deg: bin,
+            ..defaults
+        },
         _ => defaults,
     }
 }
@@ -112,7 +125,10 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
             }
             // A sweep's bins are the detector's blocks: the integration time sets only the
             // calibration's readings, so sweeps are studied at one.
-            if *policy == "sweep" && (integration_ms != TARGET_INTEGRATION_MS || (quick && setting != SWEEP_SETTINGS[0])) {
+            if *policy == "sweep"
+                && (integration_ms != TARGET_INTEGRATION_MS
+                    || (quick && setting != SWEEP_SETTINGS[0]))
+            {
                 continue;
             }
             // The mixed policy at the study's reference integration time: its sweeps do
@@ -122,7 +138,14 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
             }
             for reference in &REFERENCES {
                 for seed in 1..=seeds {
-                    runs.push(RunSpec { policy, setting: setting.clone(), sample: reference.name, seed, integration_ms, physics: Default::default() });
+                    runs.push(RunSpec {
+                        policy,
+                        setting: setting.clone(),
+                        sample: reference.name,
+                        seed,
+                        integration_ms,
+                        physics: Default::default(),
+                    });
                 }
             }
         }
@@ -131,15 +154,30 @@ pub fn plan_runs(seeds: u64, quick: bool) -> Vec<RunSpec> {
 }
 
 fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
-    estimate.filter(|e| e.is_finite()).map_or(f64::INFINITY, |e| (e / truth - 1.0).abs())
+    estimate
+        .filter(|e| e.is_finite())
+        .map_or(f64::INFINITY, |e| (e / truth - 1.0).abs())
 }
 
 /// Run one whole simulated session and compare it with the truth.
 pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
-    let expected = REFERENCES.iter().find(|r| r.name == spec.sample).map(|r| r.class.name()).unwrap_or("");
-    let options = SimOptions { seed: spec.seed, physics: spec.physics, ..SimOptions::default() };
-    let run = super::SimulatedRun { sample: spec.sample, options: &options, policy: spec.policy(), integration_ms: Some(spec.integration_ms) };
+    let expected = REFERENCES
+        .iter()
+        .find(|r| r.name == spec.sample)
+        .map(|r| r.class.name())
+        .unwrap_or("");
+    let options = SimOptions {
+        seed: spec.seed,
+        physics: spec.physics,
+        ..SimOptions::default()
+    };
+    let run = super::SimulatedRun {
+        sample: spec.sample,
+        options: &options,
+        policy: spec.policy(),
+        integration_ms: Some(spec.integration_ms),
+    };
     let (outcome, _): (Outcome, _) = super::simulated_session(&run, |session| session)?;
     let fit = &outcome.report.fit;
     let class = outcome.report.classification.class_name();
@@ -147,7 +185,13 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
         spec: spec.clone(),
         geometries: outcome.points.len(),
         device_seconds: outcome.device_seconds,
-        gain_calibration_seconds: outcome.calibration.gain_ratios.iter().filter(|g| g.scene == "sample").map(|g| g.device_seconds).sum(),
+        gain_calibration_seconds: outcome
+            .calibration
+            .gain_ratios
+            .iter()
+            .filter(|g| g.scene == "sample")
+            .map(|g| g.device_seconds)
+            .sum(),
         sigma_rel_err: rel_err(fit.sigma_deg(), truth.sigma_deg),
         rho_s_rel_err: rel_err(fit.reported(crate::analysis::model::RHO_S), truth.rho_s),
         rho_d_rel_err: rel_err(fit.reported(crate::analysis::model::RHO_D), truth.rho_d),
@@ -159,7 +203,11 @@ pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
 
 /// Run `runs` on `threads` threads; `progress` is called after each. Rows come back in the
 /// order of `runs`; a session that fails is an error naming it.
-pub fn run_all(runs: &[RunSpec], threads: usize, progress: &(dyn Fn() + Sync)) -> Result<Vec<Row>, String> {
+pub fn run_all(
+    runs: &[RunSpec],
+    threads: usize,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Vec<Row>, String> {
     let results = super::parallel(runs, threads, progress, run_one);
     if results.len() != runs.len() {
         return Err("a study thread panicked".to_string());
@@ -167,7 +215,14 @@ pub fn run_all(runs: &[RunSpec], threads: usize, progress: &(dyn Fn() + Sync)) -
     results
         .into_iter()
         .zip(runs)
-        .map(|(row, spec)| row.map_err(|e| format!("{} {} {} seed {} at {} ms: {e}", spec.policy, spec.setting, spec.sample, spec.seed, spec.integration_ms)))
+        .map(|(row, spec)| {
+            row.map_err(|e| {
+                format!(
+                    "{} {} {} seed {} at {} ms: {e}",
+                    spec.policy, spec.setting, spec.sample, spec.seed, spec.integration_ms
+                )
+            })
+        })
         .collect()
 }
 
@@ -197,7 +252,11 @@ pub fn to_csv(rows: &[Row]) -> String {
             r.class,
             r.sigma_ok,
             r.gain_calibration_seconds,
-            if s.physics == crate::instrument::sim::Physics::Real { "real" } else { "ideal" }
+            if s.physics == crate::instrument::sim::Physics::Real {
+                "real"
+            } else {
+                "ideal"
+            }
         );
     }
     out
@@ -241,7 +300,8 @@ fn quantile(mut values: Vec<f64>, q: f64) -> f64 {
 pub fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
     let rows: Vec<&Row> = rows.into_iter().collect();
     let n = rows.len();
-    let frac = |f: &dyn Fn(&Row) -> bool| rows.iter().filter(|r| f(r)).count() as f64 / n.max(1) as f64;
+    let frac =
+        |f: &dyn Fn(&Row) -> bool| rows.iter().filter(|r| f(r)).count() as f64 / n.max(1) as f64;
     let mean = |f: &dyn Fn(&Row) -> f64| rows.iter().map(|r| f(r)).sum::<f64>() / n.max(1) as f64;
     Summary {
         n,
@@ -258,7 +318,9 @@ pub fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
 }
 
 fn glossy(sample: &str) -> bool {
-    REFERENCES.iter().any(|r| r.name == sample && r.class.group() == crate::analysis::classify::Group::Glossy)
+    REFERENCES
+        .iter()
+        .any(|r| r.name == sample && r.class.group() == crate::analysis::classify::Group::Glossy)
 }
 
 /// Distinct (policy, setting) pairs in the order first seen.
@@ -274,9 +336,20 @@ fn configurations(rows: &[Row]) -> Vec<(&'static str, String)> {
 }
 
 /// The rows of one configuration at one integration time, over the glossy or the rough papers.
-fn configuration_rows<'a>(rows: &'a [Row], policy: &str, setting: &str, integration_ms: u16, glossy_papers: bool) -> Vec<&'a Row> {
+fn configuration_rows<'a>(
+    rows: &'a [Row],
+    policy: &str,
+    setting: &str,
+    integration_ms: u16,
+    glossy_papers: bool,
+) -> Vec<&'a Row> {
     rows.iter()
-        .filter(|r| r.spec.policy == policy && r.spec.setting == setting && r.spec.integration_ms == integration_ms && glossy(r.spec.sample) == glossy_papers)
+        .filter(|r| {
+            r.spec.policy == policy
+                && r.spec.setting == setting
+                && r.spec.integration_ms == integration_ms
+                && glossy(r.spec.sample) == glossy_papers
+        })
         .collect()
 }
 
@@ -302,7 +375,13 @@ pub struct TargetCheck {
 /// Strategy 1 in ≥ 95 % with the right class; no paper loses class accuracy.
 pub fn check_targets(rows: &[Row]) -> Vec<TargetCheck> {
     let at = |policy: &str, sample: &str| -> Vec<&Row> {
-        rows.iter().filter(|r| r.spec.policy == policy && r.spec.sample == sample && r.spec.integration_ms == TARGET_INTEGRATION_MS).collect()
+        rows.iter()
+            .filter(|r| {
+                r.spec.policy == policy
+                    && r.spec.sample == sample
+                    && r.spec.integration_ms == TARGET_INTEGRATION_MS
+            })
+            .collect()
     };
     REFERENCES
         .iter()
@@ -344,26 +423,49 @@ pub fn check_targets(rows: &[Row]) -> Vec<TargetCheck> {
 }
 
 fn pct(x: f64) -> String {
-    if x.is_finite() { format!("{:.1} %", 100.0 * x) } else { "unresolved".into() }
+    if x.is_finite() {
+        format!("{:.1} %", 100.0 * x)
+    } else {
+        "unresolved".into()
+    }
 }
 
 /// The markdown summary: per configuration over the glossy and the rough papers, the
 /// targets paper by paper, and the visiting-order study.
 pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
     let mut out = String::new();
-    let _ = writeln!(out, "# Speed against accuracy on the simulated instrument\n");
+    let _ = writeln!(
+        out,
+        "# Speed against accuracy on the simulated instrument\n"
+    );
     let physics = match rows.first().map(|r| r.spec.physics) {
-        Some(crate::instrument::sim::Physics::Real) => "the realistic instrument errors (`--physics real`: range-gain, tile and arm-zero errors)",
+        Some(crate::instrument::sim::Physics::Real) => {
+            "the realistic instrument errors (`--physics real`: range-gain, tile and arm-zero errors)"
+        }
         _ => "the ideal instrument (`--physics ideal`)",
     };
-    let _ = writeln!(out, "{} sessions, {seeds} seeds per paper and configuration, on {physics}. Device time counts the sample's measurement (Strategy 1 onwards); homing, calibration and the lost-steps check before the report (1.5–2.5 s, docs/TRADE.md) are the same for every policy and are left out.\n", rows.len());
-    for (title, group_glossy) in [("Glossy papers (G, SG)", true), ("Rough papers (PPC, MC, J1–J4)", false)] {
+    let _ = writeln!(
+        out,
+        "{} sessions, {seeds} seeds per paper and configuration, on {physics}. Device time counts the sample's measurement (Strategy 1 onwards); homing, calibration and the lost-steps check before the report (1.5–2.5 s, docs/TRADE.md) are the same for every policy and are left out.\n",
+        rows.len()
+    );
+    for (title, group_glossy) in [
+        ("Glossy papers (G, SG)", true),
+        ("Rough papers (PPC, MC, J1–J4)", false),
+    ] {
         let _ = writeln!(out, "## {title}\n");
-        let _ = writeln!(out, "| policy | setting | integration ms | sessions | geometries | device s | σ error median | σ error p95 | σ within 5 % | ρs error median | ρd error median | class right |");
-        let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        let _ = writeln!(
+            out,
+            "| policy | setting | integration ms | sessions | geometries | device s | σ error median | σ error p95 | σ within 5 % | ρs error median | ρd error median | class right |"
+        );
+        let _ = writeln!(
+            out,
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        );
         for integration_ms in INTEGRATION_MS {
             for (policy, setting) in configurations(rows) {
-                let group = configuration_rows(rows, policy, &setting, integration_ms, group_glossy);
+                let group =
+                    configuration_rows(rows, policy, &setting, integration_ms, group_glossy);
                 if group.is_empty() {
                     continue;
                 }
@@ -385,8 +487,14 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
         }
         out.push('\n');
     }
-    let _ = writeln!(out, "## The adaptive policy against the paper's, at {TARGET_INTEGRATION_MS} ms\n");
-    let _ = writeln!(out, "| paper | sessions | paper's device s | adaptive device s | paper's geometries | adaptive geometries | target | met |");
+    let _ = writeln!(
+        out,
+        "## The adaptive policy against the paper's, at {TARGET_INTEGRATION_MS} ms\n"
+    );
+    let _ = writeln!(
+        out,
+        "| paper | sessions | paper's device s | adaptive device s | paper's geometries | adaptive geometries | target | met |"
+    );
     let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---|---|");
     for check in check_targets(rows) {
         let _ = writeln!(
@@ -405,9 +513,18 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
     let sweeps = sweep_checks(rows);
     if !sweeps.is_empty() {
         let _ = writeln!(out, "\n## Sweeps against their targets\n");
-        let _ = writeln!(out, "Targets: class right in ≥ 95 % of sessions; G and SG: σ within 5 % in ≥ 95 %; rough papers: ρs and ρd as close as the adaptive policy's (median error at most 1.5× its, or within 1 %); sample device time ≤ {SWEEP_DEVICE_TARGET_S} s (mean and worst session, homing and calibration apart: less the gain calibration on the sample, which a calibration's later sheets do not repeat).\n");
-        let _ = writeln!(out, "| setting | paper | sessions | device s mean | device s max | less gain calibration, mean (max) | adaptive device s | class right | σ within 5 % | ρs error median (adaptive) | ρd error median (adaptive) | accuracy met | time met |");
-        let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|");
+        let _ = writeln!(
+            out,
+            "Targets: class right in ≥ 95 % of sessions; G and SG: σ within 5 % in ≥ 95 %; rough papers: ρs and ρd as close as the adaptive policy's (median error at most 1.5× its, or within 1 %); sample device time ≤ {SWEEP_DEVICE_TARGET_S} s (mean and worst session, homing and calibration apart: less the gain calibration on the sample, which a calibration's later sheets do not repeat).\n"
+        );
+        let _ = writeln!(
+            out,
+            "| setting | paper | sessions | device s mean | device s max | less gain calibration, mean (max) | adaptive device s | class right | σ within 5 % | ρs error median (adaptive) | ρd error median (adaptive) | accuracy met | time met |"
+        );
+        let _ = writeln!(
+            out,
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---|---|"
+        );
         for c in &sweeps {
             let _ = writeln!(
                 out,
@@ -419,13 +536,19 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
                 c.max_device_seconds,
                 c.mean_less_gain_calibration_seconds,
                 c.max_less_gain_calibration_seconds,
-                c.adaptive.as_ref().map_or("–".into(), |a| format!("{:.1}", a.mean_device_seconds)),
+                c.adaptive
+                    .as_ref()
+                    .map_or("–".into(), |a| format!("{:.1}", a.mean_device_seconds)),
                 100.0 * c.sweep.class_accuracy,
                 100.0 * c.sweep.sigma_within_target,
                 pct(c.sweep.median_rho_s_err),
-                c.adaptive.as_ref().map_or("–".into(), |a| pct(a.median_rho_s_err)),
+                c.adaptive
+                    .as_ref()
+                    .map_or("–".into(), |a| pct(a.median_rho_s_err)),
                 pct(c.sweep.median_rho_d_err),
-                c.adaptive.as_ref().map_or("–".into(), |a| pct(a.median_rho_d_err)),
+                c.adaptive
+                    .as_ref()
+                    .map_or("–".into(), |a| pct(a.median_rho_d_err)),
                 if c.accuracy_met { "yes" } else { "**no**" },
                 if c.time_met { "yes" } else { "**no**" }
             );
@@ -474,24 +597,54 @@ pub fn sweep_checks(rows: &[Row]) -> Vec<SweepCheck> {
             continue;
         }
         for reference in &REFERENCES {
-            let group: Vec<&Row> = rows.iter().filter(|r| r.spec.policy == "sweep" && r.spec.setting == setting && r.spec.sample == reference.name).collect();
+            let group: Vec<&Row> = rows
+                .iter()
+                .filter(|r| {
+                    r.spec.policy == "sweep"
+                        && r.spec.setting == setting
+                        && r.spec.sample == reference.name
+                })
+                .collect();
             if group.is_empty() {
                 continue;
             }
             let max_device_seconds = group.iter().map(|r| r.device_seconds).fold(0.0, f64::max);
-            let max_less_gain_calibration_seconds = group.iter().map(|r| r.device_seconds - r.gain_calibration_seconds).fold(0.0, f64::max);
-            let mean_less_gain_calibration_seconds = group.iter().map(|r| r.device_seconds - r.gain_calibration_seconds).sum::<f64>() / group.len() as f64;
+            let max_less_gain_calibration_seconds = group
+                .iter()
+                .map(|r| r.device_seconds - r.gain_calibration_seconds)
+                .fold(0.0, f64::max);
+            let mean_less_gain_calibration_seconds = group
+                .iter()
+                .map(|r| r.device_seconds - r.gain_calibration_seconds)
+                .sum::<f64>()
+                / group.len() as f64;
             let sweep = summarise(group);
-            let adaptive_rows: Vec<&Row> = rows.iter().filter(|r| r.spec.policy == "adaptive" && r.spec.sample == reference.name && r.spec.integration_ms == TARGET_INTEGRATION_MS).collect();
+            let adaptive_rows: Vec<&Row> = rows
+                .iter()
+                .filter(|r| {
+                    r.spec.policy == "adaptive"
+                        && r.spec.sample == reference.name
+                        && r.spec.integration_ms == TARGET_INTEGRATION_MS
+                })
+                .collect();
             let adaptive = (!adaptive_rows.is_empty()).then(|| summarise(adaptive_rows));
-            let as_close = |ours: f64, theirs: Option<f64>| ours <= 0.01 || theirs.is_some_and(|t| ours <= 1.5 * t);
+            let as_close = |ours: f64, theirs: Option<f64>| {
+                ours <= 0.01 || theirs.is_some_and(|t| ours <= 1.5 * t)
+            };
             let accuracy_met = sweep.class_accuracy >= 0.95
                 && if glossy(reference.name) {
                     sweep.sigma_within_target >= 0.95
                 } else {
-                    as_close(sweep.median_rho_s_err, adaptive.as_ref().map(|a| a.median_rho_s_err)) && as_close(sweep.median_rho_d_err, adaptive.as_ref().map(|a| a.median_rho_d_err))
+                    as_close(
+                        sweep.median_rho_s_err,
+                        adaptive.as_ref().map(|a| a.median_rho_s_err),
+                    ) && as_close(
+                        sweep.median_rho_d_err,
+                        adaptive.as_ref().map(|a| a.median_rho_d_err),
+                    )
                 };
-            let time_met = mean_less_gain_calibration_seconds <= SWEEP_DEVICE_TARGET_S && max_less_gain_calibration_seconds <= SWEEP_DEVICE_TARGET_S;
+            let time_met = mean_less_gain_calibration_seconds <= SWEEP_DEVICE_TARGET_S
+                && max_less_gain_calibration_seconds <= SWEEP_DEVICE_TARGET_S;
             out.push(SweepCheck {
                 setting: setting.clone(),
                 sample: reference.name,
@@ -539,7 +692,12 @@ pub fn pareto(rows: &[Row]) -> Vec<(ParetoPoint, bool)> {
                 "mixed" => "mixed, ".to_string(),
                 _ => String::new(),
             };
-            points.push(ParetoPoint { policy, label: format!("{name}{integration_ms} ms"), device_seconds: s.mean_device_seconds, p95_sigma_err: s.p95_sigma_err });
+            points.push(ParetoPoint {
+                policy,
+                label: format!("{name}{integration_ms} ms"),
+                device_seconds: s.mean_device_seconds,
+                p95_sigma_err: s.p95_sigma_err,
+            });
         }
     }
     let front: Vec<bool> = points
@@ -548,8 +706,11 @@ pub fn pareto(rows: &[Row]) -> Vec<(ParetoPoint, bool)> {
             // An unresolved σ buys no accuracy at any price: never on the front.
             p.p95_sigma_err.is_finite()
                 && !points.iter().any(|q| {
-                q.device_seconds <= p.device_seconds && q.p95_sigma_err <= p.p95_sigma_err && (q.device_seconds < p.device_seconds || q.p95_sigma_err < p.p95_sigma_err)
-            })
+                    q.device_seconds <= p.device_seconds
+                        && q.p95_sigma_err <= p.p95_sigma_err
+                        && (q.device_seconds < p.device_seconds
+                            || q.p95_sigma_err < p.p95_sigma_err)
+                })
         })
         .collect();
     points.into_iter().zip(front).collect()

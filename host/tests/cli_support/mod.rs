@@ -6,7 +6,11 @@ use std::process::{Command, Output, Stdio};
 
 /// `gonio ARGS…` with nothing on standard input, to its end.
 pub fn gonio(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).stdin(Stdio::null()).output().expect("run gonio")
+    Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("run gonio")
 }
 
 /// A fresh folder path for one test (`gonio-PREFIX-PID-NAME` in the temporary folder),

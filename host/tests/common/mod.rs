@@ -11,7 +11,9 @@ use rand_chacha::ChaCha8Rng;
 
 /// (θi, θr) pairs of a protocol schedule.
 pub fn pairs(s: &schedules::Schedule) -> Vec<(f64, f64)> {
-    s.iter().map(|g| (g.theta_i.deg(), g.theta_r.deg())).collect()
+    s.iter()
+        .map(|g| (g.theta_i.deg(), g.theta_r.deg()))
+        .collect()
 }
 
 pub fn full_grid() -> Vec<(f64, f64)> {
@@ -27,7 +29,11 @@ pub fn strategy2(delta: u8) -> Vec<(f64, f64)> {
 }
 
 pub fn reference(name: &str) -> Params {
-    REFERENCES.iter().find(|r| r.name == name).expect("a Table 6 paper").params
+    REFERENCES
+        .iter()
+        .find(|r| r.name == name)
+        .expect("a Table 6 paper")
+        .params
 }
 
 /// The radiance factor a detector with a uniform window of full width `acceptance_deg`
@@ -70,15 +76,33 @@ pub fn synthetic(
         .map(|&(ti, tr)| {
             let f = windowed_truth(p, ti, tr, acceptance_deg);
             let std = (rel * f).hypot(abs);
-            let y = if std > 0.0 { (f + std * standard_normal(&mut rng)).max(0.0) } else { f };
-            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: y, std: with_std.then_some(std), theta_r_span_deg: 0.0 }
+            let y = if std > 0.0 {
+                (f + std * standard_normal(&mut rng)).max(0.0)
+            } else {
+                f
+            };
+            Observation {
+                theta_i_deg: ti,
+                theta_r_deg: tr,
+                radiance_factor: y,
+                std: with_std.then_some(std),
+                theta_r_span_deg: 0.0,
+            }
         })
         .collect()
 }
 
 /// The issue's noise: 1 % relative + 0.003 absolute.
 pub fn noisy(p: &Params, geometries: &[(f64, f64)], seed: u64) -> Vec<Observation> {
-    synthetic(p, geometries, model::DEFAULT_ACCEPTANCE_DEG, 0.01, 0.003, seed, false)
+    synthetic(
+        p,
+        geometries,
+        model::DEFAULT_ACCEPTANCE_DEG,
+        0.01,
+        0.003,
+        seed,
+        false,
+    )
 }
 
 /// The shape of a sheet's specular lobe in θa = |θr − θi|/2, 1 at θa = 0. All three have
@@ -102,7 +126,9 @@ pub fn lobe_hwhm_deg(sigma_deg: f64) -> f64 {
 /// GGX's α (radians) whose D/D(0) is ½ at θa = `hwhm_deg`, by bisection.
 fn ggx_alpha(hwhm_deg: f64) -> f64 {
     let t = hwhm_deg.to_radians();
-    let ratio = |alpha: f64| alpha.powi(4) / (t.cos().powi(4) * (alpha * alpha + t.tan() * t.tan()).powi(2));
+    let ratio = |alpha: f64| {
+        alpha.powi(4) / (t.cos().powi(4) * (alpha * alpha + t.tan() * t.tan()).powi(2))
+    };
     let (mut lo, mut hi) = (1e-6, 10.0);
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
@@ -136,7 +162,11 @@ pub struct Sheet {
 
 impl Sheet {
     pub fn ideal(params: Params) -> Sheet {
-        Sheet { params, lobe: Lobe::Gaussian, bump: None }
+        Sheet {
+            params,
+            lobe: Lobe::Gaussian,
+            bump: None,
+        }
     }
 
     /// Point radiance factor: ρs·F(ψ)·G/(cos θi cos θr)·(lobe + bump) + ρd.
@@ -158,7 +188,10 @@ impl Sheet {
             return self.radiance_factor(ti, tr);
         }
         let n = 401;
-        (0..n).map(|k| self.radiance_factor(ti, tr - 0.5 * a + a * (k as f64 + 0.5) / n as f64)).sum::<f64>() / n as f64
+        (0..n)
+            .map(|k| self.radiance_factor(ti, tr - 0.5 * a + a * (k as f64 + 0.5) / n as f64))
+            .sum::<f64>()
+            / n as f64
     }
 }
 
@@ -180,51 +213,114 @@ pub struct Instrument {
 impl Instrument {
     /// The issue's noise (1 % + 0.003) through the 1° window, nothing shared.
     pub fn issue() -> Instrument {
-        Instrument { acceptance_deg: model::DEFAULT_ACCEPTANCE_DEG, rel: 0.01, abs: 0.003, arm_offset_deg: 0.0, white_rel: 0.0, tile_rel: 0.0, with_std: true }
+        Instrument {
+            acceptance_deg: model::DEFAULT_ACCEPTANCE_DEG,
+            rel: 0.01,
+            abs: 0.003,
+            arm_offset_deg: 0.0,
+            white_rel: 0.0,
+            tile_rel: 0.0,
+            with_std: true,
+        }
     }
 
     /// The simulated detector's level of noise (hil-sim at 100 ms: ~0.1–0.3 % relative, a
     /// read-noise floor of ~1e-3 on the ranges that carry a peak).
     pub fn quiet() -> Instrument {
-        Instrument { rel: 0.003, abs: 0.001, ..Instrument::issue() }
+        Instrument {
+            rel: 0.003,
+            abs: 0.001,
+            ..Instrument::issue()
+        }
     }
 }
 
 /// Noise-free readings of `sheet` at `geometries` as `instrument` sees them (window and arm
 /// offset): compute once, then draw noise per seed with [`draw`].
-pub fn truth(sheet: &Sheet, geometries: &[(f64, f64)], instrument: &Instrument) -> Vec<(f64, f64, f64)> {
-    geometries.iter().map(|&(ti, tr)| (ti, tr, sheet.seen(ti, tr + instrument.arm_offset_deg, instrument.acceptance_deg))).collect()
+pub fn truth(
+    sheet: &Sheet,
+    geometries: &[(f64, f64)],
+    instrument: &Instrument,
+) -> Vec<(f64, f64, f64)> {
+    geometries
+        .iter()
+        .map(|&(ti, tr)| {
+            (
+                ti,
+                tr,
+                sheet.seen(
+                    ti,
+                    tr + instrument.arm_offset_deg,
+                    instrument.acceptance_deg,
+                ),
+            )
+        })
+        .collect()
 }
 
 /// One measurement of `truth` with the instrument's noise and shared errors drawn from
 /// `seed`, and the shared errors as the fit is told them (sensitivity = reading × relative
 /// uncertainty, what a budget knows).
-pub fn draw(truth: &[(f64, f64, f64)], instrument: &Instrument, seed: u64) -> (Vec<Observation>, Vec<SharedError>) {
+pub fn draw(
+    truth: &[(f64, f64, f64)],
+    instrument: &Instrument,
+    seed: u64,
+) -> (Vec<Observation>, Vec<SharedError>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut incidences: Vec<f64> = truth.iter().map(|t| t.0).collect();
     incidences.sort_by(f64::total_cmp);
     incidences.dedup();
-    let white: Vec<f64> = incidences.iter().map(|_| standard_normal(&mut rng)).collect();
+    let white: Vec<f64> = incidences
+        .iter()
+        .map(|_| standard_normal(&mut rng))
+        .collect();
     let tile = standard_normal(&mut rng);
     let obs: Vec<Observation> = truth
         .iter()
         .map(|&(ti, tr, f)| {
             let k = incidences.iter().position(|&t| t == ti).unwrap_or(0);
-            let scaled = f * (1.0 + instrument.white_rel * white[k]) * (1.0 + instrument.tile_rel * tile);
+            let scaled =
+                f * (1.0 + instrument.white_rel * white[k]) * (1.0 + instrument.tile_rel * tile);
             let std = (instrument.rel * f).hypot(instrument.abs);
             let y = (scaled + std * standard_normal(&mut rng)).max(0.0);
-            Observation { theta_i_deg: ti, theta_r_deg: tr, radiance_factor: y, std: instrument.with_std.then_some(std), theta_r_span_deg: 0.0 }
+            Observation {
+                theta_i_deg: ti,
+                theta_r_deg: tr,
+                radiance_factor: y,
+                std: instrument.with_std.then_some(std),
+                theta_r_span_deg: 0.0,
+            }
         })
         .collect();
     let mut shared = Vec::new();
     if instrument.white_rel > 0.0 {
         for &theta_i in &incidences {
-            let sensitivity = obs.iter().map(|o| if o.theta_i_deg == theta_i { o.radiance_factor * instrument.white_rel } else { 0.0 }).collect();
-            shared.push(SharedError { name: format!("white θi = {theta_i}°"), sensitivity, additive: Vec::new() });
+            let sensitivity = obs
+                .iter()
+                .map(|o| {
+                    if o.theta_i_deg == theta_i {
+                        o.radiance_factor * instrument.white_rel
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            shared.push(SharedError {
+                name: format!("white θi = {theta_i}°"),
+                sensitivity,
+                additive: Vec::new(),
+            });
         }
     }
     if instrument.tile_rel > 0.0 {
-        shared.push(SharedError { name: "tile certificate".into(), sensitivity: obs.iter().map(|o| o.radiance_factor * instrument.tile_rel).collect(), additive: Vec::new() });
+        shared.push(SharedError {
+            name: "tile certificate".into(),
+            sensitivity: obs
+                .iter()
+                .map(|o| o.radiance_factor * instrument.tile_rel)
+                .collect(),
+            additive: Vec::new(),
+        });
     }
     (obs, shared)
 }

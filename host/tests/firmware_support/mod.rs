@@ -76,13 +76,36 @@ impl ElfSpec {
             machine: elf::EM_ARM,
             e_type: elf::ET_EXEC,
             segments: vec![
-                SegmentSpec { paddr: 0x0800_0000, vaddr: 0x0800_0000, data: text(GOOD_SP, GOOD_RESET), extra_memsz: 0 },
+                SegmentSpec {
+                    paddr: 0x0800_0000,
+                    vaddr: 0x0800_0000,
+                    data: text(GOOD_SP, GOOD_RESET),
+                    extra_memsz: 0,
+                },
                 // .data: runs in RAM, loaded from flash.
-                SegmentSpec { paddr: 0x0800_0400, vaddr: 0x2001_A000, data: vec![0x5a; 64], extra_memsz: 0 },
+                SegmentSpec {
+                    paddr: 0x0800_0400,
+                    vaddr: 0x2001_A000,
+                    data: vec![0x5a; 64],
+                    extra_memsz: 0,
+                },
                 // .bss: nothing in the file.
-                SegmentSpec { paddr: 0x2001_A040, vaddr: 0x2001_A040, data: Vec::new(), extra_memsz: 512 },
+                SegmentSpec {
+                    paddr: 0x2001_A040,
+                    vaddr: 0x2001_A040,
+                    data: Vec::new(),
+                    extra_memsz: 512,
+                },
             ],
-            info: Some(InfoSpec { bytes: info_bytes(firmware::FIRMWARE_VERSION, PROTOCOL_VERSION, F411_BOARD_NAME), alloc: false, inside_segment: None }),
+            info: Some(InfoSpec {
+                bytes: info_bytes(
+                    firmware::FIRMWARE_VERSION,
+                    PROTOCOL_VERSION,
+                    F411_BOARD_NAME,
+                ),
+                alloc: false,
+                inside_segment: None,
+            }),
         }
     }
 
@@ -102,14 +125,25 @@ impl ElfSpec {
 
     /// The file's bytes.
     pub fn build(&self) -> Vec<u8> {
-        let endian = if self.big_endian { object::Endianness::Big } else { object::Endianness::Little };
+        let endian = if self.big_endian {
+            object::Endianness::Big
+        } else {
+            object::Endianness::Little
+        };
         let mut buffer = Vec::new();
         let mut w = Writer::new(endian, self.is_64, &mut buffer);
         w.reserve_file_header();
         w.reserve_program_headers(self.segments.len() as u32);
-        let offsets: Vec<usize> = self.segments.iter().map(|s| w.reserve(s.data.len(), 4)).collect();
+        let offsets: Vec<usize> = self
+            .segments
+            .iter()
+            .map(|s| w.reserve(s.data.len(), 4))
+            .collect();
         let info_offset = match &self.info {
-            Some(InfoSpec { inside_segment: Some(i), .. }) => Some(offsets[*i]),
+            Some(InfoSpec {
+                inside_segment: Some(i),
+                ..
+            }) => Some(offsets[*i]),
             Some(info) => Some(w.reserve(info.bytes.len(), 1)),
             None => None,
         };
@@ -126,8 +160,15 @@ impl ElfSpec {
         w.reserve_section_headers();
 
         let entry = u64::from(GOOD_RESET);
-        w.write_file_header(&FileHeader { os_abi: 0, abi_version: 0, e_type: self.e_type, e_machine: self.machine, e_entry: entry, e_flags: 0x0500_0400 })
-            .expect("file header");
+        w.write_file_header(&FileHeader {
+            os_abi: 0,
+            abi_version: 0,
+            e_type: self.e_type,
+            e_machine: self.machine,
+            e_entry: entry,
+            e_flags: 0x0500_0400,
+        })
+        .expect("file header");
         w.write_align_program_headers();
         for (s, &offset) in self.segments.iter().zip(&offsets) {
             w.write_program_header(&ProgramHeader {
@@ -145,7 +186,13 @@ impl ElfSpec {
             w.pad_until(offset);
             w.write(&s.data);
         }
-        if let Some(info @ InfoSpec { inside_segment: None, .. }) = &self.info {
+        if let Some(
+            info @ InfoSpec {
+                inside_segment: None,
+                ..
+            },
+        ) = &self.info
+        {
             w.pad_until(info_offset.unwrap());
             w.write(&info.bytes);
         }
@@ -167,7 +214,11 @@ impl ElfSpec {
             w.write_section_header(&SectionHeader {
                 name: Some(name),
                 sh_type: elf::SHT_PROGBITS,
-                sh_flags: if info.alloc { u64::from(elf::SHF_ALLOC) } else { 0 },
+                sh_flags: if info.alloc {
+                    u64::from(elf::SHF_ALLOC)
+                } else {
+                    0
+                },
                 sh_addr: if info.alloc { 0x0800_0800 } else { 0 },
                 sh_offset: info_offset.unwrap() as u64,
                 sh_size: info.bytes.len() as u64,

@@ -20,7 +20,10 @@ fuzz_target!(|data: &[u8]| {
     host_side.feed(data, |_: Result<DeviceMessage, _>| results += 1);
     assert!(results <= delimiters);
 
-    let probe = Request { seq: 42, command: Command::GetStatus };
+    let probe = Request {
+        seq: 42,
+        command: Command::GetStatus,
+    };
     let mut buf = [0u8; MAX_FRAME_LEN];
     let frame = encode_frame(&probe, &mut buf).expect("probe fits");
     let mut last = None;

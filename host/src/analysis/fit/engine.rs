@@ -10,7 +10,10 @@
 //! the shared errors as nuisance parameters with unit Gaussian priors and profiling them
 //! out, but keeps Levenberg–Marquardt at four parameters and costs O(n·m) per pass; the
 //! parameters' covariance then splits exactly into each shared term's share (fit.rs).
-use super::{ETA_MAX, ETA_MIN, LinearSolution, Observation, SIGMA_MAX_DEG, SIGMA_MIN_DEG, SharedError, Status};
+use super::{
+    ETA_MAX, ETA_MIN, LinearSolution, Observation, SIGMA_MAX_DEG, SIGMA_MIN_DEG, SharedError,
+    Status,
+};
 use crate::analysis::linalg::{self, Square};
 use crate::analysis::model::{self, Params, PlaneGeometry};
 
@@ -156,16 +159,24 @@ impl Problem {
     /// The problem of `observations` (validated) with their shared errors, the detector
     /// window `acceptance_deg` (`None` or ≤ 0: a point detector) and every θr shifted by
     /// `shift_deg` (the arm zero offset).
-    pub fn new(observations: &[Observation], shared: &[SharedError], acceptance_deg: Option<f64>, shift_deg: f64) -> Problem {
+    pub fn new(
+        observations: &[Observation],
+        shared: &[SharedError],
+        acceptance_deg: Option<f64>,
+        shift_deg: f64,
+    ) -> Problem {
         let weighted = observations.first().is_some_and(|o| o.std.is_some());
         let acceptance_deg = acceptance_deg.filter(|&a| a > 0.0);
-        let centres: Vec<PlaneGeometry> =
-            observations.iter().map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift_deg)).collect();
+        let centres: Vec<PlaneGeometry> = observations
+            .iter()
+            .map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift_deg))
+            .collect();
         // Per reading its pieces as (lobe offset: of the piece's middle with a window, |θr − θi|
         // without; the piece's width, 0 without a window; its three nodes; its share of the
         // reading). A reading taken while the detector moved (a sweep's bin) is the mean of
         // the windows along its travel (model::reading_window).
-        let mut raw_pieces: Vec<(f64, f64, [PlaneGeometry; 3], f64)> = Vec::with_capacity(centres.len());
+        let mut raw_pieces: Vec<(f64, f64, [PlaneGeometry; 3], f64)> =
+            Vec::with_capacity(centres.len());
         let mut ranges = Vec::with_capacity(centres.len());
         for (o, g) in observations.iter().zip(&centres) {
             let start = raw_pieces.len() as u32;
@@ -177,27 +188,48 @@ impl Problem {
                         for (mid, width, nodes) in model::window_nodes(g.theta_i_deg, theta_r, a) {
                             // The share of the acceptance window is in the lobe table; of a
                             // travel window (no acceptance), here.
-                            let share = if acceptance_deg.is_some() { weight } else { weight * width / a };
+                            let share = if acceptance_deg.is_some() {
+                                weight
+                            } else {
+                                weight * width / a
+                            };
                             raw_pieces.push((mid - g.theta_i_deg, width, nodes, share));
                         }
                     }
                     None => {
-                        let point = if along == 0.0 { *g } else { PlaneGeometry::new(g.theta_i_deg, theta_r) };
+                        let point = if along == 0.0 {
+                            *g
+                        } else {
+                            PlaneGeometry::new(g.theta_i_deg, theta_r)
+                        };
                         raw_pieces.push((point.offset_deg.abs(), 0.0, [point; 3], weight));
                     }
                 }
             }
             ranges.push((start, raw_pieces.len() as u32));
         }
-        let offsets_raw: Vec<f64> = centres.iter().map(|g| if acceptance_deg.is_some() { g.offset_deg } else { g.offset_deg.abs() }).collect();
+        let offsets_raw: Vec<f64> = centres
+            .iter()
+            .map(|g| {
+                if acceptance_deg.is_some() {
+                    g.offset_deg
+                } else {
+                    g.offset_deg.abs()
+                }
+            })
+            .collect();
         let keys: Vec<(f64, f64)> = raw_pieces.iter().map(|p| (p.0, p.1)).collect();
         // A piece without a window is its middle node only.
-        let psi_keys: Vec<(f64, f64)> = raw_pieces.iter().flat_map(|p| p.2.iter().map(|g| (g.sin2_psi, g.cos_psi))).collect();
+        let psi_keys: Vec<(f64, f64)> = raw_pieces
+            .iter()
+            .flat_map(|p| p.2.iter().map(|g| (g.sin2_psi, g.cos_psi)))
+            .collect();
         let pair = |(a, b): (f64, f64)| ((a.to_bits() as u128) << 64) | b.to_bits() as u128;
         let (offsets, offset_index) = distinct(&offsets_raw, |v| v.to_bits() as u128);
         let (lobe_keys, lobe_index) = distinct(&keys, pair);
         let (psis, psi_index) = distinct(&psi_keys, pair);
-        let centre_keys: Vec<(f64, f64)> = centres.iter().map(|g| (g.sin2_psi, g.cos_psi)).collect();
+        let centre_keys: Vec<(f64, f64)> =
+            centres.iter().map(|g| (g.sin2_psi, g.cos_psi)).collect();
         let (centre_psis, centre_index) = distinct(&centre_keys, pair);
         let pieces = raw_pieces
             .iter()
@@ -206,7 +238,11 @@ impl Problem {
                 let windowed = *width > 0.0;
                 Piece {
                     lobe: lobe_index[k],
-                    psi: if windowed { [psi_index[3 * k], psi_index[3 * k + 1], psi_index[3 * k + 2]] } else { [psi_index[3 * k + 1]; 3] },
+                    psi: if windowed {
+                        [psi_index[3 * k], psi_index[3 * k + 1], psi_index[3 * k + 2]]
+                    } else {
+                        [psi_index[3 * k + 1]; 3]
+                    },
                     h: if windowed {
                         std::array::from_fn(|e| nodes[e].attenuation_over_cosines)
                     } else {
@@ -271,10 +307,16 @@ impl Problem {
     fn seed_lobe_table(&self, sigma_deg: f64, out: &mut Vec<f64>) {
         out.clear();
         match self.acceptance_deg {
-            Some(a) if 2.0 * sigma_deg < 4.0 * a => {
-                out.extend(self.offsets.iter().map(|&o| model::windowed_lobe_with_derivative(o, sigma_deg, a).0))
-            }
-            _ => out.extend(self.offsets.iter().map(|&o| model::lobe_with_derivative(o, sigma_deg).0)),
+            Some(a) if 2.0 * sigma_deg < 4.0 * a => out.extend(
+                self.offsets
+                    .iter()
+                    .map(|&o| model::windowed_lobe_with_derivative(o, sigma_deg, a).0),
+            ),
+            _ => out.extend(
+                self.offsets
+                    .iter()
+                    .map(|&o| model::lobe_with_derivative(o, sigma_deg).0),
+            ),
         }
     }
 
@@ -284,7 +326,11 @@ impl Problem {
     fn terms(&self, pt: &Point, lobe: &[LobeEntry], fresnel: &[(f64, f64)]) -> (f64, f64, f64) {
         let (mut shape, mut d_sigma, mut d_eta) = (0.0, 0.0, 0.0);
         // Without a window only the middle node carries weight.
-        let nodes = if self.acceptance_deg.is_some() { 0..3 } else { 1..2 };
+        let nodes = if self.acceptance_deg.is_some() {
+            0..3
+        } else {
+            1..2
+        };
         for piece in &self.pieces[pt.pieces.0 as usize..pt.pieces.1 as usize] {
             let (w, dw) = &lobe[piece.lobe as usize];
             // A still reading's pieces have share 1: its terms are added as they are, so
@@ -292,9 +338,17 @@ impl Problem {
             let share = piece.share;
             // A moving point detector's pieces are windows (its travel) even without an
             // acceptance: all three nodes (zero at the ends of a point piece).
-            for e in if pt.span_deg > 0.0 { 0..3 } else { nodes.clone() } {
+            for e in if pt.span_deg > 0.0 {
+                0..3
+            } else {
+                nodes.clone()
+            } {
                 let (f, df) = fresnel[piece.psi[e] as usize];
-                let (wh, dwh) = if share == 1.0 { (w[e] * piece.h[e], dw[e] * piece.h[e]) } else { (share * w[e] * piece.h[e], share * dw[e] * piece.h[e]) };
+                let (wh, dwh) = if share == 1.0 {
+                    (w[e] * piece.h[e], dw[e] * piece.h[e])
+                } else {
+                    (share * w[e] * piece.h[e], share * dw[e] * piece.h[e])
+                };
                 shape += wh * f;
                 d_sigma += dwh * f;
                 d_eta += wh * df;
@@ -312,10 +366,19 @@ impl Problem {
         let mut a = [[0.0; 4]; 4];
         let mut g = [0.0; 4];
         let mut scratch = self.scratch.borrow_mut();
-        let Scratch { lobe, fresnel, q, p } = &mut *scratch;
+        let Scratch {
+            lobe,
+            fresnel,
+            q,
+            p,
+        } = &mut *scratch;
         self.lobe_table(sigma, lobe);
         fresnel.clear();
-        fresnel.extend(self.psis.iter().map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, eta)));
+        fresnel.extend(
+            self.psis
+                .iter()
+                .map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, eta)),
+        );
         let m = self.shared.m;
         q.clear();
         q.resize(m, 0.0);
@@ -326,7 +389,12 @@ impl Problem {
             let f = amplitude * shape + rho_d;
             let r = pt.sqrt_w * (f - pt.y);
             cost += r * r;
-            let j = [pt.sqrt_w * amplitude * d_sigma * sigma, pt.sqrt_w * shape, pt.sqrt_w, pt.sqrt_w * amplitude * d_eta];
+            let j = [
+                pt.sqrt_w * amplitude * d_sigma * sigma,
+                pt.sqrt_w * shape,
+                pt.sqrt_w,
+                pt.sqrt_w * amplitude * d_eta,
+            ];
             if jacobian {
                 for row in 0..4 {
                     g[row] += j[row] * r;
@@ -384,13 +452,22 @@ impl Problem {
         let Scratch { lobe, fresnel, .. } = &mut *scratch;
         self.lobe_table(sigma, lobe);
         fresnel.clear();
-        fresnel.extend(self.psis.iter().map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, eta)));
+        fresnel.extend(
+            self.psis
+                .iter()
+                .map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, eta)),
+        );
         let mut residuals = Vec::with_capacity(self.points.len());
         let mut jac = Vec::with_capacity(self.points.len());
         for pt in &self.points {
             let (shape, d_sigma, d_eta) = self.terms(pt, lobe, fresnel);
             residuals.push(pt.sqrt_w * (amplitude * shape + rho_d - pt.y));
-            jac.push([pt.sqrt_w * amplitude * d_sigma * sigma, pt.sqrt_w * shape, pt.sqrt_w, pt.sqrt_w * amplitude * d_eta]);
+            jac.push([
+                pt.sqrt_w * amplitude * d_sigma * sigma,
+                pt.sqrt_w * shape,
+                pt.sqrt_w,
+                pt.sqrt_w * amplitude * d_eta,
+            ]);
         }
         (residuals, jac)
     }
@@ -398,7 +475,10 @@ impl Problem {
     /// Unweighted model values at x, in input order.
     pub fn values(&self, x: &[f64; 4]) -> Vec<f64> {
         let (r, _) = self.rows(x);
-        r.iter().zip(&self.points).map(|(r, pt)| r / pt.sqrt_w + pt.y).collect()
+        r.iter()
+            .zip(&self.points)
+            .map(|(r, pt)| r / pt.sqrt_w + pt.y)
+            .collect()
     }
 
     /// Σ⁻¹-weighted sums (Σ1, Σy, Σy², Σg, Σg², Σgy) for the model f = ρs·g + ρd with g
@@ -445,8 +525,15 @@ impl Problem {
             let Scratch { lobe, fresnel, .. } = &mut *scratch;
             self.lobe_table(sigma_deg, lobe);
             fresnel.clear();
-            fresnel.extend(self.psis.iter().map(|&(s2, c)| model::fresnel_with_derivative(s2, c, eta)));
-            self.points.iter().map(|pt| self.terms(pt, lobe, fresnel).0).collect()
+            fresnel.extend(
+                self.psis
+                    .iter()
+                    .map(|&(s2, c)| model::fresnel_with_derivative(s2, c, eta)),
+            );
+            self.points
+                .iter()
+                .map(|pt| self.terms(pt, lobe, fresnel).0)
+                .collect()
         };
         let [sw, sy, syy, sg, sgg, sgy] = self.linear_sums(shapes.into_iter());
         solve_linear(sw, sy, syy, sg, sgg, sgy)
@@ -465,12 +552,22 @@ pub(super) fn eta_factor(eta: f64) -> f64 {
 }
 
 pub(super) fn params_of(x: &[f64; 4]) -> Params {
-    Params { sigma_deg: x[0].exp(), rho_s: x[1] / eta_factor(x[3]), rho_d: x[2], eta: x[3] }
+    Params {
+        sigma_deg: x[0].exp(),
+        rho_s: x[1] / eta_factor(x[3]),
+        rho_d: x[2],
+        eta: x[3],
+    }
 }
 
 /// x = [ln σ, A, ρd, η] of parameters.
 pub(super) fn x_of(p: &Params) -> [f64; 4] {
-    [p.sigma_deg.ln(), p.rho_s * eta_factor(p.eta), p.rho_d, p.eta]
+    [
+        p.sigma_deg.ln(),
+        p.rho_s * eta_factor(p.eta),
+        p.rho_d,
+        p.eta,
+    ]
 }
 
 /// η = 1 itself has F ≡ 0; the fit stops just above it, where ρs = A/(η²−1) is still
@@ -487,20 +584,34 @@ pub(super) fn upper_bounds() -> [f64; 4] {
 
 /// Closed-form non-negative least squares for f = ρs·g + ρd from the weighted sums.
 fn solve_linear(sw: f64, sy: f64, syy: f64, sg: f64, sgg: f64, sgy: f64) -> LinearSolution {
-    let cost_of = |a: f64, b: f64| (syy - 2.0 * a * sgy - 2.0 * b * sy + a * a * sgg + 2.0 * a * b * sg + b * b * sw).max(0.0);
+    let cost_of = |a: f64, b: f64| {
+        (syy - 2.0 * a * sgy - 2.0 * b * sy + a * a * sgg + 2.0 * a * b * sg + b * b * sw).max(0.0)
+    };
     let det = sw * sgg - sg * sg;
     if det > 1e-12 * sw * sgg {
         let rho_s = (sw * sgy - sg * sy) / det;
         let rho_d = (sgg * sy - sg * sgy) / det;
         if rho_s >= 0.0 && rho_d >= 0.0 {
-            return LinearSolution { rho_s, rho_d, cost: cost_of(rho_s, rho_d) };
+            return LinearSolution {
+                rho_s,
+                rho_d,
+                cost: cost_of(rho_s, rho_d),
+            };
         }
     }
     // The unconstrained optimum is infeasible (or g has no shape): the best lies on an edge.
-    let lambert = LinearSolution { rho_s: 0.0, rho_d: (sy / sw).max(0.0), cost: cost_of(0.0, (sy / sw).max(0.0)) };
+    let lambert = LinearSolution {
+        rho_s: 0.0,
+        rho_d: (sy / sw).max(0.0),
+        cost: cost_of(0.0, (sy / sw).max(0.0)),
+    };
     if sgg > 0.0 {
         let rho_s = (sgy / sgg).max(0.0);
-        let specular_only = LinearSolution { rho_s, rho_d: 0.0, cost: cost_of(rho_s, 0.0) };
+        let specular_only = LinearSolution {
+            rho_s,
+            rho_d: 0.0,
+            cost: cost_of(rho_s, 0.0),
+        };
         if specular_only.cost < lambert.cost {
             return specular_only;
         }
@@ -517,7 +628,9 @@ fn sigma_grid() -> impl Iterator<Item = f64> {
 }
 
 /// η grid of the global search: denser near 1, where F changes fastest relative to itself.
-const ETA_GRID: [f64; 11] = [1.005, 1.01, 1.02, 1.04, 1.08, 1.19, 1.35, 1.6, 2.0, 2.5, 3.0];
+const ETA_GRID: [f64; 11] = [
+    1.005, 1.01, 1.02, 1.04, 1.08, 1.19, 1.35, 1.6, 2.0, 2.5, 3.0,
+];
 
 /// Starting points from the grid: the best (η, ρs, ρd) at each σ, then the lowest local
 /// minima of that profile in σ, best first. The grid uses the cheaper seeding model (the
@@ -584,7 +697,10 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
             let s = solve_linear(sw, sy, syy, sg, sgg, sgy);
             eta_costs.push(s.cost);
             if s.cost < best.0 {
-                best = (s.cost, [sigma.ln(), s.rho_s * eta_factor(eta), s.rho_d, eta]);
+                best = (
+                    s.cost,
+                    [sigma.ln(), s.rho_s * eta_factor(eta), s.rho_d, eta],
+                );
             }
         }
         profile.push(best);
@@ -605,14 +721,22 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
             // ρs–η valley of nearly-Fresnel-free papers (η → 1) saves most LM iterations.
             let i = profile.iter().position(|p| p.1 == x).unwrap_or(0);
             let ln_sigma = if i > 0 && i + 1 < profile.len() {
-                parabola_min([profile[i - 1].1[0], x[0], profile[i + 1].1[0]], [profile[i - 1].0, c, profile[i + 1].0]).unwrap_or(x[0])
+                parabola_min(
+                    [profile[i - 1].1[0], x[0], profile[i + 1].1[0]],
+                    [profile[i - 1].0, c, profile[i + 1].0],
+                )
+                .unwrap_or(x[0])
             } else {
                 x[0]
             };
             let row = &eta_costs[i * n_eta..(i + 1) * n_eta];
             let e = ETA_GRID.iter().position(|&eta| eta == x[3]).unwrap_or(0);
             let eta = if e > 0 && e + 1 < n_eta {
-                parabola_min([ETA_GRID[e - 1], ETA_GRID[e], ETA_GRID[e + 1]], [row[e - 1], row[e], row[e + 1]]).unwrap_or(x[3])
+                parabola_min(
+                    [ETA_GRID[e - 1], ETA_GRID[e], ETA_GRID[e + 1]],
+                    [row[e - 1], row[e], row[e + 1]],
+                )
+                .unwrap_or(x[3])
             } else {
                 x[3]
             };
@@ -621,9 +745,20 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
             let refined = problem.linear(ln_sigma.exp(), eta);
             let grid = problem.linear(x[0].exp(), x[3]);
             if refined.cost <= grid.cost {
-                (refined.cost, [ln_sigma, refined.rho_s * eta_factor(eta), refined.rho_d, eta])
+                (
+                    refined.cost,
+                    [
+                        ln_sigma,
+                        refined.rho_s * eta_factor(eta),
+                        refined.rho_d,
+                        eta,
+                    ],
+                )
             } else {
-                (grid.cost, [x[0], grid.rho_s * eta_factor(x[3]), grid.rho_d, x[3]])
+                (
+                    grid.cost,
+                    [x[0], grid.rho_s * eta_factor(x[3]), grid.rho_d, x[3]],
+                )
             }
         })
         .collect();
@@ -706,11 +841,18 @@ fn solve_spd(m: &[[f64; 4]; 4], b: &[f64; 4], free: &[bool; 4]) -> Option<[f64; 
 pub fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
     // Scale to unit diagonal first so that parameters of very different size do not
     // make a well-posed matrix look singular.
-    let d: [f64; 4] = std::array::from_fn(|i| if free[i] && m[i][i] > 0.0 { 1.0 / m[i][i].sqrt() } else { 0.0 });
+    let d: [f64; 4] = std::array::from_fn(|i| {
+        if free[i] && m[i][i] > 0.0 {
+            1.0 / m[i][i].sqrt()
+        } else {
+            0.0
+        }
+    });
     if (0..4).any(|i| free[i] && d[i] == 0.0) {
         return None;
     }
-    let scaled: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| m[i][j] * d[i] * d[j]));
+    let scaled: [[f64; 4]; 4] =
+        std::array::from_fn(|i| std::array::from_fn(|j| m[i][j] * d[i] * d[j]));
     let mut inv = [[0.0; 4]; 4];
     for c in 0..4 {
         if !free[c] {
@@ -732,7 +874,12 @@ pub fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]>
 
 /// Levenberg–Marquardt with Marquardt's diagonal scaling and bounds by an active set:
 /// a parameter on a bound whose gradient points out of the box is held for that step.
-pub(super) fn levenberg_marquardt(problem: &Problem, x0: [f64; 4], fixed: [bool; 4], max_iterations: usize) -> LmOutcome {
+pub(super) fn levenberg_marquardt(
+    problem: &Problem,
+    x0: [f64; 4],
+    fixed: [bool; 4],
+    max_iterations: usize,
+) -> LmOutcome {
     levenberg_marquardt_until(problem, x0, fixed, max_iterations, 0.0)
 }
 
@@ -749,10 +896,16 @@ pub(super) fn levenberg_marquardt_until(
     let (mut cost, mut a, mut g) = problem.accumulate(&x, true);
     let mut lambda = 1e-3;
     for iteration in 1..=max_iterations {
-        let free: [bool; 4] =
-            std::array::from_fn(|i| !fixed[i] && !((x[i] <= lo[i] && g[i] > 0.0) || (x[i] >= hi[i] && g[i] < 0.0)));
+        let free: [bool; 4] = std::array::from_fn(|i| {
+            !fixed[i] && !((x[i] <= lo[i] && g[i] > 0.0) || (x[i] >= hi[i] && g[i] < 0.0))
+        });
         if !free.iter().any(|&f| f) || cost <= good_enough {
-            return LmOutcome { x, cost, iterations: iteration - 1, status: Status::Converged };
+            return LmOutcome {
+                x,
+                cost,
+                iterations: iteration - 1,
+                status: Status::Converged,
+            };
         }
         let trace: f64 = (0..4).filter(|&i| free[i]).map(|i| a[i][i]).sum();
         let floor = 1e-12 * trace.max(f64::MIN_POSITIVE);
@@ -767,7 +920,8 @@ pub(super) fn levenberg_marquardt_until(
                 let x_new: [f64; 4] = std::array::from_fn(|i| (x[i] + step[i]).clamp(lo[i], hi[i]));
                 let (cost_new, a_new, g_new) = problem.accumulate(&x_new, true);
                 if cost_new.is_finite() && cost_new < cost {
-                    let small_step = (0..4).all(|i| (x_new[i] - x[i]).abs() <= 1e-10 * (x[i].abs() + 1e-8));
+                    let small_step =
+                        (0..4).all(|i| (x_new[i] - x[i]).abs() <= 1e-10 * (x[i].abs() + 1e-8));
                     let small_decrease = cost - cost_new <= 1e-12 * cost;
                     x = x_new;
                     cost = cost_new;
@@ -775,7 +929,12 @@ pub(super) fn levenberg_marquardt_until(
                     g = g_new;
                     lambda = (lambda * 0.1).max(1e-12);
                     if small_step || small_decrease {
-                        return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
+                        return LmOutcome {
+                            x,
+                            cost,
+                            iterations: iteration,
+                            status: Status::Converged,
+                        };
                     }
                     break;
                 }
@@ -783,11 +942,21 @@ pub(super) fn levenberg_marquardt_until(
             lambda *= 10.0;
             if lambda > 1e14 {
                 // No downhill step however short: a (possibly bounded) minimum.
-                return LmOutcome { x, cost, iterations: iteration, status: Status::Converged };
+                return LmOutcome {
+                    x,
+                    cost,
+                    iterations: iteration,
+                    status: Status::Converged,
+                };
             }
         }
     }
-    LmOutcome { x, cost, iterations: max_iterations, status: Status::IterationLimit }
+    LmOutcome {
+        x,
+        cost,
+        iterations: max_iterations,
+        status: Status::IterationLimit,
+    }
 }
 
 /// Global search then local polish, on the full model.
@@ -800,7 +969,9 @@ pub(super) fn global_fit(problem: &Problem, max_iterations: usize) -> LmOutcome 
         }
     }
     // seeds() always returns at least one point (the grid is not empty).
-    best.unwrap_or_else(|| levenberg_marquardt(problem, [0.0, 1.0, 0.5, 1.5], [false; 4], max_iterations))
+    best.unwrap_or_else(|| {
+        levenberg_marquardt(problem, [0.0, 1.0, 0.5, 1.5], [false; 4], max_iterations)
+    })
 }
 
 impl Problem {
@@ -816,9 +987,18 @@ impl Problem {
                 let edges: Vec<(f64, f64)> = self
                     .offsets
                     .iter()
-                    .map(|&o| (model::lobe_with_derivative(o - h, sigma).0, model::lobe_with_derivative(o + h, sigma).0))
+                    .map(|&o| {
+                        (
+                            model::lobe_with_derivative(o - h, sigma).0,
+                            model::lobe_with_derivative(o + h, sigma).0,
+                        )
+                    })
                     .collect();
-                let fresnel: Vec<f64> = self.psis.iter().map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, x[3]).0).collect();
+                let fresnel: Vec<f64> = self
+                    .psis
+                    .iter()
+                    .map(|&(s2, c)| model::reduced_fresnel_with_derivative(s2, c, x[3]).0)
+                    .collect();
                 let p = params_of(x);
                 self.points
                     .iter()
@@ -829,7 +1009,10 @@ impl Problem {
                         let (l_lo, l_hi) = edges[pt.offset as usize];
                         let first = &self.pieces[pt.pieces.0 as usize];
                         let last = &self.pieces[pt.pieces.1 as usize - 1];
-                        let (f_lo, f_hi) = (fresnel[first.psi[0] as usize], fresnel[last.psi[2] as usize]);
+                        let (f_lo, f_hi) = (
+                            fresnel[first.psi[0] as usize],
+                            fresnel[last.psi[2] as usize],
+                        );
                         pt.sqrt_w * x[1] * (f_hi * last.h[2] * l_hi - f_lo * first.h[0] * l_lo) / a
                     })
                     .collect()
@@ -858,7 +1041,8 @@ impl Problem {
     fn moving_shift_derivative(&self, p: &Params, pt: &Point) -> f64 {
         let step = 1e-4;
         let (ti, tr) = (pt.geometry.theta_i_deg, pt.geometry.theta_r_deg);
-        let at = |d: f64| model::evaluate_reading(p, ti, tr + d, pt.span_deg, self.acceptance_deg).0;
+        let at =
+            |d: f64| model::evaluate_reading(p, ti, tr + d, pt.span_deg, self.acceptance_deg).0;
         (at(step) - at(-step)) / (2.0 * step)
     }
 }
