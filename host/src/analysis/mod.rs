@@ -11,4 +11,4 @@ pub mod linalg;
 pub mod model;
 pub mod report;
 pub mod sampling;
-pub mod sheet;
+pub mod spots;
