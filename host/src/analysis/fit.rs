@@ -43,8 +43,6 @@ use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 use thiserror::Error;
 
-pub use engine::inverse_spd;
-
 /// Smallest σ the fit considers, degrees: far below what any sampling here resolves.
 pub const SIGMA_MIN_DEG: f64 = 1e-3;
 /// Upper bound of σ (Table 3), degrees.

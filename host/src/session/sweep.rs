@@ -4,7 +4,8 @@
 //! because the arms neither stop nor settle between its bins. This module plans them and
 //! times them as the firmware will run them ([`Motion::sweep_us`]); the session runs them
 //! and the fit models each bin's travel ([`crate::analysis::model::evaluate_reading`]).
-use crate::analysis::fit::{FitResult, Observation, inverse_spd};
+use crate::analysis::fit::{FitResult, Observation};
+use crate::analysis::linalg::spd_inverse_free;
 use crate::analysis::model::{self, SIGMA};
 use crate::instrument::calibration::Calibration;
 use crate::session::MeasuredPoint;
@@ -628,7 +629,7 @@ pub fn design_peak_sweeps(
     };
     let free = fit.model.0;
     let mut information = readings_information(fit, observations);
-    let Some(noise_cov) = inverse_spd(&information, &free) else {
+    let Some(noise_cov) = spd_inverse_free(&information, &free) else {
         return none;
     };
     // What the readings' noise contributes now; the rest of the fit's variance stays.
@@ -657,7 +658,7 @@ pub fn design_peak_sweeps(
             let added = sweep_information(fit, &plan, motion, block_s, per_block_variance);
             let total: [[f64; 4]; 4] =
                 std::array::from_fn(|a| std::array::from_fn(|b| information[a][b] + added[a][b]));
-            let Some(cov) = inverse_spd(&total, &free) else {
+            let Some(cov) = spd_inverse_free(&total, &free) else {
                 continue;
             };
             let moving = motion.move_us(at, start);

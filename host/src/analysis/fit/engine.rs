@@ -837,41 +837,6 @@ fn solve_spd(m: &[[f64; 4]; 4], b: &[f64; 4], free: &[bool; 4]) -> Option<[f64; 
     Some(out)
 }
 
-/// Inverse of the sub-matrix on `free` (zeros elsewhere), `None` if singular.
-pub fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
-    // Scale to unit diagonal first so that parameters of very different size do not
-    // make a well-posed matrix look singular.
-    let d: [f64; 4] = std::array::from_fn(|i| {
-        if free[i] && m[i][i] > 0.0 {
-            1.0 / m[i][i].sqrt()
-        } else {
-            0.0
-        }
-    });
-    if (0..4).any(|i| free[i] && d[i] == 0.0) {
-        return None;
-    }
-    let scaled: [[f64; 4]; 4] =
-        std::array::from_fn(|i| std::array::from_fn(|j| m[i][j] * d[i] * d[j]));
-    let mut inv = [[0.0; 4]; 4];
-    for c in 0..4 {
-        if !free[c] {
-            continue;
-        }
-        let mut e = [0.0; 4];
-        e[c] = 1.0;
-        let col = solve_spd(&scaled, &e, free)?;
-        for r in 0..4 {
-            inv[r][c] = col[r] * d[r] * d[c];
-        }
-    }
-    // A near-singular matrix shows as a huge scaled inverse.
-    if (0..4).any(|i| free[i] && !(inv[i][i] * m[i][i] < 1e12)) {
-        return None;
-    }
-    Some(inv)
-}
-
 /// Levenberg–Marquardt with Marquardt's diagonal scaling and bounds by an active set:
 /// a parameter on a bound whose gradient points out of the box is held for that step.
 pub(super) fn levenberg_marquardt(
