@@ -28,7 +28,7 @@ fn sheet_with_tile(sample: &str, seed: u64, tile_radiance_factor: f64) -> Sheet 
     };
     let tile = Tile::new(tile_radiance_factor, 0.5).expect("a tile");
     let (_, summary, results) =
-        simulated_sheet(&run, host::analysis::sheet::DEFAULT_SPOTS, |session| {
+        simulated_sheet(&run, host::analysis::spots::DEFAULT_SPOTS, |session| {
             session.with_tile(tile.clone())
         })
         .expect("a sheet");

@@ -168,7 +168,7 @@ fn a_flagged_spot_is_replaced_and_excluded_with_the_reason() {
             .summary
             .verdicts
             .iter()
-            .filter(|j| j.verdict != host::analysis::sheet::SpotVerdict::Accepted)
+            .filter(|j| j.verdict != host::analysis::spots::SpotVerdict::Accepted)
             .collect();
         assert_eq!(
             excluded.len(),
@@ -177,7 +177,7 @@ fn a_flagged_spot_is_replaced_and_excluded_with_the_reason() {
             sheet.summary.verdicts
         );
         assert!(
-            matches!(&excluded[0].verdict, host::analysis::sheet::SpotVerdict::Excluded { reason } if reason.contains("lost-steps"))
+            matches!(&excluded[0].verdict, host::analysis::spots::SpotVerdict::Excluded { reason } if reason.contains("lost-steps"))
         );
         assert!(sheet.summary.ok(), "the sheet rests on its clean spots");
         assert!(

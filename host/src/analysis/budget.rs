@@ -32,7 +32,9 @@
 
 use crate::analysis::fit::FitResult;
 use crate::analysis::model;
-use crate::instrument::calibration::{Calibration, CalibrationError, standard_error_counts};
+use crate::instrument::calibration::{
+    Calibration, CalibrationError, Conversion, standard_error_counts,
+};
 use protocol::Reading;
 use serde_json::{Value, json};
 
@@ -178,28 +180,89 @@ pub fn shared_errors(
     // half its interval, low).
     let value: Vec<f64> = conversions.iter().map(|c| c.radiance_factor).collect();
     let ranges = calibration.relative_gains.len();
-    let mut terms = Vec::new();
-    let mut push = |name: String, sensitivity: Vec<f64>, additive: Vec<f64>| {
+    let mut terms = Terms(Vec::new());
+
+    white_terms(&mut terms, calibration, &conversions, &value);
+    dark_terms(&mut terms, calibration, &conversions, &value)?;
+
+    // The tile: every reading scales with its certified value.
+    let u_tile = calibration.white_relative_uncertainty;
+    terms.push(
+        TILE.to_string(),
+        value.iter().map(|r| r * u_tile).collect(),
+        Vec::new(),
+    );
+
+    // The gain ratio of each pair of adjacent ranges.
+    for p in 0..ranges.saturating_sub(1) {
+        let (_, relative, _) = calibration.gain_ratio(p as u8)?;
+        terms.push(
+            gain_name(p as u8),
+            conversions
+                .iter()
+                .zip(&value)
+                .map(|(c, r)| r * gain_exponent(p, c) * relative)
+                .collect(),
+            Vec::new(),
+        );
+    }
+
+    // The lamp's drift: one unknown rate, times each reading's age.
+    let rate_per_s = calibration.lamp_drift_per_hour / 3600.0;
+    terms.push(
+        LAMP_DRIFT.to_string(),
+        value
+            .iter()
+            .zip(readings)
+            .map(|(v, r)| v * rate_per_s * r.age_s.max(0.0))
+            .collect(),
+        Vec::new(),
+    );
+    debug_assert!(terms.0.iter().all(|t| t.sensitivity.len() == n));
+    Ok(terms.0)
+}
+
+/// The shared errors as they are found, each kept only if it touches a reading.
+struct Terms(Vec<SharedError>);
+
+impl Terms {
+    /// Add a term unless all its sensitivities are 0 (an additive part of zeros is left
+    /// empty).
+    fn push(&mut self, name: String, sensitivity: Vec<f64>, additive: Vec<f64>) {
         if sensitivity.iter().chain(&additive).any(|s| *s != 0.0) {
             let additive = if additive.iter().any(|s| *s != 0.0) {
                 additive
             } else {
                 Vec::new()
             };
-            terms.push(SharedError {
+            self.0.push(SharedError {
                 name,
                 sensitivity,
                 additive,
             });
         }
-    };
+    }
+}
 
-    // The white reading at each θi.
+/// d ln R / d ln ρ_p for a reading: its white's gain over its own, where a range's gain
+/// contains the ratio of the pair (p, p + 1) when the range is above p.
+fn gain_exponent(p: usize, c: &Conversion) -> f64 {
+    let uses = |p: usize, range: u8| usize::from(range) > p;
+    f64::from(u8::from(uses(p, c.white_range))) - f64::from(u8::from(uses(p, c.range)))
+}
+
+/// The white reading at each θi: it scales the readings taken against it.
+fn white_terms(
+    terms: &mut Terms,
+    calibration: &Calibration,
+    conversions: &[Conversion],
+    value: &[f64],
+) {
     for (j, white) in calibration.white.iter().enumerate() {
         let u = standard_error_counts(&white.reading);
         let sensitivity = conversions
             .iter()
-            .zip(&value)
+            .zip(value)
             .map(|(c, r)| {
                 if c.white_index == j {
                     -r * u / c.white_net_counts
@@ -208,17 +271,18 @@ pub fn shared_errors(
                 }
             })
             .collect();
-        push(white_name(white.theta_i_deg), sensitivity, Vec::new());
+        terms.push(white_name(white.theta_i_deg), sensitivity, Vec::new());
     }
+}
 
-    // [p < range]: whether a range's gain contains the ratio of the pair (p, p + 1).
-    let uses = |p: usize, range: u8| usize::from(range) > p;
-    // d ln R / d ln ρ_p for a reading: its white's gain over its own.
-    let exponent = |p: usize, c: &crate::instrument::calibration::Conversion| {
-        f64::from(u8::from(uses(p, c.white_range))) - f64::from(u8::from(uses(p, c.range)))
-    };
-
-    // The dark of each range: directly, through the white, and through calibrated ratios.
+/// The dark of each range: directly, through the white, and through calibrated ratios.
+fn dark_terms(
+    terms: &mut Terms,
+    calibration: &Calibration,
+    conversions: &[Conversion],
+    value: &[f64],
+) -> Result<(), CalibrationError> {
+    let ranges = calibration.relative_gains.len();
     for j in 0..ranges {
         let Some(dark) = calibration.dark.get(j) else {
             continue;
@@ -253,56 +317,21 @@ pub fn shared_errors(
             .collect();
         let sensitivity = conversions
             .iter()
-            .zip(&value)
+            .zip(value)
             .map(|(c, r)| {
                 let mut d_ln_r = 0.0;
                 if usize::from(c.white_range) == j {
                     d_ln_r += 1.0 / c.white_net_counts;
                 }
                 for &(p, d_ln_rho) in &through_ratios {
-                    d_ln_r += exponent(p, c) * d_ln_rho;
+                    d_ln_r += gain_exponent(p, c) * d_ln_rho;
                 }
                 r * d_ln_r * u
             })
             .collect();
-        push(dark_name(j as u8), sensitivity, additive);
+        terms.push(dark_name(j as u8), sensitivity, additive);
     }
-
-    // The tile: every reading scales with its certified value.
-    let u_tile = calibration.white_relative_uncertainty;
-    push(
-        TILE.to_string(),
-        value.iter().map(|r| r * u_tile).collect(),
-        Vec::new(),
-    );
-
-    // The gain ratio of each pair of adjacent ranges.
-    for p in 0..ranges.saturating_sub(1) {
-        let (_, relative, _) = calibration.gain_ratio(p as u8)?;
-        push(
-            gain_name(p as u8),
-            conversions
-                .iter()
-                .zip(&value)
-                .map(|(c, r)| r * exponent(p, c) * relative)
-                .collect(),
-            Vec::new(),
-        );
-    }
-
-    // The lamp's drift: one unknown rate, times each reading's age.
-    let rate_per_s = calibration.lamp_drift_per_hour / 3600.0;
-    push(
-        LAMP_DRIFT.to_string(),
-        value
-            .iter()
-            .zip(readings)
-            .map(|(v, r)| v * rate_per_s * r.age_s.max(0.0))
-            .collect(),
-        Vec::new(),
-    );
-    debug_assert!(terms.iter().all(|t| t.sensitivity.len() == n));
-    Ok(terms)
+    Ok(())
 }
 
 /// Indices into a budget term's variance of the parameters the report shares out.

@@ -135,6 +135,26 @@ pub fn spd_inverse(m: &Square) -> Option<Square> {
     Some(inv)
 }
 
+/// [`spd_inverse`] of the sub-matrix of a 4 × 4 matrix on the indices in `free`, the other
+/// rows and columns 0 (the fit's parameters, some held): `None` if that is singular.
+pub fn spd_inverse_free(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
+    let index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
+    let mut sub = Square::zeros(index.len());
+    for (a, &i) in index.iter().enumerate() {
+        for (b, &j) in index.iter().enumerate() {
+            *sub.at_mut(a, b) = m[i][j];
+        }
+    }
+    let inverse = spd_inverse(&sub)?;
+    let mut out = [[0.0; 4]; 4];
+    for (a, &i) in index.iter().enumerate() {
+        for (b, &j) in index.iter().enumerate() {
+            out[i][j] = inverse.at(a, b);
+        }
+    }
+    Some(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,5 +1,6 @@
 //! The science, pure (no I/O): the TSL model, the fit, the sampling check σ > σ_l,
-//! classification, the comparison of two sheets, and the report of one analysis.
+//! classification, the comparison of two sheets, the report of one analysis, and the design
+//! of sweeps.
 pub mod budget;
 pub mod classify;
 pub mod compare;
@@ -11,4 +12,5 @@ pub mod linalg;
 pub mod model;
 pub mod report;
 pub mod sampling;
-pub mod sheet;
+pub mod spots;
+pub mod sweep_design;

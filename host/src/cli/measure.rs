@@ -120,8 +120,8 @@ pub struct Args {
     pub json: bool,
 }
 
-/// Spots of a sheet when `--spots` is not given ([`crate::analysis::sheet::DEFAULT_SPOTS`]).
-pub const DEFAULT_SPOTS: u16 = crate::analysis::sheet::DEFAULT_SPOTS;
+/// Spots of a sheet when `--spots` is not given ([`crate::analysis::spots::DEFAULT_SPOTS`]).
+pub const DEFAULT_SPOTS: u16 = crate::analysis::spots::DEFAULT_SPOTS;
 /// The most spots a sheet takes.
 pub const MAX_SPOTS: u16 = 20;
 
@@ -771,7 +771,7 @@ enum SpotStop {
 /// A sheet of several spots (`--spots N`, or `--resume` of a sheet's folder): one session
 /// per spot in `DIR/spot-K` ([`crate::output::sheet`]), the first spot's calibration for all.
 fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
-    use crate::analysis::sheet::SpotResult;
+    use crate::analysis::spots::SpotResult;
     use crate::output::record::FolderError;
     use crate::output::sheet::{SheetFolder, SheetResult, read_sheet, read_spot};
     let args = cx.args;
@@ -821,14 +821,14 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
                 dir,
                 &sample,
                 cx.checked.spots,
-                crate::analysis::sheet::MAX_REPLACEMENTS,
+                crate::analysis::spots::MAX_REPLACEMENTS,
                 cx.store.clone(),
             )?,
             None => SheetFolder::create_default(
                 Path::new("sessions"),
                 &sample,
                 cx.checked.spots,
-                crate::analysis::sheet::MAX_REPLACEMENTS,
+                crate::analysis::spots::MAX_REPLACEMENTS,
                 cx.store.clone(),
             )?,
         },
@@ -1080,7 +1080,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
 }
 
 fn print_sheet(dir: &Path, sheet: &crate::output::sheet::ReadSheet) {
-    use crate::analysis::sheet::SpotVerdict;
+    use crate::analysis::spots::SpotVerdict;
     let summary = &sheet.summary;
     println!(
         "sheet of '{}': {} spots planned, {} measured, {} accepted",

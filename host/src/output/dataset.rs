@@ -23,7 +23,7 @@ pub const MAX_RADIANCE_FACTOR: f64 = 1e6;
 /// The smallest standard uncertainty read.
 pub const MIN_STD: f64 = 1e-9;
 /// The largest standard uncertainty read.
-pub const MAX_STD: f64 = 1e6;
+pub use crate::analysis::fit::STD_MAX as MAX_STD;
 /// The largest ratio of the largest to the smallest `std` in one data set.
 pub const MAX_STD_RATIO: f64 = 1e6;
 

@@ -132,7 +132,7 @@ pub struct PlanRecord {
     pub adaptive_targets: Option<AdaptiveTargetsRecord>,
     /// The sweep policy's pass and targets, when `sweep`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub sweep_targets: Option<crate::session::sweep::SweepTargets>,
+    pub sweep_targets: Option<crate::session::sweep_policy::SweepTargets>,
     /// Integration time of every reading, ms.
     pub integration_ms: u16,
     /// Detector acceptance modelled in the fit, degrees.

@@ -606,8 +606,8 @@ pub fn sheet_html(dir: &Path) -> Result<String, String> {
             .find(|j| j.number == s.result.number)
             .map(|j| &j.verdict)
         {
-            Some(crate::analysis::sheet::SpotVerdict::Accepted) => "accepted".to_string(),
-            Some(crate::analysis::sheet::SpotVerdict::Excluded { reason }) => {
+            Some(crate::analysis::spots::SpotVerdict::Accepted) => "accepted".to_string(),
+            Some(crate::analysis::spots::SpotVerdict::Excluded { reason }) => {
                 format!("excluded: {}", esc(reason))
             }
             None => "?".to_string(),

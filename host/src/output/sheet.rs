@@ -13,7 +13,7 @@
 use crate::analysis::compare::{SessionResult, session_result};
 use crate::analysis::evidence::{Sheet, Spot};
 use crate::analysis::flags::Flag;
-use crate::analysis::sheet::{self, SheetSummary, SpotResult};
+use crate::analysis::spots::{self, SheetSummary, SpotResult};
 use crate::output::folder::{MANIFEST, Problem, SESSION, Status};
 use crate::output::record::{FolderError, FolderLock, dated_folder_name, io_error, json_bytes};
 use crate::output::store::{Store, StoreOptions};
@@ -433,7 +433,7 @@ pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Problem> {
         .map(|s| read_spot(&dir.join(&s.folder), s.number))
         .collect::<Result<Vec<_>, _>>()?;
     let results: Vec<SpotResult> = spots.iter().map(|s| s.result.clone()).collect();
-    let summary = sheet::assess(doc.spots_planned, &results);
+    let summary = spots::assess(doc.spots_planned, &results);
     Ok(ReadSheet {
         dir: dir.to_path_buf(),
         doc,
@@ -547,7 +547,7 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
             read.summary
                 .verdicts
                 .iter()
-                .any(|j| j.number == n && j.verdict == sheet::SpotVerdict::Accepted)
+                .any(|j| j.number == n && j.verdict == spots::SpotVerdict::Accepted)
         };
         let classes = read
             .spots

@@ -366,7 +366,7 @@ pub fn next_batch_scored(
             }
         }
     }
-    let mut cov = crate::analysis::fit::inverse_spd(&information, &free)?;
+    let mut cov = crate::analysis::linalg::spd_inverse_free(&information, &free)?;
     let per_reading_s = motion.per_geometry_us(integration_ms) as f64 * 1e-6;
     let mut pool: Vec<(Geometry, [f64; 4], f64)> = candidates_over(measured, span)
         .into_iter()

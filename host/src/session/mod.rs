@@ -28,8 +28,8 @@ mod recovery;
 mod schedule;
 pub mod sheet;
 mod steps;
-pub mod sweep;
-mod sweeping;
+pub mod sweep_bins;
+pub mod sweep_policy;
 mod white;
 
 pub use operator::{
@@ -40,6 +40,7 @@ pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 use crate::analysis::fit::{FitOptions, Observation};
 use crate::analysis::flags::Flag;
 use crate::analysis::report::{Report, analyse_with_shared, to_json};
+use crate::analysis::sweep_design;
 use crate::instrument::calibration::{Calibration, CalibrationError, Tile, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
 use crate::output::dataset::DataSet;
@@ -88,10 +89,11 @@ impl From<PolicyChoice> for Policy {
         match choice {
             PolicyChoice::Paper => Policy::Paper,
             PolicyChoice::Adaptive => Policy::Adaptive(AdaptiveTargets::default()),
-            PolicyChoice::Sweep => Policy::Sweep(sweep::SweepTargets::default()),
-            PolicyChoice::Mixed => {
-                Policy::Mixed(AdaptiveTargets::default(), sweep::SweepTargets::default())
-            }
+            PolicyChoice::Sweep => Policy::Sweep(sweep_policy::SweepTargets::default()),
+            PolicyChoice::Mixed => Policy::Mixed(
+                AdaptiveTargets::default(),
+                sweep_policy::SweepTargets::default(),
+            ),
         }
     }
 }
@@ -105,11 +107,11 @@ pub enum Policy {
     Adaptive(AdaptiveTargets),
     /// One fixed schedule and nothing else (the trade study's Strategy 1 at M, Strategy 2 at δ).
     Fixed(FixedSchedule),
-    /// A first pass of sweeps, then sweeps across the peak ([`crate::session::sweep`]).
-    Sweep(sweep::SweepTargets),
+    /// A first pass of sweeps, then sweeps across the peak ([`crate::analysis::sweep_design`], [`sweep_policy`]).
+    Sweep(sweep_policy::SweepTargets),
     /// Strategy 1, then the adaptive policy's batches or sweeps across the peak (at the
     /// sweep targets' speeds), whichever brings more per device second.
-    Mixed(AdaptiveTargets, sweep::SweepTargets),
+    Mixed(AdaptiveTargets, sweep_policy::SweepTargets),
 }
 
 /// A schedule of the method, measured alone.
@@ -205,7 +207,7 @@ impl MeasuredPoint {
         }
         if self.theta_r_span_deg > 0.0 {
             // A sweep's bin carries its blocks' noise as the calibration gives it
-            // (sweep::bin_point): a calibration that learnt more (a range's own noise, with
+            // (sweep_bins::bin_point): a calibration that learnt more (a range's own noise, with
             // its gain ratio) gives it again.
             let net = calibration.net_counts(&self.reading).unwrap_or(0.0);
             if let Ok(block_std) = calibration.block_std_counts(self.reading.range, net) {
@@ -507,7 +509,7 @@ pub struct Session<'a, T: Transport> {
     /// Every geometry the session means to have a reading of, in the order first wanted.
     wanted: Vec<Geometry>,
     /// Every sweep the session means to have the bins of, in the order first wanted.
-    wanted_sweeps: Vec<sweep::SweepPlan>,
+    wanted_sweeps: Vec<sweep_design::SweepPlan>,
     decisions: Vec<String>,
     flags: BTreeSet<Flag>,
     recoveries: Recoveries,
@@ -712,7 +714,7 @@ impl<'a, T: Transport> Session<'a, T> {
             Policy::Sweep(targets) => {
                 let targets = *targets;
                 let here = self.status()?.position;
-                let pass = sweep::first_pass_from(
+                let pass = sweep_design::first_pass_from(
                     &self.motion,
                     here,
                     targets
@@ -725,7 +727,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 let name = format!(
                     "first pass ({} sweeps of θr 0–{}° at θi = {}, {} °/s, bins of {}°)",
                     pass.len(),
-                    sweep::THETA_R_MAX_DEG,
+                    sweep_design::THETA_R_MAX_DEG,
                     incidences.join(" and "),
                     targets
                         .pass_speed_deg_per_s
@@ -950,7 +952,7 @@ impl<'a, T: Transport> Session<'a, T> {
     fn refine_adaptively(
         &mut self,
         targets: AdaptiveTargets,
-        sweeps: Option<sweep::SweepTargets>,
+        sweeps: Option<sweep_policy::SweepTargets>,
         report: &mut Report,
         fits: &mut Vec<FitStep>,
         refinements: &mut Vec<Refinement>,
@@ -1015,7 +1017,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 // There and back: what a sweep's direction does to its bins' angles (the
                 // amplifier's lag, the arm's dwell) then cancels in the peak's position
                 // rather than leaning on σ.
-                let plans: Vec<sweep::SweepPlan> = sweep::peak_candidates(
+                let plans: Vec<sweep_design::SweepPlan> = sweep_design::peak_candidates(
                     0.25,
                     report.fit.acceptance_deg,
                     max_speed,
@@ -1030,7 +1032,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 .flat_map(|p| {
                     [
                         p,
-                        sweep::SweepPlan {
+                        sweep_design::SweepPlan {
                             from_deg: p.to_deg,
                             to_deg: p.from_deg,
                             ..p
@@ -1115,7 +1117,7 @@ impl<'a, T: Transport> Session<'a, T> {
                     } else {
                         (0.0, 1)
                     };
-                    let design = sweep::design_peak_sweeps(
+                    let design = sweep_design::design_peak_sweeps(
                         &report.fit,
                         &observations,
                         here,
@@ -1146,7 +1148,7 @@ impl<'a, T: Transport> Session<'a, T> {
                             } else {
                                 sigma_l_text(report)
                             },
-                            sweeping::sweeps_text(design.plans.len()),
+                            sweep_policy::sweeps_text(design.plans.len()),
                             100.0 * design.predicted_rel_half_width,
                             design.seconds,
                             if batch_rate > 0.0 {
@@ -1158,7 +1160,7 @@ impl<'a, T: Transport> Session<'a, T> {
                         let name = format!("adaptive round {batch_number}");
                         let stage = format!(
                             "{name} ({} across the peak)",
-                            sweeping::sweeps_text(design.plans.len())
+                            sweep_policy::sweeps_text(design.plans.len())
                         );
                         self.sweep_round(
                             &name,
@@ -1314,9 +1316,9 @@ pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observa
 /// [`usable_observations`] with how the bins' noise was scaled to their scatter.
 pub fn usable_observations_scaled(
     points: &[MeasuredPoint],
-) -> (Vec<usize>, Vec<Observation>, sweep::NoiseScaling) {
+) -> (Vec<usize>, Vec<Observation>, sweep_bins::NoiseScaling) {
     let (indices, mut observations) = first_readings(points);
-    let scaling = sweep::scale_bin_noise(points, &indices, &mut observations);
+    let scaling = sweep_bins::scale_bin_noise(points, &indices, &mut observations);
     (indices, observations, scaling)
 }
 

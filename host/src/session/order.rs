@@ -179,6 +179,21 @@ impl Motion {
     }
 }
 
+/// The sweep design's times ([`crate::analysis::sweep_design`]) are the firmware's profiles.
+impl crate::analysis::sweep_design::ArmTiming for Motion {
+    fn move_us(&self, from: Geometry, to: Geometry) -> u64 {
+        Motion::move_us(self, from, to)
+    }
+
+    fn settle_us(&self) -> u64 {
+        Motion::settle_us(self)
+    }
+
+    fn sweep_us(&self, from_deg: f64, to_deg: f64, speed_deg_per_s: f64) -> u64 {
+        Motion::sweep_us(self, from_deg, to_deg, speed_deg_per_s)
+    }
+}
+
 /// Largest position passed to the firmware's planner, steps: it subtracts positions in
 /// `i32`, so they are kept where no difference overflows (±13 million degrees: no real
 /// position is near).

@@ -3,8 +3,8 @@
 //! every later spot reuses it and starts by asking the operator to move the sheet
 //! ([`super::Placement::NextSpot`]), so the spots share the calibration's errors as they
 //! share its time. Which spots count, and when to measure one more in place of a flagged
-//! one, is [`crate::analysis::sheet`]'s.
-use crate::analysis::sheet::{self, SheetSummary, SpotResult};
+//! one, is [`crate::analysis::spots`]'s.
+use crate::analysis::spots::{self, SheetSummary, SpotResult};
 
 /// How a sheet is measured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -16,11 +16,11 @@ pub struct SheetPlan {
 }
 
 impl SheetPlan {
-    /// `spots` clean spots, with [`sheet::MAX_REPLACEMENTS`] replacements.
+    /// `spots` clean spots, with [`spots::MAX_REPLACEMENTS`] replacements.
     pub fn new(spots: u16) -> SheetPlan {
         SheetPlan {
             spots,
-            replacements: sheet::MAX_REPLACEMENTS,
+            replacements: spots::MAX_REPLACEMENTS,
         }
     }
 }
@@ -35,7 +35,7 @@ pub fn measure_sheet<E>(
     mut measure_spot: impl FnMut(u16, u16) -> Result<SpotResult, E>,
     mut decide: impl FnMut(&str),
 ) -> Result<(Vec<SpotResult>, SheetSummary), E> {
-    while let Some(number) = sheet::next_spot(plan.spots, plan.replacements, &done) {
+    while let Some(number) = spots::next_spot(plan.spots, plan.replacements, &done) {
         let clean_so_far = done
             .iter()
             .filter(|r| crate::analysis::flags::ok(&r.flags))
@@ -62,9 +62,9 @@ pub fn measure_sheet<E>(
         }
         done.push(result);
     }
-    let summary = sheet::assess(plan.spots, &done);
+    let summary = spots::assess(plan.spots, &done);
     for judged in &summary.verdicts {
-        if let sheet::SpotVerdict::Excluded { reason } = &judged.verdict {
+        if let spots::SpotVerdict::Excluded { reason } = &judged.verdict {
             decide(&format!("spot {} excluded: {reason}", judged.number));
         }
     }

@@ -70,7 +70,7 @@ impl Design {
         drawn_per_paper: 3,
         library_sheets: 2,
         held_out_sheets: 4,
-        spots: crate::analysis::sheet::DEFAULT_SPOTS as usize,
+        spots: crate::analysis::spots::DEFAULT_SPOTS as usize,
         policy: PolicyChoice::Adaptive,
     };
     /// A small one for the tests: 2 draws of 32 stocks, 2 library and 2 held-out sheets

@@ -113,8 +113,8 @@ pub fn simulated_sheet(
 ) -> Result<
     (
         Vec<Outcome>,
-        crate::analysis::sheet::SheetSummary,
-        Vec<crate::analysis::sheet::SpotResult>,
+        crate::analysis::spots::SheetSummary,
+        Vec<crate::analysis::spots::SpotResult>,
     ),
     String,
 > {
@@ -123,7 +123,7 @@ pub fn simulated_sheet(
     let measure_spot =
         |number: u16,
          of: u16|
-         -> Result<crate::analysis::sheet::SpotResult, crate::session::SessionError> {
+         -> Result<crate::analysis::spots::SpotResult, crate::session::SessionError> {
             let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
             let mut session = configure(
                 Session::new(
@@ -139,7 +139,7 @@ pub fn simulated_sheet(
                 session = session.with_calibration(first.calibration.clone());
             }
             let outcome = session.run()?;
-            let result = crate::analysis::sheet::SpotResult {
+            let result = crate::analysis::spots::SpotResult {
                 number,
                 flags: outcome.flags.clone(),
                 spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit),

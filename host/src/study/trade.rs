@@ -5,7 +5,7 @@
 use crate::analysis::classify::REFERENCES;
 use crate::analysis::model::Params;
 use crate::instrument::sim::{SimOptions, sample_params};
-use crate::session::sweep::SweepTargets;
+use crate::session::sweep_policy::SweepTargets;
 use crate::session::{FixedSchedule, Outcome, Policy};
 use protocol::schedules::{STRATEGY1, STRATEGY2_DELTAS};
 use std::fmt::Write as _;

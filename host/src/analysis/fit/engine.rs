@@ -28,11 +28,11 @@ pub(super) struct Point {
     /// sqrt of the weight 1/std² (1 without uncertainties).
     pub sqrt_w: f64,
     /// Index of the lobe offset (θr − θi with a window, |θr − θi| without) in
-    /// [`Problem::offsets`]: the seeding grid's lobe and the window's edges.
+    /// [`LeastSquaresProblem::offsets`]: the seeding grid's lobe and the window's edges.
     offset: u32,
-    /// This reading's pieces in [`Problem::pieces`].
+    /// This reading's pieces in [`LeastSquaresProblem::pieces`].
     pieces: (u32, u32),
-    /// Index of (sin² ψ, cos ψ) at the window's centre in [`Problem::centre_psis`].
+    /// Index of (sin² ψ, cos ψ) at the window's centre in [`LeastSquaresProblem::centre_psis`].
     centre_psi: u32,
 }
 
@@ -40,10 +40,10 @@ pub(super) struct Point {
 /// always; the point itself without a window).
 #[derive(Clone, Copy, Debug)]
 struct Piece {
-    /// Index of (offset of the piece's middle, width) in [`Problem::lobe_keys`].
+    /// Index of (offset of the piece's middle, width) in [`LeastSquaresProblem::lobe_keys`].
     lobe: u32,
     /// Index of (sin² ψ, cos ψ) at the piece's low end, middle and high end in
-    /// [`Problem::psis`] (all the middle's without a window).
+    /// [`LeastSquaresProblem::psis`] (all the middle's without a window).
     psi: [u32; 3],
     /// G/(cos θi cos θr) there (ends 0 without a window).
     h: [f64; 3],
@@ -104,7 +104,7 @@ impl Shared {
 /// repeats lobe offsets and ψ many times (284 geometries have 61 distinct |θr − θi| and
 /// 111 distinct ψ), so the lobe's window terms and the Fresnel terms are evaluated once
 /// per distinct value and per pass.
-pub(super) struct Problem {
+pub(super) struct LeastSquaresProblem {
     pub points: Vec<Point>,
     pub acceptance_deg: Option<f64>,
     pub weighted: bool,
@@ -155,7 +155,55 @@ fn distinct<K: Copy + PartialEq, F: Fn(K) -> u128>(keys: &[K], bits: F) -> (Vec<
     (values, index)
 }
 
-impl Problem {
+/// A piece of a reading's window before the distinct values are taken: (lobe offset: of the
+/// piece's middle with a window, |θr − θi| without; the piece's width, 0 without a window;
+/// its three nodes; its share of the reading).
+type RawPiece = (f64, f64, [PlaneGeometry; 3], f64);
+
+/// Per reading its pieces ([`RawPiece`]), and each reading's range of them. A reading
+/// taken while the detector moved (a sweep's bin) is the mean of the windows along its
+/// travel (model::reading_window).
+fn raw_pieces(
+    observations: &[Observation],
+    centres: &[PlaneGeometry],
+    acceptance_deg: Option<f64>,
+) -> (Vec<RawPiece>, Vec<(u32, u32)>) {
+    let mut raw_pieces: Vec<RawPiece> = Vec::with_capacity(centres.len());
+    let mut ranges = Vec::with_capacity(centres.len());
+    for (o, g) in observations.iter().zip(centres) {
+        let start = raw_pieces.len() as u32;
+        let (window, travel) = model::reading_window(o.theta_r_span_deg, acceptance_deg);
+        for (along, weight) in travel {
+            let theta_r = g.theta_r_deg + along;
+            match window {
+                Some(a) => {
+                    for (mid, width, nodes) in model::window_nodes(g.theta_i_deg, theta_r, a) {
+                        // The share of the acceptance window is in the lobe table; of a
+                        // travel window (no acceptance), here.
+                        let share = if acceptance_deg.is_some() {
+                            weight
+                        } else {
+                            weight * width / a
+                        };
+                        raw_pieces.push((mid - g.theta_i_deg, width, nodes, share));
+                    }
+                }
+                None => {
+                    let point = if along == 0.0 {
+                        *g
+                    } else {
+                        PlaneGeometry::new(g.theta_i_deg, theta_r)
+                    };
+                    raw_pieces.push((point.offset_deg.abs(), 0.0, [point; 3], weight));
+                }
+            }
+        }
+        ranges.push((start, raw_pieces.len() as u32));
+    }
+    (raw_pieces, ranges)
+}
+
+impl LeastSquaresProblem {
     /// The problem of `observations` (validated) with their shared errors, the detector
     /// window `acceptance_deg` (`None` or ≤ 0: a point detector) and every θr shifted by
     /// `shift_deg` (the arm zero offset).
@@ -164,50 +212,14 @@ impl Problem {
         shared: &[SharedError],
         acceptance_deg: Option<f64>,
         shift_deg: f64,
-    ) -> Problem {
+    ) -> LeastSquaresProblem {
         let weighted = observations.first().is_some_and(|o| o.std.is_some());
         let acceptance_deg = acceptance_deg.filter(|&a| a > 0.0);
         let centres: Vec<PlaneGeometry> = observations
             .iter()
             .map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift_deg))
             .collect();
-        // Per reading its pieces as (lobe offset: of the piece's middle with a window, |θr − θi|
-        // without; the piece's width, 0 without a window; its three nodes; its share of the
-        // reading). A reading taken while the detector moved (a sweep's bin) is the mean of
-        // the windows along its travel (model::reading_window).
-        let mut raw_pieces: Vec<(f64, f64, [PlaneGeometry; 3], f64)> =
-            Vec::with_capacity(centres.len());
-        let mut ranges = Vec::with_capacity(centres.len());
-        for (o, g) in observations.iter().zip(&centres) {
-            let start = raw_pieces.len() as u32;
-            let (window, travel) = model::reading_window(o.theta_r_span_deg, acceptance_deg);
-            for (along, weight) in travel {
-                let theta_r = g.theta_r_deg + along;
-                match window {
-                    Some(a) => {
-                        for (mid, width, nodes) in model::window_nodes(g.theta_i_deg, theta_r, a) {
-                            // The share of the acceptance window is in the lobe table; of a
-                            // travel window (no acceptance), here.
-                            let share = if acceptance_deg.is_some() {
-                                weight
-                            } else {
-                                weight * width / a
-                            };
-                            raw_pieces.push((mid - g.theta_i_deg, width, nodes, share));
-                        }
-                    }
-                    None => {
-                        let point = if along == 0.0 {
-                            *g
-                        } else {
-                            PlaneGeometry::new(g.theta_i_deg, theta_r)
-                        };
-                        raw_pieces.push((point.offset_deg.abs(), 0.0, [point; 3], weight));
-                    }
-                }
-            }
-            ranges.push((start, raw_pieces.len() as u32));
-        }
+        let (raw_pieces, ranges) = raw_pieces(observations, &centres, acceptance_deg);
         let offsets_raw: Vec<f64> = centres
             .iter()
             .map(|g| {
@@ -266,7 +278,7 @@ impl Problem {
                 centre_psi: centre_index[k],
             })
             .collect();
-        Problem {
+        LeastSquaresProblem {
             points,
             acceptance_deg,
             weighted,
@@ -637,35 +649,98 @@ const ETA_GRID: [f64; 11] = [
 /// window's mean of the lobe alone, F and G/(cos·cos) at the centre, independent noise
 /// only): it only has to land in the right basins, which Levenberg–Marquardt then polishes
 /// on the full model.
-fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
-    let (mut sw, mut sy, mut syy) = (0.0, 0.0, 0.0);
-    for pt in &problem.points {
-        let w = pt.sqrt_w * pt.sqrt_w;
-        sw += w;
-        sy += w * pt.y;
-        syy += w * pt.y * pt.y;
-    }
-    // Per η and distinct lobe offset o: the sums over the points at o of u = w·F·H, u·y
-    // and u·F·H, so each (σ, η) costs three dot products over the distinct offsets (61
-    // for the 284-geometry grid) and each σ one lobe term per distinct offset.
-    let m = problem.offsets.len();
-    let mut fresnel = vec![0.0; problem.centre_psis.len()];
-    let mut u = vec![0.0; ETA_GRID.len() * m];
-    let mut uy = vec![0.0; ETA_GRID.len() * m];
-    let mut uu = vec![0.0; ETA_GRID.len() * m];
-    for (e, &eta) in ETA_GRID.iter().enumerate() {
-        for (f, &(s2, c)) in fresnel.iter_mut().zip(&problem.centre_psis) {
-            *f = model::fresnel_with_derivative(s2, c, eta).0;
-        }
+fn seeds(problem: &LeastSquaresProblem, max_seeds: usize) -> Vec<[f64; 4]> {
+    let sums = SeedSums::new(problem);
+    let (profile, eta_costs) = sigma_profile(problem, &sums);
+    let minima: Vec<(f64, [f64; 4])> = (0..profile.len())
+        .filter(|&i| {
+            let c = profile[i].0;
+            (i == 0 || c <= profile[i - 1].0) && (i + 1 == profile.len() || c <= profile[i + 1].0)
+        })
+        .map(|i| profile[i])
+        .collect();
+    let mut minima: Vec<(f64, [f64; 4])> = minima
+        .into_iter()
+        .map(|(c, x)| polish_minimum(problem, &profile, &eta_costs, c, x))
+        .collect();
+    minima.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Basins far worse than the best on the grid do not compete after polishing either.
+    let best_cost = minima.first().map_or(0.0, |m| m.0);
+    minima.retain(|m| m.0 <= 2.0 * best_cost + 1e-300);
+    minima.truncate(max_seeds);
+    minima.into_iter().map(|(_, x)| x).collect()
+}
+
+/// The seeding grid's weighted sums: Σw, Σwy, Σwy² over the points, and per η of
+/// [`ETA_GRID`] and distinct lobe offset o the sums over the points at o of u = w·F·H,
+/// u·y and u·F·H, so each (σ, η) costs three dot products over the distinct offsets (61
+/// for the 284-geometry grid) and each σ one lobe term per distinct offset.
+struct SeedSums {
+    sw: f64,
+    sy: f64,
+    syy: f64,
+    /// Distinct lobe offsets.
+    m: usize,
+    u: Vec<f64>,
+    uy: Vec<f64>,
+    uu: Vec<f64>,
+}
+
+impl SeedSums {
+    fn new(problem: &LeastSquaresProblem) -> SeedSums {
+        let (mut sw, mut sy, mut syy) = (0.0, 0.0, 0.0);
         for pt in &problem.points {
-            let fh = fresnel[pt.centre_psi as usize] * pt.geometry.attenuation_over_cosines;
             let w = pt.sqrt_w * pt.sqrt_w;
-            let k = e * m + pt.offset as usize;
-            u[k] += w * fh;
-            uy[k] += w * fh * pt.y;
-            uu[k] += w * fh * fh;
+            sw += w;
+            sy += w * pt.y;
+            syy += w * pt.y * pt.y;
+        }
+        let m = problem.offsets.len();
+        let mut fresnel = vec![0.0; problem.centre_psis.len()];
+        let mut u = vec![0.0; ETA_GRID.len() * m];
+        let mut uy = vec![0.0; ETA_GRID.len() * m];
+        let mut uu = vec![0.0; ETA_GRID.len() * m];
+        for (e, &eta) in ETA_GRID.iter().enumerate() {
+            for (f, &(s2, c)) in fresnel.iter_mut().zip(&problem.centre_psis) {
+                *f = model::fresnel_with_derivative(s2, c, eta).0;
+            }
+            for pt in &problem.points {
+                let fh = fresnel[pt.centre_psi as usize] * pt.geometry.attenuation_over_cosines;
+                let w = pt.sqrt_w * pt.sqrt_w;
+                let k = e * m + pt.offset as usize;
+                u[k] += w * fh;
+                uy[k] += w * fh * pt.y;
+                uu[k] += w * fh * fh;
+            }
+        }
+        SeedSums {
+            sw,
+            sy,
+            syy,
+            m,
+            u,
+            uy,
+            uu,
         }
     }
+}
+
+/// The profile over [`sigma_grid`]: at each σ the best (cost, x) over [`ETA_GRID`], and
+/// every (σ, η)'s cost (row-major, η fastest).
+#[allow(clippy::type_complexity)]
+fn sigma_profile(
+    problem: &LeastSquaresProblem,
+    sums: &SeedSums,
+) -> (Vec<(f64, [f64; 4])>, Vec<f64>) {
+    let SeedSums {
+        sw,
+        sy,
+        syy,
+        m,
+        ref u,
+        ref uy,
+        ref uu,
+    } = *sums;
     let mut lobe = Vec::with_capacity(m);
     let mut profile: Vec<(f64, [f64; 4])> = Vec::with_capacity(40);
     let mut eta_costs: Vec<f64> = Vec::with_capacity(40 * ETA_GRID.len());
@@ -674,26 +749,8 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
         let mut best = (f64::INFINITY, [0.0; 4]);
         for (e, &eta) in ETA_GRID.iter().enumerate() {
             let range = e * m..(e + 1) * m;
-            // Four partial sums per dot product: independent chains the compiler can
-            // keep in vector registers.
-            let (mut sg4, mut sgy4, mut sgg4) = ([0.0; 4], [0.0; 4], [0.0; 4]);
-            let (l, u, uy, uu) = (&lobe[..], &u[range.clone()], &uy[range.clone()], &uu[range]);
-            let whole = m / 4 * 4;
-            for c in (0..whole).step_by(4) {
-                for j in 0..4 {
-                    let lj = l[c + j];
-                    sg4[j] += u[c + j] * lj;
-                    sgy4[j] += uy[c + j] * lj;
-                    sgg4[j] += uu[c + j] * lj * lj;
-                }
-            }
-            for k in whole..m {
-                sg4[0] += u[k] * l[k];
-                sgy4[0] += uy[k] * l[k];
-                sgg4[0] += uu[k] * l[k] * l[k];
-            }
-            let sum4 = |v: [f64; 4]| (v[0] + v[1]) + (v[2] + v[3]);
-            let (sg, sgy, sgg) = (sum4(sg4), sum4(sgy4), sum4(sgg4));
+            let (sg, sgy, sgg) =
+                lobe_dots(&lobe[..], &u[range.clone()], &uy[range.clone()], &uu[range]);
             let s = solve_linear(sw, sy, syy, sg, sgg, sgy);
             eta_costs.push(s.cost);
             if s.cost < best.0 {
@@ -705,69 +762,84 @@ fn seeds(problem: &Problem, max_seeds: usize) -> Vec<[f64; 4]> {
         }
         profile.push(best);
     }
-    let minima: Vec<(f64, [f64; 4])> = (0..profile.len())
-        .filter(|&i| {
-            let c = profile[i].0;
-            (i == 0 || c <= profile[i - 1].0) && (i + 1 == profile.len() || c <= profile[i + 1].0)
-        })
-        .map(|i| profile[i])
-        .collect();
+    (profile, eta_costs)
+}
+
+/// Σ u·l, Σ uy·l and Σ uu·l² over the distinct offsets, with four partial sums per dot
+/// product: independent chains the compiler can keep in vector registers.
+fn lobe_dots(l: &[f64], u: &[f64], uy: &[f64], uu: &[f64]) -> (f64, f64, f64) {
+    let m = u.len();
+    let (mut sg4, mut sgy4, mut sgg4) = ([0.0; 4], [0.0; 4], [0.0; 4]);
+    let whole = m / 4 * 4;
+    for c in (0..whole).step_by(4) {
+        for j in 0..4 {
+            let lj = l[c + j];
+            sg4[j] += u[c + j] * lj;
+            sgy4[j] += uy[c + j] * lj;
+            sgg4[j] += uu[c + j] * lj * lj;
+        }
+    }
+    for k in whole..m {
+        sg4[0] += u[k] * l[k];
+        sgy4[0] += uy[k] * l[k];
+        sgg4[0] += uu[k] * l[k] * l[k];
+    }
+    let sum4 = |v: [f64; 4]| (v[0] + v[1]) + (v[2] + v[3]);
+    (sum4(sg4), sum4(sgy4), sum4(sgg4))
+}
+
+/// A local minimum of the profile polished by parabolas through its neighbours, in ln σ
+/// along the profile and in η along its row (starting in the right place of the narrow
+/// ρs–η valley of nearly-Fresnel-free papers, η → 1, saves most LM iterations), then on
+/// the full model: the start Levenberg–Marquardt gets, and the cost the basins are ranked
+/// by (the polished point unless the grid point is better).
+fn polish_minimum(
+    problem: &LeastSquaresProblem,
+    profile: &[(f64, [f64; 4])],
+    eta_costs: &[f64],
+    c: f64,
+    x: [f64; 4],
+) -> (f64, [f64; 4]) {
     let n_eta = ETA_GRID.len();
-    let mut minima: Vec<(f64, [f64; 4])> = minima
-        .into_iter()
-        .map(|(c, x)| {
-            // Polish the grid point by parabolas through its neighbours, in ln σ along the
-            // profile and in η along its row: starting in the right place of the narrow
-            // ρs–η valley of nearly-Fresnel-free papers (η → 1) saves most LM iterations.
-            let i = profile.iter().position(|p| p.1 == x).unwrap_or(0);
-            let ln_sigma = if i > 0 && i + 1 < profile.len() {
-                parabola_min(
-                    [profile[i - 1].1[0], x[0], profile[i + 1].1[0]],
-                    [profile[i - 1].0, c, profile[i + 1].0],
-                )
-                .unwrap_or(x[0])
-            } else {
-                x[0]
-            };
-            let row = &eta_costs[i * n_eta..(i + 1) * n_eta];
-            let e = ETA_GRID.iter().position(|&eta| eta == x[3]).unwrap_or(0);
-            let eta = if e > 0 && e + 1 < n_eta {
-                parabola_min(
-                    [ETA_GRID[e - 1], ETA_GRID[e], ETA_GRID[e + 1]],
-                    [row[e - 1], row[e], row[e + 1]],
-                )
-                .unwrap_or(x[3])
-            } else {
-                x[3]
-            };
-            // On the full model: the start Levenberg–Marquardt gets, and the cost the
-            // basins are ranked by (the polished point unless the grid point is better).
-            let refined = problem.linear(ln_sigma.exp(), eta);
-            let grid = problem.linear(x[0].exp(), x[3]);
-            if refined.cost <= grid.cost {
-                (
-                    refined.cost,
-                    [
-                        ln_sigma,
-                        refined.rho_s * eta_factor(eta),
-                        refined.rho_d,
-                        eta,
-                    ],
-                )
-            } else {
-                (
-                    grid.cost,
-                    [x[0], grid.rho_s * eta_factor(x[3]), grid.rho_d, x[3]],
-                )
-            }
-        })
-        .collect();
-    minima.sort_by(|a, b| a.0.total_cmp(&b.0));
-    // Basins far worse than the best on the grid do not compete after polishing either.
-    let best_cost = minima.first().map_or(0.0, |m| m.0);
-    minima.retain(|m| m.0 <= 2.0 * best_cost + 1e-300);
-    minima.truncate(max_seeds);
-    minima.into_iter().map(|(_, x)| x).collect()
+    let i = profile.iter().position(|p| p.1 == x).unwrap_or(0);
+    let ln_sigma = if i > 0 && i + 1 < profile.len() {
+        parabola_min(
+            [profile[i - 1].1[0], x[0], profile[i + 1].1[0]],
+            [profile[i - 1].0, c, profile[i + 1].0],
+        )
+        .unwrap_or(x[0])
+    } else {
+        x[0]
+    };
+    let row = &eta_costs[i * n_eta..(i + 1) * n_eta];
+    let e = ETA_GRID.iter().position(|&eta| eta == x[3]).unwrap_or(0);
+    let eta = if e > 0 && e + 1 < n_eta {
+        parabola_min(
+            [ETA_GRID[e - 1], ETA_GRID[e], ETA_GRID[e + 1]],
+            [row[e - 1], row[e], row[e + 1]],
+        )
+        .unwrap_or(x[3])
+    } else {
+        x[3]
+    };
+    let refined = problem.linear(ln_sigma.exp(), eta);
+    let grid = problem.linear(x[0].exp(), x[3]);
+    if refined.cost <= grid.cost {
+        (
+            refined.cost,
+            [
+                ln_sigma,
+                refined.rho_s * eta_factor(eta),
+                refined.rho_d,
+                eta,
+            ],
+        )
+    } else {
+        (
+            grid.cost,
+            [x[0], grid.rho_s * eta_factor(x[3]), grid.rho_d, x[3]],
+        )
+    }
 }
 
 /// Abscissa of the minimum of the parabola through three points, if it opens upwards and
@@ -837,45 +909,10 @@ fn solve_spd(m: &[[f64; 4]; 4], b: &[f64; 4], free: &[bool; 4]) -> Option<[f64; 
     Some(out)
 }
 
-/// Inverse of the sub-matrix on `free` (zeros elsewhere), `None` if singular.
-pub fn inverse_spd(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
-    // Scale to unit diagonal first so that parameters of very different size do not
-    // make a well-posed matrix look singular.
-    let d: [f64; 4] = std::array::from_fn(|i| {
-        if free[i] && m[i][i] > 0.0 {
-            1.0 / m[i][i].sqrt()
-        } else {
-            0.0
-        }
-    });
-    if (0..4).any(|i| free[i] && d[i] == 0.0) {
-        return None;
-    }
-    let scaled: [[f64; 4]; 4] =
-        std::array::from_fn(|i| std::array::from_fn(|j| m[i][j] * d[i] * d[j]));
-    let mut inv = [[0.0; 4]; 4];
-    for c in 0..4 {
-        if !free[c] {
-            continue;
-        }
-        let mut e = [0.0; 4];
-        e[c] = 1.0;
-        let col = solve_spd(&scaled, &e, free)?;
-        for r in 0..4 {
-            inv[r][c] = col[r] * d[r] * d[c];
-        }
-    }
-    // A near-singular matrix shows as a huge scaled inverse.
-    if (0..4).any(|i| free[i] && !(inv[i][i] * m[i][i] < 1e12)) {
-        return None;
-    }
-    Some(inv)
-}
-
 /// Levenberg–Marquardt with Marquardt's diagonal scaling and bounds by an active set:
 /// a parameter on a bound whose gradient points out of the box is held for that step.
 pub(super) fn levenberg_marquardt(
-    problem: &Problem,
+    problem: &LeastSquaresProblem,
     x0: [f64; 4],
     fixed: [bool; 4],
     max_iterations: usize,
@@ -885,7 +922,7 @@ pub(super) fn levenberg_marquardt(
 
 /// [`levenberg_marquardt`] that also stops as soon as the cost is at or below `good_enough`.
 pub(super) fn levenberg_marquardt_until(
-    problem: &Problem,
+    problem: &LeastSquaresProblem,
     x0: [f64; 4],
     fixed: [bool; 4],
     max_iterations: usize,
@@ -960,7 +997,7 @@ pub(super) fn levenberg_marquardt_until(
 }
 
 /// Global search then local polish, on the full model.
-pub(super) fn global_fit(problem: &Problem, max_iterations: usize) -> LmOutcome {
+pub(super) fn global_fit(problem: &LeastSquaresProblem, max_iterations: usize) -> LmOutcome {
     let mut best: Option<LmOutcome> = None;
     for seed in seeds(problem, 3) {
         let run = levenberg_marquardt(problem, seed, [false; 4], max_iterations);
@@ -974,7 +1011,7 @@ pub(super) fn global_fit(problem: &Problem, max_iterations: usize) -> LmOutcome 
     })
 }
 
-impl Problem {
+impl LeastSquaresProblem {
     /// Whitened ∂f/∂δ0 per reading at x: the model's change when every θr moves by the
     /// arm offset. With a window it is exact for the window's mean: (1/a)·(spec(θr + a/2) −
     /// spec(θr − a/2)), the point model's specular part at the edges; without one a central
@@ -1044,5 +1081,220 @@ impl Problem {
         let at =
             |d: f64| model::evaluate_reading(p, ti, tr + d, pt.span_deg, self.acceptance_deg).0;
         (at(step) - at(-step)) / (2.0 * step)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::model::{RHO_S, SIGMA};
+
+    fn grid() -> Vec<Observation> {
+        let mut out = Vec::new();
+        for ti in [20.0, 30.0, 45.0, 60.0] {
+            for k in 0..=140 {
+                let tr = 0.5 * k as f64;
+                out.push(Observation {
+                    theta_i_deg: ti,
+                    theta_r_deg: tr,
+                    radiance_factor: 1.0 + tr * 1e-3,
+                    std: Some(0.01),
+                    theta_r_span_deg: 0.0,
+                });
+            }
+        }
+        out
+    }
+
+    /// The engine's tables give the public model's values and gradients, with and without
+    /// the window, with and without an arm offset, at σ on both sides of the moments'
+    /// two evaluation methods.
+    #[test]
+    fn engine_matches_the_model() {
+        let obs = grid();
+        for acceptance in [None, Some(1.0)] {
+            for shift in [0.0, 0.3] {
+                let problem = LeastSquaresProblem::new(&obs, &[], acceptance, shift);
+                for p in [
+                    Params {
+                        sigma_deg: 0.3,
+                        rho_s: 40.0,
+                        rho_d: 0.8,
+                        eta: 1.19,
+                    },
+                    Params {
+                        sigma_deg: 0.8,
+                        rho_s: 57.8,
+                        rho_d: 0.855,
+                        eta: 1.19,
+                    },
+                    Params {
+                        sigma_deg: 21.7,
+                        rho_s: 0.409,
+                        rho_d: 0.414,
+                        eta: 2.5,
+                    },
+                ] {
+                    let x = x_of(&p);
+                    let values = problem.values(&x);
+                    let (_, jac) = problem.rows(&x);
+                    for (k, o) in obs.iter().enumerate() {
+                        let (v, g) = model::evaluate(
+                            &p,
+                            &PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift),
+                            acceptance,
+                        );
+                        assert!(
+                            (values[k] - v).abs() <= 1e-12 * v.abs(),
+                            "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}",
+                            values[k]
+                        );
+                        // x = (ln σ, A, ρd, η): ∂/∂ln σ = σ ∂/∂σ, ∂/∂A = ∂/∂ρs / (η²−1).
+                        let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
+                        let want_a = g[RHO_S] / eta_factor(p.eta) / 0.01;
+                        assert!(
+                            (jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6),
+                            "σ {o:?}: {} vs {want_sigma}",
+                            jac[k][0]
+                        );
+                        assert!(
+                            (jac[k][1] - want_a).abs() <= 1e-9 * (want_a.abs() + 1e-6),
+                            "A {o:?}: {} vs {want_a}",
+                            jac[k][1]
+                        );
+                    }
+                    // The shift column against a difference of the engine's own values.
+                    let column = problem.shift_column(&x);
+                    let h = 1e-4;
+                    let up = LeastSquaresProblem::new(&obs, &[], acceptance, shift + h).values(&x);
+                    let down =
+                        LeastSquaresProblem::new(&obs, &[], acceptance, shift - h).values(&x);
+                    for k in 0..obs.len() {
+                        let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
+                        assert!(
+                            (column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0),
+                            "{acceptance:?} {p:?} reading {k}: {} vs {fd}",
+                            column[k]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Readings taken while the detector moved (a sweep's bins, mixed with still ones): the
+    /// engine's tables give the public model's mean over the travel, its gradient, and
+    /// the shift column, with and without the window.
+    #[test]
+    fn engine_matches_the_model_for_bins() {
+        let obs: Vec<Observation> = grid()
+            .into_iter()
+            .step_by(3)
+            .enumerate()
+            .map(|(k, o)| Observation {
+                theta_r_span_deg: [0.0, 0.06, 0.3, 1.5][k % 4],
+                ..o
+            })
+            .collect();
+        for acceptance in [None, Some(1.0)] {
+            for shift in [0.0, 0.3] {
+                let problem = LeastSquaresProblem::new(&obs, &[], acceptance, shift);
+                for p in [
+                    Params {
+                        sigma_deg: 0.8,
+                        rho_s: 57.8,
+                        rho_d: 0.855,
+                        eta: 1.19,
+                    },
+                    Params {
+                        sigma_deg: 21.7,
+                        rho_s: 0.409,
+                        rho_d: 0.414,
+                        eta: 2.5,
+                    },
+                ] {
+                    let x = x_of(&p);
+                    let values = problem.values(&x);
+                    let (_, jac) = problem.rows(&x);
+                    for (k, o) in obs.iter().enumerate() {
+                        let (v, g) = model::evaluate_reading(
+                            &p,
+                            o.theta_i_deg,
+                            o.theta_r_deg + shift,
+                            o.theta_r_span_deg,
+                            acceptance,
+                        );
+                        assert!(
+                            (values[k] - v).abs() <= 1e-12 * v.abs(),
+                            "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}",
+                            values[k]
+                        );
+                        let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
+                        assert!(
+                            (jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6),
+                            "σ {o:?}: {} vs {want_sigma}",
+                            jac[k][0]
+                        );
+                    }
+                    let column = problem.shift_column(&x);
+                    let h = 1e-4;
+                    let up = LeastSquaresProblem::new(&obs, &[], acceptance, shift + h).values(&x);
+                    let down =
+                        LeastSquaresProblem::new(&obs, &[], acceptance, shift - h).values(&x);
+                    for k in 0..obs.len() {
+                        let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
+                        assert!(
+                            (column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0),
+                            "{acceptance:?} {p:?} reading {k}: {} vs {fd}",
+                            column[k]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Woodbury: the engine's cost with shared errors equals rᵀ Σ⁻¹ r with Σ formed and
+    /// inverted densely.
+    #[test]
+    fn shared_errors_give_the_dense_gls_cost() {
+        let obs: Vec<Observation> = grid().into_iter().step_by(12).collect();
+        let n = obs.len();
+        let shared: Vec<SharedError> = (0..3)
+            .map(|k| SharedError {
+                name: format!("term {k}"),
+                sensitivity: (0..n).map(|i| 0.01 * ((i * (k + 2)) % 7) as f64).collect(),
+                additive: Vec::new(),
+            })
+            .collect();
+        let p = Params {
+            sigma_deg: 5.0,
+            rho_s: 0.5,
+            rho_d: 0.9,
+            eta: 1.5,
+        };
+        let problem = LeastSquaresProblem::new(&obs, &shared, Some(1.0), 0.0);
+        let cost = problem.accumulate(&x_of(&p), false).0;
+        let mut sigma = Square::zeros(n);
+        for i in 0..n {
+            for j in 0..n {
+                let shared_part: f64 = shared
+                    .iter()
+                    .map(|s| s.sensitivity[i] * s.sensitivity[j])
+                    .sum();
+                *sigma.at_mut(i, j) = shared_part + if i == j { 1e-4 } else { 0.0 };
+            }
+        }
+        let inv = linalg::spd_inverse(&sigma).expect("positive definite");
+        let values = problem.values(&x_of(&p));
+        let r: Vec<f64> = values
+            .iter()
+            .zip(&obs)
+            .map(|(f, o)| f - o.radiance_factor)
+            .collect();
+        let dense: f64 = (0..n)
+            .map(|i| (0..n).map(|j| r[i] * inv.at(i, j) * r[j]).sum::<f64>())
+            .sum();
+        assert!((cost - dense).abs() <= 1e-9 * dense, "{cost} vs {dense}");
     }
 }

@@ -1,16 +1,51 @@
-//! Measuring a stage of sweeps: each sweep run on the instrument, its bins recorded as
-//! they stream, and whatever of its θr range is left without a usable bin — bins lost on
-//! the link, bins blanked by a range switch or empty, bins superseded after lost steps —
-//! measured again by short sweeps over just those intervals, until every planned sweep is
-//! covered.
+//! The sweep policy as the session runs it: its targets; a stage of sweeps measured on the
+//! instrument, each sweep's bins recorded as they stream, and whatever of its θr range is
+//! left without a usable bin — bins lost on the link, bins blanked by a range switch or
+//! empty, bins superseded after lost steps — measured again by short sweeps over just
+//! those intervals, until every planned sweep is covered; then the rounds of sweeps across
+//! the peak. What to sweep is designed in [`crate::analysis::sweep_design`]; how a bin
+//! becomes a reading is [`super::sweep_bins`]'s.
 use super::recovery::Failure;
-use super::sweep::{BinReading, BinStamp, SweepPlan, bin_point, dwell_centres_steps, min_bin_deg};
+use super::sweep_bins::{BinReading, bin_point};
 use super::{MeasuredPoint, Progress, Session, SessionError, StepError};
+use crate::analysis::sweep_design::{self, BinStamp, SweepPlan, dwell_centres_steps, min_bin_deg};
 use crate::instrument::link::{LinkError, Transport};
 use firmware::motion::angle_to_steps;
 use protocol::{Angle, Command, DeviceMessage, Reply, Sweep, SweepBin, Target};
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::time::Duration;
+
+/// Targets and limits of the sweep policy.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SweepTargets {
+    /// The first pass's (and the full plane's) top speed, °/s (the instrument's own maximum at most).
+    pub pass_speed_deg_per_s: f64,
+    /// The first pass's (and the full plane's) bin length, degrees.
+    pub pass_bin_deg: f64,
+    /// Stop when σ's 95 % half-width relative to σ is at most this …
+    pub sigma_rel_half_width: f64,
+    /// … and the class confidence is at least this (the adaptive policy's targets).
+    pub class_confidence: f64,
+    /// Sweeps across the peak per round (one fit after each round).
+    pub sweeps_per_round: usize,
+    /// Rounds before giving up on the targets.
+    pub max_rounds: usize,
+}
+
+impl Default for SweepTargets {
+    fn default() -> Self {
+        let adaptive = crate::session::adaptive::AdaptiveTargets::default();
+        SweepTargets {
+            pass_speed_deg_per_s: 60.0,
+            pass_bin_deg: 0.1,
+            sigma_rel_half_width: adaptive.sigma_rel_half_width,
+            class_confidence: adaptive.class_confidence,
+            sweeps_per_round: 2,
+            max_rounds: 4,
+        }
+    }
+}
 
 /// Least relative narrowing of σ's interval a round of peak sweeps must be predicted to
 /// bring for it to be run.
@@ -119,19 +154,19 @@ impl<T: Transport> Session<'_, T> {
 
     /// The sweep policy after its first pass: rounds of sweeps across the specular
     /// peak, designed on the current fit by the drop of σ's variance per device second
-    /// ([`super::sweep::design_peak_sweeps`]), until σ is known to the target and the class
+    /// ([`sweep_design::design_peak_sweeps`]), until σ is known to the target and the class
     /// is settled, as the adaptive policy stops (a rough paper whose pass already passes
     /// σ_l stops at once). A fit whose σ the pass did not resolve gets slow sweeps across
     /// every incidence's specular direction first; a fit flagged lack-of-fit carries on
     /// only while its σ is not known well, and keeps its flag.
     pub(super) fn refine_by_sweeps(
         &mut self,
-        targets: super::sweep::SweepTargets,
+        targets: SweepTargets,
         report: &mut crate::analysis::report::Report,
         fits: &mut Vec<super::FitStep>,
         refinements: &mut Vec<super::Refinement>,
     ) -> Result<(), SessionError> {
-        use super::sweep::{SweepTargets, design_peak_sweeps, peak_candidates};
+        use sweep_design::{design_peak_sweeps, peak_candidates};
         let SweepTargets {
             sigma_rel_half_width,
             class_confidence,
@@ -169,7 +204,7 @@ impl<T: Transport> Session<'_, T> {
                         "lack-of-fit after {} readings (χ² p = {:.1e}): θr 0–{}° at θi = {} too, the rest of the full plane",
                         report.fit.n,
                         report.fit.gof_p.unwrap_or(f64::NAN),
-                        super::sweep::THETA_R_MAX_DEG,
+                        sweep_design::THETA_R_MAX_DEG,
                         incidences.join(" and ")
                     );
                     let stage = format!(
@@ -307,7 +342,7 @@ impl<T: Transport> Session<'_, T> {
         Ok(())
     }
 
-    /// The full plane's lines ([`super::sweep::full_plane`]) that no wanted sweep has run
+    /// The full plane's lines ([`sweep_design::full_plane`]) that no wanted sweep has run
     /// whole yet, in the order fastest from `here`.
     fn rest_of_full_plane(
         &self,
@@ -317,7 +352,7 @@ impl<T: Transport> Session<'_, T> {
     ) -> Vec<SweepPlan> {
         let whole = |p: &SweepPlan| {
             p.from_deg.min(p.to_deg) <= 0.0
-                && p.from_deg.max(p.to_deg) >= super::sweep::THETA_R_MAX_DEG
+                && p.from_deg.max(p.to_deg) >= sweep_design::THETA_R_MAX_DEG
         };
         let missing: Vec<i32> = protocol::schedules::INCIDENCE_DEG
             .into_iter()
@@ -328,7 +363,7 @@ impl<T: Transport> Session<'_, T> {
                     .any(|p| p.theta_i_deg == f64::from(theta_i) && whole(p))
             })
             .collect();
-        super::sweep::lines_from(&self.motion, here, &missing, speed_deg_per_s, bin_deg)
+        sweep_design::lines_from(&self.motion, here, &missing, speed_deg_per_s, bin_deg)
     }
 
     /// The predicted variance of one detector block's radiance factor at a radiance
@@ -561,7 +596,7 @@ impl<T: Transport> Session<'_, T> {
     }
 
     /// Record a sweep's bins, each at where the arm stood on average while it was read
-    /// ([`super::sweep::dwell_centres_steps`]; the middle of its interval when the model
+    /// ([`sweep_design::dwell_centres_steps`]; the middle of its interval when the model
     /// finds no phase of the block clock that gives the bins received).
     fn record_bins(
         &mut self,

@@ -1,0 +1,380 @@
+//! What a fit returns: the parameters with their intervals and covariance, the budget,
+//! the notes on what the data did not determine, and the goodness of fit.
+use super::{ARM_OFFSET_LR_CRITICAL, ETA_MIN, N_PARAMS};
+use crate::analysis::flags::Flag;
+use crate::analysis::gof::StructureTest;
+use crate::analysis::model::{PARAM_NAMES, Params, SIGMA};
+use serde::Serialize;
+
+/// One term of the uncertainty budget: its contribution to the variance of σ (deg²), ρs,
+/// ρd and η. The terms add up to the diagonal of [`FitResult::covariance`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BudgetTerm {
+    /// `reading noise` (the independent part), a [`super::SharedError`]'s name, or `lack of fit`.
+    pub name: String,
+    /// Contribution to Var of σ (degrees), ρs, ρd, η (0 for what was not determined).
+    pub variance: [f64; N_PARAMS],
+}
+
+/// How the iteration ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    /// The cost stopped decreasing (relative change below 1e-10 or no downhill step left).
+    Converged,
+    /// The iteration limit was reached first.
+    IterationLimit,
+}
+
+impl Status {
+    /// As the JSON spells it (`converged`, `iteration_limit`): one spelling in every output.
+    pub fn name(self) -> &'static str {
+        match self {
+            Status::Converged => "converged",
+            Status::IterationLimit => "iteration_limit",
+        }
+    }
+}
+
+/// Which side of its range a parameter sits on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Bound {
+    /// The lower bound.
+    Lower,
+    /// The upper bound.
+    Upper,
+}
+
+/// What the data did not determine, what was estimated from the data alone, and what was
+/// done about it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum Note {
+    /// η ended at a bound; it is reported at the bound and not fitted.
+    EtaAtBound {
+        /// The bound's value.
+        eta: f64,
+    },
+    /// No specular part (ρs = 0 or η = 1, where F ≡ 0): σ and η mean nothing; only ρd is fitted.
+    NoSpecularTerm,
+    /// The cost is flat down to σ → 0: the sampling does not resolve the peak. σ is only
+    /// known to be below `upper_deg`; ρs, ρd, η are fitted with the peak in its σ → 0 limit.
+    /// Through a detector window only ρs·min(1, ~σ/a) is then determined, so ρs is not
+    /// reported; `rho_s_lower` is its value at σ = `upper_deg`, the smallest the data allow.
+    SigmaUnresolved {
+        /// Largest σ the data allow (95 % profile), degrees.
+        upper_deg: f64,
+        /// ρs at σ = `upper_deg` (with a window), the lower limit of ρs.
+        rho_s_lower: Option<f64>,
+    },
+    /// The normal matrix was singular at the optimum: no confidence intervals.
+    SingularJacobian,
+    /// As many parameters as geometries: no residual variance, no confidence intervals.
+    NoDegreesOfFreedom,
+    /// No standard uncertainties were given: the readings are weighted equally, the noise is
+    /// estimated from the residuals (`std`, one reading's if it were the same for all) and
+    /// the intervals from the heteroscedasticity-consistent sandwich (from `SANDWICH_MIN_DOF` degrees of freedom);
+    /// there is no χ² test.
+    NoiseFromResiduals {
+        /// The estimated standard deviation of one reading.
+        std: f64,
+    },
+    /// An arm zero offset was fitted: every θr is taken as θr + `deg`.
+    ArmOffsetFitted {
+        /// δ0, degrees.
+        deg: f64,
+        /// Its standard uncertainty, degrees.
+        std_deg: f64,
+        /// The likelihood-ratio statistic that called for it.
+        lr: f64,
+    },
+    /// The model does not describe the data: the covariance was multiplied by `factor`.
+    IntervalsWidened {
+        /// The variance factor k.
+        factor: f64,
+    },
+    /// Neither goodness-of-fit test could be made (no uncertainties and too few θr neighbours).
+    FitNotTestable,
+    /// η's 95 % interval reaches 1, where ρs = A/(η²−1) is unbounded: ρs is not identified,
+    /// only known to be at least `rho_s_lower` (its value at η's upper limit).
+    RhoSUnbounded {
+        /// Lower limit of ρs.
+        rho_s_lower: f64,
+    },
+}
+
+impl std::fmt::Display for Note {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Note::EtaAtBound { eta } => write!(f, "η at its bound {eta}: held there, not fitted"),
+            Note::NoSpecularTerm => {
+                f.write_str("no specular part: only ρd fitted (σ, η meaningless)")
+            }
+            Note::SigmaUnresolved {
+                upper_deg,
+                rho_s_lower,
+            } => {
+                write!(
+                    f,
+                    "σ not resolved by the sampling: only known to be below {upper_deg:.3}°"
+                )?;
+                match rho_s_lower {
+                    Some(r) => write!(
+                        f,
+                        "; through the detector window ρs is not determined either (≥ {r:.4})"
+                    ),
+                    None => Ok(()),
+                }
+            }
+            Note::SingularJacobian => {
+                f.write_str("singular normal matrix at the optimum: no confidence intervals")
+            }
+            Note::NoDegreesOfFreedom => {
+                f.write_str("as many parameters as geometries: no confidence intervals")
+            }
+            Note::NoiseFromResiduals { std } => {
+                write!(
+                    f,
+                    "no uncertainties given: the noise is estimated from the residuals (std {std:.3e} if equal for all readings; intervals allow it to differ between readings); no χ² test"
+                )
+            }
+            Note::ArmOffsetFitted { deg, std_deg, lr } => {
+                write!(
+                    f,
+                    "arm zero offset fitted: every θr taken as θr + δ0, δ0 = {deg:+.3}° ± {std_deg:.3}° (test statistic {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})"
+                )
+            }
+            Note::IntervalsWidened { factor } => {
+                write!(
+                    f,
+                    "the model does not describe the data: intervals widened × {:.2} (variance × {factor:.2})",
+                    factor.sqrt()
+                )
+            }
+            Note::FitNotTestable => f.write_str(
+                "goodness of fit not testable: no uncertainties and too few θr neighbours",
+            ),
+            Note::RhoSUnbounded { rho_s_lower } => {
+                write!(
+                    f,
+                    "η's interval reaches 1, where ρs = A/(η²−1) is unbounded (A = ρs·(η²−1) the amplitude the data fix): ρs not identified, only ≥ {rho_s_lower:.4}"
+                )
+            }
+        }
+    }
+}
+
+/// Which parameters a fit estimated (as parameters or, for ρs with η at its lower
+/// bound, as the amplitude ρs·(η² − 1)); see [`FitResult::not_identified`] for which of
+/// them mean something.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FittedModel(pub [bool; N_PARAMS]);
+
+impl FittedModel {
+    /// Names of the fitted parameters, in the order σ, ρs, ρd, η.
+    pub fn names(&self) -> Vec<&'static str> {
+        (0..N_PARAMS)
+            .filter(|&i| self.0[i])
+            .map(|i| PARAM_NAMES[i])
+            .collect()
+    }
+
+    /// Number of fitted parameters.
+    pub fn count(&self) -> usize {
+        self.0.iter().filter(|&&b| b).count()
+    }
+}
+
+/// A parameter at one of its bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ActiveBound {
+    /// Parameter name (`sigma`, `rho_s`, `rho_d`, `eta`).
+    pub param: &'static str,
+    /// Which bound.
+    pub bound: Bound,
+}
+
+/// A parameter the data did not determine, and why. It is reported as null and used by
+/// nothing downstream (class, nearest reference, comparison).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct NotIdentified {
+    /// Parameter name.
+    pub param: &'static str,
+    /// Why.
+    pub reason: &'static str,
+}
+
+/// The fitted arm zero offset.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ArmOffset {
+    /// δ0, degrees: the detector was at θr + δ0 when it said θr.
+    pub deg: f64,
+    /// Standard uncertainty, degrees.
+    pub std_deg: f64,
+    /// 95 % interval, degrees.
+    pub ci95: (f64, f64),
+    /// Likelihood-ratio statistic of the test that called for it.
+    pub lr: f64,
+}
+
+/// The outcome of a fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitResult {
+    /// Parameter values the fitted model uses (see [`FitResult::reported`] for which mean something).
+    pub params: Params,
+    /// Which parameters were estimated.
+    pub model: FittedModel,
+    /// 95 % confidence intervals (normal quantile for weighted fits, Student t on ν for
+    /// unweighted or widened ones), clipped to the bounds; `None` for parameters not
+    /// fitted or not identified, or when none can be given.
+    pub ci95: [Option<(f64, f64)>; N_PARAMS],
+    /// Whether each interval was clipped at a bound.
+    pub ci_clipped: [bool; N_PARAMS],
+    /// Covariance of (σ in degrees, ρs, ρd, η), arm offset marginalised, widened under lack of
+    /// fit; rows and columns of parameters not fitted or not identified are 0.
+    pub covariance: [[f64; N_PARAMS]; N_PARAMS],
+    /// The covariance's diagonal by source; the terms add up to it.
+    pub budget: Vec<BudgetTerm>,
+    /// Parameters sitting on a bound.
+    pub active_bounds: Vec<ActiveBound>,
+    /// What the data did not determine, and how the result was reached.
+    pub notes: Vec<Note>,
+    /// The acceptance window modelled, degrees, if it was.
+    pub acceptance_deg: Option<f64>,
+    /// The arm zero offset, if the data called for one.
+    pub arm_offset: Option<ArmOffset>,
+    /// The statistic of the arm-offset test (likelihood ratio, or the score screen when the
+    /// search was not needed); `None` when not tested.
+    pub arm_offset_statistic: Option<f64>,
+    /// Readings.
+    pub n: usize,
+    /// Weighted sum of squared residuals rᵀΣ⁻¹r (the objective).
+    pub cost: f64,
+    /// χ² = the cost for weighted fits; `None` without uncertainties.
+    pub chi2: Option<f64>,
+    /// Upper-tail p-value of χ² on `dof`; `None` without uncertainties or degrees of freedom.
+    pub gof_p: Option<f64>,
+    /// The residual-structure test, when it could be run.
+    pub structure: Option<StructureTest>,
+    /// The model does not describe the data (χ² or structure test below its level).
+    pub lack_of_fit: bool,
+    /// Factor k the covariance was multiplied by (1 unless `lack_of_fit`).
+    pub variance_scale: f64,
+    /// Without given uncertainties: the standard deviation of one reading estimated from
+    /// the residuals.
+    pub noise_from_residuals: Option<f64>,
+    /// Residual variance used for the intervals (k, or k·s² without uncertainties).
+    pub residual_variance: f64,
+    /// Degrees of freedom, n − fitted parameters (the arm offset included).
+    pub dof: usize,
+    /// Normalised mean absolute error (Eq. 5–6).
+    pub nmae: f64,
+    /// Root mean square of the (unweighted) residuals.
+    pub rms: f64,
+    /// Levenberg–Marquardt iterations of the run that gave the result.
+    pub iterations: usize,
+    /// How the iteration ended.
+    pub status: Status,
+    /// Whether readings carried uncertainties (a weighted fit).
+    pub weighted: bool,
+    /// The fit's flags ([`Flag::LackOfFit`]).
+    pub flags: Vec<Flag>,
+}
+
+impl FitResult {
+    /// The parameters the data did not determine, with the reason.
+    pub fn not_identified(&self) -> Vec<NotIdentified> {
+        not_identified_of(&self.notes)
+    }
+
+    /// Whether parameter `index` was determined by the data.
+    pub fn identified(&self, index: usize) -> bool {
+        index < N_PARAMS
+            && !self
+                .not_identified()
+                .iter()
+                .any(|n| n.param == PARAM_NAMES[index])
+    }
+
+    /// A parameter's value if it means something: fitted, or held at a bound the data
+    /// pushed it to; `None` for what was not identified ([`FitResult::not_identified`]).
+    pub fn reported(&self, index: usize) -> Option<f64> {
+        self.identified(index)
+            .then(|| self.params.to_array()[index])
+    }
+
+    /// σ in degrees if it was resolved.
+    pub fn sigma_deg(&self) -> Option<f64> {
+        self.reported(SIGMA)
+    }
+
+    /// Upper limit of σ when the sampling does not resolve the peak.
+    pub fn sigma_upper_deg(&self) -> Option<f64> {
+        self.notes.iter().find_map(|n| match n {
+            Note::SigmaUnresolved { upper_deg, .. } => Some(*upper_deg),
+            _ => None,
+        })
+    }
+
+    /// Lower limit of ρs when ρs is not identified but bounded below (σ unresolved through
+    /// a window, or η's interval reaching 1).
+    pub fn rho_s_lower(&self) -> Option<f64> {
+        self.notes.iter().find_map(|n| match n {
+            Note::SigmaUnresolved { rho_s_lower, .. } => *rho_s_lower,
+            Note::RhoSUnbounded { rho_s_lower } => Some(*rho_s_lower),
+            _ => None,
+        })
+    }
+
+    /// Whether there is a specular part at all.
+    pub fn has_specular_term(&self) -> bool {
+        !self.notes.contains(&Note::NoSpecularTerm)
+    }
+
+    /// Standard uncertainty of a parameter (σ in degrees), if fitted and identified.
+    pub fn std_error(&self, index: usize) -> Option<f64> {
+        (self.model.0[index] && self.identified(index))
+            .then(|| self.covariance[index][index].max(0.0).sqrt())
+    }
+}
+
+/// What the notes of a fit say was not identified.
+pub(super) fn not_identified_of(notes: &[Note]) -> Vec<NotIdentified> {
+    let mut out = Vec::new();
+    let no_specular = notes.contains(&Note::NoSpecularTerm);
+    if no_specular {
+        out.push(NotIdentified {
+            param: PARAM_NAMES[SIGMA],
+            reason: "no specular part",
+        });
+        out.push(NotIdentified {
+            param: "eta",
+            reason: "no specular part",
+        });
+    }
+    for note in notes {
+        match note {
+            Note::SigmaUnresolved { rho_s_lower, .. } => {
+                out.push(NotIdentified {
+                    param: PARAM_NAMES[SIGMA],
+                    reason: "not resolved by the sampling (only an upper limit)",
+                });
+                if rho_s_lower.is_some() {
+                    out.push(NotIdentified { param: "rho_s", reason: "σ unresolved: through the detector window only ρs·min(1, ~σ/a) is determined" });
+                }
+            }
+            Note::EtaAtBound { eta } if *eta <= ETA_MIN && !no_specular => {
+                out.push(NotIdentified {
+                    param: "rho_s",
+                    reason: "η at its lower bound 1: only ρs·(η²−1) is determined",
+                });
+            }
+            Note::RhoSUnbounded { .. } => {
+                out.push(NotIdentified { param: "rho_s", reason: "η's 95 % interval reaches 1, where ρs is unbounded: only a lower limit" });
+            }
+            _ => {}
+        }
+    }
+    out
+}

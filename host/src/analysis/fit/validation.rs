@@ -1,0 +1,166 @@
+//! The fit's first step: the readings and their shared errors checked before anything is
+//! computed on them, so that a bad input is refused with its reading named rather than
+//! turned into an infinite cost or a NaN interval.
+use super::{
+    FitError, MAX_SPAN_DEG, N_PARAMS, Observation, RADIANCE_FACTOR_MAX, STD_MAX, STD_MIN,
+    SharedError,
+};
+
+/// Check the input, naming the first problem: finite numbers, angles in [0°, 90°),
+/// 0 ≤ radiance factor ≤ [`RADIANCE_FACTOR_MAX`], [`STD_MIN`] ≤ std ≤ [`STD_MAX`],
+/// uncertainties for all readings or none, no contradicting repeats, enough geometries.
+pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
+    let weighted = observations.first().is_some_and(|o| o.std.is_some());
+    for (index, o) in observations.iter().enumerate() {
+        for (what, value) in [("theta_i", o.theta_i_deg), ("theta_r", o.theta_r_deg)] {
+            if !value.is_finite() {
+                return Err(FitError::NotFinite { index, what });
+            }
+            if !(0.0..90.0).contains(&value) {
+                return Err(FitError::AngleOutOfRange { index, what, value });
+            }
+        }
+        if !(0.0..=MAX_SPAN_DEG).contains(&o.theta_r_span_deg) {
+            return Err(FitError::SpanOutOfRange {
+                index,
+                value: o.theta_r_span_deg,
+            });
+        }
+        if !o.radiance_factor.is_finite() {
+            return Err(FitError::NotFinite {
+                index,
+                what: "radiance_factor",
+            });
+        }
+        if o.radiance_factor < 0.0 {
+            return Err(FitError::Negative {
+                index,
+                value: o.radiance_factor,
+            });
+        }
+        if o.radiance_factor > RADIANCE_FACTOR_MAX {
+            return Err(FitError::TooLarge {
+                index,
+                value: o.radiance_factor,
+                max: RADIANCE_FACTOR_MAX,
+            });
+        }
+        match o.std {
+            Some(s) if !s.is_finite() => return Err(FitError::NotFinite { index, what: "std" }),
+            Some(s) if s <= 0.0 => return Err(FitError::BadUncertainty { index, value: s }),
+            Some(s) if !(STD_MIN..=STD_MAX).contains(&s) => {
+                return Err(FitError::UncertaintyOutOfRange {
+                    index,
+                    value: s,
+                    min: STD_MIN,
+                    max: STD_MAX,
+                });
+            }
+            None if weighted => return Err(FitError::MixedUncertainties { index }),
+            Some(_) if !weighted => {
+                // The first reading had none: it is the odd one out.
+                return Err(FitError::MixedUncertainties { index: 0 });
+            }
+            _ => {}
+        }
+    }
+    // Duplicates: repeated readings are fine, contradicting ones are not. Without
+    // uncertainties "contradicting" means more than 10 % apart; with them, more than 5 σ.
+    let mut order: Vec<usize> = (0..observations.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (oa, ob) = (&observations[a], &observations[b]);
+        oa.theta_i_deg
+            .total_cmp(&ob.theta_i_deg)
+            .then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg))
+            .then(a.cmp(&b))
+    });
+    let mut distinct = 0;
+    for (k, &i) in order.iter().enumerate() {
+        let same_as_previous = k > 0 && {
+            let (p, o) = (&observations[order[k - 1]], &observations[i]);
+            p.theta_i_deg == o.theta_i_deg && p.theta_r_deg == o.theta_r_deg
+        };
+        if !same_as_previous {
+            distinct += 1;
+            continue;
+        }
+        let (first, o) = (order[k - 1], &observations[i]);
+        let p = &observations[first];
+        let diff = (p.radiance_factor - o.radiance_factor).abs();
+        let tolerance = match (p.std, o.std) {
+            (Some(a), Some(b)) => 5.0 * a.hypot(b),
+            _ => 0.1 * p.radiance_factor.max(o.radiance_factor),
+        };
+        if diff > tolerance {
+            return Err(FitError::ConflictingDuplicates {
+                first,
+                index: i,
+                theta_i_deg: o.theta_i_deg,
+                theta_r_deg: o.theta_r_deg,
+                first_value: p.radiance_factor,
+                value: o.radiance_factor,
+            });
+        }
+    }
+    if distinct < N_PARAMS {
+        return Err(FitError::TooFewGeometries {
+            found: distinct,
+            needed: N_PARAMS,
+        });
+    }
+    let (lo, hi) = observations
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| {
+            (lo.min(o.radiance_factor), hi.max(o.radiance_factor))
+        });
+    if lo == hi {
+        return Err(FitError::AllEqual {
+            n: observations.len(),
+            value: lo,
+        });
+    }
+    Ok(())
+}
+
+/// Check the shared errors against the (validated) readings: one finite sensitivity of at
+/// most [`RADIANCE_FACTOR_MAX`] per reading, and readings with uncertainties.
+pub fn validate_shared(
+    observations: &[Observation],
+    shared: &[SharedError],
+) -> Result<(), FitError> {
+    let weighted = observations.first().is_some_and(|o| o.std.is_some());
+    for term in shared {
+        if !weighted {
+            return Err(FitError::SharedErrorWithoutUncertainties {
+                name: term.name.clone(),
+            });
+        }
+        if term.sensitivity.len() != observations.len() {
+            return Err(FitError::SharedErrorLength {
+                name: term.name.clone(),
+                found: term.sensitivity.len(),
+                expected: observations.len(),
+            });
+        }
+        if !term.additive.is_empty() && term.additive.len() != observations.len() {
+            return Err(FitError::SharedErrorLength {
+                name: term.name.clone(),
+                found: term.additive.len(),
+                expected: observations.len(),
+            });
+        }
+        let mut values = term.sensitivity.iter().chain(&term.additive).enumerate();
+        if let Some((index, &value)) =
+            values.find(|(_, v)| v.is_nan() || v.abs() > RADIANCE_FACTOR_MAX)
+        {
+            let index = index % observations.len().max(1);
+            return Err(FitError::SharedErrorValue {
+                name: term.name.clone(),
+                index,
+                value,
+                max: RADIANCE_FACTOR_MAX,
+            });
+        }
+    }
+    Ok(())
+}
