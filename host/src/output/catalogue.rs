@@ -86,7 +86,7 @@ fn sheet_entry(dir: &Path) -> Entry {
         device_seconds: None,
         problem: None,
     };
-    match crate::output::sheet::read_doc(dir) {
+    match crate::output::sheet_folder::read_doc(dir) {
         Ok(doc) => {
             entry.sample = doc.sample.clone();
             entry.status = doc.status.to_string();
@@ -121,7 +121,7 @@ pub fn list(root: &Path) -> Result<Vec<Entry>, String> {
         .iter()
         .map(|n| root.join(n))
         .filter_map(|dir| {
-            if crate::output::sheet::is_sheet_folder(&dir) {
+            if crate::output::folder::is_sheet_folder(&dir) {
                 Some(sheet_entry(&dir))
             } else if dir.join(SESSION).is_file() {
                 Some(session_entry(&dir))

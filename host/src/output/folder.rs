@@ -11,7 +11,6 @@
 //! | `<sample>.astm`, `fig*.svg` | summaries of the result (the ASTM E1392/E2387 exchange format, plots) | replaced atomically at the end |
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
 use crate::instrument::calibration::Calibration;
-use crate::output::store::is_temp_name;
 use crate::schema;
 use crate::session::MeasuredPoint;
 use serde::{Deserialize, Serialize};
@@ -30,11 +29,77 @@ pub const CALIBRATION: &str = "calibration.json";
 pub const LOG: &str = "session.log";
 /// The manifest.
 pub const MANIFEST: &str = "MANIFEST.sha256";
+/// The report drawn from a finished session or sheet folder's files (not in its manifest:
+/// `gonio verify` checks it against them instead).
+pub const REPORT: &str = "report.html";
+/// The sheet document of a folder of several spots.
+pub const SHEET: &str = "sheet.json";
 /// The header of [`READINGS`].
 pub const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
 /// The header of [`READINGS`] once a reading was taken while the detector moved (a sweep's
 /// bin): its travel in θr, degrees, in a fifth column.
 pub const READINGS_HEADER_WITH_SPAN: &str = "theta_i,theta_r,radiance_factor,std,theta_r_span";
+
+/// The suffix of a file being replaced ([`crate::output::store::Store::replace`]).
+const TEMP_SUFFIX: &str = ".gonio-tmp";
+
+/// Whether `name` is a temporary file that [`crate::output::store::Store::replace`] writes
+/// (and a kill can leave).
+pub fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
+}
+
+/// The temporary name [`crate::output::store::Store::replace`] writes `name` under.
+pub fn temp_name(name: &str) -> String {
+    format!(".{name}{TEMP_SUFFIX}")
+}
+
+/// The folder name of spot `number` in a sheet's folder.
+pub fn spot_folder(number: u16) -> String {
+    format!("spot-{number}")
+}
+
+/// Whether `dir` is the folder of a multi-spot sheet.
+pub fn is_sheet_folder(dir: &Path) -> bool {
+    dir.join(SHEET).is_file()
+}
+
+/// A sample's name as a file name: letters, digits, `.`, `_` and `-` kept, the rest `_`.
+pub fn file_name_of(sample: &str) -> String {
+    let name: String = sample
+        .chars()
+        .take(48)
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() || name.starts_with('.') {
+        format!("_{name}")
+    } else {
+        name
+    }
+}
+
+/// The name of a new folder for `sample` under `sessions/`: `<local date-time>-<sample>`
+/// (a session's and a sheet's alike; the caller adds `-2`, `-3`… when it is taken).
+pub(crate) fn dated_folder_name(sample: &str) -> String {
+    format!(
+        "{}-{}",
+        chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"),
+        file_name_of(sample)
+    )
+}
+
+/// A document's bytes as gonio writes its JSON files: pretty, with a last newline.
+pub(crate) fn json_bytes(value: &impl serde::Serialize) -> std::io::Result<Vec<u8>> {
+    let mut bytes = serde_json::to_vec_pretty(value)?;
+    bytes.push(b'\n');
+    Ok(bytes)
+}
 
 /// The header `readings.csv` has for `points`: the span column once any was taken moving.
 pub fn readings_header(points: &[MeasuredPoint]) -> &'static str {
@@ -212,9 +277,10 @@ pub struct SessionDoc {
     pub rest: serde_json::Map<String, serde_json::Value>,
 }
 
-/// Something wrong in a session folder, at `file:line` when a line is known.
+/// Something found wrong in a session or sheet folder (by reading it, by `gonio verify`,
+/// or by a resume's check), at `file:line` when a line is known.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Problem {
+pub struct Finding {
     /// The file (or folder) concerned.
     pub file: PathBuf,
     /// Its 1-based line.
@@ -223,9 +289,9 @@ pub struct Problem {
     pub message: String,
 }
 
-impl Problem {
-    fn new(file: &Path, line: Option<usize>, message: impl Into<String>) -> Problem {
-        Problem {
+impl Finding {
+    fn new(file: &Path, line: Option<usize>, message: impl Into<String>) -> Finding {
+        Finding {
             file: file.to_path_buf(),
             line,
             message: message.into(),
@@ -233,7 +299,7 @@ impl Problem {
     }
 }
 
-impl fmt::Display for Problem {
+impl fmt::Display for Finding {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.line {
             Some(line) => write!(f, "{}:{line}: {}", self.file.display(), self.message),
@@ -257,11 +323,11 @@ pub struct LinesFile {
 }
 
 /// Read a file of lines; a missing file is empty. Invalid UTF-8 in a whole line is a problem.
-pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
+pub fn read_lines(path: &Path) -> Result<LinesFile, Finding> {
     let bytes = match std::fs::read(path) {
         Ok(bytes) => bytes,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(LinesFile::default()),
-        Err(e) => return Err(Problem::new(path, None, format!("cannot read: {e}"))),
+        Err(e) => return Err(Finding::new(path, None, format!("cannot read: {e}"))),
     };
     let whole_len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
     let cut_tail = (whole_len < bytes.len()).then(|| bytes[whole_len..].to_vec());
@@ -271,7 +337,7 @@ pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
         .enumerate()
     {
         let text = std::str::from_utf8(&line[..line.len() - 1])
-            .map_err(|_| Problem::new(path, Some(k + 1), "not UTF-8 text"))?;
+            .map_err(|_| Finding::new(path, Some(k + 1), "not UTF-8 text"))?;
         lines.push((k + 1, text.to_string()));
     }
     Ok(LinesFile {
@@ -342,16 +408,16 @@ fn parse_points_line(text: &str) -> Result<PointsLine, String> {
 
 /// Parse the whole lines of `points.jsonl`: its readings in order, with the marks of later
 /// lines applied (`superseded` set).
-pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Problem> {
+pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Finding> {
     let mut points: Vec<MeasuredPoint> = Vec::new();
     for (line, text) in &file.lines {
-        match parse_points_line(text).map_err(|m| Problem::new(path, Some(*line), m))? {
+        match parse_points_line(text).map_err(|m| Finding::new(path, Some(*line), m))? {
             PointsLine::Mark(mark) => {
                 for &k in &mark.superseded {
                     match points.get_mut(k) {
                         Some(point) => point.superseded = true,
                         None => {
-                            return Err(Problem::new(
+                            return Err(Finding::new(
                                 path,
                                 Some(*line),
                                 format!(
@@ -433,7 +499,7 @@ pub enum CsvAgreement {
         superseded: usize,
     },
     /// Something else: damage.
-    Differs(Problem),
+    Differs(Finding),
 }
 
 /// The readings with their conversion by `calibration` (`calibration.json`): a reading's
@@ -518,7 +584,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
                 .position(|p| p.theta_r_span_deg > 0.0)
                 .unwrap_or(points.len());
             return match csv_agreement_with(path, file, &points[..first_moving]) {
-                CsvAgreement::Differs(_) => CsvAgreement::Differs(Problem::new(
+                CsvAgreement::Differs(_) => CsvAgreement::Differs(Finding::new(
                     path,
                     Some(*line),
                     format!(
@@ -529,7 +595,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
             };
         }
         Some((line, header)) => {
-            return CsvAgreement::Differs(Problem::new(
+            return CsvAgreement::Differs(Finding::new(
                 path,
                 Some(*line),
                 format!("header is '{header}', not '{wanted}'"),
@@ -543,7 +609,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
                         .iter()
                         .any(|h| h.as_bytes().starts_with(tail)) =>
                 {
-                    CsvAgreement::Differs(Problem::new(
+                    CsvAgreement::Differs(Finding::new(
                         path,
                         Some(1),
                         format!(
@@ -563,7 +629,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
     let rows: Vec<&(usize, String)> = lines.collect();
     if rows.len() > expected.len() {
         let (line, text) = rows[expected.len()];
-        return CsvAgreement::Differs(Problem::new(
+        return CsvAgreement::Differs(Finding::new(
             path,
             Some(*line),
             format!("row '{text}' has no reading in {POINTS}"),
@@ -571,7 +637,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
     }
     for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(&expected) {
         if !same_row(text, want) {
-            return CsvAgreement::Differs(Problem::new(
+            return CsvAgreement::Differs(Finding::new(
                 path,
                 Some(*line),
                 format!("row '{text}' differs from its reading in {POINTS} ('{want}')"),
@@ -587,7 +653,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
             .unwrap_or_default();
         if !next.starts_with(tail) {
             let line = rows.last().map_or(2, |r| r.0 + 1);
-            return CsvAgreement::Differs(Problem::new(
+            return CsvAgreement::Differs(Finding::new(
                 path,
                 Some(line),
                 format!(
@@ -626,18 +692,18 @@ fn same_row(row: &str, want: &str) -> bool {
 /// Read `session.json`; `None` when there is none. A document of an older version
 /// ([`crate::schema::SESSION_V1`]) is upgraded in memory (the file stays as it is: its
 /// manifest vouches for its bytes).
-pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
+pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
     let path = dir.join(SESSION);
     let text = match std::fs::read_to_string(&path) {
         Ok(text) => text,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(Problem::new(&path, None, format!("cannot read: {e}"))),
+        Err(e) => return Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     };
     let mut value: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
+        .map_err(|e| Finding::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
     let schema =
         schema::check(&value, &[schema::SESSION, schema::SESSION_V1], None).map_err(|m| {
-            Problem::new(
+            Finding::new(
                 &path,
                 None,
                 format!("{m}: not a session folder of this gonio"),
@@ -648,21 +714,21 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
     }
     serde_json::from_value(value)
         .map(Some)
-        .map_err(|e| Problem::new(&path, None, format!("not a session document: {e}")))
+        .map_err(|e| Finding::new(&path, None, format!("not a session document: {e}")))
 }
 
 /// [`read_session`] of a folder that must hold a session.
-pub fn require_session(dir: &Path) -> Result<SessionDoc, Problem> {
+pub fn require_session(dir: &Path) -> Result<SessionDoc, Finding> {
     read_session(dir)?
-        .ok_or_else(|| Problem::new(&dir.join(SESSION), None, "missing: not a session folder"))
+        .ok_or_else(|| Finding::new(&dir.join(SESSION), None, "missing: not a session folder"))
 }
 
 /// [`require_session`] of a session that must be finished (to report, re-analyse or
 /// weigh its result).
-pub fn require_finished(dir: &Path) -> Result<SessionDoc, Problem> {
+pub fn require_finished(dir: &Path) -> Result<SessionDoc, Finding> {
     let doc = require_session(dir)?;
     if doc.status != Status::Finished {
-        return Err(Problem::new(
+        return Err(Finding::new(
             &dir.join(SESSION),
             None,
             format!(
@@ -728,14 +794,14 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 }
 
 /// Read `calibration.json`; `None` when there is none.
-pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Problem> {
+pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
         Ok(text) => Calibration::from_json(&text)
             .map(Some)
-            .map_err(|(line, m)| Problem::new(&path, line, m)),
+            .map_err(|(line, m)| Finding::new(&path, line, m)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(Problem::new(&path, None, format!("cannot read: {e}"))),
+        Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }
 }
 
@@ -786,15 +852,15 @@ pub struct Inspection {
     /// Damage that a resume does not repair, found by cross-checking the files: anything
     /// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and
     /// a run that ended without closing.
-    pub damage: Vec<Problem>,
+    pub damage: Vec<Finding>,
 }
 
 /// Read and cross-check a session folder. A file that cannot be read as what it must be
 /// is an error at `file:line`; disagreements between the files are in
 /// [`Inspection::damage`].
-pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
+pub fn inspect(dir: &Path) -> Result<Inspection, Finding> {
     if !dir.is_dir() {
-        return Err(Problem::new(
+        return Err(Finding::new(
             dir,
             None,
             if dir.exists() {
@@ -814,16 +880,16 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     let calibration = read_calibration(dir)?;
     let points = converted(&recorded, calibration.as_ref());
     let temp_files =
-        temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
+        temp_files(dir).map_err(|e| Finding::new(dir, None, format!("cannot list: {e}")))?;
     let session_path = dir.join(SESSION);
     let mut damage = Vec::new();
     match &session {
         None if points_file.exists || calibration.is_some() => {
-            damage.push(Problem::new(&session_path, None, "missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged"));
+            damage.push(Finding::new(&session_path, None, "missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged"));
         }
         Some(doc) => {
             if points.len() < doc.readings_recorded {
-                damage.push(Problem::new(
+                damage.push(Finding::new(
                     &points_path,
                     Some(points_file.lines.len() + 1),
                     format!(
@@ -834,14 +900,14 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
                 ));
             }
             if points.iter().any(|p| p.radiance_factor.is_some()) && calibration.is_none() {
-                damage.push(Problem::new(
+                damage.push(Finding::new(
                     &dir.join(CALIBRATION),
                     None,
                     "missing, but readings were converted with it",
                 ));
             }
             if doc.runs.is_empty() {
-                damage.push(Problem::new(&session_path, None, "no runs recorded"));
+                damage.push(Finding::new(&session_path, None, "no runs recorded"));
             }
         }
         None => {}

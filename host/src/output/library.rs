@@ -340,7 +340,7 @@ pub fn read_session_folder(
     lot: Option<&str>,
     allow_flagged: bool,
 ) -> Result<SheetRecord> {
-    if crate::output::sheet::is_sheet_folder(dir) {
+    if crate::output::folder::is_sheet_folder(dir) {
         return read_sheet_folder(dir, lot, allow_flagged);
     }
     read_spot_folder(dir, lot, allow_flagged)
@@ -351,14 +351,16 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         dir: dir.to_path_buf(),
         what,
     };
-    let verified = crate::output::sheet::verify_sheet(dir).map_err(|problems| {
-        let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
-        bad(format!(
-            "it does not verify (gonio verify {}):{}",
-            dir.display(),
-            lines.concat()
-        ))
-    })?;
+    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::html).map_err(
+        |problems| {
+            let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
+            bad(format!(
+                "it does not verify (gonio verify {}):{}",
+                dir.display(),
+                lines.concat()
+            ))
+        },
+    )?;
     let read = verified.sheet;
     if !read.summary.ok() && !allow_flagged {
         let flags: Vec<&str> = read.summary.flags.iter().map(|f| f.name()).collect();
@@ -399,7 +401,7 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
         dir: dir.to_path_buf(),
         what,
     };
-    if let Err(problems) = crate::output::verify::verify(dir) {
+    if let Err(problems) = crate::output::verify::verify(dir, crate::output::report::html) {
         let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
         return Err(bad(format!(
             "it does not verify (gonio verify {}):{}",

@@ -12,7 +12,6 @@ use crate::analysis::model::{self, Params, RHO_D, RHO_S, SIGMA};
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
-use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::io;
 use std::path::{Path, PathBuf};
 
@@ -32,14 +31,14 @@ pub const THETA_R_MAX_DEG: f64 = 70.0;
 /// ~59 over a diffuse level of ~0.8); below it a linear axis from 0 shows the shape better.
 const LOG_AXIS_MIN_SPAN: f64 = 10.0;
 
-const SAMPLE_COLOR: RGBColor = RGBColor(200, 30, 30);
-const CURVE_COLOR: RGBColor = RGBColor(20, 70, 180);
+pub(crate) const SAMPLE_COLOR: RGBColor = RGBColor(200, 30, 30);
+pub(crate) const CURVE_COLOR: RGBColor = RGBColor(20, 70, 180);
 const REFERENCE_COLOR: RGBColor = RGBColor(90, 90, 90);
-const GUIDE_COLOR: RGBColor = RGBColor(40, 140, 60);
+pub(crate) const GUIDE_COLOR: RGBColor = RGBColor(40, 140, 60);
 
-type DrawResult<T> = Result<T, DrawingAreaErrorKind<io::Error>>;
+pub(crate) type DrawResult<T> = Result<T, DrawingAreaErrorKind<io::Error>>;
 
-fn to_io(e: DrawingAreaErrorKind<io::Error>) -> io::Error {
+pub(crate) fn to_io(e: DrawingAreaErrorKind<io::Error>) -> io::Error {
     io::Error::other(e.to_string())
 }
 
@@ -134,7 +133,7 @@ pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
 }
 
 /// A tick label: as many digits as the value needs, no trailing ".0" on whole numbers.
-fn tick_label(v: &f64) -> String {
+pub(crate) fn tick_label(v: &f64) -> String {
     if *v >= 1.0 {
         format!("{}", (v * 1e6).round() / 1e6)
     } else {
@@ -676,141 +675,4 @@ where
 /// Whether a class is drawn in Fig. 7 (the rough ones).
 pub fn has_fig7(class: Class) -> bool {
     class.group() == Group::Rough
-}
-
-/// File name of the trade study's plot.
-pub const PARETO_FILE: &str = "pareto.svg";
-
-/// The trade study's plot: device seconds against the 95th percentile of σ's relative
-/// error over the glossy papers, one point per configuration, coloured by policy, the
-/// Pareto front joined by a line. Unresolved σ (an infinite error) is drawn at the top.
-pub fn write_pareto(
-    path: &Path,
-    points: &[(crate::study::trade::ParetoPoint, bool)],
-) -> io::Result<()> {
-    draw_pareto(path, points).map_err(to_io)
-}
-
-fn policy_color(policy: &str) -> RGBColor {
-    match policy {
-        "strategy1" => RGBColor(120, 120, 120),
-        "strategy2" => CURVE_COLOR,
-        "paper" => RGBColor(230, 130, 0),
-        _ => SAMPLE_COLOR,
-    }
-}
-
-fn draw_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)]) -> DrawResult<()> {
-    // Unresolved σ has no error to plot: such points go in a band above the errors,
-    // labelled as what they are (not as a "1000 %" error).
-    const TOP: f64 = 10.0;
-    let y = |e: f64| {
-        if e.is_finite() {
-            e.clamp(1e-4, TOP)
-        } else {
-            TOP
-        }
-    };
-    let x_hi = points
-        .iter()
-        .map(|(p, _)| p.device_seconds)
-        .fold(1.0, f64::max)
-        * 1.08;
-    let y_lo = points
-        .iter()
-        .map(|(p, _)| y(p.p95_sigma_err))
-        .fold(TOP, f64::min)
-        / 2.0;
-    let root = SVGBackend::new(path, (960, 680)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "Glossy papers: device time against σ error (95th percentile)",
-            ("sans-serif", 20),
-        )
-        .margin(16)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
-        .build_cartesian_2d(
-            0.0..x_hi,
-            (y_lo..TOP * 1.5)
-                .log_scale()
-                .with_key_points(log_ticks(y_lo, 1.0).into_iter().chain([TOP]).collect()),
-        )?;
-    chart
-        .configure_mesh()
-        .x_desc("device seconds measuring the sample (mean)")
-        .y_desc("σ relative error, 95th percentile")
-        .y_label_formatter(&|v| {
-            if *v >= TOP * 0.99 {
-                "σ unresolved".to_string()
-            } else {
-                format!("{} %", tick_label(&(100.0 * v)))
-            }
-        })
-        .draw()?;
-    chart.draw_series(LineSeries::new(
-        [(0.0, TOP / 2.0), (x_hi, TOP / 2.0)],
-        BLACK.mix(0.4).stroke_width(1),
-    ))?;
-    chart.draw_series(LineSeries::new(
-        [
-            (0.0, crate::study::trade::SIGMA_TARGET),
-            (x_hi, crate::study::trade::SIGMA_TARGET),
-        ],
-        GUIDE_COLOR.stroke_width(1),
-    ))?;
-    chart.draw_series([Text::new(
-        "5 % target",
-        (x_hi * 0.85, crate::study::trade::SIGMA_TARGET * 1.15),
-        ("sans-serif", 14).into_font().color(&GUIDE_COLOR),
-    )])?;
-    let mut front: Vec<(f64, f64)> = points
-        .iter()
-        .filter(|(_, on)| *on)
-        .map(|(p, _)| (p.device_seconds, y(p.p95_sigma_err)))
-        .collect();
-    front.sort_by(|a, b| a.0.total_cmp(&b.0));
-    chart.draw_series(LineSeries::new(front, BLACK.stroke_width(1)))?;
-    for policy in ["strategy1", "strategy2", "paper", "adaptive"] {
-        let color = policy_color(policy);
-        let mine: Vec<&crate::study::trade::ParetoPoint> = points
-            .iter()
-            .map(|(p, _)| p)
-            .filter(|p| p.policy == policy)
-            .collect();
-        if mine.is_empty() {
-            continue;
-        }
-        chart
-            .draw_series(
-                mine.iter().map(|p| {
-                    Circle::new((p.device_seconds, y(p.p95_sigma_err)), 5, color.filled())
-                }),
-            )?
-            .label(policy)
-            .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
-        if policy == "paper" || policy == "adaptive" {
-            // Labels of points near the right edge end at their point instead of starting there.
-            chart.draw_series(mine.iter().map(|p| {
-                let pos = if p.device_seconds > 0.8 * x_hi {
-                    Pos::new(HPos::Right, VPos::Bottom)
-                } else {
-                    Pos::new(HPos::Left, VPos::Bottom)
-                };
-                Text::new(
-                    format!("{policy} {}", p.label),
-                    (p.device_seconds, y(p.p95_sigma_err) * 1.15),
-                    ("sans-serif", 12).into_font().color(&color).pos(pos),
-                )
-            }))?;
-        }
-    }
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.9))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
-    root.present()
 }

@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 
 /// The session folders of `path`: a sheet's spots, or the session itself.
 pub fn session_folders(path: &Path) -> Result<Vec<PathBuf>, String> {
-    if crate::output::sheet::is_sheet_folder(path) {
-        let doc = crate::output::sheet::read_doc(path).map_err(|p| p.to_string())?;
+    if crate::output::folder::is_sheet_folder(path) {
+        let doc = crate::output::sheet_folder::read_doc(path).map_err(|p| p.to_string())?;
         return Ok(doc.spots.iter().map(|s| path.join(&s.folder)).collect());
     }
     Ok(vec![path.to_path_buf()])

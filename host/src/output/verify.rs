@@ -1,11 +1,23 @@
-//! `gonio verify`'s check of a session folder: the manifest, and the agreement of
-//! `points.jsonl` (the primary record), `readings.csv`, `calibration.json` and
-//! `session.json`. Read-only: it changes nothing.
+//! Every check of a finished folder, as `gonio verify` runs them: of a session folder, the
+//! manifest and the agreement of `points.jsonl` (the primary record), `readings.csv`,
+//! `calibration.json` and `session.json`; of a sheet folder, its manifest, every spot's
+//! folder and the result its spots give; of either, that `report.html` is the report its
+//! files give. Read-only: it changes nothing.
+//!
+//! Rendering sits above verification (the report is drawn from what is checked here), so
+//! the check of `report.html` is handed the drawing: [`DrawReport`], in use
+//! [`crate::output::report::html`].
 use crate::output::folder::{
-    self, CALIBRATION, CsvAgreement, LOG, POINTS, Problem, READINGS, RunOutcome, SESSION, Status,
+    self, CALIBRATION, CsvAgreement, Finding, LOG, MANIFEST, POINTS, READINGS, REPORT, RunOutcome,
+    SESSION, SHEET, Status,
 };
+use crate::output::sheet_folder::{ReadSheet, manifest_text, read_doc, read_sheet};
 use crate::session::MeasuredPoint;
 use std::path::{Path, PathBuf};
+
+/// Draws the report of a finished folder (session or sheet) for the check that its
+/// `report.html` is the one its files give.
+pub type DrawReport = fn(&Path) -> Result<String, String>;
 
 /// A folder that passed every check.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -26,9 +38,9 @@ pub struct Verified {
 
 /// Check the finished session folder `dir`; every problem found, each at `file:line` where
 /// a line is known.
-pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
+pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
     let inspection = folder::inspect(dir).map_err(|p| vec![p])?;
-    let problem = |file: &str, line: Option<usize>, message: String| Problem {
+    let problem = |file: &str, line: Option<usize>, message: String| Finding {
         file: dir.join(file),
         line,
         message,
@@ -63,7 +75,7 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
         }
     };
     if problems.is_empty() {
-        problems.extend(crate::output::report::check_report(dir));
+        problems.extend(check_report(dir, draw));
     }
     for (name, file) in [(POINTS, &inspection.points_file), (LOG, &inspection.log)] {
         if let Some(tail) = &file.cut_tail {
@@ -189,5 +201,87 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
         })
     } else {
         Err(problems)
+    }
+}
+
+/// A sheet folder that passed every check.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VerifiedSheet {
+    /// The sheet.
+    pub sheet: ReadSheet,
+    /// Each spot's check.
+    pub spots: Vec<Verified>,
+}
+
+/// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
+/// checks a session, and the recorded result against the one its spots give.
+pub fn verify_sheet(dir: &Path, draw: DrawReport) -> Result<VerifiedSheet, Vec<Finding>> {
+    let doc = read_doc(dir).map_err(|p| vec![p])?;
+    let mut problems = Vec::new();
+    let manifest = dir.join(MANIFEST);
+    match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
+        (Ok(recorded), Ok(now)) if recorded == now => {}
+        (Ok(_), Ok(_)) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
+        (Err(e), _) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
+        (_, Err(e)) => problems.push(Finding { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
+    }
+    let expected: Vec<String> = [SHEET, MANIFEST, REPORT]
+        .iter()
+        .map(|s| s.to_string())
+        .chain(doc.spots.iter().map(|s| s.folder.clone()))
+        .collect();
+    if let Ok(names) = folder::entries(dir) {
+        for name in names.into_iter().filter(|n| !expected.contains(n)) {
+            problems.push(Finding {
+                file: dir.join(&name),
+                line: None,
+                message: format!("not part of the sheet ({SHEET} lists no such spot)"),
+            });
+        }
+    }
+    let mut verified = Vec::new();
+    for entry in &doc.spots {
+        match verify(&dir.join(&entry.folder), draw) {
+            Ok(v) => verified.push(v),
+            Err(found) => problems.extend(found),
+        }
+    }
+    if !problems.is_empty() {
+        return Err(problems);
+    }
+    let sheet = read_sheet(dir).map_err(|p| vec![p])?;
+    let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
+    if recorded != Some(&sheet.summary) {
+        return Err(vec![Finding {
+            file: dir.join(SHEET),
+            line: None,
+            message: "its result is not the one its spots give".into(),
+        }]);
+    }
+    if let Some(problem) = check_report(dir, draw) {
+        return Err(vec![problem]);
+    }
+    Ok(VerifiedSheet {
+        sheet,
+        spots: verified,
+    })
+}
+
+/// Whether the folder's `report.html`, if it has one, is the report its files give.
+pub fn check_report(dir: &Path, draw: DrawReport) -> Option<Finding> {
+    let path = dir.join(REPORT);
+    let recorded = std::fs::read(&path).ok()?;
+    let problem = |message: String| Finding {
+        file: path.clone(),
+        line: None,
+        message,
+    };
+    match draw(dir) {
+        Ok(drawn) if drawn.as_bytes() == recorded.as_slice() => None,
+        Ok(_) => Some(problem(format!(
+            "is not the report of this folder's files (changed, or drawn by another gonio version): redraw it with gonio report {}",
+            dir.display()
+        ))),
+        Err(e) => Some(problem(format!("cannot be checked: {e}"))),
     }
 }
