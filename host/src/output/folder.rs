@@ -553,28 +553,41 @@ pub fn csv_agreement(
 
 fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
     let wanted = readings_header(points);
-    let expected_with = |header: &str| -> Vec<String> {
-        points
-            .iter()
-            .filter_map(|p| csv_row(p, header))
-            .map(|r| r.trim_end().to_string())
-            .collect()
-    };
     if !file.exists {
         return CsvAgreement::Behind {
-            missing: expected_with(wanted).len(),
+            missing: expected_rows(points, wanted).len(),
             cut: false,
         };
     }
-    let mut lines = file.lines.iter();
-    // The file's header: the one its readings need, or the one without the span column
-    // while no reading was taken moving yet (the file is rewritten with the span column
-    // when the first bin arrives).
-    let header = match lines.next() {
+    match csv_header(path, file, points, wanted) {
+        Ok(header) => csv_rows_agreement(path, file, &expected_rows(points, header)),
+        Err(verdict) => verdict,
+    }
+}
+
+/// The rows `readings.csv` must hold under `header`, without their newlines.
+fn expected_rows(points: &[MeasuredPoint], header: &str) -> Vec<String> {
+    points
+        .iter()
+        .filter_map(|p| csv_row(p, header))
+        .map(|r| r.trim_end().to_string())
+        .collect()
+}
+
+/// The file's header: the one its readings need (`wanted`), or the one without the span
+/// column while no reading was taken moving yet (the file is rewritten with the span
+/// column when the first bin arrives); else the file's agreement as the header decides it.
+fn csv_header(
+    path: &Path,
+    file: &LinesFile,
+    points: &[MeasuredPoint],
+    wanted: &'static str,
+) -> Result<&'static str, CsvAgreement> {
+    match file.lines.first() {
         Some((_, header))
             if header == wanted || (header == READINGS_HEADER && wanted == READINGS_HEADER) =>
         {
-            wanted
+            Ok(wanted)
         }
         Some((line, header)) if header == READINGS_HEADER => {
             // What a crash between the first bin's record and the rewrite leaves: the rows
@@ -583,50 +596,52 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
                 .iter()
                 .position(|p| p.theta_r_span_deg > 0.0)
                 .unwrap_or(points.len());
-            return match csv_agreement_with(path, file, &points[..first_moving]) {
-                CsvAgreement::Differs(_) => CsvAgreement::Differs(Finding::new(
-                    path,
-                    Some(*line),
-                    format!(
-                        "header is '{header}', without the theta_r_span column the readings taken while moving need"
-                    ),
-                )),
-                _ => CsvAgreement::Stale { superseded: 0 },
-            };
-        }
-        Some((line, header)) => {
-            return CsvAgreement::Differs(Finding::new(
-                path,
-                Some(*line),
-                format!("header is '{header}', not '{wanted}'"),
-            ));
-        }
-        // Only the header, cut short (or nothing): a crash right after the file was made.
-        None => {
-            return match &file.cut_tail {
-                Some(tail)
-                    if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN]
-                        .iter()
-                        .any(|h| h.as_bytes().starts_with(tail)) =>
-                {
-                    CsvAgreement::Differs(Finding::new(
+            Err(
+                match csv_agreement_with(path, file, &points[..first_moving]) {
+                    CsvAgreement::Differs(_) => CsvAgreement::Differs(Finding::new(
                         path,
-                        Some(1),
+                        Some(*line),
                         format!(
-                            "'{}' is not the header '{wanted}'",
-                            String::from_utf8_lossy(tail)
+                            "header is '{header}', without the theta_r_span column the readings taken while moving need"
                         ),
-                    ))
-                }
-                tail => CsvAgreement::Behind {
-                    missing: expected_with(wanted).len(),
-                    cut: tail.is_some(),
+                    )),
+                    _ => CsvAgreement::Stale { superseded: 0 },
                 },
-            };
+            )
         }
-    };
-    let expected = expected_with(header);
-    let rows: Vec<&(usize, String)> = lines.collect();
+        Some((line, header)) => Err(CsvAgreement::Differs(Finding::new(
+            path,
+            Some(*line),
+            format!("header is '{header}', not '{wanted}'"),
+        ))),
+        // Only the header, cut short (or nothing): a crash right after the file was made.
+        None => Err(match &file.cut_tail {
+            Some(tail)
+                if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN]
+                    .iter()
+                    .any(|h| h.as_bytes().starts_with(tail)) =>
+            {
+                CsvAgreement::Differs(Finding::new(
+                    path,
+                    Some(1),
+                    format!(
+                        "'{}' is not the header '{wanted}'",
+                        String::from_utf8_lossy(tail)
+                    ),
+                ))
+            }
+            tail => CsvAgreement::Behind {
+                missing: expected_rows(points, wanted).len(),
+                cut: tail.is_some(),
+            },
+        }),
+    }
+}
+
+/// The rows after the header against `expected`: the same, or a prefix of them (perhaps
+/// with a last row cut short).
+fn csv_rows_agreement(path: &Path, file: &LinesFile, expected: &[String]) -> CsvAgreement {
+    let rows: Vec<&(usize, String)> = file.lines.iter().skip(1).collect();
     if rows.len() > expected.len() {
         let (line, text) = rows[expected.len()];
         return CsvAgreement::Differs(Finding::new(
@@ -635,7 +650,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
             format!("row '{text}' has no reading in {POINTS}"),
         ));
     }
-    for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(&expected) {
+    for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(expected) {
         if !same_row(text, want) {
             return CsvAgreement::Differs(Finding::new(
                 path,

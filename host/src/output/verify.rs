@@ -7,9 +7,10 @@
 //! Rendering sits above verification (the report is drawn from what is checked here), so
 //! the check of `report.html` is handed the drawing: [`DrawReport`], in use
 //! [`crate::output::report::html`].
+use crate::instrument::calibration::Calibration;
 use crate::output::folder::{
-    self, CALIBRATION, CsvAgreement, Finding, LOG, MANIFEST, POINTS, READINGS, REPORT, RunOutcome,
-    SESSION, SHEET, Status,
+    self, CALIBRATION, CsvAgreement, Finding, Inspection, LOG, MANIFEST, POINTS, READINGS, REPORT,
+    RunOutcome, SESSION, SHEET, SessionDoc, Status,
 };
 use crate::output::sheet_folder::{ReadSheet, manifest_text, read_doc, read_sheet};
 use crate::session::MeasuredPoint;
@@ -37,36 +38,21 @@ pub struct Verified {
 }
 
 /// Check the finished session folder `dir`; every problem found, each at `file:line` where
-/// a line is known.
+/// a line is known. In order: the damage reading finds, the status, the manifest, the
+/// report (when nothing else is wrong so far), cut lines, `readings.csv`, and what a
+/// finished `session.json` must hold.
 pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
     let inspection = folder::inspect(dir).map_err(|p| vec![p])?;
-    let problem = |file: &str, line: Option<usize>, message: String| Finding {
-        file: dir.join(file),
-        line,
-        message,
-    };
     let Some(doc) = &inspection.session else {
-        return Err(vec![problem(
+        return Err(vec![at(
+            dir,
             SESSION,
             None,
             "missing: not a session folder, or no session was started in it".into(),
         )]);
     };
     let mut problems = inspection.damage.clone();
-    if doc.status != Status::Finished {
-        let how = doc
-            .resume_with
-            .clone()
-            .unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
-        problems.push(problem(
-            SESSION,
-            None,
-            format!(
-                "status is {}: the session is not finished (continue it with {how})",
-                doc.status
-            ),
-        ));
-    }
+    problems.extend(unfinished(dir, doc));
     let files = match crate::output::manifest::check(dir) {
         Ok(files) => files,
         Err(found) => {
@@ -77,18 +63,77 @@ pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
     if problems.is_empty() {
         problems.extend(check_report(dir, draw));
     }
-    for (name, file) in [(POINTS, &inspection.points_file), (LOG, &inspection.log)] {
-        if let Some(tail) = &file.cut_tail {
-            problems.push(problem(
+    problems.extend(cut_lines(dir, &inspection));
+    problems.extend(csv_behind(dir, &inspection.csv));
+    if doc.status == Status::Finished {
+        problems.extend(finished_readings(dir, doc, &inspection.points));
+        problems.extend(finished_record(dir, doc, &inspection));
+    }
+    if problems.is_empty() {
+        Ok(Verified {
+            dir: dir.to_path_buf(),
+            files,
+            readings: inspection.points.len(),
+            sample: doc.sample.clone(),
+            serial_number: doc.instrument.serial_number.clone(),
+            runs: doc.runs.len(),
+        })
+    } else {
+        Err(problems)
+    }
+}
+
+/// A finding about the file `file` of the folder `dir`.
+fn at(dir: &Path, file: &str, line: Option<usize>, message: String) -> Finding {
+    Finding {
+        file: dir.join(file),
+        line,
+        message,
+    }
+}
+
+/// A session that is not finished, and how to continue it.
+fn unfinished(dir: &Path, doc: &SessionDoc) -> Option<Finding> {
+    if doc.status == Status::Finished {
+        return None;
+    }
+    let how = doc
+        .resume_with
+        .clone()
+        .unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
+    Some(at(
+        dir,
+        SESSION,
+        None,
+        format!(
+            "status is {}: the session is not finished (continue it with {how})",
+            doc.status
+        ),
+    ))
+}
+
+/// A last line cut short in `points.jsonl` or `session.log`.
+fn cut_lines(dir: &Path, inspection: &Inspection) -> Vec<Finding> {
+    [(POINTS, &inspection.points_file), (LOG, &inspection.log)]
+        .into_iter()
+        .filter_map(|(name, file)| {
+            let tail = file.cut_tail.as_ref()?;
+            Some(at(
+                dir,
                 name,
                 Some(file.lines.len() + 1),
                 format!("last line cut short ({} bytes, no newline)", tail.len()),
-            ));
-        }
-    }
-    match &inspection.csv {
-        CsvAgreement::Agrees => {}
-        CsvAgreement::Behind { missing, cut } => problems.push(problem(
+            ))
+        })
+        .collect()
+}
+
+/// `readings.csv` behind `points.jsonl` or stale (a disagreement is among the damage).
+fn csv_behind(dir: &Path, csv: &CsvAgreement) -> Option<Finding> {
+    match csv {
+        CsvAgreement::Agrees | CsvAgreement::Differs(_) => None,
+        CsvAgreement::Behind { missing, cut } => Some(at(
+            dir,
             READINGS,
             None,
             format!(
@@ -96,17 +141,21 @@ pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
                 if *cut { ", the last one cut short" } else { "" }
             ),
         )),
-        CsvAgreement::Stale { .. } => problems.push(problem(
+        CsvAgreement::Stale { .. } => Some(at(
+            dir,
             READINGS,
             None,
             format!("holds rows from before readings were superseded or {CALIBRATION} changed"),
         )),
-        // Among the damage already.
-        CsvAgreement::Differs(_) => {}
     }
-    let points = &inspection.points;
-    if doc.status == Status::Finished && doc.readings_recorded < points.len() {
-        problems.push(problem(
+}
+
+/// A finished `session.json`'s readings: as many as `points.jsonl` holds, and the same.
+fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> Vec<Finding> {
+    let mut problems = Vec::new();
+    if doc.readings_recorded < points.len() {
+        problems.push(at(
+            dir,
             SESSION,
             None,
             format!(
@@ -116,92 +165,86 @@ pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
             ),
         ));
     }
-    if doc.status == Status::Finished {
-        match doc
-            .rest
-            .get("readings")
-            .map(|r| serde_json::from_value::<Vec<MeasuredPoint>>(r.clone()))
-        {
-            None => problems.push(problem(SESSION, None, "no 'readings'".into())),
-            Some(Err(e)) => problems.push(problem(
-                SESSION,
-                None,
-                format!("'readings' are not readings: {e}"),
-            )),
-            Some(Ok(readings)) => {
-                if readings.len() != points.len() {
-                    problems.push(problem(
-                        SESSION,
-                        None,
-                        format!(
-                            "{} readings, but {POINTS} holds {}",
-                            readings.len(),
-                            points.len()
-                        ),
-                    ));
-                }
-                if let Some(k) = readings.iter().zip(points).position(|(a, b)| a != b) {
-                    problems.push(problem(
-                        POINTS,
-                        Some(k + 1),
-                        format!("differs from reading {} of {SESSION}", k + 1),
-                    ));
-                }
+    match doc
+        .rest
+        .get("readings")
+        .map(|r| serde_json::from_value::<Vec<MeasuredPoint>>(r.clone()))
+    {
+        None => problems.push(at(dir, SESSION, None, "no 'readings'".into())),
+        Some(Err(e)) => problems.push(at(
+            dir,
+            SESSION,
+            None,
+            format!("'readings' are not readings: {e}"),
+        )),
+        Some(Ok(readings)) => {
+            if readings.len() != points.len() {
+                problems.push(at(
+                    dir,
+                    SESSION,
+                    None,
+                    format!(
+                        "{} readings, but {POINTS} holds {}",
+                        readings.len(),
+                        points.len()
+                    ),
+                ));
+            }
+            if let Some(k) = readings.iter().zip(points).position(|(a, b)| a != b) {
+                problems.push(at(
+                    dir,
+                    POINTS,
+                    Some(k + 1),
+                    format!("differs from reading {} of {SESSION}", k + 1),
+                ));
             }
         }
-        match (
-            doc.rest.get("calibration").map(|c| {
-                serde_json::from_value::<crate::instrument::calibration::Calibration>(c.clone())
-            }),
-            &inspection.calibration,
-        ) {
-            (Some(Ok(in_session)), Some(file)) if in_session == *file => {}
-            (Some(Ok(_)), Some(_)) => problems.push(problem(
-                CALIBRATION,
-                None,
-                format!("differs from the calibration in {SESSION}"),
-            )),
-            (_, None) => problems.push(problem(CALIBRATION, None, "missing".into())),
-            (None, _) => problems.push(problem(SESSION, None, "no 'calibration'".into())),
-            (Some(Err(e)), _) => problems.push(problem(
-                SESSION,
-                None,
-                format!("'calibration' is not a calibration: {e}"),
-            )),
-        }
-        for key in ["result", "ok", "flags"] {
-            if !doc.rest.contains_key(key) {
-                problems.push(problem(SESSION, None, format!("no '{key}'")));
-            }
-        }
-        match doc.runs.last() {
-            Some(run) if run.outcome == RunOutcome::Finished => {}
-            _ => problems.push(problem(
-                SESSION,
-                None,
-                "its last run did not finish the session".into(),
-            )),
-        }
-        if let Some(run) = doc.runs.iter().find(|r| r.outcome == RunOutcome::Running) {
-            problems.push(problem(
-                SESSION,
-                None,
-                format!("run {} is still marked running", run.run),
-            ));
+    }
+    problems
+}
+
+/// The rest of a finished `session.json`: its calibration as `calibration.json` holds it,
+/// its result, and runs that all ended, the last one finishing the session.
+fn finished_record(dir: &Path, doc: &SessionDoc, inspection: &Inspection) -> Vec<Finding> {
+    let mut problems = Vec::new();
+    let problem = |file: &str, message: String| at(dir, file, None, message);
+    match (
+        doc.rest
+            .get("calibration")
+            .map(|c| serde_json::from_value::<Calibration>(c.clone())),
+        &inspection.calibration,
+    ) {
+        (Some(Ok(in_session)), Some(file)) if in_session == *file => {}
+        (Some(Ok(_)), Some(_)) => problems.push(problem(
+            CALIBRATION,
+            format!("differs from the calibration in {SESSION}"),
+        )),
+        (_, None) => problems.push(problem(CALIBRATION, "missing".into())),
+        (None, _) => problems.push(problem(SESSION, "no 'calibration'".into())),
+        (Some(Err(e)), _) => problems.push(problem(
+            SESSION,
+            format!("'calibration' is not a calibration: {e}"),
+        )),
+    }
+    for key in ["result", "ok", "flags"] {
+        if !doc.rest.contains_key(key) {
+            problems.push(problem(SESSION, format!("no '{key}'")));
         }
     }
-    if problems.is_empty() {
-        Ok(Verified {
-            dir: dir.to_path_buf(),
-            files,
-            readings: points.len(),
-            sample: doc.sample.clone(),
-            serial_number: doc.instrument.serial_number.clone(),
-            runs: doc.runs.len(),
-        })
-    } else {
-        Err(problems)
+    match doc.runs.last() {
+        Some(run) if run.outcome == RunOutcome::Finished => {}
+        _ => problems.push(problem(
+            SESSION,
+            "its last run did not finish the session".into(),
+        )),
     }
+    if let Some(run) = doc.runs.iter().find(|r| r.outcome == RunOutcome::Running) {
+        problems.push(problem(
+            SESSION,
+            format!("run {} is still marked running", run.run),
+        ));
+    }
+    problems
 }
 
 /// A sheet folder that passed every check.
