@@ -299,6 +299,8 @@ impl Finding {
     }
 }
 
+impl std::error::Error for Finding {}
+
 impl fmt::Display for Finding {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.line {
@@ -374,12 +376,29 @@ enum PointsLine {
     Mark(SupersedeMark),
 }
 
+/// Why a line of `points.jsonl` is neither a reading nor a mark.
+#[derive(Debug, thiserror::Error)]
+enum PointsLineError {
+    /// Not JSON at all.
+    #[error("not a reading (not JSON): {0}")]
+    NotJson(serde_json::Error),
+    /// JSON, but not a reading.
+    #[error("not a reading: {0}")]
+    NotReading(serde_json::Error),
+    /// Tagged as a mark, but not one.
+    #[error("not a mark of superseded readings: {0}")]
+    NotMark(serde_json::Error),
+    /// Tagged with a schema read elsewhere.
+    #[error("schema '{0}' is not one this gonio reads here ({POINT}, {SUPERSEDE})", POINT = schema::POINT, SUPERSEDE = schema::SUPERSEDE)]
+    OtherSchema(String),
+}
+
 /// Parse one line of `points.jsonl`: by its `schema`; a line without one was written
 /// before gonio named its documents (a mark then has exactly its two fields, a reading
 /// many more).
-fn parse_points_line(text: &str) -> Result<PointsLine, String> {
+fn parse_points_line(text: &str) -> Result<PointsLine, PointsLineError> {
     let mut value: serde_json::Value =
-        serde_json::from_str(text).map_err(|e| format!("not a reading (not JSON): {e}"))?;
+        serde_json::from_str(text).map_err(PointsLineError::NotJson)?;
     let found = schema::of(&value).map(str::to_string);
     if let Some(object) = value.as_object_mut() {
         object.remove("schema");
@@ -387,21 +406,15 @@ fn parse_points_line(text: &str) -> Result<PointsLine, String> {
     let reading = |value: serde_json::Value| {
         serde_json::from_value::<MeasuredPoint>(value)
             .map(|p| PointsLine::Reading(Box::new(p)))
-            .map_err(|e| format!("not a reading: {e}"))
+            .map_err(PointsLineError::NotReading)
     };
     let mark = |value: serde_json::Value| {
         serde_json::from_value::<SupersedeMark>(value).map(PointsLine::Mark)
     };
     match found.as_deref() {
         Some(schema::POINT) => reading(value),
-        Some(schema::SUPERSEDE) => {
-            mark(value).map_err(|e| format!("not a mark of superseded readings: {e}"))
-        }
-        Some(other) => Err(format!(
-            "schema '{other}' is not one this gonio reads here ({}, {})",
-            schema::POINT,
-            schema::SUPERSEDE
-        )),
+        Some(schema::SUPERSEDE) => mark(value).map_err(PointsLineError::NotMark),
+        Some(other) => Err(PointsLineError::OtherSchema(other.to_string())),
         None => mark(value.clone()).or_else(|_| reading(value)),
     }
 }
@@ -411,7 +424,7 @@ fn parse_points_line(text: &str) -> Result<PointsLine, String> {
 pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Finding> {
     let mut points: Vec<MeasuredPoint> = Vec::new();
     for (line, text) in &file.lines {
-        match parse_points_line(text).map_err(|m| Finding::new(path, Some(*line), m))? {
+        match parse_points_line(text).map_err(|e| Finding::new(path, Some(*line), e.to_string()))? {
             PointsLine::Mark(mark) => {
                 for &k in &mark.superseded {
                     match points.get_mut(k) {

@@ -463,11 +463,22 @@ impl MeasuredSheet {
     }
 }
 
+/// Why a measured sheet cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum MeasuredError {
+    /// A sheet folder that cannot be read (or is not finished).
+    #[error("{0}")]
+    Sheet(#[from] Finding),
+    /// A session folder or `session.json` that cannot be read as a result.
+    #[error("{0}")]
+    Session(#[from] crate::analysis::compare::CompareError),
+}
+
 /// Read a sheet folder, a session folder or a `session.json`. A sheet folder must be
 /// finished; its result is recomputed from its spots' files.
-pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
+pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
     if is_sheet_folder(path) {
-        let read = read_sheet(path).map_err(|p| p.to_string())?;
+        let read = read_sheet(path)?;
         let sheet = read.sheet();
         let accepted = |n: u16| {
             read.summary
@@ -489,7 +500,7 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
             summary: Some(read.summary),
         });
     }
-    let session = crate::analysis::compare::read_session(path).map_err(|e| e.to_string())?;
+    let session = crate::analysis::compare::read_session(path)?;
     Ok(MeasuredSheet {
         path: session.file.clone(),
         sample: session.sample.clone(),

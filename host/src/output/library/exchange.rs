@@ -152,7 +152,7 @@ fn checked_record(text: &str) -> std::result::Result<(ExchangeRecord, Spot), Str
         values: [record.sigma_deg, record.rho_s, record.rho_d],
         covariance: record.covariance,
     };
-    check_spot(&spot)?;
+    check_spot(&spot).map_err(|e| e.to_string())?;
     Ok((record, spot))
 }
 

@@ -54,7 +54,7 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
     }
     let sheet = read.sheet();
     for spot in &sheet.spots {
-        check_spot(spot).map_err(bad)?;
+        check_spot(spot).map_err(|e| bad(e.to_string()))?;
     }
     let first = read
         .spots
@@ -125,7 +125,7 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
         values: [result.values[0], result.values[1], result.values[2]],
         covariance,
     };
-    check_spot(&spot).map_err(bad)?;
+    check_spot(&spot).map_err(|e| bad(e.to_string()))?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
         measured_at: doc.runs.first().map(|r| r.started.clone()),

@@ -221,19 +221,20 @@ pub(crate) fn now_utc() -> String {
     chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
 }
 
+/// A spot whose value or covariance is not a finite number.
+#[derive(Debug, Error)]
+#[error("a spot value or covariance is not a finite number")]
+pub(crate) struct NotFinite;
+
 /// Every number finite: SQLite stores NaN as NULL, which would change the spot.
-pub(crate) fn check_spot(spot: &Spot) -> std::result::Result<(), String> {
+pub(crate) fn check_spot(spot: &Spot) -> std::result::Result<(), NotFinite> {
     let finite = spot
         .values
         .iter()
         .flatten()
         .chain(spot.covariance.iter().flatten())
         .all(|x| x.is_finite());
-    if finite {
-        Ok(())
-    } else {
-        Err("a spot value or covariance is not a finite number".into())
-    }
+    if finite { Ok(()) } else { Err(NotFinite) }
 }
 
 pub(crate) fn check_text(what: &str, value: &str) -> Result<()> {
