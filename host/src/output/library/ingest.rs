@@ -34,16 +34,8 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         dir: dir.to_path_buf(),
         what,
     };
-    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::html).map_err(
-        |problems| {
-            let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
-            bad(format!(
-                "it does not verify (gonio verify {}):{}",
-                dir.display(),
-                lines.concat()
-            ))
-        },
-    )?;
+    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::html)
+        .map_err(|problems| not_verified(dir, &problems))?;
     let read = verified.sheet;
     if !read.summary.ok() && !allow_flagged {
         let flags: Vec<&str> = read.summary.flags.iter().map(|f| f.name()).collect();
@@ -61,12 +53,7 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         .first()
         .ok_or_else(|| bad("a sheet without spots".into()))?;
     let file = first.dir.join(crate::output::folder::SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|source| LibraryError::Io {
-        path: file.clone(),
-        source,
-    })?;
-    let doc: crate::output::folder::SessionDoc =
-        serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
+    let (_, doc) = read_session_doc(&file, &bad)?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
         measured_at: doc.runs.first().map(|r| r.started.clone()),
@@ -79,27 +66,44 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
     })
 }
 
+/// A folder that does not verify, with every finding on its own line.
+fn not_verified(dir: &Path, problems: &[crate::output::folder::Finding]) -> LibraryError {
+    let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
+    LibraryError::BadSession {
+        dir: dir.to_path_buf(),
+        what: format!(
+            "it does not verify (gonio verify {}):{}",
+            dir.display(),
+            lines.concat()
+        ),
+    }
+}
+
+/// A `session.json` as text and as its document; `bad` makes the error of one that is
+/// not a session document.
+fn read_session_doc(
+    file: &Path,
+    bad: impl Fn(String) -> LibraryError,
+) -> Result<(String, crate::output::folder::SessionDoc)> {
+    let text = std::fs::read_to_string(file).map_err(|source| LibraryError::Io {
+        path: file.to_path_buf(),
+        source,
+    })?;
+    let doc = serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
+    Ok((text, doc))
+}
+
 fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
     let bad = |what: String| LibraryError::BadSession {
         dir: dir.to_path_buf(),
         what,
     };
     if let Err(problems) = crate::output::verify::verify(dir, crate::output::report::html) {
-        let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
-        return Err(bad(format!(
-            "it does not verify (gonio verify {}):{}",
-            dir.display(),
-            lines.concat()
-        )));
+        return Err(not_verified(dir, &problems));
     }
     let session_sha256 = session_identity(dir)?;
     let file = dir.join(crate::output::folder::SESSION);
-    let text = std::fs::read_to_string(&file).map_err(|source| LibraryError::Io {
-        path: file.clone(),
-        source,
-    })?;
-    let doc: crate::output::folder::SessionDoc =
-        serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
+    let (text, doc) = read_session_doc(&file, &bad)?;
     let ok = doc
         .rest
         .get("ok")
