@@ -4,7 +4,7 @@
 //! `gonio verify`, its `readings.csv` and `points.jsonl` agree with `session.json`, and no
 //! reading is lost or recorded twice.
 use host::cli::measure::{Measured, measure, measure_with, parse_args};
-use host::output::record::FolderError;
+use host::output::lock::FolderError;
 use host::output::store::{Crash, StoreOptions};
 use host::session::{MeasuredPoint, SimulatedOperator};
 use rand::{Rng, SeedableRng};
@@ -76,7 +76,7 @@ fn class(dir: &Path) -> String {
 /// After a crash at write `n` and a resume: the folder verifies, nothing taken before the
 /// crash was lost or changed, nothing is recorded twice, and the class is the clean one.
 fn check_resumed(dir: &Path, before: &[String], clean_class: &str, what: &str) {
-    if let Err(problems) = host::output::verify::verify(dir) {
+    if let Err(problems) = host::output::verify::verify(dir, host::output::report::html) {
         panic!(
             "{what}: the resumed folder does not verify:\n{}",
             problems
@@ -281,7 +281,7 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
         let message = match run(&args, Some(Crash::disk_full_at(n))) {
             // The last write renames the manifest into place: a full disk takes no data there.
             Ok(Measured::Done { .. }) if n == counting.writes() => {
-                host::output::verify::verify(&dir).unwrap();
+                host::output::verify::verify(&dir, host::output::report::html).unwrap();
                 let _ = std::fs::remove_dir_all(&dir);
                 continue;
             }
@@ -305,7 +305,7 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
             }
             let names = host::output::folder::entries(&dir).unwrap();
             assert!(
-                !names.iter().any(|n| host::output::store::is_temp_name(n)),
+                !names.iter().any(|n| host::output::folder::is_temp_name(n)),
                 "{what}: {names:?}"
             );
             if dir.join("session.json").exists() {
@@ -426,6 +426,6 @@ fn measure_writes_a_folder_that_verifies() {
         .unwrap(),
         Measured::Done { .. }
     ));
-    host::output::verify::verify(&dir).unwrap();
+    host::output::verify::verify(&dir, host::output::report::html).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

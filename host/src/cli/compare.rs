@@ -5,7 +5,7 @@
 use crate::analysis::evidence::{
     self, Evidence, PARAM_LABELS, Population, PopulationSource, Support,
 };
-use crate::output::sheet::{MeasuredSheet, read_measured};
+use crate::output::sheet_folder::{MeasuredSheet, read_measured};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;

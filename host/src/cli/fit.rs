@@ -63,7 +63,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 Ok(dirs) => folders.extend(dirs.into_iter().map(|d| (k, d))),
                 Err(e) => {
                     failed = true;
-                    file_errors.push((k, e));
+                    file_errors.push((k, e.to_string()));
                 }
             }
             continue;

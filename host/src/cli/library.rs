@@ -322,7 +322,8 @@ struct Ranked {
 }
 
 fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
-    let measured = crate::output::sheet::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
+    let measured =
+        crate::output::sheet_folder::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
     let query = measured.sheet.clone();
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.

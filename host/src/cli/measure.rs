@@ -158,7 +158,7 @@ pub enum Measured {
         /// The sheet's folder.
         dir: PathBuf,
         /// The sheet as recorded (read back from its folder).
-        sheet: Box<crate::output::sheet::ReadSheet>,
+        sheet: Box<crate::output::sheet_folder::ReadSheet>,
         /// The object printed by `--json`.
         json: serde_json::Value,
     },
@@ -552,7 +552,7 @@ fn run_on<T: Transport>(
     let sheet = args
         .resume
         .as_deref()
-        .is_some_and(crate::output::sheet::is_sheet_folder)
+        .is_some_and(crate::output::folder::is_sheet_folder)
         || (args.resume.is_none() && checked.spots > 1);
     if sheet {
         return run_sheet(&mut context);
@@ -769,11 +769,11 @@ enum SpotStop {
 }
 
 /// A sheet of several spots (`--spots N`, or `--resume` of a sheet's folder): one session
-/// per spot in `DIR/spot-K` ([`crate::output::sheet`]), the first spot's calibration for all.
+/// per spot in `DIR/spot-K` ([`crate::output::sheet_folder`]), the first spot's calibration for all.
 fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
     use crate::analysis::spots::SpotResult;
-    use crate::output::record::FolderError;
-    use crate::output::sheet::{SheetFolder, SheetResult, read_sheet, read_spot};
+    use crate::output::lock::FolderError;
+    use crate::output::sheet_folder::{SheetFolder, SheetResult, read_sheet, read_spot};
     let args = cx.args;
     let sample = args
         .sample
@@ -841,7 +841,7 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
     folder.start_run(resume_with.clone()).with_context(|| {
         format!(
             "cannot write {}",
-            dir.join(crate::output::sheet::SHEET).display()
+            dir.join(crate::output::folder::SHEET).display()
         )
     })?;
     let plan = crate::session::sheet::SheetPlan {
@@ -863,7 +863,7 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
         }
     }
     let first = dir
-        .join(crate::output::sheet::spot_folder(1))
+        .join(crate::output::folder::spot_folder(1))
         .join("calibration.json");
     let mut calibration = if first.is_file() {
         Some(Calibration::load(
@@ -882,7 +882,7 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
             let spot_dir = folder.start_spot(number).map_err(|e| {
                 SpotStop::Other(anyhow::anyhow!(
                     "cannot write {}: {e}",
-                    dir.join(crate::output::sheet::SHEET).display()
+                    dir.join(crate::output::folder::SHEET).display()
                 ))
             })?;
             let kind = if spot_dir.join(crate::output::folder::SESSION).is_file() {
@@ -945,7 +945,7 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
         }
     };
     let _ = cx.client.request(protocol::Command::SetLamp { on: false });
-    let spots: Vec<crate::output::sheet::ReadSpot> = folder
+    let spots: Vec<crate::output::sheet_folder::ReadSpot> = folder
         .doc
         .spots
         .iter()
@@ -972,7 +972,7 @@ fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
 }
 
 /// The `--json` object of a sheet.
-fn sheet_json(sheet: &crate::output::sheet::ReadSheet) -> serde_json::Value {
+fn sheet_json(sheet: &crate::output::sheet_folder::ReadSheet) -> serde_json::Value {
     let summary = &sheet.summary;
     let result = sheet.doc.result.as_ref();
     let spots: Vec<serde_json::Value> = sheet
@@ -1079,7 +1079,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     );
 }
 
-fn print_sheet(dir: &Path, sheet: &crate::output::sheet::ReadSheet) {
+fn print_sheet(dir: &Path, sheet: &crate::output::sheet_folder::ReadSheet) {
     use crate::analysis::spots::SpotVerdict;
     let summary = &sheet.summary;
     println!(

@@ -81,8 +81,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let summary = trade::summary_markdown(&rows, seeds, &order_table);
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
-    let svg = args.out.join(crate::output::plots::PARETO_FILE);
-    crate::output::plots::write_pareto(&svg, &trade::pareto(&rows))
+    let svg = args.out.join(crate::study::trade_plot::PARETO_FILE);
+    crate::study::trade_plot::write_pareto(&svg, &trade::pareto(&rows))
         .with_context(|| format!("cannot write {}", svg.display()))?;
     print!("{summary}");
     eprintln!(

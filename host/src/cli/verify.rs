@@ -28,11 +28,11 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut failed = false;
     for dir in &args.dirs {
-        if crate::output::sheet::is_sheet_folder(dir) {
+        if crate::output::folder::is_sheet_folder(dir) {
             failed |= !verify_sheet(dir, args.json);
             continue;
         }
-        match verify(dir) {
+        match verify(dir, crate::output::report::html) {
             Ok(v) => {
                 if args.json {
                     println!(
@@ -82,7 +82,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 /// Check a sheet folder and print the result; whether it verified.
 fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
-    match crate::output::sheet::verify_sheet(dir) {
+    match crate::output::verify::verify_sheet(dir, crate::output::report::html) {
         Ok(v) => {
             let readings: usize = v.spots.iter().map(|s| s.readings).sum();
             if json {

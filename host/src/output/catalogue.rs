@@ -4,6 +4,16 @@ use crate::output::folder::{SESSION, SessionDoc, Status};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
+/// The folder to list cannot be listed.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {source}", .root.display())]
+pub struct CatalogueError {
+    /// The folder.
+    pub root: PathBuf,
+    /// Why.
+    pub source: std::io::Error,
+}
+
 /// One session or sheet folder.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Entry {
@@ -29,8 +39,8 @@ pub struct Entry {
     pub problem: Option<String>,
 }
 
-fn session_doc(dir: &Path) -> Result<SessionDoc, String> {
-    crate::output::folder::require_session(dir).map_err(|p| p.to_string())
+fn session_doc(dir: &Path) -> Result<SessionDoc, crate::output::folder::Finding> {
+    crate::output::folder::require_session(dir)
 }
 
 fn session_entry(dir: &Path) -> Entry {
@@ -68,7 +78,7 @@ fn session_entry(dir: &Path) -> Entry {
                 entry.device_seconds = result.and_then(|r| r["device_seconds"].as_f64());
             }
         }
-        Err(e) => entry.problem = Some(e),
+        Err(e) => entry.problem = Some(e.to_string()),
     }
     entry
 }
@@ -86,7 +96,7 @@ fn sheet_entry(dir: &Path) -> Entry {
         device_seconds: None,
         problem: None,
     };
-    match crate::output::sheet::read_doc(dir) {
+    match crate::output::sheet_folder::read_doc(dir) {
         Ok(doc) => {
             entry.sample = doc.sample.clone();
             entry.status = doc.status.to_string();
@@ -114,14 +124,16 @@ fn sheet_entry(dir: &Path) -> Entry {
 
 /// The session and sheet folders directly under `root`, oldest first (by their first
 /// run's start, then name); a folder that is neither is left out.
-pub fn list(root: &Path) -> Result<Vec<Entry>, String> {
-    let names =
-        crate::output::folder::entries(root).map_err(|e| format!("{}: {e}", root.display()))?;
+pub fn list(root: &Path) -> Result<Vec<Entry>, CatalogueError> {
+    let names = crate::output::folder::entries(root).map_err(|source| CatalogueError {
+        root: root.to_path_buf(),
+        source,
+    })?;
     let mut out: Vec<Entry> = names
         .iter()
         .map(|n| root.join(n))
         .filter_map(|dir| {
-            if crate::output::sheet::is_sheet_folder(&dir) {
+            if crate::output::folder::is_sheet_folder(&dir) {
                 Some(sheet_entry(&dir))
             } else if dir.join(SESSION).is_file() {
                 Some(session_entry(&dir))

@@ -45,7 +45,7 @@ pub fn acceptance_solid_angle_sr(acceptance_deg: f64) -> f64 {
 
 /// The file name of a sample's export: `<sample>.astm` (the sample as a file name).
 pub fn astm_file_name(sample: &str) -> String {
-    format!("{}.astm", crate::output::record::file_name_of(sample))
+    format!("{}.astm", crate::output::folder::file_name_of(sample))
 }
 
 /// A header value as whitespace-separated words on one line; a word a reader would take

@@ -11,7 +11,6 @@
 //! | `<sample>.astm`, `fig*.svg` | summaries of the result (the ASTM E1392/E2387 exchange format, plots) | replaced atomically at the end |
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
 use crate::instrument::calibration::Calibration;
-use crate::output::store::is_temp_name;
 use crate::schema;
 use crate::session::MeasuredPoint;
 use serde::{Deserialize, Serialize};
@@ -30,11 +29,77 @@ pub const CALIBRATION: &str = "calibration.json";
 pub const LOG: &str = "session.log";
 /// The manifest.
 pub const MANIFEST: &str = "MANIFEST.sha256";
+/// The report drawn from a finished session or sheet folder's files (not in its manifest:
+/// `gonio verify` checks it against them instead).
+pub const REPORT: &str = "report.html";
+/// The sheet document of a folder of several spots.
+pub const SHEET: &str = "sheet.json";
 /// The header of [`READINGS`].
 pub const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
 /// The header of [`READINGS`] once a reading was taken while the detector moved (a sweep's
 /// bin): its travel in θr, degrees, in a fifth column.
 pub const READINGS_HEADER_WITH_SPAN: &str = "theta_i,theta_r,radiance_factor,std,theta_r_span";
+
+/// The suffix of a file being replaced ([`crate::output::store::Store::replace`]).
+const TEMP_SUFFIX: &str = ".gonio-tmp";
+
+/// Whether `name` is a temporary file that [`crate::output::store::Store::replace`] writes
+/// (and a kill can leave).
+pub fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
+}
+
+/// The temporary name [`crate::output::store::Store::replace`] writes `name` under.
+pub fn temp_name(name: &str) -> String {
+    format!(".{name}{TEMP_SUFFIX}")
+}
+
+/// The folder name of spot `number` in a sheet's folder.
+pub fn spot_folder(number: u16) -> String {
+    format!("spot-{number}")
+}
+
+/// Whether `dir` is the folder of a multi-spot sheet.
+pub fn is_sheet_folder(dir: &Path) -> bool {
+    dir.join(SHEET).is_file()
+}
+
+/// A sample's name as a file name: letters, digits, `.`, `_` and `-` kept, the rest `_`.
+pub fn file_name_of(sample: &str) -> String {
+    let name: String = sample
+        .chars()
+        .take(48)
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if name.is_empty() || name.starts_with('.') {
+        format!("_{name}")
+    } else {
+        name
+    }
+}
+
+/// The name of a new folder for `sample` under `sessions/`: `<local date-time>-<sample>`
+/// (a session's and a sheet's alike; the caller adds `-2`, `-3`… when it is taken).
+pub(crate) fn dated_folder_name(sample: &str) -> String {
+    format!(
+        "{}-{}",
+        chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"),
+        file_name_of(sample)
+    )
+}
+
+/// A document's bytes as gonio writes its JSON files: pretty, with a last newline.
+pub(crate) fn json_bytes(value: &impl serde::Serialize) -> std::io::Result<Vec<u8>> {
+    let mut bytes = serde_json::to_vec_pretty(value)?;
+    bytes.push(b'\n');
+    Ok(bytes)
+}
 
 /// The header `readings.csv` has for `points`: the span column once any was taken moving.
 pub fn readings_header(points: &[MeasuredPoint]) -> &'static str {
@@ -212,9 +277,10 @@ pub struct SessionDoc {
     pub rest: serde_json::Map<String, serde_json::Value>,
 }
 
-/// Something wrong in a session folder, at `file:line` when a line is known.
+/// Something found wrong in a session or sheet folder (by reading it, by `gonio verify`,
+/// or by a resume's check), at `file:line` when a line is known.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Problem {
+pub struct Finding {
     /// The file (or folder) concerned.
     pub file: PathBuf,
     /// Its 1-based line.
@@ -223,9 +289,9 @@ pub struct Problem {
     pub message: String,
 }
 
-impl Problem {
-    fn new(file: &Path, line: Option<usize>, message: impl Into<String>) -> Problem {
-        Problem {
+impl Finding {
+    fn new(file: &Path, line: Option<usize>, message: impl Into<String>) -> Finding {
+        Finding {
             file: file.to_path_buf(),
             line,
             message: message.into(),
@@ -233,7 +299,9 @@ impl Problem {
     }
 }
 
-impl fmt::Display for Problem {
+impl std::error::Error for Finding {}
+
+impl fmt::Display for Finding {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.line {
             Some(line) => write!(f, "{}:{line}: {}", self.file.display(), self.message),
@@ -257,11 +325,11 @@ pub struct LinesFile {
 }
 
 /// Read a file of lines; a missing file is empty. Invalid UTF-8 in a whole line is a problem.
-pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
+pub fn read_lines(path: &Path) -> Result<LinesFile, Finding> {
     let bytes = match std::fs::read(path) {
         Ok(bytes) => bytes,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(LinesFile::default()),
-        Err(e) => return Err(Problem::new(path, None, format!("cannot read: {e}"))),
+        Err(e) => return Err(Finding::new(path, None, format!("cannot read: {e}"))),
     };
     let whole_len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
     let cut_tail = (whole_len < bytes.len()).then(|| bytes[whole_len..].to_vec());
@@ -271,7 +339,7 @@ pub fn read_lines(path: &Path) -> Result<LinesFile, Problem> {
         .enumerate()
     {
         let text = std::str::from_utf8(&line[..line.len() - 1])
-            .map_err(|_| Problem::new(path, Some(k + 1), "not UTF-8 text"))?;
+            .map_err(|_| Finding::new(path, Some(k + 1), "not UTF-8 text"))?;
         lines.push((k + 1, text.to_string()));
     }
     Ok(LinesFile {
@@ -308,12 +376,29 @@ enum PointsLine {
     Mark(SupersedeMark),
 }
 
+/// Why a line of `points.jsonl` is neither a reading nor a mark.
+#[derive(Debug, thiserror::Error)]
+enum PointsLineError {
+    /// Not JSON at all.
+    #[error("not a reading (not JSON): {0}")]
+    NotJson(serde_json::Error),
+    /// JSON, but not a reading.
+    #[error("not a reading: {0}")]
+    NotReading(serde_json::Error),
+    /// Tagged as a mark, but not one.
+    #[error("not a mark of superseded readings: {0}")]
+    NotMark(serde_json::Error),
+    /// Tagged with a schema read elsewhere.
+    #[error("schema '{0}' is not one this gonio reads here ({POINT}, {SUPERSEDE})", POINT = schema::POINT, SUPERSEDE = schema::SUPERSEDE)]
+    OtherSchema(String),
+}
+
 /// Parse one line of `points.jsonl`: by its `schema`; a line without one was written
 /// before gonio named its documents (a mark then has exactly its two fields, a reading
 /// many more).
-fn parse_points_line(text: &str) -> Result<PointsLine, String> {
+fn parse_points_line(text: &str) -> Result<PointsLine, PointsLineError> {
     let mut value: serde_json::Value =
-        serde_json::from_str(text).map_err(|e| format!("not a reading (not JSON): {e}"))?;
+        serde_json::from_str(text).map_err(PointsLineError::NotJson)?;
     let found = schema::of(&value).map(str::to_string);
     if let Some(object) = value.as_object_mut() {
         object.remove("schema");
@@ -321,37 +406,31 @@ fn parse_points_line(text: &str) -> Result<PointsLine, String> {
     let reading = |value: serde_json::Value| {
         serde_json::from_value::<MeasuredPoint>(value)
             .map(|p| PointsLine::Reading(Box::new(p)))
-            .map_err(|e| format!("not a reading: {e}"))
+            .map_err(PointsLineError::NotReading)
     };
     let mark = |value: serde_json::Value| {
         serde_json::from_value::<SupersedeMark>(value).map(PointsLine::Mark)
     };
     match found.as_deref() {
         Some(schema::POINT) => reading(value),
-        Some(schema::SUPERSEDE) => {
-            mark(value).map_err(|e| format!("not a mark of superseded readings: {e}"))
-        }
-        Some(other) => Err(format!(
-            "schema '{other}' is not one this gonio reads here ({}, {})",
-            schema::POINT,
-            schema::SUPERSEDE
-        )),
+        Some(schema::SUPERSEDE) => mark(value).map_err(PointsLineError::NotMark),
+        Some(other) => Err(PointsLineError::OtherSchema(other.to_string())),
         None => mark(value.clone()).or_else(|_| reading(value)),
     }
 }
 
 /// Parse the whole lines of `points.jsonl`: its readings in order, with the marks of later
 /// lines applied (`superseded` set).
-pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Problem> {
+pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>, Finding> {
     let mut points: Vec<MeasuredPoint> = Vec::new();
     for (line, text) in &file.lines {
-        match parse_points_line(text).map_err(|m| Problem::new(path, Some(*line), m))? {
+        match parse_points_line(text).map_err(|e| Finding::new(path, Some(*line), e.to_string()))? {
             PointsLine::Mark(mark) => {
                 for &k in &mark.superseded {
                     match points.get_mut(k) {
                         Some(point) => point.superseded = true,
                         None => {
-                            return Err(Problem::new(
+                            return Err(Finding::new(
                                 path,
                                 Some(*line),
                                 format!(
@@ -433,7 +512,7 @@ pub enum CsvAgreement {
         superseded: usize,
     },
     /// Something else: damage.
-    Differs(Problem),
+    Differs(Finding),
 }
 
 /// The readings with their conversion by `calibration` (`calibration.json`): a reading's
@@ -487,28 +566,41 @@ pub fn csv_agreement(
 
 fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -> CsvAgreement {
     let wanted = readings_header(points);
-    let expected_with = |header: &str| -> Vec<String> {
-        points
-            .iter()
-            .filter_map(|p| csv_row(p, header))
-            .map(|r| r.trim_end().to_string())
-            .collect()
-    };
     if !file.exists {
         return CsvAgreement::Behind {
-            missing: expected_with(wanted).len(),
+            missing: expected_rows(points, wanted).len(),
             cut: false,
         };
     }
-    let mut lines = file.lines.iter();
-    // The file's header: the one its readings need, or the one without the span column
-    // while no reading was taken moving yet (the file is rewritten with the span column
-    // when the first bin arrives).
-    let header = match lines.next() {
+    match csv_header(path, file, points, wanted) {
+        Ok(header) => csv_rows_agreement(path, file, &expected_rows(points, header)),
+        Err(verdict) => verdict,
+    }
+}
+
+/// The rows `readings.csv` must hold under `header`, without their newlines.
+fn expected_rows(points: &[MeasuredPoint], header: &str) -> Vec<String> {
+    points
+        .iter()
+        .filter_map(|p| csv_row(p, header))
+        .map(|r| r.trim_end().to_string())
+        .collect()
+}
+
+/// The file's header: the one its readings need (`wanted`), or the one without the span
+/// column while no reading was taken moving yet (the file is rewritten with the span
+/// column when the first bin arrives); else the file's agreement as the header decides it.
+fn csv_header(
+    path: &Path,
+    file: &LinesFile,
+    points: &[MeasuredPoint],
+    wanted: &'static str,
+) -> Result<&'static str, CsvAgreement> {
+    match file.lines.first() {
         Some((_, header))
             if header == wanted || (header == READINGS_HEADER && wanted == READINGS_HEADER) =>
         {
-            wanted
+            Ok(wanted)
         }
         Some((line, header)) if header == READINGS_HEADER => {
             // What a crash between the first bin's record and the rewrite leaves: the rows
@@ -517,61 +609,63 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
                 .iter()
                 .position(|p| p.theta_r_span_deg > 0.0)
                 .unwrap_or(points.len());
-            return match csv_agreement_with(path, file, &points[..first_moving]) {
-                CsvAgreement::Differs(_) => CsvAgreement::Differs(Problem::new(
-                    path,
-                    Some(*line),
-                    format!(
-                        "header is '{header}', without the theta_r_span column the readings taken while moving need"
-                    ),
-                )),
-                _ => CsvAgreement::Stale { superseded: 0 },
-            };
-        }
-        Some((line, header)) => {
-            return CsvAgreement::Differs(Problem::new(
-                path,
-                Some(*line),
-                format!("header is '{header}', not '{wanted}'"),
-            ));
-        }
-        // Only the header, cut short (or nothing): a crash right after the file was made.
-        None => {
-            return match &file.cut_tail {
-                Some(tail)
-                    if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN]
-                        .iter()
-                        .any(|h| h.as_bytes().starts_with(tail)) =>
-                {
-                    CsvAgreement::Differs(Problem::new(
+            Err(
+                match csv_agreement_with(path, file, &points[..first_moving]) {
+                    CsvAgreement::Differs(_) => CsvAgreement::Differs(Finding::new(
                         path,
-                        Some(1),
+                        Some(*line),
                         format!(
-                            "'{}' is not the header '{wanted}'",
-                            String::from_utf8_lossy(tail)
+                            "header is '{header}', without the theta_r_span column the readings taken while moving need"
                         ),
-                    ))
-                }
-                tail => CsvAgreement::Behind {
-                    missing: expected_with(wanted).len(),
-                    cut: tail.is_some(),
+                    )),
+                    _ => CsvAgreement::Stale { superseded: 0 },
                 },
-            };
+            )
         }
-    };
-    let expected = expected_with(header);
-    let rows: Vec<&(usize, String)> = lines.collect();
+        Some((line, header)) => Err(CsvAgreement::Differs(Finding::new(
+            path,
+            Some(*line),
+            format!("header is '{header}', not '{wanted}'"),
+        ))),
+        // Only the header, cut short (or nothing): a crash right after the file was made.
+        None => Err(match &file.cut_tail {
+            Some(tail)
+                if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN]
+                    .iter()
+                    .any(|h| h.as_bytes().starts_with(tail)) =>
+            {
+                CsvAgreement::Differs(Finding::new(
+                    path,
+                    Some(1),
+                    format!(
+                        "'{}' is not the header '{wanted}'",
+                        String::from_utf8_lossy(tail)
+                    ),
+                ))
+            }
+            tail => CsvAgreement::Behind {
+                missing: expected_rows(points, wanted).len(),
+                cut: tail.is_some(),
+            },
+        }),
+    }
+}
+
+/// The rows after the header against `expected`: the same, or a prefix of them (perhaps
+/// with a last row cut short).
+fn csv_rows_agreement(path: &Path, file: &LinesFile, expected: &[String]) -> CsvAgreement {
+    let rows: Vec<&(usize, String)> = file.lines.iter().skip(1).collect();
     if rows.len() > expected.len() {
         let (line, text) = rows[expected.len()];
-        return CsvAgreement::Differs(Problem::new(
+        return CsvAgreement::Differs(Finding::new(
             path,
             Some(*line),
             format!("row '{text}' has no reading in {POINTS}"),
         ));
     }
-    for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(&expected) {
+    for ((line, text), want) in rows.iter().map(|r| (&r.0, &r.1)).zip(expected) {
         if !same_row(text, want) {
-            return CsvAgreement::Differs(Problem::new(
+            return CsvAgreement::Differs(Finding::new(
                 path,
                 Some(*line),
                 format!("row '{text}' differs from its reading in {POINTS} ('{want}')"),
@@ -587,7 +681,7 @@ fn csv_agreement_with(path: &Path, file: &LinesFile, points: &[MeasuredPoint]) -
             .unwrap_or_default();
         if !next.starts_with(tail) {
             let line = rows.last().map_or(2, |r| r.0 + 1);
-            return CsvAgreement::Differs(Problem::new(
+            return CsvAgreement::Differs(Finding::new(
                 path,
                 Some(line),
                 format!(
@@ -626,18 +720,18 @@ fn same_row(row: &str, want: &str) -> bool {
 /// Read `session.json`; `None` when there is none. A document of an older version
 /// ([`crate::schema::SESSION_V1`]) is upgraded in memory (the file stays as it is: its
 /// manifest vouches for its bytes).
-pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
+pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
     let path = dir.join(SESSION);
     let text = match std::fs::read_to_string(&path) {
         Ok(text) => text,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(Problem::new(&path, None, format!("cannot read: {e}"))),
+        Err(e) => return Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     };
     let mut value: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| Problem::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
+        .map_err(|e| Finding::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
     let schema =
         schema::check(&value, &[schema::SESSION, schema::SESSION_V1], None).map_err(|m| {
-            Problem::new(
+            Finding::new(
                 &path,
                 None,
                 format!("{m}: not a session folder of this gonio"),
@@ -648,21 +742,21 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Problem> {
     }
     serde_json::from_value(value)
         .map(Some)
-        .map_err(|e| Problem::new(&path, None, format!("not a session document: {e}")))
+        .map_err(|e| Finding::new(&path, None, format!("not a session document: {e}")))
 }
 
 /// [`read_session`] of a folder that must hold a session.
-pub fn require_session(dir: &Path) -> Result<SessionDoc, Problem> {
+pub fn require_session(dir: &Path) -> Result<SessionDoc, Finding> {
     read_session(dir)?
-        .ok_or_else(|| Problem::new(&dir.join(SESSION), None, "missing: not a session folder"))
+        .ok_or_else(|| Finding::new(&dir.join(SESSION), None, "missing: not a session folder"))
 }
 
 /// [`require_session`] of a session that must be finished (to report, re-analyse or
 /// weigh its result).
-pub fn require_finished(dir: &Path) -> Result<SessionDoc, Problem> {
+pub fn require_finished(dir: &Path) -> Result<SessionDoc, Finding> {
     let doc = require_session(dir)?;
     if doc.status != Status::Finished {
-        return Err(Problem::new(
+        return Err(Finding::new(
             &dir.join(SESSION),
             None,
             format!(
@@ -728,14 +822,14 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 }
 
 /// Read `calibration.json`; `None` when there is none.
-pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Problem> {
+pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
         Ok(text) => Calibration::from_json(&text)
             .map(Some)
-            .map_err(|(line, m)| Problem::new(&path, line, m)),
+            .map_err(|(line, m)| Finding::new(&path, line, m)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(Problem::new(&path, None, format!("cannot read: {e}"))),
+        Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }
 }
 
@@ -786,15 +880,15 @@ pub struct Inspection {
     /// Damage that a resume does not repair, found by cross-checking the files: anything
     /// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and
     /// a run that ended without closing.
-    pub damage: Vec<Problem>,
+    pub damage: Vec<Finding>,
 }
 
 /// Read and cross-check a session folder. A file that cannot be read as what it must be
 /// is an error at `file:line`; disagreements between the files are in
 /// [`Inspection::damage`].
-pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
+pub fn inspect(dir: &Path) -> Result<Inspection, Finding> {
     if !dir.is_dir() {
-        return Err(Problem::new(
+        return Err(Finding::new(
             dir,
             None,
             if dir.exists() {
@@ -814,16 +908,16 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
     let calibration = read_calibration(dir)?;
     let points = converted(&recorded, calibration.as_ref());
     let temp_files =
-        temp_files(dir).map_err(|e| Problem::new(dir, None, format!("cannot list: {e}")))?;
+        temp_files(dir).map_err(|e| Finding::new(dir, None, format!("cannot list: {e}")))?;
     let session_path = dir.join(SESSION);
     let mut damage = Vec::new();
     match &session {
         None if points_file.exists || calibration.is_some() => {
-            damage.push(Problem::new(&session_path, None, "missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged"));
+            damage.push(Finding::new(&session_path, None, "missing, but the folder holds readings or a calibration: not a folder gonio left, or damaged"));
         }
         Some(doc) => {
             if points.len() < doc.readings_recorded {
-                damage.push(Problem::new(
+                damage.push(Finding::new(
                     &points_path,
                     Some(points_file.lines.len() + 1),
                     format!(
@@ -834,14 +928,14 @@ pub fn inspect(dir: &Path) -> Result<Inspection, Problem> {
                 ));
             }
             if points.iter().any(|p| p.radiance_factor.is_some()) && calibration.is_none() {
-                damage.push(Problem::new(
+                damage.push(Finding::new(
                     &dir.join(CALIBRATION),
                     None,
                     "missing, but readings were converted with it",
                 ));
             }
             if doc.runs.is_empty() {
-                damage.push(Problem::new(&session_path, None, "no runs recorded"));
+                damage.push(Finding::new(&session_path, None, "no runs recorded"));
             }
         }
         None => {}

@@ -1,7 +1,7 @@
 //! `MANIFEST.sha256`: the SHA-256 of every file of a finished session folder, one
 //! `HEX  NAME` line each in name order, as `sha256sum` writes them, so that
 //! `sha256sum -c MANIFEST.sha256` in the folder checks it as well as `gonio verify` does.
-use crate::output::folder::{MANIFEST, Problem, entries};
+use crate::output::folder::{Finding, MANIFEST, REPORT, entries, temp_name};
 use sha2::{Digest, Sha256};
 use std::path::Path;
 
@@ -20,7 +20,7 @@ pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
         let path = dir.join(&name);
         // The report is drawn from the files the manifest lists (it shows their hashes), so
         // it cannot be among them; `gonio verify` checks it against them instead.
-        if name == MANIFEST || name == crate::output::report::REPORT || !path.is_file() {
+        if name == MANIFEST || name == REPORT || !path.is_file() {
             continue;
         }
         text += &format!("{}  {name}\n", sha256_hex(&std::fs::read(&path)?));
@@ -30,9 +30,9 @@ pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
 
 /// Check `dir` against its manifest: every file listed, present and unchanged, and no other
 /// file. Returns the number of files checked, or every problem found.
-pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
+pub fn check(dir: &Path) -> Result<usize, Vec<Finding>> {
     let path = dir.join(MANIFEST);
-    let problem = |line: Option<usize>, message: String| Problem {
+    let problem = |line: Option<usize>, message: String| Finding {
         file: path.clone(),
         line,
         message,
@@ -74,31 +74,28 @@ pub fn check(dir: &Path) -> Result<usize, Vec<Problem>> {
         let file = dir.join(name);
         match std::fs::read(&file) {
             Ok(bytes) if sha256_hex(&bytes).eq_ignore_ascii_case(hex) => {}
-            Ok(_) => problems.push(Problem { file, line: None, message: format!("changed since the session finished: its SHA-256 is not the one in {MANIFEST}:{}", k + 1) }),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => problems.push(Problem { file, line: None, message: format!("missing (listed in {MANIFEST}:{})", k + 1) }),
-            Err(e) => problems.push(Problem { file, line: None, message: format!("cannot read: {e}") }),
+            Ok(_) => problems.push(Finding { file, line: None, message: format!("changed since the session finished: its SHA-256 is not the one in {MANIFEST}:{}", k + 1) }),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => problems.push(Finding { file, line: None, message: format!("missing (listed in {MANIFEST}:{})", k + 1) }),
+            Err(e) => problems.push(Finding { file, line: None, message: format!("cannot read: {e}") }),
         }
     }
     match entries(dir) {
         Ok(names) => {
             // The report is drawn from the record, not part of it (nor is a report a kill cut
             // short, which the next `gonio report` replaces).
-            let report = |n: &str| {
-                n == crate::output::report::REPORT
-                    || n == crate::output::store::temp_name(crate::output::report::REPORT)
-            };
+            let report = |n: &str| n == REPORT || n == temp_name(REPORT);
             for name in names
                 .into_iter()
                 .filter(|n| n != MANIFEST && !report(n) && !listed.contains(n))
             {
-                problems.push(Problem {
+                problems.push(Finding {
                     file: dir.join(&name),
                     line: None,
                     message: format!("not in {MANIFEST}: added after the session finished"),
                 });
             }
         }
-        Err(e) => problems.push(Problem {
+        Err(e) => problems.push(Finding {
             file: dir.to_path_buf(),
             line: None,
             message: format!("cannot list: {e}"),

@@ -12,7 +12,6 @@ use crate::analysis::model::{self, Params, RHO_D, RHO_S, SIGMA};
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
-use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::io;
 use std::path::{Path, PathBuf};
 
@@ -32,14 +31,14 @@ pub const THETA_R_MAX_DEG: f64 = 70.0;
 /// ~59 over a diffuse level of ~0.8); below it a linear axis from 0 shows the shape better.
 const LOG_AXIS_MIN_SPAN: f64 = 10.0;
 
-const SAMPLE_COLOR: RGBColor = RGBColor(200, 30, 30);
-const CURVE_COLOR: RGBColor = RGBColor(20, 70, 180);
+pub(crate) const SAMPLE_COLOR: RGBColor = RGBColor(200, 30, 30);
+pub(crate) const CURVE_COLOR: RGBColor = RGBColor(20, 70, 180);
 const REFERENCE_COLOR: RGBColor = RGBColor(90, 90, 90);
-const GUIDE_COLOR: RGBColor = RGBColor(40, 140, 60);
+pub(crate) const GUIDE_COLOR: RGBColor = RGBColor(40, 140, 60);
 
-type DrawResult<T> = Result<T, DrawingAreaErrorKind<io::Error>>;
+pub(crate) type DrawResult<T> = Result<T, DrawingAreaErrorKind<io::Error>>;
 
-fn to_io(e: DrawingAreaErrorKind<io::Error>) -> io::Error {
+pub(crate) fn to_io(e: DrawingAreaErrorKind<io::Error>) -> io::Error {
     io::Error::other(e.to_string())
 }
 
@@ -134,7 +133,7 @@ pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
 }
 
 /// A tick label: as many digits as the value needs, no trailing ".0" on whole numbers.
-fn tick_label(v: &f64) -> String {
+pub(crate) fn tick_label(v: &f64) -> String {
     if *v >= 1.0 {
         format!("{}", (v * 1e6).round() / 1e6)
     } else {
@@ -149,11 +148,59 @@ fn draw_fig4(
     fit: &FitResult,
     classification: &Classification,
 ) -> DrawResult<()> {
+    let panels = fig4_panels(points, fit);
+    let columns = panels.len().clamp(1, 2);
+    let rows = panels.len().div_ceil(2).max(1);
+    let size = (1000, 60 + 500 * rows as u32);
+    let root = SVGBackend::new(path, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let title = format!(
+        "{sample}: radiance factor in the specular plane, measured (±1 standard uncertainty) and TSL fit (class {}{})",
+        classification.class_name(),
+        fit.acceptance_deg
+            .map_or_else(String::new, |a| format!(", acceptance {a}°"))
+    );
+    let root = root.titled(&title, ("sans-serif", 18))?;
+    let range = Fig4Range::of(&panels);
+    let scale = ResidualScale::of(&panels);
+    let areas = root.split_evenly((rows, columns));
+    for (k, (panel, area)) in panels.iter().zip(areas.iter()).enumerate() {
+        let (upper, lower) = area.split_vertically(area.dim_in_pixel().1 * 68 / 100);
+        let caption = format!("θi = {}°", panel.theta_i_deg);
+        let mut builder = ChartBuilder::on(&upper);
+        builder
+            .caption(caption, ("sans-serif", 16))
+            .margin(10)
+            .margin_bottom(0)
+            .x_label_area_size(22)
+            .y_label_area_size(60);
+        // The legend once, in the first panel.
+        let legend = k == 0;
+        if range.log_axis {
+            let (lo, hi) = (0.7 * range.min_positive, 1.5 * range.max);
+            let mut chart = builder.build_cartesian_2d(
+                0.0..THETA_R_MAX_DEG,
+                (lo..hi).log_scale().with_key_points(log_ticks(lo, hi)),
+            )?;
+            fill_fig4_panel(&mut chart, panel, Some(lo), legend)?;
+        } else {
+            let mut chart =
+                builder.build_cartesian_2d(0.0..THETA_R_MAX_DEG, 0.0..1.1 * range.max)?;
+            fill_fig4_panel(&mut chart, panel, None, legend)?;
+        }
+        draw_fig4_residuals(&lower, panel, &scale)?;
+    }
+    root.present()
+}
+
+/// The panels of Fig. 4, one per θi: the fitted curve and the readings with the fitted
+/// value at each.
+fn fig4_panels(points: &[Observation], fit: &FitResult) -> Vec<Panel> {
     let fitted = |ti: f64, tr: f64| match fit.acceptance_deg {
         Some(a) => model::observed_radiance_factor(&fit.params, ti, tr, a),
         None => model::radiance_factor(&fit.params, ti, tr),
     };
-    let panels: Vec<Panel> = incidence_angles(points)
+    incidence_angles(points)
         .into_iter()
         .map(|ti| Panel {
             theta_i_deg: ti,
@@ -171,131 +218,137 @@ fn draw_fig4(
                 })
                 .collect(),
         })
-        .collect();
+        .collect()
+}
 
-    let columns = panels.len().clamp(1, 2);
-    let rows = panels.len().div_ceil(2).max(1);
-    let size = (1000, 60 + 500 * rows as u32);
-    let root = SVGBackend::new(path, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let title = format!(
-        "{sample}: radiance factor in the specular plane, measured (±1 standard uncertainty) and TSL fit (class {}{})",
-        classification.class_name(),
-        fit.acceptance_deg
-            .map_or_else(String::new, |a| format!(", acceptance {a}°"))
-    );
-    let root = root.titled(&title, ("sans-serif", 18))?;
+/// The y range of Fig. 4's panels: one for all, so that the panels compare at a glance.
+struct Fig4Range {
+    /// The largest value drawn (curve, readings ± u).
+    max: f64,
+    /// The smallest positive value drawn (the floor of a log axis).
+    min_positive: f64,
+    /// A log axis: the curves span more than [`LOG_AXIS_MIN_SPAN`].
+    log_axis: bool,
+}
 
-    // One y range for all panels, so that the panels compare at a glance.
-    let curve_values = panels.iter().flat_map(|p| p.curve.iter().map(|&(_, f)| f));
-    let reading_values = panels.iter().flat_map(|p| {
-        p.readings
+impl Fig4Range {
+    fn of(panels: &[Panel]) -> Fig4Range {
+        let curve_values = panels.iter().flat_map(|p| p.curve.iter().map(|&(_, f)| f));
+        let reading_values = panels.iter().flat_map(|p| {
+            p.readings
+                .iter()
+                .flat_map(|&(_, f, s, _)| [f - s.unwrap_or(0.0), f + s.unwrap_or(0.0)])
+        });
+        let all: Vec<f64> = curve_values
+            .chain(reading_values)
+            .filter(|v| v.is_finite())
+            .collect();
+        let max = all.iter().copied().fold(0.0, f64::max).max(1e-3);
+        let min_positive = all
             .iter()
-            .flat_map(|&(_, f, s, _)| [f - s.unwrap_or(0.0), f + s.unwrap_or(0.0)])
-    });
-    let all: Vec<f64> = curve_values
-        .chain(reading_values)
-        .filter(|v| v.is_finite())
-        .collect();
-    let max = all.iter().copied().fold(0.0, f64::max).max(1e-3);
-    let min_positive = all
-        .iter()
-        .copied()
-        .filter(|&v| v > 0.0)
-        .fold(f64::INFINITY, f64::min)
-        .min(max);
-    let curve_max = panels
-        .iter()
-        .flat_map(|p| p.curve.iter().map(|c| c.1))
-        .fold(0.0, f64::max);
-    let curve_min = panels
-        .iter()
-        .flat_map(|p| p.curve.iter().map(|c| c.1))
-        .fold(f64::INFINITY, f64::min);
-    let log_axis = curve_min > 0.0 && curve_max / curve_min > LOG_AXIS_MIN_SPAN;
-    // Residuals in standard uncertainties where the readings have them, else relative.
-    let normalised = panels
-        .iter()
-        .flat_map(|p| &p.readings)
-        .all(|r| r.2.is_some_and(|s| s > 0.0 && s.is_finite()));
-    let residual = |&(_, f, s, m): &(f64, f64, Option<f64>, f64)| {
-        if normalised {
+            .copied()
+            .filter(|&v| v > 0.0)
+            .fold(f64::INFINITY, f64::min)
+            .min(max);
+        let curve_max = panels
+            .iter()
+            .flat_map(|p| p.curve.iter().map(|c| c.1))
+            .fold(0.0, f64::max);
+        let curve_min = panels
+            .iter()
+            .flat_map(|p| p.curve.iter().map(|c| c.1))
+            .fold(f64::INFINITY, f64::min);
+        Fig4Range {
+            max,
+            min_positive,
+            log_axis: curve_min > 0.0 && curve_max / curve_min > LOG_AXIS_MIN_SPAN,
+        }
+    }
+}
+
+/// The residuals' scale of Fig. 4: in standard uncertainties where the readings have them,
+/// else relative; one limit for all panels.
+struct ResidualScale {
+    normalised: bool,
+    limit: f64,
+}
+
+impl ResidualScale {
+    fn of(panels: &[Panel]) -> ResidualScale {
+        let normalised = panels
+            .iter()
+            .flat_map(|p| &p.readings)
+            .all(|r| r.2.is_some_and(|s| s > 0.0 && s.is_finite()));
+        let mut scale = ResidualScale {
+            normalised,
+            limit: 0.0,
+        };
+        let extreme = panels
+            .iter()
+            .flat_map(|p| p.readings.iter().map(|r| scale.residual(r)))
+            .filter(|v| v.is_finite())
+            .fold(0.0f64, |a, v| a.max(v.abs()));
+        scale.limit = if normalised {
+            extreme.max(3.0) * 1.15
+        } else {
+            extreme.max(0.02) * 1.15
+        };
+        scale
+    }
+
+    /// The residual of a reading (θr, radiance factor, std, fitted value).
+    fn residual(&self, &(_, f, s, m): &(f64, f64, Option<f64>, f64)) -> f64 {
+        if self.normalised {
             (f - m) / s.unwrap_or(1.0)
         } else {
             (f - m) / m.abs().max(1e-12)
         }
-    };
-    let extreme = panels
-        .iter()
-        .flat_map(|p| p.readings.iter().map(residual))
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, |a, v| a.max(v.abs()));
-    let limit = if normalised {
-        extreme.max(3.0) * 1.15
-    } else {
-        extreme.max(0.02) * 1.15
-    };
-
-    let areas = root.split_evenly((rows, columns));
-    for (k, (panel, area)) in panels.iter().zip(areas.iter()).enumerate() {
-        let (upper, lower) = area.split_vertically(area.dim_in_pixel().1 * 68 / 100);
-        let caption = format!("θi = {}°", panel.theta_i_deg);
-        let mut builder = ChartBuilder::on(&upper);
-        builder
-            .caption(caption, ("sans-serif", 16))
-            .margin(10)
-            .margin_bottom(0)
-            .x_label_area_size(22)
-            .y_label_area_size(60);
-        // The legend once, in the first panel.
-        let legend = k == 0;
-        if log_axis {
-            let (lo, hi) = (0.7 * min_positive, 1.5 * max);
-            let mut chart = builder.build_cartesian_2d(
-                0.0..THETA_R_MAX_DEG,
-                (lo..hi).log_scale().with_key_points(log_ticks(lo, hi)),
-            )?;
-            fill_fig4_panel(&mut chart, panel, Some(lo), legend)?;
-        } else {
-            let mut chart = builder.build_cartesian_2d(0.0..THETA_R_MAX_DEG, 0.0..1.1 * max)?;
-            fill_fig4_panel(&mut chart, panel, None, legend)?;
-        }
-        let mut residuals = ChartBuilder::on(&lower)
-            .margin(10)
-            .margin_top(2)
-            .x_label_area_size(36)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..THETA_R_MAX_DEG, -limit..limit)?;
-        residuals
-            .configure_mesh()
-            .x_desc("θr [deg]")
-            .y_desc(if normalised {
-                "residual / u"
-            } else {
-                "relative residual"
-            })
-            .y_labels(5)
-            .light_line_style(WHITE)
-            .draw()?;
-        residuals.draw_series(LineSeries::new(
-            [(0.0, 0.0), (THETA_R_MAX_DEG, 0.0)],
-            CURVE_COLOR.stroke_width(1),
-        ))?;
-        if normalised {
-            for band in [-2.0, 2.0] {
-                residuals.draw_series(LineSeries::new(
-                    [(0.0, band), (THETA_R_MAX_DEG, band)],
-                    BLACK.mix(0.3).stroke_width(1),
-                ))?;
-            }
-        }
-        residuals.draw_series(panel.readings.iter().filter_map(|r| {
-            residual(r)
-                .is_finite()
-                .then(|| Circle::new((r.0, residual(r)), 3, SAMPLE_COLOR.filled()))
-        }))?;
     }
-    root.present()
+}
+
+/// The residuals of one panel, under it.
+fn draw_fig4_residuals(
+    area: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>,
+    panel: &Panel,
+    scale: &ResidualScale,
+) -> DrawResult<()> {
+    let limit = scale.limit;
+    let mut residuals = ChartBuilder::on(area)
+        .margin(10)
+        .margin_top(2)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..THETA_R_MAX_DEG, -limit..limit)?;
+    residuals
+        .configure_mesh()
+        .x_desc("θr [deg]")
+        .y_desc(if scale.normalised {
+            "residual / u"
+        } else {
+            "relative residual"
+        })
+        .y_labels(5)
+        .light_line_style(WHITE)
+        .draw()?;
+    residuals.draw_series(LineSeries::new(
+        [(0.0, 0.0), (THETA_R_MAX_DEG, 0.0)],
+        CURVE_COLOR.stroke_width(1),
+    ))?;
+    if scale.normalised {
+        for band in [-2.0, 2.0] {
+            residuals.draw_series(LineSeries::new(
+                [(0.0, band), (THETA_R_MAX_DEG, band)],
+                BLACK.mix(0.3).stroke_width(1),
+            ))?;
+        }
+    }
+    residuals.draw_series(panel.readings.iter().filter_map(|r| {
+        let residual = scale.residual(r);
+        residual
+            .is_finite()
+            .then(|| Circle::new((r.0, residual), 3, SAMPLE_COLOR.filled()))
+    }))?;
+    Ok(())
 }
 
 /// Mesh, fitted curve, readings and error bars of one panel; `log_floor` is the bottom of
@@ -676,141 +729,4 @@ where
 /// Whether a class is drawn in Fig. 7 (the rough ones).
 pub fn has_fig7(class: Class) -> bool {
     class.group() == Group::Rough
-}
-
-/// File name of the trade study's plot.
-pub const PARETO_FILE: &str = "pareto.svg";
-
-/// The trade study's plot: device seconds against the 95th percentile of σ's relative
-/// error over the glossy papers, one point per configuration, coloured by policy, the
-/// Pareto front joined by a line. Unresolved σ (an infinite error) is drawn at the top.
-pub fn write_pareto(
-    path: &Path,
-    points: &[(crate::study::trade::ParetoPoint, bool)],
-) -> io::Result<()> {
-    draw_pareto(path, points).map_err(to_io)
-}
-
-fn policy_color(policy: &str) -> RGBColor {
-    match policy {
-        "strategy1" => RGBColor(120, 120, 120),
-        "strategy2" => CURVE_COLOR,
-        "paper" => RGBColor(230, 130, 0),
-        _ => SAMPLE_COLOR,
-    }
-}
-
-fn draw_pareto(path: &Path, points: &[(crate::study::trade::ParetoPoint, bool)]) -> DrawResult<()> {
-    // Unresolved σ has no error to plot: such points go in a band above the errors,
-    // labelled as what they are (not as a "1000 %" error).
-    const TOP: f64 = 10.0;
-    let y = |e: f64| {
-        if e.is_finite() {
-            e.clamp(1e-4, TOP)
-        } else {
-            TOP
-        }
-    };
-    let x_hi = points
-        .iter()
-        .map(|(p, _)| p.device_seconds)
-        .fold(1.0, f64::max)
-        * 1.08;
-    let y_lo = points
-        .iter()
-        .map(|(p, _)| y(p.p95_sigma_err))
-        .fold(TOP, f64::min)
-        / 2.0;
-    let root = SVGBackend::new(path, (960, 680)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            "Glossy papers: device time against σ error (95th percentile)",
-            ("sans-serif", 20),
-        )
-        .margin(16)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
-        .build_cartesian_2d(
-            0.0..x_hi,
-            (y_lo..TOP * 1.5)
-                .log_scale()
-                .with_key_points(log_ticks(y_lo, 1.0).into_iter().chain([TOP]).collect()),
-        )?;
-    chart
-        .configure_mesh()
-        .x_desc("device seconds measuring the sample (mean)")
-        .y_desc("σ relative error, 95th percentile")
-        .y_label_formatter(&|v| {
-            if *v >= TOP * 0.99 {
-                "σ unresolved".to_string()
-            } else {
-                format!("{} %", tick_label(&(100.0 * v)))
-            }
-        })
-        .draw()?;
-    chart.draw_series(LineSeries::new(
-        [(0.0, TOP / 2.0), (x_hi, TOP / 2.0)],
-        BLACK.mix(0.4).stroke_width(1),
-    ))?;
-    chart.draw_series(LineSeries::new(
-        [
-            (0.0, crate::study::trade::SIGMA_TARGET),
-            (x_hi, crate::study::trade::SIGMA_TARGET),
-        ],
-        GUIDE_COLOR.stroke_width(1),
-    ))?;
-    chart.draw_series([Text::new(
-        "5 % target",
-        (x_hi * 0.85, crate::study::trade::SIGMA_TARGET * 1.15),
-        ("sans-serif", 14).into_font().color(&GUIDE_COLOR),
-    )])?;
-    let mut front: Vec<(f64, f64)> = points
-        .iter()
-        .filter(|(_, on)| *on)
-        .map(|(p, _)| (p.device_seconds, y(p.p95_sigma_err)))
-        .collect();
-    front.sort_by(|a, b| a.0.total_cmp(&b.0));
-    chart.draw_series(LineSeries::new(front, BLACK.stroke_width(1)))?;
-    for policy in ["strategy1", "strategy2", "paper", "adaptive"] {
-        let color = policy_color(policy);
-        let mine: Vec<&crate::study::trade::ParetoPoint> = points
-            .iter()
-            .map(|(p, _)| p)
-            .filter(|p| p.policy == policy)
-            .collect();
-        if mine.is_empty() {
-            continue;
-        }
-        chart
-            .draw_series(
-                mine.iter().map(|p| {
-                    Circle::new((p.device_seconds, y(p.p95_sigma_err)), 5, color.filled())
-                }),
-            )?
-            .label(policy)
-            .legend(move |(x, y)| Circle::new((x, y), 5, color.filled()));
-        if policy == "paper" || policy == "adaptive" {
-            // Labels of points near the right edge end at their point instead of starting there.
-            chart.draw_series(mine.iter().map(|p| {
-                let pos = if p.device_seconds > 0.8 * x_hi {
-                    Pos::new(HPos::Right, VPos::Bottom)
-                } else {
-                    Pos::new(HPos::Left, VPos::Bottom)
-                };
-                Text::new(
-                    format!("{policy} {}", p.label),
-                    (p.device_seconds, y(p.p95_sigma_err) * 1.15),
-                    ("sans-serif", 12).into_font().color(&color).pos(pos),
-                )
-            }))?;
-        }
-    }
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.9))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
-    root.present()
 }

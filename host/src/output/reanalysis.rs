@@ -4,15 +4,30 @@
 //! own analysis ([`crate::session::analyse_points`]), and compared with the result the
 //! session reported.
 use crate::analysis::report::{Report, to_json};
-use crate::output::folder::{self, SESSION};
+use crate::output::folder::{self, Finding, SESSION};
 use crate::session::{AnalysisSettings, analyse_points};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
+/// Why a folder cannot be analysed again.
+#[derive(Debug, thiserror::Error)]
+pub enum ReanalysisError {
+    /// A file of the folder cannot be read as what it must be (or the session is not
+    /// finished).
+    #[error("{0}")]
+    Folder(#[from] Finding),
+    /// A finished `session.json` without a result.
+    #[error("{}: no result", .0.display())]
+    NoResult(PathBuf),
+    /// The analysis itself failed.
+    #[error("{0}")]
+    Analysis(String),
+}
+
 /// The session folders of `path`: a sheet's spots, or the session itself.
-pub fn session_folders(path: &Path) -> Result<Vec<PathBuf>, String> {
-    if crate::output::sheet::is_sheet_folder(path) {
-        let doc = crate::output::sheet::read_doc(path).map_err(|p| p.to_string())?;
+pub fn session_folders(path: &Path) -> Result<Vec<PathBuf>, Finding> {
+    if folder::is_sheet_folder(path) {
+        let doc = crate::output::sheet_folder::read_doc(path)?;
         return Ok(doc.spots.iter().map(|s| path.join(&s.folder)).collect());
     }
     Ok(vec![path.to_path_buf()])
@@ -27,16 +42,15 @@ pub struct Reanalysis {
 }
 
 /// Analyse the finished session folder `dir` again from its record.
-pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
-    let file = dir.join(SESSION);
-    let doc = folder::require_finished(dir).map_err(|p| p.to_string())?;
+pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
+    let doc = folder::require_finished(dir)?;
     let recorded = doc
         .rest
         .get("result")
         .cloned()
-        .ok_or_else(|| format!("{}: no result", file.display()))?;
-    let calibration = folder::read_calibration(dir).map_err(|p| p.to_string())?;
-    let mut points = crate::output::record::read_points(dir).map_err(|p| p.to_string())?;
+        .ok_or_else(|| ReanalysisError::NoResult(dir.join(SESSION)))?;
+    let calibration = folder::read_calibration(dir)?;
+    let mut points = crate::output::record::read_points(dir)?;
     if let Some(c) = &calibration {
         for p in &mut points {
             p.convert_with(c);
@@ -62,7 +76,8 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, String> {
         .get("analysed_unix_s")
         .and_then(Value::as_u64)
         .unwrap_or(ended);
-    let mut report = analyse_points(&doc.sample, &points, calibration.as_ref(), &settings, now)?;
+    let mut report = analyse_points(&doc.sample, &points, calibration.as_ref(), &settings, now)
+        .map_err(ReanalysisError::Analysis)?;
     report.file = dir.to_path_buf();
     let again = to_json(&report);
     // The session's `flags` and `ok` are the session's (lost steps, a resume, …) over the

@@ -14,14 +14,16 @@
 //! status of a failed or interrupted session and how to resume it.
 use crate::instrument::calibration::Calibration;
 use crate::output::folder::{
-    self, CALIBRATION, CsvAgreement, Inspection, InstrumentRecord, LOG, MANIFEST, POINTS,
-    PlanRecord, Problem, READINGS, READINGS_HEADER, Run, RunOutcome, SESSION, SessionDoc, Status,
+    self, CALIBRATION, CsvAgreement, Finding, Inspection, InstrumentRecord, LOG, MANIFEST, POINTS,
+    PlanRecord, READINGS, READINGS_HEADER, Run, RunOutcome, SESSION, SessionDoc, Status,
+    dated_folder_name, json_bytes,
 };
+use crate::output::lock::{FolderError, FolderLock, io_error};
 use crate::output::store::{Store, StoreOptions, Sync};
 use crate::session::{MeasuredPoint, Progress, Recorder};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// This host's version, recorded with every run.
 pub const HOST_VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -62,165 +64,6 @@ impl Identity {
             case: None,
         }
     }
-}
-
-/// Why a folder cannot take this session.
-#[derive(Debug, thiserror::Error)]
-pub enum FolderError {
-    /// `--out` onto a folder that holds something.
-    #[error("{} is not empty (it holds {}): a session folder holds one session only; give a new or empty folder to --out", .dir.display(), .entries)]
-    NotEmpty {
-        /// The folder.
-        dir: PathBuf,
-        /// Some of what it holds.
-        entries: String,
-    },
-    /// `--out` onto another session's folder.
-    #[error(
-        "{} holds another session (sample '{}', instrument {}, started {}, {}): continue it with gonio measure --resume {}, or give a new folder to --out",
-        .dir.display(), .sample, .serial, .started, .status, .dir.display()
-    )]
-    OtherSession {
-        /// The folder.
-        dir: PathBuf,
-        /// Its sample.
-        sample: String,
-        /// Its instrument's serial number.
-        serial: String,
-        /// When its first run started.
-        started: String,
-        /// Where it stands.
-        status: Status,
-    },
-    /// Not a folder.
-    #[error("{} is not a folder", .0.display())]
-    NotAFolder(PathBuf),
-    /// `--resume` onto a folder that holds no session.
-    #[error("{} holds no session (no session.json, no readings): nothing was measured there; start a session with --out {}", .0.display(), .0.display())]
-    NoSession(PathBuf),
-    /// `--resume` onto a missing folder.
-    #[error("no session folder {}: give the folder of the session to resume", .0.display())]
-    NoFolder(PathBuf),
-    /// A finished session is not measured again.
-    #[error(
-        "{} holds a finished session of '{}' (finished {}{}): it is not measured again; its result is in {} (gonio verify {} checks the folder); measure anew with --out NEW_FOLDER",
-        .dir.display(), .sample, .ended, .class.as_ref().map(|c| format!(", class {c}")).unwrap_or_default(), .dir.join(SESSION).display(), .dir.display()
-    )]
-    Finished {
-        /// The folder.
-        dir: PathBuf,
-        /// Its sample.
-        sample: String,
-        /// Its class.
-        class: Option<String>,
-        /// When it finished.
-        ended: String,
-    },
-    /// A finished sheet of several spots is not measured again.
-    #[error(
-        "{} holds a finished sheet of '{}' ({} spots): it is not measured again; its result is in {} (gonio verify {} checks the folder); measure anew with --out NEW_FOLDER",
-        .dir.display(), .sample, .spots, .dir.join(crate::output::sheet::SHEET).display(), .dir.display()
-    )]
-    FinishedSheet {
-        /// The folder.
-        dir: PathBuf,
-        /// Its sample.
-        sample: String,
-        /// Its spots measured.
-        spots: usize,
-    },
-    /// `--resume` with another sample, instrument or plan.
-    #[error("cannot resume {}: {}; a session is continued only as it began (or start a new one with --out)", .dir.display(), .differences.join("; "))]
-    Mismatch {
-        /// The folder.
-        dir: PathBuf,
-        /// What differs, in words.
-        differences: Vec<String>,
-    },
-    /// Damage a resume does not repair.
-    #[error("cannot resume: {0}; nothing was changed in the folder")]
-    Damaged(Problem),
-    /// Another process has the folder.
-    #[error("{} is in use by another gonio process: one session, one process", .0.display())]
-    InUse(PathBuf),
-    /// The folder could not be written.
-    #[error("cannot write the session folder {}: {source}", .dir.display())]
-    Io {
-        /// The folder.
-        dir: PathBuf,
-        /// Why.
-        source: io::Error,
-    },
-}
-
-pub(crate) fn io_error(dir: &Path) -> impl Fn(io::Error) -> FolderError + '_ {
-    move |source| FolderError::Io {
-        dir: dir.to_path_buf(),
-        source,
-    }
-}
-
-/// Keeps other `gonio` processes out of a folder while this one writes it (an advisory
-/// lock on the folder itself, which survives the renames inside it; the kernel drops it
-/// when the process ends, however it ends).
-pub struct FolderLock {
-    #[cfg(unix)]
-    _lock: nix::fcntl::Flock<std::fs::File>,
-}
-
-impl FolderLock {
-    /// Lock `dir`, or say it is in use.
-    pub fn take(dir: &Path) -> Result<FolderLock, FolderError> {
-        #[cfg(unix)]
-        {
-            let file = std::fs::File::open(dir).map_err(io_error(dir))?;
-            match nix::fcntl::Flock::lock(file, nix::fcntl::FlockArg::LockExclusiveNonblock) {
-                Ok(lock) => Ok(FolderLock { _lock: lock }),
-                Err((_, nix::errno::Errno::EWOULDBLOCK)) => {
-                    Err(FolderError::InUse(dir.to_path_buf()))
-                }
-                Err((_, errno)) => Err(FolderError::Io {
-                    dir: dir.to_path_buf(),
-                    source: io::Error::from(errno),
-                }),
-            }
-        }
-        #[cfg(not(unix))]
-        {
-            let _ = dir;
-            Ok(FolderLock {})
-        }
-    }
-}
-
-/// A sample's name as a file name: letters, digits, `.`, `_` and `-` kept, the rest `_`.
-pub fn file_name_of(sample: &str) -> String {
-    let name: String = sample
-        .chars()
-        .take(48)
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if name.is_empty() || name.starts_with('.') {
-        format!("_{name}")
-    } else {
-        name
-    }
-}
-
-/// The name of a new folder for `sample` under `sessions/`: `<local date-time>-<sample>`
-/// (a session's and a sheet's alike; the caller adds `-2`, `-3`… when it is taken).
-pub(crate) fn dated_folder_name(sample: &str) -> String {
-    format!(
-        "{}-{}",
-        chrono::Local::now().format("%Y-%m-%d_%H-%M-%S"),
-        file_name_of(sample)
-    )
 }
 
 /// Records a session into its folder and shows its progress.
@@ -264,13 +107,6 @@ pub fn progress_bar_to(target: indicatif::ProgressDrawTarget) -> ProgressBar {
     );
     bar.set_message("getting ready: homing, calibration, the operator (no geometry measured yet)");
     bar
-}
-
-/// A document's bytes as gonio writes its JSON files: pretty, with a last newline.
-pub(crate) fn json_bytes(value: &impl serde::Serialize) -> io::Result<Vec<u8>> {
-    let mut bytes = serde_json::to_vec_pretty(value)?;
-    bytes.push(b'\n');
-    Ok(bytes)
 }
 
 impl FileRecorder {
@@ -534,10 +370,7 @@ fn take_empty(store: &mut Store, dir: &Path) -> Result<Vec<String>, FolderError>
             });
         }
     }
-    let others: Vec<&String> = names
-        .iter()
-        .filter(|n| !crate::output::store::is_temp_name(n))
-        .collect();
+    let others: Vec<&String> = names.iter().filter(|n| !folder::is_temp_name(n)).collect();
     if !others.is_empty() {
         let mut listed = others
             .iter()
@@ -942,11 +775,11 @@ impl Recorder for FileRecorder {
 
 /// Every reading recorded in `dir/points.jsonl`, refusing any damage (a cut-off last line
 /// included: [`Existing::resume`] is what repairs it).
-pub fn read_points(dir: &Path) -> Result<Vec<MeasuredPoint>, Problem> {
+pub fn read_points(dir: &Path) -> Result<Vec<MeasuredPoint>, Finding> {
     let path = dir.join(POINTS);
     let file = folder::read_lines(&path)?;
     if file.cut_tail.is_some() {
-        return Err(Problem {
+        return Err(Finding {
             file: path,
             line: Some(file.lines.len() + 1),
             message:

@@ -8,13 +8,10 @@
 //! into a finished folder can be checked against its manifest like every other file.
 use crate::analysis::flags::Flag;
 use crate::instrument::calibration::Calibration;
-use crate::output::folder::{MANIFEST, SessionDoc};
+use crate::output::folder::{MANIFEST, REPORT, SessionDoc};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::Path;
-
-/// The report's file name in a session or sheet folder.
-pub const REPORT: &str = "report.html";
 
 /// What a flag means, for a reader of the report.
 pub fn flag_meaning(flag: Flag) -> &'static str {
@@ -558,7 +555,7 @@ pub fn session_html(dir: &Path) -> Result<String, String> {
 
 /// The report of the finished sheet folder `dir` (several spots).
 pub fn sheet_html(dir: &Path) -> Result<String, String> {
-    let read = crate::output::sheet::read_sheet(dir).map_err(|p| p.to_string())?;
+    let read = crate::output::sheet_folder::read_sheet(dir).map_err(|p| p.to_string())?;
     let summary = &read.summary;
     let first = read
         .spots
@@ -680,7 +677,7 @@ pub fn sheet_html(dir: &Path) -> Result<String, String> {
 
 /// The report of a finished session or sheet folder.
 pub fn html(dir: &Path) -> Result<String, String> {
-    if crate::output::sheet::is_sheet_folder(dir) {
+    if crate::output::folder::is_sheet_folder(dir) {
         sheet_html(dir)
     } else {
         session_html(dir)
@@ -738,28 +735,9 @@ fn glossary() -> String {
 pub fn write_into(dir: &Path) -> Result<std::path::PathBuf, String> {
     let html = html(dir)?;
     let path = dir.join(REPORT);
-    let temp = dir.join(crate::output::store::temp_name(REPORT));
+    let temp = dir.join(crate::output::folder::temp_name(REPORT));
     std::fs::write(&temp, html.as_bytes())
         .map_err(|e| format!("cannot write {}: {e}", temp.display()))?;
     std::fs::rename(&temp, &path).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
     Ok(path)
-}
-
-/// Whether the folder's `report.html`, if it has one, is the report its files give.
-pub fn check_report(dir: &Path) -> Option<crate::output::folder::Problem> {
-    let path = dir.join(REPORT);
-    let recorded = std::fs::read(&path).ok()?;
-    let problem = |message: String| crate::output::folder::Problem {
-        file: path.clone(),
-        line: None,
-        message,
-    };
-    match html(dir) {
-        Ok(drawn) if drawn.as_bytes() == recorded.as_slice() => None,
-        Ok(_) => Some(problem(format!(
-            "is not the report of this folder's files (changed, or drawn by another gonio version): redraw it with gonio report {}",
-            dir.display()
-        ))),
-        Err(e) => Some(problem(format!("cannot be checked: {e}"))),
-    }
 }

@@ -22,27 +22,16 @@
 //!   files, the manifest) is written to a temporary file in the same folder, `fsync`ed,
 //!   renamed over the old one and the folder `fsync`ed: after a kill or a power loss it is
 //!   the old file or the new one, never a mix. A temporary file left by a kill is named
-//!   `.NAME.gonio-tmp` and removed by the next `--resume` ([`is_temp_name`]);
+//!   `.NAME.gonio-tmp` and removed by the next `--resume`
+//!   ([`crate::output::folder::is_temp_name`]);
 //! - a new file or folder is made durable by an `fsync` of the folder that holds it.
+use crate::output::folder::temp_name;
 use std::collections::{HashMap, HashSet};
 use std::fs::{File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-
-/// The suffix of a file being replaced ([`Store::replace`]).
-const TEMP_SUFFIX: &str = ".gonio-tmp";
-
-/// Whether `name` is a temporary file that [`Store::replace`] writes (and a kill can leave).
-pub fn is_temp_name(name: &str) -> bool {
-    name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
-}
-
-/// The temporary name [`Store::replace`] writes `name` under.
-pub fn temp_name(name: &str) -> String {
-    format!(".{name}{TEMP_SUFFIX}")
-}
 
 /// When an append is synced to the disk.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -398,6 +387,7 @@ pub fn sync_dir(dir: &Path) -> io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::output::folder::is_temp_name;
 
     fn temp(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("gonio-store-{}-{name}", std::process::id()));

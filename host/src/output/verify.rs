@@ -1,11 +1,24 @@
-//! `gonio verify`'s check of a session folder: the manifest, and the agreement of
-//! `points.jsonl` (the primary record), `readings.csv`, `calibration.json` and
-//! `session.json`. Read-only: it changes nothing.
+//! Every check of a finished folder, as `gonio verify` runs them: of a session folder, the
+//! manifest and the agreement of `points.jsonl` (the primary record), `readings.csv`,
+//! `calibration.json` and `session.json`; of a sheet folder, its manifest, every spot's
+//! folder and the result its spots give; of either, that `report.html` is the report its
+//! files give. Read-only: it changes nothing.
+//!
+//! Rendering sits above verification (the report is drawn from what is checked here), so
+//! the check of `report.html` is handed the drawing: [`DrawReport`], in use
+//! [`crate::output::report::html`].
+use crate::instrument::calibration::Calibration;
 use crate::output::folder::{
-    self, CALIBRATION, CsvAgreement, LOG, POINTS, Problem, READINGS, RunOutcome, SESSION, Status,
+    self, CALIBRATION, CsvAgreement, Finding, Inspection, LOG, MANIFEST, POINTS, READINGS, REPORT,
+    RunOutcome, SESSION, SHEET, SessionDoc, Status,
 };
+use crate::output::sheet_folder::{ReadSheet, manifest_text, read_doc, read_sheet};
 use crate::session::MeasuredPoint;
 use std::path::{Path, PathBuf};
+
+/// Draws the report of a finished folder (session or sheet) for the check that its
+/// `report.html` is the one its files give.
+pub type DrawReport = fn(&Path) -> Result<String, String>;
 
 /// A folder that passed every check.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -25,36 +38,21 @@ pub struct Verified {
 }
 
 /// Check the finished session folder `dir`; every problem found, each at `file:line` where
-/// a line is known.
-pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
+/// a line is known. In order: the damage reading finds, the status, the manifest, the
+/// report (when nothing else is wrong so far), cut lines, `readings.csv`, and what a
+/// finished `session.json` must hold.
+pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
     let inspection = folder::inspect(dir).map_err(|p| vec![p])?;
-    let problem = |file: &str, line: Option<usize>, message: String| Problem {
-        file: dir.join(file),
-        line,
-        message,
-    };
     let Some(doc) = &inspection.session else {
-        return Err(vec![problem(
+        return Err(vec![at(
+            dir,
             SESSION,
             None,
             "missing: not a session folder, or no session was started in it".into(),
         )]);
     };
     let mut problems = inspection.damage.clone();
-    if doc.status != Status::Finished {
-        let how = doc
-            .resume_with
-            .clone()
-            .unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
-        problems.push(problem(
-            SESSION,
-            None,
-            format!(
-                "status is {}: the session is not finished (continue it with {how})",
-                doc.status
-            ),
-        ));
-    }
+    problems.extend(unfinished(dir, doc));
     let files = match crate::output::manifest::check(dir) {
         Ok(files) => files,
         Err(found) => {
@@ -63,20 +61,79 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
         }
     };
     if problems.is_empty() {
-        problems.extend(crate::output::report::check_report(dir));
+        problems.extend(check_report(dir, draw));
     }
-    for (name, file) in [(POINTS, &inspection.points_file), (LOG, &inspection.log)] {
-        if let Some(tail) = &file.cut_tail {
-            problems.push(problem(
+    problems.extend(cut_lines(dir, &inspection));
+    problems.extend(csv_behind(dir, &inspection.csv));
+    if doc.status == Status::Finished {
+        problems.extend(finished_readings(dir, doc, &inspection.points));
+        problems.extend(finished_record(dir, doc, &inspection));
+    }
+    if problems.is_empty() {
+        Ok(Verified {
+            dir: dir.to_path_buf(),
+            files,
+            readings: inspection.points.len(),
+            sample: doc.sample.clone(),
+            serial_number: doc.instrument.serial_number.clone(),
+            runs: doc.runs.len(),
+        })
+    } else {
+        Err(problems)
+    }
+}
+
+/// A finding about the file `file` of the folder `dir`.
+fn at(dir: &Path, file: &str, line: Option<usize>, message: String) -> Finding {
+    Finding {
+        file: dir.join(file),
+        line,
+        message,
+    }
+}
+
+/// A session that is not finished, and how to continue it.
+fn unfinished(dir: &Path, doc: &SessionDoc) -> Option<Finding> {
+    if doc.status == Status::Finished {
+        return None;
+    }
+    let how = doc
+        .resume_with
+        .clone()
+        .unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
+    Some(at(
+        dir,
+        SESSION,
+        None,
+        format!(
+            "status is {}: the session is not finished (continue it with {how})",
+            doc.status
+        ),
+    ))
+}
+
+/// A last line cut short in `points.jsonl` or `session.log`.
+fn cut_lines(dir: &Path, inspection: &Inspection) -> Vec<Finding> {
+    [(POINTS, &inspection.points_file), (LOG, &inspection.log)]
+        .into_iter()
+        .filter_map(|(name, file)| {
+            let tail = file.cut_tail.as_ref()?;
+            Some(at(
+                dir,
                 name,
                 Some(file.lines.len() + 1),
                 format!("last line cut short ({} bytes, no newline)", tail.len()),
-            ));
-        }
-    }
-    match &inspection.csv {
-        CsvAgreement::Agrees => {}
-        CsvAgreement::Behind { missing, cut } => problems.push(problem(
+            ))
+        })
+        .collect()
+}
+
+/// `readings.csv` behind `points.jsonl` or stale (a disagreement is among the damage).
+fn csv_behind(dir: &Path, csv: &CsvAgreement) -> Option<Finding> {
+    match csv {
+        CsvAgreement::Agrees | CsvAgreement::Differs(_) => None,
+        CsvAgreement::Behind { missing, cut } => Some(at(
+            dir,
             READINGS,
             None,
             format!(
@@ -84,17 +141,21 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
                 if *cut { ", the last one cut short" } else { "" }
             ),
         )),
-        CsvAgreement::Stale { .. } => problems.push(problem(
+        CsvAgreement::Stale { .. } => Some(at(
+            dir,
             READINGS,
             None,
             format!("holds rows from before readings were superseded or {CALIBRATION} changed"),
         )),
-        // Among the damage already.
-        CsvAgreement::Differs(_) => {}
     }
-    let points = &inspection.points;
-    if doc.status == Status::Finished && doc.readings_recorded < points.len() {
-        problems.push(problem(
+}
+
+/// A finished `session.json`'s readings: as many as `points.jsonl` holds, and the same.
+fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> Vec<Finding> {
+    let mut problems = Vec::new();
+    if doc.readings_recorded < points.len() {
+        problems.push(at(
+            dir,
             SESSION,
             None,
             format!(
@@ -104,90 +165,166 @@ pub fn verify(dir: &Path) -> Result<Verified, Vec<Problem>> {
             ),
         ));
     }
-    if doc.status == Status::Finished {
-        match doc
-            .rest
-            .get("readings")
-            .map(|r| serde_json::from_value::<Vec<MeasuredPoint>>(r.clone()))
-        {
-            None => problems.push(problem(SESSION, None, "no 'readings'".into())),
-            Some(Err(e)) => problems.push(problem(
-                SESSION,
-                None,
-                format!("'readings' are not readings: {e}"),
-            )),
-            Some(Ok(readings)) => {
-                if readings.len() != points.len() {
-                    problems.push(problem(
-                        SESSION,
-                        None,
-                        format!(
-                            "{} readings, but {POINTS} holds {}",
-                            readings.len(),
-                            points.len()
-                        ),
-                    ));
-                }
-                if let Some(k) = readings.iter().zip(points).position(|(a, b)| a != b) {
-                    problems.push(problem(
-                        POINTS,
-                        Some(k + 1),
-                        format!("differs from reading {} of {SESSION}", k + 1),
-                    ));
-                }
+    match doc
+        .rest
+        .get("readings")
+        .map(|r| serde_json::from_value::<Vec<MeasuredPoint>>(r.clone()))
+    {
+        None => problems.push(at(dir, SESSION, None, "no 'readings'".into())),
+        Some(Err(e)) => problems.push(at(
+            dir,
+            SESSION,
+            None,
+            format!("'readings' are not readings: {e}"),
+        )),
+        Some(Ok(readings)) => {
+            if readings.len() != points.len() {
+                problems.push(at(
+                    dir,
+                    SESSION,
+                    None,
+                    format!(
+                        "{} readings, but {POINTS} holds {}",
+                        readings.len(),
+                        points.len()
+                    ),
+                ));
             }
-        }
-        match (
-            doc.rest.get("calibration").map(|c| {
-                serde_json::from_value::<crate::instrument::calibration::Calibration>(c.clone())
-            }),
-            &inspection.calibration,
-        ) {
-            (Some(Ok(in_session)), Some(file)) if in_session == *file => {}
-            (Some(Ok(_)), Some(_)) => problems.push(problem(
-                CALIBRATION,
-                None,
-                format!("differs from the calibration in {SESSION}"),
-            )),
-            (_, None) => problems.push(problem(CALIBRATION, None, "missing".into())),
-            (None, _) => problems.push(problem(SESSION, None, "no 'calibration'".into())),
-            (Some(Err(e)), _) => problems.push(problem(
-                SESSION,
-                None,
-                format!("'calibration' is not a calibration: {e}"),
-            )),
-        }
-        for key in ["result", "ok", "flags"] {
-            if !doc.rest.contains_key(key) {
-                problems.push(problem(SESSION, None, format!("no '{key}'")));
+            if let Some(k) = readings.iter().zip(points).position(|(a, b)| a != b) {
+                problems.push(at(
+                    dir,
+                    POINTS,
+                    Some(k + 1),
+                    format!("differs from reading {} of {SESSION}", k + 1),
+                ));
             }
-        }
-        match doc.runs.last() {
-            Some(run) if run.outcome == RunOutcome::Finished => {}
-            _ => problems.push(problem(
-                SESSION,
-                None,
-                "its last run did not finish the session".into(),
-            )),
-        }
-        if let Some(run) = doc.runs.iter().find(|r| r.outcome == RunOutcome::Running) {
-            problems.push(problem(
-                SESSION,
-                None,
-                format!("run {} is still marked running", run.run),
-            ));
         }
     }
-    if problems.is_empty() {
-        Ok(Verified {
-            dir: dir.to_path_buf(),
-            files,
-            readings: points.len(),
-            sample: doc.sample.clone(),
-            serial_number: doc.instrument.serial_number.clone(),
-            runs: doc.runs.len(),
-        })
-    } else {
-        Err(problems)
+    problems
+}
+
+/// The rest of a finished `session.json`: its calibration as `calibration.json` holds it,
+/// its result, and runs that all ended, the last one finishing the session.
+fn finished_record(dir: &Path, doc: &SessionDoc, inspection: &Inspection) -> Vec<Finding> {
+    let mut problems = Vec::new();
+    let problem = |file: &str, message: String| at(dir, file, None, message);
+    match (
+        doc.rest
+            .get("calibration")
+            .map(|c| serde_json::from_value::<Calibration>(c.clone())),
+        &inspection.calibration,
+    ) {
+        (Some(Ok(in_session)), Some(file)) if in_session == *file => {}
+        (Some(Ok(_)), Some(_)) => problems.push(problem(
+            CALIBRATION,
+            format!("differs from the calibration in {SESSION}"),
+        )),
+        (_, None) => problems.push(problem(CALIBRATION, "missing".into())),
+        (None, _) => problems.push(problem(SESSION, "no 'calibration'".into())),
+        (Some(Err(e)), _) => problems.push(problem(
+            SESSION,
+            format!("'calibration' is not a calibration: {e}"),
+        )),
+    }
+    for key in ["result", "ok", "flags"] {
+        if !doc.rest.contains_key(key) {
+            problems.push(problem(SESSION, format!("no '{key}'")));
+        }
+    }
+    match doc.runs.last() {
+        Some(run) if run.outcome == RunOutcome::Finished => {}
+        _ => problems.push(problem(
+            SESSION,
+            "its last run did not finish the session".into(),
+        )),
+    }
+    if let Some(run) = doc.runs.iter().find(|r| r.outcome == RunOutcome::Running) {
+        problems.push(problem(
+            SESSION,
+            format!("run {} is still marked running", run.run),
+        ));
+    }
+    problems
+}
+
+/// A sheet folder that passed every check.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VerifiedSheet {
+    /// The sheet.
+    pub sheet: ReadSheet,
+    /// Each spot's check.
+    pub spots: Vec<Verified>,
+}
+
+/// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
+/// checks a session, and the recorded result against the one its spots give.
+pub fn verify_sheet(dir: &Path, draw: DrawReport) -> Result<VerifiedSheet, Vec<Finding>> {
+    let doc = read_doc(dir).map_err(|p| vec![p])?;
+    let mut problems = Vec::new();
+    let manifest = dir.join(MANIFEST);
+    match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
+        (Ok(recorded), Ok(now)) if recorded == now => {}
+        (Ok(_), Ok(_)) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
+        (Err(e), _) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
+        (_, Err(e)) => problems.push(Finding { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
+    }
+    let expected: Vec<String> = [SHEET, MANIFEST, REPORT]
+        .iter()
+        .map(|s| s.to_string())
+        .chain(doc.spots.iter().map(|s| s.folder.clone()))
+        .collect();
+    if let Ok(names) = folder::entries(dir) {
+        for name in names.into_iter().filter(|n| !expected.contains(n)) {
+            problems.push(Finding {
+                file: dir.join(&name),
+                line: None,
+                message: format!("not part of the sheet ({SHEET} lists no such spot)"),
+            });
+        }
+    }
+    let mut verified = Vec::new();
+    for entry in &doc.spots {
+        match verify(&dir.join(&entry.folder), draw) {
+            Ok(v) => verified.push(v),
+            Err(found) => problems.extend(found),
+        }
+    }
+    if !problems.is_empty() {
+        return Err(problems);
+    }
+    let sheet = read_sheet(dir).map_err(|p| vec![p])?;
+    let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
+    if recorded != Some(&sheet.summary) {
+        return Err(vec![Finding {
+            file: dir.join(SHEET),
+            line: None,
+            message: "its result is not the one its spots give".into(),
+        }]);
+    }
+    if let Some(problem) = check_report(dir, draw) {
+        return Err(vec![problem]);
+    }
+    Ok(VerifiedSheet {
+        sheet,
+        spots: verified,
+    })
+}
+
+/// Whether the folder's `report.html`, if it has one, is the report its files give.
+pub fn check_report(dir: &Path, draw: DrawReport) -> Option<Finding> {
+    let path = dir.join(REPORT);
+    let recorded = std::fs::read(&path).ok()?;
+    let problem = |message: String| Finding {
+        file: path.clone(),
+        line: None,
+        message,
+    };
+    match draw(dir) {
+        Ok(drawn) if drawn.as_bytes() == recorded.as_slice() => None,
+        Ok(_) => Some(problem(format!(
+            "is not the report of this folder's files (changed, or drawn by another gonio version): redraw it with gonio report {}",
+            dir.display()
+        ))),
+        Err(e) => Some(problem(format!("cannot be checked: {e}"))),
     }
 }

@@ -3,6 +3,7 @@ pub mod accuracy;
 pub mod forensic;
 pub mod reliability;
 pub mod trade;
+pub mod trade_plot;
 
 use crate::instrument::link::{Client, RetryPolicy};
 use crate::instrument::sim::SimOptions;

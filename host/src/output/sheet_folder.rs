@@ -14,15 +14,15 @@ use crate::analysis::compare::{SessionResult, session_result};
 use crate::analysis::evidence::{Sheet, Spot};
 use crate::analysis::flags::Flag;
 use crate::analysis::spots::{self, SheetSummary, SpotResult};
-use crate::output::folder::{MANIFEST, Problem, SESSION, Status};
-use crate::output::record::{FolderError, FolderLock, dated_folder_name, io_error, json_bytes};
+use crate::output::folder::{
+    self, Finding, MANIFEST, SESSION, SHEET, Status, dated_folder_name, is_sheet_folder,
+    json_bytes, spot_folder,
+};
+use crate::output::lock::{FolderError, FolderLock, io_error};
 use crate::output::store::{Store, StoreOptions};
 use serde::{Deserialize, Serialize};
 use std::io;
 use std::path::{Path, PathBuf};
-
-/// The sheet document.
-pub const SHEET: &str = "sheet.json";
 
 /// One spot started.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -75,23 +75,13 @@ pub struct SheetDoc {
     pub result: Option<SheetResult>,
     /// The case, when given (every spot's `session.json` holds it too).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub case: Option<crate::output::folder::CaseRecord>,
-}
-
-/// Whether `dir` is the folder of a multi-spot sheet.
-pub fn is_sheet_folder(dir: &Path) -> bool {
-    dir.join(SHEET).is_file()
-}
-
-/// The folder name of spot `number`.
-pub fn spot_folder(number: u16) -> String {
-    format!("spot-{number}")
+    pub case: Option<folder::CaseRecord>,
 }
 
 /// Read `sheet.json` of `dir`.
-pub fn read_doc(dir: &Path) -> Result<SheetDoc, Problem> {
+pub fn read_doc(dir: &Path) -> Result<SheetDoc, Finding> {
     let file = dir.join(SHEET);
-    let problem = |message: String| Problem {
+    let problem = |message: String| Finding {
         file: file.clone(),
         line: None,
         message,
@@ -150,10 +140,9 @@ impl SheetFolder {
                 }
                 // A temporary file alone is a first sheet.json a killed gonio left: the
                 // folder is as empty as before it.
-                let names = crate::output::folder::entries(dir).map_err(io_error(dir))?;
-                let (temp, names): (Vec<String>, Vec<String>) = names
-                    .into_iter()
-                    .partition(|n| crate::output::store::is_temp_name(n));
+                let names = folder::entries(dir).map_err(io_error(dir))?;
+                let (temp, names): (Vec<String>, Vec<String>) =
+                    names.into_iter().partition(|n| folder::is_temp_name(n));
                 if names.is_empty() {
                     let mut store = Store::open_dir(dir, options.clone());
                     for name in temp {
@@ -233,8 +222,8 @@ impl SheetFolder {
         let lock = FolderLock::take(dir)?;
         let mut store = Store::open_dir(dir, options);
         // A temporary file is a replacement of sheet.json that a kill cut short.
-        for name in crate::output::folder::entries(dir).map_err(io_error(dir))? {
-            if crate::output::store::is_temp_name(&name) {
+        for name in folder::entries(dir).map_err(io_error(dir))? {
+            if folder::is_temp_name(&name) {
                 store.remove(&name).map_err(io_error(dir))?;
             }
         }
@@ -316,7 +305,7 @@ impl SheetFolder {
 }
 
 /// The sheet's manifest: `sheet.json` and every spot's manifest, in `sha256sum` format.
-fn manifest_text(dir: &Path, doc: &SheetDoc) -> io::Result<String> {
+pub fn manifest_text(dir: &Path, doc: &SheetDoc) -> io::Result<String> {
     let mut names = vec![SHEET.to_string()];
     names.extend(doc.spots.iter().map(|s| format!("{}/{MANIFEST}", s.folder)));
     let mut text = String::new();
@@ -343,14 +332,14 @@ pub struct ReadSpot {
 }
 
 /// Read a finished spot folder's result.
-pub fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Problem> {
+pub fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
     let file = dir.join(SESSION);
-    let problem = |message: String| Problem {
+    let problem = |message: String| Finding {
         file: file.clone(),
         line: None,
         message,
     };
-    let doc = crate::output::folder::require_finished(dir)?;
+    let doc = folder::require_finished(dir)?;
     let session = serde_json::to_value(&doc)
         .map_err(|e| problem(e.to_string()))
         .and_then(|v| session_result(&file, &v).map_err(|e| problem(e.to_string())))?;
@@ -411,14 +400,14 @@ impl ReadSheet {
 }
 
 /// Read the finished sheet folder `dir`: `sheet.json` and every spot's result.
-pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Problem> {
+pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Finding> {
     let doc = read_doc(dir)?;
     if doc.status != Status::Finished {
         let how = doc
             .resume_with
             .clone()
             .unwrap_or_else(|| format!("gonio measure --resume {}", dir.display()));
-        return Err(Problem {
+        return Err(Finding {
             file: dir.join(SHEET),
             line: None,
             message: format!(
@@ -439,69 +428,6 @@ pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Problem> {
         doc,
         spots,
         summary,
-    })
-}
-
-/// A sheet folder that passed every check.
-#[derive(Clone, Debug, PartialEq)]
-pub struct VerifiedSheet {
-    /// The sheet.
-    pub sheet: ReadSheet,
-    /// Each spot's check.
-    pub spots: Vec<crate::output::verify::Verified>,
-}
-
-/// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
-/// checks a session, and the recorded result against the one its spots give.
-pub fn verify_sheet(dir: &Path) -> Result<VerifiedSheet, Vec<Problem>> {
-    let doc = read_doc(dir).map_err(|p| vec![p])?;
-    let mut problems = Vec::new();
-    let manifest = dir.join(MANIFEST);
-    match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
-        (Ok(recorded), Ok(now)) if recorded == now => {}
-        (Ok(_), Ok(_)) => problems.push(Problem { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
-        (Err(e), _) => problems.push(Problem { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
-        (_, Err(e)) => problems.push(Problem { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
-    }
-    let expected: Vec<String> = [SHEET, MANIFEST, crate::output::report::REPORT]
-        .iter()
-        .map(|s| s.to_string())
-        .chain(doc.spots.iter().map(|s| s.folder.clone()))
-        .collect();
-    if let Ok(names) = crate::output::folder::entries(dir) {
-        for name in names.into_iter().filter(|n| !expected.contains(n)) {
-            problems.push(Problem {
-                file: dir.join(&name),
-                line: None,
-                message: format!("not part of the sheet ({SHEET} lists no such spot)"),
-            });
-        }
-    }
-    let mut verified = Vec::new();
-    for entry in &doc.spots {
-        match crate::output::verify::verify(&dir.join(&entry.folder)) {
-            Ok(v) => verified.push(v),
-            Err(found) => problems.extend(found),
-        }
-    }
-    if !problems.is_empty() {
-        return Err(problems);
-    }
-    let sheet = read_sheet(dir).map_err(|p| vec![p])?;
-    let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
-    if recorded != Some(&sheet.summary) {
-        return Err(vec![Problem {
-            file: dir.join(SHEET),
-            line: None,
-            message: "its result is not the one its spots give".into(),
-        }]);
-    }
-    if let Some(problem) = crate::output::report::check_report(dir) {
-        return Err(vec![problem]);
-    }
-    Ok(VerifiedSheet {
-        sheet,
-        spots: verified,
     })
 }
 
@@ -537,11 +463,22 @@ impl MeasuredSheet {
     }
 }
 
+/// Why a measured sheet cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum MeasuredError {
+    /// A sheet folder that cannot be read (or is not finished).
+    #[error("{0}")]
+    Sheet(#[from] Finding),
+    /// A session folder or `session.json` that cannot be read as a result.
+    #[error("{0}")]
+    Session(#[from] crate::analysis::compare::CompareError),
+}
+
 /// Read a sheet folder, a session folder or a `session.json`. A sheet folder must be
 /// finished; its result is recomputed from its spots' files.
-pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
+pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
     if is_sheet_folder(path) {
-        let read = read_sheet(path).map_err(|p| p.to_string())?;
+        let read = read_sheet(path)?;
         let sheet = read.sheet();
         let accepted = |n: u16| {
             read.summary
@@ -563,7 +500,7 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, String> {
             summary: Some(read.summary),
         });
     }
-    let session = crate::analysis::compare::read_session(path).map_err(|e| e.to_string())?;
+    let session = crate::analysis::compare::read_session(path)?;
     Ok(MeasuredSheet {
         path: session.file.clone(),
         sample: session.sample.clone(),

@@ -1,0 +1,307 @@
+//! The exchange file (`gonio library export` / `import`): JSON Lines, one
+//! [`ExchangeRecord`] per spot, each line standing on its own; read whole and checked
+//! before anything is imported.
+use super::{LibraryError, Result, SheetRecord, StockInfo, check_spot, check_text, is_sha256_hex};
+use crate::analysis::evidence::Spot;
+use serde::{Deserialize, Serialize};
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+
+/// One line of the exchange file: one spot, with every field of its sheet and stock so a
+/// line stands on its own. Field order here is the order in the file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExchangeRecord {
+    /// [`crate::schema::LIBRARY_RECORD`] (the older [`crate::schema::LIBRARY_RECORD_V1`],
+    /// whose key was `format`, is imported too: the records are otherwise the same).
+    #[serde(alias = "format")]
+    pub schema: String,
+    /// Stock name.
+    pub stock: String,
+    /// Stock manufacturer.
+    pub manufacturer: Option<String>,
+    /// Stock notes.
+    pub stock_notes: Option<String>,
+    /// Session identity (SHA-256 of its `MANIFEST.sha256`, lowercase hex).
+    pub session_sha256: String,
+    /// Sample name.
+    pub sample: String,
+    /// Lot or ream.
+    pub lot: Option<String>,
+    /// When measured.
+    pub measured_at: Option<String>,
+    /// Instrument serial number.
+    pub instrument_serial: String,
+    /// Session folder path as it was given to `add` (where the lab that measured keeps it).
+    pub session_path: String,
+    /// When added to the library it was exported from.
+    pub added_at: String,
+    /// Spot index in the sheet, from 0.
+    pub spot: usize,
+    /// Number of spots of the sheet (so an import can tell a sheet is whole).
+    pub spots: usize,
+    /// σ [deg], null when not determined.
+    pub sigma_deg: Option<f64>,
+    /// ρs, null when not determined.
+    pub rho_s: Option<f64>,
+    /// ρd, null when not determined.
+    pub rho_d: Option<f64>,
+    /// Covariance of (σ [deg], ρs, ρd), row by row.
+    pub covariance: [[f64; 3]; 3],
+}
+
+/// An exchange file read whole and checked, ready for [`super::Library::import`]: reading
+/// it first means a bad file is refused before any library is opened or created.
+#[derive(Debug)]
+pub struct ExchangeFile {
+    pub(super) path: PathBuf,
+    pub(super) sessions: Vec<ImportedSession>,
+}
+
+impl ExchangeFile {
+    /// Read and check the whole exchange file from `input`; `path` names it in messages.
+    pub fn read(input: &mut dyn BufRead, path: &Path) -> Result<ExchangeFile> {
+        Ok(ExchangeFile {
+            path: path.to_path_buf(),
+            sessions: parse_exchange(input, path)?,
+        })
+    }
+
+    /// The spot records it holds.
+    pub fn records(&self) -> usize {
+        self.sessions.iter().map(|s| s.sheet.spots.len()).sum()
+    }
+}
+
+/// One session of an exchange file, its records gathered.
+#[derive(Debug)]
+pub(super) struct ImportedSession {
+    pub(super) stock: StockInfo,
+    pub(super) sheet: SheetRecord,
+    pub(super) first_line: usize,
+    /// The `spots` field of its records.
+    declared_spots: usize,
+}
+
+/// What is wrong, and on which line (1-based).
+type LineError = (usize, String);
+
+/// Read and check a whole exchange file: every line a record of this format
+/// ([`checked_record`]), the records of one session together, agreeing on the sheet and
+/// stock, with spots 0…n-1 in order ([`Sessions::add`]), and each session whole.
+fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<ImportedSession>> {
+    let fail = |(line, what): LineError| LibraryError::Import {
+        path: in_path.to_path_buf(),
+        line,
+        what,
+    };
+    let mut sessions = Sessions::default();
+    let mut line_no = 0;
+    let mut line = String::new();
+    loop {
+        line.clear();
+        let n = input
+            .read_line(&mut line)
+            .map_err(|source| LibraryError::Io {
+                path: in_path.to_path_buf(),
+                source,
+            })?;
+        if n == 0 {
+            break;
+        }
+        line_no += 1;
+        let text = line.strip_suffix('\n').unwrap_or(&line);
+        if text.trim().is_empty() {
+            continue;
+        }
+        let (record, spot) = checked_record(text).map_err(|what| fail((line_no, what)))?;
+        sessions.add(record, spot, line_no).map_err(fail)?;
+    }
+    if let Some(last) = sessions.gathered.last() {
+        check_whole(last).map_err(|what| fail((line_no, what)))?;
+    }
+    Ok(sessions.gathered)
+}
+
+/// One line as a record of this format, on its own: a schema this gonio reads, an
+/// acceptable stock name, a session SHA-256, finite numbers; with its spot.
+fn checked_record(text: &str) -> std::result::Result<(ExchangeRecord, Spot), String> {
+    let record: ExchangeRecord =
+        serde_json::from_str(text).map_err(|e| format!("not an exchange record: {e}"))?;
+    if ![
+        crate::schema::LIBRARY_RECORD,
+        crate::schema::LIBRARY_RECORD_V1,
+    ]
+    .contains(&record.schema.as_str())
+    {
+        return Err(format!(
+            "schema '{}', this gonio reads {} and {}",
+            record.schema,
+            crate::schema::LIBRARY_RECORD,
+            crate::schema::LIBRARY_RECORD_V1
+        ));
+    }
+    check_text("stock name", &record.stock).map_err(|e| e.to_string())?;
+    if !is_sha256_hex(&record.session_sha256) {
+        return Err(format!(
+            "session_sha256 '{}' is not 64 lowercase hex digits",
+            record.session_sha256
+        ));
+    }
+    let spot = Spot {
+        values: [record.sigma_deg, record.rho_s, record.rho_d],
+        covariance: record.covariance,
+    };
+    check_spot(&spot).map_err(|e| e.to_string())?;
+    Ok((record, spot))
+}
+
+/// The sessions gathered so far, and what the later lines must agree with.
+#[derive(Default)]
+struct Sessions {
+    gathered: Vec<ImportedSession>,
+    /// Every session begun (a session's records must be together).
+    seen: std::collections::HashSet<String>,
+    /// Every stock as first given.
+    stocks: std::collections::HashMap<String, StockInfo>,
+}
+
+impl Sessions {
+    /// Add the record of line `line`: to the session of the line before, or as a new one.
+    fn add(
+        &mut self,
+        record: ExchangeRecord,
+        spot: Spot,
+        line: usize,
+    ) -> std::result::Result<(), LineError> {
+        let stock = StockInfo {
+            name: record.stock.clone(),
+            manufacturer: record.manufacturer.clone(),
+            notes: record.stock_notes.clone(),
+        };
+        self.check_stock(&stock).map_err(|what| (line, what))?;
+        let continues = self
+            .gathered
+            .last()
+            .is_some_and(|s| s.sheet.session_sha256 == record.session_sha256);
+        if continues {
+            self.continue_session(record, stock, spot)
+                .map_err(|what| (line, what))
+        } else {
+            self.begin_session(record, stock, spot, line)
+        }
+    }
+
+    /// A stock is the same on every line that names it.
+    fn check_stock(&mut self, stock: &StockInfo) -> std::result::Result<(), String> {
+        match self.stocks.get(&stock.name) {
+            Some(known) if known != stock => Err(format!(
+                "stock '{}' has a different manufacturer or notes than on earlier lines",
+                stock.name
+            )),
+            Some(_) => Ok(()),
+            None => {
+                self.stocks.insert(stock.name.clone(), stock.clone());
+                Ok(())
+            }
+        }
+    }
+
+    /// A new session: it begins at spot 0, was not seen before, and the one before it is
+    /// whole (checked at the line before).
+    fn begin_session(
+        &mut self,
+        record: ExchangeRecord,
+        stock: StockInfo,
+        spot: Spot,
+        line: usize,
+    ) -> std::result::Result<(), LineError> {
+        if record.spot != 0 {
+            return Err((
+                line,
+                format!(
+                    "session {} begins at spot {}, not 0",
+                    record.session_sha256, record.spot
+                ),
+            ));
+        }
+        if !self.seen.insert(record.session_sha256.clone()) {
+            return Err((
+                line,
+                format!(
+                    "session {} appears again after other sessions: a session's records must be together",
+                    record.session_sha256
+                ),
+            ));
+        }
+        if let Some(last) = self.gathered.last() {
+            check_whole(last).map_err(|what| (line - 1, what))?;
+        }
+        self.gathered.push(ImportedSession {
+            stock,
+            sheet: SheetRecord {
+                lot: record.lot,
+                measured_at: record.measured_at,
+                instrument_serial: record.instrument_serial,
+                session_path: record.session_path,
+                session_sha256: record.session_sha256,
+                sample: record.sample,
+                added_at: record.added_at,
+                spots: vec![spot],
+            },
+            first_line: line,
+            declared_spots: record.spots,
+        });
+        Ok(())
+    }
+
+    /// The next spot of the last session: the same sheet and stock, in order.
+    fn continue_session(
+        &mut self,
+        record: ExchangeRecord,
+        stock: StockInfo,
+        spot: Spot,
+    ) -> std::result::Result<(), String> {
+        let Some(last) = self.gathered.last_mut() else {
+            return Ok(());
+        };
+        let same_sheet = last.stock == stock
+            && last.sheet.lot == record.lot
+            && last.sheet.measured_at == record.measured_at
+            && last.sheet.instrument_serial == record.instrument_serial
+            && last.sheet.session_path == record.session_path
+            && last.sheet.sample == record.sample
+            && last.sheet.added_at == record.added_at
+            && last.declared_spots == record.spots;
+        if !same_sheet {
+            return Err(format!(
+                "a record of session {} whose sheet or stock fields differ from its first record's",
+                record.session_sha256
+            ));
+        }
+        if record.spot != last.sheet.spots.len() {
+            return Err(format!(
+                "spot {} of session {} out of order (expected {})",
+                record.spot,
+                record.session_sha256,
+                last.sheet.spots.len()
+            ));
+        }
+        last.sheet.spots.push(spot);
+        Ok(())
+    }
+}
+
+/// A session's records must be all of its spots: the count each record declares.
+fn check_whole(session: &ImportedSession) -> std::result::Result<(), String> {
+    if session.sheet.spots.len() == session.declared_spots {
+        Ok(())
+    } else {
+        Err(format!(
+            "session {} has {} spot records, its records say {}",
+            session.sheet.session_sha256,
+            session.sheet.spots.len(),
+            session.declared_spots
+        ))
+    }
+}

@@ -1,0 +1,143 @@
+//! A finished session or sheet folder read into the library's [`SheetRecord`], after it is
+//! checked as `gonio verify` checks it.
+use super::{LibraryError, Result, SheetRecord, check_spot, now_utc};
+use crate::analysis::evidence::Spot;
+use std::path::Path;
+
+/// The identity of the session folder `dir`: SHA-256 (hex) of its `MANIFEST.sha256`.
+pub fn session_identity(dir: &Path) -> Result<String> {
+    let manifest = dir.join(crate::output::folder::MANIFEST);
+    let bytes = std::fs::read(&manifest).map_err(|source| LibraryError::Io {
+        path: manifest,
+        source,
+    })?;
+    Ok(crate::output::manifest::sha256_hex(&bytes))
+}
+
+/// Read a finished sheet folder (`gonio measure --spots N`: its accepted spots) or session
+/// folder (one spot), after checking it as `gonio verify` does (every file against the
+/// manifest, the records against each other). A flagged result (`ok: false`) is refused
+/// unless `allow_flagged`.
+pub fn read_session_folder(
+    dir: &Path,
+    lot: Option<&str>,
+    allow_flagged: bool,
+) -> Result<SheetRecord> {
+    if crate::output::folder::is_sheet_folder(dir) {
+        return read_sheet_folder(dir, lot, allow_flagged);
+    }
+    read_spot_folder(dir, lot, allow_flagged)
+}
+
+fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
+    let bad = |what: String| LibraryError::BadSession {
+        dir: dir.to_path_buf(),
+        what,
+    };
+    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::html)
+        .map_err(|problems| not_verified(dir, &problems))?;
+    let read = verified.sheet;
+    if !read.summary.ok() && !allow_flagged {
+        let flags: Vec<&str> = read.summary.flags.iter().map(|f| f.name()).collect();
+        return Err(LibraryError::Flagged {
+            dir: dir.to_path_buf(),
+            flags: format!("{flags:?}"),
+        });
+    }
+    let sheet = read.sheet();
+    for spot in &sheet.spots {
+        check_spot(spot).map_err(|e| bad(e.to_string()))?;
+    }
+    let first = read
+        .spots
+        .first()
+        .ok_or_else(|| bad("a sheet without spots".into()))?;
+    let file = first.dir.join(crate::output::folder::SESSION);
+    let (_, doc) = read_session_doc(&file, &bad)?;
+    Ok(SheetRecord {
+        lot: lot.map(str::to_string),
+        measured_at: doc.runs.first().map(|r| r.started.clone()),
+        instrument_serial: doc.instrument.serial_number,
+        session_path: dir.display().to_string(),
+        session_sha256: session_identity(dir)?,
+        sample: read.doc.sample.clone(),
+        added_at: now_utc(),
+        spots: sheet.spots,
+    })
+}
+
+/// A folder that does not verify, with every finding on its own line.
+fn not_verified(dir: &Path, problems: &[crate::output::folder::Finding]) -> LibraryError {
+    let lines: Vec<String> = problems.iter().map(|p| format!("\n  {p}")).collect();
+    LibraryError::BadSession {
+        dir: dir.to_path_buf(),
+        what: format!(
+            "it does not verify (gonio verify {}):{}",
+            dir.display(),
+            lines.concat()
+        ),
+    }
+}
+
+/// A `session.json` as text and as its document; `bad` makes the error of one that is
+/// not a session document.
+fn read_session_doc(
+    file: &Path,
+    bad: impl Fn(String) -> LibraryError,
+) -> Result<(String, crate::output::folder::SessionDoc)> {
+    let text = std::fs::read_to_string(file).map_err(|source| LibraryError::Io {
+        path: file.to_path_buf(),
+        source,
+    })?;
+    let doc = serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
+    Ok((text, doc))
+}
+
+fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
+    let bad = |what: String| LibraryError::BadSession {
+        dir: dir.to_path_buf(),
+        what,
+    };
+    if let Err(problems) = crate::output::verify::verify(dir, crate::output::report::html) {
+        return Err(not_verified(dir, &problems));
+    }
+    let session_sha256 = session_identity(dir)?;
+    let file = dir.join(crate::output::folder::SESSION);
+    let (text, doc) = read_session_doc(&file, &bad)?;
+    let ok = doc
+        .rest
+        .get("ok")
+        .and_then(serde_json::Value::as_bool)
+        .ok_or_else(|| bad(format!("{}: no boolean 'ok'", file.display())))?;
+    if !ok && !allow_flagged {
+        let flags = doc
+            .rest
+            .get("flags")
+            .map_or_else(|| "no flags recorded".to_string(), |f| f.to_string());
+        return Err(LibraryError::Flagged {
+            dir: dir.to_path_buf(),
+            flags,
+        });
+    }
+    let result =
+        crate::analysis::compare::parse_session(&file, &text).map_err(|e| bad(e.to_string()))?;
+    let mut covariance = [[0.0; 3]; 3];
+    for (i, row) in covariance.iter_mut().enumerate() {
+        row.copy_from_slice(&result.covariance[i][..3]);
+    }
+    let spot = Spot {
+        values: [result.values[0], result.values[1], result.values[2]],
+        covariance,
+    };
+    check_spot(&spot).map_err(|e| bad(e.to_string()))?;
+    Ok(SheetRecord {
+        lot: lot.map(str::to_string),
+        measured_at: doc.runs.first().map(|r| r.started.clone()),
+        instrument_serial: doc.instrument.serial_number,
+        session_path: dir.display().to_string(),
+        session_sha256,
+        sample: doc.sample,
+        added_at: now_utc(),
+        spots: vec![spot],
+    })
+}

@@ -1,0 +1,911 @@
+//! The library's SQLite file: opening it without ever harming a file that is not ours
+//! (checked before SQLite writes anything), its schema, and every query and change, each
+//! change one transaction.
+use super::exchange::{ExchangeFile, ExchangeRecord};
+use super::{
+    APPLICATION_ID, LibraryError, Result, SCHEMA_VERSION, SheetRecord, StockInfo, check_text,
+    now_utc,
+};
+use crate::analysis::evidence::{Sheet, Spot};
+use rusqlite::{Connection, OpenFlags, OptionalExtension, TransactionBehavior, params};
+use serde::Serialize;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// How long a writer waits for another process's transaction before giving up. Adds are
+/// milliseconds long; 30 s covers a slow disk and many concurrent adds.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// The first 16 bytes of every SQLite 3 database file.
+const SQLITE_MAGIC: &[u8; 16] = b"SQLite format 3\0";
+
+/// Whether opening may create the file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OpenMode {
+    /// Read or change an existing library; a missing one is [`LibraryError::Missing`].
+    Existing,
+    /// Create the library when missing (commands that add).
+    Add,
+}
+
+/// A stock with its counts, for `list`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct StockSummary {
+    /// Name.
+    pub name: String,
+    /// Manufacturer.
+    pub manufacturer: Option<String>,
+    /// Notes.
+    pub notes: Option<String>,
+    /// Sheets (sessions).
+    pub sheets: usize,
+    /// Spots over its sheets.
+    pub spots: usize,
+}
+
+/// What `import` did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct ImportCounts {
+    /// Records (lines) read.
+    pub records: usize,
+    /// Sessions added.
+    pub sessions_added: usize,
+    /// Sessions skipped: already in the library (by SHA-256).
+    pub sessions_skipped: usize,
+    /// Stocks new to the library.
+    pub stocks_added: usize,
+}
+
+/// What a removal removed.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Removed {
+    /// Stocks removed (a stock goes with its last sheet: the library holds only what an
+    /// export can carry).
+    pub stocks: Vec<String>,
+    /// Sessions removed (SHA-256).
+    pub sessions: Vec<String>,
+    /// Spots removed.
+    pub spots: usize,
+}
+
+/// The library file a command uses when `--library` is not given:
+/// `$XDG_DATA_HOME/gonio/library.sqlite`, else `$HOME/.local/share/gonio/library.sqlite`
+/// (the XDG base-directory rule, computed from the environment on every platform so the
+/// place is the same wherever gonio runs). `None` when neither variable is set.
+pub fn default_path() -> Option<PathBuf> {
+    let nonempty = |name: &str| {
+        std::env::var_os(name)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    // XDG says a relative XDG_DATA_HOME is invalid and to be ignored.
+    let base = nonempty("XDG_DATA_HOME")
+        .filter(|p| p.is_absolute())
+        .or_else(|| nonempty("HOME").map(|home| home.join(".local").join("share")))?;
+    Some(base.join("gonio").join("library.sqlite"))
+}
+
+const SCHEMA: &str = "
+CREATE TABLE meta (
+    key   TEXT PRIMARY KEY NOT NULL,
+    value NOT NULL
+);
+CREATE TABLE stocks (
+    id           INTEGER PRIMARY KEY,
+    name         TEXT NOT NULL UNIQUE,
+    manufacturer TEXT,
+    notes        TEXT
+);
+CREATE TABLE sheets (
+    id                INTEGER PRIMARY KEY,
+    stock_id          INTEGER NOT NULL REFERENCES stocks(id) ON DELETE CASCADE,
+    lot               TEXT,
+    measured_at       TEXT,
+    instrument_serial TEXT NOT NULL,
+    session_path      TEXT NOT NULL,
+    session_sha256    TEXT NOT NULL UNIQUE,
+    sample            TEXT NOT NULL,
+    added_at          TEXT NOT NULL
+);
+CREATE INDEX sheets_by_stock ON sheets(stock_id);
+CREATE TABLE spots (
+    sheet_id   INTEGER NOT NULL REFERENCES sheets(id) ON DELETE CASCADE,
+    spot_index INTEGER NOT NULL,
+    sigma_deg  REAL,
+    rho_s      REAL,
+    rho_d      REAL,
+    -- covariance of (sigma_deg, rho_s, rho_d), row by row
+    c00 REAL NOT NULL, c01 REAL NOT NULL, c02 REAL NOT NULL,
+    c10 REAL NOT NULL, c11 REAL NOT NULL, c12 REAL NOT NULL,
+    c20 REAL NOT NULL, c21 REAL NOT NULL, c22 REAL NOT NULL,
+    PRIMARY KEY (sheet_id, spot_index)
+);
+";
+
+/// What the opening probe found in a file SQLite could read.
+enum Found {
+    /// No tables and no ids: a new (or just created, empty) database.
+    Empty,
+    /// A gonio library of this schema version or older.
+    Library,
+}
+
+/// An open library.
+pub struct Library {
+    conn: Connection,
+    path: PathBuf,
+}
+
+impl std::fmt::Debug for Library {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Library").field("path", &self.path).finish()
+    }
+}
+
+/// Check the file's header before SQLite opens it: SQLite would report a non-database
+/// only on first use, and a truncated one not at all until the missing pages are read.
+/// Returns the file's length.
+fn check_header(path: &Path) -> Result<u64> {
+    let io = |source| LibraryError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    if len == 0 {
+        return Ok(0);
+    }
+    let mut header = Vec::with_capacity(100);
+    Read::by_ref(&mut file)
+        .take(100)
+        .read_to_end(&mut header)
+        .map_err(io)?;
+    let not_sqlite = |what: String| LibraryError::NotSqlite {
+        path: path.to_path_buf(),
+        what,
+    };
+    if header.len() < 16 || &header[..16] != SQLITE_MAGIC {
+        return Err(not_sqlite(
+            "it does not begin with the SQLite header".into(),
+        ));
+    }
+    if header.len() < 100 {
+        return Err(LibraryError::Corrupt {
+            path: path.to_path_buf(),
+            what: format!("{len} bytes: shorter than an SQLite header (100 bytes)"),
+        });
+    }
+    let be_u32 = |at: usize| {
+        u32::from_be_bytes([header[at], header[at + 1], header[at + 2], header[at + 3]])
+    };
+    let page_size = match u16::from_be_bytes([header[16], header[17]]) {
+        1 => 65_536u64,
+        n => u64::from(n),
+    };
+    // The page count in the header is valid when the change counter (24) equals the
+    // version-valid-for number (92). With a WAL file beside it the WAL may hold newer
+    // pages, so the length is only checked without one.
+    let pages = u64::from(be_u32(28));
+    let wal = path.with_file_name(format!(
+        "{}-wal",
+        path.file_name()
+            .map_or_else(Default::default, |n| n.to_string_lossy())
+    ));
+    if be_u32(24) == be_u32(92) && pages > 0 && !wal.exists() && len < pages * page_size {
+        return Err(LibraryError::Corrupt {
+            path: path.to_path_buf(),
+            what: format!(
+                "truncated: {len} bytes, its header says {} pages of {page_size} bytes",
+                pages
+            ),
+        });
+    }
+    Ok(len)
+}
+
+/// Make a new library at `path` whole before it appears: the schema is written to a file
+/// of its own beside it, which is then linked to `path` (a hard link fails if `path`
+/// exists). Two processes creating one library at once never see each other's half-made
+/// file (SQLite's busy handler does not cover the change to WAL of a file another process
+/// is creating: "database is locked" in one run of three); the loser of the race opens the
+/// winner's.
+fn create_whole(path: &Path) -> Result<()> {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let name = path
+        .file_name()
+        .map_or_else(|| "library".into(), |n| n.to_string_lossy().into_owned());
+    let temporary = path.with_file_name(format!(".{name}.new-{}-{nanos}", std::process::id()));
+    let sqlite = |source| LibraryError::Sqlite {
+        path: temporary.clone(),
+        source,
+    };
+    let made = (|| -> Result<()> {
+        let conn = Connection::open_with_flags(
+            &temporary,
+            OpenFlags::SQLITE_OPEN_READ_WRITE
+                | OpenFlags::SQLITE_OPEN_CREATE
+                | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .map_err(sqlite)?;
+        let library = Library {
+            conn,
+            path: temporary.clone(),
+        };
+        library
+            .conn
+            .pragma_update(None, "journal_mode", "WAL")
+            .map_err(sqlite)?;
+        library.create_schema()?;
+        // Closing checkpoints the WAL into the file and removes it.
+        library.conn.close().map_err(|(_, e)| sqlite(e))?;
+        match std::fs::hard_link(&temporary, path) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+            Err(source) => Err(LibraryError::Io {
+                path: path.to_path_buf(),
+                source,
+            }),
+        }
+    })();
+    for leftover in [
+        temporary.clone(),
+        temporary.with_extension("new-wal"),
+        PathBuf::from(format!("{}-wal", temporary.display())),
+        PathBuf::from(format!("{}-shm", temporary.display())),
+    ] {
+        let _ = std::fs::remove_file(leftover);
+    }
+    made
+}
+
+impl Library {
+    /// Open the library at `path`. Checks before anything is written: a non-SQLite,
+    /// damaged, foreign or newer file is refused and left as it is.
+    pub fn open(path: &Path, mode: OpenMode) -> Result<Library> {
+        let exists = match std::fs::metadata(path) {
+            Ok(m) if m.is_file() => true,
+            Ok(_) => {
+                return Err(LibraryError::NotSqlite {
+                    path: path.to_path_buf(),
+                    what: "not a regular file".into(),
+                });
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
+            Err(source) => {
+                return Err(LibraryError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                });
+            }
+        };
+        if !exists && mode == OpenMode::Existing {
+            return Err(LibraryError::Missing {
+                path: path.to_path_buf(),
+            });
+        }
+        if exists && check_header(path)? == 0 && mode == OpenMode::Existing {
+            // An empty file is what an adding process leaves between creating the file and
+            // its first commit (or after a crash there): no library content yet.
+            return Err(LibraryError::Missing {
+                path: path.to_path_buf(),
+            });
+        }
+        if !exists && let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|source| LibraryError::Io {
+                path: parent.to_path_buf(),
+                source,
+            })?;
+        }
+        if !exists {
+            create_whole(path)?;
+        }
+        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE
+            | OpenFlags::SQLITE_OPEN_NO_MUTEX
+            | OpenFlags::SQLITE_OPEN_URI;
+        if mode == OpenMode::Add {
+            flags |= OpenFlags::SQLITE_OPEN_CREATE;
+        }
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.to_path_buf(),
+            source,
+        };
+        let conn = Connection::open_with_flags(path, flags).map_err(sqlite)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(sqlite)?;
+        let library = Library {
+            conn,
+            path: path.to_path_buf(),
+        };
+        let found = library.probe()?;
+        if matches!(found, Found::Empty) && mode == OpenMode::Existing {
+            return Err(LibraryError::Missing {
+                path: path.to_path_buf(),
+            });
+        }
+        // Only now, the file known to be ours or empty, anything is written to it.
+        // WAL: readers never block the writer and writers queue on the busy timeout.
+        library
+            .conn
+            .pragma_update(None, "journal_mode", "WAL")
+            .map_err(sqlite)?;
+        library
+            .conn
+            .pragma_update(None, "foreign_keys", true)
+            .map_err(sqlite)?;
+        if matches!(found, Found::Empty) {
+            library.create_schema()?;
+        }
+        Ok(library)
+    }
+
+    /// The library file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn sqlite(&self) -> impl Fn(rusqlite::Error) -> LibraryError + '_ {
+        |source| LibraryError::Sqlite {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// What the file is, read-only. SQLite's errors here mean damage: the header was
+    /// SQLite's, the rest is not.
+    fn probe(&self) -> Result<Found> {
+        let corrupt = |e: rusqlite::Error| match e {
+            rusqlite::Error::SqliteFailure(f, _)
+                if f.code == rusqlite::ErrorCode::DatabaseBusy
+                    || f.code == rusqlite::ErrorCode::DatabaseLocked =>
+            {
+                LibraryError::Sqlite {
+                    path: self.path.clone(),
+                    source: e,
+                }
+            }
+            e => LibraryError::Corrupt {
+                path: self.path.clone(),
+                what: e.to_string(),
+            },
+        };
+        // One read transaction: the reads below see one snapshot. Read one by one, another
+        // process creating the library between them showed its tables with the header still
+        // empty ("not a gonio library", one run in three of the two-process test). Dropped
+        // unfinished, it rolls back: nothing is written here.
+        let _snapshot =
+            rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Deferred)
+                .map_err(corrupt)?;
+        let application_id: i32 = self
+            .conn
+            .pragma_query_value(None, "application_id", |r| r.get(0))
+            .map_err(corrupt)?;
+        let user_version: i64 = self
+            .conn
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .map_err(corrupt)?;
+        let objects: i64 = self
+            .conn
+            .query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get(0))
+            .map_err(corrupt)?;
+        let check: String = self
+            .conn
+            .pragma_query_value(None, "quick_check", |r| r.get(0))
+            .map_err(corrupt)?;
+        if check != "ok" {
+            return Err(LibraryError::Corrupt {
+                path: self.path.clone(),
+                what: format!("SQLite's quick_check: {check}"),
+            });
+        }
+        if application_id == 0 && user_version == 0 && objects == 0 {
+            return Ok(Found::Empty);
+        }
+        if application_id != APPLICATION_ID {
+            return Err(LibraryError::Foreign {
+                path: self.path.clone(),
+                what: format!(
+                    "application id {application_id:#010x}, a gonio library's is {APPLICATION_ID:#010x}"
+                ),
+            });
+        }
+        if user_version > SCHEMA_VERSION {
+            return Err(LibraryError::Newer {
+                path: self.path.clone(),
+                found: user_version,
+            });
+        }
+        let schema_version: Option<i64> = self
+            .conn
+            .query_row(
+                "SELECT value FROM meta WHERE key = 'schema_version'",
+                [],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(corrupt)?;
+        match schema_version {
+            Some(v) if v > SCHEMA_VERSION => Err(LibraryError::Newer {
+                path: self.path.clone(),
+                found: v,
+            }),
+            Some(v) if v == user_version && v >= 1 => Ok(Found::Library),
+            v => Err(LibraryError::Corrupt {
+                path: self.path.clone(),
+                what: format!(
+                    "schema_version {v:?} in meta disagrees with user_version {user_version}"
+                ),
+            }),
+        }
+    }
+
+    /// Make the tables of a new library, once: two processes creating the same new file
+    /// at once both get here, and the second finds the first's tables.
+    fn create_schema(&self) -> Result<()> {
+        let sqlite = self.sqlite();
+        // Immediate: the check for tables and their creation are one under the write lock.
+        // The connection is not shared, so an unchecked transaction (no `&mut`) is safe.
+        let tx = rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Immediate)
+            .map_err(&sqlite)?;
+        let objects: i64 = tx
+            .query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get(0))
+            .map_err(&sqlite)?;
+        if objects == 0 {
+            tx.execute_batch(SCHEMA).map_err(&sqlite)?;
+            tx.execute(
+                "INSERT INTO meta (key, value) VALUES ('schema_version', ?1), ('application_id', ?2), ('created_by', ?3), ('created_at', ?4)",
+                params![SCHEMA_VERSION, APPLICATION_ID, format!("gonio {}", env!("CARGO_PKG_VERSION")), now_utc()],
+            )
+            .map_err(&sqlite)?;
+            tx.pragma_update(None, "application_id", APPLICATION_ID)
+                .map_err(&sqlite)?;
+            tx.pragma_update(None, "user_version", SCHEMA_VERSION)
+                .map_err(&sqlite)?;
+        }
+        tx.commit().map_err(&sqlite)?;
+        Ok(())
+    }
+
+    /// A write transaction that takes the write lock at once (waiting up to the busy
+    /// timeout), so that checks made in it hold until it commits.
+    fn write(&mut self) -> Result<rusqlite::Transaction<'_>> {
+        let path = self.path.clone();
+        self.conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(|source| LibraryError::Sqlite { path, source })
+    }
+
+    /// Add sheets under one stock, all or none: a session already in the library (by
+    /// SHA-256) refuses the whole add, naming the stock it is under.
+    pub fn add_sheets(&mut self, stock: &StockInfo, sheets: &[SheetRecord]) -> Result<()> {
+        check_text("stock name", &stock.name)?;
+        if let Some(lot) = sheets.iter().find_map(|s| s.lot.as_deref()) {
+            check_text("lot", lot)?;
+        }
+        let path = self.path.clone();
+        let sqlite = move |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.write()?;
+        let stock_id = upsert_stock(&tx, stock).map_err(|e| e.into_library(&sqlite))?;
+        for sheet in sheets {
+            insert_sheet(&tx, stock_id, sheet, &sheet.session_path)
+                .map_err(|e| e.into_library(&sqlite))?;
+        }
+        tx.commit().map_err(sqlite)?;
+        Ok(())
+    }
+
+    /// Every stock with its sheet and spot counts, by name.
+    pub fn stocks(&self) -> Result<Vec<StockSummary>> {
+        let sqlite = self.sqlite();
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT s.name, s.manufacturer, s.notes,
+                        (SELECT count(*) FROM sheets h WHERE h.stock_id = s.id),
+                        (SELECT count(*) FROM spots p JOIN sheets h ON p.sheet_id = h.id WHERE h.stock_id = s.id)
+                 FROM stocks s ORDER BY s.name",
+            )
+            .map_err(&sqlite)?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok(StockSummary {
+                    name: r.get(0)?,
+                    manufacturer: r.get(1)?,
+                    notes: r.get(2)?,
+                    sheets: get_count(r, 3)?,
+                    spots: get_count(r, 4)?,
+                })
+            })
+            .map_err(&sqlite)?;
+        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
+    }
+
+    /// Remove a stock with all its sheets and spots.
+    pub fn remove_stock(&mut self, name: &str) -> Result<Removed> {
+        let path = self.path.clone();
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.write()?;
+        let id: Option<i64> = tx
+            .query_row("SELECT id FROM stocks WHERE name = ?1", [name], |r| {
+                r.get(0)
+            })
+            .optional()
+            .map_err(sqlite)?;
+        let Some(id) = id else {
+            return Err(LibraryError::UnknownStock {
+                path: path.clone(),
+                name: name.to_string(),
+            });
+        };
+        let sessions = column_strings(
+            &tx,
+            "SELECT session_sha256 FROM sheets WHERE stock_id = ?1 ORDER BY session_sha256",
+            id,
+        )
+        .map_err(sqlite)?;
+        let spots = count_spots(&tx, "h.stock_id = ?1", id).map_err(sqlite)?;
+        tx.execute("DELETE FROM stocks WHERE id = ?1", [id])
+            .map_err(sqlite)?;
+        tx.commit().map_err(sqlite)?;
+        Ok(Removed {
+            stocks: vec![name.to_string()],
+            sessions,
+            spots,
+        })
+    }
+
+    /// Remove one session, named by its SHA-256 or a prefix that only it has; its stock
+    /// goes with it when it was the stock's last sheet.
+    pub fn remove_session(&mut self, sha256_prefix: &str) -> Result<Removed> {
+        let prefix = sha256_prefix.to_ascii_lowercase();
+        let path = self.path.clone();
+        if prefix.is_empty() || !prefix.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(LibraryError::SessionPrefix {
+                path,
+                what: format!("'{sha256_prefix}' is not a SHA-256 or a prefix of one (hex digits)"),
+            });
+        }
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.write()?;
+        // Hex digits only, so the prefix holds no LIKE wildcards.
+        let mut stmt = tx.prepare("SELECT id, stock_id, session_sha256 FROM sheets WHERE session_sha256 LIKE ?1 || '%' ORDER BY session_sha256").map_err(sqlite)?;
+        let matches: Vec<(i64, i64, String)> = stmt
+            .query_map([&prefix], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+            .map_err(sqlite)?
+            .collect::<rusqlite::Result<_>>()
+            .map_err(sqlite)?;
+        drop(stmt);
+        let (sheet_id, stock_id, sha256) = match matches.as_slice() {
+            [one] => one.clone(),
+            [] => {
+                return Err(LibraryError::SessionPrefix {
+                    path: path.clone(),
+                    what: format!("no session {prefix}… in the library"),
+                });
+            }
+            many => {
+                let names: Vec<&str> = many.iter().map(|m| m.2.as_str()).collect();
+                return Err(LibraryError::SessionPrefix {
+                    path: path.clone(),
+                    what: format!(
+                        "{} sessions begin with {prefix} ({}): give more of the SHA-256",
+                        many.len(),
+                        names.join(", ")
+                    ),
+                });
+            }
+        };
+        let spots = count_spots(&tx, "h.id = ?1", sheet_id).map_err(sqlite)?;
+        tx.execute("DELETE FROM sheets WHERE id = ?1", [sheet_id])
+            .map_err(sqlite)?;
+        let left: i64 = tx
+            .query_row(
+                "SELECT count(*) FROM sheets WHERE stock_id = ?1",
+                [stock_id],
+                |r| r.get(0),
+            )
+            .map_err(sqlite)?;
+        let mut stocks = Vec::new();
+        if left == 0 {
+            let name: String = tx
+                .query_row("SELECT name FROM stocks WHERE id = ?1", [stock_id], |r| {
+                    r.get(0)
+                })
+                .map_err(sqlite)?;
+            tx.execute("DELETE FROM stocks WHERE id = ?1", [stock_id])
+                .map_err(sqlite)?;
+            stocks.push(name);
+        }
+        tx.commit().map_err(sqlite)?;
+        Ok(Removed {
+            stocks,
+            sessions: vec![sha256],
+            spots,
+        })
+    }
+
+    /// Every spot as an exchange record, ordered by stock name, session SHA-256 and spot
+    /// index (bytewise), so that the same contents always give the same file.
+    pub fn records(&self) -> Result<Vec<ExchangeRecord>> {
+        let sqlite = self.sqlite();
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT s.name, s.manufacturer, s.notes, h.session_sha256, h.sample, h.lot, h.measured_at, h.instrument_serial,
+                        h.session_path, h.added_at, p.spot_index,
+                        (SELECT count(*) FROM spots q WHERE q.sheet_id = h.id),
+                        p.sigma_deg, p.rho_s, p.rho_d, p.c00, p.c01, p.c02, p.c10, p.c11, p.c12, p.c20, p.c21, p.c22
+                 FROM spots p JOIN sheets h ON p.sheet_id = h.id JOIN stocks s ON h.stock_id = s.id
+                 ORDER BY s.name, h.session_sha256, p.spot_index",
+            )
+            .map_err(&sqlite)?;
+        let rows = stmt
+            .query_map([], |r| {
+                let mut covariance = [[0.0; 3]; 3];
+                for (i, row) in covariance.iter_mut().enumerate() {
+                    for (j, c) in row.iter_mut().enumerate() {
+                        *c = r.get(15 + 3 * i + j)?;
+                    }
+                }
+                Ok(ExchangeRecord {
+                    schema: crate::schema::LIBRARY_RECORD.to_string(),
+                    stock: r.get(0)?,
+                    manufacturer: r.get(1)?,
+                    stock_notes: r.get(2)?,
+                    session_sha256: r.get(3)?,
+                    sample: r.get(4)?,
+                    lot: r.get(5)?,
+                    measured_at: r.get(6)?,
+                    instrument_serial: r.get(7)?,
+                    session_path: r.get(8)?,
+                    added_at: r.get(9)?,
+                    spot: get_count(r, 10)?,
+                    spots: get_count(r, 11)?,
+                    sigma_deg: r.get(12)?,
+                    rho_s: r.get(13)?,
+                    rho_d: r.get(14)?,
+                    covariance,
+                })
+            })
+            .map_err(&sqlite)?;
+        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
+    }
+
+    /// Write every spot to `out` as JSON Lines (see [`ExchangeRecord`]); returns the
+    /// number of records. `out_path` is only for messages.
+    pub fn export(&self, out: &mut dyn Write, out_path: &Path) -> Result<usize> {
+        let records = self.records()?;
+        let io = |source| LibraryError::Io {
+            path: out_path.to_path_buf(),
+            source,
+        };
+        for record in &records {
+            let line = serde_json::to_string(record).map_err(|e| io(std::io::Error::other(e)))?;
+            out.write_all(line.as_bytes()).map_err(io)?;
+            out.write_all(b"\n").map_err(io)?;
+        }
+        out.flush().map_err(io)?;
+        Ok(records.len())
+    }
+
+    /// Import a checked exchange file ([`ExchangeFile::read`]) in one transaction:
+    /// sessions already in the library (by SHA-256) are skipped.
+    pub fn import(&mut self, file: &ExchangeFile) -> Result<ImportCounts> {
+        let (sessions, in_path) = (&file.sessions, &file.path);
+        let mut counts = ImportCounts {
+            records: file.records(),
+            ..Default::default()
+        };
+        let path = self.path.clone();
+        let sqlite = move |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.write()?;
+        for session in sessions {
+            let present: Option<String> = tx
+                .query_row(
+                    "SELECT s.name FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.session_sha256 = ?1",
+                    [&session.sheet.session_sha256],
+                    |r| r.get(0),
+                )
+                .optional()
+                .map_err(&sqlite)?;
+            if present.is_some() {
+                counts.sessions_skipped += 1;
+                continue;
+            }
+            let known: bool = tx
+                .query_row(
+                    "SELECT count(*) > 0 FROM stocks WHERE name = ?1",
+                    [&session.stock.name],
+                    |r| r.get(0),
+                )
+                .map_err(&sqlite)?;
+            counts.stocks_added += usize::from(!known);
+            let stock_id =
+                upsert_stock(&tx, &session.stock).map_err(|e| e.into_library(&sqlite))?;
+            let what = format!("{}:{}", in_path.display(), session.first_line);
+            insert_sheet(&tx, stock_id, &session.sheet, &what)
+                .map_err(|e| e.into_library(&sqlite))?;
+            counts.sessions_added += 1;
+        }
+        tx.commit().map_err(&sqlite)?;
+        Ok(counts)
+    }
+
+    /// Every sheet with its stock name and session SHA-256, ordered as [`Self::records`].
+    pub fn sheets(&self) -> Result<Vec<(String, String, Sheet)>> {
+        let mut out: Vec<(String, String, Sheet)> = Vec::new();
+        for record in self.records()? {
+            let spot = Spot {
+                values: [record.sigma_deg, record.rho_s, record.rho_d],
+                covariance: record.covariance,
+            };
+            match out.last_mut() {
+                Some(last) if last.1 == record.session_sha256 => last.2.spots.push(spot),
+                _ => out.push((
+                    record.stock,
+                    record.session_sha256,
+                    Sheet { spots: vec![spot] },
+                )),
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// An error inside a write transaction: the library's own, or SQLite's (which needs the
+/// path to become one).
+enum TxError {
+    Library(LibraryError),
+    Sqlite(rusqlite::Error),
+}
+
+impl From<rusqlite::Error> for TxError {
+    fn from(e: rusqlite::Error) -> TxError {
+        TxError::Sqlite(e)
+    }
+}
+
+impl TxError {
+    fn into_library(self, sqlite: &impl Fn(rusqlite::Error) -> LibraryError) -> LibraryError {
+        match self {
+            TxError::Library(e) => e,
+            TxError::Sqlite(e) => sqlite(e),
+        }
+    }
+}
+
+/// The stock's id, made when new; manufacturer and notes given fill the library's when
+/// it has none, and must agree when it has.
+fn upsert_stock(tx: &rusqlite::Transaction<'_>, stock: &StockInfo) -> Result<i64, TxError> {
+    let row: Option<(i64, Option<String>, Option<String>)> = tx
+        .query_row(
+            "SELECT id, manufacturer, notes FROM stocks WHERE name = ?1",
+            [&stock.name],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+        )
+        .optional()?;
+    let Some((id, manufacturer, notes)) = row else {
+        tx.execute(
+            "INSERT INTO stocks (name, manufacturer, notes) VALUES (?1, ?2, ?3)",
+            params![stock.name, stock.manufacturer, stock.notes],
+        )?;
+        return Ok(tx.last_insert_rowid());
+    };
+    for (field, existing, given) in [
+        ("manufacturer", &manufacturer, &stock.manufacturer),
+        ("notes", &notes, &stock.notes),
+    ] {
+        match (existing, given) {
+            (Some(existing), Some(given)) if existing != given => {
+                return Err(TxError::Library(LibraryError::StockConflict {
+                    stock: stock.name.clone(),
+                    field,
+                    existing: existing.clone(),
+                    given: given.clone(),
+                }));
+            }
+            (None, Some(given)) => {
+                // `field` is one of two fixed column names, never user text.
+                tx.execute(
+                    &format!("UPDATE stocks SET {field} = ?1 WHERE id = ?2"),
+                    params![given, id],
+                )?;
+            }
+            _ => {}
+        }
+    }
+    Ok(id)
+}
+
+/// Insert one sheet and its spots; a session already present is [`LibraryError::Duplicate`]
+/// naming its stock. `what` names the sheet's source in messages.
+fn insert_sheet(
+    tx: &rusqlite::Transaction<'_>,
+    stock_id: i64,
+    sheet: &SheetRecord,
+    what: &str,
+) -> Result<(), TxError> {
+    let present: Option<String> = tx
+        .query_row("SELECT s.name FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.session_sha256 = ?1", [&sheet.session_sha256], |r| r.get(0))
+        .optional()?;
+    if let Some(stock) = present {
+        return Err(TxError::Library(LibraryError::Duplicate {
+            what: what.to_string(),
+            sha256: sheet.session_sha256.clone(),
+            stock,
+        }));
+    }
+    tx.execute(
+        "INSERT INTO sheets (stock_id, lot, measured_at, instrument_serial, session_path, session_sha256, sample, added_at)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+        params![stock_id, sheet.lot, sheet.measured_at, sheet.instrument_serial, sheet.session_path, sheet.session_sha256, sheet.sample, sheet.added_at],
+    )?;
+    let sheet_id = tx.last_insert_rowid();
+    let mut insert = tx.prepare(
+        "INSERT INTO spots (sheet_id, spot_index, sigma_deg, rho_s, rho_d, c00, c01, c02, c10, c11, c12, c20, c21, c22)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
+    )?;
+    for (k, spot) in sheet.spots.iter().enumerate() {
+        let c = &spot.covariance;
+        insert.execute(params![
+            sheet_id,
+            k as i64,
+            spot.values[0],
+            spot.values[1],
+            spot.values[2],
+            c[0][0],
+            c[0][1],
+            c[0][2],
+            c[1][0],
+            c[1][1],
+            c[1][2],
+            c[2][0],
+            c[2][1],
+            c[2][2]
+        ])?;
+    }
+    Ok(())
+}
+
+/// A count or index column as `usize` (SQLite integers are i64; a negative one in a
+/// tampered file is an error, not a wrap-around).
+fn get_count(row: &rusqlite::Row<'_>, index: usize) -> rusqlite::Result<usize> {
+    let value: i64 = row.get(index)?;
+    usize::try_from(value).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(index, value))
+}
+
+fn column_strings(
+    tx: &rusqlite::Transaction<'_>,
+    sql: &str,
+    id: i64,
+) -> rusqlite::Result<Vec<String>> {
+    let mut stmt = tx.prepare(sql)?;
+    stmt.query_map([id], |r| r.get(0))?.collect()
+}
+
+fn count_spots(
+    tx: &rusqlite::Transaction<'_>,
+    condition: &str,
+    id: i64,
+) -> rusqlite::Result<usize> {
+    tx.query_row(
+        &format!(
+            "SELECT count(*) FROM spots p JOIN sheets h ON p.sheet_id = h.id WHERE {condition}"
+        ),
+        [id],
+        |r| get_count(r, 0),
+    )
+}

@@ -1,0 +1,471 @@
+//! The library's tests: storage, the exchange file's round trip and refusals.
+use super::*;
+use rand::{Rng, SeedableRng};
+use rusqlite::Connection;
+use std::path::Path;
+
+fn sheet(n: u64, spots: usize) -> SheetRecord {
+    let spot = |k: usize| Spot {
+        values: [
+            Some(4.0 + n as f64 * 0.1 + k as f64),
+            if k == 1 { None } else { Some(0.1 + 0.2) },
+            Some(0.8 + 1e-17 * k as f64),
+        ],
+        covariance: [
+            [1e-300, 2.5e-3, -1.0 / 3.0],
+            [2.5e-3, 0.0, 7.0],
+            [-1.0 / 3.0, 7.0, f64::MAX],
+        ],
+    };
+    SheetRecord {
+        lot: (n % 2 == 0).then(|| format!("ream {n}")),
+        measured_at: Some(format!("2026-05-01T14:03:{:02}.000+02:00", n % 60)),
+        instrument_serial: "SIM-0001".into(),
+        session_path: format!("sessions/é-{n}"),
+        session_sha256: crate::output::manifest::sha256_hex(&n.to_le_bytes()),
+        sample: "PPC".into(),
+        added_at: format!("2026-06-01T00:00:{:02}.000Z", n % 60),
+        spots: (0..spots).map(spot).collect(),
+    }
+}
+
+fn stock(name: &str) -> StockInfo {
+    StockInfo {
+        name: name.into(),
+        manufacturer: Some("Acme «Papier»".into()),
+        notes: None,
+    }
+}
+
+fn export_bytes(library: &Library) -> Vec<u8> {
+    let mut out = Vec::new();
+    library.export(&mut out, Path::new("test")).expect("export");
+    out
+}
+
+/// A library of a few stocks, sheets and spots.
+fn filled(path: &Path) -> Library {
+    let mut library = Library::open(path, OpenMode::Add).expect("create");
+    library
+        .add_sheets(&stock("PPC"), &[sheet(1, 1), sheet(2, 3)])
+        .expect("add");
+    library
+        .add_sheets(
+            &StockInfo {
+                name: "Bond 80 g/m²".into(),
+                manufacturer: None,
+                notes: Some("from a \"ream\"\nline two".into()),
+            },
+            &[sheet(3, 2)],
+        )
+        .expect("add");
+    library
+        .add_sheets(&stock("PPC"), &[sheet(4, 1)])
+        .expect("add to an existing stock");
+    library
+}
+
+#[test]
+fn a_new_library_has_its_ids_and_schema_version() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("sub").join("library.sqlite");
+    drop(Library::open(&path, OpenMode::Add).expect("create"));
+    let conn = Connection::open(&path).expect("open");
+    let id: i32 = conn
+        .pragma_query_value(None, "application_id", |r| r.get(0))
+        .expect("id");
+    let user_version: i64 = conn
+        .pragma_query_value(None, "user_version", |r| r.get(0))
+        .expect("version");
+    let schema_version: i64 = conn
+        .query_row(
+            "SELECT value FROM meta WHERE key = 'schema_version'",
+            [],
+            |r| r.get(0),
+        )
+        .expect("meta");
+    assert_eq!((id, user_version, schema_version), (APPLICATION_ID, 1, 1));
+    // Reopening finds it, empty.
+    assert!(
+        Library::open(&path, OpenMode::Existing)
+            .expect("reopen")
+            .stocks()
+            .expect("stocks")
+            .is_empty()
+    );
+}
+
+#[test]
+fn reading_a_missing_library_does_not_create_it() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    let err = Library::open(&path, OpenMode::Existing).expect_err("missing");
+    assert!(matches!(err, LibraryError::Missing { .. }), "{err}");
+    assert!(err.to_string().contains("nothing has been added"), "{err}");
+    assert!(!path.exists());
+}
+
+/// Every file beside the library (WAL, shared memory), for "left as it is".
+fn folder_bytes(dir: &Path) -> Vec<(std::ffi::OsString, Vec<u8>)> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .expect("list")
+        .map(|e| e.expect("entry"))
+        .map(|e| (e.file_name(), std::fs::read(e.path()).expect("read")))
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn a_library_of_a_newer_schema_is_refused_and_left_as_it_is() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    drop(filled(&path));
+    {
+        let conn = Connection::open(&path).expect("open");
+        conn.execute("UPDATE meta SET value = 2 WHERE key = 'schema_version'", [])
+            .expect("update");
+        conn.pragma_update(None, "user_version", 2)
+            .expect("version");
+    }
+    let before = folder_bytes(dir.path());
+    for mode in [OpenMode::Existing, OpenMode::Add] {
+        let err = Library::open(&path, mode).expect_err("newer");
+        assert!(matches!(err, LibraryError::Newer { found: 2, .. }), "{err}");
+        assert!(
+            err.to_string().contains(
+                "written by a newer gonio (schema 2); this gonio reads up to 1: update gonio"
+            ),
+            "{err}"
+        );
+        assert!(
+            err.to_string().contains(&path.display().to_string()),
+            "{err}"
+        );
+    }
+    assert_eq!(folder_bytes(dir.path()), before);
+}
+
+#[test]
+fn random_bytes_are_refused_and_left_as_they_are() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
+    for len in [1usize, 99, 100, 4096, 70_000] {
+        let bytes: Vec<u8> = (0..len).map(|_| rng.random()).collect();
+        std::fs::write(&path, &bytes).expect("write");
+        for mode in [OpenMode::Existing, OpenMode::Add] {
+            let err = Library::open(&path, mode).expect_err("not SQLite");
+            assert!(
+                matches!(err, LibraryError::NotSqlite { .. }),
+                "{len} bytes: {err}"
+            );
+            assert!(
+                err.to_string().starts_with(&path.display().to_string()),
+                "{err}"
+            );
+        }
+        assert_eq!(
+            folder_bytes(dir.path()),
+            vec![(path.file_name().expect("name").to_owned(), bytes)],
+            "{len} bytes"
+        );
+    }
+}
+
+#[test]
+fn a_truncated_or_damaged_library_is_refused_and_left_as_it_is() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    {
+        let mut library = filled(&path);
+        // Enough sheets for the file to span many pages.
+        let sheets: Vec<SheetRecord> = (100..400).map(|n| sheet(n, 2)).collect();
+        library.add_sheets(&stock("many"), &sheets).expect("add");
+    }
+    let whole = std::fs::read(&path).expect("read");
+    assert!(whole.len() > 8 * 4096, "{} bytes", whole.len());
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("truncated to half", whole[..whole.len() / 2].to_vec()),
+        ("truncated to its first page", whole[..4096].to_vec()),
+        ("truncated inside the header", whole[..50].to_vec()),
+        ("a page overwritten", {
+            let mut b = whole.clone();
+            b[3 * 4096..4 * 4096].fill(0xA5);
+            b
+        }),
+    ];
+    for (what, bytes) in cases {
+        std::fs::write(&path, &bytes).expect("write");
+        for mode in [OpenMode::Existing, OpenMode::Add] {
+            let err = Library::open(&path, mode).expect_err(what);
+            assert!(matches!(err, LibraryError::Corrupt { .. }), "{what}: {err}");
+            assert!(
+                err.to_string().starts_with(&path.display().to_string()),
+                "{err}"
+            );
+        }
+        assert_eq!(
+            folder_bytes(dir.path()),
+            vec![(path.file_name().expect("name").to_owned(), bytes)],
+            "{what}"
+        );
+    }
+}
+
+#[test]
+fn an_sqlite_file_of_another_program_is_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("other.sqlite");
+    Connection::open(&path)
+        .expect("open")
+        .execute_batch("CREATE TABLE t (x); INSERT INTO t VALUES (1);")
+        .expect("create");
+    let before = folder_bytes(dir.path());
+    let err = Library::open(&path, OpenMode::Add).expect_err("foreign");
+    assert!(matches!(err, LibraryError::Foreign { .. }), "{err}");
+    assert_eq!(folder_bytes(dir.path()), before);
+}
+
+#[test]
+fn the_same_session_twice_is_refused_naming_its_stock() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut library = filled(&dir.path().join("library.sqlite"));
+    let before = export_bytes(&library);
+    // Under another stock, and together with a new sheet: nothing of the add is kept.
+    let err = library
+        .add_sheets(&stock("Other"), &[sheet(50, 1), sheet(2, 1)])
+        .expect_err("duplicate");
+    assert!(
+        matches!(&err, LibraryError::Duplicate { stock, .. } if stock == "PPC"),
+        "{err}"
+    );
+    assert!(
+        err.to_string()
+            .contains("already in the library under stock 'PPC'"),
+        "{err}"
+    );
+    assert_eq!(export_bytes(&library), before);
+    assert!(
+        library
+            .stocks()
+            .expect("stocks")
+            .iter()
+            .all(|s| s.name != "Other")
+    );
+}
+
+#[test]
+fn a_different_manufacturer_for_a_stock_is_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut library = filled(&dir.path().join("library.sqlite"));
+    let err = library
+        .add_sheets(
+            &StockInfo {
+                name: "PPC".into(),
+                manufacturer: Some("Other".into()),
+                notes: None,
+            },
+            &[sheet(60, 1)],
+        )
+        .expect_err("conflict");
+    assert!(
+        matches!(
+            err,
+            LibraryError::StockConflict {
+                field: "manufacturer",
+                ..
+            }
+        ),
+        "{err}"
+    );
+}
+
+#[test]
+fn export_then_import_into_an_empty_library_then_export_is_byte_identical() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let first = filled(&dir.path().join("first.sqlite"));
+    let exported = export_bytes(&first);
+    assert_eq!(
+        exported.iter().filter(|&&b| b == b'\n').count(),
+        7,
+        "one line per spot"
+    );
+    let mut second =
+        Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
+    let counts = second
+        .import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"))
+        .expect("import");
+    assert_eq!(
+        counts,
+        ImportCounts {
+            records: 7,
+            sessions_added: 4,
+            sessions_skipped: 0,
+            stocks_added: 2
+        }
+    );
+    assert_eq!(
+        String::from_utf8(export_bytes(&second)).expect("utf-8"),
+        String::from_utf8(exported.clone()).expect("utf-8")
+    );
+    // Lossless: the sheets (every f64 bit, every None) are the ones added.
+    assert_eq!(
+        second.sheets().expect("sheets"),
+        first.sheets().expect("sheets")
+    );
+    assert_eq!(
+        second.stocks().expect("stocks"),
+        first.stocks().expect("stocks")
+    );
+    // Again: every session is already present.
+    let counts = second
+        .import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"))
+        .expect("import");
+    assert_eq!(
+        counts,
+        ImportCounts {
+            records: 7,
+            sessions_added: 0,
+            sessions_skipped: 4,
+            stocks_added: 0
+        }
+    );
+    assert_eq!(export_bytes(&second), exported);
+}
+
+#[test]
+fn an_exchange_file_of_the_first_version_still_imports() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let exported =
+        String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite")))).expect("utf-8");
+    // What gonio wrote before its documents carried `schema`: the key was `format`.
+    let old = exported.replace(
+        &format!("\"schema\":\"{}\"", crate::schema::LIBRARY_RECORD),
+        &format!("\"format\":\"{}\"", crate::schema::LIBRARY_RECORD_V1),
+    );
+    assert_ne!(old, exported, "the records name their schema");
+    let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
+    let counts = second
+        .import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read"))
+        .expect("import");
+    assert_eq!(counts.records, exported.lines().count());
+    assert_eq!(
+        String::from_utf8(export_bytes(&second)).expect("utf-8"),
+        exported,
+        "imported as the same records"
+    );
+}
+
+#[test]
+fn a_bad_exchange_file_imports_nothing_and_names_the_line() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let exported = export_bytes(&filled(&dir.path().join("first.sqlite")));
+    let text = String::from_utf8(exported).expect("utf-8");
+    let lines: Vec<&str> = text.lines().collect();
+    let cases = [
+        (format!("{}\n{}\nnot json\n", lines[0], lines[1]), 3),
+        (
+            format!(
+                "{}\n{}\n",
+                lines[0],
+                lines[1].replace(crate::schema::LIBRARY_RECORD, "gonio-library/9")
+            ),
+            2,
+        ),
+        // The second spot of the first sheet (stock "Bond…", two spots) missing.
+        (
+            lines
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| *k != 1)
+                .map(|(_, l)| format!("{l}\n"))
+                .collect(),
+            0,
+        ),
+    ];
+    for (bad, line) in cases {
+        let err = ExchangeFile::read(&mut bad.as_bytes(), Path::new("x.jsonl")).expect_err("bad");
+        assert!(matches!(err, LibraryError::Import { .. }), "{err}");
+        if line > 0 {
+            assert!(
+                err.to_string().starts_with(&format!("x.jsonl:{line}:")),
+                "{err}"
+            );
+        }
+    }
+}
+
+#[test]
+fn remove_by_stock_and_by_unique_session_prefix() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut library = filled(&dir.path().join("library.sqlite"));
+    let sha = sheet(3, 2).session_sha256;
+    let removed = library
+        .remove_session(&sha[..10].to_uppercase())
+        .expect("remove");
+    assert_eq!(
+        removed,
+        Removed {
+            stocks: vec!["Bond 80 g/m²".into()],
+            sessions: vec![sha.clone()],
+            spots: 2
+        }
+    );
+    assert!(matches!(
+        library.remove_session(&sha),
+        Err(LibraryError::SessionPrefix { .. })
+    ));
+    assert!(matches!(
+        library.remove_session("zz"),
+        Err(LibraryError::SessionPrefix { .. })
+    ));
+    // The empty prefix would match every session: refused.
+    assert!(library.remove_session("").is_err());
+    let removed = library.remove_stock("PPC").expect("remove");
+    assert_eq!((removed.sessions.len(), removed.spots), (3, 5));
+    assert!(library.stocks().expect("stocks").is_empty());
+    assert!(library.records().expect("records").is_empty());
+    assert!(matches!(
+        library.remove_stock("PPC"),
+        Err(LibraryError::UnknownStock { .. })
+    ));
+}
+
+#[test]
+fn two_threads_adding_to_one_new_file_both_succeed() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    let barrier = std::sync::Arc::new(std::sync::Barrier::new(2));
+    let threads: Vec<_> = (0..2u64)
+        .map(|t| {
+            let (path, barrier) = (path.clone(), barrier.clone());
+            std::thread::spawn(move || {
+                barrier.wait();
+                let mut library = Library::open(&path, OpenMode::Add).expect("open");
+                for n in 0..25 {
+                    library
+                        .add_sheets(
+                            &stock(&format!("stock {}", n % 3)),
+                            &[sheet(1000 * (t + 1) + n, 1)],
+                        )
+                        .expect("add");
+                }
+            })
+        })
+        .collect();
+    for t in threads {
+        t.join().expect("thread");
+    }
+    let library = Library::open(&path, OpenMode::Existing).expect("open");
+    assert_eq!(library.sheets().expect("sheets").len(), 50);
+    assert_eq!(library.stocks().expect("stocks").len(), 3);
+}
+
+#[test]
+fn the_default_path_follows_xdg() {
+    // Only checks the shape: the environment is the process's, shared by other tests.
+    if let Some(path) = default_path() {
+        assert!(path.ends_with("gonio/library.sqlite"), "{}", path.display());
+    }
+}
