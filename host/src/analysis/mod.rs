@@ -9,6 +9,6 @@ pub mod flags;
 pub mod gof;
 pub mod linalg;
 pub mod model;
-pub mod report;
+pub mod result;
 pub mod sampling;
 pub mod sheet;
