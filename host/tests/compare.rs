@@ -355,14 +355,16 @@ fn bad_inputs_name_the_file_and_the_key() {
 /// The `result` object a session writes for readings: the report's JSON plus the
 /// covariance (as `gonio measure` adds it).
 fn session_of(sample: &str, observations: Vec<host::analysis::fit::Observation>) -> Value {
-    use host::analysis::{fit::FitOptions, report};
-    let set = host::output::dataset::DataSet {
-        sample: sample.into(),
-        lines: (2..2 + observations.len()).collect(),
-        observations,
+    use host::analysis::{fit::FitOptions, result as analysis};
+    let lines: Vec<usize> = (2..2 + observations.len()).collect();
+    let readings = analysis::Readings {
+        source: "x.csv",
+        sample,
+        observations: &observations,
+        lines: &lines,
     };
-    let r = report::analyse(Path::new("x.csv"), &set, &FitOptions::default(), None).expect("valid");
-    let mut result = report::to_json(&r);
+    let r = analysis::analyse(&readings, &FitOptions::default(), None).expect("valid");
+    let mut result = analysis::to_json(&r);
     result["covariance"] = json!(r.fit.covariance);
     json!({ "sample": sample, "result": result })
 }

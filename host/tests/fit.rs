@@ -385,7 +385,7 @@ fn extreme_but_valid_data_gives_finite_results() {
 use common::{Instrument, Lobe, Sheet, covers, draw, truth};
 use host::analysis::classify::{Class, REFERENCES, classify};
 use host::analysis::flags::Flag;
-use host::analysis::report;
+use host::analysis::result;
 
 fn class_of_reference(name: &str) -> Class {
     REFERENCES
@@ -742,20 +742,16 @@ fn an_undetermined_rho_s_is_null_and_never_used() {
                 host::analysis::classify::nearest_reference(&other),
                 (c.nearest_reference, c.nearest_distance)
             );
-            let set = host::output::dataset::DataSet {
-                sample: "eta-1".into(),
-                observations: obs.clone(),
-                lines: (2..2 + obs.len()).collect(),
+            let lines: Vec<usize> = (2..2 + obs.len()).collect();
+            let readings = result::Readings {
+                source: "eta.csv",
+                sample: "eta-1",
+                observations: &obs,
+                lines: &lines,
             };
-            let r = report::analyse(
-                std::path::Path::new("eta.csv"),
-                &set,
-                &FitOptions::default(),
-                None,
-            )
-            .expect("valid");
+            let r = result::analyse(&readings, &FitOptions::default(), None).expect("valid");
             assert!(r.flags.contains(&Flag::NotIdentified), "{:?}", r.flags);
-            let json = report::to_json(&r);
+            let json = result::to_json(&r);
             assert!(
                 json["rho_s"].is_null() && json["class"].is_null() && json["ok"] == false,
                 "{json}"
@@ -783,13 +779,13 @@ fn unweighted_csv_says_its_noise_came_from_the_residuals() {
         );
     }
     let sets = host::output::dataset::parse_csv(&text, "ppc").expect("valid CSV");
-    let r = report::analyse(
-        std::path::Path::new("ppc.csv"),
-        &sets[0],
-        &FitOptions::default(),
-        None,
-    )
-    .expect("valid");
+    let readings = result::Readings {
+        source: "ppc.csv",
+        sample: &sets[0].sample,
+        observations: &sets[0].observations,
+        lines: &sets[0].lines,
+    };
+    let r = result::analyse(&readings, &FitOptions::default(), None).expect("valid");
     let f = &r.fit;
     assert!(!f.weighted);
     let std = f.noise_from_residuals.expect("the noise estimate");
@@ -805,7 +801,7 @@ fn unweighted_csv_says_its_noise_came_from_the_residuals() {
         f.structure.is_some(),
         "the structure check runs without uncertainties"
     );
-    let json = report::to_json(&r);
+    let json = result::to_json(&r);
     assert!(json["gof_p"].is_null() && json["chi2"].is_null(), "{json}");
     assert_eq!(json["noise_from_residuals"].as_f64(), Some(std));
     assert!(
@@ -818,7 +814,7 @@ fn unweighted_csv_says_its_noise_came_from_the_residuals() {
             .is_some_and(|n| n.iter().any(|v| v["kind"] == "noise_from_residuals")),
         "{json}"
     );
-    let table = report::to_table(&r);
+    let table = result::to_table(&r);
     assert!(table.contains("estimated from the residuals"), "{table}");
     // The weighted fit of the same readings reports χ² and its p-value instead.
     let weighted = common::synthetic(

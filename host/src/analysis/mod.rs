@@ -10,7 +10,7 @@ pub mod flags;
 pub mod gof;
 pub mod linalg;
 pub mod model;
-pub mod report;
+pub mod result;
 pub mod sampling;
 pub mod spots;
 pub mod sweep_design;

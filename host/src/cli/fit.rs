@@ -5,7 +5,7 @@
 //! the exit status is 1 if anything failed, else 3 if any result is flagged (not `ok`).
 use crate::analysis::fit::FitOptions;
 use crate::analysis::model;
-use crate::analysis::report::{Report, analyse, to_json, to_table};
+use crate::analysis::result::{Readings, Report, analyse, to_json, to_table};
 use crate::output::dataset::{self, DataSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -161,6 +161,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     })
 }
 
+/// Analyse one data set of the file `path`; errors are `line: message`.
+fn analyse_set(
+    path: &Path,
+    set: &DataSet,
+    options: &FitOptions,
+    delta: Option<f64>,
+) -> Result<Report, String> {
+    let readings = Readings {
+        source: &path.display().to_string(),
+        sample: &set.sample,
+        observations: &set.observations,
+        lines: &set.lines,
+    };
+    analyse(&readings, options, delta).map_err(|e| e.to_string())
+}
+
 /// Fit every data set, in parallel over the available cores; results in input order.
 fn analyse_all(
     jobs: &[(usize, &Path, DataSet)],
@@ -173,7 +189,7 @@ fn analyse_all(
     if threads <= 1 || jobs.len() < 8 {
         return jobs
             .iter()
-            .map(|(_, path, set)| analyse(path, set, options, delta))
+            .map(|(_, path, set)| analyse_set(path, set, options, delta))
             .collect();
     }
     let chunk = jobs.len().div_ceil(threads);
@@ -183,7 +199,7 @@ fn analyse_all(
             .map(|part| {
                 let handle = scope.spawn(move || {
                     part.iter()
-                        .map(|(_, path, set)| analyse(path, set, options, delta))
+                        .map(|(_, path, set)| analyse_set(path, set, options, delta))
                         .collect::<Vec<_>>()
                 });
                 (part.len(), handle)

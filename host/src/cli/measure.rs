@@ -720,7 +720,7 @@ fn run_session<T: Transport>(
         outcome.flags.push(crate::analysis::flags::Flag::Resumed);
     }
     // The report names the session's folder, not the file name of its readings inside it.
-    outcome.report.file = dir.clone();
+    outcome.report.file = dir.display().to_string();
     match write_session(&mut recorder, &sample, &info, &outcome) {
         Ok(summary) => {
             // A spot's report is its sheet's.
@@ -1029,7 +1029,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
         println!("{summary}");
         return;
     }
-    print!("{}", crate::analysis::report::to_table(&outcome.report));
+    print!("{}", crate::analysis::result::to_table(&outcome.report));
     println!(
         "  {} geometries, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
         outcome.points.len(),
@@ -1205,7 +1205,7 @@ fn write_session(
     info: &protocol::DeviceInfo,
     outcome: &Outcome,
 ) -> anyhow::Result<serde_json::Value> {
-    let mut result = crate::analysis::report::to_json(&outcome.report);
+    let mut result = crate::analysis::result::to_json(&outcome.report);
     if let Some(object) = result.as_object_mut() {
         object.insert("sample".into(), json!(sample));
         object.insert("geometries".into(), json!(outcome.current_points().count()));

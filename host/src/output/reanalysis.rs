@@ -3,7 +3,7 @@
 //! analysis settings and time the session recorded in its result, through the session's
 //! own analysis ([`crate::session::analyse_points`]), and compared with the result the
 //! session reported.
-use crate::analysis::report::{Report, to_json};
+use crate::analysis::result::{Report, to_json};
 use crate::output::folder::{self, Finding, SESSION};
 use crate::session::{AnalysisSettings, analyse_points};
 use serde_json::Value;
@@ -78,7 +78,7 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
         .unwrap_or(ended);
     let mut report = analyse_points(&doc.sample, &points, calibration.as_ref(), &settings, now)
         .map_err(ReanalysisError::Analysis)?;
-    report.file = dir.to_path_buf();
+    report.file = dir.display().to_string();
     let again = to_json(&report);
     // The session's `flags` and `ok` are the session's (lost steps, a resume, …) over the
     // analysis's own: those must be among them.

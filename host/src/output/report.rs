@@ -6,12 +6,63 @@
 //! The page is a function of the folder's files and of nothing else (no clock, no host
 //! name): drawing it again from the same folder gives the same bytes, so a report written
 //! into a finished folder can be checked against its manifest like every other file.
+//!
+//! The page is a maud template: compiled with gonio, no template file to ship or find at
+//! run time, and every value put into it escaped unless it is marked as markup (the
+//! stylesheet, the plots' SVG, the sections drawn here). Text goes in as [`Text`], which
+//! escapes `'` too, as the report always has. Whitespace between the elements is written
+//! out (`"\n"`): the page's bytes are part of what `gonio verify` checks.
 use crate::analysis::flags::Flag;
+use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::Calibration;
-use crate::output::folder::{MANIFEST, REPORT, SessionDoc};
+use crate::output::folder::{Finding, MANIFEST, REPORT, SessionDoc};
+use maud::{DOCTYPE, Markup, PreEscaped, Render, html};
+use serde::Deserialize;
 use serde_json::Value;
-use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// Why the report of a folder cannot be drawn or written.
+#[derive(Debug, Error)]
+pub enum ReportError {
+    /// The folder is not a finished session or sheet folder, or one of its documents is
+    /// wrong.
+    #[error("{0}")]
+    Folder(Finding),
+    /// A sheet folder with no spot.
+    #[error("{}: a sheet without spots", .0.display())]
+    NoSpots(PathBuf),
+    /// A session's `result` is not a result document.
+    #[error("{}: result: {source}", path.display())]
+    Result {
+        /// The session folder.
+        path: PathBuf,
+        /// What is wrong with it.
+        source: serde_json::Error,
+    },
+    /// A file or folder could not be read.
+    #[error("{}: {source}", path.display())]
+    Read {
+        /// The file or folder.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// The report could not be written.
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+}
+
+impl From<Finding> for ReportError {
+    fn from(problem: Finding) -> ReportError {
+        ReportError::Folder(problem)
+    }
+}
 
 /// What a flag means, for a reader of the report.
 pub fn flag_meaning(flag: Flag) -> &'static str {
@@ -43,22 +94,6 @@ pub fn flag_meaning(flag: Flag) -> &'static str {
     }
 }
 
-/// HTML-escape text.
-fn esc(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    for c in text.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
-            c => out.push(c),
-        }
-    }
-    out
-}
-
 const STYLE: &str = r#"
 body { font-family: "DejaVu Sans", "Liberation Sans", Arial, sans-serif; margin: 2em auto; max-width: 60em; color: #111; line-height: 1.4; }
 h1 { font-size: 1.6em; margin-bottom: 0.2em; }
@@ -85,277 +120,380 @@ ol.decisions li { margin: 0.1em 0; }
   a { color: inherit; text-decoration: none; }
 }
 "#;
+/// Text for the page, escaped: `&`, `<`, `>` and `"` as maud escapes them, and `'` as
+/// `&#39;` (as the report has always written it: the same folder draws the same bytes).
+struct Text<'a>(&'a str);
 
-fn page(title: &str, body: &str) -> String {
-    format!(
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<meta name=\"generator\" content=\"gonio {}\">\n<title>{}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}</body>\n</html>\n",
-        env!("CARGO_PKG_VERSION"),
-        esc(title)
-    )
+impl Render for Text<'_> {
+    fn render_to(&self, out: &mut String) {
+        for c in self.0.chars() {
+            match c {
+                '&' => out.push_str("&amp;"),
+                '<' => out.push_str("&lt;"),
+                '>' => out.push_str("&gt;"),
+                '"' => out.push_str("&quot;"),
+                '\'' => out.push_str("&#39;"),
+                c => out.push(c),
+            }
+        }
+    }
 }
 
-fn number(v: &Value, digits: usize) -> String {
-    v.as_f64()
-        .map_or_else(|| "—".to_string(), |x| format!("{x:.digits$}"))
+fn page(title: &str, body: Markup) -> String {
+    html! {
+        (DOCTYPE) "\n"
+        html lang="en" {
+            "\n"
+            head {
+                "\n"
+                meta charset="utf-8"; "\n"
+                meta name="generator" content=(concat!("gonio ", env!("CARGO_PKG_VERSION"))); "\n"
+                title { (Text(title)) } "\n"
+                style { (PreEscaped(STYLE)) } "\n"
+            }
+            "\n"
+            body { "\n" (body) }
+            "\n"
+        }
+        "\n"
+    }
+    .into_string()
 }
 
-fn row(cells: &[String]) -> String {
-    format!(
-        "<tr>{}</tr>\n",
-        cells
-            .iter()
-            .map(|c| format!("<td>{c}</td>"))
-            .collect::<String>()
-    )
+/// `x` with `digits` decimals, `—` without a value.
+fn number(x: Option<f64>, digits: usize) -> String {
+    x.map_or_else(|| "—".to_string(), |x| format!("{x:.digits$}"))
+}
+
+/// A table row of a header cell and a data cell.
+fn field_row(label: &str, value: impl Render) -> Markup {
+    html! { tr { th { (label) } td { (value) } } "\n" }
+}
+
+/// A table row of data cells, each already markup.
+fn row(cells: &[Markup]) -> Markup {
+    html! { tr { @for cell in cells { td { (cell) } } } "\n" }
+}
+
+/// A heading of level 3 or 4 (the decisions of a spot are a level below a session's).
+fn heading(level: u8, content: Markup) -> Markup {
+    match level {
+        3 => html! { h3 { (content) } },
+        _ => html! { h4 { (content) } },
+    }
 }
 
 /// The case fields of a session (`gonio measure --case --operator --note`).
-fn case_section(case: Option<&crate::output::folder::CaseRecord>) -> String {
-    let field = |v: Option<&String>| {
-        v.map_or_else(
-            || "<span class=\"note\">not given</span>".to_string(),
-            |v| esc(v),
-        )
+fn case_section(case: Option<&crate::output::folder::CaseRecord>) -> Markup {
+    let field = |v: Option<&String>| match v {
+        Some(v) => html! { (Text(v)) },
+        None => html! { span class="note" { "not given" } },
     };
-    let mut s = String::from("<table>\n");
-    s += &format!(
-        "<tr><th>case</th><td>{}</td></tr>\n",
-        field(case.and_then(|c| c.case_id.as_ref()))
-    );
-    s += &format!(
-        "<tr><th>operator</th><td>{}</td></tr>\n",
-        field(case.and_then(|c| c.operator.as_ref()))
-    );
-    s += &format!(
-        "<tr><th>note</th><td>{}</td></tr>\n",
-        field(case.and_then(|c| c.note.as_ref()))
-    );
-    s + "</table>\n"
+    html! {
+        table {
+            "\n"
+            (field_row("case", field(case.and_then(|c| c.case_id.as_ref()))))
+            (field_row("operator", field(case.and_then(|c| c.operator.as_ref()))))
+            (field_row("note", field(case.and_then(|c| c.note.as_ref()))))
+        }
+        "\n"
+    }
+}
+
+/// What the report reads of a session's `result`: the analysis and what the session added.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default)]
+struct SpotResult {
+    /// The analysis.
+    #[serde(flatten)]
+    analysis: ResultDocument,
+    /// Geometries the result rests on.
+    geometries: Option<u64>,
+    /// Device time measuring, seconds.
+    device_seconds: Option<f64>,
+    /// Device time of homing and calibration, seconds.
+    setup_seconds: Option<f64>,
+}
+
+/// The `result` of the session `doc` of the folder `dir` (all absent when it has none).
+fn spot_result(dir: &Path, doc: &SessionDoc) -> Result<SpotResult, ReportError> {
+    doc.rest.get("result").map_or_else(
+        || Ok(SpotResult::default()),
+        |v| {
+            SpotResult::deserialize(v).map_err(|source| ReportError::Result {
+                path: dir.to_path_buf(),
+                source,
+            })
+        },
+    )
 }
 
 /// The result of one session (one spot): class, parameters, fit, budget, plots.
-fn result_section(dir: &Path, doc: &SessionDoc, heading: &str) -> Result<String, String> {
-    let result = doc.rest.get("result").cloned().unwrap_or(Value::Null);
-    let mut s = String::new();
-    let class = result["class"].as_str();
-    let confidence = result["class_confidence"].as_f64();
-    let _ = writeln!(s, "<h{heading}>Class</h{heading}>");
-    match (class, confidence) {
-        (Some(class), Some(c)) => {
-            let _ = writeln!(
-                s,
-                "<p><strong>{}</strong>, confidence {c:.2}: the share of the parameters' uncertainty region (their fitted covariance) that lies in this class of the paper's tree. 0.95 or more reads as settled; a fit flagged lack-of-fit is capped at 0.90. Nearest reference paper of Table 6: {} ({} combined standard uncertainties away).</p>",
-                esc(class),
-                esc(result["nearest_reference"].as_str().unwrap_or("?")),
-                number(&result["nearest_reference_distance"], 1)
-            );
+fn result_section(dir: &Path, doc: &SessionDoc) -> Result<Markup, ReportError> {
+    let result = spot_result(dir, doc)?;
+    Ok(html! {
+        (class_paragraph(&result.analysis))
+        (parameters_table(&result.analysis))
+        (sampling_table(&result))
+        (budget_table(&result.analysis))
+        (plots(dir)?)
+    })
+}
+
+/// The class with its confidence and nearest reference, or why it was not decided.
+fn class_paragraph(r: &ResultDocument) -> Markup {
+    html! {
+        h3 { "Class" } "\n"
+        @match (&r.class, r.class_confidence) {
+            (Some(class), Some(c)) => {
+                p {
+                    strong { (Text(class)) }
+                    ", confidence " (format!("{c:.2}"))
+                    ": the share of the parameters' uncertainty region (their fitted covariance) that lies in this class of the paper's tree. 0.95 or more reads as settled; a fit flagged lack-of-fit is capped at 0.90. Nearest reference paper of Table 6: "
+                    (Text(r.nearest_reference.as_deref().unwrap_or("?")))
+                    " (" (number(r.nearest_reference_distance, 1))
+                    " combined standard uncertainties away)."
+                }
+            }
+            _ => {
+                p {
+                    strong { "undecided" } ": "
+                    (Text(r.class_undecided.as_deref().unwrap_or("the readings did not decide the class")))
+                }
+            }
         }
-        _ => {
-            let _ = writeln!(
-                s,
-                "<p><strong>undecided</strong>: {}</p>",
-                esc(result["class_undecided"]
-                    .as_str()
-                    .unwrap_or("the readings did not decide the class"))
-            );
+        "\n"
+    }
+}
+
+/// σ, ρs, ρd and η with their 95 % intervals, and what the readings did not determine.
+fn parameters_table(r: &ResultDocument) -> Markup {
+    let rows = [
+        ("σ, lobe width (degrees)", "sigma_deg", r.sigma_deg, 3),
+        ("ρs, specular weight", "rho_s", r.rho_s, 4),
+        ("ρd, diffuse (Lambert) weight", "rho_d", r.rho_d, 4),
+        ("η, refractive index", "eta", r.eta, 3),
+    ];
+    let not_identified: Vec<String> = r
+        .not_identified
+        .iter()
+        .map(|u| serde_json::to_string(u).unwrap_or_default())
+        .collect();
+    html! {
+        h3 { "Parameters" } "\n"
+        table {
+            "\n"
+            tr {
+                th { "parameter" } th { "value" }
+                th { "95 % interval, lower" } th { "95 % interval, upper" }
+            }
+            "\n"
+            @for (label, key, value, digits) in rows {
+                @let ci = r.ci95.of(key).unwrap_or_default();
+                tr {
+                    td { (Text(label)) }
+                    td class="num" { (number(value, digits)) }
+                    @if r.model.iter().any(|n| n == key) {
+                        td class="num" { (number(ci[0], digits)) }
+                        td class="num" { (number(ci[1], digits)) }
+                    } @else {
+                        td class="num" { "fixed, not fitted" }
+                        td class="num" {}
+                    }
+                }
+                "\n"
+            }
+        }
+        "\n"
+        @if !not_identified.is_empty() {
+            p class="note" { "Not identified: " (Text(&not_identified.join("; "))) } "\n"
         }
     }
-    let _ = writeln!(
-        s,
-        "<h{heading}>Parameters</h{heading}>\n<table>\n<tr><th>parameter</th><th>value</th><th>95 % interval, lower</th><th>95 % interval, upper</th></tr>"
-    );
-    for (label, key, digits) in [
-        ("σ, lobe width (degrees)", "sigma_deg", 3),
-        ("ρs, specular weight", "rho_s", 4),
-        ("ρd, diffuse (Lambert) weight", "rho_d", 4),
-        ("η, refractive index", "eta", 3),
-    ] {
-        let ci = &result["ci95"][key];
-        let fitted = result["model"]
-            .as_array()
-            .is_none_or(|names| names.iter().any(|n| n.as_str() == Some(key)));
-        let (lower, upper) = if fitted {
-            (number(&ci[0], digits), number(&ci[1], digits))
-        } else {
-            ("fixed, not fitted".to_string(), String::new())
-        };
-        let _ = write!(
-            s,
-            "{}",
-            row(&[esc(label), number(&result[key], digits), lower, upper])
-                .replace("<td>", "<td class=\"num\">")
-                .replacen("<td class=\"num\">", "<td>", 1)
-        );
-    }
-    let _ = writeln!(s, "</table>");
-    if let Some(names) = result["not_identified"]
-        .as_array()
-        .filter(|a| !a.is_empty())
-    {
-        let _ = writeln!(
-            s,
-            "<p class=\"note\">Not identified: {}</p>",
-            esc(&names
-                .iter()
-                .map(Value::to_string)
-                .collect::<Vec<_>>()
-                .join("; "))
-        );
-    }
-    let _ = writeln!(
-        s,
-        "<h{heading}>Sampling and goodness of fit</h{heading}>\n<table>"
-    );
-    let sigma_ok = if result["sigma_ok"].as_bool() == Some(true) {
+}
+
+/// The σ_l check and the goodness of fit, with the geometries and the device time.
+fn sampling_table(result: &SpotResult) -> Markup {
+    let r = &result.analysis;
+    let sigma_ok = if r.sigma_ok {
         "yes"
     } else {
         "NO: the geometries were not fine enough for the fitted peak"
     };
-    let _ = writeln!(
-        s,
-        "<tr><th>σ &gt; σ_l</th><td>{sigma_ok} (σ_l = {}°, δ = {}°)</td></tr>",
-        number(&result["sigma_l_deg"], 3),
-        number(&result["delta_deg"], 3)
-    );
-    let _ = writeln!(
-        s,
-        "<tr><th>NMAE</th><td>{} % (mean absolute residual over the mean radiance factor)</td></tr>",
-        result["nmae"]
-            .as_f64()
-            .map_or("—".into(), |v| format!("{:.2}", 100.0 * v))
-    );
-    let _ = writeln!(
-        s,
-        "<tr><th>RMS residual</th><td>{} (radiance factor, dimensionless)</td></tr>",
-        number(&result["rms"], 5)
-    );
-    let chi2 = match (result["chi2"].as_f64(), result["gof_p"].as_f64()) {
-        (Some(c), Some(p)) => format!(
-            "χ² = {c:.1} on {} degrees of freedom, p = {p:.3}",
-            result["dof"]
-        ),
+    let chi2 = match (r.chi2, r.gof_p) {
+        (Some(c), Some(p)) => format!("χ² = {c:.1} on {} degrees of freedom, p = {p:.3}", r.dof),
         _ => "no χ² (the readings carry no uncertainty of their own)".into(),
     };
-    let _ = writeln!(s, "<tr><th>χ² test</th><td>{chi2}</td></tr>");
-    let structure = result["structure"]["p_value"]
-        .as_f64()
+    let structure = r
+        .structure
+        .as_ref()
+        .and_then(|s| s.p_value)
         .map_or("not run".to_string(), |p| format!("p = {p:.3}"));
-    let _ = writeln!(
-        s,
-        "<tr><th>residual structure test</th><td>{structure}</td></tr>"
-    );
-    let _ = writeln!(
-        s,
-        "<tr><th>lack of fit</th><td>{}</td></tr>",
-        if result["lack_of_fit"].as_bool() == Some(true) {
-            "YES: the model does not describe these readings"
-        } else {
-            "no"
+    let lack_of_fit = if r.lack_of_fit {
+        "YES: the model does not describe these readings"
+    } else {
+        "no"
+    };
+    let geometries = result
+        .geometries
+        .map_or_else(|| "null".to_string(), |g| g.to_string());
+    html! {
+        h3 { "Sampling and goodness of fit" } "\n"
+        table {
+            "\n"
+            (field_row("σ > σ_l", format!(
+                "{sigma_ok} (σ_l = {}°, δ = {}°)",
+                number(r.sigma_l_deg, 3),
+                number(r.delta_deg, 3)
+            )))
+            (field_row("NMAE", format!(
+                "{} % (mean absolute residual over the mean radiance factor)",
+                number(Some(100.0 * r.nmae).filter(|v| v.is_finite()), 2)
+            )))
+            (field_row("RMS residual", format!(
+                "{} (radiance factor, dimensionless)",
+                number(Some(r.rms).filter(|v| v.is_finite()), 5)
+            )))
+            (field_row("χ² test", chi2))
+            (field_row("residual structure test", structure))
+            (field_row("lack of fit", lack_of_fit))
+            (field_row("geometries, device time", format!(
+                "{geometries} geometries, {} s measuring (+{} s homing and calibration)",
+                number(result.device_seconds, 1),
+                number(result.setup_seconds, 1)
+            )))
         }
-    );
-    let _ = writeln!(
-        s,
-        "<tr><th>geometries, device time</th><td>{} geometries, {} s measuring (+{} s homing and calibration)</td></tr>",
-        result["geometries"],
-        number(&result["device_seconds"], 1),
-        number(&result["setup_seconds"], 1)
-    );
-    let _ = writeln!(s, "</table>");
-    if let Some(kinds) = result["budget"]["by_kind"]
-        .as_array()
-        .filter(|k| k.len() > 1)
-    {
-        let _ = writeln!(
-            s,
-            "<h{heading}>Uncertainty budget</h{heading}>\n<p class=\"note\">Each kind of error's share of the variance of σ, ρs and ρd.</p>\n<table>\n<tr><th>error</th><th>σ</th><th>ρs</th><th>ρd</th></tr>"
-        );
-        for k in kinds {
-            let share = |key: &str| {
-                k["share"][key]
-                    .as_f64()
-                    .map_or("—".to_string(), |v| format!("{:.1} %", 100.0 * v))
-            };
-            let _ = write!(
-                s,
-                "{}",
-                row(&[
-                    esc(k["kind"].as_str().unwrap_or("?")),
-                    share("sigma_deg"),
-                    share("rho_s"),
-                    share("rho_d")
-                ])
-            );
-        }
-        let _ = writeln!(s, "</table>");
+        "\n"
     }
-    // The plots the session drew, inline.
-    let mut plots: Vec<String> = crate::output::folder::entries(dir)
-        .map_err(|e| format!("{}: {e}", dir.display()))?
+}
+
+/// Each kind of error's share of the variance of σ, ρs and ρd (when there is more than
+/// the readings' noise).
+fn budget_table(r: &ResultDocument) -> Markup {
+    let kinds = Budget::deserialize(&r.budget)
+        .map(|b| b.by_kind)
+        .unwrap_or_default();
+    if kinds.len() <= 1 {
+        return html! {};
+    }
+    let share = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{:.1} %", 100.0 * v));
+    html! {
+        h3 { "Uncertainty budget" } "\n"
+        p class="note" { "Each kind of error's share of the variance of σ, ρs and ρd." } "\n"
+        table {
+            "\n"
+            tr { th { "error" } th { "σ" } th { "ρs" } th { "ρd" } } "\n"
+            @for k in &kinds {
+                (row(&[
+                    html! { (Text(k.kind.as_deref().unwrap_or("?"))) },
+                    html! { (share(k.share.sigma_deg)) },
+                    html! { (share(k.share.rho_s)) },
+                    html! { (share(k.share.rho_d)) },
+                ]))
+            }
+        }
+        "\n"
+    }
+}
+
+/// The part of the result's uncertainty budget the report shows.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default)]
+struct Budget {
+    /// Each kind's share of the variance.
+    by_kind: Vec<KindShare>,
+}
+
+/// One kind of error's share of the variance of σ, ρs and ρd.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default)]
+struct KindShare {
+    /// The kind.
+    kind: Option<String>,
+    /// Its shares.
+    share: Shares,
+}
+
+/// A share of the variance of σ, ρs and ρd (`null`: not determined).
+#[derive(Debug, Default, Deserialize)]
+#[serde(default)]
+struct Shares {
+    rho_d: Option<f64>,
+    rho_s: Option<f64>,
+    sigma_deg: Option<f64>,
+}
+
+/// The plots the session drew, inline.
+fn plots(dir: &Path) -> Result<Markup, ReportError> {
+    let read_error = |path: PathBuf| move |source| ReportError::Read { path, source };
+    let mut names: Vec<String> = crate::output::folder::entries(dir)
+        .map_err(read_error(dir.to_path_buf()))?
         .into_iter()
         .filter(|n| n.starts_with("fig") && n.ends_with(".svg"))
         .collect();
-    plots.sort();
-    if !plots.is_empty() {
-        let _ = writeln!(s, "<h{heading}>Plots</h{heading}>\n<div class=\"plots\">");
-        for name in plots {
-            let svg = std::fs::read_to_string(dir.join(&name))
-                .map_err(|e| format!("{}: {e}", dir.join(&name).display()))?;
-            // The SVG as plotters wrote it, without an XML declaration (not allowed inline).
-            let svg = svg.trim_start_matches(|c: char| c != '<').to_string();
-            let svg = if svg.starts_with("<?xml") {
-                svg.split_once("?>")
-                    .map_or(svg.clone(), |(_, rest)| rest.to_string())
-            } else {
-                svg
-            };
-            let _ = writeln!(
-                s,
-                "<figure>{}<figcaption>{}</figcaption></figure>",
-                svg.trim(),
-                esc(&name)
-            );
+    names.sort();
+    let mut figures = Vec::new();
+    for name in names {
+        let path = dir.join(&name);
+        let svg = std::fs::read_to_string(&path).map_err(read_error(path))?;
+        figures.push((inline_svg(&svg), name));
+    }
+    Ok(html! {
+        @if !figures.is_empty() {
+            h3 { "Plots" } "\n"
+            div class="plots" {
+                "\n"
+                @for (svg, name) in &figures {
+                    // The SVG as plotters wrote it: gonio's own markup.
+                    figure { (PreEscaped(svg)) figcaption { (Text(name)) } } "\n"
+                }
+            }
+            "\n"
         }
-        let _ = writeln!(s, "</div>");
-    }
-    Ok(s)
+    })
 }
 
-fn instrument_section(doc: &SessionDoc) -> String {
+/// The SVG as plotters wrote it, without an XML declaration (not allowed inline).
+fn inline_svg(svg: &str) -> String {
+    let svg = svg.trim_start_matches(|c: char| c != '<');
+    let svg = if svg.starts_with("<?xml") {
+        svg.split_once("?>").map_or(svg, |(_, rest)| rest)
+    } else {
+        svg
+    };
+    svg.trim().to_string()
+}
+
+fn instrument_section(doc: &SessionDoc) -> Markup {
     let i = &doc.instrument;
-    let mut s = String::from("<table>\n");
-    s += &format!(
-        "<tr><th>serial number</th><td>{}</td></tr>\n",
-        esc(&i.serial_number)
-    );
-    s += &format!("<tr><th>board</th><td>{}</td></tr>\n", esc(&i.board));
-    s += &format!(
-        "<tr><th>firmware</th><td>{}</td></tr>\n",
-        esc(&i.firmware_version)
-    );
-    if let Some(sim) = &i.simulated_sample {
-        s += &format!(
-            "<tr><th>simulated instrument</th><td>yes: its scene is the sample '{}' (not a real measurement)</td></tr>\n",
-            esc(sim)
-        );
+    html! {
+        table {
+            "\n"
+            (field_row("serial number", Text(&i.serial_number)))
+            (field_row("board", Text(&i.board)))
+            (field_row("firmware", Text(&i.firmware_version)))
+            @if let Some(sim) = &i.simulated_sample {
+                (field_row("simulated instrument", html! {
+                    "yes: its scene is the sample '" (Text(sim)) "' (not a real measurement)"
+                }))
+            }
+            (field_row("plan", html! {
+                "policy " (Text(&doc.plan.policy))
+                ", integration " (doc.plan.integration_ms)
+                " ms, detector acceptance " (format!("{}", doc.plan.acceptance_deg)) "°"
+            }))
+        }
+        "\n"
     }
-    s += &format!(
-        "<tr><th>plan</th><td>policy {}, integration {} ms, detector acceptance {}°</td></tr>\n",
-        esc(&doc.plan.policy),
-        doc.plan.integration_ms,
-        doc.plan.acceptance_deg
-    );
-    s + "</table>\n"
 }
 
-fn calibration_section(dir: &Path, doc: &SessionDoc) -> String {
+fn calibration_section(dir: &Path, doc: &SessionDoc) -> Markup {
     let c: Calibration = match crate::output::folder::read_calibration(dir) {
         Ok(Some(c)) => c,
-        Ok(None) => return "<p>No calibration file.</p>\n".to_string(),
+        Ok(None) => return html! { p { "No calibration file." } "\n" },
         Err(p) => {
-            return format!(
-                "<p class=\"note\">The calibration file cannot be read: {}</p>\n",
-                esc(&p.to_string())
-            );
+            return html! {
+                p class="note" { "The calibration file cannot be read: " (Text(&p.to_string())) } "\n"
+            };
         }
     };
     let taken = chrono::DateTime::from_timestamp(c.taken_unix_s as i64, 0)
@@ -375,131 +513,127 @@ fn calibration_section(dir: &Path, doc: &SessionDoc) -> String {
             format!("{:.1} h", minutes / 60.0)
         }
     });
-    let mut s = String::from("<table>\n");
-    s += &format!(
-        "<tr><th>taken</th><td>{taken} on {}</td></tr>\n",
-        esc(&c.instrument)
-    );
-    s += &format!("<tr><th>age when the session ended</th><td>{age}</td></tr>\n");
-    s += &format!(
-        "<tr><th>white tile</th><td>certified radiance factor {:.4}, standard uncertainty {:.2} %</td></tr>\n",
-        c.white_radiance_factor,
-        100.0 * c.white_relative_uncertainty
-    );
-    match &c.white_certificate {
-        Some(cert) => {
-            s += &format!(
-                "<tr><th>tile certificate</th><td>tile {}, certificate {}{}, issued {}{}: radiance factor {} ± {} (expanded, k = {}); file SHA-256 {}</td></tr>\n",
-                esc(&cert.tile),
-                esc(&cert.certificate),
-                cert.issued_by
-                    .as_ref()
-                    .map_or_else(String::new, |by| format!(" by {}", esc(by))),
-                esc(&cert.issued),
-                cert.valid_until
-                    .as_ref()
-                    .map_or_else(String::new, |u| format!(", valid until {}", esc(u))),
-                cert.radiance_factor,
-                cert.expanded_uncertainty,
-                cert.coverage_factor,
-                esc(cert.file_sha256.as_deref().unwrap_or("not recorded"))
-            );
+    html! {
+        table {
+            "\n"
+            (field_row("taken", html! { (taken) " on " (Text(&c.instrument)) }))
+            (field_row("age when the session ended", age))
+            (field_row("white tile", format!(
+                "certified radiance factor {:.4}, standard uncertainty {:.2} %",
+                c.white_radiance_factor,
+                100.0 * c.white_relative_uncertainty
+            )))
+            (field_row("tile certificate", certificate(&c)))
+            (field_row("white readings", format!(
+                "{} incidence angles; dark readings on {} ranges",
+                c.white.len(),
+                c.dark.len()
+            )))
         }
-        None => {
-            s += "<tr><th>tile certificate</th><td>none given: the tile's values were entered on the command line or are gonio's defaults (an assumption, not a certificate)</td></tr>\n"
-        }
+        "\n"
     }
-    s += &format!(
-        "<tr><th>white readings</th><td>{} incidence angles; dark readings on {} ranges</td></tr>\n",
-        c.white.len(),
-        c.dark.len()
-    );
-    s + "</table>\n"
 }
 
-fn decisions_section(doc: &SessionDoc) -> String {
-    let mut s = String::new();
-    for run in &doc.runs {
-        let _ = writeln!(
-            s,
-            "<h3>Run {}: {} to {} ({:?}{})</h3>\n<ol class=\"decisions\">",
-            run.run,
-            esc(&run.started),
-            esc(run.ended.as_deref().unwrap_or("not closed")),
-            run.outcome,
-            run.why
-                .as_deref()
-                .map_or(String::new(), |w| format!(": {}", esc(w)))
-        );
-        for d in &run.decisions {
-            let _ = writeln!(s, "<li>{}</li>", esc(d));
-        }
-        let _ = writeln!(s, "</ol>");
+/// The white tile's certificate, or that there was none.
+fn certificate(c: &Calibration) -> Markup {
+    let Some(cert) = &c.white_certificate else {
+        return html! {
+            "none given: the tile's values were entered on the command line or are gonio's defaults (an assumption, not a certificate)"
+        };
+    };
+    html! {
+        "tile " (Text(&cert.tile)) ", certificate " (Text(&cert.certificate))
+        @if let Some(by) = &cert.issued_by { " by " (Text(by)) }
+        ", issued " (Text(&cert.issued))
+        @if let Some(until) = &cert.valid_until { ", valid until " (Text(until)) }
+        ": radiance factor " (format!("{}", cert.radiance_factor))
+        " ± " (format!("{}", cert.expanded_uncertainty))
+        " (expanded, k = " (format!("{}", cert.coverage_factor))
+        "); file SHA-256 " (Text(cert.file_sha256.as_deref().unwrap_or("not recorded")))
     }
-    s
 }
 
-fn flags_section(flags: &[Flag]) -> String {
+/// Every run of the session with its decisions, under headings of `level`.
+fn decisions_section(doc: &SessionDoc, level: u8) -> Markup {
+    html! {
+        @for run in &doc.runs {
+            (heading(level, html! {
+                "Run " (run.run) ": " (Text(&run.started))
+                " to " (Text(run.ended.as_deref().unwrap_or("not closed")))
+                " (" (format!("{:?}", run.outcome))
+                @if let Some(why) = &run.why { ": " (Text(why)) }
+                ")"
+            }))
+            "\n"
+            (decision_list(&run.decisions))
+        }
+    }
+}
+
+/// Decisions in order.
+fn decision_list(decisions: &[String]) -> Markup {
+    html! {
+        ol class="decisions" {
+            "\n"
+            @for d in decisions { li { (Text(d)) } "\n" }
+        }
+        "\n"
+    }
+}
+
+fn flags_section(flags: &[Flag]) -> Markup {
     if flags.is_empty() {
-        return "<p>None.</p>\n".to_string();
+        return html! { p { "None." } "\n" };
     }
-    let mut s = String::from("<ul>\n");
-    for f in flags {
-        let _ = writeln!(
-            s,
-            "<li><code>{}</code>: {}</li>",
-            f.name(),
-            esc(flag_meaning(*f))
-        );
+    html! {
+        ul {
+            "\n"
+            @for f in flags {
+                li { code { (f.name()) } ": " (Text(flag_meaning(*f))) } "\n"
+            }
+        }
+        "\n"
     }
-    s + "</ul>\n"
 }
 
 /// The files of the folder with their SHA-256, as its manifest lists them.
-fn files_section(dir: &Path) -> String {
+fn files_section(dir: &Path) -> Markup {
     let Ok(text) = std::fs::read_to_string(dir.join(MANIFEST)) else {
-        return format!("<p>No {MANIFEST}: the folder is not finished.</p>\n");
+        return html! { p { "No " (MANIFEST) ": the folder is not finished." } "\n" };
     };
-    let mut s = format!(
-        "<p class=\"note\">As {MANIFEST} lists them (<code>gonio verify</code> checks them, and that this report is the one they give: the report is drawn from them, so it cannot list itself).</p>\n<table>\n<tr><th>file</th><th>SHA-256</th></tr>\n"
-    );
-    for line in text.lines() {
-        if let Some((hash, name)) = line.split_once("  ") {
-            let _ = writeln!(
-                s,
-                "<tr><td>{}</td><td class=\"hash\">{}</td></tr>",
-                esc(name),
-                esc(hash)
-            );
+    html! {
+        p class="note" {
+            "As " (MANIFEST) " lists them (" code { "gonio verify" }
+            " checks them, and that this report is the one they give: the report is drawn from them, so it cannot list itself)."
         }
+        "\n"
+        table {
+            "\n"
+            tr { th { "file" } th { "SHA-256" } } "\n"
+            @for (hash, name) in text.lines().filter_map(|line| line.split_once("  ")) {
+                tr { td { (Text(name)) } td class="hash" { (Text(hash)) } } "\n"
+            }
+        }
+        "\n"
     }
-    s + "</table>\n"
 }
 
-fn verdict(ok: bool, flags: &[Flag]) -> String {
-    if ok {
-        let noted = if flags.is_empty() {
-            String::new()
-        } else {
-            format!(
-                " (noted: {})",
-                flags
-                    .iter()
-                    .map(|f| f.name())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        };
-        format!("<p class=\"verdict ok\">Result: clean{noted}</p>\n")
-    } else {
-        format!(
-            "<p class=\"verdict flagged\">Result NOT CLEAN — flags: {}</p>\n",
-            flags
-                .iter()
-                .map(|f| f.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
+fn verdict(ok: bool, flags: &[Flag]) -> Markup {
+    let names = flags
+        .iter()
+        .map(|f| f.name())
+        .collect::<Vec<_>>()
+        .join(", ");
+    html! {
+        @if ok {
+            p class="verdict ok" {
+                "Result: clean"
+                @if !flags.is_empty() { " (noted: " (names) ")" }
+            }
+        } @else {
+            p class="verdict flagged" { "Result NOT CLEAN — flags: " (names) }
+        }
+        "\n"
     }
 }
 
@@ -512,171 +646,188 @@ fn folder_name(dir: &Path) -> String {
     )
 }
 
-fn session_doc(dir: &Path) -> Result<SessionDoc, String> {
-    crate::output::folder::require_finished(dir).map_err(|p| p.to_string())
+fn session_doc(dir: &Path) -> Result<SessionDoc, ReportError> {
+    Ok(crate::output::folder::require_finished(dir)?)
 }
 
-fn flags_of(doc: &SessionDoc) -> Vec<Flag> {
-    doc.rest
+/// The session's `ok` and `flags` (not clean and none when absent or unreadable).
+fn outcome_of(doc: &SessionDoc) -> (bool, Vec<Flag>) {
+    let ok = doc.rest.get("ok").and_then(Value::as_bool).unwrap_or(false);
+    let flags = doc
+        .rest
         .get("flags")
-        .cloned()
-        .and_then(|f| serde_json::from_value(f).ok())
-        .unwrap_or_default()
+        .and_then(|f| Vec::<Flag>::deserialize(f).ok())
+        .unwrap_or_default();
+    (ok, flags)
 }
 
 /// The report of the finished session folder `dir`.
-pub fn session_html(dir: &Path) -> Result<String, String> {
+pub fn session_html(dir: &Path) -> Result<String, ReportError> {
     let doc = session_doc(dir)?;
-    let flags = flags_of(&doc);
-    let ok = doc.rest.get("ok").and_then(Value::as_bool).unwrap_or(false);
-    let mut b = format!(
-        "<h1>Sample {}</h1>\n<p class=\"note\">gonio session report of the folder {}</p>\n",
-        esc(&doc.sample),
-        esc(&folder_name(dir))
-    );
-    b += &verdict(ok, &flags);
-    b += "<h2>Case</h2>\n";
-    b += &case_section(doc.case.as_ref());
-    b += "<h2>Instrument</h2>\n";
-    b += &instrument_section(&doc);
-    b += "<h2>Calibration</h2>\n";
-    b += &calibration_section(dir, &doc);
-    b += "<h2>Result</h2>\n";
-    b += &result_section(dir, &doc, "3")?;
-    b += "<h2>Flags</h2>\n";
-    b += &flags_section(&flags);
-    b += "<h2>Decisions</h2>\n";
-    b += &decisions_section(&doc);
-    b += "<h2>Files</h2>\n";
-    b += &files_section(dir);
-    b += &glossary();
-    Ok(page(&format!("gonio report: {}", doc.sample), &b))
+    let (ok, flags) = outcome_of(&doc);
+    let body = html! {
+        h1 { "Sample " (Text(&doc.sample)) } "\n"
+        p class="note" { "gonio session report of the folder " (Text(&folder_name(dir))) } "\n"
+        (verdict(ok, &flags))
+        h2 { "Case" } "\n"
+        (case_section(doc.case.as_ref()))
+        h2 { "Instrument" } "\n"
+        (instrument_section(&doc))
+        h2 { "Calibration" } "\n"
+        (calibration_section(dir, &doc))
+        h2 { "Result" } "\n"
+        (result_section(dir, &doc)?)
+        h2 { "Flags" } "\n"
+        (flags_section(&flags))
+        h2 { "Decisions" } "\n"
+        (decisions_section(&doc, 3))
+        h2 { "Files" } "\n"
+        (files_section(dir))
+        (glossary())
+    };
+    Ok(page(&format!("gonio report: {}", doc.sample), body))
 }
 
 /// The report of the finished sheet folder `dir` (several spots).
-pub fn sheet_html(dir: &Path) -> Result<String, String> {
-    let read = crate::output::sheet_folder::read_sheet(dir).map_err(|p| p.to_string())?;
+pub fn sheet_html(dir: &Path) -> Result<String, ReportError> {
+    let read = crate::output::sheet_folder::read_sheet(dir)?;
     let summary = &read.summary;
     let first = read
         .spots
         .first()
-        .ok_or_else(|| format!("{}: a sheet without spots", dir.display()))?;
+        .ok_or_else(|| ReportError::NoSpots(dir.to_path_buf()))?;
     let first_doc = session_doc(&first.dir)?;
-    let mut b = format!(
-        "<h1>Sample {}: a sheet of {} spots</h1>\n<p class=\"note\">gonio sheet report of the folder {}</p>\n",
-        esc(&read.doc.sample),
-        read.spots.len(),
-        esc(&folder_name(dir))
-    );
-    b += &verdict(summary.ok(), &summary.flags);
-    b += "<h2>Case</h2>\n";
-    b += &case_section(read.doc.case.as_ref().or(first_doc.case.as_ref()));
-    b += "<h2>Instrument</h2>\n";
-    b += &instrument_section(&first_doc);
-    b += "<h2>Calibration (shared by every spot)</h2>\n";
-    b += &calibration_section(&first.dir, &first_doc);
-    b += "<h2>The sheet</h2>\n<table>\n<tr><th>parameter</th><th>geometric mean of the accepted spots</th><th>spot-to-spot relative sd</th></tr>\n";
-    for (i, label) in ["σ (degrees)", "ρs", "ρd"].iter().enumerate() {
-        let sd = summary
-            .within_relative_sd
-            .map_or("unknown (one spot)".to_string(), |sd| {
-                format!("{:.1} %", 100.0 * sd[i])
-            });
-        b += &row(&[
-            label.to_string(),
-            summary.mean[i].map_or("—".into(), |v| format!("{v:.4}")),
-            sd,
-        ]);
-    }
-    b += "</table>\n";
-    b += &format!(
-        "<p>{} of {} spots planned accepted, {} measured.</p>\n",
-        summary.accepted,
-        read.doc.spots_planned,
-        read.spots.len()
-    );
-    b += "<table>\n<tr><th>spot</th><th>class</th><th>σ (deg)</th><th>ρs</th><th>ρd</th><th>flags</th><th>verdict</th></tr>\n";
-    for s in &read.spots {
-        let verdict = match summary
-            .verdicts
-            .iter()
-            .find(|j| j.number == s.result.number)
-            .map(|j| &j.verdict)
-        {
-            Some(crate::analysis::spots::SpotVerdict::Accepted) => "accepted".to_string(),
-            Some(crate::analysis::spots::SpotVerdict::Excluded { reason }) => {
-                format!("excluded: {}", esc(reason))
-            }
-            None => "?".to_string(),
-        };
-        let v = |i: usize, d: usize| {
-            s.session.values[i].map_or("—".to_string(), |x| format!("{x:.d$}"))
-        };
-        let flags = if s.result.flags.is_empty() {
-            "none".to_string()
-        } else {
-            s.result
-                .flags
-                .iter()
-                .map(|f| f.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        b += &row(&[
-            format!(
-                "<a href=\"#spot-{}\">{}</a>",
-                s.result.number, s.result.number
-            ),
-            esc(s.session.class.as_deref().unwrap_or("undecided")),
-            v(0, 3),
-            v(1, 4),
-            v(2, 4),
-            flags,
-            verdict,
-        ]);
-    }
-    b += "</table>\n";
-    for note in &summary.notes {
-        b += &format!("<p class=\"note\">{}</p>\n", esc(note));
-    }
-    b += "<h2>Flags</h2>\n";
-    b += &flags_section(&summary.flags);
-    b += "<h2>Decisions of the sheet</h2>\n<ol class=\"decisions\">\n";
-    for d in &read.doc.decisions {
-        b += &format!("<li>{}</li>\n", esc(d));
-    }
-    b += "</ol>\n";
-    for s in &read.spots {
-        let doc = session_doc(&s.dir)?;
-        b += &format!(
-            "<h2 id=\"spot-{}\">Spot {}</h2>\n",
-            s.result.number, s.result.number
-        );
-        b += &verdict(
-            doc.rest.get("ok").and_then(Value::as_bool).unwrap_or(false),
-            &flags_of(&doc),
-        );
-        b += &result_section(&s.dir, &doc, "3")?;
-        b += "<h3>Decisions</h3>\n";
-        b += &decisions_section(&doc)
-            .replace("<h3>", "<h4>")
-            .replace("</h3>", "</h4>");
-    }
-    b += "<h2>Files</h2>\n";
-    b += &files_section(dir);
-    b += &glossary();
+    let body = html! {
+        h1 { "Sample " (Text(&read.doc.sample)) ": a sheet of " (read.spots.len()) " spots" } "\n"
+        p class="note" { "gonio sheet report of the folder " (Text(&folder_name(dir))) } "\n"
+        (verdict(summary.ok(), &summary.flags))
+        h2 { "Case" } "\n"
+        (case_section(read.doc.case.as_ref().or(first_doc.case.as_ref())))
+        h2 { "Instrument" } "\n"
+        (instrument_section(&first_doc))
+        h2 { "Calibration (shared by every spot)" } "\n"
+        (calibration_section(&first.dir, &first_doc))
+        (sheet_section(&read))
+        h2 { "Flags" } "\n"
+        (flags_section(&summary.flags))
+        h2 { "Decisions of the sheet" } "\n"
+        (decision_list(&read.doc.decisions))
+        @for s in &read.spots {
+            (spot_section(s)?)
+        }
+        h2 { "Files" } "\n"
+        (files_section(dir))
+        (glossary())
+    };
     Ok(page(
         &format!(
             "gonio report: {} ({} spots)",
             read.doc.sample,
             read.spots.len()
         ),
-        &b,
+        body,
     ))
 }
 
+/// The sheet's mean and spread, and each spot's values and verdict.
+fn sheet_section(read: &crate::output::sheet_folder::ReadSheet) -> Markup {
+    let summary = &read.summary;
+    html! {
+        h2 { "The sheet" } "\n"
+        table {
+            "\n"
+            tr {
+                th { "parameter" } th { "geometric mean of the accepted spots" }
+                th { "spot-to-spot relative sd" }
+            }
+            "\n"
+            @for (i, label) in ["σ (degrees)", "ρs", "ρd"].iter().enumerate() {
+                (row(&[
+                    html! { (label) },
+                    html! { (number(summary.mean[i], 4)) },
+                    html! {
+                        (summary.within_relative_sd.map_or("unknown (one spot)".to_string(), |sd| {
+                            format!("{:.1} %", 100.0 * sd[i])
+                        }))
+                    },
+                ]))
+            }
+        }
+        "\n"
+        p {
+            (summary.accepted) " of " (read.doc.spots_planned) " spots planned accepted, "
+            (read.spots.len()) " measured."
+        }
+        "\n"
+        table {
+            "\n"
+            tr {
+                th { "spot" } th { "class" } th { "σ (deg)" } th { "ρs" } th { "ρd" }
+                th { "flags" } th { "verdict" }
+            }
+            "\n"
+            @for s in &read.spots { (spot_row(summary, s)) }
+        }
+        "\n"
+        @for note in &summary.notes { p class="note" { (Text(note)) } "\n" }
+    }
+}
+
+/// A spot's line of the sheet's table.
+fn spot_row(
+    summary: &crate::analysis::spots::SheetSummary,
+    s: &crate::output::sheet_folder::ReadSpot,
+) -> Markup {
+    use crate::analysis::spots::SpotVerdict;
+    let number = s.result.number;
+    let verdict = match summary
+        .verdicts
+        .iter()
+        .find(|j| j.number == number)
+        .map(|j| &j.verdict)
+    {
+        Some(SpotVerdict::Accepted) => html! { "accepted" },
+        Some(SpotVerdict::Excluded { reason }) => html! { "excluded: " (Text(reason)) },
+        None => html! { "?" },
+    };
+    let v = |i: usize, digits: usize| html! { (self::number(s.session.values[i], digits)) };
+    let flags = if s.result.flags.is_empty() {
+        "none".to_string()
+    } else {
+        s.result
+            .flags
+            .iter()
+            .map(|f| f.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    row(&[
+        html! { a href=(format!("#spot-{number}")) { (number) } },
+        html! { (Text(s.session.class.as_deref().unwrap_or("undecided"))) },
+        v(0, 3),
+        v(1, 4),
+        v(2, 4),
+        html! { (flags) },
+        verdict,
+    ])
+}
+
+/// A spot of a sheet: its verdict, result and decisions.
+fn spot_section(s: &crate::output::sheet_folder::ReadSpot) -> Result<Markup, ReportError> {
+    let doc = session_doc(&s.dir)?;
+    let (ok, flags) = outcome_of(&doc);
+    let number = s.result.number;
+    Ok(html! {
+        h2 id=(format!("spot-{number}")) { "Spot " (number) } "\n"
+        (verdict(ok, &flags))
+        (result_section(&s.dir, &doc)?)
+        h3 { "Decisions" } "\n"
+        (decisions_section(&doc, 4))
+    })
+}
+
 /// The report of a finished session or sheet folder.
-pub fn html(dir: &Path) -> Result<String, String> {
+pub fn html(dir: &Path) -> Result<String, ReportError> {
     if crate::output::folder::is_sheet_folder(dir) {
         sheet_html(dir)
     } else {
@@ -684,7 +835,7 @@ pub fn html(dir: &Path) -> Result<String, String> {
     }
 }
 
-fn glossary() -> String {
+fn glossary() -> Markup {
     let terms = [
         (
             "TSL model",
@@ -718,26 +869,66 @@ fn glossary() -> String {
         ),
         ("device s", "seconds of the instrument's own clock"),
     ];
-    let mut s = String::from("<h2>Glossary</h2>\n<dl>\n");
-    for (term, meaning) in terms {
-        let _ = writeln!(
-            s,
-            "<dt><strong>{}</strong></dt><dd>{}</dd>",
-            esc(term),
-            esc(meaning)
-        );
+    html! {
+        h2 { "Glossary" } "\n"
+        dl {
+            "\n"
+            @for (term, meaning) in terms {
+                dt { strong { (Text(term)) } } dd { (Text(meaning)) } "\n"
+            }
+        }
+        "\n"
     }
-    s + "</dl>\n"
 }
 
 /// Draw the report of the finished folder `dir` into `dir/report.html` (atomically: a
 /// temporary file in the folder, renamed into place). Returns its path.
-pub fn write_into(dir: &Path) -> Result<std::path::PathBuf, String> {
+pub fn write_into(dir: &Path) -> Result<PathBuf, ReportError> {
     let html = html(dir)?;
     let path = dir.join(REPORT);
     let temp = dir.join(crate::output::folder::temp_name(REPORT));
-    std::fs::write(&temp, html.as_bytes())
-        .map_err(|e| format!("cannot write {}: {e}", temp.display()))?;
-    std::fs::rename(&temp, &path).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    std::fs::write(&temp, html.as_bytes()).map_err(|source| ReportError::Write {
+        path: temp.clone(),
+        source,
+    })?;
+    std::fs::rename(&temp, &path).map_err(|source| ReportError::Write {
+        path: path.clone(),
+        source,
+    })?;
     Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_is_escaped_as_the_report_always_has() {
+        let text = html! { (Text("<b>O'Brien & \"co\"</b>")) }.into_string();
+        assert_eq!(text, "&lt;b&gt;O&#39;Brien &amp; &quot;co&quot;&lt;/b&gt;");
+    }
+
+    #[test]
+    fn the_page_is_laid_out_one_element_a_line() {
+        let page = page("a 'title'", html! { p { "x" } "\n" });
+        let head = format!(
+            "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<meta name=\"generator\" content=\"gonio {}\">\n<title>a &#39;title&#39;</title>\n<style>\nbody {{",
+            env!("CARGO_PKG_VERSION")
+        );
+        assert!(page.starts_with(&head), "{page}");
+        assert!(page.ends_with("}\n</style>\n</head>\n<body>\n<p>x</p>\n</body>\n</html>\n"));
+    }
+
+    #[test]
+    fn rows_are_one_a_line() {
+        let cells = [html! { "a" }, html! { (Text("<")) }];
+        assert_eq!(
+            row(&cells).into_string(),
+            "<tr><td>a</td><td>&lt;</td></tr>\n"
+        );
+        assert_eq!(
+            field_row("σ > σ_l", "yes").into_string(),
+            "<tr><th>σ &gt; σ_l</th><td>yes</td></tr>\n"
+        );
+    }
 }

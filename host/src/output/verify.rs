@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 /// Draws the report of a finished folder (session or sheet) for the check that its
 /// `report.html` is the one its files give.
-pub type DrawReport = fn(&Path) -> Result<String, String>;
+pub type DrawReport<E> = fn(&Path) -> Result<String, E>;
 
 /// A folder that passed every check.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -41,7 +41,10 @@ pub struct Verified {
 /// a line is known. In order: the damage reading finds, the status, the manifest, the
 /// report (when nothing else is wrong so far), cut lines, `readings.csv`, and what a
 /// finished `session.json` must hold.
-pub fn verify(dir: &Path, draw: DrawReport) -> Result<Verified, Vec<Finding>> {
+pub fn verify<E: std::fmt::Display>(
+    dir: &Path,
+    draw: DrawReport<E>,
+) -> Result<Verified, Vec<Finding>> {
     let inspection = folder::inspect(dir).map_err(|p| vec![p])?;
     let Some(doc) = &inspection.session else {
         return Err(vec![at(
@@ -258,7 +261,10 @@ pub struct VerifiedSheet {
 
 /// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
 /// checks a session, and the recorded result against the one its spots give.
-pub fn verify_sheet(dir: &Path, draw: DrawReport) -> Result<VerifiedSheet, Vec<Finding>> {
+pub fn verify_sheet<E: std::fmt::Display>(
+    dir: &Path,
+    draw: DrawReport<E>,
+) -> Result<VerifiedSheet, Vec<Finding>> {
     let doc = read_doc(dir).map_err(|p| vec![p])?;
     let mut problems = Vec::new();
     let manifest = dir.join(MANIFEST);
@@ -311,7 +317,7 @@ pub fn verify_sheet(dir: &Path, draw: DrawReport) -> Result<VerifiedSheet, Vec<F
 }
 
 /// Whether the folder's `report.html`, if it has one, is the report its files give.
-pub fn check_report(dir: &Path, draw: DrawReport) -> Option<Finding> {
+pub fn check_report<E: std::fmt::Display>(dir: &Path, draw: DrawReport<E>) -> Option<Finding> {
     let path = dir.join(REPORT);
     let recorded = std::fs::read(&path).ok()?;
     let problem = |message: String| Finding {

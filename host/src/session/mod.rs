@@ -39,11 +39,10 @@ pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
 use crate::analysis::fit::{FitOptions, Observation};
 use crate::analysis::flags::Flag;
-use crate::analysis::report::{Report, analyse_with_shared, to_json};
+use crate::analysis::result::{Readings, Report, analyse_with_shared, to_json};
 use crate::analysis::sweep_design;
 use crate::instrument::calibration::{Calibration, CalibrationError, Tile, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
-use crate::output::dataset::DataSet;
 use adaptive::AdaptiveTargets;
 use order::Motion;
 use protocol::schedules::{strategy1, strategy2};
@@ -1372,10 +1371,12 @@ pub fn analyse_points(
         None => Vec::new(),
     };
     // Lines of readings.csv: a header, then one per reading.
-    let set = DataSet {
-        sample: sample.to_string(),
-        observations,
-        lines: indices.iter().map(|k| k + 2).collect(),
+    let lines: Vec<usize> = indices.iter().map(|k| k + 2).collect();
+    let readings = Readings {
+        source: "readings.csv",
+        sample,
+        observations: &observations,
+        lines: &lines,
     };
     let options = FitOptions {
         acceptance_deg: Some(settings.acceptance_deg),
@@ -1383,18 +1384,12 @@ pub fn analyse_points(
         noise_scale_log_variance,
         ..FitOptions::default()
     };
-    analyse_with_shared(
-        std::path::Path::new("readings.csv"),
-        &set,
-        &shared,
-        &options,
-        None,
-    )
+    analyse_with_shared(&readings, &shared, &options, None).map_err(|e| e.to_string())
 }
 
 /// ", σ ≤ σ_l = …°" of a report whose σ fails the check (the value, so a reader sees how
 /// far the sampling is from resolving the peak).
-fn sigma_l_text(report: &crate::analysis::report::Report) -> String {
+fn sigma_l_text(report: &crate::analysis::result::Report) -> String {
     match report.check {
         Some(check) => format!(
             ", σ ≤ σ_l = {:.3}° (δ = {:.2}°)",

@@ -162,7 +162,7 @@ impl<T: Transport> Session<'_, T> {
     pub(super) fn refine_by_sweeps(
         &mut self,
         targets: SweepTargets,
-        report: &mut crate::analysis::report::Report,
+        report: &mut crate::analysis::result::Report,
         fits: &mut Vec<super::FitStep>,
         refinements: &mut Vec<super::Refinement>,
     ) -> Result<(), SessionError> {
@@ -318,7 +318,7 @@ impl<T: Transport> Session<'_, T> {
         reason: String,
         lack_of_fit: bool,
         plans: &[SweepPlan],
-        report: &mut crate::analysis::report::Report,
+        report: &mut crate::analysis::result::Report,
         fits: &mut Vec<super::FitStep>,
         refinements: &mut Vec<super::Refinement>,
     ) -> Result<(), SessionError> {
@@ -337,7 +337,7 @@ impl<T: Transport> Session<'_, T> {
         *report = self.analyse()?;
         fits.push(super::FitStep {
             after: name.to_string(),
-            report: crate::analysis::report::to_json(report),
+            report: crate::analysis::result::to_json(report),
         });
         Ok(())
     }
