@@ -2,6 +2,7 @@
 //! the session folder (its files, the one writer of them, its manifest and its check), the
 //! folder of a sheet of several spots, and the stock library.
 pub mod catalogue;
+pub mod chromium;
 pub mod dataset;
 pub mod export;
 pub mod folder;

@@ -21,6 +21,7 @@
 
 pub mod adaptive;
 pub mod gains;
+pub mod measure;
 pub mod operator;
 pub mod order;
 mod prompt;
