@@ -1,6 +1,6 @@
 //! A sheet of several spots: one session per spot in `DIR/spot-K`
 //! ([`crate::output::sheet`]), the first spot's calibration for all, which spots count
-//! decided by [`crate::session::sheet`].
+//! decided by [`crate::session::multi_spot`].
 use super::spot::run_session;
 use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command};
 use crate::analysis::sheet::SpotResult;
@@ -34,7 +34,7 @@ pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Mea
             dir.join(crate::output::sheet::SHEET).display()
         )
     })?;
-    let plan = crate::session::sheet::SheetPlan {
+    let plan = crate::session::multi_spot::SheetPlan {
         spots: folder.doc.spots_planned,
         replacements: folder.doc.replacements,
     };
@@ -52,7 +52,7 @@ pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Mea
         None
     };
     let decisions = std::cell::RefCell::new(Vec::<String>::new());
-    let measured = crate::session::sheet::measure_sheet(
+    let measured = crate::session::multi_spot::measure_sheet(
         plan,
         done,
         |number, of| -> Result<SpotResult, SpotStop> {
