@@ -103,18 +103,7 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
             }
         );
     }
-    if outcome.ok() {
-        println!(
-            "  result: ok{}",
-            if outcome.flags.is_empty() {
-                String::new()
-            } else {
-                format!(" (noted: {})", flag_names(&outcome.flags))
-            }
-        );
-    } else {
-        println!("  result: NOT CLEAN, flags: {}", flag_names(&outcome.flags));
-    }
+    print_result(outcome.ok(), &outcome.flags);
     println!(
         "  files: {} (gonio verify {} checks them; report.html is the report to read, its glossary and the README's explain the terms)",
         dir.display(),
@@ -213,23 +202,28 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet::ReadSheet) {
             result.device_seconds, result.setup_seconds
         );
     }
-    if summary.ok() {
-        println!(
-            "  result: ok{}",
-            if summary.flags.is_empty() {
-                String::new()
-            } else {
-                format!(" (noted: {})", flag_names(&summary.flags))
-            }
-        );
-    } else {
-        println!("  result: NOT CLEAN, flags: {}", flag_names(&summary.flags));
-    }
+    print_result(summary.ok(), &summary.flags);
     println!(
         "  files: {} (gonio verify {} checks them)",
         dir.display(),
         dir.display()
     );
+}
+
+/// "result: ok" (with the informational flags noted) or "result: NOT CLEAN" with the flags.
+fn print_result(ok: bool, flags: &[host::analysis::flags::Flag]) {
+    if ok {
+        println!(
+            "  result: ok{}",
+            if flags.is_empty() {
+                String::new()
+            } else {
+                format!(" (noted: {})", flag_names(flags))
+            }
+        );
+    } else {
+        println!("  result: NOT CLEAN, flags: {}", flag_names(flags));
+    }
 }
 
 fn flag_names(flags: &[host::analysis::flags::Flag]) -> String {

@@ -295,3 +295,13 @@ fn draw_report(dir: &Path) {
         );
     }
 }
+
+/// The status a folder records for a session that stopped with `error`.
+fn status_of(error: &SessionError) -> crate::output::folder::Status {
+    use crate::output::folder::Status;
+    if matches!(error, SessionError::Interrupted) {
+        Status::Interrupted
+    } else {
+        Status::Failed
+    }
+}

@@ -2,7 +2,7 @@
 //! made or resumed, the session run, the instrument left safe, the result written.
 use super::plan::{external_calibration, plan_of, plan_record};
 use super::write::write_session;
-use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command};
+use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command, status_of};
 use crate::instrument::link::Transport;
 use crate::output::folder::Status;
 use crate::output::record::{Existing, FileRecorder, Identity};
@@ -183,13 +183,8 @@ fn stopped<T: Transport>(
     cx.client.set_interrupt(None);
     let _ = cx.client.request(protocol::Command::Abort);
     let _ = cx.client.request(protocol::Command::SetLamp { on: false });
-    let status = if matches!(error, SessionError::Interrupted) {
-        Status::Interrupted
-    } else {
-        Status::Failed
-    };
     let record_error = recorder
-        .stop(status, &error.to_string())
+        .stop(status_of(&error), &error.to_string())
         .err()
         .map(|e| e.to_string());
     Measured::Stopped {

@@ -2,7 +2,7 @@
 //! ([`crate::output::sheet`]), the first spot's calibration for all, which spots count
 //! decided by [`crate::session::multi_spot`].
 use super::spot::run_session;
-use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command};
+use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command, status_of};
 use crate::analysis::sheet::SpotResult;
 use crate::instrument::calibration::Calibration;
 use crate::instrument::link::Transport;
@@ -204,13 +204,8 @@ fn stopped(
     let dir = folder.dir().to_path_buf();
     match stop {
         SpotStop::Stopped(error, record_error) => {
-            let status = if matches!(error, SessionError::Interrupted) {
-                Status::Interrupted
-            } else {
-                Status::Failed
-            };
             let sheet_error = folder
-                .stop(status, &error.to_string())
+                .stop(status_of(&error), &error.to_string())
                 .err()
                 .map(|e| e.to_string());
             Ok(Measured::Stopped {
