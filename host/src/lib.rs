@@ -7,10 +7,10 @@
 //!   visiting order;
 //! - [`study`]: campaigns over simulated sessions (the speed–accuracy trade);
 //! - [`output`]: data sets, exports and plots;
-//! - [`schema`]: the names and versions of gonio's JSON documents;
-//! - [`cli`]: one module per `gonio` subcommand. No library module imports from it.
+//! - [`schema`]: the names and versions of gonio's JSON documents.
+//!
+//! The `gonio` command line is the binary's (`src/cli/`), on top of these.
 pub mod analysis;
-pub mod cli;
 pub mod instrument;
 pub mod output;
 pub mod schema;

@@ -2,6 +2,9 @@
 //! it came from, exits non-zero, and loses nothing already measured (a resumed folder is
 //! left exactly as it was).
 mod cli_support;
+#[allow(dead_code)] // The binary's own arguments, parsed as `gonio measure` parses them.
+#[path = "../src/cli/measure/args.rs"]
+mod measure_args;
 use cli_support::gonio;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -62,16 +65,10 @@ fn measure_rejected(bad: &[&str], needles: &[&str]) {
 fn interrupted_session(name: &str) -> PathBuf {
     let dir = temp_dir(name);
     let crash = host::output::store::Crash::at(30);
-    let args = host::cli::measure::parse_args([
-        "--spots",
-        "1",
-        "--sim",
-        "G",
-        "--out",
-        dir.to_str().unwrap(),
-    ])
-    .unwrap();
-    let _ = host::cli::measure::measure_with(
+    let args =
+        measure_args::parse_args(["--spots", "1", "--sim", "G", "--out", dir.to_str().unwrap()])
+            .unwrap();
+    let _ = host::session::measure::measure_with(
         &args,
         &mut host::session::SimulatedOperator,
         std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
@@ -164,7 +161,7 @@ fn an_integration_time_outside_the_instruments_limits_is_refused_before_anything
     ]);
     let message = String::from_utf8_lossy(&out.stderr);
     // The simulator's defaults, as the command line gives them.
-    let options = host::cli::measure::parse_args(["--spots", "1", "--sim", "G"])
+    let options = measure_args::parse_args(["--spots", "1", "--sim", "G"])
         .unwrap()
         .sim_options;
     let mut client = host::instrument::link::Client::new(

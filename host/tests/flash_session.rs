@@ -7,7 +7,8 @@ mod firmware_support;
 use firmware_support::ElfSpec;
 use host::instrument::firmware_image::FirmwareImage;
 use host::instrument::flash::{
-    FlashError, FlashOptions, FlashProgress, FlashStep, Flasher, ProbeDescription, flash,
+    FlashError, FlashOptions, FlashProgress, FlashStep, Flasher, ProbeDescription, ProbeError,
+    flash,
 };
 use host::instrument::link::Transport;
 use protocol::{F411_BOARD_NAME, PROTOCOL_VERSION};
@@ -57,13 +58,15 @@ impl Flasher for RecordingProbe {
         self.probes.clone()
     }
 
-    fn attach(&mut self, probe: &ProbeDescription) -> Result<(), String> {
+    fn attach(&mut self, probe: &ProbeDescription) -> Result<(), ProbeError> {
         self.calls.push(format!(
             "attach {}",
             probe.serial_number.as_deref().unwrap_or("-")
         ));
         if self.refuse_attach {
-            Err("the target does not answer on SWD".into())
+            Err(ProbeError::Probe(
+                "the target does not answer on SWD".into(),
+            ))
         } else {
             Ok(())
         }
@@ -73,7 +76,7 @@ impl Flasher for RecordingProbe {
         &mut self,
         image: &FirmwareImage,
         progress: &mut dyn FnMut(FlashProgress),
-    ) -> Result<(), String> {
+    ) -> Result<(), ProbeError> {
         self.calls.push("program".into());
         let bytes = image.flash_bytes() as u64;
         let sectors = bytes.div_ceil(SECTOR);
@@ -101,10 +104,10 @@ impl Flasher for RecordingProbe {
             for chunk in data.chunks(SECTOR as usize) {
                 if self.fail_program_after == Some(pages) {
                     progress(FlashProgress::Failed(FlashStep::Program));
-                    return Err(format!(
+                    return Err(ProbeError::Probe(format!(
                         "the flash algorithm reported an error at {:#010x}",
                         segment.address
-                    ));
+                    )));
                 }
                 progress(FlashProgress::Advanced {
                     step: FlashStep::Program,
@@ -122,7 +125,7 @@ impl Flasher for RecordingProbe {
         &mut self,
         image: &FirmwareImage,
         progress: &mut dyn FnMut(FlashProgress),
-    ) -> Result<(), String> {
+    ) -> Result<(), ProbeError> {
         self.calls.push("verify".into());
         progress(FlashProgress::Started {
             step: FlashStep::Verify,
@@ -131,12 +134,12 @@ impl Flasher for RecordingProbe {
         for (segment, (address, written)) in image.segments.iter().zip(&self.flash) {
             if let Some(at) = segment.data.iter().zip(written).position(|(a, b)| a != b) {
                 progress(FlashProgress::Failed(FlashStep::Verify));
-                return Err(format!(
+                return Err(ProbeError::Probe(format!(
                     "{:#010x} reads {:#04x}, the image has {:#04x}",
                     *address as usize + at,
                     written[at],
                     segment.data[at]
-                ));
+                )));
             }
             progress(FlashProgress::Advanced {
                 step: FlashStep::Verify,
@@ -147,7 +150,7 @@ impl Flasher for RecordingProbe {
         Ok(())
     }
 
-    fn reset(&mut self) -> Result<(), String> {
+    fn reset(&mut self) -> Result<(), ProbeError> {
         self.calls.push("reset".into());
         self.reset_at = Some(std::time::Instant::now());
         Ok(())

@@ -6,11 +6,15 @@
 mod cli_support;
 use cli_support::gonio;
 use cli_support::stderr;
-use host::cli::measure::{Measured, measure_with, parse_args};
+#[allow(dead_code)] // The binary's own arguments, parsed as `gonio measure` parses them.
+#[path = "../src/cli/measure/args.rs"]
+mod measure_args;
 use host::output::lock::{FolderError, FolderLock};
 use host::output::record::{FileRecorder, Identity};
 use host::output::store::{Crash, StoreOptions};
+use host::session::measure::{Measured, measure_with};
 use host::session::{Operator, Placement, SimulatedOperator};
+use measure_args::parse_args;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -315,7 +319,7 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
 /// The simulated instrument's DeviceInfo, from a handshake.
 fn hil_sim_info() -> protocol::DeviceInfo {
     // The simulator's defaults, as the command line gives them.
-    let options = host::cli::measure::parse_args(["--spots", "1", "--sim", "G"])
+    let options = parse_args(["--spots", "1", "--sim", "G"])
         .unwrap()
         .sim_options;
     let instrument = options.instrument("G").unwrap();

@@ -6,6 +6,9 @@
 //! The browser test needs chromium on PATH; without it the test fails and says how to
 //! install it, unless `GONIO_NO_BROWSER=1` says to leave it out on this machine.
 mod cli_support;
+#[allow(dead_code)] // The binary's own arguments, parsed as `gonio measure` parses them.
+#[path = "../src/cli/measure/args.rs"]
+mod measure_args;
 use cli_support::{gonio, stderr, temp_dir};
 use std::path::{Path, PathBuf};
 
@@ -193,7 +196,7 @@ fn plot_pixels(png_path: &Path) -> (usize, usize, (u32, u32)) {
 
 #[test]
 fn the_report_renders_in_a_headless_browser_with_its_plots() {
-    let Some(chromium) = host::cli::report::find_chromium() else {
+    let Some(chromium) = host::output::chromium::find_chromium() else {
         if std::env::var_os("GONIO_NO_BROWSER").is_some_and(|v| v == "1") {
             eprintln!("GONIO_NO_BROWSER=1: the browser test is left out on this machine");
             return;
@@ -205,7 +208,7 @@ fn the_report_renders_in_a_headless_browser_with_its_plots() {
     let dir = measured("browser", &["--sim", "G", "--spots", "1", "--case", "C-1"]);
     let page = dir.join("report.html");
     // The DOM the browser built: the page parsed whole, the plots as SVG elements.
-    let out = host::cli::report::headless(&chromium, &page, &["--dump-dom".into()])
+    let out = host::output::chromium::headless(&chromium, &page, &["--dump-dom".into()])
         .expect("chromium runs");
     let dom = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -219,7 +222,7 @@ fn the_report_renders_in_a_headless_browser_with_its_plots() {
     );
     // A screenshot shows the plots: the fit's blue line and the readings' red points.
     let shot = dir.with_extension("png");
-    let out = host::cli::report::headless(
+    let out = host::output::chromium::headless(
         &chromium,
         &page,
         &[
@@ -288,16 +291,16 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     }
     let dir = temp_dir("report", "resume-case");
     let d = dir.to_str().unwrap();
-    let args = |extra: &[&str]| -> host::cli::measure::Args {
+    let args = |extra: &[&str]| -> host::session::measure::MeasureOptions {
         let mut all = vec!["--sim", "G", "--spots", "1", "--case", "C-1"];
         all.extend_from_slice(extra);
-        host::cli::measure::parse_args(all).unwrap()
+        measure_args::parse_args(all).unwrap()
     };
     let crash = host::output::store::StoreOptions {
         crash: Some(host::output::store::Crash::at(30)),
     };
     let interrupted = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let _ = host::cli::measure::measure_with(
+    let _ = host::session::measure::measure_with(
         &args(&["--out", d]),
         &mut host::session::SimulatedOperator,
         interrupted.clone(),
@@ -305,7 +308,7 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     );
     let mut other = args(&["--resume", d]);
     other.case_id = Some("C-2".into());
-    let refused = host::cli::measure::measure_with(
+    let refused = host::session::measure::measure_with(
         &other,
         &mut host::session::SimulatedOperator,
         interrupted.clone(),
@@ -314,14 +317,17 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     .err()
     .expect("another case refused");
     assert!(refused.to_string().contains("case differs"), "{refused}");
-    let resumed = host::cli::measure::measure_with(
+    let resumed = host::session::measure::measure_with(
         &args(&["--resume", d]),
         &mut host::session::SimulatedOperator,
         interrupted,
         Default::default(),
     )
     .expect("resumed");
-    assert!(matches!(resumed, host::cli::measure::Measured::Done { .. }));
+    assert!(matches!(
+        resumed,
+        host::session::measure::Measured::Done { .. }
+    ));
     assert!(report(&dir).contains("C-1"));
     let _ = std::fs::remove_dir_all(&dir);
 }

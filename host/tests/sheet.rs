@@ -3,12 +3,16 @@
 //! calibration, a flagged spot is replaced and excluded with the reason, a kill at any
 //! write of the sheet's folder resumes to a folder that verifies, and the sheet is what
 //! `gonio compare`, `gonio verify` and the library read.
-use host::cli::measure::{Measured, measure_with, parse_args};
+#[allow(dead_code)] // The binary's own arguments, parsed as `gonio measure` parses them.
+#[path = "../src/cli/measure/args.rs"]
+mod measure_args;
 use host::output::report::html;
 use host::output::sheet_folder::read_measured;
 use host::output::store::{Crash, StoreOptions};
 use host::output::verify::verify_sheet;
+use host::session::measure::{Measured, measure_with};
 use host::session::{DelayedOperator, Operator, Placement, SimulatedOperator};
+use measure_args::parse_args;
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

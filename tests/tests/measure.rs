@@ -2,9 +2,13 @@
 //! against the simulated instrument served on a pty, as a real instrument would be reached.
 //! Every session here asks its operator to place the white tile, as on any port.
 
-use host::cli::measure::{Measured, measure, parse_args};
+#[allow(dead_code)] // The binary's own arguments, parsed as `gonio measure` parses them.
+#[path = "../../host/src/cli/measure/args.rs"]
+mod measure_args;
 use host::instrument::sim::SimOptions;
+use host::session::measure::{Measured, measure};
 use host::session::{Placement, SessionError, WallClockOperator};
+use measure_args::parse_args;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

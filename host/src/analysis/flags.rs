@@ -1,6 +1,6 @@
 //! Conditions that make a result less than clean, as stable strings for `--json`,
 //! `session.json` and scripts. A result is `ok` when no flag but the informational ones is
-//! raised; `gonio measure` then exits 0 (the exit codes are in [`crate::cli::exit`]).
+//! raised; `gonio measure` then exits 0 (the exit codes are in the binary's `cli::exit`).
 //!
 //! The strings never change meaning once released; new conditions get new strings.
 use serde::{Deserialize, Serialize};

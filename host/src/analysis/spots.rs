@@ -1,6 +1,6 @@
 //! A sheet measured at several spots: which spots its result rests on, how many more to
 //! measure, and the sheet's mean parameters with their spot-to-spot (within-sheet)
-//! variation. Pure: the session ([`crate::session::sheet`]) measures, this decides.
+//! variation. Pure: the session ([`crate::session::multi_spot`]) measures, this decides.
 //!
 //! The rules, for `planned` spots and at most `replacements` more:
 //! - a spot whose result is clean (no flag but informational ones) is accepted;

@@ -1,6 +1,6 @@
 //! `gonio accuracy`: the accuracy campaign on the simulated instrument (docs/ACCURACY.md).
-use crate::study::accuracy;
 use anyhow::{Context, bail};
+use host::study::accuracy;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -20,7 +20,7 @@ pub struct Args {
     pub robust_sessions: usize,
     /// Policies to run every case under.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = accuracy::DEFAULT_POLICIES)]
-    pub policies: Vec<crate::session::PolicyChoice>,
+    pub policies: Vec<host::session::PolicyChoice>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,

@@ -1,11 +1,11 @@
 //! `gonio compare A B`: how strongly do two measured sheets support "the same paper stock"
 //! over "different stocks"? A likelihood ratio from a two-level model
-//! ([`crate::analysis::evidence`]), weighed against a population of stocks. A and B are
+//! ([`host::analysis::evidence`]), weighed against a population of stocks. A and B are
 //! session folders (or their `session.json`) of `gonio measure`.
-use crate::analysis::evidence::{
+use host::analysis::evidence::{
     self, Evidence, PARAM_LABELS, Population, PopulationSource, Support,
 };
-use crate::output::sheet_folder::{MeasuredSheet, read_measured};
+use host::output::sheet_folder::{MeasuredSheet, read_measured};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -40,7 +40,7 @@ pub struct Args {
 /// The population to weigh against: the library's stocks (given, or the user's default
 /// library when it exists), else the default population; with a note on which and why.
 fn population_of(library: Option<&PathBuf>) -> anyhow::Result<(Population, Option<String>)> {
-    use crate::output::library::{self, Library, OpenMode};
+    use host::output::library::{self, Library, OpenMode};
     let path = match library {
         Some(path) => path.clone(),
         None => match library::default_path().filter(|p| p.is_file()) {
@@ -92,7 +92,7 @@ pub fn to_json(
         })
     };
     json!({
-        "schema": crate::schema::COMPARE,
+        "schema": host::schema::COMPARE,
         "log10_lr": e.log10_lr,
         "verbal": e.verbal,
         "support": e.support,

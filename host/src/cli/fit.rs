@@ -3,10 +3,10 @@
 //! Each file is read and each data set fitted on its own: a bad file or data set is
 //! reported on stderr as `file:line: message` and the others still get their results;
 //! the exit status is 1 if anything failed, else 3 if any result is flagged (not `ok`).
-use crate::analysis::fit::FitOptions;
-use crate::analysis::model;
-use crate::analysis::result::{Readings, Report, analyse, to_json, to_table};
-use crate::output::dataset::{self, DataSet};
+use host::analysis::fit::FitOptions;
+use host::analysis::model;
+use host::analysis::result::{Readings, Report, analyse, to_json, to_table};
+use host::output::dataset::{self, DataSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -34,44 +34,112 @@ pub struct Args {
 
 /// Run `gonio fit`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let options = fit_options(&args)?;
+    // Read everything first (cheap), then fit the data sets on all cores, in input order.
+    let inputs = read_inputs(&args.files);
+    let results = analyse_all(&inputs.jobs, &options, args.delta);
+    let stdout = std::io::stdout();
+    let mut out = std::io::BufWriter::new(stdout.lock());
+    let mut told = Told {
+        failed: inputs.failed,
+        flagged: false,
+    };
+    // Folders first, in the order given: each its session's analysis made again.
+    print_folders(&mut out, &inputs.folders, args.json, &mut told)?;
+    let mut file_errors = inputs.file_errors.into_iter().peekable();
+    for ((k, path, _), result) in inputs.jobs.iter().zip(results) {
+        // Keep errors of unreadable files in file order relative to the results.
+        while let Some((_, message)) = file_errors.next_if(|(ek, _)| ek < k) {
+            out.flush()?;
+            eprintln!("error: {message}");
+        }
+        match result {
+            Ok(report) => {
+                told.flagged |= !report.ok();
+                if args.json {
+                    writeln!(out, "{}", to_json(&report))?;
+                } else {
+                    writeln!(out, "{}", to_table(&report))?;
+                }
+            }
+            Err(message) => {
+                told.failed = true;
+                out.flush()?;
+                eprintln!("error: {}:{message}", path.display());
+            }
+        }
+    }
+    out.flush()?;
+    for (_, message) in file_errors {
+        eprintln!("error: {message}");
+    }
+    Ok(if told.failed {
+        ExitCode::from(crate::cli::exit::FAILED)
+    } else {
+        crate::cli::exit::of_result(!told.flagged)
+    })
+}
+
+/// The fit's options from `--delta` and `--acceptance`, checked.
+fn fit_options(args: &Args) -> anyhow::Result<FitOptions> {
     if let Some(d) = args.delta {
         anyhow::ensure!(
             d.is_finite() && d > 0.0 && d <= 90.0,
             "--delta must be a number of degrees above 0 and at most 90, not {d:?}"
         );
     }
-    let max_acceptance = crate::cli::measure::MAX_ACCEPTANCE_DEG;
+    let max_acceptance = host::session::measure::MAX_ACCEPTANCE_DEG;
     anyhow::ensure!(
         args.acceptance.is_finite() && (0.0..=max_acceptance).contains(&args.acceptance),
         "--acceptance must be between 0 and {max_acceptance} degrees (the detector's full width, which the fit models as a small window), not {:?}",
         args.acceptance
     );
-    let options = FitOptions {
+    Ok(FitOptions {
         acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance),
         ..FitOptions::default()
-    };
+    })
+}
 
-    let mut failed = false;
-    let mut flagged = false;
-    // Read everything first (cheap), then fit the data sets on all cores, in input order.
-    let mut jobs: Vec<(usize, &Path, DataSet)> = Vec::new();
-    let mut file_errors: Vec<(usize, String)> = Vec::new();
-    let mut folders: Vec<(usize, PathBuf)> = Vec::new();
-    for (k, path) in args.files.iter().enumerate() {
+/// What was said so far: anything failed, any result flagged.
+struct Told {
+    failed: bool,
+    flagged: bool,
+}
+
+/// The inputs read: the data sets of the files (with the file's index), the files that
+/// could not be read (with the message), the session folders found.
+struct Inputs<'a> {
+    jobs: Vec<(usize, &'a Path, DataSet)>,
+    file_errors: Vec<(usize, String)>,
+    folders: Vec<(usize, PathBuf)>,
+    failed: bool,
+}
+
+/// Read every file and find every session folder, in the order given.
+fn read_inputs(files: &[PathBuf]) -> Inputs<'_> {
+    let mut inputs = Inputs {
+        jobs: Vec::new(),
+        file_errors: Vec::new(),
+        folders: Vec::new(),
+        failed: false,
+    };
+    for (k, path) in files.iter().enumerate() {
         if path.is_dir() {
-            match crate::output::reanalysis::session_folders(path) {
-                Ok(dirs) => folders.extend(dirs.into_iter().map(|d| (k, d))),
+            match host::output::reanalysis::session_folders(path) {
+                Ok(dirs) => inputs.folders.extend(dirs.into_iter().map(|d| (k, d))),
                 Err(e) => {
-                    failed = true;
-                    file_errors.push((k, e.to_string()));
+                    inputs.failed = true;
+                    inputs.file_errors.push((k, e.to_string()));
                 }
             }
             continue;
         }
         match dataset::read_file(path) {
-            Ok(sets) => jobs.extend(sets.into_iter().map(|s| (k, path.as_path(), s))),
+            Ok(sets) => inputs
+                .jobs
+                .extend(sets.into_iter().map(|s| (k, path.as_path(), s))),
             Err(e) => {
-                failed = true;
+                inputs.failed = true;
                 let location = e.line().map_or_else(
                     || path.display().to_string(),
                     |l| format!("{}:{l}", path.display()),
@@ -84,21 +152,28 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                         .split_once(": ")
                         .map_or_else(|| other.to_string(), |(_, m)| m.to_string()),
                 };
-                file_errors.push((k, format!("{location}: {message}")));
+                inputs
+                    .file_errors
+                    .push((k, format!("{location}: {message}")));
             }
         }
     }
-    let results = analyse_all(&jobs, &options, args.delta);
+    inputs
+}
 
-    let stdout = std::io::stdout();
-    let mut out = std::io::BufWriter::new(stdout.lock());
-    // Folders first, in the order given: each its session's analysis made again.
-    for (_, dir) in &folders {
-        match crate::output::reanalysis::reanalyse(dir) {
+/// Each session folder's analysis made again from its files, compared with its own.
+fn print_folders(
+    out: &mut impl Write,
+    folders: &[(usize, PathBuf)],
+    json: bool,
+    told: &mut Told,
+) -> anyhow::Result<()> {
+    for (_, dir) in folders {
+        match host::output::reanalysis::reanalyse(dir) {
             Ok(again) => {
-                flagged |= !again.report.ok();
+                told.flagged |= !again.report.ok();
                 let same = again.differences.is_empty();
-                if args.json {
+                if json {
                     let mut v = to_json(&again.report);
                     v["session_dir"] = serde_json::json!(dir.display().to_string());
                     v["same_as_session"] = serde_json::json!(same);
@@ -121,44 +196,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
             }
             Err(message) => {
-                failed = true;
+                told.failed = true;
                 out.flush()?;
                 eprintln!("error: {message}");
             }
         }
     }
-    let mut file_errors = file_errors.into_iter().peekable();
-    for ((k, path, _), result) in jobs.iter().zip(results) {
-        // Keep errors of unreadable files in file order relative to the results.
-        while let Some((_, message)) = file_errors.next_if(|(ek, _)| ek < k) {
-            out.flush()?;
-            eprintln!("error: {message}");
-        }
-        match result {
-            Ok(report) => {
-                flagged |= !report.ok();
-                if args.json {
-                    writeln!(out, "{}", to_json(&report))?;
-                } else {
-                    writeln!(out, "{}", to_table(&report))?;
-                }
-            }
-            Err(message) => {
-                failed = true;
-                out.flush()?;
-                eprintln!("error: {}:{message}", path.display());
-            }
-        }
-    }
-    out.flush()?;
-    for (_, message) in file_errors {
-        eprintln!("error: {message}");
-    }
-    Ok(if failed {
-        ExitCode::from(crate::cli::exit::FAILED)
-    } else {
-        crate::cli::exit::of_result(!flagged)
-    })
+    Ok(())
 }
 
 /// Analyse one data set of the file `path`; errors are `line: message`.

@@ -1,17 +1,17 @@
 //! `gonio flash [IMAGE]`: put firmware on the instrument through a debug probe.
 //!
-//! Checks the image first ([`crate::instrument::firmware_image`]; `--check` stops there and
+//! Checks the image first ([`host::instrument::firmware_image`]; `--check` stops there and
 //! says what the image is), then through probe-rs: finds the probe, attaches to the
 //! STM32F411, erases and programs with a progress bar, verifies, resets, and waits for the
 //! instrument to come up on USB and answer the handshake with the version just written.
 //!
 //! Without IMAGE: the image built into this release (`GONIO_FIRMWARE_IMAGE` at build time,
 //! README "Flashing the firmware"), if there is one.
-use crate::instrument::firmware_image::FirmwareImage;
-use crate::instrument::flash::{FlashOptions, FlashProgress, FlashStep, flash};
-use crate::instrument::probe::ProbeRsFlasher;
-use crate::instrument::serial::{SerialTransport, find_instrument};
 use anyhow::{Context, bail};
+use host::instrument::firmware_image::FirmwareImage;
+use host::instrument::flash::{FlashOptions, FlashProgress, FlashStep, flash};
+use host::instrument::probe::ProbeRsFlasher;
+use host::instrument::serial::{SerialTransport, find_instrument};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -1,7 +1,7 @@
 //! `gonio forensic`: the forensic validation study on the simulated instrument
 //! (docs/FORENSIC.md).
-use crate::study::forensic::{self, Design};
 use anyhow::{Context, bail};
+use host::study::forensic::{self, Design};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,8 +37,8 @@ pub struct Args {
     pub spots_study: Vec<usize>,
     /// How each spot is measured, as `gonio measure --policy` (default adaptive, the
     /// policy of docs/FORENSIC.md's figures; docs/TRADE.md has the study with sweeps).
-    #[arg(long, value_enum, default_value_t = crate::session::PolicyChoice::Adaptive)]
-    pub policy: crate::session::PolicyChoice,
+    #[arg(long, value_enum, default_value_t = host::session::PolicyChoice::Adaptive)]
+    pub policy: host::session::PolicyChoice,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,

@@ -5,9 +5,9 @@
 //!
 //! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
 //! changes nothing); 2 a wrong command line.
-use crate::analysis::evidence::{Population, Sheet, rank_stocks};
-use crate::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
 use anyhow::Context;
+use host::analysis::evidence::{Population, Sheet, rank_stocks};
+use host::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -191,7 +191,7 @@ fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
     if args.json {
         println!(
             "{}",
-            json!({"schema": crate::schema::LIBRARY_LIST, "library": path.display().to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks})
+            json!({"schema": host::schema::LIBRARY_LIST, "library": path.display().to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks})
         );
         return Ok(());
     }
@@ -323,7 +323,7 @@ struct Ranked {
 
 fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
     let measured =
-        crate::output::sheet_folder::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
+        host::output::sheet_folder::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
     let query = measured.sheet.clone();
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.
@@ -375,7 +375,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
     if args.json {
         println!(
             "{}",
-            json!({"schema": crate::schema::LIBRARY_SEARCH, "sheet": args.dir.display().to_string(), "sample": measured.sample, "library": path.display().to_string(), "stocks": stocks, "population": population_note, "excluded_own_session": excluded, "ranking": ranking})
+            json!({"schema": host::schema::LIBRARY_SEARCH, "sheet": args.dir.display().to_string(), "sample": measured.sample, "library": path.display().to_string(), "stocks": stocks, "population": population_note, "excluded_own_session": excluded, "ranking": ranking})
         );
         return Ok(());
     }

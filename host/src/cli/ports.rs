@@ -7,7 +7,7 @@ pub struct Args {}
 
 /// Run `gonio ports`.
 pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    let ports = crate::instrument::serial::list_ports()?;
+    let ports = host::instrument::serial::list_ports()?;
     if ports.is_empty() {
         println!(
             "no serial ports found (with no instrument attached, `gonio measure --sim SAMPLE` uses the simulated one)"

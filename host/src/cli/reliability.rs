@@ -1,6 +1,6 @@
 //! `gonio reliability`: the fault campaign on the simulated instrument (docs/RELIABILITY.md).
-use crate::study::reliability::{self, FaultKind};
 use anyhow::{Context, bail};
+use host::study::reliability::{self, FaultKind};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;

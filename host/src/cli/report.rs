@@ -1,9 +1,10 @@
 //! `gonio report DIR…`: draw (again) the report a person reads, `report.html`, of finished
-//! session or sheet folders ([`crate::output::report`]); `--pdf FILE` prints it with a
+//! session or sheet folders ([`host::output::report`]); `--pdf FILE` prints it with a
 //! headless Chromium when one is installed.
-use crate::output::report;
 use anyhow::{Context, bail};
-use std::path::{Path, PathBuf};
+use host::output::chromium::{find_chromium, headless};
+use host::output::report;
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 /// Arguments of `gonio report`.
@@ -15,49 +16,6 @@ pub struct Args {
     /// Also print the report to this PDF file (one folder only; needs chromium on PATH).
     #[arg(long, value_name = "FILE")]
     pub pdf: Option<PathBuf>,
-}
-
-/// A headless Chromium on PATH, if any.
-pub fn find_chromium() -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    ["chromium", "chromium-browser", "google-chrome"]
-        .iter()
-        .flat_map(|name| std::env::split_paths(&path).map(move |d| d.join(name)))
-        .find(|p| p.is_file())
-}
-
-/// Run Chromium headless on `page` with `extra` arguments (a fresh profile, no network
-/// but the page, as root too).
-pub fn headless(
-    chromium: &Path,
-    page: &Path,
-    extra: &[String],
-) -> anyhow::Result<std::process::Output> {
-    let profile = tempfile::tempdir().context("a temporary profile for chromium")?;
-    let url = format!(
-        "file://{}",
-        std::path::absolute(page)
-            .context("the report's path")?
-            .display()
-    );
-    let mut command = std::process::Command::new(chromium);
-    command
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--no-first-run",
-        ])
-        .arg(format!("--user-data-dir={}", profile.path().display()))
-        .args(extra)
-        .arg(url)
-        .stdin(std::process::Stdio::null());
-    command
-        .output()
-        .with_context(|| format!("cannot run {}", chromium.display()))
 }
 
 /// Run `gonio report`.

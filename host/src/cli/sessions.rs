@@ -1,7 +1,7 @@
 //! `gonio sessions [ROOT]`: the session and sheet folders under ROOT (default `sessions/`,
 //! where `gonio measure` makes them), one line each: date, sample, kind, class, state and
-//! device time ([`crate::output::catalogue`]).
-use crate::output::catalogue;
+//! device time ([`host::output::catalogue`]).
+use host::output::catalogue;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -29,7 +29,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         for e in &entries {
             println!(
                 "{}",
-                crate::schema::tagged(crate::schema::SESSIONS_ENTRY, serde_json::to_value(e)?)
+                host::schema::tagged(host::schema::SESSIONS_ENTRY, serde_json::to_value(e)?)
             );
         }
         return Ok(ExitCode::SUCCESS);

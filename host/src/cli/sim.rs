@@ -1,6 +1,6 @@
 //! `gonio sim`: the simulated instrument on a pseudo-terminal, for any serial client.
-use crate::instrument::sim::SimOptions;
 use anyhow::Context;
+use host::instrument::sim::SimOptions;
 use std::io::Write;
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -1,6 +1,6 @@
 //! `gonio trade`: the speed–accuracy trade study on the simulated instrument.
-use crate::study::trade;
 use anyhow::{Context, bail};
+use host::study::trade;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -23,7 +23,7 @@ pub struct Args {
     /// The simulated instrument's errors: ideal, or the accuracy study's realistic set
     /// (range-gain, tile and arm-zero errors, docs/ACCURACY.md).
     #[arg(long, value_enum, default_value = "ideal")]
-    pub physics: crate::instrument::sim::Physics,
+    pub physics: host::instrument::sim::Physics,
     /// Only these policies (comma-separated: strategy1, strategy2, paper, adaptive, sweep);
     /// all by default. `--policies sweep,adaptive` is the sweep settings' front with the
     /// adaptive policy to compare against, in a fraction of the whole study's time.
@@ -73,16 +73,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let csv = args.out.join("trade.csv");
     std::fs::write(&csv, trade::to_csv(&rows))
         .with_context(|| format!("cannot write {}", csv.display()))?;
-    let motion = crate::session::order::Motion::reference();
-    let order_table = crate::session::order::study_markdown(&crate::session::order::study(
+    let motion = host::session::order::Motion::reference();
+    let order_table = host::session::order::study_markdown(&host::session::order::study(
         &motion,
         u32::from(trade::TARGET_INTEGRATION_MS),
     ));
     let summary = trade::summary_markdown(&rows, seeds, &order_table);
     let md = args.out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
-    let svg = args.out.join(crate::study::trade_plot::PARETO_FILE);
-    crate::study::trade_plot::write_pareto(&svg, &trade::pareto(&rows))
+    let svg = args.out.join(host::study::trade_plot::PARETO_FILE);
+    host::study::trade_plot::write_pareto(&svg, &trade::pareto(&rows))
         .with_context(|| format!("cannot write {}", svg.display()))?;
     print!("{summary}");
     eprintln!(

@@ -6,7 +6,7 @@
 //!
 //! Exit codes: 0 when every folder passes; 1 when any does not (damaged, changed, or a
 //! session that never finished); 2 for a wrong command line.
-use crate::output::verify::verify;
+use host::output::verify::verify;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -28,16 +28,16 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut failed = false;
     for dir in &args.dirs {
-        if crate::output::folder::is_sheet_folder(dir) {
+        if host::output::folder::is_sheet_folder(dir) {
             failed |= !verify_sheet(dir, args.json);
             continue;
         }
-        match verify(dir, crate::output::report::html) {
+        match verify(dir, host::output::report::html) {
             Ok(v) => {
                 if args.json {
                     println!(
                         "{}",
-                        serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []})
+                        serde_json::json!({"schema": host::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []})
                     );
                 } else {
                     println!(
@@ -60,7 +60,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 if args.json {
                     println!(
                         "{}",
-                        serde_json::json!({"schema": crate::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()})
+                        serde_json::json!({"schema": host::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()})
                     );
                 } else {
                     eprintln!(
@@ -82,13 +82,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 /// Check a sheet folder and print the result; whether it verified.
 fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
-    match crate::output::verify::verify_sheet(dir, crate::output::report::html) {
+    match host::output::verify::verify_sheet(dir, host::output::report::html) {
         Ok(v) => {
             let readings: usize = v.spots.iter().map(|s| s.readings).sum();
             if json {
                 println!(
                     "{}",
-                    serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []})
+                    serde_json::json!({"schema": host::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": true, "spots": v.spots.len(), "readings": readings, "sample": v.sheet.doc.sample, "problems": []})
                 );
             } else {
                 println!(
@@ -107,7 +107,7 @@ fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
             if json {
                 println!(
                     "{}",
-                    serde_json::json!({"schema": crate::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()})
+                    serde_json::json!({"schema": host::schema::VERIFY, "kind": "sheet", "dir": dir.display().to_string(), "ok": false, "problems": problems.iter().map(ToString::to_string).collect::<Vec<_>>()})
                 );
             } else {
                 eprintln!(

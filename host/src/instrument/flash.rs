@@ -89,22 +89,53 @@ pub trait Flasher {
     /// The debug probes attached.
     fn list_probes(&mut self) -> Vec<ProbeDescription>;
     /// Open `probe` and attach to the STM32F411 through it (halting the core).
-    fn attach(&mut self, probe: &ProbeDescription) -> Result<(), String>;
+    fn attach(&mut self, probe: &ProbeDescription) -> Result<(), ProbeError>;
     /// Erase what the image needs and write it, reporting progress.
     fn program(
         &mut self,
         image: &FirmwareImage,
         progress: &mut dyn FnMut(FlashProgress),
-    ) -> Result<(), String>;
+    ) -> Result<(), ProbeError>;
     /// Read the flash back and compare it with the image (Err: where it differs or why it
     /// could not be read).
     fn verify(
         &mut self,
         image: &FirmwareImage,
         progress: &mut dyn FnMut(FlashProgress),
-    ) -> Result<(), String>;
+    ) -> Result<(), ProbeError>;
     /// Reset the chip and let it run the new firmware; the probe is let go.
-    fn reset(&mut self) -> Result<(), String>;
+    fn reset(&mut self) -> Result<(), ProbeError>;
+}
+
+/// Why a step on the probe's side failed, in the probe's words ([`FlashError`] says what
+/// to do about it).
+#[derive(Debug, thiserror::Error)]
+pub enum ProbeError {
+    /// No probe is attached (attach first; a reset lets it go).
+    #[error("no probe is attached")]
+    NotAttached,
+    /// The probe chosen went away since it was listed.
+    #[error("{0} is no longer attached")]
+    Gone(ProbeDescription),
+    /// The probe could not be opened.
+    #[error("cannot open the probe: {0}")]
+    Open(String),
+    /// The flash loader refused a segment of the image.
+    #[error("segment {index} at {address:#010x}: {detail}")]
+    Segment {
+        /// The segment's index in the image.
+        index: usize,
+        /// Its load address.
+        address: u32,
+        /// The loader's words.
+        detail: String,
+    },
+    /// Verify asked for before anything was programmed.
+    #[error("nothing was programmed")]
+    NothingProgrammed,
+    /// The probe's (or the flash algorithm's) own error, in its words.
+    #[error("{0}")]
+    Probe(String),
 }
 
 /// What probe-rs looks for, for the "no probe" message: the probe kinds of this build and
@@ -139,24 +170,24 @@ pub enum FlashError {
     Attach {
         /// The probe.
         probe: ProbeDescription,
-        /// probe-rs's words.
-        detail: String,
+        /// The probe's words.
+        detail: ProbeError,
     },
     /// Erasing or writing failed.
     #[error(
         "writing the flash failed: {0}. The instrument holds no usable firmware now: flash again"
     )]
-    Program(String),
+    Program(ProbeError),
     /// The flash does not hold the image after writing.
     #[error(
         "verify after writing failed: {0}. The instrument's flash does not hold the image: flash again, and do not use the instrument until a verify passes"
     )]
-    Verify(String),
+    Verify(ProbeError),
     /// The chip could not be reset.
     #[error(
         "the image is written and verified, but the reset failed: {0}. Press the board's reset button (or unplug it) to start it"
     )]
-    Reset(String),
+    Reset(ProbeError),
     /// The instrument did not enumerate after the reset.
     #[error(
         "the image is written and verified, but the instrument did not appear on USB ({:04x}:{:04x}) within {:.0} s after the reset{}. Is the board's USB cable plugged into this computer?",

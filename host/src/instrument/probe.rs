@@ -9,7 +9,7 @@
 //! Not tested here: there is no probe on the machines that run the tests. The steps around
 //! it are ([`super::flash`], with a recording fake).
 use super::firmware_image::FirmwareImage;
-use super::flash::{CHIP, FlashProgress, FlashStep, Flasher, ProbeDescription};
+use super::flash::{CHIP, FlashProgress, FlashStep, Flasher, ProbeDescription, ProbeError};
 use probe_rs::flashing::{self, DownloadOptions, FlashLoader, ProgressEvent, ProgressOperation};
 use probe_rs::probe::DebugProbeInfo;
 use probe_rs::probe::list::Lister;
@@ -31,10 +31,8 @@ impl ProbeRsFlasher {
         ProbeRsFlasher::default()
     }
 
-    fn session(&mut self) -> Result<&mut Session, String> {
-        self.session
-            .as_mut()
-            .ok_or_else(|| "no probe is attached".to_string())
+    fn session(&mut self) -> Result<&mut Session, ProbeError> {
+        self.session.as_mut().ok_or(ProbeError::NotAttached)
     }
 }
 
@@ -109,18 +107,16 @@ impl Flasher for ProbeRsFlasher {
         self.found.iter().map(describe).collect()
     }
 
-    fn attach(&mut self, probe: &ProbeDescription) -> Result<(), String> {
+    fn attach(&mut self, probe: &ProbeDescription) -> Result<(), ProbeError> {
         let info = self
             .found
             .iter()
             .find(|info| describe(info) == *probe)
-            .ok_or_else(|| format!("{probe} is no longer attached"))?;
-        let opened = info
-            .open()
-            .map_err(|e| format!("cannot open the probe: {e}"))?;
+            .ok_or_else(|| ProbeError::Gone(probe.clone()))?;
+        let opened = info.open().map_err(|e| ProbeError::Open(e.to_string()))?;
         let session = opened
             .attach(CHIP, Permissions::default())
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| ProbeError::Probe(e.to_string()))?;
         self.session = Some(session);
         Ok(())
     }
@@ -129,17 +125,16 @@ impl Flasher for ProbeRsFlasher {
         &mut self,
         image: &FirmwareImage,
         progress: &mut dyn FnMut(FlashProgress),
-    ) -> Result<(), String> {
+    ) -> Result<(), ProbeError> {
         let session = self.session()?;
         let mut loader = session.target().flash_loader();
         for segment in &image.segments {
             loader
                 .add_data(u64::from(segment.address), &segment.data)
-                .map_err(|e| {
-                    format!(
-                        "segment {} at {:#010x}: {e}",
-                        segment.index, segment.address
-                    )
+                .map_err(|e| ProbeError::Segment {
+                    index: segment.index,
+                    address: segment.address,
+                    detail: e.to_string(),
                 })?;
         }
         let mut options = DownloadOptions::default();
@@ -150,7 +145,9 @@ impl Flasher for ProbeRsFlasher {
             progress,
         };
         options.progress = flashing::FlashProgress::new(move |event| forward.event(event));
-        loader.commit(session, options).map_err(|e| e.to_string())?;
+        loader
+            .commit(session, options)
+            .map_err(|e| ProbeError::Probe(e.to_string()))?;
         self.loader = Some(loader);
         Ok(())
     }
@@ -159,11 +156,8 @@ impl Flasher for ProbeRsFlasher {
         &mut self,
         _image: &FirmwareImage,
         progress: &mut dyn FnMut(FlashProgress),
-    ) -> Result<(), String> {
-        let loader = self
-            .loader
-            .take()
-            .ok_or_else(|| "nothing was programmed".to_string())?;
+    ) -> Result<(), ProbeError> {
+        let loader = self.loader.take().ok_or(ProbeError::NothingProgrammed)?;
         let session = self.session()?;
         let mut forward = Forward {
             totals: [None; 3],
@@ -172,19 +166,16 @@ impl Flasher for ProbeRsFlasher {
         let mut reporter = flashing::FlashProgress::new(move |event| forward.event(event));
         loader
             .verify(session, &mut reporter)
-            .map_err(|e| e.to_string())
+            .map_err(|e| ProbeError::Probe(e.to_string()))
     }
 
-    fn reset(&mut self) -> Result<(), String> {
-        let mut session = self
-            .session
-            .take()
-            .ok_or_else(|| "no probe is attached".to_string())?;
+    fn reset(&mut self) -> Result<(), ProbeError> {
+        let mut session = self.session.take().ok_or(ProbeError::NotAttached)?;
         session
             .core(0)
-            .map_err(|e| e.to_string())?
+            .map_err(|e| ProbeError::Probe(e.to_string()))?
             .reset()
-            .map_err(|e| e.to_string())
+            .map_err(|e| ProbeError::Probe(e.to_string()))
         // The session is dropped here: the probe lets the core run.
     }
 }

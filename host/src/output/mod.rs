@@ -20,6 +20,7 @@
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
 //! check is handed the drawing ([`verify::DrawReport`]).
 pub mod catalogue;
+pub mod chromium;
 pub mod dataset;
 pub mod export;
 pub mod folder;

@@ -21,12 +21,14 @@
 
 pub mod adaptive;
 pub mod gains;
+pub mod measure;
+pub mod multi_spot;
 pub mod operator;
 pub mod order;
 mod prompt;
 mod recovery;
+mod refining;
 mod schedule;
-pub mod sheet;
 mod steps;
 pub mod sweep_bins;
 pub mod sweep_policy;
@@ -511,7 +513,20 @@ pub struct Session<'a, T: Transport> {
     wanted_sweeps: Vec<sweep_design::SweepPlan>,
     decisions: Vec<String>,
     flags: BTreeSet<Flag>,
-    recoveries: Recoveries,
+    steps: steps::StepState,
+    /// The lamp's and the link's state, and the recoveries so far.
+    link: LinkState,
+    /// What the session was given besides its plan (the builder methods').
+    given: Given,
+    /// Device time spent besides the sample's readings, and the last analysis's time.
+    clock: Clock,
+    /// What the session resumed from.
+    resume: Resumed,
+}
+
+/// The lamp's and the link's state, and the recoveries so far.
+#[derive(Default)]
+struct LinkState {
     /// The lamp should be on (after the dark readings).
     lamp_wanted: bool,
     /// The lamp went off while wanted (a fail-safe stop): its output since is not the
@@ -519,15 +534,11 @@ pub struct Session<'a, T: Transport> {
     lamp_went_off: bool,
     /// The last I/O error of the link, to tell a vanished port from a silent instrument.
     last_io_error: Option<String>,
-    steps: steps::StepState,
-    resumed: bool,
-    /// Resumed readings superseded by a later reading of their geometry whose mark a crash
-    /// kept from the record: marked there when the session starts.
-    unrecorded_marks: Vec<MeasuredPoint>,
-    /// Device time spent waiting for the operator, µs.
-    waiting_us: u64,
-    /// Device time spent on lost-steps checks before the report, µs.
-    final_check_us: u64,
+    recoveries: Recoveries,
+}
+
+/// What a session was given besides its plan.
+struct Given {
     /// See [`Session::with_calibration_limit`].
     max_calibration_age: Option<Duration>,
     /// The white tile's certificate, for a calibration taken in this session.
@@ -536,8 +547,39 @@ pub struct Session<'a, T: Transport> {
     arm_zero_uncertainty_deg: f64,
     /// See [`Session::at_spot`].
     spot: Option<(u16, u16)>,
+}
+
+/// Device time spent besides the sample's readings, and the last analysis's time.
+#[derive(Default)]
+struct Clock {
+    /// Device time spent waiting for the operator, µs.
+    waiting_us: u64,
+    /// Device time spent on lost-steps checks before the report, µs.
+    final_check_us: u64,
     /// The time of the last analysis (the calibration's age in the budget is as of it).
     analysed_unix_s: u64,
+}
+
+/// What a session resumed from.
+#[derive(Default)]
+struct Resumed {
+    /// It started from readings of an earlier run.
+    resumed: bool,
+    /// Resumed readings superseded by a later reading of their geometry whose mark a crash
+    /// kept from the record: marked there when the session starts.
+    unrecorded_marks: Vec<MeasuredPoint>,
+}
+
+/// What a session measured and how long it took, for [`Session::finish`].
+struct Finished {
+    fits: Vec<FitStep>,
+    refinements: Vec<Refinement>,
+    report: Report,
+    device_seconds: f64,
+    setup_seconds: f64,
+    session_seconds: f64,
+    white_drift: Option<f64>,
+    white_drift_exceeded: bool,
 }
 
 impl<'a, T: Transport> Session<'a, T> {
@@ -564,28 +606,24 @@ impl<'a, T: Transport> Session<'a, T> {
             wanted_sweeps: Vec::new(),
             decisions: Vec::new(),
             flags: BTreeSet::new(),
-            recoveries: Recoveries::default(),
-            lamp_wanted: false,
-            lamp_went_off: false,
-            last_io_error: None,
             steps: steps::StepState::default(),
-            resumed: false,
-            unrecorded_marks: Vec::new(),
-            waiting_us: 0,
-            final_check_us: 0,
-            max_calibration_age: None,
-            tile: Tile::default(),
-            arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
-            spot: None,
-            analysed_unix_s: 0,
+            link: LinkState::default(),
+            given: Given {
+                max_calibration_age: None,
+                tile: Tile::default(),
+                arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+                spot: None,
+            },
+            clock: Clock::default(),
+            resume: Resumed::default(),
         }
     }
 
-    /// Spot `spot` of `of` of a multi-spot session ([`crate::session::sheet`]): a spot
+    /// Spot `spot` of `of` of a multi-spot session ([`crate::session::multi_spot`]): a spot
     /// after the first asks the operator to move the sheet before its first reading (a
     /// spot resumed with readings does not: the sheet has not moved since).
     pub fn at_spot(mut self, spot: u16, of: u16) -> Self {
-        self.spot = Some((spot, of));
+        self.given.spot = Some((spot, of));
         self
     }
 
@@ -593,14 +631,14 @@ impl<'a, T: Transport> Session<'a, T> {
     /// [`crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]): a shared error of every
     /// reading in the fit wherever the data do not call for a fitted offset.
     pub fn with_arm_zero_uncertainty(mut self, deg: f64) -> Self {
-        self.arm_zero_uncertainty_deg = deg;
+        self.given.arm_zero_uncertainty_deg = deg;
         self
     }
 
     /// The white tile's certificate for a calibration taken in this session (default:
     /// [`Tile::default`]); a calibration reused or resumed keeps its own.
     pub fn with_tile(mut self, tile: Tile) -> Self {
-        self.tile = tile;
+        self.given.tile = tile;
         self
     }
 
@@ -609,7 +647,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// before the session reports (a long or a late-resumed session) flags the result
     /// `calibration-stale`. Without it, no age is checked.
     pub fn with_calibration_limit(mut self, max_age: Duration) -> Self {
-        self.max_calibration_age = Some(max_age);
+        self.given.max_calibration_age = Some(max_age);
         self
     }
 
@@ -635,7 +673,7 @@ impl<'a, T: Transport> Session<'a, T> {
             if let Some(g) = point.geometry().filter(|_| !point.superseded) {
                 if !seen.insert(g) {
                     point.superseded = true;
-                    self.unrecorded_marks.push(point.clone());
+                    self.resume.unrecorded_marks.push(point.clone());
                 }
             }
         }
@@ -644,7 +682,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 self.wanted.push(g);
             }
         }
-        self.resumed = !points.is_empty();
+        self.resume.resumed = !points.is_empty();
         self.calibration = calibration;
         self.points = points;
         self
@@ -669,8 +707,57 @@ impl<'a, T: Transport> Session<'a, T> {
 
     /// Run the whole session.
     pub fn run(mut self) -> Result<Outcome, SessionError> {
-        if !self.unrecorded_marks.is_empty() {
-            let marks = std::mem::take(&mut self.unrecorded_marks);
+        let started = self.start()?;
+        // Setup (homing, dark, white) is the same whatever the policy and a calibration
+        // serves many sheets: the sample's device time is counted from here.
+        let measuring_from = self.now();
+        let waiting_before = self.clock.waiting_us;
+        let setup_seconds =
+            (measuring_from - started).as_secs_f64() - self.clock.waiting_us as f64 * 1e-6;
+        let mut fits = Vec::new();
+        let mut refinements = Vec::new();
+        let first_name = self.first_stage()?;
+        let mut report = self.analyse()?;
+        fits.push(FitStep {
+            after: first_name,
+            report: to_json(&report),
+        });
+        self.refine(&mut report, &mut fits, &mut refinements)?;
+        self.check_before_report(&mut report, &mut fits, &mut refinements)?;
+        let (white_drift, white_drift_exceeded) = if self.plan.white_check
+            || self.link.lamp_went_off
+        {
+            if !self.plan.white_check {
+                self.decide("the lamp went off during the session: reading the white tile again to see whether its output came back");
+            }
+            self.white_check()?
+        } else {
+            (None, false)
+        };
+        let ended = self.now();
+        let measuring_us = (ended - measuring_from).as_micros() as u64;
+        let device_us = measuring_us
+            .saturating_sub(self.clock.final_check_us)
+            .saturating_sub(self.clock.waiting_us - waiting_before);
+        self.finish(Finished {
+            fits,
+            refinements,
+            report,
+            device_seconds: device_us as f64 * 1e-6,
+            setup_seconds,
+            session_seconds: (ended - started).as_secs_f64(),
+            white_drift,
+            white_drift_exceeded,
+        })
+    }
+
+    /// Up to the first reading of the sample: resumed readings' marks recorded, the arms
+    /// homed (and checked, for a resumed session), the calibration taken or the lamp lit
+    /// for the one given, the sheet moved to its next spot. Returns when the session's
+    /// time started (after the resumed readings' marks).
+    fn start(&mut self) -> Result<Duration, SessionError> {
+        if !self.resume.unrecorded_marks.is_empty() {
+            let marks = std::mem::take(&mut self.resume.unrecorded_marks);
             self.decide(&format!("{} resumed readings were measured again before the crash: the later reading of each geometry is kept", marks.len()));
             self.recorder
                 .superseded(
@@ -690,26 +777,28 @@ impl<'a, T: Transport> Session<'a, T> {
         let started = self.now();
         // The resumed readings were taken under an earlier process: a Home now tells
         // whether the arms still agree with their step counts (`steps`).
-        self.ensure_ready(self.resumed)?;
+        self.ensure_ready(self.resume.resumed)?;
         if self.calibration.is_none() {
             self.calibrate()?;
         } else {
-            self.lamp_wanted = true;
+            self.link.lamp_wanted = true;
             self.lamp_on()?;
         }
-        if let Some((spot, of)) = self.spot.filter(|(spot, _)| *spot > 1 && !self.resumed) {
+        if let Some((spot, of)) = self
+            .given
+            .spot
+            .filter(|(spot, _)| *spot > 1 && !self.resume.resumed)
+        {
             self.ask_operator(Placement::NextSpot { spot, of })?;
             self.client.transport_mut().sample_moved();
         }
-        // Setup (homing, dark, white) is the same whatever the policy and a calibration
-        // serves many sheets: the sample's device time is counted from here.
-        let measuring_from = self.now();
-        let waiting_before = self.waiting_us;
-        let setup_seconds =
-            (measuring_from - started).as_secs_f64() - self.waiting_us as f64 * 1e-6;
-        let mut fits = Vec::new();
-        let mut refinements = Vec::new();
-        let first_name = match &self.plan.policy {
+        Ok(started)
+    }
+
+    /// The first stage of the plan's policy (the sweep policy's first pass, a fixed
+    /// schedule, else Strategy 1); returns its name.
+    fn first_stage(&mut self) -> Result<String, SessionError> {
+        match &self.plan.policy {
             Policy::Sweep(targets) => {
                 let targets = *targets;
                 let here = self.status()?.position;
@@ -735,7 +824,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 );
                 self.decide(&name);
                 self.sweep_stage(&name, &pass)?;
-                name
+                Ok(name)
             }
             policy => {
                 let first = match policy {
@@ -752,22 +841,24 @@ impl<'a, T: Transport> Session<'a, T> {
                     _ => "strategy 1 (12 geometries)".into(),
                 };
                 self.measure(&name, &first)?;
-                name
+                Ok(name)
             }
-        };
-        let mut report = self.analyse()?;
-        fits.push(FitStep {
-            after: first_name,
-            report: to_json(&report),
-        });
-        self.refine(&mut report, &mut fits, &mut refinements)?;
-        // Before reporting: do the step counts still agree with the switches? Readings
-        // taken while an arm was off are measured again after the re-home (the check's
-        // Home), the policy refines from the corrected fit, and the arms are checked again.
+        }
+    }
+
+    /// Before reporting: do the step counts still agree with the switches? Readings taken
+    /// while an arm was off are measured again after the re-home (the check's Home), the
+    /// policy refines from the corrected fit, and the arms are checked again.
+    fn check_before_report(
+        &mut self,
+        report: &mut Report,
+        fits: &mut Vec<FitStep>,
+        refinements: &mut Vec<Refinement>,
+    ) -> Result<(), SessionError> {
         for round in 1..=steps::MAX_CHECK_ROUNDS {
             let check_started = self.now();
             let clean = self.check_steps("before the report")?;
-            self.final_check_us += (self.now() - check_started).as_micros() as u64;
+            self.clock.final_check_us += (self.now() - check_started).as_micros() as u64;
             if clean && self.missing().is_empty() && self.uncovered_sweeps().is_empty() {
                 break;
             }
@@ -795,35 +886,28 @@ impl<'a, T: Transport> Session<'a, T> {
                     &[],
                 )?;
             }
-            report = self.analyse()?;
+            *report = self.analyse()?;
             fits.push(FitStep {
                 after: format!("re-measured after lost steps (check {round})"),
-                report: to_json(&report),
+                report: to_json(report),
             });
-            self.refine(&mut report, &mut fits, &mut refinements)?;
+            self.refine(report, fits, refinements)?;
         }
-        let (white_drift, white_drift_exceeded) = if self.plan.white_check || self.lamp_went_off {
-            if !self.plan.white_check {
-                self.decide("the lamp went off during the session: reading the white tile again to see whether its output came back");
-            }
-            self.white_check()?
-        } else {
-            (None, false)
-        };
-        let ended = self.now();
-        let measuring_us = (ended - measuring_from).as_micros() as u64;
-        let device_us = measuring_us
-            .saturating_sub(self.final_check_us)
-            .saturating_sub(self.waiting_us - waiting_before);
+        Ok(())
+    }
+
+    /// The outcome: the session's flags (white drift, a stale calibration, the analysis's
+    /// own, a recovered link, a resume) added to what was measured.
+    fn finish(mut self, done: Finished) -> Result<Outcome, SessionError> {
         let calibration = self
             .calibration
             .take()
             .ok_or(SessionError::Fit("no calibration".into()))?;
-        if white_drift_exceeded {
+        if done.white_drift_exceeded {
             self.flags.insert(Flag::WhiteDrift);
         }
         let age = calibration.age(unix_now_s());
-        if let Some(limit) = self.max_calibration_age.filter(|limit| age > *limit) {
+        if let Some(limit) = self.given.max_calibration_age.filter(|limit| age > *limit) {
             self.decide(&format!(
                 "the calibration is {:.1} h old at the end of the session (limit {:.1} h): result flagged calibration-stale",
                 age.as_secs_f64() / 3600.0,
@@ -832,409 +916,35 @@ impl<'a, T: Transport> Session<'a, T> {
             self.flags.insert(Flag::CalibrationStale);
         }
         // The analysis's own flags (lack-of-fit, not-identified, sigma-not-resolved).
-        self.flags.extend(report.flags.iter().copied());
-        if self.recoveries.any() {
+        self.flags.extend(done.report.flags.iter().copied());
+        if self.link.recoveries.any() {
             self.flags.insert(Flag::LinkRecovered);
         }
-        if self.resumed {
+        if self.resume.resumed {
             self.flags.insert(Flag::Resumed);
         }
         Ok(Outcome {
             points: self.points,
             calibration,
-            fits,
-            refinements,
-            report,
-            device_seconds: device_us as f64 * 1e-6,
-            setup_seconds,
-            check_seconds: self.final_check_us as f64 * 1e-6,
-            session_seconds: (ended - started).as_secs_f64(),
-            white_drift,
-            white_drift_exceeded,
+            fits: done.fits,
+            refinements: done.refinements,
+            report: done.report,
+            device_seconds: done.device_seconds,
+            setup_seconds: done.setup_seconds,
+            check_seconds: self.clock.final_check_us as f64 * 1e-6,
+            session_seconds: done.session_seconds,
+            white_drift: done.white_drift,
+            white_drift_exceeded: done.white_drift_exceeded,
             step_checks: self.steps.checks,
-            recoveries: self.recoveries,
+            recoveries: self.link.recoveries,
             decisions: self.decisions,
             flags: self.flags.into_iter().collect(),
             analysis_settings: AnalysisSettings {
                 acceptance_deg: self.plan.acceptance_deg,
-                arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg,
+                arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
             },
-            analysed_unix_s: self.analysed_unix_s,
+            analysed_unix_s: self.clock.analysed_unix_s,
         })
-    }
-
-    /// Refinements by the plan's policy, from `report`.
-    fn refine(
-        &mut self,
-        report: &mut Report,
-        fits: &mut Vec<FitStep>,
-        refinements: &mut Vec<Refinement>,
-    ) -> Result<(), SessionError> {
-        let (targets, sweeps) = match self.plan.policy.clone() {
-            Policy::Paper => return self.refine_like_the_paper(report, fits, refinements),
-            Policy::Sweep(targets) => {
-                return self.refine_by_sweeps(targets, report, fits, refinements);
-            }
-            Policy::Fixed(_) => return Ok(()),
-            Policy::Adaptive(targets) => (targets, None),
-            Policy::Mixed(targets, sweeps) => (targets, Some(sweeps)),
-        };
-        self.refine_adaptively(targets, sweeps, report, fits, refinements)?;
-        // Never below the paper's criterion: if the batches did not get σ > σ_l, the
-        // paper's policy finishes the job.
-        self.refine_like_the_paper(report, fits, refinements)
-    }
-
-    /// The paper's policy: Strategy 2 with decreasing δ until σ > σ_l, sending only
-    /// geometries not measured yet.
-    fn refine_like_the_paper(
-        &mut self,
-        report: &mut Report,
-        fits: &mut Vec<FitStep>,
-        refinements: &mut Vec<Refinement>,
-    ) -> Result<(), SessionError> {
-        for delta in (1..=10u8).rev() {
-            let check = report.check;
-            if check.is_some_and(|c| c.sigma_ok) {
-                break;
-            }
-            let schedule: Vec<Geometry> = strategy2(delta).map(|s| s.to_vec()).unwrap_or_default();
-            let measured = self.measured();
-            let added = schedule.iter().filter(|g| !measured.contains(g)).count();
-            if added == 0 {
-                continue;
-            }
-            let reason = match (report.fit.sigma_deg(), check) {
-                (Some(sigma), Some(c)) => format!(
-                    "σ = {sigma:.3}° ≤ σ_l = {:.3}° (δ = {:.1}°)",
-                    c.sigma_l_deg, c.delta_deg
-                ),
-                (None, _) => "σ not resolved by the geometries measured".to_string(),
-                (Some(sigma), None) => {
-                    format!("σ = {sigma:.3}° but no δ: no neighbours of the specular direction")
-                }
-            };
-            self.decide(&format!(
-                "refine with Strategy 2 at δ = {delta}° ({added} new geometries): {reason}"
-            ));
-            refinements.push(Refinement {
-                delta_deg: Some(delta),
-                added,
-                reason,
-                lack_of_fit: false,
-            });
-            self.measure(
-                &format!("strategy 2, δ = {delta}° ({added} new geometries)"),
-                &schedule,
-            )?;
-            *report = self.analyse()?;
-            fits.push(FitStep {
-                after: format!("strategy2 δ={delta}°"),
-                report: to_json(report),
-            });
-        }
-        Ok(())
-    }
-
-    /// The adaptive policy ([`crate::session::adaptive`]): batches where they shrink σ's
-    /// uncertainty most per device second, until the targets are met. Rough papers whose
-    /// Strategy 1 already passes σ_l stop at once: their class rests on ρs and ρd, which
-    /// Strategy 1 measures, and more readings near the peak would not move it.
-    ///
-    /// Except when the fit is flagged lack-of-fit: then no paper stops while lack-of-fit
-    /// batches remain ([`adaptive::LACK_OF_FIT_BATCHES`], within `max_batches`). Each samples
-    /// the tails and the whole θr range, so the flag either goes (a false alarm: the policy
-    /// carries on as without it) or stays with more evidence behind it. A flag that outlives
-    /// the budget ends the batches and the result keeps it: the class cannot settle under it
-    /// (its confidence is capped), so only a σ ≤ σ_l still gets batches, designed over the
-    /// whole θr range, until σ > σ_l.
-    fn refine_adaptively(
-        &mut self,
-        targets: AdaptiveTargets,
-        sweeps: Option<sweep_policy::SweepTargets>,
-        report: &mut Report,
-        fits: &mut Vec<FitStep>,
-        refinements: &mut Vec<Refinement>,
-    ) -> Result<(), SessionError> {
-        let adaptive_batches = |refinements: &[Refinement]| {
-            refinements.iter().filter(|r| r.delta_deg.is_none()).count()
-        };
-        let lack_of_fit_batches =
-            |refinements: &[Refinement]| refinements.iter().filter(|r| r.lack_of_fit).count();
-        for batch_number in adaptive_batches(refinements) + 1..=targets.max_batches {
-            let flagged = report.fit.lack_of_fit;
-            let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
-            let rough =
-                report.classification.group == Some(crate::analysis::classify::Group::Rough);
-            let precise = adaptive::sigma_rel_half_width(&report.fit)
-                .is_some_and(|w| w <= targets.sigma_rel_half_width);
-            let settled = report.classification.confidence >= targets.class_confidence;
-            let taken = lack_of_fit_batches(refinements);
-            // The flag outlived its batches: the model does not describe this sheet, and the
-            // class cannot settle under it (its confidence is capped), so the only target
-            // left is the paper's σ > σ_l.
-            let confirmed = flagged && taken >= adaptive::LACK_OF_FIT_BATCHES;
-            if confirmed && sigma_ok {
-                self.decide(&format!(
-                    "adaptive: lack-of-fit ({}) persists after {taken} lack-of-fit batches: the model does not describe this sheet; no more batches, the result keeps the flag",
-                    lack_of_fit_evidence(&report.fit)
-                ));
-                return Ok(());
-            }
-            if !flagged && refinements.last().is_some_and(|r| r.lack_of_fit) {
-                self.decide(&format!(
-                    "adaptive: lack-of-fit gone with the readings of {taken} lack-of-fit batch{} ({}): a false alarm; the policy goes on as without it",
-                    if taken == 1 { "" } else { "es" },
-                    lack_of_fit_evidence(&report.fit)
-                ));
-            }
-            if !flagged && sigma_ok && (rough || (precise && settled)) {
-                return Ok(());
-            }
-            let observations: Vec<Observation> = self.usable_points().map(|(_, o)| o).collect();
-            let measured = self.measured();
-            let here = self.arm_position()?;
-            let integration_ms = u32::from(self.plan.integration_ms);
-            let resolved = adaptive::sigma_resolved(&report.fit);
-            // A flag on a fit that has not seen the peak says little about the lobe: the
-            // probe comes first, the tails after it if the flag stays.
-            let probe = (!resolved)
-                .then(|| adaptive::probe(&observations, &measured))
-                .filter(|b| !b.is_empty());
-            // The mixed policy probes with a slow sweep across the specular direction where
-            // Strategy 1 read the strongest peak: a lobe narrower than its spacing is then
-            // read at every 0.05° in a second, where the probe's points take several.
-            if let (Some(sweep_targets), Some(_)) = (sweeps, probe.as_ref()) {
-                let max_speed = sweep_targets
-                    .pass_speed_deg_per_s
-                    .min(f64::from(self.info.max_speed_deg_per_s));
-                let strongest = observations
-                    .iter()
-                    .filter(|o| (o.theta_r_deg - o.theta_i_deg).abs() < 0.5)
-                    .max_by(|a, b| a.radiance_factor.total_cmp(&b.radiance_factor))
-                    .map_or(60.0, |o| o.theta_i_deg);
-                // There and back: what a sweep's direction does to its bins' angles (the
-                // amplifier's lag, the arm's dwell) then cancels in the peak's position
-                // rather than leaning on σ.
-                let plans: Vec<sweep_design::SweepPlan> = sweep_design::peak_candidates(
-                    0.25,
-                    report.fit.acceptance_deg,
-                    max_speed,
-                    self.block_s(),
-                    here.theta_r.deg(),
-                )
-                .into_iter()
-                .filter(|p| {
-                    p.theta_i_deg == strongest && p.speed_deg_per_s == 15.0_f64.min(max_speed)
-                })
-                .take(1)
-                .flat_map(|p| {
-                    [
-                        p,
-                        sweep_design::SweepPlan {
-                            from_deg: p.to_deg,
-                            to_deg: p.from_deg,
-                            ..p
-                        },
-                    ]
-                })
-                .collect();
-                if !plans.is_empty() {
-                    let reason = format!(
-                        "σ not resolved: slow sweeps across the specular direction and back at θi = {strongest}°, where Strategy 1 read the strongest peak"
-                    );
-                    let name = format!("adaptive round {batch_number}");
-                    self.sweep_round(
-                        &name,
-                        &format!("{name} (sweeps across the specular direction and back)"),
-                        reason,
-                        false,
-                        &plans,
-                        report,
-                        fits,
-                        refinements,
-                    )?;
-                    continue;
-                }
-            }
-            let (batch, reason, for_lack_of_fit) = if let Some(probe) = probe {
-                (
-                    Some(probe),
-                    "σ not resolved: probe around the strongest specular peak".to_string(),
-                    false,
-                )
-            } else if flagged && !confirmed {
-                let batch = adaptive::lack_of_fit_batch(
-                    &report.fit,
-                    &observations,
-                    &measured,
-                    here,
-                    &self.motion,
-                    integration_ms,
-                    targets.batch,
-                );
-                let reason = format!(
-                    "lack-of-fit ({}): sampling the tails and the whole θr range (lack-of-fit batch {} of {})",
-                    lack_of_fit_evidence(&report.fit),
-                    taken + 1,
-                    adaptive::LACK_OF_FIT_BATCHES
-                );
-                (Some(batch), reason, true)
-            } else if resolved {
-                // Under a flag the model's idea of where σ is measured is not to be trusted:
-                // the design looks over the whole θr range.
-                let span = if flagged {
-                    adaptive::CandidateSpan::Whole
-                } else {
-                    adaptive::CandidateSpan::Lobe
-                };
-                let scored = adaptive::next_batch_scored(
-                    &report.fit,
-                    &observations,
-                    &measured,
-                    here,
-                    &self.motion,
-                    integration_ms,
-                    targets.batch,
-                    span,
-                );
-                // Sweeps as candidates (the mixed policy): a round of sweeps across the
-                // peak, designed as the sweep policy designs them, when it is predicted to
-                // shrink σ's variance more per device second than the batch. Not under a
-                // flag: there the batches look over the whole θr range, which a sweep
-                // across the peak does not.
-                if let Some(sweep_targets) = sweeps.filter(|_| !flagged) {
-                    let max_speed = sweep_targets
-                        .pass_speed_deg_per_s
-                        .min(f64::from(self.info.max_speed_deg_per_s));
-                    let per_block = self.per_block_variance();
-                    // σ ≤ σ_l is a matter of spacing, which any sweep across the peak settles
-                    // (its bins are 0.1° apart or closer): the best single sweep then, else
-                    // the sweep policy's round against the batch.
-                    let (target, most) = if sigma_ok {
-                        (targets.sigma_rel_half_width, sweep_targets.sweeps_per_round)
-                    } else {
-                        (0.0, 1)
-                    };
-                    let design = sweep_design::design_peak_sweeps(
-                        &report.fit,
-                        &observations,
-                        here,
-                        &self.motion,
-                        max_speed,
-                        self.block_s(),
-                        &per_block,
-                        target,
-                        most,
-                    );
-                    let per_second =
-                        |drop: f64, seconds: f64| if seconds > 0.0 { drop / seconds } else { 0.0 };
-                    let batch_rate = scored
-                        .as_ref()
-                        .map_or(0.0, |b| per_second(b.sigma_variance_drop, b.seconds));
-                    let sweep_rate = per_second(design.sigma_variance_drop, design.seconds);
-                    if !design.plans.is_empty() && (!sigma_ok || sweep_rate > batch_rate) {
-                        let width =
-                            adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                        let reason = format!(
-                            "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}: {} across the peak predicted to bring it to ± {:.1} % in {:.1} device s, {:.1}× the information per second of the best batch of point readings",
-                            report.fit.sigma_deg().unwrap_or(f64::NAN),
-                            100.0 * width,
-                            report.classification.class_name(),
-                            report.classification.confidence,
-                            if sigma_ok {
-                                String::new()
-                            } else {
-                                sigma_l_text(report)
-                            },
-                            sweep_policy::sweeps_text(design.plans.len()),
-                            100.0 * design.predicted_rel_half_width,
-                            design.seconds,
-                            if batch_rate > 0.0 {
-                                sweep_rate / batch_rate
-                            } else {
-                                f64::INFINITY
-                            }
-                        );
-                        let name = format!("adaptive round {batch_number}");
-                        let stage = format!(
-                            "{name} ({} across the peak)",
-                            sweep_policy::sweeps_text(design.plans.len())
-                        );
-                        self.sweep_round(
-                            &name,
-                            &stage,
-                            reason,
-                            false,
-                            &design.plans,
-                            report,
-                            fits,
-                            refinements,
-                        )?;
-                        continue;
-                    }
-                }
-                let batch = scored.map(|b| b.geometries);
-                let width = adaptive::sigma_rel_half_width(&report.fit).unwrap_or(f64::INFINITY);
-                let mut reason = format!(
-                    "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}{}",
-                    report.fit.sigma_deg().unwrap_or(f64::NAN),
-                    100.0 * width,
-                    report.classification.class_name(),
-                    report.classification.confidence,
-                    if sigma_ok {
-                        String::new()
-                    } else {
-                        sigma_l_text(&report)
-                    }
-                );
-                if confirmed {
-                    reason.push_str(&format!(
-                        "; lack-of-fit ({}) persists after {taken} lack-of-fit batches: the result keeps the flag, the batches go on over the whole θr range only until σ > σ_l",
-                        lack_of_fit_evidence(&report.fit)
-                    ));
-                }
-                (batch, reason, false)
-            } else {
-                (None, String::new(), false)
-            };
-            let Some(batch) = batch.filter(|b| !b.is_empty()) else {
-                let flag = if flagged {
-                    "; the result keeps the lack-of-fit flag"
-                } else {
-                    ""
-                };
-                self.decide(&format!("adaptive: no geometry left that would help; the paper's policy takes over if σ ≤ σ_l{flag}"));
-                return Ok(());
-            };
-            self.decide(&format!(
-                "adaptive batch {batch_number} ({} geometries): {reason}",
-                batch.len()
-            ));
-            refinements.push(Refinement {
-                delta_deg: None,
-                added: batch.len(),
-                reason,
-                lack_of_fit: for_lack_of_fit,
-            });
-            self.measure(
-                &format!("adaptive batch {batch_number} ({} geometries)", batch.len()),
-                &batch,
-            )?;
-            *report = self.analyse()?;
-            fits.push(FitStep {
-                after: format!("adaptive batch {batch_number}"),
-                report: to_json(report),
-            });
-        }
-        if report.fit.lack_of_fit {
-            self.decide(&format!(
-                "adaptive: the {} batches are spent and lack-of-fit ({}) remains: the result keeps the flag",
-                targets.max_batches,
-                lack_of_fit_evidence(&report.fit)
-            ));
-        }
-        Ok(())
     }
 
     /// Where the arms are now.
@@ -1274,7 +984,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// calibration's age sets the lamp drift's share); the time is kept for the record.
     fn analyse(&mut self) -> Result<Report, SessionError> {
         let now = unix_now_s();
-        self.analysed_unix_s = now;
+        self.clock.analysed_unix_s = now;
         analyse_points(
             &self.plan.sample,
             &self.points,
@@ -1289,7 +999,7 @@ impl<'a, T: Transport> Session<'a, T> {
     fn analysis_settings(&self) -> AnalysisSettings {
         AnalysisSettings {
             acceptance_deg: self.plan.acceptance_deg,
-            arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg,
+            arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
         }
     }
 }

@@ -65,7 +65,7 @@ impl<T: Transport> Session<'_, T> {
                     Ok(failure) => {
                         if let Failure::Link(crate::instrument::link::LinkError::Io(io)) = &failure
                         {
-                            self.last_io_error = Some(io.to_string());
+                            self.link.last_io_error = Some(io.to_string());
                         }
                         Some(failure)
                     }
@@ -77,7 +77,7 @@ impl<T: Transport> Session<'_, T> {
             }
         }
         let waited = self.now() - asked_at;
-        self.waiting_us += waited.as_micros() as u64;
+        self.clock.waiting_us += waited.as_micros() as u64;
         self.decide(&format!(
             "the operator answered after {:.1} s",
             waited.as_secs_f64()

@@ -130,7 +130,7 @@ impl<T: Transport> Session<'_, T> {
     /// the error.
     pub(super) fn link_failed(&mut self, error: LinkError) -> StepError {
         if let LinkError::Io(io) = &error {
-            self.last_io_error = Some(io.to_string());
+            self.link.last_io_error = Some(io.to_string());
         }
         StepError::from_link(error)
     }
@@ -214,7 +214,7 @@ impl<T: Transport> Session<'_, T> {
                 true
             }
             Failure::Refused { command, error } => {
-                self.recoveries.refusals += 1;
+                self.link.recoveries.refusals += 1;
                 // A refused Home never ran: its report is not lost.
                 if *command == "Home" {
                     self.steps.home_in_flight = false;
@@ -259,8 +259,8 @@ impl<T: Transport> Session<'_, T> {
                 }
             }
         }
-        self.recoveries.state_recoveries += 1;
-        self.recoveries.seconds += (self.now() - started).as_secs_f64();
+        self.link.recoveries.state_recoveries += 1;
+        self.link.recoveries.seconds += (self.now() - started).as_secs_f64();
         Ok(())
     }
 
@@ -269,7 +269,7 @@ impl<T: Transport> Session<'_, T> {
     fn reconnect(&mut self) -> Result<(), SessionError> {
         let give_up_after = self.client.policy().give_up_after;
         let lost_at = self.now().saturating_sub(self.client.silent_for());
-        let mut reopen = self.last_io_error.is_some();
+        let mut reopen = self.link.last_io_error.is_some();
         loop {
             let silent_for = self.client.silent_for();
             if silent_for >= give_up_after {
@@ -277,7 +277,7 @@ impl<T: Transport> Session<'_, T> {
             }
             if reopen {
                 if let Err(error) = self.client.transport_mut().reconnect() {
-                    self.last_io_error = Some(error.to_string());
+                    self.link.last_io_error = Some(error.to_string());
                     self.client
                         .transport_mut()
                         .pause(RECONNECT_PAUSE.min(give_up_after - silent_for));
@@ -295,8 +295,8 @@ impl<T: Transport> Session<'_, T> {
                         return Err(error);
                     }
                     self.client.clear_unsolicited();
-                    self.last_io_error = None;
-                    self.recoveries.reconnections += 1;
+                    self.link.last_io_error = None;
+                    self.link.recoveries.reconnections += 1;
                     let outage = (self.now() - lost_at).as_secs_f64();
                     self.decide(&format!("link back: the instrument greeted again, {outage:.1} s after it was last heard"));
                     // A restart the host did not see: say why (the state recovery re-homes).
@@ -310,7 +310,7 @@ impl<T: Transport> Session<'_, T> {
                 }
                 Err(LinkError::Interrupted) => return Err(SessionError::Interrupted),
                 Err(LinkError::Io(error)) => {
-                    self.last_io_error = Some(error.to_string());
+                    self.link.last_io_error = Some(error.to_string());
                     reopen = true;
                     let silent_for = self.client.silent_for();
                     self.client
@@ -331,7 +331,7 @@ impl<T: Transport> Session<'_, T> {
     /// The session ends: nothing heard for the give-up time. Says which way the link was
     /// lost, with the decisions so far (the caller says how to resume).
     fn give_up(&mut self, silent_for: Duration) -> SessionError {
-        let loss = match &self.last_io_error {
+        let loss = match &self.link.last_io_error {
             Some(error) => LinkLoss::PortGone(error.clone()),
             None => LinkLoss::NoAnswer,
         };
@@ -413,7 +413,7 @@ impl<T: Transport> Session<'_, T> {
         {
             // A fault stays in the status until the next Home: told (and counted) once.
             self.steps.fault_reported = Some(fault);
-            self.recoveries.stops += 1;
+            self.link.recoveries.stops += 1;
             let homing = if status.homed_i && status.homed_r {
                 "the homing was kept"
             } else {
@@ -431,7 +431,7 @@ impl<T: Transport> Session<'_, T> {
                 self.home("at the start")?;
             } else {
                 self.decide("the arms lost their homing: homing again");
-                self.recoveries.rehomings += 1;
+                self.link.recoveries.rehomings += 1;
                 self.home("on re-homing")?;
             }
         } else if self.steps.home_in_flight {
@@ -439,13 +439,13 @@ impl<T: Transport> Session<'_, T> {
             self.steps_unverified("the result of a Home was lost with the link")
                 .map_err(StepError::Fatal)?;
         }
-        if self.lamp_wanted && !status.lamp_on {
+        if self.link.lamp_wanted && !status.lamp_on {
             self.decide(
                 "the lamp is off (the instrument's stop switched it off): lighting it again",
             );
             self.request(Command::SetLamp { on: true })?;
-            self.recoveries.lamp_relit += 1;
-            self.lamp_went_off = true;
+            self.link.recoveries.lamp_relit += 1;
+            self.link.lamp_went_off = true;
         }
         Ok(())
     }

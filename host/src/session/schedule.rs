@@ -51,7 +51,7 @@ impl<T: Transport> Session<'_, T> {
             }
             round += 1;
             if round > 1 {
-                self.recoveries.readings_remeasured += missing.len();
+                self.link.recoveries.readings_remeasured += missing.len();
                 self.decide(&format!(
                     "measuring again {} geometries lost on the link or superseded (round {round})",
                     missing.len()

@@ -166,11 +166,9 @@ impl<T: Transport> Session<'_, T> {
         fits: &mut Vec<super::FitStep>,
         refinements: &mut Vec<super::Refinement>,
     ) -> Result<(), SessionError> {
-        use sweep_design::{design_peak_sweeps, peak_candidates};
         let SweepTargets {
             sigma_rel_half_width,
             class_confidence,
-            sweeps_per_round,
             max_rounds,
             ..
         } = targets;
@@ -185,95 +183,20 @@ impl<T: Transport> Session<'_, T> {
                 return Ok(());
             }
             let here = self.status()?.position;
-            let max_speed = f64::from(self.info.max_speed_deg_per_s);
             let block_s = self.block_s();
             // A fit the model does not describe is tested on the whole plane before it is
-            // reported: the lines the first pass left out may show where the sheet departs
-            // from the model (or that the departure was the noise's), and a flag then rests
-            // on every incidence of Strategy 1.
-            if report.fit.lack_of_fit {
-                let rest = self.rest_of_full_plane(
-                    here,
-                    targets.pass_speed_deg_per_s.min(max_speed),
-                    targets.pass_bin_deg,
-                );
-                if !rest.is_empty() {
-                    let incidences: Vec<String> =
-                        rest.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
-                    let reason = format!(
-                        "lack-of-fit after {} readings (χ² p = {:.1e}): θr 0–{}° at θi = {} too, the rest of the full plane",
-                        report.fit.n,
-                        report.fit.gof_p.unwrap_or(f64::NAN),
-                        sweep_design::THETA_R_MAX_DEG,
-                        incidences.join(" and ")
-                    );
-                    let stage = format!(
-                        "sweep round {round}: the rest of the full plane ({})",
-                        sweeps_text(rest.len())
-                    );
-                    self.sweep_round(
-                        &format!("sweep round {round}"),
-                        &stage,
-                        reason,
-                        true,
-                        &rest,
-                        report,
-                        fits,
-                        refinements,
-                    )?;
-                    continue;
-                }
+            // reported.
+            if report.fit.lack_of_fit
+                && self.full_plane_round(round, here, &targets, report, fits, refinements)?
+            {
+                continue;
             }
             if report.fit.lack_of_fit && precise && sigma_ok {
                 self.decide("sweeps: lack-of-fit with σ known to its target: the bins already span the whole plane, more would not tell the model from the sheet; the result keeps the flag");
                 return Ok(());
             }
-            let mut predicted = None;
-            let (plans, reason) = match report.fit.sigma_deg() {
-                Some(_) if width.is_some() => {
-                    let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
-                    let per_block = self.per_block_variance();
-                    let design = design_peak_sweeps(
-                        &report.fit,
-                        &observations,
-                        here,
-                        &self.motion,
-                        max_speed,
-                        block_s,
-                        &per_block,
-                        sigma_rel_half_width,
-                        sweeps_per_round,
-                    );
-                    let reason = format!(
-                        "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}: {} sweep{} across the peak predicted to bring it to ± {:.1} % in {:.1} device s",
-                        report.fit.sigma_deg().unwrap_or(f64::NAN),
-                        100.0 * width.unwrap_or(f64::INFINITY),
-                        report.classification.class_name(),
-                        report.classification.confidence,
-                        design.plans.len(),
-                        if design.plans.len() == 1 { "" } else { "s" },
-                        100.0 * design.predicted_rel_half_width,
-                        design.seconds
-                    );
-                    predicted = Some(design.predicted_rel_half_width);
-                    (design.plans, reason)
-                }
-                _ => {
-                    // Unresolved: slow sweeps across specular at every incidence, bins fine
-                    // enough for the narrowest lobe the fit allows.
-                    let plans: Vec<SweepPlan> = peak_candidates(
-                        0.25,
-                        report.fit.acceptance_deg,
-                        max_speed,
-                        block_s,
-                        here.theta_r.deg(),
-                    )
-                    .into_iter()
-                    .filter(|p| p.speed_deg_per_s == 15.0_f64.min(max_speed))
-                    .collect();
-                    (plans, "σ not resolved by the pass: slow sweeps across the specular direction at every incidence".to_string())
-                }
-            };
+            let (plans, reason, predicted) =
+                self.peak_round_design(&targets, report, width, here, block_s);
             if plans.is_empty() {
                 self.decide("sweeps: no sweep left that would help; the result is as measured");
                 return Ok(());
@@ -281,15 +204,15 @@ impl<T: Transport> Session<'_, T> {
             // What the readings share (or a sheet the model does not describe) can leave σ's
             // interval where more sweeps will not move it: rounds that would narrow it by
             // under a tenth are not run.
-            if let (Some(now), Some(after)) = (width, predicted) {
-                if after > (1.0 - MIN_PREDICTED_GAIN) * now {
-                    self.decide(&format!(
-                        "sweeps: the best sweeps across the peak would take σ's interval only from ± {:.1} % to ± {:.1} %; the result is as measured",
-                        100.0 * now,
-                        100.0 * after
-                    ));
-                    return Ok(());
-                }
+            if let (Some(now), Some(after)) = (width, predicted)
+                && after > (1.0 - MIN_PREDICTED_GAIN) * now
+            {
+                self.decide(&format!(
+                    "sweeps: the best sweeps across the peak would take σ's interval only from ± {:.1} % to ± {:.1} %; the result is as measured",
+                    100.0 * now,
+                    100.0 * after
+                ));
+                return Ok(());
             }
             let (name, lack_of_fit) = (format!("sweep round {round}"), report.fit.lack_of_fit);
             let stage = format!("{name} ({})", sweeps_text(plans.len()));
@@ -305,6 +228,116 @@ impl<T: Transport> Session<'_, T> {
             )?;
         }
         Ok(())
+    }
+
+    /// The rest of the full plane, for a fit flagged lack-of-fit: the lines the first pass
+    /// left out may show where the sheet departs from the model (or that the departure was
+    /// the noise's), and a flag then rests on every incidence of Strategy 1. Whether a
+    /// round was measured (none is left once the whole plane is).
+    fn full_plane_round(
+        &mut self,
+        round: usize,
+        here: protocol::Geometry,
+        targets: &SweepTargets,
+        report: &mut crate::analysis::result::Report,
+        fits: &mut Vec<super::FitStep>,
+        refinements: &mut Vec<super::Refinement>,
+    ) -> Result<bool, SessionError> {
+        let max_speed = f64::from(self.info.max_speed_deg_per_s);
+        let rest = self.rest_of_full_plane(
+            here,
+            targets.pass_speed_deg_per_s.min(max_speed),
+            targets.pass_bin_deg,
+        );
+        if rest.is_empty() {
+            return Ok(false);
+        }
+        let incidences: Vec<String> = rest.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
+        let reason = format!(
+            "lack-of-fit after {} readings (χ² p = {:.1e}): θr 0–{}° at θi = {} too, the rest of the full plane",
+            report.fit.n,
+            report.fit.gof_p.unwrap_or(f64::NAN),
+            sweep_design::THETA_R_MAX_DEG,
+            incidences.join(" and ")
+        );
+        let stage = format!(
+            "sweep round {round}: the rest of the full plane ({})",
+            sweeps_text(rest.len())
+        );
+        self.sweep_round(
+            &format!("sweep round {round}"),
+            &stage,
+            reason,
+            true,
+            &rest,
+            report,
+            fits,
+            refinements,
+        )?;
+        Ok(true)
+    }
+
+    /// The next round of sweeps across the peak, with why and σ's predicted relative half
+    /// width after it: designed on the fit when σ is known, else slow sweeps across the
+    /// specular direction at every incidence.
+    fn peak_round_design(
+        &self,
+        targets: &SweepTargets,
+        report: &crate::analysis::result::Report,
+        width: Option<f64>,
+        here: protocol::Geometry,
+        block_s: f64,
+    ) -> (Vec<SweepPlan>, String, Option<f64>) {
+        use sweep_design::{design_peak_sweeps, peak_candidates};
+        let max_speed = f64::from(self.info.max_speed_deg_per_s);
+        match report.fit.sigma_deg() {
+            Some(_) if width.is_some() => {
+                let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
+                let per_block = self.per_block_variance();
+                let design = design_peak_sweeps(
+                    &report.fit,
+                    &observations,
+                    here,
+                    &self.motion,
+                    max_speed,
+                    block_s,
+                    &per_block,
+                    targets.sigma_rel_half_width,
+                    targets.sweeps_per_round,
+                );
+                let reason = format!(
+                    "σ = {:.3}° ± {:.1} % (95 %), class {} at {:.2}: {} sweep{} across the peak predicted to bring it to ± {:.1} % in {:.1} device s",
+                    report.fit.sigma_deg().unwrap_or(f64::NAN),
+                    100.0 * width.unwrap_or(f64::INFINITY),
+                    report.classification.class_name(),
+                    report.classification.confidence,
+                    design.plans.len(),
+                    if design.plans.len() == 1 { "" } else { "s" },
+                    100.0 * design.predicted_rel_half_width,
+                    design.seconds
+                );
+                (design.plans, reason, Some(design.predicted_rel_half_width))
+            }
+            _ => {
+                // Unresolved: slow sweeps across specular at every incidence, bins fine
+                // enough for the narrowest lobe the fit allows.
+                let plans: Vec<SweepPlan> = peak_candidates(
+                    0.25,
+                    report.fit.acceptance_deg,
+                    max_speed,
+                    block_s,
+                    here.theta_r.deg(),
+                )
+                .into_iter()
+                .filter(|p| p.speed_deg_per_s == 15.0_f64.min(max_speed))
+                .collect();
+                (
+                    plans,
+                    "σ not resolved by the pass: slow sweeps across the specular direction at every incidence".to_string(),
+                    None,
+                )
+            }
+        }
     }
 
     /// One round of sweeps as a refinement: the decision (`name`, its sweeps and bins,
@@ -571,7 +604,7 @@ impl<T: Transport> Session<'_, T> {
                     });
                 }
                 Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => {
-                    self.recoveries.readings_remeasured +=
+                    self.link.recoveries.readings_remeasured +=
                         usize::from(bins).saturating_sub(seen.len());
                     return Ok(sweep_id);
                 }
@@ -585,7 +618,7 @@ impl<T: Transport> Session<'_, T> {
                     if let Reply::Status(status) = self.request(Command::GetStatus)? {
                         if status.schedule.is_none_or(|(id, _)| id != sweep_id) {
                             // Bins lost on the link (a gap in the indices): measured again.
-                            self.recoveries.readings_remeasured +=
+                            self.link.recoveries.readings_remeasured +=
                                 usize::from(bins).saturating_sub(seen.len());
                             return Ok(sweep_id);
                         }

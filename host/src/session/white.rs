@@ -21,11 +21,11 @@ impl<T: Transport> Session<'_, T> {
         self.recorder
             .stage("dark and white calibration", INCIDENCE_DEG.len());
         let integration_ms = self.plan.integration_ms;
-        self.lamp_wanted = false;
+        self.link.lamp_wanted = false;
         let Reply::Dark(dark) = self.retrying(Command::TakeDark { integration_ms })? else {
             return Err(SessionError::Fit("unexpected dark reply".into()));
         };
-        self.lamp_wanted = true;
+        self.link.lamp_wanted = true;
         self.lamp_on()?;
         self.ask_operator(Placement::WhiteTile)?;
         let mut white = Vec::new();
@@ -60,7 +60,7 @@ impl<T: Transport> Session<'_, T> {
             .collect();
         let calibration = Calibration::new(
             instrument_name(&self.info),
-            self.tile.clone(),
+            self.given.tile.clone(),
             gains,
             dark.to_vec(),
             white,
@@ -82,7 +82,7 @@ impl<T: Transport> Session<'_, T> {
     ) -> Result<Reading, SessionError> {
         let integration_ms = self.plan.integration_ms;
         for _ in 0..recovery::MAX_RECOVERIES {
-            let recoveries = self.recoveries.state_recoveries;
+            let recoveries = self.link.recoveries.state_recoveries;
             self.retrying(Command::MoveTo(geometry))?;
             let reply = self.retrying(Command::TakeReading {
                 integration_ms,
@@ -93,7 +93,7 @@ impl<T: Transport> Session<'_, T> {
                 self.recover(failure)?;
                 continue;
             }
-            if self.recoveries.state_recoveries != recoveries {
+            if self.link.recoveries.state_recoveries != recoveries {
                 continue;
             }
             return match reply {
@@ -129,7 +129,7 @@ impl<T: Transport> Session<'_, T> {
         if let Some(reason) = stopped {
             return Ok(Some(Failure::Stopped(reason)));
         }
-        if !self.lamp_wanted {
+        if !self.link.lamp_wanted {
             return Ok(None);
         }
         let status = self.status()?;

@@ -665,55 +665,9 @@ pub fn figures(
     let class = |p: &Pair, stock: usize| campaign.stocks[p.draw][stock].class;
     let (same, different_lr) = split(&pairs);
     let different: Vec<&Pair> = pairs.iter().filter(|p| p.stock_a != p.stock_b).collect();
-    let mut by_classes: Vec<(Class, Class, usize, usize)> = Vec::new();
-    for p in &different {
-        let (mut a, mut b) = (class(p, p.stock_a), class(p, p.stock_b));
-        if a.name() > b.name() {
-            std::mem::swap(&mut a, &mut b);
-        }
-        let misleading = usize::from(p.log10_lr > 0.0);
-        match by_classes
-            .iter_mut()
-            .find(|(x, y, _, _)| *x == a && *y == b)
-        {
-            Some(row) => {
-                row.2 += misleading;
-                row.3 += 1;
-            }
-            None => by_classes.push((a, b, misleading, 1)),
-        }
-    }
-    by_classes.sort_by(|x, y| (x.0.name(), x.1.name()).cmp(&(y.0.name(), y.1.name())));
-    let mut spot_use = SpotUse::default();
-    for s in &sheets {
-        spot_use.sheets += 1;
-        spot_use.measured += s.measured_spots;
-        spot_use.replaced += s.measured_spots.saturating_sub(s.planned);
-        spot_use.excluded += s.excluded;
-        spot_use.no_clean_spot += usize::from(s.no_clean_spot);
-        spot_use.short += usize::from(s.measured.spots.len() < s.planned);
-    }
-    let name = |p: &Pair, k: usize| campaign.stocks[p.draw][k].name.as_str();
-    let named = NAMED_PAIRS
-        .iter()
-        .map(|&(a, b)| {
-            let lrs: Vec<f64> = pairs
-                .iter()
-                .filter(|p| {
-                    (name(p, p.stock_a), name(p, p.stock_b)) == (a, b)
-                        || (name(p, p.stock_a), name(p, p.stock_b)) == (b, a)
-                })
-                .map(|p| p.log10_lr)
-                .collect();
-            (
-                a,
-                b,
-                lrs.len(),
-                lrs.iter().filter(|&&x| x < -2.0).count(),
-                lrs.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-            )
-        })
-        .collect();
+    let by_classes = by_classes(campaign, &different);
+    let spot_use = spot_use(&sheets);
+    let named = named_pairs(campaign, &pairs);
     let figures = Figures {
         named,
         spots,
@@ -747,6 +701,74 @@ pub fn figures(
         per_draw,
     };
     Ok((figures, pairs))
+}
+
+/// Misleading evidence for different stocks by pair of classes: (class a, class b,
+/// pairs with LR > 1, pairs), in the classes' order.
+fn by_classes(campaign: &Campaign, different: &[&Pair]) -> Vec<(Class, Class, usize, usize)> {
+    let class = |p: &Pair, stock: usize| campaign.stocks[p.draw][stock].class;
+    let mut by_classes: Vec<(Class, Class, usize, usize)> = Vec::new();
+    for p in different {
+        let (mut a, mut b) = (class(p, p.stock_a), class(p, p.stock_b));
+        if a.name() > b.name() {
+            std::mem::swap(&mut a, &mut b);
+        }
+        let misleading = usize::from(p.log10_lr > 0.0);
+        match by_classes
+            .iter_mut()
+            .find(|(x, y, _, _)| *x == a && *y == b)
+        {
+            Some(row) => {
+                row.2 += misleading;
+                row.3 += 1;
+            }
+            None => by_classes.push((a, b, misleading, 1)),
+        }
+    }
+    by_classes.sort_by(|x, y| (x.0.name(), x.1.name()).cmp(&(y.0.name(), y.1.name())));
+    by_classes
+}
+
+/// How the sheets' spots were used.
+fn spot_use(sheets: &[&MeasuredSheet]) -> SpotUse {
+    let mut spot_use = SpotUse::default();
+    for s in sheets {
+        spot_use.sheets += 1;
+        spot_use.measured += s.measured_spots;
+        spot_use.replaced += s.measured_spots.saturating_sub(s.planned);
+        spot_use.excluded += s.excluded;
+        spot_use.no_clean_spot += usize::from(s.no_clean_spot);
+        spot_use.short += usize::from(s.measured.spots.len() < s.planned);
+    }
+    spot_use
+}
+
+/// The named pairs of reference papers over every draw (see [`Figures::named`]).
+fn named_pairs(
+    campaign: &Campaign,
+    pairs: &[Pair],
+) -> Vec<(&'static str, &'static str, usize, usize, f64)> {
+    let name = |p: &Pair, k: usize| campaign.stocks[p.draw][k].name.as_str();
+    NAMED_PAIRS
+        .iter()
+        .map(|&(a, b)| {
+            let lrs: Vec<f64> = pairs
+                .iter()
+                .filter(|p| {
+                    (name(p, p.stock_a), name(p, p.stock_b)) == (a, b)
+                        || (name(p, p.stock_a), name(p, p.stock_b)) == (b, a)
+                })
+                .map(|p| p.log10_lr)
+                .collect();
+            (
+                a,
+                b,
+                lrs.len(),
+                lrs.iter().filter(|&&x| x < -2.0).count(),
+                lrs.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            )
+        })
+        .collect()
 }
 
 fn percent(k: usize, n: usize) -> f64 {
@@ -889,6 +911,43 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
         "# Forensic validation: {} draws of {stocks} stocks, {library} library sheets, {held} held-out sheets of {} planned spots, {spots} spots accepted\n",
         f.draws, f.spots
     );
+    pooled_markdown(&mut s, f);
+    draws_markdown(&mut s, f);
+    let _ = writeln!(
+        s,
+        "\n## Misleading evidence for different stocks, by pair of classes\n"
+    );
+    let _ = writeln!(
+        s,
+        "| classes | pairs | LR > 1 | rate |\n|---|---:|---:|---:|"
+    );
+    for (a, b, misleading, n) in &f.by_classes {
+        let _ = writeln!(
+            s,
+            "| {} – {} | {n} | {misleading} | {:.2} % |",
+            a.name(),
+            b.name(),
+            percent(*misleading, *n)
+        );
+    }
+    if !study.is_empty() {
+        let _ = writeln!(s, "\n## Spots per sheet\n");
+        let _ = writeln!(
+            s,
+            "The same sheets (the same seeds) measured with each number of spots, library and held-out alike, over the {} draws.\n",
+            f.draws
+        );
+        s += &spots_table(study);
+    }
+    let _ = writeln!(s, "\n## Claims\n");
+    for (claim, held) in claims(f) {
+        let _ = writeln!(s, "- {} {claim}", if held { "✓" } else { "✗" });
+    }
+    s
+}
+
+/// The summary's table of the claims' figures pooled over the draws.
+fn pooled_markdown(s: &mut String, f: &Figures) {
     let u = &f.spot_use;
     let _ = writeln!(s, "| measure | value |\n|---|---|");
     let _ = writeln!(s, "| same-stock pairs | {} |", f.pairs.0);
@@ -944,6 +1003,10 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
         "| device time per sheet (s) | {:.0} |",
         f.device_seconds_per_sheet
     );
+}
+
+/// The summary's row of each draw of the population.
+fn draws_markdown(s: &mut String, f: &Figures) {
     let _ = writeln!(s, "\n## Each draw of the population\n");
     let _ = writeln!(
         s,
@@ -991,37 +1054,6 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
                 .map_or("–".to_string(), |m| format!("{m:.2}")),
         );
     }
-    let _ = writeln!(
-        s,
-        "\n## Misleading evidence for different stocks, by pair of classes\n"
-    );
-    let _ = writeln!(
-        s,
-        "| classes | pairs | LR > 1 | rate |\n|---|---:|---:|---:|"
-    );
-    for (a, b, misleading, n) in &f.by_classes {
-        let _ = writeln!(
-            s,
-            "| {} – {} | {n} | {misleading} | {:.2} % |",
-            a.name(),
-            b.name(),
-            percent(*misleading, *n)
-        );
-    }
-    if !study.is_empty() {
-        let _ = writeln!(s, "\n## Spots per sheet\n");
-        let _ = writeln!(
-            s,
-            "The same sheets (the same seeds) measured with each number of spots, library and held-out alike, over the {} draws.\n",
-            f.draws
-        );
-        s += &spots_table(study);
-    }
-    let _ = writeln!(s, "\n## Claims\n");
-    for (claim, held) in claims(f) {
-        let _ = writeln!(s, "- {} {claim}", if held { "✓" } else { "✗" });
-    }
-    s
 }
 
 /// A Tippett plot: for each log10 LR x, the share of same-stock and of different-stock

@@ -148,8 +148,8 @@ pub fn simulated_sheet(
             outcomes.push(outcome);
             Ok(result)
         };
-    let (results, summary) = crate::session::sheet::measure_sheet(
-        crate::session::sheet::SheetPlan::new(spots),
+    let (results, summary) = crate::session::multi_spot::measure_sheet(
+        crate::session::multi_spot::SheetPlan::new(spots),
         Vec::new(),
         measure_spot,
         |_| {},

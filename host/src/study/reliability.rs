@@ -664,6 +664,14 @@ pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
             survival_line(&mut out, &label, &selected);
         }
     }
+    failures_markdown(&mut out, rows);
+    step_checks_markdown(&mut out, rows);
+    give_ups_markdown(&mut out, give_ups);
+    out
+}
+
+/// The summary's sessions that did not survive (the first 50), if any.
+fn failures_markdown(out: &mut String, rows: &[Row]) {
     let failures: Vec<&Row> = rows.iter().filter(|r| !r.survived()).collect();
     if !failures.is_empty() {
         let _ = writeln!(
@@ -684,6 +692,10 @@ pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
             );
         }
     }
+}
+
+/// The summary's table of the lost-steps checks' device time, from the clean twins.
+fn step_checks_markdown(out: &mut String, rows: &[Row]) {
     let _ = writeln!(
         out,
         "\n## The lost-steps check (the clean twins)\n\nDevice seconds of the Home before the report, paid by every session, against the sample's measuring time (Strategy 1 to the last refinement); and of the Home after the white calibration, paid once per calibration.\n\n| paper | policy | sessions | check before the report: median s | max s | measuring s, median | check / measuring, median | after the white calibration: median s |\n|---|---|---:|---:|---:|---:|---:|---:|"
@@ -726,6 +738,10 @@ pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
             );
         }
     }
+}
+
+/// The summary's sessions given up after a pull that was never put back, if any.
+fn give_ups_markdown(out: &mut String, give_ups: &[GiveUp]) {
     let pulled: Vec<&GiveUp> = give_ups
         .iter()
         .filter(|g| g.silent_s.is_some() || g.after_pull_s > 0.0)
@@ -749,5 +765,4 @@ pub fn summary_markdown(rows: &[Row], give_ups: &[GiveUp]) -> String {
             silent.iter().copied().fold(f64::NAN, f64::max),
         );
     }
-    out
 }

@@ -449,6 +449,15 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
         "{} sessions, {seeds} seeds per paper and configuration, on {physics}. Device time counts the sample's measurement (Strategy 1 onwards); homing, calibration and the lost-steps check before the report (1.5–2.5 s, docs/TRADE.md) are the same for every policy and are left out.\n",
         rows.len()
     );
+    configurations_markdown(&mut out, rows);
+    targets_markdown(&mut out, rows);
+    sweeps_markdown(&mut out, rows);
+    let _ = writeln!(out, "\n## Visiting order\n\n{order_table}");
+    out
+}
+
+/// The summary's tables per configuration, over the glossy and over the rough papers.
+fn configurations_markdown(out: &mut String, rows: &[Row]) {
     for (title, group_glossy) in [
         ("Glossy papers (G, SG)", true),
         ("Rough papers (PPC, MC, J1–J4)", false),
@@ -487,6 +496,10 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
         }
         out.push('\n');
     }
+}
+
+/// The summary's table of the adaptive policy against the paper's, paper by paper.
+fn targets_markdown(out: &mut String, rows: &[Row]) {
     let _ = writeln!(
         out,
         "## The adaptive policy against the paper's, at {TARGET_INTEGRATION_MS} ms\n"
@@ -510,6 +523,10 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
             if check.met { "yes" } else { "**no**" }
         );
     }
+}
+
+/// The summary's table of the sweep settings against their targets (none without sweeps).
+fn sweeps_markdown(out: &mut String, rows: &[Row]) {
     let sweeps = sweep_checks(rows);
     if !sweeps.is_empty() {
         let _ = writeln!(out, "\n## Sweeps against their targets\n");
@@ -554,8 +571,6 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
             );
         }
     }
-    let _ = writeln!(out, "\n## Visiting order\n\n{order_table}");
-    out
 }
 
 /// The sample device time the sweep policy is to stay within, seconds (issue 16).

@@ -1,0 +1,235 @@
+//! `gonio measure`: parses, hands the measurement to [`host::session::measure`], prints
+//! what it gave and exits with what the result says.
+mod args;
+
+pub use args::Args;
+
+use anyhow::Context;
+use host::session::measure::{Measured, measure, resume_command};
+use host::session::{Operator, Outcome, PromptOperator, SessionError, SimulatedOperator};
+use std::path::Path;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Run `gonio measure`.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let interrupted = Arc::new(AtomicBool::new(false));
+    let flag = interrupted.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
+        .context("cannot install the Ctrl-C handler")?;
+    // In process the simulated operator swaps the tile; on any port a person is asked.
+    let mut operator: Box<dyn Operator> = if args.sim.is_some() {
+        Box::new(SimulatedOperator)
+    } else {
+        Box::new(PromptOperator::new())
+    };
+    let options = args.options();
+    match measure(&options, operator.as_mut(), interrupted)? {
+        Measured::Done {
+            dir,
+            outcome,
+            summary,
+        } => {
+            print_report(&args, &dir, &outcome, &summary);
+            // The exit code says what `ok` says: 0 clean, 3 flagged.
+            Ok(crate::cli::exit::of_result(outcome.ok()))
+        }
+        Measured::Sheet { dir, sheet, json } => {
+            if args.json {
+                println!("{json}");
+            } else {
+                print_sheet(&dir, &sheet);
+            }
+            Ok(crate::cli::exit::of_result(sheet.summary.ok()))
+        }
+        Measured::Stopped {
+            dir,
+            error,
+            record_error,
+        } => {
+            eprintln!("session stopped: {error}");
+            if let Some(record_error) = record_error {
+                eprintln!("and its folder could not be updated: {record_error}");
+            }
+            eprintln!(
+                "readings so far are in {}; continue with: {}",
+                dir.display(),
+                resume_command(&options, &dir)
+            );
+            let code = if matches!(error, SessionError::Interrupted) {
+                crate::cli::exit::INTERRUPTED
+            } else {
+                crate::cli::exit::FAILED
+            };
+            Ok(ExitCode::from(code))
+        }
+    }
+}
+
+fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json::Value) {
+    if args.json {
+        println!("{summary}");
+        return;
+    }
+    print!("{}", host::analysis::result::to_table(&outcome.report));
+    println!(
+        "  {} geometries, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
+        outcome.points.len(),
+        outcome.device_seconds,
+        outcome.setup_seconds,
+        if outcome.refinements.is_empty() {
+            "none".to_string()
+        } else {
+            outcome
+                .refinements
+                .iter()
+                .map(|r| match r.delta_deg {
+                    Some(d) => format!("δ = {d}° (+{}: {})", r.added, r.reason),
+                    None => format!("+{} ({})", r.added, r.reason),
+                })
+                .collect::<Vec<_>>()
+                .join("; ")
+        }
+    );
+    if let Some(drift) = outcome.white_drift {
+        println!(
+            "  white check: drift {:.2} %{}",
+            100.0 * drift,
+            if outcome.white_drift_exceeded {
+                " — BEYOND THE LIMIT, result marked"
+            } else {
+                ""
+            }
+        );
+    }
+    print_result(outcome.ok(), &outcome.flags);
+    println!(
+        "  files: {} (gonio verify {} checks them; report.html is the report to read, its glossary and the README's explain the terms)",
+        dir.display(),
+        dir.display()
+    );
+}
+
+fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
+    use host::analysis::spots::SpotVerdict;
+    let summary = &sheet.summary;
+    println!(
+        "sheet of '{}': {} spots planned, {} measured, {} accepted",
+        sheet.doc.sample,
+        sheet.doc.spots_planned,
+        sheet.spots.len(),
+        summary.accepted
+    );
+    let value = |v: Option<f64>, digits: usize| {
+        v.map_or_else(|| "—".to_string(), |v| format!("{v:.digits$}"))
+    };
+    for s in &sheet.spots {
+        let verdict = match summary
+            .verdicts
+            .iter()
+            .find(|j| j.number == s.result.number)
+            .map(|j| &j.verdict)
+        {
+            Some(SpotVerdict::Accepted) => "accepted".to_string(),
+            Some(SpotVerdict::Excluded { reason }) => format!("EXCLUDED: {reason}"),
+            None => "?".to_string(),
+        };
+        // The spot's own report, as its session.json holds it.
+        let result = std::fs::read(s.dir.join(host::output::folder::SESSION))
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .map(|v| v["result"].clone())
+            .unwrap_or_default();
+        let interval = |key: &str, digits: usize| match result["ci95"][key]
+            .as_array()
+            .map(|a| (a[0].as_f64(), a[1].as_f64()))
+        {
+            Some((Some(lo), Some(hi))) => format!(" [{lo:.digits$}, {hi:.digits$}]"),
+            _ => String::new(),
+        };
+        let confidence = result["class_confidence"]
+            .as_f64()
+            .map_or_else(String::new, |c| format!(" (confidence {c:.2})"));
+        println!(
+            "  spot {}: class {}{confidence}  {verdict}",
+            s.result.number,
+            s.session.class.as_deref().unwrap_or("undecided")
+        );
+        println!(
+            "    σ = {}°{}   ρs = {}{}   ρd = {}{}   (95 % intervals)",
+            value(s.session.values[0], 3),
+            interval("sigma_deg", 3),
+            value(s.session.values[1], 4),
+            interval("rho_s", 4),
+            value(s.session.values[2], 4),
+            interval("rho_d", 4)
+        );
+        println!(
+            "    NMAE {:.2} %, {} geometries, {:.1} device s; flags: {}; report: {}",
+            100.0 * result["nmae"].as_f64().unwrap_or(f64::NAN),
+            result["geometries"].as_u64().unwrap_or(0),
+            result["device_seconds"].as_f64().unwrap_or(f64::NAN),
+            if s.result.flags.is_empty() {
+                "none".to_string()
+            } else {
+                flag_names(&s.result.flags)
+            },
+            s.dir.join(host::output::folder::SESSION).display()
+        );
+    }
+    let spread = |i: usize| {
+        summary.within_relative_sd.map_or_else(
+            || "spot-to-spot unknown".to_string(),
+            |sd| format!("spot-to-spot sd {:.1} %", 100.0 * sd[i]),
+        )
+    };
+    println!(
+        "  sheet (geometric mean of the accepted spots): σ = {}° ({}), ρs = {} ({}), ρd = {} ({})",
+        value(summary.mean[0], 3),
+        spread(0),
+        value(summary.mean[1], 4),
+        spread(1),
+        value(summary.mean[2], 4),
+        spread(2)
+    );
+    for note in &summary.notes {
+        println!("  note: {note}");
+    }
+    if let Some(result) = &sheet.doc.result {
+        println!(
+            "  {:.1} device s measuring the spots (+{:.1} s homing, calibration and moving the sheet)",
+            result.device_seconds, result.setup_seconds
+        );
+    }
+    print_result(summary.ok(), &summary.flags);
+    println!(
+        "  files: {} (gonio verify {} checks them)",
+        dir.display(),
+        dir.display()
+    );
+}
+
+/// "result: ok" (with the informational flags noted) or "result: NOT CLEAN" with the flags.
+fn print_result(ok: bool, flags: &[host::analysis::flags::Flag]) {
+    if ok {
+        println!(
+            "  result: ok{}",
+            if flags.is_empty() {
+                String::new()
+            } else {
+                format!(" (noted: {})", flag_names(flags))
+            }
+        );
+    } else {
+        println!("  result: NOT CLEAN, flags: {}", flag_names(flags));
+    }
+}
+
+fn flag_names(flags: &[host::analysis::flags::Flag]) -> String {
+    flags
+        .iter()
+        .map(|f| f.name())
+        .collect::<Vec<_>>()
+        .join(", ")
+}

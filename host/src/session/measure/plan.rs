@@ -1,0 +1,142 @@
+//! What a session measures: the options given, else the resumed session's, else the
+//! defaults, checked against the instrument's announced limits; and a calibration given
+//! from an earlier session.
+use super::MeasureOptions;
+use super::check::Checked;
+use crate::instrument::calibration::Calibration;
+use crate::output::folder::{AdaptiveTargetsRecord, PlanRecord};
+use crate::session::adaptive::AdaptiveTargets;
+use crate::session::{Plan, Policy, PolicyChoice};
+use anyhow::bail;
+use std::path::Path;
+
+/// The white drift limit when none is given, percent.
+pub const DEFAULT_WHITE_DRIFT_LIMIT_PCT: f64 = 0.5;
+/// The largest detector acceptance the fit models, degrees (full width): its acceptance
+/// window is a small-angle average over the lobe, and the instrument's is about 2°.
+pub const MAX_ACCEPTANCE_DEG: f64 = 10.0;
+
+/// What is measured: the options given, else the resumed session's, else the defaults;
+/// checked against the instrument's announced limits.
+pub(super) fn plan_record(
+    args: &MeasureOptions,
+    info: &protocol::DeviceInfo,
+    earlier: Option<&PlanRecord>,
+) -> anyhow::Result<PlanRecord> {
+    let policy = match (args.policy, earlier) {
+        (Some(choice), _) => choice,
+        (None, Some(plan)) => <PolicyChoice as clap::ValueEnum>::from_str(&plan.policy, true)
+            .map_err(|_| anyhow::anyhow!("the session's policy '{}' is not one this gonio knows (paper, adaptive, sweep, mixed)", plan.policy))?,
+        (None, None) => PolicyChoice::Adaptive,
+    };
+    let adaptive_targets = match Policy::from(policy) {
+        Policy::Adaptive(t) | Policy::Mixed(t, _) => Some(AdaptiveTargetsRecord {
+            sigma_rel_half_width: t.sigma_rel_half_width,
+            class_confidence: t.class_confidence,
+            batch: t.batch,
+            max_batches: t.max_batches,
+        }),
+        _ => None,
+    };
+    let (integration_ms, from) = match (args.integration_ms, earlier) {
+        (Some(ms), _) => (ms, "--integration-ms".to_string()),
+        (None, Some(plan)) => (
+            plan.integration_ms,
+            "the resumed session's integration time".to_string(),
+        ),
+        (None, None) => (
+            info.default_integration_ms,
+            "the instrument's default integration time".to_string(),
+        ),
+    };
+    let (min, max) = (info.min_integration_ms.max(1), info.max_integration_ms);
+    if !(min..=max).contains(&integration_ms) {
+        bail!(
+            "{from} {integration_ms} ms is outside what the instrument (serial {}) accepts: {min} to {max} ms",
+            info.serial_number
+        );
+    }
+    let acceptance_deg = f64::from(info.acceptance_deg);
+    if !(acceptance_deg.is_finite() && (0.0..=MAX_ACCEPTANCE_DEG).contains(&acceptance_deg)) {
+        bail!(
+            "the instrument (serial {}) announces a detector acceptance of {acceptance_deg}°: the fit models 0 to {MAX_ACCEPTANCE_DEG}°",
+            info.serial_number
+        );
+    }
+    let sweep_targets = match Policy::from(policy) {
+        Policy::Sweep(t) | Policy::Mixed(_, t) => Some(t),
+        _ => None,
+    };
+    Ok(PlanRecord {
+        policy: policy.name().into(),
+        adaptive_targets,
+        sweep_targets,
+        integration_ms,
+        acceptance_deg,
+        white_check: args.white_check || earlier.is_some_and(|p| p.white_check),
+        white_drift_limit_pct: args
+            .white_drift_limit_pct
+            .or(earlier.map(|p| p.white_drift_limit_pct))
+            .unwrap_or(DEFAULT_WHITE_DRIFT_LIMIT_PCT),
+    })
+}
+
+pub(super) fn plan_of(record: &PlanRecord, sample: &str) -> Plan {
+    let adaptive = record.adaptive_targets.as_ref().map(|t| AdaptiveTargets {
+        sigma_rel_half_width: t.sigma_rel_half_width,
+        class_confidence: t.class_confidence,
+        batch: t.batch,
+        max_batches: t.max_batches,
+    });
+    let policy = match (record.policy.as_str(), adaptive) {
+        ("sweep", _) => Policy::Sweep(record.sweep_targets.unwrap_or_default()),
+        ("mixed", Some(t)) => Policy::Mixed(t, record.sweep_targets.unwrap_or_default()),
+        (_, Some(t)) => Policy::Adaptive(t),
+        (_, None) => Policy::Paper,
+    };
+    Plan {
+        sample: sample.to_string(),
+        integration_ms: record.integration_ms,
+        policy,
+        acceptance_deg: record.acceptance_deg,
+        white_check: record.white_check,
+        white_drift_limit: record.white_drift_limit_pct / 100.0,
+    }
+}
+
+/// `--calibration`: a session folder, its `session.json` or a `calibration.json`, checked
+/// for age and instrument (its serial number too, when a session document names it).
+pub(super) fn external_calibration(
+    path: &Path,
+    checked: &Checked,
+    info: &protocol::DeviceInfo,
+) -> anyhow::Result<Calibration> {
+    let file = if path.is_dir() {
+        path.join("calibration.json")
+    } else {
+        path.to_path_buf()
+    };
+    let calibration = Calibration::load(&file, checked.max_calibration_age, info)?;
+    let session = if path.is_dir() {
+        path.join("session.json")
+    } else {
+        file.with_file_name("session.json")
+    };
+    if let Some(serial) = std::fs::read(&session)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .and_then(|v| {
+            v["instrument"]["serial_number"]
+                .as_str()
+                .map(str::to_string)
+        })
+        && serial != info.serial_number.as_str()
+    {
+        bail!(
+            "calibration {} was taken on instrument serial {serial}, not on this one (serial {})",
+            file.display(),
+            info.serial_number
+        );
+    }
+    Ok(calibration)
+}
