@@ -127,12 +127,12 @@ struct ArmSearch {
     accepted: Option<(LeastSquaresProblem, LmOutcome)>,
 }
 
-/// The joint Gauss–Newton step in (free x, δ0) at `outcome` on `problem`, and the score
-/// statistic of δ0 (the part of the predicted decrease of the cost due to δ0).
-fn arm_offset_step(
+/// At `x` on `problem`: the parameters off their bounds, the whitened residuals, and the
+/// whitened Jacobian's columns of those parameters with δ0's last.
+fn offset_columns(
     problem: &LeastSquaresProblem,
     x: &[f64; 4],
-) -> Option<(Vec<usize>, Vec<f64>, f64, f64)> {
+) -> (Vec<usize>, Vec<f64>, Vec<Vec<f64>>) {
     let (lo, hi) = (lower_bounds(), upper_bounds());
     let (residuals, jacobian) = problem.rows(x);
     let free: Vec<usize> = (0..4).filter(|&i| x[i] > lo[i] && x[i] < hi[i]).collect();
@@ -141,6 +141,16 @@ fn arm_offset_step(
         .map(|&i| jacobian.iter().map(|row| row[i]).collect())
         .collect();
     columns.push(problem.shift_column(x));
+    (free, residuals, columns)
+}
+
+/// The joint Gauss–Newton step in (free x, δ0) at `outcome` on `problem`, and the score
+/// statistic of δ0 (the part of the predicted decrease of the cost due to δ0).
+fn arm_offset_step(
+    problem: &LeastSquaresProblem,
+    x: &[f64; 4],
+) -> Option<(Vec<usize>, Vec<f64>, f64, f64)> {
+    let (free, residuals, columns) = offset_columns(problem, x);
     let normal = gls_normal(&problem.shared, &columns, Some(&residuals));
     let p = columns.len();
     let h_inv = linalg::spd_inverse(&normal.h)?;
@@ -280,14 +290,7 @@ fn arm_offset_search(
 
 /// δ0² / Var_HC3(δ0) at the fit `x` of the shifted `problem` (unweighted).
 fn robust_arm_offset_statistic(problem: &LeastSquaresProblem, x: &[f64; 4]) -> Option<f64> {
-    let (lo, hi) = (lower_bounds(), upper_bounds());
-    let (residuals, jacobian) = problem.rows(x);
-    let free: Vec<usize> = (0..4).filter(|&i| x[i] > lo[i] && x[i] < hi[i]).collect();
-    let mut columns: Vec<Vec<f64>> = free
-        .iter()
-        .map(|&i| jacobian.iter().map(|row| row[i]).collect())
-        .collect();
-    columns.push(problem.shift_column(x));
+    let (_, residuals, columns) = offset_columns(problem, x);
     let normal = gls_normal(&problem.shared, &columns, None);
     let h_inv = linalg::spd_inverse(&normal.h)?;
     let cov = sandwich(&h_inv, &columns, &residuals);

@@ -9,6 +9,7 @@
 use super::arm_offset::ArmTest;
 use super::engine::{self, LeastSquaresProblem};
 use super::result::not_identified_of;
+use super::validation::geometry_order;
 use super::{
     ArmOffset, BudgetTerm, ETA_MAX, ETA_MIN, FitOptions, N_PARAMS, Note, Observation,
     SIGMA_MAX_DEG, SIGMA_MIN_DEG, SharedError, State, t_quantile_975,
@@ -70,15 +71,7 @@ pub(super) fn goodness_of_fit(
     } else {
         (None, None, f64::NAN, None)
     };
-    let n = observations.len();
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| {
-        let (oa, ob) = (&observations[a], &observations[b]);
-        oa.theta_i_deg
-            .total_cmp(&ob.theta_i_deg)
-            .then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg))
-            .then(a.cmp(&b))
-    });
+    let order = geometry_order(observations);
     let decorrelated = gof::innovations(&residuals, &problem.shared.s, problem.shared.m, &order);
     let theta_i_sorted: Vec<f64> = order.iter().map(|&i| observations[i].theta_i_deg).collect();
     let structure = gof::structure_test(&theta_i_sorted, &decorrelated);

@@ -12,68 +12,91 @@ use super::{
 pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
     let weighted = observations.first().is_some_and(|o| o.std.is_some());
     for (index, o) in observations.iter().enumerate() {
-        for (what, value) in [("theta_i", o.theta_i_deg), ("theta_r", o.theta_r_deg)] {
-            if !value.is_finite() {
-                return Err(FitError::NotFinite { index, what });
-            }
-            if !(0.0..90.0).contains(&value) {
-                return Err(FitError::AngleOutOfRange { index, what, value });
-            }
+        check_reading(index, o, weighted)?;
+    }
+    let distinct = distinct_geometries(observations)?;
+    if distinct < N_PARAMS {
+        return Err(FitError::TooFewGeometries {
+            found: distinct,
+            needed: N_PARAMS,
+        });
+    }
+    let (lo, hi) = observations
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| {
+            (lo.min(o.radiance_factor), hi.max(o.radiance_factor))
+        });
+    if lo == hi {
+        return Err(FitError::AllEqual {
+            n: observations.len(),
+            value: lo,
+        });
+    }
+    Ok(())
+}
+
+/// One reading's checks: finite numbers in range, and an uncertainty when the first
+/// reading has one (`weighted`) and none otherwise.
+fn check_reading(index: usize, o: &Observation, weighted: bool) -> Result<(), FitError> {
+    for (what, value) in [("theta_i", o.theta_i_deg), ("theta_r", o.theta_r_deg)] {
+        if !value.is_finite() {
+            return Err(FitError::NotFinite { index, what });
         }
-        if !(0.0..=MAX_SPAN_DEG).contains(&o.theta_r_span_deg) {
-            return Err(FitError::SpanOutOfRange {
-                index,
-                value: o.theta_r_span_deg,
-            });
-        }
-        if !o.radiance_factor.is_finite() {
-            return Err(FitError::NotFinite {
-                index,
-                what: "radiance_factor",
-            });
-        }
-        if o.radiance_factor < 0.0 {
-            return Err(FitError::Negative {
-                index,
-                value: o.radiance_factor,
-            });
-        }
-        if o.radiance_factor > RADIANCE_FACTOR_MAX {
-            return Err(FitError::TooLarge {
-                index,
-                value: o.radiance_factor,
-                max: RADIANCE_FACTOR_MAX,
-            });
-        }
-        match o.std {
-            Some(s) if !s.is_finite() => return Err(FitError::NotFinite { index, what: "std" }),
-            Some(s) if s <= 0.0 => return Err(FitError::BadUncertainty { index, value: s }),
-            Some(s) if !(STD_MIN..=STD_MAX).contains(&s) => {
-                return Err(FitError::UncertaintyOutOfRange {
-                    index,
-                    value: s,
-                    min: STD_MIN,
-                    max: STD_MAX,
-                });
-            }
-            None if weighted => return Err(FitError::MixedUncertainties { index }),
-            Some(_) if !weighted => {
-                // The first reading had none: it is the odd one out.
-                return Err(FitError::MixedUncertainties { index: 0 });
-            }
-            _ => {}
+        if !(0.0..90.0).contains(&value) {
+            return Err(FitError::AngleOutOfRange { index, what, value });
         }
     }
-    // Duplicates: repeated readings are fine, contradicting ones are not. Without
-    // uncertainties "contradicting" means more than 10 % apart; with them, more than 5 σ.
-    let mut order: Vec<usize> = (0..observations.len()).collect();
-    order.sort_by(|&a, &b| {
-        let (oa, ob) = (&observations[a], &observations[b]);
-        oa.theta_i_deg
-            .total_cmp(&ob.theta_i_deg)
-            .then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg))
-            .then(a.cmp(&b))
-    });
+    if !(0.0..=MAX_SPAN_DEG).contains(&o.theta_r_span_deg) {
+        return Err(FitError::SpanOutOfRange {
+            index,
+            value: o.theta_r_span_deg,
+        });
+    }
+    if !o.radiance_factor.is_finite() {
+        return Err(FitError::NotFinite {
+            index,
+            what: "radiance_factor",
+        });
+    }
+    if o.radiance_factor < 0.0 {
+        return Err(FitError::Negative {
+            index,
+            value: o.radiance_factor,
+        });
+    }
+    if o.radiance_factor > RADIANCE_FACTOR_MAX {
+        return Err(FitError::TooLarge {
+            index,
+            value: o.radiance_factor,
+            max: RADIANCE_FACTOR_MAX,
+        });
+    }
+    match o.std {
+        Some(s) if !s.is_finite() => return Err(FitError::NotFinite { index, what: "std" }),
+        Some(s) if s <= 0.0 => return Err(FitError::BadUncertainty { index, value: s }),
+        Some(s) if !(STD_MIN..=STD_MAX).contains(&s) => {
+            return Err(FitError::UncertaintyOutOfRange {
+                index,
+                value: s,
+                min: STD_MIN,
+                max: STD_MAX,
+            });
+        }
+        None if weighted => return Err(FitError::MixedUncertainties { index }),
+        Some(_) if !weighted => {
+            // The first reading had none: it is the odd one out.
+            return Err(FitError::MixedUncertainties { index: 0 });
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// The number of distinct geometries. Repeated readings are fine, contradicting ones are
+/// not: without uncertainties "contradicting" means more than 10 % apart; with them, more
+/// than 5 σ.
+fn distinct_geometries(observations: &[Observation]) -> Result<usize, FitError> {
+    let order = geometry_order(observations);
     let mut distinct = 0;
     for (k, &i) in order.iter().enumerate() {
         let same_as_previous = k > 0 && {
@@ -102,24 +125,7 @@ pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
             });
         }
     }
-    if distinct < N_PARAMS {
-        return Err(FitError::TooFewGeometries {
-            found: distinct,
-            needed: N_PARAMS,
-        });
-    }
-    let (lo, hi) = observations
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), o| {
-            (lo.min(o.radiance_factor), hi.max(o.radiance_factor))
-        });
-    if lo == hi {
-        return Err(FitError::AllEqual {
-            n: observations.len(),
-            value: lo,
-        });
-    }
-    Ok(())
+    Ok(distinct)
 }
 
 /// Check the shared errors against the (validated) readings: one finite sensitivity of at
@@ -163,4 +169,18 @@ pub fn validate_shared(
         }
     }
     Ok(())
+}
+
+/// The readings' indices in order of θi, then θr, then input order: repeats next to each
+/// other, and each incidence's profile in θr.
+pub(super) fn geometry_order(observations: &[Observation]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..observations.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (oa, ob) = (&observations[a], &observations[b]);
+        oa.theta_i_deg
+            .total_cmp(&ob.theta_i_deg)
+            .then(oa.theta_r_deg.total_cmp(&ob.theta_r_deg))
+            .then(a.cmp(&b))
+    });
+    order
 }
