@@ -782,10 +782,10 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
     object.insert("schema".into(), Value::from(schema::SESSION));
     let sigma = crate::analysis::model::PARAM_NAMES[crate::analysis::model::SIGMA];
     let upgrade_analysis = |analysis: &mut Value| {
-        if let Some(ci) = analysis.get_mut("ci95").and_then(Value::as_object_mut) {
-            if let Some(v) = ci.remove("sigma") {
-                ci.insert(sigma.into(), v);
-            }
+        if let Some(ci) = analysis.get_mut("ci95").and_then(Value::as_object_mut)
+            && let Some(v) = ci.remove("sigma")
+        {
+            ci.insert(sigma.into(), v);
         }
         if let Some(names) = analysis.get_mut("model").and_then(Value::as_array_mut) {
             names

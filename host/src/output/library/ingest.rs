@@ -53,7 +53,7 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         .first()
         .ok_or_else(|| bad("a sheet without spots".into()))?;
     let file = first.dir.join(crate::output::folder::SESSION);
-    let (_, doc) = read_session_doc(&file, &bad)?;
+    let (_, doc) = read_session_doc(&file, bad)?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
         measured_at: doc.runs.first().map(|r| r.started.clone()),
@@ -103,7 +103,7 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
     }
     let session_sha256 = session_identity(dir)?;
     let file = dir.join(crate::output::folder::SESSION);
-    let (text, doc) = read_session_doc(&file, &bad)?;
+    let (text, doc) = read_session_doc(&file, bad)?;
     let ok = doc
         .rest
         .get("ok")

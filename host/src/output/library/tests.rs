@@ -18,7 +18,7 @@ fn sheet(n: u64, spots: usize) -> SheetRecord {
         ],
     };
     SheetRecord {
-        lot: (n % 2 == 0).then(|| format!("ream {n}")),
+        lot: n.is_multiple_of(2).then(|| format!("ream {n}")),
         measured_at: Some(format!("2026-05-01T14:03:{:02}.000+02:00", n % 60)),
         instrument_serial: "SIM-0001".into(),
         session_path: format!("sessions/é-{n}"),
