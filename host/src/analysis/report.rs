@@ -2,11 +2,11 @@
 //! classify, and the report's JSON object and human table. The session, the trade study
 //! and `gonio fit` all use it.
 use crate::analysis::classify::{self, Classification};
+use crate::analysis::dataset::DataSet;
 use crate::analysis::fit::{self, FitOptions, FitResult, SharedError};
 use crate::analysis::flags::{self, Flag};
 use crate::analysis::model::{self, PARAM_NAMES};
 use crate::analysis::sampling::{self, Delta, SigmaCheck};
-use crate::output::dataset::DataSet;
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 

@@ -3,10 +3,11 @@
 //! Each file is read and each data set fitted on its own: a bad file or data set is
 //! reported on stderr as `file:line: message` and the others still get their results;
 //! the exit status is 1 if anything failed, else 3 if any result is flagged (not `ok`).
+use crate::analysis::dataset::DataSet;
 use crate::analysis::fit::FitOptions;
 use crate::analysis::model;
 use crate::analysis::report::{Report, analyse, to_json, to_table};
-use crate::output::dataset::{self, DataSet};
+use crate::output::dataset;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

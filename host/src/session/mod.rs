@@ -37,12 +37,12 @@ pub use operator::{
 };
 pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
+use crate::analysis::dataset::DataSet;
 use crate::analysis::fit::{FitOptions, Observation};
 use crate::analysis::flags::Flag;
 use crate::analysis::report::{Report, analyse_with_shared, to_json};
 use crate::instrument::calibration::{Calibration, CalibrationError, Tile, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
-use crate::output::dataset::DataSet;
 use adaptive::AdaptiveTargets;
 use order::Motion;
 use protocol::schedules::{strategy1, strategy2};

@@ -356,7 +356,7 @@ fn bad_inputs_name_the_file_and_the_key() {
 /// covariance (as `gonio measure` adds it).
 fn session_of(sample: &str, observations: Vec<host::analysis::fit::Observation>) -> Value {
     use host::analysis::{fit::FitOptions, report};
-    let set = host::output::dataset::DataSet {
+    let set = host::analysis::dataset::DataSet {
         sample: sample.into(),
         lines: (2..2 + observations.len()).collect(),
         observations,

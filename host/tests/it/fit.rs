@@ -742,7 +742,7 @@ fn an_undetermined_rho_s_is_null_and_never_used() {
                 host::analysis::classify::nearest_reference(&other),
                 (c.nearest_reference, c.nearest_distance)
             );
-            let set = host::output::dataset::DataSet {
+            let set = host::analysis::dataset::DataSet {
                 sample: "eta-1".into(),
                 observations: obs.clone(),
                 lines: (2..2 + obs.len()).collect(),
