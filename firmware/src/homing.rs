@@ -23,7 +23,7 @@
 //!   the approach minus the margin, 1.5°): fall back to the full search from there.
 //!
 //! Device time of `Home`, both arms at once, on the reference instrument (virtual time on
-//! `FakeHardware`; `tests/homing.rs` prints this table and bounds the quick re-home at 3 s
+//! `FakeHardware`; `tests/it/homing.rs` prints this table and bounds the quick re-home at 3 s
 //! and three quarters of the full homing). "−40": the arm lost 40 steps (0.5°) and stands
 //! behind its count; "+40": ahead of it.
 //!
@@ -342,7 +342,7 @@ impl ArmHoming {
 /// over the ways through the state machine above (the arms home at once, so one arm's
 /// worst is the device's). Announced in the handshake (`DeviceInfo::longest_home_ms`), so
 /// that a host waits for the answer as long as the device may need and not much longer;
-/// tested against homings on the fake hardware (`tests/homing.rs`).
+/// tested against homings on the fake hardware (`tests/it/homing.rs`).
 ///
 /// Every homing begins with at most a quick run over the whole travel at full speed and
 /// its stop, then goes one of two ways:

@@ -3,7 +3,7 @@
 //! device drains ([`SampleRing`]), and the rule that no lost sample goes unreported.
 //! The board's TIM5 interrupt feeds the decimator the DMA's write position, the ADC's
 //! overrun flag and the detector arm's step count; the tests a model of the DMA
-//! (`tests/sampling.rs`).
+//! (`tests/it/sampling.rs`).
 //!
 //! The board's ADC converts continuously, paced by the crystal: one conversion every
 //! `cycles_per_conversion` CPU cycles (384 at 96 MHz: ADCCLK 24 MHz, 96 ADC clocks per

@@ -1,5 +1,5 @@
 //! Scenarios of the whole device on the fake hardware, written without `std` so that the
-//! same code runs on the host (`tests/scenarios.rs`, `examples/scenarios.rs`) and compiled
+//! same code runs on the host (`tests/it/scenarios.rs`, `examples/scenarios.rs`) and compiled
 //! for the Cortex-M4 under QEMU (`firmware/target-tests`): the handshake, homing, a whole
 //! Strategy 1, a sweep across the specular peak with its range switches, and the fail-safe
 //! paths. Each returns a digest of every byte the device

@@ -11,7 +11,7 @@ use protocol::{DeviceError, ErrorCode, Geometry, ScheduleChunk};
 /// arm travels (the arms arrive together, [`crate::motion`]), so the order that minimises
 /// the total move time was found by exhaustive dynamic programming over the 2¹² subsets
 /// (Held–Karp), starting from where homing leaves both arms (the home switches, 87.5°).
-/// The test `strategy1_order_is_optimal` in `tests/schedules.rs` re-runs that search with
+/// The test `strategy1_order_is_optimal` in `tests/it/schedules.rs` re-runs that search with
 /// the library's own motion planner. The order sweeps the θr = 70° row from the home side,
 /// comes down the specular diagonal, and ends along θr = 0:
 /// total move time 6.98 s, against 13.6 s for the paper's order (θi, then θr).

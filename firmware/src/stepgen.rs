@@ -2,7 +2,7 @@
 //! make a [`MoveProfile`], how a running profile is replaced without a runt pulse, and
 //! how an interrupt that came too late is noticed. The board implements [`StepTimer`] with
 //! the registers of one general-purpose timer per arm (and its DIR/EN pins); the tests
-//! with a cycle-exact model of that timer (`tests/stepgen.rs`).
+//! with a cycle-exact model of that timer (`tests/it/stepgen.rs`).
 //!
 //! THE TIMER: 1 µs ticks, PWM mode 1, period (ARR) and compare (CCR) preloaded. A segment
 //! is one timer period that starts with a step pulse of [`PULSE_TICKS`] or without one.

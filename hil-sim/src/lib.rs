@@ -21,6 +21,7 @@ pub mod amplifier;
 pub mod detector;
 pub mod hardware;
 pub mod pty;
+pub mod readings_csv;
 pub mod scene;
 pub mod sheet;
 pub mod table;

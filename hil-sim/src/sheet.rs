@@ -24,7 +24,7 @@
 //! (the paper's FWHM of the TS lobe), and ggx and cauchy have heavier tails. F and
 //! G/(cos θi cos θr) widen the whole specular term of every lobe a little, a heavy tail a
 //! little more: for σ ≤ 1.9° at θi 20–60° the whole term's FWHM is within 2.3 % (ggx) and
-//! 5.8 % (cauchy) of the Gaussian's (tests/sheet.rs).
+//! 5.8 % (cauchy) of the Gaussian's (tests/it/sheet.rs).
 //!
 //! The two terms the TSL model lacks (the paper's last paragraph), each with a strength
 //! that is a radiance factor:

@@ -30,6 +30,7 @@
 //! acceptance window smooths them once more: replay a table taken with a window of its own
 //! with the acceptance set to 0.
 
+use crate::readings_csv::Records;
 use crate::scene::Scene;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -39,14 +40,82 @@ pub const OUTSIDE_TOLERANCE_DEG: f64 = 1.0;
 
 /// What is wrong with a scene file: the message names the file and the line.
 #[derive(Debug, thiserror::Error)]
-#[error("{file}{}: {what}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+#[error("{file}{}: {problem}", line.map(|l| format!(":{l}")).unwrap_or_default())]
 pub struct TableError {
     /// The file (as given).
     pub file: String,
     /// 1-based line; none when the file cannot be read at all.
     pub line: Option<usize>,
     /// What is wrong.
-    pub what: String,
+    pub problem: TableProblem,
+}
+
+/// What is wrong in a scene file, at its [`TableError::line`].
+#[derive(Debug, thiserror::Error)]
+pub enum TableProblem {
+    /// The file could not be read.
+    #[error("cannot read: {0}")]
+    Io(#[from] std::io::Error),
+    /// No header line.
+    #[error("empty file: expected a header with theta_i, theta_r, radiance_factor")]
+    Empty,
+    /// A required column is missing from the header.
+    #[error("the header has no '{0}' column")]
+    MissingColumn(&'static str),
+    /// A required column appears twice in the header.
+    #[error("column '{0}' appears twice in the header")]
+    DuplicateColumn(&'static str),
+    /// A row with the wrong number of fields.
+    #[error("{found} fields, the header has {expected}")]
+    FieldCount {
+        /// Fields in the header.
+        expected: usize,
+        /// Fields in the row.
+        found: usize,
+    },
+    /// A field that is not a number.
+    #[error("{column} '{value}' is not a number")]
+    NotANumber {
+        /// Column name.
+        column: &'static str,
+        /// The text.
+        value: String,
+    },
+    /// A number that is infinite or NaN.
+    #[error("{column} '{value}' is not finite")]
+    NotFinite {
+        /// Column name.
+        column: &'static str,
+        /// The text.
+        value: String,
+    },
+    /// θi outside [0, 90).
+    #[error("theta_i {0} is outside [0, 90) degrees")]
+    ThetaIOutside(f64),
+    /// θr outside (−90, 90).
+    #[error("theta_r {0} is outside (-90, 90) degrees")]
+    ThetaROutside(f64),
+    /// A negative radiance factor.
+    #[error("radiance_factor {0} is negative")]
+    NegativeRadianceFactor(f64),
+    /// A second sample in the `sample` column.
+    #[error(
+        "sample '{sample}' here, '{first}' on line {first_line}: a scene file holds one sample"
+    )]
+    SecondSample {
+        /// The sample on this line.
+        sample: String,
+        /// The file's first sample.
+        first: String,
+        /// The line it is on.
+        first_line: usize,
+    },
+    /// A header but no readings.
+    #[error("no readings after the header")]
+    NoReadings,
+    /// A tabulated θi with a single θr.
+    #[error("theta_i {0} has one theta_r only: a row needs two to interpolate")]
+    OneThetaR(f64),
 }
 
 /// One tabulated θi: its θr nodes, ascending, the values and the PCHIP slopes.
@@ -73,130 +142,25 @@ impl TableScene {
         let text = std::fs::read_to_string(path).map_err(|e| TableError {
             file: name.clone(),
             line: None,
-            what: format!("cannot read: {e}"),
+            problem: TableProblem::Io(e),
         })?;
         TableScene::parse(&text, &name)
     }
 
     /// Parse CSV text; `file` names it in errors.
     pub fn parse(text: &str, file: &str) -> Result<TableScene, TableError> {
-        let error = |line: usize, what: String| TableError {
+        let (nodes, last_line) = read_nodes(text).map_err(|(line, problem)| TableError {
             file: file.to_owned(),
             line: Some(line),
-            what,
-        };
-        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
-            .filter(|(_, l)| {
-                let t = l.trim();
-                !t.is_empty() && !t.starts_with('#')
-            });
-        let (header_line, header) = lines.next().ok_or_else(|| {
-            error(
-                1,
-                "empty file: expected a header with theta_i, theta_r, radiance_factor".into(),
-            )
+            problem,
         })?;
-        let names: Vec<String> = split_fields(header)
-            .into_iter()
-            .map(|n| n.to_ascii_lowercase())
-            .collect();
-        let column = |wanted: &str| -> Result<usize, TableError> {
-            let mut found = names
-                .iter()
-                .enumerate()
-                .filter(|(_, n)| n.as_str() == wanted)
-                .map(|(i, _)| i);
-            match (found.next(), found.next()) {
-                (Some(i), None) => Ok(i),
-                (None, _) => Err(error(
-                    header_line,
-                    format!("the header has no '{wanted}' column"),
-                )),
-                (Some(_), Some(_)) => Err(error(
-                    header_line,
-                    format!("column '{wanted}' appears twice in the header"),
-                )),
-            }
+        let error = |line: usize, problem: TableProblem| TableError {
+            file: file.to_owned(),
+            line: Some(line),
+            problem,
         };
-        let (col_i, col_r, col_f) = (
-            column("theta_i")?,
-            column("theta_r")?,
-            column("radiance_factor")?,
-        );
-        let col_sample = names.iter().position(|n| n == "sample");
-
-        // (θi, θr) → (sum, count, first line), θ keyed in exact bits after normalising −0.
-        let mut nodes: std::collections::BTreeMap<(OrdF64, OrdF64), (f64, u32, usize)> =
-            Default::default();
-        let mut sample: Option<(String, usize)> = None;
-        let mut last_line = header_line;
-        for (line, text) in lines {
-            last_line = line;
-            let fields = split_fields(text);
-            if fields.len() != names.len() {
-                return Err(error(
-                    line,
-                    format!("{} fields, the header has {}", fields.len(), names.len()),
-                ));
-            }
-            let number = |col: usize, what: &str| -> Result<f64, TableError> {
-                let v = fields[col].parse::<f64>().map_err(|_| {
-                    error(line, format!("{what} '{}' is not a number", fields[col]))
-                })?;
-                if v.is_finite() {
-                    Ok(v)
-                } else {
-                    Err(error(
-                        line,
-                        format!("{what} '{}' is not finite", fields[col]),
-                    ))
-                }
-            };
-            let theta_i = number(col_i, "theta_i")?;
-            let theta_r = number(col_r, "theta_r")?;
-            let value = number(col_f, "radiance_factor")?;
-            if !(0.0..90.0).contains(&theta_i) {
-                return Err(error(
-                    line,
-                    format!("theta_i {theta_i} is outside [0, 90) degrees"),
-                ));
-            }
-            if !(-90.0 < theta_r && theta_r < 90.0) {
-                return Err(error(
-                    line,
-                    format!("theta_r {theta_r} is outside (-90, 90) degrees"),
-                ));
-            }
-            if value < 0.0 {
-                return Err(error(line, format!("radiance_factor {value} is negative")));
-            }
-            if let Some(c) = col_sample {
-                match &sample {
-                    None => sample = Some((fields[c].clone(), line)),
-                    Some((first, first_line)) if *first != fields[c] => {
-                        return Err(error(
-                            line,
-                            format!(
-                                "sample '{}' here, '{first}' on line {first_line}: a scene file holds one sample",
-                                fields[c]
-                            ),
-                        ));
-                    }
-                    Some(_) => {}
-                }
-            }
-            let entry = nodes
-                .entry((OrdF64::new(theta_i), OrdF64::new(theta_r)))
-                .or_insert((0.0, 0, line));
-            entry.0 += value;
-            entry.1 += 1;
-        }
         if nodes.is_empty() {
-            return Err(error(last_line, "no readings after the header".into()));
+            return Err(error(last_line, TableProblem::NoReadings));
         }
         let mut rows: Vec<Row> = Vec::new();
         let mut first_line_of_row = Vec::new();
@@ -216,13 +180,7 @@ impl TableScene {
         }
         for (row, line) in rows.iter_mut().zip(first_line_of_row) {
             if row.theta_r_deg.len() < 2 {
-                return Err(error(
-                    line,
-                    format!(
-                        "theta_i {} has one theta_r only: a row needs two to interpolate",
-                        row.theta_i_deg
-                    ),
-                ));
+                return Err(error(line, TableProblem::OneThetaR(row.theta_i_deg)));
             }
             row.slope = pchip_slopes(&row.theta_r_deg, &row.value);
         }
@@ -300,6 +258,94 @@ impl Scene for TableScene {
     }
 }
 
+/// The tabulated nodes: (θi, θr) → (sum of values, count, first line).
+type Nodes = std::collections::BTreeMap<(OrdF64, OrdF64), (f64, u32, usize)>;
+
+/// The nodes of a scene file, θ keyed in exact bits after normalising −0, and the last
+/// line read; or the line of the first problem and the problem.
+fn read_nodes(text: &str) -> Result<(Nodes, usize), (usize, TableProblem)> {
+    let mut records = Records::new(text);
+    let header = records.header().ok_or((1, TableProblem::Empty))?;
+    let column = |wanted: &'static str| {
+        let mut found = header
+            .names
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| n.as_str() == wanted)
+            .map(|(i, _)| i);
+        match (found.next(), found.next()) {
+            (Some(i), None) => Ok(i),
+            (None, _) => Err((header.line, TableProblem::MissingColumn(wanted))),
+            (Some(_), Some(_)) => Err((header.line, TableProblem::DuplicateColumn(wanted))),
+        }
+    };
+    let (col_i, col_r, col_f) = (
+        column("theta_i")?,
+        column("theta_r")?,
+        column("radiance_factor")?,
+    );
+    let col_sample = header.position("sample");
+
+    let mut nodes = Nodes::new();
+    let mut sample: Option<(String, usize)> = None;
+    let mut last_line = header.line;
+    while let Some((line, fields)) = records.next() {
+        last_line = line;
+        let problem = |problem| (line, problem);
+        if fields.len() != header.names.len() {
+            return Err(problem(TableProblem::FieldCount {
+                expected: header.names.len(),
+                found: fields.len(),
+            }));
+        }
+        let number = |col: usize, column: &'static str| {
+            let text = &fields[col];
+            match text.parse::<f64>() {
+                Ok(v) if v.is_finite() => Ok(v),
+                Ok(_) => Err(problem(TableProblem::NotFinite {
+                    column,
+                    value: text.to_owned(),
+                })),
+                Err(_) => Err(problem(TableProblem::NotANumber {
+                    column,
+                    value: text.to_owned(),
+                })),
+            }
+        };
+        let theta_i = number(col_i, "theta_i")?;
+        let theta_r = number(col_r, "theta_r")?;
+        let value = number(col_f, "radiance_factor")?;
+        if !(0.0..90.0).contains(&theta_i) {
+            return Err(problem(TableProblem::ThetaIOutside(theta_i)));
+        }
+        if !(-90.0 < theta_r && theta_r < 90.0) {
+            return Err(problem(TableProblem::ThetaROutside(theta_r)));
+        }
+        if value < 0.0 {
+            return Err(problem(TableProblem::NegativeRadianceFactor(value)));
+        }
+        if let Some(c) = col_sample {
+            match &sample {
+                None => sample = Some((fields[c].to_owned(), line)),
+                Some((first, first_line)) if *first != fields[c] => {
+                    return Err(problem(TableProblem::SecondSample {
+                        sample: fields[c].to_owned(),
+                        first: first.clone(),
+                        first_line: *first_line,
+                    }));
+                }
+                Some(_) => {}
+            }
+        }
+        let entry = nodes
+            .entry((OrdF64::new(theta_i), OrdF64::new(theta_r)))
+            .or_insert((0.0, 0, line));
+        entry.0 += value;
+        entry.1 += 1;
+    }
+    Ok((nodes, last_line))
+}
+
 /// An f64 with a total order, −0 taken as 0 (angles from a file: finite).
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct OrdF64(f64);
@@ -322,27 +368,6 @@ impl Ord for OrdF64 {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
         self.0.total_cmp(&other.0)
     }
-}
-
-/// Split a CSV line on commas, honouring double quotes ("" inside quotes is a quote).
-fn split_fields(line: &str) -> Vec<String> {
-    let mut fields = Vec::new();
-    let mut field = String::new();
-    let mut in_quotes = false;
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match c {
-            '"' if in_quotes && chars.peek() == Some(&'"') => {
-                field.push('"');
-                chars.next();
-            }
-            '"' => in_quotes = !in_quotes,
-            ',' if !in_quotes => fields.push(std::mem::take(&mut field).trim().to_owned()),
-            _ => field.push(c),
-        }
-    }
-    fields.push(field.trim().to_owned());
-    fields
 }
 
 /// Fritsch–Carlson slopes of the monotone piecewise cubic through (x, y), x ascending,

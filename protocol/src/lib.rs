@@ -30,7 +30,7 @@ pub use schema::SCHEMA_HASH;
 ///
 /// Every encoding is pinned by `tests/data/golden.hex`; `cargo test -p protocol --test
 /// golden` fails on any change until this is bumped and the file regenerated
-/// (`GONIO_BLESS=1 cargo test -p protocol --test golden`).
+/// (`GONIO_BLESS=1 cargo test -p protocol --test it golden`).
 ///
 /// History: 1, the first release; 2, `DeviceInfo` gained `min_integration_ms`,
 /// `heartbeat_timeout_ms` and `serial_number`, and `TakeReading` a forced `range`;
@@ -42,13 +42,13 @@ pub use schema::SCHEMA_HASH;
 /// `detector_block_us`, and `MAX_SWEEP_BINS`.
 ///
 /// The shape of every message is also pinned as one number, [`schema::SCHEMA_HASH`],
-/// which must be the hash of this version in [`SCHEMA_HISTORY`] (`tests/schema.rs`).
+/// which must be the hash of this version in [`SCHEMA_HISTORY`] (`tests/it/schema.rs`).
 pub const PROTOCOL_VERSION: u16 = 4;
 
 /// The wire schema hash ([`schema::SCHEMA_HASH`]) of each protocol version since 2, oldest
 /// first. A change of any message's encoding changes the hash: then bump
 /// [`PROTOCOL_VERSION`] and append `(new version, new hash)` here (`cargo test -p protocol
-/// --test schema` prints it); an entry is never edited.
+/// --test it schema` prints it); an entry is never edited.
 pub const SCHEMA_HISTORY: &[(u16, u64)] = &[
     (2, 0xf4fc_c159_3ea1_cc3a),
     (3, 0xe291_1f63_e599_b75a),

@@ -18,7 +18,7 @@
 //! `DeviceMessage::Reply` (variant 0) and its `seq`, `Result::Err` and [`DeviceError`]
 //! never change encoding, so a peer of any version can read a version-mismatch refusal
 //! and tie an unreadable message to its request. Every other encoding is pinned by the
-//! golden file `tests/data/golden.hex` (see `tests/golden.rs`): a change there is a new
+//! golden file `tests/data/golden.hex` (see `tests/it/golden.rs`): a change there is a new
 //! [`crate::PROTOCOL_VERSION`].
 
 use crate::framing::Sequenced;
@@ -282,7 +282,7 @@ pub struct SweepPlan {
 /// THE LINK. At most one bin is sent per detector block (the shortest bin is longer than a
 /// block's travel), so at most 1,000 bins/s (976.6 on the board's 1.024 ms blocks). A bin is
 /// at most 46 bytes as a frame, and at most 31 with angles in the arms' range, a sweep id
-/// below 16,384, fewer than 128 blocks and under 9.5 hours of uptime (`tests/framing.rs`):
+/// below 16,384, fewer than 128 blocks and under 9.5 hours of uptime (`tests/it/framing.rs`):
 /// at most 31 kB/s (46 kB/s whatever the values). USB full speed carries up to 19 bulk
 /// packets of 64 bytes per 1 ms frame (1.2 MB/s) and the host's CDC-ACM driver keeps reads
 /// pending on the IN endpoint, so that is under 3 % of the link, and under half of even one

@@ -5,9 +5,9 @@
 //! from the code). [`SCHEMA_HASH`] folds the description of the two message types that
 //! cross the wire ([`WIRE_TYPES`]) and the limits both sides size their buffers by
 //! ([`WIRE_LIMITS`]) into a 64-bit FNV-1a hash, and [`crate::SCHEMA_HISTORY`] ties each
-//! hash to its [`crate::PROTOCOL_VERSION`]: `tests/schema.rs` fails when the hash is not
+//! hash to its [`crate::PROTOCOL_VERSION`]: `tests/it/schema.rs` fails when the hash is not
 //! the last entry's under the current version, so a message cannot change shape without a
-//! new version, and `tests/golden.rs` pins the encoding of one instance of each message as
+//! new version, and `tests/it/golden.rs` pins the encoding of one instance of each message as
 //! a second, byte-level lock (with the hash in the golden file, which cannot be rewritten
 //! under an unchanged version).
 //!
@@ -21,7 +21,7 @@
 //!
 //! Adding a message type: put its schema in [`WIRE_TYPES`] (or make it part of
 //! [`crate::Request`] or [`crate::DeviceMessage`], which is how every message so far is
-//! carried) and a golden instance in `tests/golden.rs`.
+//! carried) and a golden instance in `tests/it/golden.rs`.
 
 use crate::messages::{
     BOARD_NAME_LEN, DeviceMessage, FIRMWARE_VERSION_LEN, MAX_RANGES, MAX_SWEEP_BINS, Request,

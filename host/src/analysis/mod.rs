@@ -4,6 +4,7 @@
 pub mod budget;
 pub mod classify;
 pub mod compare;
+pub mod dataset;
 pub mod evidence;
 pub mod fit;
 pub mod flags;

@@ -3,10 +3,11 @@
 //! Each file is read and each data set fitted on its own: a bad file or data set is
 //! reported on stderr as `file:line: message` and the others still get their results;
 //! the exit status is 1 if anything failed, else 3 if any result is flagged (not `ok`).
+use host::analysis::dataset::DataSet;
 use host::analysis::fit::FitOptions;
 use host::analysis::model;
 use host::analysis::result::{Readings, Report, analyse, to_json, to_table};
-use host::output::dataset::{self, DataSet};
+use host::output::dataset;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

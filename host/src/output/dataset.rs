@@ -1,52 +1,18 @@
 //! Measured data sets from CSV: a header naming `theta_i`, `theta_r` (degrees) and
 //! `radiance_factor`, optionally `std` (standard uncertainty), `theta_r_span` (degrees the
 //! detector moved while a reading integrated: a sweep's bin, centred on `theta_r`; empty or
-//! absent for a still reading) and `sample` (several data sets in one file). Columns may come in any order; blank lines and lines starting with
-//! `#` are skipped; a UTF-8 byte-order mark at the start is ignored. Errors carry the
-//! 1-based line number.
+//! absent for a still reading) and `sample` (several data sets in one file). Columns may
+//! come in any order; the file's lexical rules (a byte-order mark, blank and `#` lines,
+//! quoting) are [`hil_sim::readings_csv`]'s, the simulator's table scenes reading the same
+//! format. Errors carry the 1-based line number.
 //!
-//! Numbers are checked against what the fit can represent, so that a typo gives an error
-//! at its line instead of an infinite or NaN result: every number finite;
-//! |radiance factor| ≤ [`MAX_RADIANCE_FACTOR`] (10⁶: far above any paper's specular peak
-//! seen through the detector's window, and its square, weighted, stays far from overflow);
-//! a `std` in [[`MIN_STD`], [`MAX_STD`]] (10⁻⁹ … 10⁶: its weight 1/std² stays finite), and
-//! within one data set the largest `std` at most [`MAX_STD_RATIO`] (10⁶) times the smallest
-//! (weights within 10¹² of each other, inside the 16 digits of an f64: beyond it the
-//! lighter readings would vanish from the sums). The angles' range (0…90°) and negative
-//! radiance factors are the fit's own checks.
+//! Numbers are checked against what the fit can represent
+//! ([`crate::analysis::dataset`]'s limits), so that a typo gives an error at its line.
+use crate::analysis::dataset::{self, DataSet, StdSpread, Unfittable};
 use crate::analysis::fit::Observation;
+use hil_sim::readings_csv::{Header, Records, StringRecord};
 use std::path::Path;
 use thiserror::Error;
-
-/// The largest |radiance factor| read.
-pub const MAX_RADIANCE_FACTOR: f64 = 1e6;
-/// The smallest standard uncertainty read.
-pub const MIN_STD: f64 = 1e-9;
-/// The largest standard uncertainty read.
-pub use crate::analysis::fit::STD_MAX as MAX_STD;
-/// The largest ratio of the largest to the smallest `std` in one data set.
-pub const MAX_STD_RATIO: f64 = 1e6;
-
-/// One data set: the readings of one sample, with the line each came from.
-#[derive(Clone, Debug, PartialEq)]
-pub struct DataSet {
-    /// Sample name (the `sample` column, or the name given for files without one).
-    pub sample: String,
-    /// Readings in file order.
-    pub observations: Vec<Observation>,
-    /// 1-based line of each reading.
-    pub lines: Vec<usize>,
-}
-
-impl DataSet {
-    /// The (θi, θr) pairs, degrees.
-    pub fn geometries(&self) -> Vec<(f64, f64)> {
-        self.observations
-            .iter()
-            .map(|o| (o.theta_i_deg, o.theta_r_deg))
-            .collect()
-    }
-}
 
 /// What is wrong with a CSV file.
 #[derive(Debug, Error)]
@@ -102,25 +68,12 @@ pub enum DatasetError {
         column: &'static str,
         /// The value as read.
         value: String,
-        /// The limit, in words.
-        why: String,
+        /// What is wrong with it.
+        why: Unfittable,
     },
     /// Uncertainties of one data set too far apart to weigh them together.
-    #[error(
-        "line {line}: std {value:?} is more than {MAX_STD_RATIO:e} times the std {other:?} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
-    )]
-    StdSpread {
-        /// Line of the largest std.
-        line: usize,
-        /// The largest std.
-        value: f64,
-        /// Line of the smallest std.
-        other_line: usize,
-        /// The smallest std.
-        other: f64,
-        /// The data set.
-        sample: String,
-    },
+    #[error(transparent)]
+    StdSpread(#[from] StdSpread),
     /// A header but no readings.
     #[error("line {line}: no readings after the header")]
     NoReadings {
@@ -140,99 +93,54 @@ impl DatasetError {
             | DatasetError::FieldCount { line, .. }
             | DatasetError::NotANumber { line, .. }
             | DatasetError::OutOfRange { line, .. }
-            | DatasetError::StdSpread { line, .. }
+            | DatasetError::StdSpread(StdSpread { line, .. })
             | DatasetError::NoReadings { line } => Some(*line),
         }
     }
 }
 
-/// Split a CSV line on commas, honouring double quotes ("" inside quotes is a quote).
-fn split_fields(line: &str) -> Vec<String> {
-    let mut fields = Vec::new();
-    let mut field = String::new();
-    let mut in_quotes = false;
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match c {
-            '"' if in_quotes && chars.peek() == Some(&'"') => {
-                field.push('"');
-                chars.next();
+/// The columns of a data set file, by position.
+struct Columns {
+    theta_i: usize,
+    theta_r: usize,
+    radiance_factor: usize,
+    std: Option<usize>,
+    sample: Option<usize>,
+    span: Option<usize>,
+    count: usize,
+}
+
+impl Columns {
+    /// The columns of `header`: no name twice, the three required ones present.
+    fn of(header: &Header) -> Result<Columns, DatasetError> {
+        let names = &header.names;
+        for (i, n) in names.iter().enumerate() {
+            if names[..i].contains(n) {
+                return Err(DatasetError::DuplicateColumn {
+                    line: header.line,
+                    column: n.clone(),
+                });
             }
-            '"' => in_quotes = !in_quotes,
-            ',' if !in_quotes => fields.push(std::mem::take(&mut field).trim().to_string()),
-            _ => field.push(c),
         }
-    }
-    fields.push(field.trim().to_string());
-    fields
-}
-
-fn is_skipped(line: &str) -> bool {
-    let t = line.trim();
-    t.is_empty() || t.starts_with('#')
-}
-
-/// Parse CSV text. Data sets come out in the order their sample first appears;
-/// `default_sample` names the one data set of a file without a `sample` column.
-pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, DatasetError> {
-    // Spreadsheets on Windows start their UTF-8 with a byte-order mark.
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
-        .filter(|(_, l)| !is_skipped(l));
-    let (header_line, header) = lines.next().ok_or(DatasetError::Empty)?;
-    let names: Vec<String> = split_fields(header)
-        .into_iter()
-        .map(|s| s.to_ascii_lowercase())
-        .collect();
-    for (i, n) in names.iter().enumerate() {
-        if names[..i].contains(n) {
-            return Err(DatasetError::DuplicateColumn {
-                line: header_line,
-                column: n.clone(),
-            });
-        }
-    }
-    let find = |c: &str| names.iter().position(|n| n == c);
-    let required = |c: &'static str| {
-        find(c).ok_or(DatasetError::MissingColumn {
-            line: header_line,
-            column: c,
+        let required = |column: &'static str| {
+            header.position(column).ok_or(DatasetError::MissingColumn {
+                line: header.line,
+                column,
+            })
+        };
+        Ok(Columns {
+            theta_i: required("theta_i")?,
+            theta_r: required("theta_r")?,
+            radiance_factor: required("radiance_factor")?,
+            std: header.position("std"),
+            sample: header.position("sample"),
+            span: header.position("theta_r_span"),
+            count: names.len(),
         })
-    };
-    let (col_ti, col_tr, col_rf) = (
-        required("theta_i")?,
-        required("theta_r")?,
-        required("radiance_factor")?,
-    );
-    let (col_std, col_sample, col_span) = (find("std"), find("sample"), find("theta_r_span"));
+    }
 
-    let mut sets: Vec<DataSet> = Vec::new();
-    // Sample name → index in `sets`, for files with many data sets.
-    let mut index_of: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
-    let mut last_line = header_line;
-    let mut fields: Vec<std::borrow::Cow<str>> = Vec::with_capacity(names.len());
-    for (line, text) in lines {
-        last_line = line;
-        fields.clear();
-        if text.contains('"') {
-            fields.extend(split_fields(text).into_iter().map(std::borrow::Cow::Owned));
-        } else {
-            // No quoting: split in place, without a String per field.
-            fields.extend(
-                text.split(',')
-                    .map(|f| std::borrow::Cow::Borrowed(f.trim())),
-            );
-        }
-        if fields.len() != names.len() {
-            return Err(DatasetError::FieldCount {
-                line,
-                expected: names.len(),
-                found: fields.len(),
-            });
-        }
+    /// The reading on `line`.
+    fn observation(&self, line: usize, fields: &StringRecord) -> Result<Observation, DatasetError> {
         let number = |col: usize, column: &'static str| {
             let value = fields[col]
                 .parse::<f64>()
@@ -242,76 +150,74 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
                     value: fields[col].to_string(),
                 })?;
             // Rust's parser accepts "NaN" and "inf", and "1e999" as infinity.
-            if !value.is_finite() {
-                return Err(DatasetError::OutOfRange {
-                    line,
-                    column,
-                    value: fields[col].to_string(),
-                    why: "not a finite number".into(),
-                });
-            }
-            Ok(value)
-        };
-        let within = |value: f64, column: &'static str, col: usize, ok: bool, why: &str| {
-            if ok {
+            if value.is_finite() {
                 Ok(value)
             } else {
-                Err(DatasetError::OutOfRange {
+                Err(out_of_range(
                     line,
                     column,
-                    value: fields[col].to_string(),
-                    why: why.to_string(),
-                })
+                    &fields[col],
+                    Unfittable::NotFinite,
+                ))
             }
         };
-        let std = match col_std {
-            Some(c) if !fields[c].is_empty() => {
-                let u = number(c, "std")?;
-                // 0 and negative values are the fit's BadUncertainty, named there.
-                Some(within(
-                    u,
-                    "std",
-                    c,
-                    u <= 0.0 || (MIN_STD..=MAX_STD).contains(&u),
-                    &format!("outside {MIN_STD:e} … {MAX_STD:e}, what the fit can weigh"),
-                )?)
-            }
-            _ => None,
+        // A number, then the limit it must be within.
+        let checked = |col: usize, column: &'static str, limit: fn(f64) -> Result<f64, _>| {
+            limit(number(col, column)?).map_err(|why| out_of_range(line, column, &fields[col], why))
         };
-        let radiance_factor = number(col_rf, "radiance_factor")?;
-        let radiance_factor = within(
-            radiance_factor,
+        let optional = |col: Option<usize>| col.filter(|&c| !fields[c].is_empty());
+        let std = optional(self.std)
+            .map(|c| checked(c, "std", dataset::check_std))
+            .transpose()?;
+        let radiance_factor = checked(
+            self.radiance_factor,
             "radiance_factor",
-            col_rf,
-            radiance_factor.abs() <= MAX_RADIANCE_FACTOR,
-            &format!(
-                "beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"
-            ),
+            dataset::check_radiance_factor,
         )?;
-        let theta_r_span_deg = match col_span {
-            Some(c) if !fields[c].is_empty() => {
-                let span = number(c, "theta_r_span")?;
-                within(
-                    span,
-                    "theta_r_span",
-                    c,
-                    (0.0..=crate::analysis::fit::MAX_SPAN_DEG).contains(&span),
-                    &format!(
-                        "outside 0 … {}°, the detector's travel a bin can have",
-                        crate::analysis::fit::MAX_SPAN_DEG
-                    ),
-                )?
-            }
-            _ => 0.0,
-        };
-        let observation = Observation {
-            theta_i_deg: number(col_ti, "theta_i")?,
-            theta_r_deg: number(col_tr, "theta_r")?,
+        let theta_r_span_deg = optional(self.span)
+            .map(|c| checked(c, "theta_r_span", dataset::check_span))
+            .transpose()?
+            .unwrap_or(0.0);
+        Ok(Observation {
+            theta_i_deg: number(self.theta_i, "theta_i")?,
+            theta_r_deg: number(self.theta_r, "theta_r")?,
             radiance_factor,
             std,
             theta_r_span_deg,
-        };
-        let sample = col_sample.map_or(default_sample, |c| &*fields[c]);
+        })
+    }
+}
+
+fn out_of_range(line: usize, column: &'static str, value: &str, why: Unfittable) -> DatasetError {
+    DatasetError::OutOfRange {
+        line,
+        column,
+        value: value.to_string(),
+        why,
+    }
+}
+
+/// Parse CSV text. Data sets come out in the order their sample first appears;
+/// `default_sample` names the one data set of a file without a `sample` column.
+pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, DatasetError> {
+    let mut records = Records::new(text);
+    let header = records.header().ok_or(DatasetError::Empty)?;
+    let columns = Columns::of(&header)?;
+    let mut sets: Vec<DataSet> = Vec::new();
+    // Sample name → index in `sets`, for files with many data sets.
+    let mut index_of: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+    let mut last_line = header.line;
+    while let Some((line, fields)) = records.next() {
+        last_line = line;
+        if fields.len() != columns.count {
+            return Err(DatasetError::FieldCount {
+                line,
+                expected: columns.count,
+                found: fields.len(),
+            });
+        }
+        let observation = columns.observation(line, fields)?;
+        let sample = columns.sample.map_or(default_sample, |c| &fields[c]);
         // Files list one sample after another: look at the last set first.
         let index = match sets.last() {
             Some(last) if last.sample == sample => sets.len() - 1,
@@ -335,41 +241,9 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
         return Err(DatasetError::NoReadings { line: last_line });
     }
     for set in &sets {
-        check_std_spread(set)?;
+        set.check_std_spread()?;
     }
     Ok(sets)
-}
-
-/// The positive uncertainties of a data set within [`MAX_STD_RATIO`] of each other.
-fn check_std_spread(set: &DataSet) -> Result<(), DatasetError> {
-    let positive = set
-        .observations
-        .iter()
-        .zip(&set.lines)
-        .filter_map(|(o, &line)| o.std.filter(|u| *u > 0.0).map(|u| (u, line)));
-    // (std, line) of the smallest and of the largest.
-    let mut low: Option<(f64, usize)> = None;
-    let mut high: Option<(f64, usize)> = None;
-    for (u, line) in positive {
-        if low.is_none_or(|(l, _)| u < l) {
-            low = Some((u, line));
-        }
-        if high.is_none_or(|(h, _)| u > h) {
-            high = Some((u, line));
-        }
-    }
-    match (low, high) {
-        (Some((l, l_line)), Some((h, h_line))) if h > l * MAX_STD_RATIO => {
-            Err(DatasetError::StdSpread {
-                line: h_line,
-                value: h,
-                other_line: l_line,
-                other: l,
-                sample: set.sample.clone(),
-            })
-        }
-        _ => Ok(()),
-    }
 }
 
 /// Read a CSV file; a file without a `sample` column is named by its stem.
@@ -458,11 +332,11 @@ mod tests {
         assert!(
             matches!(
                 e,
-                DatasetError::StdSpread {
+                DatasetError::StdSpread(StdSpread {
                     line: 2,
                     other_line: 3,
                     ..
-                }
+                })
             ),
             "{e}"
         );

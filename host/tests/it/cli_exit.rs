@@ -1,0 +1,196 @@
+//! `gonio measure`'s exit code says what its result's `ok` says (README, "Exit codes"):
+//! 0 clean, 3 flagged, 130 interrupted, 1 failed (here: an instrument that went away).
+use crate::cli_support;
+use cli_support::gonio;
+
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+
+fn temp_dir(name: &str) -> PathBuf {
+    cli_support::temp_dir("exit", name)
+}
+
+fn json(out: &Output) -> Value {
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)))
+}
+
+#[test]
+fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
+    let dir = temp_dir("clean");
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--seed",
+        "4",
+        "--json",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = json(&out);
+    assert_eq!(
+        (r["ok"].clone(), r["flags"].clone()),
+        (Value::from(true), Value::from(Vec::<String>::new())),
+        "{r}"
+    );
+    // A slip of the detector arm: measured again, the class right, but flagged.
+    let dir = temp_dir("slip");
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--seed",
+        "4",
+        "--json",
+        "--faults",
+        "lose-steps=detector:40",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = json(&out);
+    assert_eq!(r["ok"], false, "{r}");
+    assert!(
+        r["flags"]
+            .as_array()
+            .unwrap()
+            .contains(&Value::from("lost-steps")),
+        "{r}"
+    );
+    assert_eq!(r["class"], "G", "{r}");
+    // The cable pulled and pushed back: recovered, informational only.
+    let dir = temp_dir("unplug");
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "SG",
+        "--json",
+        "--faults",
+        "unplug-at=16:4",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = json(&out);
+    assert_eq!(
+        (r["ok"].clone(), r["flags"].clone()),
+        (Value::from(true), Value::from(vec!["link-recovered"])),
+        "{r}"
+    );
+    for name in ["clean", "slip", "unplug"] {
+        let _ = std::fs::remove_dir_all(temp_dir(name));
+    }
+}
+
+/// `gonio sim` on its pseudo-terminal and `gonio measure` on that port, Enter typed for
+/// both prompts.
+fn measure_on_a_port(sample: &str, dir: &Path) -> (Child, Child) {
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["sim", sample])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut path = String::new();
+    BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args([
+            "measure",
+            "--spots",
+            "1",
+            "--port",
+            path.trim(),
+            "--sample",
+            sample,
+            "--json",
+            "--out",
+            dir.to_str().unwrap(),
+        ])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    measure.stdin.take().unwrap().write_all(b"\n\n").unwrap();
+    (sim, measure)
+}
+
+fn wait_for_readings(dir: &Path, n: usize, measure: &mut Child) {
+    let points = dir.join("points.jsonl");
+    while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < n {
+        assert!(
+            measure.try_wait().unwrap().is_none(),
+            "gonio measure ended early"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+}
+
+#[test]
+fn ctrl_c_exits_130() {
+    let dir = temp_dir("sigint");
+    let (mut sim, mut measure) = measure_on_a_port("PPC", &dir);
+    wait_for_readings(&dir, 3, &mut measure);
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(measure.id() as i32),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .unwrap();
+    let out = measure.wait_with_output().unwrap();
+    let _ = sim.kill();
+    let _ = sim.wait();
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn an_instrument_that_goes_away_exits_1_saying_so_and_how_to_resume() {
+    let dir = temp_dir("gone");
+    let (mut sim, mut measure) = measure_on_a_port("G", &dir);
+    wait_for_readings(&dir, 3, &mut measure);
+    // The simulator's process ends: its pseudo-terminal goes with it.
+    sim.kill().unwrap();
+    sim.wait().unwrap();
+    let out = measure.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("port is gone")
+            && stderr.contains("decisions so far")
+            && stderr.contains("--resume"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,298 @@
+//! `gonio measure` end to end on the simulated instrument: the main job.
+use crate::cli_support;
+use cli_support::gonio;
+
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+
+fn temp_dir(name: &str) -> PathBuf {
+    cli_support::temp_dir("measure", name)
+}
+
+fn result(out: &Output) -> Value {
+    assert!(
+        out.status.success(),
+        "gonio failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("one JSON object")
+}
+
+fn geometries(dir: &Path) -> Vec<(f64, f64)> {
+    let session: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    session["readings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            (
+                p["theta_i_deg"].as_f64().unwrap(),
+                p["theta_r_deg"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+fn assert_each_once(g: &[(f64, f64)]) {
+    let mut sorted = g.to_vec();
+    sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    sorted.dedup();
+    assert_eq!(sorted.len(), g.len(), "a geometry was recorded twice");
+}
+
+/// The README's main job: in process, no prompt, one JSON object. The eight papers, resume,
+/// Ctrl-C and the version refusal go through the pseudo-terminal in `tests/tests/it/measure.rs`.
+#[test]
+fn the_main_job_measures_g_in_process() {
+    let dir = temp_dir("G");
+    let r = result(&gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--seed",
+        "3",
+        "--json",
+        "--out",
+        dir.to_str().unwrap(),
+    ]));
+    assert_eq!(r["class"], "G", "{r}");
+    assert_eq!(r["sigma_ok"], true, "{r}");
+    assert!(
+        r["refinements"].as_array().is_some_and(|r| !r.is_empty()),
+        "{r}"
+    );
+    // A clean result: ok, no flag, exit 0 (result() checked the exit status).
+    assert_eq!(
+        (r["ok"].clone(), r["flags"].clone()),
+        (Value::Bool(true), serde_json::json!([])),
+        "{r}"
+    );
+    for file in [
+        "session.json",
+        "readings.csv",
+        "points.jsonl",
+        "calibration.json",
+        "session.log",
+        "MANIFEST.sha256",
+        "G.astm",
+        "fig4-radiance-factor.svg",
+        "fig5-sigma-rho_s.svg",
+    ] {
+        assert!(dir.join(file).exists(), "no {file}");
+    }
+    let session: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    assert_eq!(
+        (session["status"].as_str(), session["ok"].as_bool()),
+        (Some("finished"), Some(true))
+    );
+    assert_eq!(session["flags"], r["flags"]);
+    assert!(gonio(&["verify", dir.to_str().unwrap()]).status.success());
+    assert_each_once(&geometries(&dir));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
+    let clean_dir = temp_dir("clean");
+    let faulty_dir = temp_dir("faulty");
+    let clean = result(&gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--json",
+        "--out",
+        clean_dir.to_str().unwrap(),
+    ]));
+    let faulty = result(&gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--json",
+        "--faults",
+        "corrupt=0.001,drop=0.001,unplug-at=5",
+        "--out",
+        faulty_dir.to_str().unwrap(),
+    ]));
+    assert_eq!(faulty["class"], clean["class"]);
+    let g = geometries(&faulty_dir);
+    assert_each_once(&g);
+    assert_eq!(g.len(), geometries(&clean_dir).len());
+    let session: Value =
+        serde_json::from_slice(&std::fs::read(faulty_dir.join("session.json")).unwrap()).unwrap();
+    let decisions = session["decisions"].to_string();
+    assert!(
+        decisions.contains("link lost"),
+        "the unplug was noticed and recovered: {decisions}"
+    );
+    let _ = std::fs::remove_dir_all(&clean_dir);
+    let _ = std::fs::remove_dir_all(&faulty_dir);
+}
+
+#[test]
+fn a_stale_calibration_is_refused_with_its_age() {
+    let dir = temp_dir("stale");
+    result(&gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "MC",
+        "--json",
+        "--out",
+        dir.to_str().unwrap(),
+    ]));
+    let path = dir.join("calibration.json");
+    let mut calibration: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    calibration["taken_unix_s"] =
+        Value::from(calibration["taken_unix_s"].as_u64().unwrap() - 9 * 3600);
+    std::fs::write(&path, calibration.to_string()).unwrap();
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "MC",
+        "--calibration",
+        path.to_str().unwrap(),
+        "--out",
+        temp_dir("stale2").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("9.0 h old") && stderr.contains("limit is 8.0 h"),
+        "{stderr}"
+    );
+    // A fresh one is used as is: no white tile needed.
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "MC",
+        "--json",
+        "--calibration",
+        dir.to_str().unwrap(),
+        "--max-calibration-age-h",
+        "24",
+        "--out",
+        temp_dir("stale3").to_str().unwrap(),
+    ]);
+    assert_eq!(result(&out)["class"], "rough-III");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `gonio sim SAMPLE` on its pseudo-terminal and `gonio measure` on that port, the
+/// operator's two Enter presses (white tile in, sample back) already typed.
+fn measure_on_a_port(sample: &str, seed: &str, dir: &Path) -> (Child, Child) {
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["sim", sample, "--seed", seed])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut path = String::new();
+    BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args([
+            "measure",
+            "--spots",
+            "1",
+            "--port",
+            path.trim(),
+            "--sample",
+            sample,
+            "--json",
+            "--out",
+            dir.to_str().unwrap(),
+        ])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    measure.stdin.take().unwrap().write_all(b"\n\n").unwrap();
+    (sim, measure)
+}
+
+#[test]
+fn a_session_through_the_pseudo_terminal_with_prompts() {
+    let dir = temp_dir("pty");
+    let (mut sim, measure) = measure_on_a_port("PPC", "2", &dir);
+    let out = measure.wait_with_output().unwrap();
+    let _ = sim.kill();
+    let _ = sim.wait();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("WHITE REFERENCE TILE"), "{stderr}");
+    assert_eq!(result(&out)["class"], "rough-II");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn ctrl_c_on_a_port_session_stops_it_keeps_the_readings_and_exits_non_zero() {
+    let dir = temp_dir("sigint");
+    let (mut sim, mut measure) = measure_on_a_port("G", "4", &dir);
+    let points = dir.join("points.jsonl");
+    while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < 4 {
+        assert!(
+            measure.try_wait().unwrap().is_none(),
+            "gonio measure ended before Ctrl-C"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(measure.id() as i32),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .unwrap();
+    let out = measure.wait_with_output().unwrap();
+    let _ = sim.kill();
+    let _ = sim.wait();
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "an interrupted session exits 130"
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("interrupted by the user") && stderr.contains("--resume"),
+        "{stderr}"
+    );
+    let kept = std::fs::read_to_string(&points).unwrap();
+    assert!(
+        kept.lines().count() >= 4
+            && kept
+                .lines()
+                .all(|l| serde_json::from_str::<Value>(l).is_ok()),
+        "readings kept whole"
+    );
+    // session.json says so, and how to go on; the log has the stop.
+    let session: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+    assert_eq!(session["status"], "interrupted");
+    assert_eq!(session["readings_recorded"], kept.lines().count());
+    assert!(
+        session["resume_with"]
+            .as_str()
+            .is_some_and(|c| c.contains("--resume")),
+        "{session}"
+    );
+    assert!(
+        std::fs::read_to_string(dir.join("session.log"))
+            .unwrap()
+            .contains("session stopped (interrupted)")
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,473 @@
+//! `gonio library` end to end, as a user would run it: sheets measured on the simulator,
+//! added under stocks, listed, exported and imported, searched and removed.
+use crate::cli_support;
+use cli_support::{gonio, stderr, temp_dir};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+/// Measure `sample` on the simulator into `parent/name`, with `seed`.
+fn measure(parent: &Path, name: &str, sample: &str, seed: u64) -> PathBuf {
+    let dir = parent.join(name);
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        sample,
+        "--out",
+        s(&dir),
+        "--seed",
+        &seed.to_string(),
+    ]);
+    assert!(
+        out.status.success(),
+        "measure {sample} seed {seed}: {}",
+        stderr(&out)
+    );
+    dir
+}
+
+fn s(path: &Path) -> &str {
+    path.to_str().expect("a UTF-8 temp path")
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    assert!(out.status.success(), "{}", stderr(out));
+    serde_json::from_str(&stdout(out)).expect("one JSON object")
+}
+
+fn code(out: &Output) -> i32 {
+    out.status.code().expect("exited")
+}
+
+/// (stock, sheets, spots) of every stock, by `list --json`.
+fn listed(library: &Path) -> Vec<(String, u64, u64)> {
+    let list = json(&gonio(&[
+        "library",
+        "list",
+        "--json",
+        "--library",
+        s(library),
+    ]));
+    list["stocks"]
+        .as_array()
+        .expect("stocks")
+        .iter()
+        .map(|x| {
+            (
+                x["name"].as_str().expect("name").to_string(),
+                x["sheets"].as_u64().expect("n"),
+                x["spots"].as_u64().expect("n"),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn add_list_export_import_and_remove_measured_sheets() {
+    let root = temp_dir("library", "e2e");
+    let library = root.join("lib").join("library.sqlite");
+    let ppc1 = measure(&root, "ppc1", "PPC", 1);
+    let ppc2 = measure(&root, "ppc2", "PPC", 2);
+    let g = measure(&root, "g", "G", 3);
+
+    // Reading a library that does not exist says so, and creates nothing.
+    let out = gonio(&["library", "list", "--library", s(&library)]);
+    assert_eq!(code(&out), 1);
+    assert!(
+        stderr(&out).contains("no library here yet"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!library.exists());
+
+    let out = gonio(&[
+        "library",
+        "add",
+        "--library",
+        s(&library),
+        "--stock",
+        "PPC",
+        "--lot",
+        "ream 7",
+        "--manufacturer",
+        "Acme",
+        s(&ppc1),
+        s(&ppc2),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(stdout(&out).contains("2 sheets added"), "{}", stdout(&out));
+    // --library after the subcommand or before it.
+    let out = gonio(&[
+        "library",
+        "--library",
+        s(&library),
+        "add",
+        "--stock",
+        "G",
+        s(&g),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(
+        listed(&library),
+        vec![("G".into(), 1, 1), ("PPC".into(), 2, 2)]
+    );
+
+    // The same session again, under any stock: refused, naming the stock it is under.
+    let out = gonio(&[
+        "library",
+        "add",
+        "--library",
+        s(&library),
+        "--stock",
+        "Other",
+        s(&ppc2),
+    ]);
+    assert_eq!(code(&out), 1);
+    assert!(
+        stderr(&out).contains("already in the library under stock 'PPC'"),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(listed(&library).len(), 2);
+
+    // Export, import into an empty library, export again: the same bytes.
+    let exported = root.join("library.jsonl");
+    let out = gonio(&["library", "export", "--library", s(&library), s(&exported)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let first = std::fs::read_to_string(&exported).expect("export written");
+    assert_eq!(first.lines().count(), 3);
+    let record: serde_json::Value =
+        serde_json::from_str(first.lines().next().expect("a line")).expect("JSON");
+    assert_eq!(record["schema"], host::schema::LIBRARY_RECORD);
+    assert_eq!(record["stock"], "G");
+    assert_eq!(
+        record["instrument_serial"].as_str().map(|x| x.is_empty()),
+        Some(false)
+    );
+    let copy = root.join("copy.sqlite");
+    let out = gonio(&["library", "import", "--library", s(&copy), s(&exported)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("3 sessions added, 0 already present"),
+        "{}",
+        stdout(&out)
+    );
+    let again = root.join("again.jsonl");
+    assert!(
+        gonio(&["library", "export", "--library", s(&copy), s(&again)])
+            .status
+            .success()
+    );
+    assert_eq!(
+        std::fs::read_to_string(&again).expect("export written"),
+        first
+    );
+    // Importing it again skips every session.
+    let out = gonio(&["library", "import", "--library", s(&copy), s(&exported)]);
+    assert!(
+        stdout(&out).contains("0 sessions added, 3 already present"),
+        "{}",
+        stdout(&out)
+    );
+
+    // A bad exchange file is refused at its line, and creates no library.
+    let bad = root.join("bad.jsonl");
+    std::fs::write(
+        &bad,
+        format!(
+            "{}not a record\n",
+            first
+                .lines()
+                .next()
+                .map(|l| format!("{l}\n"))
+                .unwrap_or_default()
+        ),
+    )
+    .expect("write");
+    let fresh = root.join("fresh.sqlite");
+    let out = gonio(&["library", "import", "--library", s(&fresh), s(&bad)]);
+    assert_eq!(code(&out), 1);
+    assert!(
+        stderr(&out).contains(&format!("{}:2:", bad.display())),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!fresh.exists());
+
+    // Remove one session by a prefix of its SHA-256 (that of its MANIFEST.sha256), then a stock.
+    let manifest = std::fs::read(ppc1.join("MANIFEST.sha256")).expect("manifest");
+    let sha = host::output::manifest::sha256_hex(&manifest);
+    assert!(
+        first.contains(&sha),
+        "the identity is the manifest's SHA-256"
+    );
+    let out = gonio(&[
+        "library",
+        "remove",
+        "--library",
+        s(&library),
+        "--session",
+        &sha[..12],
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(
+        listed(&library),
+        vec![("G".into(), 1, 1), ("PPC".into(), 1, 1)]
+    );
+    let out = gonio(&[
+        "library",
+        "remove",
+        "--library",
+        s(&library),
+        "--stock",
+        "G",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(listed(&library), vec![("PPC".into(), 1, 1)]);
+    let out = gonio(&[
+        "library",
+        "remove",
+        "--library",
+        s(&library),
+        "--stock",
+        "G",
+    ]);
+    assert_eq!(code(&out), 1);
+    assert!(stderr(&out).contains("no stock 'G'"), "{}", stderr(&out));
+    // Neither --stock nor --session: a usage error.
+    assert_eq!(
+        code(&gonio(&["library", "remove", "--library", s(&library)])),
+        2
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn search_ranks_the_stock_of_the_sheet_first() {
+    let root = temp_dir("library", "search");
+    let library = root.join("library.sqlite");
+    for (stock, seeds) in [("PPC", [11u64, 12]), ("G", [13, 14]), ("MC", [15, 16])] {
+        let dirs: Vec<PathBuf> = seeds
+            .iter()
+            .map(|&seed| measure(&root, &format!("{stock}-{seed}"), stock, seed))
+            .collect();
+        let mut args = vec!["library", "add", "--library", s(&library), "--stock", stock];
+        args.extend(dirs.iter().map(|d| s(d)));
+        let out = gonio(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+    }
+    for (sample, seed) in [("PPC", 21u64), ("G", 22), ("MC", 23)] {
+        let sheet = measure(&root, &format!("query-{sample}"), sample, seed);
+        let found = json(&gonio(&[
+            "library",
+            "search",
+            "--library",
+            s(&library),
+            "--json",
+            "--top",
+            "2",
+            s(&sheet),
+        ]));
+        let ranking = found["ranking"].as_array().expect("ranking");
+        assert_eq!(ranking.len(), 2, "{found}");
+        assert_eq!(ranking[0]["stock"], sample, "{found}");
+        assert!(
+            ranking[0]["log10_lr"].as_f64() > ranking[1]["log10_lr"].as_f64(),
+            "{found}"
+        );
+        assert_eq!(found["stocks"], 3);
+    }
+    // A sheet in the library is left out of its own stock: it still ranks its stock first.
+    let found = json(&gonio(&[
+        "library",
+        "search",
+        "--library",
+        s(&library),
+        "--json",
+        s(&root.join("PPC-11")),
+    ]));
+    assert_eq!(found["ranking"][0]["stock"], "PPC", "{found}");
+    assert_eq!(found["ranking"][0]["sheets"], 1, "{found}");
+    assert!(found["excluded_own_session"].is_string(), "{found}");
+    let out = gonio(&[
+        "library",
+        "search",
+        "--library",
+        s(&library),
+        s(&root.join("query-G")),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stdout(&out)
+            .lines()
+            .nth(2)
+            .is_some_and(|l| l.contains(" G ")),
+        "{}",
+        stdout(&out)
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn two_processes_adding_at_once_both_succeed() {
+    let root = temp_dir("library", "concurrent");
+    let sheets: Vec<PathBuf> = (0..6u64)
+        .map(|k| {
+            measure(
+                &root,
+                &format!("s{k}"),
+                if k % 2 == 0 { "PPC" } else { "G" },
+                40 + k,
+            )
+        })
+        .collect();
+    // Each round a new library file: both processes race to create it, then to write.
+    for round in 0..3 {
+        let library = root.join(format!("library-{round}.sqlite"));
+        let children: Vec<_> = [&sheets[2 * round], &sheets[2 * round + 1]]
+            .iter()
+            .enumerate()
+            .map(|(k, dir)| {
+                Command::new(env!("CARGO_BIN_EXE_gonio"))
+                    .args([
+                        "library",
+                        "add",
+                        "--library",
+                        s(&library),
+                        "--stock",
+                        &format!("stock {k}"),
+                        s(dir),
+                    ])
+                    .stdin(Stdio::null())
+                    .stdout(Stdio::piped())
+                    .stderr(Stdio::piped())
+                    .spawn()
+                    .expect("spawn gonio")
+            })
+            .collect();
+        for child in children {
+            let out = child.wait_with_output().expect("wait");
+            assert!(out.status.success(), "round {round}: {}", stderr(&out));
+        }
+        assert_eq!(
+            listed(&library),
+            vec![("stock 0".into(), 1, 1), ("stock 1".into(), 1, 1)],
+            "round {round}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn a_changed_or_flagged_session_is_not_added() {
+    let root = temp_dir("library", "refused");
+    let library = root.join("library.sqlite");
+    let changed = measure(&root, "changed", "PPC", 31);
+    std::fs::write(changed.join("notes.txt"), "added after the session\n").expect("write");
+    let out = gonio(&[
+        "library",
+        "add",
+        "--library",
+        s(&library),
+        "--stock",
+        "PPC",
+        s(&changed),
+    ]);
+    assert_eq!(code(&out), 1);
+    assert!(stderr(&out).contains("does not verify"), "{}", stderr(&out));
+    assert!(!library.exists(), "a refused add leaves no library behind");
+
+    // A flagged result: `ok` made false, the manifest rewritten and the report drawn again,
+    // so the folder verifies.
+    let flagged = measure(&root, "flagged", "PPC", 32);
+    let file = flagged.join("session.json");
+    let mut doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&file).expect("read")).expect("JSON");
+    doc["ok"] = serde_json::Value::Bool(false);
+    std::fs::write(&file, serde_json::to_string_pretty(&doc).expect("JSON")).expect("write");
+    std::fs::write(
+        flagged.join("MANIFEST.sha256"),
+        host::output::manifest::manifest_text(&flagged).expect("manifest"),
+    )
+    .expect("write");
+    assert!(
+        gonio(&["report", s(&flagged)]).status.success(),
+        "the report drawn from the changed files"
+    );
+    let out = gonio(&[
+        "library",
+        "add",
+        "--library",
+        s(&library),
+        "--stock",
+        "PPC",
+        s(&flagged),
+    ]);
+    assert_eq!(code(&out), 1);
+    assert!(
+        stderr(&out).contains("flagged") && stderr(&out).contains("--allow-flagged"),
+        "{}",
+        stderr(&out)
+    );
+    let out = gonio(&[
+        "library",
+        "add",
+        "--library",
+        s(&library),
+        "--stock",
+        "PPC",
+        "--allow-flagged",
+        s(&flagged),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(listed(&library), vec![("PPC".into(), 1, 1)]);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn a_file_that_is_not_a_library_is_reported_and_left_alone() {
+    let root = temp_dir("library", "not-a-library");
+    std::fs::create_dir_all(&root).expect("mkdir");
+    let library = root.join("library.sqlite");
+    let bytes = b"these are someone's notes, not a database\n".repeat(100);
+    std::fs::write(&library, &bytes).expect("write");
+    let sheet = measure(&root, "s", "PPC", 33);
+    for args in [
+        vec!["library", "list"],
+        vec!["library", "add", "--stock", "PPC", s(&sheet)],
+        vec!["library", "search", s(&sheet)],
+    ] {
+        let mut args = args.clone();
+        args.extend(["--library", s(&library)]);
+        let out = gonio(&args);
+        assert_eq!(code(&out), 1, "{args:?}");
+        assert!(
+            stderr(&out).contains(&format!("{}: not a gonio library", library.display())),
+            "{args:?}: {}",
+            stderr(&out)
+        );
+        assert_eq!(std::fs::read(&library).expect("read"), bytes, "{args:?}");
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn the_default_library_is_under_xdg_data_home() {
+    let root = temp_dir("library", "xdg");
+    let sheet = measure(&root, "s", "G", 34);
+    let data_home = root.join("data");
+    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["library", "add", "--stock", "G", s(&sheet)])
+        .env("XDG_DATA_HOME", &data_home)
+        .stdin(Stdio::null())
+        .output()
+        .expect("run gonio");
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(data_home.join("gonio").join("library.sqlite").is_file());
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -1,0 +1,50 @@
+//! The host crate's integration tests (`cargo test -p host --test it`).
+//!
+//! One test binary for the crate, each file a module: a test binary links the crate and all
+//! its dependencies, so one per file cost a build, a link and disk space per file. The
+//! tests run as threads of one process: a test passes values in (no `set_var`, no
+//! `set_current_dir`) and names its temporary folders after its own file.
+
+// Helpers shared by the test files.
+mod cli_support;
+mod common;
+mod firmware_support;
+// The binary's own `gonio measure` arguments, parsed as the command line parses them.
+#[allow(dead_code)]
+#[path = "../../src/cli/measure/args.rs"]
+mod measure_args;
+
+mod acceptance;
+mod accuracy;
+mod adaptive_lack_of_fit;
+mod bad_input;
+mod budget;
+mod budget_cli;
+mod budget_session;
+mod cli_exit;
+mod cli_fit;
+mod cli_measure;
+mod cli_sim;
+mod compare;
+mod completions;
+mod device_timing;
+mod docs;
+mod evidence;
+mod export;
+mod firmware_image;
+mod fit;
+mod flash_session;
+mod forensic;
+mod library;
+mod model;
+mod order;
+mod plots;
+mod progress;
+mod reanalysis;
+mod record_crash;
+mod record_folder;
+mod report;
+mod schemas;
+mod sheet;
+mod table6;
+mod trade;
