@@ -276,7 +276,7 @@ impl Bench {
         self.now_us += 1000;
         if self
             .heartbeat_every_ms
-            .is_some_and(|every| self.now_us % (every * 1000) == 0)
+            .is_some_and(|every| self.now_us.is_multiple_of(every * 1000))
         {
             let awaiting = self.rx.awaiting;
             self.send(Command::Heartbeat);

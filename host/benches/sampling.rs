@@ -40,7 +40,14 @@ fn distinct_incidences(n: usize) -> Vec<(f64, f64)> {
         .map(|i| {
             let k = i * 7919 % n;
             let ti = 5.0 + 80.0 * k as f64 / n as f64;
-            (ti, if k % 2 == 0 { ti - 1.0 } else { ti + 2.0 })
+            (
+                ti,
+                if k.is_multiple_of(2) {
+                    ti - 1.0
+                } else {
+                    ti + 2.0
+                },
+            )
         })
         .collect()
 }

@@ -10,6 +10,13 @@
 //! - [`schema`]: the names and versions of gonio's JSON documents.
 //!
 //! The `gonio` command line is the binary's (`src/cli/`), on top of these.
+// The numerics index vectors and matrices as the algebra writes them (a[row][col], l[k]);
+// comparisons written `!(a > b)` are meant to be true for NaN as well.
+#![allow(
+    clippy::needless_range_loop,
+    clippy::neg_cmp_op_on_partial_ord,
+    clippy::nonminimal_bool
+)]
 pub mod analysis;
 pub mod instrument;
 pub mod output;

@@ -76,7 +76,7 @@ impl fmt::Display for Angle {
         } else {
             let mut frac = frac;
             let mut width = 4;
-            while frac % 10 == 0 {
+            while frac.is_multiple_of(10) {
                 frac /= 10;
                 width -= 1;
             }

@@ -318,7 +318,7 @@ proptest! {
         let r = hw.true_geometry().theta_r.ticks();
         // On the path, or on the way to its start (a stop during the approach).
         prop_assert!(hw.true_geometry().theta_i.ticks() + r >= CONFIG.collision_min_sum.ticks());
-        if bins.len() > 0 {
+        if !bins.is_empty() {
             prop_assert!(r >= lo - 1 && r <= hi + 1, "θr {} off the path {}..{}", r, lo, hi);
         }
         prop_assert_eq!(hw.lamp_on(), how == 0, "a fault puts the lamp off; an abort keeps it");

@@ -55,23 +55,23 @@ fn schedule_set(s: &schedules::Schedule) -> BTreeSet<(i32, i32)> {
 pub fn nominal_delta(geometries: &[(f64, f64)]) -> Option<Delta> {
     let set = tick_set(geometries)?;
     for (m, delta) in schedules::STRATEGY1 {
-        if let Some(s) = schedules::strategy1(m) {
-            if schedule_set(&s) == set {
-                return Some(Delta {
-                    deg: f64::from(delta),
-                    source: DeltaSource::Strategy1 { m },
-                });
-            }
+        if let Some(s) = schedules::strategy1(m)
+            && schedule_set(&s) == set
+        {
+            return Some(Delta {
+                deg: f64::from(delta),
+                source: DeltaSource::Strategy1 { m },
+            });
         }
     }
     for delta in schedules::STRATEGY2_DELTAS {
-        if let Some(s) = schedules::strategy2(delta) {
-            if schedule_set(&s) == set {
-                return Some(Delta {
-                    deg: f64::from(delta),
-                    source: DeltaSource::Strategy2,
-                });
-            }
+        if let Some(s) = schedules::strategy2(delta)
+            && schedule_set(&s) == set
+        {
+            return Some(Delta {
+                deg: f64::from(delta),
+                source: DeltaSource::Strategy2,
+            });
         }
     }
     None

@@ -114,13 +114,13 @@ impl TileCertificate {
         let text = std::str::from_utf8(&bytes).map_err(|_| bad("not UTF-8 text".into()))?;
         let mut certificate: TileCertificate =
             serde_json::from_str(text).map_err(|e| bad(format!("line {}: {e}", e.line())))?;
-        if let Some(schema) = &certificate.schema {
-            if schema != crate::schema::TILE_CERTIFICATE {
-                return Err(bad(format!(
-                    "schema '{schema}' is not '{}'",
-                    crate::schema::TILE_CERTIFICATE
-                )));
-            }
+        if let Some(schema) = &certificate.schema
+            && schema != crate::schema::TILE_CERTIFICATE
+        {
+            return Err(bad(format!(
+                "schema '{schema}' is not '{}'",
+                crate::schema::TILE_CERTIFICATE
+            )));
         }
         certificate.validate(today).map_err(bad)?;
         // The values as the tile they give, checked here to name the file.
@@ -144,15 +144,14 @@ impl TileCertificate {
             ("certificate", Some(&self.certificate)),
             ("issued_by", self.issued_by.as_ref()),
         ] {
-            if let Some(text) = text {
-                if text.trim().is_empty()
+            if let Some(text) = text
+                && (text.trim().is_empty()
                     || text.chars().any(char::is_control)
-                    || text.chars().count() > 200
-                {
-                    return Err(format!(
-                        "'{key}' must be a name of 1 to 200 characters without control characters, not {text:?}"
-                    ));
-                }
+                    || text.chars().count() > 200)
+            {
+                return Err(format!(
+                    "'{key}' must be a name of 1 to 200 characters without control characters, not {text:?}"
+                ));
             }
         }
         let date = |key: &str, text: &str| {

@@ -115,10 +115,10 @@ pub fn candidates_over(measured: &BTreeSet<Geometry>, span: CandidateSpan) -> Ve
             if k == 0 || !(0.0..=f64::from(THETA_R_MAX_DEG)).contains(&theta_r) {
                 continue;
             }
-            if let Some(g) = Geometry::from_deg(f64::from(theta_i), theta_r) {
-                if !measured.contains(&g) {
-                    out.push(g);
-                }
+            if let Some(g) = Geometry::from_deg(f64::from(theta_i), theta_r)
+                && !measured.contains(&g)
+            {
+                out.push(g);
             }
         }
     }

@@ -500,10 +500,10 @@ impl<T: Transport> Session<'_, T> {
             known_far.unwrap_or((far, f64::NAN)),
         )?;
         usable.extend(probed.iter().filter_map(|&(t, l)| Some((at(t)?, l))));
-        if let Some((t, l)) = found {
-            if let Some(g) = at(t) {
-                return Ok(Ok((g, l)));
-            }
+        if let Some((t, l)) = found
+            && let Some(g) = at(t)
+        {
+            return Ok(Ok((g, l)));
         }
         fallback(
             &usable,

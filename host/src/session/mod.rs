@@ -670,11 +670,11 @@ impl<'a, T: Transport> Session<'a, T> {
             .max(1);
         let mut seen = BTreeSet::new();
         for point in points.iter_mut().rev() {
-            if let Some(g) = point.geometry().filter(|_| !point.superseded) {
-                if !seen.insert(g) {
-                    point.superseded = true;
-                    self.resume.unrecorded_marks.push(point.clone());
-                }
+            if let Some(g) = point.geometry().filter(|_| !point.superseded)
+                && !seen.insert(g)
+            {
+                point.superseded = true;
+                self.resume.unrecorded_marks.push(point.clone());
             }
         }
         for g in points.iter().filter_map(MeasuredPoint::geometry) {

@@ -275,14 +275,12 @@ impl<T: Transport> Session<'_, T> {
             if silent_for >= give_up_after {
                 return Err(self.give_up(silent_for));
             }
-            if reopen {
-                if let Err(error) = self.client.transport_mut().reconnect() {
-                    self.link.last_io_error = Some(error.to_string());
-                    self.client
-                        .transport_mut()
-                        .pause(RECONNECT_PAUSE.min(give_up_after - silent_for));
-                    continue;
-                }
+            if reopen && let Err(error) = self.client.transport_mut().reconnect() {
+                self.link.last_io_error = Some(error.to_string());
+                self.client
+                    .transport_mut()
+                    .pause(RECONNECT_PAUSE.min(give_up_after - silent_for));
+                continue;
             }
             match self.client.hello() {
                 Ok(info) => {

@@ -184,10 +184,10 @@ impl<T: Transport> Session<'_, T> {
                 // Silence: the end may have been lost on the link. Ask.
                 None => {
                     let status = self.request(Command::GetStatus)?;
-                    if let Reply::Status(status) = status {
-                        if status.schedule.is_none_or(|(id, _)| id != schedule_id) {
-                            return self.lit_throughout(schedule_id);
-                        }
+                    if let Reply::Status(status) = status
+                        && status.schedule.is_none_or(|(id, _)| id != schedule_id)
+                    {
+                        return self.lit_throughout(schedule_id);
                     }
                 }
             }

@@ -615,13 +615,13 @@ impl<T: Transport> Session<'_, T> {
                 Some(_) => {}
                 // Silence: the end may have been lost on the link. Ask.
                 None => {
-                    if let Reply::Status(status) = self.request(Command::GetStatus)? {
-                        if status.schedule.is_none_or(|(id, _)| id != sweep_id) {
-                            // Bins lost on the link (a gap in the indices): measured again.
-                            self.link.recoveries.readings_remeasured +=
-                                usize::from(bins).saturating_sub(seen.len());
-                            return Ok(sweep_id);
-                        }
+                    if let Reply::Status(status) = self.request(Command::GetStatus)?
+                        && status.schedule.is_none_or(|(id, _)| id != sweep_id)
+                    {
+                        // Bins lost on the link (a gap in the indices): measured again.
+                        self.link.recoveries.readings_remeasured +=
+                            usize::from(bins).saturating_sub(seen.len());
+                        return Ok(sweep_id);
                     }
                 }
             }

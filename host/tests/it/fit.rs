@@ -203,7 +203,7 @@ fn unresolved_peak_is_reported_as_an_upper_limit() {
         result.notes,
         result.model.names()
     );
-    assert!(upper >= 0.8 && upper < 10.0, "{upper}");
+    assert!((0.8..10.0).contains(&upper), "{upper}");
     assert_eq!(result.sigma_deg(), None);
     assert!(!result.model.0[model::SIGMA]);
     assert!(result.ci95[model::SIGMA].is_none());

@@ -4,6 +4,9 @@
 //! its dependencies, so one per file cost a build, a link and disk space per file. The
 //! tests run as threads of one process: a test passes values in (no `set_var`, no
 //! `set_current_dir`) and names its temporary folders after its own file.
+// Tests index vectors as the formulas they check write them, and spell out the shapes of
+// the tables they compare against.
+#![allow(clippy::needless_range_loop, clippy::type_complexity)]
 
 // Helpers shared by the test files.
 mod cli_support;

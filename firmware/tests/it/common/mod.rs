@@ -116,7 +116,7 @@ impl<S: Scene> Bench<S> {
     pub fn tick(&mut self) {
         self.now_us += 1000;
         if let Some(every) = self.heartbeat_every_ms {
-            if self.now_us % (every * 1000) == 0 {
+            if self.now_us.is_multiple_of(every * 1000) {
                 self.send(Command::Heartbeat);
             }
         }
