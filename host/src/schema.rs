@@ -16,15 +16,15 @@ pub const SESSION: &str = "gonio-session/2";
 /// of `result` as bare numbers: still read, upgraded in memory ([`crate::output::folder`]).
 pub const SESSION_V1: &str = "gonio-session/1";
 /// `sheet.json` of a sheet folder.
-pub const SHEET: &str = "gonio-sheet/2";
+pub(crate) const SHEET: &str = "gonio-sheet/2";
 /// `sheet.json` before `schema` (it was `format`): still read.
-pub const SHEET_V1: &str = "gonio-sheet/1";
+pub(crate) const SHEET_V1: &str = "gonio-sheet/1";
 /// `calibration.json` (and the `calibration` of `session.json`).
-pub const CALIBRATION: &str = "gonio-calibration/1";
+pub(crate) const CALIBRATION: &str = "gonio-calibration/1";
 /// A reading's line of `points.jsonl`.
-pub const POINT: &str = "gonio-point/1";
+pub(crate) const POINT: &str = "gonio-point/1";
 /// A line of `points.jsonl` that marks earlier readings superseded.
-pub const SUPERSEDE: &str = "gonio-supersede/1";
+pub(crate) const SUPERSEDE: &str = "gonio-supersede/1";
 /// The analysis of one data set: a line of `gonio fit --json`, and each `fits[].report`
 /// of `session.json`.
 pub const ANALYSIS: &str = "gonio-analysis/1";
@@ -46,7 +46,7 @@ pub const LIBRARY_SEARCH: &str = "gonio-library-search/1";
 /// A line of `gonio library export` (one measured sheet of a known stock).
 pub const LIBRARY_RECORD: &str = "gonio-library/2";
 /// A `gonio library export` line before `schema` (it was `format`): still imported.
-pub const LIBRARY_RECORD_V1: &str = "gonio-library/1";
+pub(crate) const LIBRARY_RECORD_V1: &str = "gonio-library/1";
 /// A white tile's certificate (`gonio measure --tile-certificate FILE`), as the user
 /// writes it; `schema` is optional there.
 pub const TILE_CERTIFICATE: &str = "gonio-tile-certificate/1";

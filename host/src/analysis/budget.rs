@@ -42,26 +42,26 @@ pub use crate::analysis::fit::{BudgetTerm, SharedError};
 
 /// Name of the fit's independent term (the readings' own noise); the fit adds "(estimated
 /// from the residuals)" when the readings carried no uncertainty.
-pub const READING_NOISE: &str = "reading noise";
+pub(crate) const READING_NOISE: &str = "reading noise";
 /// Name of the fit's term for the widening under lack of fit.
-pub const LACK_OF_FIT: &str = "lack of fit";
+pub(crate) const LACK_OF_FIT: &str = "lack of fit";
 /// Name of the tile's term.
 pub const TILE: &str = "tile certificate";
 /// Name of the drift term.
 pub const LAMP_DRIFT: &str = "lamp drift";
 
 /// Name of the white reading's term at `theta_i_deg`.
-pub fn white_name(theta_i_deg: f64) -> String {
+pub(crate) fn white_name(theta_i_deg: f64) -> String {
     format!("white θi={theta_i_deg}°")
 }
 
 /// Name of a range's dark term.
-pub fn dark_name(range: u8) -> String {
+pub(crate) fn dark_name(range: u8) -> String {
     format!("dark range {range}")
 }
 
 /// Name of the gain term of ranges (r, r + 1).
-pub fn gain_name(lower_range: u8) -> String {
+pub(crate) fn gain_name(lower_range: u8) -> String {
     format!("gain ranges {}/{}", lower_range, u16::from(lower_range) + 1)
 }
 
@@ -146,7 +146,7 @@ pub struct BudgetReading {
 /// difference, never younger than their device time since the first reading (which a
 /// calibration always precedes). A device clock that restarted (a power cycle) makes the
 /// differences meaningless: they are then only clamped to [0, age now].
-pub fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Vec<f64> {
+pub(crate) fn reading_ages_s(calibration_age_now_s: f64, device_times_us: &[u64]) -> Vec<f64> {
     let age_now = calibration_age_now_s.max(0.0);
     let (Some(&first), Some(&last)) = (device_times_us.iter().min(), device_times_us.iter().max())
     else {

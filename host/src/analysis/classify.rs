@@ -5,11 +5,11 @@ use crate::analysis::model::{ETA, Params, RHO_D, RHO_S, SIGMA};
 use serde::Serialize;
 
 /// σ at which glossy papers split into G and SG, degrees (between Table 6's 0.8 and 1.9).
-pub const G_SG_SPLIT_DEG: f64 = 1.3;
+pub(crate) const G_SG_SPLIT_DEG: f64 = 1.3;
 /// ρd/ρs below which a rough paper is group I.
-pub const ROUGH_I_MAX_RATIO: f64 = 1.0 / 2.53;
+pub(crate) const ROUGH_I_MAX_RATIO: f64 = 1.0 / 2.53;
 /// ρd/ρs from which a rough paper is group III.
-pub const ROUGH_III_MIN_RATIO: f64 = 1.83;
+pub(crate) const ROUGH_III_MIN_RATIO: f64 = 1.83;
 
 /// Glossy or rough (σ < ρs or not).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -157,9 +157,9 @@ pub const REFERENCES: [Reference; 8] = [
 /// Relative standard uncertainty assumed for Table 6's σ, ρs, ρd: the paper gives one
 /// sheet per paper and 2–3 digits, so sheet-to-sheet and instrument-to-instrument spread
 /// is not known; 10 % is our stated assumption.
-pub const REFERENCE_RELATIVE_UNCERTAINTY: f64 = 0.10;
+pub(crate) const REFERENCE_RELATIVE_UNCERTAINTY: f64 = 0.10;
 /// Standard uncertainty assumed for Table 6's η (weakly determined, often at its bound).
-pub const REFERENCE_ETA_UNCERTAINTY: f64 = 0.1;
+pub(crate) const REFERENCE_ETA_UNCERTAINTY: f64 = 0.1;
 
 /// Class of a parameter set. `sigma_deg` = `None` means no specular part (rough-III-like:
 /// all diffuse).
@@ -441,7 +441,7 @@ fn halton(mut index: usize, base: usize) -> f64 {
 }
 
 /// Φ⁻¹(p) by Acklam's rational approximation (relative error < 1.2e-9), p in (0, 1).
-pub fn inverse_normal_cdf(p: f64) -> f64 {
+pub(crate) fn inverse_normal_cdf(p: f64) -> f64 {
     const A: [f64; 6] = [
         -3.969683028665376e1,
         2.209460984245205e2,

@@ -75,7 +75,7 @@ impl SessionResult {
 }
 
 /// The `session.json` of a session folder, or the path itself when it is a file.
-pub fn session_file(path: &Path) -> PathBuf {
+pub(crate) fn session_file(path: &Path) -> PathBuf {
     if path.is_dir() {
         path.join("session.json")
     } else {
@@ -105,7 +105,7 @@ pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareEr
 /// The result of a `session.json` document (`file` is only for messages). A document that
 /// names its schema must be one whose result this gonio reads (the result's keys are the
 /// same in both versions); one without (written by hand) is read by its keys alone.
-pub fn session_result(file: &Path, root: &Value) -> Result<SessionResult, CompareError> {
+pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult, CompareError> {
     use crate::schema;
     if schema::of(root).is_some() || root.get("format").is_some() {
         schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|message| {

@@ -20,7 +20,7 @@ pub use crate::analysis::fit::STD_MAX as MAX_STD;
 /// The smallest standard uncertainty read.
 pub use crate::analysis::fit::STD_MIN as MIN_STD;
 /// The largest ratio of the largest to the smallest `std` in one data set.
-pub const MAX_STD_RATIO: f64 = 1e6;
+pub(crate) const MAX_STD_RATIO: f64 = 1e6;
 
 /// One data set: the readings of one sample, with the line each came from.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,7 +43,7 @@ impl DataSet {
     }
 
     /// The positive uncertainties within [`MAX_STD_RATIO`] of each other.
-    pub fn check_std_spread(&self) -> Result<(), StdSpread> {
+    pub(crate) fn check_std_spread(&self) -> Result<(), StdSpread> {
         let positive = self
             .observations
             .iter()
@@ -84,7 +84,7 @@ pub struct StdSpread {
     /// The largest std.
     pub value: f64,
     /// Line of the smallest std.
-    pub other_line: usize,
+    pub(crate) other_line: usize,
     /// The smallest std.
     pub other: f64,
     /// The data set.
@@ -111,7 +111,7 @@ pub enum Unfittable {
 }
 
 /// A radiance factor the fit can represent.
-pub fn check_radiance_factor(value: f64) -> Result<f64, Unfittable> {
+pub(crate) fn check_radiance_factor(value: f64) -> Result<f64, Unfittable> {
     if value.abs() <= MAX_RADIANCE_FACTOR {
         Ok(value)
     } else {
@@ -121,7 +121,7 @@ pub fn check_radiance_factor(value: f64) -> Result<f64, Unfittable> {
 
 /// A standard uncertainty the fit can weigh (0 and negative values pass: they are the
 /// fit's `BadUncertainty`, named there).
-pub fn check_std(std: f64) -> Result<f64, Unfittable> {
+pub(crate) fn check_std(std: f64) -> Result<f64, Unfittable> {
     if std <= 0.0 || (MIN_STD..=MAX_STD).contains(&std) {
         Ok(std)
     } else {
@@ -130,7 +130,7 @@ pub fn check_std(std: f64) -> Result<f64, Unfittable> {
 }
 
 /// A bin's travel (degrees) the detector can have.
-pub fn check_span(span_deg: f64) -> Result<f64, Unfittable> {
+pub(crate) fn check_span(span_deg: f64) -> Result<f64, Unfittable> {
     if (0.0..=MAX_SPAN_DEG).contains(&span_deg) {
         Ok(span_deg)
     } else {

@@ -46,11 +46,11 @@ pub const DEFAULT_WITHIN_RELATIVE_SD: [f64; 3] = [0.03, 0.03, 0.03];
 /// kind from different mills differ by a few to a few tens of percent in gloss and
 /// brightness). An assumption, and the figure the forensic study draws its stocks with, so
 /// that study validates the model under it rather than the figure itself.
-pub const DEFAULT_BETWEEN_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
+pub(crate) const DEFAULT_BETWEEN_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
 
 /// |log10 LR| below which the evidence is reported inconclusive (LR between 1/10 and 10:
 /// "weak" on the ENFSI scale either way).
-pub const INCONCLUSIVE_LOG10: f64 = 1.0;
+pub(crate) const INCONCLUSIVE_LOG10: f64 = 1.0;
 
 /// One spot of a sheet: its fitted σ (degrees), ρs, ρd and their covariance in those
 /// units; `None` for a parameter the fit did not determine.
@@ -65,7 +65,7 @@ pub struct Spot {
 impl Spot {
     /// A fit's σ (degrees), ρs, ρd and their covariance: `None` for a parameter the fit
     /// did not determine.
-    pub fn of_fit(fit: &crate::analysis::fit::FitResult) -> Spot {
+    pub(crate) fn of_fit(fit: &crate::analysis::fit::FitResult) -> Spot {
         use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
         let index = [SIGMA, RHO_S, RHO_D];
         Spot {
@@ -146,7 +146,7 @@ impl Sheet {
 
 /// Each stock's sheets pooled as one sheet of all their spots, by stock name (sorted),
 /// with how many sheets went into it.
-pub fn pool_by_stock(sheets: &[(String, Sheet)]) -> Vec<(String, usize, Sheet)> {
+pub(crate) fn pool_by_stock(sheets: &[(String, Sheet)]) -> Vec<(String, usize, Sheet)> {
     let mut pooled: std::collections::BTreeMap<&str, (usize, Sheet)> = Default::default();
     for (stock, sheet) in sheets {
         let entry = pooled
@@ -271,7 +271,7 @@ pub struct Population {
     /// Covariance of the population's density about each stock mean (its kernel), log
     /// space: h²·C (C the stock means' covariance, h Silverman's bandwidth) for a library,
     /// [`DEFAULT_BETWEEN_RELATIVE_SD`] about each reference paper for the default.
-    pub kernel: [[f64; 3]; 3],
+    pub(crate) kernel: [[f64; 3]; 3],
     /// Where it came from.
     pub source: PopulationSource,
 }

@@ -25,11 +25,11 @@ pub const GOF_ALPHA: f64 = 0.005;
 /// Level of the residual-structure test.
 pub const STRUCTURE_ALPHA: f64 = 0.005;
 /// Fewest θr-neighbour pairs for the structure test (fewer: not run).
-pub const STRUCTURE_MIN_PAIRS: usize = 10;
+pub(crate) const STRUCTURE_MIN_PAIRS: usize = 10;
 
 /// Upper tail P(X > χ²) of the chi-square distribution with `dof` degrees of freedom
 /// (statrs), `None` without degrees of freedom or for a non-finite χ².
-pub fn chi2_upper_tail(chi2: f64, dof: usize) -> Option<f64> {
+pub(crate) fn chi2_upper_tail(chi2: f64, dof: usize) -> Option<f64> {
     if dof == 0 || !chi2.is_finite() {
         return None;
     }
@@ -45,7 +45,11 @@ pub fn chi2_upper_tail(chi2: f64, dof: usize) -> Option<f64> {
 /// `scale_bin_noise`); 2,800 bins make χ²/ν's own spread 2.7 % while the scale's is 6 %, and testing against
 /// χ²(ν) alone raised the flag in one ideal sweep session in six. 0: exactly
 /// [`chi2_upper_tail`].
-pub fn chi2_upper_tail_scaled(chi2: f64, dof: usize, scale_log_variance: f64) -> Option<f64> {
+pub(crate) fn chi2_upper_tail_scaled(
+    chi2: f64,
+    dof: usize,
+    scale_log_variance: f64,
+) -> Option<f64> {
     if !(scale_log_variance.is_finite() && scale_log_variance > 0.0) {
         return chi2_upper_tail(chi2, dof);
     }
@@ -75,9 +79,9 @@ pub struct StructureTest {
     /// θr-neighbour pairs used.
     pub pairs: usize,
     /// Pooled lag-1 autocorrelation Σ e_j e_{j+1} / Σ e_j² of the decorrelated residuals.
-    pub lag1: f64,
+    pub(crate) lag1: f64,
     /// Z = Σ e_j e_{j+1} / sqrt(Σ (e_j e_{j+1})²).
-    pub statistic: f64,
+    pub(crate) statistic: f64,
     /// One-sided p-value 1 − Φ(Z).
     pub p_value: f64,
 }
@@ -85,7 +89,7 @@ pub struct StructureTest {
 /// The structure test on decorrelated residuals `e` given with their θi, in the order θi,
 /// then θr (neighbours in θr at the same θi are consecutive). `None` with fewer than
 /// [`STRUCTURE_MIN_PAIRS`] pairs or when every residual is 0.
-pub fn structure_test(theta_i_deg: &[f64], e: &[f64]) -> Option<StructureTest> {
+pub(crate) fn structure_test(theta_i_deg: &[f64], e: &[f64]) -> Option<StructureTest> {
     let (mut sum, mut sum_sq, mut pairs) = (0.0, 0.0, 0usize);
     for j in 1..e.len() {
         if theta_i_deg[j] != theta_i_deg[j - 1] {
@@ -121,7 +125,7 @@ pub fn structure_test(theta_i_deg: &[f64], e: &[f64]) -> Option<StructureTest> {
 /// row-major): e = L⁻¹ r with L L ᵀ = I + S Sᵀ in the order `order`, computed as the
 /// sequential prediction errors of r_i from the earlier readings (a Kalman filter over the
 /// shared errors ε ~ N(0, I)), O(n m²). Returned in `order`.
-pub fn innovations(r: &[f64], s: &[f64], m: usize, order: &[usize]) -> Vec<f64> {
+pub(crate) fn innovations(r: &[f64], s: &[f64], m: usize, order: &[usize]) -> Vec<f64> {
     if m == 0 {
         return order.iter().map(|&i| r[i]).collect();
     }

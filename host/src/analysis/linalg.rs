@@ -4,7 +4,7 @@
 
 /// A square row-major matrix of side `n`.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Square {
+pub(crate) struct Square {
     /// Side.
     pub n: usize,
     /// Entries, row-major.
@@ -13,7 +13,7 @@ pub struct Square {
 
 impl Square {
     /// The n × n zero matrix.
-    pub fn zeros(n: usize) -> Square {
+    pub(crate) fn zeros(n: usize) -> Square {
         Square {
             n,
             a: vec![0.0; n * n],
@@ -37,14 +37,14 @@ impl Square {
 
     /// Entry (i, j), mutable.
     #[inline]
-    pub fn at_mut(&mut self, i: usize, j: usize) -> &mut f64 {
+    pub(crate) fn at_mut(&mut self, i: usize, j: usize) -> &mut f64 {
         &mut self.a[i * self.n + j]
     }
 }
 
 /// Lower Cholesky factor of a symmetric positive definite matrix, `None` if it is not
 /// (a pivot NaN or ≤ 0).
-pub fn cholesky(m: &Square) -> Option<Square> {
+pub(crate) fn cholesky(m: &Square) -> Option<Square> {
     let n = m.n;
     let mut l = Square::zeros(n);
     for i in 0..n {
@@ -67,7 +67,7 @@ pub fn cholesky(m: &Square) -> Option<Square> {
 }
 
 /// Solve L·x = b in place (L lower triangular).
-pub fn forward_substitute(l: &Square, b: &mut [f64]) {
+pub(crate) fn forward_substitute(l: &Square, b: &mut [f64]) {
     for i in 0..l.n {
         let mut s = b[i];
         for k in 0..i {
@@ -78,7 +78,7 @@ pub fn forward_substitute(l: &Square, b: &mut [f64]) {
 }
 
 /// L⁻¹ of a lower triangular L.
-pub fn lower_inverse(l: &Square) -> Square {
+pub(crate) fn lower_inverse(l: &Square) -> Square {
     let n = l.n;
     let mut inv = Square::zeros(n);
     let mut column = vec![0.0; n];
@@ -96,7 +96,7 @@ pub fn lower_inverse(l: &Square) -> Square {
 /// Inverse of a symmetric positive definite matrix, scaled to unit diagonal first so that
 /// parameters of very different size do not make a well-posed matrix look singular;
 /// `None` if it is singular or nearly so (a scaled inverse beyond 1e12).
-pub fn spd_inverse(m: &Square) -> Option<Square> {
+pub(crate) fn spd_inverse(m: &Square) -> Option<Square> {
     let n = m.n;
     let d: Vec<f64> = (0..n)
         .map(|i| {
@@ -137,7 +137,7 @@ pub fn spd_inverse(m: &Square) -> Option<Square> {
 
 /// [`spd_inverse`] of the sub-matrix of a 4 × 4 matrix on the indices in `free`, the other
 /// rows and columns 0 (the fit's parameters, some held): `None` if that is singular.
-pub fn spd_inverse_free(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
+pub(crate) fn spd_inverse_free(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
     let index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
     let mut sub = Square::zeros(index.len());
     for (a, &i) in index.iter().enumerate() {

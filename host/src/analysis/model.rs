@@ -28,7 +28,7 @@ use serde::Serialize;
 pub const DEFAULT_ACCEPTANCE_DEG: f64 = 1.0;
 
 /// FWHM of the TS lobe in θr per degree of σ: the lobe has standard deviation 2σ in θr.
-pub const FWHM_PER_SIGMA: f64 = 4.0 * 1.177_410_022_515_474_6; // 4·sqrt(2 ln 2)
+pub(crate) const FWHM_PER_SIGMA: f64 = 4.0 * 1.177_410_022_515_474_6; // 4·sqrt(2 ln 2)
 
 /// Index of σ in gradient arrays.
 pub const SIGMA: usize = 0;
@@ -86,15 +86,15 @@ pub struct PlaneGeometry {
     /// θr, degrees.
     pub theta_r_deg: f64,
     /// θr − θi, degrees (the lobe's coordinate; θa = |offset| / 2).
-    pub offset_deg: f64,
+    pub(crate) offset_deg: f64,
     /// sin² ψ.
-    pub sin2_psi: f64,
+    pub(crate) sin2_psi: f64,
     /// cos ψ.
-    pub cos_psi: f64,
+    pub(crate) cos_psi: f64,
     /// G / (cos θi · cos θr).
     pub attenuation_over_cosines: f64,
     /// Which of its three terms it is (see [`attenuation_branch`]).
-    pub attenuation_branch: u8,
+    pub(crate) attenuation_branch: u8,
 }
 
 impl PlaneGeometry {
@@ -150,7 +150,7 @@ pub fn geometric_attenuation(theta_i_deg: f64, theta_r_deg: f64) -> f64 {
 /// sin(ψ−δ)/sin(ψ+δ) = (r − cos ψ)/(r + cos ψ) = (η² − 1)/(r + cos ψ)², and
 /// tan(ψ−δ)/tan(ψ+δ) = that × (r cos ψ − sin² ψ)/(r cos ψ + sin² ψ). At ψ = 0 this gives
 /// √2 (η−1)/(η+1); at η = 1 it is exactly 0; at ψ + δ = 90° the second factor is 0.
-pub fn fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f64) {
+pub(crate) fn fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f64) {
     let eta2_minus_1 = (eta - 1.0) * (eta + 1.0);
     let r2 = eta2_minus_1 + (1.0 - sin2_psi);
     let r = r2.max(0.0).sqrt();
@@ -183,7 +183,7 @@ pub fn fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f
 /// F / (η² − 1) and its derivative in η: finite and smooth down to η = 1, where F itself
 /// vanishes. The fit uses it with the amplitude ρs·(η² − 1), which the data determine even
 /// when η → 1 makes ρs and η separately ill-determined.
-pub fn reduced_fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f64) {
+pub(crate) fn reduced_fresnel_with_derivative(sin2_psi: f64, cos_psi: f64, eta: f64) -> (f64, f64) {
     let r = ((eta - 1.0) * (eta + 1.0) + (1.0 - sin2_psi))
         .max(0.0)
         .sqrt();
@@ -221,7 +221,7 @@ pub fn fresnel(psi_deg: f64, eta: f64) -> f64 {
 /// For very small σ the exponential underflows to 0 and so does the derivative
 /// (θa²/σ³ · e^(−θa²/2σ²) → 0), never 0 × ∞.
 #[inline]
-pub fn lobe_with_derivative(offset_deg: f64, sigma_deg: f64) -> (f64, f64) {
+pub(crate) fn lobe_with_derivative(offset_deg: f64, sigma_deg: f64) -> (f64, f64) {
     let theta_a = 0.5 * offset_deg.abs();
     if theta_a == 0.0 {
         return (1.0, 0.0);
@@ -282,11 +282,11 @@ fn normal_mass(lo: f64, hi: f64) -> f64 {
 /// L the lobe exp(−(offset + s)²/(2(2σ)²)),
 /// `m[k]` = (1/a) ∫ s^k L ds over s ∈ \[−a/2, a/2\] (k = 0, 1, 2) and `dm_dsigma[k]` = ∂m\[k\]/∂σ.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct WindowMoments {
+pub(crate) struct WindowMoments {
     /// M0, M1 (degrees), M2 (deg²).
     pub m: [f64; 3],
     /// Their derivatives in σ (per degree).
-    pub dm_dsigma: [f64; 3],
+    pub(crate) dm_dsigma: [f64; 3],
 }
 
 /// Gauss–Legendre nodes on [−1, 1] (positive half) and weights, 10 points.
@@ -322,7 +322,11 @@ const GL5_WEIGHTS: [f64; 3] = [
 /// whose cancellation grows as (2w/a)² per order, ≤ 64 here); a broader one by
 /// Gauss–Legendre (5 points where it changes by at most an e-fold across the window, 10
 /// where it changes faster).
-pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> WindowMoments {
+pub(crate) fn window_moments(
+    offset_deg: f64,
+    sigma_deg: f64,
+    acceptance_deg: f64,
+) -> WindowMoments {
     let w = 2.0 * sigma_deg;
     let a = acceptance_deg;
     let h = 0.5 * a;
@@ -382,7 +386,7 @@ pub fn window_moments(offset_deg: f64, sigma_deg: f64, acceptance_deg: f64) -> W
 /// u1 = (u+ − u−)/a and u2 = 4(u+ − 2u0 + u−)/a², the weights are
 /// (−M1/a + 2M2/a², M0 − 4M2/a², M1/a + 2M2/a²); they sum to M0. Returns the weights and
 /// their derivatives in σ.
-pub fn window_weights(
+pub(crate) fn window_weights(
     offset_deg: f64,
     sigma_deg: f64,
     acceptance_deg: f64,
@@ -405,7 +409,7 @@ pub fn window_weights(
 /// Which term of G/(cos θi cos θr) = min(1/(ci·cr), 2ca/(cψ·ci), 2ca/(cψ·cr)) is the
 /// smallest at (θi, θr): no masking, masking of the reflected ray, shadowing of the
 /// incident one. G has a kink where it switches.
-pub fn attenuation_branch(theta_i_deg: f64, theta_r_deg: f64) -> u8 {
+pub(crate) fn attenuation_branch(theta_i_deg: f64, theta_r_deg: f64) -> u8 {
     PlaneGeometry::new(theta_i_deg, theta_r_deg).attenuation_branch
 }
 
@@ -424,7 +428,7 @@ pub fn window_pieces(theta_i_deg: f64, theta_r_deg: f64, acceptance_deg: f64) ->
 }
 
 /// [`window_pieces`] with each piece's geometry at its low end, middle and high end.
-pub fn window_nodes(
+pub(crate) fn window_nodes(
     theta_i_deg: f64,
     theta_r_deg: f64,
     acceptance_deg: f64,
@@ -523,7 +527,7 @@ pub fn evaluate(p: &Params, g: &PlaneGeometry, acceptance_deg: Option<f64>) -> (
 /// segments of a whole window would err by 5e-6).
 /// The nodes depend on the geometry alone, never on the parameters, so the model does not
 /// jump as σ changes.
-pub fn travel_nodes(span_deg: f64, window_deg: f64) -> Vec<(f64, f64)> {
+pub(crate) fn travel_nodes(span_deg: f64, window_deg: f64) -> Vec<(f64, f64)> {
     let span = span_deg.abs();
     if span == 0.0 || !span.is_finite() || !(window_deg > 0.0) {
         return vec![(0.0, 1.0)];
@@ -552,7 +556,7 @@ const MAX_TRAVEL_WINDOW_DEG: f64 = 0.5;
 /// nodes; without one, a detector that moved `span` sees a uniform window of the span
 /// itself, taken as n adjacent windows of span/n ≤ 0.5° (exactly the same mean); a still
 /// point detector, no window.
-pub fn reading_window(
+pub(crate) fn reading_window(
     span_deg: f64,
     acceptance_deg: Option<f64>,
 ) -> (Option<f64>, Vec<(f64, f64)>) {

@@ -79,7 +79,7 @@ pub fn analyse(
 }
 
 /// [`analyse`] with errors the readings share (the calibration's uncertainty budget).
-pub fn analyse_with_shared(
+pub(crate) fn analyse_with_shared(
     readings: &Readings,
     shared: &[SharedError],
     options: &FitOptions,
@@ -119,7 +119,7 @@ pub fn analyse_with_shared(
 }
 
 /// The analysis's flags, sorted and without repeats.
-pub fn flags_of(
+pub(crate) fn flags_of(
     fit: &FitResult,
     check: Option<&SigmaCheck>,
     classification: &Classification,
@@ -144,7 +144,7 @@ pub fn flags_of(
 /// is always written).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct ResultDocument {
+pub(crate) struct ResultDocument {
     /// The detector's full angular acceptance modelled in the fit, degrees.
     pub acceptance_deg: Option<f64>,
     /// The parameters at a bound, as the fit writes them.
@@ -154,7 +154,7 @@ pub struct ResultDocument {
     /// Its value, degrees.
     pub arm_offset_deg: Option<f64>,
     /// The likelihood-ratio statistic of the test for it.
-    pub arm_offset_statistic: Option<f64>,
+    pub(crate) arm_offset_statistic: Option<f64>,
     /// The uncertainty budget, as [`crate::analysis::budget::to_json`] writes it.
     pub budget: Value,
     /// χ² of the fit.
@@ -166,14 +166,14 @@ pub struct ResultDocument {
     /// The share of the parameters' uncertainty region in the class.
     pub class_confidence: Option<f64>,
     /// Why the class was not decided.
-    pub class_undecided: Option<String>,
+    pub(crate) class_undecided: Option<String>,
     /// The fit's cost.
     #[serde(deserialize_with = "null_as_nan")]
     pub cost: f64,
     /// δ of the σ_l check, degrees.
     pub delta_deg: Option<f64>,
     /// Where δ came from, as the sampling check writes it.
-    pub delta_source: Value,
+    pub(crate) delta_source: Value,
     /// Degrees of freedom.
     pub dof: u64,
     /// η.
@@ -198,7 +198,7 @@ pub struct ResultDocument {
     /// The nearest reference paper of Table 6.
     pub nearest_reference: Option<String>,
     /// Its distance in combined standard uncertainties.
-    pub nearest_reference_distance: Option<f64>,
+    pub(crate) nearest_reference_distance: Option<f64>,
     /// Normalised mean absolute error.
     #[serde(deserialize_with = "null_as_nan")]
     pub nmae: f64,
@@ -215,7 +215,7 @@ pub struct ResultDocument {
     /// ρs.
     pub rho_s: Option<f64>,
     /// ρs's lower bound when σ is unresolved.
-    pub rho_s_lower: Option<f64>,
+    pub(crate) rho_s_lower: Option<f64>,
     /// RMS residual.
     #[serde(deserialize_with = "null_as_nan")]
     pub rms: f64,
@@ -245,7 +245,7 @@ pub struct ResultDocument {
 /// The 95 % intervals of the four parameters (`null`: none).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct Intervals {
+pub(crate) struct Intervals {
     /// η's.
     pub eta: Option<Interval>,
     /// ρd's.
@@ -257,7 +257,7 @@ pub struct Intervals {
 }
 
 /// An interval's lower and upper end (`null`: not finite).
-pub type Interval = [Option<f64>; 2];
+pub(crate) type Interval = [Option<f64>; 2];
 
 impl Intervals {
     /// The interval of the parameter named `name` ([`model::PARAM_NAMES`]).
@@ -285,7 +285,7 @@ impl Intervals {
 /// The fitted arm zero offset.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct ArmOffsetDocument {
+pub(crate) struct ArmOffsetDocument {
     /// Its 95 % interval, degrees.
     pub ci95: Interval,
     /// δ0, degrees.
@@ -294,29 +294,29 @@ pub struct ArmOffsetDocument {
     /// The likelihood-ratio statistic.
     pub lr: Option<f64>,
     /// Standard uncertainty, degrees.
-    pub std_deg: Option<f64>,
+    pub(crate) std_deg: Option<f64>,
 }
 
 /// The residual-structure test.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct StructureDocument {
+pub(crate) struct StructureDocument {
     /// Pooled lag-1 autocorrelation.
     #[serde(deserialize_with = "null_as_nan")]
-    pub lag1: f64,
+    pub(crate) lag1: f64,
     /// One-sided p-value.
     pub p_value: Option<f64>,
     /// θr-neighbour pairs used.
     pub pairs: u64,
     /// Z.
     #[serde(deserialize_with = "null_as_nan")]
-    pub statistic: f64,
+    pub(crate) statistic: f64,
 }
 
 /// A parameter the readings did not determine, and why.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct NotIdentifiedDocument {
+pub(crate) struct NotIdentifiedDocument {
     /// The parameter's name.
     pub param: String,
     /// Why.

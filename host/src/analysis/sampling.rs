@@ -52,7 +52,7 @@ fn schedule_set(s: &schedules::Schedule) -> BTreeSet<(i32, i32)> {
 }
 
 /// The nominal δ when the geometries are exactly one of the method's schedules.
-pub fn nominal_delta(geometries: &[(f64, f64)]) -> Option<Delta> {
+pub(crate) fn nominal_delta(geometries: &[(f64, f64)]) -> Option<Delta> {
     let set = tick_set(geometries)?;
     for (m, delta) in schedules::STRATEGY1 {
         if let Some(s) = schedules::strategy1(m)

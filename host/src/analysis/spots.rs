@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 pub const DEFAULT_SPOTS: u16 = 5;
 
 /// More spots measured, at most, in place of flagged ones.
-pub const MAX_REPLACEMENTS: u16 = 2;
+pub(crate) const MAX_REPLACEMENTS: u16 = 2;
 
 /// What a measured spot contributes to its sheet.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,7 +38,7 @@ pub struct SpotResult {
 
 /// The number of the next spot to measure, or `None` when the sheet is done: `planned`
 /// clean spots, or the replacements spent.
-pub fn next_spot(planned: u16, replacements: u16, results: &[SpotResult]) -> Option<u16> {
+pub(crate) fn next_spot(planned: u16, replacements: u16, results: &[SpotResult]) -> Option<u16> {
     let measured = results.len() as u16;
     let clean = results.iter().filter(|r| flags::ok(&r.flags)).count() as u16;
     let budget = planned.saturating_add(replacements);
@@ -115,7 +115,7 @@ impl SheetSummary {
 }
 
 /// The sheet's result from its measured spots (see the module's rules).
-pub fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
+pub(crate) fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
     let any_clean = results.iter().any(|r| flags::ok(&r.flags));
     let mut sheet_flags: Vec<Flag> = Vec::new();
     let mut notes = Vec::new();

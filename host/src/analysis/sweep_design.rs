@@ -41,11 +41,11 @@ pub struct SweepPlan {
     /// Where the detector arm starts (at rest) and the first bin starts, degrees.
     pub from_deg: f64,
     /// Where it stops and the last bin ends, degrees (below `from_deg`: backwards).
-    pub to_deg: f64,
+    pub(crate) to_deg: f64,
     /// The profile's top speed, °/s (reached only where the sweep is long enough).
-    pub speed_deg_per_s: f64,
+    pub(crate) speed_deg_per_s: f64,
     /// Bin length, degrees.
-    pub bin_deg: f64,
+    pub(crate) bin_deg: f64,
 }
 
 impl SweepPlan {
@@ -67,7 +67,7 @@ impl SweepPlan {
     }
 
     /// The sweep's own time (the detector arm from rest to rest), µs.
-    pub fn sweep_us(&self, motion: &impl ArmTiming) -> u64 {
+    pub(crate) fn sweep_us(&self, motion: &impl ArmTiming) -> u64 {
         motion.sweep_us(self.from_deg, self.to_deg, self.speed_deg_per_s)
     }
 }
@@ -79,7 +79,7 @@ impl SweepPlan {
 /// paper needs nothing more, a glossy one's peak is then swept slowly where σ needs it, and
 /// a fit the model does not describe gets the rest of the full plane before it is
 /// reported (more lines for the goodness of fit to test).
-pub const FIRST_PASS_INCIDENCE_DEG: [i32; 2] = [20, 60];
+pub(crate) const FIRST_PASS_INCIDENCE_DEG: [i32; 2] = [20, 60];
 
 /// Sweeps of θr over 0…70° at each of `incidences_deg` in that order, at top speed
 /// `speed_deg_per_s` and bins of `bin_deg`, the direction alternating so that each sweep
@@ -120,7 +120,7 @@ pub fn full_plane(speed_deg_per_s: f64, bin_deg: f64) -> Vec<SweepPlan> {
 /// arms are (`here`): the incidences ascending or descending, the first sweep forwards or
 /// backwards (then alternating). From the park position (85°, 85°) that is θi = 60° first,
 /// from θr = 70°: for the full plane 1.3 s less device time than starting at (20°, 0°).
-pub fn lines_from(
+pub(crate) fn lines_from(
     motion: &impl ArmTiming,
     here: Geometry,
     incidences_deg: &[i32],
@@ -175,7 +175,7 @@ pub fn full_plane_from(
 
 /// The sweep policy's first pass ([`FIRST_PASS_INCIDENCE_DEG`]) in the order that is
 /// fastest from `here`.
-pub fn first_pass_from(
+pub(crate) fn first_pass_from(
     motion: &impl ArmTiming,
     here: Geometry,
     speed_deg_per_s: f64,
@@ -214,11 +214,11 @@ pub fn device_us(motion: &impl ArmTiming, here: Geometry, plans: &[SweepPlan]) -
 
 /// A received bin as the dwell model needs it ([`dwell_centres_steps`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BinStamp {
+pub(crate) struct BinStamp {
     /// Its index in the sweep.
     pub index: u16,
     /// The detector arm's step count at the end of its last block.
-    pub end_steps: i32,
+    pub(crate) end_steps: i32,
     /// Blocks averaged.
     pub blocks: u16,
     /// Every block of its interval was averaged (not blanked, not empty): its block count
@@ -244,7 +244,7 @@ pub struct BinStamp {
 /// whose end passes its nominal end) gives every received bin's end step count, and every
 /// whole bin's block count. `None` when no phase does (a profile or clock other than this
 /// model's): the bins keep their middles. Bins not received are `None`.
-pub fn dwell_centres_steps(
+pub(crate) fn dwell_centres_steps(
     profile: &firmware::motion::MoveProfile,
     from_steps: i32,
     to_steps: i32,
@@ -353,7 +353,7 @@ pub fn dwell_centres_steps(
 
 /// The narrowest bin a sweep at `speed_deg_per_s` can have: one detector block's travel,
 /// rounded up to the arms' 0.0125° ticks.
-pub fn min_bin_deg(speed_deg_per_s: f64, block_s: f64) -> f64 {
+pub(crate) fn min_bin_deg(speed_deg_per_s: f64, block_s: f64) -> f64 {
     let tick = protocol::Angle::RESOLUTION_DEG;
     ((speed_deg_per_s * block_s / tick).ceil().max(1.0)) * tick
 }
@@ -361,7 +361,7 @@ pub fn min_bin_deg(speed_deg_per_s: f64, block_s: f64) -> f64 {
 /// A bin length for a lobe of standard deviation `lobe_sd_deg` in θr swept at
 /// `speed_deg_per_s`: a sixth of the lobe's width, so the bins resolve its shape (the fit
 /// models their travel, so nothing is lost but resolution), and never under one block.
-pub fn bin_for_lobe(lobe_sd_deg: f64, speed_deg_per_s: f64, block_s: f64) -> f64 {
+pub(crate) fn bin_for_lobe(lobe_sd_deg: f64, speed_deg_per_s: f64, block_s: f64) -> f64 {
     let tick = protocol::Angle::RESOLUTION_DEG;
     let wanted = ((lobe_sd_deg / 6.0) / tick).floor().max(1.0) * tick;
     wanted.max(min_bin_deg(speed_deg_per_s, block_s))
@@ -369,20 +369,20 @@ pub fn bin_for_lobe(lobe_sd_deg: f64, speed_deg_per_s: f64, block_s: f64) -> f64
 
 /// The lobe's standard deviation in θr as the detector sees it, degrees: the TS lobe's
 /// 2σ widened by the acceptance window (a uniform window of width a adds a²/12).
-pub fn lobe_sd_deg(sigma_deg: f64, acceptance_deg: Option<f64>) -> f64 {
+pub(crate) fn lobe_sd_deg(sigma_deg: f64, acceptance_deg: Option<f64>) -> f64 {
     let a = acceptance_deg.unwrap_or(0.0);
     ((2.0 * sigma_deg).powi(2) + a * a / 12.0).sqrt()
 }
 
 /// Top speeds the design considers for sweeps across a peak, °/s: the instrument's
 /// fastest and three slower ones, each halving the noise variance per degree.
-pub const DESIGN_SPEEDS_DEG_PER_S: [f64; 4] = [60.0, 30.0, 15.0, 7.5];
+pub(crate) const DESIGN_SPEEDS_DEG_PER_S: [f64; 4] = [60.0, 30.0, 15.0, 7.5];
 
 /// Sweeps across the specular peak at each of Strategy 1's incidences: ±3 lobe standard
 /// deviations (at least ±1°) about specular, at each of [`DESIGN_SPEEDS_DEG_PER_S`] (up to
 /// the instrument's own top speed), bins from [`bin_for_lobe`], each started at the end
 /// nearer the detector's position `from_theta_r_deg`.
-pub fn peak_candidates(
+pub(crate) fn peak_candidates(
     sigma_deg: f64,
     acceptance_deg: Option<f64>,
     max_speed_deg_per_s: f64,
@@ -425,7 +425,7 @@ pub fn peak_candidates(
 /// travel through the acceptance), with the noise `per_block_variance` predicts for one
 /// detector block at a bin's radiance factor over the blocks a bin gets (the sweep's time
 /// shared out over its bins).
-pub fn sweep_information(
+pub(crate) fn sweep_information(
     fit: &FitResult,
     plan: &SweepPlan,
     motion: &impl ArmTiming,
@@ -459,7 +459,7 @@ pub fn sweep_information(
 
 /// The information the readings taken bring (as the fit modelled them), each with the
 /// variance it was given.
-pub fn readings_information(fit: &FitResult, observations: &[Observation]) -> [[f64; 4]; 4] {
+pub(crate) fn readings_information(fit: &FitResult, observations: &[Observation]) -> [[f64; 4]; 4] {
     let free = fit.model.0;
     let mut information = [[0.0; 4]; 4];
     for o in observations {
@@ -485,16 +485,16 @@ pub fn readings_information(fit: &FitResult, observations: &[Observation]) -> [[
 /// A design's choice: the sweeps, and what they are predicted to leave of σ's 95 %
 /// half-width relative to σ.
 #[derive(Clone, Debug, PartialEq)]
-pub struct SweepDesign {
+pub(crate) struct SweepDesign {
     /// The sweeps, in the order to run them.
     pub plans: Vec<SweepPlan>,
     /// σ's predicted 95 % relative half-width after them.
-    pub predicted_rel_half_width: f64,
+    pub(crate) predicted_rel_half_width: f64,
     /// Their device time with the moves between them, seconds.
     pub seconds: f64,
     /// The drop of σ's variance (the readings' noise part, degrees²) they are predicted to
     /// bring.
-    pub sigma_variance_drop: f64,
+    pub(crate) sigma_variance_drop: f64,
 }
 
 /// A candidate sweep of the design with its score (the drop of σ's variance per device
@@ -509,7 +509,7 @@ type Candidate = (f64, SweepPlan, [[f64; 4]; 4], f64, f64);
 /// less the part the readings' own noise leaves, which is what the sweeps reduce.
 /// Nothing is chosen when σ is not fitted or no candidate helps.
 #[allow(clippy::too_many_arguments)]
-pub fn design_peak_sweeps(
+pub(crate) fn design_peak_sweeps(
     fit: &FitResult,
     observations: &[Observation],
     here: Geometry,

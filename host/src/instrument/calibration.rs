@@ -34,12 +34,12 @@ pub const DEFAULT_TILE_RELATIVE_UNCERTAINTY: f64 = 0.005;
 /// their tolerance; 1 % feedback resistors and the amplifier's finite open-loop gain make a
 /// ratio good to about 1 %. A session calibrates the ratios its readings use
 /// (`session::gains`); this applies only where it could not.
-pub const NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY: f64 = 0.01;
+pub(crate) const NOMINAL_GAIN_RATIO_RELATIVE_UNCERTAINTY: f64 = 0.01;
 
 /// Lamp output drift, standard uncertainty of its rate, per hour (fraction). The reference instrument:
 /// "lamp drift 0.2 % per hour" for the reference instrument; its sign is not known, so the
 /// rate is taken as 0 ± 0.2 %/h.
-pub const DEFAULT_LAMP_DRIFT_PER_HOUR: f64 = 0.002;
+pub(crate) const DEFAULT_LAMP_DRIFT_PER_HOUR: f64 = 0.002;
 
 /// The white tile a calibration is taken with: its certified radiance factor and that
 /// value's uncertainty, and the certificate they come from when one was given.
@@ -306,13 +306,13 @@ pub struct Calibration {
     pub relative_gains: Vec<f64>,
     /// Relative standard uncertainty assumed for a nominal ratio of adjacent ranges.
     #[serde(default = "default_nominal_gain_ratio_relative_uncertainty")]
-    pub nominal_gain_ratio_relative_uncertainty: f64,
+    pub(crate) nominal_gain_ratio_relative_uncertainty: f64,
     /// Calibrated ratios of adjacent ranges (only those the readings needed).
     #[serde(default)]
     pub gain_ratios: Vec<GainRatio>,
     /// Standard uncertainty of the lamp's drift rate, per hour (fraction).
     #[serde(default = "default_lamp_drift_per_hour")]
-    pub lamp_drift_per_hour: f64,
+    pub(crate) lamp_drift_per_hour: f64,
     /// Dark reading per range (lamp off), most sensitive first.
     pub dark: Vec<Reading>,
     /// White readings, one per incidence angle.
@@ -381,11 +381,11 @@ pub enum CalibrationError {
 
 /// The longest `--max-calibration-age-h` accepted: a year. A lamp and a white tile are not
 /// stable for longer, and it keeps the age a [`Duration`] can hold.
-pub const MAX_CALIBRATION_AGE_H: f64 = 8760.0;
+pub(crate) const MAX_CALIBRATION_AGE_H: f64 = 8760.0;
 
 /// The oldest calibration accepted, from `--max-calibration-age-h`: a finite number of
 /// hours in (0, [`MAX_CALIBRATION_AGE_H`]], else [`CalibrationError::BadMaxAge`] naming it.
-pub fn max_age_from_hours(hours: f64) -> Result<Duration, CalibrationError> {
+pub(crate) fn max_age_from_hours(hours: f64) -> Result<Duration, CalibrationError> {
     if !(hours > 0.0 && hours <= MAX_CALIBRATION_AGE_H) {
         return Err(CalibrationError::BadMaxAge(hours));
     }
@@ -393,12 +393,12 @@ pub fn max_age_from_hours(hours: f64) -> Result<Duration, CalibrationError> {
 }
 
 /// The instrument's identity as a calibration records it.
-pub fn instrument_name(info: &DeviceInfo) -> String {
+pub(crate) fn instrument_name(info: &DeviceInfo) -> String {
     format!("{} (firmware {})", info.board, info.firmware_version)
 }
 
 /// Seconds since the Unix epoch now.
-pub fn unix_now_s() -> u64 {
+pub(crate) fn unix_now_s() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_secs())
@@ -409,11 +409,11 @@ pub fn unix_now_s() -> u64 {
 /// down over many samples; without noise (a quiet detector, the simulator's
 /// `--noise-scale 0`) every sample rounds the same way and the mean is known to no better.
 /// Without the floor such a reading had an uncertainty of 0 and no fit could weigh it.
-pub const RESOLUTION_STD_COUNTS: f64 = 0.288_675_134_594_812_9;
+pub(crate) const RESOLUTION_STD_COUNTS: f64 = 0.288_675_134_594_812_9;
 
 /// Standard error of a reading's mean, counts: its samples' standard deviation over √n, at
 /// least [`RESOLUTION_STD_COUNTS`].
-pub fn standard_error_counts(reading: &Reading) -> f64 {
+pub(crate) fn standard_error_counts(reading: &Reading) -> f64 {
     let noise = f64::from(reading.std_counts) / f64::from(reading.samples.max(1)).sqrt();
     // (NaN stays NaN: the conversion's checks report it.)
     if noise.is_nan() {
@@ -456,21 +456,21 @@ pub fn pool(readings: &[Reading]) -> Option<Reading> {
 
 /// How a reading converts: the parts the uncertainty budget differentiates.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Conversion {
+pub(crate) struct Conversion {
     /// The radiance factor.
     pub radiance_factor: f64,
     /// Its standard uncertainty from the reading's own noise only.
-    pub own_std: f64,
+    pub(crate) own_std: f64,
     /// The reading's counts above its range's dark (on its own range).
     pub net_counts: f64,
     /// The white reading's counts above its range's dark (on its own range).
-    pub white_net_counts: f64,
+    pub(crate) white_net_counts: f64,
     /// Range of the reading.
     pub range: u8,
     /// Range of the white reading at its θi.
-    pub white_range: u8,
+    pub(crate) white_range: u8,
     /// Index of the white reading in [`Calibration::white`].
-    pub white_index: usize,
+    pub(crate) white_index: usize,
 }
 
 impl Calibration {
@@ -508,7 +508,7 @@ impl Calibration {
     }
 
     /// The white reading at `theta_i_deg` and its index.
-    pub fn white_at(&self, theta_i_deg: f64) -> Option<(usize, &WhitePoint)> {
+    pub(crate) fn white_at(&self, theta_i_deg: f64) -> Option<(usize, &WhitePoint)> {
         self.white
             .iter()
             .enumerate()
@@ -516,7 +516,7 @@ impl Calibration {
     }
 
     /// The calibrated ratio G(r + 1) / G(r), if there is one.
-    pub fn calibrated_ratio(&self, lower_range: u8) -> Option<&GainRatio> {
+    pub(crate) fn calibrated_ratio(&self, lower_range: u8) -> Option<&GainRatio> {
         self.gain_ratios
             .iter()
             .rev()
@@ -526,7 +526,7 @@ impl Calibration {
     /// G(r + 1) / G(r) as the conversion uses it, its relative standard uncertainty, and
     /// whether it was calibrated (else the handshake's nominal value and
     /// [`Calibration::nominal_gain_ratio_relative_uncertainty`]).
-    pub fn gain_ratio(&self, lower_range: u8) -> Result<(f64, f64, bool), CalibrationError> {
+    pub(crate) fn gain_ratio(&self, lower_range: u8) -> Result<(f64, f64, bool), CalibrationError> {
         if let Some(g) = self.calibrated_ratio(lower_range) {
             return Ok((g.ratio, g.relative_uncertainty, true));
         }
@@ -565,7 +565,11 @@ impl Calibration {
     /// it (k ∝ gain) put the glossy peaks' bins on the least sensitive range at a fifth of
     /// their variance on the reference instrument, whose shot noise in counts is the same
     /// on every range. Only a range no steady reading was taken on is scaled by its gain.
-    pub fn block_std_counts(&self, range: u8, net_counts: f64) -> Result<f64, CalibrationError> {
+    pub(crate) fn block_std_counts(
+        &self,
+        range: u8,
+        net_counts: f64,
+    ) -> Result<f64, CalibrationError> {
         let dark = self
             .dark
             .get(usize::from(range))
@@ -647,7 +651,7 @@ impl Calibration {
     }
 
     /// How a sample reading at `theta_i_deg` converts.
-    pub fn convert(
+    pub(crate) fn convert(
         &self,
         theta_i_deg: f64,
         reading: &Reading,
@@ -768,7 +772,7 @@ impl Calibration {
     }
 
     /// The document of `calibration.json`: the calibration with its `schema`.
-    pub fn to_document(&self) -> serde_json::Result<serde_json::Value> {
+    pub(crate) fn to_document(&self) -> serde_json::Result<serde_json::Value> {
         Ok(crate::schema::tagged(
             crate::schema::CALIBRATION,
             serde_json::to_value(self)?,
@@ -777,7 +781,7 @@ impl Calibration {
 
     /// The calibration of a `calibration.json` document (one without `schema` was written
     /// before gonio named its documents, and is read as this version).
-    pub fn from_document(value: serde_json::Value) -> Result<Calibration, String> {
+    pub(crate) fn from_document(value: serde_json::Value) -> Result<Calibration, String> {
         crate::schema::check(
             &value,
             &[crate::schema::CALIBRATION],
@@ -787,7 +791,7 @@ impl Calibration {
     }
 
     /// [`Calibration::from_document`] of a file's text; errors with the line when known.
-    pub fn from_json(text: &str) -> Result<Calibration, (Option<usize>, String)> {
+    pub(crate) fn from_json(text: &str) -> Result<Calibration, (Option<usize>, String)> {
         let value: serde_json::Value =
             serde_json::from_str(text).map_err(|e| (Some(e.line()), format!("not JSON: {e}")))?;
         Calibration::from_document(value).map_err(|m| (None, m))

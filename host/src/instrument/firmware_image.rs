@@ -18,16 +18,16 @@ use object::{Endianness, FileKind};
 use protocol::{F411_BOARD_NAME, FirmwareInfo, FirmwareInfoError, PROTOCOL_VERSION};
 
 /// The STM32F411's flash: its first byte (where the vector table must be).
-pub const FLASH_START: u32 = 0x0800_0000;
+pub(crate) const FLASH_START: u32 = 0x0800_0000;
 /// The STM32F411's flash, bytes (512 KiB on the F411CE and RE).
-pub const FLASH_LEN: u32 = 512 * 1024;
+pub(crate) const FLASH_LEN: u32 = 512 * 1024;
 /// The STM32F411's SRAM: its first byte.
-pub const SRAM_START: u32 = 0x2000_0000;
+pub(crate) const SRAM_START: u32 = 0x2000_0000;
 /// The STM32F411's SRAM, bytes (128 KiB). An initial stack pointer may be the address just
 /// past its end (a full-descending stack starts there).
-pub const SRAM_LEN: u32 = 128 * 1024;
+pub(crate) const SRAM_LEN: u32 = 128 * 1024;
 /// The section that says what the image is.
-pub const INFO_SECTION: &str = ".gonio.info";
+pub(crate) const INFO_SECTION: &str = ".gonio.info";
 
 /// One load segment of the image: what is written where.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -140,12 +140,12 @@ pub enum ProbeError {
 
 /// What probe-rs looks for, for the "no probe" message: the probe kinds of this build and
 /// the USB ids of the common ones (the STM32F411 boards' usual ST-Link clones, CMSIS-DAP).
-pub const PROBES_LOOKED_FOR: &str = "ST-Link V2/V2-1/V3 (USB 0483:3748, 0483:374b, 0483:374a, 0483:3742, 0483:3752, 0483:374e, 0483:374f, 0483:3753, 0483:3754, 0483:3757), \
+pub(crate) const PROBES_LOOKED_FOR: &str = "ST-Link V2/V2-1/V3 (USB 0483:3748, 0483:374b, 0483:374a, 0483:3742, 0483:3752, 0483:374e, 0483:374f, 0483:3753, 0483:3754, 0483:3757), \
 CMSIS-DAP v2 (any USB device with a CMSIS-DAP interface, e.g. a Raspberry Pi debugprobe 2e8a:000c; CMSIS-DAP v1 over HID is not in this build), \
 SEGGER J-Link (USB 1366:*), FTDI MPSSE (USB 0403:*), WCH-Link, ESP USB-JTAG, Black Magic Probe, Glasgow";
 
 /// The chip `gonio flash` attaches to: the board's (firmware/board/.cargo/config.toml).
-pub const CHIP: &str = "STM32F411CEUx";
+pub(crate) const CHIP: &str = "STM32F411CEUx";
 
 /// Why flashing failed. Each says what to do.
 #[derive(Debug, thiserror::Error)]
@@ -269,7 +269,7 @@ pub struct Flashed {
 }
 
 /// The probe to use: the only one, or the one chosen.
-pub fn choose_probe(
+pub(crate) fn choose_probe(
     probes: Vec<ProbeDescription>,
     chosen: Option<usize>,
 ) -> Result<ProbeDescription, FlashError> {

@@ -228,7 +228,7 @@ pub struct RetryPolicy {
 /// The bound: a frozen or vanished instrument is given up within 10 s of silence.
 /// Five times the firmware's 2 s heartbeat timeout: an outage of a few seconds (a cable
 /// pulled and pushed back) is ridden out, a dead instrument is not waited for.
-pub const GIVE_UP_AFTER: Duration = Duration::from_secs(10);
+pub(crate) const GIVE_UP_AFTER: Duration = Duration::from_secs(10);
 
 impl Default for RetryPolicy {
     fn default() -> Self {
@@ -249,7 +249,7 @@ pub struct LinkStats {
     /// Requests sent again after a timeout.
     pub retries: u32,
     /// Frames the device reported it could not read.
-    pub rejected_by_device: u32,
+    pub(crate) rejected_by_device: u32,
 }
 
 /// A request/reply client over a [`Transport`].
@@ -330,7 +330,7 @@ impl<T: Transport> Client<T> {
 
     /// Forget the messages queued while waiting (after a reconnection or a recovery:
     /// the state they told of has been read afresh).
-    pub fn clear_unsolicited(&mut self) {
+    pub(crate) fn clear_unsolicited(&mut self) {
         self.unsolicited.clear();
     }
 
@@ -414,7 +414,7 @@ impl<T: Transport> Client<T> {
     /// Once `flag` is set (`None`: never), send nothing more and stop any wait with
     /// [`LinkError::Interrupted`], so that a Ctrl-C is heard during a long command (homing
     /// takes up to 20 s) and the caller can stop the instrument at once (after clearing it).
-    pub fn set_interrupt(&mut self, flag: Option<Arc<AtomicBool>>) {
+    pub(crate) fn set_interrupt(&mut self, flag: Option<Arc<AtomicBool>>) {
         self.interrupt = flag;
     }
 

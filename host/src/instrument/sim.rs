@@ -88,23 +88,23 @@ impl From<LobeChoice> for Lobe {
 
 /// Magnitudes of one set of instrument errors.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PhysicsSet {
+pub(crate) struct PhysicsSet {
     /// Relative standard deviation of each adjacent range-gain ratio's error, percent.
-    pub gain_error_pct: f64,
+    pub(crate) gain_error_pct: f64,
     /// Relative standard deviation of the white tile's true radiance factor about its
     /// certificate, percent.
-    pub tile_error_pct: f64,
+    pub(crate) tile_error_pct: f64,
     /// Lamp drift, percent per hour (its sign drawn from the seed).
     pub lamp_drift_pct_per_h: f64,
     /// Detector arm zero error, degrees.
     pub arm_offset_deg: f64,
     /// Standard deviation of a drawn detector arm zero error, degrees (added to the fixed
     /// one, drawn from the seed).
-    pub arm_zero_sd_deg: f64,
+    pub(crate) arm_zero_sd_deg: f64,
 }
 
 /// `--physics ideal`: today's ideal instrument.
-pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet {
+pub(crate) const IDEAL_PHYSICS: PhysicsSet = PhysicsSet {
     gain_error_pct: 0.0,
     tile_error_pct: 0.0,
     lamp_drift_pct_per_h: 0.2,
@@ -128,7 +128,7 @@ pub const IDEAL_PHYSICS: PhysicsSet = PhysicsSet {
 ///   instruments are a population whose zero is known to 0.1°, the uncertainty a session
 ///   assumes ([`crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]);
 /// - the detector window (1° full width) as in the ideal set.
-pub const REAL_PHYSICS: PhysicsSet = PhysicsSet {
+pub(crate) const REAL_PHYSICS: PhysicsSet = PhysicsSet {
     gain_error_pct: 1.0,
     tile_error_pct: 0.5,
     lamp_drift_pct_per_h: 0.2,
@@ -248,7 +248,7 @@ impl Default for SimOptions {
 /// Runs a session folder (or a sheet folder and its spots' sessions) records: what a
 /// resumed session's simulated instrument counts as its earlier power-ons. 0 for a folder
 /// that is not there or not readable (the resume itself says what is wrong with it).
-pub fn runs_recorded(dir: &std::path::Path) -> u64 {
+pub(crate) fn runs_recorded(dir: &std::path::Path) -> u64 {
     let runs_in = |file: PathBuf| -> u64 {
         std::fs::read(&file)
             .ok()
@@ -380,7 +380,7 @@ fn parse_arm(item: &str, value: &str) -> Result<Arm, SimOptionError> {
 }
 
 /// Parse `--faults`.
-pub fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
+pub(crate) fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
     let mut faults = SimConfig::default().faults;
     for item in spec.split(',').map(str::trim).filter(|i| !i.is_empty()) {
         let bad = |why: &str| SimOptionError::BadFault {
@@ -459,7 +459,7 @@ fn checked(
 
 impl SimOptions {
     /// The instrument errors in force: the `--physics` set with single values overridden.
-    pub fn physics_set(&self) -> PhysicsSet {
+    pub(crate) fn physics_set(&self) -> PhysicsSet {
         let base = match self.physics {
             Physics::Ideal => IDEAL_PHYSICS,
             Physics::Real => REAL_PHYSICS,

@@ -15,7 +15,7 @@ use std::fmt::Write as _;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// The `VARS` line's columns.
-pub const ASTM_VARS: &str = "theta_i,phi_i,theta_s,phi_s,BRDF";
+pub(crate) const ASTM_VARS: &str = "theta_i,phi_i,theta_s,phi_s,BRDF";
 
 /// What an export says about the measurement besides the readings.
 #[derive(Clone, Debug, PartialEq)]
@@ -39,12 +39,12 @@ pub struct AstmMetadata {
 }
 
 /// The solid angle of a circular acceptance of full width `acceptance_deg`, sr.
-pub fn acceptance_solid_angle_sr(acceptance_deg: f64) -> f64 {
+pub(crate) fn acceptance_solid_angle_sr(acceptance_deg: f64) -> f64 {
     2.0 * std::f64::consts::PI * (1.0 - (0.5 * acceptance_deg.to_radians()).cos())
 }
 
 /// The file name of a sample's export: `<sample>.astm` (the sample as a file name).
-pub fn astm_file_name(sample: &str) -> String {
+pub(crate) fn astm_file_name(sample: &str) -> String {
     format!("{}.astm", crate::output::folder::file_name_of(sample))
 }
 

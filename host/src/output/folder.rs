@@ -18,27 +18,28 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 /// The primary record.
-pub const POINTS: &str = "points.jsonl";
+pub(crate) const POINTS: &str = "points.jsonl";
 /// The convertible readings as CSV, derived from [`POINTS`].
-pub const READINGS: &str = "readings.csv";
+pub(crate) const READINGS: &str = "readings.csv";
 /// The session document.
 pub const SESSION: &str = "session.json";
 /// The calibration.
-pub const CALIBRATION: &str = "calibration.json";
+pub(crate) const CALIBRATION: &str = "calibration.json";
 /// The decision log.
-pub const LOG: &str = "session.log";
+pub(crate) const LOG: &str = "session.log";
 /// The manifest.
 pub const MANIFEST: &str = "MANIFEST.sha256";
 /// The report drawn from a finished session or sheet folder's files (not in its manifest:
 /// `gonio verify` checks it against them instead).
-pub const REPORT: &str = "report.html";
+pub(crate) const REPORT: &str = "report.html";
 /// The sheet document of a folder of several spots.
-pub const SHEET: &str = "sheet.json";
+pub(crate) const SHEET: &str = "sheet.json";
 /// The header of [`READINGS`].
-pub const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
+pub(crate) const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
 /// The header of [`READINGS`] once a reading was taken while the detector moved (a sweep's
 /// bin): its travel in θr, degrees, in a fifth column.
-pub const READINGS_HEADER_WITH_SPAN: &str = "theta_i,theta_r,radiance_factor,std,theta_r_span";
+pub(crate) const READINGS_HEADER_WITH_SPAN: &str =
+    "theta_i,theta_r,radiance_factor,std,theta_r_span";
 
 /// The suffix of a file being replaced ([`crate::output::store::Store::replace`]).
 const TEMP_SUFFIX: &str = ".gonio-tmp";
@@ -50,12 +51,12 @@ pub fn is_temp_name(name: &str) -> bool {
 }
 
 /// The temporary name [`crate::output::store::Store::replace`] writes `name` under.
-pub fn temp_name(name: &str) -> String {
+pub(crate) fn temp_name(name: &str) -> String {
     format!(".{name}{TEMP_SUFFIX}")
 }
 
 /// The folder name of spot `number` in a sheet's folder.
-pub fn spot_folder(number: u16) -> String {
+pub(crate) fn spot_folder(number: u16) -> String {
     format!("spot-{number}")
 }
 
@@ -65,7 +66,7 @@ pub fn is_sheet_folder(dir: &Path) -> bool {
 }
 
 /// A sample's name as a file name: letters, digits, `.`, `_` and `-` kept, the rest `_`.
-pub fn file_name_of(sample: &str) -> String {
+pub(crate) fn file_name_of(sample: &str) -> String {
     let name: String = sample
         .chars()
         .take(48)
@@ -102,7 +103,7 @@ pub(crate) fn json_bytes(value: &impl serde::Serialize) -> std::io::Result<Vec<u
 }
 
 /// The header `readings.csv` has for `points`: the span column once any was taken moving.
-pub fn readings_header(points: &[MeasuredPoint]) -> &'static str {
+pub(crate) fn readings_header(points: &[MeasuredPoint]) -> &'static str {
     if points.iter().any(|p| p.theta_r_span_deg > 0.0) {
         READINGS_HEADER_WITH_SPAN
     } else {
@@ -163,7 +164,7 @@ pub struct InstrumentRecord {
     /// On the simulated instrument: the sample its scene holds (`--sim`), whatever the
     /// sample is named.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub simulated_sample: Option<String>,
+    pub(crate) simulated_sample: Option<String>,
 }
 
 /// The case a session belongs to (`gonio measure --case --operator --note`), as the
@@ -212,7 +213,7 @@ pub struct PlanRecord {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AdaptiveTargetsRecord {
     /// σ's 95 % half-width relative to σ.
-    pub sigma_rel_half_width: f64,
+    pub(crate) sigma_rel_half_width: f64,
     /// Class confidence.
     pub class_confidence: f64,
     /// Geometries per batch.
@@ -317,9 +318,9 @@ pub struct LinesFile {
     /// The whole lines (without their newline), with their 1-based line number.
     pub lines: Vec<(usize, String)>,
     /// Bytes up to and with the last newline.
-    pub whole_len: u64,
+    pub(crate) whole_len: u64,
     /// The last line's bytes when it has no newline.
-    pub cut_tail: Option<Vec<u8>>,
+    pub(crate) cut_tail: Option<Vec<u8>>,
     /// The file exists.
     pub exists: bool,
 }
@@ -450,7 +451,7 @@ pub fn parse_points(path: &Path, file: &LinesFile) -> Result<Vec<MeasuredPoint>,
 
 /// The `points.jsonl` line of a reading (with its newline), tagged [`schema::POINT`],
 /// checked to read back as the same reading: a record that cannot be read back is no record.
-pub fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
+pub(crate) fn point_line(point: &MeasuredPoint) -> std::io::Result<String> {
     let text = serde_json::to_string(&schema::tagged(schema::POINT, serde_json::to_value(point)?))?;
     match parse_points_line(&text) {
         Ok(PointsLine::Reading(back)) if *back == *point => Ok(text + "\n"),
@@ -493,7 +494,7 @@ pub fn readings_csv(points: &[MeasuredPoint]) -> String {
 
 /// How `readings.csv` stands against `points.jsonl`.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub enum CsvAgreement {
+pub(crate) enum CsvAgreement {
     /// Exactly the rows `points.jsonl` gives.
     Agrees,
     /// A prefix of them, perhaps with a last row cut short (what a crash between the two
@@ -531,7 +532,7 @@ pub fn converted(
 
 /// Compare `readings.csv` with what `points.jsonl` gives (`points` converted with the
 /// folder's calibration; `recorded` as appended).
-pub fn csv_agreement(
+pub(crate) fn csv_agreement(
     path: &Path,
     file: &LinesFile,
     points: &[MeasuredPoint],
@@ -746,14 +747,14 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
 }
 
 /// [`read_session`] of a folder that must hold a session.
-pub fn require_session(dir: &Path) -> Result<SessionDoc, Finding> {
+pub(crate) fn require_session(dir: &Path) -> Result<SessionDoc, Finding> {
     read_session(dir)?
         .ok_or_else(|| Finding::new(&dir.join(SESSION), None, "missing: not a session folder"))
 }
 
 /// [`require_session`] of a session that must be finished (to report, re-analyse or
 /// weigh its result).
-pub fn require_finished(dir: &Path) -> Result<SessionDoc, Finding> {
+pub(crate) fn require_finished(dir: &Path) -> Result<SessionDoc, Finding> {
     let doc = require_session(dir)?;
     if doc.status != Status::Finished {
         return Err(Finding::new(
@@ -822,7 +823,7 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 }
 
 /// Read `calibration.json`; `None` when there is none.
-pub fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
+pub(crate) fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
         Ok(text) => Calibration::from_json(&text)
@@ -843,7 +844,7 @@ pub fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
 }
 
 /// Temporary files a killed `gonio` left in `dir`.
-pub fn temp_files(dir: &Path) -> std::io::Result<Vec<String>> {
+pub(crate) fn temp_files(dir: &Path) -> std::io::Result<Vec<String>> {
     Ok(entries(dir)?
         .into_iter()
         .filter(|n| is_temp_name(n))
@@ -851,7 +852,7 @@ pub fn temp_files(dir: &Path) -> std::io::Result<Vec<String>> {
 }
 
 /// The decisions of run `run` in `session.log` (a killed run's record of what it did).
-pub fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
+pub(crate) fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
     let tag = format!(" [run {run}] ");
     log.lines
         .iter()
@@ -860,13 +861,13 @@ pub fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
 }
 
 /// Everything a folder holds, read and cross-checked without changing it.
-pub struct Inspection {
+pub(crate) struct Inspection {
     /// The folder.
     pub dir: PathBuf,
     /// `session.json`.
     pub session: Option<SessionDoc>,
     /// `points.jsonl` as read.
-    pub points_file: LinesFile,
+    pub(crate) points_file: LinesFile,
     /// Its readings.
     pub points: Vec<MeasuredPoint>,
     /// `readings.csv` against them.
@@ -876,7 +877,7 @@ pub struct Inspection {
     /// `calibration.json`.
     pub calibration: Option<Calibration>,
     /// Temporary files left by a kill.
-    pub temp_files: Vec<String>,
+    pub(crate) temp_files: Vec<String>,
     /// Damage that a resume does not repair, found by cross-checking the files: anything
     /// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and
     /// a run that ended without closing.
@@ -886,7 +887,7 @@ pub struct Inspection {
 /// Read and cross-check a session folder. A file that cannot be read as what it must be
 /// is an error at `file:line`; disagreements between the files are in
 /// [`Inspection::damage`].
-pub fn inspect(dir: &Path) -> Result<Inspection, Finding> {
+pub(crate) fn inspect(dir: &Path) -> Result<Inspection, Finding> {
     if !dir.is_dir() {
         return Err(Finding::new(
             dir,

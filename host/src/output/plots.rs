@@ -727,6 +727,6 @@ where
 }
 
 /// Whether a class is drawn in Fig. 7 (the rough ones).
-pub fn has_fig7(class: Class) -> bool {
+pub(crate) fn has_fig7(class: Class) -> bool {
     class.group() == Group::Rough
 }

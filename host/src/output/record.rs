@@ -26,10 +26,10 @@ use std::io;
 use std::path::Path;
 
 /// This host's version, recorded with every run.
-pub const HOST_VERSION: &str = env!("CARGO_PKG_VERSION");
+pub(crate) const HOST_VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// Local date-time now, RFC 3339 with milliseconds (what `session.log` and the runs record).
-pub fn local_now() -> String {
+pub(crate) fn local_now() -> String {
     chrono::Local::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, false)
 }
 
@@ -243,7 +243,7 @@ impl FileRecorder {
     }
 
     /// The command that continues this session, for `session.json` and the messages.
-    pub fn set_resume_with(&mut self, command: String) {
+    pub(crate) fn set_resume_with(&mut self, command: String) {
         self.doc.resume_with = Some(command);
     }
 
@@ -466,7 +466,7 @@ impl Existing {
     }
 
     /// Refuse to go on with another sample, instrument or plan, naming each difference.
-    pub fn check_matches(&self, identity: &Identity) -> Result<(), FolderError> {
+    pub(crate) fn check_matches(&self, identity: &Identity) -> Result<(), FolderError> {
         let differences = differences(&self.doc, identity);
         if differences.is_empty() {
             Ok(())
@@ -775,7 +775,7 @@ impl Recorder for FileRecorder {
 
 /// Every reading recorded in `dir/points.jsonl`, refusing any damage (a cut-off last line
 /// included: [`Existing::resume`] is what repairs it).
-pub fn read_points(dir: &Path) -> Result<Vec<MeasuredPoint>, Finding> {
+pub(crate) fn read_points(dir: &Path) -> Result<Vec<MeasuredPoint>, Finding> {
     let path = dir.join(POINTS);
     let file = folder::read_lines(&path)?;
     if file.cut_tail.is_some() {

@@ -65,7 +65,7 @@ impl From<Finding> for ReportError {
 }
 
 /// What a flag means, for a reader of the report.
-pub fn flag_meaning(flag: Flag) -> &'static str {
+pub(crate) fn flag_meaning(flag: Flag) -> &'static str {
     match flag {
         Flag::LostSteps => {
             "an arm lost steps and the readings it affected could not all be measured again: some geometries may be off"
@@ -662,7 +662,7 @@ fn outcome_of(doc: &SessionDoc) -> (bool, Vec<Flag>) {
 }
 
 /// The report of the finished session folder `dir`.
-pub fn session_html(dir: &Path) -> Result<String, ReportError> {
+pub(crate) fn session_html(dir: &Path) -> Result<String, ReportError> {
     let doc = session_doc(dir)?;
     let (ok, flags) = outcome_of(&doc);
     let body = html! {
@@ -689,7 +689,7 @@ pub fn session_html(dir: &Path) -> Result<String, ReportError> {
 }
 
 /// The report of the finished sheet folder `dir` (several spots).
-pub fn sheet_html(dir: &Path) -> Result<String, ReportError> {
+pub(crate) fn sheet_html(dir: &Path) -> Result<String, ReportError> {
     let read = crate::output::sheet_folder::read_sheet(dir)?;
     let summary = &read.summary;
     let first = read

@@ -66,7 +66,7 @@ pub struct SheetDoc {
     /// Clean spots wanted.
     pub spots_planned: u16,
     /// More spots measured, at most, in place of flagged ones.
-    pub replacements: u16,
+    pub(crate) replacements: u16,
     /// Every spot started, in order.
     pub spots: Vec<SpotEntry>,
     /// The sheet's decisions, in order (each spot's own are in its folder).
@@ -79,7 +79,7 @@ pub struct SheetDoc {
 }
 
 /// Read `sheet.json` of `dir`.
-pub fn read_doc(dir: &Path) -> Result<SheetDoc, Finding> {
+pub(crate) fn read_doc(dir: &Path) -> Result<SheetDoc, Finding> {
     let file = dir.join(SHEET);
     let problem = |message: String| Finding {
         file: file.clone(),
@@ -113,7 +113,7 @@ pub fn read_doc(dir: &Path) -> Result<SheetDoc, Finding> {
 
 /// Writes a sheet's folder: its `sheet.json` and, at the end, its manifest. The spots'
 /// folders are written by their sessions' own recorders.
-pub struct SheetFolder {
+pub(crate) struct SheetFolder {
     store: Store,
     _lock: FolderLock,
     /// The document as last written.
@@ -257,7 +257,7 @@ impl SheetFolder {
     }
 
     /// Status running, and how to go on if this run stops.
-    pub fn start_run(&mut self, resume_with: String) -> io::Result<()> {
+    pub(crate) fn start_run(&mut self, resume_with: String) -> io::Result<()> {
         self.doc.status = Status::Running;
         self.doc.why = None;
         self.doc.resume_with = Some(resume_with);
@@ -265,7 +265,7 @@ impl SheetFolder {
     }
 
     /// Spot `number` begins: recorded before its folder is made, so a resume finds it.
-    pub fn start_spot(&mut self, number: u16) -> io::Result<PathBuf> {
+    pub(crate) fn start_spot(&mut self, number: u16) -> io::Result<PathBuf> {
         if !self.doc.spots.iter().any(|s| s.number == number) {
             self.doc.spots.push(SpotEntry {
                 number,
@@ -332,7 +332,7 @@ pub struct ReadSpot {
 }
 
 /// Read a finished spot folder's result.
-pub fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
+pub(crate) fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
     let file = dir.join(SESSION);
     let problem = |message: String| Finding {
         file: file.clone(),
@@ -400,7 +400,7 @@ impl ReadSheet {
 }
 
 /// Read the finished sheet folder `dir`: `sheet.json` and every spot's result.
-pub fn read_sheet(dir: &Path) -> Result<ReadSheet, Finding> {
+pub(crate) fn read_sheet(dir: &Path) -> Result<ReadSheet, Finding> {
     let doc = read_doc(dir)?;
     if doc.status != Status::Finished {
         let how = doc

@@ -35,7 +35,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// When an append is synced to the disk.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Sync {
+pub(crate) enum Sync {
     /// `fdatasync` after the line: the primary record.
     Data,
     /// Only at [`Store::sync_all`] (the end of a run): derived files and the log.
@@ -128,7 +128,7 @@ fn disk_full_error() -> io::Error {
 }
 
 /// The one writer of a session folder.
-pub struct Store {
+pub(crate) struct Store {
     dir: PathBuf,
     options: StoreOptions,
     appenders: HashMap<String, File>,
@@ -153,7 +153,7 @@ impl Store {
     }
 
     /// Write into the existing folder `dir`.
-    pub fn open_dir(dir: &Path, options: StoreOptions) -> Store {
+    pub(crate) fn open_dir(dir: &Path, options: StoreOptions) -> Store {
         Store {
             dir: dir.to_path_buf(),
             options,
@@ -168,8 +168,9 @@ impl Store {
         &self.dir
     }
 
-    /// Whether the store crashed (simulated) and refuses every write.
-    pub fn is_dead(&self) -> bool {
+    /// Whether the store crashed (simulated) and refuses every write (its tests ask).
+    #[cfg(test)]
+    pub(crate) fn is_dead(&self) -> bool {
         self.dead
     }
 
@@ -339,7 +340,7 @@ impl Store {
     }
 
     /// `fdatasync` one appended file (lines appended with [`Sync::Never`] become durable).
-    pub fn sync_file(&mut self, name: &str) -> io::Result<()> {
+    pub(crate) fn sync_file(&mut self, name: &str) -> io::Result<()> {
         if self.dead {
             return Err(crashed_error());
         }
@@ -372,7 +373,7 @@ impl Step {
 }
 
 /// `fsync` a folder, so that the names in it (new files, renames) survive a power loss.
-pub fn sync_dir(dir: &Path) -> io::Result<()> {
+pub(crate) fn sync_dir(dir: &Path) -> io::Result<()> {
     #[cfg(unix)]
     {
         File::open(dir)?.sync_all()

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 /// Draws the report of a finished folder (session or sheet) for the check that its
 /// `report.html` is the one its files give.
-pub type DrawReport<E> = fn(&Path) -> Result<String, E>;
+pub(crate) type DrawReport<E> = fn(&Path) -> Result<String, E>;
 
 /// A folder that passed every check.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -317,7 +317,10 @@ pub fn verify_sheet<E: std::fmt::Display>(
 }
 
 /// Whether the folder's `report.html`, if it has one, is the report its files give.
-pub fn check_report<E: std::fmt::Display>(dir: &Path, draw: DrawReport<E>) -> Option<Finding> {
+pub(crate) fn check_report<E: std::fmt::Display>(
+    dir: &Path,
+    draw: DrawReport<E>,
+) -> Option<Finding> {
     let path = dir.join(REPORT);
     let recorded = std::fs::read(&path).ok()?;
     let problem = |message: String| Finding {

@@ -33,7 +33,7 @@ use std::collections::BTreeSet;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdaptiveTargets {
     /// Stop when the 95 % half-width of σ, relative to σ, is at most this.
-    pub sigma_rel_half_width: f64,
+    pub(crate) sigma_rel_half_width: f64,
     /// … and the class confidence is at least this.
     pub class_confidence: f64,
     /// Geometries per batch.
@@ -72,7 +72,7 @@ pub const LACK_OF_FIT_BATCHES: usize = 2;
 
 /// Where the greedy design may look.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CandidateSpan {
+pub(crate) enum CandidateSpan {
     /// ±10° around specular: where σ is measured, when the model holds.
     Lobe,
     /// The whole θr range, 0…70°: under lack of fit the model's idea of where σ is
@@ -89,7 +89,7 @@ pub fn sigma_resolved(fit: &FitResult) -> bool {
 }
 
 /// Relative 95 % half-width of σ (1.96·SE/σ), if σ is resolved.
-pub fn sigma_rel_half_width(fit: &FitResult) -> Option<f64> {
+pub(crate) fn sigma_rel_half_width(fit: &FitResult) -> Option<f64> {
     let sigma = fit.sigma_deg()?;
     let se = fit.std_error(SIGMA)?;
     (sigma > 0.0 && se.is_finite()).then(|| 1.96 * se / sigma)
@@ -101,7 +101,7 @@ pub fn candidates(measured: &BTreeSet<Geometry>) -> Vec<Geometry> {
 }
 
 /// Every geometry the adaptive policy may choose within `span`, not yet measured.
-pub fn candidates_over(measured: &BTreeSet<Geometry>, span: CandidateSpan) -> Vec<Geometry> {
+pub(crate) fn candidates_over(measured: &BTreeSet<Geometry>, span: CandidateSpan) -> Vec<Geometry> {
     let half_width = match span {
         CandidateSpan::Lobe => CANDIDATE_HALF_WIDTH_DEG,
         // Far enough from any θi to reach both ends of 0…70°; the range check trims it.
@@ -203,7 +203,7 @@ pub fn tails(measured: &BTreeSet<Geometry>, per_incidence: usize) -> Vec<Geometr
 /// range; when the fit gives no design (σ not resolved, no information matrix), a second
 /// round of tails instead. Cheap on purpose: its job is to tell a false alarm from a sheet
 /// that is not the model, not to pin σ down.
-pub fn lack_of_fit_batch(
+pub(crate) fn lack_of_fit_batch(
     fit: &FitResult,
     observations: &[Observation],
     measured: &BTreeSet<Geometry>,
@@ -238,7 +238,7 @@ pub fn lack_of_fit_batch(
 /// Predicted standard uncertainty of a reading of radiance factor `r`: s² = a² + (b·r)²,
 /// fitted (non-negative least squares on the squares) to the readings taken.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct NoiseModel {
+pub(crate) struct NoiseModel {
     floor_sq: f64,
     relative_sq: f64,
 }
@@ -311,12 +311,12 @@ pub fn next_batch(
 
 /// A designed batch with what it is predicted to bring.
 #[derive(Clone, Debug, PartialEq)]
-pub struct ScoredBatch {
+pub(crate) struct ScoredBatch {
     /// The geometries, in the order to visit them.
     pub geometries: Vec<Geometry>,
     /// The drop of σ's variance (the readings' noise part, degrees²) the batch is
     /// predicted to bring.
-    pub sigma_variance_drop: f64,
+    pub(crate) sigma_variance_drop: f64,
     /// Its device time: each reading's move from the last, settling and integration, s.
     pub seconds: f64,
 }
@@ -325,7 +325,7 @@ pub struct ScoredBatch {
 /// variance and its device time, so that other candidates (sweeps) can be weighed against
 /// it per device second.
 #[allow(clippy::too_many_arguments)]
-pub fn next_batch_scored(
+pub(crate) fn next_batch_scored(
     fit: &FitResult,
     observations: &[Observation],
     measured: &BTreeSet<Geometry>,

@@ -31,27 +31,27 @@ use protocol::{Command, ErrorCode, Geometry, Reading, Reply, Target};
 
 /// Lowest level on range r of a usable spot, fraction of full scale: on r + 1 it reads 3 %
 /// (0.7 % noise at 100 ms: about 5 s of integration for the target).
-pub const LEVEL_LOW: f64 = 0.30;
+pub(crate) const LEVEL_LOW: f64 = 0.30;
 /// Lowest level of a good spot, taken without searching for a better one: on r + 1 it reads
 /// 5 % (0.5 % at 100 ms, 2.5 s for the target). A search costs a few short probes.
-pub const LEVEL_GOOD: f64 = 0.50;
+pub(crate) const LEVEL_GOOD: f64 = 0.50;
 /// Highest level on range r of a usable spot: below it neither a gain a few percent off its
 /// nominal nor the spread of the samples (the saturation test uses the largest sample, at
 /// 0.98 of full scale) saturates range r.
-pub const LEVEL_HIGH: f64 = 0.85;
+pub(crate) const LEVEL_HIGH: f64 = 0.85;
 /// The level aimed at among usable spots.
-pub const LEVEL_AIM: f64 = 0.70;
+pub(crate) const LEVEL_AIM: f64 = 0.70;
 /// Relative standard uncertainty a ratio is measured to: a tenth of the nominal ratio's
 /// assumed 1 % and a fifth of the tile's 0.5 %, below which a gain no longer matters in the
 /// budget.
-pub const TARGET_RELATIVE_UNCERTAINTY: f64 = 0.001;
+pub(crate) const TARGET_RELATIVE_UNCERTAINTY: f64 = 0.001;
 /// Longest forced reading taken for a ratio, ms.
-pub const MAX_INTEGRATION_MS: u16 = 5_000;
+pub(crate) const MAX_INTEGRATION_MS: u16 = 5_000;
 /// Probes of the search along θr.
-pub const MAX_PROBES: usize = 12;
+pub(crate) const MAX_PROBES: usize = 12;
 /// A calibrated ratio this far (relative) from the nominal is refused: the scene or the
 /// detector changed between the two readings.
-pub const MAX_DEVIATION_FROM_NOMINAL: f64 = 0.10;
+pub(crate) const MAX_DEVIATION_FROM_NOMINAL: f64 = 0.10;
 
 /// Pairs of adjacent ranges (r, r + 1), by r, that the conversions of `readings` (θi and
 /// raw reading) use and `calibration` has not calibrated: a reading on range k whose white
@@ -76,7 +76,7 @@ pub fn pairs_needed<'a>(
 
 /// The level `reading` would read on `range`, fraction of `full_scale_counts`, by the
 /// gains the calibration has now; infinite for a saturated reading.
-pub fn level_on(
+pub(crate) fn level_on(
     calibration: &Calibration,
     reading: &Reading,
     range: u8,
@@ -92,7 +92,7 @@ pub fn level_on(
 
 /// Among (geometry, level) pairs, the spot at or above `lowest` (and at most
 /// [`LEVEL_HIGH`]) nearest [`LEVEL_AIM`].
-pub fn choose_spot(levels: &[(Geometry, f64)], lowest: f64) -> Option<(Geometry, f64)> {
+pub(crate) fn choose_spot(levels: &[(Geometry, f64)], lowest: f64) -> Option<(Geometry, f64)> {
     levels
         .iter()
         .copied()
@@ -156,7 +156,7 @@ fn midpoint(a: f64, b: f64) -> f64 {
 }
 
 /// How far from the bright reading the search reaches along θr, degrees.
-pub const SEARCH_SPAN_DEG: f64 = 25.0;
+pub(crate) const SEARCH_SPAN_DEG: f64 = 25.0;
 
 fn level_of(levels: &[(Geometry, f64)], g: Geometry) -> f64 {
     levels
@@ -166,7 +166,7 @@ fn level_of(levels: &[(Geometry, f64)], g: Geometry) -> f64 {
 }
 
 /// What a flank search found (θr and level), and every probe (θr, level).
-pub type FlankSearch = (Option<(f64, f64)>, Vec<(f64, f64)>);
+pub(crate) type FlankSearch = (Option<(f64, f64)>, Vec<(f64, f64)>);
 
 /// Search the flank of a lobe along θr for a level in [[`LEVEL_GOOD`], [`LEVEL_HIGH`]]:
 /// from `bright_theta_r` (level `bright_level` > [`LEVEL_HIGH`]) towards `far` (θr and its
@@ -178,7 +178,7 @@ pub type FlankSearch = (Option<(f64, f64)>, Vec<(f64, f64)>);
 /// ln((level − b)/(aim − b)) against the squared offset, a straight line for a Gaussian
 /// lobe, lands in one or two more. The bracket keeps it safe on any lobe.
 /// Returns the spot found, if any, and every probe (θr, level).
-pub fn search_flank<E>(
+pub(crate) fn search_flank<E>(
     probe: &mut dyn FnMut(f64) -> Result<Option<f64>, E>,
     bright_theta_r: f64,
     bright_level: f64,

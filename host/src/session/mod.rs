@@ -201,7 +201,7 @@ impl MeasuredPoint {
     /// `calibration` (or why it cannot be converted, in `note`). The one conversion of the
     /// session, of a gain calibration's re-conversion and of the folder's checks: a reading's
     /// record is its raw reading; what it converts to follows from the calibration.
-    pub fn convert_with(&mut self, calibration: &Calibration) {
+    pub(crate) fn convert_with(&mut self, calibration: &Calibration) {
         if let Some(why) = &self.unusable {
             (self.radiance_factor, self.std, self.note) = (None, None, Some(why.clone()));
             return;
@@ -312,7 +312,7 @@ pub struct Recoveries {
     pub reconnections: u32,
     /// Times the instrument's state was read and brought back to a known one (after a
     /// reconnection, a refusal or a stop).
-    pub state_recoveries: u32,
+    pub(crate) state_recoveries: u32,
     /// Refusals (busy, not homed, …) recovered from.
     pub refusals: u32,
     /// Fail-safe stops the instrument made on its own (heartbeat lost, …).
@@ -354,9 +354,9 @@ pub struct Outcome {
     /// Device time of homing and calibration before it, seconds.
     pub setup_seconds: f64,
     /// Device time of the lost-steps check(s) before the report, seconds.
-    pub check_seconds: f64,
+    pub(crate) check_seconds: f64,
     /// Device time of the whole session, waiting for the operator included, seconds.
-    pub session_seconds: f64,
+    pub(crate) session_seconds: f64,
     /// White drift at the end, fraction (when checked).
     pub white_drift: Option<f64>,
     /// The drift exceeded the limit: the result is marked.
@@ -370,9 +370,9 @@ pub struct Outcome {
     /// Every condition that makes the result less than clean (and the informational ones).
     pub flags: Vec<Flag>,
     /// What the final analysis was made with besides the readings and the calibration.
-    pub analysis_settings: AnalysisSettings,
+    pub(crate) analysis_settings: AnalysisSettings,
     /// When the final analysis was made (the calibration's age in its budget is as of it).
-    pub analysed_unix_s: u64,
+    pub(crate) analysed_unix_s: u64,
 }
 
 impl Outcome {
@@ -622,7 +622,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// Spot `spot` of `of` of a multi-spot session ([`crate::session::multi_spot`]): a spot
     /// after the first asks the operator to move the sheet before its first reading (a
     /// spot resumed with readings does not: the sheet has not moved since).
-    pub fn at_spot(mut self, spot: u16, of: u16) -> Self {
+    pub(crate) fn at_spot(mut self, spot: u16, of: u16) -> Self {
         self.given.spot = Some((spot, of));
         self
     }
@@ -630,7 +630,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// The standard uncertainty of the detector arm's zero, degrees (default
     /// [`crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG`]): a shared error of every
     /// reading in the fit wherever the data do not call for a fitted offset.
-    pub fn with_arm_zero_uncertainty(mut self, deg: f64) -> Self {
+    pub(crate) fn with_arm_zero_uncertainty(mut self, deg: f64) -> Self {
         self.given.arm_zero_uncertainty_deg = deg;
         self
     }
@@ -656,7 +656,7 @@ impl<'a, T: Transport> Session<'a, T> {
     /// A geometry recorded more than once without a mark (the mark of a superseded
     /// reading was not written before a crash) keeps its last reading: a geometry is
     /// measured again only after its earlier reading was superseded.
-    pub fn resume_from(
+    pub(crate) fn resume_from(
         mut self,
         calibration: Option<Calibration>,
         mut points: Vec<MeasuredPoint>,
@@ -1007,7 +1007,7 @@ impl<'a, T: Transport> Session<'a, T> {
 /// What an analysis of a session's readings is made with besides the readings and the
 /// calibration: recorded in the result so that a re-analysis makes the same one.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct AnalysisSettings {
+pub(crate) struct AnalysisSettings {
     /// Detector acceptance modelled in the fit, degrees.
     pub acceptance_deg: f64,
     /// Standard uncertainty of the detector arm's zero, degrees.
@@ -1017,13 +1017,13 @@ pub struct AnalysisSettings {
 /// The readings the result rests on (converted, not superseded, each still geometry
 /// once: the first reading of it), as fit observations, with their indices in `points`.
 /// A sweep's bins are each their own reading (two sweeps may put bins at one θr).
-pub fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
+pub(crate) fn usable_observations(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
     let (indices, observations, _) = usable_observations_scaled(points);
     (indices, observations)
 }
 
 /// [`usable_observations`] with how the bins' noise was scaled to their scatter.
-pub fn usable_observations_scaled(
+pub(crate) fn usable_observations_scaled(
     points: &[MeasuredPoint],
 ) -> (Vec<usize>, Vec<Observation>, sweep_bins::NoiseScaling) {
     let (indices, mut observations) = first_readings(points);
@@ -1059,7 +1059,7 @@ fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
 /// The session's analysis of `points` (marks applied, converted with `calibration`): the
 /// fit with the calibration's shared errors as of `now_unix_s`, the σ_l check and the
 /// class. What a session reports, and what `gonio fit DIR` makes again from its folder.
-pub fn analyse_points(
+pub(crate) fn analyse_points(
     sample: &str,
     points: &[MeasuredPoint],
     calibration: Option<&Calibration>,

@@ -8,11 +8,11 @@ use crate::analysis::spots::{self, SheetSummary, SpotResult};
 
 /// How a sheet is measured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SheetPlan {
+pub(crate) struct SheetPlan {
     /// Clean spots wanted.
     pub spots: u16,
     /// More spots measured, at most, in place of flagged ones.
-    pub replacements: u16,
+    pub(crate) replacements: u16,
 }
 
 impl SheetPlan {
@@ -29,7 +29,7 @@ impl SheetPlan {
 /// interrupted run), calling `measure_spot(number, of)` for each (`of`: the spots the sheet
 /// will have if no more are flagged) and `decide` with every decision in words. Returns
 /// every spot's result and the sheet's; the first error of `measure_spot` ends it.
-pub fn measure_sheet<E>(
+pub(crate) fn measure_sheet<E>(
     plan: SheetPlan,
     mut done: Vec<SpotResult>,
     mut measure_spot: impl FnMut(u16, u16) -> Result<SpotResult, E>,

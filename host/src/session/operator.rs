@@ -202,7 +202,7 @@ impl PromptOperator {
 
 /// What the person is asked, as printed: the instruction and how to answer, each on a line
 /// of its own (the bar, when there is one, is drawn again below it).
-pub fn prompt_text(placement: Placement) -> String {
+pub(crate) fn prompt_text(placement: Placement) -> String {
     format!(
         "\n{}.\n  The arms are parked clear of the port and the lamp stays on; take your time.\n  Press Enter when done (Ctrl-C stops the session; the readings are kept and `gonio measure --resume DIR` continues it).\n",
         placement.instruction()

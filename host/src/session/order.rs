@@ -131,7 +131,7 @@ impl Motion {
     /// The firmware's time for a sweep of the detector arm from `from_deg` to `to_deg` at a
     /// top speed of `speed_deg_per_s` (from rest to rest at the instrument's
     /// acceleration), µs; the source arm holds still.
-    pub fn sweep_us(&self, from_deg: f64, to_deg: f64, speed_deg_per_s: f64) -> u64 {
+    pub(crate) fn sweep_us(&self, from_deg: f64, to_deg: f64, speed_deg_per_s: f64) -> u64 {
         let to_steps = |deg: f64| {
             protocol::Angle::from_deg(deg)
                 .map_or(0, angle_to_steps)
@@ -151,7 +151,7 @@ impl Motion {
     /// The detector arm's profile for a sweep as the firmware plans it
     /// (`firmware::sweep::sweep_profile`): from rest at `from_steps` to rest at `to_steps`,
     /// the top speed as the request states it, the instrument's acceleration.
-    pub fn sweep_profile(
+    pub(crate) fn sweep_profile(
         &self,
         from_steps: i32,
         to_steps: i32,
@@ -909,13 +909,13 @@ pub struct OrderRow {
     /// Number of geometries.
     pub n: usize,
     /// Travel of the planned order, s.
-    pub travel_s: f64,
+    pub(crate) travel_s: f64,
     /// The optimum (when `exact`) or a lower bound on it, s.
-    pub best_or_bound_s: f64,
+    pub(crate) best_or_bound_s: f64,
     /// `best_or_bound_s` is the optimum.
     pub exact: bool,
     /// Travel in the paper's order, s.
-    pub paper_travel_s: f64,
+    pub(crate) paper_travel_s: f64,
     /// Planned travel over the optimum (or bound).
     pub travel_ratio_best: f64,
     /// Planned travel over the paper order's.

@@ -60,16 +60,16 @@ pub struct StepCheck {
 pub(super) struct StepState {
     /// `points[..checked_upto]` were taken before the last good check (or are
     /// superseded): every later one is not vouched for yet.
-    pub checked_upto: usize,
+    pub(crate) checked_upto: usize,
     /// Lost steps found, or checks that could not be made, so far.
     pub slips: u32,
     /// A Home was sent and its report not received yet.
-    pub home_in_flight: bool,
+    pub(crate) home_in_flight: bool,
     /// The arms were homed in this session (a later Home without a count to compare
     /// means the instrument restarted).
-    pub homed_once: bool,
+    pub(crate) homed_once: bool,
     /// The last fault of the instrument already told in a decision.
-    pub fault_reported: Option<ErrorCode>,
+    pub(crate) fault_reported: Option<ErrorCode>,
     /// Every Home.
     pub checks: Vec<StepCheck>,
 }

@@ -10,11 +10,11 @@ use protocol::Reading;
 
 /// One bin as the instrument reported it, in the host's units.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BinReading {
+pub(crate) struct BinReading {
     /// θr at the start of its first block, degrees (from the detector arm's step count).
-    pub start_deg: f64,
+    pub(crate) start_deg: f64,
     /// θr at the end of its last block, degrees.
-    pub end_deg: f64,
+    pub(crate) end_deg: f64,
     /// Mean of its blocks, ADC counts (dark offset included).
     pub mean_counts: f32,
     /// Blocks averaged (at least one).
@@ -27,7 +27,7 @@ pub struct BinReading {
     pub device_time_us: u64,
     /// Where the arm stood on average while it was read, degrees ([`crate::analysis::sweep_design::dwell_centres_steps`]);
     /// `None`: the middle of its interval.
-    pub centre_deg: Option<f64>,
+    pub(crate) centre_deg: Option<f64>,
 }
 
 /// A bin as a recorded reading: θr where the arm stood on average while it was read (the
@@ -39,7 +39,7 @@ pub struct BinReading {
 /// their own scatter, which holds the scene's slope across the bin. Then converted like
 /// any reading. `block_s` is one detector block, `tau_s` the range's time constant.
 #[allow(clippy::too_many_arguments)]
-pub fn bin_point(
+pub(crate) fn bin_point(
     theta_i_deg: f64,
     bin: &BinReading,
     sweep_id: u16,
@@ -116,13 +116,13 @@ const MEDIAN_BIAS_PER_WINDOW: f64 = 4.5;
 
 /// One detector range's bins' noise as scaled to their own scatter.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RangeNoiseScale {
+pub(crate) struct RangeNoiseScale {
     /// The detector range.
     pub range: u8,
     /// Factor the calibration's variance was multiplied by.
     pub factor: f64,
     /// Variance of ln `factor` (its uncertainty as an estimate).
-    pub log_variance: f64,
+    pub(crate) log_variance: f64,
     /// Windows it was estimated from (the pooled windows of every range when the range
     /// had fewer than [`MIN_NOISE_WINDOWS`] of its own).
     pub windows: usize,
@@ -132,7 +132,7 @@ pub struct RangeNoiseScale {
 
 /// How the bins' noise was scaled.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct NoiseScaling {
+pub(crate) struct NoiseScaling {
     /// Each range scaled.
     pub ranges: Vec<RangeNoiseScale>,
 }
@@ -143,7 +143,7 @@ impl NoiseScaling {
     /// range's share of χ² is about its share of the observations; a point reading's noise
     /// is its own and shares nothing). What the χ² test takes
     /// ([`crate::analysis::gof::chi2_upper_tail_scaled`]).
-    pub fn chi2_log_variance(&self, n: usize) -> f64 {
+    pub(crate) fn chi2_log_variance(&self, n: usize) -> f64 {
         if n == 0 {
             return 0.0;
         }
@@ -240,7 +240,7 @@ fn window_z_by_range(
 /// when there are not that many in all. The factor is an estimate — ln of it has a
 /// variance of [`MEDIAN_LOG_VARIANCE_PER_WINDOW`] over the windows, 6 % in sd for a pass —
 /// which the χ² test takes into account ([`NoiseScaling::chi2_log_variance`]).
-pub fn scale_bin_noise(
+pub(crate) fn scale_bin_noise(
     points: &[MeasuredPoint],
     indices: &[usize],
     observations: &mut [Observation],

@@ -20,17 +20,17 @@ use std::time::Duration;
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SweepTargets {
     /// The first pass's (and the full plane's) top speed, °/s (the instrument's own maximum at most).
-    pub pass_speed_deg_per_s: f64,
+    pub(crate) pass_speed_deg_per_s: f64,
     /// The first pass's (and the full plane's) bin length, degrees.
-    pub pass_bin_deg: f64,
+    pub(crate) pass_bin_deg: f64,
     /// Stop when σ's 95 % half-width relative to σ is at most this …
-    pub sigma_rel_half_width: f64,
+    pub(crate) sigma_rel_half_width: f64,
     /// … and the class confidence is at least this (the adaptive policy's targets).
     pub class_confidence: f64,
     /// Sweeps across the peak per round (one fit after each round).
-    pub sweeps_per_round: usize,
+    pub(crate) sweeps_per_round: usize,
     /// Rounds before giving up on the targets.
-    pub max_rounds: usize,
+    pub(crate) max_rounds: usize,
 }
 
 impl Default for SweepTargets {

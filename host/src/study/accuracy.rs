@@ -48,18 +48,18 @@ pub enum Effect {
 
 /// Range of the forward lobe's strength (radiance factor added at grazing θr): from a
 /// trace to more than PPC's whole diffuse level.
-pub const FORWARD_LOBE: (f64, f64) = (0.05, 0.5);
+pub(crate) const FORWARD_LOBE: (f64, f64) = (0.05, 0.5);
 /// Range of the specular bump's strength (radiance factor added at specular, θi = 0):
 /// from a trace to more than J2's diffuse level.
-pub const SPECULAR_BUMP: (f64, f64) = (0.02, 0.3);
+pub(crate) const SPECULAR_BUMP: (f64, f64) = (0.02, 0.3);
 /// The arm offset every paper is tried with, degrees (issue 12).
-pub const ARM_OFFSET_DEG: f64 = 0.3;
+pub(crate) const ARM_OFFSET_DEG: f64 = 0.3;
 /// The coverage the 95 % intervals should reach over a campaign.
-pub const COVERAGE_TARGET: (f64, f64) = (0.90, 0.98);
+pub(crate) const COVERAGE_TARGET: (f64, f64) = (0.90, 0.98);
 /// The false-alarm rate `lack-of-fit` is held to on ideal scenes.
-pub const FALSE_FLAG_LIMIT: f64 = 0.02;
+pub(crate) const FALSE_FLAG_LIMIT: f64 = 0.02;
 /// The confidence at and above which a wrong class counts as confidently wrong.
-pub const CONFIDENT: f64 = 0.95;
+pub(crate) const CONFIDENT: f64 = 0.95;
 
 /// Which part of the campaign a case belongs to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -102,7 +102,7 @@ impl Case {
     }
 
     /// The paper's class.
-    pub fn expected_class(&self) -> Option<Class> {
+    pub(crate) fn expected_class(&self) -> Option<Class> {
         REFERENCES
             .iter()
             .find(|r| r.name == self.sample)
@@ -159,7 +159,7 @@ pub struct Spec {
     pub seed: u64,
     /// The effect's drawn magnitude (forward lobe or bump strength, signed arm offset), 0
     /// when the case has none.
-    pub magnitude: f64,
+    pub(crate) magnitude: f64,
 }
 
 /// The name of a policy in the CSV and the summary.
@@ -261,7 +261,7 @@ pub struct Row {
     /// The result's flags.
     pub flags: Vec<Flag>,
     /// Estimates of σ (degrees), ρs and ρd; `None` where not determined.
-    pub estimates: [Option<f64>; 3],
+    pub(crate) estimates: [Option<f64>; 3],
     /// Whether each 95 % interval covers the truth; `None` where none was reported.
     pub covered: [Option<bool>; 3],
     /// The goodness-of-fit p-value.
@@ -296,7 +296,7 @@ impl Row {
 }
 
 /// Run one session of `case` as `gonio measure --sim` would, in process.
-pub fn run_one(case: &Case, spec: &Spec) -> Row {
+pub(crate) fn run_one(case: &Case, spec: &Spec) -> Row {
     let mut row = Row {
         spec: spec.clone(),
         failure: None,
@@ -323,7 +323,7 @@ pub fn run_one(case: &Case, spec: &Spec) -> Row {
 /// interval's coverage is judged against uncertainties that are true. The arm-offset cases
 /// are instruments misaligned beyond what the operator believes: the default 0.1° stated,
 /// 0.3° real.
-pub fn stated_uncertainties(case: &Case) -> (f64, f64) {
+pub(crate) fn stated_uncertainties(case: &Case) -> (f64, f64) {
     let set = match case.physics {
         Physics::Ideal => IDEAL_PHYSICS,
         Physics::Real => REAL_PHYSICS,
@@ -387,7 +387,7 @@ pub fn run_all(
 }
 
 /// The CSV header of `accuracy.csv`.
-pub const CSV_HEADER: &str = "case,part,sample,physics,policy,index,seed,magnitude,failure,class,expected_class,confidence,flags,sigma_deg,rho_s,rho_d,sigma_covered,rho_s_covered,rho_d_covered,gof_p,arm_offset_deg,geometries,device_seconds";
+pub(crate) const CSV_HEADER: &str = "case,part,sample,physics,policy,index,seed,magnitude,failure,class,expected_class,confidence,flags,sigma_deg,rho_s,rho_d,sigma_covered,rho_s_covered,rho_d_covered,gof_p,arm_offset_deg,geometries,device_seconds";
 
 fn opt<T: std::fmt::Display>(value: Option<T>) -> String {
     value.map_or(String::new(), |v| v.to_string())
@@ -466,7 +466,7 @@ pub struct Tally {
     /// Results with any flag that makes them less than clean.
     pub flagged: usize,
     /// Mean geometries and device seconds.
-    pub mean_geometries: f64,
+    pub(crate) mean_geometries: f64,
     /// Mean device seconds measuring the sample.
     pub mean_device_seconds: f64,
 }
@@ -522,7 +522,7 @@ impl Tally {
 }
 
 /// Wilson score interval (95 %) of a proportion `k / n`.
-pub fn wilson95(k: usize, n: usize) -> (f64, f64) {
+pub(crate) fn wilson95(k: usize, n: usize) -> (f64, f64) {
     if n == 0 {
         return (0.0, 1.0);
     }

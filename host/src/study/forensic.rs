@@ -30,7 +30,7 @@ use std::fmt::Write as _;
 pub const SPOT_VARIATION_PCT: f64 = 3.0;
 
 /// The seed of the first draw of the stocks; draw `r` is seeded [`FIRST_DRAW_SEED`] + r.
-pub const FIRST_DRAW_SEED: u64 = 0xf0_2e_75_1c;
+pub(crate) const FIRST_DRAW_SEED: u64 = 0xf0_2e_75_1c;
 
 /// The numbers of spots per sheet the full study compares (`gonio forensic --spots-study`).
 pub const SPOTS_STUDY: [usize; 5] = [1, 2, 3, 4, 5];
@@ -38,7 +38,7 @@ pub const SPOTS_STUDY: [usize; 5] = [1, 2, 3, 4, 5];
 /// Distances (in between-stock standard deviations, over σ, ρs and ρd together) below
 /// which two stocks of a draw are counted as close: 0.5, near twins whose means differ by
 /// about 3 % in each parameter or less (as much as two spots of one sheet do), and 1.
-pub const CLOSE: [f64; 2] = [0.5, 1.0];
+pub(crate) const CLOSE: [f64; 2] = [0.5, 1.0];
 
 /// The size of a study.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -86,7 +86,7 @@ impl Design {
     };
 
     /// Sheets of every stock.
-    pub fn sheets_per_stock(&self) -> usize {
+    pub(crate) fn sheets_per_stock(&self) -> usize {
         self.library_sheets + self.held_out_sheets
     }
 }
@@ -224,11 +224,11 @@ pub struct MeasuredSheet {
     /// Clean spots planned.
     pub planned: usize,
     /// Spots measured, replacements of flagged spots included.
-    pub measured_spots: usize,
+    pub(crate) measured_spots: usize,
     /// Spots excluded (flagged while the sheet had a clean one).
     pub excluded: usize,
     /// No spot came out clean: every spot was kept, with its flags.
-    pub no_clean_spot: bool,
+    pub(crate) no_clean_spot: bool,
     /// Device time of the sheet: every spot's measuring time and the first spot's setup
     /// (homing, dark, white), seconds.
     pub device_seconds: f64,
@@ -338,7 +338,7 @@ pub struct Pair {
 
 /// One draw's evidence: every held-out pair and the library searches.
 #[derive(Clone, Debug, PartialEq)]
-pub struct DrawEvidence {
+pub(crate) struct DrawEvidence {
     /// Every pair of held-out sheets.
     pub pairs: Vec<Pair>,
     /// Held-out sheets whose own stock ranked first, and sheets searched.
@@ -359,7 +359,7 @@ fn library(stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Vec<(String, Sheet)> 
 /// One draw's evidence from its sheets (of one number of spots): the library's population,
 /// every held-out pair's log10 LR, and each held-out sheet searched against the library's
 /// stocks (each stock's library sheets pooled) as `gonio library search` ranks them.
-pub fn draw_evidence(
+pub(crate) fn draw_evidence(
     draw: usize,
     stocks: &[Stock],
     sheets: &[&MeasuredSheet],
@@ -487,7 +487,7 @@ pub struct SpotUse {
     /// Spots excluded from their sheet (flagged while the sheet had a clean one).
     pub excluded: usize,
     /// Sheets with no clean spot (every spot kept, with its flags).
-    pub no_clean_spot: usize,
+    pub(crate) no_clean_spot: usize,
     /// Sheets with fewer accepted spots than planned (the replacements spent).
     pub short: usize,
 }
@@ -500,9 +500,9 @@ pub struct Nearest {
     /// Their distance ([`distance`]).
     pub distance: f64,
     /// Their relative differences in σ, ρs, ρd, percent.
-    pub difference_pct: [f64; 3],
+    pub(crate) difference_pct: [f64; 3],
     /// Pairs of the draw's stocks closer than each distance of [`CLOSE`].
-    pub close_pairs: [usize; 2],
+    pub(crate) close_pairs: [usize; 2],
 }
 
 /// The nearest two different stocks of `stocks`.
@@ -553,7 +553,7 @@ pub struct DrawRow {
     pub nearest: Option<Nearest>,
     /// The largest distance between a missed sheet's stock and the stock ranked first in
     /// its place (`None` without a miss): how close two stocks must be to be confused.
-    pub farthest_miss: Option<f64>,
+    pub(crate) farthest_miss: Option<f64>,
 }
 
 /// The figures of a study for one number of spots per sheet, pooled over its draws.
@@ -593,7 +593,7 @@ pub struct Figures {
 }
 
 /// Pairs of reference papers the issue names as to be told apart (LR < 1/100).
-pub const NAMED_PAIRS: [(&str, &str); 2] = [("J3", "J4"), ("PPC", "J3")];
+pub(crate) const NAMED_PAIRS: [(&str, &str); 2] = [("J3", "J4"), ("PPC", "J3")];
 
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
@@ -867,7 +867,7 @@ fn pooled_claims(f: &Figures) -> Vec<(String, bool)> {
 }
 
 /// The spots study's table: one row per number of spots per sheet.
-pub fn spots_table(study: &[Figures]) -> String {
+pub(crate) fn spots_table(study: &[Figures]) -> String {
     let mut s = String::from(
         "| spots per sheet | Cllr (bits) | Cllr_min | median log10 LR, same stock | same-stock LR < 1 | different-stock LR > 1 | search rank-1 (95 % CI) | worst draw's search rank-1 | spots measured per sheet | device s per sheet |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );

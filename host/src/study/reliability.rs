@@ -34,11 +34,11 @@ pub const SAMPLES: [&str; 4] = ["G", "SG", "PPC", "J1"];
 /// back), and below the host's 10 s give-up.
 pub const OUTAGE_S: (f64, f64) = (0.2, 8.0);
 /// Highest byte-corruption probability drawn.
-pub const MAX_CORRUPT: f64 = 0.003;
+pub(crate) const MAX_CORRUPT: f64 = 0.003;
 /// Highest frame-loss probability drawn.
-pub const MAX_DROP: f64 = 0.01;
+pub(crate) const MAX_DROP: f64 = 0.01;
 /// Longest time the simulated person takes at a prompt, seconds.
-pub const MAX_OPERATOR_S: f64 = 20.0;
+pub(crate) const MAX_OPERATOR_S: f64 = 20.0;
 
 /// Which faults a session gets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -113,7 +113,7 @@ impl Spec {
     }
 
     /// The paper's class (what the fault-free session finds, always: docs/TRADE.md).
-    pub fn expected_class(&self) -> &'static str {
+    pub(crate) fn expected_class(&self) -> &'static str {
         REFERENCES
             .iter()
             .find(|r| r.name == self.sample)
@@ -216,11 +216,11 @@ pub struct Run {
     /// What the session produced, or why it failed.
     pub outcome: Result<Outcome, SessionError>,
     /// Device time when it ended (success or failure), seconds since power-up.
-    pub end_s: f64,
+    pub(crate) end_s: f64,
 }
 
 /// Run `spec` as `gonio measure --sim` would (with a simulated person), in process.
-pub fn run_session(spec: &Spec) -> Result<Run, String> {
+pub(crate) fn run_session(spec: &Spec) -> Result<Run, String> {
     let options = SimOptions {
         seed: spec.seed,
         faults: spec.faults(),
@@ -287,7 +287,7 @@ pub struct Row {
     /// What was recovered.
     pub recoveries: Recoveries,
     /// Device seconds of the whole session (waits included).
-    pub session_seconds: f64,
+    pub(crate) session_seconds: f64,
     /// The same session without faults, when run.
     pub clean: Option<Twin>,
 }
@@ -296,13 +296,13 @@ pub struct Row {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Twin {
     /// The whole session (waits included), s.
-    pub session_seconds: f64,
+    pub(crate) session_seconds: f64,
     /// Measuring the sample (Strategy 1 to the end, without the check), s.
     pub device_seconds: f64,
     /// The lost-steps check before the report, s.
-    pub check_seconds: f64,
+    pub(crate) check_seconds: f64,
     /// The check after the white calibration, s.
-    pub calibration_check_seconds: f64,
+    pub(crate) calibration_check_seconds: f64,
 }
 
 impl Row {
@@ -318,7 +318,7 @@ impl Row {
     }
 
     /// Device time the faults cost (against the clean twin), seconds.
-    pub fn time_lost(&self) -> Option<f64> {
+    pub(crate) fn time_lost(&self) -> Option<f64> {
         self.clean
             .as_ref()
             .map(|clean| self.session_seconds - clean.session_seconds)
@@ -397,7 +397,7 @@ pub fn judge(spec: &Spec, outcome: &Result<Outcome, SessionError>) -> Row {
 /// ideal scenes of this campaign about 1 % of sessions raise it whatever the link did, so
 /// a session that raises it has not failed the bench; a campaign whose sessions raise it
 /// more often than this rate allows has ([`lack_of_fit_allowed`]).
-pub const LACK_OF_FIT_FALSE_ALARM_RATE: f64 = 0.02;
+pub(crate) const LACK_OF_FIT_FALSE_ALARM_RATE: f64 = 0.02;
 
 /// The most `lack-of-fit` flags `sessions` ideal sessions may raise: the count a binomial
 /// of [`LACK_OF_FIT_FALSE_ALARM_RATE`] exceeds with probability below 0.1 %.
@@ -412,7 +412,7 @@ pub fn lack_of_fit_allowed(sessions: usize) -> usize {
 }
 
 /// Run and judge one session; with `twin`, also the same session without faults.
-pub fn run_one(spec: &Spec, twin: bool) -> Row {
+pub(crate) fn run_one(spec: &Spec, twin: bool) -> Row {
     let run = match run_session(spec) {
         Ok(run) => run,
         Err(error) => {
@@ -466,13 +466,13 @@ pub struct GiveUp {
     /// The session (its unplug never ends).
     pub spec: Spec,
     /// Device time from the pull to the session's end, seconds.
-    pub after_pull_s: f64,
+    pub(crate) after_pull_s: f64,
     /// Silence the host reported when it gave up, seconds.
-    pub silent_s: Option<f64>,
+    pub(crate) silent_s: Option<f64>,
     /// The message says the port is gone.
-    pub says_port_gone: bool,
+    pub(crate) says_port_gone: bool,
     /// The message lists the decisions so far.
-    pub lists_decisions: bool,
+    pub(crate) lists_decisions: bool,
 }
 
 /// Sessions whose cable is pulled at a random moment and never put back.
@@ -515,7 +515,7 @@ pub fn give_ups(sessions: usize, durations: &Durations, threads: usize) -> Vec<G
 }
 
 /// The CSV header of `reliability.csv`.
-pub const CSV_HEADER: &str = "index,sample,policy,seed,kind,unplug_at_s,outage_s,corrupt,drop,operator_s,survived,failure,class,flags,readings,superseded,reconnections,state_recoveries,refusals,stops,rehomings,lamp_relit,readings_remeasured,recovery_s,session_s,clean_session_s,time_lost_s,clean_check_s";
+pub(crate) const CSV_HEADER: &str = "index,sample,policy,seed,kind,unplug_at_s,outage_s,corrupt,drop,operator_s,survived,failure,class,flags,readings,superseded,reconnections,state_recoveries,refusals,stops,rehomings,lamp_relit,readings_remeasured,recovery_s,session_s,clean_session_s,time_lost_s,clean_check_s";
 
 /// `reliability.csv`: one row per session.
 pub fn to_csv(rows: &[Row]) -> String {

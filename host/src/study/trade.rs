@@ -15,9 +15,9 @@ pub const INTEGRATION_MS: [u16; 3] = [25, 100, 400];
 /// The integration time the adaptive policy's targets are stated at, ms.
 pub const TARGET_INTEGRATION_MS: u16 = 100;
 /// The targets: σ within this relative error …
-pub const SIGMA_TARGET: f64 = 0.05;
+pub(crate) const SIGMA_TARGET: f64 = 0.05;
 /// … in at least this fraction of sessions.
-pub const SESSIONS_TARGET: f64 = 0.95;
+pub(crate) const SESSIONS_TARGET: f64 = 0.95;
 
 /// One session of the study.
 #[derive(Clone, Debug, PartialEq)]
@@ -90,7 +90,7 @@ pub struct Row {
     /// Device time measuring the sample, s.
     pub device_seconds: f64,
     /// Of it, the detector ranges' gain calibration on the sample, s.
-    pub gain_calibration_seconds: f64,
+    pub(crate) gain_calibration_seconds: f64,
     /// |σ̂/σ − 1|; infinite when σ was not resolved.
     pub sigma_rel_err: f64,
     /// |ρ̂s/ρs − 1|.
@@ -160,7 +160,7 @@ fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
 }
 
 /// Run one whole simulated session and compare it with the truth.
-pub fn run_one(spec: &RunSpec) -> Result<Row, String> {
+pub(crate) fn run_one(spec: &RunSpec) -> Result<Row, String> {
     let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
     let expected = REFERENCES
         .iter()
@@ -227,7 +227,7 @@ pub fn run_all(
 }
 
 /// The CSV header of `trade.csv`.
-pub const CSV_HEADER: &str = "policy,setting,sample,seed,integration_ms,geometries,device_seconds,sigma_rel_err,rho_s_rel_err,rho_d_rel_err,class_correct,class,sigma_ok,gain_calibration_seconds,physics";
+pub(crate) const CSV_HEADER: &str = "policy,setting,sample,seed,integration_ms,geometries,device_seconds,sigma_rel_err,rho_s_rel_err,rho_d_rel_err,class_correct,class,sigma_ok,gain_calibration_seconds,physics";
 
 /// `trade.csv`: one row per session.
 pub fn to_csv(rows: &[Row]) -> String {
@@ -270,21 +270,21 @@ pub struct Summary {
     /// Mean device seconds.
     pub mean_device_seconds: f64,
     /// Mean geometries.
-    pub mean_geometries: f64,
+    pub(crate) mean_geometries: f64,
     /// Median σ relative error.
-    pub median_sigma_err: f64,
+    pub(crate) median_sigma_err: f64,
     /// 95th percentile σ relative error.
-    pub p95_sigma_err: f64,
+    pub(crate) p95_sigma_err: f64,
     /// Fraction with σ within [`SIGMA_TARGET`].
     pub sigma_within_target: f64,
     /// Median ρs, ρd relative errors.
-    pub median_rho_s_err: f64,
+    pub(crate) median_rho_s_err: f64,
     /// Median ρd relative error.
-    pub median_rho_d_err: f64,
+    pub(crate) median_rho_d_err: f64,
     /// Fraction classified right.
     pub class_accuracy: f64,
     /// Fraction that measured Strategy 1 only (12 geometries).
-    pub stopped_after_strategy1: f64,
+    pub(crate) stopped_after_strategy1: f64,
 }
 
 fn quantile(mut values: Vec<f64>, q: f64) -> f64 {
@@ -297,7 +297,7 @@ fn quantile(mut values: Vec<f64>, q: f64) -> f64 {
 }
 
 /// Summarise a group of rows.
-pub fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
+pub(crate) fn summarise<'a>(rows: impl IntoIterator<Item = &'a Row>) -> Summary {
     let rows: Vec<&Row> = rows.into_iter().collect();
     let n = rows.len();
     let frac =
@@ -595,7 +595,7 @@ pub struct SweepCheck {
     pub mean_less_gain_calibration_seconds: f64,
     /// Class right in ≥ 95 %, σ within 5 % in ≥ 95 % (glossy), ρs and ρd as close as
     /// the adaptive policy's (rough: median at most 1.5× its, or within 1 %).
-    pub accuracy_met: bool,
+    pub(crate) accuracy_met: bool,
     /// The longest session less its gain calibration, device seconds.
     pub max_less_gain_calibration_seconds: f64,
     /// Mean and worst device time less the gain calibration within
@@ -686,7 +686,7 @@ pub struct ParetoPoint {
     /// Mean device seconds.
     pub device_seconds: f64,
     /// 95th percentile of σ's relative error.
-    pub p95_sigma_err: f64,
+    pub(crate) p95_sigma_err: f64,
 }
 
 /// The points of the Pareto plot (glossy papers: σ is what the time buys) and which of

@@ -28,7 +28,7 @@ const ARM_OFFSET_SCREEN: f64 = 2.0;
 pub(super) struct ArmTest {
     /// The test's statistic (likelihood ratio, or the score screen's when the search was
     /// not needed); `None` when not tested.
-    pub statistic: Option<f64>,
+    pub(crate) statistic: Option<f64>,
     /// Whether δ0 was fitted (then the problem is the shifted one).
     pub fitted: bool,
 }

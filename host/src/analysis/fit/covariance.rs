@@ -125,7 +125,7 @@ pub(super) struct Uncertainty {
     /// 95 % intervals, clipped to the bounds.
     pub ci95: [Option<(f64, f64)>; N_PARAMS],
     /// Whether each interval was clipped.
-    pub ci_clipped: [bool; N_PARAMS],
+    pub(crate) ci_clipped: [bool; N_PARAMS],
     /// The covariance's diagonal by source.
     pub budget: Vec<BudgetTerm>,
     /// The fitted arm offset with its interval.
@@ -430,7 +430,7 @@ fn natural_uncertainty(
 pub(super) struct Normal {
     pub h: Square,
     pub b: Vec<f64>,
-    pub pl: Vec<Vec<f64>>,
+    pub(crate) pl: Vec<Vec<f64>>,
 }
 
 pub(super) fn gls_normal(

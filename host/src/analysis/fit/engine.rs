@@ -23,10 +23,10 @@ pub(super) struct Point {
     /// Geometry at the window's centre (θr shifted by the arm offset in use).
     pub geometry: PlaneGeometry,
     /// The detector's travel while the reading integrated, degrees (0: a still reading).
-    pub span_deg: f64,
+    pub(crate) span_deg: f64,
     pub y: f64,
     /// sqrt of the weight 1/std² (1 without uncertainties).
-    pub sqrt_w: f64,
+    pub(crate) sqrt_w: f64,
     /// Index of the lobe offset (θr − θi with a window, |θr − θi| without) in
     /// [`LeastSquaresProblem::offsets`]: the seeding grid's lobe and the window's edges.
     offset: u32,
@@ -110,7 +110,7 @@ pub(super) struct LeastSquaresProblem {
     pub weighted: bool,
     pub shared: Shared,
     /// Arm zero offset applied to every θr, degrees.
-    pub shift_deg: f64,
+    pub(crate) shift_deg: f64,
     /// Every reading's pieces.
     pieces: Vec<Piece>,
     /// Distinct lobe offsets of the readings (signed with a window, else |θr − θi|).
@@ -371,7 +371,11 @@ impl LeastSquaresProblem {
 
     /// Cost rᵀΣ⁻¹r at x = [ln σ, A = ρs·(η²−1), ρd, η], with JᵀΣ⁻¹J and JᵀΣ⁻¹r in x when
     /// `jacobian`.
-    pub fn accumulate(&self, x: &[f64; 4], jacobian: bool) -> (f64, [[f64; 4]; 4], [f64; 4]) {
+    pub(crate) fn accumulate(
+        &self,
+        x: &[f64; 4],
+        jacobian: bool,
+    ) -> (f64, [[f64; 4]; 4], [f64; 4]) {
         let sigma = x[0].exp();
         let (amplitude, rho_d, eta) = (x[1], x[2], x[3]);
         let mut cost = 0.0;
@@ -531,7 +535,7 @@ impl LeastSquaresProblem {
     }
 
     /// Best non-negative (ρs, ρd) at (σ, η).
-    pub fn linear(&self, sigma_deg: f64, eta: f64) -> LinearSolution {
+    pub(crate) fn linear(&self, sigma_deg: f64, eta: f64) -> LinearSolution {
         let shapes: Vec<f64> = {
             let mut scratch = self.scratch.borrow_mut();
             let Scratch { lobe, fresnel, .. } = &mut *scratch;
@@ -552,7 +556,7 @@ impl LeastSquaresProblem {
     }
 
     /// The best constant ρd (Σ⁻¹-weighted mean, at least 0).
-    pub fn lambert(&self) -> f64 {
+    pub(crate) fn lambert(&self) -> f64 {
         let [sw, sy, ..] = self.linear_sums(std::iter::repeat(0.0));
         (sy / sw).max(0.0)
     }
@@ -1016,7 +1020,7 @@ impl LeastSquaresProblem {
     /// arm offset. With a window it is exact for the window's mean: (1/a)·(spec(θr + a/2) −
     /// spec(θr − a/2)), the point model's specular part at the edges; without one a central
     /// difference of the point model.
-    pub fn shift_column(&self, x: &[f64; 4]) -> Vec<f64> {
+    pub(crate) fn shift_column(&self, x: &[f64; 4]) -> Vec<f64> {
         let sigma = x[0].exp();
         match self.acceptance_deg {
             Some(a) => {

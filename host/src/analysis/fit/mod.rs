@@ -62,15 +62,15 @@ pub use result::{
 pub use validation::{validate, validate_shared};
 
 /// Smallest σ the fit considers, degrees: far below what any sampling here resolves.
-pub const SIGMA_MIN_DEG: f64 = 1e-3;
+pub(crate) const SIGMA_MIN_DEG: f64 = 1e-3;
 /// Upper bound of σ (Table 3), degrees.
-pub const SIGMA_MAX_DEG: f64 = 90.0;
+pub(crate) const SIGMA_MAX_DEG: f64 = 90.0;
 /// Lower bound of η (Table 3).
-pub const ETA_MIN: f64 = 1.0;
+pub(crate) const ETA_MIN: f64 = 1.0;
 /// Upper bound of η (Table 3).
-pub const ETA_MAX: f64 = 3.0;
+pub(crate) const ETA_MAX: f64 = 3.0;
 /// Parameters of the full model.
-pub const N_PARAMS: usize = 4;
+pub(crate) const N_PARAMS: usize = 4;
 /// Largest radiance factor accepted: far above any paper's peak seen through a 1° window
 /// (a glossy paper's is ~60), and small enough that squares and sums of residuals stay
 /// finite with the smallest uncertainty.
@@ -82,13 +82,13 @@ pub const STD_MIN: f64 = 1e-9;
 pub const STD_MAX: f64 = 1e6;
 /// Largest arm zero offset the fit looks for, degrees: more is a broken instrument, not
 /// an offset to fit away.
-pub const ARM_OFFSET_MAX_DEG: f64 = 3.0;
+pub(crate) const ARM_OFFSET_MAX_DEG: f64 = 3.0;
 /// δ0 is fitted when the likelihood-ratio statistic (cost without δ0 − cost with it, in
 /// units of the noise variance) exceeds χ²(1) at 99 %.
-pub const ARM_OFFSET_LR_CRITICAL: f64 = 6.634_896_601_021_213;
+pub(crate) const ARM_OFFSET_LR_CRITICAL: f64 = 6.634_896_601_021_213;
 /// The widest detector travel a reading may have, degrees: a sweep's bin is a fraction of
 /// a degree to a few degrees; beyond this it would average the specular peak away.
-pub const MAX_SPAN_DEG: f64 = 20.0;
+pub(crate) const MAX_SPAN_DEG: f64 = 20.0;
 
 /// One reading: geometry in degrees, radiance factor, and optionally its standard uncertainty.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -132,7 +132,7 @@ impl SharedError {
 }
 
 /// The name of the arm zero's term in the budget.
-pub const ARM_ZERO: &str = "arm zero";
+pub(crate) const ARM_ZERO: &str = "arm zero";
 
 /// Standard uncertainty of the detector arm's zero that a session assumes unless told
 /// otherwise, degrees: the zero is set at the home switch and by aligning the aperture, good
@@ -225,7 +225,7 @@ pub fn cost(observations: &[Observation], params: &Params, acceptance_deg: Optio
 }
 
 /// Student t quantile at 0.975 for `dof` degrees of freedom (statrs); ∞ without any.
-pub fn t_quantile_975(dof: usize) -> f64 {
+pub(crate) fn t_quantile_975(dof: usize) -> f64 {
     if dof == 0 {
         return f64::INFINITY;
     }

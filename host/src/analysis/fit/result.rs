@@ -211,7 +211,7 @@ pub struct ArmOffset {
     /// δ0, degrees: the detector was at θr + δ0 when it said θr.
     pub deg: f64,
     /// Standard uncertainty, degrees.
-    pub std_deg: f64,
+    pub(crate) std_deg: f64,
     /// 95 % interval, degrees.
     pub ci95: (f64, f64),
     /// Likelihood-ratio statistic of the test that called for it.
@@ -230,7 +230,7 @@ pub struct FitResult {
     /// fitted or not identified, or when none can be given.
     pub ci95: [Option<(f64, f64)>; N_PARAMS],
     /// Whether each interval was clipped at a bound.
-    pub ci_clipped: [bool; N_PARAMS],
+    pub(crate) ci_clipped: [bool; N_PARAMS],
     /// Covariance of (σ in degrees, ρs, ρd, η), arm offset marginalised, widened under lack of
     /// fit; rows and columns of parameters not fitted or not identified are 0.
     pub covariance: [[f64; N_PARAMS]; N_PARAMS],
@@ -246,7 +246,7 @@ pub struct FitResult {
     pub arm_offset: Option<ArmOffset>,
     /// The statistic of the arm-offset test (likelihood ratio, or the score screen when the
     /// search was not needed); `None` when not tested.
-    pub arm_offset_statistic: Option<f64>,
+    pub(crate) arm_offset_statistic: Option<f64>,
     /// Readings.
     pub n: usize,
     /// Weighted sum of squared residuals rᵀΣ⁻¹r (the objective).
@@ -265,7 +265,7 @@ pub struct FitResult {
     /// the residuals.
     pub noise_from_residuals: Option<f64>,
     /// Residual variance used for the intervals (k, or k·s² without uncertainties).
-    pub residual_variance: f64,
+    pub(crate) residual_variance: f64,
     /// Degrees of freedom, n − fitted parameters (the arm offset included).
     pub dof: usize,
     /// Normalised mean absolute error (Eq. 5–6).
@@ -319,7 +319,7 @@ impl FitResult {
 
     /// Lower limit of ρs when ρs is not identified but bounded below (σ unresolved through
     /// a window, or η's interval reaching 1).
-    pub fn rho_s_lower(&self) -> Option<f64> {
+    pub(crate) fn rho_s_lower(&self) -> Option<f64> {
         self.notes.iter().find_map(|n| match n {
             Note::SigmaUnresolved { rho_s_lower, .. } => *rho_s_lower,
             Note::RhoSUnbounded { rho_s_lower } => Some(*rho_s_lower),
@@ -328,7 +328,7 @@ impl FitResult {
     }
 
     /// Whether there is a specular part at all.
-    pub fn has_specular_term(&self) -> bool {
+    pub(crate) fn has_specular_term(&self) -> bool {
         !self.notes.contains(&Note::NoSpecularTerm)
     }
 

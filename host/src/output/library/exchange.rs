@@ -21,7 +21,7 @@ pub struct ExchangeRecord {
     /// Stock manufacturer.
     pub manufacturer: Option<String>,
     /// Stock notes.
-    pub stock_notes: Option<String>,
+    pub(crate) stock_notes: Option<String>,
     /// Session identity (SHA-256 of its `MANIFEST.sha256`, lowercase hex).
     pub session_sha256: String,
     /// Sample name.
@@ -35,7 +35,7 @@ pub struct ExchangeRecord {
     /// Session folder path as it was given to `add` (where the lab that measured keeps it).
     pub session_path: String,
     /// When added to the library it was exported from.
-    pub added_at: String,
+    pub(crate) added_at: String,
     /// Spot index in the sheet, from 0.
     pub spot: usize,
     /// Number of spots of the sheet (so an import can tell a sheet is whole).

@@ -40,7 +40,7 @@ pub const SCHEMA_VERSION: i64 = 1;
 
 /// `PRAGMA application_id` of a gonio library: "goLB" in ASCII, so `file(1)` and any SQLite
 /// tool can tell a gonio library from other SQLite files.
-pub const APPLICATION_ID: i32 = 0x676F_4C42;
+pub(crate) const APPLICATION_ID: i32 = 0x676F_4C42;
 
 /// Why the library cannot do what was asked. Every variant names the library file or the
 /// session folder concerned.
@@ -211,7 +211,7 @@ pub struct SheetRecord {
     /// The sample name the session recorded.
     pub sample: String,
     /// When it was added to a library (UTC RFC 3339); kept through export and import.
-    pub added_at: String,
+    pub(crate) added_at: String,
     /// Its spots, in order.
     pub spots: Vec<Spot>,
 }

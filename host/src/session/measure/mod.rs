@@ -29,7 +29,7 @@ use std::sync::atomic::AtomicBool;
 /// Spots of a sheet when none are given ([`crate::analysis::spots::DEFAULT_SPOTS`]).
 pub const DEFAULT_SPOTS: u16 = crate::analysis::spots::DEFAULT_SPOTS;
 /// The most spots a sheet takes.
-pub const MAX_SPOTS: u16 = 20;
+pub(crate) const MAX_SPOTS: u16 = 20;
 
 /// What to measure and how: the options of `gonio measure` (its `--json` aside), each
 /// documented there. [`Default`] is no option given.
