@@ -6,10 +6,17 @@
 //! - [`session`]: the measurement session's state machine, the adaptive policy and the
 //!   visiting order;
 //! - [`study`]: campaigns over simulated sessions (the speed–accuracy trade);
-//! - [`output`]: data sets, exports and plots;
+//! - [`output`]: session and sheet folders (written, verified, reported), data sets,
+//!   exports, plots and the stock library;
+//! - [`measure`]: a whole `gonio measure`, a session or a sheet of spots, run on a
+//!   session and written to its folder;
 //! - [`schema`]: the names and versions of gonio's JSON documents.
 //!
-//! The `gonio` command line is the binary's (`src/cli/`), on top of these.
+//! Layers, bottom to top: analysis, instrument, session, output, measure and study (which
+//! runs sessions and draws with output's plots); schema is read from anywhere. A layer
+//! imports only those below it, with one exception left: analysis's uncertainty budget
+//! reads the instrument's calibration type. The `gonio` command line is the binary's
+//! (`src/cli/`), on top of them all.
 // The numerics index vectors and matrices as the algebra writes them (a[row][col], l[k]);
 // comparisons written `!(a > b)` are meant to be true for NaN as well.
 #![allow(
@@ -19,6 +26,7 @@
 )]
 pub mod analysis;
 pub mod instrument;
+pub mod measure;
 pub mod output;
 pub mod schema;
 pub mod session;

@@ -2,7 +2,7 @@
 //!
 //! Two tests, each at [`GOF_ALPHA`] = [`STRUCTURE_ALPHA`] = 0.5 %, so that on data the model
 //! does describe the flag `lack-of-fit` is raised in at most 1 % of fits (Bonferroni; the
-//! campaign in host/tests/fit.rs measures the rate):
+//! campaign in host/tests/it/fit.rs measures the rate):
 //!
 //! - **χ²** (weighted fits only): χ² = rᵀ Σ⁻¹ r at the optimum, Σ the readings' covariance
 //!   (independent noise plus the shared errors), against χ²(ν), ν = n − fitted parameters;

@@ -19,7 +19,7 @@
 //! G has a kink inside the window (the onset of masking or shadowing, e.g. θi = 20° near
 //! θr = 66.5°) the window is split there and each piece gets its own parabola. The
 //! parabola's error is of order u'''·a³/100, about 1e-6 of the reading for a 1° window at
-//! θr ≤ 70° (host/tests/model.rs checks it against dense quadrature). It is always done when
+//! θr ≤ 70° (host/tests/it/model.rs checks it against dense quadrature). It is always done when
 //! a window is given: there is no threshold at which the estimator changes.
 
 use serde::Serialize;
@@ -523,7 +523,7 @@ pub fn evaluate(p: &Params, g: &PlaneGeometry, acceptance_deg: Option<f64>) -> (
 /// centre alone. Otherwise the travel is cut into segments of at most half the window and
 /// each gets 3-point Gauss–Legendre: the still detector's reading, a lobe convolved with
 /// the window, is smooth on the scale of the window, so that is within 3e-7 of the
-/// travel's mean for σ ≥ 0.5° (host/tests/model.rs checks it against dense quadrature;
+/// travel's mean for σ ≥ 0.5° (host/tests/it/model.rs checks it against dense quadrature;
 /// segments of a whole window would err by 5e-6).
 /// The nodes depend on the geometry alone, never on the parameters, so the model does not
 /// jump as σ changes.

@@ -89,7 +89,7 @@ fn fit_options(args: &Args) -> anyhow::Result<FitOptions> {
             "--delta must be a number of degrees above 0 and at most 90, not {d:?}"
         );
     }
-    let max_acceptance = host::session::measure::MAX_ACCEPTANCE_DEG;
+    let max_acceptance = host::measure::MAX_ACCEPTANCE_DEG;
     anyhow::ensure!(
         args.acceptance.is_finite() && (0.0..=max_acceptance).contains(&args.acceptance),
         "--acceptance must be between 0 and {max_acceptance} degrees (the detector's full width, which the fit models as a small window), not {:?}",

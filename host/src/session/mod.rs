@@ -21,7 +21,6 @@
 
 pub mod adaptive;
 pub mod gains;
-pub mod measure;
 pub mod multi_spot;
 pub mod operator;
 pub mod order;

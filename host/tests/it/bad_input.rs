@@ -66,7 +66,7 @@ fn interrupted_session(name: &str) -> PathBuf {
     let args =
         measure_args::parse_args(["--spots", "1", "--sim", "G", "--out", dir.to_str().unwrap()])
             .unwrap();
-    let _ = host::session::measure::measure_with(
+    let _ = host::measure::measure_with(
         &args,
         &mut host::session::SimulatedOperator,
         std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),

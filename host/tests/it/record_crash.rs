@@ -1,12 +1,12 @@
-//! Crash injection: a real in-process session (`host::session::measure::measure_with`, the
+//! Crash injection: a real in-process session (`host::measure::measure_with`, the
 //! simulated instrument) killed at every write it makes into its folder, then resumed; and
 //! real SIGKILLs of the `gonio` binary at random moments. Every resumed folder must pass
 //! `gonio verify`, its `readings.csv` and `points.jsonl` agree with `session.json`, and no
 //! reading is lost or recorded twice.
 use crate::measure_args;
+use host::measure::{Measured, measure, measure_with};
 use host::output::lock::FolderError;
 use host::output::store::{Crash, StoreOptions};
-use host::session::measure::{Measured, measure, measure_with};
 use host::session::{MeasuredPoint, SimulatedOperator};
 use measure_args::parse_args;
 use rand::{Rng, SeedableRng};

@@ -289,7 +289,7 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     }
     let dir = temp_dir("report", "resume-case");
     let d = dir.to_str().unwrap();
-    let args = |extra: &[&str]| -> host::session::measure::MeasureOptions {
+    let args = |extra: &[&str]| -> host::measure::MeasureOptions {
         let mut all = vec!["--sim", "G", "--spots", "1", "--case", "C-1"];
         all.extend_from_slice(extra);
         measure_args::parse_args(all).unwrap()
@@ -298,7 +298,7 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
         crash: Some(host::output::store::Crash::at(30)),
     };
     let interrupted = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let _ = host::session::measure::measure_with(
+    let _ = host::measure::measure_with(
         &args(&["--out", d]),
         &mut host::session::SimulatedOperator,
         interrupted.clone(),
@@ -306,7 +306,7 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     );
     let mut other = args(&["--resume", d]);
     other.case_id = Some("C-2".into());
-    let refused = host::session::measure::measure_with(
+    let refused = host::measure::measure_with(
         &other,
         &mut host::session::SimulatedOperator,
         interrupted.clone(),
@@ -315,17 +315,14 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     .err()
     .expect("another case refused");
     assert!(refused.to_string().contains("case differs"), "{refused}");
-    let resumed = host::session::measure::measure_with(
+    let resumed = host::measure::measure_with(
         &args(&["--resume", d]),
         &mut host::session::SimulatedOperator,
         interrupted,
         Default::default(),
     )
     .expect("resumed");
-    assert!(matches!(
-        resumed,
-        host::session::measure::Measured::Done { .. }
-    ));
+    assert!(matches!(resumed, host::measure::Measured::Done { .. }));
     assert!(report(&dir).contains("C-1"));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -4,11 +4,11 @@
 //! write of the sheet's folder resumes to a folder that verifies, and the sheet is what
 //! `gonio compare`, `gonio verify` and the library read.
 use crate::measure_args;
+use host::measure::{Measured, measure_with};
 use host::output::report::html;
 use host::output::sheet_folder::read_measured;
 use host::output::store::{Crash, StoreOptions};
 use host::output::verify::verify_sheet;
-use host::session::measure::{Measured, measure_with};
 use host::session::{DelayedOperator, Operator, Placement, SimulatedOperator};
 use measure_args::parse_args;
 use rand::{Rng, SeedableRng};

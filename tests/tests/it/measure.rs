@@ -6,7 +6,7 @@
 #[path = "../../../host/src/cli/measure/args.rs"]
 mod measure_args;
 use host::instrument::sim::SimOptions;
-use host::session::measure::{Measured, measure};
+use host::measure::{Measured, measure};
 use host::session::{Placement, SessionError, WallClockOperator};
 use measure_args::parse_args;
 use serde_json::Value;

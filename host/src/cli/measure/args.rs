@@ -2,8 +2,8 @@
 //! (only `host::` paths), so the tests parse their argument lists as the command line does
 //! (`#[path]`).
 use host::instrument::sim::SimOptions;
+use host::measure::MeasureOptions;
 use host::session::PolicyChoice;
-use host::session::measure::MeasureOptions;
 use std::path::PathBuf;
 
 /// Arguments of `gonio measure`.

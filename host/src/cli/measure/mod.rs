@@ -1,11 +1,11 @@
-//! `gonio measure`: parses, hands the measurement to [`host::session::measure`], prints
+//! `gonio measure`: parses, hands the measurement to [`host::measure`], prints
 //! what it gave and exits with what the result says.
 mod args;
 
 pub use args::Args;
 
 use anyhow::Context;
-use host::session::measure::{Measured, measure, resume_command};
+use host::measure::{Measured, measure, resume_command};
 use host::session::{Operator, Outcome, PromptOperator, SessionError, SimulatedOperator};
 use std::path::Path;
 use std::process::ExitCode;
