@@ -1,5 +1,5 @@
 //! A sheet of several spots: one session per spot in `DIR/spot-K`
-//! ([`crate::output::sheet`]), the first spot's calibration for all, which spots count
+//! ([`crate::output::sheet_folder`]), the first spot's calibration for all, which spots count
 //! decided by [`crate::session::multi_spot`].
 use super::spot::run_session;
 use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command, status_of};
@@ -24,7 +24,7 @@ enum SpotStop {
 }
 
 /// A sheet of several spots (`--spots N`, or `--resume` of a sheet's folder): one session
-/// per spot in `DIR/spot-K` ([`crate::output::sheet`]), the first spot's calibration for all.
+/// per spot in `DIR/spot-K` ([`crate::output::sheet_folder`]), the first spot's calibration for all.
 pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
     let mut folder = open_sheet(cx)?;
     let dir = folder.dir().to_path_buf();
