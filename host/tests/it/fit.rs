@@ -969,7 +969,14 @@ fn bins_read_while_moving_are_fitted_as_such() {
             .sum::<f64>()
             / n as f64
     };
-    for seed in [rand::rng().random::<u64>(), 7] {
+    // Seed 7 and nineteen drawn each run. The interval misses the truth (5 %) and the
+    // lack-of-fit flag fires on the model's own data (its false-alarm rate) at stated
+    // rates, so both are counted against binomial bounds over the twenty, not asserted per
+    // seed; P(≥ 5 misses of 20 at 5 %) is 0.3 %.
+    let mut seeds = vec![7u64];
+    seeds.extend((0..19).map(|_| rand::rng().random::<u64>()));
+    let (mut misses, mut flagged) = (Vec::new(), Vec::new());
+    for seed in seeds {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let mut bins = Vec::new();
         for ti in [20.0, 30.0, 45.0, 60.0] {
@@ -990,15 +997,12 @@ fn bins_read_while_moving_are_fitted_as_such() {
         }
         let as_bins = fit(&bins, &FitOptions::default()).expect("fit");
         let (lo, hi) = as_bins.ci95[0].expect("σ's interval");
-        assert!(
-            lo <= truth.sigma_deg && truth.sigma_deg <= hi,
-            "seed {seed}: σ {:?} [{lo}, {hi}]",
-            as_bins.sigma_deg()
-        );
-        assert!(
-            !as_bins.lack_of_fit,
-            "seed {seed}: bins fitted as bins are the model"
-        );
+        if !(lo <= truth.sigma_deg && truth.sigma_deg <= hi) {
+            misses.push((seed, as_bins.sigma_deg(), lo, hi));
+        }
+        if as_bins.lack_of_fit {
+            flagged.push(seed);
+        }
         let still: Vec<Observation> = bins
             .iter()
             .map(|o| Observation {
@@ -1016,4 +1020,13 @@ fn bins_read_while_moving_are_fitted_as_such() {
             100.0 * half_width
         );
     }
+    assert!(
+        misses.len() <= 4,
+        "σ's interval missed the truth in {} of 20 (at most 4): {misses:?}",
+        misses.len()
+    );
+    assert!(
+        flagged.len() <= 2,
+        "bins fitted as bins are the model, yet lack-of-fit for seeds {flagged:?} of 20"
+    );
 }
