@@ -34,7 +34,7 @@ pub const SPOT_RESULT: &str = "gonio-spot-result/1";
 /// `gonio measure --json` of a sheet of several spots.
 pub const SHEET_RESULT: &str = "gonio-sheet-result/1";
 /// `gonio compare --json`.
-pub const COMPARE: &str = "gonio-compare/1";
+pub const COMPARE: &str = "gonio-compare/2";
 /// A line of `gonio verify --json`.
 pub const VERIFY: &str = "gonio-verify/1";
 /// A line of `gonio sessions --json`.
@@ -42,7 +42,7 @@ pub const SESSIONS_ENTRY: &str = "gonio-sessions-entry/1";
 /// `gonio library list --json`.
 pub const LIBRARY_LIST: &str = "gonio-library-list/1";
 /// `gonio library search --json`.
-pub const LIBRARY_SEARCH: &str = "gonio-library-search/1";
+pub const LIBRARY_SEARCH: &str = "gonio-library-search/2";
 /// A line of `gonio library export` (one measured sheet of a known stock).
 pub const LIBRARY_RECORD: &str = "gonio-library/2";
 /// A `gonio library export` line before `schema` (it was `format`): still imported.

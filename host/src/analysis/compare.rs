@@ -60,6 +60,8 @@ pub struct SessionResult {
     pub values: [Option<f64>; 4],
     /// Covariance of (σ [deg], ρs, ρd, η); rows/columns of parameters not fitted are 0.
     pub covariance: [[f64; 4]; 4],
+    /// The result's flags (`flags` beside `result`, or the result's own); empty: clean.
+    pub flags: Vec<String>,
 }
 
 impl SessionResult {
@@ -182,11 +184,23 @@ pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult,
             };
         }
     }
+    // Flags are read as they are written (strings); a document without them is clean.
+    let flags = object
+        .get("flags")
+        .or_else(|| result.get("flags"))
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .map(|f| f.as_str().map_or_else(|| f.to_string(), str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
     Ok(SessionResult {
         file: file.to_path_buf(),
         sample,
         class,
         values,
         covariance,
+        flags,
     })
 }

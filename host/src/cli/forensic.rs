@@ -39,6 +39,17 @@ pub struct Args {
     /// policy of docs/FORENSIC.md's figures; docs/TRADE.md has the study with sweeps).
     #[arg(long, value_enum, default_value_t = host::session::PolicyChoice::Adaptive)]
     pub policy: host::session::PolicyChoice,
+    /// The simulated world: how spots, sheets and stocks vary (as-today, spots-1pct,
+    /// spots-6pct, stocks-5pct, stocks-20pct, near-twins, sheets-3pct, heavy-tailed,
+    /// second-instrument); the evidence is never told, it estimates its population from
+    /// the study's library.
+    #[arg(long, default_value = "as-today", value_name = "NAME")]
+    pub scenario: String,
+    /// Validate this stock library (its own sheets) as the population `compare --library`
+    /// weighs against, instead of running the simulated study: the pairs, calibrator,
+    /// bounds, Cllr, Tippett and ECE plots of the lab's own data.
+    #[arg(long, value_name = "FILE")]
+    pub library: Option<PathBuf>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -46,6 +57,9 @@ pub struct Args {
 
 /// Run `gonio forensic`: exit 0 when every claim held, 3 when any did not.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if let Some(library) = &args.library {
+        return run_library(library, &args.out);
+    }
     if args.draws == 0 || args.library_sheets == 0 || args.held_out_sheets < 2 {
         bail!("the study needs at least 1 draw, 1 library sheet and 2 held-out sheets");
     }
@@ -57,7 +71,19 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "at most 999 sheets per stock and 999 stocks drawn per paper (each sheet's seed is made of them)"
         );
     }
+    let scenario = forensic::Scenario::named(&args.scenario).ok_or_else(|| {
+        anyhow::anyhow!(
+            "no scenario '{}': the scenarios are {}",
+            args.scenario,
+            forensic::Scenario::ALL
+                .iter()
+                .map(|s| s.name)
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
     let design = Design {
+        scenario,
         draws: args.draws,
         first_draw: args.first_draw,
         drawn_per_paper: args.drawn_per_paper,
@@ -147,4 +173,37 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::from(crate::cli::exit::FLAGGED)
     })
+}
+
+/// `gonio forensic --library FILE --out DIR`: the library validated, its figures and plots
+/// written to DIR.
+fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<ExitCode> {
+    use host::output::library::{Library, OpenMode};
+    use host::study::library_validation;
+    let sheets: Vec<_> = Library::open(path, OpenMode::Existing)?
+        .sheets()?
+        .into_iter()
+        .map(|(_, sheet)| sheet)
+        .collect();
+    let population = library_validation::run(&sheets)
+        .with_context(|| format!("{}: cannot validate the library", path.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let summary = library_validation::summary_markdown(path, &population);
+    let summary_path = out.join("summary.md");
+    std::fs::write(&summary_path, &summary)
+        .with_context(|| format!("cannot write {}", summary_path.display()))?;
+    if let Some(v) = &population.validation {
+        forensic::tippett_svg_of(
+            &v.same,
+            &v.different,
+            "Tippett plot: the library's pairs, validated",
+            &out.join("tippett.svg"),
+        )
+        .map_err(anyhow::Error::msg)?;
+        library_validation::ece_svg(&v.same, &v.different, &out.join("ece.svg"))
+            .map_err(anyhow::Error::msg)?;
+    }
+    print!("{summary}");
+    println!("wrote {}, tippett.svg and ece.svg", summary_path.display());
+    Ok(ExitCode::from(crate::cli::exit::OK))
 }

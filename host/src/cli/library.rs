@@ -6,7 +6,7 @@
 //! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
 //! changes nothing); 2 a wrong command line.
 use anyhow::Context;
-use host::analysis::evidence::{Population, Sheet, rank_stocks};
+use host::analysis::evidence::{self, Questioned, Warning};
 use host::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
 use serde_json::json;
 use std::io::Write;
@@ -16,7 +16,7 @@ use std::process::ExitCode;
 /// Arguments of `gonio library`.
 #[derive(clap::Args)]
 #[command(
-    after_help = "Exit codes: 0 done; 1 failed (nothing is changed by a refused add, import or remove); 2 a wrong command line."
+    after_help = "Exit codes: 0 done; 1 failed (nothing is changed by a refused add, import or remove); 2 a wrong command line; 3 a search done with warnings (printed)."
 )]
 pub struct Args {
     /// The library file [default: $XDG_DATA_HOME/gonio/library.sqlite, else ~/.local/share/gonio/library.sqlite].
@@ -125,15 +125,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "no library file: give --library FILE (neither XDG_DATA_HOME nor HOME is set)",
         )?,
     };
-    match args.command {
-        Command::Add(add) => run_add(&path, add),
-        Command::List(list) => run_list(&path, list),
-        Command::Remove(remove) => run_remove(&path, remove),
-        Command::Export(export) => run_export(&path, export),
-        Command::Import(import) => run_import(&path, import),
+    let done = |r: anyhow::Result<()>| r.map(|()| crate::cli::exit::OK);
+    let code = match args.command {
+        Command::Add(add) => done(run_add(&path, add)),
+        Command::List(list) => done(run_list(&path, list)),
+        Command::Remove(remove) => done(run_remove(&path, remove)),
+        Command::Export(export) => done(run_export(&path, export)),
+        Command::Import(import) => done(run_import(&path, import)),
         Command::Search(search) => run_search(&path, search),
     }?;
-    Ok(ExitCode::from(crate::cli::exit::OK))
+    Ok(ExitCode::from(code))
 }
 
 fn short(sha256: &str) -> &str {
@@ -316,31 +317,22 @@ fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
 struct Ranked {
     stock: String,
     sheets: usize,
-    spots: usize,
     log10_lr: f64,
+    raw_log10_lr: f64,
     verbal: String,
 }
 
-fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
+/// Exit 0 when nothing warns, 3 with warnings (printed).
+fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
     let measured =
         host::output::sheet_folder::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
-    let query = measured.sheet.clone();
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.
-    let own_identity = if args.dir.is_dir() {
-        library::session_identity(&args.dir).ok()
-    } else {
-        None
-    };
-    let library = Library::open(path, OpenMode::Existing)?;
-    let all = library.sheets()?;
-    let excluded = own_identity.filter(|own| all.iter().any(|(_, sha, _)| sha == own));
-    let sheets: Vec<(String, String, Sheet)> = all
-        .into_iter()
-        .filter(|(_, sha, _)| Some(sha) != excluded.as_ref())
-        .collect();
+    let own_identity = measured.identity.clone();
+    let all = Library::open(path, OpenMode::Existing)?.sheets()?;
+    let excluded = own_identity.filter(|own| all.iter().any(|(sha, _)| sha == own));
     anyhow::ensure!(
-        !sheets.is_empty(),
+        all.iter().any(|(sha, _)| Some(sha) != excluded.as_ref()),
         "{}: no sheets to search{}",
         path.display(),
         if excluded.is_some() {
@@ -349,35 +341,62 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
             ""
         }
     );
-    let labelled: Vec<(String, Sheet)> = sheets
-        .iter()
-        .map(|(stock, _, sheet)| (stock.clone(), sheet.clone()))
-        .collect();
-    let (population, population_note) = match Population::from_sheets(&labelled) {
-        Ok(p) => (p, "library".to_string()),
-        Err(e) => (
-            Population::default_population(),
-            format!("default (the library's cannot be used: {e})"),
-        ),
+    let population = crate::cli::population::PopulationArgs {
+        library: Some(path.to_path_buf()),
+        demo_population: false,
+    }
+    .load(excluded.as_slice())?;
+    let query = Questioned {
+        sheet: measured.sheet.clone(),
+        flags: measured.flags.clone(),
+        identity: measured.identity.clone(),
+        instrument: measured.instrument.clone(),
     };
-    let mut ranking: Vec<Ranked> = rank_stocks(&query, &labelled, &population)
+    let found = evidence::search(&query, &population.population);
+    let mut ranking: Vec<Ranked> = found
+        .ranking
         .into_iter()
         .map(|r| Ranked {
             stock: r.stock,
             sheets: r.sheets,
-            spots: r.spots,
-            log10_lr: r.evidence.log10_lr,
-            verbal: r.evidence.verbal,
+            log10_lr: r.log10_lr,
+            raw_log10_lr: r.raw_log10_lr,
+            verbal: evidence::verbal(r.log10_lr),
         })
         .collect();
     let stocks = ranking.len();
     ranking.truncate(args.top.unwrap_or(usize::MAX));
+    let mut warnings = found.warnings;
+    if let Some(why) = &population.not_validated_because {
+        for w in warnings.iter_mut() {
+            if let Warning::NotValidated { why: w } = w {
+                *w = why.clone();
+            }
+        }
+    }
+    let bounds = population.population.validation.as_ref().map(|v| v.bounds);
+    let code = if warnings.is_empty() {
+        crate::cli::exit::OK
+    } else {
+        crate::cli::exit::FLAGGED
+    };
     if args.json {
         println!(
             "{}",
-            json!({"schema": host::schema::LIBRARY_SEARCH, "sheet": args.dir.display().to_string(), "sample": measured.sample, "library": path.display().to_string(), "stocks": stocks, "population": population_note, "excluded_own_session": excluded, "ranking": ranking})
+            json!({
+                "schema": host::schema::LIBRARY_SEARCH,
+                "sheet": args.dir.display().to_string(),
+                "sample": measured.sample,
+                "library": path.display().to_string(),
+                "stocks": stocks,
+                "population": {"identity": population.population.identity(), "source": population.population.source, "bounds": bounds},
+                "caveat": evidence::SEARCH_CAVEAT,
+                "warnings": warnings.iter().map(Warning::to_json).collect::<Vec<_>>(),
+                "excluded_own_session": excluded,
+                "ranking": ranking
+            })
         );
-        return Ok(());
+        return Ok(code);
     }
     if let Some(sha) = &excluded {
         println!(
@@ -386,13 +405,14 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "{} (sample '{}') against {} stock{} of {}; population: {population_note}",
+        "{} (sample '{}') against {} stock{} of {}",
         args.dir.display(),
         measured.sample,
         stocks,
         if stocks == 1 { "" } else { "s" },
         path.display()
     );
+    println!("  ({})", evidence::SEARCH_CAVEAT);
     let width = ranking
         .iter()
         .map(|r| r.stock.chars().count())
@@ -413,5 +433,8 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<()> {
             r.verbal
         );
     }
-    Ok(())
+    for w in &warnings {
+        println!("  warning: {w}");
+    }
+    Ok(code)
 }

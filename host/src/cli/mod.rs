@@ -8,6 +8,7 @@ pub mod flash;
 pub mod forensic;
 pub mod library;
 pub mod measure;
+pub mod population;
 pub mod ports;
 pub mod reliability;
 pub mod report;

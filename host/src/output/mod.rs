@@ -21,6 +21,7 @@
 //! check is handed the drawing ([`verify::DrawReport`]).
 pub mod catalogue;
 pub mod chromium;
+pub mod comparison;
 pub mod dataset;
 pub mod export;
 pub mod folder;

@@ -122,7 +122,7 @@ ol.decisions li { margin: 0.1em 0; }
 "#;
 /// Text for the page, escaped: `&`, `<`, `>` and `"` as maud escapes them, and `'` as
 /// `&#39;` (as the report has always written it: the same folder draws the same bytes).
-struct Text<'a>(&'a str);
+pub(crate) struct Text<'a>(pub(crate) &'a str);
 
 impl Render for Text<'_> {
     fn render_to(&self, out: &mut String) {
@@ -139,7 +139,7 @@ impl Render for Text<'_> {
     }
 }
 
-fn page(title: &str, body: Markup) -> String {
+pub(crate) fn page(title: &str, body: Markup) -> String {
     html! {
         (DOCTYPE) "\n"
         html lang="en" {
@@ -166,7 +166,7 @@ fn number(x: Option<f64>, digits: usize) -> String {
 }
 
 /// A table row of a header cell and a data cell.
-fn field_row(label: &str, value: impl Render) -> Markup {
+pub(crate) fn field_row(label: &str, value: impl Render) -> Markup {
     html! { tr { th { (label) } td { (value) } } "\n" }
 }
 

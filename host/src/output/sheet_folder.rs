@@ -445,6 +445,34 @@ pub struct MeasuredSheet {
     pub sheet: Sheet,
     /// The sheet's result when it is a sheet folder; `None` for a session of one spot.
     pub summary: Option<SheetSummary>,
+    /// Its result's flags (empty: clean).
+    pub flags: Vec<String>,
+    /// Its folder's identity: the SHA-256 of its `MANIFEST.sha256`, when it has one.
+    pub identity: Option<String>,
+    /// The instrument's serial number.
+    pub instrument: Option<String>,
+    /// The case, when given.
+    pub case: Option<folder::CaseRecord>,
+}
+
+/// What a measured folder says of where it came from: its identity (its manifest's
+/// SHA-256), its instrument and its case; each `None` when the file does not say.
+fn provenance(dir: &Path) -> (Option<String>, Option<String>, Option<folder::CaseRecord>) {
+    let identity = std::fs::read(dir.join(folder::MANIFEST))
+        .ok()
+        .map(|bytes| crate::output::manifest::sha256_hex(&bytes));
+    #[derive(serde::Deserialize)]
+    struct Head {
+        instrument: Option<folder::InstrumentRecord>,
+        case: Option<folder::CaseRecord>,
+    }
+    let head: Option<Head> = std::fs::read_to_string(dir.join(SESSION))
+        .ok()
+        .and_then(|text| serde_json::from_str(&text).ok());
+    let (instrument, case) = head.map_or((None, None), |h| {
+        (h.instrument.map(|i| i.serial_number), h.case)
+    });
+    (identity, instrument, case)
 }
 
 impl MeasuredSheet {
@@ -492,20 +520,33 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
             .filter(|s| accepted(s.result.number))
             .map(|s| s.session.class.clone())
             .collect();
+        let (identity, _, case) = provenance(path);
+        let instrument = read.spots.first().and_then(|s| provenance(&s.dir).1);
+        let flags = read.summary.flags.iter().map(|f| f.to_string()).collect();
         return Ok(MeasuredSheet {
             path: path.to_path_buf(),
             sample: read.doc.sample.clone(),
             classes,
             sheet,
             summary: Some(read.summary),
+            flags,
+            identity,
+            instrument,
+            case: read.doc.case.clone().or(case),
         });
     }
     let session = crate::analysis::compare::read_session(path)?;
+    let dir = session.file.parent().unwrap_or(Path::new("."));
+    let (identity, instrument, case) = provenance(dir);
     Ok(MeasuredSheet {
         path: session.file.clone(),
         sample: session.sample.clone(),
         classes: vec![session.class.clone()],
         sheet: session.sheet(),
         summary: None,
+        flags: session.flags.clone(),
+        identity,
+        instrument,
+        case,
     })
 }

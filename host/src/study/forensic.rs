@@ -6,7 +6,7 @@
 //! Forensic Institute's `lir` and the ENFSI guideline).
 //!
 //! Stocks: the eight reference papers of Table 6 and, about each, more stocks of its kind
-//! with σ, ρs and ρd drawn log-normally with [`evidence::DEFAULT_BETWEEN_RELATIVE_SD`]
+//! with σ, ρs and ρd drawn log-normally with [`STOCK_SPREAD_RELATIVE_SD`]
 //! (η kept). One draw of the stocks is one population; the study is a campaign over
 //! [`Design::draws`] independent draws (each its own seed, [`draw_seed`]), so that no one
 //! lucky or unlucky draw decides a claim. A sheet is one multi-spot session
@@ -17,7 +17,7 @@
 //! tell what a spot more buys, for the default of `gonio measure --spots`.
 
 use crate::analysis::classify::{Class, REFERENCES};
-use crate::analysis::evidence::{self, Population, Sheet};
+use crate::analysis::evidence::{self, LibrarySheet, Questioned, Sheet};
 use crate::instrument::sim::{Physics, SimOptions};
 use crate::session::{Policy, PolicyChoice};
 use plotters::prelude::*;
@@ -25,6 +25,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha12Rng;
 use rand_distr::{Distribution, StandardNormal};
 use std::fmt::Write as _;
+
+/// How far the stocks drawn about a reference paper lie from it (relative standard
+/// deviation of σ, ρs, ρd): the study's own figure, which the evidence is not told (its
+/// population is estimated from the study's library).
+pub const STOCK_SPREAD_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
 
 /// Between-spot variation of every simulated sheet, percent (`--sheet-variation`).
 pub const SPOT_VARIATION_PCT: f64 = 3.0;
@@ -40,9 +45,113 @@ pub const SPOTS_STUDY: [usize; 5] = [1, 2, 3, 4, 5];
 /// about 3 % in each parameter or less (as much as two spots of one sheet do), and 1.
 pub(crate) const CLOSE: [f64; 2] = [0.5, 1.0];
 
+/// How the simulated world differs from the model's defaults: the figures the truth is
+/// drawn with, which the evidence is never told (it estimates its population from the
+/// study's library).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scenario {
+    /// Its name (`gonio forensic --scenario`).
+    pub name: &'static str,
+    /// What it tests, for the summary.
+    pub about: &'static str,
+    /// Spot-to-spot variation within a sheet, percent (the simulator's `--sheet-variation`).
+    pub spot_pct: f64,
+    /// Sheet-to-sheet (lot) variation about the stock, relative standard deviation.
+    pub sheet_relative_sd: f64,
+    /// Stocks' spread about each reference paper, relative standard deviation.
+    pub between_relative_sd: f64,
+    /// Each drawn stock has a near twin this far from it (relative, in every parameter).
+    pub twin_relative: Option<f64>,
+    /// Stock offsets drawn from Student's t with these degrees of freedom (heavy tails)
+    /// instead of the normal.
+    pub tail_dof: Option<f64>,
+    /// Correlation of the three parameters' stock offsets.
+    pub correlation: f64,
+    /// Held-out sheets of odd number are measured on a second instrument whose white tile
+    /// is off by N(0, this %) per sheet (the first instrument: the realistic 0.5 %).
+    pub second_instrument_tile_pct: Option<f64>,
+}
+
+impl Scenario {
+    /// The world the study drew before the three-level model: 3 % between spots, 10 %
+    /// between stocks, nothing between sheets.
+    pub const AS_TODAY: Scenario = Scenario {
+        name: "as-today",
+        about: "3 % between spots, no sheet level, stocks 10 % about each paper",
+        spot_pct: 3.0,
+        sheet_relative_sd: 0.0,
+        between_relative_sd: 0.10,
+        twin_relative: None,
+        tail_dof: None,
+        correlation: 0.0,
+        second_instrument_tile_pct: None,
+    };
+
+    /// Every scenario of the validation campaign (docs/FORENSIC.md).
+    pub const ALL: [Scenario; 9] = [
+        Scenario::AS_TODAY,
+        Scenario {
+            name: "spots-1pct",
+            about: "1 % between spots",
+            spot_pct: 1.0,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "spots-6pct",
+            about: "6 % between spots",
+            spot_pct: 6.0,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "stocks-5pct",
+            about: "stocks 5 % about each paper",
+            between_relative_sd: 0.05,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "stocks-20pct",
+            about: "stocks 20 % about each paper",
+            between_relative_sd: 0.20,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "near-twins",
+            about: "every drawn stock has a twin 1.5 % away",
+            twin_relative: Some(0.015),
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "sheets-3pct",
+            about: "sheets (lots) 3 % about their stock, spots 3 % about their sheet",
+            sheet_relative_sd: 0.03,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "heavy-tailed",
+            about: "stock offsets from Student's t (3 dof), the parameters correlated 0.6",
+            tail_dof: Some(3.0),
+            correlation: 0.6,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "second-instrument",
+            about: "half the held-out sheets on a second instrument, its tile off by N(0, 1.5 %) per sheet",
+            second_instrument_tile_pct: Some(1.5),
+            ..Scenario::AS_TODAY
+        },
+    ];
+
+    /// The scenario called `name`.
+    pub fn named(name: &str) -> Option<Scenario> {
+        Scenario::ALL.into_iter().find(|s| s.name == name)
+    }
+}
+
 /// The size of a study.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Design {
+    /// The world drawn.
+    pub scenario: Scenario,
     /// Independent draws of the population (each: the reference papers and stocks drawn
     /// about each).
     pub draws: usize,
@@ -65,6 +174,7 @@ impl Design {
     /// The study of docs/FORENSIC.md: 10 draws of 32 stocks, 2 library and 4 held-out
     /// sheets of 3 spots.
     pub const FULL: Design = Design {
+        scenario: Scenario::AS_TODAY,
         draws: 10,
         first_draw: 0,
         drawn_per_paper: 3,
@@ -76,6 +186,7 @@ impl Design {
     /// A small one for the tests: 2 draws of 32 stocks, 2 library and 2 held-out sheets
     /// of 2 spots.
     pub const SMALL: Design = Design {
+        scenario: Scenario::AS_TODAY,
         draws: 2,
         first_draw: 0,
         drawn_per_paper: 3,
@@ -109,48 +220,76 @@ pub fn draw_seed(draw: usize) -> u64 {
     FIRST_DRAW_SEED + draw as u64
 }
 
-/// The stocks of draw `draw`: each reference paper and `drawn_per_paper` drawn about it.
+/// The stocks of draw `draw`: each reference paper and `drawn_per_paper` drawn about it
+/// (and each drawn one's twin, when the scenario has twins).
 pub fn stocks(design: &Design, draw: usize) -> Vec<Stock> {
+    let scenario = &design.scenario;
     let mut rng = ChaCha12Rng::seed_from_u64(draw_seed(draw));
     let mut out = Vec::new();
     for r in &REFERENCES {
         let p = r.params;
-        for k in 0..=design.drawn_per_paper {
-            let mut draw = |x: f64, sd: f64| -> f64 {
-                if k == 0 {
-                    return x;
-                }
-                let s2 = (1.0 + sd * sd).ln();
-                let z: f64 = StandardNormal.sample(&mut rng);
-                x * (s2.sqrt() * z - 0.5 * s2).exp()
-            };
-            let sd = evidence::DEFAULT_BETWEEN_RELATIVE_SD;
-            let (sigma, rho_s, rho_d) = (
-                draw(p.sigma_deg, sd[0]),
-                draw(p.rho_s, sd[1]),
-                draw(p.rho_d, sd[2]),
-            );
-            let name = if k == 0 {
-                r.name.to_string()
-            } else {
-                format!("{}#{k}", r.name)
-            };
+        let paper = [p.sigma_deg, p.rho_s, p.rho_d];
+        let mut push = |name: String, params: [f64; 3]| {
             out.push(Stock {
                 name,
-                sample: format!("custom:{sigma},{rho_s},{rho_d},{}", p.eta),
-                params: [sigma, rho_s, rho_d],
+                sample: format!("custom:{},{},{},{}", params[0], params[1], params[2], p.eta),
+                params,
                 class: r.class,
+            })
+        };
+        push(r.name.to_string(), paper);
+        for k in 1..=design.drawn_per_paper {
+            let z = correlated_offsets(&mut rng, scenario);
+            let params: [f64; 3] = std::array::from_fn(|i| {
+                let s2 = (1.0 + scenario.between_relative_sd.powi(2)).ln();
+                paper[i] * (s2.sqrt() * z[i] - 0.5 * s2).exp()
             });
+            push(format!("{}#{k}", r.name), params);
+            if let Some(twin) = scenario.twin_relative {
+                // The twin: every parameter `twin` away, in a drawn direction.
+                let signs: [f64; 3] = std::array::from_fn(|_| {
+                    let u: f64 = StandardNormal.sample(&mut rng);
+                    u.signum()
+                });
+                push(
+                    format!("{}#{k}t", r.name),
+                    std::array::from_fn(|i| params[i] * (1.0 + twin * signs[i])),
+                );
+            }
         }
     }
     out
 }
 
+/// Three standard offsets with the scenario's correlation, from the normal or (heavy
+/// tails) Student's t scaled to unit variance.
+fn correlated_offsets(rng: &mut ChaCha12Rng, scenario: &Scenario) -> [f64; 3] {
+    let z: [f64; 3] = std::array::from_fn(|_| StandardNormal.sample(rng));
+    // One common factor: corr(z_i, z_j) = ρ.
+    let common: f64 = StandardNormal.sample(rng);
+    let rho = scenario.correlation.clamp(0.0, 0.99);
+    let mixed = z.map(|zi| rho.sqrt() * common + (1.0 - rho).sqrt() * zi);
+    match scenario.tail_dof {
+        Some(nu) if nu > 2.0 => {
+            // t = z / √(χ²ν/ν), scaled by √((ν−2)/ν) to unit variance.
+            let chi2: f64 = (0..nu.round() as usize)
+                .map(|_| {
+                    let g: f64 = StandardNormal.sample(rng);
+                    g * g
+                })
+                .sum();
+            let scale = ((nu - 2.0) / nu).sqrt() / (chi2 / nu).sqrt();
+            mixed.map(|m| m * scale)
+        }
+        _ => mixed,
+    }
+}
+
 /// How far apart two stocks' true means are, in between-stock standard deviations
-/// ([`evidence::DEFAULT_BETWEEN_RELATIVE_SD`], in log space) over σ, ρs and ρd together:
+/// ([`STOCK_SPREAD_RELATIVE_SD`], in log space) over σ, ρs and ρd together:
 /// two stocks drawn about one paper are 2.3 apart on average, a drawn stock and its paper 1.6.
 pub fn distance(a: &Stock, b: &Stock) -> f64 {
-    let sd = evidence::DEFAULT_BETWEEN_RELATIVE_SD;
+    let sd = STOCK_SPREAD_RELATIVE_SD;
     (0..3)
         .map(|i| ((a.params[i] / b.params[i]).ln() / (1.0 + sd[i] * sd[i]).ln().sqrt()).powi(2))
         .sum::<f64>()
@@ -182,7 +321,7 @@ pub fn sheet_seed(draw: usize, stock: usize, sheet: usize) -> u64 {
 /// design's own).
 pub fn plan(design: &Design, spot_counts: &[usize]) -> Vec<SheetSpec> {
     let counts = spot_counts_of(design, spot_counts);
-    let n_stocks = REFERENCES.len() * (1 + design.drawn_per_paper);
+    let n_stocks = stocks_per_draw(design);
     let mut out = Vec::new();
     for draw in 0..design.draws {
         for stock in 0..n_stocks {
@@ -200,6 +339,12 @@ pub fn plan(design: &Design, spot_counts: &[usize]) -> Vec<SheetSpec> {
         }
     }
     out
+}
+
+/// Stocks in each draw: the papers, the stocks drawn about them and their twins.
+pub fn stocks_per_draw(design: &Design) -> usize {
+    let twins = usize::from(design.scenario.twin_relative.is_some());
+    REFERENCES.len() * (1 + design.drawn_per_paper * (1 + twins))
 }
 
 /// `spot_counts` with the design's own, sorted, without repeats.
@@ -234,6 +379,9 @@ pub struct MeasuredSheet {
     pub device_seconds: f64,
     /// The sheet as the evidence weighs it: its accepted spots.
     pub measured: Sheet,
+    /// The instrument that measured it (`first`, or `second` in the second-instrument
+    /// scenario).
+    pub instrument: &'static str,
 }
 
 /// Measure one sheet: one multi-spot session, as `gonio measure --sim --spots N`.
@@ -243,14 +391,40 @@ pub fn measure(
     design: &Design,
 ) -> Result<MeasuredSheet, String> {
     let stock = &stocks[spec.stock];
+    let scenario = &design.scenario;
+    // The sheet's own parameters: its stock's, moved by the sheet (lot) level.
+    let mut rng = ChaCha12Rng::seed_from_u64(spec.seed ^ 0x5ee7_1e7e);
+    let s2 = (1.0 + scenario.sheet_relative_sd.powi(2)).ln();
+    let params: [f64; 3] = std::array::from_fn(|i| {
+        let z: f64 = StandardNormal.sample(&mut rng);
+        stock.params[i] * (s2.sqrt() * z - 0.5 * s2).exp()
+    });
+    let eta = stock
+        .sample
+        .rsplit(',')
+        .next()
+        .and_then(|e| e.parse::<f64>().ok())
+        .unwrap_or(2.0);
+    let sample = format!("custom:{},{},{},{eta}", params[0], params[1], params[2]);
+    let held_out = spec.sheet >= design.library_sheets;
+    let second = held_out && spec.sheet % 2 == 1 && scenario.second_instrument_tile_pct.is_some();
     let options = SimOptions {
         seed: spec.seed,
         physics: Physics::Real,
-        sheet_variation: SPOT_VARIATION_PCT,
+        sheet_variation: scenario.spot_pct,
+        tile_error: if second {
+            scenario.second_instrument_tile_pct
+        } else {
+            None
+        },
         ..SimOptions::default()
     };
     let run = super::SimulatedRun {
-        sample: &stock.sample,
+        sample: if scenario.sheet_relative_sd > 0.0 {
+            &sample
+        } else {
+            &stock.sample
+        },
         options: &options,
         policy: Policy::from(design.policy),
         integration_ms: None,
@@ -272,6 +446,7 @@ pub fn measure(
             && !results.iter().any(|r| crate::analysis::flags::ok(&r.flags)),
         device_seconds,
         measured: summary.sheet(&results),
+        instrument: if second { "second" } else { "first" },
     })
 }
 
@@ -332,8 +507,32 @@ pub struct Pair {
     pub stock_a: usize,
     /// Stock of the second.
     pub stock_b: usize,
-    /// log10 LR.
+    /// The reported log10 LR (calibrated, within the library's bounds).
     pub log10_lr: f64,
+    /// The model's own.
+    pub raw_log10_lr: f64,
+    /// The library's bounds it was held within.
+    pub bounds: (f64, f64),
+    /// The kinds of the warnings it carried.
+    pub warnings: Vec<&'static str>,
+    /// Whether its sheets were measured on different instruments.
+    pub instruments_differ: bool,
+}
+
+/// The kind of a warning, as its JSON names it.
+fn warning_kind(w: &evidence::Warning) -> &'static str {
+    use evidence::Warning::*;
+    match w {
+        Demonstration => "demonstration",
+        NotValidated { .. } => "not-validated",
+        SheetLevelAssumed => "sheet-level-assumed",
+        OutOfPopulation { .. } => "out-of-population",
+        Scatter { .. } => "scatter",
+        Flagged { .. } => "flagged",
+        SameMeasurement { .. } => "same-measurement",
+        DifferentInstruments { .. } => "different-instruments",
+        Bounded { .. } => "bounded",
+    }
 }
 
 /// One draw's evidence: every held-out pair and the library searches.
@@ -348,11 +547,16 @@ pub(crate) struct DrawEvidence {
 }
 
 /// The library of `sheets` labelled by stock name.
-fn library(stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Vec<(String, Sheet)> {
+fn library(stocks: &[Stock], sheets: &[&MeasuredSheet]) -> Vec<LibrarySheet> {
     sheets
         .iter()
         .filter(|s| s.in_library)
-        .map(|s| (stocks[s.stock].name.clone(), s.measured.clone()))
+        .map(|s| LibrarySheet {
+            stock: stocks[s.stock].name.clone(),
+            lot: None,
+            instrument: Some(s.instrument.to_string()),
+            sheet: s.measured.clone(),
+        })
         .collect()
 }
 
@@ -365,23 +569,37 @@ pub(crate) fn draw_evidence(
     sheets: &[&MeasuredSheet],
 ) -> Result<DrawEvidence, evidence::EvidenceError> {
     let library = library(stocks, sheets);
-    let population = Population::from_sheets(&library)?;
+    let population = evidence::validation::validate(&library)?;
+    let bounds = population
+        .validation
+        .as_ref()
+        .map_or((0.0, 0.0), |v| v.bounds);
     let held: Vec<&&MeasuredSheet> = sheets.iter().filter(|s| !s.in_library).collect();
+    let questioned = |s: &MeasuredSheet| Questioned {
+        sheet: s.measured.clone(),
+        instrument: Some(s.instrument.to_string()),
+        ..Questioned::default()
+    };
     let mut pairs = Vec::new();
     for (i, a) in held.iter().enumerate() {
         for b in &held[i + 1..] {
-            let e = evidence::likelihood_ratio(&a.measured, &b.measured, &population);
+            let e = evidence::weigh(&questioned(a), &questioned(b), &population);
             pairs.push(Pair {
                 draw,
                 stock_a: a.stock,
                 stock_b: b.stock,
                 log10_lr: e.log10_lr,
+                raw_log10_lr: e.raw_log10_lr,
+                bounds,
+                warnings: e.warnings.iter().map(warning_kind).collect(),
+                instruments_differ: a.instrument != b.instrument,
             });
         }
     }
     let mut misses = Vec::new();
     for s in &held {
-        let first = evidence::rank_stocks(&s.measured, &library, &population)
+        let first = evidence::search(&Questioned::of(s.measured.clone()), &population)
+            .ranking
             .into_iter()
             .next();
         let first = first.and_then(|r| stocks.iter().position(|k| k.name == r.stock));
@@ -590,6 +808,65 @@ pub struct Figures {
     /// The issue's named pairs of reference papers, over every draw: (paper a, paper b,
     /// pairs, pairs with log10 LR < −2, the largest log10 LR).
     pub named: Vec<(&'static str, &'static str, usize, usize, f64)>,
+    /// The scenario drawn.
+    pub scenario: &'static str,
+    /// Pairs reported outside their library's bounds (must be none).
+    pub outside_bounds: usize,
+    /// The narrowest and widest bounds of the draws' libraries.
+    pub bounds_range: ((f64, f64), (f64, f64)),
+    /// Cllr of the model's raw ratios, before calibration and bounds.
+    pub cllr_raw: f64,
+    /// Same-stock pairs reported below 1/100 and different-stock pairs above 100.
+    pub strong_misleading: (usize, usize),
+    /// The reported decades: (from, same-stock pairs, different-stock pairs, mean
+    /// reported log10 LR, observed log10 same:different ratio with half a pair added to
+    /// each count).
+    pub bins: Vec<(f64, usize, usize, f64, f64)>,
+    /// Pairs on different instruments, and those of them warned so.
+    pub instrument_pairs: (usize, usize),
+    /// Pairs with a sheet outside the population, and pairs with a scatter warning.
+    pub warned: (usize, usize),
+}
+
+/// Pairs a decade must hold for its calibration to be judged.
+pub const BIN_MIN_PAIRS: usize = 20;
+
+/// The reported decades of `pairs` (see [`Figures::bins`]).
+fn bins(pairs: &[Pair]) -> Vec<(f64, usize, usize, f64, f64)> {
+    let n_same = pairs
+        .iter()
+        .filter(|p| p.stock_a == p.stock_b)
+        .count()
+        .max(1) as f64;
+    let n_different = pairs
+        .iter()
+        .filter(|p| p.stock_a != p.stock_b)
+        .count()
+        .max(1) as f64;
+    let mut decades: std::collections::BTreeMap<i64, (usize, usize, f64)> = Default::default();
+    for p in pairs {
+        let e = decades.entry(p.log10_lr.floor() as i64).or_default();
+        if p.stock_a == p.stock_b {
+            e.0 += 1
+        } else {
+            e.1 += 1
+        }
+        e.2 += p.log10_lr;
+    }
+    decades
+        .into_iter()
+        .map(|(from, (same, different, sum))| {
+            let observed =
+                (((same as f64 + 0.5) / n_same) / ((different as f64 + 0.5) / n_different)).log10();
+            (
+                from as f64,
+                same,
+                different,
+                sum / (same + different) as f64,
+                observed,
+            )
+        })
+        .collect()
 }
 
 /// Pairs of reference papers the issue names as to be told apart (LR < 1/100).
@@ -668,7 +945,58 @@ pub fn figures(
     let by_classes = by_classes(campaign, &different);
     let spot_use = spot_use(&sheets);
     let named = named_pairs(campaign, &pairs);
+    let bound_of = |p: &Pair| p.bounds;
+    let widths: Vec<(f64, f64)> = pairs.iter().map(bound_of).collect();
+    let narrowest = widths
+        .iter()
+        .copied()
+        .min_by(|a, b| (a.1 - a.0).total_cmp(&(b.1 - b.0)))
+        .unwrap_or((0.0, 0.0));
+    let widest = widths
+        .iter()
+        .copied()
+        .max_by(|a, b| (a.1 - a.0).total_cmp(&(b.1 - b.0)))
+        .unwrap_or((0.0, 0.0));
+    let raw_same: Vec<f64> = pairs
+        .iter()
+        .filter(|p| p.stock_a == p.stock_b)
+        .map(|p| p.raw_log10_lr)
+        .collect();
+    let raw_different: Vec<f64> = pairs
+        .iter()
+        .filter(|p| p.stock_a != p.stock_b)
+        .map(|p| p.raw_log10_lr)
+        .collect();
     let figures = Figures {
+        scenario: campaign.design.scenario.name,
+        outside_bounds: pairs
+            .iter()
+            .filter(|p| p.log10_lr < p.bounds.0 - 1e-12 || p.log10_lr > p.bounds.1 + 1e-12)
+            .count(),
+        bounds_range: (narrowest, widest),
+        cllr_raw: cllr(&raw_same, &raw_different),
+        strong_misleading: (
+            same.iter().filter(|&&x| x < -2.0).count(),
+            different.iter().filter(|p| p.log10_lr > 2.0).count(),
+        ),
+        bins: bins(&pairs),
+        instrument_pairs: (
+            pairs.iter().filter(|p| p.instruments_differ).count(),
+            pairs
+                .iter()
+                .filter(|p| p.instruments_differ && p.warnings.contains(&"different-instruments"))
+                .count(),
+        ),
+        warned: (
+            pairs
+                .iter()
+                .filter(|p| p.warnings.contains(&"out-of-population"))
+                .count(),
+            pairs
+                .iter()
+                .filter(|p| p.warnings.contains(&"scatter"))
+                .count(),
+        ),
         named,
         spots,
         draws: campaign.stocks.len(),
@@ -791,79 +1119,65 @@ fn rate_with_interval(k: usize, n: usize) -> String {
 /// (it treats the pooled trials as independent, though trials of one draw share its
 /// stocks: the per-draw table shows how much the draws differ).
 pub fn claims(f: &Figures) -> Vec<(String, bool)> {
-    let mut out = pooled_claims(f);
-    for &(a, b, n, below, largest) in &f.named {
-        out.push((format!("{a} against {b}: {below} of {n} pairs with log10 LR < −2 (the largest {largest:+.2})"), n > 0 && below == n));
+    let (same_n, diff_n) = f.pairs;
+    let judged: Vec<&(f64, usize, usize, f64, f64)> = f
+        .bins
+        .iter()
+        .filter(|b| b.1 + b.2 >= BIN_MIN_PAIRS)
+        .collect();
+    let worst_bin = judged.iter().map(|b| (b.4 - b.3).abs()).fold(0.0, f64::max);
+    let mut out = vec![
+        (
+            format!(
+                "reported log10 LRs outside their library's ELUB bounds: {} of {} (bounds from [{:+.2}, {:+.2}] to [{:+.2}, {:+.2}])",
+                f.outside_bounds,
+                same_n + diff_n,
+                f.bounds_range.0.0,
+                f.bounds_range.0.1,
+                f.bounds_range.1.0,
+                f.bounds_range.1.1
+            ),
+            f.outside_bounds == 0,
+        ),
+        (
+            format!(
+                "same-stock pairs with LR < 1/100: {} ≤ 1 %",
+                rate_with_interval(f.strong_misleading.0, same_n)
+            ),
+            f.strong_misleading.0 as f64 <= 0.01 * same_n as f64,
+        ),
+        (
+            format!(
+                "different-stock pairs with LR > 100: {} ≤ 1 %",
+                rate_with_interval(f.strong_misleading.1, diff_n)
+            ),
+            f.strong_misleading.1 as f64 <= 0.01 * diff_n as f64,
+        ),
+        (
+            format!(
+                "in every reported decade of ≥ {BIN_MIN_PAIRS} pairs ({} decades), the observed log10 same:different ratio within 1 of the reported (the worst {worst_bin:.2} off)",
+                judged.len()
+            ),
+            worst_bin <= 1.0,
+        ),
+        (
+            format!(
+                "Cllr {:.3} ≤ 0.3 where Cllr_min ≤ 0.2 (Cllr_min {:.3}; the model's raw ratios {:.3})",
+                f.cllr, f.cllr_min, f.cllr_raw
+            ),
+            f.cllr_min > 0.2 || f.cllr <= 0.3,
+        ),
+    ];
+    if f.instrument_pairs.0 > 0 {
+        out.push((
+            format!(
+                "pairs measured on different instruments that say so: {} of {}",
+                f.instrument_pairs.1, f.instrument_pairs.0
+            ),
+            f.instrument_pairs.1 == f.instrument_pairs.0,
+        ));
     }
     out
-}
-
-fn pooled_claims(f: &Figures) -> Vec<(String, bool)> {
-    let (same_n, diff_n) = f.pairs;
-    let rate = f.same_misleading.0 as f64 / same_n.max(1) as f64;
-    let same_upper = wilson(f.same_misleading.0, same_n).1;
-    let search_rate = f.search.0 as f64 / f.search.1.max(1) as f64;
-    let search_lower = wilson(f.search.0, f.search.1).0;
-    let worst = f.per_draw.iter().map(|d| d.cllr).fold(f64::NAN, f64::max);
-    let draw_rates: Vec<f64> = f
-        .per_draw
-        .iter()
-        .map(|d| percent(d.search.0, d.search.1))
-        .collect();
-    let draw_range = match (
-        draw_rates.iter().copied().reduce(f64::min),
-        draw_rates.iter().copied().reduce(f64::max),
-    ) {
-        (Some(lo), Some(hi)) if draw_rates.len() > 1 => format!("; per draw {lo:.1}–{hi:.1} %"),
-        _ => String::new(),
-    };
-    vec![
-        (
-            format!(
-                "Cllr {:.3} bits < 0.3 over {} draws (Cllr_min {:.3}; the worst draw's Cllr {worst:.3})",
-                f.cllr, f.draws, f.cllr_min
-            ),
-            f.cllr < 0.3,
-        ),
-        (
-            format!(
-                "same-stock pairs with LR < 1: {} ≤ 2 % (the upper bound {} 2 %)",
-                rate_with_interval(f.same_misleading.0, same_n),
-                if same_upper <= 0.02 {
-                    "is within"
-                } else {
-                    "exceeds"
-                }
-            ),
-            rate <= 0.02,
-        ),
-        (
-            format!(
-                "same-stock pairs with log10 LR < −2: {}",
-                f.same_misleading.1
-            ),
-            f.same_misleading.1 == 0,
-        ),
-        (
-            format!(
-                "different-stock pairs of different classes with log10 LR > 2: {} (of {diff_n} different-stock pairs)",
-                f.different_misleading.1
-            ),
-            f.different_misleading.1 == 0,
-        ),
-        (
-            format!(
-                "a held-out sheet's stock ranks first in a library search: {} ≥ 95 % (the lower bound {} 95 %{draw_range})",
-                rate_with_interval(f.search.0, f.search.1),
-                if search_lower >= 0.95 {
-                    "also reaches"
-                } else {
-                    "is below"
-                }
-            ),
-            search_rate >= 0.95,
-        ),
-    ]
 }
 
 /// The spots study's table: one row per number of spots per sheet.
@@ -908,10 +1222,28 @@ pub fn summary_markdown(f: &Figures, study: &[Figures]) -> String {
     let (stocks, library, held, spots) = f.counts;
     let _ = writeln!(
         s,
-        "# Forensic validation: {} draws of {stocks} stocks, {library} library sheets, {held} held-out sheets of {} planned spots, {spots} spots accepted\n",
-        f.draws, f.spots
+        "# Forensic validation ({}): {} draws of {stocks} stocks, {library} library sheets, {held} held-out sheets of {} planned spots, {spots} spots accepted\n",
+        f.scenario, f.draws, f.spots
     );
+    if let Some(scenario) = Scenario::named(f.scenario) {
+        let _ = writeln!(
+            s,
+            "The world drawn: {}. The evidence is not told: each draw's population is estimated and validated from that draw's library sheets (`gonio forensic --library`'s procedure), and the held-out pairs are weighed against it.\n",
+            scenario.about
+        );
+    }
     pooled_markdown(&mut s, f);
+    let _ = writeln!(
+        s,
+        "\n## Calibration by reported decade\n\n| reported log10 LR | same-stock pairs | different-stock pairs | mean reported | observed (½ added to each count) |\n|---|---:|---:|---:|---:|"
+    );
+    for (from, same, different, reported, observed) in &f.bins {
+        let _ = writeln!(
+            s,
+            "| [{from:+.0}, {:+.0}) | {same} | {different} | {reported:+.2} | {observed:+.2} |",
+            from + 1.0
+        );
+    }
     draws_markdown(&mut s, f);
     let _ = writeln!(
         s,
@@ -1060,6 +1392,21 @@ fn draws_markdown(s: &mut String, f: &Figures) {
 /// pairs whose log10 LR exceeds x (every draw's pairs together).
 pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Result<(), String> {
     let (same, different) = split(pairs);
+    let caption = if draws == 1 {
+        "Tippett plot: held-out pairs".to_string()
+    } else {
+        format!("Tippett plot: held-out pairs of {draws} population draws")
+    };
+    tippett_svg_of(&same, &different, &caption, path)
+}
+
+/// A Tippett plot of same- and different-stock log10 LRs: the share of each above x.
+pub fn tippett_svg_of(
+    same: &[f64],
+    different: &[f64],
+    caption: &str,
+    path: &std::path::Path,
+) -> Result<(), String> {
     let (lo, hi) = (-10.0f64, 6.0f64);
     let curve = |values: &[f64]| -> Vec<(f64, f64)> {
         let n = values.len().max(1) as f64;
@@ -1071,11 +1418,6 @@ pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Resu
     let root = SVGBackend::new(path, (720, 460)).into_drawing_area();
     let draw = || -> Result<(), Box<dyn std::error::Error>> {
         root.fill(&WHITE)?;
-        let caption = if draws == 1 {
-            "Tippett plot: held-out pairs".to_string()
-        } else {
-            format!("Tippett plot: held-out pairs of {draws} population draws")
-        };
         let mut chart = ChartBuilder::on(&root)
             .caption(caption, ("sans-serif", 20))
             .margin(15)
@@ -1088,11 +1430,11 @@ pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Resu
             .y_desc("share of pairs with log10 LR > x")
             .draw()?;
         chart
-            .draw_series(LineSeries::new(curve(&same), BLUE.stroke_width(2)))?
+            .draw_series(LineSeries::new(curve(same), BLUE.stroke_width(2)))?
             .label(format!("same stock ({} pairs)", same.len()))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         chart
-            .draw_series(LineSeries::new(curve(&different), RED.stroke_width(2)))?
+            .draw_series(LineSeries::new(curve(different), RED.stroke_width(2)))?
             .label(format!("different stocks ({} pairs)", different.len()))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
         chart.draw_series(LineSeries::new(

@@ -251,7 +251,13 @@ fn add_list_export_import_and_remove_measured_sheets() {
 fn search_ranks_the_stock_of_the_sheet_first() {
     let root = temp_dir("library", "search");
     let library = root.join("library.sqlite");
-    for (stock, seeds) in [("PPC", [11u64, 12]), ("G", [13, 14]), ("MC", [15, 16])] {
+    // Four stocks: the fewest a population is estimated from.
+    for (stock, seeds) in [
+        ("PPC", [11u64, 12]),
+        ("G", [13, 14]),
+        ("MC", [15, 16]),
+        ("J1", [17, 18]),
+    ] {
         let dirs: Vec<PathBuf> = seeds
             .iter()
             .map(|&seed| measure(&root, &format!("{stock}-{seed}"), stock, seed))
@@ -263,7 +269,7 @@ fn search_ranks_the_stock_of_the_sheet_first() {
     }
     for (sample, seed) in [("PPC", 21u64), ("G", 22), ("MC", 23)] {
         let sheet = measure(&root, &format!("query-{sample}"), sample, seed);
-        let found = json(&gonio(&[
+        let out = gonio(&[
             "library",
             "search",
             "--library",
@@ -272,7 +278,23 @@ fn search_ranks_the_stock_of_the_sheet_first() {
             "--top",
             "2",
             s(&sheet),
-        ]));
+        ]);
+        // Four stocks of two sheets: too few same-stock pairs to validate the population,
+        // which is said (exit 3).
+        assert_eq!(code(&out), 3, "{}", stderr(&out));
+        let found: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON");
+        assert!(
+            found["warnings"]
+                .as_array()
+                .is_some_and(|w| w.iter().any(|w| w["kind"] == "not-validated")),
+            "{found}"
+        );
+        assert!(
+            found["caveat"]
+                .as_str()
+                .is_some_and(|c| c.contains("not an identification")),
+            "{found}"
+        );
         let ranking = found["ranking"].as_array().expect("ranking");
         assert_eq!(ranking.len(), 2, "{found}");
         assert_eq!(ranking[0]["stock"], sample, "{found}");
@@ -280,17 +302,19 @@ fn search_ranks_the_stock_of_the_sheet_first() {
             ranking[0]["log10_lr"].as_f64() > ranking[1]["log10_lr"].as_f64(),
             "{found}"
         );
-        assert_eq!(found["stocks"], 3);
+        assert_eq!(found["stocks"], 4);
     }
     // A sheet in the library is left out of its own stock: it still ranks its stock first.
-    let found = json(&gonio(&[
+    let out = gonio(&[
         "library",
         "search",
         "--library",
         s(&library),
         "--json",
         s(&root.join("PPC-11")),
-    ]));
+    ]);
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let found: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON");
     assert_eq!(found["ranking"][0]["stock"], "PPC", "{found}");
     assert_eq!(found["ranking"][0]["sheets"], 1, "{found}");
     assert!(found["excluded_own_session"].is_string(), "{found}");
@@ -301,11 +325,11 @@ fn search_ranks_the_stock_of_the_sheet_first() {
         s(&library),
         s(&root.join("query-G")),
     ]);
-    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
     assert!(
         stdout(&out)
             .lines()
-            .nth(2)
+            .nth(3)
             .is_some_and(|l| l.contains(" G ")),
         "{}",
         stdout(&out)

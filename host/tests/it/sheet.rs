@@ -332,10 +332,10 @@ fn two_sheets_of_one_stock_support_the_same_stock_and_the_library_keeps_their_sp
             read_measured(&dirs[0]).unwrap(),
             read_measured(&dirs[1]).unwrap(),
         );
-        let e = host::analysis::evidence::likelihood_ratio(
-            &a.sheet,
-            &b.sheet,
-            &host::analysis::evidence::Population::default_population(),
+        let e = host::analysis::evidence::weigh(
+            &host::analysis::evidence::Questioned::of(a.sheet.clone()),
+            &host::analysis::evidence::Questioned::of(b.sheet.clone()),
+            &host::analysis::evidence::Population::demonstration(),
         );
         assert_eq!(e.n_spots, (3, 3));
         assert_eq!(e.within_known, (true, true));

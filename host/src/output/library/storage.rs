@@ -6,7 +6,7 @@ use super::{
     APPLICATION_ID, LibraryError, Result, SCHEMA_VERSION, SheetRecord, StockInfo, check_text,
     now_utc,
 };
-use crate::analysis::evidence::{Sheet, Spot};
+use crate::analysis::evidence::{LibrarySheet, Sheet, Spot};
 use rusqlite::{Connection, OpenFlags, OptionalExtension, TransactionBehavior, params};
 use serde::Serialize;
 use std::io::{Read, Write};
@@ -744,20 +744,25 @@ impl Library {
         Ok(counts)
     }
 
-    /// Every sheet with its stock name and session SHA-256, ordered as [`Self::records`].
-    pub fn sheets(&self) -> Result<Vec<(String, String, Sheet)>> {
-        let mut out: Vec<(String, String, Sheet)> = Vec::new();
+    /// Every sheet (its stock, lot, instrument and spots) with its session SHA-256, ordered
+    /// as [`Self::records`].
+    pub fn sheets(&self) -> Result<Vec<(String, LibrarySheet)>> {
+        let mut out: Vec<(String, LibrarySheet)> = Vec::new();
         for record in self.records()? {
             let spot = Spot {
                 values: [record.sigma_deg, record.rho_s, record.rho_d],
                 covariance: record.covariance,
             };
             match out.last_mut() {
-                Some(last) if last.1 == record.session_sha256 => last.2.spots.push(spot),
+                Some(last) if last.0 == record.session_sha256 => last.1.sheet.spots.push(spot),
                 _ => out.push((
-                    record.stock,
                     record.session_sha256,
-                    Sheet { spots: vec![spot] },
+                    LibrarySheet {
+                        stock: record.stock,
+                        lot: record.lot,
+                        instrument: Some(record.instrument_serial),
+                        sheet: Sheet { spots: vec![spot] },
+                    },
                 )),
             }
         }

@@ -1,0 +1,158 @@
+//! The normal densities and small matrices the likelihood ratio is made of, over the
+//! compared parameters only (σ, ρs, ρd or the subset both sheets determined).
+use crate::analysis::linalg::{self, Square};
+
+/// A stored 3 × 3 covariance (σ, ρs, ρd in log space).
+pub type Cov3 = [[f64; 3]; 3];
+
+/// The rows and columns of `m` for `params` (indices into σ, ρs, ρd).
+pub(crate) fn restrict(m: &Cov3, params: &[usize]) -> Square {
+    let mut s = Square::zeros(params.len());
+    for (r, &i) in params.iter().enumerate() {
+        for (c, &j) in params.iter().enumerate() {
+            *s.at_mut(r, c) = m[i][j];
+        }
+    }
+    s
+}
+
+/// The entries of `v` for `params`.
+pub(crate) fn pick(v: &[f64; 3], params: &[usize]) -> Vec<f64> {
+    params.iter().map(|&i| v[i]).collect()
+}
+
+pub(crate) fn add(a: &Square, b: &Square) -> Square {
+    Square {
+        n: a.n,
+        a: a.a.iter().zip(&b.a).map(|(x, y)| x + y).collect(),
+    }
+}
+
+pub(crate) fn scale(a: &Square, f: f64) -> Square {
+    Square {
+        n: a.n,
+        a: a.a.iter().map(|x| x * f).collect(),
+    }
+}
+
+pub(crate) fn add3(a: &Cov3, b: &Cov3) -> Cov3 {
+    std::array::from_fn(|r| std::array::from_fn(|c| a[r][c] + b[r][c]))
+}
+
+pub(crate) fn scale3(a: &Cov3, f: f64) -> Cov3 {
+    a.map(|row| row.map(|v| v * f))
+}
+
+/// The covariance with the same correlations as `shape` and the given variances: D R D,
+/// positive semi-definite whenever `shape` is (a variance of 0 gives zero rows).
+pub(crate) fn with_variances(shape: &Cov3, variances: [f64; 3]) -> Cov3 {
+    let sd = variances.map(|v| v.max(0.0).sqrt());
+    std::array::from_fn(|r| {
+        std::array::from_fn(|c| {
+            if r == c {
+                variances[r].max(0.0)
+            } else {
+                let norm = (shape[r][r] * shape[c][c]).sqrt();
+                let rho = if norm > 0.0 { shape[r][c] / norm } else { 0.0 };
+                rho.clamp(-1.0, 1.0) * sd[r] * sd[c]
+            }
+        })
+    })
+}
+
+/// Scatter of `rows` about `mean`, divided by `dof` (at least 1).
+pub(crate) fn scatter<'a>(
+    rows: impl Iterator<Item = &'a [f64; 3]>,
+    mean: &[f64; 3],
+    dof: usize,
+) -> Cov3 {
+    let mut s = [[0.0; 3]; 3];
+    for row in rows {
+        for r in 0..3 {
+            for c in 0..3 {
+                s[r][c] += (row[r] - mean[r]) * (row[c] - mean[c]);
+            }
+        }
+    }
+    scale3(&s, 1.0 / dof.max(1) as f64)
+}
+
+/// ln N(x; mean, cov) by Cholesky; `None` when cov is not positive definite.
+pub(crate) fn log_normal_density(x: &[f64], mean: &[f64], cov: &Square) -> Option<f64> {
+    let quad = mahalanobis_squared(x, mean, cov)?;
+    let l = linalg::cholesky(cov)?;
+    let log_det: f64 = (0..l.n).map(|i| 2.0 * l.at(i, i).ln()).sum();
+    Some(-0.5 * (x.len() as f64 * (2.0 * std::f64::consts::PI).ln() + log_det + quad))
+}
+
+/// (x − mean)ᵀ cov⁻¹ (x − mean); `None` when cov is not positive definite.
+pub(crate) fn mahalanobis_squared(x: &[f64], mean: &[f64], cov: &Square) -> Option<f64> {
+    let l = linalg::cholesky(cov)?;
+    let mut w: Vec<f64> = x.iter().zip(mean).map(|(a, b)| a - b).collect();
+    linalg::forward_substitute(&l, &mut w);
+    Some(w.iter().map(|v| v * v).sum())
+}
+
+/// ln of the mean of exp(values), without overflow.
+pub(crate) fn log_mean_exp(values: &[f64]) -> f64 {
+    let max = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !max.is_finite() {
+        return max;
+    }
+    max + (values.iter().map(|v| (v - max).exp()).sum::<f64>() / values.len() as f64).ln()
+}
+
+/// The one-sided 95 % upper confidence bound of a variance estimated with `dof` degrees of
+/// freedom (normal data): s²·ν / χ²₀.₀₅(ν). Infinite for ν = 0.
+pub(crate) fn upper_variance(variance: f64, dof: usize) -> f64 {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    if dof == 0 {
+        return f64::INFINITY;
+    }
+    match ChiSquared::new(dof as f64) {
+        Ok(chi) => variance * dof as f64 / chi.inverse_cdf(0.05),
+        Err(_) => f64::INFINITY,
+    }
+}
+
+/// The upper-tail probability of a χ² statistic with `dof` degrees of freedom.
+pub(crate) fn chi_squared_tail(statistic: f64, dof: usize) -> f64 {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    match ChiSquared::new(dof.max(1) as f64) {
+        Ok(chi) => chi.sf(statistic.max(0.0)),
+        Err(_) => f64::NAN,
+    }
+}
+
+/// The χ² quantile with `dof` degrees of freedom at probability `p`.
+pub(crate) fn chi_squared_quantile(p: f64, dof: usize) -> f64 {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    match ChiSquared::new(dof.max(1) as f64) {
+        Ok(chi) => chi.inverse_cdf(p),
+        Err(_) => f64::NAN,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_variance_bound_is_above_the_estimate_and_closes_in_with_dof() {
+        let b3 = upper_variance(1.0, 3);
+        let b30 = upper_variance(1.0, 30);
+        let b300 = upper_variance(1.0, 300);
+        assert!(b3 > b30 && b30 > b300 && b300 > 1.0, "{b3} {b30} {b300}");
+        // χ²₀.₀₅(3) = 0.3518: 3 / 0.3518.
+        assert!((b3 - 8.527).abs() < 0.01, "{b3}");
+        assert_eq!(upper_variance(1.0, 0), f64::INFINITY);
+    }
+
+    #[test]
+    fn with_variances_keeps_the_correlation() {
+        let shape = [[4.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let c = with_variances(&shape, [1.0, 4.0, 0.0]);
+        assert!((c[0][1] - 0.5 * 1.0 * 2.0).abs() < 1e-12);
+        assert_eq!(c[2], [0.0, 0.0, 0.0]);
+    }
+}

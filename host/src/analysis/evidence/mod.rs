@@ -1,0 +1,732 @@
+//! The strength of the evidence that two sheets are of the same paper stock, as a
+//! likelihood ratio from a three-level model (Aitken & Lucy 2004, as used for glass and
+//! inks, with a level added): spots scatter about their sheet's mean, sheets (lots, reels)
+//! about their stock's, and stock means are spread over a population whose density is a
+//! kernel estimate over the stocks of a library ([`population`]).
+//!
+//! LR = p(ȳA, ȳB | same stock) / p(ȳA, ȳB | different stocks), with ȳ a sheet's mean over
+//! its spots in (ln σ, ln ρs, ln ρd): the three parameters are positive and their spot-to-
+//! spot variation is relative, so they are closest to normal in log space. η is left out:
+//! it is a property of the material that barely moves between stocks of a kind and is the
+//! worst-determined parameter.
+//!
+//! With U_X = V + W_X/n_X + S_X the variance of sheet X's mean about its stock's mean (V the
+//! sheet level, W_X the spot level — the population's, or the sheet's own scatter where
+//! that is larger —, n_X its spots, S_X its fits' mean covariance: the instrument's noise
+//! and the calibration's shared errors, which do not average out over spots of one
+//! session; counting the noise part in W too errs towards LR = 1), K the population's
+//! kernel and E_i the uncertainty of stock mean m_i:
+//!
+//! - same stock: N(ȳA − ȳB; 0, UA + UB) · (1/m) Σᵢ N(θ*; mᵢ, V* + K + Eᵢ), where θ* and V*
+//!   are the precision-weighted mean of the two sheets and its covariance;
+//! - different stocks: Πₓ (1/m) Σᵢ N(ȳX; mᵢ, UX + K + Eᵢ).
+//!
+//! What is reported is not that raw ratio alone ([`weigh`]): a sheet further from every
+//! stock than the population's density can speak for (Mahalanobis distance beyond the
+//! χ² 99.9 % point) is given no more rarity than a sheet at that edge; the ratio is then
+//! mapped by the calibrator its population's validation fitted and held within that
+//! validation's empirical bounds (ELUB, [`validation`]); and every assumption the data
+//! contradict is a [`Warning`].
+//!
+//! Classes play no part: two sheets either side of a class boundary are weighed by their
+//! parameters, not declared different by the boundary.
+
+mod density;
+pub mod population;
+pub mod validation;
+mod warnings;
+
+pub use population::{LibrarySheet, Population, PopulationSource};
+pub use validation::Validation;
+pub use warnings::{Side, Warning};
+
+use crate::analysis::linalg::{self, Square};
+use crate::analysis::model::PARAM_NAMES;
+use density::{
+    add, chi_squared_quantile, chi_squared_tail, log_mean_exp, log_normal_density,
+    mahalanobis_squared, pick, restrict, scale, with_variances,
+};
+use serde::{Deserialize, Serialize};
+
+/// The parameters compared, in order: σ (degrees), ρs, ρd.
+pub const PARAMS: [&str; 3] = [PARAM_NAMES[0], PARAM_NAMES[1], PARAM_NAMES[2]];
+/// Their labels for a person.
+pub const PARAM_LABELS: [&str; 3] = ["σ (deg)", "ρs", "ρd"];
+
+/// |log10 LR| below which the evidence is reported inconclusive (LR between 1/10 and 10:
+/// "weak" on the ENFSI scale either way).
+pub(crate) const INCONCLUSIVE_LOG10: f64 = 1.0;
+
+/// The χ² probability beyond which a sheet is outside its population: its Mahalanobis
+/// distance to every stock, in the density's own units, is larger than 99.9 % of the
+/// population's own sheets would be.
+pub const OUT_OF_POPULATION_PROBABILITY: f64 = 0.999;
+
+/// The test level at which a sheet's own spot scatter is called larger than the
+/// population's (per parameter, χ² of the sheet's variance against the population's; 1 %
+/// over the three together).
+pub const SCATTER_TEST_LEVEL: f64 = 0.01;
+
+/// One spot of a sheet: its fitted σ (degrees), ρs, ρd and their covariance in those
+/// units; `None` for a parameter the fit did not determine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Spot {
+    /// σ (degrees), ρs, ρd.
+    pub values: [Option<f64>; 3],
+    /// Their covariance (rows and columns of undetermined parameters are ignored).
+    pub covariance: [[f64; 3]; 3],
+}
+
+impl Spot {
+    /// A fit's σ (degrees), ρs, ρd and their covariance: `None` for a parameter the fit
+    /// did not determine.
+    pub(crate) fn of_fit(fit: &crate::analysis::fit::FitResult) -> Spot {
+        use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
+        let index = [SIGMA, RHO_S, RHO_D];
+        Spot {
+            values: index.map(|i| fit.reported(i)),
+            covariance: std::array::from_fn(|r| {
+                std::array::from_fn(|c| fit.covariance[index[r]][index[c]])
+            }),
+        }
+    }
+
+    /// The determined parameters' logs (`None`: not determined or not positive).
+    fn log_values(&self) -> [Option<f64>; 3] {
+        self.values
+            .map(|v| v.filter(|v| *v > 0.0 && v.is_finite()).map(f64::ln))
+    }
+
+    /// Covariance of the logs by the delta method: cov(ln a, ln b) = cov(a, b)/(a·b).
+    fn log_covariance(&self, params: &[usize]) -> Square {
+        let mut s = Square::zeros(params.len());
+        for (r, &i) in params.iter().enumerate() {
+            for (c, &j) in params.iter().enumerate() {
+                let (vi, vj) = (
+                    self.values[i].unwrap_or(f64::NAN),
+                    self.values[j].unwrap_or(f64::NAN),
+                );
+                let v = self.covariance[i][j] / (vi * vj);
+                *s.at_mut(r, c) = if v.is_finite() { v } else { 0.0 };
+            }
+        }
+        s
+    }
+}
+
+/// A measured sheet: one or more spots.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Sheet {
+    /// Its spots.
+    pub spots: Vec<Spot>,
+}
+
+impl Sheet {
+    /// The parameters every spot determined.
+    pub fn determined(&self) -> Vec<usize> {
+        (0..3)
+            .filter(|&i| {
+                !self.spots.is_empty() && self.spots.iter().all(|s| s.log_values()[i].is_some())
+            })
+            .collect()
+    }
+
+    /// Mean of the spots' logs over `params`.
+    fn mean_log(&self, params: &[usize]) -> Vec<f64> {
+        let n = self.spots.len().max(1) as f64;
+        params
+            .iter()
+            .map(|&i| {
+                self.spots
+                    .iter()
+                    .filter_map(|s| s.log_values()[i])
+                    .sum::<f64>()
+                    / n
+            })
+            .collect()
+    }
+
+    /// Mean of the spots' log covariances over `params`.
+    fn mean_log_covariance(&self, params: &[usize]) -> Square {
+        let mut s = Square::zeros(params.len());
+        for spot in &self.spots {
+            let c = spot.log_covariance(params);
+            s.a.iter_mut()
+                .zip(&c.a)
+                .for_each(|(a, b)| *a += b / self.spots.len() as f64);
+        }
+        s
+    }
+}
+
+/// A sheet as it is compared: its spots and what the warnings need to know of it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Questioned {
+    /// Its spots.
+    pub sheet: Sheet,
+    /// Its result's flags (empty: clean).
+    pub flags: Vec<String>,
+    /// What identifies the measurement (a folder's manifest hash), when known.
+    pub identity: Option<String>,
+    /// The instrument that measured it (model and serial), when known.
+    pub instrument: Option<String>,
+}
+
+impl Questioned {
+    /// A sheet with nothing else known of it.
+    pub fn of(sheet: Sheet) -> Questioned {
+        Questioned {
+            sheet,
+            ..Questioned::default()
+        }
+    }
+}
+
+/// Which way the evidence points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Support {
+    /// log10 LR ≥ [`INCONCLUSIVE_LOG10`]: supports the same stock.
+    SameStock,
+    /// log10 LR ≤ −[`INCONCLUSIVE_LOG10`]: supports different stocks.
+    DifferentStocks,
+    /// Between: the evidence does not discriminate.
+    Inconclusive,
+}
+
+impl Support {
+    fn of(log10_lr: f64) -> Support {
+        if log10_lr >= INCONCLUSIVE_LOG10 {
+            Support::SameStock
+        } else if log10_lr <= -INCONCLUSIVE_LOG10 {
+            Support::DifferentStocks
+        } else {
+            Support::Inconclusive
+        }
+    }
+}
+
+/// The weighed evidence of two sheets.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Evidence {
+    /// The reported log10 likelihood ratio (same stock : different stocks): calibrated, and
+    /// within the validation's bounds.
+    pub log10_lr: f64,
+    /// The model's own log10 LR, before calibration and bounds.
+    pub raw_log10_lr: f64,
+    /// After the validation's calibrator, before the bounds (the raw value when there is no
+    /// validation).
+    pub calibrated_log10_lr: f64,
+    /// The validation's empirical lower and upper bounds of log10 LR, if validated.
+    pub bounds: Option<(f64, f64)>,
+    /// Its verbal equivalent on the ENFSI scale.
+    pub verbal: String,
+    /// Which way it points.
+    pub support: Support,
+    /// The parameters compared (names of [`PARAMS`]).
+    pub parameters: Vec<&'static str>,
+    /// The parameters left out, with why.
+    pub left_out: Vec<(&'static str, &'static str)>,
+    /// Raw log10 LR of each compared parameter alone: the main contributors (they do not
+    /// add up to the whole, which accounts for the parameters' correlation).
+    pub contributions: Vec<(&'static str, f64)>,
+    /// Spots of A and of B.
+    pub n_spots: (usize, usize),
+    /// Whether each sheet's own spots could show its within-sheet variation (two or more).
+    pub within_known: (bool, bool),
+    /// Every assumption the data contradict or that was not measured.
+    pub warnings: Vec<Warning>,
+}
+
+/// The ENFSI verbal scale for a log10 likelihood ratio.
+pub fn verbal(log10_lr: f64) -> String {
+    if log10_lr.is_nan() {
+        return "no evidence weighed".to_string();
+    }
+    let magnitude = log10_lr.abs();
+    let strength = if magnitude < 1.0 {
+        "weak"
+    } else if magnitude < 2.0 {
+        "moderate"
+    } else if magnitude < 3.0 {
+        "moderately strong"
+    } else if magnitude < 4.0 {
+        "strong"
+    } else if magnitude < 6.0 {
+        "very strong"
+    } else {
+        "extremely strong"
+    };
+    if magnitude < 1e-9 {
+        "no support for either proposition".to_string()
+    } else if log10_lr > 0.0 {
+        format!("{strength} support for the same stock over different stocks")
+    } else {
+        format!("{strength} support for different stocks over the same stock")
+    }
+}
+
+/// A sheet's mean and its variance about its stock's mean, over `params`.
+struct SheetStats {
+    mean: Vec<f64>,
+    /// V + W_X/n + S_X.
+    around_stock: Square,
+}
+
+/// The sample variances of the spots' log values (n ≥ 2), per parameter.
+fn own_log_variances(sheet: &Sheet) -> Option<[f64; 3]> {
+    let n = sheet.spots.len();
+    if n < 2 {
+        return None;
+    }
+    let logs: Vec<[Option<f64>; 3]> = sheet.spots.iter().map(Spot::log_values).collect();
+    Some(std::array::from_fn(|i| {
+        let values: Vec<f64> = logs.iter().filter_map(|l| l[i]).collect();
+        if values.len() < 2 {
+            return f64::NAN;
+        }
+        let mean = values.iter().sum::<f64>() / values.len() as f64;
+        values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (values.len() - 1) as f64
+    }))
+}
+
+fn sheet_stats(sheet: &Sheet, population: &Population, params: &[usize]) -> SheetStats {
+    let n = sheet.spots.len().max(1) as f64;
+    let spot = &population.spot.used;
+    // The sheet's own scatter where it is larger than the population's: a sheet whose
+    // spots differ more than paper's usually do is not held to the population's figure.
+    let spot = match own_log_variances(sheet) {
+        Some(own) => with_variances(
+            spot,
+            std::array::from_fn(|i| {
+                if own[i].is_finite() {
+                    spot[i][i].max(own[i])
+                } else {
+                    spot[i][i]
+                }
+            }),
+        ),
+        None => *spot,
+    };
+    SheetStats {
+        mean: sheet.mean_log(params),
+        around_stock: add(
+            &add(
+                &restrict(&population.sheet.used, params),
+                &scale(&restrict(&spot, params), 1.0 / n),
+            ),
+            &sheet.mean_log_covariance(params),
+        ),
+    }
+}
+
+/// A point's log density under the population, and that density floored at the
+/// population's edge when the point lies beyond it.
+struct Density {
+    floored: f64,
+    /// Squared Mahalanobis distance to the nearest stock.
+    distance_squared: f64,
+    threshold: f64,
+}
+
+fn population_density(
+    x: &[f64],
+    extra: &Square,
+    population: &Population,
+    params: &[usize],
+) -> Option<Density> {
+    let kernel = restrict(&population.kernel, params);
+    let mut terms = Vec::with_capacity(population.stocks.len());
+    let mut nearest: Option<(f64, f64)> = None;
+    for stock in &population.stocks {
+        let cov = add(&add(extra, &kernel), &restrict(&stock.covariance, params));
+        let mean = pick(&stock.mean, params);
+        let log = log_normal_density(x, &mean, &cov)?;
+        let d2 = mahalanobis_squared(x, &mean, &cov)?;
+        if nearest.is_none_or(|(best, _)| d2 < best) {
+            nearest = Some((d2, log));
+        }
+        terms.push(log);
+    }
+    let (distance_squared, nearest_log) = nearest?;
+    let log = log_mean_exp(&terms);
+    let threshold = chi_squared_quantile(OUT_OF_POPULATION_PROBABILITY, params.len());
+    // Beyond the edge, the density a sheet at the edge would have from its nearest stock.
+    let edge =
+        nearest_log + 0.5 * (distance_squared - threshold) - (population.stocks.len() as f64).ln();
+    let floored = if distance_squared > threshold {
+        log.max(edge)
+    } else {
+        log
+    };
+    Some(Density {
+        floored,
+        distance_squared,
+        threshold,
+    })
+}
+
+/// ln LR over `params`, and A's and B's densities under the population.
+struct LogLr {
+    ln_lr: f64,
+    a: Density,
+    b: Density,
+}
+
+fn log_lr(a: &Sheet, b: &Sheet, population: &Population, params: &[usize]) -> Option<LogLr> {
+    let d = params.len();
+    let (sa, sb) = (
+        sheet_stats(a, population, params),
+        sheet_stats(b, population, params),
+    );
+    let (ya, yb) = (&sa.mean, &sb.mean);
+    // Same stock: the difference, and the precision-weighted mean against the population.
+    let difference = log_normal_density(
+        &ya.iter().zip(yb).map(|(p, q)| p - q).collect::<Vec<_>>(),
+        &vec![0.0; d],
+        &add(&sa.around_stock, &sb.around_stock),
+    )?;
+    let (pa, pb) = (
+        linalg::spd_inverse(&sa.around_stock)?,
+        linalg::spd_inverse(&sb.around_stock)?,
+    );
+    let v_star = linalg::spd_inverse(&add(&pa, &pb))?;
+    let weighted: Vec<f64> = (0..d)
+        .map(|r| {
+            (0..d)
+                .map(|c| pa.at(r, c) * ya[c] + pb.at(r, c) * yb[c])
+                .sum()
+        })
+        .collect();
+    let theta: Vec<f64> = (0..d)
+        .map(|r| (0..d).map(|c| v_star.at(r, c) * weighted[c]).sum())
+        .collect();
+    let joint = population_density(&theta, &v_star, population, params)?;
+    // Different stocks: each sheet against the population on its own.
+    let da = population_density(ya, &sa.around_stock, population, params)?;
+    let db = population_density(yb, &sb.around_stock, population, params)?;
+    let ln_lr = difference + joint.floored - da.floored - db.floored;
+    ln_lr.is_finite().then_some(LogLr {
+        ln_lr,
+        a: da,
+        b: db,
+    })
+}
+
+/// The parameters both sheets determined, and those left out with why.
+fn shared_parameters(a: &Sheet, b: &Sheet) -> (Vec<usize>, Vec<(&'static str, &'static str)>) {
+    let (da, db) = (a.determined(), b.determined());
+    let params: Vec<usize> = (0..3)
+        .filter(|i| da.contains(i) && db.contains(i))
+        .collect();
+    let left_out = (0..3)
+        .filter(|i| !params.contains(i))
+        .map(|i| {
+            (
+                PARAMS[i],
+                if !da.contains(&i) && !db.contains(&i) {
+                    "determined by neither sheet"
+                } else if !da.contains(&i) {
+                    "not determined by A"
+                } else {
+                    "not determined by B"
+                },
+            )
+        })
+        .collect();
+    (params, left_out)
+}
+
+/// The model's raw log10 LR of two sheets over the parameters both determined (0 when
+/// none, or a covariance is degenerate): what validation and calibration are made of.
+pub fn raw_log10_lr(a: &Sheet, b: &Sheet, population: &Population) -> f64 {
+    let (params, _) = shared_parameters(a, b);
+    if params.is_empty() || population.is_empty() {
+        return 0.0;
+    }
+    log_lr(a, b, population, &params).map_or(0.0, |l| l.ln_lr / std::f64::consts::LN_10)
+}
+
+/// The scatter warnings for one sheet: per parameter, its spots' variance against the
+/// population's per spot (χ² with n − 1 degrees of freedom).
+fn scatter_warnings(side: Side, sheet: &Sheet, population: &Population) -> Vec<Warning> {
+    let Some(own) = own_log_variances(sheet) else {
+        return Vec::new();
+    };
+    let dof = sheet.spots.len() - 1;
+    (0..3)
+        .filter_map(|i| {
+            let population_var = population.spot.estimate[i][i];
+            if !(own[i].is_finite() && population_var > 0.0) {
+                return None;
+            }
+            let p_value = chi_squared_tail(dof as f64 * own[i] / population_var, dof);
+            (p_value < SCATTER_TEST_LEVEL / 3.0).then(|| Warning::Scatter {
+                side,
+                parameter: PARAMS[i],
+                own_relative_sd: own[i].exp_m1().sqrt(),
+                population_relative_sd: population_var.exp_m1().sqrt(),
+                p_value,
+            })
+        })
+        .collect()
+}
+
+/// The evidence of A and B against `population`: the raw ratio, calibrated and bounded by
+/// the population's validation when it has one, with every warning the data give.
+pub fn weigh(a: &Questioned, b: &Questioned, population: &Population) -> Evidence {
+    let (params, mut left_out) = shared_parameters(&a.sheet, &b.sheet);
+    let ln10 = std::f64::consts::LN_10;
+    let joint = if params.is_empty() || population.is_empty() {
+        None
+    } else {
+        log_lr(&a.sheet, &b.sheet, population, &params)
+    };
+    if joint.is_none() && !params.is_empty() {
+        left_out.push((
+            "all",
+            "a covariance was not positive definite: no evidence weighed",
+        ));
+    }
+    let raw = joint.as_ref().map_or(0.0, |l| l.ln_lr / ln10);
+    let contributions = params
+        .iter()
+        .map(|&i| {
+            (
+                PARAMS[i],
+                log_lr(&a.sheet, &b.sheet, population, &[i]).map_or(0.0, |l| l.ln_lr / ln10),
+            )
+        })
+        .collect();
+    let mut warnings = Vec::new();
+    if population.is_demonstration() {
+        warnings.push(Warning::Demonstration);
+    }
+    if !population.sheet.measured() && !population.is_demonstration() {
+        warnings.push(Warning::SheetLevelAssumed);
+    }
+    if population.validation.is_none() {
+        warnings.push(Warning::NotValidated {
+            why: "no validation of this population is at hand".into(),
+        });
+    }
+    let same_identity = matches!((&a.identity, &b.identity), (Some(x), Some(y)) if x == y);
+    if same_identity {
+        warnings.push(Warning::SameMeasurement {
+            what: "the same folder".into(),
+        });
+    } else if !a.sheet.spots.is_empty() && a.sheet == b.sheet {
+        warnings.push(Warning::SameMeasurement {
+            what: "the same readings".into(),
+        });
+    }
+    for (side, q) in [(Side::A, a), (Side::B, b)] {
+        if !q.flags.is_empty() {
+            warnings.push(Warning::Flagged {
+                side,
+                flags: q.flags.clone(),
+            });
+        }
+        warnings.extend(scatter_warnings(side, &q.sheet, population));
+    }
+    if let Some(l) = &joint {
+        for (side, d) in [(Side::A, &l.a), (Side::B, &l.b)] {
+            if d.distance_squared > d.threshold {
+                warnings.push(Warning::OutOfPopulation {
+                    side,
+                    distance_squared: d.distance_squared,
+                    threshold: d.threshold,
+                });
+            }
+        }
+    }
+    if let (Some(x), Some(y)) = (&a.instrument, &b.instrument) {
+        if x != y {
+            warnings.push(Warning::DifferentInstruments {
+                a: x.clone(),
+                b: y.clone(),
+            });
+        }
+    }
+    let (calibrated, bounds) = match &population.validation {
+        Some(v) => (v.calibrator.apply(raw), Some(v.bounds)),
+        None => (raw, None),
+    };
+    let log10_lr = match bounds {
+        Some((low, high)) if calibrated > high || calibrated < low => {
+            let bound = calibrated.clamp(low, high);
+            warnings.push(Warning::Bounded {
+                calibrated_log10_lr: calibrated,
+                bound,
+            });
+            bound
+        }
+        _ => calibrated,
+    };
+    Evidence {
+        log10_lr,
+        raw_log10_lr: raw,
+        calibrated_log10_lr: calibrated,
+        bounds,
+        verbal: verbal(log10_lr),
+        support: Support::of(log10_lr),
+        parameters: params.iter().map(|&i| PARAMS[i]).collect(),
+        left_out,
+        contributions,
+        n_spots: (a.sheet.spots.len(), b.sheet.spots.len()),
+        within_known: (a.sheet.spots.len() >= 2, b.sheet.spots.len() >= 2),
+        warnings,
+    }
+}
+
+/// One stock of a search, with the evidence of the searched sheet against it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RankedStock {
+    /// The stock's name.
+    pub stock: String,
+    /// Its sheets in the population.
+    pub sheets: usize,
+    /// log10 LR of "the sheet is of this stock" against "of another stock of the
+    /// population", within the population's validation bounds when it has them.
+    pub log10_lr: f64,
+    /// Before the bounds.
+    pub raw_log10_lr: f64,
+}
+
+/// A search: the population's stocks ranked for one questioned sheet, with the warnings
+/// its data give.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Search {
+    /// Best first.
+    pub ranking: Vec<RankedStock>,
+    /// The warnings (population, flags, scatter, out of population).
+    pub warnings: Vec<Warning>,
+}
+
+/// What a search always says with its ranking.
+pub const SEARCH_CAVEAT: &str = "rank 1 is not an identification: the sheet's true stock may be absent from the library, and every stock's ratio is weighed on its own";
+
+/// The population's stocks ranked by the likelihood ratio of "the questioned sheet is of
+/// this stock" (its mean against the stock's mean, known to the stock's own uncertainty)
+/// against "of another stock" (the population's density, floored at its edge): best
+/// first, ties by name. The bounds are the population's validation's (a comparison of two
+/// sheets, so the search's own ratios are at most as strong as those). What `gonio library
+/// search` prints and the forensic study counts.
+pub fn search(query: &Questioned, population: &Population) -> Search {
+    let mut warnings = Vec::new();
+    if population.is_demonstration() {
+        warnings.push(Warning::Demonstration);
+    }
+    if population.validation.is_none() {
+        warnings.push(Warning::NotValidated {
+            why: "no validation of this population is at hand".into(),
+        });
+    }
+    if !query.flags.is_empty() {
+        warnings.push(Warning::Flagged {
+            side: Side::A,
+            flags: query.flags.clone(),
+        });
+    }
+    warnings.extend(scatter_warnings(Side::A, &query.sheet, population));
+    let params = query.sheet.determined();
+    if params.is_empty() {
+        return Search {
+            ranking: Vec::new(),
+            warnings,
+        };
+    }
+    let stats = sheet_stats(&query.sheet, population, &params);
+    let density = population_density(&stats.mean, &stats.around_stock, population, &params);
+    if let Some(d) = &density {
+        if d.distance_squared > d.threshold {
+            warnings.push(Warning::OutOfPopulation {
+                side: Side::A,
+                distance_squared: d.distance_squared,
+                threshold: d.threshold,
+            });
+        }
+    }
+    let bounds = population.validation.as_ref().map(|v| v.bounds);
+    let mut ranking: Vec<RankedStock> = population
+        .stocks
+        .iter()
+        .map(|stock| {
+            let numerator = log_normal_density(
+                &stats.mean,
+                &pick(&stock.mean, &params),
+                &add(&stats.around_stock, &restrict(&stock.covariance, &params)),
+            );
+            let raw = match (numerator, &density) {
+                (Some(n), Some(d)) => (n - d.floored) / std::f64::consts::LN_10,
+                _ => f64::NAN,
+            };
+            let bounded = match bounds {
+                Some((low, high)) if raw.is_finite() => raw.clamp(low, high),
+                _ => raw,
+            };
+            RankedStock {
+                stock: stock.name.clone(),
+                sheets: stock.sheets,
+                log10_lr: bounded,
+                raw_log10_lr: raw,
+            }
+        })
+        .collect();
+    let key = |r: &RankedStock| r.raw_log10_lr;
+    ranking.sort_by(|a, b| {
+        key(b)
+            .partial_cmp(&key(a))
+            .unwrap_or_else(|| key(a).is_nan().cmp(&key(b).is_nan()))
+            .then_with(|| a.stock.cmp(&b.stock))
+    });
+    Search { ranking, warnings }
+}
+
+/// Why a population could not be made or validated.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum EvidenceError {
+    /// Too few stocks for a between-stock density.
+    #[error(
+        "a population needs sheets of at least {needed} stocks with σ, ρs and ρd determined; it has {found}"
+    )]
+    TooFewStocks {
+        /// Stocks needed.
+        needed: usize,
+        /// Stocks given.
+        found: usize,
+    },
+    /// No sheet has two spots to estimate the within-sheet variation from.
+    #[error("no sheet has two or more spots: the within-sheet variation cannot be estimated")]
+    NoWithinStockVariation,
+    /// The variation came out degenerate (a parameter that never varies).
+    #[error(
+        "the population's {what} covariance is not positive definite (a parameter that does not vary)"
+    )]
+    Degenerate {
+        /// Which level.
+        what: &'static str,
+    },
+    /// Too few stocks to hold two out and still have a population.
+    #[error(
+        "a validation holds two stocks out of the population for every pair, so it needs at least {needed} stocks; it has {found}"
+    )]
+    TooFewStocksToValidate {
+        /// Stocks needed.
+        needed: usize,
+        /// Stocks given.
+        found: usize,
+    },
+    /// Too few pairs of one kind to validate with.
+    #[error(
+        "a validation needs at least {needed} same-stock pairs (stocks with two or more sheets) and as many different-stock pairs; it has {same} and {different}"
+    )]
+    TooFewPairs {
+        /// Pairs of each kind needed.
+        needed: usize,
+        /// Same-stock pairs.
+        same: usize,
+        /// Different-stock pairs.
+        different: usize,
+    },
+}

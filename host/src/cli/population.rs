@@ -1,0 +1,51 @@
+//! The population a comparison or a search weighs against, always named on the command
+//! line: a library of the lab's own stocks, or the demonstration population (never chosen
+//! silently by a file's presence).
+use host::analysis::evidence::{LibrarySheet, Population, validation};
+use host::output::comparison::PopulationInUse;
+use host::output::library::{Library, OpenMode};
+use std::path::PathBuf;
+
+/// Where the population comes from (one of the two is required).
+#[derive(clap::Args, Clone, Debug)]
+#[group(required = true, multiple = false)]
+pub struct PopulationArgs {
+    /// The stock library whose stocks make the population (validated on its own sheets).
+    #[arg(long, value_name = "FILE")]
+    pub library: Option<PathBuf>,
+    /// Weigh against the demonstration population (the eight reference papers with assumed
+    /// variations): for demonstration, not evidence.
+    #[arg(long)]
+    pub demo_population: bool,
+}
+
+impl PopulationArgs {
+    /// The population, with its sheets when it comes from a library (each with its
+    /// session's SHA-256), leaving out the sheets whose SHA-256 is in `exclude`.
+    pub fn load(&self, exclude: &[String]) -> anyhow::Result<PopulationInUse> {
+        let Some(path) = &self.library else {
+            return Ok(PopulationInUse {
+                population: Population::demonstration(),
+                name: "the demonstration population".to_string(),
+                not_validated_because: None,
+            });
+        };
+        let sheets: Vec<LibrarySheet> = Library::open(path, OpenMode::Existing)?
+            .sheets()?
+            .into_iter()
+            .filter(|(sha, _)| !exclude.contains(sha))
+            .map(|(_, sheet)| sheet)
+            .collect();
+        let (population, why) = validation::validate_or_explain(&sheets).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: the library cannot make a population: {e} (add sheets of more stocks, or weigh against --demo-population for a demonstration)",
+                path.display()
+            )
+        })?;
+        Ok(PopulationInUse {
+            population,
+            name: path.display().to_string(),
+            not_validated_because: why.map(|e| e.to_string()),
+        })
+    }
+}
