@@ -1,8 +1,9 @@
 //! The gonio host library. Its folders are its parts:
-//! - [`analysis`]: the model, the fit, the sampling check, classification, comparison and
-//!   the analysis report: pure functions, no I/O;
+//! - [`analysis`]: the model, the fit, the sampling check, classification, comparison,
+//!   the calibration's conversion and uncertainty budget, the arms' motion times and the
+//!   analysis report: pure functions, no I/O;
 //! - [`instrument`]: the link to the instrument, the serial port, the simulator
-//!   connection and the calibration;
+//!   connection and the calibration's files and clock;
 //! - [`session`]: the measurement session's state machine, the adaptive policy and the
 //!   visiting order;
 //! - [`study`]: campaigns over simulated sessions (the speed–accuracy trade);
@@ -14,9 +15,8 @@
 //!
 //! Layers, bottom to top: analysis, instrument, session, output, measure and study (which
 //! runs sessions and draws with output's plots); schema is read from anywhere. A layer
-//! imports only those below it, with one exception left: analysis's uncertainty budget
-//! reads the instrument's calibration type. The `gonio` command line is the binary's
-//! (`src/cli/`), on top of them all.
+//! imports only those below it, without exception. The `gonio` command line is the
+//! binary's (`src/cli/`), on top of them all.
 // The numerics index vectors and matrices as the algebra writes them (a[row][col], l[k]);
 // comparisons written `!(a > b)` are meant to be true for NaN as well.
 #![allow(

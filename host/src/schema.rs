@@ -88,6 +88,39 @@ pub fn of(value: &Value) -> Option<&str> {
     value.get("schema").and_then(Value::as_str)
 }
 
+/// Why a document is not one this gonio reads.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SchemaError {
+    /// Its `schema` (or older `format`) is none of those this gonio reads.
+    #[error(
+        "schema '{found}' is not one this gonio reads ({}){}",
+        .reads.join(", "),
+        newer_hint(.newer)
+    )]
+    NotRead {
+        /// The schema the document names.
+        found: String,
+        /// Those this gonio reads, newest first.
+        reads: Vec<String>,
+        /// Whether it is a newer version of the newest one read.
+        newer: bool,
+    },
+    /// It names no schema and none is assumed.
+    #[error("no 'schema': not a document this gonio reads ({})", .reads.join(", "))]
+    Missing {
+        /// Those this gonio reads, newest first.
+        reads: Vec<String>,
+    },
+}
+
+fn newer_hint(newer: &bool) -> &'static str {
+    if *newer {
+        ": written by a newer gonio; update gonio to read it"
+    } else {
+        ""
+    }
+}
+
 /// Check that a document is of a schema this gonio reads: `reads` lists them, newest
 /// first. A document without `schema` (nor the `format` that older versions wrote) is
 /// accepted only when `unversioned` names what it is then taken for (a file a person
@@ -97,29 +130,22 @@ pub fn check<'a>(
     value: &'a Value,
     reads: &[&'a str],
     unversioned: Option<&'a str>,
-) -> Result<&'a str, String> {
+) -> Result<&'a str, SchemaError> {
     let found = of(value).or_else(|| value.get("format").and_then(Value::as_str));
+    let reads_owned = || reads.iter().map(|r| r.to_string()).collect();
     match (found, unversioned) {
         (Some(found), _) if reads.contains(&found) => Ok(found),
-        (Some(found), _) => {
-            let newer = reads
+        (Some(found), _) => Err(SchemaError::NotRead {
+            found: found.to_string(),
+            reads: reads_owned(),
+            newer: reads
                 .first()
-                .is_some_and(|newest| same_name(found, newest) && version(found) > version(newest));
-            let hint = if newer {
-                ": written by a newer gonio; update gonio to read it"
-            } else {
-                ""
-            };
-            Err(format!(
-                "schema '{found}' is not one this gonio reads ({}){hint}",
-                reads.join(", ")
-            ))
-        }
+                .is_some_and(|newest| same_name(found, newest) && version(found) > version(newest)),
+        }),
         (None, Some(taken_as)) => Ok(taken_as),
-        (None, None) => Err(format!(
-            "no 'schema': not a document this gonio reads ({})",
-            reads.join(", ")
-        )),
+        (None, None) => Err(SchemaError::Missing {
+            reads: reads_owned(),
+        }),
     }
 }
 
@@ -163,12 +189,15 @@ mod tests {
             &reads,
             None,
         )
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(
             newer.contains("'gonio-session/3'") && newer.contains("update gonio"),
             "{newer}"
         );
-        let other = check(&serde_json::json!({"schema": SHEET}), &reads, None).unwrap_err();
+        let other = check(&serde_json::json!({"schema": SHEET}), &reads, None)
+            .unwrap_err()
+            .to_string();
         assert!(
             other.contains("gonio-sheet/2") && !other.contains("update"),
             "{other}"
@@ -176,6 +205,7 @@ mod tests {
         assert!(
             check(&serde_json::json!({}), &reads, None)
                 .unwrap_err()
+                .to_string()
                 .contains("no 'schema'")
         );
         assert_eq!(

@@ -30,11 +30,11 @@
 //! - drift: 0.2 %/h (the reference instrument) times the time since the white readings: nothing within
 //!   a session, 0.8 % for a calibration reused 4 h later.
 
-use crate::analysis::fit::FitResult;
-use crate::analysis::model;
-use crate::instrument::calibration::{
+use crate::analysis::calibration::{
     Calibration, CalibrationError, Conversion, standard_error_counts,
 };
+use crate::analysis::fit::FitResult;
+use crate::analysis::model;
 use protocol::Reading;
 use serde_json::{Value, json};
 
@@ -460,7 +460,7 @@ pub fn to_table(fit: &FitResult) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::instrument::calibration::{GainRatio, Tile, WhitePoint};
+    use crate::analysis::calibration::{GainRatio, Tile, WhitePoint};
 
     fn reading(mean_counts: f32, std_counts: f32, range: u8) -> Reading {
         Reading {
@@ -476,7 +476,8 @@ mod tests {
     /// Darks of 200 counts (σ 130 per sample), whites at 20° and 60° on range 0, and a
     /// calibrated 1/2 ratio.
     fn calibration() -> Calibration {
-        let mut c = Calibration::new(
+        let mut c = Calibration::taken_at(
+            0,
             "test".into(),
             Tile::default(),
             vec![1.0, 0.1, 0.01],

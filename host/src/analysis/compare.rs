@@ -110,10 +110,10 @@ pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareEr
 pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult, CompareError> {
     use crate::schema;
     if schema::of(root).is_some() || root.get("format").is_some() {
-        schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|message| {
+        schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|error| {
             CompareError::Json {
                 path: file.to_path_buf(),
-                message,
+                message: error.to_string(),
             }
         })?;
     }

@@ -1,7 +1,8 @@
 //! The science, pure (no I/O): the TSL model, the fit, the sampling check σ > σ_l,
-//! classification, the comparison of two sheets, the report of one analysis, and the design
-//! of sweeps.
+//! classification, the comparison of two sheets, the report of one analysis, the design
+//! of sweeps, the calibration's conversion of readings and its uncertainty budget.
 pub mod budget;
+pub mod calibration;
 pub mod classify;
 pub mod compare;
 pub mod dataset;
@@ -11,6 +12,7 @@ pub mod flags;
 pub mod gof;
 pub mod linalg;
 pub mod model;
+pub mod motion;
 pub mod result;
 pub mod sampling;
 pub mod spots;

@@ -10,7 +10,8 @@
 //! instrument: the session runs the sweeps (`session::sweep_policy`), records their bins
 //! (`session::sweep_bins`), and the fit models each bin's travel
 //! ([`crate::analysis::model::evaluate_reading`]). The arms' times come through
-//! [`ArmTiming`], which the session's motion model implements.
+//! [`ArmTiming`], which the instrument's motion model ([`crate::analysis::motion::Motion`])
+//! implements.
 use crate::analysis::fit::{FitResult, Observation};
 use crate::analysis::linalg::spd_inverse_free;
 use crate::analysis::model::{self, SIGMA};
@@ -18,7 +19,7 @@ use protocol::Geometry;
 use serde::Serialize;
 
 /// The arms' device times the design needs, as the firmware's motion profiles give them
-/// (the session's motion model implements it from the instrument's limits).
+/// ([`crate::analysis::motion::Motion`] implements it from the instrument's limits).
 pub trait ArmTiming {
     /// The move of both arms from `from` to `to`, µs.
     fn move_us(&self, from: Geometry, to: Geometry) -> u64;
@@ -590,7 +591,7 @@ pub(crate) fn design_peak_sweeps(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::session::order::Motion;
+    use crate::analysis::motion::Motion;
 
     #[test]
     fn a_full_plane_pass_covers_every_incidence_and_alternates() {

@@ -212,14 +212,14 @@ fn analyse_set(
     set: &DataSet,
     options: &FitOptions,
     delta: Option<f64>,
-) -> Result<Report, String> {
+) -> anyhow::Result<Report> {
     let readings = Readings {
         source: &path.display().to_string(),
         sample: &set.sample,
         observations: &set.observations,
         lines: &set.lines,
     };
-    analyse(&readings, options, delta).map_err(|e| e.to_string())
+    Ok(analyse(&readings, options, delta)?)
 }
 
 /// Fit every data set, in parallel over the available cores; results in input order.
@@ -227,7 +227,7 @@ fn analyse_all(
     jobs: &[(usize, &Path, DataSet)],
     options: &FitOptions,
     delta: Option<f64>,
-) -> Vec<Result<Report, String>> {
+) -> Vec<anyhow::Result<Report>> {
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .min(jobs.len().max(1));
@@ -256,7 +256,7 @@ fn analyse_all(
                 // Keep one result per data set even if a thread died, so that results stay aligned.
                 h.join().unwrap_or_else(|_| {
                     (0..len)
-                        .map(|_| Err("1: internal error: the fit panicked".to_string()))
+                        .map(|_| Err(anyhow::anyhow!("1: internal error: the fit panicked")))
                         .collect()
                 })
             })

@@ -117,8 +117,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "simulated sheets of {} population draws",
         design.draws
     ));
-    let campaign = forensic::measure_all(&design, &counts, threads, &|| bar.inc(1))
-        .map_err(anyhow::Error::msg)?;
+    let campaign = forensic::measure_all(&design, &counts, threads, &|| bar.inc(1))?;
     bar.finish_and_clear();
     let (figures, pairs) = forensic::figures(&campaign, design.spots, threads)?;
     let mut study = Vec::new();
@@ -152,7 +151,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     std::fs::write(&csv_path, csv)
         .with_context(|| format!("cannot write {}", csv_path.display()))?;
     let svg = args.out.join("tippett.svg");
-    forensic::tippett_svg(&pairs, design.draws, &svg).map_err(anyhow::Error::msg)?;
+    forensic::tippett_svg(&pairs, design.draws, &svg)?;
     let summary = format!(
         "{}\nEvery spot measured with `--policy {}`.\n",
         forensic::summary_markdown(&figures, &study).trim_end(),

@@ -35,7 +35,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let durations = reliability::session_durations().map_err(anyhow::Error::msg)?;
+    let durations = reliability::session_durations()?;
     let specs: Vec<_> = (0..args.sessions)
         .map(|k| reliability::draw(k, &FaultKind::ALL, &durations))
         .collect();

@@ -68,7 +68,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .progress_chars("=> "),
     );
     bar.set_message("simulated sessions");
-    let rows = trade::run_all(&runs, threads, &|| bar.inc(1)).map_err(anyhow::Error::msg)?;
+    let rows = trade::run_all(&runs, threads, &|| bar.inc(1))?;
     bar.finish_and_clear();
     let csv = args.out.join("trade.csv");
     std::fs::write(&csv, trade::to_csv(&rows))

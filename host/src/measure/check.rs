@@ -1,6 +1,6 @@
 //! The options checked before anything is connected, moved or written.
 use super::{DEFAULT_SPOTS, MAX_SPOTS, MeasureOptions};
-use crate::instrument::calibration::{Tile, max_age_from_hours};
+use crate::analysis::calibration::{Tile, max_age_from_hours};
 use anyhow::{Context, bail};
 use std::time::Duration;
 

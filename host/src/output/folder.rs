@@ -828,7 +828,7 @@ pub(crate) fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Findin
     match std::fs::read_to_string(&path) {
         Ok(text) => Calibration::from_json(&text)
             .map(Some)
-            .map_err(|(line, m)| Finding::new(&path, line, m)),
+            .map_err(|e| Finding::new(&path, e.line(), e.to_string())),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }

@@ -21,7 +21,7 @@ pub enum ReanalysisError {
     NoResult(PathBuf),
     /// The analysis itself failed.
     #[error("{0}")]
-    Analysis(String),
+    Analysis(crate::session::PointsAnalysisError),
 }
 
 /// The session folders of `path`: a sheet's spots, or the session itself.

@@ -25,7 +25,7 @@
 
 use super::{Session, SessionError};
 use crate::analysis::budget::{self, BudgetReading, SharedError};
-use crate::instrument::calibration::{Calibration, GainRatio, pool, standard_error_counts};
+use crate::analysis::calibration::{Calibration, GainRatio, pool, standard_error_counts};
 use crate::instrument::link::{LinkError, Transport};
 use protocol::{Command, ErrorCode, Geometry, Reading, Reply, Target};
 

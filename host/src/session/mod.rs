@@ -448,6 +448,9 @@ pub enum SessionError {
     /// Not enough convertible readings for a fit.
     #[error("the fit failed: {0}")]
     Fit(String),
+    /// The analysis of the readings failed.
+    #[error("the fit failed: {0}")]
+    Analysis(PointsAnalysisError),
     /// The user interrupted the session (Ctrl-C; see [`Client::set_interrupt`]).
     #[error("interrupted by the user")]
     Interrupted,
@@ -991,7 +994,7 @@ impl<'a, T: Transport> Session<'a, T> {
             &self.analysis_settings(),
             now,
         )
-        .map_err(SessionError::Fit)
+        .map_err(SessionError::Analysis)
     }
 
     /// What the session's analysis is made with besides the readings.
@@ -1055,6 +1058,30 @@ fn first_readings(points: &[MeasuredPoint]) -> (Vec<usize>, Vec<Observation>) {
         .unzip()
 }
 
+/// Why a session's readings cannot be analysed. Its message is the whole story: no
+/// `source`, so an error chain (`{:#}`) does not say the fit's error twice.
+#[derive(Debug, thiserror::Error)]
+pub enum PointsAnalysisError {
+    /// The calibration cannot give the errors the readings share.
+    #[error("{0}")]
+    SharedErrors(CalibrationError),
+    /// The fit failed.
+    #[error("{0}")]
+    Fit(crate::analysis::result::AnalysisError),
+}
+
+impl From<CalibrationError> for PointsAnalysisError {
+    fn from(error: CalibrationError) -> Self {
+        PointsAnalysisError::SharedErrors(error)
+    }
+}
+
+impl From<crate::analysis::result::AnalysisError> for PointsAnalysisError {
+    fn from(error: crate::analysis::result::AnalysisError) -> Self {
+        PointsAnalysisError::Fit(error)
+    }
+}
+
 /// The session's analysis of `points` (marks applied, converted with `calibration`): the
 /// fit with the calibration's shared errors as of `now_unix_s`, the σ_l check and the
 /// class. What a session reports, and what `gonio fit DIR` makes again from its folder.
@@ -1064,7 +1091,7 @@ pub(crate) fn analyse_points(
     calibration: Option<&Calibration>,
     settings: &AnalysisSettings,
     now_unix_s: u64,
-) -> Result<Report, String> {
+) -> Result<Report, PointsAnalysisError> {
     let (indices, observations, scaling) = usable_observations_scaled(points);
     let noise_scale_log_variance = scaling.chi2_log_variance(observations.len());
     let shared = match calibration {
@@ -1075,8 +1102,7 @@ pub(crate) fn analyse_points(
                 .filter_map(|&k| points.get(k))
                 .collect::<Vec<_>>(),
             now_unix_s,
-        )
-        .map_err(|e| e.to_string())?,
+        )?,
         None => Vec::new(),
     };
     // Lines of readings.csv: a header, then one per reading.
@@ -1093,7 +1119,7 @@ pub(crate) fn analyse_points(
         noise_scale_log_variance,
         ..FitOptions::default()
     };
-    analyse_with_shared(&readings, &shared, &options, None).map_err(|e| e.to_string())
+    Ok(analyse_with_shared(&readings, &shared, &options, None)?)
 }
 
 /// ", σ ≤ σ_l = …°" of a report whose σ fails the check (the value, so a reader sees how

@@ -281,9 +281,9 @@ pub(crate) fn scale_bin_noise(
                 // Never below what the ADC's resolution alone leaves: on a quiet detector
                 // most windows of a smooth profile read the same counts, their differences
                 // are 0 and so is the median.
-                let counts = crate::instrument::calibration::standard_error_counts(&p.reading);
+                let counts = crate::analysis::calibration::standard_error_counts(&p.reading);
                 let resolution = p.std.map_or(0.0, |s| {
-                    s * crate::instrument::calibration::RESOLUTION_STD_COUNTS / counts
+                    s * crate::analysis::calibration::RESOLUTION_STD_COUNTS / counts
                 });
                 o.std = o.std.map(|s| (s * factor.sqrt()).max(resolution));
                 scaled += 1;

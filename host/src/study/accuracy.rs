@@ -22,7 +22,7 @@ use crate::analysis::classify::{Class, REFERENCES};
 use crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG;
 use crate::analysis::flags::Flag;
 use crate::analysis::model::{Params, RHO_D, RHO_S, SIGMA};
-use crate::instrument::calibration::{DEFAULT_WHITE_RADIANCE_FACTOR, Tile};
+use crate::instrument::calibration::{CalibrationError, DEFAULT_WHITE_RADIANCE_FACTOR, Tile};
 use crate::instrument::sim::{
     IDEAL_PHYSICS, LobeChoice, Physics, REAL_PHYSICS, SimOptions, sample_params,
 };
@@ -312,7 +312,7 @@ pub(crate) fn run_one(case: &Case, spec: &Spec) -> Row {
     };
     match session(case, spec, sim_options(case, spec)) {
         Ok((outcome, truth)) => judge(&mut row, &outcome, &truth),
-        Err(e) => row.failure = Some(e),
+        Err(e) => row.failure = Some(e.to_string()),
     }
     row
 }
@@ -335,10 +335,22 @@ pub(crate) fn stated_uncertainties(case: &Case) -> (f64, f64) {
     (set.tile_error_pct, zero)
 }
 
-fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Params), String> {
-    let truth = sample_params(case.sample).map_err(|e| e.to_string())?;
+/// Why a case's session could not be run (a row's `failure`).
+#[derive(Debug, thiserror::Error)]
+enum CaseError {
+    /// The stated tile uncertainty is not one a tile can have.
+    #[error("{0}")]
+    Tile(CalibrationError),
+    /// The simulated session failed.
+    #[error("{0}")]
+    Simulation(super::SimulationError),
+}
+
+fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Params), CaseError> {
+    let truth = sample_params(case.sample)
+        .map_err(|e| CaseError::Simulation(super::SimulationError::from(e)))?;
     let (tile_pct, arm_zero_deg) = stated_uncertainties(case);
-    let tile = Tile::new(DEFAULT_WHITE_RADIANCE_FACTOR, tile_pct).map_err(|e| e.to_string())?;
+    let tile = Tile::new(DEFAULT_WHITE_RADIANCE_FACTOR, tile_pct).map_err(CaseError::Tile)?;
     let run = super::SimulatedRun {
         sample: case.sample,
         options: &options,
@@ -349,7 +361,8 @@ fn session(case: &Case, spec: &Spec, options: SimOptions) -> Result<(Outcome, Pa
         session
             .with_tile(tile)
             .with_arm_zero_uncertainty(arm_zero_deg)
-    })?;
+    })
+    .map_err(CaseError::Simulation)?;
     Ok((outcome, truth))
 }
 

@@ -384,12 +384,53 @@ pub struct MeasuredSheet {
     pub instrument: &'static str,
 }
 
+/// Why a sheet of the study could not be measured.
+#[derive(Debug, thiserror::Error)]
+pub enum SheetError {
+    /// More spots than a sheet's session numbers.
+    #[error("{0} spots per sheet")]
+    TooManySpots(usize),
+    /// The simulated sheet failed.
+    #[error("{0}")]
+    Simulation(super::SimulationError),
+}
+
+/// Why the study could not be measured or drawn.
+#[derive(Debug, thiserror::Error)]
+pub enum ForensicError {
+    /// A worker thread panicked, leaving its sheet without a result.
+    #[error("a worker panicked")]
+    Panicked,
+    /// A sheet could not be measured.
+    #[error("draw {draw} {stock} sheet {sheet} ({spots} spots): {error}")]
+    Sheet {
+        /// The population draw.
+        draw: usize,
+        /// The stock's name.
+        stock: String,
+        /// The sheet of the stock.
+        sheet: usize,
+        /// Spots planned.
+        spots: usize,
+        /// Why.
+        error: Box<SheetError>,
+    },
+    /// The Tippett plot could not be drawn.
+    #[error("cannot draw {}: {message}", .path.display())]
+    Draw {
+        /// The SVG file.
+        path: std::path::PathBuf,
+        /// The plotting library's message.
+        message: String,
+    },
+}
+
 /// Measure one sheet: one multi-spot session, as `gonio measure --sim --spots N`.
 pub fn measure(
     stocks: &[Stock],
     spec: &SheetSpec,
     design: &Design,
-) -> Result<MeasuredSheet, String> {
+) -> Result<MeasuredSheet, SheetError> {
     let stock = &stocks[spec.stock];
     let scenario = &design.scenario;
     // The sheet's own parameters: its stock's, moved by the sheet (lot) level.
@@ -429,9 +470,9 @@ pub fn measure(
         policy: Policy::from(design.policy),
         integration_ms: None,
     };
-    let planned =
-        u16::try_from(spec.spots).map_err(|_| format!("{} spots per sheet", spec.spots))?;
-    let (outcomes, summary, results) = super::simulated_sheet(&run, planned, |session| session)?;
+    let planned = u16::try_from(spec.spots).map_err(|_| SheetError::TooManySpots(spec.spots))?;
+    let (outcomes, summary, results) =
+        super::simulated_sheet(&run, planned, |session| session).map_err(SheetError::Simulation)?;
     let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>()
         + outcomes.first().map_or(0.0, |o| o.setup_seconds);
     Ok(MeasuredSheet {
@@ -468,7 +509,7 @@ pub fn measure_all(
     spot_counts: &[usize],
     threads: usize,
     progress: &(dyn Fn() + Sync),
-) -> Result<Campaign, String> {
+) -> Result<Campaign, ForensicError> {
     let stocks: Vec<Vec<Stock>> = (0..design.draws)
         .map(|draw| self::stocks(design, design.first_draw + draw))
         .collect();
@@ -477,17 +518,18 @@ pub fn measure_all(
         measure(&stocks[spec.draw], spec, design)
     });
     if measured.len() != specs.len() {
-        return Err("a worker panicked".to_string());
+        return Err(ForensicError::Panicked);
     }
     let sheets = specs
         .iter()
         .zip(measured)
         .map(|(spec, sheet)| {
-            sheet.map_err(|e| {
-                format!(
-                    "draw {} {} sheet {} ({} spots): {e}",
-                    spec.draw, stocks[spec.draw][spec.stock].name, spec.sheet, spec.spots
-                )
+            sheet.map_err(|error| ForensicError::Sheet {
+                draw: spec.draw,
+                stock: stocks[spec.draw][spec.stock].name.clone(),
+                sheet: spec.sheet,
+                spots: spec.spots,
+                error: Box::new(error),
             })
         })
         .collect::<Result<Vec<_>, _>>()?;
@@ -1390,7 +1432,11 @@ fn draws_markdown(s: &mut String, f: &Figures) {
 
 /// A Tippett plot: for each log10 LR x, the share of same-stock and of different-stock
 /// pairs whose log10 LR exceeds x (every draw's pairs together).
-pub fn tippett_svg(pairs: &[Pair], draws: usize, path: &std::path::Path) -> Result<(), String> {
+pub fn tippett_svg(
+    pairs: &[Pair],
+    draws: usize,
+    path: &std::path::Path,
+) -> Result<(), ForensicError> {
     let (same, different) = split(pairs);
     let caption = if draws == 1 {
         "Tippett plot: held-out pairs".to_string()
@@ -1450,5 +1496,8 @@ pub fn tippett_svg_of(
         root.present()?;
         Ok(())
     };
-    draw().map_err(|e| format!("cannot draw {}: {e}", path.display()))
+    draw().map_err(|e| ForensicError::Draw {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
 }

@@ -6,9 +6,11 @@ pub mod reliability;
 pub mod trade;
 pub mod trade_plot;
 
-use crate::instrument::link::{Client, RetryPolicy};
-use crate::instrument::sim::SimOptions;
-use crate::session::{DiscardRecorder, Outcome, Plan, Policy, Session, SimulatedOperator};
+use crate::instrument::link::{Client, LinkError, RetryPolicy};
+use crate::instrument::sim::{SimOptionError, SimOptions};
+use crate::session::{
+    DiscardRecorder, Outcome, Plan, Policy, Session, SessionError, SimulatedOperator,
+};
 use hil_sim::SimInstrument;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -61,16 +63,40 @@ pub struct SimulatedRun<'a> {
     pub integration_ms: Option<u16>,
 }
 
+/// Why a campaign's simulated session or sheet could not be run. Its message is the whole
+/// story: no `source`, so an error chain (`{:#}`) says it once.
+#[derive(Debug, thiserror::Error)]
+pub enum SimulationError {
+    /// The simulator's options or the sample are not usable.
+    #[error("{0}")]
+    Simulator(SimOptionError),
+    /// The simulated instrument did not answer the handshake.
+    #[error("{0}")]
+    Hello(LinkError),
+    /// The session failed.
+    #[error("{0}")]
+    Session(SessionError),
+}
+
+impl From<SimOptionError> for SimulationError {
+    fn from(error: SimOptionError) -> Self {
+        SimulationError::Simulator(error)
+    }
+}
+
+impl From<SessionError> for SimulationError {
+    fn from(error: SessionError) -> Self {
+        SimulationError::Session(error)
+    }
+}
+
 /// The simulated instrument of `run`, greeted, and the plan `gonio measure` would make.
 fn connect(
     run: &SimulatedRun<'_>,
-) -> Result<(Client<SimInstrument>, protocol::DeviceInfo, Plan), String> {
-    let instrument = run
-        .options
-        .instrument(run.sample)
-        .map_err(|e| e.to_string())?;
+) -> Result<(Client<SimInstrument>, protocol::DeviceInfo, Plan), SimulationError> {
+    let instrument = run.options.instrument(run.sample)?;
     let mut client = Client::new(instrument, RetryPolicy::default());
-    let info = client.hello().map_err(|e| e.to_string())?;
+    let info = client.hello().map_err(SimulationError::Hello)?;
     let plan = Plan {
         sample: run.sample.to_string(),
         integration_ms: run.integration_ms.unwrap_or(info.default_integration_ms),
@@ -88,7 +114,7 @@ fn connect(
 pub fn simulated_session(
     run: &SimulatedRun<'_>,
     configure: impl for<'s> FnOnce(Session<'s, SimInstrument>) -> Session<'s, SimInstrument>,
-) -> Result<(Outcome, hil_sim::Truth), String> {
+) -> Result<(Outcome, hil_sim::Truth), SimulationError> {
     let (mut client, info, plan) = connect(run)?;
     let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
     let outcome = configure(Session::new(
@@ -98,8 +124,7 @@ pub fn simulated_session(
         &mut recorder,
         &mut operator,
     ))
-    .run()
-    .map_err(|e| e.to_string())?;
+    .run()?;
     Ok((outcome, client.transport().truth().clone()))
 }
 
@@ -118,7 +143,7 @@ pub fn simulated_sheet(
         crate::analysis::spots::SheetSummary,
         Vec<crate::analysis::spots::SpotResult>,
     ),
-    String,
+    SimulationError,
 > {
     let (mut client, info, plan) = connect(run)?;
     let mut outcomes: Vec<Outcome> = Vec::new();
@@ -154,7 +179,6 @@ pub fn simulated_sheet(
         Vec::new(),
         measure_spot,
         |_| {},
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     Ok((outcomes, summary, results))
 }

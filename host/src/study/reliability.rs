@@ -15,7 +15,7 @@
 use crate::analysis::classify::REFERENCES;
 use crate::analysis::flags::Flag;
 use crate::instrument::link::{Client, LinkError, RetryPolicy, Transport};
-use crate::instrument::sim::SimOptions;
+use crate::instrument::sim::{SimOptionError, SimOptions};
 use crate::session::{
     DelayedOperator, DiscardRecorder, Outcome, Plan, Policy, PolicyChoice, Recoveries, Session,
     SessionError,
@@ -140,8 +140,26 @@ impl Durations {
     }
 }
 
+/// Why the fault-free sessions that time a campaign could not be run.
+#[derive(Debug, thiserror::Error)]
+pub enum DurationsError {
+    /// The simulator could not be set up.
+    #[error("{0}")]
+    Simulator(SimOptionError),
+    /// A fault-free session failed.
+    #[error("fault-free {sample} {policy:?}: {error}")]
+    FaultFree {
+        /// The paper.
+        sample: &'static str,
+        /// The policy.
+        policy: PolicyChoice,
+        /// Why it failed.
+        error: SessionError,
+    },
+}
+
 /// Measure [`Durations`]: one fault-free session per paper and policy.
-pub fn session_durations() -> Result<Durations, String> {
+pub fn session_durations() -> Result<Durations, DurationsError> {
     let mut durations = Vec::new();
     for sample in SAMPLES {
         for policy in [PolicyChoice::Paper, PolicyChoice::Adaptive] {
@@ -156,10 +174,12 @@ pub fn session_durations() -> Result<Durations, String> {
                 drop: 0.0,
                 operator_s: 0.0,
             };
-            let run = run_session(&spec)?;
-            let outcome = run
-                .outcome
-                .map_err(|e| format!("fault-free {sample} {policy:?}: {e}"))?;
+            let run = run_session(&spec).map_err(DurationsError::Simulator)?;
+            let outcome = run.outcome.map_err(|error| DurationsError::FaultFree {
+                sample,
+                policy,
+                error,
+            })?;
             durations.push((sample, policy, run.end_s.max(outcome.session_seconds)));
         }
     }
@@ -220,13 +240,13 @@ pub struct Run {
 }
 
 /// Run `spec` as `gonio measure --sim` would (with a simulated person), in process.
-pub(crate) fn run_session(spec: &Spec) -> Result<Run, String> {
+pub(crate) fn run_session(spec: &Spec) -> Result<Run, SimOptionError> {
     let options = SimOptions {
         seed: spec.seed,
         faults: spec.faults(),
         ..SimOptions::default()
     };
-    let instrument = options.instrument(spec.sample).map_err(|e| e.to_string())?;
+    let instrument = options.instrument(spec.sample)?;
     let mut client = Client::new(instrument, RetryPolicy::default());
     let info = match hello(&mut client) {
         Ok(info) => info,
@@ -416,7 +436,7 @@ pub(crate) fn run_one(spec: &Spec, twin: bool) -> Row {
     let run = match run_session(spec) {
         Ok(run) => run,
         Err(error) => {
-            let mut row = judge(spec, &Err(SessionError::Fit(error)));
+            let mut row = judge(spec, &Err(SessionError::Fit(error.to_string())));
             row.failure = Some("could not be set up".into());
             return row;
         }

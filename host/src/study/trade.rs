@@ -159,9 +159,28 @@ fn rel_err(estimate: Option<f64>, truth: f64) -> f64 {
         .map_or(f64::INFINITY, |e| (e / truth - 1.0).abs())
 }
 
+/// Why the trade study could not be run.
+#[derive(Debug, thiserror::Error)]
+pub enum TradeError {
+    /// A worker thread panicked, leaving its run without a result.
+    #[error("a study thread panicked")]
+    Panicked,
+    /// A session of the study failed.
+    #[error(
+        "{} {} {} seed {} at {} ms: {error}",
+        .spec.policy, .spec.setting, .spec.sample, .spec.seed, .spec.integration_ms
+    )]
+    Run {
+        /// The run.
+        spec: Box<RunSpec>,
+        /// Why it failed.
+        error: super::SimulationError,
+    },
+}
+
 /// Run one whole simulated session and compare it with the truth.
-pub(crate) fn run_one(spec: &RunSpec) -> Result<Row, String> {
-    let truth: Params = sample_params(spec.sample).map_err(|e| e.to_string())?;
+pub(crate) fn run_one(spec: &RunSpec) -> Result<Row, super::SimulationError> {
+    let truth: Params = sample_params(spec.sample)?;
     let expected = REFERENCES
         .iter()
         .find(|r| r.name == spec.sample)
@@ -207,20 +226,18 @@ pub fn run_all(
     runs: &[RunSpec],
     threads: usize,
     progress: &(dyn Fn() + Sync),
-) -> Result<Vec<Row>, String> {
+) -> Result<Vec<Row>, TradeError> {
     let results = super::parallel(runs, threads, progress, run_one);
     if results.len() != runs.len() {
-        return Err("a study thread panicked".to_string());
+        return Err(TradeError::Panicked);
     }
     results
         .into_iter()
         .zip(runs)
         .map(|(row, spec)| {
-            row.map_err(|e| {
-                format!(
-                    "{} {} {} seed {} at {} ms: {e}",
-                    spec.policy, spec.setting, spec.sample, spec.seed, spec.integration_ms
-                )
+            row.map_err(|error| TradeError::Run {
+                spec: Box::new(spec.clone()),
+                error,
             })
         })
         .collect()

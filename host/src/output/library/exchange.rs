@@ -1,7 +1,9 @@
 //! The exchange file (`gonio library export` / `import`): JSON Lines, one
 //! [`ExchangeRecord`] per spot, each line standing on its own; read whole and checked
 //! before anything is imported.
-use super::{LibraryError, Result, SheetRecord, StockInfo, check_spot, check_text, is_sha256_hex};
+use super::{
+    LibraryError, NotFinite, Result, SheetRecord, StockInfo, check_spot, check_text, is_sha256_hex,
+};
 use crate::analysis::evidence::Spot;
 use serde::{Deserialize, Serialize};
 use std::io::BufRead;
@@ -83,8 +85,69 @@ pub(super) struct ImportedSession {
     declared_spots: usize,
 }
 
+/// What is wrong with a line of an exchange file, or with the session its records make.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The line is not a record of this format.
+    #[error("not an exchange record: {0}")]
+    NotRecord(serde_json::Error),
+    /// A record of a schema this gonio does not read.
+    #[error(
+        "schema '{0}', this gonio reads {newest} and {older}",
+        newest = crate::schema::LIBRARY_RECORD,
+        older = crate::schema::LIBRARY_RECORD_V1
+    )]
+    Schema(String),
+    /// A stock name that is not acceptable.
+    #[error(transparent)]
+    StockName(Box<LibraryError>),
+    /// A session identity that is not a SHA-256.
+    #[error("session_sha256 '{0}' is not 64 lowercase hex digits")]
+    BadSessionSha256(String),
+    /// A spot value or covariance that is not finite.
+    #[error(transparent)]
+    NotFinite(#[from] NotFinite),
+    /// A stock given differently than on earlier lines.
+    #[error("stock '{0}' has a different manufacturer or notes than on earlier lines")]
+    StockDiffers(String),
+    /// A session whose first record is not spot 0.
+    #[error("session {session} begins at spot {spot}, not 0")]
+    BeginsAt {
+        /// The session's SHA-256.
+        session: String,
+        /// The spot of its first record.
+        spot: usize,
+    },
+    /// A session whose records are not together.
+    #[error("session {0} appears again after other sessions: a session's records must be together")]
+    SessionAgain(String),
+    /// A record whose sheet or stock differs from its session's first.
+    #[error("a record of session {0} whose sheet or stock fields differ from its first record's")]
+    SheetDiffers(String),
+    /// A spot out of order.
+    #[error("spot {spot} of session {session} out of order (expected {expected})")]
+    OutOfOrder {
+        /// The session's SHA-256.
+        session: String,
+        /// The record's spot.
+        spot: usize,
+        /// The spot expected next.
+        expected: usize,
+    },
+    /// A session with fewer or more records than its records declare.
+    #[error("session {session} has {records} spot records, its records say {declared}")]
+    NotWhole {
+        /// The session's SHA-256.
+        session: String,
+        /// The records read.
+        records: usize,
+        /// The count they declare.
+        declared: usize,
+    },
+}
+
 /// What is wrong, and on which line (1-based).
-type LineError = (usize, String);
+type LineError = (usize, RecordError);
 
 /// Read and check a whole exchange file: every line a record of this format
 /// ([`checked_record`]), the records of one session together, agreeing on the sheet and
@@ -125,34 +188,25 @@ fn parse_exchange(input: &mut dyn BufRead, in_path: &Path) -> Result<Vec<Importe
 
 /// One line as a record of this format, on its own: a schema this gonio reads, an
 /// acceptable stock name, a session SHA-256, finite numbers; with its spot.
-fn checked_record(text: &str) -> std::result::Result<(ExchangeRecord, Spot), String> {
-    let record: ExchangeRecord =
-        serde_json::from_str(text).map_err(|e| format!("not an exchange record: {e}"))?;
+fn checked_record(text: &str) -> std::result::Result<(ExchangeRecord, Spot), RecordError> {
+    let record: ExchangeRecord = serde_json::from_str(text).map_err(RecordError::NotRecord)?;
     if ![
         crate::schema::LIBRARY_RECORD,
         crate::schema::LIBRARY_RECORD_V1,
     ]
     .contains(&record.schema.as_str())
     {
-        return Err(format!(
-            "schema '{}', this gonio reads {} and {}",
-            record.schema,
-            crate::schema::LIBRARY_RECORD,
-            crate::schema::LIBRARY_RECORD_V1
-        ));
+        return Err(RecordError::Schema(record.schema));
     }
-    check_text("stock name", &record.stock).map_err(|e| e.to_string())?;
+    check_text("stock name", &record.stock).map_err(|e| RecordError::StockName(Box::new(e)))?;
     if !is_sha256_hex(&record.session_sha256) {
-        return Err(format!(
-            "session_sha256 '{}' is not 64 lowercase hex digits",
-            record.session_sha256
-        ));
+        return Err(RecordError::BadSessionSha256(record.session_sha256));
     }
     let spot = Spot {
         values: [record.sigma_deg, record.rho_s, record.rho_d],
         covariance: record.covariance,
     };
-    check_spot(&spot).map_err(|e| e.to_string())?;
+    check_spot(&spot)?;
     Ok((record, spot))
 }
 
@@ -193,12 +247,9 @@ impl Sessions {
     }
 
     /// A stock is the same on every line that names it.
-    fn check_stock(&mut self, stock: &StockInfo) -> std::result::Result<(), String> {
+    fn check_stock(&mut self, stock: &StockInfo) -> std::result::Result<(), RecordError> {
         match self.stocks.get(&stock.name) {
-            Some(known) if known != stock => Err(format!(
-                "stock '{}' has a different manufacturer or notes than on earlier lines",
-                stock.name
-            )),
+            Some(known) if known != stock => Err(RecordError::StockDiffers(stock.name.clone())),
             Some(_) => Ok(()),
             None => {
                 self.stocks.insert(stock.name.clone(), stock.clone());
@@ -219,20 +270,14 @@ impl Sessions {
         if record.spot != 0 {
             return Err((
                 line,
-                format!(
-                    "session {} begins at spot {}, not 0",
-                    record.session_sha256, record.spot
-                ),
+                RecordError::BeginsAt {
+                    session: record.session_sha256,
+                    spot: record.spot,
+                },
             ));
         }
         if !self.seen.insert(record.session_sha256.clone()) {
-            return Err((
-                line,
-                format!(
-                    "session {} appears again after other sessions: a session's records must be together",
-                    record.session_sha256
-                ),
-            ));
+            return Err((line, RecordError::SessionAgain(record.session_sha256)));
         }
         if let Some(last) = self.gathered.last() {
             check_whole(last).map_err(|what| (line - 1, what))?;
@@ -261,7 +306,7 @@ impl Sessions {
         record: ExchangeRecord,
         stock: StockInfo,
         spot: Spot,
-    ) -> std::result::Result<(), String> {
+    ) -> std::result::Result<(), RecordError> {
         let Some(last) = self.gathered.last_mut() else {
             return Ok(());
         };
@@ -274,18 +319,14 @@ impl Sessions {
             && last.sheet.added_at == record.added_at
             && last.declared_spots == record.spots;
         if !same_sheet {
-            return Err(format!(
-                "a record of session {} whose sheet or stock fields differ from its first record's",
-                record.session_sha256
-            ));
+            return Err(RecordError::SheetDiffers(record.session_sha256));
         }
         if record.spot != last.sheet.spots.len() {
-            return Err(format!(
-                "spot {} of session {} out of order (expected {})",
-                record.spot,
-                record.session_sha256,
-                last.sheet.spots.len()
-            ));
+            return Err(RecordError::OutOfOrder {
+                session: record.session_sha256,
+                spot: record.spot,
+                expected: last.sheet.spots.len(),
+            });
         }
         last.sheet.spots.push(spot);
         Ok(())
@@ -293,15 +334,14 @@ impl Sessions {
 }
 
 /// A session's records must be all of its spots: the count each record declares.
-fn check_whole(session: &ImportedSession) -> std::result::Result<(), String> {
+fn check_whole(session: &ImportedSession) -> std::result::Result<(), RecordError> {
     if session.sheet.spots.len() == session.declared_spots {
         Ok(())
     } else {
-        Err(format!(
-            "session {} has {} spot records, its records say {}",
-            session.sheet.session_sha256,
-            session.sheet.spots.len(),
-            session.declared_spots
-        ))
+        Err(RecordError::NotWhole {
+            session: session.sheet.session_sha256.clone(),
+            records: session.sheet.spots.len(),
+            declared: session.declared_spots,
+        })
     }
 }

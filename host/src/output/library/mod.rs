@@ -25,7 +25,7 @@ mod storage;
 #[cfg(test)]
 mod tests;
 
-pub use exchange::{ExchangeFile, ExchangeRecord};
+pub use exchange::{ExchangeFile, ExchangeRecord, RecordError};
 pub use ingest::{read_session_folder, session_identity};
 pub use storage::{ImportCounts, Library, OpenMode, Removed, StockSummary, default_path};
 
@@ -175,7 +175,7 @@ pub enum LibraryError {
         /// Its line (1-based).
         line: usize,
         /// What is wrong.
-        what: String,
+        what: exchange::RecordError,
     },
 }
 
@@ -224,7 +224,7 @@ pub(crate) fn now_utc() -> String {
 /// A spot whose value or covariance is not a finite number.
 #[derive(Debug, Error)]
 #[error("a spot value or covariance is not a finite number")]
-pub(crate) struct NotFinite;
+pub struct NotFinite;
 
 /// Every number finite: SQLite stores NaN as NULL, which would change the spot.
 pub(crate) fn check_spot(spot: &Spot) -> std::result::Result<(), NotFinite> {
