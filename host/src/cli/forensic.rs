@@ -197,10 +197,8 @@ fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<
             &v.different,
             "Tippett plot: the library's pairs, validated",
             &out.join("tippett.svg"),
-        )
-        .map_err(anyhow::Error::msg)?;
-        library_validation::ece_svg(&v.same, &v.different, &out.join("ece.svg"))
-            .map_err(anyhow::Error::msg)?;
+        )?;
+        library_validation::ece_svg(&v.same, &v.different, &out.join("ece.svg"))?;
     }
     print!("{summary}");
     println!("wrote {}, tippett.svg and ece.svg", summary_path.display());

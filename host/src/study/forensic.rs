@@ -1452,7 +1452,7 @@ pub fn tippett_svg_of(
     different: &[f64],
     caption: &str,
     path: &std::path::Path,
-) -> Result<(), String> {
+) -> Result<(), ForensicError> {
     let (lo, hi) = (-10.0f64, 6.0f64);
     let curve = |values: &[f64]| -> Vec<(f64, f64)> {
         let n = values.len().max(1) as f64;

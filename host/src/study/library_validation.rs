@@ -33,7 +33,11 @@ pub fn ece(same: &[f64], different: &[f64], prior: f64) -> f64 {
 
 /// The ECE plot over prior log10 odds −3…3: the reported ratios, the same after PAV (the
 /// best they could be calibrated) and the neutral reference (LR = 1).
-pub fn ece_svg(same: &[f64], different: &[f64], path: &Path) -> Result<(), String> {
+pub fn ece_svg(
+    same: &[f64],
+    different: &[f64],
+    path: &Path,
+) -> Result<(), super::forensic::ForensicError> {
     let (pav_same, pav_different) = pav(same, different);
     let priors: Vec<f64> = (0..=120).map(|k| -3.0 + 6.0 * k as f64 / 120.0).collect();
     let curve = |s: &[f64], d: &[f64]| -> Vec<(f64, f64)> {
@@ -79,7 +83,10 @@ pub fn ece_svg(same: &[f64], different: &[f64], path: &Path) -> Result<(), Strin
         root.present()?;
         Ok(())
     };
-    draw().map_err(|e| format!("cannot draw {}: {e}", path.display()))
+    draw().map_err(|e| super::forensic::ForensicError::Draw {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
 }
 
 /// The summary a lab reads: its library's population and what its validation found.
