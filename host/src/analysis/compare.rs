@@ -3,6 +3,7 @@
 //! checked and named when it is missing or wrong. The comparison itself is the likelihood
 //! ratio of [`crate::analysis::evidence`]; a parameter the session reported as null stays
 //! undetermined and is left out there, and the class is carried for information only.
+use serde::{Deserialize, Deserializer};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
@@ -126,75 +127,50 @@ pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult,
         key: key.to_string(),
         expected,
     };
-    let object = root
-        .as_object()
-        .ok_or_else(|| bad("(top level)", "an object"))?;
-
-    let sample = object
-        .get("sample")
-        .ok_or_else(|| missing("sample"))?
-        .as_str()
-        .ok_or_else(|| bad("sample", "a string"))?
-        .to_string();
-    let result = object.get("result").ok_or_else(|| missing("result"))?;
-    let result = result
-        .as_object()
-        .ok_or_else(|| bad("result", "an object"))?;
+    let fail = |found: Found, key: &str, expected: &'static str| match found {
+        Found::Missing => missing(key),
+        Found::Bad => bad(key, expected),
+    };
+    if !root.is_object() {
+        return Err(bad("(top level)", "an object"));
+    }
+    let document = SessionFile::deserialize(root).unwrap_or_default();
+    let sample = document
+        .sample
+        .get()
+        .map_err(|found| fail(found, "sample", "a string"))?;
+    let result = match document.result.get() {
+        Ok(Value::Object(result)) => ResultFile::deserialize(result).unwrap_or_default(),
+        Ok(_) | Err(Found::Bad) => return Err(bad("result", "an object")),
+        Err(Found::Missing) => return Err(missing("result")),
+    };
 
     let mut values = [None; 4];
     for (i, name) in crate::analysis::model::PARAM_NAMES.iter().enumerate() {
         let key = format!("result.{name}");
-        values[i] = match result.get(*name).ok_or_else(|| missing(&key))? {
-            Value::Null => None,
-            v => Some(
-                v.as_f64()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(|| bad(&key, "a number or null"))?,
-            ),
-        };
+        values[i] = result
+            .parameter(name)
+            .get()
+            .map_err(|found| fail(found, &key, "a number or null"))?;
     }
-    let class = match result.get("class").ok_or_else(|| missing("result.class"))? {
-        Value::Null => None,
-        v => Some(
-            v.as_str()
-                .ok_or_else(|| bad("result.class", "a string or null"))?
-                .to_string(),
-        ),
+    let class = result
+        .class
+        .get()
+        .map_err(|found| fail(found, "result.class", "a string or null"))?;
+    // serde_json writes a non-finite covariance as null: treat it as not determined.
+    let covariance = result
+        .covariance
+        .get()
+        .map_err(|found| fail(found, "result.covariance", "a 4×4 array of numbers"))?
+        .map(|row| row.map(|v| v.unwrap_or(0.0)));
+    // Flags as they are written (strings), beside the result or in it; none: clean.
+    let flags = match document.flags {
+        Slot::Is(flags) => flags,
+        _ => match result.flags {
+            Slot::Is(flags) => flags,
+            _ => Vec::new(),
+        },
     };
-
-    let rows = result
-        .get("covariance")
-        .ok_or_else(|| missing("result.covariance"))?;
-    let shape = "a 4×4 array of numbers";
-    let rows = rows
-        .as_array()
-        .filter(|r| r.len() == 4)
-        .ok_or_else(|| bad("result.covariance", shape))?;
-    let mut covariance = [[0.0; 4]; 4];
-    for (i, row) in rows.iter().enumerate() {
-        let row = row
-            .as_array()
-            .filter(|r| r.len() == 4)
-            .ok_or_else(|| bad("result.covariance", shape))?;
-        for (j, v) in row.iter().enumerate() {
-            // serde_json writes a non-finite covariance as null: treat it as not determined.
-            covariance[i][j] = match v {
-                Value::Null => 0.0,
-                v => v.as_f64().ok_or_else(|| bad("result.covariance", shape))?,
-            };
-        }
-    }
-    // Flags are read as they are written (strings); a document without them is clean.
-    let flags = object
-        .get("flags")
-        .or_else(|| result.get("flags"))
-        .and_then(Value::as_array)
-        .map(|a| {
-            a.iter()
-                .map(|f| f.as_str().map_or_else(|| f.to_string(), str::to_string))
-                .collect()
-        })
-        .unwrap_or_default();
     Ok(SessionResult {
         file: file.to_path_buf(),
         sample,
@@ -203,4 +179,78 @@ pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult,
         covariance,
         flags,
     })
+}
+
+/// What the comparison reads of a `session.json`, each key kept apart as [`Slot`] so that a
+/// missing or wrong one is named.
+#[derive(Default, Deserialize)]
+#[serde(default)]
+struct SessionFile {
+    sample: Slot<String>,
+    result: Slot<Value>,
+    flags: Slot<Vec<String>>,
+}
+
+/// What the comparison reads of a session's `result`.
+#[derive(Default, Deserialize)]
+#[serde(default)]
+struct ResultFile {
+    sigma_deg: Slot<Option<f64>>,
+    rho_s: Slot<Option<f64>>,
+    rho_d: Slot<Option<f64>>,
+    eta: Slot<Option<f64>>,
+    class: Slot<Option<String>>,
+    covariance: Slot<[[Option<f64>; 4]; 4]>,
+    flags: Slot<Vec<String>>,
+}
+
+impl ResultFile {
+    /// The parameter named `name` ([`crate::analysis::model::PARAM_NAMES`]).
+    fn parameter(&self, name: &str) -> &Slot<Option<f64>> {
+        match name {
+            "sigma_deg" => &self.sigma_deg,
+            "rho_s" => &self.rho_s,
+            "rho_d" => &self.rho_d,
+            "eta" => &self.eta,
+            _ => &Slot::Missing,
+        }
+    }
+}
+
+/// A key of a document: absent, present but not a `T`, or a `T`.
+#[derive(Default)]
+enum Slot<T> {
+    /// The key is absent.
+    #[default]
+    Missing,
+    /// The key holds something else.
+    Bad,
+    /// The key's value.
+    Is(T),
+}
+
+impl<'de, T: serde::de::DeserializeOwned> Deserialize<'de> for Slot<T> {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let value = Value::deserialize(deserializer)?;
+        Ok(T::deserialize(value).map_or(Slot::Bad, Slot::Is))
+    }
+}
+
+impl<T: Clone> Slot<T> {
+    /// The value, or why there is none.
+    fn get(&self) -> Result<T, Found> {
+        match self {
+            Slot::Missing => Err(Found::Missing),
+            Slot::Bad => Err(Found::Bad),
+            Slot::Is(value) => Ok(value.clone()),
+        }
+    }
+}
+
+/// Why a [`Slot`] holds no value.
+enum Found {
+    /// The key is absent.
+    Missing,
+    /// The key holds something else.
+    Bad,
 }

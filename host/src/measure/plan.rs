@@ -124,12 +124,8 @@ pub(super) fn external_calibration(
     };
     if let Some(serial) = std::fs::read(&session)
         .ok()
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .and_then(|v| {
-            v["instrument"]["serial_number"]
-                .as_str()
-                .map(str::to_string)
-        })
+        .and_then(|b| serde_json::from_slice::<SessionInstrument>(&b).ok())
+        .map(|d| d.instrument.serial_number)
         && serial != info.serial_number.as_str()
     {
         bail!(
@@ -139,4 +135,16 @@ pub(super) fn external_calibration(
         );
     }
     Ok(calibration)
+}
+
+/// What a calibration's `session.json` is read for: the instrument it was taken on.
+#[derive(serde::Deserialize)]
+struct SessionInstrument {
+    instrument: SerialNumber,
+}
+
+/// An instrument's serial number, as `session.json` records it.
+#[derive(serde::Deserialize)]
+struct SerialNumber {
+    serial_number: String,
 }

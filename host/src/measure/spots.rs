@@ -3,7 +3,9 @@
 //! decided by [`crate::session::multi_spot`].
 use super::spot::run_session;
 use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command, status_of};
+use crate::analysis::flags::Flag;
 use crate::analysis::spots::SpotResult;
+use crate::analysis::spots::SpotVerdict;
 use crate::instrument::calibration::Calibration;
 use crate::instrument::link::Transport;
 use crate::output::folder::Status;
@@ -12,7 +14,7 @@ use crate::output::record::Existing;
 use crate::output::sheet_folder::{SheetFolder, SheetResult, read_sheet, read_spot};
 use crate::session::SessionError;
 use anyhow::{Context, bail};
-use serde_json::json;
+use serde::Serialize;
 use std::path::Path;
 
 /// How a spot of a sheet ended, when not measured.
@@ -258,47 +260,80 @@ fn finish(
     })
 }
 
+/// The `--json` object of a sheet (`gonio-sheet-result/1`). Written through
+/// [`serde_json::Value`], whose keys are sorted: the order of the fields does not matter.
+#[derive(Serialize)]
+struct SheetResultDocument<'a> {
+    accepted: usize,
+    device_seconds: Option<f64>,
+    flags: &'a [Flag],
+    notes: &'a [String],
+    ok: bool,
+    rho_d: Option<f64>,
+    rho_s: Option<f64>,
+    sample: &'a str,
+    schema: &'static str,
+    session_dir: String,
+    setup_seconds: Option<f64>,
+    sigma_deg: Option<f64>,
+    spots: Vec<SheetSpotDocument<'a>>,
+    spots_planned: u16,
+    within_log_covariance: Option<[[f64; 3]; 3]>,
+    within_relative_sd: Option<[f64; 3]>,
+}
+
+/// One spot of [`SheetResultDocument`].
+#[derive(Serialize)]
+struct SheetSpotDocument<'a> {
+    class: Option<&'a str>,
+    flags: &'a [Flag],
+    folder: String,
+    number: u16,
+    rho_d: Option<f64>,
+    rho_s: Option<f64>,
+    sigma_deg: Option<f64>,
+    verdict: Option<&'a SpotVerdict>,
+}
+
 /// The `--json` object of a sheet.
 fn sheet_json(sheet: &crate::output::sheet_folder::ReadSheet) -> serde_json::Value {
     let summary = &sheet.summary;
     let result = sheet.doc.result.as_ref();
-    let spots: Vec<serde_json::Value> = sheet
+    let spots = sheet
         .spots
         .iter()
-        .map(|s| {
-            let verdict = summary
+        .map(|s| SheetSpotDocument {
+            class: s.session.class.as_deref(),
+            flags: &s.result.flags,
+            folder: s.dir.display().to_string(),
+            number: s.result.number,
+            rho_d: s.session.values[2],
+            rho_s: s.session.values[1],
+            sigma_deg: s.session.values[0],
+            verdict: summary
                 .verdicts
                 .iter()
                 .find(|j| j.number == s.result.number)
-                .map(|j| j.verdict.clone());
-            json!({
-                "number": s.result.number,
-                "folder": s.dir.display().to_string(),
-                "class": s.session.class,
-                "sigma_deg": s.session.values[0],
-                "rho_s": s.session.values[1],
-                "rho_d": s.session.values[2],
-                "flags": s.result.flags,
-                "verdict": verdict,
-            })
+                .map(|j| &j.verdict),
         })
         .collect();
-    json!({
-        "schema": crate::schema::SHEET_RESULT,
-        "sample": sheet.doc.sample,
-        "session_dir": sheet.dir.display().to_string(),
-        "spots_planned": sheet.doc.spots_planned,
-        "accepted": summary.accepted,
-        "spots": spots,
-        "sigma_deg": summary.mean[0],
-        "rho_s": summary.mean[1],
-        "rho_d": summary.mean[2],
-        "within_relative_sd": summary.within_relative_sd,
-        "within_log_covariance": summary.within_log_covariance,
-        "notes": summary.notes,
-        "device_seconds": result.map(|r| r.device_seconds),
-        "setup_seconds": result.map(|r| r.setup_seconds),
-        "ok": summary.ok(),
-        "flags": summary.flags,
-    })
+    let document = SheetResultDocument {
+        accepted: summary.accepted,
+        device_seconds: result.map(|r| r.device_seconds),
+        flags: &summary.flags,
+        notes: &summary.notes,
+        ok: summary.ok(),
+        rho_d: summary.mean[2],
+        rho_s: summary.mean[1],
+        sample: &sheet.doc.sample,
+        schema: crate::schema::SHEET_RESULT,
+        session_dir: sheet.dir.display().to_string(),
+        setup_seconds: result.map(|r| r.setup_seconds),
+        sigma_deg: summary.mean[0],
+        spots,
+        spots_planned: sheet.doc.spots_planned,
+        within_log_covariance: summary.within_log_covariance,
+        within_relative_sd: summary.within_relative_sd,
+    };
+    serde_json::to_value(&document).expect("a sheet's result serialises to JSON")
 }

@@ -1,11 +1,12 @@
 //! A finished session's result into its folder: the summary files (the ASTM export, the
 //! plots), `session.json` and the manifest.
 use crate::analysis::fit::Observation;
+use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::instrument_name;
+use crate::output::documents::{FinishedSession, SpotResultDocument};
 use crate::output::record::FileRecorder;
 use crate::session::Outcome;
 use anyhow::Context;
-use serde_json::json;
 
 /// Write the result into the folder (summary files, `session.json`, the manifest) and
 /// return the result object printed by `--json`.
@@ -15,41 +16,44 @@ pub(super) fn write_session(
     info: &protocol::DeviceInfo,
     outcome: &Outcome,
 ) -> anyhow::Result<serde_json::Value> {
-    let mut result = crate::analysis::result::to_json(&outcome.report);
-    if let Some(object) = result.as_object_mut() {
-        object.insert("sample".into(), json!(sample));
-        object.insert("geometries".into(), json!(outcome.current_points().count()));
-        object.insert("device_seconds".into(), json!(outcome.device_seconds));
-        object.insert("setup_seconds".into(), json!(outcome.setup_seconds));
-        object.insert("refinements".into(), json!(outcome.refinements));
-        object.insert("covariance".into(), json!(outcome.report.fit.covariance));
-        object.insert("white_drift".into(), json!(outcome.white_drift));
-        object.insert(
-            "white_drift_exceeded".into(),
-            json!(outcome.white_drift_exceeded),
-        );
-        object.insert("ok".into(), json!(outcome.ok()));
-        object.insert("flags".into(), json!(outcome.flags));
-        object.insert(
-            "session_dir".into(),
-            json!(recorder.dir().display().to_string()),
-        );
+    // The analysis's own document, with the session's verdict in place of the analysis's
+    // and without `file` (the folder is `session_dir`).
+    let mut analysis = ResultDocument::of(&outcome.report);
+    analysis.sample = sample.to_string();
+    analysis.ok = outcome.ok();
+    analysis.flags = outcome.flags.clone();
+    analysis.file = None;
+    analysis.schema = crate::schema::SPOT_RESULT.to_string();
+    let covariance = outcome
+        .report
+        .fit
+        .covariance
+        .map(|row| row.map(|x| x.is_finite().then_some(x)));
+    let result = SpotResultDocument {
+        analysis,
         // What `gonio fit DIR` needs to make this analysis again from the folder.
-        object.insert("analysis_settings".into(), json!(outcome.analysis_settings));
-        object.insert("analysed_unix_s".into(), json!(outcome.analysed_unix_s));
-        object.remove("file");
-    }
-    let result = crate::schema::tagged(crate::schema::SPOT_RESULT, result);
-    let mut rest = serde_json::Map::new();
-    rest.insert("ok".into(), json!(outcome.ok()));
-    rest.insert("flags".into(), json!(outcome.flags));
-    rest.insert("calibration".into(), json!(outcome.calibration));
-    rest.insert("readings".into(), json!(outcome.points));
-    rest.insert("fits".into(), json!(outcome.fits));
-    rest.insert("refinements".into(), json!(outcome.refinements));
-    rest.insert("step_checks".into(), json!(outcome.step_checks));
-    rest.insert("recoveries".into(), json!(outcome.recoveries));
-    rest.insert("result".into(), result.clone());
+        analysed_unix_s: Some(outcome.analysed_unix_s),
+        analysis_settings: Some(outcome.analysis_settings),
+        covariance: Some(covariance),
+        device_seconds: Some(outcome.device_seconds),
+        geometries: Some(outcome.current_points().count() as u64),
+        refinements: outcome.refinements.clone(),
+        session_dir: Some(recorder.dir().display().to_string()),
+        setup_seconds: Some(outcome.setup_seconds),
+        white_drift: outcome.white_drift,
+        white_drift_exceeded: outcome.white_drift_exceeded,
+    };
+    let finished = FinishedSession {
+        calibration: &outcome.calibration,
+        fits: &outcome.fits,
+        flags: &outcome.flags,
+        ok: outcome.ok(),
+        readings: &outcome.points,
+        recoveries: &outcome.recoveries,
+        refinements: &outcome.refinements,
+        result: &result,
+        step_checks: &outcome.step_checks,
+    };
     // Superseded readings (taken while an arm was off) stay in session.json, marked, and
     // out of the export.
     let observations: Vec<Observation> = outcome
@@ -104,7 +108,7 @@ pub(super) fn write_session(
     }
     let dir = recorder.dir().to_path_buf();
     recorder
-        .finish(rest, &files)
+        .finish(&finished, &files)
         .with_context(|| format!("cannot write the result into {}", dir.display()))?;
-    Ok(result)
+    Ok(result.to_value())
 }

@@ -62,20 +62,17 @@ fn session_entry(dir: &Path) -> Entry {
             entry.sample = doc.sample.clone();
             entry.status = doc.status.to_string();
             if doc.status == Status::Finished {
-                let result = doc.rest.get("result");
-                entry.classes = vec![result.and_then(|r| r["class"].as_str()).map(str::to_string)];
-                entry.ok = doc.rest.get("ok").and_then(serde_json::Value::as_bool);
-                entry.flags = doc
-                    .rest
-                    .get("flags")
-                    .and_then(|f| f.as_array())
-                    .map(|a| {
-                        a.iter()
-                            .filter_map(|f| f.as_str().map(str::to_string))
-                            .collect()
-                    })
-                    .unwrap_or_default();
-                entry.device_seconds = result.and_then(|r| r["device_seconds"].as_f64());
+                let outcome = doc.outcome();
+                let result = outcome.result();
+                entry.classes = vec![result.and_then(|r| r.class()).map(str::to_string)];
+                entry.ok = outcome.ok();
+                entry.flags = outcome
+                    .flags()
+                    .unwrap_or_default()
+                    .iter()
+                    .map(|f| f.name().to_string())
+                    .collect();
+                entry.device_seconds = result.and_then(|r| r.device_seconds);
             }
         }
         Err(e) => entry.problem = Some(e.to_string()),

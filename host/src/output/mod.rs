@@ -14,7 +14,7 @@
 //! | verification | [`verify`]: every check of a finished folder | `folder`, `manifest`, `sheet_folder` |
 //! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
 //! | store and manifest | [`store`], [`manifest`], [`lock`] | `folder` |
-//! | names and documents | [`folder`]: file names, `session.json`, findings, reading | none |
+//! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json` | none (`documents`: `folder`) |
 //!
 //! [`dataset`] (CSV data sets) stands apart: no folder module uses it. Verification checks
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
@@ -23,6 +23,7 @@ pub mod catalogue;
 pub mod chromium;
 pub mod comparison;
 pub mod dataset;
+pub mod documents;
 pub mod export;
 pub mod folder;
 pub mod library;

@@ -6,6 +6,7 @@
 use crate::analysis::result::{Report, to_json};
 use crate::output::folder::{self, Finding, SESSION};
 use crate::session::{AnalysisSettings, analyse_points};
+use serde::Deserialize;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -33,6 +34,14 @@ pub fn session_folders(path: &Path) -> Result<Vec<PathBuf>, Finding> {
     Ok(vec![path.to_path_buf()])
 }
 
+/// The `result` of a `session.json` as written: the comparison goes key by key over what
+/// the session wrote (a key an older session did not write differs, whatever the typed
+/// document would read it as).
+#[derive(Deserialize)]
+struct RecordedResult {
+    result: Option<Value>,
+}
+
 /// A re-analysis and how it compares with the session's own result.
 pub struct Reanalysis {
     /// The analysis made again.
@@ -44,11 +53,12 @@ pub struct Reanalysis {
 /// Analyse the finished session folder `dir` again from its record.
 pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
     let doc = folder::require_finished(dir)?;
-    let recorded = doc
-        .rest
-        .get("result")
-        .cloned()
+    let recorded = RecordedResult::deserialize(&doc.rest)
+        .ok()
+        .and_then(|r| r.result)
         .ok_or_else(|| ReanalysisError::NoResult(dir.join(SESSION)))?;
+    let outcome = doc.outcome();
+    let document = outcome.result();
     let calibration = folder::read_calibration(dir)?;
     let mut points = crate::output::record::read_points(dir)?;
     if let Some(c) = &calibration {
@@ -58,10 +68,8 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
     }
     // Sessions before these were recorded: the plan's acceptance, the default arm zero, the
     // session's end as the time of the analysis (the result then differs in the drift's share).
-    let settings: AnalysisSettings = recorded
-        .get("analysis_settings")
-        .cloned()
-        .and_then(|v| serde_json::from_value(v).ok())
+    let settings = document
+        .and_then(|d| d.analysis_settings)
         .unwrap_or(AnalysisSettings {
             acceptance_deg: doc.plan.acceptance_deg,
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
@@ -72,10 +80,7 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
         .and_then(|r| r.ended.as_deref())
         .and_then(|t| chrono::DateTime::parse_from_rfc3339(t).ok())
         .map_or(0, |t| t.timestamp().max(0) as u64);
-    let now = recorded
-        .get("analysed_unix_s")
-        .and_then(Value::as_u64)
-        .unwrap_or(ended);
+    let now = document.and_then(|d| d.analysed_unix_s).unwrap_or(ended);
     let mut report = analyse_points(&doc.sample, &points, calibration.as_ref(), &settings, now)
         .map_err(ReanalysisError::Analysis)?;
     report.file = dir.display().to_string();
@@ -95,16 +100,10 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
                 .collect()
         })
         .unwrap_or_default();
-    let recorded_flags: Vec<&str> = recorded
-        .get("flags")
-        .and_then(Value::as_array)
-        .map(|a| a.iter().filter_map(Value::as_str).collect())
+    let recorded_flags = document
+        .map(|d| d.analysis.flags.as_slice())
         .unwrap_or_default();
-    if report
-        .flags
-        .iter()
-        .any(|f| !recorded_flags.contains(&f.name()))
-    {
+    if report.flags.iter().any(|f| !recorded_flags.contains(f)) {
         differences.push("flags".to_string());
     }
     Ok(Reanalysis {

@@ -13,6 +13,7 @@
 //! [`FileRecorder::finish`] writes the result and the manifest, [`FileRecorder::stop`] the
 //! status of a failed or interrupted session and how to resume it.
 use crate::instrument::calibration::Calibration;
+use crate::output::documents::FinishedSession;
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, Finding, Inspection, InstrumentRecord, LOG, MANIFEST, POINTS,
     PlanRecord, READINGS, READINGS_HEADER, Run, RunOutcome, SESSION, SessionDoc, Status,
@@ -261,12 +262,12 @@ impl FileRecorder {
     }
 
     /// The session finished: the summary files (`files`: name and bytes), then
-    /// `session.json` with status finished and `result` (the readings, fits, result, ok,
-    /// flags…: whatever the caller puts in it), then the manifest. Nothing is written into
-    /// the folder after it.
-    pub fn finish(
+    /// `session.json` with status finished, what `finished` holds (the readings, fits,
+    /// result, ok, flags…) and every run's decisions, then the manifest. Nothing is written
+    /// into the folder after it.
+    pub(crate) fn finish(
         &mut self,
-        result: serde_json::Map<String, serde_json::Value>,
+        finished: &FinishedSession<'_>,
         files: &[(String, Vec<u8>)],
     ) -> io::Result<()> {
         self.check_failed()?;
@@ -279,14 +280,16 @@ impl FileRecorder {
         self.doc.status = Status::Finished;
         self.doc.why = None;
         self.doc.resume_with = None;
-        self.doc.rest = result;
-        let all: Vec<serde_json::Value> = self
-            .doc
-            .runs
-            .iter()
-            .flat_map(|r| r.decisions.iter().cloned().map(serde_json::Value::from))
-            .collect();
-        self.doc.rest.insert("decisions".into(), all.into());
+        let closing = Closing {
+            finished,
+            decisions: self
+                .doc
+                .runs
+                .iter()
+                .flat_map(|r| r.decisions.iter().map(String::as_str))
+                .collect(),
+        };
+        self.doc.rest = serde_json::from_value(serde_json::to_value(&closing)?)?;
         self.store.replace(SESSION, &json_bytes(&self.doc)?)?;
         self.store.sync_all()?;
         write_manifest(&mut self.store)
@@ -329,6 +332,15 @@ impl FileRecorder {
             self.failed.get_or_insert(e);
         }
     }
+}
+
+/// The parts a finished session adds to `session.json`: the caller's, and the decisions of
+/// every run.
+#[derive(serde::Serialize)]
+struct Closing<'a> {
+    #[serde(flatten)]
+    finished: &'a FinishedSession<'a>,
+    decisions: Vec<&'a str>,
 }
 
 fn new_run(run: u32, readings_before: usize) -> Run {
@@ -431,10 +443,9 @@ impl Existing {
                 dir: dir.to_path_buf(),
                 sample: doc.sample.clone(),
                 class: doc
-                    .rest
-                    .get("result")
-                    .and_then(|r| r.get("class"))
-                    .and_then(|c| c.as_str())
+                    .outcome()
+                    .result()
+                    .and_then(|r| r.class())
                     .map(str::to_string),
                 ended: doc
                     .runs

@@ -15,10 +15,10 @@
 use crate::analysis::flags::Flag;
 use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::Calibration;
+use crate::output::documents::SpotResultDocument;
 use crate::output::folder::{Finding, MANIFEST, REPORT, SessionDoc};
 use maud::{DOCTYPE, Markup, PreEscaped, Render, html};
 use serde::Deserialize;
-use serde_json::Value;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
@@ -200,32 +200,16 @@ fn case_section(case: Option<&crate::output::folder::CaseRecord>) -> Markup {
     }
 }
 
-/// What the report reads of a session's `result`: the analysis and what the session added.
-#[derive(Debug, Default, Deserialize)]
-#[serde(default)]
-struct SpotResult {
-    /// The analysis.
-    #[serde(flatten)]
-    analysis: ResultDocument,
-    /// Geometries the result rests on.
-    geometries: Option<u64>,
-    /// Device time measuring, seconds.
-    device_seconds: Option<f64>,
-    /// Device time of homing and calibration, seconds.
-    setup_seconds: Option<f64>,
-}
-
 /// The `result` of the session `doc` of the folder `dir` (all absent when it has none).
-fn spot_result(dir: &Path, doc: &SessionDoc) -> Result<SpotResult, ReportError> {
-    doc.rest.get("result").map_or_else(
-        || Ok(SpotResult::default()),
-        |v| {
-            SpotResult::deserialize(v).map_err(|source| ReportError::Result {
-                path: dir.to_path_buf(),
-                source,
-            })
-        },
-    )
+fn spot_result(dir: &Path, doc: &SessionDoc) -> Result<SpotResultDocument, ReportError> {
+    doc.outcome()
+        .result
+        .transpose()
+        .map(Option::unwrap_or_default)
+        .map_err(|source| ReportError::Result {
+            path: dir.to_path_buf(),
+            source,
+        })
 }
 
 /// The result of one session (one spot): class, parameters, fit, budget, plots.
@@ -312,7 +296,7 @@ fn parameters_table(r: &ResultDocument) -> Markup {
 }
 
 /// The σ_l check and the goodness of fit, with the geometries and the device time.
-fn sampling_table(result: &SpotResult) -> Markup {
+fn sampling_table(result: &SpotResultDocument) -> Markup {
     let r = &result.analysis;
     let sigma_ok = if r.sigma_ok {
         "yes"
@@ -652,13 +636,11 @@ fn session_doc(dir: &Path) -> Result<SessionDoc, ReportError> {
 
 /// The session's `ok` and `flags` (not clean and none when absent or unreadable).
 fn outcome_of(doc: &SessionDoc) -> (bool, Vec<Flag>) {
-    let ok = doc.rest.get("ok").and_then(Value::as_bool).unwrap_or(false);
-    let flags = doc
-        .rest
-        .get("flags")
-        .and_then(|f| Vec::<Flag>::deserialize(f).ok())
-        .unwrap_or_default();
-    (ok, flags)
+    let outcome = doc.outcome();
+    (
+        outcome.ok().unwrap_or(false),
+        outcome.flags().unwrap_or_default().to_vec(),
+    )
 }
 
 /// The report of the finished session folder `dir`.

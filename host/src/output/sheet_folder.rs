@@ -14,6 +14,7 @@ use crate::analysis::compare::{SessionResult, session_result};
 use crate::analysis::evidence::{Sheet, Spot};
 use crate::analysis::flags::Flag;
 use crate::analysis::spots::{self, SheetSummary, SpotResult};
+use crate::output::documents::SpotResultDocument;
 use crate::output::folder::{
     self, Finding, MANIFEST, SESSION, SHEET, Status, dated_folder_name, is_sheet_folder,
     json_bytes, spot_folder,
@@ -329,6 +330,8 @@ pub struct ReadSpot {
     pub result: SpotResult,
     /// Its session's device seconds measuring, and homing-and-calibration seconds.
     pub seconds: (f64, f64),
+    /// Its session's `result` (all absent when it cannot be read as one).
+    pub document: SpotResultDocument,
 }
 
 /// Read a finished spot folder's result.
@@ -343,21 +346,18 @@ pub(crate) fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
     let session = serde_json::to_value(&doc)
         .map_err(|e| problem(e.to_string()))
         .and_then(|v| session_result(&file, &v).map_err(|e| problem(e.to_string())))?;
-    let flags: Vec<Flag> = doc
-        .rest
-        .get("flags")
-        .cloned()
-        .map(serde_json::from_value)
+    let outcome = doc.outcome();
+    let flags: Vec<Flag> = outcome
+        .flags
         .transpose()
         .map_err(|e| problem(format!("flags: {e}")))?
         .unwrap_or_default();
-    let number_of = |key: &str| {
-        doc.rest
-            .get("result")
-            .and_then(|r| r.get(key))
-            .and_then(serde_json::Value::as_f64)
-            .unwrap_or(0.0)
-    };
+    // Seconds a session did not record (or not as numbers) count as none.
+    let result = outcome.result.and_then(Result::ok).unwrap_or_default();
+    let seconds = (
+        result.device_seconds.unwrap_or(0.0),
+        result.setup_seconds.unwrap_or(0.0),
+    );
     let mut covariance = [[0.0; 3]; 3];
     for (r, row) in covariance.iter_mut().enumerate() {
         row.copy_from_slice(&session.covariance[r][..3]);
@@ -368,7 +368,8 @@ pub(crate) fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
     };
     Ok(ReadSpot {
         dir: dir.to_path_buf(),
-        seconds: (number_of("device_seconds"), number_of("setup_seconds")),
+        seconds,
+        document: result,
         result: SpotResult {
             number,
             flags,

@@ -291,7 +291,7 @@ pub struct FitStep {
 }
 
 /// A refinement taken, and why.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Refinement {
     /// Strategy 2's δ (the paper's policy); `None` for an adaptive batch.
     pub delta_deg: Option<u8>,
@@ -301,6 +301,8 @@ pub struct Refinement {
     pub reason: String,
     /// An adaptive batch taken because the fit was flagged lack-of-fit (the tails; see
     /// [`adaptive::lack_of_fit_batch`]): these count against [`adaptive::LACK_OF_FIT_BATCHES`].
+    /// Sessions of the first version did not record it: read as false.
+    #[serde(default)]
     pub lack_of_fit: bool,
 }
 

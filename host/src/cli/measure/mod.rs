@@ -136,20 +136,13 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
             None => "?".to_string(),
         };
         // The spot's own report, as its session.json holds it.
-        let result = std::fs::read(s.dir.join(host::output::folder::SESSION))
-            .ok()
-            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-            .map(|v| v["result"].clone())
-            .unwrap_or_default();
-        let interval = |key: &str, digits: usize| match result["ci95"][key]
-            .as_array()
-            .map(|a| (a[0].as_f64(), a[1].as_f64()))
-        {
-            Some((Some(lo), Some(hi))) => format!(" [{lo:.digits$}, {hi:.digits$}]"),
+        let result = &s.document;
+        let interval = |key: &str, digits: usize| match result.interval(key) {
+            Some([Some(lo), Some(hi)]) => format!(" [{lo:.digits$}, {hi:.digits$}]"),
             _ => String::new(),
         };
-        let confidence = result["class_confidence"]
-            .as_f64()
+        let confidence = result
+            .class_confidence()
             .map_or_else(String::new, |c| format!(" (confidence {c:.2})"));
         println!(
             "  spot {}: class {}{confidence}  {verdict}",
@@ -167,9 +160,9 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
         );
         println!(
             "    NMAE {:.2} %, {} geometries, {:.1} device s; flags: {}; report: {}",
-            100.0 * result["nmae"].as_f64().unwrap_or(f64::NAN),
-            result["geometries"].as_u64().unwrap_or(0),
-            result["device_seconds"].as_f64().unwrap_or(f64::NAN),
+            100.0 * result.nmae(),
+            result.geometries.unwrap_or(0),
+            result.device_seconds.unwrap_or(f64::NAN),
             if s.result.flags.is_empty() {
                 "none".to_string()
             } else {

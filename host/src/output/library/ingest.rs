@@ -104,16 +104,17 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
     let session_sha256 = session_identity(dir)?;
     let file = dir.join(crate::output::folder::SESSION);
     let (text, doc) = read_session_doc(&file, bad)?;
-    let ok = doc
-        .rest
-        .get("ok")
-        .and_then(serde_json::Value::as_bool)
+    let outcome = doc.outcome();
+    let ok = outcome
+        .ok()
         .ok_or_else(|| bad(format!("{}: no boolean 'ok'", file.display())))?;
     if !ok && !allow_flagged {
-        let flags = doc
-            .rest
-            .get("flags")
-            .map_or_else(|| "no flags recorded".to_string(), |f| f.to_string());
+        // As the document writes them (a JSON array of their names).
+        let flags = match &outcome.flags {
+            None => "no flags recorded".to_string(),
+            Some(Ok(flags)) => serde_json::to_string(flags).unwrap_or_default(),
+            Some(Err(e)) => format!("unreadable flags ({e})"),
+        };
         return Err(LibraryError::Flagged {
             dir: dir.to_path_buf(),
             flags,
