@@ -41,8 +41,9 @@ pub struct Args {
     pub policy: host::session::PolicyChoice,
     /// The simulated world: how spots, sheets and stocks vary (as-today, spots-1pct,
     /// spots-6pct, stocks-5pct, stocks-20pct, near-twins, sheets-3pct, heavy-tailed,
-    /// second-instrument); the evidence is never told, it estimates its population from
-    /// the study's library.
+    /// second-instrument), or `all` (each into its own folder of --out, and
+    /// campaign.md); the evidence is never told, it estimates its population from the
+    /// study's library.
     #[arg(long, default_value = "as-today", value_name = "NAME")]
     pub scenario: String,
     /// Validate this stock library (its own sheets) as the population `compare --library`
@@ -71,17 +72,53 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "at most 999 sheets per stock and 999 stocks drawn per paper (each sheet's seed is made of them)"
         );
     }
-    let scenario = forensic::Scenario::named(&args.scenario).ok_or_else(|| {
-        anyhow::anyhow!(
-            "no scenario '{}': the scenarios are {}",
-            args.scenario,
-            forensic::Scenario::ALL
-                .iter()
-                .map(|s| s.name)
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
-    })?;
+    let scenarios: Vec<forensic::Scenario> = if args.scenario == "all" {
+        forensic::Scenario::ALL.to_vec()
+    } else {
+        vec![forensic::Scenario::named(&args.scenario).ok_or_else(|| {
+            anyhow::anyhow!(
+                "no scenario '{}': the scenarios are all, {}",
+                args.scenario,
+                forensic::Scenario::ALL
+                    .iter()
+                    .map(|s| s.name)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?]
+    };
+    let mut campaign = Vec::new();
+    for scenario in scenarios {
+        let out = if args.scenario == "all" {
+            args.out.join(scenario.name)
+        } else {
+            args.out.clone()
+        };
+        campaign.push(run_scenario(&args, scenario, &out)?);
+    }
+    if args.scenario == "all" {
+        let table = forensic::campaign_markdown(&campaign);
+        let md = args.out.join("campaign.md");
+        std::fs::write(&md, &table).with_context(|| format!("cannot write {}", md.display()))?;
+        print!("{table}");
+        eprintln!("wrote {}", md.display());
+    }
+    let held = campaign
+        .iter()
+        .all(|f| forensic::claims(f).iter().all(|(_, held)| *held));
+    Ok(if held {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(crate::cli::exit::FLAGGED)
+    })
+}
+
+/// One scenario's study into `out`: its summary, its pairs and its Tippett plot.
+fn run_scenario(
+    args: &Args,
+    scenario: forensic::Scenario,
+    out: &std::path::Path,
+) -> anyhow::Result<forensic::Figures> {
     let design = Design {
         scenario,
         draws: args.draws,
@@ -105,8 +142,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
         .max(1);
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let bar = ProgressBar::new(forensic::plan(&design, &counts).len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sheets, {elapsed} ({eta} left)")
@@ -114,8 +150,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             .progress_chars("=> "),
     );
     bar.set_message(format!(
-        "simulated sheets of {} population draws",
-        design.draws
+        "{}: simulated sheets of {} population draws",
+        scenario.name, design.draws
     ));
     let campaign = forensic::measure_all(&design, &counts, threads, &|| bar.inc(1))?;
     bar.finish_and_clear();
@@ -130,48 +166,60 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             });
         }
     }
-    let mut csv = String::from("draw,stock_a,stock_b,class_a,class_b,same_stock,log10_lr\n");
-    for p in &pairs {
-        let (a, b) = (
-            &campaign.stocks[p.draw][p.stock_a],
-            &campaign.stocks[p.draw][p.stock_b],
-        );
-        csv += &format!(
-            "{},{},{},{},{},{},{:.4}\n",
-            p.draw,
-            a.name,
-            b.name,
-            a.class.name(),
-            b.class.name(),
-            p.stock_a == p.stock_b,
-            p.log10_lr
-        );
-    }
-    let csv_path = args.out.join("pairs.csv");
-    std::fs::write(&csv_path, csv)
-        .with_context(|| format!("cannot write {}", csv_path.display()))?;
-    let svg = args.out.join("tippett.svg");
+    let csv_path = out.join("pairs.csv");
+    let write_csv = || -> Result<(), csv::Error> {
+        let mut csv = csv::Writer::from_path(&csv_path)?;
+        csv.write_record([
+            "draw",
+            "stock_a",
+            "stock_b",
+            "class_a",
+            "class_b",
+            "same_stock",
+            "log10_lr",
+            "raw_log10_lr",
+            "warnings",
+        ])?;
+        for p in &pairs {
+            let (a, b) = (
+                &campaign.stocks[p.draw][p.stock_a],
+                &campaign.stocks[p.draw][p.stock_b],
+            );
+            csv.write_record([
+                p.draw.to_string(),
+                a.name.clone(),
+                b.name.clone(),
+                a.class.name().to_string(),
+                b.class.name().to_string(),
+                (p.stock_a == p.stock_b).to_string(),
+                format!("{:.4}", p.log10_lr),
+                format!("{:.4}", p.raw_log10_lr),
+                p.warnings.join(" "),
+            ])?;
+        }
+        csv.flush()?;
+        Ok(())
+    };
+    write_csv().with_context(|| format!("cannot write {}", csv_path.display()))?;
+    let svg = out.join("tippett.svg");
     forensic::tippett_svg(&pairs, design.draws, &svg)?;
     let summary = format!(
         "{}\nEvery spot measured with `--policy {}`.\n",
         forensic::summary_markdown(&figures, &study).trim_end(),
         args.policy.name()
     );
-    let md = args.out.join("summary.md");
+    let md = out.join("summary.md");
     std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
-    print!("{summary}");
+    if args.scenario != "all" {
+        print!("{summary}");
+    }
     eprintln!(
         "wrote {}, {} and {}",
         md.display(),
         csv_path.display(),
         svg.display()
     );
-    let held = forensic::claims(&figures).iter().all(|(_, held)| *held);
-    Ok(if held {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(crate::cli::exit::FLAGGED)
-    })
+    Ok(figures)
 }
 
 /// `gonio forensic --library FILE --out DIR`: the library validated, its figures and plots
@@ -179,13 +227,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<ExitCode> {
     use host::output::library::{Library, OpenMode};
     use host::study::library_validation;
-    let sheets: Vec<_> = Library::open(path, OpenMode::Existing)?
+    let mut library = Library::open(path, OpenMode::Existing)?;
+    let sheets: Vec<_> = library
         .sheets()?
         .into_iter()
         .map(|(_, sheet)| sheet)
         .collect();
     let population = library_validation::run(&sheets)
         .with_context(|| format!("{}: cannot validate the library", path.display()))?;
+    // Recorded in the library: comparisons against this population (this library's
+    // contents as they are now) then carry no "not validated" warning.
+    let figures = serde_json::to_value(&population.validation)?;
+    library.record_validation(&population.identity(), &figures)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let summary = library_validation::summary_markdown(path, &population);
     let summary_path = out.join("summary.md");

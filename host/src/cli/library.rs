@@ -366,14 +366,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
         .collect();
     let stocks = ranking.len();
     ranking.truncate(args.top.unwrap_or(usize::MAX));
-    let mut warnings = found.warnings;
-    if let Some(why) = &population.not_validated_because {
-        for w in warnings.iter_mut() {
-            if let Warning::NotValidated { why: w } = w {
-                *w = why.clone();
-            }
-        }
-    }
+    let warnings = population.warnings(&found.warnings);
     let bounds = population.population.validation.as_ref().map(|v| v.bounds);
     let code = if warnings.is_empty() {
         crate::cli::exit::OK

@@ -30,7 +30,8 @@ impl PopulationArgs {
                 not_validated_because: None,
             });
         };
-        let sheets: Vec<LibrarySheet> = Library::open(path, OpenMode::Existing)?
+        let library = Library::open(path, OpenMode::Existing)?;
+        let sheets: Vec<LibrarySheet> = library
             .sheets()?
             .into_iter()
             .filter(|(sha, _)| !exclude.contains(sha))
@@ -42,10 +43,20 @@ impl PopulationArgs {
                 path.display()
             )
         })?;
+        // Validated here or not at all; a validation the lab recorded (gonio forensic
+        // --library) for exactly this population is what makes it reviewed evidence.
+        let why = match why {
+            Some(e) => Some(e.to_string()),
+            None if library.validation_record(&population.identity())?.is_none() => Some(format!(
+                "validated for this comparison only: the library's population as it is now has not been validated and recorded by `gonio forensic --library {}`",
+                path.display()
+            )),
+            None => None,
+        };
         Ok(PopulationInUse {
             population,
             name: path.display().to_string(),
-            not_validated_because: why.map(|e| e.to_string()),
+            not_validated_because: why,
         })
     }
 }

@@ -26,6 +26,28 @@ pub struct PopulationInUse {
     pub not_validated_because: Option<String>,
 }
 
+impl PopulationInUse {
+    /// `warnings` with the population's own reason for not being validated: replacing the
+    /// general one, or added when the population was validated only for this use.
+    pub fn warnings(&self, warnings: &[Warning]) -> Vec<Warning> {
+        let mut out = warnings.to_vec();
+        let Some(why) = &self.not_validated_because else {
+            return out;
+        };
+        let mut said = false;
+        for w in out.iter_mut() {
+            if let Warning::NotValidated { why: w } = w {
+                *w = why.clone();
+                said = true;
+            }
+        }
+        if !said {
+            out.push(Warning::NotValidated { why: why.clone() });
+        }
+        out
+    }
+}
+
 /// The propositions weighed.
 #[derive(Clone, Debug, Serialize)]
 pub struct Propositions {
@@ -146,6 +168,8 @@ pub struct Comparison {
     pub calibrated_log10_lr: f64,
     /// The validation's bounds.
     pub bounds: Option<(f64, f64)>,
+    /// Whether the calibrated ratio was beyond them and is reported at a bound.
+    pub bounded: bool,
     /// The ENFSI verbal equivalent of the reported value.
     pub verbal: String,
     /// Which way it points.
@@ -288,14 +312,7 @@ impl Comparison {
                 format!("the {stocks} stocks of the library {}", population.name)
             }
         };
-        let mut warnings: Vec<Warning> = e.warnings.clone();
-        if let Some(why) = &population.not_validated_because {
-            for w in warnings.iter_mut() {
-                if let Warning::NotValidated { why: w } = w {
-                    *w = why.clone();
-                }
-            }
-        }
+        let warnings = population.warnings(&e.warnings);
         Comparison {
             schema: crate::schema::COMPARE,
             propositions: Propositions {
@@ -308,6 +325,7 @@ impl Comparison {
             raw_log10_lr: e.raw_log10_lr,
             calibrated_log10_lr: e.calibrated_log10_lr,
             bounds: e.bounds,
+            bounded: e.bounded,
             verbal: e.verbal.clone(),
             support: e.support,
             warnings: warnings.iter().map(Warning::to_json).collect(),
@@ -396,6 +414,12 @@ impl Comparison {
             self.bounds_text()
         );
         s += &format!("  {}\n", self.verbal);
+        if self.bounded {
+            s += &format!(
+                "  the calibrated ratio (log10 {:+.2}) is beyond what the population's validation supports: reported at its bound\n",
+                self.calibrated_log10_lr
+            );
+        }
         if !self.contributions.is_empty() {
             let each: Vec<String> = self
                 .contributions

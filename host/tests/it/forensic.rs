@@ -150,41 +150,23 @@ fn a_small_campaign_over_draws_validates_the_likelihood_ratios() {
         f.device_seconds_per_sheet,
         one.device_seconds_per_sheet
     );
-    // The claims, at this size.
-    assert!(f.cllr < 0.3, "Cllr {}", f.cllr);
+    // The targets, at this size: every claim of the study.
+    for (claim, held) in forensic::claims(&f) {
+        assert!(held, "{claim}");
+    }
     assert!(f.cllr_min <= f.cllr + 1e-12);
-    assert_eq!(
-        f.same_misleading.1, 0,
-        "a same-stock pair with log10 LR < −2"
-    );
-    assert_eq!(
-        f.different_misleading.1, 0,
-        "a different-class pair with log10 LR > 2"
-    );
+    // Stocks ranked by a search: what is measured at this size is held here.
     assert!(
-        f.same_misleading.0 <= 2,
-        "{} of 64 same-stock pairs misleading",
-        f.same_misleading.0
-    );
-    // The full study's pooled rate is 94.8 % at 3 spots (docs/FORENSIC.md); at 2 spots and
-    // this size what is measured is held here.
-    assert!(
-        f.search.0 as f64 >= 0.85 * f.search.1 as f64,
+        f.search.0 as f64 >= 0.80 * f.search.1 as f64,
         "search {:?}",
         f.search
     );
-    // A second spot per sheet weighs more: the same stock's LRs higher, Cllr lower.
+    // A second spot per sheet weighs more: the model's own ratios separate better.
     assert!(
-        f.medians.0 > one.medians.0,
-        "median same-stock log10 LR {} with 2 spots, {} with 1",
-        f.medians.0,
-        one.medians.0
-    );
-    assert!(
-        f.cllr < one.cllr,
-        "Cllr {} with 2 spots, {} with 1",
-        f.cllr,
-        one.cllr
+        f.cllr_raw < one.cllr_raw,
+        "raw Cllr {} with 2 spots, {} with 1",
+        f.cllr_raw,
+        one.cllr_raw
     );
     // The first draw's nearest stocks are the near twins G and G#1 (0.6–1.2 % apart).
     let nearest = f.per_draw[0].nearest.as_ref().expect("stocks");
@@ -236,6 +218,14 @@ fn wilson_intervals_match_the_formula_and_a_claim_can_fail() {
         "{lo} {hi}"
     );
     assert_eq!(forensic::wilson(5, 5).1, 1.0);
+    let decade = |from: f64, same: usize, different: usize, reported: f64| forensic::Decade {
+        from,
+        same,
+        different,
+        reported,
+        observed: reported,
+        observed_interval: (reported - 0.5, reported + 0.5),
+    };
     let f = forensic::Figures {
         spots: 3,
         draws: 1,
@@ -252,42 +242,52 @@ fn wilson_intervals_match_the_formula_and_a_claim_can_fail() {
         medians: (3.0, -500.0),
         per_draw: Vec::new(),
         named: vec![("J3", "J4", 16, 16, -3.1), ("PPC", "J3", 16, 16, -15.0)],
+        scenario: "as-today",
+        outside_bounds: 0,
+        bounds_range: ((-2.0, 1.5), (-2.5, 1.9)),
+        cllr_raw: 0.12,
+        strong_misleading: (1, 79),
+        bins: vec![decade(-3.0, 0, 7000, -2.9), decade(1.0, 150, 30, 1.2)],
+        instrument_pairs: (10, 10),
+        warned: (0, 0),
     };
     assert!(
         forensic::claims(&f).iter().all(|(_, held)| *held),
         "{:?}",
         forensic::claims(&f)
     );
+    // A Cllr above 0.3 is no failure where even the best calibration could not reach 0.2.
+    let hard = forensic::Figures {
+        cllr: 0.35,
+        cllr_min: 0.25,
+        ..f.clone()
+    };
+    assert!(forensic::claims(&hard).iter().all(|(_, held)| *held));
+    let mut off = decade(1.0, 150, 30, 1.2);
+    off.observed_interval = (2.5, 3.0);
     let failing = [
+        forensic::Figures {
+            outside_bounds: 1,
+            ..f.clone()
+        },
+        forensic::Figures {
+            strong_misleading: (2, 79),
+            ..f.clone()
+        },
+        forensic::Figures {
+            strong_misleading: (1, 80),
+            ..f.clone()
+        },
+        forensic::Figures {
+            bins: vec![decade(-3.0, 0, 7000, -2.9), off],
+            ..f.clone()
+        },
         forensic::Figures {
             cllr: 0.31,
             ..f.clone()
         },
         forensic::Figures {
-            same_misleading: (4, 0),
-            ..f.clone()
-        },
-        forensic::Figures {
-            same_misleading: (1, 1),
-            ..f.clone()
-        },
-        forensic::Figures {
-            different_misleading: (300, 1),
-            ..f.clone()
-        },
-        forensic::Figures {
-            search: (121, 128),
-            ..f.clone()
-        },
-        forensic::Figures {
-            named: vec![("J3", "J4", 16, 15, -1.9), ("PPC", "J3", 16, 16, -15.0)],
-            ..f.clone()
-        },
-        forensic::Figures {
-            named: vec![
-                ("J3", "J4", 16, 16, -3.1),
-                ("PPC", "J3", 0, 0, f64::NEG_INFINITY),
-            ],
+            instrument_pairs: (10, 9),
             ..f.clone()
         },
     ];
@@ -300,6 +300,16 @@ fn wilson_intervals_match_the_formula_and_a_claim_can_fail() {
         );
         assert!(!claims[k].1, "case {k}: {claims:?}");
     }
+    // A decade of fewer than 20 pairs is not judged.
+    let few = forensic::Figures {
+        bins: vec![decade(-3.0, 0, 7000, -2.9), {
+            let mut d = decade(1.0, 10, 9, 1.2);
+            d.observed_interval = (2.5, 3.0);
+            d
+        }],
+        ..f.clone()
+    };
+    assert!(forensic::claims(&few).iter().all(|(_, held)| *held));
 }
 
 #[test]
@@ -342,5 +352,41 @@ fn a_sheet_with_more_spots_is_the_same_sheet_with_spots_added() {
             stocks[stock].name
         );
         assert!(five.device_seconds > three.device_seconds);
+    }
+}
+
+/// Two worlds the evidence is not told, in small: sheets (lots) that vary 3 % about their
+/// stock, and half the questioned sheets on a second instrument whose tile is off by
+/// N(0, 1.5 %). Each draw's population is estimated and validated from its own library;
+/// the held-out pairs must meet the targets, and every pair measured on two
+/// instruments must say so. The draw is new on every run (its number printed).
+#[test]
+fn worlds_the_evidence_is_not_told_meet_the_targets_in_small() {
+    let first_draw = (std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos()) as usize)
+        % 90_000
+        + 100;
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    for name in ["sheets-3pct", "second-instrument"] {
+        let design = Design {
+            scenario: forensic::Scenario::named(name).expect("a scenario"),
+            draws: 1,
+            first_draw,
+            drawn_per_paper: 2,
+            library_sheets: 3,
+            held_out_sheets: 2,
+            spots: 2,
+            policy: PolicyChoice::Adaptive,
+        };
+        let campaign = forensic::measure_all(&design, &[], threads, &|| {}).expect("every session");
+        let (f, _) =
+            forensic::figures(&campaign, design.spots, threads).expect("a validated population");
+        for (claim, held) in forensic::claims(&f) {
+            assert!(held, "{name}, draw {first_draw}: {claim}");
+        }
+        if name == "second-instrument" {
+            assert!(f.instrument_pairs.0 > 0, "some pairs on two instruments");
+        }
     }
 }

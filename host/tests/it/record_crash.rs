@@ -370,7 +370,11 @@ fn the_gonio_binary_killed_at_random_moments_resumes_to_a_verified_folder() {
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&resumed.stderr);
-        if !resumed.status.success() {
+        // Exit 3 is a finished session whose result is flagged: a resume from before the
+        // first reading measures the whole plane in the second run, one fixed noise draw
+        // (the seed and the run number) that the lack-of-fit test flags at its own
+        // false-alarm rate. The folder is finished either way, and is verified below.
+        if !resumed.status.success() && resumed.status.code() != Some(3) {
             if stderr.contains("holds no session") || stderr.contains("no session folder") {
                 // Killed before its session.json: start it anew, as the message says.
                 let out = std::process::Command::new(gonio)

@@ -421,11 +421,16 @@ fn every_output_and_file_of_real_sessions_validates_against_its_schema() {
     // gonio library: add, list, search, export.
     let library = root.join("library.sqlite");
     let lib = library.to_str().unwrap();
+    // Seven stocks: a population needs four whose sheets determined σ, ρs and ρd, and some
+    // of these sessions are flagged (added with --allow-flagged) or leave a parameter out.
     for (stock, folder) in [
         ("G", dir(0)),
         ("SG", sheet.to_str().unwrap()),
         ("PPC", dir(1)),
         ("J2", dir(2)),
+        ("X3", dir(3)),
+        ("X4", dir(4)),
+        ("X5", dir(5)),
     ] {
         let out = gonio(&[
             "library",

@@ -219,6 +219,8 @@ pub struct Evidence {
     pub calibrated_log10_lr: f64,
     /// The validation's empirical lower and upper bounds of log10 LR, if validated.
     pub bounds: Option<(f64, f64)>,
+    /// Whether the calibrated ratio was beyond them and is reported at a bound.
+    pub bounded: bool,
     /// Its verbal equivalent on the ENFSI scale.
     pub verbal: String,
     /// Which way it points.
@@ -552,22 +554,18 @@ pub fn weigh(a: &Questioned, b: &Questioned, population: &Population) -> Evidenc
         Some(v) => (v.calibrator.apply(raw), Some(v.bounds)),
         None => (raw, None),
     };
+    // Beyond its bounds a ratio is reported at the bound: not a contradicted assumption
+    // (most strong ratios are), so not a warning, but said (`bounded`).
     let log10_lr = match bounds {
-        Some((low, high)) if calibrated > high || calibrated < low => {
-            let bound = calibrated.clamp(low, high);
-            warnings.push(Warning::Bounded {
-                calibrated_log10_lr: calibrated,
-                bound,
-            });
-            bound
-        }
-        _ => calibrated,
+        Some((low, high)) => calibrated.clamp(low, high),
+        None => calibrated,
     };
     Evidence {
         log10_lr,
         raw_log10_lr: raw,
         calibrated_log10_lr: calibrated,
         bounds,
+        bounded: log10_lr != calibrated,
         verbal: verbal(log10_lr),
         support: Support::of(log10_lr),
         parameters: params.iter().map(|&i| PARAMS[i]).collect(),
@@ -729,4 +727,337 @@ pub enum EvidenceError {
         /// Different-stock pairs.
         different: usize,
     },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    fn spot(values: [f64; 3], relative_u: f64) -> Spot {
+        Spot {
+            values: values.map(Some),
+            covariance: std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    if r == c {
+                        (values[r] * relative_u).powi(2)
+                    } else {
+                        0.0
+                    }
+                })
+            }),
+        }
+    }
+
+    fn sheet(spots: &[[f64; 3]]) -> Sheet {
+        Sheet {
+            spots: spots.iter().map(|&v| spot(v, 0.002)).collect(),
+        }
+    }
+
+    /// A world of `stocks` stocks about three kinds, each with `sheets` sheets of
+    /// `spots` spots: stocks `between` apart, sheets `sheet_sd` about their stock, spots
+    /// `spot_sd` about their sheet (relative).
+    struct World {
+        stocks: Vec<[f64; 3]>,
+        rng: rand_chacha::ChaCha12Rng,
+        sheet_sd: f64,
+        spot_sd: f64,
+    }
+
+    impl World {
+        fn new(seed: u64, n: usize, between: f64, sheet_sd: f64, spot_sd: f64) -> World {
+            let mut rng = rand_chacha::ChaCha12Rng::seed_from_u64(seed);
+            let kinds = [[0.8, 57.8, 0.855], [21.7, 0.409, 0.414], [11.0, 0.9, 0.6]];
+            let stocks = (0..n)
+                .map(|k| {
+                    let kind = kinds[k % kinds.len()];
+                    std::array::from_fn(|i| {
+                        let z: f64 = StandardNormal.sample(&mut rng);
+                        kind[i] * (between * z).exp()
+                    })
+                })
+                .collect();
+            World {
+                stocks,
+                rng,
+                sheet_sd,
+                spot_sd,
+            }
+        }
+
+        fn sheet_of(&mut self, stock: usize, spots: usize) -> Sheet {
+            let mean = self.stocks[stock];
+            let sheet: [f64; 3] = std::array::from_fn(|i| {
+                let z: f64 = StandardNormal.sample(&mut self.rng);
+                mean[i] * (self.sheet_sd * z).exp()
+            });
+            let values: Vec<[f64; 3]> = (0..spots)
+                .map(|_| {
+                    std::array::from_fn(|i| {
+                        let z: f64 = StandardNormal.sample(&mut self.rng);
+                        sheet[i] * (self.spot_sd * z).exp()
+                    })
+                })
+                .collect();
+            self::sheet(&values)
+        }
+
+        fn library(&mut self, sheets: usize, spots: usize) -> Vec<LibrarySheet> {
+            (0..self.stocks.len())
+                .flat_map(|k| (0..sheets).map(move |_| k))
+                .collect::<Vec<_>>()
+                .into_iter()
+                .map(|k| LibrarySheet {
+                    stock: format!("s{k:02}"),
+                    lot: None,
+                    instrument: Some("one".into()),
+                    sheet: self.sheet_of(k, spots),
+                })
+                .collect()
+        }
+    }
+
+    fn kinds(e: &Evidence) -> Vec<&'static str> {
+        e.warnings
+            .iter()
+            .map(|w| match w {
+                Warning::Demonstration => "demonstration",
+                Warning::NotValidated { .. } => "not-validated",
+                Warning::SheetLevelAssumed => "sheet-level-assumed",
+                Warning::OutOfPopulation { .. } => "out-of-population",
+                Warning::Scatter { .. } => "scatter",
+                Warning::Flagged { .. } => "flagged",
+                Warning::SameMeasurement { .. } => "same-measurement",
+                Warning::DifferentInstruments { .. } => "different-instruments",
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_ratio_is_symmetric_and_falls_as_the_sheets_part() {
+        let p = Population::demonstration();
+        let a = sheet(&[[21.7, 0.409, 0.414]]);
+        let mut last = f64::INFINITY;
+        for step in [0.0, 0.05, 0.1, 0.2, 0.4] {
+            let b = sheet(&[[21.7 * (1.0 + step), 0.409, 0.414 * (1.0 + step)]]);
+            let (ab, ba) = (raw_log10_lr(&a, &b, &p), raw_log10_lr(&b, &a, &p));
+            assert!((ab - ba).abs() < 1e-9, "symmetric");
+            assert!(ab < last, "{step}: {ab} after {last}");
+            last = ab;
+        }
+    }
+
+    #[test]
+    fn an_undetermined_parameter_is_left_out_with_the_reason() {
+        let p = Population::demonstration();
+        let a = sheet(&[[21.7, 0.409, 0.414]]);
+        let mut b = a.clone();
+        b.spots[0].values[1] = None;
+        let e = weigh(&Questioned::of(a.clone()), &Questioned::of(b), &p);
+        assert_eq!(e.parameters, ["sigma_deg", "rho_d"]);
+        assert_eq!(e.left_out, [("rho_s", "not determined by B")]);
+        assert!(e.log10_lr.is_finite());
+        let none = Sheet {
+            spots: vec![Spot {
+                values: [None; 3],
+                covariance: [[0.0; 3]; 3],
+            }],
+        };
+        let e = weigh(&Questioned::of(a), &Questioned::of(none), &p);
+        assert_eq!(e.raw_log10_lr, 0.0);
+        assert_eq!(verbal(f64::NAN), "no evidence weighed");
+    }
+
+    #[test]
+    fn a_population_needs_stocks_and_spread_and_a_validation_needs_more() {
+        let mut world = World::new(1, 3, 0.1, 0.02, 0.03);
+        assert!(matches!(
+            Population::from_library(&world.library(2, 2)),
+            Err(EvidenceError::TooFewStocks { found: 3, .. })
+        ));
+        let mut world = World::new(2, 5, 0.1, 0.02, 0.03);
+        let library = world.library(2, 2);
+        let p = Population::from_library(&library).expect("five stocks");
+        assert!(p.sheet.measured() && p.spot.measured());
+        assert!(matches!(
+            validation::validate(&library),
+            Err(EvidenceError::TooFewStocksToValidate { found: 5, .. })
+        ));
+        // One spot per sheet and one sheet per stock: nothing varies within a stock.
+        let mut world = World::new(3, 6, 0.1, 0.02, 0.03);
+        assert_eq!(
+            Population::from_library(&world.library(1, 1)),
+            Err(EvidenceError::NoWithinStockVariation)
+        );
+    }
+
+    /// The variances the library measures are what the ratio uses, at their upper bounds:
+    /// a world of 3 % sheets and 2 % spots is estimated as such.
+    #[test]
+    fn the_library_measures_each_level() {
+        let mut world = World::new(4, 24, 0.15, 0.03, 0.02);
+        let p = Population::from_library(&world.library(4, 4)).expect("a population");
+        let spot = p.spot.used_relative_sd();
+        let sheet = p.sheet.used_relative_sd();
+        for i in 0..3 {
+            assert!(spot[i] > 0.018 && spot[i] < 0.026, "spots {spot:?}");
+            assert!(sheet[i] > 0.022 && sheet[i] < 0.05, "sheets {sheet:?}");
+        }
+        let h = p.bandwidth.expect("chosen");
+        assert!(h > 0.0 && h <= 1.0);
+    }
+
+    /// Issue 25's two-level failure: sheets of one stock 3 % apart, spots 3 % about their
+    /// sheet. With the library's sheet level measured, no same-stock pair is "strong
+    /// support for different stocks" and every reported value is within the bounds.
+    #[test]
+    fn sheets_of_one_stock_that_vary_are_not_called_different_and_values_stay_bounded() {
+        for seed in [5, 6, 7] {
+            let mut world = World::new(seed, 18, 0.12, 0.03, 0.03);
+            let library = world.library(3, 3);
+            let p = validation::validate(&library).expect("validated");
+            let (low, high) = p.validation.as_ref().expect("validation").bounds;
+            let mut worst_same = f64::INFINITY;
+            for k in 0..18 {
+                let (a, b) = (world.sheet_of(k, 5), world.sheet_of(k, 5));
+                let e = weigh(&Questioned::of(a), &Questioned::of(b), &p);
+                assert!(e.log10_lr >= low && e.log10_lr <= high, "{e:?}");
+                worst_same = worst_same.min(e.log10_lr);
+                let other = world.sheet_of((k + 7) % 18, 5);
+                let d = weigh(
+                    &Questioned::of(world.sheet_of(k, 5)),
+                    &Questioned::of(other),
+                    &p,
+                );
+                assert!(d.log10_lr >= low && d.log10_lr <= high, "{d:?}");
+            }
+            assert!(
+                worst_same > -2.0,
+                "seed {seed}: worst same-stock {worst_same}"
+            );
+        }
+    }
+
+    #[test]
+    fn every_warning_is_given_where_its_assumption_is_broken() {
+        let mut world = World::new(8, 12, 0.12, 0.02, 0.02);
+        let p = validation::validate(&world.library(3, 3)).expect("validated");
+        let a = world.sheet_of(0, 4);
+        let clean = weigh(
+            &Questioned::of(a.clone()),
+            &Questioned::of(world.sheet_of(0, 4)),
+            &p,
+        );
+        assert!(
+            !kinds(&clean).iter().any(|k| [
+                "demonstration",
+                "not-validated",
+                "same-measurement",
+                "flagged"
+            ]
+            .contains(k)),
+            "{clean:?}"
+        );
+        // The same readings on both sides, and the same folder.
+        let same = weigh(&Questioned::of(a.clone()), &Questioned::of(a.clone()), &p);
+        assert!(kinds(&same).contains(&"same-measurement"));
+        let folder = Questioned {
+            identity: Some("abc".into()),
+            ..Questioned::of(a.clone())
+        };
+        let other = Questioned {
+            identity: Some("abc".into()),
+            ..Questioned::of(world.sheet_of(0, 4))
+        };
+        assert!(kinds(&weigh(&folder, &other, &p)).contains(&"same-measurement"));
+        // A flagged sheet, and sheets of two instruments.
+        let flagged = Questioned {
+            flags: vec!["lack-of-fit".into()],
+            instrument: Some("one".into()),
+            ..Questioned::of(world.sheet_of(1, 4))
+        };
+        let elsewhere = Questioned {
+            instrument: Some("two".into()),
+            ..Questioned::of(world.sheet_of(1, 4))
+        };
+        let e = weigh(&flagged, &elsewhere, &p);
+        assert!(kinds(&e).contains(&"flagged") && kinds(&e).contains(&"different-instruments"));
+        // Spots 15 % apart where the population's are 2 %.
+        let mut scattered = World::new(9, 1, 0.0, 0.0, 0.15);
+        scattered.stocks[0] = world.stocks[2];
+        let e = weigh(
+            &Questioned::of(scattered.sheet_of(0, 5)),
+            &Questioned::of(world.sheet_of(2, 5)),
+            &p,
+        );
+        assert!(kinds(&e).contains(&"scatter"), "{e:?}");
+        // Far from every stock of the library, and two sheets 6 % apart.
+        let far_a = sheet(&[[3.0, 8.0, 0.25], [3.03, 8.1, 0.252]]);
+        let far_b = sheet(&[[3.18, 8.48, 0.265], [3.15, 8.4, 0.27]]);
+        let e = weigh(&Questioned::of(far_a), &Questioned::of(far_b), &p);
+        assert!(kinds(&e).contains(&"out-of-population"), "{e:?}");
+        let (low, high) = e.bounds.expect("validated");
+        assert!(e.log10_lr >= low && e.log10_lr <= high, "{e:?}");
+        // The issue's case against the demonstration population: custom:8,2.0,0.7 against
+        // a stock 6 % away was 10^75.27, "extremely strong support for the same stock".
+        let issue_a = sheet(&[[8.0, 2.0, 0.7], [8.1, 2.02, 0.71]]);
+        let issue_b = sheet(&[[8.48, 2.12, 0.742], [8.4, 2.1, 0.75]]);
+        let demo = Population::demonstration();
+        let e = weigh(&Questioned::of(issue_a), &Questioned::of(issue_b), &demo);
+        assert!(kinds(&e).contains(&"out-of-population"), "{e:?}");
+        let (low, high) = e.bounds.expect("the demonstration is validated");
+        assert!(
+            e.log10_lr >= low && e.log10_lr <= high && high < 4.0,
+            "{e:?}"
+        );
+        // The demonstration and an unvalidated population say what they are.
+        let demo = weigh(
+            &Questioned::of(world.sheet_of(0, 3)),
+            &Questioned::of(world.sheet_of(0, 3)),
+            &Population::demonstration(),
+        );
+        assert!(kinds(&demo).contains(&"demonstration"));
+        let unvalidated = Population::from_library(&world.library(1, 3)).expect("population");
+        let e = weigh(
+            &Questioned::of(world.sheet_of(0, 3)),
+            &Questioned::of(world.sheet_of(3, 3)),
+            &unvalidated,
+        );
+        assert!(
+            kinds(&e).contains(&"not-validated") && kinds(&e).contains(&"sheet-level-assumed"),
+            "{e:?}"
+        );
+        assert_eq!(e.bounds, None);
+    }
+
+    #[test]
+    fn the_verbal_scale_follows_enfsi() {
+        assert_eq!(
+            verbal(0.5),
+            "weak support for the same stock over different stocks"
+        );
+        assert_eq!(
+            verbal(-1.5),
+            "moderate support for different stocks over the same stock"
+        );
+        assert_eq!(
+            verbal(2.5),
+            "moderately strong support for the same stock over different stocks"
+        );
+        assert_eq!(
+            verbal(3.5),
+            "strong support for the same stock over different stocks"
+        );
+        assert_eq!(
+            verbal(-5.0),
+            "very strong support for different stocks over the same stock"
+        );
+        assert_eq!(
+            verbal(7.0),
+            "extremely strong support for the same stock over different stocks"
+        );
+        assert_eq!(verbal(0.0), "no support for either proposition");
+    }
 }

@@ -76,13 +76,6 @@ pub enum Warning {
         /// B's instrument.
         b: String,
     },
-    /// The calibrated ratio was beyond what the validation supports, and was bounded.
-    Bounded {
-        /// log10 LR before bounding.
-        calibrated_log10_lr: f64,
-        /// The bound reported instead.
-        bound: f64,
-    },
 }
 
 impl Warning {
@@ -141,13 +134,6 @@ impl fmt::Display for Warning {
             Warning::DifferentInstruments { a, b } => write!(
                 f,
                 "the sheets were measured on different instruments ({a} and {b}): differences between instruments are not in the population unless its library holds them"
-            ),
-            Warning::Bounded {
-                calibrated_log10_lr,
-                bound,
-            } => write!(
-                f,
-                "log10 LR {calibrated_log10_lr:+.2} is beyond what the population's validation supports: reported as {bound:+.2}"
             ),
         }
     }

@@ -744,6 +744,49 @@ impl Library {
         Ok(counts)
     }
 
+    /// Record that the population of identity `identity` was validated (by `gonio forensic
+    /// --library`), with what its validation found: kept in `meta` under
+    /// `validated-population/<identity>`, so a population the library's contents no longer
+    /// give is simply not found.
+    pub fn record_validation(&mut self, identity: &str, figures: &serde_json::Value) -> Result<()> {
+        let path = self.path.clone();
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
+        let record = serde_json::json!({
+            "validated_at": now_utc(),
+            "validated_by": format!("gonio {}", env!("CARGO_PKG_VERSION")),
+            "figures": figures,
+        });
+        let tx = self.write()?;
+        tx.execute(
+            "INSERT OR REPLACE INTO meta (key, value) VALUES (?1, ?2)",
+            params![
+                format!("validated-population/{identity}"),
+                record.to_string()
+            ],
+        )
+        .map_err(&sqlite)?;
+        tx.commit().map_err(&sqlite)?;
+        Ok(())
+    }
+
+    /// When and by what the population of identity `identity` was validated, if it was.
+    pub fn validation_record(&self, identity: &str) -> Result<Option<serde_json::Value>> {
+        let sqlite = self.sqlite();
+        let text: Option<String> = self
+            .conn
+            .query_row(
+                "SELECT value FROM meta WHERE key = ?1",
+                params![format!("validated-population/{identity}")],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(&sqlite)?;
+        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+    }
+
     /// Every sheet (its stock, lot, instrument and spots) with its session SHA-256, ordered
     /// as [`Self::records`].
     pub fn sheets(&self) -> Result<Vec<(String, LibrarySheet)>> {
