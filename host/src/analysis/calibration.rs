@@ -822,10 +822,11 @@ impl DocumentError {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn reading(mean_counts: f32, range: u8) -> Reading {
+    /// A reading of 100 samples, 10 counts' scatter (the instrument layer's tests too).
+    pub(crate) fn reading(mean_counts: f32, range: u8) -> Reading {
         Reading {
             mean_counts,
             std_counts: 10.0,

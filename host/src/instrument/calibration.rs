@@ -136,16 +136,7 @@ impl Calibration {
 mod tests {
     use super::*;
 
-    fn reading(mean_counts: f32, range: u8) -> Reading {
-        Reading {
-            mean_counts,
-            std_counts: 10.0,
-            samples: 100,
-            range,
-            integration_ms: 100,
-            saturated: false,
-        }
-    }
+    use crate::analysis::calibration::tests::reading;
 
     fn calibration() -> Calibration {
         Calibration::new(

@@ -475,14 +475,8 @@ fn undetermined_parameters_and_classes_are_not_compared() {
 /// text from the files goes in escaped.
 #[test]
 fn the_compare_report_renders_in_a_headless_browser_with_its_warnings() {
-    let Some(chromium) = host::output::chromium::find_chromium() else {
-        if std::env::var_os("GONIO_NO_BROWSER").is_some_and(|v| v == "1") {
-            eprintln!("GONIO_NO_BROWSER=1: the browser test is left out on this machine");
-            return;
-        }
-        panic!(
-            "no chromium on PATH: install it (Debian: apt-get install chromium; .ci/run does), or set GONIO_NO_BROWSER=1 to leave this test out"
-        );
+    let Some(chromium) = crate::common::chromium_or_skip() else {
+        return;
     };
     let dir = temp_dir("report");
     let a = write_session(&dir, "a", &glossy("<b>A&'s</b>", 0.8, 57.8, 0.855, 1.19));
@@ -591,18 +585,7 @@ fn a_library_validated_by_forensic_is_what_compare_weighs_against() {
     let exchange = dir.join("library.jsonl");
     std::fs::write(&exchange, &lines).expect("write");
     let library = dir.join("library.sqlite");
-    let out = gonio()
-        .args(["library", "--library"])
-        .arg(&library)
-        .arg("import")
-        .arg(&exchange)
-        .output()
-        .expect("run gonio");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    import(&library, &exchange);
     // Two questioned sheets of stock 4, as session results.
     let questioned = |name: &str| {
         let v: [f64; 3] = std::array::from_fn(|i| stocks[4][i] * (0.02 * normal_at(name, i)).exp());
@@ -695,11 +678,22 @@ fn a_library_validated_by_forensic_is_what_compare_weighs_against() {
         more.push('\n');
     }
     std::fs::write(&exchange, more).unwrap();
+    import(&library, &exchange);
+    let (changed, _) = compare();
+    assert!(
+        kinds_of(&changed).contains(&"not-validated".to_string()),
+        "{changed}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `gonio library import` of `exchange` into `library`, which must succeed.
+fn import(library: &Path, exchange: &Path) {
     let out = gonio()
         .args(["library", "--library"])
-        .arg(&library)
+        .arg(library)
         .arg("import")
-        .arg(&exchange)
+        .arg(exchange)
         .output()
         .expect("run gonio");
     assert!(
@@ -707,12 +701,6 @@ fn a_library_validated_by_forensic_is_what_compare_weighs_against() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let (changed, _) = compare();
-    assert!(
-        kinds_of(&changed).contains(&"not-validated".to_string()),
-        "{changed}"
-    );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A fixed small normal deviate per name and parameter (the questioned sheets of the test

@@ -194,14 +194,8 @@ fn plot_pixels(png_path: &Path) -> (usize, usize, (u32, u32)) {
 
 #[test]
 fn the_report_renders_in_a_headless_browser_with_its_plots() {
-    let Some(chromium) = host::output::chromium::find_chromium() else {
-        if std::env::var_os("GONIO_NO_BROWSER").is_some_and(|v| v == "1") {
-            eprintln!("GONIO_NO_BROWSER=1: the browser test is left out on this machine");
-            return;
-        }
-        panic!(
-            "no chromium on PATH: install it (Debian: apt-get install chromium; .ci/run does), or set GONIO_NO_BROWSER=1 to leave this test out"
-        );
+    let Some(chromium) = crate::common::chromium_or_skip() else {
+        return;
     };
     let dir = measured("browser", &["--sim", "G", "--spots", "1", "--case", "C-1"]);
     let page = dir.join("report.html");

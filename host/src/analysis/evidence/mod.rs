@@ -542,13 +542,13 @@ pub fn weigh(a: &Questioned, b: &Questioned, population: &Population) -> Evidenc
             }
         }
     }
-    if let (Some(x), Some(y)) = (&a.instrument, &b.instrument) {
-        if x != y {
-            warnings.push(Warning::DifferentInstruments {
-                a: x.clone(),
-                b: y.clone(),
-            });
-        }
+    if let (Some(x), Some(y)) = (&a.instrument, &b.instrument)
+        && x != y
+    {
+        warnings.push(Warning::DifferentInstruments {
+            a: x.clone(),
+            b: y.clone(),
+        });
     }
     let (calibrated, bounds) = match &population.validation {
         Some(v) => (v.calibrator.apply(raw), Some(v.bounds)),
@@ -636,14 +636,14 @@ pub fn search(query: &Questioned, population: &Population) -> Search {
     }
     let stats = sheet_stats(&query.sheet, population, &params);
     let density = population_density(&stats.mean, &stats.around_stock, population, &params);
-    if let Some(d) = &density {
-        if d.distance_squared > d.threshold {
-            warnings.push(Warning::OutOfPopulation {
-                side: Side::A,
-                distance_squared: d.distance_squared,
-                threshold: d.threshold,
-            });
-        }
+    if let Some(d) = &density
+        && d.distance_squared > d.threshold
+    {
+        warnings.push(Warning::OutOfPopulation {
+            side: Side::A,
+            distance_squared: d.distance_squared,
+            threshold: d.threshold,
+        });
     }
     let bounds = population.validation.as_ref().map(|v| v.bounds);
     let mut ranking: Vec<RankedStock> = population

@@ -437,10 +437,10 @@ fn choose_kernel(stocks: &[StockMean]) -> Option<(Cov3, f64)> {
     // h from 1 down to about 0.002 in steps of 15 %.
     for k in 0..40 {
         let h = 0.85f64.powi(k);
-        if let Some(l) = loo(h) {
-            if best.is_none_or(|(_, b)| l > b) {
-                best = Some((h, l));
-            }
+        if let Some(l) = loo(h)
+            && best.is_none_or(|(_, b)| l > b)
+        {
+            best = Some((h, l));
         }
     }
     let (h, _) = best?;

@@ -329,3 +329,19 @@ pub fn draw(
 pub fn covers(interval: Option<(f64, f64)>, value: f64) -> bool {
     interval.is_some_and(|(lo, hi)| lo <= value && value <= hi)
 }
+
+/// The headless browser the page tests use, or `None` when `GONIO_NO_BROWSER=1` leaves
+/// them out on a machine without one (said on stderr); panics saying how to get one
+/// otherwise.
+pub fn chromium_or_skip() -> Option<std::path::PathBuf> {
+    if let Some(chromium) = host::output::chromium::find_chromium() {
+        return Some(chromium);
+    }
+    if std::env::var_os("GONIO_NO_BROWSER").is_some_and(|v| v == "1") {
+        eprintln!("GONIO_NO_BROWSER=1: the browser test is left out on this machine");
+        return None;
+    }
+    panic!(
+        "no chromium on PATH: install it (Debian: apt-get install chromium; .ci/run does), or set GONIO_NO_BROWSER=1 to leave this test out"
+    );
+}
