@@ -894,6 +894,74 @@ fn split(pairs: &[Pair]) -> (Vec<f64>, Vec<f64>) {
     (same, different)
 }
 
+/// What the targets are checked on, from the pairs of a study.
+struct Checks {
+    outside_bounds: usize,
+    bounds_range: ((f64, f64), (f64, f64)),
+    cllr_raw: f64,
+    strong_misleading: (usize, usize),
+    bins: Vec<Decade>,
+    instrument_pairs: (usize, usize),
+    warned: (usize, usize),
+}
+
+impl Checks {
+    fn of(pairs: &[Pair]) -> Checks {
+        let width = |b: &(f64, f64)| b.1 - b.0;
+        let bounds: Vec<(f64, f64)> = pairs.iter().map(|p| p.bounds).collect();
+        let narrowest = bounds
+            .iter()
+            .copied()
+            .min_by(|a, b| width(a).total_cmp(&width(b)))
+            .unwrap_or((0.0, 0.0));
+        let widest = bounds
+            .iter()
+            .copied()
+            .max_by(|a, b| width(a).total_cmp(&width(b)))
+            .unwrap_or((0.0, 0.0));
+        let same = |p: &&Pair| p.stock_a == p.stock_b;
+        let different = |p: &&Pair| p.stock_a != p.stock_b;
+        let raw_same: Vec<f64> = pairs.iter().filter(same).map(|p| p.raw_log10_lr).collect();
+        let raw_different: Vec<f64> = pairs
+            .iter()
+            .filter(different)
+            .map(|p| p.raw_log10_lr)
+            .collect();
+        let warned = |kind: &str| pairs.iter().filter(|p| p.warnings.contains(&kind)).count();
+        Checks {
+            outside_bounds: pairs
+                .iter()
+                .filter(|p| p.log10_lr < p.bounds.0 - 1e-12 || p.log10_lr > p.bounds.1 + 1e-12)
+                .count(),
+            bounds_range: (narrowest, widest),
+            cllr_raw: cllr(&raw_same, &raw_different),
+            strong_misleading: (
+                pairs
+                    .iter()
+                    .filter(same)
+                    .filter(|p| p.log10_lr < -2.0)
+                    .count(),
+                pairs
+                    .iter()
+                    .filter(different)
+                    .filter(|p| p.log10_lr > 2.0)
+                    .count(),
+            ),
+            bins: bins(pairs),
+            instrument_pairs: (
+                pairs.iter().filter(|p| p.instruments_differ).count(),
+                pairs
+                    .iter()
+                    .filter(|p| {
+                        p.instruments_differ && p.warnings.contains(&"different-instruments")
+                    })
+                    .count(),
+            ),
+            warned: (warned("out-of-population"), warned("scatter")),
+        }
+    }
+}
+
 /// The figures of `campaign`'s sheets of `spots` spots, and every held-out pair of every
 /// draw; the draws weighed on `threads` threads.
 pub fn figures(
@@ -945,58 +1013,16 @@ pub fn figures(
     let by_classes = by_classes(campaign, &different);
     let spot_use = spot_use(&sheets);
     let named = named_pairs(campaign, &pairs);
-    let bound_of = |p: &Pair| p.bounds;
-    let widths: Vec<(f64, f64)> = pairs.iter().map(bound_of).collect();
-    let narrowest = widths
-        .iter()
-        .copied()
-        .min_by(|a, b| (a.1 - a.0).total_cmp(&(b.1 - b.0)))
-        .unwrap_or((0.0, 0.0));
-    let widest = widths
-        .iter()
-        .copied()
-        .max_by(|a, b| (a.1 - a.0).total_cmp(&(b.1 - b.0)))
-        .unwrap_or((0.0, 0.0));
-    let raw_same: Vec<f64> = pairs
-        .iter()
-        .filter(|p| p.stock_a == p.stock_b)
-        .map(|p| p.raw_log10_lr)
-        .collect();
-    let raw_different: Vec<f64> = pairs
-        .iter()
-        .filter(|p| p.stock_a != p.stock_b)
-        .map(|p| p.raw_log10_lr)
-        .collect();
+    let checks = Checks::of(&pairs);
     let figures = Figures {
         scenario: campaign.design.scenario.name,
-        outside_bounds: pairs
-            .iter()
-            .filter(|p| p.log10_lr < p.bounds.0 - 1e-12 || p.log10_lr > p.bounds.1 + 1e-12)
-            .count(),
-        bounds_range: (narrowest, widest),
-        cllr_raw: cllr(&raw_same, &raw_different),
-        strong_misleading: (
-            same.iter().filter(|&&x| x < -2.0).count(),
-            different.iter().filter(|p| p.log10_lr > 2.0).count(),
-        ),
-        bins: bins(&pairs),
-        instrument_pairs: (
-            pairs.iter().filter(|p| p.instruments_differ).count(),
-            pairs
-                .iter()
-                .filter(|p| p.instruments_differ && p.warnings.contains(&"different-instruments"))
-                .count(),
-        ),
-        warned: (
-            pairs
-                .iter()
-                .filter(|p| p.warnings.contains(&"out-of-population"))
-                .count(),
-            pairs
-                .iter()
-                .filter(|p| p.warnings.contains(&"scatter"))
-                .count(),
-        ),
+        outside_bounds: checks.outside_bounds,
+        bounds_range: checks.bounds_range,
+        cllr_raw: checks.cllr_raw,
+        strong_misleading: checks.strong_misleading,
+        bins: checks.bins,
+        instrument_pairs: checks.instrument_pairs,
+        warned: checks.warned,
         named,
         spots,
         draws: campaign.stocks.len(),

@@ -149,10 +149,16 @@ pub fn summary_markdown(library: &Path, population: &Population) -> String {
             .bandwidth
             .map_or("assumed".to_string(), |h| format!("{h:.3}"))
     );
-    let Some(v) = &population.validation else {
-        let _ = writeln!(s, "Not validated.");
-        return s;
-    };
+    match &population.validation {
+        Some(v) => s += &validation_markdown(v),
+        None => s += "Not validated.\n",
+    }
+    s
+}
+
+/// The validation's figures: pairs, calibrator, bounds, Cllr, misleading rates, decades.
+fn validation_markdown(v: &crate::analysis::evidence::Validation) -> String {
+    let mut s = String::new();
     let rate = |k: usize, n: usize| {
         let (lo, hi) = super::forensic::wilson(k, n);
         format!(

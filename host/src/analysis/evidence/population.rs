@@ -211,77 +211,8 @@ impl Population {
             });
         }
         let all: Vec<&LogSheet> = by_stock.values().flatten().collect();
-        // Spots about their sheet's mean.
-        let spot_dof: usize = all.iter().map(|s| s.spots.len() - 1).sum();
-        let spot_rows: Vec<[f64; 3]> = all
-            .iter()
-            .flat_map(|s| {
-                s.spots
-                    .iter()
-                    .map(move |p| std::array::from_fn(|i| p[i] - s.mean[i]))
-            })
-            .collect();
-        let spot_estimate = scatter(spot_rows.iter(), &[0.0; 3], spot_dof);
-        let spot = Component {
-            estimate: spot_estimate,
-            dof: spot_dof,
-            used: with_variances(
-                &spot_estimate,
-                diagonal(&spot_estimate).map(|v| {
-                    if spot_dof == 0 {
-                        0.0
-                    } else {
-                        upper_variance(v, spot_dof)
-                    }
-                }),
-            ),
-        };
-        // Sheets' means about their stock's mean, from stocks of two or more sheets, less
-        // what their spots' scatter explains. Without a sheet of two spots the two levels
-        // cannot be told apart: all of the sheets' scatter is then the sheet level, which
-        // does not average over a questioned sheet's spots (the cautious side).
-        let repeated: Vec<&Vec<LogSheet>> = by_stock.values().filter(|s| s.len() >= 2).collect();
-        let sheet_dof: usize = repeated.iter().map(|s| s.len() - 1).sum();
-        if spot_dof == 0 && sheet_dof == 0 {
-            return Err(EvidenceError::NoWithinStockVariation);
-        }
-        let sheet = if sheet_dof == 0 {
-            Component {
-                estimate: [[0.0; 3]; 3],
-                dof: 0,
-                used: spot.used,
-            }
-        } else {
-            let mut rows = Vec::new();
-            let mut inverse_n = Vec::new();
-            for sheets in &repeated {
-                let means: Vec<[f64; 3]> = sheets.iter().map(|s| s.mean).collect();
-                let stock_mean = mean_of(&means);
-                rows.extend(
-                    means
-                        .iter()
-                        .map(|m| -> [f64; 3] { std::array::from_fn(|i| m[i] - stock_mean[i]) }),
-                );
-                inverse_n.extend(sheets.iter().map(|s| 1.0 / s.spots.len() as f64));
-            }
-            let of_means = scatter(rows.iter(), &[0.0; 3], sheet_dof);
-            let c = inverse_n.iter().sum::<f64>() / inverse_n.len() as f64;
-            let estimate = with_variances(
-                &of_means,
-                std::array::from_fn(|i| of_means[i][i] - c * spot_estimate[i][i]),
-            );
-            let used = with_variances(
-                &of_means,
-                std::array::from_fn(|i| {
-                    upper_variance(of_means[i][i], sheet_dof) - c * spot_estimate[i][i]
-                }),
-            );
-            Component {
-                estimate,
-                dof: sheet_dof,
-                used,
-            }
-        };
+        let spot = spot_level(&all);
+        let sheet = sheet_level(&by_stock, &spot)?;
         // Stock means and how well each is known.
         let stocks: Vec<StockMean> = by_stock
             .iter()
@@ -390,6 +321,85 @@ impl Population {
             .map(|b| format!("{b:02x}"))
             .collect()
     }
+}
+
+/// Spots about their sheet's mean: the pooled scatter and its upper bound.
+fn spot_level(all: &[&LogSheet]) -> Component {
+    let spot_dof: usize = all.iter().map(|s| s.spots.len() - 1).sum();
+    let spot_rows: Vec<[f64; 3]> = all
+        .iter()
+        .flat_map(|s| {
+            s.spots
+                .iter()
+                .map(move |p| std::array::from_fn(|i| p[i] - s.mean[i]))
+        })
+        .collect();
+    let spot_estimate = scatter(spot_rows.iter(), &[0.0; 3], spot_dof);
+    Component {
+        estimate: spot_estimate,
+        dof: spot_dof,
+        used: with_variances(
+            &spot_estimate,
+            diagonal(&spot_estimate).map(|v| {
+                if spot_dof == 0 {
+                    0.0
+                } else {
+                    upper_variance(v, spot_dof)
+                }
+            }),
+        ),
+    }
+}
+
+/// Sheets' means about their stock's mean, from stocks of two or more sheets, less what
+/// their spots' scatter explains. Without a sheet of two spots the two levels cannot be
+/// told apart: all of the sheets' scatter is then the sheet level, which does not average
+/// over a questioned sheet's spots (the cautious side). Without a stock of two sheets the
+/// sheet level is taken equal to the spot level (not measured: `dof` 0).
+fn sheet_level(
+    by_stock: &BTreeMap<&str, Vec<LogSheet>>,
+    spot: &Component,
+) -> Result<Component, EvidenceError> {
+    let repeated: Vec<&Vec<LogSheet>> = by_stock.values().filter(|s| s.len() >= 2).collect();
+    let sheet_dof: usize = repeated.iter().map(|s| s.len() - 1).sum();
+    if spot.dof == 0 && sheet_dof == 0 {
+        return Err(EvidenceError::NoWithinStockVariation);
+    }
+    if sheet_dof == 0 {
+        return Ok(Component {
+            estimate: [[0.0; 3]; 3],
+            dof: 0,
+            used: spot.used,
+        });
+    }
+    let mut rows = Vec::new();
+    let mut inverse_n = Vec::new();
+    for sheets in &repeated {
+        let means: Vec<[f64; 3]> = sheets.iter().map(|s| s.mean).collect();
+        let stock_mean = mean_of(&means);
+        rows.extend(
+            means
+                .iter()
+                .map(|m| -> [f64; 3] { std::array::from_fn(|i| m[i] - stock_mean[i]) }),
+        );
+        inverse_n.extend(sheets.iter().map(|s| 1.0 / s.spots.len() as f64));
+    }
+    let of_means = scatter(rows.iter(), &[0.0; 3], sheet_dof);
+    let c = inverse_n.iter().sum::<f64>() / inverse_n.len() as f64;
+    let spot_estimate = &spot.estimate;
+    Ok(Component {
+        estimate: with_variances(
+            &of_means,
+            std::array::from_fn(|i| of_means[i][i] - c * spot_estimate[i][i]),
+        ),
+        dof: sheet_dof,
+        used: with_variances(
+            &of_means,
+            std::array::from_fn(|i| {
+                upper_variance(of_means[i][i], sheet_dof) - c * spot_estimate[i][i]
+            }),
+        ),
+    })
 }
 
 /// The kernel h²·B and h: B the spread of the stock means less their own estimation
