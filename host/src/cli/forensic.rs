@@ -235,10 +235,12 @@ fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<
         .collect();
     let population = library_validation::run(&sheets)
         .with_context(|| format!("{}: cannot validate the library", path.display()))?;
-    // Recorded in the library: comparisons against this population (this library's
-    // contents as they are now) then carry no "not validated" warning.
-    let figures = serde_json::to_value(&population.validation)?;
-    library.record_validation(&population.identity(), &figures)?;
+    // Recorded in the library, whole (stocks, variance components with their degrees of
+    // freedom, kernel and bandwidth, counts, calibrator, bounds, Cllr): comparisons against
+    // this population (this library's contents as they are now) then carry no "not
+    // validated" warning.
+    let recorded = serde_json::to_value(&population)?;
+    library.record_validation(&population.identity(), &recorded)?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let summary = library_validation::summary_markdown(path, &population);
     let summary_path = out.join("summary.md");

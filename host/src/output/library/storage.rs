@@ -745,10 +745,14 @@ impl Library {
     }
 
     /// Record that the population of identity `identity` was validated (by `gonio forensic
-    /// --library`), with what its validation found: kept in `meta` under
+    /// --library`), with the population and its validation: kept in `meta` under
     /// `validated-population/<identity>`, so a population the library's contents no longer
     /// give is simply not found.
-    pub fn record_validation(&mut self, identity: &str, figures: &serde_json::Value) -> Result<()> {
+    pub fn record_validation(
+        &mut self,
+        identity: &str,
+        population: &serde_json::Value,
+    ) -> Result<()> {
         let path = self.path.clone();
         let sqlite = |source| LibraryError::Sqlite {
             path: path.clone(),
@@ -757,7 +761,7 @@ impl Library {
         let record = serde_json::json!({
             "validated_at": now_utc(),
             "validated_by": format!("gonio {}", env!("CARGO_PKG_VERSION")),
-            "figures": figures,
+            "population": population,
         });
         let tx = self.write()?;
         tx.execute(
