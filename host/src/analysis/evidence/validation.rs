@@ -375,18 +375,23 @@ impl Validation {
             }
             (s, d)
         };
-        // Each pair calibrated by a calibrator that saw neither of its folds.
+        // Each pair calibrated by a calibrator that saw neither of its folds: one per pair
+        // of folds, fitted once.
+        let mut calibrators: BTreeMap<(usize, usize), Calibrator> = BTreeMap::new();
         let calibrated: Vec<f64> = pairs
             .iter()
             .map(|p| {
-                let (s, d) = split(&mut pairs.iter().filter(|q| {
-                    folds < 2
-                        || (q.folds.0 != p.folds.0
-                            && q.folds.1 != p.folds.0
-                            && q.folds.0 != p.folds.1
-                            && q.folds.1 != p.folds.1)
-                }));
-                Calibrator::fit(&s, &d).apply(p.raw)
+                let calibrator = calibrators.entry(p.folds).or_insert_with(|| {
+                    let (s, d) = split(&mut pairs.iter().filter(|q| {
+                        folds < 2
+                            || (q.folds.0 != p.folds.0
+                                && q.folds.1 != p.folds.0
+                                && q.folds.0 != p.folds.1
+                                && q.folds.1 != p.folds.1)
+                    }));
+                    Calibrator::fit(&s, &d)
+                });
+                calibrator.apply(p.raw)
             })
             .collect();
         let (mut cs, mut cd) = (Vec::new(), Vec::new());
