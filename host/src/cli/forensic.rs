@@ -240,7 +240,10 @@ fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<
     // this population (this library's contents as they are now) then carry no "not
     // validated" warning.
     let recorded = serde_json::to_value(&population)?;
-    library.record_validation(&population.identity(), &recorded)?;
+    library.record_validation(
+        &host::analysis::evidence::population::contents_identity(&sheets),
+        &recorded,
+    )?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let summary = library_validation::summary_markdown(path, &population);
     let summary_path = out.join("summary.md");

@@ -1,7 +1,7 @@
 //! The population a comparison or a search weighs against, always named on the command
 //! line: a library of the lab's own stocks, or the demonstration population (never chosen
 //! silently by a file's presence).
-use host::analysis::evidence::{LibrarySheet, Population, validation};
+use host::analysis::evidence::{LibrarySheet, Population, population, validation};
 use host::output::comparison::PopulationInUse;
 use host::output::library::{Library, OpenMode};
 use std::path::PathBuf;
@@ -37,22 +37,33 @@ impl PopulationArgs {
             .filter(|(sha, _)| !exclude.contains(sha))
             .map(|(_, sheet)| sheet)
             .collect();
+        // The population `gonio forensic --library` validated and recorded for exactly these
+        // contents is the reviewed evidence: used as recorded, not made again.
+        let contents = population::contents_identity(&sheets);
+        let recorded = library
+            .validation_record(&contents)?
+            .and_then(|r| serde_json::from_value::<Population>(r["population"].clone()).ok())
+            .filter(|p| p.validation.is_some());
+        if let Some(population) = recorded {
+            return Ok(PopulationInUse {
+                population,
+                name: path.display().to_string(),
+                not_validated_because: None,
+            });
+        }
         let (population, why) = validation::validate_or_explain(&sheets).map_err(|e| {
             anyhow::anyhow!(
                 "{}: the library cannot make a population: {e} (add sheets of more stocks, or weigh against --demo-population for a demonstration)",
                 path.display()
             )
         })?;
-        // Validated here or not at all; a validation the lab recorded (gonio forensic
-        // --library) for exactly this population is what makes it reviewed evidence.
-        let why = match why {
-            Some(e) => Some(e.to_string()),
-            None if library.validation_record(&population.identity())?.is_none() => Some(format!(
-                "validated for this comparison only: the library's population as it is now has not been validated and recorded by `gonio forensic --library {}`",
+        let why = Some(why.map_or_else(
+            || format!(
+                "validated for this comparison only: the library's contents as they are now have not been validated and recorded by `gonio forensic --library {}`",
                 path.display()
-            )),
-            None => None,
-        };
+            ),
+            |e| e.to_string(),
+        ));
         Ok(PopulationInUse {
             population,
             name: path.display().to_string(),

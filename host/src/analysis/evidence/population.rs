@@ -314,13 +314,23 @@ impl Population {
 
     /// SHA-256 (hex) of its JSON: what a report names it by.
     pub fn identity(&self) -> String {
-        use sha2::Digest;
-        let bytes = serde_json::to_vec(self).unwrap_or_default();
-        sha2::Sha256::digest(&bytes)
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect()
+        sha256_of_json(self)
     }
+}
+
+/// SHA-256 (hex) of the library sheets a population is made from: what a validation is
+/// recorded under, so the same contents find it and changed contents do not.
+pub fn contents_identity(sheets: &[LibrarySheet]) -> String {
+    sha256_of_json(sheets)
+}
+
+fn sha256_of_json<T: Serialize + ?Sized>(value: &T) -> String {
+    use sha2::Digest;
+    let bytes = serde_json::to_vec(value).unwrap_or_default();
+    sha2::Sha256::digest(&bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// Spots about their sheet's mean: the pooled scatter and its upper bound.

@@ -744,10 +744,10 @@ impl Library {
         Ok(counts)
     }
 
-    /// Record that the population of identity `identity` was validated (by `gonio forensic
-    /// --library`), with the population and its validation: kept in `meta` under
-    /// `validated-population/<identity>`, so a population the library's contents no longer
-    /// give is simply not found.
+    /// Record the population `gonio forensic --library` validated from the library's
+    /// contents of identity `identity` (`evidence::population::contents_identity`), with its
+    /// validation: kept in `meta` under `validated-population/<identity>`, so contents
+    /// changed since are simply not found.
     pub fn record_validation(
         &mut self,
         identity: &str,
@@ -776,7 +776,8 @@ impl Library {
         Ok(())
     }
 
-    /// When and by what the population of identity `identity` was validated, if it was.
+    /// The population validated from the contents of identity `identity`, with when and by
+    /// what, if one was recorded.
     pub fn validation_record(&self, identity: &str) -> Result<Option<serde_json::Value>> {
         let sqlite = self.sqlite();
         let text: Option<String> = self
