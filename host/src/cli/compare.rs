@@ -4,9 +4,9 @@
 //! with every warning; A and B are session or sheet folders (or a `session.json`).
 use super::exit;
 use super::population::PopulationArgs;
-use host::analysis::evidence::{self, Questioned};
+use host::analysis::evidence;
 use host::output::comparison::{Audit, Comparison};
-use host::output::sheet_folder::{MeasuredSheet, read_measured};
+use host::output::sheet_folder::read_measured;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -29,22 +29,13 @@ pub struct Args {
     pub population: PopulationArgs,
 }
 
-fn questioned(m: &MeasuredSheet) -> Questioned {
-    Questioned {
-        sheet: m.sheet.clone(),
-        flags: m.flags.clone(),
-        identity: m.identity.clone(),
-        instrument: m.instrument.clone(),
-    }
-}
-
 /// Run `gonio compare`: exit 0 when the ratio was computed and nothing warns, 3 when it was
 /// computed with warnings (read them), 1 for an error.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let a = read_measured(&args.a)?;
     let b = read_measured(&args.b)?;
     let population = args.population.load(&[])?;
-    let e = evidence::weigh(&questioned(&a), &questioned(&b), &population.population);
+    let e = evidence::weigh(&a.questioned(), &b.questioned(), &population.population);
     let document = Comparison::new(&a, &b, &e, &population, Audit::now());
     if let Some(path) = &args.report {
         std::fs::write(path, document.to_html())

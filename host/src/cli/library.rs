@@ -6,7 +6,7 @@
 //! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
 //! changes nothing); 2 a wrong command line.
 use anyhow::Context;
-use host::analysis::evidence::{self, Questioned, Warning};
+use host::analysis::evidence::{self, Warning};
 use host::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
 use serde_json::json;
 use std::io::Write;
@@ -346,13 +346,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
         demo_population: false,
     }
     .load(excluded.as_slice())?;
-    let query = Questioned {
-        sheet: measured.sheet.clone(),
-        flags: measured.flags.clone(),
-        identity: measured.identity.clone(),
-        instrument: measured.instrument.clone(),
-    };
-    let found = evidence::search(&query, &population.population);
+    let found = evidence::search(&measured.questioned(), &population.population);
     let mut ranking: Vec<Ranked> = found
         .ranking
         .into_iter()

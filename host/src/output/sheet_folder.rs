@@ -477,6 +477,17 @@ fn provenance(dir: &Path) -> (Option<String>, Option<String>, Option<folder::Cas
 }
 
 impl MeasuredSheet {
+    /// The sheet as the evidence weighs it, with its flags, folder identity and instrument
+    /// (what the warnings need).
+    pub fn questioned(&self) -> crate::analysis::evidence::Questioned {
+        crate::analysis::evidence::Questioned {
+            sheet: self.sheet.clone(),
+            flags: self.flags.clone(),
+            identity: self.identity.clone(),
+            instrument: self.instrument.clone(),
+        }
+    }
+
     /// The classes of its spots in words ("G", "G, G, SG", "undecided").
     pub fn class_text(&self) -> String {
         let names: Vec<&str> = self

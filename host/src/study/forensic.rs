@@ -561,21 +561,6 @@ pub struct Pair {
     pub instruments_differ: bool,
 }
 
-/// The kind of a warning, as its JSON names it.
-fn warning_kind(w: &evidence::Warning) -> &'static str {
-    use evidence::Warning::*;
-    match w {
-        Demonstration => "demonstration",
-        NotValidated { .. } => "not-validated",
-        SheetLevelAssumed => "sheet-level-assumed",
-        OutOfPopulation { .. } => "out-of-population",
-        Scatter { .. } => "scatter",
-        Flagged { .. } => "flagged",
-        SameMeasurement { .. } => "same-measurement",
-        DifferentInstruments { .. } => "different-instruments",
-    }
-}
-
 /// One draw's evidence: every held-out pair and the library searches.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct DrawEvidence {
@@ -632,7 +617,7 @@ pub(crate) fn draw_evidence(
                 log10_lr: e.log10_lr,
                 raw_log10_lr: e.raw_log10_lr,
                 bounds,
-                warnings: e.warnings.iter().map(warning_kind).collect(),
+                warnings: e.warnings.iter().map(evidence::Warning::kind).collect(),
                 instruments_differ: a.instrument != b.instrument,
             });
         }

@@ -474,6 +474,27 @@ fn scatter_warnings(side: Side, sheet: &Sheet, population: &Population) -> Vec<W
         .collect()
 }
 
+/// What a questioned sheet's own data contradict: its flags, and its spots' scatter.
+fn sheet_warnings(side: Side, q: &Questioned, population: &Population) -> Vec<Warning> {
+    let flagged = (!q.flags.is_empty()).then(|| Warning::Flagged {
+        side,
+        flags: q.flags.clone(),
+    });
+    flagged
+        .into_iter()
+        .chain(scatter_warnings(side, &q.sheet, population))
+        .collect()
+}
+
+/// The warning of a sheet beyond the population's edge, if it is.
+fn out_of_population(side: Side, d: &Density) -> Option<Warning> {
+    (d.distance_squared > d.threshold).then_some(Warning::OutOfPopulation {
+        side,
+        distance_squared: d.distance_squared,
+        threshold: d.threshold,
+    })
+}
+
 /// The evidence of A and B against `population`: the raw ratio, calibrated and bounded by
 /// the population's validation when it has one, with every warning the data give.
 pub fn weigh(a: &Questioned, b: &Questioned, population: &Population) -> Evidence {
@@ -523,23 +544,11 @@ pub fn weigh(a: &Questioned, b: &Questioned, population: &Population) -> Evidenc
         });
     }
     for (side, q) in [(Side::A, a), (Side::B, b)] {
-        if !q.flags.is_empty() {
-            warnings.push(Warning::Flagged {
-                side,
-                flags: q.flags.clone(),
-            });
-        }
-        warnings.extend(scatter_warnings(side, &q.sheet, population));
+        warnings.extend(sheet_warnings(side, q, population));
     }
     if let Some(l) = &joint {
         for (side, d) in [(Side::A, &l.a), (Side::B, &l.b)] {
-            if d.distance_squared > d.threshold {
-                warnings.push(Warning::OutOfPopulation {
-                    side,
-                    distance_squared: d.distance_squared,
-                    threshold: d.threshold,
-                });
-            }
+            warnings.extend(out_of_population(side, d));
         }
     }
     if let (Some(x), Some(y)) = (&a.instrument, &b.instrument)
@@ -620,13 +629,7 @@ pub fn search(query: &Questioned, population: &Population) -> Search {
             why: "no validation of this population is at hand".into(),
         });
     }
-    if !query.flags.is_empty() {
-        warnings.push(Warning::Flagged {
-            side: Side::A,
-            flags: query.flags.clone(),
-        });
-    }
-    warnings.extend(scatter_warnings(Side::A, &query.sheet, population));
+    warnings.extend(sheet_warnings(Side::A, query, population));
     let params = query.sheet.determined();
     if params.is_empty() {
         return Search {
@@ -636,14 +639,8 @@ pub fn search(query: &Questioned, population: &Population) -> Search {
     }
     let stats = sheet_stats(&query.sheet, population, &params);
     let density = population_density(&stats.mean, &stats.around_stock, population, &params);
-    if let Some(d) = &density
-        && d.distance_squared > d.threshold
-    {
-        warnings.push(Warning::OutOfPopulation {
-            side: Side::A,
-            distance_squared: d.distance_squared,
-            threshold: d.threshold,
-        });
+    if let Some(d) = &density {
+        warnings.extend(out_of_population(Side::A, d));
     }
     let bounds = population.validation.as_ref().map(|v| v.bounds);
     let mut ranking: Vec<RankedStock> = population
@@ -820,19 +817,7 @@ mod tests {
     }
 
     fn kinds(e: &Evidence) -> Vec<&'static str> {
-        e.warnings
-            .iter()
-            .map(|w| match w {
-                Warning::Demonstration => "demonstration",
-                Warning::NotValidated { .. } => "not-validated",
-                Warning::SheetLevelAssumed => "sheet-level-assumed",
-                Warning::OutOfPopulation { .. } => "out-of-population",
-                Warning::Scatter { .. } => "scatter",
-                Warning::Flagged { .. } => "flagged",
-                Warning::SameMeasurement { .. } => "same-measurement",
-                Warning::DifferentInstruments { .. } => "different-instruments",
-            })
-            .collect()
+        e.warnings.iter().map(Warning::kind).collect()
     }
 
     #[test]

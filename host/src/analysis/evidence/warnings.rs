@@ -79,6 +79,20 @@ pub enum Warning {
 }
 
 impl Warning {
+    /// Its kind, as its JSON names it (`kind`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Warning::Demonstration => "demonstration",
+            Warning::NotValidated { .. } => "not-validated",
+            Warning::SheetLevelAssumed => "sheet-level-assumed",
+            Warning::OutOfPopulation { .. } => "out-of-population",
+            Warning::Scatter { .. } => "scatter",
+            Warning::Flagged { .. } => "flagged",
+            Warning::SameMeasurement { .. } => "same-measurement",
+            Warning::DifferentInstruments { .. } => "different-instruments",
+        }
+    }
+
     /// As JSON: its fields, `kind` and the sentence a person reads (`message`).
     pub fn to_json(&self) -> serde_json::Value {
         let mut v = serde_json::to_value(self).unwrap_or_else(|_| serde_json::json!({}));
@@ -135,6 +149,43 @@ impl fmt::Display for Warning {
                 f,
                 "the sheets were measured on different instruments ({a} and {b}): differences between instruments are not in the population unless its library holds them"
             ),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_kind_is_the_one_the_json_names() {
+        for w in [
+            Warning::Demonstration,
+            Warning::NotValidated { why: "x".into() },
+            Warning::SheetLevelAssumed,
+            Warning::OutOfPopulation {
+                side: Side::A,
+                distance_squared: 20.0,
+                threshold: 16.3,
+            },
+            Warning::Scatter {
+                side: Side::B,
+                parameter: "rho_s",
+                own_relative_sd: 0.1,
+                population_relative_sd: 0.02,
+                p_value: 1e-4,
+            },
+            Warning::Flagged {
+                side: Side::A,
+                flags: vec!["lack-of-fit".into()],
+            },
+            Warning::SameMeasurement { what: "x".into() },
+            Warning::DifferentInstruments {
+                a: "1".into(),
+                b: "2".into(),
+            },
+        ] {
+            assert_eq!(w.to_json()["kind"], w.kind());
         }
     }
 }
