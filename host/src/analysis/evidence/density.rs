@@ -60,6 +60,16 @@ pub(crate) fn with_variances(shape: &Cov3, variances: [f64; 3]) -> Cov3 {
     })
 }
 
+/// `c` if it is positive definite, else its variances alone: a scatter of fewer rows than
+/// parameters (three spots of one sheet: two degrees of freedom for three parameters) is
+/// singular through its correlations, which so few rows cannot show anyway.
+pub(crate) fn positive_definite_or_diagonal(c: Cov3) -> Cov3 {
+    if linalg::cholesky(&restrict(&c, &[0, 1, 2])).is_some() {
+        return c;
+    }
+    std::array::from_fn(|r| std::array::from_fn(|k| if r == k { c[r][r] } else { 0.0 }))
+}
+
 /// Scatter of `rows` about `mean`, divided by `dof` (at least 1).
 pub(crate) fn scatter<'a>(
     rows: impl Iterator<Item = &'a [f64; 3]>,

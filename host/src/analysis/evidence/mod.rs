@@ -878,6 +878,23 @@ mod tests {
         );
     }
 
+    /// A library whose only sheet of several spots has three (two degrees of freedom for
+    /// three parameters: a singular scatter) still makes a population, from the variances
+    /// alone (the library of `gonio library search`'s schema test, seed 3294, was refused).
+    #[test]
+    fn three_spots_of_one_sheet_are_enough_for_the_spot_level() {
+        for seed in [11, 12, 13] {
+            let mut world = World::new(seed, 6, 0.1, 0.02, 0.02);
+            let mut library = world.library(1, 1);
+            library[0].sheet = world.sheet_of(0, 3);
+            let p = Population::from_library(&library).expect("a population");
+            assert_eq!(p.spot.dof, 2);
+            assert!(
+                crate::analysis::linalg::cholesky(&restrict(&p.spot.used, &[0, 1, 2])).is_some()
+            );
+        }
+    }
+
     /// The variances the library measures are what the ratio uses, at their upper bounds:
     /// a world of 3 % sheets and 2 % spots is estimated as such.
     #[test]

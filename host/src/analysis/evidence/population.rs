@@ -19,8 +19,8 @@
 //!   the likelihood picks the scale at which stocks actually neighbour each other, and
 //!   h ≤ 1 keeps the kernel within the data's own spread.
 use super::density::{
-    Cov3, add, add3, log_mean_exp, log_normal_density, restrict, scale, scale3, scatter,
-    upper_variance, with_variances,
+    Cov3, add, add3, log_mean_exp, log_normal_density, positive_definite_or_diagonal, restrict,
+    scale, scale3, scatter, upper_variance, with_variances,
 };
 use super::{EvidenceError, Sheet};
 use crate::analysis::classify::REFERENCES;
@@ -348,7 +348,7 @@ fn spot_level(all: &[&LogSheet]) -> Component {
     Component {
         estimate: spot_estimate,
         dof: spot_dof,
-        used: with_variances(
+        used: positive_definite_or_diagonal(with_variances(
             &spot_estimate,
             diagonal(&spot_estimate).map(|v| {
                 if spot_dof == 0 {
@@ -357,7 +357,7 @@ fn spot_level(all: &[&LogSheet]) -> Component {
                     upper_variance(v, spot_dof)
                 }
             }),
-        ),
+        )),
     }
 }
 
@@ -403,12 +403,12 @@ fn sheet_level(
             std::array::from_fn(|i| of_means[i][i] - c * spot_estimate[i][i]),
         ),
         dof: sheet_dof,
-        used: with_variances(
+        used: positive_definite_or_diagonal(with_variances(
             &of_means,
             std::array::from_fn(|i| {
                 upper_variance(of_means[i][i], sheet_dof) - c * spot_estimate[i][i]
             }),
-        ),
+        )),
     })
 }
 
