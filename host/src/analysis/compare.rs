@@ -69,11 +69,16 @@ impl SessionResult {
     /// The sheet it measured, as the evidence weighs it: one spot (σ, ρs, ρd and their
     /// covariance; a parameter the session left null stays undetermined).
     pub fn sheet(&self) -> crate::analysis::evidence::Sheet {
+        crate::analysis::evidence::Sheet {
+            spots: vec![self.spot()],
+        }
+    }
+
+    /// The spot it measured: σ, ρs, ρd and their covariance (η is not weighed).
+    pub fn spot(&self) -> crate::analysis::evidence::Spot {
         let values = std::array::from_fn(|i| self.values[i]);
         let covariance = std::array::from_fn(|r| std::array::from_fn(|c| self.covariance[r][c]));
-        crate::analysis::evidence::Sheet {
-            spots: vec![crate::analysis::evidence::Spot { values, covariance }],
-        }
+        crate::analysis::evidence::Spot { values, covariance }
     }
 }
 

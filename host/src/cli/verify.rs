@@ -32,12 +32,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             failed |= !verify_sheet(dir, args.json);
             continue;
         }
-        match verify(dir, host::output::report::html) {
+        match verify(dir, host::output::report::draw) {
             Ok(v) => {
                 if args.json {
                     println!(
                         "{}",
-                        serde_json::json!({"schema": host::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.sample, "serial_number": v.serial_number, "runs": v.runs, "problems": []})
+                        serde_json::json!({"schema": host::schema::VERIFY, "kind": "session", "dir": dir.display().to_string(), "ok": true, "files": v.files, "readings": v.readings, "sample": v.doc.sample, "serial_number": v.doc.instrument.serial_number, "runs": v.doc.runs.len(), "problems": []})
                     );
                 } else {
                     println!(
@@ -45,10 +45,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                         dir.display(),
                         v.files,
                         v.readings,
-                        v.sample,
-                        v.serial_number,
-                        v.runs,
-                        if v.runs == 1 { "" } else { "s" }
+                        v.doc.sample,
+                        v.doc.instrument.serial_number,
+                        v.doc.runs.len(),
+                        if v.doc.runs.len() == 1 { "" } else { "s" }
                     );
                 }
             }
@@ -82,7 +82,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 /// Check a sheet folder and print the result; whether it verified.
 fn verify_sheet(dir: &std::path::Path, json: bool) -> bool {
-    match host::output::verify::verify_sheet(dir, host::output::report::html) {
+    match host::output::verify::verify_sheet(dir, host::output::report::draw) {
         Ok(v) => {
             let readings: usize = v.spots.iter().map(|s| s.readings).sum();
             if json {

@@ -136,11 +136,31 @@ impl SessionOutcome {
     }
 }
 
+/// What a finished `session.json` records besides its outcome, as `gonio verify` checks it
+/// against the folder's other files; each part read on its own.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default)]
+pub(crate) struct SessionRecord {
+    /// Every reading, superseded ones included (marked).
+    #[serde(deserialize_with = "part")]
+    pub readings: Part<Vec<MeasuredPoint>>,
+    /// The calibration the readings were converted with.
+    #[serde(deserialize_with = "part")]
+    pub calibration: Part<Calibration>,
+}
+
 impl SessionDoc {
     /// The outcome parts of the document (all `None` before it is finished).
     pub(crate) fn outcome(&self) -> SessionOutcome {
         // Every field is read on its own and the others ignored: this cannot fail.
         SessionOutcome::deserialize(&self.rest).unwrap_or_default()
+    }
+
+    /// The record parts of the document (all `None` before it is finished); apart from
+    /// [`SessionDoc::outcome`] because only the verification needs every reading.
+    pub(crate) fn record(&self) -> SessionRecord {
+        // As the outcome: every field on its own, so this cannot fail.
+        SessionRecord::deserialize(&self.rest).unwrap_or_default()
     }
 }
 

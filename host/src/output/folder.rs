@@ -247,7 +247,7 @@ pub struct Run {
 
 /// `session.json`: the typed head of the document; the result's parts (readings, fits,
 /// refinements, result, ok, flags…) are kept as they are in `rest`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SessionDoc {
     /// [`crate::schema::SESSION`] (an older document is upgraded as it is read).
     pub schema: String,

@@ -28,9 +28,18 @@ pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
     Ok(text)
 }
 
+/// A folder that matches its manifest.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Matched {
+    /// Files the manifest lists (all of them but itself).
+    pub files: usize,
+    /// The folder's identity: the SHA-256 (hex) of its manifest.
+    pub identity: String,
+}
+
 /// Check `dir` against its manifest: every file listed, present and unchanged, and no other
-/// file. Returns the number of files checked, or every problem found.
-pub fn check(dir: &Path) -> Result<usize, Vec<Finding>> {
+/// file. Returns what matched, or every problem found.
+pub fn check(dir: &Path) -> Result<Matched, Vec<Finding>> {
     let path = dir.join(MANIFEST);
     let problem = |line: Option<usize>, message: String| Finding {
         file: path.clone(),
@@ -102,7 +111,10 @@ pub fn check(dir: &Path) -> Result<usize, Vec<Finding>> {
         }),
     }
     if problems.is_empty() {
-        Ok(listed.len())
+        Ok(Matched {
+            files: listed.len(),
+            identity: sha256_hex(text.as_bytes()),
+        })
     } else {
         Err(problems)
     }

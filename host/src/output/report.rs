@@ -17,6 +17,7 @@ use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::Calibration;
 use crate::output::documents::SpotResultDocument;
 use crate::output::folder::{Finding, MANIFEST, REPORT, SessionDoc};
+use crate::output::sheet_folder::{ReadFolder, ReadSheet};
 use maud::{DOCTYPE, Markup, PreEscaped, Render, html};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -470,8 +471,11 @@ fn instrument_section(doc: &SessionDoc) -> Markup {
     }
 }
 
-fn calibration_section(dir: &Path, doc: &SessionDoc) -> Markup {
-    let c: Calibration = match crate::output::folder::read_calibration(dir) {
+fn calibration_section(
+    calibration: Result<Option<&Calibration>, &Finding>,
+    doc: &SessionDoc,
+) -> Markup {
+    let c: &Calibration = match calibration {
         Ok(Some(c)) => c,
         Ok(None) => return html! { p { "No calibration file." } "\n" },
         Err(p) => {
@@ -507,7 +511,7 @@ fn calibration_section(dir: &Path, doc: &SessionDoc) -> Markup {
                 c.white_radiance_factor,
                 100.0 * c.white_relative_uncertainty
             )))
-            (field_row("tile certificate", certificate(&c)))
+            (field_row("tile certificate", certificate(c)))
             (field_row("white readings", format!(
                 "{} incidence angles; dark readings on {} ranges",
                 c.white.len(),
@@ -630,10 +634,6 @@ fn folder_name(dir: &Path) -> String {
     )
 }
 
-fn session_doc(dir: &Path) -> Result<SessionDoc, ReportError> {
-    Ok(crate::output::folder::require_finished(dir)?)
-}
-
 /// The session's `ok` and `flags` (not clean and none when absent or unreadable).
 fn outcome_of(doc: &SessionDoc) -> (bool, Vec<Flag>) {
     let outcome = doc.outcome();
@@ -643,10 +643,13 @@ fn outcome_of(doc: &SessionDoc) -> (bool, Vec<Flag>) {
     )
 }
 
-/// The report of the finished session folder `dir`.
-pub(crate) fn session_html(dir: &Path) -> Result<String, ReportError> {
-    let doc = session_doc(dir)?;
-    let (ok, flags) = outcome_of(&doc);
+/// The report of the finished session folder `dir`, from its documents as read.
+fn session_html(
+    dir: &Path,
+    doc: &SessionDoc,
+    calibration: Result<Option<&Calibration>, &Finding>,
+) -> Result<String, ReportError> {
+    let (ok, flags) = outcome_of(doc);
     let body = html! {
         h1 { "Sample " (Text(&doc.sample)) } "\n"
         p class="note" { "gonio session report of the folder " (Text(&folder_name(dir))) } "\n"
@@ -654,15 +657,15 @@ pub(crate) fn session_html(dir: &Path) -> Result<String, ReportError> {
         h2 { "Case" } "\n"
         (case_section(doc.case.as_ref()))
         h2 { "Instrument" } "\n"
-        (instrument_section(&doc))
+        (instrument_section(doc))
         h2 { "Calibration" } "\n"
-        (calibration_section(dir, &doc))
+        (calibration_section(calibration, doc))
         h2 { "Result" } "\n"
-        (result_section(dir, &doc)?)
+        (result_section(dir, doc)?)
         h2 { "Flags" } "\n"
         (flags_section(&flags))
         h2 { "Decisions" } "\n"
-        (decisions_section(&doc, 3))
+        (decisions_section(doc, 3))
         h2 { "Files" } "\n"
         (files_section(dir))
         (glossary())
@@ -670,15 +673,15 @@ pub(crate) fn session_html(dir: &Path) -> Result<String, ReportError> {
     Ok(page(&format!("gonio report: {}", doc.sample), body))
 }
 
-/// The report of the finished sheet folder `dir` (several spots).
-pub(crate) fn sheet_html(dir: &Path) -> Result<String, ReportError> {
-    let read = crate::output::sheet_folder::read_sheet(dir)?;
+/// The report of a finished sheet folder (several spots), from its documents as read.
+fn sheet_html(read: &ReadSheet) -> Result<String, ReportError> {
+    let dir = read.dir.as_path();
     let summary = &read.summary;
     let first = read
         .spots
         .first()
         .ok_or_else(|| ReportError::NoSpots(dir.to_path_buf()))?;
-    let first_doc = session_doc(&first.dir)?;
+    let first_doc = &first.doc;
     let body = html! {
         h1 { "Sample " (Text(&read.doc.sample)) ": a sheet of " (read.spots.len()) " spots" } "\n"
         p class="note" { "gonio sheet report of the folder " (Text(&folder_name(dir))) } "\n"
@@ -686,10 +689,10 @@ pub(crate) fn sheet_html(dir: &Path) -> Result<String, ReportError> {
         h2 { "Case" } "\n"
         (case_section(read.doc.case.as_ref().or(first_doc.case.as_ref())))
         h2 { "Instrument" } "\n"
-        (instrument_section(&first_doc))
+        (instrument_section(first_doc))
         h2 { "Calibration (shared by every spot)" } "\n"
-        (calibration_section(&first.dir, &first_doc))
-        (sheet_section(&read))
+        (calibration_section(first.calibration.as_ref().map(Option::as_ref), first_doc))
+        (sheet_section(read))
         h2 { "Flags" } "\n"
         (flags_section(&summary.flags))
         h2 { "Decisions of the sheet" } "\n"
@@ -712,7 +715,7 @@ pub(crate) fn sheet_html(dir: &Path) -> Result<String, ReportError> {
 }
 
 /// The sheet's mean and spread, and each spot's values and verdict.
-fn sheet_section(read: &crate::output::sheet_folder::ReadSheet) -> Markup {
+fn sheet_section(read: &ReadSheet) -> Markup {
     let summary = &read.summary;
     html! {
         h2 { "The sheet" } "\n"
@@ -796,24 +799,43 @@ fn spot_row(
 
 /// A spot of a sheet: its verdict, result and decisions.
 fn spot_section(s: &crate::output::sheet_folder::ReadSpot) -> Result<Markup, ReportError> {
-    let doc = session_doc(&s.dir)?;
-    let (ok, flags) = outcome_of(&doc);
+    let doc = &s.doc;
+    let (ok, flags) = outcome_of(doc);
     let number = s.result.number;
     Ok(html! {
         h2 id=(format!("spot-{number}")) { "Spot " (number) } "\n"
         (verdict(ok, &flags))
-        (result_section(&s.dir, &doc)?)
+        (result_section(&s.dir, doc)?)
         h3 { "Decisions" } "\n"
-        (decisions_section(&doc, 4))
+        (decisions_section(doc, 4))
     })
 }
 
 /// The report of a finished session or sheet folder.
 pub fn html(dir: &Path) -> Result<String, ReportError> {
     if crate::output::folder::is_sheet_folder(dir) {
-        sheet_html(dir)
-    } else {
-        session_html(dir)
+        let read = crate::output::sheet_folder::read_sheet(dir)?;
+        return draw(&ReadFolder::Sheet(&read));
+    }
+    let doc = crate::output::folder::require_finished(dir)?;
+    let calibration = crate::output::folder::read_calibration(dir);
+    draw(&ReadFolder::Session {
+        dir,
+        doc: &doc,
+        calibration: calibration.as_ref().map(Option::as_ref),
+    })
+}
+
+/// The report of a finished folder already read (what `gonio verify` checks
+/// `report.html` against, drawn from the documents it checked).
+pub fn draw(folder: &ReadFolder) -> Result<String, ReportError> {
+    match folder {
+        ReadFolder::Session {
+            dir,
+            doc,
+            calibration,
+        } => session_html(dir, doc, *calibration),
+        ReadFolder::Sheet(read) => sheet_html(read),
     }
 }
 

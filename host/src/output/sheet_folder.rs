@@ -11,13 +11,14 @@
 //! `gonio measure --resume` continues: finished spots are kept, an unfinished spot is
 //! resumed as any session is, and the spots still missing are measured.
 use crate::analysis::compare::{SessionResult, session_result};
-use crate::analysis::evidence::{Sheet, Spot};
+use crate::analysis::evidence::Sheet;
 use crate::analysis::flags::Flag;
 use crate::analysis::spots::{self, SheetSummary, SpotResult};
+use crate::instrument::calibration::Calibration;
 use crate::output::documents::SpotResultDocument;
 use crate::output::folder::{
-    self, Finding, MANIFEST, SESSION, SHEET, Status, dated_folder_name, is_sheet_folder,
-    json_bytes, spot_folder,
+    self, Finding, MANIFEST, SESSION, SHEET, SessionDoc, Status, dated_folder_name,
+    is_sheet_folder, json_bytes, spot_folder,
 };
 use crate::output::lock::{FolderError, FolderLock, io_error};
 use crate::output::store::{Store, StoreOptions};
@@ -332,17 +333,32 @@ pub struct ReadSpot {
     pub seconds: (f64, f64),
     /// Its session's `result` (all absent when it cannot be read as one).
     pub document: SpotResultDocument,
+    /// Its `session.json`, as read (the report is drawn from it).
+    pub doc: SessionDoc,
+    /// Its `calibration.json` as read: the report says when it cannot be read.
+    pub calibration: Result<Option<Calibration>, Finding>,
 }
 
 /// Read a finished spot folder's result.
 pub(crate) fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
+    let doc = folder::require_finished(dir)?;
+    spot_from(dir, number, doc, folder::read_calibration(dir))
+}
+
+/// The spot `number` of a sheet from its folder's documents, already read (by
+/// [`read_spot`], or by the verification that checked them).
+pub(crate) fn spot_from(
+    dir: &Path,
+    number: u16,
+    doc: SessionDoc,
+    calibration: Result<Option<Calibration>, Finding>,
+) -> Result<ReadSpot, Finding> {
     let file = dir.join(SESSION);
     let problem = |message: String| Finding {
         file: file.clone(),
         line: None,
         message,
     };
-    let doc = folder::require_finished(dir)?;
     let session = serde_json::to_value(&doc)
         .map_err(|e| problem(e.to_string()))
         .and_then(|v| session_result(&file, &v).map_err(|e| problem(e.to_string())))?;
@@ -358,14 +374,6 @@ pub(crate) fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
         result.device_seconds.unwrap_or(0.0),
         result.setup_seconds.unwrap_or(0.0),
     );
-    let mut covariance = [[0.0; 3]; 3];
-    for (r, row) in covariance.iter_mut().enumerate() {
-        row.copy_from_slice(&session.covariance[r][..3]);
-    }
-    let spot = Spot {
-        values: [session.values[0], session.values[1], session.values[2]],
-        covariance,
-    };
     Ok(ReadSpot {
         dir: dir.to_path_buf(),
         seconds,
@@ -373,9 +381,11 @@ pub(crate) fn read_spot(dir: &Path, number: u16) -> Result<ReadSpot, Finding> {
         result: SpotResult {
             number,
             flags,
-            spot,
+            spot: session.spot(),
         },
         session,
+        doc,
+        calibration,
     })
 }
 
@@ -403,6 +413,31 @@ impl ReadSheet {
 /// Read the finished sheet folder `dir`: `sheet.json` and every spot's result.
 pub(crate) fn read_sheet(dir: &Path) -> Result<ReadSheet, Finding> {
     let doc = read_doc(dir)?;
+    require_finished_sheet(dir, &doc)?;
+    let spots = doc
+        .spots
+        .iter()
+        .map(|s| read_spot(&dir.join(&s.folder), s.number))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(assemble(dir, doc, spots))
+}
+
+/// The sheet of `dir` from its `sheet.json` and its spots, already read: its result
+/// computed from the spots.
+pub(crate) fn assemble(dir: &Path, doc: SheetDoc, spots: Vec<ReadSpot>) -> ReadSheet {
+    let results: Vec<SpotResult> = spots.iter().map(|s| s.result.clone()).collect();
+    let summary = spots::assess(doc.spots_planned, &results);
+    ReadSheet {
+        dir: dir.to_path_buf(),
+        doc,
+        spots,
+        summary,
+    }
+}
+
+/// A sheet that must be finished (to report, verify or weigh it), and how to continue it
+/// when it is not.
+pub(crate) fn require_finished_sheet(dir: &Path, doc: &SheetDoc) -> Result<(), Finding> {
     if doc.status != Status::Finished {
         let how = doc
             .resume_with
@@ -417,19 +452,23 @@ pub(crate) fn read_sheet(dir: &Path) -> Result<ReadSheet, Finding> {
             ),
         });
     }
-    let spots = doc
-        .spots
-        .iter()
-        .map(|s| read_spot(&dir.join(&s.folder), s.number))
-        .collect::<Result<Vec<_>, _>>()?;
-    let results: Vec<SpotResult> = spots.iter().map(|s| s.result.clone()).collect();
-    let summary = spots::assess(doc.spots_planned, &results);
-    Ok(ReadSheet {
-        dir: dir.to_path_buf(),
-        doc,
-        spots,
-        summary,
-    })
+    Ok(())
+}
+
+/// A finished folder as read once, handed to what draws its report (verification reads
+/// a folder to check it, then hands what it read to the drawing of `report.html`).
+pub enum ReadFolder<'a> {
+    /// A session folder (one spot).
+    Session {
+        /// The folder.
+        dir: &'a Path,
+        /// Its `session.json`.
+        doc: &'a SessionDoc,
+        /// Its `calibration.json` (`None`: there is none; the error: it cannot be read).
+        calibration: Result<Option<&'a Calibration>, &'a Finding>,
+    },
+    /// A sheet folder.
+    Sheet(&'a ReadSheet),
 }
 
 /// A measured sheet as `gonio compare` and `gonio library` read it: a sheet folder (its
@@ -533,7 +572,10 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
             .map(|s| s.session.class.clone())
             .collect();
         let (identity, _, case) = provenance(path);
-        let instrument = read.spots.first().and_then(|s| provenance(&s.dir).1);
+        let instrument = read
+            .spots
+            .first()
+            .map(|s| s.doc.instrument.serial_number.clone());
         let flags = read.summary.flags.iter().map(|f| f.to_string()).collect();
         return Ok(MeasuredSheet {
             path: path.to_path_buf(),

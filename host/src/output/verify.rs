@@ -6,35 +6,38 @@
 //!
 //! Rendering sits above verification (the report is drawn from what is checked here), so
 //! the check of `report.html` is handed the drawing: [`DrawReport`], in use
-//! [`crate::output::report::html`].
+//! [`crate::output::report::draw`]. A folder is read once: what the checks read is what
+//! the drawing is given, and what [`Verified`] hands on (the library adds it from there).
 use crate::instrument::calibration::Calibration;
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, Finding, Inspection, LOG, MANIFEST, POINTS, READINGS, REPORT,
     RunOutcome, SESSION, SHEET, SessionDoc, Status,
 };
-use crate::output::sheet_folder::{ReadSheet, manifest_text, read_doc, read_sheet};
+use crate::output::sheet_folder::{
+    ReadFolder, ReadSheet, assemble, manifest_text, read_doc, require_finished_sheet, spot_from,
+};
 use crate::session::MeasuredPoint;
 use std::path::{Path, PathBuf};
 
-/// Draws the report of a finished folder (session or sheet) for the check that its
-/// `report.html` is the one its files give.
-pub(crate) type DrawReport<E> = fn(&Path) -> Result<String, E>;
+/// Draws the report of a finished folder (session or sheet), already read, for the check
+/// that its `report.html` is the one its files give.
+pub(crate) type DrawReport<E> = fn(&ReadFolder) -> Result<String, E>;
 
-/// A folder that passed every check.
-#[derive(Clone, Debug, PartialEq, Eq)]
+/// A folder that passed every check, with what was read of it.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Verified {
     /// The folder.
     pub dir: PathBuf,
     /// Files the manifest lists (all of them but itself).
     pub files: usize,
+    /// The folder's identity: the SHA-256 (hex) of its manifest.
+    pub identity: String,
     /// Readings in `points.jsonl`.
     pub readings: usize,
-    /// The sample.
-    pub sample: String,
-    /// The instrument's serial number.
-    pub serial_number: String,
-    /// Runs that made the session.
-    pub runs: usize,
+    /// Its `session.json`.
+    pub doc: SessionDoc,
+    /// Its `calibration.json`.
+    pub calibration: Option<Calibration>,
 }
 
 /// Check the finished session folder `dir`; every problem found, each at `file:line` where
@@ -56,15 +59,20 @@ pub fn verify<E: std::fmt::Display>(
     };
     let mut problems = inspection.damage.clone();
     problems.extend(unfinished(dir, doc));
-    let files = match crate::output::manifest::check(dir) {
-        Ok(files) => files,
+    let matched = match crate::output::manifest::check(dir) {
+        Ok(matched) => Some(matched),
         Err(found) => {
             problems.extend(found);
-            0
+            None
         }
     };
     if problems.is_empty() {
-        problems.extend(check_report(dir, draw));
+        let read = ReadFolder::Session {
+            dir,
+            doc,
+            calibration: Ok(inspection.calibration.as_ref()),
+        };
+        problems.extend(check_report(dir, &read, draw));
     }
     problems.extend(cut_lines(dir, &inspection));
     problems.extend(csv_behind(dir, &inspection.csv));
@@ -72,17 +80,16 @@ pub fn verify<E: std::fmt::Display>(
         problems.extend(finished_readings(dir, doc, &inspection.points));
         problems.extend(finished_record(dir, doc, &inspection));
     }
-    if problems.is_empty() {
-        Ok(Verified {
+    match matched {
+        Some(matched) if problems.is_empty() => Ok(Verified {
             dir: dir.to_path_buf(),
-            files,
+            files: matched.files,
+            identity: matched.identity,
             readings: inspection.points.len(),
-            sample: doc.sample.clone(),
-            serial_number: doc.instrument.serial_number.clone(),
-            runs: doc.runs.len(),
-        })
-    } else {
-        Err(problems)
+            doc: doc.clone(),
+            calibration: inspection.calibration,
+        }),
+        _ => Err(problems),
     }
 }
 
@@ -168,11 +175,7 @@ fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> 
             ),
         ));
     }
-    match doc
-        .rest
-        .get("readings")
-        .map(|r| serde_json::from_value::<Vec<MeasuredPoint>>(r.clone()))
-    {
+    match doc.record().readings {
         None => problems.push(at(dir, SESSION, None, "no 'readings'".into())),
         Some(Err(e)) => problems.push(at(
             dir,
@@ -211,12 +214,8 @@ fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> 
 fn finished_record(dir: &Path, doc: &SessionDoc, inspection: &Inspection) -> Vec<Finding> {
     let mut problems = Vec::new();
     let problem = |file: &str, message: String| at(dir, file, None, message);
-    match (
-        doc.rest
-            .get("calibration")
-            .map(|c| serde_json::from_value::<Calibration>(c.clone())),
-        &inspection.calibration,
-    ) {
+    let outcome = doc.outcome();
+    match (doc.record().calibration, &inspection.calibration) {
         (Some(Ok(in_session)), Some(file)) if in_session == *file => {}
         (Some(Ok(_)), Some(_)) => problems.push(problem(
             CALIBRATION,
@@ -229,10 +228,13 @@ fn finished_record(dir: &Path, doc: &SessionDoc, inspection: &Inspection) -> Vec
             format!("'calibration' is not a calibration: {e}"),
         )),
     }
-    for key in ["result", "ok", "flags"] {
-        if !doc.rest.contains_key(key) {
-            problems.push(problem(SESSION, format!("no '{key}'")));
-        }
+    let present = [
+        ("result", outcome.result.is_some()),
+        ("ok", outcome.ok.is_some()),
+        ("flags", outcome.flags.is_some()),
+    ];
+    for (key, _) in present.iter().filter(|(_, present)| !present) {
+        problems.push(problem(SESSION, format!("no '{key}'")));
     }
     match doc.runs.last() {
         Some(run) if run.outcome == RunOutcome::Finished => {}
@@ -253,10 +255,12 @@ fn finished_record(dir: &Path, doc: &SessionDoc, inspection: &Inspection) -> Vec
 /// A sheet folder that passed every check.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VerifiedSheet {
-    /// The sheet.
+    /// The sheet, as its verified spots give it.
     pub sheet: ReadSheet,
     /// Each spot's check.
     pub spots: Vec<Verified>,
+    /// The sheet folder's identity: the SHA-256 (hex) of its manifest.
+    pub identity: String,
 }
 
 /// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
@@ -268,8 +272,11 @@ pub fn verify_sheet<E: std::fmt::Display>(
     let doc = read_doc(dir).map_err(|p| vec![p])?;
     let mut problems = Vec::new();
     let manifest = dir.join(MANIFEST);
+    let mut identity = String::new();
     match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
-        (Ok(recorded), Ok(now)) if recorded == now => {}
+        (Ok(recorded), Ok(now)) if recorded == now => {
+            identity = crate::output::manifest::sha256_hex(recorded.as_bytes());
+        }
         (Ok(_), Ok(_)) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
         (Err(e), _) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
         (_, Err(e)) => problems.push(Finding { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
@@ -289,16 +296,27 @@ pub fn verify_sheet<E: std::fmt::Display>(
         }
     }
     let mut verified = Vec::new();
+    let mut spots = Vec::new();
     for entry in &doc.spots {
-        match verify(&dir.join(&entry.folder), draw) {
-            Ok(v) => verified.push(v),
+        let spot_dir = dir.join(&entry.folder);
+        match verify(&spot_dir, draw) {
+            Ok(v) => {
+                // The spot as the sheet reads it, from the documents just verified.
+                let calibration = Ok(v.calibration.clone());
+                match spot_from(&spot_dir, entry.number, v.doc.clone(), calibration) {
+                    Ok(spot) => spots.push(spot),
+                    Err(problem) => problems.push(problem),
+                }
+                verified.push(v);
+            }
             Err(found) => problems.extend(found),
         }
     }
     if !problems.is_empty() {
         return Err(problems);
     }
-    let sheet = read_sheet(dir).map_err(|p| vec![p])?;
+    require_finished_sheet(dir, &doc).map_err(|p| vec![p])?;
+    let sheet = assemble(dir, doc, spots);
     let recorded = sheet.doc.result.as_ref().map(|r| &r.summary);
     if recorded != Some(&sheet.summary) {
         return Err(vec![Finding {
@@ -307,18 +325,21 @@ pub fn verify_sheet<E: std::fmt::Display>(
             message: "its result is not the one its spots give".into(),
         }]);
     }
-    if let Some(problem) = check_report(dir, draw) {
+    if let Some(problem) = check_report(dir, &ReadFolder::Sheet(&sheet), draw) {
         return Err(vec![problem]);
     }
     Ok(VerifiedSheet {
         sheet,
         spots: verified,
+        identity,
     })
 }
 
-/// Whether the folder's `report.html`, if it has one, is the report its files give.
+/// Whether the folder's `report.html`, if it has one, is the report its files give
+/// (`read`: the folder as read).
 pub(crate) fn check_report<E: std::fmt::Display>(
     dir: &Path,
+    read: &ReadFolder,
     draw: DrawReport<E>,
 ) -> Option<Finding> {
     let path = dir.join(REPORT);
@@ -328,7 +349,7 @@ pub(crate) fn check_report<E: std::fmt::Display>(
         line: None,
         message,
     };
-    match draw(dir) {
+    match draw(read) {
         Ok(drawn) if drawn.as_bytes() == recorded.as_slice() => None,
         Ok(_) => Some(problem(format!(
             "is not the report of this folder's files (changed, or drawn by another gonio version): redraw it with gonio report {}",

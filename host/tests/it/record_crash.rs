@@ -78,7 +78,7 @@ fn class(dir: &Path) -> String {
 /// After a crash at write `n` and a resume: the folder verifies, nothing taken before the
 /// crash was lost or changed, nothing is recorded twice, and the class is the clean one.
 fn check_resumed(dir: &Path, before: &[String], clean_class: &str, what: &str) {
-    if let Err(problems) = host::output::verify::verify(dir, host::output::report::html) {
+    if let Err(problems) = host::output::verify::verify(dir, host::output::report::draw) {
         panic!(
             "{what}: the resumed folder does not verify:\n{}",
             problems
@@ -283,7 +283,7 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
         let message = match run(&args, Some(Crash::disk_full_at(n))) {
             // The last write renames the manifest into place: a full disk takes no data there.
             Ok(Measured::Done { .. }) if n == counting.writes() => {
-                host::output::verify::verify(&dir, host::output::report::html).unwrap();
+                host::output::verify::verify(&dir, host::output::report::draw).unwrap();
                 let _ = std::fs::remove_dir_all(&dir);
                 continue;
             }
@@ -432,6 +432,6 @@ fn measure_writes_a_folder_that_verifies() {
         .unwrap(),
         Measured::Done { .. }
     ));
-    host::output::verify::verify(&dir, host::output::report::html).unwrap();
+    host::output::verify::verify(&dir, host::output::report::draw).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -5,7 +5,7 @@
 //! `gonio compare`, `gonio verify` and the library read.
 use crate::measure_args;
 use host::measure::{Measured, measure_with};
-use host::output::report::html;
+use host::output::report::draw;
 use host::output::sheet_folder::read_measured;
 use host::output::store::{Crash, StoreOptions};
 use host::output::verify::verify_sheet;
@@ -135,7 +135,7 @@ fn the_spots_of_a_sheet_share_the_calibration_and_a_slow_operator_moves_the_shee
             result.setup_seconds < 60.0 && result.device_seconds < 120.0,
             "seed {seed}: {result:?}"
         );
-        let verified = verify_sheet(&out, html).unwrap_or_else(|p| panic!("seed {seed}: {p:?}"));
+        let verified = verify_sheet(&out, draw).unwrap_or_else(|p| panic!("seed {seed}: {p:?}"));
         assert_eq!(verified.spots.len(), 3);
         let measured = read_measured(&out).expect("compare reads the sheet");
         assert_eq!(measured.sheet.spots.len(), 3);
@@ -196,7 +196,7 @@ fn a_flagged_spot_is_replaced_and_excluded_with_the_reason() {
             "{:?}",
             sheet.doc.decisions
         );
-        assert!(verify_sheet(&out, html).is_ok());
+        assert!(verify_sheet(&out, draw).is_ok());
         let _ = std::fs::remove_dir_all(&out);
     }
 }
@@ -220,7 +220,7 @@ fn a_kill_at_any_write_of_a_sheet_resumes_to_a_sheet_that_verifies() {
     );
     let writes = counting.writes();
     assert!(writes > 40, "{writes} writes");
-    let reference = verify_sheet(&first, html)
+    let reference = verify_sheet(&first, draw)
         .expect("the uninterrupted sheet verifies")
         .sheet;
     // Every write of the first and last few (the sheet's own documents), evenly over the
@@ -267,7 +267,7 @@ fn a_kill_at_any_write_of_a_sheet_resumes_to_a_sheet_that_verifies() {
         let sheet = match resumed {
             Ok(Measured::Sheet { sheet, .. }) => sheet,
             Err(e) if e.to_string().contains("finished sheet") => Box::new(
-                verify_sheet(&out, html)
+                verify_sheet(&out, draw)
                     .unwrap_or_else(|p| panic!("{what}: {p:?}"))
                     .sheet,
             ),
@@ -293,7 +293,7 @@ fn a_kill_at_any_write_of_a_sheet_resumes_to_a_sheet_that_verifies() {
                 .map(|s| &s.result.flags)
                 .collect::<Vec<_>>()
         );
-        verify_sheet(&out, html).unwrap_or_else(|p| panic!("{what}: {p:?}"));
+        verify_sheet(&out, draw).unwrap_or_else(|p| panic!("{what}: {p:?}"));
         let _ = std::fs::remove_dir_all(&out);
     }
     let _ = std::fs::remove_dir_all(&first);
@@ -366,7 +366,7 @@ fn a_sheet_folder_that_was_changed_does_not_verify_and_bad_spot_options_are_refu
         ),
         "J1",
     );
-    assert!(verify_sheet(&out, html).is_ok());
+    assert!(verify_sheet(&out, draw).is_ok());
     // A finished sheet is not measured again, with or without --spots.
     let again = run(
         &args(&["--sim", "J1", "--resume", &out_text]),
@@ -384,23 +384,23 @@ fn a_sheet_folder_that_was_changed_does_not_verify_and_bad_spot_options_are_refu
     let session = out.join("spot-2/session.json");
     let text = std::fs::read_to_string(&session).unwrap();
     std::fs::write(&session, text.replacen("\"sample\"", "\"sample\" ", 1)).unwrap();
-    let problems = verify_sheet(&out, html).expect_err("a changed spot");
+    let problems = verify_sheet(&out, draw).expect_err("a changed spot");
     assert!(
         problems.iter().any(|p| p.to_string().contains("MANIFEST")),
         "{problems:?}"
     );
     std::fs::write(&session, text).unwrap();
-    assert!(verify_sheet(&out, html).is_ok());
+    assert!(verify_sheet(&out, draw).is_ok());
     std::fs::write(out.join("notes.txt"), "x").unwrap();
     assert!(
-        verify_sheet(&out, html)
+        verify_sheet(&out, draw)
             .expect_err("an extra file")
             .iter()
             .any(|p| p.to_string().contains("not part of the sheet"))
     );
     std::fs::remove_file(out.join("notes.txt")).unwrap();
     std::fs::rename(out.join("spot-2"), out.join("spot-x")).unwrap();
-    assert!(verify_sheet(&out, html).is_err(), "a spot missing");
+    assert!(verify_sheet(&out, draw).is_err(), "a spot missing");
     let _ = std::fs::remove_dir_all(&out);
 
     for bad in ["0", "21", "many"] {

@@ -1,18 +1,7 @@
 //! A finished session or sheet folder read into the library's [`SheetRecord`], after it is
 //! checked as `gonio verify` checks it.
 use super::{LibraryError, Result, SheetRecord, check_spot, now_utc};
-use crate::analysis::evidence::Spot;
 use std::path::Path;
-
-/// The identity of the session folder `dir`: SHA-256 (hex) of its `MANIFEST.sha256`.
-pub fn session_identity(dir: &Path) -> Result<String> {
-    let manifest = dir.join(crate::output::folder::MANIFEST);
-    let bytes = std::fs::read(&manifest).map_err(|source| LibraryError::Io {
-        path: manifest,
-        source,
-    })?;
-    Ok(crate::output::manifest::sha256_hex(&bytes))
-}
 
 /// Read a finished sheet folder (`gonio measure --spots N`: its accepted spots) or session
 /// folder (one spot), after checking it as `gonio verify` does (every file against the
@@ -34,9 +23,9 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         dir: dir.to_path_buf(),
         what,
     };
-    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::html)
+    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::draw)
         .map_err(|problems| not_verified(dir, &problems))?;
-    let read = verified.sheet;
+    let read = &verified.sheet;
     if !read.summary.ok() && !allow_flagged {
         let flags: Vec<&str> = read.summary.flags.iter().map(|f| f.name()).collect();
         return Err(LibraryError::Flagged {
@@ -52,14 +41,12 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         .spots
         .first()
         .ok_or_else(|| bad("a sheet without spots".into()))?;
-    let file = first.dir.join(crate::output::folder::SESSION);
-    let (_, doc) = read_session_doc(&file, bad)?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
-        measured_at: doc.runs.first().map(|r| r.started.clone()),
-        instrument_serial: doc.instrument.serial_number,
+        measured_at: first.doc.runs.first().map(|r| r.started.clone()),
+        instrument_serial: first.doc.instrument.serial_number.clone(),
         session_path: dir.display().to_string(),
-        session_sha256: session_identity(dir)?,
+        session_sha256: verified.identity.clone(),
         sample: read.doc.sample.clone(),
         added_at: now_utc(),
         spots: sheet.spots,
@@ -79,31 +66,15 @@ fn not_verified(dir: &Path, problems: &[crate::output::folder::Finding]) -> Libr
     }
 }
 
-/// A `session.json` as text and as its document; `bad` makes the error of one that is
-/// not a session document.
-fn read_session_doc(
-    file: &Path,
-    bad: impl Fn(String) -> LibraryError,
-) -> Result<(String, crate::output::folder::SessionDoc)> {
-    let text = std::fs::read_to_string(file).map_err(|source| LibraryError::Io {
-        path: file.to_path_buf(),
-        source,
-    })?;
-    let doc = serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", file.display())))?;
-    Ok((text, doc))
-}
-
 fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Result<SheetRecord> {
     let bad = |what: String| LibraryError::BadSession {
         dir: dir.to_path_buf(),
         what,
     };
-    if let Err(problems) = crate::output::verify::verify(dir, crate::output::report::html) {
-        return Err(not_verified(dir, &problems));
-    }
-    let session_sha256 = session_identity(dir)?;
+    let verified = crate::output::verify::verify(dir, crate::output::report::draw)
+        .map_err(|problems| not_verified(dir, &problems))?;
+    let doc = verified.doc;
     let file = dir.join(crate::output::folder::SESSION);
-    let (text, doc) = read_session_doc(&file, bad)?;
     let outcome = doc.outcome();
     let ok = outcome
         .ok()
@@ -120,23 +91,18 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
             flags,
         });
     }
+    // The result as the comparison reads it, from the document verified.
+    let value = serde_json::to_value(&doc).map_err(|e| bad(e.to_string()))?;
     let result =
-        crate::analysis::compare::parse_session(&file, &text).map_err(|e| bad(e.to_string()))?;
-    let mut covariance = [[0.0; 3]; 3];
-    for (i, row) in covariance.iter_mut().enumerate() {
-        row.copy_from_slice(&result.covariance[i][..3]);
-    }
-    let spot = Spot {
-        values: [result.values[0], result.values[1], result.values[2]],
-        covariance,
-    };
+        crate::analysis::compare::session_result(&file, &value).map_err(|e| bad(e.to_string()))?;
+    let spot = result.spot();
     check_spot(&spot).map_err(|e| bad(e.to_string()))?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
         measured_at: doc.runs.first().map(|r| r.started.clone()),
         instrument_serial: doc.instrument.serial_number,
         session_path: dir.display().to_string(),
-        session_sha256,
+        session_sha256: verified.identity,
         sample: doc.sample,
         added_at: now_utc(),
         spots: vec![spot],

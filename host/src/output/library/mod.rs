@@ -26,7 +26,7 @@ mod storage;
 mod tests;
 
 pub use exchange::{ExchangeFile, ExchangeRecord, RecordError};
-pub use ingest::{read_session_folder, session_identity};
+pub use ingest::read_session_folder;
 pub use storage::{ImportCounts, Library, OpenMode, Removed, StockSummary, default_path};
 
 use crate::analysis::evidence::Spot;
