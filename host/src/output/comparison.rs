@@ -3,7 +3,7 @@
 //! warning, both sheets and the audit trail; printed as JSON (`--json`), as text, or as a
 //! self-contained HTML page in the style of the session report (`--report FILE`).
 use crate::analysis::evidence::{
-    Evidence, PARAM_LABELS, PARAMS, Population, PopulationSource, Support, Warning,
+    Evidence, PARAM_LABELS, PARAMS, Population, PopulationSource, ReportedRatio, Warning,
 };
 use crate::output::folder::CaseRecord;
 use crate::output::report::{Text, field_row, page};
@@ -160,20 +160,10 @@ pub struct Comparison {
     pub schema: &'static str,
     /// The propositions.
     pub propositions: Propositions,
-    /// The reported log10 LR (calibrated, within the validation's bounds).
-    pub log10_lr: f64,
-    /// The model's own, before calibration and bounds.
-    pub raw_log10_lr: f64,
-    /// After calibration, before bounds.
-    pub calibrated_log10_lr: f64,
-    /// The validation's bounds.
-    pub bounds: Option<(f64, f64)>,
-    /// Whether the calibrated ratio was beyond them and is reported at a bound.
-    pub bounded: bool,
-    /// The ENFSI verbal equivalent of the reported value.
-    pub verbal: String,
-    /// Which way it points.
-    pub support: Support,
+    /// The likelihood ratio as reported (calibrated, within the validation's bounds, in
+    /// words), its keys at this level of the document.
+    #[serde(flatten)]
+    pub ratio: ReportedRatio,
     /// Every warning, each with its `kind` and `message`.
     pub warnings: Vec<serde_json::Value>,
     /// The population.
@@ -321,13 +311,7 @@ impl Comparison {
                     "Hd: the two sheets come from different stocks of the relevant population: {relevant}"
                 ),
             },
-            log10_lr: e.log10_lr,
-            raw_log10_lr: e.raw_log10_lr,
-            calibrated_log10_lr: e.calibrated_log10_lr,
-            bounds: e.bounds,
-            bounded: e.bounded,
-            verbal: e.verbal.clone(),
-            support: e.support,
+            ratio: e.ratio.clone(),
             warnings: warnings.iter().map(Warning::to_json).collect(),
             warning_texts: warnings.iter().map(ToString::to_string).collect(),
             population: PopulationSummary::of(population),
@@ -364,7 +348,7 @@ impl Comparison {
     }
 
     fn bounds_text(&self) -> String {
-        match self.bounds {
+        match self.ratio.bounds {
             Some((lo, hi)) => format!("[{lo:+.2}, {hi:+.2}]"),
             None => "none (not validated)".to_string(),
         }
@@ -407,17 +391,17 @@ impl Comparison {
         );
         s += &format!(
             "  likelihood ratio (Hp : Hd): LR = 10^{:.2}  (log10 LR = {:+.2}; the model's own {:+.2}, calibrated {:+.2}, bounds {})\n",
-            self.log10_lr,
-            self.log10_lr,
-            self.raw_log10_lr,
-            self.calibrated_log10_lr,
+            self.ratio.log10_lr,
+            self.ratio.log10_lr,
+            self.ratio.raw_log10_lr,
+            self.ratio.calibrated_log10_lr,
             self.bounds_text()
         );
-        s += &format!("  {}\n", self.verbal);
-        if self.bounded {
+        s += &format!("  {}\n", self.ratio.verbal);
+        if self.ratio.bounded {
             s += &format!(
                 "  the calibrated ratio (log10 {:+.2}) is beyond what the population's validation supports: reported at its bound\n",
-                self.calibrated_log10_lr
+                self.ratio.calibrated_log10_lr
             );
         }
         if !self.contributions.is_empty() {
@@ -506,12 +490,12 @@ impl Comparison {
             ul { li { (Text(&self.propositions.same)) } li { (Text(&self.propositions.different)) } } "\n"
             h2 { "Result" } "\n"
             p class={ "verdict " (if self.warned() { "flagged" } else { "ok" }) } {
-                "LR = 10" sup { (format!("{:.2}", self.log10_lr)) } ": " (Text(&self.verbal))
+                "LR = 10" sup { (format!("{:.2}", self.ratio.log10_lr)) } ": " (Text(&self.ratio.verbal))
             } "\n"
             table {
-                (field_row("reported log10 LR", html! { (format!("{:+.2}", self.log10_lr)) }))
-                (field_row("the model's own", html! { (format!("{:+.2}", self.raw_log10_lr)) }))
-                (field_row("after calibration", html! { (format!("{:+.2}", self.calibrated_log10_lr)) }))
+                (field_row("reported log10 LR", html! { (format!("{:+.2}", self.ratio.log10_lr)) }))
+                (field_row("the model's own", html! { (format!("{:+.2}", self.ratio.raw_log10_lr)) }))
+                (field_row("after calibration", html! { (format!("{:+.2}", self.ratio.calibrated_log10_lr)) }))
                 (field_row("empirical bounds (ELUB)", html! { (Text(&self.bounds_text())) }))
             } "\n"
             h2 { "Warnings" } "\n"

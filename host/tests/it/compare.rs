@@ -232,7 +232,7 @@ fn one_standard_error_apart_supports_the_same_stock() {
         &evidence::Population::demonstration(),
     );
     assert!(
-        e.log10_lr > 1.0 && e.support == evidence::Support::SameStock,
+        e.ratio.log10_lr > 1.0 && e.ratio.support == evidence::Support::SameStock,
         "{e:?}"
     );
     assert_eq!(
@@ -306,7 +306,7 @@ fn unresolved_sigma_is_left_out() {
     );
     assert_eq!(e.parameters, ["rho_s", "rho_d"]);
     assert_eq!(e.left_out, [("sigma_deg", "not determined by A")]);
-    assert!(e.log10_lr.is_finite());
+    assert!(e.ratio.log10_lr.is_finite());
 }
 
 #[test]
@@ -467,7 +467,10 @@ fn undetermined_parameters_and_classes_are_not_compared() {
         "{e:?}"
     );
     assert_eq!(e.parameters, ["sigma_deg", "rho_d"]);
-    assert!(e.log10_lr > 0.0, "the same sheet measured twice: {e:?}");
+    assert!(
+        e.ratio.log10_lr > 0.0,
+        "the same sheet measured twice: {e:?}"
+    );
 }
 
 /// `gonio compare --report FILE`: a self-contained page a browser renders, with the

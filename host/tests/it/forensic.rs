@@ -59,7 +59,7 @@ fn the_issues_cases_point_the_right_way() {
     for seed in [3, 4, 5] {
         let same = weigh(sheet("G", seed), sheet("G", seed + 100));
         assert!(
-            same.log10_lr > 0.0,
+            same.ratio.log10_lr > 0.0,
             "seed {seed}: two sessions of one G sheet: {same:?}"
         );
         // The second session's tile certificate 0.5 % off: every reading 0.5 % off.
@@ -68,25 +68,25 @@ fn the_issues_cases_point_the_right_way() {
             sheet_with_tile("G", seed + 200, 0.99 * 1.005),
         );
         assert!(
-            calibrated_apart.log10_lr > 0.0,
+            calibrated_apart.ratio.log10_lr > 0.0,
             "seed {seed}: a 0.5 % calibration difference: {calibrated_apart:?}"
         );
         for (a, b) in [("J3", "J4"), ("PPC", "J3")] {
             let e = weigh(sheet(a, seed), sheet(b, seed + 300));
             println!(
                 "seed {seed}: {a} vs {b} {:+.2} (the model's {:+.2})",
-                e.log10_lr, e.raw_log10_lr
+                e.ratio.log10_lr, e.ratio.raw_log10_lr
             );
             assert!(
-                e.log10_lr < 0.0 && e.log10_lr >= low,
+                e.ratio.log10_lr < 0.0 && e.ratio.log10_lr >= low,
                 "seed {seed}: {a} vs {b}: {e:?}"
             );
         }
         println!(
             "seed {seed}: same G {:+.2}, 0.5 % apart {:+.2}",
-            same.log10_lr, calibrated_apart.log10_lr
+            same.ratio.log10_lr, calibrated_apart.ratio.log10_lr
         );
-        assert!(same.log10_lr <= high && calibrated_apart.log10_lr <= high);
+        assert!(same.ratio.log10_lr <= high && calibrated_apart.ratio.log10_lr <= high);
     }
 }
 

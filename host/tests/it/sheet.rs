@@ -339,7 +339,7 @@ fn two_sheets_of_one_stock_support_the_same_stock_and_the_library_keeps_their_sp
         );
         assert_eq!(e.n_spots, (3, 3));
         assert_eq!(e.within_known, (true, true));
-        lrs.push(e.log10_lr);
+        lrs.push(e.ratio.log10_lr);
         let record = host::output::library::read_session_folder(&dirs[0], Some("L1"), false)
             .expect("the library reads a sheet folder");
         assert_eq!(record.spots.len(), 3);

@@ -206,9 +206,11 @@ impl Support {
     }
 }
 
-/// The weighed evidence of two sheets.
+/// A likelihood ratio as reported: the model's own, calibrated by the population's
+/// validation and held within its bounds, in words. `gonio compare`'s document holds it
+/// as it is (its keys in this order).
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Evidence {
+pub struct ReportedRatio {
     /// The reported log10 likelihood ratio (same stock : different stocks): calibrated, and
     /// within the validation's bounds.
     pub log10_lr: f64,
@@ -225,6 +227,38 @@ pub struct Evidence {
     pub verbal: String,
     /// Which way it points.
     pub support: Support,
+}
+
+impl ReportedRatio {
+    /// The model's own log10 LR `raw` as reported under `validation` (none: as it is).
+    pub fn of(raw: f64, validation: Option<&Validation>) -> ReportedRatio {
+        let (calibrated, bounds) = match validation {
+            Some(v) => (v.calibrator.apply(raw), Some(v.bounds)),
+            None => (raw, None),
+        };
+        // Beyond its bounds a ratio is reported at the bound: not a contradicted assumption
+        // (most strong ratios are), so not a warning, but said (`bounded`).
+        let log10_lr = match bounds {
+            Some((low, high)) => calibrated.clamp(low, high),
+            None => calibrated,
+        };
+        ReportedRatio {
+            log10_lr,
+            raw_log10_lr: raw,
+            calibrated_log10_lr: calibrated,
+            bounds,
+            bounded: log10_lr != calibrated,
+            verbal: verbal(log10_lr),
+            support: Support::of(log10_lr),
+        }
+    }
+}
+
+/// The weighed evidence of two sheets.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Evidence {
+    /// The likelihood ratio, as reported.
+    pub ratio: ReportedRatio,
     /// The parameters compared (names of [`PARAMS`]).
     pub parameters: Vec<&'static str>,
     /// The parameters left out, with why.
@@ -559,24 +593,8 @@ pub fn weigh(a: &Questioned, b: &Questioned, population: &Population) -> Evidenc
             b: y.clone(),
         });
     }
-    let (calibrated, bounds) = match &population.validation {
-        Some(v) => (v.calibrator.apply(raw), Some(v.bounds)),
-        None => (raw, None),
-    };
-    // Beyond its bounds a ratio is reported at the bound: not a contradicted assumption
-    // (most strong ratios are), so not a warning, but said (`bounded`).
-    let log10_lr = match bounds {
-        Some((low, high)) => calibrated.clamp(low, high),
-        None => calibrated,
-    };
     Evidence {
-        log10_lr,
-        raw_log10_lr: raw,
-        calibrated_log10_lr: calibrated,
-        bounds,
-        bounded: log10_lr != calibrated,
-        verbal: verbal(log10_lr),
-        support: Support::of(log10_lr),
+        ratio: ReportedRatio::of(raw, population.validation.as_ref()),
         parameters: params.iter().map(|&i| PARAMS[i]).collect(),
         left_out,
         contributions,
@@ -843,7 +861,7 @@ mod tests {
         let e = weigh(&Questioned::of(a.clone()), &Questioned::of(b), &p);
         assert_eq!(e.parameters, ["sigma_deg", "rho_d"]);
         assert_eq!(e.left_out, [("rho_s", "not determined by B")]);
-        assert!(e.log10_lr.is_finite());
+        assert!(e.ratio.log10_lr.is_finite());
         let none = Sheet {
             spots: vec![Spot {
                 values: [None; 3],
@@ -851,7 +869,7 @@ mod tests {
             }],
         };
         let e = weigh(&Questioned::of(a), &Questioned::of(none), &p);
-        assert_eq!(e.raw_log10_lr, 0.0);
+        assert_eq!(e.ratio.raw_log10_lr, 0.0);
         assert_eq!(verbal(f64::NAN), "no evidence weighed");
     }
 
@@ -925,15 +943,15 @@ mod tests {
             for k in 0..18 {
                 let (a, b) = (world.sheet_of(k, 5), world.sheet_of(k, 5));
                 let e = weigh(&Questioned::of(a), &Questioned::of(b), &p);
-                assert!(e.log10_lr >= low && e.log10_lr <= high, "{e:?}");
-                worst_same = worst_same.min(e.log10_lr);
+                assert!(e.ratio.log10_lr >= low && e.ratio.log10_lr <= high, "{e:?}");
+                worst_same = worst_same.min(e.ratio.log10_lr);
                 let other = world.sheet_of((k + 7) % 18, 5);
                 let d = weigh(
                     &Questioned::of(world.sheet_of(k, 5)),
                     &Questioned::of(other),
                     &p,
                 );
-                assert!(d.log10_lr >= low && d.log10_lr <= high, "{d:?}");
+                assert!(d.ratio.log10_lr >= low && d.ratio.log10_lr <= high, "{d:?}");
             }
             assert!(
                 worst_same > -2.0,
@@ -1000,8 +1018,8 @@ mod tests {
         let far_b = sheet(&[[3.18, 8.48, 0.265], [3.15, 8.4, 0.27]]);
         let e = weigh(&Questioned::of(far_a), &Questioned::of(far_b), &p);
         assert!(kinds(&e).contains(&"out-of-population"), "{e:?}");
-        let (low, high) = e.bounds.expect("validated");
-        assert!(e.log10_lr >= low && e.log10_lr <= high, "{e:?}");
+        let (low, high) = e.ratio.bounds.expect("validated");
+        assert!(e.ratio.log10_lr >= low && e.ratio.log10_lr <= high, "{e:?}");
         // The issue's case against the demonstration population: custom:8,2.0,0.7 against
         // a stock 6 % away was 10^75.27, "extremely strong support for the same stock".
         let issue_a = sheet(&[[8.0, 2.0, 0.7], [8.1, 2.02, 0.71]]);
@@ -1009,9 +1027,9 @@ mod tests {
         let demo = Population::demonstration();
         let e = weigh(&Questioned::of(issue_a), &Questioned::of(issue_b), &demo);
         assert!(kinds(&e).contains(&"out-of-population"), "{e:?}");
-        let (low, high) = e.bounds.expect("the demonstration is validated");
+        let (low, high) = e.ratio.bounds.expect("the demonstration is validated");
         assert!(
-            e.log10_lr >= low && e.log10_lr <= high && high < 4.0,
+            e.ratio.log10_lr >= low && e.ratio.log10_lr <= high && high < 4.0,
             "{e:?}"
         );
         // The demonstration and an unvalidated population say what they are.
@@ -1031,7 +1049,7 @@ mod tests {
             kinds(&e).contains(&"not-validated") && kinds(&e).contains(&"sheet-level-assumed"),
             "{e:?}"
         );
-        assert_eq!(e.bounds, None);
+        assert_eq!(e.ratio.bounds, None);
     }
 
     #[test]
