@@ -1110,44 +1110,22 @@ mod tests {
         out
     }
 
-    /// The engine's tables give the public model's values and gradients, with and without
-    /// the window, with and without an arm offset, at σ on both sides of the moments'
-    /// two evaluation methods.
-    #[test]
-    fn engine_matches_the_model() {
-        let obs = grid();
+    /// The public model's value and gradient of one reading, the arm offset `shift` added.
+    type ModelOf = fn(&Params, &Observation, f64, Option<f64>) -> (f64, [f64; 4]);
+
+    /// Assert that the engine's tables give `model`'s values and gradients for `obs` at each
+    /// of `params`, with and without the window, with and without an arm offset, and that
+    /// the shift column is the difference of the engine's own values.
+    fn assert_engine_matches(obs: &[Observation], params: &[Params], model: ModelOf) {
         for acceptance in [None, Some(1.0)] {
             for shift in [0.0, 0.3] {
-                let problem = LeastSquaresProblem::new(&obs, &[], acceptance, shift);
-                for p in [
-                    Params {
-                        sigma_deg: 0.3,
-                        rho_s: 40.0,
-                        rho_d: 0.8,
-                        eta: 1.19,
-                    },
-                    Params {
-                        sigma_deg: 0.8,
-                        rho_s: 57.8,
-                        rho_d: 0.855,
-                        eta: 1.19,
-                    },
-                    Params {
-                        sigma_deg: 21.7,
-                        rho_s: 0.409,
-                        rho_d: 0.414,
-                        eta: 2.5,
-                    },
-                ] {
-                    let x = x_of(&p);
+                let problem = LeastSquaresProblem::new(obs, &[], acceptance, shift);
+                for p in params {
+                    let x = x_of(p);
                     let values = problem.values(&x);
                     let (_, jac) = problem.rows(&x);
                     for (k, o) in obs.iter().enumerate() {
-                        let (v, g) = model::evaluate(
-                            &p,
-                            &PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift),
-                            acceptance,
-                        );
+                        let (v, g) = model(p, o, shift, acceptance);
                         assert!(
                             (values[k] - v).abs() <= 1e-12 * v.abs(),
                             "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}",
@@ -1170,9 +1148,8 @@ mod tests {
                     // The shift column against a difference of the engine's own values.
                     let column = problem.shift_column(&x);
                     let h = 1e-4;
-                    let up = LeastSquaresProblem::new(&obs, &[], acceptance, shift + h).values(&x);
-                    let down =
-                        LeastSquaresProblem::new(&obs, &[], acceptance, shift - h).values(&x);
+                    let up = LeastSquaresProblem::new(obs, &[], acceptance, shift + h).values(&x);
+                    let down = LeastSquaresProblem::new(obs, &[], acceptance, shift - h).values(&x);
                     for k in 0..obs.len() {
                         let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
                         assert!(
@@ -1184,6 +1161,40 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// G (σ 0.8°) and rough-II (σ 21.7°) of Table 6.
+    const G_AND_ROUGH: [Params; 2] = [
+        Params {
+            sigma_deg: 0.8,
+            rho_s: 57.8,
+            rho_d: 0.855,
+            eta: 1.19,
+        },
+        Params {
+            sigma_deg: 21.7,
+            rho_s: 0.409,
+            rho_d: 0.414,
+            eta: 2.5,
+        },
+    ];
+
+    /// The engine's tables give the public model's values and gradients, with and without
+    /// the window, with and without an arm offset, at σ on both sides of the moments'
+    /// two evaluation methods.
+    #[test]
+    fn engine_matches_the_model() {
+        let narrow = Params {
+            sigma_deg: 0.3,
+            rho_s: 40.0,
+            rho_d: 0.8,
+            eta: 1.19,
+        };
+        let params = [narrow, G_AND_ROUGH[0], G_AND_ROUGH[1]];
+        assert_engine_matches(&grid(), &params, |p, o, shift, acceptance| {
+            let geometry = PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift);
+            model::evaluate(p, &geometry, acceptance)
+        });
     }
 
     /// Readings taken while the detector moved (a sweep's bins, mixed with still ones): the
@@ -1200,62 +1211,10 @@ mod tests {
                 ..o
             })
             .collect();
-        for acceptance in [None, Some(1.0)] {
-            for shift in [0.0, 0.3] {
-                let problem = LeastSquaresProblem::new(&obs, &[], acceptance, shift);
-                for p in [
-                    Params {
-                        sigma_deg: 0.8,
-                        rho_s: 57.8,
-                        rho_d: 0.855,
-                        eta: 1.19,
-                    },
-                    Params {
-                        sigma_deg: 21.7,
-                        rho_s: 0.409,
-                        rho_d: 0.414,
-                        eta: 2.5,
-                    },
-                ] {
-                    let x = x_of(&p);
-                    let values = problem.values(&x);
-                    let (_, jac) = problem.rows(&x);
-                    for (k, o) in obs.iter().enumerate() {
-                        let (v, g) = model::evaluate_reading(
-                            &p,
-                            o.theta_i_deg,
-                            o.theta_r_deg + shift,
-                            o.theta_r_span_deg,
-                            acceptance,
-                        );
-                        assert!(
-                            (values[k] - v).abs() <= 1e-12 * v.abs(),
-                            "{acceptance:?} {shift} {p:?} {o:?}: {} vs {v}",
-                            values[k]
-                        );
-                        let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
-                        assert!(
-                            (jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6),
-                            "σ {o:?}: {} vs {want_sigma}",
-                            jac[k][0]
-                        );
-                    }
-                    let column = problem.shift_column(&x);
-                    let h = 1e-4;
-                    let up = LeastSquaresProblem::new(&obs, &[], acceptance, shift + h).values(&x);
-                    let down =
-                        LeastSquaresProblem::new(&obs, &[], acceptance, shift - h).values(&x);
-                    for k in 0..obs.len() {
-                        let fd = (up[k] - down[k]) / (2.0 * h) / 0.01;
-                        assert!(
-                            (column[k] - fd).abs() <= 1e-3 * (fd.abs() + 1.0),
-                            "{acceptance:?} {p:?} reading {k}: {} vs {fd}",
-                            column[k]
-                        );
-                    }
-                }
-            }
-        }
+        assert_engine_matches(&obs, &G_AND_ROUGH, |p, o, shift, acceptance| {
+            let (theta_i, theta_r) = (o.theta_i_deg, o.theta_r_deg + shift);
+            model::evaluate_reading(p, theta_i, theta_r, o.theta_r_span_deg, acceptance)
+        });
     }
 
     /// Woodbury: the engine's cost with shared errors equals rᵀ Σ⁻¹ r with Σ formed and
