@@ -38,6 +38,7 @@ mod firmware_image;
 mod fit;
 mod flash_session;
 mod forensic;
+mod layers;
 mod library;
 mod model;
 mod order;

@@ -1,0 +1,198 @@
+//! The host library's layers, drawn from its own imports: every `crate::…` path in a
+//! module's code (comments and its tests left out) names a module of a lower layer, so
+//! there is no circle and no import that runs up. The layers are declared here, where a
+//! change that breaks them fails with the file and the path it names.
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The library's top-level modules, bottom first (`cli` is the binary's, apart).
+const TOP: &[&[&str]] = &[
+    &["schema"],
+    &["analysis"],
+    &["instrument"],
+    &["session"],
+    &["output"],
+    &["measure", "study"],
+];
+
+/// `output/`'s modules, bottom first: the folder's names and documents, its lock, store
+/// and manifest; the writers; verification; rendering; what reads finished folders.
+const OUTPUT: &[&[&str]] = &[
+    &["folder", "chromium"],
+    &["lock", "manifest", "store", "dataset", "export", "plots"],
+    &["documents"],
+    &["record", "sheet_folder"],
+    &["verify"],
+    &["report"],
+    &["comparison", "catalogue", "reanalysis", "library"],
+];
+
+fn src() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+/// Every `.rs` file under `dir`.
+fn files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).expect("a source folder") {
+        let path = entry.expect("an entry").path();
+        if path.is_dir() {
+            out.extend(files(&path));
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+    out
+}
+
+/// The code of a file without its comments and its `#[cfg(test)]` module (tests may
+/// reach anywhere).
+fn code(path: &Path) -> String {
+    code_of(&std::fs::read_to_string(path).expect("a source file"))
+}
+
+/// [`code`] of a file's text: a comment is a line's rest from `//` at its start or after
+/// a space (a URL's `://` is not one).
+fn code_of(text: &str) -> String {
+    let text = text.split("#[cfg(test)]").next().unwrap_or("");
+    text.lines()
+        .map(|l| {
+            let cut = if l.trim_start().starts_with("//") {
+                Some(0)
+            } else {
+                l.find(" //")
+            };
+            cut.map_or(l, |at| &l[..at])
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The `crate::a::b…` paths of `code`, as their segments.
+fn crate_paths(code: &str) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    let mut rest = code;
+    while let Some(at) = rest.find("crate::") {
+        let preceded = rest[..at]
+            .chars()
+            .next_back()
+            .is_some_and(|c| c.is_alphanumeric() || c == '_');
+        rest = &rest[at + "crate::".len()..];
+        if preceded {
+            continue;
+        }
+        let end = rest
+            .find(|c: char| !(c.is_alphanumeric() || c == '_' || c == ':'))
+            .unwrap_or(rest.len());
+        let segments: Vec<String> = rest[..end]
+            .split("::")
+            .filter(|s| !s.is_empty())
+            .map(str::to_string)
+            .collect();
+        if !segments.is_empty() {
+            out.push(segments);
+        }
+    }
+    out
+}
+
+/// The layer of `name` in `layers`.
+fn rank(layers: &[&[&str]], name: &str) -> Option<usize> {
+    layers.iter().position(|layer| layer.contains(&name))
+}
+
+/// Each import that does not run down a layer: "file: path (why)".
+fn violations() -> Vec<String> {
+    let mut out = Vec::new();
+    for path in files(&src()) {
+        let relative = path.strip_prefix(src()).expect("under src").to_path_buf();
+        let parts: Vec<String> = relative
+            .with_extension("")
+            .iter()
+            .map(|p| p.to_string_lossy().into_owned())
+            .collect();
+        let (top, sub) = (parts[0].as_str(), parts.get(1).map(String::as_str));
+        if matches!(top, "lib" | "main" | "cli") {
+            continue;
+        }
+        let Some(own) = rank(TOP, top) else {
+            out.push(format!("{}: a module of no layer", relative.display()));
+            continue;
+        };
+        for target in crate_paths(&code(&path)) {
+            let name = target.join("::");
+            let Some(theirs) = rank(TOP, &target[0]) else {
+                out.push(format!(
+                    "{}: crate::{name} (a module of no layer)",
+                    relative.display()
+                ));
+                continue;
+            };
+            if target[0] == top {
+                // Within output/, its own order; elsewhere a top-level module is one.
+                let (Some(sub), Some(to)) = (sub, target.get(1)) else {
+                    continue;
+                };
+                if top != "output" || to == sub || sub == "mod" {
+                    continue;
+                }
+                match (rank(OUTPUT, sub), rank(OUTPUT, to)) {
+                    (Some(a), Some(b)) if b < a => {}
+                    (Some(_), Some(_)) => out.push(format!(
+                        "{}: crate::{name} (output::{to} is not below output::{sub})",
+                        relative.display()
+                    )),
+                    _ => out.push(format!(
+                        "{}: crate::{name} (a module of output/ of no layer)",
+                        relative.display()
+                    )),
+                }
+            } else if theirs >= own {
+                out.push(format!(
+                    "{}: crate::{name} ({} is not below {top})",
+                    relative.display(),
+                    target[0]
+                ));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn every_import_runs_down_a_layer() {
+    let found = violations();
+    assert!(
+        found.is_empty(),
+        "imports that do not run down a layer:\n{}",
+        found.join("\n")
+    );
+}
+
+/// The check sees what it must: the paths of a `use` group and of inline paths, not
+/// those in comments or words that only end in `crate`; and every module is in a layer.
+#[test]
+fn the_check_reads_paths_and_knows_every_module() {
+    let paths = crate_paths(&code_of(
+        "//! crate::study\nuse crate::output::folder::{A, B};\nlet x = crate::analysis::fit::f(); // crate::cli\nnot_a_crate::x\n#[cfg(test)]\nuse crate::cli;",
+    ));
+    assert_eq!(
+        paths,
+        [vec!["output", "folder"], vec!["analysis", "fit", "f"]]
+            .map(|p| p.iter().map(|s| s.to_string()).collect::<Vec<_>>())
+    );
+    assert!(code(&src().join("lib.rs")).contains("pub mod output"));
+    let mut outputs: BTreeMap<String, bool> = BTreeMap::new();
+    for entry in std::fs::read_dir(src().join("output")).expect("output/") {
+        let path = entry.expect("an entry").path();
+        let name = path
+            .file_stem()
+            .expect("a name")
+            .to_string_lossy()
+            .into_owned();
+        if name != "mod" {
+            outputs.insert(name.clone(), rank(OUTPUT, &name).is_some());
+        }
+    }
+    assert!(outputs.values().all(|&known| known), "{outputs:?}");
+}
