@@ -37,6 +37,7 @@
 //! RAM: the ring holds 256 samples and their stamps, 1.5 KiB (`firmware::sampling`).
 
 use core::cell::RefCell;
+use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicU16, Ordering};
 
 use firmware::Sample;
@@ -81,11 +82,25 @@ struct Sampling {
     ring: SampleRing,
 }
 
-static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<Sampling>> =
-    Mutex::new(RefCell::new(Sampling {
-        decimator: Decimator::new(CYCLES_PER_CONVERSION, 0),
-        ring: SampleRing::new(),
-    }));
+/// Uninitialised until [`DetectorAdc::start`] writes it, so that it is in `.bss`: its
+/// initial value is not all zeros (the ring's `None`s, the decimator's conversion period),
+/// and as a constant initialiser it put 1,568 bytes in `.data`, whose image is in flash.
+/// Reached only through [`with_sampling`].
+static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<MaybeUninit<Sampling>>> =
+    Mutex::new(RefCell::new(MaybeUninit::uninit()));
+
+/// `f` on the sampling state, in a critical section.
+///
+/// Only for the TIM5 interrupt and the methods of a [`DetectorAdc`]: [`DetectorAdc::start`]
+/// writes the state before it enables the interrupt and before it returns the
+/// `DetectorAdc`, so neither can run before it is initialised.
+fn with_sampling<R>(f: impl FnOnce(&mut Sampling) -> R) -> R {
+    SAMPLING.lock(|sampling| {
+        let mut sampling = sampling.borrow_mut();
+        // SAFETY: initialised before any caller can exist (above).
+        f(unsafe { sampling.assume_init_mut() })
+    })
+}
 
 /// (Re)start the DMA stream from the start of `RAW`, then the conversions, then TIM5
 /// [`PHASE_CYCLES`] later (from 0, so that its interrupts follow the blocks' ends); the
@@ -151,8 +166,7 @@ fn TIM5() {
     let steps = crate::steppers::detector_steps();
     let overrun = pac::ADC1.sr().read().ovr();
     let remaining = usize::from(pac::DMA2.st(DMA_STREAM).ndtr().read().ndt());
-    let restart = SAMPLING.lock(|sampling| {
-        let sampling = &mut *sampling.borrow_mut();
+    let restart = with_sampling(|sampling| {
         let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
         sampling.decimator.service(
             RAW_LEN - remaining,
@@ -167,7 +181,7 @@ fn TIM5() {
         // The DMA missed a conversion and the ADC stopped (it should not: the DMA has
         // priority "high" and nothing else uses DMA2): restart from slot 0, TIM5 with it.
         let started = start_conversions();
-        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(started));
+        with_sampling(|sampling| sampling.decimator.restart(started));
     }
 }
 
@@ -224,12 +238,19 @@ impl DetectorAdc {
         // Below the step timers (they preempt the decimation), above USB and the time
         // driver: it has 2 ms before the DMA laps the raw buffer.
         interrupt::TIM5.set_priority(Priority::P1);
+        // The sampling state, before anything can read it (`with_sampling`).
+        SAMPLING.lock(|sampling| {
+            sampling.borrow_mut().write(Sampling {
+                decimator: Decimator::new(CYCLES_PER_CONVERSION, 0),
+                ring: SampleRing::new(),
+            });
+        });
         // SAFETY: the TIM5 handler is defined above and shares state only through atomics
         // and a critical-section mutex.
         unsafe { interrupt::TIM5.enable() };
         // The conversions, and TIM5 locked to them.
         let started = start_conversions();
-        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(started));
+        with_sampling(|sampling| sampling.decimator.restart(started));
         DetectorAdc {
             _adc: adc,
             _dma: dma,
@@ -248,8 +269,7 @@ impl DetectorAdc {
                 counts: 0,
                 detector_steps: 0,
             }; 16];
-            let n = SAMPLING.lock(|sampling| {
-                let mut sampling = sampling.borrow_mut();
+            let n = with_sampling(|sampling| {
                 loss = loss.or(sampling.ring.take_loss());
                 sampling.ring.pop_into(&mut batch)
             });
@@ -271,11 +291,11 @@ impl DetectorAdc {
 
     /// An overrun of the ADC path since the last call (drained or not).
     pub fn take_fault(&mut self) -> Option<SampleLoss> {
-        SAMPLING.lock(|sampling| sampling.borrow_mut().ring.take_fault())
+        with_sampling(|sampling| sampling.ring.take_fault())
     }
 
     /// Forget the samples taken so far (not an overrun: see `firmware::sampling`).
     pub fn clear(&mut self) {
-        SAMPLING.lock(|sampling| sampling.borrow_mut().ring.clear());
+        with_sampling(|sampling| sampling.ring.clear());
     }
 }
