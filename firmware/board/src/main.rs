@@ -79,6 +79,8 @@ const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 
 /// SYSCLK, Hz (`clock_config`): the step timers' and the ADC's cycle counts depend on it.
 pub(crate) const SYSCLK_HZ: u32 = 96_000_000;
+/// PCLK2, Hz (`clock_config`: APB2 undivided): the ADC's clock is divided from it.
+pub(crate) const PCLK2_HZ: u32 = SYSCLK_HZ;
 
 /// Bytes from the host, waiting for the device task.
 static RX: Pipe<CriticalSectionRawMutex, { 2 * USB_PACKET }> = Pipe::new();
@@ -117,11 +119,38 @@ fn clock_config() -> Config {
     config
 }
 
+/// Stop the board's timers and the watchdog while a debugger halts the core (DBGMCU
+/// APB1 freeze bits), before any of them runs.
+///
+/// A halt is what a breakpoint, an attach or Ctrl-C in `probe-rs run` (the bring-up path)
+/// does. Left running, a step timer (TIM2 source arm, TIM3 detector arm) repeats its
+/// preloaded segment, since its interrupt no longer preloads the next or stops it, and
+/// drives its arm into the mechanical end at the segment's rate. Frozen too: TIM5, the ADC
+/// decimation, whose blocks follow its count (the ADC and its DMA cannot be frozen and
+/// run on: after a halt longer than the raw buffer's 4 ms the next interrupt reports a DMA
+/// lap, `AdcOverrun`, and the device stops, which is right after such a gap); TIM4,
+/// embassy's time driver, so that time pauses with the core instead of the device's own
+/// timeouts seeing the halt at once on resume (and a halt past its 65 ms period would lose
+/// whole periods anyway: it counts them in its interrupts); the IWDG, so a halt does not
+/// end in a watchdog reset. The DWT cycle counter (the step deadline's clock) does not
+/// count in a halt. Nothing else times anything (TIM1, kept for the lamp, and TIM9–11 are
+/// unused).
+fn freeze_timers_in_debug_halt() {
+    pac::DBGMCU.apb1fzr().modify(|w| {
+        w.set_tim2(true);
+        w.set_tim3(true);
+        w.set_tim4(true);
+        w.set_tim5(true);
+        w.set_iwdg(true);
+    });
+}
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     // First: the record a fault handler left is read and cleared before anything can fault.
     let reset_cause = fault::reset_cause();
     let p = embassy_stm32::init(clock_config());
+    freeze_timers_in_debug_halt();
     // The flash accelerator (ART): embassy's clock setup writes the wait states and leaves
     // prefetch and the instruction and data caches off; at 3 wait states they hide the
     // flash latency for loops and constants (the step and ADC interrupts run from flash).
@@ -146,8 +175,6 @@ async fn main(spawner: Spawner) {
 
     let pins = pins::take_board_pins!(p).split();
 
-    // The watchdog stops while a debugger halts the core, so breakpoints do not reset it.
-    pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
 
