@@ -48,9 +48,9 @@ use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
 use firmware::Device;
 use firmware::config::InstrumentConfig;
-use firmware::txqueue::FrameQueue;
+use firmware::txqueue::{DropLog, FrameQueue};
 use hardware::BoardHardware;
-use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PID, USB_PRODUCT, USB_VID};
+use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PRODUCT, USB_VID_PID};
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {
@@ -116,6 +116,14 @@ fn clock_config() -> Config {
     config.rcc.ahb_pre = AHBPrescaler::DIV1; // 96 MHz
     config.rcc.apb1_pre = APBPrescaler::DIV2; // 48 MHz (APB1 max 50 MHz)
     config.rcc.apb2_pre = APBPrescaler::DIV1; // 96 MHz
+    // The DWT cycle counter is the step deadline's and the ADC decimation's clock, and it
+    // counts only while the core's HCLK runs: in the executor's sleep (WFE between events)
+    // HCLK stops unless DBGMCU_CR.DBG_SLEEP keeps it on, and the count falls behind the
+    // timers. Embassy's default sets
+    // it (and DBG_STOP, DBG_STANDBY, unused here); written out so that it cannot change
+    // under us. It costs the sleep's power saving, which a mains-powered instrument does
+    // not need.
+    config.enable_debug_during_sleep = true;
     config
 }
 
@@ -191,7 +199,9 @@ async fn main(spawner: Spawner) {
         usb_config,
     );
 
-    let mut config = embassy_usb::Config::new(USB_VID, USB_PID);
+    // pid.codes' shared test id (protocol::USB_VID_PID): a production build needs its own.
+    let (vid, pid) = USB_VID_PID;
+    let mut config = embassy_usb::Config::new(vid, pid);
     config.manufacturer = Some("gonio");
     config.product = Some(USB_PRODUCT);
     // The chip's unique id, so several instruments on one host can be told apart.
@@ -310,6 +320,7 @@ async fn device_task(
 ) -> ! {
     let mut ticker = Ticker::every(POLL_PERIOD);
     let mut bytes = [0u8; USB_PACKET];
+    let mut drop_log = DropLog::new();
     loop {
         match select3(RX.read(&mut bytes), ticker.next(), DISCONNECTED.wait()).await {
             Either3::First(n) => {
@@ -332,6 +343,12 @@ async fn device_task(
                 TX.lock(|queue| queue.borrow_mut().clear());
             }
         }
+        // At most one line a second, however many frames a host that stopped reading costs:
+        // a defmt log blocks with interrupts off while a probe reads it.
+        drop_log.count(TX.lock(|queue| queue.borrow_mut().take_dropped()));
+        if let Some(dropped) = drop_log.due(now_us()) {
+            warn!("USB send queue full: {} frames dropped", dropped);
+        }
         led.set_level(if device.handshake_done() {
             Level::Low
         } else {
@@ -343,16 +360,10 @@ async fn device_task(
 
 /// Queue one whole frame for the host, or drop it whole when the queue is full (a host
 /// that does not read must not stall the device; `firmware::txqueue`).
+/// The queue counts what it drops; `device_task` logs the count ([`DropLog`]).
 fn queue_frame(frame: &[u8]) {
-    let (queued, dropped) = TX.lock(|queue| {
-        let mut queue = queue.borrow_mut();
-        (queue.push_frame(frame).is_ok(), queue.take_dropped())
-    });
-    if queued {
+    if TX.lock(|queue| queue.borrow_mut().push_frame(frame).is_ok()) {
         TX_QUEUED.signal(());
-    }
-    if dropped > 0 {
-        warn!("USB send queue full: dropped a {}-byte frame", frame.len());
     }
 }
 
