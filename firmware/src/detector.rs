@@ -296,9 +296,80 @@ impl RangedReading {
     }
 }
 
+/// Switch one-hot range lines (one line per feedback resistor, high = connected) to line
+/// `to`, make before break: `set(to, true)` first, then `overlap()`, then `set(line, false)`
+/// for every other line. `false`, and no call at all, when `to` is not one of the `lines`.
+///
+/// Why: while no feedback resistor is connected the transimpedance amplifier has no
+/// feedback and its output slews to a rail, from which it needs far longer than the range's
+/// settling time to recover (and the next readings would carry it). With two connected for
+/// a moment, the gain is only the lower of the two, which the library's blanking after a
+/// switch discards anyway. `overlap` is the wait between the two: an analog switch's
+/// turn-on is slower than its turn-off, so two GPIO writes a few nanoseconds apart would
+/// still break first.
+pub fn switch_range_lines(
+    lines: usize,
+    to: usize,
+    mut set: impl FnMut(usize, bool),
+    overlap: impl FnOnce(),
+) -> bool {
+    if to >= lines {
+        return false;
+    }
+    set(to, true);
+    overlap();
+    for line in (0..lines).filter(|&line| line != to) {
+        set(line, false);
+    }
+    true
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every switch between three lines, from any starting state with a line connected:
+    /// some line is connected at every moment, only the target at the end, and the wait
+    /// comes between the make and the first break.
+    #[test]
+    fn range_switch_is_make_before_break() {
+        const LINES: usize = 3;
+        for start in 1u8..(1 << LINES) {
+            for to in 0..LINES {
+                let mut state = start;
+                let events = core::cell::RefCell::new(Vec::new());
+                let switched = switch_range_lines(
+                    LINES,
+                    to,
+                    |line, on| {
+                        if on {
+                            state |= 1 << line;
+                        } else {
+                            state &= !(1 << line);
+                        }
+                        assert_ne!(state, 0, "no resistor connected: {start:03b} -> {to}");
+                        events.borrow_mut().push(Some((line, on)));
+                    },
+                    || events.borrow_mut().push(None),
+                );
+                assert!(switched);
+                assert_eq!(state, 1 << to, "{start:03b} -> {to}");
+                let events = events.into_inner();
+                assert_eq!(events[0], Some((to, true)));
+                assert_eq!(events[1], None);
+                assert!(events[2..].iter().all(|e| matches!(e, Some((_, false)))));
+            }
+        }
+    }
+
+    /// A range that is not a line changes nothing (the old one-hot loop switched all off).
+    #[test]
+    fn range_switch_refuses_a_missing_line() {
+        let calls = core::cell::Cell::new(0);
+        let count = || calls.set(calls.get() + 1);
+        assert!(!switch_range_lines(3, 3, |_, _| count(), count));
+        assert_eq!(calls.get(), 0);
+    }
 
     fn stats(samples: &[u32]) -> SampleStats {
         let mut s = SampleStats::new();

@@ -3,7 +3,7 @@
 //! The device never waits on USB (a host that stops reading must not stall the fail-safe
 //! logic), so its frames go into a bounded queue of bytes that the USB task empties. The
 //! policy: a frame is queued whole or not at all. One that does not fit is dropped whole
-//! and counted (the board logs the count); half a frame would turn the next one into
+//! and counted (the board logs the count, at most once a second: [`DropLog`]); half a frame would turn the next one into
 //! garbage as well. What is lost is visible to the host: a reply is asked for again (the
 //! request is retried under its sequence number and answered from the device's reply
 //! cache), a streamed reading leaves a gap in its indices, a stop shows in the status.
@@ -82,5 +82,55 @@ impl<const N: usize> FrameQueue<N> {
     /// Frames dropped since the last call.
     pub fn take_dropped(&mut self) -> u32 {
         core::mem::take(&mut self.dropped)
+    }
+}
+
+/// How often, at most, dropped frames are logged: once a second.
+pub const DROP_LOG_PERIOD_US: u64 = 1_000_000;
+
+/// Dropped frames, counted and logged at most once per [`DROP_LOG_PERIOD_US`].
+///
+/// A host that stops reading makes the device drop a frame at every status, bin or reply:
+/// up to one per 1 ms poll. A log line for each floods the log, and the board's defmt
+/// logger blocks with interrupts off while a probe reads it: the log would cost the device
+/// the time it has for its deadlines. So the drops are counted, and the count is due when
+/// the last log was at least a period ago (the first drop after a quiet second at once).
+/// The board asks every poll, so the last count of a run of drops (the host reading
+/// again) is logged within a period of it too. A log on every recovery, without the
+/// period, could flood all the same: a host that reads in bursts recovers at every burst.
+#[derive(Clone, Debug, Default)]
+pub struct DropLog {
+    pending: u32,
+    last_log_us: Option<u64>,
+}
+
+impl DropLog {
+    /// Nothing dropped, nothing logged.
+    pub const fn new() -> Self {
+        DropLog {
+            pending: 0,
+            last_log_us: None,
+        }
+    }
+
+    /// Count `dropped` more frames ([`FrameQueue::take_dropped`]).
+    pub fn count(&mut self, dropped: u32) {
+        self.pending = self.pending.saturating_add(dropped);
+    }
+
+    /// The frames dropped since the last log, if they are to be logged at `now_us`; they are
+    /// then counted as logged.
+    pub fn due(&mut self, now_us: u64) -> Option<u32> {
+        if self.pending == 0 {
+            return None;
+        }
+        let quiet = self
+            .last_log_us
+            .is_none_or(|last| now_us.saturating_sub(last) >= DROP_LOG_PERIOD_US);
+        if !quiet {
+            return None;
+        }
+        self.last_log_us = Some(now_us);
+        Some(core::mem::take(&mut self.pending))
     }
 }

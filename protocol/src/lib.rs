@@ -62,9 +62,17 @@ pub const MAX_FRAME_LEN: usize = 256;
 /// Largest postcard payload of one frame (the CRC and the COBS overhead take the rest).
 pub const MAX_PAYLOAD_LEN: usize = MAX_FRAME_LEN - 1 - 4 - MAX_FRAME_LEN.div_ceil(254);
 
-/// USB identity of the instrument (pid.codes test VID/PID until a pair is assigned).
-pub const USB_VID: u16 = 0x1209;
-/// See [`USB_VID`].
-pub const USB_PID: u16 = 0x0001;
+/// USB identity of the instrument, (vendor id, product id): 1209:0001, pid.codes' shared
+/// TEST id. pid.codes (VID 0x1209) leaves 0x0001 to anyone's testing, so unrelated test
+/// devices share it and a host cannot tell the instrument by it alone (the host also matches
+/// [`USB_PRODUCT`]). A production build needs a PID of its own: pid.codes allocates free
+/// ones to open-hardware projects (a request to their registry, github.com/pidcodes). Not
+/// to be replaced by a number of our own choosing: a PID is only ours once allocated.
+/// The one place the pair is set; the board and the host's port detection read it.
+pub const USB_VID_PID: (u16, u16) = (0x1209, 0x0001);
+/// The vendor id of [`USB_VID_PID`].
+pub const USB_VID: u16 = USB_VID_PID.0;
+/// The product id of [`USB_VID_PID`].
+pub const USB_PID: u16 = USB_VID_PID.1;
 /// USB product string; host auto-detection matches on it as well as VID/PID.
 pub const USB_PRODUCT: &str = "gonio reflectometer";

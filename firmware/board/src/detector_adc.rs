@@ -18,7 +18,7 @@
 //! timer would stamp each block 0–1 ms late, sliding with the 24 µs difference: up to
 //! 4.9 steps off at 60 °/s.)
 //!
-//! Rates: ADCCLK = PCLK2 96 MHz / 4 = 24 MHz (embassy's `Adc::new` prescaler); 84-cycle
+//! Rates: ADCCLK = PCLK2 96 MHz / 4 = 24 MHz ([`ADC_PRESCALER`], written at start); 84-cycle
 //! sampling + 12-cycle conversion = 96 ADC clocks, so 250,000 conversions/s, one every 384
 //! CPU cycles, paced by the crystal. 256 summed conversions (20 bits) shifted right by 4
 //! make one sample of full scale 65,520 counts (`InstrumentConfig` full scale is 65,535)
@@ -37,6 +37,7 @@
 //! RAM: the ring holds 256 samples and their stamps, 1.5 KiB (`firmware::sampling`).
 
 use core::cell::RefCell;
+use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicU16, Ordering};
 
 use firmware::Sample;
@@ -50,6 +51,7 @@ use embassy_stm32::interrupt;
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::pac;
 use embassy_stm32::pac::adc::vals as adc_vals;
+use embassy_stm32::pac::adccommon::vals as adc_common_vals;
 use embassy_stm32::pac::dma::vals as dma_vals;
 use embassy_stm32::peripherals::{ADC1, DMA2_CH0, PA1, TIM5};
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
@@ -57,10 +59,42 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use firmware::sampling::{Decimator, OVERSAMPLE, RAW_LEN, SampleLoss, SampleRing};
 
-/// CPU cycles per conversion: 96 ADC clocks at 24 MHz, at a 96 MHz SYSCLK.
-const CYCLES_PER_CONVERSION: u32 = crate::SYSCLK_HZ / 250_000;
+/// ADCCLK's divider of PCLK2 (ADC_CCR.ADCPRE), written by [`DetectorAdc::start`]:
+/// 96 MHz / 4 = 24 MHz, the fastest under the F411's 36 MHz. Everything below is counted
+/// in it: a different divider (or PCLK2) changes the block length the handshake announces.
+const ADC_PRESCALER: adc_common_vals::Adcpre = adc_common_vals::Adcpre::DIV4;
+/// ADCCLK, Hz.
+const ADC_CLOCK_HZ: u32 = crate::PCLK2_HZ / adcpre_divisor(ADC_PRESCALER);
+/// Sampling time of the detector's channel (SMPR2), and its length in ADC clocks.
+const SAMPLE_TIME: adc_vals::SampleTime = adc_vals::SampleTime::CYCLES84;
+const SAMPLE_ADC_CLOCKS: u32 = 84;
+/// ADC clocks of a 12-bit conversion after the sampling (RM0383 11.5: 12 for 12 bits).
+const CONVERSION_ADC_CLOCKS: u32 = 12;
+/// CPU cycles per conversion: 384 (96 ADC clocks of 4 CPU cycles).
+const CYCLES_PER_CONVERSION: u32 =
+    (SAMPLE_ADC_CLOCKS + CONVERSION_ADC_CLOCKS) * (crate::SYSCLK_HZ / ADC_CLOCK_HZ);
 /// CPU cycles per block (one sample): 98,304.
 const BLOCK_CYCLES: u32 = OVERSAMPLE as u32 * CYCLES_PER_CONVERSION;
+// The derivation holds only if ADCCLK is a whole fraction of SYSCLK (TIM5 counts SYSCLK
+// cycles for a block of ADC clocks: otherwise they drift apart) and within the datasheet's
+// 36 MHz; the numbers the module doc and the handshake use are these.
+const _: () = {
+    assert!(crate::SYSCLK_HZ % ADC_CLOCK_HZ == 0);
+    assert!(ADC_CLOCK_HZ <= 36_000_000);
+    assert!(matches!(SAMPLE_TIME, adc_vals::SampleTime::CYCLES84) && SAMPLE_ADC_CLOCKS == 84);
+    assert!(CYCLES_PER_CONVERSION == 384);
+    assert!(BLOCK_CYCLES == 98_304);
+};
+
+/// The divider ADCPRE selects.
+const fn adcpre_divisor(prescaler: adc_common_vals::Adcpre) -> u32 {
+    match prescaler {
+        adc_common_vals::Adcpre::DIV2 => 2,
+        adc_common_vals::Adcpre::DIV4 => 4,
+        adc_common_vals::Adcpre::DIV6 => 6,
+        adc_common_vals::Adcpre::DIV8 => 8,
+    }
+}
 /// The block period, µs: 1,024 (what the handshake announces as `detector_block_us`).
 pub const BLOCK_US: u32 = BLOCK_CYCLES / (crate::SYSCLK_HZ / 1_000_000);
 /// TIM5 starts this long after the conversions, so its interrupt follows each block's end
@@ -81,11 +115,25 @@ struct Sampling {
     ring: SampleRing,
 }
 
-static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<Sampling>> =
-    Mutex::new(RefCell::new(Sampling {
-        decimator: Decimator::new(CYCLES_PER_CONVERSION, 0),
-        ring: SampleRing::new(),
-    }));
+/// Uninitialised until [`DetectorAdc::start`] writes it, so that it is in `.bss`: its
+/// initial value is not all zeros (the ring's `None`s, the decimator's conversion period),
+/// and as a constant initialiser it put 1,568 bytes in `.data`, whose image is in flash.
+/// Reached only through [`with_sampling`].
+static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<MaybeUninit<Sampling>>> =
+    Mutex::new(RefCell::new(MaybeUninit::uninit()));
+
+/// `f` on the sampling state, in a critical section.
+///
+/// Only for the TIM5 interrupt and the methods of a [`DetectorAdc`]: [`DetectorAdc::start`]
+/// writes the state before it enables the interrupt and before it returns the
+/// `DetectorAdc`, so neither can run before it is initialised.
+fn with_sampling<R>(f: impl FnOnce(&mut Sampling) -> R) -> R {
+    SAMPLING.lock(|sampling| {
+        let mut sampling = sampling.borrow_mut();
+        // SAFETY: initialised before any caller can exist (above).
+        f(unsafe { sampling.assume_init_mut() })
+    })
+}
 
 /// (Re)start the DMA stream from the start of `RAW`, then the conversions, then TIM5
 /// [`PHASE_CYCLES`] later (from 0, so that its interrupts follow the blocks' ends); the
@@ -151,8 +199,7 @@ fn TIM5() {
     let steps = crate::steppers::detector_steps();
     let overrun = pac::ADC1.sr().read().ovr();
     let remaining = usize::from(pac::DMA2.st(DMA_STREAM).ndtr().read().ndt());
-    let restart = SAMPLING.lock(|sampling| {
-        let sampling = &mut *sampling.borrow_mut();
+    let restart = with_sampling(|sampling| {
         let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
         sampling.decimator.service(
             RAW_LEN - remaining,
@@ -167,7 +214,7 @@ fn TIM5() {
         // The DMA missed a conversion and the ADC stopped (it should not: the DMA has
         // priority "high" and nothing else uses DMA2): restart from slot 0, TIM5 with it.
         let started = start_conversions();
-        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(started));
+        with_sampling(|sampling| sampling.decimator.restart(started));
     }
 }
 
@@ -189,14 +236,20 @@ impl DetectorAdc {
     ) -> DetectorAdc {
         let mut pin = Flex::new(pin);
         pin.set_as_analog();
-        // Clock on, prescaler (24 MHz), ADON.
+        // Clock on, embassy's prescaler, ADON.
         let adc = Adc::new(adc);
         // DMA2 clock (embassy's init enables it already; harmless if so).
         pac::RCC.ahb1enr().modify(|w| w.set_dma2en(true));
         let regs = pac::ADC1;
         regs.cr2().modify(|w| w.set_adon(false));
+        // Our prescaler, with the ADC off: embassy picks the fastest ADCCLK under 36 MHz from
+        // PCLK2 (DIV4 today too), but BLOCK_CYCLES and the block the handshake announces are
+        // counted in ADC_PRESCALER, so it is written here, not assumed.
+        pac::ADC1_COMMON
+            .ccr()
+            .modify(|w| w.set_adcpre(ADC_PRESCALER));
         regs.smpr2()
-            .modify(|w| w.set_smp(usize::from(ADC_CHANNEL), adc_vals::SampleTime::CYCLES84));
+            .modify(|w| w.set_smp(usize::from(ADC_CHANNEL), SAMPLE_TIME));
         regs.sqr1().modify(|w| w.set_l(0)); // one conversion per sequence
         regs.sqr3().modify(|w| w.set_sq(0, ADC_CHANNEL));
         regs.cr1().modify(|w| {
@@ -224,12 +277,19 @@ impl DetectorAdc {
         // Below the step timers (they preempt the decimation), above USB and the time
         // driver: it has 2 ms before the DMA laps the raw buffer.
         interrupt::TIM5.set_priority(Priority::P1);
+        // The sampling state, before anything can read it (`with_sampling`).
+        SAMPLING.lock(|sampling| {
+            sampling.borrow_mut().write(Sampling {
+                decimator: Decimator::new(CYCLES_PER_CONVERSION, 0),
+                ring: SampleRing::new(),
+            });
+        });
         // SAFETY: the TIM5 handler is defined above and shares state only through atomics
         // and a critical-section mutex.
         unsafe { interrupt::TIM5.enable() };
         // The conversions, and TIM5 locked to them.
         let started = start_conversions();
-        SAMPLING.lock(|sampling| sampling.borrow_mut().decimator.restart(started));
+        with_sampling(|sampling| sampling.decimator.restart(started));
         DetectorAdc {
             _adc: adc,
             _dma: dma,
@@ -248,8 +308,7 @@ impl DetectorAdc {
                 counts: 0,
                 detector_steps: 0,
             }; 16];
-            let n = SAMPLING.lock(|sampling| {
-                let mut sampling = sampling.borrow_mut();
+            let n = with_sampling(|sampling| {
                 loss = loss.or(sampling.ring.take_loss());
                 sampling.ring.pop_into(&mut batch)
             });
@@ -271,11 +330,11 @@ impl DetectorAdc {
 
     /// An overrun of the ADC path since the last call (drained or not).
     pub fn take_fault(&mut self) -> Option<SampleLoss> {
-        SAMPLING.lock(|sampling| sampling.borrow_mut().ring.take_fault())
+        with_sampling(|sampling| sampling.ring.take_fault())
     }
 
     /// Forget the samples taken so far (not an overrun: see `firmware::sampling`).
     pub fn clear(&mut self) {
-        SAMPLING.lock(|sampling| sampling.borrow_mut().ring.clear());
+        with_sampling(|sampling| sampling.ring.clear());
     }
 }

@@ -197,9 +197,12 @@ extern "C" fn hard_fault(sp: u32) -> ! {
     })
 }
 
-/// An interrupt with no handler: the program is not what it thinks it is.
+/// An interrupt with no handler: the program is not what it thinks it is. The same safe
+/// stop as a panic (recorded as a panic at this line), and the log only after it: a log
+/// can block (a probe holding RTT in blocking mode) while the arms step on.
 #[cortex_m_rt::exception]
 unsafe fn DefaultHandler(irqn: i16) {
-    error!("unexpected interrupt {}", irqn);
-    panic!("unexpected interrupt");
+    stop_and_reset(panic_error(line!()), |_| {
+        error!("unexpected interrupt {}: outputs safe, resetting", irqn)
+    })
 }

@@ -15,12 +15,19 @@
 
 use defmt::warn;
 use embassy_stm32::gpio::{Input, Output};
+use firmware::detector;
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
 use firmware::{Arm, Arms, Detector, Lamp, Sample};
 
 use crate::detector_adc::DetectorAdc;
 use crate::steppers::Steppers;
+
+/// How long two feedback resistors are both connected in a range switch, µs: longer than
+/// an analog switch's turn-on time exceeds its turn-off time (CMOS switches turn on in
+/// ≲ 0.5 µs), so the make is complete before the break starts. A busy wait in the device
+/// task, interrupts on.
+const RANGE_OVERLAP_US: u32 = 2;
 
 /// The instrument as the firmware library sees it.
 pub struct BoardHardware {
@@ -93,9 +100,18 @@ impl Arms for BoardHardware {
 
 impl Detector for BoardHardware {
     fn select_range(&mut self, range: u8) {
-        // One-hot: exactly one feedback resistor switched in.
-        for (index, line) in self.range.iter_mut().enumerate() {
-            line.set_level((index == usize::from(range)).into());
+        // One-hot, make before break: the new range's feedback resistor is connected before
+        // the old one is disconnected, so the amplifier is never without feedback (it would
+        // slew to a rail); the library's `switch_range_lines` has the order and its test.
+        let lines = &mut self.range;
+        let switched = detector::switch_range_lines(
+            lines.len(),
+            usize::from(range),
+            |line, connect| lines[line].set_level(connect.into()),
+            || cortex_m::asm::delay(RANGE_OVERLAP_US * (crate::SYSCLK_HZ / 1_000_000)),
+        );
+        if !switched {
+            warn!("range {}: no such range line, range unchanged", range);
         }
         // Samples from before the switch belong to no reading (the library discards them
         // too); dropping them here keeps a full ring between readings, when nobody drains,

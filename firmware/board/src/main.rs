@@ -48,9 +48,9 @@ use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
 use firmware::Device;
 use firmware::config::InstrumentConfig;
-use firmware::txqueue::FrameQueue;
+use firmware::txqueue::{DropLog, FrameQueue};
 use hardware::BoardHardware;
-use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PID, USB_PRODUCT, USB_VID};
+use protocol::{MAX_FRAME_LEN, PROTOCOL_VERSION, USB_PRODUCT, USB_VID_PID};
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {
@@ -79,6 +79,8 @@ const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 
 /// SYSCLK, Hz (`clock_config`): the step timers' and the ADC's cycle counts depend on it.
 pub(crate) const SYSCLK_HZ: u32 = 96_000_000;
+/// PCLK2, Hz (`clock_config`: APB2 undivided): the ADC's clock is divided from it.
+pub(crate) const PCLK2_HZ: u32 = SYSCLK_HZ;
 
 /// Bytes from the host, waiting for the device task.
 static RX: Pipe<CriticalSectionRawMutex, { 2 * USB_PACKET }> = Pipe::new();
@@ -114,7 +116,41 @@ fn clock_config() -> Config {
     config.rcc.ahb_pre = AHBPrescaler::DIV1; // 96 MHz
     config.rcc.apb1_pre = APBPrescaler::DIV2; // 48 MHz (APB1 max 50 MHz)
     config.rcc.apb2_pre = APBPrescaler::DIV1; // 96 MHz
+    // The DWT cycle counter is the step deadline's and the ADC decimation's clock, and it
+    // counts only while the core's HCLK runs: in the executor's sleep (WFE between events)
+    // HCLK stops unless DBGMCU_CR.DBG_SLEEP keeps it on, and the count falls behind the
+    // timers. Embassy's default sets
+    // it (and DBG_STOP, DBG_STANDBY, unused here); written out so that it cannot change
+    // under us. It costs the sleep's power saving, which a mains-powered instrument does
+    // not need.
+    config.enable_debug_during_sleep = true;
     config
+}
+
+/// Stop the board's timers and the watchdog while a debugger halts the core (DBGMCU
+/// APB1 freeze bits), before any of them runs.
+///
+/// A halt is what a breakpoint, an attach or Ctrl-C in `probe-rs run` (the bring-up path)
+/// does. Left running, a step timer (TIM2 source arm, TIM3 detector arm) repeats its
+/// preloaded segment, since its interrupt no longer preloads the next or stops it, and
+/// drives its arm into the mechanical end at the segment's rate. Frozen too: TIM5, the ADC
+/// decimation, whose blocks follow its count (the ADC and its DMA cannot be frozen and
+/// run on: after a halt longer than the raw buffer's 4 ms the next interrupt reports a DMA
+/// lap, `AdcOverrun`, and the device stops, which is right after such a gap); TIM4,
+/// embassy's time driver, so that time pauses with the core instead of the device's own
+/// timeouts seeing the halt at once on resume (and a halt past its 65 ms period would lose
+/// whole periods anyway: it counts them in its interrupts); the IWDG, so a halt does not
+/// end in a watchdog reset. The DWT cycle counter (the step deadline's clock) does not
+/// count in a halt. Nothing else times anything (TIM1, kept for the lamp, and TIM9–11 are
+/// unused).
+fn freeze_timers_in_debug_halt() {
+    pac::DBGMCU.apb1fzr().modify(|w| {
+        w.set_tim2(true);
+        w.set_tim3(true);
+        w.set_tim4(true);
+        w.set_tim5(true);
+        w.set_iwdg(true);
+    });
 }
 
 #[embassy_executor::main]
@@ -122,6 +158,7 @@ async fn main(spawner: Spawner) {
     // First: the record a fault handler left is read and cleared before anything can fault.
     let reset_cause = fault::reset_cause();
     let p = embassy_stm32::init(clock_config());
+    freeze_timers_in_debug_halt();
     // The flash accelerator (ART): embassy's clock setup writes the wait states and leaves
     // prefetch and the instruction and data caches off; at 3 wait states they hide the
     // flash latency for loops and constants (the step and ADC interrupts run from flash).
@@ -146,8 +183,6 @@ async fn main(spawner: Spawner) {
 
     let pins = pins::take_board_pins!(p).split();
 
-    // The watchdog stops while a debugger halts the core, so breakpoints do not reset it.
-    pac::DBGMCU.apb1fzr().modify(|w| w.set_iwdg(true));
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
 
@@ -164,7 +199,9 @@ async fn main(spawner: Spawner) {
         usb_config,
     );
 
-    let mut config = embassy_usb::Config::new(USB_VID, USB_PID);
+    // pid.codes' shared test id (protocol::USB_VID_PID): a production build needs its own.
+    let (vid, pid) = USB_VID_PID;
+    let mut config = embassy_usb::Config::new(vid, pid);
     config.manufacturer = Some("gonio");
     config.product = Some(USB_PRODUCT);
     // The chip's unique id, so several instruments on one host can be told apart.
@@ -283,6 +320,7 @@ async fn device_task(
 ) -> ! {
     let mut ticker = Ticker::every(POLL_PERIOD);
     let mut bytes = [0u8; USB_PACKET];
+    let mut drop_log = DropLog::new();
     loop {
         match select3(RX.read(&mut bytes), ticker.next(), DISCONNECTED.wait()).await {
             Either3::First(n) => {
@@ -305,6 +343,12 @@ async fn device_task(
                 TX.lock(|queue| queue.borrow_mut().clear());
             }
         }
+        // At most one line a second, however many frames a host that stopped reading costs:
+        // a defmt log blocks with interrupts off while a probe reads it.
+        drop_log.count(TX.lock(|queue| queue.borrow_mut().take_dropped()));
+        if let Some(dropped) = drop_log.due(now_us()) {
+            warn!("USB send queue full: {} frames dropped", dropped);
+        }
         led.set_level(if device.handshake_done() {
             Level::Low
         } else {
@@ -316,16 +360,10 @@ async fn device_task(
 
 /// Queue one whole frame for the host, or drop it whole when the queue is full (a host
 /// that does not read must not stall the device; `firmware::txqueue`).
+/// The queue counts what it drops; `device_task` logs the count ([`DropLog`]).
 fn queue_frame(frame: &[u8]) {
-    let (queued, dropped) = TX.lock(|queue| {
-        let mut queue = queue.borrow_mut();
-        (queue.push_frame(frame).is_ok(), queue.take_dropped())
-    });
-    if queued {
+    if TX.lock(|queue| queue.borrow_mut().push_frame(frame).is_ok()) {
         TX_QUEUED.signal(());
-    }
-    if dropped > 0 {
-        warn!("USB send queue full: dropped a {}-byte frame", frame.len());
     }
 }
 

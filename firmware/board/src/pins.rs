@@ -36,7 +36,9 @@
 //! Why these pins:
 //! - STEP pins sit on timer channels of two different general-purpose timers (TIM2, TIM3)
 //!   so each arm gets its own hardware pulse train. TIM4 is the embassy time driver
-//!   (`time-driver-tim4`), TIM1 is kept for the lamp, TIM5/TIM9–11 stay free.
+//!   (`time-driver-tim4`), TIM5 paces the ADC decimation, TIM1 is kept for the lamp,
+//!   TIM9–11 stay free. All but TIM1 and TIM9–11 stop while a debugger halts the core
+//!   (`main::freeze_timers_in_debug_halt`).
 //! - The detector is on PA1, not PA0: PA0 carries the Black Pill's KEY button, which
 //!   would short the amplifier output when pressed.
 //! - Kept free on purpose: SPI1 on PA4 (NSS) / PA5 (SCK) / PA6 (MISO) / PA7 (MOSI) for an

@@ -1,7 +1,7 @@
 //! The TX drop policy: frames are queued whole or dropped whole, whatever the pattern of
 //! pushes, USB reads of any size, and disconnects (property test over random schedules).
 
-use firmware::txqueue::{Dropped, FrameQueue};
+use firmware::txqueue::{DROP_LOG_PERIOD_US, DropLog, Dropped, FrameQueue};
 use proptest::prelude::*;
 
 const N: usize = 1024;
@@ -109,4 +109,64 @@ fn a_full_queue_drops_the_new_frame_and_keeps_the_old() {
     let n = queue.pop(&mut out);
     assert_eq!(&out[..n], [1, 2, 3, 0, 8, 9, 10, 0]);
     assert_eq!(queue.take_dropped(), 1);
+}
+
+proptest! {
+    /// The drop log over random schedules of 1 ms polls with 0-3 drops each: logs at least
+    /// a period apart, every drop in exactly one log, none waiting longer than a period
+    /// (asked every poll), the first drop after a quiet period logged at once.
+    #[test]
+    fn dropped_frames_are_logged_at_most_once_a_period(
+        drops in prop::collection::vec(prop_oneof![4 => Just(0u32), 1 => 1u32..4], 1..6000),
+    ) {
+        let mut log = DropLog::new();
+        let mut logged_at: Vec<u64> = Vec::new();
+        let (mut total, mut logged) = (0u64, 0u64);
+        // When the oldest drop not yet logged happened.
+        let mut oldest_pending: Option<u64> = None;
+        let end = drops.len() as u64 * 1000 + DROP_LOG_PERIOD_US;
+        for (poll, now_us) in (0..end).step_by(1000).enumerate() {
+            let n = drops.get(poll).copied().unwrap_or(0);
+            log.count(n);
+            total += u64::from(n);
+            if n > 0 && oldest_pending.is_none() {
+                oldest_pending = Some(now_us);
+            }
+            let quiet = logged_at.last().is_none_or(|&t| now_us - t >= DROP_LOG_PERIOD_US);
+            match log.due(now_us) {
+                Some(count) => {
+                    prop_assert!(count > 0);
+                    prop_assert!(quiet, "a log within a period of the last");
+                    logged += u64::from(count);
+                    logged_at.push(now_us);
+                    oldest_pending = None;
+                }
+                None => {
+                    prop_assert!(!(quiet && oldest_pending.is_some()), "a due count kept back");
+                }
+            }
+            if let Some(since) = oldest_pending {
+                prop_assert!(now_us - since < DROP_LOG_PERIOD_US, "a drop unlogged for a period");
+            }
+        }
+        prop_assert_eq!(logged, total, "drops lost or logged twice");
+    }
+}
+
+/// A host that stops reading for 10 s: one drop per 1 ms poll, eleven logs, not 10,000.
+#[test]
+fn a_host_that_stops_reading_is_logged_once_a_second() {
+    let mut log = DropLog::new();
+    let mut logs = Vec::new();
+    for ms in 0..10_000u64 {
+        log.count(1);
+        logs.extend(log.due(ms * 1000));
+    }
+    // The host reads again: the rest is logged a period after the last log.
+    for ms in 10_000..11_000u64 {
+        logs.extend(log.due(ms * 1000));
+    }
+    assert_eq!(logs.len(), 11);
+    assert_eq!(logs[0], 1, "the first drop at once");
+    assert_eq!(logs.iter().sum::<u32>(), 10_000);
 }
