@@ -493,10 +493,9 @@ impl<H: Hardware> Device<H> {
     fn halt(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
         let max_speed = deg_to_steps(self.config.max_speed_deg_per_s);
         let accel = deg_to_steps(self.config.accel_deg_per_s2);
-        for arm in Arm::BOTH {
-            self.motion
-                .stop(&mut self.hardware, arm, max_speed, accel, self.now_us);
-        }
+        // Together, on the line they move along: the collision guard holds at rest.
+        self.motion
+            .stop_both(&mut self.hardware, max_speed, accel, self.now_us);
         match core::mem::replace(&mut self.activity, Activity::Idle) {
             Activity::Homing { seq, .. }
             | Activity::Moving { seq, .. }

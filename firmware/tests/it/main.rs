@@ -11,6 +11,7 @@ mod common;
 mod device;
 mod failsafe;
 mod faults;
+mod guard;
 mod handshake;
 mod homing;
 mod link;
