@@ -377,6 +377,13 @@ impl ArmMotion {
         }
     }
 
+    /// Stop the arm where it is, with no ramp (a faulted driver: its motion is lost anyway,
+    /// and its step count no longer says where it is).
+    pub fn stop_dead(&mut self, hardware: &mut impl Arms, arm: Arm, now_us: u64) {
+        let here = hardware.position_steps(arm);
+        self.start(hardware, arm, MoveProfile::rest(here), now_us);
+    }
+
     /// Where a moving arm is and its speed (steps/s) at `now_us`; `None` when it is at
     /// rest (then its record is dropped).
     fn state_at(&mut self, hardware: &impl Arms, arm: Arm, now_us: u64) -> Option<(i32, f32)> {
