@@ -84,6 +84,7 @@ use crate::link::{Incoming, Link};
 use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
 use crate::sweep::{AutoRange, Binner, check_sweep, sweep_profile};
+use crate::switches::{HomeSwitch, SwitchState};
 use protocol::{
     Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport,
     MAX_RANGES, PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource,
@@ -221,6 +222,8 @@ pub struct Device<H: Hardware> {
     driver_fault_seen: bool,
     /// The arm's driver was disabled by a fault stop; the next `Home` enables it again.
     driver_off: [bool; 2],
+    /// The home switches, debounced at every poll.
+    switches: [HomeSwitch; 2],
     /// The last fault, until cleared by homing.
     fault: Option<ErrorCode>,
     /// In the safe state after a fault that cost the homing (or a watchdog reset) until
@@ -260,6 +263,7 @@ impl<H: Hardware> Device<H> {
             count_trusted: [false; 2],
             driver_fault_seen: false,
             driver_off: [false; 2],
+            switches: [HomeSwitch::new(); 2],
             fault,
             safe_stopped: fault.is_some(),
             motion: ArmMotion::new(),
@@ -367,6 +371,7 @@ impl<H: Hardware> Device<H> {
         if self.hardware.take_sample_fault().is_some() {
             self.fail_safe_stop(ErrorCode::AdcOverrun, send);
         }
+        self.watch_switches(send);
         let needs_host = self.lamp_on
             || matches!(
                 self.activity,
@@ -471,6 +476,37 @@ impl<H: Hardware> Device<H> {
         }
     }
 
+    /// Sample both home switches (debounced, [`crate::switches`]) and stop on a press
+    /// outside homing: the arm is at or past its switch, beyond the working range, where
+    /// its step count says it is not (steps lost or gained, a switch or its wire at fault).
+    /// A fail-safe stop that costs the homing, whatever the arms did (`HardwareFault`: no
+    /// code of its own, to keep the wire's error codes as they are). Only a press counts,
+    /// not a switch found pressed: an arm rests on its switch after homing, and may stand
+    /// on it at power-on. Not while the arms are not homed either: no move can run then,
+    /// a ramp under way is an earlier stop's (whose reason stands), and the homing the stop
+    /// would cost is lost already.
+    fn watch_switches(&mut self, send: &mut impl FnMut(&[u8])) {
+        let mut pressed = false;
+        for arm in Arm::BOTH {
+            let raw = self.hardware.home_switch_pressed(arm);
+            let steps = self.hardware.position_steps(arm);
+            pressed |= self.switches[arm.index()].sample(raw, steps) == Some(true);
+        }
+        let expected = matches!(self.activity, Activity::Homing { .. }) || self.homed == [false; 2];
+        if pressed && !expected {
+            self.stop_losing_homing(ErrorCode::HardwareFault, send);
+        }
+    }
+
+    /// The debounced state of the arm's home switch; before the first is made (the first
+    /// few polls after boot), released at the arm's count now.
+    fn switch_state(&self, arm: Arm) -> SwitchState {
+        self.switches[arm.index()].state().unwrap_or(SwitchState {
+            pressed: false,
+            since_steps: self.hardware.position_steps(arm),
+        })
+    }
+
     /// The fail-safe stop, the one path every fault takes: ramp both arms down, lamp off,
     /// end whatever runs (a pending command is answered with `reason`, a schedule ends with
     /// it), record the fault, tell the host (`Stopped`). Whether the homing survives is
@@ -479,10 +515,23 @@ impl<H: Hardware> Device<H> {
     /// then `Idle`); otherwise the arms count as not homed until the next `Home` (the
     /// device is `Stopped`). See the module doc.
     pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
-        let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
         // A late step interrupt may have cost a step whatever the arms do now.
-        let keeps_homing =
-            !self.mid_move() && !driver_fault.contains(&true) && reason != ErrorCode::StepLate;
+        self.fail_safe_stop_with(reason, reason == ErrorCode::StepLate, send);
+    }
+
+    /// The fail-safe stop after which the arms count as not homed, whatever they did.
+    fn stop_losing_homing(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
+        self.fail_safe_stop_with(reason, true, send);
+    }
+
+    fn fail_safe_stop_with(
+        &mut self,
+        reason: ErrorCode,
+        loses_homing: bool,
+        send: &mut impl FnMut(&[u8]),
+    ) {
+        let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
+        let keeps_homing = !loses_homing && !self.mid_move() && !driver_fault.contains(&true);
         for arm in Arm::BOTH {
             // A faulted driver is disabled at once, its arm's steps ended: its motion is
             // lost anyway, a shorted bridge must not stay on through the ramp, and a TMC2209
@@ -790,10 +839,12 @@ impl<H: Hardware> Device<H> {
             if trips[arm.index()].is_some() {
                 continue;
             }
+            let switch = self.switch_state(arm);
             match arms[arm.index()].poll(
                 &mut self.hardware,
                 &mut self.motion,
                 &self.config,
+                switch,
                 self.now_us,
             ) {
                 HomingStatus::Running => {}

@@ -21,4 +21,5 @@ mod scenarios;
 mod schedules;
 mod stepgen;
 mod sweep;
+mod switches;
 mod txqueue;
