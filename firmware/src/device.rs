@@ -56,8 +56,13 @@
 //!   counted steps either, but mid-move the board cannot prove it (a step generator late, a
 //!   stall), so it is conservative there.
 //!
-//! A driver fault takes the stop once, when it begins; while a driver still reports it,
-//! `Home`, moves and schedules are refused (`HardwareFault`, detail: the arm).
+//! A driver fault takes the stop once, when it begins, and the faulted arm's driver is
+//! disabled at once (its steps end; the other arm ramps down). While a driver reports a
+//! fault, moves, sweeps and schedules are refused (`HardwareFault`, detail: the arm). The
+//! next `Home` clears it: a driver disabled by the stop or reporting a fault is disabled for
+//! [`DRIVER_RESET_US`], enabled, and its DIAG read again (a TMC2209 latches DIAG until EN
+//! goes high); a fault still there refuses the `Home` (`HardwareFault`, detail: the arm) and
+//! the driver is disabled again.
 //!
 //! `Abort` is the host's stop, not a fail-safe one: it ends everything the same way but
 //! keeps the lamp and the homing, mid-move too (the host asked for it, on a healthy board,
@@ -79,11 +84,25 @@ use crate::link::{Incoming, Link};
 use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
 use crate::sweep::{AutoRange, Binner, check_sweep, sweep_profile};
+use crate::switches::{HomeSwitch, SwitchState};
 use protocol::{
     Command, DeviceError, DeviceInfo, DeviceMessage, DeviceState, ErrorCode, Geometry, HomeReport,
     MAX_RANGES, PROTOCOL_VERSION, Reading, Reply, RunSchedule, ScheduleDone, ScheduleSource,
     Status, StreamReading, Sweep, SweepPlan, Target,
 };
+
+/// How long a `Home` keeps a faulted driver disabled to clear its fault, µs. A TMC2209
+/// latches DIAG (a short, an over-temperature shutdown) until EN goes high; its datasheet
+/// names no minimum EN-high time (the flags reset while the driver is disabled, and its
+/// inputs are sampled at its 12 MHz clock, so microseconds would do). 10 ms is generous and
+/// lets the coil currents decay (L/R of a few ms) before the bridge switches on again; it
+/// is nothing next to a homing. Unverified on hardware.
+pub const DRIVER_RESET_US: u64 = 10_000;
+
+/// How long after a driver is enabled again its DIAG is read, µs: a short is seen once the
+/// bridge drives the coils (within a few chopper cycles, tens of µs); an over-temperature at
+/// once. Two polls at 1 kHz, so the reading is one taken after the driver was enabled.
+pub const DRIVER_RECHECK_US: u64 = 2_000;
 
 /// A sweep whose detector gives no block for this long has a dead detector: fail-safe stop
 /// ([`ErrorCode::HardwareFault`]); without blocks its last bin would never close.
@@ -140,6 +159,15 @@ struct SweepRun {
     last_block_us: u64,
 }
 
+/// A `Home`'s clearing of driver faults: EN cycled on the arms marked in `arms`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct DriverReset {
+    arms: [bool; 2],
+    /// Disabled until then (`enabled` false), or enabled and read again then.
+    until_us: u64,
+    enabled: bool,
+}
+
 /// What the device is doing. Long commands keep the sequence number they answer.
 #[derive(Clone, Debug, PartialEq)]
 enum Activity {
@@ -148,6 +176,8 @@ enum Activity {
         seq: u32,
         arms: [ArmHoming; 2],
         trips: [Option<i32>; 2],
+        /// Driver faults being cleared before the arms move.
+        reset: Option<DriverReset>,
     },
     Moving {
         seq: u32,
@@ -190,6 +220,10 @@ pub struct Device<H: Hardware> {
     count_trusted: [bool; 2],
     /// A driver reported a fault at the last poll (the stop was taken when it began).
     driver_fault_seen: bool,
+    /// The arm's driver was disabled by a fault stop; the next `Home` enables it again.
+    driver_off: [bool; 2],
+    /// The home switches, debounced at every poll.
+    switches: [HomeSwitch; 2],
     /// The last fault, until cleared by homing.
     fault: Option<ErrorCode>,
     /// In the safe state after a fault that cost the homing (or a watchdog reset) until
@@ -228,6 +262,8 @@ impl<H: Hardware> Device<H> {
             homed_since_reset: [false; 2],
             count_trusted: [false; 2],
             driver_fault_seen: false,
+            driver_off: [false; 2],
+            switches: [HomeSwitch::new(); 2],
             fault,
             safe_stopped: fault.is_some(),
             motion: ArmMotion::new(),
@@ -316,9 +352,11 @@ impl<H: Hardware> Device<H> {
     /// Advance whatever runs to device time `now_us`; messages go to `send`.
     pub fn poll(&mut self, now_us: u64, send: &mut impl FnMut(&[u8])) {
         self.now_us = now_us;
-        // Once per occurrence: while the fault persists, motion is refused instead.
+        // Once per occurrence: while the fault persists, motion is refused instead. A
+        // `Home` clearing a fault reads DIAG itself, and answers with what it finds.
         let driver_fault = Arm::BOTH.iter().any(|&arm| self.hardware.driver_fault(arm));
-        if driver_fault && !self.driver_fault_seen {
+        let clearing = matches!(self.activity, Activity::Homing { reset: Some(_), .. });
+        if driver_fault && !self.driver_fault_seen && !clearing {
             self.fail_safe_stop(ErrorCode::HardwareFault, send);
         }
         self.driver_fault_seen = driver_fault;
@@ -333,6 +371,7 @@ impl<H: Hardware> Device<H> {
         if self.hardware.take_sample_fault().is_some() {
             self.fail_safe_stop(ErrorCode::AdcOverrun, send);
         }
+        self.watch_switches(send);
         let needs_host = self.lamp_on
             || matches!(
                 self.activity,
@@ -347,7 +386,12 @@ impl<H: Hardware> Device<H> {
         }
         match core::mem::replace(&mut self.activity, Activity::Idle) {
             Activity::Idle => {}
-            Activity::Homing { seq, arms, trips } => self.poll_homing(seq, arms, trips, send),
+            Activity::Homing {
+                seq,
+                arms,
+                trips,
+                reset,
+            } => self.poll_homing(seq, arms, trips, reset, send),
             Activity::Moving { seq, travel } => match self.advance_travel(travel) {
                 Ok(Some(travel)) => self.activity = Activity::Moving { seq, travel },
                 Ok(None) => self.link.finish(seq, Ok(Reply::Ack), send),
@@ -432,6 +476,37 @@ impl<H: Hardware> Device<H> {
         }
     }
 
+    /// Sample both home switches (debounced, [`crate::switches`]) and stop on a press
+    /// outside homing: the arm is at or past its switch, beyond the working range, where
+    /// its step count says it is not (steps lost or gained, a switch or its wire at fault).
+    /// A fail-safe stop that costs the homing, whatever the arms did (`HardwareFault`: no
+    /// code of its own, to keep the wire's error codes as they are). Only a press counts,
+    /// not a switch found pressed: an arm rests on its switch after homing, and may stand
+    /// on it at power-on. Not while the arms are not homed either: no move can run then,
+    /// a ramp under way is an earlier stop's (whose reason stands), and the homing the stop
+    /// would cost is lost already.
+    fn watch_switches(&mut self, send: &mut impl FnMut(&[u8])) {
+        let mut pressed = false;
+        for arm in Arm::BOTH {
+            let raw = self.hardware.home_switch_pressed(arm);
+            let steps = self.hardware.position_steps(arm);
+            pressed |= self.switches[arm.index()].sample(raw, steps) == Some(true);
+        }
+        let expected = matches!(self.activity, Activity::Homing { .. }) || self.homed == [false; 2];
+        if pressed && !expected {
+            self.stop_losing_homing(ErrorCode::HardwareFault, send);
+        }
+    }
+
+    /// The debounced state of the arm's home switch; before the first is made (the first
+    /// few polls after boot), released at the arm's count now.
+    fn switch_state(&self, arm: Arm) -> SwitchState {
+        self.switches[arm.index()].state().unwrap_or(SwitchState {
+            pressed: false,
+            since_steps: self.hardware.position_steps(arm),
+        })
+    }
+
     /// The fail-safe stop, the one path every fault takes: ramp both arms down, lamp off,
     /// end whatever runs (a pending command is answered with `reason`, a schedule ends with
     /// it), record the fault, tell the host (`Stopped`). Whether the homing survives is
@@ -440,10 +515,33 @@ impl<H: Hardware> Device<H> {
     /// then `Idle`); otherwise the arms count as not homed until the next `Home` (the
     /// device is `Stopped`). See the module doc.
     pub fn fail_safe_stop(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
-        let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
         // A late step interrupt may have cost a step whatever the arms do now.
-        let keeps_homing =
-            !self.mid_move() && !driver_fault.contains(&true) && reason != ErrorCode::StepLate;
+        self.fail_safe_stop_with(reason, reason == ErrorCode::StepLate, send);
+    }
+
+    /// The fail-safe stop after which the arms count as not homed, whatever they did.
+    fn stop_losing_homing(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
+        self.fail_safe_stop_with(reason, true, send);
+    }
+
+    fn fail_safe_stop_with(
+        &mut self,
+        reason: ErrorCode,
+        loses_homing: bool,
+        send: &mut impl FnMut(&[u8]),
+    ) {
+        let driver_fault = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
+        let keeps_homing = !loses_homing && !self.mid_move() && !driver_fault.contains(&true);
+        for arm in Arm::BOTH {
+            // A faulted driver is disabled at once, its arm's steps ended: its motion is
+            // lost anyway, a shorted bridge must not stay on through the ramp, and a TMC2209
+            // clears DIAG only while disabled. The other arm ramps down (in `halt`).
+            if driver_fault[arm.index()] {
+                self.motion.stop_dead(&mut self.hardware, arm, self.now_us);
+                self.hardware.set_driver_enabled(arm, false);
+                self.driver_off[arm.index()] = true;
+            }
+        }
         self.halt(reason, send);
         self.hardware.set_lamp(false);
         self.lamp_on = false;
@@ -493,10 +591,9 @@ impl<H: Hardware> Device<H> {
     fn halt(&mut self, reason: ErrorCode, send: &mut impl FnMut(&[u8])) {
         let max_speed = deg_to_steps(self.config.max_speed_deg_per_s);
         let accel = deg_to_steps(self.config.accel_deg_per_s2);
-        for arm in Arm::BOTH {
-            self.motion
-                .stop(&mut self.hardware, arm, max_speed, accel, self.now_us);
-        }
+        // Together, on the line they move along: the collision guard holds at rest.
+        self.motion
+            .stop_both(&mut self.hardware, max_speed, accel, self.now_us);
         match core::mem::replace(&mut self.activity, Activity::Idle) {
             Activity::Homing { seq, .. }
             | Activity::Moving { seq, .. }
@@ -646,11 +743,30 @@ impl<H: Hardware> Device<H> {
         Ok(Reply::Ack)
     }
 
+    /// Start a `Home`. A driver disabled by a fault stop, or one reporting a fault now, is
+    /// first cycled (disabled for [`DRIVER_RESET_US`], enabled, DIAG read again
+    /// [`DRIVER_RECHECK_US`] later): a fault that went away is cleared so, one still there
+    /// refuses the `Home` (`HardwareFault`, detail: the arm). Without this a TMC2209's latched
+    /// DIAG refused all motion until a power cycle.
     fn start_homing(&mut self, seq: u32) -> Answer {
-        if let Err(error) = self.busy().and_then(|_| self.require_drivers()) {
+        if let Err(error) = self.busy() {
             return Some(Err(error));
         }
         self.homed = [false; 2];
+        let cycle =
+            Arm::BOTH.map(|arm| self.driver_off[arm.index()] || self.hardware.driver_fault(arm));
+        for arm in Arm::BOTH {
+            if cycle[arm.index()] {
+                self.hardware.set_driver_enabled(arm, false);
+                // A de-energised motor may have moved: the homing searches.
+                self.count_trusted[arm.index()] = false;
+            }
+        }
+        let reset = cycle.contains(&true).then_some(DriverReset {
+            arms: cycle,
+            until_us: self.now_us + DRIVER_RESET_US,
+            enabled: false,
+        });
         let arms = Arm::BOTH.map(|arm| {
             if self.count_trusted[arm.index()] {
                 ArmHoming::quick(arm)
@@ -662,6 +778,7 @@ impl<H: Hardware> Device<H> {
             seq,
             arms,
             trips: [None; 2],
+            reset,
         };
         None
     }
@@ -671,16 +788,63 @@ impl<H: Hardware> Device<H> {
         seq: u32,
         mut arms: [ArmHoming; 2],
         mut trips: [Option<i32>; 2],
+        reset: Option<DriverReset>,
         send: &mut impl FnMut(&[u8]),
     ) {
+        if let Some(mut reset) = reset {
+            if self.now_us < reset.until_us {
+                self.activity = Activity::Homing {
+                    seq,
+                    arms,
+                    trips,
+                    reset: Some(reset),
+                };
+                return;
+            }
+            if !reset.enabled {
+                for arm in Arm::BOTH {
+                    if reset.arms[arm.index()] {
+                        self.hardware.set_driver_enabled(arm, true);
+                    }
+                }
+                reset.enabled = true;
+                reset.until_us = self.now_us + DRIVER_RECHECK_US;
+                self.activity = Activity::Homing {
+                    seq,
+                    arms,
+                    trips,
+                    reset: Some(reset),
+                };
+                return;
+            }
+            let faulted = Arm::BOTH.map(|arm| self.hardware.driver_fault(arm));
+            if let Some(arm) = Arm::BOTH.into_iter().find(|arm| faulted[arm.index()]) {
+                // Still there: off again (a short must not stay driven), and refused.
+                for arm in Arm::BOTH {
+                    if faulted[arm.index()] {
+                        self.hardware.set_driver_enabled(arm, false);
+                        self.driver_off[arm.index()] = true;
+                    }
+                }
+                self.fault = Some(ErrorCode::HardwareFault);
+                self.safe_stopped = true;
+                let refused =
+                    DeviceError::with_detail(ErrorCode::HardwareFault, arm.index() as i32);
+                self.link.finish(seq, Err(refused), send);
+                return;
+            }
+            self.driver_off = [false; 2];
+        }
         for arm in Arm::BOTH {
             if trips[arm.index()].is_some() {
                 continue;
             }
+            let switch = self.switch_state(arm);
             match arms[arm.index()].poll(
                 &mut self.hardware,
                 &mut self.motion,
                 &self.config,
+                switch,
                 self.now_us,
             ) {
                 HomingStatus::Running => {}
@@ -695,7 +859,12 @@ impl<H: Hardware> Device<H> {
             }
         }
         let [Some(trip_i), Some(trip_r)] = trips else {
-            self.activity = Activity::Homing { seq, arms, trips };
+            self.activity = Activity::Homing {
+                seq,
+                arms,
+                trips,
+                reset: None,
+            };
             return;
         };
         let switch = angle_to_steps(self.config.home_switch);

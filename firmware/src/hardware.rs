@@ -48,6 +48,13 @@ pub trait Arms {
     fn home_switch_pressed(&self, arm: Arm) -> bool;
     /// Whether the arm's stepper driver reports a fault (over-temperature, short, …).
     fn driver_fault(&self, arm: Arm) -> bool;
+    /// Enable or disable the arm's stepper driver (EN). A disabled driver holds no torque
+    /// and takes no steps; a TMC2209 clears its latched fault (DIAG) only while disabled.
+    /// A profile with steps enables the driver too (the board's step generator does it at
+    /// the profile's start), so the library disables a driver only where no profile
+    /// follows until it enables it again: a faulted arm after the fail-safe stop, and
+    /// during a `Home`'s clearing of a fault ([`crate::device`]).
+    fn set_driver_enabled(&mut self, arm: Arm, enabled: bool);
     /// Whether the arm's step interrupt ran too late since the last call (the timer may
     /// have issued a step nobody counted; [`crate::stepgen`]); cleared by the call.
     fn take_step_fault(&mut self, arm: Arm) -> bool;

@@ -29,9 +29,9 @@
 //!
 //! | from (θi, θr) | full homing | quick re-home | source −40 | detector −40 | source +40 | detector +40 |
 //! |---------------|-------------|---------------|------------|--------------|------------|--------------|
-//! | (20°, 0°)     | 5.77 s      | 2.54 s        | 2.54 s     | 2.79 s       | 2.54 s     | 2.29 s       |
-//! | (45°, 45°)    | 3.52 s      | 1.79 s        | 2.04 s     | 2.04 s       | 1.79 s     | 1.79 s       |
-//! | (60°, 70°)    | 2.77 s      | 1.54 s        | 1.79 s     | 1.62 s       | 1.37 s     | 1.54 s       |
+//! | (20°, 0°)     | 5.75 s      | 2.54 s        | 2.54 s     | 2.79 s       | 2.54 s     | 2.29 s       |
+//! | (45°, 45°)    | 3.50 s      | 1.79 s        | 2.04 s     | 2.04 s       | 1.79 s     | 1.79 s       |
+//! | (60°, 70°)    | 2.75 s      | 1.54 s        | 1.79 s     | 1.62 s       | 1.37 s     | 1.54 s       |
 //!
 //! The slow approach (1.5° at 2°/s, 0.75 s) is most of the quick re-home from near the
 //! switch; the full homing's search runs at 20°/s instead of 60°/s and adds a back-off.
@@ -41,6 +41,7 @@
 use crate::config::InstrumentConfig;
 use crate::hardware::{Arm, Arms};
 use crate::motion::{ArmMotion, MoveProfile, angle_to_steps, deg_to_steps};
+use crate::switches::SwitchState;
 use protocol::{DeviceError, ErrorCode};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -207,15 +208,17 @@ impl ArmHoming {
         HomingStatus::Failed(DeviceError::with_detail(code, self.arm.index() as i32))
     }
 
-    /// Advance. Call often while homing (every ms): the switch is sampled here.
+    /// Advance. Call at every poll while homing, with the arm's switch as debounced at
+    /// this poll ([`crate::switches`]): a trip's step count is where the press began.
     pub fn poll(
         &mut self,
         hardware: &mut impl Arms,
         motion: &mut ArmMotion,
         config: &InstrumentConfig,
+        switch: SwitchState,
         now_us: u64,
     ) -> HomingStatus {
-        let pressed = hardware.home_switch_pressed(self.arm);
+        let pressed = switch.pressed;
         let moving = motion.is_moving(hardware, self.arm);
         let backoff_steps = angle_to_steps(config.home_backoff);
         let max_speed = deg_to_steps(config.max_speed_deg_per_s);
@@ -249,7 +252,7 @@ impl ArmHoming {
             Phase::QuickRun => {
                 if pressed {
                     // Further than the count says: from here on as the full homing does.
-                    let trip_steps = hardware.position_steps(self.arm);
+                    let trip_steps = switch.since_steps;
                     motion.stop(hardware, self.arm, max_speed, accel, now_us);
                     self.phase = Phase::SearchStopping { trip_steps };
                 } else if !moving {
@@ -260,7 +263,7 @@ impl ArmHoming {
             }
             Phase::QuickApproach => {
                 if pressed {
-                    let trip_steps = hardware.position_steps(self.arm);
+                    let trip_steps = switch.since_steps;
                     motion.stop(hardware, self.arm, max_speed, accel, now_us);
                     self.phase = Phase::ApproachStopping { trip_steps };
                 } else if !moving {
@@ -271,7 +274,7 @@ impl ArmHoming {
             }
             Phase::Search => {
                 if pressed {
-                    let trip_steps = hardware.position_steps(self.arm);
+                    let trip_steps = switch.since_steps;
                     motion.stop(hardware, self.arm, max_speed, accel, now_us);
                     self.phase = Phase::SearchStopping { trip_steps };
                 } else if !moving {
@@ -319,7 +322,7 @@ impl ArmHoming {
             }
             Phase::Approach => {
                 if pressed {
-                    let trip_steps = hardware.position_steps(self.arm);
+                    let trip_steps = switch.since_steps;
                     motion.stop(hardware, self.arm, max_speed, accel, now_us);
                     self.phase = Phase::ApproachStopping { trip_steps };
                 } else if !moving {

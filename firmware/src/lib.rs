@@ -9,6 +9,7 @@
 //! - [`hardware`]: the traits a board implements (arms, detector, lamp).
 //! - [`motion`]: angle ↔ microsteps, velocity profiles, both arms arriving together.
 //! - [`homing`]: one arm's homing state machine.
+//! - [`switches`]: the home switches, debounced.
 //! - [`stepgen`]: step pulses from a hardware timer (segments, runt-free replacement,
 //!   late-interrupt detection), behind [`stepgen::StepTimer`].
 //! - [`detector`]: reading statistics and auto-ranging.
@@ -37,6 +38,7 @@ pub mod scenarios;
 pub mod schedule;
 pub mod stepgen;
 pub mod sweep;
+pub mod switches;
 pub mod testing;
 pub mod txqueue;
 

@@ -12,7 +12,8 @@
 //! distance (same phase durations, proportionally lower speed and acceleration). Why:
 //! - the move takes as long as the longer travel anyway, so arriving together costs no time;
 //! - scaled profiles put the arms on a straight line in (θi, θr), so the collision guard
-//!   θi + θr ≥ 10° (a half-plane) holds all the way when it holds at both ends;
+//!   θi + θr ≥ 10° (a half-plane) holds all the way when it holds at both ends; a stop
+//!   keeps them on that line too ([`ArmMotion::stop_both`]);
 //! - one arrival, one settle, and the shorter arm moves gentler (less vibration).
 
 use crate::hardware::{Arm, Arms};
@@ -324,7 +325,9 @@ impl ArmMotion {
         });
     }
 
-    /// Bring the arm to rest with a deceleration ramp from the speed it has now.
+    /// Bring the arm to rest with a deceleration ramp from the speed it has now, at
+    /// `accel`. Alone, for an arm that moves on its own (homing); a stop of whatever both
+    /// arms run is [`ArmMotion::stop_both`], which keeps them on their line.
     pub fn stop(
         &mut self,
         hardware: &mut impl Arms,
@@ -333,18 +336,99 @@ impl ArmMotion {
         accel: f32,
         now_us: u64,
     ) {
-        let Some(running) = self.running[arm.index()] else {
+        let Some((here, speed)) = self.state_at(hardware, arm, now_us) else {
             return;
         };
+        let profile = self.stop_profile(arm, here, speed, max_speed, accel);
+        self.start(hardware, arm, profile, now_us);
+    }
+
+    /// Bring both arms to rest together, on the straight line in (θi, θr) they move along.
+    ///
+    /// Why not [`ArmMotion::stop`] on each: at full deceleration each arm would take its
+    /// own time to stop (the slower arm less), so the arm with the shorter travel would stop
+    /// early and leave the move's line. The collision guard θi + θr ≥ 10° is a half-plane:
+    /// it holds on the straight line between two points that keep it, not off it (a move
+    /// (20°, 0°) → (0°, 10°) stopped at peak speed came to rest at (0.01°, 7.50°)).
+    /// So both arms stop in the time T the faster one needs at `accel`, each decelerating at
+    /// its own speed / T: the ratio of their speeds stays what it was (that of the move,
+    /// [`plan_move`]), so each braking distance is its speed × T / 2 and the arms come to
+    /// rest on the move's line, short of (or at) its end, within the one-step rounding of
+    /// each arm. The slower arm brakes more gently; no arm brakes harder than `accel`. An
+    /// arm is never sent past the target of the profile it was running, so a stop ends
+    /// between the move's endpoints, which both keep the guard.
+    pub fn stop_both(&mut self, hardware: &mut impl Arms, max_speed: f32, accel: f32, now_us: u64) {
+        let states = Arm::BOTH.map(|arm| self.state_at(hardware, arm, now_us));
+        let fastest = states
+            .iter()
+            .flatten()
+            .map(|&(_, speed)| speed)
+            .fold(0.0f32, f32::max);
+        // The common stopping time, s; zero when nothing moves (each arm then stops where
+        // it is).
+        let stop_s = if accel > 0.0 { fastest / accel } else { 0.0 };
+        for arm in Arm::BOTH {
+            let Some((here, speed)) = states[arm.index()] else {
+                continue;
+            };
+            let arm_accel = if stop_s > 0.0 { speed / stop_s } else { 0.0 };
+            let profile = self.stop_profile(arm, here, speed, max_speed, arm_accel);
+            self.start(hardware, arm, profile, now_us);
+        }
+    }
+
+    /// Stop the arm where it is, with no ramp (a faulted driver: its motion is lost anyway,
+    /// and its step count no longer says where it is).
+    pub fn stop_dead(&mut self, hardware: &mut impl Arms, arm: Arm, now_us: u64) {
+        let here = hardware.position_steps(arm);
+        self.start(hardware, arm, MoveProfile::rest(here), now_us);
+    }
+
+    /// Where a moving arm is and its speed (steps/s) at `now_us`; `None` when it is at
+    /// rest (then its record is dropped).
+    fn state_at(&mut self, hardware: &impl Arms, arm: Arm, now_us: u64) -> Option<(i32, f32)> {
+        let running = self.running[arm.index()]?;
         if !hardware.is_moving(arm) {
             self.running[arm.index()] = None;
-            return;
+            return None;
         }
         let elapsed_s = now_us.saturating_sub(running.started_us) as f32 * 1e-6;
         let speed = running.profile.speed_at(elapsed_s);
-        let here = hardware.position_steps(arm);
-        let profile = MoveProfile::stop(here, running.profile.direction(), speed, max_speed, accel);
-        self.start(hardware, arm, profile, now_us);
+        Some((hardware.position_steps(arm), speed))
+    }
+
+    /// The ramp that stops `arm` from `here` at `speed`, decelerating at `accel`, and not
+    /// past the target of the profile it runs: that target is where the arm was going
+    /// anyway, and the rounding up of the braking distance to a whole step must not carry
+    /// a stop beyond a move's end. (Short of the braking distance only by that rounding: the
+    /// profile then ends its last fraction of a step a little early.)
+    fn stop_profile(
+        &self,
+        arm: Arm,
+        here: i32,
+        speed: f32,
+        max_speed: f32,
+        accel: f32,
+    ) -> MoveProfile {
+        let Some(running) = self.running[arm.index()] else {
+            return MoveProfile::rest(here);
+        };
+        let direction = running.profile.direction();
+        let ramp = MoveProfile::stop(here, direction, speed, max_speed, accel);
+        let room = (running.profile.target_steps() - here) * direction;
+        if room <= 0 {
+            return MoveProfile::rest(here);
+        }
+        if ramp.step_count() as i32 <= room {
+            return ramp;
+        }
+        MoveProfile::fastest(
+            here,
+            here + direction * room,
+            speed,
+            max_speed.max(speed),
+            accel,
+        )
     }
 
     /// Whether the arm's step generator still runs a profile.

@@ -603,19 +603,29 @@ fn driver_fault() -> Outcome {
     let mut bench = homed()?;
     bench.send(Command::MoveTo(Geometry::from_whole_deg(70, 70)));
     bench.run_ms(200);
+    // A shorted coil: DIAG again whenever the driver is enabled.
     bench.hw_mut().arms[1].driver_fault = true;
+    bench.hw_mut().arms[1].driver_fault_persists = true;
     bench.run_ms(1);
     ensure!(
         bench.rx.stops.as_slice() == [ErrorCode::HardwareFault],
         "stopped for the driver"
     );
+    ensure!(
+        !bench.hw().arms[1].driver_enabled,
+        "the faulted driver is disabled"
+    );
     bench.wait_at_rest();
     ensure!(
         bench.ask(Command::Home)
             == Some(Err(DeviceError::with_detail(ErrorCode::HardwareFault, 1))),
-        "no homing while faulted"
+        "no homing while the fault persists"
     );
-    bench.hw_mut().arms[1].driver_fault = false;
+    ensure!(
+        !bench.hw().arms[1].driver_enabled,
+        "disabled again after the check"
+    );
+    bench.hw_mut().arms[1].driver_fault_persists = false;
     let Some(status) = bench.status() else {
         return Err(Failure {
             what: "status",
@@ -626,7 +636,9 @@ fn driver_fault() -> Outcome {
         status.state == DeviceState::Stopped && !status.homed_r,
         "not homed after a fault mid-move"
     );
+    // The next Home cycles EN, which clears the latch: it homes.
     ensure!(bench.home().is_some(), "homes again");
+    ensure!(bench.hw().arms[1].driver_enabled, "enabled again");
     Ok(bench.digest())
 }
 

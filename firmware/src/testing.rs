@@ -58,12 +58,19 @@ pub struct FakeArm {
     pub switch_missing: bool,
     /// The switch stays pressed (welded, stuck lever).
     pub switch_stuck: bool,
-    /// The driver reports a fault.
+    /// The driver reports a fault (DIAG high): latched, as a TMC2209 does, until the
+    /// driver is disabled.
     pub driver_fault: bool,
+    /// The cause of the fault is still there (a shorted coil, a driver still too hot):
+    /// DIAG is high again whenever the driver is enabled.
+    pub driver_fault_persists: bool,
     /// The step interrupt ran late once (taken by the next `take_step_fault`).
     pub step_late: bool,
-    /// The driver is enabled (from the first move until a fault handler disables it).
+    /// The driver is enabled (from the first move, or when the library enables it, until
+    /// the library or a fault handler disables it).
     pub driver_enabled: bool,
+    /// How many times the driver was disabled by the library.
+    pub driver_disables: u32,
     /// Lowest and highest true angle reached, ticks.
     pub travel_ticks: (i32, i32),
 }
@@ -79,8 +86,10 @@ impl FakeArm {
             switch_missing: false,
             switch_stuck: false,
             driver_fault: false,
+            driver_fault_persists: false,
             step_late: false,
             driver_enabled: false,
+            driver_disables: 0,
             travel_ticks: (ticks, ticks),
         }
     }
@@ -284,7 +293,18 @@ impl<S: Scene> Arms for FakeHardware<S> {
     }
 
     fn driver_fault(&self, arm: Arm) -> bool {
-        self.arms[arm.index()].driver_fault
+        let arm = &self.arms[arm.index()];
+        arm.driver_fault || (arm.driver_enabled && arm.driver_fault_persists)
+    }
+
+    fn set_driver_enabled(&mut self, arm: Arm, enabled: bool) {
+        let arm = &mut self.arms[arm.index()];
+        if !enabled {
+            // EN high resets the latch; a cause still there sets it again on enabling.
+            arm.driver_fault = false;
+            arm.driver_disables += 1;
+        }
+        arm.driver_enabled = enabled;
     }
 
     fn take_step_fault(&mut self, arm: Arm) -> bool {

@@ -497,6 +497,10 @@ impl Arms for SimHardware {
         self.mechanics.driver_fault(arm)
     }
 
+    fn set_driver_enabled(&mut self, arm: Arm, enabled: bool) {
+        self.mechanics.set_driver_enabled(arm, enabled);
+    }
+
     fn take_step_fault(&mut self, arm: Arm) -> bool {
         // The simulated step generator is perfect, unless a test made it late.
         self.mechanics.take_step_fault(arm)

@@ -5,7 +5,9 @@
 //!   [`MoveProfile`] (TIM2 → source arm, TIM3 → detector arm; see [`crate::steppers`]).
 //!   The step count is kept by the timer interrupts, one count per pulse issued, so it
 //!   is the position the drivers were told, whatever the CPU was doing. The drivers are
-//!   enabled (EN low) at the first move and stay enabled to hold position.
+//!   enabled (EN low) at the first move and stay enabled to hold position; the library
+//!   disables a faulted arm's driver in its fail-safe stop and cycles EN on the next
+//!   `Home` to clear the TMC2209's latched DIAG.
 //! - Home switches and driver DIAG: GPIO inputs, read when the library asks.
 //! - Detector: the TIA range lines (one-hot GPIO) and the photodiode ADC (ADC1 on PA1,
 //!   256× oversampled to 16 bits, one sample per 1.024 ms block into a bounded ring, each
@@ -84,6 +86,10 @@ impl Arms for BoardHardware {
 
     fn driver_fault(&self, arm: Arm) -> bool {
         self.diag[arm.index()].is_high()
+    }
+
+    fn set_driver_enabled(&mut self, arm: Arm, enabled: bool) {
+        self.steppers.set_driver_enabled(arm, enabled);
     }
 
     fn take_step_fault(&mut self, arm: Arm) -> bool {

@@ -277,6 +277,15 @@ impl Steppers {
         });
     }
 
+    /// Enable (EN low) or disable (EN high) `arm`'s driver. A profile started later enables
+    /// it again (`StepChannel`'s start).
+    pub fn set_driver_enabled(&mut self, arm: Arm, enabled: bool) {
+        with_arm(arm.index(), |_, timer, _| {
+            // TMC2209 EN is active low.
+            timer.en.set_level(Level::from(!enabled));
+        });
+    }
+
     /// The late interrupt of `arm` since the last call, if any.
     pub fn take_fault(&mut self, arm: Arm) -> Option<StepFault> {
         with_arm(arm.index(), |_, _, fault| fault.take()).flatten()

@@ -235,29 +235,27 @@ fn a_driver_fault_at_rest_still_loses_the_homing() {
         .unwrap();
     // A de-energised motor may have moved: the step count no longer says where the arm is.
     bench.hw_mut().arms[1].driver_fault = true;
+    // While DIAG is high (until the poll that takes the stop), nothing moves (detail: the arm).
+    let refused = Err(DeviceError::with_detail(ErrorCode::HardwareFault, 1));
+    let seq = bench.send(Command::MoveTo(Geometry::from_whole_deg(40, 40)));
+    assert_eq!(bench.reply(seq), Some(refused));
     bench.run_ms(2);
     assert_eq!(bench.stopped_reasons(), [ErrorCode::HardwareFault]);
     let status = bench.status();
     assert_eq!(status.state, DeviceState::Stopped);
     assert!(!status.homed_i && !status.homed_r);
     assert_eq!(status.fault, Some(ErrorCode::HardwareFault));
-    // While the driver reports the fault, nothing moves (detail: the arm); the stop is
-    // taken once, not at every poll.
-    let refused = Err(DeviceError::with_detail(ErrorCode::HardwareFault, 1));
-    assert_eq!(
-        bench.ask(Command::MoveTo(Geometry::from_whole_deg(40, 40))),
-        refused
-    );
-    assert_eq!(bench.ask(Command::Home), refused);
+    // The faulted driver is disabled (which clears a TMC2209's latched DIAG); the healthy
+    // one holds its arm. The stop is taken once, not at every poll.
+    assert!(!bench.hw().arms[1].driver_enabled && bench.hw().arms[0].driver_enabled);
     bench.run_ms(100);
     assert_eq!(bench.stopped_reasons().len(), 1);
-    // Cleared (the driver cooled down): homing is needed, and it searches (the count of a
-    // de-energised motor is no guide) and reports the step error.
-    bench.hw_mut().arms[1].driver_fault = false;
     assert_eq!(
         bench.ask(Command::MoveTo(Geometry::from_whole_deg(40, 40))),
         Err(DeviceError::new(ErrorCode::NotHomed))
     );
+    // The fault went away: the next Home clears it (EN cycled) and searches (the count of a
+    // de-energised motor is no guide) and reports the step error.
     assert_eq!(
         bench.home(),
         HomeReport {
@@ -265,6 +263,7 @@ fn a_driver_fault_at_rest_still_loses_the_homing() {
             step_error_r: Some(0)
         }
     );
+    assert!(bench.hw().arms[1].driver_enabled);
     // A second driver fault is a new occurrence: a new stop.
     bench.hw_mut().arms[0].driver_fault = true;
     bench.run_ms(2);
@@ -318,10 +317,67 @@ fn abort_in_a_moves_settle_answers_the_move_and_keeps_the_homing() {
 
 mod random {
     use super::*;
+    use firmware::device::{DRIVER_RECHECK_US, DRIVER_RESET_US};
     use proptest::prelude::*;
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(48))]
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// A driver fault at a random moment of a move, on either arm, gone or still there
+        /// at the next `Home`: the faulted driver is disabled at the stop (its steps end
+        /// there), the other arm ramps down enabled; a `Home` cycles EN (off for
+        /// `DRIVER_RESET_US`) and homes when the fault went away, and refuses (the arm in
+        /// the detail, the driver off again) while it persists.
+        #[test]
+        fn a_driver_fault_disables_its_driver_and_clears_on_home_once_gone(
+            at_ms in 0u64..1_600,
+            faulted in 0usize..2,
+            persists in any::<bool>(),
+        ) {
+            let mut bench = homed_bench();
+            let seq = bench.send(Command::MoveTo(Geometry::from_whole_deg(10, 40)));
+            bench.run_ms(at_ms);
+            let healthy = 1 - faulted;
+            let healthy_was_moving = bench.hw().arms[healthy].step_timer_running();
+            bench.hw_mut().arms[faulted].driver_fault = true;
+            bench.hw_mut().arms[faulted].driver_fault_persists = persists;
+            bench.tick();
+            prop_assert_eq!(bench.stopped_reasons(), [ErrorCode::HardwareFault]);
+            let arm = bench.hw().arms[faulted];
+            prop_assert!(!arm.driver_enabled && !arm.step_timer_running(), "faulted arm off and still");
+            prop_assert!(bench.hw().arms[healthy].driver_enabled);
+            if healthy_was_moving {
+                prop_assert!(bench.hw().arms[healthy].step_timer_running(), "the healthy arm ramps down");
+            }
+            let _ = bench.wait_reply(seq);
+            bench.wait_at_rest();
+            prop_assert!(!bench.hw().arms[faulted].driver_enabled);
+            let refused = Err(DeviceError::with_detail(ErrorCode::HardwareFault, faulted as i32));
+            if persists {
+                prop_assert_eq!(bench.ask(Command::Home), refused);
+                prop_assert!(!bench.hw().arms[faulted].driver_enabled, "off again");
+                prop_assert_eq!(bench.hw().arms[faulted].driver_disables, 3);
+                let status = bench.status();
+                prop_assert_eq!(status.state, DeviceState::Stopped);
+                prop_assert_eq!(status.fault, Some(ErrorCode::HardwareFault));
+                prop_assert_eq!(bench.hw().arms[healthy].driver_disables, 0);
+                bench.hw_mut().arms[faulted].driver_fault_persists = false;
+            }
+            // The fault went away: EN off for the reset time, then on, then the homing.
+            let home = bench.send(Command::Home);
+            bench.run_ms(DRIVER_RESET_US / 1000 - 1);
+            prop_assert!(!bench.hw().arms[faulted].driver_enabled);
+            bench.run_ms(2);
+            prop_assert!(bench.hw().arms[faulted].driver_enabled);
+            bench.run_ms(DRIVER_RECHECK_US / 1000);
+            prop_assert!(matches!(bench.wait_reply(home), Ok(Reply::Homed(_))));
+            prop_assert!(bench.hw().arms.iter().all(|arm| arm.driver_enabled));
+            prop_assert_eq!(bench.hw().arms[healthy].driver_disables, 0, "the healthy driver kept its arm");
+            let status = bench.status();
+            prop_assert_eq!(status.state, DeviceState::Idle);
+            prop_assert_eq!(status.fault, None);
+            prop_assert_eq!(status.position, bench.hw().true_geometry());
+        }
 
         /// The host goes silent at a random moment of a Strategy 1 run: the stop keeps the
         /// homing exactly when both arms stood still, the step count is the truth either way

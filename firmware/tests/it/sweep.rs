@@ -388,8 +388,8 @@ fn the_device_refuses_a_sweep_while_busy_unhomed_or_faulted() {
     );
     assert_eq!(bench.hw().profiles_started, 0);
     bench.home();
+    // Refused while DIAG is high (before the poll that takes the stop and disables it).
     bench.hw_mut().arms[0].driver_fault = true;
-    bench.tick();
     let started = bench.hw().profiles_started;
     assert_eq!(
         bench.ask(Command::Sweep(ok)),
