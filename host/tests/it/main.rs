@@ -38,7 +38,7 @@ mod firmware_image;
 mod fit;
 mod flash_session;
 mod forensic;
-mod layers;
+mod house;
 mod library;
 mod model;
 mod order;

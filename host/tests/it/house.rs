@@ -1,7 +1,10 @@
-//! The host library's layers, drawn from its own imports: every `crate::…` path in a
-//! module's code (comments and its tests left out) names a module of a lower layer, so
-//! there is no circle and no import that runs up. The layers are declared here, where a
-//! change that breaks them fails with the file and the path it names.
+//! The house the host library keeps, checked on its own sources:
+//! - its layers, drawn from its imports: every `crate::…` path in a module's code
+//!   (comments and its tests left out) names a module of a lower layer, so there is no
+//!   circle and no import that runs up. The layers are declared here, where a change that
+//!   breaks them fails with the file and the path it names;
+//! - no function longer than [`MAX_FN_LINES`] lines (tests included): a longer one is
+//!   steps that want names of their own.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -26,6 +29,9 @@ const OUTPUT: &[&[&str]] = &[
     &["report"],
     &["comparison", "catalogue", "reanalysis", "library"],
 ];
+
+/// The longest a function may be, in lines from its `fn` to its closing brace.
+const MAX_FN_LINES: usize = 120;
 
 fn src() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
@@ -195,4 +201,87 @@ fn the_check_reads_paths_and_knows_every_module() {
         }
     }
     assert!(outputs.values().all(|&known| known), "{outputs:?}");
+}
+
+/// Each function of `text` as (its name, its first line, its length in lines). rustfmt
+/// puts a body's closing brace alone on a line at the `fn`'s indentation; a declaration
+/// without a body (a trait's) ends with `;` before any `{`.
+fn functions(text: &str) -> Vec<(String, usize, usize)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut out = Vec::new();
+    for (k, line) in lines.iter().enumerate() {
+        let trimmed = line.trim_start();
+        let indent = &line[..line.len() - trimmed.len()];
+        let mut words = trimmed.split_whitespace().peekable();
+        // Qualifiers before `fn`: pub, pub(crate), const, async, unsafe, extern "C".
+        while let Some(w) = words.peek() {
+            if w.starts_with("pub") || ["const", "async", "unsafe", "extern", "\"C\""].contains(w) {
+                words.next();
+            } else {
+                break;
+            }
+        }
+        if words.next() != Some("fn") {
+            continue;
+        }
+        let name: String = words
+            .next()
+            .unwrap_or("")
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        let closing = format!("{indent}}}");
+        let mut end = None;
+        for (j, l) in lines.iter().enumerate().skip(k) {
+            let code = l.split(" //").next().unwrap_or("").trim_end();
+            if j == k && code.ends_with('}') && code.contains('{') {
+                end = Some(j);
+                break;
+            }
+            if *l == closing {
+                end = Some(j);
+                break;
+            }
+            if code.ends_with(';') && !lines[k..j].iter().any(|p| p.trim_end().ends_with('{')) {
+                break;
+            }
+        }
+        if let Some(end) = end {
+            out.push((name, k + 1, end - k + 1));
+        }
+    }
+    out
+}
+
+#[test]
+fn no_function_is_longer_than_its_limit() {
+    let mut long = Vec::new();
+    for path in files(&src()) {
+        let text = std::fs::read_to_string(&path).expect("a source file");
+        for (name, line, length) in functions(&text) {
+            if length > MAX_FN_LINES {
+                long.push(format!("{}:{line}: {name}, {length} lines", path.display()));
+            }
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "functions longer than {MAX_FN_LINES} lines:\n{}",
+        long.join("\n")
+    );
+}
+
+/// The measure finds bodies, one-line functions and declarations as they are.
+#[test]
+fn functions_are_measured_from_fn_to_their_brace() {
+    let text = "impl A {\n    pub(crate) fn one(&self) -> u8 { 1 }\n\n    fn three() {\n        let x = 1; // }\n    }\n}\ntrait T {\n    fn declared(&self);\n    fn given(&self) {\n    }\n}\npub const unsafe fn top(\n    a: u8,\n) -> u8 {\n    a\n}\n";
+    assert_eq!(
+        functions(text),
+        [
+            ("one".to_string(), 2, 1),
+            ("three".to_string(), 4, 3),
+            ("given".to_string(), 10, 2),
+            ("top".to_string(), 13, 5),
+        ]
+    );
 }
