@@ -40,7 +40,7 @@ use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts, pac};
 use embassy_sync::blocking_mutex::Mutex;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Ticker};
@@ -84,16 +84,26 @@ pub(crate) const SYSCLK_HZ: u32 = 96_000_000;
 /// PCLK2, Hz (`clock_config`: APB2 undivided): the ADC's clock is divided from it.
 pub(crate) const PCLK2_HZ: u32 = SYSCLK_HZ;
 
+// The channels between the tasks lock with `ThreadModeRawMutex`, which masks no interrupt:
+// every task runs in thread mode on the one executor, so they never preempt each other,
+// and no interrupt handler touches these (the mutex asserts it: a lock from an interrupt
+// panics into the fault handler's safe stop). With `CriticalSectionRawMutex` each lock
+// was a critical section as long as its copy, with the step timers masked: a 256-byte
+// frame pushed or popped byte by byte, 10 instructions ≈ 13.5 cycles a byte by
+// `llvm-objdump -d` of the release ELF, ≈ 3,450 cycles (36 µs) against the step
+// interrupt's 12 µs deadline (issue 26 item 3); a 64-byte packet into `RX`, ≈ 60
+// instructions and a copy, ≲ 200 cycles. Now none of them masks anything.
+
 /// Bytes from the host, waiting for the device task.
-static RX: Pipe<CriticalSectionRawMutex, { 2 * USB_PACKET }> = Pipe::new();
+static RX: Pipe<ThreadModeRawMutex, { 2 * USB_PACKET }> = Pipe::new();
 /// Frames for the host, waiting for the USB IN endpoint: whole frames or none (the
 /// library's drop policy, `firmware::txqueue`).
-static TX: Mutex<CriticalSectionRawMutex, RefCell<FrameQueue<{ 4 * MAX_FRAME_LEN }>>> =
+static TX: Mutex<ThreadModeRawMutex, RefCell<FrameQueue<{ 4 * MAX_FRAME_LEN }>>> =
     Mutex::new(RefCell::new(FrameQueue::new()));
 /// Something was queued in `TX`.
-static TX_QUEUED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+static TX_QUEUED: Signal<ThreadModeRawMutex, ()> = Signal::new();
 /// The USB link went down (unplug, bus reset).
-static DISCONNECTED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+static DISCONNECTED: Signal<ThreadModeRawMutex, ()> = Signal::new();
 
 /// The build's crystal ([`clocks::PLL`]: 25 or 8 MHz) → PLL (VCO 192 MHz) → SYSCLK 96 MHz,
 /// USB 48 MHz. Only once [`clocks::check_crystal`] has found that crystal.
