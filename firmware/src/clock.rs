@@ -162,6 +162,52 @@ pub fn frequency_hz(cycles: u32, ref_ticks: u32, ref_hz: u32) -> Option<u32> {
     Some(u32::try_from(hz).unwrap_or(u32::MAX))
 }
 
+/// Input captures of a clock on a free-running 16-bit timer, summed into a count: the
+/// board's TIM11 latches its counter every `cycles_per_capture` cycles of the clock
+/// measured, and the ticks between the first capture and the last are the reference's.
+///
+/// Differences are taken modulo 2¹⁶, so the counter may wrap between captures any number
+/// of times in all, but at most once between two of them: the board's captures come at
+/// most 992 ticks apart.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CaptureCount {
+    last: Option<u16>,
+    periods: u32,
+    ticks: u32,
+}
+
+impl CaptureCount {
+    /// No capture yet.
+    pub const fn new() -> CaptureCount {
+        CaptureCount {
+            last: None,
+            periods: 0,
+            ticks: 0,
+        }
+    }
+
+    /// The counter was latched at `captured`.
+    pub fn capture(&mut self, captured: u16) {
+        if let Some(last) = self.last {
+            self.ticks = self
+                .ticks
+                .saturating_add(u32::from(captured.wrapping_sub(last)));
+            self.periods = self.periods.saturating_add(1);
+        }
+        self.last = Some(captured);
+    }
+
+    /// Reference ticks over the whole capture periods so far.
+    pub const fn ticks(&self) -> u32 {
+        self.ticks
+    }
+
+    /// Cycles of the measured clock in them, at `cycles_per_capture` a period.
+    pub const fn cycles(&self, cycles_per_capture: u32) -> u32 {
+        self.periods.saturating_mul(cycles_per_capture)
+    }
+}
+
 /// Whether `measured` is within `percent` of `expected`.
 pub fn within_percent(measured: u32, expected: u32, percent: u32) -> bool {
     let diff = u64::from(measured.abs_diff(expected));

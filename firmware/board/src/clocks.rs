@@ -32,7 +32,7 @@
 //! counts SYSCLK), so the boot log carries both, measured.
 
 use embassy_stm32::pac;
-use firmware::clock::{ClockFault, PllSettings};
+use firmware::clock::{CaptureCount, ClockFault, PllSettings};
 
 #[cfg(all(feature = "hse-25mhz", feature = "hse-8mhz"))]
 compile_error!(
@@ -170,10 +170,7 @@ fn count_hse(window_ticks: u32) -> Option<(u32, u32)> {
     // A capture comes at least every 992 ticks for any crystal the oscillator can run; a
     // loop pass is a few tens of cycles, so this bound is ≥ 20 windows' worth of polling.
     let mut polls_left = 20 * window_ticks;
-    let mut first: Option<u16> = None;
-    let mut last = 0u16;
-    let mut ticks = 0u32;
-    let mut periods = 0u32;
+    let mut count = CaptureCount::new();
     let mut result = None;
     while polls_left > 0 {
         polls_left -= 1;
@@ -184,17 +181,9 @@ fn count_hse(window_ticks: u32) -> Option<(u32, u32)> {
         if !sr.ccif(0) {
             continue;
         }
-        let captured = tim.ccr(0).read().ccr(); // clears CC1IF
-        match first {
-            None => first = Some(captured),
-            Some(_) => {
-                ticks += u32::from(captured.wrapping_sub(last));
-                periods += 1;
-            }
-        }
-        last = captured;
-        if ticks >= window_ticks {
-            result = Some((periods * CYCLES_PER_CAPTURE, ticks));
+        count.capture(tim.ccr(0).read().ccr()); // the read clears CC1IF
+        if count.ticks() >= window_ticks {
+            result = Some((count.cycles(CYCLES_PER_CAPTURE), count.ticks()));
             break;
         }
     }

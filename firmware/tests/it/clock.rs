@@ -2,8 +2,9 @@
 //! classification from counts against HSI, the SYSCLK check, the blink code.
 
 use firmware::clock::{
-    BLINK_OFF_MS, BLINK_ON_MS, BLINK_PAUSE_MS, ClockFault, HSE_TOLERANCE_PERCENT, HSI_HZ,
-    PllSettings, USB_HZ, blink_led_on, blink_period_ms, check_crystal, check_sysclk, frequency_hz,
+    BLINK_OFF_MS, BLINK_ON_MS, BLINK_PAUSE_MS, CaptureCount, ClockFault, HSE_TOLERANCE_PERCENT,
+    HSI_HZ, PllSettings, USB_HZ, blink_led_on, blink_period_ms, check_crystal, check_sysclk,
+    frequency_hz,
 };
 use proptest::prelude::*;
 
@@ -248,5 +249,41 @@ fn the_blink_survives_the_millisecond_counter_wrapping() {
     // No panic anywhere in u32, and still a blink pattern.
     for t in [u32::MAX - 1, u32::MAX, 0] {
         let _ = blink_led_on(2, t);
+    }
+}
+
+#[test]
+fn captures_count_whole_periods_across_the_counter_wrapping() {
+    let mut count = CaptureCount::new();
+    assert_eq!((count.cycles(248), count.ticks()), (0, 0));
+    // The first capture only starts the count.
+    count.capture(65_400);
+    assert_eq!((count.cycles(248), count.ticks()), (0, 0));
+    // 159 ticks a period (25 MHz against 16 MHz), through 65,535 → 0.
+    for k in 1..=4u32 {
+        count.capture((65_400 + 159 * k) as u16);
+    }
+    assert_eq!(count.cycles(248), 4 * 248);
+    assert_eq!(count.ticks(), 4 * 159);
+    assert!(check_crystal(25_000_000, count.cycles(248), count.ticks()).is_ok());
+}
+
+proptest! {
+    /// Whatever the counter's start and the periods (under 2¹⁶ each), the ticks are their
+    /// sum and the cycles one period's worth per capture after the first.
+    #[test]
+    fn capture_count_is_the_sum_of_the_periods(
+        start in any::<u16>(),
+        periods in proptest::collection::vec(1u32..65_536, 0..200),
+    ) {
+        let mut count = CaptureCount::new();
+        let mut at = u32::from(start);
+        count.capture(start);
+        for &p in &periods {
+            at = at.wrapping_add(p);
+            count.capture(at as u16);
+        }
+        prop_assert_eq!(count.ticks(), periods.iter().sum::<u32>());
+        prop_assert_eq!(count.cycles(248), periods.len() as u32 * 248);
     }
 }
