@@ -15,6 +15,10 @@
 //!
 //! Interrupt priorities (lower number first): TIM2/TIM3 step timers P0, TIM5 ADC
 //! decimation P1 (once per 1.024 ms block, locked to the ADC), OTG_FS P2, TIM4 (the embassy time driver) P3; the tasks in thread mode.
+//! Critical sections mask the step timers too, so none may be long: the longest is
+//! ≲ 500 cycles (5 µs, under a step interrupt's 12 µs deadline), estimated from
+//! `llvm-objdump -d` of the release ELF (the board README's table: the ADC sum and the
+//! USB queues, 3,150 and 3,450 cycles before issue 26 item 3, now hold no lock).
 //! Panics, processor faults and stack overflows take the safe stop of [`fault`].
 #![no_std]
 #![no_main]
