@@ -16,6 +16,8 @@
 //! - [`sampling`]: ADC decimation and the sample ring, with the overrun rule.
 //! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
 //! - [`sweep`]: sweeps: the checks, the profile, auto-ranging while moving, the bins.
+//! - [`clock`]: the PLL settings' derived clocks, the crystal checked against HSI, the
+//!   error blink code.
 //! - [`config`]: the reference instrument's limits, announced in the handshake.
 //! - [`fault`]: the fault handlers' safe stop, their record across the reset, the reset cause.
 //! - [`txqueue`]: frames for the host, queued whole or dropped whole.
@@ -25,6 +27,7 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod clock;
 pub mod config;
 pub mod detector;
 pub mod device;

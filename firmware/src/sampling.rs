@@ -165,8 +165,32 @@ impl SampleRing {
     }
 }
 
-/// The decimation's position in the DMA's raw circle.
-#[derive(Clone, Debug)]
+/// Where [`Decimator::service`] puts what it finds: the samples and the losses.
+///
+/// [`SampleRing`] is one. The board's is the ring behind its critical-section lock, taken
+/// once per sample and per loss: the decimation itself (256 loads and adds a block, about
+/// 3,000 cycles) then runs with interrupts on, and the longest interrupt-off section it
+/// costs is one push, not the whole sum.
+pub trait SampleSink {
+    /// A sample and the detector arm's step count at its block's end.
+    fn push(&mut self, sample: u16, detector_steps: i32);
+    /// Samples were lost ([`SampleRing::mark_loss`]).
+    fn mark_loss(&mut self, loss: SampleLoss);
+}
+
+impl SampleSink for SampleRing {
+    fn push(&mut self, sample: u16, detector_steps: i32) {
+        SampleRing::push(self, sample, detector_steps);
+    }
+
+    fn mark_loss(&mut self, loss: SampleLoss) {
+        SampleRing::mark_loss(self, loss);
+    }
+}
+
+/// The decimation's position in the DMA's raw circle. `Copy`: the board keeps it in a
+/// cell its interrupt copies out and back, so that no lock is held while it sums.
+#[derive(Clone, Copy, Debug)]
 pub struct Decimator {
     cycles_per_conversion: u32,
     /// The next raw slot to read: a block boundary.
@@ -198,7 +222,8 @@ impl Decimator {
     /// One service (the decimation interrupt, once per block): `write` is the DMA's next
     /// slot (`RAW_LEN - NDTR`), `adc_overrun` the ADC's overrun flag, `now_cycles` the
     /// clock, `raw(i)` the conversion in slot `i`, `detector_steps` the detector arm's step
-    /// count now. Every whole block found becomes a sample in `ring`, stamped with
+    /// count now. Every whole block found becomes a sample in `ring` (any
+    /// [`SampleSink`]: each sample is summed before it is handed over), stamped with
     /// `detector_steps` (the board runs this interrupt just after each block ends, so the
     /// stamp is the count at the block's end; should a late service find two blocks, both
     /// get the later count); a loss is recorded there. Returns whether the board must
@@ -212,7 +237,7 @@ impl Decimator {
         now_cycles: u32,
         raw: impl Fn(usize) -> u16,
         detector_steps: i32,
-        ring: &mut SampleRing,
+        ring: &mut impl SampleSink,
     ) -> bool {
         if adc_overrun {
             ring.mark_loss(SampleLoss::AdcOverrun);

@@ -30,13 +30,29 @@
 //! DMA position (NDTR), and the time since its last run tells one lap of the raw buffer
 //! from two.
 //!
-//! ISR cost: 256 loads and adds per sample (~6 cycles each at opt-level "z") plus a short
-//! critical section: ≲ 2,000 cycles ≈ 20 µs per 1.024 ms, ≈ 2 % of the CPU, at P1: below
+//! ISR cost: 256 loads and adds per sample (9 instructions a conversion at opt-level "z",
+//! ≈ 12 cycles: `llvm-objdump -d` of the release ELF, the loop in `TIM5`) plus short
+//! critical sections: ≈ 3,150 cycles ≈ 33 µs per 1.024 ms, ≈ 3 % of the CPU, at P1: below
 //! the step timers, which preempt it, above USB and the time driver.
+//!
+//! INTERRUPTS STAY ON WHILE IT SUMS. A critical section masks every interrupt, the step
+//! timers' too, and a step interrupt must run within 12 µs of a 20 µs segment
+//! (`firmware::stepgen`): the sum of a block, ≈ 3,150 cycles (33 µs), held the lock
+//! (issue 26 item 3).
+//! Now the decimator ([`DECIMATOR`], TIM5's alone) is copied out of its cell, sums with
+//! interrupts on, and is copied back; only each finished sample (or loss) goes into the
+//! shared ring under the lock ([`SharedRing`]). The blocks it sums are whole blocks behind
+//! the DMA's write position, which the DMA reaches again only three blocks (3 ms) later,
+//! whatever preempts the sum meanwhile (the lap test reports a later service; the
+//! library's model tests it with the sum slowed sixfold past its preemption). Interrupt-off
+//! sections here now, by the same disassembly: the copy out and back, 3 instructions each;
+//! a ring push, 26 instructions with the `RefCell` borrow, ≈ 50 cycles; a drain batch of
+//! 16 samples ([`DetectorAdc::drain`], device task), 13 instructions a sample, ≈ 300
+//! cycles (3 µs).
 //!
 //! RAM: the ring holds 256 samples and their stamps, 1.5 KiB (`firmware::sampling`).
 
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicU16, Ordering};
 
@@ -57,7 +73,7 @@ use embassy_stm32::peripherals::{ADC1, DMA2_CH0, PA1, TIM5};
 use embassy_stm32::timer::low_level::{RoundTo, Timer};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use firmware::sampling::{Decimator, OVERSAMPLE, RAW_LEN, SampleLoss, SampleRing};
+use firmware::sampling::{Decimator, OVERSAMPLE, RAW_LEN, SampleLoss, SampleRing, SampleSink};
 
 /// ADCCLK's divider of PCLK2 (ADC_CCR.ADCPRE), written by [`DetectorAdc::start`]:
 /// 96 MHz / 4 = 24 MHz, the fastest under the F411's 36 MHz. Everything below is counted
@@ -109,14 +125,33 @@ const DMA_STREAM: usize = 0;
 /// master writes is never assumed unchanged by the compiler.
 static RAW: [AtomicU16; RAW_LEN] = [const { AtomicU16::new(0) }; RAW_LEN];
 
-/// The decimation's state (TIM5 only) and the decoded samples (TIM5 and the device task).
+/// The decoded samples (TIM5 and the device task).
 struct Sampling {
-    decimator: Decimator,
     ring: SampleRing,
 }
 
+/// The decimation's state: TIM5's alone after [`DetectorAdc::start`]. A `Cell` that TIM5
+/// copies out, services and copies back (four words, a few cycles under the lock), so
+/// that no lock is held while it sums.
+static DECIMATOR: Mutex<CriticalSectionRawMutex, Cell<Decimator>> =
+    Mutex::new(Cell::new(Decimator::new(CYCLES_PER_CONVERSION, 0)));
+
+/// The ring behind its lock, as the decimation's sink: one short critical section per
+/// sample or loss, after the sample is summed.
+struct SharedRing;
+
+impl SampleSink for SharedRing {
+    fn push(&mut self, sample: u16, detector_steps: i32) {
+        with_sampling(|sampling| sampling.ring.push(sample, detector_steps));
+    }
+
+    fn mark_loss(&mut self, loss: SampleLoss) {
+        with_sampling(|sampling| sampling.ring.mark_loss(loss));
+    }
+}
+
 /// Uninitialised until [`DetectorAdc::start`] writes it, so that it is in `.bss`: its
-/// initial value is not all zeros (the ring's `None`s, the decimator's conversion period),
+/// initial value is not all zeros (the ring's `None`s),
 /// and as a constant initialiser it put 1,568 bytes in `.data`, whose image is in flash.
 /// Reached only through [`with_sampling`].
 static SAMPLING: Mutex<CriticalSectionRawMutex, RefCell<MaybeUninit<Sampling>>> =
@@ -199,23 +234,23 @@ fn TIM5() {
     let steps = crate::steppers::detector_steps();
     let overrun = pac::ADC1.sr().read().ovr();
     let remaining = usize::from(pac::DMA2.st(DMA_STREAM).ndtr().read().ndt());
-    let restart = with_sampling(|sampling| {
-        let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
-        sampling.decimator.service(
-            RAW_LEN - remaining,
-            overrun,
-            now,
-            raw,
-            steps,
-            &mut sampling.ring,
-        )
-    });
+    // Interrupts on from here to the copy back (see the module doc).
+    let mut decimator = DECIMATOR.lock(Cell::get);
+    let raw = |i: usize| RAW[i].load(Ordering::Relaxed);
+    let restart = decimator.service(
+        RAW_LEN - remaining,
+        overrun,
+        now,
+        raw,
+        steps,
+        &mut SharedRing,
+    );
     if restart {
         // The DMA missed a conversion and the ADC stopped (it should not: the DMA has
         // priority "high" and nothing else uses DMA2): restart from slot 0, TIM5 with it.
-        let started = start_conversions();
-        with_sampling(|sampling| sampling.decimator.restart(started));
+        decimator.restart(start_conversions());
     }
+    DECIMATOR.lock(|cell| cell.set(decimator));
 }
 
 /// The running ADC path: owns ADC1, the DMA stream, TIM5 and PA1.
@@ -280,16 +315,17 @@ impl DetectorAdc {
         // The sampling state, before anything can read it (`with_sampling`).
         SAMPLING.lock(|sampling| {
             sampling.borrow_mut().write(Sampling {
-                decimator: Decimator::new(CYCLES_PER_CONVERSION, 0),
                 ring: SampleRing::new(),
             });
         });
-        // SAFETY: the TIM5 handler is defined above and shares state only through atomics
-        // and a critical-section mutex.
-        unsafe { interrupt::TIM5.enable() };
-        // The conversions, and TIM5 locked to them.
+        // The conversions, and TIM5 locked to them; the decimator from their start, before
+        // TIM5's interrupt is enabled (its first update is a block, 1 ms, away; one
+        // pending by then would find the decimator set all the same).
         let started = start_conversions();
-        with_sampling(|sampling| sampling.decimator.restart(started));
+        DECIMATOR.lock(|cell| cell.set(Decimator::new(CYCLES_PER_CONVERSION, started)));
+        // SAFETY: the TIM5 handler is defined above and shares state only through atomics
+        // and critical-section mutexes.
+        unsafe { interrupt::TIM5.enable() };
         DetectorAdc {
             _adc: adc,
             _dma: dma,

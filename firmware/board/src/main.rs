@@ -15,10 +15,15 @@
 //!
 //! Interrupt priorities (lower number first): TIM2/TIM3 step timers P0, TIM5 ADC
 //! decimation P1 (once per 1.024 ms block, locked to the ADC), OTG_FS P2, TIM4 (the embassy time driver) P3; the tasks in thread mode.
+//! Critical sections mask the step timers too, so none may be long: the longest is
+//! ≲ 500 cycles (5 µs, under a step interrupt's 12 µs deadline), estimated from
+//! `llvm-objdump -d` of the release ELF (the board README's table: the ADC sum and the
+//! USB queues, 3,150 and 3,450 cycles before issue 26 item 3, now hold no lock).
 //! Panics, processor faults and stack overflows take the safe stop of [`fault`].
 #![no_std]
 #![no_main]
 
+mod clocks;
 mod detector_adc;
 mod fault;
 mod hardware;
@@ -26,7 +31,7 @@ mod pins;
 mod steppers;
 
 use core::cell::RefCell;
-use defmt::{info, warn};
+use defmt::{error, info, warn};
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either3, select3};
 
@@ -39,7 +44,7 @@ use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{Config, bind_interrupts, pac};
 use embassy_sync::blocking_mutex::Mutex;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Ticker};
@@ -47,6 +52,7 @@ use embassy_usb::class::cdc_acm::{CdcAcmClass, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
 use firmware::Device;
+use firmware::clock::ClockFault;
 use firmware::config::InstrumentConfig;
 use firmware::txqueue::{DropLog, FrameQueue};
 use hardware::BoardHardware;
@@ -82,40 +88,61 @@ pub(crate) const SYSCLK_HZ: u32 = 96_000_000;
 /// PCLK2, Hz (`clock_config`: APB2 undivided): the ADC's clock is divided from it.
 pub(crate) const PCLK2_HZ: u32 = SYSCLK_HZ;
 
+// The channels between the tasks lock with `ThreadModeRawMutex`, which masks no interrupt:
+// every task runs in thread mode on the one executor, so they never preempt each other,
+// and no interrupt handler touches these (the mutex asserts it: a lock from an interrupt
+// panics into the fault handler's safe stop). With `CriticalSectionRawMutex` each lock
+// was a critical section as long as its copy, with the step timers masked: a 256-byte
+// frame pushed or popped byte by byte, 10 instructions ≈ 13.5 cycles a byte by
+// `llvm-objdump -d` of the release ELF, ≈ 3,450 cycles (36 µs) against the step
+// interrupt's 12 µs deadline (issue 26 item 3); a 64-byte packet into `RX`, ≈ 60
+// instructions and a copy, ≲ 200 cycles. Now none of them masks anything.
+
 /// Bytes from the host, waiting for the device task.
-static RX: Pipe<CriticalSectionRawMutex, { 2 * USB_PACKET }> = Pipe::new();
+static RX: Pipe<ThreadModeRawMutex, { 2 * USB_PACKET }> = Pipe::new();
 /// Frames for the host, waiting for the USB IN endpoint: whole frames or none (the
 /// library's drop policy, `firmware::txqueue`).
-static TX: Mutex<CriticalSectionRawMutex, RefCell<FrameQueue<{ 4 * MAX_FRAME_LEN }>>> =
+static TX: Mutex<ThreadModeRawMutex, RefCell<FrameQueue<{ 4 * MAX_FRAME_LEN }>>> =
     Mutex::new(RefCell::new(FrameQueue::new()));
 /// Something was queued in `TX`.
-static TX_QUEUED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+static TX_QUEUED: Signal<ThreadModeRawMutex, ()> = Signal::new();
 /// The USB link went down (unplug, bus reset).
-static DISCONNECTED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+static DISCONNECTED: Signal<ThreadModeRawMutex, ()> = Signal::new();
 
-/// HSE 25 MHz → PLL (VCO 192 MHz) → SYSCLK 96 MHz, USB 48 MHz.
+/// The build's crystal ([`clocks::PLL`]: 25 or 8 MHz) → PLL (VCO 192 MHz) → SYSCLK 96 MHz,
+/// USB 48 MHz. Only once [`clocks::check_crystal`] has found that crystal.
 fn clock_config() -> Config {
+    use clocks::PLL;
     use embassy_stm32::rcc::{
         AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv,
         PllSource, Sysclk,
     };
-    let mut config = Config::default();
+    let mut config = hsi_config();
     config.rcc.hse = Some(Hse {
-        freq: Hertz(25_000_000),
+        freq: Hertz(PLL.hse_hz),
         mode: HseMode::Oscillator,
     });
     config.rcc.pll_src = PllSource::HSE;
+    // The register encodings of the settings `clocks` asserts at compile time (PLLP's
+    // field is P / 2 - 1).
     config.rcc.pll = Some(Pll {
-        prediv: PllPreDiv::DIV25,  // 1 MHz VCO input
-        mul: PllMul::MUL192,       // 192 MHz VCO
-        divp: Some(PllPDiv::DIV2), // 96 MHz SYSCLK
-        divq: Some(PllQDiv::DIV4), // 48 MHz USB
+        prediv: PllPreDiv::from_bits(PLL.m as u8),
+        mul: PllMul::from_bits(PLL.n as u16),
+        divp: Some(PllPDiv::from_bits((PLL.p / 2 - 1) as u8)),
+        divq: Some(PllQDiv::from_bits(PLL.q as u8)),
         divr: None,
     });
     config.rcc.sys = Sysclk::PLL1_P;
     config.rcc.ahb_pre = AHBPrescaler::DIV1; // 96 MHz
     config.rcc.apb1_pre = APBPrescaler::DIV2; // 48 MHz (APB1 max 50 MHz)
     config.rcc.apb2_pre = APBPrescaler::DIV1; // 96 MHz
+    config
+}
+
+/// The reset clocks, HSI 16 MHz alone: what the board runs on when it refuses its crystal
+/// (and the base of [`clock_config`]).
+fn hsi_config() -> Config {
+    let mut config = Config::default();
     // The DWT cycle counter is the step deadline's and the ADC decimation's clock, and it
     // counts only while the core's HCLK runs: in the executor's sleep (WFE between events)
     // HCLK stops unless DBGMCU_CR.DBG_SLEEP keeps it on, and the count falls behind the
@@ -157,6 +184,25 @@ fn freeze_timers_in_debug_halt() {
 async fn main(spawner: Spawner) {
     // First: the record a fault handler left is read and cleared before anything can fault.
     let reset_cause = fault::reset_cause();
+    // The crystal before anything depends on it: started with a timeout and measured
+    // against HSI (`clocks`); embassy's setup would wait for a missing one forever.
+    let crystal = clocks::check_crystal();
+    if let Err(fault) = crystal.verdict {
+        // Refused before embassy's setup, which would wait for HSE: on HSI, the pins by
+        // hand, and no embassy at all (so that its setup keeps the one constant clock
+        // configuration the compiler folds: a second one costs 1.2 KiB of flash).
+        clocks::enable_gpio_clocks();
+        // SAFETY: `embassy_stm32::init` never runs on this path (`refuse_clocks` does not
+        // return), so nothing else holds a peripheral.
+        let p = unsafe { embassy_stm32::Peripherals::steal() };
+        let hsi_cycles_per_ms = firmware::clock::HSI_HZ / 1_000;
+        refuse_clocks(
+            fault,
+            crystal.measured_hse_hz,
+            pins::take_board_pins!(p),
+            hsi_cycles_per_ms,
+        );
+    }
     let p = embassy_stm32::init(clock_config());
     freeze_timers_in_debug_halt();
     // The flash accelerator (ART): embassy's clock setup writes the wait states and leaves
@@ -180,8 +226,25 @@ async fn main(spawner: Spawner) {
         PROTOCOL_VERSION,
         reset_cause
     );
-
+    // SYSCLK measured against the crystal, now that the PLL runs from it.
+    let sysclk_hz = match clocks::measure_sysclk() {
+        Ok(sysclk_hz) => sysclk_hz,
+        // (The blink's timing assumes the SYSCLK that was just found wrong.)
+        Err(fault) => refuse_clocks(
+            fault,
+            crystal.measured_hse_hz,
+            pins::take_board_pins!(p),
+            SYSCLK_HZ / 1_000,
+        ),
+    };
     let pins = pins::take_board_pins!(p).split();
+    info!(
+        "clocks: HSE {} Hz measured against HSI (this build: {} Hz crystal), SYSCLK {} Hz measured against HSE (expected {} Hz)",
+        crystal.measured_hse_hz,
+        clocks::PLL.hse_hz,
+        sysclk_hz,
+        SYSCLK_HZ
+    );
 
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
@@ -255,6 +318,44 @@ async fn main(spawner: Spawner) {
     spawner.spawn(defmt::unwrap!(usb_tx_task(sender)));
     spawner.spawn(defmt::unwrap!(device_task(device, watchdog, pins.led)));
     core::future::pending::<()>().await;
+}
+
+/// The clocks were refused ([`firmware::clock::ClockFault`]): every pin to its safe idle
+/// state (drivers off, lamp off; held, since this never returns), neither USB nor the step
+/// timers nor the ADC started, the reason in the log, and the fault's code blinked on the
+/// LED (active low), forever, timed by the core's cycles (`cycles_per_ms`). No watchdog
+/// runs: a reset would only find the same crystal again. The log line repeats with each
+/// code, for a probe attached later.
+fn refuse_clocks(
+    fault: ClockFault,
+    measured_hse_hz: Option<u32>,
+    pins: pins::BoardPins,
+    cycles_per_ms: u32,
+) -> ! {
+    let mut pins = pins.split();
+    let blinks = fault.blinks();
+    let period_ms = firmware::clock::blink_period_ms(blinks);
+    let mut elapsed_ms = 0u32;
+    loop {
+        if elapsed_ms % period_ms == 0 {
+            error!(
+                "clocks refused: {} (HSE measured {} Hz against HSI; this build needs a {} Hz crystal): no USB, no motion; LED blinks {} times",
+                fault,
+                measured_hse_hz,
+                clocks::PLL.hse_hz,
+                blinks
+            );
+        }
+        pins.led
+            .set_level(if firmware::clock::blink_led_on(blinks, elapsed_ms) {
+                Level::Low
+            } else {
+                Level::High
+            });
+        cortex_m::asm::delay(10 * cycles_per_ms);
+        // Wraps after 49 days: the pattern restarts, nothing else.
+        elapsed_ms = elapsed_ms.wrapping_add(10);
+    }
 }
 
 #[embassy_executor::task]

@@ -8,7 +8,7 @@
 //! | PA13 / PA14 | SWDIO / SWCLK (probe-rs, defmt RTT)   |
 //! | PC13        | on-board blue LED, active low         |
 //! | PA0         | on-board KEY push button (to GND)     |
-//! | PH0 / PH1   | 25 MHz HSE crystal                    |
+//! | PH0 / PH1   | HSE crystal, 25 or 8 MHz (`clocks`)   |
 //! | PC14 / PC15 | 32.768 kHz LSE crystal                |
 //! | PB2         | BOOT1 (strapped through a resistor)   |
 //! | PB3         | SWO (kept free for trace)             |

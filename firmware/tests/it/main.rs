@@ -8,6 +8,7 @@
 // Helpers shared by the test files.
 mod common;
 
+mod clock;
 mod device;
 mod failsafe;
 mod faults;

@@ -20,6 +20,12 @@ const BLOCK: u64 = OVERSAMPLE as u64;
 /// disassembly: ~6 cycles), doubled: the DMA writes on meanwhile (and the test shows that
 /// it cannot overtake the summing).
 const CYCLES_PER_READ: u64 = 12;
+/// The same with the summing preempted: the board sums outside its critical section, so
+/// the step interrupts (P0, ≲ 500 cycles each) run in the middle of it. A block's sum is
+/// ~3,000 cycles, in which each arm steps at most once at full speed (a step every
+/// 20,000 cycles): ≲ 4,000 cycles a block, 16 a read. 100 a read (25,600 a block) is six
+/// times that.
+const PREEMPTED_CYCLES_PER_READ: u64 = 100;
 
 /// A conversion's value: 12 bits that depend on its index, so a mixed block sums wrong.
 fn value(n: u64) -> u16 {
@@ -75,6 +81,11 @@ struct Outcome {
 }
 
 fn simulate(steps: &[Step]) -> Outcome {
+    simulate_with(steps, CYCLES_PER_READ)
+}
+
+/// [`simulate`] with each raw read taking `cycles_per_read`.
+fn simulate_with(steps: &[Step], cycles_per_read: u64) -> Outcome {
     let mut now: u64 = 1_000;
     let mut dma = Dma {
         start: now,
@@ -100,7 +111,7 @@ fn simulate(steps: &[Step]) -> Outcome {
             now as u32,
             |slot| {
                 // The DMA goes on while the decimation sums: each read a few cycles later.
-                let at = now + reads.borrow().len() as u64 * CYCLES_PER_READ;
+                let at = now + reads.borrow().len() as u64 * cycles_per_read;
                 let n = dma.in_slot(slot, at).expect("read a slot never written");
                 reads.borrow_mut().push(n);
                 value(n)
@@ -229,6 +240,12 @@ proptest! {
     }
 
     #[test]
+    fn preempted_summing_mixes_no_block(steps in proptest::collection::vec(jittery_step(), 1..400)) {
+        let outcome = simulate_with(&steps, PREEMPTED_CYCLES_PER_READ);
+        check_gaps(&outcome)?;
+    }
+
+    #[test]
     fn timely_services_lose_nothing(steps in proptest::collection::vec(
         // Up to 1.5 ms apart (the 1 kHz interrupt held up by half a period), drained each time.
         (1u64..(CYCLES_PER_CONVERSION * 384)).prop_map(|gap| Step { gap, overrun: false, drain: true }), 1..400)) {
@@ -298,4 +315,60 @@ fn a_late_service_is_a_lap_an_adc_overrun_a_restart_a_full_ring_a_loss_in_a_read
         .map(SampleLoss::detail),
         [1, 2, 3]
     );
+}
+
+/// A sink that records what the decimation hands it, in order.
+#[derive(Default)]
+struct Recorder {
+    events: Vec<Result<(u16, i32), SampleLoss>>,
+}
+
+impl SampleSink for Recorder {
+    fn push(&mut self, sample: u16, detector_steps: i32) {
+        self.events.push(Ok((sample, detector_steps)));
+    }
+
+    fn mark_loss(&mut self, loss: SampleLoss) {
+        self.events.push(Err(loss));
+    }
+}
+
+#[test]
+fn any_sink_gets_what_the_ring_gets() {
+    // Two services: two whole blocks, then a lap (3 ms late); the board's sink is its
+    // locked ring, handed each sample after its sum.
+    let raw = |i: usize| (i % 4096) as u16;
+    let mut ring = SampleRing::new();
+    let mut recorder = Recorder::default();
+    let mut a = Decimator::new(384, 0);
+    let mut b = a;
+    let t1 = 2 * 256 * 384 + 100;
+    assert!(!a.service(512, false, t1, raw, 5, &mut ring));
+    assert!(!b.service(512, false, t1, raw, 5, &mut recorder));
+    let t2 = t1 + 4 * 256 * 384;
+    assert!(!a.service(600, false, t2, raw, 6, &mut ring));
+    assert!(!b.service(600, false, t2, raw, 6, &mut recorder));
+    let block =
+        |first: usize| ((first..first + 256).map(|i| u32::from(raw(i))).sum::<u32>() >> 4) as u16;
+    assert_eq!(
+        recorder.events,
+        [
+            Ok((block(0), 5)),
+            Ok((block(256), 5)),
+            Err(SampleLoss::DmaLapped)
+        ]
+    );
+    let mut out = [firmware::Sample {
+        counts: 0,
+        detector_steps: 0,
+    }; 4];
+    assert_eq!(ring.pop_into(&mut out), 2);
+    assert_eq!(
+        out[..2]
+            .iter()
+            .map(|s| (s.counts as u16, s.detector_steps))
+            .collect::<Vec<_>>(),
+        [(block(0), 5), (block(256), 5)]
+    );
+    assert_eq!(ring.take_loss(), Some(SampleLoss::DmaLapped));
 }
