@@ -60,14 +60,35 @@ pub(crate) fn with_variances(shape: &Cov3, variances: [f64; 3]) -> Cov3 {
     })
 }
 
+/// The smallest pivot of a correlation matrix's Cholesky factor (1 − R² of a parameter
+/// on those before it) that counts as positive definite: below it the correlations are
+/// ±1 but for rounding.
+const MIN_CORRELATION_PIVOT: f64 = 1e-6;
+
 /// `c` if it is positive definite, else its variances alone: a scatter of fewer rows than
 /// parameters (three spots of one sheet: two degrees of freedom for three parameters) is
-/// singular through its correlations, which so few rows cannot show anyway.
+/// singular through its correlations, which so few rows cannot show anyway. Judged on the
+/// correlations with a margin ([`MIN_CORRELATION_PIVOT`]): a singular scatter can pass a
+/// Cholesky factorisation by rounding and then fail the next one, of a sum of it (the
+/// schema test's library at seed 4121 could make no population).
 pub(crate) fn positive_definite_or_diagonal(c: Cov3) -> Cov3 {
-    if linalg::cholesky(&restrict(&c, &[0, 1, 2])).is_some() {
-        return c;
+    let variances = diagonal_of(&c);
+    let diagonal =
+        std::array::from_fn(|r| std::array::from_fn(|k| if r == k { c[r][r] } else { 0.0 }));
+    if variances.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        return diagonal;
     }
-    std::array::from_fn(|r| std::array::from_fn(|k| if r == k { c[r][r] } else { 0.0 }))
+    let correlation: Cov3 = std::array::from_fn(|r| {
+        std::array::from_fn(|k| c[r][k] / (variances[r] * variances[k]).sqrt())
+    });
+    match linalg::cholesky(&restrict(&correlation, &[0, 1, 2])) {
+        Some(l) if (0..3).all(|i| l.at(i, i).powi(2) >= MIN_CORRELATION_PIVOT) => c,
+        _ => diagonal,
+    }
+}
+
+fn diagonal_of(c: &Cov3) -> [f64; 3] {
+    std::array::from_fn(|i| c[i][i])
 }
 
 /// Scatter of `rows` about `mean`, divided by `dof` (at least 1).
@@ -156,6 +177,39 @@ mod tests {
         // χ²₀.₀₅(3) = 0.3518: 3 / 0.3518.
         assert!((b3 - 8.527).abs() < 0.01, "{b3}");
         assert_eq!(upper_variance(1.0, 0), f64::INFINITY);
+    }
+
+    #[test]
+    fn a_singular_scatter_is_its_variances_alone_however_it_rounds() {
+        // Three spots of one sheet (seed 4121 of the schema test), their scatter scaled to
+        // its upper bound: rank 2, yet its Cholesky factorisation passed by rounding, and
+        // that of twice it (spot and sheet levels) did not.
+        let estimate = [
+            [
+                5.710668786450433e-7,
+                8.243802567137047e-6,
+                -1.2112128448741914e-7,
+            ],
+            [
+                8.243802567137047e-6,
+                0.0010101701120949257,
+                -8.001354587084331e-6,
+            ],
+            [
+                -1.2112128448741914e-7,
+                -8.001354587084331e-6,
+                6.956281412352244e-8,
+            ],
+        ];
+        let upper = with_variances(&estimate, diagonal_of(&estimate).map(|v| 19.496 * v));
+        let used = positive_definite_or_diagonal(upper);
+        assert_eq!(used[0][1], 0.0, "{used:?}");
+        assert_eq!(diagonal_of(&used), diagonal_of(&upper));
+        let within: Cov3 = std::array::from_fn(|r| std::array::from_fn(|c| 2.0 * used[r][c]));
+        assert!(linalg::cholesky(&restrict(&within, &[0, 1, 2])).is_some());
+        // A scatter that is positive definite stays as it is.
+        let fine = [[4.0, 1.0, 0.5], [1.0, 2.0, 0.2], [0.5, 0.2, 1.0]];
+        assert_eq!(positive_definite_or_diagonal(fine), fine);
     }
 
     #[test]
