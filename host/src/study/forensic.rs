@@ -183,13 +183,13 @@ impl Design {
         spots: crate::analysis::spots::DEFAULT_SPOTS as usize,
         policy: PolicyChoice::Adaptive,
     };
-    /// A small one for the tests: 2 draws of 32 stocks, 2 library and 2 held-out sheets
+    /// A small one for the tests: 2 draws of 24 stocks, 2 library and 2 held-out sheets
     /// of 2 spots.
     pub const SMALL: Design = Design {
         scenario: Scenario::AS_TODAY,
         draws: 2,
         first_draw: 0,
-        drawn_per_paper: 3,
+        drawn_per_paper: 2,
         library_sheets: 2,
         held_out_sheets: 2,
         spots: 2,

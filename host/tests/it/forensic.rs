@@ -101,7 +101,9 @@ fn a_small_campaign_over_draws_validates_the_likelihood_ratios() {
     // them not.
     assert_eq!(campaign.stocks.len(), 2);
     let (a, b) = (&campaign.stocks[0], &campaign.stocks[1]);
-    assert_eq!((a.len(), b.len()), (32, 32));
+    // Each of the 8 reference papers and 2 stocks drawn about it.
+    let stocks = 8 * (1 + design.drawn_per_paper);
+    assert_eq!((a.len(), b.len()), (stocks, stocks));
     assert_eq!(a[0], b[0], "the reference paper G in both draws");
     assert_ne!(a[1].params, b[1].params, "G#1 drawn anew");
     let (f, pairs) =
@@ -111,7 +113,11 @@ fn a_small_campaign_over_draws_validates_the_likelihood_ratios() {
         "{}",
         forensic::summary_markdown(&f, &[one.clone(), f.clone()])
     );
-    assert_eq!(f.pairs.0, 64, "one same-stock pair per stock and draw");
+    assert_eq!(
+        f.pairs.0,
+        2 * stocks,
+        "one same-stock pair per stock and draw"
+    );
     assert_eq!(
         pairs.iter().filter(|p| p.draw == 1).count(),
         pairs.len() / 2
@@ -120,13 +126,13 @@ fn a_small_campaign_over_draws_validates_the_likelihood_ratios() {
     assert!(
         f.per_draw
             .iter()
-            .all(|d| d.pairs.0 == 32 && d.search.1 == 64),
+            .all(|d| d.pairs.0 == stocks && d.search.1 == 2 * stocks),
         "{:?}",
         f.per_draw
     );
     // The sheets are the product's: the planned spots, flagged ones replaced and left out.
     let u = f.spot_use;
-    assert_eq!(u.sheets, 2 * 32 * 4);
+    assert_eq!(u.sheets, 2 * stocks * 4);
     assert!(
         u.measured >= u.sheets * 2 && u.measured <= u.sheets * 2 + u.replaced,
         "{u:?}"
