@@ -34,7 +34,7 @@ pub const SPOT_RESULT: &str = "gonio-spot-result/1";
 /// `gonio measure --json` of a sheet of several spots.
 pub const SHEET_RESULT: &str = "gonio-sheet-result/1";
 /// `gonio compare --json`.
-pub const COMPARE: &str = "gonio-compare/2";
+pub(crate) const COMPARE: &str = "gonio-compare/2";
 /// A line of `gonio verify --json`.
 pub const VERIFY: &str = "gonio-verify/1";
 /// A line of `gonio sessions --json`.

@@ -106,7 +106,7 @@ fn default_coverage_factor() -> f64 {
 
 /// What is wrong with a tile certificate's values (the caller names the file).
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
-pub enum CertificateError {
+pub(crate) enum CertificateError {
     /// A name (tile, certificate, issuer) that is empty, too long or has control characters.
     #[error(
         "'{key}' must be a name of 1 to 200 characters without control characters, not {text:?}"
@@ -474,7 +474,7 @@ pub(crate) struct Conversion {
 impl Calibration {
     /// A calibration taken at `taken_unix_s` from its readings, with the tile's
     /// certificate and the nominal gains of the handshake; no gain ratio calibrated yet.
-    pub fn taken_at(
+    pub(crate) fn taken_at(
         taken_unix_s: u64,
         instrument: String,
         tile: Tile,
@@ -799,7 +799,7 @@ impl Calibration {
 
 /// Why a `calibration.json` document cannot be read.
 #[derive(Debug, thiserror::Error)]
-pub enum DocumentError {
+pub(crate) enum DocumentError {
     /// The text is not JSON.
     #[error("not JSON: {0}")]
     NotJson(serde_json::Error),

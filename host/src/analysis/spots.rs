@@ -83,7 +83,7 @@ pub struct SheetSummary {
     pub within_relative_sd: Option<[f64; 3]>,
     /// The within-sheet covariance of (ln σ, ln ρs, ln ρd) over the accepted spots;
     /// `None` with fewer than two.
-    pub within_log_covariance: Option<[[f64; 3]; 3]>,
+    pub(crate) within_log_covariance: Option<[[f64; 3]; 3]>,
     /// The sheet's flags: the informational flags of every spot, and, when no spot was
     /// clean, every spot's flags.
     pub flags: Vec<Flag>,

@@ -13,7 +13,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 
 /// The label every output of the demonstration population carries.
-pub const DEMONSTRATION_LABEL: &str = "for demonstration, not evidence";
+pub(crate) const DEMONSTRATION_LABEL: &str = "for demonstration, not evidence";
 
 /// The population a comparison was weighed against, as the examiner is told of it.
 #[derive(Clone, Debug)]
@@ -59,9 +59,9 @@ pub struct Propositions {
 
 /// One parameter's variation at each level, as relative standard deviations.
 #[derive(Clone, Debug, Serialize)]
-pub struct Level {
+pub(crate) struct Level {
     /// σ, ρs, ρd, as the ratio uses them (upper confidence bounds when measured).
-    pub relative_sd: BTreeMap<&'static str, f64>,
+    pub(crate) relative_sd: BTreeMap<&'static str, f64>,
     /// Degrees of freedom behind them; 0: assumed, not measured.
     pub dof: usize,
 }
@@ -80,11 +80,11 @@ pub struct PopulationSummary {
     /// Its stocks.
     pub stocks: Vec<String>,
     /// Spots about their sheet's mean.
-    pub spot_level: Level,
+    pub(crate) spot_level: Level,
     /// Sheets about their stock's mean.
-    pub sheet_level: Level,
+    pub(crate) sheet_level: Level,
     /// The kernel of the stock density about each stock.
-    pub kernel_relative_sd: BTreeMap<&'static str, f64>,
+    pub(crate) kernel_relative_sd: BTreeMap<&'static str, f64>,
     /// Its bandwidth, when chosen from the data.
     pub bandwidth: Option<f64>,
     /// Its validation: pairs, Cllr, bounds, calibrator.
@@ -103,7 +103,7 @@ pub struct Side {
     /// The first spot's class (information only).
     pub class: Option<String>,
     /// Every accepted spot's class.
-    pub spot_classes: Vec<Option<String>>,
+    pub(crate) spot_classes: Vec<Option<String>>,
     /// Spots weighed.
     pub n_spots: usize,
     /// The spots' relative standard deviations, when two or more.
@@ -135,11 +135,11 @@ pub struct Contribution {
 #[derive(Clone, Debug, Serialize)]
 pub struct Audit {
     /// gonio's version.
-    pub gonio_version: &'static str,
+    pub(crate) gonio_version: &'static str,
     /// The command line.
-    pub command_line: Vec<String>,
+    pub(crate) command_line: Vec<String>,
     /// When (UTC, RFC 3339).
-    pub computed_at: String,
+    pub(crate) computed_at: String,
 }
 
 impl Audit {
@@ -171,7 +171,7 @@ pub struct Comparison {
     /// Spots of A and B.
     pub n_spots: [usize; 2],
     /// Whether each side's own spots showed its scatter.
-    pub within_sheet_variation_known: [bool; 2],
+    pub(crate) within_sheet_variation_known: [bool; 2],
     /// The parameters compared.
     pub parameters: Vec<&'static str>,
     /// Those left out, with why.

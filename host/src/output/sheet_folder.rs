@@ -47,7 +47,7 @@ pub struct SheetResult {
     /// the sheet, seconds.
     pub setup_seconds: f64,
     /// Each spot's class, in the order measured (`null`: undecided).
-    pub spot_classes: Vec<Option<String>>,
+    pub(crate) spot_classes: Vec<Option<String>>,
 }
 
 /// `sheet.json`.

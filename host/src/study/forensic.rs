@@ -29,7 +29,7 @@ use std::fmt::Write as _;
 /// How far the stocks drawn about a reference paper lie from it (relative standard
 /// deviation of σ, ρs, ρd): the study's own figure, which the evidence is not told (its
 /// population is estimated from the study's library).
-pub const STOCK_SPREAD_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
+pub(crate) const STOCK_SPREAD_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
 
 /// Between-spot variation of every simulated sheet, percent (`--sheet-variation`).
 pub const SPOT_VARIATION_PCT: f64 = 3.0;
@@ -55,27 +55,27 @@ pub struct Scenario {
     /// What it tests, for the summary.
     pub about: &'static str,
     /// Spot-to-spot variation within a sheet, percent (the simulator's `--sheet-variation`).
-    pub spot_pct: f64,
+    pub(crate) spot_pct: f64,
     /// Sheet-to-sheet (lot) variation about the stock, relative standard deviation.
-    pub sheet_relative_sd: f64,
+    pub(crate) sheet_relative_sd: f64,
     /// Stocks' spread about each reference paper, relative standard deviation.
-    pub between_relative_sd: f64,
+    pub(crate) between_relative_sd: f64,
     /// Each drawn stock has a near twin this far from it (relative, in every parameter).
-    pub twin_relative: Option<f64>,
+    pub(crate) twin_relative: Option<f64>,
     /// Stock offsets drawn from Student's t with these degrees of freedom (heavy tails)
     /// instead of the normal.
-    pub tail_dof: Option<f64>,
+    pub(crate) tail_dof: Option<f64>,
     /// Correlation of the three parameters' stock offsets.
     pub correlation: f64,
     /// Held-out sheets of odd number are measured on a second instrument whose white tile
     /// is off by N(0, this %) per sheet (the first instrument: the realistic 0.5 %).
-    pub second_instrument_tile_pct: Option<f64>,
+    pub(crate) second_instrument_tile_pct: Option<f64>,
 }
 
 impl Scenario {
     /// The world the study drew before the three-level model: 3 % between spots, 10 %
     /// between stocks, nothing between sheets.
-    pub const AS_TODAY: Scenario = Scenario {
+    pub(crate) const AS_TODAY: Scenario = Scenario {
         name: "as-today",
         about: "3 % between spots, no sheet level, stocks 10 % about each paper",
         spot_pct: 3.0,
@@ -342,7 +342,7 @@ pub fn plan(design: &Design, spot_counts: &[usize]) -> Vec<SheetSpec> {
 }
 
 /// Stocks in each draw: the papers, the stocks drawn about them and their twins.
-pub fn stocks_per_draw(design: &Design) -> usize {
+pub(crate) fn stocks_per_draw(design: &Design) -> usize {
     let twins = usize::from(design.scenario.twin_relative.is_some());
     REFERENCES.len() * (1 + design.drawn_per_paper * (1 + twins))
 }
@@ -558,7 +558,7 @@ pub struct Pair {
     /// The kinds of the warnings it carried.
     pub warnings: Vec<&'static str>,
     /// Whether its sheets were measured on different instruments.
-    pub instruments_differ: bool,
+    pub(crate) instruments_differ: bool,
 }
 
 /// One draw's evidence: every held-out pair and the library searches.
@@ -791,7 +791,7 @@ pub struct Figures {
 }
 
 /// Pairs a decade must hold for its calibration to be judged.
-pub const BIN_MIN_PAIRS: usize = 20;
+pub(crate) const BIN_MIN_PAIRS: usize = 20;
 
 /// One decade of reported log10 LR in a study.
 #[derive(Clone, Debug, PartialEq)]

@@ -3,7 +3,7 @@
 use crate::analysis::linalg::{self, Square};
 
 /// A stored 3 × 3 covariance (σ, ρs, ρd in log space).
-pub type Cov3 = [[f64; 3]; 3];
+pub(crate) type Cov3 = [[f64; 3]; 3];
 
 /// The rows and columns of `m` for `params` (indices into σ, ρs, ρd).
 pub(crate) fn restrict(m: &Cov3, params: &[usize]) -> Square {

@@ -49,9 +49,9 @@ use density::{
 use serde::{Deserialize, Serialize};
 
 /// The parameters compared, in order: σ (degrees), ρs, ρd.
-pub const PARAMS: [&str; 3] = [PARAM_NAMES[0], PARAM_NAMES[1], PARAM_NAMES[2]];
+pub(crate) const PARAMS: [&str; 3] = [PARAM_NAMES[0], PARAM_NAMES[1], PARAM_NAMES[2]];
 /// Their labels for a person.
-pub const PARAM_LABELS: [&str; 3] = ["σ (deg)", "ρs", "ρd"];
+pub(crate) const PARAM_LABELS: [&str; 3] = ["σ (deg)", "ρs", "ρd"];
 
 /// |log10 LR| below which the evidence is reported inconclusive (LR between 1/10 and 10:
 /// "weak" on the ENFSI scale either way).
@@ -60,12 +60,12 @@ pub(crate) const INCONCLUSIVE_LOG10: f64 = 1.0;
 /// The χ² probability beyond which a sheet is outside its population: its Mahalanobis
 /// distance to every stock, in the density's own units, is larger than 99.9 % of the
 /// population's own sheets would be.
-pub const OUT_OF_POPULATION_PROBABILITY: f64 = 0.999;
+pub(crate) const OUT_OF_POPULATION_PROBABILITY: f64 = 0.999;
 
 /// The test level at which a sheet's own spot scatter is called larger than the
 /// population's (per parameter, χ² of the sheet's variance against the population's; 1 %
 /// over the three together).
-pub const SCATTER_TEST_LEVEL: f64 = 0.01;
+pub(crate) const SCATTER_TEST_LEVEL: f64 = 0.01;
 
 /// One spot of a sheet: its fitted σ (degrees), ρs, ρd and their covariance in those
 /// units; `None` for a parameter the fit did not determine.
@@ -218,7 +218,7 @@ pub struct ReportedRatio {
     pub raw_log10_lr: f64,
     /// After the validation's calibrator, before the bounds (the raw value when there is no
     /// validation).
-    pub calibrated_log10_lr: f64,
+    pub(crate) calibrated_log10_lr: f64,
     /// The validation's empirical lower and upper bounds of log10 LR, if validated.
     pub bounds: Option<(f64, f64)>,
     /// Whether the calibrated ratio was beyond them and is reported at a bound.

@@ -28,17 +28,17 @@ use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 
 /// Fewest stocks a population is estimated from.
-pub const MIN_STOCKS: usize = 4;
+pub(crate) const MIN_STOCKS: usize = 4;
 
 /// Relative standard deviation per spot of σ, ρs, ρd within a sheet in the demonstration
 /// population: an assumption, not a measurement (a lab's library replaces it).
-pub const DEMONSTRATION_SPOT_RELATIVE_SD: [f64; 3] = [0.03, 0.03, 0.03];
+pub(crate) const DEMONSTRATION_SPOT_RELATIVE_SD: [f64; 3] = [0.03, 0.03, 0.03];
 /// Relative standard deviation of a sheet's mean about its stock in the demonstration
 /// population: an assumption.
-pub const DEMONSTRATION_SHEET_RELATIVE_SD: [f64; 3] = [0.03, 0.03, 0.03];
+pub(crate) const DEMONSTRATION_SHEET_RELATIVE_SD: [f64; 3] = [0.03, 0.03, 0.03];
 /// Relative standard deviation of stock means about each reference paper in the
 /// demonstration population: an assumption.
-pub const DEMONSTRATION_BETWEEN_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
+pub(crate) const DEMONSTRATION_BETWEEN_RELATIVE_SD: [f64; 3] = [0.10, 0.10, 0.10];
 
 /// A sheet of a known stock, as a library holds it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -73,7 +73,7 @@ impl Component {
 
     /// The relative standard deviation of each parameter the ratio uses (from the log
     /// variance: √(e^v − 1)).
-    pub fn used_relative_sd(&self) -> [f64; 3] {
+    pub(crate) fn used_relative_sd(&self) -> [f64; 3] {
         std::array::from_fn(|i| self.used[i][i].max(0.0).exp_m1().sqrt())
     }
 }
@@ -185,7 +185,7 @@ pub(crate) fn log_variances(relative_sd: &[f64; 3]) -> Cov3 {
 impl Population {
     /// Estimated from sheets of known stocks (a library). Sheets with a spot that did not
     /// determine σ, ρs and ρd are left out (counted in the source).
-    pub fn from_library(sheets: &[LibrarySheet]) -> Result<Population, EvidenceError> {
+    pub(crate) fn from_library(sheets: &[LibrarySheet]) -> Result<Population, EvidenceError> {
         let mut by_stock: BTreeMap<&str, Vec<LogSheet>> = BTreeMap::new();
         let mut lots = BTreeSet::new();
         let mut instruments = BTreeSet::new();
@@ -308,7 +308,7 @@ impl Population {
     }
 
     /// Whether it is the demonstration population.
-    pub fn is_demonstration(&self) -> bool {
+    pub(crate) fn is_demonstration(&self) -> bool {
         self.source == PopulationSource::Demonstration
     }
 

@@ -26,12 +26,12 @@ use std::collections::BTreeMap;
 
 /// Folds the stocks are dealt into, when there are more stocks than
 /// [`ONE_FOLD_PER_STOCK_UP_TO`].
-pub const MAX_FOLDS: usize = 5;
+pub(crate) const MAX_FOLDS: usize = 5;
 /// Up to this many stocks, every stock is its own fold (each pair is weighed against the
 /// population without exactly its two stocks).
-pub const ONE_FOLD_PER_STOCK_UP_TO: usize = 12;
+pub(crate) const ONE_FOLD_PER_STOCK_UP_TO: usize = 12;
 /// Fewest pairs of each kind a validation is made from.
-pub const MIN_PAIRS: usize = 10;
+pub(crate) const MIN_PAIRS: usize = 10;
 /// The grid step of the ELUB search, log10.
 const ELUB_STEP: f64 = 0.01;
 /// Raw log10 LRs are clipped to ± this many decades before the calibrator is fitted.
@@ -44,14 +44,14 @@ const CALIBRATOR_SHRINKAGE: f64 = 1e-3;
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Calibrator {
     /// b.
-    pub slope: f64,
+    pub(crate) slope: f64,
     /// a, log10.
-    pub intercept: f64,
+    pub(crate) intercept: f64,
 }
 
 impl Calibrator {
     /// The identity (no calibration).
-    pub const IDENTITY: Calibrator = Calibrator {
+    pub(crate) const IDENTITY: Calibrator = Calibrator {
         slope: 1.0,
         intercept: 0.0,
     };
@@ -161,7 +161,7 @@ pub fn cllr(same: &[f64], different: &[f64]) -> f64 {
 
 /// The log10 LRs after the best monotone recalibration on themselves (pool-adjacent
 /// violators, classes weighted equally, tied values pooled): what Cllr_min is made of.
-pub fn pav(same: &[f64], different: &[f64]) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn pav(same: &[f64], different: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let mut scored: Vec<(f64, bool)> = same
         .iter()
         .map(|&x| (x, true))
@@ -228,7 +228,7 @@ pub fn cllr_min(same: &[f64], different: &[f64]) -> f64 {
 /// at which deciding by these ratios is at least as good as deciding by LR = 1, with one
 /// misleading ratio of each kind added so that a bound never exceeds about log10 of the
 /// pairs behind it.
-pub fn elub(same: &[f64], different: &[f64]) -> (f64, f64) {
+pub(crate) fn elub(same: &[f64], different: &[f64]) -> (f64, f64) {
     let clip = |v: &f64| v.clamp(-9.0, 9.0);
     let same: Vec<f64> = same.iter().map(clip).collect();
     let different: Vec<f64> = different.iter().map(clip).collect();
@@ -280,11 +280,11 @@ pub struct CalibrationBin {
     pub different: usize,
     /// log10 of (same/all same) ÷ (different/all different): the ratio the decade's reports
     /// actually had; `None` when a kind is absent.
-    pub observed_log10_lr: Option<f64>,
+    pub(crate) observed_log10_lr: Option<f64>,
 }
 
 /// The decades of `same` and `different` (reported log10 LRs).
-pub fn calibration_bins(same: &[f64], different: &[f64]) -> Vec<CalibrationBin> {
+pub(crate) fn calibration_bins(same: &[f64], different: &[f64]) -> Vec<CalibrationBin> {
     let mut bins: BTreeMap<i64, (usize, usize)> = BTreeMap::new();
     for &x in same {
         bins.entry(x.floor() as i64).or_default().0 += 1;
@@ -308,11 +308,11 @@ pub fn calibration_bins(same: &[f64], different: &[f64]) -> Vec<CalibrationBin> 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Validation {
     /// Same-stock pairs.
-    pub same_pairs: usize,
+    pub(crate) same_pairs: usize,
     /// Different-stock pairs.
-    pub different_pairs: usize,
+    pub(crate) different_pairs: usize,
     /// Folds the stocks were dealt into.
-    pub folds: usize,
+    pub(crate) folds: usize,
     /// The calibrator fitted on every pair (what comparisons use).
     pub calibrator: Calibrator,
     /// ELUB bounds of log10 LR (what comparisons are held within).
@@ -322,13 +322,13 @@ pub struct Validation {
     /// Cllr_min: the same ratios' discrimination.
     pub cllr_min: f64,
     /// Cllr − Cllr_min: their calibration loss.
-    pub cllr_cal: f64,
+    pub(crate) cllr_cal: f64,
     /// Cllr of the model's raw ratios.
     pub cllr_raw: f64,
     /// Same-stock pairs reported below LR 1, and below 1/100.
-    pub same_below: (usize, usize),
+    pub(crate) same_below: (usize, usize),
     /// Different-stock pairs reported above LR 1, and above 100.
-    pub different_above: (usize, usize),
+    pub(crate) different_above: (usize, usize),
     /// The reported decades.
     pub bins: Vec<CalibrationBin>,
     /// Each same-stock pair's reported log10 LR (for the plots; not stored).
@@ -339,10 +339,10 @@ pub struct Validation {
     pub different: Vec<f64>,
     /// Each same-stock pair's raw log10 LR (not stored).
     #[serde(skip)]
-    pub same_raw: Vec<f64>,
+    pub(crate) same_raw: Vec<f64>,
     /// Each different-stock pair's raw log10 LR (not stored).
     #[serde(skip)]
-    pub different_raw: Vec<f64>,
+    pub(crate) different_raw: Vec<f64>,
 }
 
 /// One weighed pair of the validation.
