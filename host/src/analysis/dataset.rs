@@ -1,26 +1,21 @@
 //! A data set, the readings of one sample the fit takes, and the limits its numbers are
 //! checked against, so that a typo gives an error at its line instead of an infinite or
-//! NaN result: every number finite; |radiance factor| ≤ [`MAX_RADIANCE_FACTOR`] (10⁶:
+//! NaN result: every number finite; |radiance factor| ≤ [`RADIANCE_FACTOR_MAX`] (10⁶:
 //! far above any paper's specular peak seen through the detector's window, and its
-//! square, weighted, stays far from overflow); a `std` in [[`MIN_STD`], [`MAX_STD`]]
+//! square, weighted, stays far from overflow); a `std` in [[`STD_MIN`], [`STD_MAX`]]
 //! (10⁻⁹ … 10⁶: its weight 1/std² stays finite), and within one data set the largest
-//! `std` at most [`MAX_STD_RATIO`] (10⁶) times the smallest (weights within 10¹² of each
+//! `std` at most [`STD_RATIO_MAX`] (10⁶) times the smallest (weights within 10¹² of each
 //! other, inside the 16 digits of an f64: beyond it the lighter readings would vanish
 //! from the sums); a bin's travel within 0 … [`MAX_SPAN_DEG`]. The angles' range (0…90°)
 //! and negative radiance factors are the fit's own checks. Reading them from CSV is
 //! `output::dataset`'s.
-use crate::analysis::fit::{MAX_SPAN_DEG, Observation};
+// The fit's own limits, by their own names: a data set is read to exactly what the fit
+// can weigh.
+use crate::analysis::fit::{MAX_SPAN_DEG, Observation, RADIANCE_FACTOR_MAX, STD_MAX, STD_MIN};
 use thiserror::Error;
 
-// The fit's own limits: a data set is read to exactly what the fit can weigh.
-/// The largest |radiance factor| read.
-pub use crate::analysis::fit::RADIANCE_FACTOR_MAX as MAX_RADIANCE_FACTOR;
-/// The largest standard uncertainty read.
-pub use crate::analysis::fit::STD_MAX as MAX_STD;
-/// The smallest standard uncertainty read.
-pub use crate::analysis::fit::STD_MIN as MIN_STD;
 /// The largest ratio of the largest to the smallest `std` in one data set.
-pub(crate) const MAX_STD_RATIO: f64 = 1e6;
+pub(crate) const STD_RATIO_MAX: f64 = 1e6;
 
 /// One data set: the readings of one sample, with the line each came from.
 #[derive(Clone, Debug, PartialEq)]
@@ -42,7 +37,7 @@ impl DataSet {
             .collect()
     }
 
-    /// The positive uncertainties within [`MAX_STD_RATIO`] of each other.
+    /// The positive uncertainties within [`STD_RATIO_MAX`] of each other.
     pub(crate) fn check_std_spread(&self) -> Result<(), StdSpread> {
         let positive = self
             .observations
@@ -61,7 +56,7 @@ impl DataSet {
             }
         }
         match (low, high) {
-            (Some((l, l_line)), Some((h, h_line))) if h > l * MAX_STD_RATIO => Err(StdSpread {
+            (Some((l, l_line)), Some((h, h_line))) if h > l * STD_RATIO_MAX => Err(StdSpread {
                 line: h_line,
                 value: h,
                 other_line: l_line,
@@ -76,7 +71,7 @@ impl DataSet {
 /// Uncertainties of one data set too far apart to weigh them together.
 #[derive(Clone, Debug, Error, PartialEq)]
 #[error(
-    "line {line}: std {value:?} is more than {MAX_STD_RATIO:e} times the std {other:?} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
+    "line {line}: std {value:?} is more than {STD_RATIO_MAX:e} times the std {other:?} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
 )]
 pub struct StdSpread {
     /// Line of the largest std.
@@ -97,13 +92,13 @@ pub enum Unfittable {
     /// Infinite or NaN.
     #[error("not a finite number")]
     NotFinite,
-    /// A radiance factor beyond ±[`MAX_RADIANCE_FACTOR`].
+    /// A radiance factor beyond ±[`RADIANCE_FACTOR_MAX`].
     #[error(
-        "beyond ±{MAX_RADIANCE_FACTOR:e}, what the fit can represent (a paper's specular peak is below 10⁴)"
+        "beyond ±{RADIANCE_FACTOR_MAX:e}, what the fit can represent (a paper's specular peak is below 10⁴)"
     )]
     RadianceFactor,
-    /// A positive `std` outside [[`MIN_STD`], [`MAX_STD`]].
-    #[error("outside {MIN_STD:e} … {MAX_STD:e}, what the fit can weigh")]
+    /// A positive `std` outside [[`STD_MIN`], [`STD_MAX`]].
+    #[error("outside {STD_MIN:e} … {STD_MAX:e}, what the fit can weigh")]
     Std,
     /// A bin's travel outside 0 … [`MAX_SPAN_DEG`].
     #[error("outside 0 … {MAX_SPAN_DEG}°, the detector's travel a bin can have")]
@@ -112,7 +107,7 @@ pub enum Unfittable {
 
 /// A radiance factor the fit can represent.
 pub(crate) fn check_radiance_factor(value: f64) -> Result<f64, Unfittable> {
-    if value.abs() <= MAX_RADIANCE_FACTOR {
+    if value.abs() <= RADIANCE_FACTOR_MAX {
         Ok(value)
     } else {
         Err(Unfittable::RadianceFactor)
@@ -122,7 +117,7 @@ pub(crate) fn check_radiance_factor(value: f64) -> Result<f64, Unfittable> {
 /// A standard uncertainty the fit can weigh (0 and negative values pass: they are the
 /// fit's `BadUncertainty`, named there).
 pub(crate) fn check_std(std: f64) -> Result<f64, Unfittable> {
-    if std <= 0.0 || (MIN_STD..=MAX_STD).contains(&std) {
+    if std <= 0.0 || (STD_MIN..=STD_MAX).contains(&std) {
         Ok(std)
     } else {
         Err(Unfittable::Std)
