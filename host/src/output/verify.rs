@@ -9,6 +9,7 @@
 //! [`crate::output::report::draw`]. A folder is read once: what the checks read is what
 //! the drawing is given, and what [`Verified`] hands on (the library adds it from there).
 use crate::instrument::calibration::Calibration;
+use crate::output::documents::Part;
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, Finding, Inspection, LOG, MANIFEST, POINTS, READINGS, REPORT,
     RunOutcome, SESSION, SHEET, SessionDoc, Status,
@@ -77,8 +78,15 @@ pub fn verify<E: std::fmt::Display>(
     problems.extend(cut_lines(dir, &inspection));
     problems.extend(csv_behind(dir, &inspection.csv));
     if doc.status == Status::Finished {
-        problems.extend(finished_readings(dir, doc, &inspection.points));
-        problems.extend(finished_record(dir, doc, &inspection));
+        // Each part read once (the readings are most of the document).
+        let record = doc.record();
+        problems.extend(finished_readings(
+            dir,
+            doc,
+            record.readings,
+            &inspection.points,
+        ));
+        problems.extend(finished_record(dir, doc, record.calibration, &inspection));
     }
     match matched {
         Some(matched) if problems.is_empty() => Ok(Verified {
@@ -161,7 +169,12 @@ fn csv_behind(dir: &Path, csv: &CsvAgreement) -> Option<Finding> {
 }
 
 /// A finished `session.json`'s readings: as many as `points.jsonl` holds, and the same.
-fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> Vec<Finding> {
+fn finished_readings(
+    dir: &Path,
+    doc: &SessionDoc,
+    recorded: Part<Vec<MeasuredPoint>>,
+    points: &[MeasuredPoint],
+) -> Vec<Finding> {
     let mut problems = Vec::new();
     if doc.readings_recorded < points.len() {
         problems.push(at(
@@ -175,7 +188,7 @@ fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> 
             ),
         ));
     }
-    match doc.record().readings {
+    match recorded {
         None => problems.push(at(dir, SESSION, None, "no 'readings'".into())),
         Some(Err(e)) => problems.push(at(
             dir,
@@ -211,11 +224,16 @@ fn finished_readings(dir: &Path, doc: &SessionDoc, points: &[MeasuredPoint]) -> 
 
 /// The rest of a finished `session.json`: its calibration as `calibration.json` holds it,
 /// its result, and runs that all ended, the last one finishing the session.
-fn finished_record(dir: &Path, doc: &SessionDoc, inspection: &Inspection) -> Vec<Finding> {
+fn finished_record(
+    dir: &Path,
+    doc: &SessionDoc,
+    calibration: Part<Calibration>,
+    inspection: &Inspection,
+) -> Vec<Finding> {
     let mut problems = Vec::new();
     let problem = |file: &str, message: String| at(dir, file, None, message);
     let outcome = doc.outcome();
-    match (doc.record().calibration, &inspection.calibration) {
+    match (calibration, &inspection.calibration) {
         (Some(Ok(in_session)), Some(file)) if in_session == *file => {}
         (Some(Ok(_)), Some(_)) => problems.push(problem(
             CALIBRATION,
