@@ -792,16 +792,8 @@ impl<H: Hardware> Device<H> {
         send: &mut impl FnMut(&[u8]),
     ) {
         if let Some(mut reset) = reset {
-            if self.now_us < reset.until_us {
-                self.activity = Activity::Homing {
-                    seq,
-                    arms,
-                    trips,
-                    reset: Some(reset),
-                };
-                return;
-            }
-            if !reset.enabled {
+            if self.now_us >= reset.until_us && !reset.enabled {
+                // Off long enough: on again, and DIAG read once it has settled.
                 for arm in Arm::BOTH {
                     if reset.arms[arm.index()] {
                         self.hardware.set_driver_enabled(arm, true);
@@ -809,6 +801,8 @@ impl<H: Hardware> Device<H> {
                 }
                 reset.enabled = true;
                 reset.until_us = self.now_us + DRIVER_RECHECK_US;
+            }
+            if self.now_us < reset.until_us {
                 self.activity = Activity::Homing {
                     seq,
                     arms,
