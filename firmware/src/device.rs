@@ -83,6 +83,7 @@ use crate::homing::{ArmHoming, HomingStatus};
 use crate::link::{Incoming, Link};
 use crate::motion::{ArmMotion, angle_to_steps, deg_to_steps, plan_move, steps_to_angle};
 use crate::schedule::{STRATEGY1_ORDER, UploadedSchedule};
+use crate::selftest::SelfTestRun;
 use crate::sweep::{AutoRange, Binner, check_sweep, sweep_profile};
 use crate::switches::{HomeSwitch, SwitchState};
 use protocol::{
@@ -194,6 +195,11 @@ enum Activity {
     },
     Schedule(ScheduleRun),
     Sweep(SweepRun),
+    /// The self-test's pulse checks ([`crate::selftest`]).
+    SelfTest {
+        seq: u32,
+        run: SelfTestRun,
+    },
     /// Arms ramping down after an abort or a fault; nothing new starts until they rest.
     Stopping,
 }
@@ -355,7 +361,11 @@ impl<H: Hardware> Device<H> {
         // Once per occurrence: while the fault persists, motion is refused instead. A
         // `Home` clearing a fault reads DIAG itself, and answers with what it finds.
         let driver_fault = Arm::BOTH.iter().any(|&arm| self.hardware.driver_fault(arm));
-        let clearing = matches!(self.activity, Activity::Homing { reset: Some(_), .. });
+        // Nor the self-test, which runs with the drivers off and reports what DIAG reads.
+        let clearing = matches!(
+            self.activity,
+            Activity::Homing { reset: Some(_), .. } | Activity::SelfTest { .. }
+        );
         if driver_fault && !self.driver_fault_seen && !clearing {
             self.fail_safe_stop(ErrorCode::HardwareFault, send);
         }
@@ -468,6 +478,12 @@ impl<H: Hardware> Device<H> {
             },
             Activity::Schedule(run) => self.poll_schedule(run, send),
             Activity::Sweep(run) => self.poll_sweep(run, send),
+            Activity::SelfTest { seq, mut run } => {
+                match run.poll(&mut self.hardware, &self.config, now_us) {
+                    Some(report) => self.link.finish(seq, Ok(Reply::SelfTest(report)), send),
+                    None => self.activity = Activity::SelfTest { seq, run },
+                }
+            }
             Activity::Stopping => {
                 if self.motion.any_moving(&self.hardware) {
                     self.activity = Activity::Stopping;
@@ -566,7 +582,7 @@ impl<H: Hardware> Device<H> {
             return true;
         }
         match &self.activity {
-            Activity::Homing { .. } | Activity::Stopping => true,
+            Activity::Homing { .. } | Activity::Stopping | Activity::SelfTest { .. } => true,
             Activity::Moving { travel, .. } => self.positions() != travel.target,
             Activity::Schedule(ScheduleRun {
                 step: RunStep::Travel(travel),
@@ -599,6 +615,10 @@ impl<H: Hardware> Device<H> {
             | Activity::Moving { seq, .. }
             | Activity::Reading { seq, .. }
             | Activity::Dark { seq, .. } => {
+                self.link.finish(seq, Err(DeviceError::new(reason)), send)
+            }
+            Activity::SelfTest { seq, run } => {
+                run.cancel(&mut self.hardware);
                 self.link.finish(seq, Err(DeviceError::new(reason)), send)
             }
             Activity::Schedule(run) => {
@@ -665,8 +685,26 @@ impl<H: Hardware> Device<H> {
             Command::UploadSchedule(chunk) => self.upload(chunk),
             Command::RunSchedule(run) => self.start_schedule(run),
             Command::Sweep(sweep) => self.start_sweep(sweep),
+            Command::SelfTest => return self.start_self_test(seq),
         };
         Some(result)
+    }
+
+    /// Start the self-test ([`crate::selftest`]): refused while anything runs. The arms
+    /// lose their homing at once (their drivers go off), and the next `Home` searches.
+    fn start_self_test(&mut self, seq: u32) -> Answer {
+        if let Err(error) = self.busy() {
+            return Some(Err(error));
+        }
+        if self.motion.any_moving(&self.hardware) {
+            return Some(Err(DeviceError::new(ErrorCode::Busy)));
+        }
+        self.lamp_on = false;
+        self.homed = [false; 2];
+        self.count_trusted = [false; 2];
+        let run = SelfTestRun::start(&mut self.hardware, &self.config, self.now_us);
+        self.activity = Activity::SelfTest { seq, run };
+        None
     }
 
     fn busy(&self) -> Result<(), DeviceError> {
@@ -1278,6 +1316,7 @@ impl<H: Hardware> Device<H> {
             Activity::Reading { .. } | Activity::Dark { .. } => DeviceState::Measuring,
             Activity::Schedule(_) => DeviceState::RunningSchedule,
             Activity::Sweep(_) => DeviceState::Sweeping,
+            Activity::SelfTest { .. } => DeviceState::Measuring,
             Activity::Stopping if self.safe_stopped => DeviceState::Stopped,
             Activity::Stopping => DeviceState::Moving,
         };

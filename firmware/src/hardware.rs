@@ -58,6 +58,51 @@ pub trait Arms {
     /// Whether the arm's step interrupt ran too late since the last call (the timer may
     /// have issued a step nobody counted; [`crate::stepgen`]); cleared by the call.
     fn take_step_fault(&mut self, arm: Arm) -> bool;
+    /// Issue `profile`'s step pulses with the driver left disabled (EN high: no torque, the
+    /// arm does not move) and count them as [`Arms::run_profile`] does: the self-test's
+    /// pulse check ([`crate::selftest`]). The arm is at rest and its driver disabled.
+    fn run_pulse_check(&mut self, arm: Arm, profile: &MoveProfile);
+}
+
+/// The clocks a board measured at boot ([`crate::clock`]): what it was built for and what
+/// it found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MeasuredClocks {
+    /// The crystal the build expects, Hz.
+    pub hse_expected_hz: u32,
+    /// The crystal measured against HSI, Hz (`None`: not measured).
+    pub hse_measured_hz: Option<u32>,
+    /// The core clock the build sets up, Hz.
+    pub sysclk_expected_hz: u32,
+    /// The core clock measured against the crystal, Hz (`None`: not measured).
+    pub sysclk_measured_hz: Option<u32>,
+}
+
+/// How much of its stack the firmware has used since boot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StackUse {
+    /// The high-water mark, bytes (from the painted stack).
+    pub used_bytes: u32,
+    /// The stack's size, bytes.
+    pub size_bytes: u32,
+}
+
+/// What only the board can measure about itself, read by the self-test
+/// ([`crate::selftest`]); `None` where this hardware cannot measure it.
+pub trait Diagnostics {
+    /// The clocks as measured at boot.
+    fn clocks(&self) -> MeasuredClocks;
+    /// The latest any step interrupt ran after its segment began, since boot, µs.
+    fn worst_step_late_us(&self) -> u32;
+    /// The longest section with interrupts off since boot, µs.
+    fn longest_interrupts_off_us(&self) -> Option<u32>;
+    /// The stack's high-water mark since boot.
+    fn stack_use(&self) -> Option<StackUse>;
+    /// The range the amplifier's select lines read back (one-hot decoded; 255 when they are
+    /// not one-hot).
+    fn range_read_back(&self) -> Option<u8>;
 }
 
 /// One detector sample: one block of oversampled ADC conversions
@@ -95,9 +140,9 @@ pub trait Lamp {
 }
 
 /// Everything the device drives.
-pub trait Hardware: Arms + Detector + Lamp {}
+pub trait Hardware: Arms + Detector + Lamp + Diagnostics {}
 
-impl<T: Arms + Detector + Lamp> Hardware for T {}
+impl<T: Arms + Detector + Lamp + Diagnostics> Hardware for T {}
 
 /// Why the MCU last came out of reset: the board reads RCC_CSR and the fault record that
 /// its fail-safe reset left in RAM ([`crate::fault`]); announced in the handshake.

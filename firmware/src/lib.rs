@@ -15,6 +15,7 @@
 //! - [`detector`]: reading statistics and auto-ranging.
 //! - [`sampling`]: ADC decimation and the sample ring, with the overrun rule.
 //! - [`schedule`]: Strategy 1's visiting order and uploaded schedules.
+//! - [`selftest`]: the self-test's pulse checks and read-backs.
 //! - [`sweep`]: sweeps: the checks, the profile, auto-ranging while moving, the bins.
 //! - [`clock`]: the PLL settings' derived clocks, the crystal checked against HSI, the
 //!   error blink code.
@@ -39,6 +40,7 @@ pub mod motion;
 pub mod sampling;
 pub mod scenarios;
 pub mod schedule;
+pub mod selftest;
 pub mod stepgen;
 pub mod sweep;
 pub mod switches;
@@ -46,7 +48,9 @@ pub mod testing;
 pub mod txqueue;
 
 pub use device::Device;
-pub use hardware::{Arm, Arms, Detector, Hardware, Lamp, ResetCause, Sample};
+pub use hardware::{
+    Arm, Arms, Detector, Diagnostics, Hardware, Lamp, MeasuredClocks, ResetCause, Sample, StackUse,
+};
 pub use link::Link;
 
 /// Firmware version announced in the handshake.

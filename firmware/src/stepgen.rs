@@ -201,6 +201,9 @@ pub struct StepChannel {
     /// dropped (a stop ramp from the old speed would restart an arm already stopped).
     halted: bool,
     fault: Option<StepFault>,
+    /// The latest any update interrupt ran after its segment began, ticks (the
+    /// self-test's figure: how close the interrupts come to their deadline).
+    worst_late_ticks: u32,
 }
 
 impl Default for StepChannel {
@@ -228,6 +231,7 @@ impl StepChannel {
             moving: false,
             halted: false,
             fault: None,
+            worst_late_ticks: 0,
         }
     }
 
@@ -240,15 +244,25 @@ impl StepChannel {
                 self.replacement = Some(*profile);
             }
         } else if profile.step_count() > 0 {
-            self.start(timer, profile);
+            self.start(timer, profile, true);
         }
     }
 
-    fn start<T: StepTimer>(&mut self, timer: &mut T, profile: &MoveProfile) {
+    /// Run `profile` from rest with the driver left as it is (disabled: the self-test's
+    /// pulse check, [`crate::selftest`]); refused (nothing runs) while the arm moves.
+    pub fn run_pulse_check<T: StepTimer>(&mut self, timer: &mut T, profile: &MoveProfile) {
+        if !self.moving && profile.step_count() > 0 {
+            self.start(timer, profile, false);
+        }
+    }
+
+    fn start<T: StepTimer>(&mut self, timer: &mut T, profile: &MoveProfile, enable: bool) {
         let direction = profile.direction();
         // DIR at least a whole (pulse-less) segment before the first pulse.
         timer.set_direction(direction > 0);
-        timer.enable_driver();
+        if enable {
+            timer.enable_driver();
+        }
         let mut generator = StepGen::new(profile);
         // The wait for step 1, then step 1's pulse: a profile with steps has both.
         let (Some(first), Some(second)) = (generator.next_segment(), generator.next_segment())
@@ -292,6 +306,7 @@ impl StepChannel {
         };
         // Signed: the start is read a few cycles early, so "now" may be a hair before.
         let late_ticks = (now.wrapping_sub(began) as i32).max(0) as u32 / cycles_per_tick;
+        self.worst_late_ticks = self.worst_late_ticks.max(late_ticks);
         if late_ticks + LATE_MARGIN_TICKS >= segment.ticks {
             // The hardware may be a segment ahead of this record now: stop at the end of
             // the segment it runs, whatever it is, and take no profile until at rest.
@@ -359,6 +374,12 @@ impl StepChannel {
     /// Whether a profile runs (until the counter stopped after the last segment).
     pub fn is_moving(&self) -> bool {
         self.moving
+    }
+
+    /// The latest any update interrupt ran after its segment began, since this channel
+    /// was made, ticks.
+    pub fn worst_late_ticks(&self) -> u32 {
+        self.worst_late_ticks
     }
 
     /// Take the fault latched by a late interrupt, if any.

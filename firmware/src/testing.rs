@@ -14,11 +14,15 @@
 
 use crate::config::InstrumentConfig;
 use crate::fault::SafeOutputs;
-use crate::hardware::{Arm, Arms, Detector, Lamp, Sample};
+use crate::hardware::{Arm, Arms, Detector, Diagnostics, Lamp, MeasuredClocks, Sample, StackUse};
 use crate::motion::MoveProfile;
 use crate::sampling::SampleLoss;
 use libm::sqrtf;
 use protocol::{Angle, DetectorRange, Geometry};
+
+/// The modelled board's crystal and core clock, Hz (the reference Black Pill's).
+const MODEL_HSE_HZ: u32 = 25_000_000;
+const MODEL_SYSCLK_HZ: u32 = 96_000_000;
 
 /// What the detector sees with the lamp on.
 pub trait Scene {
@@ -64,6 +68,9 @@ pub struct FakeArm {
     /// The cause of the fault is still there (a shorted coil, a driver still too hot):
     /// DIAG is high again whenever the driver is enabled.
     pub driver_fault_persists: bool,
+    /// The DIAG line reads a fault whatever the driver does (a wiring fault, a dead or
+    /// missing driver module with a pull-up): no EN cycle clears it.
+    pub diag_stuck: bool,
     /// The step interrupt ran late once (taken by the next `take_step_fault`).
     pub step_late: bool,
     /// The driver is enabled (from the first move, or when the library enables it, until
@@ -73,6 +80,8 @@ pub struct FakeArm {
     pub driver_disables: u32,
     /// Lowest and highest true angle reached, ticks.
     pub travel_ticks: (i32, i32),
+    /// The running profile is a pulse check: pulses counted, driver disabled, no motion.
+    pulses_only: bool,
 }
 
 impl FakeArm {
@@ -87,10 +96,12 @@ impl FakeArm {
             switch_stuck: false,
             driver_fault: false,
             driver_fault_persists: false,
+            diag_stuck: false,
             step_late: false,
             driver_enabled: false,
             driver_disables: 0,
             travel_ticks: (ticks, ticks),
+            pulses_only: false,
         }
     }
 
@@ -149,6 +160,20 @@ pub struct FakeHardware<S: Scene> {
     pub settling_counts: Option<u32>,
     /// Every range selected, with its time (the tests' record of the switches).
     pub range_log: heapless::Vec<(u64, u8), 64>,
+    /// What the board's boot measured of its clocks (exact by default: the model's own).
+    pub clocks: MeasuredClocks,
+    /// The step timers' true tick over their nominal one: a pulse check's profile takes
+    /// its duration × this (1: exact).
+    pub step_timer_scale: f32,
+    /// The latest a step interrupt ran, µs (a board's record; 0: a perfect generator).
+    pub worst_step_late_us: u32,
+    /// The longest interrupt-off section, µs (`None`: the model has no interrupts).
+    pub longest_interrupts_off_us: Option<u32>,
+    /// The stack's use (`None`: the model has no stack to paint).
+    pub stack_use: Option<StackUse>,
+    /// The range lines read back this instead of the range selected (a shorted or open
+    /// select line).
+    pub range_lines_read: Option<u8>,
     max_speed: f32,
     accel: f32,
 }
@@ -180,6 +205,17 @@ impl<S: Scene> FakeHardware<S> {
             profiles_over_limits: 0,
             settling_counts: None,
             range_log: heapless::Vec::new(),
+            clocks: MeasuredClocks {
+                hse_expected_hz: MODEL_HSE_HZ,
+                hse_measured_hz: Some(MODEL_HSE_HZ),
+                sysclk_expected_hz: MODEL_SYSCLK_HZ,
+                sysclk_measured_hz: Some(MODEL_SYSCLK_HZ),
+            },
+            step_timer_scale: 1.0,
+            worst_step_late_us: 0,
+            longest_interrupts_off_us: None,
+            stack_use: None,
+            range_lines_read: None,
             max_speed: crate::motion::deg_to_steps(config.max_speed_deg_per_s),
             accel: crate::motion::deg_to_steps(config.accel_deg_per_s2),
         }
@@ -190,10 +226,21 @@ impl<S: Scene> FakeHardware<S> {
         self.now_us = now_us.max(self.now_us);
         for arm in &mut self.arms {
             if let Some((profile, started_us)) = arm.running {
-                let elapsed = self.now_us - started_us;
+                let real_us = self.now_us - started_us;
+                let elapsed = if arm.pulses_only {
+                    // The step timer's own pace; the pulses move nothing.
+                    (real_us as f64 / f64::from(self.step_timer_scale.max(1e-3))) as u64
+                } else {
+                    real_us
+                };
+                let before = arm.steps;
                 arm.steps = profile.position_at(elapsed);
+                if arm.pulses_only {
+                    arm.offset_steps -= arm.steps - before;
+                }
                 if elapsed >= profile.duration_us() {
                     arm.running = None;
+                    arm.pulses_only = false;
                 }
                 let t = arm.true_ticks();
                 arm.travel_ticks = (arm.travel_ticks.0.min(t), arm.travel_ticks.1.max(t));
@@ -268,8 +315,22 @@ impl<S: Scene> Arms for FakeHardware<S> {
             return;
         }
         arm.driver_enabled = true;
+        arm.pulses_only = false;
         arm.running = Some((*profile, self.now_us));
         arm.last = arm.running;
+    }
+
+    fn run_pulse_check(&mut self, arm: Arm, profile: &MoveProfile) {
+        let arm = &mut self.arms[arm.index()];
+        assert_eq!(
+            profile.start_steps(),
+            arm.steps,
+            "a pulse check starts where the count is"
+        );
+        // Nothing moves: the true angle stays where it is whatever the count does.
+        arm.pulses_only = true;
+        arm.running = Some((*profile, self.now_us));
+        arm.last = None;
     }
 
     fn position_steps(&self, arm: Arm) -> i32 {
@@ -294,7 +355,7 @@ impl<S: Scene> Arms for FakeHardware<S> {
 
     fn driver_fault(&self, arm: Arm) -> bool {
         let arm = &self.arms[arm.index()];
-        arm.driver_fault || (arm.driver_enabled && arm.driver_fault_persists)
+        arm.diag_stuck || arm.driver_fault || (arm.driver_enabled && arm.driver_fault_persists)
     }
 
     fn set_driver_enabled(&mut self, arm: Arm, enabled: bool) {
@@ -364,6 +425,28 @@ impl<S: Scene> Detector for FakeHardware<S> {
     fn take_sample_fault(&mut self) -> Option<SampleLoss> {
         self.sample_loss
             .take_if(|loss| *loss != SampleLoss::RingFull)
+    }
+}
+
+impl<S: Scene> Diagnostics for FakeHardware<S> {
+    fn clocks(&self) -> MeasuredClocks {
+        self.clocks
+    }
+
+    fn worst_step_late_us(&self) -> u32 {
+        self.worst_step_late_us
+    }
+
+    fn longest_interrupts_off_us(&self) -> Option<u32> {
+        self.longest_interrupts_off_us
+    }
+
+    fn stack_use(&self) -> Option<StackUse> {
+        self.stack_use
+    }
+
+    fn range_read_back(&self) -> Option<u8> {
+        Some(self.range_lines_read.unwrap_or(self.range))
     }
 }
 

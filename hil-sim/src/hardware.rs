@@ -33,7 +33,9 @@ use crate::amplifier::{self, Response};
 use crate::detector::{Detector, DetectorParams};
 use crate::scene::{SamplePort, Scene};
 use firmware::config::InstrumentConfig;
-use firmware::hardware::{Arm, Arms, Detector as DetectorTrait, Lamp, Sample};
+use firmware::hardware::{
+    Arm, Arms, Detector as DetectorTrait, Diagnostics, Lamp, MeasuredClocks, Sample, StackUse,
+};
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
 use firmware::testing::{ConstantScene, FakeHardware};
@@ -504,6 +506,38 @@ impl Arms for SimHardware {
     fn take_step_fault(&mut self, arm: Arm) -> bool {
         // The simulated step generator is perfect, unless a test made it late.
         self.mechanics.take_step_fault(arm)
+    }
+
+    fn run_pulse_check(&mut self, arm: Arm, profile: &MoveProfile) {
+        self.simulate_detector();
+        self.mechanics.run_pulse_check(arm, profile);
+    }
+}
+
+/// The mechanics' model answers for the board: its clocks as modelled, no interrupts to
+/// time and no stack to paint (`None`: not measured), the range lines as selected.
+impl Diagnostics for SimHardware {
+    fn clocks(&self) -> MeasuredClocks {
+        self.mechanics.clocks()
+    }
+
+    fn worst_step_late_us(&self) -> u32 {
+        self.mechanics.worst_step_late_us()
+    }
+
+    fn longest_interrupts_off_us(&self) -> Option<u32> {
+        self.mechanics.longest_interrupts_off_us()
+    }
+
+    fn stack_use(&self) -> Option<StackUse> {
+        self.mechanics.stack_use()
+    }
+
+    fn range_read_back(&self) -> Option<u8> {
+        match self.mechanics.range_lines_read {
+            Some(lines) => Some(lines),
+            None => Some(self.range),
+        }
     }
 }
 

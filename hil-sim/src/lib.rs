@@ -69,6 +69,16 @@ pub struct Faults {
     pub lose_steps: Option<(Arm, i32)>,
     /// An arm whose home switch never triggers.
     pub switch_missing: Option<Arm>,
+    /// An arm whose home switch reads pressed wherever the arm is.
+    pub switch_stuck: Option<Arm>,
+    /// An arm whose driver's fault line reads a fault whatever the driver does.
+    pub diag_stuck: Option<Arm>,
+    /// The crystal the board's boot measured, Hz (`None`: the one it was built for).
+    pub crystal_hz: Option<u32>,
+    /// The step timers' tick off its nominal by this fraction (0.01: 1 % slow).
+    pub step_timer_error: f64,
+    /// The range select lines read back this range whatever is selected.
+    pub range_lines: Option<u8>,
 }
 
 /// One pull of the USB cable.
@@ -268,6 +278,19 @@ impl SimInstrument {
             .random::<u64>();
             hardware.detector_mut().reseed_noise(noise_seed);
         }
+        let faults = &config.faults;
+        let mechanics = hardware.mechanics_mut();
+        if let Some(arm) = faults.switch_stuck {
+            mechanics.arms[arm.index()].switch_stuck = true;
+        }
+        if let Some(arm) = faults.diag_stuck {
+            mechanics.arms[arm.index()].diag_stuck = true;
+        }
+        if let Some(hz) = faults.crystal_hz {
+            mechanics.clocks.hse_measured_hz = Some(hz);
+        }
+        mechanics.step_timer_scale = (1.0 + faults.step_timer_error) as f32;
+        mechanics.range_lines_read = faults.range_lines;
         if let Some(arm) = config.faults.switch_missing {
             hardware.mechanics_mut().arms[arm.index()].switch_missing = true;
         }

@@ -50,6 +50,7 @@ enum Command {
     Report(cli::report::Args),
     /// The reference library of paper stocks: add measured sheets, list, remove, export, import, search.
     Library(cli::library::Args),
+    Selftest(cli::selftest::Args),
 }
 
 fn main() -> ExitCode {
@@ -67,6 +68,7 @@ fn main() -> ExitCode {
         Command::Forensic(args) => cli::forensic::run(args),
         Command::Verify(args) => cli::verify::run(args),
         Command::Library(args) => cli::library::run(args),
+        Command::Selftest(args) => cli::selftest::run(args),
         Command::Report(args) => cli::report::run(args),
         Command::Sessions(args) => cli::sessions::run(args),
         Command::Completions(args) => cli::completions::run(args, &mut Cli::command()),

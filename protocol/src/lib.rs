@@ -39,11 +39,12 @@ pub use schema::SCHEMA_HASH;
 /// (`Command::Sweep`, `Reply::Sweep`, `DeviceMessage::SweepBin` and `SweepDone`,
 /// `DeviceState::Sweeping`), and what a host needs to plan and correct them: each
 /// `DetectorRange`'s amplifier time constant and settling time, `DeviceInfo`'s
-/// `detector_block_us`, and `MAX_SWEEP_BINS`.
+/// `detector_block_us`, and `MAX_SWEEP_BINS`; 5, the self-test (`Command::SelfTest`,
+/// `Reply::SelfTest` with its `SelfTestReport` and `PulseCheck`).
 ///
 /// The shape of every message is also pinned as one number, [`schema::SCHEMA_HASH`],
 /// which must be the hash of this version in [`SCHEMA_HISTORY`] (`tests/it/schema.rs`).
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 
 /// The wire schema hash ([`schema::SCHEMA_HASH`]) of each protocol version since 2, oldest
 /// first. A change of any message's encoding changes the hash: then bump
@@ -53,6 +54,7 @@ pub const SCHEMA_HISTORY: &[(u16, u64)] = &[
     (2, 0xf4fc_c159_3ea1_cc3a),
     (3, 0xe291_1f63_e599_b75a),
     (4, 0x2e9e_016a_ac26_78b5),
+    (5, 0x9c93_8050_4e9e_a94b),
 ];
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message

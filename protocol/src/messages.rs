@@ -138,7 +138,26 @@ pub enum Command {
     /// [`DeviceMessage::SweepDone`] once the detector arm has stopped at `to`. See [`Sweep`]
     /// for what is refused.
     Sweep(Sweep),
+    /// The self-test: what a builder runs before a first motion and a lab before a case.
+    /// Answered with [`Reply::SelfTest`] once done (about a second): both drivers are
+    /// disabled (EN high: no torque, the arms do not move) and each arm's step generator
+    /// runs [`SELF_TEST_PULSE_STEPS`] steps at the speed and acceleration limits, counted
+    /// against the profile and timed by the device clock, while the detector's blocks are
+    /// counted against the block period; the rest is read back (clocks measured at boot,
+    /// the worst step-interrupt lateness and the longest interrupt-off section since boot,
+    /// the stack's high-water mark, switches, driver faults, the range lines). The lamp is
+    /// switched off. The drivers stay disabled afterwards and the arms count as not homed
+    /// (an arm without torque may have moved), so a `Home` follows.
+    ///
+    /// Refused with `Busy` while anything runs. The device judges nothing: the host holds
+    /// the limits (`gonio selftest`).
+    SelfTest,
 }
+
+/// Steps each arm's step generator issues in the self-test's pulse check, drivers disabled:
+/// 50° of steps, which at the reference limits (60°/s, 180°/s²) take about 1.2 s, long
+/// enough that the device's 1 ms poll resolves the duration to a tenth of a percent.
+pub const SELF_TEST_PULSE_STEPS: u32 = 4_000;
 
 impl Command {
     /// Whether carrying the command out changes nothing (heartbeat, status). The device
@@ -419,6 +438,75 @@ pub enum Reply {
     },
     /// Answer to `Sweep`: accepted; the arms start moving.
     Sweep(SweepPlan),
+    /// Answer to `SelfTest`.
+    SelfTest(SelfTestReport),
+}
+
+/// One arm's pulse check in the self-test: its step generator ran a profile of
+/// [`SELF_TEST_PULSE_STEPS`] with the driver disabled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PulseCheck {
+    /// Steps the profile has.
+    pub steps_expected: u32,
+    /// Steps the step generator counted (one per pulse its interrupt saw issued).
+    pub steps_counted: u32,
+    /// The profile's duration, µs.
+    pub duration_expected_us: u32,
+    /// From the profile's start until the generator was at rest, by the device clock, µs:
+    /// the step timer's rate against the clock, to within one poll of the device loop.
+    pub duration_measured_us: u32,
+}
+
+/// What the self-test measured ([`Command::SelfTest`]). Each figure is a measurement or
+/// `None` where this hardware cannot make it (the simulator has no clocks to measure);
+/// the host holds the pass/fail limits.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SelfTestReport {
+    /// The crystal this firmware was built for, Hz.
+    pub hse_expected_hz: u32,
+    /// The crystal measured against the internal RC oscillator (HSI, ±1 %) at boot, Hz.
+    pub hse_measured_hz: Option<u32>,
+    /// The core clock the firmware set up, Hz.
+    pub sysclk_expected_hz: u32,
+    /// The core clock measured against the crystal at boot, Hz.
+    pub sysclk_measured_hz: Option<u32>,
+    /// The pulse check of the source arm.
+    pub pulses_source: PulseCheck,
+    /// The pulse check of the detector arm.
+    pub pulses_detector: PulseCheck,
+    /// Detector blocks expected over the pulse check (its duration / the block period).
+    pub blocks_expected: u32,
+    /// Detector blocks that arrived meanwhile: the ADC's pace against the device clock.
+    pub blocks_counted: u32,
+    /// Times samples were lost during the test (an ADC or DMA overrun, a full ring).
+    pub sample_losses: u16,
+    /// The latest a step interrupt ran after its segment began, since boot, µs.
+    pub worst_step_late_us: u32,
+    /// The step interrupt's deadline in the shortest segment the generator makes, µs: a
+    /// lateness reaching it stops the arm ([`ErrorCode::StepLate`]).
+    pub step_deadline_us: u32,
+    /// The longest section with interrupts off since boot, µs (the board times its
+    /// critical sections by the cycle counter).
+    pub longest_interrupts_off_us: Option<u32>,
+    /// The stack's high-water mark since boot (a painted stack), bytes.
+    pub stack_used_bytes: Option<u32>,
+    /// The stack's size, bytes (0 where not measured).
+    pub stack_size_bytes: u32,
+    /// Source arm's home switch pressed (the arms stand where they were).
+    pub switch_source: bool,
+    /// Detector arm's home switch pressed.
+    pub switch_detector: bool,
+    /// Source arm's driver reports a fault (read with the driver disabled).
+    pub driver_fault_source: bool,
+    /// Detector arm's driver reports a fault.
+    pub driver_fault_detector: bool,
+    /// The range the amplifier was told to use.
+    pub range_selected: u8,
+    /// The range the amplifier's select lines read back (one-hot decoded); `None` where
+    /// the lines cannot be read back, 255 when they are not one-hot.
+    pub range_read_back: Option<u8>,
 }
 
 /// A refused or failed request: a stable code and a code-specific detail.

@@ -20,6 +20,7 @@ mod motion;
 mod sampling;
 mod scenarios;
 mod schedules;
+mod selftest;
 mod stepgen;
 mod sweep;
 mod switches;

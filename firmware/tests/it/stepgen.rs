@@ -228,7 +228,7 @@ fn run(
     replace: Option<(u64, Replace)>,
 ) -> Run {
     let latencies: Vec<Latency> = latencies.iter().map(|&l| Latency::After(l)).collect();
-    run_with(profile, &latencies, exec, replace)
+    run_with(profile, &latencies, exec, replace, false)
 }
 
 fn run_with(
@@ -236,20 +236,23 @@ fn run_with(
     latencies: &[Latency],
     exec: u64,
     replace: Option<(u64, Replace)>,
+    pulse_check: bool,
 ) -> Run {
     let mut model = Model::new();
     let mut channel = StepChannel::new();
     channel.set_position(profile.start_steps());
     let started_at = 10;
     model.advance(started_at);
-    channel.run_profile(
-        &mut ModelTimer {
-            model: &mut model,
-            entry: started_at - exec.min(10),
-            write_at: started_at,
-        },
-        profile,
-    );
+    let mut timer = ModelTimer {
+        model: &mut model,
+        entry: started_at - exec.min(10),
+        write_at: started_at,
+    };
+    if pulse_check {
+        channel.run_pulse_check(&mut timer, profile);
+    } else {
+        channel.run_profile(&mut timer, profile);
+    }
     let mut replace = replace.map(|(at, how)| (started_at + at, how));
     let mut replaced = None;
     let mut faults = Vec::new();
@@ -384,6 +387,25 @@ proptest! {
             prop_assert_eq!(pulse.at, expected, "step {} of {}", k + 1, profile.step_count());
         }
         prop_assert!(run.model.enabled);
+        // The self-test's figure: the latest interrupt, never more than the latencies
+        // given (and their writes), and at least the first one's.
+        let (first, max) = (latencies[0] / CPT, latencies.iter().max().unwrap() / CPT);
+        let worst = u64::from(run.channel.worst_late_ticks());
+        prop_assert!(worst + 1 >= first && worst <= max + 1, "worst {} ticks, latencies {:?} cycles", worst, latencies);
+    }
+
+    /// The self-test's pulse check: the same pulses at the same times, the driver left
+    /// disabled.
+    #[test]
+    fn a_pulse_check_steps_without_enabling_the_driver(profile in profile_strategy(), latencies in timely_latencies(3)) {
+        let latencies: Vec<Latency> = latencies.iter().map(|&l| Latency::After(l)).collect();
+        let run = run_with(&profile, &latencies, 3, None, true);
+        prop_assert_eq!(run.model.pulses.len() as u32, profile.step_count());
+        prop_assert_eq!(run.channel.position(), profile.target_steps());
+        for (k, pulse) in run.model.pulses.iter().enumerate() {
+            prop_assert_eq!(pulse.at, run.started_at + profile.step_time_us(k as u32 + 1) * CPT);
+        }
+        prop_assert!(!run.model.enabled);
     }
 
     #[test]
@@ -465,7 +487,7 @@ proptest! {
         ], 1..64),
         exec in 1u64..(u64::from(LATE_MARGIN_TICKS) * CPT),
     ) {
-        let run = run_with(&profile, &latencies, exec, None);
+        let run = run_with(&profile, &latencies, exec, None, false);
         prop_assert_eq!(run.unreported_repeats, 0, "{} repeated segments in all", run.model.repeats);
         if run.model.repeats > 0 {
             prop_assert!(!run.faults.is_empty());

@@ -12,6 +12,7 @@ pub mod population;
 pub mod ports;
 pub mod reliability;
 pub mod report;
+pub mod selftest;
 pub mod sessions;
 pub mod sim;
 pub mod trade;

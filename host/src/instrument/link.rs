@@ -148,6 +148,20 @@ pub struct DeviceTiming {
     pub longest_home: Duration,
     /// `DeviceInfo::heartbeat_timeout_ms`.
     pub heartbeat_timeout: Duration,
+    /// The self-test's pulse check ([`protocol::SELF_TEST_PULSE_STEPS`] at the limits).
+    pub self_test: Duration,
+}
+
+/// The self-test's pulse profile at these limits, µs (0 for limits that make no motion).
+fn pulse_check_us(max_speed_deg_per_s: f32, accel_deg_per_s2: f32) -> u64 {
+    use firmware::motion::{deg_to_steps, move_duration_us};
+    let steps = i32::try_from(protocol::SELF_TEST_PULSE_STEPS).unwrap_or(i32::MAX);
+    move_duration_us(
+        [0, 0],
+        [steps, steps],
+        deg_to_steps(max_speed_deg_per_s),
+        deg_to_steps(accel_deg_per_s2),
+    )
 }
 
 impl DeviceTiming {
@@ -168,10 +182,16 @@ impl DeviceTiming {
         } else {
             Duration::from_micros(move_us) + Duration::from_millis(u64::from(info.settle_ms))
         };
+        let pulse_us = pulse_check_us(info.max_speed_deg_per_s, info.accel_deg_per_s2);
         DeviceTiming {
             longest_move,
             longest_home: Duration::from_millis(u64::from(info.longest_home_ms)),
             heartbeat_timeout: Duration::from_millis(u64::from(info.heartbeat_timeout_ms)),
+            self_test: if pulse_us == 0 {
+                reference.self_test
+            } else {
+                Duration::from_micros(pulse_us)
+            },
         }
     }
 
@@ -193,6 +213,10 @@ impl DeviceTiming {
                 + Duration::from_millis(u64::from(info.settle_ms)),
             longest_home: Duration::from_millis(u64::from(info.longest_home_ms)),
             heartbeat_timeout: Duration::from_millis(u64::from(info.heartbeat_timeout_ms)),
+            self_test: Duration::from_micros(pulse_check_us(
+                info.max_speed_deg_per_s,
+                info.accel_deg_per_s2,
+            )),
         }
     }
 
@@ -205,6 +229,8 @@ impl DeviceTiming {
             // Up to one re-take per range.
             Command::TakeReading { integration_ms, .. } => ms(4 * u64::from(*integration_ms)),
             Command::TakeDark { integration_ms } => ms(3 * u64::from(*integration_ms) + 500),
+            // Both pulse checks at once, at the limits; twice over for margin.
+            Command::SelfTest => 2 * self.self_test + ms(500),
             _ => Duration::ZERO,
         }
     }
@@ -289,6 +315,7 @@ fn command_name(command: &Command) -> &'static str {
         Command::RunSchedule(_) => "RunSchedule",
         Command::Abort => "Abort",
         Command::Sweep(_) => "Sweep",
+        Command::SelfTest => "SelfTest",
     }
 }
 

@@ -7,5 +7,6 @@ pub mod firmware_image;
 pub mod flash;
 pub mod link;
 pub mod probe;
+pub mod selftest;
 pub mod serial;
 pub mod sim;

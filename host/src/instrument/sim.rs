@@ -156,7 +156,10 @@ pub struct SimOptions {
     /// Faults to inject: corrupt=P,drop=P,unplug-at=T[:SECONDS],lose-steps=ARM:COUNT,no-switch=ARM
     /// (ARM is source or detector). unplug-at pulls the cable at device time T for SECONDS
     /// (default 1; past the 2 s heartbeat timeout the instrument takes its fail-safe stop)
-    /// and may be given more than once.
+    /// and may be given more than once. What `gonio selftest` checks: stuck-switch=ARM (reads
+    /// pressed everywhere), diag-stuck=ARM (the driver's fault line reads a fault),
+    /// crystal=HZ (the crystal the boot measured), step-timer=PCT (the step timers' tick off
+    /// by PCT %), range-lines=N (the range lines read back range N).
     #[arg(long, value_name = "LIST", default_value = "")]
     pub faults: String,
     /// Instrument errors to start from: ideal (exact gains and tile, no arm zero error) or
@@ -433,9 +436,34 @@ pub(crate) fn parse_faults(spec: &str) -> Result<Faults, SimOptionError> {
                 faults.lose_steps = Some((parse_arm(item, arm)?, count));
             }
             "no-switch" => faults.switch_missing = Some(parse_arm(item, value)?),
+            "stuck-switch" => faults.switch_stuck = Some(parse_arm(item, value)?),
+            "diag-stuck" => faults.diag_stuck = Some(parse_arm(item, value)?),
+            "crystal" => {
+                let hz = value
+                    .trim()
+                    .parse::<u32>()
+                    .ok()
+                    .filter(|hz| (1_000_000..=50_000_000).contains(hz))
+                    .ok_or_else(|| bad("HZ is a whole number of hertz in 1000000..=50000000"))?;
+                faults.crystal_hz = Some(hz);
+            }
+            "step-timer" => {
+                let pct = number(value)
+                    .filter(|p| (-50.0..=100.0).contains(p))
+                    .ok_or_else(|| bad("PCT is a percentage in [-50, 100]"))?;
+                faults.step_timer_error = pct / 100.0;
+            }
+            "range-lines" => {
+                let range = value
+                    .trim()
+                    .parse::<u8>()
+                    .ok()
+                    .ok_or_else(|| bad("N is a range number, 0..=255"))?;
+                faults.range_lines = Some(range);
+            }
             _ => {
                 return Err(bad(
-                    "known faults: corrupt, drop, unplug-at, lose-steps, no-switch",
+                    "known faults: corrupt, drop, unplug-at, lose-steps, no-switch, stuck-switch, diag-stuck, crystal, step-timer, range-lines",
                 ));
             }
         }

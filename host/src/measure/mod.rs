@@ -174,21 +174,28 @@ pub fn measure_with(
         let instrument = sim.instrument(sample)?;
         run_on(Client::new(instrument, policy), given, Some(sample.clone()))
     } else {
-        let path = match &options.port {
-            Some(path) => path.clone(),
-            None => crate::instrument::serial::find_instrument()?.context(
-                "no instrument found (gonio ports lists the serial ports); give --port PATH, or --sim SAMPLE for the simulated instrument",
-            )?,
-        };
-        check::check_port(&path)?;
-        let transport = SerialTransport::open(&path).map_err(|e| match e.to_string() {
-            m if m.contains("Not a typewriter") || m.contains("Inappropriate ioctl") => {
-                anyhow::anyhow!("--port {path} is not a serial port (a device, but not a terminal): give the instrument's port (gonio ports lists them)")
-            }
-            m => anyhow::anyhow!("cannot open --port {path}: {m}"),
-        })?;
+        let transport = open_port(options.port.as_deref())?;
         run_on(Client::new(transport, policy), given, None)
     }
+}
+
+/// The instrument's serial port: `port`, or the one instrument found attached; checked
+/// and opened, with a message that says what to do when it cannot be.
+pub fn open_port(port: Option<&str>) -> anyhow::Result<SerialTransport> {
+    let path = match port {
+        Some(path) => path.to_string(),
+        None => crate::instrument::serial::find_instrument()?.context(
+            "no instrument found (gonio ports lists the serial ports); give --port PATH, or --sim SAMPLE for the simulated instrument",
+        )?,
+    };
+    check::check_port(&path)?;
+    let transport = SerialTransport::open(&path).map_err(|e| match e.to_string() {
+        m if m.contains("Not a typewriter") || m.contains("Inappropriate ioctl") => {
+            anyhow::anyhow!("--port {path} is not a serial port (a device, but not a terminal): give the instrument's port (gonio ports lists them)")
+        }
+        m => anyhow::anyhow!("cannot open --port {path}: {m}"),
+    })?;
+    Ok(transport)
 }
 
 /// Everything the measurement was given, checked.

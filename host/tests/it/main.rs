@@ -49,6 +49,7 @@ mod record_crash;
 mod record_folder;
 mod report;
 mod schemas;
+mod selftest;
 mod sheet;
 mod table6;
 mod trade;

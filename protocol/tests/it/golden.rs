@@ -215,6 +215,7 @@ fn commands() -> std::vec::Vec<(&'static str, Command)> {
         ("run_schedule", Command::RunSchedule(run())),
         ("abort", Command::Abort),
         ("sweep", Command::Sweep(sweep())),
+        ("self_test", Command::SelfTest),
     ]
 }
 
@@ -267,7 +268,42 @@ fn replies() -> std::vec::Vec<(&'static str, Reply)> {
                 duration_ms: 1_612,
             }),
         ),
+        ("self_test", Reply::SelfTest(self_test_report())),
     ]
+}
+
+fn self_test_report() -> SelfTestReport {
+    let pulses = PulseCheck {
+        steps_expected: 4_000,
+        steps_counted: 3_999,
+        duration_expected_us: 1_166_667,
+        duration_measured_us: 1_167_012,
+    };
+    SelfTestReport {
+        hse_expected_hz: 25_000_000,
+        hse_measured_hz: Some(24_998_437),
+        sysclk_expected_hz: 96_000_000,
+        sysclk_measured_hz: None,
+        pulses_source: pulses,
+        pulses_detector: PulseCheck {
+            steps_counted: 4_000,
+            ..pulses
+        },
+        blocks_expected: 1_139,
+        blocks_counted: 1_140,
+        sample_losses: 2,
+        worst_step_late_us: 4,
+        step_deadline_us: 12,
+        longest_interrupts_off_us: Some(5),
+        stack_used_bytes: Some(6_144),
+        stack_size_bytes: 106_496,
+        switch_source: true,
+        switch_detector: false,
+        driver_fault_source: false,
+        driver_fault_detector: true,
+        range_selected: 0,
+        range_read_back: Some(255),
+    }
 }
 
 fn device_messages() -> std::vec::Vec<(&'static str, DeviceMessage)> {
