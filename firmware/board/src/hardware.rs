@@ -17,10 +17,12 @@
 
 use defmt::warn;
 use embassy_stm32::gpio::{Input, Output};
+use embassy_stm32::pac;
+use embassy_stm32::pac::gpio::vals::Idr;
 use firmware::detector;
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
-use firmware::{Arm, Arms, Detector, Lamp, Sample};
+use firmware::{Arm, Arms, Detector, Diagnostics, Lamp, MeasuredClocks, Sample, StackUse};
 
 use crate::detector_adc::DetectorAdc;
 use crate::steppers::Steppers;
@@ -39,19 +41,23 @@ pub struct BoardHardware {
     diag: [Input<'static>; 2],
     lamp: Output<'static>,
     range: [Output<'static>; 3],
+    /// The clocks as `main` measured them at boot.
+    clocks: MeasuredClocks,
 }
 
 impl BoardHardware {
     /// From the running step generators and ADC, and the pins of [`crate::pins`] in their
     /// idle state.
+    /// `switches`: the home switches and the drivers' DIAG inputs.
     pub fn new(
         steppers: Steppers,
         adc: DetectorAdc,
-        home: [Input<'static>; 2],
-        diag: [Input<'static>; 2],
+        switches: [[Input<'static>; 2]; 2],
         lamp: Output<'static>,
         range: [Output<'static>; 3],
+        clocks: MeasuredClocks,
     ) -> Self {
+        let [home, diag] = switches;
         BoardHardware {
             steppers,
             adc,
@@ -59,6 +65,7 @@ impl BoardHardware {
             diag,
             lamp,
             range,
+            clocks,
         }
     }
 }
@@ -101,6 +108,58 @@ impl Arms for BoardHardware {
             arm, fault.late_ticks, fault.segment_ticks
         );
         true
+    }
+
+    fn run_pulse_check(&mut self, arm: Arm, profile: &MoveProfile) {
+        self.steppers.run_pulse_check(arm, profile);
+    }
+}
+
+/// The range lines' pins as the input buffers see them (IDR, not the output register): a
+/// line shorted to a rail or a neighbour reads what it is, not what was written. The pins
+/// of `crate::pins`: range 0 PB1, range 1 PB5, range 2 PA15.
+fn range_lines_read() -> [bool; 3] {
+    let high = |port: pac::gpio::Gpio, pin: usize| port.idr().read().idr(pin) == Idr::HIGH;
+    [
+        high(pac::GPIOB, 1),
+        high(pac::GPIOB, 5),
+        high(pac::GPIOA, 15),
+    ]
+}
+
+impl Diagnostics for BoardHardware {
+    fn clocks(&self) -> MeasuredClocks {
+        self.clocks
+    }
+
+    fn worst_step_late_us(&self) -> u32 {
+        // One timer tick is 1 µs (`crate::steppers`).
+        Arm::BOTH
+            .map(|arm| self.steppers.worst_late_ticks(arm))
+            .into_iter()
+            .max()
+            .unwrap_or(0)
+    }
+
+    fn longest_interrupts_off_us(&self) -> Option<u32> {
+        Some(crate::timing::longest_interrupts_off_us())
+    }
+
+    fn stack_use(&self) -> Option<StackUse> {
+        let (used_bytes, size_bytes) = crate::stack::use_bytes();
+        Some(StackUse {
+            used_bytes,
+            size_bytes,
+        })
+    }
+
+    fn range_read_back(&self) -> Option<u8> {
+        let lines = range_lines_read();
+        let mut high = (0u8..).zip(lines).filter(|&(_, on)| on);
+        Some(match (high.next(), high.next()) {
+            (Some((range, _)), None) => range,
+            _ => u8::MAX,
+        })
     }
 }
 

@@ -28,7 +28,9 @@ mod detector_adc;
 mod fault;
 mod hardware;
 mod pins;
+mod stack;
 mod steppers;
+mod timing;
 
 use core::cell::RefCell;
 use defmt::{error, info, warn};
@@ -182,7 +184,9 @@ fn freeze_timers_in_debug_halt() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    // First: the record a fault handler left is read and cleared before anything can fault.
+    // The stack painted before it is used much, for the self-test's high-water mark.
+    stack::paint();
+    // Then: the record a fault handler left is read and cleared before anything can fault.
     let reset_cause = fault::reset_cause();
     // The crystal before anything depends on it: started with a timeout and measured
     // against HSI (`clocks`); embassy's setup would wait for a missing one forever.
@@ -302,7 +306,20 @@ async fn main(spawner: Spawner) {
         motors.en,
     );
     let adc = detector_adc::DetectorAdc::start(p.ADC1, p.DMA2_CH0, p.TIM5, pins.detector);
-    let hardware = BoardHardware::new(steppers, adc, pins.home, pins.diag, pins.lamp, pins.range);
+    let clocks = firmware::MeasuredClocks {
+        hse_expected_hz: clocks::PLL.hse_hz,
+        hse_measured_hz: crystal.measured_hse_hz,
+        sysclk_expected_hz: SYSCLK_HZ,
+        sysclk_measured_hz: Some(sysclk_hz),
+    };
+    let hardware = BoardHardware::new(
+        steppers,
+        adc,
+        [pins.home, pins.diag],
+        pins.lamp,
+        pins.range,
+        clocks,
+    );
     // The same unique ID as the USB serial string: the host records it as the instrument.
     // The reference instrument with this board's own detector block (its ADC clock's 1.024 ms).
     let config = InstrumentConfig {

@@ -257,6 +257,20 @@ impl Steppers {
         });
     }
 
+    /// Run `profile`'s pulses on `arm` with its driver left disabled (the self-test's
+    /// pulse check: `firmware::selftest`).
+    pub fn run_pulse_check(&mut self, arm: Arm, profile: &MoveProfile) {
+        with_arm(arm.index(), |channel, timer, _| {
+            channel.run_pulse_check(timer, profile)
+        });
+    }
+
+    /// The latest `arm`'s step interrupt ran after its segment began since boot, ticks
+    /// (µs).
+    pub fn worst_late_ticks(&self, arm: Arm) -> u32 {
+        with_arm(arm.index(), |channel, _, _| channel.worst_late_ticks()).unwrap_or(0)
+    }
+
     /// Steps issued, signed, from the zero homing defined.
     pub fn position_steps(&self, arm: Arm) -> i32 {
         with_arm(arm.index(), |channel, _, _| channel.position()).unwrap_or(0)
