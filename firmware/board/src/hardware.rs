@@ -92,7 +92,7 @@ impl Arms for BoardHardware {
     }
 
     fn driver_fault(&self, arm: Arm) -> bool {
-        self.diag[arm.index()].is_high()
+        crate::driver::is_fault(self.diag[arm.index()].is_high())
     }
 
     fn set_driver_enabled(&mut self, arm: Arm, enabled: bool) {

@@ -25,6 +25,7 @@
 
 mod clocks;
 mod detector_adc;
+mod driver;
 mod fault;
 mod hardware;
 mod pins;
@@ -248,6 +249,17 @@ async fn main(spawner: Spawner) {
         clocks::PLL.hse_hz,
         sysclk_hz,
         SYSCLK_HZ
+    );
+
+    info!(
+        "drivers: {} (fault line active {}, STEP high {} µs)",
+        driver::DRIVER.name,
+        if driver::DRIVER.fault_active_high {
+            "high"
+        } else {
+            "low"
+        },
+        driver::DRIVER.step_pulse_ticks
     );
 
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);

@@ -23,10 +23,10 @@
 //! | `step_r`   | PB0  | TIM3_CH3 (AF2): detector-arm STEP from a hardware timer     | low                   |
 //! | `dir_r`    | PB14 | GPIO                                                        | low                   |
 //! | `en_r`     | PB15 | GPIO, active LOW                                            | high (driver off)     |
-//! | `home_i`   | PB8  | EXTI8, switch to GND, internal pull-up                      | input                 |
-//! | `home_r`   | PB9  | EXTI9, switch to GND, internal pull-up                      | input                 |
-//! | `diag_i`   | PA2  | TMC2209 DIAG (high = driver fault), internal pull-down      | input                 |
-//! | `diag_r`   | PA3  | TMC2209 DIAG (high = driver fault), internal pull-down      | input                 |
+//! | `home_i`   | PB8  | GPIO (polled, debounced), switch to GND, internal pull-up   | input                 |
+//! | `home_r`   | PB9  | GPIO (polled, debounced), switch to GND, internal pull-up   | input                 |
+//! | `diag_i`   | PA2  | driver fault: TMC2209 DIAG (high, pull-down) or DRV8825 nFAULT (low, pull-up), [`crate::driver`] | input |
+//! | `diag_r`   | PA3  | as `diag_i`                                                 | input                 |
 //! | `lamp_en`  | PA8  | TIM1_CH1 (AF1), so the lamp can be PWM-dimmed later         | low (lamp off)        |
 //! | `detector` | PA1  | ADC1_IN1: transimpedance amplifier output (0..3.3 V)        | analog                |
 //! | `range0`   | PB1  | GPIO, TIA range 0 (most sensitive) switch                   | high (range 0)        |
@@ -174,8 +174,8 @@ impl BoardPins {
                 Input::new(self.home_r, Pull::Up),
             ],
             diag: [
-                Input::new(self.diag_i, Pull::Down),
-                Input::new(self.diag_r, Pull::Down),
+                Input::new(self.diag_i, crate::driver::DRIVER.fault_pull),
+                Input::new(self.diag_r, crate::driver::DRIVER.fault_pull),
             ],
             lamp: out(self.lamp_en.into(), Level::Low),
             range: [

@@ -38,7 +38,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use firmware::Arm;
 use firmware::motion::MoveProfile;
-use firmware::stepgen::{PULSE_TICKS, Segment, StepChannel, StepFault, StepTimer};
+use firmware::stepgen::{Segment, StepChannel, StepFault, StepTimer};
 
 /// Timer tick: 1 µs, the unit of `MoveProfile::step_time_us`.
 const TICK_HZ: u32 = 1_000_000;
@@ -99,7 +99,12 @@ impl StepTimer for BoardTimer<'_> {
         self.tim
             .arr()
             .write(|w| w.set_arr((segment.ticks - 1) as u16));
-        let ccr = if segment.pulse { PULSE_TICKS } else { 0 };
+        // The STEP high time of this build's driver modules (`crate::driver`).
+        let ccr = if segment.pulse {
+            crate::driver::DRIVER.step_pulse_ticks
+        } else {
+            0
+        };
         self.tim.ccr(CH3).write(|w| w.set_ccr(ccr));
     }
 
