@@ -185,9 +185,7 @@ fn freeze_timers_in_debug_halt() {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    // The stack painted before it is used much, for the self-test's high-water mark.
-    stack::paint();
-    // Then: the record a fault handler left is read and cleared before anything can fault.
+    // First: the record a fault handler left is read and cleared before anything can fault.
     let reset_cause = fault::reset_cause();
     // The crystal before anything depends on it: started with a timeout and measured
     // against HSI (`clocks`); embassy's setup would wait for a missing one forever.
