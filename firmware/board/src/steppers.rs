@@ -38,7 +38,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use firmware::Arm;
 use firmware::motion::MoveProfile;
-use firmware::stepgen::{Segment, StepChannel, StepFault, StepTimer};
+use firmware::stepgen::{Segment, Start, StepChannel, StepFault, StepTimer};
 
 /// Timer tick: 1 µs, the unit of `MoveProfile::step_time_us`.
 const TICK_HZ: u32 = 1_000_000;
@@ -257,16 +257,20 @@ impl Steppers {
     /// Run `profile` on `arm` (from rest at once; while moving, after the committed
     /// segments: see `firmware::stepgen`).
     pub fn run_profile(&mut self, arm: Arm, profile: &MoveProfile) {
+        // The start's arithmetic before the lock: interrupts are masked only for the
+        // hand-over (`firmware::stepgen::StepChannel::run_prepared`).
+        let start = Start::prepare(profile);
         with_arm(arm.index(), |channel, timer, _| {
-            channel.run_profile(timer, profile)
+            channel.run_prepared(timer, profile, start)
         });
     }
 
     /// Run `profile`'s pulses on `arm` with its driver left disabled (the self-test's
     /// pulse check: `firmware::selftest`).
     pub fn run_pulse_check(&mut self, arm: Arm, profile: &MoveProfile) {
+        let start = Start::prepare(profile);
         with_arm(arm.index(), |channel, timer, _| {
-            channel.run_pulse_check(timer, profile)
+            channel.run_pulse_check(timer, start)
         });
     }
 

@@ -20,6 +20,8 @@
 #![no_std]
 #![no_main]
 
+mod isr_cost;
+
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of, addr_of_mut};
 
@@ -174,6 +176,23 @@ fn main() -> ! {
                 }
             }
             p.stack_used = stack_used();
+            let mut core = cortex_m::Peripherals::take().expect("the core peripherals, once");
+            let cost = isr_cost::measure(&mut core.SYST);
+            hprintln!(
+                "step generator: on_update at most {} instructions, {} taking over a profile, run_prepared at most {} (Start::prepare, outside the lock, {}) ({} updates, resolution {} instructions)",
+                cost.on_update,
+                cost.on_update_handover,
+                cost.run_profile,
+                cost.prepare,
+                cost.updates,
+                cost.resolution
+            );
+            check(
+                p,
+                "isr_cost_measured",
+                cost.updates > 10_000 && cost.on_update > 0,
+                "no updates measured, or SysTick did not count (QEMU without -icount?)",
+            );
             p.phase = PANIC_PHASE;
             match scenarios::moving_with_lamp_on() {
                 Ok(bench) => {

@@ -249,7 +249,7 @@ fn run_with(
         write_at: started_at,
     };
     if pulse_check {
-        channel.run_pulse_check(&mut timer, profile);
+        channel.run_pulse_check(&mut timer, firmware::stepgen::Start::prepare(profile));
     } else {
         channel.run_profile(&mut timer, profile);
     }
