@@ -134,3 +134,17 @@ impl DropLog {
         Some(core::mem::take(&mut self.pending))
     }
 }
+
+/// The USB packets of one IN transfer of `len` bytes on an endpoint of `max_packet` bytes,
+/// as ranges of the transfer, in order: full packets, then the short one that ends it,
+/// which is a zero-length packet when `len` is a multiple of `max_packet` (without it the
+/// host's driver takes the transfer for unfinished and waits for more: the USB 2.0 rule a
+/// bulk transfer ends with a short packet, 5.8.3). `max_packet` 0 is taken as 1.
+pub fn transfer_packets(
+    len: usize,
+    max_packet: usize,
+) -> impl Iterator<Item = core::ops::Range<usize>> {
+    let max_packet = max_packet.max(1);
+    // One more packet than the full ones: the short end, empty or not.
+    (0..=len / max_packet).map(move |k| k * max_packet..((k + 1) * max_packet).min(len))
+}

@@ -430,11 +430,8 @@ async fn write_transfer(
     bytes: &[u8],
 ) -> Result<(), EndpointError> {
     let packet = usize::from(sender.max_packet_size());
-    for chunk in bytes.chunks(packet) {
-        sender.write_packet(chunk).await?;
-    }
-    if bytes.len() % packet == 0 {
-        sender.write_packet(&[]).await?;
+    for range in firmware::txqueue::transfer_packets(bytes.len(), packet) {
+        sender.write_packet(&bytes[range]).await?;
     }
     Ok(())
 }

@@ -170,3 +170,31 @@ fn a_host_that_stops_reading_is_logged_once_a_second() {
     assert_eq!(logs[0], 1, "the first drop at once");
     assert_eq!(logs.iter().sum::<u32>(), 10_000);
 }
+
+proptest! {
+    /// The board's IN transfers (`write_transfer`): the packets tile the frame in order,
+    /// every one but the last is full, and the last is short (empty when the frame is a
+    /// whole number of packets), so the host's driver sees the transfer end.
+    #[test]
+    fn a_transfer_is_full_packets_and_a_short_end(len in 0usize..1_000, max_packet in prop_oneof![Just(64usize), 1usize..80]) {
+        let packets: Vec<_> = firmware::txqueue::transfer_packets(len, max_packet).collect();
+        let mut at = 0;
+        for packet in &packets {
+            prop_assert_eq!(packet.start, at);
+            at = packet.end;
+        }
+        prop_assert_eq!(at, len);
+        let (last, full) = packets.split_last().unwrap();
+        prop_assert!(full.iter().all(|p| p.len() == max_packet));
+        prop_assert!(last.len() < max_packet);
+        prop_assert_eq!(last.is_empty(), len % max_packet == 0);
+    }
+}
+
+#[test]
+fn a_frame_of_64_bytes_ends_with_a_zero_length_packet() {
+    let packets: Vec<_> = firmware::txqueue::transfer_packets(64, 64).collect();
+    assert_eq!(packets, vec![0..64, 64..64]);
+    let packets: Vec<_> = firmware::txqueue::transfer_packets(65, 64).collect();
+    assert_eq!(packets, vec![0..64, 64..65]);
+}
