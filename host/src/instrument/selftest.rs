@@ -299,7 +299,7 @@ fn line_checks(report: &SelfTestReport) -> Vec<Check> {
             if pressed { "pressed" } else { "released" }.into(),
             "released (arm off its switch)".into(),
             !pressed,
-            "the home switch reads pressed: move the arm off it by hand (drivers are off) and run again; if it stays pressed, the switch or its wiring is at fault (a normally-open switch where the firmware needs normally-closed)",
+            "the home switch reads pressed: move the arm off it by hand (drivers are off) and run again; if it stays pressed, the switch or its wiring is at fault (a normally-closed contact wired where the firmware expects one that closes to GND when pressed)",
         ));
     }
     for (arm, fault) in [
