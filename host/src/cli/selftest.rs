@@ -81,7 +81,7 @@ fn print_table(result: &SelfTest) {
         .filter(|c| c.verdict == Verdict::NotMeasured)
         .count();
     println!(
-        "{}: {failed} failed, {unmeasured} not measured by this hardware",
+        "{}: {failed} failed, {unmeasured} not measured",
         if failed == 0 { "PASSED" } else { "FAILED" }
     );
 }
