@@ -99,7 +99,12 @@ impl StepGen {
     /// later, just enough: the whole profile is delayed, never compressed (catching up
     /// would step faster than the profile allows).
     pub fn after(profile: &MoveProfile, elapsed_us: u32) -> StepGen {
-        let first_us = profile.step_time_us(1);
+        StepGen::after_first_step(profile, profile.step_time_us(1), elapsed_us)
+    }
+
+    /// [`StepGen::after`] with `profile.step_time_us(1)` computed beforehand (`first_us`):
+    /// the step interrupt that takes over a profile is spared the arithmetic.
+    fn after_first_step(profile: &MoveProfile, first_us: u64, elapsed_us: u32) -> StepGen {
         let elapsed_us =
             u64::from(elapsed_us).min(first_us.saturating_sub(u64::from(MIN_SEGMENT_TICKS)));
         StepGen {
@@ -182,6 +187,19 @@ pub struct Start {
     first: Segment,
     second: Segment,
     direction: i32,
+    /// `step_time_us(1)`, for a take-over while moving ([`StepGen::after`]).
+    first_step_us: u64,
+}
+
+/// A profile handed over while the arm moves, taken over by the update interrupt, with
+/// step 1's time computed beforehand (`None` for a profile of no steps: a stop). Small on
+/// purpose: it is copied under the lock the step interrupt shares (with the whole
+/// [`Start`] in it the locked hand-over took 520 instructions instead of 160). An arm that
+/// comes to rest before the take-over starts it from rest in the interrupt, the rare case.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Replacement {
+    profile: MoveProfile,
+    first_step_us: Option<u64>,
 }
 
 impl Start {
@@ -198,6 +216,7 @@ impl Start {
             first,
             second,
             direction: profile.direction(),
+            first_step_us: profile.step_time_us(1),
         })
     }
 }
@@ -218,7 +237,7 @@ pub struct StepChannel {
     /// since the arm was at rest).
     pulse_age: Option<u32>,
     /// A profile to take over at the next update interrupt.
-    replacement: Option<MoveProfile>,
+    replacement: Option<Replacement>,
     /// The DIR of a profile taken over, set when its first (pulse-less) segment begins.
     new_direction: Option<i32>,
     /// +1 or −1: what each pulse adds to the position.
@@ -283,7 +302,10 @@ impl StepChannel {
     ) {
         if self.moving {
             if !self.halted {
-                self.replacement = Some(*profile);
+                self.replacement = Some(Replacement {
+                    profile: *profile,
+                    first_step_us: start.map(|start| start.first_step_us),
+                });
             }
         } else if let Some(start) = start {
             self.start(timer, start, true);
@@ -334,8 +356,12 @@ impl StepChannel {
             self.moving = false;
             self.halted = false;
             self.generator = None;
-            if let Some(profile) = self.replacement.take() {
-                self.run_profile(timer, &profile);
+            if let Some(start) = self
+                .replacement
+                .take()
+                .and_then(|replacement| Start::prepare(&replacement.profile))
+            {
+                self.start(timer, start, true);
             }
             return;
         };
@@ -368,19 +394,29 @@ impl StepChannel {
             timer.set_direction(direction > 0);
             self.direction = direction;
         }
-        if let Some(profile) = self.replacement.take() {
-            if profile.step_count() == 0 {
-                self.generator = None;
-            } else {
-                // Its time 0 is the last pulse; its first segment follows this one.
-                let elapsed_us = self
-                    .pulse_age
-                    .map_or(0, |age| age.saturating_add(segment.ticks));
-                // DIR changes at the start of the new profile's first segment, which has
-                // no pulse: STEP is low then, and the first new pulse is a segment away.
-                let direction = profile.direction();
-                self.new_direction = (direction != self.direction).then_some(direction);
-                self.generator = Some(StepGen::after(&profile, elapsed_us));
+        if let Some(Replacement {
+            profile,
+            first_step_us,
+        }) = self.replacement.take()
+        {
+            match first_step_us {
+                None => self.generator = None,
+                Some(first_step_us) => {
+                    // Its time 0 is the last pulse; its first segment follows this one.
+                    let elapsed_us = self
+                        .pulse_age
+                        .map_or(0, |age| age.saturating_add(segment.ticks));
+                    // DIR changes at the start of the new profile's first segment, which
+                    // has no pulse: STEP is low then, and the first new pulse is a segment
+                    // away.
+                    let direction = profile.direction();
+                    self.new_direction = (direction != self.direction).then_some(direction);
+                    self.generator = Some(StepGen::after_first_step(
+                        &profile,
+                        first_step_us,
+                        elapsed_us,
+                    ));
+                }
             }
         }
         match self.generator.as_mut().and_then(StepGen::next_segment) {
