@@ -14,7 +14,7 @@
 //! overrun, a driver fault, a lost heartbeat) take the device's own fail-safe stop instead
 //! (`Device::fail_safe_stop`): a ramped stop, no reset.
 
-use protocol::{DeviceError, ErrorCode, ResetCause};
+use protocol::{DeviceError, ErrorCode, ResetCause, ResetCounts};
 
 /// The outputs a fault handler makes safe, each by a write that needs nothing else to
 /// work (no lock, no allocation, no other peripheral).
@@ -128,4 +128,61 @@ pub const fn processor_fault_error(stack_pointer: u32, stack_limit: u32, pc: u32
     } else {
         DeviceError::with_detail(ErrorCode::ProcessorFault, pc as i32)
     }
+}
+
+/// Marks a [`ResetHistory`] ("gonR").
+const HISTORY_MAGIC: u32 = 0x676f_6e52;
+
+/// The resets since power-on, by cause, kept by the board in no-init RAM next to the
+/// [`FaultRecord`]: four words, the magic, two words of counts and a check word, so that
+/// RAM holding old or random content (after power-up) counts from zero. What the
+/// self-test reports as `resets_since_power_on`: one watchdog or fault reset is a firmware
+/// that hung or broke since the instrument was switched on, which the current reset cause
+/// alone hides once anything resets it again.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ResetHistory(pub [u32; 4]);
+
+impl ResetHistory {
+    fn of(counts: ResetCounts) -> ResetHistory {
+        let high = u32::from(counts.watchdog) << 16 | u32::from(counts.fault);
+        let low = u32::from(counts.pin) << 16 | u32::from(counts.software);
+        ResetHistory([HISTORY_MAGIC, high, low, history_check(high, low)])
+    }
+
+    /// The counts, if these words are a history.
+    pub fn counts(&self) -> Option<ResetCounts> {
+        let [magic, high, low, check] = self.0;
+        (magic == HISTORY_MAGIC && check == history_check(high, low)).then_some(ResetCounts {
+            watchdog: (high >> 16) as u16,
+            fault: high as u16,
+            pin: (low >> 16) as u16,
+            software: low as u16,
+        })
+    }
+
+    /// The history after a reset of `cause`, from what RAM held: a power-on (or RAM that
+    /// holds no history: the first boot after power-up or flashing) starts from zero; any
+    /// other reset adds one to its cause (saturating).
+    pub fn after_reset(previous: &ResetHistory, cause: ResetCause) -> ResetHistory {
+        let mut counts = match cause {
+            ResetCause::PowerOn => ResetCounts::default(),
+            _ => previous.counts().unwrap_or_default(),
+        };
+        let counter = match cause {
+            ResetCause::PowerOn => None,
+            ResetCause::Watchdog => Some(&mut counts.watchdog),
+            ResetCause::Fault(_) => Some(&mut counts.fault),
+            ResetCause::ResetPin => Some(&mut counts.pin),
+            ResetCause::Software => Some(&mut counts.software),
+        };
+        if let Some(counter) = counter {
+            *counter = counter.saturating_add(1);
+        }
+        ResetHistory::of(counts)
+    }
+}
+
+const fn history_check(high: u32, low: u32) -> u32 {
+    (HISTORY_MAGIC ^ high.rotate_left(11) ^ low.rotate_left(23)).wrapping_mul(0x85eb_ca6b)
+        ^ 0xa5a5_5a5a
 }

@@ -103,6 +103,8 @@ pub trait Diagnostics {
     /// The range the amplifier's select lines read back (one-hot decoded; 255 when they are
     /// not one-hot).
     fn range_read_back(&self) -> Option<u8>;
+    /// The resets since power-on by cause ([`crate::fault::ResetHistory`]).
+    fn resets_since_power_on(&self) -> Option<protocol::ResetCounts>;
 }
 
 /// One detector sample: one block of oversampled ADC conversions

@@ -140,6 +140,7 @@ impl SelfTestRun {
             driver_fault_detector: hardware.driver_fault(Arm::Detector),
             range_selected: RANGE_CHECKED,
             range_read_back: hardware.range_read_back(),
+            resets_since_power_on: hardware.resets_since_power_on(),
         })
     }
 

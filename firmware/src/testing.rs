@@ -174,6 +174,8 @@ pub struct FakeHardware<S: Scene> {
     /// The range lines read back this instead of the range selected (a shorted or open
     /// select line).
     pub range_lines_read: Option<u8>,
+    /// The resets since power-on (none by default: the model was just switched on).
+    pub resets: protocol::ResetCounts,
     max_speed: f32,
     accel: f32,
 }
@@ -216,6 +218,7 @@ impl<S: Scene> FakeHardware<S> {
             longest_interrupts_off_us: None,
             stack_use: None,
             range_lines_read: None,
+            resets: protocol::ResetCounts::default(),
             max_speed: crate::motion::deg_to_steps(config.max_speed_deg_per_s),
             accel: crate::motion::deg_to_steps(config.accel_deg_per_s2),
         }
@@ -447,6 +450,10 @@ impl<S: Scene> Diagnostics for FakeHardware<S> {
 
     fn range_read_back(&self) -> Option<u8> {
         Some(self.range_lines_read.unwrap_or(self.range))
+    }
+
+    fn resets_since_power_on(&self) -> Option<protocol::ResetCounts> {
+        Some(self.resets)
     }
 }
 

@@ -539,6 +539,10 @@ impl Diagnostics for SimHardware {
             None => Some(self.range),
         }
     }
+
+    fn resets_since_power_on(&self) -> Option<protocol::ResetCounts> {
+        self.mechanics.resets_since_power_on()
+    }
 }
 
 impl Lamp for SimHardware {

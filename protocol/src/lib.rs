@@ -54,7 +54,7 @@ pub const SCHEMA_HISTORY: &[(u16, u64)] = &[
     (2, 0xf4fc_c159_3ea1_cc3a),
     (3, 0xe291_1f63_e599_b75a),
     (4, 0x2e9e_016a_ac26_78b5),
-    (5, 0x9c93_8050_4e9e_a94b),
+    (5, 0xe2db_c9c2_1f83_8cd7),
 ];
 
 /// Largest encoded frame on the wire, delimiter included. Sized for the largest message

@@ -507,6 +507,25 @@ pub struct SelfTestReport {
     /// The range the amplifier's select lines read back (one-hot decoded); `None` where
     /// the lines cannot be read back, 255 when they are not one-hot.
     pub range_read_back: Option<u8>,
+    /// The resets since the supply came on (or since RAM last lost its content), by
+    /// cause; `None` where not kept.
+    pub resets_since_power_on: Option<ResetCounts>,
+}
+
+/// Resets of each kind since power-on ([`SelfTestReport::resets_since_power_on`]): the
+/// board counts them in RAM that survives a reset. The power-on itself is not counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ResetCounts {
+    /// By the watchdog (a hung firmware).
+    pub watchdog: u16,
+    /// By the firmware's own fail-safe reset after a panic, a processor fault or a stack
+    /// overflow.
+    pub fault: u16,
+    /// By the reset pin (the board's button, a probe).
+    pub pin: u16,
+    /// By software without a fault (a debugger's reset request).
+    pub software: u16,
 }
 
 /// A refused or failed request: a stable code and a code-specific detail.

@@ -25,9 +25,10 @@ use embassy_stm32::pac;
 use embassy_stm32::pac::timer::vals;
 use firmware::ResetCause;
 use firmware::fault::{
-    FaultRecord, ResetFlags, SafeOutputs, make_safe, panic_error, processor_fault_error,
+    FaultRecord, ResetFlags, ResetHistory, SafeOutputs, make_safe, panic_error,
+    processor_fault_error,
 };
-use protocol::DeviceError;
+use protocol::{DeviceError, ResetCounts};
 
 /// The record for the next boot: in `.uninit`, which cortex-m-rt neither zeroes nor
 /// initialises, so it survives the reset (not a power cycle: the check word and the
@@ -66,6 +67,25 @@ pub fn reset_cause() -> ResetCause {
         watchdog: csr.wdgrstf() || csr.wwdgrstf(),
     };
     firmware::fault::reset_cause(flags, &take_record())
+}
+
+/// The resets since power-on (`firmware::fault::ResetHistory`): in `.uninit` like the
+/// fault record, so it survives every reset but a power cycle.
+#[unsafe(link_section = ".uninit.gonio_reset_history")]
+static mut HISTORY: MaybeUninit<[u32; 4]> = MaybeUninit::uninit();
+
+/// Count this boot's reset in the history and return the counts since power-on. Call once
+/// at boot, after [`reset_cause`].
+pub fn count_reset(cause: ResetCause) -> ResetCounts {
+    // SAFETY: called once at boot, before interrupts; any bit pattern is a valid [u32; 4].
+    let history = unsafe {
+        let slot = core::ptr::addr_of_mut!(HISTORY).cast::<[u32; 4]>();
+        let history =
+            ResetHistory::after_reset(&ResetHistory(core::ptr::read_volatile(slot)), cause);
+        core::ptr::write_volatile(slot, history.0);
+        history
+    };
+    history.counts().unwrap_or_default()
 }
 
 /// An unset pin of [`SAFE_PINS`].

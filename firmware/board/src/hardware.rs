@@ -23,6 +23,7 @@ use firmware::detector;
 use firmware::motion::MoveProfile;
 use firmware::sampling::SampleLoss;
 use firmware::{Arm, Arms, Detector, Diagnostics, Lamp, MeasuredClocks, Sample, StackUse};
+use protocol::ResetCounts;
 
 use crate::detector_adc::DetectorAdc;
 use crate::steppers::Steppers;
@@ -41,8 +42,16 @@ pub struct BoardHardware {
     diag: [Input<'static>; 2],
     lamp: Output<'static>,
     range: [Output<'static>; 3],
-    /// The clocks as `main` measured them at boot.
-    clocks: MeasuredClocks,
+    /// What `main` found at boot.
+    boot: Boot,
+}
+
+/// What `main` measured and counted at boot, for the self-test.
+pub struct Boot {
+    /// The clocks, measured.
+    pub clocks: MeasuredClocks,
+    /// The resets since power-on, this one included.
+    pub resets: ResetCounts,
 }
 
 impl BoardHardware {
@@ -55,7 +64,7 @@ impl BoardHardware {
         switches: [[Input<'static>; 2]; 2],
         lamp: Output<'static>,
         range: [Output<'static>; 3],
-        clocks: MeasuredClocks,
+        boot: Boot,
     ) -> Self {
         let [home, diag] = switches;
         BoardHardware {
@@ -65,7 +74,7 @@ impl BoardHardware {
             diag,
             lamp,
             range,
-            clocks,
+            boot,
         }
     }
 }
@@ -129,7 +138,7 @@ fn range_lines_read() -> [bool; 3] {
 
 impl Diagnostics for BoardHardware {
     fn clocks(&self) -> MeasuredClocks {
-        self.clocks
+        self.boot.clocks
     }
 
     fn worst_step_late_us(&self) -> u32 {
@@ -160,6 +169,10 @@ impl Diagnostics for BoardHardware {
             (Some((range, _)), None) => range,
             _ => u8::MAX,
         })
+    }
+
+    fn resets_since_power_on(&self) -> Option<ResetCounts> {
+        Some(self.boot.resets)
     }
 }
 

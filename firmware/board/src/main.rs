@@ -187,6 +187,7 @@ fn freeze_timers_in_debug_halt() {
 async fn main(spawner: Spawner) {
     // First: the record a fault handler left is read and cleared before anything can fault.
     let reset_cause = fault::reset_cause();
+    let resets = fault::count_reset(reset_cause);
     // The crystal before anything depends on it: started with a timeout and measured
     // against HSI (`clocks`); embassy's setup would wait for a missing one forever.
     let crystal = clocks::check_crystal();
@@ -316,11 +317,14 @@ async fn main(spawner: Spawner) {
         motors.en,
     );
     let adc = detector_adc::DetectorAdc::start(p.ADC1, p.DMA2_CH0, p.TIM5, pins.detector);
-    let clocks = firmware::MeasuredClocks {
-        hse_expected_hz: clocks::PLL.hse_hz,
-        hse_measured_hz: crystal.measured_hse_hz,
-        sysclk_expected_hz: SYSCLK_HZ,
-        sysclk_measured_hz: Some(sysclk_hz),
+    let boot = hardware::Boot {
+        clocks: firmware::MeasuredClocks {
+            hse_expected_hz: clocks::PLL.hse_hz,
+            hse_measured_hz: crystal.measured_hse_hz,
+            sysclk_expected_hz: SYSCLK_HZ,
+            sysclk_measured_hz: Some(sysclk_hz),
+        },
+        resets,
     };
     let hardware = BoardHardware::new(
         steppers,
@@ -328,7 +332,7 @@ async fn main(spawner: Spawner) {
         [pins.home, pins.diag],
         pins.lamp,
         pins.range,
-        clocks,
+        boot,
     );
     // The same unique ID as the USB serial string: the host records it as the instrument.
     // The reference instrument with this board's own detector block (its ADC clock's 1.024 ms).

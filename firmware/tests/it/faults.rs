@@ -288,3 +288,53 @@ fn a_stop_in_the_same_instant_as_the_start_stops_the_move() {
         "the arms moved after the abort"
     );
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(500))]
+
+    /// The resets since power-on: a power-on starts from zero, every other reset adds one
+    /// to its cause, and RAM that holds no history (random after power-up) counts from
+    /// zero instead of being read as counts.
+    #[test]
+    fn the_reset_history_counts_each_cause_since_power_on(words in any::<[u32; 4]>(), causes in proptest::collection::vec(0u8..5, 0..40)) {
+        use firmware::fault::ResetHistory;
+        let cause = |k: u8| match k {
+            0 => ResetCause::PowerOn,
+            1 => ResetCause::Watchdog,
+            2 => ResetCause::Fault(DeviceError::new(ErrorCode::Panic)),
+            3 => ResetCause::ResetPin,
+            _ => ResetCause::Software,
+        };
+        let random = ResetHistory(words);
+        // Random RAM is a history only by chance (2^-32): then it is a valid one.
+        let mut history = ResetHistory::after_reset(&random, ResetCause::PowerOn);
+        prop_assert_eq!(history.counts(), Some(ResetCounts::default()));
+        let mut expected = ResetCounts::default();
+        for &k in &causes {
+            history = ResetHistory::after_reset(&history, cause(k));
+            match k {
+                0 => expected = ResetCounts::default(),
+                1 => expected.watchdog += 1,
+                2 => expected.fault += 1,
+                3 => expected.pin += 1,
+                _ => expected.software += 1,
+            }
+            prop_assert_eq!(history.counts(), Some(expected));
+        }
+        // A first boot after flashing (a software reset, no history yet) counts itself.
+        if random.counts().is_none() {
+            let first = ResetHistory::after_reset(&random, ResetCause::Software);
+            prop_assert_eq!(first.counts(), Some(ResetCounts { software: 1, ..ResetCounts::default() }));
+        }
+    }
+}
+
+#[test]
+fn reset_counts_saturate() {
+    use firmware::fault::ResetHistory;
+    let mut history = ResetHistory::after_reset(&ResetHistory([0; 4]), ResetCause::PowerOn);
+    for _ in 0..70_000 {
+        history = ResetHistory::after_reset(&history, ResetCause::Watchdog);
+    }
+    assert_eq!(history.counts().unwrap().watchdog, u16::MAX);
+}

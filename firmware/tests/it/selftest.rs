@@ -85,6 +85,7 @@ fn each_fault_shows_in_the_report() {
         hw.worst_step_late_us = 9;
         hw.longest_interrupts_off_us = Some(31);
         hw.range_lines_read = Some(2);
+        hw.resets.watchdog = 4;
         hw.stack_use = Some(firmware::StackUse {
             used_bytes: 100_000,
             size_bytes: 106_496,
@@ -103,6 +104,7 @@ fn each_fault_shows_in_the_report() {
     assert_eq!(report.worst_step_late_us, 9);
     assert_eq!(report.longest_interrupts_off_us, Some(31));
     assert_eq!(report.range_read_back, Some(2));
+    assert_eq!(report.resets_since_power_on.unwrap().watchdog, 4);
     assert_eq!(report.stack_used_bytes, Some(100_000));
 }
 

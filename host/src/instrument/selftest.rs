@@ -208,6 +208,19 @@ pub fn judge(info: &DeviceInfo, report: &SelfTestReport, dark: &[Reading]) -> Se
         !matches!(info.reset_cause, ResetCause::Watchdog | ResetCause::Fault(_)),
         "the last reset was the firmware's own: read the board's log (probe-rs attach) and report it",
     ));
+    checks.push(match report.resets_since_power_on {
+        None => Check::not_measured("resets", "no watchdog or fault reset since power-on".into()),
+        Some(counts) => Check::new(
+            "resets",
+            format!(
+                "since power-on: {} watchdog, {} fault, {} reset pin, {} software",
+                counts.watchdog, counts.fault, counts.pin, counts.software
+            ),
+            "no watchdog or fault reset since power-on".into(),
+            counts.watchdog == 0 && counts.fault == 0,
+            "the firmware hung or faulted since the instrument was switched on, though it runs now: report it with the boot log",
+        ),
+    });
     checks.push(clock_check(
         "crystal",
         report.hse_measured_hz,

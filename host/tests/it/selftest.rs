@@ -80,6 +80,14 @@ fn every_limit_fails_alone_when_its_figure_is_outside_it() {
             Box::new(|i, _, _| i.reset_cause = ResetCause::Watchdog),
         ),
         (
+            &["resets"],
+            Box::new(|_, r, _| r.resets_since_power_on.as_mut().unwrap().watchdog = 1),
+        ),
+        (
+            &["resets"],
+            Box::new(|_, r, _| r.resets_since_power_on.as_mut().unwrap().fault = 2),
+        ),
+        (
             &["crystal"],
             Box::new(|_, r, _| r.hse_measured_hz = Some(25_800_000)),
         ),
@@ -166,6 +174,12 @@ fn every_limit_fails_alone_when_its_figure_is_outside_it() {
     edge.stack_size_bytes = 1000;
     edge.stack_used_bytes = Some(750);
     edge.hse_measured_hz = Some(25_750_000);
+    // Resets by the pin and by a debugger are no failure.
+    edge.resets_since_power_on = Some(protocol::ResetCounts {
+        pin: 3,
+        software: 1,
+        ..protocol::ResetCounts::default()
+    });
     dark_edge[0].mean_counts = 0.0199 * 65_535.0;
     assert!(selftest::judge(&info, &edge, &dark_edge).passed());
 }

@@ -303,6 +303,12 @@ fn self_test_report() -> SelfTestReport {
         driver_fault_detector: true,
         range_selected: 0,
         range_read_back: Some(255),
+        resets_since_power_on: Some(ResetCounts {
+            watchdog: 1,
+            fault: 2,
+            pin: 300,
+            software: 0,
+        }),
     }
 }
 
