@@ -17,9 +17,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-mod built_in {
-    include!(concat!(env!("OUT_DIR"), "/firmware_image.rs"));
-}
+use gonio_firmware_image as built_in;
 
 /// Arguments of `gonio flash`.
 #[derive(clap::Args)]
