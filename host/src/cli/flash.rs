@@ -17,7 +17,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use gonio_firmware_image as built_in;
+mod built_in {
+    include!(concat!(env!("OUT_DIR"), "/firmware_image.rs"));
+}
 
 /// Arguments of `gonio flash`.
 #[derive(clap::Args)]
