@@ -8,7 +8,9 @@
 //! which is neither a pass nor a failure, and the report says so.
 
 use crate::instrument::link::{Client, LinkError, Transport};
-use protocol::{Command, DeviceInfo, PulseCheck, Reading, Reply, ResetCause, SelfTestReport};
+use protocol::{
+    Command, DeviceInfo, PulseCheck, Reading, Reply, ResetCause, SelfTestReport, Status,
+};
 use serde::Serialize;
 
 /// The crystal measured against HSI may be off by this much, percent: HSI is trimmed to
@@ -114,6 +116,16 @@ impl SelfTest {
 /// Run the self-test on a greeted instrument, then a dark reading per range at the
 /// default integration time, and judge both. The arms are not homed afterwards.
 pub fn run<T: Transport>(client: &mut Client<T>, info: &DeviceInfo) -> Result<SelfTest, LinkError> {
+    // Where the arms stood: a homed arm rests on its switch after a `Home`.
+    let before = match client.request(Command::GetStatus)? {
+        Reply::Status(status) => status,
+        other => {
+            return Err(LinkError::UnexpectedReply {
+                command: "GetStatus",
+                reply: Box::new(other),
+            });
+        }
+    };
     let report = match client.request(Command::SelfTest)? {
         Reply::SelfTest(report) => report,
         other => {
@@ -134,7 +146,7 @@ pub fn run<T: Transport>(client: &mut Client<T>, info: &DeviceInfo) -> Result<Se
             });
         }
     };
-    Ok(judge(info, &report, &dark))
+    Ok(judge(info, Some(&before), &report, &dark))
 }
 
 fn pct_off(measured: f64, expected: f64) -> f64 {
@@ -198,8 +210,25 @@ fn pulse_checks(arm: &str, pulses: &PulseCheck) -> [Check; 2] {
     ]
 }
 
-/// Judge a self-test report and the dark readings (pure; the limits above).
-pub fn judge(info: &DeviceInfo, report: &SelfTestReport, dark: &[Reading]) -> SelfTest {
+/// Which arms stood at their switch before the self-test: homed and beyond the working
+/// range, where a `Home` leaves them (the switches sit past `arm_max`).
+fn at_switch(info: &DeviceInfo, before: Option<&Status>) -> [bool; 2] {
+    before.map_or([false; 2], |s| {
+        [
+            s.homed_i && s.position.theta_i > info.arm_max,
+            s.homed_r && s.position.theta_r > info.arm_max,
+        ]
+    })
+}
+
+/// Judge a self-test report and the dark readings (pure; the limits above). `before`: the
+/// device's status before the self-test (where the arms stood), if read.
+pub fn judge(
+    info: &DeviceInfo,
+    before: Option<&Status>,
+    report: &SelfTestReport,
+    dark: &[Reading],
+) -> SelfTest {
     let mut checks = Vec::new();
     checks.push(Check::new(
         "reset-cause",
@@ -254,7 +283,7 @@ pub fn judge(info: &DeviceInfo, report: &SelfTestReport, dark: &[Reading]) -> Se
         "detector samples were lost (an ADC or DMA overrun): interrupts held off too long",
     ));
     checks.extend(timing_checks(report));
-    checks.extend(line_checks(report));
+    checks.extend(line_checks(report, at_switch(info, before)));
     checks.extend(dark_checks(info, dark));
     // The ADC's reference (VREFINT against VDDA) is not read by this firmware: the ADC
     // converts the detector continuously for the blocks, and an injected conversion
@@ -308,12 +337,27 @@ fn timing_checks(report: &SelfTestReport) -> Vec<Check> {
 }
 
 /// What the pins read: switches, the drivers' fault lines, the range lines.
-fn line_checks(report: &SelfTestReport) -> Vec<Check> {
+fn line_checks(report: &SelfTestReport, at_switch: [bool; 2]) -> Vec<Check> {
     let mut checks = Vec::new();
-    for (arm, pressed) in [
-        ("source", report.switch_source),
-        ("detector", report.switch_detector),
+    for (arm, pressed, at_switch) in [
+        ("source", report.switch_source, at_switch[0]),
+        ("detector", report.switch_detector, at_switch[1]),
     ] {
+        if at_switch {
+            // Pressed is what it should read there, and released proves nothing either (the
+            // arm, without torque, may have sprung off the trip point): not judged.
+            checks.push(Check {
+                measured: format!(
+                    "{}, the arm homed at its switch: not judged (move it into the working range and run again)",
+                    if pressed { "pressed" } else { "released" }
+                ),
+                ..Check::not_measured(
+                    &format!("switch-{arm}"),
+                    "released (arm off its switch)".into(),
+                )
+            });
+            continue;
+        }
         checks.push(Check::new(
             &format!("switch-{arm}"),
             if pressed { "pressed" } else { "released" }.into(),

@@ -34,7 +34,7 @@ fn simulated(
         panic!("no dark");
     };
     let dark = dark.to_vec();
-    let judged = selftest::judge(&info, &report, &dark);
+    let judged = selftest::judge(&info, None, &report, &dark);
     (info, report, dark, judged)
 }
 
@@ -162,7 +162,7 @@ fn every_limit_fails_alone_when_its_figure_is_outside_it() {
     for (names, break_it) in cases {
         let (mut info, mut report, mut dark) = (info.clone(), report, dark.clone());
         break_it(&mut info, &mut report, &mut dark);
-        let result = selftest::judge(&info, &report, &dark);
+        let result = selftest::judge(&info, None, &report, &dark);
         assert_eq!(failed(&result), names.to_vec());
         let check = check(&result, names[0]);
         assert!(check.advice.is_some(), "{check:?}");
@@ -181,7 +181,7 @@ fn every_limit_fails_alone_when_its_figure_is_outside_it() {
         ..protocol::ResetCounts::default()
     });
     dark_edge[0].mean_counts = 0.0199 * 65_535.0;
-    assert!(selftest::judge(&info, &edge, &dark_edge).passed());
+    assert!(selftest::judge(&info, None, &edge, &dark_edge).passed());
 }
 
 /// The faults a builder meets, injected into the simulated instrument: the firmware's
@@ -229,4 +229,40 @@ fn the_exit_code_says_whether_it_passed() {
     let out = gonio(&["selftest", "--sim", "--faults", "crystal=abc"]);
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("crystal"));
+}
+
+/// A lab runs the self-test before a case, often after a session whose last `Home` left the
+/// arms on their switches: pressed there is not a fault, and not a pass either.
+#[test]
+fn arms_homed_at_their_switches_are_not_judged_by_their_switches() {
+    let mut client = Client::new(
+        SimOptions::default().instrument("G").unwrap(),
+        RetryPolicy::default(),
+    );
+    let info = client.hello().unwrap();
+    let Reply::Homed(_) = client.request(Command::Home).unwrap() else {
+        panic!("not homed");
+    };
+    let result = selftest::run(&mut client, &info).unwrap();
+    assert!(result.passed(), "{:?}", failed(&result));
+    for name in ["switch-source", "switch-detector"] {
+        let check = check(&result, name);
+        assert_eq!(check.verdict, Verdict::NotMeasured, "{check:?}");
+        assert!(check.measured.contains("homed at its switch"), "{check:?}");
+    }
+    // Not homed any more (the self-test's drivers were off), the same pressed switches
+    // fail: nothing says the arms are at them.
+    let result = selftest::run(&mut client, &info).unwrap();
+    assert_eq!(failed(&result), ["switch-source", "switch-detector"]);
+    // Homed again and moved into the working range, the switches are judged, and pass.
+    let Reply::Homed(_) = client.request(Command::Home).unwrap() else {
+        panic!("not homed");
+    };
+    let at = protocol::Geometry::from_deg(45.0, 45.0).unwrap();
+    assert_eq!(client.request(Command::MoveTo(at)).unwrap(), Reply::Ack);
+    let result = selftest::run(&mut client, &info).unwrap();
+    assert!(result.passed(), "{:?}", failed(&result));
+    for name in ["switch-source", "switch-detector"] {
+        assert_eq!(check(&result, name).verdict, Verdict::Pass);
+    }
 }
