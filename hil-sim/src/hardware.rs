@@ -534,10 +534,7 @@ impl Diagnostics for SimHardware {
     }
 
     fn range_read_back(&self) -> Option<u8> {
-        match self.mechanics.range_lines_read {
-            Some(lines) => Some(lines),
-            None => Some(self.range),
-        }
+        Some(self.mechanics.range_lines_read.unwrap_or(self.range))
     }
 
     fn resets_since_power_on(&self) -> Option<protocol::ResetCounts> {

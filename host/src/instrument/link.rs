@@ -301,7 +301,7 @@ pub struct Client<T: Transport> {
     timing: DeviceTiming,
 }
 
-fn command_name(command: &Command) -> &'static str {
+pub(crate) fn command_name(command: &Command) -> &'static str {
     match command {
         Command::Hello { .. } => "Hello",
         Command::Heartbeat => "Heartbeat",

@@ -117,36 +117,38 @@ impl SelfTest {
 /// default integration time, and judge both. The arms are not homed afterwards.
 pub fn run<T: Transport>(client: &mut Client<T>, info: &DeviceInfo) -> Result<SelfTest, LinkError> {
     // Where the arms stood: a homed arm rests on its switch after a `Home`.
-    let before = match client.request(Command::GetStatus)? {
-        Reply::Status(status) => status,
-        other => {
-            return Err(LinkError::UnexpectedReply {
-                command: "GetStatus",
-                reply: Box::new(other),
-            });
-        }
-    };
-    let report = match client.request(Command::SelfTest)? {
-        Reply::SelfTest(report) => report,
-        other => {
-            return Err(LinkError::UnexpectedReply {
-                command: "SelfTest",
-                reply: Box::new(other),
-            });
-        }
-    };
-    let dark = match client.request(Command::TakeDark {
-        integration_ms: info.default_integration_ms,
-    })? {
-        Reply::Dark(readings) => readings.to_vec(),
-        other => {
-            return Err(LinkError::UnexpectedReply {
-                command: "TakeDark",
-                reply: Box::new(other),
-            });
-        }
-    };
+    let before = ask(client, Command::GetStatus, |reply| match reply {
+        Reply::Status(status) => Some(*status),
+        _ => None,
+    })?;
+    let report = ask(client, Command::SelfTest, |reply| match reply {
+        Reply::SelfTest(report) => Some(*report),
+        _ => None,
+    })?;
+    let integration_ms = info.default_integration_ms;
+    let dark = ask(
+        client,
+        Command::TakeDark { integration_ms },
+        |reply| match reply {
+            Reply::Dark(readings) => Some(readings.to_vec()),
+            _ => None,
+        },
+    )?;
     Ok(judge(info, Some(&before), &report, &dark))
+}
+
+/// `command`'s answer of the kind `pick` takes; any other is [`LinkError::UnexpectedReply`].
+fn ask<T: Transport, R>(
+    client: &mut Client<T>,
+    command: Command,
+    pick: impl FnOnce(&Reply) -> Option<R>,
+) -> Result<R, LinkError> {
+    let name = crate::instrument::link::command_name(&command);
+    let reply = client.request(command)?;
+    pick(&reply).ok_or_else(|| LinkError::UnexpectedReply {
+        command: name,
+        reply: Box::new(reply),
+    })
 }
 
 fn pct_off(measured: f64, expected: f64) -> f64 {
