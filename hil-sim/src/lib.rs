@@ -4,15 +4,17 @@
 //! ([`pty`]).
 //!
 //! It models the instrument and nothing more: the arms (the firmware's own motion
-//! profiles), the home switches, the lamp, the detector ([`detector`]: its amplifier's
-//! response in time, [`amplifier`], so that a sweep's bins read the scene integrated over
-//! the arm's motion, lagged and range-switched as the instrument's) and the link, and
-//! the instrument's own errors ([`InstrumentErrors`]: range gains off their nominal
-//! values, a white tile off its certificate, a detector arm zero error). The scene on the
-//! sample port is handed in by the caller ([`scene`]): a simulated sheet ([`sheet`]), a
-//! table of measured values ([`table`]) or any function; while the host takes
-//! white-reference readings (the protocol marks them), the simulated operator has the
-//! white tile on the port, and when the sample goes back on it lands on another spot.
+//! profiles), the home switches, the lamp, the detector ([`detector`]: its angular
+//! response, a top-hat, Gaussian or trapezoid, and its amplifier's response in time,
+//! [`amplifier`], so that a sweep's bins read the scene integrated over the arm's motion,
+//! lagged and range-switched as the instrument's) and the link, and the instrument's own
+//! errors ([`InstrumentErrors`]: range gains off their nominal values, a white tile off its
+//! certificate, a detector arm zero error). The scene on the sample port is handed in by
+//! the caller ([`scene`]): a simulated sheet ([`sheet`]), a table of measured values
+//! ([`table`]), the black glass standard (a mirror, [`scene::BlackGlass`]) or any function;
+//! while the host takes white-reference readings (the protocol marks them), the simulated
+//! operator has the white tile on the port, and when the sample goes back on it lands on
+//! another spot.
 //!
 //! Virtual time passes only when asked ([`SimInstrument::read`] waiting for output,
 //! [`SimInstrument::advance_ms`]): a session's device seconds take microseconds.
@@ -38,6 +40,10 @@ pub mod streams {
     pub const TILE: u64 = 2;
     /// The detector arm zero's drawn error.
     pub const ARM_ZERO: u64 = 3;
+    /// What a caller draws of a whole instrument beyond these (the host's `--physics
+    /// drawn`: the detector's response, its arm zero, its noise scale), handed in as fixed
+    /// values.
+    pub const DRAWN_INSTRUMENT: u64 = 4;
     // Spot k of a sheet: stream 2³² + k (crate::sheet). The link's faults have a key of
     // their own (seed ^ "link").
 }
@@ -157,15 +163,64 @@ pub struct InstrumentErrors {
     pub theta_r_offset_sd_deg: f64,
 }
 
-/// What the instrument truly is in this run (the drawn errors), for tests and studies.
+/// What the instrument truly is in this run (the drawn errors, and the detector it was
+/// given), for tests and studies.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Truth {
     /// True gain of each range relative to range 0's nominal gain.
     pub relative_gains: Vec<f64>,
+    /// Each adjacent ratio's drawn factor: the true g(k)/g(k−1) over its nominal, for k = 1,
+    /// 2, … (1 + p·z of [`InstrumentErrors::gain_ratio_sd`]).
+    pub gain_ratio_factors: Vec<f64>,
     /// True radiance factor of the white tile.
     pub tile_radiance_factor: f64,
+    /// The tile's drawn factor: its true radiance factor over its certificate's.
+    pub tile_factor: f64,
     /// Detector arm zero error, degrees.
     pub theta_r_offset_deg: f64,
+    /// The detector's angular response.
+    pub response: detector::Response,
+    /// The detector's noise scale (1: the reference instrument's noise).
+    pub noise_scale: f64,
+    /// Lamp drift, fraction per hour of device time, with its drawn sign.
+    pub lamp_drift_per_hour: f64,
+}
+
+impl SimConfig {
+    /// What the instrument of this configuration truly is, with `white` the tile on its
+    /// port: its errors drawn from the seed, exactly as [`SimInstrument::new`] draws them
+    /// (it calls this), so a study can know them without a run.
+    pub fn truth(&self, white: scene::WhiteTile) -> Truth {
+        let errors = &self.errors;
+        // Every ratio is drawn, used or not, so the draws of range k do not depend on p.
+        let mut gains_rng = stream(self.seed, streams::GAINS);
+        let nominal = &self.detector.relative_gains;
+        let mut relative_gains = nominal.clone();
+        let mut gain_ratio_factors = Vec::with_capacity(nominal.len().saturating_sub(1));
+        for k in 1..nominal.len() {
+            let factor = error_factor(&mut gains_rng, errors.gain_ratio_sd);
+            relative_gains[k] = relative_gains[k - 1] * nominal[k] / nominal[k - 1] * factor;
+            gain_ratio_factors.push(factor);
+        }
+        let tile_factor = error_factor(&mut stream(self.seed, streams::TILE), errors.tile_sd);
+        let drawn_zero_deg: f64 = {
+            let z: f64 = stream(self.seed, streams::ARM_ZERO).sample(StandardNormal);
+            errors.theta_r_offset_sd_deg * z
+        };
+        // The drift's sign is the detector's first draw from the seed (power-ons keep it).
+        let lamp_drift_per_hour =
+            detector::Detector::new(self.detector.clone(), self.seed).lamp_drift_per_hour();
+        Truth {
+            relative_gains,
+            gain_ratio_factors,
+            tile_radiance_factor: white.radiance_factor * tile_factor,
+            tile_factor,
+            theta_r_offset_deg: errors.theta_r_offset_deg + drawn_zero_deg,
+            response: self.detector.response,
+            noise_scale: self.detector.noise_scale,
+            lamp_drift_per_hour,
+        }
+    }
 }
 
 /// Serial number of the simulated instrument.
@@ -240,28 +295,11 @@ fn unplugged_error() -> std::io::Error {
 impl SimInstrument {
     /// A simulated instrument with `port` on its sample port.
     pub fn new(mut port: SamplePort, config: SimConfig) -> SimInstrument {
-        let errors = &config.errors;
+        let truth = config.truth(port.white);
         let mut detector = config.detector.clone();
-        // Every ratio is drawn, used or not, so the draws of range k do not depend on p.
-        let mut gains_rng = stream(config.seed, streams::GAINS);
-        let nominal = detector.relative_gains.clone();
-        for k in 1..nominal.len() {
-            let factor = error_factor(&mut gains_rng, errors.gain_ratio_sd);
-            detector.relative_gains[k] =
-                detector.relative_gains[k - 1] * nominal[k] / nominal[k - 1] * factor;
-        }
-        port.white.radiance_factor *=
-            error_factor(&mut stream(config.seed, streams::TILE), errors.tile_sd);
-        let drawn_zero_deg: f64 = {
-            let z: f64 = stream(config.seed, streams::ARM_ZERO).sample(StandardNormal);
-            errors.theta_r_offset_sd_deg * z
-        };
-        let theta_r_offset_deg = errors.theta_r_offset_deg + drawn_zero_deg;
-        let truth = Truth {
-            relative_gains: detector.relative_gains.clone(),
-            tile_radiance_factor: port.white.radiance_factor,
-            theta_r_offset_deg,
-        };
+        detector.relative_gains = truth.relative_gains.clone();
+        port.white.radiance_factor = truth.tile_radiance_factor;
+        let theta_r_offset_deg = truth.theta_r_offset_deg;
         let mut hardware = SimHardware::new(
             &config.instrument,
             port,
@@ -315,7 +353,8 @@ impl SimInstrument {
         }
     }
 
-    /// What the instrument truly is in this run: its drawn gains, tile and zero error.
+    /// What the instrument truly is in this run: its drawn gains, tile and zero error, its
+    /// response, noise scale and lamp drift.
     pub fn truth(&self) -> &Truth {
         &self.truth
     }

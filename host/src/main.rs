@@ -50,7 +50,10 @@ enum Command {
     Report(cli::report::Args),
     /// The reference library of paper stocks: add measured sheets, list, remove, export, import, search.
     Library(cli::library::Args),
+    /// The instrument's self-test: clocks, step pulses, interrupts, stack, switches, drivers and detector, judged against their limits.
     Selftest(cli::selftest::Args),
+    /// Measure the instrument with a black glass and the white tile: angular response, arm zero, gains, noise, lamp; writes its profile.
+    Characterize(cli::characterize::Args),
 }
 
 fn main() -> ExitCode {
@@ -69,6 +72,7 @@ fn main() -> ExitCode {
         Command::Verify(args) => cli::verify::run(args),
         Command::Library(args) => cli::library::run(args),
         Command::Selftest(args) => cli::selftest::run(args),
+        Command::Characterize(args) => cli::characterize::run(args),
         Command::Report(args) => cli::report::run(args),
         Command::Sessions(args) => cli::sessions::run(args),
         Command::Completions(args) => cli::completions::run(args, &mut Cli::command()),

@@ -51,8 +51,12 @@ pub(crate) const LIBRARY_RECORD_V1: &str = "gonio-library/1";
 /// writes it; `schema` is optional there.
 pub const TILE_CERTIFICATE: &str = "gonio-tile-certificate/1";
 
+/// An instrument profile (`gonio characterize`'s `instrument.json`).
+pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
+
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 14] = [
+pub const WRITTEN: [&str; 15] = [
+    INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
     CALIBRATION,

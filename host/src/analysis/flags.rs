@@ -26,11 +26,27 @@ pub enum Flag {
     LinkRecovered,
     /// Informational: the session was resumed from an interrupted one.
     Resumed,
+    /// Informational: no instrument profile was in force (none found, or older than the
+    /// lab's limit): the fit took the detector's response and the arm zero as the firmware
+    /// declares them (a 1° top-hat, a zero good to its stated uncertainty), never measured
+    /// on this instrument. `gonio characterize` measures them.
+    InstrumentDeclared,
+    /// Without an instrument profile, the class changes within the bound on the
+    /// detector's response that no measurement narrowed (top-hats of
+    /// [`DECLARED_RESPONSE_BOUND_DEG`]): the result rests on the declared response, which
+    /// this instrument may not have.
+    InstrumentSensitive,
 }
+
+/// The detector responses an uncharacterized instrument is analysed again with, full
+/// widths of top-hats, degrees: from a detector a third as wide as the declared 1° to one
+/// three times as wide (what a built instrument's acceptance and source divergence may be
+/// before anyone measured them).
+pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.3, 3.0];
 
 impl Flag {
     /// Every flag, in a stable order.
-    pub const ALL: [Flag; 8] = [
+    pub const ALL: [Flag; 10] = [
         Flag::LostSteps,
         Flag::WhiteDrift,
         Flag::CalibrationStale,
@@ -39,6 +55,8 @@ impl Flag {
         Flag::NotIdentified,
         Flag::LinkRecovered,
         Flag::Resumed,
+        Flag::InstrumentDeclared,
+        Flag::InstrumentSensitive,
     ];
 
     /// The stable string (as serialized).
@@ -52,12 +70,17 @@ impl Flag {
             Flag::NotIdentified => "not-identified",
             Flag::LinkRecovered => "link-recovered",
             Flag::Resumed => "resumed",
+            Flag::InstrumentDeclared => "instrument-declared",
+            Flag::InstrumentSensitive => "instrument-sensitive",
         }
     }
 
     /// Informational flags say what happened without making the result less clean.
     pub const fn is_informational(self) -> bool {
-        matches!(self, Flag::LinkRecovered | Flag::Resumed)
+        matches!(
+            self,
+            Flag::LinkRecovered | Flag::Resumed | Flag::InstrumentDeclared
+        )
     }
 }
 

@@ -551,18 +551,152 @@ pub(crate) fn travel_nodes(span_deg: f64, window_deg: f64) -> Vec<(f64, f64)> {
 /// a parabola across it to 1e-6.
 const MAX_TRAVEL_WINDOW_DEG: f64 = 0.5;
 
+/// Most steps a [`DetectorResponse`] has: enough for a measured response at a step of a
+/// fifth of its FWHM out to its tails (a Gaussian to ±2.5 FWHM), few enough that a sweep's
+/// 1,400 bins stay a fit of seconds.
+pub const MAX_RESPONSE_STEPS: usize = 15;
+
+/// The detector's angular response in θr as the fit uses it: a histogram of equal steps,
+/// each a uniform window of width `step_deg` at its offset from the reading's θr with its
+/// share of the response (the shares sum to 1). A top-hat acceptance is one step; a
+/// measured response ([`crate::instrument::profile`]) is the mean of the instrument's
+/// response over each step, which keeps its variance (Sheppard: the histogram's spread
+/// within steps makes up what the steps' centres lose). Copy, so that options holding it
+/// stay plain values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DetectorResponse {
+    step_deg: f64,
+    len: usize,
+    steps: [(f64, f64); MAX_RESPONSE_STEPS],
+}
+
+/// A response that cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ResponseError {
+    /// The step is not a positive finite width.
+    #[error("the response's step must be a positive width in degrees, not {0}")]
+    Step(f64),
+    /// Too many or no steps.
+    #[error("a response has 1 to {MAX_RESPONSE_STEPS} steps, not {0}")]
+    Steps(usize),
+    /// A share is negative or not finite, or they do not add up to a positive total.
+    #[error("the response's shares must be finite, ≥ 0 and add up to more than 0")]
+    Shares,
+    /// An offset is not finite or beyond ±10°.
+    #[error("a response step's offset must be finite and within ±10°, not {0}")]
+    Offset(f64),
+}
+
+impl DetectorResponse {
+    /// A uniform window of full width `width_deg` (> 0) centred on the reading.
+    pub fn top_hat(width_deg: f64) -> DetectorResponse {
+        let mut steps = [(0.0, 0.0); MAX_RESPONSE_STEPS];
+        steps[0] = (0.0, 1.0);
+        DetectorResponse {
+            step_deg: width_deg,
+            len: 1,
+            steps,
+        }
+    }
+
+    /// A histogram of `shares` (normalized here) on steps of `step_deg`, step k centred at
+    /// `first_offset_deg + k·step_deg` from the reading's θr.
+    pub fn from_steps(
+        step_deg: f64,
+        first_offset_deg: f64,
+        shares: &[f64],
+    ) -> Result<DetectorResponse, ResponseError> {
+        if !(step_deg > 0.0 && step_deg.is_finite() && step_deg <= 10.0) {
+            return Err(ResponseError::Step(step_deg));
+        }
+        if shares.is_empty() || shares.len() > MAX_RESPONSE_STEPS {
+            return Err(ResponseError::Steps(shares.len()));
+        }
+        let total: f64 = shares.iter().sum();
+        if shares.iter().any(|s| !(s.is_finite() && *s >= 0.0))
+            || !(total > 0.0 && total.is_finite())
+        {
+            return Err(ResponseError::Shares);
+        }
+        let mut steps = [(0.0, 0.0); MAX_RESPONSE_STEPS];
+        for (k, share) in shares.iter().enumerate() {
+            let offset = first_offset_deg + k as f64 * step_deg;
+            if !(offset.is_finite() && offset.abs() <= 10.0) {
+                return Err(ResponseError::Offset(offset));
+            }
+            steps[k] = (offset, share / total);
+        }
+        Ok(DetectorResponse {
+            step_deg,
+            len: shares.len(),
+            steps,
+        })
+    }
+
+    /// Width of each step, degrees.
+    pub fn step_deg(&self) -> f64 {
+        self.step_deg
+    }
+
+    /// The steps: (offset from the reading's θr, degrees; share).
+    pub fn steps(&self) -> &[(f64, f64)] {
+        &self.steps[..self.len]
+    }
+
+    /// Mean offset, degrees (0 for a centred response).
+    pub fn mean_deg(&self) -> f64 {
+        self.steps().iter().map(|(o, w)| o * w).sum()
+    }
+
+    /// Variance of the response, degrees²: the steps' spread plus each step's own (a²/12).
+    pub fn variance_deg2(&self) -> f64 {
+        let mean = self.mean_deg();
+        self.steps()
+            .iter()
+            .map(|(o, w)| w * (o - mean).powi(2))
+            .sum::<f64>()
+            + self.step_deg * self.step_deg / 12.0
+    }
+
+    /// The width of the top-hat of the same variance, degrees (√(12·variance)): what a
+    /// display or a seeding grid can use in place of the whole shape.
+    pub fn equivalent_width_deg(&self) -> f64 {
+        (12.0 * self.variance_deg2()).sqrt()
+    }
+
+    /// Whether this is a single uniform window (the declared top-hat).
+    pub fn is_top_hat(&self) -> bool {
+        self.len == 1
+    }
+}
+
 /// The window a reading is averaged over, degrees, and the detector's positions across
-/// its travel ([`travel_nodes`]): with an acceptance `a`, the window a and the travel's
-/// nodes; without one, a detector that moved `span` sees a uniform window of the span
-/// itself, taken as n adjacent windows of span/n ≤ 0.5° (exactly the same mean); a still
-/// point detector, no window.
+/// its travel ([`travel_nodes`]) combined with the response's steps: with a response, its
+/// step width and, for each travel node and step, (offset, weight) (a top-hat's one step
+/// at offset 0 and share 1 leaves the travel's nodes as they are, to the last bit); without
+/// one, a detector that moved `span` sees a uniform window of the span itself, taken as n
+/// adjacent windows of span/n ≤ 0.5° (exactly the same mean); a still point detector, no
+/// window.
 pub(crate) fn reading_window(
     span_deg: f64,
-    acceptance_deg: Option<f64>,
+    response: Option<&DetectorResponse>,
 ) -> (Option<f64>, Vec<(f64, f64)>) {
     let span = span_deg.abs();
-    match acceptance_deg.filter(|&a| a > 0.0) {
-        Some(a) => (Some(a), travel_nodes(span, a)),
+    match response.filter(|r| r.step_deg > 0.0) {
+        Some(r) if r.is_top_hat() => (Some(r.step_deg), travel_nodes(span, r.step_deg)),
+        Some(r) => {
+            let travel = travel_nodes(span, r.step_deg);
+            let nodes = travel
+                .iter()
+                .flat_map(|&(along, weight)| {
+                    r.steps()
+                        .iter()
+                        .filter(|(_, share)| *share > 0.0)
+                        .map(move |&(offset, share)| (along + offset, weight * share))
+                })
+                .collect();
+            (Some(r.step_deg), nodes)
+        }
         None if span > 0.0 && span.is_finite() => {
             let n = (span / MAX_TRAVEL_WINDOW_DEG).ceil().max(1.0) as usize;
             let width = span / n as f64;
@@ -577,6 +711,13 @@ pub(crate) fn reading_window(
     }
 }
 
+/// The declared acceptance as a response: `Some(a)` with a > 0 a top-hat, else none.
+pub fn top_hat_response(acceptance_deg: Option<f64>) -> Option<DetectorResponse> {
+    acceptance_deg
+        .filter(|&a| a > 0.0)
+        .map(DetectorResponse::top_hat)
+}
+
 /// Radiance factor and gradient of a reading centred at (θi, θr) whose detector moved
 /// `span_deg` in θr while it integrated (0: a still reading), seen through the acceptance
 /// `acceptance_deg`: the mean over the travel ([`reading_window`]) of [`evaluate`].
@@ -587,7 +728,25 @@ pub fn evaluate_reading(
     span_deg: f64,
     acceptance_deg: Option<f64>,
 ) -> (f64, [f64; 4]) {
-    let (window, nodes) = reading_window(span_deg, acceptance_deg);
+    evaluate_reading_through(
+        p,
+        theta_i_deg,
+        theta_r_deg,
+        span_deg,
+        top_hat_response(acceptance_deg).as_ref(),
+    )
+}
+
+/// [`evaluate_reading`] through a detector response of any shape (`None`: a point
+/// detector).
+pub fn evaluate_reading_through(
+    p: &Params,
+    theta_i_deg: f64,
+    theta_r_deg: f64,
+    span_deg: f64,
+    response: Option<&DetectorResponse>,
+) -> (f64, [f64; 4]) {
+    let (window, nodes) = reading_window(span_deg, response);
     let (mut value, mut gradient) = (0.0, [0.0; 4]);
     for (offset, weight) in nodes {
         let (v, g) = evaluate(

@@ -25,6 +25,12 @@ pub struct Args {
     /// Full width of the detector's angular acceptance, degrees (0 leaves it out).
     #[arg(long, value_name = "DEG", default_value_t = model::DEFAULT_ACCEPTANCE_DEG)]
     pub acceptance: f64,
+    /// An instrument profile (gonio characterize) to analyse with: for CSV files the
+    /// detector's measured response instead of --acceptance, and the arm zero it measured;
+    /// for session folders in place of the profile the session recorded (the result then
+    /// differs from the session's where the instrument does).
+    #[arg(long, value_name = "FILE", conflicts_with = "acceptance")]
+    pub instrument: Option<PathBuf>,
     /// CSV files (header with theta_i, theta_r, radiance_factor; optional std, sample), or
     /// finished session or sheet folders: analysed again from their own readings,
     /// calibration and settings, and compared with the result they reported (--delta and
@@ -35,9 +41,27 @@ pub struct Args {
 
 /// Run `gonio fit`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let options = fit_options(&args)?;
+    let profile = match &args.instrument {
+        Some(path) => {
+            let (found, sha) = host::instrument::profile::read(path)?;
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs());
+            Some(found.in_use(sha, now))
+        }
+        None => None,
+    };
+    let options = fit_options(&args, profile.as_ref())?;
     // Read everything first (cheap), then fit the data sets on all cores, in input order.
-    let inputs = read_inputs(&args.files);
+    let mut inputs = read_inputs(&args.files);
+    // The profile's arm zero: the θr of a data set are the firmware's.
+    if let Some(profile) = &profile {
+        for (_, _, set) in &mut inputs.jobs {
+            for o in &mut set.observations {
+                o.theta_r_deg = profile.corrected_theta_r(o.theta_i_deg, o.theta_r_deg);
+            }
+        }
+    }
     let results = analyse_all(&inputs.jobs, &options, args.delta);
     let stdout = std::io::stdout();
     let mut out = std::io::BufWriter::new(stdout.lock());
@@ -46,7 +70,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         flagged: false,
     };
     // Folders first, in the order given: each its session's analysis made again.
-    print_folders(&mut out, &inputs.folders, args.json, &mut told)?;
+    print_folders(
+        &mut out,
+        &inputs.folders,
+        args.json,
+        profile.as_ref(),
+        &mut told,
+    )?;
     let mut file_errors = inputs.file_errors.into_iter().peekable();
     for ((k, path, _), result) in inputs.jobs.iter().zip(results) {
         // Keep errors of unreadable files in file order relative to the results.
@@ -81,8 +111,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     })
 }
 
-/// The fit's options from `--delta` and `--acceptance`, checked.
-fn fit_options(args: &Args) -> anyhow::Result<FitOptions> {
+/// The fit's options from `--delta` and `--acceptance` (or the profile's response and arm
+/// zero uncertainty), checked.
+fn fit_options(
+    args: &Args,
+    profile: Option<&host::instrument::profile::ProfileInUse>,
+) -> anyhow::Result<FitOptions> {
     if let Some(d) = args.delta {
         anyhow::ensure!(
             d.is_finite() && d > 0.0 && d <= 90.0,
@@ -95,8 +129,11 @@ fn fit_options(args: &Args) -> anyhow::Result<FitOptions> {
         "--acceptance must be between 0 and {max_acceptance} degrees (the detector's full width, which the fit models as a small window), not {:?}",
         args.acceptance
     );
+    let response = profile.map(|p| p.response()).transpose()?;
     Ok(FitOptions {
         acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance),
+        response,
+        arm_zero_uncertainty_deg: profile.map_or(0.0, |p| p.arm_zero_u_deg),
         ..FitOptions::default()
     })
 }
@@ -167,10 +204,11 @@ fn print_folders(
     out: &mut impl Write,
     folders: &[(usize, PathBuf)],
     json: bool,
+    profile: Option<&host::instrument::profile::ProfileInUse>,
     told: &mut Told,
 ) -> anyhow::Result<()> {
     for (_, dir) in folders {
-        match host::output::reanalysis::reanalyse(dir) {
+        match host::output::reanalysis::reanalyse_with(dir, profile) {
             Ok(again) => {
                 told.flagged |= !again.report.ok();
                 let same = again.differences.is_empty();

@@ -7,6 +7,7 @@ pub mod firmware_image;
 pub mod flash;
 pub mod link;
 pub mod probe;
+pub mod profile;
 pub mod selftest;
 pub mod serial;
 pub mod sim;

@@ -4,16 +4,25 @@
 //! The simulator knows no fit: its sheets are its own physics ([`hil_sim::sheet`]), which
 //! this module maps the sample names to (the reference papers of
 //! [`crate::analysis::classify::REFERENCES`], or `custom:`), with the options of the
-//! realistic sheet and instrument.
+//! realistic sheet and instrument. One sample is no sheet: `black-glass` (`BG`), the
+//! polished black glass gloss standard ([`hil_sim::scene::BlackGlass`]), a mirror through
+//! which the detector's own angular response can be measured.
+//!
+//! `--physics drawn` is an instrument that is not the one the host assumes: besides the
+//! realistic errors, its detector response (shape and width), its arm zero and its noise are
+//! drawn from the seed and announced to nobody ([`SimOptions::instrument_truth`] tells a
+//! test or a study what they are), so that characterizing it is tested as on a built one.
 
 use crate::analysis::classify::REFERENCES;
 use crate::analysis::model::{self, Params};
 use crate::instrument::link::Transport;
 use firmware::hardware::Arm;
-use hil_sim::scene::SamplePort;
+use hil_sim::detector::Response;
+use hil_sim::scene::{BlackGlass, SamplePort, WhiteTile};
 use hil_sim::sheet::{Lobe, SheetError, SheetSpec, Stock};
 use hil_sim::table::{TableError, TableScene};
 use hil_sim::{DEFAULT_UNPLUG_S, Faults, InstrumentErrors, SimConfig, SimInstrument, Unplug};
+use rand::Rng;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -62,6 +71,11 @@ pub enum Physics {
     /// The realistic set ([`REAL_PHYSICS`]): detector window, range-gain error, tile error,
     /// lamp drift and an arm zero error, the lobe kept Gaussian.
     Real,
+    /// An instrument unlike the declared one: the realistic gain, tile
+    /// and lamp errors, and drawn from the seed its detector response (top-hat, Gaussian or
+    /// trapezoid, FWHM 0.3–3°), its arm zero error (uniform in ±0.5°) and its noise scale
+    /// (log-uniform in [0.5, 2]).
+    Drawn,
 }
 
 /// The facet distribution of the simulated sheet's specular lobe.
@@ -136,16 +150,126 @@ pub(crate) const REAL_PHYSICS: PhysicsSet = PhysicsSet {
     arm_zero_sd_deg: 0.1,
 };
 
+/// `--physics drawn`: the gain, tile and lamp errors of [`REAL_PHYSICS`]; the arm zero is
+/// drawn uniform in ±[`DRAWN_ARM_ZERO_HALF_RANGE_DEG`] instead of normal (its standard
+/// deviation, 0.5°/√3, is what this set states), and with it the response and the noise
+/// ([`DrawnInstrument`]).
+pub(crate) const DRAWN_PHYSICS: PhysicsSet = PhysicsSet {
+    gain_error_pct: 1.0,
+    tile_error_pct: 0.5,
+    lamp_drift_pct_per_h: 0.2,
+    arm_offset_deg: 0.0,
+    arm_zero_sd_deg: DRAWN_ARM_ZERO_HALF_RANGE_DEG / SQRT_3,
+};
+
+/// √3: a uniform's half-range over its standard deviation.
+const SQRT_3: f64 = 1.732_050_807_568_877_2;
+
+/// The FWHMs a drawn detector response takes, degrees (uniform between): from a detector
+/// much sharper than the declared 1° to one three times as wide, on which a glossy paper's
+/// fit must know it.
+pub const DRAWN_FWHM_RANGE_DEG: (f64, f64) = (0.3, 3.0);
+
+/// A drawn trapezoid's top as a fraction of its base (uniform between).
+pub const DRAWN_TOP_FRACTION_RANGE: (f64, f64) = (0.2, 0.8);
+
+/// A drawn arm zero error is uniform in ± this, degrees: five times the 0.1° a session
+/// assumes, what an instrument whose zero was never measured may be off by.
+pub const DRAWN_ARM_ZERO_HALF_RANGE_DEG: f64 = 0.5;
+
+/// A drawn noise scale is log-uniform between these (half to twice the reference's).
+pub const DRAWN_NOISE_SCALE_RANGE: (f64, f64) = (0.5, 2.0);
+
+/// What `--physics drawn` draws of the instrument beyond the errors the simulator draws
+/// itself (gains, tile): from the seed's stream [`hil_sim::streams::DRAWN_INSTRUMENT`], so
+/// the detector's noise and every other draw stay what they were.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DrawnInstrument {
+    /// The detector's angular response.
+    pub response: Response,
+    /// The detector arm's zero error, degrees.
+    pub arm_zero_deg: f64,
+    /// The detector's noise relative to the reference instrument's.
+    pub noise_scale: f64,
+}
+
+impl DrawnInstrument {
+    /// The instrument drawn for `seed`. Every value is drawn whatever the options override,
+    /// in a fixed order, so that overriding one leaves the others as they were.
+    pub fn draw(seed: u64) -> DrawnInstrument {
+        let mut rng = hil_sim::stream(seed, hil_sim::streams::DRAWN_INSTRUMENT);
+        let shape: f64 = rng.random();
+        let fwhm_deg = lerp(DRAWN_FWHM_RANGE_DEG, rng.random());
+        let top_fraction = lerp(DRAWN_TOP_FRACTION_RANGE, rng.random());
+        let arm_zero_deg = DRAWN_ARM_ZERO_HALF_RANGE_DEG * (2.0 * rng.random::<f64>() - 1.0);
+        let (low, high) = DRAWN_NOISE_SCALE_RANGE;
+        let noise_scale = (low.ln() + (high.ln() - low.ln()) * rng.random::<f64>()).exp();
+        let response = if shape < 1.0 / 3.0 {
+            Response::TopHat {
+                width_deg: fwhm_deg,
+            }
+        } else if shape < 2.0 / 3.0 {
+            Response::Gaussian { fwhm_deg }
+        } else {
+            // FWHM = (top + base)/2 with top = fraction × base.
+            let base_deg = 2.0 * fwhm_deg / (1.0 + top_fraction);
+            Response::Trapezoid {
+                top_deg: top_fraction * base_deg,
+                base_deg,
+            }
+        };
+        DrawnInstrument {
+            response,
+            arm_zero_deg,
+            noise_scale,
+        }
+    }
+}
+
+/// The point a fraction `u` of the way from `range.0` to `range.1`.
+fn lerp(range: (f64, f64), u: f64) -> f64 {
+    range.0 + (range.1 - range.0) * u
+}
+
+/// What the simulated instrument truly is (none of it announced to the host), for tests
+/// and studies that check what a characterization finds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InstrumentTruth {
+    /// The detector's angular response.
+    pub response: Response,
+    /// Detector arm zero error, degrees: the true θr is the firmware's plus this (a mirror's
+    /// peak appears at the firmware's θr = θi − this).
+    pub arm_zero_deg: f64,
+    /// The detector's noise relative to the reference instrument's (1: as the host
+    /// assumes).
+    pub noise_scale: f64,
+    /// True gain of each range relative to range 0's nominal gain (nominal 1, 0.1, 0.01).
+    pub relative_gains: Vec<f64>,
+    /// Each adjacent range-gain ratio's relative error: the true g(k)/g(k−1) over its
+    /// nominal, minus 1, for k = 1, 2, ….
+    pub gain_ratio_errors: Vec<f64>,
+    /// The white tile's true radiance factor over its certificate's.
+    pub tile_factor: f64,
+    /// Lamp drift, fraction per hour of device time, signed.
+    pub lamp_drift_per_hour: f64,
+}
+
 /// Options of the simulated instrument (the same on `gonio sim` and `gonio measure --sim`).
 #[derive(clap::Args, Clone, Debug, PartialEq)]
 pub struct SimOptions {
     /// Seed of the simulated noise and link faults: the same seed repeats a run exactly.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Detector acceptance, full width, degrees.
+    /// Detector acceptance, full width, degrees: a top-hat response (0: a point detector;
+    /// --response gives another shape).
     #[arg(long, value_name = "DEG", default_value_t = model::DEFAULT_ACCEPTANCE_DEG, allow_negative_numbers = true)]
     pub acceptance: f64,
-    /// Scale of every detector noise term (1 = the reference instrument, 0 = noiseless).
+    /// The detector's angular response in place of --acceptance's top-hat (and of the drawn
+    /// one): top-hat:WIDTH, gaussian:FWHM or trapezoid:TOP,BASE, full widths in degrees.
+    #[arg(long, value_name = "SHAPE:DEG", conflicts_with = "acceptance")]
+    pub response: Option<String>,
+    /// Scale of every detector noise term (1 = the reference instrument, 0 = noiseless; with
+    /// --physics drawn it multiplies the drawn instrument's own scale).
     #[arg(
         long,
         value_name = "FACTOR",
@@ -162,9 +286,12 @@ pub struct SimOptions {
     /// by PCT %), range-lines=N (the range lines read back range N).
     #[arg(long, value_name = "LIST", default_value = "")]
     pub faults: String,
-    /// Instrument errors to start from: ideal (exact gains and tile, no arm zero error) or
-    /// real (gain error 1 %, tile error 0.5 %, lamp drift 0.2 %/h, arm offset drawn N(0, 0.1°)); the
-    /// options below override single values.
+    /// Instrument errors to start from: ideal (exact gains and tile, no arm zero error), real
+    /// (gain error 1 %, tile error 0.5 %, lamp drift 0.2 %/h, arm offset drawn N(0, 0.1°)) or
+    /// drawn (real's gain, tile and lamp errors; from the seed a detector response, top-hat,
+    /// Gaussian or trapezoid of FWHM 0.3–3°, an arm offset uniform in ±0.5° and a noise scale
+    /// log-uniform in [0.5, 2], none of it announced to the host); --response and the options
+    /// below override single values.
     #[arg(long, value_enum, default_value_t = Physics::Ideal)]
     pub physics: Physics,
     /// Facet distribution of the sheet's specular lobe; ggx and cauchy have the Gaussian's
@@ -189,15 +316,15 @@ pub struct SimOptions {
         allow_negative_numbers = true
     )]
     pub specular_bump: f64,
-    /// Detector arm zero error: the true θr is the firmware's plus DEG exactly [ideal 0, real: drawn N(0, 0.1°) from the seed].
+    /// Detector arm zero error: the true θr is the firmware's plus DEG exactly [ideal 0, real: drawn N(0, 0.1°) from the seed, drawn: uniform in ±0.5°].
     #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
     pub arm_offset: Option<f64>,
     /// Each range-gain ratio to the range before it off its nominal by N(0, PCT %), drawn
-    /// from the seed; range 0 is the reference [ideal 0, real 1].
+    /// from the seed; range 0 is the reference [ideal 0, real and drawn 1].
     #[arg(long, value_name = "PCT", allow_negative_numbers = true)]
     pub gain_error: Option<f64>,
     /// The white tile's true radiance factor: its certificate (0.99) × (1 + N(0, PCT %)),
-    /// drawn from the seed [ideal 0, real 0.5].
+    /// drawn from the seed [ideal 0, real and drawn 0.5].
     #[arg(long, value_name = "PCT", allow_negative_numbers = true)]
     pub tile_error: Option<f64>,
     /// Lamp drift, percent per hour of device time, its sign drawn from the seed [0.2].
@@ -231,6 +358,7 @@ impl Default for SimOptions {
         SimOptions {
             seed: 1,
             acceptance: model::DEFAULT_ACCEPTANCE_DEG,
+            response: None,
             noise_scale: 1.0,
             faults: String::new(),
             physics: Physics::Ideal,
@@ -282,9 +410,35 @@ const MAX_UNPLUG_S: f64 = 86_400.0;
 pub enum SimOptionError {
     /// Not a sample the simulator knows.
     #[error(
-        "unknown sample '{0}': use one of G, SG, PPC, MC, J1, J2, J3, J4 or custom:SIGMA,RHO_S,RHO_D,ETA"
+        "unknown sample '{0}': use one of G, SG, PPC, MC, J1, J2, J3, J4, custom:SIGMA,RHO_S,RHO_D,ETA or black-glass (BG)"
     )]
     UnknownSample(String),
+    /// The black glass asked for as a sheet (its TSL parameters, a sheet's options).
+    #[error("sample '{0}' is the black glass standard, a mirror: it has no sheet's TSL parameters")]
+    NotASheet(String),
+    /// A sheet's option given with the black glass.
+    #[error(
+        "--{option} does not apply to sample '{sample}': it is the black glass standard, not a sheet"
+    )]
+    SheetOption {
+        /// The option given.
+        option: &'static str,
+        /// The sample.
+        sample: String,
+    },
+    /// The black glass with a point detector: it would read nothing but dark.
+    #[error(
+        "sample '{0}' is a mirror: a point detector (--acceptance 0, or a response of width 0) never meets its beam, which is no wider than the lamp's; give the detector a width"
+    )]
+    MirrorNeedsWidth(String),
+    /// A bad `--response`.
+    #[error("bad --response '{spec}': {why}")]
+    BadResponse {
+        /// What was given.
+        spec: String,
+        /// What is wrong.
+        why: String,
+    },
     /// A custom sample with bad parameters.
     #[error("bad custom sample '{spec}': {why}")]
     BadCustom {
@@ -326,9 +480,64 @@ pub enum SimOptionError {
     SceneFile(#[from] TableError),
 }
 
+/// Whether a sample name is the black glass standard: `black-glass` or `BG`, any case.
+pub fn is_black_glass(name: &str) -> bool {
+    name.eq_ignore_ascii_case("black-glass") || name.eq_ignore_ascii_case("bg")
+}
+
+/// What a sample name puts on the simulated port.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SimSample {
+    /// A sheet of paper of these TSL parameters (a reference paper or `custom:`).
+    Sheet(Params),
+    /// The black glass gloss standard: a mirror.
+    BlackGlass,
+}
+
+/// What sample `name` is: the black glass, or a sheet ([`sample_params`]).
+pub fn parse_sample(name: &str) -> Result<SimSample, SimOptionError> {
+    if is_black_glass(name) {
+        Ok(SimSample::BlackGlass)
+    } else {
+        sample_params(name).map(SimSample::Sheet)
+    }
+}
+
+/// The response `--response` names: `top-hat:WIDTH` (or `tophat:`), `gaussian:FWHM`,
+/// `trapezoid:TOP,BASE`, full widths in degrees (0: a point detector).
+pub fn parse_response(spec: &str) -> Result<Response, SimOptionError> {
+    let bad = |why: &str| SimOptionError::BadResponse {
+        spec: spec.to_owned(),
+        why: why.to_owned(),
+    };
+    let shapes = "SHAPE:DEG is top-hat:WIDTH, gaussian:FWHM or trapezoid:TOP,BASE";
+    let (shape, widths) = spec.split_once(':').ok_or_else(|| bad(shapes))?;
+    let widths: Vec<f64> = widths
+        .split(',')
+        .map(|w| {
+            w.trim()
+                .parse::<f64>()
+                .map_err(|_| bad(&format!("'{}' is not a number of degrees", w.trim())))
+        })
+        .collect::<Result<_, _>>()?;
+    let response = match (shape.trim().to_ascii_lowercase().as_str(), &widths[..]) {
+        ("top-hat" | "tophat", &[width_deg]) => Response::TopHat { width_deg },
+        ("gaussian", &[fwhm_deg]) => Response::Gaussian { fwhm_deg },
+        ("trapezoid", &[top_deg, base_deg]) => Response::Trapezoid { top_deg, base_deg },
+        ("top-hat" | "tophat" | "gaussian", _) => return Err(bad("one width is needed")),
+        ("trapezoid", _) => return Err(bad("two widths are needed: TOP,BASE")),
+        _ => return Err(bad(shapes)),
+    };
+    response.validate().map_err(|e| bad(&e.to_string()))?;
+    Ok(response)
+}
+
 /// The TSL parameters of a sample name: a reference paper (any case) or
-/// `custom:SIGMA,RHO_S,RHO_D,ETA`.
+/// `custom:SIGMA,RHO_S,RHO_D,ETA` (the black glass has none: [`parse_sample`]).
 pub fn sample_params(name: &str) -> Result<Params, SimOptionError> {
+    if is_black_glass(name) {
+        return Err(SimOptionError::NotASheet(name.to_owned()));
+    }
     if let Some(spec) = name.strip_prefix("custom:") {
         let bad = |why: &str| SimOptionError::BadCustom {
             spec: spec.to_owned(),
@@ -491,6 +700,7 @@ impl SimOptions {
         let base = match self.physics {
             Physics::Ideal => IDEAL_PHYSICS,
             Physics::Real => REAL_PHYSICS,
+            Physics::Drawn => DRAWN_PHYSICS,
         };
         PhysicsSet {
             gain_error_pct: self.gain_error.unwrap_or(base.gain_error_pct),
@@ -544,22 +754,77 @@ impl SimOptions {
             "between -5 and 5 degrees",
             |v| (-5.0..=5.0).contains(&v),
         )?;
+        let drawn = DrawnInstrument::draw(self.seed);
+        let is_drawn = self.physics == Physics::Drawn;
+        // --acceptance is the top-hat's width: with another response in force it would be
+        // silently ignored (the default value is no choice).
+        let acceptance_given = self.acceptance != model::DEFAULT_ACCEPTANCE_DEG;
+        let response = match &self.response {
+            Some(spec) => {
+                if acceptance_given {
+                    return Err(SimOptionError::Conflict {
+                        option: "acceptance",
+                        other: "response",
+                        why: "--response sets the whole response (--acceptance W is top-hat:W)",
+                    });
+                }
+                parse_response(spec)?
+            }
+            None if is_drawn => {
+                if acceptance_given {
+                    return Err(SimOptionError::Conflict {
+                        option: "acceptance",
+                        other: "physics drawn",
+                        why: "the drawn instrument's response is drawn from the seed; --response replaces it",
+                    });
+                }
+                drawn.response
+            }
+            None => Response::TopHat {
+                width_deg: self.acceptance,
+            },
+        };
+        // A zero given is exact; the drawn instrument's otherwise is its uniform draw.
+        let (offset_deg, offset_sd_deg) = match (is_drawn, self.arm_offset) {
+            (true, None) => (drawn.arm_zero_deg, 0.0),
+            _ => (set.arm_offset_deg, set.arm_zero_sd_deg),
+        };
         let mut config = SimConfig {
             seed: self.seed,
             power_on: self.power_on,
             faults: parse_faults(&self.faults)?,
             ..SimConfig::default()
         };
-        config.detector.acceptance_deg = self.acceptance;
-        config.detector.noise_scale = self.noise_scale;
+        config.detector.response = response;
+        config.detector.noise_scale = if is_drawn {
+            self.noise_scale * drawn.noise_scale
+        } else {
+            self.noise_scale
+        };
         config.detector.lamp_drift_per_hour = set.lamp_drift_pct_per_h / 100.0;
         config.errors = InstrumentErrors {
             gain_ratio_sd: set.gain_error_pct / 100.0,
             tile_sd: set.tile_error_pct / 100.0,
-            theta_r_offset_deg: set.arm_offset_deg,
-            theta_r_offset_sd_deg: set.arm_zero_sd_deg,
+            theta_r_offset_deg: offset_deg,
+            theta_r_offset_sd_deg: offset_sd_deg,
         };
         Ok(config)
+    }
+
+    /// What the simulated instrument of these options truly is: the values its run draws
+    /// (the same draws, [`SimConfig::truth`]), for tests and studies that check what a
+    /// characterization of it finds. The white tile is the reference one.
+    pub fn instrument_truth(&self) -> Result<InstrumentTruth, SimOptionError> {
+        let truth = self.config()?.truth(WhiteTile::default());
+        Ok(InstrumentTruth {
+            response: truth.response,
+            arm_zero_deg: truth.theta_r_offset_deg,
+            noise_scale: truth.noise_scale,
+            relative_gains: truth.relative_gains,
+            gain_ratio_errors: truth.gain_ratio_factors.iter().map(|f| f - 1.0).collect(),
+            tile_factor: truth.tile_factor,
+            lamp_drift_per_hour: truth.lamp_drift_per_hour,
+        })
     }
 
     /// The simulated sheet of `sample` with the sheet options (not for `--scene-file`).
@@ -602,9 +867,27 @@ impl SimOptions {
         Ok(spec)
     }
 
-    /// What is on the sample port: `sample`'s sheet, or the replayed `--scene-file`.
+    /// What is on the sample port: `sample`'s sheet or the black glass, or the replayed
+    /// `--scene-file`.
     pub fn port(&self, sample: &str) -> Result<SamplePort, SimOptionError> {
         let Some(path) = &self.scene_file else {
+            if is_black_glass(sample) {
+                let sheet_option = [
+                    ("lobe", self.lobe != LobeChoice::Gaussian),
+                    ("forward-lobe", self.forward_lobe != 0.0),
+                    ("specular-bump", self.specular_bump != 0.0),
+                    ("sheet-variation", self.sheet_variation != 0.0),
+                ]
+                .into_iter()
+                .find(|(_, given)| *given);
+                if let Some((option, _)) = sheet_option {
+                    return Err(SimOptionError::SheetOption {
+                        option,
+                        sample: sample.to_owned(),
+                    });
+                }
+                return Ok(SamplePort::new(Arc::new(BlackGlass::default())));
+            }
             return Ok(SamplePort::with_spots(
                 Arc::new(self.sheet(sample)?),
                 self.seed,
@@ -636,7 +919,11 @@ impl SimOptions {
     /// The simulated instrument with `sample` on its port.
     pub fn instrument(&self, sample: &str) -> Result<SimInstrument, SimOptionError> {
         let config = self.config()?;
-        Ok(SimInstrument::new(self.port(sample)?, config))
+        let port = self.port(sample)?;
+        if port.sample.mirror_index().is_some() && config.detector.response.is_point() {
+            return Err(SimOptionError::MirrorNeedsWidth(sample.to_owned()));
+        }
+        Ok(SimInstrument::new(port, config))
     }
 }
 
@@ -743,7 +1030,10 @@ mod tests {
             }
         );
         assert_eq!(config.detector.lamp_drift_per_hour, 0.002);
-        assert_eq!(config.detector.acceptance_deg, 1.0);
+        assert_eq!(
+            config.detector.response,
+            Response::TopHat { width_deg: 1.0 }
+        );
         let mixed = parsed(&[
             "--physics",
             "real",
@@ -901,5 +1191,195 @@ mod tests {
                 "{args:?}: {error}"
             );
         }
+    }
+
+    #[test]
+    fn responses_parse_and_refuse_nonsense() {
+        assert_eq!(
+            parse_response("top-hat:0.5").unwrap(),
+            Response::TopHat { width_deg: 0.5 }
+        );
+        assert_eq!(
+            parse_response("Gaussian:2").unwrap(),
+            Response::Gaussian { fwhm_deg: 2.0 }
+        );
+        assert_eq!(
+            parse_response("trapezoid:0.2, 0.6").unwrap(),
+            Response::Trapezoid {
+                top_deg: 0.2,
+                base_deg: 0.6
+            }
+        );
+        assert!(parse_response("tophat:0").unwrap().is_point());
+        for (bad, says) in [
+            ("gaussian", "SHAPE:DEG is top-hat:WIDTH"),
+            ("cone:1", "SHAPE:DEG is top-hat:WIDTH"),
+            ("gaussian:x", "'x' is not a number of degrees"),
+            ("top-hat:1,2", "one width is needed"),
+            ("trapezoid:1", "two widths are needed"),
+            ("trapezoid:0.8,0.4", "must not be wider than its base"),
+            ("gaussian:-1", "in [0, 10] degrees, got -1"),
+            ("gaussian:nan", "got NaN"),
+            ("top-hat:11", "got 11"),
+        ] {
+            let error = parse_response(bad).unwrap_err().to_string();
+            assert!(
+                error.starts_with(&format!("bad --response '{bad}': ")) && error.contains(says),
+                "{bad}: {error}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_response_is_the_acceptance_the_drawn_one_or_the_one_given() {
+        let response = |args: &[&str]| parsed(args).unwrap().config().map(|c| c.detector.response);
+        assert_eq!(
+            response(&["--acceptance", "0.5"]).unwrap(),
+            Response::TopHat { width_deg: 0.5 }
+        );
+        assert_eq!(
+            response(&["--response", "gaussian:2"]).unwrap(),
+            Response::Gaussian { fwhm_deg: 2.0 }
+        );
+        assert_eq!(
+            response(&["--physics", "drawn", "--seed", "9"]).unwrap(),
+            DrawnInstrument::draw(9).response
+        );
+        assert_eq!(
+            response(&["--physics", "drawn", "--response", "top-hat:1"]).unwrap(),
+            Response::TopHat { width_deg: 1.0 }
+        );
+        let error = response(&["--physics", "drawn", "--acceptance", "2"])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.starts_with("--acceptance does not apply with --physics drawn"),
+            "{error}"
+        );
+        // Both given on the command line: clap refuses; both set in code: so does config.
+        assert!(parsed(&["--acceptance", "2", "--response", "gaussian:1"]).is_err());
+        let both = SimOptions {
+            acceptance: 2.0,
+            response: Some("gaussian:1".into()),
+            ..SimOptions::default()
+        };
+        let error = both.config().unwrap_err().to_string();
+        assert!(
+            error.starts_with("--acceptance does not apply with --response"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn the_black_glass_by_name_and_what_does_not_go_with_it() {
+        for name in ["black-glass", "BG", "bg", "Black-Glass"] {
+            assert_eq!(parse_sample(name).unwrap(), SimSample::BlackGlass, "{name}");
+            let error = sample_params(name).unwrap_err().to_string();
+            assert!(error.contains("black glass standard, a mirror"), "{error}");
+        }
+        assert!(matches!(parse_sample("G"), Ok(SimSample::Sheet(p)) if p.sigma_deg == 0.8));
+        assert!(
+            sample_params("XX")
+                .unwrap_err()
+                .to_string()
+                .contains("black-glass (BG)")
+        );
+        let port = SimOptions::default().port("BG").unwrap();
+        assert_eq!(
+            port.sample.mirror_index(),
+            Some(hil_sim::scene::BLACK_GLASS_INDEX)
+        );
+        assert!(port.spots.is_none());
+        assert!(SimOptions::default().instrument("black-glass").is_ok());
+        for (args, says) in [
+            (
+                &["--lobe", "ggx"][..],
+                "--lobe does not apply to sample 'BG'",
+            ),
+            (
+                &["--sheet-variation", "5"],
+                "--sheet-variation does not apply to sample 'BG'",
+            ),
+            (
+                &["--specular-bump", "0.1"],
+                "--specular-bump does not apply to sample 'BG'",
+            ),
+            (
+                &["--acceptance", "0"],
+                "sample 'BG' is a mirror: a point detector",
+            ),
+            (&["--response", "gaussian:0"], "sample 'BG' is a mirror"),
+        ] {
+            let error = parsed(args)
+                .unwrap()
+                .instrument("BG")
+                .err()
+                .unwrap_or_else(|| panic!("{args:?} accepted"))
+                .to_string();
+            assert!(error.starts_with(says), "{args:?}: {error}");
+        }
+    }
+
+    #[test]
+    fn drawn_physics_is_real_with_a_drawn_response_zero_and_noise_each_overridable() {
+        let drawn = parsed(&["--physics", "drawn", "--seed", "4"]).unwrap();
+        assert_eq!(drawn.physics_set(), DRAWN_PHYSICS);
+        let config = drawn.config().unwrap();
+        let draw = DrawnInstrument::draw(4);
+        let real = parsed(&["--physics", "real", "--seed", "4"])
+            .unwrap()
+            .config()
+            .unwrap();
+        assert_eq!(config.errors.gain_ratio_sd, real.errors.gain_ratio_sd);
+        assert_eq!(config.errors.tile_sd, real.errors.tile_sd);
+        assert_eq!(
+            config.detector.lamp_drift_per_hour,
+            real.detector.lamp_drift_per_hour
+        );
+        assert_eq!(
+            (
+                config.errors.theta_r_offset_deg,
+                config.errors.theta_r_offset_sd_deg
+            ),
+            (draw.arm_zero_deg, 0.0)
+        );
+        assert_eq!(config.detector.noise_scale, draw.noise_scale);
+        assert_eq!(config.detector.response, draw.response);
+        // The gains and the tile are the real instrument's draws, of the same seed.
+        let truth = drawn.instrument_truth().unwrap();
+        let real_truth = real.truth(WhiteTile::default());
+        assert_eq!(truth.relative_gains, real_truth.relative_gains);
+        assert_eq!(truth.tile_factor, real_truth.tile_factor);
+        // Each override replaces its value only.
+        let overridden = parsed(&[
+            "--physics",
+            "drawn",
+            "--seed",
+            "4",
+            "--arm-offset",
+            "0.2",
+            "--noise-scale",
+            "0",
+            "--gain-error",
+            "2",
+        ])
+        .unwrap()
+        .config()
+        .unwrap();
+        assert_eq!(
+            (
+                overridden.errors.theta_r_offset_deg,
+                overridden.errors.theta_r_offset_sd_deg
+            ),
+            (0.2, 0.0)
+        );
+        assert_eq!(overridden.detector.noise_scale, 0.0);
+        assert_eq!(overridden.errors.gain_ratio_sd, 0.02);
+        assert_eq!(overridden.detector.response, draw.response);
+        let noisier = parsed(&["--physics", "drawn", "--seed", "4", "--noise-scale", "2"])
+            .unwrap()
+            .config()
+            .unwrap();
+        assert_eq!(noisier.detector.noise_scale, 2.0 * draw.noise_scale);
     }
 }

@@ -57,6 +57,10 @@ pub struct MeasureOptions {
     pub tile_certificate: Option<PathBuf>,
     /// Standard uncertainty of the detector arm's zero, degrees.
     pub arm_zero_uncertainty_deg: f64,
+    /// The instrument profile (`None`: the one installed for the instrument, if any).
+    pub instrument: Option<PathBuf>,
+    /// Oldest profile used, days.
+    pub max_profile_age_days: f64,
     /// Oldest calibration accepted, hours.
     pub max_calibration_age_h: f64,
     /// Integration time per reading (`None`: the resumed session's or the instrument's).
@@ -92,6 +96,8 @@ impl Default for MeasureOptions {
                 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY,
             tile_certificate: None,
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+            instrument: None,
+            max_profile_age_days: crate::instrument::profile::DEFAULT_MAX_AGE_DAYS,
             max_calibration_age_h: 8.0,
             integration_ms: None,
             policy: None,
@@ -221,9 +227,11 @@ fn run_on<T: Transport>(
         store,
     } = given;
     let info = client.hello().context("handshake with the instrument")?;
+    let profile = profile_in_force(options, &info)?;
     let mut context = Run {
         client: &mut client,
         info,
+        profile,
         options,
         checked,
         sim_sample,
@@ -252,10 +260,60 @@ fn run_on<T: Transport>(
     spot::run_session(&mut context, folder, None)
 }
 
+/// The instrument profile in force: `--instrument FILE` (refused when unreadable, not a
+/// profile, or another instrument's), else the one installed for the instrument's serial;
+/// `None` (said on the terminal) when there is none or it is older than the limit.
+fn profile_in_force(
+    options: &MeasureOptions,
+    info: &protocol::DeviceInfo,
+) -> anyhow::Result<Option<crate::instrument::profile::ProfileInUse>> {
+    use crate::instrument::profile;
+    anyhow::ensure!(
+        options.max_profile_age_days.is_finite() && options.max_profile_age_days > 0.0,
+        "--max-profile-age-days must be a positive number of days, not {}",
+        options.max_profile_age_days
+    );
+    let path = match &options.instrument {
+        Some(path) => path.clone(),
+        None => match profile::default_path(&info.serial_number) {
+            Some(path) if path.is_file() => path,
+            _ => {
+                eprintln!(
+                    "note: no instrument profile for {}: the detector's response and arm zero are the declared ones (gonio characterize measures them)",
+                    info.serial_number
+                );
+                return Ok(None);
+            }
+        },
+    };
+    let (found, sha) = profile::read(&path)?;
+    if found.serial_number != info.serial_number.as_str() {
+        return Err(profile::ProfileError::OtherInstrument {
+            path,
+            profile: found.serial_number,
+            attached: info.serial_number.to_string(),
+        }
+        .into());
+    }
+    let now = crate::instrument::calibration::unix_now_s();
+    let age = found.age_days(now);
+    if !(age <= options.max_profile_age_days) {
+        eprintln!(
+            "warning: the instrument profile {} is {age:.0} days old, beyond the limit of {} days: not used; the declared values are (gonio characterize measures the instrument again)",
+            path.display(),
+            options.max_profile_age_days
+        );
+        return Ok(None);
+    }
+    Ok(Some(found.in_use(sha, now)))
+}
+
 /// What every session of one measurement shares.
 struct Run<'a, T: Transport> {
     client: &'a mut Client<T>,
     info: protocol::DeviceInfo,
+    /// The instrument profile in force.
+    profile: Option<crate::instrument::profile::ProfileInUse>,
     options: &'a MeasureOptions,
     checked: &'a Checked,
     sim_sample: Option<String>,

@@ -33,10 +33,24 @@ pub(super) fn write_session(
         analysis,
         // What `gonio fit DIR` needs to make this analysis again from the folder.
         analysed_unix_s: Some(outcome.analysed_unix_s),
-        analysis_settings: Some(outcome.analysis_settings),
+        analysis_settings: Some(outcome.analysis_settings.clone()),
         covariance: Some(covariance),
         device_seconds: Some(outcome.device_seconds),
         geometries: Some(outcome.current_points().count() as u64),
+        instrument_bound: outcome.instrument_bound.clone(),
+        // Gloss rests on the response and zero measured on the black glass: only with a
+        // profile in force.
+        gloss: outcome
+            .analysis_settings
+            .instrument_profile
+            .as_ref()
+            .map(|_| {
+                crate::output::documents::gloss_values(
+                    &outcome.report.fit.params,
+                    &outcome.report.fit.covariance,
+                    info.arm_max.deg(),
+                )
+            }),
         refinements: outcome.refinements.clone(),
         session_dir: Some(recorder.dir().display().to_string()),
         setup_seconds: Some(outcome.setup_seconds),

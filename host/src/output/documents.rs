@@ -33,6 +33,14 @@ pub struct SpotResultDocument {
     pub device_seconds: Option<f64>,
     /// Geometries the result rests on.
     pub geometries: Option<u64>,
+    /// Without an instrument profile: σ, ρs, ρd and the class through the bound on the
+    /// unmeasured response (their honest range; the intervals hold for the declared one).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub instrument_bound: Option<crate::session::InstrumentBound>,
+    /// Specular gloss at the gloss meters' geometries the arms reach, from the fitted
+    /// model through each standard's apertures (only with an instrument profile in force).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gloss: Option<Vec<GlossValue>>,
     /// Every refinement taken.
     pub(crate) refinements: Vec<Refinement>,
     /// The session folder.
@@ -43,6 +51,43 @@ pub struct SpotResultDocument {
     pub(crate) white_drift: Option<f64>,
     /// The drift exceeded its limit.
     pub(crate) white_drift_exceeded: bool,
+}
+
+/// Specular gloss at one gloss meter geometry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GlossValue {
+    /// The standard and geometry, e.g. "ISO 2813 60°".
+    pub geometry: String,
+    /// Its angle, degrees.
+    pub angle_deg: f64,
+    /// Gloss units (100: the standard's primary black glass).
+    pub gloss_units: f64,
+    /// Standard uncertainty from the fit's covariance, gloss units.
+    pub u_gloss_units: f64,
+}
+
+/// The gloss of fitted parameters `params` (covariance in the fit's order) at every gloss
+/// geometry whose receptor the arms reach (`max_theta_deg`).
+pub fn gloss_values(
+    params: &crate::analysis::model::Params,
+    covariance: &[[f64; 4]; 4],
+    max_theta_deg: f64,
+) -> Vec<GlossValue> {
+    use crate::analysis::gloss;
+    gloss::GLOSS_GEOMETRIES
+        .iter()
+        .filter(|g| gloss::arms_reach(g, max_theta_deg))
+        .map(|g| {
+            let (value, u) = gloss::gloss_interval(params, covariance, g);
+            GlossValue {
+                geometry: format!("{} {}", g.standard, g.name),
+                angle_deg: g.angle_deg,
+                gloss_units: value,
+                u_gloss_units: u,
+            }
+        })
+        .filter(|v| v.gloss_units.is_finite() && v.u_gloss_units.is_finite())
+        .collect()
 }
 
 impl SpotResultDocument {

@@ -9,7 +9,7 @@
 //!
 //! | layer | modules | imports from `output` |
 //! |---|---|---|
-//! | uses of folders | [`catalogue`], [`reanalysis`], [`library`] | any below (the library hands [`report::html`] to [`verify`]) |
+//! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::html`] to [`verify`]) |
 //! | rendering | [`report`] | `folder`, `sheet_folder` |
 //! | verification | [`verify`]: every check of a finished folder | `folder`, `manifest`, `sheet_folder` |
 //! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
@@ -20,6 +20,7 @@
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
 //! check is handed the drawing ([`verify::DrawReport`]).
 pub mod catalogue;
+pub mod characterization;
 pub mod chromium;
 pub mod comparison;
 pub mod dataset;

@@ -3,7 +3,9 @@
 //! analysis settings and time the session recorded in its result, through the session's
 //! own analysis ([`crate::session::analyse_points`]), and compared with the result the
 //! session reported.
+use crate::analysis::flags::Flag;
 use crate::analysis::result::{Report, to_json};
+use crate::instrument::profile::ProfileInUse;
 use crate::output::folder::{self, Finding, SESSION};
 use crate::session::{AnalysisSettings, analyse_points};
 use serde::Deserialize;
@@ -52,6 +54,16 @@ pub struct Reanalysis {
 
 /// Analyse the finished session folder `dir` again from its record.
 pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
+    reanalyse_with(dir, None)
+}
+
+/// [`reanalyse`], with `profile` (when given) in place of the instrument profile the
+/// session recorded (or of none): the analysis as it would be on the instrument as that
+/// profile measured it.
+pub fn reanalyse_with(
+    dir: &Path,
+    profile: Option<&ProfileInUse>,
+) -> Result<Reanalysis, ReanalysisError> {
     let doc = folder::require_finished(dir)?;
     let recorded = RecordedResult::deserialize(&doc.rest)
         .ok()
@@ -69,11 +81,17 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
     // Sessions before these were recorded: the plan's acceptance, the default arm zero, the
     // session's end as the time of the analysis (the result then differs in the drift's share).
     let settings = document
-        .and_then(|d| d.analysis_settings)
+        .and_then(|d| d.analysis_settings.clone())
         .unwrap_or(AnalysisSettings {
             acceptance_deg: doc.plan.acceptance_deg,
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+            instrument_profile: None,
         });
+    let recorded_profile = settings.instrument_profile.is_some();
+    let mut settings = settings;
+    if let Some(profile) = profile {
+        settings.instrument_profile = Some(profile.clone());
+    }
     let ended = doc
         .runs
         .last()
@@ -103,7 +121,12 @@ pub fn reanalyse(dir: &Path) -> Result<Reanalysis, ReanalysisError> {
     let recorded_flags = document
         .map(|d| d.analysis.flags.as_slice())
         .unwrap_or_default();
-    if report.flags.iter().any(|f| !recorded_flags.contains(f)) {
+    // A session recorded before instrument profiles had none: the flag that says so now
+    // is no difference in its analysis.
+    let new_flag = |f: &&Flag| {
+        !recorded_flags.contains(f) && !(**f == Flag::InstrumentDeclared && !recorded_profile)
+    };
+    if report.flags.iter().any(|f| new_flag(&f)) {
         differences.push("flags".to_string());
     }
     Ok(Reanalysis {

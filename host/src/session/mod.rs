@@ -20,6 +20,7 @@
 //! Every decision goes through [`Recorder::decision`], on the failure path too.
 
 pub mod adaptive;
+pub mod characterize;
 pub mod gains;
 pub mod multi_spot;
 pub mod operator;
@@ -40,10 +41,12 @@ pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
 use crate::analysis::fit::{FitOptions, Observation};
 use crate::analysis::flags::Flag;
+use crate::analysis::model;
 use crate::analysis::result::{Readings, Report, analyse_with_shared, to_json};
 use crate::analysis::sweep_design;
 use crate::instrument::calibration::{Calibration, CalibrationError, Tile, unix_now_s};
 use crate::instrument::link::{Client, LinkError, Transport};
+use crate::instrument::profile::ProfileInUse;
 use adaptive::AdaptiveTargets;
 use order::Motion;
 use protocol::schedules::{strategy1, strategy2};
@@ -338,6 +341,9 @@ impl Recoveries {
 
 /// What a session produced.
 pub struct Outcome {
+    /// Without an instrument profile: what the readings give through the widest and the
+    /// narrowest response the declared one may stand for (`None` with a profile).
+    pub instrument_bound: Option<InstrumentBound>,
     /// Every reading, superseded ones included (marked).
     pub points: Vec<MeasuredPoint>,
     /// The calibration used.
@@ -551,6 +557,8 @@ struct Given {
     arm_zero_uncertainty_deg: f64,
     /// See [`Session::at_spot`].
     spot: Option<(u16, u16)>,
+    /// See [`Session::with_profile`].
+    profile: Option<ProfileInUse>,
 }
 
 /// Device time spent besides the sample's readings, and the last analysis's time.
@@ -617,6 +625,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 tile: Tile::default(),
                 arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
                 spot: None,
+                profile: None,
             },
             clock: Clock::default(),
             resume: Resumed::default(),
@@ -636,6 +645,15 @@ impl<'a, T: Transport> Session<'a, T> {
     /// reading in the fit wherever the data do not call for a fitted offset.
     pub(crate) fn with_arm_zero_uncertainty(mut self, deg: f64) -> Self {
         self.given.arm_zero_uncertainty_deg = deg;
+        self
+    }
+
+    /// The instrument profile in force ([`crate::instrument::profile`]): the fit models
+    /// its measured response and takes its arm zero (and that zero's uncertainty) instead
+    /// of the declared ones. `None`: the declared ones, and the result says so
+    /// ([`Flag::InstrumentDeclared`]).
+    pub(crate) fn with_profile(mut self, profile: Option<ProfileInUse>) -> Self {
+        self.given.profile = profile;
         self
     }
 
@@ -921,6 +939,11 @@ impl<'a, T: Transport> Session<'a, T> {
         }
         // The analysis's own flags (lack-of-fit, not-identified, sigma-not-resolved).
         self.flags.extend(done.report.flags.iter().copied());
+        let instrument_bound = if self.given.profile.is_none() {
+            Some(self.bound_by_declared_response(&done.report))
+        } else {
+            None
+        };
         if self.link.recoveries.any() {
             self.flags.insert(Flag::LinkRecovered);
         }
@@ -928,6 +951,7 @@ impl<'a, T: Transport> Session<'a, T> {
             self.flags.insert(Flag::Resumed);
         }
         Ok(Outcome {
+            instrument_bound,
             points: self.points,
             calibration,
             fits: done.fits,
@@ -946,9 +970,100 @@ impl<'a, T: Transport> Session<'a, T> {
             analysis_settings: AnalysisSettings {
                 acceptance_deg: self.plan.acceptance_deg,
                 arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
+                instrument_profile: self.given.profile.clone(),
             },
             analysed_unix_s: self.clock.analysed_unix_s,
         })
+    }
+
+    /// Without an instrument profile: the readings analysed again through the widest and
+    /// narrowest response the declared one may stand for
+    /// ([`crate::analysis::flags::DECLARED_RESPONSE_BOUND_DEG`]); a class that changes
+    /// within that bound is flagged [`Flag::InstrumentSensitive`], and the decisions give σ
+    /// and the class at each width.
+    fn bound_by_declared_response(&mut self, report: &Report) -> InstrumentBound {
+        let now = self.clock.analysed_unix_s;
+        let mut bound = InstrumentBound {
+            widths_deg: crate::analysis::flags::DECLARED_RESPONSE_BOUND_DEG.to_vec(),
+            sigma_deg: None,
+            rho_s: None,
+            rho_d: None,
+            classes: Vec::new(),
+        };
+        let widen = |range: &mut Option<[f64; 2]>, value: Option<f64>| {
+            if let Some(v) = value.filter(|v| v.is_finite()) {
+                let r = range.get_or_insert([v, v]);
+                r[0] = r[0].min(v);
+                r[1] = r[1].max(v);
+            }
+        };
+        for k in [model::SIGMA, model::RHO_S, model::RHO_D] {
+            let range = match k {
+                model::SIGMA => &mut bound.sigma_deg,
+                model::RHO_S => &mut bound.rho_s,
+                _ => &mut bound.rho_d,
+            };
+            widen(range, report.fit.reported(k));
+            if let Some((lo, hi)) = report.fit.ci95[k] {
+                widen(range, Some(lo));
+                widen(range, Some(hi));
+            }
+        }
+        let mut seen = Vec::new();
+        for width in crate::analysis::flags::DECLARED_RESPONSE_BOUND_DEG {
+            let settings = AnalysisSettings {
+                acceptance_deg: width,
+                ..self.analysis_settings()
+            };
+            if let Ok(again) = analyse_points(
+                &self.plan.sample,
+                &self.points,
+                self.calibration.as_ref(),
+                &settings,
+                now,
+            ) {
+                seen.push((
+                    width,
+                    again.classification.class,
+                    again.fit.params.sigma_deg,
+                ));
+                for k in [model::SIGMA, model::RHO_S, model::RHO_D] {
+                    let range = match k {
+                        model::SIGMA => &mut bound.sigma_deg,
+                        model::RHO_S => &mut bound.rho_s,
+                        _ => &mut bound.rho_d,
+                    };
+                    widen(range, again.fit.reported(k));
+                    if let Some((lo, hi)) = again.fit.ci95[k] {
+                        widen(range, Some(lo));
+                        widen(range, Some(hi));
+                    }
+                }
+                bound
+                    .classes
+                    .push(again.classification.class_name().to_string());
+            }
+        }
+        let nominal = report.classification.class;
+        if seen.iter().any(|(_, class, _)| *class != nominal) {
+            let text = seen
+                .iter()
+                .map(|(w, c, s)| {
+                    format!(
+                        "{} (σ {s:.3}°) at {w}°",
+                        c.map_or("undecided", |c| c.name())
+                    )
+                })
+                .collect::<Vec<_>>()
+                .join(", ");
+            self.decide(&format!(
+                "without an instrument profile the class depends on the detector's response: {} at the declared {}°, {text}: result flagged instrument-sensitive",
+                report.classification.class_name(),
+                self.plan.acceptance_deg
+            ));
+            self.flags.insert(Flag::InstrumentSensitive);
+        }
+        bound
     }
 
     /// Where the arms are now.
@@ -1004,18 +1119,42 @@ impl<'a, T: Transport> Session<'a, T> {
         AnalysisSettings {
             acceptance_deg: self.plan.acceptance_deg,
             arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
+            instrument_profile: self.given.profile.clone(),
         }
     }
 }
 
+/// What a session's readings give through the bound on an unmeasured detector response:
+/// each parameter's range over the 95 % intervals at the declared response and at each
+/// width of the bound, and the class at each width. An honest interval where the
+/// instrument was not characterized: the statistical interval holds only for the
+/// declared response.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InstrumentBound {
+    /// The top-hat widths analysed, degrees.
+    pub widths_deg: Vec<f64>,
+    /// σ's range, degrees.
+    pub sigma_deg: Option<[f64; 2]>,
+    /// ρs's range.
+    pub rho_s: Option<[f64; 2]>,
+    /// ρd's range.
+    pub rho_d: Option<[f64; 2]>,
+    /// The class at each width.
+    pub classes: Vec<String>,
+}
+
 /// What an analysis of a session's readings is made with besides the readings and the
 /// calibration: recorded in the result so that a re-analysis makes the same one.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub(crate) struct AnalysisSettings {
-    /// Detector acceptance modelled in the fit, degrees.
+    /// Detector acceptance modelled in the fit, degrees (the declared top-hat; a profile's
+    /// measured response replaces it).
     pub acceptance_deg: f64,
-    /// Standard uncertainty of the detector arm's zero, degrees.
+    /// Standard uncertainty of the detector arm's zero, degrees (a profile's replaces it).
     pub arm_zero_uncertainty_deg: f64,
+    /// The instrument profile in force, if one was.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instrument_profile: Option<ProfileInUse>,
 }
 
 /// The readings the result rests on (converted, not superseded, each still geometry
@@ -1070,6 +1209,9 @@ pub enum PointsAnalysisError {
     /// The fit failed.
     #[error("{0}")]
     Fit(crate::analysis::result::AnalysisError),
+    /// The instrument profile's response cannot be modelled.
+    #[error("the instrument profile's response: {0}")]
+    Profile(String),
 }
 
 impl From<CalibrationError> for PointsAnalysisError {
@@ -1094,8 +1236,23 @@ pub(crate) fn analyse_points(
     settings: &AnalysisSettings,
     now_unix_s: u64,
 ) -> Result<Report, PointsAnalysisError> {
-    let (indices, observations, scaling) = usable_observations_scaled(points);
+    let (indices, mut observations, scaling) = usable_observations_scaled(points);
     let noise_scale_log_variance = scaling.chi2_log_variance(observations.len());
+    // A profile's arm zero: every θr as the firmware reported it lacks the zero measured
+    // at its incidence on the black glass.
+    let response = match &settings.instrument_profile {
+        Some(profile) => {
+            for o in &mut observations {
+                o.theta_r_deg = profile.corrected_theta_r(o.theta_i_deg, o.theta_r_deg);
+            }
+            Some(
+                profile
+                    .response()
+                    .map_err(|e| PointsAnalysisError::Profile(e.to_string()))?,
+            )
+        }
+        None => None,
+    };
     let shared = match calibration {
         Some(calibration) => gains::shared_errors(
             calibration,
@@ -1117,11 +1274,21 @@ pub(crate) fn analyse_points(
     };
     let options = FitOptions {
         acceptance_deg: Some(settings.acceptance_deg),
-        arm_zero_uncertainty_deg: settings.arm_zero_uncertainty_deg,
+        response,
+        arm_zero_uncertainty_deg: settings
+            .instrument_profile
+            .as_ref()
+            .map_or(settings.arm_zero_uncertainty_deg, |p| p.arm_zero_u_deg),
         noise_scale_log_variance,
         ..FitOptions::default()
     };
-    Ok(analyse_with_shared(&readings, &shared, &options, None)?)
+    let mut report = analyse_with_shared(&readings, &shared, &options, None)?;
+    if settings.instrument_profile.is_none() {
+        report.flags.push(Flag::InstrumentDeclared);
+        report.flags.sort();
+        report.flags.dedup();
+    }
+    Ok(report)
 }
 
 /// ", σ ≤ σ_l = …°" of a report whose σ fails the check (the value, so a reader sees how

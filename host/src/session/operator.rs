@@ -19,6 +19,8 @@ pub enum Placement {
     WhiteTile,
     /// The sample.
     Sample,
+    /// The black glass gloss standard (`gonio characterize`).
+    BlackGlass,
     /// The sheet moved so that another spot of it is under the beam (spot `spot` of `of`
     /// of a multi-spot session).
     NextSpot {
@@ -35,6 +37,10 @@ impl Placement {
         match self {
             Placement::WhiteTile => "Place the WHITE REFERENCE TILE on the sample port".to_string(),
             Placement::Sample => "Place the SAMPLE on the sample port".to_string(),
+            Placement::BlackGlass => {
+                "Place the BLACK GLASS gloss standard on the sample port, polished face to the arms"
+                    .to_string()
+            }
             // Spots a centimetre or more apart see different fibres and coating; a spot
             // measured twice would only repeat its own noise.
             Placement::NextSpot { spot, of } => format!(

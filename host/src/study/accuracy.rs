@@ -89,6 +89,7 @@ impl Case {
         let physics = match self.physics {
             Physics::Ideal => "ideal",
             Physics::Real => "real",
+            Physics::Drawn => "drawn",
         };
         match self.effect {
             Effect::None => format!("{} {physics}", self.sample),
@@ -327,6 +328,7 @@ pub(crate) fn stated_uncertainties(case: &Case) -> (f64, f64) {
     let set = match case.physics {
         Physics::Ideal => IDEAL_PHYSICS,
         Physics::Real => REAL_PHYSICS,
+        Physics::Drawn => crate::instrument::sim::DRAWN_PHYSICS,
     };
     let zero = match case.effect {
         Effect::ArmOffset(_) => DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,

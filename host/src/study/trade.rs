@@ -269,10 +269,10 @@ pub fn to_csv(rows: &[Row]) -> String {
             r.class,
             r.sigma_ok,
             r.gain_calibration_seconds,
-            if s.physics == crate::instrument::sim::Physics::Real {
-                "real"
-            } else {
-                "ideal"
+            match s.physics {
+                crate::instrument::sim::Physics::Real => "real",
+                crate::instrument::sim::Physics::Drawn => "drawn",
+                crate::instrument::sim::Physics::Ideal => "ideal",
             }
         );
     }
@@ -458,6 +458,9 @@ pub fn summary_markdown(rows: &[Row], seeds: u64, order_table: &str) -> String {
     let physics = match rows.first().map(|r| r.spec.physics) {
         Some(crate::instrument::sim::Physics::Real) => {
             "the realistic instrument errors (`--physics real`: range-gain, tile and arm-zero errors)"
+        }
+        Some(crate::instrument::sim::Physics::Drawn) => {
+            "instruments drawn from the seed (`--physics drawn`: response, arm zero and noise besides the realistic errors)"
         }
         _ => "the ideal instrument (`--physics ideal`)",
     };

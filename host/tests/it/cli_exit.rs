@@ -39,9 +39,13 @@ fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
         String::from_utf8_lossy(&out.stderr)
     );
     let r = json(&out);
+    // Clean: ok, and only the informational flag that no instrument profile was in force.
     assert_eq!(
         (r["ok"].clone(), r["flags"].clone()),
-        (Value::from(true), Value::from(Vec::<String>::new())),
+        (
+            Value::from(true),
+            serde_json::json!(["instrument-declared"])
+        ),
         "{r}"
     );
     // A slip of the detector arm: measured again, the class right, but flagged.
@@ -99,7 +103,10 @@ fn a_clean_result_exits_0_and_a_flagged_one_3_with_ok_and_flags_in_the_json() {
     let r = json(&out);
     assert_eq!(
         (r["ok"].clone(), r["flags"].clone()),
-        (Value::from(true), Value::from(vec!["link-recovered"])),
+        (
+            Value::from(true),
+            Value::from(vec!["link-recovered", "instrument-declared"])
+        ),
         "{r}"
     );
     for name in ["clean", "slip", "unplug"] {

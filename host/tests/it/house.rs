@@ -27,7 +27,13 @@ const OUTPUT: &[&[&str]] = &[
     &["record", "sheet_folder"],
     &["verify"],
     &["report"],
-    &["comparison", "catalogue", "reanalysis", "library"],
+    &[
+        "comparison",
+        "catalogue",
+        "reanalysis",
+        "library",
+        "characterization",
+    ],
 ];
 
 /// The longest a function may be, in lines from its `fn` to its closing brace.

@@ -9,6 +9,7 @@
 #![allow(clippy::needless_range_loop, clippy::type_complexity)]
 
 // Helpers shared by the test files.
+mod characterize;
 mod cli_support;
 mod common;
 mod firmware_support;
@@ -51,5 +52,6 @@ mod report;
 mod schemas;
 mod selftest;
 mod sheet;
+mod sim_instrument;
 mod table6;
 mod trade;

@@ -781,13 +781,20 @@ fn the_chain_of_custody_holds_across_a_kill_an_interruption_and_the_end() {
     assert!(out.status.success(), "{}", stderr(&out));
     let result: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(result["ok"], true, "{result}");
-    assert_eq!(result["flags"], serde_json::json!(["resumed"]), "{result}");
+    assert_eq!(
+        result["flags"],
+        serde_json::json!(["resumed", "instrument-declared"]),
+        "{result}"
+    );
     assert_eq!(result["class"], "G");
     let doc = session(&dir);
     assert_eq!(doc["status"], "finished");
     assert_eq!(doc["sample"], "G");
     assert_eq!(doc["instrument"]["serial_number"], "SIM-0001");
-    assert_eq!(doc["flags"], serde_json::json!(["resumed"]));
+    assert_eq!(
+        doc["flags"],
+        serde_json::json!(["resumed", "instrument-declared"])
+    );
     let runs = doc["runs"].as_array().unwrap();
     let outcomes: Vec<&str> = runs
         .iter()

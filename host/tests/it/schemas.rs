@@ -622,3 +622,64 @@ fn a_folder_of_the_first_version_verifies_reanalyses_reports_and_compares() {
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
     let _ = std::fs::remove_dir_all(newer.parent().unwrap());
 }
+
+/// `gonio characterize`'s profile on drawn instruments (a seed per run), and a session's
+/// result with that profile in force (its `gloss` and `analysis_settings.instrument_profile`)
+/// and without one (its `instrument_bound`), against their JSON Schemas.
+#[test]
+fn instrument_profiles_and_the_sessions_that_use_them_validate() {
+    let schemas = Schemas::load();
+    let seed = run_seed().to_string();
+    let root = temp_dir("schemas", "instrument");
+    std::fs::create_dir_all(&root).unwrap();
+    let profile = root.join("instrument.json");
+    let out = gonio(&[
+        "characterize",
+        "--sim",
+        "--physics",
+        "drawn",
+        "--seed",
+        &seed,
+        "--rehomes",
+        "1",
+        "--lamp-s",
+        "4",
+        "--out",
+        profile.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let doc: Value = serde_json::from_slice(&std::fs::read(&profile).unwrap()).unwrap();
+    schemas.check("instrument.json", &doc);
+    for (name, extra) in [
+        ("with", vec!["--instrument", profile.to_str().unwrap()]),
+        ("without", vec![]),
+    ] {
+        let folder = root.join(name);
+        let mut args = vec![
+            "measure",
+            "--sim",
+            "SG",
+            "--physics",
+            "drawn",
+            "--seed",
+            &seed,
+            "--spots",
+            "1",
+            "--json",
+            "--out",
+            folder.to_str().unwrap(),
+        ];
+        args.extend(extra);
+        let out = gonio(&args);
+        let result: Value = serde_json::from_slice(&out.stdout)
+            .unwrap_or_else(|e| panic!("{name}: {e}: {}", stderr(&out)));
+        schemas.check(&format!("measure --json {name} a profile"), &result);
+        assert_eq!(result.get("gloss").is_some(), name == "with", "{result}");
+        assert_eq!(
+            result.get("instrument_bound").is_some(),
+            name == "without",
+            "{result}"
+        );
+        schemas.check_folder(&folder);
+    }
+}

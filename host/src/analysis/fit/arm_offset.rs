@@ -15,7 +15,7 @@ use super::{
     State, at_model,
 };
 use crate::analysis::linalg::{self, Square};
-use crate::analysis::model::RHO_S;
+use crate::analysis::model::{DetectorResponse, RHO_S};
 
 /// The score statistic (the likelihood ratio's quadratic prediction from δ0 = 0) below
 /// which the search for δ0 is not run (it costs a few refits). Over 675 fits of ideal and
@@ -41,7 +41,7 @@ pub(super) fn test_and_fit(
     state: &mut State,
     observations: &[Observation],
     given: &[SharedError],
-    acceptance: Option<f64>,
+    acceptance: Option<DetectorResponse>,
     unresolved: bool,
     options: &FitOptions,
 ) -> ArmTest {
@@ -89,7 +89,7 @@ pub(super) fn test_and_fit(
 pub(super) fn zero_uncertainty(
     state: &mut State,
     observations: &[Observation],
-    acceptance: Option<f64>,
+    acceptance: Option<DetectorResponse>,
     options: &FitOptions,
 ) {
     let u = options.arm_zero_uncertainty_deg;
@@ -188,7 +188,7 @@ fn arm_offset_step(
 fn arm_offset_search(
     observations: &[Observation],
     shared: &[SharedError],
-    acceptance: Option<f64>,
+    acceptance: Option<DetectorResponse>,
     base: &LeastSquaresProblem,
     outcome: &LmOutcome,
     fitted_count: usize,

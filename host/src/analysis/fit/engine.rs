@@ -15,7 +15,23 @@ use super::{
     Status,
 };
 use crate::analysis::linalg::{self, Square};
-use crate::analysis::model::{self, Params, PlaneGeometry};
+use crate::analysis::model::{self, DetectorResponse, Params, PlaneGeometry};
+
+/// The detector window a problem is built with: the declared acceptance (`Option<f64>`, a
+/// top-hat of that full width) or a response of any shape (`Option<DetectorResponse>`).
+pub(crate) struct Aperture(pub Option<DetectorResponse>);
+
+impl From<Option<f64>> for Aperture {
+    fn from(acceptance_deg: Option<f64>) -> Aperture {
+        Aperture(model::top_hat_response(acceptance_deg))
+    }
+}
+
+impl From<Option<DetectorResponse>> for Aperture {
+    fn from(response: Option<DetectorResponse>) -> Aperture {
+        Aperture(response.filter(|r| r.step_deg() > 0.0))
+    }
+}
 
 /// One reading prepared for the fit.
 #[derive(Clone, Copy, Debug)]
@@ -106,7 +122,10 @@ impl Shared {
 /// per distinct value and per pass.
 pub(super) struct LeastSquaresProblem {
     pub points: Vec<Point>,
+    /// Width of the response's steps, degrees (the acceptance itself for a top-hat).
     pub acceptance_deg: Option<f64>,
+    /// The detector's response (`None`: a point detector).
+    pub response: Option<DetectorResponse>,
     pub weighted: bool,
     pub shared: Shared,
     /// Arm zero offset applied to every θr, degrees.
@@ -166,13 +185,14 @@ type RawPiece = (f64, f64, [PlaneGeometry; 3], f64);
 fn raw_pieces(
     observations: &[Observation],
     centres: &[PlaneGeometry],
-    acceptance_deg: Option<f64>,
+    response: Option<&DetectorResponse>,
 ) -> (Vec<RawPiece>, Vec<(u32, u32)>) {
+    let acceptance_deg = response.map(DetectorResponse::step_deg);
     let mut raw_pieces: Vec<RawPiece> = Vec::with_capacity(centres.len());
     let mut ranges = Vec::with_capacity(centres.len());
     for (o, g) in observations.iter().zip(centres) {
         let start = raw_pieces.len() as u32;
-        let (window, travel) = model::reading_window(o.theta_r_span_deg, acceptance_deg);
+        let (window, travel) = model::reading_window(o.theta_r_span_deg, response);
         for (along, weight) in travel {
             let theta_r = g.theta_r_deg + along;
             match window {
@@ -210,16 +230,17 @@ impl LeastSquaresProblem {
     pub fn new(
         observations: &[Observation],
         shared: &[SharedError],
-        acceptance_deg: Option<f64>,
+        aperture: impl Into<Aperture>,
         shift_deg: f64,
     ) -> LeastSquaresProblem {
         let weighted = observations.first().is_some_and(|o| o.std.is_some());
-        let acceptance_deg = acceptance_deg.filter(|&a| a > 0.0);
+        let response = aperture.into().0;
+        let acceptance_deg = response.map(|r| r.step_deg());
         let centres: Vec<PlaneGeometry> = observations
             .iter()
             .map(|o| PlaneGeometry::new(o.theta_i_deg, o.theta_r_deg + shift_deg))
             .collect();
-        let (raw_pieces, ranges) = raw_pieces(observations, &centres, acceptance_deg);
+        let (raw_pieces, ranges) = raw_pieces(observations, &centres, response.as_ref());
         let offsets_raw: Vec<f64> = centres
             .iter()
             .map(|g| {
@@ -281,6 +302,7 @@ impl LeastSquaresProblem {
         LeastSquaresProblem {
             points,
             acceptance_deg,
+            response,
             weighted,
             shared: Shared::new(observations, shared),
             shift_deg,
@@ -318,7 +340,16 @@ impl LeastSquaresProblem {
     /// than a²/(24·(2σ)²) < 0.2 %): the grid only has to find the basins.
     fn seed_lobe_table(&self, sigma_deg: f64, out: &mut Vec<f64>) {
         out.clear();
-        match self.acceptance_deg {
+        // A response of several steps seeds with the top-hat of its variance: the grid
+        // only has to find the basins.
+        let seed_window = self.response.map(|r| {
+            if r.is_top_hat() {
+                r.step_deg()
+            } else {
+                r.equivalent_width_deg()
+            }
+        });
+        match seed_window {
             Some(a) if 2.0 * sigma_deg < 4.0 * a => out.extend(
                 self.offsets
                     .iter()
@@ -1022,7 +1053,10 @@ impl LeastSquaresProblem {
     /// difference of the point model.
     pub(crate) fn shift_column(&self, x: &[f64; 4]) -> Vec<f64> {
         let sigma = x[0].exp();
-        match self.acceptance_deg {
+        // The edge formula holds for one uniform window; a response of several steps takes
+        // the travel's central difference for every reading.
+        let edge_window = self.response.filter(DetectorResponse::is_top_hat);
+        match edge_window.map(|r| r.step_deg()) {
             Some(a) => {
                 let h = 0.5 * a;
                 let edges: Vec<(f64, f64)> = self
@@ -1064,7 +1098,7 @@ impl LeastSquaresProblem {
                 self.points
                     .iter()
                     .map(|pt| {
-                        if pt.span_deg > 0.0 {
+                        if pt.span_deg > 0.0 || self.response.is_some() {
                             return pt.sqrt_w * self.moving_shift_derivative(&p, pt);
                         }
                         let (ti, tr) = (pt.geometry.theta_i_deg, pt.geometry.theta_r_deg);
@@ -1082,8 +1116,9 @@ impl LeastSquaresProblem {
     fn moving_shift_derivative(&self, p: &Params, pt: &Point) -> f64 {
         let step = 1e-4;
         let (ti, tr) = (pt.geometry.theta_i_deg, pt.geometry.theta_r_deg);
-        let at =
-            |d: f64| model::evaluate_reading(p, ti, tr + d, pt.span_deg, self.acceptance_deg).0;
+        let at = |d: f64| {
+            model::evaluate_reading_through(p, ti, tr + d, pt.span_deg, self.response.as_ref()).0
+        };
         (at(step) - at(-step)) / (2.0 * step)
     }
 }
@@ -1215,6 +1250,75 @@ mod tests {
             let (theta_i, theta_r) = (o.theta_i_deg, o.theta_r_deg + shift);
             model::evaluate_reading(p, theta_i, theta_r, o.theta_r_span_deg, acceptance)
         });
+    }
+
+    /// A measured response of several steps: the engine's values, σ-gradients and shift
+    /// column are the model's through the same response (still and moving readings, with an
+    /// offset), and a top-hat cut into equal steps is the top-hat.
+    #[test]
+    fn engine_matches_the_model_through_a_stepped_response() {
+        let shares = [0.05, 0.12, 0.2, 0.26, 0.2, 0.12, 0.05];
+        let response = DetectorResponse::from_steps(0.4, -1.25, &shares).unwrap();
+        let obs: Vec<Observation> = grid()
+            .into_iter()
+            .step_by(5)
+            .enumerate()
+            .map(|(k, o)| Observation {
+                theta_r_span_deg: [0.0, 0.3][k % 2],
+                ..o
+            })
+            .collect();
+        for shift in [0.0, 0.3] {
+            let problem = LeastSquaresProblem::new(&obs, &[], Some(response), shift);
+            for p in &G_AND_ROUGH {
+                let x = x_of(p);
+                let values = problem.values(&x);
+                let (_, jac) = problem.rows(&x);
+                let column = problem.shift_column(&x);
+                for (k, o) in obs.iter().enumerate() {
+                    let at = |d: f64| {
+                        model::evaluate_reading_through(
+                            p,
+                            o.theta_i_deg,
+                            o.theta_r_deg + shift + d,
+                            o.theta_r_span_deg,
+                            Some(&response),
+                        )
+                    };
+                    let (v, g) = at(0.0);
+                    assert!(
+                        (values[k] - v).abs() <= 1e-12 * v.abs(),
+                        "{o:?}: {} vs {v}",
+                        values[k]
+                    );
+                    let want_sigma = g[SIGMA] * p.sigma_deg / 0.01;
+                    assert!((jac[k][0] - want_sigma).abs() <= 1e-9 * (want_sigma.abs() + 1e-6));
+                    let fd = (at(1e-4).0 - at(-1e-4).0) / 2e-4 / 0.01;
+                    assert!((column[k] - fd).abs() <= 1e-6 * (fd.abs() + 1.0));
+                }
+            }
+        }
+        // Five steps of 0.2° with equal shares are the 1° top-hat (G's peak and flank), to
+        // the parabola rule's own error on each (about 1e-6).
+        let stepped = DetectorResponse::from_steps(0.2, -0.4, &[1.0; 5]).unwrap();
+        for theta_r in [59.7, 60.0, 61.3, 63.0] {
+            let whole = model::evaluate_reading(&G_AND_ROUGH[0], 60.0, theta_r, 0.0, Some(1.0)).0;
+            let steps = model::evaluate_reading_through(
+                &G_AND_ROUGH[0],
+                60.0,
+                theta_r,
+                0.0,
+                Some(&stepped),
+            )
+            .0;
+            assert!(
+                (whole - steps).abs() <= 1e-6 * whole,
+                "{theta_r}: {whole} vs {steps}"
+            );
+        }
+        let hat = DetectorResponse::top_hat(1.0);
+        assert!((hat.variance_deg2() - 1.0 / 12.0).abs() < 1e-15);
+        assert!((stepped.variance_deg2() - 1.0 / 12.0).abs() < 1e-12);
     }
 
     /// Woodbury: the engine's cost with shared errors equals rᵀ Σ⁻¹ r with Σ formed and

@@ -13,7 +13,7 @@ use super::{
     ActiveBound, Bound, ETA_MAX, ETA_MIN, FitOptions, N_PARAMS, Note, SIGMA_MAX_DEG, SIGMA_MIN_DEG,
     State,
 };
-use crate::analysis::model::{ETA, PARAM_NAMES, RHO_S, SIGMA};
+use crate::analysis::model::{DetectorResponse, ETA, PARAM_NAMES, RHO_S, SIGMA};
 
 /// χ²(1) at 95 %: a profile within this (× residual variance) of the minimum is consistent.
 const CHI2_1_95: f64 = 3.841_458_820_694_124;
@@ -26,7 +26,7 @@ const CHI2_3_95: f64 = 7.814_727_903_251_178;
 /// with its σ → 0 limit ([`sigma_unresolved`]). Returns whether σ is unresolved.
 pub(super) fn specular_part(
     state: &mut State,
-    acceptance: Option<f64>,
+    acceptance: Option<DetectorResponse>,
     options: &FitOptions,
 ) -> bool {
     let State {
@@ -80,7 +80,7 @@ fn residual_variance(problem: &LeastSquaresProblem, cost: f64, p: usize) -> f64 
 fn sigma_unresolved(
     problem: &LeastSquaresProblem,
     outcome: &LmOutcome,
-    acceptance: Option<f64>,
+    acceptance: Option<DetectorResponse>,
     max_iterations: usize,
 ) -> Option<(LmOutcome, Note)> {
     let lo = lower_bounds();

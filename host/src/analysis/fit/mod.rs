@@ -51,7 +51,7 @@ mod result;
 mod validation;
 
 use crate::analysis::flags::Flag;
-use crate::analysis::model::Params;
+use crate::analysis::model::{DetectorResponse, Params};
 use engine::{LeastSquaresProblem, LmOutcome, global_fit, params_of, x_of};
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
@@ -142,8 +142,12 @@ pub const DEFAULT_ARM_ZERO_UNCERTAINTY_DEG: f64 = 0.1;
 /// Options of a fit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FitOptions {
-    /// Full width of the detector's acceptance in θr, degrees; `None` or 0 leaves it out.
+    /// Full width of the detector's acceptance in θr, degrees (a top-hat, the declared
+    /// window); `None` or 0 leaves it out. [`FitOptions::response`] replaces it when given.
     pub acceptance_deg: Option<f64>,
+    /// The detector's measured angular response (an instrument profile's), used instead
+    /// of the declared top-hat.
+    pub response: Option<DetectorResponse>,
     /// Levenberg–Marquardt iteration limit per start.
     pub max_iterations: usize,
     /// Test for an arm zero offset and fit it when the data call for it.
@@ -164,11 +168,22 @@ impl Default for FitOptions {
     fn default() -> Self {
         FitOptions {
             acceptance_deg: Some(crate::analysis::model::DEFAULT_ACCEPTANCE_DEG),
+            response: None,
             max_iterations: 200,
             arm_offset: true,
             arm_zero_uncertainty_deg: 0.0,
             noise_scale_log_variance: 0.0,
         }
+    }
+}
+
+impl FitOptions {
+    /// The detector window the fit models: the measured response if given, else the
+    /// declared top-hat, else none (a point detector).
+    pub fn window(&self) -> Option<DetectorResponse> {
+        self.response
+            .filter(|r| r.step_deg() > 0.0)
+            .or_else(|| crate::analysis::model::top_hat_response(self.acceptance_deg))
     }
 }
 
@@ -297,7 +312,7 @@ pub fn fit_with_shared(
     // 1. The data, refused with the first problem named.
     validate(observations)?;
     validate_shared(observations, shared)?;
-    let acceptance = options.acceptance_deg.filter(|&a| a > 0.0);
+    let acceptance = options.window();
 
     // 2. The shared errors at a first pass's model, then the global fit with them.
     let mut state = State::global(observations, shared, acceptance, options.max_iterations);
@@ -361,7 +376,7 @@ impl State {
     fn global(
         observations: &[Observation],
         given: &[SharedError],
-        acceptance: Option<f64>,
+        acceptance: Option<DetectorResponse>,
         max_iterations: usize,
     ) -> State {
         let shared: Vec<SharedError> = if given.is_empty() {
@@ -427,7 +442,14 @@ fn summary(
         budget: uncertainty.budget,
         active_bounds,
         notes: state.notes,
-        acceptance_deg: state.problem.acceptance_deg,
+        acceptance_deg: state.problem.response.map(|r| {
+            if r.is_top_hat() {
+                r.step_deg()
+            } else {
+                r.equivalent_width_deg()
+            }
+        }),
+        response: state.problem.response.filter(|r| !r.is_top_hat()),
         arm_offset: uncertainty.arm_offset,
         arm_offset_statistic: arm.statistic,
         n,

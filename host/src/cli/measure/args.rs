@@ -54,6 +54,16 @@ pub struct Args {
     /// microsteps); 0 trusts the zero exactly.
     #[arg(long, value_name = "DEG", default_value_t = host::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG, allow_negative_numbers = true)]
     pub arm_zero_uncertainty_deg: f64,
+    /// The instrument's profile (gonio characterize): the fit models the detector's
+    /// measured angular response and takes the arm zero measured on the black glass.
+    /// Default: the profile installed for the instrument's serial
+    /// ($XDG_DATA_HOME/gonio/instruments/SERIAL.json), if there is one; without any, the
+    /// declared values are used and the result is flagged instrument-declared.
+    #[arg(long, value_name = "FILE")]
+    pub instrument: Option<PathBuf>,
+    /// Oldest instrument profile used, days: an older one is not used (the result says so).
+    #[arg(long, value_name = "DAYS", default_value_t = host::instrument::profile::DEFAULT_MAX_AGE_DAYS)]
+    pub max_profile_age_days: f64,
     /// Oldest calibration accepted, hours (at most 8760).
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
     pub max_calibration_age_h: f64,
@@ -110,6 +120,8 @@ impl Args {
             tile_uncertainty_pct: self.tile_uncertainty_pct,
             tile_certificate: self.tile_certificate.clone(),
             arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg,
+            instrument: self.instrument.clone(),
+            max_profile_age_days: self.max_profile_age_days,
             max_calibration_age_h: self.max_calibration_age_h,
             integration_ms: self.integration_ms,
             policy: self.policy,

@@ -1,0 +1,703 @@
+//! `gonio characterize`'s procedure: the instrument measured with the standards a lab has
+//! (a black glass gloss standard and the white tile), so that sessions use the instrument
+//! as it is instead of as it is declared ([`crate::instrument::profile`]).
+//!
+//! - **Black glass.** At each incidence, the detector arm sweeps up and then down through
+//!   the glass's specular peak on one held range: the peak is the instrument's whole
+//!   in-plane angular response (acceptance and source divergence together), its centroid
+//!   the arm zero ([`crate::analysis::response_estimate`]). Up less down is the detector
+//!   arm's backlash (the amplifier's lag, v·τ of the range, taken out first). Where a
+//!   peak needs a less sensitive range, its flanks are swept on the more sensitive one
+//!   too: the ratio of the two ranges' bins over the flanks is their gain ratio (the white
+//!   tile reads 4 % of full scale on range 1, too little for a ratio to 0.1 %).
+//! - **Homing.** The arms are homed again and one incidence swept each time: the spread of
+//!   the peak's centroid is the homing's repeatability, which every session inherits.
+//! - **White tile.** Darks repeated on every range; the tile read repeatedly on each range
+//!   (its noise) and over a stated time (the lamp's drift since it was switched on).
+//!
+//! The operator is asked for each standard with the lamp off and the arms still, so that
+//! nothing needs the link while a person works.
+use crate::analysis::response_estimate::{
+    self, Measured, Peak, PeakError, Trace, TraceBin, mean_and_error,
+};
+use crate::instrument::link::{Client, LinkError, Transport};
+use crate::instrument::profile::{
+    GainRatioFigure, IncidenceFigures, InstrumentProfile, LampFigures, RangeNoise, ResponseFigures,
+    SCHEMA, Standards,
+};
+use crate::session::operator::{Operator, Placement};
+use protocol::{
+    Angle, Command, DeviceInfo, DeviceMessage, Geometry, Reading, Reply, Sweep, SweepBin, Target,
+};
+use std::time::Duration;
+
+/// Incidences swept on the black glass: the policies' 20° and 60°, the paper's 45°, and
+/// 30° and 75° between and beyond (the arm zero is interpolated between them).
+pub const INCIDENCES_DEG: [f64; 5] = [20.0, 30.0, 45.0, 60.0, 75.0];
+/// The incidence swept after each re-homing.
+const REHOME_INCIDENCE_DEG: f64 = 45.0;
+/// Detector speed of the sweeps, °/s: a 0.025° bin is then about 6 of the detector's blocks
+/// and the amplifier's lag (≤ 1 ms) 0.004°, taken out.
+const SPEED_DEG_PER_S: f64 = 4.0;
+/// Bin length, ticks of 0.0125°: 0.025°, a twelfth of the narrowest response (0.3°).
+const BIN_TICKS: u16 = 2;
+/// Half the first sweep's span, degrees: a 3° Gaussian response to 0.5 % of its height and
+/// an arm zero of 0.5°, with room; later sweeps fit the response found.
+const FIRST_HALF_SPAN_DEG: f64 = 6.0;
+/// Widest half span tried when a peak runs into a sweep's end, degrees.
+const MAX_HALF_SPAN_DEG: f64 = 9.0;
+/// Readings' integration time, ms.
+const INTEGRATION_MS: u16 = 100;
+/// Darks per range.
+const DARKS: usize = 5;
+/// White readings per range for its noise.
+const WHITES_PER_RANGE: usize = 5;
+/// The white tile's geometry: θi 20°, θr 0 (where the reference instrument's white reads
+/// 40 % of full scale on the most sensitive range).
+const WHITE_GEOMETRY_DEG: (f64, f64) = (20.0, 0.0);
+/// Levels of a flank bin on the more sensitive range used for a gain ratio, fraction of
+/// full scale above dark: above the noise on the other range, below saturation.
+const GAIN_LEVELS: (f64, f64) = (0.08, 0.85);
+
+/// What is asked for besides the defaults.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    /// The standards (their certificates).
+    pub standards: Standards,
+    /// Times the arms are homed again for the repeatability (≥ 1).
+    pub rehomes: usize,
+    /// How long the lamp's drift is followed on the white tile, s of device time.
+    pub lamp_s: f64,
+}
+
+/// A characterization: the profile, and what the report draws.
+#[derive(Clone, Debug)]
+pub struct Characterization {
+    /// The profile.
+    pub profile: InstrumentProfile,
+    /// Every black glass sweep with its peak.
+    pub sweeps: Vec<(Trace, Peak)>,
+    /// The lamp's white readings: (s since the first, signal relative to their mean).
+    pub lamp_series: Vec<(f64, f64)>,
+}
+
+/// Why a characterization stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum CharacterizeError {
+    /// The link failed.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The device refused or stopped.
+    #[error("the instrument {0}")]
+    Device(String),
+    /// No usable peak.
+    #[error(transparent)]
+    Peak(#[from] PeakError),
+    /// The operator could not answer.
+    #[error("no one answered the prompt: {0}")]
+    Operator(std::io::Error),
+    /// A figure could not be formed.
+    #[error("{0}")]
+    Figure(String),
+}
+
+/// One held-range sweep's bins.
+struct RangeSweep {
+    theta_i_deg: f64,
+    direction: f64,
+    range: u8,
+    bins: Vec<SweepBin>,
+}
+
+struct Run<'a, T: Transport> {
+    client: &'a mut Client<T>,
+    info: &'a DeviceInfo,
+    next_id: u16,
+    /// Dark mean per range, counts.
+    dark: Vec<f64>,
+}
+
+/// Run the characterization on a handshaken instrument (`info` its handshake).
+pub fn run<T: Transport>(
+    client: &mut Client<T>,
+    info: &DeviceInfo,
+    operator: &mut dyn Operator,
+    options: &Options,
+) -> Result<Characterization, CharacterizeError> {
+    let started = client.transport().now();
+    let mut run = Run {
+        client,
+        info,
+        next_id: 1,
+        dark: Vec::new(),
+    };
+    run.request(Command::Home)?;
+    run.place(operator, Placement::BlackGlass)?;
+    let noise_darks = run.darks()?;
+    let mut sweeps = Vec::new();
+    let mut incidences = Vec::new();
+    let mut gain_sweeps: Vec<(RangeSweep, RangeSweep)> = Vec::new();
+    let mut half_span = FIRST_HALF_SPAN_DEG;
+    for &theta_i in &INCIDENCES_DEG {
+        let (pair, peaks, range) = run.peak_pair(theta_i, &mut half_span)?;
+        incidences.push(incidence_figures(theta_i, &peaks, range));
+        // The flanks on the next more sensitive range, for the gain ratio of the pair.
+        if range > 0 && !gain_sweeps.iter().any(|(a, _)| a.range == range - 1) {
+            let centre = 0.5 * (peaks[0].centroid_deg + peaks[1].centroid_deg);
+            let up = run.sweep(theta_i, centre - half_span, centre + half_span, range - 1)?;
+            let down = run.sweep(theta_i, centre + half_span, centre - half_span, range - 1)?;
+            gain_sweeps.push((up, down));
+            gain_sweeps.push((
+                run.sweep(theta_i, centre - half_span, centre + half_span, range)?,
+                run.sweep(theta_i, centre + half_span, centre - half_span, range)?,
+            ));
+        }
+        for (sweep, peak) in pair.into_iter().zip(peaks) {
+            sweeps.push((sweep, peak));
+        }
+    }
+    // Homing again: the centroid at one incidence after each.
+    let mut centroids: Vec<f64> = sweeps
+        .iter()
+        .filter(|(t, _)| t.theta_i_deg == REHOME_INCIDENCE_DEG && t.direction > 0.0)
+        .map(|(_, p)| p.centroid_deg)
+        .collect();
+    let range = incidences
+        .iter()
+        .find(|i| i.theta_i_deg == REHOME_INCIDENCE_DEG)
+        .map_or(0, |i| i.range);
+    for _ in 0..options.rehomes {
+        run.request(Command::Home)?;
+        let peak = run.measure(REHOME_INCIDENCE_DEG, 1.0, half_span, range)?.1;
+        centroids.push(peak.centroid_deg);
+    }
+    run.place(operator, Placement::WhiteTile)?;
+    let White {
+        noise,
+        lamp,
+        series: lamp_series,
+    } = run.white(&noise_darks, options.lamp_s)?;
+    run.request(Command::SetLamp { on: false })?;
+    let device_seconds = (run.client.transport().now() - started).as_secs_f64();
+    let profile = figures(
+        run.info,
+        options,
+        Figures {
+            sweeps: &sweeps,
+            incidences,
+            centroids: &centroids,
+            gain_sweeps: &gain_sweeps,
+            dark: &run.dark,
+            noise,
+            lamp,
+            device_seconds,
+        },
+    )?;
+    Ok(Characterization {
+        profile,
+        sweeps,
+        lamp_series,
+    })
+}
+
+/// What the white tile gave: noise per range, the lamp, its readings over time.
+struct White {
+    noise: Vec<RangeNoise>,
+    lamp: LampFigures,
+    series: Vec<(f64, f64)>,
+}
+
+/// What [`figures`] forms the profile from.
+struct Figures<'a> {
+    sweeps: &'a [(Trace, Peak)],
+    incidences: Vec<IncidenceFigures>,
+    centroids: &'a [f64],
+    gain_sweeps: &'a [(RangeSweep, RangeSweep)],
+    dark: &'a [f64],
+    noise: Vec<RangeNoise>,
+    lamp: LampFigures,
+    device_seconds: f64,
+}
+
+fn incidence_figures(theta_i: f64, peaks: &[Peak; 2], range: u8) -> IncidenceFigures {
+    let centre = 0.5 * (peaks[0].centroid_deg + peaks[1].centroid_deg);
+    let u = 0.5 * peaks[0].centroid_u_deg.hypot(peaks[1].centroid_u_deg);
+    IncidenceFigures {
+        theta_i_deg: theta_i,
+        arm_zero_deg: Measured {
+            value: theta_i - centre,
+            u,
+        },
+        fwhm_deg: mean_and_error(&[peaks[0].fwhm_deg, peaks[1].fwhm_deg], f64::NAN),
+        range,
+    }
+}
+
+/// The profile from the measurements.
+fn figures(
+    info: &DeviceInfo,
+    options: &Options,
+    f: Figures<'_>,
+) -> Result<InstrumentProfile, CharacterizeError> {
+    let peaks: Vec<Peak> = f.sweeps.iter().map(|(_, p)| *p).collect();
+    let traces: Vec<Trace> = f.sweeps.iter().map(|(t, _)| t.clone()).collect();
+    let widths: Vec<f64> = peaks.iter().map(|p| p.fwhm_deg).collect();
+    let fwhm = mean_and_error(&widths, f64::NAN);
+    let equivalent: Vec<f64> = peaks
+        .iter()
+        .map(|p| (12.0 * p.variance_deg2).sqrt())
+        .collect();
+    let (response, shares_u) = response_estimate::response_steps(&traces, &peaks, fwhm.value)
+        .ok_or_else(|| CharacterizeError::Figure("no response could be formed".into()))?;
+    // Up less down, per incidence.
+    let backlash: Vec<f64> = f
+        .sweeps
+        .chunks(2)
+        .filter(|pair| pair.len() == 2)
+        .map(|pair| pair[0].1.centroid_deg - pair[1].1.centroid_deg)
+        .collect();
+    let backlash = mean_and_error(&backlash, f64::NAN);
+    let n = f.centroids.len() as f64;
+    let repeatability = {
+        let m = mean_and_error(f.centroids, 0.0);
+        let sd = m.u * n.sqrt();
+        Measured {
+            value: sd,
+            u: sd / (2.0 * (n - 1.0).max(1.0)).sqrt(),
+        }
+    };
+    // A session's zero: the incidences' own, the homing's spread, and half the backlash
+    // (a still reading approached from either side) as a uniform bound.
+    let zero_u = f
+        .incidences
+        .iter()
+        .map(|i| i.arm_zero_deg.u)
+        .fold(0.0, f64::max);
+    let arm_zero_u =
+        (zero_u.powi(2) + repeatability.value.powi(2) + (0.5 * backlash.value.abs()).powi(2) / 3.0)
+            .sqrt();
+    let gain_ratios = gain_ratios(info, f.gain_sweeps, f.dark);
+    let steps = response.steps();
+    Ok(InstrumentProfile {
+        schema: SCHEMA.to_string(),
+        serial_number: info.serial_number.to_string(),
+        firmware_version: info.firmware_version.to_string(),
+        gonio_version: env!("CARGO_PKG_VERSION").to_string(),
+        measured_at: chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true),
+        device_seconds: f.device_seconds,
+        standards: options.standards.clone(),
+        response: ResponseFigures {
+            fwhm_deg: fwhm,
+            equivalent_width_deg: mean_and_error(&equivalent, f64::NAN),
+            declared_acceptance_deg: f64::from(info.acceptance_deg),
+            step_deg: response.step_deg(),
+            first_offset_deg: steps[0].0,
+            shares: steps.iter().map(|s| s.1).collect(),
+            shares_u,
+        },
+        incidences: f.incidences,
+        arm_zero_u_deg: arm_zero_u,
+        backlash_deg: backlash,
+        home_repeatability_deg: repeatability,
+        gain_ratios,
+        noise: f.noise,
+        lamp: f.lamp,
+    })
+}
+
+/// G(r + 1)/G(r) from the flanks read on both ranges (the same sweeps' bins, paired by
+/// index, up and down together so that the ranges' different lags cancel).
+fn gain_ratios(
+    info: &DeviceInfo,
+    gain_sweeps: &[(RangeSweep, RangeSweep)],
+    dark: &[f64],
+) -> Vec<GainRatioFigure> {
+    let mut out = Vec::new();
+    for pair in gain_sweeps.chunks(2) {
+        let [(sens_up, sens_down), (less_up, less_down)] = pair else {
+            continue;
+        };
+        let r = sens_up.range;
+        let Some(range) = info.detector_ranges.get(usize::from(r)) else {
+            continue;
+        };
+        let full =
+            f64::from(range.full_scale_counts) - dark.get(usize::from(r)).copied().unwrap_or(0.0);
+        let mut ratios = Vec::new();
+        for (a, b) in [(sens_up, less_up), (sens_down, less_down)] {
+            for (x, y) in a.bins.iter().zip(&b.bins) {
+                if x.index != y.index || !usable(x) || !usable(y) {
+                    continue;
+                }
+                let sx = f64::from(x.mean_counts) - dark[usize::from(r)];
+                let sy = f64::from(y.mean_counts) - dark[usize::from(r + 1)];
+                if sx >= GAIN_LEVELS.0 * full && sx <= GAIN_LEVELS.1 * full && sy > 0.0 {
+                    ratios.push(sy / sx);
+                }
+            }
+        }
+        if ratios.len() >= 4 {
+            let nominal = info
+                .detector_ranges
+                .get(usize::from(r) + 1)
+                .map_or(f64::NAN, |next| {
+                    f64::from(next.relative_gain / range.relative_gain)
+                });
+            out.push(GainRatioFigure {
+                range: r,
+                ratio: mean_and_error(&ratios, f64::NAN),
+                nominal,
+            });
+        }
+    }
+    out
+}
+
+fn usable(bin: &SweepBin) -> bool {
+    !bin.is_saturated() && !bin.is_blanked() && !bin.is_empty() && bin.blocks > 0
+}
+
+impl<T: Transport> Run<'_, T> {
+    /// `command`'s reply (a device's refusal is the link's error, naming the command).
+    fn request(&mut self, command: Command) -> Result<Reply, CharacterizeError> {
+        Ok(self.client.request(command)?)
+    }
+
+    /// Ask for `placement` with the lamp off and the arms still; the lamp on after.
+    fn place(
+        &mut self,
+        operator: &mut dyn Operator,
+        placement: Placement,
+    ) -> Result<(), CharacterizeError> {
+        self.request(Command::SetLamp { on: false })?;
+        operator
+            .ask(placement, self.client.transport().now())
+            .map_err(CharacterizeError::Operator)?;
+        while !operator
+            .answered(self.client.transport().now())
+            .map_err(CharacterizeError::Operator)?
+        {
+            self.client.keep_alive(Duration::from_millis(100))?;
+        }
+        self.request(Command::SetLamp { on: true })?;
+        Ok(())
+    }
+
+    /// [`DARKS`] darks: their mean per range kept for the sweeps, every one returned.
+    fn darks(&mut self) -> Result<Vec<Vec<Reading>>, CharacterizeError> {
+        let mut all = Vec::new();
+        for _ in 0..DARKS {
+            match self.request(Command::TakeDark {
+                integration_ms: INTEGRATION_MS,
+            })? {
+                Reply::Dark(readings) => all.push(readings.to_vec()),
+                other => return Err(unexpected("TakeDark", other)),
+            }
+        }
+        // A dark leaves the lamp off.
+        self.request(Command::SetLamp { on: true })?;
+        let ranges = all.first().map_or(0, Vec::len);
+        self.dark = (0..ranges)
+            .map(|r| {
+                all.iter().map(|d| f64::from(d[r].mean_counts)).sum::<f64>() / all.len() as f64
+            })
+            .collect();
+        Ok(all)
+    }
+
+    /// The range whose scale holds the peak at `theta_i` (a reading at the specular
+    /// direction, auto-ranged).
+    fn peak_range(&mut self, theta_i: f64) -> Result<u8, CharacterizeError> {
+        let geometry = Geometry::from_deg(theta_i, theta_i).ok_or_else(|| {
+            CharacterizeError::Figure(format!("θi {theta_i}° is outside the arms"))
+        })?;
+        self.request(Command::MoveTo(geometry))?;
+        match self.request(Command::TakeReading {
+            integration_ms: INTEGRATION_MS,
+            target: Target::Sample,
+            range: None,
+        })? {
+            Reply::Reading(r) => Ok(r.range),
+            other => Err(unexpected("TakeReading", other)),
+        }
+    }
+
+    /// Up and down across the peak at `theta_i` on one range (the next less sensitive one
+    /// where a bin saturates; a wider span where the peak runs into an end).
+    fn peak_pair(
+        &mut self,
+        theta_i: f64,
+        half_span: &mut f64,
+    ) -> Result<([Trace; 2], [Peak; 2], u8), CharacterizeError> {
+        let mut range = self.peak_range(theta_i)?;
+        loop {
+            let up = self.measure(theta_i, 1.0, *half_span, range);
+            match up {
+                Err(CharacterizeError::Figure(ref why)) if why == SATURATED => {
+                    if usize::from(range) + 1 >= self.info.detector_ranges.len() {
+                        return Err(CharacterizeError::Figure(format!(
+                            "the black glass peak at θi = {theta_i}° saturates the least sensitive range"
+                        )));
+                    }
+                    range += 1;
+                }
+                Err(CharacterizeError::Peak(PeakError::Truncated { .. }))
+                    if *half_span < MAX_HALF_SPAN_DEG =>
+                {
+                    *half_span = (*half_span * 1.5).min(MAX_HALF_SPAN_DEG);
+                }
+                Err(e) => return Err(e),
+                Ok((trace_up, peak_up)) => {
+                    let (trace_down, peak_down) = self.measure(theta_i, -1.0, *half_span, range)?;
+                    // Later sweeps: the response found, with room.
+                    *half_span =
+                        (2.0 * peak_up.fwhm_deg + (theta_i - peak_up.centroid_deg).abs() + 0.5)
+                            .clamp(1.5, MAX_HALF_SPAN_DEG);
+                    return Ok(([trace_up, trace_down], [peak_up, peak_down], range));
+                }
+            }
+        }
+    }
+
+    /// One sweep across the peak at `theta_i` (centred on θi) and its peak.
+    fn measure(
+        &mut self,
+        theta_i: f64,
+        direction: f64,
+        half_span: f64,
+        range: u8,
+    ) -> Result<(Trace, Peak), CharacterizeError> {
+        let (from, to) = if direction > 0.0 {
+            (theta_i - half_span, theta_i + half_span)
+        } else {
+            (theta_i + half_span, theta_i - half_span)
+        };
+        let sweep = self.sweep(theta_i, from, to, range)?;
+        if sweep.bins.iter().any(SweepBin::is_saturated) {
+            return Err(CharacterizeError::Figure(SATURATED.to_string()));
+        }
+        let trace = self.trace(&sweep);
+        let peak = response_estimate::measure_peak(&trace)?;
+        Ok((trace, peak))
+    }
+
+    /// A sweep's bins as a trace: above dark, at their mean position less the
+    /// amplifier's lag v·τ.
+    fn trace(&self, sweep: &RangeSweep) -> Trace {
+        let tau_s = self
+            .info
+            .detector_ranges
+            .get(usize::from(sweep.range))
+            .map_or(0.0, |r| f64::from(r.time_constant_us) * 1e-6);
+        let lag = sweep.direction * SPEED_DEG_PER_S * tau_s;
+        let dark = self
+            .dark
+            .get(usize::from(sweep.range))
+            .copied()
+            .unwrap_or(0.0);
+        Trace {
+            theta_i_deg: sweep.theta_i_deg,
+            direction: sweep.direction,
+            bins: sweep
+                .bins
+                .iter()
+                .filter(|b| usable(b))
+                .map(|b| TraceBin {
+                    theta_r_deg: 0.5 * (b.start.deg() + b.end.deg()) - lag,
+                    span_deg: (b.end.deg() - b.start.deg()).abs(),
+                    signal: f64::from(b.mean_counts) - dark,
+                    std: f64::from(b.std_counts) / f64::from(b.blocks).sqrt(),
+                })
+                .collect(),
+        }
+    }
+
+    /// A sweep from `from` to `to` at `theta_i` held on `range`: its bins.
+    fn sweep(
+        &mut self,
+        theta_i: f64,
+        from: f64,
+        to: f64,
+        range: u8,
+    ) -> Result<RangeSweep, CharacterizeError> {
+        let lowest = self.info.arm_min.deg();
+        let highest = self.info.arm_max.deg();
+        let clamp = |v: f64| v.clamp(lowest, highest);
+        let (Some(theta_i_angle), Some(from_angle), Some(to_angle)) = (
+            Angle::from_deg(theta_i),
+            Angle::from_deg(clamp(from)),
+            Angle::from_deg(clamp(to)),
+        ) else {
+            return Err(CharacterizeError::Figure(format!(
+                "a sweep outside the arms: θi {theta_i}°, θr {from}°…{to}°"
+            )));
+        };
+        let sweep_id = self.next_id;
+        self.next_id = self.next_id.wrapping_add(1).max(1);
+        let command = Sweep {
+            sweep_id,
+            theta_i: theta_i_angle,
+            from: from_angle,
+            to: to_angle,
+            speed_mdeg_per_s: (SPEED_DEG_PER_S * 1000.0) as u32,
+            bin_ticks: BIN_TICKS,
+            range: Some(range),
+            target: Target::Sample,
+        };
+        let planned = match self.request(Command::Sweep(command))? {
+            Reply::Sweep(plan) => plan.bins,
+            other => return Err(unexpected("Sweep", other)),
+        };
+        let mut bins: Vec<SweepBin> = Vec::with_capacity(usize::from(planned));
+        loop {
+            match self.client.next_unsolicited(Duration::from_secs(5))? {
+                Some(DeviceMessage::SweepBin(bin)) if bin.sweep_id == sweep_id => {
+                    if !bins.iter().any(|b| b.index == bin.index) {
+                        bins.push(bin);
+                    }
+                }
+                Some(DeviceMessage::SweepDone { sweep_id: id, .. }) if id == sweep_id => break,
+                Some(DeviceMessage::Stopped { reason }) => {
+                    return Err(CharacterizeError::Device(format!("stopped: {reason:?}")));
+                }
+                Some(_) => {}
+                None => {
+                    // Silence: the end may have been lost on the link; ask.
+                    if let Reply::Status(status) = self.request(Command::GetStatus)?
+                        && status.schedule.is_none_or(|(id, _)| id != sweep_id)
+                    {
+                        break;
+                    }
+                }
+            }
+        }
+        bins.sort_by_key(|b| b.index);
+        Ok(RangeSweep {
+            theta_i_deg: theta_i,
+            direction: if to > from { 1.0 } else { -1.0 },
+            range,
+            bins,
+        })
+    }
+
+    /// The white tile: its noise on every range, and the lamp followed for `lamp_s`.
+    fn white(&mut self, darks: &[Vec<Reading>], lamp_s: f64) -> Result<White, CharacterizeError> {
+        let (ti, tr) = WHITE_GEOMETRY_DEG;
+        let geometry = Geometry::from_deg(ti, tr).ok_or_else(|| {
+            CharacterizeError::Figure("the white geometry is outside the arms".into())
+        })?;
+        self.request(Command::MoveTo(geometry))?;
+        let ranges = self.dark.len();
+        let mut noise = Vec::with_capacity(ranges);
+        for r in 0..ranges {
+            let values: Vec<f64> = (0..WHITES_PER_RANGE)
+                .map(|_| self.white_reading(r as u8).map(|(_, v)| v))
+                .collect::<Result<_, _>>()?;
+            let dark: Vec<f64> = darks.iter().map(|d| f64::from(d[r].mean_counts)).collect();
+            let dark_m = mean_and_error(&dark, f64::NAN);
+            let white = mean_and_error(&values, f64::NAN);
+            let white_sd = white.u * (values.len() as f64).sqrt();
+            noise.push(RangeNoise {
+                range: r as u8,
+                dark_counts: Measured {
+                    value: dark_m.value,
+                    u: dark_m.u * (dark.len() as f64).sqrt(),
+                },
+                white_relative_sd: (white.value > 0.0).then(|| white_sd / white.value),
+                integration_ms: INTEGRATION_MS,
+            });
+        }
+        // The lamp: the most sensitive range's white every second for lamp_s.
+        let start = self.client.transport().now();
+        let mut series: Vec<(f64, f64)> = Vec::new();
+        loop {
+            let (at, value) = self.white_reading(0)?;
+            let t = (at - start).as_secs_f64();
+            series.push((t, value));
+            if t >= lamp_s {
+                break;
+            }
+            self.client.keep_alive(Duration::from_millis(900))?;
+        }
+        let mean = series.iter().map(|p| p.1).sum::<f64>() / series.len() as f64;
+        let relative: Vec<(f64, f64)> = series.iter().map(|&(t, v)| (t, v / mean)).collect();
+        let drift = slope(&relative);
+        let lamp = LampFigures {
+            drift_pct_per_h: Measured {
+                value: drift.value * 100.0 * 3600.0,
+                u: drift.u * 100.0 * 3600.0,
+            },
+            over_s: relative.last().map_or(0.0, |p| p.0),
+        };
+        Ok(White {
+            noise,
+            lamp,
+            series: relative,
+        })
+    }
+
+    /// One white reading on `range` above dark, and when it was taken.
+    fn white_reading(&mut self, range: u8) -> Result<(Duration, f64), CharacterizeError> {
+        match self.request(Command::TakeReading {
+            integration_ms: INTEGRATION_MS,
+            target: Target::WhiteReference,
+            range: Some(range),
+        })? {
+            Reply::Reading(r) => Ok((
+                self.client.transport().now(),
+                f64::from(r.mean_counts)
+                    - self.dark.get(usize::from(range)).copied().unwrap_or(0.0),
+            )),
+            other => Err(unexpected("TakeReading", other)),
+        }
+    }
+}
+
+/// The marker of a sweep that saturated (tried again on a less sensitive range).
+const SATURATED: &str = "saturated";
+
+fn unexpected(command: &'static str, reply: Reply) -> CharacterizeError {
+    CharacterizeError::Link(LinkError::UnexpectedReply {
+        command,
+        reply: Box::new(reply),
+    })
+}
+
+/// Least-squares slope of (t, y) and its standard error.
+fn slope(points: &[(f64, f64)]) -> Measured {
+    let n = points.len() as f64;
+    if points.len() < 3 {
+        return Measured {
+            value: f64::NAN,
+            u: f64::NAN,
+        };
+    }
+    let (mt, my) = (
+        points.iter().map(|p| p.0).sum::<f64>() / n,
+        points.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let stt: f64 = points.iter().map(|p| (p.0 - mt).powi(2)).sum();
+    let sty: f64 = points.iter().map(|p| (p.0 - mt) * (p.1 - my)).sum();
+    let b = sty / stt;
+    let rss: f64 = points
+        .iter()
+        .map(|p| (p.1 - my - b * (p.0 - mt)).powi(2))
+        .sum();
+    Measured {
+        value: b,
+        u: (rss / (n - 2.0) / stt).sqrt(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_slope_and_its_error() {
+        let points: Vec<(f64, f64)> = (0..10).map(|k| (k as f64, 1.0 + 0.01 * k as f64)).collect();
+        let s = slope(&points);
+        assert!((s.value - 0.01).abs() < 1e-12 && s.u < 1e-9);
+        assert!(slope(&points[..2]).value.is_nan());
+    }
+}
