@@ -32,17 +32,17 @@ pub enum Flag {
     /// on this instrument. `gonio characterize` measures them.
     InstrumentDeclared,
     /// Without an instrument profile, the class changes within the bound on the
-    /// detector's response that no measurement narrowed (top-hats of
-    /// [`DECLARED_RESPONSE_BOUND_DEG`]): the result rests on the declared response, which
+    /// detector's response that no measurement narrowed (top-hats of the widths of
+    /// [`DECLARED_RESPONSE_BOUND_DEG`], 0 a point detector): the result rests on the declared response, which
     /// this instrument may not have.
     InstrumentSensitive,
 }
 
 /// The detector responses an uncharacterized instrument is analysed again with, full
-/// widths of top-hats, degrees: from a detector a third as wide as the declared 1° to one
-/// three times as wide (what a built instrument's acceptance and source divergence may be
-/// before anyone measured them).
-pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.3, 3.0];
+/// widths of top-hats, degrees: from a point detector (no response can be narrower) to one
+/// three times as wide as the declared 1° (what a built instrument's acceptance and source
+/// divergence together may be before anyone measured them).
+pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.0, 3.0];
 
 impl Flag {
     /// Every flag, in a stable order.

@@ -454,16 +454,8 @@ pub fn default_path(serial: &str) -> Option<PathBuf> {
     if !plain {
         return None;
     }
-    let nonempty = |name: &str| {
-        std::env::var_os(name)
-            .filter(|v| !v.is_empty())
-            .map(PathBuf::from)
-    };
-    let base = nonempty("XDG_DATA_HOME")
-        .filter(|p| p.is_absolute())
-        .or_else(|| nonempty("HOME").map(|home| home.join(".local").join("share")))?;
     Some(
-        base.join("gonio")
+        super::data_dir()?
             .join("instruments")
             .join(format!("{serial}.json")),
     )

@@ -93,7 +93,7 @@ pub(crate) fn flag_meaning(flag: Flag) -> &'static str {
             "informational: the session was interrupted and resumed; the readings taken before were kept"
         }
         Flag::InstrumentSensitive => {
-            "without an instrument profile, the class changes within the bound on the detector's response (top-hats of 0.3° to 3° full width instead of the declared 1°): the class rests on a response nobody measured; characterize the instrument (gonio characterize) and measure again"
+            "without an instrument profile, the class changes within the bound on the detector's response (from a point detector to a top-hat of 3° full width, instead of the declared 1°): the class rests on a response nobody measured; characterize the instrument (gonio characterize) and measure again"
         }
         Flag::InstrumentDeclared => {
             "informational: no instrument profile was in force (none, or older than the lab's limit): the fit took the detector's angular response and arm zero as declared, not as measured on this instrument (gonio characterize measures them)"

@@ -166,9 +166,10 @@ pub fn run<T: Transport>(
         .iter()
         .find(|i| i.theta_i_deg == REHOME_INCIDENCE_DEG)
         .map_or(0, |i| i.range);
+    let mut range = range;
     for _ in 0..options.rehomes {
         run.request(Command::Home)?;
-        let peak = run.measure(REHOME_INCIDENCE_DEG, 1.0, half_span, range)?.1;
+        let peak = run.measure_up_unsaturated(REHOME_INCIDENCE_DEG, half_span, &mut range)?;
         centroids.push(peak.centroid_deg);
     }
     run.place(operator, Placement::WhiteTile)?;
@@ -431,15 +432,17 @@ impl<T: Transport> Run<'_, T> {
     ) -> Result<([Trace; 2], [Peak; 2], u8), CharacterizeError> {
         let mut range = self.peak_range(theta_i)?;
         loop {
-            let up = self.measure(theta_i, 1.0, *half_span, range);
-            match up {
+            // Up, then down on the same range: a saturation in either (the noise on a
+            // peak near full scale differs between them) takes both to the next range.
+            let pair = match self.measure(theta_i, 1.0, *half_span, range) {
+                Ok(up) => self
+                    .measure(theta_i, -1.0, *half_span, range)
+                    .map(|down| (up, down)),
+                Err(e) => Err(e),
+            };
+            match pair {
                 Err(CharacterizeError::Figure(ref why)) if why == SATURATED => {
-                    if usize::from(range) + 1 >= self.info.detector_ranges.len() {
-                        return Err(CharacterizeError::Figure(format!(
-                            "the black glass peak at θi = {theta_i}° saturates the least sensitive range"
-                        )));
-                    }
-                    range += 1;
+                    range = self.less_sensitive(range, theta_i)?;
                 }
                 Err(CharacterizeError::Peak(PeakError::Truncated { .. }))
                     if *half_span < MAX_HALF_SPAN_DEG =>
@@ -447,14 +450,40 @@ impl<T: Transport> Run<'_, T> {
                     *half_span = (*half_span * 1.5).min(MAX_HALF_SPAN_DEG);
                 }
                 Err(e) => return Err(e),
-                Ok((trace_up, peak_up)) => {
-                    let (trace_down, peak_down) = self.measure(theta_i, -1.0, *half_span, range)?;
+                Ok(((trace_up, peak_up), (trace_down, peak_down))) => {
                     // Later sweeps: the response found, with room.
                     *half_span =
                         (2.0 * peak_up.fwhm_deg + (theta_i - peak_up.centroid_deg).abs() + 0.5)
                             .clamp(1.5, MAX_HALF_SPAN_DEG);
                     return Ok(([trace_up, trace_down], [peak_up, peak_down], range));
                 }
+            }
+        }
+    }
+
+    /// The range after `range`, or an error when it is the least sensitive.
+    fn less_sensitive(&self, range: u8, theta_i: f64) -> Result<u8, CharacterizeError> {
+        if usize::from(range) + 1 >= self.info.detector_ranges.len() {
+            return Err(CharacterizeError::Figure(format!(
+                "the black glass peak at θi = {theta_i}° saturates the least sensitive range"
+            )));
+        }
+        Ok(range + 1)
+    }
+
+    /// [`Run::measure`] up, on `range` or, where that saturates, a less sensitive one.
+    fn measure_up_unsaturated(
+        &mut self,
+        theta_i: f64,
+        half_span: f64,
+        range: &mut u8,
+    ) -> Result<Peak, CharacterizeError> {
+        loop {
+            match self.measure(theta_i, 1.0, half_span, *range) {
+                Err(CharacterizeError::Figure(ref why)) if why == SATURATED => {
+                    *range = self.less_sensitive(*range, theta_i)?;
+                }
+                other => return other.map(|(_, peak)| peak),
             }
         }
     }

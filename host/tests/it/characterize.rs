@@ -243,3 +243,68 @@ fn a_damaged_profile_is_refused_with_the_figure_named() {
         );
     }
 }
+
+/// The characterization report in a headless browser: the page parses whole, its tables
+/// name the figures, and the response and lamp plots are in the DOM as SVG.
+#[test]
+fn the_characterization_report_renders_in_a_headless_browser() {
+    let Some(chromium) = crate::common::chromium_or_skip() else {
+        return;
+    };
+    let (_, result) = characterize_drawn(7);
+    let dir = crate::cli_support::temp_dir("characterize", "browser");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (json, page) = (dir.join("instrument.json"), dir.join("instrument.html"));
+    host::output::characterization::write(&result, &json, &page).expect("written");
+    let out = host::output::chromium::headless(&chromium, &page, &["--dump-dom".into()])
+        .expect("chromium runs");
+    let dom = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        dom.contains("<title>Characterization of instrument SIM-0001</title>")
+            && dom.contains("Angular response (black glass)")
+            && dom.contains("homing repeatability"),
+        "the page rendered: {}",
+        crate::cli_support::stderr(&out)
+    );
+    assert!(
+        dom.matches("<svg").count() >= 2 && (dom.contains("<polyline") || dom.contains("<path")),
+        "the plots are in the DOM"
+    );
+    // One row per incidence swept.
+    assert!(dom.matches("<td class=\"num\">").count() >= 5 * 4);
+}
+
+/// The second case: G on a point detector (σ 0.8°), fitted through the declared 1°
+/// window, gave σ 0.7869 [0.7858, 0.7879], unflagged. Its interval still holds for the
+/// declared response only; the bound the result carries holds the truth.
+#[test]
+fn a_point_detector_s_sigma_lies_within_the_declared_bound() {
+    use crate::cli_support::{gonio, stderr, temp_dir};
+    let dir = temp_dir("characterize", "point-detector");
+    let out = gonio(&[
+        "measure",
+        "--sim",
+        "G",
+        "--acceptance",
+        "0",
+        "--policy",
+        "sweep",
+        "--spots",
+        "1",
+        "--seed",
+        "11",
+        "--json",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let r: serde_json::Value =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", stderr(&out)));
+    assert_eq!(r["class"], "G", "{r}");
+    let bound = &r["instrument_bound"];
+    assert_eq!(bound["widths_deg"], serde_json::json!([0.0, 3.0]));
+    let sigma = &bound["sigma_deg"];
+    assert!(
+        sigma[0].as_f64().unwrap() <= 0.8 && sigma[1].as_f64().unwrap() >= 0.8,
+        "σ's bound {sigma} misses 0.8"
+    );
+}

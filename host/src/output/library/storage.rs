@@ -74,16 +74,7 @@ pub struct Removed {
 /// (the XDG base-directory rule, computed from the environment on every platform so the
 /// place is the same wherever gonio runs). `None` when neither variable is set.
 pub fn default_path() -> Option<PathBuf> {
-    let nonempty = |name: &str| {
-        std::env::var_os(name)
-            .filter(|v| !v.is_empty())
-            .map(PathBuf::from)
-    };
-    // XDG says a relative XDG_DATA_HOME is invalid and to be ignored.
-    let base = nonempty("XDG_DATA_HOME")
-        .filter(|p| p.is_absolute())
-        .or_else(|| nonempty("HOME").map(|home| home.join(".local").join("share")))?;
-    Some(base.join("gonio").join("library.sqlite"))
+    Some(crate::instrument::data_dir()?.join("library.sqlite"))
 }
 
 const SCHEMA: &str = "
