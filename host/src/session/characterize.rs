@@ -6,10 +6,12 @@
 //!   the glass's specular peak on one held range: the peak is the instrument's whole
 //!   in-plane angular response (acceptance and source divergence together), its centroid
 //!   the arm zero ([`crate::analysis::response_estimate`]). Up less down is the detector
-//!   arm's backlash (the amplifier's lag, v·τ of the range, taken out first). Where a
-//!   peak needs a less sensitive range, its flanks are swept on the more sensitive one
-//!   too: the ratio of the two ranges' bins over the flanks is their gain ratio (the white
-//!   tile reads 4 % of full scale on range 1, too little for a ratio to 0.1 %).
+//!   arm's backlash (the amplifier's lag, v·τ of the range, taken out first). Each pair of
+//!   adjacent ranges is read still, on both, where a peak's top reads 30–85 % of the more
+//!   sensitive one's full scale (a top is flat: the arm's last microstep does not matter;
+//!   a flank of a sharp response is too steep to hold a level), else on the white tile
+//!   where it does: their gain ratio. The white tile reads 4 % of full scale on range 1,
+//!   too little for the ratio 1/2.
 //! - **Homing.** The arms are homed again and one incidence swept each time: the spread of
 //!   the peak's centroid is the homing's repeatability, which every session inherits.
 //! - **White tile.** Darks repeated on every range; the tile read repeatedly on each range
@@ -55,9 +57,16 @@ const WHITES_PER_RANGE: usize = 5;
 /// The white tile's geometry: θi 20°, θr 0 (where the reference instrument's white reads
 /// 40 % of full scale on the most sensitive range).
 const WHITE_GEOMETRY_DEG: (f64, f64) = (20.0, 0.0);
-/// Levels of a flank bin on the more sensitive range used for a gain ratio, fraction of
-/// full scale above dark: above the noise on the other range, below saturation.
-const GAIN_LEVELS: (f64, f64) = (0.08, 0.85);
+/// Levels on the more sensitive range of a pair at which its gain ratio is read, fraction
+/// of full scale above dark: on the other range it then reads 3–8.5 %, well above its
+/// noise at [`GAIN_INTEGRATION_MS`]; below saturation with room for a gain a few percent
+/// off and the noise.
+const GAIN_LEVELS: (f64, f64) = (0.3, 0.85);
+/// Integration of a gain ratio's readings, ms (the device's longest if shorter): the less
+/// sensitive range's read noise is then a twentieth of a 100 ms reading's.
+const GAIN_INTEGRATION_MS: u16 = 1000;
+/// Reading pairs per gain ratio.
+const GAIN_REPEATS: usize = 3;
 
 /// What is asked for besides the defaults.
 #[derive(Clone, Debug, PartialEq)]
@@ -136,24 +145,22 @@ pub fn run<T: Transport>(
     let noise_darks = run.darks()?;
     let mut sweeps = Vec::new();
     let mut incidences = Vec::new();
-    let mut gain_sweeps: Vec<(RangeSweep, RangeSweep)> = Vec::new();
     let mut half_span = FIRST_HALF_SPAN_DEG;
     for &theta_i in &INCIDENCES_DEG {
         let (pair, peaks, range) = run.peak_pair(theta_i, &mut half_span)?;
         incidences.push(incidence_figures(theta_i, &peaks, range));
-        // The flanks on the next more sensitive range, for the gain ratio of the pair.
-        if range > 0 && !gain_sweeps.iter().any(|(a, _)| a.range == range - 1) {
-            let centre = 0.5 * (peaks[0].centroid_deg + peaks[1].centroid_deg);
-            let up = run.sweep(theta_i, centre - half_span, centre + half_span, range - 1)?;
-            let down = run.sweep(theta_i, centre + half_span, centre - half_span, range - 1)?;
-            gain_sweeps.push((up, down));
-            gain_sweeps.push((
-                run.sweep(theta_i, centre - half_span, centre + half_span, range)?,
-                run.sweep(theta_i, centre + half_span, centre - half_span, range)?,
-            ));
-        }
         for (sweep, peak) in pair.into_iter().zip(peaks) {
             sweeps.push((sweep, peak));
+        }
+    }
+    // Gain ratios where a peak's top reads high on the more sensitive range of a pair.
+    let mut gain_ratios = Vec::new();
+    for r in 0..run.dark.len().saturating_sub(1) as u8 {
+        if let Some((theta_i, centre)) = run.gain_spot(r, &sweeps, &incidences) {
+            let at = Geometry::from_deg(theta_i, centre);
+            if let Some(ratio) = run.still_ratio(at, Target::Sample, r)? {
+                gain_ratios.push(ratio);
+            }
         }
     }
     // Homing again: the centroid at one incidence after each.
@@ -173,6 +180,20 @@ pub fn run<T: Transport>(
         centroids.push(peak.centroid_deg);
     }
     run.place(operator, Placement::WhiteTile)?;
+    // The pairs no peak served, on the white tile where it reads high enough.
+    for r in 0..run.dark.len().saturating_sub(1) as u8 {
+        if gain_ratios.iter().all(|g: &GainRatioFigure| g.range != r) {
+            let (ti, tr) = WHITE_GEOMETRY_DEG;
+            if run.white_level(r)? {
+                if let Some(ratio) =
+                    run.still_ratio(Geometry::from_deg(ti, tr), Target::WhiteReference, r)?
+                {
+                    gain_ratios.push(ratio);
+                }
+            }
+        }
+    }
+    gain_ratios.sort_by_key(|g| g.range);
     let White {
         noise,
         lamp,
@@ -187,8 +208,7 @@ pub fn run<T: Transport>(
             sweeps: &sweeps,
             incidences,
             centroids: &centroids,
-            gain_sweeps: &gain_sweeps,
-            dark: &run.dark,
+            gain_ratios,
             noise,
             lamp,
             device_seconds,
@@ -213,8 +233,7 @@ struct Figures<'a> {
     sweeps: &'a [(Trace, Peak)],
     incidences: Vec<IncidenceFigures>,
     centroids: &'a [f64],
-    gain_sweeps: &'a [(RangeSweep, RangeSweep)],
-    dark: &'a [f64],
+    gain_ratios: Vec<GainRatioFigure>,
     noise: Vec<RangeNoise>,
     lamp: LampFigures,
     device_seconds: f64,
@@ -277,7 +296,6 @@ fn figures(
     let arm_zero_u =
         (zero_u.powi(2) + repeatability.value.powi(2) + (0.5 * backlash.value.abs()).powi(2) / 3.0)
             .sqrt();
-    let gain_ratios = gain_ratios(info, f.gain_sweeps, f.dark);
     let steps = response.steps();
     Ok(InstrumentProfile {
         schema: SCHEMA.to_string(),
@@ -300,58 +318,10 @@ fn figures(
         arm_zero_u_deg: arm_zero_u,
         backlash_deg: backlash,
         home_repeatability_deg: repeatability,
-        gain_ratios,
+        gain_ratios: f.gain_ratios,
         noise: f.noise,
         lamp: f.lamp,
     })
-}
-
-/// G(r + 1)/G(r) from the flanks read on both ranges (the same sweeps' bins, paired by
-/// index, up and down together so that the ranges' different lags cancel).
-fn gain_ratios(
-    info: &DeviceInfo,
-    gain_sweeps: &[(RangeSweep, RangeSweep)],
-    dark: &[f64],
-) -> Vec<GainRatioFigure> {
-    let mut out = Vec::new();
-    for pair in gain_sweeps.chunks(2) {
-        let [(sens_up, sens_down), (less_up, less_down)] = pair else {
-            continue;
-        };
-        let r = sens_up.range;
-        let Some(range) = info.detector_ranges.get(usize::from(r)) else {
-            continue;
-        };
-        let full =
-            f64::from(range.full_scale_counts) - dark.get(usize::from(r)).copied().unwrap_or(0.0);
-        let mut ratios = Vec::new();
-        for (a, b) in [(sens_up, less_up), (sens_down, less_down)] {
-            for (x, y) in a.bins.iter().zip(&b.bins) {
-                if x.index != y.index || !usable(x) || !usable(y) {
-                    continue;
-                }
-                let sx = f64::from(x.mean_counts) - dark[usize::from(r)];
-                let sy = f64::from(y.mean_counts) - dark[usize::from(r + 1)];
-                if sx >= GAIN_LEVELS.0 * full && sx <= GAIN_LEVELS.1 * full && sy > 0.0 {
-                    ratios.push(sy / sx);
-                }
-            }
-        }
-        if ratios.len() >= 4 {
-            let nominal = info
-                .detector_ranges
-                .get(usize::from(r) + 1)
-                .map_or(f64::NAN, |next| {
-                    f64::from(next.relative_gain / range.relative_gain)
-                });
-            out.push(GainRatioFigure {
-                range: r,
-                ratio: mean_and_error(&ratios, f64::NAN),
-                nominal,
-            });
-        }
-    }
-    out
 }
 
 fn usable(bin: &SweepBin) -> bool {
@@ -459,6 +429,108 @@ impl<T: Transport> Run<'_, T> {
                 }
             }
         }
+    }
+
+    /// Where a black glass peak's top reads within [`GAIN_LEVELS`] of range `r`'s full
+    /// scale (its level on the range it was swept on, scaled by the nominal gains): the
+    /// incidence and the peak's centroid, the highest such level. A top is flat enough to
+    /// read the same on both ranges whatever the arm's last microstep.
+    fn gain_spot(
+        &self,
+        r: u8,
+        sweeps: &[(Trace, Peak)],
+        incidences: &[IncidenceFigures],
+    ) -> Option<(f64, f64)> {
+        let gain = |k: u8| {
+            self.info
+                .detector_ranges
+                .get(usize::from(k))
+                .map(|d| f64::from(d.relative_gain))
+        };
+        let full = f64::from(
+            self.info
+                .detector_ranges
+                .get(usize::from(r))?
+                .full_scale_counts,
+        ) - self.dark.get(usize::from(r)).copied().unwrap_or(0.0);
+        incidences
+            .iter()
+            .filter_map(|i| {
+                let (_, peak) = sweeps
+                    .iter()
+                    .find(|(t, _)| t.theta_i_deg == i.theta_i_deg && t.direction > 0.0)?;
+                let level = peak.peak_signal * gain(r)? / gain(i.range)? / full;
+                (GAIN_LEVELS.0..=GAIN_LEVELS.1).contains(&level).then_some((
+                    level,
+                    i.theta_i_deg,
+                    peak.centroid_deg,
+                ))
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, theta_i, centre)| (theta_i, centre))
+    }
+
+    /// Whether the white tile (on the port, at the white geometry) reads within
+    /// [`GAIN_LEVELS`] of range `r`'s full scale.
+    fn white_level(&mut self, r: u8) -> Result<bool, CharacterizeError> {
+        let (ti, tr) = WHITE_GEOMETRY_DEG;
+        self.request(Command::MoveTo(Geometry::from_deg(ti, tr).ok_or_else(
+            || CharacterizeError::Figure("the white geometry is outside the arms".into()),
+        )?))?;
+        let full = self
+            .info
+            .detector_ranges
+            .get(usize::from(r))
+            .map_or(f64::NAN, |d| f64::from(d.full_scale_counts))
+            - self.dark.get(usize::from(r)).copied().unwrap_or(0.0);
+        let (_, level) = self.white_reading(r)?;
+        Ok((GAIN_LEVELS.0..=GAIN_LEVELS.1).contains(&(level / full)))
+    }
+
+    /// G(r + 1)/G(r) from still readings at `at` on both ranges, alternated
+    /// [`GAIN_REPEATS`] times (a drift of the lamp between them then averages out); `None`
+    /// where one saturates.
+    fn still_ratio(
+        &mut self,
+        at: Option<Geometry>,
+        target: Target,
+        r: u8,
+    ) -> Result<Option<GainRatioFigure>, CharacterizeError> {
+        let at =
+            at.ok_or_else(|| CharacterizeError::Figure("a gain spot outside the arms".into()))?;
+        self.request(Command::MoveTo(at))?;
+        let integration_ms = GAIN_INTEGRATION_MS.min(self.info.max_integration_ms);
+        let mut ratios = Vec::with_capacity(GAIN_REPEATS);
+        for _ in 0..GAIN_REPEATS {
+            let mut levels = [0.0; 2];
+            for (k, range) in [r, r + 1].into_iter().enumerate() {
+                let reading = match self.request(Command::TakeReading {
+                    integration_ms,
+                    target,
+                    range: Some(range),
+                })? {
+                    Reply::Reading(reading) => reading,
+                    other => return Err(unexpected("TakeReading", other)),
+                };
+                if reading.saturated {
+                    return Ok(None);
+                }
+                levels[k] = f64::from(reading.mean_counts)
+                    - self.dark.get(usize::from(range)).copied().unwrap_or(0.0);
+            }
+            ratios.push(levels[1] / levels[0]);
+        }
+        let gain = |k: u8| {
+            self.info
+                .detector_ranges
+                .get(usize::from(k))
+                .map_or(f64::NAN, |d| f64::from(d.relative_gain))
+        };
+        Ok(Some(GainRatioFigure {
+            range: r,
+            ratio: mean_and_error(&ratios, f64::NAN),
+            nominal: gain(r + 1) / gain(r),
+        }))
     }
 
     /// The range after `range`, or an error when it is the least sensitive.

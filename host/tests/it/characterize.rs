@@ -78,6 +78,27 @@ fn the_response_width_and_arm_zero_are_recovered_on_drawn_instruments() {
                 i.theta_i_deg
             );
         }
+        // Each gain ratio measured against the drawn one (nominal 0.1 × (1 + error), drawn
+        // with a 1 % sd): within 2 %. The ratios come out 0.1–1.3 % off, more than their
+        // stated scatter (0.03–0.26 %): a systematic error not yet found (the darks taken
+        // just after a range switch are part of it), so the profile's ratios are a record
+        // only, and sessions calibrate their own.
+        for g in &p.gain_ratios {
+            let truth_ratio = g.nominal * (1.0 + truth.gain_ratio_errors[usize::from(g.range)]);
+            let e = g.ratio.value / truth_ratio - 1.0;
+            assert!(
+                e.abs() < 0.02,
+                "seed {seed}: gain ratio {}/{} off by {:.3} % (± {:.3} %)",
+                g.range,
+                g.range + 1,
+                100.0 * e,
+                100.0 * g.ratio.u / truth_ratio
+            );
+        }
+        assert!(
+            !p.gain_ratios.is_empty(),
+            "seed {seed}: no gain ratio measured"
+        );
         worst.0 = worst.0.max(fwhm_error.abs());
         assert!(
             p.device_seconds < 120.0,
