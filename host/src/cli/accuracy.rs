@@ -1,6 +1,9 @@
-//! `gonio accuracy`: the accuracy campaign on the simulated instrument (docs/ACCURACY.md).
+//! `gonio accuracy`: the accuracy campaign on the simulated instrument (docs/ACCURACY.md),
+//! or with `--instruments N` the campaign of drawn instruments characterized on the black
+//! glass (docs/ACCURACY.md, "The instrument as measured").
 use anyhow::{Context, bail};
-use host::study::accuracy;
+use host::session::PolicyChoice;
+use host::study::{accuracy, instruments};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -8,7 +11,8 @@ use std::process::ExitCode;
 /// Arguments of `gonio accuracy`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Folder for accuracy.csv and summary.md.
+    /// Folder for accuracy.csv and summary.md (with --instruments: instruments.csv,
+    /// sessions.csv and summary.md).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     /// Sessions per coverage case (G, SG, PPC, J1 × ideal and real physics) and policy.
@@ -18,46 +22,70 @@ pub struct Args {
     /// and policy.
     #[arg(long, default_value_t = 100)]
     pub robust_sessions: usize,
-    /// Policies to run every case under.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = accuracy::DEFAULT_POLICIES)]
-    pub policies: Vec<host::session::PolicyChoice>,
+    /// Instead of the campaign above: N simulated instruments drawn unlike the declared
+    /// one (--physics drawn), each characterized on the black glass, then the eight papers
+    /// measured on it under each policy with its profile and without.
+    #[arg(long, value_name = "N", conflicts_with_all = ["coverage_sessions", "robust_sessions"])]
+    pub instruments: Option<usize>,
+    /// Seed the instruments of --instruments are drawn from.
+    #[arg(long, value_name = "SEED", requires = "instruments", default_value_t = instruments::DEFAULT_BASE_SEED)]
+    pub instruments_seed: u64,
+    /// Policies to run every case under [default: adaptive,paper; with --instruments:
+    /// sweep,adaptive].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub policies: Vec<PolicyChoice>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
 }
 
+/// A progress bar of `len` items.
+fn bar(len: usize, what: &str, message: &'static str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{msg}} [{{bar:30}}] {{pos}}/{{len}} {what}, {{elapsed}} ({{eta}} left)"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_message(message);
+    bar
+}
+
 /// Run `gonio accuracy`: exit 0 when every claim held, 3 when any did not.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    if args.coverage_sessions == 0 && args.robust_sessions == 0 {
-        bail!("--coverage-sessions and --robust-sessions cannot both be 0");
-    }
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     if threads == 0 {
         bail!("--threads must be at least 1");
     }
+    if let Some(n) = args.instruments {
+        return run_instruments(&args, n, threads);
+    }
+    if args.coverage_sessions == 0 && args.robust_sessions == 0 {
+        bail!("--coverage-sessions and --robust-sessions cannot both be 0");
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let cases = accuracy::cases();
-    if args.policies.is_empty() {
-        bail!("--policies needs at least one policy");
-    }
+    let policies = if args.policies.is_empty() {
+        accuracy::DEFAULT_POLICIES.to_vec()
+    } else {
+        args.policies.clone()
+    };
     let specs = accuracy::plan_policies(
         &cases,
         args.coverage_sessions,
         args.robust_sessions,
-        &args.policies,
+        &policies,
     );
-    let bar = ProgressBar::new(specs.len() as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
+    let bar = bar(
+        specs.len(),
+        "sessions",
+        "simulated sessions against the truth",
     );
-    bar.set_message("simulated sessions against the truth");
     let rows = accuracy::run_all(&cases, &specs, threads, &|| bar.inc(1));
     bar.finish_and_clear();
     if rows.len() != specs.len() {
@@ -78,9 +106,51 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let held = accuracy::verdicts(&cases, &rows)
         .iter()
         .all(|(_, held)| *held);
-    Ok(if held {
+    Ok(exit(held))
+}
+
+fn exit(held: bool) -> ExitCode {
+    if held {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(crate::cli::exit::FLAGGED)
-    })
+    }
+}
+
+/// `gonio accuracy --instruments N`.
+fn run_instruments(args: &Args, n: usize, threads: usize) -> anyhow::Result<ExitCode> {
+    if n == 0 {
+        bail!("--instruments must be at least 1");
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let policies = if args.policies.is_empty() {
+        instruments::DEFAULT_POLICIES.to_vec()
+    } else {
+        args.policies.clone()
+    };
+    let design = instruments::Design::new(n, args.instruments_seed, &policies);
+    let bar = bar(
+        design.work(),
+        "characterizations and sessions",
+        "drawn instruments, characterized and measured",
+    );
+    let campaign = instruments::run(&design, threads, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let written = [
+        ("instruments.csv", instruments::instruments_csv(&campaign)),
+        ("sessions.csv", instruments::sessions_csv(&campaign)),
+        ("summary.md", instruments::summary_markdown(&campaign)),
+    ];
+    for (name, text) in &written {
+        let path = args.out.join(name);
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    print!("{}", written[2].1);
+    eprintln!(
+        "wrote instruments.csv, sessions.csv and summary.md in {}",
+        args.out.display()
+    );
+    let held = instruments::verdicts(&campaign).iter().all(|(_, h)| *h);
+    Ok(exit(held))
 }

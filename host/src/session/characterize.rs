@@ -184,12 +184,11 @@ pub fn run<T: Transport>(
     for r in 0..run.dark.len().saturating_sub(1) as u8 {
         if gain_ratios.iter().all(|g: &GainRatioFigure| g.range != r) {
             let (ti, tr) = WHITE_GEOMETRY_DEG;
-            if run.white_level(r)? {
-                if let Some(ratio) =
+            if run.white_level(r)?
+                && let Some(ratio) =
                     run.still_ratio(Geometry::from_deg(ti, tr), Target::WhiteReference, r)?
-                {
-                    gain_ratios.push(ratio);
-                }
+            {
+                gain_ratios.push(ratio);
             }
         }
     }

@@ -1,6 +1,7 @@
 //! Campaigns of whole simulated sessions.
 pub mod accuracy;
 pub mod forensic;
+pub mod instruments;
 pub mod library_validation;
 pub mod reliability;
 pub mod trade;

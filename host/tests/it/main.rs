@@ -40,6 +40,7 @@ mod fit;
 mod flash_session;
 mod forensic;
 mod house;
+mod instruments_study;
 mod library;
 mod model;
 mod order;
