@@ -546,7 +546,7 @@ fn a_schedule_still_running_after_a_replug_is_aborted_not_refused_busy() {
         );
         assert_sound(&what, outcome);
         assert!(
-            outcome.ok() && outcome.flags == [Flag::LinkRecovered],
+            outcome.ok() && outcome.flags == [Flag::LinkRecovered, Flag::InstrumentDeclared],
             "{what}: {:?}",
             outcome.flags
         );
