@@ -923,6 +923,13 @@ pub fn verdicts(campaign: &Campaign) -> Vec<(String, bool)> {
         ),
         slow == 0 && n_instruments > 0,
     ));
+    out.extend(session_verdicts(campaign));
+    out
+}
+
+/// The claims on the sessions of [`verdicts`].
+fn session_verdicts(campaign: &Campaign) -> Vec<(String, bool)> {
+    let mut out = Vec::new();
     let all = Tally::of(&campaign.sessions);
     out.push((
         format!(
@@ -1091,6 +1098,14 @@ pub fn summary_markdown(campaign: &Campaign) -> String {
         campaign.instruments.len(),
         campaign.sessions.len()
     );
+    characterizations_markdown(&mut out, campaign);
+    profile_arms_markdown(&mut out, campaign);
+    claims_markdown(&mut out, campaign);
+    out
+}
+
+/// The characterizations' table of [`summary_markdown`].
+fn characterizations_markdown(out: &mut String, campaign: &Campaign) {
     let _ = writeln!(out, "## The characterizations\n");
     let _ = writeln!(
         out,
@@ -1141,20 +1156,34 @@ pub fn summary_markdown(campaign: &Campaign) -> String {
             on.finished(),
         );
     }
-    let by_paper = |with_profile: bool| {
-        let mut rows = Vec::new();
-        for &sample in &d.papers {
-            for &policy in &d.policies {
-                let t = Tally::of(campaign.sessions.iter().filter(|r| {
-                    r.spec.with_profile == with_profile
-                        && r.spec.sample == sample
-                        && r.spec.policy == policy
-                }));
-                rows.push((sample, policy, t));
-            }
+}
+
+/// The tables with and without the profile of [`summary_markdown`], per paper and policy.
+fn profile_arms_markdown(out: &mut String, campaign: &Campaign) {
+    with_profile_markdown(out, campaign);
+    without_profile_markdown(out, campaign);
+}
+
+/// Per paper and policy, the tally of the sessions with the profile or without.
+fn by_paper(campaign: &Campaign, with_profile: bool) -> Vec<(&'static str, PolicyChoice, Tally)> {
+    let d = &campaign.design;
+    let mut rows = Vec::new();
+    for &sample in &d.papers {
+        for &policy in &d.policies {
+            let t = Tally::of(campaign.sessions.iter().filter(|r| {
+                r.spec.with_profile == with_profile
+                    && r.spec.sample == sample
+                    && r.spec.policy == policy
+            }));
+            rows.push((sample, policy, t));
         }
-        rows
-    };
+    }
+    rows
+}
+
+/// The table with the profile of [`summary_markdown`].
+fn with_profile_markdown(out: &mut String, campaign: &Campaign) {
+    let by_paper = |with_profile: bool| by_paper(campaign, with_profile);
     let _ = writeln!(out, "\n## With the profile\n");
     let _ = writeln!(
         out,
@@ -1207,6 +1236,11 @@ pub fn summary_markdown(campaign: &Campaign) -> String {
         with.mean_geometries,
         with.mean_device_seconds
     );
+}
+
+/// The table without a profile of [`summary_markdown`].
+fn without_profile_markdown(out: &mut String, campaign: &Campaign) {
+    let by_paper = |with_profile: bool| by_paper(campaign, with_profile);
     let _ = writeln!(
         out,
         "\n## Without a profile (the declared 1° top-hat, zero ± 0.1°)\n"
@@ -1263,6 +1297,10 @@ pub fn summary_markdown(campaign: &Campaign) -> String {
         pct(without.bound_covered[1], n),
         pct(without.bound_covered[2], n),
     );
+}
+
+/// The claims and the rows that broke a target of [`summary_markdown`].
+fn claims_markdown(out: &mut String, campaign: &Campaign) {
     let _ = writeln!(out, "\n## Claims\n");
     let verdicts = verdicts(campaign);
     for (claim, held) in &verdicts {
@@ -1311,5 +1349,4 @@ pub fn summary_markdown(campaign: &Campaign) -> String {
     if misses == 0 {
         let _ = writeln!(out, "None.");
     }
-    out
 }
