@@ -664,6 +664,16 @@ impl DetectorResponse {
         (12.0 * self.variance_deg2()).sqrt()
     }
 
+    /// The width one number stands for: a top-hat's own (to the bit), else
+    /// [`DetectorResponse::equivalent_width_deg`].
+    pub fn width_deg(&self) -> f64 {
+        if self.is_top_hat() {
+            self.step_deg
+        } else {
+            self.equivalent_width_deg()
+        }
+    }
+
     /// Whether this is a single uniform window (the declared top-hat).
     pub fn is_top_hat(&self) -> bool {
         self.len == 1

@@ -342,13 +342,7 @@ impl LeastSquaresProblem {
         out.clear();
         // A response of several steps seeds with the top-hat of its variance: the grid
         // only has to find the basins.
-        let seed_window = self.response.map(|r| {
-            if r.is_top_hat() {
-                r.step_deg()
-            } else {
-                r.equivalent_width_deg()
-            }
-        });
+        let seed_window = self.response.map(|r| r.width_deg());
         match seed_window {
             Some(a) if 2.0 * sigma_deg < 4.0 * a => out.extend(
                 self.offsets

@@ -442,14 +442,7 @@ fn summary(
         budget: uncertainty.budget,
         active_bounds,
         notes: state.notes,
-        acceptance_deg: state.problem.response.map(|r| {
-            if r.is_top_hat() {
-                r.step_deg()
-            } else {
-                r.equivalent_width_deg()
-            }
-        }),
-        response: state.problem.response.filter(|r| !r.is_top_hat()),
+        acceptance_deg: state.problem.response.map(|r| r.width_deg()),
         arm_offset: uncertainty.arm_offset,
         arm_offset_statistic: arm.statistic,
         n,

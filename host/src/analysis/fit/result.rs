@@ -243,8 +243,6 @@ pub struct FitResult {
     /// The acceptance window modelled, degrees, if it was (a measured response: the
     /// top-hat width of its variance).
     pub acceptance_deg: Option<f64>,
-    /// The measured response modelled, where it was not a top-hat.
-    pub response: Option<crate::analysis::model::DetectorResponse>,
     /// The arm zero offset, if the data called for one.
     pub arm_offset: Option<ArmOffset>,
     /// The statistic of the arm-offset test (likelihood ratio, or the score screen when the
