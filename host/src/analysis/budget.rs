@@ -84,6 +84,8 @@ pub enum TermKind {
     ArmZero,
     /// The widening of the intervals when the model does not describe the data.
     LackOfFit,
+    /// What the data leave open between shapes of the model (the fit's extension step).
+    ModelForm,
     /// Anything else a caller added.
     Other,
 }
@@ -95,6 +97,8 @@ impl TermKind {
             TermKind::ReadingNoise
         } else if name == LACK_OF_FIT {
             TermKind::LackOfFit
+        } else if name == crate::analysis::fit::MODEL_FORM {
+            TermKind::ModelForm
         } else if name.starts_with("white ") {
             TermKind::White
         } else if name.starts_with("dark ") {
@@ -123,6 +127,7 @@ impl TermKind {
             TermKind::Drift => "lamp drift",
             TermKind::ArmZero => "arm zero",
             TermKind::LackOfFit => "lack of fit",
+            TermKind::ModelForm => "model form",
             TermKind::Other => "other",
         }
     }
@@ -301,15 +306,26 @@ fn dark_terms(
             } else {
                 continue;
             };
-            through_ratios.push((p, d_ln_rho));
+            // A ratio read at its dark has no derivative to carry (and no ratio either).
+            if d_ln_rho.is_finite() {
+                through_ratios.push((p, d_ln_rho));
+            }
         }
-        // The reading's own dark: a fixed offset in counts, R/net = T/(G·w) per count,
-        // whatever the reading: additive. Through the white and the ratios it scales R.
+        // The reading's own dark: a fixed offset in counts, T/(G·w) per count, whatever
+        // the reading: additive (taken as R/net it was 0/0 on a reading exactly at its
+        // dark, a noiseless ρd = 0 sheet's). Through the white and the ratios it scales R.
         let additive: Vec<f64> = conversions
             .iter()
             .map(|c| {
                 if usize::from(c.range) == j {
-                    -c.radiance_factor / c.net_counts * u
+                    // R/net as folders already written computed it (a re-analysis gives
+                    // their result to the last bit); per count where that is 0/0.
+                    let by_ratio = -c.radiance_factor / c.net_counts * u;
+                    if by_ratio.is_finite() {
+                        by_ratio
+                    } else {
+                        -c.per_count * u
+                    }
                 } else {
                     0.0
                 }
@@ -533,6 +549,30 @@ mod tests {
             .iter()
             .find(|t| t.name == name)
             .unwrap_or_else(|| panic!("no term {name}"))
+    }
+
+    /// A reading exactly at its range's dark (a noiseless ρd = 0 sheet away from the
+    /// peak) has a dark term like any other, and no NaN anywhere (it stopped the session:
+    /// "shared error 'dark range 0', reading 0: sensitivity NaN").
+    #[test]
+    fn a_reading_at_the_dark_has_finite_sensitivities() {
+        let c = calibration();
+        let mut rs = readings();
+        rs[0].reading.mean_counts = 200.0;
+        rs[2].reading.mean_counts = 200.0;
+        let terms = shared_errors(&c, &rs).unwrap();
+        for t in &terms {
+            for k in 0..rs.len() {
+                assert!(t.total(k).is_finite(), "{}: reading {k}", t.name);
+            }
+        }
+        // The dark's own offset is an offset there too: per count the same as elsewhere
+        // on the range, against the same white.
+        let dark = term(&terms, "dark range 0");
+        assert!(dark.additive[0] < 0.0);
+        let bright = c.convert(20.0, &readings()[0].reading).unwrap();
+        let u = standard_error_counts(&c.dark[0]);
+        assert!((dark.additive[0] + bright.per_count * u).abs() < 1e-15);
     }
 
     #[test]

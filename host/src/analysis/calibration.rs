@@ -461,6 +461,9 @@ pub(crate) struct Conversion {
     pub(crate) own_std: f64,
     /// The reading's counts above its range's dark (on its own range).
     pub net_counts: f64,
+    /// Radiance factor per count above the dark on the reading's range (T/(G·w)): what a
+    /// count of dark error is worth, whatever the reading, 0 counts included.
+    pub(crate) per_count: f64,
     /// The white reading's counts above its range's dark (on its own range).
     pub(crate) white_net_counts: f64,
     /// Range of the reading.
@@ -671,11 +674,15 @@ impl Calibration {
         // Both in counts of the most sensitive range.
         let (s, w) = (net / gain, white_net / white_gain);
         let radiance_factor = s / w * self.white_radiance_factor;
+        let per_count = self.white_radiance_factor / gain / w;
+        // In the order folders already written used: a re-conversion must give their
+        // readings to the last bit (gonio verify compares them).
         let own_std = standard_error_counts(reading) / gain / w * self.white_radiance_factor;
         Ok(Conversion {
             radiance_factor,
             own_std,
             net_counts: net,
+            per_count,
             white_net_counts: white_net,
             range: reading.range,
             white_range: white.reading.range,

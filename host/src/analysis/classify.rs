@@ -1,6 +1,7 @@
 //! Classification of a fitted paper (Akao et al., Fig. 10 steps 3–5), how sure it is, and the
 //! nearest of the eight reference papers of Table 6.
 use crate::analysis::fit::{ETA_MAX, ETA_MIN, FitResult, SIGMA_MIN_DEG};
+use crate::analysis::flags::Flag;
 use crate::analysis::model::{ETA, Params, RHO_D, RHO_S, SIGMA};
 use serde::Serialize;
 
@@ -196,6 +197,13 @@ pub fn class_of(sigma_deg: Option<f64>, rho_s: f64, rho_d: f64) -> Class {
 /// user alike), whatever the sampled share says.
 pub const LACK_OF_FIT_CONFIDENCE_CAP: f64 = 0.90;
 
+/// The fit's flags that cap the class confidence at [`LACK_OF_FIT_CONFIDENCE_CAP`] as
+/// `lack-of-fit` does: a gross error left in the fit (`outlier`: the parameters are pulled
+/// by it, and without uncertainties no χ² test says so), and too few degrees of freedom
+/// (the noise of an unweighted fit from one or two residuals, whose Student t has no
+/// finite variance: the covariance the confidence samples does not describe it).
+const CAPPING_FLAGS: [Flag; 3] = [Flag::LackOfFit, Flag::Outlier, Flag::FewDegreesOfFreedom];
+
 /// The classification of a fit. Only what the fit determined is used: a parameter it did
 /// not identify ([`FitResult::not_identified`]) never decides the class; when the class
 /// cannot be decided without one, `class` is `None` and `undecided` says why.
@@ -206,7 +214,9 @@ pub struct Classification {
     /// The class, when decided.
     pub class: Option<Class>,
     /// Share of the parameter uncertainty region that falls in `class`, 0…1 (0 without a
-    /// class); at most [`LACK_OF_FIT_CONFIDENCE_CAP`] from a fit flagged `lack-of-fit`.
+    /// class); at most [`LACK_OF_FIT_CONFIDENCE_CAP`] from a fit flagged `lack-of-fit`,
+    /// `outlier` or `few-degrees-of-freedom`; no class at all from a fit with no degrees of
+    /// freedom.
     pub confidence: f64,
     /// Why the class (or the group) could not be decided.
     pub undecided: Option<&'static str>,
@@ -287,8 +297,22 @@ pub fn classify(fit: &FitResult) -> Classification {
             (None, None, _) => (None, None, Some("σ not determined")),
         }
     };
+    // No residual at all: the fit interpolates, its parameters have no uncertainty to
+    // sample, and a confidence would be the 1.00 of a zero covariance. The class is not
+    // stated (the flag few-degrees-of-freedom says why).
+    let (group, class, undecided) = if fit.dof == 0 && class.is_some() {
+        (
+            None,
+            None,
+            Some(
+                "no degrees of freedom (as many fitted parameters as readings): the parameters' uncertainty is unknown, so no class is stated",
+            ),
+        )
+    } else {
+        (group, class, undecided)
+    };
     let mut confidence = class.map_or(0.0, |c| confidence(fit, c));
-    if fit.lack_of_fit {
+    if fit.lack_of_fit || fit.flags.iter().any(|f| CAPPING_FLAGS.contains(f)) {
         confidence = confidence.min(LACK_OF_FIT_CONFIDENCE_CAP);
     }
     Classification {

@@ -36,6 +36,17 @@ pub enum Flag {
     /// [`DECLARED_RESPONSE_BOUND_DEG`], 0 a point detector): the result rests on the declared response, which
     /// this instrument may not have.
     InstrumentSensitive,
+    /// Informational: the paper's TSL model did not describe the readings and the fit added
+    /// a term the data called for (a heavy-tailed lobe, a haze lobe, σ varying with θi, a
+    /// non-Lambertian body), each named with its test in the result; the main lobe's σ, ρs,
+    /// ρd, η are still the reported and classified quantities.
+    ModelExtended,
+    /// A reading lies so far from the fit that it is taken for a gross error (an outlier
+    /// test on the residuals at a stated false-alarm rate); the reading is named.
+    Outlier,
+    /// Too few readings beyond the fitted parameters to judge the fit or to state a
+    /// class confidence.
+    FewDegreesOfFreedom,
 }
 
 /// The detector responses an uncharacterized instrument is analysed again with, full
@@ -46,7 +57,7 @@ pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.0, 3.0];
 
 impl Flag {
     /// Every flag, in a stable order.
-    pub const ALL: [Flag; 10] = [
+    pub const ALL: [Flag; 13] = [
         Flag::LostSteps,
         Flag::WhiteDrift,
         Flag::CalibrationStale,
@@ -57,6 +68,9 @@ impl Flag {
         Flag::Resumed,
         Flag::InstrumentDeclared,
         Flag::InstrumentSensitive,
+        Flag::ModelExtended,
+        Flag::Outlier,
+        Flag::FewDegreesOfFreedom,
     ];
 
     /// The stable string (as serialized).
@@ -72,6 +86,9 @@ impl Flag {
             Flag::Resumed => "resumed",
             Flag::InstrumentDeclared => "instrument-declared",
             Flag::InstrumentSensitive => "instrument-sensitive",
+            Flag::ModelExtended => "model-extended",
+            Flag::Outlier => "outlier",
+            Flag::FewDegreesOfFreedom => "few-degrees-of-freedom",
         }
     }
 
@@ -79,7 +96,7 @@ impl Flag {
     pub const fn is_informational(self) -> bool {
         matches!(
             self,
-            Flag::LinkRecovered | Flag::Resumed | Flag::InstrumentDeclared
+            Flag::LinkRecovered | Flag::Resumed | Flag::InstrumentDeclared | Flag::ModelExtended
         )
     }
 }

@@ -193,6 +193,10 @@ pub(crate) struct ResultDocument {
     pub lack_of_fit: bool,
     /// The fitted parameters' names.
     pub model: Vec<String>,
+    /// The extension step ([`crate::analysis::fit::Extension`]): the terms added to the
+    /// paper's model, every term's test, the members the data cannot exclude; `null` when
+    /// not run.
+    pub model_extension: Value,
     /// Number of readings.
     pub n: u64,
     /// The nearest reference paper of Table 6.
@@ -367,6 +371,7 @@ impl ResultDocument {
             iterations: f.iterations as u64,
             lack_of_fit: f.lack_of_fit,
             model: f.model.names().into_iter().map(str::to_string).collect(),
+            model_extension: fit_json(&f.extension),
             n: f.n as u64,
             nearest_reference: Some(c.nearest_reference.to_string()),
             nearest_reference_distance: Some(c.nearest_distance),
@@ -478,6 +483,35 @@ fn parameter_lines(f: &FitResult) -> String {
     }
     for u in f.not_identified() {
         s += &format!("  not identified: {} ({})\n", u.param, u.reason);
+    }
+    s += &extension_lines(f);
+    s
+}
+
+/// The table's lines on the model: the terms added with their tests, and the members the
+/// data cannot exclude (inside the intervals).
+fn extension_lines(f: &FitResult) -> String {
+    let Some(e) = &f.extension else {
+        return String::new();
+    };
+    let mut s = String::new();
+    if e.terms.is_empty() {
+        s += "  model: the paper's TSL (no term called for)\n";
+    }
+    for t in &e.terms {
+        s += &format!(
+            "  model extended — {} (test {:.1} > {:.1})\n",
+            t.description, t.statistic, t.critical
+        );
+    }
+    if !e.terms.is_empty() {
+        s += "    σ, ρs, ρd, η are the main lobe's (σ its half-maximum width as a Gaussian): the paper's classification applies to them\n";
+    }
+    if !e.plausible.is_empty() {
+        s += &format!(
+            "    not excluded by the data (inside the intervals): {}\n",
+            e.plausible.join("; ")
+        );
     }
     s
 }
@@ -650,6 +684,7 @@ mod tests {
             "iterations",
             "lack_of_fit",
             "model",
+            "model_extension",
             "n",
             "nearest_reference",
             "nearest_reference_distance",

@@ -1,9 +1,10 @@
 //! `gonio accuracy`: the accuracy campaign on the simulated instrument (docs/ACCURACY.md),
 //! or with `--instruments N` the campaign of drawn instruments characterized on the black
-//! glass (docs/ACCURACY.md, "The instrument as measured").
+//! glass (docs/ACCURACY.md, "The instrument as measured"), or with `--shapes SEEDS` the
+//! campaign of sheets that are not TSL (issue 28, `host/src/study/shapes.rs`).
 use anyhow::{Context, bail};
 use host::session::PolicyChoice;
-use host::study::{accuracy, instruments};
+use host::study::{accuracy, instruments, shapes};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -12,7 +13,7 @@ use std::process::ExitCode;
 #[derive(clap::Args)]
 pub struct Args {
     /// Folder for accuracy.csv and summary.md (with --instruments: instruments.csv,
-    /// sessions.csv and summary.md).
+    /// sessions.csv and summary.md; with --shapes: sessions.csv and summary.md).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     /// Sessions per coverage case (G, SG, PPC, J1 × ideal and real physics) and policy.
@@ -27,11 +28,21 @@ pub struct Args {
     /// measured on it under each policy with its profile and without.
     #[arg(long, value_name = "N", conflicts_with_all = ["coverage_sessions", "robust_sessions"])]
     pub instruments: Option<usize>,
+    /// Instead of the campaigns above: sheets that are not TSL (issue 28), every departure
+    /// the simulator has at two strengths and the exact-TSL control, on the eight papers,
+    /// SEEDS sessions each per policy, ideal physics.
+    #[arg(long, value_name = "SEEDS", conflicts_with_all = ["coverage_sessions", "robust_sessions", "instruments"])]
+    pub shapes: Option<usize>,
+    /// With --shapes: only these departures (haze, peak-shift, ggx, cauchy, beckmann,
+    /// blinn-phong, asymmetry, fresnel-flat, sigma-slope, oren-nayar, grazing, retro; tsl:
+    /// the control alone, which always runs).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', requires = "shapes")]
+    pub departures: Vec<String>,
     /// Seed the instruments of --instruments are drawn from.
     #[arg(long, value_name = "SEED", requires = "instruments", default_value_t = instruments::DEFAULT_BASE_SEED)]
     pub instruments_seed: u64,
-    /// Policies to run every case under [default: adaptive,paper; with --instruments:
-    /// sweep,adaptive].
+    /// Policies to run every case under [default: adaptive,paper; with --instruments or
+    /// --shapes: sweep,adaptive].
     #[arg(long, value_enum, value_delimiter = ',')]
     pub policies: Vec<PolicyChoice>,
     /// Worker threads (default: one per core).
@@ -63,6 +74,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     if let Some(n) = args.instruments {
         return run_instruments(&args, n, threads);
+    }
+    if let Some(seeds) = args.shapes {
+        return run_shapes(&args, seeds, threads);
     }
     if args.coverage_sessions == 0 && args.robust_sessions == 0 {
         bail!("--coverage-sessions and --robust-sessions cannot both be 0");
@@ -152,5 +166,64 @@ fn run_instruments(args: &Args, n: usize, threads: usize) -> anyhow::Result<Exit
         args.out.display()
     );
     let held = instruments::verdicts(&campaign).iter().all(|(_, h)| *h);
+    Ok(exit(held))
+}
+
+/// `gonio accuracy --shapes SEEDS`.
+fn run_shapes(args: &Args, seeds: usize, threads: usize) -> anyhow::Result<ExitCode> {
+    if seeds == 0 {
+        bail!("--shapes must be at least 1");
+    }
+    let mut kinds = Vec::new();
+    for name in &args.departures {
+        if name.eq_ignore_ascii_case("tsl") {
+            continue;
+        }
+        let Some(kind) = shapes::Kind::named(name) else {
+            bail!(
+                "--departures: no departure '{name}': use {} or tsl",
+                shapes::KINDS.map(shapes::Kind::name).join(", ")
+            );
+        };
+        if !kinds.contains(&kind) {
+            kinds.push(kind);
+        }
+    }
+    if args.departures.is_empty() {
+        kinds = shapes::KINDS.to_vec();
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let policies = if args.policies.is_empty() {
+        shapes::DEFAULT_POLICIES.to_vec()
+    } else {
+        args.policies.clone()
+    };
+    let design = shapes::Design {
+        shapes: shapes::Shape::all(&kinds),
+        ..shapes::Design::new(seeds, &policies)
+    };
+    let bar = bar(
+        shapes::work(&design),
+        "sessions",
+        "sheets that are not TSL, measured",
+    );
+    let campaign = shapes::run(&design, threads, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let summary = shapes::summary_markdown(&campaign);
+    let written = [
+        ("sessions.csv", shapes::to_csv(&campaign)),
+        ("summary.md", summary.clone()),
+    ];
+    for (name, text) in &written {
+        let path = args.out.join(name);
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    print!("{summary}");
+    eprintln!(
+        "wrote sessions.csv and summary.md in {}",
+        args.out.display()
+    );
+    let held = shapes::verdicts(&campaign).iter().all(|(_, h)| *h);
     Ok(exit(held))
 }

@@ -19,7 +19,7 @@ use crate::instrument::link::Transport;
 use firmware::hardware::Arm;
 use hil_sim::detector::Response;
 use hil_sim::scene::{BlackGlass, SamplePort, WhiteTile};
-use hil_sim::sheet::{Lobe, SheetError, SheetSpec, Stock};
+use hil_sim::sheet::{Departures, Lobe, SheetError, SheetSpec, Stock};
 use hil_sim::table::{TableError, TableScene};
 use hil_sim::{DEFAULT_UNPLUG_S, Faults, InstrumentErrors, SimConfig, SimInstrument, Unplug};
 use rand::Rng;
@@ -88,6 +88,23 @@ pub enum LobeChoice {
     Ggx,
     /// Cauchy (Lorentzian) with the Gaussian's FWHM: tails as θa⁻².
     Cauchy,
+    /// Beckmann (Cook–Torrance) with the Gaussian's FWHM, σ ≤ 39°.
+    Beckmann,
+    /// Blinn–Phong, cosⁿθa, with the Gaussian's FWHM.
+    BlinnPhong,
+}
+
+impl LobeChoice {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            LobeChoice::Gaussian => "gaussian",
+            LobeChoice::Ggx => "ggx",
+            LobeChoice::Cauchy => "cauchy",
+            LobeChoice::Beckmann => "beckmann",
+            LobeChoice::BlinnPhong => "blinn-phong",
+        }
+    }
 }
 
 impl From<LobeChoice> for Lobe {
@@ -96,8 +113,67 @@ impl From<LobeChoice> for Lobe {
             LobeChoice::Gaussian => Lobe::Gaussian,
             LobeChoice::Ggx => Lobe::Ggx,
             LobeChoice::Cauchy => Lobe::Cauchy,
+            LobeChoice::Beckmann => Lobe::Beckmann,
+            LobeChoice::BlinnPhong => Lobe::BlinnPhong,
         }
     }
+}
+
+/// The forms of `--departure`, for its help and its errors.
+pub const DEPARTURE_FORMS: &str = "haze:FRACTION:SIGMA_DEG, peak-shift:DEG, asymmetry:RATIO, fresnel-flat:T, sigma-slope:K, oren-nayar:ROUGHNESS_DEG, grazing:T or retro:AMPLITUDE:WIDTH_DEG";
+
+/// The departures from TSL of `--departure` items (each `NAME:VALUE[:VALUE]`, each name at
+/// most once), their ranges left to the sheet ([`SheetSpec::validate`]).
+pub fn parse_departures(items: &[String]) -> Result<Departures, SimOptionError> {
+    let mut d = Departures::NONE;
+    let mut seen: Vec<String> = Vec::new();
+    for item in items {
+        let bad = |why: String| SimOptionError::BadDeparture {
+            spec: item.clone(),
+            why,
+        };
+        let mut parts = item.split(':').map(str::trim);
+        let name = parts.next().unwrap_or_default().to_ascii_lowercase();
+        let values = parts
+            .map(|v| {
+                v.parse::<f64>()
+                    .map_err(|_| bad(format!("'{v}' is not a number")))
+            })
+            .collect::<Result<Vec<f64>, _>>()?;
+        let form = match name.as_str() {
+            "haze" => "haze:FRACTION:SIGMA_DEG",
+            "peak-shift" => "peak-shift:DEG",
+            "asymmetry" => "asymmetry:RATIO",
+            "fresnel-flat" => "fresnel-flat:T",
+            "sigma-slope" => "sigma-slope:K",
+            "oren-nayar" => "oren-nayar:ROUGHNESS_DEG",
+            "grazing" => "grazing:T",
+            "retro" => "retro:AMPLITUDE:WIDTH_DEG",
+            _ => return Err(bad(format!("no departure '{name}': use {DEPARTURE_FORMS}"))),
+        };
+        let wanted = form.matches(':').count();
+        if values.len() != wanted {
+            return Err(bad(format!(
+                "{name} takes {wanted} value{}: {form}",
+                if wanted == 1 { "" } else { "s" }
+            )));
+        }
+        if seen.contains(&name) {
+            return Err(bad(format!("{name} is given twice")));
+        }
+        seen.push(name.clone());
+        match name.as_str() {
+            "haze" => (d.haze, d.haze_sigma_deg) = (values[0], values[1]),
+            "peak-shift" => d.peak_shift_deg = values[0],
+            "asymmetry" => d.asymmetry = values[0],
+            "fresnel-flat" => d.fresnel_flat = values[0],
+            "sigma-slope" => d.sigma_slope = values[0],
+            "oren-nayar" => d.oren_nayar_deg = values[0],
+            "grazing" => d.grazing = values[0],
+            _ => (d.retro, d.retro_width_deg) = (values[0], values[1]),
+        }
+    }
+    Ok(d)
 }
 
 /// Magnitudes of one set of instrument errors.
@@ -298,6 +374,25 @@ pub struct SimOptions {
     /// FWHM in θr and heavier tails.
     #[arg(long, value_enum, default_value_t = LobeChoice::Gaussian)]
     pub lobe: LobeChoice,
+    /// Share of --lobe's shape in a blend with the Gaussian of the same FWHM (two facet
+    /// populations): 1 the lobe alone, 0.5 half each.
+    #[arg(
+        long,
+        value_name = "W",
+        default_value_t = 1.0,
+        allow_negative_numbers = true
+    )]
+    pub lobe_weight: f64,
+    /// A departure of the sheet from TSL (repeatable, each once): haze:FRACTION:SIGMA_DEG
+    /// (a broad second lobe, its peak FRACTION of the main one's), peak-shift:DEG (the lobe
+    /// centred at θr = θi + DEG), asymmetry:RATIO (σ past the peak over σ before it),
+    /// fresnel-flat:T (the Fresnel factor flattened toward F(45°), 1 flat), sigma-slope:K
+    /// (σ(θi) = σ·(1 + K·(θi − 45°)/45°)), oren-nayar:ROUGHNESS_DEG (an Oren–Nayar body),
+    /// grazing:T (the body blended with Lommel–Seeliger's, rising toward grazing),
+    /// retro:AMPLITUDE:WIDTH_DEG (the body's surge toward retro-reflection). The stock's σ,
+    /// ρs, ρd stay the truth: the main lobe's half-maximum width, the body at 45°/0°.
+    #[arg(long, value_name = "NAME:VALUES", allow_hyphen_values = true)]
+    pub departure: Vec<String>,
     /// Forward scattering of fibrous papers: F·u² added, u = (θr − θi)/(90° − θi) past
     /// specular (0 before it): a radiance factor F at grazing θr.
     #[arg(
@@ -363,6 +458,8 @@ impl Default for SimOptions {
             faults: String::new(),
             physics: Physics::Ideal,
             lobe: LobeChoice::Gaussian,
+            lobe_weight: 1.0,
+            departure: Vec::new(),
             forward_lobe: 0.0,
             specular_bump: 0.0,
             arm_offset: None,
@@ -474,6 +571,25 @@ pub enum SimOptionError {
         other: &'static str,
         /// Why.
         why: &'static str,
+    },
+    /// A `--departure` item that is not one.
+    #[error("bad --departure '{spec}': {why}")]
+    BadDeparture {
+        /// The item.
+        spec: String,
+        /// What is wrong.
+        why: String,
+    },
+    /// A sheet option the sample's sheet cannot take (a departure's range, a lobe or a
+    /// departure that makes σ wider than the lobe can be).
+    #[error("--{option} does not fit sample '{sample}': {why}")]
+    SheetRange {
+        /// The option, with its value where it has one (`lobe beckmann`).
+        option: String,
+        /// The sample.
+        sample: String,
+        /// What is wrong.
+        why: String,
     },
     /// A scene file that cannot be replayed.
     #[error("--scene-file {0}")]
@@ -830,6 +946,20 @@ impl SimOptions {
     /// The simulated sheet of `sample` with the sheet options (not for `--scene-file`).
     pub fn sheet(&self, sample: &str) -> Result<SheetSpec, SimOptionError> {
         let p = sample_params(sample)?;
+        let lobe_weight = checked("lobe-weight", self.lobe_weight, "in [0, 1]", |v| {
+            (0.0..=1.0).contains(&v)
+        })?;
+        if lobe_weight != 1.0 && self.lobe == LobeChoice::Gaussian {
+            return Err(SimOptionError::Conflict {
+                option: "lobe-weight",
+                other: "lobe gaussian",
+                why: "it is the share of another lobe's shape in a blend with the Gaussian",
+            });
+        }
+        let departures = Departures {
+            lobe_weight,
+            ..parse_departures(&self.departure)?
+        };
         let spec = SheetSpec {
             stock: Stock {
                 sigma_deg: p.sigma_deg,
@@ -856,13 +986,20 @@ impl SimOptions {
                 "a percentage in [0, 50]",
                 |v| (0.0..=50.0).contains(&v),
             )? / 100.0,
+            departures: Departures::NONE,
         };
-        spec.validate().map_err(|e| match e {
-            // Only the lobe's limit on σ can fail here: everything else was checked above.
-            SheetError::OutOfRange { .. } => SimOptionError::BadCustom {
-                spec: sample.to_owned(),
-                why: format!("with --lobe {:?}: {e}", self.lobe).to_lowercase(),
-            },
+        // Only the lobe's limit on σ can fail here: everything else was checked above.
+        spec.validate()
+            .map_err(|e: SheetError| SimOptionError::SheetRange {
+                option: format!("lobe {}", self.lobe.name()),
+                sample: sample.to_owned(),
+                why: e.to_string(),
+            })?;
+        let spec = SheetSpec { departures, ..spec };
+        spec.validate().map_err(|e| SimOptionError::SheetRange {
+            option: "departure".to_owned(),
+            sample: sample.to_owned(),
+            why: e.to_string(),
         })?;
         Ok(spec)
     }
@@ -874,6 +1011,8 @@ impl SimOptions {
             if is_black_glass(sample) {
                 let sheet_option = [
                     ("lobe", self.lobe != LobeChoice::Gaussian),
+                    ("lobe-weight", self.lobe_weight != 1.0),
+                    ("departure", !self.departure.is_empty()),
                     ("forward-lobe", self.forward_lobe != 0.0),
                     ("specular-bump", self.specular_bump != 0.0),
                     ("sheet-variation", self.sheet_variation != 0.0),
@@ -903,6 +1042,12 @@ impl SimOptions {
         };
         if self.lobe != LobeChoice::Gaussian {
             return conflict("lobe");
+        }
+        if self.lobe_weight != 1.0 {
+            return conflict("lobe-weight");
+        }
+        if !self.departure.is_empty() {
+            return conflict("departure");
         }
         if self.forward_lobe != 0.0 {
             return conflict("forward-lobe");
@@ -1181,13 +1326,161 @@ mod tests {
             "{wide}"
         );
         for args in [
-            &["--lobe", "beckmann"][..],
+            &["--lobe", "lorentz"][..],
             &["--physics", "perfect"],
             &["--gain-error", "one"],
         ] {
             let error = parsed(args).unwrap_err().to_string();
             assert!(
                 error.contains(args[1]) && error.contains(args[0]),
+                "{args:?}: {error}"
+            );
+        }
+    }
+
+    #[test]
+    fn departures_reach_the_sheet() {
+        let o = parsed(&[
+            "--lobe",
+            "blinn-phong",
+            "--lobe-weight",
+            "0.5",
+            "--departure",
+            "haze:0.03:4",
+            "--departure",
+            "peak-shift:-0.4",
+            "--departure",
+            "Asymmetry:1.5",
+            "--departure",
+            "fresnel-flat:1",
+            "--departure",
+            "sigma-slope:-0.4",
+            "--departure",
+            "oren-nayar:20",
+            "--departure",
+            "grazing:0.3",
+            "--departure",
+            "retro: 0.5 : 15",
+        ])
+        .unwrap();
+        let spec = o.sheet("G").unwrap();
+        assert_eq!(spec.lobe, Lobe::BlinnPhong);
+        assert_eq!(
+            spec.departures,
+            Departures {
+                lobe_weight: 0.5,
+                haze: 0.03,
+                haze_sigma_deg: 4.0,
+                peak_shift_deg: -0.4,
+                asymmetry: 1.5,
+                fresnel_flat: 1.0,
+                sigma_slope: -0.4,
+                oren_nayar_deg: 20.0,
+                grazing: 0.3,
+                retro: 0.5,
+                retro_width_deg: 15.0,
+            }
+        );
+        assert_eq!(
+            spec.equivalent_truth(),
+            SimOptions::default().sheet("G").unwrap().stock
+        );
+        assert!(o.instrument("G").is_ok());
+        assert_eq!(
+            SimOptions::default().sheet("G").unwrap().departures,
+            Departures::NONE
+        );
+        assert_eq!(
+            parsed(&["--lobe", "beckmann"])
+                .unwrap()
+                .sheet("J1")
+                .unwrap()
+                .lobe,
+            Lobe::Beckmann
+        );
+    }
+
+    #[test]
+    fn bad_departures_are_refused_saying_what_is_wrong() {
+        for (args, says) in [
+            (
+                &["--departure", "fog:0.1"][..],
+                "bad --departure 'fog:0.1': no departure 'fog': use haze:FRACTION:SIGMA_DEG",
+            ),
+            (
+                &["--departure", "haze:0.03"],
+                "bad --departure 'haze:0.03': haze takes 2 values: haze:FRACTION:SIGMA_DEG",
+            ),
+            (
+                &["--departure", "grazing:0.3:2"],
+                "bad --departure 'grazing:0.3:2': grazing takes 1 value: grazing:T",
+            ),
+            (
+                &["--departure", "peak-shift:left"],
+                "bad --departure 'peak-shift:left': 'left' is not a number",
+            ),
+            (
+                &["--departure", "grazing:0.3", "--departure", "grazing:0.5"],
+                "bad --departure 'grazing:0.5': grazing is given twice",
+            ),
+            (
+                &["--departure", "haze:0.03:0.5"],
+                "--departure does not fit sample 'G': haze sigma must be wider than the main lobe's sigma",
+            ),
+            (
+                &["--departure", "sigma-slope:-1"],
+                "--departure does not fit sample 'G': sigma slope must be in [-0.9, 0.9]",
+            ),
+            (
+                &["--departure", "retro:0.5:0"],
+                "--departure does not fit sample 'G': retro width must be in (0, 90] degrees, got 0",
+            ),
+            (
+                &["--lobe-weight", "0.5"],
+                "--lobe-weight does not apply with --lobe gaussian",
+            ),
+            (
+                &["--lobe", "ggx", "--lobe-weight", "2"],
+                "--lobe-weight must be in [0, 1], got 2",
+            ),
+            (
+                &["--departure", "grazing:0.3", "--scene-file", "x.csv"],
+                "--departure does not apply with --scene-file",
+            ),
+        ] {
+            let error = parsed(args)
+                .unwrap()
+                .instrument("G")
+                .err()
+                .unwrap_or_else(|| panic!("{args:?} accepted"))
+                .to_string();
+            assert!(error.starts_with(says), "{args:?}: {error}");
+        }
+        let mc = parsed(&["--lobe", "beckmann"])
+            .unwrap()
+            .instrument("MC")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            mc.starts_with("--lobe beckmann does not fit sample 'MC': sigma of a beckmann lobe must be at most 39 degrees"),
+            "{mc}"
+        );
+        for args in [
+            &["--departure", "haze:0.03:4"][..],
+            &["--lobe-weight", "0.5"],
+        ] {
+            let error = parsed(args)
+                .unwrap()
+                .instrument("BG")
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(
+                error.starts_with(&format!(
+                    "{} does not apply to sample 'BG'",
+                    args[args.len() - 2]
+                )),
                 "{args:?}: {error}"
             );
         }

@@ -86,6 +86,7 @@ pub fn reanalyse_with(
             acceptance_deg: doc.plan.acceptance_deg,
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
             instrument_profile: None,
+            model_extensions: false,
         });
     let recorded_profile = settings.instrument_profile.is_some();
     let mut settings = settings;
@@ -112,7 +113,10 @@ pub fn reanalyse_with(
         .map(|o| {
             o.iter()
                 .filter(|(k, v)| {
-                    !session_level.contains(&k.as_str()) && recorded.get(k.as_str()) != Some(v)
+                    // A key the recorded document predates reads as null (as
+                    // `model_extension` of a folder analysed before extensions).
+                    !session_level.contains(&k.as_str())
+                        && recorded.get(k.as_str()).unwrap_or(&serde_json::Value::Null) != *v
                 })
                 .map(|(k, _)| k.clone())
                 .collect()

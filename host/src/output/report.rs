@@ -95,6 +95,15 @@ pub(crate) fn flag_meaning(flag: Flag) -> &'static str {
         Flag::InstrumentSensitive => {
             "without an instrument profile, the class changes within the bound on the detector's response (from a point detector to a top-hat of 3° full width, instead of the declared 1°): the class rests on a response nobody measured; characterize the instrument (gonio characterize) and measure again"
         }
+        Flag::ModelExtended => {
+            "informational: the paper's TSL model did not describe the readings and the fit added the term(s) the data called for (named under the fit, each with its test); σ, ρs, ρd, η are still the main lobe's, σ its half-maximum width as a Gaussian, so the paper's classification tree applies to them"
+        }
+        Flag::Outlier => {
+            "a reading lies so far from the fit that it is taken for a gross error (named under the fit): check it, measure again"
+        }
+        Flag::FewDegreesOfFreedom => {
+            "too few readings beyond the fitted parameters to judge the fit or state a class confidence"
+        }
         Flag::InstrumentDeclared => {
             "informational: no instrument profile was in force (none, or older than the lab's limit): the fit took the detector's angular response and arm zero as declared, not as measured on this instrument (gonio characterize measures them)"
         }

@@ -28,6 +28,7 @@ pub mod order;
 mod prompt;
 mod recovery;
 mod refining;
+pub mod saturation;
 mod schedule;
 mod steps;
 pub mod sweep_bins;
@@ -459,6 +460,10 @@ pub enum SessionError {
     /// The analysis of the readings failed.
     #[error("the fit failed: {0}")]
     Analysis(PointsAnalysisError),
+    /// The readings saturated the detector and too few were left for a fit: said as
+    /// such, with what to change (resuming would saturate again).
+    #[error("{0}")]
+    Saturated(Box<saturation::Saturation>),
     /// The user interrupted the session (Ctrl-C; see [`Client::set_interrupt`]).
     #[error("interrupted by the user")]
     Interrupted,
@@ -971,6 +976,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 acceptance_deg: self.plan.acceptance_deg,
                 arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
                 instrument_profile: self.given.profile.clone(),
+                model_extensions: crate::analysis::fit::on_by_default(),
             },
             analysed_unix_s: self.clock.analysed_unix_s,
         })
@@ -1111,7 +1117,29 @@ impl<'a, T: Transport> Session<'a, T> {
             &self.analysis_settings(),
             now,
         )
-        .map_err(SessionError::Analysis)
+        .map_err(|error| {
+            // Too few geometries because readings saturated: the fit's count of them says
+            // nothing of why, nor of what to change.
+            let too_few = matches!(
+                &error,
+                PointsAnalysisError::Fit(e)
+                    if matches!(e.source, crate::analysis::fit::FitError::TooFewGeometries { .. })
+            );
+            let saturation = too_few
+                .then(|| {
+                    saturation::of(
+                        &self.points,
+                        self.calibration.as_ref(),
+                        self.info.detector_ranges.len(),
+                        error.to_string(),
+                    )
+                })
+                .flatten();
+            match saturation {
+                Some(s) => SessionError::Saturated(Box::new(s)),
+                None => SessionError::Analysis(error),
+            }
+        })
     }
 
     /// What the session's analysis is made with besides the readings.
@@ -1120,6 +1148,7 @@ impl<'a, T: Transport> Session<'a, T> {
             acceptance_deg: self.plan.acceptance_deg,
             arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
             instrument_profile: self.given.profile.clone(),
+            model_extensions: crate::analysis::fit::on_by_default(),
         }
     }
 }
@@ -1155,6 +1184,11 @@ pub(crate) struct AnalysisSettings {
     /// The instrument profile in force, if one was.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub instrument_profile: Option<ProfileInUse>,
+    /// The fit tested the model's extensions and added those the data called for
+    /// ([`crate::analysis::fit::Extension`]). Absent (false) in folders analysed before
+    /// the extensions existed: `gonio fit DIR` then makes the analysis they recorded.
+    #[serde(default)]
+    pub model_extensions: bool,
 }
 
 /// The readings the result rests on (converted, not superseded, each still geometry
@@ -1280,6 +1314,7 @@ pub(crate) fn analyse_points(
             .as_ref()
             .map_or(settings.arm_zero_uncertainty_deg, |p| p.arm_zero_u_deg),
         noise_scale_log_variance,
+        extensions: settings.model_extensions,
         ..FitOptions::default()
     };
     let mut report = analyse_with_shared(&readings, &shared, &options, None)?;

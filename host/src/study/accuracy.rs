@@ -93,9 +93,7 @@ impl Case {
         };
         match self.effect {
             Effect::None => format!("{} {physics}", self.sample),
-            Effect::Lobe(LobeChoice::Gaussian) => format!("{} gaussian", self.sample),
-            Effect::Lobe(LobeChoice::Ggx) => format!("{} ggx", self.sample),
-            Effect::Lobe(LobeChoice::Cauchy) => format!("{} cauchy", self.sample),
+            Effect::Lobe(lobe) => format!("{} {}", self.sample, lobe.name()),
             Effect::ForwardLobe => format!("{} forward-lobe", self.sample),
             Effect::SpecularBump => format!("{} specular-bump", self.sample),
             Effect::ArmOffset(deg) => format!("{} arm-offset ±{deg}", self.sample),

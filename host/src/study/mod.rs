@@ -4,6 +4,7 @@ pub mod forensic;
 pub mod instruments;
 pub mod library_validation;
 pub mod reliability;
+pub mod shapes;
 pub mod trade;
 pub mod trade_plot;
 

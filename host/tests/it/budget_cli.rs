@@ -40,12 +40,18 @@ fn calibration(dir: &Path) -> Value {
 }
 
 fn share(r: &Value, kind: &str, param: &str) -> f64 {
-    r["budget"]["by_kind"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|k| k["kind"] == kind)
-        .map_or(0.0, |k| k["share"][param].as_f64().unwrap())
+    let of = |kind: &str| {
+        r["budget"]["by_kind"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|k| k["kind"] == kind)
+            .map_or(0.0, |k| k["share"][param].as_f64().unwrap())
+    };
+    // Of the variance the measurement's sources make: the fit's widening for what the
+    // data leave open between model shapes (`model form`) depends on the intervals'
+    // width itself, not on a source.
+    of(kind) / (1.0 - of("model form"))
 }
 
 fn width(r: &Value, param: &str) -> f64 {

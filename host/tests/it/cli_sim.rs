@@ -156,8 +156,16 @@ fn bad_physics_options_name_the_option_and_the_value_and_exit_non_zero() {
             "--sheet-variation must be a percentage in [0, 50], got 80",
         ),
         (
-            vec!["sim", "G", "--lobe", "beckmann"],
-            "invalid value 'beckmann' for '--lobe",
+            vec!["sim", "G", "--lobe", "lorentz"],
+            "invalid value 'lorentz' for '--lobe",
+        ),
+        (
+            vec!["sim", "MC", "--lobe", "beckmann"],
+            "--lobe beckmann does not fit sample 'MC': sigma of a beckmann lobe must be at most 39 degrees",
+        ),
+        (
+            vec!["sim", "G", "--departure", "haze:0.03"],
+            "bad --departure 'haze:0.03': haze takes 2 values: haze:FRACTION:SIGMA_DEG",
         ),
         (
             vec!["sim", "G", "--faults", "unplug-at=5:0"],

@@ -272,10 +272,14 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     assert_eq!(faulty["class"], clean["class"]);
     let g = geometries(&faulty_dir);
     assert_each_once(&g);
-    assert_eq!(g.len(), geometries(&clean_dir).len());
     let session: Value =
         serde_json::from_slice(&std::fs::read(faulty_dir.join("session.json")).unwrap()).unwrap();
     let decisions = session["decisions"].to_string();
+    // Not necessarily the same geometries: the simulated detector keeps sampling while the
+    // cable is out, so the readings after it carry other noise draws and the adaptive
+    // batches may be placed otherwise (a first batch that did not resolve σ: 26 against
+    // 20). Each geometry once, Strategy 1's at least, and the same class.
+    assert!(g.len() >= 12, "faulty: {decisions}");
     assert!(
         decisions.contains("link back"),
         "the unplug was noticed and recovered: {decisions}"

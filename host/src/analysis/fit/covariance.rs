@@ -19,7 +19,7 @@ use crate::analysis::linalg::{self, Square};
 use crate::analysis::model::{ETA, PARAM_NAMES, RHO_S, SIGMA};
 
 /// Standard normal quantile at 0.975.
-const Z_975: f64 = 1.959_963_984_540_054;
+pub(super) const Z_975: f64 = 1.959_963_984_540_054;
 /// Largest lag-1 autocorrelation used in the widening factor.
 const WIDENING_MAX_LAG1: f64 = 0.9;
 

@@ -24,13 +24,29 @@ pub enum FitError {
         /// Which value.
         what: &'static str,
     },
-    /// A negative radiance factor.
-    #[error("reading {index}: radiance factor {value} is negative")]
+    /// A negative radiance factor without an uncertainty to judge it by.
+    #[error(
+        "reading {index}: radiance factor {value} is negative (a reading may be below zero only within its standard uncertainty: give a std column)"
+    )]
     Negative {
         /// Reading.
         index: usize,
         /// The value.
         value: f64,
+    },
+    /// A negative radiance factor further below zero than its uncertainty allows.
+    #[error(
+        "reading {index}: radiance factor {value} is negative, {k} standard uncertainties ({std}) below zero or more: not noise about a dark reading"
+    )]
+    NegativeBeyondNoise {
+        /// Reading.
+        index: usize,
+        /// The value.
+        value: f64,
+        /// Its standard uncertainty.
+        std: f64,
+        /// [`super::validation::NEGATIVE_READING_STDS`].
+        k: f64,
     },
     /// A radiance factor too large to be a reading.
     #[error("reading {index}: radiance factor {value} is above the largest accepted, {max:e}")]
@@ -158,6 +174,7 @@ impl FitError {
         match self {
             FitError::NotFinite { index, .. }
             | FitError::Negative { index, .. }
+            | FitError::NegativeBeyondNoise { index, .. }
             | FitError::TooLarge { index, .. }
             | FitError::AngleOutOfRange { index, .. }
             | FitError::SpanOutOfRange { index, .. }

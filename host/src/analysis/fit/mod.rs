@@ -46,7 +46,9 @@ mod arm_offset;
 mod covariance;
 mod engine;
 mod error;
+mod extension;
 mod identifiability;
+mod outliers;
 mod result;
 mod validation;
 
@@ -56,6 +58,7 @@ use engine::{LeastSquaresProblem, LmOutcome, global_fit, params_of, x_of};
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
 pub use error::FitError;
+pub use extension::{Extension, ExtensionTerm, MODEL_FORM, Term, TermTest, on_by_default};
 pub use result::{
     ActiveBound, ArmOffset, Bound, BudgetTerm, FitResult, FittedModel, NotIdentified, Note, Status,
 };
@@ -160,6 +163,10 @@ pub struct FitOptions {
     /// from the data (a sweep's bins scaled to their own scatter): the χ² test allows for
     /// it ([`crate::analysis::gof::chi2_upper_tail_scaled`]). 0: the stated noise is taken as exact.
     pub noise_scale_log_variance: f64,
+    /// Test the nested extensions of the model (a heavy-tailed lobe, a haze lobe, σ
+    /// varying with θi, a non-Lambertian body) and add those the data call for
+    /// ([`extension`]'s module docs). By default as [`extension::on_by_default`] says.
+    pub extensions: bool,
 }
 
 impl Default for FitOptions {
@@ -173,6 +180,7 @@ impl Default for FitOptions {
             arm_offset: true,
             arm_zero_uncertainty_deg: 0.0,
             noise_scale_log_variance: 0.0,
+            extensions: extension::on_by_default(),
         }
     }
 }
@@ -345,8 +353,18 @@ pub fn fit_with_shared(
     // 5. Goodness of fit, the widening it calls for, and the parameters' covariance.
     let goodness = covariance::goodness_of_fit(&mut state, observations, &x, cost, dof, options);
     let uncertainty = covariance::parameters(&mut state, &goodness, free, &arm, dof);
-
-    Ok(summary(
+    // Gross errors among the readings, too few degrees of freedom (outliers.rs).
+    let screen = outliers::screen(
+        &state.problem,
+        observations,
+        &x,
+        free,
+        arm.fitted,
+        dof,
+        options.max_iterations,
+    );
+    let (shared_at_model, fitted) = (state.shared.clone(), state.fitted);
+    let mut result = summary(
         observations,
         state,
         model,
@@ -356,7 +374,21 @@ pub fn fit_with_shared(
         goodness,
         uncertainty,
         dof,
-    ))
+    );
+    outliers::record(&mut result, &screen, observations);
+
+    // 6. The model grows where the data call for it; the intervals cover what they leave open.
+    extension::extend(
+        &extension::Base {
+            observations,
+            shared: &shared_at_model,
+            response: acceptance,
+            fitted,
+            options,
+        },
+        &mut result,
+    );
+    Ok(result)
 }
 
 /// The fit as its steps hand it on: the problem (the readings with the shared errors and the
@@ -461,5 +493,6 @@ fn summary(
         status: state.outcome.status,
         weighted: state.problem.weighted,
         flags,
+        extension: None,
     }
 }

@@ -102,6 +102,43 @@ pub enum Note {
         /// Lower limit of ρs.
         rho_s_lower: f64,
     },
+    /// η moved beyond twice its standard error when the body was allowed to be
+    /// non-Lambertian: it takes up the body's shape and is not trusted as the paper's
+    /// refractive index; its interval covers both values.
+    EtaAbsorbsBody {
+        /// η with a Lambertian body.
+        eta_lambert: f64,
+        /// η with the non-Lambertian body.
+        eta_body: f64,
+    },
+    /// A reading so far from the fit that it is taken for a gross error (the outlier test,
+    /// `outliers.rs`): named, left in the fit, flagged `outlier`.
+    Outlier {
+        /// Its position in the input (0-based).
+        index: usize,
+        /// θi, degrees.
+        theta_i_deg: f64,
+        /// θr, degrees.
+        theta_r_deg: f64,
+        /// The reading's radiance factor.
+        value: f64,
+        /// The fit's value there.
+        fitted: f64,
+        /// (reading − fit) over the residual's standard deviation.
+        standardized: f64,
+        /// The test's critical value of |standardized| (Bonferroni over the readings).
+        critical: f64,
+        /// The test's false-alarm rate per data set.
+        alpha: f64,
+    },
+    /// Too few readings beyond the fitted parameters to judge the fit or state a class
+    /// confidence: flagged `few-degrees-of-freedom`.
+    FewDegreesOfFreedom {
+        /// ν, readings less fitted parameters.
+        dof: usize,
+        /// The smallest ν judged (3 without uncertainties, 1 with them).
+        min_dof: usize,
+    },
 }
 
 impl std::fmt::Display for Note {
@@ -154,6 +191,31 @@ impl std::fmt::Display for Note {
             }
             Note::FitNotTestable => f.write_str(
                 "goodness of fit not testable: no uncertainties and too few θr neighbours",
+            ),
+            Note::EtaAbsorbsBody {
+                eta_lambert,
+                eta_body,
+            } => write!(
+                f,
+                "η is {eta_lambert:.3} with a Lambertian body and {eta_body:.3} with a non-Lambertian one: it takes up the body's shape, not trusted as a refractive index (its interval covers both)"
+            ),
+            Note::Outlier {
+                index,
+                theta_i_deg,
+                theta_r_deg,
+                value,
+                fitted,
+                standardized,
+                critical,
+                alpha,
+            } => write!(
+                f,
+                "reading {index} (θi {theta_i_deg}°, θr {theta_r_deg}°) is an outlier: {value} where the fit has {fitted:.4}, {standardized:+.1} standard deviations (critical ±{critical:.2} at {:.1} % false alarms per data set); check it, remove it if it is a gross error and fit again",
+                100.0 * alpha
+            ),
+            Note::FewDegreesOfFreedom { dof, min_dof } => write!(
+                f,
+                "{dof} degrees of freedom (readings less fitted parameters), below the {min_dof} a fit is judged from: its goodness and noise cannot be tested, so no class confidence of 0.95 is stated; measure more geometries"
             ),
             Note::RhoSUnbounded { rho_s_lower } => {
                 write!(
@@ -279,8 +341,11 @@ pub struct FitResult {
     pub status: Status,
     /// Whether readings carried uncertainties (a weighted fit).
     pub weighted: bool,
-    /// The fit's flags ([`Flag::LackOfFit`]).
+    /// The fit's flags ([`Flag::LackOfFit`], [`Flag::ModelExtended`]).
     pub flags: Vec<Flag>,
+    /// The extension step: the terms the data called for and every test made; `None`
+    /// where it was not run (no resolved main lobe, too few readings, or switched off).
+    pub extension: Option<super::Extension>,
 }
 
 impl FitResult {

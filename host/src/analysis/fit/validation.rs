@@ -7,7 +7,8 @@ use super::{
 };
 
 /// Check the input, naming the first problem: finite numbers, angles in [0°, 90°),
-/// 0 ≤ radiance factor ≤ [`RADIANCE_FACTOR_MAX`], [`STD_MIN`] ≤ std ≤ [`STD_MAX`],
+/// 0 ≤ radiance factor ≤ [`RADIANCE_FACTOR_MAX`] (down to [`NEGATIVE_READING_STDS`]
+/// standard uncertainties below 0 with one), [`STD_MIN`] ≤ std ≤ [`STD_MAX`],
 /// uncertainties for all readings or none, no contradicting repeats, enough geometries.
 pub fn validate(observations: &[Observation]) -> Result<(), FitError> {
     let weighted = observations.first().is_some_and(|o| o.std.is_some());
@@ -58,12 +59,6 @@ fn check_reading(index: usize, o: &Observation, weighted: bool) -> Result<(), Fi
             what: "radiance_factor",
         });
     }
-    if o.radiance_factor < 0.0 {
-        return Err(FitError::Negative {
-            index,
-            value: o.radiance_factor,
-        });
-    }
     if o.radiance_factor > RADIANCE_FACTOR_MAX {
         return Err(FitError::TooLarge {
             index,
@@ -89,8 +84,34 @@ fn check_reading(index: usize, o: &Observation, weighted: bool) -> Result<(), Fi
         }
         _ => {}
     }
+    // A dark-subtracted reading of a dark place scatters about its true value, near zero,
+    // and so a little below it: with an uncertainty, a reading down to
+    // NEGATIVE_READING_STDS standard uncertainties below zero is a reading (refusing it, or
+    // clipping it to 0, would bias the dark parts of the fit upwards). Further below, or
+    // negative without an uncertainty to judge it by (a table), it is not a radiance
+    // factor.
+    if o.radiance_factor < 0.0 {
+        return match o.std {
+            Some(s) if o.radiance_factor >= -NEGATIVE_READING_STDS * s => Ok(()),
+            Some(s) => Err(FitError::NegativeBeyondNoise {
+                index,
+                value: o.radiance_factor,
+                std: s,
+                k: NEGATIVE_READING_STDS,
+            }),
+            None => Err(FitError::Negative {
+                index,
+                value: o.radiance_factor,
+            }),
+        };
+    }
     Ok(())
 }
+
+/// How many standard uncertainties below zero a reading may be (see [`check_reading`]):
+/// noise reaches 5 standard deviations once in 3.5 million readings, a sign error or a
+/// wrong dark level far more often.
+pub const NEGATIVE_READING_STDS: f64 = 5.0;
 
 /// The number of distinct geometries. Repeated readings are fine, contradicting ones are
 /// not: without uncertainties "contradicting" means more than 10 % apart; with them, more
@@ -183,4 +204,55 @@ pub(super) fn geometry_order(observations: &[Observation]) -> Vec<usize> {
             .then(a.cmp(&b))
     });
     order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn readings(std: Option<f64>, dark_value: f64) -> Vec<Observation> {
+        let mut out: Vec<Observation> = [
+            (20.0, 0.0, 0.4),
+            (20.0, 20.0, 3.0),
+            (60.0, 60.0, 5.0),
+            (60.0, 10.0, 0.3),
+        ]
+        .iter()
+        .map(|&(ti, tr, y)| Observation {
+            theta_i_deg: ti,
+            theta_r_deg: tr,
+            radiance_factor: y,
+            std,
+            theta_r_span_deg: 0.0,
+        })
+        .collect();
+        out.push(Observation {
+            theta_i_deg: 45.0,
+            theta_r_deg: 5.0,
+            radiance_factor: dark_value,
+            std,
+            theta_r_span_deg: 0.0,
+        });
+        out
+    }
+
+    /// A dark-subtracted reading a hair below zero is a reading when its uncertainty
+    /// allows it (it stopped sessions: "radiance factor −0.0017 is negative"); further
+    /// below, or negative without an uncertainty, it is refused with the reading named.
+    #[test]
+    fn readings_below_zero_within_their_noise_are_readings() {
+        assert_eq!(validate(&readings(Some(0.001), -0.0017)), Ok(()));
+        assert_eq!(validate(&readings(Some(0.001), -0.0049)), Ok(()));
+        assert!(matches!(
+            validate(&readings(Some(0.001), -0.0051)),
+            Err(FitError::NegativeBeyondNoise { index: 4, .. })
+        ));
+        assert!(matches!(
+            validate(&readings(None, -0.0017)),
+            Err(FitError::Negative { index: 4, .. })
+        ));
+        // And the fit takes them as they are.
+        let fit = super::super::fit(&readings(Some(0.001), -0.0017), &Default::default());
+        assert!(fit.is_ok(), "{fit:?}");
+    }
 }

@@ -52,11 +52,19 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             if let Some(record_error) = record_error {
                 eprintln!("and its folder could not be updated: {record_error}");
             }
-            eprintln!(
-                "readings so far are in {}; continue with: {}",
-                dir.display(),
-                resume_command(&options, &dir)
-            );
+            if matches!(error, SessionError::Saturated(_)) {
+                // Resuming would read the same light: the folder keeps what was measured.
+                eprintln!(
+                    "the readings are kept in {} (points.jsonl: each raw reading, marked saturated)",
+                    dir.display()
+                );
+            } else {
+                eprintln!(
+                    "readings so far are in {}; continue with: {}",
+                    dir.display(),
+                    resume_command(&options, &dir)
+                );
+            }
             let code = if matches!(error, SessionError::Interrupted) {
                 crate::cli::exit::INTERRUPTED
             } else {

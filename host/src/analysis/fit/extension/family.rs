@@ -1,0 +1,424 @@
+//! The nested family: the paper's TSL model as its simplest member, and the terms the data
+//! may call for on top of it, each of which reduces to TSL at its null value.
+//!
+//! Radiance factor at a point (θi, θr), θa = (θr − θi)/2 and ψ = (θi + θr)/2 as in
+//! [`crate::analysis::model`]:
+//!
+//! ```text
+//! f = ρs·F(ψ, η)·H·D(θa; σ_i, κ) + ρh·F(ψ, η)·H·exp(−θa²/(2σh²)) + ρd·exp(b·q)
+//! σ_i = σ·exp(β·(θi − 45°)/45°),   σh = σ_i·e^u,   q = (1 − cos θi) + (1 − cos θr) − 2(1 − cos 45°)
+//! D(θa; s, κ) = (1 + a·w)^(−(1+κ)/(2κ)),   w = θa²/h²,  h = s·√(2 ln 2),  a = 2^(2κ/(1+κ)) − 1
+//! ```
+//!
+//! - **heavy-tailed lobe** (κ ≥ 0): a Student-t in θa with ν = 1/κ degrees of freedom,
+//!   scaled so that D = ½ at θa = σ·√(2 ln 2) whatever κ is. So σ keeps the project's
+//!   convention, the Gaussian of the same half-maximum width, and the classification tree
+//!   still applies to it; κ → 0 is the Gaussian (exp(−θa²/(2σ²))), κ = 1 the Cauchy,
+//!   κ ≈ ⅓ close to Trowbridge–Reitz (GGX);
+//! - **haze lobe** (ρh ≥ 0, u): a second, broader Gaussian lobe of the same Fresnel
+//!   and attenuation, σh at least 1.5 σ (else it is the main lobe over again);
+//! - **σ varying with θi** (β): the lobe's width at θi = 45° is the reported σ;
+//! - **non-Lambertian body** (b): the diffuse part falls (b < 0, Fresnel transmission,
+//!   Oren–Nayar's forward plane) or rises (b > 0) toward grazing in both θi and θr
+//!   (reciprocal), ρd being its value at the specular geometry of θi = 45°;
+//! - **a body behind a Fresnel interface** (η_b ≥ 1): the diffuse part times the
+//!   transmittances T(θi)·T(θr)/T(45°)², T = 1 − R, R = F(θ, η_b)²/2 the unpolarised
+//!   reflectance of the paper's F: light scattered under a smooth surface leaves it less
+//!   toward grazing (Wolff's diffuse model). η_b = 1 is Lambert (R ≡ 0);
+//! - the **arm offset** δ0 of the base fit, every θr read as θr + δ0, free when the base
+//!   fit called for it.
+//!
+//! Through the detector each reading is the mean over its window ([`model::reading_window`]:
+//! the arm's travel and the response's steps) with 5-point Gauss–Legendre across each
+//! uniform piece: within 1e-7 of the exact mean for lobes of σ ≥ 0.3° seen through a
+//! 1° window. The base engine integrates in closed form instead; this family evaluates its
+//! null model the same way as its extensions, so their costs compare like with like.
+use crate::analysis::model::{self, DetectorResponse, PlaneGeometry, fresnel_with_derivative};
+
+/// ln 2.
+const LN_2: f64 = std::f64::consts::LN_2;
+/// The θi at which a θi-dependent σ is reported, and the body's reference, degrees.
+pub(crate) const REFERENCE_THETA_I_DEG: f64 = 45.0;
+/// Below this κ the lobe is evaluated as the Gaussian it tends to (the Student-t form
+/// loses digits as κ → 0).
+const KAPPA_GAUSSIAN: f64 = 1e-7;
+/// Step of the one-sided difference for ∂D/∂κ (κ ≥ 0, so it never leaves the range).
+const KAPPA_STEP: f64 = 1e-5;
+/// Step of the one-sided difference for ∂/∂η_b (η_b ≥ 1).
+const BODY_ETA_STEP: f64 = 1e-6;
+/// Step of the difference for ∂f/∂δ0, degrees.
+const SHIFT_STEP_DEG: f64 = 1e-4;
+
+/// The family's parameters, by index into [`Values`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Param {
+    LnSigma = 0,
+    RhoS = 1,
+    RhoD = 2,
+    Eta = 3,
+    Shift = 4,
+    Kappa = 5,
+    HazeRho = 6,
+    HazeLnRatio = 7,
+    Slope = 8,
+    Body = 9,
+    BodyEta = 10,
+}
+
+/// Number of [`Param`]s.
+pub(crate) const N_FAMILY: usize = 11;
+
+impl Param {
+    /// Every parameter in index order.
+    #[cfg(test)]
+    pub(crate) const ALL: [Param; N_FAMILY] = [
+        Param::LnSigma,
+        Param::RhoS,
+        Param::RhoD,
+        Param::Eta,
+        Param::Shift,
+        Param::Kappa,
+        Param::HazeRho,
+        Param::HazeLnRatio,
+        Param::Slope,
+        Param::Body,
+        Param::BodyEta,
+    ];
+
+    /// Its range: the base fit's bounds for the TSL four, and for the terms what the
+    /// term means (a haze at least 1.5× and at most 30× the main lobe's width; a slope or
+    /// body that changes the lobe or the diffuse at most e^±2 over the measured range).
+    pub(crate) fn bounds(self) -> (f64, f64) {
+        use super::super::{ARM_OFFSET_MAX_DEG, ETA_MAX, ETA_MIN, SIGMA_MAX_DEG, SIGMA_MIN_DEG};
+        match self {
+            Param::LnSigma => (SIGMA_MIN_DEG.ln(), SIGMA_MAX_DEG.ln()),
+            Param::RhoS | Param::RhoD | Param::HazeRho => (0.0, f64::INFINITY),
+            Param::Eta | Param::BodyEta => (ETA_MIN, ETA_MAX),
+            Param::Shift => (-ARM_OFFSET_MAX_DEG, ARM_OFFSET_MAX_DEG),
+            Param::Kappa => (0.0, 3.0),
+            Param::HazeLnRatio => (1.5_f64.ln(), 30.0_f64.ln()),
+            Param::Slope => (-2.0, 2.0),
+            Param::Body => (-4.0, 4.0),
+        }
+    }
+}
+
+/// Values of every parameter of the family (the inactive ones at their null values).
+pub(crate) type Values = [f64; N_FAMILY];
+
+/// The lobe D(θa; s, κ) from w = θa²/h², h the half width at half maximum, and ∂D/∂w.
+#[inline]
+fn lobe_of_w(w: f64, kappa: f64) -> (f64, f64) {
+    if kappa < KAPPA_GAUSSIAN {
+        let d = (-LN_2 * w).exp();
+        return (d, -LN_2 * d);
+    }
+    let a = (2.0 * kappa * LN_2 / (1.0 + kappa)).exp_m1();
+    let power = (1.0 + kappa) / (2.0 * kappa);
+    let d = (-power * (a * w).ln_1p()).exp();
+    (d, -power * a / (1.0 + a * w) * d)
+}
+
+/// D, ∂D/∂ln s and ∂D/∂κ at θa for a lobe of Gaussian-equivalent width s (degrees).
+#[inline]
+pub(crate) fn tail_lobe(theta_a_deg: f64, s_deg: f64, kappa: f64) -> (f64, f64, f64) {
+    let w = theta_a_deg * theta_a_deg / (2.0 * LN_2 * s_deg * s_deg);
+    let (d, dw) = lobe_of_w(w, kappa);
+    let d_kappa = (lobe_of_w(w, kappa + KAPPA_STEP).0 - d) / KAPPA_STEP;
+    (d, -2.0 * w * dw, d_kappa)
+}
+
+/// The body's shape variable q at (θi, θr) (0 at θi = θr = 45°).
+#[inline]
+fn body_q(theta_i_deg: f64, theta_r_deg: f64) -> f64 {
+    let q = |t: f64| 1.0 - t.to_radians().cos();
+    q(theta_i_deg) + q(theta_r_deg) - 2.0 * q(REFERENCE_THETA_I_DEG)
+}
+
+/// The transmittance 1 − F(θ, η)²/2 of the paper's Fresnel amplitude F.
+#[inline]
+fn transmittance(theta_deg: f64, eta: f64) -> f64 {
+    let f = model::fresnel(theta_deg.abs().min(89.999), eta);
+    1.0 - 0.5 * f * f
+}
+
+/// The Fresnel body's factor T(θi)·T(θr)/T(45°)² at η_b.
+#[inline]
+fn fresnel_body(theta_i_deg: f64, theta_r_deg: f64, eta_b: f64) -> f64 {
+    if eta_b <= 1.0 {
+        return 1.0;
+    }
+    transmittance(theta_i_deg, eta_b) * transmittance(theta_r_deg, eta_b)
+        / transmittance(REFERENCE_THETA_I_DEG, eta_b).powi(2)
+}
+
+/// 5-point Gauss–Legendre on [−½, ½]: offsets and weights.
+const GL5: [(f64, f64); 5] = [
+    (-0.453_089_922_969_332_2, 0.118_463_442_528_094_5),
+    (-0.269_234_655_052_841_4, 0.239_314_335_249_683_2),
+    (0.0, 0.284_444_444_444_444_4),
+    (0.269_234_655_052_841_4, 0.239_314_335_249_683_2),
+    (0.453_089_922_969_332_2, 0.118_463_442_528_094_5),
+];
+
+/// One reading as the family sees it: its θi, and the θr offsets from its centre with their
+/// weights, which sum to 1.
+pub(crate) struct Reading {
+    theta_i_deg: f64,
+    theta_r_deg: f64,
+    nodes: Vec<(f64, f64)>,
+    /// The nodes' geometry without an arm offset, computed once: the parameters never
+    /// change it, and a fit evaluates every reading hundreds of times.
+    unshifted: Vec<Node>,
+}
+
+/// One node's geometry terms.
+#[derive(Clone, Copy)]
+struct Node {
+    geometry: PlaneGeometry,
+    q: f64,
+}
+
+impl Node {
+    fn at(theta_i_deg: f64, theta_r_deg: f64) -> Node {
+        Node {
+            geometry: PlaneGeometry::new(theta_i_deg, theta_r_deg),
+            q: body_q(theta_i_deg, theta_r_deg),
+        }
+    }
+}
+
+impl Reading {
+    /// The reading at (θi, θr) whose arm moved `span_deg`, through `response`.
+    ///
+    /// `lobe_sd_deg` is the main lobe's standard deviation in θr (2σ) as the base fit
+    /// found it: where everything the detector averages over spans less than a tenth of
+    /// it, the reading is the model at the window's mean offset (within 1e-5 of the
+    /// average: the curvature term is (extent/sd)²/24 of it), which makes a rough paper's
+    /// sweep of 1,400 bins 15 times cheaper to fit; the nodes stay fixed through the fit,
+    /// so every member is evaluated alike.
+    pub(crate) fn new(
+        theta_i_deg: f64,
+        theta_r_deg: f64,
+        span_deg: f64,
+        response: Option<&DetectorResponse>,
+        lobe_sd_deg: f64,
+    ) -> Reading {
+        let (window, centres) = model::reading_window(span_deg, response);
+        let offsets = centres.iter().map(|(c, _)| *c);
+        let extent = offsets.clone().fold(f64::NEG_INFINITY, f64::max)
+            - offsets.fold(f64::INFINITY, f64::min)
+            + window.unwrap_or(0.0);
+        let nodes = match window {
+            _ if extent < 0.1 * lobe_sd_deg => {
+                vec![(centres.iter().map(|(c, w)| c * w).sum::<f64>(), 1.0)]
+            }
+            Some(a) if a > 0.0 => centres
+                .iter()
+                .flat_map(|&(c, w)| GL5.iter().map(move |&(x, g)| (c + a * x, w * g)))
+                .collect(),
+            _ => centres,
+        };
+        let unshifted = nodes
+            .iter()
+            .map(|(offset, _)| Node::at(theta_i_deg, theta_r_deg + offset))
+            .collect();
+        Reading {
+            theta_i_deg,
+            theta_r_deg,
+            nodes,
+            unshifted,
+        }
+    }
+}
+
+/// The point model's value and its gradient over every [`Param`] (∂/∂δ0 left 0: it is
+/// taken by difference over the whole reading).
+#[inline]
+fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
+    let g = &node.geometry;
+    let (theta_i_deg, theta_r_deg) = (g.theta_i_deg, g.theta_r_deg);
+    let theta_a = 0.5 * g.offset_deg;
+    let x_i = (theta_i_deg - REFERENCE_THETA_I_DEG) / REFERENCE_THETA_I_DEG;
+    let ln_s = v[Param::LnSigma as usize] + v[Param::Slope as usize] * x_i;
+    let s = ln_s.exp();
+    // κ = 0 is the Gaussian member (κ inactive, or at its bound): no difference needed.
+    let (d, d_ln_s, d_kappa) = if gradient && v[Param::Kappa as usize] > 0.0 {
+        tail_lobe(theta_a, s, v[Param::Kappa as usize])
+    } else if gradient {
+        let w = theta_a * theta_a / (2.0 * LN_2 * s * s);
+        let (d, dw) = lobe_of_w(w, 0.0);
+        (d, -2.0 * w * dw, 0.0)
+    } else {
+        let w = theta_a * theta_a / (2.0 * LN_2 * s * s);
+        (lobe_of_w(w, v[Param::Kappa as usize]).0, 0.0, 0.0)
+    };
+    let (fr, d_fr) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, v[Param::Eta as usize]);
+    let h = g.attenuation_over_cosines;
+    let (rho_s, rho_d, rho_h) = (
+        v[Param::RhoS as usize],
+        v[Param::RhoD as usize],
+        v[Param::HazeRho as usize],
+    );
+    let (dh, dh_ln) = if rho_h > 0.0 {
+        let sh = (ln_s + v[Param::HazeLnRatio as usize]).exp();
+        let z = theta_a / sh;
+        let e = (-0.5 * z * z).exp();
+        (e, e * z * z)
+    } else {
+        (0.0, 0.0)
+    };
+    let q = node.q;
+    let eta_b = v[Param::BodyEta as usize];
+    let transmitted = fresnel_body(theta_i_deg, theta_r_deg, eta_b);
+    let d_transmitted = if gradient && eta_b > 1.0 {
+        (fresnel_body(theta_i_deg, theta_r_deg, eta_b + BODY_ETA_STEP) - transmitted)
+            / BODY_ETA_STEP
+    } else {
+        0.0
+    };
+    let b = v[Param::Body as usize];
+    let shape = if b == 0.0 { 1.0 } else { (b * q).exp() };
+    let body = shape * transmitted;
+    let fh = fr * h;
+    let value = rho_s * fh * d + rho_h * fh * dh + rho_d * body;
+    if !gradient {
+        return (value, [0.0; N_FAMILY]);
+    }
+    let d_ln = rho_s * fh * d_ln_s + rho_h * fh * dh_ln;
+    let mut grad = [0.0; N_FAMILY];
+    grad[Param::LnSigma as usize] = d_ln;
+    grad[Param::RhoS as usize] = fh * d;
+    grad[Param::RhoD as usize] = body;
+    grad[Param::Eta as usize] = (rho_s * d + rho_h * dh) * h * d_fr;
+    grad[Param::Kappa as usize] = rho_s * fh * d_kappa;
+    grad[Param::HazeRho as usize] = fh * dh;
+    grad[Param::HazeLnRatio as usize] = rho_h * fh * dh_ln;
+    grad[Param::Slope as usize] = d_ln * x_i;
+    grad[Param::Body as usize] = rho_d * body * q;
+    grad[Param::BodyEta as usize] = rho_d * shape * d_transmitted;
+    (value, grad)
+}
+
+/// The reading's model value and gradient at `v`; ∂/∂δ0 by central difference when
+/// `shift_gradient`.
+pub(crate) fn evaluate(v: &Values, reading: &Reading, shift_gradient: bool) -> (f64, Values) {
+    evaluate_with(v, reading, true, shift_gradient)
+}
+
+/// The reading's model value alone (a trial step's cost needs no gradient).
+pub(crate) fn value(v: &Values, reading: &Reading) -> f64 {
+    evaluate_with(v, reading, false, false).0
+}
+
+fn evaluate_with(
+    v: &Values,
+    reading: &Reading,
+    gradient: bool,
+    shift_gradient: bool,
+) -> (f64, Values) {
+    let shift = v[Param::Shift as usize];
+    let (mut value, mut grad) = (0.0, [0.0; N_FAMILY]);
+    let (mut plus, mut minus) = (0.0, 0.0);
+    let ti = reading.theta_i_deg;
+    for (k, &(offset, weight)) in reading.nodes.iter().enumerate() {
+        let theta_r = reading.theta_r_deg + shift + offset;
+        let node = if shift == 0.0 {
+            reading.unshifted[k]
+        } else {
+            Node::at(ti, theta_r)
+        };
+        let (f, g) = point(v, &node, gradient);
+        value += weight * f;
+        for (t, gi) in grad.iter_mut().zip(g) {
+            *t += weight * gi;
+        }
+        if shift_gradient {
+            plus += weight * point(v, &Node::at(ti, theta_r + SHIFT_STEP_DEG), false).0;
+            minus += weight * point(v, &Node::at(ti, theta_r - SHIFT_STEP_DEG), false).0;
+        }
+    }
+    if shift_gradient {
+        grad[Param::Shift as usize] = (plus - minus) / (2.0 * SHIFT_STEP_DEG);
+    }
+    (value, grad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::model::{Params, evaluate_reading_through};
+
+    fn tsl(sigma_deg: f64) -> Values {
+        let mut v = [0.0; N_FAMILY];
+        v[Param::LnSigma as usize] = sigma_deg.ln();
+        v[Param::RhoS as usize] = 0.8;
+        v[Param::RhoD as usize] = 0.85;
+        v[Param::Eta as usize] = 1.5;
+        v[Param::BodyEta as usize] = 1.0;
+        v[Param::HazeLnRatio as usize] = 3.0_f64.ln();
+        v
+    }
+
+    #[test]
+    fn the_null_member_is_the_tsl_model_through_the_window() {
+        let response = DetectorResponse::top_hat(1.0);
+        for sigma in [0.8, 3.0, 12.0] {
+            let v = tsl(sigma);
+            let p = Params {
+                sigma_deg: sigma,
+                rho_s: 0.8,
+                rho_d: 0.85,
+                eta: 1.5,
+            };
+            for (ti, tr, span) in [(45.0, 45.3, 0.0), (20.0, 23.0, 0.4), (60.0, 10.0, 0.0)] {
+                let reading = Reading::new(ti, tr, span, Some(&response), 0.0);
+                let ours = evaluate(&v, &reading, false).0;
+                let theirs = evaluate_reading_through(&p, ti, tr, span, Some(&response)).0;
+                assert!(
+                    ((ours - theirs) / theirs).abs() < 1e-6,
+                    "σ {sigma} at ({ti}, {tr}): {ours} against {theirs}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn sigma_is_the_half_maximum_width_whatever_the_tail() {
+        let hwhm = 2.0 * (2.0 * LN_2).sqrt();
+        for kappa in [0.0, 1e-3, 0.33, 1.0, 3.0] {
+            let (d, _, _) = tail_lobe(hwhm, 2.0, kappa);
+            assert!((d - 0.5).abs() < 1e-12, "κ {kappa}: {d}");
+        }
+        // κ = 1 is the Cauchy of that half width.
+        let (d, _, _) = tail_lobe(3.0, 2.0, 1.0);
+        assert!((d - 1.0 / (1.0 + (3.0 / hwhm).powi(2))).abs() < 1e-12);
+    }
+
+    #[test]
+    fn gradients_match_differences() {
+        let mut v = tsl(4.0);
+        v[Param::Kappa as usize] = 0.4;
+        v[Param::HazeRho as usize] = 0.05;
+        v[Param::Slope as usize] = 0.2;
+        v[Param::Body as usize] = -0.3;
+        v[Param::BodyEta as usize] = 1.4;
+        v[Param::Shift as usize] = 0.2;
+        let reading = Reading::new(30.0, 34.0, 0.3, Some(&DetectorResponse::top_hat(1.0)), 0.0);
+        let (_, grad) = evaluate(&v, &reading, true);
+        for p in Param::ALL {
+            let k = p as usize;
+            let step = 1e-6 * v[k].abs().max(1e-3);
+            let (mut up, mut down) = (v, v);
+            up[k] += step;
+            down[k] -= step;
+            let numeric = (evaluate(&up, &reading, false).0 - evaluate(&down, &reading, false).0)
+                / (2.0 * step);
+            assert!(
+                (numeric - grad[k]).abs() <= 1e-4 * numeric.abs().max(1e-3),
+                "{p:?}: {} against {numeric}",
+                grad[k]
+            );
+        }
+    }
+}
