@@ -155,6 +155,34 @@ pub(crate) fn spd_inverse_free(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[
     Some(out)
 }
 
+/// The weighted least-squares line y = a + b·x held to a, b ≥ 0 (a variance has no
+/// negative part): with a negative slope the weighted mean alone, with a negative
+/// intercept the line through the origin.
+pub(crate) fn nonnegative_line(x: &[f64], y: &[f64], w: &[f64]) -> Option<(f64, f64)> {
+    let (mut s1, mut sx, mut sxx, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for ((&x, &y), &w) in x.iter().zip(y).zip(w) {
+        s1 += w;
+        sx += w * x;
+        sxx += w * x * x;
+        sy += w * y;
+        sxy += w * x * y;
+    }
+    let det = s1 * sxx - sx * sx;
+    let (a, b) = if det > 0.0 {
+        ((sy * sxx - sx * sxy) / det, (s1 * sxy - sx * sy) / det)
+    } else {
+        (sy / s1, 0.0)
+    };
+    let (a, b) = if b < 0.0 {
+        (sy / s1, 0.0)
+    } else if a < 0.0 {
+        (0.0, sxy / sxx)
+    } else {
+        (a, b)
+    };
+    (a.is_finite() && b.is_finite() && a + b > 0.0).then_some((a, b))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

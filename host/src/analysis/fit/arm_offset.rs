@@ -435,7 +435,7 @@ fn noise_model(
         // No reading weighs more than 10⁶ times the mean variance's inverse.
         let floor = 1e-6 * mean_r2;
         let w: Vec<f64> = variances.iter().map(|v: &f64| v.powi(-2)).collect();
-        let (a, b) = weighted_line(&f2, &r2, &w).unwrap_or((mean_r2, 0.0));
+        let (a, b) = linalg::nonnegative_line(&f2, &r2, &w).unwrap_or((mean_r2, 0.0));
         variances = f2.iter().map(|f| (a + b * f).max(floor)).collect();
         let mean = variances.iter().sum::<f64>() / n as f64;
         for v in &mut variances {
@@ -485,34 +485,6 @@ fn leverages(problem: &LeastSquaresProblem, x: &[f64; 4]) -> Option<Vec<f64>> {
             })
             .collect(),
     )
-}
-
-/// The weighted least-squares line y = a + b·x held to a, b ≥ 0 (a variance has no
-/// negative part): with a negative slope the weighted mean alone, with a negative
-/// intercept the line through the origin.
-fn weighted_line(x: &[f64], y: &[f64], w: &[f64]) -> Option<(f64, f64)> {
-    let (mut s1, mut sx, mut sxx, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for ((&x, &y), &w) in x.iter().zip(y).zip(w) {
-        s1 += w;
-        sx += w * x;
-        sxx += w * x * x;
-        sy += w * y;
-        sxy += w * x * y;
-    }
-    let det = s1 * sxx - sx * sx;
-    let (a, b) = if det > 0.0 {
-        ((sy * sxx - sx * sxy) / det, (s1 * sxy - sx * sy) / det)
-    } else {
-        (sy / s1, 0.0)
-    };
-    let (a, b) = if b < 0.0 {
-        (sy / s1, 0.0)
-    } else if a < 0.0 {
-        (0.0, sxy / sxx)
-    } else {
-        (a, b)
-    };
-    (a.is_finite() && b.is_finite() && a + b > 0.0).then_some((a, b))
 }
 
 /// The χ²(1) statistic with the p-value of `f` under F(1, ν): F(1, ν) is t(ν)², so it is

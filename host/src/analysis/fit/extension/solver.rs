@@ -234,32 +234,12 @@ impl Problem {
             .zip(&self.y)
             .map(|(r, y)| (y + r).powi(2))
             .collect();
-        let n = r2.len() as f64;
-        let (s1, sf, sff) = (
-            n,
-            f2.iter().sum::<f64>(),
-            f2.iter().map(|f| f * f).sum::<f64>(),
-        );
-        let (sr, sfr) = (
-            r2.iter().sum::<f64>(),
-            f2.iter().zip(&r2).map(|(f, r)| f * r).sum::<f64>(),
-        );
-        let det = s1 * sff - sf * sf;
-        let (mut a, mut b) = if det > 0.0 {
-            ((sr * sff - sf * sfr) / det, (s1 * sfr - sf * sr) / det)
-        } else {
-            (sr / n, 0.0)
-        };
-        if b < 0.0 {
-            (a, b) = (sr / n, 0.0);
-        } else if a < 0.0 {
-            (a, b) = (0.0, sfr / sff.max(f64::MIN_POSITIVE));
-        }
-        // A floor: no reading weighs more than 10⁶ times the mean variance's inverse.
-        let floor = 1e-6 * sr / n;
-        if !(a.is_finite() && b.is_finite()) || sr <= 0.0 {
+        let ones = vec![1.0; r2.len()];
+        let Some((a, b)) = linalg::nonnegative_line(&f2, &r2, &ones) else {
             return;
-        }
+        };
+        // A floor: no reading weighs more than 10⁶ times the mean variance's inverse.
+        let floor = 1e-6 * r2.iter().sum::<f64>() / r2.len() as f64;
         self.sqrt_w = f2
             .iter()
             .map(|f| 1.0 / (a + b * f).max(floor).max(f64::MIN_POSITIVE).sqrt())
