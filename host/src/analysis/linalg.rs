@@ -135,10 +135,14 @@ pub(crate) fn spd_inverse(m: &Square) -> Option<Square> {
     Some(inv)
 }
 
-/// [`spd_inverse`] of the sub-matrix of a 4 × 4 matrix on the indices in `free`, the other
-/// rows and columns 0 (the fit's parameters, some held): `None` if that is singular.
-pub(crate) fn spd_inverse_free(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[f64; 4]; 4]> {
-    let index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
+/// [`spd_inverse`] of the sub-matrix of an N × N matrix on the indices in `free`, the
+/// other rows and columns 0 (the fit's parameters, some held; the adaptive design's, with
+/// the σ slope): `None` if that is singular.
+pub(crate) fn spd_inverse_free<const N: usize>(
+    m: &[[f64; N]; N],
+    free: &[bool; N],
+) -> Option<[[f64; N]; N]> {
+    let index: Vec<usize> = (0..N).filter(|&i| free[i]).collect();
     let mut sub = Square::zeros(index.len());
     for (a, &i) in index.iter().enumerate() {
         for (b, &j) in index.iter().enumerate() {
@@ -146,7 +150,7 @@ pub(crate) fn spd_inverse_free(m: &[[f64; 4]; 4], free: &[bool; 4]) -> Option<[[
         }
     }
     let inverse = spd_inverse(&sub)?;
-    let mut out = [[0.0; 4]; 4];
+    let mut out = [[0.0; N]; N];
     for (a, &i) in index.iter().enumerate() {
         for (b, &j) in index.iter().enumerate() {
             out[i][j] = inverse.at(a, b);

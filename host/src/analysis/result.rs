@@ -98,6 +98,13 @@ pub(crate) fn analyse_with_shared(
             source: e,
         }
     })?;
+    let mut result = result;
+    for note in result.notes.iter_mut() {
+        // The file's line is what the user can find the reading by.
+        if let fit::Note::Outlier { index, line, .. } = note {
+            *line = readings.lines.get(*index).copied();
+        }
+    }
     let geometries: Vec<(f64, f64)> = readings
         .observations
         .iter()

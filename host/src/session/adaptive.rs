@@ -54,6 +54,18 @@ impl Default for AdaptiveTargets {
     }
 }
 
+/// The design's parameters: the model's four, then the slope of ln σ with θi.
+const DESIGN: usize = 5;
+/// The slope's index in the design.
+const SLOPE: usize = 4;
+/// The θi at which a σ that varies with θi is reported (the fit's extension family's).
+const SLOPE_REFERENCE_DEG: f64 = 45.0;
+/// Prior standard deviation of the slope β of ln σ over (θi − 45°)/45°: σ 7 % apart
+/// between θi = 45° and 60°, the size the extension's test finds on real paper (the
+/// shapes campaign's mild σ slope is β ≈ −0.15, its strong ≈ −0.45). Only its order
+/// matters: it makes one θi's readings say little about σ at 45°.
+const SLOPE_PRIOR_SD: f64 = 0.2;
+
 /// Candidate offsets from the specular direction, degrees: half a degree apart within
 /// Strategy 2's ±10° window (finer than Strategy 2 at δ = 1°).
 const CANDIDATE_STEP_DEG: f64 = 0.5;
@@ -285,6 +297,88 @@ impl NoiseModel {
     }
 }
 
+/// The model the design plans on: the fit's gradients over its fitted parameters and,
+/// where the fit tests the model's extensions, the slope β of ln σ(θi) = ln σ +
+/// β·(θi − 45°)/45° as a parameter of prior sd [`SLOPE_PRIOR_SD`]. The extension's σ
+/// may vary with θi and its reported σ is the lobe's width at 45°, so σ's variance then
+/// counts what one incidence angle leaves open about the others, and the batches cross the
+/// peak at more than one θi (a lobe that narrows from 60° to 20° was otherwise reported as
+/// its 60° width, ±0.1 %).
+struct DesignModel<'a> {
+    fit: &'a FitResult,
+    free: [bool; DESIGN],
+    noise: NoiseModel,
+}
+
+impl<'a> DesignModel<'a> {
+    /// `None` when σ is not fitted (nothing to design for).
+    fn new(fit: &'a FitResult, observations: &[Observation]) -> Option<DesignModel<'a>> {
+        let fitted = fit.model.0;
+        if !fitted[SIGMA] {
+            return None;
+        }
+        let slope = fit.extension.is_some();
+        Some(DesignModel {
+            fit,
+            free: std::array::from_fn(|i| if i < 4 { fitted[i] } else { slope }),
+            noise: NoiseModel::fit(observations),
+        })
+    }
+
+    /// The reading's value and its gradient over the free parameters (the held ones carry
+    /// no variance), through the acceptance window exactly where the fit used one.
+    fn gradient(&self, theta_i_deg: f64, theta_r_deg: f64) -> (f64, [f64; DESIGN]) {
+        let (value, g) = model::evaluate(
+            &self.fit.params,
+            &PlaneGeometry::new(theta_i_deg, theta_r_deg),
+            self.fit.acceptance_deg,
+        );
+        let x_i = (theta_i_deg - SLOPE_REFERENCE_DEG) / SLOPE_REFERENCE_DEG;
+        let j = std::array::from_fn(|i| match i {
+            _ if !self.free[i] => 0.0,
+            SLOPE => g[SIGMA] * self.fit.params.sigma_deg * x_i,
+            _ => g[i],
+        });
+        (value, j)
+    }
+
+    /// The parameters' covariance from `observations` (and the slope's prior).
+    fn covariance(&self, observations: &[Observation]) -> Option<[[f64; DESIGN]; DESIGN]> {
+        let mut information = [[0.0; DESIGN]; DESIGN];
+        if self.free[SLOPE] {
+            information[SLOPE][SLOPE] = SLOPE_PRIOR_SD.powi(-2);
+        }
+        for o in observations {
+            let (value, j) = self.gradient(o.theta_i_deg, o.theta_r_deg);
+            let s2 = o
+                .std
+                .map_or_else(|| self.noise.variance(value), |s| s * s)
+                .max(1e-18);
+            for a in 0..DESIGN {
+                for b in 0..DESIGN {
+                    information[a][b] += j[a] * j[b] / s2;
+                }
+            }
+        }
+        crate::analysis::linalg::spd_inverse_free(&information, &self.free)
+    }
+}
+
+/// Where the fit tests the model's extensions: the 95 % half-width of σ at θi = 45°,
+/// relative to σ, that the readings taken leave with σ's slope over θi unknown but for its
+/// prior ([`DesignModel`]); `None` otherwise (or without a design). The policy does not
+/// stop on a σ measured at one incidence angle that the others might contradict.
+pub(crate) fn sigma_rel_half_width_over_theta_i(
+    fit: &FitResult,
+    observations: &[Observation],
+) -> Option<f64> {
+    fit.extension.as_ref()?;
+    let model = DesignModel::new(fit, observations)?;
+    let cov = model.covariance(observations)?;
+    let sigma = fit.params.sigma_deg;
+    (sigma > 0.0).then(|| 1.96 * cov[SIGMA][SIGMA].max(0.0).sqrt() / sigma)
+}
+
 /// The next batch by greedy sequential design from `here` (where the arms are), or `None`
 /// when the fit gives no usable information matrix (then probe, or fall back).
 pub fn next_batch(
@@ -335,50 +429,21 @@ pub(crate) fn next_batch_scored(
     batch: usize,
     span: CandidateSpan,
 ) -> Option<ScoredBatch> {
-    let free = fit.model.0;
-    if !free[SIGMA] {
-        return None;
-    }
-    // Gradients over the fitted parameters only: the others are held, and carry no variance.
-    let fitted_gradient = |theta_i_deg: f64, theta_r_deg: f64| {
-        // As the fit modelled it: with the acceptance window exactly where the fit used one.
-        let (value, g) = model::evaluate(
-            &fit.params,
-            &PlaneGeometry::new(theta_i_deg, theta_r_deg),
-            fit.acceptance_deg,
-        );
-        (
-            value,
-            std::array::from_fn::<f64, 4, _>(|i| if free[i] { g[i] } else { 0.0 }),
-        )
-    };
-    let noise = NoiseModel::fit(observations);
-    let mut information = [[0.0; 4]; 4];
-    for o in observations {
-        let (value, j) = fitted_gradient(o.theta_i_deg, o.theta_r_deg);
-        let s2 = o
-            .std
-            .map_or_else(|| noise.variance(value), |s| s * s)
-            .max(1e-18);
-        for a in 0..4 {
-            for b in 0..4 {
-                information[a][b] += j[a] * j[b] / s2;
-            }
-        }
-    }
-    let mut cov = crate::analysis::linalg::spd_inverse_free(&information, &free)?;
+    let model = DesignModel::new(fit, observations)?;
+    let mut cov = model.covariance(observations)?;
     let per_reading_s = motion.per_geometry_us(integration_ms) as f64 * 1e-6;
-    let mut pool: Vec<(Geometry, [f64; 4], f64)> = candidates_over(measured, span)
+    let mut pool: Vec<(Geometry, [f64; DESIGN], f64)> = candidates_over(measured, span)
         .into_iter()
         .map(|g| {
-            let (value, j) = fitted_gradient(g.theta_i.deg(), g.theta_r.deg());
-            (g, j, noise.variance(value).max(1e-18))
+            let (value, j) = model.gradient(g.theta_i.deg(), g.theta_r.deg());
+            (g, j, model.noise.variance(value).max(1e-18))
         })
         .collect();
     // cov·j and jᵀ·cov·j: what one more reading at j does to the covariance.
-    let project = |cov: &[[f64; 4]; 4], j: &[f64; 4]| {
-        let cj: [f64; 4] = std::array::from_fn(|a| (0..4).map(|b| cov[a][b] * j[b]).sum());
-        let jcj: f64 = (0..4).map(|a| j[a] * cj[a]).sum();
+    let project = |cov: &[[f64; DESIGN]; DESIGN], j: &[f64; DESIGN]| {
+        let cj: [f64; DESIGN] =
+            std::array::from_fn(|a| (0..DESIGN).map(|b| cov[a][b] * j[b]).sum());
+        let jcj: f64 = (0..DESIGN).map(|a| j[a] * cj[a]).sum();
         (cj, jcj)
     };
     let mut chosen = Vec::new();
@@ -401,8 +466,8 @@ pub(crate) fn next_batch_scored(
         let (cj, jcj) = project(&cov, &j);
         sigma_variance_drop += cj[SIGMA] * cj[SIGMA] / (s2 + jcj);
         total_seconds += per_reading_s + motion.move_us(at, g) as f64 * 1e-6;
-        for a in 0..4 {
-            for b in 0..4 {
+        for a in 0..DESIGN {
+            for b in 0..DESIGN {
                 cov[a][b] -= cj[a] * cj[b] / (s2 + jcj);
             }
         }
@@ -522,5 +587,83 @@ mod tests {
             .collect();
         let m = NoiseModel::fit(&obs);
         assert!((m.variance(10.0) - (1e-6 + 1e-2)).abs() < 1e-9);
+    }
+
+    /// Readings of SG (σ 1.9°) across the peak at each θi of `incidences`, 1 % noise-free.
+    fn peak_readings(incidences: &[f64]) -> Vec<Observation> {
+        let p = model::Params {
+            sigma_deg: 1.9,
+            rho_s: 57.1,
+            rho_d: 0.8,
+            eta: 1.02,
+        };
+        let mut obs = Vec::new();
+        for &ti in incidences {
+            for k in -8..=8 {
+                let tr = ti + 0.5 * f64::from(k);
+                let (f, _) = model::evaluate(&p, &PlaneGeometry::new(ti, tr), Some(1.0));
+                obs.push(Observation {
+                    theta_i_deg: ti,
+                    theta_r_deg: tr,
+                    radiance_factor: f,
+                    std: Some(0.01 * f + 0.003),
+                    theta_r_span_deg: 0.0,
+                });
+            }
+            for tr in [0.0, 10.0, 45.0, 70.0] {
+                let (f, _) = model::evaluate(&p, &PlaneGeometry::new(ti, tr), Some(1.0));
+                obs.push(Observation {
+                    theta_i_deg: ti,
+                    theta_r_deg: tr,
+                    radiance_factor: f,
+                    std: Some(0.01 * f + 0.003),
+                    theta_r_span_deg: 0.0,
+                });
+            }
+        }
+        obs
+    }
+
+    #[test]
+    fn with_the_extensions_one_incidence_angle_does_not_pin_sigma_down() {
+        use crate::analysis::fit::{FitOptions, fit};
+        let with = |extensions| FitOptions {
+            acceptance_deg: Some(1.0),
+            extensions,
+            ..FitOptions::default()
+        };
+        let one = peak_readings(&[60.0]);
+        let two = peak_readings(&[20.0, 60.0]);
+        // The extensions off: the design and the stop ask nothing of other θi.
+        let plain = fit(&one, &with(false)).expect("fit");
+        assert_eq!(sigma_rel_half_width_over_theta_i(&plain, &one), None);
+        // On: σ at 45° is open by the slope's prior from one θi (±13 %), and the second
+        // θi closes it to about what the fit itself says.
+        let from_one = fit(&one, &with(true)).expect("fit");
+        let open = sigma_rel_half_width_over_theta_i(&from_one, &one).expect("a design");
+        assert!(open > 0.1, "one θi: ±{:.1} %", 100.0 * open);
+        let from_two = fit(&two, &with(true)).expect("fit");
+        let closed = sigma_rel_half_width_over_theta_i(&from_two, &two).expect("a design");
+        assert!(closed < 0.03, "two θi: ±{:.1} %", 100.0 * closed);
+        // And the design's next batch from one θi crosses the peak at another.
+        let measured: BTreeSet<Geometry> = one
+            .iter()
+            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
+            .collect();
+        let here = Geometry::from_whole_deg(60, 60);
+        let batch = next_batch(
+            &from_one,
+            &one,
+            &measured,
+            here,
+            &Motion::reference(),
+            100,
+            6,
+        )
+        .expect("a batch");
+        assert!(
+            batch.iter().any(|g| g.theta_i.deg() != 60.0),
+            "the batch stays at θi = 60°: {batch:?}"
+        );
     }
 }

@@ -303,8 +303,10 @@ pub struct Refinement {
     pub added: usize,
     /// Why.
     pub reason: String,
-    /// An adaptive batch taken because the fit was flagged lack-of-fit (the tails; see
-    /// [`adaptive::lack_of_fit_batch`]): these count against [`adaptive::LACK_OF_FIT_BATCHES`].
+    /// A batch or sweep round that tests the model off the peak (the tails and the whole θr
+    /// range, [`adaptive::lack_of_fit_batch`]; for sweeps the rest of the full plane),
+    /// taken because the fit was flagged lack-of-fit or its model was extended by a term
+    /// (the reason says which): these count against [`adaptive::LACK_OF_FIT_BATCHES`].
     /// Sessions of the first version did not record it: read as false.
     #[serde(default)]
     pub lack_of_fit: bool,
@@ -1337,6 +1339,17 @@ fn sigma_l_text(report: &crate::analysis::result::Report) -> String {
         ),
         None => ", σ_l unknown (no δ found)".to_string(),
     }
+}
+
+/// The terms a fit's model was extended by, in words ("haze lobe and lobe shape"); `None`
+/// for the paper's model. A model grown on the readings so far is tested where it has not
+/// been before it is reported, as a flagged fit is (both policies).
+fn extension_terms(fit: &crate::analysis::fit::FitResult) -> Option<String> {
+    let extension = fit.extension.as_ref()?;
+    (!extension.terms.is_empty()).then(|| {
+        let names: Vec<&str> = extension.terms.iter().map(|t| t.name).collect();
+        names.join(" and ")
+    })
 }
 
 /// What flagged a fit lack-of-fit, in words: the χ² test's and the structure test's

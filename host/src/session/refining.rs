@@ -17,7 +17,11 @@ use protocol::schedules::strategy2;
 use std::collections::BTreeSet;
 
 /// Where the adaptive policy stands after a fit.
-#[derive(Clone, Copy)]
+/// How the reason of a batch taken for a lack-of-fit flag begins (a batch taken to test an
+/// extended model's terms is recorded as a lack-of-fit batch too, with its own reason).
+const LACK_OF_FIT_REASON: &str = "lack-of-fit";
+
+#[derive(Clone)]
 struct Standing {
     /// The fit is flagged lack-of-fit.
     flagged: bool,
@@ -29,6 +33,9 @@ struct Standing {
     /// class cannot settle under it (its confidence is capped), so the only target left
     /// is the paper's σ > σ_l.
     confirmed: bool,
+    /// The terms an unflagged fit's model was extended by, while batches to test it off
+    /// the peak remain (they count as lack-of-fit batches).
+    extension: Option<String>,
 }
 
 /// What the adaptive policy measures next.
@@ -152,6 +159,7 @@ impl<T: Transport> Session<'_, T> {
                 measured: self.measured(),
                 here: self.arm_position()?,
             };
+            let flagged = standing.flagged;
             let next = self.next_adaptive(&targets, sweeps, standing, &design, report);
             let name = format!("adaptive round {batch_number}");
             let (batch, reason, for_lack_of_fit) = match next {
@@ -171,7 +179,7 @@ impl<T: Transport> Session<'_, T> {
                 Next::Batch(batch, reason, for_lack_of_fit) => (batch, reason, for_lack_of_fit),
             };
             let Some(batch) = batch.filter(|b| !b.is_empty()) else {
-                let flag = if standing.flagged {
+                let flag = if flagged {
                     "; the result keeps the lack-of-fit flag"
                 } else {
                     ""
@@ -220,11 +228,18 @@ impl<T: Transport> Session<'_, T> {
         let flagged = report.fit.lack_of_fit;
         let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
         let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
+        let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
         let precise = adaptive::sigma_rel_half_width(&report.fit)
-            .is_some_and(|w| w <= targets.sigma_rel_half_width);
+            .is_some_and(|w| w <= targets.sigma_rel_half_width)
+            && adaptive::sigma_rel_half_width_over_theta_i(&report.fit, &observations)
+                .is_none_or(|w| w <= targets.sigma_rel_half_width);
         let settled = report.classification.confidence >= targets.class_confidence;
         let taken = refinements.iter().filter(|r| r.lack_of_fit).count();
         let confirmed = flagged && taken >= adaptive::LACK_OF_FIT_BATCHES;
+        let terms = super::extension_terms(&report.fit);
+        let extension = terms
+            .clone()
+            .filter(|_| !flagged && taken < adaptive::LACK_OF_FIT_BATCHES);
         if confirmed && sigma_ok {
             self.decide(&format!(
                 "adaptive: lack-of-fit ({}) persists after {taken} lack-of-fit batches: the model does not describe this sheet; no more batches, the result keeps the flag",
@@ -232,14 +247,21 @@ impl<T: Transport> Session<'_, T> {
             ));
             return None;
         }
-        if !flagged && refinements.last().is_some_and(|r| r.lack_of_fit) {
+        let after_flag = refinements
+            .last()
+            .is_some_and(|r| r.lack_of_fit && r.reason.starts_with(LACK_OF_FIT_REASON));
+        if !flagged && after_flag {
+            let why = terms.map_or_else(
+                || "a false alarm; the policy goes on as without it".to_string(),
+                |t| format!("the model extended by a {t} describes the sheet"),
+            );
             self.decide(&format!(
-                "adaptive: lack-of-fit gone with the readings of {taken} lack-of-fit batch{} ({}): a false alarm; the policy goes on as without it",
+                "adaptive: lack-of-fit gone with the readings of {taken} lack-of-fit batch{} ({}): {why}",
                 if taken == 1 { "" } else { "es" },
                 lack_of_fit_evidence(&report.fit)
             ));
         }
-        if !flagged && sigma_ok && (rough || (precise && settled)) {
+        if !flagged && extension.is_none() && sigma_ok && (rough || (precise && settled)) {
             return None;
         }
         Some(Standing {
@@ -247,6 +269,7 @@ impl<T: Transport> Session<'_, T> {
             sigma_ok,
             taken,
             confirmed,
+            extension,
         })
     }
 
@@ -266,6 +289,7 @@ impl<T: Transport> Session<'_, T> {
             flagged,
             confirmed,
             taken,
+            ref extension,
             ..
         } = standing;
         let Design {
@@ -290,7 +314,7 @@ impl<T: Transport> Session<'_, T> {
                 "σ not resolved: probe around the strongest specular peak".to_string(),
                 false,
             )
-        } else if flagged && !confirmed {
+        } else if (flagged && !confirmed) || extension.is_some() {
             let batch = adaptive::lack_of_fit_batch(
                 &report.fit,
                 observations,
@@ -300,9 +324,15 @@ impl<T: Transport> Session<'_, T> {
                 u32::from(self.plan.integration_ms),
                 targets.batch,
             );
+            let why = match extension {
+                Some(terms) if !flagged => format!("the model extended by a {terms}"),
+                _ => format!(
+                    "{LACK_OF_FIT_REASON} ({})",
+                    lack_of_fit_evidence(&report.fit)
+                ),
+            };
             let reason = format!(
-                "lack-of-fit ({}): sampling the tails and the whole θr range (lack-of-fit batch {} of {})",
-                lack_of_fit_evidence(&report.fit),
+                "{why}: sampling the tails and the whole θr range (lack-of-fit batch {} of {})",
                 taken + 1,
                 adaptive::LACK_OF_FIT_BATCHES
             );
@@ -385,6 +415,7 @@ impl<T: Transport> Session<'_, T> {
             sigma_ok,
             taken,
             confirmed,
+            ..
         } = standing;
         // Under a flag the model's idea of where σ is measured is not to be trusted:
         // the design looks over the whole θr range.

@@ -179,17 +179,34 @@ impl<T: Transport> Session<'_, T> {
             let width = super::adaptive::sigma_rel_half_width(&report.fit);
             let precise = width.is_some_and(|w| w <= sigma_rel_half_width);
             let settled = report.classification.confidence >= class_confidence;
-            if sigma_ok && (rough || (precise && settled)) && !report.fit.lack_of_fit {
+            // A model grown by a term was chosen on the incidences swept so far: the others
+            // test it (a σ that varies with θi is then read between them, not interpolated)
+            // before it is reported, as a flagged fit's are.
+            let extended = super::extension_terms(&report.fit);
+            let done = sigma_ok && (rough || (precise && settled)) && !report.fit.lack_of_fit;
+            if done && extended.is_none() {
                 return Ok(());
             }
             let here = self.status()?.position;
             let block_s = self.block_s();
             // A fit the model does not describe is tested on the whole plane before it is
             // reported.
-            if report.fit.lack_of_fit
-                && self.full_plane_round(round, here, &targets, report, fits, refinements)?
+            let why = if report.fit.lack_of_fit {
+                Some(format!(
+                    "lack-of-fit after {} readings (χ² p = {:.1e})",
+                    report.fit.n,
+                    report.fit.gof_p.unwrap_or(f64::NAN)
+                ))
+            } else {
+                extended.map(|terms| format!("the model extended by a {terms}"))
+            };
+            if let Some(why) = why
+                && self.full_plane_round(round, here, &targets, &why, report, fits, refinements)?
             {
                 continue;
+            }
+            if done {
+                return Ok(());
             }
             if report.fit.lack_of_fit && precise && sigma_ok {
                 self.decide("sweeps: lack-of-fit with σ known to its target: the bins already span the whole plane, more would not tell the model from the sheet; the result keeps the flag");
@@ -230,15 +247,18 @@ impl<T: Transport> Session<'_, T> {
         Ok(())
     }
 
-    /// The rest of the full plane, for a fit flagged lack-of-fit: the lines the first pass
-    /// left out may show where the sheet departs from the model (or that the departure was
-    /// the noise's), and a flag then rests on every incidence of Strategy 1. Whether a
-    /// round was measured (none is left once the whole plane is).
+    /// The rest of the full plane, for a fit flagged lack-of-fit or a model extended (`why`
+    /// says which): the lines the first pass left out may show where the sheet departs
+    /// from the model (or that the departure was the noise's), and a flag or a term then
+    /// rests on every incidence of Strategy 1. Whether a round was measured (none is left
+    /// once the whole plane is).
+    #[allow(clippy::too_many_arguments)]
     fn full_plane_round(
         &mut self,
         round: usize,
         here: protocol::Geometry,
         targets: &SweepTargets,
+        why: &str,
         report: &mut crate::analysis::result::Report,
         fits: &mut Vec<super::FitStep>,
         refinements: &mut Vec<super::Refinement>,
@@ -254,9 +274,7 @@ impl<T: Transport> Session<'_, T> {
         }
         let incidences: Vec<String> = rest.iter().map(|p| format!("{}°", p.theta_i_deg)).collect();
         let reason = format!(
-            "lack-of-fit after {} readings (χ² p = {:.1e}): θr 0–{}° at θi = {} too, the rest of the full plane",
-            report.fit.n,
-            report.fit.gof_p.unwrap_or(f64::NAN),
+            "{why}: θr 0–{}° at θi = {} too, the rest of the full plane",
             sweep_design::THETA_R_MAX_DEG,
             incidences.join(" and ")
         );

@@ -590,6 +590,8 @@ pub struct Tally {
     pub class_right: usize,
     /// A wrong class or none, flagged.
     pub flagged_wrong: usize,
+    /// … of them a wrong class given (the rest: no class, the honest answer to a flag).
+    pub flagged_wrong_class: usize,
     /// No class.
     pub undecided: usize,
     /// σ outside its interval, unflagged, confidence ≥ 0.95.
@@ -628,6 +630,7 @@ impl Tally {
             }
             t.class_right += usize::from(r.class_right());
             t.flagged_wrong += usize::from(r.flagged_and_wrong());
+            t.flagged_wrong_class += usize::from(r.flagged_and_wrong() && r.class.is_some());
             t.undecided += usize::from(r.class.is_none());
             t.unflagged_miss += usize::from(r.unflagged_miss());
             t.gross_unflagged_miss += usize::from(r.gross_unflagged_miss());
@@ -763,9 +766,11 @@ fn departure_verdicts(t: &Tally, what: &str) -> Vec<(String, bool)> {
         ),
         (
             format!(
-                "not TSL, {what}: flagged and wrong in {} ({} sessions; target ≤ 2 %)",
+                "not TSL, {what}: flagged and wrong in {} ({} sessions: {} a wrong class, {} none; target ≤ 2 %)",
                 pct(t.flagged_wrong, n),
-                t.flagged_wrong
+                t.flagged_wrong,
+                t.flagged_wrong_class,
+                t.flagged_wrong - t.flagged_wrong_class
             ),
             t.share(t.flagged_wrong) <= FLAGGED_WRONG_LIMIT,
         ),

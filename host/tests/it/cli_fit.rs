@@ -148,3 +148,38 @@ fn a_missing_file_is_an_error_naming_it() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/file.csv"));
 }
+
+/// A gross outlier in a table without uncertainties is named by the file's line, the one
+/// a user opens the file at (a comment and a blank line before the data move it), and the
+/// result is flagged.
+#[test]
+fn an_outlier_is_named_by_its_line_in_the_file() {
+    let dir = temp_dir("outlier-line");
+    let mut g = common::noisy(&common::reference("G"), &common::strategy2(2), 7);
+    let k = 10;
+    g[k].radiance_factor *= 1000.0;
+    let table = csv(&[("x", g.clone())], false);
+    let (header, rows) = table.split_once('\n').expect("a header");
+    let path = dir.join("g_outlier.csv");
+    std::fs::write(&path, format!("# one reading ×1000\n\n{header}\n{rows}")).expect("write");
+    let out = gonio()
+        .args(["fit", path.to_str().expect("utf-8"), "--json"])
+        .output()
+        .expect("run gonio");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    // The comment, the blank line and the header come first: reading k is on line k + 4.
+    let line = k + 4;
+    assert!(
+        stdout.contains("\"outlier\"") && stdout.contains(&format!("\"line\":{line}")),
+        "{stdout}"
+    );
+    let text = gonio()
+        .args(["fit", path.to_str().expect("utf-8")])
+        .output()
+        .expect("run gonio");
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains(&format!("the reading on line {line} ")),
+        "{text}"
+    );
+}

@@ -160,8 +160,11 @@ fn a_specular_bump_is_flagged_or_honestly_bounded() {
                 let honest = (0..3).all(|i| covers(result.ci95[i], truth[i]));
                 assert!(
                     result.lack_of_fit || honest,
-                    "bump {bump:?} {label} seed {seed}: unflagged and the intervals miss the truth: {:?}",
-                    result.ci95
+                    "bump {bump:?} {label} seed {seed}: unflagged and the intervals {:?} miss the truth {:?} (extension: terms and plausible members {:?}; estimates {:?})",
+                    result.ci95,
+                    truth,
+                    result.extension.as_ref().map(|e| (&e.terms, &e.plausible)),
+                    result.params
                 );
                 assert!(
                     !(c.class.is_some_and(|k| k != r_class("J2")) && c.confidence >= 0.95),

@@ -115,7 +115,7 @@ fn a_heavy_tailed_lobe_is_named_and_sigma_stays_its_half_maximum_width() {
             bump: None,
         };
         let truth = move |ti: f64, tr: f64| sheet.radiance_factor(ti, tr);
-        let (added, covered, seen) = found(&truth, "heavy-tailed lobe", p.sigma_deg, 6);
+        let (added, covered, seen) = found(&truth, "lobe shape", p.sigma_deg, 6);
         assert!(added >= 5 && covered >= 5, "{paper}: {seen:#?}");
     }
 }

@@ -383,28 +383,15 @@ fn natural_uncertainty(
         });
     }
     let free_index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
-    let natural_lo = [SIGMA_MIN_DEG, 0.0, 0.0, ETA_MIN];
-    let natural_hi = [SIGMA_MAX_DEG, f64::INFINITY, f64::INFINITY, ETA_MAX];
-    for (c, &i) in free_index.iter().enumerate() {
+    for &i in &free_index {
         if unknown.contains(&i) {
             continue;
         }
         let v = params.to_array()[i];
-        let (low, high) = if i == SIGMA {
-            // In ln σ, so the interval stays positive and follows the lobe's scale.
-            let se = total.at(c, c).max(0.0).sqrt();
-            ((x[0] - quantile * se).exp(), (x[0] + quantile * se).exp())
-        } else if i == RHO_S && v > 0.0 {
-            // In ln ρs too: ρs = A/(η²−1) is a ratio whose uncertainty is relative.
-            let se = out.covariance[i][i].max(0.0).sqrt() / v;
-            (v * (-quantile * se).exp(), v * (quantile * se).exp())
-        } else {
-            let se = out.covariance[i][i].max(0.0).sqrt();
-            (v - quantile * se, v + quantile * se)
-        };
-        let (cl, ch) = (low.max(natural_lo[i]), high.min(natural_hi[i]));
-        out.ci_clipped[i] = cl != low || ch != high;
-        out.ci95[i] = Some((cl, ch));
+        let sd = out.covariance[i][i].max(0.0).sqrt();
+        let (interval, clipped) = interval_95(i, v, sd, quantile);
+        out.ci_clipped[i] = clipped;
+        out.ci95[i] = Some(interval);
     }
     if arm.fitted {
         let se = total.at(p - 1, p - 1).max(0.0).sqrt();
@@ -422,6 +409,27 @@ fn natural_uncertainty(
             lr,
         });
     }
+}
+
+/// The 95 % interval of σ, ρs, ρd or η (by index) from its estimate, standard deviation and
+/// quantile, within the parameter's range, and whether the range clipped it. σ's and ρs's
+/// are taken in their logarithms (dln x = dx/x), so they stay positive and follow the
+/// scale their uncertainty has: σ's is the lobe's relative width, ρs = A/(η² − 1) is a
+/// ratio. The base fit and the extensions' members take theirs here alike.
+pub(crate) fn interval_95(index: usize, value: f64, sd: f64, quantile: f64) -> ((f64, f64), bool) {
+    let natural_lo = [SIGMA_MIN_DEG, 0.0, 0.0, ETA_MIN];
+    let natural_hi = [SIGMA_MAX_DEG, f64::INFINITY, f64::INFINITY, ETA_MAX];
+    let (low, high) = if (index == SIGMA || index == RHO_S) && value > 0.0 {
+        let relative = sd / value;
+        (
+            value * (-quantile * relative).exp(),
+            value * (quantile * relative).exp(),
+        )
+    } else {
+        (value - quantile * sd, value + quantile * sd)
+    };
+    let (lo, hi) = (low.max(natural_lo[index]), high.min(natural_hi[index]));
+    ((lo, hi), lo != low || hi != high)
 }
 
 /// The normal equations of whitened columns X (p × n, each a column of the Jacobian

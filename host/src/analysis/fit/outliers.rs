@@ -420,6 +420,7 @@ pub(super) fn record(result: &mut FitResult, screen: &Screen, observations: &[Ob
     for f in &screen.found {
         let o = &observations[f.index];
         result.notes.push(Note::Outlier {
+            line: None,
             index: f.index,
             theta_i_deg: o.theta_i_deg,
             theta_r_deg: o.theta_r_deg,

@@ -116,6 +116,9 @@ pub enum Note {
     Outlier {
         /// Its position in the input (0-based).
         index: usize,
+        /// Its line in the file it was read from (1-based), where the fit was given one.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        line: Option<usize>,
         /// θi, degrees.
         theta_i_deg: f64,
         /// θr, degrees.
@@ -201,6 +204,7 @@ impl std::fmt::Display for Note {
             ),
             Note::Outlier {
                 index,
+                line,
                 theta_i_deg,
                 theta_r_deg,
                 value,
@@ -210,7 +214,11 @@ impl std::fmt::Display for Note {
                 alpha,
             } => write!(
                 f,
-                "reading {index} (θi {theta_i_deg}°, θr {theta_r_deg}°) is an outlier: {value} where the fit has {fitted:.4}, {standardized:+.1} standard deviations (critical ±{critical:.2} at {:.1} % false alarms per data set); check it, remove it if it is a gross error and fit again",
+                "{} (θi {theta_i_deg}°, θr {theta_r_deg}°) is an outlier: {value} where the fit has {fitted:.4}, {standardized:+.1} standard deviations (critical ±{critical:.2} at {:.1} % false alarms per data set); check it, remove it if it is a gross error and fit again",
+                line.map_or_else(
+                    || format!("reading {} of the table", index + 1),
+                    |l| format!("the reading on line {l}")
+                ),
                 100.0 * alpha
             ),
             Note::FewDegreesOfFreedom { dof, min_dof } => write!(

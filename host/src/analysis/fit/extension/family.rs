@@ -5,18 +5,22 @@
 //! [`crate::analysis::model`]:
 //!
 //! ```text
-//! f = ρs·F(ψ, η)·H·D(θa; σ_i, κ) + ρh·F(ψ, η)·H·exp(−θa²/(2σh²)) + ρd·exp(b·q)
+//! f = ρs·F(ψ, η)·H·[D(θa; σ_i, κ) + h·exp(−θa²/(2σh²))] + ρd·exp(b·q)
 //! σ_i = σ·exp(β·(θi − 45°)/45°),   σh = σ_i·e^u,   q = (1 − cos θi) + (1 − cos θr) − 2(1 − cos 45°)
 //! D(θa; s, κ) = (1 + a·w)^(−(1+κ)/(2κ)),   w = θa²/h²,  h = s·√(2 ln 2),  a = 2^(2κ/(1+κ)) − 1
 //! ```
 //!
-//! - **heavy-tailed lobe** (κ ≥ 0): a Student-t in θa with ν = 1/κ degrees of freedom,
-//!   scaled so that D = ½ at θa = σ·√(2 ln 2) whatever κ is. So σ keeps the project's
-//!   convention, the Gaussian of the same half-maximum width, and the classification tree
-//!   still applies to it; κ → 0 is the Gaussian (exp(−θa²/(2σ²))), κ = 1 the Cauchy,
-//!   κ ≈ ⅓ close to Trowbridge–Reitz (GGX);
-//! - **haze lobe** (ρh ≥ 0, u): a second, broader Gaussian lobe of the same Fresnel
-//!   and attenuation, σh at least 1.5 σ (else it is the main lobe over again);
+//! - **lobe shape** (κ ≥ −¼): for κ > 0 a Student-t in θa with ν = 1/κ degrees of
+//!   freedom, for κ < 0 its continuation of compact support (Pearson's type II, a lighter
+//!   tail than the Gaussian's, as Blinn–Phong and Beckmann lobes have against the
+//!   Gaussian of their half width), scaled so that D = ½ at θa = σ·√(2 ln 2) whatever κ
+//!   is. So σ keeps the project's convention, the Gaussian of the same half-maximum
+//!   width, and the classification tree still applies to it; κ → 0 is the Gaussian
+//!   (exp(−θa²/(2σ²))) from either side, κ = 1 the Cauchy, κ ≈ ⅓ close to
+//!   Trowbridge–Reitz (GGX). κ = 0 is inside the range, so its test has no boundary;
+//! - **haze lobe** (0 ≤ h ≤ 1, u): a second, broader Gaussian lobe of the same Fresnel
+//!   and attenuation, its peak the fraction h of the main lobe's, σh at least 1.5 σ (else
+//!   it is the main lobe over again);
 //! - **σ varying with θi** (β): the lobe's width at θi = 45° is the reported σ;
 //! - **non-Lambertian body** (b): the diffuse part falls (b < 0, Fresnel transmission,
 //!   Oren–Nayar's forward plane) or rises (b > 0) toward grazing in both θi and θr
@@ -25,6 +29,8 @@
 //!   transmittances T(θi)·T(θr)/T(45°)², T = 1 − R, R = F(θ, η_b)²/2 the unpolarised
 //!   reflectance of the paper's F: light scattered under a smooth surface leaves it less
 //!   toward grazing (Wolff's diffuse model). η_b = 1 is Lambert (R ≡ 0);
+//! - **off-specular peak** (δp): the main lobe centred at θr = θi + δp, its F and G the
+//!   geometry's (a sheet whose facets are tilted in the plane, a cockle);
 //! - the **arm offset** δ0 of the base fit, every θr read as θr + δ0, free when the base
 //!   fit called for it.
 //!
@@ -39,11 +45,18 @@ use crate::analysis::model::{self, DetectorResponse, PlaneGeometry, fresnel_with
 const LN_2: f64 = std::f64::consts::LN_2;
 /// The θi at which a θi-dependent σ is reported, and the body's reference, degrees.
 pub(crate) const REFERENCE_THETA_I_DEG: f64 = 45.0;
-/// Below this κ the lobe is evaluated as the Gaussian it tends to (the Student-t form
-/// loses digits as κ → 0).
+/// Within this of κ = 0 the lobe is evaluated as the Gaussian it tends to (the Student-t
+/// form loses digits as κ → 0), and ∂D/∂κ is taken from the Gaussian's expansion.
 const KAPPA_GAUSSIAN: f64 = 1e-7;
-/// Step of the one-sided difference for ∂D/∂κ (κ ≥ 0, so it never leaves the range).
+/// Step of the central difference for ∂D/∂κ (κ's range is open on both sides of it).
 const KAPPA_STEP: f64 = 1e-5;
+/// Lightest tail the lobe may take: κ = −¼ is a lobe of compact support (zero beyond 2.3
+/// half widths, where the Gaussian is still at 2.6 % of its peak), lighter than any
+/// microfacet lobe the campaign's shapes hold (Beckmann, Blinn–Phong). Below −⅓ the lobe's
+/// slope at its edge would not be continuous.
+pub(crate) const KAPPA_MIN: f64 = -0.25;
+/// Largest off-specular shift of the main lobe's peak, degrees of θr.
+const PEAK_SHIFT_MAX_DEG: f64 = 20.0;
 /// Step of the one-sided difference for ∂/∂η_b (η_b ≥ 1).
 const BODY_ETA_STEP: f64 = 1e-6;
 /// Step of the difference for ∂f/∂δ0, degrees.
@@ -58,15 +71,16 @@ pub(crate) enum Param {
     Eta = 3,
     Shift = 4,
     Kappa = 5,
-    HazeRho = 6,
+    HazeFraction = 6,
     HazeLnRatio = 7,
     Slope = 8,
     Body = 9,
     BodyEta = 10,
+    PeakShift = 11,
 }
 
 /// Number of [`Param`]s.
-pub(crate) const N_FAMILY: usize = 11;
+pub(crate) const N_FAMILY: usize = 12;
 
 impl Param {
     /// Every parameter in index order.
@@ -78,11 +92,12 @@ impl Param {
         Param::Eta,
         Param::Shift,
         Param::Kappa,
-        Param::HazeRho,
+        Param::HazeFraction,
         Param::HazeLnRatio,
         Param::Slope,
         Param::Body,
         Param::BodyEta,
+        Param::PeakShift,
     ];
 
     /// Its range: the base fit's bounds for the TSL four, and for the terms what the
@@ -92,13 +107,21 @@ impl Param {
         use super::super::{ARM_OFFSET_MAX_DEG, ETA_MAX, ETA_MIN, SIGMA_MAX_DEG, SIGMA_MIN_DEG};
         match self {
             Param::LnSigma => (SIGMA_MIN_DEG.ln(), SIGMA_MAX_DEG.ln()),
-            Param::RhoS | Param::RhoD | Param::HazeRho => (0.0, f64::INFINITY),
+            Param::RhoS | Param::RhoD => (0.0, f64::INFINITY),
+            // A haze is the weaker lobe: at most the main lobe's peak. Free above, the
+            // broad lobe took the sheet's own lobe and the main lobe a narrow bump on it
+            // (a J2 with a specular bump was reported σ 0.98° for 17.9°, unflagged).
+            Param::HazeFraction => (0.0, 1.0),
             Param::Eta | Param::BodyEta => (ETA_MIN, ETA_MAX),
             Param::Shift => (-ARM_OFFSET_MAX_DEG, ARM_OFFSET_MAX_DEG),
-            Param::Kappa => (0.0, 3.0),
+            Param::Kappa => (KAPPA_MIN, 3.0),
             Param::HazeLnRatio => (1.5_f64.ln(), 30.0_f64.ln()),
             Param::Slope => (-2.0, 2.0),
             Param::Body => (-4.0, 4.0),
+            // A lobe centred off specular by up to 20° of θr: beyond the arm offset's few
+            // degrees, as a tilted or cockled sheet's (the campaign's strongest shift, 0.15
+            // of a rough paper's full width at half maximum, is 12°).
+            Param::PeakShift => (-PEAK_SHIFT_MAX_DEG, PEAK_SHIFT_MAX_DEG),
         }
     }
 }
@@ -109,23 +132,47 @@ pub(crate) type Values = [f64; N_FAMILY];
 /// The lobe D(θa; s, κ) from w = θa²/h², h the half width at half maximum, and ∂D/∂w.
 #[inline]
 fn lobe_of_w(w: f64, kappa: f64) -> (f64, f64) {
-    if kappa < KAPPA_GAUSSIAN {
+    if kappa.abs() < KAPPA_GAUSSIAN {
         let d = (-LN_2 * w).exp();
         return (d, -LN_2 * d);
     }
+    // κ < 0 (a lighter tail than the Gaussian's, Pearson's type II): a < 0, and the lobe is
+    // 0 where 1 + a·w ≤ 0.
     let a = (2.0 * kappa * LN_2 / (1.0 + kappa)).exp_m1();
+    let base = a * w;
+    if base <= -1.0 {
+        return (0.0, 0.0);
+    }
     let power = (1.0 + kappa) / (2.0 * kappa);
-    let d = (-power * (a * w).ln_1p()).exp();
-    (d, -power * a / (1.0 + a * w) * d)
+    let d = (-power * base.ln_1p()).exp();
+    (d, -power * a / (1.0 + base) * d)
 }
 
-/// D, ∂D/∂ln s and ∂D/∂κ at θa for a lobe of Gaussian-equivalent width s (degrees).
+/// Where a lobe of κ < 0 ends, in half widths at half maximum (infinite for κ ≥ 0).
+pub(crate) fn support_half_widths(kappa: f64) -> f64 {
+    if kappa >= 0.0 {
+        return f64::INFINITY;
+    }
+    let a = (2.0 * kappa * LN_2 / (1.0 + kappa)).exp_m1();
+    (-1.0 / a).sqrt()
+}
+
+/// D, ∂D/∂ln s, ∂D/∂κ and ∂D/∂θa at θa for a lobe of Gaussian-equivalent width s
+/// (degrees).
 #[inline]
-pub(crate) fn tail_lobe(theta_a_deg: f64, s_deg: f64, kappa: f64) -> (f64, f64, f64) {
-    let w = theta_a_deg * theta_a_deg / (2.0 * LN_2 * s_deg * s_deg);
+pub(crate) fn tail_lobe(theta_a_deg: f64, s_deg: f64, kappa: f64) -> (f64, f64, f64, f64) {
+    let scale = 1.0 / (2.0 * LN_2 * s_deg * s_deg);
+    let w = theta_a_deg * theta_a_deg * scale;
     let (d, dw) = lobe_of_w(w, kappa);
-    let d_kappa = (lobe_of_w(w, kappa + KAPPA_STEP).0 - d) / KAPPA_STEP;
-    (d, -2.0 * w * dw, d_kappa)
+    let d_kappa = if kappa.abs() < KAPPA_GAUSSIAN {
+        // ln D = −ln2·w + κ·(ln2)²·w·(w − 1) + O(κ²): 0 at the half maximum (w = 1),
+        // which κ leaves where it is.
+        d * LN_2 * LN_2 * w * (w - 1.0)
+    } else {
+        (lobe_of_w(w, kappa + KAPPA_STEP).0 - lobe_of_w(w, kappa - KAPPA_STEP).0)
+            / (2.0 * KAPPA_STEP)
+    };
+    (d, -2.0 * w * dw, d_kappa, 2.0 * theta_a_deg * scale * dw)
 }
 
 /// The body's shape variable q at (θi, θr) (0 at θi = θr = 45°).
@@ -238,31 +285,33 @@ impl Reading {
 fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
     let g = &node.geometry;
     let (theta_i_deg, theta_r_deg) = (g.theta_i_deg, g.theta_r_deg);
-    let theta_a = 0.5 * g.offset_deg;
+    // An off-specular peak moves the main lobe alone (its F and G stay the geometry's).
+    let theta_a = 0.5 * (g.offset_deg - v[Param::PeakShift as usize]);
     let x_i = (theta_i_deg - REFERENCE_THETA_I_DEG) / REFERENCE_THETA_I_DEG;
     let ln_s = v[Param::LnSigma as usize] + v[Param::Slope as usize] * x_i;
     let s = ln_s.exp();
-    // κ = 0 is the Gaussian member (κ inactive, or at its bound): no difference needed.
-    let (d, d_ln_s, d_kappa) = if gradient && v[Param::Kappa as usize] > 0.0 {
+    let (d, d_ln_s, d_kappa, d_theta_a) = if gradient {
+        // At κ = 0 (κ inactive, or the Gaussian fitted) ∂D/∂κ is the Gaussian's expansion:
+        // the covariance of a member whose κ is free but 0 still holds what κ leaves open.
         tail_lobe(theta_a, s, v[Param::Kappa as usize])
-    } else if gradient {
-        let w = theta_a * theta_a / (2.0 * LN_2 * s * s);
-        let (d, dw) = lobe_of_w(w, 0.0);
-        (d, -2.0 * w * dw, 0.0)
     } else {
         let w = theta_a * theta_a / (2.0 * LN_2 * s * s);
-        (lobe_of_w(w, v[Param::Kappa as usize]).0, 0.0, 0.0)
+        (lobe_of_w(w, v[Param::Kappa as usize]).0, 0.0, 0.0, 0.0)
     };
     let (fr, d_fr) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, v[Param::Eta as usize]);
     let h = g.attenuation_over_cosines;
-    let (rho_s, rho_d, rho_h) = (
+    let (rho_s, rho_d, haze_fraction) = (
         v[Param::RhoS as usize],
         v[Param::RhoD as usize],
-        v[Param::HazeRho as usize],
+        v[Param::HazeFraction as usize],
     );
-    let (dh, dh_ln) = if rho_h > 0.0 {
+    let rho_h = rho_s * haze_fraction;
+    // Evaluated at h = 0 as well when gradients are asked for: ∂f/∂h there is what lets
+    // a member whose haze fitted to nothing still say how much haze the data leave open.
+    let (dh, dh_ln) = if rho_h > 0.0 || gradient {
         let sh = (ln_s + v[Param::HazeLnRatio as usize]).exp();
-        let z = theta_a / sh;
+        // The haze stays about specular: a shift is the main lobe's term.
+        let z = 0.5 * g.offset_deg / sh;
         let e = (-0.5 * z * z).exp();
         (e, e * z * z)
     } else {
@@ -288,15 +337,17 @@ fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
     let d_ln = rho_s * fh * d_ln_s + rho_h * fh * dh_ln;
     let mut grad = [0.0; N_FAMILY];
     grad[Param::LnSigma as usize] = d_ln;
-    grad[Param::RhoS as usize] = fh * d;
+    grad[Param::RhoS as usize] = fh * (d + haze_fraction * dh);
     grad[Param::RhoD as usize] = body;
     grad[Param::Eta as usize] = (rho_s * d + rho_h * dh) * h * d_fr;
     grad[Param::Kappa as usize] = rho_s * fh * d_kappa;
-    grad[Param::HazeRho as usize] = fh * dh;
+    grad[Param::HazeFraction as usize] = rho_s * fh * dh;
     grad[Param::HazeLnRatio as usize] = rho_h * fh * dh_ln;
     grad[Param::Slope as usize] = d_ln * x_i;
     grad[Param::Body as usize] = rho_d * body * q;
     grad[Param::BodyEta as usize] = rho_d * shape * d_transmitted;
+    // θa = (θr − θi − δp)/2.
+    grad[Param::PeakShift as usize] = -0.5 * rho_s * fh * d_theta_a;
     (value, grad)
 }
 
@@ -386,29 +437,42 @@ mod tests {
     #[test]
     fn sigma_is_the_half_maximum_width_whatever_the_tail() {
         let hwhm = 2.0 * (2.0 * LN_2).sqrt();
-        for kappa in [0.0, 1e-3, 0.33, 1.0, 3.0] {
-            let (d, _, _) = tail_lobe(hwhm, 2.0, kappa);
+        for kappa in [KAPPA_MIN, -0.1, 0.0, 1e-3, 0.33, 1.0, 3.0] {
+            let (d, _, _, _) = tail_lobe(hwhm, 2.0, kappa);
             assert!((d - 0.5).abs() < 1e-12, "κ {kappa}: {d}");
         }
         // κ = 1 is the Cauchy of that half width.
-        let (d, _, _) = tail_lobe(3.0, 2.0, 1.0);
+        let (d, _, _, _) = tail_lobe(3.0, 2.0, 1.0);
         assert!((d - 1.0 / (1.0 + (3.0 / hwhm).powi(2))).abs() < 1e-12);
     }
 
     #[test]
     fn gradients_match_differences() {
+        // κ = 0: the Gaussian's expansion; κ < 0: the compact lobe.
+        for kappa in [0.4, 0.0, -0.15] {
+            gradients_match_differences_at(kappa);
+        }
+    }
+
+    fn gradients_match_differences_at(kappa: f64) {
         let mut v = tsl(4.0);
-        v[Param::Kappa as usize] = 0.4;
-        v[Param::HazeRho as usize] = 0.05;
+        v[Param::Kappa as usize] = kappa;
+        v[Param::HazeFraction as usize] = 0.3;
         v[Param::Slope as usize] = 0.2;
         v[Param::Body as usize] = -0.3;
         v[Param::BodyEta as usize] = 1.4;
         v[Param::Shift as usize] = 0.2;
+        v[Param::PeakShift as usize] = 1.3;
         let reading = Reading::new(30.0, 34.0, 0.3, Some(&DetectorResponse::top_hat(1.0)), 0.0);
         let (_, grad) = evaluate(&v, &reading, true);
         for p in Param::ALL {
             let k = p as usize;
-            let step = 1e-6 * v[k].abs().max(1e-3);
+            // κ's step leaves the Gaussian's branch (|κ| < 1e-7) on both sides.
+            let step = if p == Param::Kappa {
+                1e-4
+            } else {
+                1e-6 * v[k].abs().max(1e-3)
+            };
             let (mut up, mut down) = (v, v);
             up[k] += step;
             down[k] -= step;
@@ -416,7 +480,7 @@ mod tests {
                 / (2.0 * step);
             assert!(
                 (numeric - grad[k]).abs() <= 1e-4 * numeric.abs().max(1e-3),
-                "{p:?}: {} against {numeric}",
+                "κ {kappa}, {p:?}: {} against {numeric}",
                 grad[k]
             );
         }

@@ -3,33 +3,20 @@
 use super::family::Param;
 use super::solver::Problem;
 use super::{Base, Member, Term, main_lobe, result_index};
-use crate::analysis::fit::covariance::Z_975;
+use crate::analysis::fit::covariance::{Z_975, interval_95};
 use crate::analysis::fit::validation::geometry_order;
 use crate::analysis::fit::{
-    BudgetTerm, ETA_MAX, ETA_MIN, FitResult, N_PARAMS, Note, SIGMA_MAX_DEG, SIGMA_MIN_DEG,
-    t_quantile_975,
+    BudgetTerm, ETA_MAX, ETA_MIN, FitResult, N_PARAMS, Note, t_quantile_975,
 };
 use crate::analysis::flags::Flag;
 use crate::analysis::gof;
-use crate::analysis::model::{ETA, SIGMA};
+use crate::analysis::model::{ETA, RHO_D, RHO_S, SIGMA};
 
 /// Name of the budget term that widens the intervals for model form.
 pub const MODEL_FORM: &str = "model form";
 /// Largest lag-1 autocorrelation used in the widening factor (as the base fit's).
 const WIDENING_MAX_LAG1: f64 = 0.9;
 
-/// Each parameter's range, in the result's order.
-fn range(index: usize) -> (f64, f64) {
-    match index {
-        SIGMA => (SIGMA_MIN_DEG, SIGMA_MAX_DEG),
-        ETA => (ETA_MIN, ETA_MAX),
-        _ => (0.0, f64::INFINITY),
-    }
-}
-
-/// The result takes the chosen member's main lobe, its goodness of fit and its
-/// covariance (with the shared errors in it, the solver's module docs), widened under
-/// lack of fit as the base fit widens its own.
 /// The chosen member's goodness of fit, as the base fit judges its own: χ² (weighted),
 /// the residual-structure test on the decorrelated residuals, the widening they call for.
 struct MemberGoodness {
@@ -157,13 +144,9 @@ pub(super) fn take_member(base: &Base, result: &mut FitResult, problem: &Problem
             continue;
         }
         let sd = covariance[i][i].max(0.0).sqrt();
-        let (lo, hi) = range(i);
-        let interval = (estimates[i] - q * sd, estimates[i] + q * sd);
-        result.ci_clipped[i] = interval.0 < lo || interval.1 > hi;
-        result.ci95[i] = fit
-            .covariance
-            .as_ref()
-            .map(|_| (interval.0.max(lo), interval.1.min(hi)));
+        let (interval, clipped) = interval_95(i, estimates[i], sd, q);
+        result.ci_clipped[i] = clipped;
+        result.ci95[i] = fit.covariance.as_ref().map(|_| interval);
     }
     let mut params = result.params.to_array();
     for &i in &active_index {
@@ -171,8 +154,7 @@ pub(super) fn take_member(base: &Base, result: &mut FitResult, problem: &Problem
     }
     if active_index.contains(&ETA) && !base.fitted[ETA] {
         // η came off the bound the base fit held it at.
-        let (lo, hi) = range(ETA);
-        if estimates[ETA] > lo && estimates[ETA] < hi {
+        if estimates[ETA] > ETA_MIN && estimates[ETA] < ETA_MAX {
             result
                 .notes
                 .retain(|n| !matches!(n, Note::EtaAtBound { .. }));
@@ -243,15 +225,22 @@ fn rescale_budget(
     }
 }
 
-/// Widen σ, ρs, ρd, η's intervals to cover the estimates of every member within
+/// Widen σ, ρs, ρd, η's intervals to cover the intervals of every member within
 /// [`super::AKAIKE_PLAUSIBLE`] of the best; the covariance's diagonal grows with them (the
 /// budget's `model form` term). Returns those members' labels.
+///
+/// A member's interval, not only its estimate: a member with one more term than the chosen
+/// one (always within 2, its term not called for but not excluded either) holds in its
+/// covariance how far that term, free, lets σ, ρs, ρd, η move (a tail against σ, a body
+/// against η), which is what the data leave open between the shapes; its estimate alone
+/// is where the term fitted to nothing, the chosen member's own.
 pub(super) fn widen_for_model_form(
     result: &mut FitResult,
     members: &[Member],
     chosen: &Member,
     n: usize,
     weighted: bool,
+    theta_i_range: (f64, f64),
 ) -> Vec<String> {
     let dof = n.saturating_sub(chosen.fit.active.len()).max(1);
     let s2 = if weighted {
@@ -262,26 +251,37 @@ pub(super) fn widen_for_model_form(
     let akaike = |m: &Member| m.fit.cost / s2 + 2.0 * m.fit.active.len() as f64;
     let best = members.iter().map(akaike).fold(f64::INFINITY, f64::min);
     let chosen_label = chosen.label();
-    // Within [`super::AKAIKE_PLAUSIBLE`] of the best: a member with one more term than the
-    // chosen one always is (its term not called for, but not excluded either), and where
-    // that term trades off against σ, ρs, ρd or η (a body against η, a tail against σ) its
-    // estimates are what the data leave open.
     let plausible: Vec<&Member> = members
         .iter()
         .filter(|m| m.label() != chosen_label)
         .filter(|m| akaike(m) - best <= super::AKAIKE_PLAUSIBLE)
         .collect();
     let mut extra = [0.0; N_PARAMS];
-    for i in 0..N_PARAMS {
+    for i in [SIGMA, RHO_S, RHO_D, ETA] {
         let Some((mut lo, mut hi)) = result.ci95[i] else {
             continue;
         };
         let (lo0, hi0) = (lo, hi);
         for m in &plausible {
-            let e = main_lobe(&m.fit.values)[i];
-            if e.is_finite() {
-                lo = lo.min(e);
-                hi = hi.max(e);
+            let (a, b) = member_interval(m, i, n, weighted, result.variance_scale);
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        if i == SIGMA {
+            // How σ varies between the θi measured is not known, only its values there:
+            // σ at the reference θi, interpolated as the family does (geometrically),
+            // is as likely as interpolated linearly. The interval holds both, for every
+            // member with a slope.
+            for m in plausible.iter().copied().chain([chosen]) {
+                if let Some(ratio) = linear_over_geometric(m, theta_i_range) {
+                    let (a, b) = if std::ptr::eq(m, chosen) {
+                        (lo0, hi0)
+                    } else {
+                        member_interval(m, i, n, weighted, result.variance_scale)
+                    };
+                    lo = lo.min(a * ratio);
+                    hi = hi.max(b * ratio);
+                }
             }
         }
         if lo < lo0 || hi > hi0 {
@@ -301,6 +301,66 @@ pub(super) fn widen_for_model_form(
     }
     eta_and_body(result, chosen, &plausible);
     plausible.iter().map(|m| m.label()).collect()
+}
+
+/// For a member whose σ varies with θi: σ at the reference θi interpolated linearly
+/// between its values at the extremes of the θi measured, over σ as the member has it
+/// (interpolated geometrically). None without a slope or with θi not on both sides of the
+/// reference.
+fn linear_over_geometric(m: &Member, (lo, hi): (f64, f64)) -> Option<f64> {
+    use super::family::REFERENCE_THETA_I_DEG as REF;
+    if !m.terms.contains(&Term::SigmaSlope) || !(lo < REF && hi > REF) {
+        return None;
+    }
+    let v = &m.fit.values;
+    let ln_sigma = |t: f64| v[Param::LnSigma as usize] + v[Param::Slope as usize] * (t - REF) / REF;
+    let (s_lo, s_hi) = (ln_sigma(lo).exp(), ln_sigma(hi).exp());
+    let linear = s_lo + (s_hi - s_lo) * (REF - lo) / (hi - lo);
+    let ratio = linear / ln_sigma(REF).exp();
+    ratio.is_finite().then_some(ratio)
+}
+
+/// A member's 95 % interval of σ, ρs, ρd or η (by the result's index), its variance
+/// scaled as the chosen member's is (by its own χ²/ν where that exceeds 1, or the residual
+/// variance without uncertainties, and the lack-of-fit widening `widening`); its estimate
+/// alone where it has no covariance or does not fit that parameter; an empty interval
+/// (+∞, −∞) where the estimate is not finite.
+fn member_interval(
+    m: &Member,
+    index: usize,
+    n: usize,
+    weighted: bool,
+    widening: f64,
+) -> (f64, f64) {
+    let value = main_lobe(&m.fit.values)[index];
+    if !value.is_finite() {
+        return (f64::INFINITY, f64::NEG_INFINITY);
+    }
+    let param = match index {
+        SIGMA => Param::LnSigma,
+        RHO_S => Param::RhoS,
+        RHO_D => Param::RhoD,
+        _ => Param::Eta,
+    };
+    let Some(sd) = m
+        .fit
+        .std_of(param)
+        .filter(|_| m.fit.active.contains(&param))
+    else {
+        return (value, value);
+    };
+    let dof = n.saturating_sub(m.fit.active.len()).max(1);
+    let ratio = m.fit.cost / dof as f64;
+    let s2 = if weighted { ratio.max(1.0) } else { ratio };
+    // σ is fitted as ln σ: its sd in degrees is σ times ln σ's.
+    let sd = sd * (s2 * widening).sqrt() * if index == SIGMA { value } else { 1.0 };
+    let q = if weighted { Z_975 } else { t_quantile_975(dof) };
+    let ((lo, hi), _) = interval_95(index, value, sd, q);
+    if lo.is_finite() && hi.is_finite() {
+        (lo, hi)
+    } else {
+        (value, value)
+    }
 }
 
 /// η moved by letting the body be non-Lambertian: said, and the interval covers both.

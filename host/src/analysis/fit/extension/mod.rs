@@ -10,11 +10,11 @@
 //! term's level. Without uncertainties: s² = c₁/ν₁ and T/q against F(q, ν₁), the classic
 //! extra-sum-of-squares test, which holds for equal noise (the arm-offset test's χ² with s²
 //! from the residuals does not: it ignores that s² is itself estimated). Each term is
-//! tested at [`TERM_ALPHA`]; a term with a parameter on its null boundary (κ = 0, ρh = 0)
+//! tested at [`TERM_ALPHA`]; a term with a parameter on its null boundary (h = 0, the haze's fraction)
 //! has the half-χ² null distribution and the haze's width is not identified under the
 //! null (Davies' problem), for which its level is taken at half the nominal and its
-//! critical value from χ²(2): conservative. Over the five terms the rate of adding one to
-//! an exact TSL sheet is at most 5·[`TERM_ALPHA`] = 1.5 %; the unit tests and the shapes
+//! critical value from χ²(2): conservative. Over the six terms the rate of adding one to
+//! an exact TSL sheet is at most 6·[`TERM_ALPHA`] = 1.8 %; the unit tests and the shapes
 //! campaign (`gonio accuracy --shapes`) measure it. At most [`MAX_TERMS`] terms are added,
 //! forward: the strongest first, then the others tested again on top of it.
 //!
@@ -54,14 +54,17 @@ pub const MAX_TERMS: usize = 2;
 const AKAIKE_PLAUSIBLE: f64 = 2.0;
 /// Iterations each starting point of a term gets before the best is fitted to the end.
 const START_ITERATIONS: usize = 6;
+/// Steps of the noise model's estimate for readings without uncertainties.
+const NOISE_MODEL_STEPS: usize = 3;
 /// Fewest degrees of freedom left with a term for it to be tested.
 const MIN_DOF: usize = 4;
 
 /// A term of the family that may be added to the paper's model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Term {
-    /// A lobe with heavier tails than the Gaussian at the same half-maximum width.
-    HeavyTail,
+    /// A lobe with heavier or lighter tails than the Gaussian at the same half-maximum
+    /// width.
+    LobeShape,
     /// A second, broad lobe.
     Haze,
     /// σ varying with θi.
@@ -71,36 +74,41 @@ pub enum Term {
     /// A diffuse part behind a Fresnel interface (falling toward grazing as the
     /// transmittance does).
     FresnelBody,
+    /// The main lobe's peak off the specular direction.
+    PeakShift,
 }
 
 impl Term {
     /// Every term, in the order they are tried.
-    pub const ALL: [Term; 5] = [
-        Term::HeavyTail,
+    pub const ALL: [Term; 6] = [
+        Term::LobeShape,
         Term::Haze,
         Term::SigmaSlope,
         Term::Body,
         Term::FresnelBody,
+        Term::PeakShift,
     ];
 
     /// As the result names it.
     pub fn name(self) -> &'static str {
         match self {
-            Term::HeavyTail => "heavy-tailed lobe",
+            Term::LobeShape => "lobe shape",
             Term::Haze => "haze lobe",
             Term::SigmaSlope => "σ varying with θi",
             Term::Body => "non-Lambertian body",
             Term::FresnelBody => "body behind a Fresnel interface",
+            Term::PeakShift => "off-specular peak",
         }
     }
 
     fn params(self) -> &'static [Param] {
         match self {
-            Term::HeavyTail => &[Param::Kappa],
-            Term::Haze => &[Param::HazeRho, Param::HazeLnRatio],
+            Term::LobeShape => &[Param::Kappa],
+            Term::Haze => &[Param::HazeFraction, Param::HazeLnRatio],
             Term::SigmaSlope => &[Param::Slope],
             Term::Body => &[Param::Body],
             Term::FresnelBody => &[Param::BodyEta],
+            Term::PeakShift => &[Param::PeakShift],
         }
     }
 
@@ -109,9 +117,11 @@ impl Term {
     /// counts both its parameters and is taken at half the level for its width).
     fn level(self) -> (f64, usize) {
         match self {
-            Term::HeavyTail | Term::FresnelBody => (2.0 * TERM_ALPHA, 1),
+            Term::FresnelBody => (2.0 * TERM_ALPHA, 1),
             Term::Haze => (TERM_ALPHA, 2),
-            Term::SigmaSlope | Term::Body => (TERM_ALPHA, 1),
+            // κ = 0 is inside κ's range (a tail lighter than the Gaussian's is κ < 0): no
+            // boundary.
+            Term::LobeShape | Term::SigmaSlope | Term::Body | Term::PeakShift => (TERM_ALPHA, 1),
         }
     }
 
@@ -124,12 +134,14 @@ impl Term {
             }
             v
         };
-        let rho_s = from[Param::RhoS as usize];
         match self {
-            Term::HeavyTail => vec![with(&[(Param::Kappa, 0.05)]), with(&[(Param::Kappa, 0.6)])],
+            Term::LobeShape => [-0.1, 0.05, 0.6]
+                .iter()
+                .map(|k| with(&[(Param::Kappa, *k)]))
+                .collect(),
             Term::Haze => [2.0_f64, 5.0, 15.0]
                 .iter()
-                .map(|r| with(&[(Param::HazeRho, 0.03 * rho_s), (Param::HazeLnRatio, r.ln())]))
+                .map(|r| with(&[(Param::HazeFraction, 0.03), (Param::HazeLnRatio, r.ln())]))
                 .collect(),
             Term::SigmaSlope => vec![with(&[(Param::Slope, 0.0)])],
             // A body's shape and η trade off (both bend the flanks toward grazing): from
@@ -139,6 +151,14 @@ impl Term {
                 with(&[(Param::Body, -0.5), (Param::Eta, 1.5)]),
                 with(&[(Param::Body, 0.5), (Param::Eta, 1.5)]),
             ],
+            // Either way, a fifth of the lobe's full width at half maximum in θr (2·2.355σ).
+            Term::PeakShift => {
+                let shift = 0.2 * 2.355 * 2.0 * from[Param::LnSigma as usize].exp();
+                [-shift, shift]
+                    .iter()
+                    .map(|d| with(&[(Param::PeakShift, *d)]))
+                    .collect()
+            }
             // At η_b = 1 the body's gradient in η_b is 0 (R grows as (η_b − 1)²).
             Term::FresnelBody => [1.3, 1.6, 2.2]
                 .iter()
@@ -252,8 +272,13 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     }
     let weighted = result.weighted;
     if !weighted {
-        let equal = problem.fit(&start, &core);
-        problem.weigh_by_noise_model(&equal);
+        // From equal weights, three steps settle the variance line (as the arm-offset
+        // test's estimator does).
+        let mut fit = problem.fit(&start, &core);
+        for _ in 0..NOISE_MODEL_STEPS {
+            problem.weigh_by_noise_model(&fit);
+            fit = problem.fit(&fit.values, &core);
+        }
     }
     let null = Member {
         terms: Vec::new(),
@@ -314,7 +339,13 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
         take_member(base, result, &problem, &chosen);
         outliers_explained(result, &chosen.fit, n);
     }
-    let plausible = widen_for_model_form(result, &members, &chosen, n, weighted);
+    let theta_i_range = base
+        .observations
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
+            (a.min(o.theta_i_deg), b.max(o.theta_i_deg))
+        });
+    let plausible = widen_for_model_form(result, &members, &chosen, n, weighted, theta_i_range);
     result.extension = Some(Extension {
         terms: added,
         tests,
@@ -445,18 +476,26 @@ fn describe(term: Term, fit: &MemberFit, observations: &[Observation]) -> String
             .map_or(String::new(), |s| format!(" ± {s:.2}"))
     };
     match term {
-        Term::HeavyTail => {
+        Term::LobeShape => {
             let kappa = v[Param::Kappa as usize];
-            format!(
-                "lobe: heavy-tailed, κ = {kappa:.2}{} (a Student-t in θa with ν = {:.1}; κ = 0 is the paper's Gaussian, 1 a Cauchy), σ still its half-maximum width",
-                sd(Param::Kappa),
-                1.0 / kappa.max(1e-9)
-            )
+            if kappa >= 0.0 {
+                format!(
+                    "lobe: heavy-tailed, κ = {kappa:.2}{} (a Student-t in θa with ν = {:.1}; κ = 0 is the paper's Gaussian, 1 a Cauchy), σ still its half-maximum width",
+                    sd(Param::Kappa),
+                    1.0 / kappa.max(1e-9)
+                )
+            } else {
+                format!(
+                    "lobe: lighter-tailed than the Gaussian, κ = {kappa:.2}{} (0 beyond {:.1} half widths; κ = 0 is the paper's Gaussian), σ still its half-maximum width",
+                    sd(Param::Kappa),
+                    family::support_half_widths(kappa)
+                )
+            }
         }
         Term::Haze => {
             let sigma = v[Param::LnSigma as usize].exp();
             let ratio = v[Param::HazeLnRatio as usize].exp();
-            let percent = 100.0 * v[Param::HazeRho as usize] / v[Param::RhoS as usize].max(1e-300);
+            let percent = 100.0 * v[Param::HazeFraction as usize];
             format!(
                 "haze lobe: {percent:.1} % of the main lobe's peak at σ {:.1}° (the main lobe's σ {sigma:.2}° is reported)",
                 sigma * ratio
@@ -480,6 +519,11 @@ fn describe(term: Term, fit: &MemberFit, observations: &[Observation]) -> String
                 at(hi)
             )
         }
+        Term::PeakShift => format!(
+            "off-specular peak: the main lobe centred at θr = θi {:+.2}°{} (its Fresnel factor and attenuation the geometry's)",
+            v[Param::PeakShift as usize],
+            sd(Param::PeakShift)
+        ),
         Term::FresnelBody => format!(
             "body: behind a Fresnel interface of η_b = {:.2}{}, falling toward grazing as its transmittance; ρd is its value at θi = θr = {REFERENCE_THETA_I_DEG:.0}°",
             v[Param::BodyEta as usize],
