@@ -66,7 +66,9 @@ pub enum SpotError {
         col: &'static str,
     },
     /// A covariance that is not positive definite.
-    #[error("the covariance is not positive definite (a variance of 0 or less, or a correlation of ±1 or beyond)")]
+    #[error(
+        "the covariance is not positive definite (a variance of 0 or less, or a correlation of ±1 or beyond)"
+    )]
     NotPositiveDefinite,
 }
 
