@@ -1028,10 +1028,12 @@ pub fn write_verified(
 fn write_html(dir: &Path, html: &str) -> Result<PathBuf, ReportError> {
     let path = dir.join(REPORT);
     let temp = dir.join(crate::output::folder::temp_name(REPORT));
-    std::fs::write(&temp, html.as_bytes()).map_err(|source| ReportError::Write {
-        path: temp.clone(),
-        source,
-    })?;
+    crate::output::store::create_in_folder(&temp)
+        .and_then(|mut file| std::io::Write::write_all(&mut file, html.as_bytes()))
+        .map_err(|source| ReportError::Write {
+            path: temp.clone(),
+            source,
+        })?;
     std::fs::rename(&temp, &path).map_err(|source| ReportError::Write {
         path: path.clone(),
         source,

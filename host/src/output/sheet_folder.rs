@@ -222,6 +222,7 @@ impl SheetFolder {
             return Err(FolderError::NoFolder(dir.to_path_buf()));
         }
         let lock = FolderLock::take(dir)?;
+        folder::refuse_links(dir).map_err(FolderError::Damaged)?;
         let mut store = Store::open_dir(dir, options);
         // A temporary file is a replacement of sheet.json that a kill cut short.
         for name in folder::entries(dir).map_err(io_error(dir))? {

@@ -476,3 +476,35 @@ fn a_trade_study_policy_that_is_not_one_is_refused_naming_the_known_ones() {
     );
     assert!(!out.join("trade.csv").exists(), "nothing run");
 }
+
+#[test]
+fn a_symbolic_link_inside_a_session_folder_is_never_written_through() {
+    // Issue 30: a session.log linked to a file elsewhere was appended to by the resume.
+    let dir = interrupted_session("symlink");
+    let outside = temp_dir("symlink-outside");
+    std::fs::create_dir_all(&outside).unwrap();
+    let target = outside.join("elsewhere.log");
+    std::fs::write(&target, "not gonio's\n").unwrap();
+    let log = dir.join("session.log");
+    let _ = std::fs::remove_file(&log);
+    std::os::unix::fs::symlink(&target, &log).unwrap();
+    let d = dir.to_str().unwrap();
+    rejected(
+        &["measure", "--spots", "1", "--sim", "G", "--resume", d],
+        &["session.log", "symbolic link", "nothing was changed"],
+    );
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "not gonio's\n");
+    // The writer itself opens no link: the report's temporary file linked outside.
+    std::fs::remove_file(&log).unwrap();
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--resume", d]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let temp = dir.join(".report.html.gonio-tmp");
+    std::os::unix::fs::symlink(&target, &temp).unwrap();
+    let out = gonio(&["report", "--unverified", d]);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{message}");
+    assert!(message.contains("symbolic link"), "{message}");
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "not gonio's\n");
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&outside);
+}
