@@ -429,6 +429,26 @@ fn a_bad_or_expired_tile_certificate_is_refused_before_anything_is_measured() {
             "expired on 2021-01-01",
         ],
     );
+    // Implausible dates (issue 30): issued in 1900, or valid until before its issue.
+    let ancient = write(
+        "ancient.json",
+        r#"{"tile": "T", "certificate": "C", "issued": "1900-01-01", "radiance_factor": 0.98, "expanded_uncertainty": 0.01}"#,
+    );
+    measure_rejected(
+        &["--tile-certificate", &ancient],
+        &["ancient.json", "issued 1900-01-01, before 2000-01-01"],
+    );
+    let backwards = write(
+        "backwards.json",
+        r#"{"tile": "T", "certificate": "C", "issued": "2026-01-01", "valid_until": "2025-06-01", "radiance_factor": 0.98, "expanded_uncertainty": 0.01}"#,
+    );
+    measure_rejected(
+        &["--tile-certificate", &backwards],
+        &[
+            "backwards.json",
+            "valid until 2025-06-01, before it was issued (2026-01-01)",
+        ],
+    );
     let broken = write("broken.json", r#"{"tile": "T", "certificate": "C", "#);
     measure_rejected(&["--tile-certificate", &broken], &["broken.json", "line 1"]);
     let missing = dir.join("missing.json").display().to_string();
