@@ -528,3 +528,38 @@ fn a_symbolic_link_inside_a_session_folder_is_never_written_through() {
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&outside);
 }
+
+#[test]
+fn a_folder_another_gonio_is_making_is_in_use_and_left_alone() {
+    // Issue 30: of two `gonio measure --out same` started together, one removed the other's
+    // first sheet.json (its temporary file) before finding the folder locked: that one
+    // failed with "cannot write … No such file or directory". The lock comes first now.
+    for (spots, first) in [
+        ("3", ".sheet.json.gonio-tmp"),
+        ("1", ".session.json.gonio-tmp"),
+    ] {
+        let dir = temp_dir(&format!("in-use-{spots}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        // The other gonio made the folder a moment ago, holds it, writes its first file.
+        let lock = host::output::lock::FolderLock::take(&dir).unwrap();
+        std::fs::write(dir.join(first), "{").unwrap();
+        rejected(
+            &[
+                "measure",
+                "--spots",
+                spots,
+                "--sim",
+                "G",
+                "--out",
+                dir.to_str().unwrap(),
+            ],
+            &["is in use by another gonio process"],
+        );
+        assert!(
+            dir.join(first).exists(),
+            "--spots {spots}: the other gonio's temporary file was removed"
+        );
+        drop(lock);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
