@@ -517,7 +517,11 @@ fn a_symbolic_link_inside_a_session_folder_is_never_written_through() {
     // The writer itself opens no link: the report's temporary file linked outside.
     std::fs::remove_file(&log).unwrap();
     let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--resume", d]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let temp = dir.join(".report.html.gonio-tmp");
     std::os::unix::fs::symlink(&target, &temp).unwrap();
     let out = gonio(&["report", "--unverified", d]);
