@@ -313,6 +313,12 @@ impl<H: Hardware> Device<H> {
         self.handshake_done
     }
 
+    /// Device time of the last frame from the host, read or not: the heartbeat timeout
+    /// runs from it.
+    pub fn last_heard_us(&self) -> u64 {
+        self.last_heard_us
+    }
+
     /// Whether nothing runs (no command in progress, arms at rest).
     pub fn is_idle(&self) -> bool {
         self.activity == Activity::Idle

@@ -509,6 +509,12 @@ impl SimInstrument {
         self.now_us
     }
 
+    /// Device time of the last frame from the host the firmware heard (its heartbeat
+    /// timeout runs from it); a frame dropped on the link is not heard.
+    pub fn last_heard_us(&self) -> u64 {
+        self.device.last_heard_us()
+    }
+
     /// The firmware's heartbeat timeout.
     pub fn heartbeat_timeout(&self) -> Duration {
         Duration::from_millis(u64::from(self.device.config().heartbeat_timeout_ms))

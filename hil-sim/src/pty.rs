@@ -45,10 +45,17 @@ impl PtyServer {
     /// goes to the firmware's decoder, which answers bad frames and carries on.
     ///
     /// Virtual time runs ahead of wall time, but never more than three quarters of the
-    /// firmware's heartbeat timeout past the last frame from the host: a host that keeps
-    /// talking (as a host must while the arms move) is never taken for lost, however fast
-    /// the simulation runs. A host silent for the heartbeat timeout in wall time is gone,
-    /// and virtual time then follows wall time, so the firmware's safe stop happens.
+    /// firmware's heartbeat timeout past the last frame from the host the firmware heard:
+    /// a host that keeps talking (as a host must while the arms move) is never taken for
+    /// lost, however fast the simulation runs. A host unheard for the heartbeat timeout in
+    /// wall time is gone, and virtual time then follows wall time, so the firmware's safe
+    /// stop happens.
+    ///
+    /// The lead runs from the last frame *heard*, not from the last bytes read: bytes of a
+    /// frame the link dropped show nothing to the firmware, and a lead from them let the
+    /// clock run 1.5 s of device time per 200 ms heartbeat, so one lost heartbeat made the
+    /// firmware's 2 s timeout and a fail-safe stop the same link costs nothing in process
+    /// (issue 30). Now, as in process, it takes about the timeout without a frame heard.
     pub fn serve(&self, instrument: &mut SimInstrument, stop: &AtomicBool) -> std::io::Result<()> {
         let timeout = instrument.heartbeat_timeout();
         let lead_us = timeout.as_micros() as u64 * 3 / 4;
@@ -68,8 +75,11 @@ impl PtyServer {
                     Ok(n) => {
                         // With the simulated cable out the bytes are lost, as on a real link.
                         let _ = instrument.write(&buf[..n]);
-                        last_host_wall = Instant::now();
-                        last_host_virtual_us = instrument.device_time_us();
+                        let heard_us = instrument.last_heard_us();
+                        if heard_us > last_host_virtual_us {
+                            last_host_wall = Instant::now();
+                            last_host_virtual_us = heard_us;
+                        }
                     }
                     // A client closing its end is not our failure.
                     Err(

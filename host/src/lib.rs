@@ -11,10 +11,11 @@
 //!   exports, plots and the stock library;
 //! - [`measure`]: a whole `gonio measure`, a session or a sheet of spots, run on a
 //!   session and written to its folder;
-//! - [`schema`]: the names and versions of gonio's JSON documents.
+//! - [`schema`]: the names and versions of gonio's JSON documents;
+//! - [`text`]: text from a file made safe to show on a terminal (escaped, cut short).
 //!
 //! Layers, bottom to top: analysis, instrument, session, output, measure and study (which
-//! runs sessions and draws with output's plots); schema is read from anywhere. A layer
+//! runs sessions and draws with output's plots); schema and text are read from anywhere. A layer
 //! imports only those below it, without exception. The `gonio` command line is the
 //! binary's (`src/cli/`), on top of them all.
 // The numerics index vectors and matrices as the algebra writes them (a[row][col], l[k]);
@@ -31,3 +32,4 @@ pub mod output;
 pub mod schema;
 pub mod session;
 pub mod study;
+pub mod text;

@@ -104,6 +104,14 @@ fn default_coverage_factor() -> f64 {
     2.0
 }
 
+/// The earliest date of issue a tile certificate may have: this instrument and its
+/// protocol are of the 2020s, and a white tile is re-certified every few years, so an
+/// older date is a typing error (issue 30: one of 1900 was accepted).
+pub const EARLIEST_ISSUE: chrono::NaiveDate = match chrono::NaiveDate::from_ymd_opt(2000, 1, 1) {
+    Some(date) => date,
+    None => panic!("a valid date"),
+};
+
 /// What is wrong with a tile certificate's values (the caller names the file).
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub(crate) enum CertificateError {
@@ -132,6 +140,23 @@ pub(crate) enum CertificateError {
         issued: chrono::NaiveDate,
         /// The session's date.
         today: chrono::NaiveDate,
+    },
+    /// Issued before any tile could have been certified for this instrument: a typing
+    /// error (a year like 1900 or 0026) that would pass a certificate off as valid.
+    #[error(
+        "issued {issued}, before {EARLIEST_ISSUE} (no certificate of a tile for this kind of instrument is that old): check the date"
+    )]
+    IssuedTooEarly {
+        /// Date of issue.
+        issued: chrono::NaiveDate,
+    },
+    /// Valid until a date before its issue.
+    #[error("valid until {until}, before it was issued ({issued}): check the dates")]
+    ValidBeforeIssued {
+        /// Date of issue.
+        issued: chrono::NaiveDate,
+        /// End of validity.
+        until: chrono::NaiveDate,
     },
     /// Valid until a date before the session's.
     #[error(
@@ -180,8 +205,14 @@ impl TileCertificate {
         if issued > today {
             return Err(CertificateError::IssuedAfterToday { issued, today });
         }
+        if issued < EARLIEST_ISSUE {
+            return Err(CertificateError::IssuedTooEarly { issued });
+        }
         if let Some(until) = &self.valid_until {
             let until = date("valid_until", until)?;
+            if until < issued {
+                return Err(CertificateError::ValidBeforeIssued { issued, until });
+            }
             if until < today {
                 return Err(CertificateError::Expired(until));
             }

@@ -71,7 +71,8 @@ impl DataSet {
 /// Uncertainties of one data set too far apart to weigh them together.
 #[derive(Clone, Debug, Error, PartialEq)]
 #[error(
-    "line {line}: std {value:?} is more than {STD_RATIO_MAX:e} times the std {other:?} of line {other_line} (sample '{sample}'): weights that far apart cannot be fitted together; check the units"
+    "line {line}: std {value:?} is more than {STD_RATIO_MAX:e} times the std {other:?} of line {other_line} (sample '{}'): weights that far apart cannot be fitted together; check the units",
+    crate::text::shown(.sample)
 )]
 pub struct StdSpread {
     /// Line of the largest std.

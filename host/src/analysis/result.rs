@@ -59,7 +59,7 @@ pub struct Readings<'a> {
 /// Why a data set could not be analysed: the fit's error, at the line of its source it
 /// points to (the first line when it points to none).
 #[derive(Debug, Error)]
-#[error("{line}: sample '{sample}': {source}")]
+#[error("{line}: sample '{}': {source}", crate::text::shown(.sample))]
 pub struct AnalysisError {
     /// The 1-based line of the reading the error is about.
     pub line: usize,
@@ -437,7 +437,7 @@ pub fn to_table(r: &Report) -> String {
     let mut s = format!(
         "{}  sample {}  (n = {}, fitted: {})\n",
         r.file,
-        r.sample,
+        crate::text::shown(&r.sample),
         f.n,
         f.model.names().join(" ")
     );

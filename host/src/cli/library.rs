@@ -141,6 +141,20 @@ fn short(sha256: &str) -> &str {
     sha256.get(..12).unwrap_or(sha256)
 }
 
+/// How many characters of a stock name a table shows: names are free text (an imported
+/// file may hold a name of any length), and a table's column cannot be as wide as any.
+const NAME_COLUMN: usize = 40;
+
+/// A name from the library as a table cell: escaped and cut ([`host::text`]).
+fn cell(name: &str) -> String {
+    host::text::shown_at_most(name, NAME_COLUMN)
+}
+
+/// The width of a column of `cells`, at least that of its header.
+fn column_width<'a>(cells: impl Iterator<Item = &'a String>) -> usize {
+    cells.map(|c| c.chars().count()).max().unwrap_or(0).max(5)
+}
+
 fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
     // Every folder is read and checked before the library is opened: a refused add
     // leaves no new, empty library behind.
@@ -170,11 +184,11 @@ fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
     for sheet in &sheets {
         println!(
             "added {} (sample '{}', instrument {}, session {}) to stock '{}'",
-            sheet.session_path,
-            sheet.sample,
-            sheet.instrument_serial,
+            host::text::shown(&sheet.session_path),
+            host::text::shown(&sheet.sample),
+            host::text::shown(&sheet.instrument_serial),
             short(&sheet.session_sha256),
-            args.stock
+            host::text::shown(&args.stock)
         );
     }
     println!(
@@ -205,23 +219,19 @@ fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
     if stocks.is_empty() {
         return Ok(());
     }
-    let width = stocks
-        .iter()
-        .map(|s| s.name.chars().count())
-        .max()
-        .unwrap_or(0)
-        .max(5);
+    let names: Vec<String> = stocks.iter().map(|s| cell(&s.name)).collect();
+    let width = column_width(names.iter());
     println!(
         "  {:<width$}  {:>6}  {:>6}  manufacturer",
         "stock", "sheets", "spots"
     );
-    for s in &stocks {
+    for (s, name) in stocks.iter().zip(&names) {
         println!(
             "  {:<width$}  {:>6}  {:>6}  {}",
-            s.name,
+            name,
             s.sheets,
             s.spots,
-            s.manufacturer.as_deref().unwrap_or("—")
+            s.manufacturer.as_deref().map_or_else(|| "—".into(), cell)
         );
     }
     Ok(())
@@ -238,7 +248,7 @@ fn run_remove(path: &Path, args: RemoveArgs) -> anyhow::Result<()> {
         println!("removed session {sha}");
     }
     for stock in &removed.stocks {
-        println!("removed stock '{stock}'");
+        println!("removed stock '{}'", host::text::shown(stock));
     }
     println!(
         "{}: {} session{} and {} spot{} removed",
@@ -394,27 +404,23 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
     println!(
         "{} (sample '{}') against {} stock{} of {}",
         args.dir.display(),
-        measured.sample,
+        host::text::shown(&measured.sample),
         stocks,
         if stocks == 1 { "" } else { "s" },
         path.display()
     );
     println!("  ({})", evidence::SEARCH_CAVEAT);
-    let width = ranking
-        .iter()
-        .map(|r| r.stock.chars().count())
-        .max()
-        .unwrap_or(0)
-        .max(5);
+    let names: Vec<String> = ranking.iter().map(|r| cell(&r.stock)).collect();
+    let width = column_width(names.iter());
     println!(
         "  {:>4}  {:<width$}  {:>6}  {:>9}  verbal",
         "rank", "stock", "sheets", "log10 LR"
     );
-    for (k, r) in ranking.iter().enumerate() {
+    for (k, (r, name)) in ranking.iter().zip(&names).enumerate() {
         println!(
             "  {:>4}  {:<width$}  {:>6}  {:>+9.2}  {}",
             k + 1,
-            r.stock,
+            name,
             r.sheets,
             r.log10_lr,
             r.verbal

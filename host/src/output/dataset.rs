@@ -32,7 +32,7 @@ pub enum DatasetError {
         column: &'static str,
     },
     /// A column appears twice in the header.
-    #[error("line {line}: column '{column}' appears twice in the header")]
+    #[error("line {line}: column '{}' appears twice in the header", crate::text::shown(.column))]
     DuplicateColumn {
         /// Header line.
         line: usize,
@@ -50,17 +50,17 @@ pub enum DatasetError {
         found: usize,
     },
     /// A field that is not a number.
-    #[error("line {line}: {column} '{value}' is not a number")]
+    #[error("line {line}: {column} '{}' is not a number", crate::text::shown(.value))]
     NotANumber {
         /// Line.
         line: usize,
         /// Column name.
         column: &'static str,
-        /// The text.
+        /// The text (shown escaped and cut: [`crate::text::shown`]).
         value: String,
     },
     /// A number the fit cannot represent.
-    #[error("line {line}: {column} {value} is {why}")]
+    #[error("line {line}: {column} {} is {why}", crate::text::shown(.value))]
     OutOfRange {
         /// Line.
         line: usize,

@@ -843,6 +843,26 @@ pub fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
     Ok(names)
 }
 
+/// Refuse a folder to write into that holds a symbolic link: gonio never leaves one, and a
+/// write through it (an appended `session.log`, a replaced file, a sheet's spot folder)
+/// could land anywhere outside the folder (issue 30). The store refuses to open a link for
+/// writing as well ([`crate::output::store::open_in_folder`]); this says so before anything
+/// is changed.
+pub(crate) fn refuse_links(dir: &Path) -> Result<(), Finding> {
+    let cannot_list = |e: std::io::Error| Finding::new(dir, None, format!("cannot list: {e}"));
+    for name in entries(dir).map_err(cannot_list)? {
+        let path = dir.join(&name);
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(Finding::new(
+                &path,
+                None,
+                "a symbolic link: gonio writes nothing through a link inside a session folder (it could lead outside the folder); put the file itself in its place, or remove the link",
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Temporary files a killed `gonio` left in `dir`.
 pub(crate) fn temp_files(dir: &Path) -> std::io::Result<Vec<String>> {
     Ok(entries(dir)?

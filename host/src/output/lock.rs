@@ -19,7 +19,7 @@ pub enum FolderError {
     /// `--out` onto another session's folder.
     #[error(
         "{} holds another session (sample '{}', instrument {}, started {}, {}): continue it with gonio measure --resume {}, or give a new folder to --out",
-        .dir.display(), .sample, .serial, .started, .status, .dir.display()
+        .dir.display(), crate::text::shown(.sample), crate::text::shown(.serial), crate::text::shown(.started), .status, .dir.display()
     )]
     OtherSession {
         /// The folder.
@@ -45,7 +45,7 @@ pub enum FolderError {
     /// A finished session is not measured again.
     #[error(
         "{} holds a finished session of '{}' (finished {}{}): it is not measured again; its result is in {} (gonio verify {} checks the folder); measure anew with --out NEW_FOLDER",
-        .dir.display(), .sample, .ended, .class.as_ref().map(|c| format!(", class {c}")).unwrap_or_default(), .dir.join(SESSION).display(), .dir.display()
+        .dir.display(), crate::text::shown(.sample), crate::text::shown(.ended), .class.as_ref().map(|c| format!(", class {}", crate::text::shown(c))).unwrap_or_default(), .dir.join(SESSION).display(), .dir.display()
     )]
     Finished {
         /// The folder.
@@ -60,7 +60,7 @@ pub enum FolderError {
     /// A finished sheet of several spots is not measured again.
     #[error(
         "{} holds a finished sheet of '{}' ({} spots): it is not measured again; its result is in {} (gonio verify {} checks the folder); measure anew with --out NEW_FOLDER",
-        .dir.display(), .sample, .spots, .dir.join(SHEET).display(), .dir.display()
+        .dir.display(), crate::text::shown(.sample), .spots, .dir.join(SHEET).display(), .dir.display()
     )]
     FinishedSheet {
         /// The folder.

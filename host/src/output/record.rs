@@ -423,6 +423,7 @@ impl Existing {
             return Err(FolderError::NotAFolder(dir.to_path_buf()));
         }
         let lock = FolderLock::take(dir)?;
+        folder::refuse_links(dir).map_err(FolderError::Damaged)?;
         let inspection = folder::inspect(dir).map_err(FolderError::Damaged)?;
         if let Some(problem) = inspection.damage.first() {
             return Err(FolderError::Damaged(problem.clone()));

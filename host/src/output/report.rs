@@ -49,6 +49,20 @@ pub enum ReportError {
         /// The error.
         source: std::io::Error,
     },
+    /// A folder that does not verify: its report would present changed data as the
+    /// session's (issue 30, D7).
+    #[error(
+        "{}: does not verify, so no report is drawn from it (gonio verify {} tells the same; gonio report --unverified draws one marked as such):{}",
+        dir.display(),
+        dir.display(),
+        problems.iter().map(|p| format!("\n  {p}")).collect::<String>()
+    )]
+    DoesNotVerify {
+        /// The folder.
+        dir: PathBuf,
+        /// What `gonio verify` finds wrong, but for `report.html` (redrawn here).
+        problems: Vec<Finding>,
+    },
     /// The report could not be written.
     #[error("cannot write {}: {source}", path.display())]
     Write {
@@ -959,13 +973,67 @@ fn glossary() -> Markup {
 /// Draw the report of the finished folder `dir` into `dir/report.html` (atomically: a
 /// temporary file in the folder, renamed into place). Returns its path.
 pub fn write_into(dir: &Path) -> Result<PathBuf, ReportError> {
-    let html = html(dir)?;
+    write_html(dir, &html(dir)?)
+}
+
+/// What `gonio verify` finds wrong with `dir`, but for its `report.html`: the report is
+/// what is being drawn anew (the way to repair a stale one).
+pub fn problems(dir: &Path) -> Vec<Finding> {
+    let found = if crate::output::folder::is_sheet_folder(dir) {
+        crate::output::verify::verify_sheet(dir, draw).err()
+    } else {
+        crate::output::verify::verify(dir, draw).err()
+    };
+    found
+        .unwrap_or_default()
+        .into_iter()
+        .filter(|p| p.file.file_name() != Some(std::ffi::OsStr::new(REPORT)))
+        .collect()
+}
+
+/// Draw the report of `dir` into `dir/report.html` when the folder verifies
+/// ([`problems`]); when it does not, refuse ([`ReportError::DoesNotVerify`]), or with
+/// `unverified` draw it with a banner at its top naming every problem, so that no one
+/// reads changed data as the session's. Returns the path and the problems.
+pub fn write_verified(
+    dir: &Path,
+    unverified: bool,
+) -> Result<(PathBuf, Vec<Finding>), ReportError> {
+    let problems = problems(dir);
+    if problems.is_empty() {
+        return Ok((write_into(dir)?, problems));
+    }
+    if !unverified {
+        return Err(ReportError::DoesNotVerify {
+            dir: dir.to_path_buf(),
+            problems,
+        });
+    }
+    let banner = html! {
+        div class="verdict flagged" id="unverified" {
+            p { strong { "This folder does not verify: " } "its files are not as the session left them, so what follows may not be what was measured." }
+            ul { @for p in &problems { li { (Text(&p.to_string())) } } }
+        }
+        "\n"
+    };
+    let drawn = html(dir)?;
+    // Right after <body>: the first thing read, and printed on the first page.
+    let marked = match drawn.split_once("<body>\n") {
+        Some((head, body)) => format!("{head}<body>\n{}{body}", banner.into_string()),
+        None => format!("{}{drawn}", banner.into_string()),
+    };
+    Ok((write_html(dir, &marked)?, problems))
+}
+
+fn write_html(dir: &Path, html: &str) -> Result<PathBuf, ReportError> {
     let path = dir.join(REPORT);
     let temp = dir.join(crate::output::folder::temp_name(REPORT));
-    std::fs::write(&temp, html.as_bytes()).map_err(|source| ReportError::Write {
-        path: temp.clone(),
-        source,
-    })?;
+    crate::output::store::create_in_folder(&temp)
+        .and_then(|mut file| std::io::Write::write_all(&mut file, html.as_bytes()))
+        .map_err(|source| ReportError::Write {
+            path: temp.clone(),
+            source,
+        })?;
     std::fs::rename(&temp, &path).map_err(|source| ReportError::Write {
         path: path.clone(),
         source,

@@ -134,12 +134,17 @@ impl SheetFolder {
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).map_err(io_error(parent))?;
         }
-        match Store::create_dir(dir, options.clone()) {
-            Ok(_) => {}
+        // The lock is taken before anything in the folder is looked at or removed: a
+        // `gonio measure --out` started at the same moment may have made the folder and be
+        // writing its first sheet.json, whose temporary file is not ours to remove (issue
+        // 30: removing it made that gonio fail with "No such file or directory").
+        let lock = match Store::create_dir(dir, options.clone()) {
+            Ok(_) => FolderLock::take(dir)?,
             Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
                 if !dir.is_dir() {
                     return Err(FolderError::NotAFolder(dir.to_path_buf()));
                 }
+                let lock = FolderLock::take(dir)?;
                 // A temporary file alone is a first sheet.json a killed gonio left: the
                 // folder is as empty as before it.
                 let names = folder::entries(dir).map_err(io_error(dir))?;
@@ -157,6 +162,7 @@ impl SheetFolder {
                         entries: shown.join(", "),
                     });
                 }
+                lock
             }
             Err(e) => {
                 return Err(FolderError::Io {
@@ -164,8 +170,7 @@ impl SheetFolder {
                     source: e,
                 });
             }
-        }
-        let lock = FolderLock::take(dir)?;
+        };
         let doc = SheetDoc {
             schema: crate::schema::SHEET.into(),
             status: Status::Running,
@@ -205,7 +210,17 @@ impl SheetFolder {
                 format!("{base}-{k}")
             });
             if !dir.exists() {
-                return SheetFolder::create(&dir, sample, spots_planned, replacements, options);
+                match SheetFolder::create(
+                    &dir,
+                    sample,
+                    spots_planned,
+                    replacements,
+                    options.clone(),
+                ) {
+                    // Another gonio made this folder since: take the next name.
+                    Err(FolderError::InUse(_) | FolderError::NotEmpty { .. }) => continue,
+                    other => return other,
+                }
             }
         }
         Err(FolderError::Io {
@@ -222,6 +237,7 @@ impl SheetFolder {
             return Err(FolderError::NoFolder(dir.to_path_buf()));
         }
         let lock = FolderLock::take(dir)?;
+        folder::refuse_links(dir).map_err(FolderError::Damaged)?;
         let mut store = Store::open_dir(dir, options);
         // A temporary file is a replacement of sheet.json that a kill cut short.
         for name in folder::entries(dir).map_err(io_error(dir))? {

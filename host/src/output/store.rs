@@ -234,7 +234,7 @@ impl Store {
                     return Err(self.fail(dead));
                 }
             }
-            let file = OpenOptions::new().create(true).append(true).open(&path)?;
+            let file = open_in_folder(&path, OpenOptions::new().create(true).append(true))?;
             if !existed {
                 sync_dir(&self.dir)?;
             }
@@ -294,12 +294,12 @@ impl Store {
     pub fn replace(&mut self, name: &str, bytes: &[u8]) -> io::Result<()> {
         let temp = self.dir.join(temp_name(name));
         let written = match self.step(bytes.len())? {
-            Step::Whole => File::create(&temp).and_then(|mut file| {
+            Step::Whole => create_in_folder(&temp).and_then(|mut file| {
                 file.write_all(bytes)?;
                 file.sync_all()
             }),
             Step::Cut { len, dead } => {
-                if let Ok(mut file) = File::create(&temp) {
+                if let Ok(mut file) = create_in_folder(&temp) {
                     let _ = file.write_all(&bytes[..len]);
                 }
                 if dead {
@@ -325,7 +325,7 @@ impl Store {
     pub fn truncate(&mut self, name: &str, len: u64) -> io::Result<()> {
         let step = self.step(0)?;
         step.whole_or(|dead| Err(self.fail(dead)))?;
-        let file = OpenOptions::new().write(true).open(self.dir.join(name))?;
+        let file = open_in_folder(&self.dir.join(name), OpenOptions::new().write(true))?;
         file.set_len(len)?;
         file.sync_all()
     }
@@ -370,6 +370,39 @@ impl Step {
             Step::Cut { dead, .. } => cut(dead),
         }
     }
+}
+
+/// Open `path`, a file inside a session folder, with `options`, refusing a symbolic link
+/// at its name (`O_NOFOLLOW`): a link in the folder could lead the write anywhere outside it
+/// (issue 30: a `session.log` linked elsewhere was written through). The error says so.
+pub(crate) fn open_in_folder(path: &Path, options: &mut OpenOptions) -> io::Result<File> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt as _;
+        options.custom_flags(nix::libc::O_NOFOLLOW);
+    }
+    options.open(path).map_err(|error| {
+        let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+        if is_link {
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "{} is a symbolic link: gonio writes nothing through a link inside a session folder (it could lead outside the folder); remove the link",
+                    path.display()
+                ),
+            )
+        } else {
+            error
+        }
+    })
+}
+
+/// [`open_in_folder`] to create or truncate `path` for writing (as [`File::create`]).
+pub(crate) fn create_in_folder(path: &Path) -> io::Result<File> {
+    open_in_folder(
+        path,
+        OpenOptions::new().write(true).create(true).truncate(true),
+    )
 }
 
 /// `fsync` a folder, so that the names in it (new files, renames) survive a power loss.

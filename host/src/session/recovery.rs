@@ -57,9 +57,10 @@ pub(super) enum Failure {
 pub(super) fn classify(error: LinkError) -> Result<Failure, SessionError> {
     match error {
         LinkError::Interrupted => Err(SessionError::Interrupted),
-        LinkError::Io(_) | LinkError::Silent { .. } | LinkError::NoReply { .. } => {
-            Ok(Failure::Link(error))
-        }
+        LinkError::Io(_)
+        | LinkError::Silent { .. }
+        | LinkError::NoReply { .. }
+        | LinkError::NoHandshake { .. } => Ok(Failure::Link(error)),
         LinkError::Device {
             command,
             error: refusal,
@@ -316,7 +317,11 @@ impl<T: Transport> Session<'_, T> {
                         .pause(RECONNECT_PAUSE.min(give_up_after.saturating_sub(silent_for)));
                 }
                 // The hello went out and nothing came back: try again (the deadline decides).
-                Err(LinkError::Silent { .. } | LinkError::NoReply { .. }) => {}
+                Err(
+                    LinkError::Silent { .. }
+                    | LinkError::NoReply { .. }
+                    | LinkError::NoHandshake { .. },
+                ) => {}
                 Err(error @ LinkError::VersionMismatch { .. }) => {
                     self.decide(&format!("after the reconnection: {error}"));
                     return Err(SessionError::Link(error));

@@ -279,7 +279,7 @@ pub(crate) fn run_session(spec: &Spec) -> Result<Run, SimOptionError> {
 fn hello<T: Transport>(client: &mut Client<T>) -> Result<protocol::DeviceInfo, LinkError> {
     loop {
         match client.hello() {
-            Err(LinkError::Io(_) | LinkError::NoReply { .. })
+            Err(LinkError::Io(_) | LinkError::NoReply { .. } | LinkError::NoHandshake { .. })
                 if client.silent_for() < client.policy().give_up_after =>
             {
                 client.transport_mut().pause(Duration::from_millis(250));

@@ -429,6 +429,26 @@ fn a_bad_or_expired_tile_certificate_is_refused_before_anything_is_measured() {
             "expired on 2021-01-01",
         ],
     );
+    // Implausible dates (issue 30): issued in 1900, or valid until before its issue.
+    let ancient = write(
+        "ancient.json",
+        r#"{"tile": "T", "certificate": "C", "issued": "1900-01-01", "radiance_factor": 0.98, "expanded_uncertainty": 0.01}"#,
+    );
+    measure_rejected(
+        &["--tile-certificate", &ancient],
+        &["ancient.json", "issued 1900-01-01, before 2000-01-01"],
+    );
+    let backwards = write(
+        "backwards.json",
+        r#"{"tile": "T", "certificate": "C", "issued": "2026-01-01", "valid_until": "2025-06-01", "radiance_factor": 0.98, "expanded_uncertainty": 0.01}"#,
+    );
+    measure_rejected(
+        &["--tile-certificate", &backwards],
+        &[
+            "backwards.json",
+            "valid until 2025-06-01, before it was issued (2026-01-01)",
+        ],
+    );
     let broken = write("broken.json", r#"{"tile": "T", "certificate": "C", "#);
     measure_rejected(&["--tile-certificate", &broken], &["broken.json", "line 1"]);
     let missing = dir.join("missing.json").display().to_string();
@@ -475,4 +495,75 @@ fn a_trade_study_policy_that_is_not_one_is_refused_naming_the_known_ones() {
         ],
     );
     assert!(!out.join("trade.csv").exists(), "nothing run");
+}
+
+#[test]
+fn a_symbolic_link_inside_a_session_folder_is_never_written_through() {
+    // Issue 30: a session.log linked to a file elsewhere was appended to by the resume.
+    let dir = interrupted_session("symlink");
+    let outside = temp_dir("symlink-outside");
+    std::fs::create_dir_all(&outside).unwrap();
+    let target = outside.join("elsewhere.log");
+    std::fs::write(&target, "not gonio's\n").unwrap();
+    let log = dir.join("session.log");
+    let _ = std::fs::remove_file(&log);
+    std::os::unix::fs::symlink(&target, &log).unwrap();
+    let d = dir.to_str().unwrap();
+    rejected(
+        &["measure", "--spots", "1", "--sim", "G", "--resume", d],
+        &["session.log", "symbolic link", "nothing was changed"],
+    );
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "not gonio's\n");
+    // The writer itself opens no link: the report's temporary file linked outside.
+    std::fs::remove_file(&log).unwrap();
+    let out = gonio(&["measure", "--spots", "1", "--sim", "G", "--resume", d]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let temp = dir.join(".report.html.gonio-tmp");
+    std::os::unix::fs::symlink(&target, &temp).unwrap();
+    let out = gonio(&["report", "--unverified", d]);
+    let message = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{message}");
+    assert!(message.contains("symbolic link"), "{message}");
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "not gonio's\n");
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&outside);
+}
+
+#[test]
+fn a_folder_another_gonio_is_making_is_in_use_and_left_alone() {
+    // Issue 30: of two `gonio measure --out same` started together, one removed the other's
+    // first sheet.json (its temporary file) before finding the folder locked: that one
+    // failed with "cannot write … No such file or directory". The lock comes first now.
+    for (spots, first) in [
+        ("3", ".sheet.json.gonio-tmp"),
+        ("1", ".session.json.gonio-tmp"),
+    ] {
+        let dir = temp_dir(&format!("in-use-{spots}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        // The other gonio made the folder a moment ago, holds it, writes its first file.
+        let lock = host::output::lock::FolderLock::take(&dir).unwrap();
+        std::fs::write(dir.join(first), "{").unwrap();
+        rejected(
+            &[
+                "measure",
+                "--spots",
+                spots,
+                "--sim",
+                "G",
+                "--out",
+                dir.to_str().unwrap(),
+            ],
+            &["is in use by another gonio process"],
+        );
+        assert!(
+            dir.join(first).exists(),
+            "--spots {spots}: the other gonio's temporary file was removed"
+        );
+        drop(lock);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

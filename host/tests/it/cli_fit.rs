@@ -183,3 +183,53 @@ fn an_outlier_is_named_by_its_line_in_the_file() {
         "{text}"
     );
 }
+
+#[test]
+fn text_from_a_csv_reaches_the_terminal_escaped_and_a_bad_field_is_quoted_short() {
+    // Issue 30: a sample name holding escape sequences went to the terminal as is, and a
+    // 50 MB field came back whole in the error.
+    let dir = temp_dir("hostile");
+    let g = common::noisy(&common::reference("G"), &common::strategy2(2), 1);
+    let hostile = "G\u{1b}]0;pwned\u{7}\u{1b}[2J\u{8}";
+    let named = dir.join("named.csv");
+    std::fs::write(&named, csv(&[(hostile, g)], true)).unwrap();
+    let long = dir.join("long.csv");
+    let field = format!("\u{1b}[31m{}", "9".repeat(2_000_000));
+    std::fs::write(
+        &long,
+        format!("theta_i,theta_r,radiance_factor\n20,0,0.5\n20,5,{field}x\n"),
+    )
+    .unwrap();
+    let header = dir.join("header.csv");
+    let column = format!("\u{1b}[1m{}", "c".repeat(100_000));
+    std::fs::write(
+        &header,
+        format!("theta_i,theta_r,radiance_factor,{column},{column}\n20,0,0.5,1,1\n"),
+    )
+    .unwrap();
+    let out = gonio()
+        .arg("fit")
+        .args([&named, &long, &header])
+        .output()
+        .expect("run gonio fit");
+    let (stdout, stderr) = (out.stdout.as_slice(), out.stderr.as_slice());
+    for (what, bytes) in [("stdout", stdout), ("stderr", stderr)] {
+        let text = String::from_utf8_lossy(bytes);
+        assert!(
+            !bytes.iter().any(|&b| b == 0x1b || b == 0x07 || b == 0x08),
+            "{what} holds control bytes: {text:?}"
+        );
+    }
+    let stdout = String::from_utf8_lossy(stdout);
+    let stderr = String::from_utf8_lossy(stderr);
+    // The sample's table, its name shown escaped.
+    assert!(stdout.contains(r"G\u{1b}]0;pwned\u{7}"), "{stdout}");
+    // Each bad field named at its line, quoted by a short prefix.
+    assert!(
+        stderr.contains("long.csv:3") && stderr.contains('…'),
+        "{stderr}"
+    );
+    assert!(stderr.contains("header.csv:1"), "{stderr}");
+    assert!(stderr.len() < 2_000, "{} bytes of errors", stderr.len());
+    let _ = std::fs::remove_dir_all(&dir);
+}

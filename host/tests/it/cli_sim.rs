@@ -258,3 +258,44 @@ fn gonio_sim_serves_a_realistic_sheet() {
     };
     assert!(r.mean_counts > 0.0 && !r.saturated, "{r:?}");
 }
+
+#[test]
+fn a_lost_heartbeat_does_not_stop_the_instrument_over_the_pseudo_terminal() {
+    // Issue 30: the simulator's clock ran up to 1.5 s of device time ahead of the last bytes
+    // from the host, so heartbeats sent 200 ms apart reached the firmware 1.5 s apart and a
+    // single dropped one made its 2 s heartbeat timeout: fail-safe stops over the
+    // pseudo-terminal on links that cost none in process. Now the clock leads the last
+    // frame the firmware heard, as its timeout does.
+    let (_sim, path) = start(&["G", "--seed", "5", "--faults", "drop=0.25"]);
+    let mut client = Client::new(
+        SerialTransport::open(&path).unwrap(),
+        RetryPolicy::default(),
+    );
+    client.hello().expect("handshake");
+    assert!(matches!(
+        client.request(Command::SetLamp { on: true }),
+        Ok(Reply::Ack)
+    ));
+    // Six seconds of heartbeats alone, some dropped; the lamp on, so the firmware needs them.
+    let mut stops = 0;
+    let until = std::time::Instant::now() + Duration::from_secs(6);
+    while std::time::Instant::now() < until {
+        if let Some(DeviceMessage::Stopped { reason }) = client
+            .next_unsolicited(Duration::from_millis(500))
+            .expect("link")
+        {
+            assert_eq!(reason, ErrorCode::HeartbeatLost);
+            stops += 1;
+        }
+    }
+    let status = loop {
+        match client.request(Command::GetStatus) {
+            Ok(Reply::Status(status)) => break status,
+            Ok(other) => panic!("{other:?}"),
+            Err(host::instrument::link::LinkError::NoReply { .. }) => continue,
+            Err(other) => panic!("{other}"),
+        }
+    };
+    assert_eq!(stops, 0, "fail-safe stops for lost heartbeats");
+    assert!(status.lamp_on && status.fault.is_none(), "{status:?}");
+}

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first (`cli` is the binary's, apart).
 const TOP: &[&[&str]] = &[
-    &["schema"],
+    &["schema", "text"],
     &["analysis"],
     &["instrument"],
     &["session"],

@@ -495,3 +495,155 @@ fn the_default_library_is_under_xdg_data_home() {
     assert!(data_home.join("gonio").join("library.sqlite").is_file());
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A real exchange record (a G sheet's spot, as `docs/LIBRARY.md` shows it) for `stock`
+/// and session number `n`, with `edit` applied to it.
+fn record(stock: &str, n: u64, edit: impl FnOnce(&mut serde_json::Value)) -> String {
+    let mut r = serde_json::json!({
+        "schema": host::schema::LIBRARY_RECORD, "stock": stock, "manufacturer": null,
+        "stock_notes": null, "session_sha256": format!("{n:064x}"), "sample": "G", "lot": null,
+        "measured_at": "2026-12-02T04:41:50.753+00:00", "instrument_serial": "SIM-0001",
+        "session_path": "s3", "added_at": "2026-12-02T04:41:51.388Z", "spot": 0, "spots": 1,
+        "sigma_deg": 0.79989953098683, "rho_s": 58.2277779149291, "rho_d": 0.855095714173521,
+        "covariance": [
+            [2.884551372313763e-7, -0.00017563109108595376, -1.0147899589337306e-8],
+            [-0.00017563109108595376, 0.2797897003969915, 0.0012528422184519307],
+            [-1.0147899589337306e-8, 0.0012528422184519307, 0.000018736031808713217]
+        ]
+    });
+    edit(&mut r);
+    format!("{r}\n")
+}
+
+/// Issue 30 (D6): a record that is not a possible measurement is refused at its line with
+/// the reason, and nothing of its file is stored, however good the lines before it.
+#[test]
+fn import_refuses_impossible_records_and_stores_nothing_of_their_file() {
+    let root = temp_dir("library", "impossible");
+    std::fs::create_dir_all(&root).expect("temp dir");
+    let library = root.join("library.sqlite");
+    let good = root.join("good.jsonl");
+    std::fs::write(&good, record("S1", 1, |_| {})).expect("write");
+    let out = gonio(&["library", "import", "--library", s(&library), s(&good)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let before = std::fs::read(&library).expect("library");
+    let cov =
+        |c: [[f64; 3]; 3]| move |r: &mut serde_json::Value| r["covariance"] = serde_json::json!(c);
+    let cases: Vec<(&str, String)> = vec![
+        (
+            "negative-definite",
+            record(
+                "S9",
+                9,
+                cov([[-1e-6, 0.0, 0.0], [0.0, -0.3, 0.0], [0.0, 0.0, -2e-5]]),
+            ),
+        ),
+        (
+            "covariance of 1e308",
+            record(
+                "S9",
+                9,
+                cov([[1e308, 0.0, 0.0], [0.0, 1e308, 0.0], [0.0, 0.0, 1e308]]),
+            ),
+        ),
+        ("zero covariance", record("S9", 9, cov([[0.0; 3]; 3]))),
+        (
+            "σ of 1e308",
+            record("S9", 9, |r| r["sigma_deg"] = serde_json::json!(1e308)),
+        ),
+        (
+            "negative ρd",
+            record("S9", 9, |r| r["rho_d"] = serde_json::json!(-0.5)),
+        ),
+        (
+            "asymmetric",
+            record(
+                "S9",
+                9,
+                cov([[2.9e-7, 1e-4, 0.0], [-1e-4, 0.28, 0.0], [0.0, 0.0, 1.9e-5]]),
+            ),
+        ),
+        (
+            "correlation of 1",
+            record(
+                "S9",
+                9,
+                cov([[1e-6, 1e-3, 0.0], [1e-3, 1.0, 0.0], [0.0, 0.0, 1.9e-5]]),
+            ),
+        ),
+        (
+            "sd 1e-12 of the value",
+            record(
+                "S9",
+                9,
+                cov([[1e-24, 0.0, 0.0], [0.0, 0.28, 0.0], [0.0, 0.0, 1.9e-5]]),
+            ),
+        ),
+    ];
+    let reasons = [
+        "not positive definite",
+        "implausible for the instrument",
+        "not positive definite",
+        "outside the fit's range",
+        "outside the fit's range",
+        "not symmetric",
+        "not positive definite",
+        "implausible for the instrument",
+    ];
+    for ((what, bad), reason) in cases.iter().zip(reasons) {
+        let file = root.join("bad.jsonl");
+        // A good record of a new stock first: it must not be stored either.
+        std::fs::write(&file, format!("{}{bad}", record("S2", 2, |_| {}))).expect("write");
+        let out = gonio(&["library", "import", "--library", s(&library), s(&file)]);
+        let err = stderr(&out);
+        assert_eq!(code(&out), 1, "{what}: {err}");
+        assert!(
+            err.contains(&format!("{}:2:", file.display())) && err.contains(reason),
+            "{what}: {err}"
+        );
+        assert!(err.contains("nothing was imported"), "{what}: {err}");
+        assert_eq!(listed(&library), vec![("S1".into(), 1, 1)], "{what}");
+    }
+    // A refused import does not write to the file at all.
+    assert_eq!(std::fs::read(&library).expect("library"), before);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Issue 30 (D5): a stock name of 120,000 characters is listed and searched, cut short
+/// with an ellipsis, without a panic.
+#[test]
+fn a_very_long_stock_name_is_listed_and_searched_cut_short() {
+    let root = temp_dir("library", "long-name");
+    let library = root.join("library.sqlite");
+    let long = "L".repeat(120_000);
+    for (stock, sample, seed) in [
+        ("PPC", "PPC", 41u64),
+        ("PPC", "PPC", 42),
+        ("G", "G", 43),
+        ("MC", "MC", 44),
+        (long.as_str(), "J1", 45),
+    ] {
+        let dir = measure(&root, &format!("{sample}-{seed}"), sample, seed);
+        let out = gonio(&[
+            "library",
+            "add",
+            "--library",
+            s(&library),
+            "--stock",
+            stock,
+            s(&dir),
+        ]);
+        assert!(out.status.success(), "{}", stderr(&out));
+    }
+    let out = gonio(&["library", "list", "--library", s(&library)]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let text = stdout(&out);
+    assert!(text.contains(&format!("{}…", "L".repeat(40))), "{text}");
+    assert!(text.lines().all(|l| l.chars().count() < 200), "{text}");
+    let query = measure(&root, "query", "G", 46);
+    let out = gonio(&["library", "search", "--library", s(&library), s(&query)]);
+    assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
+    let text = stdout(&out);
+    assert!(text.contains(&format!("{}…", "L".repeat(40))), "{text}");
+    let _ = std::fs::remove_dir_all(&root);
+}

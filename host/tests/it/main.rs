@@ -41,6 +41,7 @@ mod firmware_image;
 mod fit;
 mod flash_session;
 mod forensic;
+mod handshake;
 mod house;
 mod instruments_study;
 mod library;

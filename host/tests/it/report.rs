@@ -320,3 +320,64 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     assert!(report(&dir).contains("C-1"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 30 (D7): a folder whose readings were changed does not get a clean report: refused
+/// naming the failing file (its report left as it was), or with --unverified drawn with a
+/// mark saying it does not verify.
+#[test]
+fn a_folder_that_does_not_verify_gets_no_clean_report() {
+    let dir = measured("tampered", &["--sim", "G", "--spots", "1", "--seed", "5"]);
+    let d = dir.to_str().unwrap();
+    let before = report(&dir);
+    let points = dir.join("points.jsonl");
+    let text = std::fs::read_to_string(&points).unwrap();
+    let changed = text.replacen("\"radiance_factor\":0.", "\"radiance_factor\":1.", 1);
+    assert_ne!(changed, text, "a reading changed");
+    std::fs::write(&points, changed).unwrap();
+    assert!(verifies(&dir).is_err());
+    let out = gonio(&["report", d]);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("does not verify")
+            && err.contains("points.jsonl")
+            && err.contains("--unverified"),
+        "{err}"
+    );
+    assert_eq!(report(&dir), before, "the folder's report left as it was");
+    let out = gonio(&["report", "--unverified", d]);
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("does not verify"), "{err}");
+    let marked = report(&dir);
+    let banner = marked.find("This folder does not verify").expect("marked");
+    assert!(
+        banner < marked.find("<h1").unwrap_or(usize::MAX),
+        "at its top"
+    );
+    assert!(marked[banner..].contains("points.jsonl"));
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // A sheet whose spot's readings changed: the same.
+    let sheet = measured(
+        "tampered-sheet",
+        &["--sim", "G", "--spots", "2", "--seed", "6"],
+    );
+    let spot = std::fs::read_dir(&sheet)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.join("points.jsonl").is_file())
+        .expect("a spot folder");
+    let points = spot.join("points.jsonl");
+    let text = std::fs::read_to_string(&points).unwrap();
+    std::fs::write(
+        &points,
+        text.replacen("\"theta_i_deg\":", "\"theta_i_deg\":1", 1),
+    )
+    .unwrap();
+    let out = gonio(&["report", sheet.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(stderr(&out).contains("points.jsonl"), "{}", stderr(&out));
+    let _ = std::fs::remove_dir_all(&sheet);
+}

@@ -1,9 +1,7 @@
 //! The exchange file (`gonio library export` / `import`): JSON Lines, one
 //! [`ExchangeRecord`] per spot, each line standing on its own; read whole and checked
 //! before anything is imported.
-use super::{
-    LibraryError, NotFinite, Result, SheetRecord, StockInfo, check_spot, check_text, is_sha256_hex,
-};
+use super::{LibraryError, Result, SheetRecord, StockInfo, check_spot, check_text, is_sha256_hex};
 use crate::analysis::evidence::Spot;
 use serde::{Deserialize, Serialize};
 use std::io::BufRead;
@@ -104,9 +102,10 @@ pub enum RecordError {
     /// A session identity that is not a SHA-256.
     #[error("session_sha256 '{0}' is not 64 lowercase hex digits")]
     BadSessionSha256(String),
-    /// A spot value or covariance that is not finite.
+    /// A spot that is not a possible measurement (a number not finite, out of the fit's
+    /// range, a covariance not positive definite or implausible for the instrument).
     #[error(transparent)]
-    NotFinite(#[from] NotFinite),
+    Spot(#[from] super::SpotError),
     /// A stock given differently than on earlier lines.
     #[error("stock '{0}' has a different manufacturer or notes than on earlier lines")]
     StockDiffers(String),

@@ -34,8 +34,8 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         });
     }
     let sheet = read.sheet();
-    for spot in &sheet.spots {
-        check_spot(spot).map_err(|e| bad(e.to_string()))?;
+    for (k, spot) in sheet.spots.iter().enumerate() {
+        check_spot(spot).map_err(|e| bad(format!("spot {k}: {e}")))?;
     }
     let first = read
         .spots

@@ -24,10 +24,13 @@ mod ingest;
 mod storage;
 #[cfg(test)]
 mod tests;
+mod validate;
 
 pub use exchange::{ExchangeFile, ExchangeRecord, RecordError};
 pub use ingest::read_session_folder;
 pub use storage::{ImportCounts, Library, OpenMode, Removed, StockSummary, default_path};
+pub(crate) use validate::check_spot;
+pub use validate::{MAX_RELATIVE_SD, MIN_RELATIVE_SD, SpotError};
 
 use crate::analysis::evidence::Spot;
 use std::path::PathBuf;
@@ -219,22 +222,6 @@ pub struct SheetRecord {
 /// Now, UTC RFC 3339 with milliseconds: libraries are merged across labs and time zones.
 pub(crate) fn now_utc() -> String {
     chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
-}
-
-/// A spot whose value or covariance is not a finite number.
-#[derive(Debug, Error)]
-#[error("a spot value or covariance is not a finite number")]
-pub struct NotFinite;
-
-/// Every number finite: SQLite stores NaN as NULL, which would change the spot.
-pub(crate) fn check_spot(spot: &Spot) -> std::result::Result<(), NotFinite> {
-    let finite = spot
-        .values
-        .iter()
-        .flatten()
-        .chain(spot.covariance.iter().flatten())
-        .all(|x| x.is_finite());
-    if finite { Ok(()) } else { Err(NotFinite) }
 }
 
 pub(crate) fn check_text(what: &str, value: &str) -> Result<()> {

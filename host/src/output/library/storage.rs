@@ -474,6 +474,15 @@ impl Library {
         if let Some(lot) = sheets.iter().find_map(|s| s.lot.as_deref()) {
             check_text("lot", lot)?;
         }
+        // The same check as `import` and `read_session_folder` make: a caller of this API
+        // cannot store a spot the commands would refuse.
+        for sheet in sheets {
+            for (k, spot) in sheet.spots.iter().enumerate() {
+                super::check_spot(spot).map_err(|e| {
+                    LibraryError::Invalid(format!("{}: spot {k}: {e}", sheet.session_path))
+                })?;
+            }
+        }
         let path = self.path.clone();
         let sqlite = move |source| LibraryError::Sqlite {
             path: path.clone(),

@@ -7,14 +7,16 @@ use std::path::Path;
 fn sheet(n: u64, spots: usize) -> SheetRecord {
     let spot = |k: usize| Spot {
         values: [
-            Some(4.0 + n as f64 * 0.1 + k as f64),
+            Some(4.0 + (n % 100) as f64 * 0.1 + k as f64),
             if k == 1 { None } else { Some(0.1 + 0.2) },
             Some(0.8 + 1e-17 * k as f64),
         ],
+        // Awkward numbers (thirds, tiny and large exponents) that must come back to the
+        // bit, in a covariance that is a possible measurement (the library refuses others).
         covariance: [
-            [1e-300, 2.5e-3, -1.0 / 3.0],
-            [2.5e-3, 0.0, 7.0],
-            [-1.0 / 3.0, 7.0, f64::MAX],
+            [1.0 / 3.0 * 1e-4, 2.5e-7, -1.0 / 3.0 * 1e-6],
+            [2.5e-7, 1e-4, 7e-300],
+            [-1.0 / 3.0 * 1e-6, 7e-300, 1e-5],
         ],
     };
     SheetRecord {
