@@ -589,7 +589,8 @@ mod tests {
         assert!((m.variance(10.0) - (1e-6 + 1e-2)).abs() < 1e-9);
     }
 
-    /// Readings of SG (σ 1.9°) across the peak at each θi of `incidences`, 1 % noise-free.
+    /// Noise-free readings of SG (σ 1.9°) across the peak at each θi of `incidences`, with
+    /// uncertainties 1 % + 0.003.
     fn peak_readings(incidences: &[f64]) -> Vec<Observation> {
         let p = model::Params {
             sigma_deg: 1.9,
@@ -599,18 +600,9 @@ mod tests {
         };
         let mut obs = Vec::new();
         for &ti in incidences {
-            for k in -8..=8 {
-                let tr = ti + 0.5 * f64::from(k);
-                let (f, _) = model::evaluate(&p, &PlaneGeometry::new(ti, tr), Some(1.0));
-                obs.push(Observation {
-                    theta_i_deg: ti,
-                    theta_r_deg: tr,
-                    radiance_factor: f,
-                    std: Some(0.01 * f + 0.003),
-                    theta_r_span_deg: 0.0,
-                });
-            }
-            for tr in [0.0, 10.0, 45.0, 70.0] {
+            // Across the peak half a degree apart, and the body at four θr.
+            let across = (-8..=8).map(|k| ti + 0.5 * f64::from(k));
+            for tr in across.chain([0.0, 10.0, 45.0, 70.0]) {
                 let (f, _) = model::evaluate(&p, &PlaneGeometry::new(ti, tr), Some(1.0));
                 obs.push(Observation {
                     theta_i_deg: ti,
