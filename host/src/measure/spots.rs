@@ -78,7 +78,15 @@ pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Mea
             };
             match run_session(cx, kind, Some(context)).map_err(SpotStop::Other)? {
                 Measured::Done { outcome, .. } => {
-                    calibration.get_or_insert_with(|| outcome.calibration.clone());
+                    // Spot 1's calibration as it finished is the sheet's: a resumed spot 1
+                    // was handed its folder's calibration as the kill left it, which may
+                    // still lack the gain ratios it calibrates on the sample. Keeping that
+                    // one gave later spots a calibration spot 1 never converted with.
+                    if number == 1 {
+                        calibration = Some(outcome.calibration.clone());
+                    } else {
+                        calibration.get_or_insert_with(|| outcome.calibration.clone());
+                    }
                     read_spot(&spot_dir, number)
                         .map(|s| s.result)
                         .map_err(|p| SpotStop::Other(anyhow::anyhow!("{p}")))

@@ -57,6 +57,7 @@ mod schemas;
 mod selftest;
 mod shapes_study;
 mod sheet;
+mod sheet_resume;
 mod sim_instrument;
 mod table6;
 mod trade;
