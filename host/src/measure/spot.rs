@@ -128,7 +128,12 @@ fn open_record<T: Transport>(
         .or(cx.sim_sample.clone())
         .or_else(|| existing.as_ref().map(|e| e.doc().sample.clone()))
         .unwrap_or_else(|| "sample".into());
-    let plan = plan_record(args, info, existing.as_ref().map(|e| &e.doc().plan))?;
+    let plan = match spot {
+        // A spot of a sheet is measured under the sheet's plan, whatever its own folder says:
+        // a spot whose recorded plan differs is refused by `check_matches`, by name.
+        Some(spot) => spot.plan.clone(),
+        None => plan_record(args, info, existing.as_ref().map(|e| &e.doc().plan))?,
+    };
     let mut identity = Identity::new(&sample, info, plan.clone());
     identity.instrument.simulated_sample = cx.sim_sample.clone();
     identity.case = checked.case.clone();

@@ -30,6 +30,8 @@ enum SpotStop {
 pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
     let mut folder = open_sheet(cx)?;
     let dir = folder.dir().to_path_buf();
+    let sheet_plan = super::plan::sheet_plan(cx.options, &cx.info, &dir, folder.doc.plan.as_ref())?;
+    folder.doc.plan = Some(sheet_plan.clone());
     let resume_with = resume_command(cx.options, &dir);
     folder.start_run(resume_with.clone()).with_context(|| {
         format!(
@@ -75,6 +77,7 @@ pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Mea
                 of,
                 calibration: calibration.clone(),
                 resume_with: resume_with.clone(),
+                plan: sheet_plan.clone(),
             };
             match run_session(cx, kind, Some(context)).map_err(SpotStop::Other)? {
                 Measured::Done { outcome, .. } => {

@@ -78,6 +78,12 @@ pub struct SheetDoc {
     /// The case, when given (every spot's `session.json` holds it too).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub case: Option<folder::CaseRecord>,
+    /// The sheet's plan, recorded once when it began: every spot, resumed or not, is
+    /// measured under it (issue 30 D2: a resume without `--policy` measured the spots still
+    /// missing under the default policy). `None` in a sheet written before it was recorded:
+    /// spot 1's plan is the sheet's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plan: Option<folder::PlanRecord>,
 }
 
 /// Read `sheet.json` of `dir`.
@@ -178,6 +184,7 @@ impl SheetFolder {
             decisions: Vec::new(),
             result: None,
             case: None,
+            plan: None,
         };
         let mut folder = SheetFolder {
             store: Store::open_dir(dir, options),

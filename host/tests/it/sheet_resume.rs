@@ -153,3 +153,58 @@ fn a_sweep_sheet_killed_in_spot_1_and_again_in_spot_2_resumes() {
     verify_sheet(&out, draw).unwrap_or_else(|p| panic!("{p:?}"));
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn a_sweep_sheet_resumed_without_its_policy_measures_every_spot_under_the_sheets_plan() {
+    let writes = writes_of_a_sweep_sheet();
+    let out = dir("plan");
+    let out_text = out.display().to_string();
+    let first = run(
+        &[
+            "--sim", "G", "--policy", "sweep", "--spots", "2", "--out", &out_text,
+        ],
+        Some(Crash::at(writes / 5)),
+    );
+    assert!(!matches!(first, Ok(Measured::Sheet { .. })));
+    assert!(!out.join("spot-2").exists(), "killed in spot 1");
+    let plan = json(&out.join("sheet.json"))["plan"].clone();
+    assert_eq!(
+        plan["policy"], "sweep",
+        "the sheet records its plan: {plan}"
+    );
+    // A resume that would change the plan is refused by name, nothing changed.
+    let before = std::fs::read(out.join("sheet.json")).expect("sheet.json");
+    match run(
+        &["--sim", "G", "--policy", "adaptive", "--resume", &out_text],
+        None,
+    ) {
+        Err(e) => assert!(
+            e.to_string()
+                .contains("--policy adaptive differs from the sheet's plan: sweep"),
+            "{e:#}"
+        ),
+        Ok(_) => panic!("a resume under another policy was not refused"),
+    }
+    assert_eq!(
+        std::fs::read(out.join("sheet.json")).expect("sheet.json"),
+        before
+    );
+    // The command the sheet says continues it is enough.
+    let resume_with = json(&out.join("sheet.json"))["resume_with"]
+        .as_str()
+        .expect("resume_with")
+        .to_string();
+    let words: Vec<&str> = resume_with.split(' ').skip(2).collect();
+    assert_eq!(words, ["--sim", "G", "--resume", out_text.as_str()]);
+    finished(run(&words, None), "resumed as resume_with says");
+    for spot in ["spot-1", "spot-2"] {
+        let session = json(&out.join(spot).join("session.json"));
+        assert_eq!(
+            session["plan"], plan,
+            "{spot} is measured under the sheet's plan"
+        );
+    }
+    assert_eq!(json(&out.join("sheet.json"))["plan"], plan);
+    verify_sheet(&out, draw).unwrap_or_else(|p| panic!("{p:?}"));
+    let _ = std::fs::remove_dir_all(&out);
+}
