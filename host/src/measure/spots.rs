@@ -11,7 +11,7 @@ use crate::instrument::link::Transport;
 use crate::output::folder::Status;
 use crate::output::lock::FolderError;
 use crate::output::record::Existing;
-use crate::output::sheet_folder::{SheetFolder, SheetResult, read_sheet, read_spot};
+use crate::output::sheet_folder::{SheetFolder, SheetResult, SheetStart, read_sheet, read_spot};
 use crate::session::SessionError;
 use anyhow::{Context, bail};
 use serde::Serialize;
@@ -126,7 +126,7 @@ fn open_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<SheetFolder> 
         .clone()
         .or(cx.sim_sample.clone())
         .unwrap_or_else(|| "sample".into());
-    let mut folder = match &args.resume {
+    let folder = match &args.resume {
         Some(dir) => {
             let folder = SheetFolder::open(dir, cx.store.clone())?;
             if let Some(spots) = args.spots.filter(|n| *n != folder.doc.spots_planned) {
@@ -162,26 +162,33 @@ fn open_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<SheetFolder> 
             }
             folder
         }
-        None => match &args.out {
-            Some(dir) => SheetFolder::create(
-                dir,
-                &sample,
-                cx.checked.spots,
-                crate::analysis::spots::MAX_REPLACEMENTS,
-                cx.store.clone(),
-            )?,
-            None => SheetFolder::create_default(
-                Path::new("sessions"),
-                &sample,
-                cx.checked.spots,
-                crate::analysis::spots::MAX_REPLACEMENTS,
-                cx.store.clone(),
-            )?,
-        },
+        None => {
+            // The plan and the case fields are in the first sheet.json: a sheet killed
+            // before its first run began is resumed under them, not under the defaults.
+            let first = SheetStart {
+                case: cx.checked.case.clone(),
+                plan: Some(super::plan::plan_record(args, &cx.info, None)?),
+            };
+            match &args.out {
+                Some(dir) => SheetFolder::create(
+                    dir,
+                    &sample,
+                    cx.checked.spots,
+                    crate::analysis::spots::MAX_REPLACEMENTS,
+                    first,
+                    cx.store.clone(),
+                )?,
+                None => SheetFolder::create_default(
+                    Path::new("sessions"),
+                    &sample,
+                    cx.checked.spots,
+                    crate::analysis::spots::MAX_REPLACEMENTS,
+                    first,
+                    cx.store.clone(),
+                )?,
+            }
+        }
     };
-    if args.resume.is_none() {
-        folder.doc.case = cx.checked.case.clone();
-    }
     Ok(folder)
 }
 

@@ -128,13 +128,25 @@ pub(crate) struct SheetFolder {
     pub doc: SheetDoc,
 }
 
+/// What a new sheet's first `sheet.json` holds besides its sample and spots.
+#[derive(Clone, Debug, Default)]
+pub struct SheetStart {
+    /// The case fields, when given.
+    pub case: Option<folder::CaseRecord>,
+    /// The sheet's plan.
+    pub plan: Option<folder::PlanRecord>,
+}
+
 impl SheetFolder {
-    /// Make `dir` (new, or empty) for a new sheet of `sample`.
+    /// Make `dir` (new, or empty) for a new sheet of `sample`, its first `sheet.json`
+    /// holding the sheet's case fields and plan (`first`): a sheet killed before its first
+    /// spot is resumed under the plan it began with (issue 30).
     pub fn create(
         dir: &Path,
         sample: &str,
         spots_planned: u16,
         replacements: u16,
+        first: SheetStart,
         options: StoreOptions,
     ) -> Result<SheetFolder, FolderError> {
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -183,8 +195,8 @@ impl SheetFolder {
             spots: Vec::new(),
             decisions: Vec::new(),
             result: None,
-            case: None,
-            plan: None,
+            case: first.case,
+            plan: first.plan,
         };
         let mut folder = SheetFolder {
             store: Store::open_dir(dir, options),
@@ -201,6 +213,7 @@ impl SheetFolder {
         sample: &str,
         spots_planned: u16,
         replacements: u16,
+        first: SheetStart,
         options: StoreOptions,
     ) -> Result<SheetFolder, FolderError> {
         std::fs::create_dir_all(parent).map_err(io_error(parent))?;
@@ -212,7 +225,14 @@ impl SheetFolder {
                 format!("{base}-{k}")
             });
             if !dir.exists() {
-                return SheetFolder::create(&dir, sample, spots_planned, replacements, options);
+                return SheetFolder::create(
+                    &dir,
+                    sample,
+                    spots_planned,
+                    replacements,
+                    first,
+                    options,
+                );
             }
         }
         Err(FolderError::Io {

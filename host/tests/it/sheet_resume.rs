@@ -60,9 +60,10 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-/// The writes of an uninterrupted two-spot sweep sheet of G.
-fn writes_of_a_sweep_sheet() -> u64 {
-    let out = dir("count");
+/// The writes of an uninterrupted two-spot sweep sheet of G (counted in a folder of the
+/// test's own: the tests run at once).
+fn writes_of_a_sweep_sheet(test: &str) -> u64 {
+    let out = dir(&format!("count-{test}"));
     let counting = Crash::counting();
     finished(
         run(
@@ -86,7 +87,7 @@ fn writes_of_a_sweep_sheet() -> u64 {
 
 #[test]
 fn a_sweep_sheet_killed_in_spot_1_and_again_in_spot_2_resumes() {
-    let writes = writes_of_a_sweep_sheet();
+    let writes = writes_of_a_sweep_sheet("twice");
     let out = dir("twice");
     let out_text = out.display().to_string();
     // Killed in spot 1's first pass, before spot 1 calibrated its gain ratios on the sample.
@@ -156,7 +157,7 @@ fn a_sweep_sheet_killed_in_spot_1_and_again_in_spot_2_resumes() {
 
 #[test]
 fn a_sweep_sheet_resumed_without_its_policy_measures_every_spot_under_the_sheets_plan() {
-    let writes = writes_of_a_sweep_sheet();
+    let writes = writes_of_a_sweep_sheet("plan");
     let out = dir("plan");
     let out_text = out.display().to_string();
     let first = run(
@@ -207,4 +208,54 @@ fn a_sweep_sheet_resumed_without_its_policy_measures_every_spot_under_the_sheets
     assert_eq!(json(&out.join("sheet.json"))["plan"], plan);
     verify_sheet(&out, draw).unwrap_or_else(|p| panic!("{p:?}"));
     let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn a_sheet_killed_before_its_first_spot_began_resumes_under_the_plan_it_began_with() {
+    // The first sheet.json was written without the plan (recorded a write later): a kill
+    // between the two left a sheet that a resume without --policy measured under the
+    // default adaptive policy (the interruption campaign's sheet 278 of seed 2).
+    let args = |out: &str| -> Vec<String> {
+        [
+            "--sim", "PPC", "--policy", "paper", "--spots", "2", "--case", "K-1", "--out", out,
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let mut resumed = false;
+    for n in 1..=8 {
+        let out = dir(&format!("first-{n}"));
+        let out_text = out.display().to_string();
+        let list = args(&out_text);
+        let list: Vec<&str> = list.iter().map(String::as_str).collect();
+        let first = run(&list, Some(Crash::at(n)));
+        assert!(!matches!(first, Ok(Measured::Sheet { .. })), "write {n}");
+        if !out.join("sheet.json").exists() {
+            let _ = std::fs::remove_dir_all(&out);
+            continue;
+        }
+        let sheet = json(&out.join("sheet.json"));
+        assert_eq!(
+            sheet["plan"]["policy"], "paper",
+            "killed at write {n}: {sheet}"
+        );
+        assert_eq!(
+            sheet["case"]["case_id"], "K-1",
+            "killed at write {n}: {sheet}"
+        );
+        if !resumed {
+            finished(
+                run(&["--sim", "PPC", "--resume", &out_text], None),
+                "resumed",
+            );
+            for spot in ["spot-1", "spot-2"] {
+                let session = json(&out.join(spot).join("session.json"));
+                assert_eq!(session["plan"]["policy"], "paper", "{spot}");
+            }
+            resumed = true;
+        }
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    assert!(resumed, "no kill left a sheet.json");
 }
