@@ -44,6 +44,7 @@ mod flash_session;
 mod forensic;
 mod house;
 mod instruments_study;
+mod interruptions;
 mod library;
 mod model;
 mod order;
