@@ -734,38 +734,61 @@ impl Calibration {
 
     /// Whether the values can be right: what a file says is checked before it is used.
     pub fn validate(&self) -> Result<(), CalibrationError> {
-        let invalid = |why: String| Err(CalibrationError::Invalid(why));
-        self.tile().validate()?;
+        self.validate_field().map_err(|(_, e)| e)
+    }
+
+    /// [`Calibration::validate`], naming the field of `calibration.json` that is wrong
+    /// (for a message at its line).
+    pub(crate) fn validate_field(&self) -> Result<(), (&'static str, CalibrationError)> {
+        let invalid = |key: &'static str, why: String| Err((key, CalibrationError::Invalid(why)));
+        if let Err(e) = self.tile().validate() {
+            let key = if e.to_string().contains("uncertainty") {
+                "white_relative_uncertainty"
+            } else {
+                "white_radiance_factor"
+            };
+            return Err((key, e));
+        }
         if self.relative_gains.is_empty()
             || self
                 .relative_gains
                 .iter()
                 .any(|g| !(g.is_finite() && *g > 0.0))
         {
-            return invalid(format!(
-                "relative gains {:?} must be finite and positive",
-                self.relative_gains
-            ));
+            return invalid(
+                "relative_gains",
+                format!(
+                    "relative gains {:?} must be finite and positive",
+                    self.relative_gains
+                ),
+            );
         }
         if self.dark.len() < self.relative_gains.len() {
-            return invalid(format!(
-                "{} dark readings for {} ranges",
-                self.dark.len(),
-                self.relative_gains.len()
-            ));
+            return invalid(
+                "dark",
+                format!(
+                    "{} dark readings for {} ranges",
+                    self.dark.len(),
+                    self.relative_gains.len()
+                ),
+            );
         }
         let u = self.nominal_gain_ratio_relative_uncertainty;
         if !(u.is_finite() && (0.0..1.0).contains(&u)) {
-            return invalid(format!(
-                "nominal gain ratio uncertainty {u} is not in [0, 1)"
-            ));
+            return invalid(
+                "nominal_gain_ratio_relative_uncertainty",
+                format!("nominal gain ratio uncertainty {u} is not in [0, 1)"),
+            );
         }
         if !(self.lamp_drift_per_hour.is_finite() && (0.0..1.0).contains(&self.lamp_drift_per_hour))
         {
-            return invalid(format!(
-                "lamp drift {} per hour is not in [0, 1)",
-                self.lamp_drift_per_hour
-            ));
+            return invalid(
+                "lamp_drift_per_hour",
+                format!(
+                    "lamp drift {} per hour is not in [0, 1)",
+                    self.lamp_drift_per_hour
+                ),
+            );
         }
         for g in &self.gain_ratios {
             let fine = g.ratio.is_finite()
@@ -774,23 +797,16 @@ impl Calibration {
                 && g.relative_uncertainty >= 0.0
                 && usize::from(g.lower_range) + 1 < self.relative_gains.len();
             if !fine {
-                return invalid(format!(
-                    "gain ratio of ranges {}/{} ({} ± {})",
-                    g.lower_range,
-                    u16::from(g.lower_range) + 1,
-                    g.ratio,
-                    g.relative_uncertainty
-                ));
-            }
-        }
-        for w in &self.white {
-            let reading_fine =
-                w.reading.mean_counts.is_finite() && w.reading.std_counts.is_finite();
-            if !(w.theta_i_deg.is_finite() && reading_fine) {
-                return invalid(format!(
-                    "white reading at θi = {}° is not finite",
-                    w.theta_i_deg
-                ));
+                return invalid(
+                    "gain_ratios",
+                    format!(
+                        "gain ratio of ranges {}/{} ({} ± {})",
+                        g.lower_range,
+                        u16::from(g.lower_range) + 1,
+                        g.ratio,
+                        g.relative_uncertainty
+                    ),
+                );
             }
         }
         if self
@@ -798,7 +814,31 @@ impl Calibration {
             .iter()
             .any(|d| !(d.mean_counts.is_finite() && d.std_counts.is_finite()))
         {
-            return invalid("a dark reading is not finite".into());
+            return invalid("dark", "a dark reading is not finite".into());
+        }
+        if self.white.is_empty() {
+            return invalid("white", "no white reading".into());
+        }
+        for w in &self.white {
+            let reading_fine =
+                w.reading.mean_counts.is_finite() && w.reading.std_counts.is_finite();
+            if !(w.theta_i_deg.is_finite() && reading_fine) {
+                return invalid(
+                    "white",
+                    format!("white reading at θi = {}° is not finite", w.theta_i_deg),
+                );
+            }
+            // A white reading no brighter than the dark converts nothing: every reading of
+            // the sample at its incidence would fail, and be measured again for ever.
+            if !w.reading.saturated && self.net_counts(&w.reading).is_ok_and(|net| !(net > 0.0)) {
+                return invalid(
+                    "white",
+                    format!(
+                        "the white reading at θi = {}° ({} counts) is not above the dark: no reading can be converted with it",
+                        w.theta_i_deg, w.reading.mean_counts
+                    ),
+                );
+            }
         }
         Ok(())
     }

@@ -20,6 +20,53 @@ pub struct Args {
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Instead of the fault campaign: this many sheets interrupted one, two or three times
+    /// in a row (kills and Ctrl-C at random writes, give-ups), each interruption resumed
+    /// (interruptions.csv, interruptions.md).
+    #[arg(long, value_name = "N")]
+    pub interruptions: Option<usize>,
+    /// The interruption campaign's seed (its draws repeat with it).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// The interruption campaign of `gonio reliability --interruptions N`.
+fn interruptions(args: &Args, sessions: usize, threads: usize) -> anyhow::Result<ExitCode> {
+    use host::study::interruptions as campaign;
+    // Its folders on a RAM disk when there is one: every reading is synced.
+    let ram = std::path::Path::new("/dev/shm");
+    let base = if ram.is_dir() {
+        ram.join(format!("gonio-interruptions-{}", std::process::id()))
+    } else {
+        args.out.join("folders")
+    };
+    std::fs::create_dir_all(&base).with_context(|| format!("cannot create {}", base.display()))?;
+    let bar = ProgressBar::new(sessions as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} sheets, {elapsed} ({eta} left)")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message("interrupted sheets");
+    let rows = campaign::run_all(sessions, args.seed, &base, threads, &|| bar.inc(1))
+        .map_err(|e| anyhow::anyhow!("an uninterrupted sheet failed: {e}"))?;
+    bar.finish_and_clear();
+    let csv = args.out.join("interruptions.csv");
+    std::fs::write(&csv, campaign::to_csv(&rows))
+        .with_context(|| format!("cannot write {}", csv.display()))?;
+    let summary = campaign::summary_markdown(&rows, args.seed);
+    let md = args.out.join("interruptions.md");
+    std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
+    print!("{summary}");
+    eprintln!("wrote {} and {}", csv.display(), md.display());
+    let _ = std::fs::remove_dir(&base);
+    Ok(
+        if rows.len() == sessions && rows.iter().all(|r| r.failure.is_none()) {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::FAILURE
+        },
+    )
 }
 
 /// Run `gonio reliability`.
@@ -35,6 +82,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
+    if let Some(sessions) = args.interruptions {
+        if sessions == 0 {
+            bail!("--interruptions must be at least 1");
+        }
+        return interruptions(&args, sessions, threads);
+    }
     let durations = reliability::session_durations()?;
     let specs: Vec<_> = (0..args.sessions)
         .map(|k| reliability::draw(k, &FaultKind::ALL, &durations))

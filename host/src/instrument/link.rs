@@ -492,6 +492,11 @@ impl<T: Transport> Client<T> {
         self.interrupt = flag;
     }
 
+    /// Whether the operator interrupted (the flag of [`Client::set_interrupt`] is set).
+    pub(crate) fn interrupted(&self) -> bool {
+        self.check_interrupt().is_err()
+    }
+
     fn check_interrupt(&self) -> Result<(), LinkError> {
         match &self.interrupt {
             Some(flag) if flag.load(Ordering::Relaxed) => Err(LinkError::Interrupted),
@@ -551,7 +556,16 @@ impl<T: Transport> Client<T> {
         let mut buf = [0u8; MAX_FRAME_LEN];
         let frame = protocol::encode_frame(request, &mut buf)
             .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
-        self.transport.write_all(frame)?;
+        loop {
+            match self.transport.write_all(frame) {
+                Ok(()) => break,
+                // A signal (Ctrl-C's SIGINT among them) cut the system call short: the port
+                // is fine. Sent again whole (the firmware drops a repeated request); after a
+                // Ctrl-C nothing is sent.
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => self.check_interrupt()?,
+                Err(e) => return Err(e.into()),
+            }
+        }
         self.last_sent = self.transport.now();
         Ok(())
     }
@@ -636,10 +650,18 @@ impl<T: Transport> Client<T> {
             }
             // Read in chunks (one system call per chunk on a serial port); bytes after a
             // complete frame stay in `rx` for the next call.
-            self.rx_len = self.transport.read(
+            self.rx_len = match self.transport.read(
                 &mut self.rx,
                 deadline.min(heartbeat_due).min(give_up_at) - now,
-            )?;
+            ) {
+                Ok(n) => n,
+                // A signal cut the wait short (EINTR: a Ctrl-C's SIGINT lands in the poll
+                // of a serial read): nothing was read and the link is not lost. The loop's
+                // check of the interrupt flag turns a Ctrl-C into `Interrupted`; before,
+                // the session took it for a dead port (issue 30 D3).
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => 0,
+                Err(e) => return Err(e.into()),
+            };
             self.rx_pos = 0;
             if self.rx_len > 0 {
                 self.last_heard = self.transport.now();

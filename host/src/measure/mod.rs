@@ -338,6 +338,8 @@ struct SpotContext {
     calibration: Option<Calibration>,
     /// The command that continues the sheet.
     resume_with: String,
+    /// The sheet's plan: every spot's.
+    plan: crate::output::folder::PlanRecord,
 }
 
 /// The command that continues a session in `dir`.

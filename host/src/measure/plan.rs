@@ -81,6 +81,76 @@ pub(super) fn plan_record(
     })
 }
 
+/// The plan of a sheet in `dir`: the one it recorded (`recorded`; for a sheet written
+/// before sheets recorded their plan, spot 1's), else the options given. Options given
+/// that would change a recorded plan are refused, each by name: a sheet is one procedure.
+pub(super) fn sheet_plan(
+    args: &MeasureOptions,
+    info: &protocol::DeviceInfo,
+    dir: &Path,
+    recorded: Option<&PlanRecord>,
+) -> anyhow::Result<PlanRecord> {
+    let spot_1 = || {
+        crate::output::folder::read_session(&dir.join(crate::output::folder::spot_folder(1)))
+            .ok()
+            .flatten()
+            .map(|doc| doc.plan)
+    };
+    let Some(recorded) = recorded.cloned().or_else(spot_1) else {
+        return plan_record(args, info, None);
+    };
+    let mut differences = Vec::new();
+    if let Some(policy) = args.policy.filter(|p| p.name() != recorded.policy) {
+        differences.push(format!("--policy {}", policy.name()));
+    }
+    if let Some(ms) = args
+        .integration_ms
+        .filter(|ms| *ms != recorded.integration_ms)
+    {
+        differences.push(format!("--integration-ms {ms}"));
+    }
+    if args.white_check && !recorded.white_check {
+        differences.push("--white-check".to_string());
+    }
+    if let Some(pct) = args
+        .white_drift_limit_pct
+        .filter(|pct| *pct != recorded.white_drift_limit_pct)
+    {
+        differences.push(format!("--white-drift-limit-pct {pct}"));
+    }
+    if !differences.is_empty() {
+        bail!(
+            "{} differs from the sheet's plan: {}; a sheet is measured under one plan (resume without {})",
+            differences.join(", "),
+            describe(&recorded),
+            if differences.len() == 1 { "it" } else { "them" }
+        );
+    }
+    // The recorded plan, checked against this instrument's limits as a new one would be.
+    let mut unchanged = args.clone();
+    unchanged.policy = None;
+    unchanged.integration_ms = None;
+    unchanged.white_check = false;
+    unchanged.white_drift_limit_pct = None;
+    plan_record(&unchanged, info, Some(&recorded))?;
+    Ok(recorded)
+}
+
+/// A plan in words: its policy first (the option most often left out of a resume).
+fn describe(plan: &PlanRecord) -> String {
+    format!(
+        "{} (--integration-ms {}, {}, white drift limit {} %)",
+        plan.policy,
+        plan.integration_ms,
+        if plan.white_check {
+            "with --white-check"
+        } else {
+            "no white check"
+        },
+        plan.white_drift_limit_pct
+    )
+}
+
 pub(super) fn plan_of(record: &PlanRecord, sample: &str) -> Plan {
     let adaptive = record.adaptive_targets.as_ref().map(|t| AdaptiveTargets {
         sigma_rel_half_width: t.sigma_rel_half_width,

@@ -128,12 +128,18 @@ fn open_record<T: Transport>(
         .or(cx.sim_sample.clone())
         .or_else(|| existing.as_ref().map(|e| e.doc().sample.clone()))
         .unwrap_or_else(|| "sample".into());
-    let plan = plan_record(args, info, existing.as_ref().map(|e| &e.doc().plan))?;
+    let plan = match spot {
+        // A spot of a sheet is measured under the sheet's plan, whatever its own folder says:
+        // a spot whose recorded plan differs is refused by `check_matches`, by name.
+        Some(spot) => spot.plan.clone(),
+        None => plan_record(args, info, existing.as_ref().map(|e| &e.doc().plan))?,
+    };
     let mut identity = Identity::new(&sample, info, plan.clone());
     identity.instrument.simulated_sample = cx.sim_sample.clone();
     identity.case = checked.case.clone();
-    let given_calibration = match (spot.and_then(|s| s.calibration.clone()), &args.calibration) {
-        (Some(sheet), _) => Some(sheet),
+    let sheet_calibration = spot.and_then(|s| s.calibration.clone());
+    let given_calibration = match (&sheet_calibration, &args.calibration) {
+        (Some(sheet), _) => Some(sheet.clone()),
         (None, Some(path)) => Some(external_calibration(path, checked, info)?),
         (None, None) => None,
     };
@@ -143,7 +149,13 @@ fn open_record<T: Transport>(
             if let Some(own) = existing.calibration() {
                 let file = existing_path(folder, "calibration.json");
                 own.check(&file, checked.max_calibration_age, info)?;
-                if given_calibration.as_ref().is_some_and(|given| given != own) {
+                // A resumed spot keeps the calibration its readings were converted with
+                // (a sheet written before the fix of issue 30 D1 may hold a spot whose
+                // calibration lacks spot 1's gain ratios); only an explicit --calibration
+                // that differs is refused, and only it is named.
+                if sheet_calibration.is_none()
+                    && given_calibration.as_ref().is_some_and(|given| given != own)
+                {
                     bail!(
                         "--calibration differs from the calibration the session's readings were converted with ({file}): a session keeps one calibration; resume without --calibration"
                     );

@@ -11,7 +11,7 @@ use crate::instrument::link::Transport;
 use crate::output::folder::Status;
 use crate::output::lock::FolderError;
 use crate::output::record::Existing;
-use crate::output::sheet_folder::{SheetFolder, SheetResult, read_sheet, read_spot};
+use crate::output::sheet_folder::{SheetFolder, SheetResult, SheetStart, read_sheet, read_spot};
 use crate::session::SessionError;
 use anyhow::{Context, bail};
 use serde::Serialize;
@@ -30,6 +30,8 @@ enum SpotStop {
 pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
     let mut folder = open_sheet(cx)?;
     let dir = folder.dir().to_path_buf();
+    let sheet_plan = super::plan::sheet_plan(cx.options, &cx.info, &dir, folder.doc.plan.as_ref())?;
+    folder.doc.plan = Some(sheet_plan.clone());
     let resume_with = resume_command(cx.options, &dir);
     folder.start_run(resume_with.clone()).with_context(|| {
         format!(
@@ -75,10 +77,19 @@ pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Mea
                 of,
                 calibration: calibration.clone(),
                 resume_with: resume_with.clone(),
+                plan: sheet_plan.clone(),
             };
             match run_session(cx, kind, Some(context)).map_err(SpotStop::Other)? {
                 Measured::Done { outcome, .. } => {
-                    calibration.get_or_insert_with(|| outcome.calibration.clone());
+                    // Spot 1's calibration as it finished is the sheet's: a resumed spot 1
+                    // was handed its folder's calibration as the kill left it, which may
+                    // still lack the gain ratios it calibrates on the sample. Keeping that
+                    // one gave later spots a calibration spot 1 never converted with.
+                    if number == 1 {
+                        calibration = Some(outcome.calibration.clone());
+                    } else {
+                        calibration.get_or_insert_with(|| outcome.calibration.clone());
+                    }
                     read_spot(&spot_dir, number)
                         .map(|s| s.result)
                         .map_err(|p| SpotStop::Other(anyhow::anyhow!("{p}")))
@@ -115,7 +126,7 @@ fn open_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<SheetFolder> 
         .clone()
         .or(cx.sim_sample.clone())
         .unwrap_or_else(|| "sample".into());
-    let mut folder = match &args.resume {
+    let folder = match &args.resume {
         Some(dir) => {
             let folder = SheetFolder::open(dir, cx.store.clone())?;
             if let Some(spots) = args.spots.filter(|n| *n != folder.doc.spots_planned) {
@@ -151,26 +162,33 @@ fn open_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<SheetFolder> 
             }
             folder
         }
-        None => match &args.out {
-            Some(dir) => SheetFolder::create(
-                dir,
-                &sample,
-                cx.checked.spots,
-                crate::analysis::spots::MAX_REPLACEMENTS,
-                cx.store.clone(),
-            )?,
-            None => SheetFolder::create_default(
-                Path::new("sessions"),
-                &sample,
-                cx.checked.spots,
-                crate::analysis::spots::MAX_REPLACEMENTS,
-                cx.store.clone(),
-            )?,
-        },
+        None => {
+            // The plan and the case fields are in the first sheet.json: a sheet killed
+            // before its first run began is resumed under them, not under the defaults.
+            let first = SheetStart {
+                case: cx.checked.case.clone(),
+                plan: Some(super::plan::plan_record(args, &cx.info, None)?),
+            };
+            match &args.out {
+                Some(dir) => SheetFolder::create(
+                    dir,
+                    &sample,
+                    cx.checked.spots,
+                    crate::analysis::spots::MAX_REPLACEMENTS,
+                    first,
+                    cx.store.clone(),
+                )?,
+                None => SheetFolder::create_default(
+                    Path::new("sessions"),
+                    &sample,
+                    cx.checked.spots,
+                    crate::analysis::spots::MAX_REPLACEMENTS,
+                    first,
+                    cx.store.clone(),
+                )?,
+            }
+        }
     };
-    if args.resume.is_none() {
-        folder.doc.case = cx.checked.case.clone();
-    }
     Ok(folder)
 }
 

@@ -386,6 +386,10 @@ enum PointsLineError {
     /// JSON, but not a reading.
     #[error("not a reading: {0}")]
     NotReading(serde_json::Error),
+    /// A reading whose numbers cannot be an instrument's (issue 30 D4: a reading of 1e308
+    /// made every resume measure again, then fail).
+    #[error("not a reading the instrument can have taken: {0}")]
+    Implausible(String),
     /// Tagged as a mark, but not one.
     #[error("not a mark of superseded readings: {0}")]
     NotMark(serde_json::Error),
@@ -405,9 +409,13 @@ fn parse_points_line(text: &str) -> Result<PointsLine, PointsLineError> {
         object.remove("schema");
     }
     let reading = |value: serde_json::Value| {
-        serde_json::from_value::<MeasuredPoint>(value)
-            .map(|p| PointsLine::Reading(Box::new(p)))
-            .map_err(PointsLineError::NotReading)
+        let point =
+            serde_json::from_value::<MeasuredPoint>(value).map_err(PointsLineError::NotReading)?;
+        point
+            .implausible()
+            .map_or(Ok(PointsLine::Reading(Box::new(point))), |why| {
+                Err(PointsLineError::Implausible(why))
+            })
     };
     let mark = |value: serde_json::Value| {
         serde_json::from_value::<SupersedeMark>(value).map(PointsLine::Mark)
@@ -826,12 +834,28 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 pub(crate) fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
-        Ok(text) => Calibration::from_json(&text)
-            .map(Some)
-            .map_err(|e| Finding::new(&path, e.line(), e.to_string())),
+        Ok(text) => {
+            let calibration = Calibration::from_json(&text)
+                .map_err(|e| Finding::new(&path, e.line(), e.to_string()))?;
+            // Values that cannot be a calibration are refused here, at their line: a
+            // resume would convert nothing with them and measure the same readings again
+            // for ever (issue 30 D4).
+            calibration.validate_field().map_err(|(key, e)| {
+                Finding::new(&path, line_of_key(&text, key), format!("{key}: {e}"))
+            })?;
+            Ok(Some(calibration))
+        }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }
+}
+
+/// The 1-based line of the first `"key":` in a JSON text.
+fn line_of_key(text: &str, key: &str) -> Option<usize> {
+    let quoted = format!("\"{key}\"");
+    text.lines()
+        .position(|l| l.contains(&quoted))
+        .map(|k| k + 1)
 }
 
 /// The names in a folder (files and folders), sorted.

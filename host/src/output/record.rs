@@ -82,6 +82,23 @@ pub struct FileRecorder {
     /// The first write that failed outside `point` and `calibration` (a log line): the
     /// next of those reports it, so that the session stops rather than go on unrecorded.
     failed: Option<io::Error>,
+    /// The folder's size as far as this recorder knows (its files when it was opened,
+    /// and every line appended since), against [`crate::session::bounds::MAX_FOLDER_BYTES`].
+    folder_bytes: u64,
+}
+
+/// The bytes of the files in `dir` (0 for what cannot be read: the bound is a backstop).
+fn folder_size(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .map(|entries| {
+            entries
+                .filter_map(Result::ok)
+                .filter_map(|e| e.metadata().ok())
+                .filter(std::fs::Metadata::is_file)
+                .map(|m| m.len())
+                .sum()
+        })
+        .unwrap_or(0)
 }
 
 /// The bar of a stage of geometries.
@@ -218,6 +235,7 @@ impl FileRecorder {
             decisions: Vec::new(),
             points: Vec::new(),
             failed: None,
+            folder_bytes: folder_size(&dir),
         };
         recorder.decision(&format!(
             "session of '{}' on instrument {} in {}",
@@ -328,6 +346,7 @@ impl FileRecorder {
             local_now(),
             text.replace(['\n', '\r'], " / ")
         );
+        self.folder_bytes += line.len() as u64;
         if let Err(e) = self.store.append(LOG, line.as_bytes(), Sync::Never) {
             self.failed.get_or_insert(e);
         }
@@ -585,6 +604,7 @@ impl Existing {
             decisions: Vec::new(),
             points: inspection.points.clone(),
             failed: None,
+            folder_bytes: folder_size(&dir),
         };
         recorder.decision(&format!(
             "resuming {} (run {number}): {readings} readings already taken",
@@ -703,8 +723,14 @@ impl Recorder for FileRecorder {
         } else {
             Sync::Data
         };
-        self.store
-            .append(POINTS, folder::point_line(point)?.as_bytes(), sync)?;
+        if self.folder_bytes > crate::session::bounds::MAX_FOLDER_BYTES {
+            return Err(io::Error::other(crate::session::bounds::FolderFull {
+                bytes: self.folder_bytes,
+            }));
+        }
+        let line = folder::point_line(point)?;
+        self.store.append(POINTS, line.as_bytes(), sync)?;
+        self.folder_bytes += line.len() as u64;
         let header_before = folder::readings_header(&self.points);
         self.points.push(point.clone());
         let header = folder::readings_header(&self.points);
@@ -716,6 +742,7 @@ impl Recorder for FileRecorder {
                 .replace(READINGS, folder::readings_csv(&self.points).as_bytes());
         }
         if let Some(row) = folder::csv_row(point, header) {
+            self.folder_bytes += row.len() as u64;
             self.store.append(READINGS, row.as_bytes(), Sync::Never)?;
         }
         Ok(())

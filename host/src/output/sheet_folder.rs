@@ -78,6 +78,12 @@ pub struct SheetDoc {
     /// The case, when given (every spot's `session.json` holds it too).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub case: Option<folder::CaseRecord>,
+    /// The sheet's plan, recorded once when it began: every spot, resumed or not, is
+    /// measured under it (issue 30 D2: a resume without `--policy` measured the spots still
+    /// missing under the default policy). `None` in a sheet written before it was recorded:
+    /// spot 1's plan is the sheet's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plan: Option<folder::PlanRecord>,
 }
 
 /// Read `sheet.json` of `dir`.
@@ -122,13 +128,25 @@ pub(crate) struct SheetFolder {
     pub doc: SheetDoc,
 }
 
+/// What a new sheet's first `sheet.json` holds besides its sample and spots.
+#[derive(Clone, Debug, Default)]
+pub struct SheetStart {
+    /// The case fields, when given.
+    pub case: Option<folder::CaseRecord>,
+    /// The sheet's plan.
+    pub plan: Option<folder::PlanRecord>,
+}
+
 impl SheetFolder {
-    /// Make `dir` (new, or empty) for a new sheet of `sample`.
+    /// Make `dir` (new, or empty) for a new sheet of `sample`, its first `sheet.json`
+    /// holding the sheet's case fields and plan (`first`): a sheet killed before its first
+    /// spot is resumed under the plan it began with (issue 30).
     pub fn create(
         dir: &Path,
         sample: &str,
         spots_planned: u16,
         replacements: u16,
+        first: SheetStart,
         options: StoreOptions,
     ) -> Result<SheetFolder, FolderError> {
         if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -182,7 +200,8 @@ impl SheetFolder {
             spots: Vec::new(),
             decisions: Vec::new(),
             result: None,
-            case: None,
+            case: first.case,
+            plan: first.plan,
         };
         let mut folder = SheetFolder {
             store: Store::open_dir(dir, options),
@@ -199,6 +218,7 @@ impl SheetFolder {
         sample: &str,
         spots_planned: u16,
         replacements: u16,
+        first: SheetStart,
         options: StoreOptions,
     ) -> Result<SheetFolder, FolderError> {
         std::fs::create_dir_all(parent).map_err(io_error(parent))?;
@@ -215,6 +235,7 @@ impl SheetFolder {
                     sample,
                     spots_planned,
                     replacements,
+                    first.clone(),
                     options.clone(),
                 ) {
                     // Another gonio made this folder since: take the next name.

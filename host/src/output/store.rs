@@ -31,7 +31,7 @@ use std::fs::{File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// When an append is synced to the disk.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -51,6 +51,10 @@ pub enum Fault {
     /// The disk is full from this write on: a prefix of it is written and it fails, and
     /// so does every later write of data; the process goes on (and rolls back what it can).
     DiskFull,
+    /// The operator presses Ctrl-C as this write is made: the write is made whole and
+    /// [`Crash::interrupt`] is set, as the binary's SIGINT handler sets the flag it gave
+    /// `measure_with`.
+    Interrupt,
 }
 
 /// A simulated fault at the `at`-th write (from 1): a kill (the default) or a full disk.
@@ -64,6 +68,8 @@ pub struct Crash {
     pub fault: Fault,
     /// Writes made so far (shared, so the test can read it after the session).
     pub count: Arc<AtomicU64>,
+    /// The flag a [`Fault::Interrupt`] sets (give the same to `measure_with`).
+    pub interrupt: Arc<AtomicBool>,
 }
 
 impl Crash {
@@ -85,6 +91,16 @@ impl Crash {
         Crash {
             at: Some(n),
             fault: Fault::DiskFull,
+            ..Crash::default()
+        }
+    }
+
+    /// Ctrl-C at the `n`-th write (from 1): `interrupt` is set there.
+    pub fn interrupt_at(n: u64, interrupt: Arc<AtomicBool>) -> Crash {
+        Crash {
+            at: Some(n),
+            fault: Fault::Interrupt,
+            interrupt,
             ..Crash::default()
         }
     }
@@ -209,6 +225,10 @@ impl Store {
                 len: 0,
                 dead: false,
             }),
+            (Some(at), Fault::Interrupt) if n == at => {
+                crash.interrupt.store(true, Ordering::SeqCst);
+                Ok(Step::Whole)
+            }
             _ => Ok(Step::Whole),
         }
     }

@@ -340,7 +340,7 @@ impl<T: Transport> Session<'_, T> {
         };
         self.recorder
             .calibration(calibration)
-            .map_err(SessionError::Record)?;
+            .map_err(SessionError::record)?;
         for point in &mut self.points {
             point.convert_with(calibration);
         }

@@ -20,6 +20,7 @@
 //! Every decision goes through [`Recorder::decision`], on the failure path too.
 
 pub mod adaptive;
+pub mod bounds;
 pub mod characterize;
 pub mod gains;
 pub mod multi_spot;
@@ -224,6 +225,54 @@ impl MeasuredPoint {
                 (self.radiance_factor, self.std, self.note) = (None, None, Some(e.to_string()))
             }
         }
+    }
+
+    /// Why its numbers cannot be a reading of the instrument (an angle off any arm's
+    /// travel, a value not finite or beyond what any detector range counts), if they cannot.
+    /// What a file says is checked before it is used: `points.jsonl` is read through this.
+    pub(crate) fn implausible(&self) -> Option<String> {
+        /// Far beyond any arm's travel, degrees.
+        const MAX_ANGLE_DEG: f64 = 360.0;
+        /// Far beyond any detector's full scale (a 32-bit converter), counts.
+        const MAX_COUNTS: f64 = 1e10;
+        /// Far beyond the radiance factor of a mirror's peak through the acceptance.
+        const MAX_RADIANCE_FACTOR: f64 = 1e6;
+        let angle = |what: &str, v: f64| {
+            (!(v.is_finite() && v.abs() <= MAX_ANGLE_DEG))
+                .then(|| format!("{what} {v}° is not an angle of the instrument"))
+        };
+        let within = |what: &str, v: f64, low: f64, high: f64| {
+            (!(v.is_finite() && (low..=high).contains(&v)))
+                .then(|| format!("{what} {v} is not in [{low}, {high}]"))
+        };
+        let counts = f64::from(self.reading.mean_counts);
+        let counts_std = f64::from(self.reading.std_counts);
+        angle("theta_i_deg", self.theta_i_deg)
+            .or_else(|| angle("theta_r_deg", self.theta_r_deg))
+            .or_else(|| {
+                within(
+                    "theta_r_span_deg",
+                    self.theta_r_span_deg,
+                    0.0,
+                    MAX_ANGLE_DEG,
+                )
+            })
+            .or_else(|| {
+                self.radiance_factor.and_then(|r| {
+                    within(
+                        "radiance_factor",
+                        r,
+                        -MAX_RADIANCE_FACTOR,
+                        MAX_RADIANCE_FACTOR,
+                    )
+                })
+            })
+            .or_else(|| {
+                self.std
+                    .and_then(|u| within("std", u, 0.0, MAX_RADIANCE_FACTOR))
+            })
+            .or_else(|| within("reading.mean_counts", counts, -MAX_COUNTS, MAX_COUNTS))
+            .or_else(|| within("reading.std_counts", counts_std, 0.0, MAX_COUNTS))
     }
 
     fn geometry(&self) -> Option<Geometry> {
@@ -472,6 +521,24 @@ pub enum SessionError {
     /// Too many attempts without progress.
     #[error("{0}")]
     GaveUp(String),
+    /// A bound on the run was reached ([`bounds`]: re-measure rounds, device time, the
+    /// folder's size): stopped on the fail-safe path, every reading kept.
+    #[error("{0}")]
+    Bound(String),
+}
+
+impl SessionError {
+    /// A recorder's error: the folder's bound ([`bounds::FolderFull`]) is a bound of the
+    /// run, anything else a record that failed.
+    pub(crate) fn record(error: std::io::Error) -> SessionError {
+        match error
+            .get_ref()
+            .and_then(|e| e.downcast_ref::<bounds::FolderFull>())
+        {
+            Some(full) => SessionError::Bound(full.to_string()),
+            None => SessionError::Record(error),
+        }
+    }
 }
 
 fn lost_text(link: &str, loss: &LinkLoss, silent_for: &Duration, decisions: &[String]) -> String {
@@ -539,6 +606,8 @@ pub struct Session<'a, T: Transport> {
     clock: Clock,
     /// What the session resumed from.
     resume: Resumed,
+    /// What the run has spent against its bounds.
+    bounds: bounds::Tally,
 }
 
 /// The lamp's and the link's state, and the recoveries so far.
@@ -636,6 +705,7 @@ impl<'a, T: Transport> Session<'a, T> {
             },
             clock: Clock::default(),
             resume: Resumed::default(),
+            bounds: bounds::Tally::default(),
         }
     }
 
@@ -793,7 +863,7 @@ impl<'a, T: Transport> Session<'a, T> {
                     &marks,
                     "measured again before a crash kept the mark from the record",
                 )
-                .map_err(SessionError::Record)?;
+                .map_err(SessionError::record)?;
         }
         if self.info.reset_cause.fault().is_some() {
             // A fault the instrument took before this session (a panic, a processor fault,
@@ -804,6 +874,7 @@ impl<'a, T: Transport> Session<'a, T> {
             ));
         }
         let started = self.now();
+        self.bounds.started = Some(started);
         // The resumed readings were taken under an earlier process: a Home now tells
         // whether the arms still agree with their step counts (`steps`).
         self.ensure_ready(self.resume.resumed)?;

@@ -272,6 +272,11 @@ impl<T: Transport> Session<'_, T> {
         let lost_at = self.now().saturating_sub(self.client.silent_for());
         let mut reopen = self.link.last_io_error.is_some();
         loop {
+            // A Ctrl-C is the operator's, whatever the port does: a port that cannot be
+            // re-opened must not hide it until the give-up time (issue 30 D3).
+            if self.client.interrupted() {
+                return Err(SessionError::Interrupted);
+            }
             let silent_for = self.client.silent_for();
             if silent_for >= give_up_after {
                 return Err(self.give_up(silent_for));

@@ -50,7 +50,9 @@ impl<T: Transport> Session<'_, T> {
                 return self.calibrate_gains();
             }
             round += 1;
+            self.within_device_time()?;
             if round > 1 {
+                self.remeasure_round(&format!("{} geometries", missing.len()))?;
                 self.link.recoveries.readings_remeasured += missing.len();
                 self.decide(&format!(
                     "measuring again {} geometries lost on the link or superseded (round {round})",
@@ -241,7 +243,7 @@ impl<T: Transport> Session<'_, T> {
             unusable: None,
         };
         point.convert_with(calibration);
-        self.recorder.point(&point).map_err(SessionError::Record)?;
+        self.recorder.point(&point).map_err(SessionError::record)?;
         self.points.push(point);
         Ok(())
     }

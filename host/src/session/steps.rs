@@ -247,7 +247,7 @@ impl<T: Transport> Session<'_, T> {
         if !marked.is_empty() {
             self.recorder
                 .superseded(&marked, why)
-                .map_err(SessionError::Record)?;
+                .map_err(SessionError::record)?;
         }
         Ok(marked.len())
     }

@@ -119,8 +119,14 @@ impl<T: Transport> Session<'_, T> {
                 return self.calibrate_gains();
             }
             round += 1;
+            self.within_device_time()?;
             if round > 1 {
                 let bins: usize = gaps.iter().map(SweepPlan::bins).sum();
+                self.remeasure_round(&format!(
+                    "{} stretch{} of sweeps, {bins} bins",
+                    gaps.len(),
+                    if gaps.len() == 1 { "" } else { "es" }
+                ))?;
                 self.decide(&format!(
                     "measuring again {} stretch{} of θr left without a usable bin (lost on the link, blanked by a range switch over more than {MAX_BLANKED_GAP_DEG}°, or superseded), {bins} bins (round {round})",
                     gaps.len(),
@@ -545,7 +551,7 @@ impl<T: Transport> Session<'_, T> {
         let synced = self
             .recorder
             .sweep_done()
-            .map_err(|e| StepError::Fatal(SessionError::Record(e)));
+            .map_err(|e| StepError::Fatal(SessionError::record(e)));
         checked.and(synced)
     }
 
@@ -747,7 +753,7 @@ impl<T: Transport> Session<'_, T> {
             point.unusable = Some(why.to_string());
             point.convert_with(calibration);
         }
-        self.recorder.point(&point).map_err(SessionError::Record)?;
+        self.recorder.point(&point).map_err(SessionError::record)?;
         self.points.push(point);
         Ok(())
     }

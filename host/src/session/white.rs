@@ -67,7 +67,7 @@ impl<T: Transport> Session<'_, T> {
         );
         self.recorder
             .calibration(&calibration)
-            .map_err(SessionError::Record)?;
+            .map_err(SessionError::record)?;
         self.calibration = Some(calibration);
         Ok(())
     }

@@ -201,3 +201,56 @@ fn an_instrument_that_goes_away_exits_1_saying_so_and_how_to_resume() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn ctrl_c_on_a_serial_port_is_the_operators_interruption_not_a_dead_port() {
+    // Issue 30 D3: the SIGINT cut the serial read's poll short (EINTR), which the session
+    // took for a lost link ("link lost (… Interrupted system call); reconnecting", and at
+    // times "giving up: the port is gone", status failed). Three tries: the signal lands
+    // wherever the process is.
+    for k in 0..3 {
+        let dir = temp_dir(&format!("sigint-sheet-{k}"));
+        let mut sim = Command::new(env!("CARGO_BIN_EXE_gonio"))
+            .args(["sim", "G"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut path = String::new();
+        BufReader::new(sim.stdout.take().unwrap())
+            .read_line(&mut path)
+            .unwrap();
+        let mut measure = Command::new(env!("CARGO_BIN_EXE_gonio"))
+            .args(["measure", "--spots", "2", "--port", path.trim()])
+            .args(["--sample", "G", "--out", dir.to_str().unwrap()])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        measure.stdin.take().unwrap().write_all(b"\n\n\n").unwrap();
+        wait_for_readings(&dir.join("spot-1"), 3 + 2 * k, &mut measure);
+        nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(measure.id() as i32),
+            nix::sys::signal::Signal::SIGINT,
+        )
+        .unwrap();
+        let out = measure.wait_with_output().unwrap();
+        let _ = sim.kill();
+        let _ = sim.wait();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(130), "{stderr}");
+        assert!(!stderr.contains("link lost"), "{stderr}");
+        let log = std::fs::read_to_string(dir.join("spot-1/session.log")).unwrap();
+        assert!(
+            !log.contains("link lost") && !log.contains("giving up"),
+            "{log}"
+        );
+        let sheet: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("sheet.json")).unwrap())
+                .unwrap();
+        assert_eq!(sheet["status"], "interrupted", "{sheet}");
+        assert_eq!(sheet["why"], "interrupted by the user", "{sheet}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
