@@ -15,7 +15,10 @@ const TOP: &[&[&str]] = &[
     &["instrument"],
     &["session"],
     &["output"],
-    &["measure", "study"],
+    &["measure"],
+    // A campaign may run the whole job as a user does (the interruption campaign resumes
+    // sheets through `measure`); nothing below calls a study.
+    &["study"],
 ];
 
 /// `output/`'s modules, bottom first: the folder's names and documents, its lock, store
