@@ -257,6 +257,20 @@ impl<T: Transport> Session<'_, T> {
                         "while recovering: {failure:?}; reading the state again"
                     ));
                     reconnect = false;
+                    // Busy: something still runs that the state did not show (the arms
+                    // ramping down from a fail-safe stop read `Stopped`, and a Home is
+                    // refused until they rest): give it a poll's time, or every round
+                    // goes by within milliseconds.
+                    if let Failure::Refused { error: refusal, .. } = &failure
+                        && refusal.code == ErrorCode::Busy
+                        && let Err(lost) = self.client.keep_alive(STATE_POLL)
+                    {
+                        match self.link_failed(lost) {
+                            StepError::Failure(Failure::Link(_)) => reconnect = true,
+                            StepError::Failure(_) => {}
+                            StepError::Fatal(error) => return Err(error),
+                        }
+                    }
                 }
             }
         }

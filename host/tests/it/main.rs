@@ -54,6 +54,7 @@ mod progress;
 mod reanalysis;
 mod record_crash;
 mod record_folder;
+mod reliability;
 mod report;
 mod saturation;
 mod schemas;
