@@ -3,37 +3,15 @@
 //! ever stops at its bound on re-measure rounds, and one whose folder is past its size at
 //! that bound, each said in session.json, session.log (and sheet.json), with the command
 //! that resumes. (The device-time bound has its unit test in `session::bounds`.)
-use crate::measure_args::parse_args;
-use host::measure::{Measured, measure_with};
-use host::output::store::{Crash, StoreOptions};
+use crate::common::in_process::measure as run;
+use host::measure::Measured;
+use host::output::store::Crash;
 use host::session::SessionError;
-use host::session::SimulatedOperator;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 
 fn dir(name: &str) -> PathBuf {
-    let ram = Path::new("/dev/shm");
-    let base = if ram.is_dir() {
-        ram.to_path_buf()
-    } else {
-        std::env::temp_dir()
-    };
-    let dir = base.join(format!("gonio-bounds-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn run(list: &[&str], crash: Option<Crash>) -> anyhow::Result<Measured> {
-    let args: Vec<String> = list.iter().map(|s| s.to_string()).collect();
-    let args = parse_args(&args).expect("arguments");
-    measure_with(
-        &args,
-        &mut SimulatedOperator,
-        Arc::new(AtomicBool::new(false)),
-        StoreOptions { crash },
-    )
+    crate::common::in_process::ram_dir("bounds", name)
 }
 
 fn json(path: &Path) -> Value {

@@ -3,44 +3,23 @@
 //! calibration, a flagged spot is replaced and excluded with the reason, a kill at any
 //! write of the sheet's folder resumes to a folder that verifies, and the sheet is what
 //! `gonio compare`, `gonio verify` and the library read.
+use crate::common::in_process::measure_as as run;
 use crate::measure_args;
 use host::measure::{Measured, measure_with};
 use host::output::report::draw;
 use host::output::sheet_folder::read_measured;
 use host::output::store::{Crash, StoreOptions};
 use host::output::verify::verify_sheet;
-use host::session::{DelayedOperator, Operator, Placement, SimulatedOperator};
+use host::session::{DelayedOperator, Placement, SimulatedOperator};
 use measure_args::parse_args;
 use rand::{Rng, SeedableRng};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 fn dir(name: &str) -> PathBuf {
-    let ram = Path::new("/dev/shm");
-    let base = if ram.is_dir() {
-        ram.to_path_buf()
-    } else {
-        std::env::temp_dir()
-    };
-    let dir = base.join(format!("gonio-sheet-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn run(
-    args: &[String],
-    operator: &mut dyn Operator,
-    crash: Option<Crash>,
-) -> anyhow::Result<Measured> {
-    let args = parse_args(args).expect("arguments");
-    measure_with(
-        &args,
-        operator,
-        Arc::new(AtomicBool::new(false)),
-        StoreOptions { crash },
-    )
+    crate::common::in_process::ram_dir("sheet", name)
 }
 
 fn args(list: &[&str]) -> Vec<String> {

@@ -1,36 +1,14 @@
 //! A sheet resumed after interruptions (issue 30): after two kills it still resumes (D1),
 //! and every spot, resumed or not, is measured under the plan the sheet recorded once (D2).
-use crate::measure_args::parse_args;
-use host::measure::{Measured, measure_with};
+use crate::common::in_process::measure as run;
+use host::measure::Measured;
 use host::output::report::draw;
-use host::output::store::{Crash, StoreOptions};
+use host::output::store::Crash;
 use host::output::verify::verify_sheet;
-use host::session::SimulatedOperator;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 
 fn dir(name: &str) -> PathBuf {
-    let ram = Path::new("/dev/shm");
-    let base = if ram.is_dir() {
-        ram.to_path_buf()
-    } else {
-        std::env::temp_dir()
-    };
-    let dir = base.join(format!("gonio-sheet-resume-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn run(list: &[&str], crash: Option<Crash>) -> anyhow::Result<Measured> {
-    let args: Vec<String> = list.iter().map(|s| s.to_string()).collect();
-    let args = parse_args(&args).expect("arguments");
-    measure_with(
-        &args,
-        &mut SimulatedOperator,
-        Arc::new(AtomicBool::new(false)),
-        StoreOptions { crash },
-    )
+    crate::common::in_process::ram_dir("sheet-resume", name)
 }
 
 fn json(path: &Path) -> serde_json::Value {

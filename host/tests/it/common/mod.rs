@@ -2,6 +2,7 @@
 //! instrument's acceptance window (by dense quadrature, independent of the fit's closed
 //! form) and seeded noise.
 #![allow(dead_code)]
+pub mod in_process;
 use host::analysis::classify::REFERENCES;
 use host::analysis::fit::{Observation, SharedError};
 use host::analysis::model::{self, Params};
