@@ -417,9 +417,16 @@ pub fn run_all(
     }))
 }
 
-/// The campaign's rows as CSV.
+/// The campaign's rows as CSV, through the csv crate: a failure's text (quotes, commas,
+/// line breaks) is quoted by construction.
 pub fn to_csv(rows: &[Row]) -> String {
-    let mut out = String::from("index,sample,policy,spots,seed,drawn,happened,runs,held,failure\n");
+    let mut csv = csv::Writer::from_writer(Vec::new());
+    let header = [
+        "index", "sample", "policy", "spots", "seed", "drawn", "happened", "runs", "held",
+        "failure",
+    ];
+    // Writing to memory fails only on a record of the wrong length, which these are not.
+    let _ = csv.write_record(header);
     for r in rows {
         let drawn: Vec<String> = r
             .spec
@@ -427,22 +434,22 @@ pub fn to_csv(rows: &[Row]) -> String {
             .iter()
             .map(|(k, at)| format!("{}:{at:.3}", k.name()))
             .collect();
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{},{},{},{},{},\"{}\"",
-            r.spec.index,
-            r.spec.sample,
-            r.spec.policy.name(),
-            r.spec.spots,
-            r.spec.seed,
+        let _ = csv.write_record([
+            r.spec.index.to_string(),
+            r.spec.sample.to_string(),
+            r.spec.policy.name().to_string(),
+            r.spec.spots.to_string(),
+            r.spec.seed.to_string(),
             drawn.join(" "),
             r.happened.join(" "),
-            r.runs,
-            r.failure.is_none(),
-            r.failure.clone().unwrap_or_default().replace('"', "'")
-        );
+            r.runs.to_string(),
+            r.failure.is_none().to_string(),
+            r.failure.clone().unwrap_or_default(),
+        ]);
     }
-    out
+    csv.into_inner()
+        .map(|bytes| String::from_utf8_lossy(&bytes).into_owned())
+        .unwrap_or_default()
 }
 
 /// The campaign's tables, in Markdown.
@@ -505,4 +512,27 @@ pub fn summary_markdown(rows: &[Row], seed: u64) -> String {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failure_with_quotes_commas_and_lines_is_one_csv_field() {
+        let failure = "folder \"x\" failed, then:\nline two";
+        let row = Row {
+            spec: draw(3, 1),
+            happened: vec!["kill@12".into()],
+            runs: 2,
+            failure: Some(failure.into()),
+        };
+        let text = to_csv(&[row]);
+        let mut reader = csv::Reader::from_reader(text.as_bytes());
+        let records: Vec<csv::StringRecord> =
+            reader.records().map(|r| r.expect("a record")).collect();
+        assert_eq!(records.len(), 1);
+        assert_eq!(&records[0][9], failure);
+        assert_eq!(&records[0][8], "false");
+    }
 }
