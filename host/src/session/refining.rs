@@ -16,11 +16,11 @@ use protocol::Geometry;
 use protocol::schedules::strategy2;
 use std::collections::BTreeSet;
 
-/// Where the adaptive policy stands after a fit.
 /// How the reason of a batch taken for a lack-of-fit flag begins (a batch taken to test an
 /// extended model's terms is recorded as a lack-of-fit batch too, with its own reason).
 const LACK_OF_FIT_REASON: &str = "lack-of-fit";
 
+/// Where the adaptive policy stands after a fit.
 #[derive(Clone)]
 struct Standing {
     /// The fit is flagged lack-of-fit.
@@ -151,11 +151,16 @@ impl<T: Transport> Session<'_, T> {
     ) -> Result<(), SessionError> {
         let adaptive_batches = refinements.iter().filter(|r| r.delta_deg.is_none()).count();
         for batch_number in adaptive_batches + 1..=targets.max_batches {
-            let Some(standing) = self.adaptive_standing(&targets, report, refinements) else {
+            // The readings the fit saw: the standing judges σ's spread over θi on them, and
+            // the next batch is designed from them.
+            let observations: Vec<Observation> = self.usable_points().map(|(_, o)| o).collect();
+            let Some(standing) =
+                self.adaptive_standing(&targets, report, refinements, &observations)
+            else {
                 return Ok(());
             };
             let design = Design {
-                observations: self.usable_points().map(|(_, o)| o).collect(),
+                observations,
                 measured: self.measured(),
                 here: self.arm_position()?,
             };
@@ -224,14 +229,14 @@ impl<T: Transport> Session<'_, T> {
         targets: &AdaptiveTargets,
         report: &Report,
         refinements: &[Refinement],
+        observations: &[Observation],
     ) -> Option<Standing> {
         let flagged = report.fit.lack_of_fit;
         let sigma_ok = report.check.is_some_and(|c| c.sigma_ok);
         let rough = report.classification.group == Some(crate::analysis::classify::Group::Rough);
-        let observations: Vec<_> = self.usable_points().map(|(_, o)| o).collect();
         let precise = adaptive::sigma_rel_half_width(&report.fit)
             .is_some_and(|w| w <= targets.sigma_rel_half_width)
-            && adaptive::sigma_rel_half_width_over_theta_i(&report.fit, &observations)
+            && adaptive::sigma_rel_half_width_over_theta_i(&report.fit, observations)
                 .is_none_or(|w| w <= targets.sigma_rel_half_width);
         let settled = report.classification.confidence >= targets.class_confidence;
         let taken = refinements.iter().filter(|r| r.lack_of_fit).count();
