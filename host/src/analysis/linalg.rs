@@ -187,6 +187,47 @@ pub(crate) fn nonnegative_line(x: &[f64], y: &[f64], w: &[f64]) -> Option<(f64, 
     (a.is_finite() && b.is_finite() && a + b > 0.0).then_some((a, b))
 }
 
+/// One step of the iterated estimate of each reading's noise variance var = a + b·f², f
+/// its fitted value (a detector's floor and its part proportional to the signal), shared
+/// by the arm-offset test and the extension's term tests on readings without
+/// uncertainties. Each squared residual is divided by 1 − h, h its leverage (at most 20×:
+/// below 1 − h = 0.05 a residual says too little of its reading's noise), since a glossy
+/// peak's few readings pull the fit to themselves and their residuals understate their
+/// noise; the line is fitted with the gamma quasi-likelihood's weights 1/var² of the
+/// `previous` step's variances (a squared residual's variance is 2·var²), so that the
+/// peak's large residuals do not set the floor; no variance is below 10⁻⁶ of the mean
+/// squared residual. `None` when the residuals say nothing (all zero, or not finite).
+pub(crate) fn variance_step(
+    fitted: &[f64],
+    residuals: &[f64],
+    leverages: &[f64],
+    previous: &[f64],
+) -> Option<Vec<f64>> {
+    let r2: Vec<f64> = residuals
+        .iter()
+        .zip(leverages)
+        .map(|(r, h)| r * r / (1.0 - h).max(0.05))
+        .collect();
+    let mean_r2 = r2.iter().sum::<f64>() / r2.len().max(1) as f64;
+    if !(mean_r2.is_finite() && mean_r2 > 0.0) {
+        return None;
+    }
+    // Only the weights' ratios matter: the previous variances scaled to a mean of 1 keep
+    // 1/var² finite.
+    let mean_previous = previous.iter().sum::<f64>() / previous.len().max(1) as f64;
+    if !(mean_previous.is_finite() && mean_previous > 0.0) {
+        return None;
+    }
+    let w: Vec<f64> = previous
+        .iter()
+        .map(|v| (v / mean_previous).powi(-2))
+        .collect();
+    let f2: Vec<f64> = fitted.iter().map(|f| f * f).collect();
+    let (a, b) = nonnegative_line(&f2, &r2, &w).unwrap_or((mean_r2, 0.0));
+    let floor = 1e-6 * mean_r2;
+    Some(f2.iter().map(|f| (a + b * f).max(floor)).collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

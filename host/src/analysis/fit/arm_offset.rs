@@ -419,24 +419,13 @@ fn noise_model(
         };
         let values = problem.values(&fit.x);
         let leverages = leverages(problem, &fit.x)?;
-        let f2: Vec<f64> = values.iter().map(|f| f * f).collect();
-        // Below 1 − h = 0.05 a residual says too little of its reading's noise to divide by.
-        let r2: Vec<f64> = context
+        let residuals: Vec<f64> = context
             .observations
             .iter()
             .zip(&values)
-            .zip(&leverages)
-            .map(|((o, f), h)| (o.radiance_factor - f).powi(2) / (1.0 - h).max(0.05))
+            .map(|(o, f)| o.radiance_factor - f)
             .collect();
-        let mean_r2 = r2.iter().sum::<f64>() / n as f64;
-        if !(mean_r2.is_finite() && mean_r2 > 0.0) {
-            return None;
-        }
-        // No reading weighs more than 10⁶ times the mean variance's inverse.
-        let floor = 1e-6 * mean_r2;
-        let w: Vec<f64> = variances.iter().map(|v: &f64| v.powi(-2)).collect();
-        let (a, b) = linalg::nonnegative_line(&f2, &r2, &w).unwrap_or((mean_r2, 0.0));
-        variances = f2.iter().map(|f| (a + b * f).max(floor)).collect();
+        variances = linalg::variance_step(&values, &residuals, &leverages, &variances)?;
         let mean = variances.iter().sum::<f64>() / n as f64;
         for v in &mut variances {
             *v /= mean;

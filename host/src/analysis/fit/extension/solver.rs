@@ -225,41 +225,21 @@ impl Problem {
     /// part proportional to the signal; a glossy peak's readings are far noisier than its
     /// flanks', and equal weights let the peak's noise pass for a shape (the unweighted
     /// tests extended 23 of 200 exact TSL data sets with 1 % noise). One step of the
-    /// arm-offset test's estimator (arm_offset.rs), called until it settles: each squared
-    /// residual divided by 1 − its leverage (a glossy peak's few readings pull the fit
-    /// to themselves, and their residuals understate their noise: weighted by them, the
-    /// peak passed for a shifted or lighter-tailed lobe in 9 of 120 unweighted G sets),
-    /// and the line fitted with the gamma quasi-likelihood's weights 1/var² of the
-    /// previous step. The variance's scale stays unknown: the tests divide by c/ν.
+    /// arm-offset test's estimator ([`linalg::variance_step`]), called until it settles:
+    /// without its leverage correction the peak passed for a shifted or lighter-tailed lobe
+    /// in 9 of 120 unweighted G sets. The variance's scale stays unknown: the tests divide
+    /// by c/ν.
     pub(crate) fn weigh_by_noise_model(&mut self, fit: &MemberFit) {
         let raw = self.raw_residuals(&fit.residuals);
         let leverages = self.leverages(fit).unwrap_or_else(|| vec![0.0; self.len()]);
-        let r2: Vec<f64> = raw
-            .iter()
-            .zip(&leverages)
-            // Below 1 − h = 0.05 a residual says too little of its reading's noise.
-            .map(|(r, h)| r * r / (1.0 - h).max(0.05))
-            .collect();
-        let f2: Vec<f64> = raw
-            .iter()
-            .zip(&self.y)
-            .map(|(r, y)| (y + r).powi(2))
-            .collect();
-        // 1/var² of the previous step, scaled to a mean of 1 (only their ratios matter).
-        let w4: Vec<f64> = self.sqrt_w.iter().map(|s| s.powi(4)).collect();
-        let mean_w4 = w4.iter().sum::<f64>() / w4.len().max(1) as f64;
-        if !(mean_w4.is_finite() && mean_w4 > 0.0) {
-            return;
-        }
-        let w: Vec<f64> = w4.iter().map(|v| v / mean_w4).collect();
-        let Some((a, b)) = linalg::nonnegative_line(&f2, &r2, &w) else {
+        let fitted: Vec<f64> = raw.iter().zip(&self.y).map(|(r, y)| y + r).collect();
+        let previous: Vec<f64> = self.sqrt_w.iter().map(|s| s.powi(-2)).collect();
+        let Some(variances) = linalg::variance_step(&fitted, &raw, &leverages, &previous) else {
             return;
         };
-        // A floor: no reading weighs more than 10⁶ times the mean variance's inverse.
-        let floor = 1e-6 * r2.iter().sum::<f64>() / r2.len() as f64;
-        let sqrt_w: Vec<f64> = f2
+        let sqrt_w: Vec<f64> = variances
             .iter()
-            .map(|f| 1.0 / (a + b * f).max(floor).max(f64::MIN_POSITIVE).sqrt())
+            .map(|v| 1.0 / v.max(f64::MIN_POSITIVE).sqrt())
             .collect();
         if sqrt_w.iter().any(|s| !s.is_finite()) {
             return;
