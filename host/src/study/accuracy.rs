@@ -408,33 +408,32 @@ fn opt<T: std::fmt::Display>(value: Option<T>) -> String {
 
 /// `accuracy.csv`: one row per session.
 pub fn to_csv(cases: &[Case], rows: &[Row]) -> String {
-    let mut out = String::from(CSV_HEADER);
-    out.push('\n');
+    let mut records = Vec::new();
     for r in rows {
         let case = &cases[r.spec.case];
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{},{},{},{},{:.3}",
-            case.name(),
+        records.push(vec![
+            case.name().to_string(),
             if case.part == Part::Coverage {
                 "coverage"
             } else {
                 "robustness"
-            },
-            case.sample,
+            }
+            .to_string(),
+            case.sample.to_string(),
             if case.physics == Physics::Real {
                 "real"
             } else {
                 "ideal"
-            },
-            policy_name(r.spec.policy),
-            r.spec.index,
-            r.spec.seed,
-            r.spec.magnitude,
-            r.failure.as_deref().unwrap_or("").replace([',', '\n'], ";"),
-            r.class.map_or("undecided", Class::name),
-            case.expected_class().map_or("", Class::name),
-            r.confidence,
+            }
+            .to_string(),
+            policy_name(r.spec.policy).to_string(),
+            r.spec.index.to_string(),
+            r.spec.seed.to_string(),
+            r.spec.magnitude.to_string(),
+            r.failure.clone().unwrap_or_default(),
+            r.class.map_or("undecided", Class::name).to_string(),
+            case.expected_class().map_or("", Class::name).to_string(),
+            format!("{:.4}", r.confidence),
             r.flags
                 .iter()
                 .map(|f| f.name())
@@ -448,11 +447,11 @@ pub fn to_csv(cases: &[Case], rows: &[Row]) -> String {
             opt(r.covered[2]),
             opt(r.gof_p),
             opt(r.arm_offset_deg),
-            r.geometries,
-            r.device_seconds,
-        );
+            r.geometries.to_string(),
+            format!("{:.3}", r.device_seconds),
+        ]);
     }
-    out
+    super::csv_table(CSV_HEADER, &records)
 }
 
 /// Counts over one case and policy.

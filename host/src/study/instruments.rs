@@ -619,36 +619,30 @@ fn opt<T: std::fmt::Display>(value: Option<T>) -> String {
     value.map_or(String::new(), |v| v.to_string())
 }
 
-fn csv_text(text: &str) -> String {
-    text.replace([',', '\n'], ";")
-}
-
 /// The CSV header of `instruments.csv`.
 pub const INSTRUMENTS_CSV_HEADER: &str = "instrument,seed,response,true_fwhm_deg,true_arm_zero_deg,noise_scale,tile_factor,gain_ratio_errors,failure,fwhm_deg,fwhm_error_pct,arm_zero_deg,worst_arm_zero_error_deg,arm_zero_u_deg,device_seconds,within_targets";
 
 /// `instruments.csv`: one row per instrument, its truth and what its characterization found.
 pub fn instruments_csv(campaign: &Campaign) -> String {
-    let mut out = String::from(INSTRUMENTS_CSV_HEADER);
-    out.push('\n');
+    let mut records = Vec::with_capacity(campaign.instruments.len());
     for r in &campaign.instruments {
         let t = r.truth.as_ref();
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            r.index,
-            r.seed,
+        records.push(vec![
+            r.index.to_string(),
+            r.seed.to_string(),
             t.map_or(String::new(), |t| response_name(&t.response)),
             opt(t.map(|t| t.response.fwhm_deg())),
             opt(t.map(|t| t.theta_r_offset_deg)),
             opt(t.map(|t| t.noise_scale)),
             opt(t.map(|t| t.tile_factor)),
-            t.map_or(String::new(), |t| t
-                .gain_ratio_factors
-                .iter()
-                .map(|f| format!("{:.5}", f - 1.0))
-                .collect::<Vec<_>>()
-                .join(" ")),
-            csv_text(r.failure.as_deref().unwrap_or("")),
+            t.map_or(String::new(), |t| {
+                t.gain_ratio_factors
+                    .iter()
+                    .map(|f| format!("{:.5}", f - 1.0))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            }),
+            r.failure.clone().unwrap_or_default(),
             opt(r.fwhm_deg),
             opt(r.fwhm_error().map(|e| format!("{:.3}", 100.0 * e))),
             r.arm_zero_deg
@@ -659,10 +653,10 @@ pub fn instruments_csv(campaign: &Campaign) -> String {
             opt(r.worst_arm_zero_error_deg().map(|e| format!("{e:.5}"))),
             opt(r.arm_zero_u_deg),
             opt(r.device_seconds.map(|s| format!("{s:.2}"))),
-            r.within_targets(),
-        );
+            r.within_targets().to_string(),
+        ]);
     }
-    out
+    super::csv_table(INSTRUMENTS_CSV_HEADER, &records)
 }
 
 /// The CSV header of `sessions.csv`.
@@ -683,33 +677,31 @@ pub fn sessions_csv_header() -> String {
 
 /// `sessions.csv`: one row per session.
 pub fn sessions_csv(campaign: &Campaign) -> String {
-    let mut out = sessions_csv_header();
-    out.push('\n');
+    let mut records = Vec::with_capacity(campaign.sessions.len());
     for r in &campaign.sessions {
         let seed = campaign
             .instruments
             .get(r.spec.instrument)
             .map_or(0, |i| i.seed);
-        let _ = write!(
-            out,
-            "{},{seed},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3}",
-            r.spec.instrument,
-            r.spec.power_on,
-            r.spec.sample,
-            r.spec.policy.name(),
-            if r.spec.with_profile { "yes" } else { "no" },
-            csv_text(r.failure.as_deref().unwrap_or("")),
-            r.same_instrument,
-            r.class.map_or("undecided", Class::name),
-            r.expected_class().map_or("", Class::name),
-            r.confidence,
+        let mut record = vec![
+            r.spec.instrument.to_string(),
+            seed.to_string(),
+            r.spec.power_on.to_string(),
+            r.spec.sample.to_string(),
+            r.spec.policy.name().to_string(),
+            if r.spec.with_profile { "yes" } else { "no" }.to_string(),
+            r.failure.clone().unwrap_or_default(),
+            r.same_instrument.to_string(),
+            r.class.map_or("undecided", Class::name).to_string(),
+            r.expected_class().map_or("", Class::name).to_string(),
+            format!("{:.4}", r.confidence),
             r.flags
                 .iter()
                 .map(|f| f.name())
                 .collect::<Vec<_>>()
                 .join(" "),
-            r.flagged(),
-            r.confidently_wrong(),
+            r.flagged().to_string(),
+            r.confidently_wrong().to_string(),
             opt(r.estimates[0]),
             opt(r.estimates[1]),
             opt(r.estimates[2]),
@@ -720,33 +712,28 @@ pub fn sessions_csv(campaign: &Campaign) -> String {
             opt(r.bound_covered[1]),
             opt(r.bound_covered[2]),
             opt(r.arm_offset_deg),
-            r.geometries,
-            r.device_seconds,
-        );
+            r.geometries.to_string(),
+            format!("{:.3}", r.device_seconds),
+        ];
         for g in &GLOSS_GEOMETRIES {
             match r.gloss.iter().find(|c| c.angle_deg == g.angle_deg) {
-                Some(c) => {
-                    let _ = write!(
-                        out,
-                        ",{:.4},{:.4},{:.4}",
-                        c.measured_gu, c.u_gu, c.analytic_gu
-                    );
-                }
-                None => out.push_str(",,,"),
+                Some(c) => record.extend([
+                    format!("{:.4}", c.measured_gu),
+                    format!("{:.4}", c.u_gu),
+                    format!("{:.4}", c.analytic_gu),
+                ]),
+                None => record.extend([String::new(), String::new(), String::new()]),
             }
         }
-        let _ = writeln!(
-            out,
-            ",{},{}",
-            opt(r.worst_gloss_error_gu().map(|e| format!("{e:.4}"))),
-            if r.spec.with_profile {
-                r.gloss_within().to_string()
-            } else {
-                String::new()
-            }
-        );
+        record.push(opt(r.worst_gloss_error_gu().map(|e| format!("{e:.4}"))));
+        record.push(if r.spec.with_profile {
+            r.gloss_within().to_string()
+        } else {
+            String::new()
+        });
+        records.push(record);
     }
-    out
+    super::csv_table(&sessions_csv_header(), &records)
 }
 
 /// Counts over a set of sessions.

@@ -854,8 +854,7 @@ pub const CSV_HEADER: &str = "shape,departure,strength,sim_options,paper,policy,
 
 /// `sessions.csv`: one row per session.
 pub fn to_csv(campaign: &Campaign) -> String {
-    let mut out = String::from(CSV_HEADER);
-    out.push('\n');
+    let mut records = Vec::new();
     for r in &campaign.rows {
         let (departure, strength) = match r.spec.shape {
             Shape::Tsl => ("tsl", ""),
@@ -863,29 +862,29 @@ pub fn to_csv(campaign: &Campaign) -> String {
             Shape::Departure(kind, Strength::Strong) => (kind.name(), "strong"),
         };
         let truth = r.truth.as_ref();
-        let _ = writeln!(
-            out,
-            "{},{departure},{strength},{},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3}",
-            r.spec.shape.name(),
-            r.spec.shape.command_line(r.spec.paper),
-            r.spec.paper,
-            r.spec.policy.name(),
-            r.spec.index,
-            r.spec.seed,
-            r.failure.as_deref().unwrap_or("").replace([',', '\n'], ";"),
-            r.class.map_or("undecided", Class::name),
-            r.expected_class().map_or("", Class::name),
-            r.class_right(),
-            r.confidence,
+        records.push(vec![
+            r.spec.shape.name().to_string(),
+            departure.to_string(),
+            strength.to_string(),
+            r.spec.shape.command_line(r.spec.paper).to_string(),
+            r.spec.paper.to_string(),
+            r.spec.policy.name().to_string(),
+            r.spec.index.to_string(),
+            r.spec.seed.to_string(),
+            r.failure.clone().unwrap_or_default(),
+            r.class.map_or("undecided", Class::name).to_string(),
+            r.expected_class().map_or("", Class::name).to_string(),
+            r.class_right().to_string(),
+            format!("{:.4}", r.confidence),
             r.flags
                 .iter()
                 .map(|f| f.name())
                 .collect::<Vec<_>>()
                 .join(" "),
-            r.extended(),
-            r.flagged_and_wrong(),
-            r.unflagged_miss(),
-            r.gross_unflagged_miss(),
+            r.extended().to_string(),
+            r.flagged_and_wrong().to_string(),
+            r.unflagged_miss().to_string(),
+            r.gross_unflagged_miss().to_string(),
             opt(truth.map(|t| t.sigma_deg)),
             opt(r.estimates[0]),
             opt(r.sigma_ci95.map(|c| c.0)),
@@ -900,11 +899,11 @@ pub fn to_csv(campaign: &Campaign) -> String {
             opt(r.estimates[3]),
             opt(r.gof_p),
             opt(r.arm_offset_deg),
-            r.geometries,
-            r.device_seconds,
-        );
+            r.geometries.to_string(),
+            format!("{:.3}", r.device_seconds),
+        ]);
     }
-    out
+    super::csv_table(CSV_HEADER, &records)
 }
 
 /// `summary.md`: the targets, the tallies per departure and policy, the class by paper,

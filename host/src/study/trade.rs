@@ -248,35 +248,33 @@ pub(crate) const CSV_HEADER: &str = "policy,setting,sample,seed,integration_ms,g
 
 /// `trade.csv`: one row per session.
 pub fn to_csv(rows: &[Row]) -> String {
-    let mut out = String::from(CSV_HEADER);
-    out.push('\n');
+    let mut records = Vec::with_capacity(rows.len());
     for r in rows {
         let s = &r.spec;
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{},{},{:.3},{:.6},{:.6},{:.6},{},{},{},{:.3},{}",
-            s.policy,
-            s.setting,
-            s.sample,
-            s.seed,
-            s.integration_ms,
-            r.geometries,
-            r.device_seconds,
-            r.sigma_rel_err,
-            r.rho_s_rel_err,
-            r.rho_d_rel_err,
-            r.class_correct,
-            r.class,
-            r.sigma_ok,
-            r.gain_calibration_seconds,
+        records.push(vec![
+            s.policy.to_string(),
+            s.setting.to_string(),
+            s.sample.to_string(),
+            s.seed.to_string(),
+            s.integration_ms.to_string(),
+            r.geometries.to_string(),
+            format!("{:.3}", r.device_seconds),
+            format!("{:.6}", r.sigma_rel_err),
+            format!("{:.6}", r.rho_s_rel_err),
+            format!("{:.6}", r.rho_d_rel_err),
+            r.class_correct.to_string(),
+            r.class.to_string(),
+            r.sigma_ok.to_string(),
+            format!("{:.3}", r.gain_calibration_seconds),
             match s.physics {
                 crate::instrument::sim::Physics::Real => "real",
                 crate::instrument::sim::Physics::Drawn => "drawn",
                 crate::instrument::sim::Physics::Ideal => "ideal",
             }
-        );
+            .to_string(),
+        ]);
     }
-    out
+    super::csv_table(CSV_HEADER, &records)
 }
 
 /// Statistics of one group of sessions.
