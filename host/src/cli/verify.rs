@@ -204,7 +204,10 @@ fn verify_sheet(dir: &Path, args: &Args, keys: Option<&Keys>) -> bool {
             .spots
             .iter()
             .zip(&spots)
-            .filter(|(s, _)| s.signed != v.signed)
+            .filter(|(s, _)| {
+                let key = |signed: &Option<Signed>| signed.as_ref().map(|x| x.public_key.clone());
+                key(&s.signed) != key(&v.signed)
+            })
             .map(|(s, c)| format!("{}: {}", s.dir.display(), c.text))
             .collect();
         println!(

@@ -60,10 +60,10 @@ fn measure_signed(list: &[&str], signer: Option<Arc<Signer>>) -> Measured {
     .expect("measured")
 }
 
-/// A finished session of G (seed `seed`) in `dir`, signed by `signer`.
+/// A finished session of one spot of G (seed `seed`) in `dir`, signed by `signer`.
 fn session(dir: &Path, seed: u64, signer: Option<Arc<Signer>>) {
     let seed = seed.to_string();
-    match measure_signed(&["--sim", "G", "--seed", &seed, "--out", s(dir)], signer) {
+    match measure_signed(&["--sim", "G", "--spots", "1", "--seed", &seed, "--out", s(dir)], signer) {
         Measured::Done { .. } => {}
         _ => panic!("the session did not finish"),
     }
@@ -95,13 +95,15 @@ fn forge(dir: &Path) {
     recompute_manifest(dir);
 }
 
-/// Append a line to `session.log` of `dir` (checked by the hashes alone) and recompute
-/// them: what is left to catch it is the signature.
+/// Append a line to `session.log` of `dir` (checked by the hashes alone), remove the
+/// report and recompute the hashes: what is left to catch it is the signature.
 fn forge_log(dir: &Path) {
     let log = dir.join("session.log");
     let mut text = std::fs::read_to_string(&log).expect("log");
     text += "2026-01-01T00:00:00.000+00:00 [run 1] the operator checked the tile twice\n";
     std::fs::write(&log, text).expect("write log");
+    // The report lists every file's hash: the forger removes it (a folder need not have one).
+    let _ = std::fs::remove_file(dir.join("report.html"));
     recompute_manifest(dir);
 }
 
@@ -351,31 +353,65 @@ fn the_simulated_instrument_makes_its_key_on_first_use() {
     assert!(!other.exists());
 }
 
+/// `gonio measure ARGS` in process with `crash` injected, its folder signed by `signer`.
+fn measure_crashed(
+    list: &[String],
+    signer: &Arc<Signer>,
+    crash: host::output::store::Crash,
+) -> anyhow::Result<Measured> {
+    let args = crate::measure_args::parse_args(list).expect("arguments");
+    measure_with(
+        &args,
+        &mut SimulatedOperator,
+        Arc::new(AtomicBool::new(false)),
+        StoreOptions {
+            crash: Some(crash),
+            signer: Some(signer.clone() as Arc<dyn host::output::store::SignManifest>),
+        },
+    )
+}
+
 #[test]
-fn a_resumed_session_is_signed_when_it_finishes() {
+fn a_session_killed_and_resumed_is_signed_and_so_is_one_killed_before_its_signature() {
+    use host::output::store::Crash;
     let (keys, signer) = keys_with("resume", "lab");
-    for at in [40u64, 90] {
-        let dir = ram_dir("signature", &format!("resume-{at}"));
-        let args = ["--sim", "G", "--seed", "11", "--out", s(&dir)];
-        let stopped =
-            crate::common::in_process::measure(&args, Some(host::output::store::Crash::at(at)));
-        assert!(
-            !matches!(stopped, Ok(Measured::Done { .. })),
-            "the kill at write {at} stopped it"
-        );
-        assert!(!dir.join(SIGNATURE).exists());
-        match measure_signed(
-            &["--sim", "G", "--seed", "11", "--resume", s(&dir)],
-            Some(signer.clone()),
-        ) {
-            Measured::Done { .. } => {}
-            _ => panic!("resumed to the end"),
+    let dir = |name: &str| ram_dir("signature", &format!("resume-{name}"));
+    let args = |d: &Path, verb: &str| -> Vec<String> {
+        ["--sim", "G", "--seed", "11", verb, s(d)]
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    };
+    // Every write of a whole session, counted: the last is its signature.
+    let counted = dir("counted");
+    let counting = Crash::counting();
+    let mut first = args(&counted, "--out");
+    first.splice(2..2, ["--spots".to_string(), "1".to_string()]);
+    let done = measure_crashed(&first, &signer, counting.clone()).expect("measured");
+    assert!(matches!(done, Measured::Done { .. }));
+    let writes = counting.writes();
+    for at in [writes / 3, writes / 2, writes - 1] {
+        let d = dir(&at.to_string());
+        let mut first = args(&d, "--out");
+        first.splice(2..2, ["--spots".to_string(), "1".to_string()]);
+        let stopped = measure_crashed(&first, &signer, Crash::at(at));
+        assert!(!matches!(stopped, Ok(Measured::Done { .. })), "killed at write {at}");
+        assert!(!d.join(SIGNATURE).exists(), "killed at {at} of {writes}: no signature yet");
+        // Resumed (a session killed before its signature was finished: refused as
+        // finished, and signed on the way).
+        let resumed = measure_crashed(&args(&d, "--resume"), &signer, Crash::counting());
+        if at < writes - 1 {
+            assert!(matches!(resumed, Ok(Measured::Done { .. })), "resumed from {at}");
+        } else {
+            let e = resumed.err().expect("a finished session is not measured again");
+            assert!(e.to_string().contains("finished"), "{e}");
         }
-        let o = gonio(&keys, &["verify", s(&dir)]);
-        assert!(o.status.success(), "{}", stderr(&o));
+        let o = gonio(&keys, &["verify", s(&d)]);
+        assert!(o.status.success(), "killed at {at}: {}", stderr(&o));
         assert!(out(&o).contains("signed by 'lab'"), "{}", out(&o));
-        let _ = std::fs::remove_dir_all(&dir);
+        let _ = std::fs::remove_dir_all(&d);
     }
+    let _ = std::fs::remove_dir_all(&counted);
 }
 
 #[test]
