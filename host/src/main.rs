@@ -40,8 +40,10 @@ enum Command {
     Accuracy(cli::accuracy::Args),
     /// Forensic validation: a simulated population of stocks, likelihood ratios of held-out pairs, Cllr and a Tippett plot.
     Forensic(cli::forensic::Args),
-    /// Check session folders: every file against MANIFEST.sha256, the records against each other.
+    /// Check session folders: every file against MANIFEST.sha256, the records against each other, the signature and its signer.
     Verify(cli::verify::Args),
+    /// The keys that sign folders, exports and reports, and the public keys of others you trust.
+    Keys(cli::keys::Args),
     /// Print the completion script of a shell (bash, zsh, fish, elvish, powershell).
     Completions(cli::completions::Args),
     /// List the session and sheet folders under a folder (default sessions/): date, sample, class, state, device time.
@@ -70,6 +72,7 @@ fn main() -> ExitCode {
         Command::Accuracy(args) => cli::accuracy::run(args),
         Command::Forensic(args) => cli::forensic::run(args),
         Command::Verify(args) => cli::verify::run(args),
+        Command::Keys(args) => cli::keys::run(args),
         Command::Library(args) => cli::library::run(args),
         Command::Selftest(args) => cli::selftest::run(args),
         Command::Characterize(args) => cli::characterize::run(args),

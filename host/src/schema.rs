@@ -36,7 +36,7 @@ pub const SHEET_RESULT: &str = "gonio-sheet-result/1";
 /// `gonio compare --json`.
 pub(crate) const COMPARE: &str = "gonio-compare/2";
 /// A line of `gonio verify --json`.
-pub const VERIFY: &str = "gonio-verify/1";
+pub const VERIFY: &str = "gonio-verify/2";
 /// A line of `gonio sessions --json`.
 pub const SESSIONS_ENTRY: &str = "gonio-sessions-entry/1";
 /// `gonio library list --json`.
@@ -51,11 +51,20 @@ pub(crate) const LIBRARY_RECORD_V1: &str = "gonio-library/1";
 /// writes it; `schema` is optional there.
 pub const TILE_CERTIFICATE: &str = "gonio-tile-certificate/1";
 
+/// `signature.json` of a signed folder, and `F.sig.json` of a signed file (a library
+/// export, a compare report).
+pub const SIGNATURE: &str = "gonio-signature/1";
+/// A public key as `gonio keys export-public` prints it and the keys folder keeps a
+/// trusted one (`NAME.pub`).
+pub const PUBLIC_KEY: &str = "gonio-public-key/1";
+/// An own key file of the keys folder (`NAME.key`), private key included.
+pub const KEY: &str = "gonio-key/1";
+
 /// An instrument profile (`gonio characterize`'s `instrument.json`).
 pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
 
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 15] = [
+pub const WRITTEN: [&str; 18] = [
     INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
@@ -71,6 +80,9 @@ pub const WRITTEN: [&str; 15] = [
     LIBRARY_LIST,
     LIBRARY_SEARCH,
     LIBRARY_RECORD,
+    SIGNATURE,
+    PUBLIC_KEY,
+    KEY,
 ];
 
 /// The file name of a schema's JSON Schema under `docs/schemas/`: `gonio-session/2` →

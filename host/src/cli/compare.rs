@@ -19,6 +19,10 @@ pub struct Args {
     /// Also write the report as a self-contained HTML page to FILE.
     #[arg(long, value_name = "FILE")]
     pub report: Option<PathBuf>,
+    /// The key (gonio keys list) that signs the --report file (FILE.sig.json); default:
+    /// the default or only key.
+    #[arg(long, value_name = "NAME", requires = "report")]
+    pub key: Option<String>,
     /// First sheet: a session or sheet folder, or a session.json.
     #[arg(value_name = "A")]
     pub a: PathBuf,
@@ -38,8 +42,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let e = evidence::weigh(&a.questioned(), &b.questioned(), &population.population);
     let document = Comparison::new(&a, &b, &e, &population, Audit::now());
     if let Some(path) = &args.report {
+        let signer = super::keys::file_signer(args.key.as_deref(), "the report")?;
         std::fs::write(path, document.to_html())
             .map_err(|err| anyhow::anyhow!("{}: cannot write the report: {err}", path.display()))?;
+        super::keys::sign_file(signer.as_ref(), path)?;
     }
     if args.json {
         println!("{}", document.to_json());

@@ -93,6 +93,10 @@ pub struct ExportArgs {
     /// The exchange file to write (replaced whole), or `-`.
     #[arg(value_name = "FILE")]
     pub file: PathBuf,
+    /// The key (gonio keys list) that signs it (FILE.sig.json); default: the default or
+    /// only key. Standard output is not signed.
+    #[arg(long, value_name = "NAME")]
+    pub key: Option<String>,
 }
 
 /// Arguments of `gonio library import`.
@@ -268,6 +272,8 @@ fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
         library.export(&mut stdout.lock(), Path::new("(standard output)"))?;
         return Ok(());
     }
+    // Chosen before anything is written: a wrong --key stops here.
+    let signer = crate::cli::keys::file_signer(args.key.as_deref(), "the export")?;
     // Written beside the target and renamed over it: an interrupted export never leaves
     // a half file that a later import would take for a whole one.
     let dir = args
@@ -289,6 +295,7 @@ fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
         .with_context(|| args.file.display().to_string())?;
     temp.persist(&args.file)
         .with_context(|| format!("{}: cannot write", args.file.display()))?;
+    crate::cli::keys::sign_file(signer.as_ref(), &args.file)?;
     eprintln!(
         "{}: {records} record{} (one per spot) written to {}",
         path.display(),

@@ -7,6 +7,7 @@ pub mod exit;
 pub mod fit;
 pub mod flash;
 pub mod forensic;
+pub mod keys;
 pub mod library;
 pub mod measure;
 pub mod population;

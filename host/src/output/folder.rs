@@ -10,6 +10,7 @@
 //! | `session.log` | every decision, time-stamped, tagged with its run | appended |
 //! | `<sample>.astm`, `fig*.svg` | summaries of the result (the ASTM E1392/E2387 exchange format, plots) | replaced atomically at the end |
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
+//! | `signature.json` | the signature of the manifest, when a key signed it | right after it |
 use crate::instrument::calibration::Calibration;
 use crate::schema;
 use crate::session::MeasuredPoint;
@@ -32,6 +33,9 @@ pub const MANIFEST: &str = "MANIFEST.sha256";
 /// The report drawn from a finished session or sheet folder's files (not in its manifest:
 /// `gonio verify` checks it against them instead).
 pub(crate) const REPORT: &str = "report.html";
+/// The signature of a finished folder's manifest ([`crate::output::signature`]): not in
+/// the manifest, which it signs.
+pub const SIGNATURE: &str = "signature.json";
 /// The sheet document of a folder of several spots.
 pub(crate) const SHEET: &str = "sheet.json";
 /// The header of [`READINGS`].

@@ -1,7 +1,7 @@
 //! `MANIFEST.sha256`: the SHA-256 of every file of a finished session folder, one
 //! `HEX  NAME` line each in name order, as `sha256sum` writes them, so that
 //! `sha256sum -c MANIFEST.sha256` in the folder checks it as well as `gonio verify` does.
-use crate::output::folder::{Finding, MANIFEST, REPORT, entries, temp_name};
+use crate::output::folder::{Finding, MANIFEST, REPORT, SIGNATURE, entries, temp_name};
 use sha2::{Digest, Sha256};
 use std::path::Path;
 
@@ -20,7 +20,8 @@ pub fn manifest_text(dir: &Path) -> std::io::Result<String> {
         let path = dir.join(&name);
         // The report is drawn from the files the manifest lists (it shows their hashes), so
         // it cannot be among them; `gonio verify` checks it against them instead.
-        if name == MANIFEST || name == REPORT || !path.is_file() {
+        // The signature signs the manifest, so it cannot be among what the manifest lists.
+        if name == MANIFEST || name == REPORT || name == SIGNATURE || !path.is_file() {
             continue;
         }
         text += &format!("{}  {name}\n", sha256_hex(&std::fs::read(&path)?));
@@ -69,7 +70,7 @@ pub fn check(dir: &Path) -> Result<Matched, Vec<Finding>> {
             problems.push(problem(line_no, format!("'{hex}' is not a SHA-256 in hex")));
             continue;
         }
-        if name.contains('/') || name == MANIFEST || name.is_empty() {
+        if name.contains('/') || name == MANIFEST || name == SIGNATURE || name.is_empty() {
             problems.push(problem(
                 line_no,
                 format!("'{name}' is not a file of the folder"),
@@ -92,7 +93,11 @@ pub fn check(dir: &Path) -> Result<Matched, Vec<Finding>> {
         Ok(names) => {
             // The report is drawn from the record, not part of it (nor is a report a kill cut
             // short, which the next `gonio report` replaces).
-            let report = |n: &str| n == REPORT || n == temp_name(REPORT);
+            // Nor is the signature, which signs the manifest (nor one a kill cut short, which
+            // the next resume replaces).
+            let report = |n: &str| {
+                n == REPORT || n == temp_name(REPORT) || n == SIGNATURE || n == temp_name(SIGNATURE)
+            };
             for name in names
                 .into_iter()
                 .filter(|n| n != MANIFEST && !report(n) && !listed.contains(n))

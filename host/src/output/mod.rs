@@ -13,6 +13,7 @@
 //! | rendering | [`report`] | `folder`, `sheet_folder` |
 //! | verification | [`verify`]: every check of a finished folder | `folder`, `manifest`, `sheet_folder` |
 //! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
+//! | signatures | [`signature`]: the manifest's signature, a file's, the keys | `folder`, `manifest`, `store` |
 //! | store and manifest | [`store`], [`manifest`], [`lock`] | `folder` |
 //! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json` | none (`documents`: `folder`) |
 //!
@@ -35,5 +36,6 @@ pub mod reanalysis;
 pub mod record;
 pub mod report;
 pub mod sheet_folder;
+pub mod signature;
 pub mod store;
 pub mod verify;

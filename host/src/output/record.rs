@@ -376,10 +376,12 @@ fn new_run(run: u32, readings_before: usize) -> Run {
     }
 }
 
-/// Write `MANIFEST.sha256` for everything in the folder.
+/// Write `MANIFEST.sha256` for everything in the folder, then its signature (when the
+/// store has a key).
 fn write_manifest(store: &mut Store) -> io::Result<()> {
     let text = crate::output::manifest::manifest_text(store.dir())?;
-    store.replace(MANIFEST, text.as_bytes())
+    store.replace(MANIFEST, text.as_bytes())?;
+    crate::output::signature::sign_manifest(store, text.as_bytes())
 }
 
 /// An existing folder taken for `--out`: it must be empty, but for temporary files a
@@ -458,6 +460,13 @@ impl Existing {
                     store.remove(name).map_err(io_error(dir))?;
                 }
                 write_manifest(&mut store).map_err(io_error(dir))?;
+            } else {
+                // Killed between the manifest and its signature: sign the folder as its
+                // manifest holds it (never a folder changed since).
+                let mut store = Store::open_dir(dir, options);
+                let whole = crate::output::manifest::check(dir).is_ok();
+                crate::output::signature::sign_if_unsigned(&mut store, whole)
+                    .map_err(io_error(dir))?;
             }
             return Err(FolderError::Finished {
                 dir: dir.to_path_buf(),

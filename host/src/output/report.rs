@@ -978,14 +978,27 @@ pub fn write_into(dir: &Path) -> Result<PathBuf, ReportError> {
 
 /// What `gonio verify` finds wrong with `dir`, but for its `report.html`: the report is
 /// what is being drawn anew (the way to repair a stale one).
+///
+/// A signature that does not hold is among them, and so is a signer whose key is neither
+/// the user's nor trusted ([`crate::output::signature::untrusted_signers`]): a report is
+/// not drawn as the session's from a folder that someone else could have re-signed.
 pub fn problems(dir: &Path) -> Vec<Finding> {
+    use crate::output::signature::untrusted_signers;
     let found = if crate::output::folder::is_sheet_folder(dir) {
-        crate::output::verify::verify_sheet(dir, draw).err()
+        match crate::output::verify::verify_sheet(dir, draw) {
+            Ok(v) => untrusted_signers(
+                std::iter::once((dir, v.signed.as_ref()))
+                    .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
+            ),
+            Err(found) => found,
+        }
     } else {
-        crate::output::verify::verify(dir, draw).err()
+        match crate::output::verify::verify(dir, draw) {
+            Ok(v) => untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
+            Err(found) => found,
+        }
     };
     found
-        .unwrap_or_default()
         .into_iter()
         .filter(|p| p.file.file_name() != Some(std::ffi::OsStr::new(REPORT)))
         .collect()

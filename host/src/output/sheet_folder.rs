@@ -275,6 +275,13 @@ impl SheetFolder {
         if folder.doc.status == Status::Finished {
             if !dir.join(MANIFEST).exists() {
                 folder.write_manifest().map_err(io_error(dir))?;
+            } else {
+                // Killed between the manifest and its signature.
+                let whole = manifest_text(dir, &folder.doc).is_ok_and(|now| {
+                    std::fs::read_to_string(dir.join(MANIFEST)).is_ok_and(|m| m == now)
+                });
+                crate::output::signature::sign_if_unsigned(&mut folder.store, whole)
+                    .map_err(io_error(dir))?;
             }
             return Err(FolderError::FinishedSheet {
                 dir: dir.to_path_buf(),
@@ -339,7 +346,8 @@ impl SheetFolder {
 
     fn write_manifest(&mut self) -> io::Result<()> {
         let text = manifest_text(self.store.dir(), &self.doc)?;
-        self.store.replace(MANIFEST, text.as_bytes())
+        self.store.replace(MANIFEST, text.as_bytes())?;
+        crate::output::signature::sign_manifest(&mut self.store, text.as_bytes())
     }
 }
 

@@ -121,6 +121,16 @@ impl Crash {
 pub struct StoreOptions {
     /// A simulated fault (tests); `None` for real use.
     pub crash: Option<Crash>,
+    /// The key that signs the folder's manifest when it is written (`signature.json`;
+    /// in use a [`crate::output::signature::Signer`]); `None`: the folder is left unsigned.
+    pub signer: Option<std::sync::Arc<dyn SignManifest>>,
+}
+
+/// What signs a folder's manifest: the store asks it for the bytes of the signature file
+/// (what a signature is, and the keys, are [`crate::output::signature`]'s, above this).
+pub trait SignManifest: Send + std::marker::Sync + std::fmt::Debug {
+    /// The signature file's bytes for the manifest `manifest` (the bytes of `covers`).
+    fn signature_bytes(&self, covers: &str, manifest: &[u8]) -> io::Result<Vec<u8>>;
 }
 
 /// What the store does at one write.
@@ -182,6 +192,11 @@ impl Store {
     /// The folder.
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// The key that signs the folder's manifest, if any.
+    pub(crate) fn signer(&self) -> Option<&dyn SignManifest> {
+        self.options.signer.as_deref()
     }
 
     /// Whether the store crashed (simulated) and refuses every write (its tests ask).
@@ -457,6 +472,7 @@ mod tests {
             &dir,
             StoreOptions {
                 crash: Some(crash.clone()),
+                ..Default::default()
             },
         )
         .unwrap();
@@ -485,6 +501,7 @@ mod tests {
             &dir,
             StoreOptions {
                 crash: Some(Crash::disk_full_at(1)),
+                ..Default::default()
             },
         );
         let error = store
@@ -517,7 +534,13 @@ mod tests {
         let mut store = Store::create_dir(&dir, StoreOptions::default()).unwrap();
         store.replace("s.json", b"old").unwrap();
         let crash = Crash::at(1);
-        let mut store = Store::open_dir(&dir, StoreOptions { crash: Some(crash) });
+        let mut store = Store::open_dir(
+            &dir,
+            StoreOptions {
+                crash: Some(crash),
+                ..Default::default()
+            },
+        );
         assert!(store.replace("s.json", b"new and longer").is_err());
         assert_eq!(std::fs::read(dir.join("s.json")).unwrap(), b"old");
         assert!(dir.join(temp_name("s.json")).exists());
@@ -527,6 +550,7 @@ mod tests {
             &dir,
             StoreOptions {
                 crash: Some(Crash::at(2)),
+                ..Default::default()
             },
         );
         assert!(store.replace("s.json", b"new").is_err());

@@ -2,7 +2,9 @@
 //! manifest and the agreement of `points.jsonl` (the primary record), `readings.csv`,
 //! `calibration.json` and `session.json`; of a sheet folder, its manifest, every spot's
 //! folder and the result its spots give; of either, that `report.html` is the report its
-//! files give. Read-only: it changes nothing.
+//! files give; of either, that its signature (`signature.json`), when it has one, holds
+//! over its manifest (who signed, and whether that key is trusted, is for the caller to
+//! judge: [`Verified::signed`]). Read-only: it changes nothing.
 //!
 //! Rendering sits above verification (the report is drawn from what is checked here), so
 //! the check of `report.html` is handed the drawing: [`DrawReport`], in use
@@ -17,6 +19,7 @@ use crate::output::folder::{
 use crate::output::sheet_folder::{
     ReadFolder, ReadSheet, assemble, manifest_text, read_doc, require_finished_sheet, spot_from,
 };
+use crate::output::signature::{SIGNATURE, Signed, check_folder};
 use crate::session::MeasuredPoint;
 use std::path::{Path, PathBuf};
 
@@ -39,6 +42,9 @@ pub struct Verified {
     pub doc: SessionDoc,
     /// Its `calibration.json`.
     pub calibration: Option<Calibration>,
+    /// Who signed its manifest (`signature.json`), when it is signed; a signature that does
+    /// not hold is a problem found.
+    pub signed: Option<Signed>,
 }
 
 /// Check the finished session folder `dir`; every problem found, each at `file:line` where
@@ -88,6 +94,13 @@ pub fn verify<E: std::fmt::Display>(
         ));
         problems.extend(finished_record(dir, doc, record.calibration, &inspection));
     }
+    let signed = match check_folder(dir) {
+        Ok(signed) => signed,
+        Err(problem) => {
+            problems.push(problem);
+            None
+        }
+    };
     match matched {
         Some(matched) if problems.is_empty() => Ok(Verified {
             dir: dir.to_path_buf(),
@@ -96,6 +109,7 @@ pub fn verify<E: std::fmt::Display>(
             readings: inspection.points.len(),
             doc: doc.clone(),
             calibration: inspection.calibration,
+            signed,
         }),
         _ => Err(problems),
     }
@@ -279,6 +293,9 @@ pub struct VerifiedSheet {
     pub spots: Vec<Verified>,
     /// The sheet folder's identity: the SHA-256 (hex) of its manifest.
     pub identity: String,
+    /// Who signed the sheet's manifest, when it is signed (each spot's signer is in
+    /// `spots`).
+    pub signed: Option<Signed>,
 }
 
 /// Check the finished sheet folder `dir`: its manifest, every spot folder as `gonio verify`
@@ -299,9 +316,17 @@ pub fn verify_sheet<E: std::fmt::Display>(
         (Err(e), _) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
         (_, Err(e)) => problems.push(Finding { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
     }
-    let expected: Vec<String> = [SHEET, MANIFEST, REPORT]
+    let signed = match check_folder(dir) {
+        Ok(signed) => signed,
+        Err(problem) => {
+            problems.push(problem);
+            None
+        }
+    };
+    let expected: Vec<String> = [SHEET, MANIFEST, REPORT, SIGNATURE]
         .iter()
         .map(|s| s.to_string())
+        .chain(std::iter::once(folder::temp_name(SIGNATURE)))
         .chain(doc.spots.iter().map(|s| s.folder.clone()))
         .collect();
     if let Ok(names) = folder::entries(dir) {
@@ -350,6 +375,7 @@ pub fn verify_sheet<E: std::fmt::Display>(
         sheet,
         spots: verified,
         identity,
+        signed,
     })
 }
 

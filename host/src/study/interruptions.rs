@@ -173,6 +173,7 @@ pub fn clean(
         Arc::new(AtomicBool::new(false)),
         StoreOptions {
             crash: Some(counting.clone()),
+            ..Default::default()
         },
     );
     let clean = match measured {
@@ -327,6 +328,7 @@ pub fn run_one(spec: &Spec, base: &Path, clean: Clean) -> Row {
                 interrupt,
                 StoreOptions {
                     crash: crash.clone(),
+                    ..Default::default()
                 },
             );
             row.runs += 1;

@@ -70,7 +70,10 @@ fn interrupted_session(name: &str) -> PathBuf {
         &args,
         &mut host::session::SimulatedOperator,
         std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
-        host::output::store::StoreOptions { crash: Some(crash) },
+        host::output::store::StoreOptions {
+            crash: Some(crash),
+            ..Default::default()
+        },
     );
     assert!(dir.join("points.jsonl").exists());
     dir

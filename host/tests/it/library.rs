@@ -406,8 +406,8 @@ fn a_changed_or_flagged_session_is_not_added() {
     assert!(stderr(&out).contains("does not verify"), "{}", stderr(&out));
     assert!(!library.exists(), "a refused add leaves no library behind");
 
-    // A flagged result: `ok` made false, the manifest rewritten and the report drawn again,
-    // so the folder verifies.
+    // A flagged result: `ok` made false, the manifest rewritten, its signature (which no
+    // longer holds) removed and the report drawn again, so the folder verifies (unsigned).
     let flagged = measure(&root, "flagged", "PPC", 32);
     let file = flagged.join("session.json");
     let mut doc: serde_json::Value =
@@ -419,6 +419,7 @@ fn a_changed_or_flagged_session_is_not_added() {
         host::output::manifest::manifest_text(&flagged).expect("manifest"),
     )
     .expect("write");
+    let _ = std::fs::remove_file(flagged.join("signature.json"));
     assert!(
         gonio(&["report", s(&flagged)]).status.success(),
         "the report drawn from the changed files"

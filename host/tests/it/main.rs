@@ -62,6 +62,7 @@ mod selftest;
 mod shapes_study;
 mod sheet;
 mod sheet_resume;
+mod signature;
 mod sim_instrument;
 mod table6;
 mod trade;

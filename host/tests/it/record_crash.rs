@@ -46,7 +46,10 @@ fn run(args: &[String], crash: Option<Crash>) -> anyhow::Result<Measured> {
         &args,
         &mut SimulatedOperator,
         Arc::new(AtomicBool::new(false)),
-        StoreOptions { crash },
+        StoreOptions {
+            crash,
+            ..Default::default()
+        },
     )
 }
 

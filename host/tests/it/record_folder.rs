@@ -95,7 +95,10 @@ fn run_in_process(
         &parse_args(one_spot).unwrap(),
         operator,
         interrupted,
-        StoreOptions { crash },
+        StoreOptions {
+            crash,
+            ..Default::default()
+        },
     )
 }
 

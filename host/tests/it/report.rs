@@ -290,6 +290,7 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
     };
     let crash = host::output::store::StoreOptions {
         crash: Some(host::output::store::Crash::at(30)),
+        ..Default::default()
     };
     let interrupted = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let _ = host::measure::measure_with(

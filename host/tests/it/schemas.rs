@@ -683,3 +683,35 @@ fn instrument_profiles_and_the_sessions_that_use_them_validate() {
         schemas.check_folder(&folder);
     }
 }
+
+#[test]
+fn keys_public_keys_and_signatures_validate() {
+    let schemas = Schemas::load();
+    let keys = temp_dir("schemas", "keys");
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gonio"))
+            .args(args)
+            .env("GONIO_KEYS_DIR", &keys)
+            .output()
+            .expect("run gonio");
+        assert!(out.status.success(), "{}", stderr(&out));
+        out
+    };
+    let read = |p: PathBuf| -> Value {
+        serde_json::from_str(&std::fs::read_to_string(&p).expect("read")).expect("JSON")
+    };
+    run(&["keys", "new", "lab"]);
+    schemas.check("lab.key", &read(keys.join("lab.key")));
+    let exported = run(&["keys", "export-public", "lab"]);
+    let public: Value = serde_json::from_slice(&exported.stdout).expect("JSON");
+    schemas.check("keys export-public", &public);
+    let hex = public["public_key"].as_str().unwrap().to_string();
+    run(&["keys", "trust", &hex, "--name", "remote"]);
+    // Under a name of one's own keys it is refused; under another it is kept as NAME.pub.
+    schemas.check("remote.pub", &read(keys.join("remote.pub")));
+    let signer = host::output::signature::Keys::at(&keys)
+        .load("lab")
+        .unwrap();
+    let doc = serde_json::to_value(signer.sign("MANIFEST.sha256", b"x")).unwrap();
+    schemas.check("signature.json", &doc);
+}

@@ -100,6 +100,11 @@ pub struct Args {
     /// A note (the item, where on it), recorded in session.json and the report.
     #[arg(long, value_name = "TEXT")]
     pub note: Option<String>,
+    /// The key (gonio keys list) that signs the folder's manifest (signature.json).
+    /// Default: the default key, else the only key; with --sim the key 'sim', made on
+    /// first use. With no key the folder is written unsigned (gonio verify says so).
+    #[arg(long, value_name = "NAME")]
+    pub key: Option<String>,
     /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,

@@ -5,7 +5,9 @@ mod args;
 pub use args::Args;
 
 use anyhow::Context;
-use host::measure::{Measured, measure, resume_command};
+use host::measure::{Measured, measure_with, resume_command};
+use host::output::signature::{Keys, SIM_KEY, Signer, fingerprint};
+use host::output::store::SignManifest;
 use host::session::{Operator, Outcome, PromptOperator, SessionError, SimulatedOperator};
 use std::path::Path;
 use std::process::ExitCode;
@@ -25,7 +27,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Box::new(PromptOperator::new())
     };
     let options = args.options();
-    match measure(&options, operator.as_mut(), interrupted)? {
+    // Chosen before anything is measured: a wrong --key stops here, not at the end.
+    let store = host::output::store::StoreOptions {
+        signer: signer(&args)?.map(|s| Arc::new(s) as Arc<dyn SignManifest>),
+        ..Default::default()
+    };
+    match measure_with(&options, operator.as_mut(), interrupted, store)? {
         Measured::Done {
             dir,
             outcome,
@@ -117,6 +124,41 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
         dir.display(),
         dir.display()
     );
+}
+
+/// The key that signs the session's folder: `--key`, else with `--sim` the key `sim` (made
+/// on first use: a simulated instrument's key, which proves nothing about hardware), else
+/// the default or only key. `None` (said on stderr) when there is none, or no keys folder.
+fn signer(args: &Args) -> anyhow::Result<Option<Signer>> {
+    let keys = match (Keys::from_env(), &args.key) {
+        (Ok(keys), _) => keys,
+        (Err(e), Some(_)) => return Err(e.into()),
+        (Err(e), None) => {
+            eprintln!("note: the folder is written unsigned ({e})");
+            return Ok(None);
+        }
+    };
+    if args.key.is_none() && args.sim.is_some() {
+        let (signer, made) = keys.load_or_create(SIM_KEY).with_context(|| {
+            format!("cannot make or read the simulated instrument's key (give --key NAME, or set {} to a writable folder)", host::output::signature::KEYS_DIR_ENV)
+        })?;
+        if made {
+            eprintln!(
+                "made the key '{SIM_KEY}' ({}) in {}: it signs the folders of the simulated instrument",
+                fingerprint(&signer.public_key()),
+                keys.dir().display()
+            );
+        }
+        return Ok(Some(signer));
+    }
+    let signer = keys.choose(args.key.as_deref())?;
+    if signer.is_none() {
+        eprintln!(
+            "note: no signing key in {}: the folder is written unsigned (gonio keys new NAME makes one)",
+            keys.dir().display()
+        );
+    }
+    Ok(signer)
 }
 
 fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {

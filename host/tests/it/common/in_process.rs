@@ -33,7 +33,10 @@ pub fn measure_as(
         &args,
         operator,
         Arc::new(AtomicBool::new(false)),
-        StoreOptions { crash },
+        StoreOptions {
+            crash,
+            ..Default::default()
+        },
     )
 }
 
