@@ -6,18 +6,19 @@
 //! the operator's prompts answered at once through standard input, as a person who is
 //! ready. Drawn from the session's index and the campaign's seed: the paper, the policy
 //! (sweep, adaptive, paper), the spots of the sheet (1–3), the byte corruption in
-//! [0, 0.01], the frame loss in [0, 0.02], the unplug's moment (uniform over the session's
-//! fault-free device time) and its length (0.2–8 s).
+//! [0, 0.01], the frame loss in [0, 0.02], the unplug's moment (uniform over the simulator's
+//! clock of the same session fault-free on a pty: that clock runs ahead of wall time while
+//! the host talks) and its length (0.2–8 s).
 //!
 //! A session **ends within its bounds** when `gonio measure` exits by itself, within
-//! [`wall_limit_s`] of wall time, with a folder that says how it ended: finished, given up
-//! with a stated reason, or stopped at a bound of the run (rounds, device time, folder
-//! size) with the bound named; and no spot's run spent more device time than
-//! [`device_limit_s`]. A session still running at its wall limit is killed and is a
-//! failure of the campaign, as is an exit without a stated reason.
-use crate::measure::{MeasureOptions, Measured, measure_with};
-use crate::output::store::StoreOptions;
-use crate::session::{PolicyChoice, SimulatedOperator};
+//! [`wall_limit_s`] of wall time, saying how it ended: finished, given up with a stated
+//! reason (in the folder's record, or the error it printed when it could not begin), or
+//! stopped at a bound of the run (rounds, device time, folder size) with the bound named;
+//! and no spot spent more device time, as the host counts it (on a serial port, the wall
+//! clock, as on a real instrument), than [`device_limit_s`]. A session still running at
+//! its wall limit is killed and is a failure of the campaign, as is an exit without a
+//! stated reason.
+use crate::session::PolicyChoice;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
 use serde_json::Value;
@@ -26,8 +27,6 @@ use std::fmt::Write as _;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 /// The papers: two glossy ones that the policies refine at length, two rough ones.
@@ -181,6 +180,9 @@ pub struct Row {
     pub device_s: f64,
     /// The most device time one spot spent, seconds.
     pub max_spot_device_s: f64,
+    /// The simulator's clock at the last reading, seconds (informational: it runs ahead of
+    /// wall time while the host talks).
+    pub sim_clock_s: f64,
     /// Spots the folder holds.
     pub spots_measured: usize,
     /// Re-measure rounds over every spot (the record's "measuring again" decisions).
@@ -193,43 +195,6 @@ pub struct Row {
     pub failure: Option<String>,
 }
 
-/// The fault-free device time (setup included) of a session of `sample`, `policy`,
-/// `spots`, in process on the simulator, in `dir` (removed after).
-pub fn clean_device_s(
-    sample: &str,
-    policy: PolicyChoice,
-    spots: u16,
-    dir: &Path,
-) -> Result<f64, String> {
-    let _ = std::fs::remove_dir_all(dir);
-    let mut options = MeasureOptions {
-        sim: Some(sample.to_string()),
-        out: Some(dir.to_path_buf()),
-        policy: Some(policy),
-        spots: Some(spots),
-        ..MeasureOptions::default()
-    };
-    options.sim_options.seed = 1;
-    let measured = measure_with(
-        &options,
-        &mut SimulatedOperator,
-        Arc::new(AtomicBool::new(false)),
-        StoreOptions::default(),
-    );
-    let seconds = match measured {
-        Ok(Measured::Done { outcome, .. }) => Ok(outcome.device_seconds + outcome.setup_seconds),
-        Ok(Measured::Sheet { sheet, .. }) => Ok(sheet
-            .doc
-            .result
-            .as_ref()
-            .map_or(0.0, |r| r.device_seconds + r.setup_seconds)),
-        Ok(Measured::Stopped { error, .. }) => Err(format!("stopped: {error}")),
-        Err(e) => Err(format!("{e:#}")),
-    };
-    let _ = std::fs::remove_dir_all(dir);
-    seconds
-}
-
 /// The simulator on a pty, killed when dropped.
 struct Simulator {
     child: Child,
@@ -237,9 +202,9 @@ struct Simulator {
 }
 
 impl Simulator {
-    fn spawn(gonio: &Path, spec: &Spec, faults: &str) -> Result<Simulator, String> {
+    fn spawn(gonio: &Path, sample: &str, seed: u64, faults: &str) -> Result<Simulator, String> {
         let mut child = Command::new(gonio)
-            .args(["sim", spec.sample, "--seed", &spec.seed.to_string()])
+            .args(["sim", sample, "--seed", &seed.to_string()])
             .arg(format!("--faults={faults}"))
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -287,7 +252,13 @@ fn json(path: &Path) -> Option<Value> {
 /// What the record says of a folder: per-spot figures and how the last run ended.
 #[derive(Default)]
 struct Record {
+    /// Per spot, the host's device time (on a serial port the host's clock is wall time,
+    /// as a real instrument's is): the result's measuring and setup seconds, or for a spot
+    /// that stopped its last run's span.
     device_s: Vec<f64>,
+    /// The simulator's clock at the last reading (it runs ahead of wall time while the
+    /// host talks: informational only).
+    sim_clock_s: f64,
     rounds: usize,
     stops: u64,
     reconnections: u64,
@@ -326,6 +297,31 @@ fn last_reading_s(dir: &Path) -> f64 {
         * 1e-6
 }
 
+/// A spot's device time as the host reckons it: its result's measuring and setup seconds
+/// (waiting for the operator left out, as the session's bound counts), or, for a spot that
+/// stopped (no result), the wall span of its runs.
+fn host_device_s(doc: &Value) -> f64 {
+    let result = &doc["result"];
+    let seconds = |v: &Value| v.as_f64().unwrap_or(0.0);
+    let from_result = seconds(&result["device_seconds"]) + seconds(&result["setup_seconds"]);
+    if from_result > 0.0 {
+        return from_result;
+    }
+    let time = |v: &Value| {
+        v.as_str()
+            .and_then(|t| chrono::DateTime::parse_from_rfc3339(t).ok())
+    };
+    doc["runs"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|run| {
+            let (start, end) = (time(&run["started"])?, time(&run["ended"])?);
+            Some((end - start).num_milliseconds() as f64 * 1e-3)
+        })
+        .sum()
+}
+
 fn read_record(dir: &Path) -> Record {
     let mut record = Record::default();
     let mut folders = vec![dir.to_path_buf()];
@@ -349,17 +345,12 @@ fn read_record(dir: &Path) -> Record {
         folders = spots;
     }
     let sheet = json(&dir.join("sheet.json"));
-    let mut previous_end_s = 0.0;
     for folder in &folders {
         let Some(doc) = json(&folder.join("session.json")) else {
             continue;
         };
-        // The device clock from where the spot before ended to its last reading: what the
-        // session's bound counts (the result's device seconds leave out travel and setup).
-        record
-            .device_s
-            .push((last_reading_s(folder) - previous_end_s).max(0.0));
-        previous_end_s = last_reading_s(folder).max(previous_end_s);
+        record.device_s.push(host_device_s(&doc));
+        record.sim_clock_s = record.sim_clock_s.max(last_reading_s(folder));
         let decisions = decisions(&doc);
         let count = |what: &dyn Fn(&str) -> bool| decisions.iter().filter(|d| what(d)).count();
         record.rounds += count(&|d| d.starts_with("measuring again") && d.contains("(round "));
@@ -378,8 +369,112 @@ fn read_record(dir: &Path) -> Record {
     record
 }
 
+/// How one `gonio measure` on a pty ended: its exit status (`None`: killed at the wall
+/// limit), its standard error, its wall seconds.
+struct Run {
+    status: Option<std::process::ExitStatus>,
+    stderr: String,
+    wall_s: f64,
+}
+
+/// Serve `sample` (simulator `seed`, `faults`) on a pty with `gonio sim` and measure it with
+/// `gonio measure --port` under `policy`, `spots`, into `dir`, killed past `wall_limit_s`.
+#[allow(clippy::too_many_arguments)]
+fn measure_on_pty(
+    gonio: &Path,
+    sample: &str,
+    seed: u64,
+    faults: &str,
+    policy: PolicyChoice,
+    spots: u16,
+    dir: &Path,
+    wall_limit_s: f64,
+) -> Result<Run, String> {
+    let simulator = Simulator::spawn(gonio, sample, seed, faults)?;
+    let started = Instant::now();
+    let mut child = Command::new(gonio)
+        .args(["measure", "--port", &simulator.path, "--sample", sample])
+        .args(["--policy", policy.name()])
+        .args(["--spots", &spots.to_string()])
+        .arg("--out")
+        .arg(dir)
+        .arg("--json")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("cannot start {} measure: {e}", gonio.display()))?;
+    // A person who is ready at every prompt: an answer waiting for each (the pipe stays
+    // open until the session ends, so no prompt meets an end of input).
+    let mut stdin = child.stdin.take();
+    if let Some(input) = stdin.as_mut() {
+        let _ = input.write_all(&[b'\n'; 512]);
+    }
+    let stdout = drain(child.stdout.take());
+    let stderr = drain(child.stderr.take());
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(status)) => break Some(status),
+            Ok(None) if started.elapsed().as_secs_f64() > wall_limit_s => {
+                let _ = child.kill();
+                let _ = child.wait();
+                break None;
+            }
+            Ok(None) => std::thread::sleep(Duration::from_millis(100)),
+            Err(_) => break None,
+        }
+    };
+    let wall_s = started.elapsed().as_secs_f64();
+    drop(stdin);
+    drop(simulator);
+    let _ = stdout.join();
+    Ok(Run {
+        status,
+        stderr: stderr.join().unwrap_or_default(),
+        wall_s,
+    })
+}
+
+/// The simulator's clock at the last reading of a fault-free session of `sample`,
+/// `policy`, `spots` on a pty, in `dir` (removed after): the span over which the unplug's
+/// moment is drawn (the pty simulator's clock runs ahead of wall time while the host
+/// talks, so the session's length in it is its own, not the in-process one's).
+pub fn clean_sim_clock_s(
+    gonio: &Path,
+    sample: &str,
+    policy: PolicyChoice,
+    spots: u16,
+    dir: &Path,
+) -> Result<f64, String> {
+    let _ = std::fs::remove_dir_all(dir);
+    let run = measure_on_pty(
+        gonio,
+        sample,
+        1,
+        "",
+        policy,
+        spots,
+        dir,
+        wall_limit_s(spots),
+    )?;
+    let record = read_record(dir);
+    let _ = std::fs::remove_dir_all(dir);
+    match run.status {
+        Some(status) if status.success() || status.code() == Some(3) => Ok(record.sim_clock_s),
+        _ => Err(format!(
+            "the fault-free session did not finish: {}",
+            run.stderr
+                .lines()
+                .rev()
+                .take(3)
+                .collect::<Vec<_>>()
+                .join(" | ")
+        )),
+    }
+}
+
 /// Run session `spec` with the `gonio` binary at `gonio`, its folder under `base`, against
-/// its fault-free device time `clean_s`.
+/// its fault-free twin's simulator clock `clean_s`.
 pub fn run_one(spec: &Spec, gonio: &Path, base: &Path, clean_s: f64) -> Row {
     let dir = base.join(format!("pty-{}", spec.index));
     let _ = std::fs::remove_dir_all(&dir);
@@ -392,78 +487,39 @@ pub fn run_one(spec: &Spec, gonio: &Path, base: &Path, clean_s: f64) -> Row {
         wall_s: 0.0,
         device_s: 0.0,
         max_spot_device_s: 0.0,
+        sim_clock_s: 0.0,
         spots_measured: 0,
         rounds: 0,
         stops: 0,
         reconnections: 0,
         failure: None,
     };
-    let simulator = match Simulator::spawn(gonio, spec, &spec.faults(clean_s)) {
-        Ok(s) => s,
+    let wall_limit = wall_limit_s(spec.spots);
+    let run = match measure_on_pty(
+        gonio,
+        spec.sample,
+        spec.seed,
+        &spec.faults(clean_s),
+        spec.policy,
+        spec.spots,
+        &dir,
+        wall_limit,
+    ) {
+        Ok(run) => run,
         Err(why) => {
             row.ended = Ended::Unexplained(why.clone());
             row.failure = Some(why);
             return row;
         }
     };
-    let wall_limit = wall_limit_s(spec.spots);
-    let started = Instant::now();
-    let child = Command::new(gonio)
-        .args([
-            "measure",
-            "--port",
-            &simulator.path,
-            "--sample",
-            spec.sample,
-        ])
-        .args(["--policy", spec.policy.name()])
-        .args(["--spots", &spec.spots.to_string()])
-        .arg("--out")
-        .arg(&dir)
-        .arg("--json")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn();
-    let mut child = match child {
-        Ok(c) => c,
-        Err(e) => {
-            let why = format!("cannot start {} measure: {e}", gonio.display());
-            row.ended = Ended::Unexplained(why.clone());
-            row.failure = Some(why);
-            return row;
-        }
-    };
-    // A person who is ready at every prompt: an answer waiting for each (the pipe stays
-    // open until the session ends, so no prompt meets an end of input).
-    let mut stdin = child.stdin.take();
-    if let Some(input) = stdin.as_mut() {
-        let _ = input.write_all(&[b'\n'; 512]);
-    }
-    let stdout = drain(child.stdout.take());
-    let stderr = drain(child.stderr.take());
-    let status = loop {
-        match child.try_wait() {
-            Ok(Some(status)) => break Some(status),
-            Ok(None) if started.elapsed().as_secs_f64() > wall_limit => {
-                let _ = child.kill();
-                let _ = child.wait();
-                break None;
-            }
-            Ok(None) => std::thread::sleep(Duration::from_millis(100)),
-            Err(_) => break None,
-        }
-    };
-    row.wall_s = started.elapsed().as_secs_f64();
-    drop(stdin);
-    drop(simulator);
-    let _ = stdout.join();
-    let stderr = stderr.join().unwrap_or_default();
+    let (status, stderr) = (run.status, run.stderr);
+    row.wall_s = run.wall_s;
     row.exit_code = status.and_then(|s| s.code());
     let record = read_record(&dir);
     row.device_s = record.device_s.iter().sum();
     row.max_spot_device_s = record.device_s.iter().copied().fold(0.0, f64::max);
     row.spots_measured = record.device_s.len();
+    row.sim_clock_s = record.sim_clock_s;
     row.rounds = record.rounds;
     row.stops = record.stops;
     row.reconnections = record.reconnections;
@@ -483,6 +539,16 @@ pub fn run_one(spec: &Spec, gonio: &Path, base: &Path, clean_s: f64) -> Row {
             .filter(|r| !r.is_empty())
             .or(said)
             .unwrap_or_default();
+        // Refused before the session began (no folder): the error it printed.
+        let reason = if reason.is_empty() {
+            stderr
+                .lines()
+                .find_map(|l| l.strip_prefix("error: "))
+                .map(str::to_string)
+                .unwrap_or_default()
+        } else {
+            reason
+        };
         if reason.contains("stopped at the bound") {
             Ended::Bound(reason)
         } else if !reason.is_empty() {
@@ -531,7 +597,7 @@ pub fn run_all(
     combos.dedup();
     let cleans = super::parallel(&combos, threads, &|| {}, |&(sample, policy, spots)| {
         let dir = base.join(format!("clean-{sample}-{}-{spots}", policy.name()));
-        clean_device_s(sample, policy, spots, &dir)
+        clean_sim_clock_s(gonio, sample, policy, spots, &dir)
             .map(|s| ((sample, policy.name(), spots), s))
             .map_err(|e| format!("fault-free {sample} {} {spots} spots: {e}", policy.name()))
     });
@@ -567,6 +633,7 @@ pub fn to_csv(rows: &[Row]) -> String {
         "wall_s",
         "device_s",
         "max_spot_device_s",
+        "sim_clock_s",
         "spots_measured",
         "rounds",
         "stops",
@@ -592,6 +659,7 @@ pub fn to_csv(rows: &[Row]) -> String {
             format!("{:.2}", r.wall_s),
             format!("{:.2}", r.device_s),
             format!("{:.2}", r.max_spot_device_s),
+            format!("{:.2}", r.sim_clock_s),
             r.spots_measured.to_string(),
             r.rounds.to_string(),
             r.stops.to_string(),

@@ -65,6 +65,7 @@ mod shapes_study;
 mod sheet;
 mod sheet_resume;
 mod sim_instrument;
+mod start_unplug;
 mod sweep_bad_link;
 mod table6;
 mod trade;
