@@ -354,7 +354,10 @@ fn read_record(dir: &Path) -> Record {
         let decisions = decisions(&doc);
         let count = |what: &dyn Fn(&str) -> bool| decisions.iter().filter(|d| what(d)).count();
         record.rounds += count(&|d| d.starts_with("measuring again") && d.contains("(round "));
-        record.stops += count(&|d| d.contains("took its fail-safe stop")) as u64;
+        // Announced by its message, or found in the status at a reconnection.
+        record.stops += count(&|d| {
+            d.contains("took its fail-safe stop") || d.starts_with("the instrument reports")
+        }) as u64;
         record.reconnections += count(&|d| d.starts_with("link back")) as u64;
         let status = doc["status"].as_str().unwrap_or_default();
         if status != "finished" && record.stopped.is_none() {
