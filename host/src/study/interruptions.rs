@@ -481,27 +481,27 @@ pub fn summary_markdown(rows: &[Row], seed: u64) -> String {
         out,
         "| policy | interruptions that happened | sheets | held |\n|---|---:|---:|---:|"
     );
-    let kinds: Vec<(String, Box<dyn Fn(&Spec) -> bool>)> = POLICIES
+    // A policy's sheets, then the README's main job (`None`).
+    let kinds: Vec<(String, Option<PolicyChoice>)> = POLICIES
         .iter()
-        .map(|&policy| -> (String, Box<dyn Fn(&Spec) -> bool>) {
-            (
-                policy.name().to_string(),
-                Box::new(move |s: &Spec| s.policy == policy && !s.main_job),
-            )
-        })
+        .map(|&policy| (policy.name().to_string(), Some(policy)))
         .chain(std::iter::once((
             format!(
                 "the README's main job (G, sweep, {} spots)",
                 crate::measure::DEFAULT_SPOTS
             ),
-            Box::new(|s: &Spec| s.main_job) as Box<dyn Fn(&Spec) -> bool>,
+            None,
         )))
         .collect();
-    for (name, of_kind) in &kinds {
+    let of_kind = |spec: &Spec, kind: Option<PolicyChoice>| match kind {
+        Some(policy) => spec.policy == policy && !spec.main_job,
+        None => spec.main_job,
+    };
+    for (name, kind) in &kinds {
         for n in 0..=3 {
             let cell: Vec<&Row> = rows
                 .iter()
-                .filter(|r| of_kind(&r.spec) && r.happened.len() == n)
+                .filter(|r| of_kind(&r.spec, *kind) && r.happened.len() == n)
                 .collect();
             if cell.is_empty() {
                 continue;
