@@ -25,9 +25,51 @@ pub struct Args {
     /// (interruptions.csv, interruptions.md).
     #[arg(long, value_name = "N")]
     pub interruptions: Option<usize>,
-    /// The interruption campaign's seed (its draws repeat with it).
+    /// Instead of the fault campaign: this many sessions of this binary's `gonio measure`
+    /// against `gonio sim` on a pseudo-terminal, with corrupt ≤ 0.01, drop ≤ 0.02 and an
+    /// unplug at a drawn moment, each checked to end within its bounds (pty.csv, pty.md).
+    #[arg(long, value_name = "N", conflicts_with = "interruptions")]
+    pub pty: Option<usize>,
+    /// The interruption or pty campaign's seed (its draws repeat with it).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+}
+
+/// The pty campaign of `gonio reliability --pty N`.
+fn pty(args: &Args, sessions: usize, threads: usize) -> anyhow::Result<ExitCode> {
+    use host::study::pty as campaign;
+    let gonio = std::env::current_exe().context("cannot find this gonio binary")?;
+    let base = args.out.join("folders");
+    std::fs::create_dir_all(&base).with_context(|| format!("cannot create {}", base.display()))?;
+    let bar = ProgressBar::new(sessions as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg} [{bar:30}] {pos}/{len} sessions, {elapsed} ({eta} left)",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_message("pty sessions");
+    let started = std::time::Instant::now();
+    let rows = campaign::run_all(sessions, args.seed, &gonio, &base, threads, &|| bar.inc(1))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    bar.finish_and_clear();
+    let csv = args.out.join("pty.csv");
+    std::fs::write(&csv, campaign::to_csv(&rows))
+        .with_context(|| format!("cannot write {}", csv.display()))?;
+    let summary = campaign::summary_markdown(&rows, args.seed, started.elapsed().as_secs_f64());
+    let md = args.out.join("pty.md");
+    std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
+    print!("{summary}");
+    eprintln!("wrote {} and {}", csv.display(), md.display());
+    let _ = std::fs::remove_dir(&base);
+    Ok(
+        if rows.len() == sessions && rows.iter().all(|r| r.failure.is_none()) {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::FAILURE
+        },
+    )
 }
 
 /// The interruption campaign of `gonio reliability --interruptions N`.
@@ -87,6 +129,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             bail!("--interruptions must be at least 1");
         }
         return interruptions(&args, sessions, threads);
+    }
+    if let Some(sessions) = args.pty {
+        if sessions == 0 {
+            bail!("--pty must be at least 1");
+        }
+        return pty(&args, sessions, threads);
     }
     let durations = reliability::session_durations()?;
     let specs: Vec<_> = (0..args.sessions)

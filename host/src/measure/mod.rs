@@ -15,7 +15,7 @@ mod write;
 pub use plan::{DEFAULT_WHITE_DRIFT_LIMIT_PCT, MAX_ACCEPTANCE_DEG};
 
 use crate::instrument::calibration::Calibration;
-use crate::instrument::link::{Client, RetryPolicy, Transport};
+use crate::instrument::link::{Client, LinkError, RetryPolicy, Transport};
 use crate::instrument::serial::SerialTransport;
 use crate::instrument::sim::SimOptions;
 use crate::output::store::StoreOptions;
@@ -25,6 +25,7 @@ use check::Checked;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
 /// Spots of a sheet when none are given ([`crate::analysis::spots::DEFAULT_SPOTS`]).
 pub const DEFAULT_SPOTS: u16 = crate::analysis::spots::DEFAULT_SPOTS;
@@ -213,6 +214,31 @@ struct Given<'a> {
     store: StoreOptions,
 }
 
+/// The first greeting, repeated while the instrument stays silent for less than the link's
+/// give-up time: a cable pulled for a moment as the session starts is ridden out as one
+/// pulled mid-way is (the pty campaign of issue 30: a 1.4 s unplug at the start failed
+/// the handshake, which alone gave up after its four unanswered tries, 2 s). A port
+/// silent or failing for the whole give-up time (10 s) is refused as before, with the
+/// handshake's error; a device heard but never understood, by the handshake's own bound.
+fn greet<T: Transport>(client: &mut Client<T>) -> Result<protocol::DeviceInfo, LinkError> {
+    let started = client.transport().now();
+    loop {
+        let within = |client: &Client<T>| {
+            client.transport().now().saturating_sub(started) < client.policy().give_up_after
+        };
+        match client.hello() {
+            Err(LinkError::NoReply { .. } | LinkError::Silent { .. }) if within(client) => {}
+            // The port failed (a cable out, a USB device gone for a moment): open it again
+            // after a pause, as a reconnection mid-session does.
+            Err(LinkError::Io(_)) if within(client) => {
+                client.transport_mut().pause(Duration::from_millis(250));
+                let _ = client.transport_mut().reconnect();
+            }
+            other => return other,
+        }
+    }
+}
+
 /// Greet the instrument, then measure a sheet or one session.
 fn run_on<T: Transport>(
     mut client: Client<T>,
@@ -226,7 +252,7 @@ fn run_on<T: Transport>(
         interrupted,
         store,
     } = given;
-    let info = client.hello().context("handshake with the instrument")?;
+    let info = greet(&mut client).context("handshake with the instrument")?;
     let profile = profile_in_force(options, &info)?;
     let mut context = Run {
         client: &mut client,

@@ -453,6 +453,13 @@ pub enum LinkLoss {
     PortGone(String),
     /// The port is there but nothing answers (a frozen instrument).
     NoAnswer,
+    /// Bytes keep coming but no frame of them can be read (a link that is all noise, a
+    /// port at the wrong settings, another device): reconnecting was given up after a
+    /// minute of greetings none of which was answered.
+    Unreadable {
+        /// Frames that could not be read meanwhile.
+        garbled: u32,
+    },
 }
 
 /// Why a session failed.
@@ -549,6 +556,10 @@ fn lost_text(link: &str, loss: &LinkLoss, silent_for: &Duration, decisions: &[St
         ),
         LinkLoss::NoAnswer => format!(
             "the port is there ({link}) but the instrument has not answered for {:.1} s: it is frozen or without power; power-cycle it",
+            silent_for.as_secs_f64()
+        ),
+        LinkLoss::Unreadable { garbled } => format!(
+            "bytes keep coming on {link} but nothing could be read from them for {:.1} s ({garbled} garbled frames, no answer to a greeting): the link is too noisy, the port is at the wrong settings or another device is on it; check the cable and the port",
             silent_for.as_secs_f64()
         ),
     };

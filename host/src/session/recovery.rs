@@ -32,6 +32,16 @@ pub(super) const MAX_RECOVERIES: u32 = 8;
 /// Between attempts to re-open the port or greet the instrument.
 const RECONNECT_PAUSE: Duration = Duration::from_millis(250);
 
+/// How long a reconnection goes on while bytes come from the port but no greeting is
+/// answered, on the transport's clock. The silence deadline cannot end it: noise is heard.
+/// At 1 % of bytes corrupted a greeting's answer is lost four times in five, so a minute
+/// of greetings (about 30, each retried) all fail with a probability far below 10⁻⁶;
+/// the greeting under way when the minute ends is finished first (at most
+/// [`crate::instrument::link::HANDSHAKE_ROUNDS`] rounds, 32 s), so a session ends within
+/// about 92 s of the last frame it could read (issue 30: a device answering only noise kept
+/// the session reconnecting for ever).
+pub(super) const RECONNECT_LIMIT: Duration = Duration::from_secs(60);
+
 /// How often the state is read while waiting for something that runs to end.
 const STATE_POLL: Duration = Duration::from_millis(200);
 
@@ -285,6 +295,7 @@ impl<T: Transport> Session<'_, T> {
         let give_up_after = self.client.policy().give_up_after;
         let lost_at = self.now().saturating_sub(self.client.silent_for());
         let mut reopen = self.link.last_io_error.is_some();
+        let garbled_before = self.client.stats().bad_frames;
         loop {
             // A Ctrl-C is the operator's, whatever the port does: a port that cannot be
             // re-opened must not hide it until the give-up time (issue 30 D3).
@@ -294,6 +305,11 @@ impl<T: Transport> Session<'_, T> {
             let silent_for = self.client.silent_for();
             if silent_for >= give_up_after {
                 return Err(self.give_up(silent_for));
+            }
+            let trying_for = self.now().saturating_sub(lost_at);
+            if trying_for >= RECONNECT_LIMIT {
+                let garbled = self.client.stats().bad_frames - garbled_before;
+                return Err(self.give_up_unreadable(trying_for, garbled));
             }
             if reopen && let Err(error) = self.client.transport_mut().reconnect() {
                 self.link.last_io_error = Some(error.to_string());
@@ -357,6 +373,12 @@ impl<T: Transport> Session<'_, T> {
             Some(error) => LinkLoss::PortGone(error.clone()),
             None => LinkLoss::NoAnswer,
         };
+        self.lost(loss, silent_for)
+    }
+
+    /// The session ends on `loss`, `silent_for` after the instrument was last heard (or
+    /// understood): the decision says so.
+    fn lost(&mut self, loss: LinkLoss, silent_for: Duration) -> SessionError {
         let link = self.client.transport().name();
         let decision = match &loss {
             LinkLoss::PortGone(error) => format!(
@@ -367,6 +389,10 @@ impl<T: Transport> Session<'_, T> {
                 "giving up: the port is there but the instrument has not answered for {:.1} s",
                 silent_for.as_secs_f64()
             ),
+            LinkLoss::Unreadable { garbled } => format!(
+                "giving up: bytes keep coming but no greeting was answered in {:.1} s of reconnecting ({garbled} garbled frames)",
+                silent_for.as_secs_f64()
+            ),
         };
         self.decide(&decision);
         SessionError::Lost {
@@ -375,6 +401,12 @@ impl<T: Transport> Session<'_, T> {
             silent_for,
             decisions: self.decisions.clone(),
         }
+    }
+
+    /// The session ends: bytes kept coming for [`RECONNECT_LIMIT`] but no greeting was
+    /// answered. Says so, with the decisions so far (the caller says how to resume).
+    fn give_up_unreadable(&mut self, trying_for: Duration, garbled: u32) -> SessionError {
+        self.lost(LinkLoss::Unreadable { garbled }, trying_for)
     }
 
     /// Read the state and bring the instrument to a known one: nothing running, homed,

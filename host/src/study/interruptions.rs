@@ -41,6 +41,10 @@ pub const POLICIES: [PolicyChoice; 3] = [
     PolicyChoice::Paper,
 ];
 
+/// One session in this many is the README's main job: `gonio measure --sim G --policy
+/// sweep`, the sheet of the default number of spots (no `--spots`).
+pub const MAIN_JOB_EVERY: usize = 6;
+
 /// One interruption.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Interruption {
@@ -72,8 +76,10 @@ pub struct Spec {
     pub sample: &'static str,
     /// The sheet's policy.
     pub policy: PolicyChoice,
-    /// Spots of the sheet (2 or 3).
+    /// Spots of the sheet (2 or 3; the default's for the main job).
     pub spots: u16,
+    /// The README's main job (`--sim G --policy sweep`, no `--spots`).
+    pub main_job: bool,
     /// The simulator's seed of the first run (each run adds its number).
     pub seed: u64,
     /// The interruptions drawn, with where each falls in its run's share (0–1).
@@ -84,9 +90,15 @@ pub struct Spec {
 pub fn draw(index: usize, seed: u64) -> Spec {
     let mut rng =
         ChaCha12Rng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let main_job = index % MAIN_JOB_EVERY == MAIN_JOB_EVERY - 1;
     let sample = SAMPLES[rng.random_range(0..SAMPLES.len())];
     let policy = POLICIES[index % POLICIES.len()];
     let spots = rng.random_range(2..=3);
+    let (sample, policy, spots) = if main_job {
+        ("G", PolicyChoice::Sweep, crate::measure::DEFAULT_SPOTS)
+    } else {
+        (sample, policy, spots)
+    };
     let count = 1 + (index / POLICIES.len()) % 3;
     let kinds = [
         Interruption::Kill,
@@ -106,6 +118,7 @@ pub fn draw(index: usize, seed: u64) -> Spec {
         sample,
         policy,
         spots,
+        main_job,
         seed: rng.random_range(1..1_000_000),
         interruptions,
     }
@@ -142,7 +155,8 @@ fn options(spec: &Spec, run: usize, dir: &Path, fresh: bool) -> MeasureOptions {
     if fresh {
         options.out = Some(dir.to_path_buf());
         options.policy = Some(spec.policy);
-        options.spots = Some(spec.spots);
+        // The main job as the README gives it: the sheet's spots by default.
+        options.spots = (!spec.main_job).then_some(spec.spots);
     } else {
         // The sheet's plan is its own: a resume gives no option of it.
         options.resume = Some(dir.to_path_buf());
@@ -162,6 +176,7 @@ pub fn clean(
         sample,
         policy,
         spots,
+        main_job: false,
         seed: 1,
         interruptions: Vec::new(),
     };
@@ -424,8 +439,8 @@ pub fn run_all(
 pub fn to_csv(rows: &[Row]) -> String {
     let mut csv = csv::Writer::from_writer(Vec::new());
     let header = [
-        "index", "sample", "policy", "spots", "seed", "drawn", "happened", "runs", "held",
-        "failure",
+        "index", "sample", "policy", "spots", "main_job", "seed", "drawn", "happened", "runs",
+        "held", "failure",
     ];
     // Writing to memory fails only on a record of the wrong length, which these are not.
     let _ = csv.write_record(header);
@@ -441,6 +456,7 @@ pub fn to_csv(rows: &[Row]) -> String {
             r.spec.sample.to_string(),
             r.spec.policy.name().to_string(),
             r.spec.spots.to_string(),
+            r.spec.main_job.to_string(),
             r.spec.seed.to_string(),
             drawn.join(" "),
             r.happened.join(" "),
@@ -467,17 +483,33 @@ pub fn summary_markdown(rows: &[Row], seed: u64) -> String {
         out,
         "| policy | interruptions that happened | sheets | held |\n|---|---:|---:|---:|"
     );
-    for policy in POLICIES {
+    // A policy's sheets, then the README's main job (`None`).
+    let kinds: Vec<(String, Option<PolicyChoice>)> = POLICIES
+        .iter()
+        .map(|&policy| (policy.name().to_string(), Some(policy)))
+        .chain(std::iter::once((
+            format!(
+                "the README's main job (G, sweep, {} spots)",
+                crate::measure::DEFAULT_SPOTS
+            ),
+            None,
+        )))
+        .collect();
+    let of_kind = |spec: &Spec, kind: Option<PolicyChoice>| match kind {
+        Some(policy) => spec.policy == policy && !spec.main_job,
+        None => spec.main_job,
+    };
+    for (name, kind) in &kinds {
         for n in 0..=3 {
             let cell: Vec<&Row> = rows
                 .iter()
-                .filter(|r| r.spec.policy == policy && r.happened.len() == n)
+                .filter(|r| of_kind(&r.spec, *kind) && r.happened.len() == n)
                 .collect();
             if cell.is_empty() {
                 continue;
             }
             let ok = cell.iter().filter(|r| r.failure.is_none()).count();
-            let _ = writeln!(out, "| {} | {n} | {} | {ok} |", policy.name(), cell.len());
+            let _ = writeln!(out, "| {name} | {n} | {} | {ok} |", cell.len());
         }
     }
     let mut kinds: BTreeMap<String, usize> = BTreeMap::new();
@@ -534,7 +566,7 @@ mod tests {
         let records: Vec<csv::StringRecord> =
             reader.records().map(|r| r.expect("a record")).collect();
         assert_eq!(records.len(), 1);
-        assert_eq!(&records[0][9], failure);
-        assert_eq!(&records[0][8], "false");
+        assert_eq!(&records[0][10], failure);
+        assert_eq!(&records[0][9], "false");
     }
 }

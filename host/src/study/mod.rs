@@ -4,6 +4,7 @@ pub mod forensic;
 pub mod instruments;
 pub mod interruptions;
 pub mod library_validation;
+pub mod pty;
 pub mod reliability;
 pub mod shapes;
 pub mod trade;
