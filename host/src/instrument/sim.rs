@@ -45,6 +45,10 @@ impl Transport for SimInstrument {
         Duration::from_micros(self.device_time_us())
     }
 
+    fn now_is_device_time(&self) -> bool {
+        true
+    }
+
     /// The simulator in process lives and dies with this host process: no earlier host
     /// can have used its sequence numbers. A fixed start keeps a seed's run repeatable
     /// (the numbers' encoded length changes which bytes the link faults hit).
