@@ -332,3 +332,40 @@ fn ctrl_c_on_a_port_session_stops_it_keeps_the_readings_and_exits_non_zero() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 31: two runs of the simulator without `--seed` are two measurements (their seeds
+/// drawn, printed and recorded in session.json); with `--seed` a run repeats exactly.
+#[test]
+fn the_simulators_seed_differs_between_runs_unless_given_and_is_recorded() {
+    let run = |name: &str, seed: Option<&str>| {
+        let dir = temp_dir(name);
+        let mut args = vec!["measure", "--spots", "1", "--sim", "SG", "--json", "--out"];
+        args.push(dir.to_str().unwrap());
+        if let Some(seed) = seed {
+            args.extend(["--seed", seed]);
+        }
+        let out = gonio(&args);
+        result(&out);
+        let session: Value =
+            serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
+        let recorded = session["instrument"]["simulated_seed"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no seed recorded: {}", session["instrument"]));
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(
+            stderr.contains(&format!("seed {recorded} (--seed {recorded} repeats")),
+            "{stderr}"
+        );
+        let readings = std::fs::read_to_string(dir.join("readings.csv")).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        (recorded, readings)
+    };
+    let (a, readings_a) = run("seed-a", None);
+    let (b, readings_b) = run("seed-b", None);
+    assert_ne!(a, b, "two runs without --seed drew the same seed");
+    assert_ne!(readings_a, readings_b, "two runs without --seed read the same data");
+    let (c, readings_c) = run("seed-c", Some("77"));
+    let (d, readings_d) = run("seed-d", Some("77"));
+    assert_eq!((c, d), (77, 77));
+    assert_eq!(readings_c, readings_d, "--seed repeats a run");
+}

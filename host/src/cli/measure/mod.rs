@@ -25,6 +25,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Box::new(PromptOperator::new())
     };
     let options = args.options();
+    if let Some(sample) = &options.sim {
+        eprintln!(
+            "simulated instrument, sample {sample}, seed {} (--seed {} repeats this run; recorded in session.json)",
+            options.sim_options.seed, options.sim_options.seed
+        );
+    }
     match measure(&options, operator.as_mut(), interrupted)? {
         Measured::Done {
             dir,
