@@ -182,7 +182,10 @@ pub fn measure_with(
             .resume
             .as_deref()
             .map_or(0, crate::instrument::sim::runs_recorded);
-        let instrument = sim.instrument(sample)?;
+        // A simulator option (the sample's name, a fault) is the command line's.
+        let instrument = sim
+            .instrument(sample)
+            .map_err(|e| crate::UsageError(e.to_string()))?;
         run_on(Client::new(instrument, policy), given, Some(sample.clone()))
     } else {
         let transport = open_port(options.port.as_deref())?;
