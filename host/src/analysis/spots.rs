@@ -276,7 +276,12 @@ mod tests {
         let summary = assess(3, &flagged);
         let counts = SpotCounts::of(3, &summary, |_| vec![Flag::LostSteps]);
         assert_eq!(
-            (counts.measured, counts.accepted, counts.flagged, counts.flagged_in_mean),
+            (
+                counts.measured,
+                counts.accepted,
+                counts.flagged,
+                counts.flagged_in_mean
+            ),
             (5, 0, 5, 5)
         );
         let text = counts.sentence();
@@ -284,7 +289,8 @@ mod tests {
             text.starts_with("3 spots planned, 5 measured: 0 accepted, 5 flagged"),
             "{text}"
         );
-        let words = SpotCounts::verdict_words(Some(&summary.verdicts[0].verdict), &[Flag::LostSteps]);
+        let words =
+            SpotCounts::verdict_words(Some(&summary.verdicts[0].verdict), &[Flag::LostSteps]);
         assert!(!words.starts_with("accepted"), "{words}");
         // One flagged among clean ones: excluded, the rest accepted.
         let mixed = [

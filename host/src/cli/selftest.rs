@@ -27,7 +27,11 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let result = if args.sim {
         // The self-test keeps seed 1 unless given: its figures are not a measurement.
-        let instrument = args.sim_options.clone().with_seed(Some(1)).instrument("G")?;
+        let instrument = args
+            .sim_options
+            .clone()
+            .with_seed(Some(1))
+            .instrument("G")?;
         test(Client::new(instrument, RetryPolicy::default()))?
     } else {
         let transport = host::measure::open_port(args.port.as_deref())?;

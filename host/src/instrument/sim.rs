@@ -72,8 +72,9 @@ pub enum Physics {
     /// arm zero error (the detector window and the lamp drift are on, as always).
     #[default]
     Ideal,
-    /// The realistic set ([`REAL_PHYSICS`]): detector window, range-gain error, tile error,
-    /// lamp drift and an arm zero error, the lobe kept Gaussian.
+    /// The realistic set: detector window, range-gain error, tile error, lamp drift and an
+    /// arm zero error, the lobe kept Gaussian.
+    // (The figures are `REAL_PHYSICS`'s; no intra-doc link here: clap prints this text.)
     Real,
     /// An instrument unlike the declared one: the realistic gain, tile
     /// and lamp errors, and drawn from the seed its detector response (top-hat, Gaussian or
@@ -539,7 +540,9 @@ pub fn recorded_seed(dir: &std::path::Path) -> Option<u64> {
             .filter(|p| p.is_dir())
             .collect();
         spots.sort();
-        spots.into_iter().find_map(|p| seed_in(p.join("session.json")))
+        spots
+            .into_iter()
+            .find_map(|p| seed_in(p.join("session.json")))
     })
 }
 

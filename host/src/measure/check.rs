@@ -34,12 +34,16 @@ pub(super) fn check(args: &MeasureOptions) -> anyhow::Result<Checked> {
         .and_then(|c| c.tile())
         .context("--tile-certificate")?,
         None => Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).map_err(|e| {
-            crate::UsageError(format!("--tile-radiance-factor / --tile-uncertainty-pct: {e}"))
+            crate::UsageError(format!(
+                "--tile-radiance-factor / --tile-uncertainty-pct: {e}"
+            ))
         })?,
     };
     let zero = args.arm_zero_uncertainty_deg;
     if !(0.0..=5.0).contains(&zero) {
-        crate::usage_bail!("--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}");
+        crate::usage_bail!(
+            "--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}"
+        );
     }
     let spots = args.spots.unwrap_or(DEFAULT_SPOTS);
     if !(1..=MAX_SPOTS).contains(&spots) {

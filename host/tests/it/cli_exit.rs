@@ -264,9 +264,23 @@ fn every_subcommand_exits_with_the_readmes_codes() {
     let missing = temp_dir("no-such-folder");
     let missing = missing.to_str().unwrap();
     let subcommands = [
-        "measure", "fit", "flash", "ports", "sim", "compare", "trade", "reliability",
-        "accuracy", "forensic", "verify", "completions", "sessions", "report", "library",
-        "selftest", "characterize",
+        "measure",
+        "fit",
+        "flash",
+        "ports",
+        "sim",
+        "compare",
+        "trade",
+        "reliability",
+        "accuracy",
+        "forensic",
+        "verify",
+        "completions",
+        "sessions",
+        "report",
+        "library",
+        "selftest",
+        "characterize",
     ];
     let mut cases: Vec<(Vec<&str>, i32)> = subcommands
         .iter()
@@ -276,8 +290,30 @@ fn every_subcommand_exits_with_the_readmes_codes() {
         // Values refused: by clap, or later, the same code.
         (vec!["measure", "--sim", "GG", "--spots", "1"], 2),
         (vec!["measure", "--sim", "G", "--policy", "adaptve"], 2),
-        (vec!["measure", "--sim", "G", "--spots", "1", "--integration-ms", "0"], 2),
-        (vec!["measure", "--sim", "G", "--spots", "1", "--integration-ms", "99999"], 2),
+        (
+            vec![
+                "measure",
+                "--sim",
+                "G",
+                "--spots",
+                "1",
+                "--integration-ms",
+                "0",
+            ],
+            2,
+        ),
+        (
+            vec![
+                "measure",
+                "--sim",
+                "G",
+                "--spots",
+                "1",
+                "--integration-ms",
+                "99999",
+            ],
+            2,
+        ),
         (vec!["measure", "--sim", "G", "--spots", "0"], 2),
         (vec!["sim", "GG"], 2),
         (vec!["completions", "no-such-shell"], 2),
@@ -297,7 +333,10 @@ fn every_subcommand_exits_with_the_readmes_codes() {
                 "gonio {}: exit {:?}, the table says {code}: {}",
                 args.join(" "),
                 out.status.code(),
-                String::from_utf8_lossy(&out.stderr).lines().next().unwrap_or("")
+                String::from_utf8_lossy(&out.stderr)
+                    .lines()
+                    .next()
+                    .unwrap_or("")
             ));
         }
     }

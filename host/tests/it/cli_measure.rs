@@ -250,7 +250,11 @@ fn a_session_through_the_pseudo_terminal_with_prompts() {
     let stamps: Vec<f64> = std::fs::read_to_string(dir.join("points.jsonl"))
         .unwrap()
         .lines()
-        .map(|l| serde_json::from_str::<Value>(l).unwrap()["device_time_us"].as_f64().unwrap())
+        .map(|l| {
+            serde_json::from_str::<Value>(l).unwrap()["device_time_us"]
+                .as_f64()
+                .unwrap()
+        })
         .collect();
     let span_s = (stamps.last().unwrap() - stamps[0]) * 1e-6;
     let port_s = on_port["device_seconds"].as_f64().unwrap();
@@ -363,7 +367,10 @@ fn the_simulators_seed_differs_between_runs_unless_given_and_is_recorded() {
     let (a, readings_a) = run("seed-a", None);
     let (b, readings_b) = run("seed-b", None);
     assert_ne!(a, b, "two runs without --seed drew the same seed");
-    assert_ne!(readings_a, readings_b, "two runs without --seed read the same data");
+    assert_ne!(
+        readings_a, readings_b,
+        "two runs without --seed read the same data"
+    );
     let (c, readings_c) = run("seed-c", Some("77"));
     let (d, readings_d) = run("seed-d", Some("77"));
     assert_eq!((c, d), (77, 77));

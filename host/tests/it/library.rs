@@ -656,12 +656,27 @@ fn a_sheet_and_its_own_spot_are_one_sheet_counted_once() {
     let root = temp_dir("library", "same-sheet");
     let sheet = root.join("G-a");
     let out = gonio(&[
-        "measure", "--spots", "2", "--sim", "G", "--seed", "33", "--out", s(&sheet),
+        "measure",
+        "--spots",
+        "2",
+        "--sim",
+        "G",
+        "--seed",
+        "33",
+        "--out",
+        s(&sheet),
     ]);
     assert!(out.status.success(), "{}", stderr(&out));
     let spot = sheet.join("spot-1");
     let add = |library: &Path, dirs: &[&Path]| {
-        let mut args = vec!["library", "add", "--library", s(library), "--stock", "Stock-G"];
+        let mut args = vec![
+            "library",
+            "add",
+            "--library",
+            s(library),
+            "--stock",
+            "Stock-G",
+        ];
         args.extend(dirs.iter().map(|d| s(d)));
         gonio(&args)
     };

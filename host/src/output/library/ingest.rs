@@ -119,7 +119,12 @@ pub fn same_sheet_folders(dir: &Path) -> Vec<(String, std::path::PathBuf)> {
     let identity = |folder: &Path| {
         std::fs::read(folder.join(crate::output::folder::MANIFEST))
             .ok()
-            .map(|bytes| (crate::output::manifest::sha256_hex(&bytes), folder.to_path_buf()))
+            .map(|bytes| {
+                (
+                    crate::output::manifest::sha256_hex(&bytes),
+                    folder.to_path_buf(),
+                )
+            })
     };
     if crate::output::folder::is_sheet_folder(dir) {
         let Ok(names) = crate::output::folder::entries(dir) else {
