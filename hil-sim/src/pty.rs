@@ -44,7 +44,8 @@ impl PtyServer {
     /// Serve `instrument` until `stop` is set. Whatever a client sends, garbage included,
     /// goes to the firmware's decoder, which answers bad frames and carries on.
     ///
-    /// Virtual time runs ahead of wall time, but never more than three quarters of the
+    /// Virtual time runs ahead of wall time while the firmware has work under way (a move,
+    /// a reading, a schedule, a sweep), but never more than three quarters of the
     /// firmware's heartbeat timeout past the last frame from the host the firmware heard:
     /// a host that keeps talking (as a host must while the arms move) is never taken for
     /// lost, however fast the simulation runs. A host unheard for the heartbeat timeout in
@@ -94,7 +95,10 @@ impl PtyServer {
             let wall_step_us = (now_wall - last_loop_wall).as_micros() as u64;
             last_loop_wall = now_wall;
             let now_us = instrument.device_time_us();
-            let limit_us = if now_wall - last_host_wall >= timeout {
+            // Idle, the firmware waits for the host, which is computing (or gone): device
+            // time follows wall time, as on a real instrument. Running ahead there made
+            // the idle instrument's clock gain up to the lead on every pause of the host.
+            let limit_us = if now_wall - last_host_wall >= timeout || instrument.is_idle() {
                 now_us + wall_step_us
             } else {
                 // At most 50 ms of device time per turn keeps the loop responsive.

@@ -33,3 +33,18 @@ pub mod schema;
 pub mod session;
 pub mod study;
 pub mod text;
+
+/// A value given on the command line that is not acceptable (out of its range, an unknown
+/// name): the command line was wrong, whichever layer found it, so `gonio` exits with its
+/// usage code (2) as clap does for a value it refuses itself (README, "Exit codes").
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// `anyhow::bail!` for a [`UsageError`].
+#[macro_export]
+macro_rules! usage_bail {
+    ($($arg:tt)*) => {
+        return Err(anyhow::Error::new($crate::UsageError(format!($($arg)*))))
+    };
+}

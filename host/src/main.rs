@@ -84,7 +84,16 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(err) => {
             eprintln!("error: {err:#}");
-            ExitCode::FAILURE
+            // A value on the command line refused after clap parsed it exits as clap's own
+            // refusals do.
+            if err
+                .chain()
+                .any(|c| c.downcast_ref::<host::UsageError>().is_some())
+            {
+                ExitCode::from(cli::exit::USAGE)
+            } else {
+                ExitCode::from(cli::exit::FAILED)
+            }
         }
     }
 }

@@ -114,6 +114,80 @@ impl SheetSummary {
     }
 }
 
+/// A sheet's spots counted as the terminal, `--json` and the report say them: a flagged
+/// spot is never counted as accepted (issue 31: "5 of 3 spots planned accepted" for five
+/// flagged spots).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SpotCounts {
+    /// Spots planned (`--spots`).
+    pub planned: u16,
+    /// Spots measured (replacements of flagged spots included).
+    pub measured: usize,
+    /// Spots whose result is flagged (informational flags apart).
+    pub flagged: usize,
+    /// Clean spots in the sheet's mean.
+    pub accepted: usize,
+    /// Flagged spots in the sheet's mean (when no spot came out clean).
+    pub flagged_in_mean: usize,
+}
+
+impl SpotCounts {
+    /// The counts of `summary`'s spots, each spot's flags from `flags_of`.
+    pub fn of(planned: u16, summary: &SheetSummary, flags_of: impl Fn(u16) -> Vec<Flag>) -> Self {
+        let mut counts = SpotCounts {
+            planned,
+            measured: summary.verdicts.len(),
+            flagged: 0,
+            accepted: 0,
+            flagged_in_mean: 0,
+        };
+        for judged in &summary.verdicts {
+            let clean = flags::ok(&flags_of(judged.number));
+            let in_mean = judged.verdict == SpotVerdict::Accepted;
+            counts.flagged += usize::from(!clean);
+            counts.accepted += usize::from(clean && in_mean);
+            counts.flagged_in_mean += usize::from(!clean && in_mean);
+        }
+        counts
+    }
+
+    /// In words: "5 spots planned, 7 measured: 5 accepted, 2 flagged (excluded)".
+    pub fn sentence(&self) -> String {
+        let plural = |n: usize| if n == 1 { "" } else { "s" };
+        let mut text = format!(
+            "{} spot{} planned, {} measured: {} accepted, {} flagged",
+            self.planned,
+            plural(usize::from(self.planned)),
+            self.measured,
+            self.accepted,
+            self.flagged
+        );
+        if self.flagged_in_mean > 0 {
+            text.push_str(&format!(
+                " (no spot came out clean: the sheet's mean is of {} flagged spot{})",
+                self.flagged_in_mean,
+                plural(self.flagged_in_mean)
+            ));
+        } else if self.flagged > 0 {
+            text.push_str(" (excluded)");
+        }
+        text
+    }
+
+    /// A spot's verdict in words: "accepted", "FLAGGED, in the mean: no spot came out
+    /// clean", or "EXCLUDED: reason".
+    pub fn verdict_words(verdict: Option<&SpotVerdict>, flags: &[Flag]) -> String {
+        match verdict {
+            Some(SpotVerdict::Accepted) if flags::ok(flags) => "accepted".to_string(),
+            Some(SpotVerdict::Accepted) => {
+                "FLAGGED, in the sheet's mean only because no spot came out clean".to_string()
+            }
+            Some(SpotVerdict::Excluded { reason }) => format!("EXCLUDED: {reason}"),
+            None => "?".to_string(),
+        }
+    }
+}
+
 /// The sheet's result from its measured spots (see the module's rules).
 pub(crate) fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
     let any_clean = results.iter().any(|r| flags::ok(&r.flags));
@@ -192,6 +266,45 @@ pub(crate) fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 31: three spots planned, five measured, every one flagged: none accepted.
+    #[test]
+    fn flagged_spots_are_counted_flagged_never_accepted() {
+        let flagged: Vec<SpotResult> = (1..=5)
+            .map(|n| result(n, &[Flag::LostSteps], 3.0 + f64::from(n)))
+            .collect();
+        let summary = assess(3, &flagged);
+        let counts = SpotCounts::of(3, &summary, |_| vec![Flag::LostSteps]);
+        assert_eq!(
+            (
+                counts.measured,
+                counts.accepted,
+                counts.flagged,
+                counts.flagged_in_mean
+            ),
+            (5, 0, 5, 5)
+        );
+        let text = counts.sentence();
+        assert!(
+            text.starts_with("3 spots planned, 5 measured: 0 accepted, 5 flagged"),
+            "{text}"
+        );
+        let words =
+            SpotCounts::verdict_words(Some(&summary.verdicts[0].verdict), &[Flag::LostSteps]);
+        assert!(!words.starts_with("accepted"), "{words}");
+        // One flagged among clean ones: excluded, the rest accepted.
+        let mixed = [
+            result(1, &[], 5.0),
+            result(2, &[Flag::LostSteps], 6.0),
+            result(3, &[], 5.5),
+        ];
+        let summary = assess(2, &mixed);
+        let counts = SpotCounts::of(2, &summary, |n| mixed[usize::from(n) - 1].flags.clone());
+        assert_eq!(
+            counts.sentence(),
+            "2 spots planned, 3 measured: 2 accepted, 1 flagged (excluded)"
+        );
+    }
 
     fn result(number: u16, flags: &[Flag], sigma: f64) -> SpotResult {
         let values = [Some(sigma), Some(0.4), Some(0.41)];

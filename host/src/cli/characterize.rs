@@ -118,7 +118,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         lamp_s: args.lamp_s,
     };
     let result = if args.sim {
-        let instrument = args.sim_options.instrument("black-glass")?;
+        let instrument = args
+            .sim_options
+            .clone()
+            .with_seed(Some(1))
+            .instrument("black-glass")?;
         measure(
             Client::new(instrument, RetryPolicy::default()),
             &mut SimulatedOperator,

@@ -163,6 +163,7 @@ fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
     // Every folder is read and checked before the library is opened: a refused add
     // leaves no new, empty library behind.
     let mut sheets = Vec::new();
+    let mut related = Vec::new();
     for dir in &args.dirs {
         let sheet = library::read_session_folder(dir, args.lot.as_deref(), args.allow_flagged)?;
         if let Some(earlier) = sheets
@@ -176,7 +177,22 @@ fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
                 sheet.session_sha256
             );
         }
+        let same_sheet = library::same_sheet_folders(dir);
+        for (earlier, earlier_dir) in sheets.iter().zip(&args.dirs) {
+            if same_sheet
+                .iter()
+                .any(|(identity, _)| *identity == earlier.session_sha256)
+            {
+                return Err(library::LibraryError::SameSheet {
+                    dir: dir.clone(),
+                    other: earlier_dir.display().to_string(),
+                    where_: "given in this add too; nothing was added".into(),
+                }
+                .into());
+            }
+        }
         sheets.push(sheet);
+        related.push(same_sheet);
     }
     let stock = StockInfo {
         name: args.stock.clone(),
@@ -184,6 +200,22 @@ fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
         notes: args.notes,
     };
     let mut library = Library::open(path, OpenMode::Add)?;
+    for (dir, same_sheet) in args.dirs.iter().zip(&related) {
+        for (identity, other) in same_sheet {
+            if let Some(stock) = library.stock_of_session(identity)? {
+                return Err(library::LibraryError::SameSheet {
+                    dir: dir.clone(),
+                    other: other.display().to_string(),
+                    where_: format!(
+                        "already in the library under stock '{}' (session {}); nothing was added",
+                        host::text::shown(&stock),
+                        short(identity)
+                    ),
+                }
+                .into());
+            }
+        }
+    }
     library.add_sheets(&stock, &sheets)?;
     for sheet in &sheets {
         println!(

@@ -17,7 +17,8 @@ pub struct Args {
 
 /// Run `gonio sim`: print the device path on the first line, serve until Ctrl-C.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let mut instrument = args.options.instrument(&args.sample)?;
+    let options = args.options.with_seed(None);
+    let mut instrument = options.instrument(&args.sample)?;
     let server = hil_sim::pty::PtyServer::open().context("cannot open a pseudo-terminal")?;
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
@@ -27,8 +28,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     writeln!(stdout, "{}", server.path().display())?;
     stdout.flush()?;
     eprintln!(
-        "simulated instrument with sample {} on {}; Ctrl-C stops it",
+        "simulated instrument with sample {}, seed {} (--seed {} repeats it), on {}; Ctrl-C stops it",
         args.sample,
+        options.seed,
+        options.seed,
         server.path().display()
     );
     server

@@ -50,6 +50,14 @@ pub trait Transport {
         static ORIGIN: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
         ORIGIN.get_or_init(std::time::Instant::now).elapsed()
     }
+    /// Whether [`Transport::now`] is the instrument's own clock (the simulator in
+    /// process). Otherwise the session reads the device's clock (its uptime in
+    /// `GetStatus`) for device time: over a serial port the host's wall clock is not the
+    /// device's (the simulator on a pseudo-terminal runs ahead of wall time, a host busy
+    /// fitting is not the device working).
+    fn now_is_device_time(&self) -> bool {
+        false
+    }
     /// The first sequence number a new [`Client`] uses, chosen so that it cannot collide
     /// with the numbers of an earlier host process on the same instrument (whose
     /// requests the firmware may still be carrying out or have cached).

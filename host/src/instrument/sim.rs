@@ -45,6 +45,10 @@ impl Transport for SimInstrument {
         Duration::from_micros(self.device_time_us())
     }
 
+    fn now_is_device_time(&self) -> bool {
+        true
+    }
+
     /// The simulator in process lives and dies with this host process: no earlier host
     /// can have used its sequence numbers. A fixed start keeps a seed's run repeatable
     /// (the numbers' encoded length changes which bytes the link faults hit).
@@ -68,8 +72,9 @@ pub enum Physics {
     /// arm zero error (the detector window and the lamp drift are on, as always).
     #[default]
     Ideal,
-    /// The realistic set ([`REAL_PHYSICS`]): detector window, range-gain error, tile error,
-    /// lamp drift and an arm zero error, the lobe kept Gaussian.
+    /// The realistic set: detector window, range-gain error, tile error, lamp drift and an
+    /// arm zero error, the lobe kept Gaussian.
+    // (The figures are `REAL_PHYSICS`'s; no intra-doc link here: clap prints this text.)
     Real,
     /// An instrument unlike the declared one: the realistic gain, tile
     /// and lamp errors, and drawn from the seed its detector response (top-hat, Gaussian or
@@ -333,8 +338,14 @@ pub struct InstrumentTruth {
 /// Options of the simulated instrument (the same on `gonio sim` and `gonio measure --sim`).
 #[derive(clap::Args, Clone, Debug, PartialEq)]
 pub struct SimOptions {
-    /// Seed of the simulated noise and link faults: the same seed repeats a run exactly.
-    #[arg(long, default_value_t = 1)]
+    /// Seed of the simulated noise and link faults: the same seed repeats a run exactly
+    /// (default: one drawn for the run, printed and recorded in session.json; a resumed
+    /// session's recorded one).
+    #[arg(long = "seed", value_name = "N")]
+    pub seed_given: Option<u64>,
+    /// The seed in use: `--seed`, else what [`SimOptions::with_seed`] drew or was given
+    /// (1 when built in code without one).
+    #[arg(skip = 1u64)]
     pub seed: u64,
     /// Detector acceptance, full width, degrees: a top-hat response (0: a point detector;
     /// --response gives another shape).
@@ -451,6 +462,7 @@ impl Default for SimOptions {
     /// The same as no option on the command line.
     fn default() -> Self {
         SimOptions {
+            seed_given: None,
             seed: 1,
             acceptance: model::DEFAULT_ACCEPTANCE_DEG,
             response: None,
@@ -497,6 +509,41 @@ pub(crate) fn runs_recorded(dir: &std::path::Path) -> u64 {
         }
     }
     total
+}
+
+impl SimOptions {
+    /// The options with their seed settled, as the command line means it: `--seed`, else
+    /// `recorded` (a resumed session's), else one drawn for this run, so that two runs of
+    /// the same sample are two measurements, not one twice (issue 31).
+    pub fn with_seed(mut self, recorded: Option<u64>) -> SimOptions {
+        self.seed = self
+            .seed_given
+            .or(recorded)
+            .unwrap_or_else(|| rand::rng().random_range(1..1_000_000));
+        self
+    }
+}
+
+/// The simulator's seed a session or sheet folder recorded (`instrument.simulated_seed` of
+/// its `session.json`, or of its first spot's), for `--resume` to continue with.
+pub fn recorded_seed(dir: &std::path::Path) -> Option<u64> {
+    let seed_in = |file: PathBuf| -> Option<u64> {
+        let bytes = std::fs::read(file).ok()?;
+        let doc: serde_json::Value = serde_json::from_slice(&bytes).ok()?;
+        doc.get("instrument")?.get("simulated_seed")?.as_u64()
+    };
+    seed_in(dir.join("session.json")).or_else(|| {
+        let mut spots: Vec<PathBuf> = std::fs::read_dir(dir)
+            .ok()?
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.is_dir())
+            .collect();
+        spots.sort();
+        spots
+            .into_iter()
+            .find_map(|p| seed_in(p.join("session.json")))
+    })
 }
 
 /// Longest outage `unplug-at` accepts: a day of device time.

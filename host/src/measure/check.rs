@@ -17,14 +17,14 @@ pub(super) fn check(args: &MeasureOptions) -> anyhow::Result<Checked> {
     if let Some(limit) = args.white_drift_limit_pct
         && !(limit > 0.0 && limit <= 100.0)
     {
-        bail!(
+        crate::usage_bail!(
             "--white-drift-limit-pct must be a percentage above 0 and at most 100, not {limit:?}"
         );
     }
     if let Some(sample) = &args.sample
         && (sample.trim().is_empty() || sample.chars().any(char::is_control))
     {
-        bail!("--sample must be a name (no control characters), not {sample:?}");
+        crate::usage_bail!("--sample must be a name (no control characters), not {sample:?}");
     }
     let tile = match &args.tile_certificate {
         Some(path) => crate::instrument::calibration::TileCertificate::read(
@@ -33,16 +33,21 @@ pub(super) fn check(args: &MeasureOptions) -> anyhow::Result<Checked> {
         )
         .and_then(|c| c.tile())
         .context("--tile-certificate")?,
-        None => Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct)
-            .context("--tile-radiance-factor / --tile-uncertainty-pct")?,
+        None => Tile::new(args.tile_radiance_factor, args.tile_uncertainty_pct).map_err(|e| {
+            crate::UsageError(format!(
+                "--tile-radiance-factor / --tile-uncertainty-pct: {e}"
+            ))
+        })?,
     };
     let zero = args.arm_zero_uncertainty_deg;
     if !(0.0..=5.0).contains(&zero) {
-        bail!("--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}");
+        crate::usage_bail!(
+            "--arm-zero-uncertainty-deg must be between 0 and 5 degrees, not {zero:?}"
+        );
     }
     let spots = args.spots.unwrap_or(DEFAULT_SPOTS);
     if !(1..=MAX_SPOTS).contains(&spots) {
-        bail!("--spots must be 1 to {MAX_SPOTS}, not {spots}");
+        crate::usage_bail!("--spots must be 1 to {MAX_SPOTS}, not {spots}");
     }
     for (option, value) in [
         ("--case", &args.case_id),
@@ -52,7 +57,7 @@ pub(super) fn check(args: &MeasureOptions) -> anyhow::Result<Checked> {
         if let Some(v) = value
             && (v.trim().is_empty() || v.chars().any(char::is_control) || v.chars().count() > 500)
         {
-            bail!(
+            crate::usage_bail!(
                 "{option} must be text of 1 to 500 characters without control characters, not {v:?}"
             );
         }

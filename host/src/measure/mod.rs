@@ -171,6 +171,11 @@ pub fn measure_with(
         interrupted,
         store,
     };
+    // A folder that cannot be continued is said before any instrument is looked for (issue
+    // 31: a finished session's --resume first said "no instrument found").
+    if let Some(dir) = &options.resume {
+        refuse_finished(dir, &given.store)?;
+    }
     if let Some(sample) = &options.sim {
         let mut sim = options.sim_options.clone();
         // A resumed session's simulated instrument was switched on before, once per run.
@@ -178,11 +183,31 @@ pub fn measure_with(
             .resume
             .as_deref()
             .map_or(0, crate::instrument::sim::runs_recorded);
-        let instrument = sim.instrument(sample)?;
+        // A simulator option (the sample's name, a fault) is the command line's.
+        let instrument = sim
+            .instrument(sample)
+            .map_err(|e| crate::UsageError(e.to_string()))?;
         run_on(Client::new(instrument, policy), given, Some(sample.clone()))
     } else {
         let transport = open_port(options.port.as_deref())?;
         run_on(Client::new(transport, policy), given, None)
+    }
+}
+
+/// The error of `--resume DIR` on a finished session or sheet, before anything is
+/// connected; every other problem of the folder is found where it is opened to continue.
+fn refuse_finished(dir: &Path, store: &StoreOptions) -> anyhow::Result<()> {
+    use crate::output::lock::FolderError;
+    let finished = if crate::output::folder::is_sheet_folder(dir) {
+        crate::output::sheet_folder::SheetFolder::open(dir, store.clone()).err()
+    } else {
+        crate::output::record::Existing::open(dir, store.clone()).err()
+    };
+    match finished {
+        Some(e @ (FolderError::Finished { .. } | FolderError::FinishedSheet { .. })) => {
+            Err(e.into())
+        }
+        _ => Ok(()),
     }
 }
 

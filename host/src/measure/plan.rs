@@ -51,7 +51,7 @@ pub(super) fn plan_record(
     };
     let (min, max) = (info.min_integration_ms.max(1), info.max_integration_ms);
     if !(min..=max).contains(&integration_ms) {
-        bail!(
+        crate::usage_bail!(
             "{from} {integration_ms} ms is outside what the instrument (serial {}) accepts: {min} to {max} ms",
             info.serial_number
         );

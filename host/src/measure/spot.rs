@@ -136,6 +136,8 @@ fn open_record<T: Transport>(
     };
     let mut identity = Identity::new(&sample, info, plan.clone());
     identity.instrument.simulated_sample = cx.sim_sample.clone();
+    identity.instrument.simulated_seed =
+        cx.sim_sample.as_ref().map(|_| cx.options.sim_options.seed);
     identity.case = checked.case.clone();
     let sheet_calibration = spot.and_then(|s| s.calibration.clone());
     let given_calibration = match (&sheet_calibration, &args.calibration) {

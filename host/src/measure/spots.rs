@@ -283,6 +283,8 @@ fn finish(
 #[derive(Serialize)]
 struct SheetResultDocument<'a> {
     accepted: usize,
+    flagged: usize,
+    measured: usize,
     device_seconds: Option<f64>,
     flags: &'a [Flag],
     notes: &'a [String],
@@ -335,8 +337,11 @@ fn sheet_json(sheet: &crate::output::sheet_folder::ReadSheet) -> serde_json::Val
                 .map(|j| &j.verdict),
         })
         .collect();
+    let counts = sheet.counts();
     let document = SheetResultDocument {
-        accepted: summary.accepted,
+        accepted: counts.accepted,
+        flagged: counts.flagged,
+        measured: counts.measured,
         device_seconds: result.map(|r| r.device_seconds),
         flags: &summary.flags,
         notes: &summary.notes,

@@ -169,6 +169,10 @@ pub struct InstrumentRecord {
     /// sample is named.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub(crate) simulated_sample: Option<String>,
+    /// On the simulated instrument: the seed of its noise and faults (`--seed` repeats the
+    /// run; `--resume` continues with it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) simulated_seed: Option<u64>,
 }
 
 /// The case a session belongs to (`gonio measure --case --operator --note`), as the

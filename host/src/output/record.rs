@@ -59,6 +59,7 @@ impl Identity {
                 board: info.board.to_string(),
                 firmware_version: info.firmware_version.to_string(),
                 simulated_sample: None,
+                simulated_seed: None,
             },
             device: serde_json::to_value(info).unwrap_or_default(),
             plan,

@@ -825,8 +825,7 @@ fn sheet_section(read: &ReadSheet) -> Markup {
         }
         "\n"
         p {
-            (summary.accepted) " of " (read.doc.spots_planned) " spots planned accepted, "
-            (read.spots.len()) " measured."
+            (read.counts().sentence()) "."
         }
         "\n"
         table {
@@ -848,17 +847,12 @@ fn spot_row(
     summary: &crate::analysis::spots::SheetSummary,
     s: &crate::output::sheet_folder::ReadSpot,
 ) -> Markup {
-    use crate::analysis::spots::SpotVerdict;
     let number = s.result.number;
-    let verdict = match summary
-        .verdicts
-        .iter()
-        .find(|j| j.number == number)
-        .map(|j| &j.verdict)
-    {
-        Some(SpotVerdict::Accepted) => html! { "accepted" },
-        Some(SpotVerdict::Excluded { reason }) => html! { "excluded: " (Text(reason)) },
-        None => html! { "?" },
+    let verdict = html! {
+        (Text(&crate::analysis::spots::SpotCounts::verdict_words(
+            summary.verdicts.iter().find(|j| j.number == number).map(|j| &j.verdict),
+            &s.result.flags,
+        )))
     };
     let v = |i: usize, digits: usize| html! { (self::number(s.session.values[i], digits)) };
     let flags = if s.result.flags.is_empty() {

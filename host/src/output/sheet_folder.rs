@@ -453,6 +453,17 @@ impl ReadSheet {
         let results: Vec<SpotResult> = self.spots.iter().map(|s| s.result.clone()).collect();
         self.summary.sheet(&results)
     }
+
+    /// Its spots counted: planned, measured, accepted, flagged.
+    pub fn counts(&self) -> crate::analysis::spots::SpotCounts {
+        crate::analysis::spots::SpotCounts::of(self.doc.spots_planned, &self.summary, |n| {
+            self.spots
+                .iter()
+                .find(|s| s.result.number == n)
+                .map(|s| s.result.flags.clone())
+                .unwrap_or_default()
+        })
+    }
 }
 
 /// Read the finished sheet folder `dir`: `sheet.json` and every spot's result.

@@ -651,12 +651,19 @@ struct Given {
 /// Device time spent besides the sample's readings, and the last analysis's time.
 #[derive(Default)]
 struct Clock {
-    /// Device time spent waiting for the operator, µs.
+    /// Time spent waiting for the operator on the transport's clock (for the bounds), µs.
     waiting_us: u64,
+    /// Device time spent waiting for the operator, on [`Session::device_now`]'s clock, µs.
+    device_waiting_us: u64,
     /// Device time spent on lost-steps checks before the report, µs.
     final_check_us: u64,
     /// The time of the last analysis (the calibration's age in the budget is as of it).
     analysed_unix_s: u64,
+    /// The device's uptime last read ([`Session::device_now`]), µs.
+    device_uptime_us: u64,
+    /// Device time of earlier boots of the instrument in this session (the uptime
+    /// restarts when it resets), µs.
+    device_earlier_boots_us: u64,
 }
 
 /// What a session resumed from.
@@ -667,6 +674,10 @@ struct Resumed {
     /// Resumed readings superseded by a later reading of their geometry whose mark a crash
     /// kept from the record: marked there when the session starts.
     unrecorded_marks: Vec<MeasuredPoint>,
+    /// Device time the resumed readings span (from the first to the last, on each boot
+    /// of the instrument), µs: the interrupted run's measuring, counted in the session's
+    /// device time.
+    device_us: u64,
 }
 
 /// What a session measured and how long it took, for [`Session::finish`].
@@ -793,6 +804,7 @@ impl<'a, T: Transport> Session<'a, T> {
             }
         }
         self.resume.resumed = !points.is_empty();
+        self.resume.device_us = resumed_span_us(&points);
         self.calibration = calibration;
         self.points = points;
         self
@@ -815,15 +827,35 @@ impl<'a, T: Transport> Session<'a, T> {
         self.client.transport().now()
     }
 
+    /// The instrument's clock, for the device time a session reports: the transport's
+    /// clock where that is the device's (the simulator in process), else the device's
+    /// uptime (`GetStatus`), continued across a reset of the instrument (whose uptime
+    /// starts again from 0). The host's wall clock is not the device's: over a
+    /// pseudo-terminal the simulator runs ahead of it (issue 31: 2.4 device s printed
+    /// for a session whose readings span 19.5 s).
+    pub(super) fn device_now(&mut self) -> Result<Duration, SessionError> {
+        if self.client.transport().now_is_device_time() {
+            return Ok(self.now());
+        }
+        let uptime_us = self.status()?.uptime_us;
+        if uptime_us < self.clock.device_uptime_us {
+            self.clock.device_earlier_boots_us += self.clock.device_uptime_us;
+        }
+        self.clock.device_uptime_us = uptime_us;
+        Ok(Duration::from_micros(
+            self.clock.device_earlier_boots_us + uptime_us,
+        ))
+    }
+
     /// Run the whole session.
     pub fn run(mut self) -> Result<Outcome, SessionError> {
         let started = self.start()?;
         // Setup (homing, dark, white) is the same whatever the policy and a calibration
         // serves many sheets: the sample's device time is counted from here.
-        let measuring_from = self.now();
-        let waiting_before = self.clock.waiting_us;
-        let setup_seconds =
-            (measuring_from - started).as_secs_f64() - self.clock.waiting_us as f64 * 1e-6;
+        let measuring_from = self.device_now()?;
+        let waiting_before = self.clock.device_waiting_us;
+        let setup_seconds = (measuring_from.saturating_sub(started)).as_secs_f64()
+            - self.clock.device_waiting_us as f64 * 1e-6;
         let mut fits = Vec::new();
         let mut refinements = Vec::new();
         let first_name = self.first_stage()?;
@@ -844,18 +876,19 @@ impl<'a, T: Transport> Session<'a, T> {
         } else {
             (None, false)
         };
-        let ended = self.now();
-        let measuring_us = (ended - measuring_from).as_micros() as u64;
+        let ended = self.device_now()?;
+        let measuring_us = (ended.saturating_sub(measuring_from)).as_micros() as u64;
         let device_us = measuring_us
             .saturating_sub(self.clock.final_check_us)
-            .saturating_sub(self.clock.waiting_us - waiting_before);
+            .saturating_sub(self.clock.device_waiting_us - waiting_before)
+            + self.resume.device_us;
         self.finish(Finished {
             fits,
             refinements,
             report,
             device_seconds: device_us as f64 * 1e-6,
             setup_seconds,
-            session_seconds: (ended - started).as_secs_f64(),
+            session_seconds: (ended.saturating_sub(started)).as_secs_f64(),
             white_drift,
             white_drift_exceeded,
         })
@@ -884,8 +917,10 @@ impl<'a, T: Transport> Session<'a, T> {
                 self.info.reset_cause
             ));
         }
-        let started = self.now();
-        self.bounds.started = Some(started);
+        // The bounds run on the transport's clock (a limit of the host's wait), the
+        // reported times on the device's.
+        self.bounds.started = Some(self.now());
+        let started = self.device_now()?;
         // The resumed readings were taken under an earlier process: a Home now tells
         // whether the arms still agree with their step counts (`steps`).
         self.ensure_ready(self.resume.resumed)?;
@@ -967,9 +1002,10 @@ impl<'a, T: Transport> Session<'a, T> {
         refinements: &mut Vec<Refinement>,
     ) -> Result<(), SessionError> {
         for round in 1..=steps::MAX_CHECK_ROUNDS {
-            let check_started = self.now();
+            let check_started = self.device_now()?;
             let clean = self.check_steps("before the report")?;
-            self.clock.final_check_us += (self.now() - check_started).as_micros() as u64;
+            self.clock.final_check_us +=
+                (self.device_now()?.saturating_sub(check_started)).as_micros() as u64;
             if clean && self.missing().is_empty() && self.uncovered_sweeps().is_empty() {
                 break;
             }
@@ -1476,4 +1512,14 @@ impl From<LinkError> for StepError {
     fn from(error: LinkError) -> StepError {
         StepError::from_link(error)
     }
+}
+
+/// The device time resumed readings span, µs: from the first to the last in the order
+/// recorded, on each boot of the instrument (a reading stamped earlier than the one
+/// before it was taken after a reset, whose clock started again).
+fn resumed_span_us(points: &[MeasuredPoint]) -> u64 {
+    points
+        .windows(2)
+        .map(|w| w[1].device_time_us.saturating_sub(w[0].device_time_us))
+        .sum()
 }

@@ -42,6 +42,7 @@ impl<T: Transport> Session<'_, T> {
         let park = self.park_geometry();
         self.retrying(Command::MoveTo(park))?;
         let asked_at = self.now();
+        let asked_on_device = self.device_now()?;
         self.decide(&format!(
             "asking the operator: {} (arms parked at θi = θr = {}°, clear of the port; lamp kept on)",
             placement.instruction().to_lowercase(),
@@ -78,6 +79,8 @@ impl<T: Transport> Session<'_, T> {
         }
         let waited = self.now() - asked_at;
         self.clock.waiting_us += waited.as_micros() as u64;
+        self.clock.device_waiting_us +=
+            (self.device_now()?.saturating_sub(asked_on_device)).as_micros() as u64;
         self.decide(&format!(
             "the operator answered after {:.1} s",
             waited.as_secs_f64()

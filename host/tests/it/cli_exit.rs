@@ -254,3 +254,91 @@ fn ctrl_c_on_a_serial_port_is_the_operators_interruption_not_a_dead_port() {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// The README's table of exit codes, checked on every subcommand (issue 31: `--sim GG`
+/// exited 1 and `--policy adaptve` 2; `--integration-ms 0` 1 and `99999` 2). 2: the
+/// command line was wrong, whichever layer found it (clap, or a value refused later); 1:
+/// the job failed on a file, a folder or an instrument.
+#[test]
+fn every_subcommand_exits_with_the_readmes_codes() {
+    let missing = temp_dir("no-such-folder");
+    let missing = missing.to_str().unwrap();
+    let subcommands = [
+        "measure",
+        "fit",
+        "flash",
+        "ports",
+        "sim",
+        "compare",
+        "trade",
+        "reliability",
+        "accuracy",
+        "forensic",
+        "verify",
+        "completions",
+        "sessions",
+        "report",
+        "library",
+        "selftest",
+        "characterize",
+    ];
+    let mut cases: Vec<(Vec<&str>, i32)> = subcommands
+        .iter()
+        .map(|s| (vec![*s, "--no-such-option"], 2))
+        .collect();
+    cases.extend([
+        // Values refused: by clap, or later, the same code.
+        (vec!["measure", "--sim", "GG", "--spots", "1"], 2),
+        (vec!["measure", "--sim", "G", "--policy", "adaptve"], 2),
+        (
+            vec![
+                "measure",
+                "--sim",
+                "G",
+                "--spots",
+                "1",
+                "--integration-ms",
+                "0",
+            ],
+            2,
+        ),
+        (
+            vec![
+                "measure",
+                "--sim",
+                "G",
+                "--spots",
+                "1",
+                "--integration-ms",
+                "99999",
+            ],
+            2,
+        ),
+        (vec!["measure", "--sim", "G", "--spots", "0"], 2),
+        (vec!["sim", "GG"], 2),
+        (vec!["completions", "no-such-shell"], 2),
+        // Files and folders that are not there: the job failed.
+        (vec!["measure", "--resume", missing], 1),
+        (vec!["fit", missing], 1),
+        (vec!["verify", missing], 1),
+        (vec!["report", missing], 1),
+        (vec!["compare", "--demo-population", missing, missing], 1),
+        (vec!["library", "--library", missing, "list"], 1),
+    ]);
+    let mut wrong = Vec::new();
+    for (args, code) in &cases {
+        let out = gonio(args);
+        if out.status.code() != Some(*code) {
+            wrong.push(format!(
+                "gonio {}: exit {:?}, the table says {code}: {}",
+                args.join(" "),
+                out.status.code(),
+                String::from_utf8_lossy(&out.stderr)
+                    .lines()
+                    .next()
+                    .unwrap_or("")
+            ));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}

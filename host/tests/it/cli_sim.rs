@@ -299,3 +299,17 @@ fn a_lost_heartbeat_does_not_stop_the_instrument_over_the_pseudo_terminal() {
     assert_eq!(stops, 0, "fail-safe stops for lost heartbeats");
     assert!(status.lamp_on && status.fault.is_none(), "{status:?}");
 }
+
+/// Issue 31: the help printed `[`REAL_PHYSICS`]`, a doc comment's link to the code. No
+/// subcommand's help shows rustdoc's link syntax.
+#[test]
+fn the_help_text_shows_no_rustdoc_links() {
+    for subcommand in ["measure", "sim", "selftest", "characterize", "trade", "fit"] {
+        let out = crate::cli_support::gonio(&[subcommand, "--help"]);
+        let help = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            !help.contains("[`") && !help.contains("`]"),
+            "gonio {subcommand} --help:\n{help}"
+        );
+    }
+}

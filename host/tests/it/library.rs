@@ -648,3 +648,62 @@ fn a_very_long_stock_name_is_listed_and_searched_cut_short() {
     assert!(text.contains(&format!("{}…", "L".repeat(40))), "{text}");
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// Issue 31: a spot folder of a sheet already in the library (or the sheet of a spot
+/// already in it) is the same sheet again: refused, whichever comes first, and within one
+/// add.
+#[test]
+fn a_sheet_and_its_own_spot_are_one_sheet_counted_once() {
+    let root = temp_dir("library", "same-sheet");
+    let sheet = root.join("G-a");
+    let out = gonio(&[
+        "measure",
+        "--spots",
+        "2",
+        "--sim",
+        "G",
+        "--seed",
+        "33",
+        "--out",
+        s(&sheet),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let spot = sheet.join("spot-1");
+    let add = |library: &Path, dirs: &[&Path]| {
+        let mut args = vec![
+            "library",
+            "add",
+            "--library",
+            s(library),
+            "--stock",
+            "Stock-G",
+        ];
+        args.extend(dirs.iter().map(|d| s(d)));
+        gonio(&args)
+    };
+    // The sheet first, then its spot.
+    let library = root.join("sheet-first.sqlite");
+    assert!(add(&library, &[&sheet]).status.success());
+    let out = add(&library, &[&spot]);
+    assert_eq!(code(&out), 1, "{}", stdout(&out));
+    assert!(
+        stderr(&out).contains("same sheet") && stderr(&out).contains("Stock-G"),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(listed(&library), vec![("Stock-G".into(), 1, 2)]);
+    // The spot first, then its sheet.
+    let library = root.join("spot-first.sqlite");
+    assert!(add(&library, &[&spot]).status.success());
+    let out = add(&library, &[&sheet]);
+    assert_eq!(code(&out), 1, "{}", stdout(&out));
+    assert!(stderr(&out).contains("same sheet"), "{}", stderr(&out));
+    assert_eq!(listed(&library), vec![("Stock-G".into(), 1, 1)]);
+    // Both in one add: nothing added.
+    let library = root.join("together.sqlite");
+    let out = add(&library, &[&sheet, &spot]);
+    assert_eq!(code(&out), 1, "{}", stdout(&out));
+    assert!(stderr(&out).contains("same sheet"), "{}", stderr(&out));
+    assert!(!library.exists(), "a refused add leaves no library behind");
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -192,6 +192,20 @@ fn plot_pixels(png_path: &Path) -> (usize, usize, (u32, u32)) {
     (blue, red, (info.width, info.height))
 }
 
+/// Issue 31: the README's `cargo test --workspace` passes on a fresh machine without
+/// chromium (the browser test left out with a notice); CI's `GONIO_REQUIRE_BROWSER=1`
+/// makes a missing browser a failure.
+#[test]
+fn a_machine_without_chromium_leaves_the_browser_test_out_unless_ci_requires_it() {
+    assert_eq!(crate::common::browser_or_skip(None, false), None);
+    let found = std::path::PathBuf::from("/usr/bin/chromium");
+    assert_eq!(
+        crate::common::browser_or_skip(Some(found.clone()), true),
+        Some(found)
+    );
+    assert!(std::panic::catch_unwind(|| crate::common::browser_or_skip(None, true)).is_err());
+}
+
 #[test]
 fn the_report_renders_in_a_headless_browser_with_its_plots() {
     let Some(chromium) = crate::common::chromium_or_skip() else {

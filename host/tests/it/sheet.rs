@@ -150,6 +150,17 @@ fn a_flagged_spot_is_replaced_and_excluded_with_the_reason() {
         );
         assert_eq!(sheet.spots.len(), 3, "seed {seed}: a replacement measured");
         assert_eq!(sheet.summary.accepted, 2);
+        let counts = sheet.counts();
+        assert_eq!(
+            (
+                counts.planned,
+                counts.measured,
+                counts.accepted,
+                counts.flagged
+            ),
+            (2, 3, 2, 1),
+            "seed {seed}"
+        );
         let excluded: Vec<_> = sheet
             .summary
             .verdicts

@@ -115,7 +115,11 @@ impl Args {
     pub fn options(&self) -> MeasureOptions {
         MeasureOptions {
             sim: self.sim.clone(),
-            sim_options: self.sim_options.clone(),
+            sim_options: self.sim_options.clone().with_seed(
+                self.resume
+                    .as_deref()
+                    .and_then(host::instrument::sim::recorded_seed),
+            ),
             port: self.port.clone(),
             sample: self.sample.clone(),
             out: self.out.clone(),

@@ -27,6 +27,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Box::new(PromptOperator::new())
     };
     let options = args.options();
+    if let Some(sample) = &options.sim {
+        eprintln!(
+            "simulated instrument, sample {sample}, seed {} (--seed {} repeats this run; recorded in session.json)",
+            options.sim_options.seed, options.sim_options.seed
+        );
+    }
     // Chosen before anything is measured: a wrong --key stops here, not at the end.
     let store = host::output::store::StoreOptions {
         signer: signer(&args)?.map(|s| Arc::new(s) as Arc<dyn SignManifest>),
@@ -162,29 +168,25 @@ fn signer(args: &Args) -> anyhow::Result<Option<Signer>> {
 }
 
 fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
-    use host::analysis::spots::SpotVerdict;
+    use host::analysis::spots::SpotCounts;
     let summary = &sheet.summary;
     println!(
-        "sheet of '{}': {} spots planned, {} measured, {} accepted",
+        "sheet of '{}': {}",
         sheet.doc.sample,
-        sheet.doc.spots_planned,
-        sheet.spots.len(),
-        summary.accepted
+        sheet.counts().sentence()
     );
     let value = |v: Option<f64>, digits: usize| {
         v.map_or_else(|| "—".to_string(), |v| format!("{v:.digits$}"))
     };
     for s in &sheet.spots {
-        let verdict = match summary
-            .verdicts
-            .iter()
-            .find(|j| j.number == s.result.number)
-            .map(|j| &j.verdict)
-        {
-            Some(SpotVerdict::Accepted) => "accepted".to_string(),
-            Some(SpotVerdict::Excluded { reason }) => format!("EXCLUDED: {reason}"),
-            None => "?".to_string(),
-        };
+        let verdict = SpotCounts::verdict_words(
+            summary
+                .verdicts
+                .iter()
+                .find(|j| j.number == s.result.number)
+                .map(|j| &j.verdict),
+            &s.result.flags,
+        );
         // The spot's own report, as its session.json holds it.
         let result = &s.document;
         let interval = |key: &str, digits: usize| match result.interval(key) {
@@ -228,7 +230,7 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
         )
     };
     println!(
-        "  sheet (geometric mean of the accepted spots): σ = {}° ({}), ρs = {} ({}), ρd = {} ({})",
+        "  sheet (geometric mean of the spots in it): σ = {}° ({}), ρs = {} ({}), ρd = {} ({})",
         value(summary.mean[0], 3),
         spread(0),
         value(summary.mean[1], 4),

@@ -108,3 +108,42 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
         spots: vec![spot],
     })
 }
+
+/// The other folders that measured the same sheet as `dir`, as (identity, folder): a sheet
+/// folder's spot folders, or the sheet folder a spot folder lies in. The library counts a
+/// sheet once: a spot of a sheet already in it (or the sheet of a spot already in it)
+/// would weigh the same paper twice as two sheets. The identity is the SHA-256 of the
+/// folder's manifest, as [`read_session_folder`] gives it; folders without a manifest are
+/// left out (they cannot be in the library).
+pub fn same_sheet_folders(dir: &Path) -> Vec<(String, std::path::PathBuf)> {
+    let identity = |folder: &Path| {
+        std::fs::read(folder.join(crate::output::folder::MANIFEST))
+            .ok()
+            .map(|bytes| {
+                (
+                    crate::output::manifest::sha256_hex(&bytes),
+                    folder.to_path_buf(),
+                )
+            })
+    };
+    if crate::output::folder::is_sheet_folder(dir) {
+        let Ok(names) = crate::output::folder::entries(dir) else {
+            return Vec::new();
+        };
+        return names
+            .iter()
+            .map(|name| dir.join(name))
+            .filter(|p| p.is_dir())
+            .filter_map(|p| identity(&p))
+            .collect();
+    }
+    let parent = match dir.canonicalize() {
+        Ok(d) => d.parent().map(Path::to_path_buf),
+        Err(_) => None,
+    };
+    parent
+        .filter(|p| crate::output::folder::is_sheet_folder(p))
+        .and_then(|p| identity(&p))
+        .into_iter()
+        .collect()
+}

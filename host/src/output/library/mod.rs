@@ -27,7 +27,7 @@ mod tests;
 mod validate;
 
 pub use exchange::{ExchangeFile, ExchangeRecord, RecordError};
-pub use ingest::read_session_folder;
+pub use ingest::{read_session_folder, same_sheet_folders};
 pub use storage::{ImportCounts, Library, OpenMode, Removed, StockSummary, default_path};
 pub(crate) use validate::check_spot;
 pub use validate::{MAX_RELATIVE_SD, MIN_RELATIVE_SD, SpotError};
@@ -124,6 +124,19 @@ pub enum LibraryError {
         dir: PathBuf,
         /// Its flags.
         flags: String,
+    },
+    /// A folder of a sheet whose other folder (its sheet folder, or one of its spot
+    /// folders) is in the library or in the same add: one sheet counts once.
+    #[error(
+        "{dir}: not added: it measured the same sheet as {other}, {where_}: a sheet counts once in the library (its spots are not sheets of their own). Add either the sheet folder or its spot folders, not both"
+    )]
+    SameSheet {
+        /// The folder refused.
+        dir: PathBuf,
+        /// The other folder of the same sheet.
+        other: String,
+        /// Where the other one is: in the library under a stock, or given in this add.
+        where_: String,
     },
     /// The session is already in the library.
     #[error(

@@ -498,6 +498,19 @@ impl Library {
         Ok(())
     }
 
+    /// The stock a session (by its SHA-256) is under, if it is in the library.
+    pub fn stock_of_session(&self, sha256: &str) -> Result<Option<String>> {
+        let sqlite = self.sqlite();
+        self.conn
+            .query_row(
+                "SELECT s.name FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.session_sha256 = ?1",
+                [sha256],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(sqlite)
+    }
+
     /// Every stock with its sheet and spot counts, by name.
     pub fn stocks(&self) -> Result<Vec<StockSummary>> {
         let sqlite = self.sqlite();
