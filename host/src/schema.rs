@@ -53,9 +53,12 @@ pub const TILE_CERTIFICATE: &str = "gonio-tile-certificate/1";
 
 /// An instrument profile (`gonio characterize`'s `instrument.json`).
 pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
+/// `readings.shared-errors.json`: the errors a session's readings share and the settings
+/// its analysis weighed `readings.csv` with ([`crate::output::shared_errors`]).
+pub const SHARED_ERRORS: &str = "gonio-shared-errors/1";
 
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 15] = [
+pub const WRITTEN: [&str; 16] = [
     INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
@@ -71,6 +74,7 @@ pub const WRITTEN: [&str; 15] = [
     LIBRARY_LIST,
     LIBRARY_SEARCH,
     LIBRARY_RECORD,
+    SHARED_ERRORS,
 ];
 
 /// The file name of a schema's JSON Schema under `docs/schemas/`: `gonio-session/2` →

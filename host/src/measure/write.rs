@@ -99,6 +99,23 @@ pub(super) fn write_session(
         crate::output::export::astm_file_name(sample),
         crate::output::export::astm(&meta, &observations).into_bytes(),
     )];
+    // What the analysis weighed readings.csv with besides each reading's own noise: with
+    // it, the folder's data alone re-analyse to this result (`gonio fit readings.csv`).
+    let readings_path = recorder.dir().join(crate::output::folder::READINGS);
+    let readings_csv = std::fs::read(&readings_path)
+        .with_context(|| format!("cannot read {}", readings_path.display()))?;
+    files.push((
+        crate::output::shared_errors::SHARED_ERRORS.to_string(),
+        crate::output::shared_errors::document_bytes(
+            sample,
+            &outcome.points,
+            &outcome.calibration,
+            &outcome.analysis_settings,
+            outcome.analysed_unix_s,
+            &readings_csv,
+        )
+        .context("cannot write the readings' shared errors")?,
+    ));
     // The plots are drawn outside the folder, then replaced into it like every summary file.
     let staging = tempfile::tempdir().context("cannot make a temporary folder for the plots")?;
     for path in crate::output::plots::write_plots(

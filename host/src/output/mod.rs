@@ -12,7 +12,7 @@
 //! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::html`] to [`verify`]) |
 //! | rendering | [`report`] | `folder`, `sheet_folder` |
 //! | verification | [`verify`]: every check of a finished folder | `folder`, `manifest`, `sheet_folder` |
-//! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
+//! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`], [`shared_errors`] (what `readings.csv` shares, written and read back) | `folder`, `lock`, `store`, `manifest` |
 //! | store and manifest | [`store`], [`manifest`], [`lock`] | `folder` |
 //! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json` | none (`documents`: `folder`) |
 //!
@@ -34,6 +34,7 @@ pub mod plots;
 pub mod reanalysis;
 pub mod record;
 pub mod report;
+pub mod shared_errors;
 pub mod sheet_folder;
 pub mod store;
 pub mod verify;
