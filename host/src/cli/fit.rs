@@ -292,9 +292,11 @@ fn read_with_shared_errors(
             ),
         })),
         None => {
-            let in_session_folder = path
-                .parent()
-                .is_some_and(|d| d.join(host::output::folder::SESSION).is_file());
+            // A session's readings.csv (its other exports carry no uncertainties at all).
+            let in_session_folder = path.file_name().is_some_and(|n| n == "readings.csv")
+                && path
+                    .parent()
+                    .is_some_and(|d| d.join(host::output::folder::SESSION).is_file());
             if in_session_folder {
                 eprintln!(
                     "note: {} has no {} beside it: analysed on its readings' own noise, without the errors the calibration shares among them (the session's result may differ; `gonio fit {}` re-analyses the folder)",
@@ -325,7 +327,10 @@ fn analyse_set(
         // Errors of the shared-errors file name it, not a line of the CSV.
         return shared_errors::analyse(&path.display().to_string(), set, shared, profile).map_err(
             |e| match e {
-                SharedErrorsError::Analysis(a) => anyhow::anyhow!("{a}"),
+                // The fit's own error starts with its line: `file:line: …`.
+                SharedErrorsError::Analysis(a @ host::session::PointsAnalysisError::Fit(_)) => {
+                    anyhow::anyhow!("{a}")
+                }
                 other => anyhow::anyhow!(" {other}"),
             },
         );

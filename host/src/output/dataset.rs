@@ -273,6 +273,10 @@ fn out_of_range(line: usize, column: &'static str, value: &str, why: Unfittable)
     }
 }
 
+/// A header split by one separator: (required columns found, columns), the separator's
+/// byte and its name, the records after the header, the header.
+type HeaderSplit = ((usize, usize), u8, &'static str, Records, Header);
+
 /// Parse CSV text. Data sets come out in the order their sample first appears;
 /// `default_sample` names the one data set of a file without a `sample` column.
 pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, DatasetError> {
@@ -280,7 +284,7 @@ pub fn parse_csv(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Datas
     // comma on a tie): the one the file was written with.
     // (Columns found, columns split): on none found, the split into the most columns
     // says best what the header held.
-    let mut best: Option<((usize, usize), u8, &str, Records, Header)> = None;
+    let mut best: Option<HeaderSplit> = None;
     for (delimiter, separator) in DELIMITERS {
         let mut records = Records::with_delimiter(text, delimiter);
         let header = records.header().ok_or(DatasetError::Empty)?;
@@ -362,6 +366,60 @@ pub fn read_bytes(path: &Path, bytes: &[u8]) -> Result<Vec<DataSet>, DatasetErro
     }
 }
 
+/// The reading of an `.astm` row: columns (θi, φi, θs, φs, BRDF) by position.
+fn astm_observation(
+    line: usize,
+    fields: &StringRecord,
+    [theta_i, phi_i, theta_s, phi_s, brdf]: [usize; 5],
+) -> Result<Observation, DatasetError> {
+    use std::f64::consts::PI;
+    let number = |col: usize, name: &'static str| {
+        fields[col]
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| DatasetError::NotANumber {
+                line,
+                column: name,
+                value: fields[col].to_string(),
+            })
+    };
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-6;
+    let phi_i_rad = number(phi_i, "phi_i")?;
+    let phi_s_rad = number(phi_s, "phi_s")?;
+    let theta_s_deg = number(theta_s, "theta_s")?.to_degrees();
+    if !near(phi_i_rad, 0.0) {
+        return Err(DatasetError::Astm {
+            line,
+            why: format!(
+                "phi_i {phi_i_rad} is not 0: gonio reads readings in the specular plane (source at phi_i = 0)"
+            ),
+        });
+    }
+    let theta_r_deg = if near(phi_s_rad, PI) {
+        theta_s_deg
+    } else if near(phi_s_rad, 0.0) || near(phi_s_rad, 2.0 * PI) {
+        -theta_s_deg
+    } else {
+        return Err(DatasetError::Astm {
+            line,
+            why: format!(
+                "phi_s {phi_s_rad} is neither pi nor 0: the reading is out of the specular plane, which gonio's model describes"
+            ),
+        });
+    };
+    let brdf_value = number(brdf, "BRDF")?;
+    let radiance_factor = dataset::check_radiance_factor(brdf_value * PI)
+        .map_err(|why| out_of_range(line, "BRDF", &fields[brdf], why))?;
+    Ok(Observation {
+        theta_i_deg: number(theta_i, "theta_i")?.to_degrees(),
+        theta_r_deg,
+        radiance_factor,
+        std: None,
+        theta_r_span_deg: 0.0,
+    })
+}
+
 /// Whether `text` is an `.astm` export: a `VARS` line after keyword lines.
 fn is_astm(text: &str) -> bool {
     text.lines()
@@ -377,7 +435,6 @@ fn is_astm(text: &str) -> bool {
 
 /// Parse gonio's `.astm` export (module docs): one data set.
 pub fn parse_astm(text: &str, default_sample: &str) -> Result<Vec<DataSet>, DatasetError> {
-    use std::f64::consts::PI;
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut sample = default_sample.to_string();
     let mut points: Option<(usize, usize)> = None;
@@ -453,51 +510,11 @@ pub fn parse_astm(text: &str, default_sample: &str) -> Result<Vec<DataSet>, Data
                 found: fields.len(),
             });
         }
-        let number = |col: usize, name: &'static str| {
-            fields[col]
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| DatasetError::NotANumber {
-                    line,
-                    column: name,
-                    value: fields[col].to_string(),
-                })
-        };
-        let near = |a: f64, b: f64| (a - b).abs() < 1e-6;
-        let phi_i_rad = number(phi_i, "phi_i")?;
-        let phi_s_rad = number(phi_s, "phi_s")?;
-        let theta_s_deg = number(theta_s, "theta_s")?.to_degrees();
-        if !near(phi_i_rad, 0.0) {
-            return Err(DatasetError::Astm {
-                line,
-                why: format!(
-                    "phi_i {phi_i_rad} is not 0: gonio reads readings in the specular plane (source at phi_i = 0)"
-                ),
-            });
-        }
-        let theta_r_deg = if near(phi_s_rad, PI) {
-            theta_s_deg
-        } else if near(phi_s_rad, 0.0) || near(phi_s_rad, 2.0 * PI) {
-            -theta_s_deg
-        } else {
-            return Err(DatasetError::Astm {
-                line,
-                why: format!(
-                    "phi_s {phi_s_rad} is neither pi nor 0: the reading is out of the specular plane, which gonio's model describes"
-                ),
-            });
-        };
-        let brdf_value = number(brdf, "BRDF")?;
-        let radiance_factor = dataset::check_radiance_factor(brdf_value * PI)
-            .map_err(|why| out_of_range(line, "BRDF", &fields[brdf], why))?;
-        set.observations.push(Observation {
-            theta_i_deg: number(theta_i, "theta_i")?.to_degrees(),
-            theta_r_deg,
-            radiance_factor,
-            std: None,
-            theta_r_span_deg: 0.0,
-        });
+        set.observations.push(astm_observation(
+            line,
+            fields,
+            [theta_i, phi_i, theta_s, phi_s, brdf],
+        )?);
         set.lines.push(line);
     }
     if set.observations.is_empty() {

@@ -12,9 +12,9 @@
 //! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::html`] to [`verify`]) |
 //! | rendering | [`report`] | `folder`, `sheet_folder` |
 //! | verification | [`verify`]: every check of a finished folder | `folder`, `manifest`, `sheet_folder` |
-//! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`], [`shared_errors`] (what `readings.csv` shares, written and read back) | `folder`, `lock`, `store`, `manifest` |
+//! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
 //! | store and manifest | [`store`], [`manifest`], [`lock`] | `folder` |
-//! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json` | none (`documents`: `folder`) |
+//! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json`; [`shared_errors`]: what `readings.csv`'s readings share, written and read back | none (`documents`: `folder`; `shared_errors`: `folder`, `manifest`) |
 //!
 //! [`dataset`] (CSV data sets) stands apart: no folder module uses it. Verification checks
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
