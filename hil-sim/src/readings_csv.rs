@@ -42,6 +42,13 @@ pub struct Records {
 impl Records {
     /// Split `text` into records by the rules of the module's documentation.
     pub fn new(text: &str) -> Records {
+        Records::with_delimiter(text, b',')
+    }
+
+    /// [`Records::new`] with fields separated by `delimiter` instead of commas (a
+    /// spreadsheet set to a European locale writes `;` or a tab, its decimal separator
+    /// being the comma).
+    pub fn with_delimiter(text: &str, delimiter: u8) -> Records {
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         // Skipped lines are blanked, not removed (the csv reader passes over empty lines),
         // so a record's line is one more than the line feeds before it.
@@ -55,6 +62,7 @@ impl Records {
             }
         }
         let reader = ReaderBuilder::new()
+            .delimiter(delimiter)
             .has_headers(false)
             .flexible(true)
             .trim(Trim::All)

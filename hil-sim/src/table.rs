@@ -271,7 +271,10 @@ fn read_nodes(text: &str) -> Result<(Nodes, usize), (usize, TableProblem)> {
             .names
             .iter()
             .enumerate()
-            .filter(|(_, n)| n.as_str() == wanted)
+            // gonio's readings.csv names the angles with their unit (`theta_i_deg`).
+            .filter(|(_, n)| {
+                n.as_str() == wanted || n.strip_suffix("_deg").is_some_and(|n| n == wanted)
+            })
             .map(|(i, _)| i);
         match (found.next(), found.next()) {
             (Some(i), None) => Ok(i),

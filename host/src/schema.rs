@@ -62,9 +62,12 @@ pub const KEY: &str = "gonio-key/1";
 
 /// An instrument profile (`gonio characterize`'s `instrument.json`).
 pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
+/// `readings.shared-errors.json`: the errors a session's readings share and the settings
+/// its analysis weighed `readings.csv` with ([`crate::output::shared_errors`]).
+pub const SHARED_ERRORS: &str = "gonio-shared-errors/1";
 
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 18] = [
+pub const WRITTEN: [&str; 19] = [
     INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
@@ -83,6 +86,7 @@ pub const WRITTEN: [&str; 18] = [
     SIGNATURE,
     PUBLIC_KEY,
     KEY,
+    SHARED_ERRORS,
 ];
 
 /// The file name of a schema's JSON Schema under `docs/schemas/`: `gonio-session/2` →

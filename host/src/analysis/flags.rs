@@ -47,6 +47,10 @@ pub enum Flag {
     /// Too few readings beyond the fitted parameters to judge the fit or to state a
     /// class confidence.
     FewDegreesOfFreedom,
+    /// The input cannot be a paper measured in degrees and radiance factors as it stands:
+    /// radiance factors in percent, angles in radians, or values outside the population of
+    /// papers (the note says which; [`crate::analysis::plausibility`]).
+    ImplausibleInput,
 }
 
 /// The detector responses an uncharacterized instrument is analysed again with, full
@@ -57,7 +61,7 @@ pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.0, 3.0];
 
 impl Flag {
     /// Every flag, in a stable order.
-    pub const ALL: [Flag; 13] = [
+    pub const ALL: [Flag; 14] = [
         Flag::LostSteps,
         Flag::WhiteDrift,
         Flag::CalibrationStale,
@@ -71,6 +75,7 @@ impl Flag {
         Flag::ModelExtended,
         Flag::Outlier,
         Flag::FewDegreesOfFreedom,
+        Flag::ImplausibleInput,
     ];
 
     /// The stable string (as serialized).
@@ -89,6 +94,7 @@ impl Flag {
             Flag::ModelExtended => "model-extended",
             Flag::Outlier => "outlier",
             Flag::FewDegreesOfFreedom => "few-degrees-of-freedom",
+            Flag::ImplausibleInput => "implausible-input",
         }
     }
 

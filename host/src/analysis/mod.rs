@@ -14,6 +14,7 @@ pub mod gof;
 pub mod linalg;
 pub mod model;
 pub mod motion;
+pub mod plausibility;
 pub mod response_estimate;
 pub mod result;
 pub mod sampling;

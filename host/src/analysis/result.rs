@@ -113,6 +113,15 @@ pub(crate) fn analyse_with_shared(
     let delta = sampling::delta(&geometries, delta_deg);
     let check = delta.map(|d| sampling::check_sigma(result.sigma_deg(), d.deg));
     let classification = classify::classify(&result);
+    // What the fit cannot see: percent, radians, a paper outside the population.
+    let implausible =
+        crate::analysis::plausibility::check(readings.observations, &result, &classification);
+    if !implausible.is_empty() {
+        result.notes.extend(implausible);
+        result
+            .flags
+            .push(crate::analysis::flags::Flag::ImplausibleInput);
+    }
     let flags = flags_of(&result, check.as_ref(), &classification);
     Ok(Report {
         file: readings.source.to_string(),

@@ -8,6 +8,7 @@ use host::analysis::fit::FitOptions;
 use host::analysis::model;
 use host::analysis::result::{Readings, Report, analyse, to_json, to_table};
 use host::output::dataset;
+use host::output::shared_errors::{self, SharedErrorsError, SharedErrorsFile};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -31,10 +32,13 @@ pub struct Args {
     /// differs from the session's where the instrument does).
     #[arg(long, value_name = "FILE", conflicts_with = "acceptance")]
     pub instrument: Option<PathBuf>,
-    /// CSV files (header with theta_i, theta_r, radiance_factor; optional std, sample), or
-    /// finished session or sheet folders: analysed again from their own readings,
-    /// calibration and settings, and compared with the result they reported (--delta and
-    /// --acceptance do not apply to them).
+    /// CSV files (header with theta_i, theta_r, radiance_factor; optional std, sample;
+    /// comma-, semicolon- or tab-separated, decimal commas with the latter two), gonio's
+    /// `.astm` exports, or finished session or sheet folders: analysed again from their own
+    /// readings, calibration and settings, and compared with the result they reported
+    /// (--delta and --acceptance do not apply to them). A CSV file with a
+    /// `<stem>.shared-errors.json` beside it (a session's readings.csv) is analysed as its
+    /// session analysed it: with the errors its readings share and the session's settings.
     #[arg(required = true, value_name = "FILE|DIR")]
     pub files: Vec<PathBuf>,
 }
@@ -54,15 +58,16 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let options = fit_options(&args, profile.as_ref())?;
     // Read everything first (cheap), then fit the data sets on all cores, in input order.
     let mut inputs = read_inputs(&args.files);
-    // The profile's arm zero: the θr of a data set are the firmware's.
+    // The profile's arm zero: the θr of a data set are the firmware's (a data set with
+    // its shared errors takes the profile in place of its session's: `analyse_set`).
     if let Some(profile) = &profile {
-        for (_, _, set) in &mut inputs.jobs {
+        for Job { set, .. } in inputs.jobs.iter_mut().filter(|j| j.shared.is_none()) {
             for o in &mut set.observations {
                 o.theta_r_deg = profile.corrected_theta_r(o.theta_i_deg, o.theta_r_deg);
             }
         }
     }
-    let results = analyse_all(&inputs.jobs, &options, args.delta);
+    let results = analyse_all(&inputs.jobs, &options, args.delta, profile.as_ref());
     let stdout = std::io::stdout();
     let mut out = std::io::BufWriter::new(stdout.lock());
     let mut told = Told {
@@ -78,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         &mut told,
     )?;
     let mut file_errors = inputs.file_errors.into_iter().peekable();
-    for ((k, path, _), result) in inputs.jobs.iter().zip(results) {
+    for (Job { k, path, .. }, result) in inputs.jobs.iter().zip(results) {
         // Keep errors of unreadable files in file order relative to the results.
         while let Some((_, message)) = file_errors.next_if(|(ek, _)| ek < k) {
             out.flush()?;
@@ -144,10 +149,19 @@ struct Told {
     flagged: bool,
 }
 
+/// One data set to fit: the file's index and path, the data set, and the errors its
+/// readings share when the file has its shared-errors file beside it.
+struct Job<'a> {
+    k: usize,
+    path: &'a Path,
+    set: DataSet,
+    shared: Option<std::sync::Arc<SharedErrorsFile>>,
+}
+
 /// The inputs read: the data sets of the files (with the file's index), the files that
 /// could not be read (with the message), the session folders found.
 struct Inputs<'a> {
-    jobs: Vec<(usize, &'a Path, DataSet)>,
+    jobs: Vec<Job<'a>>,
     file_errors: Vec<(usize, String)>,
     folders: Vec<(usize, PathBuf)>,
     failed: bool,
@@ -172,11 +186,18 @@ fn read_inputs(files: &[PathBuf]) -> Inputs<'_> {
             }
             continue;
         }
-        match dataset::read_file(path) {
-            Ok(sets) => inputs
-                .jobs
-                .extend(sets.into_iter().map(|s| (k, path.as_path(), s))),
-            Err(e) => {
+        match read_with_shared_errors(path) {
+            Ok((sets, shared)) => inputs.jobs.extend(sets.into_iter().map(|set| Job {
+                k,
+                path: path.as_path(),
+                set,
+                shared: shared.clone(),
+            })),
+            Err(ReadError::Shared(e)) => {
+                inputs.failed = true;
+                inputs.file_errors.push((k, e.to_string()));
+            }
+            Err(ReadError::Dataset(e)) => {
                 inputs.failed = true;
                 let location = e.line().map_or_else(
                     || path.display().to_string(),
@@ -244,13 +265,76 @@ fn print_folders(
     Ok(())
 }
 
+/// Why a file cannot be read.
+enum ReadError {
+    Dataset(dataset::DatasetError),
+    Shared(SharedErrorsError),
+}
+
+/// A file's data sets and, for a CSV file with its shared-errors file beside it, that
+/// file (one data set only: the shared errors are the session's, of one sample). A
+/// session's `readings.csv` without one is analysed on its readings' own noise, and said
+/// so: the result then need not be the session's.
+fn read_with_shared_errors(
+    path: &Path,
+) -> Result<(Vec<DataSet>, Option<std::sync::Arc<SharedErrorsFile>>), ReadError> {
+    let bytes = std::fs::read(path).map_err(|e| ReadError::Dataset(e.into()))?;
+    let sets = dataset::read_bytes(path, &bytes).map_err(ReadError::Dataset)?;
+    let shared = shared_errors::find(path, &bytes).map_err(ReadError::Shared)?;
+    match shared {
+        Some(shared) if sets.len() == 1 => Ok((sets, Some(std::sync::Arc::new(shared)))),
+        Some(shared) => Err(ReadError::Shared(SharedErrorsError::Unreadable {
+            path: shared.path().to_path_buf(),
+            why: format!(
+                "{} holds {} data sets; the shared errors are those of one session's readings",
+                path.display(),
+                sets.len()
+            ),
+        })),
+        None => {
+            // A session's readings.csv (its other exports carry no uncertainties at all).
+            let in_session_folder = path.file_name().is_some_and(|n| n == "readings.csv")
+                && path
+                    .parent()
+                    .is_some_and(|d| d.join(host::output::folder::SESSION).is_file());
+            if in_session_folder {
+                eprintln!(
+                    "note: {} has no {} beside it: analysed on its readings' own noise, without the errors the calibration shares among them (the session's result may differ; `gonio fit {}` re-analyses the folder)",
+                    path.display(),
+                    shared_errors::sidecar_path(path)
+                        .file_name()
+                        .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                    path.parent()
+                        .map_or_else(String::new, |d| d.display().to_string())
+                );
+            }
+            Ok((sets, None))
+        }
+    }
+}
+
 /// Analyse one data set of the file `path`; errors are `line: message`.
 fn analyse_set(
-    path: &Path,
-    set: &DataSet,
+    job: &Job<'_>,
     options: &FitOptions,
     delta: Option<f64>,
+    profile: Option<&host::instrument::profile::ProfileInUse>,
 ) -> anyhow::Result<Report> {
+    let Job {
+        path, set, shared, ..
+    } = job;
+    if let Some(shared) = shared {
+        // Errors of the shared-errors file name it, not a line of the CSV.
+        return shared_errors::analyse(&path.display().to_string(), set, shared, profile).map_err(
+            |e| match e {
+                // The fit's own error starts with its line: `file:line: …`.
+                SharedErrorsError::Analysis(a @ host::session::PointsAnalysisError::Fit(_)) => {
+                    anyhow::anyhow!("{a}")
+                }
+                other => anyhow::anyhow!(" {other}"),
+            },
+        );
+    }
     let readings = Readings {
         source: &path.display().to_string(),
         sample: &set.sample,
@@ -262,9 +346,10 @@ fn analyse_set(
 
 /// Fit every data set, in parallel over the available cores; results in input order.
 fn analyse_all(
-    jobs: &[(usize, &Path, DataSet)],
+    jobs: &[Job<'_>],
     options: &FitOptions,
     delta: Option<f64>,
+    profile: Option<&host::instrument::profile::ProfileInUse>,
 ) -> Vec<anyhow::Result<Report>> {
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
@@ -272,7 +357,7 @@ fn analyse_all(
     if threads <= 1 || jobs.len() < 8 {
         return jobs
             .iter()
-            .map(|(_, path, set)| analyse_set(path, set, options, delta))
+            .map(|job| analyse_set(job, options, delta, profile))
             .collect();
     }
     let chunk = jobs.len().div_ceil(threads);
@@ -282,7 +367,7 @@ fn analyse_all(
             .map(|part| {
                 let handle = scope.spawn(move || {
                     part.iter()
-                        .map(|(_, path, set)| analyse_set(path, set, options, delta))
+                        .map(|job| analyse_set(job, options, delta, profile))
                         .collect::<Vec<_>>()
                 });
                 (part.len(), handle)

@@ -99,6 +99,7 @@ pub(super) fn write_session(
         crate::output::export::astm_file_name(sample),
         crate::output::export::astm(&meta, &observations).into_bytes(),
     )];
+    files.push(shared_errors_file(recorder, sample, outcome)?);
     // The plots are drawn outside the folder, then replaced into it like every summary file.
     let staging = tempfile::tempdir().context("cannot make a temporary folder for the plots")?;
     for path in crate::output::plots::write_plots(
@@ -125,4 +126,30 @@ pub(super) fn write_session(
         .finish(&finished, &files)
         .with_context(|| format!("cannot write the result into {}", dir.display()))?;
     Ok(result.to_value())
+}
+
+/// `readings.shared-errors.json`: what the analysis weighed readings.csv with besides each
+/// reading's own noise; with it the folder's data alone re-analyse to this result
+/// (`gonio fit readings.csv`). Tied to the readings.csv on disk by its SHA-256.
+fn shared_errors_file(
+    recorder: &FileRecorder,
+    sample: &str,
+    outcome: &Outcome,
+) -> anyhow::Result<(String, Vec<u8>)> {
+    let readings_path = recorder.dir().join(crate::output::folder::READINGS);
+    let readings_csv = std::fs::read(&readings_path)
+        .with_context(|| format!("cannot read {}", readings_path.display()))?;
+    let bytes = crate::output::shared_errors::document_bytes(
+        sample,
+        &outcome.points,
+        &outcome.calibration,
+        &outcome.analysis_settings,
+        outcome.analysed_unix_s,
+        &readings_csv,
+    )
+    .context("cannot write the readings' shared errors")?;
+    Ok((
+        crate::output::shared_errors::SHARED_ERRORS.to_string(),
+        bytes,
+    ))
 }

@@ -38,12 +38,40 @@ pub(crate) const REPORT: &str = "report.html";
 pub const SIGNATURE: &str = "signature.json";
 /// The sheet document of a folder of several spots.
 pub(crate) const SHEET: &str = "sheet.json";
-/// The header of [`READINGS`].
-pub(crate) const READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
+/// The header of [`READINGS`]: the angles in degrees, named with their unit.
+pub(crate) const READINGS_HEADER: &str = "theta_i_deg,theta_r_deg,radiance_factor,std";
 /// The header of [`READINGS`] once a reading was taken while the detector moved (a sweep's
 /// bin): its travel in θr, degrees, in a fifth column.
 pub(crate) const READINGS_HEADER_WITH_SPAN: &str =
+    "theta_i_deg,theta_r_deg,radiance_factor,std,theta_r_span_deg";
+/// The header of [`READINGS`] in folders written before it named the angles' unit; their
+/// rows hold the angles unrounded. Such folders still verify and resume (a resume
+/// rewrites the file in the current form).
+pub(crate) const LEGACY_READINGS_HEADER: &str = "theta_i,theta_r,radiance_factor,std";
+/// [`LEGACY_READINGS_HEADER`] with the span column.
+pub(crate) const LEGACY_READINGS_HEADER_WITH_SPAN: &str =
     "theta_i,theta_r,radiance_factor,std,theta_r_span";
+/// An angle as [`READINGS`] writes it: as it is recorded
+/// ([`crate::session::recorded_angle`]), so that a still reading's schedule arithmetic
+/// shows no float noise either.
+pub(crate) fn rounded_angle(deg: f64) -> f64 {
+    crate::session::recorded_angle(deg)
+}
+
+/// The two headers (without, with the span column) of the form `header` belongs to.
+fn header_form(header: &str) -> Option<(&'static str, &'static str)> {
+    [
+        (READINGS_HEADER, READINGS_HEADER_WITH_SPAN),
+        (LEGACY_READINGS_HEADER, LEGACY_READINGS_HEADER_WITH_SPAN),
+    ]
+    .into_iter()
+    .find(|(still, moving)| header == *still || header == *moving)
+}
+
+/// Whether `header` is one of the legacy headers (unitless names, angles unrounded).
+pub(crate) fn is_legacy_header(header: &str) -> bool {
+    header == LEGACY_READINGS_HEADER || header == LEGACY_READINGS_HEADER_WITH_SPAN
+}
 
 /// The suffix of a file being replaced ([`crate::output::store::Store::replace`]).
 const TEMP_SUFFIX: &str = ".gonio-tmp";
@@ -490,14 +518,22 @@ pub fn csv_row(point: &MeasuredPoint, header: &str) -> Option<String> {
         return None;
     }
     let (r, u) = (point.radiance_factor?, point.std?);
-    Some(if header == READINGS_HEADER_WITH_SPAN {
-        format!(
-            "{},{},{r},{u},{}\n",
-            point.theta_i_deg, point.theta_r_deg, point.theta_r_span_deg
-        )
-    } else {
-        format!("{},{},{r},{u}\n", point.theta_i_deg, point.theta_r_deg)
-    })
+    // The current form rounds the angles; a legacy file's rows are as they were written.
+    let angle = |deg: f64| {
+        if is_legacy_header(header) {
+            deg
+        } else {
+            rounded_angle(deg)
+        }
+    };
+    let (ti, tr) = (angle(point.theta_i_deg), angle(point.theta_r_deg));
+    Some(
+        if header == READINGS_HEADER_WITH_SPAN || header == LEGACY_READINGS_HEADER_WITH_SPAN {
+            format!("{ti},{tr},{r},{u},{}\n", angle(point.theta_r_span_deg))
+        } else {
+            format!("{ti},{tr},{r},{u}\n")
+        },
+    )
 }
 
 /// `readings.csv` as `points.jsonl` says it must be.
@@ -613,13 +649,16 @@ fn csv_header(
     points: &[MeasuredPoint],
     wanted: &'static str,
 ) -> Result<&'static str, CsvAgreement> {
+    // The file's form (current or legacy) decides how its rows are written.
+    let form = file.lines.first().and_then(|(_, h)| header_form(h));
+    let wanted = match form {
+        Some((_, moving)) if wanted == READINGS_HEADER_WITH_SPAN => moving,
+        Some((still, _)) => still,
+        None => wanted,
+    };
     match file.lines.first() {
-        Some((_, header))
-            if header == wanted || (header == READINGS_HEADER && wanted == READINGS_HEADER) =>
-        {
-            Ok(wanted)
-        }
-        Some((line, header)) if header == READINGS_HEADER => {
+        Some((_, header)) if header == wanted => Ok(wanted),
+        Some((line, header)) if form.is_some_and(|(still, _)| header == still) => {
             // What a crash between the first bin's record and the rewrite leaves: the rows
             // of the readings before it, under the old header; a resume rebuilds the file.
             let first_moving = points
@@ -647,9 +686,14 @@ fn csv_header(
         // Only the header, cut short (or nothing): a crash right after the file was made.
         None => Err(match &file.cut_tail {
             Some(tail)
-                if ![READINGS_HEADER, READINGS_HEADER_WITH_SPAN]
-                    .iter()
-                    .any(|h| h.as_bytes().starts_with(tail)) =>
+                if ![
+                    READINGS_HEADER,
+                    READINGS_HEADER_WITH_SPAN,
+                    LEGACY_READINGS_HEADER,
+                    LEGACY_READINGS_HEADER_WITH_SPAN,
+                ]
+                .iter()
+                .any(|h| h.as_bytes().starts_with(tail)) =>
             {
                 CsvAgreement::Differs(Finding::new(
                     path,

@@ -15,7 +15,7 @@
 //! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
 //! | signatures | [`signature`]: the manifest's signature, a file's, the keys | `folder`, `manifest`, `store` |
 //! | store and manifest | [`store`], [`manifest`], [`lock`] | `folder` |
-//! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json` | none (`documents`: `folder`) |
+//! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json`; [`shared_errors`]: what `readings.csv`'s readings share, written and read back | none (`documents`: `folder`; `shared_errors`: `folder`, `manifest`) |
 //!
 //! [`dataset`] (CSV data sets) stands apart: no folder module uses it. Verification checks
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
@@ -35,6 +35,7 @@ pub mod plots;
 pub mod reanalysis;
 pub mod record;
 pub mod report;
+pub mod shared_errors;
 pub mod sheet_folder;
 pub mod signature;
 pub mod store;

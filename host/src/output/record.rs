@@ -581,6 +581,23 @@ impl Existing {
             }
             CsvAgreement::Differs(problem) => return Err(FolderError::Damaged(problem)),
         }
+        // A folder written before readings.csv named the angles' unit: rows appended now
+        // are in the current form, so the file is rewritten in it first.
+        let legacy = std::fs::read_to_string(dir.join(READINGS))
+            .ok()
+            .and_then(|text| text.lines().next().map(folder::is_legacy_header))
+            .unwrap_or(false);
+        if legacy {
+            store
+                .replace(
+                    READINGS,
+                    folder::readings_csv(&inspection.points).as_bytes(),
+                )
+                .map_err(io_error(&dir))?;
+            repairs.push(format!(
+                "{READINGS}: rewritten with the angles' unit in its header and the angles rounded to 0.0001°"
+            ));
+        }
         for run in doc
             .runs
             .iter_mut()

@@ -118,6 +118,9 @@ pub(crate) fn flag_meaning(flag: Flag) -> &'static str {
         Flag::FewDegreesOfFreedom => {
             "too few readings beyond the fitted parameters to judge the fit or state a class confidence"
         }
+        Flag::ImplausibleInput => {
+            "the readings cannot be a paper in degrees and radiance factors as they stand (a table in percent, angles in radians, or a paper far outside the population of papers; the note says which): check the units and fit again"
+        }
         Flag::InstrumentDeclared => {
             "informational: no instrument profile was in force (none, or older than the lab's limit): the fit took the detector's angular response and arm zero as declared, not as measured on this instrument (gonio characterize measures them)"
         }

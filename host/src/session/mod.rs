@@ -41,7 +41,7 @@ pub use operator::{
 };
 pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 
-use crate::analysis::fit::{FitOptions, Observation};
+use crate::analysis::fit::{FitOptions, Observation, SharedError};
 use crate::analysis::flags::Flag;
 use crate::analysis::model;
 use crate::analysis::result::{Readings, Report, analyse_with_shared, to_json};
@@ -161,6 +161,18 @@ pub struct Plan {
     pub white_check: bool,
     /// White drift beyond which the result is marked, as a fraction.
     pub white_drift_limit: f64,
+}
+
+/// Decimals of a degree a computed angle is recorded to (a sweep's bin's θr and travel,
+/// the angles of readings.csv): a ten-thousandth of a degree is far below the motors'
+/// microstep (0.0125°), the arm zero's uncertainty and the bins' lag correction, and the
+/// arithmetic of a bin's centre leaves float noise beyond it (`0.09999999999999432` for 0.1).
+const ANGLE_DECIMALS: i32 = 4;
+
+/// An angle, degrees, as it is recorded: rounded to [`ANGLE_DECIMALS`] (−0 as 0).
+pub(crate) fn recorded_angle(deg: f64) -> f64 {
+    let scale = 10f64.powi(ANGLE_DECIMALS);
+    (deg * scale).round() / scale + 0.0
 }
 
 /// One measured geometry, as recorded.
@@ -1380,6 +1392,51 @@ impl From<crate::analysis::result::AnalysisError> for PointsAnalysisError {
     }
 }
 
+/// What the session's analysis fits, before its settings are applied: the readings the
+/// result rests on (their indices in `points`; a sweep's bins with their noise scaled to
+/// their scatter), the variance that scaling leaves in χ², and the errors the calibration
+/// shares among them. What `readings.shared-errors.json` records beside `readings.csv`
+/// ([`crate::output::shared_errors`]), so that the folder's data alone re-analyse.
+pub(crate) struct PointsAnalysisInputs {
+    /// Index in `points` of each observation.
+    pub indices: Vec<usize>,
+    /// The observations as fitted (θr as the firmware reported it: a profile's zero is
+    /// added by [`analyse_inputs`]).
+    pub observations: Vec<Observation>,
+    /// [`FitOptions::noise_scale_log_variance`].
+    pub noise_scale_log_variance: f64,
+    /// The calibration's shared errors, one entry per observation in each.
+    pub shared: Vec<SharedError>,
+}
+
+/// [`PointsAnalysisInputs`] of `points` (marks applied, converted with `calibration`), the
+/// shared errors as of `now_unix_s`.
+pub(crate) fn analysis_inputs(
+    points: &[MeasuredPoint],
+    calibration: Option<&Calibration>,
+    now_unix_s: u64,
+) -> Result<PointsAnalysisInputs, PointsAnalysisError> {
+    let (indices, observations, scaling) = usable_observations_scaled(points);
+    let noise_scale_log_variance = scaling.chi2_log_variance(observations.len());
+    let shared = match calibration {
+        Some(calibration) => gains::shared_errors(
+            calibration,
+            &indices
+                .iter()
+                .filter_map(|&k| points.get(k))
+                .collect::<Vec<_>>(),
+            now_unix_s,
+        )?,
+        None => Vec::new(),
+    };
+    Ok(PointsAnalysisInputs {
+        indices,
+        observations,
+        noise_scale_log_variance,
+        shared,
+    })
+}
+
 /// The session's analysis of `points` (marks applied, converted with `calibration`): the
 /// fit with the calibration's shared errors as of `now_unix_s`, the σ_l check and the
 /// class. What a session reports, and what `gonio fit DIR` makes again from its folder.
@@ -1390,8 +1447,34 @@ pub(crate) fn analyse_points(
     settings: &AnalysisSettings,
     now_unix_s: u64,
 ) -> Result<Report, PointsAnalysisError> {
-    let (indices, mut observations, scaling) = usable_observations_scaled(points);
-    let noise_scale_log_variance = scaling.chi2_log_variance(observations.len());
+    let inputs = analysis_inputs(points, calibration, now_unix_s)?;
+    // Lines of readings.csv: a header, then one per reading.
+    let lines: Vec<usize> = inputs.indices.iter().map(|k| k + 2).collect();
+    analyse_inputs(
+        "readings.csv",
+        sample,
+        inputs.observations,
+        &lines,
+        &inputs.shared,
+        inputs.noise_scale_log_variance,
+        settings,
+    )
+}
+
+/// The session's analysis of observations already chosen (θr as the firmware reported
+/// it) with their shared errors, under the session's `settings`: a profile's arm zero
+/// added to every θr and its response modelled, the `instrument-declared` flag without
+/// one. [`analyse_points`] and the re-analysis of `readings.csv` with its shared-errors
+/// file both come through here.
+pub(crate) fn analyse_inputs(
+    source: &str,
+    sample: &str,
+    mut observations: Vec<Observation>,
+    lines: &[usize],
+    shared: &[SharedError],
+    noise_scale_log_variance: f64,
+    settings: &AnalysisSettings,
+) -> Result<Report, PointsAnalysisError> {
     // A profile's arm zero: every θr as the firmware reported it lacks the zero measured
     // at its incidence on the black glass.
     let response = match &settings.instrument_profile {
@@ -1407,24 +1490,11 @@ pub(crate) fn analyse_points(
         }
         None => None,
     };
-    let shared = match calibration {
-        Some(calibration) => gains::shared_errors(
-            calibration,
-            &indices
-                .iter()
-                .filter_map(|&k| points.get(k))
-                .collect::<Vec<_>>(),
-            now_unix_s,
-        )?,
-        None => Vec::new(),
-    };
-    // Lines of readings.csv: a header, then one per reading.
-    let lines: Vec<usize> = indices.iter().map(|k| k + 2).collect();
     let readings = Readings {
-        source: "readings.csv",
+        source,
         sample,
         observations: &observations,
-        lines: &lines,
+        lines,
     };
     let options = FitOptions {
         acceptance_deg: Some(settings.acceptance_deg),
@@ -1437,7 +1507,7 @@ pub(crate) fn analyse_points(
         extensions: settings.model_extensions,
         ..FitOptions::default()
     };
-    let mut report = analyse_with_shared(&readings, &shared, &options, None)?;
+    let mut report = analyse_with_shared(&readings, shared, &options, None)?;
     if settings.instrument_profile.is_none() {
         report.flags.push(Flag::InstrumentDeclared);
         report.flags.sort();

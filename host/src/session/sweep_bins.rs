@@ -75,11 +75,19 @@ pub(crate) fn bin_point(
     };
     let mut point = MeasuredPoint {
         theta_i_deg,
-        theta_r_deg: bin
-            .centre_deg
-            .unwrap_or(0.5 * (bin.start_deg + bin.end_deg))
-            - direction * lag_deg,
-        theta_r_span_deg: span,
+        // Recorded to the precision readings.csv writes, so that the CSV holds exactly
+        // what the analysis fits.
+        theta_r_deg: super::recorded_angle(
+            bin.centre_deg
+                .unwrap_or(0.5 * (bin.start_deg + bin.end_deg))
+                - direction * lag_deg,
+        ),
+        // (A travel is never rounded down to 0, which would make the bin a still reading.)
+        theta_r_span_deg: if span > 0.0 {
+            super::recorded_angle(span).max(1e-4)
+        } else {
+            0.0
+        },
         radiance_factor: None,
         std: None,
         reading,

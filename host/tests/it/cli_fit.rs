@@ -233,3 +233,242 @@ fn text_from_a_csv_reaches_the_terminal_escaped_and_a_bad_field_is_quoted_short(
     assert!(stderr.len() < 2_000, "{} bytes of errors", stderr.len());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `gonio fit --json` of one file: exit code, JSON lines, standard error.
+fn fit_one(path: &std::path::Path) -> (Option<i32>, Vec<serde_json::Value>, String) {
+    let out = gonio()
+        .args(["fit", "--json"])
+        .arg(path)
+        .output()
+        .expect("run gonio");
+    let lines = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("JSON"))
+        .collect();
+    (
+        out.status.code(),
+        lines,
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A table written as a spreadsheet in a European locale writes it (semicolons and
+/// decimal commas; tabs and decimal commas; with a byte-order mark and quoted fields) is
+/// read as the comma-separated one: the same fit to the last digit, over several seeds.
+/// Headers with units (`theta_i_deg`) read as the bare names.
+#[test]
+fn semicolon_tab_and_decimal_comma_dialects_fit_as_the_comma_separated_table() {
+    let dir = temp_dir("dialects");
+    for seed in 1..=3 {
+        let obs = common::noisy(&common::reference("SG"), &common::strategy2(2), seed);
+        let std = |o: &host::analysis::fit::Observation| 0.01 * o.radiance_factor + 0.003;
+        let comma: String = std::iter::once("theta_i,theta_r,radiance_factor,std\n".to_string())
+            .chain(obs.iter().map(|o| {
+                format!(
+                    "{},{},{},{}\n",
+                    o.theta_i_deg,
+                    o.theta_r_deg,
+                    o.radiance_factor,
+                    std(o)
+                )
+            }))
+            .collect();
+        let european = |sep: &str, quote: bool| -> String {
+            let q = |x: f64| {
+                let t = x.to_string().replace('.', ",");
+                if quote { format!("\"{t}\"") } else { t }
+            };
+            std::iter::once(format!(
+                "\u{feff}theta_i_deg{sep}theta_r_deg{sep}radiance_factor{sep}std\r\n"
+            ))
+            .chain(obs.iter().map(|o| {
+                format!(
+                    "{}{sep}{}{sep}{}{sep}{}\r\n",
+                    q(o.theta_i_deg),
+                    q(o.theta_r_deg),
+                    q(o.radiance_factor),
+                    q(std(o))
+                )
+            }))
+            .collect()
+        };
+        let files = [
+            ("comma.csv", comma),
+            ("semicolon.csv", european(";", false)),
+            ("quoted.csv", european(";", true)),
+            ("tabs.tsv", european("\t", false)),
+        ];
+        let mut sigmas = Vec::new();
+        for (name, text) in &files {
+            let path = dir.join(name);
+            std::fs::write(&path, text).unwrap();
+            let (code, lines, err) = fit_one(&path);
+            assert!(code.is_some_and(|c| c == 0 || c == 3), "{name}: {err}");
+            assert_eq!(lines.len(), 1, "{name}: {err}");
+            assert_eq!(lines[0]["n"], obs.len(), "{name}");
+            sigmas.push((lines[0]["sigma_deg"].clone(), lines[0]["rho_d"].clone()));
+        }
+        assert!(
+            sigmas.iter().all(|s| *s == sigmas[0]),
+            "seed {seed}: {sigmas:?}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A header gonio cannot read is refused naming what it found: its columns and the
+/// separator they were split by.
+#[test]
+fn a_header_that_names_no_known_column_is_refused_with_what_was_found() {
+    let dir = temp_dir("header");
+    for (name, text, found) in [
+        (
+            "angles.csv",
+            "angle;reflectance;x\n20;0,5;1\n",
+            "3 columns 'angle', 'reflectance', 'x' separated by ';'",
+        ),
+        ("one.csv", "ti tr rf\n20 0 0.5\n", "one column 'ti tr rf'"),
+        (
+            "comma.csv",
+            "theta_i,theta_r,value\n20,0,0.5\n",
+            "'theta_i', 'theta_r', 'value' separated by ','",
+        ),
+    ] {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        let (code, _, err) = fit_one(&path);
+        assert_eq!(code, Some(1), "{name}: {err}");
+        assert!(err.contains(&format!("{name}:1:")), "{name}: {err}");
+        assert!(err.contains(found), "{name}: {err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// gonio's own `.astm` export is read back: angles from radians, BRDF back to radiance
+/// factor, the sample's name from its header; its fit is the CSV's (without
+/// uncertainties, the noise from the residuals, as the export carries none).
+#[test]
+fn gonio_fit_reads_gonios_own_astm_export() {
+    let dir = temp_dir("astm");
+    for seed in 1..=3 {
+        let obs = common::noisy(&common::reference("MC"), &common::strategy1_m12(), seed);
+        let meta = host::output::export::AstmMetadata {
+            sample: "MC sheet 4".into(),
+            instrument: "test".into(),
+            measured_at: std::time::UNIX_EPOCH,
+            acceptance_deg: 1.0,
+            integration_ms: 100,
+            white_radiance_factor: 0.98,
+            white_relative_uncertainty: 0.005,
+            white_certificate: None,
+        };
+        let astm = dir.join("export.astm");
+        std::fs::write(&astm, host::output::export::astm(&meta, &obs)).unwrap();
+        let csv_path = dir.join("same.csv");
+        std::fs::write(&csv_path, csv(&[("x", obs.clone())], false)).unwrap();
+        let (code, lines, err) = fit_one(&astm);
+        assert!(code.is_some_and(|c| c == 0 || c == 3), "{err}");
+        assert_eq!(lines[0]["sample"], "MC sheet 4");
+        assert_eq!(lines[0]["n"], obs.len());
+        let (_, from_csv, _) = fit_one(&csv_path);
+        for key in ["sigma_deg", "rho_s", "rho_d"] {
+            let (a, b) = (
+                lines[0][key].as_f64().unwrap(),
+                from_csv[0][key].as_f64().unwrap(),
+            );
+            assert!(
+                (a - b).abs() <= 1e-6 * b.abs(),
+                "seed {seed}: {key} {a} against {b}"
+            );
+        }
+    }
+    // A row out of the specular plane, and a count that is not the rows': refused at
+    // their line.
+    let text = std::fs::read_to_string(dir.join("export.astm")).unwrap();
+    let vars = text.lines().position(|l| l.starts_with("VARS")).unwrap();
+    let mut rows: Vec<String> = text.lines().map(String::from).collect();
+    rows[vars + 2] = "0.3,0,0.4,1.2,0.1".into();
+    std::fs::write(dir.join("plane.astm"), rows.join("\n")).unwrap();
+    let (code, _, err) = fit_one(&dir.join("plane.astm"));
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains(&format!("plane.astm:{}:", vars + 3)) && err.contains("specular plane"),
+        "{err}"
+    );
+    let cut: Vec<&str> = text.lines().take(vars + 4).collect();
+    std::fs::write(dir.join("cut.astm"), cut.join("\n")).unwrap();
+    let (code, _, err) = fit_one(&dir.join("cut.astm"));
+    assert_eq!(code, Some(1));
+    assert!(err.contains("NUM_POINTS"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Plausibility: a table in percent (×100) and one with angles in radians are flagged
+/// `implausible-input` (exit 3) with a note saying what looks wrong; the same tables in
+/// fractions and degrees are not. Several papers and seeds.
+#[test]
+fn percent_and_radians_are_flagged_with_what_looks_wrong() {
+    let dir = temp_dir("plausible");
+    for (paper, seed) in [("G", 1), ("SG", 2), ("PPC", 3), ("MC", 4), ("J1", 5)] {
+        let obs = common::noisy(&common::reference(paper), &common::full_grid(), seed);
+        let scaled =
+            |f: &dyn Fn(&host::analysis::fit::Observation) -> host::analysis::fit::Observation| {
+                obs.iter().map(f).collect::<Vec<_>>()
+            };
+        let percent = scaled(&|o| host::analysis::fit::Observation {
+            radiance_factor: o.radiance_factor * 100.0,
+            ..*o
+        });
+        let radians = scaled(&|o| host::analysis::fit::Observation {
+            theta_i_deg: o.theta_i_deg.to_radians(),
+            theta_r_deg: o.theta_r_deg.to_radians(),
+            ..*o
+        });
+        let notes_of = |line: &serde_json::Value| -> Vec<String> {
+            line["notes"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|n| n["kind"].as_str().unwrap().to_string())
+                .collect()
+        };
+        for (name, table, note) in [
+            ("fractions", &obs, None),
+            ("percent", &percent, Some("percent_suspected")),
+            ("radians", &radians, Some("radians_suspected")),
+        ] {
+            let path = dir.join(format!("{paper}-{name}.csv"));
+            std::fs::write(&path, csv(&[("x", table.clone())], false)).unwrap();
+            let (code, lines, err) = fit_one(&path);
+            assert_eq!(lines.len(), 1, "{paper} {name}: {err}");
+            let flagged = lines[0]["flags"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|f| f == "implausible-input");
+            let notes = notes_of(&lines[0]);
+            match note {
+                None => assert!(!flagged, "{paper} {name}: {notes:?}"),
+                Some(note) => {
+                    assert!(
+                        flagged && notes.iter().any(|n| n == note),
+                        "{paper} {name}: {notes:?}"
+                    );
+                    assert_eq!(code, Some(3), "{paper} {name}");
+                }
+            }
+        }
+        // The table says what looks wrong in words.
+        let out = gonio()
+            .args(["fit"])
+            .arg(dir.join(format!("{paper}-percent.csv")))
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.contains("percent") && text.contains("divide the table by 100"),
+            "{text}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

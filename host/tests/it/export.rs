@@ -209,8 +209,8 @@ fn a_sessions_export_holds_its_readings_and_white_standard() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next(),
-        Some("theta_i,theta_r,radiance_factor,std"),
-        "one header line, then numbers"
+        Some("theta_i_deg,theta_r_deg,radiance_factor,std"),
+        "one header line, the angles' unit in their names, then numbers"
     );
     let rows: Vec<Vec<f64>> = lines
         .map(|l| l.split(',').map(|f| f.parse().expect("a number")).collect())
@@ -302,5 +302,64 @@ fn a_tile_certificate_is_recorded_in_every_export() {
         "{}",
         file.keywords["WHITE_STANDARD_CERTIFICATE"]
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A sweep session's readings.csv: the angles' unit in the header (the bins' travel too)
+/// and every angle as the instrument can mean it, to 0.0001° (no `0.09999999999999432`);
+/// `gonio fit` reads it, and still reads the first version's file (unitless header,
+/// unrounded angles).
+#[test]
+fn sweep_readings_have_units_in_their_header_and_no_float_noise() {
+    let dir = cli_support::temp_dir("export", "sweep");
+    let out = cli_support::gonio(&[
+        "measure",
+        "--sim",
+        "G",
+        "--policy",
+        "sweep",
+        "--spots",
+        "1",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.code().is_some_and(|c| c == 0 || c == 3),
+        "{}",
+        cli_support::stderr(&out)
+    );
+    let csv = std::fs::read_to_string(dir.join("readings.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some("theta_i_deg,theta_r_deg,radiance_factor,std,theta_r_span_deg")
+    );
+    let mut rows = 0;
+    for line in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        for angle in [fields[0], fields[1], fields[4]] {
+            let decimals = angle.split_once('.').map_or(0, |(_, d)| d.len());
+            assert!(decimals <= 4, "'{angle}' in '{line}'");
+            angle.parse::<f64>().expect("a number");
+        }
+        rows += 1;
+    }
+    assert!(rows > 100, "a sweep's bins: {rows}");
+    for file in [
+        dir.join("readings.csv"),
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/v1-session-G/readings.csv"),
+    ] {
+        let out = cli_support::gonio(&["fit", "--json", file.to_str().unwrap()]);
+        assert!(
+            out.status.code().is_some_and(|c| c == 0 || c == 3),
+            "{}: {}",
+            file.display(),
+            cli_support::stderr(&out)
+        );
+    }
+    // The folder verifies: readings.csv is what points.jsonl says, in this form.
+    let out = cli_support::gonio(&["verify", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", cli_support::stderr(&out));
     let _ = std::fs::remove_dir_all(&dir);
 }

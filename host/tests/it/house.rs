@@ -26,7 +26,7 @@ const TOP: &[&[&str]] = &[
 const OUTPUT: &[&[&str]] = &[
     &["folder", "chromium"],
     &["lock", "manifest", "store", "dataset", "export", "plots"],
-    &["documents", "signature"],
+    &["documents", "signature", "shared_errors"],
     &["record", "sheet_folder"],
     &["verify"],
     &["report"],

@@ -215,3 +215,201 @@ fn gonio_sessions_lists_sessions_and_sheets_with_their_state() {
     );
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A seed for this run (printed: a failure names it), so the folders differ from run to
+/// run; `GONIO_TEST_SEED` sets it.
+fn run_seed() -> u64 {
+    let seed = std::env::var("GONIO_TEST_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| {
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(1, |d| d.subsec_nanos() as u64)
+                % 10_000
+        });
+    eprintln!("seed of this run: {seed} (GONIO_TEST_SEED={seed} runs it again)");
+    seed
+}
+
+/// `gonio fit --json FILE…`: its exit code and its JSON lines.
+fn fit_json(files: &[&std::path::Path]) -> (Option<i32>, Vec<serde_json::Value>, String) {
+    let mut args = vec!["fit", "--json"];
+    args.extend(files.iter().map(|f| f.to_str().unwrap()));
+    let out = gonio(&args);
+    let lines = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("JSON"))
+        .collect();
+    (out.status.code(), lines, stderr(&out))
+}
+
+/// Agreement of two JSON numbers to numerical precision: readings.csv holds the numbers
+/// the session fitted (a still reading's angles without their last bits of float noise),
+/// 10⁻⁹ relative (both null also agree).
+fn close(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    match (a.as_f64(), b.as_f64()) {
+        (Some(x), Some(y)) => (x - y).abs() <= 1e-9 * x.abs().max(y.abs()) + 1e-12,
+        _ => a == b,
+    }
+}
+
+/// The folder's `readings.csv` and `readings.shared-errors.json`, copied alone into a
+/// folder of their own, re-analyse to the session's σ, ρs, ρd, class, confidence and
+/// flags under the session's sample name: a sweep session, an adaptive one and a spot of a
+/// sheet, on this run's seed. Without the shared-errors file the same readings are fitted
+/// on their own noise (a note says so), and an edited CSV is refused naming both files.
+#[test]
+fn readings_csv_with_its_shared_errors_alone_reanalyses_to_the_sessions_result() {
+    let seed = run_seed();
+    let root = temp_dir("reanalysis", "alone");
+    let cases: [(&str, Vec<String>, &str); 3] = [
+        (
+            "sweep",
+            vec![
+                "--sim".into(),
+                "G".into(),
+                "--policy".into(),
+                "sweep".into(),
+                "--spots".into(),
+                "1".into(),
+            ],
+            "",
+        ),
+        (
+            "adaptive",
+            vec![
+                "--sim".into(),
+                "PPC".into(),
+                "--policy".into(),
+                "adaptive".into(),
+                "--spots".into(),
+                "1".into(),
+                "--physics".into(),
+                "real".into(),
+            ],
+            "",
+        ),
+        (
+            "sheet",
+            vec![
+                "--sim".into(),
+                "SG".into(),
+                "--spots".into(),
+                "2".into(),
+                "--sheet-variation".into(),
+                "3".into(),
+            ],
+            "spot-2",
+        ),
+    ];
+    for (k, (name, case, spot)) in cases.iter().enumerate() {
+        let dir = root.join(name);
+        let seed_text = (seed + k as u64).to_string();
+        let mut args = vec![
+            "measure",
+            "--seed",
+            &seed_text,
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        args.extend(case.iter().map(String::as_str));
+        let out = gonio(&args);
+        assert!(
+            out.status.code().is_some_and(|c| c == 0 || c == 3),
+            "{name}: {}",
+            stderr(&out)
+        );
+        let folder = dir.join(spot);
+        let session: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(folder.join("session.json")).unwrap()).unwrap();
+        let recorded = &session["result"];
+        // The folder's own re-analysis, for the flags the analysis itself raises.
+        let (folder_code, again, err) = fit_json(&[&folder]);
+        assert_eq!(again.len(), 1, "{name}: {err}");
+        assert_eq!(again[0]["same_as_session"], true, "{name}");
+        // The two files alone.
+        let alone = root.join(format!("{name}-alone"));
+        std::fs::create_dir_all(&alone).unwrap();
+        for file in ["readings.csv", "readings.shared-errors.json"] {
+            std::fs::copy(folder.join(file), alone.join(file))
+                .unwrap_or_else(|e| panic!("{name}: {file}: {e}"));
+        }
+        let csv = alone.join("readings.csv");
+        let (code, results, err) = fit_json(&[&csv]);
+        assert_eq!(results.len(), 1, "{name}: {err}");
+        let r = &results[0];
+        assert_eq!(
+            r["sample"], session["sample"],
+            "{name}: the sample's name kept"
+        );
+        for key in [
+            "sigma_deg",
+            "rho_s",
+            "rho_d",
+            "eta",
+            "class_confidence",
+            "gof_p",
+        ] {
+            assert!(
+                close(&r[key], &recorded[key]),
+                "{name} (seed {seed}): {key} {} against the session's {}",
+                r[key],
+                recorded[key]
+            );
+        }
+        for key in ["class", "group", "n", "dof"] {
+            assert_eq!(r[key], recorded[key], "{name} (seed {seed}): {key}");
+        }
+        for (p, q) in r["ci95"]["sigma_deg"].as_array().into_iter().flatten().zip(
+            recorded["ci95"]["sigma_deg"]
+                .as_array()
+                .into_iter()
+                .flatten(),
+        ) {
+            assert!(close(p, q), "{name}: σ's interval {p} against {q}");
+        }
+        assert_eq!(r["flags"], again[0]["flags"], "{name} (seed {seed}): flags");
+        assert_eq!(code, folder_code, "{name}: exit code");
+        // In its folder, readings.csv finds its shared errors too.
+        let (_, in_folder, err) = fit_json(&[&folder.join("readings.csv")]);
+        assert_eq!(in_folder.len(), 1, "{name}: {err}");
+        assert!(
+            close(&in_folder[0]["sigma_deg"], &recorded["sigma_deg"]),
+            "{name}"
+        );
+        // Copied without them: the readings' own noise and the file's name.
+        let lone = alone.join("lone.csv");
+        std::fs::copy(&csv, &lone).unwrap();
+        let (_, lone_results, err) = fit_json(&[&lone]);
+        assert_eq!(lone_results.len(), 1, "{name}: {err}");
+        assert_eq!(lone_results[0]["sample"], "lone", "{name}");
+        // An edited CSV: refused, naming the shared-errors file and what to do.
+        let text = std::fs::read_to_string(&csv).unwrap();
+        std::fs::write(&csv, text.replacen('\n', "\n# edited\n", 1)).unwrap();
+        let (code, results, err) = fit_json(&[&csv]);
+        assert_eq!(code, Some(1), "{name}: {err}");
+        assert!(results.is_empty());
+        assert!(
+            err.contains("readings.shared-errors.json") && err.contains("SHA-256"),
+            "{name}: {err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A folder written before the shared-errors file (the first version's): its
+/// `readings.csv` is still fitted, with a note that the session's shared errors are left
+/// out and how to re-analyse the folder.
+#[test]
+fn an_old_folders_readings_csv_is_fitted_with_a_note_on_what_it_lacks() {
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/v1-session-G/readings.csv");
+    let (code, results, err) = fit_json(&[&data]);
+    assert!(code.is_some_and(|c| c == 0 || c == 3), "{err}");
+    assert_eq!(results.len(), 1);
+    assert!(
+        err.contains("no readings.shared-errors.json beside it") && err.contains("gonio fit"),
+        "{err}"
+    );
+}

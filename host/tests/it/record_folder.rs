@@ -982,7 +982,7 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(
         String::from_utf8_lossy(&out.stdout)
-            .contains("verified: 9 files match MANIFEST.sha256; 12 readings agree"),
+            .contains("verified: 10 files match MANIFEST.sha256; 12 readings agree"),
         "{}",
         String::from_utf8_lossy(&out.stdout)
     );

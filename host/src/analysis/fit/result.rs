@@ -142,11 +142,60 @@ pub enum Note {
         /// The smallest ν judged (3 without uncertainties, 1 with them).
         min_dof: usize,
     },
+    /// ρd is beyond any paper's and reads as one once divided by 100: the radiance
+    /// factors look like percent ([`crate::analysis::plausibility`]); flagged
+    /// `implausible-input`.
+    PercentSuspected {
+        /// The fitted ρd.
+        rho_d: f64,
+        /// The largest radiance factor read.
+        max_radiance_factor: f64,
+    },
+    /// Every angle within ±1.6: they look like radians; flagged `implausible-input`.
+    RadiansSuspected {
+        /// The largest |θi| or |θr| read, in the file's unit.
+        max_abs_angle: f64,
+    },
+    /// The fitted paper is far from every paper of Table 6 (or ρd beyond a perfect
+    /// diffuser): outside the population the classes were drawn from; flagged
+    /// `implausible-input`.
+    OutsidePopulation {
+        /// The nearest paper of Table 6.
+        nearest_reference: &'static str,
+        /// Its distance, combined standard uncertainties.
+        distance: f64,
+        /// The fitted ρd.
+        rho_d: f64,
+    },
 }
 
 impl std::fmt::Display for Note {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
+            Note::PercentSuspected {
+                rho_d,
+                max_radiance_factor,
+            } => write!(
+                f,
+                "the radiance factors look like percent (×100): ρd = {rho_d:.3} and readings up to {max_radiance_factor:.4} where a paper's ρd is below 1 (a perfect diffuser is 1); radiance factors are fractions: divide the table by 100"
+            ),
+            Note::RadiansSuspected { max_abs_angle } => write!(
+                f,
+                "every angle is within ±{max_abs_angle:.3}: the angles look like radians; gonio reads θi and θr in degrees (multiply by 180/π)"
+            ),
+            Note::OutsidePopulation {
+                nearest_reference,
+                distance,
+                rho_d,
+            } => write!(
+                f,
+                "outside the population of papers: the nearest of Table 6's papers ({nearest_reference}) is {distance:.1} combined standard uncertainties away{}; the class is an extrapolation, check the table's units and content",
+                if *rho_d > crate::analysis::plausibility::RHO_D_MAX {
+                    format!(" and ρd = {rho_d:.3} is beyond a perfect diffuser's 1")
+                } else {
+                    String::new()
+                }
+            ),
             Note::EtaAtBound { eta } => write!(f, "η at its bound {eta}: held there, not fitted"),
             Note::NoSpecularTerm => {
                 f.write_str("no specular part: only ρd fitted (σ, η meaningless)")
