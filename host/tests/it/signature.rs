@@ -63,7 +63,19 @@ fn measure_signed(list: &[&str], signer: Option<Arc<Signer>>) -> Measured {
 /// A finished session of one spot of G (seed `seed`) in `dir`, signed by `signer`.
 fn session(dir: &Path, seed: u64, signer: Option<Arc<Signer>>) {
     let seed = seed.to_string();
-    match measure_signed(&["--sim", "G", "--spots", "1", "--seed", &seed, "--out", s(dir)], signer) {
+    match measure_signed(
+        &[
+            "--sim",
+            "G",
+            "--spots",
+            "1",
+            "--seed",
+            &seed,
+            "--out",
+            s(dir),
+        ],
+        signer,
+    ) {
         Measured::Done { .. } => {}
         _ => panic!("the session did not finish"),
     }
@@ -395,15 +407,26 @@ fn a_session_killed_and_resumed_is_signed_and_so_is_one_killed_before_its_signat
         let mut first = args(&d, "--out");
         first.splice(2..2, ["--spots".to_string(), "1".to_string()]);
         let stopped = measure_crashed(&first, &signer, Crash::at(at));
-        assert!(!matches!(stopped, Ok(Measured::Done { .. })), "killed at write {at}");
-        assert!(!d.join(SIGNATURE).exists(), "killed at {at} of {writes}: no signature yet");
+        assert!(
+            !matches!(stopped, Ok(Measured::Done { .. })),
+            "killed at write {at}"
+        );
+        assert!(
+            !d.join(SIGNATURE).exists(),
+            "killed at {at} of {writes}: no signature yet"
+        );
         // Resumed (a session killed before its signature was finished: refused as
         // finished, and signed on the way).
         let resumed = measure_crashed(&args(&d, "--resume"), &signer, Crash::counting());
         if at < writes - 1 {
-            assert!(matches!(resumed, Ok(Measured::Done { .. })), "resumed from {at}");
+            assert!(
+                matches!(resumed, Ok(Measured::Done { .. })),
+                "resumed from {at}"
+            );
         } else {
-            let e = resumed.err().expect("a finished session is not measured again");
+            let e = resumed
+                .err()
+                .expect("a finished session is not measured again");
             assert!(e.to_string().contains("finished"), "{e}");
         }
         let o = gonio(&keys, &["verify", s(&d)]);
