@@ -186,10 +186,9 @@ pub fn clean(
         &options(&spec, 0, dir, true),
         &mut SimulatedOperator,
         Arc::new(AtomicBool::new(false)),
-        StoreOptions {
-            crash: Some(counting.clone()),
-            ..Default::default()
-        },
+        // Signed as every interrupted run is, so the writes counted (where kills are drawn)
+        // include the signatures'.
+        store_options(&spec, Some(counting.clone())),
     );
     let clean = match measured {
         Ok(Measured::Sheet { sheet, .. }) => Ok(Clean {
@@ -251,20 +250,65 @@ fn json(path: &Path) -> Result<serde_json::Value, String> {
     serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// The final checks: the folder verifies, every spot under the sheet's plan, nothing lost.
+/// The campaign's signing key, as a lab's would sign: every run of a sheet (the first, each
+/// resume) signs with it, and the final folder must verify under it, the sheet and every
+/// spot. Derived from the sheet's seed so a row repeats; a key, not a secret.
+fn campaign_signer(seed: u64) -> crate::output::signature::Signer {
+    let mut bytes = [0u8; 32];
+    ChaCha12Rng::seed_from_u64(seed ^ 0x5157_4e45_4452_3235).fill(&mut bytes[..]);
+    crate::output::signature::Signer::new(
+        "interruption-campaign",
+        ed25519_dalek::SigningKey::from_bytes(&bytes),
+    )
+}
+
+/// Store options of every run of the sheet `spec`: signed with the campaign's key.
+fn store_options(spec: &Spec, crash: Option<Crash>) -> StoreOptions {
+    StoreOptions {
+        crash,
+        signer: Some(Arc::new(campaign_signer(spec.seed))),
+        ..Default::default()
+    }
+}
+
+/// The final checks: the folder verifies, its signatures (the sheet's and every spot's) are
+/// the campaign key's, every spot under the sheet's plan, nothing lost.
 fn check(
     spec: &Spec,
     dir: &Path,
     snapshots: &[BTreeMap<String, Vec<String>>],
 ) -> Result<(), String> {
-    if let Err(problems) = crate::output::verify::verify_sheet(dir, crate::output::report::draw) {
+    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::draw).map_err(
+        |problems| {
+            format!(
+                "does not verify: {}",
+                problems
+                    .iter()
+                    .map(ToString::to_string)
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            )
+        },
+    )?;
+    let key = crate::output::signature::hex(campaign_signer(spec.seed).public_key().as_bytes());
+    let signed_by_campaign = |signed: &Option<crate::output::signature::Signed>| {
+        signed.as_ref().is_some_and(|s| s.public_key == key)
+    };
+    if !signed_by_campaign(&verified.signed) {
         return Err(format!(
-            "does not verify: {}",
-            problems
-                .iter()
-                .map(ToString::to_string)
-                .collect::<Vec<_>>()
-                .join("; ")
+            "the sheet is not signed by the campaign's key: {:?}",
+            verified.signed
+        ));
+    }
+    if let Some(spot) = verified
+        .spots
+        .iter()
+        .find(|v| !signed_by_campaign(&v.signed))
+    {
+        return Err(format!(
+            "{} is not signed by the campaign's key: {:?}",
+            spot.dir.display(),
+            spot.signed
         ));
     }
     let sheet = json(&dir.join("sheet.json"))?;
@@ -341,10 +385,7 @@ pub fn run_one(spec: &Spec, base: &Path, clean: Clean) -> Row {
                 &options,
                 &mut SimulatedOperator,
                 interrupt,
-                StoreOptions {
-                    crash: crash.clone(),
-                    ..Default::default()
-                },
+                store_options(spec, crash.clone()),
             );
             row.runs += 1;
             let gave_up = matches!(
@@ -385,7 +426,7 @@ pub fn run_one(spec: &Spec, base: &Path, clean: Clean) -> Row {
                 &options(spec, row.runs, &dir, fresh),
                 &mut SimulatedOperator,
                 Arc::new(AtomicBool::new(false)),
-                StoreOptions::default(),
+                store_options(spec, None),
             );
             row.runs += 1;
             match ended(measured)? {
