@@ -47,6 +47,11 @@ pub enum Flag {
     /// Too few readings beyond the fitted parameters to judge the fit or to state a
     /// class confidence.
     FewDegreesOfFreedom,
+    /// Informational, a sheet's only: its accepted spots do not all have one class (each
+    /// named in the sheet's notes). The sheet's class and confidence are its mean's, whose
+    /// uncertainty holds the spot-to-spot variation; a reader sees that the spots straddle
+    /// a class boundary (or the sheet is not one paper) rather than a class alone.
+    SpotsDisagree,
 }
 
 /// The detector responses an uncharacterized instrument is analysed again with, full
@@ -57,7 +62,7 @@ pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.0, 3.0];
 
 impl Flag {
     /// Every flag, in a stable order.
-    pub const ALL: [Flag; 13] = [
+    pub const ALL: [Flag; 14] = [
         Flag::LostSteps,
         Flag::WhiteDrift,
         Flag::CalibrationStale,
@@ -71,6 +76,7 @@ impl Flag {
         Flag::ModelExtended,
         Flag::Outlier,
         Flag::FewDegreesOfFreedom,
+        Flag::SpotsDisagree,
     ];
 
     /// The stable string (as serialized).
@@ -89,6 +95,7 @@ impl Flag {
             Flag::ModelExtended => "model-extended",
             Flag::Outlier => "outlier",
             Flag::FewDegreesOfFreedom => "few-degrees-of-freedom",
+            Flag::SpotsDisagree => "spots-disagree",
         }
     }
 
@@ -96,7 +103,11 @@ impl Flag {
     pub const fn is_informational(self) -> bool {
         matches!(
             self,
-            Flag::LinkRecovered | Flag::Resumed | Flag::InstrumentDeclared | Flag::ModelExtended
+            Flag::LinkRecovered
+                | Flag::Resumed
+                | Flag::InstrumentDeclared
+                | Flag::ModelExtended
+                | Flag::SpotsDisagree
         )
     }
 }

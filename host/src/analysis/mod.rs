@@ -17,5 +17,6 @@ pub mod motion;
 pub mod response_estimate;
 pub mod result;
 pub mod sampling;
+pub mod specimen;
 pub mod spots;
 pub mod sweep_design;

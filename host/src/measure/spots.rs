@@ -278,11 +278,12 @@ fn finish(
     })
 }
 
-/// The `--json` object of a sheet (`gonio-sheet-result/1`). Written through
+/// The `--json` object of a sheet (`gonio-sheet-result/2`). Written through
 /// [`serde_json::Value`], whose keys are sorted: the order of the fields does not matter.
 #[derive(Serialize)]
 struct SheetResultDocument<'a> {
     accepted: usize,
+    answer: Option<&'a crate::analysis::spots::SheetAnswer>,
     device_seconds: Option<f64>,
     flags: &'a [Flag],
     notes: &'a [String],
@@ -337,6 +338,7 @@ fn sheet_json(sheet: &crate::output::sheet_folder::ReadSheet) -> serde_json::Val
         .collect();
     let document = SheetResultDocument {
         accepted: summary.accepted,
+        answer: summary.answer.as_ref(),
         device_seconds: result.map(|r| r.device_seconds),
         flags: &summary.flags,
         notes: &summary.notes,
