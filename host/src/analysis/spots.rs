@@ -120,9 +120,12 @@ pub struct SheetIntervals {
 ///
 /// The mean's covariance in (ln σ, ln ρs, ln ρd) is its sampling covariance from the
 /// spots, W/n, widened by (t₀.₉₇₅,ₙ₋₁ / z₀.₉₇₅)² so that with few spots its 95 % reach is
-/// Student's and not the normal's, plus the spots' own fit covariance averaged over them
-/// and divided by n (F̄/n: what the fits know of their noise and shared calibration, which
-/// a few spots' scatter may not show). One spot has no spot-to-spot variation to measure:
+/// Student's and not the normal's, plus the spots' own fit covariance averaged over them,
+/// F̄, not divided by n: the spots share one calibration, whose errors (the white tile's,
+/// the gain ratios', the arm zero's: most of a fit's covariance on a clean spot) do not
+/// average out over the spots, and a spot's covariance does not say which share is the
+/// calibration's; taking all of it as shared errs on the wide side, as `gonio compare`'s
+/// interval of a sheet does. One spot has no spot-to-spot variation to measure:
 /// its fit's covariance alone, and the sheet's notes say so. The class and the confidence
 /// are [`crate::analysis::classify::classify_log_mean`]'s (the sampling one spot's are).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -244,7 +247,7 @@ fn answer(
     });
     let within = within_log_covariance.unwrap_or([[0.0; 3]; 3]);
     let covariance: [[f64; 3]; 3] = std::array::from_fn(|i| {
-        std::array::from_fn(|j| (within[i][j] * t_widening + fit_mean[i][j]) / n as f64)
+        std::array::from_fn(|j| within[i][j] * t_widening / n as f64 + fit_mean[i][j])
     });
     let u: [f64; 3] = std::array::from_fn(|i| covariance[i][i].max(0.0).sqrt());
     let log_interval = |i: usize| {
@@ -572,14 +575,14 @@ mod tests {
         assert_eq!(answer.ci95.rho_d, Some([0.855, 0.855]));
         assert!(answer.spots_disagree.is_none() && answer.flags.is_empty());
 
-        // The fits' own covariance, averaged over n, adds to it.
+        // The fits' own covariance, averaged (not divided by n: shared calibration), adds.
         let mut noisy = results.clone();
         for r in &mut noisy {
             r.spot.covariance[2][2] = (0.01f64 * 0.855).powi(2);
         }
         let answer = assess(2, &noisy).answer.unwrap();
         let [lo, hi] = answer.ci95.rho_d.unwrap();
-        let half = 1.959_964 * 0.855 * (0.01f64.powi(2) / 2.0).sqrt();
+        let half = 1.959_964 * 0.855 * 0.01;
         assert!((hi - lo - 2.0 * half).abs() < 1e-6, "{lo} {hi}");
     }
 
@@ -624,7 +627,7 @@ mod tests {
             ],
         );
         let v = serde_json::to_value(&s).unwrap();
-        assert_eq!(v["mean"]["rho_s"], 57.8);
+        assert_eq!(v["mean"]["rho_s"].as_f64(), s.mean[1]);
         assert!(v["within_relative_sd"]["sigma_deg"].as_f64().unwrap() > 0.0);
         let mut old = v.clone();
         old["mean"] = serde_json::json!([s.mean[0], s.mean[1], s.mean[2]]);

@@ -169,6 +169,8 @@ fn the_lay_given_is_recorded_in_session_and_sheet_and_a_resume_keeps_it() {
             "SG",
             "--seed",
             "4",
+            "--spots",
+            "1",
             "--orientation",
             "cd",
             "--side",
