@@ -159,17 +159,8 @@ pub struct SheetAnswer {
 /// The normal's 0.975 quantile.
 const Z_975: f64 = 1.959_963_984_540_054;
 
-/// The sheet's answer from its accepted spots (`logs`: their (ln σ, ln ρs, ln ρd)) and
-/// the within-sheet covariance of those logs (see [`SheetAnswer`]).
-fn answer(
-    accepted: &[&SpotResult],
-    mean_log: [Option<f64>; 3],
-    within_log_covariance: Option<[[f64; 3]; 3]>,
-    sheet_flags: &[Flag],
-    excluded: usize,
-) -> SheetAnswer {
-    let n = accepted.len();
-    let mut flags = sheet_flags.to_vec();
+/// When the accepted spots do not all have one class: each class and its spots, in words.
+fn disagreement(accepted: &[&SpotResult]) -> Option<String> {
     // Which spots have which class, in the order the classes first appear.
     let mut by_class: Vec<(String, Vec<u16>)> = Vec::new();
     for r in accepted {
@@ -179,7 +170,7 @@ fn answer(
             None => by_class.push((name, vec![r.number])),
         }
     }
-    let spots_disagree = (by_class.len() > 1).then(|| {
+    (by_class.len() > 1).then(|| {
         let parts: Vec<String> = by_class
             .iter()
             .map(|(class, numbers)| {
@@ -192,7 +183,21 @@ fn answer(
             })
             .collect();
         format!("the accepted spots disagree in class: {}", parts.join("; "))
-    });
+    })
+}
+
+/// The sheet's answer from its accepted spots (`logs`: their (ln σ, ln ρs, ln ρd)) and
+/// the within-sheet covariance of those logs (see [`SheetAnswer`]).
+fn answer(
+    accepted: &[&SpotResult],
+    mean_log: [Option<f64>; 3],
+    within_log_covariance: Option<[[f64; 3]; 3]>,
+    sheet_flags: &[Flag],
+    excluded: usize,
+) -> SheetAnswer {
+    let n = accepted.len();
+    let mut flags = sheet_flags.to_vec();
+    let spots_disagree = disagreement(accepted);
     if spots_disagree.is_some() {
         flags.push(Flag::SpotsDisagree);
         flags.sort();
