@@ -11,12 +11,18 @@
 use serde_json::Value;
 
 /// `session.json` of a session folder.
-pub const SESSION: &str = "gonio-session/2";
+pub const SESSION: &str = "gonio-session/3";
+/// `session.json` before the case recorded the sheet's orientation and side: still read
+/// (both unknown).
+pub const SESSION_V2: &str = "gonio-session/2";
 /// `session.json` before `schema` (it was `format`), with `ci95.sigma` and the refinements
 /// of `result` as bare numbers: still read, upgraded in memory ([`crate::output::folder`]).
 pub const SESSION_V1: &str = "gonio-session/1";
 /// `sheet.json` of a sheet folder.
-pub(crate) const SHEET: &str = "gonio-sheet/2";
+pub(crate) const SHEET: &str = "gonio-sheet/3";
+/// `sheet.json` before the sheet's answer (its class, confidence and the mean's intervals)
+/// and with the mean as an array: still read, its result recomputed from its spots.
+pub(crate) const SHEET_V2: &str = "gonio-sheet/2";
 /// `sheet.json` before `schema` (it was `format`): still read.
 pub(crate) const SHEET_V1: &str = "gonio-sheet/1";
 /// `calibration.json` (and the `calibration` of `session.json`).
@@ -32,9 +38,9 @@ pub const ANALYSIS: &str = "gonio-analysis/1";
 /// `session.json` (the analysis and what the session adds to it).
 pub const SPOT_RESULT: &str = "gonio-spot-result/1";
 /// `gonio measure --json` of a sheet of several spots.
-pub const SHEET_RESULT: &str = "gonio-sheet-result/1";
+pub const SHEET_RESULT: &str = "gonio-sheet-result/2";
 /// `gonio compare --json`.
-pub(crate) const COMPARE: &str = "gonio-compare/2";
+pub(crate) const COMPARE: &str = "gonio-compare/3";
 /// A line of `gonio verify --json`.
 pub const VERIFY: &str = "gonio-verify/2";
 /// A line of `gonio sessions --json`.
@@ -183,7 +189,7 @@ mod tests {
 
     #[test]
     fn file_names_and_tags() {
-        assert_eq!(file_name(SESSION), "gonio-session-2.schema.json");
+        assert_eq!(file_name(SESSION), "gonio-session-3.schema.json");
         let v = tagged(ANALYSIS, serde_json::json!({"n": 1}));
         assert_eq!(of(&v), Some(ANALYSIS));
         assert_eq!(tagged(ANALYSIS, Value::from(3)), Value::from(3));
@@ -205,21 +211,21 @@ mod tests {
             Ok(SESSION_V1)
         );
         let newer = check(
-            &serde_json::json!({"schema": "gonio-session/3"}),
+            &serde_json::json!({"schema": "gonio-session/4"}),
             &reads,
             None,
         )
         .unwrap_err()
         .to_string();
         assert!(
-            newer.contains("'gonio-session/3'") && newer.contains("update gonio"),
+            newer.contains("'gonio-session/4'") && newer.contains("update gonio"),
             "{newer}"
         );
         let other = check(&serde_json::json!({"schema": SHEET}), &reads, None)
             .unwrap_err()
             .to_string();
         assert!(
-            other.contains("gonio-sheet/2") && !other.contains("update"),
+            other.contains("gonio-sheet/3") && !other.contains("update"),
             "{other}"
         );
         assert!(

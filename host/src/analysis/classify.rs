@@ -346,17 +346,7 @@ fn confidence(fit: &FitResult, class: Class) -> f64 {
             cov[i][j] = fit.covariance[i][j] * scale[i] * scale[j];
         }
     }
-    let l = cholesky_lower(&cov);
-    let mut same = 0usize;
-    for k in 0..CONFIDENCE_SAMPLES {
-        let u: [f64; 4] = std::array::from_fn(|d| halton(k + 1, [2, 3, 5, 7][d]));
-        let z: [f64; 4] = std::array::from_fn(|d| inverse_normal_cdf(u[d]));
-        let mut delta = [0.0; 4];
-        for i in 0..4 {
-            for j in 0..=i {
-                delta[i] += l[i][j] * z[j];
-            }
-        }
+    share_in_class(&cov, class, |u, delta| {
         let sigma = match upper {
             Some(up) => (u[SIGMA] * up).max(SIGMA_MIN_DEG),
             None => p.sigma_deg * delta[SIGMA].exp(),
@@ -368,11 +358,65 @@ fn confidence(fit: &FitResult, class: Class) -> f64 {
         };
         let rho_d = (p.rho_d + delta[RHO_D]).max(0.0);
         let _eta = (p.eta + delta[ETA]).clamp(ETA_MIN, ETA_MAX);
+        (sigma, rho_s, rho_d)
+    })
+}
+
+/// The share of a deterministic quasi-random sample of a zero-mean Gaussian of covariance
+/// `cov` (4 × 4, in whatever coordinates `draw` reads) whose point, `draw(u, delta)` (`u`
+/// the uniform draw, `delta` the Gaussian offset) as (σ degrees, ρs, ρd), falls in `class`.
+/// One spot's fit and a sheet's mean are sampled by the same rule.
+fn share_in_class(
+    cov: &[[f64; 4]; 4],
+    class: Class,
+    draw: impl Fn(&[f64; 4], &[f64; 4]) -> (f64, f64, f64),
+) -> f64 {
+    let l = cholesky_lower(cov);
+    let mut same = 0usize;
+    for k in 0..CONFIDENCE_SAMPLES {
+        let u: [f64; 4] = std::array::from_fn(|d| halton(k + 1, [2, 3, 5, 7][d]));
+        let z: [f64; 4] = std::array::from_fn(|d| inverse_normal_cdf(u[d]));
+        let mut delta = [0.0; 4];
+        for i in 0..4 {
+            for j in 0..=i {
+                delta[i] += l[i][j] * z[j];
+            }
+        }
+        let (sigma, rho_s, rho_d) = draw(&u, &delta);
         if class_of(Some(sigma), rho_s, rho_d) == class {
             same += 1;
         }
     }
     same as f64 / CONFIDENCE_SAMPLES as f64
+}
+
+/// The class of a sheet from the mean of its spots' (ln σ, ln ρs, ln ρd), and its
+/// confidence: the share of the mean's uncertainty region (the Gaussian of `log_covariance`
+/// about the mean, in log space so every parameter stays positive) in that class, capped at
+/// [`LACK_OF_FIT_CONFIDENCE_CAP`] when the sheet carries a flag that caps a spot's
+/// (`flags`: the sheet's). The sampling is [`classify`]'s.
+pub fn classify_log_mean(
+    mean_log: [f64; 3],
+    log_covariance: &[[f64; 3]; 3],
+    flags: &[Flag],
+) -> (Class, f64) {
+    let [sigma, rho_s, rho_d] = mean_log.map(f64::exp);
+    let class = class_of(Some(sigma), rho_s, rho_d);
+    let mut cov = [[0.0; 4]; 4];
+    for (r, row) in log_covariance.iter().enumerate() {
+        cov[r][..3].copy_from_slice(row);
+    }
+    let mut confidence = share_in_class(&cov, class, |_, delta| {
+        (
+            (mean_log[0] + delta[0]).exp().max(SIGMA_MIN_DEG),
+            (mean_log[1] + delta[1]).exp(),
+            (mean_log[2] + delta[2]).exp(),
+        )
+    });
+    if flags.iter().any(|f| CAPPING_FLAGS.contains(f)) {
+        confidence = confidence.min(LACK_OF_FIT_CONFIDENCE_CAP);
+    }
+    (class, confidence)
 }
 
 /// Nearest Table 6 paper by a diagonal Mahalanobis distance over the parameters the fit

@@ -116,11 +116,14 @@ pub fn parse_session(file: &Path, text: &str) -> Result<SessionResult, CompareEr
 pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult, CompareError> {
     use crate::schema;
     if schema::of(root).is_some() || root.get("format").is_some() {
-        schema::check(root, &[schema::SESSION, schema::SESSION_V1], None).map_err(|error| {
-            CompareError::Json {
-                path: file.to_path_buf(),
-                message: error.to_string(),
-            }
+        schema::check(
+            root,
+            &[schema::SESSION, schema::SESSION_V2, schema::SESSION_V1],
+            None,
+        )
+        .map_err(|error| CompareError::Json {
+            path: file.to_path_buf(),
+            message: error.to_string(),
         })?;
     }
     let missing = |key: &str| CompareError::MissingKey {

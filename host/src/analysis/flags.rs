@@ -51,6 +51,11 @@ pub enum Flag {
     /// radiance factors in percent, angles in radians, or values outside the population of
     /// papers (the note says which; [`crate::analysis::plausibility`]).
     ImplausibleInput,
+    /// Informational, a sheet's only: its accepted spots do not all have one class (each
+    /// named in the sheet's notes). The sheet's class and confidence are its mean's, whose
+    /// uncertainty holds the spot-to-spot variation; a reader sees that the spots straddle
+    /// a class boundary (or the sheet is not one paper) rather than a class alone.
+    SpotsDisagree,
 }
 
 /// The detector responses an uncharacterized instrument is analysed again with, full
@@ -61,7 +66,7 @@ pub const DECLARED_RESPONSE_BOUND_DEG: [f64; 2] = [0.0, 3.0];
 
 impl Flag {
     /// Every flag, in a stable order.
-    pub const ALL: [Flag; 14] = [
+    pub const ALL: [Flag; 15] = [
         Flag::LostSteps,
         Flag::WhiteDrift,
         Flag::CalibrationStale,
@@ -76,6 +81,7 @@ impl Flag {
         Flag::Outlier,
         Flag::FewDegreesOfFreedom,
         Flag::ImplausibleInput,
+        Flag::SpotsDisagree,
     ];
 
     /// The stable string (as serialized).
@@ -95,6 +101,7 @@ impl Flag {
             Flag::Outlier => "outlier",
             Flag::FewDegreesOfFreedom => "few-degrees-of-freedom",
             Flag::ImplausibleInput => "implausible-input",
+            Flag::SpotsDisagree => "spots-disagree",
         }
     }
 
@@ -102,7 +109,11 @@ impl Flag {
     pub const fn is_informational(self) -> bool {
         matches!(
             self,
-            Flag::LinkRecovered | Flag::Resumed | Flag::InstrumentDeclared | Flag::ModelExtended
+            Flag::LinkRecovered
+                | Flag::Resumed
+                | Flag::InstrumentDeclared
+                | Flag::ModelExtended
+                | Flag::SpotsDisagree
         )
     }
 }

@@ -18,5 +18,6 @@ pub mod plausibility;
 pub mod response_estimate;
 pub mod result;
 pub mod sampling;
+pub mod specimen;
 pub mod spots;
 pub mod sweep_design;

@@ -34,6 +34,8 @@ pub struct SpotResult {
     pub flags: Vec<Flag>,
     /// σ (degrees), ρs, ρd and their covariance.
     pub spot: Spot,
+    /// Its own class (`None`: undecided), as its session reported it.
+    pub class: Option<String>,
 }
 
 /// The number of the next spot to measure, or `None` when the sheet is done: `planned`
@@ -76,10 +78,14 @@ pub struct SheetSummary {
     /// Spots accepted.
     pub accepted: usize,
     /// The sheet's σ (degrees), ρs, ρd: the geometric mean over the accepted spots (the
-    /// spots vary relatively); `None` where a spot did not determine it.
+    /// spots vary relatively); `None` where a spot did not determine it. Written as
+    /// `{sigma_deg, rho_s, rho_d}` (an array in `gonio-sheet/2` and before, still read).
+    #[serde(with = "named")]
     pub mean: [Option<f64>; 3],
     /// The spots' relative standard deviation of σ, ρs, ρd about that mean (from the
-    /// accepted spots' logs); `None` with fewer than two spots: unknown, not zero.
+    /// accepted spots' logs); `None` with fewer than two spots: unknown, not zero. Named
+    /// as `mean` is.
+    #[serde(with = "named_option")]
     pub within_relative_sd: Option<[f64; 3]>,
     /// The within-sheet covariance of (ln σ, ln ρs, ln ρd) over the accepted spots;
     /// `None` with fewer than two.
@@ -89,6 +95,253 @@ pub struct SheetSummary {
     pub flags: Vec<Flag>,
     /// What a reader must know about the result, in words (empty when nothing).
     pub notes: Vec<String>,
+    /// The sheet's answer: its class, confidence and the mean's intervals (`None` in a
+    /// sheet written before `gonio-sheet/3`, which did not record one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub answer: Option<SheetAnswer>,
+}
+
+/// A 95 % interval, low and high.
+pub type Interval = [f64; 2];
+
+/// The sheet's mean's 95 % intervals.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SheetIntervals {
+    /// σ, degrees (in log space: exp(mean ± k·u)).
+    pub sigma_deg: Option<Interval>,
+    /// ρs (in log space, as σ's).
+    pub rho_s: Option<Interval>,
+    /// ρd (linear: mean ± k·u, u by the delta method from the log's, clipped at 0).
+    pub rho_d: Option<Interval>,
+}
+
+/// The sheet's answer from its accepted spots: the class of its mean parameters and how
+/// sure it is, with the spot-to-spot variation in the uncertainty.
+///
+/// The mean's covariance in (ln σ, ln ρs, ln ρd) is its sampling covariance from the
+/// spots, W/n, widened by (t₀.₉₇₅,ₙ₋₁ / z₀.₉₇₅)² so that with few spots its 95 % reach is
+/// Student's and not the normal's, plus the spots' own fit covariance averaged over them,
+/// F̄, not divided by n: the spots share one calibration, whose errors (the white tile's,
+/// the gain ratios', the arm zero's: most of a fit's covariance on a clean spot) do not
+/// average out over the spots, and a spot's covariance does not say which share is the
+/// calibration's; taking all of it as shared errs on the wide side, as `gonio compare`'s
+/// interval of a sheet does. One spot has no spot-to-spot variation to measure:
+/// its fit's covariance alone, and the sheet's notes say so. The class and the confidence
+/// are [`crate::analysis::classify::classify_log_mean`]'s (the sampling one spot's are).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SheetAnswer {
+    /// The class of the sheet's mean (G, SG, rough-I, rough-II, rough-III); `None` when
+    /// undecided.
+    pub class: Option<String>,
+    /// Glossy or rough, with the class.
+    pub group: Option<String>,
+    /// The share of the mean's uncertainty region in `class`, 0…1; `None` without a class.
+    pub class_confidence: Option<f64>,
+    /// Why no class was stated.
+    pub undecided: Option<String>,
+    /// The mean's 95 % intervals.
+    pub ci95: SheetIntervals,
+    /// The covariance of the mean's (ln σ, ln ρs, ln ρd) the class and intervals rest on;
+    /// `None` when a parameter is not determined at every accepted spot.
+    pub mean_log_covariance: Option<[[f64; 3]; 3]>,
+    /// The coverage factor of the intervals: z₀.₉₇₅ (the spot-to-spot part's t already in
+    /// the covariance).
+    pub coverage_factor: f64,
+    /// Spots left out of the answer (flagged while a clean spot exists).
+    pub excluded: usize,
+    /// The answer's flags: the sheet's, and `spots-disagree` when its accepted spots do not
+    /// all have one class.
+    pub flags: Vec<Flag>,
+    /// When the spots disagree in class: which class each spot has, in words.
+    pub spots_disagree: Option<String>,
+}
+
+/// The normal's 0.975 quantile.
+const Z_975: f64 = 1.959_963_984_540_054;
+
+/// When the accepted spots do not all have one class: each class and its spots, in words.
+fn disagreement(accepted: &[&SpotResult]) -> Option<String> {
+    // Which spots have which class, in the order the classes first appear.
+    let mut by_class: Vec<(String, Vec<u16>)> = Vec::new();
+    for r in accepted {
+        let name = r.class.clone().unwrap_or_else(|| "undecided".into());
+        match by_class.iter_mut().find(|(c, _)| *c == name) {
+            Some((_, numbers)) => numbers.push(r.number),
+            None => by_class.push((name, vec![r.number])),
+        }
+    }
+    (by_class.len() > 1).then(|| {
+        let parts: Vec<String> = by_class
+            .iter()
+            .map(|(class, numbers)| {
+                let list: Vec<String> = numbers.iter().map(u16::to_string).collect();
+                format!(
+                    "{class} at spot{} {}",
+                    if numbers.len() == 1 { "" } else { "s" },
+                    list.join(", ")
+                )
+            })
+            .collect();
+        format!("the accepted spots disagree in class: {}", parts.join("; "))
+    })
+}
+
+/// The sheet's answer from its accepted spots (`logs`: their (ln σ, ln ρs, ln ρd)) and
+/// the within-sheet covariance of those logs (see [`SheetAnswer`]).
+fn answer(
+    accepted: &[&SpotResult],
+    mean_log: [Option<f64>; 3],
+    within_log_covariance: Option<[[f64; 3]; 3]>,
+    sheet_flags: &[Flag],
+    excluded: usize,
+) -> SheetAnswer {
+    let n = accepted.len();
+    let mut flags = sheet_flags.to_vec();
+    let spots_disagree = disagreement(accepted);
+    if spots_disagree.is_some() {
+        flags.push(Flag::SpotsDisagree);
+        flags.sort();
+        flags.dedup();
+    }
+    let undetermined = |why: String| SheetAnswer {
+        class: None,
+        group: None,
+        class_confidence: None,
+        undecided: Some(why),
+        ci95: SheetIntervals::default(),
+        mean_log_covariance: None,
+        coverage_factor: Z_975,
+        excluded,
+        flags: flags.clone(),
+        spots_disagree: spots_disagree.clone(),
+    };
+    let Some(mean_log) = mean_log
+        .iter()
+        .copied()
+        .collect::<Option<Vec<f64>>>()
+        .and_then(|v| <[f64; 3]>::try_from(v).ok())
+    else {
+        let missing: Vec<&str> = ["σ", "ρs", "ρd"]
+            .iter()
+            .zip(mean_log)
+            .filter(|(_, m)| m.is_none())
+            .map(|(name, _)| *name)
+            .collect();
+        return undetermined(if n == 0 {
+            "no spot measured".to_string()
+        } else {
+            format!(
+                "{} not determined at every accepted spot: no mean to classify",
+                missing.join(", ")
+            )
+        });
+    };
+    // The spots' own fit covariance of the logs (delta method), averaged.
+    let mut fit_mean = [[0.0; 3]; 3];
+    for r in accepted {
+        let v = r.spot.values.map(|v| v.unwrap_or(f64::NAN));
+        for (i, row) in fit_mean.iter_mut().enumerate() {
+            for (j, cell) in row.iter_mut().enumerate() {
+                let c = r.spot.covariance[i][j] / (v[i] * v[j]);
+                *cell += if c.is_finite() { c } else { 0.0 } / n as f64;
+            }
+        }
+    }
+    let t_widening = within_log_covariance.map_or(0.0, |_| {
+        (crate::analysis::fit::t_quantile_975(n - 1) / Z_975).powi(2)
+    });
+    let within = within_log_covariance.unwrap_or([[0.0; 3]; 3]);
+    let covariance: [[f64; 3]; 3] = std::array::from_fn(|i| {
+        std::array::from_fn(|j| within[i][j] * t_widening / n as f64 + fit_mean[i][j])
+    });
+    let u: [f64; 3] = std::array::from_fn(|i| covariance[i][i].max(0.0).sqrt());
+    let log_interval = |i: usize| {
+        Some([
+            (mean_log[i] - Z_975 * u[i]).exp(),
+            (mean_log[i] + Z_975 * u[i]).exp(),
+        ])
+    };
+    let rho_d = mean_log[2].exp();
+    let ci95 = SheetIntervals {
+        sigma_deg: log_interval(0),
+        rho_s: log_interval(1),
+        rho_d: Some([
+            (rho_d - Z_975 * rho_d * u[2]).max(0.0),
+            rho_d + Z_975 * rho_d * u[2],
+        ]),
+    };
+    let (class, confidence) =
+        crate::analysis::classify::classify_log_mean(mean_log, &covariance, &flags);
+    SheetAnswer {
+        class: Some(class.name().to_string()),
+        group: Some(class.group().name().to_string()),
+        class_confidence: Some(confidence),
+        undecided: None,
+        ci95,
+        mean_log_covariance: Some(covariance),
+        coverage_factor: Z_975,
+        excluded,
+        flags,
+        spots_disagree,
+    }
+}
+
+/// `[a, b, c]` of σ, ρs, ρd written as `{sigma_deg, rho_s, rho_d}`, read from either.
+#[derive(Serialize, Deserialize)]
+struct Named<T> {
+    sigma_deg: T,
+    rho_s: T,
+    rho_d: T,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum NamedOrArray<T> {
+    Named(Named<T>),
+    Array([T; 3]),
+}
+
+impl<T> NamedOrArray<T> {
+    fn into_array(self) -> [T; 3] {
+        match self {
+            NamedOrArray::Named(n) => [n.sigma_deg, n.rho_s, n.rho_d],
+            NamedOrArray::Array(a) => a,
+        }
+    }
+}
+
+fn named_of<T: Copy>(a: &[T; 3]) -> Named<T> {
+    Named {
+        sigma_deg: a[0],
+        rho_s: a[1],
+        rho_d: a[2],
+    }
+}
+
+mod named {
+    use super::{NamedOrArray, named_of};
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &[Option<f64>; 3], s: S) -> Result<S::Ok, S::Error> {
+        named_of(v).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<[Option<f64>; 3], D::Error> {
+        NamedOrArray::<Option<f64>>::deserialize(d).map(NamedOrArray::into_array)
+    }
+}
+
+mod named_option {
+    use super::{NamedOrArray, named_of};
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &Option<[f64; 3]>, s: S) -> Result<S::Ok, S::Error> {
+        v.as_ref().map(named_of).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
+        Option::<NamedOrArray<f64>>::deserialize(d).map(|v| v.map(NamedOrArray::into_array))
+    }
 }
 
 impl SheetSummary {
@@ -250,7 +503,16 @@ pub(crate) fn assess(planned: u16, results: &[SpotResult]) -> SheetSummary {
             })
         })
     });
+    let excluded = results.len() - n;
+    let answer = answer(
+        &accepted,
+        mean_log,
+        within_log_covariance,
+        &sheet_flags,
+        excluded,
+    );
     SheetSummary {
+        answer: Some(answer),
         verdicts,
         accepted: n,
         mean: mean_log.map(|v| v.map(f64::exp)),
@@ -311,6 +573,7 @@ mod tests {
         SpotResult {
             number,
             flags: flags.to_vec(),
+            class: Some(if sigma < 0.4 { "G" } else { "rough-II" }.to_string()),
             spot: Spot {
                 values,
                 covariance: [[1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]],
@@ -391,6 +654,109 @@ mod tests {
         assert_eq!(s.flags, [Flag::LackOfFit, Flag::SigmaNotResolved]);
         assert!(!s.ok());
         assert!(s.notes[0].contains("no spot of 2 came out clean"));
+    }
+
+    fn exact(number: u16, class: &str, values: [f64; 3]) -> SpotResult {
+        SpotResult {
+            number,
+            flags: Vec::new(),
+            class: Some(class.to_string()),
+            spot: Spot {
+                values: values.map(Some),
+                covariance: [[0.0; 3]; 3],
+            },
+        }
+    }
+
+    #[test]
+    fn the_answer_widens_the_spot_to_spot_part_by_students_t_and_adds_the_fits() {
+        // Two spots of a G paper, σ 0.8° and 0.9°, fits without uncertainty: the 95 %
+        // interval of ln σ is the mean ± t(0.975, 1) · s/√2, s the spots' sd of ln σ.
+        let results = [
+            exact(1, "G", [0.8, 57.8, 0.855]),
+            exact(2, "G", [0.9, 57.8, 0.855]),
+        ];
+        let s = assess(2, &results);
+        let answer = s.answer.clone().unwrap();
+        let logs = [0.8f64.ln(), 0.9f64.ln()];
+        let sd = (logs[1] - logs[0]).abs() / 2f64.sqrt();
+        let half = 12.706_204_736 * sd / 2f64.sqrt();
+        let mean = (logs[0] + logs[1]) / 2.0;
+        let [lo, hi] = answer.ci95.sigma_deg.unwrap();
+        assert!((lo.ln() - (mean - half)).abs() < 1e-6, "{lo}");
+        assert!((hi.ln() - (mean + half)).abs() < 1e-6, "{hi}");
+        assert_eq!(answer.class.as_deref(), Some("G"));
+        // The σ interval reaches past 1.3°: the confidence in G says so.
+        let confidence = answer.class_confidence.unwrap();
+        assert!(confidence < 0.99 && confidence > 0.5, "{confidence}");
+        // ρs and ρd did not vary and the fits have no uncertainty: zero width.
+        assert_eq!(answer.ci95.rho_d, Some([0.855, 0.855]));
+        assert!(answer.spots_disagree.is_none() && answer.flags.is_empty());
+
+        // The fits' own covariance, averaged (not divided by n: shared calibration), adds.
+        let mut noisy = results.clone();
+        for r in &mut noisy {
+            r.spot.covariance[2][2] = (0.01f64 * 0.855).powi(2);
+        }
+        let answer = assess(2, &noisy).answer.unwrap();
+        let [lo, hi] = answer.ci95.rho_d.unwrap();
+        let half = 1.959_964 * 0.855 * 0.01;
+        assert!((hi - lo - 2.0 * half).abs() < 1e-6, "{lo} {hi}");
+    }
+
+    #[test]
+    fn spots_that_disagree_in_class_are_named_and_flagged() {
+        let results = [
+            exact(1, "G", [1.2, 57.0, 0.8]),
+            exact(2, "SG", [1.4, 57.0, 0.8]),
+            exact(3, "G", [1.25, 57.0, 0.8]),
+        ];
+        let answer = assess(3, &results).answer.unwrap();
+        assert_eq!(
+            answer.spots_disagree.as_deref(),
+            Some("the accepted spots disagree in class: G at spots 1, 3; SG at spot 2")
+        );
+        assert!(answer.flags.contains(&Flag::SpotsDisagree));
+        assert!(Flag::SpotsDisagree.is_informational());
+        // Near the 1.3° boundary with the spots on both sides: not a settled class.
+        assert!(answer.class_confidence.unwrap() < 0.95, "{answer:?}");
+    }
+
+    #[test]
+    fn a_sheet_with_a_parameter_not_determined_at_every_spot_has_no_class() {
+        let mut results = [
+            exact(1, "G", [0.8, 57.8, 0.855]),
+            exact(2, "G", [0.8, 57.8, 0.855]),
+        ];
+        results[1].spot.values[0] = None;
+        let answer = assess(2, &results).answer.unwrap();
+        assert_eq!(answer.class, None);
+        assert!(answer.undecided.unwrap().contains("σ not determined"));
+        assert_eq!(answer.ci95.sigma_deg, None);
+    }
+
+    #[test]
+    fn the_mean_and_spread_are_named_in_the_file_and_arrays_still_read() {
+        let s = assess(
+            2,
+            &[
+                exact(1, "G", [0.8, 57.8, 0.855]),
+                exact(2, "G", [0.9, 57.8, 0.855]),
+            ],
+        );
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(v["mean"]["rho_s"].as_f64(), s.mean[1]);
+        assert!(v["within_relative_sd"]["sigma_deg"].as_f64().unwrap() > 0.0);
+        let mut old = v.clone();
+        old["mean"] = serde_json::json!([s.mean[0], s.mean[1], s.mean[2]]);
+        old["within_relative_sd"] = serde_json::json!(s.within_relative_sd);
+        old.as_object_mut().unwrap().remove("answer");
+        let read: SheetSummary = serde_json::from_value(old).unwrap();
+        assert_eq!(
+            (read.mean, read.within_relative_sd),
+            (s.mean, s.within_relative_sd)
+        );
+        assert_eq!(read.answer, None);
     }
 
     #[test]

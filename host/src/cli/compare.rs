@@ -29,6 +29,11 @@ pub struct Args {
     /// Second sheet: a session or sheet folder, or a session.json.
     #[arg(value_name = "B")]
     pub b: PathBuf,
+    /// Compare even when the two sheets were measured in different stated orientations
+    /// (md/cd) or sides (felt/wire): refused without it, since the difference would be
+    /// partly the placement's; with it the result carries `lay_differs` and a warning.
+    #[arg(long)]
+    pub allow_lay_mismatch: bool,
     #[command(flatten)]
     pub population: PopulationArgs,
 }
@@ -38,6 +43,22 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let a = read_measured(&args.a)?;
     let b = read_measured(&args.b)?;
+    let known: Vec<String> = host::analysis::specimen::differences(
+        host::output::comparison::lay(&a),
+        host::output::comparison::lay(&b),
+    )
+    .into_iter()
+    .filter(|d| d.is_known())
+    .map(|d| d.to_string())
+    .collect();
+    if !known.is_empty() && !args.allow_lay_mismatch {
+        anyhow::bail!(
+            "not compared: {} ({} and {}). Measure both the same way, or give --allow-lay-mismatch to compare with a warning (docs/FORENSIC.md, \"Orientation and side\")",
+            known.join("; "),
+            args.a.display(),
+            args.b.display()
+        );
+    }
     let population = args.population.load(&[])?;
     let e = evidence::weigh(&a.questioned(), &b.questioned(), &population.population);
     let document = Comparison::new(&a, &b, &e, &population, Audit::now());

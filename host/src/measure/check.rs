@@ -66,6 +66,8 @@ pub(super) fn check(args: &MeasureOptions) -> anyhow::Result<Checked> {
         case_id: args.case_id.clone(),
         operator: args.operator.clone(),
         note: args.note.clone(),
+        orientation: args.orientation,
+        side: args.side,
     };
     Ok(Checked {
         max_calibration_age,

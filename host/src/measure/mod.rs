@@ -80,6 +80,10 @@ pub struct MeasureOptions {
     pub operator: Option<String>,
     /// A note (the item, where on it).
     pub note: Option<String>,
+    /// The sheet's orientation on the port (`None`: unknown).
+    pub orientation: Option<crate::analysis::specimen::Orientation>,
+    /// The side of the sheet facing the instrument (`None`: unknown).
+    pub side: Option<crate::analysis::specimen::Side>,
 }
 
 impl Default for MeasureOptions {
@@ -108,6 +112,8 @@ impl Default for MeasureOptions {
             case_id: None,
             operator: None,
             note: None,
+            orientation: None,
+            side: None,
         }
     }
 }

@@ -278,13 +278,14 @@ fn finish(
     })
 }
 
-/// The `--json` object of a sheet (`gonio-sheet-result/1`). Written through
+/// The `--json` object of a sheet (`gonio-sheet-result/2`). Written through
 /// [`serde_json::Value`], whose keys are sorted: the order of the fields does not matter.
 #[derive(Serialize)]
 struct SheetResultDocument<'a> {
     accepted: usize,
     flagged: usize,
     measured: usize,
+    answer: Option<&'a crate::analysis::spots::SheetAnswer>,
     device_seconds: Option<f64>,
     flags: &'a [Flag],
     notes: &'a [String],
@@ -342,6 +343,7 @@ fn sheet_json(sheet: &crate::output::sheet_folder::ReadSheet) -> serde_json::Val
         accepted: counts.accepted,
         flagged: counts.flagged,
         measured: counts.measured,
+        answer: summary.answer.as_ref(),
         device_seconds: result.map(|r| r.device_seconds),
         flags: &summary.flags,
         notes: &summary.notes,

@@ -120,6 +120,10 @@ pub struct Side {
     pub instrument: Option<String>,
     /// The case, when given.
     pub case: Option<CaseRecord>,
+    /// The sheet's orientation on the port: md, cd or unknown.
+    pub orientation: &'static str,
+    /// The side that faced the instrument: felt, wire or unknown.
+    pub side: &'static str,
 }
 
 /// One parameter's raw log10 LR alone.
@@ -153,7 +157,7 @@ impl Audit {
     }
 }
 
-/// `gonio compare`'s document (`gonio-compare/2`).
+/// `gonio compare`'s document (`gonio-compare/3`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Comparison {
     /// [`crate::schema::COMPARE`].
@@ -166,6 +170,10 @@ pub struct Comparison {
     pub ratio: ReportedRatio,
     /// Every warning, each with its `kind` and `message`.
     pub warnings: Vec<serde_json::Value>,
+    /// The two sheets were measured in different (stated) orientations or sides: the
+    /// comparison ran only because `--allow-lay-mismatch` was given, and its warnings
+    /// (`lay-differs`) say which.
+    pub lay_differs: bool,
     /// The population.
     pub population: PopulationSummary,
     /// Spots of A and B.
@@ -258,6 +266,22 @@ fn interval(r: &MeasuredSheet, i: usize) -> Option<(f64, f64)> {
         .then(|| (v * (-half).exp(), v * half.exp()))
 }
 
+/// How a sheet lay on the port, as its case records it (unknown without one).
+pub fn lay(r: &MeasuredSheet) -> crate::analysis::specimen::SheetLay {
+    r.case.as_ref().map(CaseRecord::lay).unwrap_or_default()
+}
+
+/// A difference in how the two sheets lay, as a warning of the comparison: kind
+/// `lay-differs` (both stated, different) or `lay-unknown` (one stated).
+fn lay_warning(d: &crate::analysis::specimen::Difference) -> serde_json::Value {
+    use crate::analysis::specimen::Difference;
+    let (kind, what, a, b) = match d {
+        Difference::Differs { what, a, b } => ("lay-differs", what, a, b),
+        Difference::Unknown { what, a, b } => ("lay-unknown", what, a, b),
+    };
+    serde_json::json!({"kind": kind, "what": what, "a": a, "b": b, "message": d.to_string()})
+}
+
 impl Side {
     fn of(r: &MeasuredSheet) -> Side {
         Side {
@@ -273,6 +297,8 @@ impl Side {
             identity: r.identity.clone(),
             instrument: r.instrument.clone(),
             case: r.case.clone(),
+            orientation: crate::analysis::specimen::orientation_text(lay(r).orientation),
+            side: crate::analysis::specimen::side_text(lay(r).side),
         }
     }
 
@@ -303,7 +329,9 @@ impl Comparison {
             }
         };
         let warnings = population.warnings(&e.warnings);
+        let lay_differences = crate::analysis::specimen::differences(lay(a), lay(b));
         Comparison {
+            lay_differs: lay_differences.iter().any(|d| d.is_known()),
             schema: crate::schema::COMPARE,
             propositions: Propositions {
                 same: "Hp: the two sheets come from one paper stock".to_string(),
@@ -312,8 +340,23 @@ impl Comparison {
                 ),
             },
             ratio: e.ratio.clone(),
-            warnings: warnings.iter().map(Warning::to_json).collect(),
-            warning_texts: warnings.iter().map(ToString::to_string).collect(),
+            // How the sheets lay first: the ratio means little if they lay differently.
+            warnings: lay_differences
+                .iter()
+                .map(lay_warning)
+                .chain(warnings.iter().map(Warning::to_json))
+                .collect(),
+            warning_texts: lay_differences
+                .iter()
+                .map(|d| {
+                    if d.is_known() {
+                        format!("LAY DIFFERS: {d}")
+                    } else {
+                        d.to_string()
+                    }
+                })
+                .chain(warnings.iter().map(ToString::to_string))
+                .collect(),
             population: PopulationSummary::of(population),
             n_spots: [e.n_spots.0, e.n_spots.1],
             within_sheet_variation_known: [e.within_known.0, e.within_known.1],
@@ -362,11 +405,13 @@ impl Comparison {
         }
         for (name, side) in [("A", &self.a), ("B", &self.b)] {
             s += &format!(
-                "{name}  {}  sample {}  {} spot{}  class {}\n",
+                "{name}  {}  sample {}  {} spot{}  orientation {}, side {}  class {}\n",
                 side.file,
                 side.sample,
                 side.n_spots,
                 if side.n_spots == 1 { "" } else { "s" },
+                side.orientation,
+                side.side,
                 side.spot_classes
                     .iter()
                     .map(|c| c.as_deref().unwrap_or("undecided"))

@@ -216,12 +216,32 @@ pub struct CaseRecord {
     /// A free note (the item, where on it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// The sheet's machine direction relative to the plane of incidence (`--orientation`,
+    /// or the operator's answer on an instrument); absent: unknown.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<crate::analysis::specimen::Orientation>,
+    /// The side of the sheet facing the instrument (`--side`, or the operator's answer);
+    /// absent: unknown.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub side: Option<crate::analysis::specimen::Side>,
 }
 
 impl CaseRecord {
     /// Whether no field is given.
     pub fn is_empty(&self) -> bool {
-        self.case_id.is_none() && self.operator.is_none() && self.note.is_none()
+        self.case_id.is_none()
+            && self.operator.is_none()
+            && self.note.is_none()
+            && self.orientation.is_none()
+            && self.side.is_none()
+    }
+
+    /// How the sheet lay, as stated (each `None`: unknown).
+    pub fn lay(&self) -> crate::analysis::specimen::SheetLay {
+        crate::analysis::specimen::SheetLay {
+            orientation: self.orientation,
+            side: self.side,
+        }
     }
 }
 
@@ -790,14 +810,18 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
     };
     let mut value: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| Finding::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
-    let schema =
-        schema::check(&value, &[schema::SESSION, schema::SESSION_V1], None).map_err(|m| {
-            Finding::new(
-                &path,
-                None,
-                format!("{m}: not a session folder of this gonio"),
-            )
-        })?;
+    let schema = schema::check(
+        &value,
+        &[schema::SESSION, schema::SESSION_V2, schema::SESSION_V1],
+        None,
+    )
+    .map_err(|m| {
+        Finding::new(
+            &path,
+            None,
+            format!("{m}: not a session folder of this gonio"),
+        )
+    })?;
     if schema == schema::SESSION_V1 {
         upgrade_session_v1(&mut value);
     }

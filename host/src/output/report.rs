@@ -121,6 +121,9 @@ pub(crate) fn flag_meaning(flag: Flag) -> &'static str {
         Flag::ImplausibleInput => {
             "the readings cannot be a paper in degrees and radiance factors as they stand (a table in percent, angles in radians, or a paper far outside the population of papers; the note says which): check the units and fit again"
         }
+        Flag::SpotsDisagree => {
+            "informational, a sheet's: its accepted spots do not all have one class (named above); the sheet's class is its mean's, with the spot-to-spot variation in its confidence: look at the spots before reading the class alone"
+        }
         Flag::InstrumentDeclared => {
             "informational: no instrument profile was in force (none, or older than the lab's limit): the fit took the detector's angular response and arm zero as declared, not as measured on this instrument (gonio characterize measures them)"
         }
@@ -228,6 +231,8 @@ fn case_section(case: Option<&crate::output::folder::CaseRecord>) -> Markup {
             (field_row("case", field(case.and_then(|c| c.case_id.as_ref()))))
             (field_row("operator", field(case.and_then(|c| c.operator.as_ref()))))
             (field_row("note", field(case.and_then(|c| c.note.as_ref()))))
+            (field_row("orientation (machine direction)", crate::analysis::specimen::orientation_text(case.and_then(|c| c.orientation))))
+            (field_row("side facing the instrument", crate::analysis::specimen::side_text(case.and_then(|c| c.side))))
         }
         "\n"
     }
@@ -807,6 +812,7 @@ fn sheet_section(read: &ReadSheet) -> Markup {
     let summary = &read.summary;
     html! {
         h2 { "The sheet" } "\n"
+        @if let Some(answer) = &summary.answer { (answer_section(answer)) }
         table {
             "\n"
             tr {
@@ -842,6 +848,40 @@ fn sheet_section(read: &ReadSheet) -> Markup {
         }
         "\n"
         @for note in &summary.notes { p class="note" { (Text(note)) } "\n" }
+    }
+}
+
+/// The sheet's answer: its class and confidence, the mean's 95 % intervals, the spots left
+/// out, and a warning when the spots disagree in class.
+fn answer_section(answer: &crate::analysis::spots::SheetAnswer) -> Markup {
+    let interval = |i: Option<[f64; 2]>, digits: usize| {
+        i.map_or_else(
+            || "—".to_string(),
+            |[lo, hi]| format!("{lo:.digits$} – {hi:.digits$}"),
+        )
+    };
+    html! {
+        p class="answer" {
+            "The sheet's class: " strong { (answer.class.as_deref().unwrap_or("undecided")) }
+            @if let Some(c) = answer.class_confidence { ", confidence " (format!("{c:.2}")) }
+            @if let Some(why) = &answer.undecided { " (" (Text(why)) ")" }
+            " — from the mean of its accepted spots, the spot-to-spot variation in its uncertainty"
+            @if answer.excluded > 0 { "; " (answer.excluded) " flagged spot(s) left out" }
+            "."
+        }
+        "\n"
+        @if let Some(disagree) = &answer.spots_disagree {
+            p class="verdict flagged" { "Warning (spots-disagree): " (Text(disagree)) "." } "\n"
+        }
+        table {
+            "\n"
+            tr { th { "parameter" } th { "95 % interval of the sheet's mean" } }
+            "\n"
+            (row(&[html! { "σ (degrees)" }, html! { (interval(answer.ci95.sigma_deg, 3)) }]))
+            (row(&[html! { "ρs" }, html! { (interval(answer.ci95.rho_s, 4)) }]))
+            (row(&[html! { "ρd" }, html! { (interval(answer.ci95.rho_d, 4)) }]))
+        }
+        "\n"
     }
 }
 

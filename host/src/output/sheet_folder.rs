@@ -84,6 +84,19 @@ pub struct SheetDoc {
     /// spot 1's plan is the sheet's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plan: Option<folder::PlanRecord>,
+    /// The version the file was written in (`schema` is the current one once read): a
+    /// sheet of `gonio-sheet/2` or before recorded no answer, and its recorded result is
+    /// checked without one. Empty for a document made here.
+    #[serde(skip)]
+    pub(crate) read_as: &'static str,
+}
+
+impl SheetDoc {
+    /// Whether the file recorded the sheet's answer (written as `gonio-sheet/3` or later,
+    /// or made here).
+    pub(crate) fn records_answer(&self) -> bool {
+        ![crate::schema::SHEET_V1, crate::schema::SHEET_V2].contains(&self.read_as)
+    }
 }
 
 /// Read `sheet.json` of `dir`.
@@ -97,15 +110,18 @@ pub(crate) fn read_doc(dir: &Path) -> Result<SheetDoc, Finding> {
     let text = std::fs::read_to_string(&file).map_err(|e| problem(format!("cannot read: {e}")))?;
     let value: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| problem(format!("not JSON: {e}")))?;
-    crate::schema::check(
-        &value,
-        &[crate::schema::SHEET, crate::schema::SHEET_V1],
-        None,
-    )
-    .map_err(|m| problem(format!("{m}: not a sheet folder of this gonio")))?;
+    const READS: [&str; 3] = [
+        crate::schema::SHEET,
+        crate::schema::SHEET_V2,
+        crate::schema::SHEET_V1,
+    ];
+    let found = crate::schema::check(&value, &READS, None)
+        .map_err(|m| problem(format!("{m}: not a sheet folder of this gonio")))?;
+    let version = READS.into_iter().find(|v| *v == found).unwrap_or("");
     let mut doc: SheetDoc =
         serde_json::from_value(value).map_err(|e| problem(format!("not a sheet document: {e}")))?;
     doc.schema = crate::schema::SHEET.into();
+    doc.read_as = version;
     for (k, entry) in doc.spots.iter().enumerate() {
         if entry.number as usize != k + 1 || entry.folder != spot_folder(entry.number) {
             return Err(problem(format!(
@@ -202,6 +218,7 @@ impl SheetFolder {
             result: None,
             case: first.case,
             plan: first.plan,
+            read_as: "",
         };
         let mut folder = SheetFolder {
             store: Store::open_dir(dir, options),
@@ -427,6 +444,7 @@ pub(crate) fn spot_from(
             number,
             flags,
             spot: session.spot(),
+            class: session.class.clone(),
         },
         session,
         doc,

@@ -38,6 +38,7 @@ mod white;
 
 pub use operator::{
     DelayedOperator, Operator, Placement, PromptOperator, SimulatedOperator, WallClockOperator,
+    ask_lay,
 };
 pub use steps::{STEP_TOLERANCE_TICKS, StepCheck};
 

@@ -215,6 +215,68 @@ pub(crate) fn prompt_text(placement: Placement) -> String {
     )
 }
 
+/// Ask the person at the instrument how the sheet lies on the port, one question a line
+/// on `output`, answered on `input`: its orientation (md, cd) and side (felt, wire), each
+/// only when `known` does not already say it (given on the command line). An empty
+/// answer, "unknown" or the end of input leaves it unknown; anything else is asked again.
+pub fn ask_lay(
+    known: crate::analysis::specimen::SheetLay,
+    input: &mut impl BufRead,
+    output: &mut impl Write,
+) -> std::io::Result<crate::analysis::specimen::SheetLay> {
+    use crate::analysis::specimen::{Orientation, Side};
+    fn ask<T>(
+        question: &str,
+        parse: impl Fn(&str) -> Option<T>,
+        input: &mut impl BufRead,
+        output: &mut impl Write,
+    ) -> std::io::Result<Option<T>> {
+        loop {
+            write!(output, "{question} ")?;
+            output.flush()?;
+            let mut line = String::new();
+            if input.read_line(&mut line)? == 0 {
+                return Ok(None);
+            }
+            let answer = line.trim().to_lowercase();
+            if answer.is_empty() || answer == "unknown" {
+                return Ok(None);
+            }
+            match parse(&answer) {
+                Some(v) => return Ok(Some(v)),
+                None => writeln!(output, "  '{answer}' is not one of the answers.")?,
+            }
+        }
+    }
+    let orientation = match known.orientation {
+        Some(o) => Some(o),
+        None => ask(
+            "The sheet's machine direction: in the plane of incidence (md) or across it (cd)? [md/cd, Enter: unknown]",
+            |a| match a {
+                "md" => Some(Orientation::Md),
+                "cd" => Some(Orientation::Cd),
+                _ => None,
+            },
+            input,
+            output,
+        )?,
+    };
+    let side = match known.side {
+        Some(s) => Some(s),
+        None => ask(
+            "The side facing the instrument? [felt/wire, Enter: unknown]",
+            |a| match a {
+                "felt" => Some(Side::Felt),
+                "wire" => Some(Side::Wire),
+                _ => None,
+            },
+            input,
+            output,
+        )?,
+    };
+    Ok(crate::analysis::specimen::SheetLay { orientation, side })
+}
+
 /// Standard input ended: no one can answer.
 fn no_one_answers() -> std::io::Error {
     std::io::Error::new(
@@ -256,6 +318,48 @@ impl Operator for PromptOperator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_person_states_orientation_and_side_or_leaves_them_unknown() {
+        use crate::analysis::specimen::{Orientation, SheetLay, Side};
+        let mut out = Vec::new();
+        let lay = ask_lay(
+            SheetLay::default(),
+            &mut std::io::Cursor::new("sideways\nCD\nfelt\n"),
+            &mut out,
+        )
+        .unwrap();
+        assert_eq!(
+            (lay.orientation, lay.side),
+            (Some(Orientation::Cd), Some(Side::Felt))
+        );
+        assert!(
+            String::from_utf8(out)
+                .unwrap()
+                .contains("'sideways' is not one of")
+        );
+        let lay = ask_lay(
+            SheetLay::default(),
+            &mut std::io::Cursor::new("\n"),
+            &mut Vec::new(),
+        )
+        .unwrap();
+        assert_eq!(
+            lay,
+            SheetLay::default(),
+            "Enter, then the end of input: unknown"
+        );
+        let given = SheetLay {
+            orientation: Some(Orientation::Md),
+            side: None,
+        };
+        let lay = ask_lay(given, &mut std::io::Cursor::new("wire\n"), &mut Vec::new()).unwrap();
+        assert_eq!(
+            (lay.orientation, lay.side),
+            (Some(Orientation::Md), Some(Side::Wire)),
+            "what the command line gave is not asked"
+        );
+    }
 
     #[test]
     fn the_simulated_person_answers_after_the_delay_on_the_transports_clock() {

@@ -192,6 +192,11 @@ pub fn simulated_sheet(
                 number,
                 flags: outcome.flags.clone(),
                 spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit),
+                class: outcome
+                    .report
+                    .classification
+                    .class
+                    .map(|c| c.name().to_string()),
             };
             outcomes.push(outcome);
             Ok(result)

@@ -318,6 +318,10 @@ fn every_output_and_file_of_real_sessions_validates_against_its_schema() {
         "K-1",
         "--operator",
         "A. B.",
+        "--orientation",
+        "md",
+        "--side",
+        "felt",
         "--out",
         sheet.to_str().unwrap(),
     ]);
@@ -329,6 +333,32 @@ fn every_output_and_file_of_real_sessions_validates_against_its_schema() {
     );
     schemas.check("measure --json of a sheet", &printed[0]);
     assert!(schemas.check_folder(&sheet) > 10);
+    // The sheet's answer, named, in the file and the --json; the mean as an array (as
+    // gonio-sheet/2 wrote it) or an answer without its class is not this version.
+    let sheet_doc: Value =
+        serde_json::from_str(&std::fs::read_to_string(sheet.join("sheet.json")).unwrap()).unwrap();
+    assert_eq!(sheet_doc["case"]["orientation"], "md");
+    assert_eq!(
+        sheet_doc["result"]["answer"], printed[0]["answer"],
+        "the --json's answer is the file's"
+    );
+    assert!(sheet_doc["result"]["mean"]["sigma_deg"].is_number());
+    let mut as_array = sheet_doc.clone();
+    as_array["result"]["mean"] = serde_json::json!([1.0, 2.0, 3.0]);
+    let mut no_class = sheet_doc.clone();
+    _ = no_class["result"]["answer"]
+        .as_object_mut()
+        .unwrap()
+        .remove("class");
+    for (what, doc) in [
+        ("the mean as an array", as_array),
+        ("an answer without class", no_class),
+    ] {
+        assert!(
+            !schemas.problems(&doc).is_empty(),
+            "{what} passed the schema"
+        );
+    }
     // An unfinished session: the cable pulled for longer than the host waits.
     let unfinished = root.join("unfinished");
     let out = gonio(&[
@@ -610,12 +640,12 @@ fn a_folder_of_the_first_version_verifies_reanalyses_reports_and_compares() {
     let newer = v1_copy("v3");
     let text = std::fs::read_to_string(newer.join("session.json"))
         .unwrap()
-        .replace(host::schema::SESSION_V1, "gonio-session/3");
+        .replace(host::schema::SESSION_V1, "gonio-session/4");
     std::fs::write(newer.join("session.json"), text).unwrap();
     let out = gonio(&["fit", newer.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
     assert!(
-        stderr(&out).contains("'gonio-session/3'") && stderr(&out).contains("update gonio"),
+        stderr(&out).contains("'gonio-session/4'") && stderr(&out).contains("update gonio"),
         "{}",
         stderr(&out)
     );

@@ -105,6 +105,15 @@ pub struct Args {
     /// first use. With no key the folder is written unsigned (gonio verify says so).
     #[arg(long, value_name = "NAME")]
     pub key: Option<String>,
+    /// The sheet's machine direction relative to the plane of incidence: md (machine
+    /// direction in it) or cd (cross direction); recorded in session.json, sheet.json and
+    /// the report, and weighed by gonio compare and the library. Asked on an instrument
+    /// when not given; unknown without it.
+    #[arg(long, value_name = "md|cd")]
+    pub orientation: Option<host::analysis::specimen::Orientation>,
+    /// The side of the sheet facing the instrument: felt or wire (as --orientation).
+    #[arg(long, value_name = "felt|wire")]
+    pub side: Option<host::analysis::specimen::Side>,
     /// Print one JSON object instead of the report.
     #[arg(long)]
     pub json: bool,
@@ -140,6 +149,8 @@ impl Args {
             case_id: self.case_id.clone(),
             operator: self.operator.clone(),
             note: self.note.clone(),
+            orientation: self.orientation,
+            side: self.side,
         }
     }
 }

@@ -26,7 +26,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         Box::new(PromptOperator::new())
     };
-    let options = args.options();
+    let mut options = args.options();
+    // On an instrument a person is there: asked how the sheet lies when the command line
+    // does not say (a resumed session or sheet keeps what it began with).
+    if args.sim.is_none()
+        && args.resume.is_none()
+        && (options.orientation.is_none() || options.side.is_none())
+        && std::io::IsTerminal::is_terminal(&std::io::stdin())
+    {
+        let lay = host::session::ask_lay(
+            host::analysis::specimen::SheetLay {
+                orientation: options.orientation,
+                side: options.side,
+            },
+            &mut std::io::stdin().lock(),
+            &mut std::io::stderr(),
+        )
+        .context("cannot ask how the sheet lies on the port")?;
+        options.orientation = lay.orientation;
+        options.side = lay.side;
+    }
     if let Some(sample) = &options.sim {
         eprintln!(
             "simulated instrument, sample {sample}, seed {} (--seed {} repeats this run; recorded in session.json)",
@@ -45,6 +64,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             summary,
         } => {
             print_report(&args, &dir, &outcome, &summary);
+            if !args.json {
+                print_lay(options.orientation, options.side);
+            }
             // The exit code says what `ok` says: 0 clean, 3 flagged.
             Ok(crate::cli::exit::of_result(outcome.ok()))
         }
@@ -53,6 +75,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 println!("{json}");
             } else {
                 print_sheet(&dir, &sheet);
+                let case = sheet.doc.case.clone().unwrap_or_default();
+                print_lay(case.orientation, case.side);
             }
             Ok(crate::cli::exit::of_result(sheet.summary.ok()))
         }
@@ -238,6 +262,9 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
         value(summary.mean[2], 4),
         spread(2)
     );
+    if let Some(answer) = &summary.answer {
+        print_answer(answer);
+    }
     for note in &summary.notes {
         println!("  note: {note}");
     }
@@ -253,6 +280,54 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
         dir.display(),
         dir.display()
     );
+}
+
+/// How the sheet lay on the port, as recorded.
+fn print_lay(
+    orientation: Option<host::analysis::specimen::Orientation>,
+    side: Option<host::analysis::specimen::Side>,
+) {
+    println!(
+        "  laid on the port: orientation {}, side {} (recorded; gonio compare weighs them)",
+        host::analysis::specimen::orientation_text(orientation),
+        host::analysis::specimen::side_text(side)
+    );
+}
+
+/// The sheet's answer: its class and confidence, the mean's 95 % intervals, the spots left
+/// out, and a warning when its spots disagree in class.
+fn print_answer(answer: &host::analysis::spots::SheetAnswer) {
+    let interval = |i: Option<[f64; 2]>, digits: usize| {
+        i.map_or_else(
+            || "—".to_string(),
+            |[lo, hi]| format!("[{lo:.digits$}, {hi:.digits$}]"),
+        )
+    };
+    println!(
+        "  sheet's class: {}{}{}",
+        answer.class.as_deref().unwrap_or("undecided"),
+        answer
+            .class_confidence
+            .map_or_else(String::new, |c| format!(" (confidence {c:.2})")),
+        answer
+            .undecided
+            .as_ref()
+            .map_or_else(String::new, |why| format!(" ({why})"))
+    );
+    println!(
+        "  sheet's mean, 95 % intervals (spot-to-spot variation included): σ {}°, ρs {}, ρd {}{}",
+        interval(answer.ci95.sigma_deg, 3),
+        interval(answer.ci95.rho_s, 4),
+        interval(answer.ci95.rho_d, 4),
+        if answer.excluded > 0 {
+            format!("; {} flagged spot(s) left out", answer.excluded)
+        } else {
+            String::new()
+        }
+    );
+    if let Some(disagree) = &answer.spots_disagree {
+        println!("  WARNING (spots-disagree): {disagree}");
+    }
 }
 
 /// "result: ok" (with the informational flags noted) or "result: NOT CLEAN" with the flags.
