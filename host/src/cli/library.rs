@@ -378,10 +378,13 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.
     let own_identity = measured.identity.clone();
-    let all = Library::open(path, OpenMode::Existing)?.sheets()?;
-    let excluded = own_identity.filter(|own| all.iter().any(|(sha, _)| sha == own));
+    let library = Library::open(path, OpenMode::Existing)?;
+    let excluded = match own_identity {
+        Some(own) if library.has_session(&own)? => Some(own),
+        _ => None,
+    };
     anyhow::ensure!(
-        all.iter().any(|(sha, _)| Some(sha) != excluded.as_ref()),
+        library.sheet_count()? > usize::from(excluded.is_some()),
         "{}: no sheets to search{}",
         path.display(),
         if excluded.is_some() {
@@ -390,11 +393,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
             ""
         }
     );
-    let population = crate::cli::population::PopulationArgs {
-        library: Some(path.to_path_buf()),
-        demo_population: false,
-    }
-    .load(excluded.as_slice())?;
+    let population = crate::cli::population::from_library(library, path, excluded.as_slice())?;
     let found = evidence::search(&measured.questioned(), &population.population);
     let mut ranking: Vec<Ranked> = found
         .ranking

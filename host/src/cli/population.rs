@@ -30,44 +30,76 @@ impl PopulationArgs {
                 not_validated_because: None,
             });
         };
-        let library = Library::open(path, OpenMode::Existing)?;
-        let sheets: Vec<LibrarySheet> = library
-            .sheets()?
-            .into_iter()
-            .filter(|(sha, _)| !exclude.contains(sha))
-            .map(|(_, sheet)| sheet)
-            .collect();
-        // The population `gonio forensic --library` validated and recorded for exactly these
-        // contents is the reviewed evidence: used as recorded, not made again.
-        let contents = population::contents_identity(&sheets);
-        let recorded = library
-            .validation_record(&contents)?
-            .and_then(|r| serde_json::from_value::<Population>(r["population"].clone()).ok())
-            .filter(|p| p.validation.is_some());
-        if let Some(population) = recorded {
-            return Ok(PopulationInUse {
-                population,
-                name: path.display().to_string(),
-                not_validated_because: None,
-            });
-        }
-        let (population, why) = validation::validate_or_explain(&sheets).map_err(|e| {
+        from_library(Library::open(path, OpenMode::Existing)?, path, exclude)
+    }
+}
+
+/// The population of the open library at `path`, leaving out the sheets whose SHA-256 is
+/// in `exclude`: the one `gonio forensic --library` validated and recorded for these
+/// contents, else the one cached for them, else made (and cached).
+pub fn from_library(
+    mut library: Library,
+    path: &std::path::Path,
+    exclude: &[String],
+) -> anyhow::Result<PopulationInUse> {
+    let sheets: Vec<LibrarySheet> = library
+        .sheets()?
+        .into_iter()
+        .filter(|(sha, _)| !exclude.contains(sha))
+        .map(|(_, sheet)| sheet)
+        .collect();
+    // The population `gonio forensic --library` validated and recorded for exactly these
+    // contents is the reviewed evidence: used as recorded, not made again.
+    let contents = population::contents_identity(&sheets);
+    let recorded = library
+        .validation_record(&contents)?
+        .and_then(|r| serde_json::from_value::<Population>(r["population"].clone()).ok())
+        .filter(|p| p.validation.is_some());
+    if let Some(population) = recorded {
+        return Ok(PopulationInUse {
+            population,
+            name: path.display().to_string(),
+            not_validated_because: None,
+        });
+    }
+    // The population made for these contents by an earlier search or comparison: the
+    // same numbers, without the time (quadratic in the stocks) of making them again.
+    let cached = library.cached_population(&contents)?.and_then(|c| {
+        let population = serde_json::from_value::<Population>(c["population"].clone()).ok()?;
+        let why = c["not_validated_because"].as_str()?.to_string();
+        Some((population, why))
+    });
+    if let Some((population, why)) = cached {
+        return Ok(PopulationInUse {
+            population,
+            name: path.display().to_string(),
+            not_validated_because: Some(why),
+        });
+    }
+    let (population, why) = validation::validate_or_explain(&sheets).map_err(|e| {
             anyhow::anyhow!(
                 "{}: the library cannot make a population: {e} (add sheets of more stocks, or weigh against --demo-population for a demonstration)",
                 path.display()
             )
         })?;
-        let why = Some(why.map_or_else(
+    let why = Some(why.map_or_else(
             || format!(
                 "validated for this comparison only: the library's contents as they are now have not been validated and recorded by `gonio forensic --library {}`",
                 path.display()
             ),
             |e| e.to_string(),
         ));
-        Ok(PopulationInUse {
-            population,
-            name: path.display().to_string(),
-            not_validated_because: why,
-        })
+    if let Some(why) = &why {
+        // A library that cannot be written to (another's, read-only) is searched all
+        // the same: the cache only saves time.
+        let _ = library.cache_population(
+            &contents,
+            &serde_json::json!({"population": population, "not_validated_because": why}),
+        );
     }
+    Ok(PopulationInUse {
+        population,
+        name: path.display().to_string(),
+        not_validated_because: why,
+    })
 }

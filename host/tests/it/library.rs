@@ -707,3 +707,127 @@ fn a_sheet_and_its_own_spot_are_one_sheet_counted_once() {
     assert!(!library.exists(), "a refused add leaves no library behind");
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// Issue 29's search at scale, small (correctness, not time): a synthetic library drawn
+/// anew on every run is imported; its export is the generator's file byte for byte (export
+/// streams record by record); the first search makes the population and caches it in the
+/// library, the second reads it from the cache, and both rank the stocks with the same
+/// ratios as the evidence module computes in process from the library's sheets; a sheet
+/// added changes the contents, and the next search is made afresh for them.
+#[test]
+fn a_search_is_the_same_made_afresh_or_from_the_cache_and_follows_the_library() {
+    use host::analysis::evidence::{self, validation};
+    use host::output::library::{Library, OpenMode};
+    use host::study::library_scale::{Shape, write_library, write_questioned};
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    let root = temp_dir("library", "scale");
+    std::fs::create_dir_all(&root).expect("temp dir");
+    let shape = Shape {
+        stocks: 30,
+        sheets: 3,
+        spots: 3,
+        seed,
+    };
+    let exchange = root.join("library.jsonl");
+    let mut file = std::fs::File::create(&exchange).expect("exchange file");
+    assert_eq!(write_library(&shape, &mut file).expect("write"), 30 * 3 * 3);
+    drop(file);
+    let library = root.join("library.sqlite");
+    let out = gonio(&["library", "--library", s(&library), "import", s(&exchange)]);
+    assert!(out.status.success(), "seed {seed}: {}", stderr(&out));
+    let exported = root.join("export.jsonl");
+    let out = gonio(&["library", "--library", s(&library), "export", s(&exported)]);
+    assert!(out.status.success(), "seed {seed}: {}", stderr(&out));
+    assert!(
+        std::fs::read(&exported).expect("export") == std::fs::read(&exchange).expect("file"),
+        "seed {seed}: the export is not the imported file"
+    );
+    let questioned = write_questioned(&shape, 7, seed, &root, "questioned").expect("query");
+    let search = || -> serde_json::Value {
+        let out = gonio(&[
+            "library",
+            "--library",
+            s(&library),
+            "search",
+            s(&questioned),
+            "--json",
+        ]);
+        assert!(
+            [0, 3].contains(&code(&out)),
+            "seed {seed}: {}",
+            stderr(&out)
+        );
+        serde_json::from_str(&stdout(&out)).expect("one JSON object")
+    };
+    // What the evidence module gives for the library as it is now.
+    let in_process = || -> Vec<(String, f64)> {
+        let sheets: Vec<_> = Library::open(&library, OpenMode::Existing)
+            .expect("library")
+            .sheets()
+            .expect("sheets")
+            .into_iter()
+            .map(|(_, sheet)| sheet)
+            .collect();
+        let (population, _) = validation::validate_or_explain(&sheets).expect("population");
+        let measured = host::output::sheet_folder::read_measured(&questioned).expect("query");
+        evidence::search(&measured.questioned(), &population)
+            .ranking
+            .into_iter()
+            .map(|r| (r.stock, r.raw_log10_lr))
+            .collect()
+    };
+    let ranking = |v: &serde_json::Value| -> Vec<(String, f64)> {
+        v["ranking"]
+            .as_array()
+            .expect("ranking")
+            .iter()
+            .map(|r| {
+                (
+                    r["stock"].as_str().expect("stock").to_string(),
+                    r["raw_log10_lr"].as_f64().expect("raw"),
+                )
+            })
+            .collect()
+    };
+    let same = |a: &[(String, f64)], b: &[(String, f64)], what: &str| {
+        assert_eq!(a.len(), b.len(), "seed {seed}: {what}");
+        for (x, y) in a.iter().zip(b) {
+            assert!(
+                x.0 == y.0 && (x.1 - y.1).abs() <= 1e-9 * y.1.abs().max(1.0),
+                "seed {seed}: {what}: {x:?} against {y:?}"
+            );
+        }
+    };
+    let fresh = search();
+    let cached = search();
+    assert_eq!(ranking(&fresh).len(), 30, "seed {seed}");
+    same(&ranking(&fresh), &in_process(), "the first search");
+    same(&ranking(&cached), &ranking(&fresh), "the cached search");
+    assert_eq!(fresh["population"], cached["population"], "seed {seed}");
+    assert_eq!(fresh["warnings"], cached["warnings"], "seed {seed}");
+    // One more sheet of the first stock (its first sheet's readings under another
+    // session): other contents, so another population.
+    let more = root.join("more.jsonl");
+    let lines: String = std::fs::read_to_string(&exchange)
+        .expect("file")
+        .lines()
+        .take(3)
+        .map(|l| l.replace(&format!("{:064x}", 1), &format!("{:064x}", 10_000)) + "\n")
+        .collect();
+    std::fs::write(&more, lines).expect("write");
+    let out = gonio(&["library", "--library", s(&library), "import", s(&more)]);
+    assert!(out.status.success(), "seed {seed}: {}", stderr(&out));
+    let after = search();
+    assert_ne!(
+        after["population"]["identity"], fresh["population"]["identity"],
+        "seed {seed}: the cached population was used for changed contents"
+    );
+    same(
+        &ranking(&after),
+        &in_process(),
+        "the search after an import",
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -16,11 +16,6 @@ pub(crate) fn restrict(m: &Cov3, params: &[usize]) -> Square {
     s
 }
 
-/// The entries of `v` for `params`.
-pub(crate) fn pick(v: &[f64; 3], params: &[usize]) -> Vec<f64> {
-    params.iter().map(|&i| v[i]).collect()
-}
-
 pub(crate) fn add(a: &Square, b: &Square) -> Square {
     Square {
         n: a.n,
@@ -122,6 +117,130 @@ pub(crate) fn mahalanobis_squared(x: &[f64], mean: &[f64], cov: &Square) -> Opti
     let mut w: Vec<f64> = x.iter().zip(mean).map(|(a, b)| a - b).collect();
     linalg::forward_substitute(&l, &mut w);
     Some(w.iter().map(|v| v * v).sum())
+}
+
+/// A covariance over the compared parameters (at most three), on the stack: the densities
+/// of a search or a validation are evaluated once per stock of the population, and a heap
+/// matrix per evaluation made memory allocation a third of their time (issue 29).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Small {
+    /// How many parameters (1 to 3).
+    pub(crate) n: usize,
+    /// Its entries; those beyond `n` are zero.
+    pub(crate) a: Cov3,
+}
+
+impl Small {
+    /// The rows and columns of `m` for `params` (as [`restrict`]).
+    pub(crate) fn restrict(m: &Cov3, params: &[usize]) -> Small {
+        let mut a = [[0.0; 3]; 3];
+        for (r, &i) in params.iter().enumerate() {
+            for (c, &j) in params.iter().enumerate() {
+                a[r][c] = m[i][j];
+            }
+        }
+        Small { n: params.len(), a }
+    }
+
+    /// Of a heap matrix of at most three rows.
+    pub(crate) fn of(m: &Square) -> Small {
+        let mut a = [[0.0; 3]; 3];
+        for (r, row) in a.iter_mut().enumerate().take(m.n) {
+            for (c, v) in row.iter_mut().enumerate().take(m.n) {
+                *v = m.at(r, c);
+            }
+        }
+        Small { n: m.n, a }
+    }
+
+    /// The sum, entry by entry.
+    pub(crate) fn plus(&self, other: &Small) -> Small {
+        Small {
+            n: self.n,
+            a: add3(&self.a, &other.a),
+        }
+    }
+
+    /// Its Cholesky factor with the log determinant, by the same operations in the same
+    /// order as [`linalg::cholesky`] (so the same numbers); `None` when not positive
+    /// definite.
+    pub(crate) fn factor(&self) -> Option<Factor> {
+        let n = self.n;
+        let mut l = [[0.0; 3]; 3];
+        for i in 0..n {
+            for j in 0..=i {
+                let mut s = self.a[i][j];
+                for k in 0..j {
+                    s -= l[i][k] * l[j][k];
+                }
+                if i == j {
+                    if s.is_nan() || s <= 0.0 || s.is_infinite() {
+                        return None;
+                    }
+                    l[i][i] = s.sqrt();
+                } else {
+                    l[i][j] = s / l[j][j];
+                }
+            }
+        }
+        let log_det: f64 = (0..n).map(|i| 2.0 * l[i][i].ln()).sum();
+        Some(Factor { n, l, log_det })
+    }
+}
+
+/// A covariance's Cholesky factor L (lower) and ln det, for densities of many points.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Factor {
+    n: usize,
+    l: Cov3,
+    log_det: f64,
+}
+
+impl Factor {
+    /// (x − mean)ᵀ cov⁻¹ (x − mean), as [`mahalanobis_squared`] computes it.
+    pub(crate) fn mahalanobis_squared(&self, x: &[f64; 3], mean: &[f64; 3]) -> f64 {
+        let mut w = [0.0; 3];
+        for ((w, x), m) in w.iter_mut().zip(x).zip(mean).take(self.n) {
+            *w = x - m;
+        }
+        for i in 0..self.n {
+            let mut s = w[i];
+            for k in 0..i {
+                s -= self.l[i][k] * w[k];
+            }
+            w[i] = s / self.l[i][i];
+        }
+        w[..self.n].iter().map(|v| v * v).sum()
+    }
+
+    /// ln N(x; mean, cov) given the squared Mahalanobis distance, as
+    /// [`log_normal_density`] computes it.
+    pub(crate) fn log_density_at(&self, distance_squared: f64) -> f64 {
+        -0.5 * (self.n as f64 * (2.0 * std::f64::consts::PI).ln() + self.log_det + distance_squared)
+    }
+
+    /// ln N(x; mean, cov).
+    pub(crate) fn log_density(&self, x: &[f64; 3], mean: &[f64; 3]) -> f64 {
+        self.log_density_at(self.mahalanobis_squared(x, mean))
+    }
+}
+
+/// The entries of `v` for `params`, on the stack (those beyond are zero).
+pub(crate) fn pick3(v: &[f64; 3], params: &[usize]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for (k, &i) in params.iter().enumerate() {
+        out[k] = v[i];
+    }
+    out
+}
+
+/// The first (at most three) entries of `v`, on the stack.
+pub(crate) fn to3(v: &[f64]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for (o, x) in out.iter_mut().zip(v) {
+        *o = *x;
+    }
+    out
 }
 
 /// ln of the mean of exp(values), without overflow.

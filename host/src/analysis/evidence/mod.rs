@@ -43,8 +43,8 @@ pub use warnings::{Side, Warning};
 use crate::analysis::linalg::{self, Square};
 use crate::analysis::model::PARAM_NAMES;
 use density::{
-    add, chi_squared_quantile, chi_squared_tail, log_mean_exp, log_normal_density,
-    mahalanobis_squared, pick, restrict, scale, with_variances,
+    Small, add, chi_squared_quantile, chi_squared_tail, log_mean_exp, log_normal_density, pick3,
+    restrict, scale, to3, with_variances,
 };
 use serde::{Deserialize, Serialize};
 
@@ -371,14 +371,17 @@ fn population_density(
     population: &Population,
     params: &[usize],
 ) -> Option<Density> {
-    let kernel = restrict(&population.kernel, params);
+    let x = to3(x);
+    // Each stock's covariance about x is (extra + K) + E_i: the first sum is the same for
+    // every stock, and each stock's is factorised once, on the stack.
+    let base = Small::of(extra).plus(&Small::restrict(&population.kernel, params));
     let mut terms = Vec::with_capacity(population.stocks.len());
     let mut nearest: Option<(f64, f64)> = None;
     for stock in &population.stocks {
-        let cov = add(&add(extra, &kernel), &restrict(&stock.covariance, params));
-        let mean = pick(&stock.mean, params);
-        let log = log_normal_density(x, &mean, &cov)?;
-        let d2 = mahalanobis_squared(x, &mean, &cov)?;
+        let cov = base.plus(&Small::restrict(&stock.covariance, params));
+        let factor = cov.factor()?;
+        let d2 = factor.mahalanobis_squared(&x, &pick3(&stock.mean, params));
+        let log = factor.log_density_at(d2);
         if nearest.is_none_or(|(best, _)| d2 < best) {
             nearest = Some((d2, log));
         }
@@ -661,15 +664,15 @@ pub fn search(query: &Questioned, population: &Population) -> Search {
         warnings.extend(out_of_population(Side::A, d));
     }
     let bounds = population.validation.as_ref().map(|v| v.bounds);
+    let (mean, around_stock) = (to3(&stats.mean), Small::of(&stats.around_stock));
     let mut ranking: Vec<RankedStock> = population
         .stocks
         .iter()
         .map(|stock| {
-            let numerator = log_normal_density(
-                &stats.mean,
-                &pick(&stock.mean, &params),
-                &add(&stats.around_stock, &restrict(&stock.covariance, &params)),
-            );
+            let numerator = around_stock
+                .plus(&Small::restrict(&stock.covariance, &params))
+                .factor()
+                .map(|f| f.log_density(&mean, &pick3(&stock.mean, &params)));
             let raw = match (numerator, &density) {
                 (Some(n), Some(d)) => (n - d.floored) / std::f64::consts::LN_10,
                 _ => f64::NAN,
@@ -729,6 +732,16 @@ pub enum EvidenceError {
         needed: usize,
         /// Stocks given.
         found: usize,
+    },
+    /// Too many pairs of sheets to validate within one search or comparison.
+    #[error(
+        "a validation weighs every pair of the library's sheets against its stocks, and {pairs} pairs against {stocks} stocks are too many to weigh for one search or comparison"
+    )]
+    TooLargeToValidate {
+        /// Pairs of sheets.
+        pairs: usize,
+        /// Stocks.
+        stocks: usize,
     },
     /// Too few pairs of one kind to validate with.
     #[error(
@@ -1050,6 +1063,90 @@ mod tests {
             "{e:?}"
         );
         assert_eq!(e.ratio.bounds, None);
+    }
+
+    /// The values of a small library's population, validation, search and comparisons,
+    /// pinned as the straightforward implementation (heap matrices, one factorisation per
+    /// density) computed them before the evidence was made fast for large libraries
+    /// (issue 29): every faster path must give the same numbers to 1e-9 relative.
+    fn pinned_values() -> Vec<f64> {
+        let mut world = World::new(29, 14, 0.12, 0.02, 0.02);
+        let library = world.library(3, 3);
+        let p = validation::validate(&library).expect("validated");
+        let v = p.validation.as_ref().expect("validation");
+        let mut values = vec![
+            p.bandwidth.expect("chosen"),
+            p.kernel[0][0],
+            p.kernel[1][2],
+            v.calibrator.slope,
+            v.calibrator.intercept,
+            v.bounds.0,
+            v.bounds.1,
+            v.cllr_raw,
+        ];
+        let query = world.sheet_of(5, 4);
+        let found = search(&Questioned::of(query.clone()), &p);
+        values.extend(found.ranking.iter().take(6).map(|r| r.raw_log10_lr));
+        // A sheet with a parameter undetermined searches and compares over the other two.
+        let mut partial = world.sheet_of(9, 3);
+        partial.spots[1].values[1] = None;
+        let found = search(&Questioned::of(partial.clone()), &p);
+        values.extend(found.ranking.iter().take(3).map(|r| r.raw_log10_lr));
+        for (a, b) in [
+            (query.clone(), world.sheet_of(5, 3)),
+            (query, world.sheet_of(2, 5)),
+            (partial, world.sheet_of(9, 2)),
+        ] {
+            let e = weigh(&Questioned::of(a), &Questioned::of(b), &p);
+            values.push(e.ratio.raw_log10_lr);
+            values.extend(e.contributions.iter().map(|c| c.1));
+        }
+        values
+    }
+
+    /// Pinned before the evidence was made fast: see [`pinned_values`].
+    const PINNED: &[f64] = &[
+        0.7224999999999999,
+        1.2390921173552263,
+        0.3373337339067,
+        1.0668747938222833,
+        -1.4347151414006845,
+        -1.6,
+        1.55,
+        0.14911962691002195,
+        3.15110419228982,
+        -0.631864647710978,
+        -11.327654949711985,
+        -35.85173372161419,
+        -101.87449999491633,
+        -159.7308680423786,
+        2.448813320440884,
+        -2.1790303141049097,
+        -3.1215669443655734,
+        2.9023726764081794,
+        1.5790563236535546,
+        1.8324251030972871,
+        0.9324343974041343,
+        -7.696797550500749,
+        0.46112324827323714,
+        0.46652474032721314,
+        -7.3333344852919815,
+        2.321238443272874,
+        1.735147889567911,
+        0.6612614447115376,
+    ];
+
+    #[test]
+    fn the_ratios_of_a_small_library_are_as_pinned() {
+        let values = pinned_values();
+        assert!(!PINNED.is_empty(), "pin these: {values:?}");
+        assert_eq!(values.len(), PINNED.len(), "{values:?}");
+        for (k, (got, pinned)) in values.iter().zip(PINNED).enumerate() {
+            assert!(
+                (got - pinned).abs() <= 1e-9 * pinned.abs().max(1e-3),
+                "value {k}: {got} where {pinned} was pinned ({values:?})"
+            );
+        }
     }
 
     #[test]

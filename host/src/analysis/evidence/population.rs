@@ -19,8 +19,8 @@
 //!   the likelihood picks the scale at which stocks actually neighbour each other, and
 //!   h ≤ 1 keeps the kernel within the data's own spread.
 use super::density::{
-    Cov3, add, add3, log_mean_exp, log_normal_density, positive_definite_or_diagonal, restrict,
-    scale, scale3, scatter, upper_variance, with_variances,
+    Cov3, Factor, Small, add3, log_mean_exp, positive_definite_or_diagonal, restrict, scale3,
+    scatter, upper_variance, with_variances,
 };
 use super::{EvidenceError, Sheet};
 use crate::analysis::classify::REFERENCES;
@@ -324,10 +324,28 @@ pub fn contents_identity(sheets: &[LibrarySheet]) -> String {
     sha256_of_json(sheets)
 }
 
+/// SHA-256 of a value's JSON, written into the hash as it is made: the JSON of a large
+/// library's sheets is hundreds of megabytes that need never be held at once.
 fn sha256_of_json<T: Serialize + ?Sized>(value: &T) -> String {
     use sha2::Digest;
-    let bytes = serde_json::to_vec(value).unwrap_or_default();
-    sha2::Sha256::digest(&bytes)
+    struct Hashing(sha2::Sha256);
+    impl std::io::Write for Hashing {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.0.update(bytes);
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let mut hashing = Hashing(sha2::Sha256::new());
+    // A value that cannot be written as JSON hashes as the empty document, as before.
+    if serde_json::to_writer(std::io::BufWriter::new(&mut hashing), value).is_err() {
+        hashing = Hashing(sha2::Sha256::new());
+    }
+    hashing
+        .0
+        .finalize()
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
@@ -416,6 +434,44 @@ fn sheet_level(
 /// noise (each variance floored at 1 % of the raw spread's), h maximising the
 /// leave-one-stock-out log likelihood of the stock means on a grid in (0, 1]. `None`
 /// when no h gives a finite likelihood.
+/// Stocks whose leave-one-out density [`choose_kernel`] sums: all of them up to this many;
+/// beyond, this many evenly spread over the library (each still against every other
+/// stock). The likelihood is a mean over stocks, which so many estimate well, and summing
+/// it over all of 20,000 stocks (4·10⁸ pairs for each of 40 bandwidths) took many minutes.
+pub(crate) const LOO_STOCKS: usize = 1_000;
+
+/// The stocks [`choose_kernel`]'s likelihood is summed over (see [`LOO_STOCKS`]).
+fn held_out_stocks(n: usize) -> Vec<usize> {
+    if n <= LOO_STOCKS {
+        return (0..n).collect();
+    }
+    (0..LOO_STOCKS).map(|k| k * n / LOO_STOCKS).collect()
+}
+
+/// Most distinct covariances [`covariance_groups`] keeps a table for.
+const MAX_COVARIANCE_GROUPS: usize = 32;
+
+/// Each covariance's index among the distinct ones, and those; `None` when there are more
+/// than [`MAX_COVARIANCE_GROUPS`].
+fn covariance_groups(covariances: &[Small]) -> Option<(Vec<usize>, Vec<Small>)> {
+    let mut distinct: Vec<Small> = Vec::new();
+    let mut of = Vec::with_capacity(covariances.len());
+    for c in covariances {
+        let k = match distinct.iter().position(|d| d == c) {
+            Some(k) => k,
+            None => {
+                if distinct.len() == MAX_COVARIANCE_GROUPS {
+                    return None;
+                }
+                distinct.push(*c);
+                distinct.len() - 1
+            }
+        };
+        of.push(k);
+    }
+    Some((of, distinct))
+}
+
 fn choose_kernel(stocks: &[StockMean]) -> Option<(Cov3, f64)> {
     let means: Vec<[f64; 3]> = stocks.iter().map(|s| s.mean).collect();
     let grand = mean_of(&means);
@@ -431,33 +487,80 @@ fn choose_kernel(stocks: &[StockMean]) -> Option<(Cov3, f64)> {
         std::array::from_fn(|i| (spread[i][i] - noise[i][i]).max(0.01 * spread[i][i])),
     );
     let all = [0, 1, 2];
-    let shape_sq = restrict(&shape, &all);
-    let loo = |h: f64| -> Option<f64> {
-        let kernel = scale(&shape_sq, h * h);
-        let mut total = 0.0;
-        for (j, sj) in stocks.iter().enumerate() {
-            let around_j = add(&kernel, &restrict(&sj.covariance, &all));
-            let terms: Vec<f64> = stocks
-                .iter()
-                .enumerate()
-                .filter(|(s, _)| *s != j)
-                .map(|(_, ss)| {
-                    log_normal_density(
-                        &sj.mean,
-                        &ss.mean,
-                        &add(&around_j, &restrict(&ss.covariance, &all)),
-                    )
+    let covariances: Vec<Small> = stocks
+        .iter()
+        .map(|s| Small::restrict(&s.covariance, &all))
+        .collect();
+    // Stocks of the same sheets and spots have the same covariance: the covariance of a
+    // pair, (K + E_j) + E_s, is then one of few, each factorised once per h instead of
+    // once per pair (the same operations on the same numbers, so the same result).
+    let groups = covariance_groups(&covariances);
+    let held_out = held_out_stocks(stocks.len());
+    let loo = |h: f64, terms: &mut Vec<f64>| -> Option<f64> {
+        let kernel = Small::restrict(&scale3(&shape, h * h), &all);
+        let factors: Option<(Vec<Option<Factor>>, usize)> = groups.as_ref().map(|(_, distinct)| {
+            let g = distinct.len();
+            let table = (0..g * g)
+                .map(|k| {
+                    kernel
+                        .plus(&distinct[k / g])
+                        .plus(&distinct[k % g])
+                        .factor()
                 })
-                .collect::<Option<_>>()?;
-            total += log_mean_exp(&terms);
+                .collect();
+            (table, g)
+        });
+        let mut total = 0.0;
+        for &j in &held_out {
+            let sj = &stocks[j];
+            let around_j = kernel.plus(&covariances[j]);
+            terms.clear();
+            for (s, ss) in stocks.iter().enumerate() {
+                if s == j {
+                    continue;
+                }
+                let factor = match (&factors, &groups) {
+                    (Some((table, g)), Some((of, _))) => table[of[j] * g + of[s]],
+                    _ => around_j.plus(&covariances[s]).factor(),
+                };
+                terms.push(factor?.log_density(&sj.mean, &ss.mean));
+            }
+            total += log_mean_exp(terms);
         }
         total.is_finite().then_some(total)
     };
+    // h from 1 down to about 0.002 in steps of 15 %, each h's likelihood on its own: the
+    // grid is shared among the machine's cores (the choice below is made in the grid's
+    // order, so the result does not depend on how many there are).
+    let grid: Vec<f64> = (0..40).map(|k| 0.85f64.powi(k)).collect();
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(grid.len());
+    let likelihoods: Vec<Option<f64>> = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..threads)
+            .map(|t| {
+                let (grid, loo) = (&grid, &loo);
+                scope.spawn(move || {
+                    let mut terms = Vec::with_capacity(stocks.len());
+                    (t..grid.len())
+                        .step_by(threads)
+                        .map(|k| (k, loo(grid[k], &mut terms)))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        let mut out = vec![None; grid.len()];
+        for worker in workers {
+            // A worker that panicked leaves its h without a likelihood.
+            for (k, l) in worker.join().unwrap_or_default() {
+                out[k] = l;
+            }
+        }
+        out
+    });
     let mut best: Option<(f64, f64)> = None;
-    // h from 1 down to about 0.002 in steps of 15 %.
-    for k in 0..40 {
-        let h = 0.85f64.powi(k);
-        if let Some(l) = loo(h)
+    for (&h, l) in grid.iter().zip(likelihoods) {
+        if let Some(l) = l
             && best.is_none_or(|(_, b)| l > b)
         {
             best = Some((h, l));

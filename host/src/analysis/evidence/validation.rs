@@ -32,6 +32,11 @@ pub(crate) const MAX_FOLDS: usize = 5;
 pub(crate) const ONE_FOLD_PER_STOCK_UP_TO: usize = 12;
 /// Fewest pairs of each kind a validation is made from.
 pub(crate) const MIN_PAIRS: usize = 10;
+/// Most densities (pairs of sheets × 3 × stocks) a validation made for one search or
+/// comparison may evaluate: about ten seconds' worth. A validation weighs every pair of
+/// sheets, so its time grows with the cube of the library: 2,000 stocks of five sheets
+/// would take days.
+pub(crate) const MAX_VALIDATION_EVALUATIONS: f64 = 1e9;
 /// The grid step of the ELUB search, log10.
 const ELUB_STEP: f64 = 0.01;
 /// Raw log10 LRs are clipped to ± this many decades before the calibrator is fitted.
@@ -492,9 +497,29 @@ pub fn validate(sheets: &[LibrarySheet]) -> Result<Population, EvidenceError> {
 /// The population of a library's sheets, validated when the library allows it; when it
 /// does not (too few stocks, or too few with two sheets, to hold some out), the population
 /// without validation and why.
+///
+/// A library too large to validate within a search or a comparison (more than
+/// [`MAX_VALIDATION_EVALUATIONS`]) is not validated there: its population is used
+/// unvalidated, saying why, rather than the search taking hours.
 pub fn validate_or_explain(
     sheets: &[LibrarySheet],
 ) -> Result<(Population, Option<EvidenceError>), EvidenceError> {
+    let usable: Vec<&LibrarySheet> = sheets
+        .iter()
+        .filter(|s| !s.sheet.spots.is_empty() && s.sheet.determined().len() == 3)
+        .collect();
+    let stocks = usable
+        .iter()
+        .map(|s| s.stock.as_str())
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    let pairs = usable.len() * usable.len().saturating_sub(1) / 2;
+    if pairs as f64 * 3.0 * stocks as f64 > MAX_VALIDATION_EVALUATIONS {
+        return Ok((
+            Population::from_library(sheets)?,
+            Some(EvidenceError::TooLargeToValidate { pairs, stocks }),
+        ));
+    }
     match validate(sheets) {
         Ok(p) => Ok((p, None)),
         Err(e) => Ok((Population::from_library(sheets)?, Some(e))),

@@ -650,6 +650,21 @@ impl Library {
     /// Every spot as an exchange record, ordered by stock name, session SHA-256 and spot
     /// index (bytewise), so that the same contents always give the same file.
     pub fn records(&self) -> Result<Vec<ExchangeRecord>> {
+        let mut out = Vec::new();
+        self.for_each_record(|record| {
+            out.push(record);
+            Ok(())
+        })?;
+        Ok(out)
+    }
+
+    /// Every spot as an exchange record, in the order of [`Self::records`], given to `each`
+    /// one at a time as it is read: a library of 10⁵ sheets is hundreds of megabytes of
+    /// records that need never be held at once. `each`'s error stops the reading.
+    pub fn for_each_record(
+        &self,
+        mut each: impl FnMut(ExchangeRecord) -> Result<()>,
+    ) -> Result<()> {
         let sqlite = self.sqlite();
         let mut stmt = self
             .conn
@@ -662,14 +677,9 @@ impl Library {
                  ORDER BY s.name, h.session_sha256, p.spot_index",
             )
             .map_err(&sqlite)?;
-        let rows = stmt
-            .query_map([], |r| {
-                let mut covariance = [[0.0; 3]; 3];
-                for (i, row) in covariance.iter_mut().enumerate() {
-                    for (j, c) in row.iter_mut().enumerate() {
-                        *c = r.get(15 + 3 * i + j)?;
-                    }
-                }
+        let mut rows = stmt.query([]).map_err(&sqlite)?;
+        while let Some(r) = rows.next().map_err(&sqlite)? {
+            let record = (|| -> rusqlite::Result<ExchangeRecord> {
                 Ok(ExchangeRecord {
                     schema: crate::schema::LIBRARY_RECORD.to_string(),
                     stock: r.get(0)?,
@@ -687,28 +697,50 @@ impl Library {
                     sigma_deg: r.get(12)?,
                     rho_s: r.get(13)?,
                     rho_d: r.get(14)?,
-                    covariance,
+                    covariance: get_covariance(r, 15)?,
                 })
-            })
+            })()
             .map_err(&sqlite)?;
-        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
+            each(record)?;
+        }
+        Ok(())
     }
 
-    /// Write every spot to `out` as JSON Lines (see [`ExchangeRecord`]); returns the
-    /// number of records. `out_path` is only for messages.
+    /// Write every spot to `out` as JSON Lines (see [`ExchangeRecord`]), record by record
+    /// as they are read; returns the number of records. `out_path` is only for messages.
     pub fn export(&self, out: &mut dyn Write, out_path: &Path) -> Result<usize> {
-        let records = self.records()?;
         let io = |source| LibraryError::Io {
             path: out_path.to_path_buf(),
             source,
         };
-        for record in &records {
-            let line = serde_json::to_string(record).map_err(|e| io(std::io::Error::other(e)))?;
-            out.write_all(line.as_bytes()).map_err(io)?;
+        let mut out = std::io::BufWriter::new(out);
+        let mut records = 0;
+        self.for_each_record(|record| {
+            serde_json::to_writer(&mut out, &record).map_err(|e| io(std::io::Error::other(e)))?;
             out.write_all(b"\n").map_err(io)?;
-        }
+            records += 1;
+            Ok(())
+        })?;
         out.flush().map_err(io)?;
-        Ok(records.len())
+        Ok(records)
+    }
+
+    /// Whether the session of SHA-256 `sha256` is in the library.
+    pub fn has_session(&self, sha256: &str) -> Result<bool> {
+        self.conn
+            .query_row(
+                "SELECT count(*) > 0 FROM sheets WHERE session_sha256 = ?1",
+                [sha256],
+                |r| r.get(0),
+            )
+            .map_err(self.sqlite())
+    }
+
+    /// How many sheets (sessions) the library holds.
+    pub fn sheet_count(&self) -> Result<usize> {
+        self.conn
+            .query_row("SELECT count(*) FROM sheets", [], |r| get_count(r, 0))
+            .map_err(self.sqlite())
     }
 
     /// Import a checked exchange file ([`ExchangeFile::read`]) in one transaction:
@@ -806,29 +838,138 @@ impl Library {
     }
 
     /// Every sheet (its stock, lot, instrument and spots) with its session SHA-256, ordered
-    /// as [`Self::records`].
+    /// as [`Self::records`]. Only what the evidence is made of is read (not each spot's
+    /// whole record: a search of a library of 10⁵ sheets held 380 MiB of records), each
+    /// table once in its own order and the sheets put in order here: SQLite's sort of
+    /// every spot wrote and read temporary files for most of a large library's search.
     pub fn sheets(&self) -> Result<Vec<(String, LibrarySheet)>> {
-        let mut out: Vec<(String, LibrarySheet)> = Vec::new();
-        for record in self.records()? {
-            let spot = Spot {
-                values: [record.sigma_deg, record.rho_s, record.rho_d],
-                covariance: record.covariance,
-            };
-            match out.last_mut() {
-                Some(last) if last.0 == record.session_sha256 => last.1.sheet.spots.push(spot),
-                _ => out.push((
-                    record.session_sha256,
-                    LibrarySheet {
-                        stock: record.stock,
-                        lot: record.lot,
-                        instrument: Some(record.instrument_serial),
-                        sheet: Sheet { spots: vec![spot] },
-                    },
-                )),
-            }
+        let sqlite = self.sqlite();
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT h.id, s.name, h.session_sha256, h.lot, h.instrument_serial
+                 FROM sheets h JOIN stocks s ON h.stock_id = s.id",
+            )
+            .map_err(&sqlite)?;
+        let mut rows = stmt.query([]).map_err(&sqlite)?;
+        let mut index = std::collections::HashMap::new();
+        let mut sheets: Vec<(String, LibrarySheet, Vec<(i64, Spot)>)> = Vec::new();
+        while let Some(r) = rows.next().map_err(&sqlite)? {
+            let id: i64 = r.get(0).map_err(&sqlite)?;
+            index.insert(id, sheets.len());
+            sheets.push((
+                r.get(2).map_err(&sqlite)?,
+                LibrarySheet {
+                    stock: r.get(1).map_err(&sqlite)?,
+                    lot: r.get(3).map_err(&sqlite)?,
+                    instrument: Some(r.get(4).map_err(&sqlite)?),
+                    sheet: Sheet::default(),
+                },
+                Vec::new(),
+            ));
         }
+        drop(rows);
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT sheet_id, spot_index, sigma_deg, rho_s, rho_d,
+                        c00, c01, c02, c10, c11, c12, c20, c21, c22
+                 FROM spots",
+            )
+            .map_err(&sqlite)?;
+        let mut rows = stmt.query([]).map_err(&sqlite)?;
+        while let Some(r) = rows.next().map_err(&sqlite)? {
+            let sheet_id: i64 = r.get(0).map_err(&sqlite)?;
+            // A spot of no sheet (possible only where foreign keys were not enforced) is
+            // not part of any sheet, as the join of an export leaves it out.
+            let Some(&k) = index.get(&sheet_id) else {
+                continue;
+            };
+            let spot = Spot {
+                values: [
+                    r.get(2).map_err(&sqlite)?,
+                    r.get(3).map_err(&sqlite)?,
+                    r.get(4).map_err(&sqlite)?,
+                ],
+                covariance: get_covariance(r, 5).map_err(&sqlite)?,
+            };
+            sheets[k].2.push((r.get(1).map_err(&sqlite)?, spot));
+        }
+        let mut out: Vec<(String, LibrarySheet)> = sheets
+            .into_iter()
+            .filter(|(_, _, spots)| !spots.is_empty())
+            .map(|(sha256, mut sheet, mut spots)| {
+                spots.sort_by_key(|(k, _)| *k);
+                sheet.sheet.spots = spots.into_iter().map(|(_, spot)| spot).collect();
+                (sha256, sheet)
+            })
+            .collect();
+        // Bytewise, as SQLite's ORDER BY of the export.
+        out.sort_by(|a, b| a.1.stock.cmp(&b.1.stock).then_with(|| a.0.cmp(&b.0)));
         Ok(out)
     }
+
+    /// The population last made from the library's contents of identity `identity`
+    /// (`evidence::population::contents_identity`) by this version of gonio, if it is
+    /// still cached: making one takes time that grows with the square of the stocks.
+    pub fn cached_population(&self, identity: &str) -> Result<Option<serde_json::Value>> {
+        let text: Option<String> = self
+            .conn
+            .query_row(
+                "SELECT value FROM meta WHERE key = ?1",
+                params![population_cache_key(identity)],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.sqlite())?;
+        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+    }
+
+    /// Cache `population`, made from the contents of identity `identity`, in place of any
+    /// cached before: contents changed since have another identity, so a cached
+    /// population is never used for contents it was not made from, and only the last is
+    /// kept.
+    pub fn cache_population(
+        &mut self,
+        identity: &str,
+        population: &serde_json::Value,
+    ) -> Result<()> {
+        let path = self.path.clone();
+        let sqlite = |source| LibraryError::Sqlite {
+            path: path.clone(),
+            source,
+        };
+        let tx = self.write()?;
+        tx.execute("DELETE FROM meta WHERE key LIKE 'population-cache/%'", [])
+            .map_err(&sqlite)?;
+        tx.execute(
+            "INSERT INTO meta (key, value) VALUES (?1, ?2)",
+            params![population_cache_key(identity), population.to_string()],
+        )
+        .map_err(&sqlite)?;
+        tx.commit().map_err(&sqlite)?;
+        Ok(())
+    }
+}
+
+/// Where [`Library::cached_population`] keeps a population: under the gonio that made it
+/// (another version may make it differently) and the contents it was made from.
+fn population_cache_key(identity: &str) -> String {
+    format!(
+        "population-cache/gonio {}/{identity}",
+        env!("CARGO_PKG_VERSION")
+    )
+}
+
+/// The 3×3 covariance in the nine columns from `first`, row by row.
+fn get_covariance(row: &rusqlite::Row<'_>, first: usize) -> rusqlite::Result<[[f64; 3]; 3]> {
+    let mut covariance = [[0.0; 3]; 3];
+    for (i, line) in covariance.iter_mut().enumerate() {
+        for (j, c) in line.iter_mut().enumerate() {
+            *c = row.get(first + 3 * i + j)?;
+        }
+    }
+    Ok(covariance)
 }
 
 /// An error inside a write transaction: the library's own, or SQLite's (which needs the
