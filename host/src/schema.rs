@@ -51,11 +51,14 @@ pub(crate) const LIBRARY_RECORD_V1: &str = "gonio-library/1";
 /// writes it; `schema` is optional there.
 pub const TILE_CERTIFICATE: &str = "gonio-tile-certificate/1";
 
+/// `batch.json` of a QA batch folder (`gonio batch`).
+pub const BATCH: &str = "gonio-batch/1";
+
 /// An instrument profile (`gonio characterize`'s `instrument.json`).
 pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
 
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 15] = [
+pub const WRITTEN: [&str; 16] = [
     INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
@@ -71,6 +74,7 @@ pub const WRITTEN: [&str; 15] = [
     LIBRARY_LIST,
     LIBRARY_SEARCH,
     LIBRARY_RECORD,
+    BATCH,
 ];
 
 /// The file name of a schema's JSON Schema under `docs/schemas/`: `gonio-session/2` →

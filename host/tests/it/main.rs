@@ -22,6 +22,7 @@ mod acceptance;
 mod accuracy;
 mod adaptive_lack_of_fit;
 mod arm_offset_rate;
+mod batch;
 mod bad_input;
 mod bounds;
 mod budget;
