@@ -63,7 +63,8 @@ fn batch_json(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&text).expect("JSON")
 }
 
-/// `gonio batch` of `sheets` sheets of `paper` against `master`, in `out`, with `extra`.
+/// `gonio batch` of `sheets` sheets of `paper` against `master`, in `out`, with `extra`
+/// (default: two spots a sheet).
 fn batch(library: &Path, master: &str, paper: &str, sheets: &str, out: &Path, seed: u64, extra: &[&str]) -> std::process::Output {
     let seed = seed.to_string();
     let mut args = vec![
@@ -76,14 +77,15 @@ fn batch(library: &Path, master: &str, paper: &str, sheets: &str, out: &Path, se
         paper,
         "--sheets",
         sheets,
-        "--spots",
-        "2",
         "--seed",
         &seed,
         "--out",
         s(out),
     ];
     args.extend_from_slice(extra);
+    if !extra.contains(&"--spots") {
+        args.extend(["--spots", "2"]);
+    }
     gonio(&args)
 }
 
@@ -209,7 +211,7 @@ fn an_interrupted_batch_resumes_at_the_sheet_it_stopped_in_and_keeps_the_sheets_
     let library = library_with_master(&root, "Stock-SG", "SG", 1, seed);
     let dir = root.join("batch");
     let seed_text = seed.to_string();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gonio"))
+    let child = Command::new(env!("CARGO_BIN_EXE_gonio"))
         .args([
             "batch", "--library", s(&library), "--master", "Stock-SG", "--sim", "SG", "--sheets", "4",
             "--spots", "2", "--seed", &seed_text, "--out", s(&dir),
