@@ -194,8 +194,9 @@ impl Master {
                     _ => None,
                 })
                 .collect();
-            own[i] = (!relative_u.is_empty())
-                .then(|| (relative_u.iter().map(|r| r * r).sum::<f64>() / relative_u.len() as f64).sqrt());
+            own[i] = (!relative_u.is_empty()).then(|| {
+                (relative_u.iter().map(|r| r * r).sum::<f64>() / relative_u.len() as f64).sqrt()
+            });
         }
         if values.iter().all(Option::is_none) {
             return Err(MasterError::NoValues(stock.to_string()));
@@ -480,7 +481,10 @@ mod tests {
         Master::of_sheets(
             "SG",
             &[
-                vec![spot([1.9, 57.0, 0.80], 0.01), spot([1.92, 58.0, 0.79], 0.01)],
+                vec![
+                    spot([1.9, 57.0, 0.80], 0.01),
+                    spot([1.92, 58.0, 0.79], 0.01),
+                ],
                 vec![spot([1.88, 57.5, 0.80], 0.01)],
             ],
         )
@@ -506,7 +510,10 @@ mod tests {
         let spread = m.sheet_to_sheet_relative_sd[0]
             .unwrap()
             .max(m.spot_relative_uncertainty[0].unwrap());
-        assert!(pct >= 300.0 * spread && pct < 300.0 * spread + 0.1 + 1e-9, "{pct} {basis}");
+        assert!(
+            pct >= 300.0 * spread && pct < 300.0 * spread + 0.1 + 1e-9,
+            "{pct} {basis}"
+        );
         let tight = Master::of_sheets("T", &[vec![spot([1.0, 1.0, 1.0], 0.0001)]]).unwrap();
         let (pct, basis) = tight.default_tolerance(1);
         assert_eq!(pct, MIN_DEFAULT_TOLERANCE_PCT);

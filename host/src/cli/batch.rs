@@ -24,13 +24,23 @@ pub const DEFAULT_BATCH_SPOTS: u16 = 3;
 pub struct Args {
     /// The master stock: its name in the library (gonio library list). Its sheets give the
     /// values each sheet is judged against and, without --tolerance-*, the tolerances.
-    #[arg(long, value_name = "STOCK", required_unless_present = "resume", conflicts_with = "resume")]
+    #[arg(
+        long,
+        value_name = "STOCK",
+        required_unless_present = "resume",
+        conflicts_with = "resume"
+    )]
     pub master: Option<String>,
     /// The library file (default: $XDG_DATA_HOME/gonio/library.sqlite).
     #[arg(long, value_name = "FILE")]
     pub library: Option<PathBuf>,
     /// Sheets to measure (1 to 999).
-    #[arg(long, value_name = "N", required_unless_present = "resume", conflicts_with = "resume")]
+    #[arg(
+        long,
+        value_name = "N",
+        required_unless_present = "resume",
+        conflicts_with = "resume"
+    )]
     pub sheets: Option<u16>,
     /// Clean spots per sheet (1 to 20; default 3).
     #[arg(long, value_name = "M", conflicts_with = "resume")]
@@ -52,20 +62,40 @@ pub struct Args {
     #[arg(long, conflicts_with = "resume")]
     pub sample: Option<String>,
     /// The batch folder: new or empty; a sheet folder per sheet goes into it.
-    #[arg(long, value_name = "DIR", required_unless_present = "resume", conflicts_with = "resume")]
+    #[arg(
+        long,
+        value_name = "DIR",
+        required_unless_present = "resume",
+        conflicts_with = "resume"
+    )]
     pub out: Option<PathBuf>,
     /// Continue an interrupted batch in DIR at the sheet it stopped in: its master,
     /// tolerances and plan are the ones recorded in its batch.json.
     #[arg(long, value_name = "DIR")]
     pub resume: Option<PathBuf>,
     /// Tolerance on σ, percent of the master's (default: 3 × the master's spread, at least 1 %).
-    #[arg(long, value_name = "PCT", allow_negative_numbers = true, conflicts_with = "resume")]
+    #[arg(
+        long,
+        value_name = "PCT",
+        allow_negative_numbers = true,
+        conflicts_with = "resume"
+    )]
     pub tolerance_sigma_pct: Option<f64>,
     /// Tolerance on ρs, percent of the master's (default: 3 × the master's spread, at least 1 %).
-    #[arg(long, value_name = "PCT", allow_negative_numbers = true, conflicts_with = "resume")]
+    #[arg(
+        long,
+        value_name = "PCT",
+        allow_negative_numbers = true,
+        conflicts_with = "resume"
+    )]
     pub tolerance_rho_s_pct: Option<f64>,
     /// Tolerance on ρd, percent of the master's (default: 3 × the master's spread, at least 1 %).
-    #[arg(long, value_name = "PCT", allow_negative_numbers = true, conflicts_with = "resume")]
+    #[arg(
+        long,
+        value_name = "PCT",
+        allow_negative_numbers = true,
+        conflicts_with = "resume"
+    )]
     pub tolerance_rho_d_pct: Option<f64>,
     /// Refinement policy of every sheet (default adaptive; see gonio measure --help).
     #[arg(long, value_enum)]
@@ -140,13 +170,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 "batch stopped in sheet {}: {error}; the sheets measured are kept in {}; continue with: {}",
                 doc.sheets.len() + 1,
                 dir.display(),
-                doc.resume_with.as_deref().unwrap_or("gonio batch --resume DIR")
+                doc.resume_with
+                    .as_deref()
+                    .unwrap_or("gonio batch --resume DIR")
             );
-            Ok(ExitCode::from(if matches!(error, SessionError::Interrupted) {
-                crate::cli::exit::INTERRUPTED
-            } else {
-                crate::cli::exit::FAILED
-            }))
+            Ok(ExitCode::from(
+                if matches!(error, SessionError::Interrupted) {
+                    crate::cli::exit::INTERRUPTED
+                } else {
+                    crate::cli::exit::FAILED
+                },
+            ))
         }
     }
 }
@@ -169,10 +203,10 @@ fn print(args: &Args, dir: &Path, doc: &BatchDoc) -> anyhow::Result<()> {
         doc.master.sheets,
         doc.master.spots
     );
-    for i in 0..3 {
+    for (i, label) in LABELS.iter().enumerate() {
         println!(
             "  master {} = {}, tolerance ±{:.1} % ({})",
-            LABELS[i],
+            label,
             value(i, doc.master.values[i]),
             doc.tolerance_pct[i],
             doc.tolerance_basis[i]
@@ -203,8 +237,10 @@ fn print(args: &Args, dir: &Path, doc: &BatchDoc) -> anyhow::Result<()> {
             LABELS[i],
             st.n,
             value(i, Some(st.mean)),
-            st.sd
-                .map_or_else(|| "—".to_string(), |sd| format!("{:.2} %", 100.0 * sd / st.mean)),
+            st.sd.map_or_else(
+                || "—".to_string(),
+                |sd| format!("{:.2} %", 100.0 * sd / st.mean)
+            ),
             value(i, st.lower_control_limit),
             value(i, st.upper_control_limit),
             if st.out_of_control.is_empty() {

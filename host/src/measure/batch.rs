@@ -186,7 +186,9 @@ pub fn resume_command(options: &MeasureOptions, dir: &Path) -> String {
 /// make its folder and its first `batch.json`.
 fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc)> {
     let Some(stock) = &options.master else {
-        bail!("a new batch needs --master STOCK: the stock of the library its sheets are judged against");
+        bail!(
+            "a new batch needs --master STOCK: the stock of the library its sheets are judged against"
+        );
     };
     let Some(sheets) = options.sheets else {
         bail!("a new batch needs --sheets N: how many sheets to measure");
@@ -228,10 +230,7 @@ fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc)> {
     let tolerance = std::array::from_fn(|i| match options.tolerance_pct[i] {
         Some(t) => (
             t,
-            format!(
-                "given (--tolerance-{}-pct)",
-                ["sigma", "rho-s", "rho-d"][i]
-            ),
+            format!("given (--tolerance-{}-pct)", ["sigma", "rho-s", "rho-d"][i]),
         ),
         None => master.default_tolerance(i),
     });
@@ -330,9 +329,8 @@ fn simulated_sample(
         return Ok(Some(paper.clone()));
     }
     let p = sample_params(paper).with_context(|| format!("--sim {paper}"))?;
-    let mut rng = rand_chacha::ChaCha12Rng::seed_from_u64(
-        sheet_seed(seed, number) ^ 0xba7c_5ee7_0000_0000,
-    );
+    let mut rng =
+        rand_chacha::ChaCha12Rng::seed_from_u64(sheet_seed(seed, number) ^ 0xba7c_5ee7_0000_0000);
     let s2 = (1.0 + (pct / 100.0).powi(2)).ln();
     let [sigma, rho_s, rho_d] = [p.sigma_deg, p.rho_s, p.rho_d].map(|v| {
         let z: f64 = StandardNormal.sample(&mut rng);

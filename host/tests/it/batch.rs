@@ -32,7 +32,13 @@ fn run_seed() -> u64 {
 
 /// A library at `root/library.sqlite` with the stock `stock`: `sheets` sheets of two spots
 /// of `paper` measured on the simulator, seeds from `seed`.
-pub fn library_with_master(root: &Path, stock: &str, paper: &str, sheets: u64, seed: u64) -> PathBuf {
+pub fn library_with_master(
+    root: &Path,
+    stock: &str,
+    paper: &str,
+    sheets: u64,
+    seed: u64,
+) -> PathBuf {
     let library = root.join("library.sqlite");
     let mut dirs = Vec::new();
     for k in 0..sheets {
@@ -65,7 +71,15 @@ fn batch_json(dir: &Path) -> serde_json::Value {
 
 /// `gonio batch` of `sheets` sheets of `paper` against `master`, in `out`, with `extra`
 /// (default: two spots a sheet).
-fn batch(library: &Path, master: &str, paper: &str, sheets: &str, out: &Path, seed: u64, extra: &[&str]) -> std::process::Output {
+fn batch(
+    library: &Path,
+    master: &str,
+    paper: &str,
+    sheets: &str,
+    out: &Path,
+    seed: u64,
+    extra: &[&str],
+) -> std::process::Output {
     let seed = seed.to_string();
     let mut args = vec![
         "batch",
@@ -98,7 +112,15 @@ fn sheets_of_the_master_s_paper_pass_and_of_another_paper_fail_naming_the_parame
     // Sheets of the master's own paper, the simulator's sheets all the paper (no lot
     // spread: the master's sheets had none either): every one within the tolerances.
     let same = root.join("same");
-    let out = batch(&library, "Stock-SG", "SG", "3", &same, seed, &["--sheet-to-sheet-pct", "0"]);
+    let out = batch(
+        &library,
+        "Stock-SG",
+        "SG",
+        "3",
+        &same,
+        seed,
+        &["--sheet-to-sheet-pct", "0"],
+    );
     let doc = batch_json(&same);
     assert_eq!(doc["status"], "finished", "{doc}");
     let sheets = doc["sheets"].as_array().expect("sheets");
@@ -107,15 +129,24 @@ fn sheets_of_the_master_s_paper_pass_and_of_another_paper_fail_naming_the_parame
         // A sheet whose own result is flagged is undecided, never a pass or a fail.
         assert!(
             sheet["verdict"] == "pass"
-                || (sheet["verdict"] == "undecided" && !sheet["flags"].as_array().unwrap().is_empty()),
+                || (sheet["verdict"] == "undecided"
+                    && !sheet["flags"].as_array().unwrap().is_empty()),
             "a sheet of the master's paper: {sheet}"
         );
     }
     let passed = sheets.iter().filter(|s| s["verdict"] == "pass").count();
     assert!(passed >= 2, "{doc}");
-    assert_eq!(code(&out), if passed == 3 { 0 } else { 3 }, "{}", stderr(&out));
+    assert_eq!(
+        code(&out),
+        if passed == 3 { 0 } else { 3 },
+        "{}",
+        stderr(&out)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains("PASS") && stdout.contains("Stock-SG"), "{stdout}");
+    assert!(
+        stdout.contains("PASS") && stdout.contains("Stock-SG"),
+        "{stdout}"
+    );
     // Statistics over the clean sheets, with I-MR limits about their mean.
     for st in doc["statistics"].as_array().expect("statistics") {
         let (mean, lo, hi) = (
@@ -147,7 +178,10 @@ fn sheets_of_the_master_s_paper_pass_and_of_another_paper_fail_naming_the_parame
         let deviation = sigma["deviation_pct"].as_f64().unwrap();
         assert!((-65.0..-50.0).contains(&deviation), "{sigma}");
         assert!(
-            (sigma["beyond_pct"].as_f64().unwrap() - (deviation.abs() - sigma["tolerance_pct"].as_f64().unwrap())).abs() < 1e-9
+            (sigma["beyond_pct"].as_f64().unwrap()
+                - (deviation.abs() - sigma["tolerance_pct"].as_f64().unwrap()))
+            .abs()
+                < 1e-9
         );
     }
     assert!(doc["counts"]["fail"].as_u64().unwrap() >= 1, "{doc}");
@@ -157,15 +191,28 @@ fn sheets_of_the_master_s_paper_pass_and_of_another_paper_fail_naming_the_parame
     // The spreadsheet: one row per sheet, units in the headers, the failed parameter named.
     let mut csv = csv::Reader::from_path(other.join("batch.csv")).expect("batch.csv");
     let headers = csv.headers().expect("headers").clone();
-    for wanted in ["sigma (deg)", "rho_s (1)", "rho_d (1)", "sigma deviation (%)", "verdict", "failed parameters"] {
-        assert!(headers.iter().any(|h| h == wanted), "{wanted} in {headers:?}");
+    for wanted in [
+        "sigma (deg)",
+        "rho_s (1)",
+        "rho_d (1)",
+        "sigma deviation (%)",
+        "verdict",
+        "failed parameters",
+    ] {
+        assert!(
+            headers.iter().any(|h| h == wanted),
+            "{wanted} in {headers:?}"
+        );
     }
     let rows: Vec<csv::StringRecord> = csv.records().map(|r| r.expect("a row")).collect();
     assert_eq!(rows.len(), 2);
     let at = |name: &str| headers.iter().position(|h| h == name).unwrap();
     for row in &rows {
         if &row[at("verdict")] == "fail" {
-            assert!(row[at("failed parameters")].contains("sigma_deg"), "{row:?}");
+            assert!(
+                row[at("failed parameters")].contains("sigma_deg"),
+                "{row:?}"
+            );
             let sigma: f64 = row[at("sigma (deg)")].parse().expect("a number");
             assert!((0.6..1.0).contains(&sigma), "{row:?}");
         }
@@ -181,19 +228,36 @@ fn simulated_sheets_of_a_batch_are_drawn_about_the_paper() {
     let root = temp_dir("batch", "drawn");
     let library = library_with_master(&root, "PPC-master", "PPC", 1, seed);
     let out_dir = root.join("drawn");
-    let out = batch(&library, "PPC-master", "PPC", "3", &out_dir, seed, &["--sheet-to-sheet-pct", "5", "--spots", "1"]);
+    let out = batch(
+        &library,
+        "PPC-master",
+        "PPC",
+        "3",
+        &out_dir,
+        seed,
+        &["--sheet-to-sheet-pct", "5", "--spots", "1"],
+    );
     assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
     let doc = batch_json(&out_dir);
     let drawn: Vec<String> = doc["sheets"]
         .as_array()
         .unwrap()
         .iter()
-        .map(|s| s["simulated"].as_str().expect("the drawn sheet").to_string())
+        .map(|s| {
+            s["simulated"]
+                .as_str()
+                .expect("the drawn sheet")
+                .to_string()
+        })
         .collect();
     assert_eq!(drawn.len(), 3);
     assert!(drawn[0] != drawn[1] && drawn[1] != drawn[2], "{drawn:?}");
     for d in &drawn {
-        let v: Vec<f64> = d.trim_start_matches("custom:").split(',').map(|x| x.parse().unwrap()).collect();
+        let v: Vec<f64> = d
+            .trim_start_matches("custom:")
+            .split(',')
+            .map(|x| x.parse().unwrap())
+            .collect();
         // PPC: σ 21.7°, ρs 0.409, ρd 0.414; 5 % about it is within ±25 % for any seed
         // but one in millions.
         for (got, paper) in v.iter().zip([21.7, 0.409, 0.414, 3.0]) {
@@ -213,8 +277,21 @@ fn an_interrupted_batch_resumes_at_the_sheet_it_stopped_in_and_keeps_the_sheets_
     let seed_text = seed.to_string();
     let child = Command::new(env!("CARGO_BIN_EXE_gonio"))
         .args([
-            "batch", "--library", s(&library), "--master", "Stock-SG", "--sim", "SG", "--sheets", "4",
-            "--spots", "2", "--seed", &seed_text, "--out", s(&dir),
+            "batch",
+            "--library",
+            s(&library),
+            "--master",
+            "Stock-SG",
+            "--sim",
+            "SG",
+            "--sheets",
+            "4",
+            "--spots",
+            "2",
+            "--seed",
+            &seed_text,
+            "--out",
+            s(&dir),
         ])
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -231,7 +308,10 @@ fn an_interrupted_batch_resumes_at_the_sheet_it_stopped_in_and_keeps_the_sheets_
         if recorded {
             break;
         }
-        assert!(std::time::Instant::now() < deadline, "sheet 1 never recorded");
+        assert!(
+            std::time::Instant::now() < deadline,
+            "sheet 1 never recorded"
+        );
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     let killed = Command::new("kill")
@@ -246,11 +326,22 @@ fn an_interrupted_batch_resumes_at_the_sheet_it_stopped_in_and_keeps_the_sheets_
     let stopped_at = doc["sheets"].as_array().unwrap().len();
     assert!((1..4).contains(&stopped_at), "{doc}");
     let resume_with = doc["resume_with"].as_str().expect("how to continue");
-    assert!(resume_with.contains("gonio batch --sim SG --resume"), "{resume_with}");
+    assert!(
+        resume_with.contains("gonio batch --sim SG --resume"),
+        "{resume_with}"
+    );
     assert!(stderr(&out).contains("continue with"), "{}", stderr(&out));
     let manifest_1 = std::fs::read(dir.join("sheet-01/MANIFEST.sha256")).expect("sheet 1 finished");
 
-    let out = gonio(&["batch", "--library", s(&library), "--sim", "SG", "--resume", s(&dir)]);
+    let out = gonio(&[
+        "batch",
+        "--library",
+        s(&library),
+        "--sim",
+        "SG",
+        "--resume",
+        s(&dir),
+    ]);
     assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
     let doc = batch_json(&dir);
     assert_eq!(doc["status"], "finished", "{doc}");
@@ -260,7 +351,12 @@ fn an_interrupted_batch_resumes_at_the_sheet_it_stopped_in_and_keeps_the_sheets_
         assert_eq!(sheet["number"], k + 1);
         let folder = dir.join(sheet["folder"].as_str().unwrap());
         let verified = gonio(&["verify", s(&folder)]);
-        assert!(verified.status.success(), "{}: {}", folder.display(), stderr(&verified));
+        assert!(
+            verified.status.success(),
+            "{}: {}",
+            folder.display(),
+            stderr(&verified)
+        );
     }
     assert_eq!(
         std::fs::read(dir.join("sheet-01/MANIFEST.sha256")).unwrap(),
@@ -274,9 +370,21 @@ fn an_interrupted_batch_resumes_at_the_sheet_it_stopped_in_and_keeps_the_sheets_
         "sheet 1 measured again: {resumed}"
     );
     // A finished batch is not continued.
-    let again = gonio(&["batch", "--library", s(&library), "--sim", "SG", "--resume", s(&dir)]);
+    let again = gonio(&[
+        "batch",
+        "--library",
+        s(&library),
+        "--sim",
+        "SG",
+        "--resume",
+        s(&dir),
+    ]);
     assert_eq!(code(&again), 1);
-    assert!(stderr(&again).contains("the batch is finished"), "{}", stderr(&again));
+    assert!(
+        stderr(&again).contains("the batch is finished"),
+        "{}",
+        stderr(&again)
+    );
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -288,40 +396,88 @@ fn bad_input_is_refused_before_anything_is_measured() {
     let out_dir = root.join("out");
     let run = |library: &Path, master: &str, sheets: &str| {
         gonio(&[
-            "batch", "--library", s(library), "--master", master, "--sim", "SG", "--sheets", sheets,
-            "--out", s(&out_dir),
+            "batch",
+            "--library",
+            s(library),
+            "--master",
+            master,
+            "--sim",
+            "SG",
+            "--sheets",
+            sheets,
+            "--out",
+            s(&out_dir),
         ])
     };
     // An empty (missing) library.
     let out = run(&missing, "Stock-SG", "2");
     assert_eq!(code(&out), 1);
-    assert!(stderr(&out).contains("no library here yet"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("no library here yet"),
+        "{}",
+        stderr(&out)
+    );
     assert!(!out_dir.exists(), "nothing written");
     // No sheets.
     let out = run(&missing, "Stock-SG", "0");
     assert_eq!(code(&out), 1);
-    assert!(stderr(&out).contains("--sheets must be 1 to 999, not 0"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("--sheets must be 1 to 999, not 0"),
+        "{}",
+        stderr(&out)
+    );
     // An unknown stock: named, with the stocks the library holds.
     let library = library_with_master(&root, "Stock-SG", "SG", 1, 7);
     let out = run(&library, "Stock-XX", "2");
     assert_eq!(code(&out), 1);
     let err = stderr(&out);
-    assert!(err.contains("no stock 'Stock-XX'") && err.contains("Stock-SG"), "{err}");
+    assert!(
+        err.contains("no stock 'Stock-XX'") && err.contains("Stock-SG"),
+        "{err}"
+    );
     assert!(!out_dir.exists(), "nothing written");
     // A tolerance that is no tolerance.
     let out = gonio(&[
-        "batch", "--library", s(&library), "--master", "Stock-SG", "--sim", "SG", "--sheets", "2",
-        "--out", s(&out_dir), "--tolerance-rho-s-pct", "-3",
+        "batch",
+        "--library",
+        s(&library),
+        "--master",
+        "Stock-SG",
+        "--sim",
+        "SG",
+        "--sheets",
+        "2",
+        "--out",
+        s(&out_dir),
+        "--tolerance-rho-s-pct",
+        "-3",
     ]);
     assert_eq!(code(&out), 1);
-    assert!(stderr(&out).contains("--tolerance-rho-s-pct must be above 0"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("--tolerance-rho-s-pct must be above 0"),
+        "{}",
+        stderr(&out)
+    );
     // A paper the simulator does not know.
     let out = gonio(&[
-        "batch", "--library", s(&library), "--master", "Stock-SG", "--sim", "GG", "--sheets", "2",
-        "--out", s(&root.join("gg")),
+        "batch",
+        "--library",
+        s(&library),
+        "--master",
+        "Stock-SG",
+        "--sim",
+        "GG",
+        "--sheets",
+        "2",
+        "--out",
+        s(&root.join("gg")),
     ]);
     assert_eq!(code(&out), 1);
-    assert!(stderr(&out).contains("unknown sample 'GG'"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("unknown sample 'GG'"),
+        "{}",
+        stderr(&out)
+    );
     assert!(!root.join("gg").exists(), "nothing written");
     let _ = std::fs::remove_dir_all(&root);
 }
@@ -336,7 +492,15 @@ fn the_batch_report_renders_in_a_headless_browser() {
     let root = temp_dir("batch", "report");
     let library = library_with_master(&root, "Stock-SG", "SG", 1, seed);
     let dir = root.join("batch");
-    let out = batch(&library, "Stock-SG", "G", "2", &dir, seed, &["--sample", "<b>A&'s</b>", "--spots", "1"]);
+    let out = batch(
+        &library,
+        "Stock-SG",
+        "G",
+        "2",
+        &dir,
+        seed,
+        &["--sample", "<b>A&'s</b>", "--spots", "1"],
+    );
     assert_eq!(code(&out), 3, "{}", stderr(&out));
     let page = dir.join("batch.html");
     let html = std::fs::read_to_string(&page).expect("batch.html");
@@ -344,7 +508,10 @@ fn the_batch_report_renders_in_a_headless_browser() {
         !html.contains("<b>A&") && html.contains("&lt;b&gt;A&amp;"),
         "the sample name is escaped"
     );
-    assert!(!html.contains("<script") && !html.contains("https://"), "self-contained");
+    assert!(
+        !html.contains("<script") && !html.contains("https://"),
+        "self-contained"
+    );
     let out = host::output::chromium::headless(&chromium, &page, &["--dump-dom".into()])
         .expect("chromium runs");
     let dom = String::from_utf8_lossy(&out.stdout);
@@ -359,6 +526,9 @@ fn the_batch_report_renders_in_a_headless_browser() {
     ] {
         assert!(dom.contains(wanted), "{wanted:?} not in the page");
     }
-    assert!(dom.matches("<circle").count() >= 2, "the charts' points are drawn");
+    assert!(
+        dom.matches("<circle").count() >= 2,
+        "the charts' points are drawn"
+    );
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -714,11 +714,7 @@ fn a_batch_and_its_sheet_folders_validate() {
             dir.to_str().unwrap(),
             "--json",
         ]);
-        assert!(
-            matches!(out.status.code(), Some(0 | 3)),
-            "{}",
-            stderr(&out)
-        );
+        assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
         let printed = json_lines(&out);
         assert_eq!(printed.len(), 1);
         schemas.check("gonio batch --json", &printed[0]);

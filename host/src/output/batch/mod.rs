@@ -304,11 +304,7 @@ pub fn judge_sheet(
             summary.accepted,
         ),
         None => (
-            measured
-                .sheet
-                .spots
-                .first()
-                .map_or([None; 3], |s| s.values),
+            measured.sheet.spots.first().map_or([None; 3], |s| s.values),
             None,
             measured.sheet.spots.len(),
         ),
@@ -381,10 +377,13 @@ pub fn write(dir: &Path, doc: &BatchDoc) -> Result<(), BatchError> {
         path: dir.join(BATCH),
         source: std::io::Error::other(e),
     })?;
-    replace(&dir.join(BATCH_CSV), &csv_bytes(doc).map_err(|source| BatchError::Io {
-        path: dir.join(BATCH_CSV),
-        source,
-    })?)?;
+    replace(
+        &dir.join(BATCH_CSV),
+        &csv_bytes(doc).map_err(|source| BatchError::Io {
+            path: dir.join(BATCH_CSV),
+            source,
+        })?,
+    )?;
     replace(&dir.join(BATCH_HTML), report::html(doc).as_bytes())?;
     // batch.json last: it is what a resume reads.
     replace(&dir.join(BATCH), &json)

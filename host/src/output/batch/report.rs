@@ -62,7 +62,7 @@ pub fn html(doc: &BatchDoc) -> String {
                 h2 { "Sheets" }
                 (sheets(doc))
                 h2 { "Statistics across the sheets" }
-                p.note { "Over the clean sheets (flagged ones apart): " (doc.chart) "." }
+                p.note { "Flagged sheets left out; " (doc.chart) "." }
                 (statistics(doc))
                 div.charts {
                     @for s in &doc.statistics {
@@ -162,7 +162,9 @@ fn sheets(doc: &BatchDoc) -> Markup {
 
 fn statistics(doc: &BatchDoc) -> Markup {
     let number = |k: usize, v: Option<f64>| {
-        let i = PARAMETERS.iter().position(|p| *p == doc.statistics[k].quantity);
+        let i = PARAMETERS
+            .iter()
+            .position(|p| *p == doc.statistics[k].quantity);
         match (i, v) {
             (Some(i), v) => value(i, v),
             (None, Some(v)) => format!("{v:.4}"),
@@ -227,7 +229,14 @@ fn chart(doc: &BatchDoc, s: &Statistics) -> Markup {
     let path: String = points
         .iter()
         .enumerate()
-        .map(|(j, p)| format!("{}{:.1},{:.1}", if j == 0 { "M" } else { " L" }, x(p.0), y(p.1)))
+        .map(|(j, p)| {
+            format!(
+                "{}{:.1},{:.1}",
+                if j == 0 { "M" } else { " L" },
+                x(p.0),
+                y(p.1)
+            )
+        })
         .collect();
     let label = i.map_or(s.quantity.as_str(), |i| LABELS[i]);
     html! {
