@@ -22,6 +22,8 @@ struct Cli {
 enum Command {
     /// Measure a sheet: home, calibrate, Strategy 1, fit, refine until σ > σ_l, classify.
     Measure(cli::measure::Args),
+    /// A QA batch: many sheets measured against a master stock of the library, pass/fail per sheet, statistics and control limits, an HTML report and a CSV.
+    Batch(cli::batch::Args),
     /// Fit the TSL model to measured radiance factors and classify each data set.
     Fit(cli::fit::Args),
     /// Put firmware on the instrument through a debug probe (probe-rs): check the image, program, verify, reset, handshake.
@@ -62,6 +64,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Measure(args) => cli::measure::run(args),
+        Command::Batch(args) => cli::batch::run(args),
         Command::Fit(args) => cli::fit::run(args),
         Command::Flash(args) => cli::flash::run(args),
         Command::Ports(args) => cli::ports::run(args),

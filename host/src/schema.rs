@@ -65,6 +65,8 @@ pub const SIGNATURE: &str = "gonio-signature/1";
 pub const PUBLIC_KEY: &str = "gonio-public-key/1";
 /// An own key file of the keys folder (`NAME.key`), private key included.
 pub const KEY: &str = "gonio-key/1";
+/// `batch.json` of a QA batch folder (`gonio batch`).
+pub const BATCH: &str = "gonio-batch/1";
 
 /// An instrument profile (`gonio characterize`'s `instrument.json`).
 pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
@@ -73,7 +75,7 @@ pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
 pub const SHARED_ERRORS: &str = "gonio-shared-errors/1";
 
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 19] = [
+pub const WRITTEN: [&str; 20] = [
     INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
@@ -93,6 +95,7 @@ pub const WRITTEN: [&str; 19] = [
     PUBLIC_KEY,
     KEY,
     SHARED_ERRORS,
+    BATCH,
 ];
 
 /// The file name of a schema's JSON Schema under `docs/schemas/`: `gonio-session/2` →

@@ -1,6 +1,7 @@
 //! The science, pure (no I/O): the TSL model, the fit, the sampling check σ > σ_l,
 //! classification, the comparison of two sheets, the report of one analysis, the design
 //! of sweeps, the calibration's conversion of readings and its uncertainty budget.
+pub mod batch;
 pub mod budget;
 pub mod calibration;
 pub mod classify;

@@ -1,5 +1,6 @@
 //! One module per `gonio` subcommand, each with its clap `Args` and `run()`.
 pub mod accuracy;
+pub mod batch;
 pub mod characterize;
 pub mod compare;
 pub mod completions;

@@ -6,6 +6,7 @@
 //! instrument and plan ([`crate::output::record`]). One spot is one [`super::Session`] in
 //! its own folder ([`spot`]); a sheet of several spots is one session per spot under the
 //! sheet's folder ([`spots`]).
+pub mod batch;
 mod check;
 mod plan;
 mod spot;

@@ -20,6 +20,7 @@
 //! [`dataset`] (CSV data sets) stands apart: no folder module uses it. Verification checks
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
 //! check is handed the drawing ([`verify::DrawReport`]).
+pub mod batch;
 pub mod catalogue;
 pub mod characterization;
 pub mod chromium;

@@ -37,6 +37,8 @@ const OUTPUT: &[&[&str]] = &[
         "library",
         "characterization",
     ],
+    // A QA batch: sheet folders read back and a master read from the library.
+    &["batch"],
 ];
 
 /// The longest a function may be, in lines from its `fn` to its closing brace.

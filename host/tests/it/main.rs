@@ -23,6 +23,7 @@ mod accuracy;
 mod adaptive_lack_of_fit;
 mod arm_offset_rate;
 mod bad_input;
+mod batch;
 mod bounds;
 mod budget;
 mod budget_cli;

@@ -745,3 +745,57 @@ fn keys_public_keys_and_signatures_validate() {
     let doc = serde_json::to_value(signer.sign("MANIFEST.sha256", b"x")).unwrap();
     schemas.check("signature.json", &doc);
 }
+
+/// `gonio batch`'s `batch.json` (and `--json`), with every sheet folder in the batch
+/// folder, against their JSON Schemas: sheets of the master's paper (pass) and of another
+/// paper (fail, the parameters named).
+#[test]
+fn a_batch_and_its_sheet_folders_validate() {
+    let schemas = Schemas::load();
+    let seed = run_seed();
+    let root = temp_dir("schemas", "batch");
+    std::fs::create_dir_all(&root).unwrap();
+    let library = crate::batch::library_with_master(&root, "Stock-SG", "SG", 2, seed);
+    for (name, paper, spots) in [("same", "SG", "2"), ("other", "G", "1")] {
+        let dir = root.join(name);
+        let out = gonio(&[
+            "batch",
+            "--library",
+            library.to_str().unwrap(),
+            "--master",
+            "Stock-SG",
+            "--sim",
+            paper,
+            "--sheets",
+            "2",
+            "--spots",
+            spots,
+            "--seed",
+            &seed.to_string(),
+            "--out",
+            dir.to_str().unwrap(),
+            "--json",
+        ]);
+        assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+        let printed = json_lines(&out);
+        assert_eq!(printed.len(), 1);
+        schemas.check("gonio batch --json", &printed[0]);
+        let written: Value =
+            serde_json::from_slice(&std::fs::read(dir.join("batch.json")).unwrap()).unwrap();
+        assert_eq!(written, printed[0], "--json prints batch.json");
+        // batch.json and every JSON file of every sheet folder.
+        let checked = schemas.check_folder(&dir);
+        assert!(checked > 4, "{checked} documents");
+        if paper == "G" {
+            assert!(
+                written["sheets"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|s| s["verdict"] == "fail"),
+                "{written}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
