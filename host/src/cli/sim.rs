@@ -18,7 +18,10 @@ pub struct Args {
 /// Run `gonio sim`: print the device path on the first line, serve until Ctrl-C.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let options = args.options.with_seed(None);
-    let mut instrument = options.instrument(&args.sample)?;
+    // A simulator option (the sample's name, a fault) is the command line's: exit 2.
+    let mut instrument = options
+        .instrument(&args.sample)
+        .map_err(|e| host::UsageError(e.to_string()))?;
     let server = hil_sim::pty::PtyServer::open().context("cannot open a pseudo-terminal")?;
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();

@@ -13,7 +13,8 @@ pub(super) struct Checked {
 }
 
 pub(super) fn check(args: &MeasureOptions) -> anyhow::Result<Checked> {
-    let max_calibration_age = max_age_from_hours(args.max_calibration_age_h)?;
+    let max_calibration_age = max_age_from_hours(args.max_calibration_age_h)
+        .map_err(|e| crate::UsageError(format!("{e:#}")))?;
     if let Some(limit) = args.white_drift_limit_pct
         && !(limit > 0.0 && limit <= 100.0)
     {
