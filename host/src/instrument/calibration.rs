@@ -18,9 +18,22 @@ impl TileCertificate {
         path: &Path,
         today: chrono::NaiveDate,
     ) -> Result<TileCertificate, CalibrationError> {
+        let bytes = std::fs::read(path).map_err(|e| {
+            CalibrationError::BadTile(format!("{}: cannot read: {e}", path.display()))
+        })?;
+        TileCertificate::parse(path, &bytes, today)
+    }
+
+    /// Check the bytes of a certificate file as [`TileCertificate::read`] does (`path`
+    /// names the file in messages): the reader without the file system, for the fuzz
+    /// targets (host/fuzz).
+    pub fn parse(
+        path: &Path,
+        bytes: &[u8],
+        today: chrono::NaiveDate,
+    ) -> Result<TileCertificate, CalibrationError> {
         let bad = |what: String| CalibrationError::BadTile(format!("{}: {what}", path.display()));
-        let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
-        let text = std::str::from_utf8(&bytes).map_err(|_| bad("not UTF-8 text".into()))?;
+        let text = std::str::from_utf8(bytes).map_err(|_| bad("not UTF-8 text".into()))?;
         let mut certificate: TileCertificate =
             serde_json::from_str(text).map_err(|e| bad(format!("line {}: {e}", e.line())))?;
         if let Some(schema) = &certificate.schema
@@ -40,7 +53,7 @@ impl TileCertificate {
         }
         use sha2::Digest as _;
         certificate.file_sha256 = Some(
-            sha2::Sha256::digest(&bytes)
+            sha2::Sha256::digest(bytes)
                 .iter()
                 .map(|b| format!("{b:02x}"))
                 .collect(),

@@ -383,11 +383,16 @@ pub struct LinesFile {
 
 /// Read a file of lines; a missing file is empty. Invalid UTF-8 in a whole line is a problem.
 pub fn read_lines(path: &Path) -> Result<LinesFile, Finding> {
-    let bytes = match std::fs::read(path) {
-        Ok(bytes) => bytes,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(LinesFile::default()),
-        Err(e) => return Err(Finding::new(path, None, format!("cannot read: {e}"))),
-    };
+    match std::fs::read(path) {
+        Ok(bytes) => lines_of(path, &bytes),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(LinesFile::default()),
+        Err(e) => Err(Finding::new(path, None, format!("cannot read: {e}"))),
+    }
+}
+
+/// The lines of a file's bytes, as [`read_lines`] reads them (`path` names the file in
+/// messages): the reader without the file system, for the fuzz targets (host/fuzz).
+pub fn lines_of(path: &Path, bytes: &[u8]) -> Result<LinesFile, Finding> {
     let whole_len = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
     let cut_tail = (whole_len < bytes.len()).then(|| bytes[whole_len..].to_vec());
     let mut lines = Vec::new();
@@ -803,13 +808,18 @@ fn same_row(row: &str, want: &str) -> bool {
 /// manifest vouches for its bytes).
 pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
     let path = dir.join(SESSION);
-    let text = match std::fs::read_to_string(&path) {
-        Ok(text) => text,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(Finding::new(&path, None, format!("cannot read: {e}"))),
-    };
-    let mut value: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| Finding::new(&path, Some(e.line()), format!("not JSON: {e}")))?;
+    match std::fs::read_to_string(&path) {
+        Ok(text) => parse_session(&path, &text).map(Some),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
+    }
+}
+
+/// The text of a `session.json` as [`read_session`] reads it (`path` names the file in
+/// messages): the reader without the file system, for the fuzz targets (host/fuzz).
+pub fn parse_session(path: &Path, text: &str) -> Result<SessionDoc, Finding> {
+    let mut value: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| Finding::new(path, Some(e.line()), format!("not JSON: {e}")))?;
     let schema = schema::check(
         &value,
         &[schema::SESSION, schema::SESSION_V2, schema::SESSION_V1],
@@ -817,7 +827,7 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
     )
     .map_err(|m| {
         Finding::new(
-            &path,
+            path,
             None,
             format!("{m}: not a session folder of this gonio"),
         )
@@ -826,8 +836,7 @@ pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
         upgrade_session_v1(&mut value);
     }
     serde_json::from_value(value)
-        .map(Some)
-        .map_err(|e| Finding::new(&path, None, format!("not a session document: {e}")))
+        .map_err(|e| Finding::new(path, None, format!("not a session document: {e}")))
 }
 
 /// [`read_session`] of a folder that must hold a session.
@@ -910,20 +919,23 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 pub(crate) fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
     match std::fs::read_to_string(&path) {
-        Ok(text) => {
-            let calibration = Calibration::from_json(&text)
-                .map_err(|e| Finding::new(&path, e.line(), e.to_string()))?;
-            // Values that cannot be a calibration are refused here, at their line: a
-            // resume would convert nothing with them and measure the same readings again
-            // for ever (issue 30 D4).
-            calibration.validate_field().map_err(|(key, e)| {
-                Finding::new(&path, line_of_key(&text, key), format!("{key}: {e}"))
-            })?;
-            Ok(Some(calibration))
-        }
+        Ok(text) => parse_calibration(&path, &text).map(Some),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }
+}
+
+/// The text of a `calibration.json` as [`read_calibration`] reads it (`path` names the
+/// file in messages): the reader without the file system, for the fuzz targets (host/fuzz).
+pub fn parse_calibration(path: &Path, text: &str) -> Result<Calibration, Finding> {
+    let calibration =
+        Calibration::from_json(text).map_err(|e| Finding::new(path, e.line(), e.to_string()))?;
+    // Values that cannot be a calibration are refused here, at their line: a resume would
+    // convert nothing with them and measure the same readings again for ever (issue 30 D4).
+    calibration
+        .validate_field()
+        .map_err(|(key, e)| Finding::new(path, line_of_key(text, key), format!("{key}: {e}")))?;
+    Ok(calibration)
 }
 
 /// The 1-based line of the first `"key":` in a JSON text.
