@@ -39,6 +39,7 @@ mod docs;
 mod evidence;
 mod export;
 mod extension;
+mod file_readers;
 mod firmware_image;
 mod fit;
 mod flash_session;
