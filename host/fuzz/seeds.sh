@@ -2,7 +2,8 @@
 # The seed corpora of the fuzz targets (corpus/TARGET/), from files gonio itself writes:
 # sessions the simulator measures (glossy G, plain paper PPC, a sheet of two spots, one
 # with a tile certificate), the first-version session kept in host/tests/data, the
-# exchange file `gonio library export` writes of them, and the fit CSVs in the repository.
+# exchange file `gonio library export` writes of them, the fit CSVs in the repository and
+# the sessions' `.astm` exports.
 # Generated, not kept in git: `bash host/fuzz/seeds.sh` (about a minute), then
 # `cargo +nightly fuzz run TARGET` from host/fuzz (docs/RELIABILITY.md).
 set -euo pipefail
@@ -37,6 +38,10 @@ while IFS= read -r session; do
     [ -f "$dir/points.jsonl" ] && cp "$dir/points.jsonl" "$corpus/points_jsonl/$n"
     [ -f "$dir/calibration.json" ] && cp "$dir/calibration.json" "$corpus/calibration_json/$n"
     [ -f "$dir/readings.csv" ] && cp "$dir/readings.csv" "$corpus/fit_csv/$n"
+    # gonio's own .astm export, which `gonio fit` reads too.
+    for astm in "$dir"/*.astm; do
+        [ -f "$astm" ] && cp "$astm" "$corpus/fit_csv/$n.astm"
+    done
     # The certificate as gonio records it (schema, file hash), from the calibration.
     python3 -c '
 import json, sys

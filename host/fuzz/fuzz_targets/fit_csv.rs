@@ -1,17 +1,14 @@
-//! Fuzz the reader of `gonio fit`'s CSV (`host::output::dataset::parse_csv`, what
-//! `read_file` does with the file's text), with arbitrary bytes: no panic, and every data
-//! set read holds readings.
+//! Fuzz the reader of `gonio fit`'s table (`host::output::dataset::read_bytes`, what
+//! `read_file` does with the file's bytes: UTF-8, then gonio's `.astm` export or a CSV in
+//! any of its dialects), with arbitrary bytes: no panic, and every data set read holds
+//! readings.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    // read_file reads the file with read_to_string: bytes that are not UTF-8 never reach
-    // the parser.
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    if let Ok(sets) = host::output::dataset::parse_csv(text, "sample") {
+    let path = std::path::Path::new("sample.csv");
+    if let Ok(sets) = host::output::dataset::read_bytes(path, data) {
         assert!(sets.iter().all(|s| !s.observations.is_empty()));
     }
 });

@@ -133,7 +133,10 @@ impl Args {
             sheet_to_sheet_pct: self.sheet_to_sheet_pct,
             measure: MeasureOptions {
                 sim: self.sim.clone(),
-                sim_options: self.sim_options.clone(),
+                // The seed settled as `gonio measure` settles it: `--seed`, else one drawn for
+                // this batch (printed and recorded in batch.json; a resumed batch's sheets
+                // take theirs from the recorded plan).
+                sim_options: self.sim_options.clone().with_seed(None),
                 port: self.port.clone(),
                 sample: self.sample.clone(),
                 policy: self.policy,
@@ -158,6 +161,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         Box::new(PromptOperator::new())
     };
+    if let (Some(sample), None) = (&args.sim, &args.resume) {
+        let seed = options.measure.sim_options.seed;
+        eprintln!(
+            "simulated instrument, sample {sample}, first sheet's seed {seed} (--seed {seed} repeats this batch; recorded in batch.json)"
+        );
+    }
     let mut progress = |line: &str| eprintln!("batch: {line}");
     match run_batch(&options, operator.as_mut(), interrupted, &mut progress)? {
         BatchEnd::Finished { dir, doc } => {

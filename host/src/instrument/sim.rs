@@ -1192,7 +1192,9 @@ mod tests {
             options: SimOptions,
         }
         use clap::Parser;
-        Cli::try_parse_from(std::iter::once("sim").chain(args.iter().copied())).map(|c| c.options)
+        // As a command settles it: `--seed`, else 1 (what code without one builds with).
+        Cli::try_parse_from(std::iter::once("sim").chain(args.iter().copied()))
+            .map(|c| c.options.with_seed(Some(1)))
     }
 
     #[test]

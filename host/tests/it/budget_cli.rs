@@ -139,7 +139,8 @@ fn a_bad_tile_certificate_is_refused_before_measuring() {
             value,
         ]);
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{option} {value}: {stderr}");
+        // A value given on the command line that is refused: the usage code (README).
+        assert_eq!(out.status.code(), Some(2), "{option} {value}: {stderr}");
         assert!(
             stderr.contains("tile") && stderr.contains(says),
             "{option} {value}: {stderr}"

@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first (`cli` is the binary's, apart).
 const TOP: &[&[&str]] = &[
-    &["schema", "text"],
+    // With them, lib.rs's own items: the command line's usage error (exit 2), which any
+    // layer that checks a value given on the command line returns.
+    &["schema", "text", "UsageError", "usage_bail"],
     &["analysis"],
     &["instrument"],
     &["session"],
