@@ -267,7 +267,6 @@ fn store_options(spec: &Spec, crash: Option<Crash>) -> StoreOptions {
     StoreOptions {
         crash,
         signer: Some(Arc::new(campaign_signer(spec.seed))),
-        ..Default::default()
     }
 }
 

@@ -853,7 +853,9 @@ impl Library {
             .map_err(&sqlite)?;
         let mut rows = stmt.query([]).map_err(&sqlite)?;
         let mut index = std::collections::HashMap::new();
-        let mut sheets: Vec<(String, LibrarySheet, Vec<(i64, Spot)>)> = Vec::new();
+        // A sheet's stock, the sheet, and its spots with their row ids (sorted below).
+        type SheetRows = (String, LibrarySheet, Vec<(i64, Spot)>);
+        let mut sheets: Vec<SheetRows> = Vec::new();
         while let Some(r) = rows.next().map_err(&sqlite)? {
             let id: i64 = r.get(0).map_err(&sqlite)?;
             index.insert(id, sheets.len());
