@@ -3,6 +3,7 @@
 //! same paper (they pass), of another paper (they fail, naming the parameter), one
 //! interrupted and resumed, bad input refused, and the batch report in a headless browser.
 use crate::cli_support;
+use crate::common::run_seed;
 use cli_support::{gonio, stderr, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -13,21 +14,6 @@ fn s(path: &Path) -> &str {
 
 fn code(out: &std::process::Output) -> i32 {
     out.status.code().expect("exited")
-}
-
-/// A seed for this run, printed (a failure names it); `GONIO_TEST_SEED` sets it.
-fn run_seed() -> u64 {
-    let seed = std::env::var("GONIO_TEST_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(1, |d| d.subsec_nanos() as u64)
-                % 100_000
-        });
-    eprintln!("seed of this run: {seed} (GONIO_TEST_SEED={seed} runs it again)");
-    seed
 }
 
 /// A library at `root/library.sqlite` with the stock `stock`: `sheets` sheets of two spots

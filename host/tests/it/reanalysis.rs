@@ -3,6 +3,7 @@
 //! over samples, seeds, both policies, the realistic instrument, lost steps (superseded
 //! readings) and a sheet of several spots; an unfinished folder is refused, saying why.
 use crate::cli_support;
+use crate::common::run_seed;
 use cli_support::{gonio, stderr, temp_dir};
 
 fn refit(dir: &std::path::Path) -> Vec<serde_json::Value> {
@@ -214,22 +215,6 @@ fn gonio_sessions_lists_sessions_and_sheets_with_their_state() {
         stderr(&out)
     );
     let _ = std::fs::remove_dir_all(&root);
-}
-
-/// A seed for this run (printed: a failure names it), so the folders differ from run to
-/// run; `GONIO_TEST_SEED` sets it.
-fn run_seed() -> u64 {
-    let seed = std::env::var("GONIO_TEST_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(1, |d| d.subsec_nanos() as u64)
-                % 10_000
-        });
-    eprintln!("seed of this run: {seed} (GONIO_TEST_SEED={seed} runs it again)");
-    seed
 }
 
 /// `gonio fit --json FILE…`: its exit code and its JSON lines.

@@ -8,6 +8,7 @@
 //! before documents named their schema) still verifies, re-analyses to the result it
 //! reported, and weighs as evidence.
 use crate::cli_support;
+use crate::common::run_seed;
 use cli_support::{gonio, stderr, temp_dir};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -128,22 +129,6 @@ fn json_lines(out: &std::process::Output) -> Vec<Value> {
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
         .collect()
-}
-
-/// A seed for this run (printed: a failure names it), so the documents differ from run to
-/// run; `GONIO_TEST_SEED` sets it, to run a failure's seed again.
-fn run_seed() -> u64 {
-    let seed = std::env::var("GONIO_TEST_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(1, |d| d.subsec_nanos() as u64)
-                % 10_000
-        });
-    eprintln!("seed of this run: {seed} (GONIO_TEST_SEED={seed} runs it again)");
-    seed
 }
 
 #[test]
