@@ -15,7 +15,8 @@
 //! interruptions fall anywhere in the sheet; a run that finishes before its draw ends the
 //! sequence (the interruptions that happened are counted, not those drawn).
 //!
-//! A session **holds** when its final folder verifies (`gonio verify`), every spot's plan
+//! A session **holds** when its final folder verifies (`gonio verify`, the signatures of
+//! the sheet and every spot by the campaign's key included), every spot's plan
 //! is the sheet's (and the sheet's the policy drawn), and nothing measured was lost: the
 //! whole lines of every spot's `points.jsonl` after each interruption are the first lines
 //! of the final one. Every draw comes from the session's index and the campaign's seed.
@@ -516,7 +517,7 @@ pub fn summary_markdown(rows: &[Row], seed: u64) -> String {
     let held = rows.iter().filter(|r| r.failure.is_none()).count();
     let _ = writeln!(
         out,
-        "{} sheets (campaign seed {seed}), **{held} held**: the final folder verifies, every spot under the sheet's plan, nothing measured lost.\n",
+        "{} sheets (campaign seed {seed}), **{held} held**: the final folder verifies, signed by the campaign's key (the sheet and every spot), every spot under the sheet's plan, nothing measured lost.\n",
         rows.len()
     );
     let _ = writeln!(
