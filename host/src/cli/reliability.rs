@@ -54,21 +54,15 @@ fn pty(args: &Args, sessions: usize, threads: usize) -> anyhow::Result<ExitCode>
     let rows = campaign::run_all(sessions, args.seed, &gonio, &base, threads, &|| bar.inc(1))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     bar.finish_and_clear();
-    let csv = args.out.join("pty.csv");
-    std::fs::write(&csv, campaign::to_csv(&rows))
-        .with_context(|| format!("cannot write {}", csv.display()))?;
     let summary = campaign::summary_markdown(&rows, args.seed, started.elapsed().as_secs_f64());
-    let md = args.out.join("pty.md");
-    std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
-    print!("{summary}");
-    eprintln!("wrote {} and {}", csv.display(), md.display());
-    let _ = std::fs::remove_dir(&base);
-    Ok(
-        if rows.len() == sessions && rows.iter().all(|r| r.failure.is_none()) {
-            ExitCode::SUCCESS
-        } else {
-            ExitCode::FAILURE
-        },
+    let held = rows.len() == sessions && rows.iter().all(|r| r.failure.is_none());
+    write_campaign(
+        &args.out,
+        "pty",
+        &campaign::to_csv(&rows),
+        &summary,
+        &base,
+        held,
     )
 }
 
@@ -93,22 +87,41 @@ fn interruptions(args: &Args, sessions: usize, threads: usize) -> anyhow::Result
     let rows = campaign::run_all(sessions, args.seed, &base, threads, &|| bar.inc(1))
         .map_err(|e| anyhow::anyhow!("an uninterrupted sheet failed: {e}"))?;
     bar.finish_and_clear();
-    let csv = args.out.join("interruptions.csv");
-    std::fs::write(&csv, campaign::to_csv(&rows))
-        .with_context(|| format!("cannot write {}", csv.display()))?;
     let summary = campaign::summary_markdown(&rows, args.seed);
-    let md = args.out.join("interruptions.md");
-    std::fs::write(&md, &summary).with_context(|| format!("cannot write {}", md.display()))?;
+    let held = rows.len() == sessions && rows.iter().all(|r| r.failure.is_none());
+    write_campaign(
+        &args.out,
+        "interruptions",
+        &campaign::to_csv(&rows),
+        &summary,
+        &base,
+        held,
+    )
+}
+
+/// A campaign's end, the same for the pty and the interruption campaigns: `NAME.csv` and
+/// `NAME.md` written in `out`, the summary printed, the (emptied) folders' `base` removed,
+/// and the exit status: success only when every session held.
+fn write_campaign(
+    out: &std::path::Path,
+    name: &str,
+    csv_text: &str,
+    summary: &str,
+    base: &std::path::Path,
+    held: bool,
+) -> anyhow::Result<ExitCode> {
+    let csv = out.join(format!("{name}.csv"));
+    std::fs::write(&csv, csv_text).with_context(|| format!("cannot write {}", csv.display()))?;
+    let md = out.join(format!("{name}.md"));
+    std::fs::write(&md, summary).with_context(|| format!("cannot write {}", md.display()))?;
     print!("{summary}");
     eprintln!("wrote {} and {}", csv.display(), md.display());
-    let _ = std::fs::remove_dir(&base);
-    Ok(
-        if rows.len() == sessions && rows.iter().all(|r| r.failure.is_none()) {
-            ExitCode::SUCCESS
-        } else {
-            ExitCode::FAILURE
-        },
-    )
+    let _ = std::fs::remove_dir(base);
+    Ok(if held {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }
 
 /// Run `gonio reliability`.
