@@ -813,6 +813,7 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
     let failures = std::sync::Mutex::new(Vec::new());
     let next = std::sync::atomic::AtomicUsize::new(0);
     let flagged = std::sync::atomic::AtomicUsize::new(0);
+    let named = std::sync::atomic::AtomicUsize::new(0);
     // A pty session mostly waits (the simulator keeps device time within reach of the
     // host's heartbeats): four at a time.
     std::thread::scope(|scope| {
@@ -851,6 +852,9 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
                             if row.lack_of_fit() {
                                 flagged.fetch_add(1, Ordering::Relaxed);
                             }
+                            if row.outlier() {
+                                named.fetch_add(1, Ordering::Relaxed);
+                            }
                             row.failure.map(|why| format!("{what}: {why}"))
                         }
                         Ok(Measured::Stopped { error, .. }) => {
@@ -883,6 +887,16 @@ fn thirty_sessions_on_the_pty_with_a_pulled_cable_and_a_bad_link_all_finish_clea
     assert!(
         flagged <= reliability::lack_of_fit_allowed(specs.len()),
         "lack-of-fit in {flagged} of {} pty sessions",
+        specs.len()
+    );
+    // outlier: the outlier test's false alarm, likewise. Session #5026 (J1, seed 286171)
+    // draws two readings about 3.5 and −3.2 standard deviations off the noiseless truth on
+    // the pty, faults or none, and its fit may name one; a reading the link corrupted and
+    // the session kept would be named too, and more than the rate allows fails.
+    let named = named.into_inner();
+    assert!(
+        named <= reliability::outliers_allowed(specs.len()),
+        "outlier in {named} of {} pty sessions",
         specs.len()
     );
 }

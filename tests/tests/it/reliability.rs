@@ -86,6 +86,14 @@ fn three_hundred_and_twenty_sessions_with_a_pulled_cable_and_a_bad_link_all_fini
         "lack-of-fit in {flagged} of {} sessions",
         rows.len()
     );
+    // outlier: the outlier test's false alarm, likewise (a reading the link corrupted and
+    // the session kept would be named too; more than the rate allows is a failure).
+    let named = rows.iter().filter(|r| r.outlier()).count();
+    assert!(
+        named <= reliability::outliers_allowed(rows.len()),
+        "outlier in {named} of {} sessions",
+        rows.len()
+    );
 
     // The faults were felt, not dodged: the cable came out in (nearly) every session, the
     // long outages found the instrument stopped with its lamp off, some mid-move (homing

@@ -59,6 +59,7 @@ use statrs::distribution::{ContinuousCDF, StudentsT};
 
 pub use error::FitError;
 pub use extension::{Extension, ExtensionTerm, MODEL_FORM, Term, TermTest, on_by_default};
+pub use outliers::OUTLIER_ALPHA_WEIGHTED;
 pub use result::{
     ActiveBound, ArmOffset, Bound, BudgetTerm, FitResult, FittedModel, NotIdentified, Note, Status,
 };
