@@ -8,6 +8,7 @@
 use anyhow::Context;
 use host::analysis::evidence::{self, Warning};
 use host::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
+use host::output::signature::{self, Keys};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -62,6 +63,10 @@ pub struct AddArgs {
     /// Add sessions whose result is flagged (`ok: false`) too.
     #[arg(long)]
     pub allow_flagged: bool,
+    /// Refuse a folder that is not signed (a signed one must be signed by your key or one
+    /// you trust, with or without this).
+    #[arg(long)]
+    pub require_signed: bool,
     /// Session folders, each finished and verifying as `gonio verify` checks it.
     #[arg(required = true, value_name = "DIR")]
     pub dirs: Vec<PathBuf>,
@@ -102,9 +107,13 @@ pub struct ExportArgs {
 /// Arguments of `gonio library import`.
 #[derive(clap::Args)]
 pub struct ImportArgs {
-    /// The exchange file to read, or `-`.
+    /// The exchange file to read, or `-`. Its signature (FILE.sig.json), when there is
+    /// one, must hold and be by your key or one you trust.
     #[arg(value_name = "FILE")]
     pub file: PathBuf,
+    /// Refuse a file that is not signed (standard input cannot be).
+    #[arg(long)]
+    pub require_signed: bool,
 }
 
 /// Arguments of `gonio library search`.
@@ -162,10 +171,20 @@ fn column_width<'a>(cells: impl Iterator<Item = &'a String>) -> usize {
 fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
     // Every folder is read and checked before the library is opened: a refused add
     // leaves no new, empty library behind.
+    let keys = Keys::from_env().ok();
     let mut sheets = Vec::new();
     let mut related = Vec::new();
     for dir in &args.dirs {
         let sheet = library::read_session_folder(dir, args.lot.as_deref(), args.allow_flagged)?;
+        let signature = dir.join(signature::SIGNATURE);
+        let signed = signature::check_folder(dir).map_err(|f| anyhow::anyhow!("{f}"))?;
+        custody(
+            &signature,
+            signed.as_ref(),
+            args.require_signed,
+            keys.as_ref(),
+        )
+        .map_err(|why| anyhow::anyhow!("{why}; nothing was added"))?;
         if let Some(earlier) = sheets
             .iter()
             .find(|s: &&library::SheetRecord| s.session_sha256 == sheet.session_sha256)
@@ -337,14 +356,76 @@ fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Whether what `signature_file` signs (by `signed`, when signed) may enter the library:
+/// a signature must be by your key or one you trust (as `gonio verify` requires), and
+/// with `require_signed` there must be one. What to say of it, or why not.
+fn custody(
+    signature_file: &Path,
+    signed: Option<&signature::Signed>,
+    require_signed: bool,
+    keys: Option<&Keys>,
+) -> Result<String, String> {
+    let Some(signed) = signed else {
+        return if require_signed {
+            Err(format!(
+                "{}: missing: not signed (--require-signed)",
+                signature_file.display()
+            ))
+        } else {
+            Ok("unsigned: its custody rests on its hashes alone".into())
+        };
+    };
+    if let Some(finding) = signature::untrusted(signature_file, signed, keys) {
+        return Err(finding.to_string());
+    }
+    Ok(format!(
+        "signed by '{}' ({})",
+        host::text::shown(&signed.signer),
+        signed.fingerprint
+    ))
+}
+
 fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
-    // The file is read and checked first, so a bad file creates no empty library.
+    // The file is read and checked first, so a bad file creates no empty library. Its
+    // signature is checked over the very bytes parsed, not over a second read that the
+    // file could have changed between.
     let file = if args.file.as_os_str() == "-" {
+        if args.require_signed {
+            anyhow::bail!(
+                "standard input cannot carry a signature (--require-signed): give the file, with its {}; nothing was imported",
+                signature::DETACHED_SUFFIX
+            );
+        }
         ExchangeFile::read(&mut std::io::stdin().lock(), Path::new("(standard input)"))?
     } else {
-        let opened = std::fs::File::open(&args.file)
+        let bytes = std::fs::read(&args.file)
             .with_context(|| format!("{}: cannot read", args.file.display()))?;
-        ExchangeFile::read(&mut std::io::BufReader::new(opened), &args.file)?
+        let sig_path = signature::detached_path(&args.file);
+        let signed = match std::fs::read(&sig_path) {
+            Ok(sig) => {
+                let checked = serde_json::from_slice::<signature::SignatureDoc>(&sig)
+                    .map_err(|e| format!("not a gonio signature ({e})"))
+                    .and_then(|doc| signature::check_doc(&doc, &bytes));
+                match checked {
+                    Ok(signed) => Some(signed),
+                    Err(why) => {
+                        anyhow::bail!("{}: {why}; nothing was imported", sig_path.display())
+                    }
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => anyhow::bail!("{}: cannot read: {e}", sig_path.display()),
+        };
+        let keys = Keys::from_env().ok();
+        let said = custody(
+            &sig_path,
+            signed.as_ref(),
+            args.require_signed,
+            keys.as_ref(),
+        )
+        .map_err(|why| anyhow::anyhow!("{why}; nothing was imported"))?;
+        eprintln!("{}: {said}", args.file.display());
+        ExchangeFile::read(&mut &bytes[..], &args.file)?
     };
     let mut library = Library::open(path, OpenMode::Add)?;
     let counts = library.import(&file)?;

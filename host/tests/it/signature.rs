@@ -565,3 +565,111 @@ fn a_library_export_and_a_compare_report_are_signed_files_that_verify() {
         let _ = std::fs::remove_dir_all(d);
     }
 }
+
+/// The library takes custody as `gonio verify` judges it: a folder or an exchange file
+/// signed by a key that is neither yours nor trusted is refused and nothing is added; a
+/// file changed after it was signed is refused; an unsigned one is taken unless
+/// `--require-signed`, and standard input cannot be signed.
+#[test]
+fn the_library_adds_and_imports_only_what_a_trusted_key_signed() {
+    let (lab_keys, lab) = keys_with("custody-lab", "lab");
+    let (other_keys, forger) = keys_with("custody-other", "forger");
+    let signed = ram_dir("signature", "custody-signed");
+    let forged = ram_dir("signature", "custody-forged");
+    let unsigned = ram_dir("signature", "custody-unsigned");
+    session(&signed, 41, Some(lab.clone()));
+    session(&forged, 42, Some(forger));
+    session(&unsigned, 43, None);
+    let library = lab_keys.join("custody.sqlite");
+    let add = |keys: &Path, extra: &[&str], dir: &Path| {
+        let mut args = vec!["library", "add", "--library", s(&library), "--stock", "G"];
+        args.extend_from_slice(extra);
+        args.push(s(dir));
+        gonio(keys, &args)
+    };
+    let o = add(&lab_keys, &[], &forged);
+    assert_eq!(o.status.code(), Some(1), "{}", out(&o));
+    assert!(
+        stderr(&o).contains("neither yours nor trusted")
+            && stderr(&o).contains("nothing was added"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!library.exists(), "a refused add made no library");
+    let o = add(&lab_keys, &["--require-signed"], &unsigned);
+    assert_eq!(o.status.code(), Some(1), "{}", out(&o));
+    assert!(
+        stderr(&o).contains("not signed (--require-signed)"),
+        "{}",
+        stderr(&o)
+    );
+    for dir in [&signed, &unsigned] {
+        let o = add(&lab_keys, &[], dir);
+        assert!(o.status.success(), "{}: {}", dir.display(), stderr(&o));
+    }
+
+    let export = lab_keys.join("custody.jsonl");
+    let o = gonio(
+        &lab_keys,
+        &["library", "export", "--library", s(&library), s(&export)],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let import = |keys: &Path, extra: &[&str], file: &Path| {
+        let target = keys.join("imported.sqlite");
+        let mut args = vec!["library", "import", "--library", s(&target)];
+        args.extend_from_slice(extra);
+        args.push(s(file));
+        (gonio(keys, &args), target)
+    };
+    // The other lab does not know this lab's key yet.
+    let (o, target) = import(&other_keys, &[], &export);
+    assert_eq!(o.status.code(), Some(1), "{}", out(&o));
+    assert!(
+        stderr(&o).contains("neither yours nor trusted")
+            && stderr(&o).contains("nothing was imported"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!target.exists(), "a refused import made no library");
+    let public = lab.public_key();
+    let hex = host::output::signature::hex(public.as_bytes());
+    let o = gonio(&other_keys, &["keys", "trust", &hex, "--name", "lab"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (o, target) = import(&other_keys, &["--require-signed"], &export);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("signed by 'lab'"), "{}", stderr(&o));
+    assert!(out(&o).contains("2 sessions added"), "{}", out(&o));
+    std::fs::remove_file(&target).unwrap();
+
+    // A record changed after signing: refused, whoever holds the file.
+    let text = std::fs::read_to_string(&export).unwrap();
+    let changed = text.replacen("\"G\"", "\"H\"", 1);
+    assert_ne!(changed, text);
+    std::fs::write(&export, &changed).unwrap();
+    let (o, target) = import(&other_keys, &[], &export);
+    assert_eq!(o.status.code(), Some(1), "{}", out(&o));
+    assert!(
+        stderr(&o).contains("changed after it was signed"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!target.exists());
+
+    // Unsigned: taken on its hashes, unless a signature is required.
+    std::fs::remove_file(host::output::signature::detached_path(&export)).unwrap();
+    let (o, _) = import(&other_keys, &["--require-signed"], &export);
+    assert_eq!(o.status.code(), Some(1), "{}", out(&o));
+    let (o, _) = import(&other_keys, &["--require-signed"], Path::new("-"));
+    assert_eq!(o.status.code(), Some(1), "{}", out(&o));
+    assert!(
+        stderr(&o).contains("standard input cannot carry a signature"),
+        "{}",
+        stderr(&o)
+    );
+    let (o, _) = import(&other_keys, &[], &export);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("unsigned"), "{}", stderr(&o));
+    for d in [signed, forged, unsigned] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
