@@ -238,6 +238,26 @@ impl Classification {
     }
 }
 
+/// Why a class is withheld from input that looks implausible.
+pub(crate) const IMPLAUSIBLE_UNDECIDED: &str = "the input does not look like a paper measured in degrees and radiance factors (implausible-input; the notes say what looks wrong): the classes, drawn from papers, do not apply to it";
+
+impl Classification {
+    /// The same classification with the class withheld (`why`): where the parameters are
+    /// not a paper's (a table in percent or radians, a sheet outside the population of
+    /// papers) the class tree's thresholds mean nothing, and a class at any confidence
+    /// would read as an answer. The nearest reference and its distance stay, as the
+    /// measure of how far off the input is.
+    pub(crate) fn withheld(self, why: &'static str) -> Classification {
+        Classification {
+            group: None,
+            class: None,
+            confidence: 0.0,
+            undecided: Some(why),
+            ..self
+        }
+    }
+}
+
 /// Points used to sample the uncertainty region.
 const CONFIDENCE_SAMPLES: usize = 512;
 

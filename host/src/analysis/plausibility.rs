@@ -18,7 +18,7 @@ const RHO_D_PERCENT_MAX: f64 = 1.2;
 pub(crate) const RADIANS_MAX: f64 = 1.6;
 /// The nearest of Table 6's papers farther than this many combined standard uncertainties
 /// (each paper's 10 % and the fit's own): outside the population of papers gonio's classes
-/// were drawn from, where a class is an extrapolation. Papers of those kinds lie within a
+/// were drawn from, where a class would be an extrapolation (none is given). Papers of those kinds lie within a
 /// few; an unusual paper within tens.
 pub(crate) const POPULATION_DISTANCE_MAX: f64 = 50.0;
 

@@ -112,8 +112,9 @@ pub(crate) fn analyse_with_shared(
         .collect();
     let delta = sampling::delta(&geometries, delta_deg);
     let check = delta.map(|d| sampling::check_sigma(result.sigma_deg(), d.deg));
-    let classification = classify::classify(&result);
-    // What the fit cannot see: percent, radians, a paper outside the population.
+    let mut classification = classify::classify(&result);
+    // What the fit cannot see: percent, radians, a paper outside the population. A flag
+    // beside a class would be a guess read as an answer: the class is withheld.
     let implausible =
         crate::analysis::plausibility::check(readings.observations, &result, &classification);
     if !implausible.is_empty() {
@@ -121,6 +122,7 @@ pub(crate) fn analyse_with_shared(
         result
             .flags
             .push(crate::analysis::flags::Flag::ImplausibleInput);
+        classification = classification.withheld(classify::IMPLAUSIBLE_UNDECIDED);
     }
     let flags = flags_of(&result, check.as_ref(), &classification);
     Ok(Report {

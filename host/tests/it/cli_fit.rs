@@ -404,8 +404,8 @@ fn gonio_fit_reads_gonios_own_astm_export() {
 }
 
 /// Plausibility: a table in percent (×100) and one with angles in radians are flagged
-/// `implausible-input` (exit 3) with a note saying what looks wrong; the same tables in
-/// fractions and degrees are not. Several papers and seeds.
+/// `implausible-input` (exit 3) with a note saying what looks wrong and no class; the same
+/// tables in fractions and degrees are not. Several papers and seeds.
 #[test]
 fn percent_and_radians_are_flagged_with_what_looks_wrong() {
     let dir = temp_dir("plausible");
@@ -455,6 +455,17 @@ fn percent_and_radians_are_flagged_with_what_looks_wrong() {
                         "{paper} {name}: {notes:?}"
                     );
                     assert_eq!(code, Some(3), "{paper} {name}");
+                    // No class from it: a flag beside a confident class is a guess
+                    // read as an answer.
+                    assert!(lines[0]["class"].is_null(), "{paper} {name}");
+                    assert!(lines[0]["class_confidence"].is_null(), "{paper} {name}");
+                    assert!(
+                        lines[0]["class_undecided"]
+                            .as_str()
+                            .is_some_and(|w| w.contains("implausible-input")),
+                        "{paper} {name}: {}",
+                        lines[0]
+                    );
                 }
             }
         }

@@ -189,7 +189,7 @@ impl std::fmt::Display for Note {
                 rho_d,
             } => write!(
                 f,
-                "outside the population of papers: the nearest of Table 6's papers ({nearest_reference}) is {distance:.1} combined standard uncertainties away{}; the class is an extrapolation, check the table's units and content",
+                "outside the population of papers: the nearest of Table 6's papers ({nearest_reference}) is {distance:.1} combined standard uncertainties away{}; a class would be an extrapolation and none is given; check the table's units and content",
                 if *rho_d > crate::analysis::plausibility::RHO_D_MAX {
                     format!(" and ρd = {rho_d:.3} is beyond a perfect diffuser's 1")
                 } else {
