@@ -16,7 +16,7 @@ use super::{MeasureOptions, Measured, measure};
 use crate::instrument::sim::sample_params;
 use crate::output::batch::{self as folder, BatchDoc, BatchPlan};
 use crate::output::folder::Status;
-use crate::session::{Operator, SessionError};
+use crate::session::{Operator, PolicyChoice, SessionError};
 use anyhow::{Context, bail, ensure};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -255,6 +255,14 @@ fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc)> {
             .as_ref()
             .map(|_| options.sheet_to_sheet_pct),
         library: options.library.display().to_string(),
+        policy: Some(
+            options
+                .measure
+                .policy
+                .unwrap_or(PolicyChoice::Adaptive)
+                .name()
+                .to_string(),
+        ),
     };
     make_folder(&dir)?;
     let doc = BatchDoc::new(plan, master, tolerance);
@@ -303,6 +311,22 @@ fn continued(options: &BatchOptions, dir: &Path) -> anyhow::Result<BatchDoc> {
         on(doc.plan.sim.as_deref()),
         on(options.measure.sim.as_deref())
     );
+    if let Some(planned) = &doc.plan.policy {
+        ensure!(
+            <PolicyChoice as clap::ValueEnum>::from_str(planned, true).is_ok(),
+            "{}: the batch's policy '{}' is not one this gonio knows (paper, adaptive, sweep, mixed)",
+            dir.join(folder::BATCH).display(),
+            crate::text::shown(planned)
+        );
+    }
+    if let (Some(given), Some(planned)) = (options.measure.policy, &doc.plan.policy) {
+        ensure!(
+            given.name() == planned,
+            "{}: --policy {} differs from the batch's plan (policy {planned}): a batch is measured under one procedure (resume without --policy)",
+            dir.display(),
+            given.name()
+        );
+    }
     Ok(doc)
 }
 
@@ -357,6 +381,13 @@ fn sheet_options(
 ) -> MeasureOptions {
     let mut sheet = options.measure.clone();
     sheet.sample = Some(plan.sample.clone());
+    // The batch's policy, not the resume's default: a sheet begun after a resume is
+    // measured as the sheets before it were.
+    if let Some(policy) = plan.policy.as_deref()
+        && let Ok(choice) = <PolicyChoice as clap::ValueEnum>::from_str(policy, true)
+    {
+        sheet.policy = Some(choice);
+    }
     if let (Some(sample), Some(seed)) = (simulated, plan.sim_seed) {
         sheet.sim = Some(sample.clone());
         sheet.sim_options.seed = sheet_seed(seed, number);

@@ -518,3 +518,53 @@ fn the_batch_report_renders_in_a_headless_browser() {
     );
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A batch is one procedure: its plan records the policy it began with; sheets begun after
+/// a resume are measured under it (before, a resume without `--policy` measured them
+/// adaptive whatever the batch began with), and a resume giving another is refused by
+/// name. The interruption is made by hand: a batch of one sheet, its plan then asking for
+/// two and its status set back to interrupted.
+#[test]
+fn a_resumed_batch_keeps_the_policy_it_began_with() {
+    let seed = run_seed();
+    let root = temp_dir("batch", "policy");
+    let library = library_with_master(&root, "Stock-PPC", "PPC", 1, seed);
+    let dir = root.join("batch");
+    let out = batch(
+        &library,
+        "Stock-PPC",
+        "PPC",
+        "1",
+        &dir,
+        seed,
+        &["--policy", "paper", "--spots", "1"],
+    );
+    assert!(out.status.success() || code(&out) == 3, "{}", stderr(&out));
+    let mut doc = batch_json(&dir);
+    assert_eq!(doc["plan"]["policy"], "paper", "{}", doc["plan"]);
+    doc["plan"]["sheets"] = 2.into();
+    doc["status"] = "interrupted".into();
+    std::fs::write(dir.join("batch.json"), doc.to_string()).unwrap();
+
+    let resume = |extra: &[&str]| {
+        let mut args = vec!["batch", "--library", s(&library), "--sim", "PPC"];
+        args.extend_from_slice(extra);
+        args.extend(["--resume", s(&dir)]);
+        gonio(&args)
+    };
+    let refused = resume(&["--policy", "adaptive"]);
+    assert_eq!(code(&refused), 1, "{}", stderr(&refused));
+    assert!(
+        stderr(&refused).contains("--policy adaptive differs from the batch's plan (policy paper)"),
+        "{}",
+        stderr(&refused)
+    );
+    let out = resume(&[]);
+    assert!(out.status.success() || code(&out) == 3, "{}", stderr(&out));
+    let session: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.join("sheet-02/session.json")).expect("sheet 2"),
+    )
+    .unwrap();
+    assert_eq!(session["plan"]["policy"], "paper", "{}", session["plan"]);
+    let _ = std::fs::remove_dir_all(&root);
+}

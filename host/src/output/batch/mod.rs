@@ -148,6 +148,11 @@ pub struct BatchPlan {
     pub sheet_to_sheet_pct: Option<f64>,
     /// The library the master was read from.
     pub library: String,
+    /// Every sheet's refinement policy (`paper`, `adaptive`, `sweep`, `mixed`): a batch is
+    /// measured under one procedure, so a resume that would change it is refused. `null`
+    /// in a batch written before it was recorded (its sheets' own plans say).
+    #[serde(default)]
+    pub policy: Option<String>,
 }
 
 /// One sheet of the batch, measured and judged.
@@ -354,10 +359,16 @@ pub fn read(dir: &Path) -> Result<BatchDoc, BatchError> {
     };
     let value: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| not(format!("not JSON: {e}")))?;
-    crate::schema::check(&value, &[crate::schema::BATCH], None)
-        .map_err(|m| not(format!("{m}: not a batch folder of this gonio")))?;
-    let doc: BatchDoc =
+    crate::schema::check(
+        &value,
+        &[crate::schema::BATCH, crate::schema::BATCH_V1],
+        None,
+    )
+    .map_err(|m| not(format!("{m}: not a batch folder of this gonio")))?;
+    let mut doc: BatchDoc =
         serde_json::from_value(value).map_err(|e| not(format!("not a batch document: {e}")))?;
+    // A gonio-batch/1 document is written back as this gonio writes (its policy null).
+    doc.schema = crate::schema::BATCH.to_string();
     for (k, s) in doc.sheets.iter().enumerate() {
         if s.number as usize != k + 1 || s.folder != BatchDoc::sheet_folder(s.number) {
             return Err(not(format!(
