@@ -105,12 +105,16 @@ fn the_main_job_measures_g_in_process() {
 fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     let clean_dir = temp_dir("clean");
     let faulty_dir = temp_dir("faulty");
+    // One sheet, one noise stream: the link's faults are the only difference between the runs.
+    let seed = crate::common::run_seed().to_string();
     let clean = result(&gonio(&[
         "measure",
         "--spots",
         "1",
         "--sim",
         "G",
+        "--seed",
+        &seed,
         "--json",
         "--out",
         clean_dir.to_str().unwrap(),
@@ -121,6 +125,8 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
         "1",
         "--sim",
         "G",
+        "--seed",
+        &seed,
         "--json",
         "--faults",
         "corrupt=0.001,drop=0.001,unplug-at=5",
