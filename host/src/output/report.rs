@@ -15,9 +15,9 @@
 use crate::analysis::flags::Flag;
 use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::Calibration;
-use crate::output::documents::SpotResultDocument;
+use crate::output::folder::documents::SpotResultDocument;
+use crate::output::folder::sheet::{ReadFolder, ReadSheet};
 use crate::output::folder::{Finding, MANIFEST, REPORT, SessionDoc};
-use crate::output::sheet_folder::{ReadFolder, ReadSheet};
 use maud::{DOCTYPE, Markup, PreEscaped, Render, html};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -888,7 +888,7 @@ fn answer_section(answer: &crate::analysis::spots::SheetAnswer) -> Markup {
 /// A spot's line of the sheet's table.
 fn spot_row(
     summary: &crate::analysis::spots::SheetSummary,
-    s: &crate::output::sheet_folder::ReadSpot,
+    s: &crate::output::folder::sheet::ReadSpot,
 ) -> Markup {
     let number = s.result.number;
     let verdict = html! {
@@ -920,7 +920,7 @@ fn spot_row(
 }
 
 /// A spot of a sheet: its verdict, result and decisions.
-fn spot_section(s: &crate::output::sheet_folder::ReadSpot) -> Result<Markup, ReportError> {
+fn spot_section(s: &crate::output::folder::sheet::ReadSpot) -> Result<Markup, ReportError> {
     let doc = &s.doc;
     let (ok, flags) = outcome_of(doc);
     let number = s.result.number;
@@ -936,7 +936,7 @@ fn spot_section(s: &crate::output::sheet_folder::ReadSpot) -> Result<Markup, Rep
 /// The report of a finished session or sheet folder.
 pub fn html(dir: &Path) -> Result<String, ReportError> {
     if crate::output::folder::is_sheet_folder(dir) {
-        let read = crate::output::sheet_folder::read_sheet(dir)?;
+        let read = crate::output::folder::sheet::read_sheet(dir)?;
         return draw(&ReadFolder::Sheet(&read));
     }
     let doc = crate::output::folder::require_finished(dir)?;
@@ -1017,12 +1017,12 @@ pub fn write_into(dir: &Path) -> Result<PathBuf, ReportError> {
 /// what is being drawn anew (the way to repair a stale one).
 ///
 /// A signature that does not hold is among them, and so is a signer whose key is neither
-/// the user's nor trusted ([`crate::output::signature::untrusted_signers`]): a report is
+/// the user's nor trusted ([`crate::output::folder::signature::untrusted_signers`]): a report is
 /// not drawn as the session's from a folder that someone else could have re-signed.
 pub fn problems(dir: &Path) -> Vec<Finding> {
-    use crate::output::signature::untrusted_signers;
+    use crate::output::folder::signature::untrusted_signers;
     let found = if crate::output::folder::is_sheet_folder(dir) {
-        match crate::output::verify::verify_sheet(dir, draw) {
+        match crate::output::folder::verify::verify_sheet(dir, draw) {
             Ok(v) => untrusted_signers(
                 std::iter::once((dir, v.signed.as_ref()))
                     .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
@@ -1030,7 +1030,7 @@ pub fn problems(dir: &Path) -> Vec<Finding> {
             Err(found) => found,
         }
     } else {
-        match crate::output::verify::verify(dir, draw) {
+        match crate::output::folder::verify::verify(dir, draw) {
             Ok(v) => untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
             Err(found) => found,
         }
@@ -1078,7 +1078,7 @@ pub fn write_verified(
 fn write_html(dir: &Path, html: &str) -> Result<PathBuf, ReportError> {
     let path = dir.join(REPORT);
     let temp = dir.join(crate::output::folder::temp_name(REPORT));
-    crate::output::store::create_in_folder(&temp)
+    crate::output::folder::store::create_in_folder(&temp)
         .and_then(|mut file| std::io::Write::write_all(&mut file, html.as_bytes()))
         .map_err(|source| ReportError::Write {
             path: temp.clone(),

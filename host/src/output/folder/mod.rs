@@ -11,12 +11,36 @@
 //! | `<sample>.astm`, `fig*.svg` | summaries of the result (the ASTM E1392/E2387 exchange format, plots) | replaced atomically at the end |
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
 //! | `signature.json` | the signature of the manifest, when a key signed it | right after it |
+//!
+//! # One module for the folder, in layers
+//!
+//! Reading, writing, verifying and signing a session or sheet folder are this module's.
+//! Each part imports only those below it (paths `crate::output::folder::…`), so there is
+//! no circle among them; nothing here imports anything else of `output` (the report is
+//! above: its check is handed the drawing, [`verify::DrawReport`]):
+//!
+//! | layer | modules | imports from `folder` |
+//! |---|---|---|
+//! | verification | [`verify`]: every check of a finished session or sheet folder, on what [`sheet`] read | all below |
+//! | writers and the sheet's reader | [`record`] (a session folder), [`sheet`] (a sheet's: written, and read once into [`sheet::ReadSheet`] / [`sheet::ReadFolder`]) | all below |
+//! | signatures | [`signature`]: the manifest's signature, a file's, the keys | `store`, `manifest`, this page |
+//! | store, manifest, lock and documents | [`store`], [`manifest`], [`lock`], [`documents`] (the typed result and outcome of a finished `session.json`) | this page |
+//! | names and reading | this page: file names, `session.json`, findings, reading a file | none |
 use crate::instrument::calibration::Calibration;
 use crate::schema;
 use crate::session::MeasuredPoint;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
+
+pub mod documents;
+pub mod lock;
+pub mod manifest;
+pub mod record;
+pub mod sheet;
+pub mod signature;
+pub mod store;
+pub mod verify;
 
 /// The primary record.
 pub(crate) const POINTS: &str = "points.jsonl";
@@ -33,7 +57,7 @@ pub const MANIFEST: &str = "MANIFEST.sha256";
 /// The report drawn from a finished session or sheet folder's files (not in its manifest:
 /// `gonio verify` checks it against them instead).
 pub(crate) const REPORT: &str = "report.html";
-/// The signature of a finished folder's manifest ([`crate::output::signature`]): not in
+/// The signature of a finished folder's manifest ([`signature`]): not in
 /// the manifest, which it signs.
 pub const SIGNATURE: &str = "signature.json";
 /// The sheet document of a folder of several spots.
@@ -73,16 +97,16 @@ pub(crate) fn is_legacy_header(header: &str) -> bool {
     header == LEGACY_READINGS_HEADER || header == LEGACY_READINGS_HEADER_WITH_SPAN
 }
 
-/// The suffix of a file being replaced ([`crate::output::store::Store::replace`]).
+/// The suffix of a file being replaced ([`store::Store::replace`]).
 const TEMP_SUFFIX: &str = ".gonio-tmp";
 
-/// Whether `name` is a temporary file that [`crate::output::store::Store::replace`] writes
+/// Whether `name` is a temporary file that [`store::Store::replace`] writes
 /// (and a kill can leave).
 pub fn is_temp_name(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
 }
 
-/// The temporary name [`crate::output::store::Store::replace`] writes `name` under.
+/// The temporary name [`store::Store::replace`] writes `name` under.
 pub(crate) fn temp_name(name: &str) -> String {
     format!(".{name}{TEMP_SUFFIX}")
 }
@@ -958,7 +982,7 @@ pub fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
 /// Refuse a folder to write into that holds a symbolic link: gonio never leaves one, and a
 /// write through it (an appended `session.log`, a replaced file, a sheet's spot folder)
 /// could land anywhere outside the folder (issue 30). The store refuses to open a link for
-/// writing as well ([`crate::output::store::open_in_folder`]); this says so before anything
+/// writing as well ([`store::open_in_folder`]); this says so before anything
 /// is changed.
 pub(crate) fn refuse_links(dir: &Path) -> Result<(), Finding> {
     let cannot_list = |e: std::io::Error| Finding::new(dir, None, format!("cannot list: {e}"));

@@ -29,9 +29,9 @@
 //! that signs by default, `default`. A folder's signer is trusted when its public key is
 //! one of the own keys or of the trusted ones: the name in `signature.json` is the
 //! signer's claim, the trust is looked up by the key.
+use crate::output::folder::manifest::sha256_hex;
+use crate::output::folder::store::{SignManifest, Store};
 use crate::output::folder::{Finding, MANIFEST};
-use crate::output::manifest::sha256_hex;
-use crate::output::store::{SignManifest, Store};
 use ed25519_dalek::pkcs8::{DecodePrivateKey, EncodePrivateKey};
 use ed25519_dalek::{Signature, Signer as _, SigningKey, VerifyingKey};
 use serde::{Deserialize, Serialize};

@@ -8,18 +8,18 @@
 //!
 //! Rendering sits above verification (the report is drawn from what is checked here), so
 //! the check of `report.html` is handed the drawing: [`DrawReport`], in use
-//! [`crate::output::report::draw`]. A folder is read once: what the checks read is what
+//! `output::report::draw`, above the folder. A folder is read once: what the checks read is what
 //! the drawing is given, and what [`Verified`] hands on (the library adds it from there).
 use crate::instrument::calibration::Calibration;
-use crate::output::documents::Part;
+use crate::output::folder::documents::Part;
+use crate::output::folder::sheet::{
+    ReadFolder, ReadSheet, assemble, manifest_text, read_doc, require_finished_sheet, spot_from,
+};
+use crate::output::folder::signature::{SIGNATURE, Signed, check_folder};
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, Finding, Inspection, LOG, MANIFEST, POINTS, READINGS, REPORT,
     RunOutcome, SESSION, SHEET, SessionDoc, Status,
 };
-use crate::output::sheet_folder::{
-    ReadFolder, ReadSheet, assemble, manifest_text, read_doc, require_finished_sheet, spot_from,
-};
-use crate::output::signature::{SIGNATURE, Signed, check_folder};
 use crate::session::MeasuredPoint;
 use std::path::{Path, PathBuf};
 
@@ -66,7 +66,7 @@ pub fn verify<E: std::fmt::Display>(
     };
     let mut problems = inspection.damage.clone();
     problems.extend(unfinished(dir, doc));
-    let matched = match crate::output::manifest::check(dir) {
+    let matched = match crate::output::folder::manifest::check(dir) {
         Ok(matched) => Some(matched),
         Err(found) => {
             problems.extend(found);
@@ -310,7 +310,7 @@ pub fn verify_sheet<E: std::fmt::Display>(
     let mut identity = String::new();
     match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
         (Ok(recorded), Ok(now)) if recorded == now => {
-            identity = crate::output::manifest::sha256_hex(recorded.as_bytes());
+            identity = crate::output::folder::manifest::sha256_hex(recorded.as_bytes());
         }
         (Ok(_), Ok(_)) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
         (Err(e), _) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
