@@ -407,7 +407,12 @@ pub struct LinesFile {
 
 /// Read a file of lines; a missing file is empty. Invalid UTF-8 in a whole line is a problem.
 pub fn read_lines(path: &Path) -> Result<LinesFile, Finding> {
-    match std::fs::read(path) {
+    lines_read(path, std::fs::read(path))
+}
+
+/// [`read_lines`] of what reading the file `path` gave.
+fn lines_read(path: &Path, read: std::io::Result<Vec<u8>>) -> Result<LinesFile, Finding> {
+    match read {
         Ok(bytes) => lines_of(path, &bytes),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(LinesFile::default()),
         Err(e) => Err(Finding::new(path, None, format!("cannot read: {e}"))),
@@ -831,8 +836,13 @@ fn same_row(row: &str, want: &str) -> bool {
 /// ([`crate::schema::SESSION_V1`]) is upgraded in memory (the file stays as it is: its
 /// manifest vouches for its bytes).
 pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
+    session_read(dir, std::fs::read(dir.join(SESSION)))
+}
+
+/// [`read_session`] of what reading `dir`'s `session.json` gave.
+fn session_read(dir: &Path, read: std::io::Result<Vec<u8>>) -> Result<Option<SessionDoc>, Finding> {
     let path = dir.join(SESSION);
-    match std::fs::read_to_string(&path) {
+    match text_of(read) {
         Ok(text) => parse_session(&path, &text).map(Some),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
@@ -941,12 +951,31 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 
 /// Read `calibration.json`; `None` when there is none.
 pub(crate) fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
+    calibration_read(dir, std::fs::read(dir.join(CALIBRATION)))
+}
+
+/// [`read_calibration`] of what reading `dir`'s `calibration.json` gave.
+fn calibration_read(
+    dir: &Path,
+    read: std::io::Result<Vec<u8>>,
+) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
-    match std::fs::read_to_string(&path) {
+    match text_of(read) {
         Ok(text) => parse_calibration(&path, &text).map(Some),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }
+}
+
+/// A file's bytes as its text, refused as [`std::fs::read_to_string`] refuses invalid
+/// UTF-8 (with its words: the messages are the same whichever read the file).
+fn text_of(read: std::io::Result<Vec<u8>>) -> std::io::Result<String> {
+    String::from_utf8(read?).map_err(|_| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "stream did not contain valid UTF-8",
+        )
+    })
 }
 
 /// The text of a `calibration.json` as [`read_calibration`] reads it (`path` names the
@@ -1016,6 +1045,11 @@ pub(crate) fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
         .collect()
 }
 
+/// The bytes of each file [`inspect`] read, by name, as it read them: the manifest is
+/// checked on these ([`manifest::check_read`]), so the files parsed are the files hashed
+/// and each is read once.
+pub(crate) type FilesRead = std::collections::BTreeMap<String, Vec<u8>>;
+
 /// Everything a folder holds, read and cross-checked without changing it.
 pub(crate) struct Inspection {
     /// The folder.
@@ -1034,6 +1068,8 @@ pub(crate) struct Inspection {
     pub calibration: Option<Calibration>,
     /// Temporary files left by a kill.
     pub(crate) temp_files: Vec<String>,
+    /// The bytes of the files read.
+    pub(crate) read: FilesRead,
     /// Damage that a resume does not repair, found by cross-checking the files: anything
     /// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and
     /// a run that ended without closing.
@@ -1055,14 +1091,20 @@ pub(crate) fn inspect(dir: &Path) -> Result<Inspection, Finding> {
             },
         ));
     }
-    let session = read_session(dir)?;
+    let mut read = FilesRead::new();
+    let mut keep = |name: &str| {
+        let bytes = std::fs::read(dir.join(name))?;
+        read.insert(name.to_string(), bytes.clone());
+        Ok(bytes)
+    };
+    let session = session_read(dir, keep(SESSION))?;
     let points_path = dir.join(POINTS);
-    let points_file = read_lines(&points_path)?;
+    let points_file = lines_read(&points_path, keep(POINTS))?;
     let recorded = parse_points(&points_path, &points_file)?;
     let csv_path = dir.join(READINGS);
-    let csv_file = read_lines(&csv_path)?;
-    let log = read_lines(&dir.join(LOG))?;
-    let calibration = read_calibration(dir)?;
+    let csv_file = lines_read(&csv_path, keep(READINGS))?;
+    let log = lines_read(&dir.join(LOG), keep(LOG))?;
+    let calibration = calibration_read(dir, keep(CALIBRATION))?;
     let points = converted(&recorded, calibration.as_ref());
     let temp_files =
         temp_files(dir).map_err(|e| Finding::new(dir, None, format!("cannot list: {e}")))?;
@@ -1110,6 +1152,7 @@ pub(crate) fn inspect(dir: &Path) -> Result<Inspection, Finding> {
         log,
         calibration,
         temp_files,
+        read,
         damage,
     })
 }

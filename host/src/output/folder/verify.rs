@@ -66,7 +66,7 @@ pub fn verify<E: std::fmt::Display>(
     };
     let mut problems = inspection.damage.clone();
     problems.extend(unfinished(dir, doc));
-    let matched = match crate::output::folder::manifest::check(dir) {
+    let matched = match crate::output::folder::manifest::check_read(dir, &inspection.read) {
         Ok(matched) => Some(matched),
         Err(found) => {
             problems.extend(found);
