@@ -429,6 +429,20 @@ pub fn check_folder(dir: &Path) -> Result<Option<Signed>, Finding> {
     check_file_over(&path, &manifest).map_err(problem)
 }
 
+/// [`check_folder`] over the manifest already read (`manifest`: its bytes as read), not
+/// read again.
+pub(crate) fn check_folder_over(dir: &Path, manifest: &[u8]) -> Result<Option<Signed>, Finding> {
+    let path = dir.join(SIGNATURE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    check_file_over(&path, manifest).map_err(|message| Finding {
+        file: path.clone(),
+        line: None,
+        message,
+    })
+}
+
 /// The name of the signature of the file `file`: `F.sig.json`.
 pub fn detached_path(file: &Path) -> PathBuf {
     let mut name = file.file_name().unwrap_or_default().to_os_string();
