@@ -1020,25 +1020,58 @@ pub fn write_into(dir: &Path) -> Result<PathBuf, ReportError> {
 /// the user's nor trusted ([`crate::output::folder::signature::untrusted_signers`]): a report is
 /// not drawn as the session's from a folder that someone else could have re-signed.
 pub fn problems(dir: &Path) -> Vec<Finding> {
+    problems_and_read(dir).0
+}
+
+/// A folder as the check read it, when it verified.
+enum Checked {
+    Session(crate::output::folder::verify::Verified),
+    Sheet(crate::output::folder::verify::VerifiedSheet),
+}
+
+impl Checked {
+    /// The report of the folder as read.
+    fn draw(&self) -> Result<String, ReportError> {
+        match self {
+            Checked::Session(v) => draw(&ReadFolder::Session {
+                dir: &v.dir,
+                doc: &v.doc,
+                calibration: Ok(v.calibration.as_ref()),
+            }),
+            Checked::Sheet(v) => draw(&ReadFolder::Sheet(&v.sheet)),
+        }
+    }
+}
+
+/// [`problems`], and the folder as that check read it when it verified (`None` when it did
+/// not: then the folder is read again to draw its report).
+fn problems_and_read(dir: &Path) -> (Vec<Finding>, Option<Checked>) {
     use crate::output::folder::signature::untrusted_signers;
-    let found = if crate::output::folder::is_sheet_folder(dir) {
+    let (found, read) = if crate::output::folder::is_sheet_folder(dir) {
         match crate::output::folder::verify::verify_sheet(dir, draw) {
-            Ok(v) => untrusted_signers(
-                std::iter::once((dir, v.signed.as_ref()))
-                    .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
+            Ok(v) => (
+                untrusted_signers(
+                    std::iter::once((dir, v.signed.as_ref()))
+                        .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
+                ),
+                Some(Checked::Sheet(v)),
             ),
-            Err(found) => found,
+            Err(found) => (found, None),
         }
     } else {
         match crate::output::folder::verify::verify(dir, draw) {
-            Ok(v) => untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
-            Err(found) => found,
+            Ok(v) => (
+                untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
+                Some(Checked::Session(v)),
+            ),
+            Err(found) => (found, None),
         }
     };
-    found
+    let found = found
         .into_iter()
         .filter(|p| p.file.file_name() != Some(std::ffi::OsStr::new(REPORT)))
-        .collect()
+        .collect();
+    (found, read)
 }
 
 /// Draw the report of `dir` into `dir/report.html` when the folder verifies
@@ -1049,9 +1082,14 @@ pub fn write_verified(
     dir: &Path,
     unverified: bool,
 ) -> Result<(PathBuf, Vec<Finding>), ReportError> {
-    let problems = problems(dir);
+    let (problems, read) = problems_and_read(dir);
     if problems.is_empty() {
-        return Ok((write_into(dir)?, problems));
+        // Drawn from the folder as the check read it, when it verified.
+        let drawn = match read {
+            Some(read) => read.draw()?,
+            None => html(dir)?,
+        };
+        return Ok((write_html(dir, &drawn)?, problems));
     }
     if !unverified {
         return Err(ReportError::DoesNotVerify {
