@@ -154,4 +154,28 @@ mod tests {
             "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
         );
     }
+
+    /// The check hashes the bytes handed to it as read, not the file again: what was
+    /// parsed is what is checked (and each file read once).
+    #[test]
+    fn the_check_hashes_the_bytes_already_read() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("a.txt"), b"as written\n").unwrap();
+        std::fs::write(dir.path().join("b.txt"), b"other\n").unwrap();
+        let text = manifest_text(dir.path()).unwrap();
+        std::fs::write(dir.path().join(MANIFEST), &text).unwrap();
+        let matched = check(dir.path()).unwrap();
+        assert_eq!((matched.files, matched.text.as_str()), (2, text.as_str()));
+        let same: FilesRead = [("a.txt".to_string(), b"as written\n".to_vec())].into();
+        assert_eq!(check_read(dir.path(), &same), Ok(matched));
+        let other: FilesRead = [("a.txt".to_string(), b"as parsed\n".to_vec())].into();
+        let found = check_read(dir.path(), &other).unwrap_err();
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert_eq!(found[0].file, dir.path().join("a.txt"));
+        assert!(
+            found[0].message.starts_with("changed since"),
+            "{}",
+            found[0]
+        );
+    }
 }
