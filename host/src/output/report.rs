@@ -1025,8 +1025,9 @@ pub fn problems(dir: &Path) -> Vec<Finding> {
 
 /// A folder as the check read it, when it verified.
 enum Checked {
-    Session(crate::output::folder::verify::Verified),
-    Sheet(crate::output::folder::verify::VerifiedSheet),
+    // Boxed: both are large (a session document, a sheet of them).
+    Session(Box<crate::output::folder::verify::Verified>),
+    Sheet(Box<crate::output::folder::verify::VerifiedSheet>),
 }
 
 impl Checked {
@@ -1054,7 +1055,7 @@ fn problems_and_read(dir: &Path) -> (Vec<Finding>, Option<Checked>) {
                     std::iter::once((dir, v.signed.as_ref()))
                         .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
                 ),
-                Some(Checked::Sheet(v)),
+                Some(Checked::Sheet(Box::new(v))),
             ),
             Err(found) => (found, None),
         }
@@ -1062,7 +1063,7 @@ fn problems_and_read(dir: &Path) -> (Vec<Finding>, Option<Checked>) {
         match crate::output::folder::verify::verify(dir, draw) {
             Ok(v) => (
                 untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
-                Some(Checked::Session(v)),
+                Some(Checked::Session(Box::new(v))),
             ),
             Err(found) => (found, None),
         }
