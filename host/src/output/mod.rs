@@ -9,7 +9,7 @@
 //!
 //! | layer | modules | imports from `output` |
 //! |---|---|---|
-//! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::html`] to [`folder::verify`]) |
+//! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::draw`] to [`folder::verify`]) |
 //! | rendering | [`report`] | `folder` |
 //! | writers apart from the folder | [`export`], [`plots`], [`shared_errors`]: what `readings.csv`'s readings share, written and read back | `folder` |
 //! | the session or sheet folder | [`folder`]: its names and documents, its store, manifest and signature, reading, writing and verifying it (its own layers are in its page) | none |

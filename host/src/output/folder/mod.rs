@@ -17,7 +17,7 @@
 //! Reading, writing, verifying and signing a session or sheet folder are this module's.
 //! Each part imports only those below it (paths `crate::output::folder::…`), so there is
 //! no circle among them; nothing here imports anything else of `output` (the report is
-//! above: its check is handed the drawing, [`verify::DrawReport`]):
+//! above: its check is handed the drawing, `verify::DrawReport`):
 //!
 //! | layer | modules | imports from `folder` |
 //! |---|---|---|
