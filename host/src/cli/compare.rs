@@ -6,7 +6,7 @@ use super::exit;
 use super::population::PopulationArgs;
 use host::analysis::evidence;
 use host::output::comparison::{Audit, Comparison};
-use host::output::sheet_folder::read_measured;
+use host::output::folder::sheet::read_measured;
 use std::path::PathBuf;
 use std::process::ExitCode;
 

@@ -1,12 +1,12 @@
 //! `gonio keys`: the Ed25519 keys that sign session and sheet folders, library exports and
 //! compare reports, and the public keys of others that `gonio verify` trusts
-//! ([`host::output::signature`]). The keys folder is `$GONIO_KEYS_DIR`, else
+//! ([`host::output::folder::signature`]). The keys folder is `$GONIO_KEYS_DIR`, else
 //! `$XDG_CONFIG_HOME/gonio/keys`, else `~/.config/gonio/keys`.
 //!
 //! Exit codes: 0 done; 1 failed (the message says what and where; nothing is replaced
 //! without --force); 2 a wrong command line.
 use anyhow::Context;
-use host::output::signature::{Keys, Signer, parse_public_key, read_public};
+use host::output::folder::signature::{Keys, Signer, parse_public_key, read_public};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -96,18 +96,18 @@ pub fn file_signer(key: Option<&str>, what: &str) -> anyhow::Result<Option<Signe
 /// Sign the file `file` just written with `signer`, and say so.
 pub fn sign_file(signer: Option<&Signer>, file: &std::path::Path) -> anyhow::Result<()> {
     if let Some(signer) = signer {
-        let path = host::output::signature::sign_detached(signer, file)
+        let path = host::output::folder::signature::sign_detached(signer, file)
             .with_context(|| format!("{}: cannot write its signature", file.display()))?;
         eprintln!(
             "signed by '{}' ({}): {}",
             signer.name(),
-            host::output::signature::fingerprint(&signer.public_key()),
+            host::output::folder::signature::fingerprint(&signer.public_key()),
             path.display()
         );
     } else {
         // A signature of what the file held before no longer holds: gone, the file is
         // plainly unsigned.
-        let stale = host::output::signature::detached_path(file);
+        let stale = host::output::folder::signature::detached_path(file);
         if stale.exists() {
             std::fs::remove_file(&stale)
                 .with_context(|| format!("{}: cannot remove", stale.display()))?;
@@ -140,7 +140,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 .own()?
                 .into_iter()
                 .find(|k| k.public.name == a.name)
-                .ok_or_else(|| host::output::signature::KeyError::NoSuchKey {
+                .ok_or_else(|| host::output::folder::signature::KeyError::NoSuchKey {
                     name: host::text::shown(&a.name),
                     dir: keys.dir().to_path_buf(),
                 })?;

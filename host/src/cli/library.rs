@@ -455,7 +455,7 @@ struct Ranked {
 /// Exit 0 when nothing warns, 3 with warnings (printed).
 fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
     let measured =
-        host::output::sheet_folder::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
+        host::output::folder::sheet::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
     // The measured sheet, when it is itself in the library, is left out of its stock and
     // of the population: it would otherwise be evidence for itself.
     let own_identity = measured.identity.clone();

@@ -12,8 +12,8 @@
 //! signature that does not hold or a signer not trusted, unsigned with --require-signed,
 //! or a session that never finished); 2 for a wrong command line.
 use host::output::folder::Finding;
-use host::output::signature::{Keys, Signed, Trust, check_detached, untrusted};
-use host::output::verify::verify;
+use host::output::folder::signature::{Keys, Signed, Trust, check_detached, untrusted};
+use host::output::folder::verify::verify;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -139,7 +139,7 @@ fn verify_session(dir: &Path, args: &Args, keys: Option<&Keys>) -> bool {
         Ok(v) => v,
         Err(problems) => return not_verified(dir, "session", &problems, args.json),
     };
-    let signature = dir.join(host::output::signature::SIGNATURE);
+    let signature = dir.join(host::output::folder::signature::SIGNATURE);
     let custody = custody(&signature, v.signed.as_ref(), keys, args.require_signed);
     if !custody.problems.is_empty() {
         return not_verified(dir, "session", &custody.problems, args.json);
@@ -167,11 +167,11 @@ fn verify_session(dir: &Path, args: &Args, keys: Option<&Keys>) -> bool {
 
 /// Check a sheet folder and print the result; whether it verified.
 fn verify_sheet(dir: &Path, args: &Args, keys: Option<&Keys>) -> bool {
-    let v = match host::output::verify::verify_sheet(dir, host::output::report::draw) {
+    let v = match host::output::folder::verify::verify_sheet(dir, host::output::report::draw) {
         Ok(v) => v,
         Err(problems) => return not_verified(dir, "sheet", &problems, args.json),
     };
-    let sig = host::output::signature::SIGNATURE;
+    let sig = host::output::folder::signature::SIGNATURE;
     let sheet = custody(&dir.join(sig), v.signed.as_ref(), keys, args.require_signed);
     let spots: Vec<Custody> = v
         .spots
@@ -233,7 +233,7 @@ fn verify_file(file: &Path, args: &Args, keys: Option<&Keys>) -> bool {
         Ok(Some(signed)) => signed,
         Ok(None) => {
             let problem = Finding {
-                file: host::output::signature::detached_path(file),
+                file: host::output::folder::signature::detached_path(file),
                 line: None,
                 message: "missing: a file alone has no manifest, only its signature could say it is as written".into(),
             };
@@ -241,7 +241,7 @@ fn verify_file(file: &Path, args: &Args, keys: Option<&Keys>) -> bool {
         }
         Err(problem) => return not_verified(file, "file", &[problem], args.json),
     };
-    let signature = host::output::signature::detached_path(file);
+    let signature = host::output::folder::signature::detached_path(file);
     let custody = custody(&signature, Some(&signed), keys, args.require_signed);
     if !custody.problems.is_empty() {
         return not_verified(file, "file", &custody.problems, args.json);

@@ -3,7 +3,7 @@
 //! Every option is checked before anything moves (numbers against their limits, the
 //! integration time against the instrument's announced limits); the session folder is
 //! made for this session alone or, with a resume, taken only for the same sample,
-//! instrument and plan ([`crate::output::record`]). One spot is one [`super::Session`] in
+//! instrument and plan ([`crate::output::folder::record`]). One spot is one [`super::Session`] in
 //! its own folder ([`spot`]); a sheet of several spots is one session per spot under the
 //! sheet's folder ([`spots`]).
 pub mod batch;
@@ -19,7 +19,7 @@ use crate::instrument::calibration::Calibration;
 use crate::instrument::link::{Client, LinkError, RetryPolicy, Transport};
 use crate::instrument::serial::SerialTransport;
 use crate::instrument::sim::SimOptions;
-use crate::output::store::StoreOptions;
+use crate::output::folder::store::StoreOptions;
 use crate::session::{Operator, Outcome, PolicyChoice, SessionError};
 use anyhow::{Context, bail};
 use check::Checked;
@@ -135,7 +135,7 @@ pub enum Measured {
         /// The sheet's folder.
         dir: PathBuf,
         /// The sheet as recorded (read back from its folder).
-        sheet: Box<crate::output::sheet_folder::ReadSheet>,
+        sheet: Box<crate::output::folder::sheet::ReadSheet>,
         /// The object printed by `--json`.
         json: serde_json::Value,
     },
@@ -204,11 +204,11 @@ pub fn measure_with(
 /// The error of `--resume DIR` on a finished session or sheet, before anything is
 /// connected; every other problem of the folder is found where it is opened to continue.
 fn refuse_finished(dir: &Path, store: &StoreOptions) -> anyhow::Result<()> {
-    use crate::output::lock::FolderError;
+    use crate::output::folder::lock::FolderError;
     let finished = if crate::output::folder::is_sheet_folder(dir) {
-        crate::output::sheet_folder::SheetFolder::open(dir, store.clone()).err()
+        crate::output::folder::sheet::SheetFolder::open(dir, store.clone()).err()
     } else {
-        crate::output::record::Existing::open(dir, store.clone()).err()
+        crate::output::folder::record::Existing::open(dir, store.clone()).err()
     };
     match finished {
         Some(e @ (FolderError::Finished { .. } | FolderError::FinishedSheet { .. })) => {

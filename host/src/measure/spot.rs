@@ -5,7 +5,7 @@ use super::write::write_session;
 use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command, status_of};
 use crate::instrument::link::Transport;
 use crate::output::folder::Status;
-use crate::output::record::{Existing, FileRecorder, Identity};
+use crate::output::folder::record::{Existing, FileRecorder, Identity};
 use crate::session::Recorder as _;
 use crate::session::{Session, SessionError};
 use anyhow::{Context, bail};

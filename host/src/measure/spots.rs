@@ -1,5 +1,5 @@
 //! A sheet of several spots: one session per spot in `DIR/spot-K`
-//! ([`crate::output::sheet_folder`]), the first spot's calibration for all, which spots count
+//! ([`crate::output::folder::sheet`]), the first spot's calibration for all, which spots count
 //! decided by [`crate::session::multi_spot`].
 use super::spot::run_session;
 use super::{Measured, Run, SessionFolder, SpotContext, draw_report, resume_command, status_of};
@@ -9,9 +9,9 @@ use crate::analysis::spots::SpotVerdict;
 use crate::instrument::calibration::Calibration;
 use crate::instrument::link::Transport;
 use crate::output::folder::Status;
-use crate::output::lock::FolderError;
-use crate::output::record::Existing;
-use crate::output::sheet_folder::{SheetFolder, SheetResult, SheetStart, read_sheet, read_spot};
+use crate::output::folder::lock::FolderError;
+use crate::output::folder::record::Existing;
+use crate::output::folder::sheet::{SheetFolder, SheetResult, SheetStart, read_sheet, read_spot};
 use crate::session::SessionError;
 use anyhow::{Context, bail};
 use serde::Serialize;
@@ -26,7 +26,7 @@ enum SpotStop {
 }
 
 /// A sheet of several spots (`--spots N`, or `--resume` of a sheet's folder): one session
-/// per spot in `DIR/spot-K` ([`crate::output::sheet_folder`]), the first spot's calibration for all.
+/// per spot in `DIR/spot-K` ([`crate::output::folder::sheet`]), the first spot's calibration for all.
 pub(super) fn run_sheet<T: Transport>(cx: &mut Run<'_, T>) -> anyhow::Result<Measured> {
     let mut folder = open_sheet(cx)?;
     let dir = folder.dir().to_path_buf();
@@ -252,7 +252,7 @@ fn finish(
     summary: crate::analysis::spots::SheetSummary,
 ) -> anyhow::Result<Measured> {
     let dir = folder.dir().to_path_buf();
-    let spots: Vec<crate::output::sheet_folder::ReadSpot> = folder
+    let spots: Vec<crate::output::folder::sheet::ReadSpot> = folder
         .doc
         .spots
         .iter()
@@ -317,7 +317,7 @@ struct SheetSpotDocument<'a> {
 }
 
 /// The `--json` object of a sheet.
-fn sheet_json(sheet: &crate::output::sheet_folder::ReadSheet) -> serde_json::Value {
+fn sheet_json(sheet: &crate::output::folder::sheet::ReadSheet) -> serde_json::Value {
     let summary = &sheet.summary;
     let result = sheet.doc.result.as_ref();
     let spots = sheet

@@ -3,8 +3,8 @@
 use crate::analysis::fit::Observation;
 use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::instrument_name;
-use crate::output::documents::{FinishedSession, SpotResultDocument};
-use crate::output::record::FileRecorder;
+use crate::output::folder::documents::{FinishedSession, SpotResultDocument};
+use crate::output::folder::record::FileRecorder;
 use crate::session::Outcome;
 use anyhow::Context;
 
@@ -45,7 +45,7 @@ pub(super) fn write_session(
             .instrument_profile
             .as_ref()
             .map(|_| {
-                crate::output::documents::gloss_values(
+                crate::output::folder::documents::gloss_values(
                     &outcome.report.fit.params,
                     &outcome.report.fit.covariance,
                     info.arm_max.deg(),

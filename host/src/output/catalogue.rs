@@ -93,7 +93,7 @@ fn sheet_entry(dir: &Path) -> Entry {
         device_seconds: None,
         problem: None,
     };
-    match crate::output::sheet_folder::read_doc(dir) {
+    match crate::output::folder::sheet::read_doc(dir) {
         Ok(doc) => {
             entry.sample = doc.sample.clone();
             entry.status = doc.status.to_string();

@@ -6,8 +6,8 @@ use crate::analysis::evidence::{
     Evidence, PARAM_LABELS, PARAMS, Population, PopulationSource, ReportedRatio, Warning,
 };
 use crate::output::folder::CaseRecord;
+use crate::output::folder::sheet::MeasuredSheet;
 use crate::output::report::{Text, field_row, page};
-use crate::output::sheet_folder::MeasuredSheet;
 use maud::{Markup, html};
 use serde::Serialize;
 use std::collections::BTreeMap;

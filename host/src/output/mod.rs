@@ -9,35 +9,24 @@
 //!
 //! | layer | modules | imports from `output` |
 //! |---|---|---|
-//! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::html`] to [`verify`]) |
-//! | rendering | [`report`] | `folder`, `sheet_folder` |
-//! | verification | [`verify`]: every check of a finished folder | `folder`, `manifest`, `sheet_folder` |
-//! | writers | [`record`] (a session folder), [`sheet_folder`] (a sheet's), [`export`], [`plots`] | `folder`, `lock`, `store`, `manifest` |
-//! | signatures | [`signature`]: the manifest's signature, a file's, the keys | `folder`, `manifest`, `store` |
-//! | store and manifest | [`store`], [`manifest`], [`lock`] | `folder` |
-//! | names and documents | [`folder`]: file names, `session.json`, findings, reading; [`documents`]: the typed result and outcome of a finished `session.json`; [`shared_errors`]: what `readings.csv`'s readings share, written and read back | none (`documents`: `folder`; `shared_errors`: `folder`, `manifest`) |
+//! | uses of folders | [`catalogue`], [`reanalysis`], [`library`], [`characterization`] (an instrument profile and its report) | any below (the library hands [`report::draw`] to [`folder::verify`]) |
+//! | rendering | [`report`] | `folder` |
+//! | writers apart from the folder | [`export`], [`plots`], [`shared_errors`]: what `readings.csv`'s readings share, written and read back | `folder` |
+//! | the session or sheet folder | [`folder`]: its names and documents, its store, manifest and signature, reading, writing and verifying it (its own layers are in its page) | none |
 //!
 //! [`dataset`] (CSV data sets) stands apart: no folder module uses it. Verification checks
 //! that `report.html` is the report of the folder's files, yet sits below rendering: the
-//! check is handed the drawing ([`verify::DrawReport`]).
+//! check is handed the drawing ([`folder::verify::DrawReport`]).
 pub mod batch;
 pub mod catalogue;
 pub mod characterization;
 pub mod chromium;
 pub mod comparison;
 pub mod dataset;
-pub mod documents;
 pub mod export;
 pub mod folder;
 pub mod library;
-pub mod lock;
-pub mod manifest;
 pub mod plots;
 pub mod reanalysis;
-pub mod record;
 pub mod report;
 pub mod shared_errors;
-pub mod sheet_folder;
-pub mod signature;
-pub mod store;
-pub mod verify;

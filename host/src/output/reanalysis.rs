@@ -30,7 +30,7 @@ pub enum ReanalysisError {
 /// The session folders of `path`: a sheet's spots, or the session itself.
 pub fn session_folders(path: &Path) -> Result<Vec<PathBuf>, Finding> {
     if folder::is_sheet_folder(path) {
-        let doc = crate::output::sheet_folder::read_doc(path)?;
+        let doc = crate::output::folder::sheet::read_doc(path)?;
         return Ok(doc.spots.iter().map(|s| path.join(&s.folder)).collect());
     }
     Ok(vec![path.to_path_buf()])
@@ -72,7 +72,7 @@ pub fn reanalyse_with(
     let outcome = doc.outcome();
     let document = outcome.result();
     let calibration = folder::read_calibration(dir)?;
-    let mut points = crate::output::record::read_points(dir)?;
+    let mut points = crate::output::folder::record::read_points(dir)?;
     if let Some(c) = &calibration {
         for p in &mut points {
             p.convert_with(c);

@@ -15,9 +15,9 @@
 use crate::analysis::flags::Flag;
 use crate::analysis::result::ResultDocument;
 use crate::instrument::calibration::Calibration;
-use crate::output::documents::SpotResultDocument;
+use crate::output::folder::documents::SpotResultDocument;
+use crate::output::folder::sheet::{ReadFolder, ReadSheet};
 use crate::output::folder::{Finding, MANIFEST, REPORT, SessionDoc};
-use crate::output::sheet_folder::{ReadFolder, ReadSheet};
 use maud::{DOCTYPE, Markup, PreEscaped, Render, html};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -888,7 +888,7 @@ fn answer_section(answer: &crate::analysis::spots::SheetAnswer) -> Markup {
 /// A spot's line of the sheet's table.
 fn spot_row(
     summary: &crate::analysis::spots::SheetSummary,
-    s: &crate::output::sheet_folder::ReadSpot,
+    s: &crate::output::folder::sheet::ReadSpot,
 ) -> Markup {
     let number = s.result.number;
     let verdict = html! {
@@ -920,7 +920,7 @@ fn spot_row(
 }
 
 /// A spot of a sheet: its verdict, result and decisions.
-fn spot_section(s: &crate::output::sheet_folder::ReadSpot) -> Result<Markup, ReportError> {
+fn spot_section(s: &crate::output::folder::sheet::ReadSpot) -> Result<Markup, ReportError> {
     let doc = &s.doc;
     let (ok, flags) = outcome_of(doc);
     let number = s.result.number;
@@ -936,7 +936,7 @@ fn spot_section(s: &crate::output::sheet_folder::ReadSpot) -> Result<Markup, Rep
 /// The report of a finished session or sheet folder.
 pub fn html(dir: &Path) -> Result<String, ReportError> {
     if crate::output::folder::is_sheet_folder(dir) {
-        let read = crate::output::sheet_folder::read_sheet(dir)?;
+        let read = crate::output::folder::sheet::read_sheet(dir)?;
         return draw(&ReadFolder::Sheet(&read));
     }
     let doc = crate::output::folder::require_finished(dir)?;
@@ -1017,28 +1017,62 @@ pub fn write_into(dir: &Path) -> Result<PathBuf, ReportError> {
 /// what is being drawn anew (the way to repair a stale one).
 ///
 /// A signature that does not hold is among them, and so is a signer whose key is neither
-/// the user's nor trusted ([`crate::output::signature::untrusted_signers`]): a report is
+/// the user's nor trusted ([`crate::output::folder::signature::untrusted_signers`]): a report is
 /// not drawn as the session's from a folder that someone else could have re-signed.
 pub fn problems(dir: &Path) -> Vec<Finding> {
-    use crate::output::signature::untrusted_signers;
-    let found = if crate::output::folder::is_sheet_folder(dir) {
-        match crate::output::verify::verify_sheet(dir, draw) {
-            Ok(v) => untrusted_signers(
-                std::iter::once((dir, v.signed.as_ref()))
-                    .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
+    problems_and_read(dir).0
+}
+
+/// A folder as the check read it, when it verified.
+enum Checked {
+    // Boxed: both are large (a session document, a sheet of them).
+    Session(Box<crate::output::folder::verify::Verified>),
+    Sheet(Box<crate::output::folder::verify::VerifiedSheet>),
+}
+
+impl Checked {
+    /// The report of the folder as read.
+    fn draw(&self) -> Result<String, ReportError> {
+        match self {
+            Checked::Session(v) => draw(&ReadFolder::Session {
+                dir: &v.dir,
+                doc: &v.doc,
+                calibration: Ok(v.calibration.as_ref()),
+            }),
+            Checked::Sheet(v) => draw(&ReadFolder::Sheet(&v.sheet)),
+        }
+    }
+}
+
+/// [`problems`], and the folder as that check read it when it verified (`None` when it did
+/// not: then the folder is read again to draw its report).
+fn problems_and_read(dir: &Path) -> (Vec<Finding>, Option<Checked>) {
+    use crate::output::folder::signature::untrusted_signers;
+    let (found, read) = if crate::output::folder::is_sheet_folder(dir) {
+        match crate::output::folder::verify::verify_sheet(dir, draw) {
+            Ok(v) => (
+                untrusted_signers(
+                    std::iter::once((dir, v.signed.as_ref()))
+                        .chain(v.spots.iter().map(|s| (s.dir.as_path(), s.signed.as_ref()))),
+                ),
+                Some(Checked::Sheet(Box::new(v))),
             ),
-            Err(found) => found,
+            Err(found) => (found, None),
         }
     } else {
-        match crate::output::verify::verify(dir, draw) {
-            Ok(v) => untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
-            Err(found) => found,
+        match crate::output::folder::verify::verify(dir, draw) {
+            Ok(v) => (
+                untrusted_signers(std::iter::once((dir, v.signed.as_ref()))),
+                Some(Checked::Session(Box::new(v))),
+            ),
+            Err(found) => (found, None),
         }
     };
-    found
+    let found = found
         .into_iter()
         .filter(|p| p.file.file_name() != Some(std::ffi::OsStr::new(REPORT)))
-        .collect()
+        .collect();
+    (found, read)
 }
 
 /// Draw the report of `dir` into `dir/report.html` when the folder verifies
@@ -1049,9 +1083,14 @@ pub fn write_verified(
     dir: &Path,
     unverified: bool,
 ) -> Result<(PathBuf, Vec<Finding>), ReportError> {
-    let problems = problems(dir);
+    let (problems, read) = problems_and_read(dir);
     if problems.is_empty() {
-        return Ok((write_into(dir)?, problems));
+        // Drawn from the folder as the check read it, when it verified.
+        let drawn = match read {
+            Some(read) => read.draw()?,
+            None => html(dir)?,
+        };
+        return Ok((write_html(dir, &drawn)?, problems));
     }
     if !unverified {
         return Err(ReportError::DoesNotVerify {
@@ -1078,7 +1117,7 @@ pub fn write_verified(
 fn write_html(dir: &Path, html: &str) -> Result<PathBuf, ReportError> {
     let path = dir.join(REPORT);
     let temp = dir.join(crate::output::folder::temp_name(REPORT));
-    crate::output::store::create_in_folder(&temp)
+    crate::output::folder::store::create_in_folder(&temp)
         .and_then(|mut file| std::io::Write::write_all(&mut file, html.as_bytes()))
         .map_err(|source| ReportError::Write {
             path: temp.clone(),

@@ -119,7 +119,7 @@ pub(crate) fn document_bytes(
         schema: crate::schema::SHARED_ERRORS.to_string(),
         sample: sample.to_string(),
         readings_file: READINGS.to_string(),
-        readings_sha256: crate::output::manifest::sha256_hex(readings_csv),
+        readings_sha256: crate::output::folder::manifest::sha256_hex(readings_csv),
         analysed_unix_s,
         analysis_settings: settings.clone(),
         noise_scale_log_variance: inputs.noise_scale_log_variance,
@@ -190,7 +190,7 @@ pub fn find(csv: &Path, csv_bytes: &[u8]) -> Result<Option<SharedErrorsFile>, Sh
     crate::schema::check(&value, &[crate::schema::SHARED_ERRORS], None)
         .map_err(|e| unreadable(e.to_string()))?;
     let doc = Document::deserialize(&value).map_err(|e| unreadable(e.to_string()))?;
-    let sha = crate::output::manifest::sha256_hex(csv_bytes);
+    let sha = crate::output::folder::manifest::sha256_hex(csv_bytes);
     if sha != doc.readings_sha256 {
         return Err(unreadable(format!(
             "written for another {} (SHA-256 {}, this file's is {sha}): the CSV was edited or replaced since; remove the shared-errors file to analyse the CSV on its own readings' noise",

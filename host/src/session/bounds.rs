@@ -1,5 +1,5 @@
 //! The bounds on one run of a session: re-measure rounds and device time (the folder's
-//! size is bounded where it is written, [`crate::output::record`]). Every loop of the
+//! size is bounded where it is written, [`crate::output::folder::record`]). Every loop of the
 //! session already ends when it stops making progress (six rounds without a reading, eight
 //! recoveries in a row); these end the loops that make progress that never adds up to a
 //! result: a link that loses a reading in every round, a calibration that converts no

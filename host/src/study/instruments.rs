@@ -536,19 +536,22 @@ fn judge(row: &mut SessionRow, outcome: &Outcome, truth: &Params, arm_max_deg: f
     if row.spec.with_profile {
         // What `gonio measure --json` reports with a profile in force, against the sheet's
         // own TSL parameters through the same apertures.
-        row.gloss =
-            crate::output::documents::gloss_values(&fit.params, &fit.covariance, arm_max_deg)
-                .into_iter()
-                .filter_map(|v| {
-                    let geometry = geometry_named(&v.geometry)?;
-                    Some(GlossCheck {
-                        angle_deg: v.angle_deg,
-                        measured_gu: v.gloss_units,
-                        u_gu: v.u_gloss_units,
-                        analytic_gu: gloss_units(truth, geometry),
-                    })
-                })
-                .collect();
+        row.gloss = crate::output::folder::documents::gloss_values(
+            &fit.params,
+            &fit.covariance,
+            arm_max_deg,
+        )
+        .into_iter()
+        .filter_map(|v| {
+            let geometry = geometry_named(&v.geometry)?;
+            Some(GlossCheck {
+                angle_deg: v.angle_deg,
+                measured_gu: v.gloss_units,
+                u_gu: v.u_gloss_units,
+                analytic_gu: gloss_units(truth, geometry),
+            })
+        })
+        .collect();
     }
 }
 

@@ -21,8 +21,8 @@
 //! whole lines of every spot's `points.jsonl` after each interruption are the first lines
 //! of the final one. Every draw comes from the session's index and the campaign's seed.
 use crate::measure::{MeasureOptions, Measured, measure_with};
-use crate::output::lock::FolderError;
-use crate::output::store::{Crash, StoreOptions};
+use crate::output::folder::lock::FolderError;
+use crate::output::folder::store::{Crash, StoreOptions};
 use crate::session::{PolicyChoice, SessionError, SimulatedOperator};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
@@ -254,10 +254,10 @@ fn json(path: &Path) -> Result<serde_json::Value, String> {
 /// The campaign's signing key, as a lab's would sign: every run of a sheet (the first, each
 /// resume) signs with it, and the final folder must verify under it, the sheet and every
 /// spot. Derived from the sheet's seed so a row repeats; a key, not a secret.
-fn campaign_signer(seed: u64) -> crate::output::signature::Signer {
+fn campaign_signer(seed: u64) -> crate::output::folder::signature::Signer {
     let mut bytes = [0u8; 32];
     ChaCha12Rng::seed_from_u64(seed ^ 0x5157_4e45_4452_3235).fill(&mut bytes[..]);
-    crate::output::signature::Signer::new(
+    crate::output::folder::signature::Signer::new(
         "interruption-campaign",
         ed25519_dalek::SigningKey::from_bytes(&bytes),
     )
@@ -278,8 +278,8 @@ fn check(
     dir: &Path,
     snapshots: &[BTreeMap<String, Vec<String>>],
 ) -> Result<(), String> {
-    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::draw).map_err(
-        |problems| {
+    let verified = crate::output::folder::verify::verify_sheet(dir, crate::output::report::draw)
+        .map_err(|problems| {
             format!(
                 "does not verify: {}",
                 problems
@@ -288,10 +288,10 @@ fn check(
                     .collect::<Vec<_>>()
                     .join("; ")
             )
-        },
-    )?;
-    let key = crate::output::signature::hex(campaign_signer(spec.seed).public_key().as_bytes());
-    let signed_by_campaign = |signed: &Option<crate::output::signature::Signed>| {
+        })?;
+    let key =
+        crate::output::folder::signature::hex(campaign_signer(spec.seed).public_key().as_bytes());
+    let signed_by_campaign = |signed: &Option<crate::output::folder::signature::Signed>| {
         signed.as_ref().is_some_and(|s| s.public_key == key)
     };
     if !signed_by_campaign(&verified.signed) {

@@ -68,7 +68,7 @@ fn measure_rejected(bad: &[&str], needles: &[&str]) {
 /// An interrupted session to resume with bad options (it must be left as it was).
 fn interrupted_session(name: &str) -> PathBuf {
     let dir = temp_dir(name);
-    let crash = host::output::store::Crash::at(30);
+    let crash = host::output::folder::store::Crash::at(30);
     let args =
         measure_args::parse_args(["--spots", "1", "--sim", "G", "--out", dir.to_str().unwrap()])
             .unwrap();
@@ -76,7 +76,7 @@ fn interrupted_session(name: &str) -> PathBuf {
         &args,
         &mut host::session::SimulatedOperator,
         std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
-        host::output::store::StoreOptions {
+        host::output::folder::store::StoreOptions {
             crash: Some(crash),
             ..Default::default()
         },
@@ -554,7 +554,7 @@ fn a_folder_another_gonio_is_making_is_in_use_and_left_alone() {
         let dir = temp_dir(&format!("in-use-{spots}"));
         std::fs::create_dir_all(&dir).unwrap();
         // The other gonio made the folder a moment ago, holds it, writes its first file.
-        let lock = host::output::lock::FolderLock::take(&dir).unwrap();
+        let lock = host::output::folder::lock::FolderLock::take(&dir).unwrap();
         std::fs::write(dir.join(first), "{").unwrap();
         rejected(
             &[

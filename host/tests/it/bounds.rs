@@ -5,7 +5,7 @@
 //! that resumes. (The device-time bound has its unit test in `session::bounds`.)
 use crate::common::in_process::measure as run;
 use host::measure::Measured;
-use host::output::store::Crash;
+use host::output::folder::store::Crash;
 use host::session::SessionError;
 use serde_json::Value;
 use std::path::{Path, PathBuf};

@@ -23,14 +23,11 @@ const TOP: &[&[&str]] = &[
     &["study"],
 ];
 
-/// `output/`'s modules, bottom first: the folder's names and documents, its lock, store
-/// and manifest; the writers; verification; rendering; what reads finished folders.
+/// `output/`'s modules, bottom first: the session or sheet folder (its own layers are
+/// [`FOLDER`]); what writes beside it; rendering; what reads finished folders.
 const OUTPUT: &[&[&str]] = &[
     &["folder", "chromium"],
-    &["lock", "manifest", "store", "dataset", "export", "plots"],
-    &["documents", "signature", "shared_errors"],
-    &["record", "sheet_folder"],
-    &["verify"],
+    &["dataset", "export", "plots", "shared_errors"],
     &["report"],
     &[
         "comparison",
@@ -42,6 +39,27 @@ const OUTPUT: &[&[&str]] = &[
     // A QA batch: sheet folders read back and a master read from the library.
     &["batch"],
 ];
+
+/// `output/folder/`'s modules, bottom first: its names, documents and reading (`mod`, the
+/// folder's own page, where a path names no module of the folder); its store, manifest,
+/// lock and typed documents; the signatures; the writers and the sheet's reader;
+/// verification.
+const FOLDER: &[&[&str]] = &[
+    &["mod"],
+    &["store", "manifest", "lock", "documents"],
+    &["signature"],
+    &["record", "sheet"],
+    &["verify"],
+];
+
+/// The folder's module a path's segment after `folder` names: its own page (`mod`) when
+/// it names none (an item of the page, or nothing).
+fn folder_module(segment: Option<&String>) -> &str {
+    match segment {
+        Some(name) if rank(FOLDER, name).is_some() => name,
+        _ => "mod",
+    }
+}
 
 /// The longest a function may be, in lines from its `fn` to its closing brace.
 const MAX_FN_LINES: usize = 120;
@@ -152,6 +170,24 @@ fn violations() -> Vec<String> {
                 let (Some(sub), Some(to)) = (sub, target.get(1)) else {
                     continue;
                 };
+                if top == "output" && sub == "folder" && to == "folder" {
+                    // Within output/folder/, its own order.
+                    let own = parts.get(2).map(String::as_str).unwrap_or("mod");
+                    let to = folder_module(target.get(2));
+                    match (rank(FOLDER, own), rank(FOLDER, to)) {
+                        _ if to == own => {}
+                        (Some(a), Some(b)) if b < a => {}
+                        (Some(_), Some(_)) => out.push(format!(
+                            "{}: crate::{name} (not below output::folder::{own})",
+                            relative.display()
+                        )),
+                        _ => out.push(format!(
+                            "{}: crate::{name} (a module of output/folder/ of no layer)",
+                            relative.display()
+                        )),
+                    }
+                    continue;
+                }
                 if top != "output" || to == sub || sub == "mod" {
                     continue;
                 }
@@ -214,6 +250,17 @@ fn the_check_reads_paths_and_knows_every_module() {
         }
     }
     assert!(outputs.values().all(|&known| known), "{outputs:?}");
+    let mut folders: BTreeMap<String, bool> = BTreeMap::new();
+    for entry in std::fs::read_dir(src().join("output/folder")).expect("output/folder/") {
+        let path = entry.expect("an entry").path();
+        let name = path
+            .file_stem()
+            .expect("a name")
+            .to_string_lossy()
+            .into_owned();
+        folders.insert(name.clone(), rank(FOLDER, &name).is_some());
+    }
+    assert!(folders.values().all(|&known| known), "{folders:?}");
 }
 
 /// Each function of `text` as (its name, its first line, its length in lines). rustfmt

@@ -201,7 +201,7 @@ fn add_list_export_import_and_remove_measured_sheets() {
 
     // Remove one session by a prefix of its SHA-256 (that of its MANIFEST.sha256), then a stock.
     let manifest = std::fs::read(ppc1.join("MANIFEST.sha256")).expect("manifest");
-    let sha = host::output::manifest::sha256_hex(&manifest);
+    let sha = host::output::folder::manifest::sha256_hex(&manifest);
     assert!(
         first.contains(&sha),
         "the identity is the manifest's SHA-256"
@@ -416,7 +416,7 @@ fn a_changed_or_flagged_session_is_not_added() {
     std::fs::write(&file, serde_json::to_string_pretty(&doc).expect("JSON")).expect("write");
     std::fs::write(
         flagged.join("MANIFEST.sha256"),
-        host::output::manifest::manifest_text(&flagged).expect("manifest"),
+        host::output::folder::manifest::manifest_text(&flagged).expect("manifest"),
     )
     .expect("write");
     let _ = std::fs::remove_file(flagged.join("signature.json"));
@@ -771,7 +771,7 @@ fn a_search_is_the_same_made_afresh_or_from_the_cache_and_follows_the_library() 
             .map(|(_, sheet)| sheet)
             .collect();
         let (population, _) = validation::validate_or_explain(&sheets).expect("population");
-        let measured = host::output::sheet_folder::read_measured(&questioned).expect("query");
+        let measured = host::output::folder::sheet::read_measured(&questioned).expect("query");
         evidence::search(&measured.questioned(), &population)
             .ranking
             .into_iter()

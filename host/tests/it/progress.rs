@@ -4,8 +4,8 @@
 use host::instrument::link::{Client, RetryPolicy};
 use host::instrument::sim::SimOptions;
 use host::output::folder::PlanRecord;
-use host::output::record::{FileRecorder, Identity, progress_bar_to};
-use host::output::store::StoreOptions;
+use host::output::folder::record::{FileRecorder, Identity, progress_bar_to};
+use host::output::folder::store::StoreOptions;
 use host::session::{Operator, Placement, Progress, PromptOperator, Recorder};
 use indicatif::{InMemoryTerm, ProgressDrawTarget};
 use std::time::Duration;

@@ -5,8 +5,8 @@
 //! reading is lost or recorded twice.
 use crate::measure_args;
 use host::measure::{Measured, measure, measure_with};
-use host::output::lock::FolderError;
-use host::output::store::{Crash, StoreOptions};
+use host::output::folder::lock::FolderError;
+use host::output::folder::store::{Crash, StoreOptions};
 use host::session::{MeasuredPoint, SimulatedOperator};
 use measure_args::parse_args;
 use rand::{Rng, SeedableRng};
@@ -81,7 +81,7 @@ fn class(dir: &Path) -> String {
 /// After a crash at write `n` and a resume: the folder verifies, nothing taken before the
 /// crash was lost or changed, nothing is recorded twice, and the class is the clean one.
 fn check_resumed(dir: &Path, before: &[String], clean_class: &str, what: &str) {
-    if let Err(problems) = host::output::verify::verify(dir, host::output::report::draw) {
+    if let Err(problems) = host::output::folder::verify::verify(dir, host::output::report::draw) {
         panic!(
             "{what}: the resumed folder does not verify:\n{}",
             problems
@@ -286,7 +286,7 @@ fn a_full_disk_at_any_write_stops_the_session_with_whole_lines_and_it_resumes() 
         let message = match run(&args, Some(Crash::disk_full_at(n))) {
             // The last write renames the manifest into place: a full disk takes no data there.
             Ok(Measured::Done { .. }) if n == counting.writes() => {
-                host::output::verify::verify(&dir, host::output::report::draw).unwrap();
+                host::output::folder::verify::verify(&dir, host::output::report::draw).unwrap();
                 let _ = std::fs::remove_dir_all(&dir);
                 continue;
             }
@@ -435,6 +435,6 @@ fn measure_writes_a_folder_that_verifies() {
         .unwrap(),
         Measured::Done { .. }
     ));
-    host::output::verify::verify(&dir, host::output::report::draw).unwrap();
+    host::output::folder::verify::verify(&dir, host::output::report::draw).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -8,9 +8,9 @@ use crate::measure_args;
 use cli_support::gonio;
 use cli_support::stderr;
 use host::measure::{Measured, measure_with};
-use host::output::lock::{FolderError, FolderLock};
-use host::output::record::{FileRecorder, Identity};
-use host::output::store::{Crash, StoreOptions};
+use host::output::folder::lock::{FolderError, FolderLock};
+use host::output::folder::record::{FileRecorder, Identity};
+use host::output::folder::store::{Crash, StoreOptions};
 use host::session::{Operator, Placement, SimulatedOperator};
 use measure_args::parse_args;
 use serde_json::Value;
@@ -1036,7 +1036,7 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     std::fs::write(dir.join("readings.csv"), rows).unwrap();
     std::fs::write(
         dir.join("MANIFEST.sha256"),
-        host::output::manifest::manifest_text(&dir).unwrap(),
+        host::output::folder::manifest::manifest_text(&dir).unwrap(),
     )
     .unwrap();
     check(&["points.jsonl:1: differs from reading 1 of session.json"]);
@@ -1056,7 +1056,7 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     std::fs::write(dir.join("readings.csv"), rows).unwrap();
     std::fs::write(
         dir.join("MANIFEST.sha256"),
-        host::output::manifest::manifest_text(&dir).unwrap(),
+        host::output::folder::manifest::manifest_text(&dir).unwrap(),
     )
     .unwrap();
     check(&["readings.csv: holds rows from before"]);

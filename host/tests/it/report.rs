@@ -302,8 +302,8 @@ fn case_fields_are_checked_and_a_resume_keeps_the_sessions() {
         all.extend_from_slice(extra);
         measure_args::parse_args(all).unwrap()
     };
-    let crash = host::output::store::StoreOptions {
-        crash: Some(host::output::store::Crash::at(30)),
+    let crash = host::output::folder::store::StoreOptions {
+        crash: Some(host::output::folder::store::Crash::at(30)),
         ..Default::default()
     };
     let interrupted = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));

@@ -724,7 +724,7 @@ fn keys_public_keys_and_signatures_validate() {
     run(&["keys", "trust", &hex, "--name", "remote"]);
     // Under a name of one's own keys it is refused; under another it is kept as NAME.pub.
     schemas.check("remote.pub", &read(keys.join("remote.pub")));
-    let signer = host::output::signature::Keys::at(&keys)
+    let signer = host::output::folder::signature::Keys::at(&keys)
         .load("lab")
         .unwrap();
     let doc = serde_json::to_value(signer.sign("MANIFEST.sha256", b"x")).unwrap();

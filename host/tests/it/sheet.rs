@@ -6,10 +6,10 @@
 use crate::common::in_process::measure_as as run;
 use crate::measure_args;
 use host::measure::{Measured, measure_with};
+use host::output::folder::sheet::read_measured;
+use host::output::folder::store::{Crash, StoreOptions};
+use host::output::folder::verify::verify_sheet;
 use host::output::report::draw;
-use host::output::sheet_folder::read_measured;
-use host::output::store::{Crash, StoreOptions};
-use host::output::verify::verify_sheet;
 use host::session::{DelayedOperator, Placement, SimulatedOperator};
 use measure_args::parse_args;
 use rand::{Rng, SeedableRng};
@@ -29,7 +29,7 @@ fn args(list: &[&str]) -> Vec<String> {
 fn sheet_of(
     measured: anyhow::Result<Measured>,
     what: &str,
-) -> Box<host::output::sheet_folder::ReadSheet> {
+) -> Box<host::output::folder::sheet::ReadSheet> {
     match measured {
         Ok(Measured::Sheet { sheet, .. }) => sheet,
         Ok(Measured::Done { .. }) => panic!("{what}: measured one spot, not a sheet"),

@@ -6,8 +6,8 @@
 use crate::common::in_process::{measure, ram_dir};
 use host::analysis::classify::REFERENCES;
 use host::measure::Measured;
-use host::output::sheet_folder::{ReadSheet, read_measured};
-use host::output::verify::verify_sheet;
+use host::output::folder::sheet::{ReadSheet, read_measured};
+use host::output::folder::verify::verify_sheet;
 use serde_json::Value;
 use std::path::Path;
 
@@ -169,7 +169,7 @@ fn rewrite_sheet(dir: &Path, edit: impl FnOnce(&mut Value)) {
             if line.ends_with("  sheet.json") {
                 format!(
                     "{}  sheet.json\n",
-                    host::output::manifest::sha256_hex(&bytes)
+                    host::output::folder::manifest::sha256_hex(&bytes)
                 )
             } else {
                 format!("{line}\n")

@@ -2,9 +2,9 @@
 //! and every spot, resumed or not, is measured under the plan the sheet recorded once (D2).
 use crate::common::in_process::measure as run;
 use host::measure::Measured;
+use host::output::folder::store::Crash;
+use host::output::folder::verify::verify_sheet;
 use host::output::report::draw;
-use host::output::store::Crash;
-use host::output::verify::verify_sheet;
 use std::path::{Path, PathBuf};
 
 fn dir(name: &str) -> PathBuf {

@@ -7,8 +7,8 @@
 use crate::cli_support::{stderr, temp_dir};
 use crate::common::in_process::ram_dir;
 use host::measure::{Measured, measure_with};
-use host::output::signature::{Keys, SIGNATURE, Signer};
-use host::output::store::StoreOptions;
+use host::output::folder::signature::{Keys, SIGNATURE, Signer};
+use host::output::folder::store::StoreOptions;
 use host::session::SimulatedOperator;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
@@ -53,7 +53,7 @@ fn measure_signed(list: &[&str], signer: Option<Arc<Signer>>) -> Measured {
         &mut SimulatedOperator,
         Arc::new(AtomicBool::new(false)),
         StoreOptions {
-            signer: signer.map(|s| s as Arc<dyn host::output::store::SignManifest>),
+            signer: signer.map(|s| s as Arc<dyn host::output::folder::store::SignManifest>),
             ..Default::default()
         },
     )
@@ -84,7 +84,7 @@ fn session(dir: &Path, seed: u64, signer: Option<Arc<Signer>>) {
 /// Recompute the manifest of the session folder `dir`, as a forger who can write the
 /// folder would.
 fn recompute_manifest(dir: &Path) {
-    let text = host::output::manifest::manifest_text(dir).expect("manifest text");
+    let text = host::output::folder::manifest::manifest_text(dir).expect("manifest text");
     std::fs::write(dir.join("MANIFEST.sha256"), text).expect("write the manifest");
 }
 
@@ -219,7 +219,7 @@ fn a_signed_session_verifies_and_names_its_signer_and_a_forgery_fails() {
         // Untouched: verifies, and says who signed, with the fingerprint, trusted.
         let o = gonio(&keys, &["verify", s(&dir)]);
         assert!(o.status.success(), "{}", stderr(&o));
-        let fingerprint = host::output::signature::fingerprint(&signer.public_key());
+        let fingerprint = host::output::folder::signature::fingerprint(&signer.public_key());
         assert!(
             out(&o).contains(&format!("signed by 'lab' ({fingerprint})"))
                 && out(&o).contains("your own key 'lab'"),
@@ -236,7 +236,7 @@ fn a_signed_session_verifies_and_names_its_signer_and_a_forgery_fails() {
         copy_dir(&dir, &forged);
         forge(&forged);
         assert!(
-            host::output::manifest::check(&forged).is_ok(),
+            host::output::folder::manifest::check(&forged).is_ok(),
             "every hash recomputed"
         );
         let o = gonio(&keys, &["verify", s(&forged)]);
@@ -369,7 +369,7 @@ fn the_simulated_instrument_makes_its_key_on_first_use() {
 fn measure_crashed(
     list: &[String],
     signer: &Arc<Signer>,
-    crash: host::output::store::Crash,
+    crash: host::output::folder::store::Crash,
 ) -> anyhow::Result<Measured> {
     let args = crate::measure_args::parse_args(list).expect("arguments");
     measure_with(
@@ -378,14 +378,14 @@ fn measure_crashed(
         Arc::new(AtomicBool::new(false)),
         StoreOptions {
             crash: Some(crash),
-            signer: Some(signer.clone() as Arc<dyn host::output::store::SignManifest>),
+            signer: Some(signer.clone() as Arc<dyn host::output::folder::store::SignManifest>),
         },
     )
 }
 
 #[test]
 fn a_session_killed_and_resumed_is_signed_and_so_is_one_killed_before_its_signature() {
-    use host::output::store::Crash;
+    use host::output::folder::store::Crash;
     let (keys, signer) = keys_with("resume", "lab");
     let dir = |name: &str| ram_dir("signature", &format!("resume-{name}"));
     let args = |d: &Path, verb: &str| -> Vec<String> {
@@ -472,9 +472,9 @@ fn a_sheet_folder_is_signed_with_each_spot_and_a_forged_spot_fails() {
     // A spot forged and every manifest recomputed (the spot's, then the sheet's).
     let spot = dir.join("spot-2");
     forge_log(&spot);
-    let doc: host::output::sheet_folder::SheetDoc =
+    let doc: host::output::folder::sheet::SheetDoc =
         serde_json::from_slice(&std::fs::read(dir.join("sheet.json")).unwrap()).unwrap();
-    let text = host::output::sheet_folder::manifest_text(&dir, &doc).unwrap();
+    let text = host::output::folder::sheet::manifest_text(&dir, &doc).unwrap();
     std::fs::write(dir.join("MANIFEST.sha256"), text).unwrap();
     let o = gonio(&keys, &["verify", s(&dir)]);
     assert_eq!(o.status.code(), Some(1), "{}", out(&o));
@@ -558,7 +558,7 @@ fn a_library_export_and_a_compare_report_are_signed_files_that_verify() {
         );
     }
     // A file with no signature has nothing to verify it.
-    std::fs::remove_file(host::output::signature::detached_path(&export)).unwrap();
+    std::fs::remove_file(host::output::folder::signature::detached_path(&export)).unwrap();
     let o = gonio(&keys, &["verify", s(&export)]);
     assert_eq!(o.status.code(), Some(1), "{}", out(&o));
     for d in [a, b] {

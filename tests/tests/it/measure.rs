@@ -381,7 +381,7 @@ fn resume(policy: &str) {
         log.contains("points.jsonl: removed its last line, cut short by a crash"),
         "{log}"
     );
-    host::output::verify::verify(&dir, host::output::report::draw).unwrap();
+    host::output::folder::verify::verify(&dir, host::output::report::draw).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&full_dir);
 }

@@ -6,8 +6,8 @@ pub use args::Args;
 
 use anyhow::Context;
 use host::measure::{Measured, measure_with, resume_command};
-use host::output::signature::{Keys, SIM_KEY, Signer, fingerprint};
-use host::output::store::SignManifest;
+use host::output::folder::signature::{Keys, SIM_KEY, Signer, fingerprint};
+use host::output::folder::store::SignManifest;
 use host::session::{Operator, Outcome, PromptOperator, SessionError, SimulatedOperator};
 use std::path::Path;
 use std::process::ExitCode;
@@ -53,7 +53,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     // Chosen before anything is measured: a wrong --key stops here, not at the end.
-    let store = host::output::store::StoreOptions {
+    let store = host::output::folder::store::StoreOptions {
         signer: signer(&args)?.map(|s| Arc::new(s) as Arc<dyn SignManifest>),
         ..Default::default()
     };
@@ -170,7 +170,7 @@ fn signer(args: &Args) -> anyhow::Result<Option<Signer>> {
     };
     if args.key.is_none() && args.sim.is_some() {
         let (signer, made) = keys.load_or_create(SIM_KEY).with_context(|| {
-            format!("cannot make or read the simulated instrument's key (give --key NAME, or set {} to a writable folder)", host::output::signature::KEYS_DIR_ENV)
+            format!("cannot make or read the simulated instrument's key (give --key NAME, or set {} to a writable folder)", host::output::folder::signature::KEYS_DIR_ENV)
         })?;
         if made {
             eprintln!(
@@ -191,7 +191,7 @@ fn signer(args: &Args) -> anyhow::Result<Option<Signer>> {
     Ok(signer)
 }
 
-fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
+fn print_sheet(dir: &Path, sheet: &host::output::folder::sheet::ReadSheet) {
     use host::analysis::spots::SpotCounts;
     let summary = &sheet.summary;
     println!(

@@ -15,9 +15,9 @@ mod report;
 
 use crate::analysis::batch::{self, Master, Named, SpotValues, Statistics, Verdict};
 use crate::analysis::flags::Flag;
+use crate::output::folder::sheet::read_measured;
 use crate::output::folder::{SESSION, Status};
 use crate::output::library::{Library, OpenMode};
-use crate::output::sheet_folder::read_measured;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

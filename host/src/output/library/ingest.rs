@@ -23,7 +23,7 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         dir: dir.to_path_buf(),
         what,
     };
-    let verified = crate::output::verify::verify_sheet(dir, crate::output::report::draw)
+    let verified = crate::output::folder::verify::verify_sheet(dir, crate::output::report::draw)
         .map_err(|problems| not_verified(dir, &problems))?;
     let read = &verified.sheet;
     if !read.summary.ok() && !allow_flagged {
@@ -71,7 +71,7 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
         dir: dir.to_path_buf(),
         what,
     };
-    let verified = crate::output::verify::verify(dir, crate::output::report::draw)
+    let verified = crate::output::folder::verify::verify(dir, crate::output::report::draw)
         .map_err(|problems| not_verified(dir, &problems))?;
     let doc = verified.doc;
     let file = dir.join(crate::output::folder::SESSION);
@@ -121,7 +121,7 @@ pub fn same_sheet_folders(dir: &Path) -> Vec<(String, std::path::PathBuf)> {
             .ok()
             .map(|bytes| {
                 (
-                    crate::output::manifest::sha256_hex(&bytes),
+                    crate::output::folder::manifest::sha256_hex(&bytes),
                     folder.to_path_buf(),
                 )
             })

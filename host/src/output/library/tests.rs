@@ -24,7 +24,7 @@ fn sheet(n: u64, spots: usize) -> SheetRecord {
         measured_at: Some(format!("2026-05-01T14:03:{:02}.000+02:00", n % 60)),
         instrument_serial: "SIM-0001".into(),
         session_path: format!("sessions/é-{n}"),
-        session_sha256: crate::output::manifest::sha256_hex(&n.to_le_bytes()),
+        session_sha256: crate::output::folder::manifest::sha256_hex(&n.to_le_bytes()),
         sample: "PPC".into(),
         added_at: format!("2026-06-01T00:00:{:02}.000Z", n % 60),
         spots: (0..spots).map(spot).collect(),

@@ -2,7 +2,7 @@
 //! bounds tests kill, interrupt and resume it at chosen writes ([`Crash`]).
 use crate::measure_args::parse_args;
 use host::measure::{Measured, measure_with};
-use host::output::store::{Crash, StoreOptions};
+use host::output::folder::store::{Crash, StoreOptions};
 use host::session::{Operator, SimulatedOperator};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

@@ -11,12 +11,36 @@
 //! | `<sample>.astm`, `fig*.svg` | summaries of the result (the ASTM E1392/E2387 exchange format, plots) | replaced atomically at the end |
 //! | `MANIFEST.sha256` | the SHA-256 of every other file, in `sha256sum` format | last, atomically |
 //! | `signature.json` | the signature of the manifest, when a key signed it | right after it |
+//!
+//! # One module for the folder, in layers
+//!
+//! Reading, writing, verifying and signing a session or sheet folder are this module's.
+//! Each part imports only those below it (paths `crate::output::folder::…`), so there is
+//! no circle among them; nothing here imports anything else of `output` (the report is
+//! above: its check is handed the drawing, `verify::DrawReport`):
+//!
+//! | layer | modules | imports from `folder` |
+//! |---|---|---|
+//! | verification | [`verify`]: every check of a finished session or sheet folder, on what [`sheet`] read | all below |
+//! | writers and the sheet's reader | [`record`] (a session folder), [`sheet`] (a sheet's: written, and read once into [`sheet::ReadSheet`] / [`sheet::ReadFolder`]) | all below |
+//! | signatures | [`signature`]: the manifest's signature, a file's, the keys | `store`, `manifest`, this page |
+//! | store, manifest, lock and documents | [`store`], [`manifest`], [`lock`], [`documents`] (the typed result and outcome of a finished `session.json`) | this page |
+//! | names and reading | this page: file names, `session.json`, findings, reading a file | none |
 use crate::instrument::calibration::Calibration;
 use crate::schema;
 use crate::session::MeasuredPoint;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::{Path, PathBuf};
+
+pub mod documents;
+pub mod lock;
+pub mod manifest;
+pub mod record;
+pub mod sheet;
+pub mod signature;
+pub mod store;
+pub mod verify;
 
 /// The primary record.
 pub(crate) const POINTS: &str = "points.jsonl";
@@ -33,7 +57,7 @@ pub const MANIFEST: &str = "MANIFEST.sha256";
 /// The report drawn from a finished session or sheet folder's files (not in its manifest:
 /// `gonio verify` checks it against them instead).
 pub(crate) const REPORT: &str = "report.html";
-/// The signature of a finished folder's manifest ([`crate::output::signature`]): not in
+/// The signature of a finished folder's manifest ([`signature`]): not in
 /// the manifest, which it signs.
 pub const SIGNATURE: &str = "signature.json";
 /// The sheet document of a folder of several spots.
@@ -73,16 +97,16 @@ pub(crate) fn is_legacy_header(header: &str) -> bool {
     header == LEGACY_READINGS_HEADER || header == LEGACY_READINGS_HEADER_WITH_SPAN
 }
 
-/// The suffix of a file being replaced ([`crate::output::store::Store::replace`]).
+/// The suffix of a file being replaced ([`store::Store::replace`]).
 const TEMP_SUFFIX: &str = ".gonio-tmp";
 
-/// Whether `name` is a temporary file that [`crate::output::store::Store::replace`] writes
+/// Whether `name` is a temporary file that [`store::Store::replace`] writes
 /// (and a kill can leave).
 pub fn is_temp_name(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(TEMP_SUFFIX)
 }
 
-/// The temporary name [`crate::output::store::Store::replace`] writes `name` under.
+/// The temporary name [`store::Store::replace`] writes `name` under.
 pub(crate) fn temp_name(name: &str) -> String {
     format!(".{name}{TEMP_SUFFIX}")
 }
@@ -383,7 +407,12 @@ pub struct LinesFile {
 
 /// Read a file of lines; a missing file is empty. Invalid UTF-8 in a whole line is a problem.
 pub fn read_lines(path: &Path) -> Result<LinesFile, Finding> {
-    match std::fs::read(path) {
+    lines_read(path, std::fs::read(path))
+}
+
+/// [`read_lines`] of what reading the file `path` gave.
+fn lines_read(path: &Path, read: std::io::Result<Vec<u8>>) -> Result<LinesFile, Finding> {
+    match read {
         Ok(bytes) => lines_of(path, &bytes),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(LinesFile::default()),
         Err(e) => Err(Finding::new(path, None, format!("cannot read: {e}"))),
@@ -807,8 +836,13 @@ fn same_row(row: &str, want: &str) -> bool {
 /// ([`crate::schema::SESSION_V1`]) is upgraded in memory (the file stays as it is: its
 /// manifest vouches for its bytes).
 pub fn read_session(dir: &Path) -> Result<Option<SessionDoc>, Finding> {
+    session_read(dir, std::fs::read(dir.join(SESSION)))
+}
+
+/// [`read_session`] of what reading `dir`'s `session.json` gave.
+fn session_read(dir: &Path, read: std::io::Result<Vec<u8>>) -> Result<Option<SessionDoc>, Finding> {
     let path = dir.join(SESSION);
-    match std::fs::read_to_string(&path) {
+    match text_of(read) {
         Ok(text) => parse_session(&path, &text).map(Some),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
@@ -917,12 +951,31 @@ fn upgrade_session_v1(doc: &mut serde_json::Value) {
 
 /// Read `calibration.json`; `None` when there is none.
 pub(crate) fn read_calibration(dir: &Path) -> Result<Option<Calibration>, Finding> {
+    calibration_read(dir, std::fs::read(dir.join(CALIBRATION)))
+}
+
+/// [`read_calibration`] of what reading `dir`'s `calibration.json` gave.
+fn calibration_read(
+    dir: &Path,
+    read: std::io::Result<Vec<u8>>,
+) -> Result<Option<Calibration>, Finding> {
     let path = dir.join(CALIBRATION);
-    match std::fs::read_to_string(&path) {
+    match text_of(read) {
         Ok(text) => parse_calibration(&path, &text).map(Some),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(Finding::new(&path, None, format!("cannot read: {e}"))),
     }
+}
+
+/// A file's bytes as its text, refused as [`std::fs::read_to_string`] refuses invalid
+/// UTF-8 (with its words: the messages are the same whichever read the file).
+fn text_of(read: std::io::Result<Vec<u8>>) -> std::io::Result<String> {
+    String::from_utf8(read?).map_err(|_| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "stream did not contain valid UTF-8",
+        )
+    })
 }
 
 /// The text of a `calibration.json` as [`read_calibration`] reads it (`path` names the
@@ -958,7 +1011,7 @@ pub fn entries(dir: &Path) -> std::io::Result<Vec<String>> {
 /// Refuse a folder to write into that holds a symbolic link: gonio never leaves one, and a
 /// write through it (an appended `session.log`, a replaced file, a sheet's spot folder)
 /// could land anywhere outside the folder (issue 30). The store refuses to open a link for
-/// writing as well ([`crate::output::store::open_in_folder`]); this says so before anything
+/// writing as well ([`store::open_in_folder`]); this says so before anything
 /// is changed.
 pub(crate) fn refuse_links(dir: &Path) -> Result<(), Finding> {
     let cannot_list = |e: std::io::Error| Finding::new(dir, None, format!("cannot list: {e}"));
@@ -992,6 +1045,11 @@ pub(crate) fn logged_decisions(log: &LinesFile, run: u32) -> Vec<String> {
         .collect()
 }
 
+/// The bytes of each file [`inspect`] read, by name, as it read them: the manifest is
+/// checked on these ([`manifest::check_read`]), so the files parsed are the files hashed
+/// and each is read once.
+pub(crate) type FilesRead = std::collections::BTreeMap<String, Vec<u8>>;
+
 /// Everything a folder holds, read and cross-checked without changing it.
 pub(crate) struct Inspection {
     /// The folder.
@@ -1010,6 +1068,8 @@ pub(crate) struct Inspection {
     pub calibration: Option<Calibration>,
     /// Temporary files left by a kill.
     pub(crate) temp_files: Vec<String>,
+    /// The bytes of the files read.
+    pub(crate) read: FilesRead,
     /// Damage that a resume does not repair, found by cross-checking the files: anything
     /// but a cut-off last line, `readings.csv` behind `points.jsonl`, temporary files, and
     /// a run that ended without closing.
@@ -1031,14 +1091,20 @@ pub(crate) fn inspect(dir: &Path) -> Result<Inspection, Finding> {
             },
         ));
     }
-    let session = read_session(dir)?;
+    let mut read = FilesRead::new();
+    let mut keep = |name: &str| {
+        let bytes = std::fs::read(dir.join(name))?;
+        read.insert(name.to_string(), bytes.clone());
+        Ok(bytes)
+    };
+    let session = session_read(dir, keep(SESSION))?;
     let points_path = dir.join(POINTS);
-    let points_file = read_lines(&points_path)?;
+    let points_file = lines_read(&points_path, keep(POINTS))?;
     let recorded = parse_points(&points_path, &points_file)?;
     let csv_path = dir.join(READINGS);
-    let csv_file = read_lines(&csv_path)?;
-    let log = read_lines(&dir.join(LOG))?;
-    let calibration = read_calibration(dir)?;
+    let csv_file = lines_read(&csv_path, keep(READINGS))?;
+    let log = lines_read(&dir.join(LOG), keep(LOG))?;
+    let calibration = calibration_read(dir, keep(CALIBRATION))?;
     let points = converted(&recorded, calibration.as_ref());
     let temp_files =
         temp_files(dir).map_err(|e| Finding::new(dir, None, format!("cannot list: {e}")))?;
@@ -1086,6 +1152,7 @@ pub(crate) fn inspect(dir: &Path) -> Result<Inspection, Finding> {
         log,
         calibration,
         temp_files,
+        read,
         damage,
     })
 }

@@ -1,7 +1,7 @@
 //! `MANIFEST.sha256`: the SHA-256 of every file of a finished session folder, one
 //! `HEX  NAME` line each in name order, as `sha256sum` writes them, so that
 //! `sha256sum -c MANIFEST.sha256` in the folder checks it as well as `gonio verify` does.
-use crate::output::folder::{Finding, MANIFEST, REPORT, SIGNATURE, entries, temp_name};
+use crate::output::folder::{FilesRead, Finding, MANIFEST, REPORT, SIGNATURE, entries, temp_name};
 use sha2::{Digest, Sha256};
 use std::path::Path;
 
@@ -36,11 +36,19 @@ pub struct Matched {
     pub files: usize,
     /// The folder's identity: the SHA-256 (hex) of its manifest.
     pub identity: String,
+    /// The manifest as read (what a signature signs).
+    pub(crate) text: String,
 }
 
 /// Check `dir` against its manifest: every file listed, present and unchanged, and no other
 /// file. Returns what matched, or every problem found.
 pub fn check(dir: &Path) -> Result<Matched, Vec<Finding>> {
+    check_read(dir, &FilesRead::new())
+}
+
+/// [`check`], on the bytes of the files already read (`read`, by name) as they were read:
+/// only the others are read here.
+pub(crate) fn check_read(dir: &Path, read: &FilesRead) -> Result<Matched, Vec<Finding>> {
     let path = dir.join(MANIFEST);
     let problem = |line: Option<usize>, message: String| Finding {
         file: path.clone(),
@@ -82,7 +90,11 @@ pub fn check(dir: &Path) -> Result<Matched, Vec<Finding>> {
             continue;
         }
         let file = dir.join(name);
-        match std::fs::read(&file) {
+        let bytes = match read.get(name) {
+            Some(bytes) => Ok(std::borrow::Cow::Borrowed(bytes)),
+            None => std::fs::read(&file).map(std::borrow::Cow::Owned),
+        };
+        match bytes {
             Ok(bytes) if sha256_hex(&bytes).eq_ignore_ascii_case(hex) => {}
             Ok(_) => problems.push(Finding { file, line: None, message: format!("changed since the session finished: its SHA-256 is not the one in {MANIFEST}:{}", k + 1) }),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => problems.push(Finding { file, line: None, message: format!("missing (listed in {MANIFEST}:{})", k + 1) }),
@@ -119,6 +131,7 @@ pub fn check(dir: &Path) -> Result<Matched, Vec<Finding>> {
         Ok(Matched {
             files: listed.len(),
             identity: sha256_hex(text.as_bytes()),
+            text,
         })
     } else {
         Err(problems)
@@ -139,6 +152,30 @@ mod tests {
         assert_eq!(
             sha256_hex(b""),
             "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+        );
+    }
+
+    /// The check hashes the bytes handed to it as read, not the file again: what was
+    /// parsed is what is checked (and each file read once).
+    #[test]
+    fn the_check_hashes_the_bytes_already_read() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("a.txt"), b"as written\n").unwrap();
+        std::fs::write(dir.path().join("b.txt"), b"other\n").unwrap();
+        let text = manifest_text(dir.path()).unwrap();
+        std::fs::write(dir.path().join(MANIFEST), &text).unwrap();
+        let matched = check(dir.path()).unwrap();
+        assert_eq!((matched.files, matched.text.as_str()), (2, text.as_str()));
+        let same: FilesRead = [("a.txt".to_string(), b"as written\n".to_vec())].into();
+        assert_eq!(check_read(dir.path(), &same), Ok(matched));
+        let other: FilesRead = [("a.txt".to_string(), b"as parsed\n".to_vec())].into();
+        let found = check_read(dir.path(), &other).unwrap_err();
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert_eq!(found[0].file, dir.path().join("a.txt"));
+        assert!(
+            found[0].message.starts_with("changed since"),
+            "{}",
+            found[0]
         );
     }
 }

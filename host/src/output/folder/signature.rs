@@ -29,9 +29,9 @@
 //! that signs by default, `default`. A folder's signer is trusted when its public key is
 //! one of the own keys or of the trusted ones: the name in `signature.json` is the
 //! signer's claim, the trust is looked up by the key.
+use crate::output::folder::manifest::sha256_hex;
+use crate::output::folder::store::{SignManifest, Store};
 use crate::output::folder::{Finding, MANIFEST};
-use crate::output::manifest::sha256_hex;
-use crate::output::store::{SignManifest, Store};
 use ed25519_dalek::pkcs8::{DecodePrivateKey, EncodePrivateKey};
 use ed25519_dalek::{Signature, Signer as _, SigningKey, VerifyingKey};
 use serde::{Deserialize, Serialize};
@@ -427,6 +427,20 @@ pub fn check_folder(dir: &Path) -> Result<Option<Signed>, Finding> {
     let manifest = std::fs::read(dir.join(MANIFEST))
         .map_err(|e| problem(format!("signs {MANIFEST}, which cannot be read: {e}")))?;
     check_file_over(&path, &manifest).map_err(problem)
+}
+
+/// [`check_folder`] over the manifest already read (`manifest`: its bytes as read), not
+/// read again.
+pub(crate) fn check_folder_over(dir: &Path, manifest: &[u8]) -> Result<Option<Signed>, Finding> {
+    let path = dir.join(SIGNATURE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    check_file_over(&path, manifest).map_err(|message| Finding {
+        file: path.clone(),
+        line: None,
+        message,
+    })
 }
 
 /// The name of the signature of the file `file`: `F.sig.json`.

@@ -122,12 +122,12 @@ pub struct StoreOptions {
     /// A simulated fault (tests); `None` for real use.
     pub crash: Option<Crash>,
     /// The key that signs the folder's manifest when it is written (`signature.json`;
-    /// in use a [`crate::output::signature::Signer`]); `None`: the folder is left unsigned.
+    /// in use the `Signer` of the `signature` module, above this); `None`: the folder is left unsigned.
     pub signer: Option<std::sync::Arc<dyn SignManifest>>,
 }
 
 /// What signs a folder's manifest: the store asks it for the bytes of the signature file
-/// (what a signature is, and the keys, are [`crate::output::signature`]'s, above this).
+/// (what a signature is, and the keys, are the `signature` module's, above this).
 pub trait SignManifest: Send + std::marker::Sync + std::fmt::Debug {
     /// The signature file's bytes for the manifest `manifest` (the bytes of `covers`).
     fn signature_bytes(&self, covers: &str, manifest: &[u8]) -> io::Result<Vec<u8>>;

@@ -8,18 +8,18 @@
 //!
 //! Rendering sits above verification (the report is drawn from what is checked here), so
 //! the check of `report.html` is handed the drawing: [`DrawReport`], in use
-//! [`crate::output::report::draw`]. A folder is read once: what the checks read is what
+//! `output::report::draw`, above the folder. A folder is read once: what the checks read is what
 //! the drawing is given, and what [`Verified`] hands on (the library adds it from there).
 use crate::instrument::calibration::Calibration;
-use crate::output::documents::Part;
+use crate::output::folder::documents::Part;
+use crate::output::folder::sheet::{
+    ReadFolder, ReadSheet, assemble, manifest_text, read_doc, require_finished_sheet, spot_from,
+};
+use crate::output::folder::signature::{SIGNATURE, Signed, check_folder, check_folder_over};
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, Finding, Inspection, LOG, MANIFEST, POINTS, READINGS, REPORT,
     RunOutcome, SESSION, SHEET, SessionDoc, Status,
 };
-use crate::output::sheet_folder::{
-    ReadFolder, ReadSheet, assemble, manifest_text, read_doc, require_finished_sheet, spot_from,
-};
-use crate::output::signature::{SIGNATURE, Signed, check_folder};
 use crate::session::MeasuredPoint;
 use std::path::{Path, PathBuf};
 
@@ -66,7 +66,7 @@ pub fn verify<E: std::fmt::Display>(
     };
     let mut problems = inspection.damage.clone();
     problems.extend(unfinished(dir, doc));
-    let matched = match crate::output::manifest::check(dir) {
+    let matched = match crate::output::folder::manifest::check_read(dir, &inspection.read) {
         Ok(matched) => Some(matched),
         Err(found) => {
             problems.extend(found);
@@ -94,7 +94,12 @@ pub fn verify<E: std::fmt::Display>(
         ));
         problems.extend(finished_record(dir, doc, record.calibration, &inspection));
     }
-    let signed = match check_folder(dir) {
+    // Over the manifest as the check above read it, when it could.
+    let signature = match &matched {
+        Some(matched) => check_folder_over(dir, matched.text.as_bytes()),
+        None => check_folder(dir),
+    };
+    let signed = match signature {
         Ok(signed) => signed,
         Err(problem) => {
             problems.push(problem);
@@ -308,15 +313,21 @@ pub fn verify_sheet<E: std::fmt::Display>(
     let mut problems = Vec::new();
     let manifest = dir.join(MANIFEST);
     let mut identity = String::new();
-    match (std::fs::read_to_string(&manifest), manifest_text(dir, &doc)) {
-        (Ok(recorded), Ok(now)) if recorded == now => {
-            identity = crate::output::manifest::sha256_hex(recorded.as_bytes());
+    let read = std::fs::read_to_string(&manifest);
+    match (&read, manifest_text(dir, &doc)) {
+        (Ok(recorded), Ok(now)) if *recorded == now => {
+            identity = crate::output::folder::manifest::sha256_hex(recorded.as_bytes());
         }
         (Ok(_), Ok(_)) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("does not match {SHEET} and the spots' manifests: a file changed since the sheet finished") }),
         (Err(e), _) => problems.push(Finding { file: manifest.clone(), line: None, message: format!("cannot read ({e}): the sheet never finished") }),
         (_, Err(e)) => problems.push(Finding { file: dir.to_path_buf(), line: None, message: format!("a file the manifest covers cannot be read: {e}") }),
     }
-    let signed = match check_folder(dir) {
+    // Over the manifest as read above, when it could be.
+    let signature = match &read {
+        Ok(recorded) => check_folder_over(dir, recorded.as_bytes()),
+        Err(_) => check_folder(dir),
+    };
+    let signed = match signature {
         Ok(signed) => signed,
         Err(problem) => {
             problems.push(problem);

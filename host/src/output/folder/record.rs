@@ -1,7 +1,7 @@
 //! The session folder as the record of one session: created for it alone, every reading
 //! appended as it arrives, every decision logged, resumed only by the same sample,
 //! instrument and plan, closed with a manifest. The files are described in
-//! [`crate::output::folder`]; every write goes through [`crate::output::store::Store`]
+//! [`crate::output::folder`]; every write goes through [`crate::output::folder::store::Store`]
 //! (whose documentation says what is synced when).
 //!
 //! A folder's life: [`FileRecorder::create`] (or [`FileRecorder::create_default`]) makes it
@@ -13,14 +13,14 @@
 //! [`FileRecorder::finish`] writes the result and the manifest, [`FileRecorder::stop`] the
 //! status of a failed or interrupted session and how to resume it.
 use crate::instrument::calibration::Calibration;
-use crate::output::documents::FinishedSession;
+use crate::output::folder::documents::FinishedSession;
+use crate::output::folder::lock::{FolderError, FolderLock, io_error};
+use crate::output::folder::store::{Store, StoreOptions, Sync};
 use crate::output::folder::{
     self, CALIBRATION, CsvAgreement, Finding, Inspection, InstrumentRecord, LOG, MANIFEST, POINTS,
     PlanRecord, READINGS, READINGS_HEADER, Run, RunOutcome, SESSION, SessionDoc, Status,
     dated_folder_name, json_bytes,
 };
-use crate::output::lock::{FolderError, FolderLock, io_error};
-use crate::output::store::{Store, StoreOptions, Sync};
 use crate::session::{MeasuredPoint, Progress, Recorder};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io;
@@ -380,9 +380,9 @@ fn new_run(run: u32, readings_before: usize) -> Run {
 /// Write `MANIFEST.sha256` for everything in the folder, then its signature (when the
 /// store has a key).
 fn write_manifest(store: &mut Store) -> io::Result<()> {
-    let text = crate::output::manifest::manifest_text(store.dir())?;
+    let text = crate::output::folder::manifest::manifest_text(store.dir())?;
     store.replace(MANIFEST, text.as_bytes())?;
-    crate::output::signature::sign_manifest(store, text.as_bytes())
+    crate::output::folder::signature::sign_manifest(store, text.as_bytes())
 }
 
 /// An existing folder taken for `--out`: it must be empty, but for temporary files a
@@ -465,8 +465,8 @@ impl Existing {
                 // Killed between the manifest and its signature: sign the folder as its
                 // manifest holds it (never a folder changed since).
                 let mut store = Store::open_dir(dir, options);
-                let whole = crate::output::manifest::check(dir).is_ok();
-                crate::output::signature::sign_if_unsigned(&mut store, whole)
+                let whole = crate::output::folder::manifest::check(dir).is_ok();
+                crate::output::folder::signature::sign_if_unsigned(&mut store, whole)
                     .map_err(io_error(dir))?;
             }
             return Err(FolderError::Finished {

@@ -15,13 +15,13 @@ use crate::analysis::evidence::Sheet;
 use crate::analysis::flags::Flag;
 use crate::analysis::spots::{self, SheetSummary, SpotResult};
 use crate::instrument::calibration::Calibration;
-use crate::output::documents::SpotResultDocument;
+use crate::output::folder::documents::SpotResultDocument;
+use crate::output::folder::lock::{FolderError, FolderLock, io_error};
+use crate::output::folder::store::{Store, StoreOptions};
 use crate::output::folder::{
     self, Finding, MANIFEST, SESSION, SHEET, SessionDoc, Status, dated_folder_name,
     is_sheet_folder, json_bytes, spot_folder,
 };
-use crate::output::lock::{FolderError, FolderLock, io_error};
-use crate::output::store::{Store, StoreOptions};
 use serde::{Deserialize, Serialize};
 use std::io;
 use std::path::{Path, PathBuf};
@@ -297,7 +297,7 @@ impl SheetFolder {
                 let whole = manifest_text(dir, &folder.doc).is_ok_and(|now| {
                     std::fs::read_to_string(dir.join(MANIFEST)).is_ok_and(|m| m == now)
                 });
-                crate::output::signature::sign_if_unsigned(&mut folder.store, whole)
+                crate::output::folder::signature::sign_if_unsigned(&mut folder.store, whole)
                     .map_err(io_error(dir))?;
             }
             return Err(FolderError::FinishedSheet {
@@ -364,7 +364,7 @@ impl SheetFolder {
     fn write_manifest(&mut self) -> io::Result<()> {
         let text = manifest_text(self.store.dir(), &self.doc)?;
         self.store.replace(MANIFEST, text.as_bytes())?;
-        crate::output::signature::sign_manifest(&mut self.store, text.as_bytes())
+        crate::output::folder::signature::sign_manifest(&mut self.store, text.as_bytes())
     }
 }
 
@@ -376,7 +376,7 @@ pub fn manifest_text(dir: &Path, doc: &SheetDoc) -> io::Result<String> {
     for name in names {
         text += &format!(
             "{}  {name}\n",
-            crate::output::manifest::sha256_hex(&std::fs::read(dir.join(&name))?)
+            crate::output::folder::manifest::sha256_hex(&std::fs::read(dir.join(&name))?)
         );
     }
     Ok(text)
@@ -574,7 +574,7 @@ pub struct MeasuredSheet {
 fn provenance(dir: &Path) -> (Option<String>, Option<String>, Option<folder::CaseRecord>) {
     let identity = std::fs::read(dir.join(folder::MANIFEST))
         .ok()
-        .map(|bytes| crate::output::manifest::sha256_hex(&bytes));
+        .map(|bytes| crate::output::folder::manifest::sha256_hex(&bytes));
     #[derive(serde::Deserialize)]
     struct Head {
         instrument: Option<folder::InstrumentRecord>,
