@@ -54,3 +54,22 @@ mod tests {
         assert_eq!(shown(&long).chars().count(), SHOWN_CHARS + 1);
     }
 }
+
+/// An error and its causes in one line, each said once: a cause whose words its parent
+/// already quotes (an error that writes its `source` into its own message, as many of
+/// the standard library's and the crates' do) is not repeated, so a missing file reads
+/// "…: No such file or directory (os error 2)" once, not two or three times (issue 31).
+pub fn error_chain(error: &anyhow::Error) -> String {
+    let mut said = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if said.contains(&text) {
+            continue;
+        }
+        if !said.is_empty() {
+            said.push_str(": ");
+        }
+        said.push_str(&text);
+    }
+    said
+}

@@ -119,8 +119,8 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     }
     print!("{}", host::analysis::result::to_table(&outcome.report));
     println!(
-        "  {} geometries, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
-        outcome.points.len(),
+        "  {}, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
+        geometries_read(outcome.usable_readings(), outcome.points.len()),
         outcome.device_seconds,
         outcome.setup_seconds,
         if outcome.refinements.is_empty() {
@@ -235,9 +235,12 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
             interval("rho_d", 4)
         );
         println!(
-            "    NMAE {:.2} %, {} geometries, {:.1} device s; flags: {}; report: {}",
+            "    NMAE {:.2} %, {}, {:.1} device s; flags: {}; report: {}",
             100.0 * result.nmae(),
-            result.geometries.unwrap_or(0),
+            geometries_read(
+                result.geometries.unwrap_or(0) as usize,
+                s.doc.readings_recorded
+            ),
             result.device_seconds.unwrap_or(f64::NAN),
             if s.result.flags.is_empty() {
                 "none".to_string()
@@ -352,4 +355,17 @@ fn flag_names(flags: &[host::analysis::flags::Flag]) -> String {
         .map(|f| f.name())
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// "N geometries", and how many readings were taken when that is more (a sweep's blanked
+/// bins, readings superseded after lost steps): the count is the fit's and readings.csv's.
+fn geometries_read(usable: usize, read: usize) -> String {
+    if read > usable {
+        format!(
+            "{usable} geometries ({read} readings taken, {} not usable: see points.jsonl)",
+            read - usable
+        )
+    } else {
+        format!("{usable} geometries")
+    }
 }
