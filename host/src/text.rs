@@ -39,22 +39,6 @@ fn needs_escape(c: char) -> bool {
         || matches!(c, '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}' | '\u{200E}' | '\u{200F}')
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn escapes_and_cuts() {
-        assert_eq!(shown("PPC"), "PPC");
-        assert_eq!(shown("a\u{1b}[2Jb\r\n"), "a\\u{1b}[2Jb\\u{d}\\u{a}");
-        assert_eq!(shown_at_most("abcdef", 3), "abc…");
-        assert_eq!(shown_at_most("abc", 3), "abc");
-        assert_eq!(shown("x\u{202E}y"), "x\\u{202e}y");
-        let long = "é".repeat(120_000);
-        assert_eq!(shown(&long).chars().count(), SHOWN_CHARS + 1);
-    }
-}
-
 /// An error and its causes in one line, each said once: a cause whose words its parent
 /// already quotes (an error that writes its `source` into its own message, as many of
 /// the standard library's and the crates' do) is not repeated, so a missing file reads
@@ -72,4 +56,20 @@ pub fn error_chain(error: &anyhow::Error) -> String {
         said.push_str(&text);
     }
     said
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn escapes_and_cuts() {
+        assert_eq!(shown("PPC"), "PPC");
+        assert_eq!(shown("a\u{1b}[2Jb\r\n"), "a\\u{1b}[2Jb\\u{d}\\u{a}");
+        assert_eq!(shown_at_most("abcdef", 3), "abc…");
+        assert_eq!(shown_at_most("abc", 3), "abc");
+        assert_eq!(shown("x\u{202E}y"), "x\\u{202e}y");
+        let long = "é".repeat(120_000);
+        assert_eq!(shown(&long).chars().count(), SHOWN_CHARS + 1);
+    }
 }

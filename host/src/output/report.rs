@@ -368,8 +368,13 @@ fn parameters_table(r: &ResultDocument) -> Markup {
             "\n"
             @for (label, key, value, digits) in rows {
                 @let ci = r.ci95.of(key).unwrap_or_default();
+                // Two significant digits of the uncertainty where an interval exists.
+                @let digits = match ci {
+                    [Some(lo), Some(hi)] => crate::analysis::result::interval_decimals(lo, hi).unwrap_or(digits),
+                    _ => digits,
+                };
                 tr {
-                    td { (Text(label)) }
+                    td { (Text(label)) " (" code { (key) } ")" }
                     td class="num" { (number(value, digits)) }
                     @if r.model.iter().any(|n| n == key) {
                         td class="num" { (number(ci[0], digits)) }

@@ -297,3 +297,109 @@ fn sessions_of_a_session_or_sheet_folder_lists_it_with_its_classes_counted() {
     }
     let _ = std::fs::remove_dir_all(&sheet);
 }
+
+/// The numbers of "X [LO, HI]" after `label` in `line`: value, lower and upper, as
+/// printed (with their decimals).
+fn printed_interval<'a>(line: &'a str, label: &str) -> Option<(&'a str, &'a str, &'a str)> {
+    let rest = line.split(label).nth(1)?.trim_start();
+    let (value, rest) = rest.split_once(" [")?;
+    let (lo, rest) = rest.split_once(", ")?;
+    let hi = rest.split(']').next()?;
+    Some((value.trim().trim_end_matches('°'), lo, hi))
+}
+
+fn decimals(number: &str) -> usize {
+    number.split_once('.').map_or(0, |(_, d)| d.len())
+}
+
+/// Whether a value and its interval are printed to two significant digits of the standard
+/// uncertainty (the half-width over 1.96): that uncertainty, in units of the last digit
+/// shown, is between 10 and 99 (with room for the printed bounds' rounding).
+fn two_digits_of_uncertainty(value: &str, lo: &str, hi: &str) -> bool {
+    let d = decimals(value);
+    let (l, h): (f64, f64) = (lo.parse().unwrap(), hi.parse().unwrap());
+    let u = (h - l) / 2.0 / 1.96 * 10f64.powi(d as i32);
+    decimals(lo) == d && decimals(hi) == d && (9.0..110.0).contains(&u)
+}
+
+/// Issue 31: the terminal printed σ, ρs, ρd where --json has sigma_deg, rho_s, rho_d, with
+/// the mapping nowhere; "confidence 1.00" in one place and "100 %" in another; and ρs to 4
+/// decimals whatever its uncertainty ("57.3820 [51.0520, 64.4969]"). Now the mapping is
+/// printed with the values, the confidence is the 0…1 share everywhere (terminal, report),
+/// and an estimate with an interval has two significant digits of its uncertainty.
+#[test]
+fn the_terminal_names_the_keys_and_prints_digits_the_uncertainty_supports() {
+    for (seed, spots) in [(5u64, "1"), (6, "3")] {
+        let dir = temp_dir(&format!("digits-{seed}"));
+        let out = gonio(&[
+            "measure",
+            "--sim",
+            "SG",
+            "--spots",
+            spots,
+            "--seed",
+            &seed.to_string(),
+            "--out",
+            dir.to_str().unwrap(),
+        ]);
+        assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+        let printed = String::from_utf8_lossy(&out.stdout).into_owned();
+        // The keys beside the symbols.
+        for pair in [("σ", "sigma_deg"), ("ρs", "rho_s"), ("ρd", "rho_d")] {
+            assert!(
+                printed
+                    .lines()
+                    .any(|l| l.contains(pair.0) && l.contains(pair.1)),
+                "seed {seed}: no line names {} and {}:\n{printed}",
+                pair.0,
+                pair.1
+            );
+        }
+        // One presentation of the confidence.
+        assert!(
+            printed.contains("confidence ") && !printed.contains(" %  (of the parameters"),
+            "{printed}"
+        );
+        for line in printed.lines().filter(|l| l.contains("confidence ")) {
+            let after = line.split("confidence ").nth(1).unwrap();
+            let number: String = after
+                .chars()
+                .take_while(|c| c.is_ascii_digit() || *c == '.')
+                .collect();
+            assert!(
+                number
+                    .parse::<f64>()
+                    .is_ok_and(|c| (0.0..=1.0).contains(&c))
+                    && decimals(&number) == 2
+                    && !after[number.len()..].trim_start().starts_with('%'),
+                "seed {seed}: confidence not a 0–1 share to 2 decimals: {line}"
+            );
+        }
+        // Digits from the uncertainty, for ρs (the one whose uncertainty is large).
+        let mut checked = 0;
+        for line in printed.lines() {
+            for label in ["ρs = ", "ρs (rho_s) "] {
+                if let Some((value, lo, hi)) = printed_interval(line, label) {
+                    assert!(
+                        two_digits_of_uncertainty(value, lo, hi),
+                        "seed {seed}: {value} [{lo}, {hi}] not to 2 digits of its uncertainty: {line}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert!(
+            checked > 0,
+            "seed {seed}: no ρs with an interval:\n{printed}"
+        );
+        // The report presents the confidence as the terminal does.
+        let report_path = dir.join("report.html");
+        let report = std::fs::read_to_string(&report_path).unwrap();
+        assert!(
+            report.contains("confidence ") && !report.contains("confidence 100 %"),
+            "{}",
+            report_path.display()
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

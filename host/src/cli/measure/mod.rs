@@ -199,6 +199,7 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
         sheet.doc.sample,
         sheet.counts().sentence()
     );
+    println!("  (σ, ρs, ρd below are sigma_deg, rho_s, rho_d in --json and the folder's files)");
     let value = |v: Option<f64>, digits: usize| {
         v.map_or_else(|| "—".to_string(), |v| format!("{v:.digits$}"))
     };
@@ -213,9 +214,13 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
         );
         // The spot's own report, as its session.json holds it.
         let result = &s.document;
-        let interval = |key: &str, digits: usize| match result.interval(key) {
-            Some([Some(lo), Some(hi)]) => format!(" [{lo:.digits$}, {hi:.digits$}]"),
-            _ => String::new(),
+        // To two significant digits of the uncertainty where an interval exists.
+        let shown = |v: Option<f64>, key: &str, digits: usize| match (v, result.interval(key)) {
+            (Some(v), Some([Some(lo), Some(hi)])) => {
+                let (v, ci) = host::analysis::result::value_with_interval(v, lo, hi);
+                format!("{v} {ci}")
+            }
+            (v, _) => value(v, digits),
         };
         let confidence = result
             .class_confidence()
@@ -226,13 +231,10 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
             s.session.class.as_deref().unwrap_or("undecided")
         );
         println!(
-            "    σ = {}°{}   ρs = {}{}   ρd = {}{}   (95 % intervals)",
-            value(s.session.values[0], 3),
-            interval("sigma_deg", 3),
-            value(s.session.values[1], 4),
-            interval("rho_s", 4),
-            value(s.session.values[2], 4),
-            interval("rho_d", 4)
+            "    σ = {}°   ρs = {}   ρd = {}   (95 % intervals)",
+            shown(s.session.values[0], "sigma_deg", 3),
+            shown(s.session.values[1], "rho_s", 4),
+            shown(s.session.values[2], "rho_d", 4)
         );
         println!(
             "    NMAE {:.2} %, {}, {:.1} device s; flags: {}; report: {}",
@@ -256,13 +258,21 @@ fn print_sheet(dir: &Path, sheet: &host::output::sheet_folder::ReadSheet) {
             |sd| format!("spot-to-spot sd {:.1} %", 100.0 * sd[i]),
         )
     };
+    // The mean to the precision of its own interval, when the answer has one.
+    let mean = |i: usize, digits: usize| {
+        let ci = summary.answer.as_ref().and_then(|a| {
+            [a.ci95.sigma_deg, a.ci95.rho_s, a.ci95.rho_d][i]
+                .and_then(|[lo, hi]| host::analysis::result::interval_decimals(lo, hi))
+        });
+        value(summary.mean[i], ci.unwrap_or(digits))
+    };
     println!(
         "  sheet (geometric mean of the spots in it): σ = {}° ({}), ρs = {} ({}), ρd = {} ({})",
-        value(summary.mean[0], 3),
+        mean(0, 3),
         spread(0),
-        value(summary.mean[1], 4),
+        mean(1, 4),
         spread(1),
-        value(summary.mean[2], 4),
+        mean(2, 4),
         spread(2)
     );
     if let Some(answer) = &summary.answer {
@@ -303,7 +313,10 @@ fn print_answer(answer: &host::analysis::spots::SheetAnswer) {
     let interval = |i: Option<[f64; 2]>, digits: usize| {
         i.map_or_else(
             || "—".to_string(),
-            |[lo, hi]| format!("[{lo:.digits$}, {hi:.digits$}]"),
+            |[lo, hi]| {
+                let digits = host::analysis::result::interval_decimals(lo, hi).unwrap_or(digits);
+                format!("[{lo:.digits$}, {hi:.digits$}]")
+            },
         )
     };
     println!(
