@@ -86,7 +86,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", host::text::error_chain(&err));
             // A value on the command line refused after clap parsed it exits as clap's own
             // refusals do.
             if err

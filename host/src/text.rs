@@ -39,6 +39,25 @@ fn needs_escape(c: char) -> bool {
         || matches!(c, '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}' | '\u{200E}' | '\u{200F}')
 }
 
+/// An error and its causes in one line, each said once: a cause whose words its parent
+/// already quotes (an error that writes its `source` into its own message, as many of
+/// the standard library's and the crates' do) is not repeated, so a missing file reads
+/// "…: No such file or directory (os error 2)" once, not two or three times (issue 31).
+pub fn error_chain(error: &anyhow::Error) -> String {
+    let mut said = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if said.contains(&text) {
+            continue;
+        }
+        if !said.is_empty() {
+            said.push_str(": ");
+        }
+        said.push_str(&text);
+    }
+    said
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -442,6 +442,22 @@ fn fmt_value(x: Option<f64>) -> String {
     x.map_or_else(|| "—".to_string(), |v| format!("{v:.4}"))
 }
 
+/// Decimals that show a value with a 95 % interval to its precision: two significant
+/// digits of its standard uncertainty, the interval's half-width over 1.96 (issue 31: ρs
+/// was printed to 4 decimals whatever its uncertainty, "57.3820 [51.0520, 64.4969]").
+/// `None` for an interval of no width or not finite. The files keep every digit.
+pub fn interval_decimals(lo: f64, hi: f64) -> Option<usize> {
+    let u = (hi - lo) / 2.0 / 1.959_963_984_540_054;
+    (u.is_finite() && u > 0.0).then(|| (1 - u.log10().floor() as i64).clamp(0, 9) as usize)
+}
+
+/// A value and its 95 % interval, both to [`interval_decimals`] (4 decimals without a
+/// usable interval).
+pub fn value_with_interval(value: f64, lo: f64, hi: f64) -> (String, String) {
+    let d = interval_decimals(lo, hi).unwrap_or(4);
+    (format!("{value:.d$}"), format!("[{lo:.d$}, {hi:.d$}]"))
+}
+
 /// The human table of a report.
 pub fn to_table(r: &Report) -> String {
     let f = &r.fit;
@@ -477,25 +493,42 @@ pub fn to_table(r: &Report) -> String {
 
 /// The table's parameters with their intervals, the arm offset and what was not identified.
 fn parameter_lines(f: &FitResult) -> String {
-    let mut s = "  parameter        value       95 % interval\n".to_string();
+    // Each parameter by its symbol and its key in --json and the files: the mapping is
+    // said where the values are (issue 31: σ, ρs in the terminal, sigma_deg, rho_s in JSON).
+    let mut s = format!(
+        "  {:<17} {:>10}   95 % interval\n",
+        "parameter (key)", "value"
+    );
     let values = [
         f.sigma_deg(),
         f.reported(model::RHO_S),
         f.reported(model::RHO_D),
         f.reported(model::ETA),
     ];
-    for (i, name) in ["sigma [deg]", "rho_s", "rho_d", "eta"].iter().enumerate() {
-        let ci = f.ci95[i].map_or_else(String::new, |(lo, hi)| format!("[{lo:.4}, {hi:.4}]"));
+    for (i, name) in ["σ [°] (sigma_deg)", "ρs (rho_s)", "ρd (rho_d)", "η (eta)"]
+        .iter()
+        .enumerate()
+    {
+        let (shown, ci) = match (values[i], f.ci95[i]) {
+            (Some(v), Some((lo, hi))) => {
+                let (v, ci) = value_with_interval(v, lo, hi);
+                (Some(v), ci)
+            }
+            (v, ci) => (
+                v.map(|v| format!("{v:.4}")),
+                ci.map_or_else(String::new, |(lo, hi)| format!("[{lo:.4}, {hi:.4}]")),
+            ),
+        };
         let value = match (i, f.sigma_upper_deg(), f.rho_s_lower()) {
             (model::SIGMA, Some(up), _) => format!("≤ {up:.4}"),
             (model::RHO_S, _, Some(lower)) => format!("≥ {lower:.4}"),
-            _ => fmt_value(values[i]),
+            _ => shown.unwrap_or_else(|| fmt_value(None)),
         };
-        s += &format!("  {name:<14} {value:>10}   {ci}\n");
+        s += &format!("  {name:<17} {value:>10}   {ci}\n");
     }
     if let Some(a) = f.arm_offset {
         s += &format!(
-            "  arm offset     {:>+10.4}   [{:.4}, {:.4}] (θr + δ0)\n",
+            "  arm offset        {:>+10.4}   [{:.4}, {:.4}] (θr + δ0)\n",
             a.deg, a.ci95.0, a.ci95.1
         );
     }
@@ -592,10 +625,10 @@ fn sampling_line(delta: Option<Delta>, check: Option<SigmaCheck>) -> String {
 fn class_line(c: &Classification) -> String {
     match c.class {
         Some(class) => format!(
-            "  class {} ({}), confidence {:.0} % (of the parameters' uncertainty region in the class), nearest reference {} ({:.2} combined standard uncertainties away)\n",
+            "  class {} ({}), confidence {:.2} (the share of the parameters' uncertainty region in the class), nearest reference {} ({:.2} combined standard uncertainties away)\n",
             class.name(),
             class.group().name(),
-            100.0 * c.confidence,
+            c.confidence,
             c.nearest_reference,
             c.nearest_distance
         ),

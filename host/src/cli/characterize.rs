@@ -187,9 +187,7 @@ fn measure<T: Transport>(
     operator: &mut dyn Operator,
     options: &Options,
 ) -> anyhow::Result<characterize::Characterization> {
-    let info = client
-        .hello()
-        .context("the instrument did not answer the handshake")?;
+    let info = client.hello().context("no handshake with the instrument")?;
     eprintln!(
         "characterizing {} (firmware {}): black glass sweeps at {:?}°, {} re-homings, the white tile and the lamp for {} s",
         info.serial_number,

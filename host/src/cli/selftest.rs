@@ -46,9 +46,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn test<T: Transport>(mut client: Client<T>) -> anyhow::Result<SelfTest> {
-    let info = client
-        .hello()
-        .context("the instrument did not answer the handshake")?;
+    let info = client.hello().context("no handshake with the instrument")?;
     eprintln!(
         "self-test of {} (firmware {}): drivers off, the arms do not move; they are not homed afterwards",
         info.serial_number, info.firmware_version

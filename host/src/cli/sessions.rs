@@ -39,20 +39,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     println!(
-        "{:<19} {:<12} {:<7} {:<24} {:<32} {:>9}  folder",
+        "{:<19} {:<12} {:<7} {:<CLASS_WIDTH$} {:<32} {:>9}  folder",
         "started", "sample", "kind", "class", "state", "device s"
     );
     for e in &entries {
-        let classes: Vec<&str> = e
-            .classes
-            .iter()
-            .map(|c| c.as_deref().unwrap_or("undecided"))
-            .collect();
-        let class = if classes.is_empty() {
-            "—".to_string()
-        } else {
-            classes.join(",")
-        };
+        let class = class_column(&e.classes);
         let state = match (&e.problem, e.ok) {
             (Some(problem), _) => format!("UNREADABLE: {problem}"),
             (None, Some(true)) => {
@@ -66,7 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             (None, None) => e.status.clone(),
         };
         println!(
-            "{:<19} {:<12} {:<7} {:<24} {:<32} {:>9}  {}",
+            "{:<19} {:<12} {:<7} {:<CLASS_WIDTH$} {:<32} {:>9}  {}",
             e.started.as_deref().map_or_else(
                 || "?".to_string(),
                 |t| t.chars().take(19).collect::<String>().replace('T', " ")
@@ -81,4 +72,41 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Width of the class column.
+const CLASS_WIDTH: usize = 24;
+
+/// The class column: a session's class, a sheet's spots counted by class ("rough-II ×5",
+/// "SG ×3, G ×1"), or, when that does not fit the column, how many spots and classes: a
+/// sheet of many spots keeps the table's columns aligned (issue 31: it printed
+/// `rough-II,rough-II,…` across the table). `--json` keeps every spot's class.
+fn class_column(classes: &[Option<String>]) -> String {
+    let names: Vec<&str> = classes
+        .iter()
+        .map(|c| c.as_deref().unwrap_or("undecided"))
+        .collect();
+    match names.as_slice() {
+        [] => return "—".to_string(),
+        [one] => return one.to_string(),
+        _ => {}
+    }
+    // In the order first measured.
+    let mut counts: Vec<(&str, usize)> = Vec::new();
+    for name in &names {
+        match counts.iter_mut().find(|(n, _)| n == name) {
+            Some((_, count)) => *count += 1,
+            None => counts.push((name, 1)),
+        }
+    }
+    let summary = counts
+        .iter()
+        .map(|(name, count)| format!("{name} ×{count}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    if summary.chars().count() <= CLASS_WIDTH {
+        summary
+    } else {
+        format!("{} spots, {} classes", names.len(), counts.len())
+    }
 }

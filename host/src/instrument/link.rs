@@ -92,10 +92,12 @@ pub enum LinkError {
         /// How long since the last byte from the device.
         silent_for: Duration,
     },
-    /// No reply after every retry (while the device answered other frames).
-    #[error("no reply from the instrument to request {seq} ({command}) after {attempts} attempts")]
+    /// No reply after every retry (while the device answered other frames). Said in
+    /// the user's words: the request's number is the link's bookkeeping (kept here, in the
+    /// `Debug` form), not something a user can act on (issue 31).
+    #[error("{}", no_reply_text(command, *attempts))]
     NoReply {
-        /// The request.
+        /// The request's sequence number.
         seq: u32,
         /// What it was.
         command: &'static str,
@@ -143,6 +145,17 @@ pub enum LinkError {
         /// What came back.
         reply: Box<Reply>,
     },
+}
+
+/// What [`LinkError::NoReply`] says: which exchange got no answer, in words.
+fn no_reply_text(command: &str, attempts: u32) -> String {
+    if command == "Hello" {
+        format!(
+            "the greeting that opens the link was sent {attempts} times and nothing came back: check that this is the instrument's port (gonio ports lists them), that the instrument is switched on and running its firmware, and that no other program has the port"
+        )
+    } else {
+        format!("the instrument did not answer the {command} command (sent {attempts} times)")
+    }
 }
 
 fn version_advice(host: u16, device: u16) -> String {

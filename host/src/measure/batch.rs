@@ -124,7 +124,7 @@ pub fn run_batch(
                     });
                 }
                 Err(e) => {
-                    let why = format!("sheet {number}: {e:#}");
+                    let why = format!("sheet {number}: {}", crate::text::error_chain(&e));
                     doc.status = Status::Failed;
                     doc.why = Some(why);
                     doc.resume_with = Some(resume_with.clone());

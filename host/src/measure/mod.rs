@@ -201,8 +201,9 @@ pub fn measure_with(
     }
 }
 
-/// The error of `--resume DIR` on a finished session or sheet, before anything is
-/// connected; every other problem of the folder is found where it is opened to continue.
+/// The error of `--resume DIR` on a finished session or sheet, or on a folder that holds
+/// none, before anything is connected; every other problem of the folder is found where
+/// it is opened to continue.
 fn refuse_finished(dir: &Path, store: &StoreOptions) -> anyhow::Result<()> {
     use crate::output::folder::lock::FolderError;
     let finished = if crate::output::folder::is_sheet_folder(dir) {
@@ -211,9 +212,15 @@ fn refuse_finished(dir: &Path, store: &StoreOptions) -> anyhow::Result<()> {
         crate::output::folder::record::Existing::open(dir, store.clone()).err()
     };
     match finished {
-        Some(e @ (FolderError::Finished { .. } | FolderError::FinishedSheet { .. })) => {
-            Err(e.into())
-        }
+        // A missing folder, or one with no session, cannot be continued either: said
+        // before "no instrument found".
+        Some(
+            e @ (FolderError::Finished { .. }
+            | FolderError::FinishedSheet { .. }
+            | FolderError::NoFolder(_)
+            | FolderError::NotAFolder(_)
+            | FolderError::NoSession(_)),
+        ) => Err(e.into()),
         _ => Ok(()),
     }
 }

@@ -84,8 +84,10 @@ pub(super) fn run_session<T: Transport>(
             })
         }
         Err(e) => {
-            let why =
-                format!("the session was measured but its result could not be written: {e:#}");
+            let why = format!(
+                "the session was measured but its result could not be written: {}",
+                crate::text::error_chain(&e)
+            );
             let _ = recorder.stop(Status::Failed, &why);
             let how = spot.as_ref().map_or_else(
                 || format!("gonio measure --resume {}", dir.display()),

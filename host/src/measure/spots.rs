@@ -236,7 +236,7 @@ fn stopped(
             })
         }
         SpotStop::Other(error) => {
-            let _ = folder.stop(Status::Failed, &format!("{error:#}"));
+            let _ = folder.stop(Status::Failed, &crate::text::error_chain(&error));
             Err(error.context(format!(
                 "the sheet in {} stopped; continue it with {resume_with}",
                 dir.display()

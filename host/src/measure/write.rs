@@ -36,7 +36,7 @@ pub(super) fn write_session(
         analysis_settings: Some(outcome.analysis_settings.clone()),
         covariance: Some(covariance),
         device_seconds: Some(outcome.device_seconds),
-        geometries: Some(outcome.current_points().count() as u64),
+        geometries: Some(outcome.usable_readings() as u64),
         instrument_bound: outcome.instrument_bound.clone(),
         // Gloss rests on the response and zero measured on the black glass: only with a
         // profile in force.

@@ -120,8 +120,26 @@ fn sheet_entry(dir: &Path) -> Entry {
 }
 
 /// The session and sheet folders directly under `root`, oldest first (by their first
-/// run's start, then name); a folder that is neither is left out.
+/// run's start, then name); a folder that is neither is left out. When `root` is itself a
+/// session folder, it is the list; a sheet folder comes first, then its spots (issue 31:
+/// `gonio sessions SHEET` said "no session or sheet folders" of a folder that is one).
 pub fn list(root: &Path) -> Result<Vec<Entry>, CatalogueError> {
+    let itself = if crate::output::folder::is_sheet_folder(root) {
+        Some(sheet_entry(root))
+    } else if root.join(SESSION).is_file() {
+        return Ok(vec![session_entry(root)]);
+    } else {
+        None
+    };
+    let mut out = under(root)?;
+    if let Some(sheet) = itself {
+        out.insert(0, sheet);
+    }
+    Ok(out)
+}
+
+/// The session and sheet folders directly under `root`, oldest first.
+fn under(root: &Path) -> Result<Vec<Entry>, CatalogueError> {
     let names = crate::output::folder::entries(root).map_err(|source| CatalogueError {
         root: root.to_path_buf(),
         source,

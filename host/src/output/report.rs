@@ -257,7 +257,7 @@ fn result_section(dir: &Path, doc: &SessionDoc) -> Result<Markup, ReportError> {
         (class_paragraph(&result.analysis))
         (parameters_table(&result.analysis))
         (instrument_profile_section(&result))
-        (sampling_table(&result))
+        (sampling_table(&result, doc))
         (budget_table(&result.analysis))
         (plots(dir)?)
     })
@@ -368,8 +368,13 @@ fn parameters_table(r: &ResultDocument) -> Markup {
             "\n"
             @for (label, key, value, digits) in rows {
                 @let ci = r.ci95.of(key).unwrap_or_default();
+                // Two significant digits of the uncertainty where an interval exists.
+                @let digits = match ci {
+                    [Some(lo), Some(hi)] => crate::analysis::result::interval_decimals(lo, hi).unwrap_or(digits),
+                    _ => digits,
+                };
                 tr {
-                    td { (Text(label)) }
+                    td { (Text(label)) " (" code { (key) } ")" }
                     td class="num" { (number(value, digits)) }
                     @if r.model.iter().any(|n| n == key) {
                         td class="num" { (number(ci[0], digits)) }
@@ -390,7 +395,7 @@ fn parameters_table(r: &ResultDocument) -> Markup {
 }
 
 /// The σ_l check and the goodness of fit, with the geometries and the device time.
-fn sampling_table(result: &SpotResultDocument) -> Markup {
+fn sampling_table(result: &SpotResultDocument, doc: &SessionDoc) -> Markup {
     let r = &result.analysis;
     let sigma_ok = if r.sigma_ok {
         "yes"
@@ -411,9 +416,26 @@ fn sampling_table(result: &SpotResultDocument) -> Markup {
     } else {
         "no"
     };
-    let geometries = result
-        .geometries
-        .map_or_else(|| "null".to_string(), |g| g.to_string());
+    // The readings' own count (issue 31: a sweep's blanked bins were counted as
+    // geometries, "1400" for a fit and readings.csv of 1,385), and the readings taken.
+    let readings = recorded_readings(doc);
+    let usable = readings
+        .iter()
+        .filter(|p| !p.superseded && p.radiance_factor.is_some())
+        .count();
+    let geometries = if readings.is_empty() {
+        result
+            .geometries
+            .map_or_else(|| "null".to_string(), |g| format!("{g} geometries"))
+    } else if readings.len() > usable {
+        format!(
+            "{usable} geometries (of {} readings taken; {} not usable: blanked sweep bins, readings superseded after lost steps or not convertible)",
+            readings.len(),
+            readings.len() - usable
+        )
+    } else {
+        format!("{usable} geometries")
+    };
     html! {
         h3 { "Sampling and goodness of fit" } "\n"
         table {
@@ -435,7 +457,7 @@ fn sampling_table(result: &SpotResultDocument) -> Markup {
             (field_row("residual structure test", structure))
             (field_row("lack of fit", lack_of_fit))
             (field_row("geometries, device time", format!(
-                "{geometries} geometries, {} s measuring (+{} s homing and calibration)",
+                "{geometries}, {} s measuring (+{} s homing and calibration)",
                 number(result.device_seconds, 1),
                 number(result.setup_seconds, 1)
             )))
@@ -541,7 +563,55 @@ fn inline_svg(svg: &str) -> String {
     svg.trim().to_string()
 }
 
-fn instrument_section(doc: &SessionDoc) -> Markup {
+/// The readings `session.json` records (empty when it holds none that can be read).
+fn recorded_readings(doc: &SessionDoc) -> Vec<crate::session::MeasuredPoint> {
+    doc.rest
+        .get("readings")
+        .and_then(|r| serde_json::from_value(r.clone()).ok())
+        .unwrap_or_default()
+}
+
+/// The plan's integration time as the readings had it: the point readings' setting, and
+/// for sweep bins (the detector's time while the arm crossed each bin, set by the arm's
+/// speed, not by the setting) their range and median (issue 31: "integration 100 ms" was
+/// stated of sweeps whose bins were 1–34 ms).
+fn integration_text(docs: &[&SessionDoc]) -> String {
+    let Some(first) = docs.first() else {
+        return String::new();
+    };
+    let setting = first.plan.integration_ms;
+    let mut points = 0usize;
+    let mut bins_ms: Vec<u16> = Vec::new();
+    for doc in docs {
+        for p in recorded_readings(doc) {
+            if p.superseded || p.radiance_factor.is_none() {
+                continue;
+            }
+            if p.theta_r_span_deg > 0.0 {
+                bins_ms.push(p.reading.integration_ms);
+            } else {
+                points += 1;
+            }
+        }
+    }
+    if bins_ms.is_empty() {
+        return format!("integration {setting} ms");
+    }
+    bins_ms.sort_unstable();
+    let bins = format!(
+        "sweep bins integrated {}–{} ms each (median {} ms: the detector's time while the arm crossed the bin)",
+        bins_ms[0],
+        bins_ms[bins_ms.len() - 1],
+        bins_ms[bins_ms.len() / 2]
+    );
+    if points > 0 {
+        format!("integration {setting} ms for the point readings; {bins}")
+    } else {
+        bins
+    }
+}
+
+fn instrument_section(doc: &SessionDoc, docs: &[&SessionDoc]) -> Markup {
     let i = &doc.instrument;
     html! {
         table {
@@ -556,8 +626,8 @@ fn instrument_section(doc: &SessionDoc) -> Markup {
             }
             (field_row("plan", html! {
                 "policy " (Text(&doc.plan.policy))
-                ", integration " (doc.plan.integration_ms)
-                " ms, detector acceptance " (format!("{}", doc.plan.acceptance_deg)) "°"
+                ", " (integration_text(docs))
+                ", detector acceptance " (format!("{}", doc.plan.acceptance_deg)) "°"
             }))
         }
         "\n"
@@ -750,7 +820,7 @@ fn session_html(
         h2 { "Case" } "\n"
         (case_section(doc.case.as_ref()))
         h2 { "Instrument" } "\n"
-        (instrument_section(doc))
+        (instrument_section(doc, &[doc]))
         h2 { "Calibration" } "\n"
         (calibration_section(calibration, doc))
         h2 { "Result" } "\n"
@@ -782,7 +852,7 @@ fn sheet_html(read: &ReadSheet) -> Result<String, ReportError> {
         h2 { "Case" } "\n"
         (case_section(read.doc.case.as_ref().or(first_doc.case.as_ref())))
         h2 { "Instrument" } "\n"
-        (instrument_section(first_doc))
+        (instrument_section(first_doc, &read.spots.iter().map(|s| &s.doc).collect::<Vec<_>>()))
         h2 { "Calibration (shared by every spot)" } "\n"
         (calibration_section(first.calibration.as_ref().map(Option::as_ref), first_doc))
         (sheet_section(read))

@@ -457,6 +457,16 @@ impl Outcome {
     pub fn current_points(&self) -> impl Iterator<Item = &MeasuredPoint> {
         self.points.iter().filter(|p| !p.superseded)
     }
+
+    /// How many geometries the fit had: current readings with a radiance factor (a
+    /// sweep's blanked bins and unconvertible readings are recorded but carry none).
+    /// The count every output states (issue 31: "1400 geometries" was printed for a
+    /// sweep whose readings.csv and fit had 1,385).
+    pub fn usable_readings(&self) -> usize {
+        self.current_points()
+            .filter(|p| p.radiance_factor.is_some())
+            .count()
+    }
 }
 
 /// How the link was lost for good.

@@ -31,6 +31,7 @@ mod budget_session;
 mod cli_exit;
 mod cli_fit;
 mod cli_measure;
+mod cli_messages;
 mod cli_sim;
 mod compare;
 mod completions;

@@ -119,8 +119,8 @@ fn print_report(args: &Args, dir: &Path, outcome: &Outcome, summary: &serde_json
     }
     print!("{}", host::analysis::result::to_table(&outcome.report));
     println!(
-        "  {} geometries, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
-        outcome.points.len(),
+        "  {}, {:.1} device s measuring (the instrument's own seconds; +{:.1} s homing and calibration); refinements: {}",
+        geometries_read(outcome.usable_readings(), outcome.points.len()),
         outcome.device_seconds,
         outcome.setup_seconds,
         if outcome.refinements.is_empty() {
@@ -199,6 +199,7 @@ fn print_sheet(dir: &Path, sheet: &host::output::folder::sheet::ReadSheet) {
         sheet.doc.sample,
         sheet.counts().sentence()
     );
+    println!("  (σ, ρs, ρd below are sigma_deg, rho_s, rho_d in --json and the folder's files)");
     let value = |v: Option<f64>, digits: usize| {
         v.map_or_else(|| "—".to_string(), |v| format!("{v:.digits$}"))
     };
@@ -213,9 +214,13 @@ fn print_sheet(dir: &Path, sheet: &host::output::folder::sheet::ReadSheet) {
         );
         // The spot's own report, as its session.json holds it.
         let result = &s.document;
-        let interval = |key: &str, digits: usize| match result.interval(key) {
-            Some([Some(lo), Some(hi)]) => format!(" [{lo:.digits$}, {hi:.digits$}]"),
-            _ => String::new(),
+        // To two significant digits of the uncertainty where an interval exists.
+        let shown = |v: Option<f64>, key: &str, digits: usize| match (v, result.interval(key)) {
+            (Some(v), Some([Some(lo), Some(hi)])) => {
+                let (v, ci) = host::analysis::result::value_with_interval(v, lo, hi);
+                format!("{v} {ci}")
+            }
+            (v, _) => value(v, digits),
         };
         let confidence = result
             .class_confidence()
@@ -226,18 +231,18 @@ fn print_sheet(dir: &Path, sheet: &host::output::folder::sheet::ReadSheet) {
             s.session.class.as_deref().unwrap_or("undecided")
         );
         println!(
-            "    σ = {}°{}   ρs = {}{}   ρd = {}{}   (95 % intervals)",
-            value(s.session.values[0], 3),
-            interval("sigma_deg", 3),
-            value(s.session.values[1], 4),
-            interval("rho_s", 4),
-            value(s.session.values[2], 4),
-            interval("rho_d", 4)
+            "    σ = {}°   ρs = {}   ρd = {}   (95 % intervals)",
+            shown(s.session.values[0], "sigma_deg", 3),
+            shown(s.session.values[1], "rho_s", 4),
+            shown(s.session.values[2], "rho_d", 4)
         );
         println!(
-            "    NMAE {:.2} %, {} geometries, {:.1} device s; flags: {}; report: {}",
+            "    NMAE {:.2} %, {}, {:.1} device s; flags: {}; report: {}",
             100.0 * result.nmae(),
-            result.geometries.unwrap_or(0),
+            geometries_read(
+                result.geometries.unwrap_or(0) as usize,
+                s.doc.readings_recorded
+            ),
             result.device_seconds.unwrap_or(f64::NAN),
             if s.result.flags.is_empty() {
                 "none".to_string()
@@ -253,13 +258,21 @@ fn print_sheet(dir: &Path, sheet: &host::output::folder::sheet::ReadSheet) {
             |sd| format!("spot-to-spot sd {:.1} %", 100.0 * sd[i]),
         )
     };
+    // The mean to the precision of its own interval, when the answer has one.
+    let mean = |i: usize, digits: usize| {
+        let ci = summary.answer.as_ref().and_then(|a| {
+            [a.ci95.sigma_deg, a.ci95.rho_s, a.ci95.rho_d][i]
+                .and_then(|[lo, hi]| host::analysis::result::interval_decimals(lo, hi))
+        });
+        value(summary.mean[i], ci.unwrap_or(digits))
+    };
     println!(
         "  sheet (geometric mean of the spots in it): σ = {}° ({}), ρs = {} ({}), ρd = {} ({})",
-        value(summary.mean[0], 3),
+        mean(0, 3),
         spread(0),
-        value(summary.mean[1], 4),
+        mean(1, 4),
         spread(1),
-        value(summary.mean[2], 4),
+        mean(2, 4),
         spread(2)
     );
     if let Some(answer) = &summary.answer {
@@ -300,7 +313,10 @@ fn print_answer(answer: &host::analysis::spots::SheetAnswer) {
     let interval = |i: Option<[f64; 2]>, digits: usize| {
         i.map_or_else(
             || "—".to_string(),
-            |[lo, hi]| format!("[{lo:.digits$}, {hi:.digits$}]"),
+            |[lo, hi]| {
+                let digits = host::analysis::result::interval_decimals(lo, hi).unwrap_or(digits);
+                format!("[{lo:.digits$}, {hi:.digits$}]")
+            },
         )
     };
     println!(
@@ -352,4 +368,17 @@ fn flag_names(flags: &[host::analysis::flags::Flag]) -> String {
         .map(|f| f.name())
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// "N geometries", and how many readings were taken when that is more (a sweep's blanked
+/// bins, readings superseded after lost steps): the count is the fit's and readings.csv's.
+fn geometries_read(usable: usize, read: usize) -> String {
+    if read > usable {
+        format!(
+            "{usable} geometries ({read} readings taken, {} not usable: see points.jsonl)",
+            read - usable
+        )
+    } else {
+        format!("{usable} geometries")
+    }
 }
