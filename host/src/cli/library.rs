@@ -7,8 +7,8 @@
 //! changes nothing); 2 a wrong command line.
 use anyhow::Context;
 use host::analysis::evidence::{self, Warning};
+use host::output::folder::signature::{self, Keys};
 use host::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
-use host::output::signature::{self, Keys};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -561,10 +561,9 @@ fn a_resumed_batch_keeps_the_policy_it_began_with() {
     );
     let out = resume(&[]);
     assert!(out.status.success() || code(&out) == 3, "{}", stderr(&out));
-    let session: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(dir.join("sheet-02/session.json")).expect("sheet 2"),
-    )
-    .unwrap();
+    let session: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("sheet-02/session.json")).expect("sheet 2"))
+            .unwrap();
     assert_eq!(session["plan"]["policy"], "paper", "{}", session["plan"]);
     let _ = std::fs::remove_dir_all(&root);
 }

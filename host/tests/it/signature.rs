@@ -632,7 +632,7 @@ fn the_library_adds_and_imports_only_what_a_trusted_key_signed() {
     );
     assert!(!target.exists(), "a refused import made no library");
     let public = lab.public_key();
-    let hex = host::output::signature::hex(public.as_bytes());
+    let hex = host::output::folder::signature::hex(public.as_bytes());
     let o = gonio(&other_keys, &["keys", "trust", &hex, "--name", "lab"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let (o, target) = import(&other_keys, &["--require-signed"], &export);
@@ -656,7 +656,7 @@ fn the_library_adds_and_imports_only_what_a_trusted_key_signed() {
     assert!(!target.exists());
 
     // Unsigned: taken on its hashes, unless a signature is required.
-    std::fs::remove_file(host::output::signature::detached_path(&export)).unwrap();
+    std::fs::remove_file(host::output::folder::signature::detached_path(&export)).unwrap();
     let (o, _) = import(&other_keys, &["--require-signed"], &export);
     assert_eq!(o.status.code(), Some(1), "{}", out(&o));
     let (o, _) = import(&other_keys, &["--require-signed"], Path::new("-"));
