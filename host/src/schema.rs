@@ -40,7 +40,7 @@ pub const SPOT_RESULT: &str = "gonio-spot-result/1";
 /// `gonio measure --json` of a sheet of several spots.
 pub const SHEET_RESULT: &str = "gonio-sheet-result/2";
 /// `gonio compare --json`.
-pub(crate) const COMPARE: &str = "gonio-compare/3";
+pub(crate) const COMPARE: &str = "gonio-compare/4";
 /// A line of `gonio verify --json`.
 pub const VERIFY: &str = "gonio-verify/2";
 /// A line of `gonio sessions --json`.
@@ -48,9 +48,12 @@ pub const SESSIONS_ENTRY: &str = "gonio-sessions-entry/1";
 /// `gonio library list --json`.
 pub const LIBRARY_LIST: &str = "gonio-library-list/1";
 /// `gonio library search --json`.
-pub const LIBRARY_SEARCH: &str = "gonio-library-search/2";
+pub const LIBRARY_SEARCH: &str = "gonio-library-search/3";
 /// A line of `gonio library export` (one measured sheet of a known stock).
-pub const LIBRARY_RECORD: &str = "gonio-library/2";
+pub const LIBRARY_RECORD: &str = "gonio-library/3";
+/// A `gonio library export` line before the sheet's orientation and side: still imported
+/// (both unknown).
+pub(crate) const LIBRARY_RECORD_V2: &str = "gonio-library/2";
 /// A `gonio library export` line before `schema` (it was `format`): still imported.
 pub(crate) const LIBRARY_RECORD_V1: &str = "gonio-library/1";
 /// A white tile's certificate (`gonio measure --tile-certificate FILE`), as the user

@@ -447,6 +447,10 @@ fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
 struct Ranked {
     stock: String,
     sheets: usize,
+    /// How the stock's sheets lay: `md`, `cd`, `mixed` or `unknown`.
+    orientation: &'static str,
+    /// `felt`, `wire`, `mixed` or `unknown`.
+    side: &'static str,
     log10_lr: f64,
     raw_log10_lr: f64,
     verbal: String,
@@ -480,6 +484,8 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
         .ranking
         .into_iter()
         .map(|r| Ranked {
+            orientation: population.stock_lay(&r.stock).0,
+            side: population.stock_lay(&r.stock).1,
             stock: r.stock,
             sheets: r.sheets,
             log10_lr: r.log10_lr,
@@ -489,7 +495,11 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
         .collect();
     let stocks = ranking.len();
     ranking.truncate(args.top.unwrap_or(usize::MAX));
-    let warnings = population.warnings(&found.warnings);
+    let mut warnings = population.warnings(&found.warnings);
+    // The sheet against every stock: measured as it was, otherwise, or not known.
+    warnings.extend(
+        population.lay_warnings(evidence::Side::A, host::output::comparison::lay(&measured)),
+    );
     let bounds = population.population.validation.as_ref().map(|v| v.bounds);
     let code = if warnings.is_empty() {
         crate::cli::exit::OK
@@ -520,10 +530,13 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
             short(sha)
         );
     }
+    let lay = host::output::comparison::lay(&measured);
     println!(
-        "{} (sample '{}') against {} stock{} of {}",
+        "{} (sample '{}', orientation {}, side {}) against {} stock{} of {}",
         args.dir.display(),
         host::text::shown(&measured.sample),
+        host::analysis::specimen::orientation_text(lay.orientation),
+        host::analysis::specimen::side_text(lay.side),
         stocks,
         if stocks == 1 { "" } else { "s" },
         path.display()
@@ -532,16 +545,17 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
     let names: Vec<String> = ranking.iter().map(|r| cell(&r.stock)).collect();
     let width = column_width(names.iter());
     println!(
-        "  {:>4}  {:<width$}  {:>6}  {:>9}  verbal",
-        "rank", "stock", "sheets", "log10 LR"
+        "  {:>4}  {:<width$}  {:>6}  {:>9}  {:<15}  verbal",
+        "rank", "stock", "sheets", "log10 LR", "lay"
     );
     for (k, (r, name)) in ranking.iter().zip(&names).enumerate() {
         println!(
-            "  {:>4}  {:<width$}  {:>6}  {:>+9.2}  {}",
+            "  {:>4}  {:<width$}  {:>6}  {:>+9.2}  {:<15}  {}",
             k + 1,
             name,
             r.sheets,
             r.log10_lr,
+            format!("{} {}", r.orientation, r.side),
             r.verbal
         );
     }

@@ -2,6 +2,7 @@
 //! line: a library of the lab's own stocks, or the demonstration population (never chosen
 //! silently by a file's presence).
 use host::analysis::evidence::{LibrarySheet, Population, population, validation};
+use host::analysis::specimen::SheetLay;
 use host::output::comparison::PopulationInUse;
 use host::output::library::{Library, OpenMode};
 use std::path::PathBuf;
@@ -28,6 +29,7 @@ impl PopulationArgs {
                 population: Population::demonstration(),
                 name: "the demonstration population".to_string(),
                 not_validated_because: None,
+                stock_lays: None,
             });
         };
         from_library(Library::open(path, OpenMode::Existing)?, path, exclude)
@@ -51,6 +53,7 @@ pub fn from_library(
     // The population `gonio forensic --library` validated and recorded for exactly these
     // contents is the reviewed evidence: used as recorded, not made again.
     let contents = population::contents_identity(&sheets);
+    let stock_lays = Some(stock_lays(&library, exclude)?);
     let recorded = library
         .validation_record(&contents)?
         .and_then(|r| serde_json::from_value::<Population>(r["population"].clone()).ok())
@@ -60,6 +63,7 @@ pub fn from_library(
             population,
             name: path.display().to_string(),
             not_validated_because: None,
+            stock_lays,
         });
     }
     // The population made for these contents by an earlier search or comparison: the
@@ -74,6 +78,7 @@ pub fn from_library(
             population,
             name: path.display().to_string(),
             not_validated_because: Some(why),
+            stock_lays,
         });
     }
     let (population, why) = validation::validate_or_explain(&sheets).map_err(|e| {
@@ -101,5 +106,21 @@ pub fn from_library(
         population,
         name: path.display().to_string(),
         not_validated_because: why,
+        stock_lays,
     })
+}
+
+/// How the sheets of each stock lay, by stock name, leaving out the sheets whose SHA-256
+/// is in `exclude` (as the population leaves them out).
+fn stock_lays(
+    library: &Library,
+    exclude: &[String],
+) -> anyhow::Result<Vec<(String, Vec<SheetLay>)>> {
+    let mut by_stock: std::collections::BTreeMap<String, Vec<SheetLay>> = Default::default();
+    for (sha, stock, lay) in library.lays()? {
+        if !exclude.contains(&sha) {
+            by_stock.entry(stock).or_default().push(lay);
+        }
+    }
+    Ok(by_stock.into_iter().collect())
 }

@@ -3,7 +3,7 @@
 //! warning, both sheets and the audit trail; printed as JSON (`--json`), as text, or as a
 //! self-contained HTML page in the style of the session report (`--report FILE`).
 use crate::analysis::evidence::{
-    Evidence, PARAM_LABELS, PARAMS, Population, PopulationSource, ReportedRatio, Warning,
+    self, Evidence, PARAM_LABELS, PARAMS, Population, PopulationSource, ReportedRatio, Warning,
 };
 use crate::output::folder::CaseRecord;
 use crate::output::folder::sheet::MeasuredSheet;
@@ -24,6 +24,11 @@ pub struct PopulationInUse {
     pub name: String,
     /// Why it has no validation, when it has none.
     pub not_validated_because: Option<String>,
+    /// How the sheets of each stock lay (stock, its sheets' lays, by name), when the
+    /// population is a library's: a sheet is weighed against them with a warning where
+    /// they were measured otherwise ([`evidence::stock_lay_warnings`]). `None` for the
+    /// demonstration population, whose stocks are no measured sheets.
+    pub stock_lays: Option<Vec<(String, Vec<crate::analysis::specimen::SheetLay>)>>,
 }
 
 impl PopulationInUse {
@@ -45,6 +50,56 @@ impl PopulationInUse {
             out.push(Warning::NotValidated { why: why.clone() });
         }
         out
+    }
+
+    /// Whether sheet `side`, laid as `lay`, was measured as the population's stocks were
+    /// ([`evidence::stock_lay_warnings`] over the stocks the population holds); nothing for
+    /// the demonstration population.
+    pub fn lay_warnings(
+        &self,
+        side: evidence::Side,
+        lay: crate::analysis::specimen::SheetLay,
+    ) -> Vec<Warning> {
+        let Some(stock_lays) = &self.stock_lays else {
+            return Vec::new();
+        };
+        let held: std::collections::HashSet<&str> = self
+            .population
+            .stocks
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect();
+        let stocks: Vec<(String, Vec<crate::analysis::specimen::SheetLay>)> = stock_lays
+            .iter()
+            .filter(|(name, _)| held.contains(name.as_str()))
+            .cloned()
+            .collect();
+        evidence::stock_lay_warnings(side, lay, &stocks)
+    }
+
+    /// How the sheets of stock `name` lay: for orientation and side each, the one way all
+    /// its sheets lay, `mixed`, or `unknown` (none recorded, or not a library's stock).
+    pub fn stock_lay(&self, name: &str) -> (&'static str, &'static str) {
+        use crate::analysis::specimen::{Orientation, Side};
+        let Some((_, lays)) = self
+            .stock_lays
+            .as_ref()
+            .and_then(|all| all.iter().find(|(n, _)| n == name))
+        else {
+            return ("unknown", "unknown");
+        };
+        fn one(mut values: impl Iterator<Item = Option<&'static str>>) -> &'static str {
+            let first = values.next().flatten();
+            match values.all(|v| v == first).then_some(first) {
+                Some(Some(v)) => v,
+                Some(None) => "unknown",
+                None => "mixed",
+            }
+        }
+        (
+            one(lays.iter().map(|l| l.orientation.map(Orientation::name))),
+            one(lays.iter().map(|l| l.side.map(Side::name))),
+        )
     }
 }
 
@@ -157,7 +212,7 @@ impl Audit {
     }
 }
 
-/// `gonio compare`'s document (`gonio-compare/3`).
+/// `gonio compare`'s document (`gonio-compare/4`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Comparison {
     /// [`crate::schema::COMPARE`].
@@ -328,7 +383,10 @@ impl Comparison {
                 format!("the {stocks} stocks of the library {}", population.name)
             }
         };
-        let warnings = population.warnings(&e.warnings);
+        let mut warnings = population.warnings(&e.warnings);
+        // Each sheet against the library's stocks, laid as they were or not.
+        warnings.extend(population.lay_warnings(evidence::Side::A, lay(a)));
+        warnings.extend(population.lay_warnings(evidence::Side::B, lay(b)));
         let lay_differences = crate::analysis::specimen::differences(lay(a), lay(b));
         Comparison {
             lay_differs: lay_differences.iter().any(|d| d.is_known()),

@@ -1,5 +1,5 @@
 //! Libraries of any size for the search-at-scale benchmark (issue 29) and its test:
-//! synthetic `gonio-library/2` exchange files, and a questioned session of one of their
+//! synthetic `gonio-library/3` exchange files, and a questioned session of one of their
 //! stocks.
 //!
 //! Stocks are drawn about the three kinds of paper the evidence tests use (glossy, rough,
@@ -94,6 +94,8 @@ pub fn write_library(shape: &Shape, out: &mut dyn Write) -> std::io::Result<usiz
                     sample: format!("{}-{sheet}", stock_name(k)),
                     lot: None,
                     measured_at: None,
+                    orientation: None,
+                    side: None,
                     instrument_serial: "SIM-0001".to_string(),
                     session_path: format!("synthetic/{k}/{sheet}"),
                     added_at: "2026-12-04T00:00:00.000Z".to_string(),

@@ -831,3 +831,245 @@ fn a_search_is_the_same_made_afresh_or_from_the_cache_and_follows_the_library() 
     );
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A spot record of the exchange format for `stock`'s sheet `sheet`, spot `spot` of two,
+/// laid as `orientation`, `side`; its values a fixed step from one of three papers.
+fn laid_record(stock: usize, sheet: usize, spot: usize, orientation: &str, side: &str) -> String {
+    let kinds = [[0.8, 57.8, 0.855], [21.7, 0.409, 0.414], [11.0, 0.9, 0.6]];
+    let v: [f64; 3] = std::array::from_fn(|i| {
+        kinds[stock % 3][i]
+            * (1.0 + 0.07 * stock as f64)
+            * (1.0 + 0.01 * sheet as f64)
+            * (1.0 + 0.005 * spot as f64)
+    });
+    let cov: Vec<Vec<f64>> = (0..3)
+        .map(|r| {
+            (0..3)
+                .map(|c| if r == c { (v[r] * 0.003).powi(2) } else { 0.0 })
+                .collect()
+        })
+        .collect();
+    serde_json::json!({
+        "schema": host::schema::LIBRARY_RECORD, "stock": format!("S{stock}"),
+        "manufacturer": null, "stock_notes": null,
+        "session_sha256": format!("{:064x}", 100 * stock + sheet + 1),
+        "sample": format!("S{stock}-{sheet}"), "lot": null, "measured_at": null,
+        "orientation": orientation, "side": side,
+        "instrument_serial": "SIM-0001", "session_path": format!("s{stock}-{sheet}"),
+        "added_at": "2026-12-04T00:00:00.000Z", "spot": spot, "spots": 2,
+        "sigma_deg": v[0], "rho_s": v[1], "rho_d": v[2], "covariance": cov,
+    })
+    .to_string()
+}
+
+/// Issue 31: the library records how each sheet lay, from the folder `add` is given and
+/// through export and import; a search of a sheet measured in CD against stocks measured
+/// in MD warns naming both (and the stocks), a stock of mixed lays is warned of, and the
+/// same holds for `compare --library`. Never silent; every output valid in its schema.
+#[test]
+fn a_cd_sheet_searched_against_md_stocks_is_warned_of_naming_both() {
+    let root = temp_dir("library", "lay");
+    std::fs::create_dir_all(&root).expect("temp dir");
+    // Stocks S0…S3 of two MD felt sheets each; S4 one sheet MD, one CD.
+    let mut lines = String::new();
+    for stock in 0..5 {
+        for sheet in 0..2 {
+            let orientation = if stock == 4 && sheet == 1 { "cd" } else { "md" };
+            for spot in 0..2 {
+                lines += &laid_record(stock, sheet, spot, orientation, "felt");
+                lines.push('\n');
+            }
+        }
+    }
+    let exchange = root.join("laid.jsonl");
+    std::fs::write(&exchange, &lines).expect("write");
+    let library = root.join("library.sqlite");
+    let out = gonio(&["library", "--library", s(&library), "import", s(&exchange)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    // Two sheets measured: one in CD, one in MD, both felt side up.
+    let measure_laid = |name: &str, orientation: &str, seed: &str| {
+        let dir = root.join(name);
+        let out = gonio(&[
+            "measure",
+            "--spots",
+            "1",
+            "--sim",
+            "PPC",
+            "--seed",
+            seed,
+            "--orientation",
+            orientation,
+            "--side",
+            "felt",
+            "--out",
+            s(&dir),
+        ]);
+        assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
+        dir
+    };
+    let (q_cd, q_md) = (
+        measure_laid("q-cd", "cd", "31"),
+        measure_laid("q-md", "md", "32"),
+    );
+    // `add` records the lay the folder states; `export` writes it.
+    let out = gonio(&[
+        "library",
+        "--library",
+        s(&library),
+        "add",
+        "--allow-flagged",
+        "--stock",
+        "Q",
+        s(&q_md),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let exported = root.join("export.jsonl");
+    let out = gonio(&["library", "--library", s(&library), "export", s(&exported)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let records: Vec<serde_json::Value> = std::fs::read_to_string(&exported)
+        .expect("export")
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("JSON"))
+        .collect();
+    let added: Vec<&serde_json::Value> = records.iter().filter(|r| r["stock"] == "Q").collect();
+    assert!(!added.is_empty());
+    for r in &added {
+        assert_eq!(
+            (&r["orientation"], &r["side"]),
+            (&"md".into(), &"felt".into()),
+            "{r}"
+        );
+        crate::schemas::check_against_its_schema("library export", r);
+    }
+    // And import carries it: a second library from the export exports the same bytes.
+    let second = root.join("second.sqlite");
+    let out = gonio(&["library", "--library", s(&second), "import", s(&exported)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let again = root.join("again.jsonl");
+    let out = gonio(&["library", "--library", s(&second), "export", s(&again)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(std::fs::read(&again).expect("again") == std::fs::read(&exported).expect("export"));
+    // The CD sheet against the MD stocks: said, naming both lays and every stock.
+    let out = gonio(&[
+        "library",
+        "--library",
+        s(&library),
+        "search",
+        "--json",
+        s(&q_cd),
+    ]);
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let found: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON");
+    crate::schemas::check_against_its_schema("library search --json", &found);
+    let warnings = found["warnings"].as_array().expect("warnings");
+    let of = |kind: &str| -> Vec<&serde_json::Value> {
+        warnings.iter().filter(|w| w["kind"] == kind).collect()
+    };
+    let differs = of("stock-lay-differs");
+    assert_eq!(differs.len(), 1, "{found}");
+    let w = differs[0];
+    assert_eq!(
+        (&w["what"], &w["sheet_lay"], &w["stock_lay"]),
+        (&"orientation".into(), &"cd".into(), &"md".into()),
+        "{w}"
+    );
+    assert_eq!(
+        w["stocks"],
+        serde_json::json!(["Q", "S0", "S1", "S2", "S3"]),
+        "{w}"
+    );
+    let message = w["message"].as_str().expect("message");
+    assert!(
+        message.contains("A was measured in orientation cd, every sheet of the 5 stocks 'Q', 'S0'")
+            && message.contains("in md"),
+        "{message}"
+    );
+    let mixed = of("stock-lay-mixed");
+    assert_eq!(mixed.len(), 1, "{found}");
+    assert_eq!(
+        mixed[0]["stocks"],
+        serde_json::json!([{"stock": "S4", "lays": "1 cd, 1 md"}])
+    );
+    // All felt, as the sheet: nothing said of the side.
+    assert!(warnings.iter().all(|w| w["what"] != "side"), "{found}");
+    for r in found["ranking"].as_array().expect("ranking") {
+        let want = if r["stock"] == "S4" { "mixed" } else { "md" };
+        assert_eq!(
+            (&r["orientation"], &r["side"]),
+            (&want.into(), &"felt".into()),
+            "{r}"
+        );
+    }
+    // The table says it too.
+    let out = gonio(&["library", "--library", s(&library), "search", s(&q_cd)]);
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let text = stdout(&out);
+    assert!(text.contains("orientation cd, side felt"), "{text}");
+    assert!(
+        text.contains("warning: A was measured in orientation cd"),
+        "{text}"
+    );
+    assert!(
+        text.lines()
+            .any(|l| l.contains(" S4 ") && l.contains("mixed felt")),
+        "{text}"
+    );
+    // The MD sheet: in the library itself, left out of its stock; only S4's mix is said.
+    let out = gonio(&[
+        "library",
+        "--library",
+        s(&library),
+        "search",
+        "--json",
+        s(&q_md),
+    ]);
+    let found: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON");
+    let kinds: Vec<&str> = found["warnings"]
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .filter_map(|w| w["kind"].as_str())
+        .filter(|k| k.contains("lay"))
+        .collect();
+    assert_eq!(kinds, ["stock-lay-mixed"], "{found}");
+    // compare --library: each sheet against the stocks, beside A against B.
+    let out = gonio(&[
+        "compare",
+        "--json",
+        "--allow-lay-mismatch",
+        "--library",
+        s(&library),
+        s(&q_cd),
+        s(&q_md),
+    ]);
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let compared: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON");
+    crate::schemas::check_against_its_schema("compare --json", &compared);
+    let said: Vec<(String, String)> = compared["warnings"]
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .map(|w| {
+            (
+                w["kind"].as_str().unwrap_or("").into(),
+                w["side"].as_str().unwrap_or("").into(),
+            )
+        })
+        .collect();
+    for wanted in [
+        ("lay-differs", ""),
+        ("stock-lay-differs", "A"),
+        ("stock-lay-mixed", "A"),
+        ("stock-lay-mixed", "B"),
+    ] {
+        assert!(
+            said.contains(&(wanted.0.into(), wanted.1.into())),
+            "{wanted:?} in {said:?}"
+        );
+    }
+    assert!(
+        !said.contains(&("stock-lay-differs".into(), "B".into())),
+        "{said:?}"
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}

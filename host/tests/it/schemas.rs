@@ -124,6 +124,12 @@ impl Schemas {
     }
 }
 
+/// Check `doc` against the JSON Schema it names, strictly, as this file checks every
+/// output: for the outputs other test files make (`what` names it in the failure).
+pub(crate) fn check_against_its_schema(what: &str, doc: &Value) {
+    Schemas::load().check(what, doc);
+}
+
 fn json_lines(out: &std::process::Output) -> Vec<Value> {
     String::from_utf8_lossy(&out.stdout)
         .lines()

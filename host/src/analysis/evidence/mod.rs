@@ -38,7 +38,7 @@ mod warnings;
 
 pub use population::{LibrarySheet, Population, PopulationSource};
 pub use validation::Validation;
-pub use warnings::{Side, Warning};
+pub use warnings::{Side, StockLays, Warning, stock_lay_warnings};
 
 use crate::analysis::linalg::{self, Square};
 use crate::analysis::model::PARAM_NAMES;

@@ -3,6 +3,7 @@
 //! before anything is imported.
 use super::{LibraryError, Result, SheetRecord, StockInfo, check_spot, check_text, is_sha256_hex};
 use crate::analysis::evidence::Spot;
+use crate::analysis::specimen::{Orientation, SheetLay, Side};
 use serde::{Deserialize, Serialize};
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
@@ -12,8 +13,9 @@ use std::path::{Path, PathBuf};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExchangeRecord {
-    /// [`crate::schema::LIBRARY_RECORD`] (the older [`crate::schema::LIBRARY_RECORD_V1`],
-    /// whose key was `format`, is imported too: the records are otherwise the same).
+    /// [`crate::schema::LIBRARY_RECORD`]. The older versions are imported too:
+    /// [`crate::schema::LIBRARY_RECORD_V2`] (no `orientation`, `side`: both unknown) and
+    /// [`crate::schema::LIBRARY_RECORD_V1`] (its key was `format`, otherwise as version 2).
     #[serde(alias = "format")]
     pub schema: String,
     /// Stock name.
@@ -30,6 +32,14 @@ pub struct ExchangeRecord {
     pub lot: Option<String>,
     /// When measured.
     pub measured_at: Option<String>,
+    /// The sheet's orientation on the port (`md`, `cd`); null when unknown. Absent from
+    /// records before `gonio-library/3` (read as unknown).
+    #[serde(default)]
+    pub orientation: Option<Orientation>,
+    /// The side of the sheet facing the instrument (`felt`, `wire`); null when unknown.
+    /// Absent before `gonio-library/3`.
+    #[serde(default)]
+    pub side: Option<Side>,
     /// Instrument serial number.
     pub instrument_serial: String,
     /// Session folder path as it was given to `add` (where the lab that measured keeps it).
@@ -91,11 +101,18 @@ pub enum RecordError {
     NotRecord(serde_json::Error),
     /// A record of a schema this gonio does not read.
     #[error(
-        "schema '{0}', this gonio reads {newest} and {older}",
+        "schema '{0}', this gonio reads {newest}, {v2} and {v1}",
         newest = crate::schema::LIBRARY_RECORD,
-        older = crate::schema::LIBRARY_RECORD_V1
+        v2 = crate::schema::LIBRARY_RECORD_V2,
+        v1 = crate::schema::LIBRARY_RECORD_V1
     )]
     Schema(String),
+    /// A record of a version before the lay was recorded that states one.
+    #[error(
+        "a record of '{0}' with an orientation or side: those are recorded from {newest} on",
+        newest = crate::schema::LIBRARY_RECORD
+    )]
+    LayBeforeItsVersion(String),
     /// A stock name that is not acceptable.
     #[error(transparent)]
     StockName(Box<LibraryError>),
@@ -191,11 +208,19 @@ fn checked_record(text: &str) -> std::result::Result<(ExchangeRecord, Spot), Rec
     let record: ExchangeRecord = serde_json::from_str(text).map_err(RecordError::NotRecord)?;
     if ![
         crate::schema::LIBRARY_RECORD,
+        crate::schema::LIBRARY_RECORD_V2,
         crate::schema::LIBRARY_RECORD_V1,
     ]
     .contains(&record.schema.as_str())
     {
         return Err(RecordError::Schema(record.schema));
+    }
+    // An older record naming a lay was not written by a gonio of its version: refused
+    // rather than read as a version it does not claim.
+    if record.schema != crate::schema::LIBRARY_RECORD
+        && (record.orientation.is_some() || record.side.is_some())
+    {
+        return Err(RecordError::LayBeforeItsVersion(record.schema));
     }
     check_text("stock name", &record.stock).map_err(|e| RecordError::StockName(Box::new(e)))?;
     if !is_sha256_hex(&record.session_sha256) {
@@ -290,6 +315,10 @@ impl Sessions {
                 session_path: record.session_path,
                 session_sha256: record.session_sha256,
                 sample: record.sample,
+                lay: SheetLay {
+                    orientation: record.orientation,
+                    side: record.side,
+                },
                 added_at: record.added_at,
                 spots: vec![spot],
             },
@@ -316,6 +345,8 @@ impl Sessions {
             && last.sheet.session_path == record.session_path
             && last.sheet.sample == record.sample
             && last.sheet.added_at == record.added_at
+            && last.sheet.lay.orientation == record.orientation
+            && last.sheet.lay.side == record.side
             && last.declared_spots == record.spots;
         if !same_sheet {
             return Err(RecordError::SheetDiffers(record.session_sha256));

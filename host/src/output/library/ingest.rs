@@ -48,6 +48,14 @@ fn read_sheet_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resu
         session_path: dir.display().to_string(),
         session_sha256: verified.identity.clone(),
         sample: read.doc.sample.clone(),
+        // The sheet's case, else its first spot's (every spot's session.json holds it too).
+        lay: read
+            .doc
+            .case
+            .as_ref()
+            .or(first.doc.case.as_ref())
+            .map(crate::output::folder::CaseRecord::lay)
+            .unwrap_or_default(),
         added_at: now_utc(),
         spots: sheet.spots,
     })
@@ -103,6 +111,11 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
         instrument_serial: doc.instrument.serial_number,
         session_path: dir.display().to_string(),
         session_sha256: verified.identity,
+        lay: doc
+            .case
+            .as_ref()
+            .map(crate::output::folder::CaseRecord::lay)
+            .unwrap_or_default(),
         sample: doc.sample,
         added_at: now_utc(),
         spots: vec![spot],

@@ -38,8 +38,9 @@ use thiserror::Error;
 
 /// The schema this gonio writes and the newest it reads. Stored three ways: `meta`'s
 /// `schema_version`, `PRAGMA user_version` (readable without knowing the tables), and
-/// implied by [`APPLICATION_ID`] being ours.
-pub const SCHEMA_VERSION: i64 = 1;
+/// implied by [`APPLICATION_ID`] being ours. An older library is upgraded when opened
+/// (version 1 had no orientation and side of its sheets: they become unknown).
+pub const SCHEMA_VERSION: i64 = 2;
 
 /// `PRAGMA application_id` of a gonio library: "goLB" in ASCII, so `file(1)` and any SQLite
 /// tool can tell a gonio library from other SQLite files.
@@ -226,6 +227,9 @@ pub struct SheetRecord {
     pub session_sha256: String,
     /// The sample name the session recorded.
     pub sample: String,
+    /// How the sheet lay on the port (orientation, side), as its case recorded it; each
+    /// unknown when not stated (and for every sheet of a library before schema 2).
+    pub lay: crate::analysis::specimen::SheetLay,
     /// When it was added to a library (UTC RFC 3339); kept through export and import.
     pub(crate) added_at: String,
     /// Its spots, in order.

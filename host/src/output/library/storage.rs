@@ -7,6 +7,7 @@ use super::{
     now_utc,
 };
 use crate::analysis::evidence::{LibrarySheet, Sheet, Spot};
+use crate::analysis::specimen::{Orientation, SheetLay, Side};
 use rusqlite::{Connection, OpenFlags, OptionalExtension, TransactionBehavior, params};
 use serde::Serialize;
 use std::io::{Read, Write};
@@ -97,7 +98,9 @@ CREATE TABLE sheets (
     session_path      TEXT NOT NULL,
     session_sha256    TEXT NOT NULL UNIQUE,
     sample            TEXT NOT NULL,
-    added_at          TEXT NOT NULL
+    added_at          TEXT NOT NULL,
+    orientation       TEXT CHECK (orientation IN ('md', 'cd')),
+    side              TEXT CHECK (side IN ('felt', 'wire'))
 );
 CREATE INDEX sheets_by_stock ON sheets(stock_id);
 CREATE TABLE spots (
@@ -118,9 +121,17 @@ CREATE TABLE spots (
 enum Found {
     /// No tables and no ids: a new (or just created, empty) database.
     Empty,
-    /// A gonio library of this schema version or older.
-    Library,
+    /// A gonio library of this schema version or older (its version).
+    Library(i64),
 }
+
+/// What upgrades a library of schema version 1 to 2: its sheets gain their orientation and
+/// side, unknown (NULL) for every sheet already in it (a version 1 library never recorded
+/// them). Columns added, nothing rewritten: every record is kept as it is.
+const UPGRADE_1_TO_2: &str = "
+ALTER TABLE sheets ADD COLUMN orientation TEXT CHECK (orientation IN ('md', 'cd'));
+ALTER TABLE sheets ADD COLUMN side TEXT CHECK (side IN ('felt', 'wire'));
+";
 
 /// An open library.
 pub struct Library {
@@ -325,8 +336,10 @@ impl Library {
             .conn
             .pragma_update(None, "foreign_keys", true)
             .map_err(sqlite)?;
-        if matches!(found, Found::Empty) {
-            library.create_schema()?;
+        match found {
+            Found::Empty => library.create_schema()?,
+            Found::Library(version) if version < SCHEMA_VERSION => library.upgrade()?,
+            Found::Library(_) => {}
         }
         Ok(library)
     }
@@ -421,7 +434,7 @@ impl Library {
                 path: self.path.clone(),
                 found: v,
             }),
-            Some(v) if v == user_version && v >= 1 => Ok(Found::Library),
+            Some(v) if v == user_version && v >= 1 => Ok(Found::Library(v)),
             v => Err(LibraryError::Corrupt {
                 path: self.path.clone(),
                 what: format!(
@@ -451,6 +464,40 @@ impl Library {
             .map_err(&sqlite)?;
             tx.pragma_update(None, "application_id", APPLICATION_ID)
                 .map_err(&sqlite)?;
+            tx.pragma_update(None, "user_version", SCHEMA_VERSION)
+                .map_err(&sqlite)?;
+        }
+        tx.commit().map_err(&sqlite)?;
+        Ok(())
+    }
+
+    /// Upgrade a library of an older schema to [`SCHEMA_VERSION`], in one transaction under
+    /// the write lock: the version is read again inside it, so two processes opening one old
+    /// library at once upgrade it once (the second finds it done). `meta` records when and
+    /// by what (`upgraded_from_1`).
+    fn upgrade(&self) -> Result<()> {
+        let sqlite = self.sqlite();
+        let tx = rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Immediate)
+            .map_err(&sqlite)?;
+        let version: i64 = tx
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .map_err(&sqlite)?;
+        if version == 1 {
+            tx.execute_batch(UPGRADE_1_TO_2).map_err(&sqlite)?;
+            tx.execute(
+                "INSERT OR REPLACE INTO meta (key, value) VALUES ('upgraded_from_1', ?1)",
+                params![format!(
+                    "to schema 2 by gonio {} at {}",
+                    env!("CARGO_PKG_VERSION"),
+                    now_utc()
+                )],
+            )
+            .map_err(&sqlite)?;
+            tx.execute(
+                "UPDATE meta SET value = ?1 WHERE key = 'schema_version'",
+                params![SCHEMA_VERSION],
+            )
+            .map_err(&sqlite)?;
             tx.pragma_update(None, "user_version", SCHEMA_VERSION)
                 .map_err(&sqlite)?;
         }
@@ -672,7 +719,8 @@ impl Library {
                 "SELECT s.name, s.manufacturer, s.notes, h.session_sha256, h.sample, h.lot, h.measured_at, h.instrument_serial,
                         h.session_path, h.added_at, p.spot_index,
                         (SELECT count(*) FROM spots q WHERE q.sheet_id = h.id),
-                        p.sigma_deg, p.rho_s, p.rho_d, p.c00, p.c01, p.c02, p.c10, p.c11, p.c12, p.c20, p.c21, p.c22
+                        p.sigma_deg, p.rho_s, p.rho_d, p.c00, p.c01, p.c02, p.c10, p.c11, p.c12, p.c20, p.c21, p.c22,
+                        h.orientation, h.side
                  FROM spots p JOIN sheets h ON p.sheet_id = h.id JOIN stocks s ON h.stock_id = s.id
                  ORDER BY s.name, h.session_sha256, p.spot_index",
             )
@@ -689,6 +737,8 @@ impl Library {
                     sample: r.get(4)?,
                     lot: r.get(5)?,
                     measured_at: r.get(6)?,
+                    orientation: get_orientation(r, 24)?,
+                    side: get_side(r, 25)?,
                     instrument_serial: r.get(7)?,
                     session_path: r.get(8)?,
                     added_at: r.get(9)?,
@@ -837,6 +887,33 @@ impl Library {
         Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
     }
 
+    /// How every sheet lay, as (session SHA-256, stock, lay), in no particular order: kept
+    /// apart from [`Self::sheets`], whose sheets make the population and its identity
+    /// (the population does not weigh the lay, so recorded validations stay found).
+    pub fn lays(&self) -> Result<Vec<(String, String, SheetLay)>> {
+        let sqlite = self.sqlite();
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT h.session_sha256, s.name, h.orientation, h.side
+                 FROM sheets h JOIN stocks s ON h.stock_id = s.id",
+            )
+            .map_err(&sqlite)?;
+        let rows = stmt
+            .query_map([], |r| {
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    SheetLay {
+                        orientation: get_orientation(r, 2)?,
+                        side: get_side(r, 3)?,
+                    },
+                ))
+            })
+            .map_err(&sqlite)?;
+        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
+    }
+
     /// Every sheet (its stock, lot, instrument and spots) with its session SHA-256, ordered
     /// as [`Self::records`]. Only what the evidence is made of is read (not each spot's
     /// whole record: a search of a library of 10⁵ sheets held 380 MiB of records), each
@@ -963,6 +1040,37 @@ fn population_cache_key(identity: &str) -> String {
     )
 }
 
+/// The orientation in column `index`: NULL is unknown; anything but `md` or `cd` (only in a
+/// file changed by other means: the column's CHECK refuses it) is an error, not unknown.
+fn get_orientation(row: &rusqlite::Row<'_>, index: usize) -> rusqlite::Result<Option<Orientation>> {
+    let text: Option<String> = row.get(index)?;
+    text.map(|t| match t.as_str() {
+        "md" => Ok(Orientation::Md),
+        "cd" => Ok(Orientation::Cd),
+        _ => Err(not_a_lay(index, "an orientation (md, cd)", t)),
+    })
+    .transpose()
+}
+
+/// The side in column `index`, as [`get_orientation`].
+fn get_side(row: &rusqlite::Row<'_>, index: usize) -> rusqlite::Result<Option<Side>> {
+    let text: Option<String> = row.get(index)?;
+    text.map(|t| match t.as_str() {
+        "felt" => Ok(Side::Felt),
+        "wire" => Ok(Side::Wire),
+        _ => Err(not_a_lay(index, "a side (felt, wire)", t)),
+    })
+    .transpose()
+}
+
+fn not_a_lay(index: usize, what: &str, text: String) -> rusqlite::Error {
+    rusqlite::Error::FromSqlConversionFailure(
+        index,
+        rusqlite::types::Type::Text,
+        format!("'{text}' is not {what}").into(),
+    )
+}
+
 /// The 3×3 covariance in the nine columns from `first`, row by row.
 fn get_covariance(row: &rusqlite::Row<'_>, first: usize) -> rusqlite::Result<[[f64; 3]; 3]> {
     let mut covariance = [[0.0; 3]; 3];
@@ -1058,9 +1166,9 @@ fn insert_sheet(
         }));
     }
     tx.execute(
-        "INSERT INTO sheets (stock_id, lot, measured_at, instrument_serial, session_path, session_sha256, sample, added_at)
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-        params![stock_id, sheet.lot, sheet.measured_at, sheet.instrument_serial, sheet.session_path, sheet.session_sha256, sheet.sample, sheet.added_at],
+        "INSERT INTO sheets (stock_id, lot, measured_at, instrument_serial, session_path, session_sha256, sample, added_at, orientation, side)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+        params![stock_id, sheet.lot, sheet.measured_at, sheet.instrument_serial, sheet.session_path, sheet.session_sha256, sheet.sample, sheet.added_at, sheet.lay.orientation.map(Orientation::name), sheet.lay.side.map(Side::name)],
     )?;
     let sheet_id = tx.last_insert_rowid();
     let mut insert = tx.prepare(

@@ -1,5 +1,6 @@
 //! The library's tests: storage, the exchange file's round trip and refusals.
 use super::*;
+use crate::analysis::specimen::{Orientation, SheetLay, Side};
 use rand::{Rng, SeedableRng};
 use rusqlite::Connection;
 use std::path::Path;
@@ -26,6 +27,10 @@ fn sheet(n: u64, spots: usize) -> SheetRecord {
         session_path: format!("sessions/é-{n}"),
         session_sha256: crate::output::folder::manifest::sha256_hex(&n.to_le_bytes()),
         sample: "PPC".into(),
+        lay: crate::analysis::specimen::SheetLay {
+            orientation: [None, Some(Orientation::Md), Some(Orientation::Cd)][n as usize % 3],
+            side: [None, Some(Side::Felt), Some(Side::Wire)][n as usize % 3],
+        },
         added_at: format!("2026-06-01T00:00:{:02}.000Z", n % 60),
         spots: (0..spots).map(spot).collect(),
     }
@@ -86,7 +91,7 @@ fn a_new_library_has_its_ids_and_schema_version() {
             |r| r.get(0),
         )
         .expect("meta");
-    assert_eq!((id, user_version, schema_version), (APPLICATION_ID, 1, 1));
+    assert_eq!((id, user_version, schema_version), (APPLICATION_ID, 2, 2));
     // Reopening finds it, empty.
     assert!(
         Library::open(&path, OpenMode::Existing)
@@ -125,18 +130,18 @@ fn a_library_of_a_newer_schema_is_refused_and_left_as_it_is() {
     drop(filled(&path));
     {
         let conn = Connection::open(&path).expect("open");
-        conn.execute("UPDATE meta SET value = 2 WHERE key = 'schema_version'", [])
+        conn.execute("UPDATE meta SET value = 3 WHERE key = 'schema_version'", [])
             .expect("update");
-        conn.pragma_update(None, "user_version", 2)
+        conn.pragma_update(None, "user_version", 3)
             .expect("version");
     }
     let before = folder_bytes(dir.path());
     for mode in [OpenMode::Existing, OpenMode::Add] {
         let err = Library::open(&path, mode).expect_err("newer");
-        assert!(matches!(err, LibraryError::Newer { found: 2, .. }), "{err}");
+        assert!(matches!(err, LibraryError::Newer { found: 3, .. }), "{err}");
         assert!(
             err.to_string().contains(
-                "written by a newer gonio (schema 2); this gonio reads up to 1: update gonio"
+                "written by a newer gonio (schema 3); this gonio reads up to 2: update gonio"
             ),
             "{err}"
         );
@@ -341,12 +346,9 @@ fn an_exchange_file_of_the_first_version_still_imports() {
     let dir = tempfile::tempdir().expect("temp dir");
     let exported =
         String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite")))).expect("utf-8");
-    // What gonio wrote before its documents carried `schema`: the key was `format`.
-    let old = exported.replace(
-        &format!("\"schema\":\"{}\"", crate::schema::LIBRARY_RECORD),
-        &format!("\"format\":\"{}\"", crate::schema::LIBRARY_RECORD_V1),
-    );
-    assert_ne!(old, exported, "the records name their schema");
+    // What gonio wrote before its documents carried `schema`: the key was `format`, and
+    // no lay.
+    let old = older_records(&exported, "format", crate::schema::LIBRARY_RECORD_V1);
     let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
     let counts = second
         .import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read"))
@@ -354,8 +356,221 @@ fn an_exchange_file_of_the_first_version_still_imports() {
     assert_eq!(counts.records, exported.lines().count());
     assert_eq!(
         String::from_utf8(export_bytes(&second)).expect("utf-8"),
-        exported,
-        "imported as the same records"
+        without_lay(&exported),
+        "imported as the same records, of unknown lay"
+    );
+}
+
+/// `exported` (current records) as a gonio of `schema` wrote them: its schema under `key`,
+/// no orientation or side.
+fn older_records(exported: &str, key: &str, schema: &str) -> String {
+    exported
+        .lines()
+        .map(|line| {
+            let mut v: serde_json::Value = serde_json::from_str(line).expect("a record");
+            let o = v.as_object_mut().expect("an object");
+            o.remove("schema");
+            o.remove("orientation");
+            o.remove("side");
+            o.insert(key.into(), schema.into());
+            format!("{v}\n")
+        })
+        .collect()
+}
+
+/// `exported` with every sheet's lay unknown (null), as this gonio writes such records.
+fn without_lay(exported: &str) -> String {
+    let mut out = exported.to_string();
+    for lay in ["md", "cd", "felt", "wire"] {
+        for key in ["orientation", "side"] {
+            out = out.replace(&format!("\"{key}\":\"{lay}\""), &format!("\"{key}\":null"));
+        }
+    }
+    out
+}
+
+#[test]
+fn an_exchange_file_of_version_2_still_imports_with_the_lay_unknown() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let exported =
+        String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite")))).expect("utf-8");
+    let old = older_records(&exported, "schema", crate::schema::LIBRARY_RECORD_V2);
+    assert!(!old.contains("orientation") && old.contains("gonio-library/2"));
+    let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
+    let counts = second
+        .import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read"))
+        .expect("import");
+    assert_eq!((counts.records, counts.sessions_added), (7, 4));
+    assert!(
+        second
+            .lays()
+            .expect("lays")
+            .iter()
+            .all(|(_, _, lay)| *lay == SheetLay::default())
+    );
+    assert_eq!(
+        String::from_utf8(export_bytes(&second)).expect("utf-8"),
+        without_lay(&exported)
+    );
+    // A version 2 record that states a lay was not written by a gonio of version 2.
+    let mut claimed: serde_json::Value =
+        serde_json::from_str(old.lines().next().expect("a line")).expect("JSON");
+    claimed["orientation"] = "md".into();
+    let err = ExchangeFile::read(&mut format!("{claimed}\n").as_bytes(), Path::new("x.jsonl"))
+        .expect_err("a lay in a version 2 record");
+    assert!(
+        err.to_string()
+            .contains("x.jsonl:1: a record of 'gonio-library/2' with an orientation or side"),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_lay_goes_through_export_and_import_unchanged() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let first = filled(&dir.path().join("first.sqlite"));
+    let exported = export_bytes(&first);
+    let text = String::from_utf8(exported.clone()).expect("utf-8");
+    // filled's sheets: 1 md felt, 2 cd wire, 3 unknown, 4 md felt.
+    for said in [
+        "\"orientation\":\"md\",\"side\":\"felt\"",
+        "\"orientation\":\"cd\",\"side\":\"wire\"",
+        "\"orientation\":null,\"side\":null",
+    ] {
+        assert!(text.contains(said), "{said} in {text}");
+    }
+    let mut second =
+        Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
+    second
+        .import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"))
+        .expect("import");
+    let sorted = |l: &Library| {
+        let mut lays = l.lays().expect("lays");
+        lays.sort_by(|a, b| a.0.cmp(&b.0));
+        lays
+    };
+    assert_eq!(sorted(&second), sorted(&first));
+    let expected: Vec<(String, SheetLay)> = (1..=4)
+        .map(|n| (sheet(n, 1).session_sha256, sheet(n, 1).lay))
+        .collect();
+    for (sha, lay) in &expected {
+        assert!(
+            sorted(&second).iter().any(|(s, _, l)| s == sha && l == lay),
+            "{sha}: {lay:?}"
+        );
+    }
+    assert_eq!(export_bytes(&second), exported);
+}
+
+/// The tables of a schema version 1 library, as gonio wrote them before the lay.
+const SCHEMA_V1: &str = "
+CREATE TABLE meta (key TEXT PRIMARY KEY NOT NULL, value NOT NULL);
+CREATE TABLE stocks (id INTEGER PRIMARY KEY, name TEXT NOT NULL UNIQUE, manufacturer TEXT, notes TEXT);
+CREATE TABLE sheets (
+    id INTEGER PRIMARY KEY,
+    stock_id INTEGER NOT NULL REFERENCES stocks(id) ON DELETE CASCADE,
+    lot TEXT, measured_at TEXT, instrument_serial TEXT NOT NULL, session_path TEXT NOT NULL,
+    session_sha256 TEXT NOT NULL UNIQUE, sample TEXT NOT NULL, added_at TEXT NOT NULL
+);
+CREATE INDEX sheets_by_stock ON sheets(stock_id);
+CREATE TABLE spots (
+    sheet_id INTEGER NOT NULL REFERENCES sheets(id) ON DELETE CASCADE,
+    spot_index INTEGER NOT NULL,
+    sigma_deg REAL, rho_s REAL, rho_d REAL,
+    c00 REAL NOT NULL, c01 REAL NOT NULL, c02 REAL NOT NULL,
+    c10 REAL NOT NULL, c11 REAL NOT NULL, c12 REAL NOT NULL,
+    c20 REAL NOT NULL, c21 REAL NOT NULL, c22 REAL NOT NULL,
+    PRIMARY KEY (sheet_id, spot_index)
+);
+";
+
+/// A schema version 1 library at `old` holding what `current` holds (its lays dropped),
+/// with a cached population in `meta`, as a gonio before the lay left it.
+fn version_1_copy(current: &Path, old: &Path) {
+    let conn = Connection::open(old).expect("create");
+    conn.execute_batch(SCHEMA_V1).expect("v1 tables");
+    conn.execute(
+        "ATTACH DATABASE ?1 AS cur",
+        [current.to_str().expect("utf-8 path")],
+    )
+    .expect("attach");
+    conn.execute_batch(
+        "INSERT INTO meta SELECT key, value FROM cur.meta;
+         UPDATE meta SET value = 1 WHERE key = 'schema_version';
+         INSERT INTO meta VALUES ('population-cache/gonio 0/abc', '{\"kept\":true}');
+         INSERT INTO stocks SELECT * FROM cur.stocks;
+         INSERT INTO sheets SELECT id, stock_id, lot, measured_at, instrument_serial,
+             session_path, session_sha256, sample, added_at FROM cur.sheets;
+         INSERT INTO spots SELECT * FROM cur.spots;
+         DETACH DATABASE cur;",
+    )
+    .expect("copy");
+    conn.pragma_update(None, "application_id", APPLICATION_ID)
+        .expect("id");
+    conn.pragma_update(None, "user_version", 1)
+        .expect("version");
+}
+
+#[test]
+fn a_library_of_schema_1_is_upgraded_keeping_every_record() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let current = dir.path().join("current.sqlite");
+    let exported = String::from_utf8(export_bytes(&filled(&current))).expect("utf-8");
+    let old = dir.path().join("old.sqlite");
+    version_1_copy(&current, &old);
+    // Read first (search, list and export open an existing library): upgraded in place.
+    let upgraded = Library::open(&old, OpenMode::Existing).expect("an older library opens");
+    assert_eq!(
+        String::from_utf8(export_bytes(&upgraded)).expect("utf-8"),
+        without_lay(&exported),
+        "every stock, sheet and spot kept, each sheet's lay unknown"
+    );
+    assert_eq!(upgraded.sheet_count().expect("count"), 4);
+    assert_eq!(
+        upgraded.stocks().expect("stocks"),
+        Library::open(&current, OpenMode::Existing)
+            .expect("open")
+            .stocks()
+            .expect("stocks")
+    );
+    assert_eq!(
+        upgraded.cached_population("abc").expect("meta"),
+        None,
+        "another version's cache is not this one's"
+    );
+    drop(upgraded);
+    let conn = Connection::open(&old).expect("open");
+    let versions: (i64, String, String) = conn
+        .query_row(
+            "SELECT (SELECT value FROM meta WHERE key = 'schema_version'),
+                    (SELECT value FROM meta WHERE key = 'upgraded_from_1'),
+                    (SELECT value FROM meta WHERE key = 'population-cache/gonio 0/abc')",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+        )
+        .expect("meta");
+    let user_version: i64 = conn
+        .pragma_query_value(None, "user_version", |r| r.get(0))
+        .expect("version");
+    assert_eq!((versions.0, user_version), (2, 2));
+    assert!(
+        versions.1.starts_with("to schema 2 by gonio "),
+        "{}",
+        versions.1
+    );
+    assert_eq!(versions.2, "{\"kept\":true}", "meta is kept too");
+    drop(conn);
+    // Opened again: nothing more to do; and it takes sheets with their lay now.
+    let mut again = Library::open(&old, OpenMode::Add).expect("reopen");
+    again
+        .add_sheets(&stock("PPC"), &[sheet(5, 2)])
+        .expect("add after the upgrade");
+    assert!(
+        again
+            .lays()
+            .expect("lays")
+            .iter()
+            .any(|(sha, _, lay)| *sha == sheet(5, 2).session_sha256 && *lay == sheet(5, 2).lay)
     );
 }
 
@@ -372,6 +587,16 @@ fn a_bad_exchange_file_imports_nothing_and_names_the_line() {
                 "{}\n{}\n",
                 lines[0],
                 lines[1].replace(crate::schema::LIBRARY_RECORD, "gonio-library/9")
+            ),
+            2,
+        ),
+        // The second spot of the first sheet (stock "Bond…", two spots, lay unknown) saying
+        // another lay than the first.
+        (
+            format!(
+                "{}\n{}\n",
+                lines[0],
+                lines[1].replace("\"orientation\":null", "\"orientation\":\"md\"")
             ),
             2,
         ),
