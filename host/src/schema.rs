@@ -69,7 +69,10 @@ pub const PUBLIC_KEY: &str = "gonio-public-key/1";
 /// An own key file of the keys folder (`NAME.key`), private key included.
 pub const KEY: &str = "gonio-key/1";
 /// `batch.json` of a QA batch folder (`gonio batch`).
-pub const BATCH: &str = "gonio-batch/2";
+pub const BATCH: &str = "gonio-batch/3";
+/// The same before the plan recorded its gloss specification and each sheet its gloss:
+/// read (as a batch without gloss specification), never written.
+pub(crate) const BATCH_V2: &str = "gonio-batch/2";
 /// The same before the plan recorded its policy: read, never written.
 pub(crate) const BATCH_V1: &str = "gonio-batch/1";
 

@@ -29,6 +29,19 @@
 //! reason. A judged sheet passes when every parameter's relative deviation from the master
 //! is within its tolerance, and fails naming every parameter beyond it and by how much.
 //!
+//! # Gloss
+//!
+//! The library keeps no gloss, so the master gives none: gloss is judged against a
+//! specification given with the batch ([`GlossSpec`], `--gloss-spec 60=45±3`: a geometry,
+//! a target and a tolerance in GU, as a gloss meter's specification sheet gives them). A
+//! sheet's gloss at a geometry is the mean of its accepted spots' ([`SheetGloss`]); it
+//! exists only where an instrument profile was in force and the arms reach the geometry's
+//! receptor ([`crate::analysis::gloss::arms_reach`]). A sheet without it at a specified
+//! geometry is undecided for that quantity, with the reason: never a silent pass. The
+//! sheet fails when any quantity (σ, ρs, ρd or a specified gloss) is beyond its tolerance,
+//! is undecided when none is but one could not be judged, and passes when every one is
+//! within.
+//!
 //! # The statistics
 //!
 //! Over the clean sheets, in the order measured: mean, standard deviation (n − 1), least
@@ -276,6 +289,271 @@ impl Master {
     }
 }
 
+/// A gloss specification: at one geometry, a target and a tolerance, gloss units.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GlossSpec {
+    /// The geometry as the gloss values name it ("ISO 2813 / ASTM D523 60°").
+    pub geometry: String,
+    /// Its angle, degrees.
+    pub angle_deg: f64,
+    /// The target, GU.
+    pub target_gloss_units: f64,
+    /// The tolerance either side of the target, GU.
+    pub tolerance_gloss_units: f64,
+}
+
+/// The largest gloss a specification may name, GU (a perfect mirror reads 384 GU on the
+/// TAPPI 75° scale, about 2000 at ISO 2813 20°).
+pub const MAX_GLOSS_UNITS: f64 = 2500.0;
+
+/// The geometry of [`GLOSS_GEOMETRIES`](crate::analysis::gloss::GLOSS_GEOMETRIES) that
+/// `key` names: its angle ("60", "60°") or its name as the gloss values give it
+/// ("ISO 2813 / ASTM D523 60°").
+fn gloss_geometry(key: &str) -> Option<&'static crate::analysis::gloss::GlossGeometry> {
+    let key = key.trim();
+    let angle = key.trim_end_matches('°').trim_end_matches("deg").trim();
+    crate::analysis::gloss::GLOSS_GEOMETRIES.iter().find(|g| {
+        angle.parse::<f64>().is_ok_and(|a| a == g.angle_deg)
+            || key.eq_ignore_ascii_case(&format!("{} {}", g.standard, g.name))
+    })
+}
+
+/// The number `text` (a decimal comma taken as a point), finite.
+fn gloss_number(text: &str) -> Option<f64> {
+    text.trim()
+        .replace(',', ".")
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite())
+}
+
+impl GlossSpec {
+    /// Read `GEOMETRY=TARGET±TOLERANCE` (`+-` or `+/-` for ±): "60=45±3".
+    pub fn parse(text: &str) -> Result<GlossSpec, String> {
+        let known = || {
+            crate::analysis::gloss::GLOSS_GEOMETRIES
+                .iter()
+                .map(|g| format!("{:.0}", g.angle_deg))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let Some((key, rest)) = text.split_once('=') else {
+            return Err(format!(
+                "'{text}' is not GEOMETRY=TARGET±TOLERANCE in GU (e.g. 60=45±3; +- for ±)"
+            ));
+        };
+        let geometry = gloss_geometry(key).ok_or_else(|| {
+            format!(
+                "'{}' is not a gloss geometry gonio computes (the angle of one of: {})",
+                key.trim(),
+                known()
+            )
+        })?;
+        let (target, tolerance) = ["±", "+/-", "+-"]
+            .iter()
+            .find_map(|sep| rest.split_once(sep))
+            .ok_or_else(|| {
+                format!("'{text}' gives no tolerance: GEOMETRY=TARGET±TOLERANCE in GU (e.g. 60=45±3; +- for ±)")
+            })?;
+        let target = gloss_number(target)
+            .filter(|t| (0.0..=MAX_GLOSS_UNITS).contains(t))
+            .ok_or_else(|| {
+                format!(
+                    "the target '{}' is not a gloss from 0 to {MAX_GLOSS_UNITS} GU",
+                    target.trim()
+                )
+            })?;
+        let tolerance = gloss_number(tolerance)
+            .filter(|t| *t > 0.0 && *t <= MAX_GLOSS_UNITS)
+            .ok_or_else(|| {
+                format!(
+                    "the tolerance '{}' is not a gloss above 0 and at most {MAX_GLOSS_UNITS} GU",
+                    tolerance.trim()
+                )
+            })?;
+        Ok(GlossSpec {
+            geometry: format!("{} {}", geometry.standard, geometry.name),
+            angle_deg: geometry.angle_deg,
+            target_gloss_units: target,
+            tolerance_gloss_units: tolerance,
+        })
+    }
+
+    /// As given on the command line: "60=45±3".
+    pub fn text(&self) -> String {
+        format!(
+            "{}={}±{}",
+            self.angle_deg, self.target_gloss_units, self.tolerance_gloss_units
+        )
+    }
+
+    /// The quantity as a person reads it: "gloss 60°".
+    pub fn label(&self) -> String {
+        gloss_label(self.angle_deg)
+    }
+}
+
+/// "gloss 60°".
+pub fn gloss_label(angle_deg: f64) -> String {
+    format!("gloss {angle_deg}°")
+}
+
+impl std::str::FromStr for GlossSpec {
+    type Err = String;
+    fn from_str(text: &str) -> Result<GlossSpec, String> {
+        GlossSpec::parse(text)
+    }
+}
+
+/// One spot's gloss at one geometry, as its result gives it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpotGloss {
+    /// The geometry ("ISO 2813 / ASTM D523 60°").
+    pub geometry: String,
+    /// Its angle, degrees.
+    pub angle_deg: f64,
+    /// Gloss, GU.
+    pub gloss_units: f64,
+    /// Its standard uncertainty from the fit, GU.
+    pub u_gloss_units: f64,
+}
+
+/// A sheet's gloss at one geometry: the mean over its accepted spots that have it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SheetGloss {
+    /// The geometry ("ISO 2813 / ASTM D523 60°").
+    pub geometry: String,
+    /// Its angle, degrees.
+    pub angle_deg: f64,
+    /// The spots' mean, GU.
+    pub gloss_units: f64,
+    /// Standard uncertainty of the mean from the spots' own (their fits'), GU.
+    pub u_gloss_units: f64,
+    /// The spots' sd about their mean, GU (`null`: fewer than two spots).
+    pub spot_to_spot_sd_gloss_units: Option<f64>,
+    /// Spots it rests on.
+    pub spots: usize,
+}
+
+/// The gloss of a sheet from its accepted spots' (`None`: the spot had no gloss computed,
+/// no instrument profile being in force), by geometry in order of angle.
+pub fn sheet_gloss(spots: &[Option<Vec<SpotGloss>>]) -> Vec<SheetGloss> {
+    let mut angles: Vec<f64> = spots
+        .iter()
+        .flatten()
+        .flatten()
+        .map(|g| g.angle_deg)
+        .collect();
+    angles.sort_by(f64::total_cmp);
+    angles.dedup();
+    angles
+        .into_iter()
+        .filter_map(|angle| {
+            let at: Vec<&SpotGloss> = spots
+                .iter()
+                .flatten()
+                .flatten()
+                .filter(|g| g.angle_deg == angle && g.gloss_units.is_finite())
+                .collect();
+            let first = at.first()?;
+            let values: Vec<f64> = at.iter().map(|g| g.gloss_units).collect();
+            let n = values.len() as f64;
+            Some(SheetGloss {
+                geometry: first.geometry.clone(),
+                angle_deg: angle,
+                gloss_units: mean(&values),
+                u_gloss_units: at
+                    .iter()
+                    .map(|g| g.u_gloss_units.powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+                    / n,
+                spot_to_spot_sd_gloss_units: sd(&values),
+                spots: at.len(),
+            })
+        })
+        .collect()
+}
+
+/// Why a sheet has no gloss at a geometry: no spot had gloss computed (no instrument
+/// profile), or they had it at other geometries only (the arms do not reach this one's).
+pub fn no_gloss_why(any_spot_had_gloss: bool, spec: &GlossSpec) -> String {
+    if any_spot_had_gloss {
+        format!(
+            "no gloss at {}: the instrument's arms do not reach its receptor (gloss is computed only where they do)",
+            spec.geometry
+        )
+    } else {
+        "no gloss: no instrument profile was in force (gloss rests on the detector response measured on the black glass: gonio characterize, then --instrument FILE)".to_string()
+    }
+}
+
+/// A sheet's gloss against one specification.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GlossJudgement {
+    /// The geometry ("ISO 2813 / ASTM D523 60°").
+    pub geometry: String,
+    /// Its angle, degrees.
+    pub angle_deg: f64,
+    /// The sheet's gloss, GU (`null`: none at this geometry).
+    pub gloss_units: Option<f64>,
+    /// The specification's target, GU.
+    pub target_gloss_units: f64,
+    /// Its tolerance, GU.
+    pub tolerance_gloss_units: f64,
+    /// The sheet's gloss less the target, GU.
+    pub deviation_gloss_units: Option<f64>,
+    /// `pass`, `fail` or `undecided`.
+    pub verdict: String,
+    /// How far beyond the tolerance, GU, when it fails.
+    pub beyond_gloss_units: Option<f64>,
+    /// Why it is undecided.
+    pub why: Option<String>,
+}
+
+impl GlossJudgement {
+    /// The judgement of `gloss` (the sheet's, at the spec's geometry) against `spec`;
+    /// `why_none` is why there is none, when there is none.
+    pub fn of(spec: &GlossSpec, gloss: Option<f64>, why_none: impl FnOnce() -> String) -> Self {
+        let deviation = gloss.map(|g| g - spec.target_gloss_units);
+        let beyond = deviation
+            .map(|d| d.abs() - spec.tolerance_gloss_units)
+            .filter(|b| *b > 0.0);
+        let (verdict, why) = match (gloss, beyond) {
+            (None, _) => ("undecided", Some(why_none())),
+            (Some(_), Some(_)) => ("fail", None),
+            (Some(_), None) => ("pass", None),
+        };
+        GlossJudgement {
+            geometry: spec.geometry.clone(),
+            angle_deg: spec.angle_deg,
+            gloss_units: gloss,
+            target_gloss_units: spec.target_gloss_units,
+            tolerance_gloss_units: spec.tolerance_gloss_units,
+            deviation_gloss_units: deviation,
+            verdict: verdict.to_string(),
+            beyond_gloss_units: beyond,
+            why,
+        }
+    }
+
+    /// "gloss 60° 49.1 GU (spec 45 ± 3, 1.1 beyond)".
+    pub fn text(&self) -> String {
+        let label = gloss_label(self.angle_deg);
+        match (self.gloss_units, self.beyond_gloss_units, &self.why) {
+            (Some(g), Some(b), _) => format!(
+                "{label} {g:.1} GU (spec {} ± {}, {b:.1} beyond)",
+                self.target_gloss_units, self.tolerance_gloss_units
+            ),
+            (Some(g), None, _) => format!(
+                "{label} {g:.1} GU (spec {} ± {})",
+                self.target_gloss_units, self.tolerance_gloss_units
+            ),
+            (None, _, why) => format!("{label}: {}", why.as_deref().unwrap_or("no gloss")),
+        }
+    }
+}
+
 /// A parameter beyond its tolerance.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Exceedance {
@@ -295,10 +573,17 @@ pub struct Exceedance {
 pub enum Verdict {
     /// Every parameter within its tolerance.
     Pass,
-    /// These parameters beyond theirs.
+    /// These quantities beyond theirs.
     Fail {
         /// Each parameter beyond its tolerance.
         exceeded: Vec<Exceedance>,
+        /// Each gloss beyond its specification (none in a batch of `gonio-batch/2`).
+        #[serde(default)]
+        gloss_exceeded: Vec<GlossJudgement>,
+        /// The quantities that could not be judged, each with why: a sheet failing on one
+        /// quantity says what it was not judged on as well.
+        #[serde(default)]
+        undecided: Vec<String>,
     },
     /// Not judged.
     Undecided {
@@ -321,20 +606,30 @@ impl Verdict {
     pub fn text(&self) -> String {
         match self {
             Verdict::Pass => "pass".to_string(),
-            Verdict::Fail { exceeded } => format!(
-                "fail: {}",
-                exceeded
+            Verdict::Fail {
+                exceeded,
+                gloss_exceeded,
+                undecided,
+            } => {
+                let mut parts: Vec<String> = exceeded
                     .iter()
-                    .map(|e| format!(
-                        "{} {:+.1} % (tolerance ±{:.1} %, {:.1} % beyond)",
-                        label(&e.parameter),
-                        e.deviation_pct,
-                        e.tolerance_pct,
-                        e.beyond_pct
-                    ))
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            ),
+                    .map(|e| {
+                        format!(
+                            "{} {:+.1} % (tolerance ±{:.1} %, {:.1} % beyond)",
+                            label(&e.parameter),
+                            e.deviation_pct,
+                            e.tolerance_pct,
+                            e.beyond_pct
+                        )
+                    })
+                    .collect();
+                parts.extend(gloss_exceeded.iter().map(GlossJudgement::text));
+                let mut text = format!("fail: {}", parts.join("; "));
+                if !undecided.is_empty() {
+                    text.push_str(&format!("; not judged: {}", undecided.join("; ")));
+                }
+                text
+            }
             Verdict::Undecided { why } => format!("undecided: {why}"),
         }
     }
@@ -348,6 +643,17 @@ pub fn label(parameter: &str) -> &str {
         .map_or(parameter, |i| LABELS[i])
 }
 
+/// A value of `quantity` ([`PARAMETERS`] or a [`gloss_label`]) as the batch's summary and
+/// report write it: σ to 0.001°, ρs and ρd to 4 decimals, gloss to 0.1 GU.
+pub fn shown_value(quantity: &str, v: Option<f64>) -> String {
+    match v {
+        None => "—".to_string(),
+        Some(v) if quantity == PARAMETERS[0] => format!("{v:.3}°"),
+        Some(v) if quantity.starts_with("gloss") => format!("{v:.1} GU"),
+        Some(v) => format!("{v:.4}"),
+    }
+}
+
 /// The relative deviation of `value` from `master`, percent.
 pub fn deviation_pct(value: Option<f64>, master: Option<f64>) -> Option<f64> {
     match (value, master) {
@@ -356,31 +662,39 @@ pub fn deviation_pct(value: Option<f64>, master: Option<f64>) -> Option<f64> {
     }
 }
 
-/// The verdict of a sheet of `values` (σ, ρs, ρd) against `master` with `tolerance_pct`;
-/// `flags` are its result's flags that are not informational (any: undecided).
+/// The verdict of a sheet of `values` (σ, ρs, ρd) against `master` with `tolerance_pct`,
+/// and of its gloss against the specifications (`gloss`, one judgement per
+/// specification); `flags` are its result's flags that are not informational (any:
+/// undecided, its gloss judgements included).
 pub fn judge(
     values: [Option<f64>; 3],
     master: &Master,
     tolerance_pct: [f64; 3],
     flags: &[String],
+    gloss: &[GlossJudgement],
 ) -> Verdict {
     if !flags.is_empty() {
         return Verdict::Undecided {
             why: format!("the sheet's result is flagged ({})", flags.join(", ")),
         };
     }
+    let mut undecided = Vec::new();
     let missing: Vec<&str> = (0..3)
         .filter(|&i| master.values[i].is_some() && values[i].is_none())
         .map(|i| LABELS[i])
         .collect();
     if !missing.is_empty() {
-        return Verdict::Undecided {
-            why: format!(
-                "the sheet did not determine {} (the master did)",
-                missing.join(", ")
-            ),
-        };
+        undecided.push(format!(
+            "the sheet did not determine {} (the master did)",
+            missing.join(", ")
+        ));
     }
+    undecided.extend(
+        gloss
+            .iter()
+            .filter(|g| g.verdict == "undecided")
+            .map(GlossJudgement::text),
+    );
     let exceeded: Vec<Exceedance> = (0..3)
         .filter_map(|i| {
             let d = deviation_pct(values[i], master.values[i])?;
@@ -392,17 +706,30 @@ pub fn judge(
             })
         })
         .collect();
-    if exceeded.is_empty() {
-        Verdict::Pass
+    let gloss_exceeded: Vec<GlossJudgement> = gloss
+        .iter()
+        .filter(|g| g.verdict == "fail")
+        .cloned()
+        .collect();
+    if !exceeded.is_empty() || !gloss_exceeded.is_empty() {
+        Verdict::Fail {
+            exceeded,
+            gloss_exceeded,
+            undecided,
+        }
+    } else if !undecided.is_empty() {
+        Verdict::Undecided {
+            why: undecided.join("; "),
+        }
     } else {
-        Verdict::Fail { exceeded }
+        Verdict::Pass
     }
 }
 
 /// One quantity's statistics across the sheets, and its I-MR chart.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Statistics {
-    /// The quantity ([`PARAMETERS`], or a gloss geometry's "gloss ISO 2813 60°").
+    /// The quantity ([`PARAMETERS`], or a gloss geometry's [`gloss_label`], "gloss 60°").
     pub quantity: String,
     /// Sheets it rests on.
     pub n: usize,
@@ -524,10 +851,10 @@ mod tests {
     fn a_sheet_beyond_a_tolerance_fails_naming_it_and_a_flagged_one_is_undecided() {
         let m = master();
         let v = m.values.array();
-        assert_eq!(judge(v, &m, [2.0; 3], &[]), Verdict::Pass);
+        assert_eq!(judge(v, &m, [2.0; 3], &[], &[]), Verdict::Pass);
         let off = [v[0].map(|s| s * 1.05), v[1], v[2]];
-        match judge(off, &m, [2.0; 3], &[]) {
-            Verdict::Fail { exceeded } => {
+        match judge(off, &m, [2.0; 3], &[], &[]) {
+            Verdict::Fail { exceeded, .. } => {
                 assert_eq!(exceeded.len(), 1);
                 assert_eq!(exceeded[0].parameter, "sigma_deg");
                 assert!((exceeded[0].deviation_pct - 5.0).abs() < 1e-9);
@@ -536,13 +863,114 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert!(matches!(
-            judge(off, &m, [2.0; 3], &["lack-of-fit".into()]),
+            judge(off, &m, [2.0; 3], &["lack-of-fit".into()], &[]),
             Verdict::Undecided { .. }
         ));
         assert!(matches!(
-            judge([v[0], None, v[2]], &m, [2.0; 3], &[]),
+            judge([v[0], None, v[2]], &m, [2.0; 3], &[], &[]),
             Verdict::Undecided { .. }
         ));
+    }
+
+    #[test]
+    fn a_gloss_spec_reads_as_a_gloss_meter_s_sheet_writes_it_and_bad_ones_say_why() {
+        let spec = GlossSpec::parse("60=45±3").unwrap();
+        assert_eq!(spec.geometry, "ISO 2813 / ASTM D523 60°");
+        assert_eq!(
+            (
+                spec.angle_deg,
+                spec.target_gloss_units,
+                spec.tolerance_gloss_units
+            ),
+            (60.0, 45.0, 3.0)
+        );
+        assert_eq!(spec.text(), "60=45±3");
+        assert_eq!(GlossSpec::parse("60°=45+-3").unwrap(), spec);
+        assert_eq!(GlossSpec::parse(" 60 = 45 +/- 3 ").unwrap(), spec);
+        assert_eq!(
+            GlossSpec::parse("75=21,5±1,5").unwrap().target_gloss_units,
+            21.5
+        );
+        assert_eq!(
+            GlossSpec::parse("ISO 2813 / ASTM D523 20°=80±4")
+                .unwrap()
+                .angle_deg,
+            20.0
+        );
+        for (bad, says) in [
+            ("60", "not GEOMETRY=TARGET±TOLERANCE"),
+            ("45=45±3", "'45' is not a gloss geometry"),
+            ("60=45", "gives no tolerance"),
+            ("60=x±3", "the target 'x'"),
+            ("60=-1±3", "the target '-1'"),
+            ("60=45±0", "the tolerance '0'"),
+            ("60=45±NaN", "the tolerance 'NaN'"),
+        ] {
+            let e = GlossSpec::parse(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_sheet_beyond_its_gloss_spec_fails_naming_it_and_one_without_gloss_is_undecided() {
+        let m = master();
+        let v = m.values.array();
+        let spec = GlossSpec::parse("60=45±3").unwrap();
+        let within = GlossJudgement::of(&spec, Some(47.0), || unreachable!());
+        assert_eq!(within.verdict, "pass");
+        assert_eq!(judge(v, &m, [2.0; 3], &[], &[within]), Verdict::Pass);
+        let beyond = GlossJudgement::of(&spec, Some(49.1), || unreachable!());
+        assert_eq!(beyond.verdict, "fail");
+        assert!((beyond.beyond_gloss_units.unwrap() - 1.1).abs() < 1e-9);
+        let verdict = judge(v, &m, [2.0; 3], &[], std::slice::from_ref(&beyond));
+        assert_eq!(
+            verdict.text(),
+            "fail: gloss 60° 49.1 GU (spec 45 ± 3, 1.1 beyond)"
+        );
+        // No gloss: undecided with the reason, never a pass; beside a failure, named too.
+        let none = GlossJudgement::of(&spec, None, || no_gloss_why(false, &spec));
+        let verdict = judge(v, &m, [2.0; 3], &[], std::slice::from_ref(&none));
+        assert_eq!(verdict.name(), "undecided");
+        assert!(
+            verdict
+                .text()
+                .contains("gloss 60°: no gloss: no instrument profile"),
+            "{}",
+            verdict.text()
+        );
+        let unreached = GlossJudgement::of(&spec, None, || no_gloss_why(true, &spec));
+        assert!(
+            unreached.text().contains("arms do not reach"),
+            "{}",
+            unreached.text()
+        );
+        let text = judge(v, &m, [2.0; 3], &[], &[beyond, none]).text();
+        assert!(
+            text.starts_with("fail: gloss 60° 49.1 GU")
+                && text.contains("not judged: gloss 60°: no gloss"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_sheet_s_gloss_is_its_spots_mean_at_each_geometry() {
+        let g = |angle: f64, gu: f64| SpotGloss {
+            geometry: format!("at {angle}"),
+            angle_deg: angle,
+            gloss_units: gu,
+            u_gloss_units: 0.3,
+        };
+        let sheet = sheet_gloss(&[
+            Some(vec![g(20.0, 10.0), g(60.0, 40.0)]),
+            None,
+            Some(vec![g(60.0, 44.0)]),
+        ]);
+        assert_eq!(sheet.len(), 2);
+        assert_eq!((sheet[0].angle_deg, sheet[0].spots), (20.0, 1));
+        assert_eq!((sheet[1].gloss_units, sheet[1].spots), (42.0, 2));
+        assert!((sheet[1].spot_to_spot_sd_gloss_units.unwrap() - 8f64.sqrt()).abs() < 1e-12);
+        assert!((sheet[1].u_gloss_units - 0.18f64.sqrt() / 2.0).abs() < 1e-12);
+        assert!(sheet_gloss(&[None, None]).is_empty());
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! `batch.json`, `batch.csv` and `batch.html` in the batch folder
 //! ([`host::measure::batch`], [`host::output::batch`]).
 use anyhow::Context;
-use host::analysis::batch::{LABELS, Verdict};
+use host::analysis::batch::{GlossSpec, LABELS, Verdict, shown_value};
 use host::instrument::sim::SimOptions;
 use host::measure::MeasureOptions;
 use host::measure::batch::{BatchEnd, BatchOptions, DEFAULT_SHEET_TO_SHEET_PCT, run_batch};
@@ -97,6 +97,17 @@ pub struct Args {
         conflicts_with = "resume"
     )]
     pub tolerance_rho_d_pct: Option<f64>,
+    /// A gloss specification every sheet is judged against besides the master:
+    /// GEOMETRY=TARGET±TOLERANCE in gloss units, the geometry by its angle (20, 60, 75 or
+    /// 85), e.g. 60=45±3 (+- for ±); repeatable, one per geometry. A sheet with no gloss
+    /// there (no instrument profile, or arms that do not reach it) is undecided. On
+    /// --resume, only the batch's own (or none: it is kept).
+    #[arg(long, value_name = "GEOMETRY=GU±GU", value_parser = GlossSpec::parse)]
+    pub gloss_spec: Vec<GlossSpec>,
+    /// The instrument's profile (gonio characterize), for every sheet: without one
+    /// (given, recorded in the batch or installed for the instrument) no gloss is computed.
+    #[arg(long, value_name = "FILE")]
+    pub instrument: Option<PathBuf>,
     /// Refinement policy of every sheet (default adaptive; see gonio measure --help).
     #[arg(long, value_enum)]
     pub policy: Option<PolicyChoice>,
@@ -131,6 +142,7 @@ impl Args {
                 self.tolerance_rho_d_pct,
             ],
             sheet_to_sheet_pct: self.sheet_to_sheet_pct,
+            gloss_spec: self.gloss_spec.clone(),
             measure: MeasureOptions {
                 sim: self.sim.clone(),
                 // The seed settled as `gonio measure` settles it: `--seed`, else one drawn for
@@ -143,6 +155,7 @@ impl Args {
                 spots: Some(self.spots.unwrap_or(DEFAULT_BATCH_SPOTS)),
                 case_id: self.case_id.clone(),
                 operator: self.operator.clone(),
+                instrument: self.instrument.clone(),
                 ..MeasureOptions::default()
             },
         })
@@ -221,37 +234,51 @@ fn print(args: &Args, dir: &Path, doc: &BatchDoc) -> anyhow::Result<()> {
             doc.tolerance_basis[i]
         );
     }
+    for spec in &doc.plan.gloss_spec {
+        println!(
+            "  spec {} = {} ± {} GU ({}; --gloss-spec {})",
+            spec.label(),
+            spec.target_gloss_units,
+            spec.tolerance_gloss_units,
+            spec.geometry,
+            spec.text()
+        );
+    }
     for s in &doc.sheets {
         let verdict = match &s.verdict {
             Verdict::Pass => "PASS".to_string(),
             Verdict::Fail { .. } => s.verdict.text().replacen("fail", "FAIL", 1),
             Verdict::Undecided { .. } => s.verdict.text().replacen("undecided", "UNDECIDED", 1),
         };
+        let gloss: String = s
+            .gloss
+            .iter()
+            .map(|g| format!("  gloss {}° = {:.1} GU", g.angle_deg, g.gloss_units))
+            .collect();
+        // The verdict whole (its reasons are gonio's own words; a flag or sample name in
+        // them is escaped): a QA bench reads why a sheet failed or was not judged.
         println!(
-            "  sheet {:>2}: σ = {}  ρs = {}  ρd = {}  {}",
+            "  sheet {:>2}: σ = {}  ρs = {}  ρd = {}{gloss}  {}",
             s.number,
             value(0, s.values[0]),
             value(1, s.values[1]),
             value(2, s.values[2]),
-            shown(&verdict)
+            host::text::shown_at_most(&verdict, 1000)
         );
     }
     for st in &doc.statistics {
-        let i = host::analysis::batch::PARAMETERS
-            .iter()
-            .position(|p| *p == st.quantity)
-            .unwrap_or(0);
+        let q = st.quantity.as_str();
         println!(
             "  {} over {} clean sheets: mean {}, sd {}, I-MR limits {} … {}{}",
-            LABELS[i],
+            host::analysis::batch::label(q),
             st.n,
-            value(i, Some(st.mean)),
+            shown_value(q, Some(st.mean)),
             st.sd.map_or_else(
                 || "—".to_string(),
                 |sd| format!("{:.2} %", 100.0 * sd / st.mean)
             ),
-            value(i, st.lower_control_limit),
-            value(i, st.upper_control_limit),
+            shown_value(q, st.lower_control_limit),
+            shown_value(q, st.upper_control_limit),
             if st.out_of_control.is_empty() {
                 String::new()
             } else {

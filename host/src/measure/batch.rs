@@ -13,8 +13,9 @@
 //! forensic study's `sheets-3pct` scenario uses 3 %), so that a batch shows the
 //! sheet-to-sheet variation a real one does, not the same sheet N times.
 use super::{MeasureOptions, Measured, measure};
+use crate::analysis::batch::GlossSpec;
 use crate::instrument::sim::sample_params;
-use crate::output::batch::{self as folder, BatchDoc, BatchPlan};
+use crate::output::batch::{self as folder, BatchDoc, BatchLock, BatchPlan};
 use crate::output::folder::Status;
 use crate::session::{Operator, PolicyChoice, SessionError};
 use anyhow::{Context, bail, ensure};
@@ -50,6 +51,9 @@ pub struct BatchOptions {
     pub tolerance_pct: [Option<f64>; 3],
     /// Spread of the simulated sheets about their paper, percent.
     pub sheet_to_sheet_pct: f64,
+    /// Gloss specifications (`--gloss-spec`): a new batch's; a resume's must be the
+    /// batch's (empty: the batch's).
+    pub gloss_spec: Vec<GlossSpec>,
     /// How each sheet is measured: the instrument or simulator, the spots, the policy….
     /// Its `out`, `resume` and, on the simulator, seed and sample are the batch's own.
     pub measure: MeasureOptions,
@@ -82,9 +86,23 @@ pub fn run_batch(
     interrupted: Arc<AtomicBool>,
     progress: &mut dyn FnMut(&str),
 ) -> anyhow::Result<BatchEnd> {
-    let (dir, mut doc) = match &options.resume {
-        Some(dir) => (dir.clone(), continued(options, dir)?),
-        None => begin(options)?,
+    // The batch folder is held until the batch ends, however it ends (the lock is dropped
+    // with it): a second gonio batch in it is refused, naming this one.
+    let (dir, mut doc, _lock) = match &options.resume {
+        Some(dir) => {
+            let lock = if dir.is_dir() {
+                let mut lock = BatchLock::take(dir)?;
+                lock.announce()?;
+                Some(lock)
+            } else {
+                None
+            };
+            (dir.clone(), continued(options, dir)?, lock)
+        }
+        None => {
+            let (dir, doc, lock) = begin(options)?;
+            (dir, doc, Some(lock))
+        }
     };
     let resume_with = resume_command(&options.measure, &dir);
     let first = doc.sheets.len() as u16 + 1;
@@ -100,6 +118,7 @@ pub fn run_batch(
         }
         let sheet_dir = dir.join(BatchDoc::sheet_folder(number));
         let simulated = simulated_sample(&doc.plan, options, number)?;
+        let sheet_options = sheet_options(options, &doc.plan, &sheet_dir, number, &simulated);
         if !folder::is_finished(&sheet_dir) {
             progress(&format!(
                 "sheet {number} of {}: {} (folder {})",
@@ -111,7 +130,6 @@ pub fn run_batch(
                 },
                 sheet_dir.display()
             ));
-            let sheet_options = sheet_options(options, &doc.plan, &sheet_dir, number, &simulated);
             let measured = measure(&sheet_options, operator, interrupted.clone());
             match measured {
                 Ok(Measured::Done { .. } | Measured::Sheet { .. }) => {}
@@ -183,8 +201,8 @@ pub fn resume_command(options: &MeasureOptions, dir: &Path) -> String {
 }
 
 /// Check a new batch's options and read its master, before anything is written; then
-/// make its folder and its first `batch.json`.
-fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc)> {
+/// make its folder, take it and write its first `batch.json`.
+fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc, BatchLock)> {
     let Some(stock) = &options.master else {
         bail!(
             "a new batch needs --master STOCK: the stock of the library its sheets are judged against"
@@ -226,6 +244,19 @@ fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc)> {
     {
         sample_params(paper).with_context(|| format!("--sim {paper}"))?;
     }
+    for (k, spec) in options.gloss_spec.iter().enumerate() {
+        if let Some(twice) = options.gloss_spec[..k]
+            .iter()
+            .find(|s| s.angle_deg == spec.angle_deg)
+        {
+            crate::usage_bail!(
+                "--gloss-spec {} and --gloss-spec {}: {} specified twice (one specification a geometry)",
+                twice.text(),
+                spec.text(),
+                spec.label()
+            );
+        }
+    }
     let master = folder::master_from_library(&options.library, stock)?;
     let tolerance = std::array::from_fn(|i| match options.tolerance_pct[i] {
         Some(t) => (
@@ -263,17 +294,38 @@ fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc)> {
                 .name()
                 .to_string(),
         ),
+        gloss_spec: options.gloss_spec.clone(),
+        instrument_profile: options
+            .measure
+            .instrument
+            .as_ref()
+            .map(|p| p.display().to_string()),
     };
-    make_folder(&dir)?;
+    let lock = make_folder(&dir)?;
     let doc = BatchDoc::new(plan, master, tolerance);
     folder::write(&dir, &doc)?;
-    Ok((dir, doc))
+    Ok((dir, doc, lock))
 }
 
-/// A new batch folder: made, or an empty one taken.
-fn make_folder(dir: &Path) -> anyhow::Result<()> {
+/// A new batch folder: made, or an empty one taken; held by this process.
+fn make_folder(dir: &Path) -> anyhow::Result<BatchLock> {
+    if !dir.exists() {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--out {}: cannot make the folder", dir.display()))?;
+    }
+    // Taken before the folder is looked at: a gonio batch running in it has written its
+    // batch.json and sheets, and is named rather than told to resume.
+    let mut lock = if dir.is_dir() {
+        BatchLock::take(dir)?
+    } else {
+        bail!("--out {}: not a folder", dir.display());
+    };
+    // A batch.lock alone is one a killed gonio batch left before its first batch.json.
     match std::fs::read_dir(dir) {
-        Ok(mut entries) => {
+        Ok(entries) => {
+            let mut entries = entries
+                .filter_map(Result::ok)
+                .filter(|e| e.file_name() != folder::BATCH_LOCK);
             if entries.next().is_some() {
                 if dir.join(folder::BATCH).is_file() {
                     bail!(
@@ -287,10 +339,9 @@ fn make_folder(dir: &Path) -> anyhow::Result<()> {
                     dir.display()
                 );
             }
-            Ok(())
+            lock.announce()?;
+            Ok(lock)
         }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => std::fs::create_dir_all(dir)
-            .with_context(|| format!("--out {}: cannot make the folder", dir.display())),
         Err(e) => Err(anyhow::anyhow!("--out {}: {e}", dir.display())),
     }
 }
@@ -327,6 +378,19 @@ fn continued(options: &BatchOptions, dir: &Path) -> anyhow::Result<BatchDoc> {
             given.name()
         );
     }
+    let given: Vec<String> = options.gloss_spec.iter().map(GlossSpec::text).collect();
+    let planned: Vec<String> = doc.plan.gloss_spec.iter().map(GlossSpec::text).collect();
+    ensure!(
+        given.is_empty() || given == planned,
+        "{}: --gloss-spec {} differs from the batch's plan ({}): a batch is judged against one specification (resume without --gloss-spec)",
+        dir.display(),
+        given.join(" --gloss-spec "),
+        if planned.is_empty() {
+            "no gloss specification".to_string()
+        } else {
+            format!("gloss spec {}", planned.join(", "))
+        }
+    );
     Ok(doc)
 }
 
@@ -387,6 +451,10 @@ fn sheet_options(
         && let Ok(choice) = <PolicyChoice as clap::ValueEnum>::from_str(policy, true)
     {
         sheet.policy = Some(choice);
+    }
+    // The batch's profile when the resume gives none: its sheets are analysed alike.
+    if sheet.instrument.is_none() {
+        sheet.instrument = plan.instrument_profile.as_ref().map(PathBuf::from);
     }
     if let (Some(sample), Some(seed)) = (simulated, plan.sim_seed) {
         sheet.sim = Some(sample.clone());

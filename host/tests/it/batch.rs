@@ -567,3 +567,419 @@ fn a_resumed_batch_keeps_the_policy_it_began_with() {
     assert_eq!(session["plan"]["policy"], "paper", "{}", session["plan"]);
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// `gonio` with `XDG_DATA_HOME` in `root`: no profile installed there, whatever this
+/// machine has installed in its own.
+fn gonio_in(root: &Path, args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(args)
+        .env("XDG_DATA_HOME", root.join("xdg"))
+        .stdin(Stdio::null())
+        .output()
+        .expect("run gonio")
+}
+
+/// Whether a sheet of batch.json has a clean result (only informational flags).
+fn clean(sheet: &serde_json::Value) -> bool {
+    sheet["flags"].as_array().unwrap().iter().all(|f| {
+        host::analysis::flags::Flag::ALL
+            .iter()
+            .any(|k| *f == k.name() && k.is_informational())
+    })
+}
+
+/// The simulated instrument's profile, characterized into `root/instrument.json`.
+pub(crate) fn simulated_profile(root: &Path, seed: u64) -> PathBuf {
+    let profile = root.join("instrument.json");
+    let out = gonio_in(
+        root,
+        &[
+            "characterize",
+            "--sim",
+            "--seed",
+            &seed.to_string(),
+            "--rehomes",
+            "1",
+            "--lamp-s",
+            "5",
+            "--out",
+            s(&profile),
+        ],
+    );
+    assert!(out.status.success(), "characterize: {}", stderr(&out));
+    profile
+}
+
+/// The analytic gloss of the simulator's paper `paper` at the geometry of `angle_deg`.
+fn analytic_gloss(paper: &str, angle_deg: f64) -> f64 {
+    let p = host::instrument::sim::sample_params(paper).expect("a paper");
+    let g = host::analysis::gloss::GLOSS_GEOMETRIES
+        .iter()
+        .find(|g| g.angle_deg == angle_deg)
+        .expect("a geometry");
+    host::analysis::gloss::gloss_units(&p, g)
+}
+
+/// The gloss specification: each sheet measured with the instrument's profile has its
+/// gloss judged against it beside σ, ρs and ρd. Against SG's own 60° gloss ± 5 GU it
+/// passes; against a 20° specification 20 GU above SG's it fails, the verdict naming the
+/// gloss, its value, the specification and how far beyond; at 85°, which the arms do not
+/// reach, it is undecided and says so, named beside the failure. Without a profile every
+/// sheet is undecided on gloss, with the reason, never a pass.
+#[test]
+fn gloss_is_judged_against_its_specification_and_undecided_without_a_profile() {
+    let seed = run_seed();
+    let root = temp_dir("batch", "gloss");
+    std::fs::create_dir_all(&root).unwrap();
+    let library = library_with_master(&root, "Stock-SG", "SG", 1, seed);
+    let profile = simulated_profile(&root, seed);
+    let (g20, g60) = (analytic_gloss("SG", 20.0), analytic_gloss("SG", 60.0));
+    let passing = format!("60={g60:.1}±5");
+    let failing = format!("20={:.1}+-3", g20 + 20.0);
+    let dir = root.join("with-profile");
+    let seed_text = seed.to_string();
+    let args = |dir: &Path, specs: &[String], extra: &[&str]| {
+        let mut args: Vec<String> = [
+            "batch",
+            "--library",
+            s(&library),
+            "--master",
+            "Stock-SG",
+            "--sim",
+            "SG",
+            "--sheets",
+            "2",
+            "--spots",
+            "1",
+            "--sheet-to-sheet-pct",
+            "0",
+            "--seed",
+            &seed_text,
+            "--out",
+            s(dir),
+        ]
+        .map(String::from)
+        .to_vec();
+        for spec in specs {
+            args.extend(["--gloss-spec".to_string(), spec.clone()]);
+        }
+        args.extend(extra.iter().map(|e| e.to_string()));
+        args
+    };
+    let run = |args: Vec<String>| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        gonio_in(&root, &args)
+    };
+    let out = run(args(
+        &dir,
+        &[passing.clone(), failing.clone(), "85=10±5".to_string()],
+        &["--instrument", s(&profile)],
+    ));
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let doc = batch_json(&dir);
+    assert_eq!(doc["plan"]["gloss_spec"].as_array().unwrap().len(), 3);
+    let mut judged = 0;
+    for sheet in doc["sheets"].as_array().unwrap() {
+        let j = sheet["gloss_judgements"].as_array().unwrap();
+        assert_eq!(j.len(), 3, "{sheet}");
+        if !clean(sheet) {
+            // A flagged result is judged on nothing; it says so.
+            assert!(j.iter().all(|j| j["verdict"] == "undecided"), "{sheet}");
+            continue;
+        }
+        judged += 1;
+        let gloss60 = j[0]["gloss_units"].as_f64().expect("gloss at 60°");
+        assert!((gloss60 - g60).abs() < 2.0, "{gloss60} against {g60}");
+        assert_eq!(j[0]["verdict"], "pass", "{sheet}");
+        assert_eq!(j[1]["verdict"], "fail", "{sheet}");
+        assert_eq!(j[2]["verdict"], "undecided", "{sheet}");
+        assert!(
+            j[2]["why"]
+                .as_str()
+                .unwrap()
+                .contains("arms do not reach its receptor"),
+            "{sheet}"
+        );
+        assert_eq!(sheet["verdict"], "fail", "{sheet}");
+        let gloss20 = j[1]["gloss_units"].as_f64().unwrap();
+        let beyond = j[1]["beyond_gloss_units"].as_f64().unwrap();
+        // As the verdict writes the specification: the number given, without trailing zeros.
+        let spec_target: f64 = format!("{:.1}", g20 + 20.0).parse().unwrap();
+        let named =
+            format!("gloss 20° {gloss20:.1} GU (spec {spec_target} ± 3, {beyond:.1} beyond)");
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(stdout.contains(&named), "{named} in\n{stdout}");
+        assert!(stdout.contains("not judged: gloss 85°"), "{stdout}");
+        // The CSV carries the specification and the verdict per geometry.
+        let csv = std::fs::read_to_string(dir.join("batch.csv")).unwrap();
+        let header = csv.lines().next().unwrap();
+        assert!(
+            header.contains("gloss 20 deg spec (GU)") && header.contains("gloss 60 deg verdict"),
+            "{header}"
+        );
+        assert!(csv.contains("gloss_20deg"), "{csv}");
+    }
+    assert!(judged >= 1, "no sheet with a clean result: {doc}");
+    // The report shows the specification.
+    let html = std::fs::read_to_string(dir.join("batch.html")).unwrap();
+    assert!(
+        html.contains("gloss specification")
+            && html.contains("(--gloss-spec <code>60=")
+            && html.contains("individuals chart: gloss 60°"),
+        "{html}"
+    );
+
+    // Without a profile: undecided on gloss, with the reason; never a pass.
+    let bare = root.join("no-profile");
+    let out = run(args(&bare, std::slice::from_ref(&passing), &[]));
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let doc = batch_json(&bare);
+    let sheets = doc["sheets"].as_array().unwrap();
+    for sheet in sheets {
+        assert_ne!(sheet["verdict"], "pass", "{sheet}");
+        let j = &sheet["gloss_judgements"][0];
+        assert_eq!(j["verdict"], "undecided", "{sheet}");
+        assert!(sheet["gloss"].as_array().unwrap().is_empty(), "{sheet}");
+        if clean(sheet) {
+            assert!(
+                j["why"]
+                    .as_str()
+                    .unwrap()
+                    .contains("no instrument profile was in force"),
+                "{sheet}"
+            );
+        }
+    }
+    if sheets.iter().any(clean) {
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            stdout.contains("gloss 60°: no gloss: no instrument profile was in force"),
+            "{stdout}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A batch is judged against one gloss specification: a resume without `--gloss-spec`
+/// keeps the batch's (its next sheet judged against it), one giving another is refused by
+/// name before anything is measured. A `gonio-batch/2` batch.json (no gloss) is read and
+/// written back as `gonio-batch/3` with none.
+#[test]
+fn a_resumed_batch_keeps_its_gloss_spec_and_refuses_another() {
+    let seed = run_seed();
+    let root = temp_dir("batch", "gloss-resume");
+    let library = library_with_master(&root, "Stock-PPC", "PPC", 1, seed);
+    let dir = root.join("batch");
+    let out = batch(
+        &library,
+        "Stock-PPC",
+        "PPC",
+        "1",
+        &dir,
+        seed,
+        &["--spots", "1", "--gloss-spec", "60=45±3"],
+    );
+    assert_eq!(code(&out), 3, "undecided on gloss: {}", stderr(&out));
+    let mut doc = batch_json(&dir);
+    let spec = doc["plan"]["gloss_spec"].clone();
+    assert_eq!(spec[0]["target_gloss_units"], 45.0, "{spec}");
+    doc["plan"]["sheets"] = 3.into();
+    doc["status"] = "interrupted".into();
+    std::fs::write(dir.join("batch.json"), doc.to_string()).unwrap();
+    let resume = |extra: &[&str]| {
+        let mut args = vec!["batch", "--library", s(&library), "--sim", "PPC"];
+        args.extend_from_slice(extra);
+        args.extend(["--resume", s(&dir)]);
+        gonio(&args)
+    };
+    let before = std::fs::read(dir.join("batch.json")).unwrap();
+    let refused = resume(&["--gloss-spec", "60=40±3"]);
+    assert_eq!(code(&refused), 1, "{}", stderr(&refused));
+    assert!(
+        stderr(&refused)
+            .contains("--gloss-spec 60=40±3 differs from the batch's plan (gloss spec 60=45±3)"),
+        "{}",
+        stderr(&refused)
+    );
+    assert_eq!(std::fs::read(dir.join("batch.json")).unwrap(), before);
+    assert!(!dir.join("sheet-02").exists(), "nothing measured");
+    // The same specification again is the batch's own: accepted.
+    let out = resume(&["--gloss-spec", "60°=45+-3"]);
+    assert_eq!(code(&out), 3, "{}", stderr(&out));
+    let doc = batch_json(&dir);
+    assert_eq!(doc["plan"]["gloss_spec"], spec);
+    assert_eq!(doc["sheets"].as_array().unwrap().len(), 3);
+    for sheet in doc["sheets"].as_array().unwrap() {
+        assert_eq!(
+            sheet["gloss_judgements"][0]["verdict"], "undecided",
+            "{sheet}"
+        );
+    }
+
+    // gonio-batch/2: no gloss specification, no sheet's gloss; resumed, written as /3.
+    let mut old = doc.clone();
+    old["schema"] = "gonio-batch/2".into();
+    old["status"] = "interrupted".into();
+    old["plan"]["sheets"] = 4.into();
+    let plan = old["plan"].as_object_mut().unwrap();
+    plan.remove("gloss_spec");
+    plan.remove("instrument_profile");
+    for sheet in old["sheets"].as_array_mut().unwrap() {
+        let sheet = sheet.as_object_mut().unwrap();
+        sheet.remove("gloss");
+        sheet.remove("gloss_judgements");
+        if sheet["verdict"] == "fail" {
+            sheet.remove("gloss_exceeded");
+            sheet.remove("undecided");
+        }
+    }
+    std::fs::write(dir.join("batch.json"), old.to_string()).unwrap();
+    let out = resume(&[]);
+    assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
+    let doc = batch_json(&dir);
+    assert_eq!(doc["schema"], "gonio-batch/3");
+    assert_eq!(doc["plan"]["gloss_spec"], serde_json::json!([]));
+    assert_eq!(doc["sheets"][3]["gloss_judgements"], serde_json::json!([]));
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A gloss specification that is not one is refused by clap's usage code, naming the
+/// option and the value, before any library is read or folder made; so is one geometry
+/// specified twice.
+#[test]
+fn a_bad_gloss_spec_is_refused_before_anything_is_measured() {
+    let root = temp_dir("batch", "gloss-bad");
+    std::fs::create_dir_all(&root).unwrap();
+    let out_dir = root.join("out");
+    let run = |specs: &[&str]| {
+        let mut args = vec![
+            "batch",
+            "--library",
+            "no-such-library.sqlite",
+            "--master",
+            "Stock-SG",
+            "--sim",
+            "SG",
+            "--sheets",
+            "2",
+            "--out",
+            s(&out_dir),
+        ];
+        for spec in specs {
+            args.extend(["--gloss-spec", spec]);
+        }
+        gonio(&args)
+    };
+    for (spec, says) in [
+        ("60=45", "gives no tolerance"),
+        ("45=10±1", "'45' is not a gloss geometry gonio computes"),
+        ("60=45±0", "the tolerance '0'"),
+        ("60", "is not GEOMETRY=TARGET±TOLERANCE"),
+    ] {
+        let out = run(&[spec]);
+        assert_eq!(code(&out), 2, "{spec}: {}", stderr(&out));
+        let err = stderr(&out);
+        assert!(
+            err.contains("--gloss-spec") && err.contains(spec) && err.contains(says),
+            "{spec}: {err}"
+        );
+        assert!(!out_dir.exists(), "{spec}: nothing written");
+    }
+    let out = run(&["60=45±3", "60°=40+-2"]);
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(
+        stderr(&out)
+            .contains("--gloss-spec 60=45±3 and --gloss-spec 60=40±2: gloss 60° specified twice"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!out_dir.exists(), "nothing written");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// One batch, one process: while a gonio batch holds the batch folder, a second one on
+/// it, resuming it or beginning a new batch there, is refused naming the folder and the
+/// holder, and nothing of the first is changed; once it lets go, the batch resumes. The
+/// holder is taken here through the same lock a running gonio batch takes (deterministic:
+/// no race with a batch that might finish first).
+#[test]
+fn a_second_batch_on_a_folder_in_use_is_refused_naming_the_holder() {
+    let seed = run_seed();
+    let root = temp_dir("batch", "lock");
+    let library = library_with_master(&root, "Stock-PPC", "PPC", 1, seed);
+    let dir = root.join("batch");
+    let out = batch(
+        &library,
+        "Stock-PPC",
+        "PPC",
+        "1",
+        &dir,
+        seed,
+        &["--spots", "1"],
+    );
+    assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
+    assert!(!dir.join("batch.lock").exists(), "let go at the end");
+    let mut doc = batch_json(&dir);
+    doc["plan"]["sheets"] = 2.into();
+    doc["status"] = "interrupted".into();
+    std::fs::write(dir.join("batch.json"), doc.to_string()).unwrap();
+    let before = std::fs::read(dir.join("batch.json")).unwrap();
+    let sheet_before = std::fs::read(dir.join("sheet-01/session.json"))
+        .or_else(|_| std::fs::read(dir.join("sheet-01/sheet.json")))
+        .unwrap();
+
+    let mut holder = host::output::batch::BatchLock::take(&dir).expect("the folder is free");
+    holder.announce().unwrap();
+    let pid = format!("process {}", std::process::id());
+    let resume = || gonio(&["batch", "--sim", "PPC", "--resume", s(&dir)]);
+    let refused = resume();
+    assert_eq!(code(&refused), 1, "{}", stderr(&refused));
+    let err = stderr(&refused);
+    assert!(
+        err.contains(&format!(
+            "{} is in use by another gonio batch",
+            dir.display()
+        )) && err.contains(&pid),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(dir.join("batch.json")).unwrap(), before);
+    assert!(!dir.join("sheet-02").exists(), "nothing measured");
+    // A new batch onto the folder in use: the same.
+    let empty = root.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let mut other = host::output::batch::BatchLock::take(&empty).unwrap();
+    other.announce().unwrap();
+    let out = batch(
+        &library,
+        "Stock-PPC",
+        "PPC",
+        "1",
+        &empty,
+        seed,
+        &["--spots", "1"],
+    );
+    assert_eq!(code(&out), 1, "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains(&format!(
+            "{} is in use by another gonio batch",
+            empty.display()
+        )) && stderr(&out).contains(&pid),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!empty.join("batch.json").exists());
+    drop(other);
+    drop(holder);
+
+    // Let go: the batch resumes, its first sheet as it was.
+    let out = resume();
+    assert!(matches!(code(&out), 0 | 3), "{}", stderr(&out));
+    let doc = batch_json(&dir);
+    assert_eq!(doc["status"], "finished");
+    assert_eq!(doc["sheets"].as_array().unwrap().len(), 2);
+    let sheet_after = std::fs::read(dir.join("sheet-01/session.json"))
+        .or_else(|_| std::fs::read(dir.join("sheet-01/sheet.json")))
+        .unwrap();
+    assert_eq!(sheet_after, sheet_before);
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -738,8 +738,9 @@ fn keys_public_keys_and_signatures_validate() {
 }
 
 /// `gonio batch`'s `batch.json` (and `--json`), with every sheet folder in the batch
-/// folder, against their JSON Schemas: sheets of the master's paper (pass) and of another
-/// paper (fail, the parameters named).
+/// folder, against their JSON Schemas: sheets of the master's paper (pass) with the
+/// instrument's profile (their gloss judged against a specification), and of another
+/// paper (fail, the parameters named, the gloss not judged without a profile).
 #[test]
 fn a_batch_and_its_sheet_folders_validate() {
     let schemas = Schemas::load();
@@ -747,9 +748,15 @@ fn a_batch_and_its_sheet_folders_validate() {
     let root = temp_dir("schemas", "batch");
     std::fs::create_dir_all(&root).unwrap();
     let library = crate::batch::library_with_master(&root, "Stock-SG", "SG", 2, seed);
-    for (name, paper, spots) in [("same", "SG", "2"), ("other", "G", "1")] {
+    let profile = crate::batch::simulated_profile(&root, seed);
+    let with_profile = ["--instrument", profile.to_str().unwrap()];
+    let seed_text = seed.to_string();
+    for (name, paper, spots, extra) in [
+        ("same", "SG", "2", &with_profile[..]),
+        ("other", "G", "1", &[][..]),
+    ] {
         let dir = root.join(name);
-        let out = gonio(&[
+        let mut args = vec![
             "batch",
             "--library",
             library.to_str().unwrap(),
@@ -762,11 +769,15 @@ fn a_batch_and_its_sheet_folders_validate() {
             "--spots",
             spots,
             "--seed",
-            &seed.to_string(),
+            &seed_text,
             "--out",
             dir.to_str().unwrap(),
             "--json",
-        ]);
+            "--gloss-spec",
+            "60=11±5",
+        ];
+        args.extend_from_slice(extra);
+        let out = gonio(&args);
         assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
         let printed = json_lines(&out);
         assert_eq!(printed.len(), 1);
@@ -777,6 +788,15 @@ fn a_batch_and_its_sheet_folders_validate() {
         // batch.json and every JSON file of every sheet folder.
         let checked = schemas.check_folder(&dir);
         assert!(checked > 4, "{checked} documents");
+        let judged = written["sheets"][0]["gloss_judgements"][0]["verdict"].clone();
+        assert!(
+            if paper == "G" {
+                judged == "undecided"
+            } else {
+                !written["sheets"][0]["gloss"].as_array().unwrap().is_empty()
+            },
+            "{written}"
+        );
         if paper == "G" {
             assert!(
                 written["sheets"]

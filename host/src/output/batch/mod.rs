@@ -7,14 +7,22 @@
 //! | `sheet-01/`, `sheet-02/`, … | one sheet folder per sheet (a session folder with one spot): each verifies, reports and resumes on its own | as a sheet or session folder |
 //! | `batch.csv` | one row per sheet, units in the headers: for a spreadsheet | with `batch.json` |
 //! | `batch.html` | the batch report a person reads | with `batch.json` |
+//! | `batch.lock` | who holds the batch (process, command, since when) while a `gonio batch` runs in it | when it takes the folder; removed when it lets go |
 //!
 //! The master and the tolerances are recorded when the batch begins, so a batch resumed
 //! after the library changed is still judged as it began; a sheet is judged from its own
 //! folder's files (read back, as `gonio compare` reads them).
+//!
+//! One `gonio batch` at a time in a folder: [`BatchLock`] (an advisory lock on the folder,
+//! as a session folder's) refuses a second, naming the folder and the one that holds it.
 mod report;
 
-use crate::analysis::batch::{self, Master, Named, SpotValues, Statistics, Verdict};
+use crate::analysis::batch::{
+    self, GlossJudgement, GlossSpec, Master, Named, SheetGloss, SpotGloss, SpotValues, Statistics,
+    Verdict,
+};
 use crate::analysis::flags::Flag;
+use crate::output::folder::lock::{FolderError, FolderLock};
 use crate::output::folder::sheet::read_measured;
 use crate::output::folder::{SESSION, Status};
 use crate::output::library::{Library, OpenMode};
@@ -27,6 +35,8 @@ pub const BATCH: &str = "batch.json";
 pub const BATCH_CSV: &str = "batch.csv";
 /// `batch.html`.
 pub const BATCH_HTML: &str = "batch.html";
+/// `batch.lock`: who holds the folder.
+pub const BATCH_LOCK: &str = "batch.lock";
 
 /// Why a batch cannot be begun, continued or written.
 #[derive(Debug, thiserror::Error)]
@@ -67,6 +77,17 @@ pub enum BatchError {
         path: PathBuf,
         /// What is wrong with it.
         why: String,
+    },
+    /// Another process runs a batch in the folder.
+    #[error(
+        "{} is in use by another gonio batch ({holder}): one batch, one process; nothing in the folder was changed (when that one has ended, gonio batch --resume {} continues the batch)",
+        .dir.display(), .dir.display()
+    )]
+    InUse {
+        /// The batch folder.
+        dir: PathBuf,
+        /// Who holds it, as its `batch.lock` says.
+        holder: String,
     },
     /// A measured sheet's folder cannot be read back.
     #[error("{}: {why}", path.display())]
@@ -153,6 +174,14 @@ pub struct BatchPlan {
     /// in a batch written before it was recorded (its sheets' own plans say).
     #[serde(default)]
     pub policy: Option<String>,
+    /// The gloss specifications every sheet is judged against besides the master
+    /// (`--gloss-spec`; empty: gloss is not judged; a `gonio-batch/2` batch has none).
+    #[serde(default)]
+    pub gloss_spec: Vec<GlossSpec>,
+    /// The instrument profile given (`--instrument`), used again by a resume that gives
+    /// none (`null`: the one installed for the instrument, if any).
+    #[serde(default)]
+    pub instrument_profile: Option<String>,
 }
 
 /// One sheet of the batch, measured and judged.
@@ -175,7 +204,14 @@ pub struct BatchSheet {
     pub deviation_pct: Named<Option<f64>>,
     /// The result's flags, informational ones included (empty: clean).
     pub flags: Vec<String>,
-    /// The verdict against the master.
+    /// Its gloss at each geometry its accepted spots have it (empty: none, no instrument
+    /// profile in force).
+    #[serde(default)]
+    pub gloss: Vec<SheetGloss>,
+    /// Its gloss against each of the plan's gloss specifications.
+    #[serde(default)]
+    pub gloss_judgements: Vec<GlossJudgement>,
+    /// The verdict against the master and the gloss specifications.
     #[serde(flatten)]
     pub verdict: Verdict,
 }
@@ -274,6 +310,26 @@ impl BatchDoc {
                 batch::statistics(batch::PARAMETERS[i], &points)
             })
             .collect();
+        let mut angles: Vec<f64> = self
+            .sheets
+            .iter()
+            .flat_map(|s| s.gloss.iter().map(|g| g.angle_deg))
+            .collect();
+        angles.sort_by(f64::total_cmp);
+        angles.dedup();
+        for angle in angles {
+            let points: Vec<(u16, f64)> = self
+                .sheets
+                .iter()
+                .filter(|s| clean(&s.flags))
+                .filter_map(|s| {
+                    let g = s.gloss.iter().find(|g| g.angle_deg == angle)?;
+                    Some((s.number, g.gloss_units))
+                })
+                .collect();
+            self.statistics
+                .extend(batch::statistics(&batch::gloss_label(angle), &points));
+        }
     }
 
     /// Every sheet passed.
@@ -320,8 +376,51 @@ pub fn judge_sheet(
         .filter(|f| !clean(std::slice::from_ref(f)))
         .cloned()
         .collect();
-    let verdict = batch::judge(values, &doc.master, doc.tolerance_pct.array(), &flagged);
+    let spots_gloss: Vec<Option<Vec<SpotGloss>>> = measured
+        .gloss
+        .iter()
+        .map(|spot| {
+            spot.as_ref().map(|values| {
+                values
+                    .iter()
+                    .map(|g| SpotGloss {
+                        geometry: g.geometry.clone(),
+                        angle_deg: g.angle_deg,
+                        gloss_units: g.gloss_units,
+                        u_gloss_units: g.u_gloss_units,
+                    })
+                    .collect()
+            })
+        })
+        .collect();
+    let gloss = batch::sheet_gloss(&spots_gloss);
+    let any_gloss = spots_gloss.iter().any(Option::is_some);
+    let gloss_judgements: Vec<GlossJudgement> = doc
+        .plan
+        .gloss_spec
+        .iter()
+        .map(|spec| {
+            if !flagged.is_empty() {
+                return GlossJudgement::of(spec, None, || {
+                    "the sheet's result is flagged".to_string()
+                });
+            }
+            let at = gloss.iter().find(|g| g.angle_deg == spec.angle_deg);
+            GlossJudgement::of(spec, at.map(|g| g.gloss_units), || {
+                batch::no_gloss_why(any_gloss, spec)
+            })
+        })
+        .collect();
+    let verdict = batch::judge(
+        values,
+        &doc.master,
+        doc.tolerance_pct.array(),
+        &flagged,
+        &gloss_judgements,
+    );
     Ok(BatchSheet {
+        gloss,
+        gloss_judgements,
         number,
         folder: BatchDoc::sheet_folder(number),
         simulated,
@@ -334,6 +433,71 @@ pub fn judge_sheet(
         flags: measured.flags.clone(),
         verdict,
     })
+}
+
+/// Keeps a second `gonio batch` out of a batch folder while this one runs in it: the
+/// folder's lock ([`FolderLock`], which the kernel drops however the process ends) and
+/// `batch.lock`, which says who holds it (a lock that a killed process left is not held,
+/// and its `batch.lock` is written anew by the next).
+pub struct BatchLock {
+    _lock: FolderLock,
+    holder_file: PathBuf,
+    announced: bool,
+}
+
+impl BatchLock {
+    /// Take the batch folder `dir` (it must exist), or say who holds it. Nothing is
+    /// written in the folder until [`BatchLock::announce`].
+    pub fn take(dir: &Path) -> Result<BatchLock, BatchError> {
+        let holder_file = dir.join(BATCH_LOCK);
+        let lock = FolderLock::take(dir).map_err(|e| match e {
+            FolderError::InUse(_) => BatchError::InUse {
+                dir: dir.to_path_buf(),
+                holder: std::fs::read_to_string(&holder_file)
+                    .ok()
+                    .map(|h| crate::text::shown_at_most(h.trim(), 300))
+                    .filter(|h| !h.is_empty())
+                    .unwrap_or_else(|| "a process that has not said who it is yet".into()),
+            },
+            other => BatchError::Io {
+                path: dir.to_path_buf(),
+                source: std::io::Error::other(other.to_string()),
+            },
+        })?;
+        Ok(BatchLock {
+            _lock: lock,
+            holder_file,
+            announced: false,
+        })
+    }
+
+    /// Write `batch.lock`: this process, its command and since when.
+    pub fn announce(&mut self) -> Result<(), BatchError> {
+        let command: Vec<String> = std::env::args().collect();
+        let holder = format!(
+            "process {}, `{}`, since {}",
+            std::process::id(),
+            command.join(" "),
+            chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
+        );
+        std::fs::write(&self.holder_file, format!("{holder}\n")).map_err(|source| {
+            BatchError::Io {
+                path: self.holder_file.clone(),
+                source,
+            }
+        })?;
+        self.announced = true;
+        Ok(())
+    }
+}
+
+impl Drop for BatchLock {
+    fn drop(&mut self) {
+        // While the lock is still held: no other batch can have written it.
+        if self.announced {
+            let _ = std::fs::remove_file(&self.holder_file);
+        }
+    }
 }
 
 /// Whether sheet folder `dir` is finished (its `sheet.json` or `session.json` says so).
@@ -361,13 +525,18 @@ pub fn read(dir: &Path) -> Result<BatchDoc, BatchError> {
         serde_json::from_str(&text).map_err(|e| not(format!("not JSON: {e}")))?;
     crate::schema::check(
         &value,
-        &[crate::schema::BATCH, crate::schema::BATCH_V1],
+        &[
+            crate::schema::BATCH,
+            crate::schema::BATCH_V2,
+            crate::schema::BATCH_V1,
+        ],
         None,
     )
     .map_err(|m| not(format!("{m}: not a batch folder of this gonio")))?;
     let mut doc: BatchDoc =
         serde_json::from_value(value).map_err(|e| not(format!("not a batch document: {e}")))?;
-    // A gonio-batch/1 document is written back as this gonio writes (its policy null).
+    // A gonio-batch/1 or /2 document is written back as this gonio writes (its policy null
+    // in /1; no gloss specification, no sheet's gloss in either).
     doc.schema = crate::schema::BATCH.to_string();
     for (k, s) in doc.sheets.iter().enumerate() {
         if s.number as usize != k + 1 || s.folder != BatchDoc::sheet_folder(s.number) {
@@ -412,11 +581,33 @@ fn replace(path: &Path, bytes: &[u8]) -> Result<(), BatchError> {
     std::fs::rename(&temporary, path).map_err(io)
 }
 
+/// The gloss geometries `batch.csv` has a column for: those specified and those any sheet
+/// has gloss at, by angle.
+fn gloss_angles(doc: &BatchDoc) -> Vec<f64> {
+    let mut angles: Vec<f64> = doc
+        .plan
+        .gloss_spec
+        .iter()
+        .map(|g| g.angle_deg)
+        .chain(
+            doc.sheets
+                .iter()
+                .flat_map(|s| s.gloss.iter().map(|g| g.angle_deg)),
+        )
+        .collect();
+    angles.sort_by(f64::total_cmp);
+    angles.dedup();
+    angles
+}
+
 /// `batch.csv`: one row per sheet, units in the headers, comma-separated with a decimal
-/// point and ASCII headers (any spreadsheet opens it as it is).
+/// point and ASCII headers (any spreadsheet opens it as it is). The gloss columns follow
+/// the others: the sheet's gloss at each geometry specified or measured, then each
+/// specification's target, tolerance, verdict and why it is undecided.
 pub fn csv_bytes(doc: &BatchDoc) -> std::io::Result<Vec<u8>> {
     let mut out = csv::Writer::from_writer(Vec::new());
-    out.write_record([
+    let angles = gloss_angles(doc);
+    let mut header: Vec<String> = [
         "sheet",
         "folder",
         "verdict",
@@ -436,20 +627,43 @@ pub fn csv_bytes(doc: &BatchDoc) -> std::io::Result<Vec<u8>> {
         "rho_d spot-to-spot sd (%)",
         "flags",
         "why undecided",
-    ])?;
+    ]
+    .map(String::from)
+    .to_vec();
+    header.extend(angles.iter().map(|a| format!("gloss {a} deg (GU)")));
+    for spec in &doc.plan.gloss_spec {
+        let a = spec.angle_deg;
+        header.extend([
+            format!("gloss {a} deg spec (GU)"),
+            format!("gloss {a} deg tolerance (GU)"),
+            format!("gloss {a} deg verdict"),
+            format!("gloss {a} deg why undecided"),
+        ]);
+    }
+    out.write_record(&header)?;
     let number = |v: Option<f64>| v.map_or_else(String::new, |v| format!("{v}"));
     for s in &doc.sheets {
         let failed = match &s.verdict {
-            Verdict::Fail { exceeded } => exceeded
+            Verdict::Fail {
+                exceeded,
+                gloss_exceeded,
+                ..
+            } => exceeded
                 .iter()
-                .map(|e| e.parameter.as_str())
+                .map(|e| e.parameter.clone())
+                .chain(
+                    gloss_exceeded
+                        .iter()
+                        .map(|g| format!("gloss_{}deg", g.angle_deg)),
+                )
                 .collect::<Vec<_>>()
                 .join(" "),
             _ => String::new(),
         };
         let why = match &s.verdict {
             Verdict::Undecided { why } => why.clone(),
-            _ => String::new(),
+            Verdict::Fail { undecided, .. } => undecided.join("; "),
+            Verdict::Pass => String::new(),
         };
         let mut row = vec![
             s.number.to_string(),
@@ -466,6 +680,26 @@ pub fn csv_bytes(doc: &BatchDoc) -> std::io::Result<Vec<u8>> {
         );
         row.push(s.flags.join(" "));
         row.push(why);
+        row.extend(angles.iter().map(|a| {
+            number(
+                s.gloss
+                    .iter()
+                    .find(|g| g.angle_deg == *a)
+                    .map(|g| round(g.gloss_units, 2)),
+            )
+        }));
+        for spec in &doc.plan.gloss_spec {
+            let judged = s
+                .gloss_judgements
+                .iter()
+                .find(|j| j.angle_deg == spec.angle_deg);
+            row.extend([
+                number(Some(spec.target_gloss_units)),
+                number(Some(spec.tolerance_gloss_units)),
+                judged.map_or_else(String::new, |j| j.verdict.clone()),
+                judged.and_then(|j| j.why.clone()).unwrap_or_default(),
+            ]);
+        }
         out.write_record(&row)?;
     }
     out.into_inner().map_err(|e| e.into_error())

@@ -2,7 +2,7 @@
 //! self-contained page (no script, nothing fetched), a maud template: every text from the
 //! documents (sample and stock names, flags, reasons) is escaped by construction.
 use super::{BatchDoc, BatchSheet};
-use crate::analysis::batch::{LABELS, PARAMETERS, Statistics};
+use crate::analysis::batch::{LABELS, PARAMETERS, Statistics, gloss_label, shown_value};
 use crate::output::folder::Status;
 use maud::{DOCTYPE, Markup, html};
 
@@ -129,7 +129,22 @@ fn master(doc: &BatchDoc) -> Markup {
                 }
             }
         }
-        p.note { "A sheet passes when each parameter's deviation from the master is within its tolerance; it is undecided when its own result is flagged or it did not determine a parameter." }
+        @if doc.plan.gloss_spec.is_empty() {
+            p.note { "No gloss specification (--gloss-spec): gloss is not judged (the library keeps no gloss, so the master gives none)." }
+        } @else {
+            table {
+                tr { th { "gloss specification" } th { "geometry" } th { "target" } th { "tolerance" } }
+                @for g in &doc.plan.gloss_spec {
+                    tr {
+                        td { (g.label()) " (--gloss-spec " code { (g.text()) } ")" }
+                        td { (g.geometry) }
+                        td.num { (g.target_gloss_units) " GU" }
+                        td.num { "± " (g.tolerance_gloss_units) " GU" }
+                    }
+                }
+            }
+        }
+        p.note { "A sheet passes when each parameter's deviation from the master is within its tolerance and its gloss within each specification; it fails when any is beyond; it is undecided when its own result is flagged, it did not determine a parameter, or it has no gloss at a specified geometry (no instrument profile in force, or the arms do not reach it)." }
     }
 }
 
@@ -138,12 +153,20 @@ fn verdict_class(s: &BatchSheet) -> &'static str {
 }
 
 fn sheets(doc: &BatchDoc) -> Markup {
+    let angles = super::gloss_angles(doc);
+    let gloss = |s: &BatchSheet, angle: f64| {
+        s.gloss
+            .iter()
+            .find(|g| g.angle_deg == angle)
+            .map_or_else(|| "—".to_string(), |g| format!("{:.1}", g.gloss_units))
+    };
     html! {
         table {
             tr {
                 th { "sheet" }
                 @for l in LABELS { th { (l) } }
                 @for l in LABELS { th { "Δ" (l) } }
+                @for a in &angles { th { (gloss_label(*a)) " (GU)" } }
                 th { "verdict" } th { "flags" } th { "report" }
             }
             @for s in &doc.sheets {
@@ -151,6 +174,7 @@ fn sheets(doc: &BatchDoc) -> Markup {
                     td.num { (s.number) }
                     @for i in 0..3 { td.num { (value(i, s.values[i])) } }
                     @for i in 0..3 { td.num { (pct(s.deviation_pct[i], true)) } }
+                    @for a in &angles { td.num { (gloss(s, *a)) } }
                     td { (s.verdict.text()) }
                     td { (if s.flags.is_empty() { "none".to_string() } else { s.flags.join(", ") }) }
                     td { a href=(format!("{}/report.html", s.folder)) { (s.folder) } }
@@ -161,16 +185,7 @@ fn sheets(doc: &BatchDoc) -> Markup {
 }
 
 fn statistics(doc: &BatchDoc) -> Markup {
-    let number = |k: usize, v: Option<f64>| {
-        let i = PARAMETERS
-            .iter()
-            .position(|p| *p == doc.statistics[k].quantity);
-        match (i, v) {
-            (Some(i), v) => value(i, v),
-            (None, Some(v)) => format!("{v:.4}"),
-            (None, None) => "—".to_string(),
-        }
-    };
+    let number = |k: usize, v: Option<f64>| shown_value(&doc.statistics[k].quantity, v);
     html! {
         @if doc.statistics.is_empty() {
             p { "No clean sheet yet." }
@@ -205,18 +220,44 @@ fn statistics(doc: &BatchDoc) -> Markup {
 fn chart(doc: &BatchDoc, s: &Statistics) -> Markup {
     let (width, height, margin) = (420.0, 200.0, 36.0);
     let i = PARAMETERS.iter().position(|p| *p == s.quantity);
-    let master = i.and_then(|i| doc.master.values[i]);
-    let tolerance = i.map(|i| doc.tolerance_pct[i] / 100.0);
+    // A gloss chart's green lines are its specification's target and limits.
+    let spec = doc.plan.gloss_spec.iter().find(|g| g.label() == s.quantity);
+    let angle = doc
+        .sheets
+        .iter()
+        .flat_map(|b| &b.gloss)
+        .find(|g| gloss_label(g.angle_deg) == s.quantity)
+        .map(|g| g.angle_deg);
+    let target: Option<(f64, f64, f64)> = match (i, spec) {
+        (Some(i), _) => doc.master.values[i].map(|m| {
+            let t = doc.tolerance_pct[i] / 100.0;
+            (m, m * (1.0 - t), m * (1.0 + t))
+        }),
+        (None, Some(g)) => Some((
+            g.target_gloss_units,
+            g.target_gloss_units - g.tolerance_gloss_units,
+            g.target_gloss_units + g.tolerance_gloss_units,
+        )),
+        (None, None) => None,
+    };
     let points: Vec<(u16, f64)> = doc
         .sheets
         .iter()
-        .filter_map(|b| i.and_then(|i| b.values[i]).map(|v| (b.number, v)))
+        .filter_map(|b| match (i, angle) {
+            (Some(i), _) => b.values[i].map(|v| (b.number, v)),
+            (None, Some(a)) => b
+                .gloss
+                .iter()
+                .find(|g| g.angle_deg == a)
+                .map(|g| (b.number, g.gloss_units)),
+            (None, None) => None,
+        })
         .collect();
     let mut levels: Vec<f64> = points.iter().map(|p| p.1).collect();
     levels.extend(s.lower_control_limit);
     levels.extend(s.upper_control_limit);
-    if let (Some(m), Some(t)) = (master, tolerance) {
-        levels.extend([m * (1.0 - t), m * (1.0 + t)]);
+    if let Some((_, lo, hi)) = target {
+        levels.extend([lo, hi]);
     }
     let lo = levels.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = levels.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -242,10 +283,10 @@ fn chart(doc: &BatchDoc, s: &Statistics) -> Markup {
     html! {
         svg xmlns="http://www.w3.org/2000/svg" width=(width) height=(height) viewBox=(format!("0 0 {width} {height}")) role="img" aria-label=(format!("individuals chart of {label}")) {
             text x=(margin) y="16" font-size="13" { "individuals chart: " (label) }
-            @if let (Some(m), Some(t)) = (master, tolerance) {
+            @if let Some((m, lo, hi)) = target {
                 path d=(line(m)) stroke="#393" stroke-width="1.5" {}
-                path d=(line(m * (1.0 - t))) stroke="#393" stroke-width="1" {}
-                path d=(line(m * (1.0 + t))) stroke="#393" stroke-width="1" {}
+                path d=(line(lo)) stroke="#393" stroke-width="1" {}
+                path d=(line(hi)) stroke="#393" stroke-width="1" {}
             }
             path d=(line(s.mean)) stroke="#333" stroke-width="1" {}
             @for l in [s.lower_control_limit, s.upper_control_limit].into_iter().flatten() {
@@ -256,7 +297,7 @@ fn chart(doc: &BatchDoc, s: &Statistics) -> Markup {
                 circle cx=(format!("{:.1}", x(p.0))) cy=(format!("{:.1}", y(p.1))) r="3"
                     fill=(if s.out_of_control.contains(&p.0) { "#c33" } else { "#136" }) {}
             }
-            text x=(margin) y=(height - 8.0) font-size="11" { "sheet 1 … " (doc.plan.sheets) "; green: master ± tolerance, red dashed: control limits" }
+            text x=(margin) y=(height - 8.0) font-size="11" { "sheet 1 … " (doc.plan.sheets) "; " (match (target, i) { (None, _) => "", (Some(_), Some(_)) => "green: master ± tolerance, ", (Some(_), None) => "green: specification, " }) "red dashed: control limits" }
         }
     }
 }

@@ -15,7 +15,7 @@ use crate::analysis::evidence::Sheet;
 use crate::analysis::flags::Flag;
 use crate::analysis::spots::{self, SheetSummary, SpotResult};
 use crate::instrument::calibration::Calibration;
-use crate::output::folder::documents::SpotResultDocument;
+use crate::output::folder::documents::{GlossValue, SpotResultDocument};
 use crate::output::folder::lock::{FolderError, FolderLock, io_error};
 use crate::output::folder::store::{Store, StoreOptions};
 use crate::output::folder::{
@@ -567,6 +567,9 @@ pub struct MeasuredSheet {
     pub instrument: Option<String>,
     /// The case, when given.
     pub case: Option<folder::CaseRecord>,
+    /// Each accepted spot's gloss (`None`: none computed, no instrument profile being in
+    /// force).
+    pub gloss: Vec<Option<Vec<GlossValue>>>,
 }
 
 /// What a measured folder says of where it came from: its identity (its manifest's
@@ -651,7 +654,14 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
             .first()
             .map(|s| s.doc.instrument.serial_number.clone());
         let flags = read.summary.flags.iter().map(|f| f.to_string()).collect();
+        let gloss = read
+            .spots
+            .iter()
+            .filter(|s| accepted(s.result.number))
+            .map(|s| s.document.gloss.clone())
+            .collect();
         return Ok(MeasuredSheet {
+            gloss,
             path: path.to_path_buf(),
             sample: read.doc.sample.clone(),
             classes,
@@ -666,7 +676,15 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
     let session = crate::analysis::compare::read_session(path)?;
     let dir = session.file.parent().unwrap_or(Path::new("."));
     let (identity, instrument, case) = provenance(dir);
+    // The spot's gloss, read on its own: a session whose result has none (or none readable)
+    // has none.
+    let gloss = std::fs::read_to_string(&session.file)
+        .ok()
+        .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+        .and_then(|mut v| serde_json::from_value(v["result"]["gloss"].take()).ok())
+        .flatten();
     Ok(MeasuredSheet {
+        gloss: vec![gloss],
         path: session.file.clone(),
         sample: session.sample.clone(),
         classes: vec![session.class.clone()],
