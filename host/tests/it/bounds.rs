@@ -23,11 +23,13 @@ fn json(path: &Path) -> Value {
 /// first spot; returns its folder and the writes a whole run makes.
 fn killed(name: &str, spots: &str) -> (PathBuf, u64) {
     let count_dir = dir(&format!("{name}-count"));
+    // One seed for both runs: the kill is half of this session's writes.
+    let seed = crate::common::run_seed().to_string();
     let counting = Crash::counting();
     let out = count_dir.display().to_string();
     let whole = run(
         &[
-            "--sim", "G", "--policy", "sweep", "--spots", "1", "--out", &out,
+            "--sim", "G", "--seed", &seed, "--policy", "sweep", "--spots", "1", "--out", &out,
         ],
         Some(counting.clone()),
     );
@@ -38,7 +40,7 @@ fn killed(name: &str, spots: &str) -> (PathBuf, u64) {
     let text = out.display().to_string();
     let first = run(
         &[
-            "--sim", "G", "--policy", "sweep", "--spots", spots, "--out", &text,
+            "--sim", "G", "--seed", &seed, "--policy", "sweep", "--spots", spots, "--out", &text,
         ],
         Some(Crash::at(writes / 2)),
     );
