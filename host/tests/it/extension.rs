@@ -252,7 +252,11 @@ fn a_fresnel_factor_flatter_than_the_models_never_gives_a_confident_wrong_class(
             ));
         }
     }
+    eprintln!("flat-Fresnel SG fits with η at 3: {at_bound} of 12, said in {said}");
     assert_eq!(confidently_wrong, 0, "{seen:#?}");
+    // η pins at 3 on SG's flat factor (12 of 12 when this was written): the count is
+    // not left to be 0.
+    assert!(at_bound >= 6, "{seen:#?}");
     assert_eq!(said, at_bound, "{seen:#?}");
 }
 
