@@ -5,6 +5,7 @@
 //! The sheets here are written out in the test (point functions averaged over the 1°
 //! window by 401 midpoints), not taken from the fit's family: a Cauchy lobe, a Gaussian
 //! haze, a width that changes with θi, a body with Fresnel transmission.
+use crate::cli_support::{stderr, temp_dir};
 use crate::common::{self, Lobe, Sheet, covers, reference};
 use host::analysis::fit::{FitOptions, FitResult, Observation, fit};
 use host::analysis::flags::Flag;
@@ -201,4 +202,218 @@ fn a_body_behind_a_fresnel_interface_is_said_or_inside_the_interval() {
         "unsaid and σ missed in {} of 6: {seen:#?}",
         6 - said
     );
+}
+
+#[test]
+fn a_fresnel_factor_flatter_than_the_models_never_gives_a_confident_wrong_class() {
+    // G and SG whose lobes' Fresnel factor is flat, at its value at ψ = 45° (the shapes
+    // campaign's fresnel-flat:1). The data want η beyond its bound 3, where ρs, the lobe's
+    // amplitude over F(η), is tens of times below the paper's (SG: η 1.02, ρs 57.1): the
+    // paper's tree then reads a glossy lobe as rough. A session (SG, adaptive, seed
+    // 81039169) was classified rough-II at 1.00 with only `model-extended`. The class may
+    // be wrong; never at confidence 0.95 (the test of a Fresnel factor flatter than the
+    // model's flags it), and on SG, whose η is far from 3, the test says so wherever η
+    // sits at 3.
+    use host::analysis::classify::{class_of, classify};
+    use host::analysis::fit::Note;
+    let run = common::run_seed();
+    let mut seen = Vec::new();
+    let (mut confidently_wrong, mut at_bound, mut said) = (0, 0, 0);
+    for paper in ["G", "SG"] {
+        let p = reference(paper);
+        let flat = model::fresnel(45.0, p.eta);
+        let truth = move |ti: f64, tr: f64| {
+            let g = model::PlaneGeometry::new(ti, tr);
+            let lobe = common::lobe_value(Lobe::Gaussian, 0.5 * (tr - ti).abs(), p.sigma_deg);
+            p.rho_s * flat * g.attenuation_over_cosines * lobe + p.rho_d
+        };
+        let truth_class = class_of(Some(p.sigma_deg), p.rho_s, p.rho_d);
+        for (seed, with_std) in (0..6u64).flat_map(|s| [(s, true), (s, false)]) {
+            let r = fit(&readings(&truth, 100 * run + seed, with_std), &on()).expect("fit");
+            let c = classify(&r);
+            let wrong = c.class != Some(truth_class);
+            confidently_wrong += usize::from(wrong && c.confidence >= 0.95);
+            let note = r
+                .notes
+                .iter()
+                .any(|n| matches!(n, Note::FresnelFlatterThanModel { .. }));
+            if paper == "SG" && r.params.eta >= 3.0 - 1e-9 {
+                at_bound += 1;
+                said += usize::from(note && r.flags.contains(&Flag::LackOfFit));
+            }
+            seen.push(format!(
+                "{paper} seed {seed} std {with_std}: {} at {:.2}, η {:.2}, ρs {:.3}, {:?} {:?} said {note}",
+                c.class_name(),
+                c.confidence,
+                r.params.eta,
+                r.params.rho_s,
+                extended(&r),
+                r.flags
+            ));
+        }
+    }
+    eprintln!("flat-Fresnel SG fits with η at 3: {at_bound} of 12, said in {said}");
+    assert_eq!(confidently_wrong, 0, "{seen:#?}");
+    // η pins at 3 on SG's flat factor (12 of 12 when this was written): the count is
+    // not left to be 0.
+    assert!(at_bound >= 6, "{seen:#?}");
+    assert_eq!(said, at_bound, "{seen:#?}");
+}
+
+/// `gonio measure ARGS --spots 1` with the extensions on (the variable set for the child
+/// alone: the tests' process keeps its environment), its session.json.
+fn session_with_extensions(name: &str, args: &[&str]) -> serde_json::Value {
+    let dir = temp_dir("extension", name);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(["measure", "--spots", "1", "--out"])
+        .arg(&dir)
+        .args(args)
+        .env("GONIO_MODEL_EXTENSIONS", "1")
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("run gonio");
+    let text = std::fs::read_to_string(dir.join("session.json"))
+        .unwrap_or_else(|e| panic!("{name} {args:?}: no session.json ({e}): {}", stderr(&out)));
+    let _ = std::fs::remove_dir_all(&dir);
+    serde_json::from_str(&text).expect("session.json is JSON")
+}
+
+/// What a session's result says: its class, confidence, flags and whether the test of a
+/// Fresnel factor flatter than the model's fired.
+struct Said {
+    class: String,
+    confidence: f64,
+    flags: Vec<String>,
+    fresnel_flatter: bool,
+    eta: f64,
+}
+
+fn said(session: &serde_json::Value) -> Said {
+    let r = &session["result"];
+    let strings = |v: &serde_json::Value| -> Vec<String> {
+        v.as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_str().map(String::from))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    Said {
+        class: r["class"].as_str().unwrap_or("undecided").to_string(),
+        confidence: r["class_confidence"].as_f64().unwrap_or(0.0),
+        flags: strings(&r["flags"]),
+        fresnel_flatter: r["notes"].as_array().is_some_and(|notes| {
+            notes
+                .iter()
+                .any(|n| n["kind"] == "fresnel_flatter_than_model")
+        }),
+        eta: r["eta"].as_f64().unwrap_or(f64::NAN),
+    }
+}
+
+impl std::fmt::Display for Said {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} at {:.2}, η {:.3}, flags {:?}, η-bound test fired: {}",
+            self.class, self.confidence, self.eta, self.flags, self.fresnel_flatter
+        )
+    }
+}
+
+#[test]
+fn a_flat_fresnel_semi_gloss_session_is_flagged_not_confidently_wrong() {
+    // The session (seed 81039169) and one of this run's: a semi-gloss whose
+    // Fresnel factor is flat was classified rough-II at 1.00 with η pinned at 3 and ρs
+    // 1.59 against 57.1. Now its class, if wrong, is flagged and below 0.95; on the
+    // issue's seed the η-bound test is what says it.
+    let sg = host::analysis::classify::REFERENCES
+        .iter()
+        .find(|r| r.name == "SG")
+        .expect("SG")
+        .class
+        .name();
+    for (k, seed) in [81_039_169, common::run_seed()].into_iter().enumerate() {
+        let seed = seed.to_string();
+        let session = session_with_extensions(
+            &format!("flat-sg-{k}"),
+            &[
+                "--sim",
+                "SG",
+                "--departure",
+                "fresnel-flat:1",
+                "--policy",
+                "adaptive",
+                "--seed",
+                &seed,
+            ],
+        );
+        let s = said(&session);
+        let flagged = s.flags.iter().any(|f| f == "lack-of-fit");
+        assert!(
+            s.class == sg || (flagged && s.confidence < 0.95),
+            "seed {seed}: {s}"
+        );
+        if k == 0 {
+            assert!(s.fresnel_flatter && flagged, "the issue's seed: {s}");
+        }
+    }
+}
+
+#[test]
+fn on_exact_rough_papers_whose_eta_sits_at_3_the_eta_bound_test_fires_at_its_rate() {
+    // The rough papers' η is 3, the model's bound, in the paper's own fits (Table 6): on
+    // their exact TSL sheets η free fits above 3 in about half the sessions, and the test
+    // is then made. It fires in at most 0.3 % of sessions if its level holds (half-χ²
+    // with the critical value at 0.6 %). 6 papers × 4 seeds × {adaptive, sweep}: 48
+    // sessions; P(≥ 3 of 48 | 0.3 %) = 0.05 %, so at most 2 firings are allowed (a rate
+    // of 10 % would pass with probability 0.13).
+    const PAPERS: [&str; 6] = ["PPC", "MC", "J1", "J2", "J3", "J4"];
+    let run = common::run_seed();
+    let specs: Vec<(&str, &str, u64)> = PAPERS
+        .iter()
+        .flat_map(|p| {
+            ["adaptive", "sweep"]
+                .into_iter()
+                .flat_map(move |policy| (0..4u64).map(move |i| (*p, policy, i)))
+        })
+        .map(|(p, policy, i)| (p, policy, 1000 * run + i))
+        .collect();
+    let threads = std::thread::available_parallelism()
+        .map_or(2, |n| n.get())
+        .min(4);
+    let rows: Vec<String> = std::thread::scope(|scope| {
+        let handles: Vec<_> = specs
+            .chunks(specs.len().div_ceil(threads))
+            .enumerate()
+            .map(|(t, chunk)| {
+                scope.spawn(move || {
+                    chunk
+                        .iter()
+                        .enumerate()
+                        .map(|(k, (paper, policy, seed))| {
+                            let seed_text = seed.to_string();
+                            let s = said(&session_with_extensions(
+                                &format!("rough-{t}-{k}"),
+                                &["--sim", paper, "--policy", policy, "--seed", &seed_text],
+                            ));
+                            format!(
+                                "{} {paper} {policy} seed {seed}: {s}",
+                                if s.fresnel_flatter { "FIRED" } else { "-" }
+                            )
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("a worker"))
+            .collect()
+    });
+    assert_eq!(rows.len(), 48);
+    let fired = rows.iter().filter(|r| r.starts_with("FIRED")).count();
+    eprintln!("η-bound test fired in {fired} of {} sessions", rows.len());
+    assert!(fired <= 2, "{fired} of 48: {rows:#?}");
 }

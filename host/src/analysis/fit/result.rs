@@ -111,6 +111,19 @@ pub enum Note {
         /// η with the non-Lambertian body.
         eta_body: f64,
     },
+    /// η at its upper bound 3 and the data calling for more (the extension step's test,
+    /// `extension::fresnel_flatter`): the sheet's Fresnel factor is flatter than any of the
+    /// model's, so ρs (the lobe's amplitude over that factor) is the paper's only by the
+    /// convention η = 3 and moves with η by orders of magnitude; the class may be wrong.
+    /// Flagged `lack-of-fit` (the class confidence capped).
+    FresnelFlatterThanModel {
+        /// η where the fit with the bound lifted (to 30) left it.
+        eta: f64,
+        /// The likelihood-ratio statistic of η free against η = 3.
+        lr: f64,
+        /// Its critical value (the false-alarm rate 0.3 % on a sheet whose η is 3).
+        critical: f64,
+    },
     /// A reading so far from the fit that it is taken for a gross error (the outlier test,
     /// `outliers.rs`): named, left in the fit, flagged `outlier`.
     Outlier {
@@ -243,6 +256,10 @@ impl std::fmt::Display for Note {
             }
             Note::FitNotTestable => f.write_str(
                 "goodness of fit not testable: no uncertainties and too few θr neighbours",
+            ),
+            Note::FresnelFlatterThanModel { eta, lr, critical } => write!(
+                f,
+                "the data call for η beyond the model's bound 3 (free, η fits {eta:.2}; test {lr:.1} > {critical:.2}): the sheet's Fresnel factor is flatter than any the model allows, so ρs, the lobe's amplitude over that factor, is the paper's only by the convention η = 3 and may be off by orders of magnitude, and the class with it; flagged lack-of-fit, class confidence capped"
             ),
             Note::EtaAbsorbsBody {
                 eta_lambert,

@@ -24,6 +24,9 @@ pub(crate) struct Problem {
     sqrt_w: Vec<f64>,
     /// Whitened sensitivities, per shared error, per reading: s_ik / std_i.
     shared: Vec<Vec<f64>>,
+    /// η's upper limit in the fits: the family's ([`Param::bounds`]) but where the test of
+    /// a Fresnel factor flatter than the model's ([`super::fresnel_flatter`]) lifts it.
+    eta_upper: f64,
 }
 
 /// A member fitted.
@@ -89,7 +92,13 @@ impl Problem {
                 })
                 .collect(),
             sqrt_w,
+            eta_upper: Param::Eta.bounds().1,
         }
+    }
+
+    /// Fits from now on with η allowed up to `eta_upper`.
+    pub(crate) fn set_eta_upper(&mut self, eta_upper: f64) {
+        self.eta_upper = eta_upper;
     }
 
     /// Readings.
@@ -151,7 +160,13 @@ impl Problem {
     ) -> MemberFit {
         let (m, p) = (self.shared.len(), active.len());
         let q = p + m;
-        let bounds: Vec<(f64, f64)> = active.iter().map(|a| a.bounds()).collect();
+        let bounds: Vec<(f64, f64)> = active
+            .iter()
+            .map(|a| match a {
+                Param::Eta => (a.bounds().0, self.eta_upper),
+                _ => a.bounds(),
+            })
+            .collect();
         let mut v = *start;
         for (a, b) in active.iter().zip(&bounds) {
             v[*a as usize] = v[*a as usize].clamp(b.0, b.1);
