@@ -204,45 +204,48 @@ pub fn resume_command(options: &MeasureOptions, dir: &Path) -> String {
 /// make its folder, take it and write its first `batch.json`.
 fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc, BatchLock)> {
     let Some(stock) = &options.master else {
-        bail!(
+        crate::usage_bail!(
             "a new batch needs --master STOCK: the stock of the library its sheets are judged against"
         );
     };
     let Some(sheets) = options.sheets else {
-        bail!("a new batch needs --sheets N: how many sheets to measure");
+        crate::usage_bail!("a new batch needs --sheets N: how many sheets to measure");
     };
-    ensure!(
-        (1..=MAX_SHEETS).contains(&sheets),
-        "--sheets must be 1 to {MAX_SHEETS}, not {sheets}"
-    );
+    if !(1..=MAX_SHEETS).contains(&sheets) {
+        crate::usage_bail!("--sheets must be 1 to {MAX_SHEETS}, not {sheets}");
+    }
     let Some(dir) = options.out.clone() else {
-        bail!("a new batch needs --out DIR: the folder its sheets and reports go into");
+        crate::usage_bail!(
+            "a new batch needs --out DIR: the folder its sheets and reports go into"
+        );
     };
     let spots = options.measure.spots.unwrap_or(super::DEFAULT_SPOTS);
-    ensure!(
-        (1..=super::MAX_SPOTS).contains(&spots),
-        "--spots must be 1 to {}, not {spots}",
-        super::MAX_SPOTS
-    );
+    if !(1..=super::MAX_SPOTS).contains(&spots) {
+        crate::usage_bail!("--spots must be 1 to {}, not {spots}", super::MAX_SPOTS);
+    }
     for (i, t) in options.tolerance_pct.iter().enumerate() {
         if let Some(t) = t {
-            ensure!(
-                t.is_finite() && *t > 0.0 && *t <= MAX_TOLERANCE_PCT,
-                "--tolerance-{}-pct must be above 0 and at most {MAX_TOLERANCE_PCT} percent, not {t}",
-                ["sigma", "rho-s", "rho-d"][i]
-            );
+            if !(t.is_finite() && *t > 0.0 && *t <= MAX_TOLERANCE_PCT) {
+                crate::usage_bail!(
+                    "--tolerance-{}-pct must be above 0 and at most {MAX_TOLERANCE_PCT} percent, not {t}",
+                    ["sigma", "rho-s", "rho-d"][i]
+                );
+            }
         }
     }
-    ensure!(
-        options.sheet_to_sheet_pct.is_finite()
-            && (0.0..=MAX_SHEET_TO_SHEET_PCT).contains(&options.sheet_to_sheet_pct),
-        "--sheet-to-sheet-pct must be 0 to {MAX_SHEET_TO_SHEET_PCT} percent, not {}",
-        options.sheet_to_sheet_pct
-    );
+    if !(options.sheet_to_sheet_pct.is_finite()
+        && (0.0..=MAX_SHEET_TO_SHEET_PCT).contains(&options.sheet_to_sheet_pct))
+    {
+        crate::usage_bail!(
+            "--sheet-to-sheet-pct must be 0 to {MAX_SHEET_TO_SHEET_PCT} percent, not {}",
+            options.sheet_to_sheet_pct
+        );
+    }
     if let Some(paper) = &options.measure.sim
         && options.measure.sim_options.scene_file.is_none()
     {
-        sample_params(paper).with_context(|| format!("--sim {paper}"))?;
+        // An unknown name on the command line: exit 2, as `gonio measure --sim GG`.
+        sample_params(paper).map_err(|e| crate::UsageError(format!("--sim {paper}: {e:#}")))?;
     }
     for (k, spec) in options.gloss_spec.iter().enumerate() {
         if let Some(twice) = options.gloss_spec[..k]

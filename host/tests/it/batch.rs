@@ -405,8 +405,9 @@ fn bad_input_is_refused_before_anything_is_measured() {
     );
     assert!(!out_dir.exists(), "nothing written");
     // No sheets.
+    // The command line wrong: exit 2, as the README's table says for every subcommand.
     let out = run(&missing, "Stock-SG", "0");
-    assert_eq!(code(&out), 1);
+    assert_eq!(code(&out), 2);
     assert!(
         stderr(&out).contains("--sheets must be 1 to 999, not 0"),
         "{}",
@@ -438,7 +439,7 @@ fn bad_input_is_refused_before_anything_is_measured() {
         "--tolerance-rho-s-pct",
         "-3",
     ]);
-    assert_eq!(code(&out), 1);
+    assert_eq!(code(&out), 2);
     assert!(
         stderr(&out).contains("--tolerance-rho-s-pct must be above 0"),
         "{}",
@@ -458,7 +459,7 @@ fn bad_input_is_refused_before_anything_is_measured() {
         "--out",
         s(&root.join("gg")),
     ]);
-    assert_eq!(code(&out), 1);
+    assert_eq!(code(&out), 2);
     assert!(
         stderr(&out).contains("unknown sample 'GG'"),
         "{}",

@@ -265,6 +265,8 @@ fn every_subcommand_exits_with_the_readmes_codes() {
     let missing = missing.to_str().unwrap();
     let subcommands = [
         "measure",
+        "batch",
+        "keys",
         "fit",
         "flash",
         "ports",
@@ -282,6 +284,23 @@ fn every_subcommand_exits_with_the_readmes_codes() {
         "selftest",
         "characterize",
     ];
+    // Every subcommand gonio has is in the list: one the list forgot would go unchecked.
+    let help = String::from_utf8_lossy(&gonio(&["--help"]).stdout).into_owned();
+    let listed: Vec<&str> = help
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|name| *name != "help")
+        .collect();
+    assert!(listed.len() >= subcommands.len(), "{help}");
+    for name in &listed {
+        assert!(
+            subcommands.contains(name),
+            "gonio {name} is not checked here"
+        );
+    }
     let mut cases: Vec<(Vec<&str>, i32)> = subcommands
         .iter()
         .map(|s| (vec![*s, "--no-such-option"], 2))
@@ -316,6 +335,88 @@ fn every_subcommand_exits_with_the_readmes_codes() {
         ),
         (vec!["measure", "--sim", "G", "--spots", "0"], 2),
         (vec!["sim", "GG"], 2),
+        // gonio batch's values, refused before its library is opened or a folder made.
+        (
+            vec![
+                "batch",
+                "--library",
+                missing,
+                "--master",
+                "S",
+                "--sim",
+                "GG",
+                "--sheets",
+                "2",
+                "--out",
+                missing,
+            ],
+            2,
+        ),
+        (
+            vec![
+                "batch",
+                "--library",
+                missing,
+                "--master",
+                "S",
+                "--sim",
+                "G",
+                "--sheets",
+                "0",
+                "--out",
+                missing,
+            ],
+            2,
+        ),
+        (
+            vec![
+                "batch",
+                "--library",
+                missing,
+                "--sim",
+                "G",
+                "--sheets",
+                "2",
+                "--out",
+                missing,
+            ],
+            2,
+        ),
+        (
+            vec![
+                "batch",
+                "--library",
+                missing,
+                "--master",
+                "S",
+                "--sim",
+                "G",
+                "--sheets",
+                "2",
+                "--out",
+                missing,
+                "--tolerance-sigma-pct",
+                "-1",
+            ],
+            2,
+        ),
+        // A library that is not there: the job failed.
+        (
+            vec![
+                "batch",
+                "--library",
+                missing,
+                "--master",
+                "S",
+                "--sim",
+                "G",
+                "--sheets",
+                "2",
+                "--out",
+                missing,
+            ],
+            1,
+        ),
         (vec!["completions", "no-such-shell"], 2),
         // Files and folders that are not there: the job failed.
         (vec!["measure", "--resume", missing], 1),
