@@ -224,13 +224,13 @@ fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc, BatchLock
         crate::usage_bail!("--spots must be 1 to {}, not {spots}", super::MAX_SPOTS);
     }
     for (i, t) in options.tolerance_pct.iter().enumerate() {
-        if let Some(t) = t {
-            if !(t.is_finite() && *t > 0.0 && *t <= MAX_TOLERANCE_PCT) {
-                crate::usage_bail!(
-                    "--tolerance-{}-pct must be above 0 and at most {MAX_TOLERANCE_PCT} percent, not {t}",
-                    ["sigma", "rho-s", "rho-d"][i]
-                );
-            }
+        if let Some(t) = t
+            && !(t.is_finite() && *t > 0.0 && *t <= MAX_TOLERANCE_PCT)
+        {
+            crate::usage_bail!(
+                "--tolerance-{}-pct must be above 0 and at most {MAX_TOLERANCE_PCT} percent, not {t}",
+                ["sigma", "rho-s", "rho-d"][i]
+            );
         }
     }
     if !(options.sheet_to_sheet_pct.is_finite()
