@@ -10,7 +10,10 @@
 //! - `gonio library export` of the whole library.
 //!
 //! `cargo bench -p host --bench library_search -- 2000 20000` (stock counts; default
-//! both). Libraries are made in a temporary folder and removed after. Not a criterion
+//! both). Libraries are made in a temporary folder and removed after. With
+//! `GONIO_BENCH_POSTGRES=URL` (an administrator's URL of a PostgreSQL server, as
+//! `.ci/postgres start` prints) each size is measured on PostgreSQL too, in a database made
+//! for it and dropped after. Not a criterion
 //! benchmark: one search of 20,000 stocks is seconds, and what matters is the wall time
 //! and memory of the whole command, loading included.
 use host::study::library_scale::{Shape, write_library, write_questioned};
@@ -61,7 +64,24 @@ fn os(s: &str) -> &std::ffi::OsStr {
     std::ffi::OsStr::new(s)
 }
 
-fn bench(stocks: usize, root: &Path) -> (f64, f64) {
+/// Where a benchmark's library is kept.
+enum Backend {
+    Sqlite,
+    /// An administrator's URL of the server.
+    Postgres(String),
+}
+
+/// `admin` with its database replaced.
+fn database_url(admin: &str, database: &str) -> String {
+    let (head, tail) = admin.rsplit_once('/').expect("a database in the URL");
+    let query = tail
+        .split_once('?')
+        .map(|(_, q)| format!("?{q}"))
+        .unwrap_or_default();
+    format!("{head}/{database}{query}")
+}
+
+fn bench(stocks: usize, root: &Path, backend: &Backend) -> (f64, f64) {
     let shape = Shape {
         stocks,
         sheets: 5,
@@ -75,11 +95,25 @@ fn bench(stocks: usize, root: &Path) -> (f64, f64) {
         let mut file = std::fs::File::create(&exchange).expect("exchange file");
         write_library(&shape, &mut file).expect("write the library")
     };
-    let library = dir.join("library.sqlite");
+    let (library, label) = match backend {
+        Backend::Sqlite => (dir.join("library.sqlite").into_os_string(), "SQLite"),
+        Backend::Postgres(admin) => {
+            let name = format!("gonio_bench_{stocks}_{}", std::process::id());
+            let mut client = postgres::Client::connect(admin, postgres::NoTls).expect("server");
+            for sql in [
+                format!("DROP DATABASE IF EXISTS {name} WITH (FORCE)"),
+                format!("CREATE DATABASE {name} ENCODING 'UTF8' TEMPLATE template0"),
+            ] {
+                client.batch_execute(&sql).expect("a database");
+            }
+            (database_url(admin, &name).into(), "PostgreSQL")
+        }
+    };
+    let library = library.as_os_str();
     let import = run(&[
         os("library"),
         os("--library"),
-        library.as_os_str(),
+        library,
         os("import"),
         exchange.as_os_str(),
     ]);
@@ -89,7 +123,7 @@ fn bench(stocks: usize, root: &Path) -> (f64, f64) {
         run(&[
             os("library"),
             os("--library"),
-            library.as_os_str(),
+            library,
             os("search"),
             questioned.as_os_str(),
             os("--top"),
@@ -110,12 +144,12 @@ fn bench(stocks: usize, root: &Path) -> (f64, f64) {
     let export = run(&[
         os("library"),
         os("--library"),
-        library.as_os_str(),
+        library,
         os("export"),
         out.as_os_str(),
     ]);
     println!(
-        "{stocks:>6} stocks ({records} spots): import {:.1} s {:.0} MiB | first search {:.2} s {:.0} MiB | search {:.2} s {:.0} MiB (median of 3; rank 1 {rank1}, true {}) | export {:.1} s {:.0} MiB",
+        "{label:<10} {stocks:>6} stocks ({records} spots): import {:.1} s {:.0} MiB | first search {:.2} s {:.0} MiB | search {:.2} s {:.0} MiB (median of 3; rank 1 {rank1}, true {}) | export {:.1} s {:.0} MiB",
         import.wall_s,
         import.peak_rss_mib,
         first.wall_s,
@@ -127,6 +161,12 @@ fn bench(stocks: usize, root: &Path) -> (f64, f64) {
         export.peak_rss_mib,
     );
     std::fs::remove_dir_all(&dir).ok();
+    if let Backend::Postgres(admin) = backend {
+        let name = library.to_string_lossy();
+        let name = name.rsplit('/').next().unwrap_or_default();
+        let mut client = postgres::Client::connect(admin, postgres::NoTls).expect("server");
+        let _ = client.batch_execute(&format!("DROP DATABASE IF EXISTS {name} WITH (FORCE)"));
+    }
     (first.wall_s, median.wall_s)
 }
 
@@ -141,14 +181,22 @@ fn main() {
         sizes
     };
     let root = tempfile::tempdir().expect("temp dir");
-    let times: Vec<(usize, (f64, f64))> =
-        sizes.iter().map(|&n| (n, bench(n, root.path()))).collect();
-    if let [(n0, (f0, s0)), .., (n1, (f1, s1))] = times.as_slice() {
-        println!(
-            "from {n0} to {n1} stocks ({:.0}×): first search {:.1}× the time, cached search {:.1}×",
-            *n1 as f64 / *n0 as f64,
-            f1 / f0,
-            s1 / s0
-        );
+    let mut backends = vec![Backend::Sqlite];
+    if let Ok(admin) = std::env::var("GONIO_BENCH_POSTGRES") {
+        backends.push(Backend::Postgres(admin));
+    }
+    for backend in &backends {
+        let times: Vec<(usize, (f64, f64))> = sizes
+            .iter()
+            .map(|&n| (n, bench(n, root.path(), backend)))
+            .collect();
+        if let [(n0, (f0, s0)), .., (n1, (f1, s1))] = times.as_slice() {
+            println!(
+                "from {n0} to {n1} stocks ({:.0}×): first search {:.1}× the time, cached search {:.1}×",
+                *n1 as f64 / *n0 as f64,
+                f1 / f0,
+                s1 / s0
+            );
+        }
     }
 }

@@ -40,7 +40,7 @@ pub const SPOT_RESULT: &str = "gonio-spot-result/1";
 /// `gonio measure --json` of a sheet of several spots.
 pub const SHEET_RESULT: &str = "gonio-sheet-result/2";
 /// `gonio compare --json`.
-pub(crate) const COMPARE: &str = "gonio-compare/4";
+pub(crate) const COMPARE: &str = "gonio-compare/5";
 /// A line of `gonio verify --json`.
 pub const VERIFY: &str = "gonio-verify/2";
 /// A line of `gonio sessions --json`.
@@ -48,7 +48,11 @@ pub const SESSIONS_ENTRY: &str = "gonio-sessions-entry/1";
 /// `gonio library list --json`.
 pub const LIBRARY_LIST: &str = "gonio-library-list/1";
 /// `gonio library search --json`.
-pub const LIBRARY_SEARCH: &str = "gonio-library-search/3";
+pub const LIBRARY_SEARCH: &str = "gonio-library-search/4";
+/// `gonio library history --json`: the audit trail.
+pub const LIBRARY_HISTORY: &str = "gonio-library-history/1";
+/// `gonio library history --contents-at N --json`: the contents after an entry.
+pub const LIBRARY_CONTENTS_AT: &str = "gonio-library-contents-at/1";
 /// A line of `gonio library export` (one measured sheet of a known stock).
 pub const LIBRARY_RECORD: &str = "gonio-library/3";
 /// A `gonio library export` line before the sheet's orientation and side: still imported
@@ -83,7 +87,7 @@ pub const INSTRUMENT_PROFILE: &str = "gonio-instrument/1";
 pub const SHARED_ERRORS: &str = "gonio-shared-errors/1";
 
 /// Every schema gonio writes, for the documentation's check that each has its file.
-pub const WRITTEN: [&str; 20] = [
+pub const WRITTEN: [&str; 22] = [
     INSTRUMENT_PROFILE,
     SESSION,
     SHEET,
@@ -98,6 +102,8 @@ pub const WRITTEN: [&str; 20] = [
     SESSIONS_ENTRY,
     LIBRARY_LIST,
     LIBRARY_SEARCH,
+    LIBRARY_HISTORY,
+    LIBRARY_CONTENTS_AT,
     LIBRARY_RECORD,
     SIGNATURE,
     PUBLIC_KEY,

@@ -31,9 +31,10 @@ pub struct Args {
         conflicts_with = "resume"
     )]
     pub master: Option<String>,
-    /// The library file (default: $XDG_DATA_HOME/gonio/library.sqlite).
-    #[arg(long, value_name = "FILE")]
-    pub library: Option<PathBuf>,
+    /// The library: a file, or a PostgreSQL URL (default: the [library] setting, else
+    /// $XDG_DATA_HOME/gonio/library.sqlite).
+    #[arg(long, value_name = "FILE|URL", value_parser = crate::cli::library::location_arg())]
+    pub library: Option<host::output::library::Location>,
     /// Sheets to measure (1 to 999).
     #[arg(
         long,
@@ -125,10 +126,8 @@ pub struct Args {
 impl Args {
     fn options(&self) -> anyhow::Result<BatchOptions> {
         let library = match &self.library {
-            Some(path) => path.clone(),
-            None => host::output::library::default_path().context(
-                "no library file: give --library FILE (neither XDG_DATA_HOME nor HOME is set)",
-            )?,
+            Some(location) => location.clone(),
+            None => host::output::library::Location::configured()?,
         };
         Ok(BatchOptions {
             master: self.master.clone(),

@@ -49,8 +49,8 @@ pub struct Args {
     /// Validate this stock library (its own sheets) as the population `compare --library`
     /// weighs against, instead of running the simulated study: the pairs, calibrator,
     /// bounds, Cllr, Tippett and ECE plots of the lab's own data.
-    #[arg(long, value_name = "FILE")]
-    pub library: Option<PathBuf>,
+    #[arg(long, value_name = "FILE|URL", value_parser = crate::cli::library::location_arg())]
+    pub library: Option<host::output::library::Location>,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -224,7 +224,10 @@ fn run_scenario(
 
 /// `gonio forensic --library FILE --out DIR`: the library validated, its figures and plots
 /// written to DIR.
-fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<ExitCode> {
+fn run_library(
+    path: &host::output::library::Location,
+    out: &std::path::Path,
+) -> anyhow::Result<ExitCode> {
     use host::output::library::{Library, OpenMode};
     use host::study::library_validation;
     let mut library = Library::open(path, OpenMode::Existing)?;
@@ -234,7 +237,7 @@ fn run_library(path: &std::path::Path, out: &std::path::Path) -> anyhow::Result<
         .map(|(_, sheet)| sheet)
         .collect();
     let population = library_validation::run(&sheets)
-        .with_context(|| format!("{}: cannot validate the library", path.display()))?;
+        .with_context(|| format!("{path}: cannot validate the library"))?;
     // Recorded in the library, whole (stocks, variance components with their degrees of
     // freedom, kernel and bandwidth, counts, calibrator, bounds, Cllr): comparisons against
     // this population (this library's contents as they are now) then carry no "not

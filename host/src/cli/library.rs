@@ -1,14 +1,15 @@
-//! `gonio library …`: the reference library of measured paper stocks (issue 13), one
-//! SQLite file (`host::output::library`). Add session folders under a stock, list, remove,
-//! exchange with other labs (JSON Lines, `docs/LIBRARY.md`), and search: which stock is a
-//! measured sheet most likely from.
+//! `gonio library …`: the reference library of measured paper stocks (issue 13), an SQLite
+//! file or an institute's PostgreSQL database (`host::output::library`). Add session
+//! folders under a stock, list, remove, exchange with other labs (JSON Lines,
+//! `docs/LIBRARY.md`), search (which stock is a measured sheet most likely from), show the
+//! audit trail, and migrate a library from one back end to another.
 //!
 //! Exit codes: 0 done; 1 failed (the message says what and where; a refused add or import
 //! changes nothing); 2 a wrong command line.
 use anyhow::Context;
 use host::analysis::evidence::{self, Warning};
 use host::output::folder::signature::{self, Keys};
-use host::output::library::{self, ExchangeFile, Library, OpenMode, StockInfo};
+use host::output::library::{self, ExchangeFile, Library, Location, OpenMode, StockInfo};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -20,9 +21,11 @@ use std::process::ExitCode;
     after_help = "Exit codes: 0 done; 1 failed (nothing is changed by a refused add, import or remove); 2 a wrong command line; 3 a search done with warnings (printed)."
 )]
 pub struct Args {
-    /// The library file [default: $XDG_DATA_HOME/gonio/library.sqlite, else ~/.local/share/gonio/library.sqlite].
-    #[arg(long, global = true, value_name = "FILE")]
-    pub library: Option<PathBuf>,
+    /// The library: a file, or a PostgreSQL URL (postgresql://USER@HOST/DB) [default: the
+    /// [library] setting of the settings file, else $XDG_DATA_HOME/gonio/library.sqlite,
+    /// else ~/.local/share/gonio/library.sqlite].
+    #[arg(long, global = true, value_name = "FILE|URL", value_parser = location_arg())]
+    pub library: Option<Location>,
     /// What to do.
     #[command(subcommand)]
     pub command: Command,
@@ -43,6 +46,40 @@ pub enum Command {
     Import(ImportArgs),
     /// Rank the library's stocks by the likelihood ratio of a measured sheet against each.
     Search(SearchArgs),
+    /// Show the audit trail: who changed what, when, from which machine and gonio.
+    History(HistoryArgs),
+    /// Copy the whole library into a new, empty one (SQLite ↔ PostgreSQL), checked byte for byte.
+    Migrate(MigrateArgs),
+}
+
+/// The parser of a `--library` value: a `postgresql://` URL or a file path.
+pub fn location_arg() -> impl clap::builder::TypedValueParser<Value = Location> {
+    use clap::builder::TypedValueParser;
+    clap::builder::OsStringValueParser::new().map(Location::from_arg)
+}
+
+/// Arguments of `gonio library history`.
+#[derive(clap::Args)]
+pub struct HistoryArgs {
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Only the entries of this stock.
+    #[arg(long, value_name = "NAME")]
+    pub stock: Option<String>,
+    /// Instead of the entries: the library's contents as they were just after entry N,
+    /// recovered from the trail (the contents identity a search made then reported).
+    #[arg(long, value_name = "N", conflicts_with = "stock")]
+    pub contents_at: Option<i64>,
+}
+
+/// Arguments of `gonio library migrate`.
+#[derive(clap::Args)]
+pub struct MigrateArgs {
+    /// The new, empty library to copy into (a file or a PostgreSQL URL); `--library` is the
+    /// one copied from.
+    #[arg(long, value_name = "FILE|URL", value_parser = location_arg())]
+    pub to: Location,
 }
 
 /// Arguments of `gonio library add`.
@@ -133,10 +170,8 @@ pub struct SearchArgs {
 /// Run `gonio library`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let path = match args.library {
-        Some(path) => path,
-        None => library::default_path().context(
-            "no library file: give --library FILE (neither XDG_DATA_HOME nor HOME is set)",
-        )?,
+        Some(location) => location,
+        None => Location::configured()?,
     };
     let done = |r: anyhow::Result<()>| r.map(|()| crate::cli::exit::OK);
     let code = match args.command {
@@ -146,6 +181,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Command::Export(export) => done(run_export(&path, export)),
         Command::Import(import) => done(run_import(&path, import)),
         Command::Search(search) => run_search(&path, search),
+        Command::History(history) => done(crate::cli::library_history::run(&path, history)),
+        Command::Migrate(migrate) => done(crate::cli::library_migrate::run(&path, migrate)),
     }?;
     Ok(ExitCode::from(code))
 }
@@ -168,7 +205,7 @@ fn column_width<'a>(cells: impl Iterator<Item = &'a String>) -> usize {
     cells.map(|c| c.chars().count()).max().unwrap_or(0).max(5)
 }
 
-fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
+fn run_add(path: &Location, args: AddArgs) -> anyhow::Result<()> {
     // Every folder is read and checked before the library is opened: a refused add
     // leaves no new, empty library behind.
     let keys = Keys::from_env().ok();
@@ -248,26 +285,26 @@ fn run_add(path: &Path, args: AddArgs) -> anyhow::Result<()> {
     }
     println!(
         "{}: {} sheet{} added",
-        path.display(),
+        path,
         sheets.len(),
         if sheets.len() == 1 { "" } else { "s" }
     );
     Ok(())
 }
 
-fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
+fn run_list(path: &Location, args: ListArgs) -> anyhow::Result<()> {
     let library = Library::open(path, OpenMode::Existing)?;
     let stocks = library.stocks()?;
     if args.json {
         println!(
             "{}",
-            json!({"schema": host::schema::LIBRARY_LIST, "library": path.display().to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks})
+            json!({"schema": host::schema::LIBRARY_LIST, "library": path.to_string(), "database_version": library::SCHEMA_VERSION, "stocks": stocks})
         );
         return Ok(());
     }
     println!(
         "{}: {} stock{}",
-        path.display(),
+        path,
         stocks.len(),
         if stocks.len() == 1 { "" } else { "s" }
     );
@@ -292,7 +329,7 @@ fn run_list(path: &Path, args: ListArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn run_remove(path: &Path, args: RemoveArgs) -> anyhow::Result<()> {
+fn run_remove(path: &Location, args: RemoveArgs) -> anyhow::Result<()> {
     let mut library = Library::open(path, OpenMode::Existing)?;
     let removed = match (&args.stock, &args.session) {
         (Some(stock), _) => library.remove_stock(stock)?,
@@ -307,7 +344,7 @@ fn run_remove(path: &Path, args: RemoveArgs) -> anyhow::Result<()> {
     }
     println!(
         "{}: {} session{} and {} spot{} removed",
-        path.display(),
+        path,
         removed.sessions.len(),
         if removed.sessions.len() == 1 { "" } else { "s" },
         removed.spots,
@@ -316,7 +353,7 @@ fn run_remove(path: &Path, args: RemoveArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
+fn run_export(path: &Location, args: ExportArgs) -> anyhow::Result<()> {
     let library = Library::open(path, OpenMode::Existing)?;
     if args.file.as_os_str() == "-" {
         let stdout = std::io::stdout();
@@ -349,7 +386,7 @@ fn run_export(path: &Path, args: ExportArgs) -> anyhow::Result<()> {
     crate::cli::keys::sign_file(signer.as_ref(), &args.file)?;
     eprintln!(
         "{}: {records} record{} (one per spot) written to {}",
-        path.display(),
+        path,
         if records == 1 { "" } else { "s" },
         args.file.display()
     );
@@ -385,7 +422,7 @@ fn custody(
     ))
 }
 
-fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
+fn run_import(path: &Location, args: ImportArgs) -> anyhow::Result<()> {
     // The file is read and checked first, so a bad file creates no empty library. Its
     // signature is checked over the very bytes parsed, not over a second read that the
     // file could have changed between.
@@ -431,7 +468,7 @@ fn run_import(path: &Path, args: ImportArgs) -> anyhow::Result<()> {
     let counts = library.import(&file)?;
     println!(
         "{}: {} records read; {} session{} added, {} already present (skipped); {} new stock{}",
-        path.display(),
+        path,
         counts.records,
         counts.sessions_added,
         if counts.sessions_added == 1 { "" } else { "s" },
@@ -457,7 +494,7 @@ struct Ranked {
 }
 
 /// Exit 0 when nothing warns, 3 with warnings (printed).
-fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
+fn run_search(path: &Location, args: SearchArgs) -> anyhow::Result<u8> {
     let measured =
         host::output::folder::sheet::read_measured(&args.dir).map_err(anyhow::Error::msg)?;
     // The measured sheet, when it is itself in the library, is left out of its stock and
@@ -471,7 +508,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
     anyhow::ensure!(
         library.sheet_count()? > usize::from(excluded.is_some()),
         "{}: no sheets to search{}",
-        path.display(),
+        path,
         if excluded.is_some() {
             " but the measured one"
         } else {
@@ -513,9 +550,10 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
                 "schema": host::schema::LIBRARY_SEARCH,
                 "sheet": args.dir.display().to_string(),
                 "sample": measured.sample,
-                "library": path.display().to_string(),
+                "library": path.to_string(),
                 "stocks": stocks,
                 "population": {"identity": population.population.identity(), "source": population.population.source, "bounds": bounds},
+                "library_state": population.library_state,
                 "caveat": evidence::SEARCH_CAVEAT,
                 "warnings": warnings.iter().map(Warning::to_json).collect::<Vec<_>>(),
                 "excluded_own_session": excluded,
@@ -539,7 +577,7 @@ fn run_search(path: &Path, args: SearchArgs) -> anyhow::Result<u8> {
         host::analysis::specimen::side_text(lay.side),
         stocks,
         if stocks == 1 { "" } else { "s" },
-        path.display()
+        path
     );
     println!("  ({})", evidence::SEARCH_CAVEAT);
     let names: Vec<String> = ranking.iter().map(|r| cell(&r.stock)).collect();

@@ -10,6 +10,8 @@ pub mod flash;
 pub mod forensic;
 pub mod keys;
 pub mod library;
+pub mod library_history;
+pub mod library_migrate;
 pub mod measure;
 pub mod population;
 pub mod ports;

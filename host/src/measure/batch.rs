@@ -39,8 +39,8 @@ const MAX_TOLERANCE_PCT: f64 = 1000.0;
 pub struct BatchOptions {
     /// The master stock's name in the library (a new batch).
     pub master: Option<String>,
-    /// The library file.
-    pub library: PathBuf,
+    /// The library (a file or a PostgreSQL URL).
+    pub library: crate::output::library::Location,
     /// Sheets to measure (a new batch).
     pub sheets: Option<u16>,
     /// The batch folder (a new batch): new or empty.
@@ -288,7 +288,7 @@ fn begin(options: &BatchOptions) -> anyhow::Result<(PathBuf, BatchDoc, BatchLock
             .sim
             .as_ref()
             .map(|_| options.sheet_to_sheet_pct),
-        library: options.library.display().to_string(),
+        library: options.library.to_string(),
         policy: Some(
             options
                 .measure

@@ -29,6 +29,20 @@ pub struct PopulationInUse {
     /// they were measured otherwise ([`evidence::stock_lay_warnings`]). `None` for the
     /// demonstration population, whose stocks are no measured sheets.
     pub stock_lays: Option<Vec<(String, Vec<crate::analysis::specimen::SheetLay>)>>,
+    /// The state of the library the population was made from, when it is a library's.
+    pub library_state: Option<LibraryState>,
+}
+
+/// The state of a library a search or comparison weighed against: enough to recover its
+/// contents later from the library's audit trail (`gonio library history --contents-at`).
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct LibraryState {
+    /// The last audit entry of the state read (`None`: the trail was empty).
+    pub audit_entry: Option<i64>,
+    /// The contents identity of the sheets weighed (`evidence::population::contents_identity`).
+    pub contents: String,
+    /// Sessions of the library left out (the questioned sheet itself, when it is in it).
+    pub left_out_sessions: Vec<String>,
 }
 
 impl PopulationInUse {
@@ -146,6 +160,10 @@ pub struct PopulationSummary {
     pub validation: Option<serde_json::Value>,
     /// Why it has none.
     pub not_validated_because: Option<String>,
+    /// The state of the library it was made from (its last audit entry, the contents
+    /// identity), when it is a library's: `gonio library history --contents-at` recovers
+    /// those contents from the trail.
+    pub library_state: Option<LibraryState>,
 }
 
 /// One side of a comparison.
@@ -212,7 +230,7 @@ impl Audit {
     }
 }
 
-/// `gonio compare`'s document (`gonio-compare/4`).
+/// `gonio compare`'s document (`gonio-compare/5`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Comparison {
     /// [`crate::schema::COMPARE`].
@@ -282,6 +300,7 @@ impl PopulationSummary {
                 .as_ref()
                 .and_then(|v| serde_json::to_value(v).ok()),
             not_validated_because: p.not_validated_because.clone(),
+            library_state: p.library_state.clone(),
         }
     }
 }

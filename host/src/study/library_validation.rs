@@ -90,12 +90,12 @@ pub fn ece_svg(
 }
 
 /// The summary a lab reads: its library's population and what its validation found.
-pub fn summary_markdown(library: &Path, population: &Population) -> String {
+pub fn summary_markdown(library: &impl std::fmt::Display, population: &Population) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
         "# Validation of the library {}\n\nPopulation identity `{}`.\n",
-        library.display(),
+        library,
         population.identity()
     );
     if let PopulationSource::Library {

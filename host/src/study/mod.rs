@@ -3,6 +3,7 @@ pub mod accuracy;
 pub mod forensic;
 pub mod instruments;
 pub mod interruptions;
+pub mod library_concurrency;
 pub mod library_scale;
 pub mod library_validation;
 pub mod pty;

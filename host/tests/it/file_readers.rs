@@ -88,7 +88,7 @@ fn real_files() -> &'static RealFiles {
         )
         .expect("a simulated session");
         let read = |name: &str| std::fs::read(dir.join(name)).unwrap();
-        let mut library = Library::open(&root.join("library.sqlite"), OpenMode::Add).unwrap();
+        let mut library = Library::open_file(&root.join("library.sqlite"), OpenMode::Add).unwrap();
         let stock = StockInfo {
             name: "G".into(),
             ..StockInfo::default()

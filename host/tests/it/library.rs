@@ -763,7 +763,7 @@ fn a_search_is_the_same_made_afresh_or_from_the_cache_and_follows_the_library() 
     };
     // What the evidence module gives for the library as it is now.
     let in_process = || -> Vec<(String, f64)> {
-        let sheets: Vec<_> = Library::open(&library, OpenMode::Existing)
+        let sheets: Vec<_> = Library::open_file(&library, OpenMode::Existing)
             .expect("library")
             .sheets()
             .expect("sheets")

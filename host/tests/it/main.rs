@@ -51,6 +51,7 @@ mod instruments_study;
 mod interruptions;
 mod lay;
 mod library;
+mod library_postgres;
 mod model;
 mod noise_device;
 mod order;

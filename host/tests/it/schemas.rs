@@ -479,6 +479,29 @@ fn every_output_and_file_of_real_sessions_validates_against_its_schema() {
     let found = json_lines(&search);
     assert!(!found.is_empty(), "library search: {}", stderr(&search));
     schemas.check("library search --json", &found[0]);
+    // The trail, and the state the search weighed recovered from it alone (issue 29).
+    schemas.check(
+        "library history --json",
+        &json_lines(&gonio(&["library", "--library", lib, "history", "--json"]))[0],
+    );
+    let state = &found[0]["library_state"];
+    let entry = state["audit_entry"]
+        .as_i64()
+        .expect("the search names its audit entry");
+    let at = json_lines(&gonio(&[
+        "library",
+        "--library",
+        lib,
+        "history",
+        "--contents-at",
+        &entry.to_string(),
+        "--json",
+    ]));
+    schemas.check("library history --contents-at --json", &at[0]);
+    assert_eq!(
+        at[0]["contents"], state["contents"],
+        "the contents a search weighed, recovered from the trail"
+    );
     let export = root.join("export.jsonl");
     assert!(
         gonio(&[

@@ -25,7 +25,7 @@ use crate::analysis::flags::Flag;
 use crate::output::folder::lock::{FolderError, FolderLock};
 use crate::output::folder::sheet::read_measured;
 use crate::output::folder::{SESSION, Status};
-use crate::output::library::{Library, OpenMode};
+use crate::output::library::{Library, Location, OpenMode};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -47,8 +47,8 @@ pub enum BatchError {
     /// The library holds no stock of that name.
     #[error("{library}: no stock '{stock}' in the library{}", hint(known))]
     UnknownStock {
-        /// The library file.
-        library: PathBuf,
+        /// The library.
+        library: Location,
         /// The stock asked for.
         stock: String,
         /// The stocks it holds.
@@ -57,8 +57,8 @@ pub enum BatchError {
     /// The master's sheets determine nothing.
     #[error("{library}: {source}")]
     Master {
-        /// The library file.
-        library: PathBuf,
+        /// The library.
+        library: Location,
         /// What is wrong.
         source: batch::MasterError,
     },
@@ -116,7 +116,7 @@ fn hint(known: &[String]) -> String {
 }
 
 /// The master stock `stock` of the library at `path`: its sheets' values and spread.
-pub fn master_from_library(path: &Path, stock: &str) -> Result<Master, BatchError> {
+pub fn master_from_library(path: &Location, stock: &str) -> Result<Master, BatchError> {
     let library = Library::open(path, OpenMode::Existing)?;
     let sheets: Vec<Vec<SpotValues>> = library
         .sheets()?
@@ -140,13 +140,13 @@ pub fn master_from_library(path: &Path, stock: &str) -> Result<Master, BatchErro
         let mut known: Vec<String> = library.stocks()?.into_iter().map(|s| s.name).collect();
         known.truncate(20);
         return Err(BatchError::UnknownStock {
-            library: path.to_path_buf(),
+            library: path.clone(),
             stock: stock.to_string(),
             known,
         });
     }
     Master::of_sheets(stock, &sheets).map_err(|source| BatchError::Master {
-        library: path.to_path_buf(),
+        library: path.clone(),
         source,
     })
 }

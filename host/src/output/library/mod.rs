@@ -1,34 +1,52 @@
-//! The reference library of measured paper stocks (issue 13): one SQLite file holding
-//! stocks, the sheets measured of each (one per session folder) and their spots (the
-//! fitted σ°, ρs, ρd with covariance), for `gonio library` and the forensic search.
+//! The reference library of measured paper stocks (issue 13): stocks, the sheets measured
+//! of each (one per session folder) and their spots (the fitted σ°, ρs, ρd with
+//! covariance), for `gonio library` and the forensic search; kept in one SQLite file of a
+//! machine, or in a PostgreSQL database an institute shares (issue 29), with the same
+//! schema rules, the same exchange format and an audit trail of every change.
 //!
 //! A session folder's identity is the SHA-256 of its `MANIFEST.sha256` file's bytes: the
 //! manifest names every file of the finished folder with its own SHA-256, so two folders
 //! have the same identity exactly when they hold the same files, wherever they are kept.
 //! A session is in the library at most once.
 //!
-//! Never destructive on open: a file that is not SQLite, is damaged, belongs to another
-//! program or to a newer gonio is reported (path and what is wrong) and left as it is; only
-//! [`OpenMode::Add`] creates a missing file. Every change is one transaction; writers wait
-//! for each other (WAL journal, busy timeout), so two processes adding at once both succeed.
+//! Never destructive on open: a file or database that is not a gonio library, is damaged,
+//! belongs to another program or to a newer gonio is reported (where and what is wrong) and
+//! left as it is; only [`OpenMode::Add`] creates a missing one. Every change is one
+//! transaction with its audit entries; writers wait for each other, so two processes
+//! adding at once both succeed.
 //!
 //! The exchange format (`export`/`import`) is JSON Lines, one [`ExchangeRecord`] per spot;
 //! see `docs/LIBRARY.md`.
 //!
-//! In three parts, over the types here: `storage`, the SQLite file ([`Library`]);
-//! `exchange`, the exchange file's records and their parser; `ingest`, a finished
-//! folder read (and verified) into a [`SheetRecord`]. Storage uses the exchange records
-//! (export writes them, import takes them); exchange and ingest use neither other part.
+//! In parts, over the types here: `location`, where a library is (and the `[library]`
+//! setting); `store`, an open [`Library`] of either back end over the [`Store`] each
+//! implements (`sqlite`, `postgres`); `audit`, the trail's entries; `exchange`, the
+//! exchange file's records and their parser; `ingest`, a finished folder read (and
+//! verified) into a [`SheetRecord`]. The back ends use the exchange records (export writes
+//! them, import takes them); exchange and ingest use no other part.
+mod audit;
 mod exchange;
 mod ingest;
-mod storage;
+mod location;
+mod postgres;
+mod sqlite;
+mod store;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+pub(crate) mod tests_postgres;
 mod validate;
 
+pub use audit::AuditEntry;
 pub use exchange::{ExchangeFile, ExchangeRecord, RecordError};
 pub use ingest::{read_session_folder, same_sheet_folders};
-pub use storage::{ImportCounts, Library, OpenMode, Removed, StockSummary, default_path};
+pub use location::{LibrarySetting, Location, SETTINGS_ENV, Settings, without_password};
+pub use postgres::{CURATOR_ROLE, EXAMINER_ROLE};
+pub use sqlite::default_path;
+pub use store::{
+    Contents, ImportCounts, Library, Migrated, OpenMode, Removed, Replayed, StockSummary, Store,
+    export_sha256, migrate,
+};
 pub(crate) use validate::check_spot;
 pub use validate::{MAX_RELATIVE_SD, MIN_RELATIVE_SD, SpotError};
 
@@ -36,11 +54,12 @@ use crate::analysis::evidence::Spot;
 use std::path::PathBuf;
 use thiserror::Error;
 
-/// The schema this gonio writes and the newest it reads. Stored three ways: `meta`'s
-/// `schema_version`, `PRAGMA user_version` (readable without knowing the tables), and
-/// implied by [`APPLICATION_ID`] being ours. An older library is upgraded when opened
-/// (version 1 had no orientation and side of its sheets: they become unknown).
-pub const SCHEMA_VERSION: i64 = 2;
+/// The schema this gonio writes and the newest it reads. Stored in SQLite three ways:
+/// `meta`'s `schema_version`, `PRAGMA user_version` (readable without knowing the tables),
+/// and implied by [`APPLICATION_ID`] being ours; in PostgreSQL in `gonio.meta`. An older
+/// library is upgraded when opened (version 1 had no orientation and side of its sheets:
+/// they become unknown; version 2 no audit trail: it begins at the upgrade).
+pub const SCHEMA_VERSION: i64 = 3;
 
 /// `PRAGMA application_id` of a gonio library: "goLB" in ASCII, so `file(1)` and any SQLite
 /// tool can tell a gonio library from other SQLite files.
@@ -50,11 +69,13 @@ pub(crate) const APPLICATION_ID: i32 = 0x676F_4C42;
 /// session folder concerned.
 #[derive(Debug, Error)]
 pub enum LibraryError {
-    /// No library file (only commands that add create one).
-    #[error("{path}: no library here yet: nothing has been added (gonio library add … creates it)")]
+    /// No library file or database (only commands that add create one).
+    #[error(
+        "{library}: no library here yet: nothing has been added (gonio library add … creates it)"
+    )]
     Missing {
-        /// The library file.
-        path: PathBuf,
+        /// The library.
+        library: Location,
     },
     /// The file exists but is not an SQLite database.
     #[error("{path}: not a gonio library: {what}; left as it is")]
@@ -75,7 +96,7 @@ pub enum LibraryError {
         what: String,
     },
     /// A sound SQLite database of another program.
-    #[error("{path}: an SQLite database but not a gonio library ({what}); left as it is")]
+    #[error("{path}: not a gonio library ({what}); left as it is")]
     Foreign {
         /// The file.
         path: PathBuf,
@@ -84,13 +105,31 @@ pub enum LibraryError {
     },
     /// A library written by a newer gonio.
     #[error(
-        "{path}: written by a newer gonio (schema {found}); this gonio reads up to {SCHEMA_VERSION}: update gonio"
+        "{library}: written by a newer gonio (schema {found}); this gonio reads up to {SCHEMA_VERSION}: update gonio"
     )]
     Newer {
-        /// The file.
-        path: PathBuf,
+        /// The library.
+        library: Location,
         /// Its schema version.
         found: i64,
+    },
+    /// PostgreSQL failed or refused (the server unreachable, a login refused, a
+    /// transaction failed): what the server said.
+    #[error("{library}: {what}")]
+    Postgres {
+        /// The library.
+        library: Location,
+        /// The server's message, with its detail and hint.
+        what: String,
+    },
+    /// The database refused a change to a role without the right (an examiner adding or
+    /// removing a stock): the role, the change, and who may make it.
+    #[error("{library}: refused: {what}")]
+    Denied {
+        /// The library.
+        library: Location,
+        /// Why.
+        what: String,
     },
     /// SQLite failed on a sound library (disk full, permissions, a lock held too long).
     #[error("{path}: {source}")]
@@ -155,18 +194,18 @@ pub enum LibraryError {
     #[error("{0}")]
     Invalid(String),
     /// No stock of that name.
-    #[error("{path}: no stock '{name}' in the library")]
+    #[error("{library}: no stock '{name}' in the library")]
     UnknownStock {
-        /// The library file.
-        path: PathBuf,
+        /// The library.
+        library: Location,
         /// The name asked for.
         name: String,
     },
     /// No session, or more than one, matches the SHA-256 prefix.
-    #[error("{path}: {what}")]
+    #[error("{library}: {what}")]
     SessionPrefix {
-        /// The library file.
-        path: PathBuf,
+        /// The library.
+        library: Location,
         /// What matched.
         what: String,
     },
@@ -199,7 +238,7 @@ pub enum LibraryError {
 /// Result of the library's operations.
 pub type Result<T, E = LibraryError> = std::result::Result<T, E>;
 
-/// A stock as given to [`Library::add_sheets`]: fields given as `None` are left as the
+/// A stock as given to [`Store::add_sheets`]: fields given as `None` are left as the
 /// library has them.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct StockInfo {

@@ -5,7 +5,7 @@ use rand::{Rng, SeedableRng};
 use rusqlite::Connection;
 use std::path::Path;
 
-fn sheet(n: u64, spots: usize) -> SheetRecord {
+pub(super) fn sheet(n: u64, spots: usize) -> SheetRecord {
     let spot = |k: usize| Spot {
         values: [
             Some(4.0 + (n % 100) as f64 * 0.1 + k as f64),
@@ -36,7 +36,7 @@ fn sheet(n: u64, spots: usize) -> SheetRecord {
     }
 }
 
-fn stock(name: &str) -> StockInfo {
+pub(super) fn stock(name: &str) -> StockInfo {
     StockInfo {
         name: name.into(),
         manufacturer: Some("Acme «Papier»".into()),
@@ -44,15 +44,20 @@ fn stock(name: &str) -> StockInfo {
     }
 }
 
-fn export_bytes(library: &Library) -> Vec<u8> {
+pub(super) fn export_bytes(library: &Library) -> Vec<u8> {
     let mut out = Vec::new();
     library.export(&mut out, Path::new("test")).expect("export");
     out
 }
 
-/// A library of a few stocks, sheets and spots.
+/// A library file of a few stocks, sheets and spots.
 fn filled(path: &Path) -> Library {
-    let mut library = Library::open(path, OpenMode::Add).expect("create");
+    filled_at(&Location::File(path.to_path_buf()))
+}
+
+/// A library of a few stocks, sheets and spots, at `location`.
+pub(super) fn filled_at(location: &Location) -> Library {
+    let mut library = Library::open(location, OpenMode::Add).expect("create");
     library
         .add_sheets(&stock("PPC"), &[sheet(1, 1), sheet(2, 3)])
         .expect("add");
@@ -76,7 +81,7 @@ fn filled(path: &Path) -> Library {
 fn a_new_library_has_its_ids_and_schema_version() {
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("sub").join("library.sqlite");
-    drop(Library::open(&path, OpenMode::Add).expect("create"));
+    drop(Library::open_file(&path, OpenMode::Add).expect("create"));
     let conn = Connection::open(&path).expect("open");
     let id: i32 = conn
         .pragma_query_value(None, "application_id", |r| r.get(0))
@@ -91,10 +96,17 @@ fn a_new_library_has_its_ids_and_schema_version() {
             |r| r.get(0),
         )
         .expect("meta");
-    assert_eq!((id, user_version, schema_version), (APPLICATION_ID, 2, 2));
+    assert_eq!((id, user_version, schema_version), (APPLICATION_ID, 3, 3));
+    // Its trail begins with its making.
+    let opened = Library::open_file(&path, OpenMode::Existing).expect("reopen");
+    let trail = opened.audit_entries().expect("history");
+    assert_eq!(trail.len(), 1, "{trail:?}");
+    assert_eq!((trail[0].entry, trail[0].action.as_str()), (1, "create"));
+    assert_eq!(trail[0].db_user, None, "a file has no roles");
+    drop(opened);
     // Reopening finds it, empty.
     assert!(
-        Library::open(&path, OpenMode::Existing)
+        Library::open_file(&path, OpenMode::Existing)
             .expect("reopen")
             .stocks()
             .expect("stocks")
@@ -106,7 +118,7 @@ fn a_new_library_has_its_ids_and_schema_version() {
 fn reading_a_missing_library_does_not_create_it() {
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("library.sqlite");
-    let err = Library::open(&path, OpenMode::Existing).expect_err("missing");
+    let err = Library::open_file(&path, OpenMode::Existing).expect_err("missing");
     assert!(matches!(err, LibraryError::Missing { .. }), "{err}");
     assert!(err.to_string().contains("nothing has been added"), "{err}");
     assert!(!path.exists());
@@ -130,18 +142,18 @@ fn a_library_of_a_newer_schema_is_refused_and_left_as_it_is() {
     drop(filled(&path));
     {
         let conn = Connection::open(&path).expect("open");
-        conn.execute("UPDATE meta SET value = 3 WHERE key = 'schema_version'", [])
+        conn.execute("UPDATE meta SET value = 4 WHERE key = 'schema_version'", [])
             .expect("update");
-        conn.pragma_update(None, "user_version", 3)
+        conn.pragma_update(None, "user_version", 4)
             .expect("version");
     }
     let before = folder_bytes(dir.path());
     for mode in [OpenMode::Existing, OpenMode::Add] {
-        let err = Library::open(&path, mode).expect_err("newer");
-        assert!(matches!(err, LibraryError::Newer { found: 3, .. }), "{err}");
+        let err = Library::open_file(&path, mode).expect_err("newer");
+        assert!(matches!(err, LibraryError::Newer { found: 4, .. }), "{err}");
         assert!(
             err.to_string().contains(
-                "written by a newer gonio (schema 3); this gonio reads up to 2: update gonio"
+                "written by a newer gonio (schema 4); this gonio reads up to 3: update gonio"
             ),
             "{err}"
         );
@@ -162,7 +174,7 @@ fn random_bytes_are_refused_and_left_as_they_are() {
         let bytes: Vec<u8> = (0..len).map(|_| rng.random()).collect();
         std::fs::write(&path, &bytes).expect("write");
         for mode in [OpenMode::Existing, OpenMode::Add] {
-            let err = Library::open(&path, mode).expect_err("not SQLite");
+            let err = Library::open_file(&path, mode).expect_err("not SQLite");
             assert!(
                 matches!(err, LibraryError::NotSqlite { .. }),
                 "{len} bytes: {err}"
@@ -205,7 +217,7 @@ fn a_truncated_or_damaged_library_is_refused_and_left_as_it_is() {
     for (what, bytes) in cases {
         std::fs::write(&path, &bytes).expect("write");
         for mode in [OpenMode::Existing, OpenMode::Add] {
-            let err = Library::open(&path, mode).expect_err(what);
+            let err = Library::open_file(&path, mode).expect_err(what);
             assert!(matches!(err, LibraryError::Corrupt { .. }), "{what}: {err}");
             assert!(
                 err.to_string().starts_with(&path.display().to_string()),
@@ -229,7 +241,7 @@ fn an_sqlite_file_of_another_program_is_refused() {
         .execute_batch("CREATE TABLE t (x); INSERT INTO t VALUES (1);")
         .expect("create");
     let before = folder_bytes(dir.path());
-    let err = Library::open(&path, OpenMode::Add).expect_err("foreign");
+    let err = Library::open_file(&path, OpenMode::Add).expect_err("foreign");
     assert!(matches!(err, LibraryError::Foreign { .. }), "{err}");
     assert_eq!(folder_bytes(dir.path()), before);
 }
@@ -299,7 +311,7 @@ fn export_then_import_into_an_empty_library_then_export_is_byte_identical() {
         "one line per spot"
     );
     let mut second =
-        Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
+        Library::open_file(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
     let counts = second
         .import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"))
         .expect("import");
@@ -349,7 +361,8 @@ fn an_exchange_file_of_the_first_version_still_imports() {
     // What gonio wrote before its documents carried `schema`: the key was `format`, and
     // no lay.
     let old = older_records(&exported, "format", crate::schema::LIBRARY_RECORD_V1);
-    let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
+    let mut second =
+        Library::open_file(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
     let counts = second
         .import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read"))
         .expect("import");
@@ -396,7 +409,8 @@ fn an_exchange_file_of_version_2_still_imports_with_the_lay_unknown() {
         String::from_utf8(export_bytes(&filled(&dir.path().join("first.sqlite")))).expect("utf-8");
     let old = older_records(&exported, "schema", crate::schema::LIBRARY_RECORD_V2);
     assert!(!old.contains("orientation") && old.contains("gonio-library/2"));
-    let mut second = Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
+    let mut second =
+        Library::open_file(&dir.path().join("second.sqlite"), OpenMode::Add).expect("open");
     let counts = second
         .import(&ExchangeFile::read(&mut old.as_bytes(), Path::new("old.jsonl")).expect("read"))
         .expect("import");
@@ -440,7 +454,7 @@ fn the_lay_goes_through_export_and_import_unchanged() {
         assert!(text.contains(said), "{said} in {text}");
     }
     let mut second =
-        Library::open(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
+        Library::open_file(&dir.path().join("second.sqlite"), OpenMode::Add).expect("create");
     second
         .import(&ExchangeFile::read(&mut exported.as_slice(), Path::new("x.jsonl")).expect("read"))
         .expect("import");
@@ -519,7 +533,7 @@ fn a_library_of_schema_1_is_upgraded_keeping_every_record() {
     let old = dir.path().join("old.sqlite");
     version_1_copy(&current, &old);
     // Read first (search, list and export open an existing library): upgraded in place.
-    let upgraded = Library::open(&old, OpenMode::Existing).expect("an older library opens");
+    let upgraded = Library::open_file(&old, OpenMode::Existing).expect("an older library opens");
     assert_eq!(
         String::from_utf8(export_bytes(&upgraded)).expect("utf-8"),
         without_lay(&exported),
@@ -528,7 +542,7 @@ fn a_library_of_schema_1_is_upgraded_keeping_every_record() {
     assert_eq!(upgraded.sheet_count().expect("count"), 4);
     assert_eq!(
         upgraded.stocks().expect("stocks"),
-        Library::open(&current, OpenMode::Existing)
+        Library::open_file(&current, OpenMode::Existing)
             .expect("open")
             .stocks()
             .expect("stocks")
@@ -552,16 +566,16 @@ fn a_library_of_schema_1_is_upgraded_keeping_every_record() {
     let user_version: i64 = conn
         .pragma_query_value(None, "user_version", |r| r.get(0))
         .expect("version");
-    assert_eq!((versions.0, user_version), (2, 2));
+    assert_eq!((versions.0, user_version), (3, 3));
     assert!(
-        versions.1.starts_with("to schema 2 by gonio "),
+        versions.1.starts_with("to schema 3 by gonio "),
         "{}",
         versions.1
     );
     assert_eq!(versions.2, "{\"kept\":true}", "meta is kept too");
     drop(conn);
     // Opened again: nothing more to do; and it takes sheets with their lay now.
-    let mut again = Library::open(&old, OpenMode::Add).expect("reopen");
+    let mut again = Library::open_file(&old, OpenMode::Add).expect("reopen");
     again
         .add_sheets(&stock("PPC"), &[sheet(5, 2)])
         .expect("add after the upgrade");
@@ -572,6 +586,119 @@ fn a_library_of_schema_1_is_upgraded_keeping_every_record() {
             .iter()
             .any(|(sha, _, lay)| *sha == sheet(5, 2).session_sha256 && *lay == sheet(5, 2).lay)
     );
+    // The trail begins at the upgrade, which says how many sheets it found without one.
+    let trail = again.audit_entries().expect("history");
+    let actions: Vec<&str> = trail.iter().map(|e| e.action.as_str()).collect();
+    assert_eq!(actions, ["upgrade", "add"], "{trail:?}");
+    assert_eq!(trail[0].detail["from_schema"], 1);
+    assert_eq!(trail[0].detail["sheets_before_the_trail"], 4);
+    // Its contents before the add are recovered from the trail; the sheets before the
+    // trail began are simply there from its start.
+    assert_eq!(again.contents_at(1).expect("replay").sheets.len(), 4);
+    assert_eq!(again.contents_at(2).expect("replay").sheets.len(), 5);
+}
+
+#[test]
+fn a_library_of_schema_2_is_upgraded_and_its_trail_begins_there() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    let exported = export_bytes(&filled(&path));
+    {
+        // Schema 2 is schema 3 without the trail.
+        let conn = Connection::open(&path).expect("open");
+        conn.execute_batch(
+            "DROP TRIGGER audit_is_append_only_update; DROP TRIGGER audit_is_append_only_delete;
+             DROP TABLE audit; UPDATE meta SET value = 2 WHERE key = 'schema_version';",
+        )
+        .expect("to schema 2");
+        conn.pragma_update(None, "user_version", 2)
+            .expect("version");
+    }
+    let library = Library::open_file(&path, OpenMode::Existing).expect("upgraded");
+    assert_eq!(export_bytes(&library), exported, "every record kept");
+    let trail = library.audit_entries().expect("history");
+    assert_eq!(trail.len(), 1, "{trail:?}");
+    assert_eq!(trail[0].action, "upgrade");
+    assert_eq!(trail[0].detail["from_schema"], 2);
+}
+
+#[test]
+fn the_trail_is_append_only_and_recovers_every_past_state() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("library.sqlite");
+    let mut library = Library::open_file(&path, OpenMode::Add).expect("create");
+    let identity = |l: &Library| {
+        let sheets: Vec<_> = l
+            .sheets()
+            .expect("sheets")
+            .into_iter()
+            .map(|(_, s)| s)
+            .collect();
+        crate::analysis::evidence::population::contents_identity(&sheets)
+    };
+    // The identity after each change, by its last entry.
+    let mut states = vec![(1, identity(&library))];
+    let after = |l: &Library, states: &mut Vec<(i64, String)>| {
+        let entry = l
+            .contents()
+            .expect("contents")
+            .last_entry
+            .expect("an entry");
+        states.push((entry, identity(l)));
+    };
+    library
+        .add_sheets(&stock("PPC"), &[sheet(1, 1), sheet(2, 3)])
+        .expect("add");
+    after(&library, &mut states);
+    library
+        .add_sheets(&stock("Bond"), &[sheet(3, 2)])
+        .expect("add");
+    after(&library, &mut states);
+    library
+        .remove_session(&sheet(1, 1).session_sha256[..10])
+        .expect("remove");
+    after(&library, &mut states);
+    library
+        .add_sheets(&stock("PPC"), &[sheet(1, 1)])
+        .expect("add again");
+    after(&library, &mut states);
+    library.remove_stock("Bond").expect("remove a stock");
+    after(&library, &mut states);
+    library
+        .record_validation("abc", &serde_json::json!({"x": 1}))
+        .expect("validate");
+    after(&library, &mut states);
+    for (entry, expected) in &states {
+        let replayed = library.contents_at(*entry).expect("replay");
+        assert_eq!(&replayed.identity, expected, "after entry {entry}");
+    }
+    let actions: Vec<String> = library
+        .audit_entries()
+        .expect("history")
+        .into_iter()
+        .map(|e| e.action)
+        .collect();
+    assert_eq!(
+        actions,
+        [
+            "create", "add", "add", "add", "remove", "add", "remove", "validate"
+        ],
+    );
+    // The database refuses to change or delete an entry.
+    let conn = Connection::open(&path).expect("open");
+    for sql in [
+        "UPDATE audit SET action = 'add' WHERE entry = 1",
+        "DELETE FROM audit WHERE entry = 2",
+    ] {
+        let err = conn.execute(sql, []).expect_err(sql).to_string();
+        assert!(err.contains("append-only"), "{sql}: {err}");
+    }
+    // A sheet changed behind gonio's back: the trail says it cannot vouch for the past.
+    conn.execute("UPDATE spots SET rho_d = 0.5 WHERE spot_index = 0", [])
+        .expect("tamper");
+    drop(conn);
+    let err = library.contents_at(2).expect_err("tampered").to_string();
+    assert!(err.contains("changed outside gonio"), "{err}");
 }
 
 #[test]
@@ -669,7 +796,7 @@ fn two_threads_adding_to_one_new_file_both_succeed() {
             let (path, barrier) = (path.clone(), barrier.clone());
             std::thread::spawn(move || {
                 barrier.wait();
-                let mut library = Library::open(&path, OpenMode::Add).expect("open");
+                let mut library = Library::open_file(&path, OpenMode::Add).expect("open");
                 for n in 0..25 {
                     library
                         .add_sheets(
@@ -684,7 +811,7 @@ fn two_threads_adding_to_one_new_file_both_succeed() {
     for t in threads {
         t.join().expect("thread");
     }
-    let library = Library::open(&path, OpenMode::Existing).expect("open");
+    let library = Library::open_file(&path, OpenMode::Existing).expect("open");
     assert_eq!(library.sheets().expect("sheets").len(), 50);
     assert_eq!(library.stocks().expect("stocks").len(), 3);
 }

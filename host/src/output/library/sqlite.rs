@@ -1,16 +1,18 @@
 //! The library's SQLite file: opening it without ever harming a file that is not ours
 //! (checked before SQLite writes anything), its schema, and every query and change, each
-//! change one transaction.
+//! change one transaction with its audit entries.
+use super::audit::{self, Actor, AuditEntry, NewEntry};
 use super::exchange::{ExchangeFile, ExchangeRecord};
+use super::store::{
+    self, Contents, ImportCounts, OpenMode, Removed, StockSummary, Store, population_cache_key,
+};
 use super::{
-    APPLICATION_ID, LibraryError, Result, SCHEMA_VERSION, SheetRecord, StockInfo, check_text,
-    now_utc,
+    APPLICATION_ID, LibraryError, Location, Result, SCHEMA_VERSION, SheetRecord, StockInfo, now_utc,
 };
 use crate::analysis::evidence::{LibrarySheet, Sheet, Spot};
 use crate::analysis::specimen::{Orientation, SheetLay, Side};
 use rusqlite::{Connection, OpenFlags, OptionalExtension, TransactionBehavior, params};
-use serde::Serialize;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -20,55 +22,6 @@ const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
 
 /// The first 16 bytes of every SQLite 3 database file.
 const SQLITE_MAGIC: &[u8; 16] = b"SQLite format 3\0";
-
-/// Whether opening may create the file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum OpenMode {
-    /// Read or change an existing library; a missing one is [`LibraryError::Missing`].
-    Existing,
-    /// Create the library when missing (commands that add).
-    Add,
-}
-
-/// A stock with its counts, for `list`.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
-pub struct StockSummary {
-    /// Name.
-    pub name: String,
-    /// Manufacturer.
-    pub manufacturer: Option<String>,
-    /// Notes.
-    pub notes: Option<String>,
-    /// Sheets (sessions).
-    pub sheets: usize,
-    /// Spots over its sheets.
-    pub spots: usize,
-}
-
-/// What `import` did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub struct ImportCounts {
-    /// Records (lines) read.
-    pub records: usize,
-    /// Sessions added.
-    pub sessions_added: usize,
-    /// Sessions skipped: already in the library (by SHA-256).
-    pub sessions_skipped: usize,
-    /// Stocks new to the library.
-    pub stocks_added: usize,
-}
-
-/// What a removal removed.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
-pub struct Removed {
-    /// Stocks removed (a stock goes with its last sheet: the library holds only what an
-    /// export can carry).
-    pub stocks: Vec<String>,
-    /// Sessions removed (SHA-256).
-    pub sessions: Vec<String>,
-    /// Spots removed.
-    pub spots: usize,
-}
 
 /// The library file a command uses when `--library` is not given:
 /// `$XDG_DATA_HOME/gonio/library.sqlite`, else `$HOME/.local/share/gonio/library.sqlite`
@@ -115,7 +68,34 @@ CREATE TABLE spots (
     c20 REAL NOT NULL, c21 REAL NOT NULL, c22 REAL NOT NULL,
     PRIMARY KEY (sheet_id, spot_index)
 );
+" /* and AUDIT, below */;
+
+/// The audit trail (schema 3): append-only, the triggers refusing any change or deletion
+/// of an entry; AUTOINCREMENT never reuses a number, and SQLite's one writer at a time
+/// numbers the entries in the order their changes committed.
+const AUDIT: &str = "
+CREATE TABLE audit (
+    entry             INTEGER PRIMARY KEY AUTOINCREMENT,
+    at                TEXT NOT NULL,
+    db_user           TEXT,
+    os_user           TEXT,
+    host              TEXT,
+    gonio_version     TEXT NOT NULL,
+    action            TEXT NOT NULL CHECK (action IN (ACTIONS)),
+    stock             TEXT,
+    session_sha256    TEXT,
+    instrument_serial TEXT,
+    detail            TEXT NOT NULL
+);
+CREATE TRIGGER audit_is_append_only_update BEFORE UPDATE ON audit
+BEGIN SELECT RAISE(ABORT, 'the audit trail is append-only'); END;
+CREATE TRIGGER audit_is_append_only_delete BEFORE DELETE ON audit
+BEGIN SELECT RAISE(ABORT, 'the audit trail is append-only'); END;
 ";
+
+fn audit_schema() -> String {
+    AUDIT.replace("ACTIONS", audit::ACTIONS)
+}
 
 /// What the opening probe found in a file SQLite could read.
 enum Found {
@@ -133,16 +113,12 @@ ALTER TABLE sheets ADD COLUMN orientation TEXT CHECK (orientation IN ('md', 'cd'
 ALTER TABLE sheets ADD COLUMN side TEXT CHECK (side IN ('felt', 'wire'));
 ";
 
-/// An open library.
-pub struct Library {
+/// An open library file.
+pub(crate) struct SqliteLibrary {
     conn: Connection,
     path: PathBuf,
-}
-
-impl std::fmt::Debug for Library {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Library").field("path", &self.path).finish()
-    }
+    location: Location,
+    actor: Actor,
 }
 
 /// Check the file's header before SQLite opens it: SQLite would report a non-database
@@ -232,10 +208,7 @@ fn create_whole(path: &Path) -> Result<()> {
                 | OpenFlags::SQLITE_OPEN_NO_MUTEX,
         )
         .map_err(sqlite)?;
-        let library = Library {
-            conn,
-            path: temporary.clone(),
-        };
+        let library = SqliteLibrary::new(conn, &temporary);
         library
             .conn
             .pragma_update(None, "journal_mode", "WAL")
@@ -263,10 +236,19 @@ fn create_whole(path: &Path) -> Result<()> {
     made
 }
 
-impl Library {
+impl SqliteLibrary {
+    fn new(conn: Connection, path: &Path) -> SqliteLibrary {
+        SqliteLibrary {
+            conn,
+            path: path.to_path_buf(),
+            location: Location::File(path.to_path_buf()),
+            actor: Actor::current(),
+        }
+    }
+
     /// Open the library at `path`. Checks before anything is written: a non-SQLite,
     /// damaged, foreign or newer file is refused and left as it is.
-    pub fn open(path: &Path, mode: OpenMode) -> Result<Library> {
+    pub fn open(path: &Path, mode: OpenMode) -> Result<SqliteLibrary> {
         let exists = match std::fs::metadata(path) {
             Ok(m) if m.is_file() => true,
             Ok(_) => {
@@ -285,14 +267,14 @@ impl Library {
         };
         if !exists && mode == OpenMode::Existing {
             return Err(LibraryError::Missing {
-                path: path.to_path_buf(),
+                library: Location::File(path.to_path_buf()),
             });
         }
         if exists && check_header(path)? == 0 && mode == OpenMode::Existing {
             // An empty file is what an adding process leaves between creating the file and
             // its first commit (or after a crash there): no library content yet.
             return Err(LibraryError::Missing {
-                path: path.to_path_buf(),
+                library: Location::File(path.to_path_buf()),
             });
         }
         if !exists && let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -316,14 +298,11 @@ impl Library {
         };
         let conn = Connection::open_with_flags(path, flags).map_err(sqlite)?;
         conn.busy_timeout(BUSY_TIMEOUT).map_err(sqlite)?;
-        let library = Library {
-            conn,
-            path: path.to_path_buf(),
-        };
+        let library = SqliteLibrary::new(conn, path);
         let found = library.probe()?;
         if matches!(found, Found::Empty) && mode == OpenMode::Existing {
             return Err(LibraryError::Missing {
-                path: path.to_path_buf(),
+                library: Location::File(path.to_path_buf()),
             });
         }
         // Only now, the file known to be ours or empty, anything is written to it.
@@ -342,11 +321,6 @@ impl Library {
             Found::Library(_) => {}
         }
         Ok(library)
-    }
-
-    /// The library file.
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 
     fn sqlite(&self) -> impl Fn(rusqlite::Error) -> LibraryError + '_ {
@@ -416,7 +390,7 @@ impl Library {
         }
         if user_version > SCHEMA_VERSION {
             return Err(LibraryError::Newer {
-                path: self.path.clone(),
+                library: self.location.clone(),
                 found: user_version,
             });
         }
@@ -431,7 +405,7 @@ impl Library {
             .map_err(corrupt)?;
         match schema_version {
             Some(v) if v > SCHEMA_VERSION => Err(LibraryError::Newer {
-                path: self.path.clone(),
+                library: self.location.clone(),
                 found: v,
             }),
             Some(v) if v == user_version && v >= 1 => Ok(Found::Library(v)),
@@ -457,6 +431,7 @@ impl Library {
             .map_err(&sqlite)?;
         if objects == 0 {
             tx.execute_batch(SCHEMA).map_err(&sqlite)?;
+            tx.execute_batch(&audit_schema()).map_err(&sqlite)?;
             tx.execute(
                 "INSERT INTO meta (key, value) VALUES ('schema_version', ?1), ('application_id', ?2), ('created_by', ?3), ('created_at', ?4)",
                 params![SCHEMA_VERSION, APPLICATION_ID, format!("gonio {}", env!("CARGO_PKG_VERSION")), now_utc()],
@@ -466,31 +441,62 @@ impl Library {
                 .map_err(&sqlite)?;
             tx.pragma_update(None, "user_version", SCHEMA_VERSION)
                 .map_err(&sqlite)?;
+            self.append(
+                &tx,
+                &audit::event("create", serde_json::json!({ "schema": SCHEMA_VERSION })),
+            )
+            .map_err(&sqlite)?;
         }
         tx.commit().map_err(&sqlite)?;
+        Ok(())
+    }
+
+    /// Append one entry to the audit trail, in the transaction `tx` of its change.
+    fn append(&self, tx: &rusqlite::Transaction<'_>, entry: &NewEntry) -> rusqlite::Result<()> {
+        tx.execute(
+            "INSERT INTO audit (at, os_user, host, gonio_version, action, stock, session_sha256, instrument_serial, detail)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            params![
+                now_utc(),
+                self.actor.os_user,
+                self.actor.host,
+                self.actor.gonio_version,
+                entry.action,
+                entry.stock,
+                entry.session_sha256,
+                entry.instrument_serial,
+                entry.detail.to_string()
+            ],
+        )?;
         Ok(())
     }
 
     /// Upgrade a library of an older schema to [`SCHEMA_VERSION`], in one transaction under
     /// the write lock: the version is read again inside it, so two processes opening one old
     /// library at once upgrade it once (the second finds it done). `meta` records when and
-    /// by what (`upgraded_from_1`).
+    /// by what (`upgraded_from_N`); the audit trail begins with the upgrade's entry.
     fn upgrade(&self) -> Result<()> {
         let sqlite = self.sqlite();
         let tx = rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Immediate)
             .map_err(&sqlite)?;
-        let version: i64 = tx
+        let from: i64 = tx
             .pragma_query_value(None, "user_version", |r| r.get(0))
             .map_err(&sqlite)?;
-        if version == 1 {
-            tx.execute_batch(UPGRADE_1_TO_2).map_err(&sqlite)?;
+        if from < SCHEMA_VERSION {
+            if from == 1 {
+                tx.execute_batch(UPGRADE_1_TO_2).map_err(&sqlite)?;
+            }
+            // 2 → 3: the audit trail, empty but for the upgrade's own entry (what was
+            // added before it has no entry: the trail says where it begins).
+            tx.execute_batch(&audit_schema()).map_err(&sqlite)?;
+            let done = format!(
+                "to schema {SCHEMA_VERSION} by gonio {} at {}",
+                env!("CARGO_PKG_VERSION"),
+                now_utc()
+            );
             tx.execute(
-                "INSERT OR REPLACE INTO meta (key, value) VALUES ('upgraded_from_1', ?1)",
-                params![format!(
-                    "to schema 2 by gonio {} at {}",
-                    env!("CARGO_PKG_VERSION"),
-                    now_utc()
-                )],
+                "INSERT OR REPLACE INTO meta (key, value) VALUES (?1, ?2)",
+                params![format!("upgraded_from_{from}"), done],
             )
             .map_err(&sqlite)?;
             tx.execute(
@@ -500,6 +506,14 @@ impl Library {
             .map_err(&sqlite)?;
             tx.pragma_update(None, "user_version", SCHEMA_VERSION)
                 .map_err(&sqlite)?;
+            let sheets: i64 = tx
+                .query_row("SELECT count(*) FROM sheets", [], |r| r.get(0))
+                .map_err(&sqlite)?;
+            let entry = audit::event(
+                "upgrade",
+                serde_json::json!({ "from_schema": from, "to_schema": SCHEMA_VERSION, "sheets_before_the_trail": sheets }),
+            );
+            self.append(&tx, &entry).map_err(&sqlite)?;
         }
         tx.commit().map_err(&sqlite)?;
         Ok(())
@@ -507,46 +521,145 @@ impl Library {
 
     /// A write transaction that takes the write lock at once (waiting up to the busy
     /// timeout), so that checks made in it hold until it commits.
-    fn write(&mut self) -> Result<rusqlite::Transaction<'_>> {
-        let path = self.path.clone();
-        self.conn
-            .transaction_with_behavior(TransactionBehavior::Immediate)
-            .map_err(|source| LibraryError::Sqlite { path, source })
+    fn write(&self) -> Result<rusqlite::Transaction<'_>> {
+        rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Immediate)
+            .map_err(self.sqlite())
     }
 
-    /// Add sheets under one stock, all or none: a session already in the library (by
-    /// SHA-256) refuses the whole add, naming the stock it is under.
-    pub fn add_sheets(&mut self, stock: &StockInfo, sheets: &[SheetRecord]) -> Result<()> {
-        check_text("stock name", &stock.name)?;
-        if let Some(lot) = sheets.iter().find_map(|s| s.lot.as_deref()) {
-            check_text("lot", lot)?;
-        }
-        // The same check as `import` and `read_session_folder` make: a caller of this API
-        // cannot store a spot the commands would refuse.
-        for sheet in sheets {
-            for (k, spot) in sheet.spots.iter().enumerate() {
-                super::check_spot(spot).map_err(|e| {
-                    LibraryError::Invalid(format!("{}: spot {k}: {e}", sheet.session_path))
-                })?;
-            }
-        }
-        let path = self.path.clone();
-        let sqlite = move |source| LibraryError::Sqlite {
-            path: path.clone(),
-            source,
+    /// A read transaction: the reads in it see one state of the file (WAL keeps it for
+    /// them while writers go on). Dropped, it ends without writing anything.
+    fn snapshot(&self) -> Result<rusqlite::Transaction<'_>> {
+        rusqlite::Transaction::new_unchecked(&self.conn, TransactionBehavior::Deferred)
+            .map_err(self.sqlite())
+    }
+
+    /// The sheet of row `sheet_id` as the evidence weighs it, for the entry of its removal.
+    fn weighed_sheet(
+        tx: &rusqlite::Transaction<'_>,
+        sheet_id: i64,
+    ) -> rusqlite::Result<(String, Option<String>, LibrarySheet)> {
+        let (sha, stock, lot, instrument): (String, String, Option<String>, String) = tx.query_row(
+            "SELECT h.session_sha256, s.name, h.lot, h.instrument_serial FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.id = ?1",
+            [sheet_id],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
+        )?;
+        let mut stmt = tx.prepare(
+            "SELECT sigma_deg, rho_s, rho_d, c00, c01, c02, c10, c11, c12, c20, c21, c22
+             FROM spots WHERE sheet_id = ?1 ORDER BY spot_index",
+        )?;
+        let spots = stmt
+            .query_map([sheet_id], |r| {
+                Ok(Spot {
+                    values: [r.get(0)?, r.get(1)?, r.get(2)?],
+                    covariance: get_covariance(r, 3)?,
+                })
+            })?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        Ok((
+            sha,
+            Some(instrument.clone()),
+            LibrarySheet {
+                stock,
+                lot,
+                instrument: Some(instrument),
+                sheet: Sheet { spots },
+            },
+        ))
+    }
+
+    /// Delete the sheet of row `sheet_id` with its spots, and say so in the trail.
+    fn delete_sheet(
+        &self,
+        tx: &rusqlite::Transaction<'_>,
+        sheet_id: i64,
+    ) -> rusqlite::Result<usize> {
+        let (sha, instrument, sheet) = Self::weighed_sheet(tx, sheet_id)?;
+        self.append(tx, &audit::removed(&sha, instrument.as_deref(), &sheet))?;
+        tx.execute("DELETE FROM sheets WHERE id = ?1", [sheet_id])?;
+        Ok(sheet.sheet.spots.len())
+    }
+
+    /// Insert the sessions of an exchange file not yet in the library (one transaction's
+    /// work, `tx`), each with an `import` entry when `audited`.
+    fn insert_sessions(
+        &self,
+        tx: &rusqlite::Transaction<'_>,
+        file: &ExchangeFile,
+        audited: bool,
+    ) -> Result<ImportCounts> {
+        let sqlite = self.sqlite();
+        let mut counts = ImportCounts {
+            records: file.records(),
+            ..Default::default()
         };
+        for session in &file.sessions {
+            if has_session(tx, &session.sheet.session_sha256).map_err(&sqlite)? {
+                counts.sessions_skipped += 1;
+                continue;
+            }
+            let known: bool = tx
+                .query_row(
+                    "SELECT count(*) > 0 FROM stocks WHERE name = ?1",
+                    [&session.stock.name],
+                    |r| r.get(0),
+                )
+                .map_err(&sqlite)?;
+            counts.stocks_added += usize::from(!known);
+            let stock_id = upsert_stock(tx, &session.stock).map_err(|e| e.into_library(&sqlite))?;
+            let what = format!("{}:{}", file.path.display(), session.first_line);
+            insert_sheet(tx, stock_id, &session.sheet, &what)
+                .map_err(|e| e.into_library(&sqlite))?;
+            if audited {
+                self.append(
+                    tx,
+                    &audit::added("import", &session.stock.name, &session.sheet),
+                )
+                .map_err(&sqlite)?;
+            }
+            counts.sessions_added += 1;
+        }
+        Ok(counts)
+    }
+
+    fn meta_value(&self, key: &str) -> Result<Option<serde_json::Value>> {
+        let text: Option<String> = self
+            .conn
+            .query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0))
+            .optional()
+            .map_err(self.sqlite())?;
+        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+    }
+}
+
+fn has_session(tx: &rusqlite::Transaction<'_>, sha256: &str) -> rusqlite::Result<bool> {
+    tx.query_row(
+        "SELECT count(*) > 0 FROM sheets WHERE session_sha256 = ?1",
+        [sha256],
+        |r| r.get(0),
+    )
+}
+
+impl Store for SqliteLibrary {
+    fn location(&self) -> &Location {
+        &self.location
+    }
+
+    fn add_sheets(&mut self, stock: &StockInfo, sheets: &[SheetRecord]) -> Result<()> {
+        store::check_add(stock, sheets)?;
+        let sqlite = self.sqlite();
         let tx = self.write()?;
         let stock_id = upsert_stock(&tx, stock).map_err(|e| e.into_library(&sqlite))?;
         for sheet in sheets {
             insert_sheet(&tx, stock_id, sheet, &sheet.session_path)
                 .map_err(|e| e.into_library(&sqlite))?;
+            self.append(&tx, &audit::added("add", &stock.name, sheet))
+                .map_err(&sqlite)?;
         }
         tx.commit().map_err(sqlite)?;
         Ok(())
     }
 
-    /// The stock a session (by its SHA-256) is under, if it is in the library.
-    pub fn stock_of_session(&self, sha256: &str) -> Result<Option<String>> {
+    fn stock_of_session(&self, sha256: &str) -> Result<Option<String>> {
         let sqlite = self.sqlite();
         self.conn
             .query_row(
@@ -558,8 +671,7 @@ impl Library {
             .map_err(sqlite)
     }
 
-    /// Every stock with its sheet and spot counts, by name.
-    pub fn stocks(&self) -> Result<Vec<StockSummary>> {
+    fn stocks(&self) -> Result<Vec<StockSummary>> {
         let sqlite = self.sqlite();
         let mut stmt = self
             .conn
@@ -584,109 +696,77 @@ impl Library {
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
     }
 
-    /// Remove a stock with all its sheets and spots.
-    pub fn remove_stock(&mut self, name: &str) -> Result<Removed> {
-        let path = self.path.clone();
-        let sqlite = |source| LibraryError::Sqlite {
-            path: path.clone(),
-            source,
-        };
+    fn remove_stock(&mut self, name: &str) -> Result<Removed> {
+        let sqlite = self.sqlite();
         let tx = self.write()?;
         let id: Option<i64> = tx
             .query_row("SELECT id FROM stocks WHERE name = ?1", [name], |r| {
                 r.get(0)
             })
             .optional()
-            .map_err(sqlite)?;
+            .map_err(&sqlite)?;
         let Some(id) = id else {
             return Err(LibraryError::UnknownStock {
-                path: path.clone(),
+                library: self.location.clone(),
                 name: name.to_string(),
             });
         };
-        let sessions = column_strings(
-            &tx,
-            "SELECT session_sha256 FROM sheets WHERE stock_id = ?1 ORDER BY session_sha256",
-            id,
-        )
-        .map_err(sqlite)?;
-        let spots = count_spots(&tx, "h.stock_id = ?1", id).map_err(sqlite)?;
+        let sheets: Vec<(i64, String)> = {
+            let mut stmt = tx
+                .prepare("SELECT id, session_sha256 FROM sheets WHERE stock_id = ?1 ORDER BY session_sha256")
+                .map_err(&sqlite)?;
+            stmt.query_map([id], |r| Ok((r.get(0)?, r.get(1)?)))
+                .map_err(&sqlite)?
+                .collect::<rusqlite::Result<_>>()
+                .map_err(&sqlite)?
+        };
+        let mut spots = 0;
+        for (sheet_id, _) in &sheets {
+            spots += self.delete_sheet(&tx, *sheet_id).map_err(&sqlite)?;
+        }
         tx.execute("DELETE FROM stocks WHERE id = ?1", [id])
-            .map_err(sqlite)?;
-        tx.commit().map_err(sqlite)?;
+            .map_err(&sqlite)?;
+        tx.commit().map_err(&sqlite)?;
         Ok(Removed {
             stocks: vec![name.to_string()],
-            sessions,
+            sessions: sheets.into_iter().map(|(_, sha)| sha).collect(),
             spots,
         })
     }
 
-    /// Remove one session, named by its SHA-256 or a prefix that only it has; its stock
-    /// goes with it when it was the stock's last sheet.
-    pub fn remove_session(&mut self, sha256_prefix: &str) -> Result<Removed> {
-        let prefix = sha256_prefix.to_ascii_lowercase();
-        let path = self.path.clone();
-        if prefix.is_empty() || !prefix.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return Err(LibraryError::SessionPrefix {
-                path,
-                what: format!("'{sha256_prefix}' is not a SHA-256 or a prefix of one (hex digits)"),
-            });
-        }
-        let sqlite = |source| LibraryError::Sqlite {
-            path: path.clone(),
-            source,
-        };
+    fn remove_session(&mut self, sha256_prefix: &str) -> Result<Removed> {
+        let prefix = store::session_prefix(&self.location, sha256_prefix)?;
+        let sqlite = self.sqlite();
         let tx = self.write()?;
         // Hex digits only, so the prefix holds no LIKE wildcards.
-        let mut stmt = tx.prepare("SELECT id, stock_id, session_sha256 FROM sheets WHERE session_sha256 LIKE ?1 || '%' ORDER BY session_sha256").map_err(sqlite)?;
-        let matches: Vec<(i64, i64, String)> = stmt
-            .query_map([&prefix], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
-            .map_err(sqlite)?
-            .collect::<rusqlite::Result<_>>()
-            .map_err(sqlite)?;
-        drop(stmt);
-        let (sheet_id, stock_id, sha256) = match matches.as_slice() {
-            [one] => one.clone(),
-            [] => {
-                return Err(LibraryError::SessionPrefix {
-                    path: path.clone(),
-                    what: format!("no session {prefix}… in the library"),
-                });
-            }
-            many => {
-                let names: Vec<&str> = many.iter().map(|m| m.2.as_str()).collect();
-                return Err(LibraryError::SessionPrefix {
-                    path: path.clone(),
-                    what: format!(
-                        "{} sessions begin with {prefix} ({}): give more of the SHA-256",
-                        many.len(),
-                        names.join(", ")
-                    ),
-                });
-            }
+        let matches: Vec<((i64, i64), String)> = {
+            let mut stmt = tx.prepare("SELECT id, stock_id, session_sha256 FROM sheets WHERE session_sha256 LIKE ?1 || '%' ORDER BY session_sha256").map_err(&sqlite)?;
+            stmt.query_map([&prefix], |r| Ok(((r.get(0)?, r.get(1)?), r.get(2)?)))
+                .map_err(&sqlite)?
+                .collect::<rusqlite::Result<_>>()
+                .map_err(&sqlite)?
         };
-        let spots = count_spots(&tx, "h.id = ?1", sheet_id).map_err(sqlite)?;
-        tx.execute("DELETE FROM sheets WHERE id = ?1", [sheet_id])
-            .map_err(sqlite)?;
+        let ((sheet_id, stock_id), sha256) = store::one_session(&self.location, &prefix, &matches)?;
+        let spots = self.delete_sheet(&tx, sheet_id).map_err(&sqlite)?;
         let left: i64 = tx
             .query_row(
                 "SELECT count(*) FROM sheets WHERE stock_id = ?1",
                 [stock_id],
                 |r| r.get(0),
             )
-            .map_err(sqlite)?;
+            .map_err(&sqlite)?;
         let mut stocks = Vec::new();
         if left == 0 {
             let name: String = tx
                 .query_row("SELECT name FROM stocks WHERE id = ?1", [stock_id], |r| {
                     r.get(0)
                 })
-                .map_err(sqlite)?;
+                .map_err(&sqlite)?;
             tx.execute("DELETE FROM stocks WHERE id = ?1", [stock_id])
-                .map_err(sqlite)?;
+                .map_err(&sqlite)?;
             stocks.push(name);
         }
-        tx.commit().map_err(sqlite)?;
+        tx.commit().map_err(&sqlite)?;
         Ok(Removed {
             stocks,
             sessions: vec![sha256],
@@ -694,24 +774,7 @@ impl Library {
         })
     }
 
-    /// Every spot as an exchange record, ordered by stock name, session SHA-256 and spot
-    /// index (bytewise), so that the same contents always give the same file.
-    pub fn records(&self) -> Result<Vec<ExchangeRecord>> {
-        let mut out = Vec::new();
-        self.for_each_record(|record| {
-            out.push(record);
-            Ok(())
-        })?;
-        Ok(out)
-    }
-
-    /// Every spot as an exchange record, in the order of [`Self::records`], given to `each`
-    /// one at a time as it is read: a library of 10⁵ sheets is hundreds of megabytes of
-    /// records that need never be held at once. `each`'s error stops the reading.
-    pub fn for_each_record(
-        &self,
-        mut each: impl FnMut(ExchangeRecord) -> Result<()>,
-    ) -> Result<()> {
+    fn for_each_record(&self, each: &mut dyn FnMut(ExchangeRecord) -> Result<()>) -> Result<()> {
         let sqlite = self.sqlite();
         let mut stmt = self
             .conn
@@ -756,27 +819,7 @@ impl Library {
         Ok(())
     }
 
-    /// Write every spot to `out` as JSON Lines (see [`ExchangeRecord`]), record by record
-    /// as they are read; returns the number of records. `out_path` is only for messages.
-    pub fn export(&self, out: &mut dyn Write, out_path: &Path) -> Result<usize> {
-        let io = |source| LibraryError::Io {
-            path: out_path.to_path_buf(),
-            source,
-        };
-        let mut out = std::io::BufWriter::new(out);
-        let mut records = 0;
-        self.for_each_record(|record| {
-            serde_json::to_writer(&mut out, &record).map_err(|e| io(std::io::Error::other(e)))?;
-            out.write_all(b"\n").map_err(io)?;
-            records += 1;
-            Ok(())
-        })?;
-        out.flush().map_err(io)?;
-        Ok(records)
-    }
-
-    /// Whether the session of SHA-256 `sha256` is in the library.
-    pub fn has_session(&self, sha256: &str) -> Result<bool> {
+    fn has_session(&self, sha256: &str) -> Result<bool> {
         self.conn
             .query_row(
                 "SELECT count(*) > 0 FROM sheets WHERE session_sha256 = ?1",
@@ -786,238 +829,78 @@ impl Library {
             .map_err(self.sqlite())
     }
 
-    /// How many sheets (sessions) the library holds.
-    pub fn sheet_count(&self) -> Result<usize> {
+    fn sheet_count(&self) -> Result<usize> {
         self.conn
             .query_row("SELECT count(*) FROM sheets", [], |r| get_count(r, 0))
             .map_err(self.sqlite())
     }
 
-    /// Import a checked exchange file ([`ExchangeFile::read`]) in one transaction:
-    /// sessions already in the library (by SHA-256) are skipped.
-    pub fn import(&mut self, file: &ExchangeFile) -> Result<ImportCounts> {
-        let (sessions, in_path) = (&file.sessions, &file.path);
-        let mut counts = ImportCounts {
-            records: file.records(),
-            ..Default::default()
-        };
-        let path = self.path.clone();
-        let sqlite = move |source| LibraryError::Sqlite {
-            path: path.clone(),
-            source,
-        };
+    fn import(&mut self, file: &ExchangeFile) -> Result<ImportCounts> {
         let tx = self.write()?;
-        for session in sessions {
-            let present: Option<String> = tx
-                .query_row(
-                    "SELECT s.name FROM sheets h JOIN stocks s ON h.stock_id = s.id WHERE h.session_sha256 = ?1",
-                    [&session.sheet.session_sha256],
-                    |r| r.get(0),
-                )
-                .optional()
-                .map_err(&sqlite)?;
-            if present.is_some() {
-                counts.sessions_skipped += 1;
-                continue;
-            }
-            let known: bool = tx
-                .query_row(
-                    "SELECT count(*) > 0 FROM stocks WHERE name = ?1",
-                    [&session.stock.name],
-                    |r| r.get(0),
-                )
-                .map_err(&sqlite)?;
-            counts.stocks_added += usize::from(!known);
-            let stock_id =
-                upsert_stock(&tx, &session.stock).map_err(|e| e.into_library(&sqlite))?;
-            let what = format!("{}:{}", in_path.display(), session.first_line);
-            insert_sheet(&tx, stock_id, &session.sheet, &what)
-                .map_err(|e| e.into_library(&sqlite))?;
-            counts.sessions_added += 1;
-        }
-        tx.commit().map_err(&sqlite)?;
+        let counts = self.insert_sessions(&tx, file, true)?;
+        tx.commit().map_err(self.sqlite())?;
         Ok(counts)
     }
 
-    /// Record the population `gonio forensic --library` validated from the library's
-    /// contents of identity `identity` (`evidence::population::contents_identity`), with its
-    /// validation: kept in `meta` under `validated-population/<identity>`, so contents
-    /// changed since are simply not found.
-    pub fn record_validation(
-        &mut self,
-        identity: &str,
-        population: &serde_json::Value,
-    ) -> Result<()> {
-        let path = self.path.clone();
-        let sqlite = |source| LibraryError::Sqlite {
-            path: path.clone(),
-            source,
-        };
-        let record = serde_json::json!({
-            "validated_at": now_utc(),
-            "validated_by": format!("gonio {}", env!("CARGO_PKG_VERSION")),
-            "population": population,
-        });
+    fn record_validation(&mut self, identity: &str, population: &serde_json::Value) -> Result<()> {
+        let sqlite = self.sqlite();
         let tx = self.write()?;
         tx.execute(
             "INSERT OR REPLACE INTO meta (key, value) VALUES (?1, ?2)",
             params![
                 format!("validated-population/{identity}"),
-                record.to_string()
+                store::validation_value(population).to_string()
             ],
         )
         .map_err(&sqlite)?;
+        self.append(&tx, &audit::validated(identity))
+            .map_err(&sqlite)?;
         tx.commit().map_err(&sqlite)?;
         Ok(())
     }
 
-    /// The population validated from the contents of identity `identity`, with when and by
-    /// what, if one was recorded.
-    pub fn validation_record(&self, identity: &str) -> Result<Option<serde_json::Value>> {
-        let sqlite = self.sqlite();
-        let text: Option<String> = self
-            .conn
-            .query_row(
-                "SELECT value FROM meta WHERE key = ?1",
-                params![format!("validated-population/{identity}")],
-                |r| r.get(0),
-            )
-            .optional()
-            .map_err(&sqlite)?;
-        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+    fn validation_record(&self, identity: &str) -> Result<Option<serde_json::Value>> {
+        self.meta_value(&format!("validated-population/{identity}"))
     }
 
-    /// How every sheet lay, as (session SHA-256, stock, lay), in no particular order: kept
-    /// apart from [`Self::sheets`], whose sheets make the population and its identity
-    /// (the population does not weigh the lay, so recorded validations stay found).
-    pub fn lays(&self) -> Result<Vec<(String, String, SheetLay)>> {
+    fn validation_records(&self) -> Result<Vec<(String, serde_json::Value)>> {
         let sqlite = self.sqlite();
         let mut stmt = self
             .conn
             .prepare(
-                "SELECT h.session_sha256, s.name, h.orientation, h.side
-                 FROM sheets h JOIN stocks s ON h.stock_id = s.id",
+                "SELECT key, value FROM meta WHERE key LIKE 'validated-population/%' ORDER BY key",
             )
             .map_err(&sqlite)?;
         let rows = stmt
-            .query_map([], |r| {
-                Ok((
-                    r.get(0)?,
-                    r.get(1)?,
-                    SheetLay {
-                        orientation: get_orientation(r, 2)?,
-                        side: get_side(r, 3)?,
-                    },
-                ))
-            })
+            .query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, String>(1)?)))
+            .map_err(&sqlite)?
+            .collect::<rusqlite::Result<Vec<_>>>()
             .map_err(&sqlite)?;
-        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&sqlite)
-    }
-
-    /// Every sheet (its stock, lot, instrument and spots) with its session SHA-256, ordered
-    /// as [`Self::records`]. Only what the evidence is made of is read (not each spot's
-    /// whole record: a search of a library of 10⁵ sheets held 380 MiB of records), each
-    /// table once in its own order and the sheets put in order here: SQLite's sort of
-    /// every spot wrote and read temporary files for most of a large library's search.
-    pub fn sheets(&self) -> Result<Vec<(String, LibrarySheet)>> {
-        let sqlite = self.sqlite();
-        let mut stmt = self
-            .conn
-            .prepare(
-                "SELECT h.id, s.name, h.session_sha256, h.lot, h.instrument_serial
-                 FROM sheets h JOIN stocks s ON h.stock_id = s.id",
-            )
-            .map_err(&sqlite)?;
-        let mut rows = stmt.query([]).map_err(&sqlite)?;
-        let mut index = std::collections::HashMap::new();
-        // A sheet's stock, the sheet, and its spots with their row ids (sorted below).
-        type SheetRows = (String, LibrarySheet, Vec<(i64, Spot)>);
-        let mut sheets: Vec<SheetRows> = Vec::new();
-        while let Some(r) = rows.next().map_err(&sqlite)? {
-            let id: i64 = r.get(0).map_err(&sqlite)?;
-            index.insert(id, sheets.len());
-            sheets.push((
-                r.get(2).map_err(&sqlite)?,
-                LibrarySheet {
-                    stock: r.get(1).map_err(&sqlite)?,
-                    lot: r.get(3).map_err(&sqlite)?,
-                    instrument: Some(r.get(4).map_err(&sqlite)?),
-                    sheet: Sheet::default(),
-                },
-                Vec::new(),
-            ));
-        }
-        drop(rows);
-        let mut stmt = self
-            .conn
-            .prepare(
-                "SELECT sheet_id, spot_index, sigma_deg, rho_s, rho_d,
-                        c00, c01, c02, c10, c11, c12, c20, c21, c22
-                 FROM spots",
-            )
-            .map_err(&sqlite)?;
-        let mut rows = stmt.query([]).map_err(&sqlite)?;
-        while let Some(r) = rows.next().map_err(&sqlite)? {
-            let sheet_id: i64 = r.get(0).map_err(&sqlite)?;
-            // A spot of no sheet (possible only where foreign keys were not enforced) is
-            // not part of any sheet, as the join of an export leaves it out.
-            let Some(&k) = index.get(&sheet_id) else {
-                continue;
-            };
-            let spot = Spot {
-                values: [
-                    r.get(2).map_err(&sqlite)?,
-                    r.get(3).map_err(&sqlite)?,
-                    r.get(4).map_err(&sqlite)?,
-                ],
-                covariance: get_covariance(r, 5).map_err(&sqlite)?,
-            };
-            sheets[k].2.push((r.get(1).map_err(&sqlite)?, spot));
-        }
-        let mut out: Vec<(String, LibrarySheet)> = sheets
+        Ok(rows
             .into_iter()
-            .filter(|(_, _, spots)| !spots.is_empty())
-            .map(|(sha256, mut sheet, mut spots)| {
-                spots.sort_by_key(|(k, _)| *k);
-                sheet.sheet.spots = spots.into_iter().map(|(_, spot)| spot).collect();
-                (sha256, sheet)
+            .filter_map(|(key, value)| {
+                let identity = key.strip_prefix("validated-population/")?.to_string();
+                Some((identity, serde_json::from_str(&value).ok()?))
             })
-            .collect();
-        // Bytewise, as SQLite's ORDER BY of the export.
-        out.sort_by(|a, b| a.1.stock.cmp(&b.1.stock).then_with(|| a.0.cmp(&b.0)));
-        Ok(out)
+            .collect())
     }
 
-    /// The population last made from the library's contents of identity `identity`
-    /// (`evidence::population::contents_identity`) by this version of gonio, if it is
-    /// still cached: making one takes time that grows with the square of the stocks.
-    pub fn cached_population(&self, identity: &str) -> Result<Option<serde_json::Value>> {
-        let text: Option<String> = self
-            .conn
-            .query_row(
-                "SELECT value FROM meta WHERE key = ?1",
-                params![population_cache_key(identity)],
-                |r| r.get(0),
-            )
-            .optional()
-            .map_err(self.sqlite())?;
-        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+    fn contents(&self) -> Result<Contents> {
+        let sqlite = self.sqlite();
+        let snapshot = self.snapshot()?;
+        let mut contents = read_contents(&snapshot).map_err(&sqlite)?;
+        contents.last_entry = snapshot
+            .query_row("SELECT max(entry) FROM audit", [], |r| r.get(0))
+            .map_err(&sqlite)?;
+        Ok(contents)
     }
 
-    /// Cache `population`, made from the contents of identity `identity`, in place of any
-    /// cached before: contents changed since have another identity, so a cached
-    /// population is never used for contents it was not made from, and only the last is
-    /// kept.
-    pub fn cache_population(
-        &mut self,
-        identity: &str,
-        population: &serde_json::Value,
-    ) -> Result<()> {
-        let path = self.path.clone();
-        let sqlite = |source| LibraryError::Sqlite {
-            path: path.clone(),
-            source,
-        };
+    fn cached_population(&self, identity: &str) -> Result<Option<serde_json::Value>> {
+        self.meta_value(&population_cache_key(identity))
+    }
+
+    fn cache_population(&mut self, identity: &str, population: &serde_json::Value) -> Result<()> {
+        let sqlite = self.sqlite();
         let tx = self.write()?;
         tx.execute("DELETE FROM meta WHERE key LIKE 'population-cache/%'", [])
             .map_err(&sqlite)?;
@@ -1029,15 +912,155 @@ impl Library {
         tx.commit().map_err(&sqlite)?;
         Ok(())
     }
+
+    fn history(&self, each: &mut dyn FnMut(AuditEntry) -> Result<()>) -> Result<()> {
+        let sqlite = self.sqlite();
+        let mut stmt = self
+            .conn
+            .prepare(
+                "SELECT entry, at, db_user, os_user, host, gonio_version, action, stock, session_sha256, instrument_serial, detail
+                 FROM audit ORDER BY entry",
+            )
+            .map_err(&sqlite)?;
+        let mut rows = stmt.query([]).map_err(&sqlite)?;
+        while let Some(r) = rows.next().map_err(&sqlite)? {
+            let entry = (|| -> rusqlite::Result<AuditEntry> {
+                let detail: String = r.get(10)?;
+                Ok(AuditEntry {
+                    entry: r.get(0)?,
+                    at: r.get(1)?,
+                    db_user: r.get(2)?,
+                    os_user: r.get(3)?,
+                    host: r.get(4)?,
+                    gonio_version: r.get(5)?,
+                    action: r.get(6)?,
+                    stock: r.get(7)?,
+                    session_sha256: r.get(8)?,
+                    instrument_serial: r.get(9)?,
+                    detail: serde_json::from_str(&detail)
+                        .unwrap_or(serde_json::Value::String(detail)),
+                })
+            })()
+            .map_err(&sqlite)?;
+            each(entry)?;
+        }
+        Ok(())
+    }
+
+    fn receive(
+        &mut self,
+        file: &ExchangeFile,
+        history: &[AuditEntry],
+        validations: &[(String, serde_json::Value)],
+        from: &Location,
+    ) -> Result<()> {
+        let sqlite = self.sqlite();
+        let tx = self.write()?;
+        let source = from.to_string();
+        for entry in history {
+            self.append(&tx, &audit::migrated(entry, &source))
+                .map_err(&sqlite)?;
+        }
+        let counts = self.insert_sessions(&tx, file, false)?;
+        for (identity, value) in validations {
+            tx.execute(
+                "INSERT OR REPLACE INTO meta (key, value) VALUES (?1, ?2)",
+                params![
+                    format!("validated-population/{identity}"),
+                    value.to_string()
+                ],
+            )
+            .map_err(&sqlite)?;
+        }
+        let entry = audit::event(
+            "migrate",
+            serde_json::json!({ "from": source, "sessions": counts.sessions_added, "records": counts.records, "audit_entries": history.len(), "validations": validations.len() }),
+        );
+        self.append(&tx, &entry).map_err(&sqlite)?;
+        tx.commit().map_err(&sqlite)?;
+        Ok(())
+    }
 }
 
-/// Where [`Library::cached_population`] keeps a population: under the gonio that made it
-/// (another version may make it differently) and the contents it was made from.
-fn population_cache_key(identity: &str) -> String {
-    format!(
-        "population-cache/gonio {}/{identity}",
-        env!("CARGO_PKG_VERSION")
-    )
+/// Every sheet with its lay, ordered as the export (see [`Contents`]). Only what the
+/// evidence is made of is read (not each spot's whole record: a search of a library of
+/// 10⁵ sheets held 380 MiB of records), each table once in its own order and the sheets
+/// put in order here: SQLite's sort of every spot wrote and read temporary files for most
+/// of a large library's search.
+fn read_contents(tx: &rusqlite::Transaction<'_>) -> rusqlite::Result<Contents> {
+    let mut stmt = tx.prepare(
+        "SELECT h.id, s.name, h.session_sha256, h.lot, h.instrument_serial, h.orientation, h.side
+         FROM sheets h JOIN stocks s ON h.stock_id = s.id",
+    )?;
+    let mut rows = stmt.query([])?;
+    let mut index = std::collections::HashMap::new();
+    let mut sheets: Vec<SheetRows> = Vec::new();
+    while let Some(r) = rows.next()? {
+        let id: i64 = r.get(0)?;
+        index.insert(id, sheets.len());
+        sheets.push(SheetRows {
+            sha256: r.get(2)?,
+            sheet: LibrarySheet {
+                stock: r.get(1)?,
+                lot: r.get(3)?,
+                instrument: Some(r.get(4)?),
+                sheet: Sheet::default(),
+            },
+            lay: SheetLay {
+                orientation: get_orientation(r, 5)?,
+                side: get_side(r, 6)?,
+            },
+            spots: Vec::new(),
+        });
+    }
+    drop(rows);
+    let mut stmt = tx.prepare(
+        "SELECT sheet_id, spot_index, sigma_deg, rho_s, rho_d,
+                c00, c01, c02, c10, c11, c12, c20, c21, c22
+         FROM spots",
+    )?;
+    let mut rows = stmt.query([])?;
+    while let Some(r) = rows.next()? {
+        let sheet_id: i64 = r.get(0)?;
+        // A spot of no sheet (possible only where foreign keys were not enforced) is
+        // not part of any sheet, as the join of an export leaves it out.
+        let Some(&k) = index.get(&sheet_id) else {
+            continue;
+        };
+        let spot = Spot {
+            values: [r.get(2)?, r.get(3)?, r.get(4)?],
+            covariance: get_covariance(r, 5)?,
+        };
+        sheets[k].spots.push((r.get(1)?, spot));
+    }
+    Ok(Contents {
+        sheets: in_export_order(sheets),
+        last_entry: None,
+    })
+}
+
+/// A sheet as read, its spots with their indices (put in order by [`in_export_order`]).
+pub(crate) struct SheetRows {
+    pub sha256: String,
+    pub sheet: LibrarySheet,
+    pub lay: SheetLay,
+    pub spots: Vec<(i64, Spot)>,
+}
+
+/// Sheets with spots, each's spots by index, ordered by stock name and SHA-256 bytewise
+/// (as SQLite's ORDER BY of the export, and PostgreSQL's under COLLATE "C").
+pub(crate) fn in_export_order(sheets: Vec<SheetRows>) -> Vec<(String, LibrarySheet, SheetLay)> {
+    let mut out: Vec<(String, LibrarySheet, SheetLay)> = sheets
+        .into_iter()
+        .filter(|s| !s.spots.is_empty())
+        .map(|mut s| {
+            s.spots.sort_by_key(|(k, _)| *k);
+            s.sheet.sheet.spots = s.spots.into_iter().map(|(_, spot)| spot).collect();
+            (s.sha256, s.sheet, s.lay)
+        })
+        .collect();
+    out.sort_by(|a, b| a.1.stock.cmp(&b.1.stock).then_with(|| a.0.cmp(&b.0)));
+    out
 }
 
 /// The orientation in column `index`: NULL is unknown; anything but `md` or `cd` (only in a
@@ -1121,28 +1144,14 @@ fn upsert_stock(tx: &rusqlite::Transaction<'_>, stock: &StockInfo) -> Result<i64
         )?;
         return Ok(tx.last_insert_rowid());
     };
-    for (field, existing, given) in [
-        ("manufacturer", &manufacturer, &stock.manufacturer),
-        ("notes", &notes, &stock.notes),
-    ] {
-        match (existing, given) {
-            (Some(existing), Some(given)) if existing != given => {
-                return Err(TxError::Library(LibraryError::StockConflict {
-                    stock: stock.name.clone(),
-                    field,
-                    existing: existing.clone(),
-                    given: given.clone(),
-                }));
-            }
-            (None, Some(given)) => {
-                // `field` is one of two fixed column names, never user text.
-                tx.execute(
-                    &format!("UPDATE stocks SET {field} = ?1 WHERE id = ?2"),
-                    params![given, id],
-                )?;
-            }
-            _ => {}
-        }
+    for (field, given) in
+        store::stock_fields_to_fill(stock, &manufacturer, &notes).map_err(TxError::Library)?
+    {
+        // `field` is one of two fixed column names, never user text.
+        tx.execute(
+            &format!("UPDATE stocks SET {field} = ?1 WHERE id = ?2"),
+            params![given, id],
+        )?;
     }
     Ok(id)
 }
@@ -1202,27 +1211,4 @@ fn insert_sheet(
 fn get_count(row: &rusqlite::Row<'_>, index: usize) -> rusqlite::Result<usize> {
     let value: i64 = row.get(index)?;
     usize::try_from(value).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(index, value))
-}
-
-fn column_strings(
-    tx: &rusqlite::Transaction<'_>,
-    sql: &str,
-    id: i64,
-) -> rusqlite::Result<Vec<String>> {
-    let mut stmt = tx.prepare(sql)?;
-    stmt.query_map([id], |r| r.get(0))?.collect()
-}
-
-fn count_spots(
-    tx: &rusqlite::Transaction<'_>,
-    condition: &str,
-    id: i64,
-) -> rusqlite::Result<usize> {
-    tx.query_row(
-        &format!(
-            "SELECT count(*) FROM spots p JOIN sheets h ON p.sheet_id = h.id WHERE {condition}"
-        ),
-        [id],
-        |r| get_count(r, 0),
-    )
 }
