@@ -13,7 +13,7 @@
 //! both). Libraries are made in a temporary folder and removed after. With
 //! `GONIO_BENCH_POSTGRES=URL` (an administrator's URL of a PostgreSQL server, as
 //! `.ci/postgres start` prints) each size is measured on PostgreSQL too, in a database made
-//! for it and dropped after. Not a criterion
+//! for it and dropped after (`GONIO_BENCH_KEEP=1` keeps the libraries, and says where). Not a criterion
 //! benchmark: one search of 20,000 stocks is seconds, and what matters is the wall time
 //! and memory of the whole command, loading included.
 use host::study::library_scale::{Shape, write_library, write_questioned};
@@ -160,6 +160,10 @@ fn bench(stocks: usize, root: &Path, backend: &Backend) -> (f64, f64) {
         export.wall_s,
         export.peak_rss_mib,
     );
+    if std::env::var_os("GONIO_BENCH_KEEP").is_some() {
+        println!("kept: {} ({})", dir.display(), library.to_string_lossy());
+        return (first.wall_s, median.wall_s);
+    }
     std::fs::remove_dir_all(&dir).ok();
     if let Backend::Postgres(admin) = backend {
         let name = library.to_string_lossy();
@@ -181,6 +185,12 @@ fn main() {
         sizes
     };
     let root = tempfile::tempdir().expect("temp dir");
+    // GONIO_BENCH_KEEP=1: the libraries (files, databases) are kept to be looked at.
+    let root_path = if std::env::var_os("GONIO_BENCH_KEEP").is_some() {
+        root.keep()
+    } else {
+        root.path().to_path_buf()
+    };
     let mut backends = vec![Backend::Sqlite];
     if let Ok(admin) = std::env::var("GONIO_BENCH_POSTGRES") {
         backends.push(Backend::Postgres(admin));
@@ -188,7 +198,7 @@ fn main() {
     for backend in &backends {
         let times: Vec<(usize, (f64, f64))> = sizes
             .iter()
-            .map(|&n| (n, bench(n, root.path(), backend)))
+            .map(|&n| (n, bench(n, &root_path, backend)))
             .collect();
         if let [(n0, (f0, s0)), .., (n1, (f1, s1))] = times.as_slice() {
             println!(

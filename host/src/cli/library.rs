@@ -517,9 +517,13 @@ fn run_search(path: &Location, args: SearchArgs) -> anyhow::Result<u8> {
     );
     let population = crate::cli::population::from_library(library, path, excluded.as_slice())?;
     let found = evidence::search(&measured.questioned(), &population.population);
-    let mut ranking: Vec<Ranked> = found
+    let stocks = found.ranking.len();
+    // Only the stocks shown are described (their lay looked up): a library of 10⁴ stocks
+    // is ranked whole, but shown by its top K.
+    let ranking: Vec<Ranked> = found
         .ranking
         .into_iter()
+        .take(args.top.unwrap_or(usize::MAX))
         .map(|r| Ranked {
             orientation: population.stock_lay(&r.stock).0,
             side: population.stock_lay(&r.stock).1,
@@ -530,8 +534,6 @@ fn run_search(path: &Location, args: SearchArgs) -> anyhow::Result<u8> {
             verbal: evidence::verbal(r.log10_lr),
         })
         .collect();
-    let stocks = ranking.len();
-    ranking.truncate(args.top.unwrap_or(usize::MAX));
     let mut warnings = population.warnings(&found.warnings);
     // The sheet against every stock: measured as it was, otherwise, or not known.
     warnings.extend(

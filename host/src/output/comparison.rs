@@ -24,7 +24,7 @@ pub struct PopulationInUse {
     pub name: String,
     /// Why it has no validation, when it has none.
     pub not_validated_because: Option<String>,
-    /// How the sheets of each stock lay (stock, its sheets' lays, by name), when the
+    /// How the sheets of each stock lay (stock, its sheets' lays, ordered by name), when the
     /// population is a library's: a sheet is weighed against them with a warning where
     /// they were measured otherwise ([`evidence::stock_lay_warnings`]). `None` for the
     /// demonstration population, whose stocks are no measured sheets.
@@ -95,11 +95,13 @@ impl PopulationInUse {
     /// its sheets lay, `mixed`, or `unknown` (none recorded, or not a library's stock).
     pub fn stock_lay(&self, name: &str) -> (&'static str, &'static str) {
         use crate::analysis::specimen::{Orientation, Side};
-        let Some((_, lays)) = self
-            .stock_lays
-            .as_ref()
-            .and_then(|all| all.iter().find(|(n, _)| n == name))
-        else {
+        // By name, in order (made from a BTreeMap): a search of 20,000 stocks looked each
+        // shown stock up; a linear scan made that quadratic (4.9 s of a 5 s search).
+        let Some((_, lays)) = self.stock_lays.as_ref().and_then(|all| {
+            all.binary_search_by(|(n, _)| n.as_str().cmp(name))
+                .ok()
+                .map(|k| &all[k])
+        }) else {
             return ("unknown", "unknown");
         };
         fn one(mut values: impl Iterator<Item = Option<&'static str>>) -> &'static str {

@@ -307,6 +307,17 @@ impl PgLibrary {
         Ok(tx)
     }
 
+    /// A read-only transaction of one snapshot (REPEATABLE READ): its reads see one state
+    /// of the library, whatever commits meanwhile.
+    fn snapshot<'c>(&self, client: &'c mut Client, doing: &str) -> Result<Transaction<'c>> {
+        client
+            .build_transaction()
+            .isolation_level(IsolationLevel::RepeatableRead)
+            .read_only(true)
+            .start()
+            .map_err(self.error(doing))
+    }
+
     /// Append one entry to the trail in the change's transaction `tx` (the database
     /// stamps its time and role).
     fn append(&self, tx: &mut Transaction<'_>, entry: &NewEntry) -> Result<(), postgres::Error> {
@@ -556,12 +567,7 @@ impl Store for PgLibrary {
         let doing = "reading the records";
         let mut client = self.client.borrow_mut();
         // One snapshot for the whole stream: an export is one state of the library.
-        let mut tx = client
-            .build_transaction()
-            .isolation_level(IsolationLevel::RepeatableRead)
-            .read_only(true)
-            .start()
-            .map_err(self.error(doing))?;
+        let mut tx = self.snapshot(&mut client, doing)?;
         let mut rows = tx
             .query_raw(
                 r#"SELECT s.name, s.manufacturer, s.notes, h.session_sha256, h.sample, h.lot, h.measured_at, h.instrument_serial,
@@ -678,12 +684,7 @@ impl Store for PgLibrary {
     fn contents(&self) -> Result<Contents> {
         let doing = "reading the library's sheets";
         let mut client = self.client.borrow_mut();
-        let mut tx = client
-            .build_transaction()
-            .isolation_level(IsolationLevel::RepeatableRead)
-            .read_only(true)
-            .start()
-            .map_err(self.error(doing))?;
+        let mut tx = self.snapshot(&mut client, doing)?;
         let mut contents = read_contents(&mut tx).map_err(self.error(doing))?;
         contents.last_entry = tx
             .query_one("SELECT max(entry) FROM gonio.audit", &[])
