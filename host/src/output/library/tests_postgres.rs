@@ -43,6 +43,8 @@ pub(crate) struct TestDatabase {
     admin: String,
     /// Its name.
     pub name: String,
+    /// The logins made for it (roles are the server's, not the database's: dropped too).
+    logins: std::sync::Mutex<Vec<String>>,
 }
 
 static COUNTER: AtomicUsize = AtomicUsize::new(0);
@@ -67,6 +69,7 @@ impl TestDatabase {
         TestDatabase {
             admin: admin.to_string(),
             name,
+            logins: Default::default(),
         }
     }
 
@@ -90,6 +93,7 @@ impl TestDatabase {
         client
             .batch_execute(&format!("CREATE ROLE {user} LOGIN{member}"))
             .expect("create a login");
+        self.logins.lock().expect("logins").push(user.clone());
         url_of(&self.admin, &user, &self.name)
     }
 
@@ -106,6 +110,9 @@ impl Drop for TestDatabase {
                 "DROP DATABASE IF EXISTS {} WITH (FORCE)",
                 self.name
             ));
+            for login in self.logins.lock().map(|l| l.clone()).unwrap_or_default() {
+                let _ = client.batch_execute(&format!("DROP ROLE IF EXISTS {login}"));
+            }
         }
     }
 }
