@@ -71,6 +71,11 @@ pub struct HistoryArgs {
     /// recovered from the trail (the contents identity a search made then reported).
     #[arg(long, value_name = "N", conflicts_with = "stock")]
     pub contents_at: Option<i64>,
+    /// With --contents-at: also make the population of those contents, as a search of
+    /// them makes it, and give its identity (the `population.identity` the search reported
+    /// when it used a population made or cached, not one recorded by `gonio forensic`).
+    #[arg(long, requires = "contents_at")]
+    pub population: bool,
 }
 
 /// Arguments of `gonio library migrate`.

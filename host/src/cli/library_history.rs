@@ -16,6 +16,20 @@ pub fn run(location: &Location, args: HistoryArgs) -> anyhow::Result<()> {
             .iter()
             .map(|(_, s)| s.stock.as_str())
             .collect();
+        let population = if args.population {
+            let sheets: Vec<_> = replayed.sheets.iter().map(|(_, s)| s.clone()).collect();
+            let (population, _) = host::analysis::evidence::validation::validate_or_explain(
+                &sheets,
+            )
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "{location}: the contents after entry {entry} make no population: {e}"
+                )
+            })?;
+            Some(population.identity())
+        } else {
+            None
+        };
         if args.json {
             println!(
                 "{}",
@@ -28,6 +42,7 @@ pub fn run(location: &Location, args: HistoryArgs) -> anyhow::Result<()> {
                     "sheets": replayed.sheets.len(),
                     "sessions": replayed.sheets.iter().map(|(sha, _)| sha).collect::<Vec<_>>(),
                     "checked_against_trail": replayed.checked_against_trail,
+                    "population": population,
                 })
             );
         } else {
@@ -39,6 +54,9 @@ pub fn run(location: &Location, args: HistoryArgs) -> anyhow::Result<()> {
                 if stocks.len() == 1 { "" } else { "s" },
                 replayed.identity
             );
+            if let Some(identity) = &population {
+                println!("  population made from them: identity {identity}");
+            }
             println!(
                 "  ({} sheet{} held today checked against the entries that added them)",
                 replayed.checked_against_trail,

@@ -495,12 +495,17 @@ fn every_output_and_file_of_real_sessions_validates_against_its_schema() {
         "history",
         "--contents-at",
         &entry.to_string(),
+        "--population",
         "--json",
     ]));
     schemas.check("library history --contents-at --json", &at[0]);
     assert_eq!(
         at[0]["contents"], state["contents"],
         "the contents a search weighed, recovered from the trail"
+    );
+    assert_eq!(
+        at[0]["population"], found[0]["population"]["identity"],
+        "and the population it used, made again from them"
     );
     let export = root.join("export.jsonl");
     assert!(
