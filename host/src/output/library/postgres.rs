@@ -129,6 +129,57 @@ GRANT INSERT, UPDATE, DELETE ON gonio.stocks, gonio.sheets, gonio.spots, gonio.v
 GRANT INSERT ON gonio.audit TO gonio_curator;
 "#;
 
+/// Every column gonio reads, with its type as `information_schema` names it: checked when
+/// a library is opened.
+const COLUMNS: &[(&str, &str, &str)] = &[
+    ("meta", "key", "text"),
+    ("meta", "value", "text"),
+    ("stocks", "id", "bigint"),
+    ("stocks", "name", "text"),
+    ("stocks", "manufacturer", "text"),
+    ("stocks", "notes", "text"),
+    ("sheets", "id", "bigint"),
+    ("sheets", "stock_id", "bigint"),
+    ("sheets", "lot", "text"),
+    ("sheets", "measured_at", "text"),
+    ("sheets", "instrument_serial", "text"),
+    ("sheets", "session_path", "text"),
+    ("sheets", "session_sha256", "text"),
+    ("sheets", "sample", "text"),
+    ("sheets", "added_at", "text"),
+    ("sheets", "orientation", "text"),
+    ("sheets", "side", "text"),
+    ("spots", "sheet_id", "bigint"),
+    ("spots", "spot_index", "integer"),
+    ("spots", "sigma_deg", "double precision"),
+    ("spots", "rho_s", "double precision"),
+    ("spots", "rho_d", "double precision"),
+    ("spots", "c00", "double precision"),
+    ("spots", "c01", "double precision"),
+    ("spots", "c02", "double precision"),
+    ("spots", "c10", "double precision"),
+    ("spots", "c11", "double precision"),
+    ("spots", "c12", "double precision"),
+    ("spots", "c20", "double precision"),
+    ("spots", "c21", "double precision"),
+    ("spots", "c22", "double precision"),
+    ("validations", "identity", "text"),
+    ("validations", "value", "text"),
+    ("population_cache", "key", "text"),
+    ("population_cache", "value", "text"),
+    ("audit", "entry", "bigint"),
+    ("audit", "at", "timestamp with time zone"),
+    ("audit", "db_user", "text"),
+    ("audit", "os_user", "text"),
+    ("audit", "host", "text"),
+    ("audit", "gonio_version", "text"),
+    ("audit", "action", "text"),
+    ("audit", "stock", "text"),
+    ("audit", "session_sha256", "text"),
+    ("audit", "instrument_serial", "text"),
+    ("audit", "detail", "text"),
+];
+
 /// An open library in PostgreSQL.
 pub(crate) struct PgLibrary {
     // The trait's reads take `&self`; the client's calls take `&mut`. One library is one
@@ -233,10 +284,11 @@ impl PgLibrary {
                 &[],
             )
             .map_err(self.error("reading the library's schema version"))?;
+        // Read before the columns are checked: text or nothing, never a panic.
         let value = |key: &str| {
             rows.iter()
-                .find(|r| r.get::<_, String>(0) == key)
-                .map(|r| r.get::<_, String>(1))
+                .find(|r| r.try_get::<_, String>(0).ok().as_deref() == Some(key))
+                .and_then(|r| r.try_get::<_, String>(1).ok())
         };
         if value("application_id") != Some(APPLICATION_ID.to_string()) {
             return Err(foreign(format!(
@@ -249,7 +301,34 @@ impl PgLibrary {
                 library: self.location.clone(),
                 found: v,
             }),
-            Some(v) if v == SCHEMA_VERSION => Ok(Found::Library),
+            Some(v) if v == SCHEMA_VERSION => {
+                // Every column gonio reads is of the type it reads: a table changed by
+                // other means is refused here, not met as a wrong type mid-search.
+                let columns = client
+                    .query(
+                        "SELECT table_name::text, column_name::text, data_type::text
+                         FROM information_schema.columns WHERE table_schema = 'gonio'",
+                        &[],
+                    )
+                    .map_err(self.error("reading the library's tables"))?;
+                let found: Vec<(String, String, String)> = columns
+                    .iter()
+                    .map(|r| (r.get(0), r.get(1), r.get(2)))
+                    .collect();
+                for (table, column, kind) in COLUMNS {
+                    let actual = found
+                        .iter()
+                        .find(|(t, c, _)| t == table && c == column)
+                        .map(|(_, _, k)| k.as_str());
+                    if actual != Some(*kind) {
+                        return Err(foreign(format!(
+                            "gonio.{table}.{column} is {}, a gonio library's is {kind}",
+                            actual.unwrap_or("missing")
+                        )));
+                    }
+                }
+                Ok(Found::Library)
+            }
             // A PostgreSQL library began at schema 3: an older number was not written by
             // gonio.
             v => Err(foreign(format!("schema_version {v:?} in gonio.meta"))),

@@ -328,6 +328,18 @@ fn a_foreign_or_newer_database_is_refused_and_left_as_it_is() {
         let err = Library::open(&foreign.location(), mode).expect_err("foreign");
         assert!(matches!(err, LibraryError::Foreign { .. }), "{err}");
     }
+    // A library whose table was changed by other means.
+    let changed = TestDatabase::new(&admin);
+    drop(filled_at(&changed.location()));
+    sql(
+        &changed,
+        "ALTER TABLE gonio.sheets ALTER COLUMN lot TYPE integer USING 0",
+    );
+    let err = Library::open(&changed.location(), OpenMode::Existing).expect_err("changed");
+    assert!(
+        err.to_string().contains("gonio.sheets.lot is integer"),
+        "{err}"
+    );
     // A newer gonio's library.
     let newer = TestDatabase::new(&admin);
     drop(filled_at(&newer.location()));
