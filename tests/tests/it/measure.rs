@@ -174,15 +174,30 @@ fn paper(sample: &str, class: &str) {
         "--out",
         dir.to_str().unwrap(),
     ];
-    let Measured::Done { summary: r, .. } =
-        run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session")
+    let Measured::Done {
+        summary: r,
+        outcome,
+        ..
+    } = run(&args, &mut person, Arc::new(AtomicBool::new(false))).expect("session")
     else {
         panic!("{sample}: the session stopped");
     };
     assert_eq!(
-        person.asked,
+        person.asked[..2.min(person.asked.len())],
         [Placement::WhiteTile, Placement::Sample],
         "{sample}: the operator places the tile, then the sample"
+    );
+    // On a loaded machine the host can miss the instrument's heartbeat (a fresh-clone CI
+    // run did, on J1): its fail-safe stop turns the lamp off, and once it is lit again the
+    // tile is read again to see that its output came back. That, and only that, asks for
+    // the tile once more: one placement per relighting.
+    let again = &person.asked[2..];
+    assert!(
+        again.iter().all(|p| *p == Placement::WhiteTile)
+            && again.len() <= outcome.recoveries.lamp_relit as usize,
+        "{sample}: asked {:?} with the lamp relit {} times",
+        person.asked,
+        outcome.recoveries.lamp_relit
     );
     assert_eq!(r["class"], class, "{sample}: {r}");
     assert_eq!(r["sigma_ok"], true, "{sample}: {r}");
