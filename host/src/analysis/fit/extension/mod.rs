@@ -656,7 +656,7 @@ fn main_lobe(v: &Values) -> [f64; N_PARAMS] {
 }
 
 mod merge;
-pub use merge::{MODEL_FORM, SHAPE_SENSITIVITY};
+pub use merge::{MODEL_FORM, SHAPE_SENSITIVITY, SHAPES_OUTSIDE};
 use merge::{take_member, widen_for_model_form};
 
 /// The index in the result's order of a family parameter of the main lobe.
