@@ -97,7 +97,7 @@ impl TermKind {
             TermKind::ReadingNoise
         } else if name == LACK_OF_FIT {
             TermKind::LackOfFit
-        } else if name == crate::analysis::fit::MODEL_FORM {
+        } else if name.starts_with(crate::analysis::fit::MODEL_FORM) {
             TermKind::ModelForm
         } else if name.starts_with("white ") {
             TermKind::White

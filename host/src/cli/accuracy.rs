@@ -38,6 +38,13 @@ pub struct Args {
     /// the control alone, which always runs).
     #[arg(long, value_name = "LIST", value_delimiter = ',', requires = "shapes")]
     pub departures: Vec<String>,
+    /// With --shapes: only these papers (G, SG, PPC, MC, J1, J2, J3, J4).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', requires = "shapes")]
+    pub papers: Vec<String>,
+    /// With --shapes: the sessions' indices start here (seeds 0…SEEDS−1 by default), so a
+    /// figure can be measured on seeds a change was not tuned on.
+    #[arg(long, value_name = "INDEX", requires = "shapes", default_value_t = 0)]
+    pub first_seed: usize,
     /// Seed the instruments of --instruments are drawn from.
     #[arg(long, value_name = "SEED", requires = "instruments", default_value_t = instruments::DEFAULT_BASE_SEED)]
     pub instruments_seed: u64,
@@ -199,8 +206,25 @@ fn run_shapes(args: &Args, seeds: usize, threads: usize) -> anyhow::Result<ExitC
     } else {
         args.policies.clone()
     };
+    let mut papers = Vec::new();
+    for name in &args.papers {
+        let Some(paper) = shapes::PAPERS.iter().find(|p| p.eq_ignore_ascii_case(name)) else {
+            bail!(
+                "--papers: no paper '{name}': use {}",
+                shapes::PAPERS.join(", ")
+            );
+        };
+        if !papers.contains(paper) {
+            papers.push(*paper);
+        }
+    }
+    if papers.is_empty() {
+        papers = shapes::PAPERS.to_vec();
+    }
     let design = shapes::Design {
         shapes: shapes::Shape::all(&kinds),
+        papers,
+        first_index: args.first_seed,
         ..shapes::Design::new(seeds, &policies)
     };
     let bar = bar(

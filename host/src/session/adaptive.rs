@@ -103,7 +103,15 @@ pub fn sigma_resolved(fit: &FitResult) -> bool {
 /// Relative 95 % half-width of σ (1.96·SE/σ), if σ is resolved.
 pub(crate) fn sigma_rel_half_width(fit: &FitResult) -> Option<f64> {
     let sigma = fit.sigma_deg()?;
-    let se = fit.std_error(SIGMA)?;
+    // Not what the extension step adds for shapes outside its family: more readings of
+    // this plan do not narrow it, and waiting on it would lengthen exact-TSL sessions.
+    let outside: f64 = fit
+        .budget
+        .iter()
+        .filter(|t| t.name == crate::analysis::fit::SHAPES_OUTSIDE)
+        .map(|t| t.variance[SIGMA])
+        .sum();
+    let se = (fit.std_error(SIGMA)?.powi(2) - outside).max(0.0).sqrt();
     (sigma > 0.0 && se.is_finite()).then(|| 1.96 * se / sigma)
 }
 

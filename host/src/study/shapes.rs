@@ -274,6 +274,9 @@ pub struct Design {
     pub policies: Vec<PolicyChoice>,
     /// Sessions per shape, paper and policy (each its own seed).
     pub seeds: usize,
+    /// The index of the first of them: a campaign from index k draws seeds no campaign
+    /// from 0 with k sessions did (a figure measured on seeds a change was not tuned on).
+    pub first_index: usize,
 }
 
 /// One session of the campaign.
@@ -320,6 +323,7 @@ impl Design {
             papers: PAPERS.to_vec(),
             policies: policies.to_vec(),
             seeds,
+            first_index: 0,
         }
     }
 
@@ -349,7 +353,7 @@ impl Design {
                     continue;
                 }
                 for &policy in &self.policies {
-                    for index in 0..self.seeds {
+                    for index in self.first_index..self.first_index + self.seeds {
                         specs.push(SessionSpec {
                             shape,
                             paper,
@@ -1176,6 +1180,7 @@ mod tests {
             papers: vec!["G", "J1"],
             policies: vec![PolicyChoice::Sweep],
             seeds: 3,
+            first_index: 0,
         };
         let (specs, _) = design.sessions();
         assert_eq!(specs.len(), 2 * 2 * 3);
@@ -1285,6 +1290,7 @@ mod tests {
                 papers: vec!["G", "SG"],
                 policies: vec![PolicyChoice::Sweep],
                 seeds: 1,
+                first_index: 0,
             },
             rows: rows
                 .into_iter()

@@ -417,3 +417,52 @@ fn on_exact_rough_papers_whose_eta_sits_at_3_the_eta_bound_test_fires_at_its_rat
     eprintln!("η-bound test fired in {fired} of {} sessions", rows.len());
     assert!(fired <= 2, "{fired} of 48: {rows:#?}");
 }
+
+#[test]
+fn a_body_outside_the_family_leaves_sigma_inside_its_interval_on_rough_papers() {
+    // J3 and PPC with a strong Oren–Nayar body and a Lommel–Seeliger (grazing) body, swept:
+    // no member of the family has either body. The non-Lambertian body's term takes it up
+    // and σ, traded against the body on a lobe as broad as a rough paper's, moved 3–11 %
+    // with intervals of ± 0.3–0.7 % (the shapes campaign before the widening for shapes the
+    // family does not hold: 0 of these 8 sessions of seeds 0–1 covered, all unflagged at
+    // confidence 1.00; docs/ACCURACY.md, issue 28). Now σ's interval holds σ_eq, the
+    // paper's σ: at least 3 of the 4 sessions of this run's seed.
+    let seed = common::run_seed().to_string();
+    let mut seen = Vec::new();
+    let mut covered = 0;
+    for paper in ["J3", "PPC"] {
+        let sigma_eq = reference(paper).sigma_deg;
+        for departure in ["oren-nayar:30", "grazing:1"] {
+            let session = session_with_extensions(
+                &format!("outside-{paper}-{departure}"),
+                &[
+                    "--sim",
+                    paper,
+                    "--departure",
+                    departure,
+                    "--policy",
+                    "sweep",
+                    "--seed",
+                    &seed,
+                ],
+            );
+            let r = &session["result"];
+            let interval = r["ci95"]["sigma_deg"]
+                .as_array()
+                .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)));
+            covered += usize::from(covers(interval, sigma_eq));
+            // Not by giving σ up: the interval stays within a factor 2 of σ_eq.
+            if let Some((lo, hi)) = interval {
+                assert!(
+                    lo > 0.5 * sigma_eq && hi < 2.0 * sigma_eq,
+                    "{paper} {departure} seed {seed}: [{lo}, {hi}]"
+                );
+            }
+            seen.push(format!(
+                "{paper} {departure} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
+                r["sigma_deg"], r["flags"]
+            ));
+        }
+    }
+    assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
+}

@@ -24,6 +24,7 @@ fn sheets_that_are_not_tsl_in_small() {
         papers: vec!["G", "J1"],
         policies: vec![PolicyChoice::Adaptive],
         seeds: 1,
+        first_index: 0,
     };
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
     let campaign = shapes::run(&design, threads, &|| {}).expect("every session ran");

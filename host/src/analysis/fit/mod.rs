@@ -58,7 +58,10 @@ use engine::{LeastSquaresProblem, LmOutcome, global_fit, params_of, x_of};
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
 pub use error::FitError;
-pub use extension::{Extension, ExtensionTerm, MODEL_FORM, Term, TermTest, on_by_default};
+pub use extension::{
+    Extension, ExtensionTerm, MODEL_FORM, SHAPE_SENSITIVITY, SHAPES_OUTSIDE, Term, TermTest,
+    on_by_default,
+};
 pub use outliers::OUTLIER_ALPHA_WEIGHTED;
 pub use result::{
     ActiveBound, ArmOffset, Bound, BudgetTerm, FitResult, FittedModel, NotIdentified, Note, Status,

@@ -19,12 +19,15 @@
 //! forward: the strongest first, then the others tested again on top of it.
 //!
 //! **Model-form uncertainty.** Every member fitted is weighed by its Akaike information
-//! (c/s² + 2p). Where a member the test did not choose is within 2 of the best (the data
-//! cannot tell the two shapes apart), the reported interval of σ, ρs, ρd, η is widened to
-//! cover that member's estimate as well, and the covariance's diagonal with it (the budget
-//! term `model form`). η moved by a non-Lambertian body beyond twice its standard error is
-//! said ([`Note::EtaAbsorbsBody`]): it is then a fudge of the body's shape, not the paper's
-//! refractive index, and its interval covers both.
+//! (c/s² + 2p). Where a member the test did not choose is within 2 of the best, or is one
+//! the data do not reject (its own χ² accepted, no term at a bound of its range), the
+//! reported interval of σ, ρs, ρd, η is widened to cover that member's interval as well;
+//! then σ, ρs and ρd's for a shape the family does not hold, by as far as the members that
+//! miss the readings by less than their noise move them beyond that noise (calibrated on
+//! the shapes campaign, [`SHAPE_SENSITIVITY`]); the covariance's diagonal grows
+//! with them (the budget term `model form`). η moved by a non-Lambertian body beyond twice
+//! its standard error is said ([`Note::EtaAbsorbsBody`]): it is then a fudge of the body's
+//! shape, not the paper's refractive index, and its interval covers both.
 //!
 //! **η at its bound.** η held at its upper bound 3 may be the data asking for a Fresnel
 //! factor flatter than any of the model's; ρs, the lobe's amplitude over that factor, is
@@ -346,13 +349,8 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
         take_member(base, result, &problem, &chosen);
         outliers_explained(result, &chosen.fit, n);
     }
-    let theta_i_range = base
-        .observations
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), o| {
-            (a.min(o.theta_i_deg), b.max(o.theta_i_deg))
-        });
-    let plausible = widen_for_model_form(result, &members, &chosen, n, weighted, theta_i_range);
+    let judging = merge::Judging::new(base, n, weighted);
+    let plausible = widen_for_model_form(result, &members, &chosen, &judging);
     fresnel_flatter(&mut problem, &null, &chosen, result);
     result.extension = Some(Extension {
         terms: added,
@@ -658,7 +656,7 @@ fn main_lobe(v: &Values) -> [f64; N_PARAMS] {
 }
 
 mod merge;
-pub use merge::MODEL_FORM;
+pub use merge::{MODEL_FORM, SHAPE_SENSITIVITY, SHAPES_OUTSIDE};
 use merge::{take_member, widen_for_model_form};
 
 /// The index in the result's order of a family parameter of the main lobe.
