@@ -327,28 +327,39 @@ pub fn contents_identity(sheets: &[LibrarySheet]) -> String {
 /// SHA-256 of a value's JSON, written into the hash as it is made: the JSON of a large
 /// library's sheets is hundreds of megabytes that need never be held at once.
 fn sha256_of_json<T: Serialize + ?Sized>(value: &T) -> String {
-    use sha2::Digest;
-    struct Hashing(sha2::Sha256);
-    impl std::io::Write for Hashing {
-        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-            self.0.update(bytes);
-            Ok(bytes.len())
-        }
-        fn flush(&mut self) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
-    let mut hashing = Hashing(sha2::Sha256::new());
+    let mut hashing = Sha256Writer::default();
     // A value that cannot be written as JSON hashes as the empty document, as before.
     if serde_json::to_writer(std::io::BufWriter::new(&mut hashing), value).is_err() {
-        hashing = Hashing(sha2::Sha256::new());
+        hashing = Sha256Writer::default();
     }
-    hashing
-        .0
-        .finalize()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
+    hashing.hex()
+}
+
+/// A writer that hashes what is written to it (SHA-256) and keeps nothing else: for a
+/// digest of a stream too large to hold (a library's sheets, its export).
+#[derive(Default)]
+pub struct Sha256Writer(sha2::Sha256);
+
+impl Sha256Writer {
+    /// The digest of everything written, lowercase hex.
+    pub fn hex(self) -> String {
+        use sha2::Digest;
+        self.0
+            .finalize()
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    }
+}
+
+impl std::io::Write for Sha256Writer {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        sha2::Digest::update(&mut self.0, bytes);
+        Ok(bytes.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// Spots about their sheet's mean: the pooled scatter and its upper bound.

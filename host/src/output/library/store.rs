@@ -396,25 +396,9 @@ pub fn migrate(from: &Library, to: &mut Library) -> Result<Migrated> {
 
 /// The SHA-256 of a library's export, computed as it is written.
 pub fn export_sha256(library: &Library) -> Result<String> {
-    use sha2::Digest;
-    struct Hashing(sha2::Sha256);
-    impl Write for Hashing {
-        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-            self.0.update(bytes);
-            Ok(bytes.len())
-        }
-        fn flush(&mut self) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
-    let mut hashing = Hashing(sha2::Sha256::new());
+    let mut hashing = population::Sha256Writer::default();
     library.export(&mut hashing, Path::new("(hash)"))?;
-    Ok(hashing
-        .0
-        .finalize()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect())
+    Ok(hashing.hex())
 }
 
 /// What a removal by SHA-256 prefix found, as both back ends judge it.
