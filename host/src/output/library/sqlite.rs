@@ -631,8 +631,10 @@ impl SqliteLibrary {
     }
 }
 
-fn has_session(tx: &rusqlite::Transaction<'_>, sha256: &str) -> rusqlite::Result<bool> {
-    tx.query_row(
+/// Whether the session of SHA-256 `sha256` is in the library (in `conn`'s transaction,
+/// when it has one).
+fn has_session(conn: &Connection, sha256: &str) -> rusqlite::Result<bool> {
+    conn.query_row(
         "SELECT count(*) > 0 FROM sheets WHERE session_sha256 = ?1",
         [sha256],
         |r| r.get(0),
@@ -820,13 +822,7 @@ impl Store for SqliteLibrary {
     }
 
     fn has_session(&self, sha256: &str) -> Result<bool> {
-        self.conn
-            .query_row(
-                "SELECT count(*) > 0 FROM sheets WHERE session_sha256 = ?1",
-                [sha256],
-                |r| r.get(0),
-            )
-            .map_err(self.sqlite())
+        has_session(&self.conn, sha256).map_err(self.sqlite())
     }
 
     fn sheet_count(&self) -> Result<usize> {
