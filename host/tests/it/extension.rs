@@ -466,3 +466,51 @@ fn a_body_outside_the_family_leaves_sigma_inside_its_interval_on_rough_papers() 
     }
     assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
 }
+
+#[test]
+fn a_haze_as_broad_as_the_body_leaves_sigma_inside_its_interval_on_rough_papers() {
+    // J2 and J4 with the shapes campaign's strong haze (3 % of the peak at 5σ, at most
+    // 90°), swept and adaptive: the best haze member sits at its width's narrowest bound,
+    // a heavy tail is chosen or nothing, and σ came out 1.8–2.1 % high against intervals
+    // of ± 0.7–1.0 % (held-out seeds 2–3 before the haze's width was profiled: 8 of these
+    // 8 sessions missed, unflagged at confidence 1.00; docs/ACCURACY.md, issue 28). Now
+    // σ's interval holds σ_eq: at least 3 of the 4 sessions of this run's seed, and not by
+    // giving σ up (within ± 15 %).
+    let seed = common::run_seed().to_string();
+    let mut seen = Vec::new();
+    let mut covered = 0;
+    for (paper, haze) in [("J2", "haze:0.03:89.5"), ("J4", "haze:0.03:90")] {
+        let sigma_eq = reference(paper).sigma_deg;
+        for policy in ["sweep", "adaptive"] {
+            let session = session_with_extensions(
+                &format!("haze-{paper}-{policy}"),
+                &[
+                    "--sim",
+                    paper,
+                    "--departure",
+                    haze,
+                    "--policy",
+                    policy,
+                    "--seed",
+                    &seed,
+                ],
+            );
+            let r = &session["result"];
+            let interval = r["ci95"]["sigma_deg"]
+                .as_array()
+                .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)));
+            covered += usize::from(covers(interval, sigma_eq));
+            if let Some((lo, hi)) = interval {
+                assert!(
+                    lo > 0.85 * sigma_eq && hi < 1.15 * sigma_eq,
+                    "{paper} {policy} seed {seed}: [{lo}, {hi}]"
+                );
+            }
+            seen.push(format!(
+                "{paper} {policy} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
+                r["sigma_deg"], r["flags"]
+            ));
+        }
+    }
+    assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
+}
