@@ -418,6 +418,45 @@ fn on_exact_rough_papers_whose_eta_sits_at_3_the_eta_bound_test_fires_at_its_rat
     assert!(fired <= 2, "{fired} of 48: {rows:#?}");
 }
 
+/// Single-spot sessions with the extensions on, one per (paper, departure, policy), on
+/// this run's seed: how many have σ's interval holding the paper's σ, and what each said.
+/// Each interval must stay within `factor` of σ (covered, not by giving σ up).
+fn sessions_cover_sigma(cases: &[(&str, &str, &str)], factor: f64) -> (usize, Vec<String>) {
+    let seed = common::run_seed().to_string();
+    let mut seen = Vec::new();
+    let mut covered = 0;
+    for &(paper, departure, policy) in cases {
+        let sigma_eq = reference(paper).sigma_deg;
+        let args = [
+            "--sim",
+            paper,
+            "--departure",
+            departure,
+            "--policy",
+            policy,
+            "--seed",
+            &seed,
+        ];
+        let session = session_with_extensions(&format!("{paper}-{departure}-{policy}"), &args);
+        let r = &session["result"];
+        let interval = r["ci95"]["sigma_deg"]
+            .as_array()
+            .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)));
+        covered += usize::from(covers(interval, sigma_eq));
+        if let Some((lo, hi)) = interval {
+            assert!(
+                lo > sigma_eq / factor && hi < sigma_eq * factor,
+                "{paper} {departure} {policy} seed {seed}: [{lo}, {hi}]"
+            );
+        }
+        seen.push(format!(
+            "{paper} {departure} {policy} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
+            r["sigma_deg"], r["flags"]
+        ));
+    }
+    (covered, seen)
+}
+
 #[test]
 fn a_body_outside_the_family_leaves_sigma_inside_its_interval_on_rough_papers() {
     // J3 and PPC with a strong Oren–Nayar body and a Lommel–Seeliger (grazing) body, swept:
@@ -426,44 +465,16 @@ fn a_body_outside_the_family_leaves_sigma_inside_its_interval_on_rough_papers() 
     // with intervals of ± 0.3–0.7 % (the shapes campaign before the widening for shapes the
     // family does not hold: 0 of these 8 sessions of seeds 0–1 covered, all unflagged at
     // confidence 1.00; docs/ACCURACY.md, issue 28). Now σ's interval holds σ_eq, the
-    // paper's σ: at least 3 of the 4 sessions of this run's seed.
-    let seed = common::run_seed().to_string();
-    let mut seen = Vec::new();
-    let mut covered = 0;
-    for paper in ["J3", "PPC"] {
-        let sigma_eq = reference(paper).sigma_deg;
-        for departure in ["oren-nayar:30", "grazing:1"] {
-            let session = session_with_extensions(
-                &format!("outside-{paper}-{departure}"),
-                &[
-                    "--sim",
-                    paper,
-                    "--departure",
-                    departure,
-                    "--policy",
-                    "sweep",
-                    "--seed",
-                    &seed,
-                ],
-            );
-            let r = &session["result"];
-            let interval = r["ci95"]["sigma_deg"]
-                .as_array()
-                .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)));
-            covered += usize::from(covers(interval, sigma_eq));
-            // Not by giving σ up: the interval stays within a factor 2 of σ_eq.
-            if let Some((lo, hi)) = interval {
-                assert!(
-                    lo > 0.5 * sigma_eq && hi < 2.0 * sigma_eq,
-                    "{paper} {departure} seed {seed}: [{lo}, {hi}]"
-                );
-            }
-            seen.push(format!(
-                "{paper} {departure} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
-                r["sigma_deg"], r["flags"]
-            ));
-        }
-    }
+    // paper's σ: at least 3 of the 4 sessions of this run's seed, each within a factor 2.
+    let (covered, seen) = sessions_cover_sigma(
+        &[
+            ("J3", "oren-nayar:30", "sweep"),
+            ("J3", "grazing:1", "sweep"),
+            ("PPC", "oren-nayar:30", "sweep"),
+            ("PPC", "grazing:1", "sweep"),
+        ],
+        2.0,
+    );
     assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
 }
 
@@ -475,42 +486,16 @@ fn a_haze_as_broad_as_the_body_leaves_sigma_inside_its_interval_on_rough_papers(
     // of ± 0.7–1.0 % (held-out seeds 2–3 before the haze's width was profiled: 8 of these
     // 8 sessions missed, unflagged at confidence 1.00; docs/ACCURACY.md, issue 28). Now
     // σ's interval holds σ_eq: at least 3 of the 4 sessions of this run's seed, and not by
-    // giving σ up (within ± 15 %).
-    let seed = common::run_seed().to_string();
-    let mut seen = Vec::new();
-    let mut covered = 0;
-    for (paper, haze) in [("J2", "haze:0.03:89.5"), ("J4", "haze:0.03:90")] {
-        let sigma_eq = reference(paper).sigma_deg;
-        for policy in ["sweep", "adaptive"] {
-            let session = session_with_extensions(
-                &format!("haze-{paper}-{policy}"),
-                &[
-                    "--sim",
-                    paper,
-                    "--departure",
-                    haze,
-                    "--policy",
-                    policy,
-                    "--seed",
-                    &seed,
-                ],
-            );
-            let r = &session["result"];
-            let interval = r["ci95"]["sigma_deg"]
-                .as_array()
-                .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)));
-            covered += usize::from(covers(interval, sigma_eq));
-            if let Some((lo, hi)) = interval {
-                assert!(
-                    lo > 0.85 * sigma_eq && hi < 1.15 * sigma_eq,
-                    "{paper} {policy} seed {seed}: [{lo}, {hi}]"
-                );
-            }
-            seen.push(format!(
-                "{paper} {policy} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
-                r["sigma_deg"], r["flags"]
-            ));
-        }
-    }
+    // giving σ up (within a factor 1.15; over seeds 11–16, 24 of 24 covered, the widest
+    // −7 %/+6 %).
+    let (covered, seen) = sessions_cover_sigma(
+        &[
+            ("J2", "haze:0.03:89.5", "sweep"),
+            ("J2", "haze:0.03:89.5", "adaptive"),
+            ("J4", "haze:0.03:90", "sweep"),
+            ("J4", "haze:0.03:90", "adaptive"),
+        ],
+        1.15,
+    );
     assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
 }
