@@ -115,7 +115,11 @@ pub const NEGATIVE_READING_STDS: f64 = 5.0;
 
 /// The number of distinct geometries. Repeated readings are fine, contradicting ones are
 /// not: without uncertainties "contradicting" means more than 10 % apart; with them, more
-/// than 5 σ.
+/// than 5 σ. Bins read while the arm moved (a θr span) are the instrument's own readings,
+/// never a contradiction that stops the fit: a bin of two samples on a steep flank reads
+/// where in its span they fell, which its counting uncertainty does not hold (G, θi 20°,
+/// θr 21.97°, one bin of 0.125° swept three times on a bad link: 4.67, 4.88, 4.50, each
+/// ± 0.035; the session stopped, seed 48291); the fit's goodness of fit judges them.
 fn distinct_geometries(observations: &[Observation]) -> Result<usize, FitError> {
     let order = geometry_order(observations);
     let mut distinct = 0;
@@ -130,6 +134,9 @@ fn distinct_geometries(observations: &[Observation]) -> Result<usize, FitError> 
         }
         let (first, o) = (order[k - 1], &observations[i]);
         let p = &observations[first];
+        if p.theta_r_span_deg > 0.0 && o.theta_r_span_deg > 0.0 {
+            continue;
+        }
         let diff = (p.radiance_factor - o.radiance_factor).abs();
         let tolerance = match (p.std, o.std) {
             (Some(a), Some(b)) => 5.0 * a.hypot(b),
@@ -209,6 +216,27 @@ pub(super) fn geometry_order(observations: &[Observation]) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tables_contradicting_repeat_is_refused_and_a_sweeps_bins_are_readings() {
+        let mut table = readings(Some(0.01), 0.02);
+        let mut repeat = table[1];
+        repeat.radiance_factor *= 1.1;
+        table.push(repeat);
+        assert!(matches!(
+            validate(&table),
+            Err(FitError::ConflictingDuplicates { .. })
+        ));
+        // The same numbers as bins of a sweep (0.125° spans): each the instrument's reading.
+        let swept: Vec<Observation> = table
+            .into_iter()
+            .map(|o| Observation {
+                theta_r_span_deg: 0.125,
+                ..o
+            })
+            .collect();
+        assert!(validate(&swept).is_ok());
+    }
 
     fn readings(std: Option<f64>, dark_value: f64) -> Vec<Observation> {
         let mut out: Vec<Observation> = [
