@@ -357,7 +357,7 @@ fn labels(members: &[&Member]) -> Vec<String> {
             labels.push(m.label());
             continue;
         };
-        let terms = Member::new(m.terms.clone(), m.fit.clone()).label();
+        let terms = m.terms_label();
         match held.iter_mut().find(|(t, _)| *t == terms) {
             Some((_, ratios)) => ratios.push(ratio),
             None => held.push((terms, vec![ratio])),

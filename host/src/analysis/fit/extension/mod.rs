@@ -247,17 +247,22 @@ impl Member {
     }
 
     fn label(&self) -> String {
+        match self.haze_width_ratio {
+            Some(r) => format!(
+                "{} (its σ held at {r}× the main lobe's)",
+                self.terms_label()
+            ),
+            None => self.terms_label(),
+        }
+    }
+
+    /// The member's terms ("TSL + haze lobe"), without the haze's width where it was held.
+    fn terms_label(&self) -> String {
         if self.terms.is_empty() {
             return "TSL".to_string();
         }
         let names: Vec<&str> = self.terms.iter().map(|t| t.name()).collect();
-        match self.haze_width_ratio {
-            Some(r) => format!(
-                "TSL + {} (its σ held at {r}× the main lobe's)",
-                names.join(" + ")
-            ),
-            None => format!("TSL + {}", names.join(" + ")),
-        }
+        format!("TSL + {}", names.join(" + "))
     }
 }
 
@@ -303,6 +308,7 @@ fn haze_width_profile(problem: &Problem, null: &Member, chosen: &Member) -> Vec<
             .chain([Param::HazeFraction])
             .filter(|p| *p != Param::HazeLnRatio)
             .collect();
+        // The held width is spent on the data too: one degree of freedom beyond the active.
         if problem.len() < active.len() + 1 + MIN_DOF {
             continue;
         }
