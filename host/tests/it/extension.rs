@@ -418,26 +418,20 @@ fn on_exact_rough_papers_whose_eta_sits_at_3_the_eta_bound_test_fires_at_its_rat
     assert!(fired <= 2, "{fired} of 48: {rows:#?}");
 }
 
-/// Single-spot sessions with the extensions on, one per (paper, departure, policy), on
-/// this run's seed: how many have σ's interval holding the paper's σ, and what each said.
-/// Each interval must stay within `factor` of σ (covered, not by giving σ up).
+/// Single-spot sessions with the extensions on, one per (paper, sheet, policy), the sheet
+/// as `gonio measure` options ("--departure haze:0.03:90"), on this run's seed: how many
+/// have σ's interval holding the paper's σ, and what each said. Each interval must stay
+/// within `factor` of σ (covered, not by giving σ up).
 fn sessions_cover_sigma(cases: &[(&str, &str, &str)], factor: f64) -> (usize, Vec<String>) {
     let seed = common::run_seed().to_string();
     let mut seen = Vec::new();
     let mut covered = 0;
-    for &(paper, departure, policy) in cases {
+    for &(paper, sheet, policy) in cases {
         let sigma_eq = reference(paper).sigma_deg;
-        let args = [
-            "--sim",
-            paper,
-            "--departure",
-            departure,
-            "--policy",
-            policy,
-            "--seed",
-            &seed,
-        ];
-        let session = session_with_extensions(&format!("{paper}-{departure}-{policy}"), &args);
+        let mut args = vec!["--sim", paper, "--policy", policy, "--seed", &seed];
+        args.extend(sheet.split_whitespace());
+        let name = format!("{paper}-{sheet}-{policy}").replace([' ', ':'], "_");
+        let session = session_with_extensions(&name, &args);
         let r = &session["result"];
         let interval = r["ci95"]["sigma_deg"]
             .as_array()
@@ -446,11 +440,11 @@ fn sessions_cover_sigma(cases: &[(&str, &str, &str)], factor: f64) -> (usize, Ve
         if let Some((lo, hi)) = interval {
             assert!(
                 lo > sigma_eq / factor && hi < sigma_eq * factor,
-                "{paper} {departure} {policy} seed {seed}: [{lo}, {hi}]"
+                "{paper} {sheet} {policy} seed {seed}: [{lo}, {hi}]"
             );
         }
         seen.push(format!(
-            "{paper} {departure} {policy} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
+            "{paper} {sheet} {policy} seed {seed}: σ {} {interval:?} against {sigma_eq}, flags {}",
             r["sigma_deg"], r["flags"]
         ));
     }
@@ -468,10 +462,10 @@ fn a_body_outside_the_family_leaves_sigma_inside_its_interval_on_rough_papers() 
     // paper's σ: at least 3 of the 4 sessions of this run's seed, each within a factor 2.
     let (covered, seen) = sessions_cover_sigma(
         &[
-            ("J3", "oren-nayar:30", "sweep"),
-            ("J3", "grazing:1", "sweep"),
-            ("PPC", "oren-nayar:30", "sweep"),
-            ("PPC", "grazing:1", "sweep"),
+            ("J3", "--departure oren-nayar:30", "sweep"),
+            ("J3", "--departure grazing:1", "sweep"),
+            ("PPC", "--departure oren-nayar:30", "sweep"),
+            ("PPC", "--departure grazing:1", "sweep"),
         ],
         2.0,
     );
@@ -490,12 +484,57 @@ fn a_haze_as_broad_as_the_body_leaves_sigma_inside_its_interval_on_rough_papers(
     // −7 %/+6 %).
     let (covered, seen) = sessions_cover_sigma(
         &[
-            ("J2", "haze:0.03:89.5", "sweep"),
-            ("J2", "haze:0.03:89.5", "adaptive"),
-            ("J4", "haze:0.03:90", "sweep"),
-            ("J4", "haze:0.03:90", "adaptive"),
+            ("J2", "--departure haze:0.03:89.5", "sweep"),
+            ("J2", "--departure haze:0.03:89.5", "adaptive"),
+            ("J4", "--departure haze:0.03:90", "sweep"),
+            ("J4", "--departure haze:0.03:90", "adaptive"),
         ],
         1.15,
+    );
+    assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
+}
+
+#[test]
+fn a_mild_haze_or_one_fitted_to_nothing_leaves_sigma_inside_its_interval() {
+    // A mild haze (1 % at 5σ) on J2, swept: every member's own χ² failed at 5 % (p 0.008,
+    // not enough for `lack-of-fit`), so the haze's profile, as good as the best member,
+    // was left out and σ 18.03 [17.98, 18.16] missed 17.9 unflagged. A strong haze on
+    // PPC, adaptive: the profile's fraction fitted to 0 (a bound), so it counted not at
+    // all, and σ 22.09 [21.92, 22.35] missed 21.7 (held-out seeds 2–3, docs/ACCURACY.md).
+    // Now the members as good as the best are counted, and one at a bound by the side its
+    // bounded term reaches: at least 3 of the 4 sessions of this run's seed covered,
+    // within a factor 1.1 (seeds 11–16, J2 swept and PPC adaptive: 12 of 12, the widest −7.6 %/+5.0 %).
+    let (covered, seen) = sessions_cover_sigma(
+        &[
+            ("J2", "--departure haze:0.01:89.5", "sweep"),
+            ("J2", "--departure haze:0.01:89.5", "adaptive"),
+            ("PPC", "--departure haze:0.03:90", "sweep"),
+            ("PPC", "--departure haze:0.03:90", "adaptive"),
+        ],
+        1.1,
+    );
+    assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
+}
+
+#[test]
+fn a_lobe_lighter_tailed_than_the_gaussian_leaves_sigma_inside_its_interval_on_mc() {
+    // A Blinn–Phong lobe on MC (σ 43.5°): its tail is lighter than the Gaussian of the same
+    // half width, the lobe-shape member goes to the lightest tail the family holds
+    // (κ = −¼, σ 42.4) and was not counted (a term at a bound); the Gaussian gave 46.2
+    // [43.7, 47.6] swept and 47.1 [44.0, 49.6] adaptive, unflagged at 1.00 (held-out seeds
+    // 2–3). Now the bounded member counts by the side it reaches as the tail grows
+    // (σ up from 42.4): at least 3 of the 4 sessions of this run's seed covered. MC's σ is
+    // the least determined of the eight papers (lobe and body trade at σ 43.5°: ± 19–31 %
+    // on exact TSL), so the intervals may reach σ's bound: within a factor 2.2. J4 with the
+    // same lobe, the other rough papers' case, must be covered as before.
+    let (covered, seen) = sessions_cover_sigma(
+        &[
+            ("MC", "--lobe blinn-phong", "sweep"),
+            ("MC", "--lobe blinn-phong", "adaptive"),
+            ("J4", "--lobe blinn-phong", "sweep"),
+            ("J4", "--lobe blinn-phong", "adaptive"),
+        ],
+        2.2,
     );
     assert!(covered >= 3, "σ covered in {covered} of 4: {seen:#?}");
 }

@@ -52,6 +52,13 @@ impl MemberFit {
         let k = self.active.iter().position(|&a| a == p)?;
         self.covariance.as_ref().map(|c| c.at(k, k).max(0.0).sqrt())
     }
+
+    /// Covariance of active parameters `p` and `q` at unit noise variance.
+    pub(crate) fn covariance_of(&self, p: Param, q: Param) -> Option<f64> {
+        let j = self.active.iter().position(|&a| a == p)?;
+        let k = self.active.iter().position(|&a| a == q)?;
+        self.covariance.as_ref().map(|c| c.at(j, k))
+    }
 }
 
 impl Problem {
