@@ -503,7 +503,7 @@ fn a_mild_haze_or_one_fitted_to_nothing_leaves_sigma_inside_its_interval() {
     // all, and σ 22.09 [21.92, 22.35] missed 21.7 (held-out seeds 2–3, docs/ACCURACY.md).
     // Now the members as good as the best are counted, and one at a bound by the side its
     // bounded term reaches: at least 3 of the 4 sessions of this run's seed covered,
-    // within a factor 1.1 (seeds 11–16, J2 swept and PPC adaptive: 12 of 12, the widest −7.6 %/+5.0 %).
+    // within a factor 1.1 (seeds 11–16: 24 of 24, the widest −7.6 %/+5.7 %).
     let (covered, seen) = sessions_cover_sigma(
         &[
             ("J2", "--departure haze:0.01:89.5", "sweep"),
@@ -526,7 +526,8 @@ fn a_lobe_lighter_tailed_than_the_gaussian_leaves_sigma_inside_its_interval_on_m
     // (σ up from 42.4): at least 3 of the 4 sessions of this run's seed covered. MC's σ is
     // the least determined of the eight papers (lobe and body trade at σ 43.5°: ± 19–31 %
     // on exact TSL), so the intervals may reach σ's bound: within a factor 2.2. J4 with the
-    // same lobe, the other rough papers' case, must be covered as before.
+    // same lobe, the other rough papers' case, must be covered as before (seeds 11–16: MC
+    // 12 of 12, J4 12 of 12).
     let (covered, seen) = sessions_cover_sigma(
         &[
             ("MC", "--lobe blinn-phong", "sweep"),
