@@ -771,3 +771,92 @@ fn eta_and_body(result: &mut FitResult, chosen: &Member, plausible: &[&Member]) 
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::fit::extension::family::{KAPPA_MIN, N_FAMILY};
+    use crate::analysis::fit::extension::solver::MemberFit;
+    use crate::analysis::linalg::Square;
+
+    /// A member with a heavy-tail term, σ 42°, κ as given, the covariance of (ln σ, ρs, ρd,
+    /// κ) diagonal but for ln σ and κ's `cov`.
+    fn tail_member(kappa: f64, cov: f64) -> Member {
+        let mut values = [0.0; N_FAMILY];
+        values[Param::LnSigma as usize] = 42.0_f64.ln();
+        values[Param::RhoS as usize] = 0.12;
+        values[Param::RhoD as usize] = 0.64;
+        values[Param::Eta as usize] = 3.0;
+        values[Param::Kappa as usize] = kappa;
+        let mut covariance = Square::zeros(4);
+        for k in 0..4 {
+            *covariance.at_mut(k, k) = 0.01;
+        }
+        *covariance.at_mut(0, 3) = cov;
+        *covariance.at_mut(3, 0) = cov;
+        let fit = MemberFit {
+            values,
+            active: vec![Param::LnSigma, Param::RhoS, Param::RhoD, Param::Kappa],
+            cost: 100.0,
+            covariance: Some(covariance),
+            residuals: Vec::new(),
+        };
+        Member::new(vec![Term::LobeShape], fit)
+    }
+
+    fn judging() -> Judging {
+        Judging {
+            n: 200,
+            weighted: true,
+            noise_scale_log_variance: 0.0,
+            theta_i_range: (20.0, 60.0),
+        }
+    }
+
+    #[test]
+    fn a_member_at_a_bound_reaches_only_the_side_its_term_moves_sigma_to() {
+        // κ at its lowest: it can only rise; with ln σ and κ correlated positively σ can
+        // only rise with it, so its interval reaches up from the estimate, not down.
+        let up = tail_member(KAPPA_MIN, 0.005);
+        assert_eq!(bounded_params(&up), Some(vec![(Param::Kappa, 1.0)]));
+        let (lo, hi) = inward_interval(&up, SIGMA, &judging(), 1.0);
+        let (two_lo, two_hi) = member_interval(&up, SIGMA, 200, true, 1.0);
+        assert!(
+            (lo - 42.0).abs() < 1e-9 && (hi - two_hi).abs() < 1e-9,
+            "{lo} {hi}"
+        );
+        assert!(two_lo < 42.0);
+        // Correlated negatively, it reaches down only.
+        let down = tail_member(KAPPA_MIN, -0.005);
+        let (lo, hi) = inward_interval(&down, SIGMA, &judging(), 1.0);
+        assert!(
+            (lo - two_lo).abs() < 1e-9 && (hi - 42.0).abs() < 1e-9,
+            "{lo} {hi}"
+        );
+        // At the heaviest tail (its upper bound) the side turns over.
+        let (_, kappa_max) = Param::Kappa.bounds();
+        let top = tail_member(kappa_max, 0.005);
+        assert_eq!(bounded_params(&top), Some(vec![(Param::Kappa, -1.0)]));
+        let (lo, hi) = inward_interval(&top, SIGMA, &judging(), 1.0);
+        assert!(lo < 42.0 && (hi - 42.0).abs() < 1e-9, "{lo} {hi}");
+        // Uncorrelated: its estimate alone.
+        let (lo, hi) = inward_interval(&tail_member(KAPPA_MIN, 0.0), SIGMA, &judging(), 1.0);
+        assert!((lo - 42.0).abs() < 1e-9 && (hi - 42.0).abs() < 1e-9);
+        // Inside its range it is regular, not bounded.
+        assert_eq!(bounded_params(&tail_member(0.1, 0.005)), None);
+    }
+
+    #[test]
+    fn a_haze_at_its_narrowest_width_is_not_counted_by_a_side() {
+        let mut m = tail_member(0.1, 0.0);
+        m.terms = vec![Term::Haze];
+        let (ratio_min, _) = Param::HazeLnRatio.bounds();
+        m.fit.values[Param::HazeLnRatio as usize] = ratio_min;
+        m.fit.values[Param::HazeFraction as usize] = 0.02;
+        assert_eq!(bounded_params(&m), None);
+        // Its fraction at 0 with a free width is counted by its side.
+        m.fit.values[Param::HazeLnRatio as usize] = 5.0_f64.ln();
+        m.fit.values[Param::HazeFraction as usize] = 0.0;
+        assert_eq!(bounded_params(&m), Some(vec![(Param::HazeFraction, 1.0)]));
+    }
+}
