@@ -351,11 +351,11 @@ pub(super) fn widen_for_model_form(
     let diagonal =
         |r: &FitResult| -> [f64; N_PARAMS] { std::array::from_fn(|i| r.covariance[i][i]) };
     let before = diagonal(result);
-    cover_members(result, &by_akaike, Some(chosen), judging);
+    cover_members(result, &by_akaike, Some(chosen), judging, two_sided);
     push_growth(result, &before, MODEL_FORM);
     let before = diagonal(result);
-    cover_members(result, &unrejected, None, judging);
-    cover_inward_sides(result, &at_bound, judging);
+    cover_members(result, &unrejected, None, judging, two_sided);
+    cover_members(result, &at_bound, None, judging, inward_interval);
     shape_sensitivity(result, &others, chosen, n, weighted);
     push_growth(result, &before, SHAPES_OUTSIDE);
     let plausible: Vec<&Member> = by_akaike
@@ -410,13 +410,19 @@ fn profiled(m: &Member, profile: &[Member]) -> bool {
         && (m.terms.contains(&Term::LobeShape) || profile.iter().any(same_terms))
 }
 
-/// Widen σ, ρs, ρd, η's intervals to cover each of `members`' intervals; with `chosen`,
-/// σ's also to σ interpolated linearly over θi for every member with a slope.
+/// What of a member's interval of σ, ρs, ρd or η (by the result's index) is covered:
+/// [`two_sided`] or [`inward_interval`].
+type Reach = fn(&Member, usize, &Judging, f64) -> (f64, f64);
+
+/// Widen σ, ρs, ρd, η's intervals to cover what `reach` takes of each of `members`'
+/// intervals; with `chosen`, σ's also to σ interpolated linearly over θi for every member
+/// with a slope.
 fn cover_members(
     result: &mut FitResult,
     members: &[&Member],
     chosen: Option<&Member>,
     judging: &Judging,
+    reach: Reach,
 ) {
     let Judging {
         n,
@@ -431,7 +437,7 @@ fn cover_members(
         };
         let (lo0, hi0) = (lo, hi);
         for m in members {
-            let (a, b) = member_interval(m, i, n, weighted, widening);
+            let (a, b) = reach(m, i, judging, widening);
             lo = lo.min(a);
             hi = hi.max(b);
         }
@@ -498,12 +504,24 @@ const MEMBER_IDENTIFIED_RELATIVE_SD: f64 = 0.5;
 /// only by the side of it its bounded terms reach moving into their range
 /// ([`inward_interval`]; not at all with the haze's width at a bound).
 fn regular(m: &Member) -> bool {
-    m.terms.iter().flat_map(|t| t.params()).all(|p| {
-        let (lo, hi) = p.bounds();
-        let v = m.fit.values[*p as usize];
-        let tolerance = 1e-6 * (1.0 + v.abs());
-        v > lo + tolerance && v < hi - tolerance
-    })
+    m.terms
+        .iter()
+        .flat_map(|t| t.params())
+        .all(|&p| inward_from_bound(p, m.fit.values[p as usize]).is_none())
+}
+
+/// Where `v` sits at a bound of `p`'s range (within 1e-6 relative), the direction into the
+/// range: +1 from the lower bound, −1 from the upper.
+fn inward_from_bound(p: Param, v: f64) -> Option<f64> {
+    let (lo, hi) = p.bounds();
+    let tolerance = 1e-6 * (1.0 + v.abs());
+    if v <= lo + tolerance {
+        Some(1.0)
+    } else if v >= hi - tolerance {
+        Some(-1.0)
+    } else {
+        None
+    }
 }
 
 /// The parameters of a member's terms that sit at a bound of their range, each with the
@@ -511,37 +529,19 @@ fn regular(m: &Member) -> bool {
 /// member is regular or where the haze's width is at a bound (the narrowest, 1.5σ, is the
 /// main lobe over again, [`regular`]).
 fn bounded_params(m: &Member) -> Option<Vec<(Param, f64)>> {
-    let mut bounded = Vec::new();
-    for &p in m.terms.iter().flat_map(|t| t.params()) {
-        let (lo, hi) = p.bounds();
-        let v = m.fit.values[p as usize];
-        let tolerance = 1e-6 * (1.0 + v.abs());
-        if v <= lo + tolerance {
-            bounded.push((p, 1.0));
-        } else if v >= hi - tolerance {
-            bounded.push((p, -1.0));
-        }
-    }
+    let bounded: Vec<(Param, f64)> = m
+        .terms
+        .iter()
+        .flat_map(|t| t.params())
+        .filter_map(|&p| inward_from_bound(p, m.fit.values[p as usize]).map(|d| (p, d)))
+        .collect();
     let width_bound = bounded.iter().any(|(p, _)| *p == Param::HazeLnRatio);
     (!bounded.is_empty() && !width_bound).then_some(bounded)
 }
 
-/// Widen σ, ρs, ρd, η's intervals to cover the side of each member's interval its bounded
-/// terms reach by moving into their range ([`inward_interval`]).
-fn cover_inward_sides(result: &mut FitResult, members: &[&Member], judging: &Judging) {
-    let widening = result.variance_scale;
-    for i in [SIGMA, RHO_S, RHO_D, ETA] {
-        let Some((lo0, hi0)) = result.ci95[i] else {
-            continue;
-        };
-        let (lo, hi) = members
-            .iter()
-            .map(|m| inward_interval(m, i, judging, widening))
-            .fold((lo0, hi0), |(lo, hi), (a, b)| (lo.min(a), hi.max(b)));
-        if lo < lo0 || hi > hi0 {
-            set_interval(result, i, (lo, hi));
-        }
-    }
+/// A member's whole interval ([`member_interval`]), as [`Reach`] takes it.
+fn two_sided(m: &Member, index: usize, judging: &Judging, widening: f64) -> (f64, f64) {
+    member_interval(m, index, judging.n, judging.weighted, widening)
 }
 
 /// A member with a term at a bound of its range, which the data do not reject: its
@@ -559,12 +559,7 @@ fn inward_interval(m: &Member, index: usize, judging: &Judging, widening: f64) -
     if !value.is_finite() {
         return (f64::INFINITY, f64::NEG_INFINITY);
     }
-    let target = match index {
-        SIGMA => Param::LnSigma,
-        RHO_S => Param::RhoS,
-        RHO_D => Param::RhoD,
-        _ => Param::Eta,
-    };
+    let target = family_param(index);
     let (lo, hi) = member_interval(m, index, judging.n, judging.weighted, widening);
     let mut reach = (value, value);
     for (p, inward) in bounded_params(m).unwrap_or_default() {
@@ -575,6 +570,16 @@ fn inward_interval(m: &Member, index: usize, judging: &Judging, widening: f64) -
         }
     }
     reach
+}
+
+/// The family's parameter of σ, ρs, ρd or η (by the result's index; σ is fitted as ln σ).
+fn family_param(index: usize) -> Param {
+    match index {
+        SIGMA => Param::LnSigma,
+        RHO_S => Param::RhoS,
+        RHO_D => Param::RhoD,
+        _ => Param::Eta,
+    }
 }
 
 /// Whether the member's σ, ρs and ρd are finite and identified
@@ -695,12 +700,7 @@ fn member_sd(
     widening: f64,
 ) -> Option<(f64, f64)> {
     let value = main_lobe(&m.fit.values)[index];
-    let param = match index {
-        SIGMA => Param::LnSigma,
-        RHO_S => Param::RhoS,
-        RHO_D => Param::RhoD,
-        _ => Param::Eta,
-    };
+    let param = family_param(index);
     let sd = m
         .fit
         .std_of(param)
