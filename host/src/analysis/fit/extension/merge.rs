@@ -2,7 +2,7 @@
 //! intervals; then the intervals widened for the members the data cannot exclude.
 use super::family::Param;
 use super::solver::Problem;
-use super::{Base, Member, Term, main_lobe, result_index};
+use super::{Base, Member, Term, average, main_lobe, result_index};
 use crate::analysis::fit::covariance::{Z_975, interval_95};
 use crate::analysis::fit::validation::geometry_order;
 use crate::analysis::fit::{
@@ -11,6 +11,26 @@ use crate::analysis::fit::{
 use crate::analysis::flags::Flag;
 use crate::analysis::gof;
 use crate::analysis::model::{ETA, RHO_D, RHO_S, SIGMA};
+
+/// How the intervals take in the members the data cannot reject.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum ModelForm {
+    /// Each member's interval covered: the union (the default).
+    Union,
+    /// The members' mixture under their Akaike weights ([`average`]): measured against the
+    /// union on the shapes campaign and not adopted (docs/ACCURACY.md, "Model averaging
+    /// in place of the union"); `GONIO_MODEL_FORM=average` selects it, for that study.
+    Average,
+}
+
+impl ModelForm {
+    fn from_env() -> ModelForm {
+        match std::env::var_os("GONIO_MODEL_FORM") {
+            Some(v) if v == "average" => ModelForm::Average,
+            _ => ModelForm::Union,
+        }
+    }
+}
 
 /// Name of the budget term that widens the intervals for model form.
 pub const MODEL_FORM: &str = "model form";
@@ -351,11 +371,22 @@ pub(super) fn widen_for_model_form(
     let diagonal =
         |r: &FitResult| -> [f64; N_PARAMS] { std::array::from_fn(|i| r.covariance[i][i]) };
     let before = diagonal(result);
-    cover_members(result, &by_akaike, Some(chosen), judging, two_sided);
-    push_growth(result, &before, MODEL_FORM);
-    let before = diagonal(result);
-    cover_members(result, &unrejected, None, judging, two_sided);
-    cover_members(result, &at_bound, None, judging, inward_interval);
+    let before = match ModelForm::from_env() {
+        ModelForm::Union => {
+            cover_members(result, &by_akaike, Some(chosen), judging, two_sided);
+            push_growth(result, &before, MODEL_FORM);
+            let before = diagonal(result);
+            cover_members(result, &unrejected, None, judging, two_sided);
+            cover_members(result, &at_bound, None, judging, inward_interval);
+            before
+        }
+        ModelForm::Average => {
+            let weighed = weigh_members(members, profile, chosen, s2, &identified);
+            average_members(result, &weighed, chosen, judging);
+            push_growth(result, &before, MODEL_FORM);
+            diagonal(result)
+        }
+    };
     shape_sensitivity(result, &others, chosen, n, weighted);
     push_growth(result, &before, SHAPES_OUTSIDE);
     let plausible: Vec<&Member> = by_akaike
@@ -365,6 +396,113 @@ pub(super) fn widen_for_model_form(
         .collect();
     eta_and_body(result, chosen, &plausible);
     labels(&plausible)
+}
+
+/// The members averaged, each with its Akaike weight (relative to the best): every member
+/// fitted but those with a haze of free width the profile stands in for ([`profiled`]),
+/// and the haze's width profile, the width it holds counted as a parameter (the profile
+/// chose it among a few) and its weight shared among the widths (each as likely a priori);
+/// of them, the chosen member and those that identify the main lobe, regular or with a
+/// term at a bound that is not the haze's width ([`bounded_params`]).
+fn weigh_members<'a>(
+    members: &'a [Member],
+    profile: &'a [Member],
+    chosen: &Member,
+    s2: f64,
+    identified: &dyn Fn(&&Member) -> bool,
+) -> Vec<(&'a Member, f64)> {
+    let candidates: Vec<&Member> = members
+        .iter()
+        .filter(|m| !profiled(m, profile))
+        .chain(profile)
+        .collect();
+    let information = |m: &Member| {
+        let held = usize::from(m.haze_width_ratio.is_some());
+        m.fit.cost / s2 + 2.0 * (m.fit.active.len() + held) as f64
+    };
+    let infos: Vec<f64> = candidates.iter().map(|m| information(m)).collect();
+    let weights = average::akaike_weights(&infos);
+    candidates
+        .into_iter()
+        .zip(weights)
+        .filter(|(m, _)| {
+            is_chosen(m, chosen) || (identified(m) && (regular(m) || bounded_params(m).is_some()))
+        })
+        .map(|(m, w)| {
+            let widths = match m.haze_width_ratio {
+                Some(_) => profile.iter().filter(|p| p.terms == m.terms).count(),
+                None => 1,
+            };
+            (m, w / widths.max(1) as f64)
+        })
+        .collect()
+}
+
+/// Whether `m` is the chosen member (a copy of it among those fitted; the profile's are not).
+fn is_chosen(m: &Member, chosen: &Member) -> bool {
+    m.haze_width_ratio.is_none() && m.label() == chosen.label()
+}
+
+/// σ, ρs, ρd, η's intervals become the model average's ([`average::interval`]) over
+/// `weighed`: the chosen member by the result's interval, a regular member by its whole
+/// interval, one with a term at a bound by its inward side ([`inward_interval`]); a member
+/// whose σ varies with θi half by σ at the reference θi as it has it and half by σ
+/// interpolated linearly between the θi measured ([`linear_over_geometric`]). The interval
+/// always holds the estimate reported.
+fn average_members(
+    result: &mut FitResult,
+    weighed: &[(&Member, f64)],
+    chosen: &Member,
+    judging: &Judging,
+) {
+    let widening = result.variance_scale;
+    let estimates = result.params.to_array();
+    for i in [SIGMA, RHO_S, RHO_D, ETA] {
+        let Some(own) = result.ci95[i] else {
+            continue;
+        };
+        let mut shares = Vec::with_capacity(weighed.len() + 2);
+        for &(m, weight) in weighed {
+            let (estimate, interval) = if is_chosen(m, chosen) {
+                (estimates[i], own)
+            } else {
+                let value = main_lobe(&m.fit.values)[i];
+                let reach: Reach = if regular(m) {
+                    two_sided
+                } else {
+                    inward_interval
+                };
+                (value, reach(m, i, judging, widening))
+            };
+            let ratio = (i == SIGMA)
+                .then(|| linear_over_geometric(m, judging.theta_i_range))
+                .flatten();
+            let weight = if ratio.is_some() {
+                weight / 2.0
+            } else {
+                weight
+            };
+            shares.push(average::Share {
+                weight,
+                estimate,
+                interval,
+            });
+            if let Some(r) = ratio {
+                shares.push(average::Share {
+                    weight,
+                    estimate: estimate * r,
+                    interval: (interval.0 * r, interval.1 * r),
+                });
+            }
+        }
+        let Some((lo, hi)) = average::interval(&shares) else {
+            continue;
+        };
+        let (lo, hi) = (lo.min(estimates[i]), hi.max(estimates[i]));
+        if (lo, hi) != own {
+            set_interval(result, i, (lo, hi));
+        }
+    }
 }
 
 /// The members' labels, those with the haze's width held once per set of terms with the
@@ -844,6 +982,45 @@ mod tests {
         assert!((lo - 42.0).abs() < 1e-9 && (hi - 42.0).abs() < 1e-9);
         // Inside its range it is regular, not bounded.
         assert_eq!(bounded_params(&tail_member(0.1, 0.005)), None);
+    }
+
+    #[test]
+    fn members_are_weighed_by_akaike_and_the_haze_widths_share_one_weight() {
+        // The paper's model (three parameters) and a tail that fits no better: e^{-1}.
+        let mut null = tail_member(0.1, 0.0);
+        null.terms.clear();
+        null.fit.active.pop();
+        let tail = tail_member(0.1, 0.0);
+        // The haze at two held widths, as good as the paper's model: one more parameter
+        // and the width held, e^{-2}, shared between the two.
+        let haze = |ratio: f64| {
+            let mut m = tail_member(0.1, 0.0);
+            m.terms = vec![Term::Haze];
+            m.fit.values[Param::HazeFraction as usize] = 0.01;
+            m.fit.values[Param::HazeLnRatio as usize] = ratio.ln();
+            m.fit.active = vec![
+                Param::LnSigma,
+                Param::RhoS,
+                Param::RhoD,
+                Param::HazeFraction,
+            ];
+            m.haze_width_ratio = Some(ratio);
+            m
+        };
+        let members = [null.clone(), tail];
+        let profile = [haze(3.0), haze(5.0)];
+        let weighed = weigh_members(&members, &profile, &null, 1.0, &|_| true);
+        let weights: Vec<f64> = weighed.iter().map(|(_, w)| *w).collect();
+        let e = std::f64::consts::E;
+        let expected = [1.0, 1.0 / e, 0.5 / (e * e), 0.5 / (e * e)];
+        assert_eq!(weights.len(), 4);
+        for (w, x) in weights.iter().zip(expected) {
+            assert!((w - x).abs() < 1e-12, "{weights:?}");
+        }
+        // A member that does not identify the main lobe is left out, the chosen one not.
+        let weighed = weigh_members(&members, &[], &null, 1.0, &|m| m.terms.is_empty());
+        assert_eq!(weighed.len(), 1);
+        assert!(is_chosen(weighed[0].0, &null));
     }
 
     #[test]

@@ -29,13 +29,17 @@
 //! the shapes campaign, [`SHAPE_SENSITIVITY`]); the covariance's diagonal grows
 //! with them (the budget term `model form`). η moved by a non-Lambertian body beyond twice
 //! its standard error is said ([`Note::EtaAbsorbsBody`]): it is then a fudge of the body's
-//! shape, not the paper's refractive index, and its interval covers both.
+//! shape, not the paper's refractive index, and its interval covers both. The union over
+//! members over-covers exact TSL; averaging them by their Akaike weights instead
+//! ([`average`]) was measured and not adopted: it brought back confident misses on
+//! departing sheets (docs/ACCURACY.md, "Model averaging in place of the union").
 //!
 //! **η at its bound.** η held at its upper bound 3 may be the data asking for a Fresnel
 //! factor flatter than any of the model's; ρs, the lobe's amplitude over that factor, is
 //! then off by orders of magnitude and the paper's tree reads a gloss as rough. The bound
 //! lifted is tested as a term ([`fresnel_flatter`]); where the data call for it the fit is
 //! flagged `lack-of-fit` and says so ([`Note::FresnelFlatterThanModel`]).
+mod average;
 mod family;
 mod solver;
 
