@@ -138,24 +138,25 @@ mod tests {
         }
     }
 
+    /// A share of weight 1 with the interval `(lo, hi)` about `estimate`.
+    fn split(estimate: f64, lo: f64, hi: f64) -> Share {
+        Share {
+            weight: 1.0,
+            estimate,
+            interval: (lo, hi),
+        }
+    }
+
+    fn assert_interval(shares: &[Share], (lo, hi): (f64, f64)) {
+        let (a, b) = interval(shares).expect("an interval");
+        assert!((a - lo).abs() < 1e-9 && (b - hi).abs() < 1e-9, "{a} {b}");
+    }
+
     #[test]
     fn one_share_gives_back_its_own_interval() {
-        let (lo, hi) = interval(&[share(0.3, 20.0, 1.5)]).unwrap();
-        assert!(
-            (lo - 18.5).abs() < 1e-9 && (hi - 21.5).abs() < 1e-9,
-            "{lo} {hi}"
-        );
+        assert_interval(&[share(0.3, 20.0, 1.5)], (18.5, 21.5));
         // Split: each side its own.
-        let split = Share {
-            weight: 1.0,
-            estimate: 20.0,
-            interval: (19.0, 23.0),
-        };
-        let (lo, hi) = interval(&[split]).unwrap();
-        assert!(
-            (lo - 19.0).abs() < 1e-9 && (hi - 23.0).abs() < 1e-9,
-            "{lo} {hi}"
-        );
+        assert_interval(&[split(20.0, 19.0, 23.0)], (19.0, 23.0));
     }
 
     #[test]
@@ -173,29 +174,15 @@ mod tests {
     fn a_share_at_a_bound_reaches_only_its_inward_side() {
         // Its upper side at zero width: half its mass on the estimate; the 97.5 % quantile
         // of it alone is the estimate, the 2.5 % one its lower end.
-        let inward = Share {
-            weight: 1.0,
-            estimate: 22.0,
-            interval: (20.0, 22.0),
-        };
-        let (lo, hi) = interval(&[inward]).unwrap();
-        assert!(
-            (lo - 20.0).abs() < 1e-9 && (hi - 22.0).abs() < 1e-9,
-            "{lo} {hi}"
-        );
+        assert_interval(&[split(22.0, 20.0, 22.0)], (20.0, 22.0));
     }
 
     #[test]
     fn shares_of_no_weight_or_not_finite_are_left_out() {
         assert_eq!(interval(&[]), None);
         assert_eq!(interval(&[share(0.0, 20.0, 1.0)]), None);
-        let nan = Share {
-            weight: 1.0,
-            estimate: f64::NAN,
-            interval: (1.0, 2.0),
-        };
-        let (lo, hi) = interval(&[nan, share(1.0, 20.0, 1.0)]).unwrap();
-        assert!((lo - 19.0).abs() < 1e-9 && (hi - 21.0).abs() < 1e-9);
+        let nan = split(f64::NAN, 1.0, 2.0);
+        assert_interval(&[nan, share(1.0, 20.0, 1.0)], (19.0, 21.0));
     }
 
     #[test]

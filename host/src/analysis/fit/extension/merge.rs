@@ -316,13 +316,8 @@ pub(super) fn widen_for_model_form(
         noise_scale_log_variance,
         ..
     } = *judging;
-    let dof = n.saturating_sub(chosen.fit.active.len()).max(1);
-    let s2 = if weighted {
-        (chosen.fit.cost / dof as f64).max(1.0)
-    } else {
-        (chosen.fit.cost / dof as f64).max(f64::MIN_POSITIVE)
-    };
-    let akaike = |m: &Member| m.fit.cost / s2 + 2.0 * m.fit.active.len() as f64;
+    let s2 = chosen.fit.akaike_scale(n, weighted);
+    let akaike = |m: &Member| m.fit.akaike(s2);
     let best = members.iter().map(akaike).fold(f64::INFINITY, f64::min);
     let best_cost = members
         .iter()
@@ -416,11 +411,17 @@ fn weigh_members<'a>(
         .filter(|m| !profiled(m, profile))
         .chain(profile)
         .collect();
-    let information = |m: &Member| {
-        let held = usize::from(m.haze_width_ratio.is_some());
-        m.fit.cost / s2 + 2.0 * (m.fit.active.len() + held) as f64
+    let held = |m: &Member| {
+        if m.haze_width_ratio.is_some() {
+            2.0
+        } else {
+            0.0
+        }
     };
-    let infos: Vec<f64> = candidates.iter().map(|m| information(m)).collect();
+    let infos: Vec<f64> = candidates
+        .iter()
+        .map(|m| m.fit.akaike(s2) + held(m))
+        .collect();
     let weights = average::akaike_weights(&infos);
     candidates
         .into_iter()

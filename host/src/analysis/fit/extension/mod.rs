@@ -649,10 +649,8 @@ fn fresnel_test(
     }
     let null_lifted = lifted(null);
     // The chosen member's χ²/ν is the scale both Akaike informations are read on.
-    let dof = n.saturating_sub(chosen.fit.active.len()).max(1);
-    let s2 = (chosen.fit.cost / dof as f64).max(if weighted { 1.0 } else { f64::MIN_POSITIVE });
-    let akaike = |f: &MemberFit| f.cost / s2 + 2.0 * f.active.len() as f64;
-    if akaike(&null_lifted) > akaike(&chosen.fit) + AKAIKE_PLAUSIBLE {
+    let s2 = chosen.fit.akaike_scale(n, weighted);
+    if null_lifted.akaike(s2) > chosen.fit.akaike(s2) + AKAIKE_PLAUSIBLE {
         return None;
     }
     note(&null.fit, &null_lifted)

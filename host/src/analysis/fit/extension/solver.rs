@@ -47,6 +47,20 @@ pub(crate) struct MemberFit {
 }
 
 impl MemberFit {
+    /// The noise scale s² Akaike informations are read on when this is the chosen
+    /// member's fit of `n` readings: its χ²/ν, not below 1 with uncertainties (noise the
+    /// session understated is not taken for fit), the residual variance without.
+    pub(super) fn akaike_scale(&self, n: usize, weighted: bool) -> f64 {
+        let dof = n.saturating_sub(self.active.len()).max(1);
+        let floor = if weighted { 1.0 } else { f64::MIN_POSITIVE };
+        (self.cost / dof as f64).max(floor)
+    }
+
+    /// Akaike's information c/s² + 2p on the scale `s2` ([`MemberFit::akaike_scale`]).
+    pub(super) fn akaike(&self, s2: f64) -> f64 {
+        self.cost / s2 + 2.0 * self.active.len() as f64
+    }
+
     /// Standard deviation of active parameter `p` at unit noise variance.
     pub(crate) fn std_of(&self, p: Param) -> Option<f64> {
         let k = self.active.iter().position(|&a| a == p)?;
