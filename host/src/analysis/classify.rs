@@ -215,8 +215,8 @@ pub struct Classification {
     pub class: Option<Class>,
     /// Share of the parameter uncertainty region that falls in `class`, 0…1 (0 without a
     /// class); at most [`LACK_OF_FIT_CONFIDENCE_CAP`] from a fit flagged `lack-of-fit`,
-    /// `outlier` or `few-degrees-of-freedom`; no class at all from a fit with no degrees of
-    /// freedom.
+    /// `outlier` or `few-degrees-of-freedom`, or whose class rests on ρs's lower limit with η
+    /// held at 1; no class at all from a fit with no degrees of freedom.
     pub confidence: f64,
     /// Why the class (or the group) could not be decided.
     pub undecided: Option<&'static str>,
@@ -332,7 +332,15 @@ pub fn classify(fit: &FitResult) -> Classification {
         (group, class, undecided)
     };
     let mut confidence = class.map_or(0.0, |c| confidence(fit, c));
-    if fit.lack_of_fit || fit.flags.iter().any(|f| CAPPING_FLAGS.contains(f)) {
+    // A class that rests on ρs's lower limit with η held at 1 rests on a parameter at its
+    // bound, where the limit is not regular (where η is about two standard errors above 1,
+    // the fits that reach 1 are those whose η came out low, and their limit is above the
+    // truth), and the data put η at the physical extreme: a sheet that departs from TSL or
+    // a gross reading at the peak does that (a G table with its peak reading ×1000: σ 10°,
+    // η 1, "SG" at 1.00). A best guess, as under lack of fit.
+    let rests_on_eta_floor = fit.eta_at_floor() && fit.reported(RHO_S).is_none();
+    if fit.lack_of_fit || rests_on_eta_floor || fit.flags.iter().any(|f| CAPPING_FLAGS.contains(f))
+    {
         confidence = confidence.min(LACK_OF_FIT_CONFIDENCE_CAP);
     }
     Classification {
@@ -469,9 +477,14 @@ pub fn nearest_reference(fit: &FitResult) -> (&'static str, f64) {
             }
             d2 += match (fit.reported(RHO_S), fit.rho_s_lower()) {
                 (Some(rho_s), _) => term(rho_s, rp.rho_s, u(RHO_S), u_rho_s),
-                // Only a lower limit: no penalty above it.
-                (None, Some(lower)) => term(lower.max(rp.rho_s), rp.rho_s, 0.0, u_rho_s),
-                (None, None) => 0.0,
+                // Only a lower limit: no penalty above it. Not one from η held at 1: a
+                // sheet that departs from TSL can put η there (a peak shifted off specular
+                // on SG: ρs ≥ 1800 where the stock's is 57), and its limit, orders above σ
+                // for the glossy test, would as a distance put a paper outside the papers.
+                (None, Some(lower)) if !fit.eta_at_floor() => {
+                    term(lower.max(rp.rho_s), rp.rho_s, 0.0, u_rho_s)
+                }
+                (None, _) => 0.0,
             };
         } else {
             // No lobe at all: as far from each reference as its σ is from 90°, and ρs = 0.

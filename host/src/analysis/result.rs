@@ -143,7 +143,9 @@ pub(crate) fn flags_of(
     classification: &Classification,
 ) -> Vec<Flag> {
     let mut out = fit.flags.clone();
-    if classification.class.is_none() {
+    // ρs known only from below with η held at 1: not identified, whether or not its
+    // lower limit decided the class.
+    if classification.class.is_none() || (fit.eta_at_floor() && fit.has_specular_term()) {
         out.push(Flag::NotIdentified);
     }
     let sigma_failed = fit.has_specular_term()

@@ -184,11 +184,94 @@ pub(super) fn eta_at_bound(state: &mut State) {
     }
     let (lo, hi) = (lower_bounds(), upper_bounds());
     if state.outcome.x[ETA] >= hi[ETA] {
-        state.notes.push(Note::EtaAtBound { eta: ETA_MAX });
+        state.notes.push(Note::EtaAtBound {
+            eta: ETA_MAX,
+            rho_s_lower: None,
+        });
         state.fitted[ETA] = false;
     } else if state.outcome.x[ETA] <= lo[ETA] {
-        state.notes.push(Note::EtaAtBound { eta: ETA_MIN });
+        state.notes.push(Note::EtaAtBound {
+            eta: ETA_MIN,
+            rho_s_lower: None,
+        });
         state.fitted[ETA] = false;
+    }
+}
+
+/// ρs's lower limit where η is held at its lower bound 1. There ρs = A/(η²−1) is unbounded
+/// above, but the readings bound η from above (the Fresnel factor's rise toward grazing is
+/// measured): ρs is at least its value at η's 95 % upper limit, the largest η whose
+/// profile (the others refitted) stays within χ²(1) at 95 % × `noise_variance` of the fit
+/// (the residual variance times the lack-of-fit widening, as the covariance is scaled).
+/// Without it the class tree's glossy test (σ < ρs) cannot be made, and a glossy sheet
+/// whose η sits at 1 (SG's is 1.02) had no class. The limit is written into the note.
+pub(super) fn rho_s_lower_at_eta_floor(
+    state: &mut State,
+    noise_variance: f64,
+    max_iterations: usize,
+) {
+    let at_floor = state
+        .notes
+        .iter()
+        .any(|n| matches!(n, Note::EtaAtBound { eta, .. } if *eta <= ETA_MIN));
+    if !at_floor || !state.fitted[RHO_S] || !noise_variance.is_finite() {
+        return;
+    }
+    let (problem, best) = (&state.problem, &state.outcome);
+    let threshold = best.cost + CHI2_1_95 * noise_variance;
+    let mut held = state.fitted.map(|f| !f);
+    held[ETA] = true;
+    let profile = |eta: f64, start: [f64; 4]| {
+        let mut x = start;
+        x[ETA] = eta;
+        levenberg_marquardt(problem, x, held, max_iterations)
+    };
+    // η − 1 doubled from 0.005 until the profile leaves the threshold, then bisected in
+    // ln(η − 1) to about 1 %; ρs the smallest met inside (it falls as η rises).
+    let eta_max = upper_bounds()[ETA];
+    let mut inside = (engine::ETA_FLOOR - 1.0).ln();
+    let mut start = best.x;
+    let mut rho_s_lower = params_of(&best.x).rho_s;
+    let mut outside = None;
+    let mut trial = 0.005_f64.ln();
+    loop {
+        let eta = (1.0 + trial.exp()).min(eta_max);
+        let run = profile(eta, start);
+        if !run.cost.is_finite() || run.cost > threshold {
+            outside = Some(trial);
+            break;
+        }
+        rho_s_lower = rho_s_lower.min(params_of(&run.x).rho_s);
+        (inside, start) = (trial, run.x);
+        if eta >= eta_max {
+            break;
+        }
+        trial += std::f64::consts::LN_2;
+    }
+    if let Some(mut outside) = outside {
+        while outside - inside > 0.01 {
+            let mid = 0.5 * (inside + outside);
+            let run = profile(1.0 + mid.exp(), start);
+            if !run.cost.is_finite() || run.cost > threshold {
+                outside = mid;
+            } else {
+                rho_s_lower = rho_s_lower.min(params_of(&run.x).rho_s);
+                (inside, start) = (mid, run.x);
+            }
+        }
+    }
+    if !rho_s_lower.is_finite() {
+        return;
+    }
+    for note in state.notes.iter_mut() {
+        if let Note::EtaAtBound {
+            eta,
+            rho_s_lower: lower,
+        } = note
+            && *eta <= ETA_MIN
+        {
+            *lower = Some(rho_s_lower);
+        }
     }
 }
 
@@ -218,7 +301,7 @@ pub(super) fn active_bounds(state: &State) -> (Vec<ActiveBound>, [bool; N_PARAMS
         }
     }
     for note in &state.notes {
-        if let Note::EtaAtBound { eta } = note {
+        if let Note::EtaAtBound { eta, .. } = note {
             let bound = if *eta >= ETA_MAX {
                 Bound::Upper
             } else {

@@ -356,6 +356,11 @@ pub fn fit_with_shared(
 
     // 5. Goodness of fit, the widening it calls for, and the parameters' covariance.
     let goodness = covariance::goodness_of_fit(&mut state, observations, &x, cost, dof, options);
+    identifiability::rho_s_lower_at_eta_floor(
+        &mut state,
+        goodness.s2 * goodness.variance_scale,
+        options.max_iterations,
+    );
     let uncertainty = covariance::parameters(&mut state, &goodness, free, &arm, dof);
     // Gross errors among the readings, too few degrees of freedom (outliers.rs).
     let screen = outliers::screen(

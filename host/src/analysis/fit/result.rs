@@ -55,6 +55,10 @@ pub enum Note {
     EtaAtBound {
         /// The bound's value.
         eta: f64,
+        /// At the lower bound 1, where ρs = A/(η²−1) is unbounded above: ρs at η's 95 %
+        /// upper limit (the profile's), the smallest ρs the data allow.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        rho_s_lower: Option<f64>,
     },
     /// No specular part (ρs = 0 or η = 1, where F ≡ 0): σ and η mean nothing; only ρd is fitted.
     NoSpecularTerm,
@@ -182,6 +186,17 @@ pub enum Note {
     },
 }
 
+/// What η held at a bound means, and ρs's lower limit where it is 1.
+fn eta_at_bound_text(eta: f64, rho_s_lower: Option<f64>) -> String {
+    let held = format!("η at its bound {eta}: held there, not fitted");
+    match rho_s_lower {
+        Some(lower) => format!(
+            "{held}; ρs = A/(η²−1) is unbounded above there, only ≥ {lower:.4} (its value at η's 95 % upper limit)"
+        ),
+        None => held,
+    }
+}
+
 impl std::fmt::Display for Note {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
@@ -209,7 +224,9 @@ impl std::fmt::Display for Note {
                     String::new()
                 }
             ),
-            Note::EtaAtBound { eta } => write!(f, "η at its bound {eta}: held there, not fitted"),
+            Note::EtaAtBound { eta, rho_s_lower } => {
+                f.write_str(&eta_at_bound_text(*eta, *rho_s_lower))
+            }
             Note::NoSpecularTerm => {
                 f.write_str("no specular part: only ρd fitted (σ, η meaningless)")
             }
@@ -458,13 +475,21 @@ impl FitResult {
     }
 
     /// Lower limit of ρs when ρs is not identified but bounded below (σ unresolved through
-    /// a window, or η's interval reaching 1).
+    /// a window, η's interval reaching 1, or η held at 1 with its upper limit profiled).
     pub(crate) fn rho_s_lower(&self) -> Option<f64> {
         self.notes.iter().find_map(|n| match n {
             Note::SigmaUnresolved { rho_s_lower, .. } => *rho_s_lower,
             Note::RhoSUnbounded { rho_s_lower } => Some(*rho_s_lower),
+            Note::EtaAtBound { rho_s_lower, .. } => *rho_s_lower,
             _ => None,
         })
+    }
+
+    /// Whether η is held at its lower bound 1, where only ρs·(η²−1) is determined.
+    pub(crate) fn eta_at_floor(&self) -> bool {
+        self.notes
+            .iter()
+            .any(|n| matches!(n, Note::EtaAtBound { eta, .. } if *eta <= ETA_MIN))
     }
 
     /// Whether there is a specular part at all.
@@ -504,7 +529,7 @@ pub(super) fn not_identified_of(notes: &[Note]) -> Vec<NotIdentified> {
                     out.push(NotIdentified { param: "rho_s", reason: "σ unresolved: through the detector window only ρs·min(1, ~σ/a) is determined" });
                 }
             }
-            Note::EtaAtBound { eta } if *eta <= ETA_MIN && !no_specular => {
+            Note::EtaAtBound { eta, .. } if *eta <= ETA_MIN && !no_specular => {
                 out.push(NotIdentified {
                     param: "rho_s",
                     reason: "η at its lower bound 1: only ρs·(η²−1) is determined",

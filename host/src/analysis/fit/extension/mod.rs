@@ -363,7 +363,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     let eta_at_upper = result
         .notes
         .iter()
-        .any(|n| matches!(n, super::Note::EtaAtBound { eta } if *eta >= super::ETA_MAX));
+        .any(|n| matches!(n, super::Note::EtaAtBound { eta, .. } if *eta >= super::ETA_MAX));
     if base.fitted[ETA] || eta_at_upper {
         core.push(Param::Eta);
     }
