@@ -705,6 +705,18 @@ fn shared_errors_are_validated() {
 /// The scene σ = 10°, ρs = 5, η = 1.001 (F ∝ η² − 1 ≈ 0.002): only ρs·(η²−1) is
 /// determined. ρs is null with its reason, the class is not decided from it (flag
 /// `not-identified`), and the nearest reference does not use it. Today: ρs 4924, SG 100 %.
+/// The analysis of a table of `obs` (the lines a file would give them), as `gonio fit` makes it.
+fn analysed(obs: &[Observation]) -> result::Report {
+    let lines: Vec<usize> = (2..2 + obs.len()).collect();
+    let readings = result::Readings {
+        source: "eta.csv",
+        sample: "eta-1",
+        observations: obs,
+        lines: &lines,
+    };
+    result::analyse(&readings, &FitOptions::default(), None).expect("valid")
+}
+
 #[test]
 fn an_undetermined_rho_s_is_null_and_never_used() {
     let p = Params {
@@ -750,14 +762,7 @@ fn an_undetermined_rho_s_is_null_and_never_used() {
                 host::analysis::classify::nearest_reference(&other),
                 (c.nearest_reference, c.nearest_distance)
             );
-            let lines: Vec<usize> = (2..2 + obs.len()).collect();
-            let readings = result::Readings {
-                source: "eta.csv",
-                sample: "eta-1",
-                observations: &obs,
-                lines: &lines,
-            };
-            let r = result::analyse(&readings, &FitOptions::default(), None).expect("valid");
+            let r = analysed(&obs);
             assert!(r.flags.contains(&Flag::NotIdentified), "{:?}", r.flags);
             let json = result::to_json(&r);
             assert!(
@@ -840,14 +845,7 @@ fn a_rho_s_known_only_from_below_at_eta_one_is_below_the_truth_and_decides_gloss
                 "{label} seed {seed}: confidence {}",
                 c.confidence
             );
-            let lines: Vec<usize> = (2..2 + obs.len()).collect();
-            let readings = result::Readings {
-                source: "eta.csv",
-                sample: "eta-1",
-                observations: &obs,
-                lines: &lines,
-            };
-            let r = result::analyse(&readings, &FitOptions::default(), None).expect("valid");
+            let r = analysed(&obs);
             let json = result::to_json(&r);
             assert!(
                 r.flags.contains(&Flag::NotIdentified)
