@@ -16,7 +16,8 @@
 //!
 //! SEGMENTS ([`StepGen`]): step `k` is issued `profile.step_time_us(k)` after the start;
 //! the gap before it is one segment, or several of at most [`MAX_SEGMENT_TICKS`] (the
-//! 16-bit counter) of which only the first after a step carries a pulse. No segment is
+//! 16-bit counter) of which only the first after a step carries a pulse, the last at least
+//! [`MIN_SEGMENT_TICKS`] (the one before it shortened so), so the step stays on time. No segment is
 //! shorter than [`MIN_SEGMENT_TICKS`]: an interrupt needs that long to preload the next.
 //!
 //! REPLACING A RUNNING PROFILE ([`StepChannel::run_profile`] while moving): the segment
@@ -129,11 +130,11 @@ impl StepGen {
         }
         let gap = self.next_time_us.saturating_sub(self.planned_us);
         if gap > u64::from(MAX_SEGMENT_TICKS) {
-            self.planned_us += u64::from(MAX_SEGMENT_TICKS);
-            return Some(Segment {
-                ticks: MAX_SEGMENT_TICKS,
-                pulse,
-            });
+            // Leave the rest at least a minimum segment: a rest of 12 µs lengthened to 20
+            // put step 1 of a slow move (65,548 µs) 8 µs late.
+            let ticks = MAX_SEGMENT_TICKS.min((gap - u64::from(MIN_SEGMENT_TICKS)) as u32);
+            self.planned_us += u64::from(ticks);
+            return Some(Segment { ticks, pulse });
         }
         let ticks = (gap as u32).max(MIN_SEGMENT_TICKS);
         self.planned_us += u64::from(ticks);

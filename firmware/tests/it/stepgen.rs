@@ -532,6 +532,38 @@ fn segments_add_up_to_the_profile() {
     }
 }
 
+/// A gap just past the 16-bit counter (step 1 of a slow two-step move at 65,536 µs and a
+/// few more) is split so that its rest is a whole minimum segment: every step still comes
+/// at its time. (Found by `pulses_are_the_profiles_steps_at_its_step_times`: a rest of
+/// 12 µs lengthened to 20 put step 1 8 µs late.)
+#[test]
+fn a_gap_just_past_the_counter_keeps_its_step_on_time() {
+    let mut crossings = 0;
+    for i in 0..400 {
+        // Peak speeds whose step 1 falls 0–60 µs either side of 65,536 µs.
+        let speed = 15.2 + 0.001 * f64::from(i);
+        let profile = MoveProfile::fastest(0, 2, 0.0, speed as f32, 6477.589);
+        let first_us = profile.step_time_us(1);
+        let over = first_us.saturating_sub(u64::from(MAX_SEGMENT_TICKS));
+        crossings += usize::from(over > 0 && over < u64::from(MIN_SEGMENT_TICKS));
+        let mut generator = StepGen::new(&profile);
+        let (mut at, mut step) = (0u64, 0u32);
+        while let Some(segment) = generator.next_segment() {
+            assert!((MIN_SEGMENT_TICKS..=MAX_SEGMENT_TICKS).contains(&segment.ticks));
+            if segment.pulse {
+                step += 1;
+                assert_eq!(at, profile.step_time_us(step), "speed {speed}: step {step}");
+            }
+            at += u64::from(segment.ticks);
+        }
+        assert_eq!(step, profile.step_count());
+    }
+    assert!(
+        crossings >= 5,
+        "only {crossings} gaps just past the counter tried"
+    );
+}
+
 #[test]
 fn a_stop_at_once_after_the_start_still_stops() {
     // The device's stop in the same poll as the start: speed 0, so the stop profile has
