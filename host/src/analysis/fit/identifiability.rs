@@ -9,6 +9,7 @@ use super::engine::{
     self, LeastSquaresProblem, LmOutcome, levenberg_marquardt, levenberg_marquardt_until,
     lower_bounds, params_of, upper_bounds,
 };
+use super::result::eta_at_floor_of;
 use super::{
     ActiveBound, Bound, ETA_MAX, ETA_MIN, FitOptions, N_PARAMS, Note, SIGMA_MAX_DEG, SIGMA_MIN_DEG,
     State,
@@ -141,39 +142,103 @@ fn sigma_upper_deg(
     threshold: f64,
     max_iterations: usize,
 ) -> (f64, [f64; 4]) {
-    let profile = |ln_sigma: f64, start: [f64; 4]| {
-        let mut x = start;
+    let profile = |ln_sigma: f64, start: &[f64; 4]| {
+        let mut x = *start;
         x[0] = ln_sigma;
         levenberg_marquardt(problem, x, [true, false, false, false], max_iterations)
     };
-    let mut inside = best.x[0];
-    let mut start = best.x;
+    let ln_sigma = best.x[0];
+    let limit = profile_upper_limit(
+        ProfileWalk {
+            inside: ln_sigma,
+            first_trial: ln_sigma + std::f64::consts::LN_2,
+            max: SIGMA_MAX_DEG.ln(),
+            tolerance: 0.02,
+        },
+        best.x,
+        threshold,
+        profile,
+        |_| {},
+    );
+    let upper = if limit.reached_max {
+        SIGMA_MAX_DEG
+    } else {
+        limit.inside.exp()
+    };
+    (upper, limit.at)
+}
+
+/// How [`profile_upper_limit`] walks a coordinate up: from a value known inside, the first
+/// trial, then steps of ln 2 (doubling where the coordinate is a logarithm) up to `max`,
+/// and bisection between the last inside and the first outside to `tolerance`.
+struct ProfileWalk {
+    inside: f64,
+    first_trial: f64,
+    max: f64,
+    tolerance: f64,
+}
+
+/// Where a profile's walk stopped: the largest coordinate found inside the threshold, the
+/// parameters fitted there, and whether that is the walk's `max` (never left).
+struct ProfileLimit {
+    inside: f64,
+    at: [f64; 4],
+    reached_max: bool,
+}
+
+/// The upper limit of a coordinate whose profile stays within `threshold` of cost: `run`
+/// refits the other parameters at a value of the coordinate from a start; `on_inside`
+/// sees the parameters of every refit found inside. A cost that is not finite counts as
+/// outside. σ's upper limit and η's above its floor are found this way.
+fn profile_upper_limit(
+    walk: ProfileWalk,
+    start: [f64; 4],
+    threshold: f64,
+    run: impl Fn(f64, &[f64; 4]) -> LmOutcome,
+    mut on_inside: impl FnMut(&[f64; 4]),
+) -> ProfileLimit {
+    let ProfileWalk {
+        mut inside,
+        first_trial,
+        max,
+        tolerance,
+    } = walk;
+    let mut at = start;
+    let outside_threshold = |cost: f64| !cost.is_finite() || cost > threshold;
     let mut outside = None;
-    let ln_max = SIGMA_MAX_DEG.ln();
-    while inside < ln_max {
-        let trial = (inside + std::f64::consts::LN_2).min(ln_max);
-        let run = profile(trial, start);
-        if run.cost > threshold {
+    let mut trial = first_trial.min(max);
+    while inside < max {
+        let fitted = run(trial, &at);
+        if outside_threshold(fitted.cost) {
             outside = Some(trial);
             break;
         }
-        inside = trial;
-        start = run.x;
+        on_inside(&fitted.x);
+        (inside, at) = (trial, fitted.x);
+        trial = (trial + std::f64::consts::LN_2).min(max);
     }
     let Some(mut outside) = outside else {
-        return (SIGMA_MAX_DEG, start);
+        return ProfileLimit {
+            inside,
+            at,
+            reached_max: true,
+        };
     };
-    while outside - inside > 0.02 {
+    while outside - inside > tolerance {
         let mid = 0.5 * (inside + outside);
-        let run = profile(mid, start);
-        if run.cost > threshold {
+        let fitted = run(mid, &at);
+        if outside_threshold(fitted.cost) {
             outside = mid;
         } else {
-            inside = mid;
-            start = run.x;
+            on_inside(&fitted.x);
+            (inside, at) = (mid, fitted.x);
         }
     }
-    (inside.exp(), start)
+    ProfileLimit {
+        inside,
+        at,
+        reached_max: false,
+    }
 }
 
 /// η at a bound after the arm offset's refits: held there and not fitted. At η → 1,
@@ -210,56 +275,33 @@ pub(super) fn rho_s_lower_at_eta_floor(
     noise_variance: f64,
     max_iterations: usize,
 ) {
-    let at_floor = state
-        .notes
-        .iter()
-        .any(|n| matches!(n, Note::EtaAtBound { eta, .. } if *eta <= ETA_MIN));
-    if !at_floor || !state.fitted[RHO_S] || !noise_variance.is_finite() {
+    if !eta_at_floor_of(&state.notes) || !state.fitted[RHO_S] || !noise_variance.is_finite() {
         return;
     }
     let (problem, best) = (&state.problem, &state.outcome);
     let threshold = best.cost + CHI2_1_95 * noise_variance;
     let mut held = state.fitted.map(|f| !f);
     held[ETA] = true;
-    let profile = |eta: f64, start: [f64; 4]| {
-        let mut x = start;
-        x[ETA] = eta;
+    let profile = |ln_excess: f64, start: &[f64; 4]| {
+        let mut x = *start;
+        x[ETA] = 1.0 + ln_excess.exp();
         levenberg_marquardt(problem, x, held, max_iterations)
     };
     // η − 1 doubled from 0.005 until the profile leaves the threshold, then bisected in
     // ln(η − 1) to about 1 %; ρs the smallest met inside (it falls as η rises).
-    let eta_max = upper_bounds()[ETA];
-    let mut inside = (engine::ETA_FLOOR - 1.0).ln();
-    let mut start = best.x;
     let mut rho_s_lower = params_of(&best.x).rho_s;
-    let mut outside = None;
-    let mut trial = 0.005_f64.ln();
-    loop {
-        let eta = (1.0 + trial.exp()).min(eta_max);
-        let run = profile(eta, start);
-        if !run.cost.is_finite() || run.cost > threshold {
-            outside = Some(trial);
-            break;
-        }
-        rho_s_lower = rho_s_lower.min(params_of(&run.x).rho_s);
-        (inside, start) = (trial, run.x);
-        if eta >= eta_max {
-            break;
-        }
-        trial += std::f64::consts::LN_2;
-    }
-    if let Some(mut outside) = outside {
-        while outside - inside > 0.01 {
-            let mid = 0.5 * (inside + outside);
-            let run = profile(1.0 + mid.exp(), start);
-            if !run.cost.is_finite() || run.cost > threshold {
-                outside = mid;
-            } else {
-                rho_s_lower = rho_s_lower.min(params_of(&run.x).rho_s);
-                (inside, start) = (mid, run.x);
-            }
-        }
-    }
+    profile_upper_limit(
+        ProfileWalk {
+            inside: (engine::ETA_FLOOR - 1.0).ln(),
+            first_trial: 0.005_f64.ln(),
+            max: (upper_bounds()[ETA] - 1.0).ln(),
+            tolerance: 0.01,
+        },
+        best.x,
+        threshold,
+        profile,
+        |x| rho_s_lower = rho_s_lower.min(params_of(x).rho_s),
+    );
     if !rho_s_lower.is_finite() {
         return;
     }

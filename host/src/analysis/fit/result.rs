@@ -487,9 +487,7 @@ impl FitResult {
 
     /// Whether η is held at its lower bound 1, where only ρs·(η²−1) is determined.
     pub(crate) fn eta_at_floor(&self) -> bool {
-        self.notes
-            .iter()
-            .any(|n| matches!(n, Note::EtaAtBound { eta, .. } if *eta <= ETA_MIN))
+        eta_at_floor_of(&self.notes)
     }
 
     /// Whether there is a specular part at all.
@@ -502,6 +500,13 @@ impl FitResult {
         (self.model.0[index] && self.identified(index))
             .then(|| self.covariance[index][index].max(0.0).sqrt())
     }
+}
+
+/// Whether the notes of a fit hold η at its lower bound 1.
+pub(super) fn eta_at_floor_of(notes: &[Note]) -> bool {
+    notes
+        .iter()
+        .any(|n| matches!(n, Note::EtaAtBound { eta, .. } if *eta <= ETA_MIN))
 }
 
 /// What the notes of a fit say was not identified.

@@ -4,6 +4,8 @@ use super::family::Param;
 use super::solver::Problem;
 use super::{Base, Member, Term, average, main_lobe, result_index};
 use crate::analysis::fit::covariance::{Z_975, interval_95};
+use crate::analysis::fit::engine::ETA_FLOOR;
+use crate::analysis::fit::result::eta_at_floor_of;
 use crate::analysis::fit::validation::geometry_order;
 use crate::analysis::fit::{
     BudgetTerm, ETA_MAX, ETA_MIN, FitResult, N_PARAMS, Note, SIGMA_MIN_DEG, t_quantile_975,
@@ -908,6 +910,59 @@ fn eta_and_body(result: &mut FitResult, chosen: &Member, plausible: &[&Member]) 
             });
             return;
         }
+    }
+}
+
+/// ρs's identification read again where a term fixed η: the base fit calls ρs = A/(η²−1)
+/// unbounded where its η interval reaches 1 ([`Note::RhoSUnbounded`], covariance.rs), a
+/// verdict of the paper's model. A term that takes up the shape the Fresnel factor was
+/// bent to may fix η, and ρs with it: a strong σ slope on J1 (adaptive) had η 2.6
+/// [1.0, 3.0] under TSL, and with the slope's term η 2.98 [2.62, 3.00] and ρs [0.67, 0.83]
+/// against J1's 0.73, yet the base fit's note left ρs unidentified and the class undecided.
+/// Where η's interval as reported no longer reaches 1 the note is dropped. The converse
+/// is not drawn: a member's linear η interval reaching 1 (its η poorly determined, the
+/// interval clipped at 1) is not a profile that does, and reading it as one left 12 of
+/// the 380 sessions of seed index 2 (retro surges, mild asymmetries) undecided that were
+/// classified right. Where η is held at 1, a member's ρs is A/(η²−1) at the floor (~10⁶)
+/// and its interval meaningless: it is dropped.
+pub(super) fn reread_rho_s_identification(result: &mut FitResult) {
+    if result.ci95[RHO_S].is_none() {
+        return;
+    }
+    if eta_at_floor_of(&result.notes) {
+        forget_rho_s_interval(result);
+        return;
+    }
+    let (true, Some((eta_lo, _))) = (result.model.0[ETA], result.ci95[ETA]) else {
+        return;
+    };
+    if eta_lo > ETA_FLOOR {
+        result
+            .notes
+            .retain(|n| !matches!(n, Note::RhoSUnbounded { .. }));
+        return;
+    }
+    // The base fit's note stands (with its lower limit): ρs's interval goes with it.
+    if result
+        .notes
+        .iter()
+        .any(|n| matches!(n, Note::RhoSUnbounded { .. }))
+    {
+        forget_rho_s_interval(result);
+    }
+}
+
+/// ρs's interval, covariance and budget dropped, as the base fit drops a parameter's that
+/// is not identified.
+fn forget_rho_s_interval(result: &mut FitResult) {
+    result.ci95[RHO_S] = None;
+    result.ci_clipped[RHO_S] = false;
+    for k in 0..N_PARAMS {
+        result.covariance[RHO_S][k] = 0.0;
+        result.covariance[k][RHO_S] = 0.0;
+    }
+    for term in result.budget.iter_mut() {
+        term.variance[RHO_S] = 0.0;
     }
 }
 

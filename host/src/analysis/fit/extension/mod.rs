@@ -440,6 +440,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     let profile = haze_width_profile(&problem, &null, &chosen);
     let plausible = widen_for_model_form(result, &members, &profile, &chosen, &judging);
     fresnel_flatter(&mut problem, &null, &chosen, result);
+    reread_rho_s_identification(result);
     result.extension = Some(Extension {
         terms: added,
         tests,
@@ -740,7 +741,7 @@ fn main_lobe(v: &Values) -> [f64; N_PARAMS] {
 
 mod merge;
 pub use merge::{MODEL_FORM, SHAPE_SENSITIVITY, SHAPES_OUTSIDE};
-use merge::{take_member, widen_for_model_form};
+use merge::{reread_rho_s_identification, take_member, widen_for_model_form};
 
 /// The index in the result's order of a family parameter of the main lobe.
 fn result_index(p: Param) -> Option<usize> {
