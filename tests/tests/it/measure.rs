@@ -137,6 +137,12 @@ fn completed(served: &Served, sample: &str, dir: &Path, extra: &[&str]) -> Value
     }
 }
 
+/// The geometries of the session's current readings. A reading superseded (taken while an
+/// arm may have been off, or while the lamp was off after the instrument's fail-safe stop)
+/// stays in the record, marked, and its geometry is measured again: it is not a geometry
+/// recorded twice. (A fresh-clone CI run under load lost the host's heartbeat in
+/// `paper_g_is_classified_g`: the stop put the lamp out, 8 readings were superseded and
+/// measured again, and 111 readings held 103 geometries.)
 fn geometries(dir: &Path) -> Vec<(f64, f64)> {
     let session: Value =
         serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
@@ -144,6 +150,7 @@ fn geometries(dir: &Path) -> Vec<(f64, f64)> {
         .as_array()
         .unwrap()
         .iter()
+        .filter(|p| p["superseded"] != true)
         .map(|p| {
             (
                 p["theta_i_deg"].as_f64().unwrap(),
