@@ -702,9 +702,6 @@ fn shared_errors_are_validated() {
     );
 }
 
-/// The scene σ = 10°, ρs = 5, η = 1.001 (F ∝ η² − 1 ≈ 0.002): only ρs·(η²−1) is
-/// determined. ρs is null with its reason, the class is not decided from it (flag
-/// `not-identified`), and the nearest reference does not use it. Today: ρs 4924, SG 100 %.
 /// The analysis of a table of `obs` (the lines a file would give them), as `gonio fit` makes it.
 fn analysed(obs: &[Observation]) -> result::Report {
     let lines: Vec<usize> = (2..2 + obs.len()).collect();
@@ -717,6 +714,9 @@ fn analysed(obs: &[Observation]) -> result::Report {
     result::analyse(&readings, &FitOptions::default(), None).expect("valid")
 }
 
+/// The scene σ = 10°, ρs = 5, η = 1.001 (F ∝ η² − 1 ≈ 0.002): only ρs·(η²−1) is
+/// determined. ρs is null with its reason, the class is not decided from it (flag
+/// `not-identified`), and the nearest reference does not use it. Today: ρs 4924, SG 100 %.
 #[test]
 fn an_undetermined_rho_s_is_null_and_never_used() {
     let p = Params {
