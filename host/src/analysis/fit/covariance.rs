@@ -8,7 +8,7 @@
 //! within it, since a misfit widens the covariance (the module docs of [`super`]).
 use super::arm_offset::ArmTest;
 use super::engine::{self, LeastSquaresProblem};
-use super::result::not_identified_of;
+use super::result::{forget_uncertainty, not_identified_of};
 use super::validation::geometry_order;
 use super::{
     ArmOffset, BudgetTerm, ETA_MAX, ETA_MIN, FitOptions, N_PARAMS, Note, Observation,
@@ -363,24 +363,16 @@ fn natural_uncertainty(
     let unknown: Vec<usize> = (0..4)
         .filter(|&i| not_identified.iter().any(|u| u.param == PARAM_NAMES[i]))
         .collect();
-    let zero_unknown = |m: [[f64; 4]; 4]| -> [[f64; 4]; 4] {
-        std::array::from_fn(|r| {
-            std::array::from_fn(|c| {
-                if unknown.contains(&r) || unknown.contains(&c) {
-                    0.0
-                } else {
-                    m[r][c]
-                }
-            })
-        })
-    };
-    out.covariance = zero_unknown(full);
+    out.covariance = full;
     for (name, term) in terms_x {
-        let natural = zero_unknown(to_natural.of(term));
+        let natural = to_natural.of(term);
         out.budget.push(BudgetTerm {
             name: name.clone(),
             variance: std::array::from_fn(|i| natural[i][i]),
         });
+    }
+    for &i in &unknown {
+        forget_uncertainty(&mut out.covariance, &mut out.budget, i);
     }
     let free_index: Vec<usize> = (0..4).filter(|&i| free[i]).collect();
     for &i in &free_index {

@@ -502,6 +502,22 @@ impl FitResult {
     }
 }
 
+/// A parameter the data do not identify carries no uncertainty anything downstream could
+/// use: its row and column of the covariance and its share of every budget term are zeroed.
+pub(super) fn forget_uncertainty(
+    covariance: &mut [[f64; N_PARAMS]; N_PARAMS],
+    budget: &mut [BudgetTerm],
+    index: usize,
+) {
+    for k in 0..N_PARAMS {
+        covariance[index][k] = 0.0;
+        covariance[k][index] = 0.0;
+    }
+    for term in budget {
+        term.variance[index] = 0.0;
+    }
+}
+
 /// Whether the notes of a fit hold η at its lower bound 1.
 pub(super) fn eta_at_floor_of(notes: &[Note]) -> bool {
     notes

@@ -5,7 +5,7 @@ use super::solver::Problem;
 use super::{Base, Member, Term, average, main_lobe, result_index};
 use crate::analysis::fit::covariance::{Z_975, interval_95};
 use crate::analysis::fit::engine::ETA_FLOOR;
-use crate::analysis::fit::result::eta_at_floor_of;
+use crate::analysis::fit::result::{eta_at_floor_of, forget_uncertainty};
 use crate::analysis::fit::validation::geometry_order;
 use crate::analysis::fit::{
     BudgetTerm, ETA_MAX, ETA_MIN, FitResult, N_PARAMS, Note, SIGMA_MIN_DEG, t_quantile_975,
@@ -936,18 +936,11 @@ pub(super) fn reread_rho_s_identification(result: &mut FitResult) {
     let (true, Some((eta_lo, _))) = (result.model.0[ETA], result.ci95[ETA]) else {
         return;
     };
+    let unbounded = |n: &Note| matches!(n, Note::RhoSUnbounded { .. });
     if eta_lo > ETA_FLOOR {
-        result
-            .notes
-            .retain(|n| !matches!(n, Note::RhoSUnbounded { .. }));
-        return;
-    }
-    // The base fit's note stands (with its lower limit): ρs's interval goes with it.
-    if result
-        .notes
-        .iter()
-        .any(|n| matches!(n, Note::RhoSUnbounded { .. }))
-    {
+        result.notes.retain(|n| !unbounded(n));
+    } else if result.notes.iter().any(unbounded) {
+        // The base fit's note stands (with its lower limit): ρs's interval goes with it.
         forget_rho_s_interval(result);
     }
 }
@@ -957,13 +950,7 @@ pub(super) fn reread_rho_s_identification(result: &mut FitResult) {
 fn forget_rho_s_interval(result: &mut FitResult) {
     result.ci95[RHO_S] = None;
     result.ci_clipped[RHO_S] = false;
-    for k in 0..N_PARAMS {
-        result.covariance[RHO_S][k] = 0.0;
-        result.covariance[k][RHO_S] = 0.0;
-    }
-    for term in result.budget.iter_mut() {
-        term.variance[RHO_S] = 0.0;
-    }
+    forget_uncertainty(&mut result.covariance, &mut result.budget, RHO_S);
 }
 
 #[cfg(test)]
