@@ -38,8 +38,9 @@ pub enum Flag {
     InstrumentSensitive,
     /// Informational: the paper's TSL model did not describe the readings and the fit added
     /// a term the data called for (a heavy-tailed lobe, a haze lobe, σ varying with θi, a
-    /// non-Lambertian body), each named with its test in the result; the main lobe's σ, ρs,
-    /// ρd, η are still the reported and classified quantities.
+    /// non-Lambertian body, a lobe wider on one side, …), each named with its test in the
+    /// result; the main lobe's σ, ρs, ρd, η are still the reported and classified
+    /// quantities.
     ModelExtended,
     /// A reading lies so far from the fit that it is taken for a gross error (an outlier
     /// test on the residuals at a stated false-alarm rate); the reading is named.

@@ -258,7 +258,7 @@ impl<T: Transport> Session<'_, T> {
         if !flagged && after_flag {
             let why = terms.map_or_else(
                 || "a false alarm; the policy goes on as without it".to_string(),
-                |t| format!("the model extended by a {t} describes the sheet"),
+                |t| format!("the model extended (terms: {t}) describes the sheet"),
             );
             self.decide(&format!(
                 "adaptive: lack-of-fit gone with the readings of {taken} lack-of-fit batch{} ({}): {why}",
@@ -330,7 +330,7 @@ impl<T: Transport> Session<'_, T> {
                 targets.batch,
             );
             let why = match extension {
-                Some(terms) if !flagged => format!("the model extended by a {terms}"),
+                Some(terms) if !flagged => format!("the model extended (terms: {terms})"),
                 _ => format!(
                     "{LACK_OF_FIT_REASON} ({})",
                     lack_of_fit_evidence(&report.fit)

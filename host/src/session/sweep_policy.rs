@@ -215,7 +215,7 @@ impl<T: Transport> Session<'_, T> {
                     report.fit.gof_p.unwrap_or(f64::NAN)
                 ))
             } else {
-                extended.map(|terms| format!("the model extended by a {terms}"))
+                extended.map(|terms| format!("the model extended (terms: {terms})"))
             };
             if let Some(why) = why
                 && self.full_plane_round(round, here, &targets, &why, report, fits, refinements)?

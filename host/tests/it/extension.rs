@@ -61,9 +61,10 @@ fn tsl(p: Params) -> impl Fn(f64, f64) -> f64 {
 #[test]
 fn on_the_papers_own_model_a_term_is_added_at_the_stated_rate() {
     // 8 papers × 15 seeds, weighted and unweighted: 240 fits. Each term is tested at 0.3 %,
-    // five terms: at most 1.5 % of fits extended if the levels hold; P(≥ 7 of 120 | 1.5 %)
-    // is 0.3 %, so 6 of 120 is the bound asserted per kind. The shapes campaign
-    // (docs/ACCURACY.md) counts it over sessions.
+    // eight terms: at most 2.4 % of fits extended if the levels hold (Bonferroni's bound;
+    // less, for the statistics are correlated); P(≥ 8 of 120 | 2.4 %) is 0.9 %, so 7 of
+    // 120 is the bound asserted per kind. The shapes campaign (docs/ACCURACY.md) counts it
+    // over sessions.
     for with_std in [true, false] {
         let mut extended_fits = Vec::new();
         for (k, paper) in PAPERS.iter().enumerate() {
@@ -77,7 +78,7 @@ fn on_the_papers_own_model_a_term_is_added_at_the_stated_rate() {
             }
         }
         assert!(
-            extended_fits.len() <= 6,
+            extended_fits.len() <= 7,
             "with_std {with_std}: {} of 120 extended: {extended_fits:?}",
             extended_fits.len()
         );
@@ -152,6 +153,74 @@ fn a_width_that_changes_with_incidence_is_named() {
     };
     let (added, covered, seen) = found(&truth, "σ varying with θi", sigma_at(45.0), 6);
     assert!(added >= 5 && covered >= 4, "{seen:#?}");
+}
+
+#[test]
+fn a_lobe_wider_past_its_peak_is_named_and_sigma_stays_its_half_maximum_width() {
+    // Forward-scattering fibres: the lobe's σ twice as wide past its peak (toward
+    // grazing) as before it, the two sides' widths averaging the paper's σ so that the
+    // half-maximum width is the symmetric lobe's. G's 0.8° and J2's 17.9°: the campaign's
+    // sheets that went undecided, or were reported with an arm offset that is not there.
+    for paper in ["G", "J2"] {
+        let p = reference(paper);
+        let truth = move |ti: f64, tr: f64| {
+            let side = if tr > ti { 2.0 } else { 1.0 };
+            let q = Params {
+                sigma_deg: p.sigma_deg * 2.0 * side / 3.0,
+                ..p
+            };
+            model::radiance_factor(&q, ti, tr)
+        };
+        let (added, covered, seen) = found(&truth, "lobe wider on one side", p.sigma_deg, 6);
+        assert!(added >= 5 && covered >= 5, "{paper}: {seen:#?}");
+    }
+}
+
+#[test]
+fn a_lobe_skewed_smoothly_leaves_sigma_inside_its_interval() {
+    // Not the family's lobe: the width grows smoothly through the peak,
+    // σ(θa) = σ·(1 + 0.4·tanh(θa/σ)), where the family's term splits it at the peak.
+    // σ_eq is the half-maximum width, (θa₊ − θa₋)/(2·√(2 ln 2)), θa± where
+    // θa = ±σ(θa)·√(2 ln 2) (iterated to a fixed point).
+    let half = (2.0 * std::f64::consts::LN_2).sqrt();
+    for paper in ["G", "J2"] {
+        let p = reference(paper);
+        let width = move |theta_a: f64| p.sigma_deg * (1.0 + 0.4 * (theta_a / p.sigma_deg).tanh());
+        let half_max = |side: f64| {
+            let mut theta_a = side * p.sigma_deg * half;
+            for _ in 0..200 {
+                theta_a = side * width(theta_a) * half;
+            }
+            theta_a
+        };
+        let sigma_eq = (half_max(1.0) - half_max(-1.0)) / (2.0 * half);
+        let truth = move |ti: f64, tr: f64| {
+            let q = Params {
+                sigma_deg: width(0.5 * (tr - ti)),
+                ..p
+            };
+            model::radiance_factor(&q, ti, tr)
+        };
+        let (_, covered, seen) = found(&truth, "lobe wider on one side", sigma_eq, 6);
+        assert!(covered >= 5, "{paper}, σ_eq {sigma_eq}: {seen:#?}");
+    }
+}
+
+#[test]
+fn an_opposition_surge_is_named_and_sigma_stays_inside_its_interval() {
+    // A body 60 % brighter at retro-reflection (phase angle g = θi + θr = 0), the surge a
+    // Gaussian in g of 12°: not the family's exponential cusp. The full grid's θr ≥ 0 sees
+    // only its flank (g ≥ 20°), at θr near 0 and the low θi.
+    for paper in ["SG", "MC"] {
+        let p = reference(paper);
+        let truth = move |ti: f64, tr: f64| {
+            let specular = Params { rho_d: 0.0, ..p };
+            let g = (ti + tr) / 12.0;
+            model::radiance_factor(&specular, ti, tr) + p.rho_d * (1.0 + 0.6 * (-0.5 * g * g).exp())
+        };
+        let (added, covered, seen) = found(&truth, "opposition surge", p.sigma_deg, 6);
+        assert!(added >= 5 && covered >= 5, "{paper}: {seen:#?}");
+    }
 }
 
 #[test]

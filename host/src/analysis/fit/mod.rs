@@ -168,8 +168,9 @@ pub struct FitOptions {
     /// it ([`crate::analysis::gof::chi2_upper_tail_scaled`]). 0: the stated noise is taken as exact.
     pub noise_scale_log_variance: f64,
     /// Test the nested extensions of the model (a heavy-tailed lobe, a haze lobe, σ
-    /// varying with θi, a non-Lambertian body) and add those the data call for
-    /// ([`extension`]'s module docs). By default as [`extension::on_by_default`] says.
+    /// varying with θi, a non-Lambertian body, a lobe wider on one side, …) and add those
+    /// the data call for ([`extension`]'s module docs). By default as
+    /// [`extension::on_by_default`] says.
     pub extensions: bool,
 }
 

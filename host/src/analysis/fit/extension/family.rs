@@ -5,8 +5,9 @@
 //! [`crate::analysis::model`]:
 //!
 //! ```text
-//! f = ρs·F(ψ, η)·H·[D(θa; σ_i, κ) + h·exp(−θa²/(2σh²))] + ρd·exp(b·q)
+//! f = ρs·F(ψ, η)·H·[D(θa; σ_i·(1 ± t), κ) + h·exp(−θa²/(2σh²))] + ρd·exp(b·q)·(1 + B·exp(−|g|/w))
 //! σ_i = σ·exp(β·(θi − 45°)/45°),   σh = σ_i·e^u,   q = (1 − cos θi) + (1 − cos θr) − 2(1 − cos 45°)
+//! g = θi + θr, the phase angle in the plane (θr < 0 on the source's side: g = 0 is retro-reflection)
 //! D(θa; s, κ) = (1 + a·w)^(−(1+κ)/(2κ)),   w = θa²/h²,  h = s·√(2 ln 2),  a = 2^(2κ/(1+κ)) − 1
 //! ```
 //!
@@ -22,6 +23,11 @@
 //!   and attenuation, its peak the fraction h of the main lobe's, σh at least 1.5 σ (else
 //!   it is the main lobe over again);
 //! - **σ varying with θi** (β): the lobe's width at θi = 45° is the reported σ;
+//! - **a lobe wider on one side** (t): the main lobe's width σ_i·(1 + t) past its peak
+//!   (θa > 0, toward grazing) and σ_i·(1 − t) before it, as forward-scattering fibres make
+//!   a paper's lobe. The half-maximum width is the mean of the two sides', so σ keeps the
+//!   project's convention. D and its slope are continuous at the peak (both 1 and 0 there
+//!   whatever t is), so t = 0 is an interior point and its test regular;
 //! - **non-Lambertian body** (b): the diffuse part falls (b < 0, Fresnel transmission,
 //!   Oren–Nayar's forward plane) or rises (b > 0) toward grazing in both θi and θr
 //!   (reciprocal), ρd being its value at the specular geometry of θi = 45°;
@@ -29,6 +35,12 @@
 //!   transmittances T(θi)·T(θr)/T(45°)², T = 1 − R, R = F(θ, η_b)²/2 the unpolarised
 //!   reflectance of the paper's F: light scattered under a smooth surface leaves it less
 //!   toward grazing (Wolff's diffuse model). η_b = 1 is Lambert (R ≡ 0);
+//! - **an opposition surge** (B ≥ 0, w): the body brighter toward retro-reflection, as a
+//!   porous or fibrous surface's is where its facets hide their own shadows, B at g = 0
+//!   and falling e-fold every w degrees of phase angle: the exponential cusp of the
+//!   empirical opposition-effect laws (Kaasalainen's exponential–linear, without its
+//!   linear part, which the body's shape term holds). ρd is the body away from it (at
+//!   g = 90°, the specular geometry of θi = 45°, the surge is below e^−3 of B);
 //! - **off-specular peak** (δp): the main lobe centred at θr = θi + δp, its F and G the
 //!   geometry's (a sheet whose facets are tilted in the plane, a cockle);
 //! - the **arm offset** δ0 of the base fit, every θr read as θr + δ0, free when the base
@@ -57,6 +69,8 @@ const KAPPA_STEP: f64 = 1e-5;
 pub(crate) const KAPPA_MIN: f64 = -0.25;
 /// Largest off-specular shift of the main lobe's peak, degrees of θr.
 const PEAK_SHIFT_MAX_DEG: f64 = 20.0;
+/// Largest |t| of a lobe wider on one side (the sides' widths 1 ± t of their mean).
+const ASYMMETRY_MAX: f64 = 0.7;
 /// Step of the one-sided difference for ∂/∂η_b (η_b ≥ 1).
 const BODY_ETA_STEP: f64 = 1e-6;
 /// Step of the difference for ∂f/∂δ0, degrees.
@@ -77,10 +91,13 @@ pub(crate) enum Param {
     Body = 9,
     BodyEta = 10,
     PeakShift = 11,
+    Asymmetry = 12,
+    RetroAmplitude = 13,
+    RetroLnWidth = 14,
 }
 
 /// Number of [`Param`]s.
-pub(crate) const N_FAMILY: usize = 12;
+pub(crate) const N_FAMILY: usize = 15;
 
 impl Param {
     /// Every parameter in index order.
@@ -98,6 +115,9 @@ impl Param {
         Param::Body,
         Param::BodyEta,
         Param::PeakShift,
+        Param::Asymmetry,
+        Param::RetroAmplitude,
+        Param::RetroLnWidth,
     ];
 
     /// Its range: the base fit's bounds for the TSL four, and for the terms what the
@@ -122,6 +142,13 @@ impl Param {
             // degrees, as a tilted or cockled sheet's (the campaign's strongest shift, 0.15
             // of a rough paper's full width at half maximum, is 12°).
             Param::PeakShift => (-PEAK_SHIFT_MAX_DEG, PEAK_SHIFT_MAX_DEG),
+            // One side up to 5.7 times the other's width ((1 + t)/(1 − t)): a lobe whose
+            // narrow side is still a lobe, not a step.
+            Param::Asymmetry => (-ASYMMETRY_MAX, ASYMMETRY_MAX),
+            // A surge of up to 10 times the body, over 1° to 30° of phase angle (at 30° it
+            // is e^−3 of itself at the specular geometry of 45°, where ρd is read).
+            Param::RetroAmplitude => (0.0, 10.0),
+            Param::RetroLnWidth => (0.0, 30.0_f64.ln()),
         }
     }
 }
@@ -289,7 +316,16 @@ fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
     let theta_a = 0.5 * (g.offset_deg - v[Param::PeakShift as usize]);
     let x_i = (theta_i_deg - REFERENCE_THETA_I_DEG) / REFERENCE_THETA_I_DEG;
     let ln_s = v[Param::LnSigma as usize] + v[Param::Slope as usize] * x_i;
-    let s = ln_s.exp();
+    // A lobe wider on one side: the side's width, the mean of the two the lobe's σ.
+    let side = if theta_a > 0.0 {
+        1.0
+    } else if theta_a < 0.0 {
+        -1.0
+    } else {
+        0.0
+    };
+    let side_factor = 1.0 + v[Param::Asymmetry as usize] * side;
+    let s = ln_s.exp() * side_factor;
     let (d, d_ln_s, d_kappa, d_theta_a) = if gradient {
         // At κ = 0 (κ inactive, or the Gaussian fitted) ∂D/∂κ is the Gaussian's expansion:
         // the covariance of a member whose κ is free but 0 still holds what κ leaves open.
@@ -328,7 +364,18 @@ fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
     };
     let b = v[Param::Body as usize];
     let shape = if b == 0.0 { 1.0 } else { (b * q).exp() };
-    let body = shape * transmitted;
+    // The surge, evaluated at B = 0 too when gradients are asked for (as the haze is).
+    let retro_b = v[Param::RetroAmplitude as usize];
+    let (cusp, d_cusp_ln_w) = if retro_b > 0.0 || gradient {
+        let per_width = (theta_i_deg + theta_r_deg).abs() / v[Param::RetroLnWidth as usize].exp();
+        let e = (-per_width).exp();
+        (e, e * per_width)
+    } else {
+        (0.0, 0.0)
+    };
+    let surge = 1.0 + retro_b * cusp;
+    let lambert_shape = shape * transmitted;
+    let body = lambert_shape * surge;
     let fh = fr * h;
     let value = rho_s * fh * d + rho_h * fh * dh + rho_d * body;
     if !gradient {
@@ -345,9 +392,13 @@ fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
     grad[Param::HazeLnRatio as usize] = rho_h * fh * dh_ln;
     grad[Param::Slope as usize] = d_ln * x_i;
     grad[Param::Body as usize] = rho_d * body * q;
-    grad[Param::BodyEta as usize] = rho_d * shape * d_transmitted;
+    grad[Param::BodyEta as usize] = rho_d * shape * surge * d_transmitted;
+    grad[Param::RetroAmplitude as usize] = rho_d * lambert_shape * cusp;
+    grad[Param::RetroLnWidth as usize] = rho_d * lambert_shape * retro_b * d_cusp_ln_w;
     // θa = (θr − θi − δp)/2.
     grad[Param::PeakShift as usize] = -0.5 * rho_s * fh * d_theta_a;
+    // The side's ln width moves by side/(1 + t·side) per unit of t.
+    grad[Param::Asymmetry as usize] = rho_s * fh * d_ln_s * side / side_factor;
     (value, grad)
 }
 
@@ -463,8 +514,25 @@ mod tests {
         v[Param::BodyEta as usize] = 1.4;
         v[Param::Shift as usize] = 0.2;
         v[Param::PeakShift as usize] = 1.3;
-        let reading = Reading::new(30.0, 34.0, 0.3, Some(&DetectorResponse::top_hat(1.0)), 0.0);
-        let (_, grad) = evaluate(&v, &reading, true);
+        v[Param::Asymmetry as usize] = 0.25;
+        v[Param::RetroAmplitude as usize] = 0.6;
+        v[Param::RetroLnWidth as usize] = 12.0_f64.ln();
+        // Past the peak and before it (the sides of a lobe wider on one side).
+        for theta_r in [34.0, 27.0] {
+            let reading = Reading::new(
+                30.0,
+                theta_r,
+                0.3,
+                Some(&DetectorResponse::top_hat(1.0)),
+                0.0,
+            );
+            gradients_match_differences_on(&v, &reading, kappa);
+        }
+    }
+
+    fn gradients_match_differences_on(v: &Values, reading: &Reading, kappa: f64) {
+        let v = *v;
+        let (_, grad) = evaluate(&v, reading, true);
         for p in Param::ALL {
             let k = p as usize;
             // κ's step leaves the Gaussian's branch (|κ| < 1e-7) on both sides.
@@ -476,7 +544,7 @@ mod tests {
             let (mut up, mut down) = (v, v);
             up[k] += step;
             down[k] -= step;
-            let numeric = (evaluate(&up, &reading, false).0 - evaluate(&down, &reading, false).0)
+            let numeric = (evaluate(&up, reading, false).0 - evaluate(&down, reading, false).0)
                 / (2.0 * step);
             assert!(
                 (numeric - grad[k]).abs() <= 1e-4 * numeric.abs().max(1e-3),

@@ -13,8 +13,10 @@
 //! tested at [`TERM_ALPHA`]; a term with a parameter on its null boundary (h = 0, the haze's fraction)
 //! has the half-χ² null distribution and the haze's width is not identified under the
 //! null (Davies' problem), for which its level is taken at half the nominal and its
-//! critical value from χ²(2): conservative. Over the six terms the rate of adding one to
-//! an exact TSL sheet is at most 6·[`TERM_ALPHA`] = 1.8 %; the unit tests and the shapes
+//! critical value from χ²(2): conservative (the opposition surge's amplitude and width
+//! alike). Over the eight terms the rate of adding one to an exact TSL sheet is at most
+//! 8·[`TERM_ALPHA`] = 2.4 % (Bonferroni's bound; the terms' statistics are correlated and
+//! the two of χ²(2) conservative, so the rate is lower); the unit tests and the shapes
 //! campaign (`gonio accuracy --shapes`) measure it. At most [`MAX_TERMS`] terms are added,
 //! forward: the strongest first, then the others tested again on top of it.
 //!
@@ -92,17 +94,23 @@ pub enum Term {
     FresnelBody,
     /// The main lobe's peak off the specular direction.
     PeakShift,
+    /// The main lobe wider on one side of its peak than on the other.
+    Asymmetry,
+    /// The body brighter toward retro-reflection.
+    Retro,
 }
 
 impl Term {
     /// Every term, in the order they are tried.
-    pub const ALL: [Term; 6] = [
+    pub const ALL: [Term; 8] = [
         Term::LobeShape,
         Term::Haze,
         Term::SigmaSlope,
         Term::Body,
         Term::FresnelBody,
         Term::PeakShift,
+        Term::Asymmetry,
+        Term::Retro,
     ];
 
     /// As the result names it.
@@ -114,6 +122,8 @@ impl Term {
             Term::Body => "non-Lambertian body",
             Term::FresnelBody => "body behind a Fresnel interface",
             Term::PeakShift => "off-specular peak",
+            Term::Asymmetry => "lobe wider on one side",
+            Term::Retro => "opposition surge",
         }
     }
 
@@ -125,6 +135,8 @@ impl Term {
             Term::Body => &[Param::Body],
             Term::FresnelBody => &[Param::BodyEta],
             Term::PeakShift => &[Param::PeakShift],
+            Term::Asymmetry => &[Param::Asymmetry],
+            Term::Retro => &[Param::RetroAmplitude, Param::RetroLnWidth],
         }
     }
 
@@ -134,10 +146,15 @@ impl Term {
     fn level(self) -> (f64, usize) {
         match self {
             Term::FresnelBody => (2.0 * TERM_ALPHA, 1),
-            Term::Haze => (TERM_ALPHA, 2),
+            // The surge's amplitude is on its boundary 0 and its width not identified
+            // there, as the haze's.
+            Term::Haze | Term::Retro => (TERM_ALPHA, 2),
             // κ = 0 is inside κ's range (a tail lighter than the Gaussian's is κ < 0): no
             // boundary.
-            Term::LobeShape | Term::SigmaSlope | Term::Body | Term::PeakShift => (TERM_ALPHA, 1),
+            // t = 0 is inside t's range too.
+            Term::LobeShape | Term::SigmaSlope | Term::Body | Term::PeakShift | Term::Asymmetry => {
+                (TERM_ALPHA, 1)
+            }
         }
     }
 
@@ -175,6 +192,16 @@ impl Term {
                     .map(|d| with(&[(Param::PeakShift, *d)]))
                     .collect()
             }
+            // A surge of a third of the body, narrow to broad.
+            Term::Retro => [3.0_f64, 8.0, 20.0]
+                .iter()
+                .map(|w| with(&[(Param::RetroAmplitude, 0.3), (Param::RetroLnWidth, w.ln())]))
+                .collect(),
+            // Either side wider, by a ratio of 1.5 ((1 + t)/(1 − t)).
+            Term::Asymmetry => [-0.2, 0.2]
+                .iter()
+                .map(|t| with(&[(Param::Asymmetry, *t)]))
+                .collect(),
             // At η_b = 1 the body's gradient in η_b is 0 (R grows as (η_b − 1)²).
             Term::FresnelBody => [1.3, 1.6, 2.2]
                 .iter()
@@ -355,6 +382,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     start[Param::Shift as usize] = result.arm_offset.map_or(0.0, |a| a.deg);
     start[Param::HazeLnRatio as usize] = 3.0_f64.ln();
     start[Param::BodyEta as usize] = 1.0;
+    start[Param::RetroLnWidth as usize] = 8.0_f64.ln();
     let mut core = vec![Param::LnSigma, Param::RhoS, Param::RhoD];
     // η held at its upper bound by the base fit may be the Fresnel term bent to mimic a
     // body that is not Lambertian (a body falling toward grazing): it is free again here,
@@ -713,6 +741,38 @@ fn describe(term: Term, fit: &MemberFit, observations: &[Observation]) -> String
             v[Param::PeakShift as usize],
             sd(Param::PeakShift)
         ),
+        Term::Asymmetry => {
+            let (sigma, t) = (
+                v[Param::LnSigma as usize].exp(),
+                v[Param::Asymmetry as usize],
+            );
+            format!(
+                "lobe: wider on one side, σ {:.2}° past its peak (toward grazing) and {:.2}° before it (t = {t:+.2}{}); σ {sigma:.2}°, their mean, is its half-maximum width",
+                sigma * (1.0 + t),
+                sigma * (1.0 - t),
+                sd(Param::Asymmetry)
+            )
+        }
+        Term::Retro => {
+            let (amplitude, width) = (
+                v[Param::RetroAmplitude as usize],
+                v[Param::RetroLnWidth as usize].exp(),
+            );
+            // The surge's peak is where the arms seldom reach (θr = −θi): say what the
+            // readings saw, at the smallest phase angle measured, and that its value at
+            // retro-reflection is the term's extrapolation.
+            let nearest = observations
+                .iter()
+                .map(|o| (o.theta_i_deg + o.theta_r_deg).abs())
+                .fold(f64::INFINITY, f64::min);
+            format!(
+                "body: an opposition surge, {:.0} % brighter at the smallest phase angle measured (θi + θr = {nearest:.0}°), rising e-fold every {width:.1}° toward retro-reflection (θr = −θi, where the term extrapolates {:.0} %{}); ρd is the body away from it",
+                100.0 * amplitude * (-nearest / width).exp(),
+                100.0 * amplitude,
+                fit.std_of(Param::RetroAmplitude)
+                    .map_or(String::new(), |s| format!(" ± {:.0}", 100.0 * s)),
+            )
+        }
         Term::FresnelBody => format!(
             "body: behind a Fresnel interface of η_b = {:.2}{}, falling toward grazing as its transmittance; ρd is its value at θi = θr = {REFERENCE_THETA_I_DEG:.0}°",
             v[Param::BodyEta as usize],
