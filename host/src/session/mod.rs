@@ -1540,14 +1540,14 @@ fn sigma_l_text(report: &crate::analysis::result::Report) -> String {
     }
 }
 
-/// The terms a fit's model was extended by, in words ("haze lobe, lobe shape"); `None`
-/// for the paper's model. A model grown on the readings so far is tested where it has not
-/// been before it is reported, as a flagged fit is (both policies).
-fn extension_terms(fit: &crate::analysis::fit::FitResult) -> Option<String> {
+/// The model a fit was extended to, in words ("the model extended (terms: haze lobe, lobe
+/// shape)"); `None` for the paper's model. A model grown on the readings so far is tested
+/// where it has not been before it is reported, as a flagged fit is (both policies).
+fn extended_model(fit: &crate::analysis::fit::FitResult) -> Option<String> {
     let extension = fit.extension.as_ref()?;
     (!extension.terms.is_empty()).then(|| {
         let names: Vec<&str> = extension.terms.iter().map(|t| t.name).collect();
-        names.join(", ")
+        format!("the model extended (terms: {})", names.join(", "))
     })
 }
 

@@ -33,7 +33,7 @@ struct Standing {
     /// class cannot settle under it (its confidence is capped), so the only target left
     /// is the paper's σ > σ_l.
     confirmed: bool,
-    /// The terms an unflagged fit's model was extended by, while batches to test it off
+    /// The model an unflagged fit was extended to, in words, while batches to test it off
     /// the peak remain (they count as lack-of-fit batches).
     extension: Option<String>,
 }
@@ -241,8 +241,8 @@ impl<T: Transport> Session<'_, T> {
         let settled = report.classification.confidence >= targets.class_confidence;
         let taken = refinements.iter().filter(|r| r.lack_of_fit).count();
         let confirmed = flagged && taken >= adaptive::LACK_OF_FIT_BATCHES;
-        let terms = super::extension_terms(&report.fit);
-        let extension = terms
+        let extended = super::extended_model(&report.fit);
+        let extension = extended
             .clone()
             .filter(|_| !flagged && taken < adaptive::LACK_OF_FIT_BATCHES);
         if confirmed && sigma_ok {
@@ -256,9 +256,9 @@ impl<T: Transport> Session<'_, T> {
             .last()
             .is_some_and(|r| r.lack_of_fit && r.reason.starts_with(LACK_OF_FIT_REASON));
         if !flagged && after_flag {
-            let why = terms.map_or_else(
+            let why = extended.map_or_else(
                 || "a false alarm; the policy goes on as without it".to_string(),
-                |t| format!("the model extended (terms: {t}) describes the sheet"),
+                |model| format!("{model} describes the sheet"),
             );
             self.decide(&format!(
                 "adaptive: lack-of-fit gone with the readings of {taken} lack-of-fit batch{} ({}): {why}",
@@ -330,7 +330,7 @@ impl<T: Transport> Session<'_, T> {
                 targets.batch,
             );
             let why = match extension {
-                Some(terms) if !flagged => format!("the model extended (terms: {terms})"),
+                Some(model) if !flagged => model.clone(),
                 _ => format!(
                     "{LACK_OF_FIT_REASON} ({})",
                     lack_of_fit_evidence(&report.fit)

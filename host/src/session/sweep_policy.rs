@@ -199,7 +199,7 @@ impl<T: Transport> Session<'_, T> {
             // A model grown by a term was chosen on the incidences swept so far: the others
             // test it (a σ that varies with θi is then read between them, not interpolated)
             // before it is reported, as a flagged fit's are.
-            let extended = super::extension_terms(&report.fit);
+            let extended = super::extended_model(&report.fit);
             let done = sigma_ok && (rough || (precise && settled)) && !report.fit.lack_of_fit;
             if done && extended.is_none() {
                 return Ok(());
@@ -215,7 +215,7 @@ impl<T: Transport> Session<'_, T> {
                     report.fit.gof_p.unwrap_or(f64::NAN)
                 ))
             } else {
-                extended.map(|terms| format!("the model extended (terms: {terms})"))
+                extended
             };
             if let Some(why) = why
                 && self.full_plane_round(round, here, &targets, &why, report, fits, refinements)?

@@ -374,8 +374,8 @@ fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
         (0.0, 0.0)
     };
     let surge = 1.0 + retro_b * cusp;
-    let lambert_shape = shape * transmitted;
-    let body = lambert_shape * surge;
+    let body_without_surge = shape * transmitted;
+    let body = body_without_surge * surge;
     let fh = fr * h;
     let value = rho_s * fh * d + rho_h * fh * dh + rho_d * body;
     if !gradient {
@@ -393,8 +393,8 @@ fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
     grad[Param::Slope as usize] = d_ln * x_i;
     grad[Param::Body as usize] = rho_d * body * q;
     grad[Param::BodyEta as usize] = rho_d * shape * surge * d_transmitted;
-    grad[Param::RetroAmplitude as usize] = rho_d * lambert_shape * cusp;
-    grad[Param::RetroLnWidth as usize] = rho_d * lambert_shape * retro_b * d_cusp_ln_w;
+    grad[Param::RetroAmplitude as usize] = rho_d * body_without_surge * cusp;
+    grad[Param::RetroLnWidth as usize] = rho_d * body_without_surge * retro_b * d_cusp_ln_w;
     // θa = (θr − θi − δp)/2.
     grad[Param::PeakShift as usize] = -0.5 * rho_s * fh * d_theta_a;
     // The side's ln width moves by side/(1 + t·side) per unit of t.
