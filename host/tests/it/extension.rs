@@ -675,3 +675,134 @@ fn rho_s_is_identified_as_the_reported_eta_interval_says() {
         }
     }
 }
+
+#[test]
+fn a_glossy_lobe_lost_to_a_body_rising_toward_grazing_is_found_again() {
+    // G whose body is Lommel–Seeliger's (Lambert's at 45°/45°, 1.7× it at 60°/70°), on
+    // the 26 geometries an adaptive session measured (seed 282527230 of the
+    // shapes campaign's grazing:1), each reading sharing a tile error of 0.5 % and its
+    // incidence's white of 0.2 % (and those at the peaks a gain ratio's 0.33 %). The paper's model cannot hold the body; with the shared
+    // errors its fit took the misfit as a common scale error and ended at σ 90° with ρs
+    // 0.3, its model a quarter of every reading: rough-II, though the readings at specular
+    // were 18× the body. Every member the extension step started from there shared it.
+    use host::analysis::classify::{class_of, classify};
+    use host::analysis::fit::{SharedError, fit_with_shared};
+    const GEOMETRIES: [(f64, f64); 26] = [
+        (20.0, 0.0),
+        (20.0, 20.0),
+        (20.0, 45.0),
+        (20.0, 58.0),
+        (20.0, 70.0),
+        (30.0, 0.0),
+        (30.0, 15.0),
+        (30.0, 30.0),
+        (30.0, 50.0),
+        (30.0, 70.0),
+        (45.0, 0.0),
+        (45.0, 23.0),
+        (45.0, 44.0),
+        (45.0, 44.5),
+        (45.0, 45.0),
+        (45.0, 58.0),
+        (45.0, 70.0),
+        (60.0, 0.0),
+        (60.0, 0.5),
+        (60.0, 1.0),
+        (60.0, 1.5),
+        (60.0, 2.0),
+        (60.0, 30.0),
+        (60.0, 45.0),
+        (60.0, 60.0),
+        (60.0, 70.0),
+    ];
+    let p = reference("G");
+    let truth = move |ti: f64, tr: f64| {
+        let (ci, cr) = (ti.to_radians().cos(), tr.to_radians().cos());
+        let lommel_seeliger = 2.0 * 45f64.to_radians().cos() / (ci + cr);
+        Sheet::ideal(p).radiance_factor(ti, tr) - p.rho_d + p.rho_d * lommel_seeliger
+    };
+    let truth_class = class_of(Some(p.sigma_deg), p.rho_s, p.rho_d);
+    let run = common::run_seed();
+    let (mut lost, mut right, mut covered, mut seen) = (0, 0, 0, Vec::new());
+    for seed in 0..6u64 {
+        let mut rng = ChaCha8Rng::seed_from_u64(100 * run + seed);
+        let obs: Vec<Observation> = GEOMETRIES
+            .iter()
+            .map(|&(ti, tr)| {
+                let f = (0..401)
+                    .map(|k| truth(ti, tr - 0.5 + (k as f64 + 0.5) / 401.0))
+                    .sum::<f64>()
+                    / 401.0;
+                let std = (0.001 * f).hypot(0.0003);
+                let z: f64 = rng.sample(rand_distr::StandardNormal);
+                Observation {
+                    theta_i_deg: ti,
+                    theta_r_deg: tr,
+                    radiance_factor: f + std * z,
+                    std: Some(std),
+                    theta_r_span_deg: 0.0,
+                }
+            })
+            .collect();
+        let mut shared = vec![SharedError {
+            name: "tile certificate".into(),
+            sensitivity: obs.iter().map(|o| 0.005 * o.radiance_factor).collect(),
+            additive: Vec::new(),
+        }];
+        for theta_i in [20.0, 30.0, 45.0, 60.0] {
+            shared.push(SharedError {
+                name: format!("white θi={theta_i}°"),
+                sensitivity: obs
+                    .iter()
+                    .map(|o| {
+                        if o.theta_i_deg == theta_i {
+                            -0.002 * o.radiance_factor
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect(),
+                additive: Vec::new(),
+            });
+        }
+        // The readings above 5 on the detector's highest gain range, its ratio to the next
+        // known to 0.33 %.
+        shared.push(SharedError {
+            name: "gain ranges 1/2".into(),
+            sensitivity: obs
+                .iter()
+                .map(|o| {
+                    if o.radiance_factor > 5.0 {
+                        -0.0033 * o.radiance_factor
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+            additive: Vec::new(),
+        });
+        let without = FitOptions {
+            extensions: false,
+            ..FitOptions::default()
+        };
+        let paper_model = fit_with_shared(&obs, &shared, &without).expect("fit");
+        lost += usize::from(paper_model.params.sigma_deg >= 60.0);
+        let r = fit_with_shared(&obs, &shared, &on()).expect("fit");
+        let c = classify(&r);
+        right += usize::from(c.class == Some(truth_class));
+        covered += usize::from(covers(r.ci95[SIGMA], p.sigma_deg));
+        seen.push(format!(
+            "seed {seed}: paper's model σ {:.2}; {} at {:.2}, σ {:.4} {:?}, {:?} {:?}",
+            paper_model.params.sigma_deg,
+            c.class_name(),
+            c.confidence,
+            r.params.sigma_deg,
+            r.ci95[SIGMA],
+            extended(&r),
+            r.flags
+        ));
+    }
+    // The case this tests: the paper's model alone loses the lobe (6 of 6 when written).
+    assert!(lost >= 5, "lost in {lost} of 6: {seen:#?}");
+    assert!(right >= 5 && covered >= 5, "{seen:#?}");
+}

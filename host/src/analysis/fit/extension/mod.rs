@@ -367,37 +367,22 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     if !eligible(base, result) {
         return;
     }
+    let lost = result.lack_of_fit && result.params.sigma_deg >= LOBE_LOST_DEG;
+    // A lobe that may be narrow is evaluated through the whole window.
+    let lobe_sd_deg = 2.0
+        * if lost {
+            LOBE_RESTARTS_DEG[0]
+        } else {
+            result.params.sigma_deg
+        };
     let mut problem = Problem::new(
         base.observations,
         base.shared,
         base.response.as_ref(),
-        2.0 * result.params.sigma_deg,
+        lobe_sd_deg,
     );
     let n = problem.len();
-    let mut start = [0.0; N_FAMILY];
-    start[Param::LnSigma as usize] = result.params.sigma_deg.ln();
-    start[Param::RhoS as usize] = result.params.rho_s;
-    start[Param::RhoD as usize] = result.params.rho_d;
-    start[Param::Eta as usize] = result.params.eta;
-    start[Param::Shift as usize] = result.arm_offset.map_or(0.0, |a| a.deg);
-    start[Param::HazeLnRatio as usize] = 3.0_f64.ln();
-    start[Param::BodyEta as usize] = 1.0;
-    start[Param::RetroLnWidth as usize] = 8.0_f64.ln();
-    let mut core = vec![Param::LnSigma, Param::RhoS, Param::RhoD];
-    // η held at its upper bound by the base fit may be the Fresnel term bent to mimic a
-    // body that is not Lambertian (a body falling toward grazing): it is free again here,
-    // so the body's term can take that shape back. At its lower bound 1 it is not (ρs is
-    // then not identified, only ρs·(η² − 1)).
-    let eta_at_upper = result
-        .notes
-        .iter()
-        .any(|n| matches!(n, super::Note::EtaAtBound { eta, .. } if *eta >= super::ETA_MAX));
-    if base.fitted[ETA] || eta_at_upper {
-        core.push(Param::Eta);
-    }
-    if result.arm_offset.is_some() {
-        core.push(Param::Shift);
-    }
+    let (start, core) = base_start(base, result);
     let weighted = result.weighted;
     if !weighted {
         // From equal weights, three steps settle the variance line (as the arm-offset
@@ -409,6 +394,15 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
         }
     }
     let null = Member::new(Vec::new(), problem.fit(&start, &core));
+    let narrow = lost
+        .then(|| narrow_lobe(base, &problem, &start, &core, lobe_sd_deg))
+        .flatten();
+    let (null, restarted) = match &narrow {
+        Some(fit) if fit.cost < null.fit.cost * (1.0 - 1e-3) => {
+            (Member::new(Vec::new(), fit.clone()), true)
+        }
+        _ => (null, false),
+    };
     let mut current = null.clone();
     let mut members = vec![null.clone()];
     let mut tests: Vec<TermTest> = Vec::new();
@@ -427,9 +421,13 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
                 continue;
             }
             // Every start a few iterations, the best one to convergence.
+            // The terms of the paper's model are started from the narrow lobe's fit too,
+            // where the base fit's lobe was lost.
+            let alternative = narrow.as_ref().filter(|_| current.terms.is_empty());
             let fit = term
                 .starts(&current.fit.values)
                 .iter()
+                .chain(alternative.map(|a| term.starts(&a.values)).iter().flatten())
                 .map(|s| problem.fit_at_most(s, &active, START_ITERATIONS))
                 .min_by(|a, b| a.cost.total_cmp(&b.cost))
                 .map(|best| problem.fit(&best.values, &active))
@@ -457,7 +455,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
         current = member;
     }
     let mut chosen = current;
-    if !added.is_empty() {
+    if !added.is_empty() || restarted {
         if chosen.fit.active.contains(&Param::Shift) {
             chosen = without_spurious_offset(&problem, chosen, result, weighted);
         }
@@ -474,6 +472,84 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
         tests,
         plausible,
     });
+}
+
+/// The base fit as the members' start (the terms' parameters at their nulls), and the
+/// parameters of the paper's model every member fits.
+fn base_start(base: &Base, result: &FitResult) -> (Values, Vec<Param>) {
+    let mut start = [0.0; N_FAMILY];
+    start[Param::LnSigma as usize] = result.params.sigma_deg.ln();
+    start[Param::RhoS as usize] = result.params.rho_s;
+    start[Param::RhoD as usize] = result.params.rho_d;
+    start[Param::Eta as usize] = result.params.eta;
+    start[Param::Shift as usize] = result.arm_offset.map_or(0.0, |a| a.deg);
+    start[Param::HazeLnRatio as usize] = 3.0_f64.ln();
+    start[Param::BodyEta as usize] = 1.0;
+    start[Param::RetroLnWidth as usize] = 8.0_f64.ln();
+    let mut core = vec![Param::LnSigma, Param::RhoS, Param::RhoD];
+    // η held at its upper bound by the base fit may be the Fresnel term bent to mimic a
+    // body that is not Lambertian (a body falling toward grazing): it is free again here,
+    // so the body's term can take that shape back. At its lower bound 1 it is not (ρs is
+    // then not identified, only ρs·(η² − 1)).
+    let eta_at_upper = result
+        .notes
+        .iter()
+        .any(|n| matches!(n, super::Note::EtaAtBound { eta, .. } if *eta >= super::ETA_MAX));
+    if base.fitted[ETA] || eta_at_upper {
+        core.push(Param::Eta);
+    }
+    if result.arm_offset.is_some() {
+        core.push(Param::Shift);
+    }
+    (start, core)
+}
+
+/// A base fit that lacks fit with its lobe this broad may have lost the lobe
+/// ([`narrow_lobe`]); no paper's is (MC's σ is 43.5°).
+const LOBE_LOST_DEG: f64 = 60.0;
+/// Main-lobe widths the paper's model is restarted from where the lobe was lost.
+const LOBE_RESTARTS_DEG: [f64; 5] = [0.5, 1.5, 4.0, 10.0, 25.0];
+
+/// The paper's model fitted from narrow to broad lobes, where the base fit lacks fit with
+/// σ near its bound. A body the model does not hold (one rising toward grazing) leaves
+/// every fit far from the readings, and the errors the readings share then let the fit
+/// take the misfit as a common scale error many times the tile's (a glossy paper's model
+/// at a quarter of every reading, σ at 90° and the arm offset at its bound, cost 86,000,
+/// with readings at specular 18× the body): a minimum every member started from it shares.
+/// The restarts are fitted first without the shared errors (each reading by its own
+/// noise), from the body's median reading and a peak as high as the highest, then on the
+/// whole problem. `None` when none converges.
+fn narrow_lobe(
+    base: &Base,
+    problem: &Problem,
+    start: &Values,
+    core: &[Param],
+    lobe_sd_deg: f64,
+) -> Option<solver::MemberFit> {
+    let own_noise = Problem::new(base.observations, &[], base.response.as_ref(), lobe_sd_deg);
+    let mut y: Vec<f64> = base
+        .observations
+        .iter()
+        .map(|o| o.radiance_factor)
+        .collect();
+    y.sort_by(f64::total_cmp);
+    let (median, highest) = (y[y.len() / 2], *y.last()?);
+    LOBE_RESTARTS_DEG
+        .iter()
+        .map(|sigma_deg| {
+            let mut v = *start;
+            v[Param::LnSigma as usize] = sigma_deg.ln();
+            v[Param::RhoS as usize] = highest.max(f64::MIN_POSITIVE);
+            v[Param::RhoD as usize] = median.max(0.0);
+            v[Param::Shift as usize] = 0.0;
+            if core.contains(&Param::Eta) {
+                v[Param::Eta as usize] = 1.5;
+            }
+            own_noise.fit(&v, core)
+        })
+        .filter(|f| f.cost.is_finite())
+        .min_by(|a, b| a.cost.total_cmp(&b.cost))
+        .map(|best| problem.fit(&best.values, core))
 }
 
 /// The arm offset the base fit found may have been the paper's shape seen as a shift (a
