@@ -422,8 +422,10 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
             }
             // Every start a few iterations, the best one to convergence.
             // The terms of the paper's model are started from the narrow lobe's fit too,
-            // where the base fit's lobe was lost.
-            let alternative = narrow.as_ref().filter(|_| current.terms.is_empty());
+            // where the base fit's lobe was lost and the null is not that fit already.
+            let alternative = narrow
+                .as_ref()
+                .filter(|_| !restarted && current.terms.is_empty());
             let fit = term
                 .starts(&current.fit.values)
                 .iter()
