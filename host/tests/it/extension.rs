@@ -25,15 +25,27 @@ const PAPERS: [&str; 8] = ["G", "SG", "PPC", "MC", "J1", "J2", "J3", "J4"];
 
 /// Readings of `truth` on the full grid through a 1° window, noise sqrt((1 % f)² + 0.003²).
 fn readings(truth: &dyn Fn(f64, f64) -> f64, seed: u64, with_std: bool) -> Vec<Observation> {
+    readings_on(&common::full_grid(), truth, seed, (0.01, 0.003), with_std)
+}
+
+/// Readings of `truth` at `geometries` through a 1° window, noise sqrt((relative·f)² +
+/// floor²) for `noise` = (relative, floor).
+fn readings_on(
+    geometries: &[(f64, f64)],
+    truth: &dyn Fn(f64, f64) -> f64,
+    seed: u64,
+    (relative, floor): (f64, f64),
+    with_std: bool,
+) -> Vec<Observation> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    common::full_grid()
-        .into_iter()
-        .map(|(ti, tr)| {
+    geometries
+        .iter()
+        .map(|&(ti, tr)| {
             let f = (0..401)
                 .map(|k| truth(ti, tr - 0.5 + (k as f64 + 0.5) / 401.0))
                 .sum::<f64>()
                 / 401.0;
-            let std = (0.01 * f).hypot(0.003);
+            let std = (relative * f).hypot(floor);
             let z: f64 = rng.sample(rand_distr::StandardNormal);
             Observation {
                 theta_i_deg: ti,
@@ -725,25 +737,7 @@ fn a_glossy_lobe_lost_to_a_body_rising_toward_grazing_is_found_again() {
     let run = common::run_seed();
     let (mut lost, mut right, mut covered, mut seen) = (0, 0, 0, Vec::new());
     for seed in 0..6u64 {
-        let mut rng = ChaCha8Rng::seed_from_u64(100 * run + seed);
-        let obs: Vec<Observation> = GEOMETRIES
-            .iter()
-            .map(|&(ti, tr)| {
-                let f = (0..401)
-                    .map(|k| truth(ti, tr - 0.5 + (k as f64 + 0.5) / 401.0))
-                    .sum::<f64>()
-                    / 401.0;
-                let std = (0.001 * f).hypot(0.0003);
-                let z: f64 = rng.sample(rand_distr::StandardNormal);
-                Observation {
-                    theta_i_deg: ti,
-                    theta_r_deg: tr,
-                    radiance_factor: f + std * z,
-                    std: Some(std),
-                    theta_r_span_deg: 0.0,
-                }
-            })
-            .collect();
+        let obs = readings_on(&GEOMETRIES, &truth, 100 * run + seed, (0.001, 0.0003), true);
         let mut shared = vec![SharedError {
             name: "tile certificate".into(),
             sensitivity: obs.iter().map(|o| 0.005 * o.radiance_factor).collect(),
