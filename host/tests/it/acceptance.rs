@@ -130,10 +130,13 @@ fn an_arm_offset_is_detected_and_sigma_stays_in_its_interval() {
                     "{name} {label} seed {seed}: flagged with the offset fitted"
                 );
                 if seed == 0 {
+                    // The paper's model without the offset term (an off-specular peak, one of
+                    // the extensions, would take the offset up).
                     let without = fit(
                         &obs,
                         &FitOptions {
                             arm_offset: false,
+                            extensions: false,
                             ..FitOptions::default()
                         },
                     )

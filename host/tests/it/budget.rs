@@ -229,9 +229,12 @@ fn session(
     }
 }
 
+/// The paper's model alone, whatever the default: the budget's terms are its intervals'
+/// (with the extensions a `model form` term joins them, tested in `extension.rs`).
 fn options() -> FitOptions {
     FitOptions {
         acceptance_deg: None,
+        extensions: false,
         ..FitOptions::default()
     }
 }
