@@ -800,3 +800,79 @@ fn a_glossy_lobe_lost_to_a_body_rising_toward_grazing_is_found_again() {
     assert!(lost >= 5, "lost in {lost} of 6: {seen:#?}");
     assert!(right >= 5 && covered >= 5, "{seen:#?}");
 }
+
+#[test]
+fn a_member_as_good_as_the_best_that_does_not_pin_sigma_down_does_not_widen_it() {
+    // Exact-TSL G on the 20 geometries an adaptive session had after its first batch (the
+    // twelve sparse ones and eight about the specular peak at θi = 60° only), the noise
+    // the session stated (0.26 % of the reading, 0.0016 at the floor). With the peak
+    // seen at one θi, σ varying with θi may leave σ at 45° open (0.97 ± 3.6° in that
+    // session); that member was within 2 of Akaike's best, and counted whole it made σ's
+    // interval [0.001, 90]° (library and sheet refused the session as implausible). A
+    // member counted now identifies σ (relative sd at most 0.5), so its interval is within
+    // a factor e^0.98 of its estimate. What is asked, over 128 seeds: σ's interval holds σ
+    // and stays below 6σ in every one (over 900 seeds of the code before, it reached
+    // 12–116σ; now at most 4.1σ), and within [0.3σ, 3.5σ] in all but 16 (about 5.5 % are
+    // not, for the slope member's σ at 45° and the shape sensitivity it brings, which are
+    // the readings' to settle: the adaptive policy then crosses the peak at another θi;
+    // 15 % before). The slope member is among the plausible in most seeds.
+    const GEOMETRIES: [(f64, f64); 20] = [
+        (60.0, 70.0),
+        (60.0, 60.0),
+        (45.0, 70.0),
+        (30.0, 70.0),
+        (20.0, 70.0),
+        (45.0, 45.0),
+        (30.0, 30.0),
+        (20.0, 20.0),
+        (20.0, 0.0),
+        (30.0, 0.0),
+        (45.0, 0.0),
+        (60.0, 0.0),
+        (60.0, 56.0),
+        (60.0, 58.0),
+        (60.0, 59.0),
+        (60.0, 59.5),
+        (60.0, 60.5),
+        (60.0, 61.0),
+        (60.0, 62.0),
+        (60.0, 64.0),
+    ];
+    const SEEDS: u64 = 128;
+    let p = reference("G");
+    let truth = tsl(p);
+    let run = common::run_seed();
+    let (mut exercised, mut wide, mut widest) = (0, 0, 0.0_f64);
+    for seed in 0..SEEDS {
+        let obs = readings_on(
+            &GEOMETRIES,
+            &truth,
+            1000 * run + seed,
+            (0.0026, 0.0016),
+            true,
+        );
+        let r = fit(&obs, &on()).expect("fit");
+        let (lo, hi) = r.ci95[SIGMA].expect("σ's interval");
+        let plausible = r.extension.as_ref().map_or(&[][..], |e| &e.plausible[..]);
+        exercised += usize::from(plausible.iter().any(|m| m == "TSL + σ varying with θi"));
+        wide += usize::from(lo < 0.3 * p.sigma_deg || hi > 3.5 * p.sigma_deg);
+        widest = widest.max(hi / p.sigma_deg);
+        assert!(
+            hi < 6.0 * p.sigma_deg && covers(Some((lo, hi)), p.sigma_deg),
+            "seed {seed}: σ {} [{lo}, {hi}] against {} (plausible: {plausible:?})",
+            r.params.sigma_deg,
+            p.sigma_deg
+        );
+    }
+    println!(
+        "of {SEEDS} seeds: outside [0.3σ, 3.5σ] {wide}, the highest upper end {widest:.2}σ, the slope member plausible in {exercised}"
+    );
+    assert!(
+        wide <= 16,
+        "{wide} of {SEEDS} intervals outside [0.3σ, 3.5σ]"
+    );
+    assert!(
+        exercised >= SEEDS as usize / 2,
+        "the case was exercised in {exercised} seeds"
+    );
+}
