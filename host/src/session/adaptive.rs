@@ -652,6 +652,25 @@ mod tests {
         obs
     }
 
+    /// The design's next batch of 6 from `fit` of `readings`, the arms at θi = θr = 60°,
+    /// the reference motion and 100 ms readings.
+    fn next_batch_at_60(fit: &FitResult, readings: &[Observation]) -> Vec<Geometry> {
+        let measured: BTreeSet<Geometry> = readings
+            .iter()
+            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
+            .collect();
+        next_batch(
+            fit,
+            readings,
+            &measured,
+            Geometry::from_whole_deg(60, 60),
+            &Motion::reference(),
+            100,
+            6,
+        )
+        .expect("a batch")
+    }
+
     #[test]
     fn with_the_extensions_one_incidence_angle_does_not_pin_sigma_down() {
         use crate::analysis::fit::{FitOptions, fit};
@@ -674,21 +693,7 @@ mod tests {
         let closed = sigma_rel_half_width_over_theta_i(&from_two, &two).expect("a design");
         assert!(closed < 0.03, "two θi: ±{:.1} %", 100.0 * closed);
         // And the design's next batch from one θi crosses the peak at another.
-        let measured: BTreeSet<Geometry> = one
-            .iter()
-            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
-            .collect();
-        let here = Geometry::from_whole_deg(60, 60);
-        let batch = next_batch(
-            &from_one,
-            &one,
-            &measured,
-            here,
-            &Motion::reference(),
-            100,
-            6,
-        )
-        .expect("a batch");
+        let batch = next_batch_at_60(&from_one, &one);
         assert!(
             batch.iter().any(|g| g.theta_i.deg() != 60.0),
             "the batch stays at θi = 60°: {batch:?}"
@@ -709,8 +714,8 @@ mod tests {
         let one: Vec<Observation> = peak_readings_over(&[20.0, 60.0], -8..=0)
             .into_iter()
             .filter(|o| {
-                !(0.0..15.0).contains(&(o.theta_r_deg - o.theta_i_deg))
-                    || o.theta_r_deg == o.theta_i_deg
+                let past = o.theta_r_deg - o.theta_i_deg;
+                past <= 0.0 || past >= 15.0
             })
             .collect();
         let both = peak_readings_over(&[20.0, 60.0], -8..=8);
@@ -721,20 +726,7 @@ mod tests {
         let closed = sigma_rel_half_width_over_theta_i(&from_both, &both).expect("a design");
         assert!(closed < 0.03, "both flanks: ±{:.1} %", 100.0 * closed);
         // The next batch from one flank reads the other.
-        let measured: BTreeSet<Geometry> = one
-            .iter()
-            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
-            .collect();
-        let batch = next_batch(
-            &from_one,
-            &one,
-            &measured,
-            Geometry::from_whole_deg(60, 60),
-            &Motion::reference(),
-            100,
-            6,
-        )
-        .expect("a batch");
+        let batch = next_batch_at_60(&from_one, &one);
         assert!(
             batch
                 .iter()

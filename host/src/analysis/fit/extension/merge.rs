@@ -371,8 +371,9 @@ pub(super) fn widen_for_model_form(
     let before = match ModelForm::from_env() {
         ModelForm::Union => {
             // A member as good as the best whose σ, ρs or ρd the readings do not pin down
-            // is not counted either: on a G's 20 adaptive readings near specular at two
-            // θi, σ varying with θi was the best member by 0.3 with σ(45°) 0.97 ± 3.6°,
+            // is not counted either: on a G's 20 adaptive readings, the specular peak read
+            // at θi = 60° only, σ varying with θi was the best member by 0.3 with σ(45°)
+            // 0.97 ± 3.6°,
             // and its whole interval made σ's [0.001, 90]° where the paper's model gives
             // 0.7995 ± 0.0011°.
             let by_akaike_identified: Vec<&Member> =
