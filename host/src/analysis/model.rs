@@ -76,7 +76,7 @@ impl Params {
 /// Smallest cosine used; keeps exactly-grazing geometries finite, and products of two
 /// inverse cosines (1e30 at most) too, so that a detector window reaching past 90° gives
 /// large but finite terms, never ∞ · 0.
-const COS_FLOOR: f64 = 1e-15;
+pub(crate) const COS_FLOOR: f64 = 1e-15;
 
 /// The parts of the model that depend only on the geometry.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -51,7 +51,7 @@
 //! uniform piece: within 1e-7 of the exact mean for lobes of σ ≥ 0.3° seen through a
 //! 1° window. The base engine integrates in closed form instead; this family evaluates its
 //! null model the same way as its extensions, so their costs compare like with like.
-use crate::analysis::model::{self, DetectorResponse, PlaneGeometry, fresnel_with_derivative};
+use crate::analysis::model::{self, COS_FLOOR, DetectorResponse, fresnel_with_derivative};
 
 /// ln 2.
 const LN_2: f64 = std::f64::consts::LN_2;
@@ -60,8 +60,6 @@ pub(crate) const REFERENCE_THETA_I_DEG: f64 = 45.0;
 /// Within this of κ = 0 the lobe is evaluated as the Gaussian it tends to (the Student-t
 /// form loses digits as κ → 0), and ∂D/∂κ is taken from the Gaussian's expansion.
 const KAPPA_GAUSSIAN: f64 = 1e-7;
-/// Step of the central difference for ∂D/∂κ (κ's range is open on both sides of it).
-const KAPPA_STEP: f64 = 1e-5;
 /// Lightest tail the lobe may take: κ = −¼ is a lobe of compact support (zero beyond 2.3
 /// half widths, where the Gaussian is still at 2.6 % of its peak), lighter than any
 /// microfacet lobe the campaign's shapes hold (Beckmann, Blinn–Phong). Below −⅓ the lobe's
@@ -71,8 +69,6 @@ pub(crate) const KAPPA_MIN: f64 = -0.25;
 const PEAK_SHIFT_MAX_DEG: f64 = 20.0;
 /// Largest |t| of a lobe wider on one side (the sides' widths 1 ± t of their mean).
 const ASYMMETRY_MAX: f64 = 0.7;
-/// Step of the one-sided difference for ∂/∂η_b (η_b ≥ 1).
-const BODY_ETA_STEP: f64 = 1e-6;
 /// Step of the difference for ∂f/∂δ0, degrees.
 const SHIFT_STEP_DEG: f64 = 1e-4;
 
@@ -156,25 +152,6 @@ impl Param {
 /// Values of every parameter of the family (the inactive ones at their null values).
 pub(crate) type Values = [f64; N_FAMILY];
 
-/// The lobe D(θa; s, κ) from w = θa²/h², h the half width at half maximum, and ∂D/∂w.
-#[inline]
-fn lobe_of_w(w: f64, kappa: f64) -> (f64, f64) {
-    if kappa.abs() < KAPPA_GAUSSIAN {
-        let d = (-LN_2 * w).exp();
-        return (d, -LN_2 * d);
-    }
-    // κ < 0 (a lighter tail than the Gaussian's, Pearson's type II): a < 0, and the lobe is
-    // 0 where 1 + a·w ≤ 0.
-    let a = (2.0 * kappa * LN_2 / (1.0 + kappa)).exp_m1();
-    let base = a * w;
-    if base <= -1.0 {
-        return (0.0, 0.0);
-    }
-    let power = (1.0 + kappa) / (2.0 * kappa);
-    let d = (-power * base.ln_1p()).exp();
-    (d, -power * a / (1.0 + base) * d)
-}
-
 /// Where a lobe of κ < 0 ends, in half widths at half maximum (infinite for κ ≥ 0).
 pub(crate) fn support_half_widths(kappa: f64) -> f64 {
     if kappa >= 0.0 {
@@ -185,46 +162,49 @@ pub(crate) fn support_half_widths(kappa: f64) -> f64 {
 }
 
 /// D, ∂D/∂ln s, ∂D/∂κ and ∂D/∂θa at θa for a lobe of Gaussian-equivalent width s
-/// (degrees).
+/// (degrees) and tail `tail` (`None`: the Gaussian).
 #[inline]
-pub(crate) fn tail_lobe(theta_a_deg: f64, s_deg: f64, kappa: f64) -> (f64, f64, f64, f64) {
+fn lobe(theta_a_deg: f64, s_deg: f64, tail: Option<Tail>) -> (f64, f64, f64, f64) {
     let scale = 1.0 / (2.0 * LN_2 * s_deg * s_deg);
     let w = theta_a_deg * theta_a_deg * scale;
-    let (d, dw) = lobe_of_w(w, kappa);
-    let d_kappa = if kappa.abs() < KAPPA_GAUSSIAN {
-        // ln D = −ln2·w + κ·(ln2)²·w·(w − 1) + O(κ²): 0 at the half maximum (w = 1),
-        // which κ leaves where it is.
-        d * LN_2 * LN_2 * w * (w - 1.0)
-    } else {
-        (lobe_of_w(w, kappa + KAPPA_STEP).0 - lobe_of_w(w, kappa - KAPPA_STEP).0)
-            / (2.0 * KAPPA_STEP)
+    let (d, d_w, d_kappa) = match tail {
+        // At κ = 0 (κ inactive, or the Gaussian fitted) ∂D/∂κ is the Gaussian's
+        // expansion, ln D = −ln2·w + κ·(ln2)²·w·(w − 1) + O(κ²): 0 at the half maximum
+        // (w = 1), which κ leaves where it is. The covariance of a member whose κ is free
+        // but 0 still holds what κ leaves open.
+        None => {
+            let d = (-LN_2 * w).exp();
+            (d, -LN_2 * d, d * LN_2 * LN_2 * w * (w - 1.0))
+        }
+        Some(tail) => tail.lobe(w),
     };
-    (d, -2.0 * w * dw, d_kappa, 2.0 * theta_a_deg * scale * dw)
+    (d, -2.0 * w * d_w, d_kappa, 2.0 * theta_a_deg * scale * d_w)
 }
 
-/// The body's shape variable q at (θi, θr) (0 at θi = θr = 45°).
+/// 1 − cos θ, the body's shape variable's part of one angle (q sums θi's and θr's less
+/// twice 45°'s: 0 at θi = θr = 45°).
 #[inline]
-fn body_q(theta_i_deg: f64, theta_r_deg: f64) -> f64 {
-    let q = |t: f64| 1.0 - t.to_radians().cos();
-    q(theta_i_deg) + q(theta_r_deg) - 2.0 * q(REFERENCE_THETA_I_DEG)
+fn one_minus_cos(theta_deg: f64) -> f64 {
+    1.0 - theta_deg.to_radians().cos()
 }
 
-/// The transmittance 1 − F(θ, η)²/2 of the paper's Fresnel amplitude F.
+/// The transmittance T = 1 − F²/2 of the paper's Fresnel amplitude F at an angle of
+/// sine² `sin2` and cosine `cos`, and dT/dη. Within 0.001° of grazing it is taken at
+/// 89.999°, where F has a finite slope.
 #[inline]
-fn transmittance(theta_deg: f64, eta: f64) -> f64 {
-    let f = model::fresnel(theta_deg.abs().min(89.999), eta);
-    1.0 - 0.5 * f * f
+fn transmittance(sin2: f64, cos: f64, eta: f64) -> (f64, f64) {
+    let cos_grazing = GRAZING_DEG.to_radians().cos();
+    let (sin2, cos) = if cos.abs() < cos_grazing {
+        (1.0 - cos_grazing * cos_grazing, cos_grazing)
+    } else {
+        (sin2, cos.abs())
+    };
+    let (f, d_f) = fresnel_with_derivative(sin2, cos, eta);
+    (1.0 - 0.5 * f * f, -f * d_f)
 }
 
-/// The Fresnel body's factor T(θi)·T(θr)/T(45°)² at η_b.
-#[inline]
-fn fresnel_body(theta_i_deg: f64, theta_r_deg: f64, eta_b: f64) -> f64 {
-    if eta_b <= 1.0 {
-        return 1.0;
-    }
-    transmittance(theta_i_deg, eta_b) * transmittance(theta_r_deg, eta_b)
-        / transmittance(REFERENCE_THETA_I_DEG, eta_b).powi(2)
-}
+/// Angle the Fresnel body's transmittance is held at nearer grazing, degrees.
+const GRAZING_DEG: f64 = 89.999;
 
 /// 5-point Gauss–Legendre on [−½, ½]: offsets and weights.
 const GL5: [(f64, f64); 5] = [
@@ -235,31 +215,53 @@ const GL5: [(f64, f64); 5] = [
     (0.453_089_922_969_332_2, 0.118_463_442_528_094_5),
 ];
 
-/// One reading as the family sees it: its θi, and the θr offsets from its centre with their
-/// weights, which sum to 1.
+/// Sine and cosine of half an angle in degrees.
+#[inline]
+fn half_sin_cos(theta_deg: f64) -> (f64, f64) {
+    (0.5 * theta_deg).to_radians().sin_cos()
+}
+
+/// One reading as the family sees it: its θi's terms, and the nodes it averages over.
+///
+/// Every angle is kept as the sine and cosine of its half: an arm offset δ0 turns each
+/// node's by one rotation (the same for every node of every reading), and ψ, θa and θr's
+/// cosines follow from θi's and θr's halves by sums and products. A fit evaluates every
+/// reading hundreds of times with δ0 moving; computing the nodes' trigonometry afresh
+/// each time was two thirds of a sweep session's fitting.
 pub(crate) struct Reading {
     theta_i_deg: f64,
-    theta_r_deg: f64,
-    nodes: Vec<(f64, f64)>,
-    /// The nodes' geometry without an arm offset, computed once: the parameters never
-    /// change it, and a fit evaluates every reading hundreds of times.
-    unshifted: Vec<Node>,
+    /// (θi − 45°)/45°, σ's slope variable.
+    x_i: f64,
+    /// sin(θi/2), cos(θi/2).
+    half_i: (f64, f64),
+    /// sin² θi and cos θi (the Fresnel body's transmittance).
+    sin2_i: f64,
+    cos_i: f64,
+    nodes: Vec<Node>,
 }
 
-/// One node's geometry terms.
-#[derive(Clone, Copy)]
+/// One node of a reading: its θr without an arm offset, the sine and cosine of its half,
+/// and its weight (a reading's weights sum to 1).
 struct Node {
-    geometry: PlaneGeometry,
-    q: f64,
+    theta_r_deg: f64,
+    half_r: (f64, f64),
+    weight: f64,
 }
 
-impl Node {
-    fn at(theta_i_deg: f64, theta_r_deg: f64) -> Node {
-        Node {
-            geometry: PlaneGeometry::new(theta_i_deg, theta_r_deg),
-            q: body_q(theta_i_deg, theta_r_deg),
-        }
-    }
+/// The terms of the geometry at one node under an arm offset.
+struct Geometry {
+    theta_r_deg: f64,
+    /// θr − θi, degrees.
+    offset_deg: f64,
+    sin2_psi: f64,
+    cos_psi: f64,
+    /// G/(cos θi·cos θr), as [`model::PlaneGeometry`] forms it.
+    attenuation_over_cosines: f64,
+    /// The body's shape variable q.
+    q: f64,
+    /// sin² θr and cos θr.
+    sin2_r: f64,
+    cos_r: f64,
 }
 
 impl Reading {
@@ -283,7 +285,7 @@ impl Reading {
         let extent = offsets.clone().fold(f64::NEG_INFINITY, f64::max)
             - offsets.fold(f64::INFINITY, f64::min)
             + window.unwrap_or(0.0);
-        let nodes = match window {
+        let nodes: Vec<(f64, f64)> = match window {
             _ if extent < 0.1 * lobe_sd_deg => {
                 vec![(centres.iter().map(|(c, w)| c * w).sum::<f64>(), 1.0)]
             }
@@ -293,163 +295,329 @@ impl Reading {
                 .collect(),
             _ => centres,
         };
-        let unshifted = nodes
-            .iter()
-            .map(|(offset, _)| Node::at(theta_i_deg, theta_r_deg + offset))
-            .collect();
+        let (sin_i, cos_i) = theta_i_deg.to_radians().sin_cos();
         Reading {
             theta_i_deg,
+            x_i: (theta_i_deg - REFERENCE_THETA_I_DEG) / REFERENCE_THETA_I_DEG,
+            half_i: half_sin_cos(theta_i_deg),
+            sin2_i: sin_i * sin_i,
+            cos_i,
+            nodes: nodes
+                .into_iter()
+                .map(|(offset, weight)| Node {
+                    theta_r_deg: theta_r_deg + offset,
+                    half_r: half_sin_cos(theta_r_deg + offset),
+                    weight,
+                })
+                .collect(),
+        }
+    }
+
+    /// The geometry at `node` with the arm offset `shift_deg`, whose half angle's sine and
+    /// cosine are `rotation`: the terms of [`model::PlaneGeometry::new`], from the halves.
+    #[inline]
+    fn geometry(&self, node: &Node, shift_deg: f64, rotation: (f64, f64)) -> Geometry {
+        let (s_d, c_d) = rotation;
+        let (s_r, c_r) = (
+            node.half_r.0 * c_d + node.half_r.1 * s_d,
+            node.half_r.1 * c_d - node.half_r.0 * s_d,
+        );
+        let (s_i, c_i) = self.half_i;
+        // ψ = (θi + θr)/2, θa = (θi − θr)/2.
+        let sin_psi = s_i * c_r + c_i * s_r;
+        let cos_psi_raw = c_i * c_r - s_i * s_r;
+        let cos_a = c_i * c_r + s_i * s_r;
+        let cos_r_raw = c_r * c_r - s_r * s_r;
+        let sin_r = 2.0 * s_r * c_r;
+        let cos_psi = cos_psi_raw.max(COS_FLOOR);
+        let cos_i = self.cos_i.max(COS_FLOOR);
+        let cos_r = cos_r_raw.max(COS_FLOOR);
+        // G/(ci·cr) = min(1/(ci·cr), 2ca/(cψ·ci), 2ca/(cψ·cr)), as PlaneGeometry forms it.
+        let attenuation_over_cosines = (1.0 / (cos_i * cos_r))
+            .min(2.0 * cos_a / (cos_psi * cos_i))
+            .min(2.0 * cos_a / (cos_psi * cos_r));
+        let theta_r_deg = node.theta_r_deg + shift_deg;
+        Geometry {
             theta_r_deg,
-            nodes,
-            unshifted,
+            offset_deg: theta_r_deg - self.theta_i_deg,
+            sin2_psi: sin_psi * sin_psi,
+            cos_psi,
+            attenuation_over_cosines,
+            q: (1.0 - self.cos_i) + (1.0 - cos_r_raw) - 2.0 * one_minus_cos(REFERENCE_THETA_I_DEG),
+            sin2_r: sin_r * sin_r,
+            cos_r: cos_r_raw,
         }
     }
 }
 
-/// The point model's value and its gradient over every [`Param`] (∂/∂δ0 left 0: it is
-/// taken by difference over the whole reading).
-#[inline]
-fn point(v: &Values, node: &Node, gradient: bool) -> (f64, Values) {
-    let g = &node.geometry;
-    let (theta_i_deg, theta_r_deg) = (g.theta_i_deg, g.theta_r_deg);
-    // An off-specular peak moves the main lobe alone (its F and G stay the geometry's).
-    let theta_a = 0.5 * (g.offset_deg - v[Param::PeakShift as usize]);
-    let x_i = (theta_i_deg - REFERENCE_THETA_I_DEG) / REFERENCE_THETA_I_DEG;
-    let ln_s = v[Param::LnSigma as usize] + v[Param::Slope as usize] * x_i;
-    // A lobe wider on one side: the side's width, the mean of the two the lobe's σ.
-    let side = if theta_a > 0.0 {
-        1.0
-    } else if theta_a < 0.0 {
-        -1.0
-    } else {
-        0.0
-    };
-    let side_factor = 1.0 + v[Param::Asymmetry as usize] * side;
-    let s = ln_s.exp() * side_factor;
-    let (d, d_ln_s, d_kappa, d_theta_a) = if gradient {
-        // At κ = 0 (κ inactive, or the Gaussian fitted) ∂D/∂κ is the Gaussian's expansion:
-        // the covariance of a member whose κ is free but 0 still holds what κ leaves open.
-        tail_lobe(theta_a, s, v[Param::Kappa as usize])
-    } else {
-        let w = theta_a * theta_a / (2.0 * LN_2 * s * s);
-        (lobe_of_w(w, v[Param::Kappa as usize]).0, 0.0, 0.0, 0.0)
-    };
-    let (fr, d_fr) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, v[Param::Eta as usize]);
-    let h = g.attenuation_over_cosines;
-    let (rho_s, rho_d, haze_fraction) = (
-        v[Param::RhoS as usize],
-        v[Param::RhoD as usize],
-        v[Param::HazeFraction as usize],
-    );
-    let rho_h = rho_s * haze_fraction;
-    // Evaluated at h = 0 as well when gradients are asked for: ∂f/∂h there is what lets
-    // a member whose haze fitted to nothing still say how much haze the data leave open.
-    let (dh, dh_ln) = if rho_h > 0.0 || gradient {
-        let sh = (ln_s + v[Param::HazeLnRatio as usize]).exp();
-        // The haze stays about specular: a shift is the main lobe's term.
-        let z = 0.5 * g.offset_deg / sh;
-        let e = (-0.5 * z * z).exp();
-        (e, e * z * z)
-    } else {
-        (0.0, 0.0)
-    };
-    let q = node.q;
-    let eta_b = v[Param::BodyEta as usize];
-    let transmitted = fresnel_body(theta_i_deg, theta_r_deg, eta_b);
-    let d_transmitted = if gradient && eta_b > 1.0 {
-        (fresnel_body(theta_i_deg, theta_r_deg, eta_b + BODY_ETA_STEP) - transmitted)
-            / BODY_ETA_STEP
-    } else {
-        0.0
-    };
-    let b = v[Param::Body as usize];
-    let shape = if b == 0.0 { 1.0 } else { (b * q).exp() };
-    // The surge, evaluated at B = 0 too when gradients are asked for (as the haze is).
-    let retro_b = v[Param::RetroAmplitude as usize];
-    let (cusp, d_cusp_ln_w) = if retro_b > 0.0 || gradient {
-        let per_width = (theta_i_deg + theta_r_deg).abs() / v[Param::RetroLnWidth as usize].exp();
-        let e = (-per_width).exp();
-        (e, e * per_width)
-    } else {
-        (0.0, 0.0)
-    };
-    let surge = 1.0 + retro_b * cusp;
-    let body_without_surge = shape * transmitted;
-    let body = body_without_surge * surge;
-    let fh = fr * h;
-    let value = rho_s * fh * d + rho_h * fh * dh + rho_d * body;
-    if !gradient {
-        return (value, [0.0; N_FAMILY]);
+/// The lobe's tail constants at κ: a, the exponent −(1+κ)/(2κ)'s magnitude, and their
+/// derivatives in κ (module docs: D = (1 + a·w)^(−power)); `None` within
+/// [`KAPPA_GAUSSIAN`] of 0, where the lobe is the Gaussian.
+#[derive(Clone, Copy)]
+struct Tail {
+    a: f64,
+    power: f64,
+    d_a: f64,
+    d_power: f64,
+}
+
+impl Tail {
+    fn at(kappa: f64) -> Option<Tail> {
+        if kappa.abs() < KAPPA_GAUSSIAN {
+            return None;
+        }
+        let exponent = 2.0 * kappa * LN_2 / (1.0 + kappa);
+        let a = exponent.exp_m1();
+        Some(Tail {
+            a,
+            power: (1.0 + kappa) / (2.0 * kappa),
+            d_a: (a + 1.0) * 2.0 * LN_2 / ((1.0 + kappa) * (1.0 + kappa)),
+            d_power: -0.5 / (kappa * kappa),
+        })
     }
-    let d_ln = rho_s * fh * d_ln_s + rho_h * fh * dh_ln;
-    let mut grad = [0.0; N_FAMILY];
-    grad[Param::LnSigma as usize] = d_ln;
-    grad[Param::RhoS as usize] = fh * (d + haze_fraction * dh);
-    grad[Param::RhoD as usize] = body;
-    grad[Param::Eta as usize] = (rho_s * d + rho_h * dh) * h * d_fr;
-    grad[Param::Kappa as usize] = rho_s * fh * d_kappa;
-    grad[Param::HazeFraction as usize] = rho_s * fh * dh;
-    grad[Param::HazeLnRatio as usize] = rho_h * fh * dh_ln;
-    grad[Param::Slope as usize] = d_ln * x_i;
-    grad[Param::Body as usize] = rho_d * body * q;
-    grad[Param::BodyEta as usize] = rho_d * shape * surge * d_transmitted;
-    grad[Param::RetroAmplitude as usize] = rho_d * body_without_surge * cusp;
-    grad[Param::RetroLnWidth as usize] = rho_d * body_without_surge * retro_b * d_cusp_ln_w;
-    // θa = (θr − θi − δp)/2.
-    grad[Param::PeakShift as usize] = -0.5 * rho_s * fh * d_theta_a;
-    // The side's ln width moves by side/(1 + t·side) per unit of t.
-    grad[Param::Asymmetry as usize] = rho_s * fh * d_ln_s * side / side_factor;
-    (value, grad)
+
+    /// D, ∂D/∂w and ∂D/∂κ at w = θa²/h².
+    #[inline]
+    fn lobe(self, w: f64) -> (f64, f64, f64) {
+        let base = self.a * w;
+        // κ < 0 (a lighter tail than the Gaussian's, Pearson's type II): a < 0, and the
+        // lobe is 0 where 1 + a·w ≤ 0.
+        if base <= -1.0 {
+            return (0.0, 0.0, 0.0);
+        }
+        let log = base.ln_1p();
+        let d = (-self.power * log).exp();
+        let d_w = -self.power * self.a / (1.0 + base) * d;
+        let d_kappa = -d * (self.d_power * log + self.power * w * self.d_a / (1.0 + base));
+        (d, d_w, d_kappa)
+    }
 }
 
-/// The reading's model value and gradient at `v`; ∂/∂δ0 by central difference when
-/// `shift_gradient`.
-pub(crate) fn evaluate(v: &Values, reading: &Reading, shift_gradient: bool) -> (f64, Values) {
-    evaluate_with(v, reading, true, shift_gradient)
-}
-
-/// The reading's model value alone (a trial step's cost needs no gradient).
-pub(crate) fn value(v: &Values, reading: &Reading) -> f64 {
-    evaluate_with(v, reading, false, false).0
-}
-
-fn evaluate_with(
-    v: &Values,
-    reading: &Reading,
+/// The family at one point of its parameters, with what the evaluation of every reading
+/// there shares: the lobe's tail constants, the body's reference transmittance, the arm
+/// offset's rotations, and which gradients are asked for.
+pub(crate) struct At<'a> {
+    v: &'a Values,
+    tail: Option<Tail>,
+    /// T(45°, η_b) and dT/dη_b there (η_b > 1).
+    reference_transmittance: (f64, f64),
+    retro_width_deg: f64,
+    /// Half the arm offset's sine and cosine, and the same at ± [`SHIFT_STEP_DEG`].
+    rotations: [(f64, f64); 3],
     gradient: bool,
     shift_gradient: bool,
-) -> (f64, Values) {
-    let shift = v[Param::Shift as usize];
-    let (mut value, mut grad) = (0.0, [0.0; N_FAMILY]);
-    let (mut plus, mut minus) = (0.0, 0.0);
-    let ti = reading.theta_i_deg;
-    for (k, &(offset, weight)) in reading.nodes.iter().enumerate() {
-        let theta_r = reading.theta_r_deg + shift + offset;
-        let node = if shift == 0.0 {
-            reading.unshifted[k]
+    /// The haze's and the surge's terms: evaluated where they are present, and where they
+    /// are free even at their null (∂f/∂h at h = 0 is what lets a member whose haze fitted
+    /// to nothing still say how much haze the data leave open).
+    haze: bool,
+    retro: bool,
+    kappa_gradient: bool,
+    body_eta_gradient: bool,
+}
+
+impl<'a> At<'a> {
+    /// At `v`, with the gradients over `active` (`None`: the value alone, as a trial
+    /// step's cost needs). The gradients of parameters not in `active` may be left 0.
+    pub(crate) fn new(v: &'a Values, active: Option<&[Param]>) -> At<'a> {
+        let free = |p: &[Param]| active.is_some_and(|a| p.iter().any(|q| a.contains(q)));
+        let eta_b = v[Param::BodyEta as usize];
+        let reference_transmittance = if eta_b > 1.0 {
+            let (s, c) = REFERENCE_THETA_I_DEG.to_radians().sin_cos();
+            transmittance(s * s, c, eta_b)
         } else {
-            Node::at(ti, theta_r)
+            (1.0, 0.0)
         };
-        let (f, g) = point(v, &node, gradient);
-        value += weight * f;
-        for (t, gi) in grad.iter_mut().zip(g) {
-            *t += weight * gi;
-        }
-        if shift_gradient {
-            plus += weight * point(v, &Node::at(ti, theta_r + SHIFT_STEP_DEG), false).0;
-            minus += weight * point(v, &Node::at(ti, theta_r - SHIFT_STEP_DEG), false).0;
+        let shift = v[Param::Shift as usize];
+        Self {
+            v,
+            tail: Tail::at(v[Param::Kappa as usize]),
+            reference_transmittance,
+            retro_width_deg: v[Param::RetroLnWidth as usize].exp(),
+            rotations: [0.0, SHIFT_STEP_DEG, -SHIFT_STEP_DEG].map(|d| half_sin_cos(shift + d)),
+            gradient: active.is_some(),
+            shift_gradient: free(&[Param::Shift]),
+            haze: v[Param::HazeFraction as usize] > 0.0
+                || free(&[Param::HazeFraction, Param::HazeLnRatio]),
+            retro: v[Param::RetroAmplitude as usize] > 0.0
+                || free(&[Param::RetroAmplitude, Param::RetroLnWidth]),
+            kappa_gradient: free(&[Param::Kappa]),
+            body_eta_gradient: free(&[Param::BodyEta]) && eta_b > 1.0,
         }
     }
-    if shift_gradient {
-        grad[Param::Shift as usize] = (plus - minus) / (2.0 * SHIFT_STEP_DEG);
+
+    /// The reading's model value and its gradient (all 0 without gradients); ∂/∂δ0 by
+    /// central difference.
+    pub(crate) fn evaluate(&self, reading: &Reading) -> (f64, Values) {
+        let v = self.v;
+        let shift = v[Param::Shift as usize];
+        let ln_s = v[Param::LnSigma as usize] + v[Param::Slope as usize] * reading.x_i;
+        let per_reading = PerReading {
+            s: ln_s.exp(),
+            haze_s: if self.haze {
+                (ln_s + v[Param::HazeLnRatio as usize]).exp()
+            } else {
+                0.0
+            },
+            transmittance_i: if v[Param::BodyEta as usize] > 1.0 {
+                transmittance(reading.sin2_i, reading.cos_i, v[Param::BodyEta as usize])
+            } else {
+                (1.0, 0.0)
+            },
+        };
+        let (mut value, mut grad) = (0.0, [0.0; N_FAMILY]);
+        let (mut plus, mut minus) = (0.0, 0.0);
+        for node in &reading.nodes {
+            let geometry = reading.geometry(node, shift, self.rotations[0]);
+            let (f, g) = self.point(reading, &per_reading, &geometry, self.gradient);
+            value += node.weight * f;
+            if self.gradient {
+                for (t, gi) in grad.iter_mut().zip(g) {
+                    *t += node.weight * gi;
+                }
+            }
+            if self.shift_gradient {
+                for (sum, k, d) in [
+                    (&mut plus, 1, SHIFT_STEP_DEG),
+                    (&mut minus, 2, -SHIFT_STEP_DEG),
+                ] {
+                    let moved = reading.geometry(node, shift + d, self.rotations[k]);
+                    *sum += node.weight * self.point(reading, &per_reading, &moved, false).0;
+                }
+            }
+        }
+        if self.shift_gradient {
+            grad[Param::Shift as usize] = (plus - minus) / (2.0 * SHIFT_STEP_DEG);
+        }
+        (value, grad)
     }
-    (value, grad)
+
+    /// The reading's model value alone.
+    pub(crate) fn value(&self, reading: &Reading) -> f64 {
+        self.evaluate(reading).0
+    }
+
+    /// The point model's value and its gradient over every [`Param`] (∂/∂δ0 left 0: it is
+    /// taken by difference over the whole reading).
+    #[inline]
+    fn point(
+        &self,
+        reading: &Reading,
+        per_reading: &PerReading,
+        g: &Geometry,
+        gradient: bool,
+    ) -> (f64, Values) {
+        let v = self.v;
+        let (theta_i_deg, theta_r_deg) = (reading.theta_i_deg, g.theta_r_deg);
+        // An off-specular peak moves the main lobe alone (its F and G stay the geometry's).
+        let theta_a = 0.5 * (g.offset_deg - v[Param::PeakShift as usize]);
+        // A lobe wider on one side: the side's width, the mean of the two the lobe's σ.
+        let side = if theta_a > 0.0 {
+            1.0
+        } else if theta_a < 0.0 {
+            -1.0
+        } else {
+            0.0
+        };
+        let side_factor = 1.0 + v[Param::Asymmetry as usize] * side;
+        let s = per_reading.s * side_factor;
+        let (d, d_ln_s, d_kappa, d_theta_a) = lobe(theta_a, s, self.tail);
+        let (fr, d_fr) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, v[Param::Eta as usize]);
+        let h = g.attenuation_over_cosines;
+        let (rho_s, rho_d, haze_fraction) = (
+            v[Param::RhoS as usize],
+            v[Param::RhoD as usize],
+            v[Param::HazeFraction as usize],
+        );
+        let rho_h = rho_s * haze_fraction;
+        // A value alone needs the haze only where there is one.
+        let (dh, dh_ln) = if rho_h > 0.0 || (gradient && self.haze) {
+            // The haze stays about specular: a shift is the main lobe's term.
+            let z = 0.5 * g.offset_deg / per_reading.haze_s;
+            let e = (-0.5 * z * z).exp();
+            (e, e * z * z)
+        } else {
+            (0.0, 0.0)
+        };
+        let eta_b = v[Param::BodyEta as usize];
+        let (transmitted, d_transmitted) = if eta_b > 1.0 {
+            let (t_i, d_t_i) = per_reading.transmittance_i;
+            let (t_r, d_t_r) = transmittance(g.sin2_r, g.cos_r, eta_b);
+            let (t_0, d_t_0) = self.reference_transmittance;
+            let ratio = t_i * t_r / (t_0 * t_0);
+            let derivative = if self.body_eta_gradient {
+                ratio * (d_t_i / t_i + d_t_r / t_r - 2.0 * d_t_0 / t_0)
+            } else {
+                0.0
+            };
+            (ratio, derivative)
+        } else {
+            (1.0, 0.0)
+        };
+        let b = v[Param::Body as usize];
+        let shape = if b == 0.0 { 1.0 } else { (b * g.q).exp() };
+        let retro_b = v[Param::RetroAmplitude as usize];
+        let (cusp, d_cusp_ln_w) = if retro_b > 0.0 || (gradient && self.retro) {
+            let per_width = (theta_i_deg + theta_r_deg).abs() / self.retro_width_deg;
+            let e = (-per_width).exp();
+            (e, e * per_width)
+        } else {
+            (0.0, 0.0)
+        };
+        let surge = 1.0 + retro_b * cusp;
+        let body_without_surge = shape * transmitted;
+        let body = body_without_surge * surge;
+        let fh = fr * h;
+        let value = rho_s * fh * d + rho_h * fh * dh + rho_d * body;
+        if !gradient {
+            return (value, [0.0; N_FAMILY]);
+        }
+        let d_ln = rho_s * fh * d_ln_s + rho_h * fh * dh_ln;
+        let mut grad = [0.0; N_FAMILY];
+        grad[Param::LnSigma as usize] = d_ln;
+        grad[Param::RhoS as usize] = fh * (d + haze_fraction * dh);
+        grad[Param::RhoD as usize] = body;
+        grad[Param::Eta as usize] = (rho_s * d + rho_h * dh) * h * d_fr;
+        if self.kappa_gradient {
+            grad[Param::Kappa as usize] = rho_s * fh * d_kappa;
+        }
+        grad[Param::HazeFraction as usize] = rho_s * fh * dh;
+        grad[Param::HazeLnRatio as usize] = rho_h * fh * dh_ln;
+        grad[Param::Slope as usize] = d_ln * reading.x_i;
+        grad[Param::Body as usize] = rho_d * body * g.q;
+        grad[Param::BodyEta as usize] = rho_d * shape * surge * d_transmitted;
+        grad[Param::RetroAmplitude as usize] = rho_d * body_without_surge * cusp;
+        grad[Param::RetroLnWidth as usize] = rho_d * body_without_surge * retro_b * d_cusp_ln_w;
+        // θa = (θr − θi − δp)/2.
+        grad[Param::PeakShift as usize] = -0.5 * rho_s * fh * d_theta_a;
+        // The side's ln width moves by side/(1 + t·side) per unit of t.
+        grad[Param::Asymmetry as usize] = rho_s * fh * d_ln_s * side / side_factor;
+        (value, grad)
+    }
+}
+
+/// What a reading's nodes share at one point of the parameters.
+struct PerReading {
+    /// The main lobe's width at the reading's θi, σ·exp(β·x_i), before the side's factor.
+    s: f64,
+    /// The haze's width there (0 where the haze is not evaluated).
+    haze_s: f64,
+    /// T(θi, η_b) and dT/dη_b.
+    transmittance_i: (f64, f64),
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::analysis::model::{Params, evaluate_reading_through};
+
+    fn tail_lobe(theta_a_deg: f64, s_deg: f64, kappa: f64) -> (f64, f64, f64, f64) {
+        lobe(theta_a_deg, s_deg, Tail::at(kappa))
+    }
+
+    /// The reading's value and, with `gradients`, its gradient over every parameter.
+    fn evaluate(v: &Values, reading: &Reading, gradients: bool) -> (f64, Values) {
+        At::new(v, gradients.then_some(&Param::ALL[..])).evaluate(reading)
+    }
 
     fn tsl(sigma_deg: f64) -> Values {
         let mut v = [0.0; N_FAMILY];

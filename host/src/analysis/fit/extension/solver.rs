@@ -131,11 +131,11 @@ impl Problem {
     /// parameters then the ε's.
     fn rows(&self, v: &Values, eps: &[f64], active: &[Param]) -> (Vec<f64>, Vec<Vec<f64>>) {
         let (n, m, p) = (self.len(), self.shared.len(), active.len());
-        let shift_active = active.contains(&Param::Shift);
+        let at = family::At::new(v, Some(active));
         let mut r = Vec::with_capacity(n + m);
         let mut jac = Vec::with_capacity(n + m);
         for i in 0..n {
-            let (f, g) = family::evaluate(v, &self.readings[i], shift_active);
+            let (f, g) = at.evaluate(&self.readings[i]);
             let w = self.sqrt_w[i];
             let shared: f64 = (0..m).map(|k| self.shared[k][i] * eps[k]).sum();
             r.push((f - self.y[i]) * w + shared);
@@ -156,9 +156,10 @@ impl Problem {
     /// The residuals alone (readings, then priors).
     fn residuals(&self, v: &Values, eps: &[f64]) -> Vec<f64> {
         let m = self.shared.len();
+        let at = family::At::new(v, None);
         (0..self.len())
             .map(|i| {
-                let f = family::value(v, &self.readings[i]);
+                let f = at.value(&self.readings[i]);
                 (f - self.y[i]) * self.sqrt_w[i]
                     + (0..m).map(|k| self.shared[k][i] * eps[k]).sum::<f64>()
             })
