@@ -199,18 +199,43 @@ impl Problem {
         let mut lambda = 1e-3;
         for _ in 0..iterations {
             let (h, g) = normal(&jac, &r, q);
+            // A parameter on a bound that the descent pushes against stays there this
+            // iteration: its step would be clamped away, and a step solved with it free
+            // points elsewhere than the best one without it (the fit then crept, lambda
+            // growing, up to its 100 iterations: a haze's fraction at 0, an arm offset at
+            // its bound were half of a glossy sweep's fitting).
+            let held: Vec<bool> = (0..q)
+                .map(|j| {
+                    j < p && {
+                        let x = v[active[j] as usize];
+                        (x <= bounds[j].0 && g[j] > 0.0) || (x >= bounds[j].1 && g[j] < 0.0)
+                    }
+                })
+                .collect();
             let mut accepted = false;
             for _ in 0..12 {
                 let mut damped = h.clone();
                 for j in 0..q {
                     *damped.at_mut(j, j) += lambda * h.at(j, j).max(1e-30);
                 }
+                for j in (0..q).filter(|&j| held[j]) {
+                    for k in 0..q {
+                        *damped.at_mut(j, k) = 0.0;
+                        *damped.at_mut(k, j) = 0.0;
+                    }
+                    *damped.at_mut(j, j) = 1.0;
+                }
                 let Some(inv) = linalg::spd_inverse(&damped) else {
                     lambda *= 10.0;
                     continue;
                 };
                 let step: Vec<f64> = (0..q)
-                    .map(|a| -(0..q).map(|b| inv.at(a, b) * g[b]).sum::<f64>())
+                    .map(|a| {
+                        -(0..q)
+                            .filter(|&b| !held[b])
+                            .map(|b| inv.at(a, b) * g[b])
+                            .sum::<f64>()
+                    })
                     .collect();
                 let mut trial = v;
                 for (j, a) in active.iter().enumerate() {
