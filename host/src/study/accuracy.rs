@@ -467,6 +467,9 @@ pub struct Tally {
     pub undetermined: [usize; 3],
     /// Results flagged `lack-of-fit`.
     pub lack_of_fit: usize,
+    /// Results that say the sheet is not the paper's model: flagged `lack-of-fit` or
+    /// `model-extended` (a term the data called for added to it).
+    pub not_the_model: usize,
     /// Results with the paper's class.
     pub class_right: usize,
     /// Results with a wrong class, confidence ≥ 0.95 and no `lack-of-fit`.
@@ -502,6 +505,8 @@ impl Tally {
                 }
             }
             t.lack_of_fit += usize::from(r.lack_of_fit());
+            t.not_the_model +=
+                usize::from(r.lack_of_fit() || r.flags.contains(&Flag::ModelExtended));
             t.flagged += usize::from(!crate::analysis::flags::ok(&r.flags));
             if r.class.is_none() {
                 t.undecided += 1;

@@ -174,12 +174,16 @@ fn a_reused_calibrations_age_is_in_the_budget() {
             s0 < 1e-3,
             "{param}: a fresh calibration drifts for seconds: {s0}"
         );
-        // 0.8 % of the value against the tile's 0.5 %: among the largest terms (on PPC's
-        // ρs the arm zero's 0.1° rivals it).
+        // 0.8 % of the value against the tile's 0.5 %: among the largest of the
+        // measurement's terms (on PPC's ρs the arm zero's 0.1° rivals it). The model form,
+        // where the fit tests the extensions, is what the shapes leave open, not a term of
+        // the measurement (on this exact TSL PPC, measured with the extensions on, the
+        // model form's share of ρs was 0.76 and the drift's 0.30).
         let largest = aged["budget"]["by_kind"]
             .as_array()
             .unwrap()
             .iter()
+            .filter(|k| k["kind"] != "model form")
             .filter_map(|k| k["share"][param].as_f64())
             .fold(0.0, f64::max);
         assert!(
