@@ -105,7 +105,7 @@ fn the_main_job_measures_g_in_process() {
 fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     let clean_dir = temp_dir("clean");
     let faulty_dir = temp_dir("faulty");
-    // One sheet, one noise stream: the link's faults are the only difference between the runs.
+    // One sheet, one seed: the link's faults are the only difference between the runs.
     let seed = crate::common::run_seed().to_string();
     let clean = result(&gonio(&[
         "measure",
@@ -136,7 +136,23 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     assert_eq!(faulty["class"], clean["class"]);
     let g = geometries(&faulty_dir);
     assert_each_once(&g);
-    assert_eq!(g.len(), geometries(&clean_dir).len());
+    // Not the same geometry count: the readings are not the same (on seed 27832 the first
+    // one of Strategy 1 differs by 0.2 %, the specular ones by up to 0.9 %: the faults
+    // change the noise the simulator draws for them), and on G, whose σ the 12 geometries
+    // of Strategy 1 barely resolve, that can change the plan (20 geometries against 24 on
+    // seeds 104, 110 and 27832; 2 of 30 seeds). The same sheet measured twice: the same
+    // class, and σ's intervals overlap.
+    let interval = |r: &Value| -> (f64, f64) {
+        let ci = &r["ci95"]["sigma_deg"];
+        (ci[0].as_f64().unwrap(), ci[1].as_f64().unwrap())
+    };
+    let ((a_lo, a_hi), (b_lo, b_hi)) = (interval(&clean), interval(&faulty));
+    assert!(
+        a_lo <= b_hi && b_lo <= a_hi,
+        "σ [{a_lo}, {a_hi}] clean, [{b_lo}, {b_hi}] with the faults ({} and {} geometries)",
+        geometries(&clean_dir).len(),
+        g.len()
+    );
     let session: Value =
         serde_json::from_slice(&std::fs::read(faulty_dir.join("session.json")).unwrap()).unwrap();
     let decisions = session["decisions"].to_string();
