@@ -6,7 +6,7 @@
 use host::analysis::flags::Flag;
 use host::instrument::sim::SimOptions;
 use host::session::adaptive::{AdaptiveTargets, LACK_OF_FIT_BATCHES};
-use host::session::{Outcome, Policy};
+use host::session::{FitStep, Outcome, Policy};
 use host::study::{SimulatedRun, simulated_session};
 
 /// A whole session of `sample` under the adaptive policy on the simulator `options` make.
@@ -22,23 +22,28 @@ fn adaptive_session(sample: &str, options: &SimOptions) -> Outcome {
         .0
 }
 
-/// Whether the fit after Strategy 1 (the session's first) was flagged lack-of-fit.
-fn flagged_after_strategy1(outcome: &Outcome) -> bool {
-    outcome
-        .fits
-        .first()
-        .is_some_and(|f| f.report["lack_of_fit"].as_bool() == Some(true))
+/// Whether `fit` was flagged lack-of-fit.
+fn flagged(fit: &FitStep) -> bool {
+    fit.report["lack_of_fit"].as_bool() == Some(true)
 }
 
-/// Whether the fit after Strategy 1 had its model extended by a term the data called for
-/// (where the fit tests the extensions): that buys the lack-of-fit batches as a flag does,
-/// for the term to rest on the tails and the whole θr range.
+/// Whether `fit` had its model extended by a term the data called for (where the fit
+/// tests the extensions): that buys the lack-of-fit batches as a flag does, for the term to
+/// rest on the tails and the whole θr range.
+fn extended(fit: &FitStep) -> bool {
+    fit.report["model_extension"]["terms"]
+        .as_array()
+        .is_some_and(|t| !t.is_empty())
+}
+
+/// Whether the fit after Strategy 1 (the session's first) was flagged lack-of-fit.
+fn flagged_after_strategy1(outcome: &Outcome) -> bool {
+    outcome.fits.first().is_some_and(flagged)
+}
+
+/// Whether the fit after Strategy 1 had its model extended ([`extended`]).
 fn extended_after_strategy1(outcome: &Outcome) -> bool {
-    outcome.fits.first().is_some_and(|f| {
-        f.report["model_extension"]["terms"]
-            .as_array()
-            .is_some_and(|t| !t.is_empty())
-    })
+    outcome.fits.first().is_some_and(extended)
 }
 
 fn lack_of_fit_batches(outcome: &Outcome) -> usize {
@@ -238,12 +243,7 @@ fn scenes_the_model_describes_keep_their_geometry_counts() {
             let took_lack_of_fit_batches = lack_of_fit_batches(&outcome) > 0;
             with_lack_of_fit_batches += usize::from(took_lack_of_fit_batches);
             // Without a flag (or a term added) in any fit nothing is taken for one.
-            if !outcome.fits.iter().any(|f| {
-                f.report["lack_of_fit"].as_bool() == Some(true)
-                    || f.report["model_extension"]["terms"]
-                        .as_array()
-                        .is_some_and(|t| !t.is_empty())
-            }) {
+            if !outcome.fits.iter().any(|f| flagged(f) || extended(f)) {
                 assert!(
                     !took_lack_of_fit_batches,
                     "{sample} seed {seed}: {:#?}",

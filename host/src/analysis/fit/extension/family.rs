@@ -157,8 +157,13 @@ pub(crate) fn support_half_widths(kappa: f64) -> f64 {
     if kappa >= 0.0 {
         return f64::INFINITY;
     }
-    let a = (2.0 * kappa * LN_2 / (1.0 + kappa)).exp_m1();
-    (-1.0 / a).sqrt()
+    (-1.0 / tail_a(kappa)).sqrt()
+}
+
+/// The tail's a = 2^(2κ/(1+κ)) − 1 (module docs), negative for κ < 0.
+#[inline]
+fn tail_a(kappa: f64) -> f64 {
+    (2.0 * kappa * LN_2 / (1.0 + kappa)).exp_m1()
 }
 
 /// D, ∂D/∂ln s, ∂D/∂κ and ∂D/∂θa at θa for a lobe of Gaussian-equivalent width s
@@ -366,8 +371,7 @@ impl Tail {
         if kappa.abs() < KAPPA_GAUSSIAN {
             return None;
         }
-        let exponent = 2.0 * kappa * LN_2 / (1.0 + kappa);
-        let a = exponent.exp_m1();
+        let a = tail_a(kappa);
         Some(Tail {
             a,
             power: (1.0 + kappa) / (2.0 * kappa),
