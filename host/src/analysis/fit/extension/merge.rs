@@ -15,10 +15,17 @@ use crate::analysis::gof;
 use crate::analysis::model::{ETA, RHO_D, RHO_S, SIGMA};
 
 /// How the intervals take in the members the data cannot reject.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 enum ModelForm {
     /// Each member's interval covered: the union (the default).
     Union,
+    /// The union, each member's interval narrowed to its estimate ± the chosen member's
+    /// standard deviation and the share `w` of the variance its terms add to it
+    /// ([`shrunk`]; `w` = 1 is the union, 0 counts each member by its estimate alone):
+    /// the frontier between the exact-TSL coverage and the misses on sheets that are not
+    /// TSL, measured and not adopted (docs/ACCURACY.md, "How far the union can narrow");
+    /// `GONIO_MODEL_FORM=shrink:w` selects it, for that study.
+    Shrink(f64),
     /// The members' mixture under their Akaike weights ([`average`]): measured against the
     /// union on the shapes campaign and not adopted (docs/ACCURACY.md, "Model averaging
     /// in place of the union"); `GONIO_MODEL_FORM=average` selects it, for that study.
@@ -27,9 +34,23 @@ enum ModelForm {
 
 impl ModelForm {
     fn from_env() -> ModelForm {
-        match std::env::var_os("GONIO_MODEL_FORM") {
-            Some(v) if v == "average" => ModelForm::Average,
+        let value = std::env::var("GONIO_MODEL_FORM").unwrap_or_default();
+        let share = value
+            .strip_prefix("shrink:")
+            .and_then(|w| w.parse::<f64>().ok())
+            .filter(|w| (0.0..=1.0).contains(w));
+        match (value.as_str(), share) {
+            ("average", _) => ModelForm::Average,
+            (_, Some(w)) => ModelForm::Shrink(w),
             _ => ModelForm::Union,
+        }
+    }
+
+    /// The share of a member's variance beyond the chosen member's that its interval keeps.
+    fn term_share(self) -> f64 {
+        match self {
+            ModelForm::Shrink(w) => w,
+            ModelForm::Union | ModelForm::Average => 1.0,
         }
     }
 }
@@ -248,6 +269,7 @@ fn rescale_budget(
 }
 
 /// How the members are judged when the intervals are widened for model form.
+#[derive(Clone, Copy)]
 pub(super) struct Judging {
     /// Readings in the fit.
     pub n: usize,
@@ -257,6 +279,12 @@ pub(super) struct Judging {
     pub noise_scale_log_variance: f64,
     /// The θi measured, least and most.
     pub theta_i_range: (f64, f64),
+    /// The share of a member's variance beyond the chosen member's that counts
+    /// ([`ModelForm::Shrink`]; 1 but in that study).
+    pub term_share: f64,
+    /// The chosen member's σ, ρs, ρd, η and their standard deviations ([`member_sd`]), by
+    /// the result's index; set where the intervals are widened.
+    pub chosen_sd: [Option<(f64, f64)>; 4],
 }
 
 impl Judging {
@@ -272,6 +300,8 @@ impl Judging {
             weighted,
             noise_scale_log_variance: base.options.noise_scale_log_variance,
             theta_i_range,
+            term_share: ModelForm::from_env().term_share(),
+            chosen_sd: [None; 4],
         }
     }
 }
@@ -343,6 +373,10 @@ pub(super) fn widen_for_model_form(
         }
     };
     let widening = result.variance_scale;
+    let judging = &Judging {
+        chosen_sd: [SIGMA, RHO_S, RHO_D, ETA].map(|i| member_sd(chosen, i, n, weighted, widening)),
+        ..*judging
+    };
     let identified = |m: &&Member| identifies_main_lobe(m, n, weighted, widening);
     let chosen_label = chosen.label();
     let (by_akaike, rest): (Vec<&Member>, Vec<&Member>) = members
@@ -369,7 +403,7 @@ pub(super) fn widen_for_model_form(
         |r: &FitResult| -> [f64; N_PARAMS] { std::array::from_fn(|i| r.covariance[i][i]) };
     let before = diagonal(result);
     let before = match ModelForm::from_env() {
-        ModelForm::Union => {
+        ModelForm::Union | ModelForm::Shrink(_) => {
             // A member as good as the best whose σ, ρs or ρd the readings do not pin down
             // is not counted either: on a G's 20 adaptive readings, the specular peak read
             // at θi = 60° only, σ varying with θi was the best member by 0.3 with σ(45°)
@@ -696,7 +730,38 @@ fn bounded_params(m: &Member) -> Option<Vec<(Param, f64)>> {
 
 /// A member's whole interval ([`member_interval`]), as [`Reach`] takes it.
 fn two_sided(m: &Member, index: usize, judging: &Judging, widening: f64) -> (f64, f64) {
-    member_interval(m, index, judging.n, judging.weighted, widening)
+    let interval = member_interval(m, index, judging.n, judging.weighted, widening);
+    shrunk(m, index, judging, widening, interval)
+}
+
+/// `interval`, a member's, narrowed about its estimate to ± the chosen member's standard
+/// deviation and the share [`Judging::term_share`] of the variance the member's terms add
+/// to it (σ's relative, as σ is fitted as ln σ); unchanged at a share of 1, the union.
+fn shrunk(
+    m: &Member,
+    index: usize,
+    judging: &Judging,
+    widening: f64,
+    (lo, hi): (f64, f64),
+) -> (f64, f64) {
+    let share = judging.term_share;
+    let (Some((value, sd)), Some((chosen_value, chosen_sd))) = (
+        member_sd(m, index, judging.n, judging.weighted, widening),
+        judging.chosen_sd[index],
+    ) else {
+        return (lo, hi);
+    };
+    if share >= 1.0 || sd <= 0.0 || !lo.is_finite() || !hi.is_finite() {
+        return (lo, hi);
+    }
+    let chosen_sd = if index == SIGMA {
+        chosen_sd / chosen_value * value
+    } else {
+        chosen_sd
+    };
+    let kept = (chosen_sd * chosen_sd + share * (sd * sd - chosen_sd * chosen_sd).max(0.0)).sqrt();
+    let f = (kept / sd).min(1.0);
+    (value - (value - lo) * f, value + (hi - value) * f)
 }
 
 /// A member with a term at a bound of its range, which the data do not reject: its
@@ -715,7 +780,13 @@ fn inward_interval(m: &Member, index: usize, judging: &Judging, widening: f64) -
         return (f64::INFINITY, f64::NEG_INFINITY);
     }
     let target = family_param(index);
-    let (lo, hi) = member_interval(m, index, judging.n, judging.weighted, widening);
+    let (lo, hi) = shrunk(
+        m,
+        index,
+        judging,
+        widening,
+        member_interval(m, index, judging.n, judging.weighted, widening),
+    );
     let mut reach = (value, value);
     for (p, inward) in bounded_params(m).unwrap_or_default() {
         match m.fit.covariance_of(target, p).map(|c| c * inward) {
@@ -1005,7 +1076,43 @@ mod tests {
             weighted: true,
             noise_scale_log_variance: 0.0,
             theta_i_range: (20.0, 60.0),
+            term_share: 1.0,
+            chosen_sd: [None; 4],
         }
+    }
+
+    #[test]
+    fn a_shrunk_member_keeps_the_chosen_sd_and_its_share_of_the_rest() {
+        // σ 42°, ln σ's sd 0.1 at unit scale: 4.2° (the cost 100 over 196 degrees of
+        // freedom is below 1). The chosen member's σ 40° ± 2° is 5 % of it; at the
+        // member's 42°, 2.1°.
+        let member = tail_member(0.1, 0.0);
+        let union = two_sided(&member, SIGMA, &judging(), 1.0);
+        let (value, sd) = member_sd(&member, SIGMA, 200, true, 1.0).unwrap();
+        assert!(
+            (value - 42.0).abs() < 1e-9 && (sd - 4.2).abs() < 1e-9,
+            "{sd}"
+        );
+        let with = |share: f64| Judging {
+            term_share: share,
+            chosen_sd: [Some((40.0, 2.0)), None, None, None],
+            ..judging()
+        };
+        // The whole share is the union; none, the member's estimate ± the chosen's sd.
+        assert_eq!(two_sided(&member, SIGMA, &with(1.0), 1.0), union);
+        let half_width = |(lo, hi): (f64, f64)| (hi - lo) / 2.0;
+        let ratio = |share: f64| {
+            half_width(two_sided(&member, SIGMA, &with(share), 1.0)) / half_width(union)
+        };
+        assert!((ratio(0.0) - 2.1 / 4.2).abs() < 1e-9, "{}", ratio(0.0));
+        let kept = (2.1_f64.powi(2) + 0.5 * (4.2_f64.powi(2) - 2.1_f64.powi(2))).sqrt();
+        assert!((ratio(0.5) - kept / 4.2).abs() < 1e-9, "{}", ratio(0.5));
+        // Without the chosen member's sd the interval is the member's own.
+        let unknown = Judging {
+            term_share: 0.0,
+            ..judging()
+        };
+        assert_eq!(two_sided(&member, SIGMA, &unknown, 1.0), union);
     }
 
     #[test]
