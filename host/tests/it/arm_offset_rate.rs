@@ -126,3 +126,50 @@ fn without_uncertainties_a_real_offset_is_found() {
     }
     eprintln!("{}", lines.join("\n"));
 }
+
+/// An arm offset beyond the 3° the fit looks for (a broken arm, or a shape of the sheet
+/// the model does not hold, seen as a shift): the fit keeps the offset at the limit and
+/// says so, flagged lack-of-fit, never a clean result. Offsets inside the range are fitted
+/// without that note. J1 (a lobe wide enough for a 4.5° shift to be fitted away in part)
+/// and G, the issue's noise with uncertainties, the full grid, three seeds each.
+#[test]
+fn an_offset_at_the_limit_of_the_search_is_not_a_clean_result() {
+    let at_limit = |r: &host::analysis::fit::FitResult| {
+        r.notes
+            .iter()
+            .any(|n| matches!(n, host::analysis::fit::Note::ArmOffsetAtLimit { .. }))
+    };
+    for name in ["G", "J1"] {
+        let p = common::reference(name);
+        for offset_deg in [4.5, -4.5, 1.0] {
+            let instrument = Instrument {
+                arm_offset_deg: offset_deg,
+                ..Instrument::issue()
+            };
+            let t = truth(&Sheet::ideal(p), &common::full_grid(), &instrument);
+            for seed in 0..3 {
+                let (obs, _) = draw(&t, &instrument, 31_000 + seed);
+                let result = fit(&obs, &FitOptions::default()).expect("valid");
+                let fitted = result.arm_offset.as_ref().map(|o| o.deg);
+                let line = format!("{name}, {offset_deg}°, seed {seed}: δ0 {fitted:?}");
+                if offset_deg.abs() > 3.0 {
+                    assert_eq!(fitted.map(|d| d.abs()), Some(3.0), "{line}");
+                    assert!(at_limit(&result), "{line}: {:?}", result.notes);
+                    assert!(
+                        result
+                            .flags
+                            .contains(&host::analysis::flags::Flag::LackOfFit),
+                        "{line}"
+                    );
+                } else {
+                    // Found, and near (J1's broad peak places it to about 0.1°).
+                    assert!(
+                        fitted.is_some_and(|d| (d - offset_deg).abs() < 0.25),
+                        "{line}"
+                    );
+                    assert!(!at_limit(&result), "{line}: {:?}", result.notes);
+                }
+            }
+        }
+    }
+}

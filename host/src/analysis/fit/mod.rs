@@ -398,6 +398,8 @@ pub fn fit_with_shared(
         },
         &mut result,
     );
+    // 7. An offset at the limit of its range is not an arm zero: the fit is not clean.
+    arm_offset::flag_at_limit(&mut result);
     Ok(result)
 }
 

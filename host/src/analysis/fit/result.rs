@@ -93,6 +93,13 @@ pub enum Note {
         /// The likelihood-ratio statistic that called for it.
         lr: f64,
     },
+    /// The arm offset was fitted at ± [`super::ARM_OFFSET_MAX_DEG`], the most the fit looks for:
+    /// the readings ask for more than a built instrument's zero can be off, so the offset
+    /// stands for something else (a shape the model does not hold, or a broken arm).
+    ArmOffsetAtLimit {
+        /// δ0, degrees (at the limit).
+        deg: f64,
+    },
     /// The model does not describe the data: the covariance was multiplied by `factor`.
     IntervalsWidened {
         /// The variance factor k.
@@ -252,18 +259,18 @@ impl std::fmt::Display for Note {
             Note::NoDegreesOfFreedom => {
                 f.write_str("as many parameters as geometries: no confidence intervals")
             }
-            Note::NoiseFromResiduals { std } => {
-                write!(
-                    f,
-                    "no uncertainties given: the noise is estimated from the residuals (std {std:.3e} if equal for all readings; intervals allow it to differ between readings); no χ² test"
-                )
-            }
-            Note::ArmOffsetFitted { deg, std_deg, lr } => {
-                write!(
-                    f,
-                    "arm zero offset fitted: every θr taken as θr + δ0, δ0 = {deg:+.3}° ± {std_deg:.3}° (test statistic {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})"
-                )
-            }
+            Note::NoiseFromResiduals { std } => write!(
+                f,
+                "no uncertainties given: the noise is estimated from the residuals (std {std:.3e} if equal for all readings; intervals allow it to differ between readings); no χ² test"
+            ),
+            Note::ArmOffsetFitted { deg, std_deg, lr } => write!(
+                f,
+                "arm zero offset fitted: every θr taken as θr + δ0, δ0 = {deg:+.3}° ± {std_deg:.3}° (test statistic {lr:.1} > {ARM_OFFSET_LR_CRITICAL:.2})"
+            ),
+            Note::ArmOffsetAtLimit { deg } => write!(
+                f,
+                "the arm zero offset sits at {deg:+.1}°, the limit of what the fit looks for: the readings ask for more than a built instrument's zero can be off, so the offset stands for something the model does not hold (a shape of the sheet, or a broken arm); σ, ρs, ρd rest on it; flagged lack-of-fit, class confidence capped"
+            ),
             Note::IntervalsWidened { factor } => {
                 write!(
                     f,
