@@ -279,9 +279,8 @@ pub(super) struct Judging {
     pub noise_scale_log_variance: f64,
     /// The θi measured, least and most.
     pub theta_i_range: (f64, f64),
-    /// The share of a member's variance beyond the chosen member's that counts
-    /// ([`ModelForm::Shrink`]; 1 but in that study).
-    pub term_share: f64,
+    /// How the members are taken in ([`ModelForm`]; the union but in a study).
+    form: ModelForm,
     /// The chosen member's σ, ρs, ρd, η and their standard deviations ([`member_sd`]), by
     /// the result's index; set where the intervals are widened.
     pub chosen_sd: [Option<(f64, f64)>; 4],
@@ -300,7 +299,7 @@ impl Judging {
             weighted,
             noise_scale_log_variance: base.options.noise_scale_log_variance,
             theta_i_range,
-            term_share: ModelForm::from_env().term_share(),
+            form: ModelForm::from_env(),
             chosen_sd: [None; 4],
         }
     }
@@ -402,7 +401,7 @@ pub(super) fn widen_for_model_form(
     let diagonal =
         |r: &FitResult| -> [f64; N_PARAMS] { std::array::from_fn(|i| r.covariance[i][i]) };
     let before = diagonal(result);
-    let before = match ModelForm::from_env() {
+    let before = match judging.form {
         ModelForm::Union | ModelForm::Shrink(_) => {
             // A member as good as the best whose σ, ρs or ρd the readings do not pin down
             // is not counted either: on a G's 20 adaptive readings, the specular peak read
@@ -735,7 +734,7 @@ fn two_sided(m: &Member, index: usize, judging: &Judging, widening: f64) -> (f64
 }
 
 /// `interval`, a member's, narrowed about its estimate to ± the chosen member's standard
-/// deviation and the share [`Judging::term_share`] of the variance the member's terms add
+/// deviation and the share [`ModelForm::term_share`] of the variance the member's terms add
 /// to it (σ's relative, as σ is fitted as ln σ); unchanged at a share of 1, the union.
 fn shrunk(
     m: &Member,
@@ -744,7 +743,7 @@ fn shrunk(
     widening: f64,
     (lo, hi): (f64, f64),
 ) -> (f64, f64) {
-    let share = judging.term_share;
+    let share = judging.form.term_share();
     let (Some((value, sd)), Some((chosen_value, chosen_sd))) = (
         member_sd(m, index, judging.n, judging.weighted, widening),
         judging.chosen_sd[index],
@@ -1076,7 +1075,7 @@ mod tests {
             weighted: true,
             noise_scale_log_variance: 0.0,
             theta_i_range: (20.0, 60.0),
-            term_share: 1.0,
+            form: ModelForm::Union,
             chosen_sd: [None; 4],
         }
     }
@@ -1094,7 +1093,7 @@ mod tests {
             "{sd}"
         );
         let with = |share: f64| Judging {
-            term_share: share,
+            form: ModelForm::Shrink(share),
             chosen_sd: [Some((40.0, 2.0)), None, None, None],
             ..judging()
         };
@@ -1109,7 +1108,7 @@ mod tests {
         assert!((ratio(0.5) - kept / 4.2).abs() < 1e-9, "{}", ratio(0.5));
         // Without the chosen member's sd the interval is the member's own.
         let unknown = Judging {
-            term_share: 0.0,
+            form: ModelForm::Shrink(0.0),
             ..judging()
         };
         assert_eq!(two_sided(&member, SIGMA, &unknown, 1.0), union);
