@@ -576,6 +576,47 @@ fn a_haze_as_broad_as_the_body_leaves_sigma_inside_its_interval_on_rough_papers(
 }
 
 #[test]
+fn a_term_that_leaves_the_main_lobe_unidentified_is_not_chosen() {
+    // The strong haze J2, swept, on the seed of a CI run of the test above (37726): a heavy
+    // tail was added, then a haze whose width went to its bound, 30× the main lobe's
+    // (520°, a pedestal under it), and that member's own intervals were reported: ρs
+    // [0.15, 3.35], σ 17.35 [9.0, 33.4]° against 17.9°, unflagged. The widening never
+    // counted a member that does not identify the main lobe; now one is not chosen either
+    // where the model without its term did, and the tail's model and the haze's profile
+    // give an interval that holds σ_eq within the factor the test above asks.
+    let session = session_with_extensions(
+        "haze-width-at-bound",
+        &[
+            "--sim",
+            "J2",
+            "--policy",
+            "sweep",
+            "--seed",
+            "37726",
+            "--departure",
+            "haze:0.03:89.5",
+        ],
+    );
+    let r = &session["result"];
+    let terms: Vec<&str> = r["model_extension"]["terms"]
+        .as_array()
+        .map(|t| t.iter().filter_map(|t| t["name"].as_str()).collect())
+        .unwrap_or_default();
+    assert!(!terms.contains(&"haze lobe"), "{terms:?}: {r:#}");
+    let interval = r["ci95"]["sigma_deg"]
+        .as_array()
+        .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)))
+        .expect("σ has an interval");
+    let sigma_eq = reference("J2").sigma_deg;
+    assert!(
+        covers(Some(interval), sigma_eq)
+            && interval.0 > sigma_eq / 1.15
+            && interval.1 < sigma_eq * 1.15,
+        "σ {interval:?} against {sigma_eq}"
+    );
+}
+
+#[test]
 fn a_mild_haze_or_one_fitted_to_nothing_leaves_sigma_inside_its_interval() {
     // A mild haze (1 % at 5σ) on J2, swept: every member's own χ² failed at 5 % (p 0.008,
     // not enough for `lack-of-fit`), so the haze's profile, as good as the best member,

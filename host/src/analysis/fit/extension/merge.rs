@@ -809,7 +809,7 @@ fn family_param(index: usize) -> Param {
 
 /// Whether the member's σ, ρs and ρd are finite and identified
 /// ([`MEMBER_IDENTIFIED_RELATIVE_SD`]).
-fn identifies_main_lobe(m: &Member, n: usize, weighted: bool, widening: f64) -> bool {
+pub(super) fn identifies_main_lobe(m: &Member, n: usize, weighted: bool, widening: f64) -> bool {
     [SIGMA, RHO_S, RHO_D].into_iter().all(|i| {
         member_sd(m, i, n, weighted, widening).is_some_and(|(value, sd)| {
             value.is_finite() && value > 0.0 && sd / value <= MEMBER_IDENTIFIED_RELATIVE_SD
