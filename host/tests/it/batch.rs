@@ -111,15 +111,26 @@ fn sheets_of_the_master_s_paper_pass_and_of_another_paper_fail_naming_the_parame
     assert_eq!(doc["status"], "finished", "{doc}");
     let sheets = doc["sheets"].as_array().expect("sheets");
     assert_eq!(sheets.len(), 3);
+    // A sheet whose own result is flagged is undecided, never a pass or a fail. A sheet of
+    // the master's paper may fail: the default tolerance is 3 of the master's standard
+    // deviations (the Shewhart convention, analysis/batch.rs), about 0.3 % of judgements
+    // beyond it, and 9 judgements (3 sheets × σ, ρs, ρd) make that 2.7 % of runs (run seed
+    // 40295: ρs 16.58 % off against a tolerance of 16.5 %); two fails of 9 are 0.04 %.
+    let mut failed = 0;
     for sheet in sheets {
-        // A sheet whose own result is flagged is undecided, never a pass or a fail.
-        assert!(
-            sheet["verdict"] == "pass"
-                || (sheet["verdict"] == "undecided"
-                    && !sheet["flags"].as_array().unwrap().is_empty()),
-            "a sheet of the master's paper: {sheet}"
-        );
+        match sheet["verdict"].as_str() {
+            Some("pass") => {}
+            Some("fail") => failed += 1,
+            _ => assert!(
+                sheet["verdict"] == "undecided" && !sheet["flags"].as_array().unwrap().is_empty(),
+                "a sheet of the master's paper: {sheet}"
+            ),
+        }
     }
+    assert!(
+        failed <= 1,
+        "{failed} sheets of the master's paper failed: {doc}"
+    );
     let passed = sheets.iter().filter(|s| s["verdict"] == "pass").count();
     assert!(passed >= 2, "{doc}");
     assert_eq!(
