@@ -76,7 +76,11 @@ fn finished(sample: &str, dir: &Path, extra: &[&str]) {
     ];
     args.extend_from_slice(extra);
     let out = gonio(&args);
-    assert!(out.status.success(), "{}", stderr(&out));
+    // A finished session exits 0, or 3 where its result is flagged (a PPC's lack-of-fit
+    // false alarm on run seed 521884 made this fail): either is the finished session
+    // these tests need.
+    assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+    assert!(dir.join("session.json").is_file(), "{}", stderr(&out));
 }
 
 /// A session of one spot (these tests are about one session's folder).
