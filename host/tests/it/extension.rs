@@ -499,6 +499,12 @@ fn on_exact_rough_papers_whose_eta_sits_at_3_the_eta_bound_test_fires_at_its_rat
     assert!(fired <= 2, "{fired} of 48: {rows:#?}");
 }
 
+/// σ's 95 % interval in a session's result, where it has one.
+fn sigma_interval(result: &serde_json::Value) -> Option<(f64, f64)> {
+    let a = result["ci95"]["sigma_deg"].as_array()?;
+    Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?))
+}
+
 /// Single-spot sessions with the extensions on, one per (paper, sheet, policy), the sheet
 /// as `gonio measure` options ("--departure haze:0.03:90"), on this run's seed: how many
 /// have σ's interval holding the paper's σ, and what each said. Each interval must stay
@@ -514,9 +520,7 @@ fn sessions_cover_sigma(cases: &[(&str, &str, &str)], factor: f64) -> (usize, Ve
         let name = format!("{paper}-{sheet}-{policy}").replace([' ', ':'], "_");
         let session = session_with_extensions(&name, &args);
         let r = &session["result"];
-        let interval = r["ci95"]["sigma_deg"]
-            .as_array()
-            .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)));
+        let interval = sigma_interval(r);
         covered += usize::from(covers(interval, sigma_eq));
         if let Some((lo, hi)) = interval {
             assert!(
@@ -603,10 +607,7 @@ fn a_term_that_leaves_the_main_lobe_unidentified_is_not_chosen() {
         .map(|t| t.iter().filter_map(|t| t["name"].as_str()).collect())
         .unwrap_or_default();
     assert!(!terms.contains(&"haze lobe"), "{terms:?}: {r:#}");
-    let interval = r["ci95"]["sigma_deg"]
-        .as_array()
-        .and_then(|a| Some((a.first()?.as_f64()?, a.get(1)?.as_f64()?)))
-        .expect("σ has an interval");
+    let interval = sigma_interval(r).expect("σ has an interval");
     let sigma_eq = reference("J2").sigma_deg;
     assert!(
         covers(Some(interval), sigma_eq)

@@ -413,6 +413,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     let mut added: Vec<ExtensionTerm> = Vec::new();
     for _ in 0..MAX_TERMS {
         let mut best: Option<(f64, Member, TermTest)> = None;
+        let current_identified = identifies(&current);
         for term in Term::ALL.into_iter().filter(|t| !current.terms.contains(t)) {
             // The terms of the paper's model are started from the narrow lobe's fit too,
             // where the base fit's lobe was lost and the null is not that fit already.
@@ -433,7 +434,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
             // swept, took a heavy tail and then a haze at 30× the main lobe, a pedestal
             // under it: ρs [0.15, 3.35], σ [9.0, 33.4]° against 17.9°, unflagged). It stays
             // a member, which the widening does not count either.
-            let choosable = !identifies(&current) || identifies(&member);
+            let choosable = !current_identified || identifies(&member);
             if test.statistic > test.critical
                 && choosable
                 && best.as_ref().is_none_or(|b| ratio > b.0)
