@@ -63,6 +63,9 @@ pub struct SessionResult {
     pub covariance: [[f64; 4]; 4],
     /// The result's flags (`flags` beside `result`, or the result's own); empty: clean.
     pub flags: Vec<String>,
+    /// The fit's `model form` widening and whether it kept the paper's model (the evidence
+    /// leaves the one out where the other holds: [`crate::analysis::evidence::Spot::weighed`]).
+    pub shape_widening: crate::analysis::evidence::ShapeWidening,
 }
 
 impl SessionResult {
@@ -70,15 +73,21 @@ impl SessionResult {
     /// covariance; a parameter the session left null stays undetermined).
     pub fn sheet(&self) -> crate::analysis::evidence::Sheet {
         crate::analysis::evidence::Sheet {
-            spots: vec![self.spot()],
+            spots: vec![self.weighed_spot()],
         }
     }
 
-    /// The spot it measured: σ, ρs, ρd and their covariance (η is not weighed).
+    /// The spot it measured: σ, ρs, ρd and their covariance as the session reported them
+    /// (η is not weighed).
     pub fn spot(&self) -> crate::analysis::evidence::Spot {
         let values = std::array::from_fn(|i| self.values[i]);
         let covariance = std::array::from_fn(|r| std::array::from_fn(|c| self.covariance[r][c]));
         crate::analysis::evidence::Spot { values, covariance }
+    }
+
+    /// The spot as the evidence weighs it ([`crate::analysis::evidence::Spot::weighed`]).
+    pub fn weighed_spot(&self) -> crate::analysis::evidence::Spot {
+        self.spot().weighed(self.shape_widening)
     }
 }
 
@@ -171,6 +180,7 @@ pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult,
         .get()
         .map_err(|found| fail(found, "result.covariance", "a 4×4 array of numbers"))?
         .map(|row| row.map(|v| v.unwrap_or(0.0)));
+    let shape_widening = result.shape_widening();
     // Flags as they are written (strings), beside the result or in it; none: clean.
     let flags = match document.flags {
         Slot::Is(flags) => flags,
@@ -186,6 +196,7 @@ pub(crate) fn session_result(file: &Path, root: &Value) -> Result<SessionResult,
         values,
         covariance,
         flags,
+        shape_widening,
     })
 }
 
@@ -210,9 +221,62 @@ struct ResultFile {
     class: Slot<Option<String>>,
     covariance: Slot<[[Option<f64>; 4]; 4]>,
     flags: Slot<Vec<String>>,
+    budget: Slot<BudgetFile>,
+    model_extension: Slot<Option<ExtensionFile>>,
+}
+
+/// What the comparison reads of a result's `budget`: its terms' names and variances.
+#[derive(Default, Deserialize)]
+#[serde(default)]
+struct BudgetFile {
+    terms: Vec<BudgetTermFile>,
+}
+
+/// One term of a result's budget: its name and its variance per parameter.
+#[derive(Default, Deserialize)]
+#[serde(default)]
+struct BudgetTermFile {
+    name: String,
+    variance: std::collections::BTreeMap<String, Option<f64>>,
+}
+
+/// What the comparison reads of a result's `model_extension`: the terms added.
+#[derive(Default, Deserialize)]
+#[serde(default)]
+struct ExtensionFile {
+    terms: Vec<Value>,
 }
 
 impl ResultFile {
+    /// The fit's `model form` widening (its budget's terms of that kind), and whether it
+    /// kept the paper's model: a result
+    /// without `model_extension` (the extensions off, or a session older than them) did;
+    /// one whose `model_extension` or `budget` cannot be read is taken to have added a term
+    /// and to carry no widening, so nothing is left out of what it reports.
+    fn shape_widening(&self) -> crate::analysis::evidence::ShapeWidening {
+        let paper_model = match &self.model_extension {
+            Slot::Missing | Slot::Is(None) => true,
+            Slot::Is(Some(extension)) => extension.terms.is_empty(),
+            Slot::Bad => false,
+        };
+        let mut variance = [0.0; 3];
+        if let Slot::Is(budget) = &self.budget {
+            for term in budget
+                .terms
+                .iter()
+                .filter(|t| crate::analysis::evidence::is_model_form(&t.name))
+            {
+                for (k, name) in crate::analysis::evidence::PARAMS.iter().enumerate() {
+                    variance[k] += term.variance.get(*name).copied().flatten().unwrap_or(0.0);
+                }
+            }
+        }
+        crate::analysis::evidence::ShapeWidening {
+            variance,
+            paper_model,
+        }
+    }
+
     /// The parameter named `name` ([`crate::analysis::model::PARAM_NAMES`]).
     fn parameter(&self, name: &str) -> &Slot<Option<f64>> {
         match name {

@@ -12,7 +12,7 @@
 //!   is kept and the sheet carries their flags, so the result says what it is rather than
 //!   resting on nothing.
 
-use crate::analysis::evidence::{Sheet, Spot};
+use crate::analysis::evidence::{ShapeWidening, Sheet, Spot};
 use crate::analysis::flags::{self, Flag};
 use serde::{Deserialize, Serialize};
 
@@ -32,8 +32,11 @@ pub struct SpotResult {
     pub number: u16,
     /// Its session's flags.
     pub flags: Vec<Flag>,
-    /// σ (degrees), ρs, ρd and their covariance.
+    /// σ (degrees), ρs, ρd and their covariance, as its session reported them.
     pub spot: Spot,
+    /// Its fit's `model form` widening, which the evidence leaves out where the fit kept the
+    /// paper's model ([`Spot::weighed`]).
+    pub shape_widening: ShapeWidening,
     /// Its own class (`None`: undecided), as its session reported it.
     pub class: Option<String>,
 }
@@ -361,7 +364,7 @@ impl SheetSummary {
             spots: results
                 .iter()
                 .filter(|r| accepted(r.number))
-                .map(|r| r.spot.clone())
+                .map(|r| r.spot.weighed(r.shape_widening))
                 .collect(),
         }
     }
@@ -574,6 +577,7 @@ mod tests {
             number,
             flags: flags.to_vec(),
             class: Some(if sigma < 0.4 { "G" } else { "rough-II" }.to_string()),
+            shape_widening: ShapeWidening::default(),
             spot: Spot {
                 values,
                 covariance: [[1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]],
@@ -661,6 +665,7 @@ mod tests {
             number,
             flags: Vec::new(),
             class: Some(class.to_string()),
+            shape_widening: ShapeWidening::default(),
             spot: Spot {
                 values: values.map(Some),
                 covariance: [[0.0; 3]; 3],

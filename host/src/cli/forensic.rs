@@ -41,7 +41,9 @@ pub struct Args {
     pub policy: host::session::PolicyChoice,
     /// The simulated world: how spots, sheets and stocks vary (as-today, spots-1pct,
     /// spots-6pct, stocks-5pct, stocks-20pct, near-twins, sheets-3pct, heavy-tailed,
-    /// second-instrument), or `all` (each into its own folder of --out, and
+    /// second-instrument, extensions: as-today with the model's extensions tested, shapes:
+    /// every stock a shape of its own, the extensions tested), or `all` (each into its own
+    /// folder of --out, and
     /// campaign.md); the evidence is never told, it estimates its population from the
     /// study's library.
     #[arg(long, default_value = "as-today", value_name = "NAME")]

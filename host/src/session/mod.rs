@@ -669,6 +669,8 @@ struct Given {
     spot: Option<(u16, u16)>,
     /// See [`Session::with_profile`].
     profile: Option<ProfileInUse>,
+    /// See [`Session::with_model_extensions`].
+    model_extensions: bool,
 }
 
 /// Device time spent besides the sample's readings, and the last analysis's time.
@@ -747,6 +749,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
                 spot: None,
                 profile: None,
+                model_extensions: crate::analysis::fit::on_by_default(),
             },
             clock: Clock::default(),
             resume: Resumed::default(),
@@ -776,6 +779,14 @@ impl<'a, T: Transport> Session<'a, T> {
     /// ([`Flag::InstrumentDeclared`]).
     pub(crate) fn with_profile(mut self, profile: Option<ProfileInUse>) -> Self {
         self.given.profile = profile;
+        self
+    }
+
+    /// Whether the fit tests the model's extensions (default:
+    /// [`crate::analysis::fit::on_by_default`]): a test or a study sets it for its own
+    /// sessions without touching the process's environment.
+    pub fn with_model_extensions(mut self, on: bool) -> Self {
+        self.given.model_extensions = on;
         self
     }
 
@@ -1119,7 +1130,7 @@ impl<'a, T: Transport> Session<'a, T> {
                 acceptance_deg: self.plan.acceptance_deg,
                 arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
                 instrument_profile: self.given.profile.clone(),
-                model_extensions: crate::analysis::fit::on_by_default(),
+                model_extensions: self.given.model_extensions,
             },
             analysed_unix_s: self.clock.analysed_unix_s,
         })
@@ -1291,7 +1302,7 @@ impl<'a, T: Transport> Session<'a, T> {
             acceptance_deg: self.plan.acceptance_deg,
             arm_zero_uncertainty_deg: self.given.arm_zero_uncertainty_deg,
             instrument_profile: self.given.profile.clone(),
-            model_extensions: crate::analysis::fit::on_by_default(),
+            model_extensions: self.given.model_extensions,
         }
     }
 }

@@ -70,6 +70,14 @@ pub struct Scenario {
     /// Held-out sheets of odd number are measured on a second instrument whose white tile
     /// is off by N(0, this %) per sheet (the first instrument: the realistic 0.5 %).
     pub(crate) second_instrument_tile_pct: Option<f64>,
+    /// The fit tests the model's extensions (`GONIO_MODEL_EXTENSIONS=1`), for every sheet
+    /// of the library and the pairs alike.
+    pub(crate) extensions: bool,
+    /// Every stock departs from the paper's TSL surface by a shape drawn for it from the
+    /// shapes campaign's (`gonio accuracy --shapes`: a haze, heavier or lighter tails, an
+    /// off-specular peak, an Oren–Nayar body, …, mild or strong, or none), its sheets
+    /// alike.
+    pub(crate) shapes: bool,
 }
 
 impl Scenario {
@@ -85,10 +93,12 @@ impl Scenario {
         tail_dof: None,
         correlation: 0.0,
         second_instrument_tile_pct: None,
+        extensions: false,
+        shapes: false,
     };
 
     /// Every scenario of the validation campaign (docs/FORENSIC.md).
-    pub const ALL: [Scenario; 9] = [
+    pub const ALL: [Scenario; 11] = [
         Scenario::AS_TODAY,
         Scenario {
             name: "spots-1pct",
@@ -137,6 +147,19 @@ impl Scenario {
             name: "second-instrument",
             about: "half the held-out sheets on a second instrument, its tile off by N(0, 1.5 %) per sheet",
             second_instrument_tile_pct: Some(1.5),
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "extensions",
+            about: "as-today, the fit testing the model's extensions",
+            extensions: true,
+            ..Scenario::AS_TODAY
+        },
+        Scenario {
+            name: "shapes",
+            about: "every stock a shape of the shapes campaign (or none), drawn for it; the fit testing the model's extensions",
+            extensions: true,
+            shapes: true,
             ..Scenario::AS_TODAY
         },
     ];
@@ -213,6 +236,9 @@ pub struct Stock {
     pub params: [f64; 3],
     /// The class of the reference paper it was drawn about.
     pub class: Class,
+    /// Its shape: the paper's TSL surface, or a departure from it (the scenario's
+    /// `shapes`).
+    pub shape: super::shapes::Shape,
 }
 
 /// The seed of draw `draw` of the population.
@@ -225,16 +251,25 @@ pub fn draw_seed(draw: usize) -> u64 {
 pub fn stocks(design: &Design, draw: usize) -> Vec<Stock> {
     let scenario = &design.scenario;
     let mut rng = ChaCha12Rng::seed_from_u64(draw_seed(draw));
+    // Shapes from a stream of their own: the stocks' parameters are those of the same draw
+    // without them.
+    let mut shape_rng = ChaCha12Rng::seed_from_u64(draw_seed(draw) ^ SHAPES_STREAM);
     let mut out = Vec::new();
     for r in &REFERENCES {
         let p = r.params;
         let paper = [p.sigma_deg, p.rho_s, p.rho_d];
         let mut push = |name: String, params: [f64; 3]| {
+            let shape = if scenario.shapes {
+                stock_shape(&mut shape_rng, params[0])
+            } else {
+                super::shapes::Shape::Tsl
+            };
             out.push(Stock {
                 name,
                 sample: format!("custom:{},{},{},{}", params[0], params[1], params[2], p.eta),
                 params,
                 class: r.class,
+                shape,
             })
         };
         push(r.name.to_string(), paper);
@@ -259,6 +294,31 @@ pub fn stocks(design: &Design, draw: usize) -> Vec<Stock> {
         }
     }
     out
+}
+
+/// The stream the stocks' shapes are drawn from (XORed into the draw's seed).
+const SHAPES_STREAM: u64 = 0x5a4e_5e5e;
+
+/// σ above which a stock is not given a Beckmann lobe: the simulator refuses one beyond
+/// about 39° (it has no peak at specular there), and a sheet's spots vary about the stock.
+const BECKMANN_MAX_SIGMA_DEG: f64 = 30.0;
+
+/// A shape for a stock of σ `sigma_deg`: every shape of the shapes campaign (the paper's
+/// surface among them) as likely, but a Beckmann lobe where σ is too wide for one.
+fn stock_shape(rng: &mut ChaCha12Rng, sigma_deg: f64) -> super::shapes::Shape {
+    use super::shapes::{KINDS, Kind, Shape};
+    use rand::Rng;
+    let shapes: Vec<Shape> = Shape::all(&KINDS)
+        .into_iter()
+        .filter(|s| {
+            sigma_deg < BECKMANN_MAX_SIGMA_DEG
+                || !matches!(
+                    s,
+                    Shape::Departure(Kind::Lobe(crate::instrument::sim::LobeChoice::Beckmann), _)
+                )
+        })
+        .collect();
+    shapes[rng.random_range(0..shapes.len())]
 }
 
 /// Three standard offsets with the scenario's correlation, from the normal or (heavy
@@ -449,9 +509,13 @@ pub fn measure(
     let sample = format!("custom:{},{},{},{eta}", params[0], params[1], params[2]);
     let held_out = spec.sheet >= design.library_sheets;
     let second = held_out && spec.sheet % 2 == 1 && scenario.second_instrument_tile_pct.is_some();
+    let (lobe, lobe_weight, departure) = stock.shape.sheet_options(params[0]);
     let options = SimOptions {
         seed: spec.seed,
         physics: Physics::Real,
+        lobe,
+        lobe_weight,
+        departure: departure.into_iter().collect(),
         sheet_variation: scenario.spot_pct,
         tile_error: if second {
             scenario.second_instrument_tile_pct
@@ -471,8 +535,15 @@ pub fn measure(
         integration_ms: None,
     };
     let planned = u16::try_from(spec.spots).map_err(|_| SheetError::TooManySpots(spec.spots))?;
-    let (outcomes, summary, results) =
-        super::simulated_sheet(&run, planned, |session| session).map_err(SheetError::Simulation)?;
+    let (outcomes, summary, results) = super::simulated_sheet(&run, planned, |session| {
+        // A scenario without the extensions leaves the process's default.
+        if scenario.extensions {
+            session.with_model_extensions(true)
+        } else {
+            session
+        }
+    })
+    .map_err(SheetError::Simulation)?;
     let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>()
         + outcomes.first().map_or(0.0, |o| o.setup_seconds);
     Ok(MeasuredSheet {

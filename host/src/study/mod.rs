@@ -171,38 +171,41 @@ pub fn simulated_sheet(
 > {
     let (mut client, info, plan) = connect(run)?;
     let mut outcomes: Vec<Outcome> = Vec::new();
-    let measure_spot =
-        |number: u16,
-         of: u16|
-         -> Result<crate::analysis::spots::SpotResult, crate::session::SessionError> {
-            let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
-            let mut session = configure(
-                Session::new(
-                    &mut client,
-                    info.clone(),
-                    plan.clone(),
-                    &mut recorder,
-                    &mut operator,
-                )
-                .at_spot(number, of),
-            );
-            if let Some(first) = outcomes.first() {
-                session = session.with_calibration(first.calibration.clone());
-            }
-            let outcome = session.run()?;
-            let result = crate::analysis::spots::SpotResult {
-                number,
-                flags: outcome.flags.clone(),
-                spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit),
-                class: outcome
-                    .report
-                    .classification
-                    .class
-                    .map(|c| c.name().to_string()),
-            };
-            outcomes.push(outcome);
-            Ok(result)
+    let measure_spot = |number: u16,
+                        of: u16|
+     -> Result<
+        crate::analysis::spots::SpotResult,
+        crate::session::SessionError,
+    > {
+        let (mut recorder, mut operator) = (DiscardRecorder, SimulatedOperator);
+        let mut session = configure(
+            Session::new(
+                &mut client,
+                info.clone(),
+                plan.clone(),
+                &mut recorder,
+                &mut operator,
+            )
+            .at_spot(number, of),
+        );
+        if let Some(first) = outcomes.first() {
+            session = session.with_calibration(first.calibration.clone());
+        }
+        let outcome = session.run()?;
+        let result = crate::analysis::spots::SpotResult {
+            number,
+            flags: outcome.flags.clone(),
+            spot: crate::analysis::evidence::Spot::of_fit(&outcome.report.fit),
+            shape_widening: crate::analysis::evidence::ShapeWidening::of_fit(&outcome.report.fit),
+            class: outcome
+                .report
+                .classification
+                .class
+                .map(|c| c.name().to_string()),
         };
+        outcomes.push(outcome);
+        Ok(result)
+    };
     let (results, summary) = crate::session::multi_spot::measure_sheet(
         crate::session::multi_spot::SheetPlan::new(spots),
         Vec::new(),

@@ -242,6 +242,59 @@ fn one_standard_error_apart_supports_the_same_stock() {
     );
 }
 
+/// A session whose fit tested the model's extensions: its covariance holds the `model form`
+/// widening (the budget's two terms of that kind), which the evidence leaves out where the
+/// fit kept the paper's model (no term in `model_extension.terms`) and keeps where a term
+/// was added or the record cannot say; the spot as reported keeps it either way.
+#[test]
+fn the_model_form_widening_is_left_out_of_the_evidence_only_where_the_papers_model_was_kept() {
+    // σ's variance: 0.02² from the noise, 0.2² and 0.1² from the two model-form terms.
+    let (noise, union, outside) = (0.02_f64.powi(2), 0.2_f64.powi(2), 0.1_f64.powi(2));
+    let with = |extension: Option<Value>| {
+        let mut u = U_GLOSSY;
+        u[0] = (noise + union + outside).sqrt();
+        let mut doc = glossy("a", 21.7, 0.409, 0.414, 3.0);
+        doc["result"]["covariance"] = json!(covariance(u, -0.6));
+        doc["result"]["budget"] = json!({"terms": [
+            {"name": "reading noise", "kind": "reading noise",
+             "variance": {"sigma_deg": noise, "rho_s": 1.0, "rho_d": 2.5e-5}},
+            {"name": "model form", "kind": "model form",
+             "variance": {"sigma_deg": union, "rho_s": 0.0, "rho_d": 0.0}},
+            {"name": "model form: shapes outside the family", "kind": "model form",
+             "variance": {"sigma_deg": outside, "rho_s": 0.0, "rho_d": 0.0}},
+        ]});
+        if let Some(extension) = extension {
+            doc["result"]["model_extension"] = extension;
+        }
+        compare::parse_session(Path::new("a.json"), &doc.to_string()).expect("parse")
+    };
+    let sigma_var = |r: &compare::SessionResult| r.weighed_spot().covariance[0][0];
+    let kept = with(Some(json!({"terms": [], "tests": [], "plausible": []})));
+    assert!(
+        (sigma_var(&kept) - noise).abs() < 1e-12,
+        "{:?}",
+        kept.weighed_spot()
+    );
+    assert!((kept.spot().covariance[0][0] - (noise + union + outside)).abs() < 1e-12);
+    assert_eq!(kept.sheet().spots, vec![kept.weighed_spot()]);
+    // ρs and ρd: no model-form variance, nothing left out.
+    assert_eq!(kept.weighed_spot().covariance[1], kept.spot().covariance[1]);
+    // Extensions off (no `model_extension`): nothing to leave out but the terms, if any.
+    assert!((sigma_var(&with(None)) - noise).abs() < 1e-12);
+    // A term added, or a record that cannot say: the widening stays.
+    for extension in [
+        json!({"terms": [{"term": "haze lobe"}], "tests": [], "plausible": []}),
+        json!("not an object"),
+    ] {
+        let added = with(Some(extension.clone()));
+        assert!(
+            (sigma_var(&added) - (noise + union + outside)).abs() < 1e-12,
+            "{extension}: {:?}",
+            added.weighed_spot()
+        );
+    }
+}
+
 #[test]
 fn a_class_boundary_between_two_sheets_is_not_evidence_of_different_stocks() {
     let dir = temp_dir("classes");

@@ -77,9 +77,47 @@ pub struct Spot {
     pub covariance: [[f64; 3]; 3],
 }
 
+/// What a fit's covariance holds for the shape of the sheet beyond its own noise, as the
+/// evidence needs it: the variances of σ (deg²), ρs, ρd its budget's `model form` terms add
+/// (the members of the model's family the readings cannot reject, each counted by its whole
+/// interval, and the estimate's move with a shape outside the family:
+/// `analysis/fit/extension/merge.rs`), and whether the fit kept the paper's own model (no
+/// term of the family added).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ShapeWidening {
+    /// The `model form` terms' variances of σ (deg²), ρs, ρd (0: none).
+    pub variance: [f64; 3],
+    /// The estimates are the paper's model's: the fit added no term.
+    pub paper_model: bool,
+}
+
+/// Whether a budget term named `name` is one of the fit's `model form` terms.
+pub(crate) fn is_model_form(name: &str) -> bool {
+    crate::analysis::budget::TermKind::of(name) == crate::analysis::budget::TermKind::ModelForm
+}
+
+impl ShapeWidening {
+    /// A fit's: its budget's `model form` terms, and whether it added no term.
+    pub(crate) fn of_fit(fit: &crate::analysis::fit::FitResult) -> ShapeWidening {
+        use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
+        let index = [SIGMA, RHO_S, RHO_D];
+        let variance = fit
+            .budget
+            .iter()
+            .filter(|t| is_model_form(&t.name))
+            .fold([0.0; 3], |sum, t| {
+                std::array::from_fn(|k| sum[k] + t.variance[index[k]])
+            });
+        ShapeWidening {
+            variance,
+            paper_model: fit.extension.as_ref().is_none_or(|e| e.terms.is_empty()),
+        }
+    }
+}
+
 impl Spot {
-    /// A fit's σ (degrees), ρs, ρd and their covariance: `None` for a parameter the fit
-    /// did not determine.
+    /// A fit's σ (degrees), ρs, ρd and their covariance as the fit reported them (its
+    /// intervals'): `None` for a parameter the fit did not determine.
     pub(crate) fn of_fit(fit: &crate::analysis::fit::FitResult) -> Spot {
         use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
         let index = [SIGMA, RHO_S, RHO_D];
@@ -88,6 +126,38 @@ impl Spot {
             covariance: std::array::from_fn(|r| {
                 std::array::from_fn(|c| fit.covariance[index[r]][index[c]])
             }),
+        }
+    }
+
+    /// The spot as the evidence weighs it: its σ, ρs, ρd and their covariance, less the
+    /// fit's `model form` widening `shape` where the fit kept the paper's own model. The
+    /// spot's own intervals (a sheet's answer, its report) keep it.
+    ///
+    /// Why: that widening is what the readings leave open about the sheet's shape (a haze
+    /// of nothing, a tail of nothing, each counted by its whole interval; how far the
+    /// estimate moves with a shape the family does not hold), not noise. Two sheets of one
+    /// stock have one shape, so measured the same way the same shape moves both estimates
+    /// alike: it does not set them apart. Counted in their difference, it made two stocks
+    /// 9–12 % apart (J3 and J4, exact TSL, the realistic instrument) weak support for the
+    /// same stock: ten times the noise on each spot (docs/FORENSIC.md, "The model's
+    /// extensions"). Where the paper's model was kept, the estimates and what is weighed
+    /// are the paper's model's, as with the extensions off. Where a term was added, the
+    /// widening stays: a term added on one sheet and not on the other moves their estimates
+    /// apart by what the term moves, which is what the widening bounds.
+    pub fn weighed(&self, shape: ShapeWidening) -> Spot {
+        let mut covariance = self.covariance;
+        if shape.paper_model {
+            for (k, v) in shape.variance.iter().enumerate() {
+                // A widening the variance does not hold (a record edited by hand) is not
+                // one the fit made: nothing is left out.
+                if v.is_finite() && *v > 0.0 && *v < covariance[k][k] {
+                    covariance[k][k] -= v;
+                }
+            }
+        }
+        Spot {
+            values: self.values,
+            covariance,
         }
     }
 
@@ -776,6 +846,38 @@ mod tests {
                 })
             }),
         }
+    }
+
+    /// The evidence leaves a fit's model-form widening out where the fit kept the paper's
+    /// model, and keeps it where a term was added or the widening is more than the
+    /// variance holds; the spot itself is not changed.
+    #[test]
+    fn a_spot_is_weighed_without_its_model_form_only_where_the_papers_model_was_kept() {
+        let reported = spot([21.7, 0.409, 0.414], 0.02);
+        let variance = reported.covariance.map(|row| row[0]);
+        let widening = [0.9 * reported.covariance[0][0], 0.0, f64::NAN];
+        let kept = reported.weighed(ShapeWidening {
+            variance: widening,
+            paper_model: true,
+        });
+        assert!((kept.covariance[0][0] - 0.1 * variance[0]).abs() < 1e-15);
+        assert_eq!(kept.covariance[1], reported.covariance[1]);
+        assert_eq!(
+            kept.covariance[2], reported.covariance[2],
+            "a NaN leaves it"
+        );
+        assert_eq!(kept.values, reported.values);
+        // More widening than the variance holds (a record edited by hand): nothing left out.
+        let over = reported.weighed(ShapeWidening {
+            variance: [2.0 * reported.covariance[0][0], 0.0, 0.0],
+            paper_model: true,
+        });
+        assert_eq!(over, reported);
+        let added = reported.weighed(ShapeWidening {
+            variance: widening,
+            paper_model: false,
+        });
+        assert_eq!(added, reported);
     }
 
     fn sheet(spots: &[[f64; 3]]) -> Sheet {

@@ -444,6 +444,7 @@ pub(crate) fn spot_from(
             number,
             flags,
             spot: session.spot(),
+            shape_widening: session.shape_widening,
             class: session.class.clone(),
         },
         session,

@@ -103,7 +103,9 @@ fn read_spot_folder(dir: &Path, lot: Option<&str>, allow_flagged: bool) -> Resul
     let value = serde_json::to_value(&doc).map_err(|e| bad(e.to_string()))?;
     let result =
         crate::analysis::compare::session_result(&file, &value).map_err(|e| bad(e.to_string()))?;
-    let spot = result.spot();
+    // The library feeds the evidence alone: its spots are stored as the evidence weighs
+    // them, so a library's pairs are weighed as a questioned pair is.
+    let spot = result.weighed_spot();
     check_spot(&spot).map_err(|e| bad(e.to_string()))?;
     Ok(SheetRecord {
         lot: lot.map(str::to_string),
