@@ -63,8 +63,9 @@ pub struct SessionResult {
     pub covariance: [[f64; 4]; 4],
     /// The result's flags (`flags` beside `result`, or the result's own); empty: clean.
     pub flags: Vec<String>,
-    /// The fit's `model form` widening and whether it kept the paper's model (the evidence
-    /// leaves the one out where the other holds: [`crate::analysis::evidence::Spot::weighed`]).
+    /// The fit's `model form` widening and how far its terms moved the estimates from the
+    /// paper's model's, which the evidence weighs in its place
+    /// ([`crate::analysis::evidence::Spot::weighed`]).
     pub shape_widening: crate::analysis::evidence::ShapeWidening,
 }
 
@@ -240,24 +241,38 @@ struct BudgetTermFile {
     variance: std::collections::BTreeMap<String, Option<f64>>,
 }
 
-/// What the comparison reads of a result's `model_extension`: the terms added.
+/// What the comparison reads of a result's `model_extension`: the terms added, and how far
+/// they moved σ, ρs, ρd from the paper's model (absent before that was recorded).
 #[derive(Default, Deserialize)]
 #[serde(default)]
 struct ExtensionFile {
     terms: Vec<Value>,
+    shift_from_paper_model: Option<ShiftFile>,
+}
+
+/// A result's `model_extension.shift_from_paper_model`.
+#[derive(Default, Deserialize)]
+#[serde(default)]
+struct ShiftFile {
+    sigma_deg: Option<f64>,
+    rho_s: Option<f64>,
+    rho_d: Option<f64>,
 }
 
 impl ResultFile {
-    /// The fit's `model form` widening (its budget's terms of that kind), and whether it
-    /// kept the paper's model: a result
-    /// without `model_extension` (the extensions off, or a session older than them) did;
-    /// one whose `model_extension` or `budget` cannot be read is taken to have added a term
-    /// and to carry no widening, so nothing is left out of what it reports.
+    /// The fit's `model form` widening (its budget's terms of that kind), and how far its
+    /// extension step moved σ, ρs, ρd from the paper's model: as recorded; 0 where a
+    /// record from before the shift was written added no term; not known (the widening is
+    /// then weighed whole) where it added one, where the step did not run, and where
+    /// `model_extension` cannot be read.
     fn shape_widening(&self) -> crate::analysis::evidence::ShapeWidening {
-        let paper_model = match &self.model_extension {
-            Slot::Missing | Slot::Is(None) => true,
-            Slot::Is(Some(extension)) => extension.terms.is_empty(),
-            Slot::Bad => false,
+        let shift_from_paper_model = match &self.model_extension {
+            Slot::Is(Some(extension)) => match &extension.shift_from_paper_model {
+                Some(shift) => [shift.sigma_deg, shift.rho_s, shift.rho_d],
+                None if extension.terms.is_empty() => [Some(0.0); 3],
+                None => [None; 3],
+            },
+            Slot::Missing | Slot::Is(None) | Slot::Bad => [None; 3],
         };
         let mut variance = [0.0; 3];
         if let Slot::Is(budget) = &self.budget {
@@ -273,7 +288,7 @@ impl ResultFile {
         }
         crate::analysis::evidence::ShapeWidening {
             variance,
-            paper_model,
+            shift_from_paper_model,
         }
     }
 

@@ -34,8 +34,8 @@ pub struct SpotResult {
     pub flags: Vec<Flag>,
     /// σ (degrees), ρs, ρd and their covariance, as its session reported them.
     pub spot: Spot,
-    /// Its fit's `model form` widening, which the evidence leaves out where the fit kept the
-    /// paper's model ([`Spot::weighed`]).
+    /// Its fit's `model form` widening and how far its terms moved it from the paper's
+    /// model, which the evidence weighs in the widening's place ([`Spot::weighed`]).
     pub shape_widening: ShapeWidening,
     /// Its own class (`None`: undecided), as its session reported it.
     pub class: Option<String>,

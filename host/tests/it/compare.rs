@@ -243,16 +243,18 @@ fn one_standard_error_apart_supports_the_same_stock() {
 }
 
 /// A session whose fit tested the model's extensions: its covariance holds the `model form`
-/// widening (the budget's two terms of that kind), which the evidence leaves out where the
-/// fit kept the paper's model (no term in `model_extension.terms`) and keeps where a term
-/// was added or the record cannot say; the spot as reported keeps it either way.
+/// widening (the budget's two terms of that kind), which the evidence weighs as the square
+/// of how far the fit's terms moved the estimate from the paper's model's (recorded, or 0
+/// where a record from before it added no term), and whole where that is not known; the
+/// spot as reported keeps it either way.
 #[test]
-fn the_model_form_widening_is_left_out_of_the_evidence_only_where_the_papers_model_was_kept() {
+fn the_evidence_weighs_the_shift_from_the_papers_model_in_place_of_the_model_form() {
     // σ's variance: 0.02² from the noise, 0.2² and 0.1² from the two model-form terms.
     let (noise, union, outside) = (0.02_f64.powi(2), 0.2_f64.powi(2), 0.1_f64.powi(2));
+    let whole = noise + union + outside;
     let with = |extension: Option<Value>| {
         let mut u = U_GLOSSY;
-        u[0] = (noise + union + outside).sqrt();
+        u[0] = whole.sqrt();
         let mut doc = glossy("a", 21.7, 0.409, 0.414, 3.0);
         doc["result"]["covariance"] = json!(covariance(u, -0.6));
         doc["result"]["budget"] = json!({"terms": [
@@ -269,30 +271,46 @@ fn the_model_form_widening_is_left_out_of_the_evidence_only_where_the_papers_mod
         compare::parse_session(Path::new("a.json"), &doc.to_string()).expect("parse")
     };
     let sigma_var = |r: &compare::SessionResult| r.weighed_spot().covariance[0][0];
-    let kept = with(Some(json!({"terms": [], "tests": [], "plausible": []})));
-    assert!(
-        (sigma_var(&kept) - noise).abs() < 1e-12,
-        "{:?}",
-        kept.weighed_spot()
-    );
-    assert!((kept.spot().covariance[0][0] - (noise + union + outside)).abs() < 1e-12);
-    assert_eq!(kept.sheet().spots, vec![kept.weighed_spot()]);
-    // ρs and ρd: no model-form variance, nothing left out.
-    assert_eq!(kept.weighed_spot().covariance[1], kept.spot().covariance[1]);
-    // Extensions off (no `model_extension`): nothing to leave out but the terms, if any.
-    assert!((sigma_var(&with(None)) - noise).abs() < 1e-12);
-    // A term added, or a record that cannot say: the widening stays.
-    for extension in [
-        json!({"terms": [{"term": "haze lobe"}], "tests": [], "plausible": []}),
-        json!("not an object"),
-    ] {
-        let added = with(Some(extension.clone()));
+    let shift = |sigma: Value| json!({"sigma_deg": sigma, "rho_s": 0.0, "rho_d": 0.0});
+    let haze =
+        json!([{"name": "haze lobe", "description": "", "statistic": 20.0, "critical": 11.6}]);
+    let cases = [
+        // No term added, the shift recorded (0), or from before it was (terms empty).
+        (
+            json!({"terms": [], "tests": [], "plausible": [], "shift_from_paper_model": shift(json!(0.0))}),
+            noise,
+        ),
+        (json!({"terms": [], "tests": [], "plausible": []}), noise),
+        // A term added that moved σ 0.15° from the paper's model.
+        (
+            json!({"terms": haze, "tests": [], "plausible": [], "shift_from_paper_model": shift(json!(-0.15))}),
+            noise + 0.0225,
+        ),
+        // Not known: a term added before the shift was recorded, σ's shift null, a record
+        // that cannot be read, or no extension step at all.
+        (json!({"terms": haze, "tests": [], "plausible": []}), whole),
+        (
+            json!({"terms": [], "tests": [], "plausible": [], "shift_from_paper_model": shift(Value::Null)}),
+            whole,
+        ),
+        (json!("not an object"), whole),
+    ];
+    for (extension, expected) in cases {
+        let r = with(Some(extension.clone()));
         assert!(
-            (sigma_var(&added) - (noise + union + outside)).abs() < 1e-12,
+            (sigma_var(&r) - expected).abs() < 1e-12,
             "{extension}: {:?}",
-            added.weighed_spot()
+            r.weighed_spot()
         );
+        assert!(
+            (r.spot().covariance[0][0] - whole).abs() < 1e-12,
+            "reported as is"
+        );
+        assert_eq!(r.sheet().spots, vec![r.weighed_spot()]);
+        // ρs and ρd: no model-form variance and no shift, nothing changed.
+        assert_eq!(r.weighed_spot().covariance[1], r.spot().covariance[1]);
     }
+    assert!((sigma_var(&with(None)) - whole).abs() < 1e-12);
 }
 
 #[test]

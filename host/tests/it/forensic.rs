@@ -51,11 +51,12 @@ fn the_issues_cases_point_the_right_way() {
 }
 
 /// The same with the fit testing the model's extensions. Their `model form` widening (the
-/// members the readings cannot reject, counted whole: about ten times the noise on these
-/// rough papers) made J3 against J4 on seed 3 weak support for the same stock (log10 LR
-/// +0.43 raw) when the evidence weighed it; a sheet of one stock has one shape, so the
-/// evidence leaves it out where the fit kept the paper's model (`Spot::weighed`), and
-/// these sheets are weighed as without the extensions.
+/// members the readings cannot reject, counted whole, and the estimate's move with shapes
+/// outside the family: about ten times the noise on these rough papers) made J3 against J4
+/// on seed 3 weak support for the same stock (log10 LR +0.43 raw) when the evidence weighed
+/// it; a sheet of one stock has one shape, so the evidence weighs in its place how far the
+/// fit's terms moved the estimate from the paper's model (`Spot::weighed`): nothing on
+/// these sheets, which are weighed as without the extensions.
 #[test]
 fn the_issues_cases_point_the_right_way_with_the_model_extensions() {
     issues_cases(true);

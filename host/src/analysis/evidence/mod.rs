@@ -81,14 +81,14 @@ pub struct Spot {
 /// evidence needs it: the variances of σ (deg²), ρs, ρd its budget's `model form` terms add
 /// (the members of the model's family the readings cannot reject, each counted by its whole
 /// interval, and the estimate's move with a shape outside the family:
-/// `analysis/fit/extension/merge.rs`), and whether the fit kept the paper's own model (no
-/// term of the family added).
+/// `analysis/fit/extension/merge.rs`), and how far the terms the fit added moved each from
+/// the paper's model's fit of the same readings (0: no term added; `None`: not known).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ShapeWidening {
     /// The `model form` terms' variances of σ (deg²), ρs, ρd (0: none).
     pub variance: [f64; 3],
-    /// The estimates are the paper's model's: the fit added no term.
-    pub paper_model: bool,
+    /// The reported σ (degrees), ρs, ρd less the paper's model's on the same readings.
+    pub shift_from_paper_model: [Option<f64>; 3],
 }
 
 /// Whether a budget term named `name` is one of the fit's `model form` terms.
@@ -97,7 +97,8 @@ pub(crate) fn is_model_form(name: &str) -> bool {
 }
 
 impl ShapeWidening {
-    /// A fit's: its budget's `model form` terms, and whether it added no term.
+    /// A fit's: its budget's `model form` terms, and its extension step's shift (none
+    /// where the step did not run: nothing to leave out).
     pub(crate) fn of_fit(fit: &crate::analysis::fit::FitResult) -> ShapeWidening {
         use crate::analysis::model::{RHO_D, RHO_S, SIGMA};
         let index = [SIGMA, RHO_S, RHO_D];
@@ -110,7 +111,10 @@ impl ShapeWidening {
             });
         ShapeWidening {
             variance,
-            paper_model: fit.extension.as_ref().is_none_or(|e| e.terms.is_empty()),
+            shift_from_paper_model: fit
+                .extension
+                .as_ref()
+                .map_or([None; 3], |e| e.shift_from_paper_model.to_array()),
         }
     }
 }
@@ -129,30 +133,38 @@ impl Spot {
         }
     }
 
-    /// The spot as the evidence weighs it: its σ, ρs, ρd and their covariance, less the
-    /// fit's `model form` widening `shape` where the fit kept the paper's own model. The
-    /// spot's own intervals (a sheet's answer, its report) keep it.
+    /// The spot as the evidence weighs it: its σ, ρs, ρd and their covariance with the
+    /// fit's `model form` widening `shape` replaced by the square of how far the terms the
+    /// fit added moved each from the paper's model's estimate (nothing where no term was
+    /// added). The spot's own intervals (a sheet's answer, its report) keep the widening.
     ///
-    /// Why: that widening is what the readings leave open about the sheet's shape (a haze
-    /// of nothing, a tail of nothing, each counted by its whole interval; how far the
-    /// estimate moves with a shape the family does not hold), not noise. Two sheets of one
-    /// stock have one shape, so measured the same way the same shape moves both estimates
-    /// alike: it does not set them apart. Counted in their difference, it made two stocks
-    /// 9–12 % apart (J3 and J4, exact TSL, the realistic instrument) weak support for the
-    /// same stock: ten times the noise on each spot (docs/FORENSIC.md, "The model's
-    /// extensions"). Where the paper's model was kept, the estimates and what is weighed
-    /// are the paper's model's, as with the extensions off. Where a term was added, the
-    /// widening stays: a term added on one sheet and not on the other moves their estimates
-    /// apart by what the term moves, which is what the widening bounds.
+    /// Why: the widening is what the readings leave open about the sheet's shape (a haze
+    /// of nothing, a tail of nothing, each member counted by its whole interval; how far
+    /// the estimate moves with a shape the family does not hold), not noise. Two sheets
+    /// of one stock have one shape, so measured the same way the same shape moves both
+    /// estimates alike: it does not set them apart. Counted in their difference, it made
+    /// two stocks 9–12 % apart (J3 and J4, exact TSL, the realistic instrument) weak
+    /// support for the same stock: ten times the noise on each spot (docs/FORENSIC.md,
+    /// "The model's extensions"). What two sheets of one stock do not share is which
+    /// terms their fits added: a term added on one and not the other moves their
+    /// estimates apart by what it moved its own, which the shift's square allows for
+    /// (a pair's difference then adds at most one to its χ²); where no term was added
+    /// what is weighed is the paper's model's, as with the extensions off. A parameter
+    /// whose shift is not known keeps the widening, as does one whose widening is more
+    /// than its variance holds (a record edited by hand).
     pub fn weighed(&self, shape: ShapeWidening) -> Spot {
         let mut covariance = self.covariance;
-        if shape.paper_model {
-            for (k, v) in shape.variance.iter().enumerate() {
-                // A widening the variance does not hold (a record edited by hand) is not
-                // one the fit made: nothing is left out.
-                if v.is_finite() && *v > 0.0 && *v < covariance[k][k] {
-                    covariance[k][k] -= v;
-                }
+        for (k, (v, shift)) in shape
+            .variance
+            .iter()
+            .zip(shape.shift_from_paper_model)
+            .enumerate()
+        {
+            let Some(shift) = shift.filter(|s| s.is_finite()) else {
+                continue;
+            };
+            if v.is_finite() && *v >= 0.0 && *v < covariance[k][k] {
+                covariance[k][k] += shift * shift - v;
             }
         }
         Spot {
@@ -848,36 +860,46 @@ mod tests {
         }
     }
 
-    /// The evidence leaves a fit's model-form widening out where the fit kept the paper's
-    /// model, and keeps it where a term was added or the widening is more than the
-    /// variance holds; the spot itself is not changed.
+    /// The evidence weighs a fit's model-form widening as the square of the shift the
+    /// fit's terms made from the paper's model (nothing where none was added), keeps it
+    /// where the shift is not known or the widening is more than the variance holds; the
+    /// spot itself is not changed.
     #[test]
-    fn a_spot_is_weighed_without_its_model_form_only_where_the_papers_model_was_kept() {
+    fn a_spot_is_weighed_with_its_shift_from_the_papers_model_in_place_of_its_model_form() {
         let reported = spot([21.7, 0.409, 0.414], 0.02);
-        let variance = reported.covariance.map(|row| row[0]);
-        let widening = [0.9 * reported.covariance[0][0], 0.0, f64::NAN];
+        let c = |s: &Spot, k: usize| s.covariance[k][k];
+        let widening = [0.9 * c(&reported, 0), 0.0, f64::NAN];
         let kept = reported.weighed(ShapeWidening {
             variance: widening,
-            paper_model: true,
+            shift_from_paper_model: [Some(0.0); 3],
         });
-        assert!((kept.covariance[0][0] - 0.1 * variance[0]).abs() < 1e-15);
+        assert!((c(&kept, 0) - 0.1 * c(&reported, 0)).abs() < 1e-15);
         assert_eq!(kept.covariance[1], reported.covariance[1]);
         assert_eq!(
             kept.covariance[2], reported.covariance[2],
             "a NaN leaves it"
         );
         assert_eq!(kept.values, reported.values);
+        let shifted = reported.weighed(ShapeWidening {
+            variance: widening,
+            shift_from_paper_model: [Some(-0.3), Some(0.01), None],
+        });
+        assert!((c(&shifted, 0) - (0.1 * c(&reported, 0) + 0.09)).abs() < 1e-12);
+        assert!((c(&shifted, 1) - (c(&reported, 1) + 1e-4)).abs() < 1e-15);
+        assert_eq!(c(&shifted, 2), c(&reported, 2));
+        for unknown in [[None; 3], [Some(f64::NAN); 3]] {
+            let same = reported.weighed(ShapeWidening {
+                variance: widening,
+                shift_from_paper_model: unknown,
+            });
+            assert_eq!(same, reported);
+        }
         // More widening than the variance holds (a record edited by hand): nothing left out.
         let over = reported.weighed(ShapeWidening {
-            variance: [2.0 * reported.covariance[0][0], 0.0, 0.0],
-            paper_model: true,
+            variance: [2.0 * c(&reported, 0), 0.0, 0.0],
+            shift_from_paper_model: [Some(0.0), None, None],
         });
         assert_eq!(over, reported);
-        let added = reported.weighed(ShapeWidening {
-            variance: widening,
-            paper_model: false,
-        });
-        assert_eq!(added, reported);
     }
 
     fn sheet(spots: &[[f64; 3]]) -> Sheet {

@@ -248,6 +248,41 @@ pub struct Extension {
     /// Members the data cannot exclude besides the one reported (their estimates are
     /// inside the intervals).
     pub plausible: Vec<String>,
+    /// How far the reported σ, ρs, ρd moved from the paper's model's fit of the same
+    /// readings: 0 where no term was added (the evidence weighs it in place of the
+    /// `model form` widening, `analysis::evidence::Spot::weighed`).
+    pub shift_from_paper_model: ShiftFromPaperModel,
+}
+
+/// The reported σ (degrees), ρs, ρd less the paper's model's on the same readings; `None`
+/// where either did not determine the parameter.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ShiftFromPaperModel {
+    /// σ, degrees.
+    pub sigma_deg: Option<f64>,
+    /// ρs.
+    pub rho_s: Option<f64>,
+    /// ρd.
+    pub rho_d: Option<f64>,
+}
+
+impl ShiftFromPaperModel {
+    /// From the paper's model's σ, ρs, ρd (`None`: not determined) to `result`'s.
+    fn between(paper_model: [Option<f64>; 3], result: &FitResult) -> ShiftFromPaperModel {
+        let shift = |k: usize, index: usize| {
+            Some(result.reported(index)? - paper_model[k]?).filter(|d| d.is_finite())
+        };
+        ShiftFromPaperModel {
+            sigma_deg: shift(0, SIGMA),
+            rho_s: shift(1, RHO_S),
+            rho_d: shift(2, RHO_D),
+        }
+    }
+
+    /// σ, ρs, ρd in order.
+    pub fn to_array(self) -> [Option<f64>; 3] {
+        [self.sigma_deg, self.rho_s, self.rho_d]
+    }
 }
 
 /// What the extension step needs from the base fit besides its result.
@@ -369,6 +404,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     if !eligible(base, result) {
         return;
     }
+    let paper_model = [SIGMA, RHO_S, RHO_D].map(|i| result.reported(i));
     let lost = result.lack_of_fit && result.params.sigma_deg >= LOBE_LOST_DEG;
     // A lobe that may be narrow is evaluated through the whole window.
     let lobe_sd_deg = 2.0
@@ -465,10 +501,12 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     let plausible = widen_for_model_form(result, &members, &profile, &chosen, &judging);
     fresnel_flatter(&mut problem, &null, &chosen, result);
     reread_rho_s_identification(result);
+    let shift_from_paper_model = ShiftFromPaperModel::between(paper_model, result);
     result.extension = Some(Extension {
         terms: added,
         tests,
         plausible,
+        shift_from_paper_model,
     });
 }
 
