@@ -353,20 +353,32 @@ impl SheetSummary {
         flags::ok(&self.flags)
     }
 
-    /// The accepted spots of `results`, as the evidence weighs the sheet.
+    /// The accepted spots of `results`, as the evidence weighs the sheet
+    /// ([`Spot::weighed`]).
     pub fn sheet(&self, results: &[SpotResult]) -> Sheet {
-        let accepted = |n: u16| {
-            self.verdicts
-                .iter()
-                .any(|j| j.number == n && j.verdict == SpotVerdict::Accepted)
-        };
         Sheet {
-            spots: results
-                .iter()
-                .filter(|r| accepted(r.number))
+            spots: self
+                .accepted(results)
                 .map(|r| r.spot.weighed(r.shape_widening))
                 .collect(),
         }
+    }
+
+    /// The accepted spots of `results` as their sessions reported them: what their
+    /// intervals, and a sheet's shown beside a comparison, are made of.
+    pub fn reported(&self, results: &[SpotResult]) -> Sheet {
+        Sheet {
+            spots: self.accepted(results).map(|r| r.spot.clone()).collect(),
+        }
+    }
+
+    /// The accepted ones of `results`.
+    fn accepted<'r>(&self, results: &'r [SpotResult]) -> impl Iterator<Item = &'r SpotResult> {
+        results.iter().filter(|r| {
+            self.verdicts
+                .iter()
+                .any(|j| j.number == r.number && j.verdict == SpotVerdict::Accepted)
+        })
     }
 }
 

@@ -321,7 +321,9 @@ fn value(r: &MeasuredSheet, i: usize) -> Option<f64> {
 /// not average out).
 fn interval(r: &MeasuredSheet, i: usize) -> Option<(f64, f64)> {
     let v = value(r, i)?;
-    let spots = &r.sheet.spots;
+    // The spots as reported: a sheet's own interval keeps what the evidence weighs
+    // otherwise (the model-form widening).
+    let spots = &r.reported.spots;
     if spots.len() == 1 {
         let var = spots[0].covariance[i][i];
         return (var >= 0.0 && var.is_finite())

@@ -311,6 +311,34 @@ fn the_evidence_weighs_the_shift_from_the_papers_model_in_place_of_the_model_for
         assert_eq!(r.weighed_spot().covariance[1], r.spot().covariance[1]);
     }
     assert!((sigma_var(&with(None)) - whole).abs() < 1e-12);
+
+    // `gonio compare` weighs the shift but shows each sheet's interval as its session
+    // reported it, the widening in it.
+    let dir = temp_dir("shift");
+    let mut doc = glossy("a", 21.7, 0.409, 0.414, 3.0);
+    let mut u = U_GLOSSY;
+    u[0] = whole.sqrt();
+    doc["result"]["covariance"] = json!(covariance(u, -0.6));
+    doc["result"]["budget"] = json!({"terms": [
+        {"name": "model form", "kind": "model form",
+         "variance": {"sigma_deg": union + outside, "rho_s": 0.0, "rho_d": 0.0}},
+    ]});
+    doc["result"]["model_extension"] = json!({"terms": [], "tests": [], "plausible": []});
+    let a = write_session(&dir, "a", &doc);
+    let b = write_session(&dir, "b", &doc);
+    let (v, _) = run_json(&a, &b, &[]);
+    for side in ["a", "b"] {
+        let (lo, hi) = (
+            v[side]["ci95"]["sigma_deg"][0].as_f64().unwrap(),
+            v[side]["ci95"]["sigma_deg"][1].as_f64().unwrap(),
+        );
+        assert!(
+            ((hi - lo) / 2.0 - 1.96 * whole.sqrt()).abs() < 1e-9,
+            "{side}: [{lo}, {hi}] against ± {}",
+            1.96 * whole.sqrt()
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

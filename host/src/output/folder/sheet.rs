@@ -469,8 +469,17 @@ pub struct ReadSheet {
 impl ReadSheet {
     /// The accepted spots, as the evidence weighs the sheet.
     pub fn sheet(&self) -> Sheet {
-        let results: Vec<SpotResult> = self.spots.iter().map(|s| s.result.clone()).collect();
-        self.summary.sheet(&results)
+        self.summary.sheet(&self.results())
+    }
+
+    /// The accepted spots as their sessions reported them.
+    pub fn reported(&self) -> Sheet {
+        self.summary.reported(&self.results())
+    }
+
+    /// Every spot's result.
+    fn results(&self) -> Vec<SpotResult> {
+        self.spots.iter().map(|s| s.result.clone()).collect()
     }
 
     /// Its spots counted: planned, measured, accepted, flagged.
@@ -556,8 +565,10 @@ pub struct MeasuredSheet {
     pub sample: String,
     /// Each accepted spot's class (`None`: undecided).
     pub classes: Vec<Option<String>>,
-    /// The accepted spots.
+    /// The accepted spots, as the evidence weighs them ([`crate::analysis::evidence::Spot::weighed`]).
     pub sheet: Sheet,
+    /// The accepted spots as their sessions reported them: the sheet's own intervals.
+    pub reported: Sheet,
     /// The sheet's result when it is a sheet folder; `None` for a session of one spot.
     pub summary: Option<SheetSummary>,
     /// Its result's flags (empty: clean).
@@ -636,7 +647,7 @@ pub enum MeasuredError {
 pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
     if is_sheet_folder(path) {
         let read = read_sheet(path)?;
-        let sheet = read.sheet();
+        let (sheet, reported) = (read.sheet(), read.reported());
         let accepted = |n: u16| {
             read.summary
                 .verdicts
@@ -667,6 +678,7 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
             sample: read.doc.sample.clone(),
             classes,
             sheet,
+            reported,
             summary: Some(read.summary),
             flags,
             identity,
@@ -690,6 +702,9 @@ pub fn read_measured(path: &Path) -> Result<MeasuredSheet, MeasuredError> {
         sample: session.sample.clone(),
         classes: vec![session.class.clone()],
         sheet: session.sheet(),
+        reported: Sheet {
+            spots: vec![session.spot()],
+        },
         summary: None,
         flags: session.flags.clone(),
         identity,
