@@ -32,6 +32,12 @@ pub struct Args {
     /// differs from the session's where the instrument does).
     #[arg(long, value_name = "FILE", conflicts_with = "acceptance")]
     pub instrument: Option<PathBuf>,
+    /// The model fitted to CSV and `.astm` tables: extended (the paper's TSL model and the
+    /// extensions the readings call for, each named in the result) or paper (the paper's
+    /// model alone). Session folders and tables with their shared errors are analysed with
+    /// the model their session used. Default: extended (`GONIO_MODEL_EXTENSIONS=0`: paper).
+    #[arg(long, value_enum, value_name = "MODEL")]
+    pub model: Option<host::analysis::fit::ModelChoice>,
     /// CSV files (header with theta_i, theta_r, radiance_factor; optional std, sample;
     /// comma-, semicolon- or tab-separated, decimal commas with the latter two), gonio's
     /// `.astm` exports, or finished session or sheet folders: analysed again from their own
@@ -139,6 +145,10 @@ fn fit_options(
         acceptance_deg: (args.acceptance > 0.0).then_some(args.acceptance),
         response,
         arm_zero_uncertainty_deg: profile.map_or(0.0, |p| p.arm_zero_u_deg),
+        extensions: args
+            .model
+            .unwrap_or_else(host::analysis::fit::ModelChoice::by_default)
+            .extensions(),
         ..FitOptions::default()
     })
 }

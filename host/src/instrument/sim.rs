@@ -37,7 +37,9 @@ impl Transport for SimInstrument {
     }
 
     fn pause(&mut self, duration: Duration) {
-        self.advance_ms(duration.as_millis() as u64);
+        // At least the pause asked for, in the simulator's whole milliseconds: rounded down,
+        // a pause under 1 ms would not move device time at all.
+        self.advance_ms(u64::try_from(duration.as_micros().div_ceil(1000)).unwrap_or(u64::MAX));
     }
 
     /// Device time: waiting on the simulator runs it forward instead of sleeping.

@@ -59,6 +59,9 @@ pub struct MeasureOptions {
     pub tile_certificate: Option<PathBuf>,
     /// Standard uncertainty of the detector arm's zero, degrees.
     pub arm_zero_uncertainty_deg: f64,
+    /// The model fitted (`None`: the resumed session's, else
+    /// [`crate::analysis::fit::ModelChoice::by_default`]).
+    pub model: Option<crate::analysis::fit::ModelChoice>,
     /// The instrument profile (`None`: the one installed for the instrument, if any).
     pub instrument: Option<PathBuf>,
     /// Oldest profile used, days.
@@ -102,6 +105,7 @@ impl Default for MeasureOptions {
                 * crate::instrument::calibration::DEFAULT_TILE_RELATIVE_UNCERTAINTY,
             tile_certificate: None,
             arm_zero_uncertainty_deg: crate::analysis::fit::DEFAULT_ARM_ZERO_UNCERTAINTY_DEG,
+            model: None,
             instrument: None,
             max_profile_age_days: crate::instrument::profile::DEFAULT_MAX_AGE_DAYS,
             max_calibration_age_h: 8.0,

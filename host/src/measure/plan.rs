@@ -67,6 +67,11 @@ pub(super) fn plan_record(
         Policy::Sweep(t) | Policy::Mixed(_, t) => Some(t),
         _ => None,
     };
+    let model = match (args.model, earlier) {
+        (Some(choice), _) => choice,
+        (None, Some(plan)) => plan.model_choice()?,
+        (None, None) => crate::analysis::fit::ModelChoice::by_default(),
+    };
     Ok(PlanRecord {
         policy: policy.name().into(),
         adaptive_targets,
@@ -78,6 +83,7 @@ pub(super) fn plan_record(
             .white_drift_limit_pct
             .or(earlier.map(|p| p.white_drift_limit_pct))
             .unwrap_or(DEFAULT_WHITE_DRIFT_LIMIT_PCT),
+        model: Some(model.name().into()),
     })
 }
 
@@ -118,6 +124,12 @@ pub(super) fn sheet_plan(
     {
         differences.push(format!("--white-drift-limit-pct {pct}"));
     }
+    if let Some(model) = args.model {
+        let recorded_model = recorded.model_choice()?;
+        if model != recorded_model {
+            differences.push(format!("--model {}", model.name()));
+        }
+    }
     if !differences.is_empty() {
         bail!(
             "{} differs from the sheet's plan: {}; a sheet is measured under one plan (resume without {})",
@@ -132,6 +144,7 @@ pub(super) fn sheet_plan(
     unchanged.integration_ms = None;
     unchanged.white_check = false;
     unchanged.white_drift_limit_pct = None;
+    unchanged.model = None;
     plan_record(&unchanged, info, Some(&recorded))?;
     Ok(recorded)
 }

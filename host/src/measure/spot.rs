@@ -48,6 +48,7 @@ pub(super) fn run_session<T: Transport>(
     .with_calibration_limit(checked.max_calibration_age)
     .with_tile(checked.tile.clone())
     .with_arm_zero_uncertainty(args.arm_zero_uncertainty_deg)
+    .with_model_extensions(plan.model_choice()?.extensions())
     .with_profile(cx.profile.clone());
     if let Some(spot) = &spot {
         session = session.at_spot(spot.number, spot.of);

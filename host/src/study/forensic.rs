@@ -70,8 +70,9 @@ pub struct Scenario {
     /// Held-out sheets of odd number are measured on a second instrument whose white tile
     /// is off by N(0, this %) per sheet (the first instrument: the realistic 0.5 %).
     pub(crate) second_instrument_tile_pct: Option<f64>,
-    /// The fit tests the model's extensions (`GONIO_MODEL_EXTENSIONS=1`), for every sheet
-    /// of the library and the pairs alike.
+    /// The fit tests the model's extensions (`--model extended`, the default), for every
+    /// sheet of the library and the pairs alike; else it fits the paper's model alone,
+    /// as the worlds measured before the extensions did.
     pub(crate) extensions: bool,
     /// Every stock departs from the paper's TSL surface by a shape drawn for it from the
     /// shapes campaign's (`gonio accuracy --shapes`: a haze, heavier or lighter tails, an
@@ -536,12 +537,9 @@ pub fn measure(
     };
     let planned = u16::try_from(spec.spots).map_err(|_| SheetError::TooManySpots(spec.spots))?;
     let (outcomes, summary, results) = super::simulated_sheet(&run, planned, |session| {
-        // A scenario without the extensions leaves the process's default.
-        if scenario.extensions {
-            session.with_model_extensions(true)
-        } else {
-            session
-        }
+        // Each world fits the model it names, whatever the process's default: its
+        // figures in docs/FORENSIC.md are of that model.
+        session.with_model_extensions(scenario.extensions)
     })
     .map_err(SheetError::Simulation)?;
     let device_seconds = outcomes.iter().map(|o| o.device_seconds).sum::<f64>()

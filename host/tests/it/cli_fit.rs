@@ -483,3 +483,51 @@ fn percent_and_radians_are_flagged_with_what_looks_wrong() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--model paper` fits the paper's model alone (no extension step in the result),
+/// `--model extended` tests the extensions (every term's test in the result), and a model
+/// gonio does not know is a usage error naming the choices.
+#[test]
+fn the_model_is_chosen_on_the_command_line() {
+    let dir = temp_dir("model-choice");
+    let g = common::noisy(&common::reference("G"), &common::strategy2(2), 7);
+    let path = dir.join("g.csv");
+    std::fs::write(&path, csv(&[("x", g)], false)).expect("write");
+    let run = |model: &str| -> serde_json::Value {
+        let out = gonio()
+            .args([
+                "fit",
+                "--json",
+                "--model",
+                model,
+                path.to_str().expect("utf-8"),
+            ])
+            .output()
+            .expect("run gonio");
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        serde_json::from_str(stdout.lines().next().unwrap_or_default()).unwrap_or_else(|e| {
+            panic!("{e}: {stdout} {}", String::from_utf8_lossy(&out.stderr));
+        })
+    };
+    let extension = |v: &serde_json::Value| {
+        v.pointer("/fit/model_extension")
+            .or_else(|| v.get("model_extension"))
+            .cloned()
+            .unwrap_or_else(|| panic!("no model_extension in {v}"))
+    };
+    let paper = run("paper");
+    assert!(extension(&paper).is_null(), "{paper}");
+    let extended = run("extended");
+    assert!(extension(&extended)["tests"].is_array(), "{extended}");
+    let out = gonio()
+        .args(["fit", "--model", "haze", path.to_str().expect("utf-8")])
+        .output()
+        .expect("run gonio");
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("extended") && stderr.contains("paper"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

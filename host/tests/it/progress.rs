@@ -33,6 +33,7 @@ fn decisions_and_prompts_go_above_one_bar_and_no_copy_is_left_behind() {
         acceptance_deg: 1.0,
         white_check: false,
         white_drift_limit_pct: 0.5,
+        model: Some("extended".into()),
     };
     let dir = std::env::temp_dir().join(format!("gonio-progress-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);

@@ -120,6 +120,21 @@ fn killed(dir: &Path, n: u64, extra: &[&str]) {
     assert!(crash.crashed());
 }
 
+/// `gonio measure` resuming the G session of seed 21 in `dir` (the one [`killed`] leaves).
+fn resumed(dir: &Path) -> std::process::Output {
+    gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--seed",
+        "21",
+        "--resume",
+        dir.to_str().unwrap(),
+    ])
+}
+
 #[test]
 fn out_onto_another_sessions_folder_or_any_non_empty_folder_is_refused() {
     let dir = temp_dir("another");
@@ -291,6 +306,7 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
         acceptance_deg: 1.0,
         white_check: false,
         white_drift_limit_pct: 0.5,
+        model: Some("extended".into()),
     };
     let parent = cwd.join("many");
     let dirs: Vec<PathBuf> = std::thread::scope(|s| {
@@ -413,6 +429,13 @@ fn resume_with_another_sample_instrument_or_plan_is_refused_naming_what_differs(
         ],
         &dir,
         &["the white drift limit differs (the session: 0.5 %; now: 2 %)"],
+    );
+    refused(
+        &[
+            "measure", "--spots", "1", "--sim", "G", "--model", "paper", "--resume", d,
+        ],
+        &dir,
+        &["the model differs (the session: extended; now: paper)"],
     );
     // Several at once, all named.
     refused(
@@ -660,17 +683,7 @@ fn a_cut_off_last_line_is_repaired_and_the_repair_logged() {
         "{}",
         stderr(&out)
     );
-    let out = gonio(&[
-        "measure",
-        "--spots",
-        "1",
-        "--sim",
-        "G",
-        "--seed",
-        "21",
-        "--resume",
-        dir.to_str().unwrap(),
-    ]);
+    let out = resumed(&dir);
     assert!(out.status.success(), "{}", stderr(&out));
     let after = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
     assert!(
@@ -699,6 +712,53 @@ fn a_cut_off_last_line_is_repaired_and_the_repair_logged() {
     );
     assert!(gonio(&["verify", dir.to_str().unwrap()]).status.success());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The model a session fits is its plan's: begun with `--model paper` and killed, it is
+/// resumed without the option under the paper's model, and its result and session.json
+/// say so; a session whose plan predates the record (no `model`) is the paper's, as the
+/// default was when it was begun.
+#[test]
+fn a_resumed_session_fits_the_model_it_was_begun_with() {
+    let model_of = |dir: &Path| {
+        let doc = session(dir);
+        (
+            doc["plan"]["model"].clone(),
+            doc["result"]["analysis_settings"]["model_extensions"].clone(),
+        )
+    };
+    let resume = |dir: &Path| {
+        let out = resumed(dir);
+        assert!(
+            out.status.code() == Some(0) || out.status.code() == Some(3),
+            "{}",
+            stderr(&out)
+        );
+    };
+    let paper = temp_dir("model-paper");
+    killed(&paper, 30, &["--model", "paper"]);
+    assert_eq!(session(&paper)["plan"]["model"], "paper");
+    resume(&paper);
+    assert_eq!(model_of(&paper), (Value::from("paper"), Value::from(false)));
+    // A plan written before the model was recorded: the paper's model.
+    let older = temp_dir("model-older");
+    killed(&older, 30, &[]);
+    let mut doc = session(&older);
+    assert_eq!(
+        doc["plan"]["model"],
+        host::analysis::fit::ModelChoice::by_default().name(),
+        "the default"
+    );
+    doc["plan"].as_object_mut().unwrap().remove("model");
+    std::fs::write(
+        older.join("session.json"),
+        serde_json::to_vec_pretty(&doc).unwrap(),
+    )
+    .unwrap();
+    resume(&older);
+    assert_eq!(model_of(&older).1, Value::from(false));
+    let _ = std::fs::remove_dir_all(&paper);
+    let _ = std::fs::remove_dir_all(&older);
 }
 
 /// An operator who presses Ctrl-C once the tile is back and the sample is on.
@@ -959,21 +1019,7 @@ fn a_folder_in_use_by_another_process_is_refused() {
             .contains("in use by another gonio process")
     );
     drop(lock);
-    assert!(
-        gonio(&[
-            "measure",
-            "--spots",
-            "1",
-            "--sim",
-            "G",
-            "--seed",
-            "21",
-            "--resume",
-            dir.to_str().unwrap()
-        ])
-        .status
-        .success()
-    );
+    assert!(resumed(&dir).status.success());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -66,8 +66,16 @@ impl Watched {
         self.sim.device_time_us() as f64 * 1e-6
     }
 
+    /// The freeze on the simulator's microsecond clock (rounded up): a freeze between two
+    /// ticks left a wait of under 1 µs before it, which the simulator reads as no wait,
+    /// and the link's loop asked again at the same instant for ever.
+    fn freeze_at_us(&self) -> Option<u64> {
+        self.freeze_at_s.map(|at| (at.max(0.0) * 1e6).ceil() as u64)
+    }
+
     fn frozen(&self) -> bool {
-        self.freeze_at_s.is_some_and(|at| self.now_s() >= at)
+        self.freeze_at_us()
+            .is_some_and(|at| self.sim.device_time_us() >= at)
     }
 
     /// Device times (s) at which `matches` was sent.
@@ -78,6 +86,11 @@ impl Watched {
             .map(|(t, _)| *t)
             .collect()
     }
+}
+
+/// A wait in the simulator's whole milliseconds, rounded up.
+fn whole_ms(wait: Duration) -> u64 {
+    u64::try_from(wait.as_micros().div_ceil(1000)).unwrap_or(u64::MAX)
 }
 
 impl Transport for Watched {
@@ -128,12 +141,16 @@ impl Transport for Watched {
 
     fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
         if self.frozen() {
-            self.sim.advance_ms(timeout.as_millis() as u64);
+            // At least the wait asked for: a wait under 1 ms rounded down to none would
+            // leave the link's loop asking again at the same instant.
+            self.sim.advance_ms(whole_ms(timeout));
             return Ok(0);
         }
         // Nothing the instrument says after it froze reaches the host.
-        let timeout = match self.freeze_at_s {
-            Some(at) => timeout.min(Duration::from_secs_f64((at - self.now_s()).max(0.0))),
+        let timeout = match self.freeze_at_us() {
+            Some(at) => timeout.min(Duration::from_micros(
+                at.saturating_sub(self.sim.device_time_us()),
+            )),
             None => timeout,
         };
         if !self.lose_stops {
@@ -170,7 +187,7 @@ impl Transport for Watched {
     }
 
     fn pause(&mut self, duration: Duration) {
-        self.sim.advance_ms(duration.as_millis() as u64);
+        self.sim.advance_ms(whole_ms(duration));
     }
 
     fn now(&self) -> Duration {

@@ -319,14 +319,23 @@ fn resume(policy: &str) {
         &["--policy", policy],
     );
     let all = geometries(&full_dir);
-    // The same session stopped once 20 readings are on disk, then the next line cut short
+    // The same session stopped once 20 readings are on disk (the paper's policy: 49 on
+    // SG), or 14 (adaptive: into its first batch after Strategy 1's 12; over the pty the
+    // adaptive SG of seed 8 took 18 to 31 with the model's extensions, for its device
+    // time, hence its lamp's drift, follows the host's pace), then the next line cut short
     // as a crash while writing it leaves it.
+    let stop_at = if policy == "paper" { 20 } else { 14 };
     let dir = temp_dir(&format!("resume-{policy}"));
     let interrupted = Arc::new(AtomicBool::new(false));
+    let ended = Arc::new(AtomicBool::new(false));
     let watcher = {
         let (flag, points) = (interrupted.clone(), dir.join("points.jsonl"));
+        let ended = ended.clone();
         std::thread::spawn(move || {
-            while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < 20 {
+            while std::fs::read_to_string(&points).map_or(0, |t| t.lines().count()) < stop_at {
+                if ended.load(Ordering::Relaxed) {
+                    return;
+                }
                 std::thread::sleep(std::time::Duration::from_millis(1));
             }
             flag.store(true, Ordering::Relaxed);
@@ -343,10 +352,12 @@ fn resume(policy: &str) {
         "--out",
         dir.to_str().unwrap(),
     ];
-    let Measured::Stopped { .. } = run(&args, &mut person(), interrupted).unwrap() else {
-        panic!("not stopped")
-    };
+    let outcome = run(&args, &mut person(), interrupted).unwrap();
+    ended.store(true, Ordering::Relaxed);
     watcher.join().unwrap();
+    let Measured::Stopped { .. } = outcome else {
+        panic!("not stopped after {stop_at} readings of {}", all.len())
+    };
     drop(served);
     let before = std::fs::read_to_string(dir.join("points.jsonl")).unwrap();
     let taken = before.lines().count();
@@ -395,8 +406,9 @@ fn resume(policy: &str) {
         assert_eq!(g.len(), all.len());
     } else {
         // The adaptive policy plans again from what it has: it may choose other geometries,
-        // never one already measured.
-        assert!(g.len() > taken && resumed["sigma_ok"] == true, "{resumed}");
+        // never one already measured, or none where what it has meets its targets (the
+        // extended fit of SG can at 15 readings).
+        assert!(g.len() >= taken && resumed["sigma_ok"] == true, "{resumed}");
     }
     let log = std::fs::read_to_string(dir.join("session.log")).unwrap();
     assert!(

@@ -64,6 +64,13 @@ pub struct Args {
     /// Oldest instrument profile used, days: an older one is not used (the result says so).
     #[arg(long, value_name = "DAYS", default_value_t = host::instrument::profile::DEFAULT_MAX_AGE_DAYS)]
     pub max_profile_age_days: f64,
+    /// The model fitted: extended (the paper's TSL model and the extensions the readings
+    /// call for, each named in the result; σ, ρs, ρd stay the main lobe's, classified by
+    /// the paper's tree) or paper (the paper's model alone: a sheet it does not describe
+    /// is only flagged). Recorded in session.json; a resumed session keeps its own.
+    /// Default: extended (`GONIO_MODEL_EXTENSIONS=0`: paper).
+    #[arg(long, value_enum, value_name = "MODEL")]
+    pub model: Option<host::analysis::fit::ModelChoice>,
     /// Oldest calibration accepted, hours (at most 8760).
     #[arg(long, value_name = "HOURS", default_value_t = 8.0)]
     pub max_calibration_age_h: f64,
@@ -138,6 +145,7 @@ impl Args {
             tile_uncertainty_pct: self.tile_uncertainty_pct,
             tile_certificate: self.tile_certificate.clone(),
             arm_zero_uncertainty_deg: self.arm_zero_uncertainty_deg,
+            model: self.model,
             instrument: self.instrument.clone(),
             max_profile_age_days: self.max_profile_age_days,
             max_calibration_age_h: self.max_calibration_age_h,

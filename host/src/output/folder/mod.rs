@@ -287,6 +287,26 @@ pub struct PlanRecord {
     pub white_check: bool,
     /// Drift beyond which the result is marked, percent.
     pub white_drift_limit_pct: f64,
+    /// The model fitted: `extended` or `paper` ([`crate::analysis::fit::ModelChoice`]).
+    /// Absent in sessions begun before it was recorded, whose default was the paper's
+    /// model: a resume of one fits that.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+}
+
+impl PlanRecord {
+    /// The model the plan fits: its record, else the paper's (see [`PlanRecord::model`]).
+    pub(crate) fn model_choice(&self) -> anyhow::Result<crate::analysis::fit::ModelChoice> {
+        use crate::analysis::fit::ModelChoice;
+        match self.model.as_deref() {
+            None => Ok(ModelChoice::Paper),
+            Some(name) => <ModelChoice as clap::ValueEnum>::from_str(name, true).map_err(|_| {
+                anyhow::anyhow!(
+                    "the session's model '{name}' is not one this gonio knows (extended, paper)"
+                )
+            }),
+        }
+    }
 }
 
 /// [`crate::session::adaptive::AdaptiveTargets`] as recorded.

@@ -700,6 +700,12 @@ pub fn differences(doc: &SessionDoc, wanted: &Identity) -> Vec<String> {
         format!("{} %", a.white_drift_limit_pct),
         format!("{} %", b.white_drift_limit_pct),
     );
+    // A plan recorded before the model was is the paper's model's (`PlanRecord::model`).
+    let model = |p: &PlanRecord| {
+        p.model_choice()
+            .map_or_else(|_| format!("{:?}", p.model), |m| m.name().to_string())
+    };
+    differ("model", model(a), model(b));
     // Case fields given again must be the session's; left out, the session's stand.
     if let Some(case) = wanted.case.as_ref().filter(|c| !c.is_empty()) {
         let theirs = doc.case.clone().unwrap_or_default();

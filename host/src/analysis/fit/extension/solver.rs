@@ -317,7 +317,7 @@ impl Problem {
 
     /// Each reading's leverage (the hat matrix's diagonal) in `fit`, the shared errors
     /// among the parameters; `None` where the normal matrix is singular.
-    fn leverages(&self, fit: &MemberFit) -> Option<Vec<f64>> {
+    pub(super) fn leverages(&self, fit: &MemberFit) -> Option<Vec<f64>> {
         let eps = vec![0.0; self.shared.len()];
         let (_, jac) = self.rows(&fit.values, &eps, &fit.active);
         let q = fit.active.len() + self.shared.len();
