@@ -38,26 +38,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         println!("no session or sheet folders in {}", args.root.display());
         return Ok(ExitCode::SUCCESS);
     }
+    let states: Vec<String> = entries.iter().map(state_column).collect();
+    // The sample's and the state's columns are as wide as their widest cell: a flagged
+    // spot's state ("FLAGGED: lack-of-fit, instrument-declared") pushed the columns after
+    // it out of line.
+    let width =
+        |cells: &mut dyn Iterator<Item = usize>, least: usize| cells.fold(least, usize::max);
+    let sample_width = width(&mut entries.iter().map(|e| e.sample.chars().count()), 12);
+    let state_width = width(&mut states.iter().map(|s| s.chars().count()), 32);
     println!(
-        "{:<19} {:<12} {:<7} {:<CLASS_WIDTH$} {:<32} {:>9}  folder",
+        "{:<19} {:<sample_width$} {:<7} {:<CLASS_WIDTH$} {:<state_width$} {:>9}  folder",
         "started", "sample", "kind", "class", "state", "device s"
     );
-    for e in &entries {
+    for (e, state) in entries.iter().zip(&states) {
         let class = class_column(&e.classes);
-        let state = match (&e.problem, e.ok) {
-            (Some(problem), _) => format!("UNREADABLE: {problem}"),
-            (None, Some(true)) => {
-                if e.flags.is_empty() {
-                    "ok".to_string()
-                } else {
-                    format!("ok ({})", e.flags.join(", "))
-                }
-            }
-            (None, Some(false)) => format!("FLAGGED: {}", e.flags.join(", ")),
-            (None, None) => e.status.clone(),
-        };
         println!(
-            "{:<19} {:<12} {:<7} {:<CLASS_WIDTH$} {:<32} {:>9}  {}",
+            "{:<19} {:<sample_width$} {:<7} {:<CLASS_WIDTH$} {:<state_width$} {:>9}  {}",
             e.started.as_deref().map_or_else(
                 || "?".to_string(),
                 |t| t.chars().take(19).collect::<String>().replace('T', " ")
@@ -72,6 +68,23 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The state column: ok (with its informational flags), flagged (with its flags), the
+/// status of a session not finished, or why the folder could not be read.
+fn state_column(e: &catalogue::Entry) -> String {
+    match (&e.problem, e.ok) {
+        (Some(problem), _) => format!("UNREADABLE: {problem}"),
+        (None, Some(true)) => {
+            if e.flags.is_empty() {
+                "ok".to_string()
+            } else {
+                format!("ok ({})", e.flags.join(", "))
+            }
+        }
+        (None, Some(false)) => format!("FLAGGED: {}", e.flags.join(", ")),
+        (None, None) => e.status.clone(),
+    }
 }
 
 /// Width of the class column.
