@@ -42,10 +42,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     // The sample's and the state's columns are as wide as their widest cell: a flagged
     // spot's state ("FLAGGED: lack-of-fit, instrument-declared") pushed the columns after
     // it out of line.
-    let width =
-        |cells: &mut dyn Iterator<Item = usize>, least: usize| cells.fold(least, usize::max);
-    let sample_width = width(&mut entries.iter().map(|e| e.sample.chars().count()), 12);
-    let state_width = width(&mut states.iter().map(|s| s.chars().count()), 32);
+    let sample_width = entries
+        .iter()
+        .map(|e| e.sample.chars().count())
+        .fold(12, usize::max);
+    let state_width = states
+        .iter()
+        .map(|s| s.chars().count())
+        .fold(32, usize::max);
     println!(
         "{:<19} {:<sample_width$} {:<7} {:<CLASS_WIDTH$} {:<state_width$} {:>9}  folder",
         "started", "sample", "kind", "class", "state", "device s"

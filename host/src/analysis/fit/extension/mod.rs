@@ -94,10 +94,10 @@ impl ModelChoice {
 /// Whether fits test the extensions unless told otherwise: on. On sheets the paper's
 /// model does not describe, the paper's model alone missed σ grossly and unflagged in 140
 /// of 1,140 sessions and classed 87 % right; with the extensions none of 6,840 (both
-/// policies, seeds 4–21) and 98 % (docs/ACCURACY.md, "The extensions, the default"). `GONIO_MODEL_EXTENSIONS=0` turns them off for every fit and
-/// session of the process not told otherwise (how the figures made before them were
-/// made; `=1`, their campaigns' command, keeps them on); `--model paper` does it for one
-/// command.
+/// policies, seeds 4–21) and 98 % (docs/ACCURACY.md, "The extensions, the default").
+/// `GONIO_MODEL_EXTENSIONS=0` turns them off for every fit and session of the process not
+/// told otherwise (how the figures made before them were made; `=1`, their campaigns'
+/// command, keeps them on); `--model paper` does it for one command.
 pub fn on_by_default() -> bool {
     std::env::var_os("GONIO_MODEL_EXTENSIONS").is_none_or(|v| v != "0")
 }
