@@ -245,19 +245,15 @@ fn csv_numbers_the_fit_cannot_represent_are_refused_at_their_line_and_a_bom_is_a
     std::fs::create_dir_all(&dir).unwrap();
     // A real session's readings as the base.
     let session = temp_dir("csv-session");
-    assert!(
-        gonio(&[
-            "measure",
-            "--spots",
-            "1",
-            "--sim",
-            "G",
-            "--out",
-            session.to_str().unwrap()
-        ])
-        .status
-        .success()
-    );
+    cli_support::assert_finished(&gonio(&[
+        "measure",
+        "--spots",
+        "1",
+        "--sim",
+        "G",
+        "--out",
+        session.to_str().unwrap(),
+    ]));
     let readings = std::fs::read_to_string(session.join("readings.csv")).unwrap();
     let rows: Vec<&str> = readings.lines().collect();
     let with_row = |line: usize, row: String| {

@@ -20,6 +20,13 @@ fn result(out: &Output) -> Value {
     serde_json::from_slice(&out.stdout).expect("one JSON object")
 }
 
+/// The `--json` object of a session on a seed drawn for the run: clean or flagged
+/// ([`cli_support::finished`]), where the result's cleanliness is not the test's subject.
+fn finished_result(out: &Output) -> Value {
+    cli_support::assert_finished(out);
+    serde_json::from_slice(&out.stdout).expect("one JSON object")
+}
+
 fn geometries(dir: &Path) -> Vec<(f64, f64)> {
     let session: Value =
         serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
@@ -107,7 +114,7 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
     let faulty_dir = temp_dir("faulty");
     // One sheet, one seed: the link's faults are the only difference between the runs.
     let seed = crate::common::run_seed().to_string();
-    let clean = result(&gonio(&[
+    let clean = finished_result(&gonio(&[
         "measure",
         "--spots",
         "1",
@@ -119,7 +126,7 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
         "--out",
         clean_dir.to_str().unwrap(),
     ]));
-    let faulty = result(&gonio(&[
+    let faulty = finished_result(&gonio(&[
         "measure",
         "--spots",
         "1",
@@ -167,7 +174,7 @@ fn a_faulty_link_still_gives_the_same_class_and_every_geometry_once() {
 #[test]
 fn a_stale_calibration_is_refused_with_its_age() {
     let dir = temp_dir("stale");
-    result(&gonio(&[
+    finished_result(&gonio(&[
         "measure",
         "--spots",
         "1",
@@ -214,7 +221,7 @@ fn a_stale_calibration_is_refused_with_its_age() {
         "--out",
         temp_dir("stale3").to_str().unwrap(),
     ]);
-    assert_eq!(result(&out)["class"], "rough-III");
+    assert_eq!(finished_result(&out)["class"], "rough-III");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -371,7 +378,7 @@ fn the_simulators_seed_differs_between_runs_unless_given_and_is_recorded() {
             args.extend(["--seed", seed]);
         }
         let out = gonio(&args);
-        result(&out);
+        finished_result(&out);
         let session: Value =
             serde_json::from_slice(&std::fs::read(dir.join("session.json")).unwrap()).unwrap();
         let recorded = session["instrument"]["simulated_seed"]

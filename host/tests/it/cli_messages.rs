@@ -209,7 +209,8 @@ fn resume_of_a_finished_or_missing_folder_says_so_before_looking_for_an_instrume
         "--out",
         dir.to_str().unwrap(),
     ]);
-    assert!(out.status.success(), "{}", stderr(&out));
+    // A finished session, clean or flagged (its seed drawn for the run).
+    cli_support::assert_finished(&out);
     let missing = temp_dir("resume-missing");
     for (folder, says) in [
         (&dir, "holds a finished session"),
@@ -295,7 +296,94 @@ fn sessions_of_a_session_or_sheet_folder_lists_it_with_its_classes_counted() {
             );
         }
     }
+    states_with_the_columns_after_them_in_line(&text);
     let _ = std::fs::remove_dir_all(&sheet);
+}
+
+/// Each row's state in `gonio sessions`' table, asserting that the cells after it are
+/// where the header puts them: the device seconds ending under "device s", then the
+/// folder (one that exists) from the column of "folder" to the end of the line.
+fn states_with_the_columns_after_them_in_line(text: &str) -> Vec<String> {
+    let mut lines = text.lines();
+    let header = lines.next().expect("a header");
+    let state_at = column(header, "state");
+    let seconds_end = column(header, "device s") + "device s".len();
+    let folder_at = column(header, "folder");
+    assert_eq!(folder_at, seconds_end + 2, "{header}");
+    lines
+        .map(|row| {
+            let cells: Vec<char> = row.chars().collect();
+            let out_of_line = || format!("a cell out of line in: {row}\n{text}");
+            assert!(cells.len() > folder_at, "{}", out_of_line());
+            let folder: String = cells[folder_at..].iter().collect();
+            assert!(
+                cells[seconds_end..folder_at].iter().all(|c| *c == ' ')
+                    && std::path::Path::new(&folder).is_dir(),
+                "{}",
+                out_of_line()
+            );
+            let state_and_seconds: String = cells[state_at..seconds_end].iter().collect();
+            let (state, seconds) = state_and_seconds
+                .rsplit_once(' ')
+                .unwrap_or_else(|| panic!("{}", out_of_line()));
+            assert!(
+                cells[state_at - 1] == ' '
+                    && !state.starts_with(' ')
+                    && (seconds == "—" || seconds.parse::<f64>().is_ok_and(|s| s > 0.0)),
+                "{}",
+                out_of_line()
+            );
+            state.trim_end().to_string()
+        })
+        .collect()
+}
+
+/// The table's columns stay in line when a listed session is flagged, on every seed: a
+/// flagged spot's state (`FLAGGED: lack-of-fit, instrument-declared`, 42 characters) was
+/// wider than the state's column and pushed the device seconds and the folder out of line,
+/// which the test above saw only on the seeds whose spots lacked fit. Here the simulated
+/// detector arm loses steps at its first move (`--faults lose-steps=detector:40`, whatever
+/// the seed: the readings taken while it was off are measured again and the result is
+/// flagged lost-steps), listed beside a session of the same paper without the fault.
+#[test]
+fn sessions_keeps_its_columns_in_line_beside_a_flagged_session() {
+    let root = temp_dir("sessions-flagged");
+    let measure = |name: &str, extra: &[&str]| {
+        let dir = root.join(name);
+        let mut args = vec![
+            "measure",
+            "--sim",
+            "G",
+            "--spots",
+            "1",
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        gonio(&args)
+    };
+    let out = measure("slipped", &["--faults", "lose-steps=detector:40"]);
+    assert_eq!(out.status.code(), Some(3), "flagged: {}", stderr(&out));
+    cli_support::assert_finished(&measure("plain", &[]));
+    let out = gonio(&["sessions", root.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    let states = states_with_the_columns_after_them_in_line(&text);
+    assert_eq!(states.len(), 2, "{text}");
+    let flagged = states
+        .iter()
+        .find(|s| s.starts_with("FLAGGED: lost-steps"))
+        .unwrap_or_else(|| panic!("no session flagged lost-steps:\n{text}"));
+    // Wider than the state's column when no state is (32 characters): the table made room.
+    assert!(flagged.chars().count() > 32, "{flagged}");
+    // The other, clean or flagged on its drawn seed: a finished session's state.
+    assert!(
+        states
+            .iter()
+            .all(|s| s.starts_with("ok") || s.starts_with("FLAGGED: ")),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&root);
 }
 
 /// The numbers of "X [LO, HI]" after `label` in `line`: value, lower and upper, as

@@ -79,7 +79,7 @@ fn finished(sample: &str, dir: &Path, extra: &[&str]) {
     // A finished session exits 0, or 3 where its result is flagged (a PPC's lack-of-fit
     // false alarm on run seed 521884 made this fail): either is the finished session
     // these tests need.
-    assert!(matches!(out.status.code(), Some(0 | 3)), "{}", stderr(&out));
+    cli_support::assert_finished(&out);
     assert!(dir.join("session.json").is_file(), "{}", stderr(&out));
 }
 
@@ -259,8 +259,9 @@ fn default_folder_names_are_readable_and_two_sessions_in_one_second_get_two() {
     };
     let (a, b) = (spawn(), spawn());
     for child in [a, b] {
-        let out = child.wait_with_output().unwrap();
-        assert!(out.status.success(), "{}", stderr(&out));
+        // Two seeds drawn: either session may be flagged (CI failed on a PPC's lack-of-fit
+        // false alarm here); the folders' names are the subject.
+        cli_support::assert_finished(&child.wait_with_output().unwrap());
     }
     let names: Vec<String> = std::fs::read_dir(cwd.join("sessions"))
         .unwrap()
@@ -466,12 +467,17 @@ fn a_finished_session_is_not_measured_again_and_says_where_its_result_is() {
     let dir = temp_dir("finished");
     finished("SG", &dir, &[]);
     let d = dir.to_str().unwrap();
+    // The class its result has (on a seed drawn for the run, one flagged may have another).
+    let class = format!(
+        "class {}",
+        session(&dir)["result"]["class"].as_str().unwrap()
+    );
     let message = refused(
         &["measure", "--spots", "1", "--sim", "SG", "--resume", d],
         &dir,
         &[
             "holds a finished session of 'SG'",
-            "class SG",
+            &class,
             "it is not measured again",
             "its result is in",
         ],
@@ -981,7 +987,7 @@ fn a_failed_session_writes_its_status_and_log_and_decisions_reach_stderr_when_it
         "--out",
         dir2.to_str().unwrap(),
     ]);
-    assert!(out.status.success());
+    cli_support::assert_finished(&out);
     let log = std::fs::read_to_string(dir2.join("session.log")).unwrap();
     let batch = log
         .lines()
@@ -1028,11 +1034,17 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     let dir = temp_dir("verify");
     finished("PPC", &dir, &[]);
     let d = dir.to_str().unwrap();
+    // Strategy 1's 12 readings, or more where the seed drawn for the run called for
+    // refinements: 19 on seeds 96 and 176 (clean), 26 on seed 226467 (lack of fit measured
+    // again twice, flagged).
+    let readings = session(&dir)["readings_recorded"].as_u64().unwrap();
+    assert!(readings >= 12, "{readings} readings");
     let out = gonio(&["verify", d]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(
-        String::from_utf8_lossy(&out.stdout)
-            .contains("verified: 10 files match MANIFEST.sha256; 12 readings agree"),
+        String::from_utf8_lossy(&out.stdout).contains(&format!(
+            "verified: 10 files match MANIFEST.sha256; {readings} readings agree"
+        )),
         "{}",
         String::from_utf8_lossy(&out.stdout)
     );
@@ -1115,7 +1127,7 @@ fn verify_names_every_file_changed_added_or_missing_and_exits_1() {
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(
         (v["ok"].clone(), v["readings"].clone()),
-        (Value::from(true), Value::from(12))
+        (Value::from(true), Value::from(readings))
     );
     // Not a session folder at all; and the usage error.
     let out = gonio(&["verify", temp_dir("nothing").to_str().unwrap()]);
