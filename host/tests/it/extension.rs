@@ -640,6 +640,50 @@ fn a_mild_haze_or_one_fitted_to_nothing_leaves_sigma_inside_its_interval() {
 }
 
 #[test]
+fn a_haze_that_may_be_the_lobes_own_tail_leaves_sigma_inside_its_interval() {
+    // A lobe half GGX, half Gaussian on SG (σ_eq 1.9°, the blend's half-maximum width) is
+    // read by the family as a Student-t main lobe of σ 1.87° and a haze of 2–3 % at about
+    // 6°: the sum of the two has the sheet's half-maximum width (1.90°), the main lobe
+    // alone does not, and the readings cannot tell a haze from a tail (every other member
+    // rejected). Adaptive seed 3 ended at 56 geometries with σ 1.8720 [1.8682, 1.8758],
+    // unflagged at 1.00 (so did seed index 4 of the shapes campaign at 62). Now the
+    // interval holds the sum's width as well as the main lobe's, for every member with a
+    // haze: that session is covered and not by giving σ up (within 3 %); this run's seed's,
+    // swept and adaptive, covered within a factor 1.5 (seeds 1–6 swept, the widest
+    // [1.35, 2.38]: the members' spread there, not this rule).
+    let session = session_with_extensions(
+        "sg-ggx-blend-seed-3",
+        &[
+            "--sim",
+            "SG",
+            "--lobe",
+            "ggx",
+            "--lobe-weight",
+            "0.5",
+            "--policy",
+            "adaptive",
+            "--seed",
+            "3",
+        ],
+    );
+    let interval = sigma_interval(&session["result"]);
+    assert!(
+        covers(interval, 1.9)
+            && interval.is_some_and(|(lo, hi)| lo > 1.9 / 1.03 && hi < 1.9 * 1.03),
+        "σ {} {interval:?} against 1.9",
+        session["result"]["sigma_deg"]
+    );
+    let (covered, seen) = sessions_cover_sigma(
+        &[
+            ("SG", "--lobe ggx --lobe-weight 0.5", "sweep"),
+            ("SG", "--lobe ggx --lobe-weight 0.5", "adaptive"),
+        ],
+        1.5,
+    );
+    assert_eq!(covered, 2, "{seen:#?}");
+}
+
+#[test]
 fn a_lobe_lighter_tailed_than_the_gaussian_leaves_sigma_inside_its_interval_on_mc() {
     // A Blinn–Phong lobe on MC (σ 43.5°): its tail is lighter than the Gaussian of the same
     // half width, the lobe-shape member goes to the lightest tail the family holds

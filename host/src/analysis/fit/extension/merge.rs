@@ -1,6 +1,6 @@
 //! The chosen member into the result: its main lobe, goodness of fit, covariance and
 //! intervals; then the intervals widened for the members the data cannot exclude.
-use super::family::Param;
+use super::family::{Param, whole_lobe_over_main};
 use super::solver::Problem;
 use super::{Base, Member, Term, average, main_lobe, result_index};
 use crate::analysis::fit::covariance::{Z_975, interval_95};
@@ -636,6 +636,23 @@ fn cover_members(
             // member with a slope.
             for m in members.iter().copied().chain([chosen]) {
                 if let Some(ratio) = linear_over_geometric(m, theta_i_range) {
+                    let (a, b) = if std::ptr::eq(m, chosen) {
+                        (lo0, hi0)
+                    } else {
+                        member_interval(m, i, n, weighted, widening)
+                    };
+                    lo = lo.min(a * ratio);
+                    hi = hi.max(b * ratio);
+                }
+            }
+        }
+        if let (SIGMA | RHO_S, Some(chosen)) = (i, chosen) {
+            // A haze and the main lobe may be one lobe with a tail the family does not
+            // hold ([`whole_lobe_over_main`]): the interval holds the sum's width and
+            // peak as well as the main lobe's, for every member with a haze.
+            for m in members.iter().copied().chain([chosen]) {
+                if let Some((sigma_ratio, rho_s_ratio)) = whole_lobe_over_main(&m.fit.values) {
+                    let ratio = if i == SIGMA { sigma_ratio } else { rho_s_ratio };
                     let (a, b) = if std::ptr::eq(m, chosen) {
                         (lo0, hi0)
                     } else {
