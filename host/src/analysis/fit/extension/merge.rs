@@ -603,8 +603,9 @@ fn profiled(m: &Member, profile: &[Member]) -> bool {
 type Reach = fn(&Member, usize, &Judging, f64) -> (f64, f64);
 
 /// Widen σ, ρs, ρd, η's intervals to cover what `reach` takes of each of `members`'
-/// intervals; with `chosen`, σ's also to σ interpolated linearly over θi for every member
-/// with a slope.
+/// intervals; with `chosen`, σ's and ρs's also to the other readings of the chosen
+/// member's and each member's ([`other_readings`]: σ interpolated linearly over θi, the
+/// main lobe and its haze taken as one).
 fn cover_members(
     result: &mut FitResult,
     members: &[&Member],
@@ -629,30 +630,11 @@ fn cover_members(
             lo = lo.min(a);
             hi = hi.max(b);
         }
-        if let (SIGMA, Some(chosen)) = (i, chosen) {
-            // How σ varies between the θi measured is not known, only its values there:
-            // σ at the reference θi, interpolated as the family does (geometrically),
-            // is as likely as interpolated linearly. The interval holds both, for every
-            // member with a slope.
+        if let Some(chosen) = chosen {
+            // What a member's estimate stands for beside itself ([`other_readings`]),
+            // for the chosen member and each of `members`: its interval scaled to each.
             for m in members.iter().copied().chain([chosen]) {
-                if let Some(ratio) = linear_over_geometric(m, theta_i_range) {
-                    let (a, b) = if std::ptr::eq(m, chosen) {
-                        (lo0, hi0)
-                    } else {
-                        member_interval(m, i, n, weighted, widening)
-                    };
-                    lo = lo.min(a * ratio);
-                    hi = hi.max(b * ratio);
-                }
-            }
-        }
-        if let (SIGMA | RHO_S, Some(chosen)) = (i, chosen) {
-            // A haze and the main lobe may be one lobe with a tail the family does not
-            // hold ([`whole_lobe_over_main`]): the interval holds the sum's width and
-            // peak as well as the main lobe's, for every member with a haze.
-            for m in members.iter().copied().chain([chosen]) {
-                if let Some((sigma_ratio, rho_s_ratio)) = whole_lobe_over_main(&m.fit.values) {
-                    let ratio = if i == SIGMA { sigma_ratio } else { rho_s_ratio };
+                for ratio in other_readings(m, i, theta_i_range) {
                     let (a, b) = if std::ptr::eq(m, chosen) {
                         (lo0, hi0)
                     } else {
@@ -666,6 +648,30 @@ fn cover_members(
         if lo < lo0 || hi > hi0 {
             set_interval(result, i, (lo, hi));
         }
+    }
+}
+
+/// The other readings of a member's σ or ρs (by the result's index) that its readings
+/// cannot tell from its own, each as a ratio to it:
+///
+/// - σ varying with θi: how σ varies between the θi measured is not known, only its values
+///   there; σ at the reference θi interpolated as the family does (geometrically) is as
+///   likely as interpolated linearly ([`linear_over_geometric`]);
+/// - a haze: the haze and the main lobe may be one lobe with a tail the family does not
+///   hold; the sum's half-maximum width and peak are as likely as the main lobe's
+///   ([`whole_lobe_over_main`]).
+fn other_readings(m: &Member, index: usize, theta_i_range: (f64, f64)) -> Vec<f64> {
+    let whole = whole_lobe_over_main(&m.fit.values);
+    match index {
+        SIGMA => [
+            linear_over_geometric(m, theta_i_range),
+            whole.map(|(sigma, _)| sigma),
+        ]
+        .into_iter()
+        .flatten()
+        .collect(),
+        RHO_S => whole.map(|(_, rho_s)| rho_s).into_iter().collect(),
+        _ => Vec::new(),
     }
 }
 
