@@ -429,6 +429,13 @@ impl<T: Transport> Session<'_, T> {
         } else {
             adaptive::CandidateSpan::Lobe
         };
+        // Where σ at the reference θi is all the session waits on (its own interval, the
+        // class and σ_l met, no flag), the batch ends once the design predicts that closed.
+        let waits_on_sigma_alone = !flagged
+            && sigma_ok
+            && report.classification.confidence >= targets.class_confidence
+            && adaptive::sigma_rel_half_width_of_readings(&report.fit)
+                .is_some_and(|w| w <= targets.sigma_rel_half_width);
         let scored = adaptive::next_batch_scored(
             &report.fit,
             &design.observations,
@@ -438,6 +445,7 @@ impl<T: Transport> Session<'_, T> {
             u32::from(self.plan.integration_ms),
             targets.batch,
             span,
+            waits_on_sigma_alone.then_some(targets.sigma_rel_half_width),
         );
         // Sweeps as candidates (the mixed policy): a round of sweeps across the
         // peak, designed as the sweep policy designs them, when it is predicted to
