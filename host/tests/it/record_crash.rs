@@ -208,22 +208,37 @@ fn crash_at_each(name: &str, base: &[&str], writes: impl Fn(u64) -> Vec<u64>) ->
     chosen.len()
 }
 
+/// The writes a crash is tried at: the first and last three, where a session is begun and
+/// closed, and of the rest each with probability `share`, drawn by `seed`.
+fn drawn_writes(total: u64, share: f64, seed: u64) -> Vec<u64> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ total);
+    (1..=total)
+        .filter(|&n| n <= 3 || n + 3 > total || rng.random_bool(share))
+        .collect()
+}
+
 #[test]
 fn a_session_killed_at_any_of_its_writes_resumes_to_a_verified_folder() {
-    // Every write of a whole adaptive session of G (calibration, Strategy 1, batches,
-    // summaries, manifest) and of a rough paper by the paper's policy.
+    // Every write of a whole adaptive session of G, the README's sheet (calibration,
+    // Strategy 1, the probe, batches, summaries, manifest); of a rough paper by the paper's
+    // policy, a white check and an arm that slips, half their writes drawn anew every run
+    // (the seed is printed to repeat it): every one of theirs is tried over runs, and each
+    // kind of write occurs many times in a session. All of them every run took 69 s of CI's
+    // CPU, crashing at about 250 writes one after the other.
+    let seed: u64 = rand::rng().random();
+    eprintln!("seed {seed}");
     let g = crash_at_each("G-adaptive", &["--sim", "G", "--seed", "11"], |total| {
         (1..=total).collect()
     });
     let ppc = crash_at_each(
         "PPC-paper",
         &["--sim", "PPC", "--seed", "12", "--policy", "paper"],
-        |total| (1..=total).collect(),
+        |total| drawn_writes(total, 0.5, seed),
     );
     let sg = crash_at_each(
         "SG-adaptive-white-check",
         &["--sim", "SG", "--seed", "15", "--white-check"],
-        |total| (1..=total).collect(),
+        |total| drawn_writes(total, 0.5, seed.rotate_left(16)),
     );
     // An arm that slips: readings superseded (a mark in points.jsonl, readings.csv rebuilt)
     // and measured again; a crash at any write of that too.
@@ -237,17 +252,17 @@ fn a_session_killed_at_any_of_its_writes_resumes_to_a_verified_folder() {
             "--faults",
             "lose-steps=detector:40",
         ],
-        |total| (1..=total).collect(),
+        |total| drawn_writes(total, 0.5, seed.rotate_left(32)),
     );
     assert!(
-        g + ppc + sg + slipped >= 200,
+        g >= 60 && ppc + sg + slipped >= 60,
         "{g} + {ppc} + {sg} + {slipped} crash points"
     );
 }
 
 #[test]
 fn a_long_session_killed_at_random_writes_resumes_to_a_verified_folder() {
-    // The paper's policy on G takes a hundred readings: 60 of its writes drawn at random
+    // The paper's policy on G takes a hundred readings: 30 of its writes drawn at random
     // (another draw every run: the seed is printed to repeat it).
     let seed: u64 = rand::rng().random();
     eprintln!("seed {seed}");
@@ -257,13 +272,13 @@ fn a_long_session_killed_at_random_writes_resumes_to_a_verified_folder() {
         |total| {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
             let mut chosen: BTreeSet<u64> = BTreeSet::new();
-            while chosen.len() < 60.min(total as usize) {
+            while chosen.len() < 30.min(total as usize) {
                 chosen.insert(rng.random_range(1..=total));
             }
             chosen.into_iter().collect()
         },
     );
-    assert_eq!(n, 60);
+    assert_eq!(n, 30);
 }
 
 #[test]
