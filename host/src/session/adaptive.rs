@@ -676,30 +676,50 @@ mod tests {
             // Across the peak half a degree apart, and the body at four θr.
             let across = half_degrees.clone().map(|k| ti + 0.5 * f64::from(k));
             for tr in across.chain([0.0, 10.0, 45.0, 70.0]) {
-                let (f, _) = model::evaluate(&p, &PlaneGeometry::new(ti, tr), Some(1.0));
-                obs.push(Observation {
-                    theta_i_deg: ti,
-                    theta_r_deg: tr,
-                    radiance_factor: f,
-                    std: Some(0.01 * f + 0.003),
-                    theta_r_span_deg: 0.0,
-                });
+                obs.push(reading(&p, ti, tr));
             }
         }
         obs
     }
 
+    /// The model's noiseless reading of `p` at (θi, θr) through a 1° window, with a 1 %
+    /// + 0.003 uncertainty.
+    fn reading(p: &model::Params, theta_i_deg: f64, theta_r_deg: f64) -> Observation {
+        let geometry = PlaneGeometry::new(theta_i_deg, theta_r_deg);
+        let (f, _) = model::evaluate(p, &geometry, Some(1.0));
+        Observation {
+            theta_i_deg,
+            theta_r_deg,
+            radiance_factor: f,
+            std: Some(0.01 * f + 0.003),
+            theta_r_span_deg: 0.0,
+        }
+    }
+
+    /// The geometries of `readings`.
+    fn measured_of(readings: &[Observation]) -> BTreeSet<Geometry> {
+        readings
+            .iter()
+            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
+            .collect()
+    }
+
+    /// The fit's options with a 1° acceptance, the extensions on or off.
+    fn fit_options(extensions: bool) -> crate::analysis::fit::FitOptions {
+        crate::analysis::fit::FitOptions {
+            acceptance_deg: Some(1.0),
+            extensions,
+            ..Default::default()
+        }
+    }
+
     /// The design's next batch of 6 from `fit` of `readings`, the arms at θi = θr = 60°,
     /// the reference motion and 100 ms readings.
     fn next_batch_at_60(fit: &FitResult, readings: &[Observation]) -> Vec<Geometry> {
-        let measured: BTreeSet<Geometry> = readings
-            .iter()
-            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
-            .collect();
         next_batch(
             fit,
             readings,
-            &measured,
+            &measured_of(readings),
             Geometry::from_whole_deg(60, 60),
             &Motion::reference(),
             100,
@@ -710,12 +730,8 @@ mod tests {
 
     #[test]
     fn with_the_extensions_one_incidence_angle_does_not_pin_sigma_down() {
-        use crate::analysis::fit::{FitOptions, fit};
-        let with = |extensions| FitOptions {
-            acceptance_deg: Some(1.0),
-            extensions,
-            ..FitOptions::default()
-        };
+        use crate::analysis::fit::fit;
+        let with = fit_options;
         let one = peak_readings(&[60.0]);
         let two = peak_readings(&[20.0, 60.0]);
         // The extensions off: the design and the stop ask nothing of other θi.
@@ -739,18 +755,11 @@ mod tests {
 
     #[test]
     fn a_batch_ends_where_the_design_predicts_sigma_closed_and_the_readings_close_it() {
-        use crate::analysis::fit::{FitOptions, fit};
-        let on = FitOptions {
-            acceptance_deg: Some(1.0),
-            extensions: true,
-            ..FitOptions::default()
-        };
+        use crate::analysis::fit::fit;
+        let on = fit_options(true);
         let one = peak_readings(&[60.0]);
         let from_one = fit(&one, &on).expect("fit");
-        let measured: BTreeSet<Geometry> = one
-            .iter()
-            .filter_map(|o| Geometry::from_deg(o.theta_i_deg, o.theta_r_deg))
-            .collect();
+        let measured = measured_of(&one);
         let batch = |enough| {
             next_batch_scored(
                 &from_one,
@@ -776,19 +785,12 @@ mod tests {
         // reading fewer would not have (the batch is no longer than it needs, or than its
         // floor).
         let with_readings = |picks: &[Geometry]| {
-            let p = from_one.params;
             let mut readings = one.clone();
-            for g in picks {
-                let (ti, tr) = (g.theta_i.deg(), g.theta_r.deg());
-                let (f, _) = model::evaluate(&p, &PlaneGeometry::new(ti, tr), Some(1.0));
-                readings.push(Observation {
-                    theta_i_deg: ti,
-                    theta_r_deg: tr,
-                    radiance_factor: f,
-                    std: Some(0.01 * f + 0.003),
-                    theta_r_span_deg: 0.0,
-                });
-            }
+            readings.extend(
+                picks
+                    .iter()
+                    .map(|g| reading(&from_one.params, g.theta_i.deg(), g.theta_r.deg())),
+            );
             let refit = fit(&readings, &on).expect("fit");
             sigma_rel_half_width_over_theta_i(&refit, &readings).expect("a design")
         };
@@ -807,12 +809,8 @@ mod tests {
 
     #[test]
     fn with_the_extensions_one_flank_does_not_pin_sigma_down() {
-        use crate::analysis::fit::{FitOptions, fit};
-        let on = FitOptions {
-            acceptance_deg: Some(1.0),
-            extensions: true,
-            ..FitOptions::default()
-        };
+        use crate::analysis::fit::fit;
+        let on = fit_options(true);
         // Two θi, so the slope is closed and what is left open is the other flank (the
         // body's reading at 70° is 10° past specular at θi = 60°, where SG's lobe is
         // still a few percent of its peak: left out).
