@@ -414,8 +414,11 @@ pub(crate) fn sigma_rel_half_width_over_theta_i(
 ) -> Option<f64> {
     fit.extension.as_ref()?;
     let model = DesignModel::new(fit, observations)?;
-    let cov = model.covariance(observations)?;
-    let sigma = fit.params.sigma_deg;
+    rel_half_width_at_reference(&model.covariance(observations)?, fit.params.sigma_deg)
+}
+
+/// 1.96·SD(σ)/σ from the design's covariance (σ at the reference θi); `None` for σ ≤ 0.
+fn rel_half_width_at_reference(cov: &[[f64; DESIGN]; DESIGN], sigma: f64) -> Option<f64> {
     (sigma > 0.0).then(|| 1.96 * cov[SIGMA][SIGMA].max(0.0).sqrt() / sigma)
 }
 
@@ -474,7 +477,7 @@ const EARLY_END_MIN_READINGS: usize = 2;
 /// is left open is σ away from the θi measured, in the design's slope and in the members'
 /// widening alike (on exact-TSL G, after the probe at θi = 60°, the member with σ varying
 /// with θi). Such a session read six geometries at a second θi where two close it (G's
-/// device time +18.5 % against the paper's model; +8.4 % now, docs/ACCURACY.md).
+/// device time +18.5 % against the paper's model; +7.9 % now, docs/ACCURACY.md).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn next_batch_scored(
     fit: &FitResult,
@@ -531,10 +534,10 @@ pub(crate) fn next_batch_scored(
         }
         chosen.push(g);
         at = g;
-        let sigma = fit.params.sigma_deg;
         if chosen.len() >= EARLY_END_MIN_READINGS
-            && enough_rel_half_width
-                .is_some_and(|enough| 1.96 * cov[SIGMA][SIGMA].max(0.0).sqrt() <= enough * sigma)
+            && enough_rel_half_width.is_some_and(|enough| {
+                rel_half_width_at_reference(&cov, fit.params.sigma_deg).is_some_and(|w| w <= enough)
+            })
         {
             break;
         }

@@ -27,6 +27,8 @@ struct Standing {
     flagged: bool,
     /// σ > σ_l.
     sigma_ok: bool,
+    /// The class confidence is at its target.
+    settled: bool,
     /// Lack-of-fit batches taken so far.
     taken: usize,
     /// The flag outlived its batches: the model does not describe this sheet, and the
@@ -272,6 +274,7 @@ impl<T: Transport> Session<'_, T> {
         Some(Standing {
             flagged,
             sigma_ok,
+            settled,
             taken,
             confirmed,
             extension,
@@ -418,6 +421,7 @@ impl<T: Transport> Session<'_, T> {
         let Standing {
             flagged,
             sigma_ok,
+            settled,
             taken,
             confirmed,
             ..
@@ -433,7 +437,7 @@ impl<T: Transport> Session<'_, T> {
         // class and σ_l met, no flag), the batch ends once the design predicts that closed.
         let waits_on_sigma_alone = !flagged
             && sigma_ok
-            && report.classification.confidence >= targets.class_confidence
+            && settled
             && adaptive::sigma_rel_half_width_of_readings(&report.fit)
                 .is_some_and(|w| w <= targets.sigma_rel_half_width);
         let scored = adaptive::next_batch_scored(
