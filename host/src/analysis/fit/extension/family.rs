@@ -826,21 +826,13 @@ mod tests {
         v[Param::RhoS as usize] = p.rho_s;
         v[Param::RhoD as usize] = p.rho_d;
         v[Param::Eta as usize] = p.eta;
-        let schedule = [
-            (60.0, 70.0),
-            (60.0, 60.0),
-            (45.0, 70.0),
-            (30.0, 70.0),
-            (20.0, 70.0),
-            (45.0, 45.0),
-            (30.0, 30.0),
-            (20.0, 20.0),
-            (20.0, 0.0),
-            (30.0, 0.0),
-            (45.0, 0.0),
-            (60.0, 0.0),
-        ];
-        for (ti, tr) in schedule {
+        let schedule = protocol::schedules::strategy1(12).expect("M = 12");
+        assert!(
+            schedule
+                .iter()
+                .any(|g| (g.theta_i.deg(), g.theta_r.deg()) == (30.0, 70.0))
+        );
+        for (ti, tr) in schedule.iter().map(|g| (g.theta_i.deg(), g.theta_r.deg())) {
             for span in [0.0, 0.4] {
                 let reading = Reading::new(ti, tr, span, Some(&response), 2.0 * p.sigma_deg);
                 let ours = evaluate(&v, &reading, false).0;
