@@ -260,6 +260,20 @@ fn measure_on_a_port(sample: &str, seed: &str, dir: &Path) -> (Child, Child) {
     (sim, measure)
 }
 
+/// The device time from a session's first reading to its last, seconds.
+fn readings_span_s(dir: &Path) -> f64 {
+    let stamps: Vec<f64> = std::fs::read_to_string(dir.join("points.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<Value>(l).unwrap()["device_time_us"]
+                .as_f64()
+                .unwrap()
+        })
+        .collect();
+    (stamps.last().unwrap() - stamps[0]) * 1e-6
+}
+
 #[test]
 fn a_session_through_the_pseudo_terminal_with_prompts() {
     let dir = temp_dir("pty");
@@ -273,19 +287,13 @@ fn a_session_through_the_pseudo_terminal_with_prompts() {
     assert_eq!(on_port["class"], "rough-II");
     // Device seconds are the instrument's, whichever the transport (issue 31: 2.4 s
     // printed over the port for a session whose readings span 19.5 s, 16.8 s in
-    // process). The readings' own device times bound them from below; the same session
-    // in process took the same device time (9.5 s against 9.4 s when this was written:
-    // over the port the instrument also idles while the host computes).
-    let stamps: Vec<f64> = std::fs::read_to_string(dir.join("points.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<Value>(l).unwrap()["device_time_us"]
-                .as_f64()
-                .unwrap()
-        })
-        .collect();
-    let span_s = (stamps.last().unwrap() - stamps[0]) * 1e-6;
+    // process). The readings' own device times bound them from below, and beyond the
+    // readings' span they count what the same session in process counts (the moves
+    // before the first reading and after the last). Within the span, over the port, the
+    // instrument also idles while the host computes, so the whole is not the in-process
+    // figure: 9.46 s against 9.40 alone on this machine, 13.8 s against 9.4 in CI with the
+    // other tests beside it (the readings' span 12.9 s there, 8.45 s here).
+    let span_s = readings_span_s(&dir);
     let port_s = on_port["device_seconds"].as_f64().unwrap();
     let in_process_dir = temp_dir("pty-in-process");
     let in_process = result(&gonio(&[
@@ -301,9 +309,17 @@ fn a_session_through_the_pseudo_terminal_with_prompts() {
         in_process_dir.to_str().unwrap(),
     ]));
     let in_process_s = in_process["device_seconds"].as_f64().unwrap();
+    let in_process_span_s = readings_span_s(&in_process_dir);
+    println!(
+        "device seconds over the port {port_s:.2} (readings span {span_s:.2}), in process {in_process_s:.2} (span {in_process_span_s:.2})"
+    );
+    let (port_outside_s, in_process_outside_s) =
+        (port_s - span_s, in_process_s - in_process_span_s);
     assert!(
-        port_s >= span_s && (port_s - in_process_s).abs() <= 0.15 * in_process_s,
-        "device seconds over the port {port_s:.1}, in process {in_process_s:.1}, the port's readings span {span_s:.1} s"
+        port_s >= span_s
+            && span_s >= 0.99 * in_process_span_s
+            && (port_outside_s - in_process_outside_s).abs() <= 0.15 * in_process_s,
+        "device seconds over the port {port_s:.2} (readings span {span_s:.2} s), in process {in_process_s:.2} (span {in_process_span_s:.2} s)"
     );
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&in_process_dir);
