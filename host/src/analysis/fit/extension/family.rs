@@ -49,8 +49,9 @@
 //! Through the detector each reading is the mean over its window ([`model::reading_window`]:
 //! the arm's travel and the response's steps) with 5-point Gauss–Legendre across each
 //! uniform piece, cut where G switches branch (its kinks, [`model::window_pieces`]):
-//! within 1e-7 of the exact mean for lobes of σ ≥ 0.3° seen through a 1° window. The base engine integrates in closed form instead; this family evaluates its
-//! null model the same way as its extensions, so their costs compare like with like.
+//! within 1e-7 of the exact mean for lobes of σ ≥ 0.3° seen through a 1° window. The
+//! base engine integrates in closed form instead; this family evaluates its null model
+//! the same way as its extensions, so their costs compare like with like.
 use crate::analysis::model::{self, COS_FLOOR, DetectorResponse, fresnel_with_derivative};
 
 /// ln 2.
@@ -328,9 +329,8 @@ impl Reading {
     /// found it: where everything the detector averages over spans less than a tenth of
     /// it and G has no kink in it, the reading is the mean of the model at two nodes, the
     /// window's mean offset ± its standard deviation (exact for a parabola: within 1e-6 of
-    /// the average), which makes a rough paper's
-    /// sweep of 1,400 bins 15 times cheaper to fit; the nodes stay fixed through the fit,
-    /// so every member is evaluated alike.
+    /// the average), which makes a rough paper's sweep of 1,400 bins several times cheaper
+    /// to fit; the nodes stay fixed through the fit, so every member is evaluated alike.
     pub(crate) fn new(
         theta_i_deg: f64,
         theta_r_deg: f64,
