@@ -8,7 +8,8 @@
 //! f = ρs·F(ψ, η)·H·[D(θa; σ_i·(1 ± t), κ) + h·exp(−θa²/(2σh²))] + ρd·exp(b·q)·(1 + B·exp(−|g|/w))
 //! σ_i = σ·exp(β·(θi − 45°)/45°),   σh = σ_i·e^u,   q = (1 − cos θi) + (1 − cos θr) − 2(1 − cos 45°)
 //! g = θi + θr, the phase angle in the plane (θr < 0 on the source's side: g = 0 is retro-reflection)
-//! D(θa; s, κ) = (1 + a·w)^(−(1+κ)/(2κ)),   w = θa²/h²,  h = s·√(2 ln 2),  a = 2^(2κ/(1+κ)) − 1
+//! D(θa; s, κ, μ) = (1 + a·w)^(−(1+κ)/(2κ)),   w = X(θa)²/X(h)²,  h = s·√(2 ln 2),  a = 2^(2κ/(1+κ)) − 1
+//! X(θ) = sin(√μ·θ)/√μ (μ > 0),  θ (μ = 0),  θ in radians
 //! ```
 //!
 //! - **lobe shape** (κ ≥ −¼): for κ > 0 a Student-t in θa with ν = 1/κ degrees of
@@ -19,6 +20,15 @@
 //!   width, and the classification tree still applies to it; κ → 0 is the Gaussian
 //!   (exp(−θa²/(2σ²))) from either side, κ = 1 the Cauchy, κ ≈ ⅓ close to
 //!   Trowbridge–Reitz (GGX). κ = 0 is inside the range, so its test has no boundary;
+//! - **the lobe's variable** μ, held at 0 (θa, the paper's) or 1 (sin θa): with κ free at
+//!   μ = 1 the lobe is a Student-t (or its compact continuation) in sin θa, which holds
+//!   two microfacet distributions exactly: Trowbridge–Reitz (GGX),
+//!   α⁴/(α²cos²θa + sin²θa)² = (1 + a·sin²θa/sin²h)^−2, is κ = ⅓; Blinn–Phong's cosⁿθa =
+//!   (1 − sin²θa)^(n/2) is κ = −1/(n + 1). Near the peak sin θa ≈ θa, so μ matters only
+//!   for broad lobes (to the θa family a GGX MC of σ 43.5° reads as σ 36–37°), where the
+//!   readings seldom tell the two variables apart: μ is not a term tested but a member the
+//!   intervals cover ([`super`]'s `microfacet_members`). w = 1 at h whatever μ is, so σ
+//!   keeps its convention;
 //! - **haze lobe** (0 ≤ h ≤ 1, u): a second, broader Gaussian lobe of the same Fresnel
 //!   and attenuation, its peak the fraction h of the main lobe's, σh at least 1.5 σ (else
 //!   it is the main lobe over again);
@@ -70,6 +80,11 @@ pub(crate) const KAPPA_MIN: f64 = -0.25;
 const PEAK_SHIFT_MAX_DEG: f64 = 20.0;
 /// Largest |t| of a lobe wider on one side (the sides' widths 1 ± t of their mean).
 const ASYMMETRY_MAX: f64 = 0.7;
+/// The lobe's variable of the microfacet distributions ([`Param::LobeVariable`]): sin θa.
+pub(crate) const MICROFACET_VARIABLE: f64 = 1.0;
+/// Largest √μ·θ½ (radians) the sine of the lobe's variable is taken at: short of its turn
+/// at π/2, where the half maximum would stop moving with σ.
+const LOBE_VARIABLE_Z_MAX: f64 = 1.4;
 /// Step of the difference for ∂f/∂δ0, degrees.
 const SHIFT_STEP_DEG: f64 = 1e-4;
 
@@ -91,10 +106,11 @@ pub(crate) enum Param {
     Asymmetry = 12,
     RetroAmplitude = 13,
     RetroLnWidth = 14,
+    LobeVariable = 15,
 }
 
 /// Number of [`Param`]s.
-pub(crate) const N_FAMILY: usize = 15;
+pub(crate) const N_FAMILY: usize = 16;
 
 impl Param {
     /// Every parameter in index order.
@@ -115,6 +131,7 @@ impl Param {
         Param::Asymmetry,
         Param::RetroAmplitude,
         Param::RetroLnWidth,
+        Param::LobeVariable,
     ];
 
     /// Its range: the base fit's bounds for the TSL four, and for the terms what the
@@ -146,6 +163,8 @@ impl Param {
             // is e^−3 of itself at the specular geometry of 45°, where ρd is read).
             Param::RetroAmplitude => (0.0, 10.0),
             Param::RetroLnWidth => (0.0, 30.0_f64.ln()),
+            // Held, never fitted: 0 (θa, the paper's) or 1 (sin θa, the microfacet form).
+            Param::LobeVariable => (0.0, MICROFACET_VARIABLE),
         }
     }
 }
@@ -182,10 +201,11 @@ pub(crate) fn whole_lobe_over_main(v: &Values) -> Option<(f64, f64)> {
     let haze_sigma = sigma * v[Param::HazeLnRatio as usize].exp();
     let t = v[Param::Asymmetry as usize];
     let tail = Tail::at(v[Param::Kappa as usize]);
+    let mu = v[Param::LobeVariable as usize];
     let half = 0.5 * (1.0 + h);
     let side = |s: f64| -> Option<f64> {
         let total = |theta_a: f64| {
-            lobe(theta_a, s, tail).0
+            lobe(theta_a, s, tail, mu).0
                 + h * (-theta_a * theta_a / (2.0 * haze_sigma * haze_sigma)).exp()
         };
         // The sum falls from 1 + h at the peak; its half is passed within the haze's
@@ -220,11 +240,10 @@ fn tail_a(kappa: f64) -> f64 {
 }
 
 /// D, ∂D/∂ln s, ∂D/∂κ and ∂D/∂θa at θa for a lobe of Gaussian-equivalent width s
-/// (degrees) and tail `tail` (`None`: the Gaussian).
+/// (degrees), tail `tail` (`None`: the Gaussian) and variable μ.
 #[inline]
-fn lobe(theta_a_deg: f64, s_deg: f64, tail: Option<Tail>) -> (f64, f64, f64, f64) {
-    let scale = 1.0 / (2.0 * LN_2 * s_deg * s_deg);
-    let w = theta_a_deg * theta_a_deg * scale;
+fn lobe(theta_a_deg: f64, s_deg: f64, tail: Option<Tail>, mu: f64) -> (f64, f64, f64, f64) {
+    let (w, w_ln_s, w_theta_a) = lobe_w(theta_a_deg, s_deg, mu);
     let (d, d_w, d_kappa) = match tail {
         // At κ = 0 (κ inactive, or the Gaussian fitted) ∂D/∂κ is the Gaussian's
         // expansion, ln D = −ln2·w + κ·(ln2)²·w·(w − 1) + O(κ²): 0 at the half maximum
@@ -236,7 +255,34 @@ fn lobe(theta_a_deg: f64, s_deg: f64, tail: Option<Tail>) -> (f64, f64, f64, f64
         }
         Some(tail) => tail.lobe(w),
     };
-    (d, -2.0 * w * d_w, d_kappa, 2.0 * theta_a_deg * scale * d_w)
+    (d, d_w * w_ln_s, d_kappa, d_w * w_theta_a)
+}
+
+/// The lobe's w = X(θa)²/X(θ½)² (module docs: X the lobe's variable, θ½ = s·√(2 ln 2) the
+/// half-maximum point, so w = 1 there whatever μ is), with ∂w/∂ln s and ∂w/∂θa (per
+/// degree).
+#[inline]
+fn lobe_w(theta_a_deg: f64, s_deg: f64, mu: f64) -> (f64, f64, f64) {
+    let half_deg = s_deg * (2.0 * LN_2).sqrt();
+    if mu <= 0.0 {
+        let r = theta_a_deg / half_deg;
+        return (r * r, -2.0 * r * r, 2.0 * r / half_deg);
+    }
+    // X ∝ sin(√μ·θ) (the 1/√μ cancels in the ratio). A lobe whose half maximum lies near
+    // where the sine turns (σ beyond ~68° at μ = 1) keeps the variable of the largest √μ
+    // that does not turn: its half maximum still moves with σ.
+    let h = half_deg.to_radians();
+    let root = mu.sqrt().min(LOBE_VARIABLE_Z_MAX / h);
+    let z_a = (root * theta_a_deg.abs().to_radians()).min(std::f64::consts::FRAC_PI_2);
+    let (sin_h, cos_h) = (root * h).sin_cos();
+    let (sin_a, cos_a) = z_a.sin_cos();
+    let r = sin_a / sin_h;
+    let w = r * r;
+    (
+        w,
+        -2.0 * w * root * h * cos_h / sin_h,
+        2.0 * r * root * cos_a / sin_h * std::f64::consts::PI / 180.0 * theta_a_deg.signum(),
+    )
 }
 
 /// 1 − cos θ, the body's shape variable's part of one angle (q sums θi's and θr's less
@@ -609,7 +655,8 @@ impl<'a> At<'a> {
         };
         let side_factor = 1.0 + v[Param::Asymmetry as usize] * side;
         let s = per_reading.s * side_factor;
-        let (d, d_ln_s, d_kappa, d_theta_a) = lobe(theta_a, s, self.tail);
+        let (d, d_ln_s, d_kappa, d_theta_a) =
+            lobe(theta_a, s, self.tail, v[Param::LobeVariable as usize]);
         let (fr, d_fr) = fresnel_with_derivative(g.sin2_psi, g.cos_psi, v[Param::Eta as usize]);
         let h = g.attenuation_over_cosines;
         let (rho_s, rho_d, haze_fraction) = (
@@ -700,7 +747,7 @@ mod tests {
     use crate::analysis::model::{Params, evaluate_reading_through};
 
     fn tail_lobe(theta_a_deg: f64, s_deg: f64, kappa: f64) -> (f64, f64, f64, f64) {
-        lobe(theta_a_deg, s_deg, Tail::at(kappa))
+        lobe(theta_a_deg, s_deg, Tail::at(kappa), 0.0)
     }
 
     /// The reading's value and, with `gradients`, its gradient over every parameter.
@@ -849,25 +896,78 @@ mod tests {
     fn sigma_is_the_half_maximum_width_whatever_the_tail() {
         let hwhm = 2.0 * (2.0 * LN_2).sqrt();
         for kappa in [KAPPA_MIN, -0.1, 0.0, 1e-3, 0.33, 1.0, 3.0] {
-            let (d, _, _, _) = tail_lobe(hwhm, 2.0, kappa);
+            let (d, ..) = tail_lobe(hwhm, 2.0, kappa);
             assert!((d - 0.5).abs() < 1e-12, "κ {kappa}: {d}");
         }
         // κ = 1 is the Cauchy of that half width.
-        let (d, _, _, _) = tail_lobe(3.0, 2.0, 1.0);
+        let (d, ..) = tail_lobe(3.0, 2.0, 1.0);
         assert!((d - 1.0 / (1.0 + (3.0 / hwhm).powi(2))).abs() < 1e-12);
+    }
+
+    /// At μ = 1 the lobe is the simulator's microfacet lobes exactly (hil-sim's sheet.rs
+    /// writes them in θa, with the Gaussian's half-maximum point): GGX, α⁴/(α²cos²θa +
+    /// sin²θa)² with sin²θ½ = α²(√2 − 1)/(1 − α²), is κ = ⅓; Blinn–Phong's cosⁿθa with
+    /// cosⁿθ½ = ½ is κ = −1/(n + 1). At any μ the half maximum stays at θ½.
+    #[test]
+    fn the_lobes_variable_holds_ggx_and_blinn_phong() {
+        for sigma in [1.9, 17.9, 43.5] {
+            let half = sigma * (2.0 * LN_2).sqrt();
+            let s = half.to_radians().sin().powi(2);
+            let alpha2 = s / (s + std::f64::consts::SQRT_2 - 1.0);
+            let n = -LN_2 / half.to_radians().cos().ln();
+            for theta_a in [0.0, 0.3 * half, half, 1.7 * half, 60.0_f64.min(3.0 * half)] {
+                let (sin, cos) = theta_a.to_radians().sin_cos();
+                let ggx = alpha2 * alpha2 / (alpha2 * cos * cos + sin * sin).powi(2);
+                let ours = lobe(theta_a, sigma, Tail::at(1.0 / 3.0), 1.0).0;
+                assert!(
+                    (ours - ggx).abs() < 1e-12,
+                    "GGX σ {sigma} at {theta_a}: {ours} against {ggx}"
+                );
+                let blinn_phong = cos.powf(n);
+                let ours = lobe(theta_a, sigma, Tail::at(-1.0 / (n + 1.0)), 1.0).0;
+                assert!(
+                    (ours - blinn_phong).abs() < 1e-12,
+                    "Blinn–Phong σ {sigma} at {theta_a}: {ours} against {blinn_phong}"
+                );
+            }
+            for mu in [0.0, 0.5, MICROFACET_VARIABLE] {
+                for kappa in [0.0, 0.3, -0.2] {
+                    let d = lobe(half, sigma, Tail::at(kappa), mu).0;
+                    assert!((d - 0.5).abs() < 1e-12, "σ {sigma}, μ {mu}, κ {kappa}: {d}");
+                }
+            }
+        }
+        // The broad Gaussian in θa is not the broad one in sin θa: μ is what tells them
+        // apart, and only where the lobe is broad.
+        let wide = |mu: f64| lobe(60.0, 43.5, None, mu).0;
+        assert!(
+            (wide(1.0) / wide(0.0) - 1.0).abs() > 0.05,
+            "{} {}",
+            wide(1.0),
+            wide(0.0)
+        );
+        let narrow = |mu: f64| lobe(3.0, 1.9, None, mu).0;
+        assert!((narrow(1.0) / narrow(0.0) - 1.0).abs() < 1e-3);
     }
 
     #[test]
     fn gradients_match_differences() {
-        // κ = 0: the Gaussian's expansion; κ < 0: the compact lobe.
-        for kappa in [0.4, 0.0, -0.15] {
-            gradients_match_differences_at(kappa);
+        // κ = 0: the Gaussian's expansion; κ < 0: the compact lobe; in θa and in sin θa.
+        for (kappa, mu) in [
+            (0.4, 0.0),
+            (0.0, 0.0),
+            (-0.15, 0.0),
+            (0.3, 1.0),
+            (-0.1, 1.0),
+        ] {
+            gradients_match_differences_at(kappa, mu);
         }
     }
 
-    fn gradients_match_differences_at(kappa: f64) {
+    fn gradients_match_differences_at(kappa: f64, mu: f64) {
         let mut v = tsl(4.0);
         v[Param::Kappa as usize] = kappa;
+        v[Param::LobeVariable as usize] = mu;
         v[Param::HazeFraction as usize] = 0.3;
         v[Param::Slope as usize] = 0.2;
         v[Param::Body as usize] = -0.3;
@@ -888,6 +988,18 @@ mod tests {
             );
             gradients_match_differences_on(&v, &reading, kappa);
         }
+        // A broad lobe, where μ matters.
+        v[Param::LnSigma as usize] = 30.0_f64.ln();
+        for theta_r in [80.0, -10.0] {
+            let reading = Reading::new(
+                30.0,
+                theta_r,
+                0.3,
+                Some(&DetectorResponse::top_hat(1.0)),
+                0.0,
+            );
+            gradients_match_differences_on(&v, &reading, kappa);
+        }
     }
 
     fn gradients_match_differences_on(v: &Values, reading: &Reading, kappa: f64) {
@@ -895,7 +1007,11 @@ mod tests {
         let (_, grad) = evaluate(&v, reading, true);
         for p in Param::ALL {
             let k = p as usize;
-            // κ's step leaves the Gaussian's branch (|κ| < 1e-7) on both sides.
+            // κ's step leaves the Gaussian's branch (|κ| < 1e-7) on both sides. μ is held,
+            // never fitted: its gradient is not formed.
+            if p == Param::LobeVariable {
+                continue;
+            }
             let step = if p == Param::Kappa {
                 1e-4
             } else {
