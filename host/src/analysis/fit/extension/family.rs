@@ -977,20 +977,10 @@ mod tests {
         v[Param::Asymmetry as usize] = 0.25;
         v[Param::RetroAmplitude as usize] = 0.6;
         v[Param::RetroLnWidth as usize] = 12.0_f64.ln();
-        // Past the peak and before it (the sides of a lobe wider on one side).
-        for theta_r in [34.0, 27.0] {
-            let reading = Reading::new(
-                30.0,
-                theta_r,
-                0.3,
-                Some(&DetectorResponse::top_hat(1.0)),
-                0.0,
-            );
-            gradients_match_differences_on(&v, &reading, kappa);
-        }
-        // A broad lobe, where μ matters.
-        v[Param::LnSigma as usize] = 30.0_f64.ln();
-        for theta_r in [80.0, -10.0] {
+        // Past the peak and before it (the sides of a lobe wider on one side), and a broad
+        // lobe far out on both sides, where μ matters.
+        for (sigma, theta_r) in [(4.0, 34.0), (4.0, 27.0), (30.0, 80.0), (30.0, -10.0)] {
+            v[Param::LnSigma as usize] = f64::ln(sigma);
             let reading = Reading::new(
                 30.0,
                 theta_r,
