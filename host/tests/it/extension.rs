@@ -944,7 +944,7 @@ fn a_member_as_good_as_the_best_that_does_not_pin_sigma_down_does_not_widen_it()
     // interval [0.001, 90]° (library and sheet refused the session as implausible). A
     // member counted now identifies σ (relative sd at most 0.5), so its interval is within
     // a factor e^0.98 of its estimate. What is asked, over 128 seeds: σ's interval holds σ
-    // and stays below 6σ in every one (over 900 seeds of the code before, it reached
+    // as a 95 % interval may (at most 13 misses) and stays below 6σ in every one (over 900 seeds of the code before, it reached
     // 12–116σ; now at most 4.1σ), and within [0.3σ, 3.5σ] in all but 16 (about 5.5 % are
     // not, for the slope member's σ at 45° and the shape sensitivity it brings, which are
     // the readings' to settle: the adaptive policy then crosses the peak at another θi;
@@ -976,6 +976,7 @@ fn a_member_as_good_as_the_best_that_does_not_pin_sigma_down_does_not_widen_it()
     let truth = tsl(p);
     let run = common::run_seed();
     let (mut exercised, mut wide, mut widest) = (0, 0, 0.0_f64);
+    let mut missed = Vec::new();
     for seed in 0..SEEDS {
         let obs = readings_on(
             &GEOMETRIES,
@@ -990,13 +991,24 @@ fn a_member_as_good_as_the_best_that_does_not_pin_sigma_down_does_not_widen_it()
         exercised += usize::from(plausible.iter().any(|m| m == "TSL + σ varying with θi"));
         wide += usize::from(lo < 0.3 * p.sigma_deg || hi > 3.5 * p.sigma_deg);
         widest = widest.max(hi / p.sigma_deg);
-        assert!(
-            hi < 6.0 * p.sigma_deg && covers(Some((lo, hi)), p.sigma_deg),
+        let said = format!(
             "seed {seed}: σ {} [{lo}, {hi}] against {} (plausible: {plausible:?})",
-            r.params.sigma_deg,
-            p.sigma_deg
+            r.params.sigma_deg, p.sigma_deg
         );
+        assert!(hi < 6.0 * p.sigma_deg, "{said}");
+        if !covers(Some((lo, hi)), p.sigma_deg) {
+            missed.push(said);
+        }
     }
+    // A 95 % interval may miss: run seed 15135's draw 23 missed 0.8° by 0.0001° (upper
+    // end 0.79988°). Over 128 draws more than 13 misses has probability 0.5 % at the
+    // nominal 95 % (binomial); these intervals over-cover, so one or two are the most
+    // seen.
+    assert!(
+        missed.len() <= 12,
+        "{} of {SEEDS} missed: {missed:#?}",
+        missed.len()
+    );
     println!(
         "of {SEEDS} seeds: outside [0.3σ, 3.5σ] {wide}, the highest upper end {widest:.2}σ, the slope member plausible in {exercised}"
     );
