@@ -68,14 +68,14 @@ fn the_study_covers_every_schedule_policy_and_integration_time() {
 /// its point batches) against the adaptive policy, the same sessions (seeds drawn for
 /// this run, 4 per paper): on G, whose σ Strategy 1 does not resolve, a slow sweep across
 /// the specular direction replaces the probe's points; on SG the σ_l check's spacing is
-/// settled by one sweep across the peak; every class right, G's and SG's σ within 5 %,
-/// G in less device time on average; the rough papers, which need nothing
-/// after Strategy 1, measured exactly as the adaptive policy measures them.
+/// settled by one sweep across the peak (on at least three of each one's four sessions: a
+/// false lack-of-fit after Strategy 1 may settle σ first); every class right, G's and SG's
+/// σ within 5 %, G in less device time on average; a session that takes no sweep (every
+/// rough paper's: they need nothing after Strategy 1) measured exactly as the adaptive
+/// policy measures it.
 #[test]
 fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
-    let first = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(1, |d| 1 + d.subsec_nanos() as u64 % 100_000);
+    let first = crate::common::run_seed();
     let runs: Vec<RunSpec> = ["mixed", "adaptive"]
         .into_iter()
         .flat_map(|policy| {
@@ -112,12 +112,19 @@ fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
             mean(&mixed),
             mean(&adaptive)
         );
+        let mut swept = 0;
         for r in &mixed {
             assert!(
                 r.class_correct && r.sigma_ok,
                 "{sample} seed {}: {r:?}",
                 r.spec.seed
             );
+            let same = adaptive
+                .iter()
+                .find(|a| a.spec.seed == r.spec.seed)
+                .expect("every seed under both policies");
+            // Bins are readings with a span: more than any batch of points would add.
+            let sweeps = r.geometries > 30;
             if sample == "G" || sample == "SG" {
                 assert!(
                     r.sigma_rel_err.abs() <= 0.05,
@@ -125,25 +132,32 @@ fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
                     r.spec.seed,
                     100.0 * r.sigma_rel_err
                 );
-                // Bins are readings with a span: more than any batch of points would add.
-                assert!(
-                    r.geometries > 30,
-                    "{sample} seed {}: {} readings, no sweep",
-                    r.spec.seed,
-                    r.geometries
-                );
+            }
+            if sweeps && (sample == "G" || sample == "SG") {
+                swept += 1;
             } else {
-                let same = adaptive
-                    .iter()
-                    .find(|a| a.spec.seed == r.spec.seed)
-                    .unwrap();
+                // The two policies differ only where the mixed one takes a sweep: a session
+                // without one (a rough paper; a glossy one whose Strategy 1 raised a false
+                // lack-of-fit, whose batch over the whole θr range then settled σ, as SG's
+                // on seed 38884 did) is the adaptive session reading for reading.
                 assert_eq!(
                     (r.geometries, r.device_seconds),
                     (same.geometries, same.device_seconds),
-                    "{sample} seed {}",
+                    "{sample} seed {}: no sweep, yet not the adaptive session",
                     r.spec.seed
                 );
             }
+        }
+        // The sweep is the mixed policy's point on glossy papers: taken on every session
+        // but one whose Strategy 1 raises a false lack-of-fit that its batches then settle
+        // (`gonio trade --seeds 100 --policies mixed`: SG seed 55, 1 of 100; G none), so on
+        // at least three of the four (two without, at 1 %: 6 runs in 10,000).
+        if sample == "G" || sample == "SG" {
+            assert!(
+                swept >= 3,
+                "{sample} seeds {first}–{}: {swept} of 4 sessions swept",
+                first + 3
+            );
         }
         // G's probe is where sweeps save time (docs/TRADE.md: 15.1 s against 17.4 s over
         // 100 sessions); SG's σ_l sweep saves little on average (16.8 s against 17.0 s), and
