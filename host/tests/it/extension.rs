@@ -945,10 +945,11 @@ fn a_member_as_good_as_the_best_that_does_not_pin_sigma_down_does_not_widen_it()
     // member counted now identifies σ (relative sd at most 0.5), so its interval is within
     // a factor e^0.98 of its estimate. What is asked, over 128 seeds: σ's interval holds σ
     // as a 95 % interval may (at most 13 misses) and stays below 6σ in every one (over 900
-    // seeds of the code before, it reached 12–116σ; now at most 4.1σ), and within [0.3σ, 3.5σ] in all but 16 (about 5.5 % are
-    // not, for the slope member's σ at 45° and the shape sensitivity it brings, which are
-    // the readings' to settle: the adaptive policy then crosses the peak at another θi;
-    // 15 % before). The slope member is among the plausible in most seeds.
+    // seeds of the code before, it reached 12–116σ; now at most 4.1σ), and within
+    // [0.3σ, 3.5σ] in all but 16 (about 5.5 % are not, for the slope member's σ at 45° and
+    // the shape sensitivity it brings, which are the readings' to settle: the adaptive
+    // policy then crosses the peak at another θi; 15 % before). The slope member is among
+    // the plausible in most seeds.
     const GEOMETRIES: [(f64, f64); 20] = [
         (60.0, 70.0),
         (60.0, 60.0),
@@ -1001,9 +1002,8 @@ fn a_member_as_good_as_the_best_that_does_not_pin_sigma_down_does_not_widen_it()
         }
     }
     // A 95 % interval may miss: run seed 15135's draw 23 missed 0.8° by 0.0001° (upper
-    // end 0.79988°). Over 128 draws more than 13 misses has probability 0.5 % at the
-    // nominal 95 % (binomial); these intervals over-cover, so one or two are the most
-    // seen.
+    // end 0.79988°), the one miss of that run. Over 128 draws more than 13 misses has
+    // probability 0.5 % at the nominal 95 % (binomial).
     assert!(
         missed.len() <= 13,
         "{} of {SEEDS} missed: {missed:#?}",

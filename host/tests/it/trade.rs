@@ -112,6 +112,7 @@ fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
             mean(&mixed),
             mean(&adaptive)
         );
+        let glossy = sample == "G" || sample == "SG";
         let mut swept = 0;
         for r in &mixed {
             assert!(
@@ -119,13 +120,7 @@ fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
                 "{sample} seed {}: {r:?}",
                 r.spec.seed
             );
-            let same = adaptive
-                .iter()
-                .find(|a| a.spec.seed == r.spec.seed)
-                .expect("every seed under both policies");
-            // Bins are readings with a span: more than any batch of points would add.
-            let sweeps = r.geometries > 30;
-            if sample == "G" || sample == "SG" {
+            if glossy {
                 assert!(
                     r.sigma_rel_err.abs() <= 0.05,
                     "{sample} seed {}: σ off by {:.2} %",
@@ -133,13 +128,18 @@ fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
                     100.0 * r.sigma_rel_err
                 );
             }
-            if sweeps && (sample == "G" || sample == "SG") {
+            // Bins are readings with a span: more than any batch of points would add.
+            if glossy && r.geometries > 30 {
                 swept += 1;
             } else {
                 // The two policies differ only where the mixed one takes a sweep: a session
                 // without one (a rough paper; a glossy one whose Strategy 1 raised a false
                 // lack-of-fit, whose batch over the whole θr range then settled σ, as SG's
                 // on seed 38884 did) is the adaptive session reading for reading.
+                let same = adaptive
+                    .iter()
+                    .find(|a| a.spec.seed == r.spec.seed)
+                    .expect("every seed under both policies");
                 assert_eq!(
                     (r.geometries, r.device_seconds),
                     (same.geometries, same.device_seconds),
@@ -152,7 +152,7 @@ fn the_mixed_policy_sweeps_where_a_sweep_brings_more_per_second() {
         // but one whose Strategy 1 raises a false lack-of-fit that its batches then settle
         // (`gonio trade --seeds 100 --policies mixed`: SG seed 55, 1 of 100; G none), so on
         // at least three of the four (two without, at 1 %: 6 runs in 10,000).
-        if sample == "G" || sample == "SG" {
+        if glossy {
             assert!(
                 swept >= 3,
                 "{sample} seeds {first}–{}: {swept} of 4 sessions swept",
