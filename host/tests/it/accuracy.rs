@@ -303,9 +303,7 @@ fn a_noiseless_instrument_gives_finished_sessions_and_the_truth() {
 fn a_sweep_session_that_lacks_fit_measures_the_whole_plane() {
     use host::instrument::sim::LobeChoice;
     use host::session::PolicyChoice;
-    let drawn = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(5, |d| d.subsec_nanos() as u64 % 100_000);
+    let drawn = crate::common::run_seed();
     let incidences = |outcome: &Outcome| {
         let mut seen: Vec<f64> = Vec::new();
         for p in outcome
@@ -437,9 +435,7 @@ fn a_sweep_session_that_lacks_fit_measures_the_whole_plane() {
 #[test]
 fn a_sweep_s_bins_read_the_scene_where_they_are_recorded() {
     use host::session::PolicyChoice;
-    let drawn = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(9, |d| d.subsec_nanos() as u64 % 100_000);
+    let drawn = crate::common::run_seed();
     let noise_scale = 0.01;
     for (k, sample) in ["G", "SG", "J1"].into_iter().enumerate() {
         let seed = drawn + k as u64;

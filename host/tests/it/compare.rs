@@ -636,9 +636,7 @@ fn the_compare_report_renders_in_a_headless_browser_with_its_warnings() {
 fn a_library_validated_by_forensic_is_what_compare_weighs_against() {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
-    let seed = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64);
+    let seed = crate::common::run_seed();
     let mut rng = rand_chacha::ChaCha12Rng::seed_from_u64(seed);
     let mut normal = move || -> f64 { StandardNormal.sample(&mut rng) };
     let dir = temp_dir("validated");

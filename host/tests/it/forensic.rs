@@ -391,13 +391,7 @@ fn worlds_the_evidence_is_not_told_meet_the_targets_in_small() {
     let first_draw = std::env::var("GONIO_FORENSIC_DRAW")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| {
-            (std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos()) as usize)
-                % 90_000
-                + 100
-        });
+        .unwrap_or_else(|| crate::common::run_seed() as usize % 90_000 + 100);
     eprintln!("draw of this run: {first_draw} (GONIO_FORENSIC_DRAW={first_draw} runs it again)");
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
     for name in ["sheets-3pct", "second-instrument", "shapes"] {

@@ -20,12 +20,7 @@ fn drawn_instruments_characterized_meet_the_targets_in_small() {
     let base_seed = std::env::var("GONIO_INSTRUMENTS_SEED")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos() as u64)
-                % 1_000_000_000
-        });
+        .unwrap_or_else(crate::common::run_seed);
     // One policy a run keeps a debug build within its minute; the base seed's parity picks
     // which of the campaign's two, so that over runs both meet the targets: the adaptive
     // policy (point readings, refined at length on the glossy papers) and the sweep policy

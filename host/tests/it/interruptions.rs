@@ -9,10 +9,7 @@ use std::path::Path;
 
 #[test]
 fn sheets_interrupted_one_two_and_three_times_resume_whole_under_their_plan() {
-    let seed: u64 = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(7, |d| d.as_nanos() as u64 % 1_000_000_007);
-    eprintln!("campaign seed {seed}");
+    let seed = crate::common::run_seed();
     let ram = Path::new("/dev/shm");
     let base = if ram.is_dir() {
         ram.to_path_buf()

@@ -719,9 +719,7 @@ fn a_search_is_the_same_made_afresh_or_from_the_cache_and_follows_the_library() 
     use host::analysis::evidence::{self, validation};
     use host::output::library::{Library, OpenMode};
     use host::study::library_scale::{Shape, write_library, write_questioned};
-    let seed = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64);
+    let seed = crate::common::run_seed();
     let root = temp_dir("library", "scale");
     std::fs::create_dir_all(&root).expect("temp dir");
     let shape = Shape {

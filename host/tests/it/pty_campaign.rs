@@ -9,10 +9,7 @@ use std::path::Path;
 
 #[test]
 fn pty_sessions_on_a_bad_link_with_an_unplug_all_end_within_their_bounds_saying_how() {
-    let seed: u64 = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(7, |d| d.as_nanos() as u64 % 1_000_000_007);
-    eprintln!("pty campaign seed {seed}");
+    let seed = crate::common::run_seed();
     let base = std::env::temp_dir().join(format!("gonio-pty-test-{}", std::process::id()));
     let gonio = Path::new(env!("CARGO_BIN_EXE_gonio"));
     let started = std::time::Instant::now();

@@ -222,9 +222,7 @@ fn a_kill_at_any_write_of_a_sheet_resumes_to_a_sheet_that_verifies() {
         .chain(writes - 5..=writes)
         .chain((1..12).map(|k| k * writes / 12))
         .collect();
-    let seed: u64 = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(7, |d| d.as_nanos() as u64);
+    let seed = crate::common::run_seed();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     at.extend((0..6).map(|_| rng.random_range(1..=writes)));
     for n in at {

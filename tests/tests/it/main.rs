@@ -13,3 +13,7 @@ mod measure;
 mod pty_link;
 mod reliability;
 mod simulator;
+
+// The host's tests' run seed, the same file: one GONIO_TEST_SEED runs both crates again.
+#[path = "../../../host/tests/it/common/seed.rs"]
+mod seed;

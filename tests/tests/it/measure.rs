@@ -990,9 +990,7 @@ fn sweep_sessions_with_a_bad_link_and_a_pulled_cable_finish_with_every_bin_once(
     // (sample, class, seed), the seeds (and so the unplug's moments) drawn for this run and
     // named in every message: the first pass runs from about 12 s of device time (homing
     // and the calibration before it) to about 17 s.
-    let drawn = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(11, |d| 1 + u64::from(d.subsec_nanos()) % 100_000);
+    let drawn = 1 + crate::seed::run_seed();
     let cases = [
         ("G", "G", drawn),
         ("G", "G", drawn + 1),

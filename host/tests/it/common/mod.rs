@@ -3,12 +3,14 @@
 //! form) and seeded noise.
 #![allow(dead_code)]
 pub mod in_process;
+mod seed;
 use host::analysis::classify::REFERENCES;
 use host::analysis::fit::{Observation, SharedError};
 use host::analysis::model::{self, Params};
 use protocol::schedules;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+pub use seed::run_seed;
 
 /// (θi, θr) pairs of a protocol schedule.
 pub fn pairs(s: &schedules::Schedule) -> Vec<(f64, f64)> {
@@ -360,20 +362,4 @@ pub fn browser_or_skip(
         "\nNOTICE: no chromium on PATH: the report's headless-browser test is LEFT OUT on this machine (apt-get install chromium to run it; GONIO_REQUIRE_BROWSER=1 makes its absence a failure, as in CI)\n"
     );
     None
-}
-
-/// A seed for this run, printed (a failure names it), so the folders and documents differ
-/// from run to run; `GONIO_TEST_SEED` sets it, to run a failure's seed again.
-pub fn run_seed() -> u64 {
-    let seed = std::env::var("GONIO_TEST_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(1, |d| d.subsec_nanos() as u64)
-                % 100_000
-        });
-    eprintln!("seed of this run: {seed} (GONIO_TEST_SEED={seed} runs it again)");
-    seed
 }
