@@ -449,7 +449,12 @@ fn fmt_value(x: Option<f64>) -> String {
 /// was printed to 4 decimals whatever its uncertainty, "57.3820 [51.0520, 64.4969]").
 /// `None` for an interval of no width or not finite. The files keep every digit.
 pub fn interval_decimals(lo: f64, hi: f64) -> Option<usize> {
-    let u = (hi - lo) / 2.0 / 1.959_963_984_540_054;
+    uncertainty_decimals((hi - lo) / 2.0 / 1.959_963_984_540_054)
+}
+
+/// Decimals that show a value to the precision of its standard uncertainty `u`: two
+/// significant digits of `u`. `None` for an uncertainty of zero or not finite.
+pub fn uncertainty_decimals(u: f64) -> Option<usize> {
     (u.is_finite() && u > 0.0).then(|| (1 - u.log10().floor() as i64).clamp(0, 9) as usize)
 }
 

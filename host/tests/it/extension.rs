@@ -757,6 +757,56 @@ fn a_ggx_lobe_on_mc_leaves_sigma_inside_its_interval() {
 }
 
 #[test]
+fn a_beckmann_lobe_on_sg_is_the_lobe_shapes_kappa_below_zero() {
+    // The swept Beckmann SGs that missed 1.9° (seeds 4–21 of the shapes campaign, σ 1.893
+    // [1.889, 1.899]) are not a shape the family lacks: Beckmann's lobe on SG is the θa
+    // family's κ ≈ −0.0015 (family.rs's unit test), which the paper's Gaussian reads 0.2 %
+    // narrow. At a hundredth of the noise the readings tell the two apart: the lobe shape is
+    // called for, named with a κ that shows its digits, and σ is 1.9° to 0.03 % (the paper's
+    // model alone: 1.8962° on seed 134966875). At the campaign's noise the lobe shape's
+    // member, κ free, covers 1.9° in 96.5 % of 200 swept sessions (docs/ACCURACY.md).
+    let sigma_eq = reference("SG").sigma_deg;
+    let run = common::run_seed().to_string();
+    for seed in ["134966875", &run] {
+        let args = [
+            "--sim",
+            "SG",
+            "--lobe",
+            "beckmann",
+            "--policy",
+            "sweep",
+            "--noise-scale",
+            "0.01",
+            "--seed",
+            seed,
+        ];
+        let session = session_with_extensions(&format!("sg-beckmann-{seed}"), &args);
+        let r = &session["result"];
+        let sigma = r["sigma_deg"].as_f64().expect("σ");
+        let terms = &r["model_extension"]["terms"];
+        let lobe = terms
+            .as_array()
+            .and_then(|t| t.iter().find(|t| t["name"] == "lobe shape"))
+            .unwrap_or_else(|| panic!("seed {seed}: no lobe shape among {terms}"));
+        let description = lobe["description"].as_str().unwrap_or_default();
+        let kappa: f64 = description
+            .split("κ = ")
+            .nth(1)
+            .and_then(|rest| rest.split(' ').next())
+            .and_then(|k| k.parse().ok())
+            .unwrap_or_else(|| panic!("seed {seed}: no κ in {description:?}"));
+        assert!(
+            (-0.002..=-0.001).contains(&kappa) && description.contains("lighter-tailed"),
+            "seed {seed}: {description}"
+        );
+        assert!(
+            (sigma / sigma_eq - 1.0).abs() < 3e-4,
+            "seed {seed}: σ {sigma} against {sigma_eq} ({description})"
+        );
+    }
+}
+
+#[test]
 fn rho_s_is_identified_as_the_reported_eta_interval_says() {
     // ρs = A/(η²−1) is unbounded where η's interval reaches 1. A term may fix η where the
     // paper's model could not: on the campaign's strong σ slope on J1 (adaptive, seed

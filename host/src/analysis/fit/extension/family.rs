@@ -950,6 +950,51 @@ mod tests {
         assert!((narrow(1.0) / narrow(0.0) - 1.0).abs() < 1e-3);
     }
 
+    /// The θa family holds a glossy Beckmann lobe (hil-sim's exp(−tan²θa/α²)/cos⁴θa with
+    /// the Gaussian's half-maximum point) with κ a little below 0: on SG (σ 1.9°) κ ≈
+    /// −0.0015 matches it to about 10⁻⁶ of the peak where the paper's Gaussian misses it
+    /// by 5·10⁻⁴, which swept readings see (the Gaussian puts σ 0.2 % low; the lobe
+    /// shape's member recovers 1.9°, docs/ACCURACY.md). No other variable is needed for
+    /// it: a Gaussian in sinh(√2·θa)/√2, which follows tan θa to third order, matches it
+    /// to 3·10⁻⁶ at σ 1.9° (computed once, not a case here), no closer.
+    #[test]
+    fn the_lobe_shape_holds_a_glossy_beckmann_lobe() {
+        for (sigma, fits_within, kappa_range) in
+            [(0.8, 1e-7, (-0.0005, 0.0)), (1.9, 3e-6, (-0.002, -0.001))]
+        {
+            let half = (sigma * (2.0 * LN_2).sqrt()).to_radians();
+            let alpha2 = half.tan().powi(2) / (LN_2 - 4.0 * half.cos().ln());
+            let beckmann = |theta_a: f64| {
+                let (sin, cos) = theta_a.to_radians().sin_cos();
+                (-(sin / cos).powi(2) / alpha2).exp() / cos.powi(4)
+            };
+            let worst = |kappa: f64| {
+                (0..=90)
+                    .map(|k| 3.0 * sigma * f64::from(k) / 90.0)
+                    .map(|t| (lobe(t, sigma, Tail::at(kappa), 0.0).0 - beckmann(t)).abs())
+                    .fold(0.0, f64::max)
+            };
+            let (best, kappa) = (-500..=500)
+                .map(|k| f64::from(k) * 1e-5)
+                .map(|kappa| (worst(kappa), kappa))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .expect("a grid");
+            assert!(
+                best < fits_within,
+                "σ {sigma}: best κ {kappa} misses by {best}"
+            );
+            assert!(
+                kappa >= kappa_range.0 && kappa <= kappa_range.1,
+                "σ {sigma}: κ {kappa}"
+            );
+            assert!(
+                worst(0.0) > 50.0 * best,
+                "σ {sigma}: the Gaussian {}",
+                worst(0.0)
+            );
+        }
+    }
+
     #[test]
     fn gradients_match_differences() {
         // κ = 0: the Gaussian's expansion; κ < 0: the compact lobe; in θa and in sin θa.

@@ -1016,32 +1016,28 @@ fn fresnel_test(
 /// The term in words with its fitted values.
 fn describe(term: Term, fit: &MemberFit, observations: &[Observation]) -> String {
     let v = &fit.values;
-    let sd = |p: Param| {
-        fit.std_of(p)
-            .map_or(String::new(), |s| format!(" ± {s:.2}"))
-    };
+    let shown = |p: Param| decimals_and_sd(fit, p);
     match term {
         Term::LobeShape => {
             let kappa = v[Param::Kappa as usize];
+            let (d, sd) = shown(Param::Kappa);
             if kappa >= 0.0 {
                 format!(
-                    "lobe: heavy-tailed, κ = {kappa:.2}{} (a Student-t in θa with ν = {:.1}; κ = 0 is the paper's Gaussian, 1 a Cauchy), σ still its half-maximum width",
-                    sd(Param::Kappa),
+                    "lobe: heavy-tailed, κ = {kappa:.d$}{sd} (a Student-t in θa with ν = {:.1}; κ = 0 is the paper's Gaussian, 1 a Cauchy), σ still its half-maximum width",
                     1.0 / kappa.max(1e-9)
                 )
             } else {
                 format!(
-                    "lobe: lighter-tailed than the Gaussian, κ = {kappa:.2}{} (0 beyond {:.1} half widths; κ = 0 is the paper's Gaussian), σ still its half-maximum width",
-                    sd(Param::Kappa),
+                    "lobe: lighter-tailed than the Gaussian, κ = {kappa:.d$}{sd} (0 beyond {:.1} half widths; κ = 0 is the paper's Gaussian), σ still its half-maximum width",
                     family::support_half_widths(kappa)
                 )
             }
         }
         Term::MicrofacetLobe => {
             let (kappa, mu) = (v[Param::Kappa as usize], v[Param::LobeVariable as usize]);
+            let (d, sd) = shown(Param::Kappa);
             format!(
-                "lobe: a microfacet distribution's form, κ = {kappa:.2}{} in sin θa (μ = {mu:.0}; κ = ⅓ is Trowbridge–Reitz (GGX), κ = −1/(n + 1) Blinn–Phong's cosⁿ), σ still its half-maximum width",
-                sd(Param::Kappa),
+                "lobe: a microfacet distribution's form, κ = {kappa:.d$}{sd} in sin θa (μ = {mu:.0}; κ = ⅓ is Trowbridge–Reitz (GGX), κ = −1/(n + 1) Blinn–Phong's cosⁿ), σ still its half-maximum width",
             )
         }
         Term::GgxLobe => {
@@ -1074,21 +1070,23 @@ fn describe(term: Term, fit: &MemberFit, observations: &[Observation]) -> String
                 at(hi)
             )
         }
-        Term::PeakShift => format!(
-            "off-specular peak: the main lobe centred at θr = θi {:+.2}°{} (its Fresnel factor and attenuation the geometry's)",
-            v[Param::PeakShift as usize],
-            sd(Param::PeakShift)
-        ),
+        Term::PeakShift => {
+            let (d, sd) = shown(Param::PeakShift);
+            format!(
+                "off-specular peak: the main lobe centred at θr = θi {:+.d$}°{sd} (its Fresnel factor and attenuation the geometry's)",
+                v[Param::PeakShift as usize],
+            )
+        }
         Term::Asymmetry => {
             let (sigma, t) = (
                 v[Param::LnSigma as usize].exp(),
                 v[Param::Asymmetry as usize],
             );
+            let (d, sd) = shown(Param::Asymmetry);
             format!(
-                "lobe: wider on one side, σ {:.2}° past its peak (toward grazing) and {:.2}° before it (t = {t:+.2}{}); σ {sigma:.2}°, their mean, is its half-maximum width",
+                "lobe: wider on one side, σ {:.2}° past its peak (toward grazing) and {:.2}° before it (t = {t:+.d$}{sd}); σ {sigma:.2}°, their mean, is its half-maximum width",
                 sigma * (1.0 + t),
                 sigma * (1.0 - t),
-                sd(Param::Asymmetry)
             )
         }
         Term::Retro => {
@@ -1111,20 +1109,37 @@ fn describe(term: Term, fit: &MemberFit, observations: &[Observation]) -> String
                     .map_or(String::new(), |s| format!(" ± {:.0}", 100.0 * s)),
             )
         }
-        Term::FresnelBody => format!(
-            "body: behind a Fresnel interface of η_b = {:.2}{}, falling toward grazing as its transmittance; ρd is its value at θi = θr = {REFERENCE_THETA_I_DEG:.0}°",
-            v[Param::BodyEta as usize],
-            sd(Param::BodyEta)
-        ),
+        Term::FresnelBody => {
+            let (d, sd) = shown(Param::BodyEta);
+            format!(
+                "body: behind a Fresnel interface of η_b = {:.d$}{sd}, falling toward grazing as its transmittance; ρd is its value at θi = θr = {REFERENCE_THETA_I_DEG:.0}°",
+                v[Param::BodyEta as usize],
+            )
+        }
         Term::Body => {
             let b = v[Param::Body as usize];
             let way = if b < 0.0 { "falls" } else { "rises" };
+            let (d, sd) = shown(Param::Body);
             format!(
-                "body: not Lambertian, {way} toward grazing (b = {b:+.2}{}); ρd is its value at θi = θr = {REFERENCE_THETA_I_DEG:.0}°",
-                sd(Param::Body)
+                "body: not Lambertian, {way} toward grazing (b = {b:+.d$}{sd}); ρd is its value at θi = θr = {REFERENCE_THETA_I_DEG:.0}°",
             )
         }
     }
+}
+
+/// The decimals a term's parameter is shown to and its standard deviation (" ± sd"; empty
+/// without one): two significant digits of the sd, two decimals at least. A Beckmann lobe
+/// on SG is κ −0.0015, which two decimals showed as "κ = -0.00 ± 0.00" for a term the
+/// readings called for.
+fn decimals_and_sd(fit: &MemberFit, p: Param) -> (usize, String) {
+    let sd = fit.std_of(p);
+    let decimals = sd
+        .and_then(crate::analysis::result::uncertainty_decimals)
+        .map_or(2, |d| d.max(2));
+    (
+        decimals,
+        sd.map_or(String::new(), |s| format!(" ± {s:.decimals$}")),
+    )
 }
 
 /// The main lobe's four in the result's order (σ in degrees) from a member's values.
