@@ -237,6 +237,7 @@ fn run_shapes(args: &Args, seeds: usize, threads: usize) -> anyhow::Result<ExitC
     let summary = shapes::summary_markdown(&campaign);
     let written = [
         ("sessions.csv", shapes::to_csv(&campaign)),
+        ("members.csv", shapes::members_csv(&campaign)),
         ("summary.md", summary.clone()),
     ];
     for (name, text) in &written {
@@ -245,7 +246,7 @@ fn run_shapes(args: &Args, seeds: usize, threads: usize) -> anyhow::Result<ExitC
     }
     print!("{summary}");
     eprintln!(
-        "wrote sessions.csv and summary.md in {}",
+        "wrote sessions.csv, members.csv and summary.md in {}",
         args.out.display()
     );
     let held = shapes::verdicts(&campaign).iter().all(|(_, h)| *h);

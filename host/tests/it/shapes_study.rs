@@ -104,6 +104,27 @@ fn sheets_that_are_not_tsl_in_small() {
     assert_eq!(csv.lines().count(), 1 + campaign.rows.len());
     assert!(csv.contains(",--departure haze:0.03:4,G,"), "{csv}");
     assert!(csv.contains(",--lobe blinn-phong,J1,"), "{csv}");
+    // Every session's final fit fitted the paper's model and its lobe shape at least, each
+    // with σ's own interval around its estimate, and members.csv has a line for each member.
+    for r in &campaign.rows {
+        for label in ["TSL", "TSL + lobe shape"] {
+            let m = r.members.iter().find(|m| m.label == label);
+            let ci = m.and_then(|m| m.sigma_ci95.map(|(lo, hi)| (lo, m.sigma_deg, hi)));
+            assert!(
+                ci.is_some_and(|(lo, sigma, hi)| lo <= sigma && sigma <= hi),
+                "{} on {}: {label} {m:?}",
+                r.spec.shape.name(),
+                r.spec.paper
+            );
+        }
+    }
+    let members = shapes::members_csv(&campaign);
+    let lines: usize = campaign.rows.iter().map(|r| r.members.len()).sum();
+    assert_eq!(members.lines().count(), 1 + lines);
+    assert!(
+        summary.contains("| blinn-phong strong | J1 | adaptive | 1 |"),
+        "{summary}"
+    );
 }
 
 /// One session is the same whenever it runs: its seed is its paper's, policy's and index's.

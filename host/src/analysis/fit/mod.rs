@@ -59,8 +59,8 @@ use statrs::distribution::{ContinuousCDF, StudentsT};
 
 pub use error::FitError;
 pub use extension::{
-    Extension, ExtensionTerm, MODEL_FORM, ModelChoice, SHAPE_SENSITIVITY, SHAPES_OUTSIDE,
-    ShiftFromPaperModel, Term, TermTest, on_by_default,
+    Extension, ExtensionTerm, MODEL_FORM, MemberSigma, ModelChoice, SHAPE_SENSITIVITY,
+    SHAPES_OUTSIDE, ShiftFromPaperModel, Term, TermTest, on_by_default,
 };
 pub use outliers::OUTLIER_ALPHA_WEIGHTED;
 pub use result::{

@@ -967,6 +967,24 @@ fn member_sd(
     (value.is_finite() && sd.is_finite()).then_some((value, sd))
 }
 
+/// Each member's σ and its own 95 % interval ([`member_interval`], scaled as the
+/// widening scales it), in the order given.
+pub(super) fn member_sigmas<'a>(
+    result: &FitResult,
+    members: impl Iterator<Item = &'a Member>,
+    judging: &Judging,
+) -> Vec<super::MemberSigma> {
+    let (n, weighted) = (judging.n, judging.weighted);
+    members
+        .map(|m| super::MemberSigma {
+            label: m.label(),
+            sigma_deg: main_lobe(&m.fit.values)[SIGMA],
+            sigma_ci95: member_sd(m, SIGMA, n, weighted, result.variance_scale)
+                .map(|_| member_interval(m, SIGMA, n, weighted, result.variance_scale)),
+        })
+        .collect()
+}
+
 /// A member's 95 % interval of σ, ρs, ρd or η (by the result's index), from
 /// [`member_sd`]; its estimate alone where it has no covariance or does not fit that
 /// parameter; an empty interval (+∞, −∞) where the estimate is not finite.

@@ -329,6 +329,23 @@ pub struct Extension {
     /// readings: 0 where no term was added (the evidence weighs it in place of the
     /// `model form` widening, `analysis::evidence::Spot::weighed`).
     pub shift_from_paper_model: ShiftFromPaperModel,
+    /// Every member fitted, with σ and its own 95 % interval, for the studies that check
+    /// each member's coverage (`gonio accuracy --shapes`' members.csv); not in the result's
+    /// files.
+    #[serde(skip)]
+    pub members: Vec<MemberSigma>,
+}
+
+/// A member of the family as fitted to a session's readings: its terms, σ and σ's own 95 %
+/// interval (the one the widening counts where the data do not reject the member).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MemberSigma {
+    /// The member's terms ("TSL", "TSL + lobe shape", a haze's held width in words).
+    pub label: String,
+    /// σ, degrees.
+    pub sigma_deg: f64,
+    /// σ's 95 % interval, degrees; `None` where the member has no covariance for it.
+    pub sigma_ci95: Option<(f64, f64)>,
 }
 
 /// The reported σ (degrees), ρs, ρd less the paper's model's on the same readings; `None`
@@ -664,6 +681,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
     let judging = merge::Judging::new(base, n, weighted);
     members.extend(microfacet_members(&problem, &null, &chosen));
     let profile = haze_width_profile(&problem, &null, &chosen);
+    let member_sigmas = merge::member_sigmas(result, members.iter().chain(&profile), &judging);
     let plausible = widen_for_model_form(result, &members, &profile, &chosen, &judging);
     fresnel_flatter(&mut problem, &null, &chosen, result);
     reread_rho_s_identification(result);
@@ -673,6 +691,7 @@ pub(super) fn extend(base: &Base, result: &mut FitResult) {
         tests,
         plausible,
         shift_from_paper_model,
+        members: member_sigmas,
     });
 }
 
