@@ -985,26 +985,19 @@ fn members_markdown(out: &mut String, campaign: &Campaign) {
     for shape in &campaign.design.shapes {
         for paper in &campaign.design.papers {
             for policy in &campaign.design.policies {
-                let rows: Vec<&Row> = campaign
-                    .rows
-                    .iter()
-                    .filter(|r| {
-                        r.spec.shape == *shape
-                            && r.spec.paper == *paper
-                            && r.spec.policy == *policy
-                            && r.failure.is_none()
-                    })
+                let rows: Vec<&Row> = rows_of(campaign, Some(*shape), Some(*policy))
+                    .filter(|r| r.spec.paper == *paper && r.failure.is_none())
                     .collect();
                 if rows.is_empty() {
                     continue;
                 }
-                let reported = rows.iter().filter(|r| r.covered[0] == Some(true)).count();
+                let t = Tally::of(rows.iter().copied());
                 let mut line = format!(
                     "| {} | {paper} | {} | {} | {} |",
                     shape.name(),
                     policy.name(),
-                    rows.len(),
-                    pct(reported, rows.len())
+                    t.finished(),
+                    pct(t.sigma_covered, t.finished())
                 );
                 for label in MEMBERS_SUMMARIZED {
                     let (mut fitted, mut covered) = (0, 0);
